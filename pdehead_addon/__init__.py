@@ -1,0 +1,26 @@
+"""PDE Head engine: head CT slices to a smooth parametric Bloor-Wilson PDE head.
+
+Blender-free (numpy, scipy, scikit-image, pydicom). The modules read as the
+pipeline of the paper "A PDE-based head visualization method with CT data"
+(Computer Animation and Virtual Worlds, 2015):
+
+1. :mod:`.ct_import`     - CT slices to a :class:`CTVolume` in patient LPS mm
+2. :mod:`.segmentation`  - 3D Chan-Vese soft segmentation (eq. 16-21) and clean-up
+3. :mod:`.boundaries`    - eq. 22 boundary curves, 3t+1 of them as a :class:`BoundarySet`
+4. :mod:`.pde_surface`   - t Bloor-Wilson PDE patches (eq. 1-13)
+5. :mod:`.pde_solid`     - the solid (eq. 23), its w-field and eq. 24 opacity
+6. :mod:`.storage`       - the compact boundary file (section 5.2)
+"""
+from .errors import PDEHeadError, CTImportError, SegmentationError, BoundaryError, PDEError, StorageError
+from .ct_volume import CTVolume
+from .ct_import import load_ct, list_series
+from .phantom import make_phantom
+from .dicom_export import write_dicom_series
+from .segmentation import Segmentation, segment_head
+from .boundary_set import BoundarySet, knots_from_heights
+from .boundaries import extract_boundaries
+from .pde_surface import solve_pde
+from .pde_solid import alpha_from_w
+from .storage import save_boundaries, load_boundaries
+
+__version__ = "0.1.0"

@@ -1,0 +1,106 @@
+"""The PDE boundary conditions: 3t+1 closed curves with their u-knots."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .errors import BoundaryError
+
+
+def knots_from_heights(heights: np.ndarray) -> np.ndarray:
+    """u-knots of 3t+1 curves from their heights along the head axis.
+
+    Patch k spans u in [k/t, (k+1)/t] and uses curves 3k..3k+3, so curve 3k sits
+    exactly at u = k/t; the two interior curves of a patch sit where their
+    heights put them between the patch's end curves (the paper's p1 and p2,
+    eq. 4-5), not at fixed thirds.
+
+    Parameters
+    ----------
+    heights : ndarray, shape (3t+1,)
+        Strictly monotonic heights (mm) of the curves, e.g. their mean patient z.
+
+    Returns
+    -------
+    ndarray, shape (3t+1,)
+        Knots in [0, 1], strictly increasing, with ``knots[3k] == k/t``.
+    """
+    h = np.asarray(heights, dtype=np.float64)
+    n = h.size
+    if n < 4 or (n - 1) % 3:
+        raise BoundaryError(f"need 3t+1 curves (4, 7, 10, ...), got {n}")
+    d = np.diff(h)
+    if not (np.all(d > 0) or np.all(d < 0)):
+        raise BoundaryError("curve heights must be strictly monotonic")
+    t = (n - 1) // 3
+    knots = np.empty(n)
+    for k in range(t):
+        h0, h3 = h[3 * k], h[3 * k + 3]
+        local = (h[3 * k:3 * k + 4] - h0) / (h3 - h0)
+        knots[3 * k:3 * k + 4] = (k + local) / t
+    knots[-1] = 1.0
+    return knots
+
+
+@dataclass
+class BoundarySet:
+    """3t+1 closed boundary curves in patient LPS mm: the PDE's boundary conditions.
+
+    Parameters
+    ----------
+    curves : ndarray, shape (3t+1, M, 3)
+        Closed curves (the last point is *not* a repeat of the first), ordered
+        from inferior to superior, sampled at M points uniformly in arc length,
+        all with the same orientation and with sample 0 (v = 0) at the posterior
+        midline.
+    slice_indices : ndarray of int, shape (3t+1,)
+        The axial slice index in the source volume of each curve (-1 if synthetic).
+    heights : ndarray, shape (3t+1,)
+        Height of each curve along the head axis in mm (patient z).
+    u_knots : ndarray, shape (3t+1,)
+        Parameter u of each curve; see :func:`knots_from_heights`.
+    meta : dict
+        Provenance: source study, selection strategy, spacing, ...
+    """
+
+    curves: np.ndarray
+    slice_indices: np.ndarray
+    heights: np.ndarray
+    u_knots: np.ndarray
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.curves = np.asarray(self.curves, dtype=np.float64)
+        if self.curves.ndim != 3 or self.curves.shape[2] != 3:
+            raise BoundaryError(f"curves must have shape (3t+1, M, 3), got {self.curves.shape}")
+        n = self.curves.shape[0]
+        if n < 4 or (n - 1) % 3:
+            raise BoundaryError(f"need 3t+1 curves (4, 7, 10, ...), got {n}")
+        if self.curves.shape[1] < 8:
+            raise BoundaryError(f"each curve needs at least 8 samples, got {self.curves.shape[1]}")
+        if not np.all(np.isfinite(self.curves)):
+            raise BoundaryError("curves contain NaN or infinite coordinates")
+        self.slice_indices = np.asarray(self.slice_indices, dtype=np.int64).reshape(n)
+        self.heights = np.asarray(self.heights, dtype=np.float64).reshape(n)
+        self.u_knots = np.asarray(self.u_knots, dtype=np.float64).reshape(n)
+        self.meta = dict(self.meta)
+
+    @property
+    def patches(self) -> int:
+        """Number t of PDE patches."""
+        return (self.curves.shape[0] - 1) // 3
+
+    @property
+    def samples(self) -> int:
+        """Number M of samples per curve."""
+        return self.curves.shape[1]
+
+    @classmethod
+    def from_curves(cls, curves: np.ndarray, heights: np.ndarray | None = None,
+                    meta: dict[str, Any] | None = None) -> "BoundarySet":
+        """Build a set from curves alone (synthetic input); heights default to mean z."""
+        curves = np.asarray(curves, dtype=np.float64)
+        h = curves[..., 2].mean(axis=1) if heights is None else np.asarray(heights, float)
+        return cls(curves, np.full(len(curves), -1), h, knots_from_heights(h), meta or {})

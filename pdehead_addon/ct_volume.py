@@ -1,0 +1,91 @@
+"""The CT volume in patient space: the data type every pipeline step shares."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+
+@dataclass
+class CTVolume:
+    """A scalar volume placed in patient LPS space (millimetres).
+
+    Parameters
+    ----------
+    data : ndarray, shape (nz, ny, nx)
+        Intensities, stored as float32 in ``[z, y, x]`` = ``[k, j, i]`` order.
+        For CT the unit is HU where the source is calibrated.
+    spacing : tuple of 3 float
+        Voxel size ``(dz, dy, dx)`` in mm.
+    origin : array-like of 3 float
+        Patient LPS position (x, y, z) in mm of voxel ``(k, j, i) = (0, 0, 0)``.
+    direction : ndarray, shape (3, 3)
+        Columns are the unit LPS directions of the i, j and k axes. The patient
+        position of voxel ``(k, j, i)`` is
+        ``origin + direction @ (i*dx, j*dy, k*dz)``.
+    meta : dict
+        Free-form description of the study (source, modality, series, ...).
+
+    Notes
+    -----
+    The loaders return volumes whose k axis points superior where the source
+    says so, so that ``data[k]`` is an axial slice at height
+    ``origin[2] + k*dz`` when ``direction`` is the identity.
+    """
+
+    data: np.ndarray
+    spacing: tuple[float, float, float]
+    origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    direction: np.ndarray = field(default_factory=lambda: np.eye(3))
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        data = np.asarray(self.data)
+        if data.ndim != 3:
+            raise ValueError(f"CTVolume data must be 3-D [z, y, x], got shape {data.shape}")
+        self.data = data.astype(np.float32, copy=False)
+        spacing = tuple(float(s) for s in self.spacing)
+        if len(spacing) != 3 or not all(np.isfinite(spacing)) or min(spacing) <= 0:
+            raise ValueError(f"CTVolume spacing must be 3 positive numbers (dz, dy, dx), got {self.spacing}")
+        self.spacing = spacing
+        self.origin = np.asarray(self.origin, dtype=np.float64).reshape(3)
+        self.direction = np.asarray(self.direction, dtype=np.float64).reshape(3, 3)
+        self.meta = dict(self.meta)
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        return tuple(self.data.shape)  # type: ignore[return-value]
+
+    @property
+    def affine(self) -> np.ndarray:
+        """4x4 matrix mapping homogeneous ``(i, j, k, 1)`` to patient ``(x, y, z, 1)`` in mm."""
+        dz, dy, dx = self.spacing
+        m = np.eye(4)
+        m[:3, :3] = self.direction * np.array([dx, dy, dz])
+        m[:3, 3] = self.origin
+        return m
+
+    def index_to_patient(self, kji: np.ndarray) -> np.ndarray:
+        """Patient LPS mm of (possibly fractional) voxel indices ``[..., (k, j, i)]``."""
+        kji = np.asarray(kji, dtype=np.float64)
+        ijk = kji[..., ::-1]
+        return ijk @ self.affine[:3, :3].T + self.origin
+
+    def patient_to_index(self, xyz: np.ndarray) -> np.ndarray:
+        """Fractional voxel indices ``[..., (k, j, i)]`` of patient LPS points in mm."""
+        xyz = np.asarray(xyz, dtype=np.float64)
+        ijk = (xyz - self.origin) @ np.linalg.inv(self.affine[:3, :3]).T
+        return ijk[..., ::-1]
+
+    def slice_heights(self) -> np.ndarray:
+        """Patient z (mm) of the centre of each axial slice ``data[k]``."""
+        k = np.arange(self.shape[0], dtype=np.float64)
+        return self.origin[2] + self.direction[2, 2] * self.spacing[0] * k
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Axis-aligned patient-space box (min, max) in mm enclosing all voxel centres."""
+        nz, ny, nx = self.shape
+        corners = np.array([[k, j, i] for k in (0, nz - 1) for j in (0, ny - 1) for i in (0, nx - 1)], float)
+        pts = self.index_to_patient(corners)
+        return pts.min(axis=0), pts.max(axis=0)

@@ -1,0 +1,87 @@
+"""Shared test set-up: paths to the real CTs in ../shared/data and cached pipeline results.
+
+Real data is read in place (never copied). Locally a missing data set skips the test;
+in CI (CI=true) it fails, because the real-data tests must run there.
+"""
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+# Keep Blender away from the real user folder; must happen before any `import bpy`.
+os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="pdehead-blender-user-"))
+
+SHARED_DATA = Path(os.environ.get("PDEHEAD_DATA", ROOT.parent / "shared" / "data"))
+IN_CI = os.environ.get("CI", "").strip().lower() in ("1", "true", "yes")
+
+
+def shared_data(*parts: str) -> Path:
+    """Path inside ../shared/data; skip the test if absent (fail instead in CI)."""
+    path = SHARED_DATA.joinpath(*parts)
+    if not path.exists():
+        message = f"real data not found: {path}"
+        if IN_CI:
+            pytest.fail(message + " (CI must run the real-data tests)")
+        pytest.skip(message)
+    return path
+
+
+# How each real data set is loaded; the single source of truth for tests and scripts.
+CTHEAD_RAW16_OPTIONS = dict(format="raw", shape=(256, 256), dtype=">i2", spacing=(2.0, 1.0, 1.0),
+                            first_slice="superior")
+CTHEAD_TIFF8_OPTIONS = dict(spacing=(2.0, 1.0, 1.0), first_slice="superior")
+
+
+@pytest.fixture(scope="session")
+def cthead_ct():
+    from pdehead_addon import load_ct
+    return load_ct(shared_data("cthead_stanford", "raw16"), **CTHEAD_RAW16_OPTIONS)
+
+
+@pytest.fixture(scope="session")
+def cthead_tiff_ct():
+    from pdehead_addon import load_ct
+    return load_ct(shared_data("cthead_stanford", "tiff8"), **CTHEAD_TIFF8_OPTIONS)
+
+
+@pytest.fixture(scope="session")
+def ge_ct():
+    from pdehead_addon import load_ct
+    return load_ct(shared_data("ct_head_ge_tilt_dicom", "dicom"))
+
+
+@pytest.fixture(scope="session")
+def phantom():
+    from pdehead_addon import make_phantom
+    return make_phantom()
+
+
+@pytest.fixture(scope="session")
+def cthead_seg(cthead_ct):
+    from pdehead_addon import segment_head
+    return segment_head(cthead_ct)
+
+
+@pytest.fixture(scope="session")
+def ge_seg(ge_ct):
+    from pdehead_addon import segment_head
+    return segment_head(ge_ct)
+
+
+@pytest.fixture(scope="session")
+def phantom_seg(phantom):
+    from pdehead_addon import segment_head
+    return segment_head(phantom.ct)
+
+
+@pytest.fixture(scope="session")
+def cthead_bset(cthead_seg):
+    from pdehead_addon import extract_boundaries
+    return extract_boundaries(cthead_seg, patches=10, samples=256)
