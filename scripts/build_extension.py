@@ -1,0 +1,200 @@
+#!/usr/bin/env python3
+"""Build the PDE Head Blender extension: one zip per platform with the engine's wheels inside.
+
+Usage::
+
+    python3 scripts/build_extension.py                       # all four platforms -> dist/
+    python3 scripts/build_extension.py --platform linux-x64  # only one (what the tests use)
+    python3 scripts/build_extension.py --output-dir /tmp/out --platform linux-x64
+
+What it does:
+
+1. downloads, once, the wheels of the engine's dependencies for each platform with
+   ``pip download --only-binary=:all: --platform ... --python-version 3.11 --no-deps``
+   into ``build/wheels/<platform>/`` (gitignored; reused offline on the next build).
+   numpy is *not* shipped: Blender brings its own.
+2. copies the shipped sources (root ``__init__.py``, ``operators/``, ``pdehead_addon/``)
+   into ``build/extension_src/`` with the wheels, and writes a build copy of
+   ``blender_manifest.toml`` there that lists the ``wheels`` and ``platforms``
+   (the tracked manifest is never modified, so the repo stays clean).
+3. runs Blender's own extension builder (``bl_pkg/cli/blender_ext.py build
+   --split-platforms``) from the installed ``bpy`` package.
+
+Prints the path of every zip built, one per line, after "built:".
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+BUILD = ROOT / "build"
+WHEEL_CACHE = BUILD / "wheels"
+
+# Blender platform -> pip --platform tags (pip also accepts older manylinux/macOS versions).
+PLATFORM_TAGS: dict[str, list[str]] = {
+    "linux-x64": ["manylinux_2_28_x86_64", "manylinux_2_17_x86_64", "manylinux2014_x86_64"],
+    "windows-x64": ["win_amd64"],
+    "macos-arm64": ["macosx_14_0_arm64", "macosx_12_0_arm64", "macosx_11_0_arm64"],
+    "macos-x64": ["macosx_14_0_x86_64", "macosx_10_14_x86_64", "macosx_10_9_x86_64"],
+}
+PYTHON_VERSION = "3.11"  # Blender 4.2 - 5.0 embed Python 3.11
+
+# The engine's direct requirements are pinned in requirements.txt; their own dependencies
+# (from `pip show` / the wheels' Requires-Dist) are pinned here to the versions tested with.
+ENGINE_REQUIREMENTS = ("scikit-image", "scipy", "pydicom")
+TRANSITIVE_PINS = {
+    # scikit-image 0.26.0 requires these (numpy excluded: Blender ships it)
+    "imageio": "2.38.1",
+    "lazy-loader": "0.6",
+    "networkx": "3.6.1",
+    "packaging": "26.2",
+    "pillow": "13.0.0",
+    "tifffile": "2026.3.3",
+}
+NOT_SHIPPED = {"numpy"}
+SHIPPED_SOURCES = ("__init__.py", "operators", "pdehead_addon", "LICENSE", "LICENSE.txt", "README.md")
+
+
+def read_pins(requirements: Path = ROOT / "requirements.txt") -> dict[str, str]:
+    """name -> version of every ``name==version`` line of requirements.txt (names lower-case)."""
+    pins = {}
+    for line in requirements.read_text().splitlines():
+        line = line.split("#", 1)[0].strip()
+        m = re.fullmatch(r"([A-Za-z0-9_.\-]+)\s*==\s*([^\s;]+)", line)
+        if m:
+            pins[m.group(1).lower().replace("_", "-")] = m.group(2)
+    return pins
+
+
+def shipped_requirements() -> list[str]:
+    """``name==version`` of every wheel the extension ships (engine pins + their dependencies)."""
+    pins = read_pins()
+    missing = [name for name in ENGINE_REQUIREMENTS if name not in pins]
+    if missing:
+        raise SystemExit(f"requirements.txt: no '==' pin for {', '.join(missing)}")
+    reqs = {name: pins[name] for name in ENGINE_REQUIREMENTS}
+    reqs.update(TRANSITIVE_PINS)
+    return [f"{name}=={version}" for name, version in sorted(reqs.items()) if name not in NOT_SHIPPED]
+
+
+def download_wheels(platform: str, requirements: list[str]) -> list[Path]:
+    """Wheels for ``platform`` in build/wheels/<platform>/, downloading only what is not cached."""
+    folder = WHEEL_CACHE / platform
+    folder.mkdir(parents=True, exist_ok=True)
+    index_path = folder / "index.json"
+    index = json.loads(index_path.read_text()) if index_path.exists() else {}
+    wheels = []
+    for req in requirements:
+        cached = index.get(req)
+        if cached and (folder / cached).exists():
+            wheels.append(folder / cached)
+            continue
+        before = set(folder.glob("*.whl"))
+        cmd = [sys.executable, "-m", "pip", "download", "--quiet", "--disable-pip-version-check",
+               "--only-binary=:all:", "--no-deps", "--python-version", PYTHON_VERSION,
+               "--implementation", "cp", "--dest", str(folder)]
+        for tag in PLATFORM_TAGS[platform]:
+            cmd += ["--platform", tag]
+        cmd.append(req)
+        print(f"[{platform}] pip download {req}", flush=True)
+        result = subprocess.run(cmd, capture_output=True, text=True)
+        if result.returncode:
+            raise SystemExit(f"pip download {req} for {platform} failed:\n{result.stderr.strip()}")
+        name = req.split("==")[0].lower().replace("-", "_")
+        new = sorted(set(folder.glob("*.whl")) - before) or sorted(
+            p for p in folder.glob("*.whl") if p.name.lower().startswith(name + "-"))
+        if not new:
+            raise SystemExit(f"pip download {req} for {platform}: no wheel found in {folder}")
+        index[req] = new[0].name
+        index_path.write_text(json.dumps(index, indent=1, sort_keys=True))
+        wheels.append(new[0])
+    return wheels
+
+
+def manifest_with_wheels(manifest_text: str, wheel_names: list[str], platforms: list[str]) -> str:
+    """The manifest text with top-level ``platforms`` and ``wheels`` keys added (before the first table)."""
+    lines = [line for line in manifest_text.splitlines()
+             if not re.match(r"\s*(wheels|platforms)\s*=", line)]
+    first_table = next((i for i, line in enumerate(lines) if line.lstrip().startswith("[")), len(lines))
+    generated = ["# generated by scripts/build_extension.py",
+                 "platforms = [" + ", ".join(f'"{p}"' for p in platforms) + "]",
+                 "wheels = ["] + [f'  "./wheels/{name}",' for name in wheel_names] + ["]", ""]
+    return "\n".join(lines[:first_table] + generated + lines[first_table:]) + "\n"
+
+
+def blender_ext_script() -> Path:
+    """Blender's extension builder inside the installed bpy package."""
+    import importlib.util
+    spec = importlib.util.find_spec("bpy")
+    if spec is None or not spec.submodule_search_locations:
+        raise SystemExit("bpy is not installed (pip install -r requirements.txt)")
+    bpy_dir = Path(list(spec.submodule_search_locations)[0])
+    candidates = sorted(bpy_dir.glob("*/scripts/addons_core/bl_pkg/cli/blender_ext.py"))
+    if not candidates:
+        raise SystemExit(f"Blender's extension builder not found under {bpy_dir}")
+    return candidates[-1]
+
+
+def stage_sources(stage: Path) -> None:
+    if stage.exists():
+        shutil.rmtree(stage)
+    stage.mkdir(parents=True)
+    ignore = shutil.ignore_patterns("__pycache__", "*.pyc", ".*")
+    for name in SHIPPED_SOURCES:
+        src = ROOT / name
+        if src.is_dir():
+            shutil.copytree(src, stage / name, ignore=ignore)
+        elif src.is_file():
+            shutil.copy2(src, stage / name)
+
+
+def build(platforms: list[str], output_dir: Path) -> list[Path]:
+    requirements = shipped_requirements()
+    stage = BUILD / "extension_src"
+    stage_sources(stage)
+    (stage / "wheels").mkdir()
+    names = set()
+    for platform in platforms:
+        for wheel in download_wheels(platform, requirements):
+            if wheel.name not in names:
+                shutil.copy2(wheel, stage / "wheels" / wheel.name)
+                names.add(wheel.name)
+    manifest = (ROOT / "blender_manifest.toml").read_text()
+    (stage / "blender_manifest.toml").write_text(manifest_with_wheels(manifest, sorted(names), platforms))
+
+    output_dir.mkdir(parents=True, exist_ok=True)
+    before = {p: p.stat().st_mtime for p in output_dir.glob("*.zip")}
+    cmd = [sys.executable, str(blender_ext_script()), "build", "--source-dir", str(stage),
+           "--output-dir", str(output_dir), "--split-platforms"]
+    result = subprocess.run(cmd, capture_output=True, text=True)
+    if result.returncode:
+        raise SystemExit(f"Blender's extension builder failed:\n{result.stdout}\n{result.stderr}")
+    zips = sorted(p for p in output_dir.glob("*.zip") if before.get(p) != p.stat().st_mtime)
+    if len(zips) != len(platforms):
+        raise SystemExit(f"expected {len(platforms)} zip(s), the builder wrote {zips}:\n{result.stdout}")
+    return zips
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--platform", action="append", choices=sorted(PLATFORM_TAGS),
+                        help="build only this platform (repeatable); default: all four")
+    parser.add_argument("--output-dir", type=Path, default=ROOT / "dist",
+                        help="folder for the zips (created if missing); default: dist/")
+    args = parser.parse_args(argv)
+    platforms = args.platform or list(PLATFORM_TAGS)
+    zips = build(platforms, args.output_dir.resolve())
+    print("built:")
+    for z in zips:
+        print(z)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
