@@ -1,9 +1,61 @@
-"""Everything of PDE Head that touches bpy."""
+"""Everything of PDE Head that touches bpy: registration of the whole Blender layer.
+
+``register()`` adds the property groups, preferences, operators (with the File > Import
+menu entry), the sidebar panels, helper B's classes (if its modules define ``register``)
+and one ``load_post`` handler that frees the in-memory caches of studies that are not in
+the newly loaded file. ``unregister()`` removes all of it again, leaving no class,
+property, menu entry, handler or timer behind.
+"""
+from __future__ import annotations
+
+import importlib
+
+import bpy
+
+from . import ops, panel, prefs, props, state
+
+# helper B's modules; registered only if they define register()/unregister()
+_OPTIONAL_MODULES = ("coords", "objects", "volume", "render")
+
+
+def _optional_modules():
+    mods = []
+    for name in _OPTIONAL_MODULES:
+        try:
+            mod = importlib.import_module(f".{name}", __package__)
+        except ImportError:
+            continue
+        if hasattr(mod, "register") and hasattr(mod, "unregister"):
+            mods.append(mod)
+    return mods
+
+
+@bpy.app.handlers.persistent
+def pdehead_load_post(*_args) -> None:
+    """After a file is loaded: forget cached CT/segmentations of studies it does not contain."""
+    present = {state.settings(c).study_id for c in state.studies()}
+    for study_id in state.cached_study_ids():
+        if study_id not in present:
+            state.drop_cache(study_id)
+
+
+_MODULES = (props, prefs, ops, panel)
 
 
 def register() -> None:
-    pass
+    for mod in _MODULES:
+        mod.register()
+    for mod in _optional_modules():
+        mod.register()
+    bpy.app.handlers.load_post.append(pdehead_load_post)
 
 
 def unregister() -> None:
-    pass
+    for handler in list(bpy.app.handlers.load_post):
+        if getattr(handler, "__name__", "") == "pdehead_load_post":
+            bpy.app.handlers.load_post.remove(handler)
+    for mod in reversed(_optional_modules()):
+        mod.unregister()
+    for mod in reversed(_MODULES):
+        mod.unregister()
+    state.drop_cache()

@@ -1,0 +1,196 @@
+"""The 3D View sidebar tab "PDE Head": one panel per pipeline step plus the last run's timings."""
+from __future__ import annotations
+
+import math
+import os
+
+import bpy
+
+from . import state
+
+
+class _PDEHeadPanel:
+    bl_space_type = 'VIEW_3D'
+    bl_region_type = 'UI'
+    bl_category = "PDE Head"
+
+    @staticmethod
+    def study(context):
+        return state.active_study(context)
+
+
+class _StudyPanel(_PDEHeadPanel):
+    """Panels shown only when there is a study."""
+
+    @classmethod
+    def poll(cls, context):
+        return state.active_study(context) is not None
+
+
+class PDEHEAD_PT_study(_PDEHeadPanel, bpy.types.Panel):
+    bl_idname = "PDEHEAD_PT_study"
+    bl_label = "Study"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.prop(context.scene.pdehead, "active_study", text="")
+        row = layout.row(align=True)
+        row.operator("pdehead.import_ct", text="Import CT", icon='IMPORT')
+        row.operator("pdehead.load_phantom", text="Phantom", icon='USER')
+        coll = self.study(context)
+        if coll is None:
+            layout.label(text="No study yet: import a CT or load the phantom", icon='INFO')
+            return
+        s = state.settings(coll)
+        col = layout.column(align=True)
+        nx, ny, nz = s.dimensions
+        col.label(text=f"Dimensions: {nx} x {ny} x {nz}")
+        dz, dy, dx = s.spacing
+        col.label(text=f"Spacing: {dx:g} x {dy:g} x {dz:g} mm")
+        lo, hi = s.value_range
+        col.label(text=f"Range: {lo:.0f} .. {hi:.0f}" + (" HU" if s.modality == "CT" else ""))
+        if s.series:
+            col.label(text=f"Series: {s.series}")
+        source = "phantom" if s.source_kind == "PHANTOM" else (os.path.basename(s.source.rstrip("/\\")) or s.source)
+        col.label(text=f"Source: {source}")
+        if s.warnings:
+            col.label(text=s.warnings[:120], icon='ERROR')
+        in_memory = state.cache_for(s.study_id).ct is not None
+        col.label(text="CT in memory" if in_memory else "CT not in memory (re-read on demand)",
+                  icon='CHECKMARK' if in_memory else 'FILE_REFRESH')
+        layout.separator()
+        op = layout.operator("pdehead.run_pipeline", text="Run Whole Pipeline", icon='PLAY')
+        op.source = 'ACTIVE'
+        if s.last_error:
+            layout.label(text=s.last_error[:120], icon='ERROR')
+        layout.operator("pdehead.remove_study", icon='TRASH')
+
+
+class PDEHEAD_PT_segmentation(_StudyPanel, bpy.types.Panel):
+    bl_idname = "PDEHEAD_PT_segmentation"
+    bl_label = "Segmentation"
+
+    def draw(self, context):
+        layout = self.layout
+        s = state.settings(self.study(context))
+        layout.operator("pdehead.segment", icon='MOD_MASK')
+        if s.seg_iterations:
+            col = layout.column(align=True)
+            col.label(text=f"Head: {100 * s.seg_fraction:.1f} % of voxels")
+            col.label(text=f"c1 {s.seg_c1:.3g}, c2 {s.seg_c2:.3g}, {s.seg_iterations} iterations")
+
+
+class PDEHEAD_PT_boundaries(_StudyPanel, bpy.types.Panel):
+    bl_idname = "PDEHEAD_PT_boundaries"
+    bl_label = "Boundaries"
+
+    def draw(self, context):
+        layout = self.layout
+        coll = self.study(context)
+        s = state.settings(coll)
+        col = layout.column(align=True)
+        col.prop(s, "patches")
+        col.prop(s, "samples")
+        col.prop(s, "selection")
+        op = layout.operator("pdehead.extract_boundaries", icon='CURVE_BEZCIRCLE')
+        op.patches, op.samples, op.selection = s.patches, s.samples, s.selection
+        if state.has_stored_boundaries(coll):
+            kb = len(coll[state.BOUNDARY_KEY]) * 3 / 4 / 1024
+            layout.label(text=f"{3 * s.patches + 1} curves stored in the .blend ({kb:.0f} kB)", icon='FILE_BLEND')
+
+
+class PDEHEAD_PT_surface(_StudyPanel, bpy.types.Panel):
+    bl_idname = "PDEHEAD_PT_surface"
+    bl_label = "Surface"
+
+    def draw(self, context):
+        layout = self.layout
+        s = state.settings(self.study(context))
+        col = layout.column(align=True)
+        col.prop(s, "nu")
+        col.prop(s, "nv")
+        col.prop(s, "caps")
+        col = layout.column(align=True)
+        col.prop(s, "smoothing_auto")
+        sub = col.row()
+        sub.enabled = not s.smoothing_auto
+        sub.prop(s, "smoothing")
+        col.prop(s, "modes")
+        layout.operator("pdehead.reconstruct_surface", icon='MESH_UVSPHERE')
+        if s.surface_object is not None:
+            layout.label(text=f"{len(s.surface_object.data.vertices)} vertices")
+
+
+class PDEHEAD_PT_solid(_StudyPanel, bpy.types.Panel):
+    bl_idname = "PDEHEAD_PT_solid"
+    bl_label = "Solid"
+
+    def draw(self, context):
+        layout = self.layout
+        s = state.settings(self.study(context))
+        layout.prop(s, "nw")
+        col = layout.column(align=True)
+        col.prop(s, "u_range")
+        col.prop(s, "v_range")
+        col.prop(s, "w_range")
+        layout.label(text=f"v in radians (0 .. {2 * math.pi:.3f})")
+        layout.operator("pdehead.build_solid", icon='MESH_CUBE')
+
+
+class PDEHEAD_PT_volume(_StudyPanel, bpy.types.Panel):
+    bl_idname = "PDEHEAD_PT_volume"
+    bl_label = "Volume"
+
+    def draw(self, context):
+        layout = self.layout
+        s = state.settings(self.study(context))
+        row = layout.row()
+        row.prop(s, "use_ct_grid")
+        sub = row.row()
+        sub.enabled = not s.use_ct_grid
+        sub.prop(s, "voxel_size")
+        col = layout.column(align=True)
+        col.prop(s, "low_alpha")
+        col.prop(s, "high_alpha")
+        col.prop(s, "density")
+        col.prop(s, "colour_preset")
+        col.prop(s, "alpha_mode")
+        layout.operator("pdehead.build_volume", icon='VOLUME_DATA')
+        if s.volume_stale:
+            layout.label(text="The PDE changed: rebuild the volume", icon='ERROR')
+
+
+class PDEHEAD_PT_timings(_StudyPanel, bpy.types.Panel):
+    bl_idname = "PDEHEAD_PT_timings"
+    bl_label = "Timings"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    def draw(self, context):
+        layout = self.layout
+        t = state.timings(self.study(context))
+        if not t:
+            layout.label(text="No step run yet")
+            return
+        col = layout.column(align=True)
+        for step, seconds in t.items():
+            row = col.row()
+            row.label(text=step)
+            row.label(text=f"{seconds:.3f} s")
+        col.separator()
+        row = col.row()
+        row.label(text="total")
+        row.label(text=f"{sum(t.values()):.3f} s")
+
+
+CLASSES = (PDEHEAD_PT_study, PDEHEAD_PT_segmentation, PDEHEAD_PT_boundaries, PDEHEAD_PT_surface,
+           PDEHEAD_PT_solid, PDEHEAD_PT_volume, PDEHEAD_PT_timings)
+
+
+def register() -> None:
+    for cls in CLASSES:
+        bpy.utils.register_class(cls)
+
+
+def unregister() -> None:
+    for cls in reversed(CLASSES):
+        bpy.utils.unregister_class(cls)

@@ -1,0 +1,227 @@
+"""The study state: what lives in the .blend and what lives only in memory.
+
+A *study* is one collection (``Collection.pdehead.is_study``). Its settings are the
+collection's :class:`~.props.PDEHeadStudySettings`; its PDE boundary conditions
+(paper section 5.2: the 3t+1 curves, a few hundred kB) are stored IN the .blend as a
+base64 string custom property of the collection, so that a saved and reopened file
+rebuilds the meshes from the live parameters without re-segmenting.
+
+The heavy, re-computable objects (CT volume, segmentation, solved PDE head, w-field)
+are cached in memory per study, keyed by the study's id (a uuid string kept in the
+collection settings; collection names may change). Nothing here holds a reference to a
+``bpy`` datablock (they become invalid after undo or file load).
+"""
+from __future__ import annotations
+
+import base64
+import json
+import time
+import uuid
+from dataclasses import dataclass, field
+from typing import Any
+
+import bpy
+
+from ..pdehead_addon import PDEHeadError, StorageError
+
+BOUNDARY_KEY = "pdehead_boundaries"  # collection custom property: base64 of dumps_boundaries()
+PROP = "pdehead"  # name of the PointerProperty on Collection / Scene
+
+
+@dataclass
+class StudyCache:
+    """In-memory results of one study (all optional; re-computed on demand where possible)."""
+
+    ct: Any = None            # CTVolume
+    seg: Any = None           # Segmentation
+    bset: Any = None          # BoundarySet
+    head: Any = None          # PDEHead
+    head_key: tuple | None = None  # (smoothing, modes) the head was solved with
+    wfield: Any = None        # WField of the last volume
+    extra: dict = field(default_factory=dict)
+
+    def drop_from(self, step: str) -> None:
+        """Forget everything that depends on ``step`` ("ct", "seg", "bset", "head")."""
+        order = ["ct", "seg", "bset", "head"]
+        for name in order[order.index(step):]:
+            setattr(self, name, None)
+        if step in order[:4]:
+            self.head_key = None
+            self.wfield = None
+
+
+_CACHE: dict[str, StudyCache] = {}
+
+
+def cache_for(study_id: str) -> StudyCache:
+    """The (possibly empty) in-memory cache of a study."""
+    return _CACHE.setdefault(study_id, StudyCache())
+
+
+def drop_cache(study_id: str | None = None) -> None:
+    """Free one study's cache, or all of them."""
+    if study_id is None:
+        _CACHE.clear()
+    else:
+        _CACHE.pop(study_id, None)
+
+
+def cached_study_ids() -> list[str]:
+    return list(_CACHE)
+
+
+def new_study_id() -> str:
+    return uuid.uuid4().hex
+
+
+# --- which study ----------------------------------------------------------------------------
+
+def settings(collection: bpy.types.Collection):
+    """The study settings PropertyGroup of a collection."""
+    return getattr(collection, PROP)
+
+
+def is_study(collection) -> bool:
+    return collection is not None and getattr(getattr(collection, PROP, None), "is_study", False)
+
+
+def studies() -> list[bpy.types.Collection]:
+    return [c for c in bpy.data.collections if is_study(c)]
+
+
+def active_study(context=None, name: str = "") -> bpy.types.Collection | None:
+    """The study an operator works on.
+
+    ``name`` (a collection name) wins; then the scene's active study; then the study that
+    holds the active object; then the only study in the file.
+    """
+    context = context or bpy.context
+    if name:
+        coll = bpy.data.collections.get(name)
+        return coll if is_study(coll) else None
+    scene = getattr(context, "scene", None)
+    if scene is not None:
+        coll = getattr(scene, PROP).active_study
+        if is_study(coll):
+            return coll
+        obj = getattr(context, "active_object", None)
+        if obj is not None:
+            for coll in obj.users_collection:
+                if is_study(coll):
+                    return coll
+    all_studies = studies()
+    return all_studies[0] if len(all_studies) == 1 else None
+
+
+def study_objects(collection) -> list[bpy.types.Object]:
+    """All objects of a study (including nested collections)."""
+    return list(collection.all_objects)
+
+
+# --- PDE boundary conditions stored in the .blend ----------------------------------------
+
+def store_boundaries(collection, bset_or_head) -> int:
+    """Store the boundary conditions in the collection (base64 custom property); returns bytes."""
+    from ..pdehead_addon import dumps_boundaries
+    raw = dumps_boundaries(bset_or_head)
+    collection[BOUNDARY_KEY] = base64.b64encode(raw).decode("ascii")
+    return len(raw)
+
+
+def has_stored_boundaries(collection) -> bool:
+    return bool(collection.get(BOUNDARY_KEY))
+
+
+def load_stored_boundaries(collection):
+    """The BoundarySet stored in the collection, or None."""
+    text = collection.get(BOUNDARY_KEY)
+    if not text:
+        return None
+    from ..pdehead_addon import loads_boundaries
+    try:
+        raw = base64.b64decode(text.encode("ascii"), validate=True)
+    except (ValueError, TypeError) as exc:
+        raise StorageError(f"study '{collection.name}': stored boundary data is corrupt ({exc})") from None
+    return loads_boundaries(raw)
+
+
+def boundary_set(collection):
+    """The study's BoundarySet: from memory, else from the .blend, else None."""
+    cache = cache_for(settings(collection).study_id)
+    if cache.bset is None:
+        cache.bset = load_stored_boundaries(collection)
+    return cache.bset
+
+
+def pde_key(collection) -> tuple:
+    s = settings(collection)
+    smoothing = None if s.smoothing_auto else float(s.smoothing)
+    modes = None if s.modes <= 0 else int(s.modes)
+    return smoothing, modes
+
+
+def pde_head(collection):
+    """The solved PDE head for the study's current smoothing/modes (cached, re-solved on change)."""
+    from ..pdehead_addon import solve_pde
+    s = settings(collection)
+    cache = cache_for(s.study_id)
+    key = pde_key(collection)
+    if cache.head is None or cache.head_key != key:
+        bset = boundary_set(collection)
+        if bset is None:
+            raise PDEHeadError(f"study '{collection.name}' has no boundary curves yet: run Extract Boundaries")
+        cache.head = solve_pde(bset, smoothing=key[0], modes=key[1])
+        cache.head_key = key
+        cache.wfield = None
+    return cache.head
+
+
+def require_ct(collection):
+    """The study's CT volume from memory, or a PDEHeadError that says what to do."""
+    s = settings(collection)
+    ct = cache_for(s.study_id).ct
+    if ct is None:
+        ct = reload_ct(collection)
+    return ct
+
+
+def reload_ct(collection):
+    """Load the CT again from the recorded source (phantom or path + options)."""
+    s = settings(collection)
+    cache = cache_for(s.study_id)
+    if s.source_kind == "PHANTOM":
+        from ..pdehead_addon import make_phantom
+        cache.ct = make_phantom().ct
+    elif s.source_kind == "FILES" and s.source:
+        from ..pdehead_addon import load_ct
+        options = json.loads(s.load_options or "{}")
+        cache.ct = load_ct(bpy.path.abspath(s.source), **options)
+    else:
+        raise PDEHeadError(f"study '{collection.name}': the CT is not in memory and has no source to reload")
+    return cache.ct
+
+
+# --- timings ---------------------------------------------------------------------------------
+
+def record_timing(collection, step: str, seconds: float) -> None:
+    """Remember how long a step took (shown in the Timings panel; the last run's values)."""
+    s = settings(collection)
+    timings = json.loads(s.timings_json or "{}")
+    timings[step] = round(float(seconds), 4)
+    s.timings_json = json.dumps(timings)
+
+
+def timings(collection) -> dict[str, float]:
+    return json.loads(settings(collection).timings_json or "{}")
+
+
+class Timer:
+    """``with Timer() as t: ...; t.seconds``."""
+
+    def __enter__(self):
+        self.start = time.perf_counter()
+        return self
+
+    def __exit__(self, *exc):
+        self.seconds = time.perf_counter() - self.start
+        return False

@@ -1,0 +1,174 @@
+"""The extension as a package: built zip contents, offline install, shipped wheels, clean (un)registration."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import tomllib
+import zipfile
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "scripts"))
+import build_extension  # noqa: E402
+
+OPERATORS = ["import_ct", "load_phantom", "segment", "extract_boundaries", "reconstruct_surface",
+             "build_solid", "build_volume", "run_pipeline", "remove_study"]
+PANELS = ["PDEHEAD_PT_study", "PDEHEAD_PT_segmentation", "PDEHEAD_PT_boundaries", "PDEHEAD_PT_surface",
+          "PDEHEAD_PT_solid", "PDEHEAD_PT_volume", "PDEHEAD_PT_timings"]
+
+
+def test_shipped_requirements_exclude_numpy_and_follow_the_pins():
+    reqs = build_extension.shipped_requirements()
+    names = {r.split("==")[0] for r in reqs}
+    pins = build_extension.read_pins()
+    assert "numpy" not in names
+    assert {"scikit-image", "scipy", "pydicom", "imageio", "lazy-loader", "networkx", "packaging", "pillow",
+            "tifffile"} == names
+    for name in ("scikit-image", "scipy", "pydicom"):
+        assert f"{name}=={pins[name]}" in reqs
+
+
+def test_manifest_with_wheels_is_valid_toml_and_keeps_tables():
+    text = (ROOT / "blender_manifest.toml").read_text()
+    out = tomllib.loads(build_extension.manifest_with_wheels(text, ["a-1-py3-none-any.whl"], ["linux-x64"]))
+    assert out["wheels"] == ["./wheels/a-1-py3-none-any.whl"]
+    assert out["platforms"] == ["linux-x64"]
+    assert out["permissions"]["files"]
+    assert out["id"] == "pdehead" and out["schema_version"] == "1.0.0"
+
+
+def test_zip_contents(extension_zip):
+    with zipfile.ZipFile(extension_zip) as z:
+        names = z.namelist()
+        manifest = tomllib.loads(z.read("blender_manifest.toml").decode())
+    assert "__init__.py" in names and "operators/ops.py" in names and "pdehead_addon/pde_surface.py" in names
+    assert not any(n.startswith(("tests/", "scripts/", "docs/")) or "__pycache__" in n for n in names)
+    wheels = sorted(n for n in names if n.startswith("wheels/"))
+    assert not any("numpy" in w for w in wheels)
+    for prefix in ("scikit_image-", "scipy-", "pydicom-", "networkx-", "pillow-", "tifffile-", "imageio-",
+                   "lazy_loader-", "packaging-"):
+        found = [w for w in wheels if w.startswith("wheels/" + prefix)]
+        assert len(found) == 1, (prefix, wheels)
+        assert "win_" not in found[0] and "macosx" not in found[0]
+    assert manifest["platforms"] == ["linux-x64"]
+    assert sorted("wheels/" + Path(w).name for w in manifest["wheels"]) == wheels
+
+
+def test_build_leaves_the_repository_clean(extension_zip):
+    status = subprocess.run(["git", "status", "--porcelain", "--", "blender_manifest.toml", "build", "dist"],
+                            cwd=ROOT, capture_output=True, text=True)
+    assert status.returncode == 0
+    assert status.stdout.strip() == ""
+
+
+def test_installed_and_enabled(pdehead_ext):
+    import bpy
+    assert pdehead_ext.__name__ == "bl_ext.user_default.pdehead"
+    installed = Path(pdehead_ext.__file__).parent
+    assert Path(bpy.utils.user_resource('EXTENSIONS')) in installed.parents
+    assert set(OPERATORS) <= set(dir(bpy.ops.pdehead))
+    for name in PANELS:
+        panel = getattr(bpy.types, name)
+        assert panel.bl_category == "PDE Head" and panel.bl_space_type == 'VIEW_3D'
+    # every operator has a tooltip and REGISTER + UNDO
+    for name in OPERATORS:
+        cls = getattr(bpy.types, "PDEHEAD_OT_" + name)
+        assert cls.bl_description.strip(), name
+        assert {'REGISTER', 'UNDO'} <= set(cls.bl_options), name
+    # the engine imports from inside the extension
+    engine = sys.modules[pdehead_ext.__name__ + ".pdehead_addon"]
+    assert Path(engine.__file__).parent == installed / "pdehead_addon"
+
+
+def test_shipped_wheels_import_from_the_extension_site_packages(pdehead_ext):
+    """skimage, scipy and pydicom import from the wheels Blender unpacked (not from this machine's site)."""
+    import bpy
+    site = Path(bpy.utils.user_resource('EXTENSIONS')) / ".local" / "lib" / "python3.11" / "site-packages"
+    assert (site / "skimage").is_dir() and (site / "pydicom").is_dir() and (site / "scipy").is_dir()
+    assert not (site / "numpy").exists()  # Blender's own numpy is used
+    assert str(site) in sys.path
+    code = (
+        "import sys; sys.path.insert(0, sys.argv[1]);"
+        "import numpy as np, skimage, scipy, pydicom;"
+        "from skimage import measure; from scipy import ndimage;"
+        "assert all(m.__file__.startswith(sys.argv[1]) for m in (skimage, scipy, pydicom)), "
+        "[m.__file__ for m in (skimage, scipy, pydicom)];"
+        "a = np.zeros((32, 32)); a[8:24, 8:24] = 1;"
+        "c = measure.find_contours(ndimage.gaussian_filter(a, 1.0), 0.5);"
+        "print(len(c), skimage.__version__, scipy.__version__, pydicom.__version__)"
+    )
+    out = subprocess.run([sys.executable, "-c", code, str(site)], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    n, skv, spv, pdv = out.stdout.split()
+    pins = build_extension.read_pins()
+    assert (int(n), skv, spv, pdv) == (1, pins["scikit-image"], pins["scipy"], pins["pydicom"])
+
+
+def _our_handlers(prefix: str) -> list[str]:
+    import bpy
+    found = []
+    for name in dir(bpy.app.handlers):
+        handlers = getattr(bpy.app.handlers, name)
+        if isinstance(handlers, list):
+            found += [f"{name}:{h.__name__}" for h in handlers if getattr(h, "__module__", "").startswith(prefix)]
+    return found
+
+
+def test_unregister_leaves_nothing_and_register_again_works(pdehead_ext):
+    import addon_utils
+    import bpy
+    name = pdehead_ext.__name__
+    assert _our_handlers(name) == ["load_post:pdehead_load_post"]
+    menu_funcs = lambda: [f.__module__ for f in getattr(bpy.types.TOPBAR_MT_file_import.draw, "_draw_funcs", [])]
+    assert name + ".operators.ops" in menu_funcs()
+
+    addon_utils.disable(name, default_set=True)
+    try:
+        assert name not in bpy.context.preferences.addons
+        assert dir(bpy.ops.pdehead) == []
+        for cls_name in ["PDEHEAD_OT_" + op for op in OPERATORS] + PANELS + [
+                "PDEHeadStudySettings", "PDEHeadSceneSettings", "PDEHeadPreferences"]:
+            assert not hasattr(bpy.types, cls_name), cls_name
+        assert not hasattr(bpy.types.Collection, "pdehead")
+        assert not hasattr(bpy.types.Scene, "pdehead")
+        assert _our_handlers(name) == []
+        assert name + ".operators.ops" not in menu_funcs()
+        # no bpy.app timer of ours (the modal pipeline uses a window-manager timer owned by the operator)
+        ops_mod = sys.modules[name + ".operators.ops"]
+        assert not any(bpy.app.timers.is_registered(f) for f in vars(ops_mod).values() if callable(f)
+                       and getattr(f, "__module__", "") == ops_mod.__name__)
+    finally:
+        addon_utils.enable(name, default_set=True)
+    assert set(OPERATORS) <= set(dir(bpy.ops.pdehead))
+    assert _our_handlers(name) == ["load_post:pdehead_load_post"]
+    assert hasattr(bpy.types.Collection, "pdehead")
+    # a second cycle, and the add-on still works afterwards
+    addon_utils.disable(name, default_set=True)
+    addon_utils.enable(name, default_set=True)
+    assert bpy.ops.pdehead.load_phantom() == {'FINISHED'}
+    assert len(_our_handlers(name)) == 1
+
+
+def test_dev_shim_registers_from_source(tmp_path):
+    """The CLI's way: the repo loaded as package 'pdehead_dev' without a zip (own Blender process)."""
+    code = f"""
+import importlib.util, sys
+from pathlib import Path
+import bpy
+root = Path({str(ROOT)!r})
+spec = importlib.util.spec_from_file_location("pdehead_dev", root / "__init__.py",
+                                              submodule_search_locations=[str(root)])
+mod = importlib.util.module_from_spec(spec); sys.modules["pdehead_dev"] = mod; spec.loader.exec_module(mod)
+mod.register()
+assert "run_pipeline" in dir(bpy.ops.pdehead)
+mod.unregister()
+assert dir(bpy.ops.pdehead) == []
+mod.register()
+print("ok")
+"""
+    env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path))
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert out.returncode == 0 and out.stdout.strip().endswith("ok"), out.stderr
