@@ -121,11 +121,3 @@ def cthead_blend(pdehead_ext, tmp_path_factory) -> Path:
         bpy.ops.pdehead.build_volume(voxel_size=3.0)
     return _run_and_save(pdehead_ext, tmp_path_factory, "cthead", run)
 
-
-def open_blend(path: Path):
-    """Open a saved study file; returns its (only) study collection."""
-    import bpy
-    bpy.ops.wm.open_mainfile(filepath=str(path))
-    studies = [c for c in bpy.data.collections if c.pdehead.is_study]
-    assert len(studies) == 1, [c.name for c in bpy.data.collections]
-    return studies[0]

@@ -1,0 +1,211 @@
+#!/usr/bin/env python3
+"""PDE Head from the command line: CT slices -> .blend with the PDE head (and renders), headless.
+
+Examples::
+
+    python3 scripts/pdehead.py --phantom --out demo/phantom.blend --render demo/surface.png
+    python3 scripts/pdehead.py ../shared/data/cthead_stanford/raw16 --raw-shape 256 256 --dtype '>i2' \\
+        --spacing 2 1 1 --first-slice superior --patches 10 --out out/cthead.blend \\
+        --render out/cthead_surface.png --render-volume out/cthead_volume.png
+    python3 scripts/pdehead.py ../shared/data/ct_head_ge_tilt_dicom/dicom --out out/ge.blend
+
+It runs the SAME Blender operators as the add-on (``bpy.ops.pdehead.*``) in the ``bpy``
+module: the add-on is registered straight from this repository's source (as the package
+``pdehead_dev``, no zip needed), in a temporary Blender user folder so your own Blender
+preferences are never touched. The .vdb of the volume is written beside the .blend
+(``pdehead_vdb/``, stored as a relative path). Prints per-step timings and a summary.
+Exit status: 0 on success, 1 when a step fails, 2 on bad arguments or input (one-line error).
+"""
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PROG = "pdehead"
+
+
+class CLIError(Exception):
+    """A one-line error for the user; ``code`` is the exit status."""
+
+    def __init__(self, message: str, code: int = 1):
+        super().__init__(message)
+        self.code = code
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog=PROG, description="Build a smooth PDE head in Blender from head CT slices.")
+    p.add_argument("input", nargs="?", help="DICOM folder, image-stack folder, raw-slice folder or file")
+    p.add_argument("--phantom", action="store_true", help="use the built-in synthetic head instead of INPUT")
+    p.add_argument("--patches", type=int, default=10, help="PDE patches t (3t+1 boundary curves); default 10")
+    p.add_argument("--samples", type=int, default=256, help="points per boundary curve; default 256")
+    p.add_argument("--selection", default="uniform", choices=["uniform", "shape-change"],
+                   help="how the 3t+1 slices are chosen")
+    p.add_argument("--nu", type=int, default=40, help="surface/solid resolution along u; default 40")
+    p.add_argument("--nv", type=int, default=60, help="surface/solid resolution around v; default 60")
+    p.add_argument("--nw", type=int, default=5, help="solid levels in w; default 5")
+    p.add_argument("--voxel-size", type=float, default=2.0, help="volume voxel size in mm; default 2")
+    p.add_argument("--no-volume", action="store_true", help="skip the volume (w-field + VDB)")
+    p.add_argument("--out", type=Path, help="write the .blend here (the .vdb goes beside it)")
+    p.add_argument("--render", type=Path, metavar="PNG", help="render the surface (front view) to this PNG")
+    p.add_argument("--render-volume", type=Path, metavar="PNG", help="render the volume (front view) to this PNG")
+    p.add_argument("--view", default="FRONT", choices=["FRONT", "RIGHT", "LEFT", "BACK", "TOP", "THREE_QUARTER"],
+                   help="render view; default FRONT (face, patient left on screen right)")
+    p.add_argument("--resolution", type=int, default=320, help="render size in pixels; default 320")
+    p.add_argument("--render-samples", type=int, default=16, help="Cycles samples; default 16")
+    g = p.add_argument_group("loader options")
+    g.add_argument("--format", default="auto", choices=["auto", "dicom", "images", "raw"])
+    g.add_argument("--raw-shape", type=int, nargs=2, metavar=("NY", "NX"), help="raw slices: rows, columns")
+    g.add_argument("--dtype", help="raw data type, numpy style: '>i2' (big-endian int16), '<u2', 'u1', '<f4'")
+    g.add_argument("--spacing", type=float, nargs=3, metavar=("DZ", "DY", "DX"), help="voxel size in mm")
+    g.add_argument("--first-slice", choices=["superior", "inferior"], help="where the first file lies")
+    g.add_argument("--series-uid", help="DICOM SeriesInstanceUID when the folder holds several series")
+    args = p.parse_args(argv)
+    if args.phantom == bool(args.input):
+        p.error("give either INPUT or --phantom")
+    if args.raw_shape or args.dtype:
+        args.format = "raw"
+    if args.format == "raw" and not (args.raw_shape and args.dtype and args.spacing):
+        p.error("raw input needs --raw-shape NY NX, --dtype and --spacing DZ DY DX")
+    if args.input and not Path(args.input).exists():
+        raise CLIError(f"{args.input}: no such file or folder", 2)
+    if args.render_volume and args.no_volume:
+        p.error("--render-volume needs the volume (drop --no-volume)")
+    return args
+
+
+def register_addon():
+    """Register the add-on from the repository source as package ``pdehead_dev`` (no zip)."""
+    import bpy  # noqa: F401  (bpy first: the add-on imports it)
+    if "pdehead_dev" in sys.modules:
+        return sys.modules["pdehead_dev"]
+    spec = importlib.util.spec_from_file_location("pdehead_dev", ROOT / "__init__.py",
+                                                  submodule_search_locations=[str(ROOT)])
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["pdehead_dev"] = module
+    spec.loader.exec_module(module)
+    module.register()
+    return module
+
+
+def _call(op, **kwargs) -> None:
+    """Run one operator; its ERROR report becomes a CLIError with the report's text."""
+    try:
+        result = op(**kwargs)
+    except RuntimeError as exc:
+        message = str(exc).strip()
+        message = message[len("Error: "):] if message.startswith("Error: ") else message
+        raise CLIError(message.splitlines()[0] if message else "step failed", 1) from None
+    if result != {'FINISHED'}:
+        raise CLIError(f"{op.idname_py()} returned {sorted(result)}", 1)
+
+
+def loader_kwargs(args) -> dict:
+    kwargs: dict = {}
+    if args.input is None:
+        return kwargs
+    path = Path(args.input).resolve()
+    if path.is_dir():
+        kwargs["directory"] = str(path)
+    else:
+        kwargs["filepath"] = str(path)
+        kwargs["single_file"] = True
+    kwargs["format"] = args.format.upper()
+    if args.format == "raw":
+        from pdehead_dev.operators.ops import parse_dtype_string
+        from pdehead_dev.pdehead_addon import PDEHeadError
+        try:
+            dtype, order = parse_dtype_string(args.dtype)
+        except PDEHeadError as exc:
+            raise CLIError(str(exc), 2) from None
+        kwargs.update(raw_shape=tuple(args.raw_shape), raw_dtype=dtype, byte_order=order)
+    if args.spacing:
+        kwargs["spacing"] = tuple(args.spacing)
+        kwargs["use_spacing"] = True
+    if args.first_slice:
+        kwargs["first_slice"] = args.first_slice.upper()
+    if args.series_uid:
+        kwargs["series_uid"] = args.series_uid
+    return kwargs
+
+
+def run(args) -> dict:
+    import bpy
+    addon = register_addon()
+    state = addon.operators.state
+    bpy.ops.wm.read_homefile(use_empty=True)
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        bpy.ops.wm.save_as_mainfile(filepath=str(args.out.resolve()))  # first, so the VDB goes beside it
+
+    ops = bpy.ops.pdehead
+    t0 = time.perf_counter()
+    if args.phantom:
+        _call(ops.load_phantom)
+    else:
+        _call(ops.import_ct, **loader_kwargs(args))
+    coll = bpy.context.scene.pdehead.active_study
+    s = coll.pdehead
+    _call(ops.segment)
+    _call(ops.extract_boundaries, patches=args.patches, samples=args.samples, selection=args.selection)
+    _call(ops.reconstruct_surface, nu=args.nu, nv=args.nv)
+    _call(ops.build_solid, nu=args.nu, nv=args.nv, nw=args.nw)
+    if not args.no_volume:
+        _call(ops.build_volume, voxel_size=args.voxel_size)
+    total = time.perf_counter() - t0
+
+    timings = state.timings(coll)
+    print(f"{PROG}: study '{coll.name}'")
+    nx, ny, nz = s.dimensions
+    dz, dy, dx = s.spacing
+    print(f"  CT        {nx} x {ny} x {nz} voxels, spacing {dx:g} x {dy:g} x {dz:g} mm, "
+          f"range {s.value_range[0]:.0f}..{s.value_range[1]:.0f}")
+    print(f"  segment   head {100 * s.seg_fraction:.1f} % of voxels, {s.seg_iterations} iterations")
+    kb = len(coll[state.BOUNDARY_KEY]) * 3 / 4 / 1024
+    print(f"  curves    {3 * s.patches + 1} x {s.samples} points (t = {s.patches}), {kb:.0f} kB in the .blend")
+    print(f"  surface   {len(s.surface_object.data.vertices)} vertices, {len(s.surface_object.data.polygons)} faces")
+    print(f"  solid     {len(s.solid_object.data.vertices)} vertices")
+    if s.volume_object is not None:
+        print(f"  volume    {bpy.path.abspath(s.volume_object.data.filepath)}")
+    print("timings (s):")
+    for step, seconds in timings.items():
+        print(f"  {step:<11}{seconds:8.3f}")
+    print(f"  {'total':<11}{total:8.3f}")
+
+    if args.out:
+        bpy.ops.wm.save_mainfile()
+        print(f"wrote {args.out}")
+    render = addon.operators.render
+    size = (args.resolution, args.resolution)
+    if args.render:
+        t = time.perf_counter()
+        render.render_objects_png([s.surface_object], args.render, view=args.view, resolution=size,
+                                  samples=args.render_samples)
+        print(f"wrote {args.render} ({time.perf_counter() - t:.1f} s)")
+    if args.render_volume:
+        t = time.perf_counter()
+        render.render_objects_png([s.volume_object], args.render_volume, view=args.view, resolution=size,
+                                  samples=args.render_samples)
+        print(f"wrote {args.render_volume} ({time.perf_counter() - t:.1f} s)")
+    return timings
+
+
+def main(argv=None) -> int:
+    try:
+        args = parse_args(argv)
+        # Keep Blender away from the real user folder (must precede `import bpy`).
+        os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="pdehead-cli-"))
+        run(args)
+    except CLIError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return exc.code
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

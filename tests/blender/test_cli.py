@@ -1,0 +1,74 @@
+"""The headless CLI scripts/pdehead.py (its own Blender process, add-on registered from source)."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+CLI = ROOT / "scripts" / "pdehead.py"
+
+
+def run_cli(*args, tmp_path):
+    env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "blender-user"))
+    return subprocess.run([sys.executable, str(CLI), *map(str, args)], capture_output=True, text=True,
+                          env=env, cwd=tmp_path)
+
+
+def png_stats(path: Path) -> dict:
+    from PIL import Image
+    img = np.asarray(Image.open(path).convert("RGB"), np.float32) / 255.0
+    border = np.concatenate([img[0], img[-1], img[:, 0], img[:, -1]])
+    fg = np.abs(img - np.median(border, axis=0)).max(axis=2) > 0.06
+    rows, cols = np.nonzero(fg)
+    return dict(shape=img.shape, std=float(img.std()), fg=float(fg.mean()),
+                cx=float(cols.mean() / img.shape[1]) if cols.size else None)
+
+
+def test_cli_phantom_writes_blend_vdb_and_renders(tmp_path):
+    out = tmp_path / "out"
+    result = run_cli("--phantom", "--patches", 6, "--nu", 32, "--nv", 48, "--nw", 4, "--voxel-size", 4,
+                     "--out", out / "phantom.blend", "--render", out / "surface.png",
+                     "--render-volume", out / "volume.png", "--resolution", 120, "--render-samples", 8,
+                     tmp_path=tmp_path)
+    assert result.returncode == 0, result.stderr[-3000:]
+    stdout = result.stdout
+    for step in ("import", "segment", "boundaries", "surface", "solid", "w_field", "volume", "total"):
+        assert f"\n  {step}" in stdout, stdout
+    assert "19 x 256 points (t = 6)" in stdout
+    assert (out / "phantom.blend").is_file()
+    vdbs = list((out / "pdehead_vdb").glob("*.vdb"))
+    assert [v.name for v in vdbs] == ["Phantom.vdb"] and vdbs[0].stat().st_size > 10_000
+    for png in ("surface.png", "volume.png"):
+        stats = png_stats(out / png)
+        assert stats["shape"] == (120, 120, 3)
+        assert 0.1 < stats["fg"] < 0.95, (png, stats)  # a head, not a blank or a filled frame
+        assert stats["std"] > 0.03 and abs(stats["cx"] - 0.5) < 0.1, (png, stats)  # centred, symmetric head
+
+    # the .blend written by the CLI reopens with the study, its objects and the relative VDB path
+    check = ("import bpy, sys; bpy.ops.wm.open_mainfile(filepath=sys.argv[1]);"
+             "c = [c for c in bpy.data.collections if c.get('pdehead_boundaries')][0];"
+             "v = [o for o in c.all_objects if o.type == 'VOLUME'][0];"
+             "print(c.name, len(c.all_objects), v.data.filepath)")
+    reopened = subprocess.run([sys.executable, "-c", check, str(out / "phantom.blend")], capture_output=True,
+                              text=True, env=dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "u2")))
+    assert reopened.returncode == 0, reopened.stderr[-2000:]
+    assert reopened.stdout.split()[-3:] == ["Phantom", "4", "//pdehead_vdb/Phantom.vdb"]
+
+
+def test_cli_bad_input_is_one_clear_line(tmp_path):
+    result = run_cli(tmp_path / "missing-folder", "--out", tmp_path / "x.blend", tmp_path=tmp_path)
+    assert result.returncode == 2
+    assert result.stderr.strip() == f"pdehead: error: {tmp_path / 'missing-folder'}: no such file or folder"
+    assert not (tmp_path / "x.blend").exists()
+
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    result = run_cli(empty, tmp_path=tmp_path)
+    assert result.returncode == 1
+    lines = result.stderr.strip().splitlines()
+    assert lines[-1].startswith("pdehead: error: ") and str(empty) in lines[-1], result.stderr
+    assert "Traceback" not in result.stderr

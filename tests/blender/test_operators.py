@@ -1,0 +1,283 @@
+"""The pdehead.* operators in real Blender, with the extension installed from the built zip.
+
+The expensive pipeline runs happen once per session (conftest: ``phantom_blend`` = run_pipeline on the
+phantom, ``cthead_blend`` = every operator step by step on CThead raw16); the tests reopen those
+files, which also checks that the studies survive save/reopen.
+"""
+from __future__ import annotations
+
+import base64
+import math
+import re
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+
+
+def open_blend(path: Path):
+    """Open a saved study file; returns its (only) study collection."""
+    import bpy
+    bpy.ops.wm.open_mainfile(filepath=str(path))
+    studies = [c for c in bpy.data.collections if c.pdehead.is_study]
+    assert len(studies) == 1, [c.name for c in bpy.data.collections]
+    return studies[0]
+
+
+@pytest.fixture()
+def ext(pdehead_ext):
+    """Handles on the installed extension's modules."""
+    name = pdehead_ext.__name__
+    return SimpleNamespace(engine=sys.modules[name + ".pdehead_addon"], ops=sys.modules[name + ".operators.ops"],
+                           state=sys.modules[name + ".operators.state"],
+                           objects=sys.modules[name + ".operators.objects"],
+                           volume=sys.modules[name + ".operators.volume"])
+
+
+def stored_head(ext, coll, **pde):
+    """The PDE head solved independently from the boundary bytes stored in the .blend."""
+    raw = base64.b64decode(coll[ext.state.BOUNDARY_KEY])
+    return ext.engine.solve_pde(ext.engine.loads_boundaries(raw), **pde)
+
+
+def world_mm(ext, obj) -> np.ndarray:
+    return ext.objects.mesh_world_vertices(obj) * 1000.0
+
+
+def check_study(ext, coll, t: int, nu: int, nv: int, nw: int, volume: bool = True):
+    """The study's objects agree with the engine's own meshes of the stored boundary curves."""
+    import bpy
+    s = coll.pdehead
+    assert s.curves_object and s.surface_object and s.solid_object
+    assert {o.name for o in coll.all_objects} == {o.name for o in (s.curves_object, s.surface_object,
+                                                                     s.solid_object, s.volume_object) if o}
+    assert len(s.curves_object.data.splines) == 3 * t + 1
+    head = stored_head(ext, coll)
+    assert head.bset.patches == t
+    surface = head.surface(nu, nv, caps=True)
+    assert len(s.surface_object.data.vertices) == len(surface.vertices)
+    assert len(s.surface_object.data.polygons) == surface.face_count
+    np.testing.assert_allclose(world_mm(ext, s.surface_object), surface.vertices, atol=0.05)
+    solid = head.solid(nu, nv, nw)
+    assert len(s.solid_object.data.vertices) == len(solid.vertices)
+    if volume:
+        vol = s.volume_object
+        assert vol is not None and vol.type == 'VOLUME'
+        assert vol.data.filepath.startswith("//pdehead_vdb/")
+        assert Path(bpy.path.abspath(vol.data.filepath)).is_file()
+        assert {"w", "intensity"} <= {g.name for g in vol.data.grids}
+    timings = ext.state.timings(coll)
+    assert {"segment", "boundaries", "surface", "solid"} <= set(timings)
+    assert all(v >= 0 for v in timings.values())
+    return head
+
+
+def test_phantom_pipeline(ext, phantom_blend):
+    coll = open_blend(phantom_blend)
+    assert coll.name == "Phantom"
+    s = coll.pdehead
+    assert (s.patches, s.nu, s.nv, s.nw) == (6, 32, 48, 4)
+    head = check_study(ext, coll, t=6, nu=32, nv=48, nw=4)
+    # the surface spans the phantom head: vertex at z = +98 mm, nose tip near y = -106 mm (LPS)
+    v = world_mm(ext, s.surface_object)
+    assert abs(v[:, 2].max() - head.bset.curves[..., 2].max()) < 1.0
+    assert -115 < v[:, 1].min() < -95
+    assert abs(v[np.argmin(v[:, 1]), 0]) < 10  # the nose is on the midline
+    assert {"import", "segment", "boundaries", "pde_solve", "surface", "solid", "w_field", "volume"} \
+        <= set(ext.state.timings(coll))
+
+
+def test_cthead_operators(ext, cthead_blend):
+    coll = open_blend(cthead_blend)
+    s = coll.pdehead
+    assert tuple(s.dimensions) == (256, 256, 113)
+    assert tuple(round(x, 3) for x in s.spacing) == (2.0, 1.0, 1.0)
+    assert s.source.endswith("raw16") and s.source_kind == "FILES"
+    assert 0.05 < s.seg_fraction < 0.6
+    check_study(ext, coll, t=10, nu=40, nv=60, nw=5)
+    v = world_mm(ext, s.surface_object)
+    ct_lo = np.array([-1.0, -1.0, -1.0]) + v.min(axis=0)  # sanity: finite, head-sized
+    assert np.all(np.isfinite(v)) and np.all(np.ptp(v, axis=0) > 100) and np.all(np.ptp(v, axis=0) < 300)
+    # face toward -y: the most anterior point (nose) lies near the left-right middle of the head
+    mid_x = 0.5 * (v[:, 0].min() + v[:, 0].max())
+    assert abs(v[np.argmin(v[:, 1]), 0] - mid_x) < 20, ct_lo
+
+
+def test_live_parameters_after_reopen_without_resegmenting(ext, phantom_blend, monkeypatch):
+    """Save -> reopen -> change each live parameter as a user would: the objects follow at once."""
+    coll = open_blend(phantom_blend)
+    ext.state.drop_cache()  # as in a new Blender session: nothing in memory but the .blend
+
+    def no_segmentation(*args, **kwargs):
+        raise AssertionError("live parameters must not re-segment")
+    monkeypatch.setattr(ext.engine, "segment_head", no_segmentation)
+    monkeypatch.setattr(ext.engine, "make_phantom", no_segmentation)
+    s = coll.pdehead
+    surf, solid = s.surface_object, s.solid_object
+
+    s.nu = 20
+    head = stored_head(ext, coll)
+    assert s.last_error == ""
+    assert len(surf.data.vertices) == len(head.surface(20, 48, caps=True).vertices)
+    assert len(solid.data.vertices) == len(head.solid(20, 48, 4).vertices)
+    s.nv = 36
+    assert len(surf.data.vertices) == len(head.surface(20, 36, caps=True).vertices)
+    np.testing.assert_allclose(world_mm(ext, surf), head.surface(20, 36, caps=True).vertices, atol=0.05)
+    s.caps = False
+    assert len(surf.data.vertices) == len(head.surface(20, 36, caps=False).vertices)
+    s.caps = True
+
+    before = world_mm(ext, surf)
+    s.smoothing_auto = False
+    s.smoothing = 0.2 if abs(head.smoothing - 0.2) > 0.05 else 3.0
+    assert s.last_error == ""
+    expected = stored_head(ext, coll, smoothing=s.smoothing).surface(20, 36, caps=True).vertices
+    np.testing.assert_allclose(world_mm(ext, surf), expected, atol=0.05)
+    assert np.abs(world_mm(ext, surf) - before).max() > 0.01  # the smoothing parameter did something
+    assert s.volume_stale  # the w-field follows the PDE: the sidebar asks for a rebuild
+
+    s.smoothing_auto = True
+    s.modes = 3
+    assert s.last_error == ""
+    expected = stored_head(ext, coll, modes=3).surface(20, 36, caps=True).vertices
+    np.testing.assert_allclose(world_mm(ext, surf), expected, atol=0.05)
+    s.modes = 0
+
+    s.nw = 7
+    assert len(solid.data.vertices) == len(head.solid(20, 36, 7).vertices)
+    s.w_range = (0.8, 1.0)
+    s.v_range = (math.pi / 2, 2 * math.pi)
+    cut = head.solid(20, 36, 7, (0.0, 1.0), (math.pi / 2, 2 * math.pi), (0.8, 1.0))
+    np.testing.assert_allclose(world_mm(ext, solid), cut.vertices, atol=0.05)
+    w = ext.objects.mesh_attribute(solid, "w")
+    assert w.min() >= 0.8 - 1e-6 and w.max() <= 1.0 + 1e-6
+
+    vol = s.volume_object
+    s.low_alpha, s.high_alpha, s.density = 0.25, 0.75, 12.5
+    s.colour_preset, s.alpha_mode = "skin", "INTENSITY"
+    got = ext.volume.get_volume_settings(vol)
+    assert got["low_alpha"] == pytest.approx(0.25) and got["high_alpha"] == pytest.approx(0.75)
+    assert got["density"] == pytest.approx(12.5)
+    assert (got["colour_preset"], got["alpha_mode"]) == ("skin", "INTENSITY")
+    assert s.last_error == ""
+
+
+def test_nonexistent_input_is_reported_and_creates_nothing(ext):
+    import bpy
+    n_obj, n_coll = len(bpy.data.objects), len(bpy.data.collections)
+    with pytest.raises(RuntimeError, match=r"/no/such/ct: no such file or folder"):
+        bpy.ops.pdehead.import_ct(directory="/no/such/ct")
+    with pytest.raises(RuntimeError, match=r"/no/such/ct: no such file or folder"):
+        bpy.ops.pdehead.run_pipeline(directory="/no/such/ct")
+    with pytest.raises(RuntimeError, match=r"No PDE Head study"):
+        bpy.ops.pdehead.segment()
+    assert (len(bpy.data.objects), len(bpy.data.collections)) == (n_obj, n_coll)
+    assert ext.state.studies() == []
+
+
+def test_engine_error_mid_pipeline_leaves_nothing(ext, tmp_path, monkeypatch):
+    """A bad raw file: the loader's error reaches the user; a later step's error rolls everything back."""
+    import bpy
+    bad = tmp_path / "slices"
+    bad.mkdir()
+    (bad / "CThead.1").write_bytes(b"\x00" * 100)  # not 256 x 256 x 2 bytes
+    with pytest.raises(RuntimeError, match=re.escape(str(bad))):
+        bpy.ops.pdehead.import_ct(directory=str(bad), format='RAW', raw_shape=(256, 256), spacing=(2, 1, 1))
+    assert len(bpy.data.collections) == 0 and len(bpy.data.objects) == 0
+
+    def failing(*args, **kwargs):
+        raise ext.engine.BoundaryError("no usable slice: the head mask is empty")
+    monkeypatch.setattr(ext.engine, "extract_boundaries", failing)
+    monkeypatch.setattr(ext.engine, "segment_head", lambda ct, **kw: ext.engine.Segmentation(
+        np.zeros(ct.shape, bool), np.zeros(ct.shape, np.float32), 0.0, 0.0, 0, ct))
+    with pytest.raises(RuntimeError, match="no usable slice"):
+        bpy.ops.pdehead.run_pipeline(source='PHANTOM')
+    assert len(bpy.data.collections) == 0 and len(bpy.data.objects) == 0 and len(bpy.data.meshes) == 0
+    assert ext.state.cached_study_ids() == []
+
+
+def test_modal_pipeline_esc_removes_everything(ext, phantom, monkeypatch):
+    """The UI path: one step per timer tick, progress, then Esc -> nothing of this run is left."""
+    import bpy
+    monkeypatch.setattr(ext.engine, "segment_head", lambda ct, **kw: ext.engine.Segmentation(
+        phantom.head_mask, phantom.head_mask.astype(np.float32), 1.0, 0.0, 1, ct))
+    progress = []
+    wm = SimpleNamespace(progress_update=progress.append, progress_end=lambda: progress.append("end"),
+                         event_timer_remove=lambda timer: progress.append("timer removed"))
+    context = SimpleNamespace(window_manager=wm, workspace=None, scene=bpy.context.scene,
+                              active_object=None, preferences=bpy.context.preferences)
+    reports = []
+    op_cls = ext.ops.PDEHEAD_OT_run_pipeline
+    op = SimpleNamespace(_run=ext.ops.PipelineRun(bpy.context, "PHANTOM", settings=dict(patches=4, nu=16, nv=24)),
+                         _timer=object(), report=lambda kind, msg: reports.append((kind, msg)))
+    op._end_ui = lambda ctx: op_cls._end_ui(op, ctx)
+    op.cancel = lambda ctx: op_cls.cancel(op, ctx)
+    timer, esc, mouse = (SimpleNamespace(type=t) for t in ("TIMER", "ESC", "MOUSEMOVE"))
+
+    assert op_cls.modal(op, context, mouse) == {'PASS_THROUGH'}
+    for expected_step in ("import", "segment", "boundaries", "surface"):
+        assert op._run.steps[op._run.index] == expected_step
+        assert op_cls.modal(op, context, timer) == {'RUNNING_MODAL'}
+    assert progress == [1, 2, 3, 4]
+    coll = op._run.collection
+    assert coll is not None and coll.pdehead.surface_object is not None and coll.pdehead.curves_object
+    assert len(bpy.data.objects) == 2 and len(bpy.data.meshes) == 1
+
+    assert op_cls.modal(op, context, esc) == {'CANCELLED'}
+    assert len(bpy.data.objects) == 0 and len(bpy.data.collections) == 0 and len(bpy.data.meshes) == 0
+    assert len(bpy.data.curves) == 0
+    assert ext.state.cached_study_ids() == []
+    assert progress[-2:] == ["timer removed", "end"]
+    assert reports and reports[-1][0] == {'WARNING'} and "cancelled" in reports[-1][1]
+
+
+def test_two_studies_get_their_own_collections(ext):
+    import bpy
+    assert bpy.ops.pdehead.load_phantom() == {'FINISHED'}
+    assert bpy.ops.pdehead.load_phantom() == {'FINISHED'}
+    names = sorted(c.name for c in ext.state.studies())
+    assert names == ["Phantom", "Phantom.001"]
+    assert bpy.context.scene.pdehead.active_study.name == "Phantom.001"
+    ids = {c.pdehead.study_id for c in ext.state.studies()}
+    assert len(ids) == 2 and all(ext.state.cache_for(i).ct is not None for i in ids)
+    assert bpy.ops.pdehead.remove_study(study="Phantom") == {'FINISHED'}
+    assert [c.name for c in ext.state.studies()] == ["Phantom.001"]
+
+
+class _Layout:
+    """Records what a panel draws (headless Blender has no UI to draw into)."""
+
+    def __init__(self, log):
+        self.log, self.enabled = log, True
+
+    def __getattr__(self, name):
+        if name in ("row", "column", "box", "split"):
+            return lambda *a, **k: _Layout(self.log)
+        if name == "operator":
+            return lambda idname, **k: (self.log.append(("operator", idname)), SimpleNamespace())[1]
+        return lambda *a, **k: self.log.append((name, a[1] if name == "prop" and len(a) > 1 else k.get("text")))
+
+
+def test_panels_draw_every_setting(ext, phantom_blend):
+    import bpy
+    coll = open_blend(phantom_blend)
+    bpy.context.scene.pdehead.active_study = coll
+    panel_mod = sys.modules[ext.ops.__name__.rpartition(".")[0] + ".panel"]
+    log = []
+    for cls in panel_mod.CLASSES:
+        assert cls.bl_category == "PDE Head" and cls.bl_region_type == 'UI'
+        if "poll" in vars(cls) or any("poll" in vars(b) for b in cls.__mro__[1:] if b.__module__ == cls.__module__):
+            assert cls.poll(bpy.context)
+        cls.draw(SimpleNamespace(layout=_Layout(log), study=cls.study), bpy.context)
+    drawn_ops = {x[1] for x in log if x[0] == "operator"}
+    assert {"pdehead.import_ct", "pdehead.load_phantom", "pdehead.run_pipeline", "pdehead.segment",
+            "pdehead.extract_boundaries", "pdehead.reconstruct_surface", "pdehead.build_solid",
+            "pdehead.build_volume"} <= drawn_ops
+    drawn_props = {x[1] for x in log if x[0] == "prop"}
+    assert {"nu", "nv", "caps", "smoothing_auto", "smoothing", "modes", "nw", "u_range", "v_range", "w_range",
+            "low_alpha", "high_alpha", "density", "colour_preset", "alpha_mode", "patches"} <= drawn_props
+    labels = " ".join(str(x[1]) for x in log if x[0] == "label")
+    assert "Dimensions: 128 x 128 x 100" in labels and "segment" in labels and "total" in labels
