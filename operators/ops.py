@@ -403,6 +403,12 @@ def live_update(coll, what: str, context=None) -> None:
     """
     s = state.settings(coll)
     try:
+        if what == "pde_auto":
+            what = "pde"
+            if not s.smoothing_auto and state.boundary_set(coll) is not None:
+                # start the manual value from the automatic one (mean over the patches)
+                with props.suspended_updates():
+                    s.smoothing = state.auto_smoothing(coll)
         if what == "volume":
             if s.volume_object is not None:
                 from . import volume
@@ -559,7 +565,7 @@ class PDEHEAD_OT_reconstruct_surface(Operator, StudyOperator):
     nv: IntProperty(name="nv", default=60, min=4, max=2000)
     caps: BoolProperty(name="Caps", default=True)
     smoothing_auto: BoolProperty(name="Auto Smoothing", default=True)
-    smoothing: FloatProperty(name="Smoothing (a)", default=1.0, min=0.01, max=100.0)
+    smoothing: FloatProperty(name="Smoothing (a)", default=0.03, min=0.0, max=10.0, soft_max=0.5, precision=4)
     modes: IntProperty(name="Fourier Modes", default=0, min=0, max=512, description="0 = all")
 
     def invoke(self, context, event):

@@ -99,10 +99,13 @@ class PDEHeadStudySettings(bpy.types.PropertyGroup):
                     description="Resolution around the head (v); rebuilds the meshes at once")
     caps: BoolProperty(name="Caps", default=True, update=_live("surface"),
                        description="Close the top and bottom of the surface")
-    smoothing_auto: BoolProperty(name="Auto Smoothing", default=True, update=_live("pde"),
-                                 description="Let the solver choose the smoothing parameter a (eq. 1)")
-    smoothing: FloatProperty(name="Smoothing (a)", default=1.0, min=0.01, max=100.0, update=_live("pde"),
-                             description="Smoothing parameter a of eq. 1 (used when Auto is off)")
+    smoothing_auto: BoolProperty(name="Auto Smoothing", default=True, update=_live("pde_auto"),
+                                 description="Let the solver choose the smoothing parameter a of eq. 1 per "
+                                             "patch (the largest stable value); off: one a for all patches")
+    smoothing: FloatProperty(name="Smoothing (a)", default=0.03, min=0.0, max=10.0, soft_max=0.5,
+                             precision=4, step=0.1, update=_live("pde"),
+                             description="Smoothing parameter a of eq. 1 for every patch (used when Auto is "
+                                         "off; starts at the automatic value; too large a value is refused)")
     modes: IntProperty(name="Fourier Modes", default=0, min=0, max=512, update=_live("pde"),
                        description="Fourier modes kept in v (0 = all the curves resolve)")
 

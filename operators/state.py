@@ -176,6 +176,20 @@ def pde_head(collection):
     return cache.head
 
 
+def auto_smoothing(collection) -> float:
+    """Mean over the patches of the solver's automatic smoothing parameter a (eq. 1)."""
+    import numpy as np
+    from ..pdehead_addon import solve_pde
+    s = settings(collection)
+    cache = cache_for(s.study_id)
+    modes = None if s.modes <= 0 else int(s.modes)
+    if cache.head is not None and cache.head_key == (None, modes):
+        head = cache.head
+    else:
+        head = solve_pde(boundary_set(collection), smoothing=None, modes=modes)
+    return float(np.mean(head.smoothing))
+
+
 def require_ct(collection):
     """The study's CT volume from memory, or a PDEHeadError that says what to do."""
     s = settings(collection)

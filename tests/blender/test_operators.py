@@ -131,15 +131,24 @@ def test_live_parameters_after_reopen_without_resegmenting(ext, phantom_blend, m
     s.caps = True
 
     before = world_mm(ext, surf)
-    s.smoothing_auto = False
-    s.smoothing = 0.2 if abs(head.smoothing - 0.2) > 0.05 else 3.0
+    s.smoothing_auto = False  # the manual value starts at the automatic one
+    assert s.smoothing == pytest.approx(float(np.mean(head.smoothing)), rel=1e-5)
+    from importlib import import_module
+    maximum = import_module(ext.engine.__name__ + ".pde_surface").smoothing_bounds(head.bset)[1]
+    s.smoothing = 0.95 * float(maximum.min())
     assert s.last_error == ""
     expected = stored_head(ext, coll, smoothing=s.smoothing).surface(20, 36, caps=True).vertices
     np.testing.assert_allclose(world_mm(ext, surf), expected, atol=0.05)
     assert np.abs(world_mm(ext, surf) - before).max() > 0.01  # the smoothing parameter did something
     assert s.volume_stale  # the w-field follows the PDE: the sidebar asks for a rebuild
 
+    shown = world_mm(ext, surf)
+    s.smoothing = 5.0  # beyond the stable maximum: refused, reported in the sidebar, the mesh stays
+    assert "too large" in s.last_error
+    np.testing.assert_allclose(world_mm(ext, surf), shown, atol=1e-6)
+
     s.smoothing_auto = True
+    assert s.last_error == ""
     s.modes = 3
     assert s.last_error == ""
     expected = stored_head(ext, coll, modes=3).surface(20, 36, caps=True).vertices
