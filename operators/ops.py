@@ -222,14 +222,27 @@ def _unique_collection_name(base: str) -> str:
     return name
 
 
+_GENERIC_FOLDER_NAMES = {"dicom", "dcm", "raw", "raw16", "raw8", "tiff", "tiff8", "tif", "png", "images",
+                         "slices", "data", "ct", "series", "input"}
+
+
 def _study_name(ct, path: Path | None) -> str:
+    """A readable study name: the series description, else the study description (+ series number),
+    else the folder name (with its parent's when it is generic, like 'dicom' or 'raw16')."""
     meta = ct.meta or {}
-    for key in ("series_description", "SeriesDescription", "series", "patient_name", "name"):
+    for key in ("series_description", "patient_name", "name"):
         value = meta.get(key)
         if isinstance(value, str) and value.strip():
             return value.strip()
+    study = str(meta.get("study_description") or "").strip()
+    if study:
+        number = meta.get("series_number")
+        return f"{study} {number}" if number not in (None, "") else study
     if path is not None:
-        return path.stem if path.is_file() else path.name
+        name = path.stem if path.is_file() else path.name
+        if name.lower() in _GENERIC_FOLDER_NAMES and path.parent.name:
+            return f"{path.parent.name} {name}"
+        return name
     return "CT Head"
 
 
@@ -243,9 +256,13 @@ def _describe_ct(settings, ct) -> None:
     if hu is None:
         hu = (float(np.min(ct.data)), float(np.max(ct.data)))
     settings.value_range = (float(hu[0]), float(hu[1]))
-    series = meta.get("series_description") or meta.get("series") or meta.get("series_uid") or ""
+    series = meta.get("series_description") or meta.get("series") or ""
+    if not series and meta.get("series_number") not in (None, ""):
+        series = f"#{meta['series_number']}"
+    if meta.get("series_uid"):
+        series = f"{series} ({meta['series_uid']})" if series else str(meta["series_uid"])
     settings.series = str(series)[:200]
-    settings.modality = str(meta.get("modality", ""))[:32]
+    settings.modality = str(meta.get("modality") or meta.get("units") or "")[:40]
     warnings = meta.get("warnings") or []
     settings.warnings = "; ".join(str(w) for w in warnings)[:1000] if not isinstance(warnings, str) else warnings
 
@@ -271,11 +288,19 @@ def create_study(context, ct, name: str, source_kind: str, source: str = "", opt
 
 def import_study(context, path: Path, options: dict):
     """Load a CT from disk into a new study."""
+    import warnings
     from ..pdehead_addon import load_ct
-    with state.Timer() as t:
+    with state.Timer() as t, warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
         ct = load_ct(path, **options)
     coll = create_study(context, ct, _study_name(ct, path), "FILES", str(path), options)
-    state.settings(coll).timings_json = ""
+    s = state.settings(coll)
+    known = [w for w in s.warnings.split("; ") if w]
+    messages = [m for m in dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, UserWarning))
+                if not any(k in m or m in k for k in known)]
+    if messages:  # the loader's warnings (single slice, uneven steps, ...) stay visible in the Study panel
+        s.warnings = "; ".join(([s.warnings] if s.warnings else []) + messages)[:1000]
+    s.timings_json = ""
     state.record_timing(coll, "import", t.seconds)
     return coll
 
@@ -487,6 +512,8 @@ class PDEHEAD_OT_import_ct(Operator, LoaderOptions):
             nx, ny, nz = s.dimensions
             self.report({'INFO'}, f"Imported '{coll.name}': {nx}x{ny}x{nz} voxels, spacing "
                         f"{', '.join(f'{v:g}' for v in s.spacing)} mm")
+            if s.warnings:
+                self.report({'WARNING'}, s.warnings[:300])
         return _guarded(self, context, body)
 
 

@@ -48,7 +48,7 @@ class PDEHEAD_PT_study(_PDEHeadPanel, bpy.types.Panel):
         dz, dy, dx = s.spacing
         col.label(text=f"Spacing: {dx:g} x {dy:g} x {dz:g} mm")
         lo, hi = s.value_range
-        col.label(text=f"Range: {lo:.0f} .. {hi:.0f}" + (" HU" if s.modality == "CT" else ""))
+        col.label(text=f"Range: {lo:.0f} .. {hi:.0f}" + (" HU" if s.modality in ("CT", "HU") else ""))
         if s.series:
             col.label(text=f"Series: {s.series}")
         source = "phantom" if s.source_kind == "PHANTOM" else (os.path.basename(s.source.rstrip("/\\")) or s.source)
