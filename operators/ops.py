@@ -457,10 +457,13 @@ def live_update(coll, what: str, context=None) -> None:
 # Operators
 
 
+NO_STUDY_MESSAGE = "No PDE Head study: import a CT (File > Import > CT Head) or load the phantom"
+
+
 def _active_or_report(op, context):
     coll = state.active_study(context, getattr(op, "study", ""))
     if coll is None:
-        op.report({'ERROR'}, "No PDE Head study: import a CT (File > Import > CT Head) or load the phantom")
+        op.report({'ERROR'}, NO_STUDY_MESSAGE)
     return coll
 
 
@@ -472,7 +475,10 @@ class StudyOperator:
 
     @classmethod
     def poll(cls, context):
-        return state.active_study(context) is not None or bool(state.studies())
+        if state.active_study(context) is not None or state.studies():
+            return True
+        cls.poll_message_set(NO_STUDY_MESSAGE)
+        return False
 
 
 def _finish_report(op, coll, step: str) -> None:
