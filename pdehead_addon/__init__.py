@@ -14,7 +14,7 @@ pipeline of the paper "A PDE-based head visualization method with CT data"
 from .errors import PDEHeadError, CTImportError, SegmentationError, BoundaryError, PDEError, StorageError
 from .ct_volume import CTVolume
 from .mesh import Mesh
-from .ct_import import load_ct, list_series
+from .ct_import import load_ct, list_series, SeriesInfo, CTImportWarning
 from .phantom import make_phantom
 from .dicom_export import write_dicom_series
 from .segmentation import Segmentation, segment_head
