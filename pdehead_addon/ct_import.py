@@ -367,7 +367,7 @@ def _detect_format(files: list[Path], label: str, shape) -> str:
 # DICOM: scanning headers
 # ----------------------------------------------------------------------------------------------
 
-@dataclass
+@dataclass(eq=False)
 class _Frame:
     """One 2-D image of a DICOM series (a file, or one frame of a multi-frame file)."""
 
@@ -696,9 +696,14 @@ def _consistent_frames(series: _Series, warns: list[str]) -> list[_Frame]:
     """The frames of the dominant orientation, with exact duplicates removed; mixed sizes are an error."""
     frames = series.frames
     missing = [fr for fr in frames if fr.ipp is None or fr.iop is None or fr.pixel_spacing is None]
-    if missing:
+    if len(missing) == len(frames):
         raise CTImportError("has no ImagePositionPatient / ImageOrientationPatient / PixelSpacing, so its "
                             "slices cannot be placed in patient space", missing[0].path)
+    if missing:
+        warns.append(f"skipped {len(missing)} slice(s) without position/orientation/pixel spacing: "
+                     + ", ".join(fr.path.name for fr in missing[:5]))
+        missing_ids = {id(fr) for fr in missing}
+        frames = [fr for fr in frames if id(fr) not in missing_ids]
     groups: dict[tuple, list[_Frame]] = {}
     for fr in frames:
         groups.setdefault(tuple(np.round(fr.iop, 3)), []).append(fr)
@@ -876,7 +881,9 @@ def _decode_file(ds, path: Path) -> np.ndarray:
     except CTImportError:
         raise
     except Exception as exc:
-        raise CTImportError(f"cannot decode the pixel data ({ts.name}): {type(exc).__name__}: {exc}", path) from None
+        detail = " ".join(str(exc).split())              # pydicom lists every plugin's failure on new lines
+        raise CTImportError(f"cannot decode the pixel data ({ts.name}): {type(exc).__name__}: {detail}",
+                            path) from None
     arr = np.asarray(arr)
     return arr.reshape((-1,) + arr.shape[-2:])
 
