@@ -327,7 +327,9 @@ def test_ge_head_is_upright_not_sheared(ge_ct):
     images = np.stack([s[0] for s in slices])
     slice_z = np.array([s[1][2] for s in slices])
     first, spacing = slices[0][1], slices[0][4][0]
-    k = np.abs(x[:, 2:3] - slice_z[None, :]).argmin(axis=1)
+    # nearest slice in z (slice_z is ascending)
+    upper = np.clip(np.searchsorted(slice_z, x[:, 2]), 1, len(slice_z) - 1)
+    k = np.where(x[:, 2] - slice_z[upper - 1] < slice_z[upper] - x[:, 2], upper - 1, upper)
     row = np.rint((x[:, 1] - first[1]) / spacing).astype(int)
     col = np.rint((x[:, 0] - first[0]) / spacing).astype(int)
     ok = (row >= 0) & (row < 512) & (col >= 0) & (col < 512)
