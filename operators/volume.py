@@ -1,0 +1,664 @@
+"""The PDE head volume: a .vdb of the w-field and the CT, rendered by paper eq. 24 in shader nodes.
+
+Section 4.3 of the paper renders the head by 3D texture mapping the CT onto the
+PDE solid (eq. 23) with the opacity of each texel tied linearly to the solid's
+parameter w (eq. 24)::
+
+    alpha = (l_alpha - h_alpha) * w + h_alpha,   0 <= w <= 1
+
+so the spine (w = 0) is the most opaque and the outer surface (w = 1) the most
+transparent, and nothing outside the solid is drawn. Here the w-field sampled on
+a voxel grid (the engine's ``WField``) goes into an OpenVDB file with three
+float grids:
+
+``w``
+    w in [0, 1] inside the solid; outside voxels hold the background value
+    :data:`OUTSIDE_BACKGROUND` (> 1), which the shader maps to zero density.
+``intensity``
+    the CT intensity inside the solid, windowed to [0, 1]; 0 outside.
+``ct``
+    the whole CT box windowed to [0, 1] on the same grid: the input of the
+    paper's baseline "intuitive texture mapping" (Fig. 8a / 15a), whose alpha is
+    the pixel value itself, noise outside the head included.
+
+A Volume object reads the file by a relative path (``//pdehead_vdb/<study>.vdb``)
+because .vdb files cannot be packed into a .blend. Its material computes the
+density from the ``w`` grid *in shader nodes* (node group "PDE Head eq. 24"), so
+l_alpha, h_alpha and the density scale change live without rewriting the file.
+"""
+from __future__ import annotations
+
+import gc
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from .coords import MM_TO_M, grid_affine_world
+
+OUTSIDE_BACKGROUND = 2.0  #: value of ``w`` outside the solid (any value > 1 means outside)
+GRID_NAMES = ("w", "intensity", "ct")
+REQUIRED_GRIDS = ("w", "intensity")
+VDB_FOLDER_NAME = "pdehead_vdb"
+GROUP_NAME = "PDE Head eq. 24"
+DEFAULT_LOW_ALPHA = 0.1   # section 5.3: alpha constrained to [0.1, 0.9]
+DEFAULT_HIGH_ALPHA = 0.9
+DEFAULT_DENSITY = 20.0    # Cycles extinction per metre at alpha = 1: a ~0.2 m head is translucent
+DEFAULT_EMISSION = 0.7    # emission per unit density: the alpha-blended texture look of the paper
+ALPHA_MODES = ("EQ24", "INTENSITY")
+INSIDE_EPS = 1e-3         # w <= 1 + eps counts as inside (interpolation at the surface)
+
+# Color Ramp presets over the windowed intensity in [0, 1]: (position, RGBA) pairs.
+COLOUR_PRESETS: dict[str, list[tuple[float, tuple[float, float, float, float]]]] = {
+    "grayscale": [(0.0, (0.0, 0.0, 0.0, 1.0)), (1.0, (1.0, 1.0, 1.0, 1.0))],
+    "skin": [(0.0, (0.02, 0.004, 0.002, 1.0)),
+             (0.25, (0.40, 0.10, 0.05, 1.0)),
+             (0.45, (0.90, 0.58, 0.45, 1.0)),
+             (0.70, (0.96, 0.86, 0.76, 1.0)),
+             (1.0, (1.0, 0.98, 0.92, 1.0))],
+}
+
+
+# ----------------------------------------------------------------------------- windowing
+def intensity_window(ct_or_values, preset="auto") -> tuple[float, float]:
+    """Intensity window ``(lo, hi)`` mapping CT values to [0, 1].
+
+    Parameters
+    ----------
+    ct_or_values : CTVolume or ndarray
+        The CT (its ``.data``) or raw intensities.
+    preset : {"auto", "full"} or (lo, hi)
+        ``"auto"``: the 1st and 99.5th percentiles (robust to metal streaks and
+        padding; air maps to ~0 and bone to ~1 on CThead and on HU data).
+        ``"full"``: the value range. A pair is returned as given.
+
+    Returns
+    -------
+    (lo, hi) with hi > lo.
+    """
+    if not isinstance(preset, str):
+        lo, hi = (float(x) for x in preset)
+        if not hi > lo:
+            raise ValueError(f"intensity window needs hi > lo, got ({lo}, {hi})")
+        return lo, hi
+    values = np.asarray(getattr(ct_or_values, "data", ct_or_values), dtype=np.float32).ravel()
+    values = values[np.isfinite(values)]
+    if values.size == 0:
+        return 0.0, 1.0
+    if preset == "full":
+        lo, hi = float(values.min()), float(values.max())
+    elif preset == "auto":
+        step = max(1, values.size // 2_000_000)  # percentiles of a regular subsample: fast, stable
+        lo, hi = (float(x) for x in np.percentile(values[::step], [1.0, 99.5]))
+    else:
+        raise ValueError(f"unknown intensity window preset {preset!r} (use 'auto', 'full' or (lo, hi))")
+    if not hi > lo:
+        hi = lo + 1.0
+    return lo, hi
+
+
+def apply_window(values: np.ndarray, window: tuple[float, float]) -> np.ndarray:
+    """``(values - lo) / (hi - lo)`` clipped to [0, 1], float32 (NaN -> 0)."""
+    lo, hi = (float(x) for x in window)
+    out = np.asarray(values, dtype=np.float32) - np.float32(lo)
+    out *= np.float32(1.0 / (hi - lo))
+    np.clip(out, 0.0, 1.0, out=out)
+    out[~np.isfinite(out)] = 0.0
+    return out
+
+
+def sample_ct(ct, points_mm: np.ndarray, order: int = 1) -> np.ndarray:
+    """CT intensity at patient LPS points (mm), trilinear; the lowest CT value outside the box."""
+    from scipy.ndimage import map_coordinates
+
+    pts = np.asarray(points_mm, dtype=np.float64).reshape(-1, 3)
+    kji = ct.patient_to_index(pts)
+    cval = float(np.min(ct.data)) if ct.data.size else 0.0
+    out = map_coordinates(ct.data, kji.T, order=order, mode="constant", cval=cval, prefilter=False)
+    return out.astype(np.float32, copy=False)
+
+
+def _grid_index_to_patient(wfield) -> np.ndarray:
+    """4x4 (i, j, k, 1) -> patient mm of the w-field grid."""
+    dz, dy, dx = (float(s) for s in wfield.spacing)
+    m = np.eye(4)
+    m[:3, :3] = np.asarray(wfield.direction, float).reshape(3, 3) * np.array([dx, dy, dz])
+    m[:3, 3] = np.asarray(wfield.origin, float).reshape(3)
+    return m
+
+
+def _ct_on_grid(ct, wfield) -> np.ndarray:
+    """The CT on the w-field's grid, float32 [z, y, x] (a view when the grids coincide)."""
+    shape = tuple(np.shape(wfield.w))
+    same = (tuple(ct.data.shape) == shape
+            and np.allclose(ct.affine, _grid_index_to_patient(wfield), atol=1e-6))
+    if same:
+        return ct.data
+    from scipy.ndimage import map_coordinates
+
+    grid_to_ct = np.linalg.inv(ct.affine) @ _grid_index_to_patient(wfield)  # (i,j,k) grid -> (i,j,k) CT
+    nz, ny, nx = shape
+    out = np.empty(shape, np.float32)
+    cval = float(np.min(ct.data))
+    jj, ii = np.meshgrid(np.arange(ny, dtype=np.float64), np.arange(nx, dtype=np.float64), indexing="ij")
+    for k in range(nz):  # slab by slab: bounded memory on large grids
+        ijk = np.stack([ii.ravel(), jj.ravel(), np.full(ii.size, float(k)), np.ones(ii.size)])
+        src = grid_to_ct @ ijk
+        out[k] = map_coordinates(ct.data, src[2::-1], order=1, mode="constant", cval=cval,
+                                 prefilter=False).reshape(ny, nx)
+    return out
+
+
+# ----------------------------------------------------------------------------- files and paths
+def vdb_folder_for(blend_path: str | os.PathLike | None, prefs_folder: str | os.PathLike | None = None) -> Path:
+    """Folder for a study's .vdb files.
+
+    Beside the saved .blend (``<blend folder>/pdehead_vdb``) when the file is
+    saved; otherwise the add-on preference folder, or a ``pdehead_vdb`` folder
+    in the system temp directory when that preference is empty.
+    """
+    if blend_path:
+        return Path(os.fspath(blend_path)).resolve().parent / VDB_FOLDER_NAME
+    if prefs_folder:
+        folder = os.fspath(prefs_folder)
+        if folder.startswith("//"):
+            raise ValueError("the VDB preference folder must be absolute for unsaved files")
+        return Path(folder).expanduser().resolve()
+    return Path(tempfile.gettempdir()) / VDB_FOLDER_NAME
+
+
+def vdb_path_for(study: str, blend_path=None, prefs_folder=None) -> Path:
+    """Absolute path of the .vdb of `study` (see :func:`vdb_folder_for`), file name made safe."""
+    import bpy
+
+    safe = bpy.path.clean_name(study) or "study"
+    return vdb_folder_for(blend_path, prefs_folder) / f"{safe}.vdb"
+
+
+def blender_filepath(path: str | os.PathLike) -> str:
+    """Path as Blender should store it: ``//...`` relative to the saved .blend when inside its folder."""
+    import bpy
+
+    path = Path(os.fspath(path)).resolve()
+    if bpy.data.filepath:
+        blend_dir = Path(bpy.data.filepath).resolve().parent
+        try:
+            path.relative_to(blend_dir)
+        except ValueError:
+            return str(path)
+        return bpy.path.relpath(str(path), start=str(blend_dir))
+    return str(path)
+
+
+def _openvdb():
+    import bpy
+
+    bpy.utils.expose_bundled_modules()
+    import openvdb  # noqa: PLC0415 (bundled with Blender, importable only after the call above)
+
+    return openvdb
+
+
+def write_vdb(wfield, path, window, *, ct=None, origin_m=(0.0, 0.0, 0.0)) -> Path:
+    """Write the w-field as an OpenVDB file with float grids ``w``, ``intensity`` and ``ct``.
+
+    Parameters
+    ----------
+    wfield : WField
+        ``.w`` float [z, y, x] (in [0, 1] inside the solid, > 1 outside),
+        ``.intensity`` float [z, y, x] raw CT units (0 outside), ``.spacing``
+        (dz, dy, dx) mm, ``.origin`` (x, y, z) LPS mm, ``.direction`` 3x3.
+    path : path-like
+        Output file (parent folders are created).
+    window : (lo, hi)
+        Intensity window (:func:`intensity_window`); the ``intensity`` and ``ct``
+        grids hold windowed values in [0, 1] (Cycles needs non-negative densities).
+    ct : CTVolume, optional
+        The full CT for the ``ct`` grid (resampled onto the w-field grid when
+        the grids differ). Without it the ``ct`` grid repeats ``intensity``, so
+        the intensity-alpha baseline then shows the solid only.
+    origin_m : (3,) metres
+        World position of the Volume object's origin; grid transforms are
+        relative to it, so the object at ``origin_m`` puts voxel (k, j, i) at
+        world ``LPS(k, j, i) * 0.001`` exactly.
+
+    Returns
+    -------
+    Path of the written file.
+    """
+    openvdb = _openvdb()
+    path = Path(os.fspath(path))
+    path.parent.mkdir(parents=True, exist_ok=True)
+
+    w = np.asarray(wfield.w, dtype=np.float32)
+    if w.ndim != 3:
+        raise ValueError(f"w-field must be 3-D [z, y, x], got shape {w.shape}")
+    inside = w <= 1.0  # NaN and OUTSIDE_W (2.0) are outside
+    intensity = apply_window(wfield.intensity, window)
+    intensity[~inside] = 0.0
+    w_out = np.where(inside, np.clip(w, 0.0, 1.0), np.float32(OUTSIDE_BACKGROUND)).astype(np.float32)
+    ct_grid = apply_window(_ct_on_grid(ct, wfield), window) if ct is not None else intensity
+
+    # numpy [k, j, i] -> OpenVDB (i, j, k): transpose (a copy) so index x is the CT's i axis.
+    affine = grid_affine_world(wfield.spacing, wfield.origin, wfield.direction)
+    affine[:3, 3] -= np.asarray(origin_m, dtype=np.float64)
+    grids = []
+    try:
+        for name, data, background in (("w", w_out, OUTSIDE_BACKGROUND), ("intensity", intensity, 0.0),
+                                        ("ct", ct_grid, 0.0)):
+            grid = openvdb.FloatGrid(background=float(background))
+            grid.copyFromArray(np.ascontiguousarray(data.transpose(2, 1, 0)), tolerance=0.0)
+            grid.name = name
+            grid.transform = openvdb.createLinearTransform(affine.T.tolist())  # row-vector convention
+            grid.gridClass = openvdb.GridClass.FOG_VOLUME
+            grids.append(grid)
+        grids[0]["pdehead_window"] = f"{float(window[0])!r} {float(window[1])!r}"
+        openvdb.write(str(path), grids=grids)
+    finally:
+        del grids[:]  # free the grids now: nanobind reports "leaked" objects at exit otherwise
+        gc.collect()
+    return path
+
+
+def read_vdb_grids(path) -> dict[str, dict]:
+    """Active voxel box, count, background, value range and index->world transform of each grid."""
+    openvdb = _openvdb()
+    grids, _meta = openvdb.readAll(str(path))
+    out = {}
+    try:
+        for grid in grids:
+            t = grid.transform
+            o = np.array(t.indexToWorld((0, 0, 0)))
+            out[grid.name] = {
+                "active_box": grid.evalActiveVoxelBoundingBox(),
+                "active_count": grid.activeVoxelCount(),
+                "background": grid.background,
+                "min_max": grid.evalMinMax(),
+                "origin": o,
+                "axes": np.array([np.array(t.indexToWorld(e)) - o for e in ((1, 0, 0), (0, 1, 0), (0, 0, 1))]),
+            }
+            del t
+    finally:
+        del grids
+        gc.collect()
+    return out
+
+
+def vdb_value(path, grid_name: str, ijk: tuple[int, int, int]) -> float:
+    """Value of one voxel ``(i, j, k)`` of a grid in a .vdb file (for tests)."""
+    openvdb = _openvdb()
+    grid = openvdb.read(str(path), grid_name)
+    try:
+        return float(grid.getConstAccessor().getValue(tuple(int(x) for x in ijk)))
+    finally:
+        del grid
+        gc.collect()
+
+
+# ----------------------------------------------------------------------------- shader nodes
+def _socket(sockets, identifier):
+    for s in sockets:
+        if s.identifier == identifier:
+            return s
+    raise KeyError(identifier)
+
+
+def _math(nodes, op, label, location, a=None, b=None, c=None):
+    n = nodes.new("ShaderNodeMath")
+    n.operation = op
+    n.label = label
+    n.name = label
+    n.location = location
+    for i, v in enumerate((a, b, c)):
+        if v is not None:
+            n.inputs[i].default_value = v
+    return n
+
+
+def _new_socket(group, name, in_out, default=None, lo=None, hi=None, description=""):
+    s = group.interface.new_socket(name, in_out=in_out, socket_type="NodeSocketFloat", description=description)
+    if in_out == "INPUT":
+        if lo is not None:
+            s.min_value = lo
+        if hi is not None:
+            s.max_value = hi
+        if default is not None:
+            s.default_value = default
+    return s
+
+
+def ensure_eq24_group(name: str = GROUP_NAME):
+    """The shader node group computing eq. 24 density from w (created once, reused).
+
+    Inputs: ``W``, ``Intensity``, ``CT`` (grid values), ``Low Alpha`` (l_alpha),
+    ``High Alpha`` (h_alpha), ``Density`` (scale, per metre), ``Emission`` (per
+    unit density), ``Intensity Alpha`` (0: eq. 24; 1: the paper's baseline with
+    alpha = windowed CT everywhere).
+    Outputs: ``Density`` = max(scale * alpha, 0), ``Emission Strength`` =
+    density * emission, ``Value`` (intensity for the colour ramp), ``Alpha``.
+
+    ``alpha = ((l - h) * clamp(w, 0, 1) + h) * [w <= 1]`` in eq. 24 mode, so it
+    is 0 outside the solid (w = 2); every path ends in a clamp or a max with 0,
+    so no negative density reaches Cycles.
+    """
+    import bpy
+
+    group = bpy.data.node_groups.get(name)
+    if group is not None and group.bl_idname == "ShaderNodeTree" and group.get("pdehead_version") == 1:
+        return group
+    if group is None:
+        group = bpy.data.node_groups.new(name, "ShaderNodeTree")
+    group.nodes.clear()
+    group.interface.clear()
+    group["pdehead_version"] = 1
+    group.description = "PDE Head: volume density from the solid parameter w by paper eq. 24"
+
+    _new_socket(group, "W", "INPUT", OUTSIDE_BACKGROUND, description="PDE solid parameter w (> 1 outside)")
+    _new_socket(group, "Intensity", "INPUT", 0.0, 0.0, 1.0, "windowed CT intensity inside the solid")
+    _new_socket(group, "CT", "INPUT", 0.0, 0.0, 1.0, "windowed CT intensity in the whole CT box")
+    _new_socket(group, "Low Alpha", "INPUT", DEFAULT_LOW_ALPHA, 0.0, 1.0, "l_alpha of eq. 24 (at w = 1)")
+    _new_socket(group, "High Alpha", "INPUT", DEFAULT_HIGH_ALPHA, 0.0, 1.0, "h_alpha of eq. 24 (at w = 0)")
+    _new_socket(group, "Density", "INPUT", DEFAULT_DENSITY, 0.0, 1e4, "density per metre at alpha = 1")
+    _new_socket(group, "Emission", "INPUT", DEFAULT_EMISSION, 0.0, 1e3, "emission per unit density")
+    _new_socket(group, "Intensity Alpha", "INPUT", 0.0, 0.0, 1.0,
+                "0: eq. 24 alpha from w; 1: alpha = CT intensity everywhere (baseline)")
+    for out in ("Density", "Emission Strength", "Value", "Alpha"):
+        _new_socket(group, out, "OUTPUT")
+
+    nodes, links = group.nodes, group.links
+    gin = nodes.new("NodeGroupInput")
+    gin.location = (-900, 0)
+    gout = nodes.new("NodeGroupOutput")
+    gout.location = (700, 0)
+    I, O = gin.outputs, gout.inputs  # noqa: E741
+
+    w_clamped = nodes.new("ShaderNodeClamp")
+    w_clamped.name = w_clamped.label = "Clamp w"
+    w_clamped.location = (-600, 200)
+    w_clamped.inputs["Min"].default_value, w_clamped.inputs["Max"].default_value = 0.0, 1.0
+    links.new(I["W"], w_clamped.inputs["Value"])
+
+    slope = _math(nodes, "SUBTRACT", "l - h", (-600, 400))
+    links.new(I["Low Alpha"], slope.inputs[0])
+    links.new(I["High Alpha"], slope.inputs[1])
+    alpha24 = _math(nodes, "MULTIPLY_ADD", "eq. 24: (l - h) w + h", (-350, 300))
+    links.new(slope.outputs[0], alpha24.inputs[0])
+    links.new(w_clamped.outputs[0], alpha24.inputs[1])
+    links.new(I["High Alpha"], alpha24.inputs[2])
+    inside = _math(nodes, "LESS_THAN", "inside: w < 1 + eps", (-350, 100), b=1.0 + INSIDE_EPS)
+    links.new(I["W"], inside.inputs[0])
+    masked = _math(nodes, "MULTIPLY", "alpha * inside", (-150, 250))
+    links.new(alpha24.outputs[0], masked.inputs[0])
+    links.new(inside.outputs[0], masked.inputs[1])
+
+    ct_alpha = nodes.new("ShaderNodeClamp")
+    ct_alpha.name = ct_alpha.label = "Clamp CT"
+    ct_alpha.location = (-350, -150)
+    links.new(I["CT"], ct_alpha.inputs["Value"])
+
+    mode_alpha = nodes.new("ShaderNodeMix")
+    mode_alpha.data_type = "FLOAT"
+    mode_alpha.clamp_factor = True
+    mode_alpha.name = mode_alpha.label = "Alpha mode"
+    mode_alpha.location = (50, 150)
+    links.new(I["Intensity Alpha"], _socket(mode_alpha.inputs, "Factor_Float"))
+    links.new(masked.outputs[0], _socket(mode_alpha.inputs, "A_Float"))
+    links.new(ct_alpha.outputs[0], _socket(mode_alpha.inputs, "B_Float"))
+    alpha = nodes.new("ShaderNodeClamp")
+    alpha.name = alpha.label = "Clamp alpha"
+    alpha.location = (250, 150)
+    links.new(_socket(mode_alpha.outputs, "Result_Float"), alpha.inputs["Value"])
+
+    scaled = _math(nodes, "MULTIPLY", "alpha * density", (420, 200))
+    links.new(alpha.outputs[0], scaled.inputs[0])
+    links.new(I["Density"], scaled.inputs[1])
+    density = _math(nodes, "MAXIMUM", "density >= 0", (560, 200), b=0.0)
+    links.new(scaled.outputs[0], density.inputs[0])
+    emission = _math(nodes, "MULTIPLY", "density * emission", (420, 0))
+    links.new(density.outputs[0], emission.inputs[0])
+    links.new(I["Emission"], emission.inputs[1])
+    emission_pos = _math(nodes, "MAXIMUM", "emission >= 0", (560, 0), b=0.0)
+    links.new(emission.outputs[0], emission_pos.inputs[0])
+
+    mode_value = nodes.new("ShaderNodeMix")
+    mode_value.data_type = "FLOAT"
+    mode_value.clamp_factor = True
+    mode_value.name = mode_value.label = "Colour source"
+    mode_value.location = (50, -200)
+    links.new(I["Intensity Alpha"], _socket(mode_value.inputs, "Factor_Float"))
+    links.new(I["Intensity"], _socket(mode_value.inputs, "A_Float"))
+    links.new(I["CT"], _socket(mode_value.inputs, "B_Float"))
+    value = nodes.new("ShaderNodeClamp")
+    value.name = value.label = "Clamp value"
+    value.location = (250, -200)
+    links.new(_socket(mode_value.outputs, "Result_Float"), value.inputs["Value"])
+
+    links.new(density.outputs[0], O["Density"])
+    links.new(emission_pos.outputs[0], O["Emission Strength"])
+    links.new(value.outputs[0], O["Value"])
+    links.new(alpha.outputs[0], O["Alpha"])
+    return group
+
+
+def apply_colour_preset(ramp_node, preset: str) -> None:
+    """Set a Color Ramp node's stops from :data:`COLOUR_PRESETS`."""
+    if preset not in COLOUR_PRESETS:
+        raise ValueError(f"unknown colour preset {preset!r}; choose from {sorted(COLOUR_PRESETS)}")
+    stops = COLOUR_PRESETS[preset]
+    elements = ramp_node.color_ramp.elements
+    while len(elements) > 1:
+        elements.remove(elements[-1])
+    elements[0].position, elements[0].color = stops[0]
+    for pos, colour in stops[1:]:  # new() inserts in position order
+        elements.new(pos).color = colour
+    ramp_node.color_ramp.interpolation = "LINEAR"
+    ramp_node["pdehead_preset"] = preset
+
+
+def ensure_volume_material(obj=None, name: str | None = None):
+    """The volume material (one per Volume object), built around the eq. 24 node group.
+
+    Nodes: ``Attribute`` w / intensity / ct -> group "PDE Head eq. 24" ->
+    ``Principled Volume`` (Density, Emission Strength; Color and Emission
+    Color from ``Color Ramp`` over the group's Value) -> ``Material Output``
+    Volume. Assigned to `obj` (slot 0) when given.
+    """
+    import bpy
+
+    mat = None
+    if obj is not None and obj.material_slots and obj.material_slots[0].material is not None:
+        mat = obj.material_slots[0].material
+        if mat.get("pdehead_volume_material") == 1:
+            return mat
+    if name is None:
+        name = f"PDE Head Volume {obj.name}" if obj is not None else "PDE Head Volume"
+    mat = bpy.data.materials.new(name)
+    mat["pdehead_volume_material"] = 1
+    if mat.node_tree is None:
+        mat.use_nodes = True
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    nodes.clear()
+
+    attrs = {}
+    for i, grid in enumerate(GRID_NAMES):
+        a = nodes.new("ShaderNodeAttribute")
+        a.attribute_type = "GEOMETRY"
+        a.attribute_name = grid
+        a.name = a.label = f"Attribute {grid}"
+        a.location = (-700, 200 - 180 * i)
+        attrs[grid] = a
+    group_node = nodes.new("ShaderNodeGroup")
+    group_node.node_tree = ensure_eq24_group()
+    group_node.name = group_node.label = GROUP_NAME
+    group_node.location = (-400, 100)
+    links.new(_socket(attrs["w"].outputs, "Fac"), group_node.inputs["W"])
+    links.new(_socket(attrs["intensity"].outputs, "Fac"), group_node.inputs["Intensity"])
+    links.new(_socket(attrs["ct"].outputs, "Fac"), group_node.inputs["CT"])
+
+    ramp = nodes.new("ShaderNodeValToRGB")
+    ramp.name = ramp.label = "Intensity colour"
+    ramp.location = (-150, -150)
+    apply_colour_preset(ramp, "grayscale")
+    links.new(group_node.outputs["Value"], ramp.inputs["Fac"])
+
+    pv = nodes.new("ShaderNodeVolumePrincipled")
+    pv.location = (150, 100)
+    links.new(group_node.outputs["Density"], pv.inputs["Density"])
+    links.new(group_node.outputs["Emission Strength"], pv.inputs["Emission Strength"])
+    links.new(ramp.outputs["Color"], pv.inputs["Color"])
+    links.new(ramp.outputs["Color"], pv.inputs["Emission Color"])
+    pv.inputs["Absorption Color"].default_value = (0.0, 0.0, 0.0, 1.0)
+
+    out = nodes.new("ShaderNodeOutputMaterial")
+    out.location = (450, 100)
+    links.new(pv.outputs["Volume"], out.inputs["Volume"])
+
+    if obj is not None:
+        if obj.material_slots:
+            obj.material_slots[0].material = mat
+        else:
+            obj.data.materials.append(mat)
+    return mat
+
+
+def _volume_nodes(obj):
+    mat = ensure_volume_material(obj)
+    nodes = mat.node_tree.nodes
+    return nodes[GROUP_NAME], nodes["Intensity colour"]
+
+
+def set_volume_settings(obj, low_alpha: float | None = None, high_alpha: float | None = None,
+                        density: float | None = None, emission: float | None = None,
+                        colour_preset: str | None = None, alpha_mode: str | None = None) -> None:
+    """Set the eq. 24 parameters on a Volume object's material (None keeps the current value).
+
+    Parameters
+    ----------
+    low_alpha, high_alpha : float in [0, 1]
+        l_alpha and h_alpha of eq. 24 (paper: 0.1 and 0.9).
+    density : float >= 0
+        Density per metre at alpha = 1.
+    emission : float >= 0
+        Emission per unit density.
+    colour_preset : {"grayscale", "skin"}
+    alpha_mode : {"EQ24", "INTENSITY"}
+        "INTENSITY" is the paper's baseline (Fig. 8a / 15a): alpha = windowed CT
+        everywhere in the CT box.
+    """
+    group_node, ramp = _volume_nodes(obj)
+    inputs = group_node.inputs
+    for key, value, lo, hi in (("Low Alpha", low_alpha, 0.0, 1.0), ("High Alpha", high_alpha, 0.0, 1.0),
+                               ("Density", density, 0.0, None), ("Emission", emission, 0.0, None)):
+        if value is not None:
+            value = float(value)
+            if not np.isfinite(value):
+                raise ValueError(f"{key} must be finite, got {value}")
+            value = max(lo, value if hi is None else min(hi, value))
+            inputs[key].default_value = value
+    if alpha_mode is not None:
+        if alpha_mode not in ALPHA_MODES:
+            raise ValueError(f"alpha_mode must be one of {ALPHA_MODES}, got {alpha_mode!r}")
+        inputs["Intensity Alpha"].default_value = 1.0 if alpha_mode == "INTENSITY" else 0.0
+    if colour_preset is not None:
+        apply_colour_preset(ramp, colour_preset)
+
+
+def get_volume_settings(obj) -> dict:
+    """Current eq. 24 settings of a Volume object's material (keys as in :func:`set_volume_settings`)."""
+    group_node, ramp = _volume_nodes(obj)
+    inputs = group_node.inputs
+    return {
+        "low_alpha": inputs["Low Alpha"].default_value,
+        "high_alpha": inputs["High Alpha"].default_value,
+        "density": inputs["Density"].default_value,
+        "emission": inputs["Emission"].default_value,
+        "colour_preset": ramp.get("pdehead_preset", "grayscale"),
+        "alpha_mode": "INTENSITY" if inputs["Intensity Alpha"].default_value >= 0.5 else "EQ24",
+    }
+
+
+# ----------------------------------------------------------------------------- the Volume object
+def build_volume(wfield, collection, vdb_path, name: str = "Volume", obj=None, *, window=None, ct=None,
+                 **settings):
+    """Write `wfield` to `vdb_path` and show it as a Volume object with the eq. 24 material.
+
+    Parameters
+    ----------
+    wfield : WField
+        From ``PDEHead.w_field``.
+    collection : bpy.types.Collection
+        The study collection (its stored origin becomes the object's origin).
+    vdb_path : path-like
+        Absolute path of the .vdb (see :func:`vdb_path_for`); stored as
+        ``//``-relative when it lies beside the saved .blend.
+    obj : bpy.types.Object, optional
+        An existing Volume object to update in place (keeps its material).
+    window : (lo, hi), optional
+        Intensity window; default :func:`intensity_window` of `ct` (or of the
+        w-field's intensity inside the solid).
+    ct : CTVolume, optional
+        Full CT for the ``ct`` grid (intensity-alpha baseline).
+    **settings
+        Passed to :func:`set_volume_settings`.
+    """
+    import bpy
+    from mathutils import Matrix
+
+    from .objects import study_origin
+
+    if window is None:
+        if ct is not None:
+            window = intensity_window(ct)
+        else:
+            inside = np.asarray(wfield.w) <= 1.0
+            window = intensity_window(np.asarray(wfield.intensity)[inside]) if inside.any() else (0.0, 1.0)
+    bounds_m = _grid_corners_world(wfield)
+    origin = study_origin(collection, bounds_m)
+    path = write_vdb(wfield, vdb_path, window, ct=ct, origin_m=origin)
+
+    if obj is None:
+        data = bpy.data.volumes.new(name)
+        obj = bpy.data.objects.new(name, data)
+        collection.objects.link(obj)
+    elif obj.type != "VOLUME":
+        raise TypeError(f"object {obj.name!r} is not a Volume object")
+    data = obj.data
+    data.grids.unload()
+    data.filepath = blender_filepath(path)
+    data.grids.load()
+    obj.matrix_world = Matrix.Translation(origin)
+    obj["pdehead_kind"] = "volume"
+    obj["pdehead_window"] = [float(window[0]), float(window[1])]
+    obj["pdehead_origin_m"] = list(origin)
+    ensure_volume_material(obj)
+    set_volume_settings(obj, **settings)
+    return obj
+
+
+def _grid_corners_world(wfield) -> np.ndarray:
+    nz, ny, nx = np.shape(wfield.w)
+    corners = np.array([[i, j, k, 1.0] for i in (0, nx - 1) for j in (0, ny - 1) for k in (0, nz - 1)])
+    return (corners @ grid_affine_world(wfield.spacing, wfield.origin, wfield.direction).T)[:, :3]
+
+
+def check_volume(obj) -> str | None:
+    """None if the Volume object's .vdb loads with grids w and intensity, else a message for the user."""
+    import bpy
+
+    if obj is None or obj.type != "VOLUME":
+        return "This is not a PDE Head volume object."
+    data = obj.data
+    if not data.filepath:
+        return f"Volume '{obj.name}' has no .vdb file: rebuild the volume."
+    path = bpy.path.abspath(data.filepath)
+    if not os.path.isfile(path):
+        return (f"Volume file not found: {path}. .vdb files are not packed into the .blend; keep the "
+                f"'{VDB_FOLDER_NAME}' folder beside the .blend or rebuild the volume.")
+    if not data.grids.load():
+        return f"Cannot read volume file {path}: {data.grids.error_message or 'unknown error'}. Rebuild the volume."
+    names = {g.name for g in data.grids}
+    missing = [g for g in REQUIRED_GRIDS if g not in names]
+    if missing:
+        return f"Volume file {path} lacks the grid(s) {', '.join(missing)}: rebuild the volume."
+    return None

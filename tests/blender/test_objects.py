@@ -1,0 +1,241 @@
+"""Blender objects of a study: boundary curves, PDE surface and PDE solid (operators/objects.py).
+
+Runs the real engine on the phantom (segment_head -> extract_boundaries -> solve_pde) and checks
+the Blender data against the engine's numbers: counts, world coordinates (= LPS mm x 0.001),
+UVs, attributes, in-place rebuilds and the front-view orientation.
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+MM = 0.001
+
+
+@pytest.fixture(scope="module")
+def B(pdehead_ext):
+    """The installed extension's Blender-layer modules."""
+    from types import SimpleNamespace
+    ops = pdehead_ext.operators
+    import importlib
+    return SimpleNamespace(**{n: importlib.import_module(f"{ops.__name__}.{n}")
+                              for n in ("coords", "objects", "volume", "render")})
+
+
+@pytest.fixture(scope="module")
+def phantom_bset(phantom_seg):
+    from pdehead_addon import extract_boundaries
+    return extract_boundaries(phantom_seg, patches=10, samples=128)
+
+
+@pytest.fixture(scope="module")
+def phantom_head(phantom_bset):
+    from pdehead_addon import solve_pde
+    return solve_pde(phantom_bset)
+
+
+def _world_vertices(obj) -> np.ndarray:
+    me = obj.data
+    co = np.empty(len(me.vertices) * 3, np.float32)
+    me.vertices.foreach_get("co", co)
+    m = np.array(obj.matrix_world)
+    return co.reshape(-1, 3).astype(np.float64) @ m[:3, :3].T + m[:3, 3]
+
+
+def test_grid_matrix_maps_voxel_index_to_patient_metres(B):
+    """grid_affine_world: (i, j, k) -> CTVolume.index_to_patient((k, j, i)) * 0.001 for an oblique grid."""
+    from pdehead_addon import CTVolume
+    a = math.radians(18.5)
+    direction = np.array([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]])
+    ct = CTVolume(np.zeros((5, 6, 7), np.float32), spacing=(4.0, 1.08, 0.9), origin=(-120.0, 30.0, 55.0),
+                  direction=direction)
+    m = B.coords.grid_affine_world(ct.spacing, ct.origin, ct.direction)
+    kji = np.array([[0, 0, 0], [4, 5, 6], [2, 1, 3], [1, 4, 0]], float)
+    ijk1 = np.c_[kji[:, ::-1], np.ones(len(kji))]
+    np.testing.assert_allclose((ijk1 @ m.T)[:, :3], ct.index_to_patient(kji) * MM, atol=1e-12)
+    mat = B.coords.grid_matrix_world(ct.spacing, ct.origin, ct.direction)
+    np.testing.assert_allclose(np.array(mat), m, atol=1e-12)
+    np.testing.assert_allclose(B.coords.lps_to_blender([[10.0, -20.0, 30.0]]), [[0.01, -0.02, 0.03]])
+
+
+def test_study_collection_created_once_and_linked(B):
+    import bpy
+    a = B.objects.study_collection("Study A")
+    b = B.objects.study_collection("Study A")
+    assert a == b and a.name == "Study A"
+    assert a in bpy.context.scene.collection.children_recursive
+    assert len([c for c in bpy.data.collections if c.name.startswith("Study A")]) == 1
+
+
+def test_boundary_curves_one_object_of_closed_splines(B, phantom_bset):
+    coll = B.objects.study_collection("Phantom")
+    obj = B.objects.build_boundary_curves(phantom_bset, coll)
+    assert obj.type == "CURVE" and obj.name in coll.objects
+    splines = obj.data.splines
+    assert len(splines) == 3 * phantom_bset.patches + 1 == 31
+    assert all(s.use_cyclic_u and s.type == "POLY" and len(s.points) == 128 for s in splines)
+    m = np.array(obj.matrix_world)
+    np.testing.assert_allclose(m[:3, :3], np.eye(3))
+    for c in (0, 15, 30):
+        co = np.empty(128 * 4, np.float32)
+        splines[c].points.foreach_get("co", co)
+        world = co.reshape(-1, 4)[:, :3] @ m[:3, :3].T + m[:3, 3]
+        np.testing.assert_allclose(world, phantom_bset.curves[c] * MM, atol=1e-6)
+    # the origin is the study centre (shared with later objects), not the LPS origin
+    centre = 0.5 * (phantom_bset.curves.reshape(-1, 3).min(0) + phantom_bset.curves.reshape(-1, 3).max(0)) * MM
+    np.testing.assert_allclose(np.array(obj.location), centre, atol=1e-6)
+    np.testing.assert_allclose(coll["pdehead_origin_m"], centre, atol=1e-9)
+    # rebuilt in place: same object, same data, new content
+    data = obj.data
+    again = B.objects.build_boundary_curves(phantom_bset, coll, obj=obj)
+    assert again == obj and again.data == data and len(data.splines) == 31
+
+
+def test_surface_mesh_matches_engine(B, phantom_head):
+    import bpy
+    coll = B.objects.study_collection("Phantom")
+    mesh = phantom_head.surface(40, 60, caps=True)
+    obj = B.objects.build_surface(phantom_head, coll, nu=40, nv=60, caps=True)
+    me = obj.data
+    assert len(me.vertices) == len(mesh.vertices)
+    assert len(me.polygons) == mesh.face_count and len(me.loops) == mesh.loop_vertex_indices().size
+    np.testing.assert_allclose(_world_vertices(obj), mesh.vertices * MM, atol=2e-6)  # float32 in Blender
+    corners = np.empty(len(me.loops), np.int32)
+    me.loops.foreach_get("vertex_index", corners)
+    np.testing.assert_array_equal(corners, mesh.loop_vertex_indices())
+    # UV map from the per-corner (u, v)
+    assert [uv.name for uv in me.uv_layers] == ["UVMap"]
+    uv = np.empty(len(me.loops) * 2, np.float32)
+    me.uv_layers["UVMap"].data.foreach_get("uv", uv)
+    np.testing.assert_allclose(uv.reshape(-1, 2), mesh.loop_uv(), atol=1e-6)
+    assert 0.0 <= uv.min() and uv.max() <= 1.0 + 1e-6
+    # smooth shaded, closed, skin material
+    smooth = np.empty(len(me.polygons), bool)
+    me.polygons.foreach_get("use_smooth", smooth)
+    assert smooth.all()
+    corner_edges = np.empty(len(me.loops), np.int32)
+    me.loops.foreach_get("edge_index", corner_edges)
+    assert np.all(np.bincount(corner_edges, minlength=len(me.edges)) == 2)  # closed: 2 faces per edge
+    assert me.validate(verbose=False) is False  # nothing to fix
+    mat = obj.material_slots[0].material
+    bsdf = mat.node_tree.nodes["Principled BSDF"]
+    r, g, b, _ = bsdf.inputs["Base Color"].default_value
+    assert r > g > b > 0.2  # skin-like
+    # the mesh encloses the engine's volume: outward normals (positive signed volume in Blender too)
+    bm_volume = _signed_volume(_world_vertices(obj), me)
+    assert bm_volume > 0.5 * 4 / 3 * math.pi * 0.06 * 0.08 * 0.09
+    assert bpy.data.meshes[me.name] == me
+
+
+def _signed_volume(world, me) -> float:
+    me.calc_loop_triangles()
+    tris = np.empty(len(me.loop_triangles) * 3, np.int32)
+    me.loop_triangles.foreach_get("vertices", tris)
+    p = world[tris.reshape(-1, 3)]
+    return float(np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum() / 6.0)
+
+
+def test_surface_rebuilt_in_place_keeps_object_material_modifier(B, phantom_head):
+    import bpy
+    coll = B.objects.study_collection("Phantom")
+    obj = B.objects.build_surface(phantom_head, coll, nu=20, nv=30)
+    custom = bpy.data.materials.new("user material")
+    obj.material_slots[0].material = custom
+    obj.modifiers.new("Subdivision", "SUBSURF")
+    meshes_before = len(bpy.data.meshes)
+    data = obj.data
+    timings = []
+    for nu, nv in ((200, 400), (200, 400), (35, 50)):
+        t = time.perf_counter()
+        same = B.objects.build_surface(phantom_head, coll, nu=nu, nv=nv, obj=obj)
+        timings.append(time.perf_counter() - t)
+        assert same == obj and obj.data == data
+        assert len(obj.data.vertices) == len(phantom_head.surface(nu, nv, caps=True).vertices)
+    print(f"surface rebuild 200x400 (incl. engine evaluation): {timings[0]:.3f}, {timings[1]:.3f} s")
+    assert len(bpy.data.meshes) == meshes_before  # no orphan meshes
+    assert obj.material_slots[0].material == custom
+    assert [m.type for m in obj.modifiers] == ["SUBSURF"]
+    assert "UVMap" in obj.data.uv_layers and len(obj.data.uv_layers) == 1
+
+
+def test_build_mesh_object_large_mesh_and_attributes(B, phantom_head):
+    """The bulk path at 200x400 (~80k vertices) with every attribute kind; time is printed, not asserted."""
+    coll = B.objects.study_collection("Phantom")
+    mesh = phantom_head.surface(200, 400, caps=True)
+    n = len(mesh.vertices)
+    mesh.vertex_attributes = {"scalar": np.linspace(0, 1, n), "vec": np.tile([1.0, 2.0, 3.0], (n, 1)),
+                              "rgba": np.tile([0.1, 0.2, 0.3, 1.0], (n, 1)), "label": np.arange(n) % 7}
+    t = time.perf_counter()
+    obj = B.objects.build_mesh_object(mesh, coll, "Big")
+    elapsed = time.perf_counter() - t
+    print(f"build_mesh_object {n} vertices, {mesh.face_count} faces: {elapsed * 1000:.1f} ms")
+    me = obj.data
+    assert len(me.vertices) == n == 200 * 400 + 2
+    kinds = {a.name: (a.data_type, a.domain) for a in me.attributes}
+    assert kinds["scalar"] == ("FLOAT", "POINT") and kinds["vec"] == ("FLOAT_VECTOR", "POINT")
+    assert kinds["rgba"] == ("FLOAT_COLOR", "POINT") and kinds["label"] == ("INT", "POINT")
+    np.testing.assert_allclose(B.objects.mesh_attribute(obj, "scalar"), np.linspace(0, 1, n), atol=1e-6)
+    np.testing.assert_array_equal(B.objects.mesh_attribute(obj, "label"), np.arange(n) % 7)
+    np.testing.assert_allclose(B.objects.mesh_attribute(obj, "vec")[123], [1, 2, 3])
+
+
+def test_front_view_sees_the_face_with_patient_left_on_the_right(B, phantom, phantom_head):
+    """World = LPS x 0.001: the nose tip is the most anterior point (-Y, what numpad 1 sees first),
+    and a marker on the patient's left ends up at +X (screen right in the front view)."""
+    from pdehead_addon import Mesh
+    coll = B.objects.study_collection("Phantom")
+    surface = B.objects.build_surface(phantom_head, coll, nu=80, nv=120)
+    world = _world_vertices(surface)
+    nose = world[np.argmin(world[:, 1])]
+    np.testing.assert_allclose(nose / MM, phantom.params["nose_tip"], atol=8.0)
+    left_eye = np.asarray(phantom.params["eye_centres"][1])  # the patient's left eye: LPS x > 0
+    assert left_eye[0] > 0
+    cube = np.array([[x, y, z] for x in (-3, 3) for y in (-3, 3) for z in (-3, 3)], float) + left_eye + [50, 0, 0]
+    quads = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]]
+    marker = B.objects.build_mesh_object(Mesh(cube, quads), coll, "Left marker")
+    mw = _world_vertices(marker).mean(axis=0)
+    assert mw[0] > world[:, 0].mean() + 0.06  # patient's left = Blender +X
+    np.testing.assert_allclose(mw, (left_eye + [50, 0, 0]) * MM, atol=1e-6)
+    # all study objects share the origin
+    np.testing.assert_allclose(np.array(marker.location), np.array(surface.location))
+
+
+def test_solid_w_attribute_and_ct_colour(B, phantom, phantom_head):
+    from scipy.ndimage import map_coordinates
+    coll = B.objects.study_collection("Phantom")
+    ct = phantom.ct
+    u_range, v_range, w_range = (0.0, 1.0), (math.pi / 2, 2 * math.pi), (0.0, 1.0)
+    mesh = phantom_head.solid(40, 60, 5, u_range, v_range, w_range)
+    obj = B.objects.build_solid(phantom_head, coll, nu=40, nv=60, nw=5, u_range=u_range, v_range=v_range,
+                                w_range=w_range, ct=ct)
+    me = obj.data
+    assert len(me.vertices) == len(mesh.vertices) and len(me.polygons) == mesh.face_count
+    w = B.objects.mesh_attribute(obj, "w")
+    assert me.attributes["w"].domain == "POINT" and me.attributes["w"].data_type == "FLOAT"
+    assert w.min() == pytest.approx(0.0, abs=1e-6) and w.max() == pytest.approx(1.0, abs=1e-6)
+    np.testing.assert_allclose(w, mesh.vertex_attributes["w"], atol=1e-6)
+    # ct_intensity: trilinear CT at the vertices' patient positions, windowed to [0, 1]
+    attr = me.color_attributes["ct_intensity"]
+    assert attr.domain == "POINT" and attr.data_type == "FLOAT_COLOR"
+    assert me.color_attributes.active_color.name == "ct_intensity"
+    rgba = B.objects.mesh_attribute(obj, "ct_intensity")
+    np.testing.assert_allclose(rgba[:, 0], rgba[:, 1])
+    lo, hi = obj["pdehead_window"]
+    raw = map_coordinates(ct.data, ct.patient_to_index(_world_vertices(obj) / MM).T, order=1, mode="nearest")
+    expected = np.clip((raw - lo) / (hi - lo), 0, 1)
+    np.testing.assert_allclose(rgba[:, 0], expected, atol=2e-3)
+    assert 0.0 <= rgba[:, :3].min() and rgba[:, :3].max() <= 1.0
+    assert np.ptp(rgba[:, 0]) > 0.3  # the cut faces reach bone and brain: not one flat colour
+    # material reads the colour attribute
+    mat = obj.material_slots[0].material
+    col = next(n for n in mat.node_tree.nodes if n.bl_idname == "ShaderNodeVertexColor")
+    assert col.layer_name == "ct_intensity"
+    assert any(link.from_node == col and link.to_socket.name == "Base Color" for link in mat.node_tree.links)
+    # a thinner shell (Fig. 14c): w in [0.8, 1], rebuilt in place
+    thin = B.objects.build_solid(phantom_head, coll, nu=40, nv=60, nw=5, v_range=v_range, w_range=(0.8, 1.0),
+                                 ct=ct, obj=obj)
+    w = B.objects.mesh_attribute(thin, "w")
+    assert thin == obj and w.min() == pytest.approx(0.8, abs=1e-6) and w.max() == pytest.approx(1.0, abs=1e-6)

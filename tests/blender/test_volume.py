@@ -1,0 +1,356 @@
+"""The VDB volume and its eq. 24 material (operators/volume.py).
+
+- the .vdb grids and their index -> world transform (numpy [z, y, x] vs OpenVDB (x, y, z)),
+- the Volume object of the phantom's w-field lining up with the PDE surface,
+- the shader: node types and links, and an evaluation of the node group's maths (eq. 24,
+  zero outside the solid, never negative),
+- relative paths, save / reopen, and the message for a missing .vdb.
+"""
+from __future__ import annotations
+
+import math
+import shutil
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+MM = 0.001
+
+
+@pytest.fixture(scope="module")
+def B(pdehead_ext):
+    import importlib
+    ops = pdehead_ext.operators
+    return SimpleNamespace(**{n: importlib.import_module(f"{ops.__name__}.{n}")
+                              for n in ("coords", "objects", "volume", "render")})
+
+
+@pytest.fixture(scope="module")
+def phantom_head(phantom_seg):
+    from pdehead_addon import extract_boundaries, solve_pde
+    return solve_pde(extract_boundaries(phantom_seg, patches=10, samples=128))
+
+
+@pytest.fixture(scope="module")
+def phantom_wfield(phantom_head, phantom):
+    return phantom_head.w_field(3.0, ct=phantom.ct)
+
+
+# ----------------------------------------------------------------------------- windowing
+def test_intensity_window_presets(B):
+    rng = np.random.default_rng(1)
+    values = np.concatenate([rng.normal(20, 10, 50_000), rng.normal(1050, 40, 30_000), rng.normal(2200, 200, 5000)])
+    lo, hi = B.volume.intensity_window(values)
+    np.testing.assert_allclose((lo, hi), np.percentile(values, [1.0, 99.5]), rtol=1e-6)
+    assert B.volume.intensity_window(values, "full") == (pytest.approx(values.min()), pytest.approx(values.max()))
+    assert B.volume.intensity_window(values, (-100, 300)) == (-100.0, 300.0)
+    with pytest.raises(ValueError):
+        B.volume.intensity_window(values, (5, 5))
+    with pytest.raises(ValueError):
+        B.volume.intensity_window(values, "bone-ish")
+    out = B.volume.apply_window(np.array([-1e4, lo, 0.5 * (lo + hi), hi, 1e5, np.nan]), (lo, hi))
+    np.testing.assert_allclose(out, [0, 0, 0.5, 1, 1, 0], atol=1e-6)
+    assert out.dtype == np.float32
+
+
+# ----------------------------------------------------------------------------- the .vdb file
+def _oblique_wfield():
+    """A small asymmetric grid with oblique axes and anisotropic spacing: every axis mix-up shows."""
+    nz, ny, nx = 6, 7, 9
+    a = math.radians(18.5)
+    direction = np.array([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]])
+    k, j, i = np.meshgrid(np.arange(nz), np.arange(ny), np.arange(nx), indexing="ij")
+    w = (0.01 * i + 0.1 * j + 0.05 * k).astype(np.float32) / 1.5   # distinct per axis, < 1
+    w[:, :, 0] = 2.0                                               # outside (OUTSIDE_W)
+    intensity = (100.0 * i + 10.0 * j + k).astype(np.float32)
+    intensity[w > 1] = 0.0
+    return SimpleNamespace(w=w, intensity=intensity, spacing=(4.0, 1.08, 0.9), origin=np.array([-120.0, 30.0, 55.0]),
+                           direction=direction)
+
+
+def test_write_vdb_grids_values_and_transform(B, tmp_path):
+    from pdehead_addon import CTVolume
+    wf = _oblique_wfield()
+    ct = CTVolume(wf.intensity + 5.0, wf.spacing, wf.origin, wf.direction)  # the full CT on the same grid
+    window = (0.0, 900.0)
+    origin_m = np.array([0.01, -0.02, 0.03])
+    path = B.volume.write_vdb(wf, tmp_path / "sub" / "t.vdb", window, ct=ct, origin_m=origin_m)
+    assert path.is_file()
+    info = B.volume.read_vdb_grids(path)
+    assert set(info) == {"w", "intensity", "ct"}
+    assert info["w"]["background"] == B.volume.OUTSIDE_BACKGROUND == 2.0
+    assert info["intensity"]["background"] == 0.0
+    nz, ny, nx = wf.w.shape
+    # w: voxels of column i = 0 are outside -> inactive; box spans i 1..nx-1, all j, all k
+    assert info["w"]["active_box"] == ((1, 0, 0), (nx - 1, ny - 1, nz - 1))
+    lo, hi = info["w"]["min_max"]
+    assert 0.0 <= lo and hi <= 1.0
+    for name in ("intensity", "ct"):
+        lo, hi = info[name]["min_max"]
+        assert 0.0 <= lo and hi <= 1.0  # windowed, never negative
+    # transform: index axes = spacing x direction in metres, origin relative to the object origin
+    expected = B.coords.grid_affine_world(wf.spacing, wf.origin, wf.direction)
+    np.testing.assert_allclose(info["w"]["axes"], expected[:3, :3].T, atol=1e-9)
+    np.testing.assert_allclose(info["w"]["origin"] + origin_m, wf.origin * MM, atol=1e-9)
+    # known voxels: OpenVDB (i, j, k) holds numpy [k, j, i]
+    for k, j, i in [(0, 0, 1), (5, 6, 8), (2, 3, 4), (4, 1, 7), (3, 5, 0)]:
+        assert B.volume.vdb_value(path, "w", (i, j, k)) == pytest.approx(float(wf.w[k, j, i]), abs=1e-6)
+        inten = B.volume.vdb_value(path, "intensity", (i, j, k))
+        ctv = B.volume.vdb_value(path, "ct", (i, j, k))
+        if wf.w[k, j, i] <= 1:
+            assert inten == pytest.approx(min(1.0, wf.intensity[k, j, i] / 900.0), abs=1e-6)
+        else:
+            assert inten == 0.0
+        assert ctv == pytest.approx(min(1.0, (wf.intensity[k, j, i] + 5.0) / 900.0), abs=1e-6)
+        world = np.array(B.coords.grid_affine_world(wf.spacing, wf.origin, wf.direction) @ [i, j, k, 1])[:3]
+        np.testing.assert_allclose(world, ct.index_to_patient([k, j, i]) * MM, atol=1e-12)
+
+
+def test_write_vdb_resamples_the_ct_onto_a_different_grid(B, tmp_path):
+    """With a CT on another grid, the ct grid is the CT trilinearly resampled at the w-field's voxels."""
+    from pdehead_addon import CTVolume
+    wf = _oblique_wfield()
+    fine = np.fromfunction(lambda k, j, i: 3.0 * i + 2.0 * j + 1.0 * k, (30, 40, 50), dtype=np.float32)
+    ct = CTVolume(fine, (1.0, 1.0, 1.0), origin=(-125.0, 25.0, 50.0))  # axis-aligned, linear in position
+    path = B.volume.write_vdb(wf, tmp_path / "r.vdb", (0.0, 400.0), ct=ct)
+    for k, j, i in [(1, 2, 3), (2, 4, 6), (0, 0, 0)]:
+        p = ct.patient_to_index(np.array(B.coords.grid_affine_world(wf.spacing, wf.origin, wf.direction)
+                                         @ [i, j, k, 1])[:3] / MM)
+        inside = np.all(p >= 0) and np.all(p <= np.array(fine.shape) - 1)
+        expected = (3.0 * p[2] + 2.0 * p[1] + p[0]) / 400.0 if inside else 0.0
+        assert B.volume.vdb_value(path, "ct", (i, j, k)) == pytest.approx(np.clip(expected, 0, 1), abs=1e-4)
+
+
+# ----------------------------------------------------------------------------- the Volume object
+def test_volume_object_lines_up_with_the_surface(B, phantom, phantom_head, phantom_wfield, tmp_path):
+    import bpy
+    coll = B.objects.study_collection("Phantom")
+    surface = B.objects.build_surface(phantom_head, coll, nu=60, nv=90)
+    vol = B.volume.build_volume(phantom_wfield, coll, tmp_path / "Phantom.vdb", ct=phantom.ct)
+    assert vol.type == "VOLUME" and vol.name in coll.objects
+    assert B.volume.check_volume(vol) is None
+    grids = vol.data.grids
+    assert grids.load() and {g.name for g in grids} >= {"w", "intensity", "ct"}
+    np.testing.assert_allclose(np.array(vol.location), np.array(surface.location))  # one study origin
+
+    wf = phantom_wfield
+    inside = wf.w <= 1.0
+    assert 0.05 < inside.mean() < 0.9
+    # where Blender puts the w grid's voxels: object matrix x the grid's own transform
+    to_world = np.array(vol.matrix_world) @ np.array(grids["w"].matrix_object)
+    expected = B.coords.grid_affine_world(wf.spacing, wf.origin, wf.direction)
+    np.testing.assert_allclose(to_world, expected, atol=1e-7)
+    # the active w voxels (the solid) cover the same box as the surface mesh, to a voxel
+    info = B.volume.read_vdb_grids(bpy.path.abspath(vol.data.filepath))
+    (i0, j0, k0), (i1, j1, k1) = info["w"]["active_box"]
+    box = np.array([[i, j, k, 1.0] for i in (i0, i1) for j in (j0, j1) for k in (k0, k1)]) @ to_world.T
+    surf_world = B.objects.mesh_world_vertices(surface)
+    voxel = max(wf.spacing) * MM
+    np.testing.assert_allclose(box[:, :3].min(0), surf_world.min(0), atol=1.5 * voxel)
+    np.testing.assert_allclose(box[:, :3].max(0), surf_world.max(0), atol=1.5 * voxel)
+    # a voxel deep inside: the file holds the engine's w at the world position of that voxel
+    k, j, i = np.argwhere(inside)[len(np.argwhere(inside)) // 2]
+    assert B.volume.vdb_value(bpy.path.abspath(vol.data.filepath), "w", (i, j, k)) == pytest.approx(
+        float(wf.w[k, j, i]), abs=1e-6)
+    # the Volume object's bounding box (all grids, incl. the CT box) contains the surface
+    lo, hi = B.render.world_bounds([vol])
+    assert np.all(lo <= surf_world.min(0) + 1e-6) and np.all(hi >= surf_world.max(0) - 1e-6)
+
+
+# ----------------------------------------------------------------------------- the material
+def _link_into(tree, node, socket_name):
+    links = [lk for lk in tree.links if lk.to_node == node and lk.to_socket.name == socket_name]
+    assert len(links) == 1, f"{node.name}.{socket_name} is not linked"
+    return links[0].from_node, links[0].from_socket
+
+
+def test_volume_material_node_tree(B, tmp_path):
+    import bpy
+    coll = B.objects.study_collection("S")
+    vol = B.volume.build_volume(_oblique_wfield(), coll, tmp_path / "S.vdb")
+    mat = vol.material_slots[0].material
+    tree = mat.node_tree
+    out = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial")
+    pv, _ = _link_into(tree, out, "Volume")
+    assert pv.bl_idname == "ShaderNodeVolumePrincipled"
+    assert not any(lk.to_node == out and lk.to_socket.name == "Surface" for lk in tree.links)
+    group, socket = _link_into(tree, pv, "Density")
+    assert group.bl_idname == "ShaderNodeGroup" and group.node_tree.name == "PDE Head eq. 24"
+    assert socket.name == "Density"
+    assert _link_into(tree, pv, "Emission Strength")[0] == group
+    ramp, _ = _link_into(tree, pv, "Color")
+    assert ramp.bl_idname == "ShaderNodeValToRGB" and _link_into(tree, pv, "Emission Color")[0] == ramp
+    assert _link_into(tree, ramp, "Factor")[0] == group
+    for socket_name, grid in (("W", "w"), ("Intensity", "intensity"), ("CT", "ct")):
+        attr, out_socket = _link_into(tree, group, socket_name)
+        assert attr.bl_idname == "ShaderNodeAttribute" and attr.attribute_name == grid
+        assert attr.attribute_type == "GEOMETRY" and out_socket.identifier == "Fac"
+    # inside the group: W -> clamp -> eq. 24 -> x inside -> mode mix -> clamp -> x density -> max(., 0) -> out
+    g = group.node_tree
+    items = {s.name: s for s in g.interface.items_tree if s.item_type == "SOCKET" and s.in_out == "INPUT"}
+    assert items["Low Alpha"].default_value == pytest.approx(0.1)
+    assert items["High Alpha"].default_value == pytest.approx(0.9)
+    assert items["Density"].default_value > 0 and items["Intensity Alpha"].default_value == 0.0
+    assert all(items[k].min_value >= 0.0 for k in ("Low Alpha", "High Alpha", "Density", "Emission"))
+    assert items["Low Alpha"].max_value <= 1.0 and items["High Alpha"].max_value <= 1.0
+    gout = next(n for n in g.nodes if n.bl_idname == "NodeGroupOutput")
+    node, _ = _link_into(g, gout, "Density")
+    assert (node.bl_idname, node.operation, node.inputs[1].default_value) == ("ShaderNodeMath", "MAXIMUM", 0.0)
+    assert not node.inputs[1].is_linked
+    chains = [c for c in _upstream_chains(g, gout.inputs["Density"]) if c[-1] == "input W"]
+    assert sorted(chains) == sorted([
+        ["MAXIMUM", "MULTIPLY", "ShaderNodeClamp", "ShaderNodeMix", "MULTIPLY", "MULTIPLY_ADD", "ShaderNodeClamp",
+         "input W"],
+        ["MAXIMUM", "MULTIPLY", "ShaderNodeClamp", "ShaderNodeMix", "MULTIPLY", "LESS_THAN", "input W"]])
+    less = next(n for n in g.nodes if n.bl_idname == "ShaderNodeMath" and n.operation == "LESS_THAN")
+    assert less.inputs[1].default_value == pytest.approx(1.0 + B.volume.INSIDE_EPS)  # w > 1 (outside) -> 0
+    assert bpy.data.node_groups["PDE Head eq. 24"].users >= 1
+
+
+def _upstream_chains(tree, to_socket):
+    """Every path of nodes from a group input up to `to_socket` (node labels, nearest first)."""
+    for link in [lk for lk in tree.links if lk.to_socket == to_socket]:
+        node = link.from_node
+        if node.bl_idname == "NodeGroupInput":
+            yield [f"input {link.from_socket.name}"]
+            continue
+        label = node.operation if node.bl_idname == "ShaderNodeMath" else node.bl_idname
+        for socket in node.inputs:
+            if socket.enabled:
+                for chain in _upstream_chains(tree, socket):
+                    yield [label] + chain
+
+
+class _Evaluator:
+    """Evaluates the float maths of a shader node group (Math, Clamp, Mix float) for given inputs."""
+
+    def __init__(self, group, inputs: dict):
+        self.g, self.inputs = group, inputs
+
+    def socket_value(self, socket):
+        links = [lk for lk in self.g.links if lk.to_socket == socket]
+        if links:
+            return self.output_value(links[0].from_node, links[0].from_socket)
+        return float(socket.default_value)
+
+    def output_value(self, node, socket):
+        idn = node.bl_idname
+        if idn == "NodeGroupInput":
+            return float(self.inputs[socket.name])
+        ins = [s for s in node.inputs if s.enabled]
+        if idn == "ShaderNodeMath":
+            a, b, c = (self.socket_value(s) for s in node.inputs)
+            r = {"SUBTRACT": a - b, "MULTIPLY": a * b, "MULTIPLY_ADD": a * b + c, "LESS_THAN": float(a < b),
+                 "MAXIMUM": max(a, b), "ADD": a + b}[node.operation]
+            return min(max(r, 0.0), 1.0) if node.use_clamp else r
+        if idn == "ShaderNodeClamp":
+            assert node.clamp_type == "MINMAX"
+            v, lo, hi = (self.socket_value(s) for s in ins)
+            return min(max(v, lo), hi)
+        if idn == "ShaderNodeMix":
+            assert node.data_type == "FLOAT" and node.clamp_factor
+            f, a, b = (self.socket_value(s) for s in ins)
+            f = min(max(f, 0.0), 1.0)
+            return (1 - f) * a + f * b
+        raise AssertionError(f"unexpected node {idn}")
+
+    def output(self, name):
+        gout = next(n for n in self.g.nodes if n.bl_idname == "NodeGroupOutput")
+        return self.socket_value(gout.inputs[name])
+
+
+def test_eq24_density_computed_in_nodes_and_never_negative(B):
+    g = B.volume.ensure_eq24_group()
+    base = dict(Intensity=0.4, CT=0.7, Emission=0.5)
+    for low, high in ((0.1, 0.9), (0.9, 0.1), (0.0, 1.0), (0.3, 0.3)):
+        for w in np.linspace(-0.5, 3.0, 36):
+            ev = _Evaluator(g, dict(base, W=w, **{"Low Alpha": low, "High Alpha": high, "Density": 20.0,
+                                                  "Intensity Alpha": 0.0}))
+            wc = min(max(w, 0.0), 1.0)
+            alpha = (low - high) * wc + high if w <= 1.0 + B.volume.INSIDE_EPS else 0.0   # eq. 24, 0 outside
+            assert ev.output("Alpha") == pytest.approx(alpha, abs=1e-9)
+            assert ev.output("Density") == pytest.approx(20.0 * alpha, abs=1e-9)
+            assert ev.output("Emission Strength") == pytest.approx(10.0 * alpha, abs=1e-9)
+            assert ev.output("Value") == pytest.approx(0.4)
+    # the outside value written to the file gives exactly zero density
+    ev = _Evaluator(g, dict(base, W=B.volume.OUTSIDE_BACKGROUND, **{"Low Alpha": 0.1, "High Alpha": 0.9,
+                                                                     "Density": 20.0, "Intensity Alpha": 0.0}))
+    assert ev.output("Density") == 0.0
+    # intensity-alpha baseline: alpha = CT everywhere (also outside the solid), colour from the CT
+    for w in (0.2, 2.0):
+        ev = _Evaluator(g, dict(base, W=w, **{"Low Alpha": 0.1, "High Alpha": 0.9, "Density": 20.0,
+                                              "Intensity Alpha": 1.0}))
+        assert ev.output("Density") == pytest.approx(14.0) and ev.output("Value") == pytest.approx(0.7)
+    # hostile inputs (linked sockets can bypass the UI limits): density still >= 0
+    for ct, dens, low, high in ((-3.0, 20.0, 0.1, 0.9), (0.5, -5.0, 0.1, 0.9), (0.5, 20.0, -1.0, -2.0)):
+        for mode in (0.0, 1.0):
+            ev = _Evaluator(g, dict(W=0.5, Intensity=-1.0, CT=ct, Emission=-2.0, **{
+                "Low Alpha": low, "High Alpha": high, "Density": dens, "Intensity Alpha": mode}))
+            assert ev.output("Density") >= 0.0 and ev.output("Emission Strength") >= 0.0
+            assert 0.0 <= ev.output("Value") <= 1.0
+
+
+def test_set_volume_settings(B, tmp_path):
+    coll = B.objects.study_collection("S")
+    vol = B.volume.build_volume(_oblique_wfield(), coll, tmp_path / "S.vdb", low_alpha=0.2, density=33.0)
+    s = B.volume.get_volume_settings(vol)
+    assert s["low_alpha"] == pytest.approx(0.2) and s["high_alpha"] == pytest.approx(0.9)
+    assert s["density"] == pytest.approx(33.0) and s["alpha_mode"] == "EQ24" and s["colour_preset"] == "grayscale"
+    B.volume.set_volume_settings(vol, high_alpha=0.7, colour_preset="skin", alpha_mode="INTENSITY")
+    s = B.volume.get_volume_settings(vol)
+    assert s["low_alpha"] == pytest.approx(0.2) and s["high_alpha"] == pytest.approx(0.7)  # None kept low_alpha
+    assert s["alpha_mode"] == "INTENSITY" and s["colour_preset"] == "skin"
+    ramp = vol.material_slots[0].material.node_tree.nodes["Intensity colour"]
+    stops = [(e.position, tuple(e.color)) for e in ramp.color_ramp.elements]
+    assert len(stops) == len(B.volume.COLOUR_PRESETS["skin"]) and stops[0][0] == 0.0 and stops[-1][0] == 1.0
+    assert stops[2][1][0] > stops[2][1][1] > stops[2][1][2]  # skin tone: red > green > blue
+    B.volume.set_volume_settings(vol, colour_preset="grayscale", low_alpha=-3.0, density=-1.0)
+    s = B.volume.get_volume_settings(vol)
+    assert s["low_alpha"] == 0.0 and s["density"] == 0.0  # clamped, never negative
+    assert [tuple(e.color)[:3] for e in ramp.color_ramp.elements] == [(0, 0, 0), (1, 1, 1)]
+    with pytest.raises(ValueError):
+        B.volume.set_volume_settings(vol, alpha_mode="TRANSFER")
+    with pytest.raises(ValueError):
+        B.volume.set_volume_settings(vol, colour_preset="rainbow")
+
+
+# ----------------------------------------------------------------------------- files
+def test_vdb_folder_rules(B, tmp_path):
+    import tempfile
+    blend = tmp_path / "a" / "study.blend"
+    assert B.volume.vdb_folder_for(str(blend), "/ignored") == (tmp_path / "a" / "pdehead_vdb").resolve()
+    assert B.volume.vdb_folder_for(None, str(tmp_path / "prefs")) == (tmp_path / "prefs").resolve()
+    assert B.volume.vdb_folder_for(None, "") == __import__("pathlib").Path(tempfile.gettempdir()) / "pdehead_vdb"
+    assert B.volume.vdb_path_for("CT head: 1/2", str(blend)).parent == (tmp_path / "a" / "pdehead_vdb").resolve()
+    assert "/" not in B.volume.vdb_path_for("CT head: 1/2", str(blend)).name
+
+
+def test_saved_file_reopens_with_its_volume_and_missing_vdb_is_reported(B, tmp_path):
+    import bpy
+    blend = tmp_path / "project" / "study.blend"
+    blend.parent.mkdir()
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    coll = B.objects.study_collection("Study 1")
+    vdb = B.volume.vdb_path_for("Study 1", bpy.data.filepath, None)
+    vol = B.volume.build_volume(_oblique_wfield(), coll, vdb, name="Study 1 Volume", high_alpha=0.8)
+    assert vol.data.filepath == "//pdehead_vdb/Study_1.vdb"  # bpy.path.clean_name
+    assert vdb.is_file() and vdb.parent == blend.parent / "pdehead_vdb"
+    bpy.ops.wm.save_mainfile()
+
+    bpy.ops.wm.read_homefile(use_empty=True)
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    vol = bpy.data.objects["Study 1 Volume"]
+    assert B.volume.check_volume(vol) is None
+    assert vol.data.grids.load()
+    assert {"w", "intensity"} <= {g.name for g in vol.data.grids}
+    assert B.volume.get_volume_settings(vol)["high_alpha"] == pytest.approx(0.8)
+
+    # the project folder moved without its pdehead_vdb folder: a clear message, no exception
+    moved = tmp_path / "moved"
+    moved.mkdir()
+    shutil.copy(blend, moved / "study.blend")
+    bpy.ops.wm.open_mainfile(filepath=str(moved / "study.blend"))
+    message = B.volume.check_volume(bpy.data.objects["Study 1 Volume"])
+    assert message is not None and "not found" in message and "pdehead_vdb" in message
+    assert B.volume.check_volume(None) is not None
