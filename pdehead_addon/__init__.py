@@ -15,8 +15,8 @@ from .errors import PDEHeadError, CTImportError, SegmentationError, BoundaryErro
 from .ct_volume import CTVolume
 from .mesh import Mesh
 from .ct_import import load_ct, list_series, SeriesInfo, CTImportWarning
-from .phantom import make_phantom
-from .dicom_export import write_dicom_series
+from .phantom import make_phantom, Phantom
+from .dicom_export import write_dicom_series, write_phantom_series
 from .segmentation import Segmentation, segment_head
 from .boundary_set import BoundarySet, knots_from_heights
 from .boundaries import extract_boundaries

@@ -361,8 +361,9 @@ def write_phantom_series(phantom: Any, folder: str | os.PathLike, *,
         (13 x 4.0, 1.08, 13 x 7.0 mm, i.e. z steps of step / cos t), the first
         image centre 10 mm below the nose tip, so the series reaches the vertex.
     slice_thickness : float or sequence, optional
-        SliceThickness per image; default the normal step to the next image
-        (the last repeats the previous one), like the GE set (4.0 / 7.0).
+        SliceThickness per image; default the larger of the normal steps to the
+        neighbouring images, which reproduces the GE set (14 x 4.0, 14 x 7.0:
+        the 1.08 mm overlap step does not count as a thickness).
     rows, columns : int
         Image size in pixels.
     pixel_spacing : (float, float)
@@ -403,9 +404,10 @@ def write_phantom_series(phantom: Any, folder: str | os.PathLike, *,
     if z.size == 0 or not np.all(np.isfinite(z)):
         raise PDEHeadError(f"{folder}: slice_positions must be a non-empty list of finite z values")
     positions = np.stack([np.full_like(z, x0), np.full_like(z, y0), z], axis=1)
-    if slice_thickness is None:
+    if slice_thickness is None:  # the larger step to a neighbour: an overlap step keeps its group's value
         step = np.abs(np.diff(positions @ np.cross(row_dir, col_dir)))
-        thickness = np.append(step, step[-1]) if step.size else np.array([1.0])
+        thickness = (np.maximum(np.append(step, 0.0), np.insert(step, 0, 0.0)) if step.size
+                     else np.array([1.0]))
     else:
         thickness = np.broadcast_to(np.asarray(slice_thickness, float), z.shape)
     folder = _prepare_folder(folder, file_prefix, overwrite)

@@ -1,6 +1,641 @@
-"""A deterministic synthetic head CT with exact ground truth (demo and quick tests)."""
+"""A deterministic synthetic head CT with exact ground truth (the demo data and quick tests).
+
+The head is defined analytically in patient LPS millimetres (+x patient left,
++y posterior, +z superior; the face looks toward -y) by approximate signed
+distance functions (negative inside) of ellipsoids, elliptic cylinders, a few
+rotated ellipsoids and two flat plates (the ears), combined with smooth unions
+and differences. Because it is
+a function of position, the same phantom can be sampled on any grid, including
+tilted, sheared or unevenly spaced slices (:meth:`Phantom.sample_hu`), and its
+truth is known at any point (:meth:`Phantom.inside_head`).
+
+Anatomy (eye line at z = 0, head centred on x = 0):
+
+* skin surface: cranium (vertex at z = +98), forehead with brow ridge, cheeks,
+  jaw, chin, a nose whose tip (y = -106, z = -33) stands 22-26 mm in front of
+  the cheeks, upper and lower lips (protruding 5-7 mm) with a 2 mm mouth line,
+  shallow eye sockets (the skin over the eyes lies 7 mm behind the brow and
+  3 mm behind the cheek) holding eyeballs under lids, two ears flaring
+  backwards from the sides (they make axial cross-sections non-star-shaped;
+  each section of an ear is attached to the head), and a neck cut by the
+  bottom of the field of view. Size: 166 mm wide with the ears (150 without),
+  206 mm from nose tip to occiput, vertex to chin 190 mm;
+* inside: a 7 mm skull shell with a flat base, CSF layer, brain with two
+  lateral ventricles, eyes, mandible, cervical vertebrae with discs, and
+  internal air (nasal cavity, maxillary and frontal sinuses, pharyngeal airway
+  open at the bottom of the field of view, like a real neck);
+* outside, touching the head like in real scans: a foam pillow behind the
+  head whose foam is compressed (denser, up to about -150 HU) where the head
+  rests on it, so a -400 HU threshold picks up a thin layer of it, and a
+  4 mm thick curved head-holder shell (+300 HU) around the back and sides
+  whose side walls press against the ears.
+
+Imaging model: every tissue interface is blurred by a Gaussian point spread
+function of standard deviation ``blur`` mm (partial volume), evaluated
+analytically as ``0.5 * erfc(d / (sqrt(2) * blur))`` of the signed distance
+``d``, so the blur is identical on any sampling grid. Then independent
+Gaussian noise of standard deviation ``noise`` HU is added to every voxel
+(white noise; real CT noise is somewhat correlated, this is a simplification).
+"""
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass, field
+from typing import Any
 
-def make_phantom(**params):
-    raise NotImplementedError("being written")
+import numpy as np
+from scipy.special import erfc
+
+from .ct_volume import CTVolume
+from .errors import PDEHeadError
+
+# Tissue labels of :attr:`Phantom.labels` (uint8).
+AIR = 0            # outside air
+SOFT_TISSUE = 1    # skin, fat, muscle, cartilage (nose, ears, lips)
+BONE = 2           # skull, mandible, vertebrae
+BRAIN = 3
+CSF = 4            # CSF layer under the skull, ventricles, intervertebral discs (soft, ~CSF/disc HU)
+EYE = 5            # vitreous body
+INTERNAL_AIR = 6   # nasal cavity, sinuses, airway (inside the head mask)
+CUSHION = 7        # foam pillow (not head)
+HOLDER = 8         # plastic head-holder shell (not head)
+
+LABEL_NAMES: dict[int, str] = {
+    AIR: "air (outside)", SOFT_TISSUE: "soft tissue / skin", BONE: "bone", BRAIN: "brain",
+    CSF: "CSF / discs", EYE: "eye (vitreous)", INTERNAL_AIR: "internal air (sinuses, airway)",
+    CUSHION: "foam pillow", HOLDER: "head holder",
+}
+
+#: Default tissue values in HU (the cushion value is the uncompressed foam).
+DEFAULT_HU: dict[str, float] = {
+    "air": -1000.0, "soft_tissue": 40.0, "skull": 1100.0, "mandible": 1300.0, "vertebra": 750.0,
+    "brain": 32.0, "csf": 8.0, "disc": 80.0, "eye": 12.0, "internal_air": -1000.0,
+    "cushion": -900.0, "cushion_compressed": -150.0, "holder": 300.0,
+}
+
+#: Field of view (z, y, x) in mm covered by the default grid for any shape.
+DEFAULT_FOV_MM = (230.0, 256.0, 256.0)
+DEFAULT_SHAPE = (100, 128, 128)
+_TOP_Z = 110.0          # patient z of the centre of the top slice (vertex at +98)
+_CENTRE_Y = 4.0         # patient y of the grid centre (nose tip -106, holder back +122)
+_CHUNK_VOXELS = 1 << 20  # evaluate the grid in slabs of about this many voxels (bounded memory)
+
+
+class _ParameterError(PDEHeadError, ValueError):
+    """A phantom parameter is out of range (catchable as PDEHeadError or ValueError)."""
+
+
+# --------------------------------------------------------------------------------------------
+# Signed-distance building blocks (mm, negative inside), evaluated on flat point sets.
+# Every primitive only touches the points in its bounding box (grown by the blend width);
+# elsewhere it is "far" and leaves the field exactly unchanged, which is what makes the
+# default grid fast. Grid and arbitrary points go through the same code, so the truth at
+# voxel centres is bit-identical to :meth:`Phantom.inside_head` there.
+# --------------------------------------------------------------------------------------------
+class _Points:
+    """Flat patient LPS coordinates (mm) of the points being evaluated."""
+
+    __slots__ = ("x", "y", "z", "ax")
+
+    def __init__(self, x: np.ndarray, y: np.ndarray, z: np.ndarray):
+        self.x, self.y, self.z = x, y, z
+        self.ax = np.abs(x)
+
+    def take(self, index: np.ndarray | None) -> "_Points":
+        return self if index is None else _Points(self.x[index], self.y[index], self.z[index])
+
+    def select(self, box: tuple[np.ndarray, np.ndarray, bool]) -> np.ndarray | None:
+        """Indices of the points inside ``box = (lo, hi, mirror)``; None means all of them."""
+        lo, hi, mirror = box
+        x = self.ax if mirror else self.x
+        inside = (x >= lo[0]) & (x <= hi[0]) & (self.y >= lo[1]) & (self.y <= hi[1])
+        inside &= (self.z >= lo[2]) & (self.z <= hi[2])
+        return None if inside.all() else np.flatnonzero(inside)
+
+
+def _ellipsoid_sd(u, v, w, r):
+    """Approximate signed distance to the ellipsoid u^2/a^2 + v^2/b^2 + w^2/c^2 = 1.
+
+    ``(k0 - 1) k0 / k1`` with k0 = |p/r|, k1 = |p/r^2| (Quilez): exact zero set,
+    a good distance estimate near the surface, correct sign everywhere.
+    """
+    pu, pv, pw = u / r[0], v / r[1], w / r[2]
+    k0 = np.sqrt(pu * pu + pv * pv + pw * pw)
+    k1 = np.sqrt(pu * pu / (r[0] * r[0]) + pv * pv / (r[1] * r[1]) + pw * pw / (r[2] * r[2]))
+    radius = np.divide(k0, k1, out=np.full(k0.shape, float(min(r))), where=k1 > 0)
+    return (k0 - 1.0) * radius
+
+
+def _ellipse_sd(u, v, r):
+    """2-D version of :func:`_ellipsoid_sd` (an infinite elliptic cylinder)."""
+    pu, pv = u / r[0], v / r[1]
+    k0 = np.sqrt(pu * pu + pv * pv)
+    k1 = np.sqrt(pu * pu / (r[0] * r[0]) + pv * pv / (r[1] * r[1]))
+    radius = np.divide(k0, k1, out=np.full(k0.shape, float(min(r))), where=k1 > 0)
+    return (k0 - 1.0) * radius
+
+
+def _smin(a, b, k):
+    """Smooth union (polynomial smooth minimum, blend width k mm); exactly min(a, b) if |a-b| >= k."""
+    h = np.maximum(k - np.abs(a - b), 0.0) / k
+    return np.minimum(a, b) - 0.25 * k * h * h
+
+
+def _smax(a, b, k):
+    """Smooth intersection; ``_smax(a, -b, k)`` is the smooth difference a minus b."""
+    h = np.maximum(k - np.abs(a - b), 0.0) / k
+    return np.maximum(a, b) + 0.25 * k * h * h
+
+
+def _rotation_about_z(angle_deg: float) -> np.ndarray:
+    """Rows: local axes (u, v, w) rotated by ``angle_deg`` about +z (w = z)."""
+    c, s = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
+    return np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _rotation_ear(flare_deg: float, roll_deg: float) -> np.ndarray:
+    """Rows: local axes (u, v, w) of the left ear plate: w (the front edge) tilted by ``roll_deg``
+    about y so the top leans outwards, then v (backwards) turned by ``flare_deg`` towards +x."""
+    cf, sf = math.cos(math.radians(flare_deg)), math.sin(math.radians(flare_deg))
+    cr, sr = math.cos(math.radians(roll_deg)), math.sin(math.radians(roll_deg))
+    return np.array([[cr * cf, -cr * sf, -sr], [sf, cf, 0.0], [sr * cf, -sr * sf, cr]])
+
+
+def _rotation_about_x(angle_deg: float) -> np.ndarray:
+    """Rows: local axes (u, v, w) rotated by ``angle_deg`` about +x (u = x)."""
+    c, s = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, s], [0.0, -s, c]])
+
+
+class _Ellipsoid:
+    """Ellipsoid, optionally rotated (semi-axes along the rows of ``axes``), mirrored in x
+    (``|x|``) and cut in half (``half``: only the part with local v >= 0)."""
+
+    def __init__(self, centre, radii, *, mirror: bool = False, axes: np.ndarray | None = None,
+                 half: bool = False):
+        self.centre, self.radii = np.asarray(centre, float), tuple(float(r) for r in radii)
+        self.mirror, self.axes, self.half = mirror, axes, half
+
+    def sd(self, p: _Points) -> np.ndarray:
+        dx = (p.ax if self.mirror else p.x) - self.centre[0]
+        dy, dz = p.y - self.centre[1], p.z - self.centre[2]
+        if self.axes is not None:
+            a = self.axes
+            dx, dy, dz = (a[0, 0] * dx + a[0, 1] * dy + a[0, 2] * dz,
+                          a[1, 0] * dx + a[1, 1] * dy + a[1, 2] * dz,
+                          a[2, 0] * dx + a[2, 1] * dy + a[2, 2] * dz)
+        d = _ellipsoid_sd(dx, dy, dz, self.radii)
+        return np.maximum(d, -dy) if self.half else d  # half: keep local v >= 0 only
+
+    def box(self, margin: float):
+        reach = np.full(3, max(self.radii)) if self.axes is not None else np.asarray(self.radii)
+        return self.centre - reach - margin, self.centre + reach + margin, self.mirror
+
+
+class _Plate(_Ellipsoid):
+    """Flat elliptic plate of uniform thickness ``2 * radii[0]`` (edges rounded by 1.5 mm):
+    an ellipse of semi-axes ``radii[1:]`` in the local (v, w) plane. Unlike a thin ellipsoid
+    its rim does not taper, so any sampling finer than its thickness keeps it connected."""
+
+    def sd(self, p: _Points) -> np.ndarray:
+        dx = (p.ax if self.mirror else p.x) - self.centre[0]
+        dy, dz = p.y - self.centre[1], p.z - self.centre[2]
+        if self.axes is not None:
+            a = self.axes
+            dx, dy, dz = (a[0, 0] * dx + a[0, 1] * dy + a[0, 2] * dz,
+                          a[1, 0] * dx + a[1, 1] * dy + a[1, 2] * dz,
+                          a[2, 0] * dx + a[2, 1] * dy + a[2, 2] * dz)
+        d = _smax(_ellipse_sd(dy, dz, self.radii[1:]), np.abs(dx) - self.radii[0], 1.5)
+        return np.maximum(d, -dy) if self.half else d
+
+
+class _Cylinder:
+    """Elliptic cylinder along z between ``bottom`` and ``top`` (hard caps)."""
+
+    def __init__(self, centre_xy, radii_xy, *, top: float = math.inf, bottom: float = -math.inf):
+        self.centre, self.radii = np.asarray(centre_xy, float), tuple(float(r) for r in radii_xy)
+        self.top, self.bottom = float(top), float(bottom)
+
+    def sd(self, p: _Points) -> np.ndarray:
+        d = _ellipse_sd(p.x - self.centre[0], p.y - self.centre[1], self.radii)
+        if math.isfinite(self.top):
+            d = np.maximum(d, p.z - self.top)
+        if math.isfinite(self.bottom):
+            d = np.maximum(d, self.bottom - p.z)
+        return d
+
+    def box(self, margin: float):
+        lo = np.array([*(self.centre - self.radii - margin), self.bottom - margin])
+        hi = np.array([*(self.centre + self.radii + margin), self.top + margin])
+        return lo, hi, False
+
+
+class _SmoothUnion:
+    """Smooth union of primitives: ``first`` then ``(primitive, blend)`` pairs."""
+
+    def __init__(self, first, *rest):
+        self.first, self.rest = first, rest
+
+    def sd(self, p: _Points) -> np.ndarray:
+        d = self.first.sd(p)
+        for prim, k in self.rest:
+            d = _smin(d, prim.sd(p), k)
+        return d
+
+    def box(self, margin: float):
+        boxes = [self.first.box(margin)] + [prim.box(margin + k) for prim, k in self.rest]
+        if len({b[2] for b in boxes}) != 1:
+            raise ValueError("a smooth union must not mix mirrored and plain primitives")
+        return (np.min([b[0] for b in boxes], axis=0), np.max([b[1] for b in boxes], axis=0), boxes[0][2])
+
+
+def _blend(field: np.ndarray, p: _Points, prim, k: float, carve: bool = False) -> None:
+    """In place: smooth union (or smooth difference if ``carve``) of ``prim`` into ``field``.
+
+    Only points within ``2k + 6`` mm of the primitive's bounding box are touched:
+    beyond it the primitive is farther than the blend width from any surface of
+    ``field`` that matters (the sign and the near field are unchanged).
+    """
+    index = p.select(prim.box(2.0 * k + 6.0))
+    if index is not None and index.size == 0:
+        return
+    d = prim.sd(p.take(index))
+    old = field if index is None else field[index]
+    new = _smax(old, -d, k) if carve else _smin(old, d, k)
+    if index is None:
+        field[...] = new
+    else:
+        field[index] = new
+
+
+# --------------------------------------------------------------------------------------------
+# The analytic head. Geometry in mm (patient LPS, eye line at z = 0); mirrored parts use |x|.
+# --------------------------------------------------------------------------------------------
+GEOMETRY: dict[str, Any] = {
+    # skin body: (centre, radii) of ellipsoids unless noted
+    "cranium": ((0.0, 8.0, 22.0), (74.0, 95.0, 76.0)),
+    "face": ((0.0, -22.0, -30.0), (60.0, 62.0, 60.0)),
+    "cheek": ((38.0, -50.0, -18.0), (22.0, 24.0, 22.0)),
+    "brow": ((0.0, -62.0, 12.0), (54.0, 24.0, 13.0)),
+    "muzzle": ((0.0, -52.0, -50.0), (32.0, 31.0, 24.0)),
+    "jaw": ((0.0, -16.0, -60.0), (54.0, 58.0, 30.0)),
+    "chin": ((0.0, -66.0, -78.0), (19.0, 13.0, 13.0)),
+    "under_chin": ((0.0, -40.0, -78.0), (36.0, 34.0, 13.0)),
+    "neck": ((0.0, 20.0), (50.0, 54.0), 0.0),                        # centre xy, radii xy, top z
+    "nose_bridge": ((0.0, -83.0, -17.0), (7.5, 8.5, 23.0), 28.0),   # + backward lean of the top (deg)
+    "nose_tip": ((0.0, -97.5, -33.0), (8.0, 8.5, 7.0)),
+    "nose_ala": ((11.0, -86.5, -34.0), (7.0, 7.0, 6.0)),
+    "columella": ((0.0, -91.0, -37.0), (5.0, 9.0, 4.5)),
+    "upper_lip": ((0.0, -80.0, -50.0), (19.0, 5.5, 4.5)),
+    "lower_lip": ((0.0, -78.5, -61.0), (17.0, 5.5, 5.0)),
+    "mouth_line": ((0.0, -90.0, -55.5), (22.0, 11.0, 1.6)),        # carved
+    "eye_socket": ((32.0, -86.0, 1.0), (16.0, 13.0, 11.0)),        # carved
+    "eyeball": ((32.0, -62.0, 0.0), (12.0, 12.0, 12.0)),
+    # ear: a D-shaped plate (half an elliptic plate) whose straight front edge runs through
+    # the centre, 3-6 mm under the skin over the whole ear height (leaning out by the roll angle
+    # like the side of the head), so every axial section of the ear is attached to the head.
+    # radii (half-thickness, depth backwards, half-height); flare (deg) of the back edge; roll (deg)
+    "ear": ((63.5, 0.0, -6.0), (3.5, 30.0, 24.0), 38.0, 15.0),
+    # inside
+    "skull_outer": ((0.0, 8.0, 22.0), (68.0, 89.0, 70.0)),
+    "skull_inner": ((0.0, 8.0, 22.0), (61.0, 82.0, 63.0)),
+    "skull_base_z": -26.0, "brain_floor_z": -19.0, "csf_layer": 1.5,
+    "ventricle": ((10.0, 14.0, 34.0), (6.0, 24.0, 10.0)),
+    # mandible: U-shaped bar = ring around (centre xy, radii xy) of half-thickness, z centre, half-height, y max
+    "mandible": ((0.0, -10.0), (45.0, 55.0), 4.5, -72.0, 12.0, 20.0),
+    # cervical spine: centre xy, radii xy, top z, vertebra period, disc half-height
+    "spine": ((0.0, 26.0), (11.0, 10.0), -34.0, 16.0, 2.0),
+    "nasal_cavity": ((0.0, -70.0, -20.0), (10.0, 16.0, 16.0)),
+    "maxillary_sinus": ((26.0, -56.0, -24.0), (12.0, 13.0, 13.0)),
+    "frontal_sinus": ((0.0, -80.0, 28.0), (14.0, 4.0, 8.0)),
+    "airway": ((0.0, -2.0), (8.0, 6.0), -42.0),                      # centre xy, radii xy, top z
+    # apparatus. holder: centre xy, mid-wall radii xy, half-thickness, y min, z max
+    "holder": ((0.0, 8.0), (80.0, 112.0), 2.0, -22.0, 30.0),
+    "cushion": (58.0, 24.0, 8.0),  # y min, z max, compression decay length (mm)
+}
+
+
+def _build_shapes(g: dict[str, Any]) -> dict[str, Any]:
+    """Primitive objects for the geometry table."""
+    e = _Ellipsoid
+    bc, br, lean = g["nose_bridge"]
+    ec, er, flare, roll = g["ear"]
+    (ncx, ncy), nr, ntop = g["neck"]
+    (acx, acy), ar, atop = g["airway"]
+    return {
+        "cranium": e(*g["cranium"]),
+        # (operation, primitive, blend width mm) applied in this order to the cranium
+        "head_parts": [
+            ("union", e(*g["face"]), 14.0),
+            ("union", e(*g["cheek"], mirror=True), 14.0),
+            ("union", e(*g["brow"]), 10.0),
+            ("union", e(*g["muzzle"]), 10.0),
+            ("union", e(*g["jaw"]), 12.0),
+            ("union", e(*g["chin"]), 8.0),
+            ("union", e(*g["under_chin"]), 10.0),
+            ("union", _Cylinder((ncx, ncy), nr, top=ntop), 20.0),
+            ("union", _SmoothUnion(e(bc, br, axes=_rotation_about_x(-lean)),
+                                   (e(*g["nose_tip"]), 5.0), (e(*g["columella"]), 3.0)), 5.0),
+            ("union", e(*g["nose_ala"], mirror=True), 4.0),
+            ("union", e(*g["upper_lip"]), 4.0),
+            ("union", e(*g["lower_lip"]), 4.0),
+            ("union", _Plate(ec, er, mirror=True, axes=_rotation_ear(flare, roll), half=True), 4.0),
+            ("carve", e(*g["eye_socket"], mirror=True), 4.0),
+            ("union", e(*g["eyeball"], mirror=True), 2.0),
+            ("carve", e(*g["mouth_line"]), 1.0),
+        ],
+        "skull_outer": e(*g["skull_outer"]),
+        "skull_inner": e(*g["skull_inner"]),
+        "ventricle": e(*g["ventricle"], mirror=True),
+        "eyeball": e(*g["eyeball"], mirror=True),
+        "internal_air": [_Cylinder((acx, acy), ar, top=atop), e(*g["nasal_cavity"]),
+                         e(*g["maxillary_sinus"], mirror=True), e(*g["frontal_sinus"])],
+    }
+
+
+_SHAPES = _build_shapes(GEOMETRY)
+
+
+def _head_sd(p: _Points) -> np.ndarray:
+    """Signed distance (approx., mm; exact zero set) of the head: skin and all inside it."""
+    d = _SHAPES["cranium"].sd(p)
+    for operation, prim, k in _SHAPES["head_parts"]:
+        _blend(d, p, prim, k, carve=operation == "carve")
+    return d
+
+
+def _box(lo, hi):
+    return np.asarray(lo, float), np.asarray(hi, float), False
+
+
+def _layers(p: _Points, head: np.ndarray, hu: dict[str, float]):
+    """Painter's list of ``(label, HU, index, signed distance)``; later layers overwrite.
+
+    ``index`` selects the points the layer may occupy (None: all), ``signed distance``
+    and HU (scalar or array) are given on those points only.
+    """
+    g, s = GEOMETRY, _SHAPES
+    layers = []
+
+    def add(label, value, box, sd_fn, head_margin=None):
+        index = p.select(box) if box is not None else None
+        if index is not None and index.size == 0:
+            return
+        q = p.take(index)
+        sd = sd_fn(q)
+        h = head if index is None else head[index]
+        if head_margin is not None:  # keep inner tissue at least head_margin mm under the skin
+            sd = np.maximum(sd, h + head_margin)
+        value = value(q, h) if callable(value) else value
+        layers.append((label, value, index, sd))
+
+    # apparatus first: the head is painted over it, so it touches the head but never overlaps
+    (hcx, hcy), hr, hhalf, hymin, hzmax = g["holder"]
+    reach = np.array(hr) + hhalf + 8.0
+    add(HOLDER, hu["holder"], _box([hcx - reach[0], hymin - 8, -np.inf], [hcx + reach[0], hcy + reach[1], hzmax + 8]),
+        lambda q: np.maximum(np.maximum(np.abs(_ellipse_sd(q.x - hcx, q.y - hcy, hr)) - hhalf, hymin - q.y),
+                             q.z - hzmax))
+    cymin, czmax, decay = g["cushion"]
+    inner_r = (hr[0] - hhalf, hr[1] - hhalf)
+    add(CUSHION,
+        lambda q, h: hu["cushion"] + (hu["cushion_compressed"] - hu["cushion"]) * np.exp(-np.maximum(h, 0.0) / decay),
+        _box([hcx - inner_r[0] - 8, cymin - 8, -np.inf], [hcx + inner_r[0] + 8, hcy + inner_r[1] + 8, czmax + 8]),
+        lambda q: _smax(np.maximum(_ellipse_sd(q.x - hcx, q.y - hcy, inner_r), cymin - q.y), q.z - czmax, 6.0))
+    layers.append((SOFT_TISSUE, hu["soft_tissue"], None, head))
+
+    # skull: shell between the outer and inner ellipsoids, closed by a flat base
+    def cavity_sd(q):
+        return _smax(s["skull_inner"].sd(q), g["brain_floor_z"] - q.z, 3.0)
+
+    add(BONE, hu["skull"], s["skull_outer"].box(8.0),
+        lambda q: np.maximum(_smax(s["skull_outer"].sd(q), g["skull_base_z"] - q.z, 3.0), -cavity_sd(q)), 2.0)
+    add(CSF, hu["csf"], s["skull_inner"].box(8.0), cavity_sd, 3.0)
+    add(BRAIN, hu["brain"], s["skull_inner"].box(8.0), lambda q: cavity_sd(q) + g["csf_layer"], 3.0 + g["csf_layer"])
+    add(CSF, hu["csf"], s["ventricle"].box(8.0), s["ventricle"].sd, 3.0)
+    add(EYE, hu["eye"], s["eyeball"].box(8.0), s["eyeball"].sd, 1.0)  # 1 mm lid in front
+
+    (mcx, mcy), mr, mhalf, mz, mhh, mymax = g["mandible"]
+    add(BONE, hu["mandible"],
+        _box([mcx - mr[0] - mhalf - 8, mcy - mr[1] - mhalf - 8, mz - mhh - 8], [mcx + mr[0] + mhalf + 8, mymax + 8, mz + mhh + 8]),
+        lambda q: np.maximum(np.maximum(np.abs(_ellipse_sd(q.x - mcx, q.y - mcy, mr)) - mhalf, np.abs(q.z - mz) - mhh),
+                             q.y - mymax), 3.0)
+    (scx, scy), sr, stop, period, disc_half = g["spine"]
+    column = _Cylinder((scx, scy), sr, top=stop)
+    add(BONE, hu["vertebra"], column.box(8.0), column.sd, 3.0)
+    add(CSF, hu["disc"], column.box(8.0),
+        lambda q: np.maximum(column.sd(q), disc_half - np.abs(np.mod(q.z - stop, period) - period / 2)), 3.0)
+    for cavity in s["internal_air"]:
+        add(INTERNAL_AIR, hu["internal_air"], cavity.box(8.0), cavity.sd, 4.0)
+    return layers
+
+
+def _evaluate(p: _Points, hu: dict[str, float], blur: float, want_hu: bool = True, want_labels: bool = True):
+    """Head signed distance, HU (noise-free, partial-volume blurred) and labels at points ``p``.
+
+    HU: starting from air, each layer mixes in its value with the weight
+    ``0.5 erfc(d / (sqrt(2) blur))`` (a plane interface convolved with a Gaussian PSF);
+    beyond 6 blur from an interface the weight is taken as exactly 0 or 1.
+    """
+    head = _head_sd(p)
+    layers = _layers(p, head, hu)
+    n = p.x.size
+    values = np.full(n, hu["air"], dtype=np.float64) if want_hu else None
+    labels = np.zeros(n, dtype=np.uint8) if want_labels else None
+    for label, value, index, sd in layers:
+        idx = np.arange(n) if index is None else index
+        if want_labels:
+            labels[idx[sd < 0]] = label
+        if want_hu:
+            if blur > 0:
+                near = np.abs(sd) < 6.0 * blur
+                full = idx[sd <= -6.0 * blur]
+                values[full] = value if np.ndim(value) == 0 else value[sd <= -6.0 * blur]
+                weight = 0.5 * erfc(sd[near] / (math.sqrt(2.0) * blur))
+                target = value if np.ndim(value) == 0 else value[near]
+                values[idx[near]] += (target - values[idx[near]]) * weight
+            else:
+                inside = sd < 0
+                values[idx[inside]] = value if np.ndim(value) == 0 else value[inside]
+    return head, values, labels
+
+
+def _points_from_array(points_xyz) -> tuple[_Points, tuple[int, ...]]:
+    pts = np.asarray(points_xyz, dtype=np.float64)
+    if pts.ndim == 0 or pts.shape[-1] != 3:
+        raise _ParameterError(f"points must have shape (..., 3) (x, y, z in mm), got {pts.shape}")
+    flat = pts.reshape(-1, 3)
+    return _Points(flat[:, 0].copy(), flat[:, 1].copy(), flat[:, 2].copy()), pts.shape[:-1]
+
+
+@dataclass
+class Phantom:
+    """A synthetic head CT and its exact truth.
+
+    Attributes
+    ----------
+    ct : CTVolume
+        float32 HU, axis-aligned (direction identity: i -> patient left,
+        j -> posterior, k -> superior), head centred on x = 0.
+    head_mask : ndarray of bool, shape (nz, ny, nx)
+        Truth of "head" (skin and everything inside it, internal air included,
+        neck down to the bottom of the field of view); pillow and holder excluded.
+    labels : ndarray of uint8, shape (nz, ny, nx)
+        Tissue label per voxel centre, see :data:`LABEL_NAMES`.
+    noise : float
+        Standard deviation (HU) of the white Gaussian noise in ``ct``.
+    blur : float
+        Standard deviation (mm) of the Gaussian partial-volume blur of interfaces.
+    seed : int
+        Seed of the noise.
+    params : dict
+        Everything used: shape, spacing, origin, hu table, geometry, landmarks
+        (``vertex_z``, ``nose_tip`` (x, y, z), ``nose_tip_z``, ``head_center_y``,
+        ``eye_centres``, ``ear_level_z``) and ``label_names``.
+    """
+
+    ct: CTVolume
+    head_mask: np.ndarray
+    labels: np.ndarray
+    noise: float
+    blur: float
+    seed: int
+    params: dict[str, Any] = field(default_factory=dict)
+
+    legend = LABEL_NAMES
+
+    def inside_head(self, points_xyz: np.ndarray) -> np.ndarray:
+        """Exact truth: is each patient LPS point (mm, shape (..., 3)) inside the head?"""
+        p, shape = _points_from_array(points_xyz)
+        return (_head_sd(p) < 0).reshape(shape)
+
+    def head_signed_distance(self, points_xyz: np.ndarray) -> np.ndarray:
+        """Approximate signed distance (mm, negative inside) to the skin; its zero set is exact."""
+        p, shape = _points_from_array(points_xyz)
+        return _head_sd(p).reshape(shape)
+
+    def labels_at(self, points_xyz: np.ndarray) -> np.ndarray:
+        """Tissue label (uint8, see :data:`LABEL_NAMES`) at patient LPS points (..., 3)."""
+        p, shape = _points_from_array(points_xyz)
+        return _evaluate(p, self.params["hu"], self.blur, want_hu=False)[2].reshape(shape)
+
+    def sample_hu(self, points_xyz: np.ndarray,
+                  noise_rng: np.random.Generator | int | None = None) -> np.ndarray:
+        """HU of the phantom at patient LPS points (mm, shape (..., 3)), float32.
+
+        Without ``noise_rng``: the noise-free model (partial-volume blur included),
+        equal to ``ct`` minus its noise at voxel centres. With a numpy Generator
+        (or an int seed): plus white Gaussian noise of standard deviation ``noise``.
+        """
+        p, shape = _points_from_array(points_xyz)
+        values = _evaluate(p, self.params["hu"], self.blur, want_labels=False)[1]
+        if noise_rng is not None and self.noise > 0:
+            rng = noise_rng if isinstance(noise_rng, np.random.Generator) else np.random.default_rng(noise_rng)
+            values = values + self.noise * rng.standard_normal(values.shape)
+        return values.astype(np.float32).reshape(shape)
+
+
+def make_phantom(shape: tuple[int, int, int] = DEFAULT_SHAPE,
+                 spacing: tuple[float, float, float] | None = None,
+                 noise: float = 20.0,
+                 seed: int = 0,
+                 blur: float | None = None,
+                 hu: dict[str, float] | None = None) -> Phantom:
+    """Make the synthetic head CT (deterministic for equal arguments).
+
+    Parameters
+    ----------
+    shape : (nz, ny, nx)
+        Grid size. The default (100, 128, 128) takes well under a second and is
+        meant for the whole pipeline to run in seconds.
+    spacing : (dz, dy, dx) mm, optional
+        Default ``DEFAULT_FOV_MM / shape``, i.e. always the same 230 x 256 x 256 mm
+        field of view (2.3 x 2.0 x 2.0 mm for the default shape, 1.4375 x 1 x 1 mm
+        for (160, 256, 256)). The grid is centred on x = 0 and y = 4 mm; its top
+        slice is at z = +110 mm (12 mm of air above the vertex) and it extends
+        down ``nz * dz`` mm, so the default bottom slice cuts the neck 25 mm
+        below the chin.
+    noise : float
+        Standard deviation of the white Gaussian CT noise in HU (0 for none).
+    seed : int
+        Seed of the noise generator.
+    blur : float, optional
+        Partial-volume blur (standard deviation of a Gaussian PSF, mm) applied
+        analytically to every interface. Default ``0.4 * min(spacing)``; 0
+        gives hard tissue boundaries.
+    hu : dict, optional
+        Overrides of :data:`DEFAULT_HU`.
+
+    Returns
+    -------
+    Phantom
+
+    Raises
+    ------
+    PDEHeadError
+        (also a ValueError) for an invalid shape, spacing, noise, blur or hu table.
+
+    Notes
+    -----
+    Default grid: 100 x 128 x 128 voxels of 2.3 x 2.0 x 2.0 mm, generated in about
+    0.5 s (peak memory about 150 MB); (160, 256, 256) takes about 4 s. The grid is
+    evaluated in slabs of about 1 M voxels, so memory stays bounded at any size.
+    """
+    shape = tuple(int(n) for n in np.atleast_1d(shape))
+    if len(shape) != 3 or min(shape) < 2:
+        raise _ParameterError(f"phantom shape must be 3 sizes >= 2 (nz, ny, nx), got {shape}")
+    if spacing is None:
+        spacing = tuple(f / n for f, n in zip(DEFAULT_FOV_MM, shape))
+    spacing = tuple(float(s) for s in np.atleast_1d(spacing))
+    if len(spacing) != 3 or not all(math.isfinite(s) and s > 0 for s in spacing):
+        raise _ParameterError(f"phantom spacing must be 3 positive numbers (dz, dy, dx) in mm, got {spacing}")
+    if not (math.isfinite(noise) and noise >= 0):
+        raise _ParameterError(f"phantom noise must be a finite number >= 0 (HU), got {noise}")
+    blur = 0.4 * min(spacing) if blur is None else float(blur)
+    if not (math.isfinite(blur) and blur >= 0):
+        raise _ParameterError(f"phantom blur must be a finite number >= 0 (mm), got {blur}")
+    unknown = sorted(set(hu or {}) - set(DEFAULT_HU))
+    if unknown:
+        raise _ParameterError(f"unknown tissue(s) in hu: {unknown}; known: {sorted(DEFAULT_HU)}")
+    table = dict(DEFAULT_HU)
+    table.update({k: float(v) for k, v in (hu or {}).items()})
+
+    nz, ny, nx = shape
+    dz, dy, dx = spacing
+    origin = np.array([-(nx - 1) / 2 * dx, _CENTRE_Y - (ny - 1) / 2 * dy, _TOP_Z - (nz - 1) * dz])
+    xs = origin[0] + np.arange(nx) * dx
+    ys = origin[1] + np.arange(ny) * dy
+    zs = origin[2] + np.arange(nz) * dz
+
+    data = np.empty(shape, dtype=np.float32)
+    labels = np.empty(shape, dtype=np.uint8)
+    head_mask = np.empty(shape, dtype=bool)
+    slab = max(1, _CHUNK_VOXELS // (ny * nx))  # bounded peak memory at any resolution
+    for k0 in range(0, nz, slab):
+        zc = zs[k0:k0 + slab]
+        grid = [np.broadcast_to(c, (zc.size, ny, nx)).ravel()
+                for c in (xs[None, None, :], ys[None, :, None], zc[:, None, None])]
+        head, values, lab = _evaluate(_Points(*grid), table, blur)
+        data[k0:k0 + slab] = values.reshape(zc.size, ny, nx)
+        labels[k0:k0 + slab] = lab.reshape(zc.size, ny, nx)
+        head_mask[k0:k0 + slab] = (head < 0).reshape(zc.size, ny, nx)
+    if noise > 0:
+        data += np.float32(noise) * np.random.default_rng(seed).standard_normal(shape, dtype=np.float32)
+
+    g = GEOMETRY
+    params = {
+        "shape": shape, "spacing": spacing, "origin": tuple(origin), "noise": float(noise),
+        "seed": int(seed), "blur": blur, "hu": table, "geometry": g,
+        "vertex_z": g["cranium"][0][2] + g["cranium"][1][2],
+        "nose_tip": (0.0, g["nose_tip"][0][1] - g["nose_tip"][1][1], g["nose_tip"][0][2]),
+        "nose_tip_z": g["nose_tip"][0][2],
+        "head_center_y": _CENTRE_Y,
+        "eye_centres": ((-g["eyeball"][0][0],) + g["eyeball"][0][1:], g["eyeball"][0]),
+        "ear_level_z": g["ear"][0][2],
+        "label_names": dict(LABEL_NAMES),
+    }
+    ct = CTVolume(data, spacing, origin=origin, direction=np.eye(3),
+                  meta={"source": "pdehead synthetic phantom", "modality": "CT", "units": "HU",
+                        "series_description": "PDE Head phantom",
+                        "noise_hu": float(noise), "blur_mm": blur, "seed": int(seed)})
+    return Phantom(ct=ct, head_mask=head_mask, labels=labels, noise=float(noise), blur=blur,
+                   seed=int(seed), params=params)
