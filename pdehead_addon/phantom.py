@@ -147,12 +147,6 @@ def _smax(a, b, k):
     return np.maximum(a, b) + 0.25 * k * h * h
 
 
-def _rotation_about_z(angle_deg: float) -> np.ndarray:
-    """Rows: local axes (u, v, w) rotated by ``angle_deg`` about +z (w = z)."""
-    c, s = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
-    return np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
 def _rotation_ear(flare_deg: float, roll_deg: float) -> np.ndarray:
     """Rows: local axes (u, v, w) of the left ear plate: w (the front edge) tilted by ``roll_deg``
     about y so the top leans outwards, then v (backwards) turned by ``flare_deg`` towards +x."""
@@ -301,7 +295,8 @@ GEOMETRY: dict[str, Any] = {
     "skull_inner": ((0.0, 8.0, 22.0), (61.0, 82.0, 63.0)),
     "skull_base_z": -26.0, "brain_floor_z": -19.0, "csf_layer": 1.5,
     "ventricle": ((10.0, 14.0, 34.0), (6.0, 24.0, 10.0)),
-    # mandible: U-shaped bar = ring around (centre xy, radii xy) of half-thickness, z centre, half-height, y max
+    # mandible: U-shaped bar = ring around (centre xy, radii xy) of half-thickness, at z centre with
+    # half-height, cut at y max
     "mandible": ((0.0, -10.0), (45.0, 55.0), 4.5, -72.0, 12.0, 20.0),
     # cervical spine: centre xy, radii xy, top z, vertebra period, disc half-height
     "spine": ((0.0, 26.0), (11.0, 10.0), -34.0, 16.0, 2.0),
@@ -391,39 +386,60 @@ def _layers(p: _Points, head: np.ndarray, hu: dict[str, float]):
 
     # apparatus first: the head is painted over it, so it touches the head but never overlaps
     (hcx, hcy), hr, hhalf, hymin, hzmax = g["holder"]
-    reach = np.array(hr) + hhalf + 8.0
-    add(HOLDER, hu["holder"], _box([hcx - reach[0], hymin - 8, -np.inf], [hcx + reach[0], hcy + reach[1], hzmax + 8]),
-        lambda q: np.maximum(np.maximum(np.abs(_ellipse_sd(q.x - hcx, q.y - hcy, hr)) - hhalf, hymin - q.y),
-                             q.z - hzmax))
-    cymin, czmax, decay = g["cushion"]
     inner_r = (hr[0] - hhalf, hr[1] - hhalf)
-    add(CUSHION,
-        lambda q, h: hu["cushion"] + (hu["cushion_compressed"] - hu["cushion"]) * np.exp(-np.maximum(h, 0.0) / decay),
+    cymin, czmax, decay = g["cushion"]
+
+    def holder_sd(q):  # elliptic shell of the cradle, open at the front and the top
+        shell = np.abs(_ellipse_sd(q.x - hcx, q.y - hcy, hr)) - hhalf
+        return np.maximum(np.maximum(shell, hymin - q.y), q.z - hzmax)
+
+    def cushion_sd(q):  # fills the cradle behind the head, up to z = czmax
+        return _smax(np.maximum(_ellipse_sd(q.x - hcx, q.y - hcy, inner_r), cymin - q.y), q.z - czmax, 6.0)
+
+    def cushion_hu(q, h):  # foam compressed (denser) where the head rests on it
+        compression = np.exp(-np.maximum(h, 0.0) / decay)
+        return hu["cushion"] + (hu["cushion_compressed"] - hu["cushion"]) * compression
+
+    reach = (hr[0] + hhalf + 8.0, hr[1] + hhalf + 8.0)
+    add(HOLDER, hu["holder"],
+        _box([hcx - reach[0], hymin - 8, -np.inf], [hcx + reach[0], hcy + reach[1], hzmax + 8]), holder_sd)
+    add(CUSHION, cushion_hu,
         _box([hcx - inner_r[0] - 8, cymin - 8, -np.inf], [hcx + inner_r[0] + 8, hcy + inner_r[1] + 8, czmax + 8]),
-        lambda q: _smax(np.maximum(_ellipse_sd(q.x - hcx, q.y - hcy, inner_r), cymin - q.y), q.z - czmax, 6.0))
+        cushion_sd)
     layers.append((SOFT_TISSUE, hu["soft_tissue"], None, head))
 
     # skull: shell between the outer and inner ellipsoids, closed by a flat base
     def cavity_sd(q):
         return _smax(s["skull_inner"].sd(q), g["brain_floor_z"] - q.z, 3.0)
 
-    add(BONE, hu["skull"], s["skull_outer"].box(8.0),
-        lambda q: np.maximum(_smax(s["skull_outer"].sd(q), g["skull_base_z"] - q.z, 3.0), -cavity_sd(q)), 2.0)
+    def skull_sd(q):
+        return np.maximum(_smax(s["skull_outer"].sd(q), g["skull_base_z"] - q.z, 3.0), -cavity_sd(q))
+
+    def brain_sd(q):
+        return cavity_sd(q) + g["csf_layer"]
+
+    add(BONE, hu["skull"], s["skull_outer"].box(8.0), skull_sd, 2.0)
     add(CSF, hu["csf"], s["skull_inner"].box(8.0), cavity_sd, 3.0)
-    add(BRAIN, hu["brain"], s["skull_inner"].box(8.0), lambda q: cavity_sd(q) + g["csf_layer"], 3.0 + g["csf_layer"])
+    add(BRAIN, hu["brain"], s["skull_inner"].box(8.0), brain_sd, 3.0 + g["csf_layer"])
     add(CSF, hu["csf"], s["ventricle"].box(8.0), s["ventricle"].sd, 3.0)
     add(EYE, hu["eye"], s["eyeball"].box(8.0), s["eyeball"].sd, 1.0)  # 1 mm lid in front
 
     (mcx, mcy), mr, mhalf, mz, mhh, mymax = g["mandible"]
-    add(BONE, hu["mandible"],
-        _box([mcx - mr[0] - mhalf - 8, mcy - mr[1] - mhalf - 8, mz - mhh - 8], [mcx + mr[0] + mhalf + 8, mymax + 8, mz + mhh + 8]),
-        lambda q: np.maximum(np.maximum(np.abs(_ellipse_sd(q.x - mcx, q.y - mcy, mr)) - mhalf, np.abs(q.z - mz) - mhh),
-                             q.y - mymax), 3.0)
+
+    def mandible_sd(q):  # U-shaped bar: a slab of an elliptic ring, open at the back
+        ring = np.abs(_ellipse_sd(q.x - mcx, q.y - mcy, mr)) - mhalf
+        return np.maximum(np.maximum(ring, np.abs(q.z - mz) - mhh), q.y - mymax)
+
+    add(BONE, hu["mandible"], _box([mcx - mr[0] - mhalf - 8, mcy - mr[1] - mhalf - 8, mz - mhh - 8],
+                                   [mcx + mr[0] + mhalf + 8, mymax + 8, mz + mhh + 8]), mandible_sd, 3.0)
     (scx, scy), sr, stop, period, disc_half = g["spine"]
     column = _Cylinder((scx, scy), sr, top=stop)
+
+    def disc_sd(q):  # every ``period`` mm a disc of 2 * disc_half mm between vertebral bodies
+        return np.maximum(column.sd(q), disc_half - np.abs(np.mod(q.z - stop, period) - period / 2))
+
     add(BONE, hu["vertebra"], column.box(8.0), column.sd, 3.0)
-    add(CSF, hu["disc"], column.box(8.0),
-        lambda q: np.maximum(column.sd(q), disc_half - np.abs(np.mod(q.z - stop, period) - period / 2)), 3.0)
+    add(CSF, hu["disc"], column.box(8.0), disc_sd, 3.0)
     for cavity in s["internal_air"]:
         add(INTERNAL_AIR, hu["internal_air"], cavity.box(8.0), cavity.sd, 4.0)
     return layers

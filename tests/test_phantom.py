@@ -229,8 +229,9 @@ def test_write_dicom_round_trip(small_ct, tmp_path):
         hu = ds.pixel_array * float(ds.RescaleSlope) + float(ds.RescaleIntercept)
         assert float(ds.RescaleIntercept) == -1024
         assert np.abs(hu - small_ct.data[k]).max() <= 0.5 + 1e-4
-    assert len({ds.SeriesInstanceUID for ds in datasets}) == 1 and len({ds.StudyInstanceUID for ds in datasets}) == 1
-    assert len({ds.FrameOfReferenceUID for ds in datasets}) == 1 and len({ds.SOPInstanceUID for ds in datasets}) == 8
+    for keyword in ("SeriesInstanceUID", "StudyInstanceUID", "FrameOfReferenceUID"):
+        assert len({ds[keyword].value for ds in datasets}) == 1
+    assert len({ds.SOPInstanceUID for ds in datasets}) == 8
     # deterministic UIDs with a seed: byte-identical files; random UIDs without
     again = write_dicom_series(small_ct, tmp_path / "again", series_description="round trip", uid_seed=7)
     assert all(a.read_bytes() == b.read_bytes() for a, b in zip(files, again))
