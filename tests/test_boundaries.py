@@ -44,6 +44,16 @@ def to_pixels(seg, curve):
     return seg.ct.patient_to_index(curve)[:, 1:]
 
 
+def pixel_edge_points(mask2d):
+    """Midpoints (row, col) of all edges between a mask pixel and a 4-adjacent background pixel."""
+    m = np.pad(np.asarray(mask2d, bool), 1)
+    r, c = np.nonzero(m[:, 1:] != m[:, :-1])
+    horizontal = np.column_stack([r, c + 0.5])
+    r, c = np.nonzero(m[1:, :] != m[:-1, :])
+    vertical = np.column_stack([r + 0.5, c])
+    return np.vstack([horizontal, vertical]) - 1.0
+
+
 def segment_lengths(curve):
     return np.linalg.norm(np.diff(np.vstack([curve, curve[:1]]), axis=0), axis=1)
 
@@ -314,7 +324,7 @@ def test_bad_parameters_raise():
 def test_flipped_axes_keep_conventions():
     """Orientation and seam are fixed in patient space, whatever the voxel axes do."""
     mask = ellipse_stack(nz=20, a=30, b=20)
-    ct_dir = np.diag([-1.0, -1.0, -1.0])   # i -> patient right, j -> anterior, k -> inferior
+    ct_dir = np.diag([-1.0, 1.0, -1.0])    # i -> patient right, k -> inferior: mirrors (x, y)
     ct = CTVolume(mask.astype(np.float32), SPACING, origin=(10.0, 20.0, 100.0), direction=ct_dir)
     seg = Segmentation(mask, mask.astype(np.float32), 1.0, 0.0, 0, ct, {})
     bset = extract_boundaries(seg, patches=3, samples=64)
@@ -326,7 +336,7 @@ def test_flipped_axes_keep_conventions():
 
 
 # --------------------------------------------------------------------------- real CT
-def _check_real(seg, bset, n_expected):
+def _check_real(seg, bset, n_expected, max_edge_dist=1.0, max_ring_dist=1.5):
     mask = seg.mask
     assert bset.curves.shape == (n_expected, 256, 3)
     assert np.all(np.diff(bset.heights) > 0)
@@ -347,14 +357,20 @@ def _check_real(seg, bset, n_expected):
         cen = polygon_centroid(c[:, :2])
         assert c[0, 1] > cen[1] and abs(c[0, 0] - cen[0]) < 0.05   # seam at the back, on the midline
         assert c[c.shape[0] // 2, 1] < cen[1]                       # the middle of v is at the front
-        # On the mask boundary: every point within 1 px of an eq. 22 ring pixel of its slice.
+        # On the mask boundary: every point within 1 px of the pixel-edge boundary of its
+        # slice (midpoints between 4-adjacent mask / background pixels) and within 1.5 px of
+        # an eq. 22 ring pixel centre (bridging a 1-px crack costs ~1.05 px there).
         rc = to_pixels(seg, c)
         assert np.allclose(seg.ct.patient_to_index(c)[:, 0], k, atol=1e-6)
-        dist, _ = cKDTree(np.argwhere(boundary_ring(mask[k]))).query(rc)
+        dist, _ = cKDTree(pixel_edge_points(mask[k])).query(rc)
+        ring_dist, _ = cKDTree(np.argwhere(boundary_ring(mask[k]))).query(rc)
         worst_dist.append(dist.max())
-    assert max(worst_dist) <= 1.0
+        assert ring_dist.max() <= max_ring_dist
+    assert max(worst_dist) <= max_edge_dist
     assert min(bset.meta["ring_coverage"]) > 0.85
-    assert np.median(np.abs(offsets)) <= 1 and np.abs(offsets).max() <= 12
+    # No twist: the best cyclic shift between neighbours is ~0. Uniform arc length lets
+    # features on one side (an ear, the nose) move the samples by a few steps, never far.
+    assert np.median(np.abs(offsets)) <= 1 and np.abs(offsets).mean() <= 3 and np.abs(offsets).max() <= 12
     return worst_dist, offsets
 
 
@@ -371,6 +387,13 @@ def test_cthead_boundaries(cthead_seg, cthead_bset):
 def test_cthead_shape_change_selection(cthead_seg):
     bset = extract_boundaries(cthead_seg, patches=10, samples=256, selection="shape-change")
     _check_real(cthead_seg, bset, 31)
+
+
+def test_cthead_probability_level_field(cthead_seg):
+    # The soft p (before clean-up) refines the curve, clamped to band = 1 px around the mask edge.
+    bset = extract_boundaries(cthead_seg, patches=10, samples=256, level_field="probability", band=1)
+    _check_real(cthead_seg, bset, 31, max_edge_dist=2.0, max_ring_dist=2.5)
+    assert bset.meta["level_field"] == "probability"
 
 
 def test_ge_boundaries(ge_seg):
