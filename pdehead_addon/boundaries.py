@@ -229,8 +229,8 @@ def outer_contour(mask2d: np.ndarray, sigma: float = 0.7, probability: np.ndarra
         coordinates ``(row, col)`` of ``mask2d``, in marching-squares order.
     info : dict
         Only with ``return_info``: ``area_px`` (pixels in the outer region),
-        ``ring_coverage`` (fraction of eq. 22 ring pixels within 1 pixel of the
-        contour).
+        ``ring_coverage`` (fraction of eq. 22 ring pixels within 1 pixel, or
+        ``band + 1`` pixels with ``probability``, of a contour point).
 
     Raises
     ------
@@ -281,11 +281,12 @@ def outer_contour(mask2d: np.ndarray, sigma: float = 0.7, probability: np.ndarra
     contour = contour + np.array([r0, c0], dtype=np.float64)
     if not return_info:
         return contour
+    reach = 1 if probability is None else band + 1   # how far the curve may lie from the ring
     traced = np.zeros_like(ring)
     traced[idx[:, 0], idx[:, 1]] = True
     ring_px = np.argwhere(ring)
     info = dict(area_px=int(reg.sum()),
-                ring_coverage=float(_window_any(traced, ring_px, 1).mean()) if len(ring_px) else 0.0)
+                ring_coverage=float(_window_any(traced, ring_px, reach).mean()) if len(ring_px) else 0.0)
     return contour, info
 
 
