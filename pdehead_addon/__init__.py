@@ -20,8 +20,9 @@ from .dicom_export import write_dicom_series, write_phantom_series
 from .segmentation import Segmentation, segment_head
 from .boundary_set import BoundarySet, knots_from_heights
 from .boundaries import extract_boundaries
-from .pde_surface import solve_pde
-from .pde_solid import alpha_from_w
-from .storage import save_boundaries, load_boundaries
+from .pde_surface import solve_pde, PDEHead, smoothing_bounds, align_parameterisation
+from .pde_solid import alpha_from_w, w_field, solid_mesh, WField, OUTSIDE_W
+from .storage import save_boundaries, load_boundaries, dumps_boundaries, loads_boundaries, load_head, loads_head
+from .surface_metrics import symmetric_surface_distance
 
 __version__ = "0.1.0"

@@ -1,6 +1,970 @@
-"""Step 4: the Bloor-Wilson PDE surface (paper eq. 1-13), t patches along u."""
+"""Step 4: the Bloor-Wilson PDE surface (paper eq. 1-13), t patches along u.
+
+The head is ``t`` PDE patches stacked along u (paper section 4.1). Patch ``k``
+covers the global ``u in [k/t, (k+1)/t]``; inside it a local parameter
+``s in [0, 1]`` runs from curve ``3k`` to curve ``3k+3`` and the PDE
+
+    (d^2/ds^2 + a^2 d^2/dv^2)^2 X(s, v) = 0                          (eq. 1)
+
+is solved under the four positional conditions ``X(p_j, v) = P_j(v)`` at
+``p = (0, p1, p2, 1)`` (eq. 3-6), with ``p1, p2`` taken from
+``BoundarySet.u_knots`` (the curves' heights), not fixed thirds.
+
+Method
+------
+Each curve is sampled at M points uniformly in v, so its trigonometric
+interpolant has the harmonics ``h = 0 .. M//2``. Separation of variables
+(eq. 7-10) turns eq. 1 into one ODE per harmonic ``h``,
+``(d^2/ds^2 - k_h^2)^2 A_h(s) = 0`` with ``k_h = a*h``; its 4-dimensional
+solution space is spanned by ``{e^{ks}, s e^{ks}, e^{-ks}, s e^{-ks}}``
+(a cubic for ``h = 0``, eq. 8). The four positional conditions make the
+coefficients the solution of a 4x4 interpolation system per harmonic.
+Harmonics ``h <= N`` (``modes``) use their own exponent ``a*h``; the
+remainder R of eq. 11-12, which carries the difference between the curves
+and the truncated series F (eq. 13), uses the single exponent
+``omega = a*(N+1)`` for all harmonics ``h > N``. R's functions r_1..r_4(v)
+are determined at the M samples and continued between them by trigonometric
+interpolation, so the surface passes exactly through every curve (every
+harmonic is interpolated at all four knots).
+
+Numerics: for small ``k`` the exponential basis degenerates (``e^{ks}`` and
+``e^{-ks}`` both tend to 1), so a basis that tends to the cubic monomials in
+``s - 1/2`` is used (``cosh x``, ``s sinhc x``, ``s^2 sinhc x``,
+``s^3 psi(x)`` with ``x = k (s - 1/2)``); for larger ``k`` the rescaled
+exponentials ``e^{k(s-1)}, s e^{k(s-1)}, e^{-ks}, s e^{-ks}`` (all <= 1 on
+[0, 1]). The 4x4 condition numbers stay below ~1e2 in the stable range;
+they are kept in ``PDEHead.condition``.
+
+Choice of the smoothing parameter a
+-----------------------------------
+With four *positional* conditions the per-harmonic interpolation is only
+well posed while ``k * gap`` is moderate: a function of the solution space
+that is 0 at s = 0 and 1 at s = p1 behaves like ``(s/p1) e^{k(p1-s)}`` and
+so overshoots by ~``e^{k p1}/(k p1)`` between the knots. The growth is
+measured by the Lebesgue constant ``Lambda(k) = max_s sum_j |L_j(s)|`` of the
+cardinal functions ``L_j`` (``Lambda(0) = 1.63`` for thirds, the cubic
+Lagrange value; it stays within 10 % up to ``k ~ 4.8`` and reaches ``e^{k/3}``
+growth beyond ``k ~ 8``: 3.6 at k = 10, 44 at k = 20, 810 at k = 30). The
+largest exponent used is ``a*(N+1)``, so
+
+* the isotropic choice ``a_iso = H / r`` (patch height H in mm over the
+  mean radius r of its curves: it makes ``d/ds`` and ``a d/dv`` equal
+  physical rates, the value of a biharmonic in arc length) is ~0.3 for
+  t = 10 on CThead; with N = 128 that means ``k`` up to ~40 and
+  overshoots of metres;
+* the default is therefore ``a = min(a_iso, a_stable)`` per patch, where
+  ``a_stable`` is the largest a for which ``Lambda(a*(N+1))`` stays within
+  ``DEFAULT_LEBESGUE_GROWTH`` (10 %) of ``Lambda(0)``; with N = M/2 this is
+  the binding limit (a ~ 0.037 for thirds) and every harmonic is
+  interpolated almost like the cubic Lagrange blend of the four curves,
+  which is the ``a -> 0`` limit of eq. 1 (``d^4 X/ds^4 = 0``);
+* a user value is accepted up to ``a_max`` where ``Lambda`` reaches
+  ``MAX_LEBESGUE_GROWTH`` times ``Lambda(0)``; above it a :class:`PDEError`
+  names the limit (see :func:`smoothing_bounds`). ``a = 0`` is allowed and
+  means the cubic limit.
+
+Default N is M//2: all harmonics of the sampled curves carry their own
+exponent, R is identically zero and X solves eq. 1 exactly.
+"""
 from __future__ import annotations
 
+from functools import lru_cache
+from typing import Sequence
 
-def solve_pde(bset, smoothing=None, modes=None):
-    raise NotImplementedError("being written")
+import numpy as np
+
+from .boundary_set import BoundarySet
+from .errors import PDEError
+from .mesh import Mesh
+
+#: The default a keeps the top harmonic's Lebesgue constant within this factor of the cubic one.
+DEFAULT_LEBESGUE_GROWTH = 1.10
+#: User smoothing values are accepted while the Lebesgue constant stays within this factor.
+MAX_LEBESGUE_GROWTH = 2.0
+#: Below this exponent the cubic-limit basis is used, above it the rescaled exponentials.
+_K_SWITCH = 2.5
+#: Exponents are searched up to this value (beyond it every knot set is hopeless anyway).
+_K_SEARCH_MAX = 200.0
+
+TWO_PI = 2.0 * np.pi
+
+
+# ----------------------------------------------------------------------------- basis
+
+
+def _psi(x: np.ndarray) -> np.ndarray:
+    """``3 (cosh x - sinh x / x) / x^2``, -> 1 as x -> 0 (series where cancellation would bite)."""
+    x = np.asarray(x, dtype=np.float64)
+    out = np.empty_like(x)
+    small = np.abs(x) < 0.5
+    xs = x[small]
+    x2 = xs * xs
+    term = np.ones_like(xs)
+    acc = np.ones_like(xs)
+    # sum_{m>=1} 6m/(2m+1)! x^(2m-2); ratio of consecutive terms = (m+1) x^2 / (m (2m+2)(2m+3))
+    for m in range(1, 10):
+        term = term * x2 * (m + 1) / (m * (2 * m + 2) * (2 * m + 3))
+        acc = acc + term
+    out[small] = acc
+    xl = x[~small]
+    out[~small] = 3.0 * (np.cosh(xl) - np.sinh(xl) / xl) / (xl * xl)
+    return out
+
+
+def _sinhc(x: np.ndarray) -> np.ndarray:
+    x = np.asarray(x, dtype=np.float64)
+    small = np.abs(x) < 1e-3
+    safe = np.where(small, 1.0, x)
+    x2 = x * x
+    return np.where(small, 1.0 + x2 / 6.0 + x2 * x2 / 120.0, np.sinh(safe) / safe)
+
+
+def _basis(k: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """The 4 basis functions of ``(d^2/ds^2 - k^2)^2 f = 0`` at local s, shape ``broadcast(k, s) + (4,)``.
+
+    ``k <= _K_SWITCH``: ``cosh x, c sinhc x, c^2 sinhc x, c^3 psi(x)`` with ``c = s - 1/2``,
+    ``x = k c`` (tends to the cubic monomials in c as k -> 0). Otherwise the rescaled
+    exponentials ``e^{k(s-1)}, s e^{k(s-1)}, e^{-ks}, s e^{-ks}``.
+    """
+    k, s = np.broadcast_arrays(np.asarray(k, dtype=np.float64), np.asarray(s, dtype=np.float64))
+    out = np.empty(k.shape + (4,))
+    low = k <= _K_SWITCH
+    if np.any(low):
+        _basis_low(k[low], s[low], out_view := np.empty(k[low].shape + (4,)))
+        out[low] = out_view
+    if not np.all(low):
+        _basis_high(k[~low], s[~low], out_view := np.empty(k[~low].shape + (4,)))
+        out[~low] = out_view
+    return out
+
+
+def _basis_low(k: np.ndarray, s: np.ndarray, out: np.ndarray) -> None:
+    """Cubic-limit basis into ``out[..., 4]`` (k, s already broadcast)."""
+    c = s - 0.5
+    x = k * c
+    sc = _sinhc(x)
+    out[..., 0] = np.cosh(x)
+    out[..., 1] = c * sc
+    out[..., 2] = c * out[..., 1]
+    out[..., 3] = c * c * c * _psi(x)
+
+
+def _basis_high(k: np.ndarray, s: np.ndarray, out: np.ndarray) -> None:
+    """Rescaled exponential basis into ``out[..., 4]`` (k, s already broadcast)."""
+    out[..., 0] = np.exp(k * (s - 1.0))
+    out[..., 1] = s * out[..., 0]
+    out[..., 2] = np.exp(-k * s)
+    out[..., 3] = s * out[..., 2]
+
+
+def _basis_grid(k: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Basis for every (s, k) pair: shape ``(len(s), len(k), 4)``; k split by regime, not per element."""
+    k = np.asarray(k, dtype=np.float64)
+    s = np.asarray(s, dtype=np.float64)
+    out = np.empty((s.size, k.size, 4))
+    low = k <= _K_SWITCH
+    n_low = int(low.sum())
+    if np.all(low[:n_low]) and not np.any(low[n_low:]):       # usual case: k increasing with h
+        kk, ss = np.broadcast_arrays(k[None, :n_low], s[:, None])
+        _basis_low(kk, ss, out[:, :n_low])
+        if n_low < k.size:
+            kk, ss = np.broadcast_arrays(k[None, n_low:], s[:, None])
+            _basis_high(kk, ss, out[:, n_low:])
+        return out
+    return _basis(k[None, :], s[:, None])
+
+
+def _cardinal(k: np.ndarray, knots: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Cardinal functions ``L_j(s)`` (``L_j(p_i) = delta_ij``) for each k: shape (len(k), len(s), 4).
+
+    ``knots`` is (4,) or (len(k), 4).
+    """
+    k = np.atleast_1d(np.asarray(k, dtype=np.float64))
+    knots = np.broadcast_to(np.asarray(knots, dtype=np.float64), k.shape + (4,))
+    g_nodes = _basis(k[:, None], knots)                                  # (K, 4 nodes, 4 basis)
+    g_eval = _basis(k[:, None], np.asarray(s, dtype=np.float64)[None, :])  # (K, S, 4 basis)
+    return np.linalg.solve(np.swapaxes(g_nodes, 1, 2), np.swapaxes(g_eval, 1, 2)).swapaxes(1, 2)
+
+
+_LEBESGUE_S = np.linspace(0.0, 1.0, 257)
+
+
+def lebesgue_constant(k: np.ndarray | float, knots: Sequence[float] | np.ndarray) -> np.ndarray:
+    """Lebesgue constant ``max_s sum_j |L_j(s)|`` of the 4-knot interpolation with exponent k.
+
+    It bounds how much a harmonic can grow between the knots relative to its
+    values at the curves (1.63 for the cubic with thirds, growing like
+    ``e^{k p}`` for large k): the overshoot measure used to bound a.
+    ``knots`` is (4,) or one row per k.
+    """
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        L = _cardinal(np.atleast_1d(np.asarray(k, dtype=np.float64)), knots, _LEBESGUE_S)
+        lam = np.abs(L).sum(axis=2).max(axis=1)
+    lam[~np.isfinite(lam)] = np.inf
+    return lam
+
+
+_K_SCAN = np.concatenate([np.linspace(0.0, 20.0, 41)[1:], np.linspace(22.0, _K_SEARCH_MAX, 30)])
+
+
+@lru_cache(maxsize=256)
+def _stable_exponent(knots: tuple[float, float, float, float], growth: float) -> float:
+    """Largest K such that Lambda(k) <= growth * Lambda(0) for all k in [0, K] (scan, then bisection)."""
+    lam0 = float(lebesgue_constant(0.0, knots)[0])
+    bound = growth * lam0
+    lam = lebesgue_constant(_K_SCAN, knots)
+    bad = np.nonzero(lam > bound)[0]
+    if bad.size == 0:
+        return _K_SEARCH_MAX
+    hi = _K_SCAN[bad[0]]
+    lo = _K_SCAN[bad[0] - 1] if bad[0] > 0 else 0.0
+    while hi - lo > 1e-3 * hi:
+        mid = 0.5 * (lo + hi)
+        if lebesgue_constant(mid, knots)[0] > bound:
+            hi = mid
+        else:
+            lo = mid
+    return lo
+
+
+# ----------------------------------------------------------------------------- set-up helpers
+
+
+def _local_knots(bset: BoundarySet) -> np.ndarray:
+    """Per-patch knots ``(0, p1, p2, 1)`` in local s, shape (t, 4); validates ``bset.u_knots``."""
+    t = bset.patches
+    u = np.asarray(bset.u_knots, dtype=np.float64)
+    if u.shape != (3 * t + 1,) or not np.all(np.isfinite(u)):
+        raise PDEError(f"u_knots must be {3 * t + 1} finite numbers, got shape {u.shape}")
+    ends = np.arange(t + 1) / t
+    if np.max(np.abs(u[::3] - ends)) > 1e-9:
+        raise PDEError("u_knots[3k] must equal k/t (the patch ends); rebuild them with knots_from_heights")
+    local = np.stack([u[3 * k:3 * k + 4] * t - k for k in range(t)])
+    local[:, 0], local[:, 3] = 0.0, 1.0
+    gaps = np.diff(local, axis=1)
+    if np.any(gaps <= 1e-6):
+        bad = int(np.nonzero(np.any(gaps <= 1e-6, axis=1))[0][0])
+        raise PDEError(f"patch {bad}: u_knots are not strictly increasing ({local[bad].round(6).tolist()})")
+    return local
+
+
+def _patch_geometry(bset: BoundarySet) -> tuple[np.ndarray, np.ndarray]:
+    """Per-patch height H (mm) and mean curve radius r (mm) for the isotropic a = H / r."""
+    t = bset.patches
+    c = bset.curves
+    centroid = c.mean(axis=1, keepdims=True)
+    radius = np.linalg.norm(c - centroid, axis=2).mean(axis=1)     # (3t+1,)
+    heights = np.asarray(bset.heights, float)
+    H = np.abs(heights[3:][::3] - heights[:-3][::3])
+    # fall back to the spine chord where heights are not informative
+    chord = np.linalg.norm(centroid[3::3, 0] - centroid[:-3:3, 0], axis=1)
+    H = np.where(H > 0, H, chord)
+    r = np.array([radius[3 * k:3 * k + 4].mean() for k in range(t)])
+    return H, r
+
+
+def _check_modes(modes: int | None, samples: int) -> int:
+    top = samples // 2
+    if modes is None:
+        return top
+    if isinstance(modes, bool) or not isinstance(modes, (int, np.integer)):
+        raise PDEError(f"modes must be an integer in [1, {top}], got {modes!r}")
+    if not 1 <= int(modes) <= top:
+        raise PDEError(f"modes must be in [1, {top}] (M/2 for M = {samples} samples per curve), got {modes}")
+    return int(modes)
+
+
+def smoothing_bounds(bset: BoundarySet, modes: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Default and maximum smoothing parameter a of each patch.
+
+    Parameters
+    ----------
+    bset : BoundarySet
+    modes : int, optional
+        N of eq. 11 (default M//2).
+
+    Returns
+    -------
+    default, maximum : ndarray, shape (t,)
+        ``default = min(H/r, a_stable)`` (see the module docstring) and the
+        largest accepted a, for which the Lebesgue constant of the top exponent
+        ``a (N+1)`` is ``MAX_LEBESGUE_GROWTH`` times the cubic one.
+    """
+    n = _check_modes(modes, bset.samples)
+    local = _local_knots(bset)
+    H, r = _patch_geometry(bset)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a_iso = np.where(r > 0, H / r, np.inf)
+    default = np.empty(bset.patches)
+    maximum = np.empty(bset.patches)
+    for k, knots in enumerate(local):
+        key = tuple(float(x) for x in np.round(knots, 12))
+        default[k] = min(a_iso[k], _stable_exponent(key, DEFAULT_LEBESGUE_GROWTH) / (n + 1))
+        maximum[k] = _stable_exponent(key, MAX_LEBESGUE_GROWTH) / (n + 1)
+    return default, maximum
+
+
+# ----------------------------------------------------------------------------- the solved head
+
+
+class PDEHead:
+    """A solved PDE head: t Bloor-Wilson patches, evaluable anywhere in (u, v, w).
+
+    Do not construct directly; use :func:`solve_pde`.
+
+    Attributes
+    ----------
+    bset : BoundarySet
+        The boundary conditions solved for (not copied).
+    smoothing : ndarray, shape (t,)
+        The smoothing parameter a of each patch (local u of the patch).
+    modes : int
+        N of eq. 11: harmonics with their own exponent ``a n``; the rest is R.
+    knots : ndarray, shape (t, 4)
+        Local knots ``(0, p1, p2, 1)`` of each patch.
+    exponents : ndarray, shape (t, H)
+        Exponent ``k_h`` of every harmonic h = 0 .. M//2 in each patch
+        (``a h`` for h <= N, ``omega = a (N+1)`` for the remainder R).
+    coefficients : ndarray of complex, shape (t, H, 4, 3)
+        Basis coefficients: ``A_h(s) = basis(k_h, s) @ coefficients[k, h]`` and
+        ``X(s, v) = Re sum_h A_h(s) e^{i h v}`` (so ``A_h - i B_h`` of eq. 9-10).
+    condition : ndarray, shape (t,)
+        Largest condition number of the per-harmonic 4x4 systems.
+    lebesgue : ndarray, shape (t,)
+        Lebesgue constant of the largest exponent used (overshoot factor).
+    orientation : int
+        +1 if the quads ``(u,v) -> (u,v+1) -> (u+1,v+1) -> (u+1,v)`` face outward, else -1.
+    """
+
+    def __init__(self, bset: BoundarySet, smoothing: np.ndarray, modes: int, knots: np.ndarray,
+                 exponents: np.ndarray, coefficients: np.ndarray, condition: np.ndarray,
+                 lebesgue: np.ndarray, planar_z: bool):
+        self.bset = bset
+        self.smoothing = smoothing
+        self.modes = modes
+        self.knots = knots
+        self.exponents = exponents
+        self.coefficients = coefficients
+        self.condition = condition
+        self.lebesgue = lebesgue
+        self.planar_z = planar_z
+        self.smoothing_is_default = False
+        self._coef_real = np.ascontiguousarray(
+            np.concatenate([coefficients.real, coefficients.imag], axis=-1))   # (t, H, 4, 6)
+        self.orientation = 1
+        self.orientation = self._measure_orientation()
+
+    # -- basic properties
+    @property
+    def patches(self) -> int:
+        return self.coefficients.shape[0]
+
+    @property
+    def harmonics(self) -> int:
+        """Number of harmonics h = 0 .. M//2 carried."""
+        return self.coefficients.shape[1]
+
+    def _patch_of(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        t = self.patches
+        scaled = np.asarray(u, dtype=np.float64) * t
+        patch = np.clip(np.floor(scaled).astype(np.int64), 0, t - 1)
+        return patch, scaled - patch
+
+    @staticmethod
+    def _check_u(u: np.ndarray) -> None:
+        if not np.all(np.isfinite(u)) or np.any(u < -1e-12) or np.any(u > 1 + 1e-12):
+            raise PDEError("u must lie in [0, 1]")
+
+    # -- harmonic amplitudes
+    def _amplitudes(self, u: np.ndarray) -> np.ndarray:
+        """Complex harmonic amplitudes ``A_h(u) - i B_h(u)`` (weighted), shape (len(u), H, 3)."""
+        u = np.clip(np.asarray(u, dtype=np.float64).ravel(), 0.0, 1.0)
+        patch, s = self._patch_of(u)
+        out = np.empty((u.size, self.harmonics, 3), dtype=np.complex128)
+        for k in np.unique(patch):
+            sel = np.nonzero(patch == k)[0]
+            g = _basis_grid(self.exponents[k], s[sel])                        # (n, H, 4)
+            # batched over h: (H, n, 4) @ (H, 4, 6 = re xyz, im xyz)
+            prod = np.matmul(g.transpose(1, 0, 2), self._coef_real[k]).transpose(1, 0, 2)
+            out[sel] = prod[..., :3] + 1j * prod[..., 3:]
+        return out
+
+    def spine(self, u: np.ndarray | float) -> np.ndarray:
+        """The spine ``A_0(u)`` (eq. 8): the cubic centre line, shape ``u.shape + (3,)``."""
+        u = np.asarray(u, dtype=np.float64)
+        self._check_u(u)
+        flat = np.clip(u.ravel(), 0.0, 1.0)
+        patch, s = self._patch_of(flat)
+        c = s - 0.5
+        mono = np.stack([np.ones_like(c), c, c * c, c ** 3], axis=-1)       # basis at k = 0
+        a0 = np.einsum("nb,nbc->nc", mono, self.coefficients[patch, 0].real)
+        return a0.reshape(u.shape + (3,))
+
+    # -- evaluation
+    def evaluate(self, u: np.ndarray | float, v: np.ndarray | float, w: np.ndarray | float = 1.0,
+                 chunk: int = 8192) -> np.ndarray:
+        """Points ``X(u, v, w) = A0(u) + w (X(u, v) - A0(u))`` (eq. 11 and 23) in LPS mm.
+
+        Parameters
+        ----------
+        u, v, w : array_like
+            Broadcast together; ``u in [0, 1]``, v in radians (periodic), ``w`` usually in [0, 1].
+
+        Returns
+        -------
+        ndarray, shape ``broadcast(u, v, w).shape + (3,)``
+        """
+        u, v, w = np.broadcast_arrays(np.asarray(u, float), np.asarray(v, float), np.asarray(w, float))
+        self._check_u(u)
+        if not (np.all(np.isfinite(v)) and np.all(np.isfinite(w))):
+            raise PDEError("v and w must be finite")
+        shape = u.shape
+        uf, vf, wf = u.ravel(), v.ravel(), w.ravel()
+        out = np.empty((uf.size, 3))
+        h = np.arange(self.harmonics)
+        for start in range(0, uf.size, chunk):
+            sl = slice(start, start + chunk)
+            amp = self._amplitudes(uf[sl])                                    # (n, H, 3)
+            phase = np.exp(1j * np.outer(vf[sl], h))                          # (n, H)
+            radial = np.einsum("nhc,nh->nc", amp[:, 1:], phase[:, 1:]).real
+            out[sl] = amp[:, 0].real + wf[sl, None] * radial
+        return out.reshape(shape + (3,))
+
+    def _grid(self, u: np.ndarray, nv: int | None = None, v: np.ndarray | None = None) -> np.ndarray:
+        """Surface points on the grid u x v: shape (len(u), nv, 3).
+
+        With ``nv`` the columns are ``v_j = 2 pi j / nv`` and the synthesis is an
+        inverse real FFT (harmonics above nv/2 are folded, which is exact at the
+        sample points); with explicit ``v`` a direct cosine/sine sum.
+        """
+        amp = self._amplitudes(u)                                             # (nu, H, 3)
+        H = self.harmonics
+        if v is not None:
+            phase = np.exp(1j * np.outer(np.arange(H), np.asarray(v, float)))   # (H, nv)
+            a = amp.transpose(0, 2, 1).reshape(-1, H)                          # (nu*3, H)
+            pts = (a.real @ phase.real - a.imag @ phase.imag)
+            return pts.reshape(len(u), 3, -1).transpose(0, 2, 1)
+        nb = nv // 2 + 1
+        a = amp.transpose(0, 2, 1)                                            # (nu, 3, H)
+        if H <= (nv + 1) // 2:                                                 # no folding, no Nyquist clash
+            spec = np.zeros(a.shape[:2] + (nb,), np.complex128)
+            spec[..., :H] = a
+        else:
+            h = np.arange(H)
+            m = h % nv
+            conj = m > nv // 2
+            b = np.where(conj, nv - m, m)
+            spec = np.zeros(a.shape[:2] + (nb,), np.complex128)
+            np.add.at(spec, (slice(None), slice(None), b[~conj]), a[..., ~conj])
+            if np.any(conj):
+                np.add.at(spec, (slice(None), slice(None), b[conj]), np.conj(a[..., conj]))
+        # irfft weights: x_j = (1/nv)[Y_0 + 2 Re sum Y_b w^bj + Y_{nv/2} (-1)^j]
+        spec *= nv / 2.0
+        spec[..., 0] *= 2.0
+        if nv % 2 == 0:
+            spec[..., -1] *= 2.0
+        pts = np.fft.irfft(spec, n=nv, axis=-1)                               # (nu, 3, nv)
+        return pts.transpose(0, 2, 1)
+
+    def _measure_orientation(self) -> int:
+        """Sign of the volume enclosed by the polyhedral tube through the curves, default winding.
+
+        The surface passes through the curves at the knots, so the coarse tube
+        whose rings are the curves has the orientation of the surface.
+        """
+        rings = self.bset.curves[:, ::max(1, self.bset.samples // 64)]
+        mesh = _tube_mesh(rings, orientation=1, caps=_fan_caps(rings, rings[[0, -1]].mean(axis=1), fan_only=True))
+        return 1 if signed_volume(mesh) >= 0 else -1
+
+    def surface(self, nu: int, nv: int, caps: bool = False) -> Mesh:
+        """The head surface as a closed tube of quads (paper Fig. 4, 5, 13).
+
+        Parameters
+        ----------
+        nu : int
+            Rows along u, including u = 0 and u = 1 (>= 2).
+        nv : int
+            Columns along v (>= 3); ``v_j = 2 pi j / nv``, the seam is stitched.
+        caps : bool
+            Close the bottom and top with triangles (a fan to the spine point when
+            the end curve is star-shaped around it, else an ear-clipping
+            triangulation), making the mesh watertight for 3-D printing.
+
+        Returns
+        -------
+        Mesh
+            ``nu*nv`` (+2 with caps) vertices, quads wound outward, per-corner UVs
+            ``(u, v / 2 pi)`` with 1.0 on the seam side, vertex attributes ``u`` and ``v``.
+        """
+        nu, nv = _check_count(nu, "nu", 2), _check_count(nv, "nv", 3)
+        u = np.linspace(0.0, 1.0, nu)
+        pts = self._grid(u, nv)
+        cap_tris = _fan_caps(pts, self.spine(np.array([0.0, 1.0]))) if caps else None
+        return _tube_mesh(pts, self.orientation, cap_tris, uv=True, u=u)
+
+    def solid(self, nu: int, nv: int, nw: int, u_range: tuple[float, float] = (0.0, 1.0),
+              v_range: tuple[float, float] = (0.0, TWO_PI), w_range: tuple[float, float] = (0.0, 1.0)) -> Mesh:
+        """The boundary of the parametric box of the solid (eq. 23), see :func:`pde_solid.solid_mesh`."""
+        from .pde_solid import solid_mesh
+        return solid_mesh(self, nu, nv, nw, u_range, v_range, w_range)
+
+    def w_field(self, grid, ct=None):
+        """The w-field and masked intensity on a voxel grid, see :func:`pde_solid.w_field`."""
+        from .pde_solid import w_field
+        return w_field(self, grid, ct)
+
+    def __repr__(self) -> str:
+        return (f"PDEHead(patches={self.patches}, samples={self.bset.samples}, modes={self.modes}, "
+                f"smoothing={np.round(self.smoothing, 4).tolist()})")
+
+
+# ----------------------------------------------------------------------------- meshing helpers
+
+
+def _check_count(n, name: str, minimum: int) -> int:
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or int(n) < minimum:
+        raise PDEError(f"{name} must be an integer >= {minimum}, got {n!r}")
+    return int(n)
+
+
+def signed_volume(mesh: Mesh) -> float:
+    """Signed enclosed volume (mm^3) by the divergence theorem; > 0 for outward normals."""
+    v = mesh.vertices
+    tris = [mesh.triangles]
+    if len(mesh.quads):
+        q = mesh.quads
+        tris += [q[:, [0, 1, 2]], q[:, [0, 2, 3]]]
+    t = np.concatenate(tris)
+    if not len(t):
+        return 0.0
+    return float(np.einsum("ij,ij->i", v[t[:, 0]], np.cross(v[t[:, 1]], v[t[:, 2]])).sum() / 6.0)
+
+
+@lru_cache(maxsize=8)
+def _tube_topology(nu: int, nv: int, orientation: int) -> tuple[np.ndarray, np.ndarray]:
+    """Quads and per-corner UVs of an (nu, nv) tube, cached and read-only (shared between meshes)."""
+    quads, uv = _tube_quads(nu, nv, orientation), _tube_uv(nu, nv, orientation)
+    quads.flags.writeable = False
+    uv.flags.writeable = False
+    return quads, uv
+
+
+def _tube_quads(nu: int, nv: int, orientation: int) -> np.ndarray:
+    i = np.arange(nu - 1)[:, None]
+    j = np.arange(nv)[None, :]
+    j1 = (j + 1) % nv
+    q = np.stack([i * nv + j, i * nv + j1, (i + 1) * nv + j1, (i + 1) * nv + j], axis=-1).reshape(-1, 4)
+    return q if orientation > 0 else np.ascontiguousarray(q[:, ::-1])
+
+
+def _tube_uv(nu: int, nv: int, orientation: int) -> np.ndarray:
+    u = np.linspace(0.0, 1.0, nu)
+    j = np.arange(nv) / nv
+    uv = np.empty((nu - 1, nv, 4, 2))
+    uv[:, :, 0, 0] = uv[:, :, 1, 0] = u[:-1, None]
+    uv[:, :, 2, 0] = uv[:, :, 3, 0] = u[1:, None]
+    uv[:, :, 0, 1] = uv[:, :, 3, 1] = j[None, :]
+    uv[:, :, 1, 1] = uv[:, :, 2, 1] = j[None, :] + 1.0 / nv          # the seam corner gets 1.0
+    uv = uv.reshape(-1, 4, 2)
+    return uv if orientation > 0 else np.ascontiguousarray(uv[:, ::-1])
+
+
+def _star_shaped(ring: np.ndarray, centre: np.ndarray) -> tuple[bool, np.ndarray, np.ndarray]:
+    """Whether a closed ring winds once monotonically around centre (in its own plane)."""
+    d = ring - centre
+    normal = np.cross(d, np.roll(d, -1, axis=0)).sum(axis=0)                 # Newell normal * 2
+    norm = np.linalg.norm(normal)
+    if norm == 0:
+        return False, np.zeros((len(ring), 2)), normal
+    normal = normal / norm
+    e1 = d[np.argmax(np.linalg.norm(d, axis=1))]
+    e1 = e1 - normal * (e1 @ normal)
+    e1 /= np.linalg.norm(e1) or 1.0
+    e2 = np.cross(normal, e1)
+    p = np.stack([d @ e1, d @ e2], axis=1)
+    cross = p[:, 0] * np.roll(p[:, 1], -1) - p[:, 1] * np.roll(p[:, 0], -1)
+    return bool(np.all(cross > 0)), p, normal
+
+
+def _ear_clip(p: np.ndarray) -> np.ndarray:
+    """Triangulate a simple counter-clockwise polygon (n, 2) by ear clipping: (n-2, 3) indices."""
+    idx = list(range(len(p)))
+    tris = []
+    guard = 0
+    while len(idx) > 3 and guard < 4 * len(p) * len(p):
+        guard += 1
+        n = len(idx)
+        arr = np.array(idx)
+        a, b, c = p[np.roll(arr, 1)], p[arr], p[np.roll(arr, -1)]
+        convex = ((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])) > 0
+        clipped = False
+        for m in np.nonzero(convex)[0]:
+            ia, ib, ic = idx[m - 1], idx[m], idx[(m + 1) % n]
+            others = np.array([x for x in idx if x not in (ia, ib, ic)])
+            if others.size:
+                q = p[others]
+                A, B, C = p[ia], p[ib], p[ic]
+                d1 = (B[0] - A[0]) * (q[:, 1] - A[1]) - (B[1] - A[1]) * (q[:, 0] - A[0])
+                d2 = (C[0] - B[0]) * (q[:, 1] - B[1]) - (C[1] - B[1]) * (q[:, 0] - B[0])
+                d3 = (A[0] - C[0]) * (q[:, 1] - C[1]) - (A[1] - C[1]) * (q[:, 0] - C[0])
+                if np.any((d1 >= 0) & (d2 >= 0) & (d3 >= 0)):
+                    continue
+            tris.append((ia, ib, ic))
+            idx.pop(m)
+            clipped = True
+            break
+        if not clipped:  # numerically degenerate remainder: close with a fan
+            break
+    for m in range(1, len(idx) - 1):
+        tris.append((idx[0], idx[m], idx[m + 1]))
+    return np.array(tris, dtype=np.int64).reshape(-1, 3)
+
+
+def _points_in_polygon(q: np.ndarray, poly: np.ndarray) -> np.ndarray:
+    """Even-odd test of points q (n, 2) against a closed polygon (m, 2), vectorised."""
+    a, b = poly, np.roll(poly, -1, axis=0)
+    inside = np.zeros(len(q), bool)
+    for start in range(0, len(a), 256):
+        pa, pb = a[start:start + 256], b[start:start + 256]
+        cond = (pa[None, :, 1] > q[:, None, 1]) != (pb[None, :, 1] > q[:, None, 1])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xc = pa[None, :, 0] + (q[:, None, 1] - pa[None, :, 1]) * (pb[None, :, 0] - pa[None, :, 0]) / (
+                pb[None, :, 1] - pa[None, :, 1])
+        inside ^= (np.count_nonzero(cond & (q[:, None, 0] < xc), axis=1) % 2).astype(bool)
+    return inside
+
+
+def _polygon_triangles(p: np.ndarray) -> np.ndarray:
+    """Triangulation of a simple counter-clockwise polygon (n, 2) without new vertices.
+
+    Delaunay triangles inside the polygon when they recover every boundary edge
+    (the usual case for densely sampled curves), else ear clipping.
+    """
+    from scipy.spatial import Delaunay
+    n = len(p)
+    try:
+        tri = Delaunay(p).simplices
+        cen = p[tri].mean(axis=1)
+        tri = tri[_points_in_polygon(cen, p)]
+        a, b, c = p[tri[:, 0]], p[tri[:, 1]], p[tri[:, 2]]
+        cw = ((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])) < 0
+        tri[cw] = tri[cw][:, ::-1]
+        if len(tri) == n - 2:
+            e = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
+            boundary = (e[:, 1] - e[:, 0]) % n == 1
+            if np.count_nonzero(boundary) == n and len(np.unique(e[boundary, 0])) == n:
+                return tri
+    except Exception:  # qhull failure on degenerate input: fall through to ear clipping
+        pass
+    return _ear_clip(p)
+
+
+def _fan_caps(pts: np.ndarray, spine_ends: np.ndarray, fan_only: bool = False
+              ) -> list[tuple[np.ndarray | None, np.ndarray]]:
+    """Cap triangulations of the first and last ring: (centre or None, triangles in ring indices).
+
+    A fan to the spine point when the ring is star-shaped around it (or when
+    ``fan_only``: enough for signed volumes), else a triangulation of the ring
+    polygon in its plane. Triangles run counter-clockwise like the ring; the
+    caller orients them.
+    """
+    caps = []
+    for ring, centre in ((pts[0], spine_ends[0]), (pts[-1], spine_ends[1])):
+        n = len(ring)
+        j = np.arange(n)
+        star, p, _ = (True, None, None) if fan_only else _star_shaped(ring, centre)
+        if star:
+            caps.append((centre, np.stack([np.full(n, -1), j, (j + 1) % n], axis=1)))
+            continue
+        ccw = (p[:, 0] * np.roll(p[:, 1], -1) - p[:, 1] * np.roll(p[:, 0], -1)).sum() > 0
+        tri = _polygon_triangles(p if ccw else p[::-1])
+        if not ccw:
+            tri = (n - 1 - tri)[:, ::-1]
+        caps.append((None, tri))
+    return caps
+
+
+def _tube_mesh(pts: np.ndarray, orientation: int, caps=None, uv: bool = False,
+               u: np.ndarray | None = None) -> Mesh:
+    """Tube mesh from a (nu, nv, 3) grid, stitched along v; optional caps from :func:`_fan_caps`.
+
+    With ``u`` (the rows' parameters) the vertex attributes ``u`` and ``v`` are set
+    (cap centres get v = 0).
+    """
+    nu, nv = pts.shape[:2]
+    verts = [pts.reshape(-1, 3)]
+    extra_u = []
+    quads, quad_uv = _tube_topology(nu, nv, orientation)
+    tris = []
+    tri_uv = []
+    if caps is not None:
+        nvert = nu * nv
+        for end, (centre, tri) in enumerate(caps):
+            row = 0 if end == 0 else nu - 1
+            base = row * nv
+            t = tri.copy()
+            if centre is not None:
+                verts.append(centre[None])
+                extra_u.append(0.0 if end == 0 else 1.0)
+                t = np.where(t < 0, nvert, t + base)
+                nvert += 1
+            else:
+                t = t + base
+            # ring order j -> j+1 is counter-clockwise around +u when the tube quads face
+            # outward with orientation +1 (checked by the signed volume); the bottom cap faces -u
+            if (end == 0) == (orientation > 0):
+                t = t[:, ::-1]
+            tris.append(t)
+            if uv:
+                u_end = 0.0 if end == 0 else 1.0
+                local = np.where(t >= nu * nv, -1, (t - base) % nv)
+                vv = np.where(local < 0, 0.5, local / nv)
+                tri_uv.append(np.stack([np.full(vv.shape, u_end), vv], axis=-1))
+    mesh = Mesh(np.concatenate(verts), quads,
+                np.concatenate(tris) if tris else np.zeros((0, 3), np.int64))
+    if uv:
+        mesh.quad_uv = quad_uv
+        mesh.triangle_uv = np.concatenate(tri_uv) if tri_uv else None
+    if u is not None:
+        mesh.vertex_attributes["u"] = np.concatenate([np.repeat(u, nv), extra_u])
+        mesh.vertex_attributes["v"] = np.concatenate([np.tile(np.arange(nv) * (TWO_PI / nv), nu),
+                                                      np.zeros(len(extra_u))])
+    return mesh
+
+
+# ----------------------------------------------------------------------------- correspondence
+
+
+def _dtw_maps(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Dynamic time warping of closed curves with a common seam, vectorised over pairs.
+
+    Parameters
+    ----------
+    a, b : ndarray, shape (P, M, d)
+        P pairs of curves (centred), sample 0 of both at the seam.
+
+    Returns
+    -------
+    ndarray, shape (P, M + 1)
+        For every sample i = 0..M of ``a`` (M = the seam again) the mean fractional
+        index of the samples of ``b`` matched to it: a monotone map with f(0) = 0, f(M) = M.
+    """
+    P, M, _ = a.shape
+    a2 = np.concatenate([a, a[:, :1]], axis=1).astype(np.float32)
+    b2 = np.concatenate([b, b[:, :1]], axis=1).astype(np.float32)
+    n = M + 1
+    cost = ((a2[:, :, None, :] - b2[:, None, :, :]) ** 2).sum(axis=-1)       # (P, n, n)
+    D = np.full((P, n + 1, n + 1), np.inf, np.float32)
+    D[:, 0, 0] = 0.0
+    for d in range(2, 2 * n + 1):
+        i = np.arange(max(1, d - n), min(n, d - 1) + 1)
+        j = d - i
+        D[:, i, j] = cost[:, i - 1, j - 1] + np.minimum(np.minimum(D[:, i - 1, j - 1], D[:, i - 1, j]),
+                                                        D[:, i, j - 1])
+    # backtrack all pairs together; accumulate the matched j of every i
+    pr = np.arange(P)
+    i = np.full(P, n)
+    j = np.full(P, n)
+    total = np.zeros((P, n))
+    count = np.zeros((P, n))
+    active = np.ones(P, bool)
+    while np.any(active):
+        pa, ia, ja = pr[active], i[active], j[active]
+        total[pa, ia - 1] += ja - 1
+        count[pa, ia - 1] += 1
+        step = np.argmin(np.stack([D[pa, ia - 1, ja - 1], D[pa, ia - 1, ja], D[pa, ia, ja - 1]]), axis=0)
+        i[pa] = ia - (step != 2)
+        j[pa] = ja - (step != 1)
+        active = (i > 0) & (j > 0)
+    return total / np.maximum(count, 1)
+
+
+def _bounded_increments(sigma: np.ndarray, M: int, max_stretch: float) -> np.ndarray:
+    """Smooth a monotone sample map and bound its local stretch to [1/max_stretch, max_stretch].
+
+    DTW maps are staircases; three passes of a 5-tap triangle filter on the
+    spacing (about +-4 samples) remove the steps without moving features.
+    """
+    d = np.maximum(np.diff(np.append(sigma, M)), 0.0)
+    kernel = np.array([1.0, 2.0, 3.0, 2.0, 1.0]) / 9.0
+    for _ in range(3):
+        d = np.convolve(np.concatenate([d[-2:], d, d[:2]]), kernel, mode="valid")
+    for _ in range(8):  # clip-and-renormalise converges in a few rounds
+        d = np.clip(d, 1.0 / max_stretch, max_stretch)
+        d *= M / d.sum()
+    return np.concatenate([[0.0], np.cumsum(d)[:-1]])
+
+
+def align_parameterisation(bset: BoundarySet, max_stretch: float = 8.0) -> BoundarySet:
+    """Re-sample the curves so that equal v means corresponding points on neighbouring curves.
+
+    The PDE interpolates, for every v, the four points ``P_j(v)`` of a patch
+    (eq. 3-6). With curves sampled uniformly in arc length a feature present
+    on one curve only (nose tip, ear, nostril notch) shifts the arc length of
+    everything after it, so equal v joins points on different sides of the
+    head and the surface between the curves folds into flanges. This function
+    keeps every curve's geometry (the new samples lie on the polyline through
+    the old ones, the seam sample 0 stays put) and chooses where along it the
+    M samples sit: each curve is matched to its lower neighbour by dynamic time
+    warping of the centred curves (minimal sum of squared distances between
+    matched samples, monotone, seam fixed), the maps are composed from the
+    first curve (kept uniform in arc length) upward, smoothed, and their local
+    stretch bounded to ``[1/max_stretch, max_stretch]`` of the uniform spacing
+    so that no part of a curve loses its samples.
+
+    Parameters
+    ----------
+    bset : BoundarySet
+    max_stretch : float
+        Bound on the local compression/expansion of the sample spacing (> 1).
+
+    Returns
+    -------
+    BoundarySet
+        Same slices, heights and knots; ``meta["parameterisation"] = "aligned"``.
+        The curves are no longer uniform in arc length.
+    """
+    if not isinstance(bset, BoundarySet):
+        raise PDEError(f"align_parameterisation needs a BoundarySet, got {type(bset).__name__}")
+    if not (np.isfinite(max_stretch) and max_stretch > 1.0):
+        raise PDEError(f"max_stretch must be > 1, got {max_stretch!r}")
+    curves = bset.curves
+    n_curves, M, _ = curves.shape
+    centred = curves - curves.mean(axis=1, keepdims=True)
+    maps = _dtw_maps(centred[:-1], centred[1:])                              # (n-1, M+1)
+    grid = np.arange(M + 1, dtype=np.float64)
+    out = np.empty_like(curves)
+    out[0] = curves[0]
+    sigma = np.arange(M, dtype=np.float64)
+    for j in range(1, n_curves):
+        sigma = _bounded_increments(np.interp(sigma, grid, maps[j - 1]), M, max_stretch)
+        closed = np.concatenate([curves[j], curves[j, :1]])
+        i0 = np.minimum(np.floor(sigma).astype(np.int64), M - 1)
+        f = (sigma - i0)[:, None]
+        out[j] = closed[i0] * (1.0 - f) + closed[i0 + 1] * f
+        if np.ptp(curves[j, :, 2]) == 0:
+            out[j, :, 2] = curves[j, 0, 2]                                   # keep planar curves exactly planar
+    meta = dict(bset.meta)
+    meta["parameterisation"] = "aligned"
+    meta["align_max_stretch"] = float(max_stretch)
+    return BoundarySet(out, bset.slice_indices.copy(), bset.heights.copy(), bset.u_knots.copy(), meta)
+
+
+# ----------------------------------------------------------------------------- solver
+
+
+def _fourier(curves: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Weighted complex harmonics of each curve: X(v) = Re sum_h C_h e^{i h v}; shape (n, H, 3).
+
+    Curves lying in planes z = const get exactly zero z harmonics above 0, so that
+    ``z(u, v, w) = A0_z(u)`` holds exactly.
+    """
+    n, M, _ = curves.shape
+    spec = np.fft.rfft(curves, axis=1) / M
+    spec[:, 1:] *= 2.0
+    if M % 2 == 0:
+        spec[:, -1] *= 0.5                                                  # Nyquist counted once
+    planar = bool(np.all(np.ptp(curves[..., 2], axis=1) == 0))
+    if planar:
+        spec[:, 1:, 2] = 0.0
+        spec[:, 0, 2] = curves[:, 0, 2]
+    spec[:, 0] = spec[:, 0].real
+    return spec, planar
+
+
+def _inverse_small(G: np.ndarray) -> np.ndarray:
+    """Inverses of a batch of small matrices (..., n, n): Gauss-Jordan with partial pivoting,
+    vectorised over the batch (LAPACK's per-matrix overhead dominates for 4x4)."""
+    shape = G.shape
+    n = shape[-1]
+    A = np.concatenate([G.reshape(-1, n, n), np.broadcast_to(np.eye(n), (int(np.prod(shape[:-2])), n, n))],
+                       axis=2).astype(np.float64)
+    rows = np.arange(len(A))
+    with np.errstate(all="ignore"):
+        for col in range(n):
+            piv = col + np.argmax(np.abs(A[:, col:, col]), axis=1)
+            top = A[rows, col].copy()
+            A[rows, col] = A[rows, piv]
+            A[rows, piv] = top
+            A[:, col] /= A[:, col, col][:, None]
+            factor = A[:, :, col].copy()
+            factor[:, col] = 0.0
+            A -= factor[:, :, None] * A[:, col][:, None, :]
+    return A[:, :, n:].reshape(shape)
+
+
+def _as_smoothing(smoothing, t: int) -> np.ndarray | None:
+    if smoothing is None:
+        return None
+    try:
+        a = np.asarray(smoothing, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise PDEError(f"smoothing must be a number or {t} numbers, got {smoothing!r}") from None
+    if a.ndim == 0:
+        a = np.full(t, float(a))
+    if a.shape != (t,):
+        raise PDEError(f"smoothing must be a number or {t} numbers (one per patch), got shape {a.shape}")
+    if not np.all(np.isfinite(a)) or np.any(a < 0):
+        raise PDEError(f"smoothing a must be finite and >= 0, got {a.tolist()}")
+    return a
+
+
+def solve_pde(bset: BoundarySet, smoothing: float | Sequence[float] | None = None,
+              modes: int | None = None) -> PDEHead:
+    """Solve the t Bloor-Wilson PDE patches through the boundary curves (eq. 1-13).
+
+    Parameters
+    ----------
+    bset : BoundarySet
+        3t+1 closed curves sampled uniformly in v (arc length), sample 0 at v = 0.
+    smoothing : float or sequence of t floats, optional
+        The smoothing parameter a of eq. 1 per patch (local u of the patch).
+        Default: ``min(H/r, a_stable)`` per patch (module docstring). Values above
+        the stable maximum (:func:`smoothing_bounds`) raise :class:`PDEError`.
+    modes : int, optional
+        N of eq. 11, in ``[1, M//2]``; default ``M//2`` (R vanishes).
+
+    Returns
+    -------
+    PDEHead
+
+    Raises
+    ------
+    PDEError
+        Bad input (not a BoundarySet, inconsistent knots, out-of-range settings).
+    """
+    if not isinstance(bset, BoundarySet):
+        raise PDEError(f"solve_pde needs a BoundarySet, got {type(bset).__name__}")
+    t, M = bset.patches, bset.samples
+    n_modes = _check_modes(modes, M)
+    local = _local_knots(bset)
+    default, maximum = smoothing_bounds(bset, n_modes)
+    a = _as_smoothing(smoothing, t)
+    if a is None:
+        a = default
+    else:
+        over = np.nonzero(a > maximum * (1 + 1e-9))[0]
+        if over.size:
+            k = int(over[0])
+            raise PDEError(
+                f"smoothing a={a[k]:.4g} is too large for patch {k} with N={n_modes} modes: the top harmonic "
+                f"(exponent a*(N+1)) would overshoot between the curves (interpolation growth > "
+                f"{MAX_LEBESGUE_GROWTH:g}x the cubic one); the maximum there is {maximum[k]:.4g}. "
+                f"Lower the smoothing or the number of modes.")
+    spec, planar = _fourier(bset.curves)                                     # (3t+1, H, 3)
+    H = spec.shape[1]
+    h = np.arange(H, dtype=np.float64)
+    exponents = a[:, None] * np.minimum(h, n_modes + 1)[None, :]              # R: omega = a (N+1)
+    G = _basis(exponents[:, :, None], local[:, None, :])                     # (t, H, 4 nodes, 4 basis)
+    G_inv = _inverse_small(G)
+    # rhs: the node curves' harmonics, (t, H, 4 nodes, 3)
+    rhs = np.stack([spec[3 * k:3 * k + 4] for k in range(t)]).transpose(0, 2, 1, 3)
+    coefficients = np.matmul(G_inv, rhs.real) + 1j * np.matmul(G_inv, rhs.imag)
+    norm1 = lambda m: np.abs(m).sum(axis=-2).max(axis=-1)                    # noqa: E731 (1-norm)
+    condition = (norm1(G) * norm1(G_inv)).max(axis=1)
+    lebesgue = lebesgue_constant(exponents.max(axis=1), local)
+    if not (np.all(np.isfinite(coefficients)) and np.all(np.isfinite(condition))):
+        raise PDEError("the PDE solution is not finite (degenerate boundary curves or knots?)")
+    head = PDEHead(bset, a, n_modes, local, exponents, coefficients, condition, lebesgue, planar)
+    head.smoothing_is_default = smoothing is None
+    return head
