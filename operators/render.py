@@ -51,14 +51,25 @@ def view_basis(view: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return right, true_up, f
 
 
-def world_bounds(objects) -> tuple[np.ndarray, np.ndarray]:
-    """World-space axis-aligned box (min, max) in metres of the objects' bounding boxes."""
+def world_bounds(objects, tight_volumes: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """World-space axis-aligned box (min, max) in metres of the objects' bounding boxes.
+
+    With `tight_volumes`, a PDE Head Volume object in eq. 24 mode counts with the
+    box of its solid only (its file also holds the whole CT box, which is empty
+    in that mode); in intensity-alpha mode the whole CT box counts.
+    """
     import bpy
+
+    from . import volume
 
     bpy.context.view_layer.update()
     pts = []
     for obj in objects:
         if obj.type == "VOLUME":
+            box = volume.solid_box(obj) if tight_volumes else None
+            if box is not None and volume.get_volume_settings(obj)["alpha_mode"] == "EQ24":
+                pts.append(np.array(box))
+                continue
             obj.data.grids.load()
         m = np.array(obj.matrix_world)
         corners = np.array([tuple(c) for c in obj.bound_box], float)
@@ -119,7 +130,10 @@ def render_objects_png(objects, path, view: str = "FRONT", resolution=(160, 160)
     scene = scene or bpy.context.scene
     objects = list(objects)
     right, up, forward = view_basis(view)
-    lo, hi = world_bounds(objects) if bounds is None else (np.asarray(bounds[0], float), np.asarray(bounds[1], float))
+    if bounds is None:
+        lo, hi = world_bounds(objects)
+    else:
+        lo, hi = np.asarray(bounds[0], float), np.asarray(bounds[1], float)
     centre = 0.5 * (lo + hi)
     corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
     rel = corners - centre

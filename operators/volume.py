@@ -17,7 +17,8 @@ float grids:
 ``intensity``
     the CT intensity inside the solid, windowed to [0, 1]; 0 outside.
 ``ct``
-    the whole CT box windowed to [0, 1] on the same grid: the input of the
+    the whole CT box windowed to [0, 1] (on the w-field's grid when that is the
+    CT's grid, else on the CT's own grid at about the same voxel size): the input of the
     paper's baseline "intuitive texture mapping" (Fig. 8a / 15a), whose alpha is
     the pixel value itself, noise outside the head included.
 
@@ -128,26 +129,30 @@ def _grid_index_to_patient(wfield) -> np.ndarray:
     return m
 
 
-def _ct_on_grid(ct, wfield) -> np.ndarray:
-    """The CT on the w-field's grid, float32 [z, y, x] (a view when the grids coincide)."""
-    shape = tuple(np.shape(wfield.w))
-    same = (tuple(ct.data.shape) == shape
+def ct_grid_for(ct, wfield):
+    """The CT for the ``ct`` grid: (data [z, y, x] float32, spacing, origin, direction).
+
+    The w-field's own grid when it coincides with the CT's; otherwise the CT's
+    grid (the whole CT box, as the paper's baseline texture) decimated by block
+    means to about the w-field's voxel size, so both grids have a comparable
+    resolution and the file stays small.
+    """
+    from scipy.ndimage import uniform_filter
+
+    same = (tuple(ct.data.shape) == tuple(np.shape(wfield.w))
             and np.allclose(ct.affine, _grid_index_to_patient(wfield), atol=1e-6))
     if same:
-        return ct.data
-    from scipy.ndimage import map_coordinates
-
-    grid_to_ct = np.linalg.inv(ct.affine) @ _grid_index_to_patient(wfield)  # (i,j,k) grid -> (i,j,k) CT
-    nz, ny, nx = shape
-    out = np.empty(shape, np.float32)
-    cval = float(np.min(ct.data))
-    jj, ii = np.meshgrid(np.arange(ny, dtype=np.float64), np.arange(nx, dtype=np.float64), indexing="ij")
-    for k in range(nz):  # slab by slab: bounded memory on large grids
-        ijk = np.stack([ii.ravel(), jj.ravel(), np.full(ii.size, float(k)), np.ones(ii.size)])
-        src = grid_to_ct @ ijk
-        out[k] = map_coordinates(ct.data, src[2::-1], order=1, mode="constant", cval=cval,
-                                 prefilter=False).reshape(ny, nx)
-    return out
+        return ct.data, tuple(wfield.spacing), np.asarray(wfield.origin, float), np.asarray(wfield.direction, float)
+    voxel = float(min(wfield.spacing))
+    steps = tuple(max(1, int(round(voxel / s))) for s in ct.spacing)  # (k, j, i)
+    data, origin = ct.data, np.asarray(ct.origin, float)
+    if max(steps) > 1:
+        data = uniform_filter(data, size=steps, mode="nearest")[::steps[0], ::steps[1], ::steps[2]]
+        # sample n averages CT voxels n*step - step//2 ... : its centre is shifted for even steps
+        shift_kji = np.array([(n - 1) / 2.0 - n // 2 for n in steps])
+        origin = origin + np.asarray(ct.direction, float) @ (shift_kji[::-1] * np.array(ct.spacing)[::-1])
+    spacing = tuple(float(s) * n for s, n in zip(ct.spacing, steps))
+    return np.ascontiguousarray(data, np.float32), spacing, origin, np.asarray(ct.direction, float)
 
 
 # ----------------------------------------------------------------------------- files and paths
@@ -215,9 +220,11 @@ def write_vdb(wfield, path, window, *, ct=None, origin_m=(0.0, 0.0, 0.0)) -> Pat
         Intensity window (:func:`intensity_window`); the ``intensity`` and ``ct``
         grids hold windowed values in [0, 1] (Cycles needs non-negative densities).
     ct : CTVolume, optional
-        The full CT for the ``ct`` grid (resampled onto the w-field grid when
-        the grids differ). Without it the ``ct`` grid repeats ``intensity``, so
-        the intensity-alpha baseline then shows the solid only.
+        The full CT for the ``ct`` grid, which covers the whole CT box: on the
+        w-field grid when that is the CT's grid, else on the CT's own grid
+        decimated to about the w-field voxel size (:func:`ct_grid_for`; a grid
+        has its own transform). Without it the ``ct`` grid repeats
+        ``intensity``, so the intensity-alpha baseline then shows the solid only.
     origin_m : (3,) metres
         World position of the Volume object's origin; grid transforms are
         relative to it, so the object at ``origin_m`` puts voxel (k, j, i) at
@@ -234,29 +241,44 @@ def write_vdb(wfield, path, window, *, ct=None, origin_m=(0.0, 0.0, 0.0)) -> Pat
     w = np.asarray(wfield.w, dtype=np.float32)
     if w.ndim != 3:
         raise ValueError(f"w-field must be 3-D [z, y, x], got shape {w.shape}")
+    if np.shape(wfield.intensity) != w.shape:
+        raise ValueError(f"w-field intensity shape {np.shape(wfield.intensity)} differs from w {w.shape}")
     inside = w <= 1.0  # NaN and OUTSIDE_W (2.0) are outside
-    intensity = apply_window(wfield.intensity, window)
-    intensity[~inside] = 0.0
-    w_out = np.where(inside, np.clip(w, 0.0, 1.0), np.float32(OUTSIDE_BACKGROUND)).astype(np.float32)
-    ct_grid = apply_window(_ct_on_grid(ct, wfield), window) if ct is not None else intensity
-
-    # numpy [k, j, i] -> OpenVDB (i, j, k): transpose (a copy) so index x is the CT's i axis.
     affine = grid_affine_world(wfield.spacing, wfield.origin, wfield.direction)
     affine[:3, 3] -= np.asarray(origin_m, dtype=np.float64)
-    grids = []
+    transform_rows = affine.T.tolist()  # OpenVDB uses row vectors: translation in the last row
+
+    def grids():
+        """(name, [z, y, x] float32 data, background, half floats, transform), one at a time: bounded memory."""
+        yield ("w", np.where(inside, np.clip(w, 0.0, 1.0), np.float32(OUTSIDE_BACKGROUND)), OUTSIDE_BACKGROUND,
+               False, transform_rows)
+        intensity = apply_window(wfield.intensity, window)
+        intensity[~inside] = 0.0
+        yield "intensity", intensity, 0.0, True, transform_rows
+        if ct is None:
+            yield "ct", intensity, 0.0, True, transform_rows
+            return
+        data, spacing, ct_origin, ct_direction = ct_grid_for(ct, wfield)
+        ct_affine = grid_affine_world(spacing, ct_origin, ct_direction)
+        ct_affine[:3, 3] -= np.asarray(origin_m, dtype=np.float64)
+        yield "ct", apply_window(data, window), 0.0, True, ct_affine.T.tolist()
+
+    written = []
     try:
-        for name, data, background in (("w", w_out, OUTSIDE_BACKGROUND), ("intensity", intensity, 0.0),
-                                        ("ct", ct_grid, 0.0)):
+        for name, data, background, half, rows in grids():
             grid = openvdb.FloatGrid(background=float(background))
+            # numpy [k, j, i] -> OpenVDB (i, j, k): transpose (a copy) so index x is the CT's i axis
             grid.copyFromArray(np.ascontiguousarray(data.transpose(2, 1, 0)), tolerance=0.0)
+            del data
             grid.name = name
-            grid.transform = openvdb.createLinearTransform(affine.T.tolist())  # row-vector convention
+            grid.transform = openvdb.createLinearTransform(rows)
             grid.gridClass = openvdb.GridClass.FOG_VOLUME
-            grids.append(grid)
-        grids[0]["pdehead_window"] = f"{float(window[0])!r} {float(window[1])!r}"
-        openvdb.write(str(path), grids=grids)
+            grid.saveFloatAsHalf = half  # display data in [0, 1]: half precision is plenty, half the file
+            written.append(grid)
+        written[0]["pdehead_window"] = f"{float(window[0])!r} {float(window[1])!r}"
+        openvdb.write(str(path), grids=written)
     finally:
-        del grids[:]  # free the grids now: nanobind reports "leaked" objects at exit otherwise
+        del written[:]  # free the grids now: nanobind reports "leaked" objects at exit otherwise
         gc.collect()
     return path
 
@@ -628,6 +650,11 @@ def build_volume(wfield, collection, vdb_path, name: str = "Volume", obj=None, *
     data.filepath = blender_filepath(path)
     data.grids.load()
     obj.matrix_world = Matrix.Translation(origin)
+    box = _solid_box_world(wfield)
+    if box is not None:
+        obj["pdehead_solid_box_m"] = [float(x) for x in (*(box[0] - origin), *(box[1] - origin))]
+    elif "pdehead_solid_box_m" in obj.keys():
+        del obj["pdehead_solid_box_m"]
     obj["pdehead_kind"] = "volume"
     obj["pdehead_window"] = [float(window[0]), float(window[1])]
     obj["pdehead_origin_m"] = list(origin)
@@ -636,10 +663,70 @@ def build_volume(wfield, collection, vdb_path, name: str = "Volume", obj=None, *
     return obj
 
 
+def _solid_box_world(wfield):
+    """World (min, max) metres of the voxels inside the solid (w <= 1), half a voxel added; None if empty."""
+    inside = np.asarray(wfield.w) <= 1.0
+    ranges = []
+    for axes in ((1, 2), (0, 2), (0, 1)):  # k, j, i
+        idx = np.flatnonzero(inside.any(axis=axes))
+        if idx.size == 0:
+            return None
+        ranges.append((idx[0] - 0.5, idx[-1] + 0.5))
+    (k0, k1), (j0, j1), (i0, i1) = ranges
+    corners = np.array([[i, j, k, 1.0] for i in (i0, i1) for j in (j0, j1) for k in (k0, k1)])
+    pts = (corners @ grid_affine_world(wfield.spacing, wfield.origin, wfield.direction).T)[:, :3]
+    return pts.min(axis=0), pts.max(axis=0)
+
+
+def solid_box(obj):
+    """World (min, max) metres of the solid inside a PDE Head Volume object, or None if unknown."""
+    box = obj.get("pdehead_solid_box_m") if obj is not None else None
+    if box is None or len(box) != 6:
+        return None
+    m = np.array(obj.matrix_world)
+    lo, hi = np.array(box[:3]), np.array(box[3:])
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    pts = corners @ m[:3, :3].T + m[:3, 3]
+    return pts.min(axis=0), pts.max(axis=0)
+
+
 def _grid_corners_world(wfield) -> np.ndarray:
     nz, ny, nx = np.shape(wfield.w)
     corners = np.array([[i, j, k, 1.0] for i in (0, nx - 1) for j in (0, ny - 1) for k in (0, nz - 1)])
     return (corners @ grid_affine_world(wfield.spacing, wfield.origin, wfield.direction).T)[:, :3]
+
+
+def relocate_vdb(obj, folder=None) -> Path | None:
+    """Copy a Volume object's .vdb into `folder` and point the object at the copy.
+
+    `folder` defaults to ``pdehead_vdb`` beside the saved .blend, so a volume
+    built while the file was unsaved (in the preference folder) can follow the
+    file once it is saved; the path is then stored relative (``//...``).
+    Returns the new path, or None when there is nothing to do (no file, no
+    saved .blend, or the file is already there).
+    """
+    import shutil
+
+    import bpy
+
+    if obj is None or obj.type != "VOLUME" or not obj.data.filepath:
+        return None
+    if folder is None:
+        if not bpy.data.filepath:
+            return None
+        folder = vdb_folder_for(bpy.data.filepath)
+    src = Path(bpy.path.abspath(obj.data.filepath)).resolve()
+    dst = Path(os.fspath(folder)).resolve() / src.name
+    if not src.is_file() or src == dst:
+        if src == dst:
+            obj.data.filepath = blender_filepath(dst)
+        return None
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    shutil.copy2(src, dst)
+    obj.data.filepath = blender_filepath(dst)
+    obj.data.grids.unload()
+    obj.data.grids.load()
+    return dst
 
 
 def check_volume(obj) -> str | None:

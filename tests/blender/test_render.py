@@ -50,7 +50,7 @@ def _emissive(name, rgb):
     bsdf.inputs["Base Color"].default_value = (*rgb, 1.0)
     bsdf.inputs["Emission Color"].default_value = (*rgb, 1.0)
     bsdf.inputs["Emission Strength"].default_value = 1.0
-    mat.emission_sampling = "NONE"  # a marker, not a lamp: no coloured light spilling onto the head
+    mat.cycles.emission_sampling = "NONE"  # a marker, not a lamp: no coloured light spilling onto the head
     return mat
 
 
@@ -61,6 +61,8 @@ def _marker(B, coll, name, centre_mm, rgb, size_mm=8.0):
     quads = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]]
     obj = B.objects.build_mesh_object(Mesh(cube, quads), coll, name)
     obj.data.materials.append(_emissive(name, rgb))
+    obj.visible_diffuse = obj.visible_glossy = obj.visible_transmission = False  # no light onto the head
+    obj.visible_shadow = False
     return obj
 
 
@@ -168,7 +170,8 @@ def _compare_eq24_and_baseline(B, ct, head, wfield, tmp_path, tag, view="FRONT",
           f"mean |diff| {diff:.3f}; outside the head: eq24 {outside_24:.4f} baseline {outside_int:.4f}")
     assert diff > 0.03
     assert outside_24 < 0.005            # eq. 24: nothing outside the PDE solid
-    assert outside_int > 0.02            # the baseline shows what lies around the head (Fig. 8a / 15a)
+    # the baseline shows what lies around the head (Fig. 8a / 15a: holder, pillow, cloth, noise)
+    assert outside_int > max(0.01, 3 * outside_24)
     # inside the head eq. 24 is translucent (alpha 0.1 at the skin): the baseline is brighter there
     assert sint["foreground_mean"] > 0.0 and s24["mask"][head_mask].mean() > 0.5
 
