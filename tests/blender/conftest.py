@@ -65,13 +65,13 @@ def clean_scene():
     bpy.ops.wm.read_homefile(use_empty=True)
 
 
-def root_conftest():
-    """The already-imported tests/conftest.py module (shared_data, CTHEAD_RAW16_OPTIONS, ...)."""
+def root_conftest(config):
+    """The tests/conftest.py module (shared_data, CTHEAD_RAW16_OPTIONS, ...), as pytest loaded it."""
     target = (ROOT / "tests" / "conftest.py").resolve()
-    for mod in list(sys.modules.values()):
-        file = getattr(mod, "__file__", None)
+    for plugin in config.pluginmanager.get_plugins():
+        file = getattr(plugin, "__file__", None)
         if file and Path(file).resolve() == target:
-            return mod
+            return plugin
     raise RuntimeError("tests/conftest.py is not loaded")
 
 
@@ -105,9 +105,9 @@ def phantom_blend(pdehead_ext, tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="session")
-def cthead_blend(pdehead_ext, tmp_path_factory) -> Path:
+def cthead_blend(pdehead_ext, tmp_path_factory, pytestconfig) -> Path:
     """A saved .blend with every operator run step by step on CThead raw16 (t=10)."""
-    top = root_conftest()
+    top = root_conftest(pytestconfig)
     folder = top.shared_data("cthead_stanford", "raw16")
     o = top.CTHEAD_RAW16_OPTIONS
 

@@ -68,6 +68,7 @@ def check_study(ext, coll, t: int, nu: int, nv: int, nw: int, volume: bool = Tru
         assert vol is not None and vol.type == 'VOLUME'
         assert vol.data.filepath.startswith("//pdehead_vdb/")
         assert Path(bpy.path.abspath(vol.data.filepath)).is_file()
+        assert vol.data.grids.load()
         assert {"w", "intensity"} <= {g.name for g in vol.data.grids}
     timings = ext.state.timings(coll)
     assert {"segment", "boundaries", "surface", "solid"} <= set(timings)
@@ -133,8 +134,7 @@ def test_live_parameters_after_reopen_without_resegmenting(ext, phantom_blend, m
     before = world_mm(ext, surf)
     s.smoothing_auto = False  # the manual value starts at the automatic one
     assert s.smoothing == pytest.approx(float(np.mean(head.smoothing)), rel=1e-5)
-    from importlib import import_module
-    maximum = import_module(ext.engine.__name__ + ".pde_surface").smoothing_bounds(head.bset)[1]
+    maximum = ext.engine.smoothing_bounds(head.bset)[1]
     s.smoothing = 0.95 * float(maximum.min())
     assert s.last_error == ""
     expected = stored_head(ext, coll, smoothing=s.smoothing).surface(20, 36, caps=True).vertices
