@@ -21,7 +21,8 @@ CT_MATERIAL = "PDE Head CT Intensity"
 CURVE_MATERIAL = "PDE Head Boundary"
 CT_COLOUR_ATTRIBUTE = "ct_intensity"
 UV_NAME = "UVMap"
-_RESERVED = {"position", "sharp_face", "material_index", UV_NAME, CT_COLOUR_ATTRIBUTE}
+CT_UV_NAME = "CT texture"
+_RESERVED = {"position", "sharp_face", "material_index", UV_NAME, CT_UV_NAME, CT_COLOUR_ATTRIBUTE}
 
 
 # ----------------------------------------------------------------------------- collections
@@ -97,18 +98,46 @@ def ensure_skin_material():
     return mat
 
 
-def ensure_ct_material():
-    """Material showing the ``ct_intensity`` colour attribute, so cutaways reveal the interior."""
-    mat, created = _material(CT_MATERIAL)
-    if created:
-        nodes, links = mat.node_tree.nodes, mat.node_tree.links
+def ensure_ct_material(obj=None, image=None):
+    """Material showing the CT on the solid, so cutaways reveal the interior.
+
+    With `image` (the CT texture atlas of :func:`build_solid`) the colour comes
+    from that image through the ``CT texture`` UV map: the CT sampled finely
+    over every face of the parametric box (the paper's 3-D texture mapping of
+    section 4.3.1). Without it, from the per-vertex colour ``ct_intensity``.
+    One material per solid object (each has its own image).
+    """
+    import bpy
+
+    name = CT_MATERIAL if obj is None else f"{CT_MATERIAL} {obj.name}"
+    mat = bpy.data.materials.get(name)
+    if mat is None:
+        mat = bpy.data.materials.new(name)
+        if mat.node_tree is None:
+            mat.use_nodes = True
+        mat["pdehead_ct_material"] = 1
+        nodes = mat.node_tree.nodes
         bsdf = nodes.get("Principled BSDF")
         bsdf.inputs["Roughness"].default_value = 0.7
         attr = nodes.new("ShaderNodeVertexColor")
         attr.layer_name = CT_COLOUR_ATTRIBUTE
         attr.name = attr.label = "CT intensity"
         attr.location = (-400, 250)
-        links.new(attr.outputs["Color"], bsdf.inputs["Base Color"])
+        uv = nodes.new("ShaderNodeUVMap")
+        uv.uv_map = CT_UV_NAME
+        uv.name = uv.label = "CT texture UV"
+        uv.location = (-700, -50)
+        tex = nodes.new("ShaderNodeTexImage")
+        tex.name = tex.label = "CT texture"
+        tex.interpolation = "Linear"
+        tex.extension = "EXTEND"
+        tex.location = (-450, -50)
+        mat.node_tree.links.new(uv.outputs["UV"], tex.inputs["Vector"])
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    bsdf, tex, attr = nodes.get("Principled BSDF"), nodes.get("CT texture"), nodes.get("CT intensity")
+    tex.image = image
+    source = tex.outputs["Color"] if image is not None else attr.outputs["Color"]
+    links.new(source, bsdf.inputs["Base Color"])
     return mat
 
 
@@ -334,9 +363,145 @@ def _set_ct_colour(obj, values01: np.ndarray) -> None:
     me.color_attributes.render_color_index = me.color_attributes.active_color_index
 
 
+_FAMILIES = ("w1", "w0", "u1", "u0", "v1", "v0")  # the faces of the parametric box (Fig. 14)
+
+
+def _box_faces(mesh, ranges) -> tuple[np.ndarray, np.ndarray]:
+    """Per face corner (u, v, w) and per face the index in :data:`_FAMILIES` of its box face."""
+    (u0, u1), (v0, v1), (w0, w1) = ranges
+    uv = mesh.loop_uv()
+    w = np.asarray(mesh.vertex_attributes["w"], np.float64)[mesh.loop_vertex_indices()]
+    # the engine's corner UVs are (u, v / 2 pi) with the seam unwrapped: exact even where w = 0
+    params = np.c_[uv[:, 0], uv[:, 1] * 2.0 * math.pi, w]
+    starts, totals = mesh.loop_starts_and_totals()
+    family = np.full(len(starts), -1)
+    tol = 1e-9
+    for f, (axis, value) in enumerate(((2, w1), (2, w0), (0, u1), (0, u0), (1, v1), (1, v0))):
+        on = np.abs(params[:, axis] - value) <= tol * max(1.0, abs(value))
+        all_on = np.logical_and.reduceat(on, starts) if len(starts) else np.zeros(0, bool)
+        family = np.where((family < 0) & all_on, f, family)
+    return params, family
+
+
+def _surface_grid(head, us: np.ndarray, vs: np.ndarray) -> np.ndarray:
+    """Surface points X(u, v) (eq. 11) on the grid us x vs, shape (len(us), len(vs), 3).
+
+    Uses the engine's grid synthesis (amplitudes once per u, as its own
+    solid_mesh does) when available: ~30x faster than evaluating every point.
+    """
+    grid = getattr(head, "_grid", None)
+    if grid is not None:
+        try:
+            return np.asarray(grid(np.asarray(us, float), None, v=np.asarray(vs, float)))
+        except TypeError:  # a different engine signature: fall back to the public API
+            pass
+    return head.evaluate(np.asarray(us)[:, None], np.asarray(vs)[None, :], 1.0)
+
+
+def ct_texture_atlas(head, mesh, ct, window, ranges, size: int = 128, pad: int = 2):
+    """CT texture of the solid's faces: an atlas image and a UV per corner (paper section 4.3.1).
+
+    Each face of the parametric box (outer/inner w shells, u ends, v cuts) gets
+    a `size` x `size` tile sampling the windowed CT trilinearly at ``X(u, v, w)``
+    (eq. 23) on a regular parameter grid, so a cutaway shows the CT inside the
+    solid at texture resolution instead of at the few w samples of the mesh.
+
+    Returns
+    -------
+    atlas : ndarray float32 (H, W, 4), row 0 at the bottom (Blender image order)
+    corner_uv : ndarray (corners, 2) in the atlas
+    """
+    from .volume import apply_window, sample_ct
+
+    (u0, u1), (v0, v1), (w0, w1) = ranges
+    params, family = _box_faces(mesh, ranges)
+    n = int(size)
+    span = n - 2 * pad
+    t = np.clip((np.arange(n) + 0.5 - pad) / span, 0.0, 1.0)  # pixel centre -> [0, 1] (padding clamps)
+    us, vs, ws = u0 + t * (u1 - u0), v0 + t * (v1 - v0), w0 + t * (w1 - w0)
+
+    def u_end(u):          # rows: w, columns: v
+        spine = head.spine(np.array([u]))[0]
+        return spine + ws[:, None, None] * (head.evaluate(np.full(n, u), vs, 1.0)[None] - spine)
+
+    def v_cut(v):          # rows: w, columns: u
+        spine = head.spine(us)[None]
+        return spine + ws[:, None, None] * (head.evaluate(us, np.full(n, v), 1.0)[None] - spine)
+
+    surface = _surface_grid(head, us, vs)
+    spine_u = head.spine(us)[:, None, :]
+    tiles = [spine_u + w1 * (surface - spine_u), spine_u + w0 * (surface - spine_u), u_end(u1), u_end(u0)]
+    # (row, column) parameters of each tile: shells (u, v), u ends (w, v), v cuts (w, u)
+    axes = [(0, 1), (0, 1), (2, 1), (2, 1)]
+    if np.any(family >= 4):
+        tiles += [v_cut(v1), v_cut(v0)]
+        axes += [(2, 0), (2, 0)]
+    cols = 3
+    rows = -(-len(tiles) // cols)
+    atlas = np.ones((rows * n, cols * n, 4), np.float32)
+    for k, pts in enumerate(tiles):
+        grey = apply_window(sample_ct(ct, pts.reshape(-1, 3)), window).reshape(n, n)
+        r, c = divmod(k, cols)
+        atlas[r * n:(r + 1) * n, c * n:(c + 1) * n, :3] = grey[..., None]
+    lo = np.array([u0, v0, w0])
+    extent = np.array([u1 - u0, v1 - v0, w1 - w0])
+    norm = (params - lo) / np.where(extent > 0, extent, 1.0)
+    starts, totals = mesh.loop_starts_and_totals()
+    corner_family = np.repeat(family, totals)
+    corner_uv = np.zeros((len(params), 2))
+    for k, (row_axis, col_axis) in enumerate(axes):
+        sel = corner_family == k
+        r, c = divmod(k, cols)
+        corner_uv[sel, 0] = (c * n + pad + norm[sel, col_axis] * span) / (cols * n)
+        corner_uv[sel, 1] = (r * n + pad + norm[sel, row_axis] * span) / (rows * n)
+    return atlas, corner_uv
+
+
+def _set_ct_texture(obj, atlas: np.ndarray, corner_uv: np.ndarray):
+    """Store the atlas in the object's CT image (packed into the .blend) and its UV map."""
+    import bpy
+
+    me = obj.data
+    if CT_UV_NAME in me.attributes:
+        me.attributes.remove(me.attributes[CT_UV_NAME])
+    layer = me.attributes.new(CT_UV_NAME, "FLOAT2", "CORNER")
+    layer.data.foreach_set("vector", np.ascontiguousarray(corner_uv, np.float32).ravel())
+    h, w = atlas.shape[:2]
+    name = f"PDE Head CT {obj.name}"
+    image = bpy.data.images.get(name)
+    if image is None:
+        image = bpy.data.images.new(name, w, h, alpha=False)
+    elif tuple(image.size) != (w, h):
+        image.scale(w, h)
+    image.pixels.foreach_set(np.ascontiguousarray(atlas, np.float32).ravel())
+    image.update()
+    image.pack()  # generated images are lost on save unless packed
+    return image
+
+
+def _sharp_cut_faces(obj, family: np.ndarray) -> None:
+    """Flat-shade the u-end and v-cut faces (smooth shells): no smeared normals across the 90 degree edges."""
+    me = obj.data
+    sharp = np.asarray(family) >= 2
+    if hasattr(me, "shade_smooth"):  # Blender >= 4.1: the sharp_face attribute
+        attr = me.attributes.get("sharp_face") or me.attributes.new("sharp_face", "BOOLEAN", "FACE")
+        attr.data.foreach_set("value", sharp)
+    else:
+        me.polygons.foreach_set("use_smooth", ~sharp)
+    me.update()
+
+
+def _snap_range(r, top: float, tol: float = 1e-5) -> tuple[float, float]:
+    """A parameter range with float32 round-off at 0 and `top` removed (Blender float properties are float32,
+    so 2 pi comes back as 6.2831855 > 2 pi, which the engine rightly rejects)."""
+    a, b = (float(x) for x in r)
+    snap = lambda x: 0.0 if abs(x) <= tol else (top if abs(x - top) <= tol * max(1.0, top) else x)  # noqa: E731
+    return snap(a), snap(b)
+
+
 def build_solid(head, collection, nu: int = 40, nv: int = 60, nw: int = 5, u_range=(0.0, 1.0),
                 v_range=(0.0, 2.0 * math.pi), w_range=(0.0, 1.0), ct=None, obj=None, name: str = "Solid",
-                window=None):
+                window=None, texture_size: int = 128):
     """The PDE solid X(u, v, w) (eq. 23; Fig. 7, 14) with cutaway ranges, coloured by the CT.
 
     Parameters
@@ -355,20 +520,38 @@ def build_solid(head, collection, nu: int = 40, nv: int = 60, nw: int = 5, u_ran
         Intensity window (default ``intensity_window(ct)``).
     obj : bpy.types.Object, optional
         Rebuild in place.
+    texture_size : int
+        Pixels per box face of the CT texture atlas (:func:`ct_texture_atlas`;
+        0 for vertex colours only).
     """
     from .volume import apply_window, intensity_window, sample_ct
 
-    mesh = head.solid(int(nu), int(nv), int(nw), tuple(u_range), tuple(v_range), tuple(w_range))
+    u_range, v_range, w_range = (_snap_range(u_range, 1.0), _snap_range(v_range, 2.0 * math.pi),
+                                 _snap_range(w_range, 1.0))
+    mesh = head.solid(int(nu), int(nv), int(nw), u_range, v_range, w_range)
     obj = build_mesh_object(mesh, collection, name, obj=obj, smooth=True)
+    image = None
     if ct is not None:
         window = intensity_window(ct) if window is None else window
         _set_ct_colour(obj, apply_window(sample_ct(ct, mesh.vertices), window))
         obj["pdehead_window"] = [float(window[0]), float(window[1])]
+        if texture_size and mesh.quad_uv is not None and "w" in mesh.vertex_attributes:
+            atlas, corner_uv = ct_texture_atlas(head, mesh, ct, window, (u_range, v_range, w_range),
+                                                size=int(texture_size))
+            image = _set_ct_texture(obj, atlas, corner_uv)
     elif "intensity" in mesh.vertex_attributes:
         values = np.asarray(mesh.vertex_attributes["intensity"], np.float32)
         window = intensity_window(values) if window is None else window
         _set_ct_colour(obj, apply_window(values, window))
-    _ensure_material(obj, ensure_ct_material())
+    if "w" in mesh.vertex_attributes and mesh.quad_uv is not None:
+        _sharp_cut_faces(obj, _box_faces(mesh, (u_range, v_range, w_range))[1])
+    mat = ensure_ct_material(obj, image)
+    slots = obj.data.materials
+    if not slots or slots[0] is None or slots[0].get("pdehead_ct_material") == 1:
+        if slots:
+            slots[0] = mat
+        else:
+            slots.append(mat)
     obj["pdehead_kind"] = "solid"
     obj["pdehead_resolution"] = [int(nu), int(nv), int(nw)]
     obj["pdehead_ranges"] = [float(x) for x in (*u_range, *v_range, *w_range)]

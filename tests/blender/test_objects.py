@@ -203,6 +203,37 @@ def test_front_view_sees_the_face_with_patient_left_on_the_right(B, phantom, pha
     np.testing.assert_allclose(np.array(marker.location), np.array(surface.location))
 
 
+def _check_texture_matches_ct(obj, image, mesh, head, ct, window):
+    """The atlas colour at each face's UV centre is the windowed CT at the face's parametric centre."""
+    from scipy.ndimage import map_coordinates
+    w_img, h_img = image.size
+    pix = np.empty(w_img * h_img * 4, np.float32)
+    image.pixels.foreach_get(pix)
+    pix = pix.reshape(h_img, w_img, 4)[..., 0]
+    me = obj.data
+    uv = np.empty(len(me.loops) * 2, np.float32)
+    me.uv_layers["CT texture"].data.foreach_get("uv", uv)
+    uv = uv.reshape(-1, 2)
+    starts, totals = mesh.loop_starts_and_totals()
+    quads = np.flatnonzero(totals == 4)
+    corner = starts[quads][:, None] + np.arange(4)
+    centre_uv = uv[corner].mean(axis=1)
+    # parametric centre of each quad: (u, v) from the engine's corner UVs, w from the vertices
+    loop_uv = mesh.loop_uv()
+    w = np.asarray(mesh.vertex_attributes["w"])[mesh.loop_vertex_indices()]
+    u_c = loop_uv[corner, 0].mean(axis=1)
+    v_c = loop_uv[corner, 1].mean(axis=1) * 2 * math.pi
+    w_c = w[corner].mean(axis=1)
+    pts = head.spine(u_c) + w_c[:, None] * (head.evaluate(u_c, v_c, 1.0) - head.spine(u_c))
+    raw = map_coordinates(ct.data, ct.patient_to_index(pts).T, order=1, mode="nearest")
+    expected = np.clip((raw - window[0]) / (window[1] - window[0]), 0, 1)
+    x = np.clip(np.round(centre_uv[:, 0] * w_img - 0.5).astype(int), 0, w_img - 1)
+    y = np.clip(np.round(centre_uv[:, 1] * h_img - 0.5).astype(int), 0, h_img - 1)
+    err = np.abs(pix[y, x] - expected)
+    assert np.median(err) < 0.02 and np.percentile(err, 90) < 0.1, (np.median(err), np.percentile(err, 90))
+    assert np.ptp(expected) > 0.3  # the faces cross bone, brain and air: a real check
+
+
 def test_solid_w_attribute_and_ct_colour(B, phantom, phantom_head):
     from scipy.ndimage import map_coordinates
     coll = B.objects.study_collection("Phantom")
@@ -229,13 +260,51 @@ def test_solid_w_attribute_and_ct_colour(B, phantom, phantom_head):
     np.testing.assert_allclose(rgba[:, 0], expected, atol=2e-3)
     assert 0.0 <= rgba[:, :3].min() and rgba[:, :3].max() <= 1.0
     assert np.ptp(rgba[:, 0]) > 0.3  # the cut faces reach bone and brain: not one flat colour
-    # material reads the colour attribute
+    # the material shows the CT texture atlas (the CT sampled finely over every face of the parametric box)
     mat = obj.material_slots[0].material
-    col = next(n for n in mat.node_tree.nodes if n.bl_idname == "ShaderNodeVertexColor")
-    assert col.layer_name == "ct_intensity"
-    assert any(link.from_node == col and link.to_socket.name == "Base Color" for link in mat.node_tree.links)
+    tex = next(n for n in mat.node_tree.nodes if n.bl_idname == "ShaderNodeTexImage")
+    base = [lk for lk in mat.node_tree.links if lk.to_socket.name == "Base Color"]
+    assert len(base) == 1 and base[0].from_node == tex
+    image = tex.image
+    assert image is not None and image.packed_file is not None  # survives saving the .blend
+    uv_node = next(lk.from_node for lk in mat.node_tree.links if lk.to_node == tex)
+    assert uv_node.bl_idname == "ShaderNodeUVMap" and uv_node.uv_map == "CT texture"
+    assert "CT texture" in me.uv_layers and "UVMap" in me.uv_layers
+    _check_texture_matches_ct(obj, image, mesh, phantom_head, ct, (lo, hi))
+    # shells smooth, cut faces (u ends, v cuts) flat: no normals smeared over the 90 degree edges
+    smooth = np.empty(len(me.polygons), bool)
+    me.polygons.foreach_get("use_smooth", smooth)
+    assert smooth.sum() == 39 * 59  # the outer shell w = 1 (the inner one, w = 0, collapses onto the spine)
+    # float32 round-off from Blender properties (2 pi -> 6.2831855) is accepted, not a bad range
+    f32 = tuple(float(np.float32(x)) for x in (0.0, 2 * math.pi))
+    assert f32[1] > 2 * math.pi
+    full = B.objects.build_solid(phantom_head, coll, nu=10, nv=12, nw=3, v_range=f32,
+                                 w_range=(0.0, float(np.float32(1.0))), name="float32 ranges")
+    assert len(full.data.vertices) == len(phantom_head.solid(10, 12, 3).vertices)
     # a thinner shell (Fig. 14c): w in [0.8, 1], rebuilt in place
     thin = B.objects.build_solid(phantom_head, coll, nu=40, nv=60, nw=5, v_range=v_range, w_range=(0.8, 1.0),
                                  ct=ct, obj=obj)
     w = B.objects.mesh_attribute(thin, "w")
     assert thin == obj and w.min() == pytest.approx(0.8, abs=1e-6) and w.max() == pytest.approx(1.0, abs=1e-6)
+
+
+def test_solid_texture_is_packed_and_survives_save_and_reopen(B, phantom, phantom_head, tmp_path):
+    import bpy
+    coll = B.objects.study_collection("Phantom")
+    obj = B.objects.build_solid(phantom_head, coll, nu=12, nv=16, nw=3, v_range=(math.pi, 2 * math.pi),
+                                ct=phantom.ct, texture_size=32, name="Small solid")
+    image = obj.material_slots[0].material.node_tree.nodes["CT texture"].image
+    before = np.empty(len(image.pixels), np.float32)
+    image.pixels.foreach_get(before)
+    assert image.size[0] == 3 * 32 and image.size[1] == 2 * 32 and np.ptp(before[0::4]) > 0.3
+    blend = tmp_path / "solid.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    bpy.ops.wm.read_homefile(use_empty=True)
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    obj = bpy.data.objects["Small solid"]
+    image = obj.material_slots[0].material.node_tree.nodes["CT texture"].image
+    after = np.empty(len(image.pixels), np.float32)
+    image.pixels.foreach_get(after)
+    np.testing.assert_allclose(after, before, atol=1.5 / 255)  # packed as 8-bit PNG
+    w = B.objects.mesh_attribute(obj, "w")
+    assert w.min() == pytest.approx(0.0, abs=1e-6) and w.max() == pytest.approx(1.0, abs=1e-6)
