@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .coords import MM_TO_M, grid_affine_world
+from .coords import grid_affine_world
 
 OUTSIDE_BACKGROUND = 2.0  #: value of ``w`` outside the solid (any value > 1 means outside)
 GRID_NAMES = ("w", "intensity", "ct")
@@ -174,10 +174,18 @@ def vdb_folder_for(blend_path: str | os.PathLike | None, prefs_folder: str | os.
 
 
 def vdb_path_for(study: str, blend_path=None, prefs_folder=None) -> Path:
-    """Absolute path of the .vdb of `study` (see :func:`vdb_folder_for`), file name made safe."""
+    """Absolute path of the .vdb of `study` (see :func:`vdb_folder_for`), file name made safe.
+
+    A name changed by the cleaning gets a short hash of the original, so that
+    "CT head" and "CT_head" never share (and overwrite) one file.
+    """
+    import hashlib
+
     import bpy
 
     safe = bpy.path.clean_name(study) or "study"
+    if safe != study:
+        safe += "-" + hashlib.sha1(study.encode("utf-8")).hexdigest()[:6]
     return vdb_folder_for(blend_path, prefs_folder) / f"{safe}.vdb"
 
 

@@ -336,6 +336,8 @@ def test_vdb_folder_rules(B, tmp_path):
     assert B.volume.vdb_folder_for(None, "") == __import__("pathlib").Path(tempfile.gettempdir()) / "pdehead_vdb"
     assert B.volume.vdb_path_for("CT head: 1/2", str(blend)).parent == (tmp_path / "a" / "pdehead_vdb").resolve()
     assert "/" not in B.volume.vdb_path_for("CT head: 1/2", str(blend)).name
+    names = {B.volume.vdb_path_for(n, str(blend)).name for n in ("CT head", "CT_head", "CT-head", "CThead")}
+    assert len(names) == 4 and "CThead.vdb" in names  # distinct studies never share a file
 
 
 def test_saved_file_reopens_with_its_volume_and_missing_vdb_is_reported(B, tmp_path):
@@ -346,7 +348,7 @@ def test_saved_file_reopens_with_its_volume_and_missing_vdb_is_reported(B, tmp_p
     coll = B.objects.study_collection("Study 1")
     vdb = B.volume.vdb_path_for("Study 1", bpy.data.filepath, None)
     vol = B.volume.build_volume(_oblique_wfield(), coll, vdb, name="Study 1 Volume", high_alpha=0.8)
-    assert vol.data.filepath == "//pdehead_vdb/Study_1.vdb"  # bpy.path.clean_name
+    assert vol.data.filepath == f"//pdehead_vdb/{vdb.name}" and vdb.name.startswith("Study_1-")
     assert vdb.is_file() and vdb.parent == blend.parent / "pdehead_vdb"
     bpy.ops.wm.save_mainfile()
 
