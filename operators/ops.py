@@ -341,6 +341,9 @@ def step_boundaries(coll) -> None:
         step_segment(coll)
     with state.Timer() as t:
         bset = extract_boundaries(cache.seg, patches=s.patches, samples=s.samples, selection=s.selection)
+        if s.align_curves:
+            from ..pdehead_addon import align_parameterisation
+            bset = align_parameterisation(bset)
     state.store_boundaries(coll, bset)
     cache.drop_from("bset")
     cache.bset = bset
@@ -565,12 +568,16 @@ class PDEHEAD_OT_extract_boundaries(Operator, StudyOperator):
     patches: IntProperty(name="Patches (t)", default=10, min=1, max=60)
     samples: IntProperty(name="Samples (M)", default=256, min=16, max=4096)
     selection: EnumProperty(name="Selection", items=props.SELECTION_ITEMS, default="uniform")
+    align_curves: BoolProperty(name="Align Curves", default=True,
+                               description="Re-sample the curves so that equal v joins corresponding points "
+                                           "(avoids folds where a feature such as the nose is on one curve only)")
 
     def invoke(self, context, event):
         coll = state.active_study(context, self.study)
         if coll is not None:
             s = state.settings(coll)
             self.patches, self.samples, self.selection = s.patches, s.samples, s.selection
+            self.align_curves = s.align_curves
         return self.execute(context)
 
     def execute(self, context):
@@ -582,6 +589,7 @@ class PDEHEAD_OT_extract_boundaries(Operator, StudyOperator):
             s = state.settings(coll)
             with props.suspended_updates():
                 s.patches, s.samples, s.selection = self.patches, self.samples, self.selection
+                s.align_curves = self.align_curves
             step_boundaries(coll)
             self.report({'INFO'}, f"{3 * self.patches + 1} boundary curves of {self.samples} points extracted "
                         f"from '{coll.name}' ({state.timings(coll)['boundaries']:.2f} s)")

@@ -92,8 +92,10 @@ class PDEHEAD_PT_boundaries(_StudyPanel, bpy.types.Panel):
         col.prop(s, "patches")
         col.prop(s, "samples")
         col.prop(s, "selection")
+        col.prop(s, "align_curves")
         op = layout.operator("pdehead.extract_boundaries", icon='CURVE_BEZCIRCLE')
         op.patches, op.samples, op.selection = s.patches, s.samples, s.selection
+        op.align_curves = s.align_curves
         if state.has_stored_boundaries(coll):
             kb = len(coll[state.BOUNDARY_KEY]) * 3 / 4 / 1024
             layout.label(text=f"{3 * s.patches + 1} curves stored in the .blend ({kb:.0f} kB)", icon='FILE_BLEND')

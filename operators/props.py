@@ -91,6 +91,9 @@ class PDEHeadStudySettings(bpy.types.PropertyGroup):
                          description="Points per boundary curve")
     selection: EnumProperty(name="Selection", items=SELECTION_ITEMS, default="uniform",
                             description="How the 3t+1 slices are chosen")
+    align_curves: BoolProperty(name="Align Curves", default=True,
+                               description="Re-sample the curves so that equal v joins corresponding points "
+                                           "(avoids folds where a feature such as the nose is on one curve only)")
 
     # Surface (live)
     nu: IntProperty(name="nu", default=40, min=4, max=2000, update=_live("surface_solid"),

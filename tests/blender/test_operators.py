@@ -57,6 +57,7 @@ def check_study(ext, coll, t: int, nu: int, nv: int, nw: int, volume: bool = Tru
     assert len(s.curves_object.data.splines) == 3 * t + 1
     head = stored_head(ext, coll)
     assert head.bset.patches == t
+    assert head.bset.meta.get("parameterisation") == "aligned"  # Align Curves is on by default
     surface = head.surface(nu, nv, caps=True)
     assert len(s.surface_object.data.vertices) == len(surface.vertices)
     assert len(s.surface_object.data.polygons) == surface.face_count
