@@ -178,11 +178,11 @@ class Blender:
         self.tmp = Path(tempfile.mkdtemp(prefix="pdehead-figs-"))
         self.n = 0
         # extra named views for cutaways, seen from the back right above (v = 0 .. pi/2 is the posterior-right quadrant)
-        self.render.VIEWS.setdefault("BACK_RIGHT_ABOVE", ((0.75, -1.0, -0.55), (0.0, 0.0, 1.0)))
+        self.render.VIEWS.setdefault("BACK_RIGHT_ABOVE", ((0.9, -1.0, -0.3), (0.0, 0.0, 1.0)))
         self.render.VIEWS.setdefault("FRONT_RIGHT", ((0.55, 1.0, -0.15), (0.0, 0.0, 1.0)))
 
     def reset(self):
-        self.bpy.ops.wm.read_factory_settings(use_empty=True)
+        self.bpy.ops.wm.read_homefile(use_empty=True)  # empty scene; preferences and add-ons untouched
 
     def collection(self, name="figure"):
         return self.objects.study_collection(name)
@@ -241,7 +241,8 @@ def fig03(data: Data, bl: Blender | None, args) -> list[Path]:
     ks = [nz - n for n in FIG3_SLICES]  # loaded k points superior; file 1 is the top slice
     lo, hi = 0.0, 1400.0
     tile = 108
-    rows = {"CT slice": [], "soft segmentation p": [], "cleaned mask": [], "boundary (eq. 22)": []}
+    rows = {"CT slice": [], "soft\nsegmentation p\n(eq. 16-21)": [], "cleaned mask\n(largest comp.,\nholes filled)": [],
+            "boundary\n(eq. 22, red)": []}
     for n, k in zip(FIG3_SLICES, ks):
         sl = grey(ct.data[k], lo, hi)
         p = (np.clip(seg.probability[k], 0, 1) * 255).astype(np.uint8)
@@ -262,7 +263,7 @@ def fig03(data: Data, bl: Blender | None, args) -> list[Path]:
     d = ImageDraw.Draw(out)
     for r, name in enumerate(rows):
         y = 2 + r * (tile + 2) + tile // 2 - 14
-        for i, word in enumerate(name.replace(" (", "\n(").split("\n")):
+        for i, word in enumerate(name.split("\n")):
             d.text((4, y + i * 14), word, fill=(0, 0, 0), font=font(11))
     out = title_bar(out, "Fig. 3  CThead: segmentation and boundary extraction on four slices\n"
                          "(row 0 anterior at the top; the soft p is segment_head's membership before clean-up)", 11)
@@ -358,13 +359,17 @@ def fig12(data: Data, bl: Blender, args) -> list[Path]:
             continue
         objs[t] = bl.objects.build_surface(head, coll, nu=max(80, 6 * t + 1), nv=160, caps=True, name=f"t{t}")
         objs[t].hide_render = True
+    mc = bl.mesh(data.mc, bl.collection("fig12 mc"), "marching cubes")
+    mc.hide_render = True
     bounds = union_bounds([bl.bounds_of([o]) for o in objs.values()])
     tiles = []
-    for t, o in objs.items():
+    for t, o in list(objs.items()) + [("mc", mc)]:
         o.hide_render = False
-        tiles.append(label(bl.png([o], "FRONT", (150, 180), bounds), f"t = {t} ({3 * t + 1} slices)", 11))
+        text = f"t={t} ({3 * t + 1} sl.)" if t != "mc" else f"MC ({data.ct.shape[0]} sl.)"
+        tiles.append(label(bl.png([o], "FRONT", (118, 142), bounds), text, 10))
         o.hide_render = True
-    out = title_bar(grid(tiles, 3), "Fig. 12  CThead PDE heads with t patches (front view)", 11)
+    out = title_bar(grid(tiles, 4), "Fig. 12  CThead PDE heads from 3t+1 slices (front view), and marching\n"
+                                    "cubes of the whole mask for comparison (paper Fig. 11c)", 11)
     return [save_png(out, OUT / "fig12_t_series.png")]
 
 
@@ -407,9 +412,9 @@ def fig14(data: Data, bl: Blender, args) -> list[Path]:
     top, bottom = [], []
     for (name, _, _), o in zip(cases, objs):
         o.hide_render = False
-        bottom.append(label(bl.png([o], "BACK_RIGHT_ABOVE", (150, 170), bounds), name, 10))
+        bottom.append(label(bl.png([o], "BACK_RIGHT_ABOVE", (156, 180), bounds), name, 10))
         bl.add_wire(o, 0.4)
-        top.append(label(bl.png([o], "BACK_RIGHT_ABOVE", (150, 170), bounds), name, 10))
+        top.append(label(bl.png([o], "BACK_RIGHT_ABOVE", (156, 180), bounds), name, 10))
         o.hide_render = True
     out = title_bar(grid(top + bottom, 3), "Fig. 14  CThead PDE solid, 40 x 60 x 5 samples, CT intensity as colour\n"
                                            "(seen from behind, right, above; top: grid view, bottom: smooth view)", 11)
@@ -517,7 +522,7 @@ def main(argv=None) -> int:
     p.add_argument("--only", help="comma list of " + ",".join(FIGURES))
     p.add_argument("--list", action="store_true")
     p.add_argument("--samples", type=int, default=24, help="Cycles samples for meshes (default 24)")
-    p.add_argument("--volume-samples", type=int, default=32, help="Cycles samples for volumes (default 32)")
+    p.add_argument("--volume-samples", type=int, default=24, help="Cycles samples for volumes (default 24)")
     args = p.parse_args(argv)
     if args.list:
         for k, (fn, _) in FIGURES.items():

@@ -1,0 +1,111 @@
+"""Smoke test of scripts/bench.py: the --quick logic on the phantom only, and its STL writer.
+
+No wall-clock assertions: only that the JSON has the expected structure and sane values
+(counts, Jaccard, byte sizes, distances) and that the markdown report is written.
+"""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "scripts"))
+
+import bench  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def quick_phantom(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("bench")
+    json_path, md_path = tmp / "bench.json", tmp / "bench.md"
+    assert bench.main(["--quick", "--datasets", "phantom", "--repeats", "1",
+                       "--out", str(json_path), "--md", str(md_path)]) == 0
+    return json.loads(json_path.read_text()), md_path.read_text()
+
+
+def test_top_level_keys(quick_phantom):
+    out, _ = quick_phantom
+    assert {"command", "mode", "repeats", "machine", "datasets", "targets", "notes", "total_s"} <= set(out)
+    assert out["mode"] == "quick" and out["repeats"] == 1
+    m = out["machine"]
+    assert m["cores"] >= 1 and m["cpu"] and m["python"].startswith("3.")
+    assert m["numpy"] == np.__version__ and m["scikit-image"] and m["date"]
+    assert any("QUICK" in n for n in out["notes"])
+    assert list(out["datasets"]) == ["phantom"]
+
+
+def test_phantom_stages(quick_phantom):
+    out, _ = quick_phantom
+    ph = out["datasets"]["phantom"]
+    errors = {k: v["error"] for k, v in ph.items() if isinstance(v, dict) and "error" in v}
+    assert not errors, errors
+    assert ph["load"]["shape"] == [100, 128, 128]
+
+    seg = ph["segmentation"]
+    assert seg["ours"]["time"]["median_s"] > 0 and len(seg["ours"]["time"]["runs_s"]) == 1
+    assert seg["reference"].startswith("exact phantom truth")
+    assert 0.9 <= seg["ours"]["jaccard"] <= 1.0
+    peer = seg["peer"]
+    assert peer["subset"] is True and len(peer["slices"]) == 3
+    assert 0.0 <= peer["slice_jaccard_mean"] <= 1.0
+    assert peer["per_slice_s"] > 0 and seg["ratio"] > 0
+    per = seg["per_slice_jaccard"]
+    assert len(per["slices"]) == len(per["ours"]) == seg["head_slices"] > 50
+    assert min(per["ours"]) > 0.5
+
+    bd = ph["boundaries"]
+    idx = bd["slice_indices"]
+    assert bd["patches"] == 10 and bd["samples"] == 256 and len(idx) == 31 and idx == sorted(set(idx))
+
+    su = ph["surface"]
+    assert su["ours"]["vertices"] == 40 * 60 + 2       # capped tube: two spine points
+    assert su["peer"]["faces"] > 20 * su["ours"]["faces"]
+    assert su["ratio_engine"] > 0 and su["ratio_total"] > 0
+    assert su["ours"]["blender"]["polygons"] == su["ours"]["faces"]
+    assert su["peer"]["blender"]["polygons"] == su["peer"]["faces"]
+    assert su["ours"]["total_median_s"] >= su["ours"]["engine"]["min_s"]
+
+    st = ph["storage"]
+    assert st["peer"]["bytes"] == 84 + 50 * st["peer"]["triangles"]
+    assert 0 < st["ours"]["bytes"] < st["peer"]["bytes"] / 20
+    assert st["ours"]["roundtrip_max_error_mm"] < 1.0
+
+    fid = ph["fidelity"]["series"]
+    assert [r["t"] for r in fid] == [10]
+    assert 0 < fid[0]["mean"] < 3.0 and fid[0]["mean"] <= fid[0]["p95"] <= fid[0]["max"]
+
+    wf = ph["wfield"]
+    assert wf["ours"]["grid"] == [100, 128, 128] and wf["ours"]["inside_voxels"] > 10_000
+    assert wf["vdb"]["bytes"] > 1000
+
+
+def test_markdown_report(quick_phantom):
+    out, md = quick_phantom
+    for heading in ("## Machine", "## Targets", "## Speed", "## Storage", "## Fidelity", "## Memory"):
+        assert heading in md
+    assert "| phantom | segmentation |" in md and "marching cubes" in md
+    # the phantom alone gives no CThead target rows
+    assert all("CThead" not in t["name"] for t in out["targets"])
+
+
+def test_binary_stl(tmp_path):
+    verts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
+    tris = np.array([[0, 2, 1], [0, 1, 3]])
+    path = tmp_path / "t.stl"
+    assert bench.write_binary_stl(verts, tris, path) == 84 + 2 * 50
+    raw = path.read_bytes()
+    assert int(np.frombuffer(raw[80:84], "<u4")[0]) == 2
+    rec = np.frombuffer(raw[84:], dtype=np.dtype([("n", "<f4", 3), ("v", "<f4", (3, 3)), ("attr", "<u2")]))
+    np.testing.assert_allclose(rec["n"], [[0, 0, -1], [0, -1, 0]], atol=1e-7)
+    np.testing.assert_allclose(rec["v"][1], verts[[0, 1, 3]])
+
+
+def test_timed_median():
+    calls = []
+    stats, result = bench.timed(lambda: calls.append(1) or len(calls), 5)
+    assert result == 5 and len(stats["runs_s"]) == 5
+    assert stats["min_s"] <= stats["median_s"] <= max(stats["runs_s"])
