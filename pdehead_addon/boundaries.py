@@ -84,6 +84,8 @@ SelectionFunc = Callable[..., Sequence[int]]
 Selection = Union[str, SelectionFunc, Sequence[int], np.ndarray]
 
 #: Default fraction of the largest slice area below which a slice counts as degenerate.
+#: Largest share of a slice's outline that may be the edge of the scanned slab (tilted series).
+MAX_SCAN_EDGE_FRACTION = 0.1
 MIN_AREA_FRACTION = 0.05
 
 
@@ -608,6 +610,33 @@ def _validate_indices(indices, n: int, mask: np.ndarray, heights: np.ndarray, wh
     return idx
 
 
+def scan_edge_slices(mask: np.ndarray, coverage: np.ndarray | None,
+                     max_fraction: float = MAX_SCAN_EDGE_FRACTION) -> np.ndarray:
+    """Slices whose outline is, in more than ``max_fraction`` of its length, the edge of the scan.
+
+    After a tilted or unevenly spaced series is resampled (``CTVolume.coverage``),
+    the lowest and highest axial planes are only partly inside the scanned slab;
+    there part of the mask ends at the slab's straight edge instead of the skin.
+    A slice is flagged when more than ``max_fraction`` of its eq. 22 boundary
+    ring pixels touch unscanned voxels: its curve would invent a flat wall.
+
+    Returns
+    -------
+    ndarray of bool, shape (nz,)
+    """
+    mask = np.asarray(mask, bool)
+    if coverage is None:
+        return np.zeros(mask.shape[0], bool)
+    from scipy import ndimage
+
+    cross = ndimage.generate_binary_structure(2, 1)[None]  # in-plane neighbours only: eq. 22 per slice
+    near_edge = ~ndimage.binary_erosion(np.asarray(coverage, bool), structure=cross, border_value=1)
+    ring = mask & ~ndimage.binary_erosion(mask, structure=cross, border_value=0)
+    ring_px = np.count_nonzero(ring, axis=(1, 2))
+    at_edge = np.count_nonzero(ring & near_edge, axis=(1, 2))
+    return at_edge > max_fraction * np.maximum(ring_px, 1)
+
+
 # --------------------------------------------------------------------------- the pipeline step
 def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Selection = "uniform",
                        min_area_fraction: float = MIN_AREA_FRACTION, sigma: float = 0.7,
@@ -676,11 +705,16 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
     centre = np.column_stack([np.arange(nz, dtype=float), np.full(nz, (ny - 1) / 2), np.full(nz, (nx - 1) / 2)])
     slice_z = ct.index_to_patient(centre)[:, 2]
 
+    cut_off = scan_edge_slices(mask, getattr(ct, "coverage", None))
     if isinstance(selection, str):
         strategy = SELECTION_STRATEGIES.get(selection)
         if strategy is None:
             raise BoundaryError(f"unknown selection {selection!r}; known: {sorted(SELECTION_STRATEGIES)}")
-        chosen = _validate_indices(strategy(mask, n, slice_z, min_area_fraction=min_area_fraction),
+        selectable = mask
+        if cut_off.any():  # named strategies never pick a slice whose outline is the edge of the scan
+            selectable = mask.copy()
+            selectable[cut_off] = False
+        chosen = _validate_indices(strategy(selectable, n, slice_z, min_area_fraction=min_area_fraction),
                                    n, mask, slice_z, f"selection {selection!r}")
         selection_name = selection
     elif callable(selection):
@@ -715,6 +749,7 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
         spacing=[float(s) for s in ct.spacing], min_area_fraction=float(min_area_fraction),
         sigma=float(sigma), level_field=level_field, band=int(band),
         slice_areas_mm2=[float(a) for a in areas], ring_coverage=[float(c) for c in coverage],
+        scan_edge_slices=np.flatnonzero(cut_off).tolist(),
         orientation="ccw seen from +z (superior); outward normal = dX/dv x dX/du",
         seam="posterior midline (+y ray from each curve's area centroid)",
     )

@@ -645,11 +645,12 @@ def _load_dicom(files, label, series_uid, resample_spacing, warns) -> CTVolume:
 
     reasons = geometry["resample_reasons"]
     if reasons:
-        data, origin, spacing = _resample_slices(stack, geometry["positions"], geometry["u"], geometry["v"],
-                                                 geometry["dr"], geometry["dc"], geometry["steps"],
-                                                 resample_spacing, pad_info["fill"])
+        data, origin, spacing, coverage = _resample_slices(
+            stack, geometry["positions"], geometry["u"], geometry["v"], geometry["dr"], geometry["dc"],
+            geometry["steps"], resample_spacing, pad_info["fill"])
         direction = np.eye(3)
     else:
+        coverage = None
         if resample_spacing is not None:
             warns.append("resample_spacing ignored: the slices are regular and axis-aligned (no resampling)")
         data, spacing, origin, direction = _canonical(
@@ -688,8 +689,9 @@ def _load_dicom(files, label, series_uid, resample_spacing, warns) -> CTVolume:
         "files": len({fr.path for fr in frames}),
         "skipped": {reason: len(fs) for reason, fs in scan.skipped.items()},
         "hu_range": (float(data.min()), float(data.max())),
+        "covered_fraction": 1.0 if coverage is None else float(coverage.mean()),
     }
-    return CTVolume(data, spacing, origin, direction, meta)
+    return CTVolume(data, spacing, origin, direction, meta, coverage=coverage)
 
 
 def _consistent_frames(series: _Series, warns: list[str]) -> list[_Frame]:
@@ -1018,7 +1020,8 @@ def _resample_slices(stack: np.ndarray, positions: np.ndarray, u: np.ndarray, v:
 
     Returns
     -------
-    data (nz, ny, nx) float32, origin (3,), spacing (dz, dy, dx)
+    data (nz, ny, nx) float32, origin (3,), spacing (dz, dy, dx), coverage (nz, ny, nx) bool
+        ``coverage`` is False where the point lies outside the source slab (filled with ``fill``).
     """
     nslices, rows, cols = stack.shape
     n = np.cross(u, v)
@@ -1040,11 +1043,12 @@ def _resample_slices(stack: np.ndarray, positions: np.ndarray, u: np.ndarray, v:
             source = stack if lines_are_rows else np.ascontiguousarray(stack.transpose(0, 2, 1))
             if line_dir[a] < 0:
                 source = np.ascontiguousarray(source[:, :, ::-1])
-            out = _resample_lines(source, positions, other_dir, other_sp, n, along, lo, sp, counts, a, fill)
+            out, coverage = _resample_lines(source, positions, other_dir, other_sp, n, along, lo, sp, counts,
+                                            a, fill)
             break
     if out is None:
-        out = _resample_general(stack, positions, u, v, dr, dc, n, along, lo, sp, counts, fill)
-    return out, lo, (float(sp[2]), float(sp[1]), float(sp[0]))
+        out, coverage = _resample_general(stack, positions, u, v, dr, dc, n, along, lo, sp, counts, fill)
+    return out, lo, (float(sp[2]), float(sp[1]), float(sp[0])), coverage
 
 
 def _bracket(delta: np.ndarray, along: np.ndarray):
@@ -1102,9 +1106,12 @@ def _resample_lines(source, positions, other_dir, other_sp, n, along, lo, sp, co
         lower[~inside[sl]] = fill
         out2[sl] = lower
     out = out2.reshape(counts[b], counts[c], line_len)
+    covered = np.broadcast_to(inside.reshape(counts[b], counts[c], 1), out.shape)
     order = [b, c, a]
     perm = [order.index(p) for p in (2, 1, 0)]
-    return np.ascontiguousarray(out.transpose(perm)) if perm != [0, 1, 2] else out
+    if perm == [0, 1, 2]:
+        return out, np.ascontiguousarray(covered)
+    return np.ascontiguousarray(out.transpose(perm)), np.ascontiguousarray(covered.transpose(perm))
 
 
 def _resample_general(stack, positions, u, v, dr, dc, n, along, lo, sp, counts, fill):
@@ -1114,6 +1121,7 @@ def _resample_general(stack, positions, u, v, dr, dc, n, along, lo, sp, counts, 
     nslices, rows, cols = stack.shape
     nx, ny, nz = (int(c) for c in counts)
     out = np.empty((nz, ny, nx), dtype=np.float32)
+    coverage = np.empty((nz, ny, nx), dtype=bool)
     xs = lo[0] + sp[0] * np.arange(nx)
     ys = lo[1] + sp[1] * np.arange(ny)
     pu, pv = positions @ u, positions @ v
@@ -1139,7 +1147,8 @@ def _resample_general(stack, positions, u, v, dr, dc, n, along, lo, sp, counts, 
         lower += upper
         lower[~inside] = fill
         out[z0:z0 + len(zs)] = lower.reshape(len(zs), ny, nx)
-    return out
+        coverage[z0:z0 + len(zs)] = inside.reshape(len(zs), ny, nx)
+    return out, coverage
 
 
 # ----------------------------------------------------------------------------------------------
@@ -1445,6 +1454,7 @@ def _load_nifti(files, label, resample_spacing, warns) -> CTVolume:
     aligned = (np.abs(units).max(axis=0).min() > 1 - _ALIGNED_TOL
                and len(set(np.argmax(np.abs(units), axis=0).tolist())) == 3)
     reasons = []
+    coverage = None
     if aligned:
         out, spacing, origin_out, direction = _canonical(data, [units[:, 2], units[:, 1], units[:, 0]],
                                                          [zooms[2], zooms[1], zooms[0]], origin)
@@ -1459,7 +1469,7 @@ def _load_nifti(files, label, resample_spacing, warns) -> CTVolume:
         if along[-1] < along[0]:
             positions, data = positions[::-1], data[::-1]
         steps = np.abs(np.diff(positions @ n))
-        out, origin_out, spacing = _resample_slices(np.ascontiguousarray(data), positions, u, v,
+        out, origin_out, spacing, coverage = _resample_slices(np.ascontiguousarray(data), positions, u, v,
                                                     float(zooms[1]), float(zooms[0]), steps, resample_spacing,
                                                     float(data.min()))
         direction = np.eye(3)
@@ -1478,5 +1488,5 @@ def _load_nifti(files, label, resample_spacing, warns) -> CTVolume:
         "nifti_form": "sform" if sform_code > 0 else "qform" if qform_code > 0 else "pixdim",
         "hu_range": (float(out.min()), float(out.max())),
     }
-    return CTVolume(out, spacing, origin_out, direction, meta)
+    return CTVolume(out, spacing, origin_out, direction, meta, coverage=coverage)
 

@@ -26,6 +26,11 @@ class CTVolume:
         ``origin + direction @ (i*dx, j*dy, k*dz)``.
     meta : dict
         Free-form description of the study (source, modality, series, ...).
+    coverage : ndarray of bool, shape (nz, ny, nx), optional
+        True where the voxel holds measured data. Only set when the loader
+        resampled the slices (gantry tilt, uneven steps): voxels outside the
+        scanned slab are filled with air and are ``False`` here, so later steps
+        can tell a real skin edge from the edge of the scan.
 
     Notes
     -----
@@ -39,6 +44,7 @@ class CTVolume:
     origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
     direction: np.ndarray = field(default_factory=lambda: np.eye(3))
     meta: dict[str, Any] = field(default_factory=dict)
+    coverage: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         data = np.asarray(self.data)
@@ -52,6 +58,10 @@ class CTVolume:
         self.origin = np.asarray(self.origin, dtype=np.float64).reshape(3)
         self.direction = np.asarray(self.direction, dtype=np.float64).reshape(3, 3)
         self.meta = dict(self.meta)
+        if self.coverage is not None:
+            self.coverage = np.asarray(self.coverage, dtype=bool)
+            if self.coverage.shape != self.data.shape:
+                raise ValueError(f"CTVolume coverage shape {self.coverage.shape} != data shape {self.data.shape}")
 
     @property
     def shape(self) -> tuple[int, int, int]:

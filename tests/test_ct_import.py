@@ -806,3 +806,20 @@ def test_nifti_ras_to_lps():
     head = ct.data > 5
     prof_j = head.sum(axis=(0, 2))
     assert np.flatnonzero(prof_j)[0] < 20 and head[-5:].sum() < head[90].sum() * 0.3
+
+
+def test_tilted_series_records_which_voxels_the_scan_covered(ge_ct):
+    """Resampling a tilted slab leaves wedges of the axial grid unscanned; coverage marks them."""
+    cov = ge_ct.coverage
+    assert cov is not None and cov.shape == ge_ct.shape
+    assert 0.5 < ge_ct.meta["covered_fraction"] < 0.95
+    # the unscanned wedges are at the bottom-front / top-back of the oblique slab and hold air
+    assert not cov[0].all() and not cov[-1].all()
+    assert np.all(ge_ct.data[~cov] == -1000.0)
+    # the middle of the head was scanned
+    nz = ge_ct.shape[0]
+    assert cov[nz // 2].mean() > 0.95
+
+
+def test_axis_aligned_series_has_no_coverage_mask(cthead_ct):
+    assert cthead_ct.coverage is None
