@@ -250,6 +250,9 @@ def _plane_u(head, z: np.ndarray) -> np.ndarray:
         raise PDEError("the spine is not monotone in z; w_field needs curves stacked along z")
     if dz[0] < 0:
         uu, zz = uu[::-1], zz[::-1]
+    # planes within rounding of the end curves belong to them (the spine's end z may be off by an ulp)
+    tol = 1e-9 * max(1.0, float(np.abs(zz).max()))
+    z = np.where(np.abs(z - zz[0]) <= tol, zz[0], np.where(np.abs(z - zz[-1]) <= tol, zz[-1], z))
     u = np.interp(z, zz, uu, left=np.nan, right=np.nan)
     ok = np.isfinite(u)
     for _ in range(3):  # secant refinement (the spine is exactly linear per patch for height knots)

@@ -81,6 +81,10 @@ from .mesh import Mesh
 DEFAULT_LEBESGUE_GROWTH = 1.10
 #: User smoothing values are accepted while the Lebesgue constant stays within this factor.
 MAX_LEBESGUE_GROWTH = 2.0
+#: The default a moves the surface at most this far (mm) from the a = 0 (cubic) solution.
+DEFAULT_DEVIATION_MM = 0.1
+#: User smoothing values are accepted while the surface stays this close (mm) to the a = 0 solution.
+MAX_DEVIATION_MM = 1.0
 #: Below this exponent the cubic-limit basis is used, above it the rescaled exponentials.
 _K_SWITCH = 2.5
 #: Exponents are searched up to this value (beyond it every knot set is hopeless anyway).
@@ -274,6 +278,81 @@ def _check_modes(modes: int | None, samples: int) -> int:
     return int(modes)
 
 
+_DEV_K = np.concatenate([[0.0], np.geomspace(1e-3, _K_SEARCH_MAX, 160)])
+
+
+@lru_cache(maxsize=256)
+def _deviation_table(knots: tuple[float, float, float, float]) -> np.ndarray:
+    """``Delta(k) = max_s sum_j |L_j^k(s) - L_j^0(s)|`` on the grid ``_DEV_K``.
+
+    How far the exponent-k interpolation of a harmonic can depart from the
+    cubic (a = 0) one, per mm of the harmonic's amplitude at the curves; it
+    grows like ``k^4`` for small k (constants and linear functions are not in
+    the solution space of eq. 1 for n >= 1).
+    """
+    with np.errstate(all="ignore"):
+        L = _cardinal(_DEV_K, knots, _LEBESGUE_S)
+        dev = np.abs(L - L[:1]).sum(axis=2).max(axis=1)
+    dev[~np.isfinite(dev)] = np.inf
+    return np.maximum.accumulate(dev)                                       # monotone envelope
+
+
+def _harmonic_amplitudes(spec: np.ndarray, t: int) -> np.ndarray:
+    """Per patch and harmonic the largest amplitude (mm) over the patch's four curves, shape (t, H)."""
+    amp = np.linalg.norm(np.abs(spec), axis=2)                              # (3t+1, H)
+    return np.stack([amp[3 * k:3 * k + 4].max(axis=0) for k in range(t)])
+
+
+def _deviation_limit(tables: np.ndarray, amp: np.ndarray, n_modes: int, tol: float,
+                     upper: np.ndarray) -> np.ndarray:
+    """Largest a <= upper per patch with ``sum_h amp_h Delta(a min(h, N+1)) <= tol`` (vectorised bisection)."""
+    h = np.minimum(np.arange(amp.shape[1]), n_modes + 1)[None, :].astype(np.float64)
+
+    rows = np.arange(len(upper))[:, None]
+
+    def bound(a):
+        k = np.clip(a[:, None] * h, 0.0, _DEV_K[-1])
+        j = np.clip(np.searchsorted(_DEV_K, k, side="right") - 1, 0, len(_DEV_K) - 2)
+        f = (k - _DEV_K[j]) / (_DEV_K[j + 1] - _DEV_K[j])
+        with np.errstate(invalid="ignore"):
+            dev = tables[rows, j] * (1 - f) + tables[rows, j + 1] * f
+        dev = np.where(np.isfinite(dev), dev, np.inf)
+        return (amp[:, 1:] * dev[:, 1:]).sum(axis=1)
+
+    lo = np.zeros(len(upper))
+    hi = np.asarray(upper, float).copy()
+    ok_hi = bound(hi) <= tol
+    if np.all(ok_hi):
+        return hi
+    for _ in range(12):  # 2^-12 of the upper limit: far below any visible difference
+        mid = 0.5 * (lo + hi)
+        good = bound(mid) <= tol
+        lo = np.where(good, mid, lo)
+        hi = np.where(good, hi, mid)
+    return np.where(ok_hi, upper, lo)
+
+
+def _bounds(bset: BoundarySet, n_modes: int, local: np.ndarray, spec: np.ndarray,
+            want_default: bool = True, want_max: bool = True) -> tuple[np.ndarray | None, np.ndarray | None]:
+    t = bset.patches
+    keys = [tuple(float(x) for x in np.round(kn, 12)) for kn in local]
+    tables = np.stack([_deviation_table(k) for k in keys])
+    amp = _harmonic_amplitudes(spec, t)
+    default = maximum = None
+    if want_default:
+        H, r = _patch_geometry(bset)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            a_iso = np.where(r > 0, H / r, np.inf)
+        stable_default = np.array([_stable_exponent(k, DEFAULT_LEBESGUE_GROWTH) for k in keys]) / (n_modes + 1)
+        default = _deviation_limit(tables, amp, n_modes, DEFAULT_DEVIATION_MM, np.minimum(a_iso, stable_default))
+    if want_max:
+        stable_max = np.array([_stable_exponent(k, MAX_LEBESGUE_GROWTH) for k in keys]) / (n_modes + 1)
+        maximum = _deviation_limit(tables, amp, n_modes, MAX_DEVIATION_MM, stable_max)
+        if default is not None:
+            maximum = np.maximum(maximum, default)
+    return default, maximum
+
+
 def smoothing_bounds(bset: BoundarySet, modes: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Default and maximum smoothing parameter a of each patch.
 
@@ -286,22 +365,20 @@ def smoothing_bounds(bset: BoundarySet, modes: int | None = None) -> tuple[np.nd
     Returns
     -------
     default, maximum : ndarray, shape (t,)
-        ``default = min(H/r, a_stable)`` (see the module docstring) and the
-        largest accepted a, for which the Lebesgue constant of the top exponent
-        ``a (N+1)`` is ``MAX_LEBESGUE_GROWTH`` times the cubic one.
+        ``default`` is the largest a not above the isotropic ``H/r`` for which
+        (1) the Lebesgue constant of the top exponent ``a (N+1)`` stays within
+        ``DEFAULT_LEBESGUE_GROWTH`` of the cubic one and (2) the surface moves
+        at most ``DEFAULT_DEVIATION_MM`` away from the a = 0 (cubic) solution
+        (bound ``sum_h amp_h Delta(k_h)`` over the curves' harmonic amplitudes).
+        ``maximum`` is the same with ``MAX_LEBESGUE_GROWTH`` and
+        ``MAX_DEVIATION_MM``: every a in ``[0, maximum]`` gives a surface within
+        ``MAX_DEVIATION_MM`` of the cubic one, larger values raise PDEError.
     """
+    if not isinstance(bset, BoundarySet):
+        raise PDEError(f"smoothing_bounds needs a BoundarySet, got {type(bset).__name__}")
     n = _check_modes(modes, bset.samples)
-    local = _local_knots(bset)
-    H, r = _patch_geometry(bset)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        a_iso = np.where(r > 0, H / r, np.inf)
-    default = np.empty(bset.patches)
-    maximum = np.empty(bset.patches)
-    for k, knots in enumerate(local):
-        key = tuple(float(x) for x in np.round(knots, 12))
-        default[k] = min(a_iso[k], _stable_exponent(key, DEFAULT_LEBESGUE_GROWTH) / (n + 1))
-        maximum[k] = _stable_exponent(key, MAX_LEBESGUE_GROWTH) / (n + 1)
-    return default, maximum
+    spec, _ = _fourier(bset.curves)
+    return _bounds(bset, n, _local_knots(bset), spec)
 
 
 # ----------------------------------------------------------------------------- the solved head
@@ -338,7 +415,7 @@ class PDEHead:
 
     def __init__(self, bset: BoundarySet, smoothing: np.ndarray, modes: int, knots: np.ndarray,
                  exponents: np.ndarray, coefficients: np.ndarray, condition: np.ndarray,
-                 lebesgue: np.ndarray, planar_z: bool):
+                 planar_z: bool):
         self.bset = bset
         self.smoothing = smoothing
         self.modes = modes
@@ -346,7 +423,6 @@ class PDEHead:
         self.exponents = exponents
         self.coefficients = coefficients
         self.condition = condition
-        self.lebesgue = lebesgue
         self.planar_z = planar_z
         self.smoothing_is_default = False
         self._coef_real = np.ascontiguousarray(
@@ -355,6 +431,11 @@ class PDEHead:
         self.orientation = self._measure_orientation()
 
     # -- basic properties
+    @property
+    def lebesgue(self) -> np.ndarray:
+        """Per patch the Lebesgue constant of its largest exponent (the overshoot factor), computed on demand."""
+        return lebesgue_constant(self.exponents.max(axis=1), self.knots)
+
     @property
     def patches(self) -> int:
         return self.coefficients.shape[0]
@@ -376,16 +457,21 @@ class PDEHead:
             raise PDEError("u must lie in [0, 1]")
 
     # -- harmonic amplitudes
-    def _amplitudes(self, u: np.ndarray) -> np.ndarray:
-        """Complex harmonic amplitudes ``A_h(u) - i B_h(u)`` (weighted), shape (len(u), H, 3)."""
+    def _amplitudes(self, u: np.ndarray, harmonics: int | None = None) -> np.ndarray:
+        """Complex harmonic amplitudes ``A_h(u) - i B_h(u)`` (weighted), shape (len(u), H, 3).
+
+        ``harmonics`` limits the computation to h < harmonics (1: the spine only); the
+        arithmetic per harmonic is the same either way.
+        """
         u = np.clip(np.asarray(u, dtype=np.float64).ravel(), 0.0, 1.0)
         patch, s = self._patch_of(u)
-        out = np.empty((u.size, self.harmonics, 3), dtype=np.complex128)
+        H = self.harmonics if harmonics is None else int(harmonics)
+        out = np.empty((u.size, H, 3), dtype=np.complex128)
         for k in np.unique(patch):
             sel = np.nonzero(patch == k)[0]
-            g = _basis_grid(self.exponents[k], s[sel])                        # (n, H, 4)
+            g = _basis_grid(self.exponents[k, :H], s[sel])                    # (n, H, 4)
             # batched over h: (H, n, 4) @ (H, 4, 6 = re xyz, im xyz)
-            prod = np.matmul(g.transpose(1, 0, 2), self._coef_real[k]).transpose(1, 0, 2)
+            prod = np.matmul(g.transpose(1, 0, 2), self._coef_real[k, :H]).transpose(1, 0, 2)
             out[sel] = prod[..., :3] + 1j * prod[..., 3:]
         return out
 
@@ -393,12 +479,7 @@ class PDEHead:
         """The spine ``A_0(u)`` (eq. 8): the cubic centre line, shape ``u.shape + (3,)``."""
         u = np.asarray(u, dtype=np.float64)
         self._check_u(u)
-        flat = np.clip(u.ravel(), 0.0, 1.0)
-        patch, s = self._patch_of(flat)
-        c = s - 0.5
-        mono = np.stack([np.ones_like(c), c, c * c, c ** 3], axis=-1)       # basis at k = 0
-        a0 = np.einsum("nb,nbc->nc", mono, self.coefficients[patch, 0].real)
-        return a0.reshape(u.shape + (3,))
+        return self._amplitudes(u.ravel(), harmonics=1)[:, 0].real.reshape(u.shape + (3,))
 
     # -- evaluation
     def evaluate(self, u: np.ndarray | float, v: np.ndarray | float, w: np.ndarray | float = 1.0,
@@ -873,24 +954,38 @@ def _fourier(curves: np.ndarray) -> tuple[np.ndarray, bool]:
 
 
 def _inverse_small(G: np.ndarray) -> np.ndarray:
-    """Inverses of a batch of small matrices (..., n, n): Gauss-Jordan with partial pivoting,
-    vectorised over the batch (LAPACK's per-matrix overhead dominates for 4x4)."""
-    shape = G.shape
-    n = shape[-1]
-    A = np.concatenate([G.reshape(-1, n, n), np.broadcast_to(np.eye(n), (int(np.prod(shape[:-2])), n, n))],
-                       axis=2).astype(np.float64)
-    rows = np.arange(len(A))
+    """Inverses of a batch of 4x4 matrices (..., 4, 4): closed-form cofactor expansion plus one
+    step of iterative refinement, vectorised over the batch (LAPACK's per-call overhead
+    dominates for 4x4 systems). The systems here have condition numbers below ~1e3."""
+    a = np.moveaxis(G, (-2, -1), (0, 1))                                  # a[i, j] has the batch shape
+    s0 = a[0, 0] * a[1, 1] - a[1, 0] * a[0, 1]
+    s1 = a[0, 0] * a[1, 2] - a[1, 0] * a[0, 2]
+    s2 = a[0, 0] * a[1, 3] - a[1, 0] * a[0, 3]
+    s3 = a[0, 1] * a[1, 2] - a[1, 1] * a[0, 2]
+    s4 = a[0, 1] * a[1, 3] - a[1, 1] * a[0, 3]
+    s5 = a[0, 2] * a[1, 3] - a[1, 2] * a[0, 3]
+    c5 = a[2, 2] * a[3, 3] - a[3, 2] * a[2, 3]
+    c4 = a[2, 1] * a[3, 3] - a[3, 1] * a[2, 3]
+    c3 = a[2, 1] * a[3, 2] - a[3, 1] * a[2, 2]
+    c2 = a[2, 0] * a[3, 3] - a[3, 0] * a[2, 3]
+    c1 = a[2, 0] * a[3, 2] - a[3, 0] * a[2, 2]
+    c0 = a[2, 0] * a[3, 1] - a[3, 0] * a[2, 1]
     with np.errstate(all="ignore"):
-        for col in range(n):
-            piv = col + np.argmax(np.abs(A[:, col:, col]), axis=1)
-            top = A[rows, col].copy()
-            A[rows, col] = A[rows, piv]
-            A[rows, piv] = top
-            A[:, col] /= A[:, col, col][:, None]
-            factor = A[:, :, col].copy()
-            factor[:, col] = 0.0
-            A -= factor[:, :, None] * A[:, col][:, None, :]
-    return A[:, :, n:].reshape(shape)
+        inv_det = 1.0 / (s0 * c5 - s1 * c4 + s2 * c3 + s3 * c2 - s4 * c1 + s5 * c0)
+    rows = [
+        [a[1, 1] * c5 - a[1, 2] * c4 + a[1, 3] * c3, -a[0, 1] * c5 + a[0, 2] * c4 - a[0, 3] * c3,
+         a[3, 1] * s5 - a[3, 2] * s4 + a[3, 3] * s3, -a[2, 1] * s5 + a[2, 2] * s4 - a[2, 3] * s3],
+        [-a[1, 0] * c5 + a[1, 2] * c2 - a[1, 3] * c1, a[0, 0] * c5 - a[0, 2] * c2 + a[0, 3] * c1,
+         -a[3, 0] * s5 + a[3, 2] * s2 - a[3, 3] * s1, a[2, 0] * s5 - a[2, 2] * s2 + a[2, 3] * s1],
+        [a[1, 0] * c4 - a[1, 1] * c2 + a[1, 3] * c0, -a[0, 0] * c4 + a[0, 1] * c2 - a[0, 3] * c0,
+         a[3, 0] * s4 - a[3, 1] * s2 + a[3, 3] * s0, -a[2, 0] * s4 + a[2, 1] * s2 - a[2, 3] * s0],
+        [-a[1, 0] * c3 + a[1, 1] * c1 - a[1, 2] * c0, a[0, 0] * c3 - a[0, 1] * c1 + a[0, 2] * c0,
+         -a[3, 0] * s3 + a[3, 1] * s1 - a[3, 2] * s0, a[2, 0] * s3 - a[2, 1] * s1 + a[2, 2] * s0],
+    ]
+    with np.errstate(all="ignore"):
+        X = np.moveaxis(np.array(rows) * inv_det, (0, 1), (-2, -1))
+        X = X + X @ (np.eye(4) - G @ X)                                      # one refinement step
+    return X
 
 
 def _as_smoothing(smoothing, t: int) -> np.ndarray | None:
@@ -938,33 +1033,36 @@ def solve_pde(bset: BoundarySet, smoothing: float | Sequence[float] | None = Non
     t, M = bset.patches, bset.samples
     n_modes = _check_modes(modes, M)
     local = _local_knots(bset)
-    default, maximum = smoothing_bounds(bset, n_modes)
+    spec, planar = _fourier(bset.curves)                                     # (3t+1, H, 3)
     a = _as_smoothing(smoothing, t)
     if a is None:
-        a = default
+        a, _ = _bounds(bset, n_modes, local, spec, want_max=False)
     else:
+        _, maximum = _bounds(bset, n_modes, local, spec, want_default=False)
         over = np.nonzero(a > maximum * (1 + 1e-9))[0]
         if over.size:
             k = int(over[0])
             raise PDEError(
-                f"smoothing a={a[k]:.4g} is too large for patch {k} with N={n_modes} modes: the top harmonic "
-                f"(exponent a*(N+1)) would overshoot between the curves (interpolation growth > "
-                f"{MAX_LEBESGUE_GROWTH:g}x the cubic one); the maximum there is {maximum[k]:.4g}. "
-                f"Lower the smoothing or the number of modes.")
-    spec, planar = _fourier(bset.curves)                                     # (3t+1, H, 3)
+                f"smoothing a={a[k]:.4g} is too large for patch {k} with N={n_modes} modes: the surface "
+                f"would bulge between the curves (interpolation growth > {MAX_LEBESGUE_GROWTH:g}x the cubic "
+                f"one or a departure > {MAX_DEVIATION_MM:g} mm from the a = 0 surface); the maximum there "
+                f"is {maximum[k]:.4g}. Lower the smoothing or change the number of modes.")
     H = spec.shape[1]
     h = np.arange(H, dtype=np.float64)
     exponents = a[:, None] * np.minimum(h, n_modes + 1)[None, :]              # R: omega = a (N+1)
-    G = _basis(exponents[:, :, None], local[:, None, :])                     # (t, H, 4 nodes, 4 basis)
-    G_inv = _inverse_small(G)
+    # patches with the same knots and smoothing share their 4x4 systems (uniform slice selections)
+    _, first, which = np.unique(np.round(np.column_stack([local, a]), 12), axis=0, return_index=True,
+                                return_inverse=True)
+    G = _basis(exponents[first][:, :, None], local[first][:, None, :])       # (types, H, 4 nodes, 4 basis)
+    G_inv = _inverse_small(G)[which.ravel()]
+    G = G[which.ravel()]
     # rhs: the node curves' harmonics, (t, H, 4 nodes, 3)
     rhs = np.stack([spec[3 * k:3 * k + 4] for k in range(t)]).transpose(0, 2, 1, 3)
     coefficients = np.matmul(G_inv, rhs.real) + 1j * np.matmul(G_inv, rhs.imag)
     norm1 = lambda m: np.abs(m).sum(axis=-2).max(axis=-1)                    # noqa: E731 (1-norm)
     condition = (norm1(G) * norm1(G_inv)).max(axis=1)
-    lebesgue = lebesgue_constant(exponents.max(axis=1), local)
     if not (np.all(np.isfinite(coefficients)) and np.all(np.isfinite(condition))):
         raise PDEError("the PDE solution is not finite (degenerate boundary curves or knots?)")
-    head = PDEHead(bset, a, n_modes, local, exponents, coefficients, condition, lebesgue, planar)
+    head = PDEHead(bset, a, n_modes, local, exponents, coefficients, condition, planar)
     head.smoothing_is_default = smoothing is None
     return head

@@ -1,0 +1,288 @@
+"""The PDE solid (eq. 23): box-boundary meshes (Fig. 14), the w-field (section 4.3.1) and eq. 24."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from skimage.draw import polygon2mask
+
+from pdehead_addon import BoundarySet, CTVolume, PDEError, knots_from_heights
+from pdehead_addon.pde_solid import OUTSIDE_W, WField, alpha_from_w, w_field
+from pdehead_addon.pde_surface import signed_volume, solve_pde
+from pde_synthetic import head_bset, resample_arc_length
+
+TWO_PI = 2 * np.pi
+
+
+@pytest.fixture(scope="module")
+def head():
+    return solve_pde(head_bset(patches=4, samples=128))
+
+
+def face_areas(mesh):
+    v = mesh.vertices
+    q, t = mesh.quads, mesh.triangles
+    qa = 0.5 * np.linalg.norm(np.cross(v[q[:, 2]] - v[q[:, 0]], v[q[:, 3]] - v[q[:, 1]]), axis=1)
+    ta = 0.5 * np.linalg.norm(np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]), axis=1)
+    return np.concatenate([qa, ta])
+
+
+# ----------------------------------------------------------------------------- solid meshes
+
+
+def test_outer_face_is_the_surface(head):
+    nu, nv, nw = 40, 60, 5
+    solid = head.solid(nu, nv, nw)
+    surf = head.surface(nu, nv)
+    outer = solid.vertex_attributes["w"] == 1.0
+    assert outer.sum() == nu * nv
+    a = np.round(solid.vertices[outer], 9)
+    b = np.round(surf.vertices, 9)
+    assert np.array_equal(a[np.lexsort(a.T)], b[np.lexsort(b.T)])
+    # vertices are X(u, v, w) = A0 + w (X - A0)
+    att = solid.vertex_attributes
+    assert np.allclose(solid.vertices, head.evaluate(att["u"], att["v"], att["w"]), atol=1e-9)
+
+
+@pytest.mark.parametrize("kwargs, fraction", [
+    (dict(), 1.0),
+    (dict(v_range=(np.pi / 2, TWO_PI)), 0.75),                               # Fig. 14 b
+    (dict(v_range=(np.pi / 2, TWO_PI), w_range=(0.8, 1.0)), 0.75 * (1 - 0.64)),  # Fig. 14 c
+    (dict(w_range=(0.5, 1.0)), 0.75),
+    (dict(u_range=(0.25, 0.5), w_range=(0.2, 0.9)), None),
+])
+def test_cutaways_are_closed_and_outward(head, kwargs, fraction):
+    m = head.solid(40, 60, 5, **kwargs)
+    assert m.is_watertight()
+    vol = signed_volume(m)
+    assert vol > 0
+    assert face_areas(m).min() > 1e-6                                       # no zero-area faces
+    w = m.vertex_attributes["w"]
+    w_range = kwargs.get("w_range", (0.0, 1.0))
+    assert np.isclose(w.min(), w_range[0]) and np.isclose(w.max(), w_range[1])
+    if fraction is not None:  # areas scale with w^2 around the spine; v by its span
+        full = signed_volume(head.surface(40, 60, caps=True))
+        assert abs(vol / full - fraction) < 0.02
+
+
+def test_spine_degenerate_inner_face_is_merged(head):
+    m = head.solid(20, 30, 4)                                               # w from 0: inner face on the spine
+    w = m.vertex_attributes["w"]
+    assert np.count_nonzero(w == 0) == 2                                    # only the u-end fan centres
+    assert len(m.triangles) == 2 * 30                                       # u-end fans
+    assert m.is_watertight() and face_areas(m).min() > 1e-6
+    cut = head.solid(20, 30, 4, v_range=(1.0, 5.0))                         # the v cuts meet on the spine
+    w = cut.vertex_attributes["w"]
+    assert np.count_nonzero(w == 0) == 20                                   # one spine vertex per u
+    assert cut.is_watertight() and face_areas(cut).min() > 1e-6
+    assert np.allclose(cut.vertices[w == 0], head.spine(cut.vertex_attributes["u"][w == 0]))
+
+
+def test_solid_uv_and_seam(head):
+    m = head.solid(10, 12, 3)
+    assert m.quad_uv.shape == (len(m.quads), 4, 2)
+    assert np.isclose(m.quad_uv[..., 1].max(), 1.0)
+    assert m.triangle_uv.shape == (len(m.triangles), 3, 2)
+
+
+@pytest.mark.parametrize("kwargs", [dict(nw=1), dict(u_range=(0.5, 0.5)), dict(w_range=(0.2, 1.5)),
+                                    dict(v_range=(0, 7.0)), dict(nv=2)])
+def test_solid_bad_ranges(head, kwargs):
+    args = dict(nu=5, nv=8, nw=3)
+    args.update({k: v for k, v in kwargs.items() if k in args})
+    rest = {k: v for k, v in kwargs.items() if k not in args}
+    with pytest.raises(PDEError):
+        head.solid(args["nu"], args["nv"], args["nw"], **rest)
+
+
+# ----------------------------------------------------------------------------- alpha (eq. 24)
+
+
+def test_alpha_from_w_is_eq24():
+    w = np.array([0.0, 0.5, 1.0, OUTSIDE_W, 1.0001])
+    assert np.allclose(alpha_from_w(w), [0.9, 0.5, 0.1, 0.0, 0.0])
+    assert np.allclose(alpha_from_w(w, low=0.2, high=0.6), [0.6, 0.4, 0.2, 0, 0])
+    assert alpha_from_w(w).dtype == np.float32
+    with pytest.raises(PDEError):
+        alpha_from_w(w, low=-0.1)
+
+
+# ----------------------------------------------------------------------------- w-field
+
+
+def grid_volume(head, spacing=(1.0, 1.0, 1.0), margin=4.0):
+    pts = head._grid(np.linspace(0, 1, 41), 256).reshape(-1, 3)
+    lo = pts.min(axis=0) - margin
+    hi = pts.max(axis=0) + margin
+    dz, dy, dx = spacing
+    shape = (int((hi[2] - lo[2]) / dz) + 1, int((hi[1] - lo[1]) / dy) + 1, int((hi[0] - lo[0]) / dx) + 1)
+    data = np.arange(np.prod(shape), dtype=np.float32).reshape(shape) % 1000
+    return CTVolume(data, spacing, lo, np.eye(3))
+
+
+def section_mask(head, grid: CTVolume, k: int, n: int = 1024) -> tuple[np.ndarray, np.ndarray]:
+    """Independent inside test of one voxel plane: skimage polygon2mask of the cross-section."""
+    z = grid.origin[2] + k * grid.spacing[0]
+    u = (z - head.bset.heights[0]) / (head.bset.heights[-1] - head.bset.heights[0])
+    sec = head._grid(np.array([u]), n)[0]
+    ij = (sec[:, :2] - grid.origin[:2]) / np.array([grid.spacing[2], grid.spacing[1]])
+    mask = polygon2mask(grid.shape[1:], ij[:, ::-1])                        # (row=j, col=i)
+    # distance of every voxel centre to the polygon, for "boundary voxel" tolerance
+    jj, ii = np.mgrid[0:grid.shape[1], 0:grid.shape[2]]
+    from scipy.spatial import cKDTree
+    dense = head._grid(np.array([u]), 4 * n)[0, :, :2]
+    d, _ = cKDTree((dense - grid.origin[:2]) / np.array([grid.spacing[2], grid.spacing[1]])).query(
+        np.stack([ii.ravel(), jj.ravel()], 1))
+    return mask, d.reshape(mask.shape)
+
+
+def test_w_field_on_a_ct_grid_matches_the_surface(head):
+    grid = grid_volume(head)
+    wf = head.w_field(grid)
+    assert isinstance(wf, WField) and wf.w.dtype == np.float32 and wf.intensity.dtype == np.float32
+    inside = wf.w <= 1
+    assert wf.w[inside].min() >= 0 and wf.w[inside].max() <= 1
+    assert np.all(wf.w[~inside] == OUTSIDE_W)
+    # intensity: the CT inside, 0 outside (CT grid == w grid: copied, not interpolated)
+    assert np.array_equal(wf.intensity[inside], grid.data[inside])
+    assert np.all(wf.intensity[~inside] == 0)
+    # inside set == independent polygon rasterisation, except voxels within half a voxel of the boundary
+    z = grid.origin[2] + grid.spacing[0] * np.arange(grid.shape[0])
+    planes = np.nonzero((z >= head.bset.heights.min()) & (z <= head.bset.heights.max()))[0]
+    for k in planes[np.linspace(0, len(planes) - 1, 6).astype(int)]:
+        mask, dist = section_mask(head, grid, k)
+        differ = mask != inside[k]
+        assert np.all(dist[differ] < 0.5), (k, differ.sum())
+    # volume == the closed capped surface's volume
+    vol = inside.sum() * np.prod(grid.spacing)
+    assert abs(vol / signed_volume(head.surface(200, 400, caps=True)) - 1) < 0.01
+    # nothing outside the curves' z range
+    outside_planes = (z < head.bset.heights.min() - 1e-9) | (z > head.bset.heights.max() + 1e-9)
+    assert not inside[outside_planes].any()
+
+
+def test_w_field_is_the_parametric_w_for_star_shaped_sections(head):
+    grid = grid_volume(head)
+    wf = w_field(head, grid)
+    rng = np.random.default_rng(5)
+    u = rng.uniform(0.05, 0.95, 200)
+    v = rng.uniform(0, TWO_PI, 200)
+    w = rng.uniform(0.05, 0.98, 200)
+    # put the sample points on voxel planes, then find the voxel whose centre is nearest in-plane
+    z = head.evaluate(u, v, w)[:, 2]
+    k = np.round((z - grid.origin[2]) / grid.spacing[0]).astype(int)
+    zk = grid.origin[2] + k * grid.spacing[0]
+    uk = (zk - head.bset.heights[0]) / (head.bset.heights[-1] - head.bset.heights[0])
+    p = head.evaluate(uk, v, w)
+    ij = np.round((p[:, :2] - grid.origin[:2]) / np.array(grid.spacing[2:0:-1])).astype(int)
+    centre = grid.origin[:2] + ij * np.array(grid.spacing[2:0:-1])
+    # exact parametric w of the voxel centre: along the ray from the spine, through the dense section
+    S = head.spine(uk)[:, :2]
+    exact = []
+    for i in range(200):
+        sec = head._grid(uk[i:i + 1], 8192)[0, :, :2] - S[i]
+        d = centre[i] - S[i]
+        ang = np.mod(np.arctan2(sec[:, 1], sec[:, 0]) - np.arctan2(d[1], d[0]) + np.pi, TWO_PI) - np.pi
+        j = np.argmin(np.abs(ang))
+        exact.append(np.linalg.norm(d) / np.linalg.norm(sec[j]))
+    got = wf.w[k, ij[:, 1], ij[:, 0]]
+    ok = np.array(exact) < 0.99
+    assert np.abs(got[ok] - np.array(exact)[ok]).max() < 2e-3
+
+
+def ear_section(samples: int = 256) -> np.ndarray:
+    """A circle of radius 60 with an ear flap that hooks upward (+y): not star-shaped around the centre."""
+    th0 = np.arcsin(5 / 60)
+    th = np.linspace(th0, TWO_PI - th0, 2000)
+    circle = np.stack([60 * np.cos(th), 60 * np.sin(th)], 1)
+    flap = np.array([[75, -5], [75, 40], [70, 40], [70, 5]], float)
+    flap_dense = np.concatenate([np.linspace(circle[-1], flap[0], 40)[1:]] +
+                                [np.linspace(flap[i], flap[i + 1], 80)[1:] for i in range(3)] +
+                                [np.linspace(flap[3], circle[0], 40)[1:-1]])
+    poly = np.concatenate([circle, flap_dense])
+    start = np.argmin(np.abs(poly[:, 0]) + (poly[:, 1] < 0) * 1e3)        # the +y point: the seam
+    return resample_arc_length(np.roll(poly, -start, axis=0), samples)
+
+
+def test_w_field_non_star_shaped_section_has_no_holes():
+    M = 512
+    section = ear_section(M) + np.array([100.0, 100.0])
+    z = np.arange(4) * 10.0
+    curves = np.empty((4, M, 3))
+    curves[..., :2] = section
+    curves[..., 2] = z[:, None]
+    head = solve_pde(BoundarySet(curves, np.arange(4), z, knots_from_heights(z), {}), smoothing=0.0)
+    grid = CTVolume(np.zeros((31, 150, 170), np.float32), (1.0, 1.0, 1.0), (20.0, 20.0, 0.0), np.eye(3))
+    wf = w_field(head, grid)
+    inside = wf.w <= 1
+    assert wf.w[inside].max() <= 1.0
+    for k in (0, 10, 15, 30):
+        mask, dist = section_mask(head, grid, k, n=2048)
+        differ = mask != inside[k]
+        assert np.all(dist[differ] < 0.5)                                    # only boundary voxels differ
+        # the flap's interior (x in (170, 175), y in (105, 140) -> i = x - 20, j = y - 20) is filled
+        assert inside[k, 86:120, 151:155].all()
+        assert not inside[k, 86:120, 142:149].any()                          # the gap between ear and head
+    # monotone along rays from the spine (checked away from the flap, where the farthest-crossing
+    # distance jumps between neighbouring directions and voxel rounding changes the direction)
+    S = head.spine(np.array([0.5]))[0, :2] - np.array([20.0, 20.0])
+    for ang in np.linspace(np.pi / 2, 1.75 * np.pi, 48):
+        r = np.arange(0, 80, 0.5)
+        i = np.round(S[0] + r * np.cos(ang)).astype(int)
+        j = np.round(S[1] + r * np.sin(ang)).astype(int)
+        ok = (i >= 0) & (i < 170) & (j >= 0) & (j < 150)
+        w = wf.w[15, j[ok], i[ok]]
+        first_out = np.argmax(w > 1) if np.any(w > 1) else len(w)
+        assert np.all(np.diff(w[:first_out]) >= -2e-2)                      # nondecreasing (voxel rounding)
+
+
+def test_w_field_voxel_size_grid_and_intensity_sampling(head):
+    ct = grid_volume(head, spacing=(2.0, 1.0, 1.0))
+    wf = w_field(head, 1.5, ct=ct)
+    assert np.allclose(wf.spacing, 1.5) and np.allclose(wf.direction, np.eye(3))
+    inside = wf.w <= 1
+    vol = inside.sum() * 1.5 ** 3
+    assert abs(vol / signed_volume(head.surface(200, 400, caps=True)) - 1) < 0.02
+    assert np.any(wf.intensity[inside] != 0) and np.all(wf.intensity[~inside] == 0)
+    # trilinear: a linear CT is reproduced exactly
+    kk, jj, ii = np.meshgrid(*[np.arange(n) for n in ct.shape], indexing="ij")
+    lin = CTVolume((3 * kk + 2 * jj + ii).astype(np.float32), ct.spacing, ct.origin, ct.direction)
+    wf2 = w_field(head, 1.5, ct=lin)
+    k, j, i = np.nonzero(wf2.w <= 1)
+    grid = CTVolume(np.zeros((1, 1, 1), np.float32), wf2.spacing, wf2.origin, wf2.direction)
+    idx = lin.patient_to_index(grid.index_to_patient(np.stack([k, j, i], 1).astype(float)))
+    assert np.allclose(wf2.intensity[k, j, i], 3 * idx[:, 0] + 2 * idx[:, 1] + idx[:, 2], atol=1e-2)
+    vol_ct = wf.to_ctvolume("alpha")
+    assert vol_ct.data.max() <= 0.9 + 1e-6 and vol_ct.spacing == wf.spacing
+
+
+def test_w_field_refuses_non_axial_input(head):
+    c, s = np.cos(0.3), np.sin(0.3)
+    tilted = CTVolume(np.zeros((4, 4, 4), np.float32), (1, 1, 1), (0, 0, 0), [[1, 0, 0], [0, c, -s], [0, s, c]])
+    with pytest.raises(PDEError, match="axial"):
+        w_field(head, tilted)
+    curves = head.bset.curves.copy()
+    curves[:, :, 2] += np.sin(np.linspace(0, TWO_PI, curves.shape[1], endpoint=False))
+    bent = solve_pde(BoundarySet(curves, head.bset.slice_indices, head.bset.heights, head.bset.u_knots, {}))
+    with pytest.raises(PDEError, match="axial-planar"):
+        w_field(bent, 2.0)
+    with pytest.raises(PDEError):
+        w_field(head, -1.0)
+
+
+# ----------------------------------------------------------------------------- real data
+
+
+def test_w_field_cthead(cthead_bset, cthead_ct, cthead_seg):
+    head = solve_pde(cthead_bset)
+    wf = head.w_field(cthead_ct)
+    inside = wf.w <= 1
+    assert wf.w.shape == cthead_ct.shape
+    assert wf.w[inside].min() >= 0 and wf.w[inside].max() <= 1 and np.all(wf.w[~inside] == OUTSIDE_W)
+    z = cthead_bset.curves[:, 0, 2]
+    kz = np.round((z - cthead_ct.origin[2]) / cthead_ct.spacing[0]).astype(int)
+    m = cthead_seg.mask[kz.min():kz.max() + 1]
+    i = inside[kz.min():kz.max() + 1]
+    jaccard = (m & i).sum() / (m | i).sum()
+    print(f"CThead w-field inside vs segmentation mask (curves' z range): Jaccard {jaccard:.4f}")
+    assert jaccard > 0.95
+    assert np.array_equal(wf.intensity[inside], cthead_ct.data[inside])
