@@ -76,15 +76,35 @@ def _report_exception(op, exc: BaseException) -> None:
         op.report({'ERROR'}, f"PDE Head internal error: {type(exc).__name__}: {exc}")
 
 
+def _status(context, text: str | None) -> None:
+    workspace = getattr(context, "workspace", None)
+    if workspace is not None:
+        try:
+            workspace.status_text_set(text)
+        except (AttributeError, RuntimeError):
+            pass
+
+
 def _guarded(op, context, body) -> set:
-    """Run ``body()``; on any error report it, undo what it created and cancel."""
+    """Run ``body()``; on any error report it, undo what it created and cancel.
+
+    With a UI, the wait cursor/progress indicator and the status bar show the step meanwhile.
+    """
     rollback = Rollback()
+    wm = context.window_manager if getattr(context, "window", None) is not None else None
+    if wm is not None:
+        wm.progress_begin(0, 1)
+        _status(context, f"PDE Head: {op.bl_label}...")
     try:
         result = body()
     except Exception as exc:  # noqa: BLE001 - every failure must reach the user as a report
         rollback.undo()
         _report_exception(op, exc)
         return {'CANCELLED'}
+    finally:
+        if wm is not None:
+            wm.progress_end()
+            _status(context, None)
     return result if result is not None else {'FINISHED'}
 
 
@@ -811,15 +831,6 @@ class PipelineRun:
         """Remove every object, collection and datablock this run created."""
         self.rollback.undo()
         self.index = len(self.steps)
-
-
-def _status(context, text: str | None) -> None:
-    workspace = getattr(context, "workspace", None)
-    if workspace is not None:
-        try:
-            workspace.status_text_set(text)
-        except (AttributeError, RuntimeError):
-            pass
 
 
 class PDEHEAD_OT_run_pipeline(Operator, LoaderOptions):

@@ -139,6 +139,7 @@ def run(args) -> dict:
     addon = register_addon()
     state = addon.operators.state
     bpy.ops.wm.read_homefile(use_empty=True)
+    bpy.context.preferences.filepaths.save_version = 0  # no .blend1 backups (temporary user folder)
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         bpy.ops.wm.save_as_mainfile(filepath=str(args.out.resolve()))  # first, so the VDB goes beside it

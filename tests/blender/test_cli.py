@@ -39,7 +39,7 @@ def test_cli_phantom_writes_blend_vdb_and_renders(tmp_path):
     for step in ("import", "segment", "boundaries", "surface", "solid", "w_field", "volume", "total"):
         assert f"\n  {step}" in stdout, stdout
     assert "19 x 256 points (t = 6)" in stdout
-    assert (out / "phantom.blend").is_file()
+    assert (out / "phantom.blend").is_file() and not (out / "phantom.blend1").exists()
     vdbs = list((out / "pdehead_vdb").glob("*.vdb"))
     assert [v.name for v in vdbs] == ["Phantom.vdb"] and vdbs[0].stat().st_size > 10_000
     for png in ("surface.png", "volume.png"):
