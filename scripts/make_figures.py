@@ -154,7 +154,7 @@ class Data:
         return self._get("seg", lambda: E.segment_head(self.ct))
 
     def bset(self, t: int = 10):
-        return self._get(f"bset{t}", lambda: E.extract_boundaries(self.seg, patches=t, samples=256))
+        return self._get(f"bset{t}", lambda: bench.boundaries(self.seg, t, 256))
 
     def head(self, t: int = 10):
         return self._get(f"head{t}", lambda: E.solve_pde(self.bset(t)))
@@ -408,12 +408,20 @@ def fig14(data: Data, bl: Blender, args) -> list[Path]:
         o = bl.objects.build_solid(head, coll, 40, 60, 5, v_range=vr, w_range=wr, ct=ct, name=f"solid{i}")
         o.hide_render = True
         objs.append(o)
+    # the add-on's CT material shows the colour attribute as base colour; for the figure it also
+    # glows a little so that the dark soft tissue stays readable in the shadowed cut faces
+    mat = objs[0].data.materials[0]
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    colour = next(n for n in nodes if n.bl_idname == "ShaderNodeVertexColor")
+    bsdf = nodes.get("Principled BSDF")
+    links.new(colour.outputs["Color"], bsdf.inputs["Emission Color"])
+    bsdf.inputs["Emission Strength"].default_value = 0.45
     bounds = union_bounds([bl.bounds_of([o]) for o in objs])
     top, bottom = [], []
     for (name, _, _), o in zip(cases, objs):
         o.hide_render = False
         bottom.append(label(bl.png([o], "BACK_RIGHT_ABOVE", (156, 180), bounds), name, 10))
-        bl.add_wire(o, 0.4)
+        bl.add_wire(o, 0.35, colour=(0.9, 0.75, 0.2))
         top.append(label(bl.png([o], "BACK_RIGHT_ABOVE", (156, 180), bounds), name, 10))
         o.hide_render = True
     out = title_bar(grid(top + bottom, 3), "Fig. 14  CThead PDE solid, 40 x 60 x 5 samples, CT intensity as colour\n"
@@ -446,8 +454,13 @@ def deviation(data: Data, bl: Blender, args) -> list[Path]:
     from pdehead_addon.surface_metrics import point_surface_distance
     bl.reset()
     head, mc = data.head(10), data.mc
-    mesh = head.surface(160, 240, caps=True)
-    dist = point_surface_distance(mesh.vertices, mc.vertices, mc.triangles, dense=600_000)
+    # as in the fidelity numbers (bench.FIDELITY_DEFINITION): the open tube against the MC triangles
+    # within the z range of the boundary curves
+    z = head.bset.curves[..., 2]
+    cz = mc.vertices[mc.triangles][:, :, 2].mean(axis=1)
+    faces = mc.triangles[(cz >= z.min()) & (cz <= z.max())]
+    mesh = head.surface(161, 256, caps=False)
+    dist = point_surface_distance(mesh.vertices, mc.vertices, faces, dense=600_000)
     mesh.vertex_attributes["deviation_mm"] = dist.astype(np.float32)
     coll = bl.collection("deviation")
     mat = deviation_material(bl)
@@ -459,8 +472,8 @@ def deviation(data: Data, bl: Blender, args) -> list[Path]:
     out = Image.new("RGB", (g.width, g.height + bar.height), BG)
     out.paste(g, (0, 0))
     out.paste(bar, (0, g.height))
-    out = title_bar(out, "PDE head (t = 10) against marching cubes of the same mask:\n"
-                         "distance of each PDE vertex to the MC surface", 11)
+    out = title_bar(out, "PDE head (t = 10, open tube) against marching cubes of the same mask:\n"
+                         "distance of each PDE vertex to the MC surface (same z range)", 11)
     return [save_png(out, OUT / "deviation_pde_vs_mc.png")]
 
 
