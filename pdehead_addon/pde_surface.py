@@ -451,9 +451,13 @@ class PDEHead:
         Basis coefficients: ``A_h(s) = basis(k_h, s) @ coefficients[k, h]`` and
         ``X(s, v) = Re sum_h A_h(s) e^{i h v}`` (so ``A_h - i B_h`` of eq. 9-10).
     condition : ndarray, shape (t,)
-        Largest condition number of the per-harmonic 4x4 systems.
+        Largest 1-norm condition number of the per-harmonic 4x4 systems.
     lebesgue : ndarray, shape (t,)
-        Lebesgue constant of the largest exponent used (overshoot factor).
+        Lebesgue constant of the largest exponent used (overshoot factor; computed on demand).
+    smoothing_is_default : bool
+        True when ``smoothing`` was chosen by :func:`solve_pde` (stored as such by storage).
+    planar_z : bool
+        Every curve lies in a plane z = const; then ``z(u, v, w) = A0_z(u)`` exactly.
     orientation : int
         +1 if the quads ``(u,v) -> (u,v+1) -> (u+1,v+1) -> (u+1,v)`` face outward, else -1.
     """
@@ -1050,7 +1054,7 @@ def _as_smoothing(smoothing, t: int) -> np.ndarray | None:
 
 
 def solve_pde(bset: BoundarySet, smoothing: float | Sequence[float] | None = None,
-              modes: int | None = None) -> PDEHead:
+              modes: int | None = None, align: bool = False) -> PDEHead:
     """Solve the t Bloor-Wilson PDE patches through the boundary curves (eq. 1-13).
 
     Parameters
@@ -1063,6 +1067,10 @@ def solve_pde(bset: BoundarySet, smoothing: float | Sequence[float] | None = Non
         the stable maximum (:func:`smoothing_bounds`) raise :class:`PDEError`.
     modes : int, optional
         N of eq. 11, in ``[1, M//2]``; default ``M//2`` (R vanishes).
+    align : bool
+        First re-sample the curves with :func:`align_parameterisation` (same
+        polylines, corresponding v); ``head.bset`` is then the aligned set.
+        Without it the curves are reproduced exactly as given.
 
     Returns
     -------
@@ -1075,6 +1083,8 @@ def solve_pde(bset: BoundarySet, smoothing: float | Sequence[float] | None = Non
     """
     if not isinstance(bset, BoundarySet):
         raise PDEError(f"solve_pde needs a BoundarySet, got {type(bset).__name__}")
+    if align and bset.meta.get("parameterisation") != "aligned":
+        bset = align_parameterisation(bset)
     t, M = bset.patches, bset.samples
     n_modes = _check_modes(modes, M)
     local = _local_knots(bset)

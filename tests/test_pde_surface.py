@@ -387,6 +387,11 @@ def test_align_parameterisation_keeps_geometry_and_reduces_error():
         return np.abs(r - nose_shape(np.arctan2(P[..., 1], P[..., 0]), P[..., 2])).mean()
     before, after = radial_error(solve_pde(b)), radial_error(solve_pde(a))
     assert after < 0.75 * before, (before, after)
+    # solve_pde(align=True) is the same as solving the aligned set (and aligning twice is a no-op)
+    both = solve_pde(b, align=True)
+    assert both.bset.meta["parameterisation"] == "aligned"
+    assert np.array_equal(both.surface(20, 40).vertices, solve_pde(a).surface(20, 40).vertices)
+    assert np.array_equal(solve_pde(a, align=True).bset.curves, a.curves)
 
 
 # ----------------------------------------------------------------------------- real data
