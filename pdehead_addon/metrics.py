@@ -94,8 +94,8 @@ def _fill_2d(mask: np.ndarray) -> np.ndarray:
 
 
 def reference_head_mask(ct: CTVolume, threshold: float, *, tissue_threshold: float | None = None,
-                        bright_threshold: float | None = None, shell_mm: float = 2.0,
-                        reach_mm: float = 1.5, close_mm: float = 2.0) -> np.ndarray:
+                        bright_threshold: float | None = None, shell_mm: float = 2.0, rim_mm: float = 1.0,
+                        reach_mm: float = 1.5, close_mm: float = 6.0) -> np.ndarray:
     """A simple threshold-based head mask, independent of :func:`segment_head`.
 
     1. ``T = data > threshold`` (the README air/skin level, in the data's units).
@@ -103,13 +103,18 @@ def reference_head_mask(ct: CTVolume, threshold: float, *, tissue_threshold: flo
        ``bright_threshold``, high-density voxels of ``C`` within ``shell_mm``
        (in-slice) of air are "exposed shells", i.e. head holders, tables or
        metal streaks (bone is always covered by skin), and are removed with a
-       one-pixel rim.
+       ``rim_mm`` partial-volume rim and from the exposed voxels of the slices
+       just above and below (where a resampled thin shell may be blurred below
+       ``bright_threshold``).
     3. The largest 3-D component of ``C`` is the head core.
-    4. ``T`` is kept within ``reach_mm`` (in-slice) of the core: a pillow whose
-       density lies between the two thresholds is cut at that distance.
-    5. Largest 3-D component, a per-slice closing with a ``close_mm`` disk
-       (bridges metal streak gaps and narrow nostril openings), then every
-       hole filled per slice (which includes the 3-D holes).
+    4. ``T`` is kept within ``reach_mm`` in-slice (and one slice up or down) of
+       the core: a pillow whose density lies between the two thresholds is cut
+       at that distance, while the soft in-slice ramp of the skin at the vertex,
+       cut at a grazing angle, lies over the neighbouring slice's core.
+    5. Largest 3-D component; the cavities that a per-slice closing with a
+       ``close_mm`` disk encloses (nostrils, mouth, ear canals, metal-streak
+       gaps) are filled together with the closing's seal; every hole is filled
+       per slice (which includes the 3-D holes).
 
     Returns
     -------
@@ -126,14 +131,26 @@ def reference_head_mask(ct: CTVolume, threshold: float, *, tissue_threshold: flo
             air_distance[k] = ndi.distance_transform_edt(above[k], sampling=(hy, hx))
         near_air = above & (air_distance <= shell_mm)
         shell = near_air & (data > bright_threshold)
-        shell = ndi.binary_dilation(shell, structure=_IN_SLICE) & near_air
+        shell = ndi.binary_dilation(shell, structure=_disk((hy, hx), rim_mm))
+        # also one slice up and down: interpolated (resampled, tilted) slices blur a thin shell below the level
+        shell[1:] |= shell[:-1].copy()
+        shell[:-1] |= shell[1:].copy()
+        shell &= near_air
         core &= ~shell
     core = _largest(core)
-    head = above & ndi.binary_dilation(core, structure=_disk((hy, hx), reach_mm))
+    # reach: in-slice disk and one slice up/down; at the vertex the skin is cut at a grazing angle,
+    # so its soft in-slice ramp lies over/under the core of the neighbouring slice (a pillow does not)
+    reach = _disk((hy, hx), reach_mm)
+    reach = np.concatenate([reach, reach, reach], axis=0) if data.shape[0] > 1 else reach
+    head = above & ndi.binary_dilation(core, structure=reach)
     head = _largest(head)
     if close_mm > 0:
-        pad = int(np.ceil(close_mm / min(hy, hx))) + 1
+        # cavities sealed by a close_mm closing are filled with their seal, the rest of the outline is kept
+        disk = _disk((hy, hx), close_mm)
+        pad = disk.shape[1] // 2 + disk.shape[2] // 2 + 2
         padded = np.pad(head, ((0, 0), (pad, pad), (pad, pad)))
-        padded = ndi.binary_closing(padded, structure=_disk((hy, hx), close_mm))
-        head = padded[:, pad:-pad, pad:-pad]
+        closed = ndi.binary_closing(padded, structure=disk)[:, pad:-pad, pad:-pad]
+        cavities = _fill_2d(closed) & ~closed
+        seals = closed & ~head & ndi.binary_dilation(cavities, structure=disk)
+        head = head | cavities | seals
     return _fill_2d(head)

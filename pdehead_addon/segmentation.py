@@ -75,22 +75,25 @@ class Segmentation:
 # Intensity window
 # ----------------------------------------------------------------------------------------------
 
-def auto_window(data: np.ndarray, max_samples: int = 2_000_000, bins: int = 512) -> tuple[float, float]:
+def auto_window(data: np.ndarray, max_samples: int = 1_000_000, bins: int = 256) -> tuple[float, float]:
     """Air and soft-tissue levels of a head scan, from its histogram.
 
-    Otsu's threshold splits the histogram into a dark (air, cloth) and a bright
-    (tissue, bone) class; the window is (mode of the dark class, mode of the
-    bright class).  In CT the bright mode is the soft-tissue/brain peak (bone is
-    spread thinly over a long tail), so the window maps air to 0 and soft tissue
-    to 1 whatever the units (HU, uncalibrated raw, 8-bit), and the Chan-Vese
-    boundary lands near the middle of the air/skin edge.
+    The histogram is taken on 2x2x2 block means (noise / 2.8, so that the modes
+    survive heavy noise).  Otsu's threshold splits it into a dark (air, cloth,
+    pillow) and a bright (tissue, bone) class; the window is (mode of the dark
+    class, mode of the bright class).  In CT the bright mode is the
+    soft-tissue/brain peak (bone is spread thinly over a long tail), so the
+    window maps air to 0 and soft tissue to 1 whatever the units (HU,
+    uncalibrated raw, 8-bit), and the Chan-Vese boundary, half-way between the
+    region means, lands half-way between air and skin (the 50 % partial-volume
+    level of the surface).
 
     Parameters
     ----------
     data : ndarray
         The volume.
     max_samples : int
-        The histogram is taken on a regular subsample of at most this many voxels.
+        The histogram uses at most about this many (block-mean) samples.
     bins : int
         Histogram bins between the 0.1 and 99.9 percentiles.
 
@@ -99,9 +102,17 @@ def auto_window(data: np.ndarray, max_samples: int = 2_000_000, bins: int = 512)
     (low, high) : tuple of float
         Intensity mapped to 0 and to 1.
     """
-    flat = np.asarray(data).reshape(-1)
-    step = max(1, flat.size // max_samples)
-    sample = flat[::step].astype(np.float32, copy=False)
+    data = np.asarray(data)
+    if data.ndim == 3 and min(data.shape) >= 2:
+        nz, ny, nx = (n - n % 2 for n in data.shape)
+        block = data[:nz, :ny, :nx]
+        sample = (block[0::2, 0::2, 0::2].astype(np.float32) + block[1::2, 0::2, 0::2] + block[0::2, 1::2, 0::2]
+                  + block[0::2, 0::2, 1::2] + block[1::2, 1::2, 0::2] + block[1::2, 0::2, 1::2]
+                  + block[0::2, 1::2, 1::2] + block[1::2, 1::2, 1::2]) * np.float32(0.125)
+    else:
+        sample = data.astype(np.float32)
+    sample = sample.reshape(-1)
+    sample = sample[:: max(1, sample.size // max_samples)]
     sample = sample[np.isfinite(sample)]
     if sample.size == 0:
         raise SegmentationError("the volume has no finite intensities")
@@ -467,42 +478,31 @@ def _block_mean(img: np.ndarray, factors: Sequence[int]) -> np.ndarray:
     pz, py, px = (-nz) % fz, (-ny) % fy, (-nx) % fx
     if pz or py or px:
         img = np.pad(img, ((0, pz), (0, py), (0, px)), mode="edge")
-    mz, my, mx = img.shape[0] // fz, img.shape[1] // fy, img.shape[2] // fx
-    out = img.reshape(mz, fz, my, fy, mx, fx).mean(axis=(1, 3, 5), dtype=np.float32)
-    return out.astype(np.float32, copy=False)
+    out = None
+    for dz in range(fz):  # sum of strided views: much faster than a reshaped mean
+        for dy in range(fy):
+            for dx in range(fx):
+                view = img[dz::fz, dy::fy, dx::fx]
+                out = view.astype(np.float32, copy=True) if out is None else np.add(out, view, out=out)
+    out *= np.float32(1.0 / (fz * fy * fx))
+    return out
 
 
-def _upsample_repeat(a: np.ndarray, factors: Sequence[int], shape: Sequence[int]) -> np.ndarray:
-    """Nearest-neighbour inverse of :func:`_block_mean` cropped to ``shape``."""
+def _resample_nearest(a: np.ndarray, from_factors: Sequence[int], to_factors: Sequence[int],
+                      shape: Sequence[int]) -> np.ndarray:
+    """Nearest-neighbour map between two block grids of the same volume (blocks of ``*_factors`` voxels)."""
     out = a
-    for axis, f in enumerate(factors):
-        if f > 1:
-            out = np.repeat(out, f, axis=axis)
-    return np.ascontiguousarray(out[: shape[0], : shape[1], : shape[2]])
-
-
-def _upsample_linear(a: np.ndarray, factors: Sequence[int], shape: Sequence[int]) -> np.ndarray:
-    """Linear interpolation of block-mean data back to the fine grid (block centres aligned)."""
-    coords = []
-    for n_fine, f, n_coarse in zip(shape, factors, a.shape):
-        x = (np.arange(n_fine, dtype=np.float32) + 0.5) / f - 0.5
-        coords.append(np.clip(x, 0, n_coarse - 1))
-    out = a
-    for axis, x in enumerate(coords):
-        if factors[axis] == 1:
+    for axis in range(3):
+        f_from, f_to = int(from_factors[axis]), int(to_factors[axis])
+        if f_from == f_to and out.shape[axis] == shape[axis]:
             continue
-        i0 = np.floor(x).astype(np.intp)
-        i1 = np.minimum(i0 + 1, a.shape[axis] - 1)
-        w = (x - i0).astype(np.float32)
-        shape_w = [1, 1, 1]
-        shape_w[axis] = -1
-        w = w.reshape(shape_w)
-        lo = np.take(out, i0, axis=axis)
-        hi = np.take(out, i1, axis=axis)
-        hi -= lo
-        hi *= w
-        lo += hi
-        out = lo
+        if f_from % f_to == 0 and shape[axis] <= out.shape[axis] * (f_from // f_to):
+            out = np.repeat(out, f_from // f_to, axis=axis)
+            if out.shape[axis] != shape[axis]:
+                out = np.take(out, np.arange(shape[axis]), axis=axis)
+        else:
+            index = np.minimum((np.arange(shape[axis]) * f_to) // f_from, out.shape[axis] - 1)
+            out = np.take(out, index, axis=axis)
     return np.ascontiguousarray(out, dtype=np.float32)
 
 
@@ -645,6 +645,22 @@ def fill_holes_per_slice(mask: np.ndarray) -> np.ndarray:
     return ~outside[labels]
 
 
+def fill_cavities(mask: np.ndarray, spacing_yx: Sequence[float], radius_mm: float = 4.0) -> np.ndarray:
+    """The filled outer envelope: holes and cavities whose opening is narrower than ~2 ``radius_mm``.
+
+    Per axial slice: a closing with a ``radius_mm`` disk seals narrow openings
+    (nostrils, a parted mouth, ear canals, metal-streak gaps); the regions it
+    encloses are added together with the closing's bridges that seal them,
+    while what the closing adds elsewhere (in concave bends of the outline) is
+    not, so the skin outline itself is kept.  Finally every hole is filled per
+    slice (a superset of the 3-D holes).
+    """
+    closed = close_disk(mask, spacing_yx, radius_mm)
+    cavities = fill_holes_per_slice(closed) & ~closed
+    seals = closed & ~mask & dilate_disk(cavities, spacing_yx, radius_mm)
+    return fill_holes_per_slice(mask | cavities | seals)
+
+
 def _bounding_box(mask: np.ndarray, margin: Sequence[int]) -> tuple[slice, ...] | None:
     """Slices of the bounding box of ``mask`` grown by ``margin`` voxels per axis."""
     box = []
@@ -659,7 +675,7 @@ def _bounding_box(mask: np.ndarray, margin: Sequence[int]) -> tuple[slice, ...] 
     return tuple(box)
 
 
-def estimate_noise(img: np.ndarray, max_samples: int = 4_000_000) -> float:
+def estimate_noise(img: np.ndarray, max_samples: int = 1_000_000) -> float:
     """Standard deviation of white noise in ``img`` from neighbour differences (robust MAD).
 
     Most pairs of x-neighbours lie in flat regions (air, brain), where their
@@ -677,10 +693,11 @@ def smoothing_sigma(noise: float, target: float = 0.03, ndim: int = 3) -> float:
     """Gaussian sigma (voxels) bringing white noise of std ``noise`` down to about ``target``.
 
     For a normalised Gaussian of standard deviation s voxels in d dimensions the
-    noise std is multiplied by ``(2 sqrt(pi) s)^(-d/2)``; at least 0.5 voxel.
+    noise std is multiplied by ``(2 sqrt(pi) s)^(-d/2)``; 0 (no smoothing) when
+    the noise is already below ``target``, else at least 0.5 voxel.
     """
     if noise <= target:
-        return 0.5
+        return 0.0
     return max(0.5, (noise / target) ** (2.0 / ndim) / (2.0 * math.sqrt(math.pi)))
 
 
@@ -694,49 +711,21 @@ def _component_extents(labels: np.ndarray, n: int, spacing_yx: Sequence[float]) 
     return extent
 
 
-def find_apparatus(mask: np.ndarray, smooth: np.ndarray, spacing: Sequence[float], bright_level: float = 1.1,
-                   shell_mm: float = 3.0, min_extent_mm: float = 60.0, exposed_fraction: float = 0.5) -> np.ndarray:
-    """Long thin high-density shells lying in the air: head holders, table tops, metal streaks.
+def head_envelope(tissue: np.ndarray, spacing_yx: Sequence[float], opening_mm: float = 2.5,
+                  close_mm: float = 3.0) -> np.ndarray:
+    """Filled per-slice envelope of the head's own tissue.
 
-    Bone is the only dense tissue of the head and it is covered by skin,
-    whereas a plastic/carbon head holder or a table top is a dense shell a few
-    mm thick and a hand wide or more, with air (or pillow) on both sides.
-    Dense voxels (``smooth`` above ``bright_level`` in window units, about
-    +100 HU for CT) that an in-slice opening with a ``shell_mm`` disk removes
-    are thin dense structures; an in-slice piece of them is apparatus when it
-    spans more than ``min_extent_mm`` and more than ``exposed_fraction`` of its
-    pixels are within ``shell_mm`` of the outside air of that slice (thin bone
-    such as the frontal sinus wall is covered by the scalp or borders enclosed
-    air only).  The shells are
-    grown by one pixel inside ``mask`` to take their partial-volume rim along.
+    The largest 3-D component of ``tissue`` after an in-slice opening with an
+    ``opening_mm`` disk (which drops table tops, holder arcs and cloth), closed
+    with a ``close_mm`` disk (bridging nostrils and metal-streak gaps) and with
+    every hole filled per slice.
     """
-    dz, dy, dx = (float(h) for h in spacing)
-    bright = mask & (smooth > np.float32(bright_level))
-    if not bright.any():
-        return bright
-    thin = bright & ~open_disk(bright, (dy, dx), shell_mm)
-    labels, n = ndi.label(thin, structure=_IN_SLICE)
-    if n == 0:
-        return thin
-    candidate = _component_extents(labels, n, (dy, dx)) > min_extent_mm
-    candidate[0] = False
-    if not candidate.any():
-        return np.zeros(mask.shape, dtype=bool)
-    near_air = dilate_disk(~fill_holes_per_slice(mask), (dy, dx), shell_mm)
-    size = np.bincount(labels.reshape(-1), minlength=n + 1)
-    exposed = np.bincount(labels[near_air & thin], minlength=n + 1)
-    apparatus = candidate & (exposed > exposed_fraction * np.maximum(size, 1))
-    return _shifted_combine(apparatus[labels], [(-1, 0), (1, 0), (0, -1), (0, 1)], erode=False) & mask
+    core = largest_component(open_disk(tissue, spacing_yx, opening_mm))
+    return fill_holes_per_slice(close_disk(core, spacing_yx, close_mm))
 
 
-def tissue_envelope(head: np.ndarray, smooth: np.ndarray, spacing_yx: Sequence[float], level: float = 0.85,
-                    close_mm: float = 3.0) -> np.ndarray:
-    """Filled per-slice envelope of the tissue (``smooth >= level``) of ``head``, closed with a ``close_mm`` disk."""
-    return fill_holes_per_slice(close_disk(head & (smooth >= np.float32(level)), spacing_yx, close_mm))
-
-
-def find_cushion(mask: np.ndarray, smooth: np.ndarray, spacing: Sequence[float], level: float = 0.85,
-                 thickness_mm: float = 2.0, low: float = 0.4, envelope: np.ndarray | None = None) -> np.ndarray:
+def find_cushion(mask: np.ndarray, smooth: np.ndarray, spacing: Sequence[float], envelope: np.ndarray,
+                 level: float = 0.85, thickness_mm: float = 2.0, low: float = 0.4) -> np.ndarray:
     """Voxels of ``mask`` that belong to a pillow or foam layer pressed against the head.
 
     A pillow or cloth pressed against the head is denser than air but clearly
@@ -744,62 +733,63 @@ def find_cushion(mask: np.ndarray, smooth: np.ndarray, spacing: Sequence[float],
     the air/skin decision it forms a layer of intermediate intensity several mm
     thick *outside* the skin.  The partial-volume rim of a real skin surface is
     as dark but only about a point-spread width thick.  So the cushion is the
-    intermediate part of the mask (smoothed windowed intensity between ``low``
-    and ``level``) that (a) contains a box spanning at least ``thickness_mm``
-    along each axis (a morphological opening; a skin band of normal thickness
-    t only holds such a box when t > thickness_mm / sqrt(2), whatever its
-    orientation) and (b) lies outside ``envelope``, the envelope of the tissue
-    (default :func:`tissue_envelope` of ``mask``), so that intermediate regions
-    inside the skin (metal-streak shadows, sinus walls) are never cushion.  Darker voxels inside the mask are narrow gaps
-    the TV term bridged (between an ear and the scalp): they are not cushion.
+    intermediate part of the mask (windowed intensity ``smooth`` between
+    ``low`` and ``level``) that
 
-    Returns the boolean cushion mask (a subset of ``mask``).
+    (a) contains a box spanning at least ``thickness_mm`` along each axis (a
+        morphological opening; a skin band of normal thickness t only holds
+        such a box when t > thickness_mm / sqrt(2), whatever its orientation,
+        so the grazing cut of the vertex is spared), and
+    (b) lies outside ``envelope``, the envelope of the head's tissue
+        (:func:`head_envelope` of the voxels ``>= level``), so intermediate
+        regions enclosed by skin (metal-streak shadows, sinus walls) are never
+        cushion.
+
+    Darker voxels in the mask are narrow gaps the TV term bridged (between an
+    ear and the scalp), not cushion either.  Returns a subset of ``mask``.
     """
-    tissue = smooth >= np.float32(level)
-    band = mask & ~tissue & (smooth > np.float32(low))
+    band = mask & (smooth < np.float32(level)) & (smooth > np.float32(low)) & ~envelope
     dz, dy, dx = (float(h) for h in spacing)
     size = tuple(min(n, max(2, 1 + math.ceil(thickness_mm / h))) for n, h in zip(mask.shape, (dz, dy, dx)))
-    thick = _box_opening(band, size)
-    if not thick.any():
-        return thick
-    if envelope is None:
-        envelope = tissue_envelope(mask, smooth, (dy, dx), level)
-    return thick & ~envelope
+    return _box_opening(band, size)
 
 
 def clean_head_mask(mask: np.ndarray, data: np.ndarray, window: tuple[float, float], spacing: Sequence[float],
-                    opening_mm: float = 2.5, bright_level: float | None = 1.1, shell_mm: float = 3.0,
-                    cushion_level: float | None = 0.85, cushion_mm: float = 2.0,
-                    max_thin_extent_mm: float = 50.0, close_mm: float = 2.0,
+                    opening_mm: float = 2.5, cushion_level: float | None = 0.85, cushion_mm: float = 2.0,
+                    max_thin_extent_mm: float = 50.0, close_mm: float = 6.0, envelope_mm: float = 3.0,
                     noise: float | None = None) -> tuple[np.ndarray, dict]:
     """The paper's clean-up of the thresholded soft membership, extended to real scans.
 
-    0. A lightly smoothed windowed copy of the data (unclipped; sigma from the
-       noise level, :func:`smoothing_sigma`) is used by steps 1-2.
-    1. Apparatus: thin dense shells (head holders, table tops, metal streaks)
-       are removed (:func:`find_apparatus`).
-    2. Cushions: thick intermediate-density layers outside the skin are removed
-       (:func:`find_cushion`).
+    1. Envelope: the filled outline of the head's own tissue (windowed
+       intensity ``>= cushion_level``; :func:`head_envelope`).
+    2. Cushions: thick intermediate-density layers outside that envelope are
+       removed (:func:`find_cushion`).  The intensities are smoothed first only
+       when the noise (:func:`estimate_noise`) calls for it (:func:`smoothing_sigma`).
     3. Thin attachments: a per-slice opening with a disk of ``opening_mm``
-       separates what hangs on the head by a thin bridge; the largest 3-D
-       component of the opened mask is the head core (the paper's "largest
-       connected component").  What the opening took away is given back
-       component by component when the component is compact (in-slice extent
-       at most ``max_thin_extent_mm``: ear rims, nose tip, lips) or lies mostly
-       inside the tissue envelope of the core (nasal septum, sinus walls); long
-       thin structures outside the head (cloth, tables, streaks) are dropped.
-    4. Holes: a per-slice closing with a ``close_mm`` disk bridges narrow
-       openings (nostrils, streak shadows), then every hole is filled per
-       axial slice (which includes the 3-D holes), so the head mask is the
-       filled outer skin envelope.
+       separates what hangs on the head by a thin bridge (head-holder arcs,
+       table tops, cloth, streaks); the largest 3-D component of the opened
+       mask is the head core (the paper's "largest connected component").
+       What the opening took away is given back component by component when
+       the component is compact (in-slice extent at most
+       ``max_thin_extent_mm``: ear rims, nose tip, lips) or lies mostly inside
+       the envelope (nasal septum, sinus walls); long thin structures outside
+       the head are dropped.
+    4. Holes and cavities: every hole is filled per axial slice (a superset of
+       the 3-D holes), and so are cavities whose opening a ``close_mm`` disk
+       closes (nostrils, mouth, ear canals, streak gaps; :func:`fill_cavities`),
+       so the head mask is the filled outer skin envelope.
 
     Parameters
     ----------
     mask : ndarray of bool
-        Thresholded membership.
+        Thresholded membership ``q > 0.5``.
     data, window :
         The CT intensities and the window mapping air to 0 and soft tissue to 1.
     spacing : (dz, dy, dx) mm
+    opening_mm, cushion_level, cushion_mm, max_thin_extent_mm, close_mm, envelope_mm :
+        See above; ``cushion_level=None`` skips step 2 (the envelope then uses 0.85).
+    noise : float, optional
+        Noise std in window units (default estimated).
 
     Returns
     -------
@@ -807,6 +797,9 @@ def clean_head_mask(mask: np.ndarray, data: np.ndarray, window: tuple[float, flo
     """
     stats: dict[str, Any] = {}
     dz, dy, dx = (float(h) for h in spacing)
+    yx = (dy, dx)
+    # at least a 3x3-pixel square, or coarse grids keep 2-pixel shells
+    opening_mm = max(opening_mm, 1.5 * max(dy, dx))
     margin = (2, int(math.ceil(2 * opening_mm / dy)) + 2, int(math.ceil(2 * opening_mm / dx)) + 2)
     box = _bounding_box(mask, margin)
     if box is None:
@@ -818,44 +811,39 @@ def clean_head_mask(mask: np.ndarray, data: np.ndarray, window: tuple[float, flo
     if noise is None:
         noise = estimate_noise(smooth)
     sigma = smoothing_sigma(noise)
-    smooth = ndi.gaussian_filter(smooth, sigma=sigma, mode="nearest", truncate=3.0)
+    if sigma > 0:
+        smooth = ndi.gaussian_filter(smooth, sigma=sigma, mode="nearest", truncate=3.0)
     stats.update(noise=noise, smoothing_sigma=sigma)
-    if bright_level is not None:
-        apparatus = find_apparatus(work, smooth, spacing, bright_level, shell_mm)
-        stats["apparatus_voxels"] = int(apparatus.sum())
-        work = work & ~apparatus
-    # at least a 3x3-pixel square, or coarse grids keep 2-pixel shells
-    opening_mm = max(opening_mm, 1.5 * max(dy, dx))
-    opened = open_disk(work, (dy, dx), opening_mm)
+    level = 0.85 if cushion_level is None else float(cushion_level)
+    envelope = head_envelope(work & (smooth >= np.float32(level)), yx, opening_mm, envelope_mm)
+    if cushion_level is not None:
+        # heavier smoothing widens the skin's own intermediate rim: demand a correspondingly thicker layer
+        thickness = cushion_mm + 2.0 * max(0.0, sigma - 0.5) * max(dz, dy, dx)
+        cushion = find_cushion(work, smooth, spacing, envelope, level, thickness)
+        stats["cushion_voxels"] = int(np.count_nonzero(cushion))
+        work &= ~cushion
+    del smooth
+    opened = open_disk(work, yx, opening_mm)
     core = largest_component(opened)
     if not core.any():
         raise SegmentationError(f"no part of the head is thicker than the {2 * opening_mm:g} mm opening")
-    # the envelope comes from the core, which no longer holds a holder that would enclose the pillow
-    envelope = tissue_envelope(core, smooth, (dy, dx), 0.85 if cushion_level is None else cushion_level)
-    if cushion_level is not None:
-        cushion = find_cushion(work, smooth, spacing, cushion_level, cushion_mm, envelope=envelope)
-        stats["cushion_voxels"] = int(cushion.sum())
-        work &= ~cushion
-        core &= ~cushion
-    del smooth
     thin = work & ~opened
+    del opened
     labels, n = ndi.label(thin)
     head = core
     if n:
         total = np.bincount(labels.reshape(-1), minlength=n + 1)
         inside = np.bincount(labels[envelope], minlength=n + 1)
-        keep = (_component_extents(labels, n, (dy, dx)) <= max_thin_extent_mm) | (2 * inside > total)
+        keep = (_component_extents(labels, n, yx) <= max_thin_extent_mm) | (2 * inside > total)
         keep[0] = False
         stats["thin_kept_voxels"] = int(total[keep].sum())
-        stats["thin_dropped_voxels"] = int(total[1:][~keep[1:]].sum())
-        head = core | keep[labels]
-    head = largest_component(head)
-    if close_mm > 0:
-        head = close_disk(head, (dy, dx), close_mm)
-    head = fill_holes_per_slice(head)
+        stats["thin_dropped_voxels"] = int(total[1:].sum() - total[keep].sum())
+        head = largest_component(core | keep[labels])
+    del labels, thin
+    head = fill_cavities(head, yx, close_mm) if close_mm > 0 else fill_holes_per_slice(head)
     out = np.zeros(mask.shape, dtype=bool)
     out[box] = head
-    stats["head_voxels"] = int(head.sum())
+    stats["head_voxels"] = int(np.count_nonzero(head))
     return out, stats
 
 
@@ -863,115 +851,201 @@ def clean_head_mask(mask: np.ndarray, data: np.ndarray, window: tuple[float, flo
 # The whole step
 # ----------------------------------------------------------------------------------------------
 
-def _solve_coarse_to_fine(img, spacing, lam, theta, tau, coarse_mm, coarse_iterations, iterations,
-                          inner, tolerance, threads):
-    """Eq. 16-21 on a ~``coarse_mm`` grid, then warm-started on the full grid."""
-    factors = _coarse_factors(spacing, coarse_mm) if coarse_mm else (1, 1, 1)
-    if img.shape[0] == 1:
-        factors = (1,) + tuple(factors[1:])
-    tau_spacing = spacing if img.shape[0] > 1 else spacing[1:]
-    info: dict[str, Any] = {"coarse_factors": tuple(int(f) for f in factors)}
-    q0 = c0 = sig0 = None
-    if max(factors) > 1 and coarse_iterations > 0:
-        coarse_img = _block_mean(img, factors)
-        coarse_spacing = tuple(h * f for h, f in zip(spacing, factors))
-        coarse_tau = tau_bound(coarse_spacing if img.shape[0] > 1 else coarse_spacing[1:]) if tau is None \
-            else tau * min(f * f for f in factors)
-        res = chan_vese_soft(coarse_img, coarse_spacing, lam, theta, coarse_tau, coarse_iterations, inner,
-                             tolerance, threads=threads)
-        info.update(coarse_iterations=res["iterations"], coarse_change=res["change"])
-        q0 = _upsample_linear(res["q"], factors, img.shape)
-        c0 = (res["c1"], res["c2"])
-        # s is dimensionless (|s| <= 1), so the scaled dual s/h is rescaled by h_coarse/h_fine
-        sig0 = tuple(_upsample_repeat(s * np.float32(f), factors, img.shape) for s, f in zip(res["sig"], factors))
-        del res
-    fine_tau = tau_bound(tau_spacing) if tau is None else tau
+def _solve_pyramid(img: np.ndarray, spacing: Sequence[float], lam: float, theta: float, tau: float | None,
+                   levels_mm: Sequence[float], level_iterations: Sequence[int], iterations: int, inner: int,
+                   tolerance: float, threads: int) -> tuple[dict, dict]:
+    """Eq. 16-21 coarse to fine: block-mean levels of ~``levels_mm`` voxels, then the full grid.
+
+    Each level starts from the previous one's membership q, means (c1, c2) and
+    dual s (nearest-neighbour upsampled; s is dimensionless, |s| <= 1, so the
+    stored s/h is rescaled by h_coarse/h_fine).  Iterations of a level that
+    does not exist (the grid is already that coarse) move to the next level.
+    """
+    two_d = img.shape[0] == 1
+    def bound(h):
+        return tau_bound(h[1:] if two_d else h)
+    plan: list[tuple[tuple[int, int, int], int]] = []
+    carry = 0
+    counts = list(level_iterations) + [0] * max(0, len(levels_mm) - len(level_iterations))
+    for mm, n in sorted(zip((float(m) for m in levels_mm), counts), reverse=True):
+        carry += int(n)
+        fac = tuple(min(fi, ni) for fi, ni in zip(_coarse_factors(spacing, mm), img.shape))
+        if two_d:
+            fac = (1,) + fac[1:]
+        if max(fac) == 1:
+            continue  # the grid is already this coarse: these iterations go to a finer level
+        if plan and fac == plan[-1][0]:
+            plan[-1] = (fac, plan[-1][1] + carry)
+        else:
+            plan.append((fac, carry))
+        carry = 0
+    iterations = int(iterations) + carry
+    info: dict[str, Any] = {"levels": [], "tau": None}
+    q = c = sig = None
+    prev = None
+    for fac, n in plan:
+        if n <= 0:
+            continue
+        level_img = _block_mean(img, fac)
+        level_spacing = tuple(h * f for h, f in zip(spacing, fac))
+        if prev is not None:
+            q = _resample_nearest(q, prev, fac, level_img.shape)
+            sig = tuple(_resample_nearest(sa * np.float32(fp / ff), prev, fac, level_img.shape)
+                        for sa, fp, ff in zip(sig, prev, fac))
+        level_tau = bound(level_spacing) if tau is None else tau * min(f * f for f in fac)
+        res = chan_vese_soft(level_img, level_spacing, lam, theta, level_tau, n, inner, tolerance,
+                             q0=q, c0=c, sig0=sig, threads=threads)
+        info["levels"].append(dict(factors=tuple(int(f) for f in fac), shape=tuple(level_img.shape),
+                                   iterations=res["iterations"], change=res["change"]))
+        q, c, sig, prev = res["q"], (res["c1"], res["c2"]), res["sig"], fac
+        del res, level_img
+    if prev is not None:
+        q = _resample_nearest(q, prev, (1, 1, 1), img.shape)
+        sig = tuple(_resample_nearest(sa * np.float32(fp), prev, (1, 1, 1), img.shape) for sa, fp in zip(sig, prev))
+    fine_tau = bound(spacing) if tau is None else tau
     res = chan_vese_soft(img, spacing, lam, theta, fine_tau, iterations, inner, tolerance,
-                         q0=q0, c0=c0, sig0=sig0, threads=threads)
-    info.update(fine_iterations=res["iterations"], fine_change=res["change"], tau=fine_tau)
+                         q0=q, c0=c, sig0=sig, threads=threads)
+    info.update(tau=fine_tau, fine_iterations=res["iterations"], fine_change=res["change"])
     return res, info
 
 
-def segment_head(ct: CTVolume, *, lam: float = 1.0, theta: float = 0.1, tau: float | None = None,
-                 iterations: int = 8, coarse_iterations: int = 40, inner: int = 1,
-                 tolerance: float = 1e-4, window: tuple[float, float] | None = None,
-                 coarse_mm: float = 2.0, threshold: float = 0.5, cleanup: bool = True,
-                 opening_mm: float = 2.5, bright_level: float | None = 1.1,
-                 cushion_level: float | None = 0.85, cushion_mm: float = 2.0,
+def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: float | None = None,
+                 iterations: int = 6, levels_mm: Sequence[float] = (2.0,),
+                 level_iterations: Sequence[int] = (25,), inner: int = 1, tolerance: float = 1e-4,
+                 window: tuple[float, float] | None = None, threshold: float = 0.5, cleanup: bool = True,
+                 opening_mm: float = 2.5, cushion_level: float | None = 0.85, cushion_mm: float = 2.0, close_mm: float = 6.0,
                  slices: Sequence[int] | None = None, threads: int | None = None) -> Segmentation:
     """Segment the head with the 3-D Chan-Vese soft model (eq. 16-21) and clean it up.
+
+    The intensities are first windowed to [0, 1] (air -> 0, soft tissue -> 1,
+    clipped; :func:`auto_window`), so ``lam`` means the same on every scanner
+    and unit.  Eq. 16 is then minimised coarse to fine (block means of about
+    ``levels_mm``, then the full grid) by alternating eq. 17, 20 and 21
+    (:func:`chan_vese_soft`); ``q > threshold`` is cleaned up by
+    :func:`clean_head_mask` into the filled outer skin envelope.
 
     Parameters
     ----------
     ct : CTVolume
     lam : float
-        lambda of eq. 16 in 1/mm for intensities windowed to [0, 1].
+        lambda of eq. 16 in 1/mm (intensities in [0, 1]); structures thinner
+        than about ``2 / lam`` mm with a contrast of 1 are smoothed away.
     theta : float
-        Coupling of eq. 19-21 (mm); the paper's theta of eq. 20 is ``theta * lam``.
+        Coupling of eq. 19-21 in mm; the paper's theta of eq. 20 is ``theta * lam``.
     tau : float, optional
-        Dual step of eq. 21 (mm^2). Default :func:`tau_bound` of the grid.
-    iterations, coarse_iterations : int
-        Outer iterations (eq. 17, 20, 21) on the full grid and on the ~``coarse_mm`` grid.
+        Dual step of eq. 21 in mm^2; default :func:`tau_bound` of each grid.
+    iterations : int
+        Outer iterations (eq. 17 + 20 + 21) on the full grid.
+    levels_mm, level_iterations :
+        Voxel sizes (mm) of the coarse levels and their outer iterations; a
+        level as fine as the grid passes its iterations on.  ``levels_mm=()``
+        solves on the full grid only.
     inner : int
         Chambolle steps (eq. 21) per outer iteration.
     tolerance : float
-        Stop a level early when the RMS change of q per iteration falls below it.
+        A level stops early when the RMS change of q per iteration is below it.
     window : (low, high), optional
-        Intensities mapped to 0 and 1. Default :func:`auto_window` (air and soft-tissue modes).
-    coarse_mm : float
-        Voxel size of the coarse level (0 for a single level).
+        Intensities mapped to 0 and 1 (default :func:`auto_window`).
     threshold : float
         Level of the soft membership taken as the head.
     cleanup : bool
-        Apply :func:`clean_head_mask` (otherwise the mask is the thresholded membership).
-    opening_mm, bright_level, cushion_level, cushion_mm :
-        Clean-up parameters (see :func:`clean_head_mask`); ``None`` levels disable that removal.
+        Apply :func:`clean_head_mask`; otherwise the mask is ``q > threshold``.
+    opening_mm, cushion_level, cushion_mm, close_mm :
+        Clean-up parameters (:func:`clean_head_mask`); ``cushion_level=None``
+        disables the pillow removal (it is off for ``ct.meta["modality"]`` "MR").
     slices : sequence of int, optional
-        The paper's mode: segment only these axial slices, each as a 2-D problem
-        (eq. 16-21 with the in-plane gradient). The returned mask and membership
-        are zero on every other slice; ``iterations`` is the largest count run.
+        The paper's own mode: segment only these axial slices (indices of
+        ``ct.data``), each as an independent 2-D problem (eq. 16-21 with the
+        in-slice gradient) with a 2-D clean-up.  The returned ``mask`` and
+        ``probability`` are zero on every other slice; ``c1``/``c2`` are the
+        means over the selected slices (per slice in ``meta["slices"]``) and
+        ``iterations`` is the largest count run.
     threads : int, optional
-        Worker threads of the solver (default: up to 2).
+        Worker threads of the solver (default: min(2, CPUs)).
 
     Returns
     -------
     Segmentation
+        ``mask`` (bool), ``probability`` (q of eq. 20, float32 in [0, 1]),
+        ``c1``/``c2`` (eq. 17, windowed units), ``iterations`` (outer
+        iterations on the full grid), ``ct`` and ``meta`` (window, parameters,
+        solver levels, clean-up statistics).
     """
     if not isinstance(ct, CTVolume):
         raise SegmentationError(f"segment_head needs a CTVolume, got {type(ct).__name__}")
     data = ct.data
-    if data.ndim != 3 or min(data.shape) < 1 or data.size < 8:
-        raise SegmentationError(f"cannot segment a volume of shape {data.shape}")
-    if not (lam > 0 and theta > 0 and (tau is None or tau > 0)):
-        raise SegmentationError(f"lam, theta and tau must be positive (lam={lam}, theta={theta}, tau={tau})")
+    if data.ndim != 3 or data.shape[1] < 3 or data.shape[2] < 3:
+        raise SegmentationError(f"cannot segment a volume of shape {data.shape}: need [z, y, x] slices of >= 3x3")
+    for name, value in (("lam", lam), ("theta", theta)):
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+            raise SegmentationError(f"{name} must be a positive number, got {value!r}")
+    if tau is not None and not (math.isfinite(tau) and tau > 0):
+        raise SegmentationError(f"tau must be a positive number, got {tau!r}")
+    if int(iterations) < 1 or int(inner) < 1:
+        raise SegmentationError(f"iterations and inner must be >= 1, got {iterations} and {inner}")
+    if not 0.0 < threshold < 1.0:
+        raise SegmentationError(f"threshold must lie in (0, 1), got {threshold}")
     if threads is None:
         threads = min(2, os.cpu_count() or 1)
     spacing = tuple(float(h) for h in ct.spacing)
     if window is None:
         window = auto_window(data)
     window = (float(window[0]), float(window[1]))
-    params = dict(lam=lam, theta=theta, tau=tau, iterations=iterations, coarse_iterations=coarse_iterations,
-                  inner=inner, tolerance=tolerance, window=window, coarse_mm=coarse_mm, threshold=threshold,
-                  cleanup=cleanup, opening_mm=opening_mm, bright_level=bright_level, cushion_level=cushion_level,
-                  cushion_mm=cushion_mm,
-                  slices=None if slices is None else [int(k) for k in slices])
+    params = dict(lam=lam, theta=theta, tau=tau, iterations=int(iterations), levels_mm=tuple(levels_mm),
+                  level_iterations=tuple(int(n) for n in level_iterations), inner=int(inner), tolerance=tolerance,
+                  window=window, threshold=threshold, cleanup=cleanup, opening_mm=opening_mm,
+                  cushion_level=cushion_level, cushion_mm=cushion_mm, close_mm=close_mm)
+    if str(ct.meta.get("modality", "")).upper() in ("MR", "MRI"):
+        # pillows are recognised by CT densities; in MRI the skull and scalp look like one
+        cushion_level = None
+    clean_kw = dict(opening_mm=opening_mm, cushion_level=cushion_level, cushion_mm=cushion_mm, close_mm=close_mm)
     img = window_intensities(data, window)
     if slices is not None:
-        return _segment_slices(ct, img, spacing, params, threads)
-    res, info = _solve_coarse_to_fine(img, spacing, lam, theta, tau, coarse_mm, coarse_iterations, iterations,
-                                      inner, tolerance, threads)
-    q = res["q"]
-    raw = q > np.float32(threshold)
+        return _segment_slices(ct, img, spacing, params, clean_kw, [int(k) for k in slices], threads)
+    res, info = _solve_pyramid(img, spacing, lam, theta, tau, levels_mm, level_iterations, iterations, inner,
+                               tolerance, threads)
+    del img
+    q = res.pop("q")
     stats: dict[str, Any] = {}
+    mask = q > np.float32(threshold)
     if cleanup:
-        mask, stats = clean_head_mask(raw, data, window, spacing, opening_mm=opening_mm, bright_level=bright_level,
-                                      cushion_level=cushion_level, cushion_mm=cushion_mm)
-    else:
-        mask = raw
-    meta = dict(params=params, solver=info, cleanup=stats, mode="volume")
-    return Segmentation(mask=mask, probability=q, c1=res["c1"], c2=res["c2"],
-                        iterations=int(info["fine_iterations"]), ct=ct, meta=meta)
+        mask, stats = clean_head_mask(mask, data, window, spacing, **clean_kw)
+    meta = dict(mode="volume", window=window, params=params, solver=info, cleanup=stats)
+    return Segmentation(mask=mask, probability=q, c1=res["c1"], c2=res["c2"], iterations=int(info["fine_iterations"]),
+                        ct=ct, meta=meta)
 
 
-def _segment_slices(ct, img, spacing, params, threads) -> Segmentation:
-    raise NotImplementedError
+def _segment_slices(ct: CTVolume, img: np.ndarray, spacing, params: dict, clean_kw: dict,
+                    slices: list[int], threads: int) -> Segmentation:
+    """The paper's per-slice mode: independent 2-D problems on the selected slices only."""
+    nz = img.shape[0]
+    bad = [k for k in slices if not -nz <= k < nz]
+    if bad:
+        raise SegmentationError(f"slice indices {bad} are outside the volume's {nz} slices")
+    slices = sorted({k % nz for k in slices})
+    if not slices:
+        raise SegmentationError("no slices selected")
+    mask = np.zeros(img.shape, dtype=bool)
+    prob = np.zeros(img.shape, dtype=np.float32)
+    per_slice = []
+    most = 0
+    for k in slices:
+        res, info = _solve_pyramid(img[k:k + 1], spacing, params["lam"], params["theta"], params["tau"],
+                                   params["levels_mm"], params["level_iterations"], params["iterations"],
+                                   params["inner"], params["tolerance"], 1)
+        prob[k] = res["q"][0]
+        m = res["q"] > np.float32(params["threshold"])
+        stats: dict[str, Any] = {}
+        if params["cleanup"]:
+            try:
+                m, stats = clean_head_mask(m, ct.data[k:k + 1], params["window"], spacing, **clean_kw)
+            except SegmentationError:
+                m = np.zeros_like(m)  # nothing head-like in this slice (above the vertex, below the neck)
+        mask[k] = m[0]
+        most = max(most, int(info["fine_iterations"]))
+        per_slice.append(dict(slice=k, c1=res["c1"], c2=res["c2"], iterations=int(info["fine_iterations"]),
+                              cleanup=stats))
+    meta = dict(mode="slices", slices=per_slice, window=params["window"], params=params)
+    c1 = float(np.mean([d["c1"] for d in per_slice]))
+    c2 = float(np.mean([d["c2"] for d in per_slice]))
+    return Segmentation(mask=mask, probability=prob, c1=c1, c2=c2, iterations=most, ct=ct, meta=meta)
