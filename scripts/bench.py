@@ -485,13 +485,16 @@ class Bench:
     # ------------------------------------------------------------------ segmentation
     def segmentation(self, key, st, ds) -> dict:
         ct, ph = st["ct"], st["phantom"]
-        stats, seg = timed(lambda: E.segment_head(ct), self.repeats)
+        with RSSProbe() as probe:
+            stats, seg = timed(lambda: E.segment_head(ct), self.repeats)
         st["seg"] = seg
         out: dict[str, Any] = {"ours": {"name": "segment_head (3-D Chan-Vese soft model + clean-up, whole volume)",
                                         "time": stats, "iterations": int(seg.iterations),
-                                        "voxels": int(np.count_nonzero(seg.mask))}}
+                                        "voxels": int(np.count_nonzero(seg.mask)), "memory_rss": probe.result}}
         if ds["kind"] == "mri":
             out["note"] = "MRI, not CT: graceful-degradation check only (no reference, no peer)"
+            out["ours"]["mask_fraction"] = float(np.count_nonzero(seg.mask)) / seg.mask.size
+            out["ours"]["modality"] = ct.meta.get("modality")
             return out
         from pdehead_addon.metrics import jaccard, slice_jaccard_on_head, head_slices
         ref, ref_desc = reference_mask(key, ct, ph)
@@ -542,12 +545,25 @@ class Bench:
     # ------------------------------------------------------------------ boundaries
     def boundaries(self, st) -> dict:
         seg = st["seg"]
-        stats, bset = timed(lambda: boundaries(seg, 10, 256), self.repeats)
-        s_extract, _ = timed(lambda: E.extract_boundaries(seg, patches=10, samples=256), self.repeats)
-        st["bset"] = bset
-        return {"time": stats, "extract_only": s_extract, "patches": bset.patches, "samples": bset.samples,
-                "aligned": bset.meta.get("parameterisation") == "aligned",
-                "slice_indices": [int(k) for k in bset.slice_indices]}
+        t, refused = 10, None
+        while True:  # t = 10 as in the paper; fewer patches where the scan has too few usable slices (GE)
+            try:
+                boundaries(seg, t, 256)
+                break
+            except E.BoundaryError as exc:
+                if t == 1:
+                    raise
+                refused = refused or str(exc)
+                t -= 1
+        stats, bset = timed(lambda: boundaries(seg, t, 256), self.repeats)
+        s_extract, _ = timed(lambda: E.extract_boundaries(seg, patches=t, samples=256), self.repeats)
+        st["bset"], st["t"] = bset, t
+        out = {"time": stats, "extract_only": s_extract, "patches": bset.patches, "samples": bset.samples,
+               "aligned": bset.meta.get("parameterisation") == "aligned",
+               "slice_indices": [int(k) for k in bset.slice_indices]}
+        if refused:
+            out["note"] = f"t = 10 refused ({refused}); using t = {t}"
+        return out
 
     # ------------------------------------------------------------------ PDE surface vs marching cubes
     def surface(self, key, st) -> dict:
@@ -557,17 +573,19 @@ class Bench:
         nu, nv = 40, 60
         # bench_solve_vs_mc runs the peer max(1, repeats // 2) times: 2x repeats gives it `repeats` runs
         r = pb.bench_solve_vs_mc(bset, seg.mask, ct, repeats=2 * self.repeats, nu=nu, nv=nv)
-        head = E.solve_pde(bset)
-        mesh = head.surface(nu, nv, caps=True)
-        mc = marching_cubes_mesh(seg.mask, ct)
+        with RSSProbe() as probe:
+            head = E.solve_pde(bset)
+            mesh = head.surface(nu, nv, caps=True)
+        with RSSProbe() as probe_mc:
+            mc = marching_cubes_mesh(seg.mask, ct)
         st["head"], st["mc"] = head, mc
         out: dict[str, Any] = {
             "via": "bench_pde.bench_solve_vs_mc",
             "ours": {"name": r["ours"]["name"], "engine": _stats(r["ours"]), "solve_only": r["ours_solve_only"],
                      "engine_with_caps": r["ours_with_caps"], "vertices": len(mesh.vertices),
-                     "faces": mesh.face_count},
+                     "faces": mesh.face_count, "memory_rss": probe.result},
             "peer": {"name": r["peer"]["name"], "engine": _stats(r["peer"]), "vertices": len(mc.vertices),
-                     "faces": mc.face_count, "slices_used": int(seg.mask.shape[0])},
+                     "faces": mc.face_count, "slices_used": int(seg.mask.shape[0]), "memory_rss": probe_mc.result},
             "ratio_engine": r["speedup"], "paper": r.get("paper"),
         }
         if self.use_blender:
@@ -610,7 +628,7 @@ class Bench:
         seg, mc = st["seg"], st.get("mc")
         if mc is None:
             mc = marching_cubes_mesh(seg.mask, st["ct"])
-        ts = (10,) if (self.quick or key != "cthead") else FIDELITY_T
+        ts = (st.get("t", 10),) if (self.quick or key != "cthead") else FIDELITY_T
         samples = 20_000 if self.quick else 100_000
         out: dict[str, Any] = {"reference": FIDELITY_DEFINITION, "samples_per_surface": samples, "series": [],
                                "via": "bench_pde.bench_fidelity"}
@@ -656,10 +674,11 @@ class Bench:
         pb = _pdebench()
         ct = st["ct"]
         head = st.get("head") or E.solve_pde(st["bset"])
-        r = pb.bench_w_field(head, ct, self.repeats)
+        with RSSProbe() as probe:
+            r = pb.bench_w_field(head, ct, self.repeats)
         out: dict[str, Any] = {"via": "bench_pde.bench_w_field",
                                "ours": {"name": r["name"], "time": _stats(r), "grid": list(ct.shape),
-                                        "inside_voxels": r["inside_voxels"]}}
+                                        "inside_voxels": r["inside_voxels"], "memory_rss": probe.result}}
         if self.use_blender:
             wf = head.w_field(ct)
             vol = blender()["volume"]
@@ -903,12 +922,14 @@ def markdown(out: dict) -> str:
                 L.append(f"| {lab} | segmentation | {ours_txt} | {ptxt} | {sg['ratio']:.1f}x | "
                          + (f"<= 2 s, >= 5x" if key == "cthead" else "-") + " |")
             else:
-                L.append(f"| {lab} | segmentation | {ours_txt} | {sg.get('note', '-')} | - | - |")
+                extra = (f"; mask = {100 * sg['ours']['mask_fraction']:.1f}% of the volume"
+                         if "mask_fraction" in sg["ours"] else "")
+                L.append(f"| {lab} | segmentation | {ours_txt}{extra} | {sg.get('note', '-')} | - | - |")
         elif "error" in sg:
             L.append(f"| {lab} | segmentation | {sg['error']} | | | |")
         bd = r.get("boundaries", {})
         if "time" in bd:
-            L.append(f"| {lab} | boundaries t=10, M=256{' + align' if bd.get('aligned') else ''} | "
+            L.append(f"| {lab} | boundaries t={bd['patches']}, M=256{' + align' if bd.get('aligned') else ''} | "
                      f"{_ms(bd['time']['median_s'])} | - | - | "
                      f"(paper: {PAPER['boundary_seconds']} s) |")
         elif "error" in bd:
@@ -944,7 +965,7 @@ def markdown(out: dict) -> str:
         s = r.get("storage")
         if s and "ours" in s:
             peer = s.get("peer")
-            L.append(f"| {key} | {s['ours']['bytes'] / 1024:.1f} kB (t=10, M=256) | "
+            L.append(f"| {key} | {s['ours']['bytes'] / 1024:.1f} kB ({s['ours']['name'].split('(')[-1].rstrip(')')}) | "
                      + (f"{peer['bytes'] / 1024:,.0f} kB ({peer['triangles']:,} triangles) | {s['ratio']:.0f}x |"
                         if peer else "- | - |"))
         elif s:
@@ -986,23 +1007,25 @@ def markdown(out: dict) -> str:
         L.append("")
 
     L += ["## Memory", "",
-          "RSS = resident set size high-water mark of the process during the stage (VmHWM reset through"
-          " /proc/self/clear_refs), shown as the increase over the RSS at the stage's start; tracemalloc ="
-          " peak of Python/numpy allocations in a separate untimed pass.", "",
+          "RSS = resident set size high-water mark of the process during OUR call only (VmHWM reset through"
+          " /proc/self/clear_refs before it), as the increase over the RSS at its start, all repeats included;"
+          " tracemalloc = peak of Python/numpy allocations in a separate untimed pass (CThead, full runs).", "",
           "| data | stage | RSS increase | tracemalloc peak |", "|---|---|---|---|"]
     for key, r in ds.items():
         tm = r.get("memory_tracemalloc", {})
-        names = {"segmentation": "segmentation_MB", "boundaries": "boundaries_MB", "surface": "solve_surface_MB",
-                 "wfield": "w_field_MB"}
-        for stage in ("load", "segmentation", "boundaries", "surface", "wfield"):
-            mr = _get(r, stage, "memory_rss")
-            if mr is None:
+        rows = (("load", ("load", "memory_rss"), None),
+                ("segmentation", ("segmentation", "ours", "memory_rss"), "segmentation_MB"),
+                ("boundaries (+ align)", ("boundaries", "memory_rss"), "boundaries_MB"),
+                ("solve + surface(40,60)", ("surface", "ours", "memory_rss"), "solve_surface_MB"),
+                ("w_field", ("wfield", "ours", "memory_rss"), "w_field_MB"),
+                ("marching cubes (peer)", ("surface", "peer", "memory_rss"), "marching_cubes_MB"))
+        for name, path, tkey in rows:
+            mr = _get(r, *path)
+            tmv = tm.get(tkey) if tkey else None
+            if mr is None and tmv is None:
                 continue
-            tmv = tm.get(names.get(stage, ""))
-            L.append(f"| {key} | {stage} | {mr['rss_increase_MB']:.0f} MB | "
+            L.append(f"| {key} | {name} | " + (f"{mr['rss_increase_MB']:.0f} MB" if mr else "-") + " | "
                      + (f"{tmv:.0f} MB" if isinstance(tmv, (int, float)) else "-") + " |")
-        if "marching_cubes_MB" in tm:
-            L.append(f"| {key} | marching cubes (peer) | - | {tm['marching_cubes_MB']:.0f} MB |")
     mem = out.get("memory_512")
     if mem:
         L.append("")
