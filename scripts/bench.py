@@ -323,23 +323,19 @@ def _pdebench():
     return importlib.import_module("bench_pde")
 
 
-#: Air/skin thresholds of each data set (its README) for the independent reference mask.
-REFERENCE_THRESHOLDS = {"cthead": 600.0, "cthead_tiff8": 47.0, "ge": -400.0, "mri": 0.0}
-
-
 def reference_mask(key: str, ct, phantom=None) -> tuple[np.ndarray | None, str]:
-    """The reference head mask of a data set and its description."""
+    """The reference head mask of a data set and its description (segmentation helper's settings)."""
     if phantom is not None:
         return phantom.head_mask, "exact phantom truth (Phantom.head_mask)"
     sb = _segbench()
     if sb is not None and hasattr(sb, "reference_for"):
-        ref, desc = sb.reference_for(key, ct)
-        return ref, desc
-    from pdehead_addon.metrics import reference_head_mask
-    thr = REFERENCE_THRESHOLDS.get(key)
-    if thr is None:
+        return sb.reference_for(key, ct)
+    from pdehead_addon import metrics
+    settings = metrics.REFERENCE_SETTINGS.get(key)
+    if settings is None:
         return None, "no reference"
-    return reference_head_mask(ct, thr), f"pdehead_addon.metrics.reference_head_mask(threshold={thr:g})"
+    text = ", ".join(f"{k}={v:g}" for k, v in settings.items())
+    return metrics.reference_head_mask(ct, **settings), f"pdehead_addon.metrics.reference_head_mask({text})"
 
 
 def windowed(ct) -> np.ndarray:
