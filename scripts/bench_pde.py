@@ -35,9 +35,8 @@ import pdehead_addon as E  # noqa: E402
 from pdehead_addon.pde_surface import align_parameterisation, signed_volume  # noqa: E402
 from pdehead_addon.surface_metrics import symmetric_surface_distance  # noqa: E402
 
-DATA = Path(os.environ.get("PDEHEAD_DATA", ROOT.parent / "shared" / "data"))
-# same as tests/conftest.py CTHEAD_RAW16_OPTIONS (kept here so the script needs no pytest)
-CTHEAD_RAW16 = dict(format="raw", shape=(256, 256), dtype=">i2", spacing=(2.0, 1.0, 1.0), first_slice="superior")
+sys.path.insert(0, str(ROOT / "tests"))
+from datasets import CTHEAD_RAW16_OPTIONS as CTHEAD_RAW16, SHARED_DATA as DATA  # noqa: E402  (no pytest needed)
 PAPER = {"pde_s": 0.66, "mc_s": 874.75, "ours_kB": 62, "mc_kB": 37647}
 TARGETS = {"speedup": 100.0, "surface_200x400_s": 0.016, "w_field_s": 1.0, "storage_bytes": 16_000,
            "fidelity_t10_mean": 1.0, "fidelity_t10_p95": 3.0, "fidelity_t31_mean": 0.6}

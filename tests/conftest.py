@@ -18,25 +18,9 @@ sys.path.insert(0, str(ROOT))
 # Keep Blender away from the real user folder; must happen before any `import bpy`.
 os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="pdehead-blender-user-"))
 
-SHARED_DATA = Path(os.environ.get("PDEHEAD_DATA", ROOT.parent / "shared" / "data"))
-IN_CI = os.environ.get("CI", "").strip().lower() in ("1", "true", "yes")
-
-
-def shared_data(*parts: str) -> Path:
-    """Path inside ../shared/data; skip the test if absent (fail instead in CI)."""
-    path = SHARED_DATA.joinpath(*parts)
-    if not path.exists():
-        message = f"real data not found: {path}"
-        if IN_CI:
-            pytest.fail(message + " (CI must run the real-data tests)")
-        pytest.skip(message)
-    return path
-
-
-# How each real data set is loaded; the single source of truth for tests and scripts.
-CTHEAD_RAW16_OPTIONS = dict(format="raw", shape=(256, 256), dtype=">i2", spacing=(2.0, 1.0, 1.0),
-                            first_slice="superior")
-CTHEAD_TIFF8_OPTIONS = dict(spacing=(2.0, 1.0, 1.0), first_slice="superior")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from datasets import (CTHEAD_RAW16_OPTIONS, CTHEAD_TIFF8_OPTIONS, IN_CI, SHARED_DATA,  # noqa: E402,F401
+                      shared_data)
 
 
 @pytest.fixture(scope="session")

@@ -19,7 +19,7 @@ from pydicom.uid import (CTImageStorage, ExplicitVRLittleEndian, JPEG2000Lossles
                          MRImageStorage, RLELossless, generate_uid)
 from scipy import ndimage
 
-from conftest import CTHEAD_RAW16_OPTIONS, CTHEAD_TIFF8_OPTIONS, shared_data
+from datasets import CTHEAD_RAW16_OPTIONS, CTHEAD_TIFF8_OPTIONS, shared_data
 from pdehead_addon import CTImportError, CTImportWarning, SeriesInfo, list_series, load_ct
 
 AXIAL = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0)
