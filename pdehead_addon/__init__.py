@@ -18,10 +18,12 @@ from .ct_import import load_ct, list_series, SeriesInfo, CTImportWarning
 from .phantom import make_phantom, Phantom
 from .dicom_export import write_dicom_series, write_phantom_series
 from .segmentation import Segmentation, segment_head
+from .metrics import jaccard, per_slice_jaccard, reference_head_mask
 from .boundary_set import BoundarySet, knots_from_heights
 from .boundaries import (extract_boundaries, boundary_ring, contour_from_mask, parameter_offsets, scan_edge_slices,
                          register_selection, SELECTION_STRATEGIES)
-from .pde_surface import solve_pde, PDEHead, smoothing_bounds, align_parameterisation
+from .pde_surface import solve_pde, PDEHead, smoothing_bounds
+from .parameterisation import align_parameterisation, smooth_closed_curve, correspondence_error
 from .pde_solid import alpha_from_w, w_field, solid_mesh, WField, OUTSIDE_W
 from .storage import save_boundaries, load_boundaries, dumps_boundaries, loads_boundaries, load_head, loads_head
 from .surface_metrics import symmetric_surface_distance

@@ -12,7 +12,8 @@ P(v), v in [0, 2 pi), sampled the same way on every slice. This module turns the
 eq. 22 ring into such a curve:
 
 1. the main (largest) connected component of the cleaned mask slice, with its
-   holes filled, is the head's *outer region*; its eq. 22 ring
+   holes filled and inlets narrower than ~2 x ``closing_mm`` bridged
+   (:func:`close_region`), is the head's *outer region*; its eq. 22 ring
    (:func:`boundary_ring`) is the outer head boundary in pixels;
 2. the returned curve is the sub-pixel refinement of that ring: the 0.5 level
    line (marching squares, :func:`skimage.measure.find_contours`) of the outer
@@ -24,9 +25,14 @@ eq. 22 ring into such a curve:
    point lies within ``band + 1`` pixel of a ring pixel) and to report how much
    of the ring the curve follows (``meta["ring_coverage"]``);
 3. the curve is mapped to patient LPS mm, oriented counter-clockwise seen from
-   above (from +z, superior), started at its posterior midline point (the seam
+   above (from +z, superior), low-passed along its arc length (Gaussian of
+   ``curve_sigma`` pixels: the pixel-grid ripple repeats on every slice and
+   would streak the surface), started at its posterior midline point (the seam
    v = 0, at the back of the head, so the face is seam-free) and resampled at M
-   points uniformly in arc length.
+   points uniformly in arc length;
+4. by default (``parameterisation="aligned"``) the samples are then moved
+   along each curve so that equal v means corresponding points on neighbouring
+   curves (:func:`~.parameterisation.align_parameterisation`).
 
 Conventions of every curve returned (shared with :class:`BoundarySet`):
 
@@ -37,13 +43,17 @@ Conventions of every curve returned (shared with :class:`BoundarySet`):
   curve order) the OUTWARD normal is ``dX/dv x dX/du``.
 * seam: sample 0 is where the curve crosses the ray from its area centroid
   toward +y (posterior) along x = centroid x (the outermost such crossing).
-* spacing: the M samples are equally spaced in arc length along the sub-pixel
-  polyline (periodic linear interpolation of cumulative chord length), so the
-  parameterisation of neighbouring curves does not twist
-  (:func:`parameter_offsets` measures it). Features on one side only (an
-  ear, a nose off the midline) still move the samples of the next curve by a
-  few steps: on CThead (t = 10, M = 256) the best cyclic shift between
-  neighbours has median 0-1 and maximum 7 samples.
+* spacing: with ``parameterisation="arc-length"`` the M samples are equally
+  spaced in arc length along the smoothed polyline (periodic linear
+  interpolation of cumulative chord length), so the parameterisation of
+  neighbouring curves does not twist (:func:`parameter_offsets` measures it),
+  but features on one side only (an ear, the nose) move the samples of the
+  next curve by a few steps (CThead, t = 10, M = 256: median 0-1, maximum 7).
+  The default ``"aligned"`` keeps the same polylines and the same seam and
+  re-spaces the samples by dynamic time warping between neighbours; on CThead
+  (t = 10) the mean distance between equal-v samples of neighbouring centred
+  curves drops from ~9.3 to ~4.9 mm and the PDE surface's mean distance to
+  marching cubes from 0.67 to 0.45 mm.
 
 Choice of slices (section 4.1): the paper picks 3t+1 slices by hand and calls
 an automatic choice an open problem (section 6). Here a slice is *usable* if
@@ -72,21 +82,26 @@ from skimage import measure
 
 from .boundary_set import BoundarySet, knots_from_heights
 from .errors import BoundaryError
+from .parameterisation import PARAMETERISATIONS, align_parameterisation, smooth_closed_curve
 
 __all__ = [
-    "extract_boundaries", "boundary_ring", "outer_region", "outer_contour", "contour_from_mask",
+    "extract_boundaries", "boundary_ring", "outer_region", "close_region", "outer_contour", "contour_from_mask",
     "resample_closed_curve", "orient_and_resample", "signed_area", "polygon_centroid",
     "parameter_offsets", "self_intersections", "usable_slices", "select_uniform",
-    "select_shape_change", "register_selection", "SELECTION_STRATEGIES",
+    "select_shape_change", "register_selection", "SELECTION_STRATEGIES", "PARAMETERISATIONS",
 ]
 
 SelectionFunc = Callable[..., Sequence[int]]
 Selection = Union[str, SelectionFunc, Sequence[int], np.ndarray]
 
-#: Default fraction of the largest slice area below which a slice counts as degenerate.
 #: Largest share of a slice's outline that may be the edge of the scanned slab (tilted series).
 MAX_SCAN_EDGE_FRACTION = 0.1
+#: Default fraction of the largest slice area below which a slice counts as degenerate.
 MIN_AREA_FRACTION = 0.05
+#: Default closing radius (mm) of each slice's outline: bridges nostrils, mouth slit, ear canal.
+CLOSING_MM = 3.0
+#: Default low-pass along each curve (Gaussian sigma, pixels) against the pixel-grid ripple.
+CURVE_SIGMA_PX = 1.0
 
 
 # --------------------------------------------------------------------------- eq. 22 and outer region
@@ -199,8 +214,23 @@ def _shoelace(xy: np.ndarray) -> float:
     return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
 
 
+def close_region(region: np.ndarray, radius: float) -> np.ndarray:
+    """Morphological closing by a disk of ``radius`` pixels, holes filled afterwards.
+
+    Fills inlets of the outline narrower than about ``2 * radius`` pixels
+    (nostrils, a slightly open mouth, the gap behind an ear flap) while
+    leaving convex parts of the outline where they are. ``region`` needs a
+    background margin of at least ``radius + 1`` pixels.
+    """
+    if radius <= 0:
+        return region
+    grown = ndi.distance_transform_edt(~region) <= radius
+    closed = ndi.distance_transform_edt(grown) > radius
+    return outer_region(closed | region)
+
+
 def outer_contour(mask2d: np.ndarray, sigma: float = 0.7, probability: np.ndarray | None = None,
-                  band: int = 1, connectivity: int = 2, return_info: bool = False):
+                  band: int = 1, connectivity: int = 2, return_info: bool = False, closing: float = 0.0):
     """Sub-pixel outer contour of a slice's main component (refinement of its eq. 22 ring).
 
     Parameters
@@ -223,6 +253,10 @@ def outer_contour(mask2d: np.ndarray, sigma: float = 0.7, probability: np.ndarra
     return_info : bool
         Also return a dict with the pixel area of the outer region and the
         eq. 22 ring coverage.
+    closing : float
+        Radius (pixels) of a disk closing of the outer region first
+        (:func:`close_region`); the eq. 22 ring is then that of the closed
+        region. 0 = none.
 
     Returns
     -------
@@ -256,9 +290,9 @@ def outer_contour(mask2d: np.ndarray, sigma: float = 0.7, probability: np.ndarra
     cols = np.flatnonzero(mask.any(axis=0))
     # Work on a crop with a zero margin so every level line closes, also when
     # the head touches the image border (it is then closed along the border).
-    pad = int(math.ceil(4 * sigma)) + band + 2
+    pad = int(math.ceil(4 * sigma)) + band + 2 + int(math.ceil(closing))
     r0, r1, c0, c1 = rows[0] - pad, rows[-1] + 1 + pad, cols[0] - pad, cols[-1] + 1 + pad
-    reg = outer_region(_crop(mask, r0, r1, c0, c1), connectivity)
+    reg = close_region(outer_region(_crop(mask, r0, r1, c0, c1), connectivity), float(closing))
     if probability is None:
         field = reg.astype(np.float32)
     else:
@@ -361,10 +395,11 @@ def _posterior_seam(xy: np.ndarray, center: np.ndarray) -> float:
     return float(s[hit[pick]] + tau[pick] * seg_len[hit[pick]])
 
 
-def orient_and_resample(points: np.ndarray, samples: int) -> np.ndarray:
+def orient_and_resample(points: np.ndarray, samples: int, smooth: float = 0.0) -> np.ndarray:
     """Give a closed curve the shared parameterisation of all boundary curves.
 
-    The curve is made counter-clockwise in (x, y) (seen from +z), started at
+    The curve is made counter-clockwise in (x, y) (seen from +z), optionally
+    low-passed along its arc length (:func:`smooth_closed_curve`), started at
     its posterior midline (the crossing with the ray from its area centroid
     toward +y at x = centroid x) and resampled at ``samples`` points equally
     spaced in arc length.
@@ -374,6 +409,9 @@ def orient_and_resample(points: np.ndarray, samples: int) -> np.ndarray:
     points : ndarray, shape (P, 2) or (P, 3)
         Closed polyline ``(x, y[, z])``, last point not repeated.
     samples : int
+    smooth : float
+        Standard deviation (unit of ``points``) of the Gaussian low-pass along
+        the curve; 0 = none.
 
     Returns
     -------
@@ -382,6 +420,8 @@ def orient_and_resample(points: np.ndarray, samples: int) -> np.ndarray:
     p = np.asarray(points, dtype=np.float64)
     if _shoelace(p[:, :2]) < 0:
         p = p[::-1]
+    if smooth > 0:
+        p = smooth_closed_curve(p, smooth)
     start = _posterior_seam(p[:, :2], polygon_centroid(p))
     return resample_closed_curve(p, samples, start=start)
 
@@ -640,7 +680,9 @@ def scan_edge_slices(mask: np.ndarray, coverage: np.ndarray | None,
 # --------------------------------------------------------------------------- the pipeline step
 def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Selection = "uniform",
                        min_area_fraction: float = MIN_AREA_FRACTION, sigma: float = 0.7,
-                       level_field: str = "mask", band: int = 1) -> BoundarySet:
+                       level_field: str = "mask", band: int = 1, parameterisation: str = "aligned",
+                       curve_sigma: float = CURVE_SIGMA_PX, max_stretch: float = 8.0,
+                       closing_mm: float = CLOSING_MM) -> BoundarySet:
     """The 3t+1 PDE boundary curves of a segmented head (paper eq. 22, sections 3 and 4.1).
 
     Parameters
@@ -670,14 +712,34 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
     level_field : {"mask", "probability"}
         Trace the 0.5 level of the smoothed cleaned mask, or of the soft
         probability clamped to the cleaned mask's boundary band.
+    parameterisation : {"aligned", "arc-length"}
+        Where the M samples sit on each curve. ``"arc-length"``: equally
+        spaced in arc length from the seam. ``"aligned"`` (default): first
+        that, then :func:`align_parameterisation` moves the samples along each
+        curve so that equal v means corresponding points on neighbouring
+        curves (no folds between curves at the nose, lips, ears).
+    curve_sigma : float
+        Gaussian low-pass along each curve, standard deviation in pixels
+        (converted with the mean in-plane spacing): removes the pixel-grid
+        ripple that repeats on every slice (vertical streaks on the surface).
+        0 disables it.
+    max_stretch : float
+        Bound on the local stretch of the sample spacing of the alignment.
+    closing_mm : float
+        Radius (mm) of a disk closing of each slice's outer region before the
+        contour is traced (:func:`close_region`): inlets narrower than about
+        twice that (nostrils, a slightly open mouth, ear canal, the gap behind
+        an ear flap) are bridged. Such inlets exist on one curve and not on
+        its neighbours 5-10 mm away, so the PDE would fold there. 0 disables it.
 
     Returns
     -------
     BoundarySet
         Curves (3t+1, M, 3) in patient LPS mm ordered inferior -> superior,
         counter-clockwise seen from +z, sample 0 at the posterior midline,
-        uniform in arc length; ``heights`` = mean patient z of each curve;
-        ``u_knots`` from :func:`knots_from_heights`.
+        uniform in arc length or aligned (``meta["parameterisation"]``);
+        ``heights`` = mean patient z of each curve; ``u_knots`` from
+        :func:`knots_from_heights`.
 
     Raises
     ------
@@ -690,6 +752,14 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
     samples = _check_samples(samples)
     if level_field not in ("mask", "probability"):
         raise BoundaryError(f"level_field must be 'mask' or 'probability', got {level_field!r}")
+    if parameterisation not in PARAMETERISATIONS:
+        raise BoundaryError(f"parameterisation must be one of {list(PARAMETERISATIONS)}, got {parameterisation!r}")
+    if not (np.isfinite(curve_sigma) and curve_sigma >= 0):
+        raise BoundaryError(f"curve_sigma must be >= 0 (pixels), got {curve_sigma!r}")
+    if not (np.isfinite(closing_mm) and closing_mm >= 0):
+        raise BoundaryError(f"closing_mm must be >= 0, got {closing_mm!r}")
+    if not (np.isfinite(max_stretch) and max_stretch > 1):
+        raise BoundaryError(f"max_stretch must be > 1, got {max_stretch!r}")
     if not 0.0 <= float(min_area_fraction) < 1.0:
         raise BoundaryError(f"min_area_fraction must be in [0, 1), got {min_area_fraction!r}")
     mask = np.asarray(getattr(seg, "mask", None))
@@ -730,16 +800,18 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
         if probability.shape != mask.shape:
             raise BoundaryError(f"segmentation probability shape {probability.shape} != mask shape {mask.shape}")
     dz, dy, dx = ct.spacing
+    closing_px = float(closing_mm) / (0.5 * (dy + dx))
     curves = np.empty((n, samples, 3))
     areas, coverage = [], []
     for c, k in enumerate(chosen):
         try:
-            rc, info = outer_contour(mask[k], sigma=sigma, band=band, return_info=True,
+            rc, info = outer_contour(mask[k], sigma=sigma, band=band, return_info=True, closing=closing_px,
                                      probability=None if probability is None else probability[k])
         except BoundaryError as exc:
             raise BoundaryError(f"slice {int(k)}: {exc}") from None
         kji = np.column_stack([np.full(len(rc), float(k)), rc])
-        curves[c] = orient_and_resample(ct.index_to_patient(kji), samples)
+        curves[c] = orient_and_resample(ct.index_to_patient(kji), samples,
+                                        smooth=float(curve_sigma) * 0.5 * (dy + dx))
         areas.append(info["area_px"] * dy * dx)
         coverage.append(info["ring_coverage"])
     heights = curves[:, :, 2].mean(axis=1)
@@ -752,5 +824,9 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
         scan_edge_slices=np.flatnonzero(cut_off).tolist(),
         orientation="ccw seen from +z (superior); outward normal = dX/dv x dX/du",
         seam="posterior midline (+y ray from each curve's area centroid)",
+        curve_sigma=float(curve_sigma), closing_mm=float(closing_mm), parameterisation="arc-length",
     )
-    return BoundarySet(curves, chosen, heights, knots_from_heights(heights), meta)
+    bset = BoundarySet(curves, chosen, heights, knots_from_heights(heights), meta)
+    if parameterisation == "aligned":
+        bset = align_parameterisation(bset, max_stretch=max_stretch)
+    return bset

@@ -52,9 +52,13 @@ class BoundarySet:
     ----------
     curves : ndarray, shape (3t+1, M, 3)
         Closed curves (the last point is *not* a repeat of the first), ordered
-        from inferior to superior, sampled at M points uniformly in arc length,
-        all with the same orientation and with sample 0 (v = 0) at the posterior
-        midline.
+        from inferior to superior, all with the same orientation and with
+        sample 0 (v = 0) at the posterior midline; sample m sits at
+        v = 2 pi m / M. ``meta["parameterisation"]`` says how the samples are
+        spaced along each curve: ``"arc-length"`` (uniformly) or ``"aligned"``
+        (equal v = corresponding points of neighbouring curves, see
+        :func:`~.parameterisation.align_parameterisation`); absent for
+        synthetic sets, which are taken as given.
     slice_indices : ndarray of int, shape (3t+1,)
         The axial slice index in the source volume of each curve (-1 if synthetic).
     heights : ndarray, shape (3t+1,)
@@ -62,7 +66,7 @@ class BoundarySet:
     u_knots : ndarray, shape (3t+1,)
         Parameter u of each curve; see :func:`knots_from_heights`.
     meta : dict
-        Provenance: source study, selection strategy, spacing, ...
+        Provenance: source study, selection strategy, spacing, parameterisation, ...
     """
 
     curves: np.ndarray

@@ -83,12 +83,13 @@ Correspondence of the curves
 The PDE joins, for each v, the points ``P_j(v)`` of the four curves. With
 curves sampled uniformly in arc length, a feature on one curve only (nose
 tip, ear, nostril) shifts the arc length of everything after it and the
-surface folds between the curves. :func:`align_parameterisation` re-samples
-the curves (same polylines, same seam) so that equal v means corresponding
-points (dynamic time warping between neighbours); on CThead (t = 10) it cuts
-the mean distance to the marching-cubes surface by about a quarter and the
-95th percentile by a third. :func:`solve_pde` itself reproduces the curves
-it is given exactly.
+surface folds between the curves. :func:`extract_boundaries` therefore
+returns, by default (``parameterisation="aligned"``), curves re-sampled by
+:func:`align_parameterisation` (module :mod:`.parameterisation`: same
+polylines, same seam, equal v = corresponding points); on CThead (t = 10) it
+cuts the mean distance to the marching-cubes surface by about a third.
+:func:`solve_pde` itself reproduces the curves it is given exactly
+(``align=True`` aligns an arc-length set first).
 """
 from __future__ import annotations
 
@@ -100,6 +101,7 @@ import numpy as np
 from .boundary_set import BoundarySet
 from .errors import PDEError
 from .mesh import Mesh
+from .parameterisation import align_parameterisation  # noqa: F401  (re-export; solve_pde(align=True))
 
 #: The default a keeps the top harmonic's Lebesgue constant within this factor of the cubic one.
 DEFAULT_LEBESGUE_GROWTH = 1.10
@@ -862,124 +864,6 @@ def _tube_mesh(pts: np.ndarray, orientation: int, caps=None, uv: bool = False,
     return mesh
 
 
-# ----------------------------------------------------------------------------- correspondence
-
-
-def _dtw_maps(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Dynamic time warping of closed curves with a common seam, vectorised over pairs.
-
-    Parameters
-    ----------
-    a, b : ndarray, shape (P, M, d)
-        P pairs of curves (centred), sample 0 of both at the seam.
-
-    Returns
-    -------
-    ndarray, shape (P, M + 1)
-        For every sample i = 0..M of ``a`` (M = the seam again) the mean fractional
-        index of the samples of ``b`` matched to it: a monotone map with f(0) = 0, f(M) = M.
-    """
-    P, M, _ = a.shape
-    a2 = np.concatenate([a, a[:, :1]], axis=1).astype(np.float32)
-    b2 = np.concatenate([b, b[:, :1]], axis=1).astype(np.float32)
-    n = M + 1
-    cost = ((a2[:, :, None, :] - b2[:, None, :, :]) ** 2).sum(axis=-1)       # (P, n, n)
-    D = np.full((P, n + 1, n + 1), np.inf, np.float32)
-    D[:, 0, 0] = 0.0
-    for d in range(2, 2 * n + 1):
-        i = np.arange(max(1, d - n), min(n, d - 1) + 1)
-        j = d - i
-        D[:, i, j] = cost[:, i - 1, j - 1] + np.minimum(np.minimum(D[:, i - 1, j - 1], D[:, i - 1, j]),
-                                                        D[:, i, j - 1])
-    # backtrack all pairs together; accumulate the matched j of every i
-    pr = np.arange(P)
-    i = np.full(P, n)
-    j = np.full(P, n)
-    total = np.zeros((P, n))
-    count = np.zeros((P, n))
-    active = np.ones(P, bool)
-    while np.any(active):
-        pa, ia, ja = pr[active], i[active], j[active]
-        total[pa, ia - 1] += ja - 1
-        count[pa, ia - 1] += 1
-        step = np.argmin(np.stack([D[pa, ia - 1, ja - 1], D[pa, ia - 1, ja], D[pa, ia, ja - 1]]), axis=0)
-        i[pa] = ia - (step != 2)
-        j[pa] = ja - (step != 1)
-        active = (i > 0) & (j > 0)
-    return total / np.maximum(count, 1)
-
-
-def _bounded_increments(sigma: np.ndarray, M: int, max_stretch: float) -> np.ndarray:
-    """Smooth a monotone sample map and bound its local stretch to [1/max_stretch, max_stretch].
-
-    DTW maps are staircases; three passes of a 5-tap triangle filter on the
-    spacing (about +-4 samples) remove the steps without moving features.
-    """
-    d = np.maximum(np.diff(np.append(sigma, M)), 0.0)
-    kernel = np.array([1.0, 2.0, 3.0, 2.0, 1.0]) / 9.0
-    for _ in range(3):
-        d = np.convolve(np.concatenate([d[-2:], d, d[:2]]), kernel, mode="valid")
-    for _ in range(8):  # clip-and-renormalise converges in a few rounds
-        d = np.clip(d, 1.0 / max_stretch, max_stretch)
-        d *= M / d.sum()
-    return np.concatenate([[0.0], np.cumsum(d)[:-1]])
-
-
-def align_parameterisation(bset: BoundarySet, max_stretch: float = 8.0) -> BoundarySet:
-    """Re-sample the curves so that equal v means corresponding points on neighbouring curves.
-
-    The PDE interpolates, for every v, the four points ``P_j(v)`` of a patch
-    (eq. 3-6). With curves sampled uniformly in arc length a feature present
-    on one curve only (nose tip, ear, nostril notch) shifts the arc length of
-    everything after it, so equal v joins points on different sides of the
-    head and the surface between the curves folds into flanges. This function
-    keeps every curve's geometry (the new samples lie on the polyline through
-    the old ones, the seam sample 0 stays put) and chooses where along it the
-    M samples sit: each curve is matched to its lower neighbour by dynamic time
-    warping of the centred curves (minimal sum of squared distances between
-    matched samples, monotone, seam fixed), the maps are composed from the
-    first curve (kept uniform in arc length) upward, smoothed, and their local
-    stretch bounded to ``[1/max_stretch, max_stretch]`` of the uniform spacing
-    so that no part of a curve loses its samples.
-
-    Parameters
-    ----------
-    bset : BoundarySet
-    max_stretch : float
-        Bound on the local compression/expansion of the sample spacing (> 1).
-
-    Returns
-    -------
-    BoundarySet
-        Same slices, heights and knots; ``meta["parameterisation"] = "aligned"``.
-        The curves are no longer uniform in arc length.
-    """
-    if not isinstance(bset, BoundarySet):
-        raise PDEError(f"align_parameterisation needs a BoundarySet, got {type(bset).__name__}")
-    if not (np.isfinite(max_stretch) and max_stretch > 1.0):
-        raise PDEError(f"max_stretch must be > 1, got {max_stretch!r}")
-    curves = bset.curves
-    n_curves, M, _ = curves.shape
-    centred = curves - curves.mean(axis=1, keepdims=True)
-    maps = _dtw_maps(centred[:-1], centred[1:])                              # (n-1, M+1)
-    grid = np.arange(M + 1, dtype=np.float64)
-    out = np.empty_like(curves)
-    out[0] = curves[0]
-    sigma = np.arange(M, dtype=np.float64)
-    for j in range(1, n_curves):
-        sigma = _bounded_increments(np.interp(sigma, grid, maps[j - 1]), M, max_stretch)
-        closed = np.concatenate([curves[j], curves[j, :1]])
-        i0 = np.minimum(np.floor(sigma).astype(np.int64), M - 1)
-        f = (sigma - i0)[:, None]
-        out[j] = closed[i0] * (1.0 - f) + closed[i0 + 1] * f
-        if np.ptp(curves[j, :, 2]) == 0:
-            out[j, :, 2] = curves[j, 0, 2]                                   # keep planar curves exactly planar
-    meta = dict(bset.meta)
-    meta["parameterisation"] = "aligned"
-    meta["align_max_stretch"] = float(max_stretch)
-    return BoundarySet(out, bset.slice_indices.copy(), bset.heights.copy(), bset.u_knots.copy(), meta)
-
-
 # ----------------------------------------------------------------------------- solver
 
 
@@ -1060,7 +944,8 @@ def solve_pde(bset: BoundarySet, smoothing: float | Sequence[float] | None = Non
     Parameters
     ----------
     bset : BoundarySet
-        3t+1 closed curves sampled uniformly in v (arc length), sample 0 at v = 0.
+        3t+1 closed curves, sample m at v = 2 pi m / M (sample 0 = the seam), as
+        :func:`extract_boundaries` returns them.
     smoothing : float or sequence of t floats, optional
         The smoothing parameter a of eq. 1 per patch (local u of the patch).
         Default: ``min(H/r, a_stable)`` per patch (module docstring). Values above
@@ -1083,8 +968,8 @@ def solve_pde(bset: BoundarySet, smoothing: float | Sequence[float] | None = Non
     """
     if not isinstance(bset, BoundarySet):
         raise PDEError(f"solve_pde needs a BoundarySet, got {type(bset).__name__}")
-    if align and bset.meta.get("parameterisation") != "aligned":
-        bset = align_parameterisation(bset)
+    if align:
+        bset = align_parameterisation(bset)                                  # no-op if already aligned
     t, M = bset.patches, bset.samples
     n_modes = _check_modes(modes, M)
     local = _local_knots(bset)
