@@ -24,6 +24,7 @@ from bpy.types import Operator, OperatorFileListElement
 
 from ..pdehead_addon import CTImportError, PDEHeadError
 from . import prefs, props, state
+from .props import DEFAULT_NU, DEFAULT_NV
 
 STEP_LABELS = {
     "import": "Import CT",
@@ -360,10 +361,8 @@ def step_boundaries(coll) -> None:
     if cache.seg is None:
         step_segment(coll)
     with state.Timer() as t:
-        bset = extract_boundaries(cache.seg, patches=s.patches, samples=s.samples, selection=s.selection)
-        if s.align_curves:
-            from ..pdehead_addon import align_parameterisation
-            bset = align_parameterisation(bset)
+        bset = extract_boundaries(cache.seg, patches=s.patches, samples=s.samples, selection=s.selection,
+                                  parameterisation="aligned" if s.align_curves else "arc-length")
     state.store_boundaries(coll, bset)
     cache.drop_from("bset")
     cache.bset = bset
@@ -622,8 +621,8 @@ class PDEHEAD_OT_reconstruct_surface(Operator, StudyOperator):
     bl_description = "Solve the Bloor-Wilson PDEs (eq. 1-13) on the boundary curves and build the head surface"
     bl_options = {'REGISTER', 'UNDO'}
 
-    nu: IntProperty(name="nu", default=40, min=4, max=2000)
-    nv: IntProperty(name="nv", default=60, min=4, max=2000)
+    nu: IntProperty(name="nu", default=DEFAULT_NU, min=4, max=2000)
+    nv: IntProperty(name="nv", default=DEFAULT_NV, min=4, max=2000)
     caps: BoolProperty(name="Caps", default=True)
     smoothing_auto: BoolProperty(name="Auto Smoothing", default=True)
     smoothing: FloatProperty(name="Smoothing (a)", default=0.03, min=0.0, max=10.0, soft_max=0.5, precision=4)
@@ -662,8 +661,8 @@ class PDEHEAD_OT_build_solid(Operator, StudyOperator):
     bl_description = "Build the PDE solid (eq. 23): the head sampled in u, v and w from the spine to the surface"
     bl_options = {'REGISTER', 'UNDO'}
 
-    nu: IntProperty(name="nu", default=40, min=4, max=2000)
-    nv: IntProperty(name="nv", default=60, min=4, max=2000)
+    nu: IntProperty(name="nu", default=DEFAULT_NU, min=4, max=2000)
+    nv: IntProperty(name="nv", default=DEFAULT_NV, min=4, max=2000)
     nw: IntProperty(name="nw", default=5, min=2, max=200)
     u_range: FloatVectorProperty(name="u Range", size=2, default=(0.0, 1.0), min=0.0, max=1.0)
     v_range: FloatVectorProperty(name="v Range", size=2, default=(0.0, 6.283185307179586), min=0.0,
@@ -844,8 +843,8 @@ class PDEHEAD_OT_run_pipeline(Operator, LoaderOptions):
     study: StringProperty(name="Study", default="", options={'SKIP_SAVE'})
     patches: IntProperty(name="Patches (t)", default=10, min=1, max=60)
     samples: IntProperty(name="Samples (M)", default=256, min=16, max=4096)
-    nu: IntProperty(name="nu", default=40, min=4, max=2000)
-    nv: IntProperty(name="nv", default=60, min=4, max=2000)
+    nu: IntProperty(name="nu", default=DEFAULT_NU, min=4, max=2000)
+    nv: IntProperty(name="nv", default=DEFAULT_NV, min=4, max=2000)
     nw: IntProperty(name="nw", default=5, min=2, max=200)
     build_volume: BoolProperty(name="Volume", default=True, description="Also build the volume")
     voxel_size: FloatProperty(name="Voxel Size (mm)", default=2.0, min=0.25, max=20.0)

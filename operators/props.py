@@ -42,6 +42,11 @@ def _live(what: str):
     return update
 
 
+#: Default surface/solid resolution: fine enough that a nose (~30 mm wide) gets ~10 samples
+#: around v and the lips several along u; surface(120, 240) builds in ~10-20 ms.
+DEFAULT_NU = 120
+DEFAULT_NV = 240
+
 SELECTION_ITEMS = [
     ("uniform", "Uniform", "Curves evenly spaced along the head axis"),
     ("shape-change", "Shape Change", "Denser curves where the head's cross-section changes fast (face)"),
@@ -96,9 +101,9 @@ class PDEHeadStudySettings(bpy.types.PropertyGroup):
                                            "(avoids folds where a feature such as the nose is on one curve only)")
 
     # Surface (live)
-    nu: IntProperty(name="nu", default=40, min=4, max=2000, update=_live("surface_solid"),
+    nu: IntProperty(name="nu", default=DEFAULT_NU, min=4, max=2000, update=_live("surface_solid"),
                     description="Resolution along the head axis (u); rebuilds the meshes at once")
-    nv: IntProperty(name="nv", default=60, min=4, max=2000, update=_live("surface_solid"),
+    nv: IntProperty(name="nv", default=DEFAULT_NV, min=4, max=2000, update=_live("surface_solid"),
                     description="Resolution around the head (v); rebuilds the meshes at once")
     caps: BoolProperty(name="Caps", default=True, update=_live("surface"),
                        description="Close the top and bottom of the surface")

@@ -46,8 +46,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--samples", type=int, default=256, help="points per boundary curve; default 256")
     p.add_argument("--selection", default="uniform", choices=["uniform", "shape-change"],
                    help="how the 3t+1 slices are chosen")
-    p.add_argument("--nu", type=int, default=40, help="surface/solid resolution along u; default 40")
-    p.add_argument("--nv", type=int, default=60, help="surface/solid resolution around v; default 60")
+    p.add_argument("--no-align", action="store_true",
+                   help="keep the curves uniform in arc length (no correspondence alignment)")
+    p.add_argument("--nu", type=int, default=120, help="surface/solid resolution along u; default 120")
+    p.add_argument("--nv", type=int, default=240, help="surface/solid resolution around v; default 240")
     p.add_argument("--nw", type=int, default=5, help="solid levels in w; default 5")
     p.add_argument("--voxel-size", type=float, default=2.0, help="volume voxel size in mm; default 2")
     p.add_argument("--no-volume", action="store_true", help="skip the volume (w-field + VDB)")
@@ -153,7 +155,8 @@ def run(args) -> dict:
     coll = bpy.context.scene.pdehead.active_study
     s = coll.pdehead
     _call(ops.segment)
-    _call(ops.extract_boundaries, patches=args.patches, samples=args.samples, selection=args.selection)
+    _call(ops.extract_boundaries, patches=args.patches, samples=args.samples, selection=args.selection,
+          align_curves=not args.no_align)
     _call(ops.reconstruct_surface, nu=args.nu, nv=args.nv)
     _call(ops.build_solid, nu=args.nu, nv=args.nv, nw=args.nw)
     if not args.no_volume:
