@@ -355,11 +355,19 @@ def step_segment(coll) -> None:
 
 def step_boundaries(coll) -> None:
     from ..pdehead_addon import extract_boundaries
+    from ..pdehead_addon.boundaries import max_patches
     from . import objects
     s = state.settings(coll)
     cache = state.cache_for(s.study_id)
     if cache.seg is None:
         step_segment(coll)
+    limit = max_patches(cache.seg)
+    if 1 <= limit < s.patches:  # short scans (e.g. the tilted GE slab) cannot give 3t+1 slices for the default t
+        message = (f"the scan has usable head outlines for at most {limit} patches "
+                   f"({3 * limit + 1} slices): patches reduced from {s.patches} to {limit}")
+        with props.suspended_updates():
+            s.patches = limit
+        s.warnings = "; ".join([w for w in (s.warnings, message) if w])[:1000]
     with state.Timer() as t:
         bset = extract_boundaries(cache.seg, patches=s.patches, samples=s.samples, selection=s.selection,
                                   parameterisation="aligned" if s.align_curves else "arc-length")
@@ -609,9 +617,13 @@ class PDEHEAD_OT_extract_boundaries(Operator, StudyOperator):
             with props.suspended_updates():
                 s.patches, s.samples, s.selection = self.patches, self.samples, self.selection
                 s.align_curves = self.align_curves
+            warnings_before = s.warnings
             step_boundaries(coll)
-            self.report({'INFO'}, f"{3 * self.patches + 1} boundary curves of {self.samples} points extracted "
+            self.patches = s.patches  # may have been reduced to what the scan allows
+            self.report({'INFO'}, f"{3 * s.patches + 1} boundary curves of {self.samples} points extracted "
                         f"from '{coll.name}' ({state.timings(coll)['boundaries']:.2f} s)")
+            if s.warnings != warnings_before:
+                self.report({'WARNING'}, s.warnings[len(warnings_before):].lstrip("; ")[:300])
         return _guarded(self, context, body)
 
 

@@ -678,6 +678,25 @@ def scan_edge_slices(mask: np.ndarray, coverage: np.ndarray | None,
 
 
 # --------------------------------------------------------------------------- the pipeline step
+def max_patches(seg, min_area_fraction: float = MIN_AREA_FRACTION) -> int:
+    """The largest t for which the named selections find 3t+1 usable slices in ``seg``.
+
+    Usable slices are those :func:`usable_slices` keeps, less the slices whose
+    outline is the edge of the scan (:func:`scan_edge_slices`). Returns 0 when
+    not even 4 slices are usable.
+    """
+    mask = np.asarray(seg.mask, bool)
+    ct = seg.ct
+    selectable = mask.copy()
+    selectable[scan_edge_slices(mask, getattr(ct, "coverage", None))] = False
+    if not selectable.any():
+        return 0
+    nz, ny, nx = mask.shape
+    centre = np.column_stack([np.arange(nz, dtype=float), np.full(nz, (ny - 1) / 2), np.full(nz, (nx - 1) / 2)])
+    usable = usable_slices(selectable, ct.index_to_patient(centre)[:, 2], min_area_fraction)
+    return max((len(usable) - 1) // 3, 0)
+
+
 def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Selection = "uniform",
                        min_area_fraction: float = MIN_AREA_FRACTION, sigma: float = 0.7,
                        level_field: str = "mask", band: int = 1, parameterisation: str = "aligned",

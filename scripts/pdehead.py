@@ -176,6 +176,8 @@ def run(args) -> dict:
     print(f"  solid     {len(s.solid_object.data.vertices)} vertices")
     if s.volume_object is not None:
         print(f"  volume    {bpy.path.abspath(s.volume_object.data.filepath)}")
+    for warning in filter(None, s.warnings.split("; ")):
+        print(f"  warning   {warning}")
     print("timings (s):")
     for step, seconds in timings.items():
         print(f"  {step:<11}{seconds:8.3f}")

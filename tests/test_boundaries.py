@@ -512,3 +512,15 @@ def test_cthead_curve_lowpass_removes_pixel_ripple(cthead_seg):
     for a, b in zip(raw.curves, smooth.curves):
         d = _distance_to_polyline(b[:, :2], a[:, :2])
         assert np.percentile(d, 99) < 0.3 and d.max() < 0.5
+
+
+def test_max_patches_is_the_largest_t_the_named_selections_accept(ge_seg, cthead_seg):
+    from pdehead_addon import max_patches
+
+    for seg in (ge_seg, cthead_seg):
+        t = max_patches(seg)
+        assert t >= 4
+        assert extract_boundaries(seg, patches=t, samples=64).patches == t
+        with pytest.raises(BoundaryError, match="use fewer patches"):
+            extract_boundaries(seg, patches=t + 1, samples=64)
+    assert max_patches(ge_seg) < 10 <= max_patches(cthead_seg)  # the tilted GE slab is short

@@ -291,3 +291,28 @@ def test_panels_draw_every_setting(ext, phantom_blend):
             "low_alpha", "high_alpha", "density", "colour_preset", "alpha_mode", "patches"} <= drawn_props
     labels = " ".join(str(x[1]) for x in log if x[0] == "label")
     assert "Dimensions: 128 x 128 x 100" in labels and "segment" in labels and "total" in labels
+
+
+def test_ge_tilted_series_one_click_reduces_patches_to_what_the_scan_allows(ext, tmp_path):
+    """The real GE series (18.5 deg tilt, uneven steps) in one click: the default t = 10 needs more
+    slices than the tilted slab covers, so the pipeline uses the largest t it allows and says so."""
+    import bpy
+    from datasets import shared_data
+
+    folder = shared_data("ct_head_ge_tilt_dicom", "dicom")
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "ge.blend"))  # the VDB goes beside the saved file
+    bpy.ops.pdehead.run_pipeline(source='FILES', filepath=str(folder), patches=10, nu=40, nv=60, nw=4,
+                                 voxel_size=4.0)
+    coll = bpy.context.scene.pdehead.active_study
+    s = coll.pdehead
+    assert s.source_kind == "FILES"
+    limit = ext.engine.max_patches(ext.state.cache_for(s.study_id).seg)
+    assert 4 <= limit < 10
+    assert s.patches == limit
+    assert "patches reduced from 10 to" in s.warnings
+    check_study(ext, coll, t=limit, nu=40, nv=60, nw=4)
+    # patient geometry survives the tilt correction: the face points to -y and the head is upright
+    v = world_mm(ext, s.surface_object)
+    mid_x = 0.5 * (v[:, 0].min() + v[:, 0].max())
+    assert abs(v[np.argmin(v[:, 1]), 0] - mid_x) < 25
+    assert 60 < np.ptp(v[:, 2]) < 200 and 120 < np.ptp(v[:, 0]) < 200
