@@ -1,11 +1,13 @@
 """Step 2: head segmentation with the 3D Chan-Vese soft model (paper eq. 16-21) and clean-up.
 
-The model (eq. 16) is solved on the windowed intensities ``I`` in [0, 1] by
-alternating the region means (eq. 17), the closed-form q step (eq. 20) and
-Chambolle's dual projection (eq. 21), in 3-D with the voxel spacing in mm.
-The soft membership is then thresholded and cleaned up the way the paper
-describes (largest connected component, holes filled), plus the removal of
-what touches the head but is not head (cushions, cloth, head holders).
+The model (eq. 16) is solved on the windowed intensities ``I`` in [0, 1] (air
+-> 0, soft tissue -> 1, :func:`auto_window`) by alternating the region means
+(eq. 17), the closed-form q step (eq. 20) and Chambolle's dual projection
+(eq. 21), in 3-D with the voxel spacing in mm.  The soft membership is then
+thresholded and cleaned up the way the paper describes (largest connected
+component, holes filled), plus the removal of what touches the head but is not
+head (pillows, cloth, table tops, head holders, metal streaks), giving the
+filled outer skin envelope (:func:`clean_head_mask`).
 
 Notation and units
 ------------------
@@ -23,9 +25,18 @@ The paper writes eq. 20 as ``clip(p - theta' r)`` with ``theta' = lam/mu`` and
 ``theta'`` is ``theta * lam``.  (The paper's eq. 21 writes ``q/lam`` where the
 ROF step of its own eq. 19 needs ``q/theta``; we use the consistent form.)
 Gradients are forward differences in mm and ``div = -grad^T`` exactly, so TV
-is measured in mm^2 of surface and ``lam`` is in 1/mm for ``I`` in [0, 1]:
-a structure is kept when ``lam * |r|`` exceeds its mean curvature, roughly when
-it is thicker than ``2 / lam`` mm.
+is measured in mm^2 of surface, ``lam`` is in 1/mm for ``I`` in [0, 1] (a
+structure is kept when ``lam * |r|`` exceeds its mean curvature, roughly when
+it is thicker than ``2 / lam`` mm) and the step bound is
+``tau <= 1 / (4 sum_a 1/h_a^2)`` (:func:`tau_bound`).
+
+Implementation
+--------------
+numpy only, float32.  One outer iteration (eq. 20 + one eq. 21 step + the sums
+of eq. 17) is a single fused sweep over slabs of a few slices that stay in
+cache (:class:`_ChanVeseState`), split over two threads on large slices.  The
+problem is solved coarse to fine: block means of ~2 mm first, then a few
+iterations on the full grid warm-started from the coarse q, (c1, c2) and dual s.
 """
 from __future__ import annotations
 
@@ -51,11 +62,12 @@ class Segmentation:
     mask : ndarray of bool, shape (nz, ny, nx)
         The cleaned head mask.
     probability : ndarray of float32, shape (nz, ny, nx)
-        The soft membership p of eq. 16 before clean-up.
+        The soft membership of eq. 16 before clean-up: q of eq. 20 (in [0, 1]
+        by construction; p = q - theta div s differs from it by O(theta)).
     c1, c2 : float
         Mean windowed intensity inside (head) and outside (air), eq. 17.
     iterations : int
-        Outer iterations run.
+        Outer iterations run (all levels of the coarse-to-fine solve).
     ct : CTVolume
         The volume segmented (for its geometry and intensities); not copied.
     meta : dict
@@ -230,13 +242,17 @@ class _ChanVeseState:
 
     def __init__(self, img: np.ndarray, q: np.ndarray, spacing, theta: float, tau: float,
                  sig: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
-                 slab: int | None = None, threads: int = 1):
+                 slab: int | None = None, threads: int = 1, own_q: bool = False):
         self.img = img
         self.shape = img.shape
         self.spacing = tuple(float(h) for h in spacing)
         self.theta = float(theta)
         self.tau = float(tau)
-        self.neg_q = (q * np.float32(-1.0 / theta)).astype(np.float32)
+        if own_q and q.dtype == np.float32 and q.flags.c_contiguous:
+            self.neg_q = q  # take the caller's buffer over (saves a volume of memory)
+            self.neg_q *= np.float32(-1.0 / theta)
+        else:
+            self.neg_q = np.multiply(q, np.float32(-1.0 / theta), dtype=np.float32)
         if sig is None:
             sig = tuple(np.zeros(self.shape, np.float32) for _ in range(3))
         else:
@@ -396,8 +412,12 @@ class _ChanVeseState:
             results = list(self.pool.map(lambda job: self._sweep_chunk(*job), jobs))
         return tuple(sum(r[i] for r in results) for i in range(3))
 
-    def membership(self) -> np.ndarray:
-        """q = -theta * neg_q, the constrained soft membership in [0, 1]."""
+    def membership(self, release: bool = False) -> np.ndarray:
+        """q = -theta * neg_q, the constrained soft membership in [0, 1] (``release``: in place, state unusable)."""
+        if release:
+            q, self.neg_q = self.neg_q, None
+            q *= np.float32(-self.theta)
+            return q
         return self.neg_q * np.float32(-self.theta)
 
 
@@ -431,7 +451,8 @@ def chan_vese_soft(img: np.ndarray, spacing: Sequence[float], lam: float, theta:
     tolerance : float
         Stop when the root-mean-square change of q in an outer iteration falls below it.
     q0, c0, sig0 :
-        Warm start: membership, (c1, c2) and scaled dual ``s_a / h_a``.
+        Warm start: membership, (c1, c2) and scaled dual ``s_a / h_a``.  The
+        arrays are taken over and modified in place (memory).
 
     Returns
     -------
@@ -441,15 +462,17 @@ def chan_vese_soft(img: np.ndarray, spacing: Sequence[float], lam: float, theta:
     """
     if tau is None:
         tau = tau_bound(spacing)
-    q = img if q0 is None else q0
+    q = img if q0 is None else q0  # a given q0 is taken over (modified in place)
     count = img.size
-    state = _ChanVeseState(img, q, spacing, theta, tau, sig=sig0, slab=slab, threads=threads)
+    if c0 is None:
+        c1, c2 = _region_means(float(q.sum(dtype=np.float64)), float(np.vdot(img.ravel(), q.ravel())),
+                               float(img.sum(dtype=np.float64)), count)
+    else:
+        c1, c2 = c0
+    state = _ChanVeseState(img, q, spacing, theta, tau, sig=sig0, slab=slab, threads=threads,
+                           own_q=q0 is not None)
+    del q, q0
     try:
-        if c0 is None:
-            c1, c2 = _region_means(float(q.sum(dtype=np.float64)),
-                                   float(np.vdot(img.ravel(), q.ravel())), state.img_sum, count)
-        else:
-            c1, c2 = c0
         change = float("nan")
         done = 0
         used = (c1, c2)
@@ -464,7 +487,7 @@ def chan_vese_soft(img: np.ndarray, spacing: Sequence[float], lam: float, theta:
             done = it + 1
             if change < tolerance:
                 break
-        return dict(q=state.membership(), c1=used[0], c2=used[1], iterations=done, change=change,
+        return dict(q=state.membership(release=True), c1=used[0], c2=used[1], iterations=done, change=change,
                     sig=state.sig)
     finally:
         state.close()
@@ -518,15 +541,6 @@ def _resample_nearest(a: np.ndarray, from_factors: Sequence[int], to_factors: Se
 #: 4-connectivity inside each axial slice, no links between slices (per-slice 2-D labelling).
 _IN_SLICE = np.zeros((3, 3, 3), dtype=bool)
 _IN_SLICE[1] = ndi.generate_binary_structure(2, 1)
-
-
-def _disk(spacing_yx: Sequence[float], radius_mm: float) -> np.ndarray:
-    """In-slice disk of ``radius_mm`` as a (1, h, w) structuring element (anisotropic pixels)."""
-    hy, hx = (float(h) for h in spacing_yx)
-    ry, rx = int(radius_mm / hy), int(radius_mm / hx)
-    y, x = np.mgrid[-ry:ry + 1, -rx:rx + 1]
-    disk = (y * hy) ** 2 + (x * hx) ** 2 <= radius_mm ** 2 + 1e-9
-    return disk[None]
 
 
 def _shifted_combine(mask: np.ndarray, offsets: Sequence[tuple[int, ...]], erode: bool) -> np.ndarray:
@@ -624,7 +638,7 @@ def largest_component(mask: np.ndarray, structure: np.ndarray | None = None) -> 
     counts[0] = 0
     order = np.argsort(counts)
     if counts[order[-2]] * 1.5 > counts[order[-1]]:
-        counts = np.bincount(labels.reshape(-1), minlength=n + 1)
+        counts = np.bincount(labels[mask], minlength=n + 1)
         counts[0] = 0
     return labels == np.argmax(counts)
 
@@ -834,8 +848,8 @@ def clean_head_mask(mask: np.ndarray, data: np.ndarray, window: tuple[float, flo
     labels, n = ndi.label(thin)
     head = core
     if n:
-        total = np.bincount(labels.reshape(-1), minlength=n + 1)
-        inside = np.bincount(labels[envelope], minlength=n + 1)
+        total = np.bincount(labels[thin], minlength=n + 1)
+        inside = np.bincount(labels[envelope & thin], minlength=n + 1)
         keep = (_component_extents(labels, n, yx) <= max_thin_extent_mm) | (2 * inside > total)
         keep[0] = False
         stats["thin_kept_voxels"] = int(total[keep].sum())
@@ -937,7 +951,7 @@ def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: flo
     tau : float, optional
         Dual step of eq. 21 in mm^2; default :func:`tau_bound` of each grid.
     iterations : int
-        Outer iterations (eq. 17 + 20 + 21) on the full grid.
+        Outer iterations (eq. 17 + 20 + 21) on the full grid (after the coarse levels).
     levels_mm, level_iterations :
         Voxel sizes (mm) of the coarse levels and their outer iterations; a
         level as fine as the grid passes its iterations on.  ``levels_mm=()``
@@ -961,7 +975,7 @@ def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: flo
         in-slice gradient) with a 2-D clean-up.  The returned ``mask`` and
         ``probability`` are zero on every other slice; ``c1``/``c2`` are the
         means over the selected slices (per slice in ``meta["slices"]``) and
-        ``iterations`` is the largest count run.
+        ``iterations`` is the largest count run on one slice.
     threads : int, optional
         Worker threads of the solver (default: min(2, CPUs)).
 
@@ -970,7 +984,7 @@ def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: flo
     Segmentation
         ``mask`` (bool), ``probability`` (q of eq. 20, float32 in [0, 1]),
         ``c1``/``c2`` (eq. 17, windowed units), ``iterations`` (outer
-        iterations on the full grid), ``ct`` and ``meta`` (window, parameters,
+        iterations of all levels), ``ct`` and ``meta`` (window, parameters,
         solver levels, clean-up statistics).
     """
     if not isinstance(ct, CTVolume):
@@ -1013,8 +1027,8 @@ def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: flo
     if cleanup:
         mask, stats = clean_head_mask(mask, data, window, spacing, **clean_kw)
     meta = dict(mode="volume", window=window, params=params, solver=info, cleanup=stats)
-    return Segmentation(mask=mask, probability=q, c1=res["c1"], c2=res["c2"], iterations=int(info["fine_iterations"]),
-                        ct=ct, meta=meta)
+    total = int(info["fine_iterations"]) + sum(int(level["iterations"]) for level in info["levels"])
+    return Segmentation(mask=mask, probability=q, c1=res["c1"], c2=res["c2"], iterations=total, ct=ct, meta=meta)
 
 
 def _segment_slices(ct: CTVolume, img: np.ndarray, spacing, params: dict, clean_kw: dict,
@@ -1044,9 +1058,8 @@ def _segment_slices(ct: CTVolume, img: np.ndarray, spacing, params: dict, clean_
             except SegmentationError:
                 m = np.zeros_like(m)  # nothing head-like in this slice (above the vertex, below the neck)
         mask[k] = m[0]
-        most = max(most, int(info["fine_iterations"]))
-        per_slice.append(dict(slice=k, c1=res["c1"], c2=res["c2"], iterations=int(info["fine_iterations"]),
-                              cleanup=stats))
+        most = max(most, int(info["fine_iterations"]) + sum(int(lv["iterations"]) for lv in info["levels"]))
+        per_slice.append(dict(slice=k, c1=res["c1"], c2=res["c2"], solver=info, cleanup=stats))
     meta = dict(mode="slices", slices=per_slice, window=params["window"], params=params)
     c1 = float(np.mean([d["c1"] for d in per_slice]))
     c2 = float(np.mean([d["c2"] for d in per_slice]))
