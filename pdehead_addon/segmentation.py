@@ -927,10 +927,10 @@ def _solve_pyramid(img: np.ndarray, spacing: Sequence[float], lam: float, theta:
 
 def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: float | None = None,
                  iterations: int = 6, levels_mm: Sequence[float] = (2.0,),
-                 level_iterations: Sequence[int] = (25,), inner: int = 1, tolerance: float = 1e-4,
+                 level_iterations: Sequence[int] = (20,), inner: int = 1, tolerance: float = 1e-4,
                  window: tuple[float, float] | None = None, threshold: float = 0.5, cleanup: bool = True,
-                 opening_mm: float = 2.5, cushion_level: float | None = 0.85, cushion_mm: float = 2.0, close_mm: float = 6.0,
-                 slices: Sequence[int] | None = None, threads: int | None = None) -> Segmentation:
+                 opening_mm: float = 2.5, cushion_level: float | None = 0.85, cushion_mm: float = 2.0,
+                 close_mm: float = 6.0, slices: Sequence[int] | None = None, threads: int | None = None) -> Segmentation:
     """Segment the head with the 3-D Chan-Vese soft model (eq. 16-21) and clean it up.
 
     The intensities are first windowed to [0, 1] (air -> 0, soft tissue -> 1,
@@ -945,7 +945,9 @@ def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: flo
     ct : CTVolume
     lam : float
         lambda of eq. 16 in 1/mm (intensities in [0, 1]); structures thinner
-        than about ``2 / lam`` mm with a contrast of 1 are smoothed away.
+        than about ``2 / lam`` mm with a contrast of 1 are smoothed away.  The
+        default 3 keeps ear rims and the nasal septum yet beats a threshold
+        clearly at heavy noise (300-400 HU); 1 is smoother and more robust.
     theta : float
         Coupling of eq. 19-21 in mm; the paper's theta of eq. 20 is ``theta * lam``.
     tau : float, optional
