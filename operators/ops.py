@@ -594,7 +594,7 @@ class PDEHEAD_OT_extract_boundaries(Operator, StudyOperator):
 
     patches: IntProperty(name="Patches (t)", default=10, min=1, max=60)
     samples: IntProperty(name="Samples (M)", default=256, min=16, max=4096)
-    selection: EnumProperty(name="Selection", items=props.SELECTION_ITEMS, default="uniform")
+    selection: EnumProperty(name="Selection", items=props.SELECTION_ITEMS, default=props.DEFAULT_SELECTION)
     align_curves: BoolProperty(name="Align Curves", default=True,
                                description="Re-sample the curves so that equal v joins corresponding points "
                                            "(avoids folds where a feature such as the nose is on one curve only)")

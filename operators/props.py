@@ -47,6 +47,9 @@ def _live(what: str):
 DEFAULT_NU = 120
 DEFAULT_NV = 240
 
+#: The add-on's default slice choice: the paper's uniform choice loses the nose and lips at t = 10
+#: (the interpolation between 4 curves folds where the face changes fast); shape-change keeps them.
+DEFAULT_SELECTION = "shape-change"
 SELECTION_ITEMS = [
     ("uniform", "Uniform", "Curves evenly spaced along the head axis"),
     ("shape-change", "Shape Change", "Denser curves where the head's cross-section changes fast (face)"),
@@ -94,7 +97,7 @@ class PDEHeadStudySettings(bpy.types.PropertyGroup):
                          description="Number t of PDE patches; 3t+1 boundary curves are extracted")
     samples: IntProperty(name="Samples (M)", default=256, min=16, max=4096,
                          description="Points per boundary curve")
-    selection: EnumProperty(name="Selection", items=SELECTION_ITEMS, default="uniform",
+    selection: EnumProperty(name="Selection", items=SELECTION_ITEMS, default=DEFAULT_SELECTION,
                             description="How the 3t+1 slices are chosen")
     align_curves: BoolProperty(name="Align Curves", default=True,
                                description="Re-sample the curves so that equal v joins corresponding points "

@@ -44,8 +44,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--phantom", action="store_true", help="use the built-in synthetic head instead of INPUT")
     p.add_argument("--patches", type=int, default=10, help="PDE patches t (3t+1 boundary curves); default 10")
     p.add_argument("--samples", type=int, default=256, help="points per boundary curve; default 256")
-    p.add_argument("--selection", default="uniform", choices=["uniform", "shape-change"],
-                   help="how the 3t+1 slices are chosen")
+    p.add_argument("--selection", default="shape-change", choices=["uniform", "shape-change"],
+                   help="how the 3t+1 slices are chosen; default shape-change (denser where the face changes)")
     p.add_argument("--no-align", action="store_true",
                    help="keep the curves uniform in arc length (no correspondence alignment)")
     p.add_argument("--nu", type=int, default=120, help="surface/solid resolution along u; default 120")
