@@ -48,6 +48,7 @@ import json
 import math
 import os
 import platform
+import re
 import statistics
 import subprocess
 import sys
@@ -835,6 +836,18 @@ def markdown(out: dict) -> str:
          "(the machine is shared; timings are wall clock) |", ""]
     if out.get("notes"):
         L += ["**Notes:** " + " ".join(out["notes"]), ""]
+    peers = []
+    for key, r in out["datasets"].items():
+        for stage in ("segmentation", "surface"):
+            name = _get(r, stage, "peer", "name")
+            if name:
+                name = re.sub(r" on the \([0-9, ]+\) mask", " on the same mask (level 0.5)", name)
+            if name and name not in peers:
+                peers.append(name)
+    if peers:
+        L += ["**Peers** (run in the same process and run as ours): " + "; ".join(f"`{p}`" for p in peers)
+              + "; storage: a binary STL of the marching-cubes mesh, written with numpy. Each mesh stage also"
+              " builds its result as a Blender mesh with the add-on's `build_mesh_object`.", ""]
     L += ["## Targets", "", "| target | goal | measured | status |", "|---|---|---|---|"]
     for t in out.get("targets", []):
         L.append(f"| {t['name']} | {t['target']} | {t['measured']}{(' (' + t['note'] + ')') if t['note'] else ''}"
@@ -957,7 +970,9 @@ def markdown(out: dict) -> str:
     L += ["## Memory", "",
           "RSS = resident set size high-water mark of the process during OUR call only (VmHWM reset through"
           " /proc/self/clear_refs before it), as the increase over the RSS at its start, all repeats included;"
-          " tracemalloc = peak of Python/numpy allocations in a separate untimed pass (CThead, full runs).", "",
+          " it can be lower than what the call allocates when the allocator reuses memory still resident from"
+          " an earlier stage. tracemalloc = peak of the Python/numpy allocations of the call in a separate"
+          " untimed pass (CThead, full runs).", "",
           "| data | stage | RSS increase | tracemalloc peak |", "|---|---|---|---|"]
     for key, r in ds.items():
         tm = r.get("memory_tracemalloc", {})
@@ -1019,6 +1034,8 @@ def parse_args(argv=None):
     p.add_argument("--no-blender", action="store_true", help="skip the Blender mesh builds and the VDB write")
     p.add_argument("--out", type=Path, default=None, help="JSON output (default docs/benchmarks.json)")
     p.add_argument("--md", type=Path, default=None, help="markdown output (default docs/benchmarks.md)")
+    p.add_argument("--render-only", action="store_true",
+                   help="only rewrite the markdown from the JSON (--out) without measuring")
     p.add_argument("--memory-probe", help=argparse.SUPPRESS)
     return p.parse_args(argv)
 
@@ -1028,9 +1045,15 @@ def main(argv=None) -> int:
     if args.memory_probe:
         memory_probe(args.memory_probe)
         return 0
-    out = Bench(args).run()
     json_path = args.out or DOCS / "benchmarks.json"
     md_path = args.md or DOCS / "benchmarks.md"
+    if args.render_only:  # rewrite the markdown (and targets) from an existing JSON, no measuring
+        out = json.loads(json_path.read_text())
+        out["targets"] = targets(out)
+        write_outputs(out, json_path, md_path)
+        print(f"rewrote {md_path} from {json_path}")
+        return 0
+    out = Bench(args).run()
     write_outputs(out, json_path, md_path)
     print(f"wrote {json_path} and {md_path} in {out['total_s']:.0f} s")
     return 0
