@@ -354,7 +354,7 @@ def fig04(data: Data, bl: Blender, args) -> list[Path]:
     d.text((L, B + 4), "v: 0 .. 2pi (60)", fill=(0, 0, 0), font=font(10))
     d.text((2, T - 14), "u: 0..1 (40)", fill=(0, 0, 0), font=font(10))
     label(b, "(b) uv grid", 11, where="tr")
-    out = title_bar(grid([a, b, c, dd], 4), "Fig. 4  CThead, t = 10 (31 boundary curves), 40 x 60 samples", 11)
+    out = title_bar(grid([a, b, c, dd], 4), "Fig. 4  CThead, t = 10 (31 boundary curves, shape-change selection), 40 x 60 samples", 11)
     return [save_png(out, OUT / "fig04_surface.png")]
 
 
@@ -380,8 +380,8 @@ def fig12(data: Data, bl: Blender, args) -> list[Path]:
         text = f"t={t} ({3 * t + 1} sl.)" if t != "mc" else f"MC ({data.ct.shape[0]} sl.)"
         tiles.append(label(bl.png([o], "FRONT", (118, 142), bounds), text, 10))
         o.hide_render = True
-    out = title_bar(grid(tiles, 4), "Fig. 12  CThead PDE heads from 3t+1 slices (front view), and marching\n"
-                                    "cubes of the whole mask for comparison (paper Fig. 11c)", 11)
+    out = title_bar(grid(tiles, 4), "Fig. 12  CThead PDE heads from 3t+1 slices (the add-on's shape-change\n"
+                                    "selection; front view) and marching cubes of the whole mask (Fig. 11c)", 11)
     return [save_png(out, OUT / "fig12_t_series.png")]
 
 
