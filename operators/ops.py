@@ -503,12 +503,29 @@ class StudyOperator:
     study: StringProperty(name="Study", default="", options={'SKIP_SAVE'},
                           description="Collection name of the study (empty: the active study)")
 
+    #: Operator properties that mirror the study's settings: read when invoked, written back when run.
+    mirrored_settings = ()
+
     @classmethod
     def poll(cls, context):
         if state.active_study(context) is not None or state.studies():
             return True
         cls.poll_message_set(NO_STUDY_MESSAGE)
         return False
+
+    def invoke(self, context, event):
+        coll = state.active_study(context, self.study)
+        if coll is not None:
+            s = state.settings(coll)
+            for name in self.mirrored_settings:
+                setattr(self, name, getattr(s, name))
+        return self.execute(context)
+
+    def store_settings(self, s) -> None:
+        """Copy the operator's values into the study settings without triggering live rebuilds."""
+        with props.suspended_updates():
+            for name in self.mirrored_settings:
+                setattr(s, name, getattr(self, name))
 
 
 def _finish_report(op, coll, step: str) -> None:
@@ -599,13 +616,7 @@ class PDEHEAD_OT_extract_boundaries(Operator, StudyOperator):
                                description="Re-sample the curves so that equal v joins corresponding points "
                                            "(avoids folds where a feature such as the nose is on one curve only)")
 
-    def invoke(self, context, event):
-        coll = state.active_study(context, self.study)
-        if coll is not None:
-            s = state.settings(coll)
-            self.patches, self.samples, self.selection = s.patches, s.samples, s.selection
-            self.align_curves = s.align_curves
-        return self.execute(context)
+    mirrored_settings = ("patches", "samples", "selection", "align_curves")
 
     def execute(self, context):
         coll = _active_or_report(self, context)
@@ -614,9 +625,7 @@ class PDEHEAD_OT_extract_boundaries(Operator, StudyOperator):
 
         def body():
             s = state.settings(coll)
-            with props.suspended_updates():
-                s.patches, s.samples, s.selection = self.patches, self.samples, self.selection
-                s.align_curves = self.align_curves
+            self.store_settings(s)
             warnings_before = s.warnings
             step_boundaries(coll)
             self.patches = s.patches  # may have been reduced to what the scan allows
@@ -640,13 +649,7 @@ class PDEHEAD_OT_reconstruct_surface(Operator, StudyOperator):
     smoothing: FloatProperty(name="Smoothing (a)", default=0.03, min=0.0, max=10.0, soft_max=0.5, precision=4)
     modes: IntProperty(name="Fourier Modes", default=0, min=0, max=512, description="0 = all")
 
-    def invoke(self, context, event):
-        coll = state.active_study(context, self.study)
-        if coll is not None:
-            s = state.settings(coll)
-            for name in ("nu", "nv", "caps", "smoothing_auto", "smoothing", "modes"):
-                setattr(self, name, getattr(s, name))
-        return self.execute(context)
+    mirrored_settings = ("nu", "nv", "caps", "smoothing_auto", "smoothing", "modes")
 
     def execute(self, context):
         coll = _active_or_report(self, context)
@@ -655,9 +658,7 @@ class PDEHEAD_OT_reconstruct_surface(Operator, StudyOperator):
 
         def body():
             s = state.settings(coll)
-            with props.suspended_updates():
-                for name in ("nu", "nv", "caps", "smoothing_auto", "smoothing", "modes"):
-                    setattr(s, name, getattr(self, name))
+            self.store_settings(s)
             if state.boundary_set(coll) is None:
                 step_boundaries(coll)
             step_surface(coll)
@@ -681,13 +682,7 @@ class PDEHEAD_OT_build_solid(Operator, StudyOperator):
                                  max=6.283185307179586)
     w_range: FloatVectorProperty(name="w Range", size=2, default=(0.0, 1.0), min=0.0, max=1.0)
 
-    def invoke(self, context, event):
-        coll = state.active_study(context, self.study)
-        if coll is not None:
-            s = state.settings(coll)
-            for name in ("nu", "nv", "nw", "u_range", "v_range", "w_range"):
-                setattr(self, name, getattr(s, name))
-        return self.execute(context)
+    mirrored_settings = ("nu", "nv", "nw", "u_range", "v_range", "w_range")
 
     def execute(self, context):
         coll = _active_or_report(self, context)
@@ -700,9 +695,7 @@ class PDEHEAD_OT_build_solid(Operator, StudyOperator):
                 if lo_hi[0] >= lo_hi[1]:
                     raise PDEHeadError(f"{name} range must have its start below its end, got "
                                        f"{lo_hi[0]:g}..{lo_hi[1]:g}")
-            with props.suspended_updates():
-                for name in ("nu", "nv", "nw", "u_range", "v_range", "w_range"):
-                    setattr(s, name, getattr(self, name))
+            self.store_settings(s)
             if state.boundary_set(coll) is None:
                 step_boundaries(coll)
             step_solid(coll)
@@ -726,15 +719,8 @@ class PDEHEAD_OT_build_volume(Operator, StudyOperator):
     colour_preset: EnumProperty(name="Colour", items=props.COLOUR_ITEMS, default="grayscale")
     alpha_mode: EnumProperty(name="Alpha Mode", items=props.ALPHA_MODE_ITEMS, default="EQ24")
 
-    _FIELDS = ("use_ct_grid", "voxel_size", "low_alpha", "high_alpha", "density", "colour_preset", "alpha_mode")
-
-    def invoke(self, context, event):
-        coll = state.active_study(context, self.study)
-        if coll is not None:
-            s = state.settings(coll)
-            for name in self._FIELDS:
-                setattr(self, name, getattr(s, name))
-        return self.execute(context)
+    mirrored_settings = ("use_ct_grid", "voxel_size", "low_alpha", "high_alpha", "density", "colour_preset",
+                         "alpha_mode")
 
     def execute(self, context):
         coll = _active_or_report(self, context)
@@ -743,9 +729,7 @@ class PDEHEAD_OT_build_volume(Operator, StudyOperator):
 
         def body():
             s = state.settings(coll)
-            with props.suspended_updates():
-                for name in self._FIELDS:
-                    setattr(s, name, getattr(self, name))
+            self.store_settings(s)
             if state.boundary_set(coll) is None:
                 step_boundaries(coll)
             step_volume(coll, context)

@@ -316,3 +316,23 @@ def test_ge_tilted_series_one_click_reduces_patches_to_what_the_scan_allows(ext,
     mid_x = 0.5 * (v[:, 0].min() + v[:, 0].max())
     assert abs(v[np.argmin(v[:, 1]), 0] - mid_x) < 25
     assert 60 < np.ptp(v[:, 2]) < 200 and 120 < np.ptp(v[:, 0]) < 200
+
+
+def test_invoking_an_operator_starts_from_the_study_settings_and_running_stores_them(ext, phantom_blend):
+    """Redo-panel round trip: invoke copies the study's settings into the operator, execute writes them back.
+
+    Headless Blender never calls invoke (no window), so the mixin's invoke is called as a function."""
+    import bpy
+
+    coll = open_blend(phantom_blend)
+    s = coll.pdehead
+    with ext.ops.props.suspended_updates():
+        s.nu, s.nv, s.caps = 24, 36, False
+    op_class = ext.ops.PDEHEAD_OT_reconstruct_surface
+    fake = SimpleNamespace(study="", nu=0, nv=0, caps=True, smoothing_auto=True, smoothing=0.0, modes=0,
+                           mirrored_settings=op_class.mirrored_settings, execute=lambda context: {'FINISHED'})
+    assert op_class.invoke(fake, bpy.context, None) == {'FINISHED'}
+    assert (fake.nu, fake.nv, fake.caps, fake.modes) == (24, 36, False, s.modes)
+    assert bpy.ops.pdehead.reconstruct_surface(nu=30, nv=40, caps=False) == {'FINISHED'}
+    assert (s.nu, s.nv) == (30, 40)
+    assert len(s.surface_object.data.vertices) == 30 * 40
