@@ -121,3 +121,19 @@ def cthead_blend(pdehead_ext, tmp_path_factory, pytestconfig) -> Path:
         bpy.ops.pdehead.build_volume(voxel_size=3.0)
     return _run_and_save(pdehead_ext, tmp_path_factory, "cthead", run)
 
+
+@pytest.fixture(scope="session")
+def B(pdehead_ext):
+    """The installed extension's Blender-layer modules (coords, objects, volume, render)."""
+    import importlib
+    from types import SimpleNamespace
+    ops = pdehead_ext.operators
+    return SimpleNamespace(**{n: importlib.import_module(f"{ops.__name__}.{n}")
+                              for n in ("coords", "objects", "volume", "render")})
+
+
+@pytest.fixture(scope="session")
+def phantom_head(phantom_seg):
+    """The engine's PDE head of the phantom (t = 10, M = 128)."""
+    from pdehead_addon import extract_boundaries, solve_pde
+    return solve_pde(extract_boundaries(phantom_seg, patches=10, samples=128))

@@ -16,16 +16,6 @@ MM = 0.001
 
 
 @pytest.fixture(scope="module")
-def B(pdehead_ext):
-    """The installed extension's Blender-layer modules."""
-    from types import SimpleNamespace
-    ops = pdehead_ext.operators
-    import importlib
-    return SimpleNamespace(**{n: importlib.import_module(f"{ops.__name__}.{n}")
-                              for n in ("coords", "objects", "volume", "render")})
-
-
-@pytest.fixture(scope="module")
 def phantom_bset(phantom_seg):
     from pdehead_addon import extract_boundaries
     return extract_boundaries(phantom_seg, patches=10, samples=128)

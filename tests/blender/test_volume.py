@@ -19,20 +19,6 @@ MM = 0.001
 
 
 @pytest.fixture(scope="module")
-def B(pdehead_ext):
-    import importlib
-    ops = pdehead_ext.operators
-    return SimpleNamespace(**{n: importlib.import_module(f"{ops.__name__}.{n}")
-                              for n in ("coords", "objects", "volume", "render")})
-
-
-@pytest.fixture(scope="module")
-def phantom_head(phantom_seg):
-    from pdehead_addon import extract_boundaries, solve_pde
-    return solve_pde(extract_boundaries(phantom_seg, patches=10, samples=128))
-
-
-@pytest.fixture(scope="module")
 def phantom_wfield(phantom_head, phantom):
     return phantom_head.w_field(3.0, ct=phantom.ct)
 
