@@ -82,7 +82,7 @@ from skimage import measure
 
 from .boundary_set import BoundarySet, knots_from_heights
 from .errors import BoundaryError
-from .parameterisation import PARAMETERISATIONS, align_parameterisation, smooth_closed_curve
+from .parameterisation import PARAMETERISATIONS, align_parameterisation, closed_arc_length, smooth_closed_curve
 
 __all__ = [
     "extract_boundaries", "boundary_ring", "outer_region", "close_region", "outer_contour", "contour_from_mask",
@@ -363,16 +363,7 @@ def resample_closed_curve(points: np.ndarray, samples: int, start: float = 0.0) 
         interpolation of cumulative chord length, L = perimeter).
     """
     p = np.asarray(points, dtype=np.float64)
-    if p.ndim != 2 or len(p) < 3:
-        raise BoundaryError(f"need a closed polyline of at least 3 points, got shape {p.shape}")
-    closed = np.vstack([p, p[:1]])
-    seg = np.linalg.norm(np.diff(closed, axis=0), axis=1)
-    s = np.concatenate([[0.0], np.cumsum(seg)])
-    length = s[-1]
-    if not length > 0:
-        raise BoundaryError("degenerate curve of zero length")
-    keep = np.concatenate([[True], seg > 0])  # np.interp needs increasing abscissae
-    s, closed = s[keep], closed[keep]
+    s, closed, length = closed_arc_length(p)
     target = np.mod(start + length * np.arange(samples) / samples, length)
     return np.stack([np.interp(target, s, closed[:, d]) for d in range(p.shape[1])], axis=1)
 

@@ -31,6 +31,32 @@ __all__ = ["smooth_closed_curve", "align_parameterisation", "correspondence_erro
 PARAMETERISATIONS = ("aligned", "arc-length")
 
 
+def closed_arc_length(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Cumulative chord length along a closed polyline (last point not repeated).
+
+    Returns
+    -------
+    s : ndarray, shape (Q,)
+        Strictly increasing arc length of each kept vertex, from 0 to the perimeter.
+    closed : ndarray, shape (Q, d)
+        The vertices with the first repeated at the end; zero-length steps dropped
+        (so ``s`` can be an ``np.interp`` abscissa).
+    length : float
+        The perimeter.
+    """
+    p = np.asarray(points, dtype=np.float64)
+    if p.ndim != 2 or len(p) < 3:
+        raise BoundaryError(f"need a closed polyline of at least 3 points, got shape {p.shape}")
+    closed = np.vstack([p, p[:1]])
+    seg = np.linalg.norm(np.diff(closed, axis=0), axis=1)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    length = float(s[-1])
+    if not length > 0:
+        raise BoundaryError("degenerate curve of zero length")
+    keep = np.concatenate([[True], seg > 0])
+    return s[keep], closed[keep], length
+
+
 def smooth_closed_curve(points: np.ndarray, sigma: float, step: float | None = None) -> np.ndarray:
     """Periodic Gaussian low-pass of a closed polyline along its arc length.
 
@@ -53,21 +79,12 @@ def smooth_closed_curve(points: np.ndarray, sigma: float, step: float | None = N
         the input (a curve in a plane z = const) stay exactly constant.
     """
     p = np.asarray(points, dtype=np.float64)
-    if p.ndim != 2 or len(p) < 3:
-        raise BoundaryError(f"need a closed polyline of at least 3 points, got shape {p.shape}")
     sigma = float(sigma)
     if not (np.isfinite(sigma) and sigma >= 0):
         raise BoundaryError(f"curve smoothing sigma must be >= 0, got {sigma!r}")
+    s, closed, length = closed_arc_length(p)
     if sigma == 0:
         return p.copy()
-    closed = np.vstack([p, p[:1]])
-    seg = np.linalg.norm(np.diff(closed, axis=0), axis=1)
-    s = np.concatenate([[0.0], np.cumsum(seg)])
-    length = s[-1]
-    if not length > 0:
-        raise BoundaryError("degenerate curve of zero length")
-    keep = np.concatenate([[True], seg > 0])
-    s, closed = s[keep], closed[keep]
     step = sigma / 4.0 if step is None else float(step)
     n = max(len(p), int(np.ceil(length / step)))
     target = length * np.arange(n) / n
