@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import compat, vdb_writer
 from .coords import grid_affine_world
 
 OUTSIDE_BACKGROUND = 2.0  #: value of ``w`` outside the solid (any value > 1 means outside)
@@ -205,11 +206,9 @@ def blender_filepath(path: str | os.PathLike) -> str:
 
 
 def _openvdb():
-    import bpy
-
-    bpy.utils.expose_bundled_modules()
-    import openvdb  # noqa: PLC0415 (bundled with Blender, importable only after the call above)
-
+    openvdb = compat.openvdb_module()
+    if openvdb is None:
+        raise RuntimeError("this Blender has no OpenVDB Python bindings (openvdb/pyopenvdb) to read .vdb files")
     return openvdb
 
 
@@ -242,7 +241,7 @@ def write_vdb(wfield, path, window, *, ct=None, origin_m=(0.0, 0.0, 0.0)) -> Pat
     -------
     Path of the written file.
     """
-    openvdb = _openvdb()
+    openvdb = compat.openvdb_module()
     path = Path(os.fspath(path))
     path.parent.mkdir(parents=True, exist_ok=True)
 
@@ -271,6 +270,12 @@ def write_vdb(wfield, path, window, *, ct=None, origin_m=(0.0, 0.0, 0.0)) -> Pat
         ct_affine[:3, 3] -= np.asarray(origin_m, dtype=np.float64)
         yield "ct", apply_window(data, window), 0.0, True, ct_affine.T.tolist()
 
+    window_meta = f"{float(window[0])!r} {float(window[1])!r}"
+    if openvdb is None:  # no bindings (bpy 4.2 from PyPI): our own writer, same grids and values
+        return vdb_writer.write_vdb(path, (
+            vdb_writer.DenseGrid(name, data.transpose(2, 1, 0), background, half, rows,
+                                 {"pdehead_window": window_meta} if name == "w" else {})
+            for name, data, background, half, rows in grids()))
     written = []
     try:
         for name, data, background, half, rows in grids():
@@ -283,7 +288,7 @@ def write_vdb(wfield, path, window, *, ct=None, origin_m=(0.0, 0.0, 0.0)) -> Pat
             grid.gridClass = openvdb.GridClass.FOG_VOLUME
             grid.saveFloatAsHalf = half  # display data in [0, 1]: half precision is plenty, half the file
             written.append(grid)
-        written[0]["pdehead_window"] = f"{float(window[0])!r} {float(window[1])!r}"
+        written[0]["pdehead_window"] = window_meta
         openvdb.write(str(path), grids=written)
     finally:
         del written[:]  # free the grids now: nanobind reports "leaked" objects at exit otherwise

@@ -92,6 +92,8 @@ def register_addon():
     sys.modules["pdehead_dev"] = module
     spec.loader.exec_module(module)
     module.register()
+    # the bpy 4.2 / 4.5 modules crash / hang at exit with add-on classes still registered
+    importlib.import_module("pdehead_dev.operators.compat").unregister_at_exit(module.unregister)
     return module
 
 

@@ -1,6 +1,8 @@
 """Real-Blender test set-up: the BUILT extension zip installed into a temporary user folder.
 
-- ``extension_zip`` (session): ``scripts/build_extension.py --platform linux-x64`` into a temp folder.
+- ``extension_zip`` (session): the linux-x64 zip named by ``PDEHEAD_EXTENSION_ZIP`` (``.ci/run`` builds the
+  zips once and every Blender leg installs the same one), else ``scripts/build_extension.py --platform
+  linux-x64`` into a temp folder.
 - ``pdehead_ext`` (session): that zip installed and enabled offline with
   ``bpy.ops.extensions.package_install_files`` into ``BLENDER_USER_RESOURCES`` (a temp folder set by
   tests/conftest.py before bpy is imported); returns the module ``bl_ext.user_default.pdehead``.
@@ -31,7 +33,12 @@ def pytest_collection_modifyitems(config, items):
 
 @pytest.fixture(scope="session")
 def extension_zip(tmp_path_factory) -> Path:
-    """The linux-x64 extension zip built from the working tree (once per session)."""
+    """The linux-x64 extension zip: $PDEHEAD_EXTENSION_ZIP, else built from the working tree (once per session)."""
+    given = os.environ.get("PDEHEAD_EXTENSION_ZIP")
+    if given:
+        assert Path(given).is_file(), f"PDEHEAD_EXTENSION_ZIP={given}: no such file"
+        assert Path(given).name == "pdehead-0.1.0-linux_x64.zip", given
+        return Path(given)
     out = tmp_path_factory.mktemp("pdehead-dist")
     result = subprocess.run([sys.executable, str(ROOT / "scripts" / "build_extension.py"),
                              "--platform", "linux-x64", "--output-dir", str(out)],
@@ -53,7 +60,11 @@ def pdehead_ext(extension_zip):
                                                       enable_on_install=True)
     assert result == {'FINISHED'}
     assert EXTENSION_MODULE in bpy.context.preferences.addons
-    return importlib.import_module(EXTENSION_MODULE)
+    module = importlib.import_module(EXTENSION_MODULE)
+    import addon_utils
+    # the bpy 4.2 / 4.5 modules crash / hang at exit with add-on classes still registered
+    module.operators.compat.unregister_at_exit(lambda: addon_utils.disable(EXTENSION_MODULE, default_set=False))
+    return module
 
 
 @pytest.fixture(autouse=True)
@@ -124,12 +135,12 @@ def cthead_blend(pdehead_ext, tmp_path_factory, pytestconfig) -> Path:
 
 @pytest.fixture(scope="session")
 def B(pdehead_ext):
-    """The installed extension's Blender-layer modules (coords, objects, volume, render)."""
+    """The installed extension's Blender-layer modules (coords, objects, volume, render, compat, vdb_writer)."""
     import importlib
     from types import SimpleNamespace
     ops = pdehead_ext.operators
     return SimpleNamespace(**{n: importlib.import_module(f"{ops.__name__}.{n}")
-                              for n in ("coords", "objects", "volume", "render")})
+                              for n in ("coords", "objects", "volume", "render", "compat", "vdb_writer")})
 
 
 @pytest.fixture(scope="session")

@@ -28,10 +28,10 @@ def _keep(path, name):
     return path
 
 
-def _emissive(name, rgb):
+def _emissive(B, name, rgb):
     import bpy
     mat = bpy.data.materials.new(name)
-    bsdf = mat.node_tree.nodes["Principled BSDF"]
+    bsdf = B.compat.node_tree(mat).nodes["Principled BSDF"]
     bsdf.inputs["Base Color"].default_value = (*rgb, 1.0)
     bsdf.inputs["Emission Color"].default_value = (*rgb, 1.0)
     bsdf.inputs["Emission Strength"].default_value = 1.0
@@ -45,7 +45,7 @@ def _marker(B, coll, name, centre_mm, rgb, size_mm=8.0):
     cube = np.array([[x, y, z] for x in (-h, h) for y in (-h, h) for z in (-h, h)]) + np.asarray(centre_mm)
     quads = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]]
     obj = B.objects.build_mesh_object(Mesh(cube, quads), coll, name)
-    obj.data.materials.append(_emissive(name, rgb))
+    obj.data.materials.append(_emissive(B, name, rgb))
     obj.visible_diffuse = obj.visible_glossy = obj.visible_transmission = False  # no light onto the head
     obj.visible_shadow = False
     return obj
@@ -103,7 +103,7 @@ def test_render_restores_the_scene(B, phantom_head, tmp_path):
     user_cam = bpy.data.objects.new("user camera", bpy.data.cameras.new("user camera"))
     scene.collection.objects.link(user_cam)
     scene.camera = user_cam
-    scene.render.engine = "BLENDER_EEVEE"
+    scene.render.engine = B.compat.eevee_engine()
     scene.render.resolution_x, scene.render.resolution_y = 1920, 1080
     scene.cycles.samples = 77
     world = scene.world
@@ -112,7 +112,7 @@ def test_render_restores_the_scene(B, phantom_head, tmp_path):
     stats = B.render.image_stats(png)
     assert B.render.read_png(png).shape == (96, 96, 4)
     assert 0.05 < stats["foreground_fraction"] < 0.8  # from alpha
-    assert scene.camera == user_cam and scene.render.engine == "BLENDER_EEVEE" and scene.world == world
+    assert scene.camera == user_cam and scene.render.engine == B.compat.eevee_engine() and scene.world == world
     assert (scene.render.resolution_x, scene.render.resolution_y, scene.cycles.samples) == (1920, 1080, 77)
     assert not other.hide_render and not scene.render.film_transparent
     assert {k: len(getattr(bpy.data, k)) for k in counts} == counts  # temporaries removed

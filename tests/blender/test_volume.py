@@ -55,7 +55,16 @@ def _oblique_wfield():
                            direction=direction)
 
 
+def _needs_openvdb(B):
+    """Skip the rest of a test that reads .vdb files back, on Blenders without OpenVDB bindings (bpy 4.2)."""
+    import bpy
+    if not B.compat.has_openvdb():
+        pytest.skip(f"bpy {bpy.app.version_string} has no OpenVDB Python bindings to read .vdb files back; "
+                    "its volumes come from operators/vdb_writer.py (tests/blender/test_vdb_writer.py)")
+
+
 def test_write_vdb_grids_values_and_transform(B, tmp_path):
+    _needs_openvdb(B)
     from pdehead_addon import CTVolume
     wf = _oblique_wfield()
     ct = CTVolume(wf.intensity + 5.0, wf.spacing, wf.origin, wf.direction)  # the full CT on the same grid
@@ -94,6 +103,7 @@ def test_write_vdb_grids_values_and_transform(B, tmp_path):
 
 
 def test_ct_grid_covers_the_whole_ct_box_on_its_own_grid(B, tmp_path):
+    _needs_openvdb(B)
     """A CT on another grid keeps its own grid (whole box, own transform), decimated to the w-field voxel."""
     from pdehead_addon import CTVolume
     wf = _oblique_wfield()                                               # voxels 4.0 x 1.08 x 0.9 mm
@@ -133,6 +143,7 @@ def test_volume_object_lines_up_with_the_surface(B, phantom, phantom_head, phant
     to_world = np.array(vol.matrix_world) @ np.array(grids["w"].matrix_object)
     expected = B.coords.grid_affine_world(wf.spacing, wf.origin, wf.direction)
     np.testing.assert_allclose(to_world, expected, atol=1e-7)
+    _needs_openvdb(B)
     # the active w voxels (the solid) cover the same box as the surface mesh, to a voxel
     info = B.volume.read_vdb_grids(bpy.path.abspath(vol.data.filepath))
     (i0, j0, k0), (i1, j1, k1) = info["w"]["active_box"]
@@ -152,13 +163,16 @@ def test_volume_object_lines_up_with_the_surface(B, phantom, phantom_head, phant
     B.volume.set_volume_settings(vol, alpha_mode="INTENSITY")
     lo, hi = B.render.world_bounds([vol])
     ct_lo, ct_hi = (np.asarray(b) * MM for b in phantom.ct.bounds())
-    assert np.all(lo <= ct_lo + voxel) and np.all(hi >= ct_hi - voxel)  # the CT box, to a decimated voxel
+    # the CT box, to a decimated voxel (Blender 4.5's volume bound box spans the voxel centres, 5.0+ the
+    # voxel boundaries: half a voxel more; 1e-6 m absorbs float32 rounding at exactly one voxel)
+    assert np.all(lo <= ct_lo + voxel + 1e-6) and np.all(hi >= ct_hi - voxel - 1e-6)
     assert np.all(lo <= surf_world.min(0)) and np.all(hi >= surf_world.max(0))
 
 
 # ----------------------------------------------------------------------------- the material
 def _link_into(tree, node, socket_name):
-    links = [lk for lk in tree.links if lk.to_node == node and lk.to_socket.name == socket_name]
+    links = [lk for lk in tree.links if lk.to_node == node and socket_name in (lk.to_socket.name,
+                                                                              lk.to_socket.identifier)]
     assert len(links) == 1, f"{node.name}.{socket_name} is not linked"
     return links[0].from_node, links[0].from_socket
 
@@ -179,7 +193,7 @@ def test_volume_material_node_tree(B, tmp_path):
     assert _link_into(tree, pv, "Emission Strength")[0] == group
     ramp, _ = _link_into(tree, pv, "Color")
     assert ramp.bl_idname == "ShaderNodeValToRGB" and _link_into(tree, pv, "Emission Color")[0] == ramp
-    assert _link_into(tree, ramp, "Factor")[0] == group
+    assert _link_into(tree, ramp, "Fac")[0] == group  # identifier (named "Factor" from 5.0, "Fac" before)
     for socket_name, grid in (("W", "w"), ("Intensity", "intensity"), ("CT", "ct")):
         attr, out_socket = _link_into(tree, group, socket_name)
         assert attr.bl_idname == "ShaderNodeAttribute" and attr.attribute_name == grid

@@ -1,0 +1,100 @@
+"""Every difference between the supported Blender versions (4.2 LTS .. 5.3), in one place.
+
+Tested with bpy from PyPI 4.2.23, 4.5.15, 5.0.1 (Python 3.11, numpy 1.26) and 5.3.0
+(Python 3.13, numpy 2.5) by ``.ci/run``. The differences that matter to PDE Head:
+
+- ``bpy.utils.expose_bundled_modules()`` (puts Blender's bundled ``openvdb`` on
+  ``sys.path``) exists from Blender 4.4; before, the bindings (where there are any) are
+  importable directly.
+- The OpenVDB Python bindings are ``openvdb`` from 4.4 and ``pyopenvdb`` before (the
+  Blender 4.2/4.3 applications are reported to bundle ``pyopenvdb``); the 4.2 ``bpy``
+  module from PyPI has neither. Without bindings, .vdb files are written by our own
+  :mod:`.vdb_writer` (dense float grids), which every Blender reads.
+- The extension's wheels unpack into ``extensions/.local/lib/python3.X/site-packages``
+  with the Python of the running Blender.
+"""
+from __future__ import annotations
+
+import sys
+from types import ModuleType
+
+_UNSET = object()
+_openvdb_cache: object = _UNSET
+
+
+def expose_bundled_modules() -> bool:
+    """Put Blender's bundled extra modules (``openvdb``) on ``sys.path`` where Blender can (4.4+).
+
+    Returns False on Blenders without ``bpy.utils.expose_bundled_modules`` (4.2, 4.3).
+    """
+    import bpy
+
+    expose = getattr(bpy.utils, "expose_bundled_modules", None)
+    if expose is None:
+        return False
+    expose()
+    return True
+
+
+def openvdb_module() -> ModuleType | None:
+    """Blender's OpenVDB Python bindings (``openvdb`` or, before 4.4, ``pyopenvdb``), or None if it has none."""
+    global _openvdb_cache
+    if _openvdb_cache is _UNSET:
+        expose_bundled_modules()
+        module = None
+        for name in ("openvdb", "pyopenvdb"):
+            try:
+                module = __import__(name)
+                break
+            except ImportError:
+                continue
+        _openvdb_cache = module
+    return _openvdb_cache  # type: ignore[return-value]
+
+
+def has_openvdb() -> bool:
+    """True if this Blender has OpenVDB Python bindings (else .vdb files come from :mod:`.vdb_writer`)."""
+    return openvdb_module() is not None
+
+
+def extension_site_packages(extensions_dir) -> str:
+    """Folder where Blender unpacks extension wheels, for the running Python (3.11 or 3.13)."""
+    import os
+    return os.path.join(os.fspath(extensions_dir), ".local", "lib",
+                        f"python{sys.version_info[0]}.{sys.version_info[1]}", "site-packages")
+
+
+def unregister_at_exit(unregister) -> None:
+    """Call ``unregister`` when the Python process exits (for the ``bpy`` module, not the Blender app).
+
+    With add-on classes still registered at interpreter exit, the bpy 4.2 module crashes
+    (SIGSEGV) and the 4.5 module hangs; Blender itself unregisters add-ons on quit, but a
+    script that imports ``bpy`` and registers PDE Head (the headless CLI, the tests) must.
+    """
+    import atexit
+
+    def _unregister():
+        try:
+            unregister()
+        except Exception:  # noqa: BLE001 (already unregistered, or Blender half torn down: nothing to do)
+            pass
+
+    atexit.register(_unregister)
+
+
+def eevee_engine() -> str:
+    """The EEVEE render-engine id: ``BLENDER_EEVEE_NEXT`` in 4.2 - 4.5, ``BLENDER_EEVEE`` before and from 5.0."""
+    import bpy
+
+    return "BLENDER_EEVEE_NEXT" if (4, 2, 0) <= bpy.app.version < (5, 0, 0) else "BLENDER_EEVEE"
+
+
+def node_tree(material_or_world):
+    """The shader node tree of a material or world, turning nodes on first where needed.
+
+    A new material or world has no node tree before Blender 5.0 (``use_nodes`` False); from
+    5.0 it always has one and ``use_nodes`` is deprecated, so it is only set when needed.
+    """
+    if material_or_world.node_tree is None:
+        material_or_world.use_nodes = True
+    return material_or_world.node_tree
