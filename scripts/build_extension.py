@@ -9,10 +9,13 @@ Usage::
 
 What it does:
 
-1. downloads, once, the wheels of the engine's dependencies for each platform with
-   ``pip download --only-binary=:all: --platform ... --python-version 3.11 --no-deps``
-   into ``build/wheels/<platform>/`` (gitignored; reused offline on the next build).
-   numpy is *not* shipped: Blender brings its own.
+1. downloads, once, the wheels of the engine's dependencies for each platform and each
+   Python that a supported Blender embeds (3.11 for Blender 4.2 - 5.0, 3.13 for 5.1+) with
+   ``pip download --only-binary=:all: --platform ... --python-version 3.x --no-deps``
+   into ``~/.cache/pdehead/wheels/<platform>/cp3xx/`` (``$PDEHEAD_CACHE/wheels``; reused offline).
+   numpy is *not* shipped: Blender brings its own (1.26 up to 5.0, 2.x from 5.1).
+   Blender installs only the wheels matching its own Python and platform, so one zip
+   per platform serves every Blender from 4.2 to 5.3.
 2. copies the shipped sources (root ``__init__.py``, ``operators/``, ``pdehead_addon/``)
    into ``build/extension_src/`` with the wheels, and writes a build copy of
    ``blender_manifest.toml`` there that lists the ``wheels`` and ``platforms``
@@ -26,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
 import shutil
 import subprocess
@@ -34,20 +38,31 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 BUILD = ROOT / "build"
-WHEEL_CACHE = BUILD / "wheels"
+# Downloaded wheels are kept outside the clone (beside the project venvs, see scripts/venv.sh),
+# so a fresh clone builds offline once they are there.
+WHEEL_CACHE = Path(os.environ.get("PDEHEAD_CACHE")
+                   or Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "pdehead") / "wheels"
 
 # Blender platform -> pip --platform tags (pip also accepts older manylinux/macOS versions).
 PLATFORM_TAGS: dict[str, list[str]] = {
-    "linux-x64": ["manylinux_2_28_x86_64", "manylinux_2_17_x86_64", "manylinux2014_x86_64"],
+    # Blender 4.2+ needs glibc 2.28; manylinux_2_31 (last, so only taken when nothing older exists)
+    # is for pylibjpeg-libjpeg 2.5.0, whose only Linux wheel needs glibc 2.31 (Ubuntu 20.04+, Debian 11+).
+    "linux-x64": ["manylinux_2_28_x86_64", "manylinux_2_17_x86_64", "manylinux2014_x86_64",
+                  "manylinux_2_31_x86_64"],
     "windows-x64": ["win_amd64"],
     "macos-arm64": ["macosx_14_0_arm64", "macosx_12_0_arm64", "macosx_11_0_arm64"],
     "macos-x64": ["macosx_14_0_x86_64", "macosx_10_14_x86_64", "macosx_10_9_x86_64"],
 }
-PYTHON_VERSION = "3.11"  # Blender 4.2 - 5.0 embed Python 3.11
+# Python of each supported Blender: 4.2 - 5.0 embed 3.11, 5.1 - 5.3 embed 3.13.
+PYTHON_VERSIONS = ("3.11", "3.13")
 
 # The engine's direct requirements are pinned in requirements.txt; their own dependencies
 # (from `pip show` / the wheels' Requires-Dist) are pinned here to the versions tested with.
 ENGINE_REQUIREMENTS = ("scikit-image", "scipy", "pydicom")
+# pydicom's decoders for compressed DICOM (JPEG, JPEG-LS, JPEG 2000); shipped when pinned in
+# requirements.txt. A platform/Python without a wheel for one of them is reported by the build
+# (the zip then lacks that decoder there and the engine says so when it meets such a file).
+DECODER_REQUIREMENTS = ("pylibjpeg", "pylibjpeg-openjpeg", "pylibjpeg-libjpeg")
 TRANSITIVE_PINS = {
     # scikit-image 0.26.0 requires these (numpy excluded: Blender ships it)
     "imageio": "2.38.1",
@@ -78,43 +93,64 @@ def shipped_requirements() -> list[str]:
     missing = [name for name in ENGINE_REQUIREMENTS if name not in pins]
     if missing:
         raise SystemExit(f"requirements.txt: no '==' pin for {', '.join(missing)}")
-    reqs = {name: pins[name] for name in ENGINE_REQUIREMENTS}
+    reqs = {name: pins[name] for name in ENGINE_REQUIREMENTS + DECODER_REQUIREMENTS if name in pins}
     reqs.update(TRANSITIVE_PINS)
     return [f"{name}=={version}" for name, version in sorted(reqs.items()) if name not in NOT_SHIPPED]
 
 
-def download_wheels(platform: str, requirements: list[str]) -> list[Path]:
-    """Wheels for ``platform`` in build/wheels/<platform>/, downloading only what is not cached."""
-    folder = WHEEL_CACHE / platform
+def _wheel_tag(python: str) -> str:
+    return "cp" + python.replace(".", "")
+
+
+def download_wheels(platform: str, python: str, requirements: list[str],
+                    optional: set[str] = frozenset()) -> tuple[list[Path], list[str]]:
+    """Wheels for ``platform`` and ``python`` in WHEEL_CACHE/<platform>/cp3xx/, downloading only what is not cached.
+
+    Returns ``(wheels, missing)``: ``missing`` lists the requirements in ``optional`` (by name)
+    that have no wheel for this platform and Python; any other missing wheel stops the build.
+    """
+    folder = WHEEL_CACHE / platform / _wheel_tag(python)
     folder.mkdir(parents=True, exist_ok=True)
     index_path = folder / "index.json"
     index = json.loads(index_path.read_text()) if index_path.exists() else {}
-    wheels = []
+    wheels, missing = [], []
+    tags = ",".join(PLATFORM_TAGS[platform])
     for req in requirements:
-        cached = index.get(req)
+        key = f"{req} {tags}"  # a change of platform tags downloads again
+        cached = index.get(key)
         if cached and (folder / cached).exists():
             wheels.append(folder / cached)
             continue
+        name = req.split("==")[0].lower()
+        if cached == "" and name in optional:  # known to have no wheel here
+            missing.append(req)
+            continue
         before = set(folder.glob("*.whl"))
         cmd = [sys.executable, "-m", "pip", "download", "--quiet", "--disable-pip-version-check",
-               "--only-binary=:all:", "--no-deps", "--python-version", PYTHON_VERSION,
+               "--only-binary=:all:", "--no-deps", "--python-version", python,
                "--implementation", "cp", "--dest", str(folder)]
         for tag in PLATFORM_TAGS[platform]:
             cmd += ["--platform", tag]
         cmd.append(req)
-        print(f"[{platform}] pip download {req}", flush=True)
+        print(f"[{platform} {_wheel_tag(python)}] pip download {req}", flush=True)
         result = subprocess.run(cmd, capture_output=True, text=True)
         if result.returncode:
-            raise SystemExit(f"pip download {req} for {platform} failed:\n{result.stderr.strip()}")
-        name = req.split("==")[0].lower().replace("-", "_")
+            if name in optional and "No matching distribution" in result.stderr:
+                index[key] = ""
+                index_path.write_text(json.dumps(index, indent=1, sort_keys=True))
+                missing.append(req)
+                continue
+            raise SystemExit(f"pip download {req} for {platform} / Python {python} failed:\n"
+                             f"{result.stderr.strip()}")
+        stem = name.replace("-", "_")
         new = sorted(set(folder.glob("*.whl")) - before) or sorted(
-            p for p in folder.glob("*.whl") if p.name.lower().startswith(name + "-"))
+            p for p in folder.glob("*.whl") if p.name.lower().startswith(stem + "-"))
         if not new:
-            raise SystemExit(f"pip download {req} for {platform}: no wheel found in {folder}")
-        index[req] = new[0].name
+            raise SystemExit(f"pip download {req} for {platform} / Python {python}: no wheel found in {folder}")
+        index[key] = new[0].name
         index_path.write_text(json.dumps(index, indent=1, sort_keys=True))
         wheels.append(new[0])
-    return wheels
+    return wheels, missing
 
 
 def manifest_with_wheels(manifest_text: str, wheel_names: list[str], platforms: list[str]) -> str:
@@ -154,17 +190,22 @@ def stage_sources(stage: Path) -> None:
             shutil.copy2(src, stage / name)
 
 
-def build(platforms: list[str], output_dir: Path) -> list[Path]:
+def build(platforms: list[str], output_dir: Path, pythons: tuple[str, ...] = PYTHON_VERSIONS) -> list[Path]:
     requirements = shipped_requirements()
     stage = BUILD / "extension_src"
     stage_sources(stage)
     (stage / "wheels").mkdir()
     names = set()
     for platform in platforms:
-        for wheel in download_wheels(platform, requirements):
-            if wheel.name not in names:
-                shutil.copy2(wheel, stage / "wheels" / wheel.name)
-                names.add(wheel.name)
+        for python in pythons:
+            wheels, missing = download_wheels(platform, python, requirements, optional=set(DECODER_REQUIREMENTS))
+            for req in missing:
+                print(f"WARNING: no wheel of {req} for {platform} / Python {python}: "
+                      "that decoder is missing from this zip there", flush=True)
+            for wheel in wheels:
+                if wheel.name not in names:  # pure-Python wheels serve both Pythons
+                    shutil.copy2(wheel, stage / "wheels" / wheel.name)
+                    names.add(wheel.name)
     manifest = (ROOT / "blender_manifest.toml").read_text()
     (stage / "blender_manifest.toml").write_text(manifest_with_wheels(manifest, sorted(names), platforms))
 

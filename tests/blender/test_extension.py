@@ -26,8 +26,8 @@ def test_shipped_requirements_exclude_numpy_and_follow_the_pins():
     pins = build_extension.read_pins()
     assert "numpy" not in names
     assert {"scikit-image", "scipy", "pydicom", "imageio", "lazy-loader", "networkx", "packaging", "pillow",
-            "tifffile"} == names
-    for name in ("scikit-image", "scipy", "pydicom"):
+            "tifffile", "pylibjpeg", "pylibjpeg-openjpeg", "pylibjpeg-libjpeg"} == names
+    for name in ("scikit-image", "scipy", "pydicom", "pylibjpeg", "pylibjpeg-openjpeg", "pylibjpeg-libjpeg"):
         assert f"{name}=={pins[name]}" in reqs
 
 
@@ -48,13 +48,18 @@ def test_zip_contents(extension_zip):
     assert not any(n.startswith(("tests/", "scripts/", "docs/")) or "__pycache__" in n for n in names)
     wheels = sorted(n for n in names if n.startswith("wheels/"))
     assert not any("numpy" in w for w in wheels)
-    for prefix in ("scikit_image-", "scipy-", "pydicom-", "networkx-", "pillow-", "tifffile-", "imageio-",
-                   "lazy_loader-", "packaging-"):
+    # pure-Python wheels once; compiled ones for each Blender Python: cp311 (4.2 - 5.0) and cp313 (5.1+)
+    for prefix in ("pydicom-", "networkx-", "tifffile-", "imageio-", "lazy_loader-", "packaging-", "pylibjpeg-2"):
         found = [w for w in wheels if w.startswith("wheels/" + prefix)]
-        assert len(found) == 1, (prefix, wheels)
-        assert "win_" not in found[0] and "macosx" not in found[0]
-    assert manifest["platforms"] == ["linux-x64"]
-    assert sorted("wheels/" + Path(w).name for w in manifest["wheels"]) == wheels
+        assert len(found) == 1 and found[0].endswith("-py3-none-any.whl"), (prefix, wheels)
+    for prefix in ("scikit_image-", "scipy-", "pillow-", "pylibjpeg_openjpeg-", "pylibjpeg_libjpeg-"):
+        found = [w for w in wheels if w.startswith("wheels/" + prefix)]
+        assert [Path(w).name.split("-")[2] for w in found] == ["cp311", "cp313"], (prefix, wheels)
+        assert all("manylinux" in w for w in found), found
+    # the builder's per-platform copy of platforms and wheels (what Blender reads from a split zip)
+    generated = manifest.get("build", {}).get("generated", manifest)
+    assert generated["platforms"] == ["linux-x64"]
+    assert sorted("wheels/" + Path(w).name for w in generated["wheels"]) == wheels
 
 
 def test_build_leaves_the_repository_clean(extension_zip):
@@ -84,27 +89,42 @@ def test_installed_and_enabled(pdehead_ext):
 
 
 def test_shipped_wheels_import_from_the_extension_site_packages(pdehead_ext):
-    """skimage, scipy and pydicom import from the wheels Blender unpacked (not from this machine's site)."""
+    """skimage, scipy, pydicom and its decoders import from the wheels Blender unpacked (not from this machine's site).
+
+    The decoders (built against numpy 2's backward-compatible ABI) must also decode on the
+    numpy 1.26 of Blender 4.2 - 5.0: JPEG 2000 and JPEG-LS lossless files give exactly the
+    uncompressed pixels, and a baseline JPEG decodes to its RGB shape.
+    """
     import bpy
-    site = Path(bpy.utils.user_resource('EXTENSIONS')) / ".local" / "lib" / "python3.11" / "site-packages"
+    site = Path(pdehead_ext.operators.compat.extension_site_packages(bpy.utils.user_resource('EXTENSIONS')))
     assert (site / "skimage").is_dir() and (site / "pydicom").is_dir() and (site / "scipy").is_dir()
+    assert (site / "pylibjpeg").is_dir() and (site / "openjpeg").is_dir() and (site / "libjpeg").is_dir()
     assert not (site / "numpy").exists()  # Blender's own numpy is used
     assert str(site) in sys.path
     code = (
-        "import sys; sys.path.insert(0, sys.argv[1]);"
-        "import numpy as np, skimage, scipy, pydicom;"
+        "import sys, os; sys.path.insert(0, sys.argv[1]);"
+        "import numpy as np, skimage, scipy, pydicom, pylibjpeg, openjpeg, libjpeg;"
         "from skimage import measure; from scipy import ndimage;"
-        "assert all(m.__file__.startswith(sys.argv[1]) for m in (skimage, scipy, pydicom)), "
-        "[m.__file__ for m in (skimage, scipy, pydicom)];"
+        "mods = (skimage, scipy, pydicom, pylibjpeg, openjpeg, libjpeg);"
+        "assert all(m.__file__.startswith(sys.argv[1]) for m in mods), [m.__file__ for m in mods];"
         "a = np.zeros((32, 32)); a[8:24, 8:24] = 1;"
         "c = measure.find_contours(ndimage.gaussian_filter(a, 1.0), 0.5);"
-        "print(len(c), skimage.__version__, scipy.__version__, pydicom.__version__)"
+        "d = os.path.join(os.path.dirname(pydicom.__file__), 'data', 'test_files');"
+        "read = lambda n: pydicom.dcmread(os.path.join(d, n));"
+        "ref = read('MR_small.dcm').pixel_array;"
+        "same = [bool(np.array_equal(read(n).pixel_array, ref)) for n in "
+        "('MR_small_jp2klossless.dcm', 'MR_small_jpeg_ls_lossless.dcm')];"
+        "rgb = read('SC_rgb_jpeg_dcmtk.dcm').pixel_array;"
+        "print(len(c), skimage.__version__, scipy.__version__, pydicom.__version__, openjpeg.__version__,"
+        " libjpeg.__version__, same[0], same[1], 'x'.join(map(str, rgb.shape)), np.__version__)"
     )
     out = subprocess.run([sys.executable, "-c", code, str(site)], capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
-    n, skv, spv, pdv = out.stdout.split()
+    n, skv, spv, pdv, ojv, ljv, j2k, jls, rgb, npv = out.stdout.split()
     pins = build_extension.read_pins()
     assert (int(n), skv, spv, pdv) == (1, pins["scikit-image"], pins["scipy"], pins["pydicom"])
+    assert (ojv, ljv) == (pins["pylibjpeg-openjpeg"], pins["pylibjpeg-libjpeg"])
+    assert (j2k, jls, rgb) == ("True", "True", "100x100x3"), npv
 
 
 def _our_handlers(prefix: str) -> list[str]:
@@ -167,6 +187,7 @@ assert "run_pipeline" in dir(bpy.ops.pdehead)
 mod.unregister()
 assert dir(bpy.ops.pdehead) == []
 mod.register()
+mod.operators.compat.unregister_at_exit(mod.unregister)  # bpy 4.2 / 4.5 crash / hang at exit otherwise
 print("ok")
 """
     env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path))
