@@ -119,6 +119,7 @@ def _write_grid(f: BinaryIO, grid: DenseGrid) -> None:
     half = bool(grid.half)
     background = np.float32(np.float16(grid.background)) if half else np.float32(grid.background)
     origins, masks, values = _leaves(data, float(background))
+    leaf_masks = np.packbits(masks, axis=1, bitorder="little")  # (n, 64) bytes: each leaf's value mask
     active = data != background
     count = int(np.count_nonzero(active))
     bbox_min, bbox_max = [0, 0, 0], [0, 0, 0]
@@ -162,11 +163,14 @@ def _write_grid(f: BinaryIO, grid: DenseGrid) -> None:
             lower_children[leaf_offsets] = True
             f.write(_mask(lower_children) + _mask(np.zeros_like(lower_children)))
             f.write(_values(np.where(lower_children, 0.0, background), half))
-            f.write(b"".join(_mask(m) for m in masks[bounds[n]:bounds[n + 1]]))
+            f.write(leaf_masks[bounds[n]:bounds[n + 1]].tobytes())
     block_pos = f.tell()
-    # buffers: every leaf in tree order, its value mask then its 512 values
-    for m, v in zip(masks, values):
-        f.write(_mask(m) + _values(v, half))
+    # buffers: every leaf in tree order, its value mask then its 512 values (one array, one write)
+    if len(origins):
+        raw = np.ascontiguousarray(values, "<f2" if half else "<f4").view(np.uint8).reshape(len(origins), -1)
+        f.write(np.concatenate([leaf_masks, np.full((len(origins), 1), NO_MASK_AND_ALL_VALS, np.uint8), raw],
+                               axis=1).tobytes())
+        del raw
     end_pos = f.tell()
     f.seek(offsets_at)
     f.write(struct.pack("<3q", grid_pos, block_pos, end_pos))
