@@ -370,7 +370,7 @@ def step_boundaries(coll) -> None:
         s.warnings = "; ".join([w for w in (s.warnings, message) if w])[:1000]
     with state.Timer() as t:
         bset = extract_boundaries(cache.seg, patches=s.patches, samples=s.samples, selection=s.selection,
-                                  parameterisation="aligned" if s.align_curves else "arc-length")
+                                  parameterisation="angular" if s.align_curves else "arc-length")
     state.store_boundaries(coll, bset)
     cache.drop_from("bset")
     cache.bset = bset
@@ -460,10 +460,14 @@ def live_update(coll, what: str, context=None) -> None:
     try:
         if what == "pde_auto":
             what = "pde"
-            if not s.smoothing_auto and state.boundary_set(coll) is not None:
-                # start the manual value from the automatic one (mean over the patches)
+            if state.boundary_set(coll) is not None and not (s.smoothing_auto and s.approximation_auto):
+                # start a manual slider from the automatic value (as a fraction of the study's range)
+                smoothing, approximation = state.default_controls(coll)
                 with props.suspended_updates():
-                    s.smoothing = state.auto_smoothing(coll)
+                    if not s.smoothing_auto and not s.is_property_set("smoothing"):
+                        s.smoothing = smoothing
+                    if not s.approximation_auto and not s.is_property_set("approximation"):
+                        s.approximation = approximation
         if what == "volume":
             if s.volume_object is not None:
                 from . import volume
@@ -612,7 +616,7 @@ class PDEHEAD_OT_extract_boundaries(Operator, StudyOperator):
     patches: IntProperty(name="Patches (t)", default=10, min=1, max=60)
     samples: IntProperty(name="Samples (M)", default=256, min=16, max=4096)
     selection: EnumProperty(name="Selection", items=props.SELECTION_ITEMS, default=props.DEFAULT_SELECTION)
-    align_curves: BoolProperty(name="Align Curves", default=True,
+    align_curves: BoolProperty(name="Align Curves", default=True,  # equal v = the same direction from the spine
                                description="Re-sample the curves so that equal v joins corresponding points "
                                            "(avoids folds where a feature such as the nose is on one curve only)")
 
@@ -645,11 +649,16 @@ class PDEHEAD_OT_reconstruct_surface(Operator, StudyOperator):
     nu: IntProperty(name="nu", default=DEFAULT_NU, min=4, max=2000)
     nv: IntProperty(name="nv", default=DEFAULT_NV, min=4, max=2000)
     caps: BoolProperty(name="Caps", default=True)
+    continuity: EnumProperty(name="Continuity", items=props.CONTINUITY_ITEMS, default=props.DEFAULT_CONTINUITY_ITEM)
+    dome: BoolProperty(name="Dome", default=True)
     smoothing_auto: BoolProperty(name="Auto Smoothing", default=True)
-    smoothing: FloatProperty(name="Smoothing (a)", default=0.03, min=0.0, max=10.0, soft_max=0.5, precision=4)
+    smoothing: FloatProperty(name="Smoothing (a)", default=0.0, min=0.0, max=1.0, subtype='FACTOR')
+    approximation_auto: BoolProperty(name="Auto Approximation", default=True)
+    approximation: FloatProperty(name="Smooth Along Axis", default=0.0, min=0.0, max=1.0, subtype='FACTOR')
     modes: IntProperty(name="Fourier Modes", default=0, min=0, max=512, description="0 = all")
 
-    mirrored_settings = ("nu", "nv", "caps", "smoothing_auto", "smoothing", "modes")
+    mirrored_settings = ("nu", "nv", "caps", "continuity", "dome", "smoothing_auto", "smoothing",
+                         "approximation_auto", "approximation", "modes")
 
     def execute(self, context):
         coll = _active_or_report(self, context)

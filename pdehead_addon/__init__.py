@@ -22,7 +22,8 @@ from .metrics import jaccard, per_slice_jaccard, reference_head_mask
 from .boundary_set import BoundarySet, knots_from_heights
 from .boundaries import (extract_boundaries, max_patches, boundary_ring, contour_from_mask, parameter_offsets, scan_edge_slices,
                          register_selection, SELECTION_STRATEGIES)
-from .pde_surface import solve_pde, PDEHead, smoothing_bounds
+from .pde_surface import solve_pde, PDEHead, smoothing_bounds, control_ranges, solve_with_controls
+from .surface_quality import surface_quality
 from .parameterisation import align_parameterisation, smooth_closed_curve, correspondence_error
 from .pde_solid import alpha_from_w, w_field, solid_mesh, WField, OUTSIDE_W
 from .storage import save_boundaries, load_boundaries, dumps_boundaries, loads_boundaries, load_head, loads_head

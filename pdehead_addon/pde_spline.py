@@ -130,6 +130,19 @@ def smoothing_spline_values(x: np.ndarray, y: np.ndarray, length: float) -> np.n
     m = len(x)
     if length <= 0 or m < 3:
         return y
+    S = _smoother(np.ascontiguousarray(x, dtype=np.float64).tobytes(), float(length))
+    yy = y.reshape(m, -1)
+    if np.iscomplexobj(yy):
+        return (S @ yy.real + 1j * (S @ yy.imag)).reshape(y.shape)
+    return (S @ yy).reshape(y.shape)
+
+
+@lru_cache(maxsize=32)
+def _smoother(x_bytes: bytes, length: float) -> np.ndarray:
+    """The smoothing spline's linear map ``Y = S y`` for knots x (cached: a study's knots do not change
+    while its sliders move)."""
+    x = np.frombuffer(x_bytes, dtype=np.float64)
+    m = len(x)
     h = np.diff(x)
     w = np.empty(m)
     w[1:-1] = 0.5 * (h[:-1] + h[1:])
@@ -148,10 +161,8 @@ def smoothing_spline_values(x: np.ndarray, y: np.ndarray, length: float) -> np.n
     # the smoother is linear: Y = S y with S = I - lam W^-1 Q A^-1 Q^T (m x m, real), so one
     # small solve serves every harmonic and coordinate (real and imaginary parts alike)
     S = np.eye(m) - lam * (Q / w[:, None]) @ np.linalg.solve(A, Q.T)
-    yy = y.reshape(m, -1)
-    if np.iscomplexobj(yy):
-        return (S @ yy.real + 1j * (S @ yy.imag)).reshape(y.shape)
-    return (S @ yy).reshape(y.shape)
+    S.flags.writeable = False
+    return S
 
 
 def dome_height(curves: np.ndarray, heights: np.ndarray, vertex_z: float | None = None) -> float:
