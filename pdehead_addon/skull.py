@@ -300,7 +300,8 @@ def _envelope(bone: np.ndarray) -> np.ndarray:
     for k in np.flatnonzero(bone.any(axis=(1, 2))):
         sl = bone[k]
         if np.count_nonzero(sl) >= 3:
-            out[k] = convex_hull_image(sl) | sl
+            # hull of the pixel centres: with corners the hull grows by up to half a pixel
+            out[k] = convex_hull_image(sl, offset_coordinates=False) | sl
         else:
             out[k] = sl
     return out
