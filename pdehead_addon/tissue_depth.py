@@ -49,6 +49,8 @@ REASONS = {
 }
 #: Longest depth searched (mm); deeper rays end in the airway, the orbit or the other side of the head.
 MAX_DEPTH_MM = 40.0
+#: A sphere-traced ray whose distance grows again after falling below this (mm) has crossed the surface.
+CROSSING_MM = 0.1
 
 
 @dataclass
@@ -178,6 +180,7 @@ def cast_rays(origins: np.ndarray, directions: np.ndarray, mesh: Mesh, max_dista
     o = np.asarray(origins, np.float64)
     d = np.asarray(directions, np.float64)
     t = np.zeros(len(o))
+    last = np.full(len(o), np.inf)
     result = np.full(len(o), np.nan)
     active = np.arange(len(o))
     for _ in range(int(max_steps)):
@@ -186,8 +189,13 @@ def cast_rays(origins: np.ndarray, directions: np.ndarray, mesh: Mesh, max_dista
         r = dist(o[active] + t[active, None] * d[active])
         hit = r <= tolerance
         result[active[hit]] = t[active[hit]] + r[hit]
+        # the distance grows again right after it was tiny: the ray crossed the surface in the last
+        # step (the candidate distance can be slightly too large next to fans of sliver triangles)
+        crossed = ~hit & (r > last[active]) & (last[active] < CROSSING_MM)
+        result[active[crossed]] = t[active[crossed]]
+        last[active] = r
         t[active] += r
-        alive = ~hit & (t[active] <= max_distance)
+        alive = ~hit & ~crossed & (t[active] <= max_distance)
         active = active[alive]
     return result
 
