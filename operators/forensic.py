@@ -39,10 +39,14 @@ FRANKFURT_KEY = "pdehead_frankfurt"         # 16 floats: the Blender-space trans
 BASE_MATRIX_KEY = "pdehead_base_matrix"     # per object: its matrix before the Frankfurt transform
 DEPTH_ATTRIBUTE = "tissue_depth"
 REASON_ATTRIBUTE = "tissue_depth_reason"
+DISPLAY_ATTRIBUTE = "tissue_depth_display"   # shading only (see _display_values)
+VALID_ATTRIBUTE = "tissue_depth_valid"
 DEPTH_MATERIAL = "PDE Head Tissue Depth"
 BONE_MATERIAL = "PDE Head Bone"
 PEG_MATERIAL = "PDE Head Depth Peg"
 LANDMARK_KEY = "pdehead_landmark"
+#: Radius of a marker peg (mm).
+PEG_RADIUS_MM = 1.5
 #: Depth (mm) at the red end of the colour map.
 DEPTH_DISPLAY_MAX_MM = 25.0
 
@@ -97,7 +101,8 @@ def _set_material(obj, mat) -> None:
 
 
 def depth_material():
-    """Attribute ``tissue_depth`` -> Map Range (0..DEPTH_DISPLAY_MAX_MM) -> Color Ramp; grey where no value."""
+    """Attribute ``tissue_depth_display`` -> Map Range (0..DEPTH_DISPLAY_MAX_MM) -> Color Ramp; grey where
+    ``tissue_depth_valid`` < 0.5 (no value)."""
     mat = bpy.data.materials.get(DEPTH_MATERIAL)
     if mat is not None:
         return mat
@@ -108,9 +113,13 @@ def depth_material():
     bsdf = nodes.get("Principled BSDF")
     bsdf.inputs["Roughness"].default_value = 0.6
     attr = nodes.new("ShaderNodeAttribute")
-    attr.attribute_name = DEPTH_ATTRIBUTE
+    attr.attribute_name = DISPLAY_ATTRIBUTE
     attr.attribute_type = 'GEOMETRY'
     attr.location = (-900, 200)
+    valid_attr = nodes.new("ShaderNodeAttribute")
+    valid_attr.attribute_name = VALID_ATTRIBUTE
+    valid_attr.attribute_type = 'GEOMETRY'
+    valid_attr.location = (-900, -50)
     rng = nodes.new("ShaderNodeMapRange")
     rng.name = rng.label = "Depth range"
     rng.inputs["From Min"].default_value = 0.0
@@ -127,7 +136,7 @@ def depth_material():
         e.color = col
     valid = nodes.new("ShaderNodeMath")
     valid.operation = 'GREATER_THAN'
-    valid.inputs[1].default_value = -0.5
+    valid.inputs[1].default_value = 0.5     # grey where the interpolated validity is below one half
     valid.location = (-500, -50)
     mix = nodes.new("ShaderNodeMix")
     mix.data_type = 'RGBA'
@@ -135,7 +144,7 @@ def depth_material():
     mix.inputs["A"].default_value = (0.55, 0.55, 0.55, 1.0)         # no value: grey
     links.new(attr.outputs["Fac"], rng.inputs["Value"])
     links.new(rng.outputs["Result"], ramp.inputs["Fac"])
-    links.new(attr.outputs["Fac"], valid.inputs[0])
+    links.new(valid_attr.outputs["Fac"], valid.inputs[0])
     links.new(valid.outputs["Value"], mix.inputs["Factor"])
     links.new(ramp.outputs["Color"], mix.inputs["B"])
     links.new(mix.outputs["Result"], bsdf.inputs["Base Color"])
@@ -240,7 +249,10 @@ def step_depth(coll, target: str = "BONE", max_depth_mm: float = 40.0) -> dict:
         res = tissue_depth(skin, skull_engine_mesh(coll, target), envelope=_skull_seg(coll),
                            max_depth_mm=float(max_depth_mm))
     me = obj.data
-    for name, kind, values in ((DEPTH_ATTRIBUTE, 'FLOAT', np.where(np.isfinite(res.depth), res.depth, -1.0)),
+    valid = np.isfinite(res.depth)
+    for name, kind, values in ((DEPTH_ATTRIBUTE, 'FLOAT', np.where(valid, res.depth, -1.0)),
+                               (DISPLAY_ATTRIBUTE, 'FLOAT', _display_values(skin, res.depth)),
+                               (VALID_ATTRIBUTE, 'FLOAT', valid.astype(np.float32)),
                                (REASON_ATTRIBUTE, 'INT', res.reason.astype(np.int32))):
         if name in me.attributes:
             me.attributes.remove(me.attributes[name])
@@ -253,6 +265,30 @@ def step_depth(coll, target: str = "BONE", max_depth_mm: float = 40.0) -> dict:
     _cache(coll)["depth"] = res
     state.record_timing(coll, "depth", t.seconds)
     return stats
+
+
+def _display_values(mesh, depth: np.ndarray, passes: int = 4) -> np.ndarray:
+    """Depth for shading: vertices without a value take the mean of their measured neighbours.
+
+    Shading interpolates between vertices; a stored -1 next to a measured 10 mm would paint every
+    value in between (a blue seam around each grey patch). The grey itself comes from
+    ``tissue_depth_valid``, so these fill-in values are never shown as depths.
+    """
+    out = np.where(np.isfinite(depth), depth, np.nan).astype(np.float64)
+    e = mesh.edges()
+    for _ in range(passes):
+        known = np.isfinite(out)
+        if known.all():
+            break
+        acc = np.zeros(len(out))
+        cnt = np.zeros(len(out))
+        for a, b in ((e[:, 0], e[:, 1]), (e[:, 1], e[:, 0])):
+            k = known[b] & ~known[a]
+            np.add.at(acc, a[k], out[b[k]])
+            np.add.at(cnt, a[k], 1.0)
+        fill = cnt > 0
+        out[fill] = acc[fill] / cnt[fill]
+    return np.nan_to_num(out, nan=0.0).astype(np.float32)
 
 
 def _depth_result(coll):
@@ -345,10 +381,14 @@ def make_pegs(coll, table: dict[str, float], target: str = "BONE") -> list:
     for o in list(sub.objects):
         bpy.data.objects.remove(o)
     mat = _material(PEG_MATERIAL, (0.95, 0.45, 0.05, 1.0))
+    bsdf = mat.node_tree.nodes.get("Principled BSDF")
+    bsdf.inputs["Emission Color"].default_value = (0.95, 0.45, 0.05, 1.0)
+    bsdf.inputs["Emission Strength"].default_value = 0.6
     made = []
     frank = _frankfurt(coll)
     for name, base, normal, length in pegs:
-        obj = objects.build_mesh_object(_cylinder(base, normal, length), sub, f"Peg {name}", smooth=False)
+        obj = objects.build_mesh_object(_cylinder(base, normal, length, radius=PEG_RADIUS_MM), sub, f"Peg {name}",
+                                        smooth=False)
         obj["pdehead_peg"] = name
         obj["depth_mm"] = float(length)
         _set_material(obj, mat)
