@@ -158,11 +158,13 @@ def _skull_seg(coll):
     from ..pdehead_addon.skull import segment_skull
 
     extra = _cache(coll)
-    if extra.get("skull_seg") is None:
-        cache = state.cache_for(state.settings(coll).study_id)
-        if cache.seg is None:
-            ops.step_segment(coll)
-        extra["skull_seg"] = segment_skull(state.require_ct(coll), cache.seg)
+    cache = state.cache_for(state.settings(coll).study_id)
+    if cache.seg is None:
+        ops.step_segment(coll)
+    if extra.get("skull_seg") is None or extra.get("skull_seg_of") is not cache.seg:
+        # a new head segmentation (or CT) makes the skull and everything measured on it stale
+        extra.update(skull_seg=segment_skull(state.require_ct(coll), cache.seg), skull_seg_of=cache.seg,
+                     bone_mesh=None, depth=None)
     return extra["skull_seg"]
 
 
@@ -461,7 +463,7 @@ def export_study(coll, directory: str, fmt: str = "stl", bone: bool = False, dep
     if bone:
         written.append(export_mesh(skull_engine_mesh(coll, "BONE"), out / f"bone.{fmt}", name="bone"))
     res = _cache(coll).get("depth")
-    if res is None or len(res.points) != len(skin.vertices) or bool(s.caps) is False:
+    if res is None or res.points.shape != skin.vertices.shape or not np.allclose(res.points, skin.vertices):
         from ..pdehead_addon.tissue_depth import tissue_depth
         res = tissue_depth(skin, skull_engine_mesh(coll, depth_target), envelope=_skull_seg(coll))
     write_depth_csv(res, out / "tissue_depth.csv")

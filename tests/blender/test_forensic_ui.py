@@ -120,7 +120,12 @@ def test_forensic_operators_on_the_phantom(pdehead_ext, tmp_path):
     assert forensic.landmarks(coll)["Vertex"] == pytest.approx(lms["Vertex"])   # patient mm kept
     bpy.context.view_layer.objects.active = skull_obj
     assert bpy.ops.pdehead.mirror() == {'FINISHED'}
-    assert f"{skull_obj.name} Mirrored" in bpy.data.objects
+    mirrored = bpy.data.objects[f"{skull_obj.name} Mirrored"]
+    # the landmark pairs are symmetric about x = 0 (to the snapping), so is the phantom's skull
+    a = np.array([mirrored.matrix_world @ v.co for v in mirrored.data.vertices])
+    b = np.array([skull_obj.matrix_world @ v.co for v in skull_obj.data.vertices])
+    assert np.allclose(np.sort(a[:, 0]), np.sort(-b[:, 0]), atol=0.002)
+    assert a[:, 2].mean() == pytest.approx(b[:, 2].mean(), abs=0.001)
     assert bpy.ops.pdehead.frankfurt(reset=True) == {'FINISHED'}
     assert np.array(skull_obj.matrix_world)[:3, :3] == pytest.approx(np.eye(3))
 
