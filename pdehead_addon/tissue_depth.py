@@ -175,6 +175,11 @@ def cast_rays(origins: np.ndarray, directions: np.ndarray, mesh: Mesh, max_dista
         A ray has hit when it is this close to the surface (mm).
     max_steps : int
         Steps per ray (grazing rays that have not converged by then are misses).
+
+    Notes
+    -----
+    A ray also counts as a hit when its distance grows again right after falling below
+    :data:`CROSSING_MM` (it crossed the surface within the last step, or grazed it that closely).
     """
     dist = distance or _MeshDistance(*mesh_triangles(mesh))
     o = np.asarray(origins, np.float64)

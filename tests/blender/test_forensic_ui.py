@@ -63,6 +63,19 @@ def test_cli_cthead_skull_export(tmp_path, pytestconfig):
     assert 3.0 < np.nanmedian(depth) < 10.0
 
 
+def test_cli_ge_skull_export(tmp_path):
+    """The GE series stops at the maxilla: a skull without mandible, a tilted, unevenly spaced scan."""
+    from datasets import shared_data
+    out = tmp_path / "print"
+    result = run_cli(shared_data("ct_head_ge_tilt_dicom", "dicom"), "--no-volume", "--nu", 60, "--nv", 120,
+                     "--skull", "--export", out, "--export-format", "stl", tmp_path=tmp_path)
+    assert result.returncode == 0, result.stderr[-3000:]
+    skin, skull, pts, depth = _check_export(out)
+    assert 120 < np.ptp(skull.vertices[:, 0]) < 170 and np.ptp(skull.vertices[:, 0]) < np.ptp(skin.vertices[:, 0])
+    top = pts[:, 2] > pts[:, 2].max() - 60                  # the vault: measured almost everywhere
+    assert np.isfinite(depth[top]).mean() > 0.9 and 3.0 < np.nanmedian(depth[top]) < 10.0
+
+
 def test_forensic_operators_on_the_phantom(pdehead_ext, tmp_path):
     import bpy
     from mathutils import Vector
