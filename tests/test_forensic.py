@@ -1,9 +1,10 @@
 """Forensic toolkit (issue 12): the skull, soft-tissue depth against the phantom's truth, landmarks, export.
 
 Measured when written (phantom 100x128x128, 2.3x2x2 mm; t = 10, M = 256, 120 x 240 surfaces):
-vault depth PDE skin -> PDE skull: mean error +0.04 mm, p95 |error| 0.62 mm (11024 of 11041 vault
-vertices measured); PDE skin -> marching-cubes bone: mean 0.00, p95 0.35 mm. CThead (cadaver), PDE
-skin -> bone mesh, median depth: forehead 4.9, cheeks 11.2, chin 10.6 mm.
+vault depth PDE skin -> PDE skull: mean error +0.02 mm, p95 |error| 0.39 mm (6958 of 6961 vault
+vertices measured; C2 surfaces of issue 8; 0.62 mm with the paper's patches); PDE skin -> marching-cubes
+bone: mean +0.02, p95 0.31 mm. CThead (cadaver), PDE skin -> bone mesh, median depth: forehead 4.8,
+cheeks 10.1, chin 10.5 mm.
 """
 from __future__ import annotations
 
