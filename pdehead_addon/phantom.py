@@ -501,6 +501,70 @@ def _layers(p, head: np.ndarray, hu: dict[str, float]):
     return layers
 
 
+def _skull_outer_sd(p, head: np.ndarray) -> np.ndarray:
+    """Signed distance (approx., mm; exact zero set) of the skull's OUTER surface (the filled skull).
+
+    The outer ellipsoid cut by the flat base, as painted by :func:`_layers` (which also
+    keeps the bone at least 2 mm under the skin; that clamp is applied here too).
+    """
+    g, s = GEOMETRY, _SHAPES
+    d = _smax(s["skull_outer"].sd(p), g["skull_base_z"] - p.z, 3.0)
+    return np.maximum(d, head + 2.0)
+
+
+def _analytic_tissue_depth(points: np.ndarray, max_depth: float, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """Skin points (projected onto the exact skin), inward normals and the depth to the skull along them."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3).copy()
+    h = 1e-3
+
+    def sd_and_grad(q):
+        base = _head_sd(_Points(q[:, 0], q[:, 1], q[:, 2]))
+        grad = np.empty_like(q)
+        for a in range(3):
+            e = np.zeros(3)
+            e[a] = h
+            hi, lo = q + e, q - e
+            grad[:, a] = (_head_sd(_Points(hi[:, 0], hi[:, 1], hi[:, 2]))
+                          - _head_sd(_Points(lo[:, 0], lo[:, 1], lo[:, 2]))) / (2 * h)
+        return base, grad
+
+    for _ in range(3):  # Newton steps onto the zero set of the skin
+        d, grad = sd_and_grad(pts)
+        pts -= (d / np.maximum(np.einsum("ij,ij->i", grad, grad), 1e-12))[:, None] * grad
+    _, grad = sd_and_grad(pts)
+    inward = -grad / np.linalg.norm(grad, axis=1, keepdims=True)
+
+    def skull_sd(t):
+        q = pts + t[:, None] * inward
+        qp = _Points(q[:, 0], q[:, 1], q[:, 2])
+        return _skull_outer_sd(qp, _head_sd(qp))
+
+    n = len(pts)
+    depth = np.full(n, np.nan)
+    prev_t = np.zeros(n)
+    prev = skull_sd(prev_t)
+    open_ = prev > 0
+    for t in np.arange(step, max_depth + step / 2, step):
+        tt = np.full(n, t)
+        cur = skull_sd(tt)
+        hit = open_ & (cur <= 0)
+        if hit.any():  # bisection between the last outside and the first inside sample
+            lo, hi = np.full(hit.sum(), t - step), np.full(hit.sum(), t)
+            sub = pts[hit], inward[hit]
+            for _ in range(40):
+                mid = 0.5 * (lo + hi)
+                q = sub[0] + mid[:, None] * sub[1]
+                qp = _Points(q[:, 0], q[:, 1], q[:, 2])
+                inside = _skull_outer_sd(qp, _head_sd(qp)) <= 0
+                hi = np.where(inside, mid, hi)
+                lo = np.where(inside, lo, mid)
+            depth[hit] = 0.5 * (lo + hi)
+            open_ &= ~hit
+        if not open_.any():
+            break
+    return pts, inward, depth
+
+
 def _evaluate(p, hu: dict[str, float], blur: float, want_hu: bool = True, want_labels: bool = True):
     """Head signed distance, HU (noise-free, partial-volume blurred) and labels at points ``p``.
 
@@ -588,6 +652,24 @@ class Phantom:
         """Approximate signed distance (mm, negative inside) to the skin; its zero set is exact."""
         p, shape = _points_from_array(points_xyz)
         return _head_sd(p).reshape(shape)
+
+    def skull_signed_distance(self, points_xyz: np.ndarray) -> np.ndarray:
+        """Approximate signed distance (mm, negative inside) to the skull's outer surface; exact zero set."""
+        p, shape = _points_from_array(points_xyz)
+        return _skull_outer_sd(p, _head_sd(p)).reshape(shape)
+
+    def tissue_depth(self, points_xyz: np.ndarray, max_depth: float = 60.0, step: float = 0.25) -> np.ndarray:
+        """Analytic soft-tissue depth (mm): from the skin along its inward normal to the outer skull.
+
+        Each point is first projected onto the exact skin (Newton steps on the skin's signed
+        distance); the inward normal is the negative gradient there; the depth is the first
+        crossing of the outer skull surface along it (sampled every ``step`` mm, then bisected
+        to 1e-9 mm). NaN where no skull is met within ``max_depth`` (face below the vault, neck).
+        """
+        pts = np.asarray(points_xyz, dtype=np.float64)
+        if pts.ndim == 0 or pts.shape[-1] != 3:
+            raise _ParameterError(f"points must have shape (..., 3) (x, y, z in mm), got {pts.shape}")
+        return _analytic_tissue_depth(pts, float(max_depth), float(step))[2].reshape(pts.shape[:-1])
 
     def labels_at(self, points_xyz: np.ndarray) -> np.ndarray:
         """Tissue label (uint8, see :data:`LABEL_NAMES`) at patient LPS points (..., 3)."""

@@ -8,6 +8,7 @@ Examples::
         --spacing 2 1 1 --first-slice superior --patches 10 --out out/cthead.blend \\
         --render out/cthead_surface.png --render-volume out/cthead_volume.png
     python3 scripts/pdehead.py ../shared/data/ct_head_ge_tilt_dicom/dicom --out out/ge.blend
+    python3 scripts/pdehead.py --phantom --no-volume --skull --export out/print   # skin.stl, skull.stl, tissue_depth.csv
 
 It runs the SAME Blender operators as the add-on (``bpy.ops.pdehead.*``) in the ``bpy``
 module: the add-on is registered straight from this repository's source (as the package
@@ -59,6 +60,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--view", default="FRONT", choices=["FRONT", "RIGHT", "LEFT", "BACK", "TOP", "THREE_QUARTER"],
                    help="render view; default FRONT (face, patient left on screen right)")
     p.add_argument("--resolution", type=int, default=320, help="render size in pixels; default 320")
+    f = p.add_argument_group("forensic")
+    f.add_argument("--skull", action="store_true",
+                   help="also build the skull (PDE surface + bone mesh) and the skin's tissue-depth map")
+    f.add_argument("--export", type=Path, metavar="DIR",
+                   help="with --skull: write skin.stl, skull.stl and tissue_depth.csv (patient mm) into DIR")
+    f.add_argument("--export-format", default="stl", choices=["stl", "obj", "ply"], help="mesh format; default stl")
     p.add_argument("--render-samples", type=int, default=16, help="Cycles samples; default 16")
     g = p.add_argument_group("loader options")
     g.add_argument("--format", default="auto", choices=["auto", "dicom", "images", "raw"])
@@ -78,6 +85,8 @@ def parse_args(argv=None) -> argparse.Namespace:
         raise CLIError(f"{args.input}: no such file or folder", 2)
     if args.render_volume and args.no_volume:
         p.error("--render-volume needs the volume (drop --no-volume)")
+    if args.export and not args.skull:
+        p.error("--export needs --skull")
     return args
 
 
@@ -161,6 +170,11 @@ def run(args) -> dict:
     _call(ops.build_solid, nu=args.nu, nv=args.nv, nw=args.nw)
     if not args.no_volume:
         _call(ops.build_volume, voxel_size=args.voxel_size)
+    if args.skull:
+        _call(ops.build_skull)
+        _call(ops.tissue_depth)
+        if args.export:
+            _call(ops.export_print, directory=str(args.export.resolve()), format=args.export_format)
     total = time.perf_counter() - t0
 
     timings = state.timings(coll)
@@ -176,6 +190,17 @@ def run(args) -> dict:
     print(f"  solid     {len(s.solid_object.data.vertices)} vertices")
     if s.volume_object is not None:
         print(f"  volume    {bpy.path.abspath(s.volume_object.data.filepath)}")
+    if args.skull:
+        import json
+        info = json.loads(coll.get("pdehead_skull_info", "{}"))
+        depth = json.loads(coll.get("pdehead_depth_stats", "{}"))
+        print(f"  skull     bone level {info.get('bone_level', 0):.0f} HU, {info.get('patches')} patches, "
+              f"{info.get('bone_triangles', 0)} bone-mesh triangles")
+        if "median" in depth:
+            print(f"  depth     {depth['measured']} of {depth['vertices']} skin vertices, median {depth['median']:.1f} "
+                  f"mm, p95 {depth['p95']:.1f} mm (no bone {depth['no_bone']}, envelope {depth['envelope']})")
+        if args.export:
+            print(f"  export    {args.export}/skin.{args.export_format}, skull.{args.export_format}, tissue_depth.csv")
     for warning in filter(None, s.warnings.split("; ")):
         print(f"  warning   {warning}")
     print("timings (s):")
