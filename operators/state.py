@@ -160,8 +160,10 @@ def continuity(collection) -> str:
     if s.is_property_set("continuity"):
         return s.continuity
     bset = boundary_set(collection)
-    stored = (bset.meta.get("pde_settings") or {}) if bset is not None else {}
-    return stored.get("continuity", "paper") if bset is not None else s.continuity
+    stored = bset.meta.get("pde_settings") if bset is not None else None
+    if not isinstance(stored, dict):              # curves extracted in this session: today's default
+        return s.continuity
+    return stored.get("continuity", "paper")
 
 
 def pde_key(collection) -> tuple:

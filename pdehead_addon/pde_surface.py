@@ -1100,7 +1100,7 @@ def _solve_c2(bset: BoundarySet, smoothing, n_modes: int, approximation_mm, dome
         top = z[-1] + height
     knots = np.concatenate([z, [top]]) if dome else z
     u = (knots - knots[0]) / (knots[-1] - knots[0])
-    exponents, coefficients, _ = c2_spans(spec, u, a, n_modes, pole=vertex)
+    exponents, coefficients = c2_spans(spec, u, a, n_modes, pole=vertex)
     if not np.all(np.isfinite(coefficients)):
         raise PDEError("the PDE solution is not finite (degenerate boundary curves or knots?)")
     condition = np.ones(coefficients.shape[0])
