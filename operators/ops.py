@@ -174,6 +174,14 @@ class LoaderOptions:
     spacing: FloatVectorProperty(name="Spacing (dz, dy, dx)", size=3, default=(1.0, 1.0, 1.0), min=1e-3,
                                  description="Voxel size in mm: slice step, row step, column step")
     first_slice: EnumProperty(name="First Slice", items=FIRST_SLICE_ITEMS, default="AUTO")
+    orientation: StringProperty(name="Orientation", default="",
+                                description="Raw and image stacks: 3 letters for the patient directions in "
+                                            "which the column, row and file index increase, e.g. LPS (the "
+                                            "default), LAS (row 0 = back of the head), RAS, PIL (sagittal). "
+                                            "Empty: LPS, or LPI when the first slice is superior")
+    units: EnumProperty(name="Units", default="AUTO",
+                        items=[("AUTO", "Auto", "DICOM says its units; raw and images are stored values"),
+                               ("HU", "HU", "The raw or image samples are Hounsfield units (air -1000)")])
     series_uid: StringProperty(name="Series UID", default="",
                                description="DICOM: the SeriesInstanceUID to load when the folder "
                                            "holds several series (empty: the only/largest one)")
@@ -197,8 +205,13 @@ class LoaderOptions:
         if self.format == "RAW":
             options.update(format="raw", shape=tuple(int(n) for n in self.raw_shape),
                            dtype=dtype_string(self.raw_dtype, self.byte_order),
-                           spacing=tuple(float(s) for s in self.spacing),
-                           first_slice="inferior" if self.first_slice == "INFERIOR" else "superior")
+                           spacing=tuple(float(s) for s in self.spacing))
+            if self.orientation.strip():
+                options["orientation"] = self.orientation.strip().upper()
+            else:
+                options["first_slice"] = "inferior" if self.first_slice == "INFERIOR" else "superior"
+            if self.units == "HU":
+                options["units"] = "HU"
             return options
         if self.format == "DICOM":
             options["format"] = "dicom"
@@ -206,8 +219,12 @@ class LoaderOptions:
             options["format"] = "images"
         if self.use_spacing:
             options["spacing"] = tuple(float(s) for s in self.spacing)
-        if self.first_slice != "AUTO":
+        if self.orientation.strip():
+            options["orientation"] = self.orientation.strip().upper()
+        elif self.first_slice != "AUTO":
             options["first_slice"] = self.first_slice.lower()
+        if self.units == "HU":
+            options["units"] = "HU"
         if self.series_uid.strip():
             options["series_uid"] = self.series_uid.strip()
         return options
@@ -225,6 +242,9 @@ class LoaderOptions:
             if self.use_spacing:
                 layout.prop(self, "spacing")
         layout.prop(self, "first_slice")
+        if self.format in {"AUTO", "IMAGES", "RAW"}:
+            layout.prop(self, "orientation")
+            layout.prop(self, "units")
         if self.format in {"AUTO", "DICOM"}:
             layout.prop(self, "series_uid")
         layout.prop(self, "single_file")

@@ -149,7 +149,8 @@ def list_series(path: str | os.PathLike | Sequence[str | os.PathLike]) -> list[S
     CTImportError
         If the path does not exist or the folder is empty.
     """
-    files, _ = _gather_files(path)
+    files, label = _gather_files(path)
+    files = _expand_dicomdir(files, label, [])
     scan = _scan_dicom(files)
     return [_series_info(s) for s in _ranked_series(scan.series)]
 
@@ -254,6 +255,8 @@ def load_ct(
             raise CTImportError(f"first_slice={first_slice!r} contradicts orientation={orientation!r} "
                                 "(its third letter says where the files go); give only orientation", _label(path))
     files, label = _gather_files(path)
+    if fmt in ("auto", "dicom"):
+        files = _expand_dicomdir(files, label, warns)
 
     if fmt == "auto":
         fmt = _detect_format(files, label, shape)
@@ -358,6 +361,58 @@ def _gather_files(path) -> tuple[list[Path], str]:
         if not f.is_file():
             raise CTImportError("no such file" if not f.exists() else "not a regular file", f)
     return items, label
+
+
+def _is_dicomdir(f: Path) -> bool:
+    return f.name.upper() == "DICOMDIR" and _looks_like_dicom(f)
+
+
+def _expand_dicomdir(files: list[Path], label: str, warns: list[str]) -> list[Path]:
+    """Add the image files a DICOMDIR (a DICOM file-set's index) refers to.
+
+    A DICOMDIR names its files by ReferencedFileID (path components relative to
+    the DICOMDIR's folder, often upper-case without extension, e.g.
+    ``DICOM/ST000000/SE000001/IM000003``). Given the DICOMDIR itself, or a folder
+    holding one, the referenced files are loaded like any other files of the
+    folder; referenced files that are missing are reported in a warning.
+    """
+    dirs = [f for f in files if _is_dicomdir(f)]
+    if not dirs:
+        return files
+    pydicom = _pydicom()
+    out = list(files)
+    seen = {os.path.normcase(os.path.abspath(f)) for f in files}
+    for d in dirs:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                index = pydicom.dcmread(d, force=True)
+            records = index.get("DirectoryRecordSequence") or []
+        except Exception as exc:
+            warns.append(f"cannot read DICOMDIR {d} ({type(exc).__name__}: {exc}); its folder is searched instead")
+            continue
+        missing = []
+        for rec in records:
+            ref = rec.get("ReferencedFileID")
+            if ref is None:
+                continue
+            parts = [str(p) for p in ref] if not isinstance(ref, str) else str(ref).split("\\")
+            target = d.parent.joinpath(*parts)
+            if not target.is_file():
+                # file systems that lost the upper case of ISO 9660 names
+                alt = d.parent.joinpath(*(p.lower() for p in parts))
+                target = alt if alt.is_file() else target
+            if not target.is_file():
+                missing.append("/".join(parts))
+                continue
+            key = os.path.normcase(os.path.abspath(target))
+            if key not in seen:
+                seen.add(key)
+                out.append(target)
+        if missing:
+            warns.append(f"DICOMDIR {d} refers to {len(missing)} missing file(s): " + ", ".join(missing[:3])
+                         + (", ..." if len(missing) > 3 else ""))
+    return out
 
 
 def _top_level(files: list[Path], label: str) -> list[Path]:

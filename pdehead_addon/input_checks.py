@@ -198,7 +198,8 @@ def repair_out_of_field(data: np.ndarray, hu: bool) -> dict | None:
 
 def _subsampled(data: np.ndarray, spacing: Sequence[float], target_mm: float = 2.0, max_voxels: int = 4_000_000):
     """Strided view of ``data`` with about ``target_mm`` voxels (and at most ``max_voxels``), its spacing."""
-    steps = [max(1, int(round(target_mm / float(h)))) for h in spacing]
+    # never fewer than ~32 samples per axis, whatever the spacing says (it may be wrong)
+    steps = [max(1, min(int(round(target_mm / float(h))), n // 32)) for h, n in zip(spacing, data.shape)]
     while math.prod(math.ceil(n / s) for n, s in zip(data.shape, steps)) > max_voxels:
         steps = [s + 1 for s in steps]
     view = data[::steps[0], ::steps[1], ::steps[2]]

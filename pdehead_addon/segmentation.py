@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, Sequence
@@ -49,8 +50,12 @@ from typing import Any, Sequence
 import numpy as np
 from scipy import ndimage as ndi
 
+from . import input_checks
 from .ct_volume import CTVolume
 from .errors import SegmentationError
+
+#: Smallest slice (pixels per side) that can hold a head outline with its clean-up openings.
+MIN_SLICE_PIXELS = 16
 
 
 @dataclass
@@ -994,6 +999,10 @@ def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: flo
     data = ct.data
     if data.ndim != 3 or data.shape[1] < 3 or data.shape[2] < 3:
         raise SegmentationError(f"cannot segment a volume of shape {data.shape}: need [z, y, x] slices of >= 3x3")
+    bad = input_checks._count_chunked(data, lambda b: ~np.isfinite(b))
+    if bad:
+        raise SegmentationError(f"{bad} voxel(s) are NaN or infinite; load the volume with load_ct (which fills "
+                                "them as air with a warning) or replace them first")
     for name, value in (("lam", lam), ("theta", theta)):
         if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
             raise SegmentationError(f"{name} must be a positive number, got {value!r}")
@@ -1006,9 +1015,25 @@ def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: flo
     if threads is None:
         threads = min(2, os.cpu_count() or 1)
     spacing = tuple(float(h) for h in ct.spacing)
+    lo, hi = float(data.min()), float(data.max())
+    if not hi > lo:
+        raise SegmentationError(f"the volume is constant ({lo:g}); there is no head to segment")
+    if min(data.shape[1:]) < MIN_SLICE_PIXELS:
+        nz, ny, nx = data.shape
+        raise SegmentationError(f"the volume of {nz} x {ny} x {nx} voxels (z, y, x) is too small to segment a "
+                                f"head: slices need at least {MIN_SLICE_PIXELS} x {MIN_SLICE_PIXELS} pixels")
     if window is None:
         window = auto_window(data)
     window = (float(window[0]), float(window[1]))
+    seg_warnings: list[str] = []
+    # early: a quick look at the head's size before the solve (the spacing may be metres or microns)
+    quick, quick_sp = input_checks.object_mask(data, spacing, 0.5 * (window[0] + window[1]))
+    extent = input_checks.mask_extent_mm(quick, quick_sp)
+    if extent is None:
+        raise SegmentationError("nothing in the volume is brighter than air: no head found")
+    refusal, _ = input_checks.check_head_extent(extent, spacing)
+    if refusal:
+        raise SegmentationError(refusal)
     params = dict(lam=lam, theta=theta, tau=tau, iterations=int(iterations), levels_mm=tuple(levels_mm),
                   level_iterations=tuple(int(n) for n in level_iterations), inner=int(inner), tolerance=tolerance,
                   window=window, threshold=threshold, cleanup=cleanup, opening_mm=opening_mm,
@@ -1019,7 +1044,8 @@ def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: flo
     clean_kw = dict(opening_mm=opening_mm, cushion_level=cushion_level, cushion_mm=cushion_mm, close_mm=close_mm)
     img = window_intensities(data, window)
     if slices is not None:
-        return _segment_slices(ct, img, spacing, params, clean_kw, [int(k) for k in slices], threads)
+        seg = _segment_slices(ct, img, spacing, params, clean_kw, [int(k) for k in slices], threads)
+        return _check_result(seg, spacing, seg_warnings)
     res, info = _solve_pyramid(img, spacing, lam, theta, tau, levels_mm, level_iterations, iterations, inner,
                                tolerance, threads)
     del img
@@ -1030,7 +1056,23 @@ def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: flo
         mask, stats = clean_head_mask(mask, data, window, spacing, **clean_kw)
     meta = dict(mode="volume", window=window, params=params, solver=info, cleanup=stats)
     total = int(info["fine_iterations"]) + sum(int(level["iterations"]) for level in info["levels"])
-    return Segmentation(mask=mask, probability=q, c1=res["c1"], c2=res["c2"], iterations=total, ct=ct, meta=meta)
+    seg = Segmentation(mask=mask, probability=q, c1=res["c1"], c2=res["c2"], iterations=total, ct=ct, meta=meta)
+    return _check_result(seg, spacing, seg_warnings)
+
+
+def _check_result(seg: Segmentation, spacing, seg_warnings: list[str]) -> Segmentation:
+    """The head mask's size against human ranges: ``meta["warnings"]`` and a HeadSizeWarning."""
+    extent = input_checks.mask_extent_mm(seg.mask, spacing)
+    seg.meta["head_extent_mm"] = extent
+    if extent is not None:
+        refusal, warning = input_checks.check_head_extent(extent, spacing, "head mask")
+        message = refusal or warning
+        if message:
+            seg_warnings.append(message)
+    seg.meta["warnings"] = list(seg_warnings)
+    for message in seg_warnings:
+        warnings.warn(message, input_checks.HeadSizeWarning, stacklevel=3)
+    return seg
 
 
 def _segment_slices(ct: CTVolume, img: np.ndarray, spacing, params: dict, clean_kw: dict,
