@@ -775,10 +775,67 @@ def find_cushion(mask: np.ndarray, smooth: np.ndarray, spacing: Sequence[float],
     return _box_opening(band, size)
 
 
+def metal_slices(data: np.ndarray, window: tuple[float, float], level: float = 3.0,
+                 min_pixels: int = 3) -> np.ndarray:
+    """Per-slice metal masks: windowed intensity above ``level`` (bool, same shape as ``data``).
+
+    With air at 0 and soft tissue at 1, bone lies at about 1.5-2.5 (1100-1900 HU) and dental metal
+    saturates the scanner's range (3071 HU = 3.9; CThead's fillings 3.1). Slices with fewer than
+    ``min_pixels`` such pixels count as metal-free (all False).
+    """
+    low, high = window
+    metal = data > np.float32(low + level * (high - low))
+    few = np.count_nonzero(metal, axis=(1, 2)) < min_pixels
+    metal[few] = False
+    return metal
+
+
+def streak_components(labels: np.ndarray, n: int, metal: np.ndarray, spacing_yx: Sequence[float],
+                      alignment: float = 0.85, elongation: float = 2.0) -> np.ndarray:
+    """Which labelled thin components (1..n) are metal streaks: long and pointing at the metal.
+
+    A streak is a ray from a dense insert: a component in a slice with metal whose in-plane
+    principal axis (of its pixel positions in mm) is at least ``elongation`` times longer than
+    its width and makes ``|cos| >= alignment`` with the direction from the nearest metal pixel
+    to the component's centroid. Lips and ear rims run along the skin, across such rays.
+    Returns a bool array of length n + 1 (index 0 False).
+    """
+    out = np.zeros(n + 1, dtype=bool)
+    if not n or not metal.any():
+        return out
+    dy, dx = (float(h) for h in spacing_yx)
+    with_metal = np.flatnonzero(metal.any(axis=(1, 2)))
+    for index, sl in enumerate(ndi.find_objects(labels), start=1):
+        if sl is None:
+            continue
+        ks = np.arange(sl[0].start, sl[0].stop)
+        ks = ks[np.isin(ks, with_metal)]
+        if ks.size == 0:
+            continue
+        kk, jj, ii = np.nonzero(labels[sl] == index)
+        if kk.size < 3:
+            continue
+        pts = np.stack([(jj + sl[1].start) * dy, (ii + sl[2].start) * dx], axis=1)
+        centre = pts.mean(axis=0)
+        cov = np.cov((pts - centre).T)
+        evals, evecs = np.linalg.eigh(cov)
+        if evals[0] > 0 and math.sqrt(evals[1] / evals[0]) < elongation:
+            continue                                   # not elongated (a straight line has evals[0] = 0)
+        mj, mi = np.nonzero(metal[ks].any(axis=0))
+        mpts = np.stack([mj * dy, mi * dx], axis=1)
+        nearest = mpts[np.argmin(((mpts - centre) ** 2).sum(axis=1))]
+        radial = centre - nearest
+        norm = float(np.hypot(*radial))
+        if norm > 0 and abs(float(evecs[:, 1] @ radial)) / norm >= alignment:
+            out[index] = True
+    return out
+
+
 def clean_head_mask(mask: np.ndarray, data: np.ndarray, window: tuple[float, float], spacing: Sequence[float],
                     opening_mm: float = 2.5, cushion_level: float | None = 0.85, cushion_mm: float = 2.0,
                     max_thin_extent_mm: float = 50.0, close_mm: float = 6.0, envelope_mm: float = 3.0,
-                    noise: float | None = None) -> tuple[np.ndarray, dict]:
+                    noise: float | None = None, metal_level: float | None = 3.0,
+                    streak_close_mm: float = 2.0, streak_reach_mm: float = 40.0) -> tuple[np.ndarray, dict]:
     """The paper's clean-up of the thresholded soft membership, extended to real scans.
 
     1. Envelope: the filled outline of the head's own tissue (windowed
@@ -794,11 +851,18 @@ def clean_head_mask(mask: np.ndarray, data: np.ndarray, window: tuple[float, flo
        the component is compact (in-slice extent at most
        ``max_thin_extent_mm``: ear rims, nose tip, lips) or lies mostly inside
        the envelope (nasal septum, sinus walls); long thin structures outside
-       the head are dropped.
+       the head are dropped, and so are metal streaks: in slices with metal
+       (windowed intensity above ``metal_level``, :func:`metal_slices`) a thin
+       piece outside the envelope that is elongated along the ray from the metal
+       (:func:`streak_components`) is a bright streak, not a lip.
     4. Holes and cavities: every hole is filled per axial slice (a superset of
        the 3-D holes), and so are cavities whose opening a ``close_mm`` disk
        closes (nostrils, mouth, ear canals, streak gaps; :func:`fill_cavities`),
        so the head mask is the filled outer skin envelope.
+    5. Streak bumps and notches: in the slices with metal, within
+       ``streak_reach_mm`` of it, the outline is opened and closed with a
+       ``streak_close_mm`` disk, which removes the bumps bright streaks raise
+       on the lips and fills the notches dark streaks cut into them.
 
     Parameters
     ----------
@@ -809,6 +873,8 @@ def clean_head_mask(mask: np.ndarray, data: np.ndarray, window: tuple[float, flo
     spacing : (dz, dy, dx) mm
     opening_mm, cushion_level, cushion_mm, max_thin_extent_mm, close_mm, envelope_mm :
         See above; ``cushion_level=None`` skips step 2 (the envelope then uses 0.85).
+    metal_level, streak_close_mm, streak_reach_mm :
+        Metal-streak handling (steps 3 and 5); ``metal_level=None`` disables it.
     noise : float, optional
         Noise std in window units (default estimated).
 
@@ -844,6 +910,11 @@ def clean_head_mask(mask: np.ndarray, data: np.ndarray, window: tuple[float, flo
         stats["cushion_voxels"] = int(np.count_nonzero(cushion))
         work &= ~cushion
     del smooth
+    metal = metal_slices(data[box], window, metal_level) if metal_level is not None else None
+    if metal is not None and not metal.any():
+        metal = None
+    stats["metal_slices"] = [] if metal is None else [int(k) + box[0].start
+                                                       for k in np.flatnonzero(metal.any(axis=(1, 2)))]
     opened = open_disk(work, yx, opening_mm)
     core = largest_component(opened)
     if not core.any():
@@ -856,12 +927,26 @@ def clean_head_mask(mask: np.ndarray, data: np.ndarray, window: tuple[float, flo
         total = np.bincount(labels[thin], minlength=n + 1)
         inside = np.bincount(labels[envelope & thin], minlength=n + 1)
         keep = (_component_extents(labels, n, yx) <= max_thin_extent_mm) | (2 * inside > total)
+        if metal is not None:
+            streak = streak_components(labels, n, metal, yx) & ~(2 * inside > total)
+            stats["streak_voxels"] = int(total[streak & keep].sum())
+            keep &= ~streak
         keep[0] = False
         stats["thin_kept_voxels"] = int(total[keep].sum())
         stats["thin_dropped_voxels"] = int(total[1:].sum() - total[keep].sum())
         head = largest_component(core | keep[labels])
     del labels, thin
     head = fill_cavities(head, yx, close_mm) if close_mm > 0 else fill_holes_per_slice(head)
+    if metal is not None and streak_close_mm > 0:
+        # near the metal only: open away the bumps of bright streaks, close the notches of dark ones
+        ks = np.flatnonzero(metal.any(axis=(1, 2)))
+        near = np.stack([ndi.distance_transform_edt(~metal[k], sampling=yx) <= streak_reach_mm for k in ks])
+        part = head[ks]
+        smoothed = fill_holes_per_slice(close_disk(open_disk(part, yx, streak_close_mm), yx, streak_close_mm))
+        changed = (smoothed != part) & near
+        stats["streak_smoothed_voxels"] = int(np.count_nonzero(changed))
+        part[changed] = smoothed[changed]
+        head[ks] = largest_component(part) if part.any() else part
     out = np.zeros(mask.shape, dtype=bool)
     out[box] = head
     stats["head_voxels"] = int(np.count_nonzero(head))
