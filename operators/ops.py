@@ -182,6 +182,9 @@ class LoaderOptions:
     units: EnumProperty(name="Units", default="AUTO",
                         items=[("AUTO", "Auto", "DICOM says its units; raw and images are stored values"),
                                ("HU", "HU", "The raw or image samples are Hounsfield units (air -1000)")])
+    downsample: IntProperty(name="Downsample", default=1, min=1, max=8,
+                            description="Average blocks of N x N x N voxels on import (for very large scans: "
+                                        "2 needs about 1/8 of the memory)")
     series_uid: StringProperty(name="Series UID", default="",
                                description="DICOM: the SeriesInstanceUID to load when the folder "
                                            "holds several series (empty: the only/largest one)")
@@ -212,6 +215,8 @@ class LoaderOptions:
                 options["first_slice"] = "inferior" if self.first_slice == "INFERIOR" else "superior"
             if self.units == "HU":
                 options["units"] = "HU"
+            if self.downsample > 1:
+                options["downsample"] = int(self.downsample)
             return options
         if self.format == "DICOM":
             options["format"] = "dicom"
@@ -225,6 +230,8 @@ class LoaderOptions:
             options["first_slice"] = self.first_slice.lower()
         if self.units == "HU":
             options["units"] = "HU"
+        if self.downsample > 1:
+            options["downsample"] = int(self.downsample)
         if self.series_uid.strip():
             options["series_uid"] = self.series_uid.strip()
         return options
@@ -247,6 +254,7 @@ class LoaderOptions:
             layout.prop(self, "units")
         if self.format in {"AUTO", "DICOM"}:
             layout.prop(self, "series_uid")
+        layout.prop(self, "downsample")
         layout.prop(self, "single_file")
 
 

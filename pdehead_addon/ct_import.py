@@ -33,7 +33,7 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 
 from . import input_checks
-from .ct_volume import CTVolume
+from .ct_volume import CTVolume, downsample_volume
 from .errors import CTImportError
 
 __all__ = ["load_ct", "list_series", "SeriesInfo", "CTImportWarning"]
@@ -169,6 +169,7 @@ def load_ct(
     byte_order: str | None = None,
     header_bytes: int = 0,
     resample_spacing: Sequence[float] | None = None,
+    downsample: int | Sequence[int] | None = None,
 ) -> CTVolume:
     """Load head CT slices into a :class:`CTVolume` (float32 ``[z, y, x]``, LPS mm, k superior).
 
@@ -214,6 +215,9 @@ def load_ct(
         Voxel size of the output grid when the slices must be resampled
         (tilted, oblique or uneven). Default: the in-plane pixel spacing and the
         median slice step.
+    downsample : int or (fz, fy, fx), optional
+        Average blocks of voxels after loading (:func:`~.ct_volume.downsample_volume`),
+        for scans too large to segment in memory (``segment_head`` says when).
 
     Returns
     -------
@@ -284,6 +288,13 @@ def load_ct(
         ct = _load_raw(files, label, shape, dtype, byte_order, header_bytes, spacing, axes,
                        orientation is not None, hu_said, warns)
     _check_values(ct, label, warns)
+    if downsample is not None and np.any(np.asarray(downsample) != 1):
+        try:
+            ct = downsample_volume(ct, downsample)
+        except (ValueError, TypeError) as exc:
+            raise CTImportError(f"downsample: {exc}", label) from None
+        warns.append(f"downsampled {ct.meta['shape_before_downsample']} -> {ct.shape} voxels (block means of "
+                     f"{' x '.join(map(str, ct.meta['downsampled']))}); spacing now {ct.spacing} mm (dz, dy, dx)")
     if fmt in ("image", "raw"):
         _check_face_side(ct, warns)
 

@@ -56,6 +56,11 @@ from .errors import SegmentationError
 
 #: Smallest slice (pixels per side) that can hold a head outline with its clean-up openings.
 MIN_SLICE_PIXELS = 16
+#: Peak memory of segment_head per voxel beyond the CT itself: 5.33 GB measured on 512 x 512 x 800
+#: (scripts/bench_large_scan.py, docs/benchmarks.md), rounded up.
+SEGMENT_BYTES_PER_VOXEL = 26
+#: Default memory budget of segment_head (GB): larger scans are refused with the downsample advice.
+MEMORY_BUDGET_GB = 8.0
 
 
 @dataclass
@@ -835,7 +840,7 @@ def clean_head_mask(mask: np.ndarray, data: np.ndarray, window: tuple[float, flo
                     opening_mm: float = 2.5, cushion_level: float | None = 0.85, cushion_mm: float = 2.0,
                     max_thin_extent_mm: float = 50.0, close_mm: float = 6.0, envelope_mm: float = 3.0,
                     noise: float | None = None, metal_level: float | None = 3.0,
-                    streak_close_mm: float = 2.0, streak_reach_mm: float = 40.0) -> tuple[np.ndarray, dict]:
+                    streak_close_mm: float = 3.0, streak_reach_mm: float = 40.0) -> tuple[np.ndarray, dict]:
     """The paper's clean-up of the thresholded soft membership, extended to real scans.
 
     1. Envelope: the filled outline of the head's own tissue (windowed
@@ -953,6 +958,54 @@ def clean_head_mask(mask: np.ndarray, data: np.ndarray, window: tuple[float, flo
     return out, stats
 
 
+def cut_at_neck(mask: np.ndarray, spacing: Sequence[float], head_height_mm: float = 160.0,
+                area_jump: float = 2.0, neck_margin: float = 1.1) -> tuple[np.ndarray, dict | None]:
+    """Stop the head mask at the neck when the scan goes on into the shoulders.
+
+    A head-and-neck scan reaches the shoulders, which join the neck in the mask; the
+    PDE head (and its boundary curves) must end at the neck. The head's widest slice
+    is looked for in the top ``head_height_mm`` of the mask (the widest level, at the
+    ears, lies 90-130 mm below the vertex; the shoulders 200 mm or more). Going down from it the cross-section shrinks to the neck; the
+    trunk starts at the first slice whose area exceeds ``area_jump`` times the
+    smallest area above it and which is wider than the head. The mask is cut below
+    the neck: the lowest slice between the head's widest slice and the trunk whose
+    area is within ``neck_margin`` of that smallest area. Scans without shoulders are
+    returned unchanged (``None`` info).
+
+    Returns
+    -------
+    (mask, info) with info = dict(neck_slice, trunk_slice, removed_voxels) or None.
+    """
+    dz, dy, dx = (float(h) for h in spacing)
+    cols = mask.any(axis=1)
+    nz = mask.shape[0]
+    width = np.zeros(nz)
+    for k in np.flatnonzero(cols.any(axis=1)):
+        c = np.flatnonzero(cols[k])
+        width[k] = (c[-1] - c[0] + 1) * dx
+    present = np.flatnonzero(width > 0)
+    if present.size < 3:
+        return mask, None
+    area = np.count_nonzero(mask, axis=(1, 2)).astype(np.float64) * dy * dx
+    top = present[-1]
+    head = [k for k in present if k >= top - head_height_mm / dz]
+    widest = max(head, key=lambda k: width[k])
+    smallest, trunk = math.inf, None
+    for k in range(widest, present[0] - 1, -1):        # k decreases toward inferior
+        if area[k] > area_jump * smallest and width[k] > width[widest]:
+            trunk = k
+            break
+        smallest = min(smallest, area[k]) if area[k] > 0 else smallest
+    if trunk is None:
+        return mask, None
+    span = np.arange(trunk + 1, widest + 1)
+    neck = int(span[np.flatnonzero(area[span] <= neck_margin * smallest)[0]])
+    removed = int(np.count_nonzero(mask[:neck]))
+    out = mask.copy()
+    out[:neck] = False
+    return out, dict(neck_slice=neck, trunk_slice=int(trunk), removed_voxels=removed)
+
+
 # ----------------------------------------------------------------------------------------------
 # The whole step
 # ----------------------------------------------------------------------------------------------
@@ -1020,7 +1073,8 @@ def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: flo
                  level_iterations: Sequence[int] = (20,), inner: int = 1, tolerance: float = 1e-4,
                  window: tuple[float, float] | None = None, threshold: float = 0.5, cleanup: bool = True,
                  opening_mm: float = 2.5, cushion_level: float | None = 0.85, cushion_mm: float = 2.0,
-                 close_mm: float = 6.0, slices: Sequence[int] | None = None, threads: int | None = None) -> Segmentation:
+                 close_mm: float = 6.0, slices: Sequence[int] | None = None, threads: int | None = None,
+                 max_memory_gb: float | None = MEMORY_BUDGET_GB) -> Segmentation:
     """Segment the head with the 3-D Chan-Vese soft model (eq. 16-21) and clean it up.
 
     The intensities are first windowed to [0, 1] (air -> 0, soft tissue -> 1,
@@ -1070,6 +1124,10 @@ def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: flo
         ``iterations`` is the largest count run on one slice.
     threads : int, optional
         Worker threads of the solver (default: min(2, CPUs)).
+    max_memory_gb : float or None
+        Refuse (before any work) a volume whose segmentation would need more than
+        this, with the advice to downsample (``load_ct(..., downsample=2)``, CLI
+        ``--downsample 2``, import dialog "Downsample"); None: no limit.
 
     Returns
     -------
@@ -1107,6 +1165,16 @@ def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: flo
         nz, ny, nx = data.shape
         raise SegmentationError(f"the volume of {nz} x {ny} x {nx} voxels (z, y, x) is too small to segment a "
                                 f"head: slices need at least {MIN_SLICE_PIXELS} x {MIN_SLICE_PIXELS} pixels")
+    if max_memory_gb is not None:
+        need = (SEGMENT_BYTES_PER_VOXEL + data.itemsize) * data.size / 1e9
+        if need > max_memory_gb:
+            factor = max(2, math.ceil((need / max_memory_gb) ** (1.0 / 3.0)))
+            nz, ny, nx = data.shape
+            raise SegmentationError(
+                f"segmenting {nx} x {ny} x {nz} voxels (x, y, z) needs about {need:.3g} GB, more than the "
+                f"{max_memory_gb:g} GB budget; downsample the scan on import by {factor} (load_ct(..., "
+                f"downsample={factor}), CLI --downsample {factor}, import dialog 'Downsample') for about "
+                f"{need / factor ** 3:.3g} GB, or pass max_memory_gb=None")
     if window is None:
         window = auto_window(data)
     window = (float(window[0]), float(window[1]))
@@ -1139,6 +1207,14 @@ def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: flo
     mask = q > np.float32(threshold)
     if cleanup:
         mask, stats = clean_head_mask(mask, data, window, spacing, **clean_kw)
+        mask, neck = cut_at_neck(mask, spacing)
+        stats["neck_cut"] = neck
+        if neck is not None:
+            z = ct.index_to_patient(np.array([neck["neck_slice"], 0, 0]))[2]
+            seg_warnings.append(f"the scan goes on below the neck into the shoulders (from slice "
+                                f"{neck['trunk_slice']} down): the head mask stops at the neck, slice "
+                                f"{neck['neck_slice']} (z = {z:.0f} mm); {neck['removed_voxels']} voxels below "
+                                "it are left out")
     meta = dict(mode="volume", window=window, params=params, solver=info, cleanup=stats)
     total = int(info["fine_iterations"]) + sum(int(level["iterations"]) for level in info["levels"])
     seg = Segmentation(mask=mask, probability=q, c1=res["c1"], c2=res["c2"], iterations=total, ct=ct, meta=meta)

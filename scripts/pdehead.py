@@ -72,6 +72,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "index increase, e.g. LPS (default), LAS (row 0 = back of the head), RAS, PIL")
     g.add_argument("--units", choices=["HU", "stored"], help="raw/image stacks: the samples are HU (or not)")
     g.add_argument("--series-uid", help="DICOM SeriesInstanceUID when the folder holds several series")
+    g.add_argument("--downsample", type=int, default=1, metavar="N",
+                   help="average N x N x N voxel blocks on import (very large scans: 2 needs 1/8 of the memory)")
     args = p.parse_args(argv)
     if args.phantom == bool(args.input):
         p.error("give either INPUT or --phantom")
@@ -83,7 +85,7 @@ def parse_args(argv=None) -> argparse.Namespace:
         raise CLIError(f"{args.input}: no such file or folder", 2)
     if args.render_volume and args.no_volume:
         p.error("--render-volume needs the volume (drop --no-volume)")
-    for name, low in (("patches", 1), ("samples", 16), ("nu", 4), ("nv", 8), ("nw", 2), ("resolution", 16),
+    for name, low in (("patches", 1), ("samples", 16), ("downsample", 1), ("nu", 4), ("nv", 8), ("nw", 2), ("resolution", 16),
                       ("render_samples", 1)):
         if getattr(args, name) < low:
             p.error(f"--{name.replace('_', '-')} must be at least {low}, got {getattr(args, name)}")
@@ -173,6 +175,8 @@ def loader_kwargs(args) -> dict:
         kwargs["units"] = args.units.upper()
     if args.series_uid:
         kwargs["series_uid"] = args.series_uid
+    if args.downsample > 1:
+        kwargs["downsample"] = args.downsample
     return kwargs
 
 

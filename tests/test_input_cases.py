@@ -274,3 +274,49 @@ def test_dicomdir_file_set_is_read(phantom_series, plain_seg, tmp_path):
     first.unlink()
     _, warns = load_w(out / "DICOMDIR")
     assert any("refers to 1 missing file(s)" in w for w in warns), warns
+
+
+# ------------------------------------------------------------------------- large scans
+def test_downsample_keeps_patient_positions_and_means(ph, tmp_path):
+    from pdehead_addon.ct_volume import downsample_volume
+    small = downsample_volume(ph.ct, 2)
+    assert small.shape == (50, 64, 64) and small.spacing == tuple(2 * h for h in ph.ct.spacing)
+    np.testing.assert_allclose(small.data[3, 4, 5], ph.ct.data[6:8, 8:10, 10:12].mean(), rtol=1e-5)
+    # voxel (k, j, i) of the small grid sits at the centre of its block
+    centre = ph.ct.index_to_patient(np.array([6.5, 8.5, 10.5]))
+    np.testing.assert_allclose(small.index_to_patient(np.array([3, 4, 5])), centre, atol=1e-9)
+    ct, warns = load_w(write_raw(tmp_path / "v.raw", np.rint(ph.ct.data)), **raw_opts(ph, downsample=(1, 2, 2)))
+    assert ct.shape == (100, 64, 64) and any("downsampled (100, 128, 128) -> (100, 64, 64)" in w for w in warns)
+
+
+def test_shoulders_do_not_join_the_head_mask():
+    """A head-and-neck scan (the phantom with a trunk painted below the neck) stops at the neck."""
+    sys_path = str(Path(__file__).resolve().parents[1] / "scripts")
+    import sys
+    sys.path.insert(0, sys_path)
+    import bench_large_scan as B
+    shape = (200, 256, 256)
+    spacing = tuple(f / n for f, n in zip(B.FOV_MM, shape))
+    ph = make_phantom(shape=shape, spacing=spacing)
+    trunk = B.add_shoulders(ph.ct)
+    assert trunk.sum() > 80
+    seg, warns = segment_w(ph.ct)
+    neck = seg.meta["cleanup"]["neck_cut"]
+    assert neck is not None and len(warns) == 1 and "into the shoulders" in warns[0]
+    assert not seg.mask[trunk].any()                               # nothing of the trunk
+    zs = ph.ct.slice_heights()
+    lowest = zs[np.flatnonzero(seg.mask.any(axis=(1, 2)))[0]]
+    assert B.SHOULDER["z_neck"] < lowest < B.SHOULDER["z_neck"] + 30  # ... and the neck down to near the shoulders
+    width = [np.ptp(np.flatnonzero(m.any(axis=0))) * spacing[2] for m in seg.mask if m.any()]
+    assert max(width) < 175                                        # the head's own width (166 mm with ears)
+    above = ~trunk & (zs > lowest)
+    per = M.slice_jaccard_on_head(seg.mask[above], ph.head_mask[above], 0.01)
+    assert per.mean() > 0.97
+
+
+def test_too_large_scan_is_offered_a_downsample_before_any_work(ph):
+    # the phantom's 1.6 M voxels need about 0.049 GB: a budget of 0.02 GB stands for a scan too large
+    with pytest.raises(SegmentationError, match=r"128 x 128 x 100 voxels \(x, y, z\) needs about 0.0492 GB, more "
+                                                r"than the 0.02 GB budget; downsample the scan on import by 2 "
+                                                r".*--downsample 2.* for about 0.0061\d GB"):
+        segment_head(ph.ct, max_memory_gb=0.02)
