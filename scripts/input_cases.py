@@ -127,8 +127,7 @@ def _(tmp):
 @case("4d", "spacing 2x too large (head outside the human range, not absurd)")
 def _(tmp):
     ph = _phantom()
-    seg = segment_head(CTVolume(ph.ct.data, tuple(2 * h for h in ph.ct.spacing)))
-    return "head mask {:.0f} x {:.0f} x {:.0f} mm".format(*seg.meta["head_extent_mm"])
+    segment_head(CTVolume(ph.ct.data, tuple(2 * h for h in ph.ct.spacing)))
 
 
 @case("4e", "the phantom itself (must stay valid)")
@@ -259,6 +258,39 @@ def _(tmp):
     return f"per-slice Jaccard in the {per.size} streak slices: min {per.min():.4f}, mean {per.mean():.4f}"
 
 
+@case("L", "a scan too large for the memory budget (the phantom against a 0.02 GB budget)")
+def _(tmp):
+    segment_head(_phantom().ct, max_memory_gb=0.02)
+
+
+def _cli(tmp, *args):
+    import os
+    import subprocess
+    env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp / "blender-user"))
+    r = subprocess.run([sys.executable, str(ROOT / "scripts" / "pdehead.py"), *map(str, args)], capture_output=True,
+                       text=True, env=env, cwd=tmp)
+    lines = [line for line in (r.stdout + r.stderr).splitlines() if "error" in line.lower()]
+    return f"exit {r.returncode}; " + (" / ".join(lines) if lines else r.stdout.strip().splitlines()[-1])
+
+
+@case("7a", "CLI: --patches 0")
+def _(tmp):
+    return _cli(tmp, "--phantom", "--patches", 0)
+
+
+@case("7b", "CLI: an empty folder with --out over an existing file")
+def _(tmp):
+    (tmp / "empty").mkdir()
+    (tmp / "kept.blend").write_bytes(b"earlier")
+    out = _cli(tmp, tmp / "empty", "--out", tmp / "kept.blend")
+    return out + f"; kept.blend unchanged: {(tmp / 'kept.blend').read_bytes() == b'earlier'}"
+
+
+@case("7c", "CLI: --orientation together with --first-slice")
+def _(tmp):
+    return _cli(tmp, "--phantom", "--orientation", "LAS", "--first-slice", "superior")
+
+
 # ------------------------------------------------------------------------------------ the table
 def run_case(fn) -> tuple[str, str]:
     with tempfile.TemporaryDirectory(prefix="pdehead-case-") as tmp, warnings.catch_warnings(record=True) as caught:
@@ -268,12 +300,17 @@ def run_case(fn) -> tuple[str, str]:
         except PDEHeadError as exc:
             return "error", _clean(str(exc), tmp)
         messages = [_clean(str(w.message), tmp) for w in caught if issubclass(w.category, UserWarning)]
+        note = _clean(note, tmp) if note else ""
+    if note.startswith("exit ") and not note.startswith("exit 0"):     # a CLI case that failed as it should
+        return "error", note
     if messages:
         return "warning", " / ".join(dict.fromkeys(messages)) + (f" ({note})" if note else "")
-    return "ok", note or ""
+    return "ok", note
 
 
 def _clean(text: str, tmp: str) -> str:
+    from datasets import SHARED_DATA
+    text = text.replace(str(SHARED_DATA.resolve()), "shared/data").replace(str(SHARED_DATA), "shared/data")
     return text.replace(tmp + "/", "").replace(tmp, ".").replace("|", "\\|").replace("\n", " ")
 
 
