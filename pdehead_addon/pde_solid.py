@@ -164,9 +164,12 @@ def solid_mesh(head, nu: int, nv: int, nw: int, u_range: tuple[float, float] = (
         faces = faces[:, ::-1]
         corners = corners[:, ::-1]
     iw_of = faces % nw
+    iu_of = faces // (nv * nw)
     if w0 == 0.0:  # inner face on the spine: one vertex per u
-        iu_of = faces // (nv * nw)
         faces = np.where(iw_of == 0, iu_of * nv * nw, faces)
+    if getattr(head, "vertex", None) is not None and u1 == 1.0:
+        # the crown's pole: every (v, w) of the last row is the same point (kept as its w = w1 vertex)
+        faces = np.where(iu_of == nu - 1, (nu - 1) * nv * nw + nw - 1, faces)
     if full:   # the seam corner (unwrapped column nv) gets v0/2pi + 1
         cv_uv = v0 / TWO_PI + corners[..., 1] / nv
     else:
@@ -263,7 +266,9 @@ def _plane_u(head, z: np.ndarray) -> np.ndarray:
         z1 = head.spine(np.clip(uo, 0, 1))[:, 2]
         z2 = head.spine(np.clip(uo + np.where(uo < 1 - h, h, -h), 0, 1))[:, 2]
         slope = (z2 - z1) / np.where(uo < 1 - h, h, -h)
-        u[ok] = np.clip(uo - (z1 - z[ok]) / slope, 0.0, 1.0)
+        flat = np.abs(slope) < 1e-9                   # the dome's pole: z'(u) = 0, keep the interpolated u
+        step = np.where(flat, 0.0, (z1 - z[ok]) / np.where(flat, 1.0, slope))
+        u[ok] = np.clip(uo - step, 0.0, 1.0)
     return u
 
 
