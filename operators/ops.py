@@ -378,6 +378,11 @@ def step_segment(coll) -> None:
         s.seg_fraction = float(seg.mask.mean())
         s.seg_iterations = int(seg.iterations)
         s.seg_c1, s.seg_c2 = float(seg.c1), float(seg.c2)
+        # head size outside the human range, shoulders cut off: shown with the loader's warnings
+        known = [w for w in s.warnings.split("; ") if w]
+        new = [w for w in seg.meta.get("warnings", []) if w not in known]
+        if new:
+            s.warnings = "; ".join(known + new)[:1000]
     state.record_timing(coll, "segment", t.seconds)
 
 

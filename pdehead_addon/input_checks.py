@@ -278,16 +278,18 @@ def check_head_extent(extent_xyz: Sequence[float], spacing: Sequence[float], wha
 
 
 def face_side(data: np.ndarray, spacing: Sequence[float], level: float | None = None,
-              depth_mm: float = 12.0, ratio: float = 0.55) -> dict:
+              depth: float = 0.06, ratio: float = 0.55) -> dict:
     """Which end of the row axis (j) carries the face, judged by the nose.
 
     In an axial slice through the nose the head's outline is narrow at its front end
-    (the nose, 15-35 mm wide ``depth_mm`` behind its tip) and wide at its back end
-    (the occiput, 80-120 mm there). On a ~2 mm copy, the largest bright object
-    (opened by 3 mm to drop thin holder shells and cloth) is measured per slice: its
-    width ``depth_mm`` inside the low-j end and inside the high-j end. A slice votes
-    for "face at low j" when the low-j width is under ``ratio`` times the high-j
-    width, and the other way round.
+    (the nose, 15-35 mm wide 12 mm behind its tip) and wide at its back end (the
+    occiput, 80-120 mm there). On a ~2 mm copy, the largest bright object (opened
+    by 1.5 % of its size to drop thin holder shells and cloth) is measured in every
+    slice holding at least 15 % of the largest cross-section: its width ``depth``
+    (a share of the object's front-to-back extent, 0.06 = 12 mm of a 200 mm head)
+    inside the low-j end and inside the high-j end. Sizes are relative, so a wrong
+    spacing does not change the vote. A slice votes for "face at low j" when the
+    low-j width is under ``ratio`` times the high-j width, and the other way round.
 
     Returns
     -------
@@ -295,14 +297,18 @@ def face_side(data: np.ndarray, spacing: Sequence[float], level: float | None = 
     slices=slices measured, side="low" | "high" | "unknown")
     """
     mask, sp = object_mask(data, spacing, level)
-    dz, dy, dx = sp
-    radius = max(1, int(round(3.0 / max(dx, dy))))
+    rows_any = np.flatnonzero(mask.any(axis=(0, 2)))
+    if rows_any.size < 10:
+        return dict(low=0, high=0, slices=0, side="unknown")
+    extent = rows_any[-1] - rows_any[0] + 1                  # front-to-back size in pixels
+    radius = max(1, int(round(0.015 * extent)))
     disk = np.hypot(*np.mgrid[-radius:radius + 1, -radius:radius + 1]) <= radius
-    depth = max(1, int(round(depth_mm / dy)))
+    depth = max(1, int(round(depth * extent)))
+    areas = np.count_nonzero(mask, axis=(1, 2))
     low = high = measured = 0
     for k in range(mask.shape[0]):
         m = mask[k]
-        if m.sum() * dx * dy < 2000.0:        # less than ~20 cm^2: above the vertex, below the chin
+        if areas[k] < 0.15 * areas.max():     # above the vertex, below the chin
             continue
         m = ndi.binary_opening(m, structure=disk)
         rows = np.flatnonzero(m.any(axis=1))

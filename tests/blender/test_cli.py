@@ -115,4 +115,10 @@ def test_cli_raw_orientation_and_no_out_says_nothing_saved(tmp_path):
     assert result.stdout.rstrip().endswith("not saved: no --out given (pass --out FILE.blend to keep the result)")
     result = run_cli(raw, *common, "--orientation", "LAS", tmp_path=tmp_path)
     assert result.returncode == 0, result.stderr[-3000:]
-    assert "the face (nose)" not in result.stdout
+    assert "the face (nose)" not in result.stdout and "warning" not in result.stdout
+    # twice the true spacing makes a head outside the human range: the segmentation's warning reaches
+    # the summary
+    doubled = [str(2 * float(a)) if i in (6, 7, 8) else a for i, a in enumerate(common)]  # dz, dy, dx
+    result = run_cli(raw, *doubled, "--orientation", "LAS", tmp_path=tmp_path)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "warning   the head mask is" in result.stdout and "outside the human range" in result.stdout
