@@ -320,3 +320,28 @@ def test_too_large_scan_is_offered_a_downsample_before_any_work(ph):
                                                 r"than the 0.02 GB budget; downsample the scan on import by 2 "
                                                 r".*--downsample 2.* for about 0.0061\d GB"):
         segment_head(ph.ct, max_memory_gb=0.02)
+
+
+def test_jpeg_ls_file_decodes_like_the_uncompressed_one():
+    """JPEG-LS (pydicom cannot write it): pydicom's own test pair, decoded by pylibjpeg-libjpeg."""
+    from pydicom.data import get_testdata_file
+    plain, _ = load_w(get_testdata_file("MR_small.dcm"))
+    jls, warns = load_w(get_testdata_file("MR_small_jpeg_ls_lossless.dcm"))
+    assert jls.meta["transfer_syntax"] == "JPEG-LS Lossless Image Compression"
+    np.testing.assert_array_equal(jls.data, plain.data)
+    assert any("modality is MR, not CT" in w for w in warns)
+
+
+def test_image_stack_orientation_and_face_warning(ph, tmp_path):
+    """Numbered 8-bit PNG slices stored back-of-the-head first, as in the raw case."""
+    from PIL import Image
+    grey = np.clip((ph.ct.data[:, ::-1] + 1000.0) / 8.0, 0, 255).astype(np.uint8)
+    folder = tmp_path / "png"
+    folder.mkdir()
+    for k, image in enumerate(grey):
+        Image.fromarray(image).save(folder / f"slice{k + 1}.png")
+    ct, warns = load_w(folder, spacing=ph.ct.spacing)
+    assert any("the face (nose) seems to lie on the side" in w for w in warns), warns
+    ct, warns = load_w(folder, spacing=ph.ct.spacing, orientation="LAS")
+    assert warns == [] and ct.meta["format"] == "image"
+    np.testing.assert_array_equal(ct.data, grey[:, ::-1].astype(np.float32))
