@@ -88,10 +88,15 @@ def orientation_code(col: np.ndarray, row: np.ndarray, sl: np.ndarray) -> str:
 # Voxel values
 # ----------------------------------------------------------------------------------------------
 
-def _count_chunked(data: np.ndarray, test) -> int:
-    """Count of ``test(block)`` over z-slabs (no full-size temporary)."""
+def _slabs(data: np.ndarray):
+    """Views of ``data`` in z-slabs of about 8 M voxels (bounded temporaries at any size)."""
     step = max(1, 8_000_000 // max(1, data.shape[1] * data.shape[2]))
-    return int(sum(np.count_nonzero(test(data[k:k + step])) for k in range(0, data.shape[0], step)))
+    return (data[k:k + step] for k in range(0, data.shape[0], step))
+
+
+def count_non_finite(data: np.ndarray) -> int:
+    """Number of NaN / inf voxels."""
+    return int(sum(np.count_nonzero(~np.isfinite(block)) for block in _slabs(data)))
 
 
 def repair_non_finite(data: np.ndarray, hu: bool) -> tuple[int, float | None]:
@@ -104,20 +109,15 @@ def repair_non_finite(data: np.ndarray, hu: bool) -> tuple[int, float | None]:
     ValueError
         When no voxel is finite.
     """
-    bad = _count_chunked(data, lambda b: ~np.isfinite(b))
+    bad = count_non_finite(data)
     if not bad:
         return 0, None
     if bad == data.size:
         raise ValueError(f"all {data.size} voxels are NaN or infinite")
-    if hu:
-        fill = AIR_HU
-    else:
-        step = max(1, 8_000_000 // max(1, data.shape[1] * data.shape[2]))
-        fill = min(float(np.nanmin(np.where(np.isfinite(b), b, np.nan))) for k in range(0, data.shape[0], step)
-                   if np.isfinite(b := data[k:k + step]).any())
-    step = max(1, 8_000_000 // max(1, data.shape[1] * data.shape[2]))
-    for k in range(0, data.shape[0], step):
-        block = data[k:k + step]
+    fill = AIR_HU
+    if not hu:
+        fill = min(float(block[np.isfinite(block)].min()) for block in _slabs(data) if np.isfinite(block).any())
+    for block in _slabs(data):
         block[~np.isfinite(block)] = fill
     return bad, float(fill)
 

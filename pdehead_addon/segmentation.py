@@ -1142,7 +1142,7 @@ def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: flo
     data = ct.data
     if data.ndim != 3 or data.shape[1] < 3 or data.shape[2] < 3:
         raise SegmentationError(f"cannot segment a volume of shape {data.shape}: need [z, y, x] slices of >= 3x3")
-    bad = input_checks._count_chunked(data, lambda b: ~np.isfinite(b))
+    bad = input_checks.count_non_finite(data)
     if bad:
         raise SegmentationError(f"{bad} voxel(s) are NaN or infinite; load the volume with load_ct (which fills "
                                 "them as air with a warning) or replace them first")
