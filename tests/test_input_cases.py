@@ -265,6 +265,8 @@ def test_dicomdir_file_set_is_read(phantom_series, plain_seg, tmp_path):
     names = sorted(p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file())
     assert "DICOMDIR" in names and not any(n.endswith(".dcm") for n in names)
     plain_ct, _ = plain_seg
+    from pdehead_addon import list_series
+    assert [i.slice_count for i in list_series(out / "DICOMDIR")] == [len(phantom_series[1])]
     for source in (out / "DICOMDIR", out):
         ct, warns = load_w(source)
         np.testing.assert_array_equal(ct.data, plain_ct.data)
