@@ -174,6 +174,17 @@ class LoaderOptions:
     spacing: FloatVectorProperty(name="Spacing (dz, dy, dx)", size=3, default=(1.0, 1.0, 1.0), min=1e-3,
                                  description="Voxel size in mm: slice step, row step, column step")
     first_slice: EnumProperty(name="First Slice", items=FIRST_SLICE_ITEMS, default="AUTO")
+    orientation: StringProperty(name="Orientation", default="",
+                                description="Raw and image stacks: 3 letters for the patient directions in "
+                                            "which the column, row and file index increase, e.g. LPS (the "
+                                            "default), LAS (row 0 = back of the head), RAS, PIL (sagittal). "
+                                            "Empty: LPS, or LPI when the first slice is superior")
+    units: EnumProperty(name="Units", default="AUTO",
+                        items=[("AUTO", "Auto", "DICOM says its units; raw and images are stored values"),
+                               ("HU", "HU", "The raw or image samples are Hounsfield units (air -1000)")])
+    downsample: IntProperty(name="Downsample", default=1, min=1, max=8,
+                            description="Average blocks of N x N x N voxels on import (for very large scans: "
+                                        "2 needs about 1/8 of the memory)")
     series_uid: StringProperty(name="Series UID", default="",
                                description="DICOM: the SeriesInstanceUID to load when the folder "
                                            "holds several series (empty: the only/largest one)")
@@ -197,8 +208,15 @@ class LoaderOptions:
         if self.format == "RAW":
             options.update(format="raw", shape=tuple(int(n) for n in self.raw_shape),
                            dtype=dtype_string(self.raw_dtype, self.byte_order),
-                           spacing=tuple(float(s) for s in self.spacing),
-                           first_slice="inferior" if self.first_slice == "INFERIOR" else "superior")
+                           spacing=tuple(float(s) for s in self.spacing))
+            if self.orientation.strip():
+                options["orientation"] = self.orientation.strip().upper()
+            else:
+                options["first_slice"] = "inferior" if self.first_slice == "INFERIOR" else "superior"
+            if self.units == "HU":
+                options["units"] = "HU"
+            if self.downsample > 1:
+                options["downsample"] = int(self.downsample)
             return options
         if self.format == "DICOM":
             options["format"] = "dicom"
@@ -206,8 +224,14 @@ class LoaderOptions:
             options["format"] = "images"
         if self.use_spacing:
             options["spacing"] = tuple(float(s) for s in self.spacing)
-        if self.first_slice != "AUTO":
+        if self.orientation.strip():
+            options["orientation"] = self.orientation.strip().upper()
+        elif self.first_slice != "AUTO":
             options["first_slice"] = self.first_slice.lower()
+        if self.units == "HU":
+            options["units"] = "HU"
+        if self.downsample > 1:
+            options["downsample"] = int(self.downsample)
         if self.series_uid.strip():
             options["series_uid"] = self.series_uid.strip()
         return options
@@ -225,8 +249,12 @@ class LoaderOptions:
             if self.use_spacing:
                 layout.prop(self, "spacing")
         layout.prop(self, "first_slice")
+        if self.format in {"AUTO", "IMAGES", "RAW"}:
+            layout.prop(self, "orientation")
+            layout.prop(self, "units")
         if self.format in {"AUTO", "DICOM"}:
             layout.prop(self, "series_uid")
+        layout.prop(self, "downsample")
         layout.prop(self, "single_file")
 
 
@@ -350,6 +378,11 @@ def step_segment(coll) -> None:
         s.seg_fraction = float(seg.mask.mean())
         s.seg_iterations = int(seg.iterations)
         s.seg_c1, s.seg_c2 = float(seg.c1), float(seg.c2)
+        # head size outside the human range, shoulders cut off: shown with the loader's warnings
+        known = [w for w in s.warnings.split("; ") if w]
+        new = [w for w in seg.meta.get("warnings", []) if w not in known]
+        if new:
+            s.warnings = "; ".join(known + new)[:1000]
     state.record_timing(coll, "segment", t.seconds)
 
 

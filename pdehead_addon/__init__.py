@@ -19,6 +19,7 @@ from .errors import PDEHeadError, CTImportError, SegmentationError, BoundaryErro
 from .ct_volume import CTVolume
 from .mesh import Mesh
 from .ct_import import load_ct, list_series, SeriesInfo, CTImportWarning
+from .input_checks import HeadSizeWarning
 from .phantom import make_phantom, Phantom
 from .dicom_export import write_dicom_series, write_phantom_series
 from .segmentation import Segmentation, segment_head

@@ -20,6 +20,7 @@ Exit status: 0 on success, 1 when a step fails, 2 on bad arguments or input (one
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib.util
 import os
 import sys
@@ -73,7 +74,13 @@ def parse_args(argv=None) -> argparse.Namespace:
     g.add_argument("--dtype", help="raw data type, numpy style: '>i2' (big-endian int16), '<u2', 'u1', '<f4'")
     g.add_argument("--spacing", type=float, nargs=3, metavar=("DZ", "DY", "DX"), help="voxel size in mm")
     g.add_argument("--first-slice", choices=["superior", "inferior"], help="where the first file lies")
+    g.add_argument("--orientation", metavar="CODE",
+                   help="raw/image stacks: 3 letters for the directions in which the column, row and file "
+                        "index increase, e.g. LPS (default), LAS (row 0 = back of the head), RAS, PIL")
+    g.add_argument("--units", choices=["HU", "stored"], help="raw/image stacks: the samples are HU (or not)")
     g.add_argument("--series-uid", help="DICOM SeriesInstanceUID when the folder holds several series")
+    g.add_argument("--downsample", type=int, default=1, metavar="N",
+                   help="average N x N x N voxel blocks on import (very large scans: 2 needs 1/8 of the memory)")
     args = p.parse_args(argv)
     if args.phantom == bool(args.input):
         p.error("give either INPUT or --phantom")
@@ -87,6 +94,15 @@ def parse_args(argv=None) -> argparse.Namespace:
         p.error("--render-volume needs the volume (drop --no-volume)")
     if args.export and not args.skull:
         p.error("--export needs --skull")
+    for name, low in (("patches", 1), ("samples", 16), ("downsample", 1), ("nu", 4), ("nv", 8), ("nw", 2), ("resolution", 16),
+                      ("render_samples", 1)):
+        if getattr(args, name) < low:
+            p.error(f"--{name.replace('_', '-')} must be at least {low}, got {getattr(args, name)}")
+    if not args.voxel_size > 0:
+        p.error(f"--voxel-size must be positive, got {args.voxel_size}")
+    if args.orientation and args.first_slice:
+        p.error("give either --orientation or --first-slice (the orientation's third letter says where "
+                "the files go)")
     return args
 
 
@@ -104,10 +120,32 @@ def register_addon():
     return module
 
 
+@contextlib.contextmanager
+def _blender_stdout(drop=("Error:",)):
+    """Capture what Blender's C code prints on stdout (operator reports, 'Info: Saved as ...') and pass
+    it on without the lines starting with ``drop`` (an ERROR report is printed once, by main)."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    with tempfile.TemporaryFile(mode="w+b") as buf:
+        os.dup2(buf.fileno(), 1)
+        try:
+            yield
+        finally:
+            sys.stdout.flush()
+            os.dup2(saved, 1)
+            os.close(saved)
+            buf.seek(0)
+            text = buf.read().decode("utf-8", "replace")
+            kept = [line for line in text.splitlines() if line and not line.startswith(drop)]
+            if kept:
+                print("\n".join(kept), flush=True)
+
+
 def _call(op, **kwargs) -> None:
     """Run one operator; its ERROR report becomes a CLIError with the report's text."""
     try:
-        result = op(**kwargs)
+        with _blender_stdout():
+            result = op(**kwargs)
     except RuntimeError as exc:
         message = str(exc).strip()
         message = message[len("Error: "):] if message.startswith("Error: ") else message
@@ -140,8 +178,14 @@ def loader_kwargs(args) -> dict:
         kwargs["use_spacing"] = True
     if args.first_slice:
         kwargs["first_slice"] = args.first_slice.upper()
+    if args.orientation:
+        kwargs["orientation"] = args.orientation.upper()
+    if args.units:
+        kwargs["units"] = args.units.upper()
     if args.series_uid:
         kwargs["series_uid"] = args.series_uid
+    if args.downsample > 1:
+        kwargs["downsample"] = args.downsample
     return kwargs
 
 
@@ -151,10 +195,22 @@ def run(args) -> dict:
     state = addon.operators.state
     bpy.ops.wm.read_homefile(use_empty=True)
     bpy.context.preferences.filepaths.save_version = 0  # no .blend1 backups (temporary user folder)
+    scratch = None
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        bpy.ops.wm.save_as_mainfile(filepath=str(args.out.resolve()))  # first, so the VDB goes beside it
+        # A scratch .blend beside the output gives the VDB its folder; the real file is written only
+        # when every step worked, so a failed run leaves an existing --out file as it was.
+        scratch = args.out.resolve().parent / f".{args.out.stem}.pdehead-partial.blend"
+        with _blender_stdout(drop=("Info: Saved",)):
+            bpy.ops.wm.save_as_mainfile(filepath=str(scratch))
+    try:
+        return _steps(args, bpy, addon, state)
+    finally:
+        if scratch is not None:
+            scratch.unlink(missing_ok=True)
 
+
+def _steps(args, bpy, addon, state) -> dict:
     ops = bpy.ops.pdehead
     t0 = time.perf_counter()
     if args.phantom:
@@ -181,7 +237,8 @@ def run(args) -> dict:
     print(f"{PROG}: study '{coll.name}'")
     nx, ny, nz = s.dimensions
     dz, dy, dx = s.spacing
-    print(f"  CT        {nx} x {ny} x {nz} voxels, spacing {dx:g} x {dy:g} x {dz:g} mm, "
+    # one order everywhere: x, y, z (columns, rows, slices)
+    print(f"  CT        {nx} x {ny} x {nz} voxels (x, y, z), spacing {dx:g} x {dy:g} x {dz:g} mm (x, y, z), "
           f"range {s.value_range[0]:.0f}..{s.value_range[1]:.0f}")
     print(f"  segment   head {100 * s.seg_fraction:.1f} % of voxels, {s.seg_iterations} iterations")
     kb = len(coll[state.BOUNDARY_KEY]) * 3 / 4 / 1024
@@ -209,8 +266,11 @@ def run(args) -> dict:
     print(f"  {'total':<11}{total:8.3f}")
 
     if args.out:
-        bpy.ops.wm.save_mainfile()
+        with _blender_stdout(drop=("Info: Saved",)):
+            bpy.ops.wm.save_as_mainfile(filepath=str(args.out.resolve()))
         print(f"wrote {args.out}")
+    else:
+        print("not saved: no --out given (pass --out FILE.blend to keep the result)")
     render = addon.operators.render
     size = (args.resolution, args.resolution)
     if args.render:
