@@ -76,20 +76,30 @@ NOT_SHIPPED = {"numpy"}
 SHIPPED_SOURCES = ("__init__.py", "operators", "pdehead_addon", "LICENSE", "LICENSE.txt", "README.md")
 
 
-def read_pins(requirements: Path = ROOT / "requirements.txt") -> dict[str, str]:
-    """name -> version of every ``name==version`` line of requirements.txt (names lower-case)."""
+def _python(python: str | None) -> str:
+    return python or "%d.%d" % sys.version_info[:2]
+
+
+def read_pins(requirements: Path = ROOT / "requirements.txt", python: str | None = None) -> dict[str, str]:
+    """name -> version of every ``name==version`` line of requirements.txt (names lower-case).
+
+    Lines with an environment marker (``; python_version < "3.13"``) count only for the
+    Python they select: ``python`` ("3.11", "3.13"), default the running one.
+    """
+    from packaging.markers import Marker
+
     pins = {}
     for line in requirements.read_text().splitlines():
         line = line.split("#", 1)[0].strip()
-        m = re.fullmatch(r"([A-Za-z0-9_.\-]+)\s*==\s*([^\s;]+)", line)
-        if m:
+        m = re.fullmatch(r"([A-Za-z0-9_.\-]+)\s*==\s*([^\s;]+)\s*(?:;\s*(.+))?", line)
+        if m and (not m.group(3) or Marker(m.group(3)).evaluate({"python_version": _python(python)})):
             pins[m.group(1).lower().replace("_", "-")] = m.group(2)
     return pins
 
 
-def shipped_requirements() -> list[str]:
-    """``name==version`` of every wheel the extension ships (engine pins + their dependencies)."""
-    pins = read_pins()
+def shipped_requirements(python: str | None = None) -> list[str]:
+    """``name==version`` of every wheel the extension ships for ``python`` (engine pins + their dependencies)."""
+    pins = read_pins(python=python)
     missing = [name for name in ENGINE_REQUIREMENTS if name not in pins]
     if missing:
         raise SystemExit(f"requirements.txt: no '==' pin for {', '.join(missing)}")
@@ -191,14 +201,14 @@ def stage_sources(stage: Path) -> None:
 
 
 def build(platforms: list[str], output_dir: Path, pythons: tuple[str, ...] = PYTHON_VERSIONS) -> list[Path]:
-    requirements = shipped_requirements()
     stage = BUILD / "extension_src"
     stage_sources(stage)
     (stage / "wheels").mkdir()
     names = set()
     for platform in platforms:
         for python in pythons:
-            wheels, missing = download_wheels(platform, python, requirements, optional=set(DECODER_REQUIREMENTS))
+            wheels, missing = download_wheels(platform, python, shipped_requirements(python),
+                                              optional=set(DECODER_REQUIREMENTS))
             for req in missing:
                 print(f"WARNING: no wheel of {req} for {platform} / Python {python}: "
                       "that decoder is missing from this zip there", flush=True)

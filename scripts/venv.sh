@@ -42,13 +42,7 @@ pdehead_venv() {
     stamp="$dir/.pdehead-requirements"
     if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$reqs" ]; then
         echo "[pdehead] installing the pinned requirements into $dir" >&2
-        "$dir/bin/python" -m pip install -q --disable-pip-version-check -r /dev/stdin \
-            <<<"$(grep -v '^pylibjpeg' <<<"$reqs")" >&2 || return 1
-        # The DICOM decoders declare numpy>=2 but are built with numpy 2's backward-compatible ABI
-        # and decode on Blender's numpy 1.26 too (tests/blender/test_extension.py checks it), so
-        # they go in without pip's dependency check; their only dependency is numpy.
-        "$dir/bin/python" -m pip install -q --disable-pip-version-check --no-deps -r /dev/stdin \
-            <<<"$(grep '^pylibjpeg' <<<"$reqs")" >&2 || return 1
+        "$dir/bin/python" -m pip install -q --disable-pip-version-check -r /dev/stdin <<<"$reqs" >&2 || return 1
         printf '%s' "$reqs" >"$stamp"
     fi
     # the engine, editable, from this clone (again when the venv last pointed at another clone)
