@@ -302,7 +302,7 @@ def c2_spans(spec: np.ndarray, u: np.ndarray, smoothing: float, modes: int,
     G_inv, alpha = hermite_systems(exponents)
     d = _derivative_system(alpha, du, p, clamp)                  # (n, H, 3) dA/du
     data = np.stack([p[:-1], p[1:], d[:-1] * du[:, None, None], d[1:] * du[:, None, None]], axis=2)
-    coefficients = np.matmul(G_inv, data.real) + 1j * np.matmul(G_inv, data.imag)   # (S, H, 4, 3)
+    coefficients = np.einsum("shij,shjc->shic", G_inv, data)   # (S, H, 4, 3); einsum: see _damp_dome
     if pole is not None:
         exponents, coefficients = _damp_dome(exponents, coefficients, H)
     return exponents, coefficients
@@ -343,8 +343,10 @@ def _damp_dome(exponents: np.ndarray, coefficients: np.ndarray, H: int) -> tuple
         k = np.maximum(k_old, k)
         g_inv, _ = hermite_systems(k)
     c = coefficients[-1]                                           # (H, 4, 3)
-    data = np.matmul(G, c.real) + 1j * np.matmul(G, c.imag)       # (f(0), f(1), f'(0), f'(1)) per h
-    damped = np.matmul(g_inv, data.real) + 1j * np.matmul(g_inv, data.imag)
+    # einsum, not matmul: a stack of 4x4 products is one BLAS call each, and BLAS threads cost more
+    # than the products (measured 7.6 ms against 1.0 ms per solve on 2 busy cores)
+    data = np.einsum("ij,hjc->hic" if G.ndim == 2 else "hij,hjc->hic", G, c)   # (f(0), f(1), f'(0), f'(1))
+    damped = np.einsum("hij,hjc->hic", g_inv, data)
     exponents = exponents.copy()
     exponents[-1] = k
     coefficients = coefficients.copy()

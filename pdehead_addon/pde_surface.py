@@ -498,7 +498,7 @@ class PDEHead:
             g = basis(np.zeros(1), s[:, None])[:, 0]                          # (n, 4)
             for start in range(0, u.size, 256):
                 sl = slice(start, start + 256)
-                prod = np.matmul(g[sl, None, None, :], self._coef_real[patch[sl], :H])[:, :, 0]   # (n, H, 6)
+                prod = np.einsum("nb,nhbc->nhc", g[sl], self._coef_real[patch[sl], :H])   # (n, H, 6)
                 out[sl] = prod[..., :3] + 1j * prod[..., 3:]
             return out
         for k in np.unique(patch):
