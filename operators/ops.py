@@ -299,6 +299,7 @@ def create_study(context, ct, name: str, source_kind: str, source: str = "", opt
         s.study_id = state.new_study_id()
         s.source_kind = source_kind
         s.source = source
+        s.source_absolute = str(Path(source).resolve()) if source else ""
         s.load_options = json.dumps(options or {}, default=list)
         s.patches = prefs.default_patches(context)
         _describe_ct(s, ct)
@@ -403,11 +404,12 @@ def step_solid(coll) -> None:
     from . import objects
     s = state.settings(coll)
     head = _solve(coll)
-    ct = state.cache_for(s.study_id).ct
+    ct = state.require_ct(coll)  # re-read after reopening: a solid without its CT colours is a loss
+    window = state.ct_window(coll, ct)
     with state.Timer() as t:
         s.solid_object = objects.build_solid(
             head, coll, nu=s.nu, nv=s.nv, nw=s.nw, u_range=tuple(s.u_range), v_range=tuple(s.v_range),
-            w_range=tuple(s.w_range), ct=ct, obj=s.solid_object, name=f"{coll.name} Solid")
+            w_range=tuple(s.w_range), ct=ct, obj=s.solid_object, name=f"{coll.name} Solid", window=window)
     state.record_timing(coll, "solid", t.seconds)
 
 
@@ -421,18 +423,18 @@ def step_volume(coll, context=None) -> None:
     s = state.settings(coll)
     head = _solve(coll)
     cache = state.cache_for(s.study_id)
-    ct = cache.ct
-    if ct is None and s.use_ct_grid:
-        ct = state.require_ct(coll)
+    # always with the CT (re-read after reopening): a volume without CT intensities is never built
+    ct = state.require_ct(coll)
+    window = state.ct_window(coll, ct)
     with state.Timer() as t:
-        grid = ct if (s.use_ct_grid and ct is not None) else float(s.voxel_size)
+        grid = ct if s.use_ct_grid else float(s.voxel_size)
         wfield = head.w_field(grid, ct=ct)
     state.record_timing(coll, "w_field", t.seconds)
     cache.wfield = wfield
     with state.Timer() as t:
         vdb_path = volume.vdb_path_for(coll.name, bpy.data.filepath or None, prefs.vdb_prefs_folder(context))
         s.volume_object = volume.build_volume(wfield, coll, vdb_path, name=f"{coll.name} Volume",
-                                              obj=s.volume_object, ct=ct, **volume_settings(s))
+                                              obj=s.volume_object, ct=ct, window=window, **volume_settings(s))
         s.volume_stale = False
     state.record_timing(coll, "volume", t.seconds)
 
@@ -522,10 +524,19 @@ class StudyOperator:
         return self.execute(context)
 
     def store_settings(self, s) -> None:
-        """Copy the operator's values into the study settings without triggering live rebuilds."""
+        """Copy the operator's values into the study settings without triggering live rebuilds.
+
+        A value the caller did not set (``bpy.ops.pdehead.build_solid()`` from a script or
+        headless, where invoke is not called) is taken from the study instead, so running an
+        operator never resets the study's settings to the operator's defaults.
+        """
+        is_set = getattr(getattr(self, "properties", None), "is_property_set", None)
         with props.suspended_updates():
             for name in self.mirrored_settings:
-                setattr(s, name, getattr(self, name))
+                if is_set is not None and not is_set(name):
+                    setattr(self, name, getattr(s, name))
+                else:
+                    setattr(s, name, getattr(self, name))
 
 
 def _finish_report(op, coll, step: str) -> None:

@@ -55,9 +55,10 @@ class PDEHEAD_PT_study(_PDEHeadPanel, bpy.types.Panel):
         col.label(text=f"Source: {source}")
         if s.warnings:
             col.label(text=s.warnings[:120], icon='ERROR')
-        in_memory = state.cache_for(s.study_id).ct is not None
-        col.label(text="CT in memory" if in_memory else "CT not in memory (re-read on demand)",
-                  icon='CHECKMARK' if in_memory else 'FILE_REFRESH')
+        text, icon = state.ct_status(coll)
+        col.label(text=text[:160], icon=icon)
+        if icon == 'ERROR':  # the CT moved: let the user point the study at it again
+            layout.prop(s, "source", text="CT Source")
         layout.separator()
         op = layout.operator("pdehead.run_pipeline", text="Run Whole Pipeline", icon='PLAY')
         op.source = 'ACTIVE'

@@ -17,6 +17,9 @@ import bpy
 from bpy.props import (BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntProperty,
                        IntVectorProperty, PointerProperty, StringProperty)
 
+#: Blender >= 4.5 warns about "//" in path properties unless they declare blend-relative support.
+PATH_OPTIONS = {'PATH_SUPPORTS_BLEND_RELATIVE'} if bpy.app.version >= (4, 5, 0) else set()
+
 # Set while operators write many settings at once, so that no update callback rebuilds anything.
 _SUSPEND = [0]
 
@@ -77,7 +80,12 @@ class PDEHeadStudySettings(bpy.types.PropertyGroup):
 
     # Study (read-only information, filled on import)
     source_kind: EnumProperty(name="Source Kind", items=SOURCE_KIND_ITEMS, default="NONE")
-    source: StringProperty(name="Source", description="Folder or file the CT was read from", subtype="FILE_PATH")
+    source: StringProperty(name="Source", subtype="FILE_PATH", options=PATH_OPTIONS,
+                           description="Folder or file the CT was read from (made relative to the .blend when "
+                                       "it is saved; point it at the CT again if the CT moved)")
+    source_absolute: StringProperty(name="Source (Absolute)", subtype="FILE_PATH",
+                                    description="Absolute path of the CT at the last save (used when the "
+                                                "relative Source no longer resolves)")
     load_options: StringProperty(name="Load Options", description="JSON of the loader options used")
     series: StringProperty(name="Series", description="Series description / UID")
     modality: StringProperty(name="Modality")

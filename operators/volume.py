@@ -204,6 +204,73 @@ def blender_filepath(path: str | os.PathLike) -> str:
     return str(path)
 
 
+def fresh_vdb_path(path) -> Path:
+    """`path` if no file is there, else the first free ``<stem>-<n>.vdb`` beside it.
+
+    A rebuilt volume is always written to a new file and the object switched to it, so an
+    existing (maybe better) file is never overwritten; the old file is removed only when a
+    save no longer references it (:func:`purge_superseded`).
+    """
+    path = Path(os.fspath(path))
+    if not path.exists():
+        return path
+    n = 2
+    while True:
+        candidate = path.with_name(f"{path.stem}-{n}{path.suffix}")
+        if not candidate.exists():
+            return candidate
+        n += 1
+
+
+#: Absolute paths of .vdb files that a rebuild or a move replaced; deleted after the next save
+#: that no longer references them (deleting at once would break undo back to the old file).
+_SUPERSEDED: set[str] = set()
+
+
+#: Absolute paths of the .vdb files written in this session.
+_WRITTEN: set[str] = set()
+
+
+def supersede(path) -> None:
+    """Mark a replaced .vdb for removal after the next save (see :func:`purge_superseded`)."""
+    if path:
+        _SUPERSEDED.add(str(Path(os.fspath(path)).resolve()))
+
+
+def referenced_vdb_files() -> set[str]:
+    """Absolute paths of the .vdb files the Volume datablocks of the open file point at."""
+    import bpy
+
+    out = set()
+    for vol in bpy.data.volumes:
+        if vol.filepath:
+            out.add(str(Path(bpy.path.abspath(vol.filepath)).resolve()))
+    return out
+
+
+def purge_superseded() -> list[Path]:
+    """Delete the superseded .vdb files no Volume datablock references any more; returns them.
+
+    Only the add-on's own files are ever deleted: those in a ``pdehead_vdb`` folder or written
+    by :func:`write_vdb` in this session (the preference folder of unsaved files).
+    """
+    used = referenced_vdb_files()
+    removed = []
+    for text in sorted(_SUPERSEDED):
+        path = Path(text)
+        if text in used:
+            continue
+        _SUPERSEDED.discard(text)
+        ours = path.parent.name == VDB_FOLDER_NAME or text in _WRITTEN
+        if ours and path.suffix == ".vdb" and path.is_file():
+            try:
+                path.unlink()
+                removed.append(path)
+            except OSError as exc:  # read-only folder: keep the file, say so
+                print(f"PDE Head: could not remove the replaced volume file {path}: {exc}")
+    return removed
+
+
 def _openvdb():
     import bpy
 
@@ -285,6 +352,7 @@ def write_vdb(wfield, path, window, *, ct=None, origin_m=(0.0, 0.0, 0.0)) -> Pat
             written.append(grid)
         written[0]["pdehead_window"] = f"{float(window[0])!r} {float(window[1])!r}"
         openvdb.write(str(path), grids=written)
+        _WRITTEN.add(str(path.resolve()))
     finally:
         del written[:]  # free the grids now: nanobind reports "leaked" objects at exit otherwise
         gc.collect()
@@ -321,6 +389,22 @@ def vdb_value(path, grid_name: str, ijk: tuple[int, int, int]) -> float:
     grid = openvdb.read(str(path), grid_name)
     try:
         return float(grid.getConstAccessor().getValue(tuple(int(x) for x in ijk)))
+    finally:
+        del grid
+        gc.collect()
+
+
+def read_vdb_array(path, grid_name: str) -> tuple[np.ndarray, tuple[int, int, int]]:
+    """A grid of a .vdb file as a dense float32 array ``[i, j, k]`` over its active box, and the box's
+    first index (for comparing two files voxel by voxel)."""
+    openvdb = _openvdb()
+    grid = openvdb.read(str(path), grid_name)
+    try:
+        lo, hi = grid.evalActiveVoxelBoundingBox()
+        shape = tuple(int(h - l + 1) for l, h in zip(lo, hi))  # noqa: E741
+        out = np.zeros(shape, np.float32)
+        grid.copyToArray(out, ijk=tuple(int(x) for x in lo))
+        return out, tuple(int(x) for x in lo)
     finally:
         del grid
         gc.collect()
@@ -645,7 +729,11 @@ def build_volume(wfield, collection, vdb_path, name: str = "Volume", obj=None, *
             window = intensity_window(np.asarray(wfield.intensity)[inside]) if inside.any() else (0.0, 1.0)
     bounds_m = _grid_corners_world(wfield)
     origin = study_origin(collection, bounds_m)
-    path = write_vdb(wfield, vdb_path, window, ct=ct, origin_m=origin)
+    previous = None
+    if obj is not None and obj.type == "VOLUME" and obj.data.filepath:
+        previous = Path(bpy.path.abspath(obj.data.filepath)).resolve()
+    # a new file every time: the current one (perhaps with CT data this build lacks) stays intact
+    path = write_vdb(wfield, fresh_vdb_path(vdb_path), window, ct=ct, origin_m=origin)
 
     if obj is None:
         data = bpy.data.volumes.new(name)
@@ -657,6 +745,8 @@ def build_volume(wfield, collection, vdb_path, name: str = "Volume", obj=None, *
     data.grids.unload()
     data.filepath = blender_filepath(path)
     data.grids.load()
+    if previous is not None and previous != Path(path).resolve():
+        supersede(previous)
     obj.matrix_world = Matrix.Translation(origin)
     box = _solid_box_world(wfield)
     if box is not None:
@@ -704,34 +794,45 @@ def _grid_corners_world(wfield) -> np.ndarray:
     return (corners @ grid_affine_world(wfield.spacing, wfield.origin, wfield.direction).T)[:, :3]
 
 
-def relocate_vdb(obj, folder=None) -> Path | None:
+def relocate_vdb(obj, folder=None, blend_path=None) -> Path | None:
     """Copy a Volume object's .vdb into `folder` and point the object at the copy.
 
-    `folder` defaults to ``pdehead_vdb`` beside the saved .blend, so a volume
-    built while the file was unsaved (in the preference folder) can follow the
-    file once it is saved; the path is then stored relative (``//...``).
-    Returns the new path, or None when there is nothing to do (no file, no
-    saved .blend, or the file is already there).
+    `folder` defaults to ``pdehead_vdb`` beside `blend_path` (default: the saved .blend),
+    so a volume built while the file was unsaved (in the preference or temp folder) follows
+    the file once it is saved; the path is then stored relative (``//...``). A different file
+    already at the destination is never overwritten (the copy gets a free name). Returns the
+    new path, or None when there is nothing to do (no file, no saved .blend, or already there).
+
+    ``blend_path`` lets the save_pre handler move files beside the file being written before
+    Blender writes it; the stored path is then relative to the *current* .blend, which
+    Blender's relative-path remapping turns into ``//pdehead_vdb/...`` of the new one.
     """
+    import filecmp
     import shutil
 
     import bpy
 
     if obj is None or obj.type != "VOLUME" or not obj.data.filepath:
         return None
+    blend_path = blend_path or bpy.data.filepath
     if folder is None:
-        if not bpy.data.filepath:
+        if not blend_path:
             return None
-        folder = vdb_folder_for(bpy.data.filepath)
+        folder = vdb_folder_for(blend_path)
     src = Path(bpy.path.abspath(obj.data.filepath)).resolve()
     dst = Path(os.fspath(folder)).resolve() / src.name
-    if not src.is_file() or src == dst:
-        if src == dst:
+    if src.parent == dst.parent:
+        if bpy.data.filepath and not obj.data.filepath.startswith("//"):
             obj.data.filepath = blender_filepath(dst)
         return None
+    if not src.is_file():
+        return None
     dst.parent.mkdir(parents=True, exist_ok=True)
-    shutil.copy2(src, dst)
-    obj.data.filepath = blender_filepath(dst)
+    if dst.exists() and not filecmp.cmp(src, dst, shallow=False):
+        dst = fresh_vdb_path(dst)
+    if not dst.exists():
+        shutil.copy2(src, dst)
+    obj.data.filepath = bpy.path.relpath(str(dst)) if bpy.data.filepath else str(dst)
     obj.data.grids.unload()
     obj.data.grids.load()
     return dst

@@ -116,7 +116,7 @@ def test_live_parameters_after_reopen_without_resegmenting(ext, phantom_blend, m
     def no_segmentation(*args, **kwargs):
         raise AssertionError("live parameters must not re-segment")
     monkeypatch.setattr(ext.engine, "segment_head", no_segmentation)
-    monkeypatch.setattr(ext.engine, "make_phantom", no_segmentation)
+    # (the CT itself is re-read from its source - here the phantom - for the solid's colours)
     s = coll.pdehead
     surf, solid = s.surface_object, s.solid_object
 

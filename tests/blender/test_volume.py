@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import shutil
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -368,7 +369,34 @@ def test_volume_built_unsaved_follows_the_file_when_saved(B, tmp_path):
     blend = tmp_path / "saved" / "s.blend"
     blend.parent.mkdir()
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
-    new = B.volume.relocate_vdb(vol)
-    assert new == blend.parent / "pdehead_vdb" / "Unsaved.vdb" and new.is_file()
+    # the save handler moved it beside the .blend (relative path) and removed the temporary file
+    new = blend.parent / "pdehead_vdb" / "Unsaved.vdb"
+    assert new.is_file() and not vdb.exists()
     assert vol.data.filepath == "//pdehead_vdb/Unsaved.vdb" and B.volume.check_volume(vol) is None
     assert B.volume.relocate_vdb(vol) is None  # already there
+
+    # relocate_vdb itself (also used by that handler): copies, never overwrites a different file
+    other = tmp_path / "other"
+    assert B.volume.relocate_vdb(vol, folder=other) == other.resolve() / "Unsaved.vdb"
+    assert Path(bpy.path.abspath(vol.data.filepath)).resolve() == other.resolve() / "Unsaved.vdb" and new.is_file()
+    (blend.parent / "pdehead_vdb" / "Unsaved.vdb").write_bytes(b"a different file")
+    moved = B.volume.relocate_vdb(vol)
+    assert moved == blend.parent / "pdehead_vdb" / "Unsaved-2.vdb" and moved.is_file()
+    assert new.read_bytes() == b"a different file" and B.volume.check_volume(vol) is None
+
+
+def test_rebuilt_volume_goes_to_a_new_file_and_the_old_one_is_removed_after_saving(B, tmp_path):
+    import bpy
+    blend = tmp_path / "p" / "s.blend"
+    blend.parent.mkdir()
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    coll = B.objects.study_collection("S")
+    path = B.volume.vdb_path_for("S", bpy.data.filepath)
+    vol = B.volume.build_volume(_oblique_wfield(), coll, path)
+    first = Path(bpy.path.abspath(vol.data.filepath))
+    first_bytes = first.read_bytes()
+    vol = B.volume.build_volume(_oblique_wfield(), coll, path, obj=vol)  # same target: never overwritten
+    second = Path(bpy.path.abspath(vol.data.filepath))
+    assert second != first and second.name == "S-2.vdb" and first.read_bytes() == first_bytes
+    bpy.ops.wm.save_mainfile()  # the saved file no longer needs the first one
+    assert not first.exists() and second.is_file() and B.volume.check_volume(vol) is None
