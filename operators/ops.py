@@ -409,7 +409,8 @@ def step_solid(coll) -> None:
     with state.Timer() as t:
         s.solid_object = objects.build_solid(
             head, coll, nu=s.nu, nv=s.nv, nw=s.nw, u_range=tuple(s.u_range), v_range=tuple(s.v_range),
-            w_range=tuple(s.w_range), ct=ct, obj=s.solid_object, name=f"{coll.name} Solid", window=window)
+            w_range=tuple(s.w_range), ct=ct, obj=s.solid_object, name=f"{coll.name} Solid", window=window,
+            ct_table=state.ct_table(coll, head, ct))
     state.record_timing(coll, "solid", t.seconds)
 
 

@@ -1,6 +1,7 @@
 """What keeps a study whole across save and reopen: file handlers for CT sources and .vdb volumes.
 
-- **save_pre** (Blender passes the path being written): every study's CT source is recorded
+- **save_pre** (Blender passes the path being written): the solids' CT atlas images changed by
+  live cutaways are packed; every study's CT source is recorded
   relative to that .blend (``//...``, so a project folder moved as a whole still finds its CT)
   and as an absolute path (used when only the .blend moved); every PDE Head volume whose .vdb
   is not yet beside that .blend (built before the first save, in the temp or preference folder,
@@ -67,6 +68,8 @@ def pdehead_save_pre(filepath="", *_args) -> None:
     if not filepath:
         return
     try:
+        from . import objects
+        objects.pack_ct_images()  # live cutaways update the CT atlases without re-packing each step
         record_sources(filepath)
         move_volumes_beside(filepath)
     except Exception as exc:  # noqa: BLE001 - a handler must never stop the save

@@ -99,3 +99,42 @@ class CTVolume:
         corners = np.array([[k, j, i] for k in (0, nz - 1) for j in (0, ny - 1) for i in (0, nx - 1)], float)
         pts = self.index_to_patient(corners)
         return pts.min(axis=0), pts.max(axis=0)
+
+
+def trilinear(data: np.ndarray, kji: np.ndarray, cval: float = 0.0) -> np.ndarray:
+    """Trilinear interpolation of a 3-D array at fractional indices ``[..., (k, j, i)]``.
+
+    The same values as ``scipy.ndimage.map_coordinates(order=1, mode="constant")`` for
+    points inside ``[0, n - 1]`` on every axis and `cval` outside, but several times faster
+    for the tens of thousands of points of a live mesh update (eight gathers instead of a
+    general spline loop per point).
+
+    Returns
+    -------
+    ndarray of float32 with shape ``kji.shape[:-1]``.
+    """
+    a = np.ascontiguousarray(data)
+    shape = np.array(a.shape)
+    pts = np.asarray(kji, dtype=np.float64).reshape(-1, 3)
+    inside = np.all((pts >= 0.0) & (pts <= shape - 1), axis=1)
+    base = np.clip(np.floor(pts), 0, np.maximum(shape - 2, 0)).astype(np.int64)
+    frac = np.clip(pts - base, 0.0, 1.0).astype(np.float32)
+    nz, ny, nx = a.shape
+    sk = ny * nx if nz > 1 else 0
+    sj = nx if ny > 1 else 0
+    si = 1 if nx > 1 else 0
+    flat = a.ravel()
+    idx = (base[:, 0] * ny + base[:, 1]) * nx + base[:, 2]
+    fk, fj, fi = frac[:, 0], frac[:, 1], frac[:, 2]
+
+    def row(offset):  # linear along i at (k, j) + offset
+        lo = flat[idx + offset]
+        return lo + fi * (flat[idx + offset + si] - lo)
+
+    c00, c01 = row(0), row(sj)
+    c10, c11 = row(sk), row(sk + sj)
+    c0 = c00 + fj * (c01 - c00)
+    c1 = c10 + fj * (c11 - c10)
+    out = (c0 + fk * (c1 - c0)).astype(np.float32, copy=False)
+    out[~inside] = np.float32(cval)
+    return out.reshape(np.shape(kji)[:-1])

@@ -58,12 +58,15 @@ coll = [c for c in bpy.data.collections if c.pdehead.is_study][0]
 s = coll.pdehead
 out = {"cached": state.cache_for(s.study_id).ct is not None, "status": state.ct_status(coll)[0],
        "source": s.source, "vdb_before": bpy.path.abspath(s.volume_object.data.filepath)}
+def atlas_pixels(solid):
+    image = solid.data.materials[0].node_tree.nodes["CT texture"].image
+    pixels = np.empty(len(image.pixels), np.float32); image.pixels.foreach_get(pixels)
+    return pixels
+saved_pixels = atlas_pixels(s.solid_object)  # the packed atlas as saved (after the live cutaway)
 assert bpy.ops.pdehead.build_solid() == {"FINISHED"}
 solid = s.solid_object
-image = solid.data.materials[0].node_tree.nodes["CT texture"].image
-pixels = np.empty(len(image.pixels), np.float32); image.pixels.foreach_get(pixels)
 np.savez(args["out"] + "_solid.npz", colour=objects.mesh_attribute(solid, objects.CT_COLOUR_ATTRIBUTE),
-         pixels=pixels, vertices=objects.mesh_world_vertices(solid))
+         pixels=atlas_pixels(solid), saved_pixels=saved_pixels, vertices=objects.mesh_world_vertices(solid))
 if args.get("volume"):
     assert bpy.ops.pdehead.build_volume() == {"FINISHED"}
     out["vdb_after"] = bpy.path.abspath(s.volume_object.data.filepath)
@@ -155,6 +158,8 @@ def test_reopen_in_a_new_process_rereads_the_ct_and_loses_nothing(ext, pdehead_e
     np.testing.assert_allclose(solid["colour"], colour_before, atol=0.01)
     np.testing.assert_allclose(solid["pixels"], pixels_before, atol=0.02)
     assert np.abs(solid["colour"] - colour_before).mean() < 1e-3
+    # the atlas changed by the live cutaway was packed by the save handler (8-bit PNG in the .blend)
+    np.testing.assert_allclose(solid["saved_pixels"], pixels_before, atol=1.5 / 255)
     assert solid["colour"].std() > 0.05
     # Build Volume after reopening: the ct grid is the original one within half-float precision,
     # written to a NEW file; the previous file was kept until the save no longer referenced it
