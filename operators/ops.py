@@ -23,7 +23,7 @@ from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProp
 from bpy.types import Operator, OperatorFileListElement
 
 from ..pdehead_addon import CTImportError, PDEHeadError
-from . import prefs, props, state
+from . import prefs, props, scene, state
 from .props import DEFAULT_NU, DEFAULT_NV
 
 STEP_LABELS = {
@@ -33,6 +33,7 @@ STEP_LABELS = {
     "surface": "PDE surface",
     "solid": "PDE solid",
     "volume": "Volume",
+    "scene": "Camera and light",
 }
 
 # ------------------------------------------------------------------------------------------
@@ -784,7 +785,7 @@ class PipelineRun:
         self.study_name = study
         self.collection_name: str | None = None
         self.steps = (["import"] if source in ("PHANTOM", "FILES") else []) + \
-            ["segment", "boundaries", "surface", "solid"] + (["volume"] if volume else [])
+            ["segment", "boundaries", "surface", "solid"] + (["volume"] if volume else []) + ["scene"]
         self.index = 0
         self.rollback = Rollback()
         if source == "ACTIVE":
@@ -825,6 +826,11 @@ class PipelineRun:
             self._apply_settings(coll)
         elif name == "volume":
             step_volume(self.collection, self.context)
+        elif name == "scene":
+            coll = self.collection
+            # a new study, or one never framed: camera, light, the surface shown, the startup cube hidden
+            if self.source != "ACTIVE" or scene._study_object(coll, scene.CAMERA_KIND) is None:
+                scene.frame_study(self.context, coll)
         else:
             STEP_FUNCTIONS[name](self.collection)
         self.index += 1
@@ -956,6 +962,34 @@ class PDEHEAD_OT_run_pipeline(Operator, LoaderOptions):
         self._end_ui(context)
 
 
+class PDEHEAD_OT_frame_study(Operator, StudyOperator):
+    bl_idname = "pdehead.frame_study"
+    bl_label = "Frame Study"
+    bl_description = ("Set the scene up to render the study: a camera and a key light in front of the head, "
+                      "the chosen object shown and the overlapping ones hidden, the untouched startup cube "
+                      "hidden, the 3D views framed on the head")
+    bl_options = {'REGISTER', 'UNDO'}
+
+    show: EnumProperty(name="Show", items=scene.SHOW_ITEMS, default="SURFACE")
+    view: EnumProperty(name="View", items=[("FRONT", "Front", "The face (Blender's front view)"),
+                                           ("RIGHT", "Right", "The patient's right side"),
+                                           ("LEFT", "Left", "The patient's left side"),
+                                           ("BACK", "Back", "The back of the head"),
+                                           ("THREE_QUARTER", "Three Quarter", "From front right, above")],
+                       default="FRONT")
+
+    def execute(self, context):
+        coll = _active_or_report(self, context)
+        if coll is None:
+            return {'CANCELLED'}
+
+        def body():
+            done = scene.frame_study(context, coll, show=self.show, view=self.view)
+            extra = "; startup cube hidden" if done["hidden_cube"] else ""
+            self.report({'INFO'}, f"'{coll.name}': camera and light set, showing {done['shown']}{extra}")
+        return _guarded(self, context, body)
+
+
 class PDEHEAD_OT_remove_study(Operator, StudyOperator):
     bl_idname = "pdehead.remove_study"
     bl_label = "Remove Study"
@@ -978,7 +1012,7 @@ def remove_study(coll) -> None:
         data = obj.data
         bpy.data.objects.remove(obj)
         if data is not None and data.users == 0:
-            for kind in ("meshes", "curves", "volumes"):
+            for kind in ("meshes", "curves", "volumes", "cameras", "lights"):
                 collection = getattr(bpy.data, kind)
                 if data.name in collection and collection[data.name] == data:
                     collection.remove(data)
@@ -1001,6 +1035,7 @@ CLASSES = (
     PDEHEAD_OT_build_solid,
     PDEHEAD_OT_build_volume,
     PDEHEAD_OT_run_pipeline,
+    PDEHEAD_OT_frame_study,
     PDEHEAD_OT_remove_study,
 )
 

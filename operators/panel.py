@@ -62,6 +62,7 @@ class PDEHEAD_PT_study(_PDEHeadPanel, bpy.types.Panel):
         layout.separator()
         op = layout.operator("pdehead.run_pipeline", text="Run Whole Pipeline", icon='PLAY')
         op.source = 'ACTIVE'
+        layout.operator("pdehead.frame_study", icon='CAMERA_DATA')
         if s.last_error:
             layout.label(text=s.last_error[:120], icon='ERROR')
         layout.operator("pdehead.remove_study", icon='TRASH')

@@ -52,8 +52,9 @@ def check_study(ext, coll, t: int, nu: int, nv: int, nw: int, volume: bool = Tru
     import bpy
     s = coll.pdehead
     assert s.curves_object and s.surface_object and s.solid_object
-    assert {o.name for o in coll.all_objects} == {o.name for o in (s.curves_object, s.surface_object,
-                                                                     s.solid_object, s.volume_object) if o}
+    scene_kinds = {"camera", "key_light"}  # Frame Study's camera and light (the pipeline adds them)
+    assert {o.name for o in coll.all_objects if o.get("pdehead_kind") not in scene_kinds} == {
+        o.name for o in (s.curves_object, s.surface_object, s.solid_object, s.volume_object) if o}
     assert len(s.curves_object.data.splines) == 3 * t + 1
     head = stored_head(ext, coll)
     assert head.bset.patches == t
@@ -285,7 +286,7 @@ def test_panels_draw_every_setting(ext, phantom_blend):
     drawn_ops = {x[1] for x in log if x[0] == "operator"}
     assert {"pdehead.import_ct", "pdehead.load_phantom", "pdehead.run_pipeline", "pdehead.segment",
             "pdehead.extract_boundaries", "pdehead.reconstruct_surface", "pdehead.build_solid",
-            "pdehead.build_volume"} <= drawn_ops
+            "pdehead.build_volume", "pdehead.frame_study"} <= drawn_ops
     drawn_props = {x[1] for x in log if x[0] == "prop"}
     assert {"nu", "nv", "caps", "smoothing_auto", "smoothing", "modes", "nw", "u_range", "v_range", "w_range",
             "low_alpha", "high_alpha", "density", "colour_preset", "alpha_mode", "patches"} <= drawn_props
