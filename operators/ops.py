@@ -428,6 +428,10 @@ def step_volume(coll, context=None) -> None:
     # always with the CT (re-read after reopening): a volume without CT intensities is never built
     ct = state.require_ct(coll)
     window = state.ct_window(coll, ct)
+    if not s.use_ct_grid and s.voxel_auto:
+        size = volume.auto_voxel_size(ct, head)
+        with props.suspended_updates():
+            s.voxel_size = size
     with state.Timer() as t:
         grid = ct if s.use_ct_grid else float(s.voxel_size)
         wfield = head.w_field(grid, ct=ct)
@@ -691,8 +695,8 @@ class PDEHEAD_OT_build_solid(Operator, StudyOperator):
     nv: IntProperty(name="nv", default=DEFAULT_NV, min=4, max=2000)
     nw: IntProperty(name="nw", default=5, min=2, max=200)
     u_range: FloatVectorProperty(name="u Range", size=2, default=(0.0, 1.0), min=0.0, max=1.0)
-    v_range: FloatVectorProperty(name="v Range", size=2, default=(0.0, 6.283185307179586), min=0.0,
-                                 max=6.283185307179586)
+    v_range: FloatVectorProperty(name="v Range", size=2, default=(0.0, 6.283185307179586), min=-6.283185307179586,
+                                 max=12.566370614359172, soft_min=0.0, soft_max=6.283185307179586, unit="ROTATION")
     w_range: FloatVectorProperty(name="w Range", size=2, default=(0.0, 1.0), min=0.0, max=1.0)
 
     mirrored_settings = ("nu", "nv", "nw", "u_range", "v_range", "w_range")
@@ -725,6 +729,7 @@ class PDEHEAD_OT_build_volume(Operator, StudyOperator):
     bl_options = {'REGISTER', 'UNDO'}
 
     use_ct_grid: BoolProperty(name="CT Grid", default=False)
+    voxel_auto: BoolProperty(name="Auto Voxel Size", default=True)
     voxel_size: FloatProperty(name="Voxel Size (mm)", default=2.0, min=0.25, max=20.0)
     low_alpha: FloatProperty(name="Low Alpha", default=0.1, min=0.0, max=1.0)
     high_alpha: FloatProperty(name="High Alpha", default=0.9, min=0.0, max=1.0)
@@ -732,7 +737,7 @@ class PDEHEAD_OT_build_volume(Operator, StudyOperator):
     colour_preset: EnumProperty(name="Colour", items=props.COLOUR_ITEMS, default="grayscale")
     alpha_mode: EnumProperty(name="Alpha Mode", items=props.ALPHA_MODE_ITEMS, default="EQ24")
 
-    mirrored_settings = ("use_ct_grid", "voxel_size", "low_alpha", "high_alpha", "density", "colour_preset",
+    mirrored_settings = ("use_ct_grid", "voxel_auto", "voxel_size", "low_alpha", "high_alpha", "density", "colour_preset",
                          "alpha_mode")
 
     def execute(self, context):
@@ -742,6 +747,8 @@ class PDEHEAD_OT_build_volume(Operator, StudyOperator):
 
         def body():
             s = state.settings(coll)
+            if self.properties.is_property_set("voxel_size") and not self.properties.is_property_set("voxel_auto"):
+                self.voxel_auto = False  # a size given by the caller is meant
             self.store_settings(s)
             if state.boundary_set(coll) is None:
                 step_boundaries(coll)
@@ -874,8 +881,9 @@ class PDEHEAD_OT_run_pipeline(Operator, LoaderOptions):
         source = self._resolved_source(context)
         path = self.input_path() if source == "FILES" else None
         options = self.loader_options() if source == "FILES" else None
-        settings = dict(patches=self.patches, samples=self.samples, nu=self.nu, nv=self.nv, nw=self.nw,
-                        voxel_size=self.voxel_size)
+        settings = dict(patches=self.patches, samples=self.samples, nu=self.nu, nv=self.nv, nw=self.nw)
+        if self.properties.is_property_set("voxel_size"):  # else the study's automatic size from the CT
+            settings.update(voxel_size=self.voxel_size, voxel_auto=False)
         return PipelineRun(context, source, path, options, settings, self.study, self.build_volume)
 
     def draw(self, context):

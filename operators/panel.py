@@ -1,7 +1,6 @@
 """The 3D View sidebar tab "PDE Head": one panel per pipeline step plus the last run's timings."""
 from __future__ import annotations
 
-import math
 import os
 
 import bpy
@@ -137,7 +136,6 @@ class PDEHEAD_PT_solid(_StudyPanel, bpy.types.Panel):
         col.prop(s, "u_range")
         col.prop(s, "v_range")
         col.prop(s, "w_range")
-        layout.label(text=f"v in radians (0 .. {2 * math.pi:.3f})")
         layout.operator("pdehead.build_solid", icon='MESH_CUBE')
 
 
@@ -152,6 +150,9 @@ class PDEHEAD_PT_volume(_StudyPanel, bpy.types.Panel):
         row.prop(s, "use_ct_grid")
         sub = row.row()
         sub.enabled = not s.use_ct_grid
+        sub.prop(s, "voxel_auto", text="Auto")
+        sub = layout.row()
+        sub.enabled = not s.use_ct_grid and not s.voxel_auto
         sub.prop(s, "voxel_size")
         col = layout.column(align=True)
         col.prop(s, "low_alpha")

@@ -57,10 +57,12 @@ SELECTION_ITEMS = [
     ("uniform", "Uniform", "Curves evenly spaced along the head axis"),
     ("shape-change", "Shape Change", "Denser curves where the head's cross-section changes fast (face)"),
 ]
-COLOUR_ITEMS = [
-    ("grayscale", "Grayscale", "CT intensity as gray levels"),
-    ("skin", "Skin", "Warm skin-to-bone colour ramp"),
-]
+def _colour_items():
+    from .volume import COLOUR_LABELS, COLOUR_PRESETS  # the presets' one owner
+    return [(key, *COLOUR_LABELS.get(key, (key.title(), ""))) for key in COLOUR_PRESETS]
+
+
+COLOUR_ITEMS = _colour_items()
 ALPHA_MODE_ITEMS = [
     ("EQ24", "Eq. 24 (w)", "Opacity from the PDE parameter w: alpha = (low - high) w + high"),
     ("INTENSITY", "Intensity", "Opacity from the CT intensity inside the PDE solid"),
@@ -133,24 +135,33 @@ class PDEHeadStudySettings(bpy.types.PropertyGroup):
                     description="w levels from the spine (0) to the surface (1), eq. 23")
     u_range: FloatVectorProperty(name="u Range", size=2, default=(0.0, 1.0), min=0.0, max=1.0,
                                  update=_live("solid"), description="Cutaway: u interval of the solid")
-    v_range: FloatVectorProperty(name="v Range", size=2, default=(0.0, 2 * math.pi), min=0.0, max=2 * math.pi,
-                                 subtype="NONE", update=_live("solid"),
-                                 description="Cutaway: v interval (radians) of the solid")
+    v_range: FloatVectorProperty(name="v Range", size=2, default=(0.0, 2 * math.pi), min=-2 * math.pi,
+                                 max=4 * math.pi, soft_min=0.0, soft_max=2 * math.pi, subtype="NONE",
+                                 unit="ROTATION", update=_live("solid"),
+                                 description="Cutaway: the angle interval around the head (v) the solid keeps, "
+                                             "shown in degrees; may wrap past 360 (at most one turn)")
     w_range: FloatVectorProperty(name="w Range", size=2, default=(0.0, 1.0), min=0.0, max=1.0,
                                  update=_live("solid"), description="Cutaway: w interval of the solid")
 
     # Volume (live: material only)
     use_ct_grid: BoolProperty(name="CT Grid", default=False,
                               description="Sample the w-field on the CT's own voxel grid")
+    voxel_auto: BoolProperty(name="Auto Voxel Size", default=True,
+                             description="Voxel size from the CT spacing, coarsened only as far as needed to keep "
+                                         "the .vdb small and the w-field fast (see volume.auto_voxel_size)")
     voxel_size: FloatProperty(name="Voxel Size", default=2.0, min=0.25, max=20.0,
-                              description="Voxel size in mm of the volume grid (when CT Grid is off)")
+                              description="Voxel size in mm of the volume grid (when CT Grid and Auto are off; "
+                                          "with Auto on, the size the last build used)")
     low_alpha: FloatProperty(name="Low Alpha", default=0.1, min=0.0, max=1.0, update=_live("volume"),
                              description="l_alpha of eq. 24: opacity at the surface (w = 1)")
     high_alpha: FloatProperty(name="High Alpha", default=0.9, min=0.0, max=1.0, update=_live("volume"),
                               description="h_alpha of eq. 24: opacity at the spine (w = 0)")
     density: FloatProperty(name="Density", default=40.0, min=0.0, max=10000.0, update=_live("volume"),
                            description="Volume density scale (per metre)")
-    colour_preset: EnumProperty(name="Colour", items=COLOUR_ITEMS, default="grayscale", update=_live("volume"))
+    colour_preset: EnumProperty(name="Transfer Function", items=COLOUR_ITEMS, default="grayscale",
+                                update=_live("volume"),
+                                description="Preset of the volume's colour ramp (colour and opacity over the CT "
+                                            "intensity); the ramp itself is editable in the material")
     alpha_mode: EnumProperty(name="Alpha Mode", items=ALPHA_MODE_ITEMS, default="EQ24", update=_live("volume"))
 
     # Objects of the study
