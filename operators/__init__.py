@@ -15,7 +15,7 @@ import bpy
 from . import ops, panel, prefs, props, state
 
 # helper B's modules; registered only if they define register()/unregister()
-_OPTIONAL_MODULES = ("coords", "objects", "volume", "render", "persistence")
+_OPTIONAL_MODULES = ("coords", "objects", "volume", "render", "persistence", "cutter")
 
 
 def _optional_modules():

@@ -472,7 +472,11 @@ def live_update(coll, what: str, context=None) -> None:
                 # start the manual value from the automatic one (mean over the patches)
                 with props.suspended_updates():
                     s.smoothing = state.auto_smoothing(coll)
-        if what == "volume":
+        if what == "cutter":
+            from . import cutter
+            if s.use_cutter and cutter.cutter_of(coll) is not None:
+                cutter.apply_cutter(coll)
+        elif what == "volume":
             if s.volume_object is not None:
                 from . import volume
                 volume.set_volume_settings(s.volume_object, **volume_settings(s))
@@ -998,6 +1002,28 @@ class PDEHEAD_OT_frame_study(Operator, StudyOperator):
         return _guarded(self, context, body)
 
 
+class PDEHEAD_OT_add_cutter(Operator, StudyOperator):
+    bl_idname = "pdehead.add_cutter"
+    bl_label = "Add Cutter"
+    bl_description = ("Add a box cutter (an empty) to the study: move, rotate or scale it and the solid is cut "
+                      "away where it is (a wedge in v or a slab in u)")
+    bl_options = {'REGISTER', 'UNDO'}
+
+    def execute(self, context):
+        coll = _active_or_report(self, context)
+        if coll is None:
+            return {'CANCELLED'}
+
+        def body():
+            from . import cutter
+            if state.settings(coll).solid_object is None:
+                step_solid(coll)
+            obj = cutter.add_cutter(context, coll)
+            kind = cutter.apply_cutter(coll)
+            self.report({'INFO'}, f"Cutter '{obj.name}' added ({kind} cut): move it to cut the solid elsewhere")
+        return _guarded(self, context, body)
+
+
 class PDEHEAD_OT_remove_study(Operator, StudyOperator):
     bl_idname = "pdehead.remove_study"
     bl_label = "Remove Study"
@@ -1044,6 +1070,7 @@ CLASSES = (
     PDEHEAD_OT_build_volume,
     PDEHEAD_OT_run_pipeline,
     PDEHEAD_OT_frame_study,
+    PDEHEAD_OT_add_cutter,
     PDEHEAD_OT_remove_study,
 )
 

@@ -136,6 +136,9 @@ class PDEHEAD_PT_solid(_StudyPanel, bpy.types.Panel):
         col.prop(s, "u_range")
         col.prop(s, "v_range")
         col.prop(s, "w_range")
+        row = layout.row(align=True)
+        row.operator("pdehead.add_cutter", icon='MOD_BOOLEAN')
+        row.prop(s, "use_cutter", text="", icon='RESTRICT_SELECT_OFF')
         layout.operator("pdehead.build_solid", icon='MESH_CUBE')
 
 

@@ -142,6 +142,9 @@ class PDEHeadStudySettings(bpy.types.PropertyGroup):
                                              "shown in degrees; may wrap past 360 (at most one turn)")
     w_range: FloatVectorProperty(name="w Range", size=2, default=(0.0, 1.0), min=0.0, max=1.0,
                                  update=_live("solid"), description="Cutaway: w interval of the solid")
+    use_cutter: BoolProperty(name="Use Cutter", default=False, update=_live("cutter"),
+                             description="The study's cutter box (an empty you move, rotate and scale) sets the "
+                                         "u and v ranges: the solid is cut away where the box is")
 
     # Volume (live: material only)
     use_ct_grid: BoolProperty(name="CT Grid", default=False,

@@ -15,8 +15,9 @@ sys.path.insert(0, str(ROOT / "scripts"))
 import build_extension  # noqa: E402
 
 OPERATORS = ["import_ct", "load_phantom", "segment", "extract_boundaries", "reconstruct_surface",
-             "build_solid", "build_volume", "run_pipeline", "frame_study", "remove_study"]
-OUR_HANDLERS = ["load_post:pdehead_load_post", "load_post:pdehead_volume_load_post",
+             "build_solid", "build_volume", "run_pipeline", "frame_study", "add_cutter", "remove_study"]
+OUR_HANDLERS = ["depsgraph_update_post:pdehead_cutter_update", "load_post:pdehead_load_post",
+                "load_post:pdehead_volume_load_post",
                 "save_post:pdehead_save_post", "save_pre:pdehead_save_pre"]
 PANELS = ["PDEHEAD_PT_study", "PDEHEAD_PT_segmentation", "PDEHEAD_PT_boundaries", "PDEHEAD_PT_surface",
           "PDEHEAD_PT_solid", "PDEHEAD_PT_volume", "PDEHEAD_PT_timings"]

@@ -286,7 +286,7 @@ def test_panels_draw_every_setting(ext, phantom_blend):
     drawn_ops = {x[1] for x in log if x[0] == "operator"}
     assert {"pdehead.import_ct", "pdehead.load_phantom", "pdehead.run_pipeline", "pdehead.segment",
             "pdehead.extract_boundaries", "pdehead.reconstruct_surface", "pdehead.build_solid",
-            "pdehead.build_volume", "pdehead.frame_study"} <= drawn_ops
+            "pdehead.build_volume", "pdehead.frame_study", "pdehead.add_cutter"} <= drawn_ops
     drawn_props = {x[1] for x in log if x[0] == "prop"}
     assert {"nu", "nv", "caps", "smoothing_auto", "smoothing", "modes", "nw", "u_range", "v_range", "w_range",
             "low_alpha", "high_alpha", "density", "colour_preset", "alpha_mode", "patches"} <= drawn_props
