@@ -81,6 +81,7 @@ from scipy import ndimage as ndi
 from skimage import measure
 
 from .boundary_set import BoundarySet, knots_from_heights
+from .envelope import ENVELOPE_SIGMA_MM, head_envelope, outer_region
 from .errors import BoundaryError
 from .parameterisation import PARAMETERISATIONS, align_parameterisation, closed_arc_length, smooth_closed_curve
 
@@ -102,6 +103,12 @@ MIN_AREA_FRACTION = 0.05
 CLOSING_MM = 3.0
 #: Default low-pass along each curve (Gaussian sigma, pixels) against the pixel-grid ripple.
 CURVE_SIGMA_PX = 1.0
+#: Star hull: bound on |d ln r / d theta| (2: the normal stays within 63 degrees of the ray).
+STAR_MAX_SLOPE = 2.0
+#: Smoothing length (mm) of the centroid track that the angular parameterisation is centred on.
+SPINE_SMOOTHING_MM = 10.0
+#: Sources of the level line traced per slice.
+LEVEL_FIELDS = ("envelope", "mask", "probability")
 
 
 # --------------------------------------------------------------------------- eq. 22 and outer region
@@ -139,45 +146,6 @@ def boundary_ring(mask2d: np.ndarray, structure: np.ndarray | None = None) -> np
     else:
         eroded = ndi.binary_erosion(mask, structure=structure, border_value=0)
     return mask & ~eroded
-
-
-def outer_region(mask2d: np.ndarray, connectivity: int = 2) -> np.ndarray:
-    """The largest connected component of a slice with its holes filled.
-
-    This is the region enclosed by the slice's outer head boundary: small
-    separate blobs (cloth, an ear cut off in this slice, noise) are dropped and
-    inner holes (airway, sinuses) are ignored.
-
-    Parameters
-    ----------
-    mask2d : ndarray of bool, shape (ny, nx)
-    connectivity : {1, 2}
-        Pixel connectivity of the component: 1 = 4-, 2 = 8-connected. Holes
-        are background not connected to the image border with the
-        complementary connectivity.
-
-    Returns
-    -------
-    ndarray of bool, shape (ny, nx)
-        Empty if the slice is empty.
-    """
-    mask = np.asarray(mask2d, dtype=bool)
-    if mask.ndim != 2:
-        raise BoundaryError(f"outer_region needs a 2-D mask, got shape {mask.shape}")
-    if connectivity not in (1, 2):
-        raise BoundaryError(f"connectivity must be 1 or 2, got {connectivity!r}")
-    labels, count = ndi.label(mask, structure=ndi.generate_binary_structure(2, connectivity))
-    if count == 0:
-        return np.zeros_like(mask)
-    if count > 1:
-        sizes = np.bincount(labels.ravel())
-        sizes[0] = 0
-        mask = labels == int(sizes.argmax())
-    # Fill holes: everything but the background component(s) reaching the border.
-    # (Labelling is much faster than scipy's iterative binary_fill_holes.)
-    outside = np.pad(~mask, 1, constant_values=True)
-    bg, _ = ndi.label(outside, structure=ndi.generate_binary_structure(2, 3 - connectivity))
-    return (bg != bg[0, 0])[1:-1, 1:-1]
 
 
 def _dilate(mask: np.ndarray, radius: int) -> np.ndarray:
@@ -326,6 +294,46 @@ def outer_contour(mask2d: np.ndarray, sigma: float = 0.7, probability: np.ndarra
     return contour, info
 
 
+def contour_from_field(field: np.ndarray, origin: tuple[int, int] = (0, 0)) -> tuple[np.ndarray, dict]:
+    """The largest closed 0.5 level line of a soft 2-D field, in (row, col) pixels of the volume.
+
+    Parameters
+    ----------
+    field : ndarray of float, shape (ny, nx)
+        A slice of :func:`~.envelope.head_envelope` (0 at its border).
+    origin : (int, int)
+        Row and column of ``field[0, 0]`` in the volume's slice.
+
+    Returns
+    -------
+    contour : ndarray, shape (P, 2)
+    info : dict
+        ``area_px`` (pixels enclosed) and ``ring_coverage`` (NaN: the envelope is not an eq. 22 ring).
+    """
+    if not np.any(field >= 0.5):
+        raise BoundaryError("the head envelope is empty in this slice (nothing above the 0.5 level)")
+    padded = np.pad(np.asarray(field, np.float32), 1)
+    contours = [c for c in measure.find_contours(padded, 0.5, fully_connected="high")
+                if len(c) >= 4 and np.allclose(c[0], c[-1])]
+    if not contours:
+        raise BoundaryError("no closed outer contour found in the head envelope")
+    contour = max(contours, key=lambda c: abs(_shoelace(c[:-1])))[:-1]
+    area = abs(_shoelace(contour))
+    return contour + np.array([origin[0] - 1, origin[1] - 1], float), dict(area_px=area, ring_coverage=float("nan"))
+
+
+def _head_top(mask: np.ndarray, slice_z: np.ndarray, dz: float) -> float | None:
+    """Patient z of the crown (the top face of the most superior head slice), if the head ends in the scan."""
+    occupied = np.flatnonzero(mask.reshape(len(mask), -1).any(axis=1))
+    if occupied.size == 0:
+        return None
+    superior_is_last = slice_z[-1] >= slice_z[0]
+    top = occupied[-1] if superior_is_last else occupied[0]
+    if top in (0, len(mask) - 1):                      # cut off by the scan: the crown is not known
+        return None
+    return float(slice_z[top] + 0.5 * abs(dz))
+
+
 # --------------------------------------------------------------------------- curve parameterisation
 def signed_area(xy: np.ndarray) -> float:
     """Signed (shoelace) area of a closed polygon ``[..., (x, y)]``; > 0 if counter-clockwise."""
@@ -384,6 +392,128 @@ def _posterior_seam(xy: np.ndarray, center: np.ndarray) -> float:
     behind = y > center[1]
     pick = int(np.argmax(np.where(behind, y, -np.inf))) if behind.any() else int(np.argmax(y))
     return float(s[hit[pick]] + tau[pick] * seg_len[hit[pick]])
+
+
+def _lipschitz_envelope(f: np.ndarray, step: float) -> np.ndarray:
+    """Smallest periodic g >= f with |g[i+1] - g[i]| <= step (two sweeps each way, twice round)."""
+    n = len(f)
+    g = np.concatenate([f, f, f])
+    idx = np.arange(len(g)) * step
+    # forward: g[i] = max_j<=i (f[j] - (i - j) step) = max.accumulate(f + j step) - i step
+    g = np.maximum(g, np.maximum.accumulate(g + idx) - idx)
+    g = np.maximum(g, (np.maximum.accumulate((g - idx)[::-1]))[::-1] + idx)
+    return g[n:2 * n]
+
+
+def star_hull(points: np.ndarray, centre: np.ndarray | None = None, angles: int = 1440,
+              step: float = 0.2, max_slope: float | None = STAR_MAX_SLOPE) -> np.ndarray:
+    """The smallest region star-shaped around ``centre`` that contains a closed curve.
+
+    Along every ray from the centre the farthest point of the curve is kept, so
+    inlets whose walls face the centre - the notch behind an ear, a nostril, a
+    crater in the concha - are filled and the ear becomes a smooth bump. With
+    ``max_slope`` the radius is moreover raised to the smallest function with
+    ``|d ln r / d theta| <= max_slope``: the filling is a web sloping at most
+    ``atan(max_slope)`` away from the circle (the outward normal stays within that
+    angle of the ray), not a radial wall. A curve that already satisfies this (most
+    of a head's outline, the nose) is returned as it is, up to the angular sampling.
+
+    Parameters
+    ----------
+    points : ndarray, shape (P, 2) or (P, 3)
+        Closed polyline (x, y[, z]), last point not repeated.
+    centre : ndarray, shape (2,), optional
+        Default: the polygon's area centroid.
+    angles : int
+        Rays (the hull's vertices), equally spaced in angle.
+    step : float
+        The curve is first resampled to this spacing (unit of ``points``) so every
+        ray meets a sample.
+    max_slope : float or None
+        Bound on ``|d ln r / d theta|``; None: the plain star-shaped hull.
+
+    Returns
+    -------
+    ndarray, shape (angles, d)
+        Counter-clockwise; z (if given) of the farthest point on each ray.
+    """
+    p = np.asarray(points, dtype=np.float64)
+    c = polygon_centroid(p[:, :2]) if centre is None else np.asarray(centre, float)[:2]
+    length = float(closed_arc_length(p[:, :2])[-1])
+    dense = resample_closed_curve(p, max(len(p), int(np.ceil(length / step))))
+    d = dense[:, :2] - c
+    theta = np.arctan2(d[:, 1], d[:, 0])
+    r = np.hypot(d[:, 0], d[:, 1])
+    k = np.floor((theta + np.pi) / (2 * np.pi) * angles).astype(np.int64) % angles
+    order = np.lexsort((r, k))                        # within each bin, the farthest point last
+    last = np.ones(len(order), bool)
+    last[:-1] = k[order][1:] != k[order][:-1]
+    best = order[last]
+    filled = np.zeros(angles, bool)
+    filled[k[best]] = True
+    radius = np.zeros(angles)
+    radius[k[best]] = r[best]
+    bins = np.flatnonzero(filled)
+    grid = np.arange(angles)
+    radius = np.interp(grid, bins, radius[bins], period=angles)
+    if max_slope is not None and max_slope > 0:
+        radius = np.exp(_lipschitz_envelope(np.log(np.maximum(radius, 1e-9)), max_slope * 2 * np.pi / angles))
+    phi = (grid + 0.5) / angles * 2 * np.pi - np.pi
+    out = np.empty((angles, p.shape[1]))
+    out[:, 0] = c[0] + radius * np.cos(phi)
+    out[:, 1] = c[1] + radius * np.sin(phi)
+    if p.shape[1] > 2:
+        zz = np.zeros(angles)
+        zz[k[best]] = dense[best, 2]
+        out[:, 2] = np.interp(grid, bins, zz[bins], period=angles)
+    return out
+
+
+def spine_centres(outlines: Sequence[np.ndarray], length: float = SPINE_SMOOTHING_MM) -> np.ndarray:
+    """Area centroids (x, y) of the outlines, smoothed along their height (a smooth spine), shape (n, 2)."""
+    from .pde_spline import smoothing_spline_values
+    c = np.stack([polygon_centroid(o[:, :2]) for o in outlines])
+    z = np.array([float(np.mean(o[:, 2])) for o in outlines])
+    order = np.argsort(z)
+    zs = z[order]
+    if len(z) >= 3 and np.all(np.diff(zs) > 0):
+        c[order] = smoothing_spline_values(zs, c[order], length)
+    return c
+
+
+def angular_curves(outlines: Sequence[np.ndarray], samples: int, smooth: float = 0.0,
+                   max_slope: float | None = STAR_MAX_SLOPE) -> np.ndarray:
+    """Curves sampled at equal angles around a smooth spine: sample m at angle ``pi/2 + 2 pi m / M``.
+
+    Each outline is replaced by its :func:`star_hull` around its point of the smoothed
+    centroid track (:func:`spine_centres`) and sampled along the rays of the angles
+    ``theta_m = pi/2 + 2 pi m / M`` (m = 0: posterior, +y; counter-clockwise seen from
+    +z). Equal v is then the same direction from the spine on every curve: the
+    correspondence varies as smoothly from curve to curve as the spine, with no
+    alignment step. ``smooth`` (mm) low-passes ``r(theta)`` (Gaussian in arc length at
+    the mean radius).
+
+    Returns
+    -------
+    ndarray, shape (n, samples, 3)
+    """
+    centres = spine_centres(outlines)
+    out = np.empty((len(outlines), samples, 3))
+    theta = 0.5 * np.pi + 2 * np.pi * np.arange(samples) / samples
+    for i, (o, c) in enumerate(zip(outlines, centres)):
+        hull = star_hull(o, centre=c, max_slope=max_slope)
+        phi = np.arctan2(hull[:, 1] - c[1], hull[:, 0] - c[0])
+        r = np.hypot(hull[:, 0] - c[0], hull[:, 1] - c[1])
+        order = np.argsort(phi)
+        period = 2 * np.pi
+        if smooth > 0:
+            sig = smooth / max(float(r.mean()), 1e-9) / (period / len(r))     # in hull samples
+            r = ndi.gaussian_filter1d(r[order], sig, mode="wrap")[np.argsort(order)]
+        rr = np.interp(theta, phi[order], r[order], period=period)
+        out[i, :, 0] = c[0] + rr * np.cos(theta)
+        out[i, :, 1] = c[1] + rr * np.sin(theta)
+        out[i, :, 2] = np.interp(theta, phi[order], hull[order, 2], period=period)
+    return out
 
 
 def orient_and_resample(points: np.ndarray, samples: int, smooth: float = 0.0) -> np.ndarray:
@@ -690,9 +820,10 @@ def max_patches(seg, min_area_fraction: float = MIN_AREA_FRACTION) -> int:
 
 def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Selection = "uniform",
                        min_area_fraction: float = MIN_AREA_FRACTION, sigma: float = 0.7,
-                       level_field: str = "mask", band: int = 1, parameterisation: str = "aligned",
+                       level_field: str = "envelope", band: int = 1, parameterisation: str = "angular",
                        curve_sigma: float = CURVE_SIGMA_PX, max_stretch: float = 8.0,
-                       closing_mm: float = CLOSING_MM) -> BoundarySet:
+                       closing_mm: float = CLOSING_MM, envelope_sigma_mm: float = ENVELOPE_SIGMA_MM,
+                       star_shaped: bool = True) -> BoundarySet:
     """The 3t+1 PDE boundary curves of a segmented head (paper eq. 22, sections 3 and 4.1).
 
     Parameters
@@ -719,9 +850,14 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
         cap and stray voxels at the ends of the head).
     sigma, band : float, int
         Sub-pixel contour smoothing and probability band, see :func:`outer_contour`.
-    level_field : {"mask", "probability"}
-        Trace the 0.5 level of the smoothed cleaned mask, or of the soft
-        probability clamped to the cleaned mask's boundary band.
+    level_field : {"envelope", "mask", "probability"}
+        ``"envelope"`` (default): trace the 0.5 level of the head's 3-D envelope
+        (:func:`~.envelope.head_envelope`: the mask closed in 3-D by a ball of
+        ``closing_mm`` and smoothed by a 3-D Gaussian of ``envelope_sigma_mm``),
+        so that neighbouring curves agree and inlets are bridged consistently.
+        ``"mask"``: the 0.5 level of each slice's cleaned mask (2-D closing by
+        ``closing_mm``, Gaussian of ``sigma`` pixels); ``"probability"``: of the
+        soft probability clamped to the cleaned mask's boundary band.
     parameterisation : {"aligned", "arc-length"}
         Where the M samples sit on each curve. ``"arc-length"``: equally
         spaced in arc length from the seam. ``"aligned"`` (default): first
@@ -735,8 +871,15 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
         0 disables it.
     max_stretch : float
         Bound on the local stretch of the sample spacing of the alignment.
+    star_shaped : bool
+        Replace each outline by its :func:`star_hull` around its centroid: inlets
+        whose walls face the centre (behind the ears, nostrils) are filled, so the
+        surface has no notches there and the ears are smooth bumps.
+    envelope_sigma_mm : float
+        Standard deviation (mm) of the envelope's 3-D Gaussian (``"envelope"`` only).
     closing_mm : float
-        Radius (mm) of a disk closing of each slice's outer region before the
+        Radius (mm) of the envelope's 3-D ball closing, or (``"mask"``,
+        ``"probability"``) of a disk closing of each slice's outer region before the
         contour is traced (:func:`close_region`): inlets narrower than about
         twice that (nostrils, a slightly open mouth, ear canal, the gap behind
         an ear flap) are bridged. Such inlets exist on one curve and not on
@@ -760,10 +903,11 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
     if isinstance(patches, bool) or not isinstance(patches, Integral) or patches < 1:
         raise BoundaryError(f"patches must be an integer >= 1, got {patches!r}")
     samples = _check_samples(samples)
-    if level_field not in ("mask", "probability"):
-        raise BoundaryError(f"level_field must be 'mask' or 'probability', got {level_field!r}")
-    if parameterisation not in PARAMETERISATIONS:
-        raise BoundaryError(f"parameterisation must be one of {list(PARAMETERISATIONS)}, got {parameterisation!r}")
+    if level_field not in LEVEL_FIELDS:
+        raise BoundaryError(f"level_field must be one of {list(LEVEL_FIELDS)}, got {level_field!r}")
+    if parameterisation not in PARAMETERISATIONS + ("angular",):
+        raise BoundaryError(f"parameterisation must be one of {list(PARAMETERISATIONS) + ['angular']}, "
+                            f"got {parameterisation!r}")
     if not (np.isfinite(curve_sigma) and curve_sigma >= 0):
         raise BoundaryError(f"curve_sigma must be >= 0 (pixels), got {curve_sigma!r}")
     if not (np.isfinite(closing_mm) and closing_mm >= 0):
@@ -811,19 +955,31 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
             raise BoundaryError(f"segmentation probability shape {probability.shape} != mask shape {mask.shape}")
     dz, dy, dx = ct.spacing
     closing_px = float(closing_mm) / (0.5 * (dy + dx))
-    curves = np.empty((n, samples, 3))
-    areas, coverage = [], []
+    if level_field == "envelope":
+        if not (np.isfinite(envelope_sigma_mm) and envelope_sigma_mm >= 0):
+            raise BoundaryError(f"envelope_sigma_mm must be >= 0, got {envelope_sigma_mm!r}")
+        field, window = head_envelope(mask, (dz, dy, dx), closing_mm=float(closing_mm),
+                                      sigma_mm=float(envelope_sigma_mm))
+    outlines, areas, coverage = [], [], []
     for c, k in enumerate(chosen):
         try:
-            rc, info = outer_contour(mask[k], sigma=sigma, band=band, return_info=True, closing=closing_px,
-                                     probability=None if probability is None else probability[k])
+            if level_field == "envelope":
+                rc, info = contour_from_field(field[k - window[0].start], origin=(window[1].start, window[2].start))
+            else:
+                rc, info = outer_contour(mask[k], sigma=sigma, band=band, return_info=True, closing=closing_px,
+                                         probability=None if probability is None else probability[k])
         except BoundaryError as exc:
             raise BoundaryError(f"slice {int(k)}: {exc}") from None
         kji = np.column_stack([np.full(len(rc), float(k)), rc])
-        curves[c] = orient_and_resample(ct.index_to_patient(kji), samples,
-                                        smooth=float(curve_sigma) * 0.5 * (dy + dx))
+        outlines.append(ct.index_to_patient(kji))
         areas.append(info["area_px"] * dy * dx)
         coverage.append(info["ring_coverage"])
+    smooth_mm = float(curve_sigma) * 0.5 * (dy + dx)
+    if parameterisation == "angular":
+        curves = angular_curves(outlines, samples, smooth=smooth_mm, max_slope=STAR_MAX_SLOPE if star_shaped else None)
+    else:
+        curves = np.stack([orient_and_resample(star_hull(o) if star_shaped else o, samples, smooth=smooth_mm)
+                           for o in outlines])
     heights = curves[:, :, 2].mean(axis=1)
     meta = dict(
         source=ct.meta.get("source", ct.meta.get("path")),
@@ -834,8 +990,15 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
         scan_edge_slices=np.flatnonzero(cut_off).tolist(),
         orientation="ccw seen from +z (superior); outward normal = dX/dv x dX/du",
         seam="posterior midline (+y ray from each curve's area centroid)",
-        curve_sigma=float(curve_sigma), closing_mm=float(closing_mm), parameterisation="arc-length",
+        curve_sigma=float(curve_sigma), closing_mm=float(closing_mm),
+        parameterisation="angular" if parameterisation == "angular" else "arc-length",
+        envelope_sigma_mm=float(envelope_sigma_mm) if level_field == "envelope" else None,
+        star_shaped=bool(star_shaped),
+        source_slice_step_mm=float(ct.meta.get("source_slice_step_mm") or dz),
     )
+    top = _head_top(mask, slice_z, dz)
+    if top is not None:
+        meta["vertex_z"] = top
     bset = BoundarySet(curves, chosen, heights, knots_from_heights(heights), meta)
     if parameterisation == "aligned":
         bset = align_parameterisation(bset, max_stretch=max_stretch)

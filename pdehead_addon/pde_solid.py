@@ -125,7 +125,9 @@ def solid_mesh(head, nu: int, nv: int, nw: int, u_range: tuple[float, float] = (
     v = v0 + TWO_PI * np.arange(nv) / nv if full else np.linspace(v0, v1, nv)
     surf = _surface_grid_cached(head, u, v, nv if (full and v0 == 0.0) else None)
     spine = head.spine(u)                                                    # (nu, 3)
-    quads, tris, quad_c, tri_c, iu, iv, iw = _solid_topology(nu, nv, nw, full, w0 == 0.0, head.orientation > 0)
+    crown = getattr(head, "vertex", None) is not None and u1 == 1.0
+    quads, tris, quad_c, tri_c, iu, iv, iw = _solid_topology(nu, nv, nw, full, w0 == 0.0, head.orientation > 0,
+                                                             crown)
     # corner UVs (u, v / 2 pi); for the full range the seam corner (unwrapped column nv) gets v0/2pi + 1
     def corner_uv(c):
         cv = v0 / TWO_PI + c[..., 1] / nv if full else v[c[..., 1]] / TWO_PI
@@ -158,13 +160,16 @@ def _surface_grid_cached(head, u: np.ndarray, v: np.ndarray, nv_uniform: int | N
 _TOPOLOGY_CACHE: dict = {}
 
 
-def _solid_topology(nu: int, nv: int, nw: int, full: bool, on_spine: bool, flip: bool):
+def _solid_topology(nu: int, nv: int, nw: int, full: bool, on_spine: bool, flip: bool, crown: bool = False):
     """Faces of the parametric box's boundary for a grid of nu x nv x nw samples (cached: pure integers).
+
+    ``on_spine``: the inner face w = 0 collapses onto the spine (one vertex per u); ``crown``: the
+    last u row is the crown's pole (a dome head), one vertex for every (v, w) there.
 
     Returns quads, triangles (indices into the used vertices), their corner (iu, iv unwrapped)
     index pairs, and the (iu, iv, iw) grid index of each used vertex.
     """
-    key = (nu, nv, nw, full, on_spine, flip)
+    key = (nu, nv, nw, full, on_spine, flip, crown)
     hit = _TOPOLOGY_CACHE.get(key)
     if hit is not None:
         return hit
@@ -204,9 +209,12 @@ def _solid_topology(nu: int, nv: int, nw: int, full: bool, on_spine: bool, flip:
         faces = faces[:, ::-1]
         corners = corners[:, ::-1]
     iw_of = faces % nw
+    iu_of = faces // (nv * nw)
     if on_spine:  # inner face on the spine: one vertex per u
-        iu_of = faces // (nv * nw)
         faces = np.where(iw_of == 0, iu_of * nv * nw, faces)
+    if crown:
+        # the crown's pole: every (v, w) of the last row is the same point (kept as its w = w1 vertex)
+        faces = np.where(iu_of == nu - 1, (nu - 1) * nv * nw + nw - 1, faces)
     quads, quad_c, tris, tri_c = _collapse(faces, corners)
     # the used grid vertices in index order and each one's new index: np.unique by counting
     # (ids are bounded by nu * nv * nw), linear time instead of a sort
@@ -305,7 +313,9 @@ def _plane_u(head, z: np.ndarray) -> np.ndarray:
         z1 = head.spine(np.clip(uo, 0, 1))[:, 2]
         z2 = head.spine(np.clip(uo + np.where(uo < 1 - h, h, -h), 0, 1))[:, 2]
         slope = (z2 - z1) / np.where(uo < 1 - h, h, -h)
-        u[ok] = np.clip(uo - (z1 - z[ok]) / slope, 0.0, 1.0)
+        flat = np.abs(slope) < 1e-9                   # the dome's pole: z'(u) = 0, keep the interpolated u
+        step = np.where(flat, 0.0, (z1 - z[ok]) / np.where(flat, 1.0, slope))
+        u[ok] = np.clip(uo - step, 0.0, 1.0)
     return u
 
 

@@ -101,6 +101,8 @@ import numpy as np
 from .boundary_set import BoundarySet
 from .errors import PDEError
 from .mesh import Mesh
+from .pde_basis import basis, basis_grid, curve_harmonics, inverse_4x4
+from .pde_spline import c2_spans, dome_height, smoothing_spline_values
 from .parameterisation import align_parameterisation  # noqa: F401  (re-export; solve_pde(align=True))
 
 #: The default a keeps the top harmonic's Lebesgue constant within this factor of the cubic one.
@@ -111,97 +113,23 @@ MAX_LEBESGUE_GROWTH = 2.0
 DEFAULT_DEVIATION_MM = 0.1
 #: User smoothing values are accepted while the surface stays this close (mm) to the a = 0 solution.
 MAX_DEVIATION_MM = 1.0
-#: Below this exponent the cubic-limit basis is used, above it the rescaled exponentials.
-_K_SWITCH = 2.5
 #: Exponents are searched up to this value (beyond it every knot set is hopeless anyway).
 _K_SEARCH_MAX = 200.0
 
 TWO_PI = 2.0 * np.pi
 
+#: The surface's continuity across the curves: the C2 spans (default) or the paper's four-curve patches.
+CONTINUITIES = ("c2", "paper")
+DEFAULT_CONTINUITY = "c2"
+#: Default C2 smoothing a as a fraction of the head's isotropic a = height / radius.
+DEFAULT_C2_SMOOTHING = 0.0
+#: Default approximation length along u: this many axial slice steps of the scan ...
+APPROXIMATION_PER_SLICE = 1.0
+#: ... but at most this many mean gaps between the chosen curves.
+APPROXIMATION_PER_GAP = 0.5
+
 
 # ----------------------------------------------------------------------------- basis
-
-
-# Taylor coefficients of psi in x^2: 6m/(2m+1)! for m = 1..10 (Horner, highest first)
-_PSI_SERIES = np.array([6.0 * m / np.prod(np.arange(1.0, 2 * m + 2)) for m in range(10, 0, -1)])
-
-
-def _psi(x: np.ndarray) -> np.ndarray:
-    """``3 (cosh x - sinh x / x) / x^2``, -> 1 as x -> 0 (series where cancellation would bite)."""
-    x = np.asarray(x, dtype=np.float64)
-    x2 = x * x
-    series = np.zeros_like(x)
-    for c in _PSI_SERIES:
-        series = series * x2 + c
-    small = np.abs(x) < 0.5
-    if np.all(small):
-        return series
-    safe = np.where(small, 1.0, x)
-    direct = 3.0 * (np.cosh(safe) - np.sinh(safe) / safe) / (safe * safe)
-    return np.where(small, series, direct)
-
-
-def _sinhc(x: np.ndarray) -> np.ndarray:
-    x = np.asarray(x, dtype=np.float64)
-    small = np.abs(x) < 1e-3
-    safe = np.where(small, 1.0, x)
-    x2 = x * x
-    return np.where(small, 1.0 + x2 / 6.0 + x2 * x2 / 120.0, np.sinh(safe) / safe)
-
-
-def _basis(k: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """The 4 basis functions of ``(d^2/ds^2 - k^2)^2 f = 0`` at local s, shape ``broadcast(k, s) + (4,)``.
-
-    ``k <= _K_SWITCH``: ``cosh x, c sinhc x, c^2 sinhc x, c^3 psi(x)`` with ``c = s - 1/2``,
-    ``x = k c`` (tends to the cubic monomials in c as k -> 0). Otherwise the rescaled
-    exponentials ``e^{k(s-1)}, s e^{k(s-1)}, e^{-ks}, s e^{-ks}``.
-    """
-    k, s = np.broadcast_arrays(np.asarray(k, dtype=np.float64), np.asarray(s, dtype=np.float64))
-    out = np.empty(k.shape + (4,))
-    low = k <= _K_SWITCH
-    if np.any(low):
-        _basis_low(k[low], s[low], out_view := np.empty(k[low].shape + (4,)))
-        out[low] = out_view
-    if not np.all(low):
-        _basis_high(k[~low], s[~low], out_view := np.empty(k[~low].shape + (4,)))
-        out[~low] = out_view
-    return out
-
-
-def _basis_low(k: np.ndarray, s: np.ndarray, out: np.ndarray) -> None:
-    """Cubic-limit basis into ``out[..., 4]`` (k, s already broadcast)."""
-    c = s - 0.5
-    x = k * c
-    sc = _sinhc(x)
-    out[..., 0] = np.cosh(x)
-    out[..., 1] = c * sc
-    out[..., 2] = c * out[..., 1]
-    out[..., 3] = c * c * c * _psi(x)
-
-
-def _basis_high(k: np.ndarray, s: np.ndarray, out: np.ndarray) -> None:
-    """Rescaled exponential basis into ``out[..., 4]`` (k, s already broadcast)."""
-    out[..., 0] = np.exp(k * (s - 1.0))
-    out[..., 1] = s * out[..., 0]
-    out[..., 2] = np.exp(-k * s)
-    out[..., 3] = s * out[..., 2]
-
-
-def _basis_grid(k: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """Basis for every (s, k) pair: shape ``(len(s), len(k), 4)``; k split by regime, not per element."""
-    k = np.asarray(k, dtype=np.float64)
-    s = np.asarray(s, dtype=np.float64)
-    out = np.empty((s.size, k.size, 4))
-    low = k <= _K_SWITCH
-    n_low = int(low.sum())
-    if np.all(low[:n_low]) and not np.any(low[n_low:]):       # usual case: k increasing with h
-        kk, ss = np.broadcast_arrays(k[None, :n_low], s[:, None])
-        _basis_low(kk, ss, out[:, :n_low])
-        if n_low < k.size:
-            kk, ss = np.broadcast_arrays(k[None, n_low:], s[:, None])
-            _basis_high(kk, ss, out[:, n_low:])
-        return out
-    return _basis(k[None, :], s[:, None])
 
 
 def _cardinal(k: np.ndarray, knots: np.ndarray, s: np.ndarray) -> np.ndarray:
@@ -211,8 +139,8 @@ def _cardinal(k: np.ndarray, knots: np.ndarray, s: np.ndarray) -> np.ndarray:
     """
     k = np.atleast_1d(np.asarray(k, dtype=np.float64))
     knots = np.broadcast_to(np.asarray(knots, dtype=np.float64), k.shape + (4,))
-    g_nodes = _basis(k[:, None], knots)                                  # (K, 4 nodes, 4 basis)
-    g_eval = _basis(k[:, None], np.asarray(s, dtype=np.float64)[None, :])  # (K, S, 4 basis)
+    g_nodes = basis(k[:, None], knots)                                  # (K, 4 nodes, 4 basis)
+    g_eval = basis(k[:, None], np.asarray(s, dtype=np.float64)[None, :])  # (K, S, 4 basis)
     return np.linalg.solve(np.swapaxes(g_nodes, 1, 2), np.swapaxes(g_eval, 1, 2)).swapaxes(1, 2)
 
 
@@ -424,7 +352,7 @@ def smoothing_bounds(bset: BoundarySet, modes: int | None = None) -> tuple[np.nd
     if not isinstance(bset, BoundarySet):
         raise PDEError(f"smoothing_bounds needs a BoundarySet, got {type(bset).__name__}")
     n = _check_modes(modes, bset.samples)
-    spec, _ = _fourier(bset.curves)
+    spec, _ = curve_harmonics(bset.curves)
     return _bounds(bset, n, _local_knots(bset), spec)
 
 
@@ -432,7 +360,7 @@ def smoothing_bounds(bset: BoundarySet, modes: int | None = None) -> tuple[np.nd
 
 
 class PDEHead:
-    """A solved PDE head: t Bloor-Wilson patches, evaluable anywhere in (u, v, w).
+    """A solved PDE head: Bloor-Wilson spans along u, evaluable anywhere in (u, v, w).
 
     Do not construct directly; use :func:`solve_pde`.
 
@@ -440,22 +368,33 @@ class PDEHead:
     ----------
     bset : BoundarySet
         The boundary conditions solved for (not copied).
-    smoothing : ndarray, shape (t,)
-        The smoothing parameter a of each patch (local u of the patch).
+    continuity : {"c2", "paper"}
+        ``"c2"``: one span between each pair of consecutive curves, position and
+        derivative conditions, C2 across every curve (:mod:`.pde_spline`).
+        ``"paper"``: t patches of four position curves each (eq. 3-6), C0 at the joints.
+    smoothing : ndarray
+        The smoothing parameter a of eq. 1: one per patch (``"paper"``, local u of the
+        patch) or a single global value (``"c2"``, global u).
     modes : int
         N of eq. 11: harmonics with their own exponent ``a n``; the rest is R.
+    span_edges : ndarray, shape (S + 1,)
+        u where each span starts and ends (``k / t`` for the paper's patches; the
+        curves' u and, with a dome, 1.0 for the vertex).
+    curve_u : ndarray, shape (3t+1,)
+        u of each boundary curve.
     knots : ndarray, shape (t, 4)
-        Local knots ``(0, p1, p2, 1)`` of each patch.
-    exponents : ndarray, shape (t, H)
-        Exponent ``k_h`` of every harmonic h = 0 .. M//2 in each patch
-        (``a h`` for h <= N, ``omega = a (N+1)`` for the remainder R).
-    coefficients : ndarray of complex, shape (t, H, 4, 3)
-        Basis coefficients: ``A_h(s) = basis(k_h, s) @ coefficients[k, h]`` and
+        Paper patches only: local knots ``(0, p1, p2, 1)`` of each patch.
+    exponents : ndarray, shape (S, H)
+        Exponent of every harmonic h = 0 .. M//2 on each span (in the span's local s).
+    coefficients : ndarray of complex, shape (S, H, 4, 3)
+        Basis coefficients: ``A_h(s) = basis(k_h, s) @ coefficients[i, h]`` and
         ``X(s, v) = Re sum_h A_h(s) e^{i h v}`` (so ``A_h - i B_h`` of eq. 9-10).
-    condition : ndarray, shape (t,)
+    condition : ndarray, shape (S,)
         Largest 1-norm condition number of the per-harmonic 4x4 systems.
-    lebesgue : ndarray, shape (t,)
-        Lebesgue constant of the largest exponent used (overshoot factor; computed on demand).
+    approximation_mm : float
+        Smoothing length along u (``"c2"``; 0: the surface passes through every curve).
+    vertex : ndarray or None
+        The crown's pole (LPS mm) when the surface closes in a dome, else None.
     smoothing_is_default : bool
         True when ``smoothing`` was chosen by :func:`solve_pde` (stored as such by storage).
     planar_z : bool
@@ -464,9 +403,10 @@ class PDEHead:
         +1 if the quads ``(u,v) -> (u,v+1) -> (u+1,v+1) -> (u+1,v)`` face outward, else -1.
     """
 
-    def __init__(self, bset: BoundarySet, smoothing: np.ndarray, modes: int, knots: np.ndarray,
+    def __init__(self, bset: BoundarySet, smoothing: np.ndarray, modes: int, knots: np.ndarray | None,
                  exponents: np.ndarray, coefficients: np.ndarray, condition: np.ndarray,
-                 planar_z: bool):
+                 planar_z: bool, span_edges: np.ndarray | None = None, curve_u: np.ndarray | None = None,
+                 continuity: str = "paper", approximation_mm: float = 0.0, vertex: np.ndarray | None = None):
         self.bset = bset
         self.smoothing = smoothing
         self.modes = modes
@@ -475,20 +415,37 @@ class PDEHead:
         self.coefficients = coefficients
         self.condition = condition
         self.planar_z = planar_z
+        self.continuity = continuity
+        self.approximation_mm = float(approximation_mm)
+        self.vertex = vertex
+        S = coefficients.shape[0]
+        self.span_edges = np.linspace(0.0, 1.0, S + 1) if span_edges is None else np.asarray(span_edges, float)
+        self.curve_u = np.asarray(bset.u_knots if curve_u is None else curve_u, float)
         self.smoothing_is_default = False
         self._coef_real = np.ascontiguousarray(
-            np.concatenate([coefficients.real, coefficients.imag], axis=-1))   # (t, H, 4, 6)
+            np.concatenate([coefficients.real, coefficients.imag], axis=-1))   # (S, H, 4, 6)
+        self._uniform_spans = bool(np.allclose(self.span_edges, np.linspace(0.0, 1.0, S + 1), atol=1e-12))
+        self._all_cubic = not np.any(exponents)
         self.orientation = 1
         self.orientation = self._measure_orientation()
+        self._deviation = None
 
     # -- basic properties
     @property
     def lebesgue(self) -> np.ndarray:
-        """Per patch the Lebesgue constant of its largest exponent (the overshoot factor), computed on demand."""
+        """Paper patches: the Lebesgue constant of each patch's largest exponent (overshoot factor)."""
+        if self.knots is None:
+            raise PDEError("the Lebesgue constant is defined for the paper's four-curve patches only")
         return lebesgue_constant(self.exponents.max(axis=1), self.knots)
 
     @property
     def patches(self) -> int:
+        """t, the user's patch count (3t+1 curves), whatever the continuity."""
+        return self.bset.patches
+
+    @property
+    def spans(self) -> int:
+        """Number S of pieces along u (t paper patches, or the spans between curves)."""
         return self.coefficients.shape[0]
 
     @property
@@ -496,11 +453,25 @@ class PDEHead:
         """Number of harmonics h = 0 .. M//2 carried."""
         return self.coefficients.shape[1]
 
+    @property
+    def curve_deviation(self) -> float:
+        """Largest distance (mm) between a boundary curve and the surface row at its u (0 when exact)."""
+        if self._deviation is None:
+            rows = self._grid(self.curve_u, self.bset.samples)
+            self._deviation = float(np.linalg.norm(rows - self.bset.curves, axis=-1).max())
+        return self._deviation
+
     def _patch_of(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        t = self.patches
-        scaled = np.asarray(u, dtype=np.float64) * t
-        patch = np.clip(np.floor(scaled).astype(np.int64), 0, t - 1)
-        return patch, scaled - patch
+        """Span index and local s in [0, 1] of each u."""
+        u = np.asarray(u, dtype=np.float64)
+        S = self.spans
+        if self._uniform_spans:
+            scaled = u * S
+            patch = np.clip(np.floor(scaled).astype(np.int64), 0, S - 1)
+            return patch, scaled - patch
+        e = self.span_edges
+        patch = np.clip(np.searchsorted(e, u, side="right") - 1, 0, S - 1)
+        return patch, (u - e[patch]) / (e[patch + 1] - e[patch])
 
     @staticmethod
     def _check_u(u: np.ndarray) -> None:
@@ -518,16 +489,23 @@ class PDEHead:
         patch, s = self._patch_of(u)
         H = self.harmonics if harmonics is None else int(harmonics)
         out = np.empty((u.size, H, 3), dtype=np.complex128)
+        if self._all_cubic:                                                   # a = 0: one basis for all h
+            g = basis(np.zeros(1), s[:, None])[:, 0]                          # (n, 4)
+            for start in range(0, u.size, 256):
+                sl = slice(start, start + 256)
+                prod = np.matmul(g[sl, None, None, :], self._coef_real[patch[sl], :H])[:, :, 0]   # (n, H, 6)
+                out[sl] = prod[..., :3] + 1j * prod[..., 3:]
+            return out
         for k in np.unique(patch):
             sel = np.nonzero(patch == k)[0]
-            g = _basis_grid(self.exponents[k, :H], s[sel])                    # (n, H, 4)
+            g = basis_grid(self.exponents[k, :H], s[sel])                    # (n, H, 4)
             # batched over h: (H, n, 4) @ (H, 4, 6 = re xyz, im xyz)
             prod = np.matmul(g.transpose(1, 0, 2), self._coef_real[k, :H]).transpose(1, 0, 2)
             out[sel] = prod[..., :3] + 1j * prod[..., 3:]
         return out
 
     def spine(self, u: np.ndarray | float) -> np.ndarray:
-        """The spine ``A_0(u)`` (eq. 8): the cubic centre line, shape ``u.shape + (3,)``."""
+        """The spine ``A_0(u)`` (eq. 8): the centre line, shape ``u.shape + (3,)``."""
         u = np.asarray(u, dtype=np.float64)
         self._check_u(u)
         return self._amplitudes(u.ravel(), harmonics=1)[:, 0].real.reshape(u.shape + (3,))
@@ -601,35 +579,43 @@ class PDEHead:
     def _measure_orientation(self) -> int:
         """Sign of the volume enclosed by the polyhedral tube through the curves, default winding.
 
-        The surface passes through the curves at the knots, so the coarse tube
-        whose rings are the curves has the orientation of the surface.
+        The surface passes through (or, approximating, next to) the curves, so the
+        coarse tube whose rings are the curves has the orientation of the surface.
         """
         rings = self.bset.curves[:, ::max(1, self.bset.samples // 64)]
         mesh = _tube_mesh(rings, orientation=1, caps=_fan_caps(rings, rings[[0, -1]].mean(axis=1), fan_only=True))
         return 1 if signed_volume(mesh) >= 0 else -1
 
     def surface(self, nu: int, nv: int, caps: bool = False) -> Mesh:
-        """The head surface as a closed tube of quads (paper Fig. 4, 5, 13).
+        """The head surface as a tube of quads (paper Fig. 4, 5, 13).
 
         Parameters
         ----------
         nu : int
-            Rows along u, including u = 0 and u = 1 (>= 2).
+            Rows along u, including u = 0 and u = 1 (>= 2). With a dome the row
+            u = 1 is the single vertex of the crown, joined by a triangle fan.
         nv : int
             Columns along v (>= 3); ``v_j = 2 pi j / nv``, the seam is stitched.
         caps : bool
-            Close the bottom and top with triangles (a fan to the spine point when
-            the end curve is star-shaped around it, else an ear-clipping
-            triangulation), making the mesh watertight for 3-D printing.
+            Close the bottom (and, without a dome, the top) with triangles (a fan
+            to the spine point when the end curve is star-shaped around it, else
+            a triangulation of the ring), making the mesh watertight for 3-D printing.
 
         Returns
         -------
         Mesh
-            ``nu*nv`` (+2 with caps) vertices, quads wound outward, per-corner UVs
-            ``(u, v / 2 pi)`` with 1.0 on the seam side, vertex attributes ``u`` and ``v``.
+            Quads wound outward, per-corner UVs ``(u, v / 2 pi)`` with 1.0 on the seam
+            side, vertex attributes ``u`` and ``v``.
         """
         nu, nv = _check_count(nu, "nu", 2), _check_count(nv, "nv", 3)
         u = np.linspace(0.0, 1.0, nu)
+        if self.vertex is not None:
+            nu = max(nu, 3)
+            u = np.linspace(0.0, 1.0, nu)
+            pts = self._grid(u[:-1], nv)
+            bottom = _fan_caps(pts, self.spine(np.array([0.0, 1.0])))[0] if caps else None
+            top = (np.asarray(self.vertex, float), _fan_indices(nv))
+            return _tube_mesh(pts, self.orientation, [bottom, top], uv=True, u=u[:-1], top_u=1.0)
         pts = self._grid(u, nv)
         cap_tris = _fan_caps(pts, self.spine(np.array([0.0, 1.0]))) if caps else None
         return _tube_mesh(pts, self.orientation, cap_tris, uv=True, u=u)
@@ -646,8 +632,9 @@ class PDEHead:
         return w_field(self, grid, ct)
 
     def __repr__(self) -> str:
-        return (f"PDEHead(patches={self.patches}, samples={self.bset.samples}, modes={self.modes}, "
-                f"smoothing={np.round(self.smoothing, 4).tolist()})")
+        return (f"PDEHead(continuity={self.continuity!r}, patches={self.patches}, spans={self.spans}, "
+                f"samples={self.bset.samples}, modes={self.modes}, "
+                f"smoothing={np.round(self.smoothing, 4).tolist()}, approximation_mm={self.approximation_mm:g})")
 
 
 # ----------------------------------------------------------------------------- meshing helpers
@@ -803,10 +790,9 @@ def _fan_caps(pts: np.ndarray, spine_ends: np.ndarray, fan_only: bool = False
     caps = []
     for ring, centre in ((pts[0], spine_ends[0]), (pts[-1], spine_ends[1])):
         n = len(ring)
-        j = np.arange(n)
         star, p, _ = (True, None, None) if fan_only else _star_shaped(ring, centre)
         if star:
-            caps.append((centre, np.stack([np.full(n, -1), j, (j + 1) % n], axis=1)))
+            caps.append((centre, _fan_indices(n)))
             continue
         ccw = (p[:, 0] * np.roll(p[:, 1], -1) - p[:, 1] * np.roll(p[:, 0], -1)).sum() > 0
         tri = _polygon_triangles(p if ccw else p[::-1])
@@ -816,12 +802,19 @@ def _fan_caps(pts: np.ndarray, spine_ends: np.ndarray, fan_only: bool = False
     return caps
 
 
+def _fan_indices(n: int) -> np.ndarray:
+    """A fan from a centre (index -1) to a ring of n points, counter-clockwise like the ring."""
+    j = np.arange(n)
+    return np.stack([np.full(n, -1), j, (j + 1) % n], axis=1)
+
+
 def _tube_mesh(pts: np.ndarray, orientation: int, caps=None, uv: bool = False,
-               u: np.ndarray | None = None) -> Mesh:
+               u: np.ndarray | None = None, top_u: float = 1.0) -> Mesh:
     """Tube mesh from a (nu, nv, 3) grid, stitched along v; optional caps from :func:`_fan_caps`.
 
-    With ``u`` (the rows' parameters) the vertex attributes ``u`` and ``v`` are set
-    (cap centres get v = 0).
+    ``caps`` is a (bottom, top) pair, either of which may be None (left open). With
+    ``u`` (the rows' parameters) the vertex attributes ``u`` and ``v`` are set (cap
+    centres get v = 0, the top centre u = ``top_u``).
     """
     nu, nv = pts.shape[:2]
     verts = [pts.reshape(-1, 3)]
@@ -831,13 +824,16 @@ def _tube_mesh(pts: np.ndarray, orientation: int, caps=None, uv: bool = False,
     tri_uv = []
     if caps is not None:
         nvert = nu * nv
-        for end, (centre, tri) in enumerate(caps):
+        for end, cap in enumerate(caps):
+            if cap is None:
+                continue
+            centre, tri = cap
             row = 0 if end == 0 else nu - 1
             base = row * nv
             t = tri.copy()
             if centre is not None:
                 verts.append(centre[None])
-                extra_u.append(0.0 if end == 0 else 1.0)
+                extra_u.append(0.0 if end == 0 else top_u)
                 t = np.where(t < 0, nvert, t + base)
                 nvert += 1
             else:
@@ -867,61 +863,8 @@ def _tube_mesh(pts: np.ndarray, orientation: int, caps=None, uv: bool = False,
 # ----------------------------------------------------------------------------- solver
 
 
-def _fourier(curves: np.ndarray) -> tuple[np.ndarray, bool]:
-    """Weighted complex harmonics of each curve: X(v) = Re sum_h C_h e^{i h v}; shape (n, H, 3).
-
-    Curves lying in planes z = const get exactly zero z harmonics above 0, so that
-    ``z(u, v, w) = A0_z(u)`` holds exactly.
-    """
-    n, M, _ = curves.shape
-    spec = np.fft.rfft(curves, axis=1) / M
-    spec[:, 1:] *= 2.0
-    if M % 2 == 0:
-        spec[:, -1] *= 0.5                                                  # Nyquist counted once
-    planar = bool(np.all(np.ptp(curves[..., 2], axis=1) == 0))
-    if planar:
-        spec[:, 1:, 2] = 0.0
-        spec[:, 0, 2] = curves[:, 0, 2]
-    spec[:, 0] = spec[:, 0].real
-    return spec, planar
-
-
-def _inverse_small(G: np.ndarray) -> np.ndarray:
-    """Inverses of a batch of 4x4 matrices (..., 4, 4): closed-form cofactor expansion plus one
-    step of iterative refinement, vectorised over the batch (LAPACK's per-call overhead
-    dominates for 4x4 systems). The systems here have condition numbers below ~1e3."""
-    a = np.moveaxis(G, (-2, -1), (0, 1))                                  # a[i, j] has the batch shape
-    s0 = a[0, 0] * a[1, 1] - a[1, 0] * a[0, 1]
-    s1 = a[0, 0] * a[1, 2] - a[1, 0] * a[0, 2]
-    s2 = a[0, 0] * a[1, 3] - a[1, 0] * a[0, 3]
-    s3 = a[0, 1] * a[1, 2] - a[1, 1] * a[0, 2]
-    s4 = a[0, 1] * a[1, 3] - a[1, 1] * a[0, 3]
-    s5 = a[0, 2] * a[1, 3] - a[1, 2] * a[0, 3]
-    c5 = a[2, 2] * a[3, 3] - a[3, 2] * a[2, 3]
-    c4 = a[2, 1] * a[3, 3] - a[3, 1] * a[2, 3]
-    c3 = a[2, 1] * a[3, 2] - a[3, 1] * a[2, 2]
-    c2 = a[2, 0] * a[3, 3] - a[3, 0] * a[2, 3]
-    c1 = a[2, 0] * a[3, 2] - a[3, 0] * a[2, 2]
-    c0 = a[2, 0] * a[3, 1] - a[3, 0] * a[2, 1]
-    with np.errstate(all="ignore"):
-        inv_det = 1.0 / (s0 * c5 - s1 * c4 + s2 * c3 + s3 * c2 - s4 * c1 + s5 * c0)
-    rows = [
-        [a[1, 1] * c5 - a[1, 2] * c4 + a[1, 3] * c3, -a[0, 1] * c5 + a[0, 2] * c4 - a[0, 3] * c3,
-         a[3, 1] * s5 - a[3, 2] * s4 + a[3, 3] * s3, -a[2, 1] * s5 + a[2, 2] * s4 - a[2, 3] * s3],
-        [-a[1, 0] * c5 + a[1, 2] * c2 - a[1, 3] * c1, a[0, 0] * c5 - a[0, 2] * c2 + a[0, 3] * c1,
-         -a[3, 0] * s5 + a[3, 2] * s2 - a[3, 3] * s1, a[2, 0] * s5 - a[2, 2] * s2 + a[2, 3] * s1],
-        [a[1, 0] * c4 - a[1, 1] * c2 + a[1, 3] * c0, -a[0, 0] * c4 + a[0, 1] * c2 - a[0, 3] * c0,
-         a[3, 0] * s4 - a[3, 1] * s2 + a[3, 3] * s0, -a[2, 0] * s4 + a[2, 1] * s2 - a[2, 3] * s0],
-        [-a[1, 0] * c3 + a[1, 1] * c1 - a[1, 2] * c0, a[0, 0] * c3 - a[0, 1] * c1 + a[0, 2] * c0,
-         -a[3, 0] * s3 + a[3, 1] * s1 - a[3, 2] * s0, a[2, 0] * s3 - a[2, 1] * s1 + a[2, 2] * s0],
-    ]
-    with np.errstate(all="ignore"):
-        X = np.moveaxis(np.array(rows) * inv_det, (0, 1), (-2, -1))
-        X = X + X @ (np.eye(4) - G @ X)                                      # one refinement step
-    return X
-
-
-def _as_smoothing(smoothing, t: int) -> np.ndarray | None:
+def _as_smoothing(smoothing, t: int | None) -> np.ndarray | None:
+    """Smoothing as t finite values >= 0 (any 1-D length when t is None)."""
     if smoothing is None:
         return None
     try:
@@ -929,7 +872,9 @@ def _as_smoothing(smoothing, t: int) -> np.ndarray | None:
     except (TypeError, ValueError):
         raise PDEError(f"smoothing must be a number or {t} numbers, got {smoothing!r}") from None
     if a.ndim == 0:
-        a = np.full(t, float(a))
+        a = np.full(t or 1, float(a))
+    if t is None and a.ndim == 1 and a.size >= 1:
+        t = a.size
     if a.shape != (t,):
         raise PDEError(f"smoothing must be a number or {t} numbers (one per patch), got shape {a.shape}")
     if not np.all(np.isfinite(a)) or np.any(a < 0):
@@ -938,24 +883,38 @@ def _as_smoothing(smoothing, t: int) -> np.ndarray | None:
 
 
 def solve_pde(bset: BoundarySet, smoothing: float | Sequence[float] | None = None,
-              modes: int | None = None, align: bool = False) -> PDEHead:
-    """Solve the t Bloor-Wilson PDE patches through the boundary curves (eq. 1-13).
+              modes: int | None = None, align: bool = False, continuity: str | None = None,
+              approximation_mm: float | None = None, dome: bool = True) -> PDEHead:
+    """Solve the Bloor-Wilson PDE surface through the boundary curves (eq. 1-13).
 
     Parameters
     ----------
     bset : BoundarySet
         3t+1 closed curves, sample m at v = 2 pi m / M (sample 0 = the seam), as
         :func:`extract_boundaries` returns them.
-    smoothing : float or sequence of t floats, optional
-        The smoothing parameter a of eq. 1 per patch (local u of the patch).
-        Default: ``min(H/r, a_stable)`` per patch (module docstring). Values above
-        the stable maximum (:func:`smoothing_bounds`) raise :class:`PDEError`.
+    smoothing : float or sequence of floats, optional
+        The smoothing parameter a of eq. 1. ``"c2"``: one value in global u, in
+        ``[0, max]`` (:func:`smoothing_range`); default ``DEFAULT_C2_SMOOTHING``
+        of the range. ``"paper"``: a number or t numbers (local u of each patch);
+        default ``min(H/r, a_stable)`` per patch (module docstring). Values above
+        the maximum raise :class:`PDEError`.
     modes : int, optional
         N of eq. 11, in ``[1, M//2]``; default ``M//2`` (R vanishes).
     align : bool
         First re-sample the curves with :func:`align_parameterisation` (same
         polylines, corresponding v); ``head.bset`` is then the aligned set.
-        Without it the curves are reproduced exactly as given.
+    continuity : {"c2", "paper"}, optional
+        ``"c2"`` (default): one span per pair of consecutive curves with shared
+        u-derivatives, C2 across every curve (:mod:`.pde_spline`). ``"paper"``:
+        t patches through four position curves each (eq. 3-6), C0 at the joints.
+    approximation_mm : float, optional
+        ``"c2"`` only: smoothing length along the head axis (mm) of the
+        approximating mode; 0 interpolates every curve exactly. Default:
+        :func:`default_approximation` (from the curves' spacing and the scan's
+        slice thickness and tilt).
+    dome : bool
+        ``"c2"`` only: close the crown with a smooth dome through a vertex above
+        the top curve (else the surface ends at the top curve).
 
     Returns
     -------
@@ -968,12 +927,110 @@ def solve_pde(bset: BoundarySet, smoothing: float | Sequence[float] | None = Non
     """
     if not isinstance(bset, BoundarySet):
         raise PDEError(f"solve_pde needs a BoundarySet, got {type(bset).__name__}")
+    continuity = DEFAULT_CONTINUITY if continuity is None else continuity
+    if continuity not in CONTINUITIES:
+        raise PDEError(f"continuity must be one of {list(CONTINUITIES)}, got {continuity!r}")
     if align:
         bset = align_parameterisation(bset)                                  # no-op if already aligned
-    t, M = bset.patches, bset.samples
-    n_modes = _check_modes(modes, M)
+    n_modes = _check_modes(modes, bset.samples)
+    if continuity == "c2":
+        head = _solve_c2(bset, smoothing, n_modes, approximation_mm, bool(dome))
+    else:
+        if approximation_mm not in (None, 0, 0.0):
+            raise PDEError("approximation_mm needs continuity='c2' (the paper's patches interpolate every curve)")
+        head = _solve_paper(bset, smoothing, n_modes)
+    head.smoothing_is_default = smoothing is None
+    return head
+
+
+def _curve_heights(bset: BoundarySet) -> np.ndarray:
+    """Heights (mm) along the head axis used as the C2 spline's parameter (strictly increasing)."""
+    h = np.asarray(bset.heights, float)
+    d = np.diff(h)
+    if np.all(d > 0):
+        return h
+    if np.all(d < 0):
+        return -h
+    span = float(np.ptp(bset.curves[..., 2])) or 1.0
+    return np.asarray(bset.u_knots, float) * span                           # synthetic sets: their knots
+
+
+def default_approximation(bset: BoundarySet) -> float:
+    """Default smoothing length (mm) along u of the approximating mode.
+
+    ``APPROXIMATION_PER_SLICE`` times the scan's axial slice step (the source's
+    slice thickness along z, which includes the tilt's effective thickening when the
+    series was resampled), but not more than ``APPROXIMATION_PER_GAP`` times the
+    mean gap between the chosen curves (few curves: keep what they say).
+    """
+    spacing = bset.meta.get("source_slice_step_mm") or (bset.meta.get("spacing") or [0.0])[0]
+    gaps = np.abs(np.diff(bset.heights))
+    gap = float(gaps.mean()) if gaps.size else 0.0
+    value = APPROXIMATION_PER_SLICE * float(spacing or 0.0)
+    return float(max(0.0, min(value, APPROXIMATION_PER_GAP * gap)))
+
+
+def smoothing_range(bset: BoundarySet) -> tuple[float, float]:
+    """``(default, maximum)`` of the C2 smoothing parameter a for this head.
+
+    The isotropic value ``a_iso = Z / r`` (height Z of the head over its mean
+    radius r: equal physical rates along u and v, the biharmonic in arc length) is
+    the top of the range; the default is ``DEFAULT_C2_SMOOTHING * a_iso``. A
+    normalised slider ``f in [0, 1]`` maps to ``a = f * maximum``.
+    """
+    c = bset.curves
+    r = float(np.linalg.norm(c - c.mean(axis=1, keepdims=True), axis=2).mean())
+    z = float(np.ptp(bset.heights)) or 1.0
+    a_iso = z / r if r > 0 else 0.0
+    return DEFAULT_C2_SMOOTHING * a_iso, a_iso
+
+
+def _solve_c2(bset: BoundarySet, smoothing, n_modes: int, approximation_mm, dome: bool) -> PDEHead:
+    spec, planar = curve_harmonics(bset.curves)                               # (m, H, 3)
+    z = _curve_heights(bset)
+    default_a, max_a = smoothing_range(bset)
+    if smoothing is None:
+        a = default_a
+    else:
+        arr = _as_smoothing(smoothing, None)
+        if arr.size != 1 and np.ptp(arr) > 0:
+            raise PDEError("continuity='c2' takes one smoothing value for the whole head, "
+                           f"got {arr.size} different values")
+        a = float(arr.ravel()[0])
+        if a > max_a * (1 + 1e-9):
+            raise PDEError(f"smoothing a={a:.4g} is above this head's maximum {max_a:.4g} (the isotropic "
+                           "height/radius ratio); use a value in [0, that] or the normalised slider")
+    L = default_approximation(bset) if approximation_mm is None else approximation_mm
+    if not (np.isfinite(L) and L >= 0):
+        raise PDEError(f"approximation_mm must be a length >= 0 (mm), got {approximation_mm!r}")
+    if L > 0:
+        exact_z = spec[:, 0, 2].copy()
+        spec = smoothing_spline_values(z, spec, float(L))
+        if planar:                                                            # z stays exact per curve
+            spec[:, 0, 2] = exact_z
+            spec[:, 1:, 2] = 0.0
+    vertex = None
+    top = z[-1]
+    if dome:
+        zt = float(bset.curves[-1, :, 2].mean())
+        height = dome_height(bset.curves, bset.heights, bset.meta.get("vertex_z"))
+        sign = 1.0 if bset.heights[-1] >= bset.heights[0] else -1.0
+        vertex = np.array([spec[-1, 0, 0].real, spec[-1, 0, 1].real, zt + sign * height])
+        top = z[-1] + height
+    knots = np.concatenate([z, [top]]) if dome else z
+    u = (knots - knots[0]) / (knots[-1] - knots[0])
+    exponents, coefficients, _ = c2_spans(spec, u, a, n_modes, pole=vertex)
+    if not np.all(np.isfinite(coefficients)):
+        raise PDEError("the PDE solution is not finite (degenerate boundary curves or knots?)")
+    condition = np.ones(coefficients.shape[0])
+    return PDEHead(bset, np.array([a]), n_modes, None, exponents, coefficients, condition, planar,
+                   span_edges=u, curve_u=u[:len(z)], continuity="c2", approximation_mm=float(L), vertex=vertex)
+
+
+def _solve_paper(bset: BoundarySet, smoothing, n_modes: int) -> PDEHead:
+    t = bset.patches
     local = _local_knots(bset)
-    spec, planar = _fourier(bset.curves)                                     # (3t+1, H, 3)
+    spec, planar = curve_harmonics(bset.curves)                                     # (3t+1, H, 3)
     a = _as_smoothing(smoothing, t)
     if a is None:
         a, _ = _bounds(bset, n_modes, local, spec, want_max=False)
@@ -993,8 +1050,8 @@ def solve_pde(bset: BoundarySet, smoothing: float | Sequence[float] | None = Non
     # patches with the same knots and smoothing share their 4x4 systems (uniform slice selections)
     _, first, which = np.unique(np.round(np.column_stack([local, a]), 12), axis=0, return_index=True,
                                 return_inverse=True)
-    G = _basis(exponents[first][:, :, None], local[first][:, None, :])       # (types, H, 4 nodes, 4 basis)
-    G_inv = _inverse_small(G)[which.ravel()]
+    G = basis(exponents[first][:, :, None], local[first][:, None, :])       # (types, H, 4 nodes, 4 basis)
+    G_inv = inverse_4x4(G)[which.ravel()]
     G = G[which.ravel()]
     # rhs: the node curves' harmonics, (t, H, 4 nodes, 3)
     rhs = np.stack([spec[3 * k:3 * k + 4] for k in range(t)]).transpose(0, 2, 1, 3)
@@ -1003,6 +1060,5 @@ def solve_pde(bset: BoundarySet, smoothing: float | Sequence[float] | None = Non
     condition = (norm1(G) * norm1(G_inv)).max(axis=1)
     if not (np.all(np.isfinite(coefficients)) and np.all(np.isfinite(condition))):
         raise PDEError("the PDE solution is not finite (degenerate boundary curves or knots?)")
-    head = PDEHead(bset, a, n_modes, local, exponents, coefficients, condition, planar)
-    head.smoothing_is_default = smoothing is None
-    return head
+    return PDEHead(bset, a, n_modes, local, exponents, coefficients, condition, planar,
+                   span_edges=np.arange(t + 1) / t, curve_u=bset.u_knots, continuity="paper")

@@ -22,6 +22,7 @@ import numpy as np
 
 from .boundary_set import BoundarySet, knots_from_heights
 from .errors import BoundaryError, PDEError, StorageError
+from .pde_surface import DEFAULT_CONTINUITY
 
 MAGIC = b"PDEHBND\x00"
 VERSION = 1
@@ -76,11 +77,17 @@ def _split(obj) -> tuple[BoundarySet, dict | None]:
     from .pde_surface import PDEHead
     if isinstance(obj, PDEHead):
         settings = {"smoothing": [float(a) for a in obj.smoothing], "modes": int(obj.modes),
-                    "smoothing_is_default": bool(getattr(obj, "smoothing_is_default", False))}
+                    "smoothing_is_default": bool(getattr(obj, "smoothing_is_default", False)),
+                    "continuity": obj.continuity}
+        if obj.continuity == "c2":
+            settings.update(approximation_mm=float(obj.approximation_mm), dome=obj.vertex is not None)
         return obj.bset, settings
     if isinstance(obj, BoundarySet):
         settings = obj.meta.get("pde_settings")
-        return obj, settings if isinstance(settings, dict) else None
+        # a set saved from now on says which surface it was made for (older files: the paper's)
+        settings = dict(settings) if isinstance(settings, dict) else {"smoothing_is_default": True}
+        settings.setdefault("continuity", DEFAULT_CONTINUITY)
+        return obj, settings
     raise StorageError(f"can only store a BoundarySet or a PDEHead, got {type(obj).__name__}")
 
 
@@ -251,8 +258,13 @@ def head_from_boundaries(bset: BoundarySet, name: str = "<bytes>"):
     from .pde_surface import solve_pde
     settings = bset.meta.get("pde_settings") or {}
     smoothing = None if settings.get("smoothing_is_default", True) else settings.get("smoothing")
+    # files written before the C2 surface existed carry no continuity: they were the paper's patches
+    continuity = settings.get("continuity", "paper")
+    extra = {}
+    if continuity == "c2":
+        extra = dict(approximation_mm=settings.get("approximation_mm"), dome=bool(settings.get("dome", True)))
     try:
-        return solve_pde(bset, smoothing=smoothing, modes=settings.get("modes"))
+        return solve_pde(bset, smoothing=smoothing, modes=settings.get("modes"), continuity=continuity, **extra)
     except PDEError as exc:
         raise StorageError(f"{name}: stored settings cannot be solved ({exc})") from None
 

@@ -6,7 +6,16 @@ import pytest
 from scipy import ndimage as ndi
 from scipy.spatial import cKDTree
 
-from pdehead_addon import BoundaryError, BoundarySet, CTVolume, Segmentation, extract_boundaries
+from pdehead_addon import BoundaryError, BoundarySet, CTVolume, Segmentation
+from pdehead_addon import extract_boundaries as _extract_default
+
+#: The per-slice path (2-D mask outline, aligned samples) these tests were written for; the 3-D
+#: envelope default with star hulls and angular samples is tested in test_envelope.py.
+PER_SLICE = dict(level_field="mask", parameterisation="aligned", star_shaped=False)
+
+
+def extract_boundaries(seg, **kwargs):
+    return _extract_default(seg, **{**PER_SLICE, **kwargs})
 from pdehead_addon.boundaries import (
     _assign_monotone, boundary_ring, contour_from_mask, outer_contour, outer_region, parameter_offsets,
     polygon_centroid, register_selection, resample_closed_curve, self_intersections, signed_area,
@@ -386,11 +395,12 @@ def _check_real(seg, bset, n_expected, max_edge_dist=1.0, max_ring_dist=1.5):
     return worst_dist, offsets
 
 
-def test_cthead_boundaries(cthead_seg, cthead_bset):
+def test_cthead_boundaries(cthead_seg):
     # pixel-exact geometry without closing, uniform in arc length
     exact = extract_boundaries(cthead_seg, patches=10, samples=256, parameterisation="arc-length", closing_mm=0)
     _check_real(cthead_seg, exact, 31)
-    # the default: inlets closed (3 mm), aligned
+    # the per-slice path: inlets closed (3 mm), aligned
+    cthead_bset = extract_boundaries(cthead_seg, patches=10, samples=256)
     assert cthead_bset.meta["parameterisation"] == "aligned" and cthead_bset.meta["closing_mm"] == 3.0
     _check_real(cthead_seg, cthead_bset, 31)
     assert cthead_bset.meta["selection"] == "uniform" and cthead_bset.patches == 10
@@ -481,10 +491,10 @@ def test_extract_boundaries_parameterisation_options():
             extract_boundaries(seg, patches=2, samples=64, **kwargs)
 
 
-def test_cthead_aligned_default_keeps_polylines_and_improves_correspondence(cthead_seg, cthead_bset):
+def test_cthead_aligned_default_keeps_polylines_and_improves_correspondence(cthead_seg):
     from pdehead_addon.parameterisation import align_parameterisation, correspondence_error
     arc = extract_boundaries(cthead_seg, patches=10, samples=256, parameterisation="arc-length")
-    aligned = cthead_bset
+    aligned = extract_boundaries(cthead_seg, patches=10, samples=256)
     assert np.array_equal(arc.slice_indices, aligned.slice_indices)
     assert np.array_equal(arc.curves[:, 0], aligned.curves[:, 0])       # seam sample unchanged
     for a, b in zip(arc.curves, aligned.curves):

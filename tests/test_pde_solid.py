@@ -13,9 +13,10 @@ from pde_synthetic import head_bset, resample_arc_length
 TWO_PI = 2 * np.pi
 
 
-@pytest.fixture(scope="module")
-def head():
-    return solve_pde(head_bset(patches=4, samples=128))
+@pytest.fixture(scope="module", params=["c2", "paper"])
+def head(request):
+    """The default C2 surface (crown closed by a dome: its last row is one vertex) and the paper's patches."""
+    return solve_pde(head_bset(patches=4, samples=128), continuity=request.param)
 
 
 def face_areas(mesh):
@@ -34,7 +35,9 @@ def test_outer_face_is_the_surface(head):
     solid = head.solid(nu, nv, nw)
     surf = head.surface(nu, nv)
     outer = solid.vertex_attributes["w"] == 1.0
-    assert outer.sum() == nu * nv
+    dome = head.vertex is not None
+    assert outer.sum() == (nu - 1) * nv + 1 if dome else nu * nv
+    assert len(surf.vertices) == outer.sum()
     a = np.round(solid.vertices[outer], 9)
     b = np.round(surf.vertices, 9)
     assert np.array_equal(a[np.lexsort(a.T)], b[np.lexsort(b.T)])
@@ -67,12 +70,14 @@ def test_cutaways_are_closed_and_outward(head, kwargs, fraction):
 def test_spine_degenerate_inner_face_is_merged(head):
     m = head.solid(20, 30, 4)                                               # w from 0: inner face on the spine
     w = m.vertex_attributes["w"]
-    assert np.count_nonzero(w == 0) == 2                                    # only the u-end fan centres
-    assert len(m.triangles) == 2 * 30                                       # u-end fans
+    dome = head.vertex is not None                                          # the crown's pole is one vertex (w = 1)
+    assert np.count_nonzero(w == 0) == (1 if dome else 2)                   # only the u-end fan centres
+    if not dome:
+        assert len(m.triangles) == 2 * 30                                   # u-end fans
     assert m.is_watertight() and face_areas(m).min() > 1e-6
     cut = head.solid(20, 30, 4, v_range=(1.0, 5.0))                         # the v cuts meet on the spine
     w = cut.vertex_attributes["w"]
-    assert np.count_nonzero(w == 0) == 20                                   # one spine vertex per u
+    assert np.count_nonzero(w == 0) == (19 if dome else 20)                 # one spine vertex per u
     assert cut.is_watertight() and face_areas(cut).min() > 1e-6
     assert np.allclose(cut.vertices[w == 0], head.spine(cut.vertex_attributes["u"][w == 0]))
 
@@ -122,7 +127,9 @@ def grid_volume(head, spacing=(1.0, 1.0, 1.0), margin=4.0):
 def section_mask(head, grid: CTVolume, k: int, n: int = 1024) -> tuple[np.ndarray, np.ndarray]:
     """Independent inside test of one voxel plane: skimage polygon2mask of the cross-section."""
     z = grid.origin[2] + k * grid.spacing[0]
-    u = (z - head.bset.heights[0]) / (head.bset.heights[-1] - head.bset.heights[0])
+    uu = np.linspace(0.0, 1.0, 20001)                                        # invert the spine's z densely
+    zz = head.spine(uu)[:, 2]
+    u = float(np.interp(z, zz, uu)) if zz[-1] > zz[0] else float(np.interp(z, zz[::-1], uu[::-1]))
     sec = head._grid(np.array([u]), n)[0]
     ij = (sec[:, :2] - grid.origin[:2]) / np.array([grid.spacing[2], grid.spacing[1]])
     mask = polygon2mask(grid.shape[1:], ij[:, ::-1])                        # (row=j, col=i)
@@ -155,8 +162,11 @@ def test_w_field_on_a_ct_grid_matches_the_surface(head):
     # volume == the closed capped surface's volume
     vol = inside.sum() * np.prod(grid.spacing)
     assert abs(vol / signed_volume(head.surface(200, 400, caps=True)) - 1) < 0.01
-    # nothing outside the curves' z range
-    outside_planes = (z < head.bset.heights.min() - 1e-9) | (z > head.bset.heights.max() + 1e-9)
+    # nothing outside the head's z range: the curves', up to the crown's pole with a dome
+    top = head.vertex[2] if head.vertex is not None else head.bset.heights.max()
+    if head.vertex is not None:
+        assert top > head.bset.heights.max() + 1.0 and inside[z > head.bset.heights.max() + 1e-9].any()
+    outside_planes = (z < head.bset.heights.min() - 1e-9) | (z > top + 1e-9)
     assert not inside[outside_planes].any()
 
 
@@ -171,7 +181,8 @@ def test_w_field_is_the_parametric_w_for_star_shaped_sections(head):
     z = head.evaluate(u, v, w)[:, 2]
     k = np.round((z - grid.origin[2]) / grid.spacing[0]).astype(int)
     zk = grid.origin[2] + k * grid.spacing[0]
-    uk = (zk - head.bset.heights[0]) / (head.bset.heights[-1] - head.bset.heights[0])
+    uu = np.linspace(0.0, 1.0, 20001)                                        # invert the spine's z densely
+    uk = np.interp(zk, head.spine(uu)[:, 2], uu)
     p = head.evaluate(uk, v, w)
     ij = np.round((p[:, :2] - grid.origin[:2]) / np.array(grid.spacing[2:0:-1])).astype(int)
     centre = grid.origin[:2] + ij * np.array(grid.spacing[2:0:-1])

@@ -11,6 +11,11 @@ from pdehead_addon.pde_surface import (
 )
 from pde_synthetic import circles_bset, head_bset, polar_curve, radial_excess
 
+
+def solve_paper(bset, **kwargs):
+    """These tests are about the paper's four-curve patches (eq. 3-6); the C2 surface is tested in test_pde_spline.py."""
+    return solve_pde(bset, continuity="paper", **kwargs)
+
 TWO_PI = 2 * np.pi
 
 
@@ -50,7 +55,7 @@ def synthetic():
 
 @pytest.fixture(scope="module")
 def synthetic_head(synthetic):
-    return solve_pde(synthetic)
+    return solve_paper(synthetic)
 
 
 # ----------------------------------------------------------------------------- exactness
@@ -62,7 +67,7 @@ def test_every_curve_reproduced_at_its_knot(synthetic_head):
     err = max(np.abs(synthetic_head.evaluate(uk, v) - b.curves[j]).max() for j, uk in enumerate(b.u_knots))
     assert err < 1e-6
     # also with few modes: the remainder R carries the rest exactly (eq. 11-13)
-    head = solve_pde(b, modes=3)
+    head = solve_paper(b, modes=3)
     err = max(np.abs(head.evaluate(uk, v) - b.curves[j]).max() for j, uk in enumerate(b.u_knots))
     assert err < 1e-6
 
@@ -70,7 +75,7 @@ def test_every_curve_reproduced_at_its_knot(synthetic_head):
 def test_interior_knots_come_from_heights():
     heights = np.array([0.0, 2.0, 9.0, 10.0])                              # p1 = 0.2, p2 = 0.9: not thirds
     b = circles_bset([50, 60, 55, 52], heights, samples=64)
-    head = solve_pde(b)
+    head = solve_paper(b)
     assert np.allclose(head.knots[0], [0, 0.2, 0.9, 1])
     r = np.linalg.norm(head.evaluate(np.array([0.2, 0.9]), 0.0) - head.spine(np.array([0.2, 0.9])), axis=-1)
     assert np.allclose(r, [60, 55], atol=1e-9)
@@ -94,7 +99,7 @@ def test_eq1_residual_by_finite_differences():
     b = lowpass(head_bset(patches=3, samples=64), 6)                       # harmonics 0..6 only
     _, a_max = smoothing_bounds(b, modes=6)
     a = float(a_max.min())                                                # the strongest allowed smoothing
-    head = solve_pde(b, smoothing=a, modes=6)                              # every harmonic has its own a*n
+    head = solve_paper(b, smoothing=a, modes=6)                              # every harmonic has its own a*n
     rng = np.random.default_rng(0)
     s, v = rng.uniform(0.1, 0.9, 150), rng.uniform(0, TWO_PI, 150)
     for k in range(3):
@@ -110,8 +115,8 @@ def test_remainder_solves_its_own_ode_not_eq1():
     full = lowpass(head_bset(patches=3, samples=64), 6)
     N = 3
     a = float(smoothing_bounds(full, modes=N)[1].min())
-    X = solve_pde(full, smoothing=a, modes=N)
-    F = solve_pde(lowpass(full, N), smoothing=a, modes=N)                 # the truncated series, eq. 13
+    X = solve_paper(full, smoothing=a, modes=N)
+    F = solve_paper(lowpass(full, N), smoothing=a, modes=N)                 # the truncated series, eq. 13
     rng = np.random.default_rng(1)
     s, v = rng.uniform(0.1, 0.9, 100), rng.uniform(0, TWO_PI, 100)
     omega = a * (N + 1)
@@ -134,7 +139,7 @@ def test_remainder_solves_its_own_ode_not_eq1():
 
 
 def test_harmonics_above_N_use_omega(synthetic):
-    head = solve_pde(synthetic, smoothing=0.05, modes=10)
+    head = solve_paper(synthetic, smoothing=0.05, modes=10)
     assert np.allclose(head.exponents[:, :11], 0.05 * np.arange(11))
     assert np.allclose(head.exponents[:, 11:], 0.05 * 11)
 
@@ -146,7 +151,7 @@ def test_equal_circles_give_a_cylinder():
     b = circles_bset([80.0] * 10, np.arange(10) * 10.0, samples=128)
     u = np.linspace(0, 1, 301)
     for smoothing, tol in ((0.0, 1e-9), (None, 1e-6)):
-        head = solve_pde(b, smoothing=smoothing)
+        head = solve_paper(b, smoothing=smoothing)
         pts = head._grid(u, 128)
         r = np.hypot(pts[..., 0], pts[..., 1])
         # a = 0 (cubic limit): exact; default a ~ 0.07: constants are reproduced to O((a n)^4 / 2000)
@@ -159,17 +164,17 @@ def test_cylinder_bulge_grows_like_k4_for_large_smoothing():
     O((a n)^4); the allowed range keeps that below MAX_DEVIATION_MM."""
     b = circles_bset([80.0] * 4, [0, 10, 20, 30.0], samples=64)
     _, a_max = smoothing_bounds(b, modes=1)
-    head = solve_pde(b, smoothing=a_max, modes=1)
+    head = solve_paper(b, smoothing=a_max, modes=1)
     r = np.hypot(*head._grid(np.linspace(0, 1, 201), 64)[..., :2].transpose(2, 0, 1))
     assert 1e-4 < np.abs(r - 80).max() <= MAX_DEVIATION_MM + 1e-9
     with pytest.raises(PDEError, match="too large"):
-        solve_pde(b, smoothing=1.2 * a_max, modes=1)
+        solve_paper(b, smoothing=1.2 * a_max, modes=1)
 
 
 def test_cone_has_no_bulge():
     heights = np.arange(7) * 12.0
     radii = 40 + 0.5 * heights                                             # linearly growing
-    head = solve_pde(circles_bset(radii, heights, samples=128))
+    head = solve_paper(circles_bset(radii, heights, samples=128))
     u = np.linspace(0, 1, 241)
     r = np.hypot(*head._grid(u, 128)[..., :2].transpose(2, 0, 1))
     expected = 40 + 0.5 * 72 * u
@@ -183,7 +188,7 @@ def test_mode1_curves_have_no_higher_modes():
     b = circles_bset(rng.uniform(40, 90, 7), np.arange(7) * 9.0, samples=128,
                      centres=rng.uniform(-10, 10, (7, 2)))
     for modes in (64, 1):
-        head = solve_pde(b, modes=modes)
+        head = solve_paper(b, modes=modes)
         scale = np.abs(head.coefficients[:, 1]).max()
         assert np.abs(head.coefficients[:, 2:]).max() < 1e-12 * scale       # no n >= 2, hence R == 0
 
@@ -213,11 +218,11 @@ def test_c0_across_patches_and_c1_jump_reported(synthetic_head):
 @pytest.mark.parametrize("patches", [1, 2, 5, 12, 36])
 def test_stable_for_any_patch_count_and_modes(patches):
     b = head_bset(patches=patches, samples=64)
-    cubic = radial_excess(solve_pde(b, smoothing=0.0), nper=12, nv=64).max()
+    cubic = radial_excess(solve_paper(b, smoothing=0.0), nper=12, nv=64).max()
     for modes in (1, 2, 8, 32):
         default, maximum = smoothing_bounds(b, modes)
         for a in (0.0, None, maximum):
-            head = solve_pde(b, smoothing=a, modes=modes)
+            head = solve_paper(b, smoothing=a, modes=modes)
             pts = head._grid(np.linspace(0, 1, 8 * patches + 1), 64)
             assert np.all(np.isfinite(pts))
             assert head.condition.max() < 1e3
@@ -238,13 +243,13 @@ def test_lebesgue_constant_grows_with_k_for_thirds():
 def test_naive_large_smoothing_is_refused(synthetic):
     for a in (1.0, 2.0):
         with pytest.raises(PDEError, match="maximum there is"):
-            solve_pde(synthetic, smoothing=a)
+            solve_paper(synthetic, smoothing=a)
 
 
 def test_default_smoothing_is_geometric_and_bounded(synthetic):
     default, maximum = smoothing_bounds(synthetic)
     assert np.all(default > 0) and np.all(default <= maximum)
-    head = solve_pde(synthetic)
+    head = solve_paper(synthetic)
     assert np.allclose(head.smoothing, default)
     assert head.modes == synthetic.samples // 2
     # with few modes the isotropic a = H / r (~ 22 mm / 80 mm) is reachable
@@ -259,18 +264,18 @@ def test_default_smoothing_is_geometric_and_bounded(synthetic):
 ])
 def test_bad_settings_raise_pdeerror(synthetic, kwargs, message):
     with pytest.raises(PDEError, match=message):
-        solve_pde(synthetic, **kwargs)
+        solve_paper(synthetic, **kwargs)
 
 
 def test_bad_input_raises_pdeerror(synthetic):
     with pytest.raises(PDEError):
-        solve_pde(synthetic.curves)
+        solve_paper(synthetic.curves)
     bad = BoundarySet(synthetic.curves, synthetic.slice_indices, synthetic.heights,
                       np.linspace(0, 1, len(synthetic.heights)) ** 2, {})
     with pytest.raises(PDEError, match="k/t"):
-        solve_pde(bad)
+        solve_paper(bad)
     with pytest.raises(PDEError, match="u must lie"):
-        solve_pde(synthetic).evaluate(1.5, 0.0)
+        solve_paper(synthetic).evaluate(1.5, 0.0)
 
 
 # ----------------------------------------------------------------------------- meshes
@@ -324,7 +329,7 @@ def test_caps_on_non_star_shaped_end_curves():
     for j in range(4):
         curves[j, :, :2] = polar_curve(notched if j in (0, 3) else (lambda th: 60 + 0 * th), M)
         curves[j, :, 2] = z[j]
-    head = solve_pde(BoundarySet(curves, np.arange(4), z, knots_from_heights(z), {}))
+    head = solve_paper(BoundarySet(curves, np.arange(4), z, knots_from_heights(z), {}))
     m = head.surface(20, 96, caps=True)
     assert m.is_watertight() and signed_volume(m) > 0
     # cap triangles do not fold: all face the same way (down at the bottom, up at the top)
@@ -385,13 +390,13 @@ def test_align_parameterisation_keeps_geometry_and_reduces_error():
         P = head._grid(np.linspace(0, 1, 241), 512)
         r = np.hypot(P[..., 0], P[..., 1])
         return np.abs(r - nose_shape(np.arctan2(P[..., 1], P[..., 0]), P[..., 2])).mean()
-    before, after = radial_error(solve_pde(b)), radial_error(solve_pde(a))
+    before, after = radial_error(solve_paper(b)), radial_error(solve_paper(a))
     assert after < 0.75 * before, (before, after)
-    # solve_pde(align=True) is the same as solving the aligned set (and aligning twice is a no-op)
-    both = solve_pde(b, align=True)
+    # solve_paper(align=True) is the same as solving the aligned set (and aligning twice is a no-op)
+    both = solve_paper(b, align=True)
     assert both.bset.meta["parameterisation"] == "aligned"
-    assert np.array_equal(both.surface(20, 40).vertices, solve_pde(a).surface(20, 40).vertices)
-    assert np.array_equal(solve_pde(a, align=True).bset.curves, a.curves)
+    assert np.array_equal(both.surface(20, 40).vertices, solve_paper(a).surface(20, 40).vertices)
+    assert np.array_equal(solve_paper(a, align=True).bset.curves, a.curves)
 
 
 # ----------------------------------------------------------------------------- real data
@@ -423,17 +428,21 @@ def fidelity(head, seg):
     return symmetric_surface_distance(m.vertices, m.quads, verts, faces, samples=60_000, dense=250_000)
 
 
-def test_fidelity_cthead_t10(cthead_bset, cthead_seg):
+def test_fidelity_cthead_t10(cthead_seg):
     """Aligned curves (the default) fit marching cubes of the same mask better than arc-length ones.
     The default 3 mm closing bridges nostrils/ear canals that marching cubes keeps (costs ~0.03 mm mean)."""
-    from pdehead_addon import extract_boundaries
+    from pdehead_addon import extract_boundaries as _extract
+
+    def extract_boundaries(seg, **kw):                  # the per-slice curves these numbers were measured on
+        return _extract(seg, **{"level_field": "mask", "star_shaped": False, "parameterisation": "aligned", **kw})
+    cthead_bset = extract_boundaries(cthead_seg, patches=10)
     result = {}
     for name, bset in (("arc-length", extract_boundaries(cthead_seg, patches=10, parameterisation="arc-length")),
                        ("aligned (default)", cthead_bset),
                        ("arc-length, no closing", extract_boundaries(cthead_seg, patches=10, closing_mm=0,
                                                                      parameterisation="arc-length")),
                        ("aligned, no closing", extract_boundaries(cthead_seg, patches=10, closing_mm=0))):
-        d = result[name] = fidelity(solve_pde(bset), cthead_seg)
+        d = result[name] = fidelity(solve_paper(bset), cthead_seg)
         print(f"CThead t=10 ({name}) PDE vs marching cubes:", {k: round(d[k], 3) for k in ("mean", "p95", "max")})
     d, arc = result["aligned (default)"], result["arc-length"]
     assert d["mean"] <= 0.6 and d["p95"] <= 2.0
@@ -443,9 +452,12 @@ def test_fidelity_cthead_t10(cthead_bset, cthead_seg):
 
 
 def test_fidelity_cthead_t31(cthead_seg):
-    from pdehead_addon import extract_boundaries
+    from pdehead_addon import extract_boundaries as _extract
+
+    def extract_boundaries(seg, **kw):
+        return _extract(seg, **{"level_field": "mask", "star_shaped": False, **kw})
     for name, p in (("arc-length", "arc-length"), ("aligned (default)", "aligned")):
-        d = fidelity(solve_pde(extract_boundaries(cthead_seg, patches=31, samples=256, parameterisation=p)),
+        d = fidelity(solve_paper(extract_boundaries(cthead_seg, patches=31, samples=256, parameterisation=p)),
                      cthead_seg)
         print(f"CThead t=31 ({name}) PDE vs marching cubes:", {k: round(d[k], 3) for k in ("mean", "p95", "max")})
         assert d["mean"] <= 0.6
@@ -453,7 +465,7 @@ def test_fidelity_cthead_t31(cthead_seg):
 
 
 def test_cthead_default_surface_is_sane(cthead_bset):
-    head = solve_pde(cthead_bset)
+    head = solve_paper(cthead_bset)
     assert head.condition.max() < 1e3
     assert np.all(head.smoothing > 0)
     m = head.surface(200, 400, caps=True)

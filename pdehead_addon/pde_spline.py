@@ -1,0 +1,252 @@
+"""A C2 Bloor-Wilson surface through every boundary curve (eq. 1, 7-12 with derivative conditions).
+
+The paper's patches (section 4.1) each interpolate four *position* curves and
+share only their end curve with the next patch, so the surface is C0 there: the
+normal jumps by tens of degrees at every joint (measured in
+:mod:`.surface_quality`). The classic Bloor-Wilson boundary conditions are
+position *and* u-derivative at both ends of a patch. Here every span between
+two consecutive curves is such a patch: per harmonic h of eq. 7 its amplitude
+``A_h`` solves ``(d^2/du^2 - a^2 h^2)^2 A_h = 0`` (eq. 1 separated, eq. 9-10) with
+``A_h(u_j) = P_j``, ``A_h(u_{j+1}) = P_{j+1}`` and derivatives ``D_j, D_{j+1}``
+shared with the neighbouring spans. The derivatives are the solution of one
+tridiagonal system per harmonic that makes the second u-derivative continuous
+too: the surface is C2 in u across every curve. For a -> 0 each harmonic is the
+natural cubic spline through the curves (eq. 8 in every span); a larger a damps
+the higher harmonics between the curves (less overshoot, less detail between
+them). Harmonics above ``modes`` (N) share the remainder exponent
+``omega = a (N + 1)`` of eq. 12.
+
+Two extensions make the head what a user expects to see:
+
+* **approximation along u** (``approximation_mm``): before interpolation, the
+  curves' harmonics are replaced by a natural cubic *smoothing* spline in
+  height (Reinsch 1967): it minimises
+  ``sum_j w_j |Y_j - P_j|^2 + lambda int |Y''(z)|^2 dz`` with ``w_j`` the
+  curves' height spacing (mm) and ``lambda = L^4``, a low-pass along the head
+  axis with gain 1/2 at wavelength ``2 pi L``. Slice-to-slice steps (thick or
+  tilted series) and streaks that change from slice to slice are not
+  reproduced; the surface leaves each curve by at most ``head.curve_deviation``.
+* **the crown as a dome**: the last knot is a degenerate curve, the vertex,
+  above the top curve. There every harmonic h >= 1 vanishes, the height has a
+  zero u-derivative and the harmonics h >= 2 have a zero derivative too, so the
+  rings shrink to a point with a horizontal tangent plane (near the pole
+  ``z ~ z_v - c (1-u)^2`` while the rings shrink like ``(1-u)``): a round
+  crown instead of a flat fan.
+
+References
+----------
+Bloor, M. I. G. and Wilson, M. J. (1989). Generating blend surfaces using
+partial differential equations. Computer-Aided Design 21(3), 165-171.
+Reinsch, C. H. (1967). Smoothing by spline functions. Numer. Math. 10, 177-183.
+"""
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+
+from .pde_basis import basis_derivatives, inverse_4x4
+
+#: Dome height limits, as fractions of the top curve's equivalent radius sqrt(area / pi).
+DOME_MIN_FRACTION = 0.15
+DOME_MAX_FRACTION = 1.2
+
+
+def hermite_systems(k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Hermite interpolation in the space of exponent k on s in [0, 1].
+
+    Parameters
+    ----------
+    k : ndarray
+        Exponents (any shape).
+
+    Returns
+    -------
+    G_inv : ndarray, shape ``k.shape + (4, 4)``
+        Maps the data ``(f(0), f(1), f'(0), f'(1))`` to the coefficients of
+        :func:`~.pde_basis.basis`.
+    alpha : ndarray, shape ``k.shape + (4,)``
+        ``f''(0) = alpha @ data``; by the reflection symmetry of the space
+        ``f''(1) = alpha[1] f(0) + alpha[0] f(1) - alpha[3] f'(0) - alpha[2] f'(1)``.
+        For k = 0: ``(-6, 6, -4, -2)`` (the cubic).
+    """
+    k = np.asarray(k, dtype=np.float64)
+    d0 = basis_derivatives(k, 0.0)
+    d1 = basis_derivatives(k, 1.0)
+    G = np.stack([d0[..., 0, :], d1[..., 0, :], d0[..., 1, :], d1[..., 1, :]], axis=-2)
+    G_inv = inverse_4x4(G)
+    alpha = np.einsum("...i,...ij->...j", d0[..., 2, :], G_inv)
+    return G_inv, alpha
+
+
+@lru_cache(maxsize=4)
+def _cubic_system() -> tuple[np.ndarray, np.ndarray]:
+    G_inv, alpha = hermite_systems(np.zeros(1))
+    G_inv.flags.writeable = False
+    alpha.flags.writeable = False
+    return G_inv[0], alpha[0]
+
+
+def tridiagonal_solve(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """Thomas algorithm along axis 0, vectorised over the trailing (batch) axes.
+
+    ``lower[0]`` and ``upper[-1]`` are ignored. The systems here are diagonally
+    dominant (spline derivative systems), so no pivoting is needed.
+    """
+    n = diag.shape[0]
+    c = np.empty(np.broadcast_shapes(upper.shape, diag.shape), dtype=np.result_type(upper, diag))
+    d = np.empty(np.broadcast_shapes(rhs.shape, diag.shape), dtype=np.result_type(rhs, diag))
+    beta = diag[0]
+    c[0] = upper[0] / beta
+    d[0] = rhs[0] / beta
+    for i in range(1, n):
+        beta = diag[i] - lower[i] * c[i - 1]
+        c[i] = upper[i] / beta
+        d[i] = (rhs[i] - lower[i] * d[i - 1]) / beta
+    for i in range(n - 2, -1, -1):
+        d[i] = d[i] - c[i] * d[i + 1]
+    return d
+
+
+def smoothing_spline_values(x: np.ndarray, y: np.ndarray, length: float) -> np.ndarray:
+    """Values at the knots of the natural cubic smoothing spline (Reinsch 1967).
+
+    Parameters
+    ----------
+    x : ndarray, shape (m,)
+        Strictly increasing knot positions (mm).
+    y : ndarray, shape (m, ...)
+        Data at the knots (real or complex; trailing axes are independent series).
+    length : float
+        Smoothing length L (mm): ``lambda = L^4`` with the data weighted by the
+        knots' spacing, so the filter halves wavelengths of ``2 pi L``.
+        0 returns ``y`` unchanged.
+
+    Returns
+    -------
+    ndarray, shape of y
+        Linear functions of x are reproduced exactly for any L.
+    """
+    m = len(x)
+    if length <= 0 or m < 3:
+        return y
+    h = np.diff(x)
+    w = np.empty(m)
+    w[1:-1] = 0.5 * (h[:-1] + h[1:])
+    w[0], w[-1] = 0.5 * h[0], 0.5 * h[-1]
+    n = m - 2
+    Q = np.zeros((m, n))
+    idx = np.arange(n)
+    Q[idx, idx] = 1.0 / h[:-1]
+    Q[idx + 1, idx] = -1.0 / h[:-1] - 1.0 / h[1:]
+    Q[idx + 2, idx] = 1.0 / h[1:]
+    R = np.zeros((n, n))
+    R[idx, idx] = (h[:-1] + h[1:]) / 3.0
+    R[idx[:-1], idx[:-1] + 1] = R[idx[:-1] + 1, idx[:-1]] = h[1:-1] / 6.0
+    lam = float(length) ** 4
+    A = R + lam * (Q.T / w) @ Q
+    # the smoother is linear: Y = S y with S = I - lam W^-1 Q A^-1 Q^T (m x m, real), so one
+    # small solve serves every harmonic and coordinate (real and imaginary parts alike)
+    S = np.eye(m) - lam * (Q / w[:, None]) @ np.linalg.solve(A, Q.T)
+    yy = y.reshape(m, -1)
+    if np.iscomplexobj(yy):
+        return (S @ yy.real + 1j * (S @ yy.imag)).reshape(y.shape)
+    return (S @ yy).reshape(y.shape)
+
+
+def dome_height(curves: np.ndarray, heights: np.ndarray, vertex_z: float | None = None) -> float:
+    """Height (mm) of the crown above the top curve.
+
+    ``vertex_z`` (the mask's top, when known) wins if it lies above the top curve
+    (within the limits below); otherwise the area of the top three curves is
+    extrapolated linearly to zero (a sphere's cap area is linear in height near
+    its pole). The result is kept within ``[DOME_MIN_FRACTION, DOME_MAX_FRACTION]``
+    times the top curve's equivalent radius.
+    """
+    xy = curves[..., :2]
+    area = 0.5 * np.abs((xy[..., 0] * np.roll(xy[..., 1], -1, axis=1)
+                         - np.roll(xy[..., 0], -1, axis=1) * xy[..., 1]).sum(axis=1))
+    r_top = float(np.sqrt(area[-1] / np.pi))
+    lo, hi = DOME_MIN_FRACTION * r_top, DOME_MAX_FRACTION * r_top
+    z = np.asarray(heights, float)
+    if vertex_z is not None and np.isfinite(vertex_z) and vertex_z > z[-1]:
+        return float(np.clip(vertex_z - z[-1], lo, hi))
+    k = min(3, len(z))
+    zz, aa = z[-k:], area[-k:]
+    slope = np.polyfit(zz - zz[-1], aa, 1)[0] if k >= 2 else 0.0
+    if slope < 0:                                       # area shrinking upward: extrapolate to zero
+        return float(np.clip(-aa[-1] / slope, lo, hi))
+    return float(np.sqrt(lo * hi))
+
+
+def c2_spans(spec: np.ndarray, u: np.ndarray, smoothing: float, modes: int,
+             pole: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Basis coefficients of the C2 surface through the curves' harmonics.
+
+    Parameters
+    ----------
+    spec : ndarray of complex, shape (m, H, 3)
+        Harmonics of the m curves (``X(v) = Re sum_h spec[j, h] e^{i h v}``).
+    u : ndarray, shape (m,) or (m + 1,) with a pole
+        Strictly increasing knots in [0, 1], ``u[0] = 0``, ``u[-1] = 1``.
+    smoothing : float
+        a of eq. 1 (global u); exponent of harmonic h on span i: ``a min(h, N+1) du_i``.
+    modes : int
+        N of eq. 11.
+    pole : ndarray, shape (3,), optional
+        The vertex: an extra last knot where every harmonic h >= 1 is 0 and the
+        spine passes through ``pole`` with zero z-derivative.
+
+    Returns
+    -------
+    exponents : ndarray, shape (S, H)
+    coefficients : ndarray of complex, shape (S, H, 4, 3)
+        ``A_h(s) = basis(exponents[i, h], s) @ coefficients[i, h]`` on span i.
+    derivatives : ndarray of complex, shape (S + 1, H, 3)
+        ``dA_h/du`` at the knots.
+    """
+    m, H, _ = spec.shape
+    p = spec
+    if pole is not None:
+        tip = np.zeros((1, H, 3), complex)
+        tip[0, 0] = pole
+        p = np.concatenate([spec, tip])
+    n = p.shape[0]                                               # knots
+    du = np.diff(u)
+    hh = np.minimum(np.arange(H), modes + 1).astype(np.float64)
+    exponents = float(smoothing) * du[:, None] * hh[None, :]     # (S, H)
+    if smoothing == 0.0:
+        g0, a0 = _cubic_system()
+        G_inv = np.broadcast_to(g0, exponents.shape + (4, 4))
+        alpha = np.broadcast_to(a0, exponents.shape + (4,))
+    else:
+        G_inv, alpha = hermite_systems(exponents)
+    # the derivative system, one column per (harmonic, coordinate): shapes (n, H, 1) / (n, H, 3)
+    aL, aR = alpha[:, :, None, :], alpha[:, :, None, :]
+    lower = np.zeros((n, H, 1))
+    diag = np.zeros((n, H, 1))
+    upper = np.zeros((n, H, 1))
+    rhs = np.zeros((n, H, 3), complex)
+    dul, dur = du[:, None, None], du[:, None, None]
+    # right-hand span of knots 0 .. n-2 (span j), left-hand span of knots 1 .. n-1 (span j-1)
+    diag[:-1] -= aR[..., 2] / dur
+    upper[:-1] -= aR[..., 3] / dur
+    rhs[:-1] += (aR[..., 0] * p[:-1] + aR[..., 1] * p[1:]) / dur ** 2
+    lower[1:] -= aL[..., 3] / dul
+    diag[1:] -= aL[..., 2] / dul
+    rhs[1:] -= (aL[..., 1] * p[:-1] + aL[..., 0] * p[1:]) / dul ** 2
+    lower = np.broadcast_to(lower, rhs.shape).copy()
+    diag = np.broadcast_to(diag, rhs.shape).copy()
+    upper = np.broadcast_to(upper, rhs.shape).copy()
+    if pole is not None:
+        clamp = np.zeros((H, 3), bool)
+        clamp[0, 2] = True                                       # horizontal tangent plane at the vertex
+        clamp[2:] = True                                         # rings tend to an ellipse at the pole
+        lower[-1][clamp], diag[-1][clamp], upper[-1][clamp], rhs[-1][clamp] = 0.0, 1.0, 0.0, 0.0
+    d = tridiagonal_solve(lower, diag, upper, rhs)               # (n, H, 3) dA/du
+    data = np.stack([p[:-1], p[1:], d[:-1] * du[:, None, None], d[1:] * du[:, None, None]], axis=2)
+    if smoothing == 0.0:                                         # one 4x4 map for every span and harmonic
+        coefficients = np.matmul(G_inv[0, 0], data.real) + 1j * np.matmul(G_inv[0, 0], data.imag)
+    else:
+        coefficients = np.matmul(G_inv, data.real) + 1j * np.matmul(G_inv, data.imag)   # (S, H, 4, 3)
+    return exponents, coefficients, d
