@@ -12,7 +12,7 @@ import importlib
 
 import bpy
 
-from . import ops, panel, prefs, props, state
+from . import forensic, ops, panel, prefs, props, state
 
 # helper B's modules; registered only if they define register()/unregister()
 _OPTIONAL_MODULES = ("coords", "objects", "volume", "render", "persistence", "cutter")
@@ -39,7 +39,7 @@ def pdehead_load_post(*_args) -> None:
             state.drop_cache(study_id)
 
 
-_MODULES = (props, prefs, ops, panel)
+_MODULES = (props, prefs, ops, panel, forensic)
 
 
 def register() -> None:

@@ -175,6 +175,17 @@ class LoaderOptions:
     spacing: FloatVectorProperty(name="Spacing (dz, dy, dx)", size=3, default=(1.0, 1.0, 1.0), min=1e-3,
                                  description="Voxel size in mm: slice step, row step, column step")
     first_slice: EnumProperty(name="First Slice", items=FIRST_SLICE_ITEMS, default="AUTO")
+    orientation: StringProperty(name="Orientation", default="",
+                                description="Raw and image stacks: 3 letters for the patient directions in "
+                                            "which the column, row and file index increase, e.g. LPS (the "
+                                            "default), LAS (row 0 = back of the head), RAS, PIL (sagittal). "
+                                            "Empty: LPS, or LPI when the first slice is superior")
+    units: EnumProperty(name="Units", default="AUTO",
+                        items=[("AUTO", "Auto", "DICOM says its units; raw and images are stored values"),
+                               ("HU", "HU", "The raw or image samples are Hounsfield units (air -1000)")])
+    downsample: IntProperty(name="Downsample", default=1, min=1, max=8,
+                            description="Average blocks of N x N x N voxels on import (for very large scans: "
+                                        "2 needs about 1/8 of the memory)")
     series_uid: StringProperty(name="Series UID", default="",
                                description="DICOM: the SeriesInstanceUID to load when the folder "
                                            "holds several series (empty: the only/largest one)")
@@ -198,8 +209,15 @@ class LoaderOptions:
         if self.format == "RAW":
             options.update(format="raw", shape=tuple(int(n) for n in self.raw_shape),
                            dtype=dtype_string(self.raw_dtype, self.byte_order),
-                           spacing=tuple(float(s) for s in self.spacing),
-                           first_slice="inferior" if self.first_slice == "INFERIOR" else "superior")
+                           spacing=tuple(float(s) for s in self.spacing))
+            if self.orientation.strip():
+                options["orientation"] = self.orientation.strip().upper()
+            else:
+                options["first_slice"] = "inferior" if self.first_slice == "INFERIOR" else "superior"
+            if self.units == "HU":
+                options["units"] = "HU"
+            if self.downsample > 1:
+                options["downsample"] = int(self.downsample)
             return options
         if self.format == "DICOM":
             options["format"] = "dicom"
@@ -207,8 +225,14 @@ class LoaderOptions:
             options["format"] = "images"
         if self.use_spacing:
             options["spacing"] = tuple(float(s) for s in self.spacing)
-        if self.first_slice != "AUTO":
+        if self.orientation.strip():
+            options["orientation"] = self.orientation.strip().upper()
+        elif self.first_slice != "AUTO":
             options["first_slice"] = self.first_slice.lower()
+        if self.units == "HU":
+            options["units"] = "HU"
+        if self.downsample > 1:
+            options["downsample"] = int(self.downsample)
         if self.series_uid.strip():
             options["series_uid"] = self.series_uid.strip()
         return options
@@ -226,8 +250,12 @@ class LoaderOptions:
             if self.use_spacing:
                 layout.prop(self, "spacing")
         layout.prop(self, "first_slice")
+        if self.format in {"AUTO", "IMAGES", "RAW"}:
+            layout.prop(self, "orientation")
+            layout.prop(self, "units")
         if self.format in {"AUTO", "DICOM"}:
             layout.prop(self, "series_uid")
+        layout.prop(self, "downsample")
         layout.prop(self, "single_file")
 
 
@@ -352,6 +380,11 @@ def step_segment(coll) -> None:
         s.seg_fraction = float(seg.mask.mean())
         s.seg_iterations = int(seg.iterations)
         s.seg_c1, s.seg_c2 = float(seg.c1), float(seg.c2)
+        # head size outside the human range, shoulders cut off: shown with the loader's warnings
+        known = [w for w in s.warnings.split("; ") if w]
+        new = [w for w in seg.meta.get("warnings", []) if w not in known]
+        if new:
+            s.warnings = "; ".join(known + new)[:1000]
     state.record_timing(coll, "segment", t.seconds)
 
 
@@ -372,7 +405,7 @@ def step_boundaries(coll) -> None:
         s.warnings = "; ".join([w for w in (s.warnings, message) if w])[:1000]
     with state.Timer() as t:
         bset = extract_boundaries(cache.seg, patches=s.patches, samples=s.samples, selection=s.selection,
-                                  parameterisation="aligned" if s.align_curves else "arc-length")
+                                  parameterisation="angular" if s.align_curves else "arc-length")
     state.store_boundaries(coll, bset)
     cache.drop_from("bset")
     cache.bset = bset
@@ -468,10 +501,14 @@ def live_update(coll, what: str, context=None) -> None:
     try:
         if what == "pde_auto":
             what = "pde"
-            if not s.smoothing_auto and state.boundary_set(coll) is not None:
-                # start the manual value from the automatic one (mean over the patches)
+            if state.boundary_set(coll) is not None and not (s.smoothing_auto and s.approximation_auto):
+                # start a manual slider from the automatic value (as a fraction of the study's range)
+                smoothing, approximation = state.default_controls(coll)
                 with props.suspended_updates():
-                    s.smoothing = state.auto_smoothing(coll)
+                    if not s.smoothing_auto and not s.is_property_set("smoothing"):
+                        s.smoothing = smoothing
+                    if not s.approximation_auto and not s.is_property_set("approximation"):
+                        s.approximation = approximation
         if what == "cutter":
             from . import cutter
             if s.use_cutter and cutter.cutter_of(coll) is not None:
@@ -633,7 +670,7 @@ class PDEHEAD_OT_extract_boundaries(Operator, StudyOperator):
     patches: IntProperty(name="Patches (t)", default=10, min=1, max=60)
     samples: IntProperty(name="Samples (M)", default=256, min=16, max=4096)
     selection: EnumProperty(name="Selection", items=props.SELECTION_ITEMS, default=props.DEFAULT_SELECTION)
-    align_curves: BoolProperty(name="Align Curves", default=True,
+    align_curves: BoolProperty(name="Align Curves", default=True,  # equal v = the same direction from the spine
                                description="Re-sample the curves so that equal v joins corresponding points "
                                            "(avoids folds where a feature such as the nose is on one curve only)")
 
@@ -666,11 +703,16 @@ class PDEHEAD_OT_reconstruct_surface(Operator, StudyOperator):
     nu: IntProperty(name="nu", default=DEFAULT_NU, min=4, max=2000)
     nv: IntProperty(name="nv", default=DEFAULT_NV, min=4, max=2000)
     caps: BoolProperty(name="Caps", default=True)
+    continuity: EnumProperty(name="Continuity", items=props.CONTINUITY_ITEMS, default=props.DEFAULT_CONTINUITY_ITEM)
+    dome: BoolProperty(name="Dome", default=True)
     smoothing_auto: BoolProperty(name="Auto Smoothing", default=True)
-    smoothing: FloatProperty(name="Smoothing (a)", default=0.03, min=0.0, max=10.0, soft_max=0.5, precision=4)
+    smoothing: FloatProperty(name="Smoothing (a)", default=0.0, min=0.0, max=1.0, subtype='FACTOR')
+    approximation_auto: BoolProperty(name="Auto Approximation", default=True)
+    approximation: FloatProperty(name="Smooth Along Axis", default=0.0, min=0.0, max=1.0, subtype='FACTOR')
     modes: IntProperty(name="Fourier Modes", default=0, min=0, max=512, description="0 = all")
 
-    mirrored_settings = ("nu", "nv", "caps", "smoothing_auto", "smoothing", "modes")
+    mirrored_settings = ("nu", "nv", "caps", "continuity", "dome", "smoothing_auto", "smoothing",
+                         "approximation_auto", "approximation", "modes")
 
     def execute(self, context):
         coll = _active_or_report(self, context)

@@ -114,10 +114,20 @@ class PDEHEAD_PT_surface(_StudyPanel, bpy.types.Panel):
         col.prop(s, "nv")
         col.prop(s, "caps")
         col = layout.column(align=True)
+        col.prop(s, "continuity", text="")
+        smooth = s.continuity == "c2"
+        row = col.row()
+        row.enabled = smooth
+        row.prop(s, "dome")
+        col = layout.column(align=True)
+        col.prop(s, "approximation_auto")
+        sub = col.row()
+        sub.enabled = smooth and not s.approximation_auto
+        sub.prop(s, "approximation", slider=True)
         col.prop(s, "smoothing_auto")
         sub = col.row()
         sub.enabled = not s.smoothing_auto
-        sub.prop(s, "smoothing")
+        sub.prop(s, "smoothing", slider=True)
         col.prop(s, "modes")
         layout.operator("pdehead.reconstruct_surface", icon='MESH_UVSPHERE')
         if s.surface_object is not None:

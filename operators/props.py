@@ -57,6 +57,12 @@ SELECTION_ITEMS = [
     ("uniform", "Uniform", "Curves evenly spaced along the head axis"),
     ("shape-change", "Shape Change", "Denser curves where the head's cross-section changes fast (face)"),
 ]
+#: The PDE surface's continuity across the curves (engine values "c2" / "paper").
+CONTINUITY_ITEMS = [
+    ("c2", "Smooth (C2)", "One Bloor-Wilson span between consecutive curves, C2 across every curve"),
+    ("paper", "Paper Patches", "The paper's t patches through four curves each; creased where they meet"),
+]
+DEFAULT_CONTINUITY_ITEM = "c2"
 def _colour_items():
     from .volume import COLOUR_LABELS, COLOUR_PRESETS  # the presets' one owner
     return [(key, *COLOUR_LABELS.get(key, (key.title(), ""))) for key in COLOUR_PRESETS]
@@ -110,8 +116,9 @@ class PDEHeadStudySettings(bpy.types.PropertyGroup):
     selection: EnumProperty(name="Selection", items=SELECTION_ITEMS, default=DEFAULT_SELECTION,
                             description="How the 3t+1 slices are chosen")
     align_curves: BoolProperty(name="Align Curves", default=True,
-                               description="Re-sample the curves so that equal v joins corresponding points "
-                                           "(avoids folds where a feature such as the nose is on one curve only)")
+                               description="Sample every curve at the same directions from a smooth spine, so "
+                                           "that equal v joins corresponding points (no folds or cheek ripples); "
+                                           "off: samples evenly spaced along each curve")
 
     # Surface (live)
     nu: IntProperty(name="nu", default=DEFAULT_NU, min=4, max=2000, update=_live("surface_solid"),
@@ -120,15 +127,31 @@ class PDEHeadStudySettings(bpy.types.PropertyGroup):
                     description="Resolution around the head (v); rebuilds the meshes at once")
     caps: BoolProperty(name="Caps", default=True, update=_live("surface"),
                        description="Close the top and bottom of the surface")
+    continuity: EnumProperty(
+        name="Continuity", items=CONTINUITY_ITEMS, default=DEFAULT_CONTINUITY_ITEM, update=_live("pde"),
+        description="Smooth: one Bloor-Wilson span between consecutive curves, C2 across every curve "
+                    "(default). Paper: t patches through four curves each (eq. 3-6), creased at the joints")
+    dome: BoolProperty(name="Dome", default=True, update=_live("pde"),
+                       description="Close the crown with a round dome through the vertex above the top curve "
+                                   "(Smooth continuity)")
     smoothing_auto: BoolProperty(name="Auto Smoothing", default=True, update=_live("pde_auto"),
-                                 description="Let the solver choose the smoothing parameter a of eq. 1 per "
-                                             "patch (the largest stable value); off: one a for all patches")
-    smoothing: FloatProperty(name="Smoothing (a)", default=0.03, min=0.0, max=10.0, soft_max=0.5,
-                             precision=4, step=0.1, update=_live("pde"),
-                             description="Smoothing parameter a of eq. 1 for every patch (used when Auto is "
-                                         "off; starts at the automatic value; too large a value is refused)")
+                                 description="Let the solver choose the smoothing parameter a of eq. 1")
+    smoothing: FloatProperty(name="Smoothing (a)", default=0.0, min=0.0, max=1.0, subtype='FACTOR',
+                             update=_live("pde"),
+                             description="Smoothing parameter a of eq. 1 as a fraction of this study's "
+                                         "maximum (Smooth: the isotropic height/radius ratio; Paper: the "
+                                         "largest stable a of each patch). Every value solves")
+    approximation_auto: BoolProperty(name="Auto Approximation", default=True, update=_live("pde_auto"),
+                                     description="Smooth along the head axis by the solver's default length "
+                                                 "(one slice step of the scan, at most half a curve gap)")
+    approximation: FloatProperty(name="Smooth Along Axis", default=0.0, min=0.0, max=1.0, subtype='FACTOR',
+                                 update=_live("pde"),
+                                 description="Approximating mode: how strongly the surface may leave the curves "
+                                             "to smooth slice steps and streaks (0 = through every curve; 1 = "
+                                             "a smoothing length of 1.5 curve gaps). Smooth continuity only")
     modes: IntProperty(name="Fourier Modes", default=0, min=0, max=512, update=_live("pde"),
-                       description="Fourier modes kept in v (0 = all the curves resolve)")
+                       description="Harmonics kept around each ring (0 = all: the surface passes through "
+                                   "the curves; fewer: eq. 13's truncated series, a simpler head)")
 
     # Solid (live)
     nw: IntProperty(name="nw", default=5, min=2, max=200, update=_live("solid"),

@@ -154,16 +154,31 @@ def boundary_set(collection):
     return cache.bset
 
 
+def continuity(collection) -> str:
+    """The study's surface continuity: the property once the user set it, else what the stored
+    boundary conditions were made for (files saved before the C2 surface: the paper's patches)."""
+    s = settings(collection)
+    if s.is_property_set("continuity"):
+        return s.continuity
+    bset = boundary_set(collection)
+    stored = bset.meta.get("pde_settings") if bset is not None else None
+    if not isinstance(stored, dict):              # curves extracted in this session: today's default
+        return s.continuity
+    return stored.get("continuity", "paper")
+
+
 def pde_key(collection) -> tuple:
+    """The controls the solved head depends on: (continuity, smoothing, approximation, modes, dome)."""
     s = settings(collection)
     smoothing = None if s.smoothing_auto else float(s.smoothing)
+    approximation = None if s.approximation_auto else float(s.approximation)
     modes = None if s.modes <= 0 else int(s.modes)
-    return smoothing, modes
+    return continuity(collection), smoothing, approximation, modes, bool(s.dome)
 
 
 def pde_head(collection):
-    """The solved PDE head for the study's current smoothing/modes (cached, re-solved on change)."""
-    from ..pdehead_addon import solve_pde
+    """The solved PDE head for the study's current controls (cached, re-solved on change)."""
+    from ..pdehead_addon import solve_with_controls
     s = settings(collection)
     cache = cache_for(s.study_id)
     key = pde_key(collection)
@@ -171,24 +186,28 @@ def pde_head(collection):
         bset = boundary_set(collection)
         if bset is None:
             raise PDEHeadError(f"study '{collection.name}' has no boundary curves yet: run Extract Boundaries")
-        cache.head = solve_pde(bset, smoothing=key[0], modes=key[1])
+        cont, smoothing, approximation, modes, dome = key
+        cache.head = solve_with_controls(bset, cont, smoothing=smoothing, approximation=approximation,
+                                         modes=modes, dome=dome)
         cache.head_key = key
         cache.wfield = None
     return cache.head
 
 
-def auto_smoothing(collection) -> float:
-    """Mean over the patches of the solver's automatic smoothing parameter a (eq. 1)."""
+def default_controls(collection) -> tuple[float, float]:
+    """The solver's default smoothing and approximation as fractions of the study's maxima (the
+    values a slider starts from when its Auto box is cleared)."""
     import numpy as np
-    from ..pdehead_addon import solve_pde
+    from ..pdehead_addon import control_ranges
     s = settings(collection)
-    cache = cache_for(s.study_id)
-    modes = None if s.modes <= 0 else int(s.modes)
-    if cache.head is not None and cache.head_key == (None, modes):
-        head = cache.head
-    else:
-        head = solve_pde(boundary_set(collection), smoothing=None, modes=modes)
-    return float(np.mean(head.smoothing))
+    ranges = control_ranges(boundary_set(collection), continuity(collection), None if s.modes <= 0 else s.modes)
+
+    def fraction(pair):
+        d, m = (np.asarray(x, float) for x in pair)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            f = np.where(m > 0, d / m, 0.0)
+        return float(np.clip(np.mean(f), 0.0, 1.0))
+    return fraction(ranges["smoothing"]), fraction(ranges["approximation_mm"])
 
 
 def require_ct(collection):

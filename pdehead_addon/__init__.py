@@ -10,11 +10,16 @@ pipeline of the paper "A PDE-based head visualization method with CT data"
 4. :mod:`.pde_surface`   - t Bloor-Wilson PDE patches (eq. 1-13)
 5. :mod:`.pde_solid`     - the solid (eq. 23), its w-field and eq. 24 opacity
 6. :mod:`.storage`       - the compact boundary file (section 5.2)
+
+Forensic toolkit: :mod:`.skull` (the skull as a second PDE surface and a bone mesh),
+:mod:`.tissue_depth` (skin-skull depth per vertex), :mod:`.landmarks` (landmarks, depth
+markers, Frankfurt horizontal, mid-sagittal mirror), :mod:`.export` (STL/OBJ/PLY in mm).
 """
 from .errors import PDEHeadError, CTImportError, SegmentationError, BoundaryError, PDEError, StorageError
 from .ct_volume import CTVolume
 from .mesh import Mesh
 from .ct_import import load_ct, list_series, SeriesInfo, CTImportWarning
+from .input_checks import HeadSizeWarning
 from .phantom import make_phantom, Phantom
 from .dicom_export import write_dicom_series, write_phantom_series
 from .segmentation import Segmentation, segment_head
@@ -22,10 +27,14 @@ from .metrics import jaccard, per_slice_jaccard, reference_head_mask
 from .boundary_set import BoundarySet, knots_from_heights
 from .boundaries import (extract_boundaries, max_patches, boundary_ring, contour_from_mask, parameter_offsets, scan_edge_slices,
                          register_selection, SELECTION_STRATEGIES)
-from .pde_surface import solve_pde, PDEHead, smoothing_bounds
+from .pde_surface import solve_pde, PDEHead, smoothing_bounds, control_ranges, solve_with_controls
+from .surface_quality import surface_quality
 from .parameterisation import align_parameterisation, smooth_closed_curve, correspondence_error
 from .pde_solid import alpha_from_w, w_field, solid_mesh, WField, OUTSIDE_W
 from .storage import save_boundaries, load_boundaries, dumps_boundaries, loads_boundaries, load_head, loads_head
 from .surface_metrics import symmetric_surface_distance
+from .skull import SkullSegmentation, segment_skull, skull_mesh
+from .tissue_depth import TissueDepth, tissue_depth, write_depth_csv
+from .export import export_mesh
 
 __version__ = "0.1.0"

@@ -81,7 +81,7 @@ from scipy import ndimage as ndi
 from skimage import measure
 
 from .boundary_set import BoundarySet, knots_from_heights
-from .envelope import ENVELOPE_SIGMA_MM, head_envelope, outer_region
+from .envelope import ENVELOPE_CLOSING_MM, ENVELOPE_SIGMA_MM, head_envelope, outer_region
 from .errors import BoundaryError
 from .parameterisation import PARAMETERISATIONS, align_parameterisation, closed_arc_length, smooth_closed_curve
 
@@ -103,7 +103,8 @@ MIN_AREA_FRACTION = 0.05
 CLOSING_MM = 3.0
 #: Default low-pass along each curve (Gaussian sigma, pixels) against the pixel-grid ripple.
 CURVE_SIGMA_PX = 1.0
-#: Star hull: bound on |d ln r / d theta| (2: the normal stays within 63 degrees of the ray).
+#: Star hull: bound on |d ln r / d theta| (2: the normal stays within 63 degrees of the ray; at 3 and more
+#: the corners of the mouth keep a pit on CThead).
 STAR_MAX_SLOPE = 2.0
 #: Smoothing length (mm) of the centroid track that the angular parameterisation is centred on.
 SPINE_SMOOTHING_MM = 10.0
@@ -822,8 +823,8 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
                        min_area_fraction: float = MIN_AREA_FRACTION, sigma: float = 0.7,
                        level_field: str = "envelope", band: int = 1, parameterisation: str = "angular",
                        curve_sigma: float = CURVE_SIGMA_PX, max_stretch: float = 8.0,
-                       closing_mm: float = CLOSING_MM, envelope_sigma_mm: float = ENVELOPE_SIGMA_MM,
-                       star_shaped: bool = True) -> BoundarySet:
+                       closing_mm: float | None = None, envelope_sigma_mm: float = ENVELOPE_SIGMA_MM,
+                       star_shaped: bool = True, star_slope: float = STAR_MAX_SLOPE) -> BoundarySet:
     """The 3t+1 PDE boundary curves of a segmented head (paper eq. 22, sections 3 and 4.1).
 
     Parameters
@@ -875,9 +876,12 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
         Replace each outline by its :func:`star_hull` around its centroid: inlets
         whose walls face the centre (behind the ears, nostrils) are filled, so the
         surface has no notches there and the ears are smooth bumps.
+    star_slope : float
+        The hull's bound on ``|d ln r / d theta|`` (:func:`star_hull`'s ``max_slope``).
     envelope_sigma_mm : float
         Standard deviation (mm) of the envelope's 3-D Gaussian (``"envelope"`` only).
-    closing_mm : float
+    closing_mm : float, optional
+        Default: ``ENVELOPE_CLOSING_MM`` (3 mm) for the envelope, ``CLOSING_MM`` (3 mm) for the others.
         Radius (mm) of the envelope's 3-D ball closing, or (``"mask"``,
         ``"probability"``) of a disk closing of each slice's outer region before the
         contour is traced (:func:`close_region`): inlets narrower than about
@@ -910,6 +914,8 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
                             f"got {parameterisation!r}")
     if not (np.isfinite(curve_sigma) and curve_sigma >= 0):
         raise BoundaryError(f"curve_sigma must be >= 0 (pixels), got {curve_sigma!r}")
+    if closing_mm is None:
+        closing_mm = ENVELOPE_CLOSING_MM if level_field == "envelope" else CLOSING_MM
     if not (np.isfinite(closing_mm) and closing_mm >= 0):
         raise BoundaryError(f"closing_mm must be >= 0, got {closing_mm!r}")
     if not (np.isfinite(max_stretch) and max_stretch > 1):
@@ -976,9 +982,10 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
         coverage.append(info["ring_coverage"])
     smooth_mm = float(curve_sigma) * 0.5 * (dy + dx)
     if parameterisation == "angular":
-        curves = angular_curves(outlines, samples, smooth=smooth_mm, max_slope=STAR_MAX_SLOPE if star_shaped else None)
+        curves = angular_curves(outlines, samples, smooth=smooth_mm, max_slope=star_slope if star_shaped else None)
     else:
-        curves = np.stack([orient_and_resample(star_hull(o) if star_shaped else o, samples, smooth=smooth_mm)
+        curves = np.stack([orient_and_resample(star_hull(o, max_slope=star_slope) if star_shaped else o, samples,
+                                               smooth=smooth_mm)
                            for o in outlines])
     heights = curves[:, :, 2].mean(axis=1)
     meta = dict(
@@ -993,7 +1000,7 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
         curve_sigma=float(curve_sigma), closing_mm=float(closing_mm),
         parameterisation="angular" if parameterisation == "angular" else "arc-length",
         envelope_sigma_mm=float(envelope_sigma_mm) if level_field == "envelope" else None,
-        star_shaped=bool(star_shaped),
+        star_shaped=bool(star_shaped), star_slope=float(star_slope) if star_shaped else None,
         source_slice_step_mm=float(ct.meta.get("source_slice_step_mm") or dz),
     )
     top = _head_top(mask, slice_z, dz)

@@ -32,7 +32,8 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
-from .ct_volume import CTVolume
+from . import input_checks
+from .ct_volume import CTVolume, downsample_volume
 from .errors import CTImportError
 
 __all__ = ["load_ct", "list_series", "SeriesInfo", "CTImportWarning"]
@@ -47,7 +48,7 @@ NIFTI_EXTENSIONS = (".nii", ".nii.gz")
 # Companion files that sit next to slices and are skipped (with a warning) instead of failing a stack.
 TEXT_EXTENSIONS = (".txt", ".md", ".json", ".xml", ".csv", ".ini", ".html", ".htm", ".pdf", ".log", ".cfg")
 DICOMDIR_SOP_CLASS = "1.2.840.10008.1.3.10"
-AIR_HU = -1000.0
+AIR_HU = input_checks.AIR_HU
 
 # Tolerances of the geometry checks (see _stack_geometry).
 _ALIGNED_TOL = 1e-3        # direction cosine off an axis before the grid counts as oblique (0.25 mm at 250 mm)
@@ -148,7 +149,8 @@ def list_series(path: str | os.PathLike | Sequence[str | os.PathLike]) -> list[S
     CTImportError
         If the path does not exist or the folder is empty.
     """
-    files, _ = _gather_files(path)
+    files, label = _gather_files(path)
+    files = _expand_dicomdir(files, label, [])
     scan = _scan_dicom(files)
     return [_series_info(s) for s in _ranked_series(scan.series)]
 
@@ -159,12 +161,15 @@ def load_ct(
     format: str = "auto",
     series_uid: str | None = None,
     spacing: Sequence[float] | None = None,
-    first_slice: str = "inferior",
+    first_slice: str | None = None,
+    orientation: str | None = None,
+    units: str | None = None,
     shape: Sequence[int] | None = None,
     dtype: str | np.dtype | None = None,
     byte_order: str | None = None,
     header_bytes: int = 0,
     resample_spacing: Sequence[float] | None = None,
+    downsample: int | Sequence[int] | None = None,
 ) -> CTVolume:
     """Load head CT slices into a :class:`CTVolume` (float32 ``[z, y, x]``, LPS mm, k superior).
 
@@ -184,8 +189,20 @@ def load_ct(
     spacing : (dz, dy, dx), optional
         Voxel size in mm for images and raw data (they carry none); default
         (1, 1, 1) with a warning. Ignored (with a warning) for DICOM/NIfTI.
-    first_slice : {"inferior", "superior"}
-        Images and raw data: where the first slice of the numeric order lies.
+    first_slice : {"inferior", "superior"}, optional
+        Images and raw data: where the first slice of the numeric order lies
+        (default inferior). Same as ``orientation="LPS"`` / ``"LPI"``.
+    orientation : str, optional
+        Images and raw data: three letters naming the patient direction in which
+        the column index, the row index and the file (slice) index increase, e.g.
+        ``"LPS"`` (default: column 0 = patient right, row 0 = front, first file at
+        the bottom), ``"LAS"`` (row 0 = the back of the head), ``"RAS"``,
+        ``"PIL"`` (sagittal slices). A warning is issued when the face (the nose)
+        seems to lie on the side the code calls posterior.
+    units : {"HU", "stored"}, optional
+        Images and raw data: ``"HU"`` says the samples are Hounsfield units (air
+        -1000), which enables the HU rules (out-of-field values below -1500 HU);
+        default: uncalibrated stored values. NIfTI: ``"HU"`` marks a CT NIfTI.
     shape : (ny, nx) or (nz, ny, nx), optional
         Raw data: slice (or volume) shape.
     dtype : str or numpy dtype, optional
@@ -198,6 +215,9 @@ def load_ct(
         Voxel size of the output grid when the slices must be resampled
         (tilted, oblique or uneven). Default: the in-plane pixel spacing and the
         median slice step.
+    downsample : int or (fz, fy, fx), optional
+        Average blocks of voxels after loading (:func:`~.ct_volume.downsample_volume`),
+        for scans too large to segment in memory (``segment_head`` says when).
 
     Returns
     -------
@@ -206,7 +226,8 @@ def load_ct(
         holds ``source``, ``format``, ``modality``, ``series_uid``,
         ``series_description``, ``original_slice_count``, ``gantry_tilt_deg``,
         ``resampled``, ``resample_reason``, ``hu_range``, ``units`` and the
-        list ``warnings`` (each also issued as a :class:`CTImportWarning`).
+        list ``warnings`` (each also issued as a :class:`CTImportWarning`);
+        ``non_finite_voxels`` and ``out_of_field`` record repaired voxels.
 
     Raises
     ------
@@ -222,33 +243,91 @@ def load_ct(
     if fmt not in ("auto", "dicom", "image", "raw", "nifti"):
         raise CTImportError(f"unknown format {format!r}; use 'auto', 'dicom', 'image', 'raw' or 'nifti'",
                             _label(path))
-    if first_slice not in ("inferior", "superior"):
+    if first_slice not in (None, "inferior", "superior"):
         raise CTImportError(f"first_slice must be 'inferior' or 'superior', got {first_slice!r}", _label(path))
+    if units is not None and str(units).lower() not in ("hu", "stored"):
+        raise CTImportError(f"units must be 'HU' or 'stored', got {units!r}", _label(path))
+    hu_said = units is not None and str(units).lower() == "hu"
+    axes = None
+    if orientation is not None:
+        try:
+            axes = input_checks.parse_orientation(orientation)
+        except ValueError as exc:
+            raise CTImportError(str(exc), _label(path)) from None
+        if first_slice is not None and not (abs(axes[2][2]) == 1
+                                            and (axes[2][2] > 0) == (first_slice == "inferior")):
+            raise CTImportError(f"first_slice={first_slice!r} contradicts orientation={orientation!r} "
+                                "(its third letter says where the files go); give only orientation", _label(path))
     files, label = _gather_files(path)
+    if fmt in ("auto", "dicom"):
+        files = _expand_dicomdir(files, label, warns)
 
     if fmt == "auto":
         fmt = _detect_format(files, label, shape)
     if fmt in ("dicom", "nifti"):
         if spacing is not None:
             warns.append(f"spacing={tuple(spacing)} ignored: {fmt.upper()} files carry their own geometry")
-        if first_slice != "inferior":
+        if first_slice is not None:
             warns.append(f"first_slice={first_slice!r} ignored: {fmt.upper()} files carry their own geometry")
+        if orientation is not None:
+            warns.append(f"orientation={orientation!r} ignored: {fmt.upper()} files carry their own geometry")
+        if fmt == "dicom" and units is not None:
+            warns.append(f"units={units!r} ignored: DICOM says its own units (Modality, RescaleType)")
     elif series_uid is not None:
         warns.append("series_uid ignored: the input is not DICOM")
+    if axes is None:
+        axes = input_checks.parse_orientation("LPI" if first_slice == "superior" else "LPS")
 
     if fmt == "dicom":
         ct = _load_dicom(files, label, series_uid, resample_spacing, warns)
     elif fmt == "nifti":
-        ct = _load_nifti(files, label, resample_spacing, warns)
+        ct = _load_nifti(files, label, resample_spacing, warns, hu_said)
     elif fmt == "image":
-        ct = _load_images(files, label, spacing, first_slice, warns)
+        ct = _load_images(files, label, spacing, axes, orientation is not None, hu_said, warns)
     else:
-        ct = _load_raw(files, label, shape, dtype, byte_order, header_bytes, spacing, first_slice, warns)
+        ct = _load_raw(files, label, shape, dtype, byte_order, header_bytes, spacing, axes,
+                       orientation is not None, hu_said, warns)
+    _check_values(ct, label, warns)
+    if downsample is not None and np.any(np.asarray(downsample) != 1):
+        try:
+            ct = downsample_volume(ct, downsample)
+        except (ValueError, TypeError) as exc:
+            raise CTImportError(f"downsample: {exc}", label) from None
+        warns.append(f"downsampled {ct.meta['shape_before_downsample']} -> {ct.shape} voxels (block means of "
+                     f"{' x '.join(map(str, ct.meta['downsampled']))}); spacing now {ct.spacing} mm (dz, dy, dx)")
+    if fmt in ("image", "raw"):
+        _check_face_side(ct, warns)
 
     ct.meta["warnings"] = list(warns)
     for message in warns:
         warnings.warn(f"{label}: {message}", CTImportWarning, stacklevel=2)
     return ct
+
+
+def _check_values(ct: CTVolume, label: str, warns: list[str]) -> None:
+    """Non-finite voxels and out-of-field values become air, each with a warning naming the cause."""
+    meta = ct.meta
+    hu = meta.get("units") == "HU"
+    try:
+        bad, fill = input_checks.repair_non_finite(ct.data, hu)
+    except ValueError as exc:
+        raise CTImportError(f"no usable voxel: {exc}", label) from None
+    meta["non_finite_voxels"] = bad
+    if bad:
+        warns.append(f"{bad} voxel(s) ({100.0 * bad / ct.data.size:.2g} % of the volume) are NaN or infinite; "
+                     f"filled as air ({fill:g})")
+    oof = input_checks.repair_out_of_field(ct.data, hu)
+    meta["out_of_field"] = oof
+    if oof:
+        value = oof["value"]
+        value = f"{value:g}" if not isinstance(value, tuple) else f"{value[0]:g} to {value[1]:g}"
+        unit = " HU" if hu else ""
+        warns.append(f"{oof['count']} voxel(s) ({100.0 * oof['count'] / ct.data.size:.1f} % of the volume, "
+                     f"{100.0 * oof['outside_circle']:.0f} % of them outside the circular field of view) hold the "
+                     f"out-of-field value {value}{unit} ({oof['rule']}; no PixelPaddingValue said so): set to air "
+                     f"({oof['fill']:g}{unit})")
+    if bad or oof:
+        meta["hu_range"] = (float(ct.data.min()), float(ct.data.max()))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -293,6 +372,58 @@ def _gather_files(path) -> tuple[list[Path], str]:
         if not f.is_file():
             raise CTImportError("no such file" if not f.exists() else "not a regular file", f)
     return items, label
+
+
+def _is_dicomdir(f: Path) -> bool:
+    return f.name.upper() == "DICOMDIR" and _looks_like_dicom(f)
+
+
+def _expand_dicomdir(files: list[Path], label: str, warns: list[str]) -> list[Path]:
+    """Add the image files a DICOMDIR (a DICOM file-set's index) refers to.
+
+    A DICOMDIR names its files by ReferencedFileID (path components relative to
+    the DICOMDIR's folder, often upper-case without extension, e.g.
+    ``DICOM/ST000000/SE000001/IM000003``). Given the DICOMDIR itself, or a folder
+    holding one, the referenced files are loaded like any other files of the
+    folder; referenced files that are missing are reported in a warning.
+    """
+    dirs = [f for f in files if _is_dicomdir(f)]
+    if not dirs:
+        return files
+    pydicom = _pydicom()
+    out = list(files)
+    seen = {os.path.normcase(os.path.abspath(f)) for f in files}
+    for d in dirs:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                index = pydicom.dcmread(d, force=True)
+            records = index.get("DirectoryRecordSequence") or []
+        except Exception as exc:
+            warns.append(f"cannot read DICOMDIR {d} ({type(exc).__name__}: {exc}); its folder is searched instead")
+            continue
+        missing = []
+        for rec in records:
+            ref = rec.get("ReferencedFileID")
+            if ref is None:
+                continue
+            parts = [str(p) for p in ref] if not isinstance(ref, str) else str(ref).split("\\")
+            target = d.parent.joinpath(*parts)
+            if not target.is_file():
+                # file systems that lost the upper case of ISO 9660 names
+                alt = d.parent.joinpath(*(p.lower() for p in parts))
+                target = alt if alt.is_file() else target
+            if not target.is_file():
+                missing.append("/".join(parts))
+                continue
+            key = os.path.normcase(os.path.abspath(target))
+            if key not in seen:
+                seen.add(key)
+                out.append(target)
+        if missing:
+            warns.append(f"DICOMDIR {d} refers to {len(missing)} missing file(s): " + ", ".join(missing[:3])
+                         + (", ..." if len(missing) > 3 else ""))
+    return out
 
 
 def _top_level(files: list[Path], label: str) -> list[Path]:
@@ -641,6 +772,11 @@ def _load_dicom(files, label, series_uid, resample_spacing, warns) -> CTVolume:
 
     frames = _consistent_frames(chosen, warns)
     geometry = _stack_geometry(frames, label, warns)
+    if len(frames) == 1 and geometry["resample_reasons"]:
+        raise CTImportError("a single tilted or oblique slice cannot make a volume (it would be resampled into "
+                            "a block of axial slices holding almost no measured voxel: "
+                            + "; ".join(geometry["resample_reasons"]) + "); load the whole series",
+                            frames[0].path)
     stack, pad_info = _read_pixels(frames, info.is_ct)
 
     reasons = geometry["resample_reasons"]
@@ -803,7 +939,7 @@ def _stack_geometry(frames: list[_Frame], label: str, warns: list[str]) -> dict:
     else:
         step = frames[0].thickness or 1.0
         warns.append(f"single slice: slice step set to {'SliceThickness ' if frames[0].thickness else ''}"
-                     f"{step:g} mm")
+                     f"{step:g} mm; a PDE head needs at least 4 slices (3t + 1 boundary curves, t >= 1)")
         steps = np.array([step])
     axes = np.abs(np.stack([u, v, n]))
     if axes.max(axis=1).min() < 1 - _ALIGNED_TOL or len(set(np.argmax(axes, axis=1))) < 3:
@@ -1191,7 +1327,7 @@ def _read_image(f: Path) -> tuple[np.ndarray, bool]:
     return arr, False
 
 
-def _load_images(files, label, spacing, first_slice, warns) -> CTVolume:
+def _load_images(files, label, spacing, axes, oriented, hu, warns) -> CTVolume:
     top = _top_level(files, label)
     images = [f for f in top if _has_ext(f, IMAGE_EXTENSIONS)]
     others = [f for f in top if f not in images]
@@ -1220,24 +1356,23 @@ def _load_images(files, label, spacing, first_slice, warns) -> CTVolume:
         raise CTImportError(f"mixed image sizes ({example})", label)
     data = np.empty((len(slices),) + slices[0].shape, dtype=np.float32)
     for k, s in enumerate(slices):
-        data[_stack_index(k, len(slices), first_slice)] = s
+        data[k] = s
     del slices
-    return _headerless_volume(data, label, "image", spacing, first_slice, warns,
+    return _headerless_volume(data, label, "image", spacing, axes, oriented, hu, warns,
                               {"files": len(images), "first_file": images[0].name, "last_file": images[-1].name})
 
 
-def _stack_index(file_index: int, count: int, first_slice: str) -> int:
-    """k of the file_index-th slice in numeric order (k = 0 is the most inferior slice)."""
-    return count - 1 - file_index if first_slice == "superior" else file_index
-
-
-def _headerless_volume(data, label, fmt, spacing, first_slice, warns, extra) -> CTVolume:
-    """Place a stack without geometry (already ordered with k superior): row -> posterior,
-    column -> patient left."""
+def _headerless_volume(data, label, fmt, spacing, axes, oriented, hu, warns, extra) -> CTVolume:
+    """Place a stack without geometry, in file order ``[file, row, column]``, by the orientation
+    code's axis directions ``axes = [column, row, slice]`` (default LPS: row -> posterior,
+    column -> patient left, later files superior); the origin stays at 0 (no patient position)."""
     if spacing is None:
         spacing = (1.0, 1.0, 1.0)
         warns.append("no spacing given: assumed (dz, dy, dx) = (1, 1, 1) mm; pass spacing=(dz, dy, dx)")
     spacing = _spacing_option(spacing, label)
+    col, row, sl = axes
+    data, spacing, _, direction = _canonical(data, [sl, row, col], spacing, np.zeros(3))
+    code = input_checks.orientation_code(col, row, sl)
     meta = {
         "source": label,
         "format": fmt,
@@ -1245,16 +1380,33 @@ def _headerless_volume(data, label, fmt, spacing, first_slice, warns, extra) -> 
         "series_uid": "",
         "series_description": "",
         "original_slice_count": int(data.shape[0]),
-        "first_slice": first_slice,
+        "first_slice": "inferior" if sl[2] > 0 else "superior" if sl[2] < 0 else "",
+        "orientation": code,
         "gantry_tilt_deg": 0.0,
         "resampled": False,
         "resample_reason": "",
-        "units": "stored value (not calibrated HU)",
-        "orientation_assumed": "row 0 anterior, column 0 patient right, slices stacked along z",
+        "units": "HU" if hu else "stored value (not calibrated HU)",
         "hu_range": (float(data.min()), float(data.max())) if data.size else (0.0, 0.0),
     }
+    if not oriented:
+        meta["orientation_assumed"] = (f"{code}: row 0 anterior, column 0 patient right, files stacked "
+                                       f"{'upward' if sl[2] > 0 else 'downward'}; pass orientation= if not")
     meta.update(extra)
-    return CTVolume(data, spacing, np.zeros(3), np.eye(3), meta)
+    return CTVolume(data, spacing, np.zeros(3), direction, meta)
+
+
+def _check_face_side(ct: CTVolume, warns: list[str]) -> None:
+    """Warn when the nose lies on the side the (stated or assumed) orientation calls posterior."""
+    side = input_checks.face_side(ct.data, ct.spacing) if min(ct.shape) >= 8 else {"side": "unknown"}
+    ct.meta["face_side"] = side
+    if side["side"] == "high":
+        code = ct.meta["orientation"]
+        flipped = code.translate(str.maketrans("AP", "PA"))
+        said = "orientation" if "orientation_assumed" not in ct.meta else "the default orientation"
+        warns.append(f"the face (nose) seems to lie on the side that {said} {code!r} calls posterior "
+                     f"({side['high']} of {side['slices']} axial slices show the nose at the back): the head "
+                     f"would come out mirrored front-to-back with the seam down the face; if the first rows "
+                     f"hold the back of the head pass orientation={flipped!r}")
 
 
 def _spacing_option(spacing, label) -> tuple[float, float, float]:
@@ -1289,7 +1441,26 @@ def _raw_dtype(dtype, byte_order, label) -> np.dtype:
     return dt
 
 
-def _load_raw(files, label, shape, dtype, byte_order, header_bytes, spacing, first_slice, warns) -> CTVolume:
+def _read_raw_bytes(f: Path) -> tuple[bytes | None, int]:
+    """(decompressed bytes, size) of a gzipped raw file; (None, size on disk) of a plain one."""
+    if not f.name.lower().endswith(".gz"):
+        return None, f.stat().st_size
+    try:
+        with gzip.open(f, "rb") as fh:
+            raw = fh.read()
+    except (OSError, EOFError, gzip.BadGzipFile) as exc:
+        raise CTImportError(f"cannot decompress the gzipped raw file: {exc}", f) from None
+    return raw, len(raw)
+
+
+def _raw_samples(f: Path, raw: bytes | None, dt: np.dtype, count: int, offset: int) -> np.ndarray:
+    if raw is None:
+        return np.fromfile(f, dtype=dt, count=count, offset=offset)
+    return np.frombuffer(raw, dtype=dt, count=count, offset=offset)
+
+
+def _load_raw(files, label, shape, dtype, byte_order, header_bytes, spacing, axes, oriented, hu,
+              warns) -> CTVolume:
     if shape is None:
         raise CTImportError("raw data needs shape=(ny, nx) for one slice per file or (nz, ny, nx)", label)
     try:
@@ -1320,38 +1491,43 @@ def _load_raw(files, label, shape, dtype, byte_order, header_bytes, spacing, fir
     if len(candidates) == 1:
         # one file holding the whole volume
         f = candidates[0]
-        size = f.stat().st_size
+        raw, size = _read_raw_bytes(f)
+        what = "decompressed (gzip) size" if raw is not None else "file size"
         if len(shape) == 3:
             expected = header_bytes + shape[0] * slice_bytes
             if size != expected:
-                raise CTImportError(f"file size {size} bytes does not match shape {shape} x {dt.str} + "
+                raise CTImportError(f"{what} {size} bytes does not match shape {shape} x {dt.str} + "
                                     f"{header_bytes} header bytes = {expected} bytes", f)
             nz = shape[0]
         else:
             body = size - header_bytes
             if body <= 0 or body % slice_bytes:
-                raise CTImportError(f"file size {size} bytes is not {header_bytes} header bytes + a whole number "
+                raise CTImportError(f"{what} {size} bytes is not {header_bytes} header bytes + a whole number "
                                     f"of {ny}x{nx} {dt.str} slices ({slice_bytes} bytes each)", f)
             nz = body // slice_bytes
         data = np.empty((nz, ny, nx), dtype=np.float32)
-        volume = np.fromfile(f, dtype=dt, count=nz * ny * nx, offset=header_bytes).reshape(nz, ny, nx)
-        data[...] = volume[::-1] if first_slice == "superior" else volume
-        del volume
+        data[...] = _raw_samples(f, raw, dt, nz * ny * nx, header_bytes).reshape(nz, ny, nx)
+        del raw
     else:
         if len(shape) == 3 and shape[0] != len(candidates):
             raise CTImportError(f"shape {shape} asks for {shape[0]} slices but the folder has "
                                 f"{len(candidates)} files", label)
         expected = header_bytes + slice_bytes
-        for f in candidates:
+        gz = any(f.name.lower().endswith(".gz") for f in candidates)
+        for f in candidates if not gz else ():
             size = f.stat().st_size
             if size != expected:
                 raise CTImportError(f"file size {size} bytes does not match one {ny}x{nx} {dt.str} slice + "
                                     f"{header_bytes} header bytes = {expected} bytes", f)
         data = np.empty((len(candidates), ny, nx), dtype=np.float32)
         for k, f in enumerate(candidates):
-            data[_stack_index(k, len(candidates), first_slice)] = np.fromfile(
-                f, dtype=dt, count=ny * nx, offset=header_bytes).reshape(ny, nx)
-    return _headerless_volume(data, label, "raw", spacing, first_slice, warns,
+            raw, size = _read_raw_bytes(f)
+            if size != expected:
+                raise CTImportError(f"{'decompressed (gzip) size' if raw is not None else 'file size'} {size} "
+                                    f"bytes does not match one {ny}x{nx} {dt.str} slice + {header_bytes} header "
+                                    f"bytes = {expected} bytes", f)
+            data[k] = _raw_samples(f, raw, dt, ny * nx, header_bytes).reshape(ny, nx)
+    return _headerless_volume(data, label, "raw", spacing, axes, oriented, hu, warns,
                               {"files": len(candidates), "first_file": candidates[0].name,
                                "last_file": candidates[-1].name, "source_dtype": dt.str,
                                "header_bytes": header_bytes})
@@ -1390,7 +1566,7 @@ def _nifti_affine(hdr: dict) -> np.ndarray:
     return m
 
 
-def _load_nifti(files, label, resample_spacing, warns) -> CTVolume:
+def _load_nifti(files, label, resample_spacing, warns, hu=False) -> CTVolume:
     f = files[0]
     try:
         opener = gzip.open if f.name.lower().endswith(".gz") else open
@@ -1484,9 +1660,16 @@ def _load_nifti(files, label, resample_spacing, warns) -> CTVolume:
         "gantry_tilt_deg": 0.0,
         "resampled": bool(reasons),
         "resample_reason": "; ".join(reasons),
-        "units": "stored value x scl_slope + scl_inter (modality unknown; not HU unless the file is CT)",
+        "units": "HU" if hu else "stored value x scl_slope + scl_inter (modality unknown; not HU unless the file is CT)",
         "nifti_form": "sform" if sform_code > 0 else "qform" if qform_code > 0 else "pixdim",
-        "hu_range": (float(out.min()), float(out.max())),
+        "hu_range": (float(np.nanmin(out)), float(np.nanmax(out))) if np.isfinite(out).any() else (0.0, 0.0),
     }
+    lo = meta["hu_range"][0]
+    if not hu and lo > -500.0:
+        # CT in HU has air near -1000; an MRI (or any uncalibrated scan) has none
+        meta["modality"] = "not CT?"
+        warns.append(f"this does not look like CT: the values ({lo:g} to {meta['hu_range'][1]:g}) have no air "
+                     "near -1000 HU, as an MRI or an uncalibrated scan; PDE Head segments CT, so the outline "
+                     "follows whatever is brighter than the background (pass units='HU' if it is CT)")
     return CTVolume(out, spacing, origin_out, direction, meta, coverage=coverage)
 

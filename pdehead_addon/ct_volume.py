@@ -138,3 +138,45 @@ def trilinear(data: np.ndarray, kji: np.ndarray, cval: float = 0.0) -> np.ndarra
     out = (c0 + fk * (c1 - c0)).astype(np.float32, copy=False)
     out[~inside] = np.float32(cval)
     return out.reshape(np.shape(kji)[:-1])
+
+
+def downsample_volume(ct: CTVolume, factor) -> CTVolume:
+    """Block-mean downsampling of a CTVolume by integer factors (for scans too large to segment).
+
+    Parameters
+    ----------
+    ct : CTVolume
+    factor : int or (fz, fy, fx)
+        Voxels averaged along each axis; trailing voxels that do not fill a block are dropped.
+
+    Returns
+    -------
+    CTVolume
+        float32 means of ``fz x fy x fx`` blocks; spacing multiplied by the factors; the origin
+        moved to the centre of the first block, so every voxel keeps its patient position;
+        ``coverage`` (if any) is True where the whole block was covered; ``meta["downsampled"]``
+        records the factors. Works slab by slab (one extra slab of float32 at a time).
+    """
+    import numpy as np
+
+    fz, fy, fx = (int(f) for f in (np.broadcast_to(np.asarray(factor), 3)))
+    if min(fz, fy, fx) < 1:
+        raise ValueError(f"downsample factors must be integers >= 1, got {factor!r}")
+    nz, ny, nx = (n // f for n, f in zip(ct.shape, (fz, fy, fx)))
+    if min(nz, ny, nx) < 1:
+        raise ValueError(f"downsample factors {(fz, fy, fx)} are larger than the volume {ct.shape}")
+    out = np.empty((nz, ny, nx), dtype=np.float32)
+    cover = None if ct.coverage is None else np.empty((nz, ny, nx), dtype=bool)
+    for k in range(nz):
+        block = ct.data[k * fz:(k + 1) * fz, :ny * fy, :nx * fx].reshape(fz, ny, fy, nx, fx)
+        out[k] = block.mean(axis=(0, 2, 4), dtype=np.float32)
+        if cover is not None:
+            cblock = ct.coverage[k * fz:(k + 1) * fz, :ny * fy, :nx * fx].reshape(fz, ny, fy, nx, fx)
+            cover[k] = cblock.all(axis=(0, 2, 4))
+    dz, dy, dx = ct.spacing
+    shift = np.array([(fx - 1) * dx, (fy - 1) * dy, (fz - 1) * dz]) / 2.0
+    meta = dict(ct.meta)
+    meta["downsampled"] = (fz, fy, fx)
+    meta["shape_before_downsample"] = tuple(ct.shape)
+    return CTVolume(out, (dz * fz, dy * fy, dx * fx), ct.origin + ct.direction @ shift, ct.direction, meta,
+                    coverage=cover)

@@ -14,7 +14,7 @@ traced:
    this consistently, because an inlet's width changes from slice to slice;
 2. per slice the largest component with its holes filled (the outer region of
    :func:`~.boundaries.outer_region`; the airway is inside the head);
-3. a **3-D Gaussian** of ``sigma_mm`` of that region (a soft membership in
+3. a **3-D Gaussian** of ``sigma_mm`` (along z at least half a slice step) of that region (a soft membership in
    [0, 1]): neighbouring slices see each other, so their 0.5 levels agree, the
    pixel staircase and slice steps are smoothed, and an ear that is attached in
    one slice and a separate blob in the next becomes one smooth bump.
@@ -32,7 +32,8 @@ from .errors import BoundaryError
 
 #: Radius (mm) of the 3-D closing ball: bridges inlets up to about twice as wide.
 ENVELOPE_CLOSING_MM = 3.0
-#: Standard deviation (mm) of the 3-D Gaussian that makes neighbouring outlines agree.
+#: Standard deviation (mm) of the 3-D Gaussian that makes neighbouring outlines agree (in-plane; along
+#: the head axis at least half a slice step, so thick slices see their neighbours).
 ENVELOPE_SIGMA_MM = 1.5
 
 
@@ -140,7 +141,8 @@ def head_envelope(mask: np.ndarray, spacing: tuple[float, float, float],
     closed = _slice_regions(closing_3d(crop, (dz, dy, dx), float(closing_mm)))
     field = closed.astype(np.float32)
     if sigma_mm > 0:
-        field = ndi.gaussian_filter(field, (sigma_mm / dz, sigma_mm / dy, sigma_mm / dx), mode="nearest")
+        sigma_z = max(sigma_mm, 0.5 * dz)
+        field = ndi.gaussian_filter(field, (sigma_z / dz, sigma_mm / dy, sigma_mm / dx), mode="nearest")
     field = field[mz:len(field) - mz]
     # the crop's y/x origin in the volume (may be negative: padded beyond the array)
     y0, x0 = window[1].start - my, window[2].start - mx

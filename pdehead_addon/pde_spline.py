@@ -130,6 +130,19 @@ def smoothing_spline_values(x: np.ndarray, y: np.ndarray, length: float) -> np.n
     m = len(x)
     if length <= 0 or m < 3:
         return y
+    S = _smoother(np.ascontiguousarray(x, dtype=np.float64).tobytes(), float(length))
+    yy = y.reshape(m, -1)
+    if np.iscomplexobj(yy):
+        return (S @ yy.real + 1j * (S @ yy.imag)).reshape(y.shape)
+    return (S @ yy).reshape(y.shape)
+
+
+@lru_cache(maxsize=32)
+def _smoother(x_bytes: bytes, length: float) -> np.ndarray:
+    """The smoothing spline's linear map ``Y = S y`` for knots x (cached: a study's knots do not change
+    while its sliders move)."""
+    x = np.frombuffer(x_bytes, dtype=np.float64)
+    m = len(x)
     h = np.diff(x)
     w = np.empty(m)
     w[1:-1] = 0.5 * (h[:-1] + h[1:])
@@ -148,10 +161,8 @@ def smoothing_spline_values(x: np.ndarray, y: np.ndarray, length: float) -> np.n
     # the smoother is linear: Y = S y with S = I - lam W^-1 Q A^-1 Q^T (m x m, real), so one
     # small solve serves every harmonic and coordinate (real and imaginary parts alike)
     S = np.eye(m) - lam * (Q / w[:, None]) @ np.linalg.solve(A, Q.T)
-    yy = y.reshape(m, -1)
-    if np.iscomplexobj(yy):
-        return (S @ yy.real + 1j * (S @ yy.imag)).reshape(y.shape)
-    return (S @ yy).reshape(y.shape)
+    S.flags.writeable = False
+    return S
 
 
 def dome_height(curves: np.ndarray, heights: np.ndarray, vertex_z: float | None = None) -> float:
@@ -179,8 +190,66 @@ def dome_height(curves: np.ndarray, heights: np.ndarray, vertex_z: float | None 
     return float(np.sqrt(lo * hi))
 
 
+def _pole_clamped(H: int) -> np.ndarray:
+    """Which (harmonic, coordinate) have a clamped (zero) derivative at the pole, shape (H, 3)."""
+    clamp = np.zeros((H, 3), bool)
+    clamp[0, 2] = True                                           # horizontal tangent plane at the vertex
+    clamp[2:] = True                                             # rings tend to an ellipse at the pole
+    return clamp
+
+
+def _derivative_system(alpha: np.ndarray, du: np.ndarray, p: np.ndarray, clamp: np.ndarray | None):
+    """Tridiagonal C2 system for the knot derivatives (see the module docstring), solved.
+
+    alpha : (S, B, 4) Hermite second-derivative weights per span and batch column;
+    p : (n, B, C) knot values; clamp : (B, C) bool, columns with a zero derivative at the last knot.
+    Returns dA/du at the knots, shape (n, B, C).
+    """
+    n = p.shape[0]
+    a = alpha[:, :, None, :]
+    dd = du[:, None, None]
+    shape = (n,) + p.shape[1:]
+    lower = np.zeros((n,) + alpha.shape[1:2] + (1,))
+    diag = np.zeros_like(lower)
+    upper = np.zeros_like(lower)
+    rhs = np.zeros(shape, p.dtype)
+    # right-hand span of knots 0 .. n-2 (span j), left-hand span of knots 1 .. n-1 (span j-1)
+    diag[:-1] -= a[..., 2] / dd
+    upper[:-1] -= a[..., 3] / dd
+    rhs[:-1] += (a[..., 0] * p[:-1] + a[..., 1] * p[1:]) / dd ** 2
+    lower[1:] -= a[..., 3] / dd
+    diag[1:] -= a[..., 2] / dd
+    rhs[1:] -= (a[..., 1] * p[:-1] + a[..., 0] * p[1:]) / dd ** 2
+    lower, diag, upper = (np.broadcast_to(x, shape).copy() for x in (lower, diag, upper))
+    if clamp is not None:
+        lower[-1][clamp], diag[-1][clamp], upper[-1][clamp], rhs[-1][clamp] = 0.0, 1.0, 0.0, 0.0
+    return tridiagonal_solve(lower, diag, upper, rhs)
+
+
+@lru_cache(maxsize=32)
+def _cubic_operator(u_bytes: bytes, pole: bool) -> tuple[np.ndarray, np.ndarray | None]:
+    """For a = 0 the C2 surface is linear in the knot values, with one system for every harmonic:
+    the maps from the n knot values to the (S, 4) span coefficients, natural end and (with a pole)
+    clamped end, shape (S * 4, n) each. Cached per knot vector (a study's sliders keep its knots)."""
+    u = np.frombuffer(u_bytes, dtype=np.float64)
+    n = len(u)
+    du = np.diff(u)
+    g0, a0 = _cubic_system()
+    alpha = np.broadcast_to(a0, (n - 1, n, 4))
+    eye = np.eye(n)[:, :, None]                                  # (n knots, n unit columns, 1)
+    ops = []
+    for clamp in ((False, True) if pole else (False,)):
+        d = _derivative_system(alpha, du, eye, np.full((n, 1), True) if clamp else None)
+        data = np.stack([eye[:-1], eye[1:], d[:-1] * du[:, None, None], d[1:] * du[:, None, None]], axis=2)
+        coef = np.matmul(g0, data)[..., 0]                         # (S, n columns, 4)
+        op = np.ascontiguousarray(coef.transpose(0, 2, 1).reshape(-1, n))
+        op.flags.writeable = False
+        ops.append(op)
+    return ops[0], (ops[1] if pole else None)
+
+
 def c2_spans(spec: np.ndarray, u: np.ndarray, smoothing: float, modes: int,
-             pole: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+             pole: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Basis coefficients of the C2 surface through the curves' harmonics.
 
     Parameters
@@ -202,8 +271,6 @@ def c2_spans(spec: np.ndarray, u: np.ndarray, smoothing: float, modes: int,
     exponents : ndarray, shape (S, H)
     coefficients : ndarray of complex, shape (S, H, 4, 3)
         ``A_h(s) = basis(exponents[i, h], s) @ coefficients[i, h]`` on span i.
-    derivatives : ndarray of complex, shape (S + 1, H, 3)
-        ``dA_h/du`` at the knots.
     """
     m, H, _ = spec.shape
     p = spec
@@ -212,41 +279,23 @@ def c2_spans(spec: np.ndarray, u: np.ndarray, smoothing: float, modes: int,
         tip[0, 0] = pole
         p = np.concatenate([spec, tip])
     n = p.shape[0]                                               # knots
+    S = n - 1
     du = np.diff(u)
     hh = np.minimum(np.arange(H), modes + 1).astype(np.float64)
     exponents = float(smoothing) * du[:, None] * hh[None, :]     # (S, H)
-    if smoothing == 0.0:
-        g0, a0 = _cubic_system()
-        G_inv = np.broadcast_to(g0, exponents.shape + (4, 4))
-        alpha = np.broadcast_to(a0, exponents.shape + (4,))
-    else:
-        G_inv, alpha = hermite_systems(exponents)
-    # the derivative system, one column per (harmonic, coordinate): shapes (n, H, 1) / (n, H, 3)
-    aL, aR = alpha[:, :, None, :], alpha[:, :, None, :]
-    lower = np.zeros((n, H, 1))
-    diag = np.zeros((n, H, 1))
-    upper = np.zeros((n, H, 1))
-    rhs = np.zeros((n, H, 3), complex)
-    dul, dur = du[:, None, None], du[:, None, None]
-    # right-hand span of knots 0 .. n-2 (span j), left-hand span of knots 1 .. n-1 (span j-1)
-    diag[:-1] -= aR[..., 2] / dur
-    upper[:-1] -= aR[..., 3] / dur
-    rhs[:-1] += (aR[..., 0] * p[:-1] + aR[..., 1] * p[1:]) / dur ** 2
-    lower[1:] -= aL[..., 3] / dul
-    diag[1:] -= aL[..., 2] / dul
-    rhs[1:] -= (aL[..., 1] * p[:-1] + aL[..., 0] * p[1:]) / dul ** 2
-    lower = np.broadcast_to(lower, rhs.shape).copy()
-    diag = np.broadcast_to(diag, rhs.shape).copy()
-    upper = np.broadcast_to(upper, rhs.shape).copy()
-    if pole is not None:
-        clamp = np.zeros((H, 3), bool)
-        clamp[0, 2] = True                                       # horizontal tangent plane at the vertex
-        clamp[2:] = True                                         # rings tend to an ellipse at the pole
-        lower[-1][clamp], diag[-1][clamp], upper[-1][clamp], rhs[-1][clamp] = 0.0, 1.0, 0.0, 0.0
-    d = tridiagonal_solve(lower, diag, upper, rhs)               # (n, H, 3) dA/du
+    clamp = _pole_clamped(H) if pole is not None else None
+    if smoothing == 0.0:                                         # linear in p, one map for all harmonics
+        natural, clamped = _cubic_operator(np.ascontiguousarray(u, dtype=np.float64).tobytes(), pole is not None)
+        flat = p.reshape(n, -1)
+        pr = np.concatenate([flat.real, flat.imag], axis=1)      # (n, 2 * H * 3)
+        out = (natural @ pr).reshape(S, 4, 2, H, 3)
+        if clamped is not None:
+            alt = (clamped @ pr).reshape(S, 4, 2, H, 3)
+            out = np.where(clamp[None, None, None], alt, out)
+        coefficients = (out[:, :, 0] + 1j * out[:, :, 1]).transpose(0, 2, 1, 3)   # (S, H, 4, 3)
+        return exponents, coefficients
+    G_inv, alpha = hermite_systems(exponents)
+    d = _derivative_system(alpha, du, p, clamp)                  # (n, H, 3) dA/du
     data = np.stack([p[:-1], p[1:], d[:-1] * du[:, None, None], d[1:] * du[:, None, None]], axis=2)
-    if smoothing == 0.0:                                         # one 4x4 map for every span and harmonic
-        coefficients = np.matmul(G_inv[0, 0], data.real) + 1j * np.matmul(G_inv[0, 0], data.imag)
-    else:
-        coefficients = np.matmul(G_inv, data.real) + 1j * np.matmul(G_inv, data.imag)   # (S, H, 4, 3)
-    return exponents, coefficients, d
+    coefficients = np.matmul(G_inv, data.real) + 1j * np.matmul(G_inv, data.imag)   # (S, H, 4, 3)
+    return exponents, coefficients

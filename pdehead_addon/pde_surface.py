@@ -127,6 +127,8 @@ DEFAULT_C2_SMOOTHING = 0.0
 APPROXIMATION_PER_SLICE = 1.0
 #: ... but at most this many mean gaps between the chosen curves.
 APPROXIMATION_PER_GAP = 0.5
+#: The approximation slider's top: this many mean gaps between the curves.
+APPROXIMATION_MAX_PER_GAP = 1.5
 
 
 # ----------------------------------------------------------------------------- basis
@@ -397,6 +399,8 @@ class PDEHead:
         The crown's pole (LPS mm) when the surface closes in a dome, else None.
     smoothing_is_default : bool
         True when ``smoothing`` was chosen by :func:`solve_pde` (stored as such by storage).
+    remainder : bool
+        False when the harmonics above ``modes`` were dropped (eq. 13's F, see :func:`solve_pde`).
     planar_z : bool
         Every curve lies in a plane z = const; then ``z(u, v, w) = A0_z(u)`` exactly.
     orientation : int
@@ -422,6 +426,7 @@ class PDEHead:
         self.span_edges = np.linspace(0.0, 1.0, S + 1) if span_edges is None else np.asarray(span_edges, float)
         self.curve_u = np.asarray(bset.u_knots if curve_u is None else curve_u, float)
         self.smoothing_is_default = False
+        self.remainder = True
         self._coef_real = np.ascontiguousarray(
             np.concatenate([coefficients.real, coefficients.imag], axis=-1))   # (S, H, 4, 6)
         self._uniform_spans = bool(np.allclose(self.span_edges, np.linspace(0.0, 1.0, S + 1), atol=1e-12))
@@ -581,8 +586,17 @@ class PDEHead:
 
         The surface passes through (or, approximating, next to) the curves, so the
         coarse tube whose rings are the curves has the orientation of the surface.
+        For curves stacked along z that all wind the same way (every set
+        :func:`extract_boundaries` makes) that sign is the winding times the
+        stacking direction, without building the tube.
         """
-        rings = self.bset.curves[:, ::max(1, self.bset.samples // 64)]
+        c = self.bset.curves
+        xy = c[..., :2]
+        area = (xy[..., 0] * np.roll(xy[..., 1], -1, axis=1) - np.roll(xy[..., 0], -1, axis=1) * xy[..., 1]).sum(1)
+        dz = np.diff(self.bset.heights)
+        if (np.all(area > 0) or np.all(area < 0)) and (np.all(dz > 0) or np.all(dz < 0)):
+            return 1 if area[0] * dz[0] > 0 else -1
+        rings = c[:, ::max(1, self.bset.samples // 64)]
         mesh = _tube_mesh(rings, orientation=1, caps=_fan_caps(rings, rings[[0, -1]].mean(axis=1), fan_only=True))
         return 1 if signed_volume(mesh) >= 0 else -1
 
@@ -884,7 +898,7 @@ def _as_smoothing(smoothing, t: int | None) -> np.ndarray | None:
 
 def solve_pde(bset: BoundarySet, smoothing: float | Sequence[float] | None = None,
               modes: int | None = None, align: bool = False, continuity: str | None = None,
-              approximation_mm: float | None = None, dome: bool = True) -> PDEHead:
+              approximation_mm: float | None = None, dome: bool = True, remainder: bool = True) -> PDEHead:
     """Solve the Bloor-Wilson PDE surface through the boundary curves (eq. 1-13).
 
     Parameters
@@ -915,6 +929,12 @@ def solve_pde(bset: BoundarySet, smoothing: float | Sequence[float] | None = Non
     dome : bool
         ``"c2"`` only: close the crown with a smooth dome through a vertex above
         the top curve (else the surface ends at the top curve).
+    remainder : bool
+        Keep the remainder R of eq. 11-12 (harmonics above ``modes`` with the
+        shared exponent ``omega = a (N+1)``): the surface passes through the curves.
+        False drops them: X is the truncated series F of eq. 13, a low-pass around
+        every ring (fewer modes: a simpler, smoother head; ``head.curve_deviation``
+        says how far it leaves the curves).
 
     Returns
     -------
@@ -933,13 +953,15 @@ def solve_pde(bset: BoundarySet, smoothing: float | Sequence[float] | None = Non
     if align:
         bset = align_parameterisation(bset)                                  # no-op if already aligned
     n_modes = _check_modes(modes, bset.samples)
+    keep = None if remainder else n_modes
     if continuity == "c2":
-        head = _solve_c2(bset, smoothing, n_modes, approximation_mm, bool(dome))
+        head = _solve_c2(bset, smoothing, n_modes, approximation_mm, bool(dome), keep)
     else:
         if approximation_mm not in (None, 0, 0.0):
             raise PDEError("approximation_mm needs continuity='c2' (the paper's patches interpolate every curve)")
-        head = _solve_paper(bset, smoothing, n_modes)
+        head = _solve_paper(bset, smoothing, n_modes, keep)
     head.smoothing_is_default = smoothing is None
+    head.remainder = bool(remainder)
     return head
 
 
@@ -985,8 +1007,67 @@ def smoothing_range(bset: BoundarySet) -> tuple[float, float]:
     return DEFAULT_C2_SMOOTHING * a_iso, a_iso
 
 
-def _solve_c2(bset: BoundarySet, smoothing, n_modes: int, approximation_mm, dome: bool) -> PDEHead:
-    spec, planar = curve_harmonics(bset.curves)                               # (m, H, 3)
+def _harmonics(bset: BoundarySet, keep: int | None) -> tuple[np.ndarray, bool]:
+    """The curves' harmonics; with ``keep`` only h <= keep (eq. 13's truncated series, no R)."""
+    spec, planar = curve_harmonics(bset.curves)
+    if keep is not None:
+        spec[:, keep + 1:] = 0.0
+    return spec, planar
+
+
+def control_ranges(bset: BoundarySet, continuity: str | None = None, modes: int | None = None) -> dict:
+    """The study's valid ranges of the user controls, for normalised 0-1 sliders.
+
+    Returns
+    -------
+    dict
+        ``"smoothing"``: ``(default, maximum)`` of a (floats for ``"c2"``, per-patch
+        arrays for ``"paper"``, from :func:`smoothing_bounds`); ``"approximation_mm"``:
+        ``(default, maximum)`` of the approximation length (``"c2"``; ``(0, 0)`` for
+        ``"paper"``). Every value in ``[0, maximum]`` solves (no refused values).
+    """
+    continuity = DEFAULT_CONTINUITY if continuity is None else continuity
+    if continuity == "paper":
+        return {"smoothing": smoothing_bounds(bset, modes), "approximation_mm": (0.0, 0.0)}
+    gaps = np.abs(np.diff(bset.heights))
+    return {"smoothing": smoothing_range(bset),
+            "approximation_mm": (default_approximation(bset),
+                                 APPROXIMATION_MAX_PER_GAP * float(gaps.mean() if gaps.size else 0.0))}
+
+
+def solve_with_controls(bset: BoundarySet, continuity: str | None = None, smoothing: float | None = None,
+                        approximation: float | None = None, modes: int | None = None,
+                        dome: bool = True) -> PDEHead:
+    """:func:`solve_pde` from normalised controls (what the add-on's sliders hold).
+
+    Parameters
+    ----------
+    smoothing, approximation : float in [0, 1] or None
+        Fractions of :func:`control_ranges`' maxima; None: the solver's defaults.
+    modes : int or None
+        None or 0: every harmonic (the curves are passed exactly); N > 0: the
+        truncated series of eq. 13 with N modes (``remainder=False``), a visibly
+        simpler head.
+    """
+    continuity = DEFAULT_CONTINUITY if continuity is None else continuity
+    for name, f in (("smoothing", smoothing), ("approximation", approximation)):
+        if f is not None and not (np.isfinite(f) and 0.0 <= f <= 1.0):
+            raise PDEError(f"{name} must be a fraction in [0, 1], got {f!r}")
+    n = None if not modes else int(modes)
+    if n is not None:
+        n = min(n, bset.samples // 2)
+    ranges = control_ranges(bset, continuity, n)
+    a = None if smoothing is None else np.asarray(ranges["smoothing"][1]) * float(smoothing)
+    kwargs = dict(smoothing=a, modes=n, continuity=continuity, remainder=n is None)
+    if continuity == "c2":
+        kwargs.update(dome=dome, approximation_mm=None if approximation is None
+                      else float(approximation) * ranges["approximation_mm"][1])
+    return solve_pde(bset, **kwargs)
+
+
+def _solve_c2(bset: BoundarySet, smoothing, n_modes: int, approximation_mm, dome: bool,
+              keep: int | None = None) -> PDEHead:
+    spec, planar = _harmonics(bset, keep)                                     # (m, H, 3)
     z = _curve_heights(bset)
     default_a, max_a = smoothing_range(bset)
     if smoothing is None:
@@ -1019,7 +1100,7 @@ def _solve_c2(bset: BoundarySet, smoothing, n_modes: int, approximation_mm, dome
         top = z[-1] + height
     knots = np.concatenate([z, [top]]) if dome else z
     u = (knots - knots[0]) / (knots[-1] - knots[0])
-    exponents, coefficients, _ = c2_spans(spec, u, a, n_modes, pole=vertex)
+    exponents, coefficients = c2_spans(spec, u, a, n_modes, pole=vertex)
     if not np.all(np.isfinite(coefficients)):
         raise PDEError("the PDE solution is not finite (degenerate boundary curves or knots?)")
     condition = np.ones(coefficients.shape[0])
@@ -1027,10 +1108,10 @@ def _solve_c2(bset: BoundarySet, smoothing, n_modes: int, approximation_mm, dome
                    span_edges=u, curve_u=u[:len(z)], continuity="c2", approximation_mm=float(L), vertex=vertex)
 
 
-def _solve_paper(bset: BoundarySet, smoothing, n_modes: int) -> PDEHead:
+def _solve_paper(bset: BoundarySet, smoothing, n_modes: int, keep: int | None = None) -> PDEHead:
     t = bset.patches
     local = _local_knots(bset)
-    spec, planar = curve_harmonics(bset.curves)                                     # (3t+1, H, 3)
+    spec, planar = _harmonics(bset, keep)                                     # (3t+1, H, 3)
     a = _as_smoothing(smoothing, t)
     if a is None:
         a, _ = _bounds(bset, n_modes, local, spec, want_max=False)

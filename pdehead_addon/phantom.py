@@ -59,11 +59,12 @@ EYE = 5            # vitreous body
 INTERNAL_AIR = 6   # nasal cavity, sinuses, airway (inside the head mask)
 CUSHION = 7        # foam pillow (not head)
 HOLDER = 8         # plastic head-holder shell (not head)
+METAL = 9          # dental fillings (``make_phantom(metal=True)``; inside the head)
 
 LABEL_NAMES: dict[int, str] = {
     AIR: "air (outside)", SOFT_TISSUE: "soft tissue / skin", BONE: "bone", BRAIN: "brain",
     CSF: "CSF / discs", EYE: "eye (vitreous)", INTERNAL_AIR: "internal air (sinuses, airway)",
-    CUSHION: "foam pillow", HOLDER: "head holder",
+    CUSHION: "foam pillow", HOLDER: "head holder", METAL: "metal (dental fillings)",
 }
 
 #: Default tissue values in HU (the cushion value is the uncompressed foam).
@@ -71,6 +72,8 @@ DEFAULT_HU: dict[str, float] = {
     "air": -1000.0, "soft_tissue": 40.0, "skull": 1100.0, "mandible": 1300.0, "vertebra": 750.0,
     "brain": 32.0, "csf": 8.0, "disc": 80.0, "eye": 12.0, "internal_air": -1000.0,
     "cushion": -900.0, "cushion_compressed": -150.0, "holder": 300.0,
+    "metal": 3071.0,      # amalgam saturates the 12-bit CT range
+    "streak": 2500.0,     # peak HU of a metal streak 10 mm from a filling (decays as 10 mm / r)
 }
 
 #: Field of view (z, y, x) in mm covered by the default grid for any shape.
@@ -362,6 +365,13 @@ GEOMETRY: dict[str, Any] = {
     # apparatus. holder: centre xy, mid-wall radii xy, half-thickness, y min, z max
     "holder": ((0.0, 8.0), (80.0, 112.0), 2.0, -22.0, 30.0),
     "cushion": (58.0, 24.0, 8.0),  # y min, z max, compression decay length (mm)
+    # metal (make_phantom(metal=True)): dental fillings = small ellipsoids (centre, radii) in the
+    # teeth rows behind the lips, mirrored in x
+    "fillings": (((14.0, -66.0, -52.0), (3.5, 3.0, 3.5)), ((20.0, -60.0, -59.0), (3.0, 3.0, 3.5))),
+    # streaks: rays from every filling in the axial planes through it, alternately bright and dark:
+    # (number of rays per filling, perpendicular sigma mm, sigma mm of the fall-off above and below
+    #  the filling, reach mm (amplitude fades to 0 there), random seed of the ray angles)
+    "streaks": (14, 1.0, 0.5, 90.0, 11),
 }
 
 
@@ -400,6 +410,7 @@ def _build_shapes(g: dict[str, Any]) -> dict[str, Any]:
         "eyeball": e(*g["eyeball"], mirror=True),
         "internal_air": [_Cylinder((acx, acy), ar, top=atop), e(*g["nasal_cavity"]),
                          e(*g["maxillary_sinus"], mirror=True), e(*g["frontal_sinus"])],
+        "fillings": [e(c, r, mirror=True) for c, r in g["fillings"]],
     }
 
 
@@ -501,15 +512,142 @@ def _layers(p, head: np.ndarray, hu: dict[str, float]):
     return layers
 
 
-def _evaluate(p, hu: dict[str, float], blur: float, want_hu: bool = True, want_labels: bool = True):
+def _skull_outer_sd(p, head: np.ndarray) -> np.ndarray:
+    """Signed distance (approx., mm; exact zero set) of the skull's OUTER surface (the filled skull).
+
+    The outer ellipsoid cut by the flat base, as painted by :func:`_layers` (which also
+    keeps the bone at least 2 mm under the skin; that clamp is applied here too).
+    """
+    g, s = GEOMETRY, _SHAPES
+    d = _smax(s["skull_outer"].sd(p), g["skull_base_z"] - p.z, 3.0)
+    return np.maximum(d, head + 2.0)
+
+
+def _analytic_tissue_depth(points: np.ndarray, max_depth: float, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """Skin points (projected onto the exact skin), inward normals and the depth to the skull along them."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3).copy()
+    h = 1e-3
+
+    def sd_and_grad(q):
+        base = _head_sd(_Points(q[:, 0], q[:, 1], q[:, 2]))
+        grad = np.empty_like(q)
+        for a in range(3):
+            e = np.zeros(3)
+            e[a] = h
+            hi, lo = q + e, q - e
+            grad[:, a] = (_head_sd(_Points(hi[:, 0], hi[:, 1], hi[:, 2]))
+                          - _head_sd(_Points(lo[:, 0], lo[:, 1], lo[:, 2]))) / (2 * h)
+        return base, grad
+
+    for _ in range(3):  # Newton steps onto the zero set of the skin
+        d, grad = sd_and_grad(pts)
+        pts -= (d / np.maximum(np.einsum("ij,ij->i", grad, grad), 1e-12))[:, None] * grad
+    _, grad = sd_and_grad(pts)
+    inward = -grad / np.linalg.norm(grad, axis=1, keepdims=True)
+
+    def skull_sd(t):
+        q = pts + t[:, None] * inward
+        qp = _Points(q[:, 0], q[:, 1], q[:, 2])
+        return _skull_outer_sd(qp, _head_sd(qp))
+
+    n = len(pts)
+    depth = np.full(n, np.nan)
+    prev_t = np.zeros(n)
+    prev = skull_sd(prev_t)
+    open_ = prev > 0
+    for t in np.arange(step, max_depth + step / 2, step):
+        tt = np.full(n, t)
+        cur = skull_sd(tt)
+        hit = open_ & (cur <= 0)
+        if hit.any():  # bisection between the last outside and the first inside sample
+            lo, hi = np.full(hit.sum(), t - step), np.full(hit.sum(), t)
+            sub = pts[hit], inward[hit]
+            for _ in range(40):
+                mid = 0.5 * (lo + hi)
+                q = sub[0] + mid[:, None] * sub[1]
+                qp = _Points(q[:, 0], q[:, 1], q[:, 2])
+                inside = _skull_outer_sd(qp, _head_sd(qp)) <= 0
+                hi = np.where(inside, mid, hi)
+                lo = np.where(inside, lo, mid)
+            depth[hit] = 0.5 * (lo + hi)
+            open_ &= ~hit
+        if not open_.any():
+            break
+    return pts, inward, depth
+
+
+def _streak_rays() -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """(centre (3,), unit in-plane directions (n, 2), sign per ray) of the streaks of every filling."""
+    count, _, _, _, seed = GEOMETRY["streaks"]
+    rng = np.random.default_rng(seed)
+    rays = []
+    for centre, _ in GEOMETRY["fillings"]:
+        for side in (1.0, -1.0):                                  # the filling and its mirror image
+            c = np.array([side * centre[0], centre[1], centre[2]])
+            angles = np.sort(rng.uniform(0.0, 2.0 * math.pi, count))
+            signs = np.where(np.arange(count) % 2 == 0, 1.0, -0.6)  # bright, and weaker dark ones
+            rays.append((c, np.stack([np.cos(angles), np.sin(angles)], axis=1), signs))
+    return rays
+
+
+_STREAK_RAYS = _streak_rays()
+
+
+def _streaks(p, amplitude: float) -> np.ndarray | None:
+    """Metal streak artefact (HU added) at points ``p``: rays from each filling in its axial plane.
+
+    A ray adds ``amplitude * sign * (10 mm / max(r, 10 mm)) * fade(r)`` times a Gaussian of the
+    perpendicular distance to the ray (sigma ``width``) and a height profile that is 1 across
+    the filling's height and falls off above and below it like an edge blurred by
+    ``thickness`` (streaks appear in the slices that cut the metal); ``fade`` goes linearly to
+    0 at ``reach``. Streaks are an artefact: they change the HU only, never the truth labels
+    or the head mask.
+    """
+    _, width, thickness, reach, _ = GEOMETRY["streaks"]
+    half = {c[2]: r[2] for c, r in GEOMETRY["fillings"]}
+    lo = min(c[2] - half[c[2]] for c, _, _ in _STREAK_RAYS) - 6 * thickness
+    hi = max(c[2] + half[c[2]] for c, _, _ in _STREAK_RAYS) + 6 * thickness
+    selection = p.select((np.array([-reach - 30, -reach - 120, lo]), np.array([reach + 30, reach, hi]), False))
+    if selection is _EMPTY:
+        return None
+    q = p.take(selection)
+    total = np.zeros(np.broadcast_shapes(q.x.shape, q.y.shape, q.z.shape))
+    for c, dirs, signs in _STREAK_RAYS:
+        dx, dy = q.x - c[0], q.y - c[1]
+        r = np.hypot(dx, dy)
+        height = 0.5 * erfc((np.abs(q.z - c[2]) - half[c[2]]) / (math.sqrt(2.0) * thickness))
+        envelope = height * (10.0 / np.maximum(r, 10.0))
+        envelope = envelope * np.clip(1.0 - r / reach, 0.0, 1.0)
+        for (ux, uy), sign in zip(dirs, signs):
+            along = dx * ux + dy * uy
+            perp = dx * uy - dy * ux
+            total += sign * np.where(along > 0, np.exp(-0.5 * (perp / width) ** 2), 0.0) * envelope
+    out = np.zeros(p.shape)
+    if selection is None:
+        out[...] = amplitude * total
+    else:
+        out[selection] = amplitude * total
+    return out
+
+
+def _evaluate(p, hu: dict[str, float], blur: float, want_hu: bool = True, want_labels: bool = True,
+              metal: bool = False):
     """Head signed distance, HU (noise-free, partial-volume blurred) and labels at points ``p``.
 
     HU: starting from air, each layer mixes in its value with the weight
     ``0.5 erfc(d / (sqrt(2) blur))`` (a plane interface convolved with a Gaussian PSF);
-    beyond 6 blur from an interface the weight is taken as exactly 0 or 1.
+    beyond 6 blur from an interface the weight is taken as exactly 0 or 1. With ``metal``
+    the dental fillings are a layer and their streaks (:func:`_streaks`) are added last.
     """
     head = _head_sd(p)
     layers = _layers(p, head, hu)
+    if metal:
+        for filling in _SHAPES["fillings"]:
+            selection = p.select(filling.box(8.0))
+            if selection is not _EMPTY:
+                sd = np.broadcast_to(filling.sd(p.take(selection)),
+                                     head.shape if selection is None else head[selection].shape)
+                layers.append((METAL, hu["metal"], selection, sd))
     values = np.full(p.shape, hu["air"], dtype=np.float64) if want_hu else None
     labels = np.zeros(p.shape, dtype=np.uint8) if want_labels else None
     for label, value, selection, sd in layers:
@@ -532,6 +670,10 @@ def _evaluate(p, hu: dict[str, float], blur: float, want_hu: bool = True, want_l
             sub[inside] = value if np.ndim(value) == 0 else value[inside]
         if selection is not None:
             values[selection] = sub
+    if metal and want_hu:
+        streaks = _streaks(p, hu["streak"])
+        if streaks is not None:
+            values += streaks
     return head, values, labels
 
 
@@ -589,10 +731,29 @@ class Phantom:
         p, shape = _points_from_array(points_xyz)
         return _head_sd(p).reshape(shape)
 
+    def skull_signed_distance(self, points_xyz: np.ndarray) -> np.ndarray:
+        """Approximate signed distance (mm, negative inside) to the skull's outer surface; exact zero set."""
+        p, shape = _points_from_array(points_xyz)
+        return _skull_outer_sd(p, _head_sd(p)).reshape(shape)
+
+    def tissue_depth(self, points_xyz: np.ndarray, max_depth: float = 60.0, step: float = 0.25) -> np.ndarray:
+        """Analytic soft-tissue depth (mm): from the skin along its inward normal to the outer skull.
+
+        Each point is first projected onto the exact skin (Newton steps on the skin's signed
+        distance); the inward normal is the negative gradient there; the depth is the first
+        crossing of the outer skull surface along it (sampled every ``step`` mm, then bisected
+        to 1e-9 mm). NaN where no skull is met within ``max_depth`` (face below the vault, neck).
+        """
+        pts = np.asarray(points_xyz, dtype=np.float64)
+        if pts.ndim == 0 or pts.shape[-1] != 3:
+            raise _ParameterError(f"points must have shape (..., 3) (x, y, z in mm), got {pts.shape}")
+        return _analytic_tissue_depth(pts, float(max_depth), float(step))[2].reshape(pts.shape[:-1])
+
     def labels_at(self, points_xyz: np.ndarray) -> np.ndarray:
         """Tissue label (uint8, see :data:`LABEL_NAMES`) at patient LPS points (..., 3)."""
         p, shape = _points_from_array(points_xyz)
-        return _evaluate(p, self.params["hu"], self.blur, want_hu=False)[2].reshape(shape)
+        return _evaluate(p, self.params["hu"], self.blur, want_hu=False,
+                         metal=self.params.get("metal", False))[2].reshape(shape)
 
     def sample_hu(self, points_xyz: np.ndarray,
                   noise_rng: np.random.Generator | int | None = None) -> np.ndarray:
@@ -603,11 +764,20 @@ class Phantom:
         (or an int seed): plus white Gaussian noise of standard deviation ``noise``.
         """
         p, shape = _points_from_array(points_xyz)
-        values = _evaluate(p, self.params["hu"], self.blur, want_labels=False)[1]
+        values = _evaluate(p, self.params["hu"], self.blur, want_labels=False,
+                           metal=self.params.get("metal", False))[1]
         if noise_rng is not None and self.noise > 0:
             rng = noise_rng if isinstance(noise_rng, np.random.Generator) else np.random.default_rng(noise_rng)
             values = values + self.noise * rng.standard_normal(values.shape)
         return values.astype(np.float32).reshape(shape)
+
+
+def _metal_slices(zs: np.ndarray) -> list[int]:
+    """Indices of the slices (heights ``zs``) that cut a filling (and so carry its streaks)."""
+    inside = np.zeros(zs.shape, dtype=bool)
+    for centre, radii in GEOMETRY["fillings"]:
+        inside |= np.abs(zs - centre[2]) <= radii[2]
+    return [int(k) for k in np.flatnonzero(inside)]
 
 
 def make_phantom(shape: tuple[int, int, int] = DEFAULT_SHAPE,
@@ -615,7 +785,8 @@ def make_phantom(shape: tuple[int, int, int] = DEFAULT_SHAPE,
                  noise: float = 20.0,
                  seed: int = 0,
                  blur: float | None = None,
-                 hu: dict[str, float] | None = None) -> Phantom:
+                 hu: dict[str, float] | None = None,
+                 metal: bool = False) -> Phantom:
     """Make the synthetic head CT (deterministic for equal arguments).
 
     Parameters
@@ -640,6 +811,12 @@ def make_phantom(shape: tuple[int, int, int] = DEFAULT_SHAPE,
         gives hard tissue boundaries.
     hu : dict, optional
         Overrides of :data:`DEFAULT_HU`.
+    metal : bool
+        Add dental fillings (label :data:`METAL`, ``hu["metal"]``) and their radial
+        streak artefacts (alternately bright and dark rays in the axial planes of the
+        fillings, reaching into the air in front of the mouth; ``hu["streak"]``). The
+        truth (head mask, labels except the fillings) is unchanged: streaks are not
+        tissue. ``params["metal_slices"]`` lists the slices the streaks reach.
 
     Returns
     -------
@@ -690,7 +867,7 @@ def make_phantom(shape: tuple[int, int, int] = DEFAULT_SHAPE,
     rng = np.random.default_rng(seed)  # slab-wise draws of one stream = one draw of the whole volume
     for k0 in range(0, nz, slab):
         zc = zs[k0:k0 + slab]
-        head, values, lab = _evaluate(_Grid(xs, ys, zc), table, blur)
+        head, values, lab = _evaluate(_Grid(xs, ys, zc), table, blur, metal=metal)
         data[k0:k0 + slab] = values
         if noise > 0:
             data[k0:k0 + slab] += np.float32(noise) * rng.standard_normal((zc.size, ny, nx), dtype=np.float32)
@@ -708,6 +885,8 @@ def make_phantom(shape: tuple[int, int, int] = DEFAULT_SHAPE,
         "eye_centres": ((-g["eyeball"][0][0],) + g["eyeball"][0][1:], g["eyeball"][0]),
         "ear_level_z": g["ear"][0][2],
         "label_names": dict(LABEL_NAMES),
+        "metal": bool(metal),
+        "metal_slices": _metal_slices(zs) if metal else [],
     }
     ct = CTVolume(data, spacing, origin=origin, direction=np.eye(3),
                   meta={"source": "pdehead synthetic phantom", "modality": "CT", "units": "HU",

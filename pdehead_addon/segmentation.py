@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, Sequence
@@ -49,8 +50,17 @@ from typing import Any, Sequence
 import numpy as np
 from scipy import ndimage as ndi
 
+from . import input_checks
 from .ct_volume import CTVolume
 from .errors import SegmentationError
+
+#: Smallest slice (pixels per side) that can hold a head outline with its clean-up openings.
+MIN_SLICE_PIXELS = 16
+#: Peak memory of segment_head per voxel beyond the CT itself: 5.33 GB measured on 512 x 512 x 800
+#: (scripts/bench_large_scan.py, docs/benchmarks.md), rounded up.
+SEGMENT_BYTES_PER_VOXEL = 26
+#: Default memory budget of segment_head (GB): larger scans are refused with the downsample advice.
+MEMORY_BUDGET_GB = 8.0
 
 
 @dataclass
@@ -770,10 +780,67 @@ def find_cushion(mask: np.ndarray, smooth: np.ndarray, spacing: Sequence[float],
     return _box_opening(band, size)
 
 
+def metal_slices(data: np.ndarray, window: tuple[float, float], level: float = 3.0,
+                 min_pixels: int = 3) -> np.ndarray:
+    """Per-slice metal masks: windowed intensity above ``level`` (bool, same shape as ``data``).
+
+    With air at 0 and soft tissue at 1, bone lies at about 1.5-2.5 (1100-1900 HU) and dental metal
+    saturates the scanner's range (3071 HU = 3.9; CThead's fillings 3.1). Slices with fewer than
+    ``min_pixels`` such pixels count as metal-free (all False).
+    """
+    low, high = window
+    metal = data > np.float32(low + level * (high - low))
+    few = np.count_nonzero(metal, axis=(1, 2)) < min_pixels
+    metal[few] = False
+    return metal
+
+
+def streak_components(labels: np.ndarray, n: int, metal: np.ndarray, spacing_yx: Sequence[float],
+                      alignment: float = 0.85, elongation: float = 2.0) -> np.ndarray:
+    """Which labelled thin components (1..n) are metal streaks: long and pointing at the metal.
+
+    A streak is a ray from a dense insert: a component in a slice with metal whose in-plane
+    principal axis (of its pixel positions in mm) is at least ``elongation`` times longer than
+    its width and makes ``|cos| >= alignment`` with the direction from the nearest metal pixel
+    to the component's centroid. Lips and ear rims run along the skin, across such rays.
+    Returns a bool array of length n + 1 (index 0 False).
+    """
+    out = np.zeros(n + 1, dtype=bool)
+    if not n or not metal.any():
+        return out
+    dy, dx = (float(h) for h in spacing_yx)
+    with_metal = np.flatnonzero(metal.any(axis=(1, 2)))
+    for index, sl in enumerate(ndi.find_objects(labels), start=1):
+        if sl is None:
+            continue
+        ks = np.arange(sl[0].start, sl[0].stop)
+        ks = ks[np.isin(ks, with_metal)]
+        if ks.size == 0:
+            continue
+        kk, jj, ii = np.nonzero(labels[sl] == index)
+        if kk.size < 3:
+            continue
+        pts = np.stack([(jj + sl[1].start) * dy, (ii + sl[2].start) * dx], axis=1)
+        centre = pts.mean(axis=0)
+        cov = np.cov((pts - centre).T)
+        evals, evecs = np.linalg.eigh(cov)
+        if evals[0] > 0 and math.sqrt(evals[1] / evals[0]) < elongation:
+            continue                                   # not elongated (a straight line has evals[0] = 0)
+        mj, mi = np.nonzero(metal[ks].any(axis=0))
+        mpts = np.stack([mj * dy, mi * dx], axis=1)
+        nearest = mpts[np.argmin(((mpts - centre) ** 2).sum(axis=1))]
+        radial = centre - nearest
+        norm = float(np.hypot(*radial))
+        if norm > 0 and abs(float(evecs[:, 1] @ radial)) / norm >= alignment:
+            out[index] = True
+    return out
+
+
 def clean_head_mask(mask: np.ndarray, data: np.ndarray, window: tuple[float, float], spacing: Sequence[float],
                     opening_mm: float = 2.5, cushion_level: float | None = 0.85, cushion_mm: float = 2.0,
                     max_thin_extent_mm: float = 50.0, close_mm: float = 6.0, envelope_mm: float = 3.0,
-                    noise: float | None = None) -> tuple[np.ndarray, dict]:
+                    noise: float | None = None, metal_level: float | None = 3.0,
+                    streak_close_mm: float = 3.0, streak_reach_mm: float = 40.0) -> tuple[np.ndarray, dict]:
     """The paper's clean-up of the thresholded soft membership, extended to real scans.
 
     1. Envelope: the filled outline of the head's own tissue (windowed
@@ -789,11 +856,18 @@ def clean_head_mask(mask: np.ndarray, data: np.ndarray, window: tuple[float, flo
        the component is compact (in-slice extent at most
        ``max_thin_extent_mm``: ear rims, nose tip, lips) or lies mostly inside
        the envelope (nasal septum, sinus walls); long thin structures outside
-       the head are dropped.
+       the head are dropped, and so are metal streaks: in slices with metal
+       (windowed intensity above ``metal_level``, :func:`metal_slices`) a thin
+       piece outside the envelope that is elongated along the ray from the metal
+       (:func:`streak_components`) is a bright streak, not a lip.
     4. Holes and cavities: every hole is filled per axial slice (a superset of
        the 3-D holes), and so are cavities whose opening a ``close_mm`` disk
        closes (nostrils, mouth, ear canals, streak gaps; :func:`fill_cavities`),
        so the head mask is the filled outer skin envelope.
+    5. Streak bumps and notches: in the slices with metal, within
+       ``streak_reach_mm`` of it, the outline is opened and closed with a
+       ``streak_close_mm`` disk, which removes the bumps bright streaks raise
+       on the lips and fills the notches dark streaks cut into them.
 
     Parameters
     ----------
@@ -804,6 +878,8 @@ def clean_head_mask(mask: np.ndarray, data: np.ndarray, window: tuple[float, flo
     spacing : (dz, dy, dx) mm
     opening_mm, cushion_level, cushion_mm, max_thin_extent_mm, close_mm, envelope_mm :
         See above; ``cushion_level=None`` skips step 2 (the envelope then uses 0.85).
+    metal_level, streak_close_mm, streak_reach_mm :
+        Metal-streak handling (steps 3 and 5); ``metal_level=None`` disables it.
     noise : float, optional
         Noise std in window units (default estimated).
 
@@ -839,6 +915,11 @@ def clean_head_mask(mask: np.ndarray, data: np.ndarray, window: tuple[float, flo
         stats["cushion_voxels"] = int(np.count_nonzero(cushion))
         work &= ~cushion
     del smooth
+    metal = metal_slices(data[box], window, metal_level) if metal_level is not None else None
+    if metal is not None and not metal.any():
+        metal = None
+    stats["metal_slices"] = [] if metal is None else [int(k) + box[0].start
+                                                       for k in np.flatnonzero(metal.any(axis=(1, 2)))]
     opened = open_disk(work, yx, opening_mm)
     core = largest_component(opened)
     if not core.any():
@@ -851,16 +932,78 @@ def clean_head_mask(mask: np.ndarray, data: np.ndarray, window: tuple[float, flo
         total = np.bincount(labels[thin], minlength=n + 1)
         inside = np.bincount(labels[envelope & thin], minlength=n + 1)
         keep = (_component_extents(labels, n, yx) <= max_thin_extent_mm) | (2 * inside > total)
+        if metal is not None:
+            streak = streak_components(labels, n, metal, yx) & ~(2 * inside > total)
+            stats["streak_voxels"] = int(total[streak & keep].sum())
+            keep &= ~streak
         keep[0] = False
         stats["thin_kept_voxels"] = int(total[keep].sum())
         stats["thin_dropped_voxels"] = int(total[1:].sum() - total[keep].sum())
         head = largest_component(core | keep[labels])
     del labels, thin
     head = fill_cavities(head, yx, close_mm) if close_mm > 0 else fill_holes_per_slice(head)
+    if metal is not None and streak_close_mm > 0:
+        # near the metal only: open away the bumps of bright streaks, close the notches of dark ones
+        ks = np.flatnonzero(metal.any(axis=(1, 2)))
+        near = np.stack([ndi.distance_transform_edt(~metal[k], sampling=yx) <= streak_reach_mm for k in ks])
+        part = head[ks]
+        smoothed = fill_holes_per_slice(close_disk(open_disk(part, yx, streak_close_mm), yx, streak_close_mm))
+        changed = (smoothed != part) & near
+        stats["streak_smoothed_voxels"] = int(np.count_nonzero(changed))
+        part[changed] = smoothed[changed]
+        head[ks] = largest_component(part) if part.any() else part
     out = np.zeros(mask.shape, dtype=bool)
     out[box] = head
     stats["head_voxels"] = int(np.count_nonzero(head))
     return out, stats
+
+
+def cut_at_neck(mask: np.ndarray, spacing: Sequence[float], head_height_mm: float = 160.0,
+                area_jump: float = 2.0, neck_margin: float = 1.1) -> tuple[np.ndarray, dict | None]:
+    """Stop the head mask at the neck when the scan goes on into the shoulders.
+
+    A head-and-neck scan reaches the shoulders, which join the neck in the mask; the
+    PDE head (and its boundary curves) must end at the neck. The head's widest slice
+    is looked for in the top ``head_height_mm`` of the mask (the widest level, at the
+    ears, lies 90-130 mm below the vertex; the shoulders 200 mm or more). Going down from it the cross-section shrinks to the neck; the
+    trunk starts at the first slice whose area exceeds ``area_jump`` times the
+    smallest area above it and which is wider than the head. The mask is cut below
+    the neck: the lowest slice between the head's widest slice and the trunk whose
+    area is within ``neck_margin`` of that smallest area. Scans without shoulders are
+    returned unchanged (``None`` info).
+
+    Returns
+    -------
+    (mask, info) with info = dict(neck_slice, trunk_slice, removed_voxels) or None.
+    """
+    dz, dy, dx = (float(h) for h in spacing)
+    cols = mask.any(axis=1)
+    nz = mask.shape[0]
+    width = np.zeros(nz)
+    for k in np.flatnonzero(cols.any(axis=1)):
+        c = np.flatnonzero(cols[k])
+        width[k] = (c[-1] - c[0] + 1) * dx
+    present = np.flatnonzero(width > 0)
+    if present.size < 3:
+        return mask, None
+    area = np.count_nonzero(mask, axis=(1, 2)).astype(np.float64) * dy * dx
+    top = present[-1]
+    head = [k for k in present if k >= top - head_height_mm / dz]
+    widest = max(head, key=lambda k: width[k])
+    smallest, trunk = math.inf, None
+    for k in range(widest, present[0] - 1, -1):        # k decreases toward inferior
+        if area[k] > area_jump * smallest and width[k] > width[widest]:
+            trunk = k
+            break
+        smallest = min(smallest, area[k]) if area[k] > 0 else smallest
+    if trunk is None:
+        return mask, None
+    span = np.arange(trunk + 1, widest + 1)
+    neck = int(span[np.flatnonzero(area[span] <= neck_margin * smallest)[0]])
+    removed = int(np.count_nonzero(mask[:neck]))
+    out = mask.copy()
+    out[:neck] = False
+    return out, dict(neck_slice=neck, trunk_slice=int(trunk), removed_voxels=removed)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -930,7 +1073,8 @@ def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: flo
                  level_iterations: Sequence[int] = (20,), inner: int = 1, tolerance: float = 1e-4,
                  window: tuple[float, float] | None = None, threshold: float = 0.5, cleanup: bool = True,
                  opening_mm: float = 2.5, cushion_level: float | None = 0.85, cushion_mm: float = 2.0,
-                 close_mm: float = 6.0, slices: Sequence[int] | None = None, threads: int | None = None) -> Segmentation:
+                 close_mm: float = 6.0, slices: Sequence[int] | None = None, threads: int | None = None,
+                 max_memory_gb: float | None = MEMORY_BUDGET_GB) -> Segmentation:
     """Segment the head with the 3-D Chan-Vese soft model (eq. 16-21) and clean it up.
 
     The intensities are first windowed to [0, 1] (air -> 0, soft tissue -> 1,
@@ -980,6 +1124,10 @@ def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: flo
         ``iterations`` is the largest count run on one slice.
     threads : int, optional
         Worker threads of the solver (default: min(2, CPUs)).
+    max_memory_gb : float or None
+        Refuse (before any work) a volume whose segmentation would need more than
+        this, with the advice to downsample (``load_ct(..., downsample=2)``, CLI
+        ``--downsample 2``, import dialog "Downsample"); None: no limit.
 
     Returns
     -------
@@ -994,6 +1142,10 @@ def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: flo
     data = ct.data
     if data.ndim != 3 or data.shape[1] < 3 or data.shape[2] < 3:
         raise SegmentationError(f"cannot segment a volume of shape {data.shape}: need [z, y, x] slices of >= 3x3")
+    bad = input_checks.count_non_finite(data)
+    if bad:
+        raise SegmentationError(f"{bad} voxel(s) are NaN or infinite; load the volume with load_ct (which fills "
+                                "them as air with a warning) or replace them first")
     for name, value in (("lam", lam), ("theta", theta)):
         if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
             raise SegmentationError(f"{name} must be a positive number, got {value!r}")
@@ -1006,9 +1158,35 @@ def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: flo
     if threads is None:
         threads = min(2, os.cpu_count() or 1)
     spacing = tuple(float(h) for h in ct.spacing)
+    lo, hi = float(data.min()), float(data.max())
+    if not hi > lo:
+        raise SegmentationError(f"the volume is constant ({lo:g}); there is no head to segment")
+    if min(data.shape[1:]) < MIN_SLICE_PIXELS:
+        nz, ny, nx = data.shape
+        raise SegmentationError(f"the volume of {nz} x {ny} x {nx} voxels (z, y, x) is too small to segment a "
+                                f"head: slices need at least {MIN_SLICE_PIXELS} x {MIN_SLICE_PIXELS} pixels")
+    if max_memory_gb is not None:
+        need = (SEGMENT_BYTES_PER_VOXEL + data.itemsize) * data.size / 1e9
+        if need > max_memory_gb:
+            factor = max(2, math.ceil((need / max_memory_gb) ** (1.0 / 3.0)))
+            nz, ny, nx = data.shape
+            raise SegmentationError(
+                f"segmenting {nx} x {ny} x {nz} voxels (x, y, z) needs about {need:.3g} GB, more than the "
+                f"{max_memory_gb:g} GB budget; downsample the scan on import by {factor} (load_ct(..., "
+                f"downsample={factor}), CLI --downsample {factor}, import dialog 'Downsample') for about "
+                f"{need / factor ** 3:.3g} GB, or pass max_memory_gb=None")
     if window is None:
         window = auto_window(data)
     window = (float(window[0]), float(window[1]))
+    seg_warnings: list[str] = []
+    # early: a quick look at the head's size before the solve (the spacing may be metres or microns)
+    quick, quick_sp = input_checks.object_mask(data, spacing, 0.5 * (window[0] + window[1]))
+    extent = input_checks.mask_extent_mm(quick, quick_sp)
+    if extent is None:
+        raise SegmentationError("nothing in the volume is brighter than air: no head found")
+    refusal, _ = input_checks.check_head_extent(extent, spacing)
+    if refusal:
+        raise SegmentationError(refusal)
     params = dict(lam=lam, theta=theta, tau=tau, iterations=int(iterations), levels_mm=tuple(levels_mm),
                   level_iterations=tuple(int(n) for n in level_iterations), inner=int(inner), tolerance=tolerance,
                   window=window, threshold=threshold, cleanup=cleanup, opening_mm=opening_mm,
@@ -1019,7 +1197,8 @@ def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: flo
     clean_kw = dict(opening_mm=opening_mm, cushion_level=cushion_level, cushion_mm=cushion_mm, close_mm=close_mm)
     img = window_intensities(data, window)
     if slices is not None:
-        return _segment_slices(ct, img, spacing, params, clean_kw, [int(k) for k in slices], threads)
+        seg = _segment_slices(ct, img, spacing, params, clean_kw, [int(k) for k in slices], threads)
+        return _check_result(seg, spacing, seg_warnings)
     res, info = _solve_pyramid(img, spacing, lam, theta, tau, levels_mm, level_iterations, iterations, inner,
                                tolerance, threads)
     del img
@@ -1028,9 +1207,33 @@ def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: flo
     mask = q > np.float32(threshold)
     if cleanup:
         mask, stats = clean_head_mask(mask, data, window, spacing, **clean_kw)
+        mask, neck = cut_at_neck(mask, spacing)
+        stats["neck_cut"] = neck
+        if neck is not None:
+            z = ct.index_to_patient(np.array([neck["neck_slice"], 0, 0]))[2]
+            seg_warnings.append(f"the scan goes on below the neck into the shoulders (from slice "
+                                f"{neck['trunk_slice']} down): the head mask stops at the neck, slice "
+                                f"{neck['neck_slice']} (z = {z:.0f} mm); {neck['removed_voxels']} voxels below "
+                                "it are left out")
     meta = dict(mode="volume", window=window, params=params, solver=info, cleanup=stats)
     total = int(info["fine_iterations"]) + sum(int(level["iterations"]) for level in info["levels"])
-    return Segmentation(mask=mask, probability=q, c1=res["c1"], c2=res["c2"], iterations=total, ct=ct, meta=meta)
+    seg = Segmentation(mask=mask, probability=q, c1=res["c1"], c2=res["c2"], iterations=total, ct=ct, meta=meta)
+    return _check_result(seg, spacing, seg_warnings)
+
+
+def _check_result(seg: Segmentation, spacing, seg_warnings: list[str]) -> Segmentation:
+    """The head mask's size against human ranges: ``meta["warnings"]`` and a HeadSizeWarning."""
+    extent = input_checks.mask_extent_mm(seg.mask, spacing)
+    seg.meta["head_extent_mm"] = extent
+    if extent is not None:
+        refusal, warning = input_checks.check_head_extent(extent, spacing, "head mask")
+        message = refusal or warning
+        if message:
+            seg_warnings.append(message)
+    seg.meta["warnings"] = list(seg_warnings)
+    for message in seg_warnings:
+        warnings.warn(message, input_checks.HeadSizeWarning, stacklevel=3)
+    return seg
 
 
 def _segment_slices(ct: CTVolume, img: np.ndarray, spacing, params: dict, clean_kw: dict,

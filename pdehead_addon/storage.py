@@ -78,7 +78,7 @@ def _split(obj) -> tuple[BoundarySet, dict | None]:
     if isinstance(obj, PDEHead):
         settings = {"smoothing": [float(a) for a in obj.smoothing], "modes": int(obj.modes),
                     "smoothing_is_default": bool(getattr(obj, "smoothing_is_default", False)),
-                    "continuity": obj.continuity}
+                    "continuity": obj.continuity, "remainder": bool(getattr(obj, "remainder", True))}
         if obj.continuity == "c2":
             settings.update(approximation_mm=float(obj.approximation_mm), dome=obj.vertex is not None)
         return obj.bset, settings
@@ -264,7 +264,8 @@ def head_from_boundaries(bset: BoundarySet, name: str = "<bytes>"):
     if continuity == "c2":
         extra = dict(approximation_mm=settings.get("approximation_mm"), dome=bool(settings.get("dome", True)))
     try:
-        return solve_pde(bset, smoothing=smoothing, modes=settings.get("modes"), continuity=continuity, **extra)
+        return solve_pde(bset, smoothing=smoothing, modes=settings.get("modes"), continuity=continuity,
+                         remainder=bool(settings.get("remainder", True)), **extra)
     except PDEError as exc:
         raise StorageError(f"{name}: stored settings cannot be solved ({exc})") from None
 

@@ -1034,7 +1034,8 @@ def write_outputs(out: dict, json_path: Path, md_path: Path) -> None:
     json_path.parent.mkdir(parents=True, exist_ok=True)
     md_path.parent.mkdir(parents=True, exist_ok=True)
     json_path.write_text(json.dumps(out, indent=1, default=_json_default) + "\n")
-    md_path.write_text(markdown(out))
+    from md_sections import keep_sections           # the sections other benchmark scripts own stay
+    md_path.write_text(keep_sections(markdown(out), md_path))
 
 
 def parse_args(argv=None):

@@ -8,6 +8,7 @@ Examples::
         --spacing 2 1 1 --first-slice superior --patches 10 --out out/cthead.blend \\
         --render out/cthead_surface.png --render-volume out/cthead_volume.png
     python3 scripts/pdehead.py ../shared/data/ct_head_ge_tilt_dicom/dicom --out out/ge.blend
+    python3 scripts/pdehead.py --phantom --no-volume --skull --export out/print   # skin.stl, skull.stl, tissue_depth.csv
 
 It runs the SAME Blender operators as the add-on (``bpy.ops.pdehead.*``) in the ``bpy``
 module: the add-on is registered straight from this repository's source (as the package
@@ -19,6 +20,7 @@ Exit status: 0 on success, 1 when a step fails, 2 on bad arguments or input (one
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib.util
 import os
 import sys
@@ -59,6 +61,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--view", default="FRONT", choices=["FRONT", "RIGHT", "LEFT", "BACK", "TOP", "THREE_QUARTER"],
                    help="render view; default FRONT (face, patient left on screen right)")
     p.add_argument("--resolution", type=int, default=320, help="render size in pixels; default 320")
+    f = p.add_argument_group("forensic")
+    f.add_argument("--skull", action="store_true",
+                   help="also build the skull (PDE surface + bone mesh) and the skin's tissue-depth map")
+    f.add_argument("--export", type=Path, metavar="DIR",
+                   help="with --skull: write skin.stl, skull.stl and tissue_depth.csv (patient mm) into DIR")
+    f.add_argument("--export-format", default="stl", choices=["stl", "obj", "ply"], help="mesh format; default stl")
     p.add_argument("--render-samples", type=int, default=16, help="Cycles samples; default 16")
     g = p.add_argument_group("loader options")
     g.add_argument("--format", default="auto", choices=["auto", "dicom", "images", "raw"])
@@ -66,7 +74,13 @@ def parse_args(argv=None) -> argparse.Namespace:
     g.add_argument("--dtype", help="raw data type, numpy style: '>i2' (big-endian int16), '<u2', 'u1', '<f4'")
     g.add_argument("--spacing", type=float, nargs=3, metavar=("DZ", "DY", "DX"), help="voxel size in mm")
     g.add_argument("--first-slice", choices=["superior", "inferior"], help="where the first file lies")
+    g.add_argument("--orientation", metavar="CODE",
+                   help="raw/image stacks: 3 letters for the directions in which the column, row and file "
+                        "index increase, e.g. LPS (default), LAS (row 0 = back of the head), RAS, PIL")
+    g.add_argument("--units", choices=["HU", "stored"], help="raw/image stacks: the samples are HU (or not)")
     g.add_argument("--series-uid", help="DICOM SeriesInstanceUID when the folder holds several series")
+    g.add_argument("--downsample", type=int, default=1, metavar="N",
+                   help="average N x N x N voxel blocks on import (very large scans: 2 needs 1/8 of the memory)")
     args = p.parse_args(argv)
     if args.phantom == bool(args.input):
         p.error("give either INPUT or --phantom")
@@ -78,6 +92,17 @@ def parse_args(argv=None) -> argparse.Namespace:
         raise CLIError(f"{args.input}: no such file or folder", 2)
     if args.render_volume and args.no_volume:
         p.error("--render-volume needs the volume (drop --no-volume)")
+    if args.export and not args.skull:
+        p.error("--export needs --skull")
+    for name, low in (("patches", 1), ("samples", 16), ("downsample", 1), ("nu", 4), ("nv", 8), ("nw", 2), ("resolution", 16),
+                      ("render_samples", 1)):
+        if getattr(args, name) < low:
+            p.error(f"--{name.replace('_', '-')} must be at least {low}, got {getattr(args, name)}")
+    if not args.voxel_size > 0:
+        p.error(f"--voxel-size must be positive, got {args.voxel_size}")
+    if args.orientation and args.first_slice:
+        p.error("give either --orientation or --first-slice (the orientation's third letter says where "
+                "the files go)")
     return args
 
 
@@ -95,10 +120,32 @@ def register_addon():
     return module
 
 
+@contextlib.contextmanager
+def _blender_stdout(drop=("Error:",)):
+    """Capture what Blender's C code prints on stdout (operator reports, 'Info: Saved as ...') and pass
+    it on without the lines starting with ``drop`` (an ERROR report is printed once, by main)."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    with tempfile.TemporaryFile(mode="w+b") as buf:
+        os.dup2(buf.fileno(), 1)
+        try:
+            yield
+        finally:
+            sys.stdout.flush()
+            os.dup2(saved, 1)
+            os.close(saved)
+            buf.seek(0)
+            text = buf.read().decode("utf-8", "replace")
+            kept = [line for line in text.splitlines() if line and not line.startswith(drop)]
+            if kept:
+                print("\n".join(kept), flush=True)
+
+
 def _call(op, **kwargs) -> None:
     """Run one operator; its ERROR report becomes a CLIError with the report's text."""
     try:
-        result = op(**kwargs)
+        with _blender_stdout():
+            result = op(**kwargs)
     except RuntimeError as exc:
         message = str(exc).strip()
         message = message[len("Error: "):] if message.startswith("Error: ") else message
@@ -131,8 +178,14 @@ def loader_kwargs(args) -> dict:
         kwargs["use_spacing"] = True
     if args.first_slice:
         kwargs["first_slice"] = args.first_slice.upper()
+    if args.orientation:
+        kwargs["orientation"] = args.orientation.upper()
+    if args.units:
+        kwargs["units"] = args.units.upper()
     if args.series_uid:
         kwargs["series_uid"] = args.series_uid
+    if args.downsample > 1:
+        kwargs["downsample"] = args.downsample
     return kwargs
 
 
@@ -142,10 +195,22 @@ def run(args) -> dict:
     state = addon.operators.state
     bpy.ops.wm.read_homefile(use_empty=True)
     bpy.context.preferences.filepaths.save_version = 0  # no .blend1 backups (temporary user folder)
+    scratch = None
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        bpy.ops.wm.save_as_mainfile(filepath=str(args.out.resolve()))  # first, so the VDB goes beside it
+        # A scratch .blend beside the output gives the VDB its folder; the real file is written only
+        # when every step worked, so a failed run leaves an existing --out file as it was.
+        scratch = args.out.resolve().parent / f".{args.out.stem}.pdehead-partial.blend"
+        with _blender_stdout(drop=("Info: Saved",)):
+            bpy.ops.wm.save_as_mainfile(filepath=str(scratch))
+    try:
+        return _steps(args, bpy, addon, state)
+    finally:
+        if scratch is not None:
+            scratch.unlink(missing_ok=True)
 
+
+def _steps(args, bpy, addon, state) -> dict:
     ops = bpy.ops.pdehead
     t0 = time.perf_counter()
     if args.phantom:
@@ -161,13 +226,19 @@ def run(args) -> dict:
     _call(ops.build_solid, nu=args.nu, nv=args.nv, nw=args.nw)
     if not args.no_volume:
         _call(ops.build_volume, voxel_size=args.voxel_size)
+    if args.skull:
+        _call(ops.build_skull)
+        _call(ops.tissue_depth)
+        if args.export:
+            _call(ops.export_print, directory=str(args.export.resolve()), format=args.export_format)
     total = time.perf_counter() - t0
 
     timings = state.timings(coll)
     print(f"{PROG}: study '{coll.name}'")
     nx, ny, nz = s.dimensions
     dz, dy, dx = s.spacing
-    print(f"  CT        {nx} x {ny} x {nz} voxels, spacing {dx:g} x {dy:g} x {dz:g} mm, "
+    # one order everywhere: x, y, z (columns, rows, slices)
+    print(f"  CT        {nx} x {ny} x {nz} voxels (x, y, z), spacing {dx:g} x {dy:g} x {dz:g} mm (x, y, z), "
           f"range {s.value_range[0]:.0f}..{s.value_range[1]:.0f}")
     print(f"  segment   head {100 * s.seg_fraction:.1f} % of voxels, {s.seg_iterations} iterations")
     kb = len(coll[state.BOUNDARY_KEY]) * 3 / 4 / 1024
@@ -176,6 +247,17 @@ def run(args) -> dict:
     print(f"  solid     {len(s.solid_object.data.vertices)} vertices")
     if s.volume_object is not None:
         print(f"  volume    {bpy.path.abspath(s.volume_object.data.filepath)}")
+    if args.skull:
+        import json
+        info = json.loads(coll.get("pdehead_skull_info", "{}"))
+        depth = json.loads(coll.get("pdehead_depth_stats", "{}"))
+        print(f"  skull     bone level {info.get('bone_level', 0):.0f} HU, {info.get('patches')} patches, "
+              f"{info.get('bone_triangles', 0)} bone-mesh triangles")
+        if "median" in depth:
+            print(f"  depth     {depth['measured']} of {depth['vertices']} skin vertices, median {depth['median']:.1f} "
+                  f"mm, p95 {depth['p95']:.1f} mm (no bone {depth['no_bone']}, envelope {depth['envelope']})")
+        if args.export:
+            print(f"  export    {args.export}/skin.{args.export_format}, skull.{args.export_format}, tissue_depth.csv")
     for warning in filter(None, s.warnings.split("; ")):
         print(f"  warning   {warning}")
     print("timings (s):")
@@ -184,8 +266,11 @@ def run(args) -> dict:
     print(f"  {'total':<11}{total:8.3f}")
 
     if args.out:
-        bpy.ops.wm.save_mainfile()
+        with _blender_stdout(drop=("Info: Saved",)):
+            bpy.ops.wm.save_as_mainfile(filepath=str(args.out.resolve()))
         print(f"wrote {args.out}")
+    else:
+        print("not saved: no --out given (pass --out FILE.blend to keep the result)")
     render = addon.operators.render
     size = (args.resolution, args.resolution)
     if args.render:

@@ -327,3 +327,28 @@ def test_load_ct_reads_the_writer(phantom, small_ct, tmp_path):
     found = tilted.data > -400
     jaccard = (truth & found & covered).sum() / ((truth | found) & covered).sum()
     assert jaccard > 0.95
+
+
+def test_metal_fillings_and_streaks_change_hu_only():
+    from pdehead_addon.phantom import METAL
+    plain, metal = make_phantom(noise=0.0), make_phantom(noise=0.0, metal=True)
+    assert np.array_equal(plain.head_mask, metal.head_mask)        # streaks are not tissue
+    fillings = metal.labels == METAL
+    assert 20 < fillings.sum() < 400 and metal.head_mask[fillings].all()
+    assert np.array_equal(plain.labels[~fillings], metal.labels[~fillings])
+    assert metal.ct.data[fillings].max() > 2500
+    diff = metal.ct.data - plain.ct.data
+    ks = metal.params["metal_slices"]
+    near = set(ks) | {k - 1 for k in ks} | {k + 1 for k in ks}   # (a neighbour may graze a filling)
+    others = np.setdiff1d(np.arange(plain.ct.shape[0]), sorted(near))
+    assert np.abs(diff[others]).max() < 1.0                      # streaks stay in the fillings' slices
+    air = ~metal.head_mask & (plain.labels == 0)
+    front = air.copy()
+    front[:, 20:, :] = False                                      # the air in front of the face (small j)
+    assert diff[ks][front[ks]].max() > 500 and diff[ks][front[ks]].min() < -300   # bright and dark rays
+    # the analytic model gives the same values anywhere (sample_hu at the voxel centres)
+    k = ks[len(ks) // 2]
+    ct = metal.ct
+    jj, ii = np.mgrid[0:ct.shape[1], 0:ct.shape[2]]
+    pts = ct.index_to_patient(np.stack([np.full_like(jj, k), jj, ii], axis=-1))
+    np.testing.assert_allclose(metal.sample_hu(pts), ct.data[k], atol=1e-3)

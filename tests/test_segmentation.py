@@ -174,12 +174,27 @@ def ge_reference(ge_ct):
     return M.reference_head_mask(ge_ct, **M.REFERENCE_SETTINGS["ge"])
 
 
+CTHEAD_STREAK_K = 113 - np.arange(73, 86)     # the metal-streak slices (files 73-85 -> k = 113 - N)
+
+
+def _spike_pixels(mask, ks, spacing_yx=(1.0, 1.0), radius_mm=3.0):
+    """Pixels of the (hole-filled) mask in slices ks that a 3 mm opening removes: spikes and zig-zags."""
+    m = S.fill_holes_per_slice(mask[ks])
+    return int(np.count_nonzero(m & ~S.open_disk(m, spacing_yx, radius_mm)))
+
+
 def test_cthead_matches_reference(cthead_seg, cthead_ct, cthead_reference):
-    per = _check_against(cthead_seg, cthead_reference, 0.99, 0.96)
-    # the metal-streak slices (files 73-85 -> k = 113 - N) are among the head's slices and pass too
     ks = M.head_slices(cthead_reference)
-    streak = np.isin(ks, 113 - np.arange(73, 86))
-    assert streak.sum() == 13 and per[streak].min() >= 0.96
+    streak = np.isin(ks, CTHEAD_STREAK_K)
+    assert streak.sum() == 13
+    per = M.slice_jaccard_on_head(cthead_seg.mask, cthead_reference)
+    assert per.mean() >= 0.99 and per[~streak].min() >= 0.96, (per.mean(), per[~streak].min())
+    # In the streak slices the threshold reference itself follows the bright streaks out into the air
+    # and has holes where dark streaks cross the jaw; the segmentation follows the lips instead (its
+    # outline has less than half the reference's spike pixels), so it agrees a little less there.
+    assert per[streak].min() >= 0.95
+    assert cthead_seg.meta["cleanup"]["metal_slices"][:13] == sorted(CTHEAD_STREAK_K.tolist())
+    assert _spike_pixels(cthead_seg.mask, CTHEAD_STREAK_K) < 0.5 * _spike_pixels(cthead_reference, CTHEAD_STREAK_K)
     # the couch top (bright arc behind the head, rows >= 240) and the cloth are not head
     assert not cthead_seg.mask[:, 243:, :].any()
     assert cthead_seg.meta["cleanup"]["cushion_voxels"] > 1000  # the pillow under the occiput was removed
@@ -237,7 +252,10 @@ def test_slices_mode_segments_only_the_selected_slices(cthead_ct, cthead_referen
 def test_tiff8_version_matches_raw16_reference(cthead_tiff_ct, cthead_reference):
     seg = segment_head(cthead_tiff_ct)
     # tiff8 file N = raw16 file N; both have k = (count - N), so tiff8 k is raw16 k - 14
-    _check_against(seg, cthead_reference[14:], 0.99, 0.96)
+    ref = cthead_reference[14:]
+    per = M.slice_jaccard_on_head(seg.mask, ref)
+    streak = np.isin(M.head_slices(ref), CTHEAD_STREAK_K - 14)
+    assert per.mean() >= 0.99 and per[~streak].min() >= 0.96 and per[streak].min() >= 0.95  # see above
 
 
 # ----------------------------------------------------------------------------------- metrics
@@ -255,3 +273,34 @@ def test_jaccard_functions():
     assert list(M.head_slices(ref)) == [1, 2] and list(M.head_slices(ref, 0.0)) == [0, 1, 2]
     with pytest.raises(ValueError):
         M.jaccard(a, b[:2])
+
+
+# ----------------------------------------------------------------------------------- metal streaks
+@pytest.fixture(scope="module")
+def metal_phantom():
+    return make_phantom(metal=True)
+
+
+def test_phantom_metal_streaks_follow_the_lips_not_the_streaks(metal_phantom, phantom_seg):
+    ph = metal_phantom
+    ks = ph.params["metal_slices"]
+    assert len(ks) >= 5
+    seg = segment_head(ph.ct)
+    # the streaks make air in front of the mouth look like tissue: the case is real
+    window = seg.meta["window"]
+    lit = (S.window_intensities(ph.ct.data, window) > 0.5) & ~ph.head_mask
+    assert np.count_nonzero(lit[ks]) > 300
+    assert np.count_nonzero((seg.probability > 0.5)[ks] & ~ph.head_mask[ks]) > 300   # the model takes them
+    per = M.per_slice_jaccard(seg.mask, ph.head_mask)
+    assert per[ks].min() >= 0.99, np.round(per[ks], 4)
+    assert set(ks) <= set(seg.meta["cleanup"]["metal_slices"])
+    everywhere = M.slice_jaccard_on_head(seg.mask, ph.head_mask, 0.01)
+    assert everywhere.mean() >= 0.99 and everywhere.min() >= 0.97
+    # the mouth outline is about as smooth as without metal (spike pixels: truth 4, no metal 13, metal 12;
+    # 55 without the streak handling, whose per-slice Jaccard there drops to 0.988)
+    sp = ph.ct.spacing[1:]
+    assert _spike_pixels(seg.mask, ks, sp) <= 2 * _spike_pixels(phantom_seg.mask, ks, sp) + 5
+
+
+def test_phantom_without_metal_has_no_metal_slices(phantom_seg):
+    assert phantom_seg.meta["cleanup"]["metal_slices"] == []

@@ -40,6 +40,10 @@ def test_cli_phantom_writes_blend_vdb_and_renders(tmp_path):
         assert f"\n  {step}" in stdout, stdout
     assert "19 x 256 points (t = 6)" in stdout
     assert (out / "phantom.blend").is_file() and not (out / "phantom.blend1").exists()
+    assert not list(out.glob(".*partial*"))                     # the scratch file is gone
+    assert "Saved as" not in stdout and "wrote " in stdout         # written once, at the end, when it worked
+    # one order (x, y, z) for dimensions and spacing: the phantom is 128 x 128 x 100 voxels of 2 x 2 x 2.3 mm
+    assert "128 x 128 x 100 voxels (x, y, z), spacing 2 x 2 x 2.3 mm (x, y, z)" in stdout
     vdbs = list((out / "pdehead_vdb").glob("*.vdb"))
     assert [v.name for v in vdbs] == ["Phantom.vdb"] and vdbs[0].stat().st_size > 10_000
     for png in ("surface.png", "volume.png"):
@@ -72,3 +76,49 @@ def test_cli_bad_input_is_one_clear_line(tmp_path):
     lines = result.stderr.strip().splitlines()
     assert lines[-1].startswith("pdehead: error: ") and str(empty) in lines[-1], result.stderr
     assert "Traceback" not in result.stderr
+
+
+def test_cli_failure_prints_one_line_and_keeps_an_existing_out_file(tmp_path):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    old = tmp_path / "kept.blend"
+    old.write_bytes(b"earlier result")
+    result = run_cli(empty, "--out", old, tmp_path=tmp_path)
+    assert result.returncode == 1
+    errors = [line for line in (result.stdout + result.stderr).splitlines() if "error" in line.lower()]
+    assert errors == [f"pdehead: error: {empty}: the folder is empty (no files in it or its subfolders)"], \
+        (result.stdout, result.stderr)
+    assert old.read_bytes() == b"earlier result" and sorted(p.name for p in tmp_path.iterdir() if p.name != "blender-user") == [
+        "empty", "kept.blend"]
+
+
+def test_cli_rejects_zero_patches_and_conflicting_orientation(tmp_path):
+    result = run_cli("--phantom", "--patches", 0, tmp_path=tmp_path)
+    assert result.returncode == 2 and "--patches must be at least 1, got 0" in result.stderr
+    result = run_cli("--phantom", "--orientation", "LAS", "--first-slice", "superior", tmp_path=tmp_path)
+    assert result.returncode == 2 and "either --orientation or --first-slice" in result.stderr
+
+
+def test_cli_raw_orientation_and_no_out_says_nothing_saved(tmp_path):
+    """A posterior-first raw volume: the warning names the cause, --orientation LAS fixes it."""
+    sys.path.insert(0, str(ROOT))
+    from pdehead_addon import make_phantom
+    ph = make_phantom(noise=0.0)
+    raw = tmp_path / "back_first.raw"
+    np.rint(ph.ct.data[:, ::-1]).astype(">i2").tofile(raw)
+    dz, dy, dx = ph.ct.spacing
+    common = ["--raw-shape", 128, 128, "--dtype", ">i2", "--spacing", dz, dy, dx, "--units", "HU",
+              "--patches", 3, "--nu", 24, "--nv", 32, "--nw", 2, "--no-volume"]
+    result = run_cli(raw, *common, tmp_path=tmp_path)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "warning   " in result.stdout and "the face (nose) seems to lie on the side" in result.stdout
+    assert result.stdout.rstrip().endswith("not saved: no --out given (pass --out FILE.blend to keep the result)")
+    result = run_cli(raw, *common, "--orientation", "LAS", tmp_path=tmp_path)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "the face (nose)" not in result.stdout and "warning" not in result.stdout
+    # twice the true spacing makes a head outside the human range: the segmentation's warning reaches
+    # the summary
+    doubled = [str(2 * float(a)) if i in (6, 7, 8) else a for i, a in enumerate(common)]  # dz, dy, dx
+    result = run_cli(raw, *doubled, "--orientation", "LAS", tmp_path=tmp_path)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "warning   the head mask is" in result.stdout and "outside the human range" in result.stdout

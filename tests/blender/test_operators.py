@@ -37,10 +37,12 @@ def ext(pdehead_ext):
                            volume=sys.modules[name + ".operators.volume"])
 
 
-def stored_head(ext, coll, **pde):
-    """The PDE head solved independently from the boundary bytes stored in the .blend."""
+def stored_head(ext, coll, controls: bool = False, **pde):
+    """The PDE head solved independently from the boundary bytes stored in the .blend (``controls``:
+    through the engine's mapping of the normalised sliders, ``solve_with_controls``)."""
     raw = base64.b64decode(coll[ext.state.BOUNDARY_KEY])
-    return ext.engine.solve_pde(ext.engine.loads_boundaries(raw), **pde)
+    bset = ext.engine.loads_boundaries(raw)
+    return (ext.engine.solve_with_controls if controls else ext.engine.solve_pde)(bset, **pde)
 
 
 def world_mm(ext, obj) -> np.ndarray:
@@ -58,7 +60,7 @@ def check_study(ext, coll, t: int, nu: int, nv: int, nw: int, volume: bool = Tru
     assert len(s.curves_object.data.splines) == 3 * t + 1
     head = stored_head(ext, coll)
     assert head.bset.patches == t
-    assert head.bset.meta.get("parameterisation") == "aligned"  # Align Curves is on by default
+    assert head.bset.meta.get("parameterisation") == "angular"  # Align Curves is on by default
     surface = head.surface(nu, nv, caps=True)
     assert len(s.surface_object.data.vertices) == len(surface.vertices)
     assert len(s.surface_object.data.polygons) == surface.face_count
@@ -134,27 +136,39 @@ def test_live_parameters_after_reopen_without_resegmenting(ext, phantom_blend, m
     s.caps = True
 
     before = world_mm(ext, surf)
-    s.smoothing_auto = False  # the manual value starts at the automatic one
-    assert s.smoothing == pytest.approx(float(np.mean(head.smoothing)), rel=1e-5)
-    maximum = ext.engine.smoothing_bounds(head.bset)[1]
-    s.smoothing = 0.95 * float(maximum.min())
+    ranges = ext.engine.control_ranges(head.bset)
+    s.approximation_auto = False  # the manual slider starts at the automatic value, as a fraction
+    assert s.approximation == pytest.approx(ranges["approximation_mm"][0] / ranges["approximation_mm"][1], rel=1e-5)
+    np.testing.assert_allclose(world_mm(ext, surf), before, atol=1e-3)
+    s.approximation = 1.0  # the top of the study's range: a strongly smoothed head, never refused
     assert s.last_error == ""
-    expected = stored_head(ext, coll, smoothing=s.smoothing).surface(20, 36, caps=True).vertices
+    expected = stored_head(ext, coll, controls=True, approximation=1.0).surface(20, 36, caps=True).vertices
     np.testing.assert_allclose(world_mm(ext, surf), expected, atol=0.05)
-    assert np.abs(world_mm(ext, surf) - before).max() > 0.01  # the smoothing parameter did something
+    assert np.abs(world_mm(ext, surf) - before).max() > 1.0  # visibly smoother
     assert s.volume_stale  # the w-field follows the PDE: the sidebar asks for a rebuild
+    s.approximation_auto = True
 
     shown = world_mm(ext, surf)
-    s.smoothing = 5.0  # beyond the stable maximum: refused, reported in the sidebar, the mesh stays
-    assert "too large" in s.last_error
-    np.testing.assert_allclose(world_mm(ext, surf), shown, atol=1e-6)
-
-    s.smoothing_auto = True
+    s.smoothing_auto = False
+    assert s.smoothing == pytest.approx(0.0)       # the C2 default a is 0 (the natural spline)
+    s.smoothing = 1.0                              # a = the isotropic height/radius: every value solves
     assert s.last_error == ""
-    s.modes = 3
-    assert s.last_error == ""
-    expected = stored_head(ext, coll, modes=3).surface(20, 36, caps=True).vertices
+    expected = stored_head(ext, coll, controls=True, smoothing=1.0).surface(20, 36, caps=True).vertices
     np.testing.assert_allclose(world_mm(ext, surf), expected, atol=0.05)
+    assert np.abs(world_mm(ext, surf) - shown).max() > 1e-3  # measurable (high harmonics damped between curves)
+    s.smoothing_auto = True
+
+    s.continuity = "paper"                         # the paper's patches, on the same stored curves
+    assert s.last_error == ""
+    expected = stored_head(ext, coll, continuity="paper").surface(20, 36, caps=True).vertices
+    np.testing.assert_allclose(world_mm(ext, surf), expected, atol=0.05)
+    s.continuity = "c2"
+
+    s.modes = 3                                    # eq. 13's truncated series: a much simpler head
+    assert s.last_error == ""
+    expected = stored_head(ext, coll, controls=True, modes=3).surface(20, 36, caps=True).vertices
+    np.testing.assert_allclose(world_mm(ext, surf), expected, atol=0.05)
+    assert np.abs(world_mm(ext, surf) - shown).max() > 3.0
     s.modes = 0
 
     s.nw = 7
@@ -330,10 +344,11 @@ def test_invoking_an_operator_starts_from_the_study_settings_and_running_stores_
     with ext.ops.props.suspended_updates():
         s.nu, s.nv, s.caps = 24, 36, False
     op_class = ext.ops.PDEHEAD_OT_reconstruct_surface
-    fake = SimpleNamespace(study="", nu=0, nv=0, caps=True, smoothing_auto=True, smoothing=0.0, modes=0,
+    fake = SimpleNamespace(study="", nu=0, nv=0, caps=True, continuity="c2", dome=True, smoothing_auto=True,
+                           smoothing=0.0, approximation_auto=True, approximation=0.0, modes=0,
                            mirrored_settings=op_class.mirrored_settings, execute=lambda context: {'FINISHED'})
     assert op_class.invoke(fake, bpy.context, None) == {'FINISHED'}
     assert (fake.nu, fake.nv, fake.caps, fake.modes) == (24, 36, False, s.modes)
     assert bpy.ops.pdehead.reconstruct_surface(nu=30, nv=40, caps=False) == {'FINISHED'}
     assert (s.nu, s.nv) == (30, 40)
-    assert len(s.surface_object.data.vertices) == 30 * 40
+    assert len(s.surface_object.data.vertices) == 29 * 40 + 1       # the dome's crown is one vertex

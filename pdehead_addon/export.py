@@ -1,0 +1,117 @@
+"""Watertight STL / OBJ / PLY of the skin and the skull for 3-D printing, in millimetres.
+
+Every writer triangulates the :class:`~.mesh.Mesh` (quads split along their 0-2
+diagonal, the split :func:`~.surface_metrics.triangulate` uses), keeps the
+outward winding and writes patient LPS millimetres (1 unit = 1 mm, the unit
+slicers assume for STL).  :func:`export_mesh` refuses a mesh that is not
+watertight (every edge shared by exactly two faces with opposite directions),
+so a printed part is always closed; :func:`read_stl` reads a binary STL back
+(for the checks of the tests and the CLI).
+"""
+from __future__ import annotations
+
+import os
+import struct
+
+import numpy as np
+
+from .errors import PDEHeadError
+from .mesh import Mesh
+from .surface_metrics import mesh_triangles
+
+FORMATS = ("stl", "obj", "ply")
+
+
+def _triangles(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
+    v, t = mesh_triangles(mesh)
+    return np.asarray(v, np.float64), np.asarray(t, np.int64)
+
+
+def write_stl(mesh: Mesh, path: str | os.PathLike, name: str = "pdehead") -> None:
+    """Binary STL (little-endian, float32 mm, facet normals from the winding)."""
+    v, t = _triangles(mesh)
+    a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
+    n = np.cross(b - a, c - a)
+    ln = np.linalg.norm(n, axis=1, keepdims=True)
+    n = np.divide(n, ln, out=np.zeros_like(n), where=ln > 0)
+    rec = np.zeros(len(t), dtype=[("n", "<f4", 3), ("a", "<f4", 3), ("b", "<f4", 3), ("c", "<f4", 3),
+                                  ("attr", "<u2")])
+    rec["n"], rec["a"], rec["b"], rec["c"] = n, a, b, c
+    header = f"{name} (patient LPS, mm)".encode("ascii", "replace")[:80].ljust(80, b" ")
+    with open(os.fspath(path), "wb") as fh:
+        fh.write(header)
+        fh.write(struct.pack("<I", len(t)))
+        fh.write(rec.tobytes())
+
+
+def write_obj(mesh: Mesh, path: str | os.PathLike, name: str = "pdehead") -> None:
+    """Wavefront OBJ (vertices in mm, 1-based faces; quads kept as quads)."""
+    v = np.asarray(mesh.vertices, np.float64)
+    with open(os.fspath(path), "w") as fh:
+        fh.write(f"# {name}: patient LPS millimetres\no {name}\n")
+        np.savetxt(fh, v, fmt="v %.5f %.5f %.5f")
+        if len(mesh.quads):
+            np.savetxt(fh, mesh.quads + 1, fmt="f %d %d %d %d")
+        if len(mesh.triangles):
+            np.savetxt(fh, mesh.triangles + 1, fmt="f %d %d %d")
+
+
+def write_ply(mesh: Mesh, path: str | os.PathLike, name: str = "pdehead") -> None:
+    """Binary little-endian PLY (float32 vertices in mm, triangle faces)."""
+    v, t = _triangles(mesh)
+    header = ("ply\nformat binary_little_endian 1.0\n"
+              f"comment {name}: patient LPS millimetres\n"
+              f"element vertex {len(v)}\nproperty float x\nproperty float y\nproperty float z\n"
+              f"element face {len(t)}\nproperty list uchar int vertex_indices\nend_header\n")
+    faces = np.zeros(len(t), dtype=[("n", "u1"), ("i", "<i4", 3)])
+    faces["n"] = 3
+    faces["i"] = t
+    with open(os.fspath(path), "wb") as fh:
+        fh.write(header.encode("ascii"))
+        fh.write(v.astype("<f4").tobytes())
+        fh.write(faces.tobytes())
+
+
+_WRITERS = {"stl": write_stl, "obj": write_obj, "ply": write_ply}
+
+
+def export_mesh(mesh: Mesh, path: str | os.PathLike, fmt: str | None = None, name: str = "pdehead",
+                require_watertight: bool = True) -> str:
+    """Write ``mesh`` as STL, OBJ or PLY (from ``fmt`` or the file extension), in mm.
+
+    Raises
+    ------
+    PDEHeadError
+        Unknown format, a mesh that is not watertight (when required) or a write failure,
+        naming the file.
+    """
+    path = os.fspath(path)
+    fmt = (fmt or os.path.splitext(path)[1].lstrip(".")).lower()
+    if fmt not in _WRITERS:
+        raise PDEHeadError(f"{path}: unknown mesh format {fmt!r}; use one of {', '.join(FORMATS)}")
+    if mesh.face_count == 0:
+        raise PDEHeadError(f"{path}: the mesh '{name}' has no faces")
+    if require_watertight and not mesh.is_watertight():
+        raise PDEHeadError(f"{path}: the mesh '{name}' is not watertight (open or inconsistently wound edges); "
+                           "build the surface with caps")
+    try:
+        _WRITERS[fmt](mesh, path, name)
+    except OSError as exc:
+        raise PDEHeadError(f"{path}: cannot write ({exc.strerror})") from None
+    return path
+
+
+def read_stl(path: str | os.PathLike) -> Mesh:
+    """A binary STL as a Mesh with shared vertices (exact float32 coordinates merged)."""
+    path = os.fspath(path)
+    with open(path, "rb") as fh:
+        data = fh.read()
+    if len(data) < 84:
+        raise PDEHeadError(f"{path}: too short for a binary STL")
+    (count,) = struct.unpack_from("<I", data, 80)
+    if len(data) != 84 + 50 * count:
+        raise PDEHeadError(f"{path}: size does not match {count} binary STL facets")
+    rec = np.frombuffer(data, dtype=[("n", "<f4", 3), ("p", "<f4", (3, 3)), ("attr", "<u2")], count=count, offset=84)
+    corners = rec["p"].reshape(-1, 3)
+    verts, inverse = np.unique(corners, axis=0, return_inverse=True)
+    return Mesh(vertices=verts, quads=np.zeros((0, 4), np.int64), triangles=inverse.reshape(-1, 3))

@@ -1,0 +1,299 @@
+"""Craniometric landmarks on the skull, depth-table markers, Frankfurt horizontal and the mid-sagittal mirror.
+
+Everything is in patient LPS millimetres and Blender-free, so the Blender
+operators (:mod:`operators.forensic`) and the tests share it:
+
+* :data:`STANDARD_LANDMARKS`: the midline and bilateral landmarks of the
+  soft-tissue depth tables (the set of Stephan & Simpson 2008 / Taylor 2001,
+  as used in craniofacial identification) plus porion and orbitale for the
+  Frankfurt horizontal;
+* :func:`snap_to_surface`: a clicked point onto the nearest point of the skull
+  mesh, with the outward surface normal there;
+* :func:`read_depth_table` / :func:`marker_pegs`: a CSV of (landmark, depth mm)
+  to pegs standing on the skull along its normal with those lengths;
+* :func:`landmark_depths` / :func:`write_landmark_csv`: the measured depth
+  (skull to skin along the skull normal) at each placed landmark;
+* :func:`frankfurt_transform`: the rigid transform that makes the Frankfurt
+  plane (porions and orbitales) horizontal with the face toward -y;
+* :func:`midsagittal_plane` / :func:`mirror_matrix`: the plane fitted to
+  bilateral landmark pairs and the reflection across it.
+"""
+from __future__ import annotations
+
+import csv
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import PDEHeadError
+from .mesh import Mesh
+from .surface_metrics import mesh_triangles
+
+
+@dataclass(frozen=True)
+class LandmarkDef:
+    key: str
+    name: str
+    bilateral: bool
+    description: str
+
+
+_DEFS = [
+    ("g", "Glabella", False, "most prominent midline point between the supraorbital ridges"),
+    ("n", "Nasion", False, "midline point of the frontonasal suture"),
+    ("rhi", "Rhinion", False, "lowest midline point of the internasal suture (end of the nasal bones)"),
+    ("mp", "Mid-philtrum", False, "midline point of the maxilla under the mid-philtrum (A point)"),
+    ("sd", "Supradentale", False, "midline point of the upper alveolar crest between the incisors"),
+    ("id", "Infradentale", False, "midline point of the lower alveolar crest between the incisors"),
+    ("sm", "Supramentale", False, "deepest midline point of the mandible's anterior concavity (B point)"),
+    ("pog", "Pogonion", False, "most anterior midline point of the chin (mental eminence)"),
+    ("me", "Menton", False, "lowest midline point of the mandibular symphysis"),
+    ("v", "Vertex", False, "highest point of the cranial vault"),
+    ("op", "Opisthocranion", False, "most posterior midline point of the vault"),
+    ("fe", "Frontal eminence", True, "most prominent point of the frontal eminence"),
+    ("so", "Supraorbital", True, "above the orbit, at the middle of the supraorbital margin"),
+    ("sbo", "Suborbital", True, "below the orbit, at the middle of the infraorbital margin"),
+    ("im", "Inferior malar", True, "lower edge of the zygomatic bone"),
+    ("lo", "Lateral orbit", True, "lateral orbital margin at the level of the frontozygomatic suture"),
+    ("za", "Zygomatic arch", True, "most lateral point of the zygomatic arch (zygion)"),
+    ("sg", "Supraglenoid", True, "above the glenoid fossa, on the root of the zygomatic arch"),
+    ("go", "Gonion", True, "most lateral point of the mandibular angle"),
+    ("supm2", "Supra M2", True, "alveolar bone above the upper second molar"),
+    ("ocl", "Occlusal line", True, "on the mandibular ramus at the occlusal plane"),
+    ("subm2", "Sub M2", True, "mandibular body below the lower second molar"),
+    ("po", "Porion", True, "highest point of the external acoustic meatus (Frankfurt horizontal)"),
+    ("or", "Orbitale", True, "lowest point of the infraorbital margin (Frankfurt horizontal)"),
+]
+
+#: The standard set: midline landmarks once, bilateral ones as "<Name> L" and "<Name> R" (patient sides).
+STANDARD_LANDMARKS: list[LandmarkDef] = []
+for _key, _name, _bi, _desc in _DEFS:
+    if _bi:
+        STANDARD_LANDMARKS.append(LandmarkDef(f"{_key}_l", f"{_name} L", True, _desc + " (patient left)"))
+        STANDARD_LANDMARKS.append(LandmarkDef(f"{_key}_r", f"{_name} R", True, _desc + " (patient right)"))
+    else:
+        STANDARD_LANDMARKS.append(LandmarkDef(_key, _name, False, _desc))
+LANDMARK_NAMES = [d.name for d in STANDARD_LANDMARKS]
+_BY_NAME = {d.name.lower(): d for d in STANDARD_LANDMARKS}
+_BY_NAME.update({d.key.lower(): d for d in STANDARD_LANDMARKS})
+
+
+def landmark(name: str) -> LandmarkDef:
+    """The standard landmark of a name or key (case-insensitive), or a PDEHeadError listing the set."""
+    d = _BY_NAME.get(str(name).strip().lower())
+    if d is None:
+        raise PDEHeadError(f"unknown landmark {name!r}; the standard set is: {', '.join(LANDMARK_NAMES)}")
+    return d
+
+
+def bilateral_pairs(names) -> list[tuple[str, str]]:
+    """(left, right) name pairs present in ``names``."""
+    have = set(names)
+    return [(n, n[:-1] + "R") for n in names if n.endswith(" L") and n[:-1] + "R" in have]
+
+
+# --------------------------------------------------------------------------- snapping
+def _closest_on_triangles(p, a, b, c):
+    """Closest points on triangles (a, b, c) to points p (all (n, 3)); Ericson 5.1.5."""
+    ab, ac, ap = b - a, c - a, p - a
+    d1, d2 = np.einsum("ij,ij->i", ab, ap), np.einsum("ij,ij->i", ac, ap)
+    bp = p - b
+    d3, d4 = np.einsum("ij,ij->i", ab, bp), np.einsum("ij,ij->i", ac, bp)
+    cp = p - c
+    d5, d6 = np.einsum("ij,ij->i", ab, cp), np.einsum("ij,ij->i", ac, cp)
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        denom = va + vb + vc
+        out = a + (vb / denom)[:, None] * ab + (vc / denom)[:, None] * ac
+        t_ab = np.clip(d1 / (d1 - d3), 0, 1)
+        t_ac = np.clip(d2 / (d2 - d6), 0, 1)
+        t_bc = np.clip((d4 - d3) / ((d4 - d3) + (d5 - d6)), 0, 1)
+    out = np.where(((va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0))[:, None], b + np.nan_to_num(t_bc)[:, None] * (c - b), out)
+    out = np.where(((vb <= 0) & (d2 >= 0) & (d6 <= 0))[:, None], a + np.nan_to_num(t_ac)[:, None] * ac, out)
+    out = np.where(((vc <= 0) & (d1 >= 0) & (d3 <= 0))[:, None], a + np.nan_to_num(t_ab)[:, None] * ab, out)
+    out = np.where(((d6 >= 0) & (d5 <= d6))[:, None], c, out)
+    out = np.where(((d3 >= 0) & (d4 <= d3))[:, None], b, out)
+    out = np.where(((d1 <= 0) & (d2 <= 0))[:, None], a, out)
+    return out
+
+
+def snap_to_surface(points: np.ndarray, mesh: Mesh, chunk: int = 200_000) -> tuple[np.ndarray, np.ndarray]:
+    """The nearest surface points of ``mesh`` to ``points`` and the unit outward normals there.
+
+    Exact (every triangle is tested; meant for tens of landmarks). The normal is the
+    normal of the triangle the nearest point lies on (winding outward).
+
+    Returns
+    -------
+    (snapped, normals) : ndarray (n, 3) each
+    """
+    v, t = mesh_triangles(mesh)
+    if len(t) == 0:
+        raise PDEHeadError("cannot snap landmarks to a mesh without faces")
+    pts = np.atleast_2d(np.asarray(points, np.float64))
+    best_d = np.full(len(pts), np.inf)
+    best_p = np.zeros_like(pts)
+    best_t = np.zeros(len(pts), np.int64)
+    for s in range(0, len(t), chunk):
+        tt = t[s:s + chunk]
+        a, b, c = v[tt[:, 0]], v[tt[:, 1]], v[tt[:, 2]]
+        for i, p in enumerate(pts):
+            q = _closest_on_triangles(np.broadcast_to(p, a.shape), a, b, c)
+            d = np.einsum("ij,ij->i", q - p, q - p)
+            j = int(np.argmin(d))
+            if d[j] < best_d[i]:
+                best_d[i], best_p[i], best_t[i] = d[j], q[j], s + j
+    tri = t[best_t]
+    n = np.cross(v[tri[:, 1]] - v[tri[:, 0]], v[tri[:, 2]] - v[tri[:, 0]])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    return best_p, n
+
+
+# --------------------------------------------------------------------------- depth tables and pegs
+def read_depth_table(path: str | os.PathLike) -> dict[str, float]:
+    """A depth table CSV: ``landmark,depth_mm`` rows (more columns are ignored, ``#`` lines are comments).
+
+    Landmark names are matched to :data:`STANDARD_LANDMARKS` (name or key, case-insensitive).
+
+    Raises
+    ------
+    PDEHeadError
+        Unreadable file, no ``landmark``/``depth_mm`` header, an unknown landmark or a bad
+        depth (naming the file and the line).
+    """
+    path = os.fspath(path)
+    try:
+        with open(path, newline="") as fh:
+            lines = [(i + 1, row) for i, row in enumerate(csv.reader(fh)) if row and not row[0].lstrip().startswith("#")]
+    except OSError as exc:
+        raise PDEHeadError(f"{path}: cannot read the depth table ({exc.strerror})") from None
+    if not lines:
+        raise PDEHeadError(f"{path}: the depth table is empty")
+    header = [h.strip().lower() for h in lines[0][1]]
+    if "landmark" not in header or "depth_mm" not in header:
+        raise PDEHeadError(f"{path}: a depth table needs the columns 'landmark' and 'depth_mm', got {lines[0][1]}")
+    li, di = header.index("landmark"), header.index("depth_mm")
+    table: dict[str, float] = {}
+    for number, row in lines[1:]:
+        try:
+            name = landmark(row[li]).name
+        except (PDEHeadError, IndexError) as exc:
+            raise PDEHeadError(f"{path}, line {number}: {exc}") from None
+        try:
+            depth = float(row[di])
+        except (ValueError, IndexError):
+            raise PDEHeadError(f"{path}, line {number}: depth {row[di:di + 1]} is not a number in mm") from None
+        if not (np.isfinite(depth) and 0 <= depth < 100):
+            raise PDEHeadError(f"{path}, line {number}: depth {depth} mm is outside 0..100 mm")
+        table[name] = depth
+    return table
+
+
+def marker_pegs(landmarks: dict[str, np.ndarray], skull: Mesh, table: dict[str, float]
+                ) -> list[tuple[str, np.ndarray, np.ndarray, float]]:
+    """Pegs for the landmarks that the table has: (name, base on the skull, outward unit normal, length mm)."""
+    names = [n for n in landmarks if n in table]
+    if not names:
+        return []
+    base, normal = snap_to_surface(np.array([landmarks[n] for n in names]), skull)
+    return [(n, base[i], normal[i], float(table[n])) for i, n in enumerate(names)]
+
+
+def landmark_depths(landmarks: dict[str, np.ndarray], skull: Mesh, skin: Mesh,
+                    max_depth_mm: float = 60.0) -> dict[str, tuple[np.ndarray, float]]:
+    """Measured tissue depth at each landmark: skull point, and distance along the skull's outward
+    normal to the skin (mm, NaN if the skin is not met within ``max_depth_mm``)."""
+    from .tissue_depth import cast_rays
+
+    names = list(landmarks)
+    if not names:
+        return {}
+    base, normal = snap_to_surface(np.array([landmarks[n] for n in names]), skull)
+    depth = cast_rays(base, normal, skin, max_depth_mm)
+    return {n: (base[i], float(depth[i])) for i, n in enumerate(names)}
+
+
+def write_landmark_csv(path: str | os.PathLike, depths: dict[str, tuple[np.ndarray, float]],
+                       table: dict[str, float] | None = None) -> int:
+    """``landmark,x_mm,y_mm,z_mm,depth_mm,table_mm`` per landmark (empty where unknown); returns rows."""
+    path = os.fspath(path)
+    try:
+        with open(path, "w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(["landmark", "x_mm", "y_mm", "z_mm", "depth_mm", "table_mm"])
+            for name, (p, d) in depths.items():
+                ref = (table or {}).get(name)
+                w.writerow([name, *(f"{c:.3f}" for c in p), "" if not np.isfinite(d) else f"{d:.3f}",
+                            "" if ref is None else f"{ref:g}"])
+    except OSError as exc:
+        raise PDEHeadError(f"{path}: cannot write ({exc.strerror})") from None
+    return len(depths)
+
+
+# --------------------------------------------------------------------------- orientation
+def _unit(v: np.ndarray) -> np.ndarray:
+    n = np.linalg.norm(v)
+    if not n > 1e-9:
+        raise PDEHeadError("degenerate landmarks: points coincide")
+    return v / n
+
+
+def frankfurt_transform(porion_l, porion_r, orbitale_l, orbitale_r) -> np.ndarray:
+    """4x4 rigid transform (patient mm -> aligned mm) that puts the head in the Frankfurt horizontal.
+
+    The Frankfurt plane is the least-squares plane of the two porions and the two
+    orbitales. In the aligned frame it is horizontal (its normal is +z, superior), the
+    porion-to-porion line is the x axis (patient right -> left, +x), the face looks
+    toward -y, and the mid-porion point stays where it was (rotation about it).
+    """
+    pts = np.array([porion_l, porion_r, orbitale_l, orbitale_r], np.float64)
+    if pts.shape != (4, 3) or not np.all(np.isfinite(pts)):
+        raise PDEHeadError("the Frankfurt horizontal needs porion L/R and orbitale L/R as 3-D points")
+    centre = pts.mean(axis=0)
+    _, _, vt = np.linalg.svd(pts - centre)
+    up = vt[2]
+    if up[2] < 0:
+        up = -up
+    x = pts[0] - pts[1]                                    # right porion -> left porion
+    x = _unit(x - up * (x @ up))
+    y = np.cross(up, x)                                    # z x x = y: with x to the left, y posterior
+    front = 0.5 * (pts[2] + pts[3]) - 0.5 * (pts[0] + pts[1])
+    if front @ y > 0:                                      # orbitales must be anterior (-y)
+        raise PDEHeadError("the orbitales lie behind the porions: check the left/right and landmark names")
+    rot = np.stack([x, y, up])                             # rows: new axes in patient coordinates
+    pivot = 0.5 * (pts[0] + pts[1])
+    m = np.eye(4)
+    m[:3, :3] = rot
+    m[:3, 3] = pivot - rot @ pivot
+    return m
+
+
+def midsagittal_plane(pairs: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """Plane (point, unit normal toward patient left) best fitting the bisectors of bilateral pairs.
+
+    The normal is the dominant direction of the left-minus-right vectors (the sign kept
+    toward +x); the point is the mean of the pair midpoints.
+    """
+    if len(pairs) < 1:
+        raise PDEHeadError("the mid-sagittal plane needs at least one bilateral landmark pair")
+    left = np.array([p[0] for p in pairs], np.float64)
+    right = np.array([p[1] for p in pairs], np.float64)
+    diff = left - right
+    if len(pairs) == 1:
+        n = _unit(diff[0])
+    else:
+        _, _, vt = np.linalg.svd(diff, full_matrices=False)
+        n = vt[0]
+        if n @ diff.sum(axis=0) < 0:
+            n = -n
+    return 0.5 * (left + right).mean(axis=0), n
+
+
+def mirror_matrix(point: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """4x4 reflection across the plane through ``point`` with unit ``normal``."""
+    n = _unit(np.asarray(normal, np.float64))
+    m = np.eye(4)
+    m[:3, :3] -= 2.0 * np.outer(n, n)
+    m[:3, 3] = 2.0 * (n @ np.asarray(point, np.float64)) * n
+    return m

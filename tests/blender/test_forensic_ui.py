@@ -1,0 +1,156 @@
+"""Forensic toolkit in Blender and in the CLI (issue 12): skull, depth map, landmarks, pegs, Frankfurt, export."""
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from test_cli import run_cli
+
+from pdehead_addon.export import read_stl
+from pdehead_addon.phantom import GEOMETRY
+
+
+def _check_export(folder, n_skin_vertices=None):
+    skin, skull = read_stl(folder / "skin.stl"), read_stl(folder / "skull.stl")
+    assert skin.is_watertight() and skull.is_watertight()
+    rows = list(csv.reader(open(folder / "tissue_depth.csv")))
+    assert rows[0][:4] == ["x_mm", "y_mm", "z_mm", "depth_mm"]
+    body = rows[1:]
+    if n_skin_vertices is not None:
+        assert len(body) == n_skin_vertices
+    pts = np.array([[float(v) for v in r[:3]] for r in body])
+    depth = np.array([float(r[3]) if r[3] else np.nan for r in body])
+    assert all((r[3] == "") == (r[5] != "measured") for r in body)        # empty exactly where no bone
+    return skin, skull, pts, depth
+
+
+def test_cli_phantom_skull_export(tmp_path):
+    out = tmp_path / "print"
+    result = run_cli("--phantom", "--no-volume", "--nu", 60, "--nv", 120, "--skull", "--export", out, tmp_path=tmp_path)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "  skull     bone level" in result.stdout and "  depth     " in result.stdout
+    skin, skull, pts, depth = _check_export(out)
+    # in mm: the phantom's skull is 136 mm wide (outer ellipsoid semi-axis 68), its skin 150 mm without ears
+    (cx, cy, cz), (a, b, c) = GEOMETRY["skull_outer"]
+    width = np.ptp(skull.vertices[:, 0])
+    assert abs(width - 2 * a) < 3.0
+    assert 140 < np.ptp(skin.vertices[:, 0]) < 170
+    vault = pts[:, 2] > 45
+    assert np.isfinite(depth[vault]).mean() > 0.95
+    assert abs(np.nanmedian(depth[vault]) - 6.0) < 0.5
+
+
+def test_cli_export_needs_skull(tmp_path):
+    result = run_cli("--phantom", "--export", tmp_path / "x", tmp_path=tmp_path)
+    assert result.returncode == 2 and "--export needs --skull" in result.stderr
+    assert not (tmp_path / "x").exists()
+
+
+def test_cli_cthead_skull_export(tmp_path, pytestconfig):
+    from datasets import shared_data
+    folder = shared_data("cthead_stanford", "raw16")
+    out = tmp_path / "print"
+    result = run_cli(folder, "--raw-shape", 256, 256, "--dtype", ">i2", "--spacing", 2, 1, 1, "--first-slice",
+                     "superior", "--no-volume", "--nu", 60, "--nv", 120, "--skull", "--export", out,
+                     tmp_path=tmp_path)
+    assert result.returncode == 0, result.stderr[-3000:]
+    skin, skull, pts, depth = _check_export(out)
+    assert 120 < np.ptp(skull.vertices[:, 0]) < 170          # a skull in mm (CThead spacing 1 x 1 x 2 mm)
+    assert 0.5 < np.isfinite(depth).mean() < 0.95            # neck, ears and orbit rays have no value
+    assert 3.0 < np.nanmedian(depth) < 10.0
+
+
+def test_cli_ge_skull_export(tmp_path):
+    """The GE series stops at the maxilla: a skull without mandible, a tilted, unevenly spaced scan."""
+    from datasets import shared_data
+    out = tmp_path / "print"
+    result = run_cli(shared_data("ct_head_ge_tilt_dicom", "dicom"), "--no-volume", "--nu", 60, "--nv", 120,
+                     "--skull", "--export", out, "--export-format", "stl", tmp_path=tmp_path)
+    assert result.returncode == 0, result.stderr[-3000:]
+    skin, skull, pts, depth = _check_export(out)
+    assert 120 < np.ptp(skull.vertices[:, 0]) < 170 and np.ptp(skull.vertices[:, 0]) < np.ptp(skin.vertices[:, 0])
+    top = pts[:, 2] > pts[:, 2].max() - 60                  # the vault: measured almost everywhere
+    assert np.isfinite(depth[top]).mean() > 0.9 and 3.0 < np.nanmedian(depth[top]) < 10.0
+
+
+def test_forensic_operators_on_the_phantom(pdehead_ext, tmp_path):
+    import bpy
+    from mathutils import Vector
+
+    forensic = __import__(f"{pdehead_ext.__name__}.operators.forensic", fromlist=["x"])
+    bpy.ops.pdehead.run_pipeline(source='PHANTOM', patches=6, nu=40, nv=80, nw=4, voxel_size=6.0)
+    coll = bpy.context.scene.pdehead.active_study
+    assert bpy.ops.pdehead.build_skull() == {'FINISHED'}
+    skull_obj = coll["pdehead_skull_object"]
+    bone_obj = coll["pdehead_bone_object"]
+    assert len(skull_obj.data.vertices) == len(forensic.skull_engine_mesh(coll, "PDE").vertices) > 2000
+    assert len(bone_obj.data.polygons) > 10000
+
+    assert bpy.ops.pdehead.tissue_depth() == {'FINISHED'}
+    surf = coll.pdehead.surface_object
+    depth = np.empty(len(surf.data.vertices), np.float32)
+    surf.data.attributes["tissue_depth"].data.foreach_get("value", depth)
+    co = np.empty(len(surf.data.vertices) * 3, np.float32)
+    surf.data.vertices.foreach_get("co", co)
+    world = co.reshape(-1, 3) + np.array(surf.matrix_world.translation)
+    vault = world[:, 2] > 0.045
+    assert np.median(depth[vault]) == pytest.approx(6.0, abs=0.5)
+    assert (depth == -1).sum() > 0                                       # no value below the skull
+    stats = json.loads(coll["pdehead_depth_stats"])
+    assert stats["measured"] == int((depth >= 0).sum())
+    assert surf.data.materials[0].name == forensic.DEPTH_MATERIAL
+
+    # landmarks snapped to the skull, pegs from a depth table, Frankfurt, mirror
+    g_c, g_r = np.array(GEOMETRY["skull_outer"][0]), np.array(GEOMETRY["skull_outer"][1])
+    points = {"Porion L": [g_r[0] + 4, 10, -5], "Porion R": [-g_r[0] - 4, 10, -5],
+              "Orbitale L": [30, -70, 5], "Orbitale R": [-30, -70, 5], "Vertex": [0, 8, 100]}
+    for name, p in points.items():
+        r = bpy.ops.pdehead.place_landmark(name=name, location=Vector(np.array(p) * 0.001), use_location=True)
+        assert r == {'FINISHED'}
+    lms = forensic.landmarks(coll)
+    assert set(lms) == set(points)
+    assert lms["Vertex"][2] == pytest.approx(g_c[2] + g_r[2], abs=1.0)
+    table = tmp_path / "table.csv"
+    table.write_text("# test values, not a published table\nlandmark,depth_mm\nVertex,6\nPorion L,9\n")
+    assert bpy.ops.pdehead.import_depth_table(filepath=str(table)) == {'FINISHED'}
+    pegs = {o["pdehead_peg"]: o for o in coll.all_objects if "pdehead_peg" in o}
+    assert set(pegs) == {"Vertex", "Porion L"}
+    peg_z = np.array([v.co for v in pegs["Vertex"].data.vertices])[:, 2] + pegs["Vertex"].matrix_world.translation.z
+    assert np.ptp(peg_z) == pytest.approx(0.006, abs=0.0005)             # 6 mm upward from the vertex
+    csv_path = tmp_path / "lm.csv"
+    assert bpy.ops.pdehead.export_landmark_depths(filepath=str(csv_path)) == {'FINISHED'}
+    assert len(csv_path.read_text().splitlines()) == 1 + len(points)
+
+    assert bpy.ops.pdehead.frankfurt() == {'FINISHED'}
+    m = np.array(coll["pdehead_frankfurt"]).reshape(4, 4)
+    po = np.array([m[:3, :3] @ (lms[n] * 0.001) + m[:3, 3] for n in ("Porion L", "Porion R", "Orbitale L",
+                                                                       "Orbitale R")])
+    normal = np.linalg.svd(po - po.mean(0))[2][2]
+    assert abs(normal[2]) > np.cos(np.radians(0.01))                     # the Frankfurt plane is horizontal
+    assert np.array(coll["pdehead_skull_object"].matrix_world)[:3, :3] == pytest.approx(m[:3, :3])
+    assert forensic.landmarks(coll)["Vertex"] == pytest.approx(lms["Vertex"])   # patient mm kept
+    bpy.context.view_layer.objects.active = skull_obj
+    assert bpy.ops.pdehead.mirror() == {'FINISHED'}
+    mirrored = bpy.data.objects[f"{skull_obj.name} Mirrored"]
+    # the landmark pairs are symmetric about x = 0 (to the snapping), so is the phantom's skull
+    a = np.array([mirrored.matrix_world @ v.co for v in mirrored.data.vertices])
+    b = np.array([skull_obj.matrix_world @ v.co for v in skull_obj.data.vertices])
+    assert np.allclose(np.sort(a[:, 0]), np.sort(-b[:, 0]), atol=0.002)
+    assert a[:, 2].mean() == pytest.approx(b[:, 2].mean(), abs=0.001)
+    assert bpy.ops.pdehead.frankfurt(reset=True) == {'FINISHED'}
+    assert np.array(skull_obj.matrix_world)[:3, :3] == pytest.approx(np.eye(3))
+
+    out = tmp_path / "export"
+    assert bpy.ops.pdehead.export_print(directory=str(out), format='ply') == {'FINISHED'}
+    assert sorted(p.name for p in out.iterdir()) == ["skin.ply", "skull.ply", "tissue_depth.csv"]
+
+    blend = tmp_path / "forensic.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    coll = [c for c in bpy.data.collections if c.get("pdehead_skull_boundaries")][0]
+    surf = coll.pdehead.surface_object
+    assert "tissue_depth" in surf.data.attributes and coll["pdehead_skull_object"] is not None
+    assert set(forensic.landmarks(coll)) == set(points)
