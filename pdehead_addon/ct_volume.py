@@ -105,9 +105,9 @@ def trilinear(data: np.ndarray, kji: np.ndarray, cval: float = 0.0) -> np.ndarra
     """Trilinear interpolation of a 3-D array at fractional indices ``[..., (k, j, i)]``.
 
     The same values as ``scipy.ndimage.map_coordinates(order=1, mode="constant")`` for
-    points inside ``[0, n - 1]`` on every axis and `cval` outside, but several times faster
-    for the tens of thousands of points of a live mesh update (eight gathers instead of a
-    general spline loop per point).
+    points inside ``[0, n - 1]`` on every axis; within the outer half voxel (``[-0.5, 0)`` and
+    ``(n - 1, n - 0.5]``, still inside the first/last voxel) the edge value, so a point on the
+    scan's first slice does not flip between tissue and `cval` with rounding; `cval` beyond.
 
     Returns
     -------
@@ -116,7 +116,8 @@ def trilinear(data: np.ndarray, kji: np.ndarray, cval: float = 0.0) -> np.ndarra
     a = np.ascontiguousarray(data)
     shape = np.array(a.shape)
     pts = np.asarray(kji, dtype=np.float64).reshape(-1, 3)
-    inside = np.all((pts >= 0.0) & (pts <= shape - 1), axis=1)
+    inside = np.all((pts >= -0.5) & (pts <= shape - 0.5), axis=1)
+    pts = np.clip(pts, 0.0, shape - 1)
     base = np.clip(np.floor(pts), 0, np.maximum(shape - 2, 0)).astype(np.int64)
     frac = np.clip(pts - base, 0.0, 1.0).astype(np.float32)
     nz, ny, nx = a.shape

@@ -537,7 +537,7 @@ class SolidCTTable:
 
     def __init__(self, head, ct: CTVolume, nu: int | None = None, nv: int | None = None,
                  nw: int | None = None, chunk: int = 16):
-        from scipy.ndimage import map_coordinates
+        from .ct_volume import trilinear
 
         if nu is None or nv is None or nw is None:
             probe_u = np.linspace(0.0, 1.0, 33)
@@ -562,7 +562,7 @@ class SolidCTTable:
             spine = head.spine(us)[:, None, None, :]
             pts = spine + self.w[None, None, :, None] * (surf[:, :, None, :] - spine)
             ijk = (pts.reshape(-1, 3) - ct.origin) @ inv.T
-            vals = map_coordinates(ct.data, ijk[:, ::-1].T, order=1, mode="constant", cval=cval, prefilter=False)
+            vals = trilinear(ct.data, ijk[:, ::-1], cval=cval)
             table[start:start + len(us), :-1] = vals.reshape(len(us), self.shape[1], self.shape[2])
         table[:, -1] = table[:, 0]                                               # v = 2 pi is v = 0
         # stored w-major, [w, u, v]: a face at one w (the shells, most texels) is one contiguous slab

@@ -308,10 +308,15 @@ def test_trilinear_matches_map_coordinates_inside_and_cval_outside():
     pts = rng.random((5000, 3)) * (np.array(data.shape) + 1.0) - 1.0   # some outside the box
     got = trilinear(data, pts, cval=-2.0)
     want = map_coordinates(data, pts.T, order=1, mode="constant", cval=-2.0, prefilter=False)
-    inside = np.all((pts >= 0) & (pts <= np.array(data.shape) - 1), axis=1)
-    assert 0.2 < inside.mean() < 0.9
+    shape = np.array(data.shape)
+    inside = np.all((pts >= 0) & (pts <= shape - 1), axis=1)
+    rim = ~inside & np.all((pts >= -0.5) & (pts <= shape - 0.5), axis=1)   # the outer half voxel
+    beyond = ~inside & ~rim
+    assert 0.2 < inside.mean() < 0.9 and rim.any() and beyond.any()
     np.testing.assert_allclose(got[inside], want[inside], atol=1e-5)
-    assert np.all(got[~inside] == -2.0)
+    nearest = map_coordinates(data, np.clip(pts, 0, shape - 1).T, order=1, prefilter=False)
+    np.testing.assert_allclose(got[rim], nearest[rim], atol=1e-5)          # the edge value, not cval
+    assert np.all(got[beyond] == -2.0)
     corner = trilinear(data, np.array([[6.0, 8.0, 10.0], [0.0, 0.0, 0.0]]))
     np.testing.assert_allclose(corner, [data[6, 8, 10], data[0, 0, 0]], atol=1e-6)
 
