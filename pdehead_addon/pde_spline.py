@@ -47,6 +47,9 @@ import numpy as np
 
 from .pde_basis import basis_derivatives, inverse_4x4
 
+#: Exponent per harmonic of eq. 1 inside the dome span (local s): ripples of the top curve fade
+#: toward the pole instead of converging there as radial ridges (harmonic h decays like e^{-0.25 h s}).
+DOME_DAMPING = 0.25
 #: Dome height limits, as fractions of the top curve's equivalent radius sqrt(area / pi).
 DOME_MIN_FRACTION = 0.15
 DOME_MAX_FRACTION = 1.2
@@ -293,9 +296,57 @@ def c2_spans(spec: np.ndarray, u: np.ndarray, smoothing: float, modes: int,
             alt = (clamped @ pr).reshape(S, 4, 2, H, 3)
             out = np.where(clamp[None, None, None], alt, out)
         coefficients = (out[:, :, 0] + 1j * out[:, :, 1]).transpose(0, 2, 1, 3)   # (S, H, 4, 3)
+        if pole is not None:
+            exponents, coefficients = _damp_dome(exponents, coefficients, H)
         return exponents, coefficients
     G_inv, alpha = hermite_systems(exponents)
     d = _derivative_system(alpha, du, p, clamp)                  # (n, H, 3) dA/du
     data = np.stack([p[:-1], p[1:], d[:-1] * du[:, None, None], d[1:] * du[:, None, None]], axis=2)
     coefficients = np.matmul(G_inv, data.real) + 1j * np.matmul(G_inv, data.imag)   # (S, H, 4, 3)
+    if pole is not None:
+        exponents, coefficients = _damp_dome(exponents, coefficients, H)
+    return exponents, coefficients
+
+
+@lru_cache(maxsize=8)
+def _dome_system(H: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cubic Hermite data -> coefficients, and the damped space's Hermite inverse, for the dome span."""
+    k = DOME_DAMPING * np.arange(H, dtype=np.float64)
+    g_inv, _ = hermite_systems(k)
+    cubic_g = _cubic_G()
+    for a in (k, g_inv):
+        a.flags.writeable = False
+    return k, g_inv, cubic_g
+
+
+@lru_cache(maxsize=1)
+def _cubic_G() -> np.ndarray:
+    d0, d1 = basis_derivatives(0.0, 0.0), basis_derivatives(0.0, 1.0)
+    G = np.stack([d0[0], d1[0], d0[1], d1[1]])
+    G.flags.writeable = False
+    return G
+
+
+def _damp_dome(exponents: np.ndarray, coefficients: np.ndarray, H: int) -> tuple[np.ndarray, np.ndarray]:
+    """Let the harmonics fade quickly inside the dome span (eq. 1 with the exponent DOME_DAMPING h there).
+
+    The Hermite data at both ends of the span are kept (value and derivative at the top
+    curve, zero at the pole), so the surface stays C1 there; only the shape between
+    changes: a ripple of harmonic h on the top curve decays like ``e^{-DOME_DAMPING h s}``
+    instead of being carried to the pole as a radial ridge (the "star" of a fan).
+    """
+    k, g_inv, G = _dome_system(H)
+    k_old = exponents[-1]
+    if np.any(k_old):                                             # a > 0: the span's own basis
+        d0, d1 = basis_derivatives(k_old, 0.0), basis_derivatives(k_old, 1.0)
+        G = np.stack([d0[:, 0], d1[:, 0], d0[:, 1], d1[:, 1]], axis=1)
+        k = np.maximum(k_old, k)
+        g_inv, _ = hermite_systems(k)
+    c = coefficients[-1]                                           # (H, 4, 3)
+    data = np.matmul(G, c.real) + 1j * np.matmul(G, c.imag)       # (f(0), f(1), f'(0), f'(1)) per h
+    damped = np.matmul(g_inv, data.real) + 1j * np.matmul(g_inv, data.imag)
+    exponents = exponents.copy()
+    exponents[-1] = k
+    coefficients = coefficients.copy()
+    coefficients[-1] = damped
     return exponents, coefficients

@@ -965,25 +965,23 @@ def solve_pde(bset: BoundarySet, smoothing: float | Sequence[float] | None = Non
     return head
 
 
-def _curve_heights(bset: BoundarySet) -> np.ndarray:
-    """Heights (mm) along the head axis used as the C2 spline's parameter (strictly increasing)."""
-    h = np.asarray(bset.heights, float)
-    d = np.diff(h)
-    if np.all(d > 0):
-        return h
-    if np.all(d < 0):
-        return -h
-    span = float(np.ptp(bset.curves[..., 2])) or 1.0
-    return np.asarray(bset.u_knots, float) * span                           # synthetic sets: their knots
+def _curve_positions(bset: BoundarySet) -> np.ndarray:
+    """Positions (mm) of the curves along the surface: cumulative mean distance between equal-v points
+    of consecutive curves (chord length). The C2 spline's parameter: near the crown, where the
+    rings shrink fast over little height, the spans are as long as the surface is, so neither the
+    interpolation nor the approximating mode is stiffer there than on the sides of the head."""
+    c = bset.curves
+    step = np.linalg.norm(np.diff(c, axis=0), axis=2).mean(axis=1)
+    return np.concatenate([[0.0], np.cumsum(np.maximum(step, 1e-6))])
 
 
 def default_approximation(bset: BoundarySet) -> float:
     """Default smoothing length (mm) along u of the approximating mode.
 
     ``APPROXIMATION_PER_SLICE`` times the scan's axial slice step (the source's
-    slice thickness along z, which includes the tilt's effective thickening when the
-    series was resampled), but not more than ``APPROXIMATION_PER_GAP`` times the
-    mean gap between the chosen curves (few curves: keep what they say).
+    slice step along z), but not more than ``APPROXIMATION_PER_GAP`` times the
+    mean gap between the chosen curves (few curves: keep what they say). The length
+    is measured along the surface (:func:`_curve_positions`).
     """
     spacing = bset.meta.get("source_slice_step_mm") or (bset.meta.get("spacing") or [0.0])[0]
     gaps = np.abs(np.diff(bset.heights))
@@ -1068,7 +1066,7 @@ def solve_with_controls(bset: BoundarySet, continuity: str | None = None, smooth
 def _solve_c2(bset: BoundarySet, smoothing, n_modes: int, approximation_mm, dome: bool,
               keep: int | None = None) -> PDEHead:
     spec, planar = _harmonics(bset, keep)                                     # (m, H, 3)
-    z = _curve_heights(bset)
+    z = _curve_positions(bset)
     default_a, max_a = smoothing_range(bset)
     if smoothing is None:
         a = default_a
@@ -1097,7 +1095,7 @@ def _solve_c2(bset: BoundarySet, smoothing, n_modes: int, approximation_mm, dome
         height = dome_height(bset.curves, bset.heights, bset.meta.get("vertex_z"))
         sign = 1.0 if bset.heights[-1] >= bset.heights[0] else -1.0
         vertex = np.array([spec[-1, 0, 0].real, spec[-1, 0, 1].real, zt + sign * height])
-        top = z[-1] + height
+        top = z[-1] + float(np.linalg.norm(bset.curves[-1] - vertex, axis=1).mean())
     knots = np.concatenate([z, [top]]) if dome else z
     u = (knots - knots[0]) / (knots[-1] - knots[0])
     exponents, coefficients = c2_spans(spec, u, a, n_modes, pole=vertex)
