@@ -45,7 +45,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from .pde_basis import basis_derivatives, inverse_4x4
+from .pde_basis import basis_derivatives, inverse_4x4, small_matmul
 
 #: Exponent per harmonic of eq. 1 inside the dome span (local s): ripples of the top curve fade
 #: toward the pole instead of converging there as radial ridges (harmonic h decays like e^{-0.25 h s}).
@@ -136,8 +136,8 @@ def smoothing_spline_values(x: np.ndarray, y: np.ndarray, length: float) -> np.n
     S = _smoother(np.ascontiguousarray(x, dtype=np.float64).tobytes(), float(length))
     yy = y.reshape(m, -1)
     if np.iscomplexobj(yy):
-        return (S @ yy.real + 1j * (S @ yy.imag)).reshape(y.shape)
-    return (S @ yy).reshape(y.shape)
+        return (small_matmul(S, yy.real) + 1j * small_matmul(S, yy.imag)).reshape(y.shape)
+    return small_matmul(S, yy).reshape(y.shape)
 
 
 @lru_cache(maxsize=32)
@@ -291,9 +291,9 @@ def c2_spans(spec: np.ndarray, u: np.ndarray, smoothing: float, modes: int,
         natural, clamped = _cubic_operator(np.ascontiguousarray(u, dtype=np.float64).tobytes(), pole is not None)
         flat = p.reshape(n, -1)
         pr = np.concatenate([flat.real, flat.imag], axis=1)      # (n, 2 * H * 3)
-        out = (natural @ pr).reshape(S, 4, 2, H, 3)
+        out = small_matmul(natural, pr).reshape(S, 4, 2, H, 3)
         if clamped is not None:
-            alt = (clamped @ pr).reshape(S, 4, 2, H, 3)
+            alt = small_matmul(clamped, pr).reshape(S, 4, 2, H, 3)
             out = np.where(clamp[None, None, None], alt, out)
         coefficients = (out[:, :, 0] + 1j * out[:, :, 1]).transpose(0, 2, 1, 3)   # (S, H, 4, 3)
         if pole is not None:

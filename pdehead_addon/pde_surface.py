@@ -430,7 +430,7 @@ class PDEHead:
         self._coef_real = np.ascontiguousarray(
             np.concatenate([coefficients.real, coefficients.imag], axis=-1))   # (S, H, 4, 6)
         self._uniform_spans = bool(np.allclose(self.span_edges, np.linspace(0.0, 1.0, S + 1), atol=1e-12))
-        self._all_cubic = not np.any(exponents)
+        self._cubic_spans = ~np.any(exponents, axis=1)
         self.orientation = 1
         self.orientation = self._measure_orientation()
         self._deviation = None
@@ -494,18 +494,19 @@ class PDEHead:
         patch, s = self._patch_of(u)
         H = self.harmonics if harmonics is None else int(harmonics)
         out = np.empty((u.size, H, 3), dtype=np.complex128)
-        if self._all_cubic:                                                   # a = 0: one basis for all h
-            g = basis(np.zeros(1), s[:, None])[:, 0]                          # (n, 4)
-            for start in range(0, u.size, 256):
-                sl = slice(start, start + 256)
-                prod = np.einsum("nb,nhbc->nhc", g[sl], self._coef_real[patch[sl], :H])   # (n, H, 6)
+        cubic = self._cubic_spans[patch]                                      # a = 0 there: one basis for all h
+        if np.any(cubic):
+            rows = np.flatnonzero(cubic)
+            g = basis(np.zeros(1), s[rows, None])[:, 0]                       # (n, 4)
+            for start in range(0, rows.size, 256):
+                sl = rows[start:start + 256]
+                prod = np.einsum("nb,nhbc->nhc", g[start:start + 256], self._coef_real[patch[sl], :H])
                 out[sl] = prod[..., :3] + 1j * prod[..., 3:]
-            return out
-        for k in np.unique(patch):
+        for k in np.unique(patch[~cubic]):
             sel = np.nonzero(patch == k)[0]
             g = basis_grid(self.exponents[k, :H], s[sel])                    # (n, H, 4)
             # batched over h: (H, n, 4) @ (H, 4, 6 = re xyz, im xyz)
-            prod = np.matmul(g.transpose(1, 0, 2), self._coef_real[k, :H]).transpose(1, 0, 2)
+            prod = np.einsum("hnb,hbc->nhc", g.transpose(1, 0, 2), self._coef_real[k, :H])
             out[sel] = prod[..., :3] + 1j * prod[..., 3:]
         return out
 
