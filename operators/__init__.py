@@ -15,7 +15,7 @@ import bpy
 from . import forensic, ops, panel, prefs, props, state
 
 # helper B's modules; registered only if they define register()/unregister()
-_OPTIONAL_MODULES = ("coords", "objects", "volume", "render")
+_OPTIONAL_MODULES = ("coords", "objects", "volume", "render", "persistence", "cutter")
 
 
 def _optional_modules():

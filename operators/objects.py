@@ -20,6 +20,7 @@ SKIN_MATERIAL = "PDE Head Skin"
 CT_MATERIAL = "PDE Head CT Intensity"
 CURVE_MATERIAL = "PDE Head Boundary"
 CT_COLOUR_ATTRIBUTE = "ct_intensity"
+CT_IMAGE_KEY = "pdehead_ct_image"
 UV_NAME = "UVMap"
 CT_UV_NAME = "CT texture"
 _RESERVED = {"position", "sharp_face", "material_index", UV_NAME, CT_UV_NAME, CT_COLOUR_ATTRIBUTE}
@@ -261,6 +262,52 @@ def _fill_mesh(me, vertices_local: np.ndarray, mesh, smooth: bool) -> None:
             me.polygons.foreach_set("use_smooth", np.ones(len(me.polygons), bool))
 
 
+def _same_topology(me, mesh, corner_verts: np.ndarray, n_vertices: int) -> bool:
+    """Whether Blender mesh `me` already has the vertex count, faces and corners of engine `mesh`."""
+    starts, _totals = mesh.loop_starts_and_totals()
+    if len(me.vertices) != n_vertices or len(me.polygons) != len(starts) or len(me.loops) != len(corner_verts):
+        return False
+    current = np.empty(len(corner_verts), np.int32)
+    corner_vert = me.attributes.get(".corner_vert")
+    if corner_vert is not None:
+        corner_vert.data.foreach_get("value", current)
+    else:
+        me.loops.foreach_get("vertex_index", current)
+    if not np.array_equal(current, corner_verts):
+        return False
+    current_starts = np.empty(len(starts), np.int32)
+    me.polygons.foreach_get("loop_start", current_starts)
+    return bool(np.array_equal(current_starts, starts))
+
+
+def _set_attribute(me, key: str, kind: str, domain: str, field: str, flat: np.ndarray) -> None:
+    """Write a mesh attribute in place (created, or re-created when its type or domain differs)."""
+    attr = me.attributes.get(key)
+    if attr is not None and (attr.data_type != kind or attr.domain != domain):
+        me.attributes.remove(attr)
+        attr = None
+    if attr is None:
+        attr = me.attributes.new(key, kind, domain)
+    attr.data.foreach_set(field, flat)
+
+
+def _update_mesh_in_place(me, vertices_local: np.ndarray, mesh) -> None:
+    """Same topology: rewrite positions, UVs and vertex attributes only (the fast live path)."""
+    me.attributes["position"].data.foreach_set("vector", np.ascontiguousarray(vertices_local, np.float32).ravel())
+    uv = mesh.loop_uv()
+    if uv is not None:
+        _set_attribute(me, UV_NAME, "FLOAT2", "CORNER", "vector", np.ascontiguousarray(uv, np.float32).ravel())
+    n = len(vertices_local)
+    for key, values in mesh.vertex_attributes.items():
+        if key in _RESERVED or key.startswith("."):
+            continue
+        if np.shape(values)[0] != n:
+            raise ValueError(f"vertex attribute {key!r} has {np.shape(values)[0]} values for {n} vertices")
+        kind, field, flat = _attribute_spec(values)
+        _set_attribute(me, key, kind, "POINT", field, flat)
+    me.update()
+
+
 def build_mesh_object(mesh, collection, name: str, obj=None, smooth: bool = True):
     """A mesh object from an engine :class:`~pdehead_addon.Mesh` (LPS mm -> world metres).
 
@@ -282,7 +329,9 @@ def build_mesh_object(mesh, collection, name: str, obj=None, smooth: bool = True
     -----
     Every ``vertex_attributes`` entry becomes a POINT attribute (FLOAT for
     (n,), FLOAT2/FLOAT_VECTOR/FLOAT_COLOR for (n, 2/3/4)); per-corner UVs become
-    the UV map ``"UVMap"``.
+    the UV map ``"UVMap"``. When `obj`'s mesh already has this topology (same
+    faces, e.g. a cutaway change at the same resolution) only positions and
+    attributes are rewritten, in place, with ``foreach_set``.
     """
     import bpy
 
@@ -297,6 +346,11 @@ def build_mesh_object(mesh, collection, name: str, obj=None, smooth: bool = True
         if obj.type != "MESH":
             raise TypeError(f"object {obj.name!r} is not a mesh object")
         me = obj.data
+        corner_verts = mesh.loop_vertex_indices().astype(np.int32)
+        if _same_topology(me, mesh, corner_verts, len(local)):
+            _update_mesh_in_place(me, local, mesh)
+            _place(obj, origin)
+            return obj
         me.clear_geometry()  # keeps the mesh's materials; modifiers live on the object
     _fill_mesh(me, local, mesh, smooth)
     _place(obj, origin)
@@ -353,11 +407,13 @@ def build_surface(head, collection, nu: int = 40, nv: int = 60, caps: bool = Tru
 
 def _set_ct_colour(obj, values01: np.ndarray) -> None:
     me = obj.data
-    if CT_COLOUR_ATTRIBUTE in me.attributes:
-        me.attributes.remove(me.attributes[CT_COLOUR_ATTRIBUTE])
     rgba = np.ones((len(values01), 4), np.float32)
     rgba[:, :3] = np.asarray(values01, np.float32)[:, None]
-    attr = me.color_attributes.new(CT_COLOUR_ATTRIBUTE, "FLOAT_COLOR", "POINT")
+    attr = me.color_attributes.get(CT_COLOUR_ATTRIBUTE)
+    if attr is None or attr.data_type != "FLOAT_COLOR" or attr.domain != "POINT":
+        if attr is not None:
+            me.color_attributes.remove(attr)
+        attr = me.color_attributes.new(CT_COLOUR_ATTRIBUTE, "FLOAT_COLOR", "POINT")
     attr.data.foreach_set("color", rgba.ravel())
     me.color_attributes.active_color = me.color_attributes[CT_COLOUR_ATTRIBUTE]
     me.color_attributes.render_color_index = me.color_attributes.active_color_index
@@ -398,13 +454,17 @@ def _surface_grid(head, us: np.ndarray, vs: np.ndarray) -> np.ndarray:
     return head.evaluate(np.asarray(us)[:, None], np.asarray(vs)[None, :], 1.0)
 
 
-def ct_texture_atlas(head, mesh, ct, window, ranges, size: int = 128, pad: int = 2):
+def ct_texture_atlas(head, mesh, ct, window, ranges, size: int = 128, pad: int = 2, table=None, faces=None):
     """CT texture of the solid's faces: an atlas image and a UV per corner (paper section 4.3.1).
 
     Each face of the parametric box (outer/inner w shells, u ends, v cuts) gets
     a `size` x `size` tile sampling the windowed CT trilinearly at ``X(u, v, w)``
     (eq. 23) on a regular parameter grid, so a cutaway shows the CT inside the
     solid at texture resolution instead of at the few w samples of the mesh.
+
+    With `table` (a :class:`~pdehead_addon.pde_solid.SolidCTTable` of this head and CT) the
+    tiles are looked up in the CT tabulated once in (u, v, w): no PDE evaluation and no CT
+    interpolation per step, which keeps cutaway sliders live.
 
     Returns
     -------
@@ -414,7 +474,7 @@ def ct_texture_atlas(head, mesh, ct, window, ranges, size: int = 128, pad: int =
     from .volume import apply_window, sample_ct
 
     (u0, u1), (v0, v1), (w0, w1) = ranges
-    params, family = _box_faces(mesh, ranges)
+    params, family = _box_faces(mesh, ranges) if faces is None else faces
     n = int(size)
     span = n - 2 * pad
     t = np.clip((np.arange(n) + 0.5 - pad) / span, 0.0, 1.0)  # pixel centre -> [0, 1] (padding clamps)
@@ -428,19 +488,28 @@ def ct_texture_atlas(head, mesh, ct, window, ranges, size: int = 128, pad: int =
         spine = head.spine(us)[None]
         return spine + ws[:, None, None] * (head.evaluate(us, np.full(n, v), 1.0)[None] - spine)
 
-    surface = _surface_grid(head, us, vs)
-    spine_u = head.spine(us)[:, None, :]
-    tiles = [spine_u + w1 * (surface - spine_u), spine_u + w0 * (surface - spine_u), u_end(u1), u_end(u0)]
     # (row, column) parameters of each tile: shells (u, v), u ends (w, v), v cuts (w, u)
     axes = [(0, 1), (0, 1), (2, 1), (2, 1)]
-    if np.any(family >= 4):
-        tiles += [v_cut(v1), v_cut(v0)]
+    cuts = bool(np.any(family >= 4))
+    if cuts:
         axes += [(2, 0), (2, 0)]
+    if table is not None:  # CT values straight from the (u, v, w) table
+        g = table.sample_grid  # (u, v, w) grids; tiles are (rows, columns) = shells (u, v), u ends (w, v), v cuts (w, u)
+        values = [g(us, vs, w1)[:, :, 0], g(us, vs, w0)[:, :, 0], g(u1, vs, ws)[0].T, g(u0, vs, ws)[0].T]
+        if cuts:
+            values += [g(us, v1, ws)[:, 0].T, g(us, v0, ws)[:, 0].T]
+    else:
+        surface = _surface_grid(head, us, vs)
+        spine_u = head.spine(us)[:, None, :]
+        tiles = [spine_u + w1 * (surface - spine_u), spine_u + w0 * (surface - spine_u), u_end(u1), u_end(u0)]
+        if cuts:
+            tiles += [v_cut(v1), v_cut(v0)]
+        values = [sample_ct(ct, pts.reshape(-1, 3)) for pts in tiles]
     cols = 3
-    rows = -(-len(tiles) // cols)
+    rows = -(-len(values) // cols)
     atlas = np.ones((rows * n, cols * n, 4), np.float32)
-    for k, pts in enumerate(tiles):
-        grey = apply_window(sample_ct(ct, pts.reshape(-1, 3)), window).reshape(n, n)
+    for k, raw in enumerate(values):
+        grey = apply_window(raw, window).reshape(n, n)
         r, c = divmod(k, cols)
         atlas[r * n:(r + 1) * n, c * n:(c + 1) * n, :3] = grey[..., None]
     lo = np.array([u0, v0, w0])
@@ -457,15 +526,21 @@ def ct_texture_atlas(head, mesh, ct, window, ranges, size: int = 128, pad: int =
     return atlas, corner_uv
 
 
+def _vertex_values_from_table(table, mesh) -> np.ndarray:
+    """CT at the solid's vertices from the (u, v, w) table: the vertices lie on the grid of
+    their distinct u, v and w values, so the grid is interpolated once and indexed."""
+    params = [np.asarray(mesh.vertex_attributes[k], np.float64) for k in ("u", "v", "w")]
+    levels, index = zip(*(np.unique(p, return_inverse=True) for p in params))
+    grid = table.sample_grid(*levels)
+    return grid[index[0], index[1], index[2]]
+
+
 def _set_ct_texture(obj, atlas: np.ndarray, corner_uv: np.ndarray):
     """Store the atlas in the object's CT image (packed into the .blend) and its UV map."""
     import bpy
 
     me = obj.data
-    if CT_UV_NAME in me.attributes:
-        me.attributes.remove(me.attributes[CT_UV_NAME])
-    layer = me.attributes.new(CT_UV_NAME, "FLOAT2", "CORNER")
-    layer.data.foreach_set("vector", np.ascontiguousarray(corner_uv, np.float32).ravel())
+    _set_attribute(me, CT_UV_NAME, "FLOAT2", "CORNER", "vector", np.ascontiguousarray(corner_uv, np.float32).ravel())
     h, w = atlas.shape[:2]
     name = f"PDE Head CT {obj.name}"
     image = bpy.data.images.get(name)
@@ -475,8 +550,32 @@ def _set_ct_texture(obj, atlas: np.ndarray, corner_uv: np.ndarray):
         image.scale(w, h)
     image.pixels.foreach_set(np.ascontiguousarray(atlas, np.float32).ravel())
     image.update()
-    image.pack()  # generated images are lost on save unless packed
+    # generated images are lost on save unless packed; packing (PNG encoding) on every slider step
+    # would cost more than the rest of it, so the save handler packs changed ones (pack_ct_images)
+    image[CT_IMAGE_KEY] = 1
+    if image.packed_file is None:
+        image.pack()
+    else:
+        _UNPACKED_CHANGES.add(image.name)
     return image
+
+
+#: Names of CT atlas images changed since they were last packed (see :func:`pack_ct_images`).
+_UNPACKED_CHANGES: set[str] = set()
+
+
+def pack_ct_images() -> int:
+    """Pack the CT atlas images changed since their last packing (called before saving); returns the count."""
+    import bpy
+
+    count = 0
+    for name in sorted(_UNPACKED_CHANGES):
+        image = bpy.data.images.get(name)
+        if image is not None and image.get(CT_IMAGE_KEY) == 1:
+            image.pack()
+            count += 1
+    _UNPACKED_CHANGES.clear()
+    return count
 
 
 def _sharp_cut_faces(obj, family: np.ndarray) -> None:
@@ -501,7 +600,7 @@ def _snap_range(r, top: float, tol: float = 1e-5) -> tuple[float, float]:
 
 def build_solid(head, collection, nu: int = 40, nv: int = 60, nw: int = 5, u_range=(0.0, 1.0),
                 v_range=(0.0, 2.0 * math.pi), w_range=(0.0, 1.0), ct=None, obj=None, name: str = "Solid",
-                window=None, texture_size: int = 128):
+                window=None, texture_size: int = 128, ct_table=None):
     """The PDE solid X(u, v, w) (eq. 23; Fig. 7, 14) with cutaway ranges, coloured by the CT.
 
     Parameters
@@ -523,6 +622,13 @@ def build_solid(head, collection, nu: int = 40, nv: int = 60, nw: int = 5, u_ran
     texture_size : int
         Pixels per box face of the CT texture atlas (:func:`ct_texture_atlas`;
         0 for vertex colours only).
+    ct_table : SolidCTTable, optional
+        The CT tabulated in (u, v, w) for this head (fast atlas for live cutaways).
+
+    Notes
+    -----
+    Rebuilding an existing solid with the same topology (a cutaway change at the same
+    nu, nv, nw) only rewrites positions and attributes in place (:func:`build_mesh_object`).
     """
     from .volume import apply_window, intensity_window, sample_ct
 
@@ -531,20 +637,27 @@ def build_solid(head, collection, nu: int = 40, nv: int = 60, nw: int = 5, u_ran
     mesh = head.solid(int(nu), int(nv), int(nw), u_range, v_range, w_range)
     obj = build_mesh_object(mesh, collection, name, obj=obj, smooth=True)
     image = None
+    faces = None
+    if "w" in mesh.vertex_attributes and mesh.quad_uv is not None:
+        faces = _box_faces(mesh, (u_range, v_range, w_range))  # once: the atlas and the flat cut faces use it
     if ct is not None:
         window = intensity_window(ct) if window is None else window
-        _set_ct_colour(obj, apply_window(sample_ct(ct, mesh.vertices), window))
+        if ct_table is not None and {"u", "v", "w"} <= set(mesh.vertex_attributes):
+            raw = _vertex_values_from_table(ct_table, mesh)
+        else:
+            raw = sample_ct(ct, mesh.vertices)
+        _set_ct_colour(obj, apply_window(raw, window))
         obj["pdehead_window"] = [float(window[0]), float(window[1])]
         if texture_size and mesh.quad_uv is not None and "w" in mesh.vertex_attributes:
             atlas, corner_uv = ct_texture_atlas(head, mesh, ct, window, (u_range, v_range, w_range),
-                                                size=int(texture_size))
+                                                size=int(texture_size), table=ct_table, faces=faces)
             image = _set_ct_texture(obj, atlas, corner_uv)
     elif "intensity" in mesh.vertex_attributes:
         values = np.asarray(mesh.vertex_attributes["intensity"], np.float32)
         window = intensity_window(values) if window is None else window
         _set_ct_colour(obj, apply_window(values, window))
-    if "w" in mesh.vertex_attributes and mesh.quad_uv is not None:
-        _sharp_cut_faces(obj, _box_faces(mesh, (u_range, v_range, w_range))[1])
+    if faces is not None:
+        _sharp_cut_faces(obj, faces[1])
     mat = ensure_ct_material(obj, image)
     slots = obj.data.materials
     if not slots or slots[0] is None or slots[0].get("pdehead_ct_material") == 1:

@@ -23,7 +23,7 @@ from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProp
 from bpy.types import Operator, OperatorFileListElement
 
 from ..pdehead_addon import CTImportError, PDEHeadError
-from . import prefs, props, state
+from . import prefs, props, scene, state
 from .props import DEFAULT_NU, DEFAULT_NV
 
 STEP_LABELS = {
@@ -33,6 +33,7 @@ STEP_LABELS = {
     "surface": "PDE surface",
     "solid": "PDE solid",
     "volume": "Volume",
+    "scene": "Camera and light",
 }
 
 # ------------------------------------------------------------------------------------------
@@ -327,6 +328,7 @@ def create_study(context, ct, name: str, source_kind: str, source: str = "", opt
         s.study_id = state.new_study_id()
         s.source_kind = source_kind
         s.source = source
+        s.source_absolute = str(Path(source).resolve()) if source else ""
         s.load_options = json.dumps(options or {}, default=list)
         s.patches = prefs.default_patches(context)
         _describe_ct(s, ct)
@@ -436,11 +438,13 @@ def step_solid(coll) -> None:
     from . import objects
     s = state.settings(coll)
     head = _solve(coll)
-    ct = state.cache_for(s.study_id).ct
+    ct = state.require_ct(coll)  # re-read after reopening: a solid without its CT colours is a loss
+    window = state.ct_window(coll, ct)
     with state.Timer() as t:
         s.solid_object = objects.build_solid(
             head, coll, nu=s.nu, nv=s.nv, nw=s.nw, u_range=tuple(s.u_range), v_range=tuple(s.v_range),
-            w_range=tuple(s.w_range), ct=ct, obj=s.solid_object, name=f"{coll.name} Solid")
+            w_range=tuple(s.w_range), ct=ct, obj=s.solid_object, name=f"{coll.name} Solid", window=window,
+            ct_table=state.ct_table(coll, head, ct))
     state.record_timing(coll, "solid", t.seconds)
 
 
@@ -454,18 +458,22 @@ def step_volume(coll, context=None) -> None:
     s = state.settings(coll)
     head = _solve(coll)
     cache = state.cache_for(s.study_id)
-    ct = cache.ct
-    if ct is None and s.use_ct_grid:
-        ct = state.require_ct(coll)
+    # always with the CT (re-read after reopening): a volume without CT intensities is never built
+    ct = state.require_ct(coll)
+    window = state.ct_window(coll, ct)
+    if not s.use_ct_grid and s.voxel_auto:
+        size = volume.auto_voxel_size(ct, head)
+        with props.suspended_updates():
+            s.voxel_size = size
     with state.Timer() as t:
-        grid = ct if (s.use_ct_grid and ct is not None) else float(s.voxel_size)
+        grid = ct if s.use_ct_grid else float(s.voxel_size)
         wfield = head.w_field(grid, ct=ct)
     state.record_timing(coll, "w_field", t.seconds)
     cache.wfield = wfield
     with state.Timer() as t:
         vdb_path = volume.vdb_path_for(coll.name, bpy.data.filepath or None, prefs.vdb_prefs_folder(context))
         s.volume_object = volume.build_volume(wfield, coll, vdb_path, name=f"{coll.name} Volume",
-                                              obj=s.volume_object, ct=ct, **volume_settings(s))
+                                              obj=s.volume_object, ct=ct, window=window, **volume_settings(s))
         s.volume_stale = False
     state.record_timing(coll, "volume", t.seconds)
 
@@ -501,7 +509,11 @@ def live_update(coll, what: str, context=None) -> None:
                         s.smoothing = smoothing
                     if not s.approximation_auto and not s.is_property_set("approximation"):
                         s.approximation = approximation
-        if what == "volume":
+        if what == "cutter":
+            from . import cutter
+            if s.use_cutter and cutter.cutter_of(coll) is not None:
+                cutter.apply_cutter(coll)
+        elif what == "volume":
             if s.volume_object is not None:
                 from . import volume
                 volume.set_volume_settings(s.volume_object, **volume_settings(s))
@@ -559,10 +571,19 @@ class StudyOperator:
         return self.execute(context)
 
     def store_settings(self, s) -> None:
-        """Copy the operator's values into the study settings without triggering live rebuilds."""
+        """Copy the operator's values into the study settings without triggering live rebuilds.
+
+        A value the caller did not set (``bpy.ops.pdehead.build_solid()`` from a script or
+        headless, where invoke is not called) is taken from the study instead, so running an
+        operator never resets the study's settings to the operator's defaults.
+        """
+        is_set = getattr(getattr(self, "properties", None), "is_property_set", None)
         with props.suspended_updates():
             for name in self.mirrored_settings:
-                setattr(s, name, getattr(self, name))
+                if is_set is not None and not is_set(name):
+                    setattr(self, name, getattr(s, name))
+                else:
+                    setattr(s, name, getattr(self, name))
 
 
 def _finish_report(op, coll, step: str) -> None:
@@ -720,8 +741,8 @@ class PDEHEAD_OT_build_solid(Operator, StudyOperator):
     nv: IntProperty(name="nv", default=DEFAULT_NV, min=4, max=2000)
     nw: IntProperty(name="nw", default=5, min=2, max=200)
     u_range: FloatVectorProperty(name="u Range", size=2, default=(0.0, 1.0), min=0.0, max=1.0)
-    v_range: FloatVectorProperty(name="v Range", size=2, default=(0.0, 6.283185307179586), min=0.0,
-                                 max=6.283185307179586)
+    v_range: FloatVectorProperty(name="v Range", size=2, default=(0.0, 6.283185307179586), min=-6.283185307179586,
+                                 max=12.566370614359172, soft_min=0.0, soft_max=6.283185307179586, unit="ROTATION")
     w_range: FloatVectorProperty(name="w Range", size=2, default=(0.0, 1.0), min=0.0, max=1.0)
 
     mirrored_settings = ("nu", "nv", "nw", "u_range", "v_range", "w_range")
@@ -754,6 +775,7 @@ class PDEHEAD_OT_build_volume(Operator, StudyOperator):
     bl_options = {'REGISTER', 'UNDO'}
 
     use_ct_grid: BoolProperty(name="CT Grid", default=False)
+    voxel_auto: BoolProperty(name="Auto Voxel Size", default=True)
     voxel_size: FloatProperty(name="Voxel Size (mm)", default=2.0, min=0.25, max=20.0)
     low_alpha: FloatProperty(name="Low Alpha", default=0.1, min=0.0, max=1.0)
     high_alpha: FloatProperty(name="High Alpha", default=0.9, min=0.0, max=1.0)
@@ -761,7 +783,7 @@ class PDEHEAD_OT_build_volume(Operator, StudyOperator):
     colour_preset: EnumProperty(name="Colour", items=props.COLOUR_ITEMS, default="grayscale")
     alpha_mode: EnumProperty(name="Alpha Mode", items=props.ALPHA_MODE_ITEMS, default="EQ24")
 
-    mirrored_settings = ("use_ct_grid", "voxel_size", "low_alpha", "high_alpha", "density", "colour_preset",
+    mirrored_settings = ("use_ct_grid", "voxel_auto", "voxel_size", "low_alpha", "high_alpha", "density", "colour_preset",
                          "alpha_mode")
 
     def execute(self, context):
@@ -771,6 +793,8 @@ class PDEHEAD_OT_build_volume(Operator, StudyOperator):
 
         def body():
             s = state.settings(coll)
+            if self.properties.is_property_set("voxel_size") and not self.properties.is_property_set("voxel_auto"):
+                self.voxel_auto = False  # a size given by the caller is meant
             self.store_settings(s)
             if state.boundary_set(coll) is None:
                 step_boundaries(coll)
@@ -814,7 +838,7 @@ class PipelineRun:
         self.study_name = study
         self.collection_name: str | None = None
         self.steps = (["import"] if source in ("PHANTOM", "FILES") else []) + \
-            ["segment", "boundaries", "surface", "solid"] + (["volume"] if volume else [])
+            ["segment", "boundaries", "surface", "solid"] + (["volume"] if volume else []) + ["scene"]
         self.index = 0
         self.rollback = Rollback()
         if source == "ACTIVE":
@@ -855,6 +879,11 @@ class PipelineRun:
             self._apply_settings(coll)
         elif name == "volume":
             step_volume(self.collection, self.context)
+        elif name == "scene":
+            coll = self.collection
+            # a new study, or one never framed: camera, light, the surface shown, the startup cube hidden
+            if self.source != "ACTIVE" or scene._study_object(coll, scene.CAMERA_KIND) is None:
+                scene.frame_study(self.context, coll)
         else:
             STEP_FUNCTIONS[name](self.collection)
         self.index += 1
@@ -898,8 +927,9 @@ class PDEHEAD_OT_run_pipeline(Operator, LoaderOptions):
         source = self._resolved_source(context)
         path = self.input_path() if source == "FILES" else None
         options = self.loader_options() if source == "FILES" else None
-        settings = dict(patches=self.patches, samples=self.samples, nu=self.nu, nv=self.nv, nw=self.nw,
-                        voxel_size=self.voxel_size)
+        settings = dict(patches=self.patches, samples=self.samples, nu=self.nu, nv=self.nv, nw=self.nw)
+        if self.properties.is_property_set("voxel_size"):  # else the study's automatic size from the CT
+            settings.update(voxel_size=self.voxel_size, voxel_auto=False)
         return PipelineRun(context, source, path, options, settings, self.study, self.build_volume)
 
     def draw(self, context):
@@ -986,6 +1016,56 @@ class PDEHEAD_OT_run_pipeline(Operator, LoaderOptions):
         self._end_ui(context)
 
 
+class PDEHEAD_OT_frame_study(Operator, StudyOperator):
+    bl_idname = "pdehead.frame_study"
+    bl_label = "Frame Study"
+    bl_description = ("Set the scene up to render the study: a camera and a key light in front of the head, "
+                      "the chosen object shown and the overlapping ones hidden, the untouched startup cube "
+                      "hidden, the 3D views framed on the head")
+    bl_options = {'REGISTER', 'UNDO'}
+
+    show: EnumProperty(name="Show", items=scene.SHOW_ITEMS, default="SURFACE")
+    view: EnumProperty(name="View", items=[("FRONT", "Front", "The face (Blender's front view)"),
+                                           ("RIGHT", "Right", "The patient's right side"),
+                                           ("LEFT", "Left", "The patient's left side"),
+                                           ("BACK", "Back", "The back of the head"),
+                                           ("THREE_QUARTER", "Three Quarter", "From front right, above")],
+                       default="FRONT")
+
+    def execute(self, context):
+        coll = _active_or_report(self, context)
+        if coll is None:
+            return {'CANCELLED'}
+
+        def body():
+            done = scene.frame_study(context, coll, show=self.show, view=self.view)
+            extra = "; startup cube hidden" if done["hidden_cube"] else ""
+            self.report({'INFO'}, f"'{coll.name}': camera and light set, showing {done['shown']}{extra}")
+        return _guarded(self, context, body)
+
+
+class PDEHEAD_OT_add_cutter(Operator, StudyOperator):
+    bl_idname = "pdehead.add_cutter"
+    bl_label = "Add Cutter"
+    bl_description = ("Add a box cutter (an empty) to the study: move, rotate or scale it and the solid is cut "
+                      "away where it is (a wedge in v or a slab in u)")
+    bl_options = {'REGISTER', 'UNDO'}
+
+    def execute(self, context):
+        coll = _active_or_report(self, context)
+        if coll is None:
+            return {'CANCELLED'}
+
+        def body():
+            from . import cutter
+            if state.settings(coll).solid_object is None:
+                step_solid(coll)
+            obj = cutter.add_cutter(context, coll)
+            kind = cutter.apply_cutter(coll)
+            self.report({'INFO'}, f"Cutter '{obj.name}' added ({kind} cut): move it to cut the solid elsewhere")
+        return _guarded(self, context, body)
+
+
 class PDEHEAD_OT_remove_study(Operator, StudyOperator):
     bl_idname = "pdehead.remove_study"
     bl_label = "Remove Study"
@@ -1008,7 +1088,7 @@ def remove_study(coll) -> None:
         data = obj.data
         bpy.data.objects.remove(obj)
         if data is not None and data.users == 0:
-            for kind in ("meshes", "curves", "volumes"):
+            for kind in ("meshes", "curves", "volumes", "cameras", "lights"):
                 collection = getattr(bpy.data, kind)
                 if data.name in collection and collection[data.name] == data:
                     collection.remove(data)
@@ -1031,6 +1111,8 @@ CLASSES = (
     PDEHEAD_OT_build_solid,
     PDEHEAD_OT_build_volume,
     PDEHEAD_OT_run_pipeline,
+    PDEHEAD_OT_frame_study,
+    PDEHEAD_OT_add_cutter,
     PDEHEAD_OT_remove_study,
 )
 

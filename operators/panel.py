@@ -1,7 +1,6 @@
 """The 3D View sidebar tab "PDE Head": one panel per pipeline step plus the last run's timings."""
 from __future__ import annotations
 
-import math
 import os
 
 import bpy
@@ -55,12 +54,14 @@ class PDEHEAD_PT_study(_PDEHeadPanel, bpy.types.Panel):
         col.label(text=f"Source: {source}")
         if s.warnings:
             col.label(text=s.warnings[:120], icon='ERROR')
-        in_memory = state.cache_for(s.study_id).ct is not None
-        col.label(text="CT in memory" if in_memory else "CT not in memory (re-read on demand)",
-                  icon='CHECKMARK' if in_memory else 'FILE_REFRESH')
+        text, icon = state.ct_status(coll)
+        col.label(text=text[:160], icon=icon)
+        if icon == 'ERROR':  # the CT moved: let the user point the study at it again
+            layout.prop(s, "source", text="CT Source")
         layout.separator()
         op = layout.operator("pdehead.run_pipeline", text="Run Whole Pipeline", icon='PLAY')
         op.source = 'ACTIVE'
+        layout.operator("pdehead.frame_study", icon='CAMERA_DATA')
         if s.last_error:
             layout.label(text=s.last_error[:120], icon='ERROR')
         layout.operator("pdehead.remove_study", icon='TRASH')
@@ -145,7 +146,9 @@ class PDEHEAD_PT_solid(_StudyPanel, bpy.types.Panel):
         col.prop(s, "u_range")
         col.prop(s, "v_range")
         col.prop(s, "w_range")
-        layout.label(text=f"v in radians (0 .. {2 * math.pi:.3f})")
+        row = layout.row(align=True)
+        row.operator("pdehead.add_cutter", icon='MOD_BOOLEAN')
+        row.prop(s, "use_cutter", text="", icon='RESTRICT_SELECT_OFF')
         layout.operator("pdehead.build_solid", icon='MESH_CUBE')
 
 
@@ -160,6 +163,9 @@ class PDEHEAD_PT_volume(_StudyPanel, bpy.types.Panel):
         row.prop(s, "use_ct_grid")
         sub = row.row()
         sub.enabled = not s.use_ct_grid
+        sub.prop(s, "voxel_auto", text="Auto")
+        sub = layout.row()
+        sub.enabled = not s.use_ct_grid and not s.voxel_auto
         sub.prop(s, "voxel_size")
         col = layout.column(align=True)
         col.prop(s, "low_alpha")

@@ -17,6 +17,9 @@ import bpy
 from bpy.props import (BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntProperty,
                        IntVectorProperty, PointerProperty, StringProperty)
 
+#: Blender >= 4.5 warns about "//" in path properties unless they declare blend-relative support.
+PATH_OPTIONS = {'PATH_SUPPORTS_BLEND_RELATIVE'} if bpy.app.version >= (4, 5, 0) else set()
+
 # Set while operators write many settings at once, so that no update callback rebuilds anything.
 _SUSPEND = [0]
 
@@ -60,10 +63,12 @@ CONTINUITY_ITEMS = [
     ("paper", "Paper Patches", "The paper's t patches through four curves each; creased where they meet"),
 ]
 DEFAULT_CONTINUITY_ITEM = "c2"
-COLOUR_ITEMS = [
-    ("grayscale", "Grayscale", "CT intensity as gray levels"),
-    ("skin", "Skin", "Warm skin-to-bone colour ramp"),
-]
+def _colour_items():
+    from .volume import COLOUR_LABELS, COLOUR_PRESETS  # the presets' one owner
+    return [(key, *COLOUR_LABELS.get(key, (key.title(), ""))) for key in COLOUR_PRESETS]
+
+
+COLOUR_ITEMS = _colour_items()
 ALPHA_MODE_ITEMS = [
     ("EQ24", "Eq. 24 (w)", "Opacity from the PDE parameter w: alpha = (low - high) w + high"),
     ("INTENSITY", "Intensity", "Opacity from the CT intensity inside the PDE solid"),
@@ -83,7 +88,12 @@ class PDEHeadStudySettings(bpy.types.PropertyGroup):
 
     # Study (read-only information, filled on import)
     source_kind: EnumProperty(name="Source Kind", items=SOURCE_KIND_ITEMS, default="NONE")
-    source: StringProperty(name="Source", description="Folder or file the CT was read from", subtype="FILE_PATH")
+    source: StringProperty(name="Source", subtype="FILE_PATH", options=PATH_OPTIONS,
+                           description="Folder or file the CT was read from (made relative to the .blend when "
+                                       "it is saved; point it at the CT again if the CT moved)")
+    source_absolute: StringProperty(name="Source (Absolute)", subtype="FILE_PATH",
+                                    description="Absolute path of the CT at the last save (used when the "
+                                                "relative Source no longer resolves)")
     load_options: StringProperty(name="Load Options", description="JSON of the loader options used")
     series: StringProperty(name="Series", description="Series description / UID")
     modality: StringProperty(name="Modality")
@@ -148,24 +158,36 @@ class PDEHeadStudySettings(bpy.types.PropertyGroup):
                     description="w levels from the spine (0) to the surface (1), eq. 23")
     u_range: FloatVectorProperty(name="u Range", size=2, default=(0.0, 1.0), min=0.0, max=1.0,
                                  update=_live("solid"), description="Cutaway: u interval of the solid")
-    v_range: FloatVectorProperty(name="v Range", size=2, default=(0.0, 2 * math.pi), min=0.0, max=2 * math.pi,
-                                 subtype="NONE", update=_live("solid"),
-                                 description="Cutaway: v interval (radians) of the solid")
+    v_range: FloatVectorProperty(name="v Range", size=2, default=(0.0, 2 * math.pi), min=-2 * math.pi,
+                                 max=4 * math.pi, soft_min=0.0, soft_max=2 * math.pi, subtype="NONE",
+                                 unit="ROTATION", update=_live("solid"),
+                                 description="Cutaway: the angle interval around the head (v) the solid keeps, "
+                                             "shown in degrees; may wrap past 360 (at most one turn)")
     w_range: FloatVectorProperty(name="w Range", size=2, default=(0.0, 1.0), min=0.0, max=1.0,
                                  update=_live("solid"), description="Cutaway: w interval of the solid")
+    use_cutter: BoolProperty(name="Use Cutter", default=False, update=_live("cutter"),
+                             description="The study's cutter box (an empty you move, rotate and scale) sets the "
+                                         "u and v ranges: the solid is cut away where the box is")
 
     # Volume (live: material only)
     use_ct_grid: BoolProperty(name="CT Grid", default=False,
                               description="Sample the w-field on the CT's own voxel grid")
+    voxel_auto: BoolProperty(name="Auto Voxel Size", default=True,
+                             description="Voxel size from the CT spacing, coarsened only as far as needed to keep "
+                                         "the .vdb small and the w-field fast (see volume.auto_voxel_size)")
     voxel_size: FloatProperty(name="Voxel Size", default=2.0, min=0.25, max=20.0,
-                              description="Voxel size in mm of the volume grid (when CT Grid is off)")
+                              description="Voxel size in mm of the volume grid (when CT Grid and Auto are off; "
+                                          "with Auto on, the size the last build used)")
     low_alpha: FloatProperty(name="Low Alpha", default=0.1, min=0.0, max=1.0, update=_live("volume"),
                              description="l_alpha of eq. 24: opacity at the surface (w = 1)")
     high_alpha: FloatProperty(name="High Alpha", default=0.9, min=0.0, max=1.0, update=_live("volume"),
                               description="h_alpha of eq. 24: opacity at the spine (w = 0)")
     density: FloatProperty(name="Density", default=40.0, min=0.0, max=10000.0, update=_live("volume"),
                            description="Volume density scale (per metre)")
-    colour_preset: EnumProperty(name="Colour", items=COLOUR_ITEMS, default="grayscale", update=_live("volume"))
+    colour_preset: EnumProperty(name="Transfer Function", items=COLOUR_ITEMS, default="grayscale",
+                                update=_live("volume"),
+                                description="Preset of the volume's colour ramp (colour and opacity over the CT "
+                                            "intensity); the ramp itself is editable in the material")
     alpha_mode: EnumProperty(name="Alpha Mode", items=ALPHA_MODE_ITEMS, default="EQ24", update=_live("volume"))
 
     # Objects of the study

@@ -158,7 +158,7 @@ def render_objects_png(objects, path, view: str = "FRONT", resolution=(160, 160)
         "device": c.device, "samples": c.samples, "denoise": c.use_denoising,
         "step_rate": c.volume_step_rate, "biased": getattr(c, "volume_biased", None),
     }
-    hidden = {}
+    hidden, shown = {}, {}
     temporaries = []
     try:
         cam_data = bpy.data.cameras.new("PDE Head render camera")
@@ -197,6 +197,10 @@ def render_objects_png(objects, path, view: str = "FRONT", resolution=(160, 160)
                 if o.name not in keep and not o.hide_render:
                     hidden[o.name] = o
                     o.hide_render = True
+        for o in objects:  # asked for: rendered even if hidden in renders (e.g. by Frame Study)
+            if o.hide_render:
+                shown[o.name] = o
+                o.hide_render = False
 
         scene.camera = cam
         scene.world = world
@@ -220,6 +224,8 @@ def render_objects_png(objects, path, view: str = "FRONT", resolution=(160, 160)
     finally:
         for o in hidden.values():
             o.hide_render = False
+        for o in shown.values():
+            o.hide_render = True
         scene.camera = saved["camera"]
         scene.world = saved["world"]
         r.engine = saved["engine"]

@@ -18,6 +18,7 @@ import json
 import time
 import uuid
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import bpy
@@ -210,7 +211,11 @@ def default_controls(collection) -> tuple[float, float]:
 
 
 def require_ct(collection):
-    """The study's CT volume from memory, or a PDEHeadError that says what to do."""
+    """The study's CT volume from memory, else re-read from its recorded source (:func:`reload_ct`).
+
+    Raises a :class:`PDEHeadError` that names the missing source when it cannot be re-read,
+    so a step that needs the CT (solid colours, volume, segmentation) never runs without it.
+    """
     s = settings(collection)
     ct = cache_for(s.study_id).ct
     if ct is None:
@@ -218,20 +223,113 @@ def require_ct(collection):
     return ct
 
 
+def source_candidates(collection) -> list[Path]:
+    """Where the study's CT may be, best first.
+
+    The recorded ``source`` (``//``-relative to the .blend after a save, so a project folder
+    moved as a whole still finds its CT), then the absolute path recorded at the last save
+    (the .blend alone moved).
+    """
+    s = settings(collection)
+    out: list[Path] = []
+    for text in (s.source, s.source_absolute):
+        if not text:
+            continue
+        if text.startswith("//") and not bpy.data.filepath:
+            continue  # relative to a file that is not saved: meaningless
+        path = Path(bpy.path.abspath(text))
+        if path not in out:
+            out.append(path)
+    return out
+
+
+def resolve_source(collection) -> Path | None:
+    """The first existing :func:`source_candidates` path, or None (source gone)."""
+    for path in source_candidates(collection):
+        if path.exists():
+            return path
+    return None
+
+
+def ct_status(collection) -> tuple[str, str]:
+    """(text, icon) for the Study panel: CT in memory, re-readable from a path, or missing."""
+    s = settings(collection)
+    if cache_for(s.study_id).ct is not None:
+        return "CT in memory", "CHECKMARK"
+    if s.source_kind == "PHANTOM":
+        return "CT re-made on demand (phantom)", "FILE_REFRESH"
+    path = resolve_source(collection) if s.source_kind == "FILES" else None
+    if path is not None:
+        return f"CT re-read on demand from {path}", "FILE_REFRESH"
+    where = ", ".join(str(p) for p in source_candidates(collection)) or "(no source recorded)"
+    return f"CT source missing: {where}", "ERROR"
+
+
+def source_missing_message(collection) -> str:
+    where = " or ".join(str(p) for p in source_candidates(collection)) or "(no source recorded)"
+    return (f"study '{collection.name}': the CT is not in memory and its source is gone: {where} not found. "
+            "Point Source (Study panel) at the CT folder to re-read it; nothing was changed")
+
+
 def reload_ct(collection):
-    """Load the CT again from the recorded source (phantom or path + options)."""
+    """Load the CT again from the recorded source (phantom or path + the recorded loader options).
+
+    The re-read CT must have the recorded dimensions; a different CT at that path is refused
+    (its colours would not belong to this study's head).
+    """
     s = settings(collection)
     cache = cache_for(s.study_id)
     if s.source_kind == "PHANTOM":
         from ..pdehead_addon import make_phantom
-        cache.ct = make_phantom().ct
-    elif s.source_kind == "FILES" and s.source:
+        ct = make_phantom().ct
+    elif s.source_kind == "FILES":
+        path = resolve_source(collection)
+        if path is None:
+            raise PDEHeadError(source_missing_message(collection))
         from ..pdehead_addon import load_ct
         options = json.loads(s.load_options or "{}")
-        cache.ct = load_ct(bpy.path.abspath(s.source), **options)
+        for key in ("shape", "spacing", "resample_spacing"):
+            if isinstance(options.get(key), list):
+                options[key] = tuple(options[key])
+        ct = load_ct(path, **options)
     else:
         raise PDEHeadError(f"study '{collection.name}': the CT is not in memory and has no source to reload")
-    return cache.ct
+    nz, ny, nx = ct.shape
+    expected = tuple(int(n) for n in s.dimensions)
+    if any(expected) and (nx, ny, nz) != expected:
+        raise PDEHeadError(f"study '{collection.name}': the CT re-read from {s.source or 'the phantom'} has "
+                           f"{nx} x {ny} x {nz} voxels, the study was built from {' x '.join(map(str, expected))}; "
+                           "refusing to mix them (point Source at the original CT)")
+    cache.ct = ct
+    cache.extra.pop("window", None)
+    cache.extra.pop("ct_table", None)
+    return ct
+
+
+def ct_table(collection, head, ct):
+    """The CT tabulated in the solid's (u, v, w) for this PDE solution (built once, ~0.5 s on CThead).
+
+    Kept until the PDE is re-solved (another head) or the CT is re-read, so cutaway and
+    resolution sliders only look values up.
+    """
+    from ..pdehead_addon.pde_solid import SolidCTTable
+    cache = cache_for(settings(collection).study_id)
+    entry = cache.extra.get("ct_table")
+    if entry is None or entry[0] is not head or entry[1] is not ct:
+        entry = (head, ct, SolidCTTable(head, ct))
+        cache.extra["ct_table"] = entry
+    return entry[2]
+
+
+def ct_window(collection, ct=None) -> tuple[float, float]:
+    """The study's CT intensity window (:func:`volume.intensity_window`), computed once per CT."""
+    cache = cache_for(settings(collection).study_id)
+    window = cache.extra.get("window")
+    if window is None:
+        from .volume import intensity_window
+        window = intensity_window(ct if ct is not None else require_ct(collection))
+        cache.extra["window"] = window
+    return window
 
 
 # --- timings ---------------------------------------------------------------------------------

@@ -51,15 +51,34 @@ DEFAULT_EMISSION = 0.7    # emission per unit density: the alpha-blended texture
 ALPHA_MODES = ("EQ24", "INTENSITY")
 INSIDE_EPS = 1e-3         # w <= 1 + eps counts as inside (interpolation at the surface)
 
-# Color Ramp presets over the windowed intensity in [0, 1]: (position, RGBA) pairs.
+# Transfer functions: Color Ramp presets over the windowed intensity in [0, 1], (position, RGBA) pairs.
+# The ramp's colour colours the volume; its alpha multiplies the opacity (eq. 24's alpha from w, or the
+# intensity in the baseline mode), so a preset can also make a tissue transparent. The ramp stays
+# editable in the material ("Intensity colour"); a preset only sets its stops.
 COLOUR_PRESETS: dict[str, list[tuple[float, tuple[float, float, float, float]]]] = {
+    # the paper's look: grey levels, opacity from eq. 24 alone
     "grayscale": [(0.0, (0.0, 0.0, 0.0, 1.0)), (1.0, (1.0, 1.0, 1.0, 1.0))],
-    "skin": [(0.0, (0.02, 0.004, 0.002, 1.0)),
-             (0.25, (0.40, 0.10, 0.05, 1.0)),
-             (0.45, (0.90, 0.58, 0.45, 1.0)),
+    # soft tissue warm and visible, air and noise transparent, bone pale
+    "skin": [(0.0, (0.02, 0.004, 0.002, 0.0)),
+             (0.08, (0.40, 0.10, 0.05, 0.0)),
+             (0.2, (0.90, 0.58, 0.45, 1.0)),
              (0.70, (0.96, 0.86, 0.76, 1.0)),
              (1.0, (1.0, 0.98, 0.92, 1.0))],
+    # only bone: soft tissue transparent, the skull ivory
+    "bone": [(0.0, (0.0, 0.0, 0.0, 0.0)),
+             (0.5, (0.55, 0.35, 0.25, 0.0)),
+             (0.65, (0.90, 0.82, 0.68, 0.6)),
+             (1.0, (1.0, 0.97, 0.90, 1.0))],
+    # a radiograph: grey levels, opacity rising with density, air transparent
+    "xray": [(0.0, (0.0, 0.0, 0.0, 0.0)),
+             (0.08, (0.08, 0.08, 0.08, 0.0)),
+             (1.0, (1.0, 1.0, 1.0, 1.0))],
 }
+COLOUR_LABELS = {"grayscale": ("Grayscale", "CT intensity as grey levels; opacity from eq. 24 only (the paper)"),
+                 "skin": ("Skin", "Warm soft tissue, air transparent"),
+                 "bone": ("Bone", "Only bone: soft tissue transparent"),
+                 "xray": ("X-Ray", "Grey levels, opacity rising with density, air transparent")}
+HEAD_MARGIN_MM = 6.0  #: the ``ct`` grid keeps the CT this far around the solid (no table, no air box)
 
 
 # ----------------------------------------------------------------------------- windowing
@@ -121,6 +140,37 @@ def sample_ct(ct, points_mm: np.ndarray, order: int = 1) -> np.ndarray:
     return out.astype(np.float32, copy=False)
 
 
+def head_mask_on_grid(wfield, shape, spacing, origin, direction, margin_mm: float = HEAD_MARGIN_MM) -> np.ndarray:
+    """Voxels of a grid (shape [z, y, x], spacing, origin, direction as in CTVolume) within `margin_mm`
+    of the solid (w <= 1 of `wfield`, dilated): the intensity-alpha mode shows the CT there only, so
+    neither the air noise of the CT box (a faint box outline) nor the scanner table (bright bars
+    behind the head) is rendered. Nearest w-field voxel per grid voxel, one slice at a time."""
+    from scipy.ndimage import binary_dilation
+
+    inside = np.asarray(wfield.w) <= 1.0
+    steps = int(np.ceil(margin_mm / max(min(wfield.spacing), 1e-6)))
+    if steps > 0 and inside.any():
+        inside = binary_dilation(inside, iterations=steps)
+    to_w = np.linalg.inv(_grid_index_to_patient(wfield))
+    dz, dy, dx = (float(x) for x in spacing)
+    grid = np.eye(4)
+    grid[:3, :3] = np.asarray(direction, float).reshape(3, 3) * np.array([dx, dy, dz])
+    grid[:3, 3] = np.asarray(origin, float).reshape(3)
+    m = to_w @ grid                                    # grid (i, j, k, 1) -> w-field (i, j, k, 1)
+    nz, ny, nx = (int(n) for n in shape)
+    wz, wy, wx = inside.shape
+    jj, ii = np.mgrid[0:ny, 0:nx]
+    base = m[:3, 0][:, None] * ii.ravel() + m[:3, 1][:, None] * jj.ravel() + m[:3, 3][:, None]
+    out = np.zeros((nz, ny, nx), bool)
+    for k in range(nz):                                # per slice: bounded memory
+        ijk = np.rint(base + m[:3, 2][:, None] * k).astype(np.int64)
+        ok = (ijk[0] >= 0) & (ijk[0] < wx) & (ijk[1] >= 0) & (ijk[1] < wy) & (ijk[2] >= 0) & (ijk[2] < wz)
+        hit = np.zeros(ny * nx, bool)
+        hit[ok] = inside[ijk[2, ok], ijk[1, ok], ijk[0, ok]]
+        out[k] = hit.reshape(ny, nx)
+    return out
+
+
 def _grid_index_to_patient(wfield) -> np.ndarray:
     """4x4 (i, j, k, 1) -> patient mm of the w-field grid."""
     dz, dy, dx = (float(s) for s in wfield.spacing)
@@ -154,6 +204,45 @@ def ct_grid_for(ct, wfield):
         origin = origin + np.asarray(ct.direction, float) @ (shift_kji[::-1] * np.array(ct.spacing)[::-1])
     spacing = tuple(float(s) * n for s, n in zip(ct.spacing, steps))
     return np.ascontiguousarray(data, np.float32), spacing, origin, np.asarray(ct.direction, float)
+
+
+# ----------------------------------------------------------------------------- default voxel size
+MAX_VDB_BYTES = 64 * 2 ** 20      #: the .vdb stays below this (issue 10: small files beside the .blend)
+#: w-field grid voxels: measured 0.15-0.2 us per voxel on CThead (2 shared cores), so ~1 s, its target
+MAX_WFIELD_VOXELS = 5_000_000
+INSIDE_FRACTION = 0.6             #: share of the solid's bounding box inside the solid (heads: ~0.5)
+
+
+def estimate_vdb(ct, solid_box_mm, voxel: float) -> tuple[float, float]:
+    """(bytes of the .vdb, voxels of the w-field grid) at isotropic `voxel` mm.
+
+    ``w`` is float32 and ``intensity`` half-float over the voxels inside the solid (outside is
+    the background, stored sparsely); ``ct`` is half-float over the whole CT box on the CT's grid
+    decimated by whole steps (:func:`ct_grid_for`).
+    """
+    extent = np.asarray(solid_box_mm[1], float) - np.asarray(solid_box_mm[0], float) + 2.0 * voxel
+    grid_voxels = float(np.prod(np.ceil(extent / voxel) + 1))
+    steps = np.array([max(1, int(round(voxel / sp))) for sp in ct.spacing], float)
+    ct_voxels = float(np.prod(np.ceil(np.array(ct.shape) / steps)))
+    return INSIDE_FRACTION * grid_voxels * (4 + 2) + ct_voxels * 2, grid_voxels
+
+
+def auto_voxel_size(ct, head, max_bytes: float = MAX_VDB_BYTES, max_voxels: float = MAX_WFIELD_VOXELS) -> float:
+    """Default volume voxel size (mm): the CT's finest spacing, coarsened in 5 % steps only until the
+    .vdb estimate fits `max_bytes` and the w-field grid `max_voxels` (:func:`estimate_vdb`).
+
+    CThead (1 x 1 x 2 mm) gives about 1.3 mm (the w-field's voxel budget decides), the GE series
+    (0.49 mm pixels) the same; a scan with 3 mm voxels keeps 3 mm.
+    """
+    pts = head.surface(32, 64).vertices
+    box = (pts.min(axis=0), pts.max(axis=0))
+    voxel = max(float(min(ct.spacing)), 0.25)
+    for _ in range(200):
+        size, count = estimate_vdb(ct, box, voxel)
+        if size <= max_bytes and count <= max_voxels:
+            break
+        voxel *= 1.05
+    return round(voxel, 2)
 
 
 # ----------------------------------------------------------------------------- files and paths
@@ -203,6 +292,73 @@ def blender_filepath(path: str | os.PathLike) -> str:
             return str(path)
         return bpy.path.relpath(str(path), start=str(blend_dir))
     return str(path)
+
+
+def fresh_vdb_path(path) -> Path:
+    """`path` if no file is there, else the first free ``<stem>-<n>.vdb`` beside it.
+
+    A rebuilt volume is always written to a new file and the object switched to it, so an
+    existing (maybe better) file is never overwritten; the old file is removed only when a
+    save no longer references it (:func:`purge_superseded`).
+    """
+    path = Path(os.fspath(path))
+    if not path.exists():
+        return path
+    n = 2
+    while True:
+        candidate = path.with_name(f"{path.stem}-{n}{path.suffix}")
+        if not candidate.exists():
+            return candidate
+        n += 1
+
+
+#: Absolute paths of .vdb files that a rebuild or a move replaced; deleted after the next save
+#: that no longer references them (deleting at once would break undo back to the old file).
+_SUPERSEDED: set[str] = set()
+
+
+#: Absolute paths of the .vdb files written in this session.
+_WRITTEN: set[str] = set()
+
+
+def supersede(path) -> None:
+    """Mark a replaced .vdb for removal after the next save (see :func:`purge_superseded`)."""
+    if path:
+        _SUPERSEDED.add(str(Path(os.fspath(path)).resolve()))
+
+
+def referenced_vdb_files() -> set[str]:
+    """Absolute paths of the .vdb files the Volume datablocks of the open file point at."""
+    import bpy
+
+    out = set()
+    for vol in bpy.data.volumes:
+        if vol.filepath:
+            out.add(str(Path(bpy.path.abspath(vol.filepath)).resolve()))
+    return out
+
+
+def purge_superseded() -> list[Path]:
+    """Delete the superseded .vdb files no Volume datablock references any more; returns them.
+
+    Only the add-on's own files are ever deleted: those in a ``pdehead_vdb`` folder or written
+    by :func:`write_vdb` in this session (the preference folder of unsaved files).
+    """
+    used = referenced_vdb_files()
+    removed = []
+    for text in sorted(_SUPERSEDED):
+        path = Path(text)
+        if text in used:
+            continue
+        _SUPERSEDED.discard(text)
+        ours = path.parent.name == VDB_FOLDER_NAME or text in _WRITTEN
+        if ours and path.suffix == ".vdb" and path.is_file():
+            try:
+                path.unlink()
+                removed.append(path)
+            except OSError as exc:  # read-only folder: keep the file, say so
+                print(f"PDE Head: could not remove the replaced volume file {path}: {exc}")
+    return removed
 
 
 def _openvdb():
@@ -268,7 +424,9 @@ def write_vdb(wfield, path, window, *, ct=None, origin_m=(0.0, 0.0, 0.0)) -> Pat
         data, spacing, ct_origin, ct_direction = ct_grid_for(ct, wfield)
         ct_affine = grid_affine_world(spacing, ct_origin, ct_direction)
         ct_affine[:3, 3] -= np.asarray(origin_m, dtype=np.float64)
-        yield "ct", apply_window(data, window), 0.0, True, ct_affine.T.tolist()
+        windowed = apply_window(data, window)
+        windowed[~head_mask_on_grid(wfield, windowed.shape, spacing, ct_origin, ct_direction)] = 0.0
+        yield "ct", windowed, 0.0, True, ct_affine.T.tolist()
 
     window_meta = f"{float(window[0])!r} {float(window[1])!r}"
     if openvdb is None:  # no bindings (bpy 4.2 from PyPI): our own writer, same grids and values
@@ -283,6 +441,8 @@ def write_vdb(wfield, path, window, *, ct=None, origin_m=(0.0, 0.0, 0.0)) -> Pat
             # numpy [k, j, i] -> OpenVDB (i, j, k): transpose (a copy) so index x is the CT's i axis
             grid.copyFromArray(np.ascontiguousarray(data.transpose(2, 1, 0)), tolerance=0.0)
             del data
+            if hasattr(grid, "prune"):  # drop all-background tiles: Blender's bounds follow the kept data
+                grid.prune()
             grid.name = name
             grid.transform = openvdb.createLinearTransform(rows)
             grid.gridClass = openvdb.GridClass.FOG_VOLUME
@@ -290,6 +450,7 @@ def write_vdb(wfield, path, window, *, ct=None, origin_m=(0.0, 0.0, 0.0)) -> Pat
             written.append(grid)
         written[0]["pdehead_window"] = window_meta
         openvdb.write(str(path), grids=written)
+        _WRITTEN.add(str(path.resolve()))
     finally:
         del written[:]  # free the grids now: nanobind reports "leaked" objects at exit otherwise
         gc.collect()
@@ -326,6 +487,22 @@ def vdb_value(path, grid_name: str, ijk: tuple[int, int, int]) -> float:
     grid = openvdb.read(str(path), grid_name)
     try:
         return float(grid.getConstAccessor().getValue(tuple(int(x) for x in ijk)))
+    finally:
+        del grid
+        gc.collect()
+
+
+def read_vdb_array(path, grid_name: str) -> tuple[np.ndarray, tuple[int, int, int]]:
+    """A grid of a .vdb file as a dense float32 array ``[i, j, k]`` over its active box, and the box's
+    first index (for comparing two files voxel by voxel)."""
+    openvdb = _openvdb()
+    grid = openvdb.read(str(path), grid_name)
+    try:
+        lo, hi = grid.evalActiveVoxelBoundingBox()
+        shape = tuple(int(h - l + 1) for l, h in zip(lo, hi))  # noqa: E741
+        out = np.zeros(shape, np.float32)
+        grid.copyToArray(out, ijk=tuple(int(x) for x in lo))
+        return out, tuple(int(x) for x in lo)
     finally:
         del grid
         gc.collect()
@@ -505,11 +682,14 @@ def ensure_volume_material(obj=None, name: str | None = None):
     if obj is not None and obj.material_slots and obj.material_slots[0].material is not None:
         mat = obj.material_slots[0].material
         if mat.get("pdehead_volume_material") == 1:
+            if mat.get("pdehead_volume_version", 1) < VOLUME_MATERIAL_VERSION:
+                _upgrade_volume_material(mat)
             return mat
     if name is None:
         name = f"PDE Head Volume {obj.name}" if obj is not None else "PDE Head Volume"
     mat = bpy.data.materials.new(name)
     mat["pdehead_volume_material"] = 1
+    mat["pdehead_volume_version"] = VOLUME_MATERIAL_VERSION
     if mat.node_tree is None:
         mat.use_nodes = True
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
@@ -538,15 +718,14 @@ def ensure_volume_material(obj=None, name: str | None = None):
     links.new(group_node.outputs["Value"], ramp.inputs["Fac"])
 
     pv = nodes.new("ShaderNodeVolumePrincipled")
-    pv.location = (150, 100)
-    links.new(group_node.outputs["Density"], pv.inputs["Density"])
-    links.new(group_node.outputs["Emission Strength"], pv.inputs["Emission Strength"])
+    pv.location = (350, 100)
+    _link_transfer(nodes, links, group_node, ramp, pv)
     links.new(ramp.outputs["Color"], pv.inputs["Color"])
     links.new(ramp.outputs["Color"], pv.inputs["Emission Color"])
     pv.inputs["Absorption Color"].default_value = (0.0, 0.0, 0.0, 1.0)
 
     out = nodes.new("ShaderNodeOutputMaterial")
-    out.location = (450, 100)
+    out.location = (650, 100)
     links.new(pv.outputs["Volume"], out.inputs["Volume"])
 
     if obj is not None:
@@ -555,6 +734,31 @@ def ensure_volume_material(obj=None, name: str | None = None):
         else:
             obj.data.materials.append(mat)
     return mat
+
+
+VOLUME_MATERIAL_VERSION = 2  #: 2: the colour ramp's alpha is the transfer function's opacity
+
+
+def _link_transfer(nodes, links, group_node, ramp, pv) -> None:
+    """Density and emission of the volume = the eq. 24 group's outputs x the colour ramp's alpha."""
+    for out_name, in_name, y in (("Density", "Density", 250), ("Emission Strength", "Emission Strength", 50)):
+        label = f"transfer alpha x {out_name.lower()}"
+        node = nodes.get(label) or _math(nodes, "MULTIPLY", label, (150, y))
+        links.new(group_node.outputs[out_name], node.inputs[0])
+        links.new(ramp.outputs["Alpha"], node.inputs[1])
+        links.new(node.outputs[0], pv.inputs[in_name])
+
+
+def _upgrade_volume_material(mat) -> None:
+    """A volume material of an older file (version 1): add the transfer-function opacity."""
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    group_node, ramp = nodes.get(GROUP_NAME), nodes.get("Intensity colour")
+    pv = next((n for n in nodes if n.bl_idname == "ShaderNodeVolumePrincipled"), None)
+    if group_node is not None and ramp is not None and pv is not None:
+        for element in ramp.color_ramp.elements:  # old presets had alpha 1: the look stays as it was
+            element.color = (*tuple(element.color)[:3], 1.0)
+        _link_transfer(nodes, links, group_node, ramp, pv)
+    mat["pdehead_volume_version"] = VOLUME_MATERIAL_VERSION
 
 
 def _volume_nodes(obj):
@@ -576,7 +780,8 @@ def set_volume_settings(obj, low_alpha: float | None = None, high_alpha: float |
         Density per metre at alpha = 1.
     emission : float >= 0
         Emission per unit density.
-    colour_preset : {"grayscale", "skin"}
+    colour_preset : {"grayscale", "skin", "bone", "xray"}
+        Transfer function preset (:data:`COLOUR_PRESETS`): colour and opacity over the intensity.
     alpha_mode : {"EQ24", "INTENSITY"}
         "INTENSITY" is the paper's baseline (Fig. 8a / 15a): alpha = windowed CT
         everywhere in the CT box.
@@ -650,7 +855,11 @@ def build_volume(wfield, collection, vdb_path, name: str = "Volume", obj=None, *
             window = intensity_window(np.asarray(wfield.intensity)[inside]) if inside.any() else (0.0, 1.0)
     bounds_m = _grid_corners_world(wfield)
     origin = study_origin(collection, bounds_m)
-    path = write_vdb(wfield, vdb_path, window, ct=ct, origin_m=origin)
+    previous = None
+    if obj is not None and obj.type == "VOLUME" and obj.data.filepath:
+        previous = Path(bpy.path.abspath(obj.data.filepath)).resolve()
+    # a new file every time: the current one (perhaps with CT data this build lacks) stays intact
+    path = write_vdb(wfield, fresh_vdb_path(vdb_path), window, ct=ct, origin_m=origin)
 
     if obj is None:
         data = bpy.data.volumes.new(name)
@@ -662,6 +871,8 @@ def build_volume(wfield, collection, vdb_path, name: str = "Volume", obj=None, *
     data.grids.unload()
     data.filepath = blender_filepath(path)
     data.grids.load()
+    if previous is not None and previous != Path(path).resolve():
+        supersede(previous)
     obj.matrix_world = Matrix.Translation(origin)
     box = _solid_box_world(wfield)
     if box is not None:
@@ -709,34 +920,45 @@ def _grid_corners_world(wfield) -> np.ndarray:
     return (corners @ grid_affine_world(wfield.spacing, wfield.origin, wfield.direction).T)[:, :3]
 
 
-def relocate_vdb(obj, folder=None) -> Path | None:
+def relocate_vdb(obj, folder=None, blend_path=None) -> Path | None:
     """Copy a Volume object's .vdb into `folder` and point the object at the copy.
 
-    `folder` defaults to ``pdehead_vdb`` beside the saved .blend, so a volume
-    built while the file was unsaved (in the preference folder) can follow the
-    file once it is saved; the path is then stored relative (``//...``).
-    Returns the new path, or None when there is nothing to do (no file, no
-    saved .blend, or the file is already there).
+    `folder` defaults to ``pdehead_vdb`` beside `blend_path` (default: the saved .blend),
+    so a volume built while the file was unsaved (in the preference or temp folder) follows
+    the file once it is saved; the path is then stored relative (``//...``). A different file
+    already at the destination is never overwritten (the copy gets a free name). Returns the
+    new path, or None when there is nothing to do (no file, no saved .blend, or already there).
+
+    ``blend_path`` lets the save_pre handler move files beside the file being written before
+    Blender writes it; the stored path is then relative to the *current* .blend, which
+    Blender's relative-path remapping turns into ``//pdehead_vdb/...`` of the new one.
     """
+    import filecmp
     import shutil
 
     import bpy
 
     if obj is None or obj.type != "VOLUME" or not obj.data.filepath:
         return None
+    blend_path = blend_path or bpy.data.filepath
     if folder is None:
-        if not bpy.data.filepath:
+        if not blend_path:
             return None
-        folder = vdb_folder_for(bpy.data.filepath)
+        folder = vdb_folder_for(blend_path)
     src = Path(bpy.path.abspath(obj.data.filepath)).resolve()
     dst = Path(os.fspath(folder)).resolve() / src.name
-    if not src.is_file() or src == dst:
-        if src == dst:
+    if src.parent == dst.parent:
+        if bpy.data.filepath and not obj.data.filepath.startswith("//"):
             obj.data.filepath = blender_filepath(dst)
         return None
+    if not src.is_file():
+        return None
     dst.parent.mkdir(parents=True, exist_ok=True)
-    shutil.copy2(src, dst)
-    obj.data.filepath = blender_filepath(dst)
+    if dst.exists() and not filecmp.cmp(src, dst, shallow=False):
+        dst = fresh_vdb_path(dst)
+    if not dst.exists():
+        shutil.copy2(src, dst)
+    obj.data.filepath = bpy.path.relpath(str(dst)) if bpy.data.filepath else str(dst)
     obj.data.grids.unload()
     obj.data.grids.load()
     return dst

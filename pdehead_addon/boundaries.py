@@ -674,9 +674,11 @@ def _select_by_density(mask: np.ndarray, n: int, heights: np.ndarray, density: n
                        usable: np.ndarray) -> np.ndarray:
     h = np.asarray(heights, float)[usable]
     if len(usable) < n:
-        raise BoundaryError(
-            f"only {len(usable)} slices have a usable head cross-section, but 3t+1 = {n} are needed; "
-            f"use fewer patches (t <= {(len(usable) - 1) // 3})")
+        most = (len(usable) - 1) // 3
+        advice = (f"use fewer patches (t <= {most})" if most >= 1 else
+                  "a PDE head needs at least 4 slices with a head cross-section (t = 1)")
+        raise BoundaryError(f"only {len(usable)} slices have a usable head cross-section, but 3t+1 = {n} "
+                            f"are needed; {advice}")
     if density is None:
         targets = np.linspace(h[0], h[-1], n)
     else:

@@ -101,6 +101,46 @@ class CTVolume:
         return pts.min(axis=0), pts.max(axis=0)
 
 
+def trilinear(data: np.ndarray, kji: np.ndarray, cval: float = 0.0) -> np.ndarray:
+    """Trilinear interpolation of a 3-D array at fractional indices ``[..., (k, j, i)]``.
+
+    The same values as ``scipy.ndimage.map_coordinates(order=1, mode="constant")`` for
+    points inside ``[0, n - 1]`` on every axis; within the outer half voxel (``[-0.5, 0)`` and
+    ``(n - 1, n - 0.5]``, still inside the first/last voxel) the edge value, so a point on the
+    scan's first slice does not flip between tissue and `cval` with rounding; `cval` beyond.
+
+    Returns
+    -------
+    ndarray of float32 with shape ``kji.shape[:-1]``.
+    """
+    a = np.ascontiguousarray(data)
+    shape = np.array(a.shape)
+    pts = np.asarray(kji, dtype=np.float64).reshape(-1, 3)
+    inside = np.all((pts >= -0.5) & (pts <= shape - 0.5), axis=1)
+    pts = np.clip(pts, 0.0, shape - 1)
+    base = np.clip(np.floor(pts), 0, np.maximum(shape - 2, 0)).astype(np.int64)
+    frac = np.clip(pts - base, 0.0, 1.0).astype(np.float32)
+    nz, ny, nx = a.shape
+    sk = ny * nx if nz > 1 else 0
+    sj = nx if ny > 1 else 0
+    si = 1 if nx > 1 else 0
+    flat = a.ravel()
+    idx = (base[:, 0] * ny + base[:, 1]) * nx + base[:, 2]
+    fk, fj, fi = frac[:, 0], frac[:, 1], frac[:, 2]
+
+    def row(offset):  # linear along i at (k, j) + offset
+        lo = flat[idx + offset]
+        return lo + fi * (flat[idx + offset + si] - lo)
+
+    c00, c01 = row(0), row(sj)
+    c10, c11 = row(sk), row(sk + sj)
+    c0 = c00 + fj * (c01 - c00)
+    c1 = c10 + fj * (c11 - c10)
+    out = (c0 + fk * (c1 - c0)).astype(np.float32, copy=False)
+    out[~inside] = np.float32(cval)
+    return out.reshape(np.shape(kji)[:-1])
+
+
 def downsample_volume(ct: CTVolume, factor) -> CTVolume:
     """Block-mean downsampling of a CTVolume by integer factors (for scans too large to segment).
 

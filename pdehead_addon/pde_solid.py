@@ -9,6 +9,7 @@ texture of section 4.3.1); :func:`alpha_from_w` is eq. 24.
 """
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -121,13 +122,57 @@ def solid_mesh(head, nu: int, nv: int, nw: int, u_range: tuple[float, float] = (
     nv = _count(nv, "nv", 3 if full else 2)
     u = np.linspace(u0, u1, nu)
     w = np.linspace(w0, w1, nw)
-    if full:
-        v = v0 + TWO_PI * np.arange(nv) / nv
-        surf = head._grid(u, nv) if v0 == 0.0 else head._grid(u, None, v=v)
-    else:
-        v = np.linspace(v0, v1, nv)
-        surf = head._grid(u, None, v=v)
+    v = v0 + TWO_PI * np.arange(nv) / nv if full else np.linspace(v0, v1, nv)
+    surf = _surface_grid_cached(head, u, v, nv if (full and v0 == 0.0) else None)
     spine = head.spine(u)                                                    # (nu, 3)
+    crown = getattr(head, "vertex", None) is not None and u1 == 1.0
+    quads, tris, quad_c, tri_c, iu, iv, iw = _solid_topology(nu, nv, nw, full, w0 == 0.0, head.orientation > 0,
+                                                             crown)
+    # corner UVs (u, v / 2 pi); for the full range the seam corner (unwrapped column nv) gets v0/2pi + 1
+    def corner_uv(c):
+        cv = v0 / TWO_PI + c[..., 1] / nv if full else v[c[..., 1]] / TWO_PI
+        return np.stack([u[c[..., 0]], cv], axis=-1)
+    pos = spine[iu] + w[iw][:, None] * (surf[iu, iv] - spine[iu])
+    return Mesh(pos, quads, tris, corner_uv(quad_c), corner_uv(tri_c),
+                {"u": u[iu], "v": v[iv], "w": w[iw]})
+
+
+#: The last few surface grids X(u_i, v_j) of each head (a w-range or nw change reuses them).
+_GRID_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _surface_grid_cached(head, u: np.ndarray, v: np.ndarray, nv_uniform: int | None) -> np.ndarray:
+    """``head._grid`` on u x v, remembered per head for the last 4 (u, v) samplings."""
+    key = (u.tobytes(), v.tobytes(), nv_uniform)
+    try:
+        entries = _GRID_CACHE.setdefault(head, {})
+    except TypeError:  # not weak-referenceable: no caching
+        entries = {}
+    surf = entries.get(key)
+    if surf is None:
+        surf = head._grid(u, nv_uniform) if nv_uniform is not None else head._grid(u, None, v=v)
+        if len(entries) >= 4:
+            entries.pop(next(iter(entries)))
+        entries[key] = surf
+    return surf
+
+
+_TOPOLOGY_CACHE: dict = {}
+
+
+def _solid_topology(nu: int, nv: int, nw: int, full: bool, on_spine: bool, flip: bool, crown: bool = False):
+    """Faces of the parametric box's boundary for a grid of nu x nv x nw samples (cached: pure integers).
+
+    ``on_spine``: the inner face w = 0 collapses onto the spine (one vertex per u); ``crown``: the
+    last u row is the crown's pole (a dome head), one vertex for every (v, w) there.
+
+    Returns quads, triangles (indices into the used vertices), their corner (iu, iv unwrapped)
+    index pairs, and the (iu, iv, iw) grid index of each used vertex.
+    """
+    key = (nu, nv, nw, full, on_spine, flip, crown)
+    hit = _TOPOLOGY_CACHE.get(key)
+    if hit is not None:
+        return hit
 
     def vid(iu, iv, iw):
         return (iu * nv + (iv % nv if full else iv)) * nw + iw
@@ -160,31 +205,33 @@ def solid_mesh(head, nu: int, nv: int, nw: int, u_range: tuple[float, float] = (
     corners = np.concatenate(corners)
     # parametric outward (u, v, w right-handed) is physically inward when the surface
     # quads (u,v)->(u,v+1)->(u+1,v+1)->(u+1,v) face outward (orientation +1)
-    if head.orientation > 0:
+    if flip:
         faces = faces[:, ::-1]
         corners = corners[:, ::-1]
     iw_of = faces % nw
     iu_of = faces // (nv * nw)
-    if w0 == 0.0:  # inner face on the spine: one vertex per u
+    if on_spine:  # inner face on the spine: one vertex per u
         faces = np.where(iw_of == 0, iu_of * nv * nw, faces)
-    if getattr(head, "vertex", None) is not None and u1 == 1.0:
+    if crown:
         # the crown's pole: every (v, w) of the last row is the same point (kept as its w = w1 vertex)
         faces = np.where(iu_of == nu - 1, (nu - 1) * nv * nw + nw - 1, faces)
-    if full:   # the seam corner (unwrapped column nv) gets v0/2pi + 1
-        cv_uv = v0 / TWO_PI + corners[..., 1] / nv
-    else:
-        cv_uv = v[corners[..., 1]] / TWO_PI
-    cuv = np.stack([u[corners[..., 0]], cv_uv], axis=-1)
-    quads, quad_uv, tris, tri_uv = _collapse(faces, cuv)
-    used, inverse = np.unique(np.concatenate([quads.ravel(), tris.ravel()]), return_inverse=True)
+    quads, quad_c, tris, tri_c = _collapse(faces, corners)
+    # the used grid vertices in index order and each one's new index: np.unique by counting
+    # (ids are bounded by nu * nv * nw), linear time instead of a sort
+    ids = np.concatenate([quads.ravel(), tris.ravel()])
+    present = np.bincount(ids, minlength=nu * nv * nw) > 0
+    used = np.flatnonzero(present)
+    new_index = np.cumsum(present) - 1
+    inverse = new_index[ids]
     quads = inverse[:quads.size].reshape(-1, 4)
     tris = inverse[quads.size:].reshape(-1, 3)
-    iu = used // (nv * nw)
-    iv = (used // nw) % nv
-    iw = used % nw
-    pos = spine[iu] + w[iw][:, None] * (surf[iu, iv] - spine[iu])
-    return Mesh(pos, quads, tris, quad_uv, tri_uv,
-                {"u": u[iu], "v": v[iv], "w": w[iw]})
+    out = (quads, tris, quad_c, tri_c, used // (nv * nw), (used // nw) % nv, used % nw)
+    for a in out:
+        a.setflags(write=False)  # shared between calls
+    if len(_TOPOLOGY_CACHE) >= 16:
+        _TOPOLOGY_CACHE.pop(next(iter(_TOPOLOGY_CACHE)))
+    _TOPOLOGY_CACHE[key] = out
+    return out
 
 
 # ----------------------------------------------------------------------------- w-field
@@ -455,3 +502,107 @@ def w_field(head, grid, ct: CTVolume | None = None, directions: int = 4096,
             "section_samples": int(n_sec), "outside_w": OUTSIDE_W}
     return WField(w_out, intensity, tuple(float(s) for s in spacing), np.asarray(origin, float).copy(),
                   np.asarray(direction, float).copy(), meta)
+
+
+# ----------------------------------------------------------------------------- CT in parameter space
+
+
+class SolidCTTable:
+    """The CT tabulated once on a regular (u, v, w) grid of the solid (eq. 23), for live cutaways.
+
+    Texturing a cutaway (section 4.3.1) samples the CT at ``X(u, v, w)`` over every face of
+    the parametric box. Evaluating the PDE surface and interpolating the CT for each slider
+    step costs tens of milliseconds; the positions depend only on the PDE solution, so the CT
+    is sampled once at ``X(u_i, v_j, w_k)`` on a fine regular parameter grid and every later
+    look-up is a trilinear interpolation in (u, v, w) with the period 2 pi in v.
+
+    Parameters
+    ----------
+    head : PDEHead
+    ct : CTVolume
+    nu, nv, nw : int, optional
+        Table resolution. Defaults: about one CT voxel per sample along u and around v and
+        two voxels along w, capped at 256 x 512 x 64 (~34 MB float32).
+    chunk : int
+        u rows sampled together (bounds the temporary position arrays).
+
+    Notes
+    -----
+    Values are raw CT units (window them afterwards). Outside the CT box the lowest CT
+    value is used, as :func:`volume.sample_ct` does. ``table`` is stored ``[w, u, v]``
+    (v with one closing column at 2 pi).
+    """
+
+    MAX_SHAPE = (256, 512, 64)
+
+    def __init__(self, head, ct: CTVolume, nu: int | None = None, nv: int | None = None,
+                 nw: int | None = None, chunk: int = 16):
+        from .ct_volume import trilinear
+
+        if nu is None or nv is None or nw is None:
+            probe_u = np.linspace(0.0, 1.0, 33)
+            probe = head._grid(probe_u, 64)                                     # (33, 64, 3) mm
+            voxel = float(min(ct.spacing))
+            height = float(np.linalg.norm(np.diff(head.spine(probe_u), axis=0), axis=1).sum())
+            perimeter = float(np.max(np.linalg.norm(np.diff(probe, axis=1, append=probe[:, :1]), axis=2).sum(axis=1)))
+            radius = float(np.max(np.linalg.norm(probe - head.spine(probe_u)[:, None, :], axis=2)))
+            auto = (height / voxel, perimeter / voxel, radius / (2.0 * voxel))
+            nu_a, nv_a, nw_a = (int(np.clip(np.ceil(n), 16, m)) for n, m in zip(auto, self.MAX_SHAPE))
+            nu, nv, nw = nu or nu_a, nv or nv_a, nw or nw_a
+        self.shape = (int(nu), int(nv), int(nw))
+        self.u = np.linspace(0.0, 1.0, self.shape[0])
+        self.v = TWO_PI * np.arange(self.shape[1]) / self.shape[1]
+        self.w = np.linspace(0.0, 1.0, self.shape[2])
+        inv = np.linalg.inv(ct.affine[:3, :3])
+        cval = float(np.min(ct.data)) if ct.data.size else 0.0
+        table = np.empty((self.shape[0], self.shape[1] + 1, self.shape[2]), np.float32)
+        for start in range(0, self.shape[0], chunk):
+            us = self.u[start:start + chunk]
+            surf = head._grid(us, self.shape[1])                                # (c, nv, 3)
+            spine = head.spine(us)[:, None, None, :]
+            pts = spine + self.w[None, None, :, None] * (surf[:, :, None, :] - spine)
+            ijk = (pts.reshape(-1, 3) - ct.origin) @ inv.T
+            vals = trilinear(ct.data, ijk[:, ::-1], cval=cval)
+            table[start:start + len(us), :-1] = vals.reshape(len(us), self.shape[1], self.shape[2])
+        table[:, -1] = table[:, 0]                                               # v = 2 pi is v = 0
+        # stored w-major, [w, u, v]: a face at one w (the shells, most texels) is one contiguous slab
+        self.table = np.ascontiguousarray(table.transpose(2, 0, 1))
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.table.nbytes)
+
+    def sample(self, u, v, w) -> np.ndarray:
+        """CT values (float32) at parameters (u, v, w), broadcast together; v taken modulo 2 pi."""
+        from .ct_volume import trilinear
+
+        u, v, w = np.broadcast_arrays(np.asarray(u, float), np.asarray(v, float), np.asarray(w, float))
+        idx = np.empty(u.shape + (3,))                                           # table order [w, u, v]
+        idx[..., 0] = np.clip(w, 0.0, 1.0) * (self.shape[2] - 1)
+        idx[..., 1] = np.clip(u, 0.0, 1.0) * (self.shape[0] - 1)
+        idx[..., 2] = np.mod(v, TWO_PI) * (self.shape[1] / TWO_PI)
+        return trilinear(self.table, idx)
+
+    def sample_grid(self, u, v, w) -> np.ndarray:
+        """CT values on the outer-product grid of 1-D parameter samples, shape (len(u), len(v), len(w)).
+
+        Separable linear interpolation, one axis at a time starting with the shortest, so a
+        face of the parametric box (one parameter fixed) costs a few hundred thousand flops:
+        identical to :meth:`sample` on the grid points, ~10x faster.
+        """
+        u, v, w = (np.atleast_1d(np.asarray(x, float)) for x in (u, v, w))
+        idx = [np.clip(w, 0.0, 1.0) * (self.shape[2] - 1),                      # table order [w, u, v]
+               np.clip(u, 0.0, 1.0) * (self.shape[0] - 1),
+               np.mod(v, TWO_PI) * (self.shape[1] / TWO_PI)]
+        out = self.table
+        for axis in sorted(range(3), key=lambda a: len(idx[a])):
+            n = out.shape[axis]
+            i0 = np.clip(np.floor(idx[axis]).astype(np.int64), 0, max(n - 2, 0))
+            f = np.clip(idx[axis] - i0, 0.0, 1.0).astype(np.float32)
+            i1 = np.minimum(i0 + 1, n - 1)
+            shape = [1, 1, 1]
+            shape[axis] = len(f)
+            f = f.reshape(shape)
+            a = np.take(out, i0, axis=axis)
+            out = a + f * (np.take(out, i1, axis=axis) - a)
+        return np.moveaxis(out, 0, 2).astype(np.float32, copy=False)               # -> [u, v, w]

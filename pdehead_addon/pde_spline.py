@@ -45,8 +45,11 @@ from functools import lru_cache
 
 import numpy as np
 
-from .pde_basis import basis_derivatives, inverse_4x4
+from .pde_basis import basis_derivatives, inverse_4x4, small_matmul
 
+#: Exponent per harmonic of eq. 1 inside the dome span (local s): ripples of the top curve fade
+#: toward the pole instead of converging there as radial ridges (harmonic h decays like e^{-0.25 h s}).
+DOME_DAMPING = 0.25
 #: Dome height limits, as fractions of the top curve's equivalent radius sqrt(area / pi).
 DOME_MIN_FRACTION = 0.15
 DOME_MAX_FRACTION = 1.2
@@ -133,8 +136,8 @@ def smoothing_spline_values(x: np.ndarray, y: np.ndarray, length: float) -> np.n
     S = _smoother(np.ascontiguousarray(x, dtype=np.float64).tobytes(), float(length))
     yy = y.reshape(m, -1)
     if np.iscomplexobj(yy):
-        return (S @ yy.real + 1j * (S @ yy.imag)).reshape(y.shape)
-    return (S @ yy).reshape(y.shape)
+        return (small_matmul(S, yy.real) + 1j * small_matmul(S, yy.imag)).reshape(y.shape)
+    return small_matmul(S, yy).reshape(y.shape)
 
 
 @lru_cache(maxsize=32)
@@ -288,14 +291,64 @@ def c2_spans(spec: np.ndarray, u: np.ndarray, smoothing: float, modes: int,
         natural, clamped = _cubic_operator(np.ascontiguousarray(u, dtype=np.float64).tobytes(), pole is not None)
         flat = p.reshape(n, -1)
         pr = np.concatenate([flat.real, flat.imag], axis=1)      # (n, 2 * H * 3)
-        out = (natural @ pr).reshape(S, 4, 2, H, 3)
+        out = small_matmul(natural, pr).reshape(S, 4, 2, H, 3)
         if clamped is not None:
-            alt = (clamped @ pr).reshape(S, 4, 2, H, 3)
+            alt = small_matmul(clamped, pr).reshape(S, 4, 2, H, 3)
             out = np.where(clamp[None, None, None], alt, out)
         coefficients = (out[:, :, 0] + 1j * out[:, :, 1]).transpose(0, 2, 1, 3)   # (S, H, 4, 3)
+        if pole is not None:
+            exponents, coefficients = _damp_dome(exponents, coefficients, H)
         return exponents, coefficients
     G_inv, alpha = hermite_systems(exponents)
     d = _derivative_system(alpha, du, p, clamp)                  # (n, H, 3) dA/du
     data = np.stack([p[:-1], p[1:], d[:-1] * du[:, None, None], d[1:] * du[:, None, None]], axis=2)
-    coefficients = np.matmul(G_inv, data.real) + 1j * np.matmul(G_inv, data.imag)   # (S, H, 4, 3)
+    coefficients = np.einsum("shij,shjc->shic", G_inv, data)   # (S, H, 4, 3); einsum: see _damp_dome
+    if pole is not None:
+        exponents, coefficients = _damp_dome(exponents, coefficients, H)
+    return exponents, coefficients
+
+
+@lru_cache(maxsize=8)
+def _dome_system(H: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cubic Hermite data -> coefficients, and the damped space's Hermite inverse, for the dome span."""
+    k = DOME_DAMPING * np.arange(H, dtype=np.float64)
+    g_inv, _ = hermite_systems(k)
+    cubic_g = _cubic_G()
+    for a in (k, g_inv):
+        a.flags.writeable = False
+    return k, g_inv, cubic_g
+
+
+@lru_cache(maxsize=1)
+def _cubic_G() -> np.ndarray:
+    d0, d1 = basis_derivatives(0.0, 0.0), basis_derivatives(0.0, 1.0)
+    G = np.stack([d0[0], d1[0], d0[1], d1[1]])
+    G.flags.writeable = False
+    return G
+
+
+def _damp_dome(exponents: np.ndarray, coefficients: np.ndarray, H: int) -> tuple[np.ndarray, np.ndarray]:
+    """Let the harmonics fade quickly inside the dome span (eq. 1 with the exponent DOME_DAMPING h there).
+
+    The Hermite data at both ends of the span are kept (value and derivative at the top
+    curve, zero at the pole), so the surface stays C1 there; only the shape between
+    changes: a ripple of harmonic h on the top curve decays like ``e^{-DOME_DAMPING h s}``
+    instead of being carried to the pole as a radial ridge (the "star" of a fan).
+    """
+    k, g_inv, G = _dome_system(H)
+    k_old = exponents[-1]
+    if np.any(k_old):                                             # a > 0: the span's own basis
+        d0, d1 = basis_derivatives(k_old, 0.0), basis_derivatives(k_old, 1.0)
+        G = np.stack([d0[:, 0], d1[:, 0], d0[:, 1], d1[:, 1]], axis=1)
+        k = np.maximum(k_old, k)
+        g_inv, _ = hermite_systems(k)
+    c = coefficients[-1]                                           # (H, 4, 3)
+    # einsum, not matmul: a stack of 4x4 products is one BLAS call each, and BLAS threads cost more
+    # than the products (measured 7.6 ms against 1.0 ms per solve on 2 busy cores)
+    data = np.einsum("ij,hjc->hic" if G.ndim == 2 else "hij,hjc->hic", G, c)   # (f(0), f(1), f'(0), f'(1))
+    damped = np.einsum("hij,hjc->hic", g_inv, data)
+    exponents = exponents.copy()
+    exponents[-1] = k
+    coefficients = coefficients.copy()
+    coefficients[-1] = damped
     return exponents, coefficients

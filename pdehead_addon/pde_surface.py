@@ -430,7 +430,7 @@ class PDEHead:
         self._coef_real = np.ascontiguousarray(
             np.concatenate([coefficients.real, coefficients.imag], axis=-1))   # (S, H, 4, 6)
         self._uniform_spans = bool(np.allclose(self.span_edges, np.linspace(0.0, 1.0, S + 1), atol=1e-12))
-        self._all_cubic = not np.any(exponents)
+        self._cubic_spans = ~np.any(exponents, axis=1)
         self.orientation = 1
         self.orientation = self._measure_orientation()
         self._deviation = None
@@ -494,18 +494,19 @@ class PDEHead:
         patch, s = self._patch_of(u)
         H = self.harmonics if harmonics is None else int(harmonics)
         out = np.empty((u.size, H, 3), dtype=np.complex128)
-        if self._all_cubic:                                                   # a = 0: one basis for all h
-            g = basis(np.zeros(1), s[:, None])[:, 0]                          # (n, 4)
-            for start in range(0, u.size, 256):
-                sl = slice(start, start + 256)
-                prod = np.matmul(g[sl, None, None, :], self._coef_real[patch[sl], :H])[:, :, 0]   # (n, H, 6)
+        cubic = self._cubic_spans[patch]                                      # a = 0 there: one basis for all h
+        if np.any(cubic):
+            rows = np.flatnonzero(cubic)
+            g = basis(np.zeros(1), s[rows, None])[:, 0]                       # (n, 4)
+            for start in range(0, rows.size, 256):
+                sl = rows[start:start + 256]
+                prod = np.einsum("nb,nhbc->nhc", g[start:start + 256], self._coef_real[patch[sl], :H])
                 out[sl] = prod[..., :3] + 1j * prod[..., 3:]
-            return out
-        for k in np.unique(patch):
+        for k in np.unique(patch[~cubic]):
             sel = np.nonzero(patch == k)[0]
             g = basis_grid(self.exponents[k, :H], s[sel])                    # (n, H, 4)
             # batched over h: (H, n, 4) @ (H, 4, 6 = re xyz, im xyz)
-            prod = np.matmul(g.transpose(1, 0, 2), self._coef_real[k, :H]).transpose(1, 0, 2)
+            prod = np.einsum("hnb,hbc->nhc", g.transpose(1, 0, 2), self._coef_real[k, :H])
             out[sel] = prod[..., :3] + 1j * prod[..., 3:]
         return out
 
@@ -965,25 +966,23 @@ def solve_pde(bset: BoundarySet, smoothing: float | Sequence[float] | None = Non
     return head
 
 
-def _curve_heights(bset: BoundarySet) -> np.ndarray:
-    """Heights (mm) along the head axis used as the C2 spline's parameter (strictly increasing)."""
-    h = np.asarray(bset.heights, float)
-    d = np.diff(h)
-    if np.all(d > 0):
-        return h
-    if np.all(d < 0):
-        return -h
-    span = float(np.ptp(bset.curves[..., 2])) or 1.0
-    return np.asarray(bset.u_knots, float) * span                           # synthetic sets: their knots
+def _curve_positions(bset: BoundarySet) -> np.ndarray:
+    """Positions (mm) of the curves along the surface: cumulative mean distance between equal-v points
+    of consecutive curves (chord length). The C2 spline's parameter: near the crown, where the
+    rings shrink fast over little height, the spans are as long as the surface is, so neither the
+    interpolation nor the approximating mode is stiffer there than on the sides of the head."""
+    c = bset.curves
+    step = np.linalg.norm(np.diff(c, axis=0), axis=2).mean(axis=1)
+    return np.concatenate([[0.0], np.cumsum(np.maximum(step, 1e-6))])
 
 
 def default_approximation(bset: BoundarySet) -> float:
     """Default smoothing length (mm) along u of the approximating mode.
 
     ``APPROXIMATION_PER_SLICE`` times the scan's axial slice step (the source's
-    slice thickness along z, which includes the tilt's effective thickening when the
-    series was resampled), but not more than ``APPROXIMATION_PER_GAP`` times the
-    mean gap between the chosen curves (few curves: keep what they say).
+    slice step along z), but not more than ``APPROXIMATION_PER_GAP`` times the
+    mean gap between the chosen curves (few curves: keep what they say). The length
+    is measured along the surface (:func:`_curve_positions`).
     """
     spacing = bset.meta.get("source_slice_step_mm") or (bset.meta.get("spacing") or [0.0])[0]
     gaps = np.abs(np.diff(bset.heights))
@@ -1068,7 +1067,7 @@ def solve_with_controls(bset: BoundarySet, continuity: str | None = None, smooth
 def _solve_c2(bset: BoundarySet, smoothing, n_modes: int, approximation_mm, dome: bool,
               keep: int | None = None) -> PDEHead:
     spec, planar = _harmonics(bset, keep)                                     # (m, H, 3)
-    z = _curve_heights(bset)
+    z = _curve_positions(bset)
     default_a, max_a = smoothing_range(bset)
     if smoothing is None:
         a = default_a
@@ -1097,7 +1096,7 @@ def _solve_c2(bset: BoundarySet, smoothing, n_modes: int, approximation_mm, dome
         height = dome_height(bset.curves, bset.heights, bset.meta.get("vertex_z"))
         sign = 1.0 if bset.heights[-1] >= bset.heights[0] else -1.0
         vertex = np.array([spec[-1, 0, 0].real, spec[-1, 0, 1].real, zt + sign * height])
-        top = z[-1] + height
+        top = z[-1] + float(np.linalg.norm(bset.curves[-1] - vertex, axis=1).mean())
     knots = np.concatenate([z, [top]]) if dome else z
     u = (knots - knots[0]) / (knots[-1] - knots[0])
     exponents, coefficients = c2_spans(spec, u, a, n_modes, pole=vertex)

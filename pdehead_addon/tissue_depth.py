@@ -202,7 +202,40 @@ def cast_rays(origins: np.ndarray, directions: np.ndarray, mesh: Mesh, max_dista
         t[active] += r
         alive = ~hit & ~crossed & (t[active] <= max_distance)
         active = active[alive]
+    missed = np.flatnonzero(~np.isfinite(result))
+    if 0 < missed.size <= EXACT_RAY_LIMIT:
+        # the candidate distance can be too large at the apex of a fan (the crown's pole), so a traced
+        # ray may step over the surface there: the few misses are checked exactly against every triangle
+        v, tri = mesh_triangles(mesh)
+        exact = ray_mesh_exact(o[missed], d[missed], v, tri)
+        result[missed] = np.where(exact <= max_distance, exact, np.nan)
     return result
+
+
+#: Missed rays up to this count are re-checked exactly (landmarks, pegs); a whole depth map is not.
+EXACT_RAY_LIMIT = 256
+
+
+def ray_mesh_exact(origins: np.ndarray, directions: np.ndarray, vertices: np.ndarray,
+                   triangles: np.ndarray) -> np.ndarray:
+    """Distance to the first triangle each ray meets (Moeller-Trumbore against all triangles), inf if none."""
+    a, b, c = (vertices[triangles[:, i]] for i in range(3))
+    e1, e2 = b - a, c - a
+    out = np.full(len(origins), np.inf)
+    for i, (o, d) in enumerate(zip(origins, directions)):
+        pvec = np.cross(d, e2)
+        det = np.einsum("ij,ij->i", e1, pvec)
+        ok = np.abs(det) > 1e-12
+        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+        tvec = o - a
+        uu = np.einsum("ij,ij->i", tvec, pvec) * inv
+        qvec = np.cross(tvec, e1)
+        vv = (qvec @ d) * inv
+        tt = np.einsum("ij,ij->i", e2, qvec) * inv
+        hit = ok & (uu >= -1e-9) & (vv >= -1e-9) & (uu + vv <= 1 + 1e-9) & (tt >= 0)
+        if hit.any():
+            out[i] = tt[hit].min()
+    return out
 
 
 def tissue_depth(skin: Mesh, skull: Mesh, *, envelope=None, max_depth_mm: float = MAX_DEPTH_MM,

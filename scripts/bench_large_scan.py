@@ -6,7 +6,7 @@ shoulders are added below the neck (a soft-tissue trunk 380 mm wide whose top ri
 neck to the shoulder line), as in a head-and-neck scan. It measures, per step, the wall time and the peak resident memory
 (RSS sampled every 20 ms, minus what the process held before the step), checks that the head
 mask stops at the neck (the shoulders do not join it) and prints a Markdown section for
-docs/benchmarks.md.
+docs/benchmarks.md (its own section ``large-scan``, kept by bench.py when it rewrites the file; pasted by hand).
 
     python3 scripts/bench_large_scan.py                       # 800 x 512 x 512 (about 5 GB, minutes)
     python3 scripts/bench_large_scan.py --shape 200 256 256   # a quick look

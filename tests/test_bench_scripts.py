@@ -114,3 +114,27 @@ def test_timed_median():
     stats, result = bench.timed(lambda: calls.append(1) or len(calls), 5)
     assert result == 5 and len(stats["runs_s"]) == 5
     assert stats["min_s"] <= stats["median_s"] <= max(stats["runs_s"])
+
+
+@pytest.mark.slow
+def test_bench_smooth_quick_smoke(tmp_path):
+    """scripts/bench_smooth.py --quick on CThead t=10: the issue-8 measures, the peers, the markdown section."""
+    import bench_smooth
+    md = tmp_path / "benchmarks.md"
+    md.write_text("# Benchmarks\n\nother text\n")
+    out = tmp_path / "smooth.json"
+    assert bench_smooth.main(["--quick", "--repeats", "1", "--json", str(out), "--md", str(md)]) == 0
+    res = json.loads(out.read_text())
+    row = res["datasets"]["cthead"][0]
+    c2, paper = row["c2"], row["paper"]
+    assert row["t"] == 10 and c2["folds"] == 0
+    assert c2["crease_p95_deg"] < 2.0 < paper["crease_p95_deg"]
+    assert 0.3 < c2["mean"] < 0.7 and c2["p95"] < 2.5
+    sp = res["speed"]
+    assert sp["marching_cubes_triangles"] > 100_000 and sp["flying_edges_triangles"] > 100_000
+    assert sp["ours_ms"] > 0 and sp["flying_edges_ms"] > 0
+    text = md.read_text()
+    assert "other text" in text and "<!-- section:smooth -->" in text and "flying" in text.lower()
+    # a second run replaces its section instead of adding one
+    assert bench_smooth.main(["--quick", "--repeats", "1", "--json", str(out), "--md", str(md)]) == 0
+    assert md.read_text().count("<!-- section:smooth -->") == 1

@@ -297,3 +297,51 @@ def test_w_field_cthead(cthead_bset, cthead_ct, cthead_seg):
     print(f"CThead w-field inside vs segmentation mask (curves' z range): Jaccard {jaccard:.4f}")
     assert jaccard > 0.95
     assert np.array_equal(wf.intensity[inside], cthead_ct.data[inside])
+
+
+def test_trilinear_matches_map_coordinates_inside_and_cval_outside():
+    from scipy.ndimage import map_coordinates
+
+    from pdehead_addon.ct_volume import trilinear
+    rng = np.random.default_rng(3)
+    data = rng.random((7, 9, 11)).astype(np.float32)
+    pts = rng.random((5000, 3)) * (np.array(data.shape) + 1.0) - 1.0   # some outside the box
+    got = trilinear(data, pts, cval=-2.0)
+    want = map_coordinates(data, pts.T, order=1, mode="constant", cval=-2.0, prefilter=False)
+    shape = np.array(data.shape)
+    inside = np.all((pts >= 0) & (pts <= shape - 1), axis=1)
+    rim = ~inside & np.all((pts >= -0.5) & (pts <= shape - 0.5), axis=1)   # the outer half voxel
+    beyond = ~inside & ~rim
+    assert 0.2 < inside.mean() < 0.9 and rim.any() and beyond.any()
+    np.testing.assert_allclose(got[inside], want[inside], atol=1e-5)
+    nearest = map_coordinates(data, np.clip(pts, 0, shape - 1).T, order=1, prefilter=False)
+    np.testing.assert_allclose(got[rim], nearest[rim], atol=1e-5)          # the edge value, not cval
+    assert np.all(got[beyond] == -2.0)
+    corner = trilinear(data, np.array([[6.0, 8.0, 10.0], [0.0, 0.0, 0.0]]))
+    np.testing.assert_allclose(corner, [data[6, 8, 10], data[0, 0, 0]], atol=1e-6)
+
+
+def test_solid_ct_table_is_the_ct_at_the_solid_points(phantom):
+    """The (u, v, w) table gives the CT at X(u, v, w) (eq. 23) within interpolation error, periodic in v."""
+    from scipy.ndimage import map_coordinates
+
+    from pdehead_addon import extract_boundaries, segment_head
+    from pdehead_addon.pde_solid import SolidCTTable
+    ct = phantom.ct
+    head = solve_pde(extract_boundaries(segment_head(ct), patches=6, samples=128))
+    table = SolidCTTable(head, ct)
+    assert all(16 <= n <= m for n, m in zip(table.shape, SolidCTTable.MAX_SHAPE))
+    rng = np.random.default_rng(1)
+    u, v, w = rng.random(4000), rng.random(4000) * 2 * np.pi, rng.random(4000)
+    pts = head.spine(u) + w[:, None] * (head.evaluate(u, v, 1.0) - head.spine(u))
+    direct = map_coordinates(ct.data, ct.patient_to_index(pts).T, order=1, mode="nearest")
+    err = np.abs(table.sample(u, v, w) - direct) / np.ptp(ct.data)
+    assert np.median(err) < 0.01 and np.percentile(err, 90) < 0.06, (np.median(err), np.percentile(err, 90))
+    np.testing.assert_allclose(table.sample(u, v + 2 * np.pi, w), table.sample(u, v, w), atol=1e-4)
+    # the separable grid look-up equals the point look-up on the grid's points
+    us, vs, ws = np.linspace(0.1, 0.9, 7), np.linspace(0.0, 2 * np.pi, 11), np.array([0.0, 0.5, 1.0])
+    grid = table.sample_grid(us, vs, ws)
+    U, V, W = np.meshgrid(us, vs, ws, indexing="ij")
+    assert grid.shape == (7, 11, 3)
+    np.testing.assert_allclose(grid, table.sample(U, V, W), atol=1e-3)
+    assert np.ptp(grid) > 0.3 * np.ptp(ct.data)  # crosses skin, bone and brain: a real check

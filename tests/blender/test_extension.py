@@ -15,7 +15,10 @@ sys.path.insert(0, str(ROOT / "scripts"))
 import build_extension  # noqa: E402
 
 OPERATORS = ["import_ct", "load_phantom", "segment", "extract_boundaries", "reconstruct_surface",
-             "build_solid", "build_volume", "run_pipeline", "remove_study"]
+             "build_solid", "build_volume", "run_pipeline", "frame_study", "add_cutter", "remove_study"]
+OUR_HANDLERS = ["depsgraph_update_post:pdehead_cutter_update", "load_post:pdehead_load_post",
+                "load_post:pdehead_volume_load_post",
+                "save_post:pdehead_save_post", "save_pre:pdehead_save_pre"]
 PANELS = ["PDEHEAD_PT_study", "PDEHEAD_PT_segmentation", "PDEHEAD_PT_boundaries", "PDEHEAD_PT_surface",
           "PDEHEAD_PT_solid", "PDEHEAD_PT_volume", "PDEHEAD_PT_timings"]
 
@@ -141,7 +144,7 @@ def test_unregister_leaves_nothing_and_register_again_works(pdehead_ext):
     import addon_utils
     import bpy
     name = pdehead_ext.__name__
-    assert _our_handlers(name) == ["load_post:pdehead_load_post"]
+    assert sorted(_our_handlers(name)) == OUR_HANDLERS
     menu_funcs = lambda: [f.__module__ for f in getattr(bpy.types.TOPBAR_MT_file_import.draw, "_draw_funcs", [])]
     assert name + ".operators.ops" in menu_funcs()
 
@@ -163,13 +166,13 @@ def test_unregister_leaves_nothing_and_register_again_works(pdehead_ext):
     finally:
         addon_utils.enable(name, default_set=True)
     assert set(OPERATORS) <= set(dir(bpy.ops.pdehead))
-    assert _our_handlers(name) == ["load_post:pdehead_load_post"]
+    assert sorted(_our_handlers(name)) == OUR_HANDLERS
     assert hasattr(bpy.types.Collection, "pdehead")
     # a second cycle, and the add-on still works afterwards
     addon_utils.disable(name, default_set=True)
     addon_utils.enable(name, default_set=True)
     assert bpy.ops.pdehead.load_phantom() == {'FINISHED'}
-    assert len(_our_handlers(name)) == 1
+    assert len(_our_handlers(name)) == len(OUR_HANDLERS)
 
 
 def test_dev_shim_registers_from_source(tmp_path):

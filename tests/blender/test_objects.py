@@ -298,3 +298,42 @@ def test_solid_texture_is_packed_and_survives_save_and_reopen(B, phantom, phanto
     np.testing.assert_allclose(after, before, atol=1.5 / 255)  # packed as 8-bit PNG
     w = B.objects.mesh_attribute(obj, "w")
     assert w.min() == pytest.approx(0.0, abs=1e-6) and w.max() == pytest.approx(1.0, abs=1e-6)
+
+
+def test_live_solid_uses_the_ct_table_and_rewrites_a_same_topology_mesh_in_place(B, phantom, phantom_head,
+                                                                                   monkeypatch):
+    """The live path: CT from the (u, v, w) table; a cutaway at the same resolution only moves vertices."""
+    from scipy.ndimage import map_coordinates
+
+    from pdehead_addon.pde_solid import SolidCTTable
+    coll = B.objects.study_collection("Phantom")
+    ct = phantom.ct
+    table = SolidCTTable(phantom_head, ct)
+    ranges = dict(u_range=(0.0, 1.0), v_range=(math.pi / 2, 2 * math.pi), w_range=(0.0, 1.0))
+    obj = B.objects.build_solid(phantom_head, coll, nu=40, nv=60, nw=5, ct=ct, ct_table=table, **ranges)
+    lo, hi = obj["pdehead_window"]
+    rgba = B.objects.mesh_attribute(obj, "ct_intensity")
+    raw = map_coordinates(ct.data, ct.patient_to_index(_world_vertices(obj) / MM).T, order=1, mode="nearest")
+    err = np.abs(rgba[:, 0] - np.clip((raw - lo) / (hi - lo), 0, 1))
+    assert np.median(err) < 0.01 and np.percentile(err, 95) < 0.1 and np.ptp(rgba[:, 0]) > 0.3
+    image = obj.material_slots[0].material.node_tree.nodes["CT texture"].image
+    _check_texture_matches_ct(obj, image, phantom_head.solid(40, 60, 5, **ranges), phantom_head, ct, (lo, hi))
+
+    me = obj.data
+    corners_before = B.objects.mesh_attribute(obj, ".corner_vert").copy()
+
+    def no_refill(*args, **kwargs):
+        raise AssertionError("same topology: the mesh must be updated in place")
+    monkeypatch.setattr(B.objects, "_fill_mesh", no_refill)
+    cut = dict(ranges, v_range=(math.pi / 3, 2 * math.pi), w_range=(0.0, 0.8))  # w0 = 0: still on the spine
+    again = B.objects.build_solid(phantom_head, coll, nu=40, nv=60, nw=5, ct=ct, ct_table=table, obj=obj, **cut)
+    assert again == obj and again.data == me
+    expected = phantom_head.solid(40, 60, 5, **cut)
+    np.testing.assert_allclose(_world_vertices(obj) / MM, expected.vertices, atol=0.05)
+    np.testing.assert_array_equal(B.objects.mesh_attribute(obj, ".corner_vert"), corners_before)
+    w = B.objects.mesh_attribute(obj, "w")
+    assert w.max() == pytest.approx(0.8, abs=1e-6)
+    _check_texture_matches_ct(obj, image, expected, phantom_head, ct, (lo, hi))
+    # another resolution is another topology: rebuilt (here refused by the patched refill)
+    with pytest.raises(AssertionError, match="in place"):
+        B.objects.build_solid(phantom_head, coll, nu=40, nv=60, nw=6, ct=ct, ct_table=table, obj=obj, **cut)

@@ -155,8 +155,10 @@ def _compare_eq24_and_baseline(B, ct, head, wfield, tmp_path, tag, view="FRONT",
           f"mean |diff| {diff:.3f}; outside the head: eq24 {outside_24:.4f} baseline {outside_int:.4f}")
     assert diff > 0.03
     assert outside_24 < 0.005            # eq. 24: nothing outside the PDE solid
-    # the baseline shows what lies around the head (Fig. 8a / 15a: holder, pillow, cloth, noise)
-    assert outside_int > max(0.01, 3 * outside_24)
+    # the baseline (alpha = CT intensity) shows the CT near the head only: neither the air noise of the
+    # CT box (a faint box outline) nor the scanner table (bright bars) - the ct grid is masked to
+    # HEAD_MARGIN_MM around the solid
+    assert outside_int < 0.03
     # inside the head eq. 24 is translucent (alpha 0.1 at the skin): the baseline is brighter there
     assert sint["foreground_mean"] > 0.0 and s24["mask"][head_mask].mean() > 0.5
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import shutil
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -115,13 +116,19 @@ def test_ct_grid_covers_the_whole_ct_box_on_its_own_grid(B, tmp_path):
     np.testing.assert_allclose(info["ct"]["axes"], np.diag([0.9, 0.9, 1.0]) * MM, atol=1e-12)
     # blocks of 2 slices average slices 2k-1, 2k: their centre is half a slice below slice 2k
     np.testing.assert_allclose(info["ct"]["origin"] + origin_m, (ct.origin + [0, 0, -0.25]) * MM, atol=1e-12)
-    assert info["ct"]["active_box"][1] == (16, 13, 14)  # ceil(50/3)-1, ceil(40/3)-1, 30/2-1: the whole box
+    # the CT's own (decimated) grid: ceil(50/3) x ceil(40/3) x 30/2 voxels, kept only within
+    # HEAD_MARGIN_MM of the solid (no air box outline, no scanner table in the intensity mode)
+    mask = B.volume.head_mask_on_grid(wf, (15, 14, 17), (1.0, 0.9, 0.9), ct.origin + [0, 0, -0.25], np.eye(3))
+    assert 0.2 < mask.mean() < 0.95  # both kept and masked voxels: a real check
+    kk, jj, ii = np.nonzero(mask)
+    assert tuple(info["ct"]["active_box"][1]) == (ii.max(), jj.max(), kk.max())
     np.testing.assert_allclose(info["w"]["axes"], B.coords.grid_affine_world(
         wf.spacing, wf.origin, wf.direction)[:3, :3].T, atol=1e-12)  # the w grid keeps its own transform
-    for i, j, k in [(1, 1, 1), (5, 7, 3), (10, 2, 12)]:
+    kept, masked = np.argwhere(mask), np.argwhere(~mask)
+    for k, j, i in [*kept[::max(1, len(kept) // 5)], *masked[::max(1, len(masked) // 4)], (1, 1, 1), (12, 2, 10)]:
         # block mean of a linear ramp = the ramp at the block centre (x: 3i-1 .. 3i+1, z: 2k-1 .. 2k)
-        expected = (3.0 * 3 * i + 2.0 * 3 * j + 1.0 * (2 * k - 0.5)) / 400.0
-        assert B.volume.vdb_value(path, "ct", (i, j, k)) == pytest.approx(min(1.0, expected), abs=2e-3)
+        expected = (3.0 * 3 * i + 2.0 * 3 * j + 1.0 * (2 * k - 0.5)) / 400.0 if mask[k, j, i] else 0.0
+        assert B.volume.vdb_value(path, "ct", (int(i), int(j), int(k))) == pytest.approx(min(1.0, expected), abs=2e-3)
 
 
 # ----------------------------------------------------------------------------- the Volume object
@@ -156,16 +163,20 @@ def test_volume_object_lines_up_with_the_surface(B, phantom, phantom_head, phant
     k, j, i = np.argwhere(inside)[len(np.argwhere(inside)) // 2]
     assert B.volume.vdb_value(bpy.path.abspath(vol.data.filepath), "w", (i, j, k)) == pytest.approx(
         float(wf.w[k, j, i]), abs=1e-6)
-    # render framing: the solid's box in eq. 24 mode, the whole CT box (all grids) in intensity-alpha mode
+    # render framing: the solid's box in eq. 24 mode; in intensity-alpha mode the CT kept around the head
+    # (HEAD_MARGIN_MM around the solid: no air box outline, no table)
     lo, hi = B.render.world_bounds([vol])
     np.testing.assert_allclose(lo, surf_world.min(0), atol=2 * voxel)  # voxel box + half a voxel
     np.testing.assert_allclose(hi, surf_world.max(0), atol=2 * voxel)
     B.volume.set_volume_settings(vol, alpha_mode="INTENSITY")
     lo, hi = B.render.world_bounds([vol])
     ct_lo, ct_hi = (np.asarray(b) * MM for b in phantom.ct.bounds())
-    # the CT box, to a decimated voxel (Blender 4.5's volume bound box spans the voxel centres, 5.0+ the
-    # voxel boundaries: half a voxel more; 1e-6 m absorbs float32 rounding at exactly one voxel)
-    assert np.all(lo <= ct_lo + voxel + 1e-6) and np.all(hi >= ct_hi - voxel - 1e-6)
+    margin = B.volume.HEAD_MARGIN_MM * MM
+    assert np.all(lo <= surf_world.min(0) + voxel) and np.all(hi >= surf_world.max(0) - voxel)
+    leaf = 8 * 4.0 * MM  # Blender's volume bounds follow OpenVDB leaf nodes: 8 voxels of the ~4 mm ct grid
+    assert np.all(lo >= ct_lo - leaf) and np.all(hi <= ct_hi + leaf)
+    assert np.all(lo >= surf_world.min(0) - margin - leaf) and np.all(hi <= surf_world.max(0) + margin + leaf)
+    assert lo[0] > ct_lo[0] + 0.01 and hi[0] < ct_hi[0] - 0.01  # the air at the CT box's sides is not drawn
     assert np.all(lo <= surf_world.min(0)) and np.all(hi >= surf_world.max(0))
 
 
@@ -187,12 +198,17 @@ def test_volume_material_node_tree(B, tmp_path):
     pv, _ = _link_into(tree, out, "Volume")
     assert pv.bl_idname == "ShaderNodeVolumePrincipled"
     assert not any(lk.to_node == out and lk.to_socket.name == "Surface" for lk in tree.links)
-    group, socket = _link_into(tree, pv, "Density")
-    assert group.bl_idname == "ShaderNodeGroup" and group.node_tree.name == "PDE Head eq. 24"
-    assert socket.name == "Density"
-    assert _link_into(tree, pv, "Emission Strength")[0] == group
+    # density and emission: the eq. 24 group's outputs x the colour ramp's alpha (the transfer function)
     ramp, _ = _link_into(tree, pv, "Color")
     assert ramp.bl_idname == "ShaderNodeValToRGB" and _link_into(tree, pv, "Emission Color")[0] == ramp
+    for pv_input in ("Density", "Emission Strength"):
+        mult, _ = _link_into(tree, pv, pv_input)
+        assert (mult.bl_idname, mult.operation) == ("ShaderNodeMath", "MULTIPLY")
+        group, socket = mult.inputs[0].links[0].from_node, mult.inputs[0].links[0].from_socket
+        assert group.bl_idname == "ShaderNodeGroup" and group.node_tree.name == "PDE Head eq. 24"
+        assert socket.name == pv_input
+        assert mult.inputs[1].is_linked and mult.inputs[1].links[0].from_node == ramp
+        assert mult.inputs[1].links[0].from_socket.name == "Alpha"
     assert _link_into(tree, ramp, "Fac")[0] == group  # identifier (named "Factor" from 5.0, "Fac" before)
     for socket_name, grid in (("W", "w"), ("Intensity", "intensity"), ("CT", "ct")):
         attr, out_socket = _link_into(tree, group, socket_name)
@@ -382,7 +398,77 @@ def test_volume_built_unsaved_follows_the_file_when_saved(B, tmp_path):
     blend = tmp_path / "saved" / "s.blend"
     blend.parent.mkdir()
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
-    new = B.volume.relocate_vdb(vol)
-    assert new == blend.parent / "pdehead_vdb" / "Unsaved.vdb" and new.is_file()
+    # the save handler moved it beside the .blend (relative path) and removed the temporary file
+    new = blend.parent / "pdehead_vdb" / "Unsaved.vdb"
+    assert new.is_file() and not vdb.exists()
     assert vol.data.filepath == "//pdehead_vdb/Unsaved.vdb" and B.volume.check_volume(vol) is None
     assert B.volume.relocate_vdb(vol) is None  # already there
+
+    # relocate_vdb itself (also used by that handler): copies, never overwrites a different file
+    other = tmp_path / "other"
+    assert B.volume.relocate_vdb(vol, folder=other) == other.resolve() / "Unsaved.vdb"
+    assert Path(bpy.path.abspath(vol.data.filepath)).resolve() == other.resolve() / "Unsaved.vdb" and new.is_file()
+    (blend.parent / "pdehead_vdb" / "Unsaved.vdb").write_bytes(b"a different file")
+    moved = B.volume.relocate_vdb(vol)
+    assert moved == blend.parent / "pdehead_vdb" / "Unsaved-2.vdb" and moved.is_file()
+    assert new.read_bytes() == b"a different file" and B.volume.check_volume(vol) is None
+
+
+def test_rebuilt_volume_goes_to_a_new_file_and_the_old_one_is_removed_after_saving(B, tmp_path):
+    import bpy
+    blend = tmp_path / "p" / "s.blend"
+    blend.parent.mkdir()
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    coll = B.objects.study_collection("S")
+    path = B.volume.vdb_path_for("S", bpy.data.filepath)
+    vol = B.volume.build_volume(_oblique_wfield(), coll, path)
+    first = Path(bpy.path.abspath(vol.data.filepath))
+    first_bytes = first.read_bytes()
+    vol = B.volume.build_volume(_oblique_wfield(), coll, path, obj=vol)  # same target: never overwritten
+    second = Path(bpy.path.abspath(vol.data.filepath))
+    assert second != first and second.name == "S-2.vdb" and first.read_bytes() == first_bytes
+    bpy.ops.wm.save_mainfile()  # the saved file no longer needs the first one
+    assert not first.exists() and second.is_file() and B.volume.check_volume(vol) is None
+
+
+def test_transfer_function_presets_set_colour_and_opacity(B, tmp_path):
+    """Skin, bone and X-ray presets: the ramp's alpha multiplies the density (a transfer function)."""
+    coll = B.objects.study_collection("TF")
+    vol = B.volume.build_volume(_oblique_wfield(), coll, tmp_path / "tf.vdb")
+    ramp = vol.material_slots[0].material.node_tree.nodes["Intensity colour"].color_ramp
+    assert {"grayscale", "skin", "bone", "xray"} <= set(B.volume.COLOUR_PRESETS)
+    B.volume.set_volume_settings(vol, colour_preset="bone")
+    assert ramp.evaluate(0.3)[3] == pytest.approx(0.0) and ramp.evaluate(0.95)[3] > 0.8  # soft tissue hidden
+    B.volume.set_volume_settings(vol, colour_preset="xray")
+    air, mid, dense = (ramp.evaluate(x) for x in (0.02, 0.5, 1.0))
+    assert air[3] == pytest.approx(0.0) and 0.2 < mid[3] < dense[3] and abs(mid[0] - mid[2]) < 1e-6  # grey
+    B.volume.set_volume_settings(vol, colour_preset="skin")
+    tissue = ramp.evaluate(0.3)
+    assert tissue[3] == pytest.approx(1.0) and tissue[0] > tissue[2] + 0.1 and ramp.evaluate(0.03)[3] < 0.05
+    B.volume.set_volume_settings(vol, colour_preset="grayscale")
+    assert all(ramp.evaluate(x)[3] == pytest.approx(1.0) for x in (0.0, 0.5, 1.0))  # eq. 24 alone
+
+
+def test_auto_voxel_size_follows_the_ct_spacing_within_the_budgets(B, phantom, phantom_head):
+    from pdehead_addon import CTVolume
+    pts = phantom_head.surface(32, 64).vertices
+    box = (pts.min(axis=0), pts.max(axis=0))
+    size = B.volume.auto_voxel_size(phantom.ct, phantom_head)
+    assert size >= min(phantom.ct.spacing) - 1e-9
+    nbytes, voxels = B.volume.estimate_vdb(phantom.ct, box, size)
+    assert nbytes <= B.volume.MAX_VDB_BYTES and voxels <= B.volume.MAX_WFIELD_VOXELS
+    # a much finer CT over the same box is coarsened only as far as the budgets need
+    fine = CTVolume(np.zeros((4, 4, 4), np.float32), (0.3, 0.3, 0.3), origin=phantom.ct.origin)
+    fine.data = np.zeros((600, 700, 700), np.float32)[:1, :1, :1]  # spacing matters, not the data
+    small = B.volume.auto_voxel_size(fine, phantom_head, max_voxels=1e6)
+    assert B.volume.estimate_vdb(fine, box, small)[1] <= 1e6 < B.volume.estimate_vdb(fine, box, small / 1.06)[1]
+    coarse = CTVolume(np.zeros((4, 4, 4), np.float32), (3.0, 3.0, 3.0))
+    assert B.volume.auto_voxel_size(coarse, phantom_head) == pytest.approx(3.0)  # a 3 mm CT keeps 3 mm
+
+
+def test_cutaway_angles_are_degrees_in_the_ui(pdehead_ext):
+    import bpy
+    rna = bpy.types.Collection.bl_rna.properties["pdehead"].fixed_type.properties["v_range"]
+    assert rna.unit == "ROTATION" and rna.soft_min == 0.0 and rna.soft_max == pytest.approx(2 * math.pi)
+    op = bpy.ops.pdehead.build_solid.get_rna_type().properties["v_range"]
+    assert op.unit == "ROTATION"

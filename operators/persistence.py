@@ -1,0 +1,123 @@
+"""What keeps a study whole across save and reopen: file handlers for CT sources and .vdb volumes.
+
+- **save_pre** (Blender passes the path being written): the solids' CT atlas images changed by
+  live cutaways are packed; every study's CT source is recorded
+  relative to that .blend (``//...``, so a project folder moved as a whole still finds its CT)
+  and as an absolute path (used when only the .blend moved); every PDE Head volume whose .vdb
+  is not yet beside that .blend (built before the first save, in the temp or preference folder,
+  or a Save As to another folder) is copied into its ``pdehead_vdb/`` folder and the object
+  switched to the copy, before Blender writes the file.
+- **save_post**: .vdb files replaced by a rebuild or left behind by a move are deleted once the
+  saved file no longer references them (:func:`volume.purge_superseded`); a file that an older
+  .blend beside it still uses is never touched (it is not in the superseded set).
+- **load_post**: a volume whose recorded .vdb is missing but whose file lies in ``pdehead_vdb/``
+  beside the opened .blend (an absolute path written with relative paths off) is re-pointed there.
+
+The CT itself is never stored in the .blend; :func:`state.require_ct` re-reads it from these
+recorded paths when a step needs it.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import bpy
+
+from . import state, volume
+
+
+def _volume_objects() -> list:
+    return [o for o in bpy.data.objects if o.type == "VOLUME" and o.get("pdehead_kind") == "volume"]
+
+
+def record_sources(blend_path: str) -> None:
+    """Record each file-based study's CT source relative to `blend_path` and absolutely."""
+    new_dir = Path(blend_path).resolve().parent
+    for coll in state.studies():
+        s = state.settings(coll)
+        if s.source_kind != "FILES":
+            continue
+        path = state.resolve_source(coll)
+        if path is None:  # gone: keep what was recorded, the panel says it is missing
+            continue
+        path = path.resolve()
+        try:
+            relative = "//" + os.path.relpath(path, new_dir)
+        except ValueError:  # another drive (Windows): only the absolute path can work
+            relative = str(path)
+        s.source_absolute = str(path)
+        s.source = relative
+
+
+def move_volumes_beside(blend_path: str) -> list[Path]:
+    """Copy every PDE Head .vdb that is not beside `blend_path` into its ``pdehead_vdb`` folder."""
+    moved = []
+    unsaved = not bpy.data.filepath
+    for obj in _volume_objects():
+        src = Path(bpy.path.abspath(obj.data.filepath)).resolve() if obj.data.filepath else None
+        dst = volume.relocate_vdb(obj, blend_path=blend_path)
+        if dst is not None:
+            moved.append(dst)
+            if unsaved and src is not None:
+                volume.supersede(src)  # a temp-folder file of an unsaved session: moved, not copied
+    return moved
+
+
+@bpy.app.handlers.persistent
+def pdehead_save_pre(filepath="", *_args) -> None:
+    if not filepath:
+        return
+    try:
+        from . import objects
+        objects.pack_ct_images()  # live cutaways update the CT atlases without re-packing each step
+        record_sources(filepath)
+        move_volumes_beside(filepath)
+    except Exception as exc:  # noqa: BLE001 - a handler must never stop the save
+        import traceback
+        traceback.print_exc()
+        print(f"PDE Head: could not prepare the study files for saving: {exc}")
+
+
+@bpy.app.handlers.persistent
+def pdehead_save_post(*_args) -> None:
+    try:
+        volume.purge_superseded()
+    except Exception as exc:  # noqa: BLE001
+        print(f"PDE Head: could not remove replaced volume files: {exc}")
+
+
+@bpy.app.handlers.persistent
+def pdehead_volume_load_post(*_args) -> None:
+    if not bpy.data.filepath:
+        return
+    folder = volume.vdb_folder_for(bpy.data.filepath)
+    for obj in _volume_objects():
+        data = obj.data
+        if not data.filepath or os.path.isfile(bpy.path.abspath(data.filepath)):
+            continue
+        beside = folder / Path(bpy.path.abspath(data.filepath)).name
+        if beside.is_file():
+            data.filepath = volume.blender_filepath(beside)
+            data.grids.unload()
+            data.grids.load()
+
+
+_HANDLERS = (("save_pre", pdehead_save_pre), ("save_post", pdehead_save_post),
+             ("load_post", pdehead_volume_load_post))
+
+
+def register() -> None:
+    for kind, fn in _HANDLERS:
+        handlers = getattr(bpy.app.handlers, kind)
+        for h in list(handlers):
+            if getattr(h, "__name__", "") == fn.__name__ and getattr(h, "__module__", "") == fn.__module__:
+                handlers.remove(h)
+        handlers.append(fn)
+
+
+def unregister() -> None:
+    for kind, fn in _HANDLERS:
+        handlers = getattr(bpy.app.handlers, kind)
+        for h in list(handlers):
+            if getattr(h, "__name__", "") == fn.__name__ and getattr(h, "__module__", "") == fn.__module__:
+                handlers.remove(h)
