@@ -429,11 +429,14 @@ def write_vdb(wfield, path, window, *, ct=None, origin_m=(0.0, 0.0, 0.0)) -> Pat
         yield "ct", windowed, 0.0, True, ct_affine.T.tolist()
 
     window_meta = f"{float(window[0])!r} {float(window[1])!r}"
-    if openvdb is None:  # no bindings (bpy 4.2 from PyPI): our own writer, same grids and values
-        return vdb_writer.write_vdb(path, (
+    if openvdb is None:  # no bindings (bpy 4.2 from PyPI): our own writer, same grids and values (leaves
+        # only where a voxel differs from the background: the bounds of a pruned grid)
+        vdb_writer.write_vdb(path, (
             vdb_writer.DenseGrid(name, data.transpose(2, 1, 0), background, half, rows,
                                  {"pdehead_window": window_meta} if name == "w" else {})
             for name, data, background, half, rows in grids()))
+        _WRITTEN.add(str(path.resolve()))
+        return path
     written = []
     try:
         for name, data, background, half, rows in grids():
