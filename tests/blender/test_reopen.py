@@ -49,6 +49,9 @@ else:
     pkg = importlib.util.module_from_spec(spec); sys.modules["pdehead_dev"] = pkg; spec.loader.exec_module(pkg)
     pkg.register()
 name = pkg.__name__
+# the bpy 4.2 / 4.5 modules crash / hang at exit with add-on classes still registered
+sys.modules[name + ".operators.compat"].unregister_at_exit(
+    pkg.unregister if args["layout"] != "zip" else lambda: __import__("addon_utils").disable(name, default_set=False))
 state = sys.modules[name + ".operators.state"]
 objects = sys.modules[name + ".operators.objects"]
 volume = sys.modules[name + ".operators.volume"]
@@ -70,9 +73,10 @@ np.savez(args["out"] + "_solid.npz", colour=objects.mesh_attribute(solid, object
 if args.get("volume"):
     assert bpy.ops.pdehead.build_volume() == {"FINISHED"}
     out["vdb_after"] = bpy.path.abspath(s.volume_object.data.filepath)
-    ct, lo = volume.read_vdb_array(out["vdb_after"], "ct")
-    np.save(args["out"] + "_ct.npy", ct)
-    out["ct_lo"] = lo
+    if volume.compat.has_openvdb():  # bpy 4.2 cannot read .vdb files back (its volumes: operators/vdb_writer.py)
+        ct, lo = volume.read_vdb_array(out["vdb_after"], "ct")
+        np.save(args["out"] + "_ct.npy", ct)
+        out["ct_lo"] = lo
     render.render_objects_png([s.volume_object], args["out"] + "_volume.png", view="FRONT", resolution=(128, 128),
                               samples=8)
     render.render_objects_png([solid], args["out"] + "_solid.png", view="RIGHT",
@@ -136,7 +140,8 @@ def test_reopen_in_a_new_process_rereads_the_ct_and_loses_nothing(ext, pdehead_e
     assert colour_before.std() > 0.05 and pixels_before.reshape(-1, 4)[:, 0].std() > 0.05
     temp_vdb = Path(s.volume_object.data.filepath)
     assert temp_vdb.is_absolute() and temp_vdb.parent == unsaved_folder.resolve() and temp_vdb.is_file()
-    ct_before, lo_before = ext.volume.read_vdb_array(temp_vdb, "ct")
+    can_read_vdb = ext.volume.compat.has_openvdb()  # bpy 4.2: no OpenVDB bindings to read files back
+    ct_before, lo_before = ext.volume.read_vdb_array(temp_vdb, "ct") if can_read_vdb else (None, None)
 
     blend = project / "study.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
@@ -167,14 +172,15 @@ def test_reopen_in_a_new_process_rereads_the_ct_and_loses_nothing(ext, pdehead_e
     assert Path(result["vdb_after"]) != Path(result["vdb_before"])
     assert Path(result["vdb_after"]).parent == moved / "pdehead_vdb"
     assert not result["vdb_before_exists_after_save"]
-    ct_after = np.load(tmp_path / "zip_ct.npy")
-    assert tuple(result["ct_lo"]) == lo_before and ct_after.shape == ct_before.shape
-    both = (ct_after > 0) & (ct_before > 0)
-    np.testing.assert_allclose(ct_after[both], ct_before[both], atol=1e-3)
-    # the grid is kept within 6 mm of the solid; the reopened head (solved from the compact stored
-    # curves) moves that edge by a hair: a handful of edge voxels may switch, nothing else
-    assert np.mean(np.abs(ct_after - ct_before) > 1e-3) < 1e-4
-    assert ct_after.max() > 0.9 and (ct_after > 0.1).mean() > 0.05  # a real CT, not an empty grid
+    if can_read_vdb:
+        ct_after = np.load(tmp_path / "zip_ct.npy")
+        assert tuple(result["ct_lo"]) == lo_before and ct_after.shape == ct_before.shape
+        both = (ct_after > 0) & (ct_before > 0)
+        np.testing.assert_allclose(ct_after[both], ct_before[both], atol=1e-3)
+        # the grid is kept within 6 mm of the solid; the reopened head (solved from the compact stored
+        # curves) moves that edge by a hair: a handful of edge voxels may switch, nothing else
+        assert np.mean(np.abs(ct_after - ct_before) > 1e-3) < 1e-4
+        assert ct_after.max() > 0.9 and (ct_after > 0.1).mean() > 0.05  # a real CT, not an empty grid
 
     render_mod = sys.modules[pdehead_ext.__name__ + ".operators.render"]
     vol_stats = render_mod.image_stats(tmp_path / "zip_volume.png")
