@@ -326,6 +326,16 @@ def contour_from_field(field: np.ndarray, origin: tuple[int, int] = (0, 0)) -> t
     return contour + np.array([origin[0] - 1, origin[1] - 1], float), dict(area_px=area, ring_coverage=float("nan"))
 
 
+def _max_thickness(value) -> float | None:
+    """The largest slice thickness (mm) a source recorded (a number or a list), or None."""
+    try:
+        arr = np.asarray(value, dtype=np.float64).ravel()
+    except (TypeError, ValueError):
+        return None
+    arr = arr[np.isfinite(arr) & (arr > 0)]
+    return float(arr.max()) if arr.size else None
+
+
 def _head_top(mask: np.ndarray, slice_z: np.ndarray, dz: float) -> float | None:
     """Patient z of the crown (the top face of the most superior head slice), if the head ends in the scan."""
     occupied = np.flatnonzero(mask.reshape(len(mask), -1).any(axis=1))
@@ -1010,6 +1020,8 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
         envelope_sigma_mm=float(envelope_sigma_mm) if level_field == "envelope" else None,
         star_shaped=bool(star_shaped), star_slope=float(star_slope) if star_shaped else None,
         source_slice_step_mm=float(ct.meta.get("source_slice_step_mm") or dz),
+        source_slice_thickness_mm=_max_thickness(ct.meta.get("slice_thickness_mm")),
+        gantry_tilt_deg=float(ct.meta.get("gantry_tilt_deg") or 0.0),
     )
     top = _head_top(mask, slice_z, dz)
     if top is not None:

@@ -127,6 +127,8 @@ DEFAULT_C2_SMOOTHING = 0.0
 APPROXIMATION_PER_SLICE = 1.0
 #: ... but at most this many mean gaps between the chosen curves.
 APPROXIMATION_PER_GAP = 0.5
+#: ... and for thick or tilted series at least this many source slice thicknesses along z.
+APPROXIMATION_PER_THICKNESS = 0.6
 #: The approximation slider's top: this many mean gaps between the curves.
 APPROXIMATION_MAX_PER_GAP = 1.5
 
@@ -1032,16 +1034,23 @@ def _curve_positions(bset: BoundarySet) -> np.ndarray:
 def default_approximation(bset: BoundarySet) -> float:
     """Default smoothing length (mm) along u of the approximating mode.
 
-    ``APPROXIMATION_PER_SLICE`` times the scan's axial slice step (the source's
-    slice step along z), but not more than ``APPROXIMATION_PER_GAP`` times the
-    mean gap between the chosen curves (few curves: keep what they say). The length
-    is measured along the surface (:func:`_curve_positions`).
+    ``APPROXIMATION_PER_SLICE`` times the scan's axial slice step, but not more than
+    ``APPROXIMATION_PER_GAP`` times the mean gap between the chosen curves (few
+    curves: keep what they say). Thick or tilted slices step from plane to plane by
+    more than the resampled grid's step: there at least ``APPROXIMATION_PER_THICKNESS``
+    times the source slices' thickness along z (``thickness / cos(tilt)``), up to one
+    gap. The length is measured along the surface (:func:`_curve_positions`).
     """
-    spacing = bset.meta.get("source_slice_step_mm") or (bset.meta.get("spacing") or [0.0])[0]
+    meta = bset.meta
+    spacing = meta.get("source_slice_step_mm") or (meta.get("spacing") or [0.0])[0]
     gaps = np.abs(np.diff(bset.heights))
     gap = float(gaps.mean()) if gaps.size else 0.0
-    value = APPROXIMATION_PER_SLICE * float(spacing or 0.0)
-    return float(max(0.0, min(value, APPROXIMATION_PER_GAP * gap)))
+    value = min(APPROXIMATION_PER_SLICE * float(spacing or 0.0), APPROXIMATION_PER_GAP * gap)
+    thickness = float(meta.get("source_slice_thickness_mm") or 0.0)
+    if thickness > 0:
+        tilt = np.radians(float(meta.get("gantry_tilt_deg") or 0.0))
+        value = max(value, min(APPROXIMATION_PER_THICKNESS * thickness / max(np.cos(tilt), 0.1), gap))
+    return float(max(0.0, value))
 
 
 def smoothing_range(bset: BoundarySet) -> tuple[float, float]:
