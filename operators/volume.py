@@ -130,12 +130,18 @@ def apply_window(values: np.ndarray, window: tuple[float, float]) -> np.ndarray:
 
 
 def sample_ct(ct, points_mm: np.ndarray, order: int = 1) -> np.ndarray:
-    """CT intensity at patient LPS points (mm), trilinear; the lowest CT value outside the box."""
-    from scipy.ndimage import map_coordinates
+    """CT intensity at patient LPS points (mm), trilinear; the lowest CT value outside the box.
 
+    Points within the outer half voxel take the edge value (:func:`ct_volume.trilinear`): a vertex
+    on the scan's first slice must not turn to air when rounding puts it an ulp outside.
+    """
     pts = np.asarray(points_mm, dtype=np.float64).reshape(-1, 3)
     kji = ct.patient_to_index(pts)
     cval = float(np.min(ct.data)) if ct.data.size else 0.0
+    if order == 1:
+        from ..pdehead_addon.ct_volume import trilinear
+        return trilinear(ct.data, kji, cval=cval)
+    from scipy.ndimage import map_coordinates
     out = map_coordinates(ct.data, kji.T, order=order, mode="constant", cval=cval, prefilter=False)
     return out.astype(np.float32, copy=False)
 

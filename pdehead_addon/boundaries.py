@@ -103,6 +103,9 @@ MIN_AREA_FRACTION = 0.05
 CLOSING_MM = 3.0
 #: Default low-pass along each curve (Gaussian sigma, pixels) against the pixel-grid ripple.
 CURVE_SIGMA_PX = 1.0
+#: The same for the envelope's curves: its 3-D smoothing makes neighbouring outlines agree, so what
+#: is left of the CT noise on the outline repeats from curve to curve as vertical wrinkles (1.5 px).
+ENVELOPE_CURVE_SIGMA_PX = 1.5
 #: Star hull: bound on |d ln r / d theta| (2: the normal stays within 63 degrees of the ray; at 3 and more
 #: the corners of the mouth keep a pit on CThead).
 STAR_MAX_SLOPE = 2.0
@@ -321,6 +324,16 @@ def contour_from_field(field: np.ndarray, origin: tuple[int, int] = (0, 0)) -> t
     contour = max(contours, key=lambda c: abs(_shoelace(c[:-1])))[:-1]
     area = abs(_shoelace(contour))
     return contour + np.array([origin[0] - 1, origin[1] - 1], float), dict(area_px=area, ring_coverage=float("nan"))
+
+
+def _max_thickness(value) -> float | None:
+    """The largest slice thickness (mm) a source recorded (a number or a list), or None."""
+    try:
+        arr = np.asarray(value, dtype=np.float64).ravel()
+    except (TypeError, ValueError):
+        return None
+    arr = arr[np.isfinite(arr) & (arr > 0)]
+    return float(arr.max()) if arr.size else None
 
 
 def _head_top(mask: np.ndarray, slice_z: np.ndarray, dz: float) -> float | None:
@@ -824,7 +837,7 @@ def max_patches(seg, min_area_fraction: float = MIN_AREA_FRACTION) -> int:
 def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Selection = "uniform",
                        min_area_fraction: float = MIN_AREA_FRACTION, sigma: float = 0.7,
                        level_field: str = "envelope", band: int = 1, parameterisation: str = "angular",
-                       curve_sigma: float = CURVE_SIGMA_PX, max_stretch: float = 8.0,
+                       curve_sigma: float | None = None, max_stretch: float = 8.0,
                        closing_mm: float | None = None, envelope_sigma_mm: float = ENVELOPE_SIGMA_MM,
                        star_shaped: bool = True, star_slope: float = STAR_MAX_SLOPE) -> BoundarySet:
     """The 3t+1 PDE boundary curves of a segmented head (paper eq. 22, sections 3 and 4.1).
@@ -867,7 +880,8 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
         that, then :func:`align_parameterisation` moves the samples along each
         curve so that equal v means corresponding points on neighbouring
         curves (no folds between curves at the nose, lips, ears).
-    curve_sigma : float
+    curve_sigma : float, optional
+        Default ``ENVELOPE_CURVE_SIGMA_PX`` (1.5) for the envelope, ``CURVE_SIGMA_PX`` (1) else.
         Gaussian low-pass along each curve, standard deviation in pixels
         (converted with the mean in-plane spacing): removes the pixel-grid
         ripple that repeats on every slice (vertical streaks on the surface).
@@ -914,6 +928,8 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
     if parameterisation not in PARAMETERISATIONS + ("angular",):
         raise BoundaryError(f"parameterisation must be one of {list(PARAMETERISATIONS) + ['angular']}, "
                             f"got {parameterisation!r}")
+    if curve_sigma is None:
+        curve_sigma = ENVELOPE_CURVE_SIGMA_PX if level_field == "envelope" else CURVE_SIGMA_PX
     if not (np.isfinite(curve_sigma) and curve_sigma >= 0):
         raise BoundaryError(f"curve_sigma must be >= 0 (pixels), got {curve_sigma!r}")
     if closing_mm is None:
@@ -1004,6 +1020,8 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
         envelope_sigma_mm=float(envelope_sigma_mm) if level_field == "envelope" else None,
         star_shaped=bool(star_shaped), star_slope=float(star_slope) if star_shaped else None,
         source_slice_step_mm=float(ct.meta.get("source_slice_step_mm") or dz),
+        source_slice_thickness_mm=_max_thickness(ct.meta.get("slice_thickness_mm")),
+        gantry_tilt_deg=float(ct.meta.get("gantry_tilt_deg") or 0.0),
     )
     top = _head_top(mask, slice_z, dz)
     if top is not None:

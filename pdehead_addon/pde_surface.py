@@ -101,7 +101,7 @@ import numpy as np
 from .boundary_set import BoundarySet
 from .errors import PDEError
 from .mesh import Mesh
-from .pde_basis import basis, basis_grid, curve_harmonics, inverse_4x4
+from .pde_basis import basis, basis_grid, curve_harmonics, inverse_4x4, small_matmul
 from .pde_spline import c2_spans, dome_height, smoothing_spline_values
 from .parameterisation import align_parameterisation  # noqa: F401  (re-export; solve_pde(align=True))
 
@@ -127,6 +127,8 @@ DEFAULT_C2_SMOOTHING = 0.0
 APPROXIMATION_PER_SLICE = 1.0
 #: ... but at most this many mean gaps between the chosen curves.
 APPROXIMATION_PER_GAP = 0.5
+#: ... and for thick or tilted series at least this many source slice thicknesses along z.
+APPROXIMATION_PER_THICKNESS = 0.6
 #: The approximation slider's top: this many mean gaps between the curves.
 APPROXIMATION_MAX_PER_GAP = 1.5
 
@@ -431,6 +433,8 @@ class PDEHead:
             np.concatenate([coefficients.real, coefficients.imag], axis=-1))   # (S, H, 4, 6)
         self._uniform_spans = bool(np.allclose(self.span_edges, np.linspace(0.0, 1.0, S + 1), atol=1e-12))
         self._cubic_spans = ~np.any(exponents, axis=1)
+        S_, H_ = coefficients.shape[:2]
+        self._coef_flat = np.ascontiguousarray(self._coef_real.transpose(0, 2, 1, 3)).reshape(S_ * 4, H_ * 6)
         self.orientation = 1
         self.orientation = self._measure_orientation()
         self._deviation = None
@@ -496,11 +500,17 @@ class PDEHead:
         out = np.empty((u.size, H, 3), dtype=np.complex128)
         cubic = self._cubic_spans[patch]                                      # a = 0 there: one basis for all h
         if np.any(cubic):
+            # one product: rows x (span, basis) weights (4 per row) times (span, basis) x (h, re/im xyz)
             rows = np.flatnonzero(cubic)
             g = basis(np.zeros(1), s[rows, None])[:, 0]                       # (n, 4)
-            for start in range(0, rows.size, 256):
-                sl = rows[start:start + 256]
-                prod = np.einsum("nb,nhbc->nhc", g[start:start + 256], self._coef_real[patch[sl], :H])
+            S = self.spans
+            flat = self._coef_flat if H == self.harmonics else \
+                np.ascontiguousarray(self._coef_flat.reshape(S * 4, -1, 6)[:, :H]).reshape(S * 4, H * 6)
+            for start in range(0, rows.size, 512):
+                sl = rows[start:start + 512]
+                W = np.zeros((len(sl), S * 4))
+                W[np.arange(len(sl))[:, None], 4 * patch[sl, None] + np.arange(4)] = g[start:start + 512]
+                prod = small_matmul(W, flat).reshape(len(sl), H, 6)
                 out[sl] = prod[..., :3] + 1j * prod[..., 3:]
         for k in np.unique(patch[~cubic]):
             sel = np.nonzero(patch == k)[0]
@@ -553,27 +563,28 @@ class PDEHead:
         inverse real FFT (harmonics above nv/2 are folded, which is exact at the
         sample points); with explicit ``v`` a direct cosine/sine sum.
         """
-        amp = self._amplitudes(u)                                             # (nu, H, 3)
         H = self.harmonics
         if v is not None:
+            amp = self._amplitudes(u)                                         # (nu, H, 3)
             phase = np.exp(1j * np.outer(np.arange(H), np.asarray(v, float)))   # (H, nv)
             a = amp.transpose(0, 2, 1).reshape(-1, H)                          # (nu*3, H)
             pts = (a.real @ phase.real - a.imag @ phase.imag)
             return pts.reshape(len(u), 3, -1).transpose(0, 2, 1)
+        u = np.clip(np.asarray(u, dtype=np.float64).ravel(), 0.0, 1.0)
         nb = nv // 2 + 1
-        a = amp.transpose(0, 2, 1)                                            # (nu, 3, H)
-        if H <= (nv + 1) // 2:                                                 # no folding, no Nyquist clash
-            spec = np.zeros(a.shape[:2] + (nb,), np.complex128)
-            spec[..., :H] = a
-        else:
-            h = np.arange(H)
-            m = h % nv
-            conj = m > nv // 2
-            b = np.where(conj, nv - m, m)
-            spec = np.zeros(a.shape[:2] + (nb,), np.complex128)
-            np.add.at(spec, (slice(None), slice(None), b[~conj]), a[..., ~conj])
-            if np.any(conj):
-                np.add.at(spec, (slice(None), slice(None), b[conj]), np.conj(a[..., conj]))
+        spec = np.empty((u.size, 3, nb), np.complex128)
+        patch, s = self._patch_of(u)
+        cubic = self._cubic_spans[patch]
+        if np.any(cubic):                        # the harmonics folded once per nv, then one product
+            rows = np.flatnonzero(cubic)
+            g = basis(np.zeros(1), s[rows, None])[:, 0]
+            W = np.zeros((rows.size, self.spans * 4))
+            W[np.arange(rows.size)[:, None], 4 * patch[rows, None] + np.arange(4)] = g
+            folded = small_matmul(W, self._folded(nv)).reshape(rows.size, nb, 6)
+            spec[rows] = (folded[..., :3] + 1j * folded[..., 3:]).transpose(0, 2, 1)
+        if not np.all(cubic):
+            rows = np.flatnonzero(~cubic)
+            spec[rows] = _fold(self._amplitudes(u[rows]).transpose(0, 2, 1), nv)
         # irfft weights: x_j = (1/nv)[Y_0 + 2 Re sum Y_b w^bj + Y_{nv/2} (-1)^j]
         spec *= nv / 2.0
         spec[..., 0] *= 2.0
@@ -581,6 +592,30 @@ class PDEHead:
             spec[..., -1] *= 2.0
         pts = np.fft.irfft(spec, n=nv, axis=-1)                               # (nu, 3, nv)
         return pts.transpose(0, 2, 1)
+
+    def _folded(self, nv: int) -> np.ndarray:
+        """The (span, basis) x (bin, re/im xyz) coefficients with the harmonics folded onto the nv//2 + 1
+        bins of an nv-point ring (cached per nv: the sliders rebuild at a few resolutions)."""
+        cache = self.__dict__.setdefault("_folded_cache", {})
+        if nv not in cache:
+            H, nb = self.harmonics, nv // 2 + 1
+            h = np.arange(H)
+            m = h % nv
+            conj = m > nv // 2
+            b = np.where(conj, nv - m, m)
+            F_re = np.zeros((H, nb))
+            F_re[h, b] = 1.0
+            F_im = F_re * np.where(conj, -1.0, 1.0)[:, None]                # conjugates flip the imaginary part
+            c = self._coef_flat.reshape(-1, H, 6)
+            k = c.shape[0]
+            ct = np.ascontiguousarray(c.transpose(0, 2, 1))                    # (k, 6, H)
+            re = small_matmul(ct[:, :3].reshape(-1, H), F_re).reshape(k, 3, nb)
+            im = small_matmul(ct[:, 3:].reshape(-1, H), F_im).reshape(k, 3, nb)
+            out = np.concatenate([re, im], axis=1).transpose(0, 2, 1)          # (k, nb, 6)
+            if len(cache) > 8:
+                cache.clear()
+            cache[nv] = np.ascontiguousarray(out).reshape(k, nb * 6)
+        return cache[nv]
 
     def _measure_orientation(self) -> int:
         """Sign of the volume enclosed by the polyhedral tube through the curves, default winding.
@@ -628,7 +663,7 @@ class PDEHead:
             nu = max(nu, 3)
             u = np.linspace(0.0, 1.0, nu)
             pts = self._grid(u[:-1], nv)
-            bottom = _fan_caps(pts, self.spine(np.array([0.0, 1.0])))[0] if caps else None
+            bottom = _fan_caps(pts, self.spine(np.array([0.0, 1.0])), ends=(0,))[0] if caps else None
             top = (np.asarray(self.vertex, float), _fan_indices(nv))
             return _tube_mesh(pts, self.orientation, [bottom, top], uv=True, u=u[:-1], top_u=1.0)
         pts = self._grid(u, nv)
@@ -650,6 +685,24 @@ class PDEHead:
         return (f"PDEHead(continuity={self.continuity!r}, patches={self.patches}, spans={self.spans}, "
                 f"samples={self.bset.samples}, modes={self.modes}, "
                 f"smoothing={np.round(self.smoothing, 4).tolist()}, approximation_mm={self.approximation_mm:g})")
+
+
+def _fold(a: np.ndarray, nv: int) -> np.ndarray:
+    """Complex harmonics (..., H) folded onto the nv//2 + 1 bins of an nv-point real signal (exact at the samples)."""
+    H = a.shape[-1]
+    nb = nv // 2 + 1
+    spec = np.zeros(a.shape[:-1] + (nb,), np.complex128)
+    if H <= (nv + 1) // 2:                                                     # no folding, no Nyquist clash
+        spec[..., :H] = a
+        return spec
+    h = np.arange(H)
+    m = h % nv
+    conj = m > nv // 2
+    b = np.where(conj, nv - m, m)
+    np.add.at(spec, (Ellipsis, b[~conj]), a[..., ~conj])
+    if np.any(conj):
+        np.add.at(spec, (Ellipsis, b[conj]), np.conj(a[..., conj]))
+    return spec
 
 
 # ----------------------------------------------------------------------------- meshing helpers
@@ -793,7 +846,7 @@ def _polygon_triangles(p: np.ndarray) -> np.ndarray:
     return _ear_clip(p)
 
 
-def _fan_caps(pts: np.ndarray, spine_ends: np.ndarray, fan_only: bool = False
+def _fan_caps(pts: np.ndarray, spine_ends: np.ndarray, fan_only: bool = False, ends: tuple[int, ...] = (0, 1)
               ) -> list[tuple[np.ndarray | None, np.ndarray]]:
     """Cap triangulations of the first and last ring: (centre or None, triangles in ring indices).
 
@@ -803,7 +856,8 @@ def _fan_caps(pts: np.ndarray, spine_ends: np.ndarray, fan_only: bool = False
     caller orients them.
     """
     caps = []
-    for ring, centre in ((pts[0], spine_ends[0]), (pts[-1], spine_ends[1])):
+    for end in ends:
+        ring, centre = (pts[0], spine_ends[0]) if end == 0 else (pts[-1], spine_ends[1])
         n = len(ring)
         star, p, _ = (True, None, None) if fan_only else _star_shaped(ring, centre)
         if star:
@@ -971,24 +1025,32 @@ def _curve_positions(bset: BoundarySet) -> np.ndarray:
     of consecutive curves (chord length). The C2 spline's parameter: near the crown, where the
     rings shrink fast over little height, the spans are as long as the surface is, so neither the
     interpolation nor the approximating mode is stiffer there than on the sides of the head."""
-    c = bset.curves
-    step = np.linalg.norm(np.diff(c, axis=0), axis=2).mean(axis=1)
-    return np.concatenate([[0.0], np.cumsum(np.maximum(step, 1e-6))])
+    def compute():
+        step = np.linalg.norm(np.diff(bset.curves, axis=0), axis=2).mean(axis=1)
+        return np.concatenate([[0.0], np.cumsum(np.maximum(step, 1e-6))])
+    return _derived(bset, "positions", compute)
 
 
 def default_approximation(bset: BoundarySet) -> float:
     """Default smoothing length (mm) along u of the approximating mode.
 
-    ``APPROXIMATION_PER_SLICE`` times the scan's axial slice step (the source's
-    slice step along z), but not more than ``APPROXIMATION_PER_GAP`` times the
-    mean gap between the chosen curves (few curves: keep what they say). The length
-    is measured along the surface (:func:`_curve_positions`).
+    ``APPROXIMATION_PER_SLICE`` times the scan's axial slice step, but not more than
+    ``APPROXIMATION_PER_GAP`` times the mean gap between the chosen curves (few
+    curves: keep what they say). Thick or tilted slices step from plane to plane by
+    more than the resampled grid's step: there at least ``APPROXIMATION_PER_THICKNESS``
+    times the source slices' thickness along z (``thickness / cos(tilt)``), up to one
+    gap. The length is measured along the surface (:func:`_curve_positions`).
     """
-    spacing = bset.meta.get("source_slice_step_mm") or (bset.meta.get("spacing") or [0.0])[0]
+    meta = bset.meta
+    spacing = meta.get("source_slice_step_mm") or (meta.get("spacing") or [0.0])[0]
     gaps = np.abs(np.diff(bset.heights))
     gap = float(gaps.mean()) if gaps.size else 0.0
-    value = APPROXIMATION_PER_SLICE * float(spacing or 0.0)
-    return float(max(0.0, min(value, APPROXIMATION_PER_GAP * gap)))
+    value = min(APPROXIMATION_PER_SLICE * float(spacing or 0.0), APPROXIMATION_PER_GAP * gap)
+    thickness = float(meta.get("source_slice_thickness_mm") or 0.0)
+    if thickness > 0:
+        tilt = np.radians(float(meta.get("gantry_tilt_deg") or 0.0))
+        value = max(value, min(APPROXIMATION_PER_THICKNESS * thickness / max(np.cos(tilt), 0.1), gap))
+    return float(max(0.0, value))
 
 
 def smoothing_range(bset: BoundarySet) -> tuple[float, float]:
@@ -1000,15 +1062,30 @@ def smoothing_range(bset: BoundarySet) -> tuple[float, float]:
     normalised slider ``f in [0, 1]`` maps to ``a = f * maximum``.
     """
     c = bset.curves
-    r = float(np.linalg.norm(c - c.mean(axis=1, keepdims=True), axis=2).mean())
+    r = _derived(bset, "radius", lambda: float(np.linalg.norm(c - c.mean(axis=1, keepdims=True), axis=2).mean()))
     z = float(np.ptp(bset.heights)) or 1.0
     a_iso = z / r if r > 0 else 0.0
     return DEFAULT_C2_SMOOTHING * a_iso, a_iso
 
 
+def _derived(bset: BoundarySet, name: str, compute):
+    """A quantity derived from the curves alone, computed once per boundary set.
+
+    The live sliders re-solve the same curves many times; their harmonics, positions and
+    radius do not change. A BoundarySet's curves are not modified after it is made (every
+    step returns a new set), and the cache sits on the object, so it goes with it.
+    """
+    cache = bset.__dict__.setdefault("_derived", {})
+    key = (name, bset.curves.ctypes.data, bset.curves.shape)
+    if key not in cache:
+        cache[key] = compute()
+    return cache[key]
+
+
 def _harmonics(bset: BoundarySet, keep: int | None) -> tuple[np.ndarray, bool]:
-    """The curves' harmonics; with ``keep`` only h <= keep (eq. 13's truncated series, no R)."""
-    spec, planar = curve_harmonics(bset.curves)
+    """The curves' harmonics (a fresh copy); with ``keep`` only h <= keep (eq. 13's truncated series, no R)."""
+    spec, planar = _derived(bset, "harmonics", lambda: curve_harmonics(bset.curves))
+    spec = spec.copy()
     if keep is not None:
         spec[:, keep + 1:] = 0.0
     return spec, planar

@@ -204,6 +204,19 @@ def test_default_head_is_smooth_on_real_scans(request, dataset, t):
     assert q["notch_fraction"] <= (0.002 if dataset == "ge" else 0.0005)
     paper = solve_pde(b, continuity="paper")
     assert q["crease_p95_deg"] < 0.2 * surface_quality(paper)["crease_p95_deg"]
+    if dataset == "cthead":      # distance to marching cubes of the mask: a regression guard at today's value
+        from pdehead_addon.pde_surface import _tube_mesh
+        from skimage import measure
+        verts, faces, _, _ = measure.marching_cubes(seg.mask.astype(np.float32), 0.5)
+        verts = seg.ct.index_to_patient(verts)
+        cz = verts[faces][:, :, 2].mean(axis=1)
+        z = b.curves[..., 2]
+        faces = faces[(cz >= z.min()) & (cz <= z.max())]
+        tube = _tube_mesh(head._grid(np.linspace(head.curve_u[0], head.curve_u[-1], 81), 256), head.orientation)
+        from pdehead_addon import symmetric_surface_distance
+        d = symmetric_surface_distance(tube.vertices, tube.quads, verts, faces, samples=20_000)
+        print("CThead t=10 to marching cubes", round(d["mean"], 3), round(d["p95"], 3))
+        assert d["mean"] < 0.70 and d["p95"] < 2.3
     if dataset == "cthead":      # the measure sees the notches of the per-slice outlines (ears, nostrils)
         per_slice = extract_boundaries(seg, patches=t, selection="shape-change", level_field="mask",
                                        star_shaped=False, parameterisation="aligned")
