@@ -243,18 +243,9 @@ def _fill_mesh(me, vertices_local: np.ndarray, mesh, smooth: bool) -> None:
     me.polygons.foreach_set("loop_start", starts.astype(np.int32))
     me.update(calc_edges=True)
 
-    uv = mesh.loop_uv()
-    if uv is not None:
-        layer = me.attributes.new(UV_NAME, "FLOAT2", "CORNER")  # a FLOAT2 corner attribute is a UV map
-        layer.data.foreach_set("vector", np.ascontiguousarray(uv, np.float32).ravel())
+    _write_attributes(me, mesh, n)
+    if mesh.loop_uv() is not None:
         me.uv_layers.active = me.uv_layers[UV_NAME]
-    for key, values in mesh.vertex_attributes.items():
-        if key in _RESERVED or key.startswith("."):
-            continue
-        if np.shape(values)[0] != n:
-            raise ValueError(f"vertex attribute {key!r} has {np.shape(values)[0]} values for {n} vertices")
-        kind, field, flat = _attribute_spec(values)
-        me.attributes.new(key, kind, "POINT").data.foreach_set(field, flat)
     if smooth:
         if hasattr(me, "shade_smooth"):
             me.shade_smooth()
@@ -294,10 +285,16 @@ def _set_attribute(me, key: str, kind: str, domain: str, field: str, flat: np.nd
 def _update_mesh_in_place(me, vertices_local: np.ndarray, mesh) -> None:
     """Same topology: rewrite positions, UVs and vertex attributes only (the fast live path)."""
     me.attributes["position"].data.foreach_set("vector", np.ascontiguousarray(vertices_local, np.float32).ravel())
+    _write_attributes(me, mesh, len(vertices_local))
+    me.update()
+
+
+def _write_attributes(me, mesh, n: int) -> None:
+    """The engine mesh's UVs (a FLOAT2 corner attribute is a UV map) and vertex attributes, created or
+    rewritten in place: one path for a new mesh and for the live update."""
     uv = mesh.loop_uv()
     if uv is not None:
         _set_attribute(me, UV_NAME, "FLOAT2", "CORNER", "vector", np.ascontiguousarray(uv, np.float32).ravel())
-    n = len(vertices_local)
     for key, values in mesh.vertex_attributes.items():
         if key in _RESERVED or key.startswith("."):
             continue
@@ -305,7 +302,6 @@ def _update_mesh_in_place(me, vertices_local: np.ndarray, mesh) -> None:
             raise ValueError(f"vertex attribute {key!r} has {np.shape(values)[0]} values for {n} vertices")
         kind, field, flat = _attribute_spec(values)
         _set_attribute(me, key, kind, "POINT", field, flat)
-    me.update()
 
 
 def build_mesh_object(mesh, collection, name: str, obj=None, smooth: bool = True):

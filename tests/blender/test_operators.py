@@ -16,6 +16,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from panel_recorder import RecordingLayout as _Layout  # noqa: E402
+
 
 
 def open_blend(path: Path):
@@ -274,18 +276,6 @@ def test_two_studies_get_their_own_collections(ext):
     assert [c.name for c in ext.state.studies()] == ["Phantom.001"]
 
 
-class _Layout:
-    """Records what a panel draws (headless Blender has no UI to draw into)."""
-
-    def __init__(self, log):
-        self.log, self.enabled = log, True
-
-    def __getattr__(self, name):
-        if name in ("row", "column", "box", "split"):
-            return lambda *a, **k: _Layout(self.log)
-        if name == "operator":
-            return lambda idname, **k: (self.log.append(("operator", idname)), SimpleNamespace())[1]
-        return lambda *a, **k: self.log.append((name, a[1] if name == "prop" and len(a) > 1 else k.get("text")))
 
 
 def test_panels_draw_every_setting(ext, phantom_blend):

@@ -16,6 +16,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from panel_recorder import RecordingLayout as _Layout  # noqa: E402
+
 ALL_OPERATORS = ("segment", "extract_boundaries", "reconstruct_surface", "build_solid", "build_volume",
                  "frame_study", "add_cutter")
 
@@ -27,18 +29,6 @@ def mods(pdehead_ext):
                               for m in ("state", "volume", "objects", "panel", "cutter")})
 
 
-class _Layout:
-    """Records what a panel draws (headless Blender has no UI to draw into)."""
-
-    def __init__(self, log):
-        self.log, self.enabled = log, True
-
-    def __getattr__(self, name):
-        if name in ("row", "column", "box", "split"):
-            return lambda *a, **k: _Layout(self.log)
-        if name == "operator":
-            return lambda idname, **k: (self.log.append(("operator", idname)), SimpleNamespace())[1]
-        return lambda *a, **k: self.log.append((name, a[1] if name == "prop" and len(a) > 1 else k.get("text")))
 
 
 def draw_panels(mods):
