@@ -80,7 +80,7 @@ import numpy as np
 from scipy import ndimage as ndi
 from skimage import measure
 
-from .boundary_set import BoundarySet, knots_from_heights
+from .boundary_set import MIN_CURVES, BoundarySet, knots_from_heights
 from .envelope import ENVELOPE_CLOSING_MM, ENVELOPE_SIGMA_MM, head_envelope, outer_region
 from .errors import BoundaryError
 from .parameterisation import PARAMETERISATIONS, align_parameterisation, closed_arc_length, smooth_closed_curve
@@ -754,6 +754,12 @@ def register_selection(name: str, func: SelectionFunc) -> None:
     SELECTION_STRATEGIES[str(name)] = func
 
 
+def _check_curves(curves) -> int:
+    if isinstance(curves, bool) or not isinstance(curves, Integral) or curves < MIN_CURVES:
+        raise BoundaryError(f"curves must be an integer >= {MIN_CURVES}, got {curves!r}")
+    return int(curves)
+
+
 def _check_samples(samples) -> int:
     if isinstance(samples, bool) or not isinstance(samples, Integral) or samples < 8:
         raise BoundaryError(f"samples must be an integer >= 8, got {samples!r}")
@@ -839,7 +845,8 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
                        level_field: str = "envelope", band: int = 1, parameterisation: str = "angular",
                        curve_sigma: float | None = None, max_stretch: float = 8.0,
                        closing_mm: float | None = None, envelope_sigma_mm: float = ENVELOPE_SIGMA_MM,
-                       star_shaped: bool = True, star_slope: float = STAR_MAX_SLOPE) -> BoundarySet:
+                       star_shaped: bool = True, star_slope: float = STAR_MAX_SLOPE, curves: int | None = None,
+                       tolerance_mm: float | None = None, max_tolerance_mm: float | None = None) -> BoundarySet:
     """The 3t+1 PDE boundary curves of a segmented head (paper eq. 22, sections 3 and 4.1).
 
     Parameters
@@ -853,7 +860,9 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
     samples : int
         Number M >= 8 of points per curve.
     selection : str, callable or sequence of int
-        How the 3t+1 slices are chosen: a name in :data:`SELECTION_STRATEGIES`
+        How the 3t+1 slices are chosen: ``"auto"`` (the curves whose surface best
+        follows *every* usable slice's outline, :mod:`.slice_selection`; ``meta``
+        records the achieved error), a name in :data:`SELECTION_STRATEGIES`
         (``"uniform"``: evenly spaced in height; ``"shape-change"``: denser
         where the cross-section changes fast), a callable
         ``f(mask, n, heights) -> indices`` (``heights`` = patient z of each
@@ -905,6 +914,17 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
         an ear flap) are bridged. Such inlets exist on one curve and not on
         its neighbours 5-10 mm away, so the PDE would fold there. 0 disables it.
 
+    curves : int, optional
+        Number of curves instead of 3t+1 (any n >= 4: the default C2 surface takes
+        any count; the paper's patches need 3t+1).
+    tolerance_mm, max_tolerance_mm : float, optional
+        Instead of a count: the fewest curves whose default surface (``solve_pde``)
+        keeps a mean (and/or largest) distance from every usable slice's outline
+        within these bounds (:func:`~.slice_selection.select_for_tolerance`); implies
+        ``selection="auto"`` and ignores ``patches``/``curves``. If even every usable
+        slice misses the bound, all of them are used and a
+        :class:`~.slice_selection.SelectionWarning` names the achieved error.
+
     Returns
     -------
     BoundarySet
@@ -912,7 +932,11 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
         counter-clockwise seen from +z, sample 0 at the posterior midline,
         uniform in arc length or aligned (``meta["parameterisation"]``);
         ``heights`` = mean patient z of each curve; ``u_knots`` from
-        :func:`knots_from_heights`.
+        :func:`knots_from_heights`. With ``selection="auto"`` (or a tolerance),
+        ``meta`` also holds ``selection_curves``, ``selection_candidates``,
+        ``selection_mean_mm``, ``selection_max_mm``, ``selection_p95_mm`` (the real
+        surface's distance from all usable slices' outlines), ``selection_tolerance_mm``,
+        ``selection_max_tolerance_mm`` and ``selection_tolerance_met`` (None without a tolerance).
 
     Raises
     ------
@@ -948,20 +972,35 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
         mask = mask.astype(bool)
     if not mask.any():
         raise BoundaryError("the segmentation mask is empty: no head to extract boundaries from")
-    n = 3 * int(patches) + 1
+    n = 3 * int(patches) + 1 if curves is None else _check_curves(curves)
+    auto = selection == "auto" or tolerance_mm is not None or max_tolerance_mm is not None
+    if auto and not (isinstance(selection, str) and selection in ("auto", "uniform")):
+        raise BoundaryError(f"a tolerance chooses the slices itself (selection 'auto'), got selection {selection!r}")
+    if auto and parameterisation != "angular":
+        raise BoundaryError("selection 'auto' needs parameterisation='angular' (its candidates share one spine)")
     nz, ny, nx = mask.shape
     centre = np.column_stack([np.arange(nz, dtype=float), np.full(nz, (ny - 1) / 2), np.full(nz, (nx - 1) / 2)])
     slice_z = ct.index_to_patient(centre)[:, 2]
 
     cut_off = scan_edge_slices(mask, getattr(ct, "coverage", None))
-    if isinstance(selection, str):
+    selectable = mask
+    if cut_off.any():  # named strategies never pick a slice whose outline is the edge of the scan
+        selectable = mask.copy()
+        selectable[cut_off] = False
+    if auto:
+        selection_name = "auto"
+        chosen = usable_slices(selectable, slice_z, min_area_fraction)        # every candidate, traced below
+        if len(chosen) < MIN_CURVES:
+            raise BoundaryError(f"only {len(chosen)} slices have a usable head cross-section; a PDE head "
+                                f"needs at least {MIN_CURVES}")
+        if tolerance_mm is None and max_tolerance_mm is None and n > len(chosen):
+            most = (len(chosen) - 1) // 3
+            raise BoundaryError(f"only {len(chosen)} slices have a usable head cross-section, but {n} curves "
+                                f"are needed; use fewer patches (t <= {most})")
+    elif isinstance(selection, str):
         strategy = SELECTION_STRATEGIES.get(selection)
         if strategy is None:
-            raise BoundaryError(f"unknown selection {selection!r}; known: {sorted(SELECTION_STRATEGIES)}")
-        selectable = mask
-        if cut_off.any():  # named strategies never pick a slice whose outline is the edge of the scan
-            selectable = mask.copy()
-            selectable[cut_off] = False
+            raise BoundaryError(f"unknown selection {selection!r}; known: {sorted(SELECTION_STRATEGIES) + ['auto']}")
         chosen = _validate_indices(strategy(selectable, n, slice_z, min_area_fraction=min_area_fraction),
                                    n, mask, slice_z, f"selection {selection!r}")
         selection_name = selection
@@ -1000,18 +1039,16 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
         coverage.append(info["ring_coverage"])
     smooth_mm = float(curve_sigma) * 0.5 * (dy + dx)
     if parameterisation == "angular":
-        curves = angular_curves(outlines, samples, smooth=smooth_mm, max_slope=star_slope if star_shaped else None)
+        curves_out = angular_curves(outlines, samples, smooth=smooth_mm, max_slope=star_slope if star_shaped else None)
     else:
-        curves = np.stack([orient_and_resample(star_hull(o, max_slope=star_slope) if star_shaped else o, samples,
-                                               smooth=smooth_mm)
-                           for o in outlines])
-    heights = curves[:, :, 2].mean(axis=1)
+        curves_out = np.stack([orient_and_resample(star_hull(o, max_slope=star_slope) if star_shaped else o,
+                                                   samples, smooth=smooth_mm)
+                               for o in outlines])
     meta = dict(
         source=ct.meta.get("source", ct.meta.get("path")),
         selection=selection_name, patches=int(patches), samples=samples,
         spacing=[float(s) for s in ct.spacing], min_area_fraction=float(min_area_fraction),
         sigma=float(sigma), level_field=level_field, band=int(band),
-        slice_areas_mm2=[float(a) for a in areas], ring_coverage=[float(c) for c in coverage],
         scan_edge_slices=np.flatnonzero(cut_off).tolist(),
         orientation="ccw seen from +z (superior); outward normal = dX/dv x dX/du",
         seam="posterior midline (+y ray from each curve's area centroid)",
@@ -1026,7 +1063,31 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
     top = _head_top(mask, slice_z, dz)
     if top is not None:
         meta["vertex_z"] = top
-    bset = BoundarySet(curves, chosen, heights, knots_from_heights(heights), meta)
+
+    def make_bset(pos) -> BoundarySet:
+        pos = np.asarray(pos, np.int64)
+        cv = curves_out[pos]
+        h = cv[:, :, 2].mean(axis=1)
+        m = dict(meta, slice_areas_mm2=[float(areas[p]) for p in pos],
+                 ring_coverage=[float(coverage[p]) for p in pos])
+        if curves is not None or len(pos) != 3 * int(patches) + 1:
+            m["patches"] = BoundarySet.patches_for(len(pos))
+        return BoundarySet(cv, np.asarray(chosen)[pos], h, knots_from_heights(h), m)
+
+    if not auto:
+        bset = make_bset(np.arange(len(chosen)))
+    else:
+        from . import slice_selection as S
+        cand = S.Candidates(np.asarray(chosen), curves_out, meta)
+        if tolerance_mm is None and max_tolerance_mm is None:
+            pos = S.select_curves(cand, n)
+            bset = make_bset(pos)
+            err, met = S.surface_error(bset, cand), None
+        else:
+            pos, bset, err, met = S.select_for_tolerance(cand, make_bset, tolerance_mm, max_tolerance_mm)
+        bset.meta.update(S.selection_record(err, len(pos), tolerance_mm, max_tolerance_mm, met, cand.count))
+        bset.meta["selection_per_slice_mm"] = [round(float(e), 4) for e in err["per_slice_mm"]]
+        S.attach_candidates(bset, cand)
     if parameterisation == "aligned":
         bset = align_parameterisation(bset, max_stretch=max_stretch)
     return bset

@@ -1185,6 +1185,9 @@ def _solve_c2(bset: BoundarySet, smoothing, n_modes: int, approximation_mm, dome
 
 
 def _solve_paper(bset: BoundarySet, smoothing, n_modes: int, keep: int | None = None) -> PDEHead:
+    if not bset.is_3t_plus_1:
+        raise PDEError(f"continuity='paper' needs 3t+1 curves (four per patch, shared ends), got "
+                       f"{bset.curves.shape[0]}; use the default continuity='c2' for any count")
     t = bset.patches
     local = _local_knots(bset)
     spec, planar = _harmonics(bset, keep)                                     # (3t+1, H, 3)
