@@ -30,6 +30,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PROG = "pdehead"
+DEFAULT_PATCHES = 10
+DEFAULT_SELECTION = "shape-change"
 
 
 class CLIError(Exception):
@@ -44,9 +46,14 @@ def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog=PROG, description="Build a smooth PDE head in Blender from head CT slices.")
     p.add_argument("input", nargs="?", help="DICOM folder, image-stack folder, raw-slice folder or file")
     p.add_argument("--phantom", action="store_true", help="use the built-in synthetic head instead of INPUT")
-    p.add_argument("--patches", type=int, default=10, help="PDE patches t (3t+1 boundary curves); default 10")
+    p.add_argument("--patches", type=int, default=None, help="PDE patches t (3t+1 boundary curves); default 10")
     p.add_argument("--samples", type=int, default=256, help="points per boundary curve; default 256")
-    p.add_argument("--selection", default="shape-change", choices=["uniform", "shape-change"],
+    p.add_argument("--tolerance", type=float, metavar="MM",
+                   help="instead of --patches: the fewest curves whose surface keeps a mean distance of at most MM "
+                        "from every slice's outline (automatic selection)")
+    p.add_argument("--max-tolerance", type=float, metavar="MM",
+                   help="with --tolerance (or alone): also bound the largest distance from the outlines")
+    p.add_argument("--selection", default=None, choices=["uniform", "shape-change", "auto"],
                    help="how the 3t+1 slices are chosen; default shape-change (denser where the face changes)")
     p.add_argument("--no-align", action="store_true",
                    help="keep the curves uniform in arc length (no correspondence alignment)")
@@ -82,6 +89,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     g.add_argument("--downsample", type=int, default=1, metavar="N",
                    help="average N x N x N voxel blocks on import (very large scans: 2 needs 1/8 of the memory)")
     args = p.parse_args(argv)
+    args.patches_given, args.selection_given = args.patches is not None, args.selection is not None
+    args.patches = DEFAULT_PATCHES if args.patches is None else args.patches
+    args.selection = DEFAULT_SELECTION if args.selection is None else args.selection
     if args.phantom == bool(args.input):
         p.error("give either INPUT or --phantom")
     if args.raw_shape or args.dtype:
@@ -94,6 +104,17 @@ def parse_args(argv=None) -> argparse.Namespace:
         p.error("--render-volume needs the volume (drop --no-volume)")
     if args.export and not args.skull:
         p.error("--export needs --skull")
+    tol = args.tolerance is not None or args.max_tolerance is not None
+    if tol and args.patches_given:
+        p.error("give either --patches or --tolerance (the tolerance chooses the number of curves)")
+    if tol and args.selection_given and args.selection != "auto":
+        p.error(f"--tolerance chooses the slices itself (selection auto), not {args.selection!r}")
+    for name in ("tolerance", "max_tolerance"):
+        value = getattr(args, name)
+        if value is not None and not value > 0:
+            p.error(f"--{name.replace('_', '-')} must be a distance > 0 mm, got {value}")
+    if tol:
+        args.selection = "auto"
     for name, low in (("patches", 1), ("samples", 16), ("downsample", 1), ("nu", 4), ("nv", 8), ("nw", 2), ("resolution", 16),
                       ("render_samples", 1)):
         if getattr(args, name) < low:
@@ -191,6 +212,56 @@ def loader_kwargs(args) -> dict:
     return kwargs
 
 
+def _auto_boundaries(args, ops, addon, coll) -> str:
+    """Automatic slice selection (engine ``selection="auto"`` / ``tolerance_mm``); returns the summary line.
+
+    Uses the extract operator's own ``selection="auto"`` and ``tolerance_mm`` when the add-on has them;
+    until then the boundaries are extracted by the operator (its settings, its objects) and replaced by
+    the engine's automatic choice through the same store the operator uses."""
+    import warnings
+    rna = ops.extract_boundaries.get_rna_type().properties
+    has_auto = "auto" in [item.identifier for item in rna["selection"].enum_items]
+    tol = dict(tolerance_mm=args.tolerance, max_tolerance_mm=args.max_tolerance)
+    engine = importlib.import_module("pdehead_dev.pdehead_addon")
+    state = addon.operators.state
+    s = coll.pdehead
+    if has_auto and ("tolerance_mm" in rna.keys() or args.tolerance is None and args.max_tolerance is None):
+        extra = {k: v for k, v in tol.items() if v is not None}
+        _call(ops.extract_boundaries, patches=args.patches, samples=args.samples, selection="auto",
+              align_curves=True, **extra)
+        bset = state.cache_for(s.study_id).bset
+    else:
+        if args.no_align:
+            raise CLIError("--selection auto needs the aligned (angular) curves; drop --no-align", 2)
+        limit = engine.max_patches(state.cache_for(s.study_id).seg)
+        _call(ops.extract_boundaries, patches=max(1, min(args.patches, limit)), samples=args.samples,
+              selection="uniform", align_curves=True)
+        cache = state.cache_for(s.study_id)
+        kwargs = {k: v for k, v in tol.items() if v is not None} or dict(patches=min(args.patches, limit))
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", engine.slice_selection.SelectionWarning)
+            try:
+                bset = engine.extract_boundaries(cache.seg, samples=args.samples, selection="auto", **kwargs)
+            except engine.PDEHeadError as exc:
+                raise CLIError(str(exc), 1) from None
+        for w in caught:
+            print(f"{PROG}: warning: {w.message}", file=sys.stderr)
+        from pdehead_dev.operators import objects
+        state.store_boundaries(coll, bset)
+        cache.drop_from("bset")
+        cache.bset = bset
+        s.curves_object = objects.build_boundary_curves(bset, coll, name=f"{coll.name} Boundary curves",
+                                                        obj=s.curves_object)
+    m = bset.meta
+    asked = ""
+    if m.get("selection_tolerance_mm") is not None or m.get("selection_max_tolerance_mm") is not None:
+        asked = (f"; asked mean <= {m.get('selection_tolerance_mm')} mm, max <= {m.get('selection_max_tolerance_mm')} mm: "
+                 + ("met" if m.get("selection_tolerance_met") else "NOT met (every usable slice used)"))
+    return (f"auto: {m['selection_curves']} curves of {m['selection_candidates']} usable slices; surface from all "
+            f"outlines mean {m['selection_mean_mm']:.3f} mm, p95 {m['selection_p95_mm']:.2f} mm, "
+            f"max {m['selection_max_mm']:.2f} mm{asked}")
+
+
 def run(args) -> dict:
     import bpy
     addon = register_addon()
@@ -222,8 +293,12 @@ def _steps(args, bpy, addon, state) -> dict:
     coll = bpy.context.scene.pdehead.active_study
     s = coll.pdehead
     _call(ops.segment)
-    _call(ops.extract_boundaries, patches=args.patches, samples=args.samples, selection=args.selection,
-          align_curves=not args.no_align)
+    if args.selection == "auto":
+        selection_info = _auto_boundaries(args, ops, addon, coll)
+    else:
+        selection_info = None
+        _call(ops.extract_boundaries, patches=args.patches, samples=args.samples, selection=args.selection,
+              align_curves=not args.no_align)
     _call(ops.reconstruct_surface, nu=args.nu, nv=args.nv)
     _call(ops.build_solid, nu=args.nu, nv=args.nv, nw=args.nw)
     if not args.no_volume:
@@ -244,7 +319,10 @@ def _steps(args, bpy, addon, state) -> dict:
           f"range {s.value_range[0]:.0f}..{s.value_range[1]:.0f}")
     print(f"  segment   head {100 * s.seg_fraction:.1f} % of voxels, {s.seg_iterations} iterations")
     kb = len(coll[state.BOUNDARY_KEY]) * 3 / 4 / 1024
-    print(f"  curves    {3 * s.patches + 1} x {s.samples} points (t = {s.patches}), {kb:.0f} kB in the .blend")
+    curves = state.cache_for(s.study_id).bset.curves.shape[0] if selection_info else 3 * s.patches + 1
+    print(f"  curves    {curves} x {s.samples} points (t = {s.patches}), {kb:.0f} kB in the .blend")
+    if selection_info:
+        print(f"  selection {selection_info}")
     print(f"  surface   {len(s.surface_object.data.vertices)} vertices, {len(s.surface_object.data.polygons)} faces")
     print(f"  solid     {len(s.solid_object.data.vertices)} vertices")
     if s.volume_object is not None:
