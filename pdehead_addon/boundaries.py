@@ -62,7 +62,10 @@ area, which leaves out the degenerate vertex cap and stray voxels at the ends;
 the head's extent runs from the lowest to the highest usable slice. The
 strategy is pluggable (:data:`SELECTION_STRATEGIES`): ``"uniform"`` (evenly
 spaced in height) and ``"shape-change"`` (denser where the cross-section
-changes fast: chin, nose, vertex), a callable, or explicit indices.
+changes fast: chin, nose, vertex), a callable, or explicit indices. ``"auto"``
+(:mod:`.slice_selection`) traces every usable slice and keeps the curves whose
+C2 surface is closest to all of their outlines; with ``tolerance_mm`` it also
+chooses how many (the default C2 surface takes any count, not only 3t+1).
 
 Limits: one curve per slice, so a part of the head that is a separate
 component in a slice (an ear lobe cut off in that plane) is dropped, while an
