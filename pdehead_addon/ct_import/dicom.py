@@ -32,9 +32,9 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
-from . import input_checks
-from .ct_volume import CTVolume, downsample_volume
-from .errors import CTImportError
+from .. import input_checks
+from ..ct_volume import CTVolume, downsample_volume
+from ..errors import CTImportError
 
 __all__ = ["load_ct", "list_series", "SeriesInfo", "CTImportWarning"]
 
