@@ -26,6 +26,10 @@ _SHEAR_TOL_PX = 0.1        # in-plane drift of the slice origins (pixels) before
 _UNEVEN_TOL = 0.1          # position deviation from a regular step (fraction of the step) -> uneven
 _MISSING_FACTOR = 1.5      # a step this many times the median (and the slice thickness) -> missing slice
 
+# Transfer-syntax name words -> decoder family, first match wins (HTJ2K names also say "2000").
+_DECODER_FAMILIES = ((("high-throughput",), "htj2k"), (("htj2k",), "htj2k"), (("2000",), "jpeg2000"),
+                     (("jpeg-ls",), "jpeg_ls"), (("lossless", "jpeg"), "jpeg_lossless"), (("jpeg",), "jpeg"),
+                     (("rle",), "rle"))
 # Pip packages that add pydicom decoders, per transfer-syntax family.
 _DECODER_PACKAGES = {
     "jpeg_lossless": "pylibjpeg + pylibjpeg-libjpeg, or python-gdcm",
@@ -272,20 +276,9 @@ def _transfer_syntax(ds):
 
 
 def _decoder_family(ts) -> str:
+    """The key of :data:`_DECODER_PACKAGES` for a transfer syntax (first row whose words are all in its name)."""
     name = str(ts.name).lower()
-    if "high-throughput" in name or "htj2k" in name:
-        return "htj2k"
-    if "2000" in name:
-        return "jpeg2000"
-    if "jpeg-ls" in name:
-        return "jpeg_ls"
-    if "lossless" in name and "jpeg" in name:
-        return "jpeg_lossless"
-    if "jpeg" in name:
-        return "jpeg"
-    if "rle" in name:
-        return "rle"
-    return ""
+    return next((family for words, family in _DECODER_FAMILIES if all(w in name for w in words)), "")
 
 
 def _decode_file(ds, path: Path) -> np.ndarray:
