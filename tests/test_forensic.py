@@ -11,16 +11,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from file_readers import read_depth_csv, read_stl
 from pdehead_addon import PDEHeadError, extract_boundaries, solve_pde
 from pdehead_addon.boundaries import max_patches
-from pdehead_addon.export import export_mesh, read_stl
+from pdehead_addon.export import export_mesh
 from pdehead_addon.landmarks import (frankfurt_transform, landmark, marker_pegs, midsagittal_plane, mirror_matrix,
                                      symmetry_plane,
                                      read_depth_table, snap_to_surface, landmark_depths, write_landmark_csv,
                                      STANDARD_LANDMARKS)
 from pdehead_addon.phantom import BONE, HOLDER, GEOMETRY
 from pdehead_addon.skull import bone_level, segment_skull, skull_mesh
-from pdehead_addon.tissue_depth import ENVELOPE, MEASURED, NO_BONE, read_depth_csv, tissue_depth, write_depth_csv
+from pdehead_addon.tissue_depth import ENVELOPE, MEASURED, NO_BONE, tissue_depth, write_depth_csv
 
 VAULT_Z = 45.0  # above the brow, the eyes and the ears: the phantom's skin there is the cranium ellipsoid only
 

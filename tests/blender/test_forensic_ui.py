@@ -7,9 +7,9 @@ import json
 import numpy as np
 import pytest
 
+from file_readers import read_stl
 from test_cli import run_cli
 
-from pdehead_addon.export import read_stl
 from pdehead_addon.phantom import GEOMETRY
 
 
