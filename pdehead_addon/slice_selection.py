@@ -291,8 +291,15 @@ def relocate(cand: Candidates, chosen: np.ndarray) -> tuple[np.ndarray, float]:
 
 def _uniform_start(cand: Candidates, n: int) -> np.ndarray:
     """n candidates evenly spaced in height (the paper's choice), both ends included."""
-    from .boundaries import _assign_monotone
-    return _assign_monotone(cand.heights, np.linspace(cand.heights[0], cand.heights[-1], n)).astype(np.int64)
+    h = cand.heights
+    N, ramp = cand.count, np.arange(n)
+    near = np.clip(np.searchsorted(h, np.linspace(h[0], h[-1], n)), 1, N - 1)
+    near -= (np.abs(h[near - 1] - np.linspace(h[0], h[-1], n)) < np.abs(h[near] - np.linspace(h[0], h[-1], n)))
+    # strictly increasing with both ends kept: push up from the bottom, then down from the top
+    idx = np.maximum.accumulate(np.maximum(near, 0) - ramp) + ramp
+    idx = (np.minimum.accumulate((np.minimum(idx, N - 1) - ramp - (N - n))[::-1]))[::-1] + ramp + (N - n)
+    idx[0], idx[-1] = 0, N - 1
+    return idx.astype(np.int64)
 
 
 def refine(cand: Candidates, chosen: np.ndarray, rounds: int = 1) -> tuple[np.ndarray, float]:
