@@ -320,7 +320,8 @@ def _steps(args, bpy, addon, state) -> dict:
     print(f"  segment   head {100 * s.seg_fraction:.1f} % of voxels, {s.seg_iterations} iterations")
     kb = len(coll[state.BOUNDARY_KEY]) * 3 / 4 / 1024
     curves = state.cache_for(s.study_id).bset.curves.shape[0] if selection_info else 3 * s.patches + 1
-    print(f"  curves    {curves} x {s.samples} points (t = {s.patches}), {kb:.0f} kB in the .blend")
+    count = "automatic selection" if selection_info else f"t = {s.patches}"
+    print(f"  curves    {curves} x {s.samples} points ({count}), {kb:.0f} kB in the .blend")
     if selection_info:
         print(f"  selection {selection_info}")
     print(f"  surface   {len(s.surface_object.data.vertices)} vertices, {len(s.surface_object.data.polygons)} faces")
