@@ -290,7 +290,7 @@ def markdown(res: dict, figure_name: str) -> str:
         for k, v in tm.items():
             if k.startswith("parts"):
                 lines.append("")
-                lines.append(f"Parts of auto ({k[6:]}): search (greedy + exchange on the proxy) {v['search_s']:.2f} s, "
+                lines.append(f"Parts of auto ({k[6:]}): search on the proxy (greedy and uniform starts, exchange, relocation) {v['search_s']:.2f} s, "
                              f"real surface's distance from all outlines {v['real_error_s']:.2f} s (the rest is tracing "
                              "every usable slice's outline).")
     lines += ["", "**Why the excess targets are missed** (measured): `auto` lowers what it minimises, the mean "
