@@ -122,3 +122,24 @@ def test_cli_raw_orientation_and_no_out_says_nothing_saved(tmp_path):
     result = run_cli(raw, *doubled, "--orientation", "LAS", tmp_path=tmp_path)
     assert result.returncode == 0, result.stderr[-3000:]
     assert "warning   the head mask is" in result.stdout and "outside the human range" in result.stdout
+
+
+def test_cli_tolerance_picks_the_count_and_prints_the_achieved_error(tmp_path):
+    """--tolerance: automatic selection of the fewest curves; the count and the achieved distance are printed,
+    the .blend keeps that many curves; --tolerance with --patches is refused."""
+    import re
+    out = tmp_path / "tol.blend"
+    result = run_cli("--phantom", "--tolerance", 0.3, "--nu", 24, "--nv", 32, "--nw", 2, "--no-volume",
+                     "--out", out, tmp_path=tmp_path)
+    assert result.returncode == 0, result.stderr[-3000:]
+    m = re.search(r"selection auto: (\d+) curves of (\d+) usable slices; surface from all outlines mean "
+                  r"(\d+\.\d+) mm.*: met", result.stdout)
+    assert m, result.stdout[-2000:]
+    count, usable, mean = int(m.group(1)), int(m.group(2)), float(m.group(3))
+    assert 4 < count < usable and mean <= 0.3
+    assert re.search(rf"curves\s+{count} x 256 points \(automatic selection\)", result.stdout)
+    assert out.exists()
+    result = run_cli("--phantom", "--tolerance", 0.3, "--patches", 4, tmp_path=tmp_path)
+    assert result.returncode == 2 and "give either --patches or --tolerance" in result.stderr
+    result = run_cli("--phantom", "--tolerance", 0.3, "--selection", "uniform", tmp_path=tmp_path)
+    assert result.returncode == 2 and "chooses the slices itself" in result.stderr
