@@ -29,7 +29,7 @@ from bpy.types import Operator, Panel
 
 from ..pdehead_addon import PDEHeadError
 from ..pdehead_addon.landmarks import STANDARD_LANDMARKS
-from . import ops, state
+from . import ops, state, study
 from .coords import MM_TO_M
 
 SKULL_BOUNDARY_KEY = "pdehead_skull_boundaries"
@@ -57,7 +57,7 @@ _LANDMARK_ITEMS = [(d.name, d.name, d.description) for d in STANDARD_LANDMARKS]
 def _study_or_raise(op, context):
     coll = state.active_study(context, getattr(op, "study", ""))
     if coll is None:
-        raise PDEHeadError(ops.NO_STUDY_MESSAGE)
+        raise PDEHeadError(state.NO_STUDY_MESSAGE)
     return coll
 
 
@@ -72,7 +72,7 @@ def _sub_collection(coll, suffix: str):
 
 
 def _cache(coll):
-    return state.cache_for(state.settings(coll).study_id).extra
+    return state.cache_for(state.settings(coll).study_id).forensic
 
 
 def _obj(coll, key):
@@ -160,18 +160,17 @@ def _skull_seg(coll):
     extra = _cache(coll)
     cache = state.cache_for(state.settings(coll).study_id)
     if cache.seg is None:
-        ops.step_segment(coll)
+        study.step_segment(coll)
     if extra.get("skull_seg") is None or extra.get("skull_seg_of") is not cache.seg:
         # a new head segmentation (or CT) makes the skull and everything measured on it stale
-        extra.update(skull_seg=segment_skull(state.require_ct(coll), cache.seg), skull_seg_of=cache.seg,
+        extra.update(skull_seg=segment_skull(study.require_ct(coll), cache.seg), skull_seg_of=cache.seg,
                      bone_mesh=None, depth=None)
     return extra["skull_seg"]
 
 
 def step_skull(coll, nu: int, nv: int, bone: bool = True, bone_step: int = 1) -> None:
     """Skull as a PDE surface (same path as the skin) and, optionally, the marching-cubes bone mesh."""
-    from ..pdehead_addon import dumps_boundaries, extract_boundaries, solve_pde
-    from ..pdehead_addon.boundaries import max_patches
+    from ..pdehead_addon import dumps_boundaries, extract_boundaries, max_patches, solve_pde
     from ..pdehead_addon.skull import skull_mesh
     from . import objects
 
@@ -231,7 +230,7 @@ def skull_engine_mesh(coll, target: str = "BONE"):
 def skin_engine_mesh(coll):
     """The PDE skin as an engine Mesh with the surface object's vertex order (same nu, nv, caps)."""
     s = state.settings(coll)
-    return state.pde_head(coll).surface(int(s.nu), int(s.nv), caps=bool(s.caps))
+    return study.pde_head(coll).surface(int(s.nu), int(s.nv), caps=bool(s.caps))
 
 
 # ------------------------------------------------------------------------------------------ depth
@@ -241,11 +240,11 @@ def step_depth(coll, target: str = "BONE", max_depth_mm: float = 40.0) -> dict:
 
     s = state.settings(coll)
     if s.surface_object is None:
-        ops.step_surface(coll)
+        study.step_surface(coll)
     obj = s.surface_object
     skin = skin_engine_mesh(coll)
     if len(skin.vertices) != len(obj.data.vertices):  # the surface was edited or built otherwise
-        ops.step_surface(coll)
+        study.step_surface(coll)
         obj = s.surface_object
     with state.Timer() as t:
         res = tissue_depth(skin, skull_engine_mesh(coll, target), envelope=_skull_seg(coll),
@@ -456,7 +455,7 @@ def export_study(coll, directory: str, fmt: str = "stl", bone: bool = False, dep
         if out == src_dir or src_dir in out.parents:
             raise PDEHeadError(f"{out}: will not write into the CT's input folder; choose another folder")
     out.mkdir(parents=True, exist_ok=True)
-    head = state.pde_head(coll)
+    head = study.pde_head(coll)
     skin = head.surface(int(s.nu), int(s.nv), caps=True)
     written = [export_mesh(skin, out / f"skin.{fmt}", name="skin"),
                export_mesh(skull_engine_mesh(coll, "PDE"), out / f"skull.{fmt}", name="skull")]
