@@ -253,7 +253,8 @@ def _steps(args, bpy, addon, state) -> dict:
     print(f"  surface   {len(s.surface_object.data.vertices)} vertices, {len(s.surface_object.data.polygons)} faces")
     print(f"  solid     {len(s.solid_object.data.vertices)} vertices")
     if s.volume_object is not None:
-        print(f"  volume    {bpy.path.abspath(s.volume_object.data.filepath)}")
+        size = "CT grid" if s.use_ct_grid else f"{s.voxel_size:g} mm voxels" + (" (automatic)" if s.voxel_auto else "")
+        print(f"  volume    {bpy.path.abspath(s.volume_object.data.filepath)}, {size}")
     if args.skull:
         import json
         info = json.loads(coll.get("pdehead_skull_info", "{}"))
