@@ -422,15 +422,41 @@ def apply_frankfurt(coll, reset: bool = False):
     return m
 
 
-def mirror_object(coll, obj):
-    """A linked copy of ``obj`` mirrored across the mid-sagittal plane of the bilateral landmark pairs."""
-    from ..pdehead_addon.landmarks import bilateral_pairs, midsagittal_plane, mirror_matrix
+#: Where the mirror's mid-sagittal plane comes from.
+MIRROR_PLANES = [
+    ('AUTO', "Auto", "The bilateral landmark pairs if any are placed, else the skull's symmetry plane"),
+    ('LANDMARKS', "Landmark Pairs", "Fitted to the bilateral landmark pairs (e.g. Porion L and Porion R)"),
+    ('SKULL', "Skull Symmetry", "The skull's own plane of reflective symmetry (mirror ICP on the bone mesh)"),
+]
+
+
+def mirror_plane(coll, source: str = "AUTO") -> tuple[np.ndarray, np.ndarray, str]:
+    """The mid-sagittal plane (point, normal in patient mm) and a sentence saying where it came from."""
+    from ..pdehead_addon.landmarks import bilateral_pairs, midsagittal_plane, symmetry_plane
 
     lms = landmarks(coll)
     pairs = bilateral_pairs(list(lms))
-    if not pairs:
-        raise PDEHeadError("mirroring needs at least one bilateral landmark pair (e.g. Porion L and Porion R)")
-    point, normal = midsagittal_plane([(lms[a], lms[b]) for a, b in pairs])
+    if source == "LANDMARKS" or (source == "AUTO" and pairs):
+        if not pairs:
+            raise PDEHeadError("mirroring by landmarks needs at least one bilateral landmark pair "
+                               "(e.g. Porion L and Porion R); or choose Skull Symmetry")
+        point, normal = midsagittal_plane([(lms[a], lms[b]) for a, b in pairs])
+        return point, normal, f"{len(pairs)} landmark pair(s)"
+    if not coll.get("pdehead_bone_object") and not coll.get(SKULL_BOUNDARY_KEY):
+        raise PDEHeadError(f"study '{coll.name}' has neither bilateral landmarks nor a skull: run Build Skull "
+                           "or place a landmark pair")
+    point, normal, info = symmetry_plane(skull_engine_mesh(coll, "BONE" if coll.get("pdehead_bone_object")
+                                                           else "PDE").vertices)
+    if not info["converged"]:
+        raise PDEHeadError("the skull's symmetry plane did not converge: place bilateral landmarks instead")
+    return point, normal, f"skull symmetry (median mirror residual {info['residual_mm']:.1f} mm)"
+
+
+def mirror_object(coll, obj, source: str = "AUTO"):
+    """A linked copy of ``obj`` mirrored across the mid-sagittal plane (:func:`mirror_plane`)."""
+    from ..pdehead_addon.landmarks import mirror_matrix
+
+    point, normal, how = mirror_plane(coll, source)
     m = _frankfurt(coll) @ blender_matrix(mirror_matrix(point, normal)) @ _frankfurt(coll).inverted()
     copy = obj.copy()
     copy.name = f"{obj.name} Mirrored"
@@ -438,7 +464,7 @@ def mirror_object(coll, obj):
         c.objects.link(copy)
     copy.matrix_world = m @ obj.matrix_world
     copy.pop(BASE_MATRIX_KEY, None)
-    return copy, point, normal
+    return copy, point, normal, how
 
 
 # ------------------------------------------------------------------------------------------ export
@@ -601,10 +627,11 @@ class PDEHEAD_OT_frankfurt(Operator, _ForensicOp):
 
 
 class PDEHEAD_OT_mirror(Operator, _ForensicOp):
-    """Mirror the active object across the mid-sagittal plane fitted to the bilateral landmark pairs"""
+    """Mirror the active object across the mid-sagittal plane: from bilateral landmark pairs or the skull's symmetry"""
 
     bl_idname = "pdehead.mirror"
     bl_label = "Mirror Across Mid-Sagittal Plane"
+    plane: EnumProperty(name="Plane", items=MIRROR_PLANES, default='AUTO')
 
     def execute(self, context):
         def body():
@@ -612,8 +639,8 @@ class PDEHEAD_OT_mirror(Operator, _ForensicOp):
             obj = context.active_object or _obj(coll, "pdehead_skull_object")
             if obj is None:
                 raise PDEHeadError("select the object to mirror")
-            copy, point, normal = mirror_object(coll, obj)
-            self.report({'INFO'}, f"{copy.name}: plane through {np.round(point, 1).tolist()} mm, "
+            copy, point, normal, how = mirror_object(coll, obj, self.plane)
+            self.report({'INFO'}, f"{copy.name}: plane from {how}, through {np.round(point, 1).tolist()} mm, "
                                   f"normal {np.round(normal, 3).tolist()}")
         return ops._guarded(self, context, body)
 
@@ -697,7 +724,9 @@ class PDEHEAD_PT_forensic(Panel):
         row = box.row(align=True)
         row.operator(PDEHEAD_OT_frankfurt.bl_idname, text="Frankfurt", icon='ORIENTATION_GLOBAL')
         row.operator(PDEHEAD_OT_frankfurt.bl_idname, text="Reset").reset = True
-        box.operator(PDEHEAD_OT_mirror.bl_idname, text="Mirror Active", icon='MOD_MIRROR')
+        row = box.row(align=True)
+        row.operator(PDEHEAD_OT_mirror.bl_idname, text="Mirror Active", icon='MOD_MIRROR').plane = 'AUTO'
+        row.operator(PDEHEAD_OT_mirror.bl_idname, text="By Skull Symmetry").plane = 'SKULL'
         layout.operator(PDEHEAD_OT_export_print.bl_idname, icon='EXPORT')
 
 

@@ -4,8 +4,9 @@ Blender-free (numpy, scipy, scikit-image, pydicom). The modules read as the
 pipeline of the paper "A PDE-based head visualization method with CT data"
 (Computer Animation and Virtual Worlds, 2015):
 
-1. :mod:`.ct_import`     - CT slices to a :class:`CTVolume` in patient LPS mm
-2. :mod:`.segmentation`  - 3D Chan-Vese soft segmentation (eq. 16-21) and clean-up
+1. :mod:`.ct_import`     - CT slices to a :class:`CTVolume` in patient LPS mm (one module per format)
+2. :mod:`.segmentation`  - 3D Chan-Vese soft segmentation (eq. 16-21, :mod:`.chan_vese`) and clean-up
+                           (:mod:`.mask_cleanup`)
 3. :mod:`.boundaries`    - eq. 22 boundary curves, 3t+1 of them as a :class:`BoundarySet`
 4. :mod:`.pde_surface`   - t Bloor-Wilson PDE patches (eq. 1-13)
 5. :mod:`.pde_solid`     - the solid (eq. 23), its w-field and eq. 24 opacity

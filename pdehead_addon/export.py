@@ -5,8 +5,7 @@ diagonal, the split :func:`~.surface_metrics.triangulate` uses), keeps the
 outward winding and writes patient LPS millimetres (1 unit = 1 mm, the unit
 slicers assume for STL).  :func:`export_mesh` refuses a mesh that is not
 watertight (every edge shared by exactly two faces with opposite directions),
-so a printed part is always closed; :func:`read_stl` reads a binary STL back
-(for the checks of the tests and the CLI).
+so a printed part is always closed.
 """
 from __future__ import annotations
 
@@ -99,19 +98,3 @@ def export_mesh(mesh: Mesh, path: str | os.PathLike, fmt: str | None = None, nam
     except OSError as exc:
         raise PDEHeadError(f"{path}: cannot write ({exc.strerror})") from None
     return path
-
-
-def read_stl(path: str | os.PathLike) -> Mesh:
-    """A binary STL as a Mesh with shared vertices (exact float32 coordinates merged)."""
-    path = os.fspath(path)
-    with open(path, "rb") as fh:
-        data = fh.read()
-    if len(data) < 84:
-        raise PDEHeadError(f"{path}: too short for a binary STL")
-    (count,) = struct.unpack_from("<I", data, 80)
-    if len(data) != 84 + 50 * count:
-        raise PDEHeadError(f"{path}: size does not match {count} binary STL facets")
-    rec = np.frombuffer(data, dtype=[("n", "<f4", 3), ("p", "<f4", (3, 3)), ("attr", "<u2")], count=count, offset=84)
-    corners = rec["p"].reshape(-1, 3)
-    verts, inverse = np.unique(corners, axis=0, return_inverse=True)
-    return Mesh(vertices=verts, quads=np.zeros((0, 4), np.int64), triangles=inverse.reshape(-1, 3))

@@ -16,7 +16,9 @@ operators (:mod:`operators.forensic`) and the tests share it:
 * :func:`frankfurt_transform`: the rigid transform that makes the Frankfurt
   plane (porions and orbitales) horizontal with the face toward -y;
 * :func:`midsagittal_plane` / :func:`mirror_matrix`: the plane fitted to
-  bilateral landmark pairs and the reflection across it.
+  bilateral landmark pairs and the reflection across it;
+  :func:`symmetry_plane`: the skull's own plane of reflective symmetry, for
+  when no bilateral landmarks are placed.
 """
 from __future__ import annotations
 
@@ -279,8 +281,12 @@ def midsagittal_plane(pairs: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.nd
         raise PDEHeadError("the mid-sagittal plane needs at least one bilateral landmark pair")
     left = np.array([p[0] for p in pairs], np.float64)
     right = np.array([p[1] for p in pairs], np.float64)
+    return _bisector_plane(left, right)
+
+
+def _bisector_plane(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     diff = left - right
-    if len(pairs) == 1:
+    if len(diff) == 1:
         n = _unit(diff[0])
     else:
         _, _, vt = np.linalg.svd(diff, full_matrices=False)
@@ -297,3 +303,141 @@ def mirror_matrix(point: np.ndarray, normal: np.ndarray) -> np.ndarray:
     m[:3, :3] -= 2.0 * np.outer(n, n)
     m[:3, 3] = 2.0 * (n @ np.asarray(point, np.float64)) * n
     return m
+
+
+def _kabsch(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation and translation minimising ``|rot @ source + shift - target|`` (Kabsch)."""
+    ms, mt = source.mean(axis=0), target.mean(axis=0)
+    u, _, vt = np.linalg.svd((source - ms).T @ (target - mt))
+    d = np.sign(np.linalg.det(vt.T @ u.T))
+    rot = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+    return rot, mt - rot @ ms
+
+
+#: Mirror-ICP settings of :func:`symmetry_plane`.
+SYMMETRY_POINTS = 20_000      # points used (a fixed random subset of a larger mesh)
+SYMMETRY_TRIM = 0.7           # fraction of closest correspondences kept (asymmetric parts drop out)
+SYMMETRY_ITERATIONS = 150     # per stage (outliers rejected, then trimmed)
+SYMMETRY_REJECT = 3.0         # first stage: pairs within this many times the median distance
+SYMMETRY_FAN_DEG = 12.0       # starting planes tried: +-12 deg about two axes ...
+SYMMETRY_FAN_STEP_DEG = 3.0   # ... in 3 deg steps
+SYMMETRY_FAN_POINTS = 1_000   # scored (and the best starts refined) on this many points
+SYMMETRY_STARTS = 3           # starts refined
+SYMMETRY_FAN_MM = 20.0        # and offsets +-20 mm ...
+SYMMETRY_FAN_STEP_MM = 4.0    # ... in 4 mm steps
+
+
+def symmetry_plane(points: np.ndarray, normal: np.ndarray = (1.0, 0.0, 0.0), point: np.ndarray | None = None,
+                   trim: float = SYMMETRY_TRIM, iterations: int = SYMMETRY_ITERATIONS,
+                   max_points: int = SYMMETRY_POINTS) -> tuple[np.ndarray, np.ndarray, dict]:
+    """The plane of reflective symmetry of a point set (the skull's mid-sagittal plane).
+
+    Mirror ICP: reflect the points across the current plane, register the
+    mirrored copy to the original by rigid ICP steps (nearest-point pairs, the
+    ``trim`` fraction of closest pairs kept so that asymmetric parts -- a head
+    holder, a displaced mandible, streaks -- do not pull; Kabsch rotation and
+    translation), and take the plane of the composed reflection, until it
+    stops moving. For a symmetric object, registration then reflection is a
+    reflection across its symmetry plane. Converges to the nearest symmetry
+    plane, so the start (default: the patient's left-right axis through the
+    centroid) must be within a few tens of degrees -- true for a head scan in
+    patient coordinates.
+
+    Parameters
+    ----------
+    points : (n, 3) array
+        Patient mm (e.g. the skull mesh's vertices).
+    normal, point : array_like
+        Starting plane; ``point`` defaults to the centroid.
+    trim : float
+        Fraction in (0, 1] of the pairs kept each iteration.
+    iterations : int
+        Upper bound on the iterations of each stage.
+    max_points : int
+        Larger sets are subsampled (deterministically) to this many points.
+
+    Returns
+    -------
+    point, normal : (3,) arrays
+        A point on the plane and the unit normal toward patient left (+x).
+    info : dict
+        ``residual_mm``: median distance of the kept reflected points to their
+        partners; ``start_residual_mm`` the same for the starting plane;
+        ``iterations``; ``converged``.
+
+    See also :func:`midsagittal_plane` (the plane from placed bilateral landmarks).
+    """
+    from scipy.spatial import cKDTree
+
+    pts = np.asarray(points, np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 10 or not np.isfinite(pts).all():
+        raise PDEHeadError(f"the symmetry plane needs at least 10 finite 3-D points, got shape {pts.shape}")
+    if not 0.0 < trim <= 1.0:
+        raise PDEHeadError(f"trim must be in (0, 1], got {trim!r}")
+    pts = pts[np.random.default_rng(0).permutation(len(pts))[:max_points]]   # random order: pts[:k] is a subset
+    tree = cKDTree(pts)
+    n = _unit(np.asarray(normal, np.float64))
+    c = pts.mean(axis=0) if point is None else np.asarray(point, np.float64)
+
+    def residual(c, n, keep, sub=pts):
+        dist, idx = tree.query(sub - 2.0 * ((sub - c) @ n)[:, None] * n)
+        best = np.argpartition(dist, keep - 1)[:keep] if keep < len(sub) else np.arange(len(sub))
+        return float(np.median(dist[best])), best, idx
+
+    start = residual(c, n, len(pts))[0]
+    # ICP only finds the nearest optimum and slides slowly: start from the best of a coarse fan of planes
+    fan = np.radians(np.arange(-SYMMETRY_FAN_DEG, SYMMETRY_FAN_DEG + 1e-9, SYMMETRY_FAN_STEP_DEG))
+    e1 = _unit(np.cross(n, [0.0, 0.0, 1.0]) if abs(n[2]) < 0.9 else np.cross(n, [0.0, 1.0, 0.0]))
+    e2 = np.cross(n, e1)
+    candidates = [_unit(n + np.tan(a) * e1 + np.tan(b) * e2) for a in fan for b in fan]
+    coarse = pts[:SYMMETRY_FAN_POINTS]
+    shifts = np.arange(-SYMMETRY_FAN_MM, SYMMETRY_FAN_MM + 1e-9, SYMMETRY_FAN_STEP_MM)
+    starts = []
+    for m in candidates:  # every orientation with every offset (the centroid is off where one side has more)
+        base = coarse - 2.0 * ((coarse - c) @ m)[:, None] * m
+        dist, _ = tree.query((base[None] + (2.0 * shifts)[:, None, None] * m).reshape(-1, 3))
+        score = np.median(dist.reshape(len(shifts), -1), axis=1)
+        k = int(np.argmin(score))
+        starts.append((score[k], c + shifts[k] * m, m))
+    starts.sort(key=lambda t: t[0])
+    # the fan is coarser than the basin of the true plane: refine the best few on the subset, keep the best
+    refined = [_mirror_icp(tree, coarse, c0, n0, trim, iterations) for _, c0, n0 in starts[:SYMMETRY_STARTS]]
+    _, c, n, _, _ = min(refined, key=lambda r: r[0])
+    _, c, n, it, converged = _mirror_icp(tree, pts, c, n, trim, iterations)
+    if n[0] < 0:
+        n = -n
+    return c, n, dict(residual_mm=residual(c, n, max(3, int(round(trim * len(pts)))))[0], start_residual_mm=start,
+                      iterations=it, converged=bool(converged))
+
+
+def _mirror_icp(tree, pts: np.ndarray, c: np.ndarray, n: np.ndarray, trim: float, iterations: int):
+    """Mirror ICP from the plane (c, n) on ``pts`` (``tree`` holds the reference points): returns
+    (trimmed median residual, c, n, iterations, converged)."""
+    converged, it = False, 0
+    keep = max(3, int(round(trim * len(pts))))
+    # Pairs farther than a few times the median are rejected first (a fixed trimmed fraction from the
+    # start locks the plane where it is; keeping all pairs lets a one-sided part pull it), then the
+    # closest ``trim`` fraction refines.
+    for stage in ("reject", "trim"):
+        for _ in range(int(iterations)):
+            it += 1
+            dist, idx = tree.query(pts - 2.0 * ((pts - c) @ n)[:, None] * n)
+            if stage == "reject":
+                best = np.flatnonzero(dist <= SYMMETRY_REJECT * max(np.median(dist), 0.1))
+            else:
+                best = np.argpartition(dist, keep - 1)[:keep]
+            mirrored = pts[best] - 2.0 * ((pts[best] - c) @ n)[:, None] * n
+            rot, shift = _kabsch(mirrored, tree.data[idx[best]])
+            # the composed map x -> rot @ (reflection of x) + shift, projected onto the nearest reflection
+            a = rot @ (np.eye(3) - 2.0 * np.outer(n, n))
+            b = rot @ (2.0 * (n @ c) * n) + shift
+            _, vecs = np.linalg.eigh(0.5 * (a + a.T))
+            n_new = vecs[:, 0] * (1.0 if vecs[:, 0] @ n >= 0 else -1.0)
+            c_new = c - ((c @ n_new) - 0.5 * (b @ n_new)) * n_new      # the point of the new plane nearest c
+            moved = np.degrees(np.arccos(np.clip(n_new @ n, -1, 1))), abs((c_new - c) @ n_new)
+            c, n = c_new, n_new
+            converged = moved[0] < 1e-3 and moved[1] < 1e-3
+            if converged:
+                break
+    dist, _ = tree.query(pts - 2.0 * ((pts - c) @ n)[:, None] * n)
+    return float(np.median(np.partition(dist, keep - 1)[:keep])), c, n, it, converged

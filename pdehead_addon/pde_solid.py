@@ -18,6 +18,7 @@ import numpy as np
 from .ct_volume import CTVolume
 from .errors import PDEError
 from .mesh import Mesh
+from .surface_mesh import _check_count
 
 #: Value of the w-field at voxels outside the solid (any value > 1 means outside).
 OUTSIDE_W = 2.0
@@ -52,12 +53,6 @@ def alpha_from_w(w: np.ndarray, low: float = 0.1, high: float = 0.9) -> np.ndarr
 
 
 # ----------------------------------------------------------------------------- solid mesh
-
-
-def _count(n, name: str, minimum: int) -> int:
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or int(n) < minimum:
-        raise PDEError(f"{name} must be an integer >= {minimum}, got {n!r}")
-    return int(n)
 
 
 def _range(r, name: str, lo: float, hi: float) -> tuple[float, float]:
@@ -112,14 +107,14 @@ def solid_mesh(head, nu: int, nv: int, nw: int, u_range: tuple[float, float] = (
         the spine become triangles, so the mesh stays a valid closed 2-manifold
         without zero-area faces.
     """
-    nu, nw = _count(nu, "nu", 2), _count(nw, "nw", 2)
+    nu, nw = _check_count(nu, "nu", 2), _check_count(nw, "nw", 2)
     u0, u1 = _range(u_range, "u_range", 0.0, 1.0)
     v0, v1 = _range(v_range, "v_range", -TWO_PI, 2 * TWO_PI)
     w0, w1 = _range(w_range, "w_range", 0.0, 1.0)
     if v1 - v0 > TWO_PI + 1e-9:
         raise PDEError(f"v_range spans more than 2 pi: ({v0:g}, {v1:g})")
     full = v1 - v0 >= TWO_PI - 1e-9
-    nv = _count(nv, "nv", 3 if full else 2)
+    nv = _check_count(nv, "nv", 3 if full else 2)
     u = np.linspace(u0, u1, nu)
     w = np.linspace(w0, w1, nw)
     v = v0 + TWO_PI * np.arange(nv) / nv if full else np.linspace(v0, v1, nv)

@@ -44,7 +44,6 @@ Steps of :func:`segment_skull`:
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any
 

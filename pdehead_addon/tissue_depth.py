@@ -37,16 +37,9 @@ from scipy.spatial import cKDTree
 
 from .errors import PDEHeadError
 from .mesh import Mesh
-from .surface_metrics import mesh_triangles, point_surface_distance, point_triangle_distance, sample_surface
+from .surface_metrics import mesh_triangles, point_triangle_distance, sample_surface
 
 MEASURED, NO_BONE, ENVELOPE, INSIDE = 0, 1, 2, 3
-#: Legend text of each reason code (shown with the colour map).
-REASONS = {
-    MEASURED: "measured",
-    NO_BONE: "no bone along the inward normal (neck, ears, orbits, nasal aperture)",
-    ENVELOPE: "only the smoothed skull envelope, no bone (orbits, nasal aperture, temporal fossa)",
-    INSIDE: "skin inside the skull envelope",
-}
 #: Longest depth searched (mm); deeper rays end in the airway, the orbit or the other side of the head.
 MAX_DEPTH_MM = 40.0
 #: A sphere-traced ray whose distance grows again after falling below this (mm) has crossed the surface.
@@ -336,19 +329,3 @@ def write_depth_csv(result: TissueDepth, path: str | os.PathLike) -> int:
         rows = zip(*(np.char.mod("%.3f", pts[:, c]) for c in range(3)), depth, near, names)
         w.writerows(rows)
     return len(pts)
-
-
-def read_depth_csv(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
-    """Points (n, 3) and depth (n,) (NaN where empty) of a file written by :func:`write_depth_csv`."""
-    path = os.fspath(path)
-    try:
-        with open(path, newline="") as fh:
-            rows = list(csv.reader(fh))
-    except OSError as exc:
-        raise PDEHeadError(f"{path}: cannot read ({exc.strerror})") from None
-    if not rows or rows[0][:4] != ["x_mm", "y_mm", "z_mm", "depth_mm"]:
-        raise PDEHeadError(f"{path}: not a tissue-depth CSV (header x_mm,y_mm,z_mm,depth_mm expected)")
-    body = rows[1:]
-    pts = np.array([[float(r[0]), float(r[1]), float(r[2])] for r in body]).reshape(-1, 3)
-    depth = np.array([float(r[3]) if r[3] else np.nan for r in body])
-    return pts, depth

@@ -11,15 +11,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from file_readers import read_depth_csv, read_stl
 from pdehead_addon import PDEHeadError, extract_boundaries, solve_pde
 from pdehead_addon.boundaries import max_patches
-from pdehead_addon.export import export_mesh, read_stl
+from pdehead_addon.export import export_mesh
 from pdehead_addon.landmarks import (frankfurt_transform, landmark, marker_pegs, midsagittal_plane, mirror_matrix,
+                                     symmetry_plane,
                                      read_depth_table, snap_to_surface, landmark_depths, write_landmark_csv,
                                      STANDARD_LANDMARKS)
 from pdehead_addon.phantom import BONE, HOLDER, GEOMETRY
 from pdehead_addon.skull import bone_level, segment_skull, skull_mesh
-from pdehead_addon.tissue_depth import ENVELOPE, MEASURED, NO_BONE, read_depth_csv, tissue_depth, write_depth_csv
+from pdehead_addon.tissue_depth import ENVELOPE, MEASURED, NO_BONE, tissue_depth, write_depth_csv
 
 VAULT_Z = 45.0  # above the brow, the eyes and the ears: the phantom's skin there is the cranium ellipsoid only
 
@@ -262,6 +264,39 @@ def test_midsagittal_plane_and_mirror():
     assert np.allclose(left @ m[:3, :3].T + m[:3, 3], right, atol=1e-9)
 
 
+def _rotation(axis, degrees):
+    a, k = np.radians(degrees), np.asarray(axis, float) / np.linalg.norm(axis)
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * K @ K
+
+
+@pytest.mark.parametrize("yaw, roll, shift", [(8.0, 5.0, 6.0), (-15.0, 10.0, -4.0)])
+def test_symmetry_plane_of_a_turned_skull(phantom_bone_mesh, yaw, roll, shift):
+    """The phantom's skull is symmetric about x = 0; turned and shifted, the plane is found again."""
+    v = phantom_bone_mesh.vertices
+    rot = _rotation([0, 0, 1], yaw) @ _rotation([0, 1, 0], roll)
+    pivot = v.mean(axis=0)
+    moved = (v - pivot) @ rot.T + pivot + [shift, 0, 0]
+    true_n, true_p = rot @ [1.0, 0, 0], rot @ -pivot + pivot + [shift, 0, 0]
+    point, normal, info = symmetry_plane(moved)
+    assert info["converged"] and normal[0] > 0
+    assert np.degrees(np.arccos(min(1.0, normal @ true_n))) < 0.05
+    assert abs((point - true_p) @ true_n) < 0.05
+    assert info["residual_mm"] < 0.25 < info["start_residual_mm"]
+    # a one-sided block (a head holder, 15 % of the points) does not pull the plane: the pairs are trimmed
+    block = moved[moved @ true_n > np.percentile(moved @ true_n, 85)] + 25.0 * true_n
+    point, normal, _ = symmetry_plane(np.vstack([moved, block]))
+    assert np.degrees(np.arccos(min(1.0, normal @ true_n))) < 1.0
+    assert abs((point - true_p) @ true_n) < 1.0
+
+
+def test_symmetry_plane_rejects_bad_points():
+    with pytest.raises(PDEHeadError, match="at least 10 finite"):
+        symmetry_plane(np.zeros((5, 3)))
+    with pytest.raises(PDEHeadError, match="at least 10 finite"):
+        symmetry_plane(np.full((20, 3), np.nan))
+
+
 # ----------------------------------------------------------------------------- real data
 @pytest.fixture(scope="module")
 def cthead_skull(cthead_ct, cthead_seg):
@@ -284,10 +319,29 @@ def test_cthead_skull(cthead_skull):
     assert mesh.is_watertight()
 
 
-def test_cthead_depth_forehead_cheeks_chin(cthead_seg, cthead_skull):
-    skin = solve_pde(extract_boundaries(cthead_seg, patches=10, samples=256, selection="shape-change")).surface(
+@pytest.fixture(scope="module")
+def cthead_bone_mesh(cthead_skull):
+    return skull_mesh(cthead_skull)
+
+
+@pytest.fixture(scope="module")
+def cthead_skin(cthead_seg):
+    return solve_pde(extract_boundaries(cthead_seg, patches=10, samples=256, selection="shape-change")).surface(
         120, 240, caps=True)
-    bone = skull_mesh(cthead_skull)
+
+
+def test_cthead_skull_symmetry_plane_agrees_with_the_skin(cthead_bone_mesh, cthead_skin):
+    """Two independent estimates of the mid-sagittal plane: the bone's and the skin's symmetry."""
+    p_bone, n_bone, info = symmetry_plane(cthead_bone_mesh.vertices)
+    p_skin, n_skin, _ = symmetry_plane(cthead_skin.vertices)
+    assert info["converged"] and info["residual_mm"] < 0.75 * info["start_residual_mm"]
+    assert np.degrees(np.arccos(min(1.0, n_bone @ n_skin))) < 3.0        # measured 1.6 deg
+    assert abs((p_bone - p_skin) @ n_skin) < 2.0                        # measured 0.7 mm
+    assert 1.0 < np.degrees(np.arccos(n_bone[0])) < 8.0                 # the cadaver lies turned by ~3 deg
+
+
+def test_cthead_depth_forehead_cheeks_chin(cthead_skin, cthead_skull, cthead_bone_mesh):
+    skin, bone = cthead_skin, cthead_bone_mesh
     res = tissue_depth(skin, bone, envelope=cthead_skull)
     v = skin.vertices
     xc = 0.5 * (v[:, 0].min() + v[:, 0].max())

@@ -7,7 +7,8 @@ from skimage.draw import polygon2mask
 
 from pdehead_addon import BoundarySet, CTVolume, PDEError, knots_from_heights
 from pdehead_addon.pde_solid import OUTSIDE_W, WField, alpha_from_w, w_field
-from pdehead_addon.pde_surface import signed_volume, solve_pde
+from pdehead_addon.pde_surface import solve_pde
+from pdehead_addon.surface_mesh import signed_volume
 from pde_synthetic import head_bset, resample_arc_length
 
 TWO_PI = 2 * np.pi

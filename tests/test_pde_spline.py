@@ -205,7 +205,7 @@ def test_default_head_is_smooth_on_real_scans(request, dataset, t):
     paper = solve_pde(b, continuity="paper")
     assert q["crease_p95_deg"] < 0.2 * surface_quality(paper)["crease_p95_deg"]
     if dataset == "cthead":      # distance to marching cubes of the mask: a regression guard at today's value
-        from pdehead_addon.pde_surface import _tube_mesh
+        from pdehead_addon.surface_mesh import _tube_mesh
         from skimage import measure
         verts, faces, _, _ = measure.marching_cubes(seg.mask.astype(np.float32), 0.5)
         verts = seg.ct.index_to_patient(verts)

@@ -6,9 +6,9 @@ import pytest
 
 from pdehead_addon import BoundarySet, Mesh, PDEError, knots_from_heights
 from pdehead_addon.pde_surface import (
-    MAX_DEVIATION_MM, PDEHead, align_parameterisation, lebesgue_constant, signed_volume, smoothing_bounds,
-    solve_pde,
+    MAX_DEVIATION_MM, PDEHead, align_parameterisation, lebesgue_constant, smoothing_bounds, solve_pde,
 )
+from pdehead_addon.surface_mesh import signed_volume
 from pde_synthetic import circles_bset, head_bset, polar_curve, radial_excess
 
 

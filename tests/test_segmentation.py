@@ -13,6 +13,8 @@ from scipy import ndimage as ndi
 from pdehead_addon import CTVolume, SegmentationError, make_phantom, segment_head
 from pdehead_addon import metrics as M
 from pdehead_addon import segmentation as S
+from pdehead_addon.chan_vese import _ChanVeseState
+from pdehead_addon.mask_cleanup import _box_opening
 from pdehead_addon.phantom import CUSHION, HOLDER
 
 
@@ -58,7 +60,7 @@ def test_fused_sweep_is_eq20_and_eq21(slab, threads):
         idx = [slice(None)] * 3
         idx[axis] = -1
         s[axis][tuple(idx)] = 0
-    state = S._ChanVeseState(img, q, spacing, theta, tau, sig=tuple(a / np.float32(h) for a, h in zip(s, spacing)),
+    state = _ChanVeseState(img, q, spacing, theta, tau, sig=tuple(a / np.float32(h) for a, h in zip(s, spacing)),
                              slab=slab, threads=threads)
     coeffs = (lam * 2 * (c2 - c1), lam * (c1 * c1 - c2 * c2))
     sum_q, sum_iq, _ = state.sweep(coeffs)
@@ -90,7 +92,7 @@ def test_morphology_helpers_match_definitions():
             for x in range(m.shape[2] - 1):
                 if m[z:z + 2, y:y + 3, x:x + 2].all():
                     brute[z:z + 2, y:y + 3, x:x + 2] = True
-    assert np.array_equal(S._box_opening(m, size), brute)
+    assert np.array_equal(_box_opening(m, size), brute)
     # disk erosion = scipy erosion with the same (octagonal) footprint, no border effects
     point = np.zeros((1, 31, 31), bool)
     point[0, 15, 15] = True

@@ -7,9 +7,9 @@ import json
 import numpy as np
 import pytest
 
+from file_readers import read_stl
 from test_cli import run_cli
 
-from pdehead_addon.export import read_stl
 from pdehead_addon.phantom import GEOMETRY
 
 
@@ -140,6 +140,13 @@ def test_forensic_operators_on_the_phantom(pdehead_ext, tmp_path):
     b = np.array([skull_obj.matrix_world @ v.co for v in skull_obj.data.vertices])
     assert np.allclose(np.sort(a[:, 0]), np.sort(-b[:, 0]), atol=0.002)
     assert a[:, 2].mean() == pytest.approx(b[:, 2].mean(), abs=0.001)
+    # the skull's own symmetry plane, no landmarks needed: the phantom is symmetric about x = 0
+    mirrored.name = "landmark mirror"
+    assert bpy.ops.pdehead.mirror(plane='SKULL') == {'FINISHED'}
+    by_skull = np.array(bpy.data.objects[f"{skull_obj.name} Mirrored"].matrix_world)
+    by_landmarks = np.array(mirrored.matrix_world)
+    assert np.linalg.det(by_skull[:3, :3]) == pytest.approx(-1.0)
+    assert by_skull == pytest.approx(by_landmarks, abs=0.002)          # same plane within ~1 deg / 1 mm
     assert bpy.ops.pdehead.frankfurt(reset=True) == {'FINISHED'}
     assert np.array(skull_obj.matrix_world)[:3, :3] == pytest.approx(np.eye(3))
 

@@ -1,0 +1,509 @@
+"""What is in a folder: the files, their format, and the DICOM series in them (:func:`list_series`).
+
+:func:`~pdehead_addon.ct_import.load_ct` starts here: the files of a folder
+(recursively), a single file or a list, DICOMDIR file-sets expanded to the
+files they index, the format detected (DICOM by its preamble or a leading
+group 0002/0008 tag, images and NIfTI by extension), and for DICOM every
+image series found by reading the headers only (pixel data deferred).
+"""
+from __future__ import annotations
+
+import math
+import os
+import re
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+
+from ..errors import CTImportError
+from .geometry import _ALIGNED_TOL
+
+IMAGE_EXTENSIONS = (".tif", ".tiff", ".png", ".jpg", ".jpeg", ".bmp", ".gif", ".pgm", ".ppm")
+NIFTI_EXTENSIONS = (".nii", ".nii.gz")
+# Companion files that sit next to slices and are skipped (with a warning) instead of failing a stack.
+TEXT_EXTENSIONS = (".txt", ".md", ".json", ".xml", ".csv", ".ini", ".html", ".htm", ".pdf", ".log", ".cfg")
+DICOMDIR_SOP_CLASS = "1.2.840.10008.1.3.10"
+
+
+@dataclass(frozen=True)
+class SeriesInfo:
+    """One DICOM image series found by :func:`list_series`.
+
+    Attributes
+    ----------
+    uid : str
+        SeriesInstanceUID (pass it as ``load_ct(path, series_uid=uid)``).
+    description : str
+        SeriesDescription (may be empty).
+    modality : str
+        Modality, e.g. ``"CT"`` or ``"MR"``.
+    slice_count : int
+        Number of image slices (frames), localizers excluded.
+    rows, cols : int
+        Image size in pixels (the most common one if the series is mixed).
+    files : tuple of str
+        The files holding the slices, sorted by name.
+    series_number : int or None
+        SeriesNumber.
+    study_description : str
+        StudyDescription.
+    pixel_spacing : tuple of 2 float or None
+        (row spacing, column spacing) in mm.
+    orientation : str
+        ``"axial"``, ``"coronal"``, ``"sagittal"``, ``"oblique"`` or ``"unknown"`` (from the slice normal).
+    transfer_syntax : str
+        Name of the transfer syntax of the first file.
+    """
+
+    uid: str
+    description: str
+    modality: str
+    slice_count: int
+    rows: int
+    cols: int
+    files: tuple[str, ...] = ()
+    series_number: int | None = None
+    study_description: str = ""
+    pixel_spacing: tuple[float, float] | None = None
+    orientation: str = "unknown"
+    transfer_syntax: str = ""
+
+    @property
+    def is_ct(self) -> bool:
+        return self.modality.upper() == "CT"
+
+    @property
+    def label(self) -> str:
+        """A one-line human description, e.g. ``"#2 HEAD: CT, 28 slices of 512x512"``."""
+        number = f"#{self.series_number} " if self.series_number is not None else ""
+        desc = self.description or "(no description)"
+        return f"{number}{desc}: {self.modality or '?'}, {self.slice_count} slices of {self.rows}x{self.cols}"
+
+
+def list_series(path: str | os.PathLike | Sequence[str | os.PathLike]) -> list[SeriesInfo]:
+    """List the DICOM image series under a folder (searched recursively) or in a list of files.
+
+    Non-DICOM files, DICOMDIR, localizers and objects without pixel data are
+    left out. The list is sorted as :func:`load_ct` chooses: CT before other
+    modalities, then by slice count (largest first), then by series number.
+
+    Parameters
+    ----------
+    path : path or sequence of paths
+        A folder, a single file or a list of files.
+
+    Returns
+    -------
+    list of SeriesInfo
+        Empty when there is no DICOM image series.
+
+    Raises
+    ------
+    CTImportError
+        If the path does not exist or the folder is empty.
+    """
+    files, label = _gather_files(path)
+    files = _expand_dicomdir(files, label, [])
+    scan = _scan_dicom(files)
+    return [_series_info(s) for s in _ranked_series(scan.series)]
+
+
+# ----------------------------------------------------------------------------------------------
+# Files and format detection
+# ----------------------------------------------------------------------------------------------
+
+def _label(path) -> str:
+    if isinstance(path, (str, os.PathLike)):
+        return os.fspath(path)
+    try:
+        items = list(path)
+    except TypeError:
+        return repr(path)
+    return f"{os.fspath(items[0])} (+{len(items) - 1} more files)" if items else "(empty file list)"
+
+
+def _gather_files(path) -> tuple[list[Path], str]:
+    """All regular files of a folder (recursively, sorted), a single file, or a list of files."""
+    if isinstance(path, (str, os.PathLike)):
+        p = Path(path)
+        label = os.fspath(path)
+        if not p.exists():
+            raise CTImportError("no such file or folder", label)
+        if p.is_file():
+            return [p], label
+        files = []
+        for root, dirs, names in os.walk(p):
+            dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+            files.extend(Path(root) / n for n in sorted(names) if not n.startswith("."))
+        files = [f for f in files if f.is_file()]
+        if not files:
+            raise CTImportError("the folder is empty (no files in it or its subfolders)", label)
+        return files, label
+    try:
+        items = [Path(f) for f in path]
+    except TypeError:
+        raise CTImportError(f"expected a folder, a file or a list of files, got {type(path).__name__}") from None
+    label = _label(items)
+    if not items:
+        raise CTImportError("the list of files is empty")
+    for f in items:
+        if not f.is_file():
+            raise CTImportError("no such file" if not f.exists() else "not a regular file", f)
+    return items, label
+
+
+def _is_dicomdir(f: Path) -> bool:
+    return f.name.upper() == "DICOMDIR" and _looks_like_dicom(f)
+
+
+def _expand_dicomdir(files: list[Path], label: str, warns: list[str]) -> list[Path]:
+    """Add the image files a DICOMDIR (a DICOM file-set's index) refers to.
+
+    A DICOMDIR names its files by ReferencedFileID (path components relative to
+    the DICOMDIR's folder, often upper-case without extension, e.g.
+    ``DICOM/ST000000/SE000001/IM000003``). Given the DICOMDIR itself, or a folder
+    holding one, the referenced files are loaded like any other files of the
+    folder; referenced files that are missing are reported in a warning.
+    """
+    dirs = [f for f in files if _is_dicomdir(f)]
+    if not dirs:
+        return files
+    pydicom = _pydicom()
+    out = list(files)
+    seen = {os.path.normcase(os.path.abspath(f)) for f in files}
+    for d in dirs:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                index = pydicom.dcmread(d, force=True)
+            records = index.get("DirectoryRecordSequence") or []
+        except Exception as exc:
+            warns.append(f"cannot read DICOMDIR {d} ({type(exc).__name__}: {exc}); its folder is searched instead")
+            continue
+        missing = []
+        for rec in records:
+            ref = rec.get("ReferencedFileID")
+            if ref is None:
+                continue
+            parts = [str(p) for p in ref] if not isinstance(ref, str) else str(ref).split("\\")
+            target = d.parent.joinpath(*parts)
+            if not target.is_file():
+                # file systems that lost the upper case of ISO 9660 names
+                alt = d.parent.joinpath(*(p.lower() for p in parts))
+                target = alt if alt.is_file() else target
+            if not target.is_file():
+                missing.append("/".join(parts))
+                continue
+            key = os.path.normcase(os.path.abspath(target))
+            if key not in seen:
+                seen.add(key)
+                out.append(target)
+        if missing:
+            warns.append(f"DICOMDIR {d} refers to {len(missing)} missing file(s): " + ", ".join(missing[:3])
+                         + (", ..." if len(missing) > 3 else ""))
+    return out
+
+
+def _top_level(files: list[Path], label: str) -> list[Path]:
+    """Files directly in the folder (image and raw stacks are not searched recursively)."""
+    root = Path(label)
+    if root.is_dir():
+        return [f for f in files if f.parent == root]
+    return files
+
+
+def _has_ext(f: Path, exts: Iterable[str]) -> bool:
+    name = f.name.lower()
+    return any(name.endswith(e) for e in exts)
+
+
+_DIGITS = re.compile(r"\d+")
+
+
+def _numbered_key(f: Path) -> tuple:
+    """Sort key ordering ``x2 < x10 < x100`` by the last number in the file name."""
+    name = f.name
+    runs = list(_DIGITS.finditer(name))
+    if not runs:
+        return (name, -1, name)
+    last = runs[-1]
+    template = name[:last.start()] + "#" + name[last.end():]
+    return (template, int(last.group()), name)
+
+
+def _numbered_files(files: list[Path], label: str, what: str, warns: list[str]) -> list[Path]:
+    ordered = sorted(files, key=_numbered_key)
+    templates = {_numbered_key(f)[0] for f in ordered}
+    if len(templates) > 1:
+        warns.append(f"{what} file names follow {len(templates)} different patterns "
+                     f"({', '.join(sorted(templates)[:3])}...); sorted by pattern, then number")
+    return ordered
+
+
+def _looks_like_dicom(f: Path) -> bool:
+    """'DICM' at byte 128, or a preamble-less file starting with a group 0002/0008 tag."""
+    try:
+        with open(f, "rb") as fh:
+            head = fh.read(132)
+    except OSError:
+        return False
+    if len(head) >= 132 and head[128:132] == b"DICM":
+        return True
+    return len(head) >= 8 and head[:2] in (b"\x02\x00", b"\x08\x00")
+
+
+def _detect_format(files: list[Path], label: str, shape) -> str:
+    if shape is not None:
+        return "raw"
+    if len(files) == 1 and _has_ext(files[0], NIFTI_EXTENSIONS):
+        return "nifti"
+    if any(_looks_like_dicom(f) for f in files if not _has_ext(f, IMAGE_EXTENSIONS + NIFTI_EXTENSIONS)):
+        return "dicom"
+    top = _top_level(files, label)
+    if any(_has_ext(f, IMAGE_EXTENSIONS) for f in top):
+        return "image"
+    if any(_has_ext(f, NIFTI_EXTENSIONS) for f in top):
+        raise CTImportError("found NIfTI files; pass one .nii/.nii.gz file, not the folder", label)
+    if any(_has_ext(f, IMAGE_EXTENSIONS) for f in files):
+        raise CTImportError("no slices directly in this folder (images found only in subfolders); "
+                            "choose the folder that holds the numbered images", label)
+    raise CTImportError(
+        "no DICOM, image (TIFF/PNG/...) or NIfTI files found; for headerless raw slices pass "
+        "format='raw', shape=(ny, nx) and dtype (e.g. '>i2')", label)
+
+
+# ----------------------------------------------------------------------------------------------
+# DICOM: scanning headers
+# ----------------------------------------------------------------------------------------------
+
+@dataclass(eq=False)
+class _Frame:
+    """One 2-D image of a DICOM series (a file, or one frame of a multi-frame file)."""
+
+    path: Path
+    frame: int | None            # frame index in a multi-frame file, None for single-frame
+    ds: Any                      # pydicom Dataset, pixel data deferred
+    ipp: np.ndarray | None       # ImagePositionPatient (3,)
+    iop: np.ndarray | None       # ImageOrientationPatient (6,)
+    pixel_spacing: tuple[float, float] | None
+    thickness: float | None
+    slope: float
+    intercept: float
+    rows: int
+    cols: int
+    sop_uid: str
+
+
+@dataclass
+class _Series:
+    uid: str
+    frames: list[_Frame] = field(default_factory=list)
+    localizers: int = 0
+
+    @property
+    def first(self) -> Any:
+        return self.frames[0].ds
+
+
+@dataclass
+class _Scan:
+    series: dict[str, _Series]
+    skipped: dict[str, list[Path]]      # reason -> files
+    unreadable: dict[Path, str]         # DICOM-looking files that failed to parse -> error
+    incomplete: dict[str, list[Path]]   # series uid -> image files cut off before their pixel data
+
+
+def _pydicom():
+    try:
+        import pydicom
+    except ImportError as exc:  # pragma: no cover - pydicom is a hard dependency
+        raise CTImportError(f"reading DICOM needs the 'pydicom' package ({exc})") from None
+    return pydicom
+
+
+def _read_dicom_header(f: Path):
+    """The dataset with pixel data deferred (read lazily from the file)."""
+    pydicom = _pydicom()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ds = pydicom.dcmread(f, defer_size=4096, force=True)
+        # Touch the tags we need now so that a header broken by truncation fails here.
+        for keyword in ("SOPClassUID", "SeriesInstanceUID", "Rows", "Columns", "ImagePositionPatient"):
+            ds.get(keyword)
+    if "SOPClassUID" not in ds and "SeriesInstanceUID" not in ds and "Rows" not in ds:
+        raise ValueError("no SOP class, series or image attributes")
+    return ds
+
+
+def _floats(value, n: int) -> np.ndarray | None:
+    if value is None:
+        return None
+    try:
+        arr = np.array([float(v) for v in value], dtype=np.float64)
+    except (TypeError, ValueError):
+        return None
+    return arr if arr.shape == (n,) and np.all(np.isfinite(arr)) else None
+
+
+def _float_or(value, default):
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        return default
+    return out if math.isfinite(out) else default
+
+
+def _group_value(groups: Sequence, sequence: str, keyword: str):
+    """First value of ``keyword`` inside ``sequence`` of the first functional group that has it."""
+    for group in groups:
+        if group is None:
+            continue
+        seq = group.get(sequence)
+        if seq:
+            value = seq[0].get(keyword)
+            if value is not None:
+                return value
+    return None
+
+
+def _frames_of(f: Path, ds) -> list[_Frame]:
+    rows, cols = int(ds.get("Rows", 0) or 0), int(ds.get("Columns", 0) or 0)
+    sop_uid = str(ds.get("SOPInstanceUID", f))
+    try:
+        nframes = int(ds.get("NumberOfFrames", 1) or 1)
+    except (TypeError, ValueError):
+        nframes = 1
+    shared_seq = ds.get("SharedFunctionalGroupsSequence")
+    shared = shared_seq[0] if shared_seq else None
+    per_frame = ds.get("PerFrameFunctionalGroupsSequence")
+    frames = []
+    for index in range(nframes):
+        groups = [per_frame[index] if per_frame is not None and index < len(per_frame) else None, shared]
+        ipp = _floats(_group_value(groups, "PlanePositionSequence", "ImagePositionPatient")
+                      or ds.get("ImagePositionPatient"), 3)
+        iop = _floats(_group_value(groups, "PlaneOrientationSequence", "ImageOrientationPatient")
+                      or ds.get("ImageOrientationPatient"), 6)
+        ps = _floats(_group_value(groups, "PixelMeasuresSequence", "PixelSpacing") or ds.get("PixelSpacing"), 2)
+        thickness = _float_or(_group_value(groups, "PixelMeasuresSequence", "SliceThickness")
+                              or ds.get("SliceThickness"), None)
+        slope = _float_or(_group_value(groups, "PixelValueTransformationSequence", "RescaleSlope")
+                          or ds.get("RescaleSlope"), 1.0)
+        intercept = _float_or(_group_value(groups, "PixelValueTransformationSequence", "RescaleIntercept")
+                              or ds.get("RescaleIntercept"), 0.0)
+        frames.append(_Frame(f, index if nframes > 1 else None, ds, ipp, iop,
+                             None if ps is None else (float(ps[0]), float(ps[1])),
+                             thickness if thickness and thickness > 0 else None,
+                             slope if slope != 0 else 1.0, intercept, rows, cols, sop_uid))
+    return frames
+
+
+def _scan_dicom(files: list[Path]) -> _Scan:
+    series: dict[str, _Series] = {}
+    skipped: dict[str, list[Path]] = {}
+    unreadable: dict[Path, str] = {}
+    incomplete: dict[str, list[Path]] = {}
+
+    def skip(reason: str, f: Path) -> None:
+        skipped.setdefault(reason, []).append(f)
+
+    for f in files:
+        if f.name.upper() == "DICOMDIR":
+            skip("DICOMDIR", f)
+            continue
+        if _has_ext(f, IMAGE_EXTENSIONS + NIFTI_EXTENSIONS + TEXT_EXTENSIONS) or not _looks_like_dicom(f):
+            skip("not DICOM", f)
+            continue
+        try:
+            ds = _read_dicom_header(f)
+        except Exception as exc:  # any parse failure of a DICOM-looking file
+            unreadable[f] = f"{type(exc).__name__}: {exc}"
+            continue
+        media_class = str(getattr(ds, "file_meta", {}).get("MediaStorageSOPClassUID", ""))
+        if media_class == DICOMDIR_SOP_CLASS or str(ds.get("SOPClassUID", "")) == DICOMDIR_SOP_CLASS:
+            skip("DICOMDIR", f)
+            continue
+        if "PixelData" not in ds:
+            sop_class = ds.get("SOPClassUID")
+            if sop_class is not None and "image storage" in str(getattr(sop_class, "name", "")).lower():
+                # an image object without its pixels: the file was cut off inside the header
+                incomplete.setdefault(str(ds.get("SeriesInstanceUID", "")), []).append(f)
+                unreadable[f] = f"{sop_class.name} object without pixel data (file truncated?)"
+            else:
+                skip("no pixel data (not an image)", f)
+            continue
+        uid = str(ds.get("SeriesInstanceUID", "") or "(no SeriesInstanceUID)")
+        entry = series.setdefault(uid, _Series(uid))
+        image_type = ds.get("ImageType") or []
+        if isinstance(image_type, str):
+            image_type = image_type.split("\\")
+        if "LOCALIZER" in {str(t).strip().upper() for t in image_type}:
+            entry.localizers += 1
+            skip("localizer", f)
+            continue
+        entry.frames.extend(_frames_of(f, ds))
+    series = {uid: s for uid, s in series.items() if s.frames}
+    return _Scan(series, skipped, unreadable, incomplete)
+
+
+def _orientation_name(iop: np.ndarray | None) -> str:
+    if iop is None:
+        return "unknown"
+    normal = np.cross(iop[:3], iop[3:])
+    norm = np.linalg.norm(normal)
+    if norm < 1e-6:
+        return "unknown"
+    normal = np.abs(normal / norm)
+    axis = int(np.argmax(normal))
+    if normal[axis] < 1 - _ALIGNED_TOL:
+        return "oblique"
+    return ("sagittal", "coronal", "axial")[axis]
+
+
+def _series_info(s: _Series) -> SeriesInfo:
+    ds = s.first
+    sizes: dict[tuple[int, int], int] = {}
+    for fr in s.frames:
+        sizes[(fr.rows, fr.cols)] = sizes.get((fr.rows, fr.cols), 0) + 1
+    rows, cols = max(sizes, key=sizes.get)
+    number = ds.get("SeriesNumber")
+    try:
+        number = int(number) if number not in (None, "") else None
+    except (TypeError, ValueError):
+        number = None
+    ts = getattr(getattr(ds, "file_meta", None), "TransferSyntaxUID", None)
+    return SeriesInfo(
+        uid=s.uid,
+        description=str(ds.get("SeriesDescription", "") or ""),
+        modality=str(ds.get("Modality", "") or ""),
+        slice_count=len(s.frames),
+        rows=rows,
+        cols=cols,
+        files=tuple(sorted({os.fspath(fr.path) for fr in s.frames})),
+        series_number=number,
+        study_description=str(ds.get("StudyDescription", "") or ""),
+        pixel_spacing=s.frames[0].pixel_spacing,
+        orientation=_orientation_name(s.frames[0].iop),
+        transfer_syntax=str(ts.name) if ts is not None else "",
+    )
+
+
+def _ranked_series(series: dict[str, _Series]) -> list[_Series]:
+    def key(s: _Series):
+        info_number = s.first.get("SeriesNumber")
+        try:
+            number = int(info_number)
+        except (TypeError, ValueError):
+            number = 1 << 30
+        return (str(s.first.get("Modality", "")).upper() != "CT", -len(s.frames), number, s.uid)
+    return sorted(series.values(), key=key)
+
+
+def _skip_summary(skipped: dict[str, list[Path]]) -> str:
+    parts = []
+    for reason, fs in skipped.items():
+        names = ", ".join(f.name for f in fs[:3]) + (", ..." if len(fs) > 3 else "")
+        parts.append(f"{len(fs)} {reason} ({names})")
+    return "; ".join(parts)

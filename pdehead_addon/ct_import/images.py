@@ -1,0 +1,83 @@
+"""Numbered 2-D images (TIFF through tifffile, PNG/JPEG/BMP/... through Pillow), or one multi-page TIFF."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..ct_volume import CTVolume
+from ..errors import CTImportError
+from .discovery import IMAGE_EXTENSIONS, _has_ext, _numbered_files, _top_level
+from .geometry import _headerless_volume
+
+
+
+def _read_image(f: Path) -> tuple[np.ndarray, bool]:
+    """One image as a greyscale numpy array (TIFF through tifffile, others through Pillow), and
+    whether it was converted from colour."""
+    arr = None
+    if _has_ext(f, (".tif", ".tiff")):
+        try:
+            import tifffile
+            arr = tifffile.imread(f)
+        except ImportError:
+            arr = None
+        except Exception as exc:
+            raise CTImportError(f"cannot read TIFF image: {type(exc).__name__}: {exc}", f) from None
+    if arr is None:
+        try:
+            from PIL import Image
+        except ImportError:
+            raise CTImportError("reading images needs Pillow (or tifffile for TIFF)", f) from None
+        try:
+            with Image.open(f) as im:
+                frames = []
+                for index in range(getattr(im, "n_frames", 1)):
+                    im.seek(index)
+                    frame = im
+                    if frame.mode in ("P", "PA", "LA", "1"):
+                        frame = frame.convert("L")
+                    frames.append(np.asarray(frame))
+                arr = frames[0] if len(frames) == 1 else np.stack(frames)
+        except Exception as exc:
+            raise CTImportError(f"cannot read image: {type(exc).__name__}: {exc}", f) from None
+    arr = np.asarray(arr)
+    if arr.ndim >= 3 and arr.shape[-1] in (3, 4):
+        # colour (RGB/RGBA): luminance, ITU-R 601
+        return arr[..., :3].astype(np.float32) @ np.array([0.299, 0.587, 0.114], dtype=np.float32), True
+    return arr, False
+
+
+def _load_images(files, label, spacing, axes, oriented, hu, warns) -> CTVolume:
+    top = _top_level(files, label)
+    images = [f for f in top if _has_ext(f, IMAGE_EXTENSIONS)]
+    others = [f for f in top if f not in images]
+    if not images:
+        raise CTImportError("no image files (TIFF/PNG/JPEG/BMP) found", label if len(files) != 1 else files[0])
+    if others:
+        warns.append(f"skipped {len(others)} non-image file(s): " + ", ".join(f.name for f in others[:5]))
+    images = _numbered_files(images, label, "image", warns)
+    slices = []
+    colour = False
+    shapes: dict[tuple, Path] = {}
+    for f in images:
+        arr, converted = _read_image(f)
+        colour |= converted
+        if arr.ndim == 2:
+            slices.append(arr)
+        elif arr.ndim == 3 and len(images) == 1:
+            slices.extend(arr)                      # one multi-page file = the whole volume
+        else:
+            raise CTImportError(f"expected a 2-D greyscale image, got shape {arr.shape}", f)
+        shapes.setdefault(arr.shape[-2:], f)
+    if colour:
+        warns.append("colour images converted to grey (luminance)")
+    if len(shapes) > 1:
+        example = "; ".join(f"{s[0]}x{s[1]} in {f.name}" for s, f in shapes.items())
+        raise CTImportError(f"mixed image sizes ({example})", label)
+    data = np.empty((len(slices),) + slices[0].shape, dtype=np.float32)
+    for k, s in enumerate(slices):
+        data[k] = s
+    del slices
+    return _headerless_volume(data, label, "image", spacing, axes, oriented, hu, warns,
+                              {"files": len(images), "first_file": images[0].name, "last_file": images[-1].name})

@@ -1,0 +1,216 @@
+"""``load_ct``: one entry point that dispatches to the format readers and checks the values.
+
+The paper (Fig. 1) starts from "a sequence of head cross-sectional slices";
+see :mod:`pdehead_addon.ct_import` for the axis convention every reader ends in.
+"""
+from __future__ import annotations
+
+import os
+import warnings
+from typing import Sequence
+
+import numpy as np
+
+from .. import input_checks
+from ..ct_volume import CTVolume, downsample_volume
+from ..errors import CTImportError
+from .dicom import _load_dicom
+from .discovery import _detect_format, _expand_dicomdir, _gather_files, _label
+from .images import _load_images
+from .nifti import _load_nifti
+from .raw import _load_raw
+
+
+
+class CTImportWarning(UserWarning):
+    """Something in the input was skipped or looks suspicious, but a volume was loaded."""
+
+
+def load_ct(
+    path: str | os.PathLike | Sequence[str | os.PathLike],
+    *,
+    format: str = "auto",
+    series_uid: str | None = None,
+    spacing: Sequence[float] | None = None,
+    first_slice: str | None = None,
+    orientation: str | None = None,
+    units: str | None = None,
+    shape: Sequence[int] | None = None,
+    dtype: str | np.dtype | None = None,
+    byte_order: str | None = None,
+    header_bytes: int = 0,
+    resample_spacing: Sequence[float] | None = None,
+    downsample: int | Sequence[int] | None = None,
+) -> CTVolume:
+    """Load head CT slices into a :class:`CTVolume` (float32 ``[z, y, x]``, LPS mm, k superior).
+
+    Parameters
+    ----------
+    path : path or sequence of paths
+        A folder (DICOM is searched recursively; image and raw slices are taken
+        from the folder itself), a single file (DICOM, multi-page TIFF, NIfTI
+        ``.nii``/``.nii.gz``, raw volume) or a list of files.
+    format : {"auto", "dicom", "image", "raw", "nifti"}
+        ``"auto"`` detects DICOM by its preamble ('DICM') or by parsing,
+        images and NIfTI by extension; headerless raw data is used only when
+        asked (``format="raw"``) or when ``shape`` is given.
+    series_uid : str, optional
+        DICOM: the SeriesInstanceUID to load (see :func:`list_series`).
+        Default: the CT image series with the most slices.
+    spacing : (dz, dy, dx), optional
+        Voxel size in mm for images and raw data (they carry none); default
+        (1, 1, 1) with a warning. Ignored (with a warning) for DICOM/NIfTI.
+    first_slice : {"inferior", "superior"}, optional
+        Images and raw data: where the first slice of the numeric order lies
+        (default inferior). Same as ``orientation="LPS"`` / ``"LPI"``.
+    orientation : str, optional
+        Images and raw data: three letters naming the patient direction in which
+        the column index, the row index and the file (slice) index increase, e.g.
+        ``"LPS"`` (default: column 0 = patient right, row 0 = front, first file at
+        the bottom), ``"LAS"`` (row 0 = the back of the head), ``"RAS"``,
+        ``"PIL"`` (sagittal slices). A warning is issued when the face (the nose)
+        seems to lie on the side the code calls posterior.
+    units : {"HU", "stored"}, optional
+        Images and raw data: ``"HU"`` says the samples are Hounsfield units (air
+        -1000), which enables the HU rules (out-of-field values below -1500 HU);
+        default: uncalibrated stored values. NIfTI: ``"HU"`` marks a CT NIfTI.
+    shape : (ny, nx) or (nz, ny, nx), optional
+        Raw data: slice (or volume) shape.
+    dtype : str or numpy dtype, optional
+        Raw data: sample type with byte order, e.g. ``">i2"`` (big-endian int16).
+    byte_order : {"big", "little"}, optional
+        Raw data: sets the byte order of ``dtype``.
+    header_bytes : int
+        Raw data: bytes to skip at the start of every file.
+    resample_spacing : (dz, dy, dx), optional
+        Voxel size of the output grid when the slices must be resampled
+        (tilted, oblique or uneven). Default: the in-plane pixel spacing and the
+        median slice step.
+    downsample : int or (fz, fy, fx), optional
+        Average blocks of voxels after loading (:func:`~pdehead_addon.ct_volume.downsample_volume`),
+        for scans too large to segment in memory (``segment_head`` says when).
+
+    Returns
+    -------
+    CTVolume
+        ``direction`` is the identity whenever the source allows it. ``meta``
+        holds ``source``, ``format``, ``modality``, ``series_uid``,
+        ``series_description``, ``original_slice_count``, ``gantry_tilt_deg``,
+        ``resampled``, ``resample_reason``, ``hu_range``, ``units`` and the
+        list ``warnings`` (each also issued as a :class:`CTImportWarning`);
+        ``non_finite_voxels`` and ``out_of_field`` record repaired voxels.
+
+    Raises
+    ------
+    CTImportError
+        With the offending file or folder and the problem: missing path, empty
+        folder, no CT series, mixed image sizes, duplicate slice positions,
+        truncated or undecodable files, raw size mismatch, bad options.
+    """
+    warns: list[str] = []
+    fmt = str(format).lower()
+    if fmt in ("images", "tiff", "tif", "png"):
+        fmt = "image"
+    if fmt not in ("auto", "dicom", "image", "raw", "nifti"):
+        raise CTImportError(f"unknown format {format!r}; use 'auto', 'dicom', 'image', 'raw' or 'nifti'",
+                            _label(path))
+    if first_slice not in (None, "inferior", "superior"):
+        raise CTImportError(f"first_slice must be 'inferior' or 'superior', got {first_slice!r}", _label(path))
+    if units is not None and str(units).lower() not in ("hu", "stored"):
+        raise CTImportError(f"units must be 'HU' or 'stored', got {units!r}", _label(path))
+    hu_said = units is not None and str(units).lower() == "hu"
+    axes = None
+    if orientation is not None:
+        try:
+            axes = input_checks.parse_orientation(orientation)
+        except ValueError as exc:
+            raise CTImportError(str(exc), _label(path)) from None
+        if first_slice is not None and not (abs(axes[2][2]) == 1
+                                            and (axes[2][2] > 0) == (first_slice == "inferior")):
+            raise CTImportError(f"first_slice={first_slice!r} contradicts orientation={orientation!r} "
+                                "(its third letter says where the files go); give only orientation", _label(path))
+    files, label = _gather_files(path)
+    if fmt in ("auto", "dicom"):
+        files = _expand_dicomdir(files, label, warns)
+
+    if fmt == "auto":
+        fmt = _detect_format(files, label, shape)
+    if fmt in ("dicom", "nifti"):
+        if spacing is not None:
+            warns.append(f"spacing={tuple(spacing)} ignored: {fmt.upper()} files carry their own geometry")
+        if first_slice is not None:
+            warns.append(f"first_slice={first_slice!r} ignored: {fmt.upper()} files carry their own geometry")
+        if orientation is not None:
+            warns.append(f"orientation={orientation!r} ignored: {fmt.upper()} files carry their own geometry")
+        if fmt == "dicom" and units is not None:
+            warns.append(f"units={units!r} ignored: DICOM says its own units (Modality, RescaleType)")
+    elif series_uid is not None:
+        warns.append("series_uid ignored: the input is not DICOM")
+    if axes is None:
+        axes = input_checks.parse_orientation("LPI" if first_slice == "superior" else "LPS")
+
+    if fmt == "dicom":
+        ct = _load_dicom(files, label, series_uid, resample_spacing, warns)
+    elif fmt == "nifti":
+        ct = _load_nifti(files, label, resample_spacing, warns, hu_said)
+    elif fmt == "image":
+        ct = _load_images(files, label, spacing, axes, orientation is not None, hu_said, warns)
+    else:
+        ct = _load_raw(files, label, shape, dtype, byte_order, header_bytes, spacing, axes,
+                       orientation is not None, hu_said, warns)
+    _check_values(ct, label, warns)
+    if downsample is not None and np.any(np.asarray(downsample) != 1):
+        try:
+            ct = downsample_volume(ct, downsample)
+        except (ValueError, TypeError) as exc:
+            raise CTImportError(f"downsample: {exc}", label) from None
+        warns.append(f"downsampled {ct.meta['shape_before_downsample']} -> {ct.shape} voxels (block means of "
+                     f"{' x '.join(map(str, ct.meta['downsampled']))}); spacing now {ct.spacing} mm (dz, dy, dx)")
+    if fmt in ("image", "raw"):
+        _check_face_side(ct, warns)
+
+    ct.meta["warnings"] = list(warns)
+    for message in warns:
+        warnings.warn(f"{label}: {message}", CTImportWarning, stacklevel=2)
+    return ct
+
+
+def _check_values(ct: CTVolume, label: str, warns: list[str]) -> None:
+    """Non-finite voxels and out-of-field values become air, each with a warning naming the cause."""
+    meta = ct.meta
+    hu = meta.get("units") == "HU"
+    try:
+        bad, fill = input_checks.repair_non_finite(ct.data, hu)
+    except ValueError as exc:
+        raise CTImportError(f"no usable voxel: {exc}", label) from None
+    meta["non_finite_voxels"] = bad
+    if bad:
+        warns.append(f"{bad} voxel(s) ({100.0 * bad / ct.data.size:.2g} % of the volume) are NaN or infinite; "
+                     f"filled as air ({fill:g})")
+    oof = input_checks.repair_out_of_field(ct.data, hu)
+    meta["out_of_field"] = oof
+    if oof:
+        value = oof["value"]
+        value = f"{value:g}" if not isinstance(value, tuple) else f"{value[0]:g} to {value[1]:g}"
+        unit = " HU" if hu else ""
+        warns.append(f"{oof['count']} voxel(s) ({100.0 * oof['count'] / ct.data.size:.1f} % of the volume, "
+                     f"{100.0 * oof['outside_circle']:.0f} % of them outside the circular field of view) hold the "
+                     f"out-of-field value {value}{unit} ({oof['rule']}; no PixelPaddingValue said so): set to air "
+                     f"({oof['fill']:g}{unit})")
+    if bad or oof:
+        meta["hu_range"] = (float(ct.data.min()), float(ct.data.max()))
+
+
+
+def _check_face_side(ct: CTVolume, warns: list[str]) -> None:
+    """Warn when the nose lies on the side the (stated or assumed) orientation calls posterior."""
+    side = input_checks.face_side(ct.data, ct.spacing) if min(ct.shape) >= 8 else {"side": "unknown"}
+    ct.meta["face_side"] = side
+    if side["side"] == "high":
+        code = ct.meta["orientation"]
+        flipped = code.translate(str.maketrans("AP", "PA"))
+        said = "orientation" if "orientation_assumed" not in ct.meta else "the default orientation"
+        warns.append(f"the face (nose) seems to lie on the side that {said} {code!r} calls posterior "
+                     f"({side['high']} of {side['slices']} axial slices show the nose at the back): the head "
+                     f"would come out mirrored front-to-back with the seam down the face; if the first rows "
+                     f"hold the back of the head pass orientation={flipped!r}")

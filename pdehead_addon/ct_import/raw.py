@@ -1,0 +1,123 @@
+"""Headerless raw slices: one file per slice or one file for the volume, optionally gzipped."""
+from __future__ import annotations
+
+import gzip
+from pathlib import Path
+
+import numpy as np
+
+from ..ct_volume import CTVolume
+from ..errors import CTImportError
+from .discovery import TEXT_EXTENSIONS, _has_ext, _numbered_files, _top_level
+from .geometry import _headerless_volume
+
+
+
+def _raw_dtype(dtype, byte_order, label) -> np.dtype:
+    if dtype is None:
+        raise CTImportError("raw data needs dtype, e.g. dtype='>i2' (big-endian int16) or '<u2'", label)
+    try:
+        dt = np.dtype(dtype)
+    except TypeError:
+        raise CTImportError(f"unknown dtype {dtype!r}; use a numpy dtype string such as '>i2'", label) from None
+    if dt.kind not in "iuf" or dt.itemsize > 8:
+        raise CTImportError(f"dtype {dtype!r} is not an integer or float sample type", label)
+    if byte_order is not None:
+        order = {"big": ">", "little": "<", ">": ">", "<": "<", "be": ">", "le": "<"}.get(str(byte_order).lower())
+        if order is None:
+            raise CTImportError(f"byte_order must be 'big' or 'little', got {byte_order!r}", label)
+        if dt.itemsize > 1:
+            dt = dt.newbyteorder(order)
+    return dt
+
+
+def _read_raw_bytes(f: Path) -> tuple[bytes | None, int]:
+    """(decompressed bytes, size) of a gzipped raw file; (None, size on disk) of a plain one."""
+    if not f.name.lower().endswith(".gz"):
+        return None, f.stat().st_size
+    try:
+        with gzip.open(f, "rb") as fh:
+            raw = fh.read()
+    except (OSError, EOFError, gzip.BadGzipFile) as exc:
+        raise CTImportError(f"cannot decompress the gzipped raw file: {exc}", f) from None
+    return raw, len(raw)
+
+
+def _raw_samples(f: Path, raw: bytes | None, dt: np.dtype, count: int, offset: int) -> np.ndarray:
+    if raw is None:
+        return np.fromfile(f, dtype=dt, count=count, offset=offset)
+    return np.frombuffer(raw, dtype=dt, count=count, offset=offset)
+
+
+def _load_raw(files, label, shape, dtype, byte_order, header_bytes, spacing, axes, oriented, hu,
+              warns) -> CTVolume:
+    if shape is None:
+        raise CTImportError("raw data needs shape=(ny, nx) for one slice per file or (nz, ny, nx)", label)
+    try:
+        shape = tuple(int(s) for s in shape)
+    except (TypeError, ValueError):
+        raise CTImportError(f"shape must be integers (ny, nx) or (nz, ny, nx), got {shape!r}", label) from None
+    if len(shape) not in (2, 3) or min(shape) <= 0:
+        raise CTImportError(f"shape must be 2 or 3 positive integers, got {shape!r}", label)
+    dt = _raw_dtype(dtype, byte_order, label)
+    try:
+        header_bytes = int(header_bytes)
+    except (TypeError, ValueError):
+        header_bytes = -1
+    if header_bytes < 0:
+        raise CTImportError(f"header_bytes must be a non-negative integer, got {header_bytes!r}", label)
+    ny, nx = shape[-2:]
+    slice_bytes = ny * nx * dt.itemsize
+
+    top = _top_level(files, label)
+    candidates = [f for f in top if not _has_ext(f, TEXT_EXTENSIONS)]
+    if len(candidates) < len(top):
+        skipped = [f.name for f in top if f not in candidates]
+        warns.append(f"skipped {len(skipped)} text file(s): {', '.join(skipped[:5])}")
+    if not candidates:
+        raise CTImportError("no raw data files found", label)
+    candidates = _numbered_files(candidates, label, "raw", warns)
+
+    if len(candidates) == 1:
+        # one file holding the whole volume
+        f = candidates[0]
+        raw, size = _read_raw_bytes(f)
+        what = "decompressed (gzip) size" if raw is not None else "file size"
+        if len(shape) == 3:
+            expected = header_bytes + shape[0] * slice_bytes
+            if size != expected:
+                raise CTImportError(f"{what} {size} bytes does not match shape {shape} x {dt.str} + "
+                                    f"{header_bytes} header bytes = {expected} bytes", f)
+            nz = shape[0]
+        else:
+            body = size - header_bytes
+            if body <= 0 or body % slice_bytes:
+                raise CTImportError(f"{what} {size} bytes is not {header_bytes} header bytes + a whole number "
+                                    f"of {ny}x{nx} {dt.str} slices ({slice_bytes} bytes each)", f)
+            nz = body // slice_bytes
+        data = np.empty((nz, ny, nx), dtype=np.float32)
+        data[...] = _raw_samples(f, raw, dt, nz * ny * nx, header_bytes).reshape(nz, ny, nx)
+        del raw
+    else:
+        if len(shape) == 3 and shape[0] != len(candidates):
+            raise CTImportError(f"shape {shape} asks for {shape[0]} slices but the folder has "
+                                f"{len(candidates)} files", label)
+        expected = header_bytes + slice_bytes
+        gz = any(f.name.lower().endswith(".gz") for f in candidates)
+        for f in candidates if not gz else ():
+            size = f.stat().st_size
+            if size != expected:
+                raise CTImportError(f"file size {size} bytes does not match one {ny}x{nx} {dt.str} slice + "
+                                    f"{header_bytes} header bytes = {expected} bytes", f)
+        data = np.empty((len(candidates), ny, nx), dtype=np.float32)
+        for k, f in enumerate(candidates):
+            raw, size = _read_raw_bytes(f)
+            if size != expected:
+                raise CTImportError(f"{'decompressed (gzip) size' if raw is not None else 'file size'} {size} "
+                                    f"bytes does not match one {ny}x{nx} {dt.str} slice + {header_bytes} header "
+                                    f"bytes = {expected} bytes", f)
+            data[k] = _raw_samples(f, raw, dt, ny * nx, header_bytes).reshape(ny, nx)
+    return _headerless_volume(data, label, "raw", spacing, axes, oriented, hu, warns,
+                              {"files": len(candidates), "first_file": candidates[0].name,
+                               "last_file": candidates[-1].name, "source_dtype": dt.str,
+                               "header_bytes": header_bytes})

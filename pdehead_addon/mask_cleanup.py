@@ -1,0 +1,474 @@
+"""Clean-up of the thresholded membership: what the paper does after eq. 21, and more.
+
+The paper keeps the largest connected component and fills its holes; real
+scans also need what touches the head but is not head removed (pillows, cloth,
+table tops, head holders, metal streaks) and the neck cut when the scan reaches
+the shoulders.  In-slice disk morphology with radii in mm, numpy only.
+"""
+from __future__ import annotations
+
+import math
+from typing import Any, Sequence
+
+import numpy as np
+from scipy import ndimage as ndi
+
+from .errors import SegmentationError
+
+
+#: 4-connectivity inside each axial slice, no links between slices (per-slice 2-D labelling).
+_IN_SLICE = np.zeros((3, 3, 3), dtype=bool)
+_IN_SLICE[1] = ndi.generate_binary_structure(2, 1)
+
+
+def _shifted_combine(mask: np.ndarray, offsets: Sequence[tuple[int, ...]], erode: bool) -> np.ndarray:
+    """AND (erosion) or OR (dilation) of shifted copies of a boolean volume.
+
+    ``offsets`` are (dy, dx) in-slice or (dz, dy, dx); ``out[p] = op(mask[p + o])``.
+    Outside the volume counts as True for erosion and False for dilation, so
+    neither an opening nor a closing creates or removes anything at the border.
+    """
+    out = mask.copy()
+    for offset in offsets:
+        offset = (0,) * (3 - len(offset)) + tuple(offset)
+        if not any(offset):
+            continue
+        dst = tuple(slice(max(0, -o), n - max(0, o)) for o, n in zip(offset, mask.shape))
+        src = tuple(slice(max(0, o), n - max(0, -o)) for o, n in zip(offset, mask.shape))
+        if erode:
+            out[dst] &= mask[src]
+        else:
+            out[dst] |= mask[src]
+    return out
+
+
+def _box_opening(mask: np.ndarray, size: Sequence[int]) -> np.ndarray:
+    """Opening with a (nz, ny, nx) box (outside is background): the union of all boxes inside ``mask``.
+
+    Erosion by [0, n-1] windows then dilation by [-(n-1), 0] windows, axis by axis.
+    """
+    pad = [(0, max(0, n - 1)) for n in size]
+    out = np.pad(mask, pad)
+    for axis, n in enumerate(size):
+        unit = tuple(1 if a == axis else 0 for a in range(3))
+        for _ in range(n - 1):
+            out = _shifted_combine(out, [unit], erode=True)
+    for axis, n in enumerate(size):
+        unit = tuple(-1 if a == axis else 0 for a in range(3))
+        for _ in range(n - 1):
+            out = _shifted_combine(out, [unit], erode=False)
+    return out[tuple(slice(0, n) for n in mask.shape)]
+
+
+def _disk_steps(spacing_yx: Sequence[float], radius_mm: float) -> list[list[tuple[int, int]]]:
+    """A disk of ``radius_mm`` as a chain of small in-slice footprints (a Minkowski sum).
+
+    An octagon = square (half-widths ay, ax) + diamond (b crosses); the regular
+    octagon touching the circle on the axes and the diagonals has a = 0.414 r
+    and b = 0.586 r.  Every footprint has at most 5 pixels, so erosion and
+    dilation are a few boolean ANDs/ORs of shifted views.
+    """
+    hy, hx = (float(h) for h in spacing_yx)
+    ry, rx = radius_mm / hy, radius_mm / hx
+    b = int(round(0.586 * min(ry, rx)))
+    ay = max(0, int(round(ry)) - b)
+    ax = max(0, int(round(rx)) - b)
+    return ([[(-1, 0), (0, 0), (1, 0)]] * ay + [[(0, -1), (0, 0), (0, 1)]] * ax
+            + [[(0, 0), (-1, 0), (1, 0), (0, -1), (0, 1)]] * b)
+
+
+def erode_disk(mask: np.ndarray, spacing_yx: Sequence[float], radius_mm: float) -> np.ndarray:
+    """In-slice erosion by an (octagonal) disk of ``radius_mm``; fast AND of shifted views."""
+    out = mask
+    for step in _disk_steps(spacing_yx, radius_mm):
+        out = _shifted_combine(out, step, erode=True)
+    return out if out is not mask else mask.copy()
+
+
+def dilate_disk(mask: np.ndarray, spacing_yx: Sequence[float], radius_mm: float) -> np.ndarray:
+    """In-slice dilation by an (octagonal) disk of ``radius_mm``; fast OR of shifted views."""
+    out = mask
+    for step in _disk_steps(spacing_yx, radius_mm):
+        out = _shifted_combine(out, step, erode=False)
+    return out if out is not mask else mask.copy()
+
+
+def open_disk(mask: np.ndarray, spacing_yx: Sequence[float], radius_mm: float) -> np.ndarray:
+    """In-slice opening: removes what a disk of ``radius_mm`` does not fit in."""
+    return dilate_disk(erode_disk(mask, spacing_yx, radius_mm), spacing_yx, radius_mm)
+
+
+def close_disk(mask: np.ndarray, spacing_yx: Sequence[float], radius_mm: float) -> np.ndarray:
+    """In-slice closing: bridges gaps narrower than the disk of ``radius_mm``."""
+    return erode_disk(dilate_disk(mask, spacing_yx, radius_mm), spacing_yx, radius_mm)
+
+
+def largest_component(mask: np.ndarray, structure: np.ndarray | None = None) -> np.ndarray:
+    """The largest connected component of a boolean volume (6-connectivity by default)."""
+    labels, n = ndi.label(mask, structure=structure)
+    if n == 0:
+        return np.zeros(mask.shape, dtype=bool)
+    if n == 1:
+        return labels == 1
+    # count on a subsample first (bincount of a big label volume is slow); exact when close
+    sample = labels[::2, ::2, ::2].reshape(-1)
+    counts = np.bincount(sample, minlength=n + 1)
+    counts[0] = 0
+    order = np.argsort(counts)
+    if counts[order[-2]] * 1.5 > counts[order[-1]]:
+        counts = np.bincount(labels[mask], minlength=n + 1)
+        counts[0] = 0
+    return labels == np.argmax(counts)
+
+
+def fill_holes_per_slice(mask: np.ndarray) -> np.ndarray:
+    """Fill every background region that does not reach the border of its axial slice.
+
+    This is a superset of the 3-D hole filling (a 3-D cavity never reaches a slice
+    border), and also closes the nasal cavity, mouth and ear canals in the slices
+    where they are enclosed although they open to the outside in 3-D.
+    """
+    labels, n = ndi.label(~mask, structure=_IN_SLICE)
+    if n == 0:
+        return mask.copy()
+    border = np.concatenate([labels[:, 0, :].ravel(), labels[:, -1, :].ravel(),
+                             labels[:, :, 0].ravel(), labels[:, :, -1].ravel()])
+    outside = np.zeros(n + 1, dtype=bool)
+    outside[border] = True
+    outside[0] = False
+    return ~outside[labels]
+
+
+def fill_cavities(mask: np.ndarray, spacing_yx: Sequence[float], radius_mm: float = 4.0) -> np.ndarray:
+    """The filled outer envelope: holes and cavities whose opening is narrower than ~2 ``radius_mm``.
+
+    Per axial slice: a closing with a ``radius_mm`` disk seals narrow openings
+    (nostrils, a parted mouth, ear canals, metal-streak gaps); the regions it
+    encloses are added together with the closing's bridges that seal them,
+    while what the closing adds elsewhere (in concave bends of the outline) is
+    not, so the skin outline itself is kept.  Finally every hole is filled per
+    slice (a superset of the 3-D holes).
+    """
+    closed = close_disk(mask, spacing_yx, radius_mm)
+    cavities = fill_holes_per_slice(closed) & ~closed
+    seals = closed & ~mask & dilate_disk(cavities, spacing_yx, radius_mm)
+    return fill_holes_per_slice(mask | cavities | seals)
+
+
+def _bounding_box(mask: np.ndarray, margin: Sequence[int]) -> tuple[slice, ...] | None:
+    """Slices of the bounding box of ``mask`` grown by ``margin`` voxels per axis."""
+    box = []
+    for axis in range(mask.ndim):
+        other = tuple(a for a in range(mask.ndim) if a != axis)
+        nonzero = np.flatnonzero(mask.any(axis=other))
+        if nonzero.size == 0:
+            return None
+        lo = max(0, int(nonzero[0]) - margin[axis])
+        hi = min(mask.shape[axis], int(nonzero[-1]) + 1 + margin[axis])
+        box.append(slice(lo, hi))
+    return tuple(box)
+
+
+def estimate_noise(img: np.ndarray, max_samples: int = 1_000_000) -> float:
+    """Standard deviation of white noise in ``img`` from neighbour differences (robust MAD).
+
+    Most pairs of x-neighbours lie in flat regions (air, brain), where their
+    difference is noise with standard deviation ``sqrt(2) * sigma``; the median
+    absolute difference ignores the edges.
+    """
+    step = max(1, img.shape[0] * img.shape[1] // max(1, max_samples // max(1, img.shape[2])))
+    rows = img.reshape(-1, img.shape[2])[::step]
+    diff = np.abs(np.diff(rows, axis=1)).ravel()
+    diff = diff[diff > 0] if np.count_nonzero(diff) > diff.size // 2 else diff
+    return float(np.median(diff) / (0.6745 * math.sqrt(2.0))) if diff.size else 0.0
+
+
+def smoothing_sigma(noise: float, target: float = 0.03, ndim: int = 3) -> float:
+    """Gaussian sigma (voxels) bringing white noise of std ``noise`` down to about ``target``.
+
+    For a normalised Gaussian of standard deviation s voxels in d dimensions the
+    noise std is multiplied by ``(2 sqrt(pi) s)^(-d/2)``; 0 (no smoothing) when
+    the noise is already below ``target``, else at least 0.5 voxel.
+    """
+    if noise <= target:
+        return 0.0
+    return max(0.5, (noise / target) ** (2.0 / ndim) / (2.0 * math.sqrt(math.pi)))
+
+
+def _component_extents(labels: np.ndarray, n: int, spacing_yx: Sequence[float]) -> np.ndarray:
+    """In-slice bounding-box diagonal (mm) of every label 1..n (index 0 unused)."""
+    dy, dx = spacing_yx
+    extent = np.zeros(n + 1)
+    for index, sl in enumerate(ndi.find_objects(labels), start=1):
+        if sl is not None:
+            extent[index] = math.hypot((sl[1].stop - sl[1].start) * dy, (sl[2].stop - sl[2].start) * dx)
+    return extent
+
+
+def head_envelope(tissue: np.ndarray, spacing_yx: Sequence[float], opening_mm: float = 2.5,
+                  close_mm: float = 3.0) -> np.ndarray:
+    """Filled per-slice envelope of the head's own tissue.
+
+    The largest 3-D component of ``tissue`` after an in-slice opening with an
+    ``opening_mm`` disk (which drops table tops, holder arcs and cloth), closed
+    with a ``close_mm`` disk (bridging nostrils and metal-streak gaps) and with
+    every hole filled per slice.
+    """
+    core = largest_component(open_disk(tissue, spacing_yx, opening_mm))
+    return fill_holes_per_slice(close_disk(core, spacing_yx, close_mm))
+
+
+def find_cushion(mask: np.ndarray, smooth: np.ndarray, spacing: Sequence[float], envelope: np.ndarray,
+                 level: float = 0.85, thickness_mm: float = 2.0, low: float = 0.4) -> np.ndarray:
+    """Voxels of ``mask`` that belong to a pillow or foam layer pressed against the head.
+
+    A pillow or cloth pressed against the head is denser than air but clearly
+    less dense than skin, fat and muscle; where it is compressed enough to pass
+    the air/skin decision it forms a layer of intermediate intensity several mm
+    thick *outside* the skin.  The partial-volume rim of a real skin surface is
+    as dark but only about a point-spread width thick.  So the cushion is the
+    intermediate part of the mask (windowed intensity ``smooth`` between
+    ``low`` and ``level``) that
+
+    (a) contains a box spanning at least ``thickness_mm`` along each axis (a
+        morphological opening; a skin band of normal thickness t only holds
+        such a box when t > thickness_mm / sqrt(2), whatever its orientation,
+        so the grazing cut of the vertex is spared), and
+    (b) lies outside ``envelope``, the envelope of the head's tissue
+        (:func:`head_envelope` of the voxels ``>= level``), so intermediate
+        regions enclosed by skin (metal-streak shadows, sinus walls) are never
+        cushion.
+
+    Darker voxels in the mask are narrow gaps the TV term bridged (between an
+    ear and the scalp), not cushion either.  Returns a subset of ``mask``.
+    """
+    band = mask & (smooth < np.float32(level)) & (smooth > np.float32(low)) & ~envelope
+    dz, dy, dx = (float(h) for h in spacing)
+    size = tuple(min(n, max(2, 1 + math.ceil(thickness_mm / h))) for n, h in zip(mask.shape, (dz, dy, dx)))
+    return _box_opening(band, size)
+
+
+def metal_slices(data: np.ndarray, window: tuple[float, float], level: float = 3.0,
+                 min_pixels: int = 3) -> np.ndarray:
+    """Per-slice metal masks: windowed intensity above ``level`` (bool, same shape as ``data``).
+
+    With air at 0 and soft tissue at 1, bone lies at about 1.5-2.5 (1100-1900 HU) and dental metal
+    saturates the scanner's range (3071 HU = 3.9; CThead's fillings 3.1). Slices with fewer than
+    ``min_pixels`` such pixels count as metal-free (all False).
+    """
+    low, high = window
+    metal = data > np.float32(low + level * (high - low))
+    few = np.count_nonzero(metal, axis=(1, 2)) < min_pixels
+    metal[few] = False
+    return metal
+
+
+def streak_components(labels: np.ndarray, n: int, metal: np.ndarray, spacing_yx: Sequence[float],
+                      alignment: float = 0.85, elongation: float = 2.0) -> np.ndarray:
+    """Which labelled thin components (1..n) are metal streaks: long and pointing at the metal.
+
+    A streak is a ray from a dense insert: a component in a slice with metal whose in-plane
+    principal axis (of its pixel positions in mm) is at least ``elongation`` times longer than
+    its width and makes ``|cos| >= alignment`` with the direction from the nearest metal pixel
+    to the component's centroid. Lips and ear rims run along the skin, across such rays.
+    Returns a bool array of length n + 1 (index 0 False).
+    """
+    out = np.zeros(n + 1, dtype=bool)
+    if not n or not metal.any():
+        return out
+    dy, dx = (float(h) for h in spacing_yx)
+    with_metal = np.flatnonzero(metal.any(axis=(1, 2)))
+    for index, sl in enumerate(ndi.find_objects(labels), start=1):
+        if sl is None:
+            continue
+        ks = np.arange(sl[0].start, sl[0].stop)
+        ks = ks[np.isin(ks, with_metal)]
+        if ks.size == 0:
+            continue
+        kk, jj, ii = np.nonzero(labels[sl] == index)
+        if kk.size < 3:
+            continue
+        pts = np.stack([(jj + sl[1].start) * dy, (ii + sl[2].start) * dx], axis=1)
+        centre = pts.mean(axis=0)
+        cov = np.cov((pts - centre).T)
+        evals, evecs = np.linalg.eigh(cov)
+        if evals[0] > 0 and math.sqrt(evals[1] / evals[0]) < elongation:
+            continue                                   # not elongated (a straight line has evals[0] = 0)
+        mj, mi = np.nonzero(metal[ks].any(axis=0))
+        mpts = np.stack([mj * dy, mi * dx], axis=1)
+        nearest = mpts[np.argmin(((mpts - centre) ** 2).sum(axis=1))]
+        radial = centre - nearest
+        norm = float(np.hypot(*radial))
+        if norm > 0 and abs(float(evecs[:, 1] @ radial)) / norm >= alignment:
+            out[index] = True
+    return out
+
+
+def clean_head_mask(mask: np.ndarray, data: np.ndarray, window: tuple[float, float], spacing: Sequence[float],
+                    opening_mm: float = 2.5, cushion_level: float | None = 0.85, cushion_mm: float = 2.0,
+                    max_thin_extent_mm: float = 50.0, close_mm: float = 6.0, envelope_mm: float = 3.0,
+                    noise: float | None = None, metal_level: float | None = 3.0,
+                    streak_close_mm: float = 3.0, streak_reach_mm: float = 40.0) -> tuple[np.ndarray, dict]:
+    """The paper's clean-up of the thresholded soft membership, extended to real scans.
+
+    1. Envelope: the filled outline of the head's own tissue (windowed
+       intensity ``>= cushion_level``; :func:`head_envelope`).
+    2. Cushions: thick intermediate-density layers outside that envelope are
+       removed (:func:`find_cushion`).  The intensities are smoothed first only
+       when the noise (:func:`estimate_noise`) calls for it (:func:`smoothing_sigma`).
+    3. Thin attachments: a per-slice opening with a disk of ``opening_mm``
+       separates what hangs on the head by a thin bridge (head-holder arcs,
+       table tops, cloth, streaks); the largest 3-D component of the opened
+       mask is the head core (the paper's "largest connected component").
+       What the opening took away is given back component by component when
+       the component is compact (in-slice extent at most
+       ``max_thin_extent_mm``: ear rims, nose tip, lips) or lies mostly inside
+       the envelope (nasal septum, sinus walls); long thin structures outside
+       the head are dropped, and so are metal streaks: in slices with metal
+       (windowed intensity above ``metal_level``, :func:`metal_slices`) a thin
+       piece outside the envelope that is elongated along the ray from the metal
+       (:func:`streak_components`) is a bright streak, not a lip.
+    4. Holes and cavities: every hole is filled per axial slice (a superset of
+       the 3-D holes), and so are cavities whose opening a ``close_mm`` disk
+       closes (nostrils, mouth, ear canals, streak gaps; :func:`fill_cavities`),
+       so the head mask is the filled outer skin envelope.
+    5. Streak bumps and notches: in the slices with metal, within
+       ``streak_reach_mm`` of it, the outline is opened and closed with a
+       ``streak_close_mm`` disk, which removes the bumps bright streaks raise
+       on the lips and fills the notches dark streaks cut into them.
+
+    Parameters
+    ----------
+    mask : ndarray of bool
+        Thresholded membership ``q > 0.5``.
+    data, window :
+        The CT intensities and the window mapping air to 0 and soft tissue to 1.
+    spacing : (dz, dy, dx) mm
+    opening_mm, cushion_level, cushion_mm, max_thin_extent_mm, close_mm, envelope_mm :
+        See above; ``cushion_level=None`` skips step 2 (the envelope then uses 0.85).
+    metal_level, streak_close_mm, streak_reach_mm :
+        Metal-streak handling (steps 3 and 5); ``metal_level=None`` disables it.
+    noise : float, optional
+        Noise std in window units (default estimated).
+
+    Returns
+    -------
+    (mask, stats)
+    """
+    stats: dict[str, Any] = {}
+    dz, dy, dx = (float(h) for h in spacing)
+    yx = (dy, dx)
+    # at least a 3x3-pixel square, or coarse grids keep 2-pixel shells
+    opening_mm = max(opening_mm, 1.5 * max(dy, dx))
+    margin = (2, int(math.ceil(2 * opening_mm / dy)) + 2, int(math.ceil(2 * opening_mm / dx)) + 2)
+    box = _bounding_box(mask, margin)
+    if box is None:
+        raise SegmentationError("nothing in the volume is brighter than air: no head found")
+    work = mask[box]
+    low, high = window
+    smooth = np.subtract(data[box], np.float32(low), dtype=np.float32)
+    smooth *= np.float32(1.0 / (high - low))
+    if noise is None:
+        noise = estimate_noise(smooth)
+    sigma = smoothing_sigma(noise)
+    if sigma > 0:
+        smooth = ndi.gaussian_filter(smooth, sigma=sigma, mode="nearest", truncate=3.0)
+    stats.update(noise=noise, smoothing_sigma=sigma)
+    level = 0.85 if cushion_level is None else float(cushion_level)
+    envelope = head_envelope(work & (smooth >= np.float32(level)), yx, opening_mm, envelope_mm)
+    if cushion_level is not None:
+        # heavier smoothing widens the skin's own intermediate rim: demand a correspondingly thicker layer
+        thickness = cushion_mm + 2.0 * max(0.0, sigma - 0.5) * max(dz, dy, dx)
+        cushion = find_cushion(work, smooth, spacing, envelope, level, thickness)
+        stats["cushion_voxels"] = int(np.count_nonzero(cushion))
+        work &= ~cushion
+    del smooth
+    metal = metal_slices(data[box], window, metal_level) if metal_level is not None else None
+    if metal is not None and not metal.any():
+        metal = None
+    stats["metal_slices"] = [] if metal is None else [int(k) + box[0].start
+                                                       for k in np.flatnonzero(metal.any(axis=(1, 2)))]
+    opened = open_disk(work, yx, opening_mm)
+    core = largest_component(opened)
+    if not core.any():
+        raise SegmentationError(f"no part of the head is thicker than the {2 * opening_mm:g} mm opening")
+    thin = work & ~opened
+    del opened
+    labels, n = ndi.label(thin)
+    head = core
+    if n:
+        total = np.bincount(labels[thin], minlength=n + 1)
+        inside = np.bincount(labels[envelope & thin], minlength=n + 1)
+        keep = (_component_extents(labels, n, yx) <= max_thin_extent_mm) | (2 * inside > total)
+        if metal is not None:
+            streak = streak_components(labels, n, metal, yx) & ~(2 * inside > total)
+            stats["streak_voxels"] = int(total[streak & keep].sum())
+            keep &= ~streak
+        keep[0] = False
+        stats["thin_kept_voxels"] = int(total[keep].sum())
+        stats["thin_dropped_voxels"] = int(total[1:].sum() - total[keep].sum())
+        head = largest_component(core | keep[labels])
+    del labels, thin
+    head = fill_cavities(head, yx, close_mm) if close_mm > 0 else fill_holes_per_slice(head)
+    if metal is not None and streak_close_mm > 0:
+        # near the metal only: open away the bumps of bright streaks, close the notches of dark ones
+        ks = np.flatnonzero(metal.any(axis=(1, 2)))
+        near = np.stack([ndi.distance_transform_edt(~metal[k], sampling=yx) <= streak_reach_mm for k in ks])
+        part = head[ks]
+        smoothed = fill_holes_per_slice(close_disk(open_disk(part, yx, streak_close_mm), yx, streak_close_mm))
+        changed = (smoothed != part) & near
+        stats["streak_smoothed_voxels"] = int(np.count_nonzero(changed))
+        part[changed] = smoothed[changed]
+        head[ks] = largest_component(part) if part.any() else part
+    out = np.zeros(mask.shape, dtype=bool)
+    out[box] = head
+    stats["head_voxels"] = int(np.count_nonzero(head))
+    return out, stats
+
+
+def cut_at_neck(mask: np.ndarray, spacing: Sequence[float], head_height_mm: float = 160.0,
+                area_jump: float = 2.0, neck_margin: float = 1.1) -> tuple[np.ndarray, dict | None]:
+    """Stop the head mask at the neck when the scan goes on into the shoulders.
+
+    A head-and-neck scan reaches the shoulders, which join the neck in the mask; the
+    PDE head (and its boundary curves) must end at the neck. The head's widest slice
+    is looked for in the top ``head_height_mm`` of the mask (the widest level, at the
+    ears, lies 90-130 mm below the vertex; the shoulders 200 mm or more). Going down from it the cross-section shrinks to the neck; the
+    trunk starts at the first slice whose area exceeds ``area_jump`` times the
+    smallest area above it and which is wider than the head. The mask is cut below
+    the neck: the lowest slice between the head's widest slice and the trunk whose
+    area is within ``neck_margin`` of that smallest area. Scans without shoulders are
+    returned unchanged (``None`` info).
+
+    Returns
+    -------
+    (mask, info) with info = dict(neck_slice, trunk_slice, removed_voxels) or None.
+    """
+    dz, dy, dx = (float(h) for h in spacing)
+    cols = mask.any(axis=1)
+    nz = mask.shape[0]
+    width = np.zeros(nz)
+    for k in np.flatnonzero(cols.any(axis=1)):
+        c = np.flatnonzero(cols[k])
+        width[k] = (c[-1] - c[0] + 1) * dx
+    present = np.flatnonzero(width > 0)
+    if present.size < 3:
+        return mask, None
+    area = np.count_nonzero(mask, axis=(1, 2)).astype(np.float64) * dy * dx
+    top = present[-1]
+    head = [k for k in present if k >= top - head_height_mm / dz]
+    widest = max(head, key=lambda k: width[k])
+    smallest, trunk = math.inf, None
+    for k in range(widest, present[0] - 1, -1):        # k decreases toward inferior
+        if area[k] > area_jump * smallest and width[k] > width[widest]:
+            trunk = k
+            break
+        smallest = min(smallest, area[k]) if area[k] > 0 else smallest
+    if trunk is None:
+        return mask, None
+    span = np.arange(trunk + 1, widest + 1)
+    neck = int(span[np.flatnonzero(area[span] <= neck_margin * smallest)[0]])
+    removed = int(np.count_nonzero(mask[:neck]))
+    out = mask.copy()
+    out[:neck] = False
+    return out, dict(neck_slice=neck, trunk_slice=int(trunk), removed_voxels=removed)
