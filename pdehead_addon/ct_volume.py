@@ -211,13 +211,23 @@ def intensity_window(ct_or_values, preset="auto") -> tuple[float, float]:
     return lo, hi
 
 
-def apply_window(values: np.ndarray, window: tuple[float, float]) -> np.ndarray:
-    """``(values - lo) / (hi - lo)`` clipped to [0, 1], float32 (NaN -> 0)."""
+def apply_window(values: np.ndarray, window: tuple[float, float], out: np.ndarray | None = None,
+                 finite: bool = True) -> np.ndarray:
+    """``(values - lo) / (hi - lo)`` clipped to [0, 1], float32.
+
+    The one windowing of the project (segmentation, the volume's intensity grid, the solid's
+    and the slice planes' colours). ``out`` may be ``values`` itself (in place) or a float32
+    buffer; ``finite=False`` skips the NaN -> 0 pass where the values are known finite (the
+    segmentation's whole CT: one full-volume pass and a boolean temporary fewer).
+    """
     lo, hi = (float(x) for x in window)
-    out = np.asarray(values, dtype=np.float32) - np.float32(lo)
+    if not hi > lo:
+        raise ValueError(f"intensity window needs hi > lo, got ({lo}, {hi})")
+    out = np.subtract(values, np.float32(lo), out=out, dtype=np.float32)
     out *= np.float32(1.0 / (hi - lo))
     np.clip(out, 0.0, 1.0, out=out)
-    out[~np.isfinite(out)] = 0.0
+    if finite:
+        out[~np.isfinite(out)] = 0.0
     return out
 
 
