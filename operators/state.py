@@ -43,7 +43,7 @@ class StudyCache:
     window: tuple | None = None     # the CT's intensity window (ct_volume.intensity_window), per CT
     ct_table: tuple | None = None   # (head, ct, SolidCTTable): the CT in the solid's (u, v, w)
     cutter_signature: tuple | None = None  # the cutter transform last applied (study.pdehead_cutter_update)
-    forensic: dict = field(default_factory=dict)  # the skull, bone mesh and depth results (forensic.py)
+    forensic: dict = field(default_factory=dict)  # the skull, bone mesh and depth results (forensic_study.py)
 
     def drop_from(self, step: str) -> None:
         """Forget everything that depends on ``step`` ("ct", "seg", "bset", "head")."""

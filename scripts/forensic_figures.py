@@ -54,7 +54,7 @@ def main() -> int:
 
     import bpy
     addon = pdehead.register_addon()
-    forensic = addon.operators.forensic
+    forensic = addon.operators.forensic_study
     render = addon.operators.render
     bpy.ops.wm.read_homefile(use_empty=True)
     o = CTHEAD_RAW16_OPTIONS
