@@ -1,33 +1,16 @@
 """Everything of PDE Head that touches bpy: registration of the whole Blender layer.
 
 ``register()`` adds the property groups, preferences, operators (with the File > Import
-menu entry), the sidebar panels, helper B's classes (if its modules define ``register``)
-and one ``load_post`` handler that frees the in-memory caches of studies that are not in
-the newly loaded file. ``unregister()`` removes all of it again, leaving no class,
-property, menu entry, handler or timer behind.
+menu entry), the sidebar panels, the save/load handlers of :mod:`.persistence`, the cutter's
+depsgraph handler (:mod:`.study`) and one ``load_post`` handler that frees the in-memory caches
+of studies that are not in the newly loaded file. ``unregister()`` removes all of it again,
+leaving no class, property, menu entry, handler or timer behind.
 """
 from __future__ import annotations
 
-import importlib
-
 import bpy
 
-from . import forensic, ops, panel, prefs, props, state
-
-# helper B's modules; registered only if they define register()/unregister()
-_OPTIONAL_MODULES = ("coords", "objects", "volume", "render", "persistence", "cutter")
-
-
-def _optional_modules():
-    mods = []
-    for name in _OPTIONAL_MODULES:
-        try:
-            mod = importlib.import_module(f".{name}", __package__)
-        except ImportError:
-            continue
-        if hasattr(mod, "register") and hasattr(mod, "unregister"):
-            mods.append(mod)
-    return mods
+from . import forensic, ops, panel, persistence, prefs, props, state, study
 
 
 @bpy.app.handlers.persistent
@@ -39,13 +22,12 @@ def pdehead_load_post(*_args) -> None:
             state.drop_cache(study_id)
 
 
-_MODULES = (props, prefs, ops, panel, forensic)
+#: Registered in this order, unregistered in reverse.
+_MODULES = (props, prefs, ops, panel, forensic, persistence, study)
 
 
 def register() -> None:
     for mod in _MODULES:
-        mod.register()
-    for mod in _optional_modules():
         mod.register()
     bpy.app.handlers.load_post.append(pdehead_load_post)
 
@@ -54,8 +36,6 @@ def unregister() -> None:
     for handler in list(bpy.app.handlers.load_post):
         if getattr(handler, "__name__", "") == "pdehead_load_post":
             bpy.app.handlers.load_post.remove(handler)
-    for mod in reversed(_optional_modules()):
-        mod.unregister()
     for mod in reversed(_MODULES):
         mod.unregister()
     state.drop_cache()

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..pdehead_addon.ct_volume import grid_affine
+
 MM_TO_M = 0.001
 
 
@@ -17,33 +19,14 @@ def lps_to_blender(points_mm: np.ndarray) -> np.ndarray:
     return np.asarray(points_mm, dtype=np.float64) * MM_TO_M
 
 
-def blender_to_lps(points_m: np.ndarray) -> np.ndarray:
-    """Patient LPS mm of Blender world points in metres (inverse of :func:`lps_to_blender`)."""
-    return np.asarray(points_m, dtype=np.float64) / MM_TO_M
-
-
 def grid_affine_world(spacing, origin, direction) -> np.ndarray:
     """4x4 matrix from voxel index ``(i, j, k, 1)`` to Blender world metres.
 
-    Parameters
-    ----------
-    spacing : (dz, dy, dx)
-        Voxel size in mm, in the engine's ``[z, y, x]`` order.
-    origin : (x, y, z)
-        Patient LPS mm of voxel ``(k, j, i) = (0, 0, 0)``.
-    direction : (3, 3)
-        Columns are the LPS unit vectors of the i, j and k axes.
-
-    Notes
-    -----
-    The index order is ``(i, j, k)`` = (x, y, z) as OpenVDB and Blender use it,
-    i.e. the reverse of the numpy ``[k, j, i]`` array order (see
-    :class:`pdehead_addon.CTVolume`).
+    The engine's :func:`pdehead_addon.ct_volume.grid_affine` (same arguments: spacing ``(dz, dy, dx)``
+    mm, origin ``(x, y, z)`` LPS mm, direction columns of the i, j, k axes) scaled to metres.
     """
-    dz, dy, dx = (float(s) for s in spacing)
-    m = np.eye(4)
-    m[:3, :3] = np.asarray(direction, dtype=np.float64).reshape(3, 3) * np.array([dx, dy, dz]) * MM_TO_M
-    m[:3, 3] = np.asarray(origin, dtype=np.float64).reshape(3) * MM_TO_M
+    m = grid_affine(spacing, origin, direction)
+    m[:3, :] *= MM_TO_M  # LPS mm -> Blender metres (axes unchanged)
     return m
 
 

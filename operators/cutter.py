@@ -16,13 +16,13 @@ so an unchanged scene costs one comparison per study.
 from __future__ import annotations
 
 import math
-import traceback
 
 import bpy
 import numpy as np
 
 from ..pdehead_addon import PDEHeadError
-from . import props, state
+from . import render, state
+from .state import suspended_updates
 
 CUTTER_KIND = "cutter"
 SAMPLES_U, SAMPLES_V = 64, 128
@@ -99,35 +99,15 @@ def cutter_of(coll):
     return None
 
 
-def _signature(obj) -> tuple:
+def signature(obj) -> tuple:
+    """The cutter's transform and size: the handler re-applies the cutter when it changes."""
     return tuple(round(float(x), 7) for row in obj.matrix_world for x in row) + (float(obj.empty_display_size),)
-
-
-def apply_cutter(coll) -> str:
-    """Set the study's u/v ranges from its cutter and rebuild the solid; returns the cut's kind."""
-    from mathutils import Matrix
-    s = state.settings(coll)
-    cutter = cutter_of(coll)
-    if cutter is None:
-        raise PDEHeadError(f"study '{coll.name}' has no cutter: add one first")
-    head = state.pde_head(coll)
-    # world metres = LPS mm * 0.001, so LPS mm -> cutter local = inverse(matrix_world) @ scale(0.001)
-    inverse = np.array(cutter.matrix_world.inverted_safe() @ Matrix.Scale(0.001, 4))
-    u_range, v_range, _kept, kind = cutter_ranges(head, inverse, float(cutter.empty_display_size))
-    with props.suspended_updates():
-        s.u_range, s.v_range = u_range, v_range
-    state.cache_for(s.study_id).extra["cutter_signature"] = _signature(cutter)
-    if s.solid_object is not None:
-        from . import ops
-        ops.step_solid(coll)
-    return kind
 
 
 def add_cutter(context, coll):
     """A box empty at the front-left quarter of the head (a Fig. 14b wedge), through its whole height."""
     from mathutils import Matrix
 
-    from . import render
     s = state.settings(coll)
     shown = next((o for o in (s.solid_object, s.surface_object) if o is not None), None)
     if shown is None:
@@ -147,56 +127,7 @@ def add_cutter(context, coll):
     box_half = np.array([0.5 * half[0], 0.5 * half[1], 1.1 * half[2]])
     cutter.empty_display_size = 1.0
     cutter.matrix_world = Matrix.Translation(box_centre) @ Matrix.Diagonal((*box_half, 1.0))
-    with props.suspended_updates():
+    with suspended_updates():
         s.use_cutter = True
     context.view_layer.update()
     return cutter
-
-
-_BUSY = [False]
-
-
-@bpy.app.handlers.persistent
-def pdehead_cutter_update(scene, depsgraph=None) -> None:
-    """After a depsgraph update: apply each study's cutter whose transform changed."""
-    if _BUSY[0]:
-        return
-    _BUSY[0] = True
-    try:
-        for coll in state.studies():
-            s = state.settings(coll)
-            if not s.use_cutter:
-                continue
-            cutter = cutter_of(coll)
-            if cutter is None:
-                continue
-            cache = state.cache_for(s.study_id)
-            if cache.extra.get("cutter_signature") == _signature(cutter):
-                continue
-            try:
-                apply_cutter(coll)
-                s.last_error = ""
-            except Exception as exc:  # noqa: BLE001 - a handler must not raise into Blender
-                cache.extra["cutter_signature"] = _signature(cutter)  # do not retry every update
-                if not isinstance(exc, PDEHeadError):
-                    traceback.print_exc()
-                s.last_error = f"cutter: {exc}"[:500]
-    finally:
-        _BUSY[0] = False
-
-
-def register() -> None:
-    handlers = bpy.app.handlers.depsgraph_update_post
-    for h in list(handlers):
-        if getattr(h, "__name__", "") == pdehead_cutter_update.__name__ and \
-                getattr(h, "__module__", "") == __name__:
-            handlers.remove(h)
-    handlers.append(pdehead_cutter_update)
-
-
-def unregister() -> None:
-    handlers = bpy.app.handlers.depsgraph_update_post
-    for h in list(handlers):
-        if getattr(h, "__name__", "") == pdehead_cutter_update.__name__ and \
-                getattr(h, "__module__", "") == __name__:
-            handlers.remove(h)

@@ -12,6 +12,8 @@ import math
 
 import numpy as np
 
+from ..pdehead_addon import defaults as D
+from ..pdehead_addon.ct_volume import apply_window, intensity_window, sample_ct
 from .coords import MM_TO_M
 
 ORIGIN_KEY = "pdehead_origin_m"
@@ -353,33 +355,8 @@ def build_mesh_object(mesh, collection, name: str, obj=None, smooth: bool = True
     return obj
 
 
-def _mesh_attribute(obj, key):
-    attr = obj.data.attributes[key]
-    n = len(attr.data)
-    width = {"FLOAT": 1, "INT": 1, "FLOAT2": 2, "FLOAT_VECTOR": 3, "FLOAT_COLOR": 4}[attr.data_type]
-    field = {"FLOAT": "value", "INT": "value", "FLOAT2": "vector", "FLOAT_VECTOR": "vector",
-             "FLOAT_COLOR": "color"}[attr.data_type]
-    out = np.empty(n * width, np.float32 if attr.data_type != "INT" else np.int32)
-    attr.data.foreach_get(field, out)
-    return out.reshape(n, width) if width > 1 else out
-
-
-def mesh_attribute(obj, key: str) -> np.ndarray:
-    """An attribute of a mesh object as a numpy array (float32, (n,) or (n, c))."""
-    return _mesh_attribute(obj, key)
-
-
-def mesh_world_vertices(obj) -> np.ndarray:
-    """World coordinates (metres) of a mesh object's vertices, (n, 3) float64."""
-    me = obj.data
-    co = np.empty(len(me.vertices) * 3, np.float32)
-    me.vertices.foreach_get("co", co)
-    m = np.array(obj.matrix_world)
-    return co.reshape(-1, 3).astype(np.float64) @ m[:3, :3].T + m[:3, 3]
-
-
-def build_surface(head, collection, nu: int = 40, nv: int = 60, caps: bool = True, obj=None,
-                  name: str = "Surface"):
+def build_surface(head, collection, nu: int = D.NU.default, nv: int = D.NV.default, caps: bool = D.CAPS.default,
+                  obj=None, name: str = "Surface"):
     """The PDE head surface X(u, v) (eq. 7-13; Fig. 4, 11) as a smooth mesh with UVs (u, v).
 
     Parameters
@@ -467,7 +444,6 @@ def ct_texture_atlas(head, mesh, ct, window, ranges, size: int = 128, pad: int =
     atlas : ndarray float32 (H, W, 4), row 0 at the bottom (Blender image order)
     corner_uv : ndarray (corners, 2) in the atlas
     """
-    from .volume import apply_window, sample_ct
 
     (u0, u1), (v0, v1), (w0, w1) = ranges
     params, family = _box_faces(mesh, ranges) if faces is None else faces
@@ -594,8 +570,9 @@ def _snap_range(r, top: float, tol: float = 1e-5) -> tuple[float, float]:
     return snap(a), snap(b)
 
 
-def build_solid(head, collection, nu: int = 40, nv: int = 60, nw: int = 5, u_range=(0.0, 1.0),
-                v_range=(0.0, 2.0 * math.pi), w_range=(0.0, 1.0), ct=None, obj=None, name: str = "Solid",
+def build_solid(head, collection, nu: int = D.NU.default, nv: int = D.NV.default, nw: int = D.NW.default,
+                u_range=D.U_RANGE.default, v_range=D.V_RANGE.default, w_range=D.W_RANGE.default, ct=None, obj=None,
+                name: str = "Solid",
                 window=None, texture_size: int = 128, ct_table=None):
     """The PDE solid X(u, v, w) (eq. 23; Fig. 7, 14) with cutaway ranges, coloured by the CT.
 
@@ -626,7 +603,6 @@ def build_solid(head, collection, nu: int = 40, nv: int = 60, nw: int = 5, u_ran
     Rebuilding an existing solid with the same topology (a cutaway change at the same
     nu, nv, nw) only rewrites positions and attributes in place (:func:`build_mesh_object`).
     """
-    from .volume import apply_window, intensity_window, sample_ct
 
     u_range, v_range, w_range = (_snap_range(u_range, 1.0), _snap_range(v_range, 2.0 * math.pi),
                                  _snap_range(w_range, 1.0))

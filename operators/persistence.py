@@ -13,7 +13,7 @@
 - **load_post**: a volume whose recorded .vdb is missing but whose file lies in ``pdehead_vdb/``
   beside the opened .blend (an absolute path written with relative paths off) is re-pointed there.
 
-The CT itself is never stored in the .blend; :func:`state.require_ct` re-reads it from these
+The CT itself is never stored in the .blend; :func:`study.require_ct` re-reads it from these
 recorded paths when a step needs it.
 """
 from __future__ import annotations

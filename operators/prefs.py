@@ -7,6 +7,8 @@ import tempfile
 import bpy
 from bpy.props import IntProperty, StringProperty
 
+from ..pdehead_addon import defaults as D
+
 # The extension's package (e.g. "bl_ext.user_default.pdehead"; "pdehead_dev" with the dev shim).
 ADDON_PACKAGE = __package__.rpartition(".")[0]
 
@@ -23,7 +25,7 @@ class PDEHeadPreferences(bpy.types.AddonPreferences):
         description="Where .vdb volumes are written while the .blend is not saved yet "
                     "(empty: the system temporary folder). Saved files keep them in "
                     "'//pdehead_vdb/' beside the .blend")
-    default_patches: IntProperty(name="Default Patches (t)", default=10, min=1, max=60,
+    default_patches: IntProperty(name="Default Patches (t)", **D.PATCHES.limits(),
                                  description="Patches of a new study")
 
     def draw(self, context):
@@ -47,7 +49,7 @@ def vdb_prefs_folder(context=None) -> str:
 
 def default_patches(context=None) -> int:
     prefs = preferences(context)
-    return prefs.default_patches if prefs is not None else 10
+    return prefs.default_patches if prefs is not None else D.PATCHES.default
 
 
 CLASSES = (PDEHeadPreferences,)

@@ -11,48 +11,27 @@ live parameter in the sidebar (or from Python, as a user would) runs its update 
 """
 from __future__ import annotations
 
-import math
 
 import bpy
 from bpy.props import (BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntProperty,
                        IntVectorProperty, PointerProperty, StringProperty)
 
+from ..pdehead_addon import defaults as D
+from . import state, study
+
 #: Blender >= 4.5 warns about "//" in path properties unless they declare blend-relative support.
 PATH_OPTIONS = {'PATH_SUPPORTS_BLEND_RELATIVE'} if bpy.app.version >= (4, 5, 0) else set()
 
-# Set while operators write many settings at once, so that no update callback rebuilds anything.
-_SUSPEND = [0]
-
-
-class suspended_updates:
-    """``with suspended_updates(): settings.nu = ...`` (no live rebuild while inside)."""
-
-    def __enter__(self):
-        _SUSPEND[0] += 1
-
-    def __exit__(self, *exc):
-        _SUSPEND[0] -= 1
-        return False
-
-
 def _live(what: str):
-    """An update callback that rebuilds ``what`` of the study owning the settings."""
+    """An update callback that rebuilds ``what`` of the study owning the settings (:func:`study.live_update`;
+    nothing while :class:`state.suspended_updates` is active)."""
     def update(self, context):
-        if _SUSPEND[0] or not self.is_study:
+        if state.updates_suspended() or not self.is_study:
             return
-        from . import ops
-        ops.live_update(self.id_data, what, context)
+        study.live_update(self.id_data, what, context)
     return update
 
 
-#: Default surface/solid resolution: fine enough that a nose (~30 mm wide) gets ~10 samples
-#: around v and the lips several along u; surface(120, 240) builds in ~10-20 ms.
-DEFAULT_NU = 120
-DEFAULT_NV = 240
-
-#: The add-on's default slice choice: the paper's uniform choice loses the nose and lips at t = 10
-#: (the interpolation between 4 curves folds where the face changes fast); shape-change keeps them.
-DEFAULT_SELECTION = "shape-change"
 SELECTION_ITEMS = [
     ("uniform", "Uniform", "Curves evenly spaced along the head axis"),
     ("shape-change", "Shape Change", "Denser curves where the head's cross-section changes fast (face)"),
@@ -62,7 +41,6 @@ CONTINUITY_ITEMS = [
     ("c2", "Smooth (C2)", "One Bloor-Wilson span between consecutive curves, C2 across every curve"),
     ("paper", "Paper Patches", "The paper's t patches through four curves each; creased where they meet"),
 ]
-DEFAULT_CONTINUITY_ITEM = "c2"
 def _colour_items():
     from .volume import COLOUR_LABELS, COLOUR_PRESETS  # the presets' one owner
     return [(key, *COLOUR_LABELS.get(key, (key.title(), ""))) for key in COLOUR_PRESETS]
@@ -108,87 +86,55 @@ class PDEHeadStudySettings(bpy.types.PropertyGroup):
     seg_c1: FloatProperty(name="c1 (head)")
     seg_c2: FloatProperty(name="c2 (air)")
 
-    # Boundaries
-    patches: IntProperty(name="Patches (t)", default=10, min=1, max=60,
-                         description="Number t of PDE patches; 3t+1 boundary curves are extracted")
-    samples: IntProperty(name="Samples (M)", default=256, min=16, max=4096,
-                         description="Points per boundary curve")
-    selection: EnumProperty(name="Selection", items=SELECTION_ITEMS, default=DEFAULT_SELECTION,
-                            description="How the 3t+1 slices are chosen")
-    align_curves: BoolProperty(name="Align Curves", default=True,
-                               description="Sample every curve at the same directions from a smooth spine, so "
-                                           "that equal v joins corresponding points (no folds or cheek ripples); "
-                                           "off: samples evenly spaced along each curve")
+    # Boundaries (defaults, ranges and descriptions: pdehead_addon/defaults.py)
+    patches: IntProperty(name="Patches (t)", **D.PATCHES.limits(), description=D.PATCHES.description)
+    samples: IntProperty(name="Samples (M)", **D.SAMPLES.limits(), description=D.SAMPLES.description)
+    selection: EnumProperty(name="Selection", items=SELECTION_ITEMS, default=D.SELECTION.default,
+                            description=D.SELECTION.description)
+    align_curves: BoolProperty(name="Align Curves", **D.ALIGN_CURVES.limits(), description=D.ALIGN_CURVES.description)
 
     # Surface (live)
-    nu: IntProperty(name="nu", default=DEFAULT_NU, min=4, max=2000, update=_live("surface_solid"),
-                    description="Resolution along the head axis (u); rebuilds the meshes at once")
-    nv: IntProperty(name="nv", default=DEFAULT_NV, min=4, max=2000, update=_live("surface_solid"),
-                    description="Resolution around the head (v); rebuilds the meshes at once")
-    caps: BoolProperty(name="Caps", default=True, update=_live("surface"),
-                       description="Close the top and bottom of the surface")
-    continuity: EnumProperty(
-        name="Continuity", items=CONTINUITY_ITEMS, default=DEFAULT_CONTINUITY_ITEM, update=_live("pde"),
-        description="Smooth: one Bloor-Wilson span between consecutive curves, C2 across every curve "
-                    "(default). Paper: t patches through four curves each (eq. 3-6), creased at the joints")
-    dome: BoolProperty(name="Dome", default=True, update=_live("pde"),
-                       description="Close the crown with a round dome through the vertex above the top curve "
-                                   "(Smooth continuity)")
-    smoothing_auto: BoolProperty(name="Auto Smoothing", default=True, update=_live("pde_auto"),
-                                 description="Let the solver choose the smoothing parameter a of eq. 1")
-    smoothing: FloatProperty(name="Smoothing (a)", default=0.0, min=0.0, max=1.0, subtype='FACTOR',
-                             update=_live("pde"),
-                             description="Smoothing parameter a of eq. 1 as a fraction of this study's "
-                                         "maximum (Smooth: the isotropic height/radius ratio; Paper: the "
-                                         "largest stable a of each patch). Every value solves")
-    approximation_auto: BoolProperty(name="Auto Approximation", default=True, update=_live("pde_auto"),
-                                     description="Smooth along the head axis by the solver's default length "
-                                                 "(one slice step of the scan, at most half a curve gap)")
-    approximation: FloatProperty(name="Smooth Along Axis", default=0.0, min=0.0, max=1.0, subtype='FACTOR',
-                                 update=_live("pde"),
-                                 description="Approximating mode: how strongly the surface may leave the curves "
-                                             "to smooth slice steps and streaks (0 = through every curve; 1 = "
-                                             "a smoothing length of 1.5 curve gaps). Smooth continuity only")
-    modes: IntProperty(name="Fourier Modes", default=0, min=0, max=512, update=_live("pde"),
-                       description="Harmonics kept around each ring (0 = all: the surface passes through "
-                                   "the curves; fewer: eq. 13's truncated series, a simpler head)")
+    nu: IntProperty(name="nu", **D.NU.limits(), update=_live("surface_solid"), description=D.NU.description)
+    nv: IntProperty(name="nv", **D.NV.limits(), update=_live("surface_solid"), description=D.NV.description)
+    caps: BoolProperty(name="Caps", **D.CAPS.limits(), update=_live("surface"), description=D.CAPS.description)
+    continuity: EnumProperty(name="Continuity", items=CONTINUITY_ITEMS, default=D.CONTINUITY.default,
+                             update=_live("pde"), description=D.CONTINUITY.description)
+    dome: BoolProperty(name="Dome", **D.DOME.limits(), update=_live("pde"), description=D.DOME.description)
+    smoothing_auto: BoolProperty(name="Auto Smoothing", **D.SMOOTHING_AUTO.limits(), update=_live("pde_auto"),
+                                 description=D.SMOOTHING_AUTO.description)
+    smoothing: FloatProperty(name="Smoothing (a)", **D.SMOOTHING.limits(), subtype='FACTOR', update=_live("pde"),
+                             description=D.SMOOTHING.description)
+    approximation_auto: BoolProperty(name="Auto Approximation", **D.APPROXIMATION_AUTO.limits(),
+                                     update=_live("pde_auto"), description=D.APPROXIMATION_AUTO.description)
+    approximation: FloatProperty(name="Smooth Along Axis", **D.APPROXIMATION.limits(), subtype='FACTOR',
+                                 update=_live("pde"), description=D.APPROXIMATION.description)
+    modes: IntProperty(name="Fourier Modes", **D.MODES.limits(), update=_live("pde"), description=D.MODES.description)
 
     # Solid (live)
-    nw: IntProperty(name="nw", default=5, min=2, max=200, update=_live("solid"),
-                    description="w levels from the spine (0) to the surface (1), eq. 23")
-    u_range: FloatVectorProperty(name="u Range", size=2, default=(0.0, 1.0), min=0.0, max=1.0,
-                                 update=_live("solid"), description="Cutaway: u interval of the solid")
-    v_range: FloatVectorProperty(name="v Range", size=2, default=(0.0, 2 * math.pi), min=-2 * math.pi,
-                                 max=4 * math.pi, soft_min=0.0, soft_max=2 * math.pi, subtype="NONE",
-                                 unit="ROTATION", update=_live("solid"),
-                                 description="Cutaway: the angle interval around the head (v) the solid keeps, "
-                                             "shown in degrees; may wrap past 360 (at most one turn)")
-    w_range: FloatVectorProperty(name="w Range", size=2, default=(0.0, 1.0), min=0.0, max=1.0,
-                                 update=_live("solid"), description="Cutaway: w interval of the solid")
-    use_cutter: BoolProperty(name="Use Cutter", default=False, update=_live("cutter"),
-                             description="The study's cutter box (an empty you move, rotate and scale) sets the "
-                                         "u and v ranges: the solid is cut away where the box is")
+    nw: IntProperty(name="nw", **D.NW.limits(), update=_live("solid"), description=D.NW.description)
+    u_range: FloatVectorProperty(name="u Range", size=2, **D.U_RANGE.limits(), update=_live("solid"),
+                                 description=D.U_RANGE.description)
+    v_range: FloatVectorProperty(name="v Range", size=2, **D.V_RANGE.limits(), subtype="NONE", unit="ROTATION",
+                                 update=_live("solid"), description=D.V_RANGE.description)
+    w_range: FloatVectorProperty(name="w Range", size=2, **D.W_RANGE.limits(), update=_live("solid"),
+                                 description=D.W_RANGE.description)
+    use_cutter: BoolProperty(name="Use Cutter", **D.USE_CUTTER.limits(), update=_live("cutter"),
+                             description=D.USE_CUTTER.description)
 
     # Volume (live: material only)
-    use_ct_grid: BoolProperty(name="CT Grid", default=False,
-                              description="Sample the w-field on the CT's own voxel grid")
-    voxel_auto: BoolProperty(name="Auto Voxel Size", default=True,
-                             description="Voxel size from the CT spacing, coarsened only as far as needed to keep "
-                                         "the .vdb small and the w-field fast (see volume.auto_voxel_size)")
-    voxel_size: FloatProperty(name="Voxel Size", default=2.0, min=0.25, max=20.0,
-                              description="Voxel size in mm of the volume grid (when CT Grid and Auto are off; "
-                                          "with Auto on, the size the last build used)")
-    low_alpha: FloatProperty(name="Low Alpha", default=0.1, min=0.0, max=1.0, update=_live("volume"),
-                             description="l_alpha of eq. 24: opacity at the surface (w = 1)")
-    high_alpha: FloatProperty(name="High Alpha", default=0.9, min=0.0, max=1.0, update=_live("volume"),
-                              description="h_alpha of eq. 24: opacity at the spine (w = 0)")
-    density: FloatProperty(name="Density", default=40.0, min=0.0, max=10000.0, update=_live("volume"),
-                           description="Volume density scale (per metre)")
-    colour_preset: EnumProperty(name="Transfer Function", items=COLOUR_ITEMS, default="grayscale",
-                                update=_live("volume"),
-                                description="Preset of the volume's colour ramp (colour and opacity over the CT "
-                                            "intensity); the ramp itself is editable in the material")
-    alpha_mode: EnumProperty(name="Alpha Mode", items=ALPHA_MODE_ITEMS, default="EQ24", update=_live("volume"))
+    use_ct_grid: BoolProperty(name="CT Grid", **D.USE_CT_GRID.limits(), description=D.USE_CT_GRID.description)
+    voxel_auto: BoolProperty(name="Auto Voxel Size", **D.VOXEL_AUTO.limits(), description=D.VOXEL_AUTO.description)
+    voxel_size: FloatProperty(name="Voxel Size", **D.VOXEL_SIZE.limits(), description=D.VOXEL_SIZE.description)
+    low_alpha: FloatProperty(name="Low Alpha", **D.LOW_ALPHA.limits(), update=_live("volume"),
+                             description=D.LOW_ALPHA.description)
+    high_alpha: FloatProperty(name="High Alpha", **D.HIGH_ALPHA.limits(), update=_live("volume"),
+                              description=D.HIGH_ALPHA.description)
+    density: FloatProperty(name="Density", **D.DENSITY.limits(), update=_live("volume"),
+                           description=D.DENSITY.description)
+    colour_preset: EnumProperty(name="Transfer Function", items=COLOUR_ITEMS, default=D.COLOUR_PRESET.default,
+                                update=_live("volume"), description=D.COLOUR_PRESET.description)
+    alpha_mode: EnumProperty(name="Alpha Mode", items=ALPHA_MODE_ITEMS, default=D.ALPHA_MODE.default,
+                             update=_live("volume"))
 
     # Objects of the study
     curves_object: PointerProperty(name="Boundary Curves", type=bpy.types.Object)

@@ -23,8 +23,9 @@ from typing import Any
 
 import bpy
 
-from ..pdehead_addon import PDEHeadError, StorageError
+from ..pdehead_addon import StorageError
 
+NO_STUDY_MESSAGE = "No PDE Head study: import a CT (File > Import > CT Head) or load the phantom"
 BOUNDARY_KEY = "pdehead_boundaries"  # collection custom property: base64 of dumps_boundaries()
 PROP = "pdehead"  # name of the PointerProperty on Collection / Scene
 
@@ -39,7 +40,10 @@ class StudyCache:
     head: Any = None          # PDEHead
     head_key: tuple | None = None  # (smoothing, modes) the head was solved with
     wfield: Any = None        # WField of the last volume
-    extra: dict = field(default_factory=dict)
+    window: tuple | None = None     # the CT's intensity window (ct_volume.intensity_window), per CT
+    ct_table: tuple | None = None   # (head, ct, SolidCTTable): the CT in the solid's (u, v, w)
+    cutter_signature: tuple | None = None  # the cutter transform last applied (study.pdehead_cutter_update)
+    forensic: dict = field(default_factory=dict)  # the skull, bone mesh and depth results (forensic_study.py)
 
     def drop_from(self, step: str) -> None:
         """Forget everything that depends on ``step`` ("ct", "seg", "bset", "head")."""
@@ -52,6 +56,25 @@ class StudyCache:
 
 
 _CACHE: dict[str, StudyCache] = {}
+
+# Set while operators write many settings at once, so that no update callback rebuilds anything.
+_SUSPEND = [0]
+
+
+class suspended_updates:
+    """``with suspended_updates(): settings.nu = ...`` (no live rebuild while inside)."""
+
+    def __enter__(self):
+        _SUSPEND[0] += 1
+
+    def __exit__(self, *exc):
+        _SUSPEND[0] -= 1
+        return False
+
+
+def updates_suspended() -> bool:
+    """True inside :class:`suspended_updates` (the update callbacks of props.py then do nothing)."""
+    return _SUSPEND[0] > 0
 
 
 def cache_for(study_id: str) -> StudyCache:
@@ -114,11 +137,6 @@ def active_study(context=None, name: str = "") -> bpy.types.Collection | None:
     return all_studies[0] if len(all_studies) == 1 else None
 
 
-def study_objects(collection) -> list[bpy.types.Object]:
-    """All objects of a study (including nested collections)."""
-    return list(collection.all_objects)
-
-
 # --- PDE boundary conditions stored in the .blend ----------------------------------------
 
 def store_boundaries(collection, bset_or_head) -> int:
@@ -176,53 +194,6 @@ def pde_key(collection) -> tuple:
     return continuity(collection), smoothing, approximation, modes, bool(s.dome)
 
 
-def pde_head(collection):
-    """The solved PDE head for the study's current controls (cached, re-solved on change)."""
-    from ..pdehead_addon import solve_with_controls
-    s = settings(collection)
-    cache = cache_for(s.study_id)
-    key = pde_key(collection)
-    if cache.head is None or cache.head_key != key:
-        bset = boundary_set(collection)
-        if bset is None:
-            raise PDEHeadError(f"study '{collection.name}' has no boundary curves yet: run Extract Boundaries")
-        cont, smoothing, approximation, modes, dome = key
-        cache.head = solve_with_controls(bset, cont, smoothing=smoothing, approximation=approximation,
-                                         modes=modes, dome=dome)
-        cache.head_key = key
-        cache.wfield = None
-    return cache.head
-
-
-def default_controls(collection) -> tuple[float, float]:
-    """The solver's default smoothing and approximation as fractions of the study's maxima (the
-    values a slider starts from when its Auto box is cleared)."""
-    import numpy as np
-    from ..pdehead_addon import control_ranges
-    s = settings(collection)
-    ranges = control_ranges(boundary_set(collection), continuity(collection), None if s.modes <= 0 else s.modes)
-
-    def fraction(pair):
-        d, m = (np.asarray(x, float) for x in pair)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            f = np.where(m > 0, d / m, 0.0)
-        return float(np.clip(np.mean(f), 0.0, 1.0))
-    return fraction(ranges["smoothing"]), fraction(ranges["approximation_mm"])
-
-
-def require_ct(collection):
-    """The study's CT volume from memory, else re-read from its recorded source (:func:`reload_ct`).
-
-    Raises a :class:`PDEHeadError` that names the missing source when it cannot be re-read,
-    so a step that needs the CT (solid colours, volume, segmentation) never runs without it.
-    """
-    s = settings(collection)
-    ct = cache_for(s.study_id).ct
-    if ct is None:
-        ct = reload_ct(collection)
-    return ct
-
-
 def source_candidates(collection) -> list[Path]:
     """Where the study's CT may be, best first.
 
@@ -269,67 +240,6 @@ def source_missing_message(collection) -> str:
     where = " or ".join(str(p) for p in source_candidates(collection)) or "(no source recorded)"
     return (f"study '{collection.name}': the CT is not in memory and its source is gone: {where} not found. "
             "Point Source (Study panel) at the CT folder to re-read it; nothing was changed")
-
-
-def reload_ct(collection):
-    """Load the CT again from the recorded source (phantom or path + the recorded loader options).
-
-    The re-read CT must have the recorded dimensions; a different CT at that path is refused
-    (its colours would not belong to this study's head).
-    """
-    s = settings(collection)
-    cache = cache_for(s.study_id)
-    if s.source_kind == "PHANTOM":
-        from ..pdehead_addon import make_phantom
-        ct = make_phantom().ct
-    elif s.source_kind == "FILES":
-        path = resolve_source(collection)
-        if path is None:
-            raise PDEHeadError(source_missing_message(collection))
-        from ..pdehead_addon import load_ct
-        options = json.loads(s.load_options or "{}")
-        for key in ("shape", "spacing", "resample_spacing"):
-            if isinstance(options.get(key), list):
-                options[key] = tuple(options[key])
-        ct = load_ct(path, **options)
-    else:
-        raise PDEHeadError(f"study '{collection.name}': the CT is not in memory and has no source to reload")
-    nz, ny, nx = ct.shape
-    expected = tuple(int(n) for n in s.dimensions)
-    if any(expected) and (nx, ny, nz) != expected:
-        raise PDEHeadError(f"study '{collection.name}': the CT re-read from {s.source or 'the phantom'} has "
-                           f"{nx} x {ny} x {nz} voxels, the study was built from {' x '.join(map(str, expected))}; "
-                           "refusing to mix them (point Source at the original CT)")
-    cache.ct = ct
-    cache.extra.pop("window", None)
-    cache.extra.pop("ct_table", None)
-    return ct
-
-
-def ct_table(collection, head, ct):
-    """The CT tabulated in the solid's (u, v, w) for this PDE solution (built once, ~0.5 s on CThead).
-
-    Kept until the PDE is re-solved (another head) or the CT is re-read, so cutaway and
-    resolution sliders only look values up.
-    """
-    from ..pdehead_addon.pde_solid import SolidCTTable
-    cache = cache_for(settings(collection).study_id)
-    entry = cache.extra.get("ct_table")
-    if entry is None or entry[0] is not head or entry[1] is not ct:
-        entry = (head, ct, SolidCTTable(head, ct))
-        cache.extra["ct_table"] = entry
-    return entry[2]
-
-
-def ct_window(collection, ct=None) -> tuple[float, float]:
-    """The study's CT intensity window (:func:`volume.intensity_window`), computed once per CT."""
-    cache = cache_for(settings(collection).study_id)
-    window = cache.extra.get("window")
-    if window is None:
-        from .volume import intensity_window
-        window = intensity_window(ct if ct is not None else require_ct(collection))
-        cache.extra["window"] = window
-    return window
 
 
 # --- timings ---------------------------------------------------------------------------------

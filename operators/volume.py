@@ -12,8 +12,8 @@ a voxel grid (the engine's ``WField``) goes into an OpenVDB file with three
 float grids:
 
 ``w``
-    w in [0, 1] inside the solid; outside voxels hold the background value
-    :data:`OUTSIDE_BACKGROUND` (> 1), which the shader maps to zero density.
+    w in [0, 1] inside the solid; outside voxels hold the engine's background value
+    ``OUTSIDE_W`` (> 1, :mod:`pdehead_addon.pde_solid`), which the shader maps to zero density.
 ``intensity``
     the CT intensity inside the solid, windowed to [0, 1]; 0 outside.
 ``ct``
@@ -36,19 +36,16 @@ from pathlib import Path
 
 import numpy as np
 
+from ..pdehead_addon import OUTSIDE_W
+from ..pdehead_addon import defaults as D
+from ..pdehead_addon.ct_volume import apply_window, ct_grid_for, head_mask_on_grid, intensity_window
 from . import compat, vdb_writer
 from .coords import grid_affine_world
-
-OUTSIDE_BACKGROUND = 2.0  #: value of ``w`` outside the solid (any value > 1 means outside)
 GRID_NAMES = ("w", "intensity", "ct")
 REQUIRED_GRIDS = ("w", "intensity")
 VDB_FOLDER_NAME = "pdehead_vdb"
 GROUP_NAME = "PDE Head eq. 24"
-DEFAULT_LOW_ALPHA = 0.1   # section 5.3: alpha constrained to [0.1, 0.9]
-DEFAULT_HIGH_ALPHA = 0.9
-DEFAULT_DENSITY = 20.0    # Cycles extinction per metre at alpha = 1: a ~0.2 m head is translucent
-DEFAULT_EMISSION = 0.7    # emission per unit density: the alpha-blended texture look of the paper
-ALPHA_MODES = ("EQ24", "INTENSITY")
+ALPHA_MODES = D.ALPHA_MODE.choices
 INSIDE_EPS = 1e-3         # w <= 1 + eps counts as inside (interpolation at the surface)
 
 # Transfer functions: Color Ramp presets over the windowed intensity in [0, 1], (position, RGBA) pairs.
@@ -78,144 +75,9 @@ COLOUR_LABELS = {"grayscale": ("Grayscale", "CT intensity as grey levels; opacit
                  "skin": ("Skin", "Warm soft tissue, air transparent"),
                  "bone": ("Bone", "Only bone: soft tissue transparent"),
                  "xray": ("X-Ray", "Grey levels, opacity rising with density, air transparent")}
-HEAD_MARGIN_MM = 6.0  #: the ``ct`` grid keeps the CT this far around the solid (no table, no air box)
-
-
-# ----------------------------------------------------------------------------- windowing
-def intensity_window(ct_or_values, preset="auto") -> tuple[float, float]:
-    """Intensity window ``(lo, hi)`` mapping CT values to [0, 1].
-
-    Parameters
-    ----------
-    ct_or_values : CTVolume or ndarray
-        The CT (its ``.data``) or raw intensities.
-    preset : {"auto", "full"} or (lo, hi)
-        ``"auto"``: the 1st and 99.5th percentiles (robust to metal streaks and
-        padding; air maps to ~0 and bone to ~1 on CThead and on HU data).
-        ``"full"``: the value range. A pair is returned as given.
-
-    Returns
-    -------
-    (lo, hi) with hi > lo.
-    """
-    if not isinstance(preset, str):
-        lo, hi = (float(x) for x in preset)
-        if not hi > lo:
-            raise ValueError(f"intensity window needs hi > lo, got ({lo}, {hi})")
-        return lo, hi
-    values = np.asarray(getattr(ct_or_values, "data", ct_or_values), dtype=np.float32).ravel()
-    values = values[np.isfinite(values)]
-    if values.size == 0:
-        return 0.0, 1.0
-    if preset == "full":
-        lo, hi = float(values.min()), float(values.max())
-    elif preset == "auto":
-        step = max(1, values.size // 2_000_000)  # percentiles of a regular subsample: fast, stable
-        lo, hi = (float(x) for x in np.percentile(values[::step], [1.0, 99.5]))
-    else:
-        raise ValueError(f"unknown intensity window preset {preset!r} (use 'auto', 'full' or (lo, hi))")
-    if not hi > lo:
-        hi = lo + 1.0
-    return lo, hi
-
-
-def apply_window(values: np.ndarray, window: tuple[float, float]) -> np.ndarray:
-    """``(values - lo) / (hi - lo)`` clipped to [0, 1], float32 (NaN -> 0)."""
-    lo, hi = (float(x) for x in window)
-    out = np.asarray(values, dtype=np.float32) - np.float32(lo)
-    out *= np.float32(1.0 / (hi - lo))
-    np.clip(out, 0.0, 1.0, out=out)
-    out[~np.isfinite(out)] = 0.0
-    return out
-
-
-def sample_ct(ct, points_mm: np.ndarray, order: int = 1) -> np.ndarray:
-    """CT intensity at patient LPS points (mm), trilinear; the lowest CT value outside the box.
-
-    Points within the outer half voxel take the edge value (:func:`ct_volume.trilinear`): a vertex
-    on the scan's first slice must not turn to air when rounding puts it an ulp outside.
-    """
-    pts = np.asarray(points_mm, dtype=np.float64).reshape(-1, 3)
-    kji = ct.patient_to_index(pts)
-    cval = float(np.min(ct.data)) if ct.data.size else 0.0
-    if order == 1:
-        from ..pdehead_addon.ct_volume import trilinear
-        return trilinear(ct.data, kji, cval=cval)
-    from scipy.ndimage import map_coordinates
-    out = map_coordinates(ct.data, kji.T, order=order, mode="constant", cval=cval, prefilter=False)
-    return out.astype(np.float32, copy=False)
-
-
-def head_mask_on_grid(wfield, shape, spacing, origin, direction, margin_mm: float = HEAD_MARGIN_MM) -> np.ndarray:
-    """Voxels of a grid (shape [z, y, x], spacing, origin, direction as in CTVolume) within `margin_mm`
-    of the solid (w <= 1 of `wfield`, dilated): the intensity-alpha mode shows the CT there only, so
-    neither the air noise of the CT box (a faint box outline) nor the scanner table (bright bars
-    behind the head) is rendered. Nearest w-field voxel per grid voxel, one slice at a time."""
-    from scipy.ndimage import binary_dilation
-
-    inside = np.asarray(wfield.w) <= 1.0
-    steps = int(np.ceil(margin_mm / max(min(wfield.spacing), 1e-6)))
-    if steps > 0 and inside.any():
-        inside = binary_dilation(inside, iterations=steps)
-    to_w = np.linalg.inv(_grid_index_to_patient(wfield))
-    dz, dy, dx = (float(x) for x in spacing)
-    grid = np.eye(4)
-    grid[:3, :3] = np.asarray(direction, float).reshape(3, 3) * np.array([dx, dy, dz])
-    grid[:3, 3] = np.asarray(origin, float).reshape(3)
-    m = to_w @ grid                                    # grid (i, j, k, 1) -> w-field (i, j, k, 1)
-    nz, ny, nx = (int(n) for n in shape)
-    wz, wy, wx = inside.shape
-    jj, ii = np.mgrid[0:ny, 0:nx]
-    base = m[:3, 0][:, None] * ii.ravel() + m[:3, 1][:, None] * jj.ravel() + m[:3, 3][:, None]
-    out = np.zeros((nz, ny, nx), bool)
-    for k in range(nz):                                # per slice: bounded memory
-        ijk = np.rint(base + m[:3, 2][:, None] * k).astype(np.int64)
-        ok = (ijk[0] >= 0) & (ijk[0] < wx) & (ijk[1] >= 0) & (ijk[1] < wy) & (ijk[2] >= 0) & (ijk[2] < wz)
-        hit = np.zeros(ny * nx, bool)
-        hit[ok] = inside[ijk[2, ok], ijk[1, ok], ijk[0, ok]]
-        out[k] = hit.reshape(ny, nx)
-    return out
-
-
-def _grid_index_to_patient(wfield) -> np.ndarray:
-    """4x4 (i, j, k, 1) -> patient mm of the w-field grid."""
-    dz, dy, dx = (float(s) for s in wfield.spacing)
-    m = np.eye(4)
-    m[:3, :3] = np.asarray(wfield.direction, float).reshape(3, 3) * np.array([dx, dy, dz])
-    m[:3, 3] = np.asarray(wfield.origin, float).reshape(3)
-    return m
-
-
-def ct_grid_for(ct, wfield):
-    """The CT for the ``ct`` grid: (data [z, y, x] float32, spacing, origin, direction).
-
-    The w-field's own grid when it coincides with the CT's; otherwise the CT's
-    grid (the whole CT box, as the paper's baseline texture) decimated by block
-    means to about the w-field's voxel size, so both grids have a comparable
-    resolution and the file stays small.
-    """
-    from scipy.ndimage import uniform_filter
-
-    same = (tuple(ct.data.shape) == tuple(np.shape(wfield.w))
-            and np.allclose(ct.affine, _grid_index_to_patient(wfield), atol=1e-6))
-    if same:
-        return ct.data, tuple(wfield.spacing), np.asarray(wfield.origin, float), np.asarray(wfield.direction, float)
-    voxel = float(min(wfield.spacing))
-    steps = tuple(max(1, int(round(voxel / s))) for s in ct.spacing)  # (k, j, i)
-    data, origin = ct.data, np.asarray(ct.origin, float)
-    if max(steps) > 1:
-        data = uniform_filter(data, size=steps, mode="nearest")[::steps[0], ::steps[1], ::steps[2]]
-        # sample n averages CT voxels n*step - step//2 ... : its centre is shifted for even steps
-        shift_kji = np.array([(n - 1) / 2.0 - n // 2 for n in steps])
-        origin = origin + np.asarray(ct.direction, float) @ (shift_kji[::-1] * np.array(ct.spacing)[::-1])
-    spacing = tuple(float(s) * n for s, n in zip(ct.spacing, steps))
-    return np.ascontiguousarray(data, np.float32), spacing, origin, np.asarray(ct.direction, float)
 
 
 # ----------------------------------------------------------------------------- default voxel size
-MAX_VDB_BYTES = 64 * 2 ** 20      #: the .vdb stays below this (issue 10: small files beside the .blend)
-#: w-field grid voxels: measured 0.15-0.2 us per voxel on CThead (2 shared cores), so ~1 s, its target
-MAX_WFIELD_VOXELS = 5_000_000
 INSIDE_FRACTION = 0.6             #: share of the solid's bounding box inside the solid (heads: ~0.5)
 
 
@@ -224,7 +86,7 @@ def estimate_vdb(ct, solid_box_mm, voxel: float) -> tuple[float, float]:
 
     ``w`` is float32 and ``intensity`` half-float over the voxels inside the solid (outside is
     the background, stored sparsely); ``ct`` is half-float over the whole CT box on the CT's grid
-    decimated by whole steps (:func:`ct_grid_for`).
+    decimated by whole steps (:func:`ct_volume.ct_grid_for`).
     """
     extent = np.asarray(solid_box_mm[1], float) - np.asarray(solid_box_mm[0], float) + 2.0 * voxel
     grid_voxels = float(np.prod(np.ceil(extent / voxel) + 1))
@@ -233,7 +95,8 @@ def estimate_vdb(ct, solid_box_mm, voxel: float) -> tuple[float, float]:
     return INSIDE_FRACTION * grid_voxels * (4 + 2) + ct_voxels * 2, grid_voxels
 
 
-def auto_voxel_size(ct, head, max_bytes: float = MAX_VDB_BYTES, max_voxels: float = MAX_WFIELD_VOXELS) -> float:
+def auto_voxel_size(ct, head, max_bytes: float = D.MAX_VDB_BYTES.default,
+                    max_voxels: float = D.MAX_WFIELD_VOXELS.default) -> float:
     """Default volume voxel size (mm): the CT's finest spacing, coarsened in 5 % steps only until the
     .vdb estimate fits `max_bytes` and the w-field grid `max_voxels` (:func:`estimate_vdb`).
 
@@ -242,7 +105,7 @@ def auto_voxel_size(ct, head, max_bytes: float = MAX_VDB_BYTES, max_voxels: floa
     """
     pts = head.surface(32, 64).vertices
     box = (pts.min(axis=0), pts.max(axis=0))
-    voxel = max(float(min(ct.spacing)), 0.25)
+    voxel = max(float(min(ct.spacing)), D.VOXEL_SIZE.min)
     for _ in range(200):
         size, count = estimate_vdb(ct, box, voxel)
         if size <= max_bytes and count <= max_voxels:
@@ -367,13 +230,6 @@ def purge_superseded() -> list[Path]:
     return removed
 
 
-def _openvdb():
-    openvdb = compat.openvdb_module()
-    if openvdb is None:
-        raise RuntimeError("this Blender has no OpenVDB Python bindings (openvdb/pyopenvdb) to read .vdb files")
-    return openvdb
-
-
 def write_vdb(wfield, path, window, *, ct=None, origin_m=(0.0, 0.0, 0.0)) -> Path:
     """Write the w-field as an OpenVDB file with float grids ``w``, ``intensity`` and ``ct``.
 
@@ -419,7 +275,7 @@ def write_vdb(wfield, path, window, *, ct=None, origin_m=(0.0, 0.0, 0.0)) -> Pat
 
     def grids():
         """(name, [z, y, x] float32 data, background, half floats, transform), one at a time: bounded memory."""
-        yield ("w", np.where(inside, np.clip(w, 0.0, 1.0), np.float32(OUTSIDE_BACKGROUND)), OUTSIDE_BACKGROUND,
+        yield ("w", np.where(inside, np.clip(w, 0.0, 1.0), np.float32(OUTSIDE_W)), OUTSIDE_W,
                False, transform_rows)
         intensity = apply_window(wfield.intensity, window)
         intensity[~inside] = 0.0
@@ -464,57 +320,6 @@ def write_vdb(wfield, path, window, *, ct=None, origin_m=(0.0, 0.0, 0.0)) -> Pat
         del written[:]  # free the grids now: nanobind reports "leaked" objects at exit otherwise
         gc.collect()
     return path
-
-
-def read_vdb_grids(path) -> dict[str, dict]:
-    """Active voxel box, count, background, value range and index->world transform of each grid."""
-    openvdb = _openvdb()
-    grids, _meta = openvdb.readAll(str(path))
-    out = {}
-    try:
-        for grid in grids:
-            t = grid.transform
-            o = np.array(t.indexToWorld((0, 0, 0)))
-            out[grid.name] = {
-                "active_box": grid.evalActiveVoxelBoundingBox(),
-                "active_count": grid.activeVoxelCount(),
-                "background": grid.background,
-                "min_max": grid.evalMinMax(),
-                "origin": o,
-                "axes": np.array([np.array(t.indexToWorld(e)) - o for e in ((1, 0, 0), (0, 1, 0), (0, 0, 1))]),
-            }
-            del t
-    finally:
-        del grids
-        gc.collect()
-    return out
-
-
-def vdb_value(path, grid_name: str, ijk: tuple[int, int, int]) -> float:
-    """Value of one voxel ``(i, j, k)`` of a grid in a .vdb file (for tests)."""
-    openvdb = _openvdb()
-    grid = openvdb.read(str(path), grid_name)
-    try:
-        return float(grid.getConstAccessor().getValue(tuple(int(x) for x in ijk)))
-    finally:
-        del grid
-        gc.collect()
-
-
-def read_vdb_array(path, grid_name: str) -> tuple[np.ndarray, tuple[int, int, int]]:
-    """A grid of a .vdb file as a dense float32 array ``[i, j, k]`` over its active box, and the box's
-    first index (for comparing two files voxel by voxel)."""
-    openvdb = _openvdb()
-    grid = openvdb.read(str(path), grid_name)
-    try:
-        lo, hi = grid.evalActiveVoxelBoundingBox()
-        shape = tuple(int(h - l + 1) for l, h in zip(lo, hi))  # noqa: E741
-        out = np.zeros(shape, np.float32)
-        grid.copyToArray(out, ijk=tuple(int(x) for x in lo))
-        return out, tuple(int(x) for x in lo)
-    finally:
-        del grid
-        gc.collect()
 
 
 # ----------------------------------------------------------------------------- shader nodes
@@ -575,13 +380,14 @@ def ensure_eq24_group(name: str = GROUP_NAME):
     group["pdehead_version"] = 1
     group.description = "PDE Head: volume density from the solid parameter w by paper eq. 24"
 
-    _new_socket(group, "W", "INPUT", OUTSIDE_BACKGROUND, description="PDE solid parameter w (> 1 outside)")
+    _new_socket(group, "W", "INPUT", OUTSIDE_W, description="PDE solid parameter w (> 1 outside)")
     _new_socket(group, "Intensity", "INPUT", 0.0, 0.0, 1.0, "windowed CT intensity inside the solid")
     _new_socket(group, "CT", "INPUT", 0.0, 0.0, 1.0, "windowed CT intensity in the whole CT box")
-    _new_socket(group, "Low Alpha", "INPUT", DEFAULT_LOW_ALPHA, 0.0, 1.0, "l_alpha of eq. 24 (at w = 1)")
-    _new_socket(group, "High Alpha", "INPUT", DEFAULT_HIGH_ALPHA, 0.0, 1.0, "h_alpha of eq. 24 (at w = 0)")
-    _new_socket(group, "Density", "INPUT", DEFAULT_DENSITY, 0.0, 1e4, "density per metre at alpha = 1")
-    _new_socket(group, "Emission", "INPUT", DEFAULT_EMISSION, 0.0, 1e3, "emission per unit density")
+    _new_socket(group, "Low Alpha", "INPUT", D.LOW_ALPHA.default, 0.0, 1.0, "l_alpha of eq. 24 (at w = 1)")
+    _new_socket(group, "High Alpha", "INPUT", D.HIGH_ALPHA.default, 0.0, 1.0, "h_alpha of eq. 24 (at w = 0)")
+    _new_socket(group, "Density", "INPUT", D.DENSITY.default, D.DENSITY.min, D.DENSITY.max,
+                "density per metre at alpha = 1")
+    _new_socket(group, "Emission", "INPUT", D.EMISSION.default, 0.0, 1e3, "emission per unit density")
     _new_socket(group, "Intensity Alpha", "INPUT", 0.0, 0.0, 1.0,
                 "0: eq. 24 alpha from w; 1: alpha = CT intensity everywhere (baseline)")
     for out in ("Density", "Emission Strength", "Value", "Alpha"):

@@ -1,10 +1,47 @@
-"""The CT volume in patient space: the data type every pipeline step shares."""
+"""The CT volume in patient space: the data type every pipeline step shares, and its numeric helpers.
+
+- :class:`CTVolume` and :func:`grid_affine` (the one voxel index -> patient LPS mm map of a grid);
+- sampling: :func:`trilinear`, :func:`sample_ct` (intensity at patient points);
+- intensity windows for display: :func:`intensity_window`, :func:`apply_window`;
+- grids of the volume rendering (section 4.3, eq. 24): :func:`head_mask_on_grid`,
+  :func:`ct_grid_for`;
+- :func:`downsample_volume` for very large scans.
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+
+
+#: The ``ct`` grid of the volume keeps the CT this far around the solid (no table, no air box).
+HEAD_MARGIN_MM = 6.0
+
+
+def grid_affine(spacing, origin, direction) -> np.ndarray:
+    """4x4 matrix from voxel index ``(i, j, k, 1)`` to patient LPS ``(x, y, z, 1)`` in mm.
+
+    Parameters
+    ----------
+    spacing : (dz, dy, dx)
+        Voxel size in mm, in the engine's ``[z, y, x]`` order.
+    origin : (x, y, z)
+        Patient LPS mm of voxel ``(k, j, i) = (0, 0, 0)``.
+    direction : (3, 3)
+        Columns are the LPS unit vectors of the i, j and k axes.
+
+    Notes
+    -----
+    The same map for every grid of the engine (a :class:`CTVolume`, a ``WField``): voxel
+    ``(k, j, i)`` lies at ``origin + direction @ (i*dx, j*dy, k*dz)``. The index order is
+    ``(i, j, k)`` = (x, y, z) as OpenVDB and Blender use it, the reverse of numpy's ``[k, j, i]``.
+    """
+    dz, dy, dx = (float(s) for s in spacing)
+    m = np.eye(4)
+    m[:3, :3] = np.asarray(direction, dtype=np.float64).reshape(3, 3) * np.array([dx, dy, dz])
+    m[:3, 3] = np.asarray(origin, dtype=np.float64).reshape(3)
+    return m
 
 
 @dataclass
@@ -69,12 +106,8 @@ class CTVolume:
 
     @property
     def affine(self) -> np.ndarray:
-        """4x4 matrix mapping homogeneous ``(i, j, k, 1)`` to patient ``(x, y, z, 1)`` in mm."""
-        dz, dy, dx = self.spacing
-        m = np.eye(4)
-        m[:3, :3] = self.direction * np.array([dx, dy, dz])
-        m[:3, 3] = self.origin
-        return m
+        """4x4 matrix mapping homogeneous ``(i, j, k, 1)`` to patient ``(x, y, z, 1)`` in mm (:func:`grid_affine`)."""
+        return grid_affine(self.spacing, self.origin, self.direction)
 
     def index_to_patient(self, kji: np.ndarray) -> np.ndarray:
         """Patient LPS mm of (possibly fractional) voxel indices ``[..., (k, j, i)]``."""
@@ -139,6 +172,132 @@ def trilinear(data: np.ndarray, kji: np.ndarray, cval: float = 0.0) -> np.ndarra
     out = (c0 + fk * (c1 - c0)).astype(np.float32, copy=False)
     out[~inside] = np.float32(cval)
     return out.reshape(np.shape(kji)[:-1])
+
+
+def intensity_window(ct_or_values, preset="auto") -> tuple[float, float]:
+    """Intensity window ``(lo, hi)`` mapping CT values to [0, 1].
+
+    Parameters
+    ----------
+    ct_or_values : CTVolume or ndarray
+        The CT (its ``.data``) or raw intensities.
+    preset : {"auto", "full"} or (lo, hi)
+        ``"auto"``: the 1st and 99.5th percentiles (robust to metal streaks and
+        padding; air maps to ~0 and bone to ~1 on CThead and on HU data).
+        ``"full"``: the value range. A pair is returned as given.
+
+    Returns
+    -------
+    (lo, hi) with hi > lo.
+    """
+    if not isinstance(preset, str):
+        lo, hi = (float(x) for x in preset)
+        if not hi > lo:
+            raise ValueError(f"intensity window needs hi > lo, got ({lo}, {hi})")
+        return lo, hi
+    values = np.asarray(getattr(ct_or_values, "data", ct_or_values), dtype=np.float32).ravel()
+    values = values[np.isfinite(values)]
+    if values.size == 0:
+        return 0.0, 1.0
+    if preset == "full":
+        lo, hi = float(values.min()), float(values.max())
+    elif preset == "auto":
+        step = max(1, values.size // 2_000_000)  # percentiles of a regular subsample: fast, stable
+        lo, hi = (float(x) for x in np.percentile(values[::step], [1.0, 99.5]))
+    else:
+        raise ValueError(f"unknown intensity window preset {preset!r} (use 'auto', 'full' or (lo, hi))")
+    if not hi > lo:
+        hi = lo + 1.0
+    return lo, hi
+
+
+def apply_window(values: np.ndarray, window: tuple[float, float], out: np.ndarray | None = None,
+                 finite: bool = True) -> np.ndarray:
+    """``(values - lo) / (hi - lo)`` clipped to [0, 1], float32.
+
+    The one windowing of the project (segmentation, the volume's intensity grid, the solid's
+    and the slice planes' colours). ``out`` may be ``values`` itself (in place) or a float32
+    buffer; ``finite=False`` skips the NaN -> 0 pass where the values are known finite (the
+    segmentation's whole CT: one full-volume pass and a boolean temporary fewer).
+    """
+    lo, hi = (float(x) for x in window)
+    if not hi > lo:
+        raise ValueError(f"intensity window needs hi > lo, got ({lo}, {hi})")
+    out = np.subtract(values, np.float32(lo), out=out, dtype=np.float32)
+    out *= np.float32(1.0 / (hi - lo))
+    np.clip(out, 0.0, 1.0, out=out)
+    if finite:
+        out[~np.isfinite(out)] = 0.0
+    return out
+
+
+def sample_ct(ct, points_mm: np.ndarray, order: int = 1) -> np.ndarray:
+    """CT intensity at patient LPS points (mm), trilinear; the lowest CT value outside the box.
+
+    Points within the outer half voxel take the edge value (:func:`trilinear`): a vertex
+    on the scan's first slice must not turn to air when rounding puts it an ulp outside.
+    """
+    pts = np.asarray(points_mm, dtype=np.float64).reshape(-1, 3)
+    kji = ct.patient_to_index(pts)
+    cval = float(np.min(ct.data)) if ct.data.size else 0.0
+    if order == 1:
+        return trilinear(ct.data, kji, cval=cval)
+    from scipy.ndimage import map_coordinates
+    out = map_coordinates(ct.data, kji.T, order=order, mode="constant", cval=cval, prefilter=False)
+    return out.astype(np.float32, copy=False)
+
+
+def head_mask_on_grid(wfield, shape, spacing, origin, direction, margin_mm: float = HEAD_MARGIN_MM) -> np.ndarray:
+    """Voxels of a grid (shape [z, y, x], spacing, origin, direction as in CTVolume) within `margin_mm`
+    of the solid (w <= 1 of `wfield`, dilated): the intensity-alpha mode shows the CT there only, so
+    neither the air noise of the CT box (a faint box outline) nor the scanner table (bright bars
+    behind the head) is rendered. Nearest w-field voxel per grid voxel, one slice at a time."""
+    from scipy.ndimage import binary_dilation
+
+    inside = np.asarray(wfield.w) <= 1.0
+    steps = int(np.ceil(margin_mm / max(min(wfield.spacing), 1e-6)))
+    if steps > 0 and inside.any():
+        inside = binary_dilation(inside, iterations=steps)
+    to_w = np.linalg.inv(grid_affine(wfield.spacing, wfield.origin, wfield.direction))
+    m = to_w @ grid_affine(spacing, origin, direction)  # grid (i, j, k, 1) -> w-field (i, j, k, 1)
+    nz, ny, nx = (int(n) for n in shape)
+    wz, wy, wx = inside.shape
+    jj, ii = np.mgrid[0:ny, 0:nx]
+    base = m[:3, 0][:, None] * ii.ravel() + m[:3, 1][:, None] * jj.ravel() + m[:3, 3][:, None]
+    out = np.zeros((nz, ny, nx), bool)
+    for k in range(nz):                                # per slice: bounded memory
+        ijk = np.rint(base + m[:3, 2][:, None] * k).astype(np.int64)
+        ok = (ijk[0] >= 0) & (ijk[0] < wx) & (ijk[1] >= 0) & (ijk[1] < wy) & (ijk[2] >= 0) & (ijk[2] < wz)
+        hit = np.zeros(ny * nx, bool)
+        hit[ok] = inside[ijk[2, ok], ijk[1, ok], ijk[0, ok]]
+        out[k] = hit.reshape(ny, nx)
+    return out
+
+
+def ct_grid_for(ct, wfield):
+    """The CT for the ``ct`` grid: (data [z, y, x] float32, spacing, origin, direction).
+
+    The w-field's own grid when it coincides with the CT's; otherwise the CT's
+    grid (the whole CT box, as the paper's baseline texture) decimated by block
+    means to about the w-field's voxel size, so both grids have a comparable
+    resolution and the file stays small.
+    """
+    from scipy.ndimage import uniform_filter
+
+    same = (tuple(ct.data.shape) == tuple(np.shape(wfield.w))
+            and np.allclose(ct.affine, grid_affine(wfield.spacing, wfield.origin, wfield.direction), atol=1e-6))
+    if same:
+        return ct.data, tuple(wfield.spacing), np.asarray(wfield.origin, float), np.asarray(wfield.direction, float)
+    voxel = float(min(wfield.spacing))
+    steps = tuple(max(1, int(round(voxel / s))) for s in ct.spacing)  # (k, j, i)
+    data, origin = ct.data, np.asarray(ct.origin, float)
+    if max(steps) > 1:
+        data = uniform_filter(data, size=steps, mode="nearest")[::steps[0], ::steps[1], ::steps[2]]
+        # sample n averages CT voxels n*step - step//2 ... : its centre is shifted for even steps
+        shift_kji = np.array([(n - 1) / 2.0 - n // 2 for n in steps])
+        origin = origin + np.asarray(ct.direction, float) @ (shift_kji[::-1] * np.array(ct.spacing)[::-1])
+    spacing = tuple(float(s) * n for s, n in zip(ct.spacing, steps))
+    return np.ascontiguousarray(data, np.float32), spacing, origin, np.asarray(ct.direction, float)
 
 
 def downsample_volume(ct: CTVolume, factor) -> CTVolume:

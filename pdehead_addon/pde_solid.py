@@ -524,7 +524,7 @@ class SolidCTTable:
     Notes
     -----
     Values are raw CT units (window them afterwards). Outside the CT box the lowest CT
-    value is used, as :func:`volume.sample_ct` does. ``table`` is stored ``[w, u, v]``
+    value is used, as :func:`ct_volume.sample_ct` does. ``table`` is stored ``[w, u, v]``
     (v with one closing column at 2 pi).
     """
 

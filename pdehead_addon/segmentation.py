@@ -27,7 +27,7 @@ from scipy import ndimage as ndi
 
 from . import input_checks
 from .chan_vese import _solve_pyramid, chan_vese_soft, divergence, gradient, tau_bound
-from .ct_volume import CTVolume
+from .ct_volume import CTVolume, apply_window
 from .errors import SegmentationError
 from .mask_cleanup import (clean_head_mask, close_disk, cut_at_neck, dilate_disk, erode_disk, estimate_noise,
                            fill_cavities, fill_holes_per_slice, find_cushion, head_envelope, largest_component,
@@ -147,14 +147,11 @@ def auto_window(data: np.ndarray, max_samples: int = 1_000_000, bins: int = 256)
 
 
 def window_intensities(data: np.ndarray, window: tuple[float, float], out: np.ndarray | None = None) -> np.ndarray:
-    """Map ``window = (low, high)`` linearly to [0, 1] and clip (float32)."""
+    """Map ``window = (low, high)`` linearly to [0, 1] and clip (float32): :func:`.ct_volume.apply_window`."""
     low, high = float(window[0]), float(window[1])
     if not high > low:
         raise SegmentationError(f"window must be (low, high) with high > low, got {window}")
-    out = np.subtract(data, np.float32(low), out=out, dtype=np.float32)
-    out *= np.float32(1.0 / (high - low))
-    np.clip(out, 0.0, 1.0, out=out)
-    return out
+    return apply_window(data, (low, high), out=out, finite=False)
 
 
 def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: float | None = None,

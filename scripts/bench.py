@@ -27,7 +27,7 @@ and together), storage (our boundary file against a binary STL of the marching-c
 mesh), the PDE-to-marching-cubes surface distance for t in {4, 5, 6, 10, 14, 31}
 (paper Fig. 12), the uv-resolution series of Fig. 13, the w-field and its VDB, and peak
 memory. Blender (``bpy``) is imported in this process; the add-on is loaded from this
-repository through the dev shim of notes/BLENDER_API.md (no zip).
+repository as package ``pdehead_dev`` (``_common.load_addon``, no zip).
 
 Memory is reported two ways, both per stage: the process RSS high-water mark
 (``VmHWM`` of /proc/self/status after resetting it through /proc/self/clear_refs),
@@ -43,13 +43,11 @@ import argparse
 import datetime as _dt
 import gc
 import importlib
-import importlib.util
 import json
 import math
 import os
 import platform
 import re
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -66,13 +64,14 @@ for _p in (str(ROOT), str(ROOT / "scripts")):
     if _p not in sys.path:
         sys.path.insert(0, _p)
 
-DATA = Path(os.environ.get("PDEHEAD_DATA", ROOT.parent / "shared" / "data"))
 DOCS = ROOT / "docs"
 
-# Loader options of the real data sets: the single source of truth is tests/datasets.py.
-from tests.datasets import CTHEAD_RAW16_OPTIONS, CTHEAD_TIFF8_OPTIONS  # noqa: E402
-
+import _common  # noqa: E402  (data sets and their loader options, the paper's numbers, timing, dev shim)
 import pdehead_addon as E  # noqa: E402
+from _common import CTHEAD_RAW16_OPTIONS, CTHEAD_TIFF8_OPTIONS, PAPER, median, timed  # noqa: E402,F401
+from pdehead_addon import defaults as D  # noqa: E402
+
+DATA = _common.SHARED_DATA
 
 # ----------------------------------------------------------------------------- targets (from the issues)
 T_SEG_SECONDS = 2.0          # segmentation of CThead
@@ -84,8 +83,6 @@ T_STORAGE_BYTES = 16 * 1024  # t = 10, M = 256
 T_FID_T10_MEAN, T_FID_T10_P95, T_FID_T31_MEAN = 1.0, 3.0, 0.6  # mm
 T_MEMORY_512_BYTES = 4 * 1024 ** 3
 
-PAPER = {"storage_ours_kB": 62, "storage_mc_kB": 37647, "pde_seconds": 0.66, "mc_seconds": 874.75,
-         "boundary_seconds": 14.23, "jaccard_mean": 0.9815}
 FIDELITY_T = (4, 5, 6, 10, 14, 31)
 #: (nu, nv) of the paper's Fig. 13 (u=10..80 at v=40, then v=10..80 at u=60), plus (200, 400).
 UV_SERIES = ((10, 40), (20, 40), (40, 40), (60, 40), (80, 40), (60, 10), (60, 20), (60, 60), (60, 80),
@@ -95,33 +92,6 @@ STAGES = ("load", "seg", "boundaries", "surface", "storage", "fidelity", "uv", "
 
 
 # ============================================================================= small utilities
-def median(xs):
-    return float(statistics.median(xs)) if xs else float("nan")
-
-
-def timed(fn: Callable[[], Any], repeats: int, before: Callable[[], Any] | None = None, warmup: bool = False):
-    """Run ``fn`` ``repeats`` times; (stats dict, last result). ``before`` runs untimed before each.
-
-    ``warmup``: one untimed call first (one-time costs such as lazy imports and first-touch
-    allocations; used for the millisecond stages, for ours and the peer alike).
-    """
-    runs, result = [], None
-    if warmup:
-        fn()
-    gc.collect()  # once: a full collection costs ~0.1 s here, longer than many of the timed calls
-    for _ in range(max(1, int(repeats))):
-        if before is not None:
-            before()
-        gc.disable()  # like timeit: no collector pauses inside the timed call
-        try:
-            t0 = time.perf_counter()
-            result = fn()
-            runs.append(time.perf_counter() - t0)
-        finally:
-            gc.enable()
-    return {"median_s": median(runs), "min_s": float(min(runs)), "runs_s": [float(r) for r in runs]}, result
-
-
 def _status_kb(key: str) -> int | None:
     try:
         with open("/proc/self/status") as f:
@@ -218,20 +188,14 @@ _BLENDER: dict[str, Any] | None = None
 
 
 def blender() -> dict[str, Any]:
-    """bpy and the add-on's operators.objects/volume/render, loaded from this repo (dev shim)."""
+    """bpy and the add-on's operators.objects/volume/render, loaded from this repo (``_common.load_addon``)."""
     global _BLENDER
     if _BLENDER is None:
         os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="pdehead-bench-blender-"))
         t0 = time.perf_counter()
         import bpy
         # one copy of the engine: the add-on's relative imports resolve to the module already loaded
-        sys.modules.setdefault("pdehead_dev.pdehead_addon", E)
-        if "pdehead_dev" not in sys.modules:
-            spec = importlib.util.spec_from_file_location("pdehead_dev", ROOT / "__init__.py",
-                                                          submodule_search_locations=[str(ROOT)])
-            mod = importlib.util.module_from_spec(spec)
-            sys.modules["pdehead_dev"] = mod
-            spec.loader.exec_module(mod)
+        _common.load_addon(engine=E)
         objects = importlib.import_module("pdehead_dev.operators.objects")
         volume = importlib.import_module("pdehead_dev.operators.volume")
         render = importlib.import_module("pdehead_dev.operators.render")
@@ -299,11 +263,11 @@ def write_binary_stl(vertices: np.ndarray, triangles: np.ndarray, path) -> int:
     return os.path.getsize(path)
 
 
-#: The add-on's default slice selection (operators/props.py DEFAULT_SELECTION; not imported: it needs bpy).
-SELECTION = "shape-change"
+#: The add-on's default slice selection (pdehead_addon/defaults.py).
+SELECTION = D.SELECTION.default
 
 
-def boundaries(seg, patches: int = 10, samples: int = 256, selection: str = SELECTION):
+def boundaries(seg, patches: int = D.PATCHES.default, samples: int = D.SAMPLES.default, selection: str = SELECTION):
     """Boundary curves as the add-on makes them by default: the shape-change slice selection and the
     aligned parameterisation (the "Align Curves" option, extract_boundaries' default)."""
     return E.extract_boundaries(seg, patches=patches, samples=samples, selection=selection)
@@ -635,7 +599,7 @@ class Bench:
         if self.use_blender:
             wf = head.w_field(ct)
             vol = blender()["volume"]
-            window = vol.intensity_window(ct)
+            window = E.ct_volume.intensity_window(ct)
             path = self.tmp / "bench.vdb"
             s_vdb, _ = timed(lambda: vol.write_vdb(wf, path, window, ct=ct), self.repeats, warmup=True)
             out["vdb"] = {"name": "operators/volume.write_vdb (grids w, intensity, ct)", "time": s_vdb,

@@ -33,7 +33,6 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "scripts"))
-sys.path.insert(0, str(ROOT / "tests"))
 
 SECTION = "live-sliders"
 SURFACE_TARGET_S = 0.050
@@ -57,14 +56,14 @@ def _changes():
 
 
 def _load_options(name: str):
-    from datasets import CTHEAD_RAW16_OPTIONS, shared_data
+    from _common import CTHEAD_RAW16_OPTIONS, data_path
     if name == "cthead":
         o = CTHEAD_RAW16_OPTIONS
-        return dict(directory=str(shared_data("cthead_stanford", "raw16")), format='RAW', raw_shape=o["shape"],
+        return dict(directory=str(data_path("cthead_stanford", "raw16")), format='RAW', raw_shape=o["shape"],
                     raw_dtype="i2", byte_order='BIG', use_spacing=True, spacing=o["spacing"],
                     first_slice='SUPERIOR')
     if name == "ge":
-        return dict(directory=str(shared_data("ct_head_ge_tilt_dicom", "dicom")))
+        return dict(directory=str(data_path("ct_head_ge_tilt_dicom", "dicom")))
     raise SystemExit(f"unknown dataset {name!r} (cthead, ge)")
 
 

@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import statistics
 import sys
 import tempfile
 import time
@@ -35,22 +34,16 @@ import pdehead_addon as E  # noqa: E402
 from pdehead_addon.pde_surface import align_parameterisation, signed_volume  # noqa: E402
 from pdehead_addon.surface_metrics import symmetric_surface_distance  # noqa: E402
 
-sys.path.insert(0, str(ROOT / "tests"))
-from datasets import CTHEAD_RAW16_OPTIONS as CTHEAD_RAW16, SHARED_DATA as DATA  # noqa: E402  (no pytest needed)
-PAPER = {"pde_s": 0.66, "mc_s": 874.75, "ours_kB": 62, "mc_kB": 37647}
+sys.path.insert(0, str(ROOT / "scripts"))
+from _common import CTHEAD_RAW16_OPTIONS as CTHEAD_RAW16, PAPER, SHARED_DATA as DATA  # noqa: E402
+from _common import timed as _timed  # noqa: E402
 TARGETS = {"speedup": 100.0, "surface_200x400_s": 0.016, "w_field_s": 1.0, "storage_bytes": 16_000,
            "fidelity_t10_mean": 1.0, "fidelity_t10_p95": 3.0, "fidelity_t31_mean": 0.6}
 
 
 def timed(fn: Callable[[], Any], repeats: int, warmup: bool = True) -> tuple[dict, Any]:
-    """Median/min/all wall times of ``fn`` (one untimed warm-up call first) and its last result."""
-    out = fn() if warmup else None
-    runs = []
-    for _ in range(max(1, repeats)):
-        t0 = time.perf_counter()
-        out = fn()
-        runs.append(time.perf_counter() - t0)
-    return {"median_s": statistics.median(runs), "min_s": min(runs), "runs_s": runs}, out
+    """:func:`_common.timed` with one untimed warm-up call first (these stages are milliseconds)."""
+    return _timed(fn, repeats, warmup=warmup)
 
 
 def marching_cubes(mask: np.ndarray, ct) -> tuple[np.ndarray, np.ndarray]:
@@ -70,7 +63,8 @@ def bench_solve_vs_mc(bset, mask, ct, repeats: int = 7, nu: int = 40, nv: int = 
             "ours_solve_only": solve_only, "ours_with_caps": caps,
             "peer": {"name": f"skimage marching_cubes on the {mask.shape} mask", "triangles": int(len(faces)), **peer},
             "speedup": peer["median_s"] / ours["median_s"],
-            "paper": {"pde_s": PAPER["pde_s"], "mc_s": PAPER["mc_s"], "speedup": PAPER["mc_s"] / PAPER["pde_s"]}}
+            "paper": {"pde_s": PAPER["pde_seconds"], "mc_s": PAPER["mc_seconds"],
+                      "speedup": PAPER["mc_seconds"] / PAPER["pde_seconds"]}}
 
 
 def bench_surface(head, repeats: int = 15, nu: int = 200, nv: int = 400) -> dict:
@@ -103,7 +97,8 @@ def bench_storage(obj, mc_triangles: int) -> dict:
     return {"ours_bytes": size, "curves": int(bset.curves.shape[0]), "samples": int(bset.samples),
             "curve_max_error_mm": float(np.abs(back.curves - bset.curves).max()),
             "surface_100x200_max_vertex_distance_mm": dist,
-            "peer_stl_bytes": stl, "ratio": stl / size, "paper": {"ours_kB": PAPER["ours_kB"], "mc_kB": PAPER["mc_kB"]}}
+            "peer_stl_bytes": stl, "ratio": stl / size,
+            "paper": {"ours_kB": PAPER["storage_ours_kB"], "mc_kB": PAPER["storage_mc_kB"]}}
 
 
 def bench_fidelity(head, mc_verts, mc_faces, samples: int = 100_000) -> dict:

@@ -42,17 +42,18 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "scripts"))
 
 from pdehead_addon import CTVolume, load_ct, segment_head  # noqa: E402
 from pdehead_addon import metrics as M  # noqa: E402
 from pdehead_addon import segmentation as S  # noqa: E402
 
-DATA = Path(os.environ.get("PDEHEAD_DATA", ROOT.parent / "shared" / "data"))
-#: How each real data set is loaded (the same options as tests/conftest.py).
+from _common import CTHEAD_RAW16_OPTIONS, CTHEAD_TIFF8_OPTIONS, SHARED_DATA as DATA, timed  # noqa: E402
+
+#: Where each real data set is and how it is loaded (scripts/_common.py owns the options).
 LOAD_OPTIONS = {
-    "cthead": (("cthead_stanford", "raw16"), dict(format="raw", shape=(256, 256), dtype=">i2",
-                                                  spacing=(2.0, 1.0, 1.0), first_slice="superior")),
-    "cthead_tiff8": (("cthead_stanford", "tiff8"), dict(spacing=(2.0, 1.0, 1.0), first_slice="superior")),
+    "cthead": (("cthead_stanford", "raw16"), CTHEAD_RAW16_OPTIONS),
+    "cthead_tiff8": (("cthead_stanford", "tiff8"), CTHEAD_TIFF8_OPTIONS),
     "ge": (("ct_head_ge_tilt_dicom", "dicom"), {}),
 }
 
@@ -72,19 +73,11 @@ def reference_for(key: str, ct: CTVolume) -> tuple[np.ndarray | None, str]:
     return M.reference_head_mask(ct, **settings), f"pdehead_addon.metrics.reference_head_mask({text})"
 
 
-def _timed(fn, repeats: int) -> tuple[list[float], Any]:
-    times, result = [], None
-    for _ in range(max(1, repeats)):
-        t0 = time.perf_counter()
-        result = fn()
-        times.append(time.perf_counter() - t0)
-    return times, result
-
-
 def measure_segmentation(ct: CTVolume, repeats: int = 5, reference: np.ndarray | None = None,
                          **params) -> dict[str, Any]:
     """Median wall time of ``segment_head(ct, **params)`` over ``repeats`` runs, and its accuracy."""
-    times, seg = _timed(lambda: segment_head(ct, **params), repeats)
+    stats, seg = timed(lambda: segment_head(ct, **params), repeats)
+    times = stats["runs_s"]
     out: dict[str, Any] = {
         "name": "pdehead_addon.segment_head (3-D Chan-Vese soft model eq. 16-21, coarse-to-fine, + clean-up)",
         "shape": list(ct.shape), "spacing_mm": list(ct.spacing), "repeats": len(times),

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import statistics
 import sys
 import time
@@ -35,16 +34,15 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
-DATA = Path(os.environ.get("PDEHEAD_DATA", ROOT.parent / "shared" / "data"))
+for _p in (str(ROOT), str(ROOT / "scripts")):
+    if _p not in sys.path:
+        sys.path.insert(0, _p)
 
 import pdehead_addon as E  # noqa: E402
 from pdehead_addon import slice_selection as S  # noqa: E402
-from scripts.md_sections import write_section  # noqa: E402
+from _common import CTHEAD_RAW16_OPTIONS as CTHEAD_RAW16, SHARED_DATA as DATA  # noqa: E402
+from md_sections import write_section  # noqa: E402
 
-# how CThead's raw slices are read (the same options as tests/datasets.py, which scripts do not import)
-CTHEAD_RAW16 = dict(format="raw", shape=(256, 256), dtype=">i2", spacing=(2.0, 1.0, 1.0), first_slice="superior")
 SELECTIONS = ("uniform", "shape-change", "auto")
 T_VALUES = {"phantom": (4, 5, 6, 10, 14), "cthead": (4, 5, 6, 10, 14), "ge": (3, 4, 5, 6)}
 TARGETS = {"excess_ratio": 0.6, "tolerance_mm": 0.5, "tolerance_curve_ratio": 0.6, "auto_extra_s": 2.0}

@@ -24,41 +24,35 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import statistics
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
-DATA = Path(os.environ.get("PDEHEAD_DATA", ROOT.parent / "shared" / "data"))
+for _p in (str(ROOT), str(ROOT / "scripts")):
+    if _p not in sys.path:
+        sys.path.insert(0, _p)
 
 import pdehead_addon as E  # noqa: E402
 from pdehead_addon.surface_quality import surface_quality  # noqa: E402
-from scripts.md_sections import write_section  # noqa: E402
+from _common import CTHEAD_RAW16_OPTIONS, SHARED_DATA as DATA, timed  # noqa: E402
+from md_sections import write_section  # noqa: E402
+from pdehead_addon import defaults as D  # noqa: E402
 
-SELECTION = "shape-change"          # the add-on's and the CLI's default slice choice
+SELECTION = D.SELECTION.default     # the add-on's and the CLI's default slice choice
 TARGETS = {"crease_p95_deg": 2.0, "folds": 0, "notch_fraction": 0.0005, "notch_fraction_ge": 0.002,
            "terracing_rms_mm": 0.15, "speed_ms": 1.5, "vs_flying_edges": 30.0, "vs_marching_cubes": 100.0,
            "fid_t10_mean": 0.59, "fid_t10_p95": 1.8, "fid_t31_mean": 0.40}
 
 
 def median_time(fn, repeats: int) -> tuple[float, object]:
-    out = fn()
-    runs = []
-    for _ in range(max(1, repeats)):
-        t0 = time.perf_counter()
-        out = fn()
-        runs.append(time.perf_counter() - t0)
-    return statistics.median(runs), out
+    """Median wall time of ``fn`` after one warm-up call (:func:`_common.timed`) and its last result."""
+    stats, out = timed(fn, repeats, warmup=True)
+    return stats["median_s"], out
 
 
 def load(name: str):
-    from tests.datasets import CTHEAD_RAW16_OPTIONS
     if name == "cthead":
         ct = E.load_ct(DATA / "cthead_stanford" / "raw16", **CTHEAD_RAW16_OPTIONS)
     elif name == "ge":

@@ -26,7 +26,6 @@ from PIL import Image, ImageDraw
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "scripts"))
-sys.path.insert(0, str(ROOT / "tests"))
 OUT = ROOT / "docs" / "figures"
 
 
@@ -51,11 +50,11 @@ def colour_bar(height: int, width: int, max_mm: float, ramp) -> Image.Image:
 def main() -> int:
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="pdehead-fig-"))
     import pdehead
-    from datasets import CTHEAD_RAW16_OPTIONS, SHARED_DATA
+    from _common import CTHEAD_RAW16_OPTIONS, SHARED_DATA
 
     import bpy
     addon = pdehead.register_addon()
-    forensic = addon.operators.forensic
+    forensic = addon.operators.forensic_study
     render = addon.operators.render
     bpy.ops.wm.read_homefile(use_empty=True)
     o = CTHEAD_RAW16_OPTIONS

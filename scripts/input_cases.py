@@ -26,7 +26,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT / "scripts"))
 
 from pdehead_addon import (CTVolume, PDEHeadError, load_ct, make_phantom, segment_head,  # noqa: E402
                            write_dicom_series)
@@ -167,8 +167,8 @@ def _(tmp):
 
 @case("6", "MRI (NIfTI, Colin27 T1)")
 def _(tmp):
-    from datasets import shared_data
-    load_ct(shared_data("mri_colin27_ch2", "ch2.nii.gz"))
+    from _common import data_path
+    load_ct(data_path("mri_colin27_ch2", "ch2.nii.gz"))
 
 
 @case("6b", "raw data said to be HU (units='HU')")
@@ -309,7 +309,7 @@ def run_case(fn) -> tuple[str, str]:
 
 
 def _clean(text: str, tmp: str) -> str:
-    from datasets import SHARED_DATA
+    from _common import SHARED_DATA
     text = text.replace(str(SHARED_DATA.resolve()), "shared/data").replace(str(SHARED_DATA), "shared/data")
     return text.replace(tmp + "/", "").replace(tmp, ".").replace("|", "\\|").replace("\n", " ")
 

@@ -8,7 +8,7 @@ Regenerate all (a few minutes on 2 cores)::
     python3 scripts/make_figures.py --list                 # what there is
 
 3-D figures go through the add-on's own Blender layer, loaded from this repository by
-the dev shim of notes/BLENDER_API.md: ``operators/objects.py`` (boundary curves, surface
+the dev shim (``scripts/_common.py``, ``load_addon``): ``operators/objects.py`` (boundary curves, surface
 and solid meshes), ``operators/volume.py`` (the w-field .vdb and the eq. 24 material) and
 ``operators/render.py`` (``render_objects_png``: Cycles on the CPU; EEVEE and Workbench
 render blank without a GPU). 2-D figures (slices, the Jaccard plot, colour bars) are drawn

@@ -21,17 +21,18 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import importlib.util
 import os
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+import _common  # noqa: E402  (scripts/ is on sys.path: this script's folder)
+
+ROOT = _common.ROOT
 PROG = "pdehead"
-DEFAULT_PATCHES = 10
-DEFAULT_SELECTION = "shape-change"
+#: The add-on's defaults and ranges (pdehead_addon/defaults.py): the CLI's defaults are the add-on's.
+D = _common.defaults()
 
 
 class CLIError(Exception):
@@ -46,21 +47,25 @@ def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog=PROG, description="Build a smooth PDE head in Blender from head CT slices.")
     p.add_argument("input", nargs="?", help="DICOM folder, image-stack folder, raw-slice folder or file")
     p.add_argument("--phantom", action="store_true", help="use the built-in synthetic head instead of INPUT")
-    p.add_argument("--patches", type=int, default=None, help="PDE patches t (3t+1 boundary curves); default 10")
-    p.add_argument("--samples", type=int, default=256, help="points per boundary curve; default 256")
+    p.add_argument("--patches", type=int, default=None,
+                   help=D.PATCHES.help("PDE patches t (3t+1 boundary curves)"))
+    p.add_argument("--samples", type=int, default=D.SAMPLES.default, help=D.SAMPLES.help("points per boundary curve"))
     p.add_argument("--tolerance", type=float, metavar="MM",
                    help="instead of --patches: the fewest curves whose surface keeps a mean distance of at most MM "
                         "from every slice's outline (automatic selection)")
     p.add_argument("--max-tolerance", type=float, metavar="MM",
                    help="with --tolerance (or alone): also bound the largest distance from the outlines")
-    p.add_argument("--selection", default=None, choices=["uniform", "shape-change", "auto"],
-                   help="how the 3t+1 slices are chosen; default shape-change (denser where the face changes)")
+    p.add_argument("--selection", default=None, choices=list(D.SELECTION.choices) + ["auto"],
+                   help=D.SELECTION.help("how the 3t+1 slices are chosen (shape-change: denser where the face "
+                                         "changes; auto: closest to every slice's outline)"))
     p.add_argument("--no-align", action="store_true",
                    help="keep the curves uniform in arc length (no correspondence alignment)")
-    p.add_argument("--nu", type=int, default=120, help="surface/solid resolution along u; default 120")
-    p.add_argument("--nv", type=int, default=240, help="surface/solid resolution around v; default 240")
-    p.add_argument("--nw", type=int, default=5, help="solid levels in w; default 5")
-    p.add_argument("--voxel-size", type=float, default=2.0, help="volume voxel size in mm; default 2")
+    p.add_argument("--nu", type=int, default=D.NU.default, help=D.NU.help("surface/solid resolution along u"))
+    p.add_argument("--nv", type=int, default=D.NV.default, help=D.NV.help("surface/solid resolution around v"))
+    p.add_argument("--nw", type=int, default=D.NW.default, help=D.NW.help("solid levels in w"))
+    p.add_argument("--voxel-size", type=float, default=None,
+                   help=f"volume voxel size in mm ({D.VOXEL_SIZE.min:g} to {D.VOXEL_SIZE.max:g}); default: "
+                        "automatic from the CT spacing within the .vdb and w-field budgets, as in the add-on")
     p.add_argument("--no-volume", action="store_true", help="skip the volume (w-field + VDB)")
     p.add_argument("--out", type=Path, help="write the .blend here (the .vdb goes beside it)")
     p.add_argument("--render", type=Path, metavar="PNG", help="render the surface (front view) to this PNG")
@@ -86,12 +91,13 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "index increase, e.g. LPS (default), LAS (row 0 = back of the head), RAS, PIL")
     g.add_argument("--units", choices=["HU", "stored"], help="raw/image stacks: the samples are HU (or not)")
     g.add_argument("--series-uid", help="DICOM SeriesInstanceUID when the folder holds several series")
-    g.add_argument("--downsample", type=int, default=1, metavar="N",
-                   help="average N x N x N voxel blocks on import (very large scans: 2 needs 1/8 of the memory)")
+    g.add_argument("--downsample", type=int, default=D.DOWNSAMPLE.default, metavar="N",
+                   help=D.DOWNSAMPLE.help("average N x N x N voxel blocks on import (very large scans: 2 needs "
+                                          "1/8 of the memory)"))
     args = p.parse_args(argv)
     args.patches_given, args.selection_given = args.patches is not None, args.selection is not None
-    args.patches = DEFAULT_PATCHES if args.patches is None else args.patches
-    args.selection = DEFAULT_SELECTION if args.selection is None else args.selection
+    args.patches = D.PATCHES.default if args.patches is None else args.patches
+    args.selection = D.SELECTION.default if args.selection is None else args.selection
     if args.phantom == bool(args.input):
         p.error("give either INPUT or --phantom")
     if args.raw_shape or args.dtype:
@@ -115,12 +121,19 @@ def parse_args(argv=None) -> argparse.Namespace:
             p.error(f"--{name.replace('_', '-')} must be a distance > 0 mm, got {value}")
     if tol:
         args.selection = "auto"
-    for name, low in (("patches", 1), ("samples", 16), ("downsample", 1), ("nu", 4), ("nv", 8), ("nw", 2), ("resolution", 16),
-                      ("render_samples", 1)):
+    for name in ("patches", "samples", "downsample", "nu", "nv", "nw"):  # the add-on's ranges
+        try:
+            D.PARAMS[name].check(getattr(args, name), f"--{name}")
+        except ValueError as exc:
+            p.error(str(exc))
+    for name, low in (("resolution", 16), ("render_samples", 1)):
         if getattr(args, name) < low:
             p.error(f"--{name.replace('_', '-')} must be at least {low}, got {getattr(args, name)}")
-    if not args.voxel_size > 0:
-        p.error(f"--voxel-size must be positive, got {args.voxel_size}")
+    if args.voxel_size is not None:
+        try:
+            D.VOXEL_SIZE.check(args.voxel_size, "--voxel-size")
+        except ValueError as exc:
+            p.error(str(exc))
     if args.orientation and args.first_slice:
         p.error("give either --orientation or --first-slice (the orientation's third letter says where "
                 "the files go)")
@@ -129,18 +142,7 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 def register_addon():
     """Register the add-on from the repository source as package ``pdehead_dev`` (no zip)."""
-    import bpy  # noqa: F401  (bpy first: the add-on imports it)
-    if "pdehead_dev" in sys.modules:
-        return sys.modules["pdehead_dev"]
-    spec = importlib.util.spec_from_file_location("pdehead_dev", ROOT / "__init__.py",
-                                                  submodule_search_locations=[str(ROOT)])
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["pdehead_dev"] = module
-    spec.loader.exec_module(module)
-    module.register()
-    # the bpy 4.2 / 4.5 modules crash / hang at exit with add-on classes still registered
-    importlib.import_module("pdehead_dev.operators.compat").unregister_at_exit(module.unregister)
-    return module
+    return _common.load_addon(register=True)
 
 
 @contextlib.contextmanager
@@ -189,7 +191,7 @@ def loader_kwargs(args) -> dict:
         kwargs["single_file"] = True
     kwargs["format"] = args.format.upper()
     if args.format == "raw":
-        from pdehead_dev.operators.ops import parse_dtype_string
+        from pdehead_dev.operators.import_options import parse_dtype_string
         from pdehead_dev.pdehead_addon import PDEHeadError
         try:
             dtype, order = parse_dtype_string(args.dtype)
@@ -218,6 +220,7 @@ def _auto_boundaries(args, ops, addon, coll) -> str:
     Uses the extract operator's own ``selection="auto"`` and ``tolerance_mm`` when the add-on has them;
     until then the boundaries are extracted by the operator (its settings, its objects) and replaced by
     the engine's automatic choice through the same store the operator uses."""
+    import importlib
     import warnings
     rna = ops.extract_boundaries.get_rna_type().properties
     has_auto = "auto" in [item.identifier for item in rna["selection"].enum_items]
@@ -302,7 +305,8 @@ def _steps(args, bpy, addon, state) -> dict:
     _call(ops.reconstruct_surface, nu=args.nu, nv=args.nv)
     _call(ops.build_solid, nu=args.nu, nv=args.nv, nw=args.nw)
     if not args.no_volume:
-        _call(ops.build_volume, voxel_size=args.voxel_size)
+        # no size given: the add-on's automatic size (Auto Voxel Size)
+        _call(ops.build_volume, **({} if args.voxel_size is None else dict(voxel_size=args.voxel_size)))
     if args.skull:
         _call(ops.build_skull)
         _call(ops.tissue_depth)
@@ -327,7 +331,8 @@ def _steps(args, bpy, addon, state) -> dict:
     print(f"  surface   {len(s.surface_object.data.vertices)} vertices, {len(s.surface_object.data.polygons)} faces")
     print(f"  solid     {len(s.solid_object.data.vertices)} vertices")
     if s.volume_object is not None:
-        print(f"  volume    {bpy.path.abspath(s.volume_object.data.filepath)}")
+        size = "CT grid" if s.use_ct_grid else f"{s.voxel_size:g} mm voxels" + (" (automatic)" if s.voxel_auto else "")
+        print(f"  volume    {bpy.path.abspath(s.volume_object.data.filepath)}, {size}")
     if args.skull:
         import json
         info = json.loads(coll.get("pdehead_skull_info", "{}"))

@@ -1,4 +1,4 @@
-"""Where the real head CTs live and how each is loaded: one place for tests and scripts.
+"""The tests' access to the real head CTs (the folder and the loader options are ``scripts/_common.py``'s).
 
 Real data is read in place from ``../shared/data`` (override with ``PDEHEAD_DATA``),
 never copied. Locally a missing data set skips the test; in CI (CI=true) it fails,
@@ -7,10 +7,15 @@ because the real-data tests must run there.
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-SHARED_DATA = Path(os.environ.get("PDEHEAD_DATA", ROOT.parent / "shared" / "data"))
+sys.path.insert(0, str(ROOT / "scripts"))
+# the data folder and how each data set is loaded: one owner, shared with the scripts (which never
+# import from tests/)
+from _common import CTHEAD_RAW16_OPTIONS, CTHEAD_TIFF8_OPTIONS, SHARED_DATA  # noqa: E402,F401
+
 IN_CI = os.environ.get("CI", "").strip().lower() in ("1", "true", "yes")
 
 
@@ -26,8 +31,3 @@ def shared_data(*parts: str) -> Path:
         pytest.skip(message)
     return path
 
-
-# How each real data set is loaded; the single source of truth for tests and scripts.
-CTHEAD_RAW16_OPTIONS = dict(format="raw", shape=(256, 256), dtype=">i2", spacing=(2.0, 1.0, 1.0),
-                            first_slice="superior")
-CTHEAD_TIFF8_OPTIONS = dict(spacing=(2.0, 1.0, 1.0), first_slice="superior")

@@ -245,11 +245,7 @@ def graph() -> ImportGraph:
     return build_graph()
 
 
-@pytest.mark.parametrize("package", [
-    ENGINE,
-    pytest.param("operators", marks=pytest.mark.xfail(
-        strict=False, reason="objects.py <-> volume.py; ops.py <-> props.py, cutter.py: removed by issue-13b")),
-])
+@pytest.mark.parametrize("package", [ENGINE, "operators"])  # operators/: layered since issue 13 (study.py)
 def test_no_import_cycles(graph, package):
     cycles = cycles_in(graph, package)
     assert not cycles, f"{len(cycles)} import cycle(s) in {package}/:\n" + "\n".join(

@@ -7,13 +7,15 @@ import sys
 import numpy as np
 import pytest
 
+import blender_inspect  # tests/blender/blender_inspect.py
+
 
 @pytest.fixture()
 def mods(pdehead_ext):
     from types import SimpleNamespace
     name = pdehead_ext.__name__
     return SimpleNamespace(**{m: sys.modules[f"{name}.operators.{m}"]
-                              for m in ("cutter", "objects", "render", "ops", "state")})
+                              for m in ("cutter", "objects", "render", "study", "state")})
 
 
 def _inside(cutter, points_world) -> np.ndarray:
@@ -23,8 +25,8 @@ def _inside(cutter, points_world) -> np.ndarray:
 
 
 def _outer_shell(mods, solid):
-    w = mods.objects.mesh_attribute(solid, "w")
-    return mods.objects.mesh_world_vertices(solid)[w >= w.max() - 1e-6]
+    w = blender_inspect.mesh_attribute(solid, "w")
+    return blender_inspect.mesh_world_vertices(solid)[w >= w.max() - 1e-6]
 
 
 def test_moving_the_cutter_cuts_the_solid_where_it_is(mods, monkeypatch):
@@ -55,14 +57,14 @@ def test_moving_the_cutter_cuts_the_solid_where_it_is(mods, monkeypatch):
     bpy.context.view_layer.update()  # what the viewport does after a move: the depsgraph handler runs
     assert s.last_error == ""
     assert tuple(s.v_range) == pytest.approx((0.0, 2 * math.pi), abs=1e-6) and s.u_range[1] - s.u_range[0] < 0.9
-    verts = mods.objects.mesh_world_vertices(s.solid_object)
+    verts = blender_inspect.mesh_world_vertices(s.solid_object)
     bottom_of_box = hi[2] - 0.6 * half[2]
     assert verts[:, 2].max() <= bottom_of_box + 0.005  # within one sample row (~3 mm) of the box
     assert verts[:, 2].max() > bottom_of_box - 0.02
 
     # an update that does not move the cutter rebuilds nothing
     calls = []
-    monkeypatch.setattr(mods.ops, "step_solid", lambda coll: calls.append(coll.name))
+    monkeypatch.setattr(mods.study, "step_solid", lambda coll: calls.append(coll.name))
     s.surface_object.location.x += 0.0
     bpy.context.view_layer.update()
     assert calls == []
@@ -72,7 +74,7 @@ def test_moving_the_cutter_cuts_the_solid_where_it_is(mods, monkeypatch):
     cutter.matrix_world = Matrix.Translation((centre[0] + 1.0, centre[1], centre[2])) @ Matrix.Scale(0.05, 4)
     bpy.context.view_layer.update()
     assert tuple(s.u_range) == pytest.approx((0.0, 1.0)) and tuple(s.v_range) == pytest.approx((0.0, 2 * math.pi))
-    head = mods.state.pde_head(coll)
+    head = mods.study.pde_head(coll)
     assert len(s.solid_object.data.vertices) == len(head.solid(40, 60, 4).vertices)
 
     # switched off: moving it changes nothing

@@ -48,6 +48,7 @@ def test_zip_contents(extension_zip):
         names = z.namelist()
         manifest = tomllib.loads(z.read("blender_manifest.toml").decode())
     assert "__init__.py" in names and "operators/ops.py" in names and "pdehead_addon/pde_surface.py" in names
+    assert "operators/study.py" in names and "pdehead_addon/defaults.py" in names  # issue 13's modules ship
     assert not any(n.startswith(("tests/", "scripts/", "docs/")) or "__pycache__" in n for n in names)
     wheels = sorted(n for n in names if n.startswith("wheels/"))
     assert not any("numpy" in w for w in wheels)
@@ -89,6 +90,48 @@ def test_installed_and_enabled(pdehead_ext):
     # the engine imports from inside the extension
     engine = sys.modules[pdehead_ext.__name__ + ".pdehead_addon"]
     assert Path(engine.__file__).parent == installed / "pdehead_addon"
+
+
+def test_every_setting_operator_option_and_preference_reads_the_defaults_table(pdehead_ext):
+    """pdehead_addon/defaults.py is the one owner: the study settings, the operators' options, the
+    preferences and the volume's node group show its defaults and ranges (issue 13)."""
+    import bpy
+
+    name = pdehead_ext.__name__
+    D = sys.modules[name + ".pdehead_addon.defaults"]
+    settings = bpy.types.Collection.bl_rna.properties["pdehead"].fixed_type.bl_rna.properties
+
+    def check(props, where):
+        checked = 0
+        for key, p in D.PARAMS.items():
+            if key not in props.keys():
+                continue
+            prop = props[key]
+            default = tuple(prop.default_array) if getattr(prop, "is_array", False) else prop.default
+            expected = p.default
+            if isinstance(expected, tuple):
+                assert default == pytest.approx(expected), (where, key)
+            elif isinstance(expected, float):
+                assert default == pytest.approx(expected), (where, key)
+            else:
+                assert default == expected, (where, key, default, expected)
+            if p.min is not None and hasattr(prop, "hard_min"):
+                assert (prop.hard_min, prop.hard_max) == pytest.approx((p.min, p.max)), (where, key)
+            checked += 1
+        return checked
+
+    assert check(settings, "study settings") == 27  # every study setting of the table
+    for op, at_least in (("run_pipeline", 6), ("extract_boundaries", 4), ("reconstruct_surface", 10),
+                         ("build_solid", 6), ("build_volume", 8), ("import_ct", 1)):
+        rna = getattr(bpy.ops.pdehead, op).get_rna_type().properties
+        assert check(rna, op) >= at_least, op
+    prefs = bpy.context.preferences.addons[name].preferences.bl_rna.properties["default_patches"]
+    assert (prefs.default, prefs.hard_min, prefs.hard_max) == (D.PATCHES.default, D.PATCHES.min, D.PATCHES.max)
+    volume = sys.modules[name + ".operators.volume"]
+    group = volume.ensure_eq24_group()
+    sockets = {s.name: s for s in group.interface.items_tree if getattr(s, "in_out", "") == "INPUT"}
+    assert sockets["Density"].default_value == pytest.approx(D.DENSITY.default) == pytest.approx(40.0)
+    assert sockets["W"].default_value == pytest.approx(sys.modules[name + ".pdehead_addon"].OUTSIDE_W)
 
 
 def test_shipped_wheels_import_from_the_extension_site_packages(pdehead_ext):

@@ -80,7 +80,7 @@ def test_forensic_operators_on_the_phantom(pdehead_ext, tmp_path):
     import bpy
     from mathutils import Vector
 
-    forensic = __import__(f"{pdehead_ext.__name__}.operators.forensic", fromlist=["x"])
+    forensic = __import__(f"{pdehead_ext.__name__}.operators.forensic_study", fromlist=["x"])
     bpy.ops.pdehead.run_pipeline(source='PHANTOM', patches=6, nu=40, nv=80, nw=4, voxel_size=6.0)
     coll = bpy.context.scene.pdehead.active_study
     assert bpy.ops.pdehead.build_skull() == {'FINISHED'}

@@ -12,6 +12,8 @@ import time
 import numpy as np
 import pytest
 
+import blender_inspect  # tests/blender/blender_inspect.py
+
 MM = 0.001
 
 
@@ -25,14 +27,6 @@ def phantom_bset(phantom_seg):
 def phantom_head(phantom_bset):
     from pdehead_addon import solve_pde
     return solve_pde(phantom_bset)
-
-
-def _world_vertices(obj) -> np.ndarray:
-    me = obj.data
-    co = np.empty(len(me.vertices) * 3, np.float32)
-    me.vertices.foreach_get("co", co)
-    m = np.array(obj.matrix_world)
-    return co.reshape(-1, 3).astype(np.float64) @ m[:3, :3].T + m[:3, 3]
 
 
 def test_grid_matrix_maps_voxel_index_to_patient_metres(B):
@@ -92,7 +86,7 @@ def test_surface_mesh_matches_engine(B, phantom_head):
     me = obj.data
     assert len(me.vertices) == len(mesh.vertices)
     assert len(me.polygons) == mesh.face_count and len(me.loops) == mesh.loop_vertex_indices().size
-    np.testing.assert_allclose(_world_vertices(obj), mesh.vertices * MM, atol=2e-6)  # float32 in Blender
+    np.testing.assert_allclose(blender_inspect.mesh_world_vertices(obj), mesh.vertices * MM, atol=2e-6)  # float32 in Blender
     corners = np.empty(len(me.loops), np.int32)
     me.loops.foreach_get("vertex_index", corners)
     np.testing.assert_array_equal(corners, mesh.loop_vertex_indices())
@@ -115,7 +109,7 @@ def test_surface_mesh_matches_engine(B, phantom_head):
     r, g, b, _ = bsdf.inputs["Base Color"].default_value
     assert r > g > b > 0.2  # skin-like
     # the mesh encloses the engine's volume: outward normals (positive signed volume in Blender too)
-    bm_volume = _signed_volume(_world_vertices(obj), me)
+    bm_volume = _signed_volume(blender_inspect.mesh_world_vertices(obj), me)
     assert bm_volume > 0.5 * 4 / 3 * math.pi * 0.06 * 0.08 * 0.09
     assert bpy.data.meshes[me.name] == me
 
@@ -167,9 +161,9 @@ def test_build_mesh_object_large_mesh_and_attributes(B, phantom_head):
     kinds = {a.name: (a.data_type, a.domain) for a in me.attributes}
     assert kinds["scalar"] == ("FLOAT", "POINT") and kinds["vec"] == ("FLOAT_VECTOR", "POINT")
     assert kinds["rgba"] == ("FLOAT_COLOR", "POINT") and kinds["label"] == ("INT", "POINT")
-    np.testing.assert_allclose(B.objects.mesh_attribute(obj, "scalar"), np.linspace(0, 1, n), atol=1e-6)
-    np.testing.assert_array_equal(B.objects.mesh_attribute(obj, "label"), np.arange(n) % 7)
-    np.testing.assert_allclose(B.objects.mesh_attribute(obj, "vec")[123], [1, 2, 3])
+    np.testing.assert_allclose(blender_inspect.mesh_attribute(obj, "scalar"), np.linspace(0, 1, n), atol=1e-6)
+    np.testing.assert_array_equal(blender_inspect.mesh_attribute(obj, "label"), np.arange(n) % 7)
+    np.testing.assert_allclose(blender_inspect.mesh_attribute(obj, "vec")[123], [1, 2, 3])
 
 
 def test_front_view_sees_the_face_with_patient_left_on_the_right(B, phantom, phantom_head):
@@ -178,7 +172,7 @@ def test_front_view_sees_the_face_with_patient_left_on_the_right(B, phantom, pha
     from pdehead_addon import Mesh
     coll = B.objects.study_collection("Phantom")
     surface = B.objects.build_surface(phantom_head, coll, nu=80, nv=120)
-    world = _world_vertices(surface)
+    world = blender_inspect.mesh_world_vertices(surface)
     nose = world[np.argmin(world[:, 1])]
     np.testing.assert_allclose(nose / MM, phantom.params["nose_tip"], atol=8.0)
     left_eye = np.asarray(phantom.params["eye_centres"][1])  # the patient's left eye: LPS x > 0
@@ -186,7 +180,7 @@ def test_front_view_sees_the_face_with_patient_left_on_the_right(B, phantom, pha
     cube = np.array([[x, y, z] for x in (-3, 3) for y in (-3, 3) for z in (-3, 3)], float) + left_eye + [50, 0, 0]
     quads = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]]
     marker = B.objects.build_mesh_object(Mesh(cube, quads), coll, "Left marker")
-    mw = _world_vertices(marker).mean(axis=0)
+    mw = blender_inspect.mesh_world_vertices(marker).mean(axis=0)
     assert mw[0] > world[:, 0].mean() + 0.06  # patient's left = Blender +X
     np.testing.assert_allclose(mw, (left_eye + [50, 0, 0]) * MM, atol=1e-6)
     # all study objects share the origin
@@ -234,7 +228,7 @@ def test_solid_w_attribute_and_ct_colour(B, phantom, phantom_head):
                                 w_range=w_range, ct=ct)
     me = obj.data
     assert len(me.vertices) == len(mesh.vertices) and len(me.polygons) == mesh.face_count
-    w = B.objects.mesh_attribute(obj, "w")
+    w = blender_inspect.mesh_attribute(obj, "w")
     assert me.attributes["w"].domain == "POINT" and me.attributes["w"].data_type == "FLOAT"
     assert w.min() == pytest.approx(0.0, abs=1e-6) and w.max() == pytest.approx(1.0, abs=1e-6)
     np.testing.assert_allclose(w, mesh.vertex_attributes["w"], atol=1e-6)
@@ -242,10 +236,10 @@ def test_solid_w_attribute_and_ct_colour(B, phantom, phantom_head):
     attr = me.color_attributes["ct_intensity"]
     assert attr.domain == "POINT" and attr.data_type == "FLOAT_COLOR"
     assert me.color_attributes.active_color.name == "ct_intensity"
-    rgba = B.objects.mesh_attribute(obj, "ct_intensity")
+    rgba = blender_inspect.mesh_attribute(obj, "ct_intensity")
     np.testing.assert_allclose(rgba[:, 0], rgba[:, 1])
     lo, hi = obj["pdehead_window"]
-    raw = map_coordinates(ct.data, ct.patient_to_index(_world_vertices(obj) / MM).T, order=1, mode="nearest")
+    raw = map_coordinates(ct.data, ct.patient_to_index(blender_inspect.mesh_world_vertices(obj) / MM).T, order=1, mode="nearest")
     expected = np.clip((raw - lo) / (hi - lo), 0, 1)
     np.testing.assert_allclose(rgba[:, 0], expected, atol=2e-3)
     assert 0.0 <= rgba[:, :3].min() and rgba[:, :3].max() <= 1.0
@@ -274,7 +268,7 @@ def test_solid_w_attribute_and_ct_colour(B, phantom, phantom_head):
     # a thinner shell (Fig. 14c): w in [0.8, 1], rebuilt in place
     thin = B.objects.build_solid(phantom_head, coll, nu=40, nv=60, nw=5, v_range=v_range, w_range=(0.8, 1.0),
                                  ct=ct, obj=obj)
-    w = B.objects.mesh_attribute(thin, "w")
+    w = blender_inspect.mesh_attribute(thin, "w")
     assert thin == obj and w.min() == pytest.approx(0.8, abs=1e-6) and w.max() == pytest.approx(1.0, abs=1e-6)
 
 
@@ -296,7 +290,7 @@ def test_solid_texture_is_packed_and_survives_save_and_reopen(B, phantom, phanto
     after = np.empty(len(image.pixels), np.float32)
     image.pixels.foreach_get(after)
     np.testing.assert_allclose(after, before, atol=1.5 / 255)  # packed as 8-bit PNG
-    w = B.objects.mesh_attribute(obj, "w")
+    w = blender_inspect.mesh_attribute(obj, "w")
     assert w.min() == pytest.approx(0.0, abs=1e-6) and w.max() == pytest.approx(1.0, abs=1e-6)
 
 
@@ -312,15 +306,15 @@ def test_live_solid_uses_the_ct_table_and_rewrites_a_same_topology_mesh_in_place
     ranges = dict(u_range=(0.0, 1.0), v_range=(math.pi / 2, 2 * math.pi), w_range=(0.0, 1.0))
     obj = B.objects.build_solid(phantom_head, coll, nu=40, nv=60, nw=5, ct=ct, ct_table=table, **ranges)
     lo, hi = obj["pdehead_window"]
-    rgba = B.objects.mesh_attribute(obj, "ct_intensity")
-    raw = map_coordinates(ct.data, ct.patient_to_index(_world_vertices(obj) / MM).T, order=1, mode="nearest")
+    rgba = blender_inspect.mesh_attribute(obj, "ct_intensity")
+    raw = map_coordinates(ct.data, ct.patient_to_index(blender_inspect.mesh_world_vertices(obj) / MM).T, order=1, mode="nearest")
     err = np.abs(rgba[:, 0] - np.clip((raw - lo) / (hi - lo), 0, 1))
     assert np.median(err) < 0.01 and np.percentile(err, 95) < 0.1 and np.ptp(rgba[:, 0]) > 0.3
     image = obj.material_slots[0].material.node_tree.nodes["CT texture"].image
     _check_texture_matches_ct(obj, image, phantom_head.solid(40, 60, 5, **ranges), phantom_head, ct, (lo, hi))
 
     me = obj.data
-    corners_before = B.objects.mesh_attribute(obj, ".corner_vert").copy()
+    corners_before = blender_inspect.mesh_attribute(obj, ".corner_vert").copy()
 
     def no_refill(*args, **kwargs):
         raise AssertionError("same topology: the mesh must be updated in place")
@@ -329,9 +323,9 @@ def test_live_solid_uses_the_ct_table_and_rewrites_a_same_topology_mesh_in_place
     again = B.objects.build_solid(phantom_head, coll, nu=40, nv=60, nw=5, ct=ct, ct_table=table, obj=obj, **cut)
     assert again == obj and again.data == me
     expected = phantom_head.solid(40, 60, 5, **cut)
-    np.testing.assert_allclose(_world_vertices(obj) / MM, expected.vertices, atol=0.05)
-    np.testing.assert_array_equal(B.objects.mesh_attribute(obj, ".corner_vert"), corners_before)
-    w = B.objects.mesh_attribute(obj, "w")
+    np.testing.assert_allclose(blender_inspect.mesh_world_vertices(obj) / MM, expected.vertices, atol=0.05)
+    np.testing.assert_array_equal(blender_inspect.mesh_attribute(obj, ".corner_vert"), corners_before)
+    w = blender_inspect.mesh_attribute(obj, "w")
     assert w.max() == pytest.approx(0.8, abs=1e-6)
     _check_texture_matches_ct(obj, image, expected, phantom_head, ct, (lo, hi))
     # another resolution is another topology: rebuilt (here refused by the patched refill)

@@ -16,6 +16,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+import blender_inspect  # tests/blender/blender_inspect.py
+
 from panel_recorder import RecordingLayout as _Layout  # noqa: E402
 
 
@@ -35,6 +37,7 @@ def ext(pdehead_ext):
     name = pdehead_ext.__name__
     return SimpleNamespace(engine=sys.modules[name + ".pdehead_addon"], ops=sys.modules[name + ".operators.ops"],
                            state=sys.modules[name + ".operators.state"],
+                           study=sys.modules[name + ".operators.study"],
                            objects=sys.modules[name + ".operators.objects"],
                            volume=sys.modules[name + ".operators.volume"])
 
@@ -48,7 +51,7 @@ def stored_head(ext, coll, controls: bool = False, **pde):
 
 
 def world_mm(ext, obj) -> np.ndarray:
-    return ext.objects.mesh_world_vertices(obj) * 1000.0
+    return blender_inspect.mesh_world_vertices(obj) * 1000.0
 
 
 def check_study(ext, coll, t: int, nu: int, nv: int, nw: int, volume: bool = True):
@@ -181,7 +184,7 @@ def test_live_parameters_after_reopen_without_resegmenting(ext, phantom_blend, m
     s.v_range = (math.pi / 2, 2 * math.pi)
     cut = head.solid(20, 36, 7, (0.0, 1.0), (math.pi / 2, 2 * math.pi), (0.8, 1.0))
     np.testing.assert_allclose(world_mm(ext, solid), cut.vertices, atol=0.05)
-    w = ext.objects.mesh_attribute(solid, "w")
+    w = blender_inspect.mesh_attribute(solid, "w")
     assert w.min() >= 0.8 - 1e-6 and w.max() <= 1.0 + 1e-6
 
     vol = s.volume_object
@@ -240,7 +243,7 @@ def test_modal_pipeline_esc_removes_everything(ext, phantom, monkeypatch):
                               active_object=None, preferences=bpy.context.preferences)
     reports = []
     op_cls = ext.ops.PDEHEAD_OT_run_pipeline
-    op = SimpleNamespace(_run=ext.ops.PipelineRun(bpy.context, "PHANTOM", settings=dict(patches=4, nu=16, nv=24)),
+    op = SimpleNamespace(_run=ext.study.PipelineRun(bpy.context, "PHANTOM", settings=dict(patches=4, nu=16, nv=24)),
                          _timer=object(), report=lambda kind, msg: reports.append((kind, msg)))
     op._end_ui = lambda ctx: op_cls._end_ui(op, ctx)
     op.cancel = lambda ctx: op_cls.cancel(op, ctx)
@@ -334,7 +337,7 @@ def test_invoking_an_operator_starts_from_the_study_settings_and_running_stores_
 
     coll = open_blend(phantom_blend)
     s = coll.pdehead
-    with ext.ops.props.suspended_updates():
+    with ext.state.suspended_updates():
         s.nu, s.nv, s.caps = 24, 36, False
     op_class = ext.ops.PDEHEAD_OT_reconstruct_surface
     fake = SimpleNamespace(study="", nu=0, nv=0, caps=True, continuity="c2", dome=True, smoothing_auto=True,

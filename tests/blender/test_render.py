@@ -11,6 +11,8 @@ import shutil
 import numpy as np
 import pytest
 
+import blender_inspect  # tests/blender/blender_inspect.py
+
 MM = 0.001
 
 
@@ -69,7 +71,7 @@ def B_render_read(path):
 def test_front_render_shows_the_face_with_the_patients_left_on_the_right(B, phantom, phantom_head, tmp_path):
     coll = B.objects.study_collection("Phantom")
     surface = B.objects.build_surface(phantom_head, coll, nu=60, nv=90)
-    world_mm = B.objects.mesh_world_vertices(surface) / MM
+    world_mm = blender_inspect.mesh_world_vertices(surface) / MM
     left = np.array([world_mm[:, 0].max() + 12.0, world_mm[:, 1].mean(), 0.0])  # beside the patient's left side
     front = np.asarray(phantom.params["nose_tip"]) + [0.0, -10.0, 25.0]         # in front of the face
     red = _marker(B, coll, "left marker", left, (1.0, 0.0, 0.0))
@@ -77,7 +79,7 @@ def test_front_render_shows_the_face_with_the_patients_left_on_the_right(B, phan
     objs = [surface, red, green]
     png = _keep(B.render.render_objects_png(objs, tmp_path / "front.png", "FRONT", (128, 128), 16),
                 "phantom_surface_front.png")
-    stats = B.render.image_stats(png)
+    stats = blender_inspect.image_stats(png)
     assert (stats["width"], stats["height"]) == (128, 128)
     assert 0.05 < stats["foreground_fraction"] < 0.8 and stats["std"] > 0.05
     assert abs(stats["centroid"][0] - 0.5) < 0.1  # the head is centred
@@ -109,8 +111,8 @@ def test_render_restores_the_scene(B, phantom_head, tmp_path):
     world = scene.world
     counts = {k: len(getattr(bpy.data, k)) for k in ("objects", "cameras", "lights", "worlds", "materials")}
     png = B.render.render_objects_png([surface], tmp_path / "s.png", "THREE_QUARTER", (96, 96), 8, transparent=True)
-    stats = B.render.image_stats(png)
-    assert B.render.read_png(png).shape == (96, 96, 4)
+    stats = blender_inspect.image_stats(png)
+    assert blender_inspect.read_png(png).shape == (96, 96, 4)
     assert 0.05 < stats["foreground_fraction"] < 0.8  # from alpha
     assert scene.camera == user_cam and scene.render.engine == B.compat.eevee_engine() and scene.world == world
     assert (scene.render.resolution_x, scene.render.resolution_y, scene.cycles.samples) == (1920, 1080, 77)
@@ -122,7 +124,7 @@ def test_render_restores_the_scene(B, phantom_head, tmp_path):
 
 def _silhouette(B, objs, bounds, path, resolution):
     png = B.render.render_objects_png(objs, path, "FRONT", resolution, 4, transparent=True, bounds=bounds)
-    return B.render.image_stats(png)["mask"]
+    return blender_inspect.image_stats(png)["mask"]
 
 
 def _dilate(mask, r):
@@ -144,8 +146,8 @@ def _compare_eq24_and_baseline(B, ct, head, wfield, tmp_path, tag, view="FRONT",
     _keep(B.render.render_objects_png([vol], tmp_path / "skin.png", view, **kw), f"{tag}_volume_eq24_skin.png")
     head_mask = B.render.render_objects_png([surface], tmp_path / "sil.png", view, res, 4, transparent=True,
                                             bounds=bounds)
-    head_mask = _dilate(B.render.image_stats(head_mask)["mask"], 3)
-    s24, sint = B.render.image_stats(eq24), B.render.image_stats(base)
+    head_mask = _dilate(blender_inspect.image_stats(head_mask)["mask"], 3)
+    s24, sint = blender_inspect.image_stats(eq24), blender_inspect.image_stats(base)
     for s in (s24, sint):
         assert 0.05 < s["foreground_fraction"] < 0.8 and s["std"] > 0.03
     diff = np.abs(B_render_read(eq24) - B_render_read(base)).mean()
@@ -174,7 +176,7 @@ def test_cthead_surface_and_volume_renders(B, cthead_ct, cthead_head, tmp_path):
     for view in ("FRONT", "LEFT"):
         png = _keep(B.render.render_objects_png([surface], tmp_path / f"{view}.png", view, (160, 160), 16),
                     f"cthead_surface_{view.lower()}.png")
-        stats = B.render.image_stats(png)
+        stats = blender_inspect.image_stats(png)
         assert 0.05 < stats["foreground_fraction"] < 0.8 and stats["std"] > 0.05
     wfield = cthead_head.w_field(3.0, ct=cthead_ct)
     _compare_eq24_and_baseline(B, cthead_ct, cthead_head, wfield, tmp_path, "cthead", view="LEFT")

@@ -26,6 +26,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import blender_inspect  # tests/blender/blender_inspect.py
+
+import vdb_read  # tests/blender/vdb_read.py
+
 ROOT = Path(__file__).resolve().parents[2]
 EXTENSION_MODULE = "bl_ext.user_default.pdehead"
 
@@ -33,26 +37,27 @@ KEEP = os.environ.get("PDEHEAD_KEEP_RENDERS")
 
 # Runs in a fresh interpreter: registers PDE Head (zip or source), opens the file, rebuilds.
 PHASE_B = r'''
-import json, sys, importlib, importlib.util
+import json, sys, importlib
 from pathlib import Path
 import numpy as np
 import bpy
 args = json.loads(sys.argv[1])
+sys.path.insert(0, str(Path(args["root"]) / "tests" / "blender"))  # the tests' readers
+import blender_inspect, vdb_read
 if args["layout"] == "zip":
     assert bpy.ops.extensions.package_install_files(filepath=args["zip"], repo="user_default",
                                                      enable_on_install=True) == {"FINISHED"}
     pkg = importlib.import_module(args["module"])
 else:
-    root = Path(args["root"])
-    spec = importlib.util.spec_from_file_location("pdehead_dev", root / "__init__.py",
-                                                  submodule_search_locations=[str(root)])
-    pkg = importlib.util.module_from_spec(spec); sys.modules["pdehead_dev"] = pkg; spec.loader.exec_module(pkg)
-    pkg.register()
+    sys.path.insert(0, str(Path(args["root"]) / "scripts"))
+    import _common  # the dev shim of the CLI and the benchmarks (registers; unregisters at exit)
+    pkg = _common.load_addon(register=True)
 name = pkg.__name__
-# the bpy 4.2 / 4.5 modules crash / hang at exit with add-on classes still registered
-sys.modules[name + ".operators.compat"].unregister_at_exit(
-    pkg.unregister if args["layout"] != "zip" else lambda: __import__("addon_utils").disable(name, default_set=False))
+if args["layout"] == "zip":  # the bpy 4.2 / 4.5 modules crash / hang at exit with add-on classes still registered
+    sys.modules[name + ".operators.compat"].unregister_at_exit(
+        lambda: __import__("addon_utils").disable(name, default_set=False))
 state = sys.modules[name + ".operators.state"]
+study = sys.modules[name + ".operators.study"]
 objects = sys.modules[name + ".operators.objects"]
 volume = sys.modules[name + ".operators.volume"]
 render = sys.modules[name + ".operators.render"]
@@ -68,13 +73,13 @@ def atlas_pixels(solid):
 saved_pixels = atlas_pixels(s.solid_object)  # the packed atlas as saved (after the live cutaway)
 assert bpy.ops.pdehead.build_solid() == {"FINISHED"}
 solid = s.solid_object
-np.savez(args["out"] + "_solid.npz", colour=objects.mesh_attribute(solid, objects.CT_COLOUR_ATTRIBUTE),
-         pixels=atlas_pixels(solid), saved_pixels=saved_pixels, vertices=objects.mesh_world_vertices(solid))
+np.savez(args["out"] + "_solid.npz", colour=blender_inspect.mesh_attribute(solid, objects.CT_COLOUR_ATTRIBUTE),
+         pixels=atlas_pixels(solid), saved_pixels=saved_pixels, vertices=blender_inspect.mesh_world_vertices(solid))
 if args.get("volume"):
     assert bpy.ops.pdehead.build_volume() == {"FINISHED"}
     out["vdb_after"] = bpy.path.abspath(s.volume_object.data.filepath)
     if volume.compat.has_openvdb():  # bpy 4.2 cannot read .vdb files back (its volumes: operators/vdb_writer.py)
-        ct, lo = volume.read_vdb_array(out["vdb_after"], "ct")
+        ct, lo = vdb_read.read_vdb_array(out["vdb_after"], "ct")
         np.save(args["out"] + "_ct.npy", ct)
         out["ct_lo"] = lo
     render.render_objects_png([s.volume_object], args["out"] + "_volume.png", view="FRONT", resolution=(128, 128),
@@ -104,14 +109,14 @@ def _solid_arrays(ext, solid):
     image = solid.data.materials[0].node_tree.nodes["CT texture"].image
     pixels = np.empty(len(image.pixels), np.float32)
     image.pixels.foreach_get(pixels)
-    return ext.objects.mesh_attribute(solid, ext.objects.CT_COLOUR_ATTRIBUTE).copy(), pixels
+    return blender_inspect.mesh_attribute(solid, ext.objects.CT_COLOUR_ATTRIBUTE).copy(), pixels
 
 
 @pytest.fixture()
 def ext(pdehead_ext):
     from types import SimpleNamespace
     name = pdehead_ext.__name__
-    return SimpleNamespace(**{m: sys.modules[f"{name}.operators.{m}"] for m in ("ops", "state", "objects", "volume")})
+    return SimpleNamespace(**{m: sys.modules[f"{name}.operators.{m}"] for m in ("ops", "state", "study", "objects", "volume")})
 
 
 def test_reopen_in_a_new_process_rereads_the_ct_and_loses_nothing(ext, pdehead_ext, extension_zip, tmp_path):
@@ -141,7 +146,7 @@ def test_reopen_in_a_new_process_rereads_the_ct_and_loses_nothing(ext, pdehead_e
     temp_vdb = Path(s.volume_object.data.filepath)
     assert temp_vdb.is_absolute() and temp_vdb.parent == unsaved_folder.resolve() and temp_vdb.is_file()
     can_read_vdb = ext.volume.compat.has_openvdb()  # bpy 4.2: no OpenVDB bindings to read files back
-    ct_before, lo_before = ext.volume.read_vdb_array(temp_vdb, "ct") if can_read_vdb else (None, None)
+    ct_before, lo_before = vdb_read.read_vdb_array(temp_vdb, "ct") if can_read_vdb else (None, None)
 
     blend = project / "study.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
@@ -182,9 +187,8 @@ def test_reopen_in_a_new_process_rereads_the_ct_and_loses_nothing(ext, pdehead_e
         assert np.mean(np.abs(ct_after - ct_before) > 1e-3) < 1e-4
         assert ct_after.max() > 0.9 and (ct_after > 0.1).mean() > 0.05  # a real CT, not an empty grid
 
-    render_mod = sys.modules[pdehead_ext.__name__ + ".operators.render"]
-    vol_stats = render_mod.image_stats(tmp_path / "zip_volume.png")
-    solid_stats = render_mod.image_stats(tmp_path / "zip_solid.png")
+    vol_stats = blender_inspect.image_stats(tmp_path / "zip_volume.png")
+    solid_stats = blender_inspect.image_stats(tmp_path / "zip_solid.png")
     assert 0.1 < vol_stats["foreground_fraction"] < 0.9 and vol_stats["foreground_mean"] > 0.1
     assert 0.1 < solid_stats["foreground_fraction"] < 0.9 and solid_stats["std"] > 0.05
     if KEEP:
@@ -229,8 +233,8 @@ def test_a_different_ct_at_the_source_is_refused(ext, tmp_path):
     s.source_absolute = ""
     ext.state.drop_cache()
     with pytest.raises(Exception, match="source is gone"):
-        ext.state.require_ct(coll)
+        ext.study.require_ct(coll)
     s.source_kind = "PHANTOM"
     s.dimensions = (10, 10, 10)
     with pytest.raises(Exception, match="refusing to mix"):
-        ext.state.require_ct(coll)
+        ext.study.require_ct(coll)

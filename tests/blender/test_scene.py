@@ -12,6 +12,8 @@ import sys
 import numpy as np
 import pytest
 
+import blender_inspect  # tests/blender/blender_inspect.py
+
 
 @pytest.fixture()
 def mods(pdehead_ext):
@@ -64,12 +66,12 @@ def test_pipeline_in_the_startup_scene_frames_the_face_and_f12_renders_it(mods, 
     if os.environ.get("PDEHEAD_KEEP_RENDERS"):
         os.makedirs(os.environ["PDEHEAD_KEEP_RENDERS"], exist_ok=True)
         shutil.copy(png, os.path.join(os.environ["PDEHEAD_KEEP_RENDERS"], "scene_f12.png"))
-    stats = mods.render.image_stats(png)
+    stats = blender_inspect.image_stats(png)
     # the head fills the middle of the frame (not the cube, which would fill all of it), skin-coloured
     assert 0.25 < stats["foreground_fraction"] < 0.8, stats["foreground_fraction"]
     cx, cy = stats["centroid"]
     assert abs(cx - 0.5) < 0.08 and abs(cy - 0.5) < 0.12
-    img = mods.render.read_png(png)
+    img = blender_inspect.read_png(png)
     fg = img[stats["mask"]][:, :3]
     assert fg[:, 0].mean() > fg[:, 2].mean() + 0.05  # warm skin, lit
     x0, y0, x1, y1 = stats["bbox"]

@@ -16,6 +16,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+import blender_inspect  # tests/blender/blender_inspect.py
+
 from panel_recorder import RecordingLayout as _Layout  # noqa: E402
 
 ALL_OPERATORS = ("segment", "extract_boundaries", "reconstruct_surface", "build_solid", "build_volume",
@@ -26,7 +28,7 @@ ALL_OPERATORS = ("segment", "extract_boundaries", "reconstruct_surface", "build_
 def mods(pdehead_ext):
     name = pdehead_ext.__name__
     return SimpleNamespace(**{m: sys.modules[f"{name}.operators.{m}"]
-                              for m in ("state", "volume", "objects", "panel", "cutter")})
+                              for m in ("state", "study", "volume", "objects", "panel", "cutter")})
 
 
 
@@ -94,7 +96,7 @@ def test_undo_restores_the_study_and_every_operator_works_after_it(mods, tmp_pat
     bpy.ops.ed.undo_push(message="after")
     assert bpy.ops.ed.undo() == {'FINISHED'}
     coll, s = _study(mods, name)
-    assert s.solid_object is not None and mods.state.pde_head(coll) is not None
+    assert s.solid_object is not None and mods.study.pde_head(coll) is not None
 
 
 def test_two_studies_after_reopening_each_operator_acts_on_its_own_study(mods, tmp_path):
@@ -110,11 +112,11 @@ def test_two_studies_after_reopening_each_operator_acts_on_its_own_study(mods, t
     mods.state.drop_cache()  # as in a new session
 
     first, second = (_study(mods, n) for n in names)
-    before = mods.objects.mesh_world_vertices(second[1].solid_object).copy()
+    before = blender_inspect.mesh_world_vertices(second[1].solid_object).copy()
     vdb_second = second[1].volume_object.data.filepath
     assert bpy.ops.pdehead.build_solid(study=names[0], nw=5) == {'FINISHED'}
     assert first[1].nw == 5 and second[1].nw == 3
-    np.testing.assert_array_equal(mods.objects.mesh_world_vertices(second[1].solid_object), before)
+    np.testing.assert_array_equal(blender_inspect.mesh_world_vertices(second[1].solid_object), before)
     run_every_operator(mods, names[0])
     assert second[1].volume_object.data.filepath == vdb_second  # the other study's volume is untouched
     assert mods.cutter.cutter_of(second[0]) is None

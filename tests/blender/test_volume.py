@@ -1,4 +1,4 @@
-"""The VDB volume and its eq. 24 material (operators/volume.py).
+"""The VDB volume and its eq. 24 material (operators/volume.py; its windowing and grids: tests/test_ct_volume.py).
 
 - the .vdb grids and their index -> world transform (numpy [z, y, x] vs OpenVDB (x, y, z)),
 - the Volume object of the phantom's w-field lining up with the PDE surface,
@@ -16,29 +16,20 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+import blender_inspect  # tests/blender/blender_inspect.py
+
+from pdehead_addon import OUTSIDE_W
+from pdehead_addon import defaults as D
+from pdehead_addon.ct_volume import HEAD_MARGIN_MM, head_mask_on_grid
+
+import vdb_read  # tests/blender/vdb_read.py
+
 MM = 0.001
 
 
 @pytest.fixture(scope="module")
 def phantom_wfield(phantom_head, phantom):
     return phantom_head.w_field(3.0, ct=phantom.ct)
-
-
-# ----------------------------------------------------------------------------- windowing
-def test_intensity_window_presets(B):
-    rng = np.random.default_rng(1)
-    values = np.concatenate([rng.normal(20, 10, 50_000), rng.normal(1050, 40, 30_000), rng.normal(2200, 200, 5000)])
-    lo, hi = B.volume.intensity_window(values)
-    np.testing.assert_allclose((lo, hi), np.percentile(values, [1.0, 99.5]), rtol=1e-6)
-    assert B.volume.intensity_window(values, "full") == (pytest.approx(values.min()), pytest.approx(values.max()))
-    assert B.volume.intensity_window(values, (-100, 300)) == (-100.0, 300.0)
-    with pytest.raises(ValueError):
-        B.volume.intensity_window(values, (5, 5))
-    with pytest.raises(ValueError):
-        B.volume.intensity_window(values, "bone-ish")
-    out = B.volume.apply_window(np.array([-1e4, lo, 0.5 * (lo + hi), hi, 1e5, np.nan]), (lo, hi))
-    np.testing.assert_allclose(out, [0, 0, 0.5, 1, 1, 0], atol=1e-6)
-    assert out.dtype == np.float32
 
 
 # ----------------------------------------------------------------------------- the .vdb file
@@ -73,9 +64,9 @@ def test_write_vdb_grids_values_and_transform(B, tmp_path):
     origin_m = np.array([0.01, -0.02, 0.03])
     path = B.volume.write_vdb(wf, tmp_path / "sub" / "t.vdb", window, ct=ct, origin_m=origin_m)
     assert path.is_file()
-    info = B.volume.read_vdb_grids(path)
+    info = vdb_read.read_vdb_grids(path)
     assert set(info) == {"w", "intensity", "ct"}
-    assert info["w"]["background"] == B.volume.OUTSIDE_BACKGROUND == 2.0
+    assert info["w"]["background"] == OUTSIDE_W == 2.0
     assert info["intensity"]["background"] == 0.0
     nz, ny, nx = wf.w.shape
     # w: voxels of column i = 0 are outside -> inactive; box spans i 1..nx-1, all j, all k
@@ -91,9 +82,9 @@ def test_write_vdb_grids_values_and_transform(B, tmp_path):
     np.testing.assert_allclose(info["w"]["origin"] + origin_m, wf.origin * MM, atol=1e-9)
     # known voxels: OpenVDB (i, j, k) holds numpy [k, j, i]
     for k, j, i in [(0, 0, 1), (5, 6, 8), (2, 3, 4), (4, 1, 7), (3, 5, 0)]:
-        assert B.volume.vdb_value(path, "w", (i, j, k)) == pytest.approx(float(wf.w[k, j, i]), abs=1e-6)
-        inten = B.volume.vdb_value(path, "intensity", (i, j, k))
-        ctv = B.volume.vdb_value(path, "ct", (i, j, k))
+        assert vdb_read.vdb_value(path, "w", (i, j, k)) == pytest.approx(float(wf.w[k, j, i]), abs=1e-6)
+        inten = vdb_read.vdb_value(path, "intensity", (i, j, k))
+        ctv = vdb_read.vdb_value(path, "ct", (i, j, k))
         if wf.w[k, j, i] <= 1:  # display grids are stored as half floats: 1e-3 is their precision in [0, 1]
             assert inten == pytest.approx(min(1.0, wf.intensity[k, j, i] / 900.0), abs=1e-3)
         else:
@@ -112,13 +103,13 @@ def test_ct_grid_covers_the_whole_ct_box_on_its_own_grid(B, tmp_path):
     ct = CTVolume(fine, (0.5, 0.3, 0.3), origin=(-125.0, 25.0, 50.0))   # finer: decimated by (2, 3, 3)
     origin_m = np.array([0.002, 0.004, -0.001])
     path = B.volume.write_vdb(wf, tmp_path / "r.vdb", (0.0, 400.0), ct=ct, origin_m=origin_m)
-    info = B.volume.read_vdb_grids(path)
+    info = vdb_read.read_vdb_grids(path)
     np.testing.assert_allclose(info["ct"]["axes"], np.diag([0.9, 0.9, 1.0]) * MM, atol=1e-12)
     # blocks of 2 slices average slices 2k-1, 2k: their centre is half a slice below slice 2k
     np.testing.assert_allclose(info["ct"]["origin"] + origin_m, (ct.origin + [0, 0, -0.25]) * MM, atol=1e-12)
     # the CT's own (decimated) grid: ceil(50/3) x ceil(40/3) x 30/2 voxels, kept only within
     # HEAD_MARGIN_MM of the solid (no air box outline, no scanner table in the intensity mode)
-    mask = B.volume.head_mask_on_grid(wf, (15, 14, 17), (1.0, 0.9, 0.9), ct.origin + [0, 0, -0.25], np.eye(3))
+    mask = head_mask_on_grid(wf, (15, 14, 17), (1.0, 0.9, 0.9), ct.origin + [0, 0, -0.25], np.eye(3))
     assert 0.2 < mask.mean() < 0.95  # both kept and masked voxels: a real check
     kk, jj, ii = np.nonzero(mask)
     assert tuple(info["ct"]["active_box"][1]) == (ii.max(), jj.max(), kk.max())
@@ -128,7 +119,7 @@ def test_ct_grid_covers_the_whole_ct_box_on_its_own_grid(B, tmp_path):
     for k, j, i in [*kept[::max(1, len(kept) // 5)], *masked[::max(1, len(masked) // 4)], (1, 1, 1), (12, 2, 10)]:
         # block mean of a linear ramp = the ramp at the block centre (x: 3i-1 .. 3i+1, z: 2k-1 .. 2k)
         expected = (3.0 * 3 * i + 2.0 * 3 * j + 1.0 * (2 * k - 0.5)) / 400.0 if mask[k, j, i] else 0.0
-        assert B.volume.vdb_value(path, "ct", (int(i), int(j), int(k))) == pytest.approx(min(1.0, expected), abs=2e-3)
+        assert vdb_read.vdb_value(path, "ct", (int(i), int(j), int(k))) == pytest.approx(min(1.0, expected), abs=2e-3)
 
 
 # ----------------------------------------------------------------------------- the Volume object
@@ -152,16 +143,16 @@ def test_volume_object_lines_up_with_the_surface(B, phantom, phantom_head, phant
     np.testing.assert_allclose(to_world, expected, atol=1e-7)
     _needs_openvdb(B)
     # the active w voxels (the solid) cover the same box as the surface mesh, to a voxel
-    info = B.volume.read_vdb_grids(bpy.path.abspath(vol.data.filepath))
+    info = vdb_read.read_vdb_grids(bpy.path.abspath(vol.data.filepath))
     (i0, j0, k0), (i1, j1, k1) = info["w"]["active_box"]
     box = np.array([[i, j, k, 1.0] for i in (i0, i1) for j in (j0, j1) for k in (k0, k1)]) @ to_world.T
-    surf_world = B.objects.mesh_world_vertices(surface)
+    surf_world = blender_inspect.mesh_world_vertices(surface)
     voxel = max(wf.spacing) * MM
     np.testing.assert_allclose(box[:, :3].min(0), surf_world.min(0), atol=1.5 * voxel)
     np.testing.assert_allclose(box[:, :3].max(0), surf_world.max(0), atol=1.5 * voxel)
     # a voxel deep inside: the file holds the engine's w at the world position of that voxel
     k, j, i = np.argwhere(inside)[len(np.argwhere(inside)) // 2]
-    assert B.volume.vdb_value(bpy.path.abspath(vol.data.filepath), "w", (i, j, k)) == pytest.approx(
+    assert vdb_read.vdb_value(bpy.path.abspath(vol.data.filepath), "w", (i, j, k)) == pytest.approx(
         float(wf.w[k, j, i]), abs=1e-6)
     # render framing: the solid's box in eq. 24 mode; in intensity-alpha mode the CT kept around the head
     # (HEAD_MARGIN_MM around the solid: no air box outline, no table)
@@ -171,7 +162,7 @@ def test_volume_object_lines_up_with_the_surface(B, phantom, phantom_head, phant
     B.volume.set_volume_settings(vol, alpha_mode="INTENSITY")
     lo, hi = B.render.world_bounds([vol])
     ct_lo, ct_hi = (np.asarray(b) * MM for b in phantom.ct.bounds())
-    margin = B.volume.HEAD_MARGIN_MM * MM
+    margin = HEAD_MARGIN_MM * MM
     assert np.all(lo <= surf_world.min(0) + voxel) and np.all(hi >= surf_world.max(0) - voxel)
     leaf = 8 * 4.0 * MM  # Blender's volume bounds follow OpenVDB leaf nodes: 8 voxels of the ~4 mm ct grid
     assert np.all(lo >= ct_lo - leaf) and np.all(hi <= ct_hi + leaf)
@@ -302,7 +293,7 @@ def test_eq24_density_computed_in_nodes_and_never_negative(B):
             assert ev.output("Emission Strength") == pytest.approx(10.0 * alpha, abs=1e-9)
             assert ev.output("Value") == pytest.approx(0.4)
     # the outside value written to the file gives exactly zero density
-    ev = _Evaluator(g, dict(base, W=B.volume.OUTSIDE_BACKGROUND, **{"Low Alpha": 0.1, "High Alpha": 0.9,
+    ev = _Evaluator(g, dict(base, W=OUTSIDE_W, **{"Low Alpha": 0.1, "High Alpha": 0.9,
                                                                      "Density": 20.0, "Intensity Alpha": 0.0}))
     assert ev.output("Density") == 0.0
     # intensity-alpha baseline: alpha = CT everywhere (also outside the solid), colour from the CT
@@ -456,7 +447,7 @@ def test_auto_voxel_size_follows_the_ct_spacing_within_the_budgets(B, phantom, p
     size = B.volume.auto_voxel_size(phantom.ct, phantom_head)
     assert size >= min(phantom.ct.spacing) - 1e-9
     nbytes, voxels = B.volume.estimate_vdb(phantom.ct, box, size)
-    assert nbytes <= B.volume.MAX_VDB_BYTES and voxels <= B.volume.MAX_WFIELD_VOXELS
+    assert nbytes <= D.MAX_VDB_BYTES.default and voxels <= D.MAX_WFIELD_VOXELS.default
     # a much finer CT over the same box is coarsened only as far as the budgets need
     fine = CTVolume(np.zeros((4, 4, 4), np.float32), (0.3, 0.3, 0.3), origin=phantom.ct.origin)
     fine.data = np.zeros((600, 700, 700), np.float32)[:1, :1, :1]  # spacing matters, not the data

@@ -1,0 +1,502 @@
+"""The forensic toolkit's application layer: skull, depth map, landmarks, pegs, orientation, export.
+
+The steps behind the operators of :mod:`.forensic` (which only read options, call these and
+report), over the engine (:mod:`pdehead_addon.skull`, :mod:`~pdehead_addon.tissue_depth`,
+:mod:`~pdehead_addon.landmarks`, :mod:`~pdehead_addon.export`), as :mod:`.study` is for the skin:
+
+* **skull** segments the bone from the study's CT and builds the skull as a PDE surface by the
+  skin's path (boundary curves -> PDE), plus the marching-cubes bone mesh beside it. The skull's
+  boundary curves are stored in the .blend (like the skin's), the meshes are saved.
+* **depth** (on demand, never on a slider step) writes the per-vertex depth into the skin surface
+  as the POINT attributes ``tissue_depth`` (mm, -1 = no value) and ``tissue_depth_reason`` and
+  gives it a colour-ramp material; the ramp is the legend in the panel.
+* landmarks are empties snapped to the skull; a depth table CSV makes marker pegs along the
+  skull normal.
+* Frankfurt horizontal and mirror are object transforms: the meshes keep patient coordinates
+  (world = LPS x 0.001 before the transform), and each landmark keeps its patient mm.
+"""
+from __future__ import annotations
+
+import base64
+import json
+from pathlib import Path
+
+import numpy as np
+
+import bpy
+
+from ..pdehead_addon import PDEHeadError
+from . import state, study
+from .coords import MM_TO_M
+
+SKULL_BOUNDARY_KEY = "pdehead_skull_boundaries"
+DEPTH_STATS_KEY = "pdehead_depth_stats"
+SKULL_INFO_KEY = "pdehead_skull_info"
+FRANKFURT_KEY = "pdehead_frankfurt"         # 16 floats: the Blender-space transform applied
+BASE_MATRIX_KEY = "pdehead_base_matrix"     # per object: its matrix before the Frankfurt transform
+DEPTH_ATTRIBUTE = "tissue_depth"
+REASON_ATTRIBUTE = "tissue_depth_reason"
+DISPLAY_ATTRIBUTE = "tissue_depth_display"   # shading only (see _display_values)
+VALID_ATTRIBUTE = "tissue_depth_valid"
+DEPTH_MATERIAL = "PDE Head Tissue Depth"
+BONE_MATERIAL = "PDE Head Bone"
+PEG_MATERIAL = "PDE Head Depth Peg"
+LANDMARK_KEY = "pdehead_landmark"
+#: Radius of a marker peg (mm).
+PEG_RADIUS_MM = 1.5
+#: Depth (mm) at the red end of the colour map.
+DEPTH_DISPLAY_MAX_MM = 25.0
+
+
+SKULL_BOUNDARY_KEY = "pdehead_skull_boundaries"
+DEPTH_STATS_KEY = "pdehead_depth_stats"
+SKULL_INFO_KEY = "pdehead_skull_info"
+FRANKFURT_KEY = "pdehead_frankfurt"         # 16 floats: the Blender-space transform applied
+BASE_MATRIX_KEY = "pdehead_base_matrix"     # per object: its matrix before the Frankfurt transform
+DEPTH_ATTRIBUTE = "tissue_depth"
+REASON_ATTRIBUTE = "tissue_depth_reason"
+DISPLAY_ATTRIBUTE = "tissue_depth_display"   # shading only (see _display_values)
+VALID_ATTRIBUTE = "tissue_depth_valid"
+DEPTH_MATERIAL = "PDE Head Tissue Depth"
+BONE_MATERIAL = "PDE Head Bone"
+PEG_MATERIAL = "PDE Head Depth Peg"
+LANDMARK_KEY = "pdehead_landmark"
+#: Radius of a marker peg (mm).
+PEG_RADIUS_MM = 1.5
+#: Depth (mm) at the red end of the colour map.
+DEPTH_DISPLAY_MAX_MM = 25.0
+
+
+# ------------------------------------------------------------------------------------------ helpers
+def _sub_collection(coll, suffix: str):
+    name = f"{coll.name} {suffix}"
+    sub = bpy.data.collections.get(name)
+    if sub is None:
+        sub = bpy.data.collections.new(name)
+    if sub.name not in coll.children:
+        coll.children.link(sub)
+    return sub
+
+
+def _cache(coll):
+    return state.cache_for(state.settings(coll).study_id).forensic
+
+
+def _obj(coll, key):
+    obj = coll.get(key)
+    return obj if isinstance(obj, bpy.types.Object) and obj.name in bpy.data.objects else None
+
+
+def _material(name: str, colour):
+    mat = bpy.data.materials.get(name)
+    if mat is None:
+        mat = bpy.data.materials.new(name)
+        if mat.node_tree is None:
+            mat.use_nodes = True
+        bsdf = mat.node_tree.nodes.get("Principled BSDF")
+        bsdf.inputs["Base Color"].default_value = colour
+        bsdf.inputs["Roughness"].default_value = 0.6
+        mat.diffuse_color = colour
+    return mat
+
+
+def _set_material(obj, mat) -> None:
+    if obj.data.materials:
+        obj.data.materials[0] = mat
+    else:
+        obj.data.materials.append(mat)
+
+
+def depth_material():
+    """Attribute ``tissue_depth_display`` -> Map Range (0..DEPTH_DISPLAY_MAX_MM) -> Color Ramp; grey where
+    ``tissue_depth_valid`` < 0.5 (no value)."""
+    mat = bpy.data.materials.get(DEPTH_MATERIAL)
+    if mat is not None:
+        return mat
+    mat = bpy.data.materials.new(DEPTH_MATERIAL)
+    if mat.node_tree is None:
+        mat.use_nodes = True
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    bsdf = nodes.get("Principled BSDF")
+    bsdf.inputs["Roughness"].default_value = 0.6
+    attr = nodes.new("ShaderNodeAttribute")
+    attr.attribute_name = DISPLAY_ATTRIBUTE
+    attr.attribute_type = 'GEOMETRY'
+    attr.location = (-900, 200)
+    valid_attr = nodes.new("ShaderNodeAttribute")
+    valid_attr.attribute_name = VALID_ATTRIBUTE
+    valid_attr.attribute_type = 'GEOMETRY'
+    valid_attr.location = (-900, -50)
+    rng = nodes.new("ShaderNodeMapRange")
+    rng.name = rng.label = "Depth range"
+    rng.inputs["From Min"].default_value = 0.0
+    rng.inputs["From Max"].default_value = DEPTH_DISPLAY_MAX_MM
+    rng.location = (-700, 200)
+    ramp = nodes.new("ShaderNodeValToRGB")
+    ramp.name = ramp.label = "Depth legend"
+    ramp.location = (-500, 200)
+    els = ramp.color_ramp.elements
+    els[0].position, els[0].color = 0.0, (0.05, 0.15, 0.85, 1.0)     # thin: blue
+    els[1].position, els[1].color = 1.0, (0.85, 0.05, 0.05, 1.0)     # thick: red
+    for pos, col in ((0.25, (0.0, 0.7, 0.9, 1.0)), (0.5, (0.1, 0.8, 0.2, 1.0)), (0.75, (0.95, 0.85, 0.1, 1.0))):
+        e = els.new(pos)
+        e.color = col
+    valid = nodes.new("ShaderNodeMath")
+    valid.operation = 'GREATER_THAN'
+    valid.inputs[1].default_value = 0.5     # grey where the interpolated validity is below one half
+    valid.location = (-500, -50)
+    mix = nodes.new("ShaderNodeMix")
+    mix.data_type = 'RGBA'
+    mix.location = (-250, 100)
+    mix.inputs["A"].default_value = (0.55, 0.55, 0.55, 1.0)         # no value: grey
+    links.new(attr.outputs["Fac"], rng.inputs["Value"])
+    links.new(rng.outputs["Result"], ramp.inputs["Fac"])
+    links.new(valid_attr.outputs["Fac"], valid.inputs[0])
+    links.new(valid.outputs["Value"], mix.inputs["Factor"])
+    links.new(ramp.outputs["Color"], mix.inputs["B"])
+    links.new(mix.outputs["Result"], bsdf.inputs["Base Color"])
+    mat.diffuse_color = (0.3, 0.7, 0.3, 1.0)
+    return mat
+
+
+# ------------------------------------------------------------------------------------------ skull
+def _skull_seg(coll):
+    """The skull segmentation of the study (cached; computed from the CT and the head segmentation)."""
+    from ..pdehead_addon.skull import segment_skull
+
+    extra = _cache(coll)
+    cache = state.cache_for(state.settings(coll).study_id)
+    if cache.seg is None:
+        study.step_segment(coll)
+    if extra.get("skull_seg") is None or extra.get("skull_seg_of") is not cache.seg:
+        # a new head segmentation (or CT) makes the skull and everything measured on it stale
+        extra.update(skull_seg=segment_skull(study.require_ct(coll), cache.seg), skull_seg_of=cache.seg,
+                     bone_mesh=None, depth=None)
+    return extra["skull_seg"]
+
+
+def step_skull(coll, nu: int, nv: int, bone: bool = True, bone_step: int = 1) -> None:
+    """Skull as a PDE surface (same path as the skin) and, optionally, the marching-cubes bone mesh."""
+    from ..pdehead_addon import dumps_boundaries, extract_boundaries, max_patches, solve_pde
+    from ..pdehead_addon.skull import skull_mesh
+    from . import objects
+
+    s = state.settings(coll)
+    extra = _cache(coll)
+    with state.Timer() as t:
+        sk = _skull_seg(coll)
+        limit = max_patches(sk)
+        if limit < 1:
+            raise PDEHeadError(f"study '{coll.name}': the skull has fewer than 4 usable outlines; no PDE skull")
+        patches = min(int(s.patches), limit)
+        bset = extract_boundaries(sk, patches=patches, samples=int(s.samples), selection=s.selection)
+        head = solve_pde(bset)
+        mesh = head.surface(int(nu), int(nv), caps=True)
+    coll[SKULL_BOUNDARY_KEY] = base64.b64encode(dumps_boundaries(bset)).decode("ascii")
+    extra.update(skull_head=head, skull_mesh=mesh, depth=None)
+    obj = objects.build_mesh_object(mesh, coll, f"{coll.name} Skull", obj=_obj(coll, "pdehead_skull_object"))
+    obj["pdehead_kind"] = "skull"
+    _set_material(obj, _material(BONE_MATERIAL, (0.85, 0.82, 0.72, 1.0)))
+    coll["pdehead_skull_object"] = obj
+    info = dict(bone_level=sk.bone_level, calibrated=sk.meta["calibrated"], source=sk.meta["histogram"].get("source"),
+                patches=patches, components=sk.meta["kept_components"], bone_cm3=sk.meta["bone_mm3"] / 1000.0,
+                metal_voxels=sk.meta["metal_voxels"])
+    if bone:
+        bmesh = skull_mesh(sk, step=int(bone_step))
+        extra["bone_mesh"] = bmesh
+        bobj = objects.build_mesh_object(bmesh, coll, f"{coll.name} Bone", obj=_obj(coll, "pdehead_bone_object"),
+                                         smooth=False)
+        bobj["pdehead_kind"] = "bone_mesh"
+        _set_material(bobj, _material(BONE_MATERIAL, (0.85, 0.82, 0.72, 1.0)))
+        coll["pdehead_bone_object"] = bobj
+        info["bone_triangles"] = len(bmesh.triangles)
+    coll[SKULL_INFO_KEY] = json.dumps(info)
+    state.record_timing(coll, "skull", t.seconds)
+
+
+def skull_engine_mesh(coll, target: str = "BONE"):
+    """The skull as an engine Mesh (patient mm): the bone mesh or the PDE skull (rebuilt after reopening)."""
+    from ..pdehead_addon import loads_boundaries, solve_pde
+    from ..pdehead_addon.skull import skull_mesh
+
+    extra = _cache(coll)
+    if target == "BONE":
+        if extra.get("bone_mesh") is None:
+            extra["bone_mesh"] = skull_mesh(_skull_seg(coll))
+        return extra["bone_mesh"]
+    if extra.get("skull_mesh") is None:
+        text = coll.get(SKULL_BOUNDARY_KEY)
+        if not text:
+            raise PDEHeadError(f"study '{coll.name}' has no skull yet: run Build Skull")
+        head = solve_pde(loads_boundaries(base64.b64decode(text)))
+        s = state.settings(coll)
+        extra["skull_head"], extra["skull_mesh"] = head, head.surface(int(s.nu), int(s.nv), caps=True)
+    return extra["skull_mesh"]
+
+
+def skin_engine_mesh(coll):
+    """The PDE skin as an engine Mesh with the surface object's vertex order (same nu, nv, caps)."""
+    s = state.settings(coll)
+    return study.pde_head(coll).surface(int(s.nu), int(s.nv), caps=bool(s.caps))
+
+
+# ------------------------------------------------------------------------------------------ depth
+def step_depth(coll, target: str = "BONE", max_depth_mm: float = 40.0) -> dict:
+    """Tissue depth of the skin surface against the skull; stored on the surface object; returns stats."""
+    from ..pdehead_addon.tissue_depth import tissue_depth
+
+    s = state.settings(coll)
+    if s.surface_object is None:
+        study.step_surface(coll)
+    obj = s.surface_object
+    skin = skin_engine_mesh(coll)
+    if len(skin.vertices) != len(obj.data.vertices):  # the surface was edited or built otherwise
+        study.step_surface(coll)
+        obj = s.surface_object
+    with state.Timer() as t:
+        res = tissue_depth(skin, skull_engine_mesh(coll, target), envelope=_skull_seg(coll),
+                           max_depth_mm=float(max_depth_mm))
+    me = obj.data
+    valid = np.isfinite(res.depth)
+    for name, kind, values in ((DEPTH_ATTRIBUTE, 'FLOAT', np.where(valid, res.depth, -1.0)),
+                               (DISPLAY_ATTRIBUTE, 'FLOAT', _display_values(skin, res.depth)),
+                               (VALID_ATTRIBUTE, 'FLOAT', valid.astype(np.float32)),
+                               (REASON_ATTRIBUTE, 'INT', res.reason.astype(np.int32))):
+        if name in me.attributes:
+            me.attributes.remove(me.attributes[name])
+        attr = me.attributes.new(name, kind, 'POINT')
+        attr.data.foreach_set("value", np.ascontiguousarray(values, np.float32 if kind == 'FLOAT' else np.int32))
+    _set_material(obj, depth_material())
+    stats = res.statistics()
+    stats.update(target=target, max_depth_mm=float(max_depth_mm), seconds=round(t.seconds, 2))
+    coll[DEPTH_STATS_KEY] = json.dumps(stats)
+    _cache(coll)["depth"] = res
+    state.record_timing(coll, "depth", t.seconds)
+    return stats
+
+
+def _display_values(mesh, depth: np.ndarray, passes: int = 4) -> np.ndarray:
+    """Depth for shading: vertices without a value take the mean of their measured neighbours.
+
+    Shading interpolates between vertices; a stored -1 next to a measured 10 mm would paint every
+    value in between (a blue seam around each grey patch). The grey itself comes from
+    ``tissue_depth_valid``, so these fill-in values are never shown as depths.
+    """
+    out = np.where(np.isfinite(depth), depth, np.nan).astype(np.float64)
+    e = mesh.edges()
+    for _ in range(passes):
+        known = np.isfinite(out)
+        if known.all():
+            break
+        acc = np.zeros(len(out))
+        cnt = np.zeros(len(out))
+        for a, b in ((e[:, 0], e[:, 1]), (e[:, 1], e[:, 0])):
+            k = known[b] & ~known[a]
+            np.add.at(acc, a[k], out[b[k]])
+            np.add.at(cnt, a[k], 1.0)
+        fill = cnt > 0
+        out[fill] = acc[fill] / cnt[fill]
+    return np.nan_to_num(out, nan=0.0).astype(np.float32)
+
+
+def _depth_result(coll):
+    res = _cache(coll).get("depth")
+    if res is None:
+        step_depth(coll)
+        res = _cache(coll)["depth"]
+    return res
+
+
+# ------------------------------------------------------------------------------------------ landmarks
+def blender_matrix(m_mm: np.ndarray):
+    """A patient-mm 4x4 transform as a Blender world (metre) ``mathutils.Matrix``."""
+    from mathutils import Matrix
+    m = np.array(m_mm, float).copy()
+    m[:3, 3] *= MM_TO_M
+    return Matrix(m.tolist())
+
+
+def _frankfurt(coll):
+    from mathutils import Matrix
+    values = coll.get(FRANKFURT_KEY)
+    return Matrix(np.array(values, float).reshape(4, 4).tolist()) if values else Matrix.Identity(4)
+
+
+def world_to_patient(coll, world) -> np.ndarray:
+    """Patient LPS mm of a Blender world point (undoing the study's Frankfurt transform)."""
+    p = _frankfurt(coll).inverted() @ world
+    return np.array(p, float) / MM_TO_M
+
+
+def landmarks(coll) -> dict[str, np.ndarray]:
+    """Placed landmarks of the study: name -> patient mm."""
+    out = {}
+    for obj in coll.all_objects:
+        name = obj.get(LANDMARK_KEY)
+        if name:
+            out[str(name)] = np.array(obj["patient_mm"], float)
+    return out
+
+
+def place_landmark(coll, name: str, patient_mm, target: str = "BONE"):
+    from ..pdehead_addon.landmarks import landmark, snap_to_surface
+
+    d = landmark(name)
+    snapped, normal = snap_to_surface(np.asarray(patient_mm, float)[None], skull_engine_mesh(coll, target))
+    sub = _sub_collection(coll, "Landmarks")
+    obj_name = f"LM {d.name}"
+    obj = next((o for o in sub.objects if o.get(LANDMARK_KEY) == d.name), None)
+    if obj is None:
+        obj = bpy.data.objects.new(obj_name, None)
+        obj.empty_display_type = 'SPHERE'
+        obj.empty_display_size = 2.5 * MM_TO_M
+        sub.objects.link(obj)
+    obj[LANDMARK_KEY] = d.name
+    obj["patient_mm"] = [float(c) for c in snapped[0]]
+    obj["normal"] = [float(c) for c in normal[0]]
+    from mathutils import Matrix, Vector
+    obj.matrix_world = _frankfurt(coll) @ Matrix.Translation(Vector(snapped[0] * MM_TO_M))
+    return obj
+
+
+def _cylinder(base: np.ndarray, direction: np.ndarray, length: float, radius: float = 1.0, n: int = 12):
+    """A closed cylinder Mesh (mm) from ``base`` along ``direction``."""
+    from ..pdehead_addon.mesh import Mesh
+    d = direction / np.linalg.norm(direction)
+    a = np.cross(d, [1.0, 0, 0] if abs(d[0]) < 0.9 else [0, 1.0, 0])
+    a /= np.linalg.norm(a)
+    b = np.cross(d, a)
+    ang = 2 * np.pi * np.arange(n) / n
+    ring = radius * (np.cos(ang)[:, None] * a + np.sin(ang)[:, None] * b)
+    verts = np.concatenate([base + ring, base + length * d + ring, [base, base + length * d]])
+    i = np.arange(n)
+    j = (i + 1) % n
+    quads = np.stack([i, j, n + j, n + i], 1)
+    tris = np.concatenate([np.stack([np.full(n, 2 * n), j, i], 1), np.stack([np.full(n, 2 * n + 1), n + i, n + j], 1)])
+    return Mesh(verts, quads, tris)
+
+
+def make_pegs(coll, table: dict[str, float], target: str = "BONE") -> list:
+    from ..pdehead_addon.landmarks import marker_pegs
+    from . import objects
+
+    lms = landmarks(coll)
+    pegs = marker_pegs(lms, skull_engine_mesh(coll, target), table)
+    if not pegs:
+        raise PDEHeadError(f"none of the placed landmarks ({', '.join(lms) or 'none'}) is in the depth table")
+    sub = _sub_collection(coll, "Pegs")
+    for o in list(sub.objects):
+        bpy.data.objects.remove(o)
+    mat = _material(PEG_MATERIAL, (0.95, 0.45, 0.05, 1.0))
+    bsdf = mat.node_tree.nodes.get("Principled BSDF")
+    bsdf.inputs["Emission Color"].default_value = (0.95, 0.45, 0.05, 1.0)
+    bsdf.inputs["Emission Strength"].default_value = 0.6
+    made = []
+    frank = _frankfurt(coll)
+    for name, base, normal, length in pegs:
+        obj = objects.build_mesh_object(_cylinder(base, normal, length, radius=PEG_RADIUS_MM), sub, f"Peg {name}",
+                                        smooth=False)
+        obj["pdehead_peg"] = name
+        obj["depth_mm"] = float(length)
+        _set_material(obj, mat)
+        obj.matrix_world = frank @ obj.matrix_world
+        made.append(obj)
+    coll["pdehead_depth_table"] = json.dumps(table)
+    return made
+
+
+def apply_frankfurt(coll, reset: bool = False):
+    """Transform every object of the study into the Frankfurt horizontal (or back)."""
+    from ..pdehead_addon.landmarks import frankfurt_transform
+    from mathutils import Matrix
+
+    if reset:
+        m = Matrix.Identity(4)
+    else:
+        lms = landmarks(coll)
+        need = ["Porion L", "Porion R", "Orbitale L", "Orbitale R"]
+        missing = [n for n in need if n not in lms]
+        if missing:
+            raise PDEHeadError(f"the Frankfurt horizontal needs the landmarks {', '.join(missing)}")
+        m = blender_matrix(frankfurt_transform(*(lms[n] for n in need)))
+    for obj in coll.all_objects:
+        if BASE_MATRIX_KEY not in obj.keys():
+            obj[BASE_MATRIX_KEY] = [v for row in obj.matrix_world for v in row]
+        base = Matrix(np.array(obj[BASE_MATRIX_KEY], float).reshape(4, 4).tolist())
+        obj.matrix_world = m @ base
+    coll[FRANKFURT_KEY] = [v for row in m for v in row]
+    return m
+
+
+#: Where the mirror's mid-sagittal plane comes from.
+MIRROR_PLANES = [
+    ('AUTO', "Auto", "The bilateral landmark pairs if any are placed, else the skull's symmetry plane"),
+    ('LANDMARKS', "Landmark Pairs", "Fitted to the bilateral landmark pairs (e.g. Porion L and Porion R)"),
+    ('SKULL', "Skull Symmetry", "The skull's own plane of reflective symmetry (mirror ICP on the bone mesh)"),
+]
+
+
+def mirror_plane(coll, source: str = "AUTO") -> tuple[np.ndarray, np.ndarray, str]:
+    """The mid-sagittal plane (point, normal in patient mm) and a sentence saying where it came from."""
+    from ..pdehead_addon.landmarks import bilateral_pairs, midsagittal_plane, symmetry_plane
+
+    lms = landmarks(coll)
+    pairs = bilateral_pairs(list(lms))
+    if source == "LANDMARKS" or (source == "AUTO" and pairs):
+        if not pairs:
+            raise PDEHeadError("mirroring by landmarks needs at least one bilateral landmark pair "
+                               "(e.g. Porion L and Porion R); or choose Skull Symmetry")
+        point, normal = midsagittal_plane([(lms[a], lms[b]) for a, b in pairs])
+        return point, normal, f"{len(pairs)} landmark pair(s)"
+    if not coll.get("pdehead_bone_object") and not coll.get(SKULL_BOUNDARY_KEY):
+        raise PDEHeadError(f"study '{coll.name}' has neither bilateral landmarks nor a skull: run Build Skull "
+                           "or place a landmark pair")
+    point, normal, info = symmetry_plane(skull_engine_mesh(coll, "BONE" if coll.get("pdehead_bone_object")
+                                                           else "PDE").vertices)
+    if not info["converged"]:
+        raise PDEHeadError("the skull's symmetry plane did not converge: place bilateral landmarks instead")
+    return point, normal, f"skull symmetry (median mirror residual {info['residual_mm']:.1f} mm)"
+
+
+def mirror_object(coll, obj, source: str = "AUTO"):
+    """A linked copy of ``obj`` mirrored across the mid-sagittal plane (:func:`mirror_plane`)."""
+    from ..pdehead_addon.landmarks import mirror_matrix
+
+    point, normal, how = mirror_plane(coll, source)
+    m = _frankfurt(coll) @ blender_matrix(mirror_matrix(point, normal)) @ _frankfurt(coll).inverted()
+    copy = obj.copy()
+    copy.name = f"{obj.name} Mirrored"
+    for c in obj.users_collection[:1]:
+        c.objects.link(copy)
+    copy.matrix_world = m @ obj.matrix_world
+    copy.pop(BASE_MATRIX_KEY, None)
+    return copy, point, normal, how
+
+
+# ------------------------------------------------------------------------------------------ export
+def export_study(coll, directory: str, fmt: str = "stl", bone: bool = False, depth_target: str = "BONE") -> list[str]:
+    """skin.<fmt>, skull.<fmt> (PDE skull), optional bone.<fmt>, tissue_depth.csv in ``directory``."""
+    from ..pdehead_addon.export import export_mesh
+    from ..pdehead_addon.tissue_depth import write_depth_csv
+
+    out = Path(bpy.path.abspath(directory)).resolve()
+    s = state.settings(coll)
+    if s.source_kind == "FILES" and s.source:
+        src = Path(bpy.path.abspath(s.source)).resolve()
+        src_dir = src if src.is_dir() else src.parent
+        if out == src_dir or src_dir in out.parents:
+            raise PDEHeadError(f"{out}: will not write into the CT's input folder; choose another folder")
+    out.mkdir(parents=True, exist_ok=True)
+    head = study.pde_head(coll)
+    skin = head.surface(int(s.nu), int(s.nv), caps=True)
+    written = [export_mesh(skin, out / f"skin.{fmt}", name="skin"),
+               export_mesh(skull_engine_mesh(coll, "PDE"), out / f"skull.{fmt}", name="skull")]
+    if bone:
+        written.append(export_mesh(skull_engine_mesh(coll, "BONE"), out / f"bone.{fmt}", name="bone"))
+    res = _cache(coll).get("depth")
+    if res is None or res.points.shape != skin.vertices.shape or not np.allclose(res.points, skin.vertices):
+        from ..pdehead_addon.tissue_depth import tissue_depth
+        res = tissue_depth(skin, skull_engine_mesh(coll, depth_target), envelope=_skull_seg(coll))
+    write_depth_csv(res, out / "tissue_depth.csv")
+    written.append(str(out / "tissue_depth.csv"))
+    return written

@@ -1,0 +1,162 @@
+"""The CT loader options of the File > Import dialog and of the one-click pipeline (an operator mixin).
+
+:class:`LoaderOptions` holds the operator properties (format, raw shape and type, spacing,
+orientation, downsampling, series) and turns them into the engine's ``load_ct`` keyword
+arguments (:meth:`LoaderOptions.loader_options`).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import bpy
+from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatVectorProperty, IntProperty,
+                       IntVectorProperty, StringProperty)
+from bpy.types import OperatorFileListElement
+
+from ..pdehead_addon import CTImportError
+from ..pdehead_addon import defaults as D
+
+FORMAT_ITEMS = [
+    ("AUTO", "Auto", "Detect DICOM series or numbered 2-D images (TIFF, PNG)"),
+    ("DICOM", "DICOM", "A DICOM series (folder or one of its files)"),
+    ("IMAGES", "Image Stack", "Numbered 2-D images, one slice per file"),
+    ("RAW", "Raw", "Headerless raw slices (give shape, type, byte order, spacing)"),
+]
+DTYPE_ITEMS = [
+    ("i2", "int16", "Signed 16-bit"),
+    ("u2", "uint16", "Unsigned 16-bit"),
+    ("u1", "uint8", "Unsigned 8-bit"),
+    ("i4", "int32", "Signed 32-bit"),
+    ("f4", "float32", "32-bit float"),
+]
+BYTE_ORDER_ITEMS = [("BIG", "Big Endian", "Most significant byte first ('>')"),
+                    ("LITTLE", "Little Endian", "Least significant byte first ('<')")]
+FIRST_SLICE_ITEMS = [("AUTO", "Auto", "From the file headers (DICOM); superior for stacks"),
+                     ("SUPERIOR", "Superior", "The first file is the top of the head"),
+                     ("INFERIOR", "Inferior", "The first file is the bottom (neck)")]
+
+
+def dtype_string(dtype: str, byte_order: str) -> str:
+    """numpy dtype string of the raw options, e.g. ('i2', 'BIG') -> '>i2'."""
+    if dtype == "u1":
+        return "u1"
+    return (">" if byte_order == "BIG" else "<") + dtype
+
+
+def parse_dtype_string(text: str) -> tuple[str, str]:
+    """Inverse of :func:`dtype_string`: '>i2' -> ('i2', 'BIG'); '|u1' / 'uint8' -> ('u1', ...)."""
+    import numpy as np
+    try:
+        dt = np.dtype(text)
+    except TypeError:
+        raise CTImportError(f"unknown data type '{text}' (use e.g. '>i2', '<u2', 'u1', '<f4')") from None
+    code = f"{dt.kind}{dt.itemsize}"
+    if code not in {item[0] for item in DTYPE_ITEMS}:
+        raise CTImportError(f"unsupported raw data type '{text}'")
+    order = "BIG" if dt.byteorder == ">" else "LITTLE"
+    return code, order
+
+
+class LoaderOptions:
+    """Operator properties of the CT loaders (mixed into import_ct and run_pipeline)."""
+
+    directory: StringProperty(name="Folder", subtype="DIR_PATH", options={'HIDDEN', 'SKIP_SAVE'})
+    filepath: StringProperty(name="File Path", subtype="FILE_PATH", options={'HIDDEN', 'SKIP_SAVE'})
+    files: CollectionProperty(type=OperatorFileListElement, options={'HIDDEN', 'SKIP_SAVE'})
+    filter_glob: StringProperty(default="*", options={'HIDDEN'})
+    single_file: BoolProperty(name="Only the Selected File", default=False,
+                              description="Read only the selected file (a single-file volume), "
+                                          "not the whole folder")
+    format: EnumProperty(name="Format", items=FORMAT_ITEMS, default="AUTO")
+    raw_shape: IntVectorProperty(name="Slice Shape", size=2, default=(256, 256), min=1,
+                                 description="Raw slices: rows, columns (ny, nx)")
+    raw_dtype: EnumProperty(name="Data Type", items=DTYPE_ITEMS, default="i2")
+    byte_order: EnumProperty(name="Byte Order", items=BYTE_ORDER_ITEMS, default="BIG")
+    use_spacing: BoolProperty(name="Set Spacing", default=False,
+                              description="Give the voxel size (needed for raw and image stacks "
+                                          "without headers)")
+    spacing: FloatVectorProperty(name="Spacing (dz, dy, dx)", size=3, default=(1.0, 1.0, 1.0), min=1e-3,
+                                 description="Voxel size in mm: slice step, row step, column step")
+    first_slice: EnumProperty(name="First Slice", items=FIRST_SLICE_ITEMS, default="AUTO")
+    orientation: StringProperty(name="Orientation", default="",
+                                description="Raw and image stacks: 3 letters for the patient directions in "
+                                            "which the column, row and file index increase, e.g. LPS (the "
+                                            "default), LAS (row 0 = back of the head), RAS, PIL (sagittal). "
+                                            "Empty: LPS, or LPI when the first slice is superior")
+    units: EnumProperty(name="Units", default="AUTO",
+                        items=[("AUTO", "Auto", "DICOM says its units; raw and images are stored values"),
+                               ("HU", "HU", "The raw or image samples are Hounsfield units (air -1000)")])
+    downsample: IntProperty(name="Downsample", **D.DOWNSAMPLE.limits(), description=D.DOWNSAMPLE.description)
+    series_uid: StringProperty(name="Series UID", default="",
+                               description="DICOM: the SeriesInstanceUID to load when the folder "
+                                           "holds several series (empty: the only/largest one)")
+
+    def input_path(self) -> Path:
+        if self.directory and not self.single_file:
+            path = bpy.path.abspath(self.directory)
+        elif self.filepath:
+            path = bpy.path.abspath(self.filepath)
+        elif self.directory:
+            path = bpy.path.abspath(self.directory)
+        else:
+            raise CTImportError("no file or folder given")
+        path = Path(path)
+        if not path.exists():
+            raise CTImportError("no such file or folder", path)
+        return path
+
+    def loader_options(self) -> dict:
+        options: dict = {}
+        if self.format == "RAW":
+            options.update(format="raw", shape=tuple(int(n) for n in self.raw_shape),
+                           dtype=dtype_string(self.raw_dtype, self.byte_order),
+                           spacing=tuple(float(s) for s in self.spacing))
+            if self.orientation.strip():
+                options["orientation"] = self.orientation.strip().upper()
+            else:
+                options["first_slice"] = "inferior" if self.first_slice == "INFERIOR" else "superior"
+            if self.units == "HU":
+                options["units"] = "HU"
+            if self.downsample > 1:
+                options["downsample"] = int(self.downsample)
+            return options
+        if self.format == "DICOM":
+            options["format"] = "dicom"
+        elif self.format == "IMAGES":
+            options["format"] = "images"
+        if self.use_spacing:
+            options["spacing"] = tuple(float(s) for s in self.spacing)
+        if self.orientation.strip():
+            options["orientation"] = self.orientation.strip().upper()
+        elif self.first_slice != "AUTO":
+            options["first_slice"] = self.first_slice.lower()
+        if self.units == "HU":
+            options["units"] = "HU"
+        if self.downsample > 1:
+            options["downsample"] = int(self.downsample)
+        if self.series_uid.strip():
+            options["series_uid"] = self.series_uid.strip()
+        return options
+
+    def draw_loader_options(self, layout) -> None:
+        layout.prop(self, "format")
+        if self.format == "RAW":
+            layout.prop(self, "raw_shape")
+            layout.prop(self, "raw_dtype")
+            if self.raw_dtype != "u1":
+                layout.prop(self, "byte_order")
+            layout.prop(self, "spacing")
+        else:
+            layout.prop(self, "use_spacing")
+            if self.use_spacing:
+                layout.prop(self, "spacing")
+        layout.prop(self, "first_slice")
+        if self.format in {"AUTO", "IMAGES", "RAW"}:
+            layout.prop(self, "orientation")
+            layout.prop(self, "units")
+        if self.format in {"AUTO", "DICOM"}:
+            layout.prop(self, "series_uid")
+        layout.prop(self, "downsample")
+        layout.prop(self, "single_file")
+
+

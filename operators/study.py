@@ -1,0 +1,627 @@
+"""The application layer: the pipeline steps on a study, live updates, the pipeline run, undo.
+
+Between the thin operators (:mod:`.ops`, :mod:`.forensic`, the update callbacks of
+:mod:`.props`) and the engine (:mod:`pdehead_addon`): every step here reads a study's
+settings (:mod:`.state`), calls the engine's public API and writes the result into Blender
+objects (:mod:`.objects`, :mod:`.volume`, :mod:`.cutter`, :mod:`.scene`). Nothing here
+imports an operator module, so the dependency runs one way::
+
+    ops / forensic / panel / props  ->  study  ->  state / objects / volume / cutter / scene  ->  engine
+
+The step functions (:func:`import_study`, :func:`step_segment`, ...) are plain functions on a
+study collection; the operators, :func:`live_update` and :class:`PipelineRun` share them.
+"""
+from __future__ import annotations
+
+import json
+import re
+import traceback
+from pathlib import Path
+
+import bpy
+import numpy as np
+
+from ..pdehead_addon import PDEHeadError, max_patches
+from . import cutter, objects, prefs, scene, state, volume
+from .state import suspended_updates
+
+STEP_LABELS = {
+    "import": "Import CT",
+    "segment": "Segmentation",
+    "boundaries": "Boundary curves",
+    "surface": "PDE surface",
+    "solid": "PDE solid",
+    "volume": "Volume",
+    "scene": "Camera and light",
+}
+
+
+# ------------------------------------------------------------------------------------------
+# Undo of a failed/cancelled step: remove every datablock created since the snapshot
+
+
+_ROLLBACK_KINDS = ("objects", "collections", "meshes", "curves", "volumes", "materials", "node_groups",
+                   "images", "texts", "cameras", "lights")
+
+
+class Rollback:
+    """Snapshot of the datablocks; :meth:`undo` removes all created after it."""
+
+    def __init__(self):
+        self.before = {kind: {id_.as_pointer() for id_ in getattr(bpy.data, kind)} for kind in _ROLLBACK_KINDS}
+        self.study_ids = set(state.cached_study_ids())
+
+    def created(self, kind: str) -> list:
+        return [id_ for id_ in getattr(bpy.data, kind) if id_.as_pointer() not in self.before[kind]]
+
+    def undo(self) -> None:
+        for coll in self.created("collections"):
+            if state.is_study(coll):
+                state.drop_cache(state.settings(coll).study_id)
+        for kind in _ROLLBACK_KINDS:  # objects first, then their data
+            for id_ in self.created(kind):
+                try:
+                    getattr(bpy.data, kind).remove(id_)
+                except (ReferenceError, RuntimeError):
+                    pass
+        for study_id in set(state.cached_study_ids()) - self.study_ids:
+            state.drop_cache(study_id)
+
+
+# ------------------------------------------------------------------------------------------
+# The engine results of a study, cached in memory (state.StudyCache)
+
+
+def pde_head(collection):
+    """The solved PDE head for the study's current controls (cached, re-solved on change)."""
+    from ..pdehead_addon import solve_with_controls
+    s = state.settings(collection)
+    cache = state.cache_for(s.study_id)
+    key = state.pde_key(collection)
+    if cache.head is None or cache.head_key != key:
+        bset = state.boundary_set(collection)
+        if bset is None:
+            raise PDEHeadError(f"study '{collection.name}' has no boundary curves yet: run Extract Boundaries")
+        cont, smoothing, approximation, modes, dome = key
+        cache.head = solve_with_controls(bset, cont, smoothing=smoothing, approximation=approximation,
+                                         modes=modes, dome=dome)
+        cache.head_key = key
+        cache.wfield = None
+    return cache.head
+
+
+def default_controls(collection) -> tuple[float, float]:
+    """The solver's default smoothing and approximation as fractions of the study's maxima (the
+    values a slider starts from when its Auto box is cleared)."""
+    import numpy as np
+    from ..pdehead_addon import control_ranges
+    s = state.settings(collection)
+    modes = None if s.modes <= 0 else s.modes
+    ranges = control_ranges(state.boundary_set(collection), state.continuity(collection), modes)
+
+    def fraction(pair):
+        d, m = (np.asarray(x, float) for x in pair)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            f = np.where(m > 0, d / m, 0.0)
+        return float(np.clip(np.mean(f), 0.0, 1.0))
+    return fraction(ranges["smoothing"]), fraction(ranges["approximation_mm"])
+
+
+def require_ct(collection):
+    """The study's CT volume from memory, else re-read from its recorded source (:func:`reload_ct`).
+
+    Raises a :class:`PDEHeadError` that names the missing source when it cannot be re-read,
+    so a step that needs the CT (solid colours, volume, segmentation) never runs without it.
+    """
+    s = state.settings(collection)
+    ct = state.cache_for(s.study_id).ct
+    if ct is None:
+        ct = reload_ct(collection)
+    return ct
+
+
+def reload_ct(collection):
+    """Load the CT again from the recorded source (phantom or path + the recorded loader options).
+
+    The re-read CT must have the recorded dimensions; a different CT at that path is refused
+    (its colours would not belong to this study's head).
+    """
+    s = state.settings(collection)
+    cache = state.cache_for(s.study_id)
+    if s.source_kind == "PHANTOM":
+        from ..pdehead_addon import make_phantom
+        ct = make_phantom().ct
+    elif s.source_kind == "FILES":
+        path = state.resolve_source(collection)
+        if path is None:
+            raise PDEHeadError(state.source_missing_message(collection))
+        from ..pdehead_addon import load_ct
+        options = json.loads(s.load_options or "{}")
+        for key in ("shape", "spacing", "resample_spacing"):
+            if isinstance(options.get(key), list):
+                options[key] = tuple(options[key])
+        ct = load_ct(path, **options)
+    else:
+        raise PDEHeadError(f"study '{collection.name}': the CT is not in memory and has no source to reload")
+    nz, ny, nx = ct.shape
+    expected = tuple(int(n) for n in s.dimensions)
+    if any(expected) and (nx, ny, nz) != expected:
+        raise PDEHeadError(f"study '{collection.name}': the CT re-read from {s.source or 'the phantom'} has "
+                           f"{nx} x {ny} x {nz} voxels, the study was built from {' x '.join(map(str, expected))}; "
+                           "refusing to mix them (point Source at the original CT)")
+    cache.ct = ct
+    cache.window = None
+    cache.ct_table = None
+    return ct
+
+
+def ct_table(collection, head, ct):
+    """The CT tabulated in the solid's (u, v, w) for this PDE solution (built once, ~0.5 s on CThead).
+
+    Kept until the PDE is re-solved (another head) or the CT is re-read, so cutaway and
+    resolution sliders only look values up.
+    """
+    from ..pdehead_addon.pde_solid import SolidCTTable
+    cache = state.cache_for(state.settings(collection).study_id)
+    entry = cache.ct_table
+    if entry is None or entry[0] is not head or entry[1] is not ct:
+        entry = (head, ct, SolidCTTable(head, ct))
+        cache.ct_table = entry
+    return entry[2]
+
+
+def ct_window(collection, ct=None) -> tuple[float, float]:
+    """The study's CT intensity window (:func:`ct_volume.intensity_window`), computed once per CT."""
+    cache = state.cache_for(state.settings(collection).study_id)
+    if cache.window is None:
+        from ..pdehead_addon.ct_volume import intensity_window
+        cache.window = intensity_window(ct if ct is not None else require_ct(collection))
+    return cache.window
+
+
+# ------------------------------------------------------------------------------------------
+# The steps (plain functions on a study collection)
+
+
+def _unique_collection_name(base: str) -> str:
+    base = re.sub(r"\s+", " ", base).strip()[:50] or "CT Head"
+    name, i = base, 1
+    while name in bpy.data.collections:
+        name = f"{base}.{i:03d}"
+        i += 1
+    return name
+
+
+_GENERIC_FOLDER_NAMES = {"dicom", "dcm", "raw", "raw16", "raw8", "tiff", "tiff8", "tif", "png", "images",
+                         "slices", "data", "ct", "series", "input"}
+
+
+def _study_name(ct, path: Path | None) -> str:
+    """A readable study name: the series description, else the study description (+ series number),
+    else the folder name (with its parent's when it is generic, like 'dicom' or 'raw16')."""
+    meta = ct.meta or {}
+    for key in ("series_description", "patient_name", "name"):
+        value = meta.get(key)
+        if isinstance(value, str) and value.strip():
+            return value.strip()
+    study = str(meta.get("study_description") or "").strip()
+    if study:
+        number = meta.get("series_number")
+        return f"{study} {number}" if number not in (None, "") else study
+    if path is not None:
+        name = path.stem if path.is_file() else path.name
+        if name.lower() in _GENERIC_FOLDER_NAMES and path.parent.name:
+            return f"{path.parent.name} {name}"
+        return name
+    return "CT Head"
+
+
+def _describe_ct(settings, ct) -> None:
+    import numpy as np
+    meta = ct.meta or {}
+    nz, ny, nx = ct.shape
+    settings.dimensions = (nx, ny, nz)
+    settings.spacing = tuple(float(s) for s in ct.spacing)
+    hu = meta.get("hu_range") or meta.get("value_range")
+    if hu is None:
+        hu = (float(np.min(ct.data)), float(np.max(ct.data)))
+    settings.value_range = (float(hu[0]), float(hu[1]))
+    series = meta.get("series_description") or meta.get("series") or ""
+    if not series and meta.get("series_number") not in (None, ""):
+        series = f"#{meta['series_number']}"
+    if meta.get("series_uid"):
+        series = f"{series} ({meta['series_uid']})" if series else str(meta["series_uid"])
+    settings.series = str(series)[:200]
+    settings.modality = str(meta.get("modality") or meta.get("units") or "")[:40]
+    warnings = meta.get("warnings") or []
+    settings.warnings = "; ".join(str(w) for w in warnings)[:1000] if not isinstance(warnings, str) else warnings
+
+
+def create_study(context, ct, name: str, source_kind: str, source: str = "", options: dict | None = None):
+    """A new study collection holding ``ct`` (in memory) and its description; made active."""
+    scene = context.scene
+    coll = objects.study_collection(_unique_collection_name(name), scene)
+    s = state.settings(coll)
+    with suspended_updates():
+        s.is_study = True
+        s.study_id = state.new_study_id()
+        s.source_kind = source_kind
+        s.source = source
+        s.source_absolute = str(Path(source).resolve()) if source else ""
+        s.load_options = json.dumps(options or {}, default=list)
+        s.patches = prefs.default_patches(context)
+        _describe_ct(s, ct)
+    state.cache_for(s.study_id).ct = ct
+    scene.pdehead.active_study = coll
+    return coll
+
+
+def import_study(context, path: Path, options: dict):
+    """Load a CT from disk into a new study."""
+    import warnings
+    from ..pdehead_addon import load_ct
+    with state.Timer() as t, warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        ct = load_ct(path, **options)
+    coll = create_study(context, ct, _study_name(ct, path), "FILES", str(path), options)
+    s = state.settings(coll)
+    known = [w for w in s.warnings.split("; ") if w]
+    messages = [m for m in dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, UserWarning))
+                if not any(k in m or m in k for k in known)]
+    if messages:  # the loader's warnings (single slice, uneven steps, ...) stay visible in the Study panel
+        s.warnings = "; ".join(([s.warnings] if s.warnings else []) + messages)[:1000]
+    s.timings_json = ""
+    state.record_timing(coll, "import", t.seconds)
+    return coll
+
+
+def phantom_study(context):
+    """The built-in synthetic head as a new study."""
+    from ..pdehead_addon import make_phantom
+    with state.Timer() as t:
+        phantom = make_phantom()
+    coll = create_study(context, phantom.ct, "Phantom", "PHANTOM")
+    state.settings(coll).timings_json = ""
+    state.record_timing(coll, "import", t.seconds)
+    return coll
+
+
+def step_segment(coll) -> None:
+    from ..pdehead_addon import segment_head
+    s = state.settings(coll)
+    ct = require_ct(coll)
+    cache = state.cache_for(s.study_id)
+    with state.Timer() as t:
+        seg = segment_head(ct)
+    cache.drop_from("seg")
+    cache.seg = seg
+    with suspended_updates():
+        s.seg_fraction = float(seg.mask.mean())
+        s.seg_iterations = int(seg.iterations)
+        s.seg_c1, s.seg_c2 = float(seg.c1), float(seg.c2)
+        # head size outside the human range, shoulders cut off: shown with the loader's warnings
+        known = [w for w in s.warnings.split("; ") if w]
+        new = [w for w in seg.meta.get("warnings", []) if w not in known]
+        if new:
+            s.warnings = "; ".join(known + new)[:1000]
+    state.record_timing(coll, "segment", t.seconds)
+
+
+def step_boundaries(coll) -> None:
+    from ..pdehead_addon import extract_boundaries
+    s = state.settings(coll)
+    cache = state.cache_for(s.study_id)
+    if cache.seg is None:
+        step_segment(coll)
+    limit = max_patches(cache.seg)
+    if 1 <= limit < s.patches:  # short scans (e.g. the tilted GE slab) cannot give 3t+1 slices for the default t
+        message = (f"the scan has usable head outlines for at most {limit} patches "
+                   f"({3 * limit + 1} slices): patches reduced from {s.patches} to {limit}")
+        with suspended_updates():
+            s.patches = limit
+        s.warnings = "; ".join([w for w in (s.warnings, message) if w])[:1000]
+    with state.Timer() as t:
+        bset = extract_boundaries(cache.seg, patches=s.patches, samples=s.samples, selection=s.selection,
+                                  parameterisation="angular" if s.align_curves else "arc-length")
+    state.store_boundaries(coll, bset)
+    cache.drop_from("bset")
+    cache.bset = bset
+    s.curves_object = objects.build_boundary_curves(bset, coll, name=f"{coll.name} Boundary curves",
+                                                    obj=s.curves_object)
+    state.record_timing(coll, "boundaries", t.seconds)
+
+
+def _solve(coll) -> object:
+    with state.Timer() as t:
+        cache = state.cache_for(state.settings(coll).study_id)
+        fresh = cache.head is None or cache.head_key != state.pde_key(coll)
+        head = pde_head(coll)
+    if fresh:
+        state.record_timing(coll, "pde_solve", t.seconds)
+    return head
+
+
+def step_surface(coll) -> None:
+    s = state.settings(coll)
+    head = _solve(coll)
+    with state.Timer() as t:
+        s.surface_object = objects.build_surface(head, coll, nu=s.nu, nv=s.nv, caps=s.caps, obj=s.surface_object,
+                                                 name=f"{coll.name} Surface")
+    state.record_timing(coll, "surface", t.seconds)
+
+
+def step_solid(coll) -> None:
+    s = state.settings(coll)
+    head = _solve(coll)
+    ct = require_ct(coll)  # re-read after reopening: a solid without its CT colours is a loss
+    window = ct_window(coll, ct)
+    with state.Timer() as t:
+        s.solid_object = objects.build_solid(
+            head, coll, nu=s.nu, nv=s.nv, nw=s.nw, u_range=tuple(s.u_range), v_range=tuple(s.v_range),
+            w_range=tuple(s.w_range), ct=ct, obj=s.solid_object, name=f"{coll.name} Solid", window=window,
+            ct_table=ct_table(coll, head, ct))
+    state.record_timing(coll, "solid", t.seconds)
+
+
+def volume_settings(s) -> dict:
+    return dict(low_alpha=s.low_alpha, high_alpha=s.high_alpha, density=s.density,
+                colour_preset=s.colour_preset, alpha_mode=s.alpha_mode)
+
+
+def step_volume(coll, context=None) -> None:
+    s = state.settings(coll)
+    head = _solve(coll)
+    cache = state.cache_for(s.study_id)
+    # always with the CT (re-read after reopening): a volume without CT intensities is never built
+    ct = require_ct(coll)
+    window = ct_window(coll, ct)
+    if not s.use_ct_grid and s.voxel_auto:
+        size = volume.auto_voxel_size(ct, head)
+        with suspended_updates():
+            s.voxel_size = size
+    with state.Timer() as t:
+        grid = ct if s.use_ct_grid else float(s.voxel_size)
+        wfield = head.w_field(grid, ct=ct)
+    state.record_timing(coll, "w_field", t.seconds)
+    cache.wfield = wfield
+    with state.Timer() as t:
+        vdb_path = volume.vdb_path_for(coll.name, bpy.data.filepath or None, prefs.vdb_prefs_folder(context))
+        s.volume_object = volume.build_volume(wfield, coll, vdb_path, name=f"{coll.name} Volume",
+                                              obj=s.volume_object, ct=ct, window=window, **volume_settings(s))
+        s.volume_stale = False
+    state.record_timing(coll, "volume", t.seconds)
+
+
+STEP_FUNCTIONS = {
+    "segment": step_segment,
+    "boundaries": step_boundaries,
+    "surface": step_surface,
+    "solid": step_solid,
+    "volume": step_volume,
+}
+
+
+# ------------------------------------------------------------------------------------------
+# Live parameters (called by the update callbacks in props.py) and the cutter
+
+
+def live_update(coll, what: str, context=None) -> None:
+    """Rebuild the study's existing objects after a live parameter changed (no re-segmenting).
+
+    Errors cannot be reported from an update callback: they go to ``settings.last_error``
+    (shown in the sidebar) and the console.
+    """
+    s = state.settings(coll)
+    try:
+        if what == "pde_auto":
+            what = "pde"
+            if state.boundary_set(coll) is not None and not (s.smoothing_auto and s.approximation_auto):
+                # start a manual slider from the automatic value (as a fraction of the study's range)
+                smoothing, approximation = default_controls(coll)
+                with suspended_updates():
+                    if not s.smoothing_auto and not s.is_property_set("smoothing"):
+                        s.smoothing = smoothing
+                    if not s.approximation_auto and not s.is_property_set("approximation"):
+                        s.approximation = approximation
+        if what == "cutter":
+            if s.use_cutter and cutter.cutter_of(coll) is not None:
+                apply_cutter(coll)
+        elif what == "volume":
+            if s.volume_object is not None:
+                volume.set_volume_settings(s.volume_object, **volume_settings(s))
+        else:
+            if what == "pde" and s.volume_object is not None:
+                s.volume_stale = True  # the w-field follows the PDE; rebuilt on request (heavy)
+            if what in ("surface", "surface_solid", "pde") and s.surface_object is not None:
+                step_surface(coll)
+            if what in ("solid", "surface_solid", "pde") and s.solid_object is not None:
+                step_solid(coll)
+        s.last_error = ""
+    except Exception as exc:  # noqa: BLE001 - an update callback must never raise into the UI
+        if not isinstance(exc, PDEHeadError):
+            traceback.print_exc()
+        s.last_error = str(exc)[:500]
+        print(f"PDE Head: live update of {what} failed: {exc}")
+
+
+def apply_cutter(coll) -> str:
+    """Set the study's u/v ranges from its cutter and rebuild the solid; returns the cut's kind."""
+    from mathutils import Matrix
+    s = state.settings(coll)
+    box = cutter.cutter_of(coll)
+    if box is None:
+        raise PDEHeadError(f"study '{coll.name}' has no cutter: add one first")
+    head = pde_head(coll)
+    # world metres = LPS mm * 0.001, so LPS mm -> cutter local = inverse(matrix_world) @ scale(0.001)
+    inverse = np.array(box.matrix_world.inverted_safe() @ Matrix.Scale(0.001, 4))
+    u_range, v_range, _kept, kind = cutter.cutter_ranges(head, inverse, float(box.empty_display_size))
+    with suspended_updates():
+        s.u_range, s.v_range = u_range, v_range
+    state.cache_for(s.study_id).cutter_signature = cutter.signature(box)
+    if s.solid_object is not None:
+        step_solid(coll)
+    return kind
+
+
+def add_cutter(context, coll):
+    """A cutter box for the study (the solid built first if needed), applied at once: (empty, cut kind)."""
+    if state.settings(coll).solid_object is None:
+        step_solid(coll)
+    obj = cutter.add_cutter(context, coll)
+    return obj, apply_cutter(coll)
+
+
+_BUSY = [False]
+
+
+@bpy.app.handlers.persistent
+def pdehead_cutter_update(_scene, depsgraph=None) -> None:
+    """After a depsgraph update: apply each study's cutter whose transform changed.
+
+    Moving the cutter in the viewport, from Python or during playback applies it; an unchanged
+    scene costs one comparison per study.
+    """
+    if _BUSY[0]:
+        return
+    _BUSY[0] = True
+    try:
+        for coll in state.studies():
+            s = state.settings(coll)
+            if not s.use_cutter:
+                continue
+            box = cutter.cutter_of(coll)
+            if box is None:
+                continue
+            cache = state.cache_for(s.study_id)
+            if cache.cutter_signature == cutter.signature(box):
+                continue
+            try:
+                apply_cutter(coll)
+                s.last_error = ""
+            except Exception as exc:  # noqa: BLE001 - a handler must not raise into Blender
+                cache.cutter_signature = cutter.signature(box)  # do not retry every update
+                if not isinstance(exc, PDEHeadError):
+                    traceback.print_exc()
+                s.last_error = f"cutter: {exc}"[:500]
+    finally:
+        _BUSY[0] = False
+
+
+# ------------------------------------------------------------------------------------------
+# The one-click pipeline and removing a study
+
+
+class PipelineRun:
+    """One run of the pipeline, step by step; :meth:`cancel` removes everything it created.
+
+    Parameters
+    ----------
+    context : bpy.types.Context
+    source : "ACTIVE" | "PHANTOM" | "FILES"
+    path, options : the input and loader options when ``source == "FILES"``
+    settings : study settings to apply before running (patches, nu, ...)
+    study : collection name of the study for "ACTIVE" ("" = active)
+    volume : also build the volume
+    """
+
+    def __init__(self, context, source: str, path: Path | None = None, options: dict | None = None,
+                 settings: dict | None = None, study: str = "", volume: bool = True):
+        self.context = context
+        self.source = source
+        self.path, self.options = path, options or {}
+        self.settings = settings or {}
+        self.study_name = study
+        self.collection_name: str | None = None
+        self.steps = (["import"] if source in ("PHANTOM", "FILES") else []) + \
+            ["segment", "boundaries", "surface", "solid"] + (["volume"] if volume else []) + ["scene"]
+        self.index = 0
+        self.rollback = Rollback()
+        if source == "ACTIVE":
+            coll = state.active_study(context, study)
+            if coll is None:
+                raise PDEHeadError("No PDE Head study to run on: import a CT or load the phantom first")
+            self.collection_name = coll.name
+            self._apply_settings(coll)
+            state.settings(coll).timings_json = ""
+
+    @property
+    def collection(self):
+        return bpy.data.collections.get(self.collection_name) if self.collection_name else None
+
+    @property
+    def done(self) -> bool:
+        return self.index >= len(self.steps)
+
+    @property
+    def next_label(self) -> str:
+        return STEP_LABELS[self.steps[self.index]] if not self.done else "done"
+
+    def _apply_settings(self, coll) -> None:
+        s = state.settings(coll)
+        with suspended_updates():
+            for name, value in self.settings.items():
+                setattr(s, name, value)
+
+    def step(self) -> bool:
+        """Run the next step; True when the pipeline is complete."""
+        name = self.steps[self.index]
+        if name == "import":
+            if self.source == "PHANTOM":
+                coll = phantom_study(self.context)
+            else:
+                coll = import_study(self.context, self.path, self.options)
+            self.collection_name = coll.name
+            self._apply_settings(coll)
+        elif name == "volume":
+            step_volume(self.collection, self.context)
+        elif name == "scene":
+            coll = self.collection
+            # a new study, or one never framed: camera, light, the surface shown, the startup cube hidden
+            if self.source != "ACTIVE" or scene._study_object(coll, scene.CAMERA_KIND) is None:
+                scene.frame_study(self.context, coll)
+        else:
+            STEP_FUNCTIONS[name](self.collection)
+        self.index += 1
+        return self.done
+
+    def run_all(self) -> None:
+        while not self.done:
+            self.step()
+
+    def cancel(self) -> None:
+        """Remove every object, collection and datablock this run created."""
+        self.rollback.undo()
+        self.index = len(self.steps)
+
+
+def remove_study(coll) -> None:
+    state.drop_cache(state.settings(coll).study_id)
+    for obj in list(coll.all_objects):
+        data = obj.data
+        bpy.data.objects.remove(obj)
+        if data is not None and data.users == 0:
+            for kind in ("meshes", "curves", "volumes", "cameras", "lights"):
+                collection = getattr(bpy.data, kind)
+                if data.name in collection and collection[data.name] == data:
+                    collection.remove(data)
+                    break
+    for child in list(coll.children_recursive):
+        bpy.data.collections.remove(child)
+    bpy.data.collections.remove(coll)
+
+
+def _remove_cutter_handler() -> None:
+    handlers = bpy.app.handlers.depsgraph_update_post
+    for h in list(handlers):
+        if getattr(h, "__name__", "") == pdehead_cutter_update.__name__ and \
+                getattr(h, "__module__", "") == __name__:
+            handlers.remove(h)
+
+
+def register() -> None:
+    _remove_cutter_handler()  # never twice (a re-register after a reload)
+    bpy.app.handlers.depsgraph_update_post.append(pdehead_cutter_update)
+
+
+def unregister() -> None:
+    _remove_cutter_handler()

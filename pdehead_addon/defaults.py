@@ -1,0 +1,192 @@
+"""The one table of user-facing defaults and ranges (bpy-free).
+
+Every default a user of PDE Head sees - the add-on's study settings and operator options,
+its preferences, the headless CLI (``scripts/pdehead.py``) and the benchmarks that measure
+"the add-on's defaults" - is read from here, so a value is changed in one place.
+
+Each entry is a :class:`Param`, registered under the name of the study setting it backs
+(``PDEHeadStudySettings.<name>``), e.g. ``PARAMS["patches"]`` or the module attribute
+:data:`PATCHES`. Adding a parameter is one line::
+
+    MY_PARAM = _param("my_param", 1.0, min=0.0, max=2.0, unit="mm", description="...")
+
+Notes
+-----
+The values follow the paper where it gives one (t = 10 patches, M = 256 samples, eq. 24's
+alpha range [0.1, 0.9] of section 5.3) and the measured choices of this add-on elsewhere
+(the shape-change slice selection, the C2 surface, 120 x 240 mesh samples, density 40).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+
+@dataclass(frozen=True)
+class Param:
+    """One user-facing parameter: its default and range.
+
+    Parameters
+    ----------
+    name : str
+        The study setting / operator option / CLI option (``--name`` with ``-`` for ``_``).
+    default : bool, int, float, str or tuple
+    min, max : float, optional
+        Hard limits (Blender refuses values beyond them; the CLI checks them).
+    soft_min, soft_max : float, optional
+        The slider's range inside the hard limits (Blender only).
+    unit : str
+        For help texts ("mm", "deg", ""); angles are stored in radians.
+    description : str
+        One sentence for tooltips and ``--help``.
+    choices : tuple of str
+        The allowed values of an enumeration.
+    """
+
+    name: str
+    default: Any
+    min: float | None = None
+    max: float | None = None
+    soft_min: float | None = None
+    soft_max: float | None = None
+    unit: str = ""
+    description: str = ""
+    choices: tuple = ()
+
+    def limits(self) -> dict:
+        """Keyword arguments ``default``, ``min``, ``max`` (and ``soft_min``/``soft_max``) for a
+        ``bpy.props`` property; only those that are set."""
+        out = {"default": self.default}
+        for key in ("min", "max", "soft_min", "soft_max"):
+            value = getattr(self, key)
+            if value is not None:
+                out[key] = value
+        return out
+
+    def check(self, value, label: str | None = None):
+        """``value`` if it lies within the hard limits / choices, else ``ValueError`` naming it."""
+        label = label or self.name
+        if self.choices and value not in self.choices:
+            raise ValueError(f"{label} must be one of {', '.join(self.choices)}, got {value!r}")
+        if self.min is not None and value < self.min:
+            raise ValueError(f"{label} must be at least {self.min:g}, got {value}")
+        if self.max is not None and value > self.max:
+            raise ValueError(f"{label} must be at most {self.max:g}, got {value}")
+        return value
+
+    def help(self, text: str | None = None) -> str:
+        """A ``--help`` line: ``text`` (else the description) and the default with its unit."""
+        default = self.default
+        if isinstance(default, float):
+            default = f"{default:g}"
+        unit = f" {self.unit}" if self.unit else ""
+        return f"{text or self.description}; default {default}{unit}"
+
+
+#: All parameters by name, in the order they were registered.
+PARAMS: dict[str, Param] = {}
+
+
+def _param(name: str, default, **kw) -> Param:
+    if name in PARAMS:
+        raise ValueError(f"default {name!r} is defined twice")
+    PARAMS[name] = Param(name, default, **kw)
+    return PARAMS[name]
+
+
+def default(name: str):
+    """The default value of parameter ``name``."""
+    return PARAMS[name].default
+
+
+# ----------------------------------------------------------------------------- boundaries (eq. 22)
+PATCHES = _param("patches", 10, min=1, max=60,
+                 description="Number t of PDE patches; 3t+1 boundary curves are extracted")
+SAMPLES = _param("samples", 256, min=16, max=4096, description="Points per boundary curve")
+#: The paper's uniform choice loses the nose and lips at t = 10 (the interpolation between four
+#: curves folds where the face changes fast); shape-change keeps them.
+SELECTION = _param("selection", "shape-change", choices=("uniform", "shape-change"),
+                   description="How the 3t+1 slices are chosen")
+ALIGN_CURVES = _param("align_curves", True,
+                      description="Sample every curve at the same directions from a smooth spine, so that "
+                                  "equal v joins corresponding points (no folds or cheek ripples); off: "
+                                  "samples evenly spaced along each curve")
+
+# ----------------------------------------------------------------------------- surface (eq. 1-13)
+#: Fine enough that a nose (~30 mm wide) gets ~10 samples around v and the lips several along u;
+#: surface(120, 240) builds in ~10-20 ms.
+NU = _param("nu", 120, min=4, max=2000,
+            description="Resolution along the head axis (u); rebuilds the meshes at once")
+NV = _param("nv", 240, min=4, max=2000,
+            description="Resolution around the head (v); rebuilds the meshes at once")
+CAPS = _param("caps", True, description="Close the top and bottom of the surface")
+CONTINUITY = _param("continuity", "c2", choices=("c2", "paper"),
+                    description="Smooth: one Bloor-Wilson span between consecutive curves, C2 across every "
+                                "curve (default). Paper: t patches through four curves each (eq. 3-6), "
+                                "creased at the joints")
+DOME = _param("dome", True, description="Close the crown with a round dome through the vertex above the top "
+                                        "curve (Smooth continuity)")
+SMOOTHING_AUTO = _param("smoothing_auto", True,
+                        description="Let the solver choose the smoothing parameter a of eq. 1")
+SMOOTHING = _param("smoothing", 0.0, min=0.0, max=1.0,
+                   description="Smoothing parameter a of eq. 1 as a fraction of this study's maximum (Smooth: "
+                               "the isotropic height/radius ratio; Paper: the largest stable a of each patch). "
+                               "Every value solves")
+APPROXIMATION_AUTO = _param("approximation_auto", True,
+                            description="Smooth along the head axis by the solver's default length (one slice "
+                                        "step of the scan, at most half a curve gap)")
+APPROXIMATION = _param("approximation", 0.0, min=0.0, max=1.0,
+                       description="Approximating mode: how strongly the surface may leave the curves to smooth "
+                                   "slice steps and streaks (0 = through every curve; 1 = a smoothing length of "
+                                   "1.5 curve gaps). Smooth continuity only")
+MODES = _param("modes", 0, min=0, max=512,
+               description="Harmonics kept around each ring (0 = all: the surface passes through the curves; "
+                           "fewer: eq. 13's truncated series, a simpler head)")
+
+# ----------------------------------------------------------------------------- solid (eq. 23), cutaway
+NW = _param("nw", 5, min=2, max=200, description="w levels from the spine (0) to the surface (1), eq. 23")
+U_RANGE = _param("u_range", (0.0, 1.0), min=0.0, max=1.0, description="Cutaway: u interval of the solid")
+V_RANGE = _param("v_range", (0.0, 2 * math.pi), min=-2 * math.pi, max=4 * math.pi, soft_min=0.0,
+                 soft_max=2 * math.pi, unit="rad",
+                 description="Cutaway: the angle interval around the head (v) the solid keeps, shown in "
+                             "degrees; may wrap past 360 (at most one turn)")
+W_RANGE = _param("w_range", (0.0, 1.0), min=0.0, max=1.0, description="Cutaway: w interval of the solid")
+USE_CUTTER = _param("use_cutter", False,
+                    description="The study's cutter box (an empty you move, rotate and scale) sets the u and v "
+                                "ranges: the solid is cut away where the box is")
+
+# ----------------------------------------------------------------------------- volume (eq. 24)
+USE_CT_GRID = _param("use_ct_grid", False, description="Sample the w-field on the CT's own voxel grid")
+VOXEL_AUTO = _param("voxel_auto", True,
+                    description="Voxel size from the CT spacing, coarsened only as far as needed to keep the .vdb "
+                                "small and the w-field fast (see volume.auto_voxel_size)")
+VOXEL_SIZE = _param("voxel_size", 2.0, min=0.25, max=20.0, unit="mm",
+                    description="Voxel size in mm of the volume grid (when CT Grid and Auto are off; with Auto "
+                                "on, the size the last build used)")
+LOW_ALPHA = _param("low_alpha", 0.1, min=0.0, max=1.0,          # section 5.3: alpha in [0.1, 0.9]
+                   description="l_alpha of eq. 24: opacity at the surface (w = 1)")
+HIGH_ALPHA = _param("high_alpha", 0.9, min=0.0, max=1.0,
+                    description="h_alpha of eq. 24: opacity at the spine (w = 0)")
+#: Cycles extinction per metre at alpha = 1: a ~0.2 m head is translucent, the face still readable.
+DENSITY = _param("density", 40.0, min=0.0, max=10000.0, unit="1/m",
+                 description="Volume density scale (per metre)")
+#: Emission per unit density: the alpha-blended texture look of the paper.
+EMISSION = _param("emission", 0.7, min=0.0, description="Volume emission per unit density")
+COLOUR_PRESET = _param("colour_preset", "grayscale", choices=("grayscale", "skin", "bone", "xray"),
+                       description="Preset of the volume's colour ramp (colour and opacity over the CT "
+                                   "intensity); the ramp itself is editable in the material")
+ALPHA_MODE = _param("alpha_mode", "EQ24", choices=("EQ24", "INTENSITY"),
+                    description="Opacity from eq. 24's w, or from the CT intensity (the paper's baseline)")
+#: The budget of the automatic voxel size (:func:`ct_volume.auto_voxel_size`): the .vdb stays below
+#: this many bytes (issue 10: small files beside the .blend) ...
+MAX_VDB_BYTES = _param("max_vdb_bytes", 64 * 2 ** 20, min=1, unit="bytes",
+                       description="Largest .vdb the automatic voxel size allows")
+#: ... and the w-field grid below this many voxels (0.15-0.2 us per voxel on CThead, 2 shared cores: ~1 s).
+MAX_WFIELD_VOXELS = _param("max_wfield_voxels", 5_000_000, min=1,
+                           description="Largest w-field grid the automatic voxel size allows")
+
+# ----------------------------------------------------------------------------- import
+DOWNSAMPLE = _param("downsample", 1, min=1, max=8,
+                    description="Average blocks of N x N x N voxels on import (for very large scans: 2 needs "
+                                "about 1/8 of the memory)")

@@ -1,0 +1,119 @@
+"""What the scripts share: the data sets and how each is loaded, the paper's numbers, timing, the dev shim.
+
+One owner for each, so the benchmarks, the figure scripts and the CLI cannot drift apart:
+
+- :data:`SHARED_DATA` and the loader options of the real data sets (``tests/datasets.py`` reads
+  them from here: scripts never import from ``tests/``);
+- :data:`PAPER`: the paper's measured numbers the benchmarks compare with;
+- :func:`timed`: median / min / all wall times of a call;
+- :func:`load_addon`: the add-on loaded from this repository as package ``pdehead_dev`` (no zip);
+- :func:`defaults`: the one table of user-facing defaults (``pdehead_addon/defaults.py``).
+
+Scripts put ``scripts/`` on ``sys.path`` (Python does that for the script being run) and
+``import _common``.
+"""
+from __future__ import annotations
+
+import gc
+import importlib
+import importlib.util
+import os
+import statistics
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+ROOT = Path(__file__).resolve().parents[1]
+#: Real data is read in place from ``../shared/data`` (override with ``PDEHEAD_DATA``), never copied.
+SHARED_DATA = Path(os.environ.get("PDEHEAD_DATA", ROOT.parent / "shared" / "data"))
+
+#: How each real data set is loaded (``load_ct`` keyword arguments).
+CTHEAD_RAW16_OPTIONS = dict(format="raw", shape=(256, 256), dtype=">i2", spacing=(2.0, 1.0, 1.0),
+                            first_slice="superior")
+CTHEAD_TIFF8_OPTIONS = dict(spacing=(2.0, 1.0, 1.0), first_slice="superior")
+
+#: The paper's numbers (CThead, 99 slices): storage of its boundary file and of marching cubes, the
+#: PDE and marching-cubes times, the boundary extraction time and the mean Jaccard of its segmentation.
+PAPER = {"storage_ours_kB": 62, "storage_mc_kB": 37647, "pde_seconds": 0.66, "mc_seconds": 874.75,
+         "boundary_seconds": 14.23, "jaccard_mean": 0.9815}
+
+
+def data_path(*parts: str) -> Path:
+    """A path inside :data:`SHARED_DATA`; a clear error naming it when it is not there."""
+    path = SHARED_DATA.joinpath(*parts)
+    if not path.exists():
+        raise FileNotFoundError(f"real data not found: {path} (set PDEHEAD_DATA to the shared data folder)")
+    return path
+
+
+def median(xs) -> float:
+    return float(statistics.median(xs)) if xs else float("nan")
+
+
+def timed(fn: Callable[[], Any], repeats: int, before: Callable[[], Any] | None = None, warmup: bool = False):
+    """Run ``fn`` ``repeats`` times; (stats dict, last result). ``before`` runs untimed before each.
+
+    ``warmup``: one untimed call first (one-time costs such as lazy imports and first-touch
+    allocations; used for the millisecond stages, for ours and the peer alike). The stats are
+    ``median_s``, ``min_s`` and ``runs_s``.
+    """
+    runs, result = [], None
+    if warmup:
+        result = fn()
+    gc.collect()  # once: a full collection costs ~0.1 s here, longer than many of the timed calls
+    for _ in range(max(1, int(repeats))):
+        if before is not None:
+            before()
+        gc.disable()  # like timeit: no collector pauses inside the timed call
+        try:
+            t0 = time.perf_counter()
+            result = fn()
+            runs.append(time.perf_counter() - t0)
+        finally:
+            gc.enable()
+    return {"median_s": median(runs), "min_s": float(min(runs)), "runs_s": [float(r) for r in runs]}, result
+
+
+DEV_PACKAGE = "pdehead_dev"
+
+
+def load_addon(register: bool = False, engine=None):
+    """The add-on's root package loaded from this repository as ``pdehead_dev`` (the dev shim, no zip).
+
+    Parameters
+    ----------
+    register : bool
+        Also register it (operators, properties, handlers) and unregister it at interpreter exit
+        (the bpy 4.2 / 4.5 modules crash / hang at exit with add-on classes still registered).
+    engine : module, optional
+        An already imported ``pdehead_addon`` to reuse as ``pdehead_dev.pdehead_addon`` (one copy of
+        the engine in the process, so its types are shared with the caller's).
+    """
+    import bpy  # noqa: F401  (bpy first: the add-on imports it)
+    if engine is not None:
+        sys.modules.setdefault(f"{DEV_PACKAGE}.pdehead_addon", engine)
+    module = sys.modules.get(DEV_PACKAGE)
+    if module is None:
+        spec = importlib.util.spec_from_file_location(DEV_PACKAGE, ROOT / "__init__.py",
+                                                      submodule_search_locations=[str(ROOT)])
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[DEV_PACKAGE] = module
+        spec.loader.exec_module(module)
+    if register and not getattr(module, "_pdehead_dev_registered", False):
+        module.register()
+        module._pdehead_dev_registered = True
+        importlib.import_module(f"{DEV_PACKAGE}.operators.compat").unregister_at_exit(module.unregister)
+    return module
+
+
+def defaults():
+    """``pdehead_addon/defaults.py`` (plain Python: loaded without the engine's heavy imports)."""
+    name = "pdehead_addon.defaults"
+    module = sys.modules.get(name) or sys.modules.get("_pdehead_defaults")
+    if module is None:
+        spec = importlib.util.spec_from_file_location("_pdehead_defaults", ROOT / "pdehead_addon" / "defaults.py")
+        module = importlib.util.module_from_spec(spec)
+        sys.modules["_pdehead_defaults"] = module  # dataclasses look their module up while building
+        spec.loader.exec_module(module)
+    return module

@@ -1,0 +1,102 @@
+"""The engine's CT volume helpers (pdehead_addon/ct_volume.py) and the defaults table (defaults.py)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pdehead_addon import CTVolume
+from pdehead_addon import ct_volume as CV
+from pdehead_addon import defaults as D
+
+
+# ----------------------------------------------------------------------------- windowing (volume, solid colours)
+def test_intensity_window_presets():
+    rng = np.random.default_rng(1)
+    values = np.concatenate([rng.normal(20, 10, 50_000), rng.normal(1050, 40, 30_000), rng.normal(2200, 200, 5000)])
+    lo, hi = CV.intensity_window(values)
+    np.testing.assert_allclose((lo, hi), np.percentile(values, [1.0, 99.5]), rtol=1e-6)
+    assert CV.intensity_window(values, "full") == (pytest.approx(values.min()), pytest.approx(values.max()))
+    assert CV.intensity_window(values, (-100, 300)) == (-100.0, 300.0)
+    with pytest.raises(ValueError):
+        CV.intensity_window(values, (5, 5))
+    with pytest.raises(ValueError):
+        CV.intensity_window(values, "bone-ish")
+    out = CV.apply_window(np.array([-1e4, lo, 0.5 * (lo + hi), hi, 1e5, np.nan]), (lo, hi))
+    np.testing.assert_allclose(out, [0, 0, 0.5, 1, 1, 0], atol=1e-6)
+    assert out.dtype == np.float32
+
+
+
+
+# ----------------------------------------------------------------------------- the one grid affine
+def _oblique_ct():
+    angle = np.deg2rad(20.0)
+    c, s = np.cos(angle), np.sin(angle)
+    direction = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])  # a tilted k axis
+    data = np.fromfunction(lambda k, j, i: 3.0 * i + 2.0 * j + 1.0 * k, (6, 7, 8), dtype=np.float32)
+    return CTVolume(data, (2.0, 0.8, 0.6), origin=(-30.0, 12.0, 85.0), direction=direction)
+
+
+def test_grid_affine_is_the_ctvolume_geometry():
+    ct = _oblique_ct()
+    m = CV.grid_affine(ct.spacing, ct.origin, ct.direction)
+    np.testing.assert_array_equal(m, ct.affine)
+    kji = np.array([[0, 0, 0], [5, 6, 7], [2.5, 1.25, 3.0]])
+    ijk1 = np.c_[kji[:, ::-1], np.ones(len(kji))]
+    np.testing.assert_allclose((ijk1 @ m.T)[:, :3], ct.index_to_patient(kji), atol=1e-12)
+    # one voxel step along k moves dz mm along the tilted direction column
+    np.testing.assert_allclose(m[:3, 2], 2.0 * ct.direction[:, 2], atol=1e-12)
+
+
+def test_sample_ct_is_linear_inside_and_the_lowest_value_outside():
+    ct = _oblique_ct()
+    kji = np.array([[1.0, 2.0, 3.0], [2.5, 3.5, 4.25], [4.0, 0.0, 6.5]])
+    values = CV.sample_ct(ct, ct.index_to_patient(kji))
+    np.testing.assert_allclose(values, 3.0 * kji[:, 2] + 2.0 * kji[:, 1] + kji[:, 0], rtol=1e-6)
+    far = ct.index_to_patient(np.array([[20.0, 3.0, 3.0]]))
+    assert CV.sample_ct(ct, far)[0] == pytest.approx(float(ct.data.min()))
+    # a linear field: higher orders agree away from the edges (the third point is half a voxel from one)
+    cubic = CV.sample_ct(ct, ct.index_to_patient(kji[:2]), order=3)
+    np.testing.assert_allclose(cubic, values[:2], rtol=1e-4)
+
+
+# ----------------------------------------------------------------------------- the defaults table
+def test_every_default_lies_in_its_range_and_choices():
+    assert len(D.PARAMS) >= 30
+    for name, p in D.PARAMS.items():
+        assert p.name == name
+        values = p.default if isinstance(p.default, tuple) else (p.default,)
+        for v in values:
+            if isinstance(v, str):
+                assert v in p.choices, name
+            elif not isinstance(v, bool):
+                assert p.min is None or v >= p.min, name
+                assert p.max is None or v <= p.max, name
+        if p.soft_min is not None:
+            assert p.min <= p.soft_min <= p.soft_max <= p.max, name
+
+
+def test_the_values_the_add_on_user_sees():
+    # where two owners disagreed before the one table, the add-on's value won (issue 13)
+    assert (D.NU.default, D.NV.default) == (120, 240)
+    assert D.DENSITY.default == 40.0
+    assert (D.PATCHES.default, D.PATCHES.min, D.PATCHES.max) == (10, 1, 60)
+    assert D.SELECTION.default == "shape-change" and D.CONTINUITY.default == "c2"
+    assert (D.LOW_ALPHA.default, D.HIGH_ALPHA.default) == (0.1, 0.9)   # section 5.3
+    assert D.default("samples") == 256
+
+
+def test_param_limits_check_and_help():
+    assert D.PATCHES.limits() == {"default": 10, "min": 1, "max": 60}
+    assert D.V_RANGE.limits()["soft_max"] == pytest.approx(2 * np.pi)
+    assert "soft_min" not in D.NU.limits()
+    assert D.PATCHES.check(60) == 60
+    with pytest.raises(ValueError, match="patches must be at least 1, got 0"):
+        D.PATCHES.check(0)
+    with pytest.raises(ValueError, match="--nv must be at most 2000"):
+        D.NV.check(5000, "--nv")
+    with pytest.raises(ValueError, match="selection must be one of uniform, shape-change"):
+        D.SELECTION.check("random")
+    assert D.VOXEL_SIZE.help("volume voxel size") == "volume voxel size; default 2 mm"
+    with pytest.raises(ValueError, match="defined twice"):
+        D._param("patches", 3)
