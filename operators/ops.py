@@ -198,7 +198,15 @@ class PDEHEAD_OT_extract_boundaries(Operator, StudyOperator):
                                description="Re-sample the curves so that equal v joins corresponding points "
                                            "(avoids folds where a feature such as the nose is on one curve only)")
 
-    mirrored_settings = ("patches", "samples", "selection", "align_curves")
+    use_tolerance: BoolProperty(name="Tolerance Instead of t", **D.USE_TOLERANCE.limits(),
+                                description=D.USE_TOLERANCE.description)
+    tolerance_mm: FloatProperty(name="Mean Tolerance", **D.TOLERANCE_MM.limits(),
+                                description=D.TOLERANCE_MM.description)
+    max_tolerance_mm: FloatProperty(name="Max Tolerance", **D.MAX_TOLERANCE_MM.limits(),
+                                    description=D.MAX_TOLERANCE_MM.description)
+
+    mirrored_settings = ("patches", "samples", "selection", "align_curves", "use_tolerance", "tolerance_mm",
+                         "max_tolerance_mm")
 
     def execute(self, context):
         coll = _active_or_report(self, context)
@@ -211,8 +219,10 @@ class PDEHEAD_OT_extract_boundaries(Operator, StudyOperator):
             warnings_before = s.warnings
             study.step_boundaries(coll)
             self.patches = s.patches  # may have been reduced to what the scan allows
-            self.report({'INFO'}, f"{3 * s.patches + 1} boundary curves of {self.samples} points extracted "
-                        f"from '{coll.name}' ({state.timings(coll)['boundaries']:.2f} s)")
+            achieved = (f"; surface from all {abs(s.outline_candidates)} usable outlines: mean "
+                        f"{s.outline_mean_mm:.2f} mm, max {s.outline_max_mm:.2f} mm" if s.outline_candidates else "")
+            self.report({'INFO'}, f"{s.curve_count} boundary curves of {self.samples} points extracted "
+                        f"from '{coll.name}' ({state.timings(coll)['boundaries']:.2f} s){achieved}")
             if s.warnings != warnings_before:
                 self.report({'WARNING'}, s.warnings[len(warnings_before):].lstrip("; ")[:300])
         return _guarded(self, context, body)

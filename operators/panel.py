@@ -90,16 +90,30 @@ class PDEHEAD_PT_boundaries(_StudyPanel, bpy.types.Panel):
         coll = self.study(context)
         s = state.settings(coll)
         col = layout.column(align=True)
-        col.prop(s, "patches")
+        col.prop(s, "use_tolerance")
+        if s.use_tolerance:  # the curves are counted by the tolerance, chosen automatically
+            col.prop(s, "tolerance_mm")
+            col.prop(s, "max_tolerance_mm")
+        else:
+            col.prop(s, "patches")
+            col.prop(s, "selection")
         col.prop(s, "samples")
-        col.prop(s, "selection")
         col.prop(s, "align_curves")
         op = layout.operator("pdehead.extract_boundaries", icon='CURVE_BEZCIRCLE')
         op.patches, op.samples, op.selection = s.patches, s.samples, s.selection
         op.align_curves = s.align_curves
+        op.use_tolerance, op.tolerance_mm, op.max_tolerance_mm = s.use_tolerance, s.tolerance_mm, s.max_tolerance_mm
+        if s.outline_candidates:
+            box = layout.box().column(align=True)
+            box.label(text=f"Surface from all {abs(s.outline_candidates)} usable outlines:",
+                      icon='ERROR' if s.outline_candidates < 0 else 'CHECKMARK')
+            box.label(text=f"mean {s.outline_mean_mm:.2f} mm, max {s.outline_max_mm:.2f} mm")
+            if s.outline_candidates < 0:
+                box.label(text="Tolerance not met with every slice")
         if state.has_stored_boundaries(coll):
             kb = len(coll[state.BOUNDARY_KEY]) * 3 / 4 / 1024
-            layout.label(text=f"{3 * s.patches + 1} curves stored in the .blend ({kb:.0f} kB)", icon='FILE_BLEND')
+            count = s.curve_count or 3 * s.patches + 1   # files saved before the count was recorded
+            layout.label(text=f"{count} curves stored in the .blend ({kb:.0f} kB)", icon='FILE_BLEND')
 
 
 class PDEHEAD_PT_surface(_StudyPanel, bpy.types.Panel):

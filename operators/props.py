@@ -35,6 +35,8 @@ def _live(what: str):
 SELECTION_ITEMS = [
     ("uniform", "Uniform", "Curves evenly spaced along the head axis"),
     ("shape-change", "Shape Change", "Denser curves where the head's cross-section changes fast (face)"),
+    ("auto", "Automatic", "The curves whose surface is closest to every slice's outline, chosen or not "
+                          "(about a second more on a head scan)"),
 ]
 #: The PDE surface's continuity across the curves (engine values "c2" / "paper").
 CONTINUITY_ITEMS = [
@@ -92,6 +94,21 @@ class PDEHeadStudySettings(bpy.types.PropertyGroup):
     selection: EnumProperty(name="Selection", items=SELECTION_ITEMS, default=D.SELECTION.default,
                             description=D.SELECTION.description)
     align_curves: BoolProperty(name="Align Curves", **D.ALIGN_CURVES.limits(), description=D.ALIGN_CURVES.description)
+    use_tolerance: BoolProperty(name="Tolerance Instead of t", **D.USE_TOLERANCE.limits(),
+                                description=D.USE_TOLERANCE.description)
+    tolerance_mm: FloatProperty(name="Mean Tolerance", **D.TOLERANCE_MM.limits(), precision=2,
+                                description=D.TOLERANCE_MM.description)
+    max_tolerance_mm: FloatProperty(name="Max Tolerance", **D.MAX_TOLERANCE_MM.limits(), precision=2,
+                                    description=D.MAX_TOLERANCE_MM.description)
+    # what the last extraction gave (shown in the panel, saved with the file)
+    curve_count: IntProperty(name="Curves", description="Boundary curves of the last extraction")
+    outline_candidates: IntProperty(name="Usable Slices",
+                                    description="Slices the automatic selection measured against (negative: the "
+                                                "tolerance was not met with all of them)")
+    outline_mean_mm: FloatProperty(name="Mean Distance From Outlines", unit='NONE',
+                                   description="The surface's mean distance (mm) from every usable slice's outline")
+    outline_max_mm: FloatProperty(name="Max Distance From Outlines",
+                                  description="The surface's largest distance (mm) from any usable slice's outline")
 
     # Surface (live)
     nu: IntProperty(name="nu", **D.NU.limits(), update=_live("surface_solid"), description=D.NU.description)

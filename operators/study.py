@@ -307,25 +307,60 @@ def step_segment(coll) -> None:
     state.record_timing(coll, "segment", t.seconds)
 
 
+def selection_tolerance(s) -> dict:
+    """``tolerance_mm`` / ``max_tolerance_mm`` for :func:`extract_boundaries` from the study settings
+    (empty when the curves are counted by t)."""
+    if not s.use_tolerance:
+        return {}
+    out = {name: float(getattr(s, name)) for name in ("tolerance_mm", "max_tolerance_mm") if getattr(s, name) > 0}
+    if not out:
+        raise PDEHeadError("Tolerance Instead of t needs a mean or a max tolerance above 0 mm")
+    return out
+
+
+def _record_selection(s, bset) -> None:
+    """The curve count and, for the automatic selection, the achieved distance from all outlines,
+    kept in the study settings (saved with the .blend) for the panel."""
+    m = bset.meta
+    s.curve_count = int(bset.curves.shape[0])
+    s.outline_candidates = int(m.get("selection_candidates") or 0)
+    s.outline_mean_mm = float(m.get("selection_mean_mm") or 0.0)
+    s.outline_max_mm = float(m.get("selection_max_mm") or 0.0)
+    if s.use_tolerance and m.get("selection_tolerance_met") is False:
+        s.outline_candidates = -s.outline_candidates   # negative: the tolerance was not met
+
+
 def step_boundaries(coll) -> None:
     from ..pdehead_addon import extract_boundaries
     s = state.settings(coll)
     cache = state.cache_for(s.study_id)
     if cache.seg is None:
         step_segment(coll)
+    tolerance = selection_tolerance(s)
+    if tolerance and not s.align_curves:
+        raise PDEHeadError("a tolerance chooses the curves automatically, which needs Align Curves")
     limit = max_patches(cache.seg)
-    if 1 <= limit < s.patches:  # short scans (e.g. the tilted GE slab) cannot give 3t+1 slices for the default t
+    if not tolerance and 1 <= limit < s.patches:  # short scans (e.g. the tilted GE slab) cannot give 3t+1 slices
         message = (f"the scan has usable head outlines for at most {limit} patches "
                    f"({3 * limit + 1} slices): patches reduced from {s.patches} to {limit}")
         with suspended_updates():
             s.patches = limit
         s.warnings = "; ".join([w for w in (s.warnings, message) if w])[:1000]
-    with state.Timer() as t:
-        bset = extract_boundaries(cache.seg, patches=s.patches, samples=s.samples, selection=s.selection,
-                                  parameterisation="angular" if s.align_curves else "arc-length")
+    import warnings
+    from ..pdehead_addon import SelectionWarning
+    with state.Timer() as t, warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", SelectionWarning)
+        bset = extract_boundaries(cache.seg, patches=s.patches, samples=s.samples,
+                                  selection="auto" if tolerance else s.selection,
+                                  parameterisation="angular" if s.align_curves else "arc-length", **tolerance)
+    messages = [str(w.message) for w in caught if issubclass(w.category, SelectionWarning)]
+    if messages:  # the tolerance could not be met with every usable slice: said beside the other warnings
+        s.warnings = "; ".join([w for w in [s.warnings] + messages if w])[:1000]
     state.store_boundaries(coll, bset)
     cache.drop_from("bset")
     cache.bset = bset
+    with suspended_updates():
+        _record_selection(s, bset)
     s.curves_object = objects.build_boundary_curves(bset, coll, name=f"{coll.name} Boundary curves",
                                                     obj=s.curves_object)
     state.record_timing(coll, "boundaries", t.seconds)

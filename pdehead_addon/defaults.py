@@ -104,10 +104,22 @@ def default(name: str):
 PATCHES = _param("patches", 10, min=1, max=60,
                  description="Number t of PDE patches; 3t+1 boundary curves are extracted")
 SAMPLES = _param("samples", 256, min=16, max=4096, description="Points per boundary curve")
-#: The paper's uniform choice loses the nose and lips at t = 10 (the interpolation between four
-#: curves folds where the face changes fast); shape-change keeps them.
-SELECTION = _param("selection", "shape-change", choices=("uniform", "shape-change"),
+#: The paper's uniform choice loses the nose and lips at t = 10 with the paper's patches (the
+#: interpolation between four curves folds where the face changes fast); shape-change keeps them;
+#: auto (issue 14, the default) chooses the curves whose surface is closest to every slice's outline:
+#: closer than both to the outlines and to marching cubes on the phantom, CThead and GE at every t
+#: measured but one (GE t = 4), for about a second more (docs/benchmarks.md, section selection).
+SELECTION = _param("selection", "auto", choices=("uniform", "shape-change", "auto"),
                    description="How the 3t+1 slices are chosen")
+#: A tolerance instead of t (issue 14): the fewest curves whose surface keeps within it of every
+#: usable slice's outline (chosen or not), verified on the real surface.
+USE_TOLERANCE = _param("use_tolerance", False,
+                       description="Choose the number of curves for a tolerance instead of t (automatic selection)")
+TOLERANCE_MM = _param("tolerance_mm", 0.5, min=0.0, max=20.0, soft_max=3.0, unit="mm",
+                      description="Largest mean distance (mm) of the surface from every slice's outline; "
+                                  "0 = no mean bound (then Max Tolerance)")
+MAX_TOLERANCE_MM = _param("max_tolerance_mm", 0.0, min=0.0, max=100.0, soft_max=10.0, unit="mm",
+                          description="Largest distance (mm) of the surface from any slice's outline; 0 = no bound")
 ALIGN_CURVES = _param("align_curves", True,
                       description="Sample every curve at the same directions from a smooth spine, so that "
                                   "equal v joins corresponding points (no folds or cheek ripples); off: "

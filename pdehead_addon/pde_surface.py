@@ -194,8 +194,15 @@ def _stable_exponent(knots: tuple[float, float, float, float], growth: float) ->
 # ----------------------------------------------------------------------------- set-up helpers
 
 
+def _require_3t_plus_1(bset: BoundarySet) -> None:
+    if not bset.is_3t_plus_1:
+        raise PDEError(f"continuity='paper' needs 3t+1 curves (four per patch, shared ends), got "
+                       f"{bset.curves.shape[0]}; use the default continuity='c2' for any count")
+
+
 def _local_knots(bset: BoundarySet) -> np.ndarray:
     """Per-patch knots ``(0, p1, p2, 1)`` in local s, shape (t, 4); validates ``bset.u_knots``."""
+    _require_3t_plus_1(bset)
     t = bset.patches
     u = np.asarray(bset.u_knots, dtype=np.float64)
     if u.shape != (3 * t + 1,) or not np.all(np.isfinite(u)):
@@ -963,9 +970,7 @@ def _solve_c2(bset: BoundarySet, smoothing, n_modes: int, approximation_mm, dome
 
 
 def _solve_paper(bset: BoundarySet, smoothing, n_modes: int, keep: int | None = None) -> PDEHead:
-    if not bset.is_3t_plus_1:
-        raise PDEError(f"continuity='paper' needs 3t+1 curves (four per patch, shared ends), got "
-                       f"{bset.curves.shape[0]}; use the default continuity='c2' for any count")
+    _require_3t_plus_1(bset)
     t = bset.patches
     local = _local_knots(bset)
     spec, planar = _harmonics(bset, keep)                                     # (3t+1, H, 3)

@@ -268,7 +268,7 @@ SELECTION = D.SELECTION.default
 
 
 def boundaries(seg, patches: int = D.PATCHES.default, samples: int = D.SAMPLES.default, selection: str = SELECTION):
-    """Boundary curves as the add-on makes them by default: the shape-change slice selection and the
+    """Boundary curves as the add-on makes them by default: its default slice selection and the
     aligned parameterisation (the "Align Curves" option, extract_boundaries' default)."""
     return E.extract_boundaries(seg, patches=patches, samples=samples, selection=selection)
 

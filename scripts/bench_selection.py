@@ -314,7 +314,10 @@ def markdown(res: dict, figure_name: str) -> str:
         for r in d["rows"]:
             pc = r["proxy_check"]
             lines.append(f"| {name}, t={r['t']} | {pc['correlation']:.3f} | {pc['real_over_proxy']:.3f} |")
-    lines += ["", f"![selection accuracy](figures/{figure_name})", ""]
+    lines += ["", f"![selection accuracy](figures/{figure_name})", "",
+              "Renders (CThead, t = 4, 13 curves each; rows uniform / shape-change / auto; "
+              "`python3 scripts/smooth_figures.py --selections 4 --only cthead`): "
+              "[figures/selection_cthead_t4.png](figures/selection_cthead_t4.png)", ""]
     return "\n".join(lines)
 
 

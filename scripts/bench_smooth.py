@@ -1,8 +1,8 @@
 """Benchmark of the smooth PDE head (product issue 8): smoothness, fidelity and speed, peers in the same run.
 
 For CThead (t = 4, 10, 31), the GE tilted series (t = 8, the most its usable slices
-allow with shape-change selection) and the phantom (t = 10), with the add-on's
-boundary pipeline (shape-change slices, 3-D envelope, star hulls, angular samples):
+allow) and the phantom (t = 10), with the add-on's boundary pipeline (its default
+slice selection, 3-D envelope, star hulls, angular samples):
 
 * the smoothness measures of :mod:`pdehead_addon.surface_quality` on a (20t+1) x 360
   grid (crease p95 at the interior curves, folds, notch share, terracing RMS) for the

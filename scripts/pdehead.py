@@ -55,7 +55,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "from every slice's outline (automatic selection)")
     p.add_argument("--max-tolerance", type=float, metavar="MM",
                    help="with --tolerance (or alone): also bound the largest distance from the outlines")
-    p.add_argument("--selection", default=None, choices=list(D.SELECTION.choices) + ["auto"],
+    p.add_argument("--selection", default=None, choices=list(D.SELECTION.choices),
                    help=D.SELECTION.help("how the 3t+1 slices are chosen (shape-change: denser where the face "
                                          "changes; auto: closest to every slice's outline)"))
     p.add_argument("--no-align", action="store_true",
@@ -215,46 +215,20 @@ def loader_kwargs(args) -> dict:
 
 
 def _auto_boundaries(args, ops, addon, coll) -> str:
-    """Automatic slice selection (engine ``selection="auto"`` / ``tolerance_mm``); returns the summary line.
-
-    Uses the extract operator's own ``selection="auto"`` and ``tolerance_mm`` when the add-on has them;
-    until then the boundaries are extracted by the operator (its settings, its objects) and replaced by
-    the engine's automatic choice through the same store the operator uses."""
-    import importlib
-    import warnings
-    rna = ops.extract_boundaries.get_rna_type().properties
-    has_auto = "auto" in [item.identifier for item in rna["selection"].enum_items]
-    tol = dict(tolerance_mm=args.tolerance, max_tolerance_mm=args.max_tolerance)
-    engine = importlib.import_module("pdehead_dev.pdehead_addon")
-    state = addon.operators.state
+    """Automatic slice selection through the extract operator (``selection="auto"``, or a tolerance
+    that chooses the count); returns the summary line."""
+    if args.no_align:
+        raise CLIError("--selection auto needs the aligned (angular) curves; drop --no-align", 2)
+    tolerance = dict(use_tolerance=True, tolerance_mm=args.tolerance or 0.0, max_tolerance_mm=args.max_tolerance or 0.0) \
+        if args.tolerance is not None or args.max_tolerance is not None else dict(use_tolerance=False)
+    _call(ops.extract_boundaries, patches=args.patches, samples=args.samples, selection="auto", align_curves=True,
+          **tolerance)
     s = coll.pdehead
-    if has_auto and ("tolerance_mm" in rna.keys() or args.tolerance is None and args.max_tolerance is None):
-        extra = {k: v for k, v in tol.items() if v is not None}
-        _call(ops.extract_boundaries, patches=args.patches, samples=args.samples, selection="auto",
-              align_curves=True, **extra)
-        bset = state.cache_for(s.study_id).bset
-    else:
-        if args.no_align:
-            raise CLIError("--selection auto needs the aligned (angular) curves; drop --no-align", 2)
-        limit = engine.max_patches(state.cache_for(s.study_id).seg)
-        _call(ops.extract_boundaries, patches=max(1, min(args.patches, limit)), samples=args.samples,
-              selection="uniform", align_curves=True)
-        cache = state.cache_for(s.study_id)
-        kwargs = {k: v for k, v in tol.items() if v is not None} or dict(patches=min(args.patches, limit))
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", engine.slice_selection.SelectionWarning)
-            try:
-                bset = engine.extract_boundaries(cache.seg, samples=args.samples, selection="auto", **kwargs)
-            except engine.PDEHeadError as exc:
-                raise CLIError(str(exc), 1) from None
-        for w in caught:
-            print(f"{PROG}: warning: {w.message}", file=sys.stderr)
-        from pdehead_dev.operators import objects
-        state.store_boundaries(coll, bset)
-        cache.drop_from("bset")
-        cache.bset = bset
-        s.curves_object = objects.build_boundary_curves(bset, coll, name=f"{coll.name} Boundary curves",
-                                                        obj=s.curves_object)
+    if s.warnings:
+        for w in s.warnings.split("; "):
+            if "tolerance" in w:
+                print(f"{PROG}: warning: {w}", file=sys.stderr)
+    bset = addon.operators.state.cache_for(s.study_id).bset
     m = bset.meta
     asked = ""
     if m.get("selection_tolerance_mm") is not None or m.get("selection_max_tolerance_mm") is not None:

@@ -6,6 +6,8 @@ three-quarter, Cycles CPU at 512 px per tile, into ``docs/figures/smooth_<data>.
 (rows: C2 default, paper patches, marching cubes of the segmentation mask).
 
     python3 scripts/smooth_figures.py [--size 512] [--samples 16] [--only cthead]
+    python3 scripts/smooth_figures.py --selections 4 --only cthead   # issue 14: uniform / shape-change /
+                                      # auto rows at t = 4 into docs/figures/selection_<data>_t4.png
 """
 from __future__ import annotations
 
@@ -38,14 +40,24 @@ def surfaces(seg, t: int) -> list[tuple[str, E.Mesh]]:
     return [(f"C2 default (t={t})", c2), (f"paper patches (t={t})", paper), ("marching cubes (all slices)", mc)]
 
 
-def render_case(name: str, t: int, size: int, samples: int, out: Path) -> Path:
+def selection_surfaces(seg, t: int) -> list[tuple[str, E.Mesh]]:
+    """The default C2 surface through the curves of each slice selection (issue 14)."""
+    rows = []
+    for selection in ("uniform", "shape-change", "auto"):
+        bset = E.extract_boundaries(seg, patches=t, selection=selection)
+        rows.append((f"{selection} (t={t}, {bset.curves.shape[0]} curves)",
+                     E.solve_pde(bset).surface(20 * t + 1, 360, caps=True)))
+    return rows
+
+
+def render_case(name: str, t: int, size: int, samples: int, out: Path, selections: bool = False) -> Path:
     bl = bench.blender()
     bpy, objects, render = bl["bpy"], bl["objects"], bl["render"]
     bpy.ops.wm.read_homefile(use_empty=True)
     seg = bench_smooth.load(name)
     coll = objects.study_collection(f"figure {name}")
     built = []
-    for label, mesh in surfaces(seg, t):
+    for label, mesh in (selection_surfaces if selections else surfaces)(seg, t):
         obj = objects.build_mesh_object(mesh, coll, label, smooth=True)
         obj.data.materials.append(objects.ensure_skin_material())
         built.append((label, obj))
@@ -67,7 +79,7 @@ def render_case(name: str, t: int, size: int, samples: int, out: Path) -> Path:
     for i, tiles in enumerate(rows):
         for j, tile in enumerate(tiles):
             sheet.paste(tile, (j * size, i * size))
-    path = out / f"smooth_{name}.png"
+    path = out / (f"selection_{name}_t{t}.png" if selections else f"smooth_{name}.png")
     # 64 colours without dithering: the shading stays smooth and the sheet under 1 MB
     sheet.quantize(colors=64, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE).save(path, optimize=True)
     print(path, flush=True)
@@ -80,10 +92,13 @@ def main(argv=None) -> int:
     ap.add_argument("--samples", type=int, default=16)
     ap.add_argument("--only", choices=sorted(CASES), action="append")
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "figures")
+    ap.add_argument("--selections", type=int, metavar="T",
+                    help="render uniform / shape-change / auto rows at this t instead")
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     for name in args.only or CASES:
-        render_case(name, CASES[name], args.size, args.samples, args.out)
+        render_case(name, args.selections or CASES[name], args.size, args.samples, args.out,
+                    selections=bool(args.selections))
     return 0
 
 

@@ -81,7 +81,7 @@ def test_the_values_the_add_on_user_sees():
     assert (D.NU.default, D.NV.default) == (120, 240)
     assert D.DENSITY.default == 40.0
     assert (D.PATCHES.default, D.PATCHES.min, D.PATCHES.max) == (10, 1, 60)
-    assert D.SELECTION.default == "shape-change" and D.CONTINUITY.default == "c2"
+    assert D.SELECTION.default == "auto" and D.CONTINUITY.default == "c2"
     assert (D.LOW_ALPHA.default, D.HIGH_ALPHA.default) == (0.1, 0.9)   # section 5.3
     assert D.default("samples") == 256
 

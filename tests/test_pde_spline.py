@@ -193,9 +193,10 @@ def test_quality_measures_detect_what_they_measure():
 @pytest.mark.slow
 @pytest.mark.parametrize("dataset,t", [("cthead", 10), ("ge", 8), ("phantom", 10)])
 def test_default_head_is_smooth_on_real_scans(request, dataset, t):
-    """The issue's smoothness measures on the add-on's default pipeline (shape-change slices)."""
+    """The issue's smoothness measures on the add-on's default pipeline (its default slice selection)."""
+    from pdehead_addon.defaults import SELECTION
     seg = request.getfixturevalue(f"{dataset}_seg")
-    b = extract_boundaries(seg, patches=t, selection="shape-change")
+    b = extract_boundaries(seg, patches=t, selection=SELECTION.default)
     head = solve_pde(b)
     q = surface_quality(head)
     print(dataset, t, {k: round(v, 4) for k, v in q.items()}, "deviation", round(head.curve_deviation, 2))

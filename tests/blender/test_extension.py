@@ -120,8 +120,8 @@ def test_every_setting_operator_option_and_preference_reads_the_defaults_table(p
             checked += 1
         return checked
 
-    assert check(settings, "study settings") == 27  # every study setting of the table
-    for op, at_least in (("run_pipeline", 6), ("extract_boundaries", 4), ("reconstruct_surface", 10),
+    assert check(settings, "study settings") == 30  # every study setting of the table
+    for op, at_least in (("run_pipeline", 6), ("extract_boundaries", 7), ("reconstruct_surface", 10),
                          ("build_solid", 6), ("build_volume", 8), ("import_ct", 1)):
         rna = getattr(bpy.ops.pdehead, op).get_rna_type().properties
         assert check(rna, op) >= at_least, op
