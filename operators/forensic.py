@@ -17,26 +17,9 @@ from bpy.types import Operator, Panel
 from ..pdehead_addon import PDEHeadError
 from ..pdehead_addon.landmarks import STANDARD_LANDMARKS
 from . import ops, state
-
-SKULL_BOUNDARY_KEY = "pdehead_skull_boundaries"
-DEPTH_STATS_KEY = "pdehead_depth_stats"
-SKULL_INFO_KEY = "pdehead_skull_info"
-FRANKFURT_KEY = "pdehead_frankfurt"         # 16 floats: the Blender-space transform applied
-BASE_MATRIX_KEY = "pdehead_base_matrix"     # per object: its matrix before the Frankfurt transform
-DEPTH_ATTRIBUTE = "tissue_depth"
-REASON_ATTRIBUTE = "tissue_depth_reason"
-DISPLAY_ATTRIBUTE = "tissue_depth_display"   # shading only (see _display_values)
-VALID_ATTRIBUTE = "tissue_depth_valid"
-DEPTH_MATERIAL = "PDE Head Tissue Depth"
-BONE_MATERIAL = "PDE Head Bone"
-PEG_MATERIAL = "PDE Head Depth Peg"
-LANDMARK_KEY = "pdehead_landmark"
-#: Radius of a marker peg (mm).
-PEG_RADIUS_MM = 1.5
-#: Depth (mm) at the red end of the colour map.
-DEPTH_DISPLAY_MAX_MM = 25.0
-
-from .forensic_study import (MIRROR_PLANES, _obj, apply_frankfurt, export_study, landmarks, make_pegs, mirror_object, place_landmark, skin_engine_mesh, skull_engine_mesh, step_depth, step_skull, world_to_patient)
+from .forensic_study import (DEPTH_ATTRIBUTE, DEPTH_MATERIAL, DEPTH_STATS_KEY, MIRROR_PLANES, SKULL_INFO_KEY, _obj,
+                             apply_frankfurt, export_study, landmarks, make_pegs, mirror_object, place_landmark,
+                             skin_engine_mesh, skull_engine_mesh, step_depth, step_skull, world_to_patient)
 
 _LANDMARK_ITEMS = [(d.name, d.name, d.description) for d in STANDARD_LANDMARKS]
 

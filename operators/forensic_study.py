@@ -48,23 +48,6 @@ PEG_RADIUS_MM = 1.5
 DEPTH_DISPLAY_MAX_MM = 25.0
 
 
-SKULL_BOUNDARY_KEY = "pdehead_skull_boundaries"
-DEPTH_STATS_KEY = "pdehead_depth_stats"
-SKULL_INFO_KEY = "pdehead_skull_info"
-FRANKFURT_KEY = "pdehead_frankfurt"         # 16 floats: the Blender-space transform applied
-BASE_MATRIX_KEY = "pdehead_base_matrix"     # per object: its matrix before the Frankfurt transform
-DEPTH_ATTRIBUTE = "tissue_depth"
-REASON_ATTRIBUTE = "tissue_depth_reason"
-DISPLAY_ATTRIBUTE = "tissue_depth_display"   # shading only (see _display_values)
-VALID_ATTRIBUTE = "tissue_depth_valid"
-DEPTH_MATERIAL = "PDE Head Tissue Depth"
-BONE_MATERIAL = "PDE Head Bone"
-PEG_MATERIAL = "PDE Head Depth Peg"
-LANDMARK_KEY = "pdehead_landmark"
-#: Radius of a marker peg (mm).
-PEG_RADIUS_MM = 1.5
-#: Depth (mm) at the red end of the colour map.
-DEPTH_DISPLAY_MAX_MM = 25.0
 
 
 # ------------------------------------------------------------------------------------------ helpers

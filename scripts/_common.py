@@ -117,3 +117,38 @@ def defaults():
         sys.modules["_pdehead_defaults"] = module  # dataclasses look their module up while building
         spec.loader.exec_module(module)
     return module
+
+
+# ----------------------------------------------------------------------------- the benchmarks' data and peer
+def load_segmentation(name: str):
+    """``segment_head`` of a benchmark data set: "cthead" (raw16), "ge" (the tilted DICOM series) or the phantom."""
+    import pdehead_addon as E
+    if name == "cthead":
+        ct = E.load_ct(SHARED_DATA / "cthead_stanford" / "raw16", **CTHEAD_RAW16_OPTIONS)
+    elif name == "ge":
+        ct = E.load_ct(SHARED_DATA / "ct_head_ge_tilt_dicom" / "dicom")
+    else:
+        ct = E.make_phantom().ct
+    return E.segment_head(ct)
+
+
+def marching_cubes(seg):
+    """The peer: skimage's marching cubes of the mask at 0.5, vertices in patient mm, and its triangles."""
+    import numpy as np
+    from skimage import measure
+    verts, faces, _, _ = measure.marching_cubes(seg.mask.astype(np.float32, copy=False), 0.5)
+    return seg.ct.index_to_patient(verts), faces
+
+
+def tube_fidelity(head, verts, faces, samples: int) -> dict:
+    """Symmetric distance of the open tube (8t+1 rows x 256 in the curves' z range) to the MC triangles there."""
+    import numpy as np
+    import pdehead_addon as E
+    from pdehead_addon.surface_mesh import _tube_mesh
+    z = head.bset.curves[..., 2]
+    cz = verts[faces][:, :, 2].mean(axis=1)
+    sel = faces[(cz >= z.min()) & (cz <= z.max())]
+    u = np.linspace(head.curve_u[0], head.curve_u[-1], 8 * head.patches + 1)
+    tube = _tube_mesh(head._grid(u, 256), head.orientation)
+    d = E.symmetric_surface_distance(tube.vertices, tube.quads, verts, sel, samples=samples)
+    return {k: float(d[k]) for k in ("mean", "p95", "max")}

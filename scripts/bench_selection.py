@@ -40,40 +40,12 @@ for _p in (str(ROOT), str(ROOT / "scripts")):
 
 import pdehead_addon as E  # noqa: E402
 from pdehead_addon import slice_selection as S  # noqa: E402
-from _common import CTHEAD_RAW16_OPTIONS as CTHEAD_RAW16, SHARED_DATA as DATA  # noqa: E402
+from _common import load_segmentation as load, marching_cubes, tube_fidelity as fidelity  # noqa: E402
 from md_sections import write_section  # noqa: E402
 
 SELECTIONS = ("uniform", "shape-change", "auto")
 T_VALUES = {"phantom": (4, 5, 6, 10, 14), "cthead": (4, 5, 6, 10, 14), "ge": (3, 4, 5, 6)}
 TARGETS = {"excess_ratio": 0.6, "tolerance_mm": 0.5, "tolerance_curve_ratio": 0.6, "auto_extra_s": 2.0}
-
-
-def load(name: str):
-    if name == "cthead":
-        ct = E.load_ct(DATA / "cthead_stanford" / "raw16", **CTHEAD_RAW16)
-    elif name == "ge":
-        ct = E.load_ct(DATA / "ct_head_ge_tilt_dicom" / "dicom")
-    else:
-        ct = E.make_phantom().ct
-    return E.segment_head(ct)
-
-
-def marching_cubes(seg):
-    from skimage import measure
-    verts, faces, _, _ = measure.marching_cubes(seg.mask.astype(np.float32, copy=False), 0.5)
-    return seg.ct.index_to_patient(verts), faces
-
-
-def fidelity(head, verts, faces, samples: int) -> dict:
-    """Symmetric distance of the open tube (8t+1 rows x 256 in the curves' z range) to the MC triangles there."""
-    from pdehead_addon.pde_surface import _tube_mesh
-    z = head.bset.curves[..., 2]
-    cz = verts[faces][:, :, 2].mean(axis=1)
-    sel = faces[(cz >= z.min()) & (cz <= z.max())]
-    u = np.linspace(head.curve_u[0], head.curve_u[-1], 8 * head.patches + 1)
-    tube = _tube_mesh(head._grid(u, 256), head.orientation)
-    d = E.symmetric_surface_distance(tube.vertices, tube.quads, verts, sel, samples=samples)
-    return {k: float(d[k]) for k in ("mean", "p95", "max")}
 
 
 def positions(cand, bset) -> np.ndarray:

@@ -36,7 +36,7 @@ for _p in (str(ROOT), str(ROOT / "scripts")):
 
 import pdehead_addon as E  # noqa: E402
 from pdehead_addon.surface_quality import surface_quality  # noqa: E402
-from _common import CTHEAD_RAW16_OPTIONS, SHARED_DATA as DATA, timed  # noqa: E402
+from _common import load_segmentation as load, marching_cubes, timed, tube_fidelity as fidelity  # noqa: E402
 from md_sections import write_section  # noqa: E402
 from pdehead_addon import defaults as D  # noqa: E402
 
@@ -50,22 +50,6 @@ def median_time(fn, repeats: int) -> tuple[float, object]:
     """Median wall time of ``fn`` after one warm-up call (:func:`_common.timed`) and its last result."""
     stats, out = timed(fn, repeats, warmup=True)
     return stats["median_s"], out
-
-
-def load(name: str):
-    if name == "cthead":
-        ct = E.load_ct(DATA / "cthead_stanford" / "raw16", **CTHEAD_RAW16_OPTIONS)
-    elif name == "ge":
-        ct = E.load_ct(DATA / "ct_head_ge_tilt_dicom" / "dicom")
-    else:
-        ct = E.make_phantom().ct
-    return E.segment_head(ct)
-
-
-def marching_cubes(seg):
-    from skimage import measure
-    verts, faces, _, _ = measure.marching_cubes(seg.mask.astype(np.float32, copy=False), 0.5)
-    return seg.ct.index_to_patient(verts), faces
 
 
 def flying_edges(mask: np.ndarray):
@@ -84,18 +68,6 @@ def flying_edges(mask: np.ndarray):
     fe.ComputeGradientsOff()
     fe.Update()
     return fe.GetOutput().GetNumberOfCells()
-
-
-def fidelity(head, verts, faces, samples: int) -> dict:
-    """Symmetric distance of the open tube through the curves' z range to the marching-cubes triangles there."""
-    from pdehead_addon.pde_surface import _tube_mesh
-    z = head.bset.curves[..., 2]
-    cz = verts[faces][:, :, 2].mean(axis=1)
-    sel = faces[(cz >= z.min()) & (cz <= z.max())]
-    u = np.linspace(head.curve_u[0], head.curve_u[-1], 8 * head.patches + 1)
-    tube = _tube_mesh(head._grid(u, 256), head.orientation)
-    d = E.symmetric_surface_distance(tube.vertices, tube.quads, verts, sel, samples=samples)
-    return {k: float(d[k]) for k in ("mean", "p95", "max")}
 
 
 class _AtHeights:

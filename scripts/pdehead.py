@@ -297,8 +297,8 @@ def _steps(args, bpy, addon, state) -> dict:
           f"range {s.value_range[0]:.0f}..{s.value_range[1]:.0f}")
     print(f"  segment   head {100 * s.seg_fraction:.1f} % of voxels, {s.seg_iterations} iterations")
     kb = len(coll[state.BOUNDARY_KEY]) * 3 / 4 / 1024
-    curves = state.cache_for(s.study_id).bset.curves.shape[0] if selection_info else 3 * s.patches + 1
-    count = "automatic selection" if selection_info else f"t = {s.patches}"
+    curves = s.curve_count or 3 * s.patches + 1
+    count = ("counted for the tolerance" if s.use_tolerance else f"t = {s.patches}") + f", {args.selection} selection"
     print(f"  curves    {curves} x {s.samples} points ({count}), {kb:.0f} kB in the .blend")
     if selection_info:
         print(f"  selection {selection_info}")

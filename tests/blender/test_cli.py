@@ -38,7 +38,7 @@ def test_cli_phantom_writes_blend_vdb_and_renders(tmp_path):
     stdout = result.stdout
     for step in ("import", "segment", "boundaries", "surface", "solid", "w_field", "volume", "total"):
         assert f"\n  {step}" in stdout, stdout
-    assert "19 x 256 points (t = 6)" in stdout
+    assert "19 x 256 points (t = 6, auto selection)" in stdout
     assert (out / "phantom.blend").is_file() and not (out / "phantom.blend1").exists()
     assert not list(out.glob(".*partial*"))                     # the scratch file is gone
     assert "Saved as" not in stdout and "wrote " in stdout         # written once, at the end, when it worked
@@ -137,7 +137,7 @@ def test_cli_tolerance_picks_the_count_and_prints_the_achieved_error(tmp_path):
     assert m, result.stdout[-2000:]
     count, usable, mean = int(m.group(1)), int(m.group(2)), float(m.group(3))
     assert 4 < count < usable and mean <= 0.3
-    assert re.search(rf"curves\s+{count} x 256 points \(automatic selection\)", result.stdout)
+    assert re.search(rf"curves\s+{count} x 256 points \(counted for the tolerance, auto selection\)", result.stdout)
     assert out.exists()
     result = run_cli("--phantom", "--tolerance", 0.3, "--patches", 4, tmp_path=tmp_path)
     assert result.returncode == 2 and "give either --patches or --tolerance" in result.stderr
