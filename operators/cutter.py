@@ -38,7 +38,7 @@ def _longest_run(free: np.ndarray, circular: bool) -> tuple[int, int] | None:
     if free.all():
         return (0, n - 1)
     x = np.concatenate([free, free]) if circular else free
-    best, start, run_start = (0, 0, 0), None, 0
+    best, start = (0, 0, 0), None
     for i, f in enumerate(x):  # <= 256 entries: one pass over the sample columns, not over voxels
         if f and start is None:
             start = i

@@ -44,7 +44,7 @@ Steps of :func:`segment_skull`:
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np

@@ -44,7 +44,6 @@ import datetime as _dt
 import gc
 import importlib
 import json
-import math
 import os
 import platform
 import re
@@ -269,7 +268,7 @@ SELECTION = D.SELECTION.default
 
 def boundaries(seg, patches: int = D.PATCHES.default, samples: int = D.SAMPLES.default, selection: str = SELECTION):
     """Boundary curves as the add-on makes them by default: its default slice selection and the
-    aligned parameterisation (the "Align Curves" option, extract_boundaries' default)."""
+    angular samples around a smooth spine (the "Align Curves" option, extract_boundaries' default)."""
     return E.extract_boundaries(seg, patches=patches, samples=samples, selection=selection)
 
 
@@ -467,11 +466,9 @@ class Bench:
         t = min(10, t_max) if t_max >= 1 else 10
         refused = f"the scan allows t <= {t_max}" if t < 10 else None
         stats, bset = timed(lambda: boundaries(seg, t, 256), self.repeats)
-        s_extract, _ = timed(lambda: E.extract_boundaries(seg, patches=t, samples=256, selection=SELECTION,
-                                                          parameterisation="arc-length"), self.repeats)
         st["bset"], st["t"] = bset, t
-        out = {"time": stats, "arc_length_only": s_extract, "patches": bset.patches, "samples": bset.samples,
-               "aligned": bset.meta.get("parameterisation") == "aligned", "selection": SELECTION,
+        out = {"time": stats, "patches": bset.patches, "samples": bset.samples,
+               "parameterisation": bset.meta.get("parameterisation"), "selection": SELECTION,
                "slice_indices": [int(k) for k in bset.slice_indices]}
         if refused:
             out["note"] = f"t = 10 refused ({refused}); using t = {t}"
@@ -854,7 +851,7 @@ def markdown(out: dict) -> str:
                         + (f" [{peer['slices']}-slice subset, extrapolated]" if peer["subset"] else
                            f" [all {peer['slices']} head slices, measured]"))
                 L.append(f"| {lab} | segmentation | {ours_txt} | {ptxt} | {sg['ratio']:.1f}x | "
-                         + (f"<= 2 s, >= 5x" if key == "cthead" else "-") + " |")
+                         + ("<= 2 s, >= 5x" if key == "cthead" else "-") + " |")
             else:
                 extra = (f"; mask = {100 * sg['ours']['mask_fraction']:.1f}% of the volume"
                          if "mask_fraction" in sg["ours"] else "")
@@ -863,7 +860,7 @@ def markdown(out: dict) -> str:
             L.append(f"| {lab} | segmentation | {sg['error']} | | | |")
         bd = r.get("boundaries", {})
         if "time" in bd:
-            L.append(f"| {lab} | boundaries t={bd['patches']}, M=256{' + align' if bd.get('aligned') else ''} | "
+            L.append(f"| {lab} | boundaries t={bd['patches']}, M=256{', ' + bd['parameterisation'] if bd.get('parameterisation') else ''} | "
                      f"{_ms(bd['time']['median_s'])} | - | - | "
                      f"(paper: {PAPER['boundary_seconds']} s) |")
         elif "error" in bd:

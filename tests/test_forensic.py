@@ -21,7 +21,7 @@ from pdehead_addon.landmarks import (frankfurt_transform, landmark, marker_pegs,
                                      STANDARD_LANDMARKS)
 from pdehead_addon.phantom import BONE, HOLDER, GEOMETRY
 from pdehead_addon.skull import bone_level, segment_skull, skull_mesh
-from pdehead_addon.tissue_depth import ENVELOPE, MEASURED, NO_BONE, tissue_depth, write_depth_csv
+from pdehead_addon.tissue_depth import ENVELOPE, MEASURED, tissue_depth, write_depth_csv
 
 VAULT_Z = 45.0  # above the brow, the eyes and the ears: the phantom's skin there is the cranium ellipsoid only
 

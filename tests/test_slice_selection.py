@@ -1,7 +1,6 @@
 """Automatic slice selection (issue 14): selection="auto" and the tolerance path, on the phantom and CThead."""
 from __future__ import annotations
 
-import warnings
 
 import numpy as np
 import pytest
