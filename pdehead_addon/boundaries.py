@@ -992,7 +992,12 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
         selectable[cut_off] = False
     if auto:
         selection_name = "auto"
+        from . import slice_selection as S
         chosen = usable_slices(selectable, slice_z, min_area_fraction)        # every candidate, traced below
+        if tolerance_mm is None and max_tolerance_mm is None:
+            chosen = S.thin_candidates(chosen, n)
+        else:
+            chosen = S.thin_candidates(chosen)
         if len(chosen) < MIN_CURVES:
             raise BoundaryError(f"only {len(chosen)} slices have a usable head cross-section; a PDE head "
                                 f"needs at least {MIN_CURVES}")

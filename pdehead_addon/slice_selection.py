@@ -66,6 +66,20 @@ REAL_ROWS_PER_GAP = 3
 REAL_DENSE_SAMPLES = 200_000
 #: Default tolerance (mm) on the mean distance of the surface from every slice's outline.
 DEFAULT_TOLERANCE_MM = 0.5
+#: At most this many candidate slices (or twice the curves asked for) are traced: thin-slice scans
+#: (300 slices of 0.7 mm) keep every ~2nd slice, still under 2 mm apart, instead of tracing all
+#: (8.8 s for the boundaries of a 512 x 512 x 300 scan with every slice, measured).
+MAX_CANDIDATES = 128
+
+
+def thin_candidates(indices: np.ndarray, n_curves: int = 0, most: int = MAX_CANDIDATES) -> np.ndarray:
+    """Evenly spread subset (ends kept) of the usable slice ``indices`` when there are more than
+    ``max(most, 2 n_curves)``; else ``indices`` unchanged."""
+    indices = np.asarray(indices)
+    keep = max(int(most), 2 * int(n_curves))
+    if len(indices) <= keep:
+        return indices
+    return indices[np.unique(np.round(np.linspace(0, len(indices) - 1, keep)).astype(int))]
 
 
 class SelectionWarning(UserWarning):

@@ -142,3 +142,22 @@ def test_auto_beats_uniform_on_cthead(cthead_seg):
     assert e_auto <= 0.95 * e_uni, (e_auto, e_uni)
     assert auto.slice_indices[0] == cand.slices[0] and auto.slice_indices[-1] == cand.slices[-1]
     assert cand.count >= 100                            # every usable CThead slice is a candidate
+
+
+def test_thin_slice_scans_trace_an_even_subset_of_the_candidates(phantom_seg, monkeypatch):
+    """Past MAX_CANDIDATES usable slices only an even subset is traced (ends kept), at least 2n."""
+    idx = np.arange(10, 310)
+    thin = S.thin_candidates(idx, n_curves=31, most=128)
+    assert len(thin) == 128 and thin[0] == 10 and thin[-1] == 309 and np.all(np.diff(thin) >= 2)
+    assert np.ptp(np.diff(thin)) <= 1                                  # evenly spread
+    assert len(S.thin_candidates(idx, n_curves=100, most=128)) == 200   # never fewer than 2n
+    assert S.thin_candidates(idx[:50]) is not None and len(S.thin_candidates(idx[:50])) == 50
+    full = E.extract_boundaries(phantom_seg, patches=4, selection="auto")
+    monkeypatch.setattr(S, "MAX_CANDIDATES", 40)
+    monkeypatch.setattr(S.thin_candidates, "__defaults__", (0, 40))
+    few = E.extract_boundaries(phantom_seg, patches=4, selection="auto")
+    assert full.meta["selection_candidates"] > 40 == few.meta["selection_candidates"]
+    assert few.slice_indices[0] == full.slice_indices[0] and few.slice_indices[-1] == full.slice_indices[-1]
+    # chosen from fewer outlines, the surface is nearly as close to all of them (within 10 %)
+    on_all = S.surface_error(few, S.candidates_of(full))["mean_mm"]
+    assert on_all < 1.1 * full.meta["selection_mean_mm"], (on_all, full.meta["selection_mean_mm"])
