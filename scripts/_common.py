@@ -140,8 +140,10 @@ def marching_cubes(seg):
     return seg.ct.index_to_patient(verts), faces
 
 
-def tube_fidelity(head, verts, faces, samples: int) -> dict:
-    """Symmetric distance of the open tube (8t+1 rows x 256 in the curves' z range) to the MC triangles there."""
+def tube_fidelity(head, verts, faces, samples: int, everything: bool = False) -> dict:
+    """Symmetric distance of the open tube (8t+1 rows x 256 between the lowest and the highest curve:
+    not the crown's dome above it) to the MC triangles in the curves' z range: mean, p95, max (and,
+    with ``everything``, all that ``symmetric_surface_distance`` returns)."""
     import numpy as np
     import pdehead_addon as E
     from pdehead_addon.surface_mesh import _tube_mesh
@@ -151,4 +153,4 @@ def tube_fidelity(head, verts, faces, samples: int) -> dict:
     u = np.linspace(head.curve_u[0], head.curve_u[-1], 8 * head.patches + 1)
     tube = _tube_mesh(head._grid(u, 256), head.orientation)
     d = E.symmetric_surface_distance(tube.vertices, tube.quads, verts, sel, samples=samples)
-    return {k: float(d[k]) for k in ("mean", "p95", "max")}
+    return d if everything else {k: float(d[k]) for k in ("mean", "p95", "max")}
