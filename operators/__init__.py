@@ -22,13 +22,18 @@ def pdehead_load_post(*_args) -> None:
             state.drop_cache(study_id)
 
 
-#: Registered in this order, unregistered in reverse.
-_MODULES = (props, prefs, ops, panel, forensic, persistence, study)
+#: Every class of the Blender layer, registered once in this order (parent panels before their
+#: children) and unregistered in reverse.
+CLASSES = (*props.CLASSES, *prefs.CLASSES, *ops.CLASSES, *panel.CLASSES, *forensic.CLASSES)
 
 
 def register() -> None:
-    for mod in _MODULES:
-        mod.register()
+    for cls in CLASSES:
+        bpy.utils.register_class(cls)
+    props.attach()
+    ops.add_menu()
+    persistence.register()
+    study.register()
     bpy.app.handlers.load_post.append(pdehead_load_post)
 
 
@@ -36,6 +41,10 @@ def unregister() -> None:
     for handler in list(bpy.app.handlers.load_post):
         if getattr(handler, "__name__", "") == "pdehead_load_post":
             bpy.app.handlers.load_post.remove(handler)
-    for mod in reversed(_MODULES):
-        mod.unregister()
+    study.unregister()
+    persistence.unregister()
+    ops.remove_menu()
+    props.detach()
+    for cls in reversed(CLASSES):
+        bpy.utils.unregister_class(cls)
     state.drop_cache()

@@ -99,18 +99,26 @@ class PDEHEAD_OT_place_landmark(Operator, _ForensicOp):
         return ops._guarded(self, context, body)
 
 
-class PDEHEAD_OT_import_depth_table(Operator, _ForensicOp):
+class _LandmarkCSVOp(_ForensicOp):
+    """A landmark CSV picked in the file browser, measured on the chosen skull."""
+
+    filepath: StringProperty(subtype='FILE_PATH')
+    filter_glob: StringProperty(default="*.csv", options={'HIDDEN'})
+    target: EnumProperty(name="Skull", items=TARGET_ITEMS, default='BONE')
+    default_name = ""   # the file name the browser proposes (writers only)
+
+    def invoke(self, context, event):
+        if self.default_name:
+            self.filepath = self.default_name
+        context.window_manager.fileselect_add(self)
+        return {'RUNNING_MODAL'}
+
+
+class PDEHEAD_OT_import_depth_table(Operator, _LandmarkCSVOp):
     """Import a depth table (CSV: landmark, depth_mm) and put marker pegs on the skull at the placed landmarks"""
 
     bl_idname = "pdehead.import_depth_table"
     bl_label = "Import Depth Table"
-    filepath: StringProperty(subtype='FILE_PATH')
-    filter_glob: StringProperty(default="*.csv", options={'HIDDEN'})
-    target: EnumProperty(name="Skull", items=TARGET_ITEMS, default='BONE')
-
-    def invoke(self, context, event):
-        context.window_manager.fileselect_add(self)
-        return {'RUNNING_MODAL'}
 
     def execute(self, context):
         def body():
@@ -121,19 +129,12 @@ class PDEHEAD_OT_import_depth_table(Operator, _ForensicOp):
         return ops._guarded(self, context, body)
 
 
-class PDEHEAD_OT_export_landmark_depths(Operator, _ForensicOp):
+class PDEHEAD_OT_export_landmark_depths(Operator, _LandmarkCSVOp):
     """Export the measured tissue depth at each placed landmark (skull normal to skin) as CSV"""
 
     bl_idname = "pdehead.export_landmark_depths"
     bl_label = "Export Landmark Depths"
-    filepath: StringProperty(subtype='FILE_PATH')
-    filter_glob: StringProperty(default="*.csv", options={'HIDDEN'})
-    target: EnumProperty(name="Skull", items=TARGET_ITEMS, default='BONE')
-
-    def invoke(self, context, event):
-        self.filepath = "landmark_depths.csv"
-        context.window_manager.fileselect_add(self)
-        return {'RUNNING_MODAL'}
+    default_name = "landmark_depths.csv"
 
     def execute(self, context):
         def body():
@@ -277,13 +278,3 @@ CLASSES = (
     PDEHEAD_OT_export_print,
     PDEHEAD_PT_forensic,
 )
-
-
-def register() -> None:
-    for cls in CLASSES:
-        bpy.utils.register_class(cls)
-
-
-def unregister() -> None:
-    for cls in reversed(CLASSES):
-        bpy.utils.unregister_class(cls)

@@ -547,13 +547,10 @@ CLASSES = (
 )
 
 
-def register() -> None:
-    for cls in CLASSES:
-        bpy.utils.register_class(cls)
+def add_menu() -> None:
+    """File > Import > CT for PDE Head (after :data:`CLASSES` are registered)."""
     bpy.types.TOPBAR_MT_file_import.append(menu_import)
 
 
-def unregister() -> None:
+def remove_menu() -> None:
     bpy.types.TOPBAR_MT_file_import.remove(menu_import)
-    for cls in reversed(CLASSES):
-        bpy.utils.unregister_class(cls)

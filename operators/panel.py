@@ -216,13 +216,3 @@ class PDEHEAD_PT_timings(_StudyPanel, bpy.types.Panel):
 
 CLASSES = (PDEHEAD_PT_study, PDEHEAD_PT_segmentation, PDEHEAD_PT_boundaries, PDEHEAD_PT_surface,
            PDEHEAD_PT_solid, PDEHEAD_PT_volume, PDEHEAD_PT_timings)
-
-
-def register() -> None:
-    for cls in CLASSES:
-        bpy.utils.register_class(cls)
-
-
-def unregister() -> None:
-    for cls in reversed(CLASSES):
-        bpy.utils.unregister_class(cls)

@@ -106,18 +106,22 @@ _HANDLERS = (("save_pre", pdehead_save_pre), ("save_post", pdehead_save_post),
              ("load_post", pdehead_volume_load_post))
 
 
-def register() -> None:
+def _remove_handlers() -> list:
+    """Drop our handlers (also copies left by a reload of the add-on); returns the handler lists."""
+    lists = []
     for kind, fn in _HANDLERS:
         handlers = getattr(bpy.app.handlers, kind)
         for h in list(handlers):
             if getattr(h, "__name__", "") == fn.__name__ and getattr(h, "__module__", "") == fn.__module__:
                 handlers.remove(h)
+        lists.append(handlers)
+    return lists
+
+
+def register() -> None:
+    for handlers, (_, fn) in zip(_remove_handlers(), _HANDLERS):
         handlers.append(fn)
 
 
 def unregister() -> None:
-    for kind, fn in _HANDLERS:
-        handlers = getattr(bpy.app.handlers, kind)
-        for h in list(handlers):
-            if getattr(h, "__name__", "") == fn.__name__ and getattr(h, "__module__", "") == fn.__module__:
-                handlers.remove(h)
+    _remove_handlers()

@@ -53,13 +53,3 @@ def default_patches(context=None) -> int:
 
 
 CLASSES = (PDEHeadPreferences,)
-
-
-def register() -> None:
-    for cls in CLASSES:
-        bpy.utils.register_class(cls)
-
-
-def unregister() -> None:
-    for cls in reversed(CLASSES):
-        bpy.utils.unregister_class(cls)

@@ -177,16 +177,13 @@ class PDEHeadSceneSettings(bpy.types.PropertyGroup):
 CLASSES = (PDEHeadStudySettings, PDEHeadSceneSettings)
 
 
-def register() -> None:
-    for cls in CLASSES:
-        bpy.utils.register_class(cls)
+def attach() -> None:
+    """The settings on every collection and scene (after :data:`CLASSES` are registered)."""
     bpy.types.Collection.pdehead = PointerProperty(type=PDEHeadStudySettings)
     bpy.types.Scene.pdehead = PointerProperty(type=PDEHeadSceneSettings)
 
 
-def unregister() -> None:
+def detach() -> None:
     for owner in (bpy.types.Scene, bpy.types.Collection):
         if hasattr(owner, "pdehead"):
             del owner.pdehead
-    for cls in reversed(CLASSES):
-        bpy.utils.unregister_class(cls)
