@@ -31,7 +31,9 @@ DTYPE_ITEMS = [
 ]
 BYTE_ORDER_ITEMS = [("BIG", "Big Endian", "Most significant byte first ('>')"),
                     ("LITTLE", "Little Endian", "Least significant byte first ('<')")]
-FIRST_SLICE_ITEMS = [("AUTO", "Auto", "From the file headers (DICOM); superior for stacks"),
+FIRST_SLICE_ITEMS = [("AUTO", "Auto", "DICOM: from the file headers. Raw and image stacks: the first file is "
+                                     "inferior, unless the head's crown (where it closes) is at the first file: "
+                                     "then superior, with a warning"),
                      ("SUPERIOR", "Superior", "The first file is the top of the head"),
                      ("INFERIOR", "Inferior", "The first file is the bottom (neck)")]
 
@@ -82,7 +84,8 @@ class LoaderOptions:
                                 description="Raw and image stacks: 3 letters for the patient directions in "
                                             "which the column, row and file index increase, e.g. LPS (the "
                                             "default), LAS (row 0 = back of the head), RAS, PIL (sagittal). "
-                                            "Empty: LPS, or LPI when the first slice is superior")
+                                            "Empty: First Slice decides (Auto: LPS, or LPI when the crown is "
+                                            "at the first file)")
     units: EnumProperty(name="Units", default="AUTO",
                         items=[("AUTO", "Auto", "DICOM says its units; raw and images are stored values"),
                                ("HU", "HU", "The raw or image samples are Hounsfield units (air -1000)")])
@@ -113,8 +116,8 @@ class LoaderOptions:
                            spacing=tuple(float(s) for s in self.spacing))
             if self.orientation.strip():
                 options["orientation"] = self.orientation.strip().upper()
-            else:
-                options["first_slice"] = "inferior" if self.first_slice == "INFERIOR" else "superior"
+            elif self.first_slice != "AUTO":      # Auto: the engine's rule (defaults.FIRST_SLICE), as for images
+                options["first_slice"] = self.first_slice.lower()
             if self.units == "HU":
                 options["units"] = "HU"
             if self.downsample > 1:

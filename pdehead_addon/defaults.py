@@ -202,3 +202,13 @@ MAX_WFIELD_VOXELS = _param("max_wfield_voxels", 5_000_000, min=1,
 DOWNSAMPLE = _param("downsample", 1, min=1, max=8,
                     description="Average blocks of N x N x N voxels on import (for very large scans: 2 needs "
                                 "about 1/8 of the memory)")
+#: Headerless stacks (raw slices, numbered images): where the first file lies. "auto" (the default of the
+#: engine's ``load_ct``, the import dialog's First Slice and the CLI's ``--first-slice``): the first file is
+#: inferior (orientation LPS: row 0 anterior, column 0 the patient's right, later files superior) unless the
+#: head's crown - the end whose cross-section closes to nothing inside the scan - lies at the first file; then
+#: the stack is read the other way round (first file superior) and a warning says so. An explicit value (or
+#: an orientation code) always wins. DICOM and NIfTI carry their own geometry.
+FIRST_SLICE = _param("first_slice", "auto", choices=("auto", "superior", "inferior"),
+                     description="Raw and image stacks: where the first file lies; auto: inferior unless the "
+                                 "crown (where the head closes) is at the first file, then superior (with a "
+                                 "warning)")

@@ -325,3 +325,136 @@ def face_side(data: np.ndarray, spacing: Sequence[float], level: float | None = 
     if max(low, high) >= 3 and max(low, high) >= 2 * min(low, high):
         side = "low" if low > high else "high"
     return dict(low=low, high=high, slices=measured, side=side)
+
+
+# ----------------------------------------------------------------------------------------------
+# Headerless stacks: which end is the crown, is it a head at all, is the byte order right
+# ----------------------------------------------------------------------------------------------
+
+#: A stack end "closes" when the head's cross-section there is under this share of the widest one.
+CROWN_CLOSED_SHARE = 0.05
+#: The vertex is the first slice (from the crown end) whose cross-section reaches this share of the widest.
+CROWN_VERTEX_SHARE = 0.02
+#: Fewest slices (on the ~2 mm look-grid) for the crown test: a few slices cannot show an end closing.
+CROWN_MIN_SLICES = 8
+#: Vertex to widest cross-section: a human head (a child's included) has more than this (mm). CThead: 80 mm,
+#: the phantom 85 mm, the GE series 80 mm.
+MIN_VERTEX_TO_WIDEST_MM = 60.0
+
+
+def crown_end(data: np.ndarray, spacing: Sequence[float], level: float | None = None) -> dict:
+    """Which end of the slice axis (k) is the crown: the end whose cross-section closes inside the scan.
+
+    On the ~2 mm look-grid of :func:`object_mask` the head's cross-section area is measured per
+    slice. An end *closes* when its area is under :data:`CROWN_CLOSED_SHARE` of the widest
+    slice: above the vertex the scan holds air, while the cut end (neck, chin) keeps a large
+    cross-section. When exactly one end closes it is the crown; when both or neither do (a scan
+    cut at both ends, a head inside a larger field) the answer is "unknown". Areas are relative,
+    so a wrong spacing does not change the answer.
+
+    Returns
+    -------
+    dict(end="low" | "high" | "unknown", vertex_to_widest_mm (float, or None when no crown
+    closes), areas (relative, per look-grid slice), look_spacing_mm)
+    """
+    mask, sp = object_mask(data, spacing, level)
+    areas = np.count_nonzero(mask, axis=(1, 2)).astype(np.float64)
+    out = dict(end="unknown", vertex_to_widest_mm=None, areas=[], look_spacing_mm=float(sp[0]))
+    if areas.size < CROWN_MIN_SLICES or areas.max() <= 0:
+        return out
+    rel = areas / areas.max()
+    out["areas"] = [round(float(a), 3) for a in rel]
+    low, high = rel[0] < CROWN_CLOSED_SHARE, rel[-1] < CROWN_CLOSED_SHARE
+    if low == high:
+        return out
+    end = "low" if low else "high"
+    from_crown = rel if low else rel[::-1]
+    vertex = int(np.argmax(from_crown >= CROWN_VERTEX_SHARE))
+    widest = int(np.argmax(from_crown))
+    out.update(end=end, vertex_to_widest_mm=float((widest - vertex) * sp[0]))
+    return out
+
+
+def wrong_byte_order(data: np.ndarray, dtype: np.dtype) -> dict | None:
+    """Whether raw samples were read with the wrong byte order (the other order reads as a CT).
+
+    A CT's stored values fit in 12 bits (0..4095, or -1024..3071 in HU; 16 bits at most for
+    calibrated floats), so a 2-byte reading that spans more than 60,000 values while the
+    byte-swapped reading spans fewer than 4,096 is the wrong order. Floats: the swapped reading
+    is finite and within -5,000..70,000 while this one is not. Sampled (up to 16 slices).
+
+    Parameters
+    ----------
+    data : the samples as read (any float/int array whose values are exactly the file's samples)
+    dtype : the numpy dtype they were read with (its byte order)
+
+    Returns
+    -------
+    None when this order is plausible (or the other is not either), else dict(read=(lo, hi),
+    swapped=(lo, hi), swapped_dtype=the dtype string of the other order).
+    """
+    dt = np.dtype(dtype)
+    if dt.itemsize < 2 or data.size == 0:
+        return None
+    step = max(1, data.shape[0] // 16) if data.ndim == 3 else 1
+    sample = np.asarray(data[::step]).astype(dt)
+    swapped = sample.byteswap().astype(np.float64)      # the same bytes read in the other order
+    read = sample.astype(np.float64)
+    if dt.kind in "iu":
+        span_read = float(read.max() - read.min())
+        span_swapped = float(swapped.max() - swapped.min())
+        bad = span_read > 60_000 and span_swapped < 4_096
+    else:
+        ok = (np.isfinite(swapped).all() and swapped.min() >= -5_000 and swapped.max() <= 70_000
+              and swapped.max() - swapped.min() > 1.0)
+        finite = np.isfinite(read)
+        bad = bool(ok and (finite.mean() < 0.99 or (finite.any() and np.abs(read[finite]).max() > 1e6)))
+    if not bad:
+        return None
+    finite = read[np.isfinite(read)]
+    return dict(read=(float(finite.min()), float(finite.max())) if finite.size else (float("nan"),) * 2,
+                swapped=(float(swapped.min()), float(swapped.max())),
+                swapped_dtype=np.dtype(dtype).newbyteorder("S").str)
+
+
+def photo_evidence(slices: Sequence[np.ndarray], colour_chroma: float) -> list[str]:
+    """What in an image stack says "photographs, not a head CT" (empty: nothing).
+
+    A CT slice is greyscale and mostly air around one bright object: a large share of its
+    pixels sits at the dark end of the value range (air) and most of the rest in a second,
+    brighter mode (soft tissue). Photographs are colour, or spread their values over the whole
+    range with no dark air mode.
+
+    Parameters
+    ----------
+    slices : the images (greyscale values), a sample of the stack is enough
+    colour_chroma : mean over the pixels of (max - min) of R, G, B as a share of the value range
+        (0 for greyscale files and for colour files whose channels are equal)
+
+    Returns
+    -------
+    The observations that failed, as phrases for the message.
+    """
+    seen = []
+    if colour_chroma > PHOTO_MAX_CHROMA:
+        seen.append(f"colour images (mean colour saturation {100 * colour_chroma:.0f} % of the value range; "
+                    "CT slices are grey)")
+    values = np.concatenate([np.asarray(s, np.float32)[::2, ::2].ravel() for s in slices])
+    lo, hi = np.percentile(values, [0.5, 99.5]) if values.size else (0.0, 0.0)
+    if hi <= lo:
+        seen.append("every pixel has the same value")
+        return seen
+    air = float(np.mean(values <= lo + 0.1 * (hi - lo)))
+    tissue = float(np.mean(values >= lo + 0.25 * (hi - lo)))
+    if air < PHOTO_MIN_AIR or tissue < PHOTO_MIN_TISSUE:
+        seen.append(f"no air/soft-tissue histogram ({100 * air:.0f} % of the pixels in the darkest tenth of the "
+                    f"value range, {100 * tissue:.0f} % above its first quarter; a head CT has air around the "
+                    f"head, at least {100 * PHOTO_MIN_AIR:.0f} %, and tissue)")
+    return seen
+
+
+#: Image stacks: mean colour saturation (share of the value range) above which the images are colour.
+PHOTO_MAX_CHROMA = 0.04
+#: ... and the least share of air (darkest tenth of the range) and of tissue a head CT slice stack has.
+PHOTO_MIN_AIR = 0.10
+PHOTO_MIN_TISSUE = 0.05

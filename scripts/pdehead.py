@@ -85,7 +85,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     g.add_argument("--raw-shape", type=int, nargs=2, metavar=("NY", "NX"), help="raw slices: rows, columns")
     g.add_argument("--dtype", help="raw data type, numpy style: '>i2' (big-endian int16), '<u2', 'u1', '<f4'")
     g.add_argument("--spacing", type=float, nargs=3, metavar=("DZ", "DY", "DX"), help="voxel size in mm")
-    g.add_argument("--first-slice", choices=["superior", "inferior"], help="where the first file lies")
+    g.add_argument("--first-slice", choices=list(D.FIRST_SLICE.choices),
+                   help="raw/image stacks: where the first file lies; default auto: inferior, unless the head's "
+                        "crown (where it closes) is at the first file, then superior with a warning")
     g.add_argument("--orientation", metavar="CODE",
                    help="raw/image stacks: 3 letters for the directions in which the column, row and file "
                         "index increase, e.g. LPS (default), LAS (row 0 = back of the head), RAS, PIL")
@@ -134,7 +136,7 @@ def parse_args(argv=None) -> argparse.Namespace:
             D.VOXEL_SIZE.check(args.voxel_size, "--voxel-size")
         except ValueError as exc:
             p.error(str(exc))
-    if args.orientation and args.first_slice:
+    if args.orientation and args.first_slice not in (None, "auto"):
         p.error("give either --orientation or --first-slice (the orientation's third letter says where "
                 "the files go)")
     return args
@@ -201,7 +203,7 @@ def loader_kwargs(args) -> dict:
     if args.spacing:
         kwargs["spacing"] = tuple(args.spacing)
         kwargs["use_spacing"] = True
-    if args.first_slice:
+    if args.first_slice and args.first_slice != "auto":
         kwargs["first_slice"] = args.first_slice.upper()
     if args.orientation:
         kwargs["orientation"] = args.orientation.upper()

@@ -12,9 +12,10 @@ from .geometry import _headerless_volume
 
 
 
-def _read_image(f: Path) -> tuple[np.ndarray, bool]:
-    """One image as a greyscale numpy array (TIFF through tifffile, others through Pillow), and
-    whether it was converted from colour."""
+def _read_image(f: Path) -> tuple[np.ndarray, float | None]:
+    """One image as a greyscale numpy array (TIFF through tifffile, others through Pillow), and,
+    when it was converted from colour, its mean colour saturation (max - min of R, G, B as a share
+    of the value range; 0 for colour files holding grey pixels), else None."""
     arr = None
     if _has_ext(f, (".tif", ".tiff")):
         try:
@@ -44,8 +45,11 @@ def _read_image(f: Path) -> tuple[np.ndarray, bool]:
     arr = np.asarray(arr)
     if arr.ndim >= 3 and arr.shape[-1] in (3, 4):
         # colour (RGB/RGBA): luminance, ITU-R 601
-        return arr[..., :3].astype(np.float32) @ np.array([0.299, 0.587, 0.114], dtype=np.float32), True
-    return arr, False
+        rgb = arr[..., :3]
+        full = float(np.iinfo(rgb.dtype).max) if rgb.dtype.kind in "iu" else max(float(np.ptp(rgb)), 1e-6)
+        chroma = float(np.mean(rgb[::2, ::2].max(axis=-1) - rgb[::2, ::2].min(axis=-1), dtype=np.float64)) / full
+        return rgb.astype(np.float32) @ np.array([0.299, 0.587, 0.114], dtype=np.float32), chroma
+    return arr, None
 
 
 def _load_images(files, label, spacing, axes, oriented, hu, warns) -> CTVolume:
@@ -58,11 +62,13 @@ def _load_images(files, label, spacing, axes, oriented, hu, warns) -> CTVolume:
         warns.append(f"skipped {len(others)} non-image file(s): " + ", ".join(f.name for f in others[:5]))
     images = _numbered_files(images, label, "image", warns)
     slices = []
-    colour = False
+    colour, chroma = False, []
     shapes: dict[tuple, Path] = {}
     for f in images:
-        arr, converted = _read_image(f)
-        colour |= converted
+        arr, saturation = _read_image(f)
+        if saturation is not None:
+            colour = True
+            chroma.append(saturation)
         if arr.ndim == 2:
             slices.append(arr)
         elif arr.ndim == 3 and len(images) == 1:
@@ -70,14 +76,26 @@ def _load_images(files, label, spacing, axes, oriented, hu, warns) -> CTVolume:
         else:
             raise CTImportError(f"expected a 2-D greyscale image, got shape {arr.shape}", f)
         shapes.setdefault(arr.shape[-2:], f)
-    if colour:
-        warns.append("colour images converted to grey (luminance)")
     if len(shapes) > 1:
         example = "; ".join(f"{s[0]}x{s[1]} in {f.name}" for s, f in shapes.items())
         raise CTImportError(f"mixed image sizes ({example})", label)
+    _refuse_photos(slices, float(np.mean(chroma)) if chroma else 0.0, len(images), label)
+    if colour:
+        warns.append("colour images converted to grey (luminance)")
     data = np.empty((len(slices),) + slices[0].shape, dtype=np.float32)
     for k, s in enumerate(slices):
         data[k] = s
     del slices
     return _headerless_volume(data, label, "image", spacing, axes, oriented, hu, warns,
                               {"files": len(images), "first_file": images[0].name, "last_file": images[-1].name})
+
+
+def _refuse_photos(slices, chroma: float, files: int, label) -> None:
+    """Refuse a stack of ordinary pictures before anything is built from it (``input_checks.photo_evidence``)."""
+    from .. import input_checks
+    step = max(1, len(slices) // 12)
+    seen = input_checks.photo_evidence(slices[::step], chroma)
+    if seen:
+        ny, nx = slices[0].shape[-2:]
+        raise CTImportError(f"does not look like a head CT: {'; '.join(seen)}; {files} image(s) of {nx} x {ny} "
+                            "pixels", label)

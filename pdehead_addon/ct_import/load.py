@@ -114,8 +114,13 @@ def load_ct(
     if fmt not in ("auto", "dicom", "image", "raw", "nifti"):
         raise CTImportError(f"unknown format {format!r}; use 'auto', 'dicom', 'image', 'raw' or 'nifti'",
                             _label(path))
+    if first_slice == "auto":
+        first_slice = None
     if first_slice not in (None, "inferior", "superior"):
-        raise CTImportError(f"first_slice must be 'inferior' or 'superior', got {first_slice!r}", _label(path))
+        raise CTImportError(f"first_slice must be 'auto', 'inferior' or 'superior', got {first_slice!r}",
+                            _label(path))
+    # headerless stacks: no first_slice and no orientation = Auto (the documented default, defaults.FIRST_SLICE)
+    auto_orientation = first_slice is None and orientation is None
     if units is not None and str(units).lower() not in ("hu", "stored"):
         raise CTImportError(f"units must be 'HU' or 'stored', got {units!r}", _label(path))
     hu_said = units is not None and str(units).lower() == "hu"
@@ -167,6 +172,7 @@ def load_ct(
         warns.append(f"downsampled {ct.meta['shape_before_downsample']} -> {ct.shape} voxels (block means of "
                      f"{' x '.join(map(str, ct.meta['downsampled']))}); spacing now {ct.spacing} mm (dz, dy, dx)")
     if fmt in ("image", "raw"):
+        ct = _check_crown(ct, auto_orientation, warns)
         _check_face_side(ct, warns)
 
     ct.meta["warnings"] = list(warns)
@@ -200,6 +206,42 @@ def _check_values(ct: CTVolume, label: str, warns: list[str]) -> None:
     if bad or oof:
         meta["hu_range"] = (float(ct.data.min()), float(ct.data.max()))
 
+
+
+def _check_crown(ct: CTVolume, auto: bool, warns: list[str]) -> CTVolume:
+    """Headerless stacks: with Auto orientation a crown at the inferior end is put on top (flipped, with a
+    warning naming first_slice); where the crown closes inside the scan, a vertex-to-widest-section height
+    under ``input_checks.MIN_VERTEX_TO_WIDEST_MM`` is not a human head and is said (partial scans stay
+    allowed: no crown, no check)."""
+    crown = input_checks.crown_end(ct.data, ct.spacing)
+    ct.meta["crown"] = {k: v for k, v in crown.items() if k != "areas"}
+    if crown["end"] == "low" and auto:
+        # k = 0 is the first file (Auto reads it as inferior): the head is upside down. Flipping k mirrors
+        # nothing else: the stack read the other way round is the head the right way up.
+        ct = CTVolume(np.ascontiguousarray(ct.data[::-1]), ct.spacing, ct.origin, ct.direction, ct.meta)
+        code = ct.meta.get("orientation", "LPS")
+        ct.meta["orientation"] = code[:2] + {"S": "I", "I": "S"}.get(code[2], code[2])
+        ct.meta["first_slice"] = "superior"
+        ct.meta["first_slice_detected"] = True
+        ct.meta["crown"]["end"] = "high"
+        if "orientation_assumed" in ct.meta:
+            ct.meta["orientation_assumed"] = ct.meta["orientation_assumed"].replace("upward", "downward")
+        warns.append(f"the head's crown (the end whose cross-section closes to nothing) is at the first file "
+                     f"({ct.meta.get('first_file', 'file 1')}): the stack was read with the first file superior "
+                     f"(the top of the head); pass first_slice='inferior' if the first file is the bottom")
+    elif crown["end"] == "low":
+        said = "first_slice" if "orientation_assumed" in ct.meta else "orientation"
+        value = ct.meta.get("orientation") if said == "orientation" else ct.meta.get("first_slice")
+        warns.append(f"the head's crown (the end whose cross-section closes to nothing) lies at the bottom as "
+                     f"{said}={value!r} places the files: the head may be upside down (leave {said} unset for "
+                     f"the automatic choice)")
+    height = crown["vertex_to_widest_mm"]
+    if height is not None and height < input_checks.MIN_VERTEX_TO_WIDEST_MM:
+        dz = ct.spacing[0]
+        warns.append(f"not a human head: from the crown to the widest cross-section is only {height:.0f} mm "
+                     f"(a human head has more than {input_checks.MIN_VERTEX_TO_WIDEST_MM:.0f} mm) with a slice "
+                     f"step of {dz:g} mm; pass the true spacing=(dz, dy, dx)")
+    return ct
 
 
 def _check_face_side(ct: CTVolume, warns: list[str]) -> None:

@@ -117,7 +117,21 @@ def _load_raw(files, label, shape, dtype, byte_order, header_bytes, spacing, axe
                                     f"bytes does not match one {ny}x{nx} {dt.str} slice + {header_bytes} header "
                                     f"bytes = {expected} bytes", f)
             data[k] = _raw_samples(f, raw, dt, ny * nx, header_bytes).reshape(ny, nx)
+    _refuse_wrong_byte_order(data, dt, label)
     return _headerless_volume(data, label, "raw", spacing, axes, oriented, hu, warns,
                               {"files": len(candidates), "first_file": candidates[0].name,
                                "last_file": candidates[-1].name, "source_dtype": dt.str,
                                "header_bytes": header_bytes})
+
+
+def _refuse_wrong_byte_order(data: np.ndarray, dt: np.dtype, label) -> None:
+    """Refuse samples read in the wrong byte order (``input_checks.wrong_byte_order``): noise spanning
+    the whole int16 range would otherwise segment as a "head" filling the field of view."""
+    from .. import input_checks
+    bad = input_checks.wrong_byte_order(data, dt)
+    if bad:
+        (lo, hi), (slo, shi) = bad["read"], bad["swapped"]
+        order = "big-endian" if bad["swapped_dtype"].startswith(">") else "little-endian"
+        raise CTImportError(f"wrong byte order: read as dtype={dt.str!r} the samples span {lo:.0f}..{hi:.0f} "
+                            f"(noise, no CT spans that many values), read in the other byte order they span "
+                            f"{slo:.0f}..{shi:.0f} like a CT; pass dtype={bad['swapped_dtype']!r} ({order})", label)
