@@ -23,8 +23,9 @@ from .study import STEP_FUNCTIONS, Rollback
 
 
 def _report_exception(op, exc: BaseException) -> None:
+    state.last_exception = exc
     if isinstance(exc, PDEHeadError):
-        op.report({'ERROR'}, str(exc))
+        op.report({'ERROR'}, state.user_text(str(exc)))
     elif isinstance(exc, NotImplementedError):
         op.report({'ERROR'}, f"PDE Head: this step is not available in this version ({exc})")
     else:  # a bug: keep the details in the console, give the user one clear line
@@ -146,8 +147,8 @@ class PDEHEAD_OT_import_ct(Operator, LoaderOptions):
             nx, ny, nz = s.dimensions
             self.report({'INFO'}, f"Imported '{coll.name}': {nx}x{ny}x{nz} voxels, spacing "
                         f"{', '.join(f'{v:g}' for v in s.spacing)} mm")
-            if s.warnings:
-                self.report({'WARNING'}, s.warnings[:300])
+            for warning in state.warning_list(s):  # one report per warning, in the dialog's words
+                self.report({'WARNING'}, state.user_text(warning))
         return _guarded(self, context, body)
 
 
@@ -216,15 +217,15 @@ class PDEHEAD_OT_extract_boundaries(Operator, StudyOperator):
         def body():
             s = state.settings(coll)
             self.store_settings(s)
-            warnings_before = s.warnings
+            warnings_before = state.warning_list(s)
             study.step_boundaries(coll)
             self.patches = s.patches  # may have been reduced to what the scan allows
             achieved = (f"; surface from all {abs(s.outline_candidates)} usable outlines: mean "
                         f"{s.outline_mean_mm:.2f} mm, max {s.outline_max_mm:.2f} mm" if s.outline_candidates else "")
             self.report({'INFO'}, f"{s.curve_count} boundary curves of {self.samples} points extracted "
                         f"from '{coll.name}' ({state.timings(coll)['boundaries']:.2f} s){achieved}")
-            if s.warnings != warnings_before:
-                self.report({'WARNING'}, s.warnings[len(warnings_before):].lstrip("; ")[:300])
+            for warning in state.warning_list(s)[len(warnings_before):]:
+                self.report({'WARNING'}, state.user_text(warning))
         return _guarded(self, context, body)
 
 

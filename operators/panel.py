@@ -52,8 +52,8 @@ class PDEHEAD_PT_study(_PDEHeadPanel, bpy.types.Panel):
             col.label(text=f"Series: {s.series}")
         source = "phantom" if s.source_kind == "PHANTOM" else (os.path.basename(s.source.rstrip("/\\")) or s.source)
         col.label(text=f"Source: {source}")
-        if s.warnings:
-            col.label(text=s.warnings[:120], icon='ERROR')
+        for warning in state.warning_list(s)[:4]:  # one line each, in the dialog's words
+            col.label(text=state.user_text(warning)[:160], icon='ERROR')
         text, icon = state.ct_status(coll)
         col.label(text=text[:160], icon=icon)
         if icon == 'ERROR':  # the CT moved: let the user point the study at it again

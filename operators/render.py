@@ -88,6 +88,10 @@ def _camera_matrix(right, up, forward, position):
     return Matrix(m.tolist())
 
 
+#: Still-image file name endings and Blender's file format for them (anything else is refused by the CLI).
+IMAGE_FORMATS = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG"}
+
+
 def render_objects_png(objects, path, view: str = "FRONT", resolution=(160, 160), samples: int = 16,
                        transparent: bool = False, isolate: bool = True, margin: float = 1.08,
                        denoise: bool = False, volume_step_rate: float = 2.0, bounds=None,
@@ -99,7 +103,7 @@ def render_objects_png(objects, path, view: str = "FRONT", resolution=(160, 160)
     objects : sequence of bpy.types.Object
         What to frame (their world bounding boxes).
     path : path-like
-        Output PNG.
+        Output image: a PNG, or a JPEG when it ends in .jpg / .jpeg (:data:`IMAGE_FORMATS`).
     view : str
         One of :data:`VIEWS` (FRONT looks along +Y like Blender's numpad 1).
     resolution : (int, int)
@@ -145,7 +149,10 @@ def render_objects_png(objects, path, view: str = "FRONT", resolution=(160, 160)
     span = max(float(span) * margin, 1e-4)
     distance = depth + span + 0.1
 
-    path = Path(os.fspath(path)).with_suffix(".png").resolve()
+    path = Path(os.fspath(path))
+    file_format = IMAGE_FORMATS.get(path.suffix.lower())
+    path = (path if file_format else path.with_suffix(".png")).resolve()   # no known suffix: a PNG
+    file_format = file_format or "PNG"
     path.parent.mkdir(parents=True, exist_ok=True)
 
     r, c = scene.render, scene.cycles
@@ -213,9 +220,10 @@ def render_objects_png(objects, path, view: str = "FRONT", resolution=(160, 160)
             c.volume_biased = True
         r.resolution_x, r.resolution_y, r.resolution_percentage = res_x, res_y, 100
         r.film_transparent = bool(transparent)
-        r.image_settings.file_format = "PNG"
-        r.image_settings.color_mode = "RGBA" if transparent else "RGB"
-        r.image_settings.color_depth = "8"
+        r.image_settings.file_format = file_format
+        r.image_settings.color_mode = "RGBA" if transparent and file_format == "PNG" else "RGB"
+        if file_format == "PNG":
+            r.image_settings.color_depth = "8"
         scene.view_settings.view_transform = "Standard"
         scene.view_settings.look = "None"
         scene.view_settings.exposure = 0.0

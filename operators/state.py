@@ -57,6 +57,41 @@ class StudyCache:
 
 _CACHE: dict[str, StudyCache] = {}
 
+# ------------------------------------------------------------------------------------------
+# Messages: stored in the engine's words, shown in the words of where they appear
+
+#: Where messages are shown: "dialog" (Blender's UI: field names) or "cli" (scripts/pdehead.py sets it:
+#: flags). The engine names its Python arguments; :func:`user_text` rewrites them (pdehead_addon.wording).
+AUDIENCE = "dialog"
+#: The last exception an operator reported (the CLI tells bad input, exit 2, from a bug, exit 1).
+last_exception: BaseException | None = None
+#: A study's warnings are one string property, one warning per line (a warning may contain "; ").
+WARNING_SEPARATOR = "\n"
+_MAX_WARNINGS_CHARS = 4000
+
+
+def user_text(message: str) -> str:
+    """An engine message in the words of :data:`AUDIENCE`, on one line."""
+    from ..pdehead_addon import wording
+    return wording.for_cli(message) if AUDIENCE == "cli" else wording.for_dialog(message)
+
+
+def warning_list(s) -> list[str]:
+    """The study's warnings, one per item, in the engine's words (files saved before kept "; ")."""
+    text = s.warnings or ""
+    parts = text.split(WARNING_SEPARATOR)
+    return [p for p in parts if p.strip()]
+
+
+def add_warnings(s, messages) -> list[str]:
+    """Append the messages not yet among the study's warnings; returns those added."""
+    known = warning_list(s)
+    new = [str(m).strip() for m in dict.fromkeys(messages)
+           if str(m).strip() and not any(k in str(m) or str(m) in k for k in known)]
+    if new:
+        s.warnings = WARNING_SEPARATOR.join(known + new)[:_MAX_WARNINGS_CHARS]
+    return new
+
 # Set while operators write many settings at once, so that no update callback rebuilds anything.
 _SUSPEND = [0]
 

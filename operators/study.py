@@ -234,7 +234,8 @@ def _describe_ct(settings, ct) -> None:
     settings.series = str(series)[:200]
     settings.modality = str(meta.get("modality") or meta.get("units") or "")[:40]
     warnings = meta.get("warnings") or []
-    settings.warnings = "; ".join(str(w) for w in warnings)[:1000] if not isinstance(warnings, str) else warnings
+    settings.warnings = ""
+    state.add_warnings(settings, [warnings] if isinstance(warnings, str) else warnings)
 
 
 def create_study(context, ct, name: str, source_kind: str, source: str = "", options: dict | None = None):
@@ -265,11 +266,8 @@ def import_study(context, path: Path, options: dict):
         ct = load_ct(path, **options)
     coll = create_study(context, ct, _study_name(ct, path), "FILES", str(path), options)
     s = state.settings(coll)
-    known = [w for w in s.warnings.split("; ") if w]
-    messages = [m for m in dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, UserWarning))
-                if not any(k in m or m in k for k in known)]
-    if messages:  # the loader's warnings (single slice, uneven steps, ...) stay visible in the Study panel
-        s.warnings = "; ".join(([s.warnings] if s.warnings else []) + messages)[:1000]
+    # the loader's warnings (single slice, uneven steps, ...) stay visible in the Study panel
+    state.add_warnings(s, [str(w.message) for w in caught if issubclass(w.category, UserWarning)])
     s.timings_json = ""
     state.record_timing(coll, "import", t.seconds)
     return coll
@@ -300,10 +298,7 @@ def step_segment(coll) -> None:
         s.seg_iterations = int(seg.iterations)
         s.seg_c1, s.seg_c2 = float(seg.c1), float(seg.c2)
         # head size outside the human range, shoulders cut off: shown with the loader's warnings
-        known = [w for w in s.warnings.split("; ") if w]
-        new = [w for w in seg.meta.get("warnings", []) if w not in known]
-        if new:
-            s.warnings = "; ".join(known + new)[:1000]
+        state.add_warnings(s, seg.meta.get("warnings", []))
     state.record_timing(coll, "segment", t.seconds)
 
 
@@ -345,7 +340,7 @@ def step_boundaries(coll) -> None:
                    f"({3 * limit + 1} slices): patches reduced from {s.patches} to {limit}")
         with suspended_updates():
             s.patches = limit
-        s.warnings = "; ".join([w for w in (s.warnings, message) if w])[:1000]
+        state.add_warnings(s, [message])
     import warnings
     from ..pdehead_addon import SelectionWarning
     with state.Timer() as t, warnings.catch_warnings(record=True) as caught:
@@ -355,7 +350,7 @@ def step_boundaries(coll) -> None:
                                   parameterisation="angular" if s.align_curves else "arc-length", **tolerance)
     messages = [str(w.message) for w in caught if issubclass(w.category, SelectionWarning)]
     if messages:  # the tolerance could not be met with every usable slice: said beside the other warnings
-        s.warnings = "; ".join([w for w in [s.warnings] + messages if w])[:1000]
+        state.add_warnings(s, messages)
     state.store_boundaries(coll, bset)
     cache.drop_from("bset")
     cache.bset = bset

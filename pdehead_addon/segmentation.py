@@ -258,9 +258,8 @@ def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: flo
             nz, ny, nx = data.shape
             raise SegmentationError(
                 f"segmenting {nx} x {ny} x {nz} voxels (x, y, z) needs about {need:.3g} GB, more than the "
-                f"{max_memory_gb:g} GB budget; downsample the scan on import by {factor} (load_ct(..., "
-                f"downsample={factor}), CLI --downsample {factor}, import dialog 'Downsample') for about "
-                f"{need / factor ** 3:.3g} GB, or pass max_memory_gb=None")
+                f"{max_memory_gb:g} GB budget; import the scan again with downsample={factor} for about "
+                f"{need / factor ** 3:.3g} GB (segment_head: max_memory_gb=None lifts the budget)")
     if window is None:
         window = auto_window(data)
     window = (float(window[0]), float(window[1]))

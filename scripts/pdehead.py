@@ -14,13 +14,17 @@ It runs the SAME Blender operators as the add-on (``bpy.ops.pdehead.*``) in the 
 module: the add-on is registered straight from this repository's source (as the package
 ``pdehead_dev``, no zip needed), in a temporary Blender user folder so your own Blender
 preferences are never touched. The .vdb of the volume is written beside the .blend
-(``pdehead_vdb/``, stored as a relative path). Prints per-step timings and a summary.
-Exit status: 0 on success, 1 when a step fails, 2 on bad arguments or input (one-line error).
+(``pdehead_vdb/``, stored as a relative path). Prints per-step timings and a summary on stdout
+(``--summary-json FILE``: the same as JSON for scripts) and each warning once, as one line on stderr,
+naming this command's flags.
+Exit status: 0 on success, 2 on bad arguments or input (a folder that is empty or holds no head CT, an
+output that cannot be written: one-line error), 1 on an internal error.
 """
 from __future__ import annotations
 
 import argparse
 import contextlib
+import json
 import os
 import sys
 import tempfile
@@ -68,8 +72,12 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "automatic from the CT spacing within the .vdb and w-field budgets, as in the add-on")
     p.add_argument("--no-volume", action="store_true", help="skip the volume (w-field + VDB)")
     p.add_argument("--out", type=Path, help="write the .blend here (the .vdb goes beside it)")
-    p.add_argument("--render", type=Path, metavar="PNG", help="render the surface (front view) to this PNG")
-    p.add_argument("--render-volume", type=Path, metavar="PNG", help="render the volume (front view) to this PNG")
+    p.add_argument("--render", type=Path, metavar="IMAGE",
+                   help="render the surface (front view) to this .png or .jpg")
+    p.add_argument("--render-volume", type=Path, metavar="IMAGE",
+                   help="render the volume (front view) to this .png or .jpg")
+    p.add_argument("--summary-json", type=Path, metavar="FILE",
+                   help="also write the summary (study, counts, timings, warnings, outputs) as JSON to FILE")
     p.add_argument("--view", default="FRONT", choices=["FRONT", "RIGHT", "LEFT", "BACK", "TOP", "THREE_QUARTER"],
                    help="render view; default FRONT (face, patient left on screen right)")
     p.add_argument("--resolution", type=int, default=320, help="render size in pixels; default 320")
@@ -139,7 +147,41 @@ def parse_args(argv=None) -> argparse.Namespace:
     if args.orientation and args.first_slice not in (None, "auto"):
         p.error("give either --orientation or --first-slice (the orientation's third letter says where "
                 "the files go)")
+    for flag in ("render", "render_volume"):
+        path = getattr(args, flag)
+        if path is not None and path.suffix.lower() not in IMAGE_SUFFIXES:
+            p.error(f"--{flag.replace('_', '-')} {path}: the file name must end in "
+                    f"{', '.join(IMAGE_SUFFIXES)} (PNG or JPEG)")
+    check_outputs(args)
     return args
+
+
+#: What --render / --render-volume write (operators/render.py IMAGE_FORMATS).
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+
+
+def _writable(path: Path, flag: str, folder: bool = False) -> None:
+    """A one-line CLIError (exit 2) when ``path`` cannot be written: checked before any work is done."""
+    path = Path(path)
+    if path.exists() and path.is_dir() != folder:
+        raise CLIError(f"{flag} {path}: {'not a folder' if folder else 'is a folder'}", 2)
+    parent = path if folder and path.exists() else path.parent
+    existing = parent
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise CLIError(f"{flag} {path}: cannot be written ({existing} is a file, not a folder)", 2)
+    if not os.access(existing, os.W_OK | os.X_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        raise CLIError(f"{flag} {path}: cannot be written (permission denied)", 2)
+
+
+def check_outputs(args) -> None:
+    """Every output path given can be written (else exit 2 before the work)."""
+    for flag in ("out", "render", "render_volume", "summary_json"):
+        if getattr(args, flag) is not None:
+            _writable(getattr(args, flag), "--" + flag.replace("_", "-"))
+    if args.export is not None:
+        _writable(args.export, "--export", folder=True)
 
 
 def register_addon():
@@ -148,9 +190,10 @@ def register_addon():
 
 
 @contextlib.contextmanager
-def _blender_stdout(drop=("Error:",)):
+def _blender_stdout(drop=("Error:", "Warning:")):
     """Capture what Blender's C code prints on stdout (operator reports, 'Info: Saved as ...') and pass
-    it on without the lines starting with ``drop`` (an ERROR report is printed once, by main)."""
+    it on without the lines starting with ``drop`` (an ERROR report is printed once, by main; warnings once,
+    on stderr, by :class:`Warnings`)."""
     sys.stdout.flush()
     saved = os.dup(1)
     with tempfile.TemporaryFile(mode="w+b") as buf:
@@ -169,16 +212,57 @@ def _blender_stdout(drop=("Error:",)):
 
 
 def _call(op, **kwargs) -> None:
-    """Run one operator; its ERROR report becomes a CLIError with the report's text."""
+    """Run one operator; its ERROR report becomes a CLIError: exit 2 when the engine refused the input
+    (a PDEHeadError: bad files, bad options), 1 for anything else (a bug); the study's new warnings are
+    printed (:class:`Warnings`)."""
+    addon = sys.modules[_common.DEV_PACKAGE]
+    state = addon.operators.state
+    state.last_exception = None
     try:
         with _blender_stdout():
             result = op(**kwargs)
     except RuntimeError as exc:
+        failure = state.last_exception
+        if isinstance(failure, addon.pdehead_addon.PDEHeadError):
+            raise CLIError(state.user_text(str(failure)), 2) from None
         message = str(exc).strip()
         message = message[len("Error: "):] if message.startswith("Error: ") else message
         raise CLIError(message.splitlines()[0] if message else "step failed", 1) from None
+    finally:
+        WARNINGS.from_study()
     if result != {'FINISHED'}:
         raise CLIError(f"{op.idname_py()} returned {sorted(result)}", 1)
+
+
+class Warnings:
+    """Each warning once, as one line ``pdehead: warning: ...`` on stderr, in the CLI's words (flags):
+    the study's warnings after every step, and Python warnings (the engine's, without their source line)."""
+
+    def __init__(self):
+        self.printed: list[str] = []
+
+    def say(self, message: str) -> None:
+        addon = sys.modules.get(_common.DEV_PACKAGE)
+        if addon is not None:
+            message = addon.operators.state.user_text(message)
+        message = " ".join(str(message).split())
+        if message and not any(message in p or p in message for p in self.printed):
+            self.printed.append(message)
+            print(f"{PROG}: warning: {message}", file=sys.stderr, flush=True)
+
+    def from_study(self) -> None:
+        import bpy
+        addon = sys.modules[_common.DEV_PACKAGE]
+        coll = bpy.context.scene.pdehead.active_study
+        if coll is not None:
+            for warning in addon.operators.state.warning_list(coll.pdehead):
+                self.say(warning)
+
+    def showwarning(self, message, category, filename, lineno, file=None, line=None) -> None:
+        self.say(str(message))
+
+
+WARNINGS = Warnings()
 
 
 def loader_kwargs(args) -> dict:
@@ -188,6 +272,9 @@ def loader_kwargs(args) -> dict:
     path = Path(args.input).resolve()
     if path.is_dir():
         kwargs["directory"] = str(path)
+    elif args.format in ("auto", "dicom") and _dicom_series_file(path):
+        # one DICOM file of a series: the series it belongs to, from its folder (the dialog's rule)
+        kwargs.update(directory=str(path.parent), filepath=str(path), single_file=False)
     else:
         kwargs["filepath"] = str(path)
         kwargs["single_file"] = True
@@ -216,6 +303,11 @@ def loader_kwargs(args) -> dict:
     return kwargs
 
 
+def _dicom_series_file(path: Path) -> bool:
+    from pdehead_dev.pdehead_addon.ct_import.discovery import series_of_file
+    return series_of_file(path) is not None
+
+
 def _auto_boundaries(args, ops, addon, coll) -> str:
     """Automatic slice selection through the extract operator (``selection="auto"``, or a tolerance
     that chooses the count); returns the summary line."""
@@ -226,10 +318,6 @@ def _auto_boundaries(args, ops, addon, coll) -> str:
     _call(ops.extract_boundaries, patches=args.patches, samples=args.samples, selection="auto", align_curves=True,
           **tolerance)
     s = coll.pdehead
-    if s.warnings:
-        for w in s.warnings.split("; "):
-            if "tolerance" in w:
-                print(f"{PROG}: warning: {w}", file=sys.stderr)
     bset = addon.operators.state.cache_for(s.study_id).bset
     m = bset.meta
     asked = ""
@@ -243,8 +331,11 @@ def _auto_boundaries(args, ops, addon, coll) -> str:
 
 def run(args) -> dict:
     import bpy
+    import warnings
     addon = register_addon()
     state = addon.operators.state
+    state.AUDIENCE = "cli"                       # the add-on's messages name this command's flags
+    warnings.showwarning = WARNINGS.showwarning  # one line each, no source line
     bpy.ops.wm.read_homefile(use_empty=True)
     bpy.context.preferences.filepaths.save_version = 0  # no .blend1 backups (temporary user folder)
     scratch = None
@@ -253,8 +344,7 @@ def run(args) -> dict:
         # A scratch .blend beside the output gives the VDB its folder; the real file is written only
         # when every step worked, so a failed run leaves an existing --out file as it was.
         scratch = args.out.resolve().parent / f".{args.out.stem}.pdehead-partial.blend"
-        with _blender_stdout(drop=("Info: Saved",)):
-            bpy.ops.wm.save_as_mainfile(filepath=str(scratch))
+        _save(bpy, scratch, "--out")
     try:
         return _steps(args, bpy, addon, state)
     finally:
@@ -320,42 +410,113 @@ def _steps(args, bpy, addon, state) -> dict:
                   f"mm, p95 {depth['p95']:.1f} mm (no bone {depth['no_bone']}, envelope {depth['envelope']})")
         if args.export:
             print(f"  export    {args.export}/skin.{args.export_format}, skull.{args.export_format}, tissue_depth.csv")
-    for warning in filter(None, s.warnings.split("; ")):
+    warning_lines = [state.user_text(w) for w in state.warning_list(s)]
+    for warning in warning_lines:
         print(f"  warning   {warning}")
     print("timings (s):")
     for step, seconds in timings.items():
         print(f"  {step:<11}{seconds:8.3f}")
     print(f"  {'total':<11}{total:8.3f}")
 
+    summary = _summary(args, addon, coll, timings, total, selection_info, warning_lines)
     if args.out:
-        with _blender_stdout(drop=("Info: Saved",)):
-            bpy.ops.wm.save_as_mainfile(filepath=str(args.out.resolve()))
+        _save(bpy, args.out.resolve(), "--out")
         print(f"wrote {args.out}")
+        summary["outputs"]["blend"] = str(args.out)
     else:
         print("not saved: no --out given (pass --out FILE.blend to keep the result)")
     render = addon.operators.render
     size = (args.resolution, args.resolution)
-    if args.render:
+    for flag, obj in (("render", s.surface_object), ("render_volume", s.volume_object)):
+        path = getattr(args, flag)
+        if path is None:
+            continue
         t = time.perf_counter()
-        render.render_objects_png([s.surface_object], args.render, view=args.view, resolution=size,
-                                  samples=args.render_samples)
-        print(f"wrote {args.render} ({time.perf_counter() - t:.1f} s)")
-    if args.render_volume:
-        t = time.perf_counter()
-        render.render_objects_png([s.volume_object], args.render_volume, view=args.view, resolution=size,
-                                  samples=args.render_samples)
-        print(f"wrote {args.render_volume} ({time.perf_counter() - t:.1f} s)")
-    return timings
+        written = render.render_objects_png([obj], path, view=args.view, resolution=size,
+                                            samples=args.render_samples)
+        if not Path(written).is_file():
+            raise CLIError(f"--{flag.replace('_', '-')} {path}: the render was not written", 1)
+        print(f"wrote {path} ({time.perf_counter() - t:.1f} s)")
+        summary["outputs"][flag] = str(path)
+    return summary
+
+
+def _save(bpy, path: Path, flag: str) -> None:
+    """Save the .blend at ``path``; a file that cannot be written is a one-line error (exit 2)."""
+    try:
+        with _blender_stdout(drop=("Info: Saved", "Error:", "Warning:")):
+            bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    except RuntimeError as exc:
+        reason = " ".join(str(exc).split()).removeprefix("Error: ")
+        raise CLIError(f"{flag} {path}: cannot be written ({reason})", 2) from None
+
+
+def _r(value, digits: int = 3):
+    """A number rounded for people (and for --summary-json)."""
+    return float(f"{float(value):.{digits}g}") if digits else round(float(value))
+
+
+def _summary(args, addon, coll, timings, total, selection_info, warning_lines) -> dict:
+    """What the summary printed, as data (``--summary-json``)."""
+    s = coll.pdehead
+    ct = addon.operators.state.cache_for(s.study_id).ct
+    meta = getattr(ct, "meta", None) or {}
+    nx, ny, nz = s.dimensions
+    dz, dy, dx = s.spacing
+    out = {
+        "status": "ok", "exit_code": 0,
+        "input": "phantom" if args.phantom else str(args.input),
+        "study": coll.name,
+        "ct": {"voxels_xyz": [nx, ny, nz], "spacing_mm_xyz": [_r(dx, 4), _r(dy, 4), _r(dz, 4)],
+               "value_range": [_r(s.value_range[0], 0), _r(s.value_range[1], 0)],
+               "orientation": meta.get("orientation", ""), "first_slice": meta.get("first_slice", "")},
+        "segment": {"head_percent": round(100 * s.seg_fraction, 1), "iterations": int(s.seg_iterations)},
+        "curves": {"count": int(s.curve_count or 3 * s.patches + 1), "samples": int(s.samples),
+                   "patches": None if s.use_tolerance else int(s.patches), "selection": args.selection},
+        "surface": {"vertices": len(s.surface_object.data.vertices), "faces": len(s.surface_object.data.polygons)},
+        "solid": {"vertices": len(s.solid_object.data.vertices)},
+        "timings_s": {step: round(float(sec), 3) for step, sec in timings.items()},
+        "total_s": round(total, 3),
+        "warnings": list(warning_lines),
+        "outputs": {},
+    }
+    if selection_info:
+        out["selection"] = selection_info
+    if s.volume_object is not None:
+        out["volume"] = {"vdb": s.volume_object.data.filepath,
+                         "voxel_size_mm": None if s.use_ct_grid else _r(s.voxel_size, 4)}
+    return out
+
+
+def write_summary_json(path: Path, summary: dict) -> None:
+    """Write atomically (a temporary file beside it, then renamed): never a half-written file."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.pdehead-partial")
+    try:
+        tmp.write_text(json.dumps(summary, indent=1) + "\n")
+        os.replace(tmp, path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise CLIError(f"--summary-json {path}: cannot be written ({exc.strerror or exc})", 2) from None
 
 
 def main(argv=None) -> int:
+    args = None
     try:
         args = parse_args(argv)
         # Keep Blender away from the real user folder (must precede `import bpy`).
         os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="pdehead-cli-"))
-        run(args)
+        summary = run(args)
+        if args.summary_json:
+            write_summary_json(args.summary_json, summary)
+            print(f"wrote {args.summary_json}")
     except CLIError as exc:
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        message = " ".join(str(exc).split())
+        print(f"{PROG}: error: {message}", file=sys.stderr)
+        if args is not None and args.summary_json and "--summary-json" not in message:
+            with contextlib.suppress(CLIError):  # scripts read the failure from the file too
+                write_summary_json(args.summary_json, {"status": "error", "exit_code": exc.code, "error": message,
+                                                       "warnings": list(WARNINGS.printed)})
         return exc.code
     return 0
 

@@ -319,8 +319,8 @@ def test_shoulders_do_not_join_the_head_mask():
 def test_too_large_scan_is_offered_a_downsample_before_any_work(ph):
     # the phantom's 1.6 M voxels need about 0.049 GB: a budget of 0.02 GB stands for a scan too large
     with pytest.raises(SegmentationError, match=r"128 x 128 x 100 voxels \(x, y, z\) needs about 0.0492 GB, more "
-                                                r"than the 0.02 GB budget; downsample the scan on import by 2 "
-                                                r".*--downsample 2.* for about 0.0061\d GB"):
+                                                r"than the 0.02 GB budget; import the scan again with "
+                                                r"downsample=2 for about 0.0061\d GB"):
         segment_head(ph.ct, max_memory_gb=0.02)
 
 

@@ -111,6 +111,25 @@ def list_series(path: str | os.PathLike | Sequence[str | os.PathLike]) -> list[S
     return [_series_info(s) for s in _ranked_series(scan.series)]
 
 
+def series_of_file(path: str | os.PathLike) -> str | None:
+    """The SeriesInstanceUID of one single-frame DICOM file, so that choosing one file of a series
+    loads the whole series from its folder (``load_ct(folder, series_uid=...)``); None for anything
+    else (not DICOM, unreadable, no UID, or a multi-frame file that is a volume by itself)."""
+    f = Path(path)
+    if not f.is_file() or _has_ext(f, IMAGE_EXTENSIONS + NIFTI_EXTENSIONS) or not _looks_like_dicom(f):
+        return None
+    try:
+        ds = _read_dicom_header(f)
+    except Exception:  # noqa: BLE001 - not readable as DICOM: the loader will say why
+        return None
+    uid = str(ds.get("SeriesInstanceUID", "") or "").strip()
+    try:
+        frames = int(ds.get("NumberOfFrames", 1) or 1)
+    except (TypeError, ValueError):
+        frames = 1
+    return uid if uid and frames <= 1 else None
+
+
 # ----------------------------------------------------------------------------------------------
 # Files and format detection
 # ----------------------------------------------------------------------------------------------
@@ -272,7 +291,7 @@ def _detect_format(files: list[Path], label: str, shape) -> str:
                             "choose the folder that holds the numbered images", label)
     raise CTImportError(
         "no DICOM, image (TIFF/PNG/...) or NIfTI files found; for headerless raw slices pass "
-        "format='raw', shape=(ny, nx) and dtype (e.g. '>i2')", label)
+        "format='raw', shape=(ny, nx) and a dtype such as dtype='>i2'", label)
 
 
 # ----------------------------------------------------------------------------------------------

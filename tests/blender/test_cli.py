@@ -72,7 +72,7 @@ def test_cli_bad_input_is_one_clear_line(tmp_path):
     empty = tmp_path / "empty"
     empty.mkdir()
     result = run_cli(empty, tmp_path=tmp_path)
-    assert result.returncode == 1
+    assert result.returncode == 2          # bad input (issue 18: it was 1)
     lines = result.stderr.strip().splitlines()
     assert lines[-1].startswith("pdehead: error: ") and str(empty) in lines[-1], result.stderr
     assert "Traceback" not in result.stderr
@@ -84,7 +84,7 @@ def test_cli_failure_prints_one_line_and_keeps_an_existing_out_file(tmp_path):
     old = tmp_path / "kept.blend"
     old.write_bytes(b"earlier result")
     result = run_cli(empty, "--out", old, tmp_path=tmp_path)
-    assert result.returncode == 1
+    assert result.returncode == 2
     errors = [line for line in (result.stdout + result.stderr).splitlines() if "error" in line.lower()]
     assert errors == [f"pdehead: error: {empty}: the folder is empty (no files in it or its subfolders)"], \
         (result.stdout, result.stderr)
