@@ -28,6 +28,7 @@ Prints the path of every zip built, one per line, after "built:".
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import re
@@ -112,9 +113,118 @@ def _wheel_tag(python: str) -> str:
     return "cp" + python.replace(".", "")
 
 
+# ----------------------------------------------------------------------------- wheels by their file names
+def canonical_name(name: str) -> str:
+    """PEP 503 normalised project name: 'Scikit_Image' -> 'scikit-image'."""
+    return re.sub(r"[-_.]+", "-", name).lower()
+
+
+def parse_wheel_name(filename: str) -> dict | None:
+    """name, version, python / abi / platform tag sets of a wheel file name (PEP 427), or None."""
+    m = re.fullmatch(r"([^-]+)-([^-]+)(?:-(\d[^-]*))?-([^-]+)-([^-]+)-([^-]+)\.whl", filename)
+    if not m:
+        return None
+    return {"name": canonical_name(m.group(1)), "version": m.group(2), "python": set(m.group(4).split(".")),
+            "abi": set(m.group(5).split(".")), "platform": set(m.group(6).split("."))}
+
+
+def _platform_ok(tags: set[str], platform: str) -> bool:
+    """A wheel's platform tags fit ``platform``: 'any', or the family and architecture of one of its pip
+    tags at a version not newer than the newest listed (manylinux2014 = manylinux_2_17)."""
+    if "any" in tags:
+        return True
+    aliases = {"manylinux1": (2, 5), "manylinux2010": (2, 12), "manylinux2014": (2, 17)}
+
+    def split(tag):
+        m = re.fullmatch(r"(manylinux1|manylinux2010|manylinux2014)_(\w+)", tag)
+        if m:
+            return ("manylinux",) + aliases[m.group(1)] + (m.group(2),)
+        m = re.fullmatch(r"(manylinux|macosx)_(\d+)_(\d+)_(\w+)", tag)
+        return (m.group(1), int(m.group(2)), int(m.group(3)), m.group(4)) if m else (tag, 0, 0, "")
+
+    allowed = [split(t) for t in PLATFORM_TAGS[platform]]
+    for tag in tags:
+        family, major, minor, arch = split(tag)
+        for a_family, a_major, a_minor, a_arch in allowed:
+            if family == a_family and (major, minor) <= (a_major, a_minor) and (
+                    arch == a_arch or (family == "macosx" and arch == "universal2")):
+                return True
+            if family == a_family == tag and arch == a_arch == "":  # e.g. win_amd64
+                return True
+    return False
+
+
+def wheel_fits(filename: str, requirement: str, python: str, platform: str) -> bool:
+    """Whether the wheel file ``filename`` is ``name==version`` for ``python`` ("3.11") on ``platform``."""
+    info = parse_wheel_name(filename)
+    if info is None:
+        return False
+    name, version = requirement.split("==")
+    cp = _wheel_tag(python)
+    python_ok = bool(info["python"] & {cp, "py3", f"py{python.replace('.', '')}"}) or (
+        "abi3" in info["abi"] and any(t.startswith("cp3") and int(t[3:] or 0) <= int(cp[3:]) for t in info["python"]))
+    return (info["name"] == canonical_name(name) and info["version"] == version and python_ok
+            and _platform_ok(info["platform"], platform))
+
+
+def wheel_metadata_matches(path: Path) -> str | None:
+    """None when the wheel is a readable zip whose METADATA names the project and version its file name
+    says; else what is wrong (a renamed or truncated file in the cache)."""
+    import zipfile
+    info = parse_wheel_name(path.name)
+    if info is None:
+        return "not a wheel file name"
+    try:
+        with zipfile.ZipFile(path) as z:
+            metas = [n for n in z.namelist() if re.fullmatch(r"[^/]+\.dist-info/METADATA", n)]
+            if len(metas) != 1:
+                return f"{len(metas)} METADATA files inside"
+            text = z.read(metas[0]).decode("utf-8", "replace")
+    except (OSError, zipfile.BadZipFile, KeyError) as exc:
+        return f"not a readable wheel ({exc})"
+    fields = dict(re.findall(r"^(Name|Version): *(\S+)", text, flags=re.M))
+    if canonical_name(fields.get("Name", "")) != info["name"] or fields.get("Version") != info["version"]:
+        return f"its METADATA says {fields.get('Name')} {fields.get('Version')}"
+    return None
+
+
+def _pick(folder: Path, requirement: str, python: str, platform: str) -> Path | None:
+    """The cached wheel for the requirement, chosen by file name (deterministic: the first by name)."""
+    found = sorted(p for p in folder.glob("*.whl") if wheel_fits(p.name, requirement, python, platform))
+    return found[0] if found else None
+
+
+@contextlib.contextmanager
+def _locked(folder: Path):
+    """An exclusive lock on the cache folder: concurrent builds take turns (no torn index, no half wheel)."""
+    lock = open(folder / ".lock", "a+")
+    try:
+        try:
+            import fcntl
+            fcntl.flock(lock, fcntl.LOCK_EX)
+        except ImportError:  # pragma: no cover - Windows: no fcntl; downloads still land atomically
+            pass
+        yield
+    finally:
+        lock.close()  # releases the lock
+
+
+def _write_index(index_path: Path, index: dict) -> None:
+    tmp = index_path.with_name(f".{index_path.name}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(index, indent=1, sort_keys=True))
+    os.replace(tmp, index_path)
+
+
 def download_wheels(platform: str, python: str, requirements: list[str],
                     optional: set[str] = frozenset()) -> tuple[list[Path], list[str]]:
     """Wheels for ``platform`` and ``python`` in WHEEL_CACHE/<platform>/cp3xx/, downloading only what is not cached.
+
+    Every wheel is found by its file name (project, version, Python and platform tags: PEP 427), never
+    by what appeared in the folder, and its METADATA must agree with that name; ``index.json`` only
+    remembers which optional requirements have no wheel here. An index entry that names a wheel not
+    fitting its requirement (a cache written by the old builder, or by two builds at once) is repaired
+    and said. A download goes to a private temporary folder and is moved in atomically, under a lock
+    on the cache folder, so builds may run at the same time.
 
     Returns ``(wheels, missing)``: ``missing`` lists the requirements in ``optional`` (by name)
     that have no wheel for this platform and Python; any other missing wheel stops the build.
@@ -122,45 +232,78 @@ def download_wheels(platform: str, python: str, requirements: list[str],
     folder = WHEEL_CACHE / platform / _wheel_tag(python)
     folder.mkdir(parents=True, exist_ok=True)
     index_path = folder / "index.json"
-    index = json.loads(index_path.read_text()) if index_path.exists() else {}
     wheels, missing = [], []
     tags = ",".join(PLATFORM_TAGS[platform])
-    for req in requirements:
-        key = f"{req} {tags}"  # a change of platform tags downloads again
-        cached = index.get(key)
-        if cached and (folder / cached).exists():
-            wheels.append(folder / cached)
-            continue
-        name = req.split("==")[0].lower()
-        if cached == "" and name in optional:  # known to have no wheel here
-            missing.append(req)
-            continue
-        before = set(folder.glob("*.whl"))
+    with _locked(folder):
+        try:
+            index = json.loads(index_path.read_text()) if index_path.exists() else {}
+        except (OSError, ValueError):
+            print(f"[{platform} {_wheel_tag(python)}] unreadable {index_path}: rebuilt", flush=True)
+            index = {}
+        changed = False
+        for req in requirements:
+            key = f"{req} {tags}"  # a change of platform tags looks again
+            name = req.split("==")[0].lower()
+            cached = index.get(key)
+            if cached and not wheel_fits(cached, req, python, platform):
+                print(f"[{platform} {_wheel_tag(python)}] repaired the cache index: {req} pointed at {cached}",
+                      flush=True)
+                index[key] = cached = None
+                changed = True
+            wheel = _pick(folder, req, python, platform)
+            if wheel is not None:
+                problem = wheel_metadata_matches(wheel)
+                if problem:
+                    raise SystemExit(f"cached wheel {wheel} is not {req} for {platform} / Python {python}: "
+                                     f"{problem}; delete it and build again")
+                if index.get(key) != wheel.name:
+                    index[key], changed = wheel.name, True
+                wheels.append(wheel)
+                continue
+            if cached == "" and name in optional:  # known to have no wheel here
+                missing.append(req)
+                continue
+            wheel = _download(folder, platform, python, req, name in optional)
+            if wheel is None:
+                index[key], changed = "", True
+                missing.append(req)
+                continue
+            index[key], changed = wheel.name, True
+            wheels.append(wheel)
+        if changed:
+            _write_index(index_path, index)
+    return wheels, missing
+
+
+def _download(folder: Path, platform: str, python: str, req: str, optional: bool) -> Path | None:
+    """``pip download`` one requirement into a private folder, pick the wheel by file name and move it
+    into the cache atomically; None when an optional requirement has no wheel here."""
+    import tempfile
+    with tempfile.TemporaryDirectory(prefix=".download-", dir=folder) as tmp:
         cmd = [sys.executable, "-m", "pip", "download", "--quiet", "--disable-pip-version-check",
                "--only-binary=:all:", "--no-deps", "--python-version", python,
-               "--implementation", "cp", "--dest", str(folder)]
+               "--implementation", "cp", "--dest", tmp]
         for tag in PLATFORM_TAGS[platform]:
             cmd += ["--platform", tag]
         cmd.append(req)
         print(f"[{platform} {_wheel_tag(python)}] pip download {req}", flush=True)
         result = subprocess.run(cmd, capture_output=True, text=True)
         if result.returncode:
-            if name in optional and "No matching distribution" in result.stderr:
-                index[key] = ""
-                index_path.write_text(json.dumps(index, indent=1, sort_keys=True))
-                missing.append(req)
-                continue
+            if optional and "No matching distribution" in result.stderr:
+                return None
             raise SystemExit(f"pip download {req} for {platform} / Python {python} failed:\n"
                              f"{result.stderr.strip()}")
-        stem = name.replace("-", "_")
-        new = sorted(set(folder.glob("*.whl")) - before) or sorted(
-            p for p in folder.glob("*.whl") if p.name.lower().startswith(stem + "-"))
-        if not new:
-            raise SystemExit(f"pip download {req} for {platform} / Python {python}: no wheel found in {folder}")
-        index[key] = new[0].name
-        index_path.write_text(json.dumps(index, indent=1, sort_keys=True))
-        wheels.append(new[0])
-    return wheels, missing
+        got = _pick(Path(tmp), req, python, platform)
+        if got is None:
+            names = ", ".join(p.name for p in Path(tmp).iterdir()) or "nothing"
+            raise SystemExit(f"pip download {req} for {platform} / Python {python} gave no wheel of that "
+                             f"name, version and tags ({names})")
+        problem = wheel_metadata_matches(got)
+        if problem:
+            raise SystemExit(f"pip download {req} for {platform} / Python {python}: {got.name}: {problem}")
+        target = folder / got.name
+        os.replace(got, target)
+        return target
 
 
 def manifest_with_wheels(manifest_text: str, wheel_names: list[str], platforms: list[str]) -> str:
@@ -200,36 +343,115 @@ def stage_sources(stage: Path) -> None:
             shutil.copy2(src, stage / name)
 
 
-def build(platforms: list[str], output_dir: Path, pythons: tuple[str, ...] = PYTHON_VERSIONS) -> list[Path]:
-    stage = BUILD / "extension_src"
-    stage_sources(stage)
-    (stage / "wheels").mkdir()
-    names = set()
-    for platform in platforms:
-        for python in pythons:
-            wheels, missing = download_wheels(platform, python, shipped_requirements(python),
-                                              optional=set(DECODER_REQUIREMENTS))
-            for req in missing:
-                print(f"WARNING: no wheel of {req} for {platform} / Python {python}: "
-                      "that decoder is missing from this zip there", flush=True)
-            for wheel in wheels:
-                if wheel.name not in names:  # pure-Python wheels serve both Pythons
-                    shutil.copy2(wheel, stage / "wheels" / wheel.name)
-                    names.add(wheel.name)
-    manifest = (ROOT / "blender_manifest.toml").read_text()
-    (stage / "blender_manifest.toml").write_text(manifest_with_wheels(manifest, sorted(names), platforms))
+def _normalise_times(stage: Path) -> None:
+    """Every staged file and folder gets the newest source time: the zip's bytes depend on the sources
+    only (not on when the build ran), so two builds of one tree give identical zips."""
+    paths = [p for p in stage.rglob("*")]
+    newest = max((p.stat().st_mtime for p in paths if p.is_file() and p.parent.name != "wheels"
+                  and p.name != "blender_manifest.toml"), default=0.0)
+    newest = max(newest, (ROOT / "blender_manifest.toml").stat().st_mtime)
+    for p in paths + [stage]:
+        os.utime(p, (newest, newest))
 
-    output_dir.mkdir(parents=True, exist_ok=True)
-    before = {p: p.stat().st_mtime for p in output_dir.glob("*.zip")}
-    cmd = [sys.executable, str(blender_ext_script()), "build", "--source-dir", str(stage),
-           "--output-dir", str(output_dir), "--split-platforms"]
-    result = subprocess.run(cmd, capture_output=True, text=True)
-    if result.returncode:
-        raise SystemExit(f"Blender's extension builder failed:\n{result.stdout}\n{result.stderr}")
-    zips = sorted(p for p in output_dir.glob("*.zip") if before.get(p) != p.stat().st_mtime)
-    if len(zips) != len(platforms):
-        raise SystemExit(f"expected {len(platforms)} zip(s), the builder wrote {zips}:\n{result.stdout}")
-    return zips
+
+def build(platforms: list[str], output_dir: Path, pythons: tuple[str, ...] = PYTHON_VERSIONS) -> list[Path]:
+    """Build one zip per platform into ``output_dir`` and verify each (:func:`verify_zip`).
+
+    The sources are staged in a private folder and the zips are built in another, then moved into
+    ``output_dir`` atomically, so builds may run at the same time; a zip that does not verify is
+    removed and the build fails.
+    """
+    import tempfile
+    BUILD.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix="extension-", dir=BUILD) as private:
+        stage, out = Path(private) / "src", Path(private) / "out"
+        stage_sources(stage)
+        (stage / "wheels").mkdir()
+        out.mkdir()
+        names, missing = set(), {}
+        for platform in platforms:
+            for python in pythons:
+                wheels, absent = download_wheels(platform, python, shipped_requirements(python),
+                                                 optional=set(DECODER_REQUIREMENTS))
+                missing[(platform, python)] = set(absent)
+                for req in absent:
+                    print(f"WARNING: no wheel of {req} for {platform} / Python {python}: "
+                          "that decoder is missing from this zip there", flush=True)
+                for wheel in wheels:
+                    if wheel.name not in names:  # pure-Python wheels serve both Pythons
+                        shutil.copy2(wheel, stage / "wheels" / wheel.name)
+                        names.add(wheel.name)
+        manifest = (ROOT / "blender_manifest.toml").read_text()
+        (stage / "blender_manifest.toml").write_text(manifest_with_wheels(manifest, sorted(names), platforms))
+        _normalise_times(stage)
+
+        cmd = [sys.executable, str(blender_ext_script()), "build", "--source-dir", str(stage),
+               "--output-dir", str(out), "--split-platforms"]
+        result = subprocess.run(cmd, capture_output=True, text=True)
+        if result.returncode:
+            raise SystemExit(f"Blender's extension builder failed:\n{result.stdout}\n{result.stderr}")
+        zips = sorted(out.glob("*.zip"))
+        if len(zips) != len(platforms):
+            raise SystemExit(f"expected {len(platforms)} zip(s), the builder wrote {zips}:\n{result.stdout}")
+        for z in zips:
+            problems = verify_zip(z, pythons, missing)
+            if problems:
+                raise SystemExit(f"{z.name} does not verify, not written:\n  " + "\n  ".join(problems))
+        output_dir.mkdir(parents=True, exist_ok=True)
+        final = []
+        for z in zips:
+            target = output_dir / z.name
+            shutil.copy2(z, output_dir / f".{z.name}.{os.getpid()}.tmp")
+            os.replace(output_dir / f".{z.name}.{os.getpid()}.tmp", target)
+            final.append(target)
+    return final
+
+
+def zip_platform(zip_path: Path) -> str | None:
+    """'pdehead-0.1.0-linux_x64.zip' -> 'linux-x64' (None if the name has no known platform)."""
+    stem = Path(zip_path).stem
+    return next((p for p in PLATFORM_TAGS if stem.endswith("-" + p.replace("-", "_"))), None)
+
+
+def verify_zip(zip_path: Path, pythons: tuple[str, ...] = PYTHON_VERSIONS,
+               missing: dict | None = None) -> list[str]:
+    """What is wrong with a built zip (empty: nothing).
+
+    Each shipped requirement (:func:`shipped_requirements`) must be there exactly once per Python at its
+    pinned version, chosen by the wheels' file names, for the zip's platform (an optional decoder may be
+    absent where ``missing[(platform, python)]`` says it has no wheel); every wheel in the zip must be
+    listed in its manifest and the other way round, and no wheel may be there that no requirement asks for.
+    """
+    import tomllib
+    import zipfile
+    platform = zip_platform(zip_path)
+    if platform is None:
+        return [f"{Path(zip_path).name}: no platform in the file name"]
+    try:
+        with zipfile.ZipFile(zip_path) as z:
+            names = z.namelist()
+            manifest = tomllib.loads(z.read("blender_manifest.toml").decode())
+            bad = z.testzip()
+    except (OSError, zipfile.BadZipFile, KeyError, ValueError) as exc:
+        return [f"{Path(zip_path).name}: unreadable ({exc})"]
+    problems = [f"corrupt member {bad}"] if bad else []
+    wheels = sorted(n.split("/", 1)[1] for n in names if n.startswith("wheels/") and n.endswith(".whl"))
+    listed = sorted(w.removeprefix("./wheels/") for w in manifest.get("wheels", []))
+    if wheels != listed:
+        problems.append(f"manifest lists {sorted(set(listed) - set(wheels))} not in the zip and the zip holds "
+                        f"{sorted(set(wheels) - set(listed))} not in the manifest")
+    used = set()
+    for python in pythons:
+        absent = (missing or {}).get((platform, python), set())
+        for req in shipped_requirements(python):
+            fits = [w for w in wheels if wheel_fits(w, req, python, platform)]
+            used.update(fits)
+            if len(fits) != 1 and not (not fits and req in absent):
+                problems.append(f"{req} for Python {python}: {len(fits)} wheels ({', '.join(fits) or 'none'})")
+    stray = sorted(set(wheels) - used)
+    if stray:
+        problems.append(f"wheels no requirement asks for: {', '.join(stray)}")
+    return problems
 
 
 def main(argv: list[str] | None = None) -> int:

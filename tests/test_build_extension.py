@@ -1,0 +1,138 @@
+"""Issue 18, point 6: the extension zip always carries what it needs.
+
+Builds run as a user runs them (``scripts/build_extension.py --platform linux-x64``) against a temporary
+copy of the wheel cache (``PDEHEAD_CACHE``): the shared cache is never written by these tests. A copy
+made from a complete cache builds offline; otherwise the build downloads what is missing into the copy.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "scripts" / "build_extension.py"
+sys.path.insert(0, str(ROOT / "scripts"))
+import build_extension as B  # noqa: E402
+
+PLATFORM = "linux-x64"
+PYTHONS = {"3.11": "cp311", "3.13": "cp313"}
+
+
+def wheel_cache_copy(root: Path, index: bool = False) -> Path:
+    """A private PDEHEAD_CACHE holding copies of the linux-x64 wheels of the real cache (never linked)."""
+    for python, tag in PYTHONS.items():
+        dest = root / "wheels" / PLATFORM / tag
+        dest.mkdir(parents=True)
+        source = B.WHEEL_CACHE / PLATFORM / tag
+        for req in B.shipped_requirements(python):
+            for wheel in source.glob("*.whl") if source.is_dir() else ():
+                if B.wheel_fits(wheel.name, req, python, PLATFORM):
+                    shutil.copy2(wheel, dest / wheel.name)
+    return root
+
+
+def build(cache: Path, out: Path, **popen):
+    env = dict(os.environ, PDEHEAD_CACHE=str(cache))
+    cmd = [sys.executable, str(SCRIPT), "--platform", PLATFORM, "--output-dir", str(out)]
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, **popen)
+
+
+def finish(proc) -> tuple[int, str]:
+    stdout, stderr = proc.communicate(timeout=1800)
+    return proc.returncode, stdout + stderr
+
+
+def wheel_names(zip_path: Path) -> list[str]:
+    with zipfile.ZipFile(zip_path) as z:
+        return sorted(n.split("/", 1)[1] for n in z.namelist() if n.startswith("wheels/"))
+
+
+def index_key(req: str) -> str:
+    return f"{req} {','.join(B.PLATFORM_TAGS[PLATFORM])}"
+
+
+def test_wheels_are_chosen_by_file_name():
+    tags = "cp311-cp311-manylinux_2_27_x86_64.manylinux_2_28_x86_64"
+    assert B.wheel_fits(f"scikit_image-0.26.0-{tags}.whl", "scikit-image==0.26.0", "3.11", PLATFORM)
+    assert not B.wheel_fits(f"scipy-1.17.1-{tags}.whl", "scikit-image==0.26.0", "3.11", PLATFORM)
+    assert not B.wheel_fits(f"scikit_image-0.25.2-{tags}.whl", "scikit-image==0.26.0", "3.11", PLATFORM)
+    assert not B.wheel_fits(f"scikit_image-0.26.0-{tags}.whl", "scikit-image==0.26.0", "3.13", PLATFORM)
+    assert not B.wheel_fits("scikit_image-0.26.0-cp311-cp311-win_amd64.whl", "scikit-image==0.26.0", "3.11",
+                            PLATFORM)
+    assert B.wheel_fits("scikit_image-0.26.0-cp311-cp311-win_amd64.whl", "scikit-image==0.26.0", "3.11",
+                        "windows-x64")
+    assert B.wheel_fits("lazy_loader-0.6-py3-none-any.whl", "lazy-loader==0.6", "3.13", PLATFORM)
+    # manylinux_2_34 is newer than any tag the linux zip allows (glibc 2.28, 2.31 for libjpeg)
+    assert not B.wheel_fits("pillow-13.0.0-cp311-cp311-manylinux_2_34_x86_64.whl", "pillow==13.0.0", "3.11",
+                            PLATFORM)
+    assert B.wheel_fits("pillow-13.0.0-cp311-cp311-macosx_11_0_arm64.whl", "pillow==13.0.0", "3.11",
+                        "macos-arm64")
+
+
+def test_poisoned_index_is_repaired_and_the_zip_verifies(tmp_path):
+    """The shared cache's index once recorded the scipy wheel under scikit-image==0.26.0 (two builds at
+    once); every zip built after lacked scikit-image. The index is repaired, the zip carries it."""
+    cache = wheel_cache_copy(tmp_path / "cache")
+    pins = B.read_pins()
+    skimage = f"scikit-image=={pins['scikit-image']}"
+    for python, tag in PYTHONS.items():
+        folder = cache / "wheels" / PLATFORM / tag
+        scipy = next(p.name for p in folder.glob("scipy-*.whl"))
+        (folder / "index.json").write_text(json.dumps({index_key(skimage): scipy}))
+    code, log = finish(build(cache, tmp_path / "dist"))
+    assert code == 0, log[-3000:]
+    assert f"repaired the cache index: {skimage} pointed at scipy-" in log
+    [zip_path] = list((tmp_path / "dist").glob("*.zip"))
+    assert B.verify_zip(zip_path) == []
+    names = wheel_names(zip_path)
+    for tag in PYTHONS.values():
+        assert len([n for n in names if n.startswith(f"scikit_image-{pins['scikit-image']}-{tag}-")]) == 1, names
+        index = json.loads((cache / "wheels" / PLATFORM / tag / "index.json").read_text())
+        assert index[index_key(skimage)].startswith("scikit_image-"), index
+    # the verifier refuses the zip the poisoned cache used to give: no scikit-image for one Python
+    broken = tmp_path / "pdehead-0.1.0-linux_x64.zip"
+    with zipfile.ZipFile(zip_path) as src, zipfile.ZipFile(broken, "w") as dst:
+        for item in src.infolist():
+            if not item.filename.startswith("wheels/scikit_image-") or "cp311" not in item.filename:
+                dst.writestr(item, src.read(item.filename))
+    problems = B.verify_zip(broken)
+    assert any(p.startswith(f"{skimage} for Python 3.11: 0 wheels") for p in problems), problems
+
+
+def test_wheel_that_is_not_what_its_name_says_is_refused(tmp_path):
+    """A cached file named like scikit-image but holding scipy: the build fails and writes no zip."""
+    cache = wheel_cache_copy(tmp_path / "cache")
+    folder = cache / "wheels" / PLATFORM / "cp311"
+    impostor = next(folder.glob("scikit_image-*.whl"))
+    shutil.copy2(next(folder.glob("scipy-*.whl")), impostor)
+    code, log = finish(build(cache, tmp_path / "dist"))
+    assert code != 0 and impostor.name in log and "its METADATA says scipy" in log, log[-3000:]
+    assert not list((tmp_path / "dist").glob("*.zip")) and "Traceback" not in log
+
+
+def test_two_builds_at_once_give_identical_verified_zips(tmp_path):
+    """Two builds started together on one cache (no index yet) and one source tree."""
+    cache = wheel_cache_copy(tmp_path / "cache")
+    procs = [build(cache, tmp_path / f"dist{i}") for i in (1, 2)]
+    results = [finish(p) for p in procs]
+    for code, log in results:
+        assert code == 0, log[-3000:]
+    zips = [next((tmp_path / f"dist{i}").glob("*.zip")) for i in (1, 2)]
+    assert zips[0].name == zips[1].name == "pdehead-0.1.0-linux_x64.zip"
+    assert zips[0].read_bytes() == zips[1].read_bytes()
+    assert B.verify_zip(zips[0]) == []
+    names = wheel_names(zips[0])
+    for python, tag in PYTHONS.items():
+        for req in B.shipped_requirements(python):
+            assert sum(B.wheel_fits(n, req, python, PLATFORM) for n in names) == 1, (req, python, names)
+    for tag in PYTHONS.values():
+        index = json.loads((cache / "wheels" / PLATFORM / tag / "index.json").read_text())
+        python = next(p for p, t in PYTHONS.items() if t == tag)
+        assert all(B.wheel_fits(wheel, key.split()[0], python, PLATFORM) for key, wheel in index.items()), index
