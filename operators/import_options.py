@@ -79,7 +79,7 @@ class LoaderOptions:
                                           "without headers)")
     spacing: FloatVectorProperty(name="Spacing (dz, dy, dx)", size=3, default=(1.0, 1.0, 1.0), min=1e-3,
                                  description="Voxel size in mm: slice step, row step, column step")
-    first_slice: EnumProperty(name="First Slice", items=FIRST_SLICE_ITEMS, default="AUTO")
+    first_slice: EnumProperty(name="First Slice", items=FIRST_SLICE_ITEMS, default=D.FIRST_SLICE.upper())
     orientation: StringProperty(name="Orientation", default="",
                                 description="Raw and image stacks: 3 letters for the patient directions in "
                                             "which the column, row and file index increase, e.g. LPS (the "

@@ -207,8 +207,7 @@ DOWNSAMPLE = _param("downsample", 1, min=1, max=8,
 #: inferior (orientation LPS: row 0 anterior, column 0 the patient's right, later files superior) unless the
 #: head's crown - the end whose cross-section closes to nothing inside the scan - lies at the first file; then
 #: the stack is read the other way round (first file superior) and a warning says so. An explicit value (or
-#: an orientation code) always wins. DICOM and NIfTI carry their own geometry.
-FIRST_SLICE = _param("first_slice", "auto", choices=("auto", "superior", "inferior"),
-                     description="Raw and image stacks: where the first file lies; auto: inferior unless the "
-                                 "crown (where the head closes) is at the first file, then superior (with a "
-                                 "warning)")
+#: an orientation code) always wins. DICOM and NIfTI carry their own geometry. (Not a Param: the dialog's
+#: enumeration spells it in capitals, AUTO / SUPERIOR / INFERIOR.)
+FIRST_SLICE = "auto"
+FIRST_SLICE_CHOICES = ("auto", "superior", "inferior")

@@ -291,6 +291,56 @@ def _(tmp):
     return _cli(tmp, "--phantom", "--orientation", "LAS", "--first-slice", "superior")
 
 
+# ------------------------------------------------------------------------------------ issue 18: nothing silently wrong
+def _shared(*parts) -> Path:
+    from _common import data_path
+    return data_path(*parts)
+
+
+@case("8", "CThead's 8-bit TIFF stack (first file at the top) with no first_slice (Auto)")
+def _(tmp):
+    ct = load_ct(_shared("cthead_stanford", "tiff8"), spacing=(2, 1, 1))
+    return f"orientation {ct.meta['orientation']}, crown at k = {ct.shape[0] - 1} (the top)"
+
+
+@case("8b", "CThead's big-endian raw slices read as little-endian (dtype='<i2')")
+def _(tmp):
+    load_ct(_shared("cthead_stanford", "raw16"), format="raw", shape=(256, 256), dtype="<i2", spacing=(2, 1, 1))
+
+
+@case("8c", "CThead's TIFF stack without spacing (1 mm assumed for its 2 mm step)")
+def _(tmp):
+    ct = load_ct(_shared("cthead_stanford", "tiff8"))
+    return f"crown to widest section {ct.meta['crown']['vertex_to_widest_mm']:.0f} mm"
+
+
+@case("8d", "a folder of 20 colour photographs (PNG, a coloured block on a landscape)")
+def _(tmp):
+    import numpy as np
+    from PIL import Image
+    rng = np.random.default_rng(18)
+    (tmp / "photos").mkdir()
+    yy, xx = np.mgrid[:240, :320] / np.array([240, 320])[:, None, None]
+    for k in range(20):
+        sky = np.stack([90 + 80 * yy, 140 + 60 * yy, 230 - 120 * yy], axis=-1)
+        ground = np.stack([60 + 40 * xx, 120 + 30 * xx, 40 + 20 * xx], axis=-1)
+        img = np.where((yy > 0.55 + 0.1 * np.sin(6 * xx))[..., None], ground, sky) + rng.normal(0, 12, (240, 320, 3))
+        img[60:120, 80 + 4 * k:160 + 4 * k] = (220, 40, 30)
+        Image.fromarray(np.clip(img, 0, 255).astype(np.uint8)).save(tmp / "photos" / f"IMG_{k + 1:04d}.png")
+    load_ct(tmp / "photos")
+
+
+@case("8e", "CLI: the same photographs")
+def _(tmp):
+    import numpy as np
+    from PIL import Image
+    (tmp / "photos").mkdir()
+    rng = np.random.default_rng(5)
+    for k in range(20):
+        Image.fromarray(rng.integers(0, 256, (240, 320, 3), dtype=np.uint8)).save(tmp / "photos" / f"p{k}.png")
+    return _cli(tmp, tmp / "photos")
+
+
 # ------------------------------------------------------------------------------------ the table
 def run_case(fn) -> tuple[str, str]:
     with tempfile.TemporaryDirectory(prefix="pdehead-case-") as tmp, warnings.catch_warnings(record=True) as caught:

@@ -93,7 +93,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     g.add_argument("--raw-shape", type=int, nargs=2, metavar=("NY", "NX"), help="raw slices: rows, columns")
     g.add_argument("--dtype", help="raw data type, numpy style: '>i2' (big-endian int16), '<u2', 'u1', '<f4'")
     g.add_argument("--spacing", type=float, nargs=3, metavar=("DZ", "DY", "DX"), help="voxel size in mm")
-    g.add_argument("--first-slice", choices=list(D.FIRST_SLICE.choices),
+    g.add_argument("--first-slice", choices=list(D.FIRST_SLICE_CHOICES),
                    help="raw/image stacks: where the first file lies; default auto: inferior, unless the head's "
                         "crown (where it closes) is at the first file, then superior with a warning")
     g.add_argument("--orientation", metavar="CODE",
@@ -322,7 +322,10 @@ def _auto_boundaries(args, ops, addon, coll) -> str:
     m = bset.meta
     asked = ""
     if m.get("selection_tolerance_mm") is not None or m.get("selection_max_tolerance_mm") is not None:
-        asked = (f"; asked mean <= {m.get('selection_tolerance_mm')} mm, max <= {m.get('selection_max_tolerance_mm')} mm: "
+        def mm(value):  # the tolerances went through float32 properties: 0.3, not 0.30000001192092896
+            return "none" if value is None else f"{float(value):.4g}"
+        asked = (f"; asked mean <= {mm(m.get('selection_tolerance_mm'))} mm, max <= "
+                 f"{mm(m.get('selection_max_tolerance_mm'))} mm: "
                  + ("met" if m.get("selection_tolerance_met") else "NOT met (every usable slice used)"))
     return (f"auto: {m['selection_curves']} curves of {m['selection_candidates']} usable slices; surface from all "
             f"outlines mean {m['selection_mean_mm']:.3f} mm, p95 {m['selection_p95_mm']:.2f} mm, "

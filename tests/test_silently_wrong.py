@@ -165,3 +165,28 @@ def test_grey_ct_saved_as_colour_png_still_loads(tmp_path):
     ct, warns = load_w(folder, spacing=ph.ct.spacing)
     np.testing.assert_allclose(ct.data, grey.astype(np.float32), atol=1.0)
     assert any("colour images converted to grey" in w for w in warns)
+
+
+# ------------------------------------------------------------------ 4. messages in the words of where they are shown
+def test_engine_messages_become_flags_or_dialog_fields():
+    from pdehead_addon.wording import for_cli, for_dialog
+    crown = "read with the first file superior; pass first_slice='inferior' if the first file is the bottom"
+    assert for_cli(crown).endswith("; pass --first-slice inferior if the first file is the bottom")
+    assert for_dialog(crown).endswith("; set 'First Slice' Inferior if the first file is the bottom")
+    face = "if the first rows hold the back of the head pass orientation='LAI'"
+    assert for_cli(face).endswith("pass --orientation LAI") and for_dialog(face).endswith("set 'Orientation' LAI")
+    raw = "for headerless raw slices pass format='raw', shape=(ny, nx) and a dtype such as dtype='>i2'"
+    assert for_cli(raw).endswith("pass --format raw, --raw-shape NY NX and a dtype such as --dtype '>i2'")
+    assert "'Byte Order' Big Endian" in for_dialog(raw) and "'Slice Shape'" in for_dialog(raw)
+    # float32 noise rounded; a DICOM UID and a version string untouched; one line
+    text = for_cli("spacing=(2.0, 0.05000000074505806, 1.0) ignored for\nuid 1.2.840.10008.5.1.4.1.1.2 v2.38.1")
+    assert text == "--spacing 2 0.05 1 ignored for uid 1.2.840.10008.5.1.4.1.1.2 v2.38.1"
+
+
+def test_byte_order_error_in_cli_and_dialog_words(tmp_path):
+    from pdehead_addon.wording import for_cli, for_dialog
+    with pytest.raises(CTImportError) as err:
+        load_ct(shared_data("cthead_stanford", "raw16"), format="raw", shape=(256, 256), dtype="<i2",
+                spacing=(2, 1, 1))
+    assert "pass --dtype '>i2'" in for_cli(str(err.value)) and "dtype=" not in for_cli(str(err.value))
+    assert "set 'Data Type' int16 with 'Byte Order' Big Endian" in for_dialog(str(err.value))

@@ -60,9 +60,13 @@ def load_ct(
     spacing : (dz, dy, dx), optional
         Voxel size in mm for images and raw data (they carry none); default
         (1, 1, 1) with a warning. Ignored (with a warning) for DICOM/NIfTI.
-    first_slice : {"inferior", "superior"}, optional
-        Images and raw data: where the first slice of the numeric order lies
-        (default inferior). Same as ``orientation="LPS"`` / ``"LPI"``.
+    first_slice : {"auto", "inferior", "superior"}, optional
+        Images and raw data: where the first slice of the numeric order lies. Same as
+        ``orientation="LPS"`` / ``"LPI"``. Default (None or "auto", ``defaults.FIRST_SLICE``): inferior,
+        unless the head's crown (the end whose cross-section closes to nothing inside the scan,
+        :func:`~pdehead_addon.input_checks.crown_end`) lies at the first file; then the stack is read
+        with the first file superior and a warning says so. A given value is used as it is (with a
+        warning when the crown then lies at the bottom).
     orientation : str, optional
         Images and raw data: three letters naming the patient direction in which
         the column index, the row index and the file (slice) index increase, e.g.
@@ -232,9 +236,10 @@ def _check_crown(ct: CTVolume, auto: bool, warns: list[str]) -> CTVolume:
     elif crown["end"] == "low":
         said = "first_slice" if "orientation_assumed" in ct.meta else "orientation"
         value = ct.meta.get("orientation") if said == "orientation" else ct.meta.get("first_slice")
+        hint = ("first_slice='auto' puts the crown on top" if said == "first_slice" else
+                "the third letter of the orientation says where the files go")
         warns.append(f"the head's crown (the end whose cross-section closes to nothing) lies at the bottom as "
-                     f"{said}={value!r} places the files: the head may be upside down (leave {said} unset for "
-                     f"the automatic choice)")
+                     f"{said}={value!r} places the files: the head may be upside down ({hint})")
     height = crown["vertex_to_widest_mm"]
     if height is not None and height < input_checks.MIN_VERTEX_TO_WIDEST_MM:
         dz = ct.spacing[0]
