@@ -330,7 +330,7 @@ def _(tmp):
     load_ct(tmp / "photos")
 
 
-@case("8e", "CLI: the same photographs")
+@case("8e", "CLI: a folder of 20 colour-noise PNGs")
 def _(tmp):
     import numpy as np
     from PIL import Image
