@@ -394,6 +394,7 @@ def build(platforms: list[str], output_dir: Path, pythons: tuple[str, ...] = PYT
         if len(zips) != len(platforms):
             raise SystemExit(f"expected {len(platforms)} zip(s), the builder wrote {zips}:\n{result.stdout}")
         for z in zips:
+            _one_entry_time(z)
             problems = verify_zip(z, pythons, missing)
             if problems:
                 raise SystemExit(f"{z.name} does not verify, not written:\n  " + "\n  ".join(problems))
@@ -405,6 +406,38 @@ def build(platforms: list[str], output_dir: Path, pythons: tuple[str, ...] = PYT
             os.replace(output_dir / f".{z.name}.{os.getpid()}.tmp", target)
             final.append(target)
     return final
+
+
+def _one_entry_time(zip_path: Path, reference: str = "__init__.py") -> None:
+    """Give every zip entry the (normalised) time of ``reference``, in place.
+
+    Blender's builder writes the manifest it generates with the current time, the only part of the
+    zip that depends on when it was built; the DOS time and date fields of its local header and its
+    central-directory record are overwritten (no data or CRC changes)."""
+    import struct
+    import zipfile
+    with zipfile.ZipFile(zip_path) as z:
+        start, count = z.start_dir, len(z.infolist())
+    with open(zip_path, "r+b") as f:
+        f.seek(start)
+        central = f.read()
+        records, pos = [], 0
+        for _ in range(count):
+            if central[pos:pos + 4] != b"PK\x01\x02":
+                return  # not a layout we know: leave the zip as it is
+            nlen, xlen, clen = struct.unpack_from("<HHH", central, pos + 28)
+            (local,) = struct.unpack_from("<I", central, pos + 42)
+            records.append((central[pos + 46:pos + 46 + nlen].decode("utf-8", "replace"), pos, local))
+            pos += 46 + nlen + xlen + clen
+        stamp = next((central[p + 12:p + 16] for name, p, _ in records if name == reference), None)
+        if stamp is None:
+            return
+        for name, p, local in records:
+            if central[p + 12:p + 16] != stamp:
+                f.seek(start + p + 12)
+                f.write(stamp)
+                f.seek(local + 10)
+                f.write(stamp)
 
 
 def zip_platform(zip_path: Path) -> str | None:

@@ -128,6 +128,10 @@ def test_two_builds_at_once_give_identical_verified_zips(tmp_path):
     assert zips[0].name == zips[1].name == "pdehead-0.1.0-linux_x64.zip"
     assert zips[0].read_bytes() == zips[1].read_bytes()
     assert B.verify_zip(zips[0]) == []
+    # and a build started later, on the now-indexed cache, gives the same bytes (no build time in the zip)
+    code, log = finish(build(cache, tmp_path / "dist3"))
+    assert code == 0, log[-3000:]
+    assert (tmp_path / "dist3" / zips[0].name).read_bytes() == zips[0].read_bytes()
     names = wheel_names(zips[0])
     for python, tag in PYTHONS.items():
         for req in B.shipped_requirements(python):
