@@ -7,7 +7,11 @@ Pure numpy/scipy functions, no pipeline state:
 * :func:`repair_out_of_field` - the scanner's out-of-field value (-3024 HU and the like) when no
   PixelPaddingValue tag says so, found from the histogram and the circular field of view,
 * :func:`face_side` - which side of an axial stack carries the face (the nose),
-* :func:`check_head_extent` - the head's size against human ranges (child's head to head-and-neck scan).
+* :func:`check_head_extent` - the head's size against human ranges (child's head to head-and-neck scan),
+* :func:`crown_end` - which end of a stack is the crown (its cross-section closes inside the scan) and the
+  crown-to-widest-section height (the Auto orientation of headerless stacks, "not a human head"),
+* :func:`wrong_byte_order` - raw samples read in the byte order that turns a CT into noise,
+* :func:`photo_evidence` - what says "photographs, not a head CT" about an image stack.
 
 The thresholds are defined here once (module constants) and nowhere else.
 """
@@ -417,6 +421,13 @@ def wrong_byte_order(data: np.ndarray, dtype: np.dtype) -> dict | None:
                 swapped_dtype=np.dtype(dtype).newbyteorder("S").str)
 
 
+#: Image stacks: mean colour saturation (share of the value range) above which the images are colour.
+PHOTO_MAX_CHROMA = 0.04
+#: ... and the least share of air (darkest tenth of the range) and of tissue a head CT slice stack has.
+PHOTO_MIN_AIR = 0.10
+PHOTO_MIN_TISSUE = 0.05
+
+
 def photo_evidence(slices: Sequence[np.ndarray], colour_chroma: float) -> list[str]:
     """What in an image stack says "photographs, not a head CT" (empty: nothing).
 
@@ -452,9 +463,3 @@ def photo_evidence(slices: Sequence[np.ndarray], colour_chroma: float) -> list[s
                     f"head, at least {100 * PHOTO_MIN_AIR:.0f} %, and tissue)")
     return seen
 
-
-#: Image stacks: mean colour saturation (share of the value range) above which the images are colour.
-PHOTO_MAX_CHROMA = 0.04
-#: ... and the least share of air (darkest tenth of the range) and of tissue a head CT slice stack has.
-PHOTO_MIN_AIR = 0.10
-PHOTO_MIN_TISSUE = 0.05
