@@ -119,12 +119,12 @@ def run_study(input_path: str, out_dir: str, settings: dict, time_limit_s: float
             return {**record, "skipped": True}
     work = Path(tempfile.mkdtemp(prefix=f".work-{sid}-", dir=out))
     t0 = time.perf_counter()
-    error = ""
+    error, peak_mb = "", 0.0
     try:
         if fingerprint.get("missing"):
             error = f"{input_path}: no such file or folder"
         else:
-            error = _run_child(input_path, work, settings, time_limit_s, memory_limit_mb)
+            error, peak_mb = _run_child(input_path, work, settings, time_limit_s, memory_limit_mb)
     except Exception as exc:  # the runner itself failed: record it, never stop the batch
         error = f"internal error: {type(exc).__name__}: {exc}"
     except BaseException:  # Ctrl-C or a cancelled task: the study is not recorded, nothing is left
@@ -141,7 +141,7 @@ def run_study(input_path: str, out_dir: str, settings: dict, time_limit_s: float
     record = {
         "study_id": sid, "input": str(input_path), "status": "failed" if error else "ok", "error": error,
         "seconds": round(seconds, 2), "n_landmarks": int(child.get("n_landmarks", 0)) if not error else 0,
-        "warnings": list(child.get("warnings", [])), "runner_version": RUNNER_VERSION,
+        "warnings": list(child.get("warnings", [])), "peak_mb": round(peak_mb, 1), "runner_version": RUNNER_VERSION,
         "input_hash": fingerprint.get("hash", ""), "settings_key": _settings_key(settings),
     }
     meta = {"software": _software(), "settings": settings, "input": str(input_path),
@@ -209,8 +209,9 @@ def remove_stale_work(out: Path, older_than_s: float) -> int:
     return len(stale)
 
 
-def _run_child(input_path: str, work: Path, settings: dict, time_limit_s: float, memory_limit_mb: float) -> str:
-    """Run the study's child process; '' on success, else the one-line reason it was ended."""
+def _run_child(input_path: str, work: Path, settings: dict, time_limit_s: float,
+               memory_limit_mb: float) -> tuple[str, float]:
+    """Run the study's child process: ('' on success, else the one-line reason it ended; its peak RSS in MB)."""
     import psutil
 
     cmd = [sys.executable, os.path.abspath(__file__), "--child", str(input_path), str(work), json.dumps(settings)]
@@ -230,11 +231,11 @@ def _run_child(input_path: str, work: Path, settings: dict, time_limit_s: float,
                 if peak > memory_limit_mb:
                     proc.kill()
                     proc.wait()
-                    return f"ended: memory above the per-study limit of {memory_limit_mb:.0f} MB (--memory-limit)"
+                    return f"ended: memory above the per-study limit of {memory_limit_mb:.0f} MB (--memory-limit)", peak
                 if time.monotonic() - t0 > time_limit_s:
                     proc.kill()
                     proc.wait()
-                    return f"ended: took longer than the per-study limit of {time_limit_s:.0f} s (--time-limit)"
+                    return f"ended: took longer than the per-study limit of {time_limit_s:g} s (--time-limit)", peak
                 time.sleep(0.05)
         except BaseException:  # Ctrl-C or a cancelled task: never leave a child behind
             proc.kill()
@@ -242,8 +243,8 @@ def _run_child(input_path: str, work: Path, settings: dict, time_limit_s: float,
             raise
     if proc.returncode != 0 and not (work / "child.json").exists():
         tail = (work / LOG_FILE).read_text(errors="replace").strip().splitlines()[-1:] or [""]
-        return f"the study's process exited with status {proc.returncode}: {tail[0][:200]}"
-    return ""
+        return f"the study's process exited with status {proc.returncode}: {tail[0][:200]}", peak
+    return "", peak
 
 
 # --------------------------------------------------------------------------- the child side

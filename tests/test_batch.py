@@ -138,11 +138,12 @@ def test_a_changed_input_or_setting_is_redone(serial_run, collection, tmp_path):
     assert batch_study.input_fingerprint(collection[0])["hash"] != fp["hash"]
 
 
-def test_per_study_time_limit_ends_a_runaway_study(collection, tmp_path):
+@pytest.mark.parametrize("limit", [("--time-limit", "0.5"), ("--memory-limit", "40")])
+def test_per_study_limits_end_a_runaway_study(collection, tmp_path, limit):
     out = tmp_path / "limited"
-    _cli("run", collection[0], "--out", out, "--workers", "0", "--time-limit", "0.5", check_code=0)
+    _cli("run", collection[0], "--out", out, "--workers", "0", *limit, check_code=0)
     row = _read_summary(out)[0]
-    assert row["status"] == "failed" and "--time-limit" in row["error"]
+    assert row["status"] == "failed" and limit[0] in row["error"] and row["error"].startswith("ended:")
     assert sorted(p.name for p in (out / row["study_id"]).iterdir()) == ["log.txt", "result.json", "settings.json"]
 
 
