@@ -354,8 +354,42 @@ GEOMETRY: dict[str, Any] = {
     "skull_base_z": -26.0, "brain_floor_z": -19.0, "csf_layer": 1.5,
     "ventricle": ((10.0, 14.0, 34.0), (6.0, 24.0, 10.0)),
     # mandible: U-shaped bar = ring around (centre xy, radii xy) of half-thickness, at z centre with
-    # half-height, cut at y max
-    "mandible": ((0.0, -10.0), (45.0, 55.0), 4.5, -72.0, 12.0, 20.0),
+    # half-height, cut at y max (the body; the chin, rami and lower teeth are in "facial_skeleton")
+    "mandible": ((0.0, -10.0), (45.0, 55.0), 4.5, -79.0, 8.5, 6.0),
+    # facial skeleton (issue 22): what automatic craniometric landmarks need, every part a primitive
+    # so that the landmarks have analytic positions (:meth:`Phantom.bone_landmarks`). Mirrored in x.
+    "facial_skeleton": {
+        # orbit openings: elliptic cylinders along y, centre (x, z), radii (x, z), through the bone
+        "orbit": ((32.0, 0.0), (18.0, 14.0)),
+        # nasal aperture: elliptic cylinder along y on the midline, centre z, radii (x, z), y in front of
+        "aperture": (-28.0, (12.0, 11.0), -45.0),
+        # external acoustic meatus: cylinder along x, centre (y, z), radius, from |x| outwards; in a
+        # petrous block (ellipsoid centre, radii) so that the canal is blind, as in bone
+        "meatus": ((4.0, -18.0), 4.0, 44.0),
+        "petrous": ((46.0, 4.0, -18.0), (9.0, 10.0, 8.0)),
+        # temporal fossa carved from the cranium behind the zygomatic arch (ellipsoid)
+        "temporal_fossa": ((66.0, -18.0, -4.0), (12.0, 20.0, 16.0)),
+        # zygomatic arch: a ring (centre xy, radii xy) of half-thickness, z centre, half-height, y range
+        "zygomatic_arch": ((0.0, -20.0), (59.0, 40.0), 2.0, -10.0, 4.0, (-45.0, 2.0)),
+        # maxilla and zygomatic bodies: an ellipsoid block in front of the cranium, cut behind y max
+        "face_block": ((0.0, -22.0, -18.0), (56.0, 50.0, 38.0), -20.0),
+        # supraorbital ridges (brow): ellipsoid
+        "brow_ridge": ((0.0, -72.0, 12.0), (42.0, 10.5, 7.0)),
+        # nasal bones: a thin rotated ellipsoid from nasion's notch to rhinion (end points, radii x / thickness)
+        "nasal_bones": ((0.0, -75.0, -2.0), (0.0, -84.0, -20.0), 4.0, 2.5),
+        # anterior nasal spine: ellipsoid at the bottom of the aperture
+        "nasal_spine": ((0.0, -76.0, -39.5), (3.0, 5.0, 2.0)),
+        # dental arches (rings about the mandible's centre): upper alveolar process and upper teeth,
+        # lower teeth on the mandible; (radii xy, half-thickness, z bottom, z top). The mouth is open
+        # 6.5 mm between the incisal edges so that skull and mandible stay separate objects.
+        "upper_alveolus": ((42.0, 58.0), 5.0, -44.0, -30.0),
+        "upper_teeth": ((42.0, 58.0), 3.0, -54.5, -44.0),
+        "lower_teeth": ((40.0, 56.0), 3.0, -70.5, -61.0),
+        # chin (mental eminence): ellipsoid on the symphysis
+        "chin": ((0.0, -68.0, -81.0), (9.0, 5.0, 6.0)),
+        # rami: elliptic cylinders along z, centre xy, radii xy, z bottom, z top (below the skull base)
+        "ramus": ((40.0, -4.0), (3.5, 10.0), -87.5, -34.0),
+    },
     # cervical spine: centre xy, radii xy, top z, vertebra period, disc half-height
     "spine": ((0.0, 26.0), (11.0, 10.0), -34.0, 16.0, 2.0),
     "nasal_cavity": ((0.0, -70.0, -20.0), (10.0, 16.0, 16.0)),
@@ -479,26 +513,22 @@ def _layers(p, head: np.ndarray, hu: dict[str, float]):
     def cavity_sd(q):
         return _smax(s["skull_inner"].sd(q), g["brain_floor_z"] - q.z, 3.0)
 
+    fc, fr_ = g["facial_skeleton"]["temporal_fossa"]
+
     def skull_sd(q):
-        return np.maximum(_smax(s["skull_outer"].sd(q), g["skull_base_z"] - q.z, 3.0), -cavity_sd(q))
+        shell = np.maximum(_smax(s["skull_outer"].sd(q), g["skull_base_z"] - q.z, 3.0), -cavity_sd(q))
+        return np.maximum(shell, -_ellipsoid_sd(q.ax - fc[0], q.y - fc[1], q.z - fc[2], fr_))
 
     def brain_sd(q):
         return cavity_sd(q) + g["csf_layer"]
 
-    add(BONE, hu["skull"], s["skull_outer"].box(8.0), skull_sd, 2.0)
+    add(BONE, hu["skull"], s["skull_outer"].box(8.0), lambda q: _face_carves(q, skull_sd(q)), 2.0)
     add(CSF, hu["csf"], s["skull_inner"].box(8.0), cavity_sd, 3.0)
     add(BRAIN, hu["brain"], s["skull_inner"].box(8.0), brain_sd, 3.0 + g["csf_layer"])
     add(CSF, hu["csf"], s["ventricle"].box(8.0), s["ventricle"].sd, 3.0)
     add(EYE, hu["eye"], s["eyeball"].box(8.0), s["eyeball"].sd, 1.0)  # 1 mm lid in front
 
-    (mcx, mcy), mr, mhalf, mz, mhh, mymax = g["mandible"]
-
-    def mandible_sd(q):  # U-shaped bar: a slab of an elliptic ring, open at the back
-        ring = np.abs(_ellipse_sd(q.x - mcx, q.y - mcy, mr)) - mhalf
-        return np.maximum(np.maximum(ring, np.abs(q.z - mz) - mhh), q.y - mymax)
-
-    add(BONE, hu["mandible"], _box([mcx - mr[0] - mhalf - 8, mcy - mr[1] - mhalf - 8, mz - mhh - 8],
-                                   [mcx + mr[0] + mhalf + 8, mymax + 8, mz + mhh + 8]), mandible_sd, 3.0)
+    add(BONE, hu["mandible"], _FACE_BOX, _mandible_sd, 3.0)
     (scx, scy), sr, stop, period, disc_half = g["spine"]
     column = _Cylinder((scx, scy), sr, top=stop)
 
@@ -509,7 +539,95 @@ def _layers(p, head: np.ndarray, hu: dict[str, float]):
     add(CSF, hu["disc"], column.box(8.0), disc_sd, 3.0)
     for cavity in s["internal_air"]:
         add(INTERNAL_AIR, hu["internal_air"], cavity.box(8.0), cavity.sd, 4.0)
+    # the facial skeleton is painted after the air: it walls the maxillary sinuses in (they would open
+    # through the front of the maxilla) and the nasal bones and spine stand over the nasal cavity
+    add(BONE, hu["skull"], _FACE_BOX, _upper_face_sd, 2.0)
+    add(BONE, hu["skull"], _FACE_BOX, _nasal_sd, 2.0)
     return layers
+
+
+# --------------------------------------------------------------------------------------------
+# The facial skeleton (GEOMETRY["facial_skeleton"]): signed distances of plain numpy expressions.
+# --------------------------------------------------------------------------------------------
+FACE_WALL_MM = 6.0   # wall of the maxillo-zygomatic shell
+_FACE_BOX = (np.array([-80.0, -110.0, -100.0]), np.array([80.0, 40.0, 40.0]), False)
+
+
+def _ring_sd(q, centre, radii, half, zlo, zhi):
+    """A slab (z in [zlo, zhi]) of an elliptic ring about ``centre`` (xy) of half-thickness ``half``."""
+    ring = np.abs(_ellipse_sd(q.x - centre[0], q.y - centre[1], radii)) - half
+    return np.maximum(ring, np.abs(q.z - 0.5 * (zlo + zhi)) - 0.5 * (zhi - zlo))
+
+
+def _face_carves(q, d):
+    """Bone ``d`` with the orbits, the nasal aperture, the meatus and the temporal fossae carved out."""
+    f = GEOMETRY["facial_skeleton"]
+    (ox, oz), orad = f["orbit"]
+    orbit = np.maximum(_ellipse_sd(q.ax - ox, q.z - oz, orad), q.y + 40.0)          # open from y = -40 forward
+    az, arad, ay = f["aperture"]
+    aperture = np.maximum(_ellipse_sd(q.x, q.z - az, arad), q.y - ay)
+    (my, mz), mrad, mx = f["meatus"]
+    meatus = np.maximum(np.hypot(q.y - my, q.z - mz) - mrad, mx - q.ax)
+    hole = np.minimum(np.minimum(orbit, aperture), meatus)
+    return np.maximum(d, -hole)
+
+
+def _upper_face_sd(q):
+    """Face block, brow, zygomatic arches, petrous blocks, upper alveolus and teeth, carved."""
+    f = GEOMETRY["facial_skeleton"]
+    c, r, ymax = f["face_block"]
+    outer = _ellipsoid_sd(q.x - c[0], q.y - c[1], q.z - c[2], r)
+    inner = _ellipsoid_sd(q.x - c[0], q.y - c[1], q.z - c[2], tuple(v - FACE_WALL_MM for v in r))
+    block = np.maximum(np.maximum(outer, -inner), q.y - ymax)                        # a shell, open behind
+    c, r = f["brow_ridge"]
+    brow = _ellipsoid_sd(q.x - c[0], q.y - c[1], q.z - c[2], r)
+    c, r, half, zc, hh, (ylo, yhi) = f["zygomatic_arch"]
+    arch = np.maximum(_ring_sd(q, c, r, half, zc - hh, zc + hh), np.maximum(ylo - q.y, q.y - yhi))
+    arch = np.maximum(arch, 40.0 - q.ax)                                             # the lateral parts only
+    c, r = f["petrous"]
+    petrous = _ellipsoid_sd(q.ax - c[0], q.y - c[1], q.z - c[2], r)
+    mc = GEOMETRY["mandible"][0]
+    r, half, zlo, zhi = f["upper_alveolus"]
+    alveolus = np.maximum(_ring_sd(q, mc, r, half, zlo, zhi), q.y + 15.0)
+    r, half, zlo, zhi = f["upper_teeth"]
+    teeth = np.maximum(_ring_sd(q, mc, r, half, zlo, zhi), q.y + 15.0)
+    d = np.minimum.reduce([block, brow, arch, petrous, alveolus, teeth])
+    # the nasal cavity as it is, the maxillary sinuses 3 mm smaller (a bony wall in front of them)
+    c, r = GEOMETRY["nasal_cavity"]
+    d = np.maximum(d, -_ellipsoid_sd(q.x - c[0], q.y - c[1], q.z - c[2], r))
+    c, r = GEOMETRY["maxillary_sinus"]
+    d = np.maximum(d, -_ellipsoid_sd(q.ax - c[0], q.y - c[1], q.z - c[2], tuple(v - 3.0 for v in r)))
+    return _face_carves(q, d)
+
+
+def _nasal_sd(q):
+    """Nasal bones (a thin ellipsoid between their end points) and the anterior nasal spine."""
+    f = GEOMETRY["facial_skeleton"]
+    a, b, rx, rt = f["nasal_bones"]
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    axis = (b - a) / np.linalg.norm(b - a)
+    half = 0.5 * np.linalg.norm(b - a)
+    m = 0.5 * (a + b)
+    u = (q.y - m[1]) * axis[1] + (q.z - m[2]) * axis[2]            # along the bones (in the yz plane)
+    w = (q.y - m[1]) * -axis[2] + (q.z - m[2]) * axis[1]           # across (thickness)
+    nasal = _ellipsoid_sd(q.x - m[0], u, w, (rx, half, rt))
+    c, r = f["nasal_spine"]
+    spine = _ellipsoid_sd(q.x - c[0], q.y - c[1], q.z - c[2], r)
+    return np.minimum(nasal, spine)
+
+
+def _mandible_sd(q):
+    """Mandible: the U-shaped body, the chin, the rami and the lower teeth."""
+    g, f = GEOMETRY, GEOMETRY["facial_skeleton"]
+    mc, mr, mhalf, mz, mhh, mymax = g["mandible"]
+    body = np.maximum(_ring_sd(q, mc, mr, mhalf, mz - mhh, mz + mhh), q.y - mymax)
+    c, r = f["chin"]
+    chin = _ellipsoid_sd(q.x - c[0], q.y - c[1], q.z - c[2], r)
+    (rx, ry), rr, zlo, zhi = f["ramus"]
+    ramus = np.maximum(_ellipse_sd(q.ax - rx, q.y - ry, rr), np.abs(q.z - 0.5 * (zlo + zhi)) - 0.5 * (zhi - zlo))
+    r, half, zlo, zhi = f["lower_teeth"]
+    teeth = np.maximum(_ring_sd(q, mc, r, half, zlo, zhi), q.y + 15.0)
+    return np.minimum.reduce([body, chin, ramus, teeth])
 
 
 def _skull_outer_sd(p, head: np.ndarray) -> np.ndarray:
