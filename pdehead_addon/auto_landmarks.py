@@ -114,7 +114,9 @@ class _Frame:
             out[:, :, iz] = (ndimage.map_coordinates(bone_f, kji, order=1, cval=0.0) > 0.5).reshape(n[0], n[1])
             lab[:, :, iz] = ndimage.map_coordinates(labels, kji, order=0, cval=0).reshape(n[0], n[1])
         self.bone = out
-        self.comp = np.where(out, lab, 0)
+        # bone pixels at the mask's edge may sample label 0 (nearest voxel outside): take a neighbour's label
+        filled = np.where(lab > 0, lab, ndimage.grey_dilation(lab, size=(3, 3, 3)))
+        self.comp = np.where(out, filled, 0)
 
     def to_patient(self, f) -> np.ndarray:
         return np.asarray(f, float) @ self.rot + self.centre
@@ -162,7 +164,7 @@ def _pits(height: np.ndarray, valid: np.ndarray, radius_px: float, depth_px: flo
     bad = np.unique(lab[outside | np.pad(np.zeros((h.shape[0] - 2, h.shape[1] - 2), bool), 1,
                                          constant_values=True)])
     lab[np.isin(lab, bad[bad > 0])] = 0
-    return lab
+    return ndimage.label(lab > 0)[0]
 
 
 # ------------------------------------------------------------------------------------- views
@@ -216,14 +218,26 @@ def _orbits_and_aperture(v: _Views, mid_x: float):
             orbits[side] = max(cand, key=lambda i: area[i])
     top_z = min((cz[i] for i in orbits.values()), default=np.inf)
     ix_mid = fr.index(0, mid_x)
-    crossing = [i for i in range(n) if (lab[ix_mid] == i + 1).any() and area[i] >= 100]
+    crossing = [i for i in range(n) if (lab[max(ix_mid - 1, 0):ix_mid + 2] == i + 1).any(0).sum() >= 5
+                and area[i] >= 100]
     ap = None
     if crossing:
         below = [i for i in crossing if fr.coord(2, np.flatnonzero((lab == i + 1).any(0)).max()) < top_z]
         if below:
             ap = max(below, key=lambda i: area[i])
     get = lambda i: None if i is None else lab == i + 1   # noqa: E731
-    return get(orbits.get(1)), get(orbits.get(-1)), get(ap), lab
+    aperture = None
+    if ap is not None:
+        # the opening may run on, beside the maxilla, into the gap between the teeth: keep the rows from
+        # its top down to where it stops on the midline (the nasal floor)
+        aperture = get(ap)
+        col = aperture[ix_mid]
+        top = int(np.flatnonzero(col).max())
+        bottom = top
+        while bottom > 0 and col[bottom - 1]:
+            bottom -= 1
+        aperture[:, :bottom] = False
+    return get(orbits.get(1)), get(orbits.get(-1)), aperture, lab
 
 
 def _meatus(v: _Views, side: int, expect_y: float, expect_z: float):
@@ -359,44 +373,66 @@ def _midline(res, fr, v, mid_x, skull_ids, mand_ids, orb_z, aperture, mand_top=N
     walk = np.array(walk)
     nas = walk[z[walk] >= orb_z]
     i_n = int(nas[np.argmax(py[nas])]) if len(nas) else ig
-    n_flag, n_ev = (OK, "") if py[i_n] - py[ig] >= 2.0 else (UNCERTAIN, "no concavity below glabella")
-    res["n"] = (np.array([mid_x, py[i_n], z[i_n]]), n_flag, n_ev)
     below = walk[z[walk] < z[i_n]]
-    if len(below) >= 6 and py[below[-1]] < py[i_n] - 2:
-        i_rhi = int(below[-1])
-        res["rhi"] = (np.array([mid_x, py[i_rhi], z[i_rhi]]), OK, "")
+    if py[i_n] - py[ig] >= 2.0:
+        res["n"] = (np.array([mid_x, py[i_n], z[i_n]]), OK, "")
+        if len(below) >= 6 and py[below[-1]] < py[i_n] - 2:
+            i_rhi = int(below[-1])
+            res["rhi"] = (np.array([mid_x, py[i_rhi], z[i_rhi]]), OK, "")
+        else:
+            i_rhi = int(below[-1]) if len(below) else i_n
+            res["rhi"] = (np.array([mid_x, py[i_rhi], z[i_rhi]]), UNCERTAIN,
+                          f"the nasal bones run only {len(below) * fr.step:.0f} mm below nasion in the bone mask")
     else:
-        i_rhi = int(below[-1]) if len(below) else i_n
-        res["rhi"] = (np.array([mid_x, py[i_rhi], z[i_rhi]]), UNCERTAIN,
-                      f"the nasal bones run only {len(below) * fr.step:.0f} mm below nasion in the bone mask")
+        # no concavity: the outline runs on from the forehead; without the nasal bones in the mask the
+        # frontal bone's lowest point is where they would join
+        i_n = int(walk[-1])
+        res["n"] = (np.array([mid_x, py[i_n], z[i_n]]), UNCERTAIN,
+                    "no concavity below glabella: nasion taken where the frontal bone's outline ends")
+        i_rhi = i_n
+        res["rhi"] = (None, NOT_FOUND, "the nasal bones are not in the bone mask below nasion")
     i_mn = int(np.round(0.5 * (i_n + i_rhi)))
-    res["mn"] = (np.array([mid_x, py[i_mn] if has[i_mn] else py[i_n], z[i_mn]]),
-                 res["rhi"][1], res["rhi"][2])
+    res["mn"] = (None, NOT_FOUND, res["rhi"][2]) if res["rhi"][0] is None else \
+        (np.array([mid_x, py[i_mn] if has[i_mn] else py[i_n], z[i_mn]]), res["rhi"][1], res["rhi"][2])
 
-    # upper jaw: the skull's profile below the nasal aperture
-    ap_bottom = None
-    if aperture is not None:
-        ap_bottom = fr.coord(2, np.flatnonzero(aperture.any(0)).min())
-    # rows of the face (in front of the skull base and spine): within 40 mm behind nasion
-    low = has & (z < (ap_bottom if ap_bottom is not None else orb_z - 25)) & (py < py[i_n] + 40)
-    if ap_bottom is not None:
-        low &= z > ap_bottom - 45
-    if mand_top is not None:       # lower teeth split from the mandible must not pass for the upper jaw
-        low &= z > mand_top - 3.0
-    if not low.any():
+    # upper jaw: going down the midline profile from rhinion, the nasal aperture is deep (the profile runs
+    # back to the septum or finds no bone); the maxilla starts at the first row whose front-most bone is
+    # the upper skeleton's and lies within 15 mm of nasion's depth (the anterior nasal spine)
+    iy_all, has_all = _first_true(slab, 0)
+    front_comp = fr.comp[max(ix - 1, 0):ix + 2].max(0)[iy_all, np.arange(fr.shape[2])]
+    face = has & has_all & np.isin(front_comp, skull_ids) & (np.abs(fr.coord(1, iy_all) - py) < 1.5)
+    face &= py < py[i_n] + 15
+    k = i_rhi - int(round(3 / fr.step))
+    while k > 0 and not face[k]:
+        k -= 1
+    if k <= 0 or z[k] < orb_z - 80:
         for key in ("ss", "mp", "sd"):
             res[key] = (None, NOT_FOUND, "no maxilla below the nasal aperture on the midline")
         return {}
-    rows = np.flatnonzero(low)
-    # the maxilla's profile is the run of rows connected to the lowest skull row in front
-    i_low = int(rows.min())
-    i_top = int(rows.max())
-    upper_ev = "" if aperture is not None else "nasal aperture not found; maxilla taken 25 mm below orbitale"
+    # the upper jaw's profile: the rows down from the spine until the front-most bone is the mandible's
+    # (its teeth) or no bone is met for 10 mm; thin bone (the nasal floor, the spine) leaves shorter gaps
+    i_top = k
+    i_low, gap, j = i_top, 0, i_top - 1
+    mand = set(mand_ids)
+    while j > 0:
+        if has_all[j] and front_comp[j] in mand:
+            break
+        if face[j]:
+            i_low, gap = j, 0
+        else:
+            gap += 1
+            if gap * fr.step > 10.0:
+                break
+        j -= 1
+    rows = np.arange(i_low, i_top + 1)
+    rows = rows[face[rows]]
+    upper_ev = "" if aperture is not None else "no nasal aperture in the front view"
     i_sd = int(np.argmin(np.abs(z - (z[i_low] + UPPER_INCISOR_CROWN_MM))))
     i_sd = min(max(i_sd, i_low), i_top)
     seg = rows[(rows >= i_sd)]
     # subspinale: the deepest point of the concavity between the anterior nasal spine and prosthion
-    i_ans = int(seg[np.argmin(py[seg] - 0.0 * z[seg])]) if len(seg) else i_top
+    spine_rows = seg[z[seg] >= z[i_top] - 8.0]          # the anterior nasal spine: the top 8 mm's front-most point
+    i_ans = int(spine_rows[np.argmin(py[spine_rows])]) if len(spine_rows) else i_top
     upper = seg[(seg >= i_sd) & (seg <= max(i_ans, i_sd))]
     # deepest relative to the chord from prosthion to the spine
     if len(upper) >= 3 and i_ans != i_sd:
@@ -432,7 +468,7 @@ def _mandible_midline(res, fr, mid_x, mand_ids):
     lower = rows[z[rows] <= mid]
     i_pog = int(lower[np.argmin(py[lower])])
     res["pog"] = (np.array([mid_x, py[i_pog], z[i_pog]]), OK, "")
-    i_id = int(np.argmin(np.abs(z - (z[i_top] - LOWER_INCISOR_CROWN_MM))))
+    i_id = int(rows[np.argmin(np.abs(z[rows] - (z[i_top] - LOWER_INCISOR_CROWN_MM)))])
     i_id = max(min(i_id, i_top), i_pog)
     res["id"] = (np.array([mid_x, py[i_id], z[i_id]]), UNCERTAIN,
                  f"teeth and alveolar bone are one in a bone mask: placed {LOWER_INCISOR_CROWN_MM:g} mm "
@@ -558,12 +594,13 @@ def find_landmarks(ct, bone: np.ndarray, *, grid_mm: float = LANDMARK_GRID_MM) -
         except PDEHeadError:
             frank = None
     if frank is not None:
-        # z: the Frankfurt plane's normal; x: the symmetry plane's normal made parallel to that plane, so
-        # that the mid-sagittal plane is x = 0 of the frame (the porion line may be skewed by asymmetry)
+        # x: the symmetry plane's normal, so that the mid-sagittal plane is x = 0 of the frame (the porion
+        # line may be skewed by asymmetry); z: the Frankfurt plane's normal made orthogonal to it (the two
+        # differ by the skull's roll against its own symmetry plane, a few degrees)
         up = frank[2, :3]
-        xn = x_ax - (x_ax @ up) * up
-        xn /= np.linalg.norm(xn)
-        rot2 = np.stack([xn, np.cross(up, xn), up])
+        zn = up - (up @ x_ax) * x_ax
+        zn /= np.linalg.norm(zn)
+        rot2 = np.stack([x_ax, np.cross(zn, x_ax), zn])
         # keep the frame's origin on the symmetry plane so that the midline is x = 0
         fr = _Frame(ct, bone, labels, rot2, c, grid_mm)
         info["frame"] = "frankfurt"
@@ -686,7 +723,15 @@ def find_landmarks(ct, bone: np.ndarray, *, grid_mm: float = LANDMARK_GRID_MM) -
             found[key] = (None, NOT_FOUND, mand_ev)
         low = {}
     else:
-        low = _mandible_midline(found, fr, mid_x, [mand_id])
+        # lower teeth split from the mandible by the threshold count as the mandible: the pieces on the
+        # midline between the upper jaw and the mandible's top
+        ids = [mand_id]
+        if up and mand_top is not None:
+            ixm = fr.index(0, mid_x)
+            izs = slice(fr.index(2, mand_top - 15), fr.index(2, up["low_z"] - 1) + 1)
+            pieces = np.unique(fr.comp[max(ixm - 1, 0):ixm + 2, :, izs])
+            ids += [int(i) for i in pieces if i not in (0, skull_id, mand_id)]
+        low = _mandible_midline(found, fr, mid_x, ids)
 
     # alare curvature (bony proxy): the outermost point of the nasal aperture's margin
     for side in (1, -1):

@@ -541,8 +541,9 @@ def _layers(p, head: np.ndarray, hu: dict[str, float]):
         add(INTERNAL_AIR, hu["internal_air"], cavity.box(8.0), cavity.sd, 4.0)
     # the facial skeleton is painted after the air: it walls the maxillary sinuses in (they would open
     # through the front of the maxilla) and the nasal bones and spine stand over the nasal cavity
-    add(BONE, hu["skull"], _FACE_BOX, _upper_face_sd, 2.0)
-    add(BONE, hu["skull"], _FACE_BOX, _nasal_sd, 2.0)
+    add(BONE, hu["mandible"], _FACE_BOX, _upper_face_sd, 2.0)
+    add(BONE, hu["mandible"], _FACE_BOX, _nasal_sd, 2.0)
+    add(BONE, hu["mandible"], _FACE_BOX, _upper_teeth_sd, 2.0)
     return layers
 
 
@@ -589,15 +590,19 @@ def _upper_face_sd(q):
     mc = GEOMETRY["mandible"][0]
     r, half, zlo, zhi = f["upper_alveolus"]
     alveolus = np.maximum(_ring_sd(q, mc, r, half, zlo, zhi), q.y + 15.0)
-    r, half, zlo, zhi = f["upper_teeth"]
-    teeth = np.maximum(_ring_sd(q, mc, r, half, zlo, zhi), q.y + 15.0)
-    d = np.minimum.reduce([block, brow, arch, petrous, alveolus, teeth])
+    d = np.minimum.reduce([block, brow, arch, petrous, alveolus])
     # the nasal cavity as it is, the maxillary sinuses 3 mm smaller (a bony wall in front of them)
     c, r = GEOMETRY["nasal_cavity"]
     d = np.maximum(d, -_ellipsoid_sd(q.x - c[0], q.y - c[1], q.z - c[2], r))
     c, r = GEOMETRY["maxillary_sinus"]
     d = np.maximum(d, -_ellipsoid_sd(q.ax - c[0], q.y - c[1], q.z - c[2], tuple(v - 3.0 for v in r)))
     return _face_carves(q, d)
+
+
+def _upper_teeth_sd(q):
+    """Upper teeth: a ring under the upper alveolus (denser than the skull, painted with the mandible's HU)."""
+    r, half, zlo, zhi = GEOMETRY["facial_skeleton"]["upper_teeth"]
+    return np.maximum(_ring_sd(q, GEOMETRY["mandible"][0], r, half, zlo, zhi), q.y + 15.0)
 
 
 def _nasal_sd(q):
@@ -867,6 +872,17 @@ class Phantom:
             raise _ParameterError(f"points must have shape (..., 3) (x, y, z in mm), got {pts.shape}")
         return _analytic_tissue_depth(pts, float(max_depth), float(step))[2].reshape(pts.shape[:-1])
 
+    def bone_landmarks(self) -> dict[str, np.ndarray]:
+        """Analytic craniometric landmarks of the facial skeleton (patient mm, by standard name).
+
+        Each is the rule of :mod:`pdehead_addon.auto_landmarks` applied to the exact geometry
+        (bone crossings found along rays sampled every 0.02 mm, or extremes of the bone on a
+        0.1 mm grid), not to a voxel grid; the phantom's Frankfurt plane is z = -14 (porion and
+        orbitale), so the phantom is already in the Frankfurt orientation. Landmarks whose rule
+        depends on other estimates (canines, molars, rami, mid-points) are not listed.
+        """
+        return _bone_landmarks()
+
     def labels_at(self, points_xyz: np.ndarray) -> np.ndarray:
         """Tissue label (uint8, see :data:`LABEL_NAMES`) at patient LPS points (..., 3)."""
         p, shape = _points_from_array(points_xyz)
@@ -1012,3 +1028,83 @@ def make_phantom(shape: tuple[int, int, int] = DEFAULT_SHAPE,
                         "noise_hu": float(noise), "blur_mm": blur, "seed": int(seed)})
     return Phantom(ct=ct, head_mask=head_mask, labels=labels, noise=float(noise), blur=blur,
                    seed=int(seed), params=params)
+
+
+def _is_bone(points: np.ndarray) -> np.ndarray:
+    p, shape = _points_from_array(points)
+    return (_evaluate(p, DEFAULT_HU, 0.0, want_hu=False)[2] == BONE).reshape(shape)
+
+
+def _first_bone(start, direction, length: float = 150.0, step: float = 0.02) -> np.ndarray:
+    """First bone point along a ray (exact geometry sampled every ``step`` mm)."""
+    t = np.arange(0.0, length, step)
+    pts = np.asarray(start, float) + t[:, None] * np.asarray(direction, float)
+    hit = np.flatnonzero(_is_bone(pts))
+    if not len(hit):
+        raise RuntimeError(f"no bone along the ray from {start}")
+    return pts[hit[0]]
+
+
+def _bone_landmarks() -> dict[str, np.ndarray]:
+    f = GEOMETRY["facial_skeleton"]
+    (ox, oz), (orx, orz) = f["orbit"]
+    (my, mz), mrad, _ = f["meatus"]
+    arch_y, arch_z = f["zygomatic_arch"][0][1], f["zygomatic_arch"][3]
+    az, (arx, _), _ = f["aperture"]
+    out: dict[str, np.ndarray] = {}
+    front, eps = (0.0, 1.0, 0.0), 0.01
+    oc, orad = GEOMETRY["skull_outer"]
+    out["Vertex"] = np.array([0.0, oc[1], oc[2] + orad[2]])
+    out["Opisthocranion"] = np.array([0.0, oc[1] + orad[1], oc[2]])
+    for side, tag in ((1.0, "L"), (-1.0, "R")):
+        out[f"Orbitale {tag}"] = _first_bone((side * ox, -130.0, oz - orz - eps), front)
+        out[f"Supraorbital {tag}"] = _first_bone((side * ox, -130.0, oz + orz + eps), front)
+        zl = oz - orz + 0.7 * 2 * orz                      # the rule's row: 70 % up the opening
+        xl = ox + orx * math.sqrt(1.0 - ((zl - oz) / orz) ** 2)
+        out[f"Lateral orbit {tag}"] = _first_bone((side * (xl + eps), -130.0, zl), front)
+        out[f"Porion {tag}"] = _first_bone((side * 100.0, my, mz + mrad + eps), (-side, 0.0, 0.0))
+        out[f"Zygomatic arch {tag}"] = _first_bone((side * 100.0, arch_y, arch_z), (-side, 0.0, 0.0))
+        out[f"Alare curvature {tag}"] = _first_bone((side * (arx + eps), -130.0, az), front)
+    # mid-sagittal profile on a 0.1 mm grid of rays from the face
+    zs = np.arange(-30.0, 40.0, 0.1)
+    ys = np.arange(-100.0, -30.0, 0.05)
+    yy, zz = np.meshgrid(ys, zs, indexing="ij")
+    grid = _is_bone(np.stack([np.zeros(yy.size), yy.ravel(), zz.ravel()], 1)).reshape(yy.shape)
+    prof = np.where(grid.any(0), ys[np.argmax(grid, 0)], np.nan)
+    band = (zs >= oz - orz + 25) & (zs <= oz - orz + 65)
+    ig = np.flatnonzero(band)[np.nanargmin(prof[band])]
+    out["Glabella"] = np.array([0.0, prof[ig], zs[ig]])
+    notch = (zs > -10) & (zs < zs[ig])
+    i_n = np.flatnonzero(notch)[np.nanargmax(prof[notch])]
+    out["Nasion"] = np.array([0.0, prof[i_n], zs[i_n]])
+    nasal = np.flatnonzero((zs < zs[i_n]) & (zs > -30) & (prof < prof[i_n] + 4))
+    i_r = nasal.min()
+    out["Rhinion"] = np.array([0.0, prof[i_r], zs[i_r]])
+    zc = f["upper_alveolus"][2]
+    out["Supradentale"] = _first_bone((0.0, -130.0, zc + eps), front)
+    mc, mr, mhalf, mzc, mhh, _ = GEOMETRY["mandible"]
+    out["Infradentale"] = _first_bone((0.0, -130.0, mzc + mhh - eps), front)
+    c, r = f["chin"]
+    out["Pogonion"] = np.array([0.0, c[1] - r[1], c[2]])
+    bottom = mzc - mhh
+    out["Menton"] = np.array([0.0, mc[1] - mr[1], bottom])                         # middle of the flat bottom
+    # gnathion: the symphysis' bone point farthest along the anterior-inferior bisector
+    yy, zz = np.meshgrid(np.arange(-80.0, -55.0, 0.1), np.arange(bottom - 1, c[2] + 1, 0.1), indexing="ij")
+    pts = np.stack([np.zeros(yy.size), yy.ravel(), zz.ravel()], 1)
+    b = pts[_is_bone(pts)]
+    out["Gnathion"] = b[np.argmax(-b[:, 1] - b[:, 2])]
+    # gonion: the farthest back-and-down mandible point, then the outermost within 4 mm (the rule)
+    (rx, ry), rr, zlo, _ = f["ramus"]
+    xx, yy, zz = np.meshgrid(np.arange(30.0, 56.0, 0.25), np.arange(ry - 6, ry + rr[1] + 3, 0.25),
+                             np.arange(zlo - 1, zlo + 8, 0.25), indexing="ij")
+    pts = np.stack([xx.ravel(), yy.ravel(), zz.ravel()], 1)
+    b = pts[_is_bone(pts)]
+    k = np.argmax(b[:, 1] - b[:, 2])
+    near = b[np.linalg.norm(b[:, 1:] - b[k, 1:], axis=1) < 4.0]
+    go = near[np.argmax(near[:, 0])]
+    out["Gonion L"] = go
+    out["Gonion R"] = go * np.array([-1.0, 1.0, 1.0])
+    # the ellipse's lowest point lies on its centre column: suborbital = orbitale here
+    for tag in "LR":
+        out[f"Suborbital {tag}"] = out[f"Orbitale {tag}"].copy()
+    return out
