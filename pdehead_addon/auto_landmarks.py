@@ -63,6 +63,64 @@ LOWER_INCISOR_CROWN_MM = 9.0
 SYMMETRY_POINTS = 4000
 
 
+#: The rule of every landmark (by the key of :data:`~pdehead_addon.landmarks.STANDARD_LANDMARKS`; "L/R"
+#: rules apply to each side). Frame: the Frankfurt frame (x left, y posterior, z up), the mid-sagittal
+#: plane x = 0; "front view" etc. are the depth images of the module docstring.
+RULES: dict[str, str] = {
+    "po": "Porion: the highest point of the upper margin of the external acoustic meatus -- in the side view, "
+          "the outermost bone just above the meatus opening's highest pixel.",
+    "or": "Orbitale: the lowest point of the infraorbital margin -- in the front view, the bone just below the "
+          "lowest pixel of the orbit opening.",
+    "v": "Vertex: the highest point of the skull on the mid-sagittal plane (the middle of a flat top: the points "
+         "within 1.5 mm of the highest).",
+    "op": "Opisthocranion: the most posterior point of the skull on the mid-sagittal plane (middle of a flat back).",
+    "g": "Glabella: the most anterior point of the mid-sagittal profile 25-65 mm above orbitale.",
+    "n": "Nasion: the deepest (most posterior) point of the profile's concavity below glabella, on the profile "
+         "walked down continuously from glabella; with no concavity (receding forehead, nasal bones not in the "
+         "mask), the lowest point of that walk -- where the frontal bone ends (uncertain).",
+    "rhi": "Rhinion: the lowest point of the nasal bones -- the end of the continuous profile below nasion "
+           "(not found when the walk ends at nasion).",
+    "mn": "Mid-nasal: the profile point half way (in height) from nasion to rhinion.",
+    "ss": "Subspinale (A point): the deepest point of the upper jaw's profile relative to the chord from the "
+          "anterior nasal spine (front-most point of the top 8 mm of the upper jaw) to prosthion.",
+    "sd": "Supradentale / prosthion: the upper jaw's profile point one upper central incisor crown (10.5 mm) "
+          "above its lowest point (teeth and alveolar bone are one in a bone mask: always uncertain).",
+    "mp": "Mid-philtrum: the upper jaw's profile point half way (in height) between subspinale and prosthion.",
+    "id": "Infradentale: the mandible's profile point one lower incisor crown (9 mm) below its highest front "
+          "point (always uncertain, as prosthion).",
+    "sm": "Supramentale (B point): the deepest point of the mandible's profile relative to the chord from "
+          "pogonion to infradentale.",
+    "pog": "Pogonion: the most anterior point of the lower half of the mandible's mid-sagittal profile.",
+    "gn": "Gnathion: the point of the symphysis between pogonion and menton farthest along the "
+          "anterior-inferior bisector.",
+    "me": "Menton: the lowest point of the mandible on the mid-sagittal plane (middle of a flat bottom).",
+    "fe": "Frontal eminence: on the vertical line of the front view through the orbit's centre, 10-60 mm above "
+          "the supraorbital margin, the point farthest in front of the chord of that line (uncertain if < 1 mm).",
+    "so": "Supraorbital (mso): the bone just above the orbit opening on its centre column (front view).",
+    "sbo": "Suborbital (mio): the bone just below the orbit opening on its centre column (front view).",
+    "lo": "Lateral orbit: the bone just lateral to the orbit opening, 70 % of the way up the opening.",
+    "im": "Inferior malar: going down the front view from the orbit's bottom on the column a quarter of the "
+          "orbit's width lateral of its centre, the last bone row before the view jumps back by > 8 mm.",
+    "za": "Zygion: the outermost bone between 8 mm behind orbitale and 12 mm in front of porion, from 15 mm "
+          "below orbitale to 5 mm above porion.",
+    "sg": "Supraglenoid: the outermost bone 10 mm in front of porion and 8 mm above it (side view).",
+    "ac": "Alare curvature (bony proxy): the bone just lateral to the nasal aperture at its widest point.",
+    "sc": "Supra canine: the front-most bone 10 mm above prosthion's height, 13 % of the bizygomatic breadth "
+          "from the midline (uncertain: the canine is not seen in a bone mask).",
+    "ic": "Infra canine: the front-most mandible bone 10 mm below infradentale's height, 13 % of the "
+          "bizygomatic breadth from the midline (uncertain).",
+    "go": "Gonion: the mandible point farthest back-and-down (max y - z), then the outermost within 4 mm.",
+    "ocl": "Occlusal line: the outermost mandible point at the occlusal plane (half way between prosthion and "
+           "infradentale), behind 60 % of the way from menton to gonion.",
+    "subm2": "Sub M2 (iM2): the outermost mandible point 60 % of the way from menton to gonion, at mid-height of "
+             "the body.",
+    "supm2": "Supra M2 (sM2): the outermost bone (side view) at sub M2's y, 8 mm above prosthion's height.",
+    "mr": "Mid-ramus: the outermost mandible point half way up from gonion to the condyle's top, at the middle "
+          "of the ramus' width.",
+    "mmb": "Mid-mandibular border: the lowest mandible point half way (in y) from menton to gonion.",
+}
+
+
 @dataclass
 class FoundLandmark:
     """One automatic landmark: ``point`` in patient LPS mm (None when not found), ``flag`` and why."""
@@ -748,7 +806,9 @@ def find_landmarks(ct, bone: np.ndarray, *, grid_mm: float = LANDMARK_GRID_MM) -
         if up and mand_top is not None:
             ixm = fr.index(0, mid_x)
             izs = slice(fr.index(2, mand_top - 15), fr.index(2, up["low_z"] - 1) + 1)
-            pieces = np.unique(fr.comp[max(ixm - 1, 0):ixm + 2, :, izs])
+            n_pt = found.get("n", (None,))[0]
+            iy_lim = fr.shape[1] if n_pt is None else fr.index(1, n_pt[1] + 40.0)   # the face, not the spine
+            pieces = np.unique(fr.comp[max(ixm - 1, 0):ixm + 2, :iy_lim, izs])
             ids += [int(i) for i in pieces if i not in (0, skull_id, mand_id)]
         low = _mandible_midline(found, fr, mid_x, ids)
 

@@ -116,3 +116,9 @@ def test_cthead_landmarks_against_the_hand_placed_ones(cthead_ct):
 
 CTHEAD_MEDIAN_MM = 5.0
 CTHEAD_MAX_OK_MM = 10.0
+
+
+def test_every_landmark_has_a_written_rule():
+    from pdehead_addon.auto_landmarks import RULES
+    keys = {d.key.rsplit("_", 1)[0] if d.bilateral else d.key for d in STANDARD_LANDMARKS}
+    assert keys == set(RULES) and all(len(r) > 40 for r in RULES.values())
