@@ -18,8 +18,9 @@ from ..pdehead_addon import PDEHeadError
 from ..pdehead_addon.landmarks import STANDARD_LANDMARKS
 from . import ops, state
 from .forensic_study import (DEPTH_ATTRIBUTE, DEPTH_MATERIAL, DEPTH_STATS_KEY, MIRROR_PLANES, SKULL_INFO_KEY, _obj,
-                             apply_frankfurt, export_study, landmarks, make_pegs, mirror_object, place_landmark,
-                             skin_engine_mesh, skull_engine_mesh, step_depth, step_skull, world_to_patient)
+                             apply_frankfurt, export_study, find_landmarks, landmark_flags, landmarks, make_pegs,
+                             mirror_object, place_landmark, skin_engine_mesh, skull_engine_mesh, snap_moved_landmarks,
+                             step_depth, step_skull, world_to_patient)
 
 _LANDMARK_ITEMS = [(d.name, d.name, d.description) for d in STANDARD_LANDMARKS]
 
@@ -96,6 +97,48 @@ class PDEHEAD_OT_place_landmark(Operator, _ForensicOp):
             world = Vector(self.location) if self.use_location else context.scene.cursor.location.copy()
             obj = place_landmark(coll, self.name, world_to_patient(coll, world), self.target)
             self.report({'INFO'}, f"{obj.name} at {np.round(obj['patient_mm'], 1).tolist()} mm")
+        return ops._guarded(self, context, body)
+
+
+class PDEHEAD_OT_find_landmarks(Operator, _ForensicOp):
+    """Find every craniometric landmark on the bone automatically (Frankfurt alignment first), each with a
+    flag: ok, uncertain or not found"""
+
+    bl_idname = "pdehead.find_landmarks"
+    bl_label = "Find Landmarks"
+    target: EnumProperty(name="Snap To", items=TARGET_ITEMS, default='BONE')
+    keep_edited: BoolProperty(name="Keep Edited", default=True,
+                              description="Leave the landmarks placed or moved by hand where they are")
+
+    def execute(self, context):
+        def body():
+            coll = _study_or_raise(self, context)
+            search = find_landmarks(coll, self.target, self.keep_edited)
+            flags = [lm.flag for lm in search.landmarks.values()]
+            msg = (f"{flags.count('ok')} landmarks ok, {flags.count('uncertain')} uncertain, "
+                   f"{flags.count('not_found')} not found")
+            missing = [n for n, lm in search.landmarks.items() if lm.flag == 'not_found']
+            if missing:
+                why = search.landmarks[missing[0]].evidence
+                self.report({'WARNING'}, f"{msg} (e.g. {missing[0]}: {why})")
+            else:
+                self.report({'INFO'}, msg)
+        return ops._guarded(self, context, body)
+
+
+class PDEHEAD_OT_snap_landmarks(Operator, _ForensicOp):
+    """Put the landmarks moved in the viewport back onto the bone (nearest point); they count as placed by hand"""
+
+    bl_idname = "pdehead.snap_landmarks"
+    bl_label = "Snap Moved Landmarks"
+    target: EnumProperty(name="Snap To", items=TARGET_ITEMS, default='BONE')
+
+    def execute(self, context):
+        def body():
+            coll = _study_or_raise(self, context)
+            names = snap_moved_landmarks(coll, self.target)
+            self.report({'INFO'}, f"{len(names)} landmark(s) snapped to the bone" +
+                        (": " + ", ".join(names[:4]) if names else ""))
         return ops._guarded(self, context, body)
 
 
@@ -250,11 +293,19 @@ class PDEHEAD_PT_forensic(Panel):
                 c.label(text="Surface rebuilt since: compute again", icon='ERROR')
         box = layout.box()
         box.label(text="Landmarks")
-        box.label(text="Click to put the 3D cursor on the skull, then:")
+        row = box.row(align=True)
+        row.operator(PDEHEAD_OT_find_landmarks.bl_idname, icon='VIEWZOOM')
+        row.operator(PDEHEAD_OT_snap_landmarks.bl_idname, text="Snap Moved", icon='SNAP_ON')
+        box.label(text="Or click to put the 3D cursor on the skull, then:")
         box.operator_menu_enum(PDEHEAD_OT_place_landmark.bl_idname, "name", text="Place at Cursor",
                                icon='EMPTY_SINGLE_ARROW')
         placed = landmarks(coll)
         box.label(text=f"{len(placed)} placed" + (": " + ", ".join(list(placed)[:4]) if placed else ""))
+        flags = landmark_flags(coll)
+        if flags:
+            counts = {f: sum(1 for v in flags.values() if v[0] == f) for f in ("ok", "uncertain", "not_found")}
+            box.label(text=f"{counts['ok']} ok, {counts['uncertain']} uncertain, {counts['not_found']} not found",
+                      icon='INFO' if not counts['not_found'] else 'ERROR')
         row = box.row(align=True)
         row.operator(PDEHEAD_OT_import_depth_table.bl_idname, text="Depth Table", icon='IMPORT')
         row.operator(PDEHEAD_OT_export_landmark_depths.bl_idname, text="Depths CSV", icon='EXPORT')
@@ -271,6 +322,8 @@ CLASSES = (
     PDEHEAD_OT_build_skull,
     PDEHEAD_OT_tissue_depth,
     PDEHEAD_OT_place_landmark,
+    PDEHEAD_OT_find_landmarks,
+    PDEHEAD_OT_snap_landmarks,
     PDEHEAD_OT_import_depth_table,
     PDEHEAD_OT_export_landmark_depths,
     PDEHEAD_OT_frankfurt,

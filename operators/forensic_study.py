@@ -42,6 +42,12 @@ DEPTH_MATERIAL = "PDE Head Tissue Depth"
 BONE_MATERIAL = "PDE Head Bone"
 PEG_MATERIAL = "PDE Head Depth Peg"
 LANDMARK_KEY = "pdehead_landmark"
+LANDMARK_FLAGS_KEY = "pdehead_landmark_flags"   # JSON {name: [flag, evidence]} of the last Find Landmarks
+LANDMARK_FLAG = "pdehead_flag"                  # per landmark empty: ok / uncertain / not_found
+LANDMARK_EVIDENCE = "pdehead_evidence"
+MOVED_BY_HAND = "moved by hand and snapped to the bone"
+PLACED_BY_HAND = "placed by hand"
+_BY_HAND = (MOVED_BY_HAND, PLACED_BY_HAND)
 #: Radius of a marker peg (mm).
 PEG_RADIUS_MM = 1.5
 #: Depth (mm) at the red end of the colour map.
@@ -322,10 +328,20 @@ def landmarks(coll) -> dict[str, np.ndarray]:
 
 
 def place_landmark(coll, name: str, patient_mm, target: str = "BONE"):
-    from ..pdehead_addon.landmarks import landmark, snap_to_surface
+    from ..pdehead_addon.landmarks import snap_to_surface
+
+    snapped, normal = snap_to_surface(np.asarray(patient_mm, float)[None], skull_engine_mesh(coll, target))
+    obj = _landmark_empty(coll, name, snapped, normal)
+    obj[LANDMARK_FLAG] = "ok"
+    obj[LANDMARK_EVIDENCE] = PLACED_BY_HAND
+    return obj
+
+
+def _landmark_empty(coll, name: str, snapped: np.ndarray, normal: np.ndarray):
+    """The study's empty of landmark ``name`` (made if missing) at a snapped point (patient mm, shape (1, 3))."""
+    from ..pdehead_addon.landmarks import landmark
 
     d = landmark(name)
-    snapped, normal = snap_to_surface(np.asarray(patient_mm, float)[None], skull_engine_mesh(coll, target))
     sub = _sub_collection(coll, "Landmarks")
     obj_name = f"LM {d.name}"
     obj = next((o for o in sub.objects if o.get(LANDMARK_KEY) == d.name), None)
@@ -340,6 +356,71 @@ def place_landmark(coll, name: str, patient_mm, target: str = "BONE"):
     from mathutils import Matrix, Vector
     obj.matrix_world = _frankfurt(coll) @ Matrix.Translation(Vector(snapped[0] * MM_TO_M))
     return obj
+
+
+def find_landmarks(coll, target: str = "BONE", keep_edited: bool = True):
+    """Every standard landmark found automatically on the study's bone mask, snapped to the skull.
+
+    Landmarks found (``ok`` or ``uncertain``) become (or move) the study's landmark empties with
+    their flag and evidence as custom properties; ``not_found`` ones remove an earlier automatic
+    empty (a landmark placed or moved by hand stays). The flags of all are kept on the study
+    (``LANDMARK_FLAGS_KEY``) for the outputs. With ``keep_edited``, landmarks placed or moved by
+    hand are left where they are. Returns the engine's ``LandmarkSearch``.
+    """
+    from ..pdehead_addon.auto_landmarks import find_landmarks as engine_find
+    from ..pdehead_addon.landmarks import snap_to_surface
+
+    sk = _skull_seg(coll)
+    search = engine_find(study.require_ct(coll), sk.bone)
+    edited = {str(o.get(LANDMARK_KEY)) for o in coll.all_objects
+              if o.get(LANDMARK_KEY) and o.get(LANDMARK_EVIDENCE) in _BY_HAND} if keep_edited else set()
+    found = {n: lm for n, lm in search.landmarks.items() if lm.point is not None and n not in edited}
+    if found:
+        snapped, normal = snap_to_surface(np.array([lm.point for lm in found.values()]),
+                                          skull_engine_mesh(coll, target))
+        for i, (name, lm) in enumerate(found.items()):
+            obj = _landmark_empty(coll, name, snapped[i:i + 1], normal[i:i + 1])
+            obj[LANDMARK_FLAG] = lm.flag
+            obj[LANDMARK_EVIDENCE] = lm.evidence
+    for obj in list(coll.all_objects):
+        name = obj.get(LANDMARK_KEY)
+        if name and name not in found and obj.get(LANDMARK_EVIDENCE) not in _BY_HAND:
+            bpy.data.objects.remove(obj)
+    coll[LANDMARK_FLAGS_KEY] = json.dumps({n: [lm.flag, lm.evidence] for n, lm in search.landmarks.items()
+                                           if n not in edited})
+    return search
+
+
+def landmark_flags(coll) -> dict[str, tuple[str, str]]:
+    """name -> (flag, evidence): of the last Find Landmarks, updated by hand edits; placed by hand: ``ok``."""
+    flags = {n: tuple(v) for n, v in json.loads(coll.get(LANDMARK_FLAGS_KEY, "{}") or "{}").items()}
+    for obj in coll.all_objects:
+        name = obj.get(LANDMARK_KEY)
+        if name:
+            flags[str(name)] = (str(obj.get(LANDMARK_FLAG, "ok")), str(obj.get(LANDMARK_EVIDENCE, PLACED_BY_HAND)))
+    return flags
+
+
+def snap_moved_landmarks(coll, target: str = "BONE", tolerance_mm: float = 0.01) -> list[str]:
+    """Landmarks whose empty was moved in the viewport go back onto the bone at the nearest point;
+    their flag becomes ``ok`` (a person placed them). Returns the names snapped."""
+    from ..pdehead_addon.landmarks import snap_to_surface
+
+    moved = []
+    for obj in list(coll.all_objects):
+        name = obj.get(LANDMARK_KEY)
+        if not name or "patient_mm" not in obj:
+            continue
+        p = world_to_patient(coll, obj.matrix_world.translation)
+        if np.linalg.norm(p - np.array(obj["patient_mm"], float)) > tolerance_mm:
+            moved.append((obj, str(name), p))
+    if moved:
+        snapped, normal = snap_to_surface(np.array([p for _, _, p in moved]), skull_engine_mesh(coll, target))
+        for i, (obj, name, _) in enumerate(moved):
+            obj = _landmark_empty(coll, name, snapped[i:i + 1], normal[i:i + 1])
+            obj[LANDMARK_FLAG] = "ok"
+            obj[LANDMARK_EVIDENCE] = MOVED_BY_HAND
+    return [name for _, name, _ in moved]
 
 
 def _cylinder(base: np.ndarray, direction: np.ndarray, length: float, radius: float = 1.0, n: int = 12):

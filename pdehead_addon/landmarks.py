@@ -66,6 +66,15 @@ _DEFS = [
     ("subm2", "Sub M2", True, "mandibular body below the lower second molar"),
     ("po", "Porion", True, "highest point of the external acoustic meatus (Frankfurt horizontal)"),
     ("or", "Orbitale", True, "lowest point of the infraorbital margin (Frankfurt horizontal)"),
+    # landmarks of the depth tables (Caple & Stephan's codes) that the set above lacks (issue 22)
+    ("mn", "Mid-nasal", False, "midline point of the nasal bones half way from nasion to rhinion"),
+    ("ss", "Subspinale", False, "deepest midline point of the maxilla between the nasal spine and prosthion"),
+    ("gn", "Gnathion", False, "midline point of the chin between pogonion and menton (most anterior-inferior)"),
+    ("ac", "Alare curvature", True, "bony proxy: the widest point of the nasal aperture's margin"),
+    ("sc", "Supra canine", True, "maxillary alveolar bone over the upper canine root"),
+    ("ic", "Infra canine", True, "mandibular alveolar bone over the lower canine root"),
+    ("mr", "Mid-ramus", True, "centre of the lateral surface of the mandibular ramus"),
+    ("mmb", "Mid-mandibular border", True, "lower border of the mandible half way from menton to gonion"),
 ]
 
 #: The standard set: midline landmarks once, bilateral ones as "<Name> L" and "<Name> R" (patient sides).

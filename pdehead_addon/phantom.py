@@ -354,8 +354,42 @@ GEOMETRY: dict[str, Any] = {
     "skull_base_z": -26.0, "brain_floor_z": -19.0, "csf_layer": 1.5,
     "ventricle": ((10.0, 14.0, 34.0), (6.0, 24.0, 10.0)),
     # mandible: U-shaped bar = ring around (centre xy, radii xy) of half-thickness, at z centre with
-    # half-height, cut at y max
-    "mandible": ((0.0, -10.0), (45.0, 55.0), 4.5, -72.0, 12.0, 20.0),
+    # half-height, cut at y max (the body; the chin, rami and lower teeth are in "facial_skeleton")
+    "mandible": ((0.0, -10.0), (45.0, 55.0), 4.5, -79.0, 8.5, 6.0),
+    # facial skeleton (issue 22): what automatic craniometric landmarks need, every part a primitive
+    # so that the landmarks have analytic positions (:meth:`Phantom.bone_landmarks`). Mirrored in x.
+    "facial_skeleton": {
+        # orbit openings: elliptic cylinders along y, centre (x, z), radii (x, z), through the bone
+        "orbit": ((32.0, 0.0), (18.0, 14.0)),
+        # nasal aperture: elliptic cylinder along y on the midline, centre z, radii (x, z), y in front of
+        "aperture": (-28.0, (12.0, 11.0), -45.0),
+        # external acoustic meatus: cylinder along x, centre (y, z), radius, from |x| outwards; in a
+        # petrous block (ellipsoid centre, radii) so that the canal is blind, as in bone
+        "meatus": ((4.0, -18.0), 4.0, 44.0),
+        "petrous": ((46.0, 4.0, -18.0), (9.0, 10.0, 8.0)),
+        # temporal fossa carved from the cranium behind the zygomatic arch (ellipsoid)
+        "temporal_fossa": ((66.0, -18.0, -4.0), (12.0, 20.0, 16.0)),
+        # zygomatic arch: a ring (centre xy, radii xy) of half-thickness, z centre, half-height, y range
+        "zygomatic_arch": ((0.0, -20.0), (59.0, 40.0), 2.0, -10.0, 4.0, (-45.0, 2.0)),
+        # maxilla and zygomatic bodies: an ellipsoid block in front of the cranium, cut behind y max
+        "face_block": ((0.0, -22.0, -18.0), (56.0, 50.0, 38.0), -20.0),
+        # supraorbital ridges (brow): ellipsoid
+        "brow_ridge": ((0.0, -72.0, 12.0), (42.0, 10.5, 7.0)),
+        # nasal bones: a thin rotated ellipsoid from nasion's notch to rhinion (end points, radii x / thickness)
+        "nasal_bones": ((0.0, -75.0, -2.0), (0.0, -84.0, -20.0), 4.0, 2.5),
+        # anterior nasal spine: ellipsoid at the bottom of the aperture
+        "nasal_spine": ((0.0, -76.0, -39.5), (3.0, 5.0, 2.0)),
+        # dental arches (rings about the mandible's centre): upper alveolar process and upper teeth,
+        # lower teeth on the mandible; (radii xy, half-thickness, z bottom, z top). The mouth is open
+        # 6.5 mm between the incisal edges so that skull and mandible stay separate objects.
+        "upper_alveolus": ((42.0, 58.0), 5.0, -44.0, -30.0),
+        "upper_teeth": ((42.0, 58.0), 3.0, -54.5, -44.0),
+        "lower_teeth": ((40.0, 56.0), 3.0, -70.5, -61.0),
+        # chin (mental eminence): ellipsoid on the symphysis
+        "chin": ((0.0, -68.0, -81.0), (9.0, 5.0, 6.0)),
+        # rami: elliptic cylinders along z, centre xy, radii xy, z bottom, z top (below the skull base)
+        "ramus": ((40.0, -4.0), (3.5, 10.0), -87.5, -34.0),
+    },
     # cervical spine: centre xy, radii xy, top z, vertebra period, disc half-height
     "spine": ((0.0, 26.0), (11.0, 10.0), -34.0, 16.0, 2.0),
     "nasal_cavity": ((0.0, -70.0, -20.0), (10.0, 16.0, 16.0)),
@@ -479,26 +513,22 @@ def _layers(p, head: np.ndarray, hu: dict[str, float]):
     def cavity_sd(q):
         return _smax(s["skull_inner"].sd(q), g["brain_floor_z"] - q.z, 3.0)
 
+    fc, fr_ = g["facial_skeleton"]["temporal_fossa"]
+
     def skull_sd(q):
-        return np.maximum(_smax(s["skull_outer"].sd(q), g["skull_base_z"] - q.z, 3.0), -cavity_sd(q))
+        shell = np.maximum(_smax(s["skull_outer"].sd(q), g["skull_base_z"] - q.z, 3.0), -cavity_sd(q))
+        return np.maximum(shell, -_ellipsoid_sd(q.ax - fc[0], q.y - fc[1], q.z - fc[2], fr_))
 
     def brain_sd(q):
         return cavity_sd(q) + g["csf_layer"]
 
-    add(BONE, hu["skull"], s["skull_outer"].box(8.0), skull_sd, 2.0)
+    add(BONE, hu["skull"], s["skull_outer"].box(8.0), lambda q: _face_carves(q, skull_sd(q)), 2.0)
     add(CSF, hu["csf"], s["skull_inner"].box(8.0), cavity_sd, 3.0)
     add(BRAIN, hu["brain"], s["skull_inner"].box(8.0), brain_sd, 3.0 + g["csf_layer"])
     add(CSF, hu["csf"], s["ventricle"].box(8.0), s["ventricle"].sd, 3.0)
     add(EYE, hu["eye"], s["eyeball"].box(8.0), s["eyeball"].sd, 1.0)  # 1 mm lid in front
 
-    (mcx, mcy), mr, mhalf, mz, mhh, mymax = g["mandible"]
-
-    def mandible_sd(q):  # U-shaped bar: a slab of an elliptic ring, open at the back
-        ring = np.abs(_ellipse_sd(q.x - mcx, q.y - mcy, mr)) - mhalf
-        return np.maximum(np.maximum(ring, np.abs(q.z - mz) - mhh), q.y - mymax)
-
-    add(BONE, hu["mandible"], _box([mcx - mr[0] - mhalf - 8, mcy - mr[1] - mhalf - 8, mz - mhh - 8],
-                                   [mcx + mr[0] + mhalf + 8, mymax + 8, mz + mhh + 8]), mandible_sd, 3.0)
+    add(BONE, hu["mandible"], _FACE_BOX, _mandible_sd, 3.0)
     (scx, scy), sr, stop, period, disc_half = g["spine"]
     column = _Cylinder((scx, scy), sr, top=stop)
 
@@ -509,7 +539,100 @@ def _layers(p, head: np.ndarray, hu: dict[str, float]):
     add(CSF, hu["disc"], column.box(8.0), disc_sd, 3.0)
     for cavity in s["internal_air"]:
         add(INTERNAL_AIR, hu["internal_air"], cavity.box(8.0), cavity.sd, 4.0)
+    # the facial skeleton is painted after the air: it walls the maxillary sinuses in (they would open
+    # through the front of the maxilla) and the nasal bones and spine stand over the nasal cavity
+    add(BONE, hu["mandible"], _FACE_BOX, _upper_face_sd, 2.0)
+    add(BONE, hu["mandible"], _FACE_BOX, _nasal_sd, 2.0)
+    add(BONE, hu["mandible"], _FACE_BOX, _upper_teeth_sd, 2.0)
     return layers
+
+
+# --------------------------------------------------------------------------------------------
+# The facial skeleton (GEOMETRY["facial_skeleton"]): signed distances of plain numpy expressions.
+# --------------------------------------------------------------------------------------------
+FACE_WALL_MM = 6.0   # wall of the maxillo-zygomatic shell
+_FACE_BOX = (np.array([-80.0, -110.0, -100.0]), np.array([80.0, 40.0, 40.0]), False)
+
+
+def _ring_sd(q, centre, radii, half, zlo, zhi):
+    """A slab (z in [zlo, zhi]) of an elliptic ring about ``centre`` (xy) of half-thickness ``half``."""
+    ring = np.abs(_ellipse_sd(q.x - centre[0], q.y - centre[1], radii)) - half
+    return np.maximum(ring, np.abs(q.z - 0.5 * (zlo + zhi)) - 0.5 * (zhi - zlo))
+
+
+def _face_carves(q, d):
+    """Bone ``d`` with the orbits, the nasal aperture, the meatus and the temporal fossae carved out."""
+    f = GEOMETRY["facial_skeleton"]
+    (ox, oz), orad = f["orbit"]
+    orbit = np.maximum(_ellipse_sd(q.ax - ox, q.z - oz, orad), q.y + 40.0)          # open from y = -40 forward
+    az, arad, ay = f["aperture"]
+    aperture = np.maximum(_ellipse_sd(q.x, q.z - az, arad), q.y - ay)
+    (my, mz), mrad, mx = f["meatus"]
+    meatus = np.maximum(np.hypot(q.y - my, q.z - mz) - mrad, mx - q.ax)
+    hole = np.minimum(np.minimum(orbit, aperture), meatus)
+    return np.maximum(d, -hole)
+
+
+def _upper_face_sd(q):
+    """Face block, brow, zygomatic arches, petrous blocks, upper alveolus and teeth, carved."""
+    f = GEOMETRY["facial_skeleton"]
+    c, r, ymax = f["face_block"]
+    outer = _ellipsoid_sd(q.x - c[0], q.y - c[1], q.z - c[2], r)
+    inner = _ellipsoid_sd(q.x - c[0], q.y - c[1], q.z - c[2], tuple(v - FACE_WALL_MM for v in r))
+    block = np.maximum(np.maximum(outer, -inner), q.y - ymax)                        # a shell, open behind
+    c, r = f["brow_ridge"]
+    brow = _ellipsoid_sd(q.x - c[0], q.y - c[1], q.z - c[2], r)
+    c, r, half, zc, hh, (ylo, yhi) = f["zygomatic_arch"]
+    arch = np.maximum(_ring_sd(q, c, r, half, zc - hh, zc + hh), np.maximum(ylo - q.y, q.y - yhi))
+    arch = np.maximum(arch, 40.0 - q.ax)                                             # the lateral parts only
+    c, r = f["petrous"]
+    petrous = _ellipsoid_sd(q.ax - c[0], q.y - c[1], q.z - c[2], r)
+    mc = GEOMETRY["mandible"][0]
+    r, half, zlo, zhi = f["upper_alveolus"]
+    alveolus = np.maximum(_ring_sd(q, mc, r, half, zlo, zhi), q.y + 15.0)
+    d = np.minimum.reduce([block, brow, arch, petrous, alveolus])
+    # the nasal cavity as it is, the maxillary sinuses 3 mm smaller (a bony wall in front of them)
+    c, r = GEOMETRY["nasal_cavity"]
+    d = np.maximum(d, -_ellipsoid_sd(q.x - c[0], q.y - c[1], q.z - c[2], r))
+    c, r = GEOMETRY["maxillary_sinus"]
+    d = np.maximum(d, -_ellipsoid_sd(q.ax - c[0], q.y - c[1], q.z - c[2], tuple(v - 3.0 for v in r)))
+    return _face_carves(q, d)
+
+
+def _upper_teeth_sd(q):
+    """Upper teeth: a ring under the upper alveolus (denser than the skull, painted with the mandible's HU)."""
+    r, half, zlo, zhi = GEOMETRY["facial_skeleton"]["upper_teeth"]
+    return np.maximum(_ring_sd(q, GEOMETRY["mandible"][0], r, half, zlo, zhi), q.y + 15.0)
+
+
+def _nasal_sd(q):
+    """Nasal bones (a thin ellipsoid between their end points) and the anterior nasal spine."""
+    f = GEOMETRY["facial_skeleton"]
+    a, b, rx, rt = f["nasal_bones"]
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    axis = (b - a) / np.linalg.norm(b - a)
+    half = 0.5 * np.linalg.norm(b - a)
+    m = 0.5 * (a + b)
+    u = (q.y - m[1]) * axis[1] + (q.z - m[2]) * axis[2]            # along the bones (in the yz plane)
+    w = (q.y - m[1]) * -axis[2] + (q.z - m[2]) * axis[1]           # across (thickness)
+    nasal = _ellipsoid_sd(q.x - m[0], u, w, (rx, half, rt))
+    c, r = f["nasal_spine"]
+    spine = _ellipsoid_sd(q.x - c[0], q.y - c[1], q.z - c[2], r)
+    return np.minimum(nasal, spine)
+
+
+def _mandible_sd(q):
+    """Mandible: the U-shaped body, the chin, the rami and the lower teeth."""
+    g, f = GEOMETRY, GEOMETRY["facial_skeleton"]
+    mc, mr, mhalf, mz, mhh, mymax = g["mandible"]
+    body = np.maximum(_ring_sd(q, mc, mr, mhalf, mz - mhh, mz + mhh), q.y - mymax)
+    c, r = f["chin"]
+    chin = _ellipsoid_sd(q.x - c[0], q.y - c[1], q.z - c[2], r)
+    (rx, ry), rr, zlo, zhi = f["ramus"]
+    ramus = np.maximum(_ellipse_sd(q.ax - rx, q.y - ry, rr), np.abs(q.z - 0.5 * (zlo + zhi)) - 0.5 * (zhi - zlo))
+    r, half, zlo, zhi = f["lower_teeth"]
+    teeth = np.maximum(_ring_sd(q, mc, r, half, zlo, zhi), q.y + 15.0)
+    return np.minimum.reduce([body, chin, ramus, teeth])
 
 
 def _skull_outer_sd(p, head: np.ndarray) -> np.ndarray:
@@ -749,6 +872,17 @@ class Phantom:
             raise _ParameterError(f"points must have shape (..., 3) (x, y, z in mm), got {pts.shape}")
         return _analytic_tissue_depth(pts, float(max_depth), float(step))[2].reshape(pts.shape[:-1])
 
+    def bone_landmarks(self) -> dict[str, np.ndarray]:
+        """Analytic craniometric landmarks of the facial skeleton (patient mm, by standard name).
+
+        Each is the rule of :mod:`pdehead_addon.auto_landmarks` applied to the exact geometry
+        (bone crossings found along rays sampled every 0.02 mm, or extremes of the bone on a
+        0.1 mm grid), not to a voxel grid; the phantom's Frankfurt plane is z = -14 (porion and
+        orbitale), so the phantom is already in the Frankfurt orientation. Landmarks whose rule
+        depends on other estimates (canines, molars, rami, mid-points) are not listed.
+        """
+        return _bone_landmarks()
+
     def labels_at(self, points_xyz: np.ndarray) -> np.ndarray:
         """Tissue label (uint8, see :data:`LABEL_NAMES`) at patient LPS points (..., 3)."""
         p, shape = _points_from_array(points_xyz)
@@ -894,3 +1028,83 @@ def make_phantom(shape: tuple[int, int, int] = DEFAULT_SHAPE,
                         "noise_hu": float(noise), "blur_mm": blur, "seed": int(seed)})
     return Phantom(ct=ct, head_mask=head_mask, labels=labels, noise=float(noise), blur=blur,
                    seed=int(seed), params=params)
+
+
+def _is_bone(points: np.ndarray) -> np.ndarray:
+    p, shape = _points_from_array(points)
+    return (_evaluate(p, DEFAULT_HU, 0.0, want_hu=False)[2] == BONE).reshape(shape)
+
+
+def _first_bone(start, direction, length: float = 150.0, step: float = 0.02) -> np.ndarray:
+    """First bone point along a ray (exact geometry sampled every ``step`` mm)."""
+    t = np.arange(0.0, length, step)
+    pts = np.asarray(start, float) + t[:, None] * np.asarray(direction, float)
+    hit = np.flatnonzero(_is_bone(pts))
+    if not len(hit):
+        raise RuntimeError(f"no bone along the ray from {start}")
+    return pts[hit[0]]
+
+
+def _bone_landmarks() -> dict[str, np.ndarray]:
+    f = GEOMETRY["facial_skeleton"]
+    (ox, oz), (orx, orz) = f["orbit"]
+    (my, mz), mrad, _ = f["meatus"]
+    arch_y, arch_z = f["zygomatic_arch"][0][1], f["zygomatic_arch"][3]
+    az, (arx, _), _ = f["aperture"]
+    out: dict[str, np.ndarray] = {}
+    front, eps = (0.0, 1.0, 0.0), 0.01
+    oc, orad = GEOMETRY["skull_outer"]
+    out["Vertex"] = np.array([0.0, oc[1], oc[2] + orad[2]])
+    out["Opisthocranion"] = np.array([0.0, oc[1] + orad[1], oc[2]])
+    for side, tag in ((1.0, "L"), (-1.0, "R")):
+        out[f"Orbitale {tag}"] = _first_bone((side * ox, -130.0, oz - orz - eps), front)
+        out[f"Supraorbital {tag}"] = _first_bone((side * ox, -130.0, oz + orz + eps), front)
+        zl = oz - orz + 0.7 * 2 * orz                      # the rule's row: 70 % up the opening
+        xl = ox + orx * math.sqrt(1.0 - ((zl - oz) / orz) ** 2)
+        out[f"Lateral orbit {tag}"] = _first_bone((side * (xl + eps), -130.0, zl), front)
+        out[f"Porion {tag}"] = _first_bone((side * 100.0, my, mz + mrad + eps), (-side, 0.0, 0.0))
+        out[f"Zygomatic arch {tag}"] = _first_bone((side * 100.0, arch_y, arch_z), (-side, 0.0, 0.0))
+        out[f"Alare curvature {tag}"] = _first_bone((side * (arx + eps), -130.0, az), front)
+    # mid-sagittal profile on a 0.1 mm grid of rays from the face
+    zs = np.arange(-30.0, 40.0, 0.1)
+    ys = np.arange(-100.0, -30.0, 0.05)
+    yy, zz = np.meshgrid(ys, zs, indexing="ij")
+    grid = _is_bone(np.stack([np.zeros(yy.size), yy.ravel(), zz.ravel()], 1)).reshape(yy.shape)
+    prof = np.where(grid.any(0), ys[np.argmax(grid, 0)], np.nan)
+    band = (zs >= oz - orz + 25) & (zs <= oz - orz + 65)
+    ig = np.flatnonzero(band)[np.nanargmin(prof[band])]
+    out["Glabella"] = np.array([0.0, prof[ig], zs[ig]])
+    notch = (zs > -10) & (zs < zs[ig])
+    i_n = np.flatnonzero(notch)[np.nanargmax(prof[notch])]
+    out["Nasion"] = np.array([0.0, prof[i_n], zs[i_n]])
+    nasal = np.flatnonzero((zs < zs[i_n]) & (zs > -30) & (prof < prof[i_n] + 4))
+    i_r = nasal.min()
+    out["Rhinion"] = np.array([0.0, prof[i_r], zs[i_r]])
+    zc = f["upper_alveolus"][2]
+    out["Supradentale"] = _first_bone((0.0, -130.0, zc + eps), front)
+    mc, mr, mhalf, mzc, mhh, _ = GEOMETRY["mandible"]
+    out["Infradentale"] = _first_bone((0.0, -130.0, mzc + mhh - eps), front)
+    c, r = f["chin"]
+    out["Pogonion"] = np.array([0.0, c[1] - r[1], c[2]])
+    bottom = mzc - mhh
+    out["Menton"] = np.array([0.0, mc[1] - mr[1], bottom])                         # middle of the flat bottom
+    # gnathion: the symphysis' bone point farthest along the anterior-inferior bisector
+    yy, zz = np.meshgrid(np.arange(-80.0, -55.0, 0.1), np.arange(bottom - 1, c[2] + 1, 0.1), indexing="ij")
+    pts = np.stack([np.zeros(yy.size), yy.ravel(), zz.ravel()], 1)
+    b = pts[_is_bone(pts)]
+    out["Gnathion"] = b[np.argmax(-b[:, 1] - b[:, 2])]
+    # gonion: the farthest back-and-down mandible point, then the outermost within 4 mm (the rule)
+    (rx, ry), rr, zlo, _ = f["ramus"]
+    xx, yy, zz = np.meshgrid(np.arange(30.0, 56.0, 0.25), np.arange(ry - 6, ry + rr[1] + 3, 0.25),
+                             np.arange(zlo - 1, zlo + 8, 0.25), indexing="ij")
+    pts = np.stack([xx.ravel(), yy.ravel(), zz.ravel()], 1)
+    b = pts[_is_bone(pts)]
+    k = np.argmax(b[:, 1] - b[:, 2])
+    near = b[np.linalg.norm(b[:, 1:] - b[k, 1:], axis=1) < 4.0]
+    go = near[np.argmax(near[:, 0])]
+    out["Gonion L"] = go
+    out["Gonion R"] = go * np.array([-1.0, 1.0, 1.0])
+    # the ellipse's lowest point lies on its centre column: suborbital = orbitale here
+    for tag in "LR":
+        out[f"Suborbital {tag}"] = out[f"Orbitale {tag}"].copy()
+    return out

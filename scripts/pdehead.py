@@ -379,6 +379,9 @@ def _steps(args, bpy, addon, state) -> dict:
     if args.skull:
         _call(ops.build_skull)
         _call(ops.tissue_depth)
+        # no landmarks given: the automatic ones (issue 22), each with its flag
+        if not addon.operators.forensic_study.landmarks(coll):
+            _call(ops.find_landmarks)
         if args.export:
             _call(ops.export_print, directory=str(args.export.resolve()), format=args.export_format)
     total = time.perf_counter() - t0
@@ -411,6 +414,10 @@ def _steps(args, bpy, addon, state) -> dict:
         if "median" in depth:
             print(f"  depth     {depth['measured']} of {depth['vertices']} skin vertices, median {depth['median']:.1f} "
                   f"mm, p95 {depth['p95']:.1f} mm (no bone {depth['no_bone']}, envelope {depth['envelope']})")
+        flags = [f for f, _ in addon.operators.forensic_study.landmark_flags(coll).values()]
+        if flags:
+            print(f"  landmarks {len(flags) - flags.count('not_found')} of {len(flags)} found automatically "
+                  f"({flags.count('ok')} ok, {flags.count('uncertain')} uncertain, {flags.count('not_found')} not found)")
         if args.export:
             print(f"  export    {args.export}/skin.{args.export_format}, skull.{args.export_format}, tissue_depth.csv")
     warning_lines = [state.user_text(w) for w in state.warning_list(s)]

