@@ -241,7 +241,8 @@ def create_study(context, ct, name: str, source_kind: str, source: str = "", opt
     """A new study collection holding ``ct`` (in memory) and its description; made active."""
     scene = context.scene
     coll = objects.study_collection(_unique_collection_name(name), scene)
-    s = state.settings(coll)
+    s = state.settings(coll) or state.new_settings_object(coll)
+    scene.render.use_lock_interface = True  # the frame handler may rebuild meshes while rendering
     with suspended_updates():
         s.is_study = True
         s.study_id = state.new_study_id()
@@ -479,20 +480,24 @@ def live_update(coll, what: str, context=None) -> None:
         print(f"PDE Head: live update of {what} failed: {exc}")
 
 
-def apply_cutter(coll) -> str:
-    """Set the study's u/v ranges from its cutter and rebuild the solid; returns the cut's kind."""
+def apply_cutter(coll, matrix=None) -> str:
+    """Set the study's u/v ranges from its cutter and rebuild the solid; returns the cut's kind.
+
+    ``matrix``: the cutter's world matrix to cut with (default its own; the frame handler passes
+    the one the render's depsgraph evaluated)."""
     from mathutils import Matrix
     s = state.settings(coll)
     box = cutter.cutter_of(coll)
     if box is None:
         raise PDEHeadError(f"study '{coll.name}' has no cutter: add one first")
+    matrix = box.matrix_world if matrix is None else matrix
     head = pde_head(coll)
     # world metres = LPS mm * 0.001, so LPS mm -> cutter local = inverse(matrix_world) @ scale(0.001)
-    inverse = np.array(box.matrix_world.inverted_safe() @ Matrix.Scale(0.001, 4))
+    inverse = np.array(matrix.inverted_safe() @ Matrix.Scale(0.001, 4))
     u_range, v_range, _kept, kind = cutter.cutter_ranges(head, inverse, float(box.empty_display_size))
     with suspended_updates():
         s.u_range, s.v_range = u_range, v_range
-    state.cache_for(s.study_id).cutter_signature = cutter.signature(box)
+    state.cache_for(s.study_id).cutter_signature = cutter.signature(box, matrix)
     if s.solid_object is not None:
         step_solid(coll)
     return kind
