@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import os
 import shutil
 import sys
 from pathlib import Path
@@ -114,3 +115,122 @@ def test_settings_of_a_0_1_0_file_are_migrated(mods, tmp_path):
     assert ("pdehead.w_range", 0) in {(fc.data_path, fc.array_index)
                                       for fc in mods.compat.animation_fcurves(s.id_data)}
 
+
+
+def _render_setup(scene, tmp_path):
+    scene.render.engine = 'CYCLES'
+    scene.cycles.device = 'CPU'
+    scene.cycles.samples = 4
+    scene.cycles.seed = 0
+    scene.cycles.use_animated_seed = False
+    scene.cycles.use_denoising = False
+    scene.render.resolution_x = scene.render.resolution_y = int(os.environ.get("PDEHEAD_ANIMATION_PIXELS", 48))
+    scene.render.resolution_percentage = 100
+    scene.render.image_settings.file_format = 'PNG'
+    scene.render.image_settings.color_mode = 'RGB'
+    scene.frame_start, scene.frame_end = 1, 3
+
+
+def _strip(rows, path):
+    """Frames (top row) over stills (bottom row), one PNG, for people to look at."""
+    from PIL import Image
+    grid = np.concatenate([np.concatenate(row, axis=1) for row in rows], axis=0)
+    Image.fromarray((np.clip(grid, 0, 1) * 255).astype(np.uint8)).resize(
+        (grid.shape[1] * 2, grid.shape[0] * 2), Image.NEAREST).save(path)
+
+
+def test_render_animation_renders_what_each_frame_shows(mods, tmp_path):
+    """Keyframed cutter (outside the head at frame 1, over its front-left quarter at frame 3), keyframed
+    w range and keyframed lα: each frame of Render Animation equals the still of the same frame."""
+    import bpy
+    from mathutils import Matrix
+    assert bpy.ops.pdehead.run_pipeline(source='PHANTOM', patches=4, nu=24, nv=36, nw=3,
+                                        voxel_size=6.0) == {'FINISHED'}
+    scene = bpy.context.scene
+    coll = scene.pdehead.active_study
+    s = mods.state.settings(coll)
+    for obj, shown in ((s.surface_object, False), (s.curves_object, False), (s.solid_object, True),
+                       (s.volume_object, True)):
+        obj.hide_render = not shown
+    _render_setup(scene, tmp_path)
+    scene.camera.data.lens *= 2.0  # the head fills the small frame
+
+    scene.frame_set(1)
+    assert bpy.ops.pdehead.add_cutter() == {'FINISHED'}
+    box = mods.cutter.cutter_of(coll)
+    inside = box.matrix_world.copy()
+    box.matrix_world = Matrix.Translation((1.0, 0.0, 0.0)) @ inside  # a metre to the side: nothing cut
+    for path in ("location", "rotation_euler", "scale"):
+        box.keyframe_insert(path, frame=1)
+    box.matrix_world = inside
+    for path in ("location", "rotation_euler", "scale"):
+        box.keyframe_insert(path, frame=3)
+    s.w_range = (0.0, 1.0)
+    s.keyframe_insert("w_range", frame=1)
+    s.w_range = (0.5, 1.0)
+    s.keyframe_insert("w_range", frame=3)
+    s.low_alpha = 0.1
+    s.keyframe_insert("low_alpha", frame=1)
+    s.low_alpha = 0.9
+    s.keyframe_insert("low_alpha", frame=3)
+
+    scene.frame_set(3)  # the file's current frame is the last: Render Animation must go back to 1
+    scene.render.filepath = str(tmp_path / "anim" / "frame_")
+    assert bpy.ops.render.render(animation=True) == {'FINISHED'}
+    frames = [blender_inspect.read_png(tmp_path / "anim" / f"frame_{f:04d}.png")[..., :3] for f in (1, 2, 3)]
+
+    stills, shapes = [], []
+    for f in (1, 2, 3):
+        scene.frame_set(f)
+        assert s.last_error == ""
+        shapes.append((tuple(round(x, 3) for x in s.v_range), round(s.w_range[0], 3), round(s.low_alpha, 3)))
+        scene.render.filepath = str(tmp_path / f"still_{f}.png")
+        assert bpy.ops.render.render(write_still=True) == {'FINISHED'}
+        stills.append(blender_inspect.read_png(tmp_path / f"still_{f}.png")[..., :3])
+    if os.environ.get("PDEHEAD_ANIMATION_STRIP"):
+        _strip([frames, stills], os.environ["PDEHEAD_ANIMATION_STRIP"])
+
+    # the stills differ as the keys say: frame 1 whole (no cut, w from 0, lα 0.1), frame 3 cut
+    assert shapes[0] == ((0.0, round(2 * math.pi, 3)), 0.0, 0.1)
+    assert shapes[2][0] != shapes[0][0] and shapes[2][1:] == (0.5, 0.9)
+    assert float(np.abs(stills[0] - stills[2]).mean()) > 0.01
+    for f, (frame, still) in enumerate(zip(frames, stills), start=1):
+        diff = float(np.abs(frame - still).mean())
+        assert diff <= 0.005, f"frame {f}: Render Animation differs from the still by {diff:.4f}"
+
+
+def test_render_animation_with_the_ct_gone_says_so(mods, tmp_path, capfd):
+    """A keyframed study whose CT cannot be re-read: Render Animation names the study and the cause and
+    leaves the solid out of the frames it cannot rebuild, instead of rendering the stale solid."""
+    import bpy
+    assert bpy.ops.pdehead.run_pipeline(source='PHANTOM', patches=4, nu=16, nv=24, nw=3,
+                                        build_volume=False) == {'FINISHED'}
+    scene = bpy.context.scene
+    coll = scene.pdehead.active_study
+    name = coll.name
+    s = mods.state.settings(coll)
+    s.surface_object.hide_render, s.solid_object.hide_render = True, False
+    _render_setup(scene, tmp_path)
+    scene.cycles.samples = 2
+    scene.render.resolution_x = scene.render.resolution_y = 24
+    s.keyframe_insert("w_range", frame=1)
+    s.w_range = (0.5, 1.0)
+    s.keyframe_insert("w_range", frame=3)
+    scene.frame_set(1)
+    gone = tmp_path / "moved-away"
+    s.source_kind, s.source, s.source_absolute = 'FILES', str(gone), str(gone)  # the CT's folder is gone
+    blend = tmp_path / "gone.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    mods.state.drop_cache()  # as in a new Blender session: nothing in memory, the CT must be re-read
+    scene = bpy.context.scene
+    capfd.readouterr()
+    scene.render.filepath = str(tmp_path / "anim" / "frame_")
+    assert bpy.ops.render.render(animation=True) == {'FINISHED'}
+    err = capfd.readouterr().err
+    assert f"study '{name}'" in err and "frame 2" in err and str(gone) in err
+    assert f"hidden from the render: {name} Solid" in err
+    frames = [blender_inspect.read_png(tmp_path / "anim" / f"frame_{f:04d}.png")[..., :3] for f in (1, 2, 3)]
+    background = frames[2][0, 0]
+    shown = [float((np.abs(img - background).max(axis=2) > 0.05).mean()) for img in frames]
+    assert shown[0] > 0.05 and shown[1] == 0.0 and shown[2] == 0.0  # frame 1 is what was saved
