@@ -143,6 +143,7 @@ class PDEHEAD_OT_import_ct(Operator, LoaderOptions):
             if self.run_pipeline:
                 for step in ("segment", "boundaries", "surface", "solid"):
                     STEP_FUNCTIONS[step](coll)
+                scene.frame_study(context, coll)  # ends as Run Pipeline does: camera, light, cube hidden
             nx, ny, nz = s.dimensions
             self.report({'INFO'}, f"Imported '{coll.name}': {nx}x{ny}x{nz} voxels, spacing "
                         f"{', '.join(f'{v:g}' for v in s.spacing)} mm")
