@@ -176,6 +176,9 @@ class PDEHeadSceneSettings(bpy.types.PropertyGroup):
     active_study: PointerProperty(name="Study", type=bpy.types.Collection,
                                   poll=lambda self, coll: state.is_study(coll),
                                   description="The PDE Head study shown in the sidebar")
+    vdb_files: StringProperty(name="Volume Files", options={'HIDDEN'},
+                              description="JSON list of the .vdb files PDE Head wrote for this file's volumes "
+                                          "(the ones a save may remove once no volume uses them)")
 
 
 CLASSES = (PDEHeadStudySettings, PDEHeadSceneSettings)

@@ -635,6 +635,8 @@ class PipelineRun:
 
 
 def remove_study(coll) -> None:
+    """Delete a study's objects, data and collection; a scene left without a camera (or active study)
+    falls back to another study's."""
     state.drop_cache(state.settings(coll).study_id)
     for obj in list(coll.all_objects):
         data = obj.data
@@ -648,6 +650,21 @@ def remove_study(coll) -> None:
     for child in list(coll.children_recursive):
         bpy.data.collections.remove(child)
     bpy.data.collections.remove(coll)
+    _fall_back_to_other_studies()
+
+
+def _fall_back_to_other_studies() -> None:
+    for sc in bpy.data.scenes:
+        inside = {c.name for c in sc.collection.children_recursive}
+        others = [c for c in state.studies() if c.name in inside]
+        if not others:
+            continue
+        if sc.pdehead.active_study is None:
+            sc.pdehead.active_study = others[0]
+        if sc.camera is None:
+            order = [sc.pdehead.active_study] + [c for c in others if c != sc.pdehead.active_study]
+            sc.camera = next((cam for cam in (scene._study_object(c, scene.CAMERA_KIND) for c in order)
+                              if cam is not None), None)
 
 
 def _remove_cutter_handler() -> None:
