@@ -255,3 +255,89 @@ def unregister() -> None:
     _remove_handlers()
     forget()
 
+
+
+# ------------------------------------------------------------------------------------------
+# A turntable in one click
+
+TURNTABLE_KIND = "turntable"
+
+
+def turntable(context, coll, frames: int, start: int = 1):
+    """A camera orbit of ``frames`` frames around study ``coll``: its camera (Frame Study's, made first if
+    needed) is parented to a pivot Empty "<study> Turntable" at the head's centre whose Z rotation is
+    keyed linearly from 0 (frame ``start``) to 360° (frame ``start + frames``), so the frames
+    ``start`` … ``start + frames - 1`` (the scene's new frame range) loop seamlessly. Returns the pivot."""
+    from math import tau
+
+    from mathutils import Matrix
+
+    from . import compat, render, scene as scene_mod
+    from ..pdehead_addon import PDEHeadError
+
+    if frames < 2:
+        raise PDEHeadError(f"a turntable needs at least 2 frames, got {frames}")
+    scene = context.scene
+    s = state.settings(coll)
+    cam = scene_mod._study_object(coll, scene_mod.CAMERA_KIND)
+    if cam is None:
+        scene_mod.frame_study(context, coll)
+        cam = scene_mod._study_object(coll, scene_mod.CAMERA_KIND)
+    shown = [o for o in (s.surface_object, s.solid_object, s.volume_object) if o is not None and not o.hide_render]
+    shown = shown or [o for o in (s.surface_object, s.solid_object, s.volume_object) if o is not None]
+    lo, hi = render.world_bounds(shown)
+    centre = 0.5 * (lo + hi)
+
+    pivot = scene_mod._study_object(coll, TURNTABLE_KIND)
+    if pivot is None:
+        pivot = bpy.data.objects.new(f"{coll.name} Turntable", None)
+        pivot["pdehead_kind"] = TURNTABLE_KIND
+        pivot.empty_display_type = "SPHERE"
+        coll.objects.link(pivot)
+    pivot.animation_data_clear()
+    pivot.empty_display_size = 0.25 * float(max(hi - lo))
+    pivot.rotation_mode = "XYZ"
+    pivot.rotation_euler = (0.0, 0.0, 0.0)
+    pivot.location = centre
+    pivot.scale = (1.0, 1.0, 1.0)
+    at_rest = Matrix.Translation(centre)
+    world = cam.matrix_world.copy()
+    if cam.parent is not None and cam.parent != pivot:
+        cam.parent = None
+    cam.parent = pivot
+    cam.matrix_parent_inverse = at_rest.inverted()
+    cam.matrix_basis = world  # pivot at rest @ parent inverse = identity: the camera stays where it was
+    pivot.keyframe_insert("rotation_euler", index=2, frame=start)
+    pivot.rotation_euler[2] = tau
+    pivot.keyframe_insert("rotation_euler", index=2, frame=start + frames)
+    pivot.rotation_euler[2] = 0.0
+    for fcurve in compat.animation_fcurves(pivot):
+        for key in fcurve.keyframe_points:
+            key.interpolation = "LINEAR"
+    scene.camera = cam
+    scene.frame_start, scene.frame_end = start, start + frames - 1
+    scene.frame_set(start)
+    return pivot
+
+
+def render_animation(scene, folder, resolution: tuple[int, int] = (320, 320), samples: int = 16) -> list:
+    """Render the scene's frame range with Cycles (CPU) to ``folder/frame_0001.png`` …; returns the paths.
+
+    ``folder`` is created if needed; an ``OSError`` says when it cannot be written."""
+    import os
+    from pathlib import Path
+
+    folder = Path(os.fspath(folder))
+    folder.mkdir(parents=True, exist_ok=True)
+    if not os.access(folder, os.W_OK):
+        raise PermissionError(f"{folder}: folder is not writable")
+    scene.render.engine = "CYCLES"
+    scene.cycles.device = "CPU"
+    scene.cycles.samples = int(samples)
+    scene.render.resolution_x, scene.render.resolution_y = (int(r) for r in resolution)
+    scene.render.resolution_percentage = 100
+    scene.render.image_settings.file_format = "PNG"
+    scene.render.use_file_extension = True
+    scene.render.filepath = str(folder / "frame_")
+    bpy.ops.render.render(animation=True)
+    return [folder / f"frame_{f:04d}.png" for f in range(scene.frame_start, scene.frame_end + 1, scene.frame_step)]

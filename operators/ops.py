@@ -495,6 +495,29 @@ class PDEHEAD_OT_frame_study(Operator, StudyOperator):
         return _guarded(self, context, body)
 
 
+class PDEHEAD_OT_turntable(Operator, StudyOperator):
+    bl_idname = "pdehead.turntable"
+    bl_label = "Turntable"
+    bl_description = ("A camera orbit around the study: its camera turns once around the head in the given "
+                      "number of frames (the scene's frame range); Render Animation renders it")
+    bl_options = {'REGISTER', 'UNDO'}
+
+    frames: IntProperty(name="Frames", default=D.TURNTABLE_FRAMES.default, min=D.TURNTABLE_FRAMES.min,
+                        max=D.TURNTABLE_FRAMES.max, description=D.TURNTABLE_FRAMES.description)
+
+    def execute(self, context):
+        coll = _active_or_report(self, context)
+        if coll is None:
+            return {'CANCELLED'}
+
+        def body():
+            from . import animation
+            pivot = animation.turntable(context, coll, self.frames, start=context.scene.frame_start)
+            self.report({'INFO'}, f"'{coll.name}': turntable of {self.frames} frames around '{pivot.name}' "
+                                  "(Render > Render Animation)")
+        return _guarded(self, context, body)
+
+
 class PDEHEAD_OT_add_cutter(Operator, StudyOperator):
     bl_idname = "pdehead.add_cutter"
     bl_label = "Add Cutter"
@@ -544,6 +567,7 @@ CLASSES = (
     PDEHEAD_OT_run_pipeline,
     PDEHEAD_OT_frame_study,
     PDEHEAD_OT_add_cutter,
+    PDEHEAD_OT_turntable,
     PDEHEAD_OT_remove_study,
 )
 

@@ -202,3 +202,8 @@ MAX_WFIELD_VOXELS = _param("max_wfield_voxels", 5_000_000, min=1,
 DOWNSAMPLE = _param("downsample", 1, min=1, max=8,
                     description="Average blocks of N x N x N voxels on import (for very large scans: 2 needs "
                                 "about 1/8 of the memory)")
+
+# ----------------------------------------------------------------------------- animation (issue 19)
+#: 120 frames: a 5-second orbit at 24 fps, each frame 3 degrees on.
+TURNTABLE_FRAMES = _param("turntable_frames", 120, min=2, max=10000,
+                          description="Frames of one camera orbit around the study (the scene's frame range)")

@@ -234,3 +234,63 @@ def test_render_animation_with_the_ct_gone_says_so(mods, tmp_path, capfd):
     background = frames[2][0, 0]
     shown = [float((np.abs(img - background).max(axis=2) > 0.05).mean()) for img in frames]
     assert shown[0] > 0.05 and shown[1] == 0.0 and shown[2] == 0.0  # frame 1 is what was saved
+
+
+def test_turntable_orbits_the_camera_around_the_head(mods):
+    """Turntable (8 frames): the study camera circles the head's vertical axis, 45° a frame, always
+    looking at the head, and frame 9 would be frame 1 again (a seamless loop)."""
+    import bpy
+    assert bpy.ops.pdehead.run_pipeline(source='PHANTOM', patches=4, nu=16, nv=24, nw=3,
+                                        build_volume=False) == {'FINISHED'}
+    scene = bpy.context.scene
+    coll = scene.pdehead.active_study
+    s = mods.state.settings(coll)
+    assert bpy.ops.pdehead.turntable(frames=8) == {'FINISHED'}
+    assert (scene.frame_start, scene.frame_end) == (1, 8)
+    camera = scene.camera
+    assert camera.get("pdehead_kind") == "camera" and camera.name in coll.objects
+    lo, hi = mods.render.world_bounds([s.surface_object])
+    centre = 0.5 * (lo + hi)
+    from bpy_extras.object_utils import world_to_camera_view
+    from mathutils import Vector
+    positions = []
+    for frame in (1, 2, 3, 5, 9):
+        scene.frame_set(frame)
+        p = np.array(camera.matrix_world.translation) - centre
+        positions.append(p)
+        co = world_to_camera_view(scene, camera, Vector(centre))
+        assert (co.x, co.y) == pytest.approx((0.5, 0.5), abs=1e-3), frame  # the head stays in the middle
+    radius = [np.hypot(p[0], p[1]) for p in positions]
+    assert np.ptp(radius) < 1e-4 and radius[0] > 0.2 and np.ptp([p[2] for p in positions]) < 1e-4
+    angle = [math.degrees(math.atan2(p[1], p[0])) for p in positions]
+    turned = [(a - angle[0]) % 360.0 for a in angle]
+    assert turned == pytest.approx([0.0, 45.0, 90.0, 180.0, 0.0], abs=1e-3)
+    np.testing.assert_allclose(positions[-1], positions[0], atol=1e-6)
+
+
+def test_cli_turntable_renders_the_frames(tmp_path):
+    """scripts/pdehead.py --turntable 3 --render-animation DIR writes DIR/frame_0001.png ... frame_0003.png
+    (the head seen from three sides); a DIR that cannot be written is exit 2 before any work."""
+    import subprocess
+    cli = Path(__file__).resolve().parents[2] / "scripts" / "pdehead.py"
+    env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "blender-user"))
+
+    def run(*args):
+        return subprocess.run([sys.executable, str(cli), *map(str, args)], capture_output=True, text=True,
+                              env=env, cwd=tmp_path)
+
+    blocker = tmp_path / "a-file"
+    blocker.write_text("x")
+    bad = run("--phantom", "--turntable", 3, "--render-animation", blocker / "frames")
+    assert bad.returncode == 2 and "--render-animation" in bad.stderr and len(bad.stderr.splitlines()) == 1
+    assert run("--phantom", "--render-animation", tmp_path / "x").returncode == 2  # needs --turntable
+
+    frames = tmp_path / "turn"
+    result = run("--phantom", "--no-volume", "--patches", 4, "--nu", 16, "--nv", 24, "--nw", 3, "--turntable", 3,
+                 "--render-animation", frames, "--resolution", 32, "--render-samples", 2)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert sorted(p.name for p in frames.iterdir()) == ["frame_0001.png", "frame_0002.png", "frame_0003.png"]
+    images = [blender_inspect.read_png(frames / f"frame_{f:04d}.png")[..., :3] for f in (1, 2, 3)]
+    assert all(img.shape == (32, 32, 3) and img.std() > 0.02 for img in images)
+    assert float(np.abs(images[0] - images[1]).mean()) > 0.005  # the camera moved between frames
+    assert "turntable 3 frames" in result.stdout and "Fra:" not in result.stdout
