@@ -17,7 +17,7 @@ from bpy.types import Operator
 from ..pdehead_addon import PDEHeadError
 from ..pdehead_addon import defaults as D
 from . import props, scene, state, study
-from .import_options import LoaderOptions
+from .import_options import PDEHEAD_FH_import_ct, LoaderOptions, dropped_file_options
 from .state import NO_STUDY_MESSAGE, suspended_updates
 from .study import STEP_FUNCTIONS, Rollback
 
@@ -128,10 +128,16 @@ class PDEHEAD_OT_import_ct(Operator, LoaderOptions):
                                description="Run segmentation, boundaries, surface and solid after importing")
 
     def invoke(self, context, event):
+        if self.directory and len(self.files):  # dropped on the 3D View (PDEHEAD_FH_import_ct)
+            for name, value in dropped_file_options(self.directory, [f.name for f in self.files]).items():
+                setattr(self, name, value)
+            return context.window_manager.invoke_props_dialog(self, width=420)
         context.window_manager.fileselect_add(self)
         return {'RUNNING_MODAL'}
 
     def draw(self, context):
+        if self.directory and len(self.files):  # what was dropped
+            self.layout.label(text=self.filepath if self.single_file else self.directory, icon='FILE_FOLDER')
         self.draw_loader_options(self.layout)
         self.layout.prop(self, "run_pipeline")
 
@@ -558,6 +564,7 @@ def menu_import(self, context):
 
 CLASSES = (
     PDEHEAD_OT_import_ct,
+    PDEHEAD_FH_import_ct,
     PDEHEAD_OT_load_phantom,
     PDEHEAD_OT_segment,
     PDEHEAD_OT_extract_boundaries,

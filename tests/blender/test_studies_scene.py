@@ -106,3 +106,30 @@ def test_save_removes_the_vdb_of_a_study_deleted_in_the_outliner(mods, tmp_path)
     volumes[0].data.grids.load()
     assert "w" in {g.name for g in volumes[0].data.grids}
     assert sorted(p.name for p in folder.glob("*.vdb")) == sorted([kept_vdb.name, foreign.name])
+
+
+def test_drag_and_drop_opens_the_import_with_the_file(mods, pdehead_ext, phantom_dicom, pytestconfig):
+    """Blender's FileHandler for the 3D View: a dropped .dcm opens the import on its series folder, a
+    .nii.gz on the file alone, a .raw / .tif on its stack's folder; the dialog's values import the CT."""
+    import bpy
+    from types import SimpleNamespace
+    handler = bpy.types.FileHandler.bl_rna_get_subclass_py("PDEHEAD_FH_import_ct")
+    assert handler is not None and handler.bl_import_operator == "pdehead.import_ct"
+    assert {".dcm", ".nii", ".nii.gz", ".tif", ".tiff", ".raw"} <= set(handler.bl_file_extensions.split(";"))
+    assert handler.poll_drop(SimpleNamespace(area=SimpleNamespace(type='VIEW_3D')))
+    assert not handler.poll_drop(SimpleNamespace(area=SimpleNamespace(type='NODE_EDITOR')))
+
+    options = sys.modules[f"{pdehead_ext.__name__}.operators.import_options"].dropped_file_options
+    dcm = sorted(p.name for p in phantom_dicom.iterdir())[3]
+    got = options(str(phantom_dicom), [dcm])
+    assert got["format"] == "DICOM" and not got["single_file"] and got["directory"] == str(phantom_dicom)
+    nii = options("/data/mri", ["ch2.nii.gz"])
+    assert nii["single_file"] and nii["filepath"] == "/data/mri/ch2.nii.gz"
+    assert options("/d", ["slice_001.raw"])["format"] == "RAW" and options("/d", ["a.TIFF"])["format"] == "IMAGES"
+    assert options("/d", ["notes.txt"]) == {}
+
+    # the dialog's OK: what Blender runs with the dropped file's values
+    assert bpy.ops.pdehead.import_ct(files=[{"name": dcm}], **got) == {'FINISHED'}
+    s = mods.state.settings(bpy.context.scene.pdehead.active_study)
+    assert s.source_kind == 'FILES' and s.source == str(phantom_dicom)
+    assert tuple(s.dimensions)[:2] == (128, 128) and s.dimensions[2] > 20  # the whole series, not one slice
