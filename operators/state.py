@@ -191,7 +191,9 @@ def migrate_legacy_settings() -> list[str]:
                     setattr(s, prop.identifier, value)
                 except (TypeError, ValueError, AttributeError) as exc:
                     print(f"PDE Head: study '{coll.name}': setting {prop.identifier} not migrated ({exc})")
-        del stored[PROP]
+        for storage in (stored, coll):  # files of 4.x read by 5.x hold the group in both
+            if storage.get(PROP) is not None:
+                del storage[PROP]
         migrated.append(coll.name)
     return migrated
 
