@@ -256,7 +256,7 @@ def test_modal_pipeline_esc_removes_everything(ext, phantom, monkeypatch):
     assert progress == [1, 2, 3, 4]
     coll = op._run.collection
     assert coll is not None and coll.pdehead.surface_object is not None and coll.pdehead.curves_object
-    assert len(bpy.data.objects) == 2 and len(bpy.data.meshes) == 1
+    assert len(bpy.data.objects) == 3 and len(bpy.data.meshes) == 1  # curves, surface, the settings Empty
 
     assert op_cls.modal(op, context, esc) == {'CANCELLED'}
     assert len(bpy.data.objects) == 0 and len(bpy.data.collections) == 0 and len(bpy.data.meshes) == 0
