@@ -31,7 +31,8 @@ def _expected_solid(mods, coll, **ranges):
     s = mods.state.settings(coll)
     head = mods.study.pde_head(coll)
     nw = ranges.pop("nw", s.nw)
-    kw = dict(u_range=tuple(s.u_range), v_range=tuple(s.v_range), w_range=tuple(s.w_range))
+    v_range = tuple(min(float(v), 2 * math.pi) for v in s.v_range)  # float32 2π is a hair above float64 2π
+    kw = dict(u_range=tuple(s.u_range), v_range=v_range, w_range=tuple(s.w_range))
     kw.update(ranges)
     return head.solid(s.nu, s.nv, nw, **kw).vertices
 
@@ -81,6 +82,16 @@ def test_settings_keyframed_like_any_property(mods, monkeypatch):
     assert calls == [coll.name]
     scene.frame_set(2)
     assert calls == [coll.name]
+    monkeypatch.undo()
+
+    # a driver (a simple expression: no Python auto-run needed) moves the inner w bound with the frame
+    driver = s.driver_add("w_range", 0).driver
+    driver.type = 'SCRIPTED'
+    driver.expression = "(frame - 1) * 0.25"
+    for frame in (3, 1):
+        scene.frame_set(frame)
+        assert s.w_range[0] == pytest.approx((frame - 1) * 0.25) and s.last_error == ""
+        np.testing.assert_allclose(_solid_mm(solid), _expected_solid(mods, coll), atol=0.05)
 
 
 @pytest.mark.parametrize("saved_by", [(4, 2), (5, 0)], ids=["blender4.2", "blender5.0"])
