@@ -2,7 +2,7 @@
 
 ``register()`` adds the property groups, preferences, operators (with the File > Import
 menu entry), the sidebar panels, the save/load handlers of :mod:`.persistence`, the cutter's
-depsgraph handler (:mod:`.study`) and one ``load_post`` handler that frees the in-memory caches
+depsgraph handler (:mod:`.study`), the frame handler and settings migration of :mod:`.animation` and one ``load_post`` handler that frees the in-memory caches
 of studies that are not in the newly loaded file. ``unregister()`` removes all of it again,
 leaving no class, property, menu entry, handler or timer behind.
 """
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import bpy
 
-from . import forensic, ops, panel, persistence, prefs, props, state, study
+from . import animation, forensic, ops, panel, persistence, prefs, props, state, study
 
 
 @bpy.app.handlers.persistent
@@ -35,9 +35,11 @@ def register() -> None:
     persistence.register()
     study.register()
     bpy.app.handlers.load_post.append(pdehead_load_post)
+    animation.register()
 
 
 def unregister() -> None:
+    animation.unregister()
     for handler in list(bpy.app.handlers.load_post):
         if getattr(handler, "__name__", "") == "pdehead_load_post":
             bpy.app.handlers.load_post.remove(handler)

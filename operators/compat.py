@@ -98,3 +98,32 @@ def node_tree(material_or_world):
     if material_or_world.node_tree is None:
         material_or_world.use_nodes = True
     return material_or_world.node_tree
+
+
+def animation_fcurves(id_) -> list:
+    """The F-Curves of an ID's action (keyframes), on every Blender: ``action.fcurves`` until 4.3, the
+    slotted action's channelbag from 4.4 (``action.fcurves`` is gone in 5.0)."""
+    anim = getattr(id_, "animation_data", None)
+    action = getattr(anim, "action", None)
+    if action is None:
+        return []
+    slot = getattr(anim, "action_slot", None)
+    if slot is not None and hasattr(action, "layers"):
+        out = []
+        for layer in action.layers:
+            for strip in layer.strips:
+                bag = strip.channelbag(slot)
+                if bag is not None:
+                    out.extend(bag.fcurves)
+        return out
+    return list(action.fcurves)
+
+
+def registered_id_properties(id_):
+    """The dict-like storage of an ID's registered (``bpy.props``) properties, readable while no such
+    property is registered (to migrate old files): the ID itself until 4.5, its system properties from
+    5.0 (``ID.bl_system_properties_get()``; ``id[...]`` there only sees the user's custom properties)."""
+    getter = getattr(id_, "bl_system_properties_get", None)
+    if getter is None:
+        return id_
+    return getter() or {}

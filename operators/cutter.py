@@ -99,9 +99,11 @@ def cutter_of(coll):
     return None
 
 
-def signature(obj) -> tuple:
-    """The cutter's transform and size: the handler re-applies the cutter when it changes."""
-    return tuple(round(float(x), 7) for row in obj.matrix_world for x in row) + (float(obj.empty_display_size),)
+def signature(obj, matrix=None) -> tuple:
+    """The cutter's transform (``matrix``, default its own) and size: the handlers re-apply the cutter
+    when it changes."""
+    matrix = obj.matrix_world if matrix is None else matrix
+    return tuple(round(float(x), 7) for row in matrix for x in row) + (float(obj.empty_display_size),)
 
 
 def add_cutter(context, coll):

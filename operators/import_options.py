@@ -169,3 +169,39 @@ class LoaderOptions:
         layout.prop(self, "single_file")
 
 
+
+
+#: What a drag and drop onto the 3D View opens with the import dialog (:class:`PDEHEAD_FH_import_ct`):
+#: file name ending -> the dialog's format and whether the file alone is read (a NIfTI volume) or its
+#: folder (a DICOM series, an image or raw stack). DICOM files without an extension: drop one of
+#: them on the File > Import dialog (a FileHandler matches by extension).
+DROP_FORMATS = {".dcm": ("DICOM", False), ".ima": ("DICOM", False), ".nii": ("AUTO", True),
+                ".nii.gz": ("AUTO", True), ".tif": ("IMAGES", False), ".tiff": ("IMAGES", False),
+                ".raw": ("RAW", False)}
+
+
+def dropped_file_options(directory: str, names) -> dict:
+    """The import dialog's properties for files dropped from ``directory`` (their ``names``):
+    ``directory`` / ``filepath``, ``single_file`` and ``format`` of the first recognised file."""
+    for name in names:
+        lower = name.lower()
+        for ending, (fmt, single) in sorted(DROP_FORMATS.items(), key=lambda kv: -len(kv[0])):
+            if lower.endswith(ending):
+                path = str(Path(directory) / name)
+                return dict(directory=str(directory), filepath=path, single_file=single, format=fmt)
+    return {}
+
+
+class PDEHEAD_FH_import_ct(bpy.types.FileHandler):
+    """Drag and drop of a DICOM file (its series), a .nii / .nii.gz volume or a raw / TIFF slice (its
+    stack) onto the 3D View: the CT import dialog opens with it (Blender 4.1+)."""
+
+    bl_idname = "PDEHEAD_FH_import_ct"
+    bl_label = "PDE Head CT"
+    bl_import_operator = "pdehead.import_ct"
+    bl_file_extensions = ";".join(DROP_FORMATS)
+
+    @classmethod
+    def poll_drop(cls, context):
+        area = getattr(context, "area", None)
+        return area is not None and area.type == "VIEW_3D"

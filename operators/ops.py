@@ -17,7 +17,7 @@ from bpy.types import Operator
 from ..pdehead_addon import PDEHeadError
 from ..pdehead_addon import defaults as D
 from . import props, scene, state, study
-from .import_options import LoaderOptions
+from .import_options import PDEHEAD_FH_import_ct, LoaderOptions, dropped_file_options
 from .state import NO_STUDY_MESSAGE, suspended_updates
 from .study import STEP_FUNCTIONS, Rollback
 
@@ -129,10 +129,16 @@ class PDEHEAD_OT_import_ct(Operator, LoaderOptions):
                                description="Run segmentation, boundaries, surface and solid after importing")
 
     def invoke(self, context, event):
+        if self.directory and len(self.files):  # dropped on the 3D View (PDEHEAD_FH_import_ct)
+            for name, value in dropped_file_options(self.directory, [f.name for f in self.files]).items():
+                setattr(self, name, value)
+            return context.window_manager.invoke_props_dialog(self, width=420)
         context.window_manager.fileselect_add(self)
         return {'RUNNING_MODAL'}
 
     def draw(self, context):
+        if self.directory and len(self.files):  # what was dropped
+            self.layout.label(text=self.filepath if self.single_file else self.directory, icon='FILE_FOLDER')
         self.draw_loader_options(self.layout)
         self.layout.prop(self, "run_pipeline")
 
@@ -144,6 +150,7 @@ class PDEHEAD_OT_import_ct(Operator, LoaderOptions):
             if self.run_pipeline:
                 for step in ("segment", "boundaries", "surface", "solid"):
                     STEP_FUNCTIONS[step](coll)
+                scene.frame_study(context, coll)  # ends as Run Pipeline does: camera, light, cube hidden
             nx, ny, nz = s.dimensions
             self.report({'INFO'}, f"Imported '{coll.name}': {nx}x{ny}x{nz} voxels, spacing "
                         f"{', '.join(f'{v:g}' for v in s.spacing)} mm")
@@ -495,6 +502,29 @@ class PDEHEAD_OT_frame_study(Operator, StudyOperator):
         return _guarded(self, context, body)
 
 
+class PDEHEAD_OT_turntable(Operator, StudyOperator):
+    bl_idname = "pdehead.turntable"
+    bl_label = "Turntable"
+    bl_description = ("A camera orbit around the study: its camera turns once around the head in the given "
+                      "number of frames (the scene's frame range); Render Animation renders it")
+    bl_options = {'REGISTER', 'UNDO'}
+
+    frames: IntProperty(name="Frames", default=D.TURNTABLE_FRAMES.default, min=D.TURNTABLE_FRAMES.min,
+                        max=D.TURNTABLE_FRAMES.max, description=D.TURNTABLE_FRAMES.description)
+
+    def execute(self, context):
+        coll = _active_or_report(self, context)
+        if coll is None:
+            return {'CANCELLED'}
+
+        def body():
+            from . import animation
+            pivot = animation.turntable(context, coll, self.frames, start=context.scene.frame_start)
+            self.report({'INFO'}, f"'{coll.name}': turntable of {self.frames} frames around '{pivot.name}' "
+                                  "(Render > Render Animation)")
+        return _guarded(self, context, body)
+
+
 class PDEHEAD_OT_add_cutter(Operator, StudyOperator):
     bl_idname = "pdehead.add_cutter"
     bl_label = "Add Cutter"
@@ -535,6 +565,7 @@ def menu_import(self, context):
 
 CLASSES = (
     PDEHEAD_OT_import_ct,
+    PDEHEAD_FH_import_ct,
     PDEHEAD_OT_load_phantom,
     PDEHEAD_OT_segment,
     PDEHEAD_OT_extract_boundaries,
@@ -544,6 +575,7 @@ CLASSES = (
     PDEHEAD_OT_run_pipeline,
     PDEHEAD_OT_frame_study,
     PDEHEAD_OT_add_cutter,
+    PDEHEAD_OT_turntable,
     PDEHEAD_OT_remove_study,
 )
 

@@ -62,6 +62,7 @@ class PDEHEAD_PT_study(_PDEHeadPanel, bpy.types.Panel):
         op = layout.operator("pdehead.run_pipeline", text="Run Whole Pipeline", icon='PLAY')
         op.source = 'ACTIVE'
         layout.operator("pdehead.frame_study", icon='CAMERA_DATA')
+        layout.operator("pdehead.turntable", icon='FILE_REFRESH')
         if s.last_error:
             layout.label(text=s.last_error[:120], icon='ERROR')
         layout.operator("pdehead.remove_study", icon='TRASH')

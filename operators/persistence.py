@@ -10,6 +10,10 @@
 - **save_post**: .vdb files replaced by a rebuild or left behind by a move are deleted once the
   saved file no longer references them (:func:`volume.purge_superseded`); a file that an older
   .blend beside it still uses is never touched (it is not in the superseded set).
+- **save_post** also removes the .vdb files PDE Head wrote for this file (recorded in the file at each
+  save, ``Scene.pdehead.vdb_files``) that no saved Volume datablock references any more (a study
+  deleted in the outliner): only ``.vdb`` files in the ``pdehead_vdb/`` folder beside the saved file,
+  never anything else (:func:`remove_orphan_volume_files`).
 - **load_post**: a volume whose recorded .vdb is missing but whose file lies in ``pdehead_vdb/``
   beside the opened .blend (an absolute path written with relative paths off) is re-pointed there.
 
@@ -63,6 +67,67 @@ def move_volumes_beside(blend_path: str) -> list[Path]:
     return moved
 
 
+def _saved_volume_files() -> set[str]:
+    """Absolute paths of the .vdb files of the Volume datablocks a save writes (orphans are not written)."""
+    out = set()
+    for vol in bpy.data.volumes:
+        if vol.filepath and (vol.users > 0 or vol.use_fake_user):
+            out.add(str(Path(bpy.path.abspath(vol.filepath)).resolve()))
+    return out
+
+
+def _recorded_volume_files() -> set[str]:
+    import json
+    out: set[str] = set()
+    for scene in bpy.data.scenes:
+        try:
+            out.update(json.loads(scene.pdehead.vdb_files or "[]"))
+        except (ValueError, TypeError):
+            continue
+    return out
+
+
+def _record_volume_files(paths) -> None:
+    import json
+    text = json.dumps(sorted(paths))
+    for scene in bpy.data.scenes:
+        if scene.pdehead.vdb_files != text:
+            scene.pdehead.vdb_files = text
+
+
+def record_volume_files() -> None:
+    """Before a save: remember the .vdb files of this file's PDE Head volumes (with those already recorded)."""
+    ours = {str(Path(bpy.path.abspath(o.data.filepath)).resolve()) for o in _volume_objects() if o.data.filepath}
+    _record_volume_files(_recorded_volume_files() | ours)
+
+
+def remove_orphan_volume_files() -> list[Path]:
+    """After a save: delete the recorded .vdb files no saved Volume datablock references, when they lie
+    in the ``pdehead_vdb`` folder beside the saved file; returns the removed files."""
+    if not bpy.data.filepath:
+        return []
+    folder = volume.vdb_folder_for(bpy.data.filepath).resolve()
+    recorded = _recorded_volume_files()
+    used = _saved_volume_files()
+    removed, kept = [], set()
+    for text in sorted(recorded):
+        path = Path(text)
+        if text in used:
+            kept.add(text)
+            continue
+        if path.suffix != ".vdb" or path.parent != folder or not path.is_file():
+            continue  # not ours to touch (another folder), or already gone
+        try:
+            path.unlink()
+            removed.append(path)
+            print(f"PDE Head: removed {path}: no volume of {Path(bpy.data.filepath).name} uses it any more")
+        except OSError as exc:
+            kept.add(text)
+            print(f"PDE Head: could not remove the unused volume file {path}: {exc}")
+    _record_volume_files(kept)
+    return removed
+
+
 @bpy.app.handlers.persistent
 def pdehead_save_pre(filepath="", *_args) -> None:
     if not filepath:
@@ -72,6 +137,7 @@ def pdehead_save_pre(filepath="", *_args) -> None:
         objects.pack_ct_images()  # live cutaways update the CT atlases without re-packing each step
         record_sources(filepath)
         move_volumes_beside(filepath)
+        record_volume_files()
     except Exception as exc:  # noqa: BLE001 - a handler must never stop the save
         import traceback
         traceback.print_exc()
@@ -82,6 +148,7 @@ def pdehead_save_pre(filepath="", *_args) -> None:
 def pdehead_save_post(*_args) -> None:
     try:
         volume.purge_superseded()
+        remove_orphan_volume_files()
     except Exception as exc:  # noqa: BLE001
         print(f"PDE Head: could not remove replaced volume files: {exc}")
 

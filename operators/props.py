@@ -1,7 +1,9 @@
 """Study settings stored in the .blend, and the live parameters that rebuild the meshes at once.
 
-``Collection.pdehead`` (:class:`PDEHeadStudySettings`) holds one study's settings; the
-scene's ``Scene.pdehead.active_study`` points at the study the sidebar shows. Changing a
+One study's settings (:class:`PDEHeadStudySettings`) live on the study's settings object, an
+Empty in its collection (``Object.pdehead``), so Blender can animate them (a Collection cannot
+be keyframed); ``Collection.pdehead`` is a read-only shortcut to them (:func:`state.settings`).
+The scene's ``Scene.pdehead.active_study`` points at the study the sidebar shows. Changing a
 live parameter in the sidebar (or from Python, as a user would) runs its update callback:
 
 - nu, nv, caps -> surface and solid re-evaluated from the cached PDE solution;
@@ -28,7 +30,9 @@ def _live(what: str):
     def update(self, context):
         if state.updates_suspended() or not self.is_study:
             return
-        study.live_update(self.id_data, what, context)
+        coll = state.study_of_settings(self)
+        if coll is not None:
+            study.live_update(coll, what, context)
     return update
 
 
@@ -61,7 +65,7 @@ SOURCE_KIND_ITEMS = [
 
 
 class PDEHeadStudySettings(bpy.types.PropertyGroup):
-    """Settings of one study (lives on its collection, saved in the .blend)."""
+    """Settings of one study (on its settings object, saved in the .blend, animatable)."""
 
     is_study: BoolProperty(name="Is PDE Head Study", default=False)
     study_id: StringProperty(name="Study Id", description="Key of the in-memory cache of this study")
@@ -170,20 +174,37 @@ class PDEHeadSceneSettings(bpy.types.PropertyGroup):
     """Scene-level: which study the sidebar shows."""
 
     active_study: PointerProperty(name="Study", type=bpy.types.Collection,
-                                  poll=lambda self, coll: getattr(coll.pdehead, "is_study", False),
+                                  poll=lambda self, coll: state.is_study(coll),
                                   description="The PDE Head study shown in the sidebar")
+    vdb_files: StringProperty(name="Volume Files", options={'HIDDEN'},
+                              description="JSON list of the .vdb files PDE Head wrote for this file's volumes "
+                                          "(the ones a save may remove once no volume uses them)")
 
 
 CLASSES = (PDEHeadStudySettings, PDEHeadSceneSettings)
 
 
+def _collection_settings(collection):
+    """``Collection.pdehead``: the study's settings (on its settings object), None for other collections."""
+    return state.settings(collection)
+
+
 def attach() -> None:
-    """The settings on every collection and scene (after :data:`CLASSES` are registered)."""
-    bpy.types.Collection.pdehead = PointerProperty(type=PDEHeadStudySettings)
+    """The settings on every object and scene (after :data:`CLASSES` are registered); a study collection
+    points at its settings object and reads its settings as ``collection.pdehead``."""
+    bpy.types.Object.pdehead = PointerProperty(type=PDEHeadStudySettings)
     bpy.types.Scene.pdehead = PointerProperty(type=PDEHeadSceneSettings)
+    bpy.types.Collection.pdehead_settings_object = PointerProperty(
+        name="Study Settings Object", type=bpy.types.Object,
+        description="The Empty of this PDE Head study that holds its (animatable) settings")
+    bpy.types.Collection.pdehead = property(_collection_settings)
 
 
 def detach() -> None:
-    for owner in (bpy.types.Scene, bpy.types.Collection):
-        if hasattr(owner, "pdehead"):
-            del owner.pdehead
+    for owner, name in ((bpy.types.Collection, "pdehead"), (bpy.types.Collection, "pdehead_settings_object"),
+                        (bpy.types.Scene, "pdehead"), (bpy.types.Object, "pdehead")):
+        if name in owner.__dict__ or hasattr(owner, name):
+            try:
+                delattr(owner, name)
+            except AttributeError:
+                pass

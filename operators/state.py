@@ -1,7 +1,10 @@
 """The study state: what lives in the .blend and what lives only in memory.
 
-A *study* is one collection (``Collection.pdehead.is_study``). Its settings are the
-collection's :class:`~.props.PDEHeadStudySettings`; its PDE boundary conditions
+A *study* is one collection. Its settings (:class:`~.props.PDEHeadStudySettings`) live on the
+study's settings object, an Empty in the collection that Blender can animate (``Object.pdehead``;
+the collection points at it, ``Collection.pdehead_settings_object``); :func:`settings` is the one
+accessor, and ``collection.pdehead`` reads the same. Files saved by 0.1.0 kept the settings on the
+collection: :func:`migrate_legacy_settings` moves them when such a file is loaded. Its PDE boundary conditions
 (paper section 5.2: the 3t+1 curves, a few hundred kB) are stored IN the .blend as a
 base64 string custom property of the collection, so that a saved and reopened file
 rebuilds the meshes from the live parameters without re-segmenting.
@@ -27,7 +30,9 @@ from ..pdehead_addon import StorageError
 
 NO_STUDY_MESSAGE = "No PDE Head study: import a CT (File > Import > CT Head) or load the phantom"
 BOUNDARY_KEY = "pdehead_boundaries"  # collection custom property: base64 of dumps_boundaries()
-PROP = "pdehead"  # name of the PointerProperty on Collection / Scene
+PROP = "pdehead"  # name of the PointerProperty on Object (study settings) / Scene
+SETTINGS_OBJECT = "pdehead_settings_object"  # Collection -> its settings object
+SETTINGS_KIND = "study_settings"  # Object["pdehead_kind"] of a settings object
 
 
 @dataclass
@@ -135,13 +140,101 @@ def new_study_id() -> str:
 
 # --- which study ----------------------------------------------------------------------------
 
+def settings_object(collection):
+    """The Empty that holds a study's settings (animatable), or None for a collection that is no study."""
+    obj = getattr(collection, SETTINGS_OBJECT, None) if collection is not None else None
+    if obj is not None and collection in obj.users_collection:
+        return obj
+    if collection is None or not hasattr(collection, "objects"):
+        return None
+    for candidate in collection.objects:  # the pointer lost (e.g. a collection appended without it)
+        if candidate.get("pdehead_kind") == SETTINGS_KIND:
+            return candidate
+    return None
+
+
 def settings(collection: bpy.types.Collection):
-    """The study settings PropertyGroup of a collection."""
-    return getattr(collection, PROP)
+    """The study settings PropertyGroup of a study collection (None for other collections).
+
+    They live on the study's settings object, so ``settings(coll).keyframe_insert("v_range")``
+    keyframes them like any Blender property.
+    """
+    obj = settings_object(collection)
+    return getattr(obj, PROP, None) if obj is not None else None
+
+
+def study_of_settings(study_settings):
+    """The study collection whose settings these are (the inverse of :func:`settings`), or None."""
+    obj = study_settings.id_data
+    for coll in getattr(obj, "users_collection", ()):
+        if settings_object(coll) == obj:
+            return coll
+    return None
+
+
+def new_settings_object(collection):
+    """A new settings object (an Empty at the origin, named after the study) in ``collection``;
+    returns its settings."""
+    obj = bpy.data.objects.new(f"{collection.name} Settings", None)
+    obj["pdehead_kind"] = SETTINGS_KIND
+    obj.empty_display_type = "PLAIN_AXES"
+    obj.empty_display_size = 0.02
+    collection.objects.link(obj)
+    setattr(collection, SETTINGS_OBJECT, obj)
+    return getattr(obj, PROP)
+
+
+def _legacy_value(prop, value):
+    """A 0.1.0 ID-property value as the RNA property wants it (enums were stored as their index)."""
+    if prop.type == "ENUM":
+        if isinstance(value, str):
+            return value
+        items = list(prop.enum_items)
+        for item in items:
+            if item.value == int(value):
+                return item.identifier
+        return None
+    if prop.type == "POINTER":
+        return value if isinstance(value, bpy.types.ID) else None
+    if getattr(prop, "array_length", 0):
+        return tuple(value)
+    return value
+
+
+def migrate_legacy_settings() -> list[str]:
+    """Move the settings of studies saved by 0.1.0 (on the collection) to a settings object.
+
+    Returns the names of the migrated study collections. Idempotent: a collection whose
+    settings were moved has no legacy group any more.
+    """
+    from .compat import registered_id_properties
+    migrated = []
+    for coll in bpy.data.collections:
+        stored = registered_id_properties(coll)
+        legacy = stored.get(PROP)
+        if legacy is None or not hasattr(legacy, "keys") or not legacy.get("is_study"):
+            continue
+        s = settings(coll) or new_settings_object(coll)
+        with suspended_updates():
+            for prop in s.bl_rna.properties:
+                if prop.identifier in ("rna_type", "name") or prop.identifier not in legacy.keys():
+                    continue
+                value = _legacy_value(prop, legacy[prop.identifier])
+                if value is None:
+                    continue
+                try:
+                    setattr(s, prop.identifier, value)
+                except (TypeError, ValueError, AttributeError) as exc:
+                    print(f"PDE Head: study '{coll.name}': setting {prop.identifier} not migrated ({exc})")
+        for storage in (stored, coll):  # files of 4.x read by 5.x hold the group in both
+            if storage.get(PROP) is not None:
+                del storage[PROP]
+        migrated.append(coll.name)
+    return migrated
 
 
 def is_study(collection) -> bool:
-    return collection is not None and getattr(getattr(collection, PROP, None), "is_study", False)
+    return bool(getattr(settings(collection), "is_study", False))
 
 
 def studies() -> list[bpy.types.Collection]:

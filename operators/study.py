@@ -242,7 +242,8 @@ def create_study(context, ct, name: str, source_kind: str, source: str = "", opt
     """A new study collection holding ``ct`` (in memory) and its description; made active."""
     scene = context.scene
     coll = objects.study_collection(_unique_collection_name(name), scene)
-    s = state.settings(coll)
+    s = state.settings(coll) or state.new_settings_object(coll)
+    scene.render.use_lock_interface = True  # the frame handler may rebuild meshes while rendering
     with suspended_updates():
         s.is_study = True
         s.study_id = state.new_study_id()
@@ -474,20 +475,24 @@ def live_update(coll, what: str, context=None) -> None:
         print(f"PDE Head: live update of {what} failed: {exc}")
 
 
-def apply_cutter(coll) -> str:
-    """Set the study's u/v ranges from its cutter and rebuild the solid; returns the cut's kind."""
+def apply_cutter(coll, matrix=None) -> str:
+    """Set the study's u/v ranges from its cutter and rebuild the solid; returns the cut's kind.
+
+    ``matrix``: the cutter's world matrix to cut with (default its own; the frame handler passes
+    the one the render's depsgraph evaluated)."""
     from mathutils import Matrix
     s = state.settings(coll)
     box = cutter.cutter_of(coll)
     if box is None:
         raise PDEHeadError(f"study '{coll.name}' has no cutter: add one first")
+    matrix = box.matrix_world if matrix is None else matrix
     head = pde_head(coll)
     # world metres = LPS mm * 0.001, so LPS mm -> cutter local = inverse(matrix_world) @ scale(0.001)
-    inverse = np.array(box.matrix_world.inverted_safe() @ Matrix.Scale(0.001, 4))
+    inverse = np.array(matrix.inverted_safe() @ Matrix.Scale(0.001, 4))
     u_range, v_range, _kept, kind = cutter.cutter_ranges(head, inverse, float(box.empty_display_size))
     with suspended_updates():
         s.u_range, s.v_range = u_range, v_range
-    state.cache_for(s.study_id).cutter_signature = cutter.signature(box)
+    state.cache_for(s.study_id).cutter_signature = cutter.signature(box, matrix)
     if s.solid_object is not None:
         step_solid(coll)
     return kind
@@ -625,6 +630,8 @@ class PipelineRun:
 
 
 def remove_study(coll) -> None:
+    """Delete a study's objects, data and collection; a scene left without a camera (or active study)
+    falls back to another study's."""
     state.drop_cache(state.settings(coll).study_id)
     for obj in list(coll.all_objects):
         data = obj.data
@@ -638,6 +645,21 @@ def remove_study(coll) -> None:
     for child in list(coll.children_recursive):
         bpy.data.collections.remove(child)
     bpy.data.collections.remove(coll)
+    _fall_back_to_other_studies()
+
+
+def _fall_back_to_other_studies() -> None:
+    for sc in bpy.data.scenes:
+        inside = {c.name for c in sc.collection.children_recursive}
+        others = [c for c in state.studies() if c.name in inside]
+        if not others:
+            continue
+        if sc.pdehead.active_study is None:
+            sc.pdehead.active_study = others[0]
+        if sc.camera is None:
+            order = [sc.pdehead.active_study] + [c for c in others if c != sc.pdehead.active_study]
+            sc.camera = next((cam for cam in (scene._study_object(c, scene.CAMERA_KIND) for c in order)
+                              if cam is not None), None)
 
 
 def _remove_cutter_handler() -> None:

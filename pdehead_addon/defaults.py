@@ -211,3 +211,8 @@ DOWNSAMPLE = _param("downsample", 1, min=1, max=8,
 #: enumeration spells it in capitals, AUTO / SUPERIOR / INFERIOR.)
 FIRST_SLICE = "auto"
 FIRST_SLICE_CHOICES = ("auto", "superior", "inferior")
+
+# ----------------------------------------------------------------------------- animation (issue 19)
+#: 120 frames: a 5-second orbit at 24 fps, each frame 3 degrees on.
+TURNTABLE_FRAMES = _param("turntable_frames", 120, min=2, max=10000,
+                          description="Frames of one camera orbit around the study (the scene's frame range)")

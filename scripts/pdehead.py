@@ -9,6 +9,7 @@ Examples::
         --render out/cthead_surface.png --render-volume out/cthead_volume.png
     python3 scripts/pdehead.py ../shared/data/ct_head_ge_tilt_dicom/dicom --out out/ge.blend
     python3 scripts/pdehead.py --phantom --no-volume --skull --export out/print   # skin.stl, skull.stl, tissue_depth.csv
+    python3 scripts/pdehead.py --phantom --no-volume --out out/turn.blend --turntable 120 --render-animation out/turn
 
 It runs the SAME Blender operators as the add-on (``bpy.ops.pdehead.*``) in the ``bpy``
 module: the add-on is registered straight from this repository's source (as the package
@@ -88,6 +89,12 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="with --skull: write skin.stl, skull.stl and tissue_depth.csv (patient mm) into DIR")
     f.add_argument("--export-format", default="stl", choices=["stl", "obj", "ply"], help="mesh format; default stl")
     p.add_argument("--render-samples", type=int, default=16, help="Cycles samples; default 16")
+    a = p.add_argument_group("animation")
+    a.add_argument("--turntable", type=int, metavar="N",
+                   help=D.TURNTABLE_FRAMES.help("a camera orbit of N frames around the head (frames 1..N)"))
+    a.add_argument("--render-animation", type=Path, metavar="DIR",
+                   help="with --turntable: render the frames (Cycles, --resolution, --render-samples) to "
+                        "DIR/frame_0001.png ...")
     g = p.add_argument_group("loader options")
     g.add_argument("--format", default="auto", choices=["auto", "dicom", "images", "raw"])
     g.add_argument("--raw-shape", type=int, nargs=2, metavar=("NY", "NX"), help="raw slices: rows, columns")
@@ -144,6 +151,15 @@ def parse_args(argv=None) -> argparse.Namespace:
             D.VOXEL_SIZE.check(args.voxel_size, "--voxel-size")
         except ValueError as exc:
             p.error(str(exc))
+    if args.turntable is not None:
+        try:
+            D.TURNTABLE_FRAMES.check(args.turntable, "--turntable")
+        except ValueError as exc:
+            p.error(str(exc))
+    if args.render_animation is not None:
+        if args.turntable is None:
+            p.error("--render-animation needs --turntable N (the animation to render)")
+        _check_writable_folder(args.render_animation, "--render-animation")
     if args.orientation and args.first_slice not in (None, "auto"):
         p.error("give either --orientation or --first-slice (the orientation's third letter says where "
                 "the files go)")
@@ -332,6 +348,17 @@ def _auto_boundaries(args, ops, addon, coll) -> str:
             f"max {m['selection_max_mm']:.2f} mm{asked}")
 
 
+def _check_writable_folder(folder: Path, flag: str) -> None:
+    """Exit 2 (before any work) when ``folder`` cannot be created or written."""
+    if folder.exists() and not folder.is_dir():
+        raise CLIError(f"{flag} {folder}: not a folder", 2)
+    existing = folder
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir() or not os.access(existing, os.W_OK | os.X_OK):
+        raise CLIError(f"{flag} {folder}: cannot write there ({existing} is not a writable folder)", 2)
+
+
 def run(args) -> dict:
     import bpy
     import warnings
@@ -448,6 +475,18 @@ def _steps(args, bpy, addon, state) -> dict:
             raise CLIError(f"--{flag.replace('_', '-')} {path}: the render was not written", 1)
         print(f"wrote {path} ({time.perf_counter() - t:.1f} s)")
         summary["outputs"][flag] = str(path)
+    if args.turntable:
+        _call(ops.turntable, frames=args.turntable)
+        print(f"  turntable {args.turntable} frames (1..{args.turntable}) around '{coll.name}'")
+        if args.out:
+            _save(bpy, args.out.resolve(), "--out")
+        if args.render_animation:
+            t = time.perf_counter()
+            with _blender_stdout(drop=("Fra:", "Time:", "Saved:", "Info:")):
+                paths = addon.operators.animation.render_animation(bpy.context.scene, args.render_animation.resolve(),
+                                                                   size, args.render_samples)
+            print(f"wrote {len(paths)} frames {paths[0]} .. {paths[-1].name} ({time.perf_counter() - t:.1f} s)")
+            summary["outputs"]["render_animation"] = [str(x) for x in paths]
     return summary
 
 

@@ -60,7 +60,7 @@ def test_cli_phantom_writes_blend_vdb_and_renders(tmp_path):
     reopened = subprocess.run([sys.executable, "-c", check, str(out / "phantom.blend")], capture_output=True,
                               text=True, env=dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "u2")))
     assert reopened.returncode == 0, reopened.stderr[-2000:]
-    assert reopened.stdout.split()[-3:] == ["Phantom", "4", "//pdehead_vdb/Phantom.vdb"]
+    assert reopened.stdout.split()[-3:] == ["Phantom", "5", "//pdehead_vdb/Phantom.vdb"]  # + the settings Empty
 
 
 def test_cli_bad_input_is_one_clear_line(tmp_path):

@@ -16,8 +16,9 @@ import build_extension  # noqa: E402
 
 OPERATORS = ["import_ct", "load_phantom", "segment", "extract_boundaries", "reconstruct_surface",
              "build_solid", "build_volume", "run_pipeline", "frame_study", "add_cutter", "remove_study"]
-OUR_HANDLERS = ["depsgraph_update_post:pdehead_cutter_update", "load_post:pdehead_load_post",
-                "load_post:pdehead_volume_load_post",
+OUR_HANDLERS = ["depsgraph_update_post:pdehead_cutter_update", "frame_change_post:pdehead_frame_change",
+                "frame_change_pre:pdehead_frame_change_pre", "load_post:pdehead_load_post",
+                "load_post:pdehead_migrate_load_post", "load_post:pdehead_volume_load_post",
                 "save_post:pdehead_save_post", "save_pre:pdehead_save_pre"]
 PANELS = ["PDEHEAD_PT_study", "PDEHEAD_PT_segmentation", "PDEHEAD_PT_boundaries", "PDEHEAD_PT_surface",
           "PDEHEAD_PT_solid", "PDEHEAD_PT_volume", "PDEHEAD_PT_timings"]
@@ -99,7 +100,7 @@ def test_every_setting_operator_option_and_preference_reads_the_defaults_table(p
 
     name = pdehead_ext.__name__
     D = sys.modules[name + ".pdehead_addon.defaults"]
-    settings = bpy.types.Collection.bl_rna.properties["pdehead"].fixed_type.bl_rna.properties
+    settings = bpy.types.Object.bl_rna.properties["pdehead"].fixed_type.bl_rna.properties  # the settings Empty
 
     def check(props, where):
         checked = 0
@@ -199,7 +200,10 @@ def test_unregister_leaves_nothing_and_register_again_works(pdehead_ext):
                 "PDEHeadStudySettings", "PDEHeadSceneSettings", "PDEHeadPreferences"]:
             assert not hasattr(bpy.types, cls_name), cls_name
         assert not hasattr(bpy.types.Collection, "pdehead")
+        assert not hasattr(bpy.types.Collection, "pdehead_settings_object")
+        assert not hasattr(bpy.types.Object, "pdehead")
         assert not hasattr(bpy.types.Scene, "pdehead")
+        assert not hasattr(bpy.types, "PDEHEAD_FH_import_ct")
         assert _our_handlers(name) == []
         assert name + ".operators.ops" not in menu_funcs()
         # no bpy.app timer of ours (the modal pipeline uses a window-manager timer owned by the operator)

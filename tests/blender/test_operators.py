@@ -59,7 +59,7 @@ def check_study(ext, coll, t: int, nu: int, nv: int, nw: int, volume: bool = Tru
     import bpy
     s = coll.pdehead
     assert s.curves_object and s.surface_object and s.solid_object
-    scene_kinds = {"camera", "key_light"}  # Frame Study's camera and light (the pipeline adds them)
+    scene_kinds = {"camera", "key_light", "study_settings"}  # Frame Study's camera and light, the settings Empty
     assert {o.name for o in coll.all_objects if o.get("pdehead_kind") not in scene_kinds} == {
         o.name for o in (s.curves_object, s.surface_object, s.solid_object, s.volume_object) if o}
     assert len(s.curves_object.data.splines) == 3 * t + 1
@@ -256,7 +256,7 @@ def test_modal_pipeline_esc_removes_everything(ext, phantom, monkeypatch):
     assert progress == [1, 2, 3, 4]
     coll = op._run.collection
     assert coll is not None and coll.pdehead.surface_object is not None and coll.pdehead.curves_object
-    assert len(bpy.data.objects) == 2 and len(bpy.data.meshes) == 1
+    assert len(bpy.data.objects) == 3 and len(bpy.data.meshes) == 1  # curves, surface, the settings Empty
 
     assert op_cls.modal(op, context, esc) == {'CANCELLED'}
     assert len(bpy.data.objects) == 0 and len(bpy.data.collections) == 0 and len(bpy.data.meshes) == 0

@@ -459,7 +459,7 @@ def test_auto_voxel_size_follows_the_ct_spacing_within_the_budgets(B, phantom, p
 
 def test_cutaway_angles_are_degrees_in_the_ui(pdehead_ext):
     import bpy
-    rna = bpy.types.Collection.bl_rna.properties["pdehead"].fixed_type.properties["v_range"]
+    rna = bpy.types.Object.bl_rna.properties["pdehead"].fixed_type.properties["v_range"]  # the settings Empty
     assert rna.unit == "ROTATION" and rna.soft_min == 0.0 and rna.soft_max == pytest.approx(2 * math.pi)
     op = bpy.ops.pdehead.build_solid.get_rna_type().properties["v_range"]
     assert op.unit == "ROTATION"
