@@ -306,20 +306,40 @@ def _envelope(bone: np.ndarray) -> np.ndarray:
     return out
 
 
-def skull_mesh(skull: SkullSegmentation, step: int = 1) -> Mesh:
-    """Marching-cubes mesh of the bone at the bone level (the detail the PDE skull does not keep).
+#: Largest triangle count of the bone skull (:func:`skull_mesh`): printable, and light enough for Blender.
+MAX_SKULL_TRIANGLES = 500_000
+#: Gaussian blur (voxels) of the binary bone mask before marching cubes: sub-voxel, stair-free edges.
+SKULL_MASK_SIGMA = 1.0
+#: Taubin smoothing passes of the bone skull (lambda/mu: smooths without shrinking).
+SKULL_SMOOTHING_PASSES = 10
 
-    The iso-surface of the (pseudo-)HU volume at ``skull.bone_level``, restricted
-    to the kept bone: outside the kept components (holders, vertebrae, metal) the
-    field is held below the level and inside filled cavities above it, so the
-    surface has sub-voxel accuracy where it follows real bone and is closed
-    everywhere (the field is padded with a below-level border).
+
+def skull_mesh(skull: SkullSegmentation, step: int = 1, max_triangles: int = MAX_SKULL_TRIANGLES,
+               smoothing_passes: int = SKULL_SMOOTHING_PASSES) -> Mesh:
+    """The bone skull: smoothed marching cubes of the binary bone mask, watertight, in patient mm.
+
+    What ``skull.<fmt>`` is: the bone surface a practitioner can peg and print, with the orbits, the
+    nasal aperture and the zygomatic arches open as they are in bone (the PDE skull envelope of
+    :func:`segment_skull`'s ``mask`` closes over them). From the bone level on it depends on the
+    binary mask ``skull.bone`` alone, not on the intensities: a CT and the same CT with every voxel
+    below the level set to air give the same skull.
+
+    1. the bone mask (kept components, cavities filled) is blurred by a Gaussian of
+       ``SKULL_MASK_SIGMA`` voxels and meshed at 0.5 by marching cubes (Lewiner), padded so the
+       surface is closed;
+    2. the marching-cubes step grows (1, 2, 3 ...) until the mesh has at most ``max_triangles``;
+    3. Taubin lambda/mu smoothing (Taubin 1995: lambda 0.5, mu -0.53) removes the voxel terraces
+       without shrinking the skull; it moves vertices only, so the mesh stays closed.
 
     Parameters
     ----------
     skull : SkullSegmentation
     step : int
-        Marching-cubes step in voxels (2 quarters the triangle count).
+        Smallest marching-cubes step in voxels.
+    max_triangles : int
+        Triangle budget (default 500k).
+    smoothing_passes : int
+        Taubin passes (0: none).
 
     Returns
     -------
@@ -328,34 +348,58 @@ def skull_mesh(skull: SkullSegmentation, step: int = 1) -> Mesh:
     """
     from skimage.measure import marching_cubes
 
-    if skull.bone is None or skull.hu is None:
-        raise SegmentationError("skull_mesh needs the result of segment_skull (bone and hu)")
+    if skull.bone is None:
+        raise SegmentationError("skull_mesh needs the result of segment_skull (the bone mask)")
     bone = skull.bone
     box = ndi.find_objects(bone.astype(np.uint8))
     if not box or box[0] is None:
         raise SegmentationError("the skull segmentation has no bone")
     box = tuple(slice(max(0, s.start - 2), s.stop + 2) for s in box[0])
-    level = np.float32(skull.bone_level)
-    b = bone[box]
-    near = ndi.binary_dilation(b, structure=np.ones((3, 3, 3), bool))
-    field = skull.hu[box].astype(np.float32, copy=True)
-    field[~near] = np.minimum(field[~near], level - 1.0)                 # dropped bone is not surfaced
-    fill = b & (field < level)
-    field[fill] = level + 1.0                                            # filled cavities stay inside
-    # voxels next to kept bone but belonging to dropped bone (or metal) must stay below the level too
-    outside = near & ~b & (field >= level)
-    field[outside] = level - 1.0
-    field = np.pad(field, 1, constant_values=float(level) - 1000.0)
-    dz, dy, dx = skull.ct.spacing
-    verts, faces, _, _ = marching_cubes(field, level=float(level), step_size=int(step), allow_degenerate=False)
-    origin = np.array([s.start - 1 for s in box], float)
-    kji = verts + origin
-    pts = skull.ct.index_to_patient(kji)
+    field = ndi.gaussian_filter(bone[box].astype(np.float32), SKULL_MASK_SIGMA)
+    field = np.pad(field, 2, constant_values=0.0)
+    origin = np.array([s.start - 2 for s in box], float)
+    step = max(1, int(step))
+    while True:
+        verts, faces, _, _ = marching_cubes(field, level=0.5, step_size=step, allow_degenerate=False)
+        if len(faces) <= max_triangles or step >= 8:
+            break
+        step += 1
+    if len(faces) > max_triangles:
+        raise SegmentationError(f"the bone skull has {len(faces)} triangles at marching-cubes step {step}, "
+                                f"more than {max_triangles}")
     faces = faces.astype(np.int64)
+    if smoothing_passes:
+        verts = taubin_smooth(verts, faces, passes=int(smoothing_passes))
+    pts = skull.ct.index_to_patient(verts + origin)
     mesh = Mesh(vertices=pts, quads=np.zeros((0, 4), np.int64), triangles=faces)
     if _signed_volume(mesh) < 0:  # index (k, j, i) -> patient may flip handedness
         mesh.triangles = faces[:, ::-1].copy()
+    mesh.vertex_attributes = {}
     return mesh
+
+
+def taubin_smooth(vertices: np.ndarray, triangles: np.ndarray, passes: int = 8, lam: float = 0.5,
+                  mu: float = -0.53) -> np.ndarray:
+    """Taubin's lambda/mu smoothing (Taubin, SIGGRAPH 1995) with the umbrella operator; vertices only.
+
+    Each pass moves every vertex by ``lam`` then ``mu`` times the mean of its neighbours minus itself
+    (a low-pass filter that does not shrink the surface as repeated Laplacian smoothing does).
+    """
+    from scipy import sparse
+
+    v = np.asarray(vertices, np.float64).copy()
+    t = np.asarray(triangles, np.int64)
+    i = np.concatenate([t[:, 0], t[:, 1], t[:, 2], t[:, 1], t[:, 2], t[:, 0]])
+    j = np.concatenate([t[:, 1], t[:, 2], t[:, 0], t[:, 0], t[:, 1], t[:, 2]])
+    adj = sparse.csr_matrix((np.ones(len(i)), (i, j)), shape=(len(v), len(v)))
+    adj.sum_duplicates()
+    adj.data[:] = 1.0                                   # an edge shared by two triangles counted once
+    deg = np.asarray(adj.sum(axis=1)).ravel()
+    inv = np.divide(1.0, deg, out=np.zeros_like(deg), where=deg > 0)[:, None]
+    for _ in range(int(passes)):
+        for f in (lam, mu):
+            v += f * (adj @ v * inv - v)
+    return v
 
 
 def _signed_volume(mesh: Mesh) -> float:

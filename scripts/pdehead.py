@@ -8,7 +8,7 @@ Examples::
         --spacing 2 1 1 --first-slice superior --patches 10 --out out/cthead.blend \\
         --render out/cthead_surface.png --render-volume out/cthead_volume.png
     python3 scripts/pdehead.py ../shared/data/ct_head_ge_tilt_dicom/dicom --out out/ge.blend
-    python3 scripts/pdehead.py --phantom --no-volume --skull --export out/print   # skin.stl, skull.stl, tissue_depth.csv
+    python3 scripts/pdehead.py --phantom --no-volume --skull --export out/print   # skull.stl, skull_envelope.stl, skin.stl, ...
 
 It runs the SAME Blender operators as the add-on (``bpy.ops.pdehead.*``) in the ``bpy``
 module: the add-on is registered straight from this repository's source (as the package
@@ -77,7 +77,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     f.add_argument("--skull", action="store_true",
                    help="also build the skull (PDE surface + bone mesh) and the skin's tissue-depth map")
     f.add_argument("--export", type=Path, metavar="DIR",
-                   help="with --skull: write skin.stl, skull.stl and tissue_depth.csv (patient mm) into DIR")
+                   help="with --skull: write skull.stl (the bone), skull_envelope.stl (PDE), skin.stl (when the CT has "
+                        "skin), tissue_depth.csv, landmarks.csv and provenance.json (patient mm) into DIR")
     f.add_argument("--export-format", default="stl", choices=["stl", "obj", "ply"], help="mesh format; default stl")
     p.add_argument("--render-samples", type=int, default=16, help="Cycles samples; default 16")
     g = p.add_argument_group("loader options")
@@ -312,12 +313,13 @@ def _steps(args, bpy, addon, state) -> dict:
         info = json.loads(coll.get("pdehead_skull_info", "{}"))
         depth = json.loads(coll.get("pdehead_depth_stats", "{}"))
         print(f"  skull     bone level {info.get('bone_level', 0):.0f} HU, {info.get('patches')} patches, "
-              f"{info.get('bone_triangles', 0)} bone-mesh triangles")
+              f"{info.get('bone_triangles', 0)} bone-skull triangles")
         if "median" in depth:
             print(f"  depth     {depth['measured']} of {depth['vertices']} skin vertices, median {depth['median']:.1f} "
                   f"mm, p95 {depth['p95']:.1f} mm (no bone {depth['no_bone']}, envelope {depth['envelope']})")
         if args.export:
-            print(f"  export    {args.export}/skin.{args.export_format}, skull.{args.export_format}, tissue_depth.csv")
+            written = sorted(p.name for p in args.export.iterdir() if not p.name.startswith("."))
+            print(f"  export    {args.export}: {', '.join(written)}")
     for warning in filter(None, s.warnings.split("; ")):
         print(f"  warning   {warning}")
     print("timings (s):")
