@@ -237,12 +237,24 @@ class PDEHEAD_PT_forensic(Panel):
         layout = self.layout
         coll = state.active_study(context)
         col = layout.column(align=True)
+        s = state.settings(coll)
+        row = col.row(align=True)
+        row.prop(s, "use_bone_level", text="Bone Level")
+        sub = row.row(align=True)
+        sub.active = s.use_bone_level
+        sub.prop(s, "bone_level", text="")
         col.operator(PDEHEAD_OT_build_skull.bl_idname, icon='MESH_UVSPHERE')
         info = json.loads(coll.get(SKULL_INFO_KEY, "{}") or "{}")
         if info:
-            unit = "HU" if info.get("calibrated") else "HU (estimated)"
-            col.label(text=f"Bone level {info['bone_level']:.0f} {unit}, {info['components']} parts, "
-                           f"{info['bone_cm3']:.0f} cm3")
+            stored = info.get("bone_level_stored")
+            level = f"{stored:g} {info.get('units', '')}" if stored is not None else f"{info['bone_level']:.0f} HU"
+            col.label(text=f"Bone level {level}, {info['components']} parts, {info['bone_cm3']:.0f} cm3")
+            mandible = info.get("mandible") or {}
+            if not mandible.get("present", True):
+                col.label(text="No mandible: the face stops at the maxilla", icon='ERROR')
+            elif mandible.get("articulated") is False:
+                col.label(text=f"Mandible not articulated ({mandible.get('condyle_gap_mm', 0):.0f} mm gap)",
+                          icon='ERROR')
         box = layout.box()
         box.operator(PDEHEAD_OT_tissue_depth.bl_idname, icon='MOD_THICKNESS')
         stats = json.loads(coll.get(DEPTH_STATS_KEY, "{}") or "{}")

@@ -151,10 +151,18 @@ def _skull_seg(coll):
     cache = state.cache_for(state.settings(coll).study_id)
     if cache.seg is None:
         study.step_segment(coll)
-    if extra.get("skull_seg") is None or extra.get("skull_seg_of") is not cache.seg:
-        # a new head segmentation (or CT) makes the skull and everything measured on it stale
-        extra.update(skull_seg=segment_skull(study.require_ct(coll), cache.seg), skull_seg_of=cache.seg,
-                     bone_mesh=None, depth=None)
+    s = state.settings(coll)
+    level = float(s.bone_level) if s.use_bone_level else None
+    if extra.get("skull_seg") is None or extra.get("skull_seg_of") is not cache.seg \
+            or extra.get("skull_seg_level") != level:
+        # a new head segmentation (or CT, or bone level) makes the skull and everything measured on it stale
+        if extra.get("skull_seg") is not None and extra.get("skull_seg_level") != level:
+            coll.pop(SKULL_BOUNDARY_KEY, None)          # the stored envelope was of the old level
+        extra.update(skull_seg=segment_skull(study.require_ct(coll), cache.seg, bone_level=level),
+                     skull_seg_of=cache.seg, skull_seg_level=level, bone_mesh=None, skull_mesh=None, depth=None)
+        for w in extra["skull_seg"].meta.get("warnings", []):
+            if w not in s.warnings:
+                s.warnings = "; ".join(filter(None, [s.warnings, w]))
     return extra["skull_seg"]
 
 
@@ -192,7 +200,7 @@ def step_skull(coll, nu: int, nv: int, bone: bool = True, bone_step: int = 1) ->
     info = dict(bone_level=sk.bone_level, calibrated=sk.meta["calibrated"], source=sk.meta["histogram"].get("source"),
                 patches=patches, components=sk.meta["kept_components"], bone_cm3=sk.meta["bone_mm3"] / 1000.0,
                 metal_voxels=sk.meta["metal_voxels"])
-    for key in ("bone_level_stored", "units", "warnings", "mandible"):
+    for key in ("bone_level_stored", "units", "warnings", "mandible", "has_skin", "skull_mesh_file"):
         if key in sk.meta:
             info[key] = sk.meta[key]
     if bone:

@@ -202,3 +202,14 @@ MAX_WFIELD_VOXELS = _param("max_wfield_voxels", 5_000_000, min=1,
 DOWNSAMPLE = _param("downsample", 1, min=1, max=8,
                     description="Average blocks of N x N x N voxels on import (for very large scans: 2 needs "
                                 "about 1/8 of the memory)")
+
+# ----------------------------------------------------------------------------- forensic (issue 22)
+#: The bone level in the scan's stored units (HU where calibrated). Off: the documented rule of
+#: :func:`pdehead_addon.skull.segment_skull` (HU scans: half way between the soft-tissue and bone modes,
+#: 400 HU without them; uncalibrated scans without soft tissue: half way between the air and bone modes).
+USE_BONE_LEVEL = _param("use_bone_level", False,
+                        description="Set the bone level yourself (in the scan's stored units); off: the "
+                                    "documented automatic level")
+BONE_LEVEL = _param("bone_level", 400.0, min=-5000.0, max=100000.0,
+                    description="Bone level in the scan's stored units (HU where calibrated): from this level "
+                                "on, the skull is the bone mask alone")
