@@ -72,6 +72,7 @@ def test_cli_cthead_skull_export(tmp_path, pytestconfig):
                      tmp_path=tmp_path)
     assert result.returncode == 0, result.stderr[-3000:]
     skin, skull, pts, depth = _check_export(out)
+    assert "mandible" not in result.stdout                   # present and articulated: no warning
     assert 120 < np.ptp(skull.vertices[:, 0]) < 170          # a skull in mm (CThead spacing 1 x 1 x 2 mm)
     assert 0.5 < np.isfinite(depth).mean() < 0.95            # neck, ears and orbit rays have no value
     assert 3.0 < np.nanmedian(depth) < 10.0
@@ -85,9 +86,12 @@ def test_cli_ge_skull_export(tmp_path):
                      "--skull", "--export", out, "--export-format", "stl", tmp_path=tmp_path)
     assert result.returncode == 0, result.stderr[-3000:]
     skin, skull, pts, depth = _check_export(out)
+    assert "no mandible found: the face will stop at the maxilla" in result.stdout      # the missing-mandible path
     assert 120 < np.ptp(skull.vertices[:, 0]) < 170 and np.ptp(skull.vertices[:, 0]) < np.ptp(skin.vertices[:, 0])
-    top = pts[:, 2] > pts[:, 2].max() - 60                  # the vault: measured almost everywhere
-    assert np.isfinite(depth[top]).mean() > 0.9 and 3.0 < np.nanmedian(depth[top]) < 10.0
+    top = pts[:, 2] > pts[:, 2].max() - 60                  # the vault: measured on three quarters of it
+    # against the bone skull from the binary bone mask (issue 22): 0.77 measured; the thin vault in the
+    # 4-7 mm tilted slices has slits and sub-level voxels that the old intensity iso-surface bridged (> 0.9)
+    assert np.isfinite(depth[top]).mean() > 0.7 and 3.0 < np.nanmedian(depth[top]) < 10.0
 
 
 def test_forensic_operators_on_the_phantom(pdehead_ext, tmp_path):
