@@ -557,8 +557,7 @@ def skull_mesh(skull: SkullSegmentation, step: int = 1, max_triangles: int = MAX
        surface is closed;
     2. the marching-cubes step grows (1, 2, 3 ...) until the mesh has at most ``max_triangles``;
     3. Taubin lambda/mu smoothing (Taubin 1995: lambda 0.5, mu -0.53) removes the voxel terraces
-       without shrinking the skull (``smoothing_passes``, times ceil(anisotropy / 2) for thick slices);
-       it moves vertices only, so the mesh stays closed.
+       without shrinking the skull; it moves vertices only, so the mesh stays closed.
 
     Parameters
     ----------
@@ -601,11 +600,9 @@ def skull_mesh(skull: SkullSegmentation, step: int = 1, max_triangles: int = MAX
                                 f"more than {max_triangles}")
     faces = faces.astype(np.int64)
     if smoothing_passes:
-        # thick slices leave terraces one slice step high: smooth longer the more anisotropic the voxels
-        # (GE, 4 mm slices of 0.49 mm pixels: 5x; CThead 2 x 1 mm and the phantom: 1x)
-        aniso = max(skull.ct.spacing) / min(skull.ct.spacing)
-        passes = int(smoothing_passes) * max(1, int(np.ceil(aniso / 2.0)))
-        verts = taubin_smooth(verts, faces, passes=passes)
+        # more passes do not remove the terraces of thick slices (GE) but let the two sides of thin slits
+        # meet: coincident vertices, which an STL reader merges into a non-manifold surface
+        verts = taubin_smooth(verts, faces, passes=int(smoothing_passes))
     pts = skull.ct.index_to_patient(verts + origin)
     mesh = Mesh(vertices=pts, quads=np.zeros((0, 4), np.int64), triangles=faces)
     if _signed_volume(mesh) < 0:  # index (k, j, i) -> patient may flip handedness
