@@ -61,10 +61,12 @@ def test_codes_map_to_our_landmarks_and_what_is_not_covered():
     assert missing == ["ac", "gn", "ic", "mmb", "mn", "sc", "ss"]
     assert resolve_landmark("mn") == ["Midnasale"] and resolve_landmark("sCL") == ["Supracanine L"]
     covered = set(t) & ours
-    assert len(covered) == 36 - 11                  # 25 of our 37 points have a table value
-    assert uncovered_landmarks(t) == [
-        "Frontal eminence L", "Frontal eminence R", "Inferior malar L", "Inferior malar R", "Lateral orbit L",
-        "Lateral orbit R", "Supraglenoid L", "Supraglenoid R", "Porion L", "Porion R", "Orbitale L", "Orbitale R"]
+    assert len(covered) >= 36 - 11                  # 25 of the 37 points of issue 12's set have a table value
+    uncovered = uncovered_landmarks(t)              # (more once the set gains Midnasale, Gnathion, ...)
+    assert not set(uncovered) & set(t)
+    assert {"Frontal eminence L", "Frontal eminence R", "Inferior malar L", "Inferior malar R", "Lateral orbit L",
+            "Lateral orbit R", "Supraglenoid L", "Supraglenoid R", "Porion L", "Porion R", "Orbitale L",
+            "Orbitale R"} <= set(uncovered)
     with pytest.raises(PDEHeadError, match="midline landmark"):
         resolve_landmark("pgL")
 
