@@ -18,9 +18,11 @@ from ..pdehead_addon import PDEHeadError
 from ..pdehead_addon.landmarks import STANDARD_LANDMARKS
 from . import ops, state
 from .forensic_study import (DEPTH_ATTRIBUTE, DEPTH_MATERIAL, DEPTH_STATS_KEY, MIRROR_PLANES, SKULL_INFO_KEY, _obj,
-                             apply_frankfurt, export_study, find_landmarks, landmark_flags, landmarks, make_pegs,
-                             mirror_object, place_landmark, skin_engine_mesh, skull_engine_mesh, snap_moved_landmarks,
-                             step_depth, step_skull, world_to_patient)
+                             PEG_DEPTH_PROP, apply_frankfurt, export_study, find_landmarks, flag_names,
+                             forensic_provenance,
+                             landmark_flags, landmarks, make_pegs, mirror_object, place_landmark, skin_engine_mesh,
+                             skull_engine_mesh, snap_moved_landmarks, step_depth, step_skull, study_depth_table,
+                             world_to_patient)
 
 _LANDMARK_ITEMS = [(d.name, d.name, d.description) for d in STANDARD_LANDMARKS]
 
@@ -34,8 +36,9 @@ def _study_or_raise(op, context):
 
 
 # ------------------------------------------------------------------------------------------ operators
-TARGET_ITEMS = [('BONE', "Bone mesh", "Marching-cubes bone surface (all bone detail)"),
-                ('PDE', "PDE skull", "The smooth PDE skull (envelope over orbits and nasal aperture)")]
+TARGET_ITEMS = [('BONE', "Bone skull", "The bone surface: smoothed marching cubes of the bone (skull.<fmt>)"),
+                ('PDE', "PDE envelope", "The smooth PDE skull envelope over orbits and nasal aperture "
+                                        "(skull_envelope.<fmt>)")]
 
 
 class _ForensicOp(ops.StudyOperator):
@@ -49,7 +52,8 @@ class PDEHEAD_OT_build_skull(Operator, _ForensicOp):
     bl_label = "Build Skull"
     nu: IntProperty(name="u Resolution", default=0, min=0, max=2000, description="0: the skin's")
     nv: IntProperty(name="v Resolution", default=0, min=0, max=4000, description="0: the skin's")
-    bone_mesh: BoolProperty(name="Bone Mesh", default=True, description="Also build the marching-cubes bone mesh")
+    bone_mesh: BoolProperty(name="Bone Skull", default=True,
+                            description="Also build the bone skull (smoothed marching cubes of the bone)")
     bone_step: IntProperty(name="Bone Step", default=1, min=1, max=4, description="Marching-cubes step (voxels)")
 
     def execute(self, context):
@@ -158,37 +162,53 @@ class _LandmarkCSVOp(_ForensicOp):
 
 
 class PDEHEAD_OT_import_depth_table(Operator, _LandmarkCSVOp):
-    """Import a depth table (CSV: landmark, depth_mm) and put marker pegs on the skull at the placed landmarks"""
+    """Put marker pegs on the skull at the placed landmarks, their length the depth table's mean (along the
+    bone normal); each peg's length can be set within mean +- 2 SD. The shipped T-Table 2023 or a CSV
+    (landmark,mean_mm[,sd_mm,n] or landmark,depth_mm; our names or Caple & Stephan codes)"""
 
     bl_idname = "pdehead.import_depth_table"
     bl_label = "Import Depth Table"
+    default_table: BoolProperty(name="Default Table", default=False,
+                                description="Use the shipped T-Table 2023 (Hona & Stephan 2024) instead of a file")
+
+    def invoke(self, context, event):
+        if self.default_table:
+            return self.execute(context)
+        return super().invoke(context, event)
 
     def execute(self, context):
         def body():
-            from ..pdehead_addon.landmarks import read_depth_table
+            from ..pdehead_addon.depth_table import default_table, read_depth_table
             coll = _study_or_raise(self, context)
-            pegs = make_pegs(coll, read_depth_table(bpy.path.abspath(self.filepath)), self.target)
-            self.report({'INFO'}, f"{len(pegs)} marker pegs")
+            if self.default_table or not self.filepath:
+                table = default_table()
+            else:
+                table = read_depth_table(bpy.path.abspath(self.filepath))
+            pegs = make_pegs(coll, table, self.target)
+            self.report({'INFO'}, f"{len(pegs)} marker pegs from {table.label}")
         return ops._guarded(self, context, body)
 
 
 class PDEHEAD_OT_export_landmark_depths(Operator, _LandmarkCSVOp):
-    """Export the measured tissue depth at each placed landmark (skull normal to skin) as CSV"""
+    """Export landmarks.csv: each placed landmark (patient mm), its measured tissue depth along the bone normal,
+    the depth table's mean and SD and the flag, with the provenance (software, table, bone level) in its header"""
 
     bl_idname = "pdehead.export_landmark_depths"
     bl_label = "Export Landmark Depths"
-    default_name = "landmark_depths.csv"
+    default_name = "landmarks.csv"
 
     def execute(self, context):
         def body():
-            from ..pdehead_addon.landmarks import landmark_depths, write_landmark_csv
+            from ..pdehead_addon.landmarks import landmark_depths
+            from ..pdehead_addon.depth_table import write_landmark_csv
             coll = _study_or_raise(self, context)
             lms = landmarks(coll)
             if not lms:
                 raise PDEHeadError("no landmarks placed yet")
             depths = landmark_depths(lms, skull_engine_mesh(coll, self.target), skin_engine_mesh(coll))
-            table = json.loads(coll.get("pdehead_depth_table", "{}"))
-            n = write_landmark_csv(bpy.path.abspath(self.filepath), depths, table)
+            table = study_depth_table(coll)
+            n = write_landmark_csv(bpy.path.abspath(self.filepath), depths, table, flag_names(coll),
+                                   provenance=forensic_provenance(coll, table))
             self.report({'INFO'}, f"{n} landmark depths written to {self.filepath}")
         return ops._guarded(self, context, body)
 
@@ -226,13 +246,13 @@ class PDEHEAD_OT_mirror(Operator, _ForensicOp):
 
 
 class PDEHEAD_OT_export_print(Operator, _ForensicOp):
-    """Export watertight skin and skull meshes in mm (STL/OBJ/PLY) and tissue_depth.csv for 3-D printing"""
+    """Export watertight meshes in mm (STL/OBJ/PLY): skull (the bone), skull_envelope (PDE), skin; tissue_depth.csv,
+    landmarks.csv and provenance.json. Builds what it needs first; writes nothing if anything fails"""
 
     bl_idname = "pdehead.export_print"
     bl_label = "Export for Printing"
     directory: StringProperty(subtype='DIR_PATH')
     format: EnumProperty(name="Format", items=[('stl', "STL", ""), ('obj', "OBJ", ""), ('ply', "PLY", "")])
-    bone: BoolProperty(name="Bone Mesh", default=False, description="Also write bone.<format> (marching cubes)")
 
     def invoke(self, context, event):
         context.window_manager.fileselect_add(self)
@@ -240,7 +260,7 @@ class PDEHEAD_OT_export_print(Operator, _ForensicOp):
 
     def execute(self, context):
         def body():
-            files = export_study(_study_or_raise(self, context), self.directory, self.format, self.bone)
+            files = export_study(_study_or_raise(self, context), self.directory, self.format)
             self.report({'INFO'}, "Wrote " + ", ".join(os.path.basename(f) for f in files))
         return ops._guarded(self, context, body)
 
@@ -261,12 +281,24 @@ class PDEHEAD_PT_forensic(Panel):
         layout = self.layout
         coll = state.active_study(context)
         col = layout.column(align=True)
+        s = state.settings(coll)
+        row = col.row(align=True)
+        row.prop(s, "use_bone_level", text="Bone Level")
+        sub = row.row(align=True)
+        sub.active = s.use_bone_level
+        sub.prop(s, "bone_level", text="")
         col.operator(PDEHEAD_OT_build_skull.bl_idname, icon='MESH_UVSPHERE')
         info = json.loads(coll.get(SKULL_INFO_KEY, "{}") or "{}")
         if info:
-            unit = "HU" if info.get("calibrated") else "HU (estimated)"
-            col.label(text=f"Bone level {info['bone_level']:.0f} {unit}, {info['components']} parts, "
-                           f"{info['bone_cm3']:.0f} cm3")
+            stored = info.get("bone_level_stored")
+            level = f"{stored:g} {info.get('units', '')}" if stored is not None else f"{info['bone_level']:.0f} HU"
+            col.label(text=f"Bone level {level}, {info['components']} parts, {info['bone_cm3']:.0f} cm3")
+            mandible = info.get("mandible") or {}
+            if not mandible.get("present", True):
+                col.label(text="No mandible: the face stops at the maxilla", icon='ERROR')
+            elif mandible.get("articulated") is False:
+                col.label(text=f"Mandible not articulated ({mandible.get('condyle_gap_mm', 0):.0f} mm gap)",
+                          icon='ERROR')
         box = layout.box()
         box.operator(PDEHEAD_OT_tissue_depth.bl_idname, icon='MOD_THICKNESS')
         stats = json.loads(coll.get(DEPTH_STATS_KEY, "{}") or "{}")
@@ -307,8 +339,16 @@ class PDEHEAD_PT_forensic(Panel):
             box.label(text=f"{counts['ok']} ok, {counts['uncertain']} uncertain, {counts['not_found']} not found",
                       icon='INFO' if not counts['not_found'] else 'ERROR')
         row = box.row(align=True)
-        row.operator(PDEHEAD_OT_import_depth_table.bl_idname, text="Depth Table", icon='IMPORT')
-        row.operator(PDEHEAD_OT_export_landmark_depths.bl_idname, text="Depths CSV", icon='EXPORT')
+        row.operator(PDEHEAD_OT_import_depth_table.bl_idname, text="Pegs: T-Table 2023",
+                     icon='EMPTY_SINGLE_ARROW').default_table = True
+        row.operator(PDEHEAD_OT_import_depth_table.bl_idname, text="Depth Table...", icon='IMPORT')
+        pegs = [o for o in coll.all_objects if "pdehead_peg" in o and PEG_DEPTH_PROP in o]
+        if pegs:
+            col = box.column(align=True)
+            col.label(text=f"Peg depth (mm), {pegs[0].get('table_name', '')}: mean +- 2 SD")
+            for peg in pegs[:40]:
+                col.prop(peg, f'["{PEG_DEPTH_PROP}"]', text=str(peg["pdehead_peg"]))
+        box.operator(PDEHEAD_OT_export_landmark_depths.bl_idname, text="Landmarks CSV", icon='EXPORT')
         row = box.row(align=True)
         row.operator(PDEHEAD_OT_frankfurt.bl_idname, text="Frankfurt", icon='ORIENTATION_GLOBAL')
         row.operator(PDEHEAD_OT_frankfurt.bl_idname, text="Reset").reset = True

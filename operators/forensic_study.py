@@ -157,29 +157,45 @@ def _skull_seg(coll):
     cache = state.cache_for(state.settings(coll).study_id)
     if cache.seg is None:
         study.step_segment(coll)
-    if extra.get("skull_seg") is None or extra.get("skull_seg_of") is not cache.seg:
-        # a new head segmentation (or CT) makes the skull and everything measured on it stale
-        extra.update(skull_seg=segment_skull(study.require_ct(coll), cache.seg), skull_seg_of=cache.seg,
-                     bone_mesh=None, depth=None)
+    s = state.settings(coll)
+    level = float(s.bone_level) if s.use_bone_level else None
+    if extra.get("skull_seg") is None or extra.get("skull_seg_of") is not cache.seg \
+            or extra.get("skull_seg_level") != level:
+        # a new head segmentation (or CT, or bone level) makes the skull and everything measured on it stale
+        if extra.get("skull_seg") is not None and extra.get("skull_seg_level") != level:
+            coll.pop(SKULL_BOUNDARY_KEY, None)          # the stored envelope was of the old level
+        extra.update(skull_seg=segment_skull(study.require_ct(coll), cache.seg, bone_level=level),
+                     skull_seg_of=cache.seg, skull_seg_level=level, bone_mesh=None, skull_mesh=None, depth=None)
+        for w in extra["skull_seg"].meta.get("warnings", []):
+            if w not in s.warnings:
+                s.warnings = "; ".join(filter(None, [s.warnings, w]))
     return extra["skull_seg"]
 
 
+def _envelope_head(coll):
+    """The PDE skull envelope (boundary set, solved head, t) from the skull segmentation, by the skin's path."""
+    from ..pdehead_addon import extract_boundaries, max_patches, solve_pde
+
+    s = state.settings(coll)
+    sk = _skull_seg(coll)
+    limit = max_patches(sk)
+    if limit < 1:
+        raise PDEHeadError(f"study '{coll.name}': the skull has fewer than 4 usable outlines; no PDE skull envelope")
+    patches = min(int(s.patches), limit)
+    bset = extract_boundaries(sk, patches=patches, samples=int(s.samples), selection=s.selection)
+    return bset, solve_pde(bset), patches
+
+
 def step_skull(coll, nu: int, nv: int, bone: bool = True, bone_step: int = 1) -> None:
-    """Skull as a PDE surface (same path as the skin) and, optionally, the marching-cubes bone mesh."""
-    from ..pdehead_addon import dumps_boundaries, extract_boundaries, max_patches, solve_pde
+    """The bone skull (smoothed marching cubes of the bone: what skull.<fmt> is) and the PDE skull envelope."""
+    from ..pdehead_addon import dumps_boundaries
     from ..pdehead_addon.skull import skull_mesh
     from . import objects
 
-    s = state.settings(coll)
     extra = _cache(coll)
     with state.Timer() as t:
         sk = _skull_seg(coll)
-        limit = max_patches(sk)
-        if limit < 1:
-            raise PDEHeadError(f"study '{coll.name}': the skull has fewer than 4 usable outlines; no PDE skull")
-        patches = min(int(s.patches), limit)
-        bset = extract_boundaries(sk, patches=patches, samples=int(s.samples), selection=s.selection)
-        head = solve_pde(bset)
+        bset, head, patches = _envelope_head(coll)
         mesh = head.surface(int(nu), int(nv), caps=True)
     coll[SKULL_BOUNDARY_KEY] = base64.b64encode(dumps_boundaries(bset)).decode("ascii")
     extra.update(skull_head=head, skull_mesh=mesh, depth=None)
@@ -190,11 +206,14 @@ def step_skull(coll, nu: int, nv: int, bone: bool = True, bone_step: int = 1) ->
     info = dict(bone_level=sk.bone_level, calibrated=sk.meta["calibrated"], source=sk.meta["histogram"].get("source"),
                 patches=patches, components=sk.meta["kept_components"], bone_cm3=sk.meta["bone_mm3"] / 1000.0,
                 metal_voxels=sk.meta["metal_voxels"])
+    for key in ("bone_level_stored", "units", "warnings", "mandible", "has_skin", "skull_mesh_file"):
+        if key in sk.meta:
+            info[key] = sk.meta[key]
     if bone:
         bmesh = skull_mesh(sk, step=int(bone_step))
         extra["bone_mesh"] = bmesh
         bobj = objects.build_mesh_object(bmesh, coll, f"{coll.name} Bone", obj=_obj(coll, "pdehead_bone_object"),
-                                         smooth=False)
+                                         smooth=True)
         bobj["pdehead_kind"] = "bone_mesh"
         _set_material(bobj, _material(BONE_MATERIAL, (0.85, 0.82, 0.72, 1.0)))
         coll["pdehead_bone_object"] = bobj
@@ -204,8 +223,9 @@ def step_skull(coll, nu: int, nv: int, bone: bool = True, bone_step: int = 1) ->
 
 
 def skull_engine_mesh(coll, target: str = "BONE"):
-    """The skull as an engine Mesh (patient mm): the bone mesh or the PDE skull (rebuilt after reopening)."""
-    from ..pdehead_addon import loads_boundaries, solve_pde
+    """The skull as an engine Mesh (patient mm): the bone skull, or the PDE skull envelope (built when
+    missing, rebuilt from the stored curves after reopening)."""
+    from ..pdehead_addon import dumps_boundaries, loads_boundaries, solve_pde
     from ..pdehead_addon.skull import skull_mesh
 
     extra = _cache(coll)
@@ -214,11 +234,13 @@ def skull_engine_mesh(coll, target: str = "BONE"):
             extra["bone_mesh"] = skull_mesh(_skull_seg(coll))
         return extra["bone_mesh"]
     if extra.get("skull_mesh") is None:
-        text = coll.get(SKULL_BOUNDARY_KEY)
-        if not text:
-            raise PDEHeadError(f"study '{coll.name}' has no skull yet: run Build Skull")
-        head = solve_pde(loads_boundaries(base64.b64decode(text)))
         s = state.settings(coll)
+        text = coll.get(SKULL_BOUNDARY_KEY)
+        if text:
+            head = solve_pde(loads_boundaries(base64.b64decode(text)))
+        else:
+            bset, head, _ = _envelope_head(coll)
+            coll[SKULL_BOUNDARY_KEY] = base64.b64encode(dumps_boundaries(bset)).decode("ascii")
         extra["skull_head"], extra["skull_mesh"] = head, head.surface(int(s.nu), int(s.nv), caps=True)
     return extra["skull_mesh"]
 
@@ -423,34 +445,57 @@ def snap_moved_landmarks(coll, target: str = "BONE", tolerance_mm: float = 0.01)
     return [name for _, name, _ in moved]
 
 
-def _cylinder(base: np.ndarray, direction: np.ndarray, length: float, radius: float = 1.0, n: int = 12):
-    """A closed cylinder Mesh (mm) from ``base`` along ``direction``."""
-    from ..pdehead_addon.mesh import Mesh
-    d = direction / np.linalg.norm(direction)
-    a = np.cross(d, [1.0, 0, 0] if abs(d[0]) < 0.9 else [0, 1.0, 0])
-    a /= np.linalg.norm(a)
-    b = np.cross(d, a)
+def _unit_peg_mesh(name: str, radius_mm: float, n: int = 12):
+    """A closed cylinder mesh of radius ``radius_mm`` and length 1 mm along local +Z (Blender metres).
+
+    The peg object scales it along Z by its depth (mm), so one property sets the length."""
     ang = 2 * np.pi * np.arange(n) / n
-    ring = radius * (np.cos(ang)[:, None] * a + np.sin(ang)[:, None] * b)
-    verts = np.concatenate([base + ring, base + length * d + ring, [base, base + length * d]])
+    ring = np.stack([np.cos(ang), np.sin(ang)], 1) * radius_mm * MM_TO_M
+    verts = [(x, y, 0.0) for x, y in ring] + [(x, y, MM_TO_M) for x, y in ring] + [(0, 0, 0), (0, 0, MM_TO_M)]
     i = np.arange(n)
     j = (i + 1) % n
-    quads = np.stack([i, j, n + j, n + i], 1)
-    tris = np.concatenate([np.stack([np.full(n, 2 * n), j, i], 1), np.stack([np.full(n, 2 * n + 1), n + i, n + j], 1)])
-    return Mesh(verts, quads, tris)
+    faces = [(a, b, n + b, n + a) for a, b in zip(i, j)]
+    faces += [(2 * n, b, a) for a, b in zip(i, j)] + [(2 * n + 1, n + a, n + b) for a, b in zip(i, j)]
+    me = bpy.data.meshes.new(name)
+    me.from_pydata(verts, [], [tuple(int(v) for v in f) for f in faces])
+    me.update()
+    return me
 
 
-def make_pegs(coll, table: dict[str, float], target: str = "BONE") -> list:
+#: The custom property of a peg that holds its length (mm); a driver makes it the object's Z scale.
+PEG_DEPTH_PROP = "depth_mm"
+
+
+def _peg_matrix(base_mm: np.ndarray, normal: np.ndarray):
+    """Patient-space (Blender metres) matrix: origin at ``base_mm``, local +Z along ``normal``."""
+    from mathutils import Matrix, Vector
+    rot = Vector(normal.tolist()).to_track_quat('Z', 'Y').to_matrix().to_4x4()
+    return Matrix.Translation(Vector((base_mm * MM_TO_M).tolist())) @ rot
+
+
+def make_pegs(coll, table, target: str = "BONE") -> list:
+    """Marker pegs on the skull at the placed landmarks that ``table`` has.
+
+    Each peg stands on the bone along the bone normal (the depth table's convention) with the table's
+    mean as its length. The length is the peg's custom property ``depth_mm`` (animatable; its slider
+    is limited to the table's mean +- 2 SD), which drives the object's Z scale.
+    """
+    from ..pdehead_addon.depth_table import DepthEntry, DepthTable
     from ..pdehead_addon.landmarks import marker_pegs
-    from . import objects
 
+    if not isinstance(table, DepthTable):     # a plain {name: depth} mapping (no SDs)
+        table = DepthTable(entries={k: DepthEntry(k, float(v)) for k, v in table.items()}, name="imported table")
     lms = landmarks(coll)
     pegs = marker_pegs(lms, skull_engine_mesh(coll, target), table)
     if not pegs:
-        raise PDEHeadError(f"none of the placed landmarks ({', '.join(lms) or 'none'}) is in the depth table")
+        raise PDEHeadError(f"none of the placed landmarks ({', '.join(lms) or 'none'}) is in the depth table "
+                           f"'{table.label}'")
     sub = _sub_collection(coll, "Pegs")
     for o in list(sub.objects):
+        me = o.data
         bpy.data.objects.remove(o)
+        if me is not None and me.users == 0:
+            bpy.data.meshes.remove(me)
     mat = _material(PEG_MATERIAL, (0.95, 0.45, 0.05, 1.0))
     bsdf = mat.node_tree.nodes.get("Principled BSDF")
     bsdf.inputs["Emission Color"].default_value = (0.95, 0.45, 0.05, 1.0)
@@ -458,15 +503,45 @@ def make_pegs(coll, table: dict[str, float], target: str = "BONE") -> list:
     made = []
     frank = _frankfurt(coll)
     for name, base, normal, length in pegs:
-        obj = objects.build_mesh_object(_cylinder(base, normal, length, radius=PEG_RADIUS_MM), sub, f"Peg {name}",
-                                        smooth=False)
+        entry = table.entries[name]
+        obj = bpy.data.objects.new(f"Peg {name}", _unit_peg_mesh(f"Peg {name}", PEG_RADIUS_MM))
+        sub.objects.link(obj)
         obj["pdehead_peg"] = name
-        obj["depth_mm"] = float(length)
+        lo, hi = entry.range_mm(2.0)
+        obj[PEG_DEPTH_PROP] = float(length)
+        ui = obj.id_properties_ui(PEG_DEPTH_PROP)
+        ui.update(min=lo, max=hi, soft_min=lo, soft_max=hi, default=float(length),
+                  description=f"Peg length (mm): {table.label} mean {entry.mean_mm:g} mm"
+                              + (f", settable within mean +- 2 SD ({lo:g}-{hi:g} mm)" if entry.sd_mm else ""))
+        obj["table_mean_mm"] = float(entry.mean_mm)
+        if entry.sd_mm is not None:
+            obj["table_sd_mm"] = float(entry.sd_mm)
+        obj["table_name"] = table.label
         _set_material(obj, mat)
-        obj.matrix_world = frank @ obj.matrix_world
+        obj.matrix_world = frank @ _peg_matrix(base, normal)
+        obj.scale[2] = float(length)
+        drv = obj.driver_add("scale", 2).driver
+        drv.type = 'SCRIPTED'
+        var = drv.variables.new()
+        var.name = "depth"
+        var.type = 'SINGLE_PROP'
+        var.targets[0].id = obj
+        var.targets[0].data_path = f'["{PEG_DEPTH_PROP}"]'
+        drv.expression = "depth"              # a simple expression: evaluated without Python scripts enabled
         made.append(obj)
-    coll["pdehead_depth_table"] = json.dumps(table)
+    coll["pdehead_depth_table"] = table.to_json()
     return made
+
+
+def set_peg_depth(peg, depth_mm: float) -> float:
+    """Set a peg's length (mm), limited to its table's mean +- 2 SD; returns the length set."""
+    mean = float(peg.get("table_mean_mm", peg[PEG_DEPTH_PROP]))
+    sd = peg.get("table_sd_mm")
+    lo, hi = (mean, mean) if sd is None else (max(0.0, mean - 2 * float(sd)), mean + 2 * float(sd))
+    value = float(min(max(float(depth_mm), lo), hi))
+    peg[PEG_DEPTH_PROP] = value
+    peg.scale[2] = value
+    return value
 
 
 def apply_frankfurt(coll, reset: bool = False):
@@ -537,12 +612,66 @@ def mirror_object(coll, obj, source: str = "AUTO"):
     return copy, point, normal, how
 
 
-# ------------------------------------------------------------------------------------------ export
-def export_study(coll, directory: str, fmt: str = "stl", bone: bool = False, depth_target: str = "BONE") -> list[str]:
-    """skin.<fmt>, skull.<fmt> (PDE skull), optional bone.<fmt>, tissue_depth.csv in ``directory``."""
-    from ..pdehead_addon.export import export_mesh
-    from ..pdehead_addon.tissue_depth import write_depth_csv
+# ------------------------------------------------------------------------------------------ provenance
+def study_depth_table(coll):
+    """The study's depth table: the one its pegs came from, else the shipped T-Table 2023."""
+    from ..pdehead_addon.depth_table import DepthTable, default_table
 
+    text = coll.get("pdehead_depth_table")
+    return DepthTable.from_json(text) if text else default_table()
+
+
+def flag_names(coll) -> dict[str, str]:
+    """name -> flag (``ok`` / ``uncertain`` / ``not_found``) for ``landmarks.csv``: :func:`landmark_flags` without
+    the evidence."""
+    return {name: flag for name, (flag, _evidence) in landmark_flags(coll).items()}
+
+
+def forensic_provenance(coll, table=None) -> dict:
+    """Provenance of the study's forensic outputs: software, CT, bone level, depth table, frame."""
+    from ..pdehead_addon.provenance import provenance
+
+    s = state.settings(coll)
+    sk = _skull_seg(coll)
+    m = sk.meta
+    if m.get("skull_mesh_file"):
+        level = f"none (skull from the mesh {m['skull_mesh_file']})"
+    else:
+        stored = m.get("bone_level_stored", sk.bone_level)
+        units = m.get("units", "HU" if m.get("calibrated") else "stored")
+        level = f"{stored:g} {units}" + ("" if units == "HU" else f" ({sk.bone_level:.0f} HU estimated)") \
+            + f", {m.get('bone_level_source', 'histogram rule')}"
+    rec = dict(ct=(s.source or "phantom") if s.source_kind != "PHANTOM" else "built-in phantom",
+               bone_level=level, frame="patient LPS mm of the CT (not Frankfurt-aligned)")
+    if table is not None:
+        rec.update(table.provenance_record() if hasattr(table, "provenance_record") else {"table": "imported table"})
+    return provenance(**rec)
+
+
+def _has_skin(coll) -> bool:
+    """False when the study's CT has no soft tissue to make a skin of (a dry skull, soft tissue removed)."""
+    return bool(_skull_seg(coll).meta.get("has_skin", True))
+
+
+# ------------------------------------------------------------------------------------------ export
+def export_study(coll, directory: str, fmt: str = "stl", depth_target: str = "BONE") -> list[str]:
+    """Export for printing: skull.<fmt> (the bone), skull_envelope.<fmt> (the PDE skull envelope),
+    skin.<fmt> (when the CT has skin), tissue_depth.csv, landmarks.csv and provenance.json.
+
+    Everything is built and checked (watertight, in mm) before the first file is written, into a hidden
+    folder inside ``directory`` whose files are then moved into place: a failure leaves no partial set.
+    """
+    import os
+    import shutil
+    import tempfile
+
+    from ..pdehead_addon.depth_table import write_landmark_csv
+    from ..pdehead_addon.export import FORMATS, export_mesh
+    from ..pdehead_addon.landmarks import landmark_depths, snap_to_surface
+    from ..pdehead_addon.tissue_depth import tissue_depth, write_depth_csv
+
+    if fmt not in FORMATS:
+        raise PDEHeadError(f"unknown mesh format {fmt!r}; use one of {', '.join(FORMATS)}")
     out = Path(bpy.path.abspath(directory)).resolve()
     s = state.settings(coll)
     if s.source_kind == "FILES" and s.source:
@@ -550,17 +679,51 @@ def export_study(coll, directory: str, fmt: str = "stl", bone: bool = False, dep
         src_dir = src if src.is_dir() else src.parent
         if out == src_dir or src_dir in out.parents:
             raise PDEHeadError(f"{out}: will not write into the CT's input folder; choose another folder")
+    # ---- build everything first
+    skull = skull_engine_mesh(coll, "BONE")
+    envelope = skull_engine_mesh(coll, "PDE")
+    meshes = [("skull", skull), ("skull_envelope", envelope)]
+    skin = None
+    if _has_skin(coll):
+        skin = study.pde_head(coll).surface(int(s.nu), int(s.nv), caps=True)
+        meshes.insert(0, ("skin", skin))
+    for name, mesh in meshes:
+        if mesh.face_count == 0 or not mesh.is_watertight():
+            raise PDEHeadError(f"study '{coll.name}': the {name} mesh is not watertight; nothing was written")
+    res = None
+    if skin is not None:
+        res = _cache(coll).get("depth")
+        if res is None or res.points.shape != skin.vertices.shape or not np.allclose(res.points, skin.vertices):
+            res = tissue_depth(skin, skull_engine_mesh(coll, depth_target), envelope=_skull_seg(coll))
+    lms = landmarks(coll)
+    if lms and skin is not None:
+        depths = landmark_depths(lms, skull, skin)
+    elif lms:
+        base, _ = snap_to_surface(np.array(list(lms.values())), skull)
+        depths = {n: (base[i], float("nan")) for i, n in enumerate(lms)}
+    else:
+        depths = {}
+    table = study_depth_table(coll)
+    prov = forensic_provenance(coll, table)
+    # ---- then write: into a hidden folder in the target, moved into place when all are written
     out.mkdir(parents=True, exist_ok=True)
-    head = study.pde_head(coll)
-    skin = head.surface(int(s.nu), int(s.nv), caps=True)
-    written = [export_mesh(skin, out / f"skin.{fmt}", name="skin"),
-               export_mesh(skull_engine_mesh(coll, "PDE"), out / f"skull.{fmt}", name="skull")]
-    if bone:
-        written.append(export_mesh(skull_engine_mesh(coll, "BONE"), out / f"bone.{fmt}", name="bone"))
-    res = _cache(coll).get("depth")
-    if res is None or res.points.shape != skin.vertices.shape or not np.allclose(res.points, skin.vertices):
-        from ..pdehead_addon.tissue_depth import tissue_depth
-        res = tissue_depth(skin, skull_engine_mesh(coll, depth_target), envelope=_skull_seg(coll))
-    write_depth_csv(res, out / "tissue_depth.csv")
-    written.append(str(out / "tissue_depth.csv"))
-    return written
+    tmp = Path(tempfile.mkdtemp(prefix=".pdehead-export-", dir=out))
+    try:
+        names = []
+        for name, mesh in meshes:
+            export_mesh(mesh, tmp / f"{name}.{fmt}", name=name, provenance=prov)
+            names.append(f"{name}.{fmt}")
+        if res is not None:
+            write_depth_csv(res, tmp / "tissue_depth.csv", provenance=prov)
+            names.append("tissue_depth.csv")
+        write_landmark_csv(tmp / "landmarks.csv", depths, table, flag_names(coll), provenance=prov)
+        names.append("landmarks.csv")
+        (tmp / "provenance.json").write_text(json.dumps(dict(prov, files=names), indent=2) + "\n")
+        names.append("provenance.json")
+        for name in names:
+            os.replace(tmp / name, out / name)
+    except OSError as exc:
+        raise PDEHeadError(f"{out}: cannot write the export ({exc.strerror})") from None
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return [str(out / n) for n in names]

@@ -9,8 +9,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import bpy
-from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatVectorProperty, IntProperty,
-                       IntVectorProperty, StringProperty)
+from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProperty, FloatVectorProperty,
+                       IntProperty, IntVectorProperty, StringProperty)
 from bpy.types import OperatorFileListElement
 
 from ..pdehead_addon import CTImportError
@@ -93,6 +93,16 @@ class LoaderOptions:
     series_uid: StringProperty(name="Series UID", default="",
                                description="DICOM: the SeriesInstanceUID to load when the folder "
                                            "holds several series (empty: the only/largest one)")
+    use_bone_level: BoolProperty(name="Set Bone Level", **D.USE_BONE_LEVEL.limits(),
+                                 description=D.USE_BONE_LEVEL.description)
+    bone_level: FloatProperty(name="Bone Level", **D.BONE_LEVEL.limits(), description=D.BONE_LEVEL.description)
+
+    def apply_study_options(self, coll) -> None:
+        """Options of the dialog that belong to the study, not the loader (the forensic bone level)."""
+        s = coll.pdehead
+        s.use_bone_level = bool(self.use_bone_level)
+        if self.use_bone_level:
+            s.bone_level = float(self.bone_level)
 
     def input_path(self) -> Path:
         if self.directory and not self.single_file:
@@ -167,6 +177,11 @@ class LoaderOptions:
             layout.prop(self, "series_uid")
         layout.prop(self, "downsample")
         layout.prop(self, "single_file")
+        row = layout.row(heading="Forensic")
+        row.prop(self, "use_bone_level")
+        sub = row.row()
+        sub.active = self.use_bone_level
+        sub.prop(self, "bone_level", text="")
 
 
 

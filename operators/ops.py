@@ -146,6 +146,7 @@ class PDEHEAD_OT_import_ct(Operator, LoaderOptions):
         def body():
             path = self.input_path()
             coll = study.import_study(context, path, self.loader_options())
+            self.apply_study_options(coll)
             s = state.settings(coll)
             if self.run_pipeline:
                 for step in ("segment", "boundaries", "surface", "solid"):

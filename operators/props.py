@@ -86,6 +86,11 @@ class PDEHeadStudySettings(bpy.types.PropertyGroup):
     value_range: FloatVectorProperty(name="Value Range", size=2, description="Min / max CT value (HU where calibrated)")
     warnings: StringProperty(name="Warnings")
 
+    # Forensic: the bone level (issue 22; also in the import dialog)
+    use_bone_level: BoolProperty(name="Set Bone Level", **D.USE_BONE_LEVEL.limits(),
+                                 description=D.USE_BONE_LEVEL.description)
+    bone_level: FloatProperty(name="Bone Level", **D.BONE_LEVEL.limits(), description=D.BONE_LEVEL.description)
+
     # Segmentation (results, for the panel)
     seg_fraction: FloatProperty(name="Head Fraction", description="Fraction of voxels inside the head mask")
     seg_iterations: IntProperty(name="Iterations")

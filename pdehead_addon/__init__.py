@@ -40,5 +40,6 @@ from .surface_metrics import symmetric_surface_distance
 from .skull import SkullSegmentation, segment_skull, skull_mesh
 from .tissue_depth import TissueDepth, tissue_depth, write_depth_csv
 from .export import export_mesh
+from .depth_table import DepthTable, DepthEntry, read_depth_table, default_table, write_landmark_csv
 
-__version__ = "0.1.0"
+from .provenance import SOFTWARE_VERSION as __version__  # noqa: E402

@@ -216,3 +216,14 @@ FIRST_SLICE_CHOICES = ("auto", "superior", "inferior")
 #: 120 frames: a 5-second orbit at 24 fps, each frame 3 degrees on.
 TURNTABLE_FRAMES = _param("turntable_frames", 120, min=2, max=10000,
                           description="Frames of one camera orbit around the study (the scene's frame range)")
+
+# ----------------------------------------------------------------------------- forensic (issue 22)
+#: The bone level in the scan's stored units (HU where calibrated). Off: the documented rule of
+#: :func:`pdehead_addon.skull.segment_skull` (HU scans: half way between the soft-tissue and bone modes,
+#: 400 HU without them; uncalibrated scans without soft tissue: half way between the air and bone modes).
+USE_BONE_LEVEL = _param("use_bone_level", False,
+                        description="Set the bone level yourself (in the scan's stored units); off: the "
+                                    "documented automatic level")
+BONE_LEVEL = _param("bone_level", 400.0, min=-5000.0, max=100000.0,
+                    description="Bone level in the scan's stored units (HU where calibrated): from this level "
+                                "on, the skull is the bone mask alone")

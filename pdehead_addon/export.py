@@ -16,6 +16,7 @@ import numpy as np
 
 from .errors import PDEHeadError
 from .mesh import Mesh
+from .provenance import provenance_lines, short_provenance
 from .surface_metrics import mesh_triangles
 
 FORMATS = ("stl", "obj", "ply")
@@ -26,8 +27,9 @@ def _triangles(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(v, np.float64), np.asarray(t, np.int64)
 
 
-def write_stl(mesh: Mesh, path: str | os.PathLike, name: str = "pdehead") -> None:
-    """Binary STL (little-endian, float32 mm, facet normals from the winding)."""
+def write_stl(mesh: Mesh, path: str | os.PathLike, name: str = "pdehead", provenance: dict | None = None) -> None:
+    """Binary STL (little-endian, float32 mm, facet normals from the winding); the 80-byte header names
+    the part, the frame and a short provenance (software, bone level, table)."""
     v, t = _triangles(mesh)
     a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
     n = np.cross(b - a, c - a)
@@ -36,18 +38,23 @@ def write_stl(mesh: Mesh, path: str | os.PathLike, name: str = "pdehead") -> Non
     rec = np.zeros(len(t), dtype=[("n", "<f4", 3), ("a", "<f4", 3), ("b", "<f4", 3), ("c", "<f4", 3),
                                   ("attr", "<u2")])
     rec["n"], rec["a"], rec["b"], rec["c"] = n, a, b, c
-    header = f"{name} (patient LPS, mm)".encode("ascii", "replace")[:80].ljust(80, b" ")
+    text = f"{name} (patient LPS, mm)" + (f"; {short_provenance(provenance)}" if provenance else "")
+    header = text.encode("ascii", "replace")[:80].ljust(80, b" ")
+    if header.startswith(b"solid"):            # an ASCII STL marker would confuse readers
+        header = b"_" + header[1:]
     with open(os.fspath(path), "wb") as fh:
         fh.write(header)
         fh.write(struct.pack("<I", len(t)))
         fh.write(rec.tobytes())
 
 
-def write_obj(mesh: Mesh, path: str | os.PathLike, name: str = "pdehead") -> None:
-    """Wavefront OBJ (vertices in mm, 1-based faces; quads kept as quads)."""
+def write_obj(mesh: Mesh, path: str | os.PathLike, name: str = "pdehead", provenance: dict | None = None) -> None:
+    """Wavefront OBJ (vertices in mm, 1-based faces; quads kept as quads); provenance as comments."""
     v = np.asarray(mesh.vertices, np.float64)
     with open(os.fspath(path), "w") as fh:
-        fh.write(f"# {name}: patient LPS millimetres\no {name}\n")
+        fh.write(f"# {name}: patient LPS millimetres\n")
+        fh.write("".join(line + "\n" for line in provenance_lines(provenance)))
+        fh.write(f"o {name}\n")
         np.savetxt(fh, v, fmt="v %.5f %.5f %.5f")
         if len(mesh.quads):
             np.savetxt(fh, mesh.quads + 1, fmt="f %d %d %d %d")
@@ -55,12 +62,13 @@ def write_obj(mesh: Mesh, path: str | os.PathLike, name: str = "pdehead") -> Non
             np.savetxt(fh, mesh.triangles + 1, fmt="f %d %d %d")
 
 
-def write_ply(mesh: Mesh, path: str | os.PathLike, name: str = "pdehead") -> None:
-    """Binary little-endian PLY (float32 vertices in mm, triangle faces)."""
+def write_ply(mesh: Mesh, path: str | os.PathLike, name: str = "pdehead", provenance: dict | None = None) -> None:
+    """Binary little-endian PLY (float32 vertices in mm, triangle faces); provenance as comments."""
     v, t = _triangles(mesh)
     header = ("ply\nformat binary_little_endian 1.0\n"
               f"comment {name}: patient LPS millimetres\n"
-              f"element vertex {len(v)}\nproperty float x\nproperty float y\nproperty float z\n"
+              + "".join(line + "\n" for line in provenance_lines(provenance, prefix="comment "))
+              + f"element vertex {len(v)}\nproperty float x\nproperty float y\nproperty float z\n"
               f"element face {len(t)}\nproperty list uchar int vertex_indices\nend_header\n")
     faces = np.zeros(len(t), dtype=[("n", "u1"), ("i", "<i4", 3)])
     faces["n"] = 3
@@ -75,7 +83,7 @@ _WRITERS = {"stl": write_stl, "obj": write_obj, "ply": write_ply}
 
 
 def export_mesh(mesh: Mesh, path: str | os.PathLike, fmt: str | None = None, name: str = "pdehead",
-                require_watertight: bool = True) -> str:
+                require_watertight: bool = True, provenance: dict | None = None) -> str:
     """Write ``mesh`` as STL, OBJ or PLY (from ``fmt`` or the file extension), in mm.
 
     Raises
@@ -94,7 +102,7 @@ def export_mesh(mesh: Mesh, path: str | os.PathLike, fmt: str | None = None, nam
         raise PDEHeadError(f"{path}: the mesh '{name}' is not watertight (open or inconsistently wound edges); "
                            "build the surface with caps")
     try:
-        _WRITERS[fmt](mesh, path, name)
+        _WRITERS[fmt](mesh, path, name, provenance=provenance)
     except OSError as exc:
         raise PDEHeadError(f"{path}: cannot write ({exc.strerror})") from None
     return path

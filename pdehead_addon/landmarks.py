@@ -9,10 +9,10 @@ operators (:mod:`operators.forensic`) and the tests share it:
   Frankfurt horizontal;
 * :func:`snap_to_surface`: a clicked point onto the nearest point of the skull
   mesh, with the outward surface normal there;
-* :func:`read_depth_table` / :func:`marker_pegs`: a CSV of (landmark, depth mm)
-  to pegs standing on the skull along its normal with those lengths;
-* :func:`landmark_depths` / :func:`write_landmark_csv`: the measured depth
-  (skull to skin along the skull normal) at each placed landmark;
+* :func:`marker_pegs`: a depth table (:mod:`.depth_table`) to pegs standing on
+  the skull along its normal with those lengths;
+* :func:`landmark_depths`: the measured depth (skull to skin along the skull
+  normal) at each placed landmark (written by :func:`.depth_table.write_landmark_csv`);
 * :func:`frankfurt_transform`: the rigid transform that makes the Frankfurt
   plane (porions and orbitales) horizontal with the face toward -y;
 * :func:`midsagittal_plane` / :func:`mirror_matrix`: the plane fitted to
@@ -22,8 +22,6 @@ operators (:mod:`operators.forensic`) and the tests share it:
 """
 from __future__ import annotations
 
-import csv
-import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -162,45 +160,6 @@ def snap_to_surface(points: np.ndarray, mesh: Mesh, chunk: int = 200_000) -> tup
 
 
 # --------------------------------------------------------------------------- depth tables and pegs
-def read_depth_table(path: str | os.PathLike) -> dict[str, float]:
-    """A depth table CSV: ``landmark,depth_mm`` rows (more columns are ignored, ``#`` lines are comments).
-
-    Landmark names are matched to :data:`STANDARD_LANDMARKS` (name or key, case-insensitive).
-
-    Raises
-    ------
-    PDEHeadError
-        Unreadable file, no ``landmark``/``depth_mm`` header, an unknown landmark or a bad
-        depth (naming the file and the line).
-    """
-    path = os.fspath(path)
-    try:
-        with open(path, newline="") as fh:
-            lines = [(i + 1, row) for i, row in enumerate(csv.reader(fh)) if row and not row[0].lstrip().startswith("#")]
-    except OSError as exc:
-        raise PDEHeadError(f"{path}: cannot read the depth table ({exc.strerror})") from None
-    if not lines:
-        raise PDEHeadError(f"{path}: the depth table is empty")
-    header = [h.strip().lower() for h in lines[0][1]]
-    if "landmark" not in header or "depth_mm" not in header:
-        raise PDEHeadError(f"{path}: a depth table needs the columns 'landmark' and 'depth_mm', got {lines[0][1]}")
-    li, di = header.index("landmark"), header.index("depth_mm")
-    table: dict[str, float] = {}
-    for number, row in lines[1:]:
-        try:
-            name = landmark(row[li]).name
-        except (PDEHeadError, IndexError) as exc:
-            raise PDEHeadError(f"{path}, line {number}: {exc}") from None
-        try:
-            depth = float(row[di])
-        except (ValueError, IndexError):
-            raise PDEHeadError(f"{path}, line {number}: depth {row[di:di + 1]} is not a number in mm") from None
-        if not (np.isfinite(depth) and 0 <= depth < 100):
-            raise PDEHeadError(f"{path}, line {number}: depth {depth} mm is outside 0..100 mm")
-        table[name] = depth
-    return table
-
-
 def marker_pegs(landmarks: dict[str, np.ndarray], skull: Mesh, table: dict[str, float]
                 ) -> list[tuple[str, np.ndarray, np.ndarray, float]]:
     """Pegs for the landmarks that the table has: (name, base on the skull, outward unit normal, length mm)."""
@@ -223,23 +182,6 @@ def landmark_depths(landmarks: dict[str, np.ndarray], skull: Mesh, skin: Mesh,
     base, normal = snap_to_surface(np.array([landmarks[n] for n in names]), skull)
     depth = cast_rays(base, normal, skin, max_depth_mm)
     return {n: (base[i], float(depth[i])) for i, n in enumerate(names)}
-
-
-def write_landmark_csv(path: str | os.PathLike, depths: dict[str, tuple[np.ndarray, float]],
-                       table: dict[str, float] | None = None) -> int:
-    """``landmark,x_mm,y_mm,z_mm,depth_mm,table_mm`` per landmark (empty where unknown); returns rows."""
-    path = os.fspath(path)
-    try:
-        with open(path, "w", newline="") as fh:
-            w = csv.writer(fh)
-            w.writerow(["landmark", "x_mm", "y_mm", "z_mm", "depth_mm", "table_mm"])
-            for name, (p, d) in depths.items():
-                ref = (table or {}).get(name)
-                w.writerow([name, *(f"{c:.3f}" for c in p), "" if not np.isfinite(d) else f"{d:.3f}",
-                            "" if ref is None else f"{ref:g}"])
-    except OSError as exc:
-        raise PDEHeadError(f"{path}: cannot write ({exc.strerror})") from None
-    return len(depths)
 
 
 # --------------------------------------------------------------------------- orientation

@@ -85,11 +85,14 @@ class SkullSegmentation(Segmentation):
         The bone kept (cranium, mandible, ...), enclosed cavities filled, metal removed.
     hu : ndarray of float32
         The intensities in (pseudo-)HU the levels refer to.
+    mandible : ndarray of bool or None
+        The mandible's voxels (part of ``bone``) when one was found.
     bone_level, metal_level : float
         HU levels used (bone: the iso-level of :func:`skull_mesh`).
     """
 
     bone: np.ndarray | None = None
+    mandible: np.ndarray | None = None
     hu: np.ndarray | None = None
     bone_level: float = DEFAULT_BONE_HU
     metal_level: float = METAL_HU
@@ -111,7 +114,7 @@ def hounsfield(ct: CTVolume, window: tuple[float, float] | None = None) -> tuple
     return hu, False
 
 
-def bone_level(hu: np.ndarray, head: np.ndarray | None = None, bins_hu: float = 10.0) -> tuple[float, dict]:
+def bone_level_rule(hu: np.ndarray, head: np.ndarray | None = None, bins_hu: float = 10.0) -> tuple[float, dict]:
     """The bone iso-level (HU) from the histogram of the head: half way between soft tissue and bone.
 
     Parameters
@@ -156,16 +159,102 @@ def bone_level(hu: np.ndarray, head: np.ndarray | None = None, bins_hu: float = 
     return float(min(max(level, lo), hi)), info
 
 
-def _metal_level(ct: CTVolume, hu: np.ndarray, calibrated: bool) -> float:
-    """METAL_HU, or lower where the scanner saturated (a spike of equal values at the top of the range)."""
-    level = METAL_HU
-    if not calibrated:
-        top = float(ct.data.max())
-        span = top - float(ct.data.min())
-        near_top = ct.data >= np.float32(top - 0.005 * span)
-        if np.count_nonzero(near_top) > 1e-5 * ct.data.size:
-            level = min(level, float(hu[near_top].min()))
-    return level
+#: The histogram rule, under its old name.
+bone_level = bone_level_rule
+
+
+def _metal_level_stored(ct: CTVolume, calibrated: bool) -> float:
+    """Metal level in stored units: METAL_HU, or (uncalibrated) the scanner's saturation spike at the top.
+
+    Computed from the top of the value range only, so removing everything below the bone level does not
+    change it."""
+    if calibrated:
+        return METAL_HU
+    top = float(ct.data.max())
+    span = top - float(ct.data.min())
+    near_top = ct.data >= np.float32(top - 0.005 * span)
+    if np.count_nonzero(near_top) > 1e-5 * ct.data.size:
+        return float(top - 0.005 * span)
+    return np.inf
+
+
+def soft_tissue_present(data: np.ndarray, split: float | None = None) -> tuple[bool, dict]:
+    """Whether the scan has soft tissue around the bone (a head CT) or is a skull alone (a dry skull, or soft
+    tissue removed).
+
+    Rule: the non-air voxels (above the histogram's air/rest split, :func:`_air_split`) are filled per axial
+    slice; a head is solid (filled / non-air about 1.0-1.1), a skull is a shell around an empty braincase
+    (2 and more). Soft tissue is present when the ratio is below ``SKULL_ONLY_FILL_RATIO``.
+    """
+    split = _air_split(data) if split is None else split
+    solid = data > np.float32(split)
+    n = int(np.count_nonzero(solid))
+    if n == 0:
+        return False, {"fill_ratio": None, "air_split": split}
+    filled = n + _enclosed_per_slice(solid)
+    ratio = filled / n
+    return bool(ratio < SKULL_ONLY_FILL_RATIO), {"fill_ratio": round(ratio, 3), "air_split": split}
+
+
+def _enclosed_per_slice(solid: np.ndarray) -> int:
+    """Number of voxels not in ``solid`` that no in-slice path connects to the slice's border (holes)."""
+    in_plane = np.zeros((3, 3, 3), bool)
+    in_plane[1] = ndi.generate_binary_structure(2, 1)
+    labels, n = ndi.label(~solid, structure=in_plane)
+    border = np.zeros(n + 1, bool)
+    for edge in (labels[:, 0, :], labels[:, -1, :], labels[:, :, 0], labels[:, :, -1]):
+        border[np.unique(edge)] = True
+    border[0] = True
+    return int(np.count_nonzero(~border[labels]))
+
+
+def _air_split(data: np.ndarray) -> float:
+    """Otsu's split of the histogram (of a subsample): air below, everything else above."""
+    from skimage.filters import threshold_otsu
+    sample = data.reshape(-1)[:: max(1, data.size // 2_000_000)]
+    return float(threshold_otsu(sample[np.isfinite(sample)]))
+
+
+#: A scan whose non-air voxels, filled per slice, grow by more than this factor is a skull without soft tissue.
+SKULL_ONLY_FILL_RATIO = 1.5
+
+
+def air_bone_level(data: np.ndarray, split: float | None = None, bins: int = 256) -> tuple[float, dict]:
+    """Bone level (stored units) of a scan without soft tissue: half way between the air and bone modes.
+
+    The 50 % partial-volume level of an air/bone interface. The modes are the histogram maxima below and
+    above Otsu's split (:func:`_air_split`); needs no soft-tissue mode, and no calibration.
+    """
+    split = _air_split(data) if split is None else split
+    sample = data.reshape(-1)[:: max(1, data.size // 4_000_000)]
+    sample = sample[np.isfinite(sample)]
+    out = {}
+    for name, part in (("air_mode", sample[sample <= split]), ("bone_mode", sample[sample > split])):
+        if part.size == 0:
+            raise SegmentationError("the scan has no air/bone contrast to find a bone level from")
+        hist, edges = np.histogram(part, bins=bins)
+        smooth = ndi.gaussian_filter1d(hist.astype(np.float64), 2.0)
+        k = int(np.argmax(smooth))
+        out[name] = float(0.5 * (edges[k] + edges[k + 1]))
+    level = 0.5 * (out["air_mode"] + out["bone_mode"])
+    out.update(source="air/bone rule", split=split)
+    return float(level), out
+
+
+def _to_stored(value_hu: float, calibrated: bool, window) -> float:
+    if calibrated:
+        return float(value_hu)
+    low, high = float(window[0]), float(window[1])
+    return float(low + (value_hu - AIR_HU) * (high - low) / (TISSUE_HU - AIR_HU))
+
+
+def _to_hu(value: float, calibrated: bool, window) -> float | None:
+    if calibrated:
+        return float(value)
+    if window is None:
+        return None
+    low, high = float(window[0]), float(window[1])
+    return float(AIR_HU + (value - low) * (TISSUE_HU - AIR_HU) / (high - low))
 
 
 def _vertebra_components(labels: np.ndarray, centroids_xyz: np.ndarray, cranium: int, ct: CTVolume) -> np.ndarray:
@@ -182,60 +271,166 @@ def _vertebra_components(labels: np.ndarray, centroids_xyz: np.ndarray, cranium:
     return (centroids_xyz[:, 2] < base) & (centroids_xyz[:, 1] > cranium_y - VERTEBRA_FRONT_MM)
 
 
+#: Bone components outside the cranium's box grown by this (mm; x and y; and below it by
+#: MANDIBLE_BELOW_MM) are supports, table, holders or loose fragments, not skull.
+SUPPORT_MARGIN_MM = 10.0
+#: ... or reaching beyond that box by more than this (mm).
+SUPPORT_REACH_MM = 20.0
+MANDIBLE_BELOW_MM = 90.0
+#: A separate component of at least this volume (mm^3), below the cranium's centre and in front of it, is
+#: the mandible (phantom 40 cm^3, CThead 60 cm^3; loose teeth and the hyoid are far smaller).
+MANDIBLE_MIN_MM3 = 8000.0
+#: The mandible is articulated when its condyles (its top 15 % of height behind its centre) lie within
+#: this distance (mm) of the cranium (the glenoid fossae; measured on the bone eroded by one voxel: CThead,
+#: articulated, 6.7 mm); a dry mandible set apart lies farther.
+ARTICULATED_GAP_MM = 12.0
+
+
+def _box_mm(ct: CTVolume, box) -> np.ndarray:
+    """(2, 3) patient min/max corners (x, y, z) of an index box (slices k, j, i)."""
+    corners = np.array([[s.start for s in box], [s.stop - 1 for s in box]], float)
+    kji = np.array(np.meshgrid(*corners.T, indexing="ij")).reshape(3, -1).T
+    xyz = ct.index_to_patient(kji)
+    return np.stack([xyz.min(0), xyz.max(0)])
+
+
+def _mandible_report(core_labels, keep, sizes, centroids_xyz, cranium: int, ct: CTVolume, voxel_mm3: float,
+                     crbox: np.ndarray, boxes) -> dict:
+    """The mandible: found (a separate component below and in front of the cranium) and articulated."""
+    cc = centroids_xyz[cranium - 1]
+    cand = [i for i in np.flatnonzero(keep) if i != cranium - 1 and sizes[i] * voxel_mm3 >= MANDIBLE_MIN_MM3
+            and centroids_xyz[i, 2] < cc[2] and centroids_xyz[i, 1] < cc[1]
+            and centroids_xyz[i, 2] < crbox[0, 2] + 0.5 * (crbox[1, 2] - crbox[0, 2])]
+    if not cand:
+        return {"present": False, "articulated": None}
+    m = max(cand, key=lambda i: sizes[i])
+    # work in the mandible's box grown by 3 * the articulation gap (the distance beyond it does not matter)
+    pad = np.ceil(3 * ARTICULATED_GAP_MM / np.asarray(ct.spacing)).astype(int)
+    box = tuple(slice(max(0, b.start - p), min(n, b.stop + p)) for b, p, n in zip(boxes[m], pad, ct.shape))
+    sub = core_labels[box]
+    offset = np.array([b.start for b in box])
+    kji = np.argwhere(sub == m + 1)
+    xyz = ct.index_to_patient((kji + offset).astype(float))
+    ztop = xyz[:, 2].max() - 0.15 * np.ptp(xyz[:, 2])
+    condyles = (xyz[:, 2] >= ztop) & (xyz[:, 1] > np.median(xyz[:, 1]))
+    if not condyles.any():
+        condyles = xyz[:, 2] >= ztop
+    if not (sub == cranium).any():
+        return {"present": True, "articulated": False, "condyle_gap_mm": float(3 * ARTICULATED_GAP_MM),
+                "volume_mm3": float(sizes[m] * voxel_mm3), "component": int(m + 1),
+                "centroid_mm": [round(float(c), 1) for c in centroids_xyz[m]]}
+    dist = ndi.distance_transform_edt(sub != cranium, sampling=ct.spacing)
+    pts = kji[condyles]
+    # the nearest condyle voxel on each side of the mandible's centre
+    x = xyz[condyles, 0]
+    mid = float(np.median(xyz[:, 0]))
+    gaps = [float(dist[tuple(pts[side].T)].min()) for side in (x < mid, x >= mid) if side.any()]
+    gap = max(gaps) if gaps else float("inf")
+    return {"present": True, "articulated": bool(gap <= ARTICULATED_GAP_MM), "condyle_gap_mm": round(gap, 1),
+            "volume_mm3": float(sizes[m] * voxel_mm3), "component": int(m + 1),
+            "centroid_mm": [round(float(c), 1) for c in centroids_xyz[m]]}
+
+
 def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: float | None = None,
-                  min_component_mm3: float = MIN_COMPONENT_MM3) -> SkullSegmentation:
-    """Segment the skull (cranium, facial skeleton, mandible) from a head CT.
+                  bone_level: float | None = None, min_component_mm3: float = MIN_COMPONENT_MM3) -> SkullSegmentation:
+    """Segment the skull (cranium, facial skeleton, mandible) from a head CT, or from a skull alone.
+
+    From the bone level on, the skull comes from the binary bone mask ``ct.data >= level`` alone (in the
+    scan's stored units): a CT and the same CT with every voxel below the level set to air give the same
+    skull. Soft tissue, when there is any, only serves to find the default level.
+
+    The level (stored units; :data:`DEFAULT_BONE_HU` and the rules below are documented in the README):
+
+    * ``bone_level`` given (``--bone-level``): that;
+    * HU-calibrated scans: half way between the soft-tissue mode and the bone mode of the head's histogram
+      (the 50 % partial-volume level), kept within ``BONE_LEVEL_RANGE_HU``; ``DEFAULT_BONE_HU`` when the
+      bone has no mode of its own or there is no soft tissue (:func:`soft_tissue_present`);
+    * uncalibrated scans with soft tissue: the same rule on the pseudo-HU scale (air and soft-tissue modes
+      mapped to -1000 / +40 HU), converted back to stored units;
+    * uncalibrated scans without soft tissue: :func:`air_bone_level` (half way between the air and the
+      bone modes).
+
+    Then: metal removed (above ``METAL_HU`` or the saturation spike); components of the bone eroded by
+    one voxel (26-connected); the largest is the cranium; the others are kept when at least
+    ``min_component_mm3``, not a cervical vertebra, and inside the cranium's box grown by
+    ``SUPPORT_MARGIN_MM`` (below it by ``MANDIBLE_BELOW_MM``): supports, foam, the table, holders and loose
+    fragments lie outside or are small. The mandible is reported (``meta["mandible"]``: present,
+    articulated, the condyle gap), with a warning when it is missing or not articulated.
 
     Parameters
     ----------
     ct : CTVolume
     head : Segmentation, optional
-        The head segmentation of the same CT (:func:`~.segmentation.segment_head`);
-        computed when not given. Bone outside its mask (holders, table) is ignored.
+        The head segmentation of the same CT (its window and mask give the default level).
     level : float, optional
-        Bone level in HU (pseudo-HU for uncalibrated scans); default :func:`bone_level`.
+        Bone level in HU (pseudo-HU for uncalibrated scans).
+    bone_level : float, optional
+        Bone level in the scan's stored units (overrides ``level``).
     min_component_mm3 : float
         Smaller bone fragments are dropped.
 
     Returns
     -------
     SkullSegmentation
-        ``mask`` = envelope (for :func:`~.boundaries.extract_boundaries`), ``bone``,
-        ``hu``, ``bone_level``, ``metal_level``; ``meta`` with the levels, the
-        histogram modes, the components kept and dropped and their volumes (mm^3).
+        ``mask`` = envelope (for :func:`~.boundaries.extract_boundaries`), ``bone``, ``hu``,
+        ``bone_level`` (HU, estimated for uncalibrated scans), ``metal_level``; ``meta`` with the stored
+        level and its source, ``has_skin``, the components kept and dropped, ``mandible`` and ``warnings``.
 
     Raises
     ------
     SegmentationError
-        Not a CTVolume, MR data, no bone above the level inside the head.
+        Not a CTVolume, MR data, no bone above the level.
     """
     if not isinstance(ct, CTVolume):
         raise SegmentationError(f"segment_skull needs a CTVolume, got {type(ct).__name__}")
     if str(ct.meta.get("modality", "")).upper() in ("MR", "MRI"):
         raise SegmentationError(f"{ct.meta.get('source', 'this scan')}: bone is dark in MRI; the skull needs a CT")
-    if head is None:
-        head = segment_head(ct)
-    if head.mask.shape != ct.shape:
+    if head is not None and head.mask.shape != ct.shape:
         raise SegmentationError(f"head mask shape {head.mask.shape} != CT shape {ct.shape}")
-    window = head.meta.get("window")
-    hu, calibrated = hounsfield(ct, tuple(window) if window else None)
-    head_mask = head.mask
+    calibrated = str(ct.meta.get("units", "")).upper() == "HU"
+    has_skin, skin_info = soft_tissue_present(ct.data)
+    if ct.meta.get("skull_mesh") is not None:          # a skull given as a mesh (mesh_input): no skin
+        has_skin = False
+    window = tuple(head.meta["window"]) if head is not None and head.meta.get("window") else None
+    if window is None and has_skin and not calibrated:
+        window = auto_window(ct.data)
     info: dict[str, Any] = {}
-    if level is None:
-        level, info = bone_level(hu, head_mask)
-    level = float(level)
-    metal_level = _metal_level(ct, hu, calibrated)
+    units = "HU" if calibrated else "stored"
+    if bone_level is not None:
+        stored = float(bone_level)
+        info = {"source": "given (--bone-level)"}
+    elif level is not None:
+        if not calibrated and window is None:
+            raise SegmentationError("a bone level in HU needs soft tissue to calibrate an uncalibrated scan; "
+                                    "give it in stored units (--bone-level)")
+        stored = _to_stored(level, calibrated, window)
+        info = {"source": "given (HU)"}
+    elif has_skin:
+        if head is None:
+            head = segment_head(ct)
+            window = window or tuple(head.meta["window"])
+        hu_all, _ = hounsfield(ct, window)
+        level_hu, info = bone_level_rule(hu_all, head.mask)
+        del hu_all
+        stored = _to_stored(level_hu, calibrated, window)
+    elif calibrated:
+        stored, info = DEFAULT_BONE_HU, {"source": "default (no soft tissue)"}
+    else:
+        stored, info = air_bone_level(ct.data, skin_info["air_split"])
+    level_hu = _to_hu(stored, calibrated, window)
+    metal_stored = _metal_level_stored(ct, calibrated)
     dz, dy, dx = ct.spacing
     voxel_mm3 = dz * dy * dx
 
-    metal = hu >= np.float32(metal_level)
+    metal = ct.data >= np.float32(metal_stored) if np.isfinite(metal_stored) else np.zeros(ct.shape, bool)
     n_metal = int(np.count_nonzero(metal))
     if n_metal:
         metal = ndi.binary_dilation(metal, structure=ndi.generate_binary_structure(3, 1))
-    bone = (hu >= np.float32(level)) & head_mask & ~metal
+    bone = (ct.data >= np.float32(stored)) & ~metal
+    del metal
     if not bone.any():
-        raise SegmentationError(f"{ct.meta.get('source', 'the CT')}: nothing inside the head is above the bone "
-                                f"level {level:.0f} HU")
+        raise SegmentationError(f"{ct.meta.get('source', 'the CT')}: nothing is above the bone level {stored:g} "
+                                f"({units})")
     # components on the bone eroded by one voxel: joints and tooth contacts at partial volume
     # (atlanto-occipital, TMJ, closed bite) join the vertebrae or the mandible to the cranium at the
     # bone level; one voxel of erosion separates them (CThead), thicker bone stays whole
@@ -246,43 +441,76 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
         core = bone
     labels, n = ndi.label(core, structure=full)
     sizes = np.bincount(labels.reshape(-1), minlength=n + 1)[1:]
-    cranium = int(np.argmax(sizes)) + 1
+    boxes = ndi.find_objects(labels)
+    # the cranium: the largest component clear of the scan's side borders (a table or a holder running
+    # out of the field of view can be larger; the eroded core stops a voxel short of the border); the
+    # largest of all when every one touches them
+    _, ny, nx = ct.shape
+    clear = np.array([b[1].start > 1 and b[2].start > 1 and b[1].stop < ny - 1 and b[2].stop < nx - 1 for b in boxes])
+    cranium = int(np.argmax(np.where(clear, sizes, -1) if clear.any() else sizes)) + 1
     centroids = np.array(ndi.center_of_mass(core, labels, np.arange(1, n + 1))).reshape(n, 3)
     centroids_xyz = ct.index_to_patient(centroids)
     big = sizes * voxel_mm3 >= float(min_component_mm3)
     vertebra = _vertebra_components(labels, centroids_xyz, cranium, ct) & big
     vertebra[cranium - 1] = False
-    keep = big & ~vertebra
+    # supports, table, holders: outside the cranium's box (grown by a margin, and downward for the mandible)
+    crbox = _box_mm(ct, boxes[cranium - 1])
+    lo = crbox[0] - [SUPPORT_MARGIN_MM, SUPPORT_MARGIN_MM, MANDIBLE_BELOW_MM]
+    hi = crbox[1] + SUPPORT_MARGIN_MM
+    outside = np.zeros(n, bool)
+    for i in np.flatnonzero(big & ~vertebra):
+        b = _box_mm(ct, boxes[i])
+        c = centroids_xyz[i]
+        # the centre outside the grown box, or reaching far beyond it (a table, a holder's arc)
+        outside[i] = bool(np.any(c < lo) or np.any(c > hi) or np.any(b[0] < lo - SUPPORT_REACH_MM)
+                          or np.any(b[1] > hi + SUPPORT_REACH_MM))
+    outside[cranium - 1] = False
+    keep = big & ~vertebra & ~outside
     keep[cranium - 1] = True
+    mandible = _mandible_report(labels, keep, sizes, centroids_xyz, cranium, ct, voxel_mm3, crbox, boxes)
     # give the eroded rim back to the component it came from (a few constrained label dilations)
     grown = labels
     for _ in range(3):
         spread = ndi.grey_dilation(grown, footprint=full)
         grown = np.where(bone & (grown == 0), spread, grown)
-    dropped = bone & np.concatenate([[False], vertebra])[grown]
+    dropped = bone & np.concatenate([[False], vertebra | outside])[grown]
+    dropped_vertebra = int(np.count_nonzero(dropped & np.concatenate([[False], vertebra])[grown]))
+    dropped_support = int(np.count_nonzero(dropped)) - dropped_vertebra
     rest, m = ndi.label(bone & ~dropped, structure=full)
     holds_kept = np.unique(rest[np.concatenate([[False], keep])[grown] & (rest > 0)])
     skull = np.isin(rest, holds_kept[holds_kept > 0])
+    mandible_mask = (skull & (grown == mandible["component"])) if mandible["present"] else None
     del labels, grown, rest, core
     skull = ndi.binary_fill_holes(skull)
     envelope = _envelope(skull)
 
+    warnings_: list[str] = []
+    if not mandible["present"]:
+        warnings_.append("no mandible found: the face will stop at the maxilla")
+    elif not mandible["articulated"]:
+        warnings_.append(f"the mandible is not articulated (its condyles lie {mandible['condyle_gap_mm']:.0f} mm "
+                         "from the glenoid fossae): articulate it before approximating the face")
+    hu = hounsfield(ct, window)[0] if (calibrated or window is not None) else ct.data
     order = np.argsort(sizes)[::-1]
     components = [dict(label=int(i + 1), volume_mm3=float(sizes[i] * voxel_mm3),
                        centroid_mm=[round(float(c), 1) for c in centroids_xyz[i]],
-                       kept=bool(keep[i]), vertebra=bool(vertebra[i])) for i in order[:12]]
-    meta = dict(mode="skull", bone_level=level, metal_level=metal_level, calibrated=calibrated,
-                histogram=info, metal_voxels=n_metal, 
+                       kept=bool(keep[i]), vertebra=bool(vertebra[i]), support=bool(outside[i])) for i in order[:12]]
+    meta = dict(mode="skull", bone_level=level_hu, skull_mesh_file=ct.meta.get("skull_mesh_file"), bone_level_stored=float(stored), units=units,
+                bone_level_source=info.get("source", ""), metal_level=metal_stored, calibrated=calibrated,
+                histogram=info, has_skin=has_skin, soft_tissue=skin_info, metal_voxels=n_metal,
                 components=components, components_total=int(n),
                 kept_components=int(np.count_nonzero(keep)),
-                dropped_vertebra_mm3=float(np.count_nonzero(dropped) * voxel_mm3),
+                dropped_vertebra_mm3=float(dropped_vertebra * voxel_mm3),
+                dropped_support_mm3=float(dropped_support * voxel_mm3),
                 dropped_small_mm3=float(sizes[~big].sum() * voxel_mm3),
-                bone_mm3=float(np.count_nonzero(skull) * voxel_mm3),
-                window=head.meta.get("window"))
-    return SkullSegmentation(mask=envelope, probability=envelope.astype(np.float32), c1=float(level),
-                             c2=float(info.get("tissue_mode", TISSUE_HU) if info else TISSUE_HU),
-                             iterations=0, ct=ct, meta=meta, bone=skull, hu=hu, bone_level=level,
-                             metal_level=metal_level)
+                bone_mm3=float(np.count_nonzero(skull) * voxel_mm3), mandible=mandible, warnings=warnings_,
+                window=list(window) if window is not None else None)
+    level_report = level_hu if level_hu is not None else float(stored)
+    return SkullSegmentation(mask=envelope, probability=envelope.astype(np.float32), c1=float(level_report),
+                             c2=float(info.get("tissue_mode", TISSUE_HU) or TISSUE_HU),
+                             iterations=0, ct=ct, meta=meta, bone=skull, mandible=mandible_mask, hu=hu,
+                             bone_level=float(level_report),
+                             metal_level=metal_stored)
 
 
 def _envelope(bone: np.ndarray) -> np.ndarray:
@@ -306,20 +534,40 @@ def _envelope(bone: np.ndarray) -> np.ndarray:
     return out
 
 
-def skull_mesh(skull: SkullSegmentation, step: int = 1) -> Mesh:
-    """Marching-cubes mesh of the bone at the bone level (the detail the PDE skull does not keep).
+#: Largest triangle count of the bone skull (:func:`skull_mesh`): printable, and light enough for Blender.
+MAX_SKULL_TRIANGLES = 500_000
+#: Gaussian blur (voxels) of the binary bone mask before marching cubes: sub-voxel, stair-free edges.
+SKULL_MASK_SIGMA = 1.0
+#: Taubin smoothing passes of the bone skull (lambda/mu: smooths without shrinking).
+SKULL_SMOOTHING_PASSES = 10
 
-    The iso-surface of the (pseudo-)HU volume at ``skull.bone_level``, restricted
-    to the kept bone: outside the kept components (holders, vertebrae, metal) the
-    field is held below the level and inside filled cavities above it, so the
-    surface has sub-voxel accuracy where it follows real bone and is closed
-    everywhere (the field is padded with a below-level border).
+
+def skull_mesh(skull: SkullSegmentation, step: int = 1, max_triangles: int = MAX_SKULL_TRIANGLES,
+               smoothing_passes: int = SKULL_SMOOTHING_PASSES) -> Mesh:
+    """The bone skull: smoothed marching cubes of the binary bone mask, watertight, in patient mm.
+
+    What ``skull.<fmt>`` is: the bone surface a practitioner can peg and print, with the orbits, the
+    nasal aperture and the zygomatic arches open as they are in bone (the PDE skull envelope of
+    :func:`segment_skull`'s ``mask`` closes over them). From the bone level on it depends on the
+    binary mask ``skull.bone`` alone, not on the intensities: a CT and the same CT with every voxel
+    below the level set to air give the same skull.
+
+    1. the bone mask (kept components, cavities filled) is blurred by a Gaussian of
+       ``SKULL_MASK_SIGMA`` voxels and meshed at 0.5 by marching cubes (Lewiner), padded so the
+       surface is closed;
+    2. the marching-cubes step grows (1, 2, 3 ...) until the mesh has at most ``max_triangles``;
+    3. Taubin lambda/mu smoothing (Taubin 1995: lambda 0.5, mu -0.53) removes the voxel terraces
+       without shrinking the skull; it moves vertices only, so the mesh stays closed.
 
     Parameters
     ----------
     skull : SkullSegmentation
     step : int
-        Marching-cubes step in voxels (2 quarters the triangle count).
+        Smallest marching-cubes step in voxels.
+    max_triangles : int
+        Triangle budget (default 500k).
+    smoothing_passes : int
+        Taubin passes (0: none).
 
     Returns
     -------
@@ -328,34 +576,63 @@ def skull_mesh(skull: SkullSegmentation, step: int = 1) -> Mesh:
     """
     from skimage.measure import marching_cubes
 
-    if skull.bone is None or skull.hu is None:
-        raise SegmentationError("skull_mesh needs the result of segment_skull (bone and hu)")
+    given = skull.ct.meta.get("skull_mesh") if skull.ct is not None else None
+    if isinstance(given, Mesh) and len(given.triangles) <= max_triangles:
+        return given                                   # the skull given as a mesh is the skull itself
+    if skull.bone is None:
+        raise SegmentationError("skull_mesh needs the result of segment_skull (the bone mask)")
     bone = skull.bone
     box = ndi.find_objects(bone.astype(np.uint8))
     if not box or box[0] is None:
         raise SegmentationError("the skull segmentation has no bone")
     box = tuple(slice(max(0, s.start - 2), s.stop + 2) for s in box[0])
-    level = np.float32(skull.bone_level)
-    b = bone[box]
-    near = ndi.binary_dilation(b, structure=np.ones((3, 3, 3), bool))
-    field = skull.hu[box].astype(np.float32, copy=True)
-    field[~near] = np.minimum(field[~near], level - 1.0)                 # dropped bone is not surfaced
-    fill = b & (field < level)
-    field[fill] = level + 1.0                                            # filled cavities stay inside
-    # voxels next to kept bone but belonging to dropped bone (or metal) must stay below the level too
-    outside = near & ~b & (field >= level)
-    field[outside] = level - 1.0
-    field = np.pad(field, 1, constant_values=float(level) - 1000.0)
-    dz, dy, dx = skull.ct.spacing
-    verts, faces, _, _ = marching_cubes(field, level=float(level), step_size=int(step), allow_degenerate=False)
-    origin = np.array([s.start - 1 for s in box], float)
-    kji = verts + origin
-    pts = skull.ct.index_to_patient(kji)
+    field = ndi.gaussian_filter(bone[box].astype(np.float32), SKULL_MASK_SIGMA)
+    field = np.pad(field, 2, constant_values=0.0)
+    origin = np.array([s.start - 2 for s in box], float)
+    step = max(1, int(step))
+    while True:
+        verts, faces, _, _ = marching_cubes(field, level=0.5, step_size=step, allow_degenerate=False)
+        if len(faces) <= max_triangles or step >= 8:
+            break
+        step += 1
+    if len(faces) > max_triangles:
+        raise SegmentationError(f"the bone skull has {len(faces)} triangles at marching-cubes step {step}, "
+                                f"more than {max_triangles}")
     faces = faces.astype(np.int64)
+    if smoothing_passes:
+        # more passes do not remove the terraces of thick slices (GE) but let the two sides of thin slits
+        # meet: coincident vertices, which an STL reader merges into a non-manifold surface
+        verts = taubin_smooth(verts, faces, passes=int(smoothing_passes))
+    pts = skull.ct.index_to_patient(verts + origin)
     mesh = Mesh(vertices=pts, quads=np.zeros((0, 4), np.int64), triangles=faces)
     if _signed_volume(mesh) < 0:  # index (k, j, i) -> patient may flip handedness
         mesh.triangles = faces[:, ::-1].copy()
+    mesh.vertex_attributes = {}
     return mesh
+
+
+def taubin_smooth(vertices: np.ndarray, triangles: np.ndarray, passes: int = 8, lam: float = 0.5,
+                  mu: float = -0.53) -> np.ndarray:
+    """Taubin's lambda/mu smoothing (Taubin, SIGGRAPH 1995) with the umbrella operator; vertices only.
+
+    Each pass moves every vertex by ``lam`` then ``mu`` times the mean of its neighbours minus itself
+    (a low-pass filter that does not shrink the surface as repeated Laplacian smoothing does).
+    """
+    from scipy import sparse
+
+    v = np.asarray(vertices, np.float64).copy()
+    t = np.asarray(triangles, np.int64)
+    i = np.concatenate([t[:, 0], t[:, 1], t[:, 2], t[:, 1], t[:, 2], t[:, 0]])
+    j = np.concatenate([t[:, 1], t[:, 2], t[:, 0], t[:, 0], t[:, 1], t[:, 2]])
+    adj = sparse.csr_matrix((np.ones(len(i)), (i, j)), shape=(len(v), len(v)))
+    adj.sum_duplicates()
+    adj.data[:] = 1.0                                   # an edge shared by two triangles counted once
+    deg = np.asarray(adj.sum(axis=1)).ravel()
+    inv = np.divide(1.0, deg, out=np.zeros_like(deg), where=deg > 0)[:, None]
+    for _ in range(int(passes)):
+        for f in (lam, mu):
+            v += f * (adj @ v * inv - v)
+    return v
 
 
 def _signed_volume(mesh: Mesh) -> float:

@@ -314,12 +314,16 @@ def _sample_nearest(volume: np.ndarray, kji: np.ndarray, fill: float) -> np.ndar
     return out
 
 
-def write_depth_csv(result: TissueDepth, path: str | os.PathLike) -> int:
+def write_depth_csv(result: TissueDepth, path: str | os.PathLike, provenance: dict | None = None) -> int:
     """Write one row per skin vertex: ``x,y,z`` (patient LPS mm), ``depth_mm`` (empty where no bone), the
-    nearest-point distance and the reason; returns the number of rows."""
+    nearest-point distance and the reason; returns the number of rows. ``provenance`` (software, bone
+    level, ...) goes first as ``# key: value`` lines."""
+    from .provenance import provenance_lines
+
     path = os.fspath(path)
     pts = result.points
     with open(path, "w", newline="") as fh:
+        fh.write("".join(line + "\n" for line in provenance_lines(provenance)))
         w = csv.writer(fh)
         w.writerow(["x_mm", "y_mm", "z_mm", "depth_mm", "nearest_mm", "reason"])
         fmt = np.vectorize(lambda x: "" if not np.isfinite(x) else f"{x:.3f}", otypes=[object])

@@ -114,7 +114,7 @@ def main() -> int:
         bpy.ops.pdehead.place_landmark(name=name, location=Vector(p * 0.001), use_location=True)
     csv_path = tmp / "measured.csv"
     bpy.ops.pdehead.export_landmark_depths(filepath=str(csv_path))
-    rows = [r.split(",") for r in csv_path.read_text().splitlines()[1:]]
+    rows = [r.split(",") for r in csv_path.read_text().splitlines() if not r.startswith("#")][1:]
     table = tmp / "table.csv"
     table.write_text("landmark,depth_mm\n" + "".join(f"{r[0]},{r[4]}\n" for r in rows if r[4]))
     print(csv_path.read_text())

@@ -8,7 +8,7 @@ Examples::
         --spacing 2 1 1 --first-slice superior --patches 10 --out out/cthead.blend \\
         --render out/cthead_surface.png --render-volume out/cthead_volume.png
     python3 scripts/pdehead.py ../shared/data/ct_head_ge_tilt_dicom/dicom --out out/ge.blend
-    python3 scripts/pdehead.py --phantom --no-volume --skull --export out/print   # skin.stl, skull.stl, tissue_depth.csv
+    python3 scripts/pdehead.py --phantom --no-volume --skull --export out/print   # skull.stl, skull_envelope.stl, skin.stl, ...
     python3 scripts/pdehead.py --phantom --no-volume --out out/turn.blend --turntable 120 --render-animation out/turn
 
 It runs the SAME Blender operators as the add-on (``bpy.ops.pdehead.*``) in the ``bpy``
@@ -86,8 +86,16 @@ def parse_args(argv=None) -> argparse.Namespace:
     f.add_argument("--skull", action="store_true",
                    help="also build the skull (PDE surface + bone mesh) and the skin's tissue-depth map")
     f.add_argument("--export", type=Path, metavar="DIR",
-                   help="with --skull: write skin.stl, skull.stl and tissue_depth.csv (patient mm) into DIR")
+                   help="with --skull: write skull.stl (the bone), skull_envelope.stl (PDE), skin.stl (when the CT has "
+                        "skin), tissue_depth.csv, landmarks.csv and provenance.json (patient mm) into DIR")
     f.add_argument("--export-format", default="stl", choices=["stl", "obj", "ply"], help="mesh format; default stl")
+    f.add_argument("--bone-level", type=float, metavar="VALUE",
+                   help="bone level in the scan's stored units (HU where calibrated); from it on the skull is the "
+                        "bone mask alone. Default: the documented rule (HU scans: half way between the soft-tissue "
+                        "and bone modes, 400 HU without them; uncalibrated scans without soft tissue: half way "
+                        "between the air and bone modes)")
+    f.add_argument("--skull-mesh", type=Path, metavar="FILE",
+                   help="a skull mesh (STL/PLY/OBJ in mm, e.g. a surface scan) instead of a CT; implies --skull")
     p.add_argument("--render-samples", type=int, default=16, help="Cycles samples; default 16")
     a = p.add_argument_group("animation")
     a.add_argument("--turntable", type=int, metavar="N",
@@ -112,6 +120,19 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help=D.DOWNSAMPLE.help("average N x N x N voxel blocks on import (very large scans: 2 needs "
                                           "1/8 of the memory)"))
     args = p.parse_args(argv)
+    if args.skull_mesh is not None:
+        if args.input or args.phantom:
+            p.error("give either INPUT, --phantom or --skull-mesh")
+        if not args.skull_mesh.is_file():
+            raise CLIError(f"{args.skull_mesh}: no such file", 2)
+        if args.bone_level is not None:
+            p.error("--bone-level applies to a CT, not to --skull-mesh")
+        args.input, args.skull = str(args.skull_mesh), True
+    if args.bone_level is not None:
+        try:
+            D.BONE_LEVEL.check(args.bone_level, "--bone-level")
+        except ValueError as exc:
+            p.error(str(exc))
     args.patches_given, args.selection_given = args.patches is not None, args.selection is not None
     args.patches = D.PATCHES.default if args.patches is None else args.patches
     args.selection = D.SELECTION.default if args.selection is None else args.selection
@@ -391,6 +412,8 @@ def _steps(args, bpy, addon, state) -> dict:
         _call(ops.import_ct, **loader_kwargs(args))
     coll = bpy.context.scene.pdehead.active_study
     s = coll.pdehead
+    if args.bone_level is not None:          # the import dialog's / forensic panel's Bone Level field
+        s.use_bone_level, s.bone_level = True, args.bone_level
     _call(ops.segment)
     if args.selection == "auto":
         selection_info = _auto_boundaries(args, ops, addon, coll)
@@ -403,9 +426,13 @@ def _steps(args, bpy, addon, state) -> dict:
     if not args.no_volume:
         # no size given: the add-on's automatic size (Auto Voxel Size)
         _call(ops.build_volume, **({} if args.voxel_size is None else dict(voxel_size=args.voxel_size)))
+    skin = True
     if args.skull:
+        import json
         _call(ops.build_skull)
-        _call(ops.tissue_depth)
+        skin = json.loads(coll.get("pdehead_skull_info", "{}")).get("has_skin", True)
+        if skin:
+            _call(ops.tissue_depth)
         # no landmarks given: the automatic ones (issue 22), each with its flag
         if not addon.operators.forensic_study.landmarks(coll):
             _call(ops.find_landmarks)
@@ -436,8 +463,14 @@ def _steps(args, bpy, addon, state) -> dict:
         import json
         info = json.loads(coll.get("pdehead_skull_info", "{}"))
         depth = json.loads(coll.get("pdehead_depth_stats", "{}"))
-        print(f"  skull     bone level {info.get('bone_level', 0):.0f} HU, {info.get('patches')} patches, "
-              f"{info.get('bone_triangles', 0)} bone-mesh triangles")
+        if info.get("skull_mesh_file"):
+            level = f"none (the skull is the mesh {info['skull_mesh_file']})"
+        else:
+            level = f"{info.get('bone_level_stored', info.get('bone_level', 0)):g} {info.get('units', 'HU')}"
+        print(f"  skull     bone level {level}, {info.get('patches')} patches, "
+              f"{info.get('bone_triangles', 0)} bone-skull triangles")
+        if not skin:
+            print("  skin      none: the scan has no soft tissue (a skull alone): no skin.stl, no tissue_depth.csv")
         if "median" in depth:
             print(f"  depth     {depth['measured']} of {depth['vertices']} skin vertices, median {depth['median']:.1f} "
                   f"mm, p95 {depth['p95']:.1f} mm (no bone {depth['no_bone']}, envelope {depth['envelope']})")
@@ -446,7 +479,8 @@ def _steps(args, bpy, addon, state) -> dict:
             print(f"  landmarks {len(flags) - flags.count('not_found')} of {len(flags)} found automatically "
                   f"({flags.count('ok')} ok, {flags.count('uncertain')} uncertain, {flags.count('not_found')} not found)")
         if args.export:
-            print(f"  export    {args.export}/skin.{args.export_format}, skull.{args.export_format}, tissue_depth.csv")
+            written = sorted(p.name for p in args.export.iterdir() if not p.name.startswith("."))
+            print(f"  export    {args.export}: {', '.join(written)}")
     warning_lines = [state.user_text(w) for w in state.warning_list(s)]
     for warning in warning_lines:
         print(f"  warning   {warning}")

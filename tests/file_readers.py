@@ -37,7 +37,7 @@ def read_depth_csv(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     path = os.fspath(path)
     try:
         with open(path, newline="") as fh:
-            rows = list(csv.reader(fh))
+            rows = [r for r in csv.reader(fh) if r and not r[0].startswith("#")]   # provenance lines
     except OSError as exc:
         raise PDEHeadError(f"{path}: cannot read ({exc.strerror})") from None
     if not rows or rows[0][:4] != ["x_mm", "y_mm", "z_mm", "depth_mm"]:

@@ -15,10 +15,9 @@ from file_readers import read_depth_csv, read_stl
 from pdehead_addon import PDEHeadError, extract_boundaries, solve_pde
 from pdehead_addon.boundaries import max_patches
 from pdehead_addon.export import export_mesh
+from pdehead_addon.depth_table import read_depth_table, write_landmark_csv
 from pdehead_addon.landmarks import (frankfurt_transform, landmark, marker_pegs, midsagittal_plane, mirror_matrix,
-                                     symmetry_plane,
-                                     read_depth_table, snap_to_surface, landmark_depths, write_landmark_csv,
-                                     STANDARD_LANDMARKS)
+                                     symmetry_plane, snap_to_surface, landmark_depths, STANDARD_LANDMARKS)
 from pdehead_addon.phantom import BONE, HOLDER, GEOMETRY
 from pdehead_addon.skull import bone_level, segment_skull, skull_mesh
 from pdehead_addon.tissue_depth import ENVELOPE, MEASURED, tissue_depth, write_depth_csv
@@ -187,7 +186,9 @@ def test_snap_to_skull_surface(phantom, phantom_bone_mesh):
     (cx, cy, cz), (a, b, c) = GEOMETRY["skull_outer"]
     guesses = np.array([[0, cy, cz + c + 6], [cx + a + 5, cy, cz + 10], [0, cy + b + 4, cz]])
     snapped, normals = snap_to_surface(guesses, phantom_bone_mesh)
-    assert np.all(np.abs(phantom.skull_signed_distance(snapped)) < 0.5)
+    # the bone skull is meshed from the binary bone mask (issue 22): within half the 2.3 mm slice step
+    # where the vault is flat along z (the vertex: 0.8 mm), closer elsewhere
+    assert np.all(np.abs(phantom.skull_signed_distance(snapped)) < 1.0)
     expected = np.array([[0, 0, 1], [1, 0, 0], [0, 1, 0]], float)
     assert np.all(np.einsum("ij,ij->i", normals, expected) > np.cos(np.radians(10)))
 
@@ -216,7 +217,7 @@ def test_pegs_and_landmark_depths_on_the_vault(tmp_path, phantom, phantom_surfac
     pegs = marker_pegs(lms, phantom_bone_mesh, table)
     assert [p[0] for p in pegs] == ["Vertex", "Frontal eminence L"]      # the table has no Supraglenoid
     assert [p[3] for p in pegs] == [6.0, 4.5]
-    assert np.all(np.abs(phantom.skull_signed_distance(np.array([p[1] for p in pegs]))) < 0.5)
+    assert np.all(np.abs(phantom.skull_signed_distance(np.array([p[1] for p in pegs]))) < 1.0)   # binary mask
     depths = landmark_depths(lms, phantom_bone_mesh, skin)
     # the phantom's skin is the skull's ellipsoid grown by 6 mm; the PDE skin closes in a dome through
     # the mask's top (97.35 mm + the dome's fit, the vertex at 98), so the vertex depth is close to 6 mm
@@ -225,8 +226,9 @@ def test_pegs_and_landmark_depths_on_the_vault(tmp_path, phantom, phantom_surfac
     assert 4.5 < depths["Vertex"][1] < 7.0
     rows = write_landmark_csv(tmp_path / "landmarks.csv", depths, table)
     text = (tmp_path / "landmarks.csv").read_text().splitlines()
-    assert rows == 3 and text[0] == "landmark,x_mm,y_mm,z_mm,depth_mm,table_mm" and text[1].endswith(",6")
-    assert text[3].endswith(",")                                          # no table value
+    assert rows == 3 and text[0] == "landmark,x_mm,y_mm,z_mm,depth_mm,table_mm,table_name,sd_mm,flag"
+    assert text[1].endswith(",6,table,,ok")                             # an old-format table: no SD
+    assert text[3].endswith(",,,,ok")                                     # no table value
 
 
 def test_frankfurt_transform_levels_the_plane():
@@ -280,10 +282,12 @@ def test_symmetry_plane_of_a_turned_skull(phantom_bone_mesh, yaw, roll, shift):
     true_n, true_p = rot @ [1.0, 0, 0], rot @ -pivot + pivot + [shift, 0, 0]
     point, normal, info = symmetry_plane(moved)
     assert info["converged"] and normal[0] > 0
-    # 0.1 deg: the facial skeleton (issue 22) adds thin, noisy bone, 0.052 deg measured
-    assert np.degrees(np.arccos(min(1.0, normal @ true_n))) < 0.1
-    assert abs((point - true_p) @ true_n) < 0.05
-    assert info["residual_mm"] < 0.25 < info["start_residual_mm"]
+    # the bone skull comes from the binary bone mask (issue 22), whose edge voxels follow the phantom's CT
+    # noise: symmetric to 0.14 deg (0.004 deg with the old intensity iso-surface)
+    assert np.degrees(np.arccos(min(1.0, normal @ true_n))) < 0.3
+    assert abs((point - true_p) @ true_n) < 0.2
+    # median mirror residual: the vertices of a binary-mask mesh sit on voxel edges (0.8 mm at 2 mm voxels)
+    assert info["residual_mm"] < min(0.9, info["start_residual_mm"])
     # a one-sided block (a head holder, 15 % of the points) does not pull the plane: the pairs are trimmed
     block = moved[moved @ true_n > np.percentile(moved @ true_n, 85)] + 25.0 * true_n
     point, normal, _ = symmetry_plane(np.vstack([moved, block]))

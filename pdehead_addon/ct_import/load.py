@@ -113,6 +113,10 @@ def load_ct(
     """
     warns: list[str] = []
     fmt = str(format).lower()
+    if fmt in ("auto", "mesh") and isinstance(path, (str, os.PathLike)) \
+            and os.fspath(path).lower().endswith((".stl", ".ply", ".obj")):
+        from ..mesh_input import load_skull_mesh      # a skull given as a surface mesh (issue 22)
+        return load_skull_mesh(path)
     if fmt in ("images", "tiff", "tif", "png"):
         fmt = "image"
     if fmt not in ("auto", "dicom", "image", "raw", "nifti"):

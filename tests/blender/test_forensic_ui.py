@@ -13,10 +13,24 @@ from test_cli import run_cli
 from pdehead_addon.phantom import GEOMETRY
 
 
-def _check_export(folder, n_skin_vertices=None):
+def _check_export(folder, n_skin_vertices=None, handles=True):
     skin, skull = read_stl(folder / "skin.stl"), read_stl(folder / "skull.stl")
-    assert skin.is_watertight() and skull.is_watertight()
-    rows = list(csv.reader(open(folder / "tissue_depth.csv")))
+    envelope = read_stl(folder / "skull_envelope.stl")
+    assert skin.is_watertight() and skull.is_watertight() and envelope.is_watertight()
+    assert len(skull.triangles) <= 500_000
+    # the bone skull is open where bone is (orbits, foramina, arches): handles, unlike the PDE envelope
+    euler = [len(m.vertices) - len(m.edges()) + len(m.triangles) for m in (skull, envelope)]
+    assert euler[1] == 2                                                  # the envelope: one closed sphere
+    if handles:                                                           # real skulls: many (CThead -490)
+        assert euler[0] <= -20
+    prov = json.loads((folder / "provenance.json").read_text())
+    assert prov["software"].startswith("PDE Head ") and "bone_level" in prov and prov["table"].startswith("T-Table")
+    assert open(folder / "skull.stl", "rb").read(80).decode("ascii").startswith("skull (patient LPS, mm); PDE Head")
+    lm = (folder / "landmarks.csv").read_text().splitlines()
+    assert lm[0].startswith("# software: PDE Head") and any(ln.startswith("# bone_level: ") for ln in lm)
+    assert [ln for ln in lm if not ln.startswith("#")][0] == \
+        "landmark,x_mm,y_mm,z_mm,depth_mm,table_mm,table_name,sd_mm,flag"
+    rows = [r for r in csv.reader(open(folder / "tissue_depth.csv")) if not r[0].startswith("#")]
     assert rows[0][:4] == ["x_mm", "y_mm", "z_mm", "depth_mm"]
     body = rows[1:]
     if n_skin_vertices is not None:
@@ -32,7 +46,7 @@ def test_cli_phantom_skull_export(tmp_path):
     result = run_cli("--phantom", "--no-volume", "--nu", 60, "--nv", 120, "--skull", "--export", out, tmp_path=tmp_path)
     assert result.returncode == 0, result.stderr[-3000:]
     assert "  skull     bone level" in result.stdout and "  depth     " in result.stdout
-    skin, skull, pts, depth = _check_export(out)
+    skin, skull, pts, depth = _check_export(out, handles=False)
     # in mm: the phantom's skull is 136 mm wide (outer ellipsoid semi-axis 68), its skin 150 mm without ears
     (cx, cy, cz), (a, b, c) = GEOMETRY["skull_outer"]
     width = np.ptp(skull.vertices[:, 0])
@@ -58,6 +72,7 @@ def test_cli_cthead_skull_export(tmp_path, pytestconfig):
                      tmp_path=tmp_path)
     assert result.returncode == 0, result.stderr[-3000:]
     skin, skull, pts, depth = _check_export(out)
+    assert "mandible" not in result.stdout                   # present and articulated: no warning
     assert 120 < np.ptp(skull.vertices[:, 0]) < 170          # a skull in mm (CThead spacing 1 x 1 x 2 mm)
     assert 0.5 < np.isfinite(depth).mean() < 0.95            # neck, ears and orbit rays have no value
     assert 3.0 < np.nanmedian(depth) < 10.0
@@ -71,9 +86,12 @@ def test_cli_ge_skull_export(tmp_path):
                      "--skull", "--export", out, "--export-format", "stl", tmp_path=tmp_path)
     assert result.returncode == 0, result.stderr[-3000:]
     skin, skull, pts, depth = _check_export(out)
+    assert "no mandible found: the face will stop at the maxilla" in result.stdout      # the missing-mandible path
     assert 120 < np.ptp(skull.vertices[:, 0]) < 170 and np.ptp(skull.vertices[:, 0]) < np.ptp(skin.vertices[:, 0])
-    top = pts[:, 2] > pts[:, 2].max() - 60                  # the vault: measured almost everywhere
-    assert np.isfinite(depth[top]).mean() > 0.9 and 3.0 < np.nanmedian(depth[top]) < 10.0
+    top = pts[:, 2] > pts[:, 2].max() - 60                  # the vault: measured on three quarters of it
+    # against the bone skull from the binary bone mask (issue 22): 0.77 measured; the thin vault in the
+    # 4-7 mm tilted slices has slits and sub-level voxels that the old intensity iso-surface bridged (> 0.9)
+    assert np.isfinite(depth[top]).mean() > 0.7 and 3.0 < np.nanmedian(depth[top]) < 10.0
 
 
 def test_forensic_operators_on_the_phantom(pdehead_ext, tmp_path):
@@ -118,11 +136,32 @@ def test_forensic_operators_on_the_phantom(pdehead_ext, tmp_path):
     assert bpy.ops.pdehead.import_depth_table(filepath=str(table)) == {'FINISHED'}
     pegs = {o["pdehead_peg"]: o for o in coll.all_objects if "pdehead_peg" in o}
     assert set(pegs) == {"Vertex", "Porion L"}
-    peg_z = np.array([v.co for v in pegs["Vertex"].data.vertices])[:, 2] + pegs["Vertex"].matrix_world.translation.z
-    assert np.ptp(peg_z) == pytest.approx(0.006, abs=0.0005)             # 6 mm upward from the vertex
+
+    def peg_world_z(peg):
+        bpy.context.view_layer.update()                                  # the driver: depth_mm -> Z scale
+        return np.array([peg.matrix_world @ v.co for v in peg.data.vertices])[:, 2]
+
+    assert np.ptp(peg_world_z(pegs["Vertex"])) == pytest.approx(0.006, abs=0.0005)   # 6 mm upward from the vertex
+    # the shipped T-Table 2023: the vertex peg shows the mean (5 mm) and is settable within mean +- 2 SD
+    assert bpy.ops.pdehead.import_depth_table(default_table=True) == {'FINISHED'}
+    pegs = {o["pdehead_peg"]: o for o in coll.all_objects if "pdehead_peg" in o}
+    assert set(pegs) == {"Vertex"}                                       # porion and orbitale carry no depth
+    peg = pegs["Vertex"]
+    assert peg["depth_mm"] == 5.0 and peg["table_sd_mm"] == 1.5 and peg["table_name"].startswith("T-Table 2023")
+    ui = peg.id_properties_ui("depth_mm").as_dict()
+    assert (ui["min"], ui["max"]) == (2.0, 8.0)
+    assert np.ptp(peg_world_z(peg)) == pytest.approx(0.005, abs=0.0005)
+    assert forensic.set_peg_depth(peg, 7.5) == 7.5 and np.ptp(peg_world_z(peg)) == pytest.approx(0.0075, abs=0.0005)
+    assert forensic.set_peg_depth(peg, 30.0) == 8.0                      # limited to mean + 2 SD
+    base = np.array(peg.matrix_world.translation) / 0.001
+    assert base == pytest.approx(lms["Vertex"], abs=1.0)                 # the peg stands on the landmark
     csv_path = tmp_path / "lm.csv"
     assert bpy.ops.pdehead.export_landmark_depths(filepath=str(csv_path)) == {'FINISHED'}
-    assert len(csv_path.read_text().splitlines()) == 1 + len(points)
+    body = [r for r in csv.reader(open(csv_path)) if not r[0].startswith("#")]
+    assert len(body) == 1 + len(points) and body[0][-3:] == ["table_name", "sd_mm", "flag"]
+    vertex = next(r for r in body if r[0] == "Vertex")
+    assert vertex[5:] == ["5", peg["table_name"], "1.5", "ok"]
+    assert [float(c) for c in vertex[1:4]] == pytest.approx(lms["Vertex"], abs=1e-3)   # patient frame
 
     assert bpy.ops.pdehead.frankfurt() == {'FINISHED'}
     m = np.array(coll["pdehead_frankfurt"]).reshape(4, 4)
@@ -146,13 +185,17 @@ def test_forensic_operators_on_the_phantom(pdehead_ext, tmp_path):
     by_skull = np.array(bpy.data.objects[f"{skull_obj.name} Mirrored"].matrix_world)
     by_landmarks = np.array(mirrored.matrix_world)
     assert np.linalg.det(by_skull[:3, :3]) == pytest.approx(-1.0)
-    assert by_skull == pytest.approx(by_landmarks, abs=0.002)          # same plane within ~1 deg / 1 mm
+    # same plane within ~0.6 deg / 1 mm: the landmarks snap to the bone skull (binary mask, 2 mm voxels: the
+    # orbitales land 0.7 mm asymmetric), the skull plane is symmetric to 0.2 deg
+    assert by_skull[:3, :3] == pytest.approx(by_landmarks[:3, :3], abs=0.02)
+    assert by_skull[:3, 3] == pytest.approx(by_landmarks[:3, 3], abs=0.001)
     assert bpy.ops.pdehead.frankfurt(reset=True) == {'FINISHED'}
     assert np.array(skull_obj.matrix_world)[:3, :3] == pytest.approx(np.eye(3))
 
     out = tmp_path / "export"
     assert bpy.ops.pdehead.export_print(directory=str(out), format='ply') == {'FINISHED'}
-    assert sorted(p.name for p in out.iterdir()) == ["skin.ply", "skull.ply", "tissue_depth.csv"]
+    assert sorted(p.name for p in out.iterdir()) == ["landmarks.csv", "provenance.json", "skin.ply", "skull.ply",
+                                                     "skull_envelope.ply", "tissue_depth.csv"]
 
     blend = tmp_path / "forensic.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))

@@ -1,0 +1,159 @@
+"""Skull-only input (issue 22, point 1): the bone level, the skull from the binary bone mask alone, supports
+removed, the mandible reported; and the bone skull (point 2)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pdehead_addon import CTVolume
+from pdehead_addon.skull import segment_skull, skull_mesh
+
+
+def stripped(ct: CTVolume, level: float, air: float | None = None) -> CTVolume:
+    """The same CT with every voxel below ``level`` (stored units) set to air (its minimum)."""
+    data = ct.data.copy()
+    data[data < np.float32(level)] = ct.data.min() if air is None else air
+    return CTVolume(data, ct.spacing, origin=ct.origin, direction=ct.direction, meta=dict(ct.meta),
+                    coverage=ct.coverage)
+
+
+def _same_skull(a, b):
+    assert np.array_equal(a.bone, b.bone)
+    ma, mb = skull_mesh(a), skull_mesh(b)
+    assert ma.vertices.shape == mb.vertices.shape and np.array_equal(ma.triangles, mb.triangles)
+    return float(np.abs(ma.vertices - mb.vertices).max())
+
+
+@pytest.fixture(scope="module")
+def phantom_skull(phantom, phantom_seg):
+    return segment_skull(phantom.ct, phantom_seg)
+
+
+def test_phantom_skull_from_the_bone_mask_alone(phantom, phantom_skull):
+    """With the level given, the CT and the CT with everything below the level set to air: same skull."""
+    level = phantom_skull.meta["bone_level_stored"]
+    assert phantom_skull.meta["has_skin"] and phantom_skull.meta["units"] == "HU"
+    only = segment_skull(stripped(phantom.ct, level), bone_level=level)
+    assert not only.meta["has_skin"] and only.meta["soft_tissue"]["fill_ratio"] > 2.0
+    assert _same_skull(phantom_skull, only) <= 0.01
+    # without the level, a calibrated scan without soft tissue uses the documented default (400 HU)
+    default = segment_skull(stripped(phantom.ct, level))
+    assert default.meta["bone_level_stored"] == 400.0 and default.meta["bone_level_source"].startswith("default")
+
+
+def test_supports_and_table_are_removed_by_size_and_position(phantom, phantom_skull):
+    """A table slab behind the head and loose fragments, above the bone level: not part of the skull."""
+    level = phantom_skull.meta["bone_level_stored"]
+    ct = stripped(phantom.ct, level)
+    data = ct.data.copy()
+    pts = ct.index_to_patient(np.argwhere(np.ones(ct.shape, bool)).astype(float)).reshape(*ct.shape, 3)
+    ymax = phantom.ct.index_to_patient(np.argwhere(phantom_skull.bone).astype(float))[:, 1].max()
+    table = (pts[..., 1] > ymax + 25) & (pts[..., 1] < ymax + 35)          # a 10 mm slab, the scan's length
+    fragment = np.linalg.norm(pts - [0, -20, 105], axis=-1) < 3.0            # a small loose piece above
+    data[table | fragment] = 1500.0
+    sk = segment_skull(CTVolume(data, ct.spacing, origin=ct.origin, direction=ct.direction, meta=dict(ct.meta)),
+                       bone_level=level)
+    assert not sk.bone[table].any() and not sk.bone[fragment].any()
+    assert np.array_equal(sk.bone, phantom_skull.bone)
+    assert sk.meta["dropped_support_mm3"] > 0.5 * np.count_nonzero(table) * np.prod(ct.spacing)
+
+
+def test_cthead_uncalibrated_skull_only(cthead_ct, cthead_seg):
+    full = segment_skull(cthead_ct, cthead_seg)
+    level = full.meta["bone_level_stored"]
+    assert full.meta["units"] == "stored" and full.meta["has_skin"]
+    only = segment_skull(stripped(cthead_ct, level), bone_level=level)
+    assert not only.meta["has_skin"]
+    assert _same_skull(full, only) <= 0.01
+    # the mandible of the cadaver head: present and articulated
+    assert full.meta["mandible"]["present"] and full.meta["mandible"]["articulated"]
+    assert not full.meta["warnings"]
+    # no level given, no soft tissue: the air/bone histogram rule (no soft-tissue mode needed) finds a
+    # level between air and bone that gives nearly the same skull
+    default = segment_skull(stripped(cthead_ct, level))
+    assert default.meta["histogram"]["source"] == "air/bone rule"
+    assert default.meta["histogram"]["air_mode"] < default.meta["bone_level_stored"] \
+        < default.meta["histogram"]["bone_mode"]
+    assert abs(default.meta["bone_mm3"] / full.meta["bone_mm3"] - 1) < 0.1
+
+    # a mandible set apart (moved 24 mm down, as on a dry-skull scan): detected and reported
+    shift = int(round(24 / cthead_ct.spacing[0]))
+    assert cthead_ct.direction[2, 2] > 0                               # k runs superior: down is -k
+    data = stripped(cthead_ct, level).data
+    air = cthead_ct.data.min()
+    src = np.where(full.mandible, data, air)
+    data[full.mandible] = air
+    moved = np.roll(src, -shift, axis=0)
+    moved[-shift:] = air
+    data = np.where(moved > air, moved, data)
+    apart = segment_skull(CTVolume(data, cthead_ct.spacing, origin=cthead_ct.origin, direction=cthead_ct.direction,
+                                   meta=dict(cthead_ct.meta)), bone_level=level)
+    rep = apart.meta["mandible"]
+    assert rep["present"] and not rep["articulated"] and rep["condyle_gap_mm"] > 15
+    assert any("not articulated" in w for w in apart.meta["warnings"])
+
+
+def test_ge_has_no_mandible_and_says_so(ge_ct, ge_seg):
+    sk = segment_skull(ge_ct, ge_seg)
+    assert not sk.meta["mandible"]["present"] and sk.mandible is None
+    assert sk.meta["warnings"] == ["no mandible found: the face will stop at the maxilla"]
+
+
+def test_bone_skull_is_open_where_bone_is_and_within_budget(phantom, phantom_skull):
+    mesh = skull_mesh(phantom_skull)
+    assert mesh.is_watertight() and len(mesh.triangles) <= 500_000
+    # smaller budget: a coarser marching-cubes step, still closed
+    small = skull_mesh(phantom_skull, max_triangles=30_000)
+    assert small.is_watertight() and len(small.triangles) <= 30_000
+    # within a third of a voxel of the analytic outer table on the vault (binary mask, smoothed)
+    v = mesh.vertices[mesh.vertices[:, 2] > 30]
+    d = phantom.skull_signed_distance(v)
+    outer = d[d > -3]
+    assert abs(outer.mean()) < 0.15 and np.percentile(np.abs(outer), 95) < 0.7
+
+
+# ----------------------------------------------------------------------------- a skull given as a mesh
+@pytest.mark.parametrize("fmt", ["stl", "ply", "obj"])
+def test_skull_mesh_replaces_the_ct(tmp_path, phantom_skull, fmt):
+    from pdehead_addon import load_ct
+    from pdehead_addon.export import export_mesh
+    bone = skull_mesh(phantom_skull)
+    path = export_mesh(bone, tmp_path / f"skull.{fmt}", name="skull")
+    ct = load_ct(path)
+    assert ct.meta["format"] == "mesh" and ct.meta["units"] == "HU" and ct.spacing == (1.0, 1.0, 1.0)
+    sk = segment_skull(ct)
+    assert not sk.meta["has_skin"] and sk.meta["skull_mesh_file"] == f"skull.{fmt}"
+    # the skull is the given mesh itself (float32 in the file), not its voxelisation
+    given = skull_mesh(sk)
+    assert len(given.triangles) == len(bone.triangles) and given.is_watertight()
+    assert np.allclose(np.sort(given.vertices, axis=0), np.sort(bone.vertices, axis=0), atol=1e-4)
+    # the volume made from it encloses the same bone (1 mm voxels against the CT's 2 mm ones)
+    assert abs(sk.meta["bone_mm3"] / phantom_skull.meta["bone_mm3"] - 1) < 0.05
+
+
+def test_open_skull_mesh_is_repaired_or_refused_saying_where(tmp_path, phantom_skull):
+    from pdehead_addon import CTImportError, Mesh, load_ct
+    from pdehead_addon.export import export_mesh
+    bone = skull_mesh(phantom_skull)
+    centres = bone.vertices[bone.triangles].mean(axis=1)
+    top = bone.vertices[np.argmax(bone.vertices[:, 2])]
+    for name, radius in (("small", 2.5), ("large", 20.0)):
+        keep = np.linalg.norm(centres - top, axis=1) >= radius
+        open_mesh = Mesh(bone.vertices, np.zeros((0, 4)), bone.triangles[keep])
+        assert not open_mesh.is_watertight()
+        path = export_mesh(open_mesh, tmp_path / f"open_{name}.stl", require_watertight=False)
+        if name == "small":
+            ct = load_ct(path)
+            assert ct.meta["skull_mesh_repair"]["holes_filled"] == 1 and ct.meta["skull_mesh"].is_watertight()
+            assert "1 small hole(s) filled" in ct.meta["warnings"][0]
+        else:
+            with pytest.raises(CTImportError) as err:
+                load_ct(path)
+            text = str(err.value)
+            assert str(path) in text and "the mesh is open" in text and "mm across" in text
+            where = [float(x) for x in text.split("open edges around (")[1].split(")")[0].split(",")]
+            assert np.linalg.norm(np.array(where) - top) < 12.0              # it names where the hole is
+    metres = Mesh(bone.vertices / 1000.0, np.zeros((0, 4)), bone.triangles)
+    path = export_mesh(metres, tmp_path / "metres.stl")
+    with pytest.raises(CTImportError, match="scale it to mm"):
+        load_ct(path)
