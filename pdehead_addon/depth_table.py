@@ -334,7 +334,8 @@ def write_landmark_csv(path: str | os.PathLike, depths: dict[str, tuple[np.ndarr
                 flag = flags.get(name, "ok")
                 if flag not in FLAGS:
                     raise PDEHeadError(f"landmark {name}: flag {flag!r} is not one of {', '.join(FLAGS)}")
-                w.writerow([name, *(f"{c:.3f}" for c in p), "" if not np.isfinite(d) else f"{d:.3f}",
+                w.writerow([name, *("" if not np.isfinite(c) else f"{c:.3f}" for c in p),
+                            "" if not np.isfinite(d) else f"{d:.3f}",
                             "" if ref is None else f"{ref:g}", label if ref is not None else "",
                             "" if sd is None else f"{sd:g}", flag])
     except OSError as exc:

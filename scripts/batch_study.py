@@ -34,6 +34,8 @@ import traceback
 import warnings
 from pathlib import Path
 
+import numpy as np
+
 #: Bumped when what a study writes changes, so that a re-run redoes studies made by an older runner.
 RUNNER_VERSION = 1
 #: Default per-study limits: wall time (s) and resident memory of the study's process (MB). A study of a
@@ -323,30 +325,28 @@ def _child(input_path: str, work: Path, settings: dict) -> int:
 
 
 def _skull_outputs(eng, ct, seg, bset, work: Path, settings: dict) -> int:
-    """skull.stl and landmarks.csv; returns the number of landmarks found."""
-    from pdehead_addon import landmarks as lm
+    """skull.stl (the bone), and landmarks.csv: every automatic landmark with its flag, its depth along the
+    bone normal to the PDE skin, and the default table's mean and SD; returns the number found."""
+    from pdehead_addon.auto_landmarks import find_landmarks
+    from pdehead_addon.depth_table import default_table, write_landmark_csv
+    from pdehead_addon.landmarks import landmark_depths
+    from pdehead_addon.provenance import provenance
     from pdehead_addon.skull import segment_skull, skull_mesh
 
     skull = segment_skull(ct, seg)
     bone = skull_mesh(skull)
     eng.export_mesh(bone, work / "skull.stl")
-    head = eng.solve_pde(bset)
-    skin = head.surface(int(settings.get("nu", 120)), int(settings.get("nv", 240)), caps=True)
-    found = _automatic_landmarks(ct, skull, bone)
-    depths = lm.landmark_depths(found, bone, skin) if found else {}
-    lm.write_landmark_csv(work / "landmarks.csv", depths)
-    return len(depths)
-
-
-def _automatic_landmarks(ct, skull, bone) -> dict:
-    """The engine's automatic craniometric landmarks (name -> patient mm); {} when the engine has none."""
-    from pdehead_addon import landmarks as lm
-
-    finder = getattr(lm, "find_landmarks", None)
-    if finder is None:
-        return {}
-    result = finder(ct, skull, bone)
-    return {name: p for name, p in getattr(result, "points", result).items()}
+    skin = eng.solve_pde(bset).surface(int(settings.get("nu", 120)), int(settings.get("nv", 240)), caps=True)
+    search = find_landmarks(ct, skull.bone)
+    found = search.points()  # ok and uncertain
+    depths = landmark_depths(found, bone, skin) if found else {}
+    missing = (np.full(3, np.nan), float("nan"))
+    rows = {name: depths.get(name, missing) for name in search.landmarks}  # not_found rows stay, flagged
+    table = default_table()
+    write_landmark_csv(work / "landmarks.csv", rows, table, flags=search.flags(),
+                       provenance=provenance(table=table.label, bone_level=round(float(skull.bone_level), 1),
+                                             frame="CT patient LPS mm", runner="scripts/pdehead_batch.py"))
+    return len(found)
 
 
 def main(argv=None) -> int:

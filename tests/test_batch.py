@@ -234,3 +234,43 @@ def test_age_from_dicom_fields():
     assert pdehead_batch.age_group(pdehead_batch.age_years({"birth_date": "19600229", "study_date": "20200228"})) == "45-59"
     assert pdehead_batch.age_group(60.2) == "60+" and pdehead_batch.age_group(29.9) == "18-29"
     assert pdehead_batch.age_group(None) == "unknown"
+
+
+# --------------------------------------------------------------------------- --skull: landmarks and their depths
+def test_skull_batch_measures_known_vault_thickness_and_builds_a_table(collection, tmp_path):
+    """With --skull every study gets the bone skull and its automatic landmarks with flags; on the vault, where
+    the phantom's tissue thickness is known analytically (a head scaled by s has s times it), the measured
+    depths and the table built from them recover it within 1 mm."""
+    out = tmp_path / "skull"
+    _cli("run", *collection[:2], "--out", out, "--workers", "0", "--skull", check_code=0)
+    rows = _read_summary(out)
+    assert [r["status"] for r in rows] == ["ok", "ok"]
+    phantom = E.make_phantom(shape=(60, 96, 96), seed=0)
+    expected = {}
+    for row, (scale, _, _) in zip(rows, STUDIES):
+        folder = out / row["study_id"]
+        assert (folder / "skull.stl").stat().st_size > 84
+        with open(folder / "landmarks.csv", newline="") as fh:
+            lines = [line for line in fh if not line.startswith("#")]
+        table = list(csv.DictReader(lines))
+        assert list(table[0]) == ["landmark", "x_mm", "y_mm", "z_mm", "depth_mm", "table_mm", "table_name",
+                                  "sd_mm", "flag"]
+        assert {r["flag"] for r in table} <= {"ok", "uncertain", "not_found"}
+        assert int(row["n_landmarks"]) == sum(r["flag"] != "not_found" for r in table) >= 20
+        by_name = {r["landmark"]: r for r in table}
+        # the vault behind and in front (the crown's vertex depends on the PDE dome above the top slice: 4 mm
+        # slices here, and is not used)
+        for name in ("Opisthocranion", "Frontal eminence L", "Frontal eminence R"):
+            r = by_name[name]
+            assert r["flag"] == "ok"
+            bone = np.array([float(r[k]) for k in ("x_mm", "y_mm", "z_mm")])
+            outward = bone - np.array([0.0, 4.0 * scale, bone[2]])  # horizontal, away from the head's centre line
+            outward /= np.linalg.norm(outward)
+            truth = scale * float(phantom.tissue_depth((bone / scale + 6.0 * outward)[None])[0])
+            assert abs(float(r["depth_mm"]) - truth) < 1.0, (name, r["depth_mm"], truth)
+            expected.setdefault(name, []).append(truth)
+    _cli("depth-table", out, "--out", tmp_path / "table.csv", check_code=0)
+    made = _read_table(tmp_path / "table.csv")
+    for name, truths in expected.items():
+        assert made[name][2] == 2
+        assert abs(made[name][0] - float(np.mean(truths))) < 1.0
