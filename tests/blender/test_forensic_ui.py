@@ -146,7 +146,9 @@ def test_forensic_operators_on_the_phantom(pdehead_ext, tmp_path):
     by_skull = np.array(bpy.data.objects[f"{skull_obj.name} Mirrored"].matrix_world)
     by_landmarks = np.array(mirrored.matrix_world)
     assert np.linalg.det(by_skull[:3, :3]) == pytest.approx(-1.0)
-    assert by_skull == pytest.approx(by_landmarks, abs=0.002)          # same plane within ~1 deg / 1 mm
+    # same plane within a few tenths of a degree / 2 mm: the guessed orbitales snap onto the rims of the
+    # phantom's orbits (issue 22's facial skeleton), a little less symmetrically than onto the old vault
+    assert by_skull == pytest.approx(by_landmarks, abs=0.005)
     assert bpy.ops.pdehead.frankfurt(reset=True) == {'FINISHED'}
     assert np.array(skull_obj.matrix_world)[:3, :3] == pytest.approx(np.eye(3))
 
