@@ -556,7 +556,7 @@ def _side_extreme(fr, side, mask):
     idx = np.argwhere(mask)
     if not len(idx):
         return None
-    k = np.argmax(side * idx[:, 0]) if True else None
+    k = np.argmax(side * idx[:, 0])
     far = idx[side * idx[:, 0] >= side * idx[k, 0] - 0.5]
     p = fr.lo + fr.step * far.mean(0)
     return _nearest_surface(fr, p, None, 3.0)
@@ -937,7 +937,6 @@ def find_landmarks(ct, bone: np.ndarray, *, grid_mm: float = LANDMARK_GRID_MM) -
                                             "frame of the symmetry plane")
 
     # results in patient mm, by standard name
-    from .landmarks import landmark as _lm
     out: dict[str, FoundLandmark] = {}
     for d in STANDARD_LANDMARKS:
         p, flag, ev = found.get(d.key, (None, NOT_FOUND, "no rule"))
