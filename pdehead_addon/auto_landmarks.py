@@ -61,6 +61,8 @@ UPPER_INCISOR_CROWN_MM = 10.5
 LOWER_INCISOR_CROWN_MM = 9.0
 #: Bone voxel centres used for the first frame's symmetry plane (a random subset).
 SYMMETRY_POINTS = 4000
+#: Porions (orbitales) farther than this from mirror images of each other are flagged uncertain (mm).
+MIRROR_TOLERANCE_MM = 12.0
 
 
 #: The rule of every landmark (by the key of :data:`~pdehead_addon.landmarks.STANDARD_LANDMARKS`; "L/R"
@@ -554,7 +556,7 @@ def _side_extreme(fr, side, mask):
     idx = np.argwhere(mask)
     if not len(idx):
         return None
-    k = np.argmax(side * idx[:, 0]) if True else None
+    k = np.argmax(side * idx[:, 0])
     far = idx[side * idx[:, 0] >= side * idx[k, 0] - 0.5]
     p = fr.lo + fr.step * far.mean(0)
     return _nearest_surface(fr, p, None, 3.0)
@@ -919,8 +921,22 @@ def find_landmarks(ct, bone: np.ndarray, *, grid_mm: float = LANDMARK_GRID_MM) -
         if f"supm2_{t}" not in found:
             found[f"supm2_{t}"] = (None, NOT_FOUND, mand_ev)
 
+    # bilateral Frankfurt landmarks must mirror each other across the mid-sagittal plane
+    for key in ("po", "or"):
+        a, b = found.get(f"{key}_l", (None,))[0], found.get(f"{key}_r", (None,))[0]
+        if a is not None and b is not None:
+            gap = float(np.linalg.norm(a * np.array([-1.0, 1.0, 1.0]) - b))
+            if gap > MIRROR_TOLERANCE_MM:
+                for side in "lr":
+                    p, _, ev = found[f"{key}_{side}"]
+                    found[f"{key}_{side}"] = (p, UNCERTAIN, f"left and right are {gap:.0f} mm from mirror images")
+    if frank is None:   # every rule assumes the Frankfurt orientation
+        for key, (p, flag, ev) in list(found.items()):
+            if p is not None and flag == OK:
+                found[key] = (p, UNCERTAIN, "no Frankfurt frame (porion or orbitale missing): found in the "
+                                            "frame of the symmetry plane")
+
     # results in patient mm, by standard name
-    from .landmarks import landmark as _lm
     out: dict[str, FoundLandmark] = {}
     for d in STANDARD_LANDMARKS:
         p, flag, ev = found.get(d.key, (None, NOT_FOUND, "no rule"))

@@ -120,6 +120,15 @@ def markdown(results: dict, cthead_flags: dict) -> str:
               f"CThead: median {c['median_mm']:.1f} mm (target <= 3 mm: "
               f"{'met' if c['median_mm'] <= 3 else 'NOT met'}); largest `ok` error {c['max_ok_mm']:.1f} mm "
               f"(target <= 6 mm: {'met' if c['max_ok_mm'] <= 6 else 'NOT met'}).", "",
+              "Where the error comes from (CThead): the automatic mid-sagittal plane (the symmetry plane of the "
+              "whole bone) passes 2-3 mm lateral of the face's own midline, which every midline landmark carries; "
+              "porion sits on the outermost bone above the meatus, 4-5 mm lateral of where the bony canal's roof "
+              "starts; the maxilla's thin front (subspinale, prosthion) lies partly below the bone level, so the "
+              "mask's outline is a few mm behind the cortex a person reads; zygion and gonion lie on flat or "
+              "rounded stretches of bone where a person and a rule can pick points several mm apart. The "
+              "references themselves are good to about 1-2 mm. On the phantom the outliers are the supraorbital "
+              "margins (6.8 and 8.8 mm): the rim under the brow ridge is steep, so a row higher in the front view "
+              "is several mm further forward.", "",
               "Flags on CThead of the landmarks without a hand-placed reference (the evidence for `uncertain` "
               "and `not_found`):", "", "| landmark | flag | evidence |", "|---|---|---|"]
     ref = results["cthead"]["errors"]

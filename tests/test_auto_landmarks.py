@@ -122,3 +122,16 @@ def test_every_landmark_has_a_written_rule():
     from pdehead_addon.auto_landmarks import RULES
     keys = {d.key.rsplit("_", 1)[0] if d.bilateral else d.key for d in STANDARD_LANDMARKS}
     assert keys == set(RULES) and all(len(r) > 40 for r in RULES.values())
+
+
+def test_ge_has_no_mandible(ge_ct):
+    """The GE series stops at the maxilla: every mandible landmark is not_found and says why."""
+    search = find_landmarks(ge_ct, segment_skull(ge_ct).bone)
+    assert not search.info["mandible"]
+    for name in MANDIBLE:
+        lm = search.landmarks[name]
+        assert lm.flag == NOT_FOUND and "mandible" in lm.evidence, (name, lm)
+    assert search.landmarks["Vertex"].point is not None and search.landmarks["Porion R"].point is not None
+    # without a Frankfurt frame (its left orbit is not found) nothing found is called ok
+    if search.frankfurt is None:
+        assert all(lm.flag != OK for lm in search.landmarks.values())

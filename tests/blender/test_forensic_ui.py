@@ -185,10 +185,11 @@ def test_forensic_operators_on_the_phantom(pdehead_ext, tmp_path):
     by_skull = np.array(bpy.data.objects[f"{skull_obj.name} Mirrored"].matrix_world)
     by_landmarks = np.array(mirrored.matrix_world)
     assert np.linalg.det(by_skull[:3, :3]) == pytest.approx(-1.0)
-    # same plane within ~0.6 deg / 1 mm: the landmarks snap to the bone skull (binary mask, 2 mm voxels: the
-    # orbitales land 0.7 mm asymmetric), the skull plane is symmetric to 0.2 deg
+    # same plane within ~0.6 deg / 3 mm: the landmarks snap to the bone skull (binary mask, 2 mm voxels: the
+    # orbitales land 0.7 mm asymmetric) and the guessed orbitales onto the rims of the phantom's orbits (the
+    # facial skeleton of issue 22), a little less symmetrically than onto the old vault
     assert by_skull[:3, :3] == pytest.approx(by_landmarks[:3, :3], abs=0.02)
-    assert by_skull[:3, 3] == pytest.approx(by_landmarks[:3, 3], abs=0.001)
+    assert by_skull[:3, 3] == pytest.approx(by_landmarks[:3, 3], abs=0.003)
     assert bpy.ops.pdehead.frankfurt(reset=True) == {'FINISHED'}
     assert np.array(skull_obj.matrix_world)[:3, :3] == pytest.approx(np.eye(3))
 
