@@ -102,7 +102,7 @@ from .boundary_set import BoundarySet
 from .errors import PDEError
 from .mesh import Mesh
 from .pde_basis import basis, basis_grid, curve_harmonics, inverse_4x4, small_matmul
-from .pde_spline import c2_spans, dome_height, smoothing_spline_values
+from .pde_spline import c2_spans, dome_height, fade_dome_amplitudes, smoothing_spline_values
 # (signed_volume and _tube_mesh are also imported from here by scripts/bench_pde.py and scripts/bench_smooth.py)
 from .surface_mesh import _check_count, _fan_caps, _fan_indices, _tube_mesh, signed_volume
 from .parameterisation import align_parameterisation  # noqa: F401  (re-export; solve_pde(align=True))
@@ -444,6 +444,12 @@ class PDEHead:
         self._cubic_spans = ~np.any(exponents, axis=1)
         S_, H_ = coefficients.shape[:2]
         self._coef_flat = np.ascontiguousarray(self._coef_real.transpose(0, 2, 1, 3)).reshape(S_ * 4, H_ * 6)
+        # the crown's dome (last span): which rotating part of the top ring's harmonic 1 is its ellipticity
+        self._dome_minor = 0
+        if vertex is not None and S > 0 and H_ > 1:
+            a1 = basis(exponents[-1, 1], 0.0) @ coefficients[-1, 1]
+            self._dome_minor = -1 if abs(a1[0] + 1j * a1[1]) >= abs(a1[0] - 1j * a1[1]) else 1
+            self._cubic_spans[-1] = False                                      # evaluated with its fade
         self.orientation = 1
         self.orientation = self._measure_orientation()
         self._deviation = None
@@ -526,7 +532,10 @@ class PDEHead:
             g = basis_grid(self.exponents[k, :H], s[sel])                    # (n, H, 4)
             # batched over h: (H, n, 4) @ (H, 4, 6 = re xyz, im xyz)
             prod = np.einsum("hnb,hbc->nhc", g.transpose(1, 0, 2), self._coef_real[k, :H])
-            out[sel] = prod[..., :3] + 1j * prod[..., 3:]
+            amp = prod[..., :3] + 1j * prod[..., 3:]
+            if self._dome_minor and k == self.spans - 1:                     # the crown's dome span
+                amp = fade_dome_amplitudes(amp, s[sel], self.vertex, self._dome_minor)
+            out[sel] = amp
         return out
 
     def spine(self, u: np.ndarray | float) -> np.ndarray:

@@ -125,3 +125,69 @@ def surface_quality(head, nv: int = 360) -> dict[str, float]:
         "notch_fraction": notch_fraction(head, nv=nv),
         "terracing_rms_mm": terracing_rms(head, nv=nv),
     }
+
+
+#: Rings of the crown's dome within this distance (mm) of the pole are measured by :func:`pole_ripple`.
+POLE_RADIUS_MM = 10.0
+
+
+def _pole_frame(head, u_near: float) -> tuple[np.ndarray, np.ndarray]:
+    """The pole and its unit normal (pointing away from the head): the Newell normal of a ring close to it."""
+    pole = np.asarray(head.vertex, float)
+    ring = head.evaluate(np.full(720, u_near), TWO_PI * np.arange(720) / 720)
+    d = ring - pole
+    n = np.cross(d, np.roll(d, -1, axis=0)).sum(axis=0)
+    n /= np.linalg.norm(n)
+    if n @ (pole - head.spine(np.array([head.curve_u[-1]]))[0]) < 0:
+        n = -n
+    return pole, n
+
+
+def pole_ripple(head, radius_mm: float = POLE_RADIUS_MM, rings: int = 160, nv: int = 720) -> dict[str, float]:
+    """The star at the crown's pole, in numbers (issue 21).
+
+    On every ring ``X(u, .)`` of the dome whose mean distance from the pole is at most
+    ``radius_mm``, the ring's radius about the pole in the pole's tangent plane,
+    ``r(theta)`` (resampled at equal angles theta around the pole), is split into its
+    harmonics ``A_n``; the RMS around the ring of the slope ripple of the harmonics
+    ``n >= 3`` is ``sqrt(sum_{n>=3} (n A_n / r_mean)^2 / 2)`` (radians, reported in
+    degrees). Harmonics that fade like ``r^n`` toward the pole (a smooth pole) give a
+    ripple that vanishes there; harmonics that shrink only like ``r`` keep it constant,
+    which shades as radial ridges.
+
+    Returns
+    -------
+    dict
+        ``worst_deg`` (the worst ring), ``mean_deg``, ``rings`` measured, the pole's
+        unit normal ``normal`` and the dome's height above the top curve ``dome_height_mm``
+        (0 and empty when the head has no dome).
+    """
+    if head.vertex is None:
+        return {"worst_deg": 0.0, "mean_deg": 0.0, "rings": 0, "normal": [], "dome_height_mm": 0.0}
+    u0 = float(head.curve_u[-1])
+    u = u0 + (1.0 - u0) * (1.0 - np.geomspace(1.0, 1e-4, rings))[1:]          # denser toward the pole
+    pole, n = _pole_frame(head, 1.0 - 1e-4 * (1.0 - u0))
+    v = TWO_PI * np.arange(nv) / nv
+    pts = head.evaluate(u[:, None], v[None, :]) - pole                        # (R, nv, 3)
+    e1 = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(n, e1)
+    x, y = pts @ e1, pts @ e2
+    r = np.hypot(x, y)
+    keep = (np.linalg.norm(pts, axis=-1).mean(axis=1) <= radius_mm) & (r.min(axis=1) > 0)
+    theta = np.arctan2(y, x)
+    grid = -np.pi + TWO_PI * np.arange(nv) / nv
+    ripple = []
+    for i in np.nonzero(keep)[0]:
+        order = np.argsort(theta[i])
+        th, rr = theta[i, order], r[i, order]
+        ri = np.interp(grid, th, rr, period=TWO_PI)
+        c = np.fft.rfft(ri) / nv
+        amp = 2.0 * np.abs(c[1:])                                            # A_n, n = 1 ..
+        nn = np.arange(1, len(c))
+        hi = nn >= 3
+        ripple.append(np.sqrt(np.sum((nn[hi] * amp[hi] / ri.mean()) ** 2) / 2.0))
+    ripple = np.degrees(np.array(ripple)) if ripple else np.zeros(1)
+    top = head.evaluate(np.full(nv, u0), v)
+    return {"worst_deg": float(ripple.max()), "mean_deg": float(ripple.mean()), "rings": int(keep.sum()),
+            "normal": n.tolist(), "dome_height_mm": float((pole - top.mean(axis=0)) @ n)}

@@ -1,0 +1,63 @@
+"""Issue 21 ("Up close"): the crown's pole without a star, the neck cap without a fan, UVs an artist can paint."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pdehead_addon import solve_pde
+from pdehead_addon.boundary_set import BoundarySet, knots_from_heights
+from pdehead_addon.surface_quality import pole_ripple
+
+TWO_PI = 2.0 * np.pi
+
+
+def rippled_bset(samples: int = 256) -> BoundarySet:
+    """Elliptic rings (aspect 1.35) shrinking toward the top, each with a 4th and a 5th harmonic of 2 mm
+    in its radius (CThead's top curve carries a 4th harmonic of 1.85 mm)."""
+    z = np.linspace(0.0, 150.0, 11)
+    scale = np.sqrt(np.clip(1.0 - (z / 175.0) ** 2, 0.05, None))
+    theta = np.pi / 2 + TWO_PI * np.arange(samples) / samples
+    curves = np.empty((len(z), samples, 3))
+    for j, (zj, s) in enumerate(zip(z, scale)):
+        a, b = 70.0 * s, 92.0 * s
+        r = a * b / np.sqrt((b * np.cos(theta)) ** 2 + (a * np.sin(theta)) ** 2)
+        r = r + 2.0 * np.cos(4 * theta) + 2.0 * np.sin(5 * theta)
+        curves[j, :, 0] = r * np.cos(theta)
+        curves[j, :, 1] = 10.0 + r * np.sin(theta)
+        curves[j, :, 2] = zj
+    return BoundarySet(curves, np.arange(len(z)), z, knots_from_heights(z), {})
+
+
+@pytest.fixture(scope="module")
+def domed():
+    head = solve_pde(rippled_bset(), approximation_mm=0)
+    old = solve_pde(rippled_bset(), approximation_mm=0)
+    old._dome_minor = 0                          # the dome without the fade: the behaviour before issue 21
+    return head, old
+
+
+def test_pole_harmonics_fade_so_the_crown_has_no_star(domed):
+    head, old = domed
+    before, after = pole_ripple(old), pole_ripple(head)
+    assert after["rings"] > 20
+    assert before["worst_deg"] > 3.0             # the star: the ripple stays constant into the pole
+    assert after["worst_deg"] <= 0.5             # issue 21's target
+    # the dome keeps its height and its (horizontal) tangent plane at the pole
+    assert np.isclose(after["dome_height_mm"], before["dome_height_mm"], atol=1e-6)
+    assert np.allclose(after["normal"], [0.0, 0.0, 1.0], atol=1e-6)
+    u = np.linspace(head.curve_u[-1], 1.0, 30)
+    assert np.allclose(head.spine(u)[:, 2], old.spine(u)[:, 2], atol=1e-9)   # the crown's height profile
+
+
+def test_pole_fade_keeps_the_top_curve_and_its_tangent(domed):
+    head, old = domed
+    u0 = float(head.curve_u[-1])
+    v = TWO_PI * np.arange(64) / 64
+    # value and u-derivative at the top curve are kept (C1 with the tube): the two differ by O(du^2) above it
+    assert np.abs(head.evaluate(u0, v) - old.evaluate(u0, v)).max() < 1e-9
+    d1, d2 = (np.abs(head.evaluate(u0 + du, v) - old.evaluate(u0 + du, v)).max() for du in (1e-4, 2e-4))
+    assert 3.0 < d2 / d1 < 5.0
+    # and the rings shrink monotonically to the pole
+    rings = head.evaluate(np.linspace(u0, 1.0, 40)[:, None], v[None, :])
+    r = np.linalg.norm(rings[..., :2] - head.vertex[:2], axis=-1).mean(axis=1)
+    assert np.all(np.diff(r) < 0) and r[-1] < 1e-6
