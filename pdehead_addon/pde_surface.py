@@ -104,7 +104,7 @@ from .mesh import Mesh
 from .pde_basis import basis, basis_grid, curve_harmonics, inverse_4x4, small_matmul
 from .pde_spline import c2_spans, dome_height, fade_dome_amplitudes, smoothing_spline_values
 # (signed_volume and _tube_mesh are also imported from here by scripts/bench_pde.py and scripts/bench_smooth.py)
-from .surface_mesh import _check_count, _fan_caps, _fan_indices, _tube_mesh, signed_volume
+from .surface_mesh import _check_count, _fan_caps, _fan_indices, _tube_mesh, disc_caps, signed_volume
 from .parameterisation import align_parameterisation  # noqa: F401  (re-export; solve_pde(align=True))
 
 #: The default a keeps the top harmonic's Lebesgue constant within this factor of the cubic one.
@@ -665,28 +665,51 @@ class PDEHead:
         nv : int
             Columns along v (>= 3); ``v_j = 2 pi j / nv``, the seam is stitched.
         caps : bool
-            Close the bottom (and, without a dome, the top) with triangles (a fan
-            to the spine point when the end curve is star-shaped around it, else
-            a triangulation of the ring), making the mesh watertight for 3-D printing.
+            Close the bottom (and, without a dome, the top) with triangles: a flat disc
+            triangulated ring by ring (:class:`.surface_mesh.DiscCap`, no triangle much
+            longer than the tube's edges) when the end curve is star-shaped around its
+            spine point, else a triangulation of the ring; watertight for 3-D printing.
 
         Returns
         -------
         Mesh
-            Quads wound outward, per-corner UVs ``(u, v / 2 pi)`` with 1.0 on the seam
-            side, vertex attributes ``u`` and ``v``.
+            Quads wound outward; per-corner UVs in islands that are functions of (u, v)
+            (:meth:`uv_layout`: the tube, the crown's dome and the cap, none mirrored),
+            vertex attributes ``u`` and ``v`` (cap points: the end's u and their v).
         """
         nu, nv = _check_count(nu, "nu", 2), _check_count(nv, "nv", 3)
         u = np.linspace(0.0, 1.0, nu)
+        ends = self.spine(np.array([0.0, 1.0]))
         if self.vertex is not None:
             nu = max(nu, 3)
             u = np.linspace(0.0, 1.0, nu)
             pts = self._grid(u[:-1], nv)
-            bottom = _fan_caps(pts, self.spine(np.array([0.0, 1.0])), ends=(0,))[0] if caps else None
+            bottom = disc_caps(pts, ends, ends=(0,))[0] if caps else None
             top = (np.asarray(self.vertex, float), _fan_indices(nv))
-            return _tube_mesh(pts, self.orientation, [bottom, top], uv=True, u=u[:-1], top_u=1.0)
+            return _tube_mesh(pts, self.orientation, [bottom, top], uv=True, u=u[:-1], top_u=1.0,
+                              uv_layout=self.uv_layout())
         pts = self._grid(u, nv)
-        cap_tris = _fan_caps(pts, self.spine(np.array([0.0, 1.0]))) if caps else None
-        return _tube_mesh(pts, self.orientation, cap_tris, uv=True, u=u)
+        cap_tris = disc_caps(pts, ends) if caps else None
+        return _tube_mesh(pts, self.orientation, cap_tris, uv=True, u=u, uv_layout=self.uv_layout())
+
+    def uv_layout(self) -> dict:
+        """The surface's UV islands (:func:`.surface_mesh.uv_islands`), from the boundary curves alone, so
+        the UVs are one function of (u, v) for a study: nu, nv and the shape sliders do not move a
+        painted texture. ``u_top``: where the dome starts in u; ``aspect``: the tube's length over its
+        mean circumference; ``shear``: :func:`.surface_mesh.uv_shear` of the curves (the sideways drift of
+        the v = const lines, undone in U so the tube's UV quads keep their 3-D corner angles)."""
+        from .surface_mesh import uv_shear
+
+        def compute():
+            c = self.bset.curves
+            circumference = float(np.linalg.norm(np.roll(c, -1, axis=1) - c, axis=2).sum(axis=1).mean())
+            length = float(_curve_positions(self.bset)[-1])
+            return length / max(circumference, 1e-9)
+        aspect = _derived(self.bset, "uv_aspect", compute)
+        u_top = float(self.curve_u[-1]) if self.vertex is not None else 1.0
+        curve_u = np.asarray(self.curve_u, float)
+        shear = _derived(self.bset, "uv_shear", lambda: uv_shear(self.bset.curves, curve_u))
+        return {"u_top": u_top, "aspect": aspect, "curve_u": curve_u, "shear": shear}
 
     def solid(self, nu: int, nv: int, nw: int, u_range: tuple[float, float] = (0.0, 1.0),
               v_range: tuple[float, float] = (0.0, TWO_PI), w_range: tuple[float, float] = (0.0, 1.0)) -> Mesh:

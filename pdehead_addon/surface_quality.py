@@ -191,3 +191,67 @@ def pole_ripple(head, radius_mm: float = POLE_RADIUS_MM, rings: int = 160, nv: i
     top = head.evaluate(np.full(nv, u0), v)
     return {"worst_deg": float(ripple.max()), "mean_deg": float(ripple.mean()), "rings": int(keep.sum()),
             "normal": n.tolist(), "dome_height_mm": float((pole - top.mean(axis=0)) @ n)}
+
+
+def _face_corners(mesh):
+    """(faces as vertex-index lists, their per-corner UVs): quads then triangles."""
+    faces = [f for f in (mesh.quads, mesh.triangles) if len(f)]
+    uvs = [x for x, f in ((mesh.quad_uv, mesh.quads), (mesh.triangle_uv, mesh.triangles)) if len(f)]
+    return faces, uvs
+
+
+def uv_quality(mesh, middle: float = 0.8) -> dict[str, float]:
+    """How paintable a mesh's UVs are (issue 21): mirrored and empty faces, area stretch, angle distortion.
+
+    * ``mirrored``: faces whose UV polygon winds against their 3-D winding (negative UV area);
+      ``zero_area``: faces with UV area <= 1e-12 (neither can be painted);
+    * ``stretch_p99_p1``: over the faces whose centre lies in the middle ``middle`` of the mesh's
+      height (z), the ratio p99 / p1 of UV area / 3-D area (1 = the texel density is even);
+    * ``angle_p95_deg``: over the same faces, p95 of |UV angle - 3-D angle| per corner.
+
+    Quads are measured as quads (signed polygon area, their four corner angles).
+    """
+    faces, uvs = _face_corners(mesh)
+    v = mesh.vertices
+    mirrored = zero = total = 0
+    stretch, angle = [], []
+    z = v[:, 2]
+    lo, hi = z.min(), z.max()
+    margin = 0.5 * (1.0 - middle) * (hi - lo)
+    for f, uv in zip(faces, uvs):
+        uv = np.asarray(uv, float)
+        p = v[f]
+        x, y = uv[..., 0], uv[..., 1]
+        a_uv = 0.5 * (x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y).sum(axis=1)
+        c = p.mean(axis=1, keepdims=True)
+        a_3d = 0.5 * np.linalg.norm(np.cross(p - c, np.roll(p, -1, axis=1) - c).sum(axis=1), axis=1)
+        mirrored += int(np.count_nonzero(a_uv < -1e-12))
+        zero += int(np.count_nonzero(np.abs(a_uv) <= 1e-12))
+        total += len(f)
+        mid = (c[:, 0, 2] >= lo + margin) & (c[:, 0, 2] <= hi - margin) & (a_3d > 0)
+        stretch.append(a_uv[mid] / a_3d[mid])
+
+        def corner_angles(q):
+            e1 = np.roll(q, -1, axis=1) - q
+            e0 = np.roll(q, 1, axis=1) - q
+            cos = np.einsum("...i,...i", e0, e1) / np.maximum(
+                np.linalg.norm(e0, axis=-1) * np.linalg.norm(e1, axis=-1), 1e-300)
+            return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+        angle.append(np.abs(corner_angles(uv[mid]) - corner_angles(p[mid])).ravel())
+    stretch = np.concatenate(stretch)
+    angle = np.concatenate(angle)
+    ok = stretch > 0
+    return {"faces": total, "mirrored": mirrored, "zero_area": zero,
+            "stretch_p99_p1": float(np.percentile(stretch[ok], 99) / np.percentile(stretch[ok], 1)) if ok.any() else float("inf"),
+            "angle_p95_deg": float(np.percentile(angle, 95)) if angle.size else 0.0}
+
+
+def cap_edge_ratio(mesh) -> float:
+    """Longest edge of the mesh's triangles (the caps and the pole's fan) over the mean edge of the whole mesh."""
+    if not len(mesh.triangles):
+        return 0.0
+    e = mesh.edges()
+    mean = np.linalg.norm(mesh.vertices[e[:, 0]] - mesh.vertices[e[:, 1]], axis=1).mean()
+    t = mesh.vertices[mesh.triangles]
+    longest = np.linalg.norm(t - np.roll(t, -1, axis=1), axis=-1).max()
+    return float(longest / mean)

@@ -61,3 +61,64 @@ def test_pole_fade_keeps_the_top_curve_and_its_tangent(domed):
     rings = head.evaluate(np.linspace(u0, 1.0, 40)[:, None], v[None, :])
     r = np.linalg.norm(rings[..., :2] - head.vertex[:2], axis=-1).mean(axis=1)
     assert np.all(np.diff(r) < 0) and r[-1] < 1e-6
+
+
+# ----------------------------------------------------------------------------- the neck's cap, the UVs
+
+@pytest.fixture(scope="module")
+def head_like():
+    from pde_synthetic import head_bset
+    return solve_pde(head_bset(patches=6, samples=256))
+
+
+def test_bottom_is_a_flat_disc_without_long_triangles(head_like):
+    from pdehead_addon.surface_mesh import signed_volume
+    from pdehead_addon.surface_quality import cap_edge_ratio
+    m = head_like.surface(60, 120, caps=True)
+    assert m.is_watertight() and signed_volume(m) > 0
+    assert cap_edge_ratio(m) <= 3.0                       # the fan's triangles ran from the centre to the ring
+    tube = 59 * 120
+    bottom = m.triangles[np.all((m.triangles < 120) | (m.triangles > tube), axis=1)]
+    t = m.vertices[bottom]
+    assert len(bottom) > 3 * 120                           # ring by ring, not one fan of 120
+    nz = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    nz = nz[:, 2] / np.linalg.norm(nz, axis=1)
+    assert np.all(nz < -0.999)                             # flat, facing down, nothing folded
+
+
+def _loop_pixels(mesh, size):
+    uv = mesh.loop_uv()
+    return np.clip(np.floor(uv * size).astype(np.int64), 0, size - 1), mesh.loop_vertex_indices()
+
+
+def test_uvs_are_paintable(head_like):
+    from pdehead_addon.surface_quality import uv_quality
+    m = head_like.surface(60, 120, caps=True)
+    q = uv_quality(m)
+    assert q["mirrored"] == 0 and q["zero_area"] == 0     # before: every tube quad mirrored, caps of zero area
+    assert q["stretch_p99_p1"] <= 4.0 and q["angle_p95_deg"] <= 10.0
+    uv = m.loop_uv()
+    assert uv.min() >= 0.0 and uv.max() <= 1.0
+
+
+@pytest.mark.parametrize("nu2, nv2, step", [(119, 120, (2, 1)), (60, 240, (1, 2))])
+def test_a_painted_dot_stays_on_its_vertex_when_the_mesh_is_rebuilt(head_like, nu2, nv2, step):
+    size = 2048
+    nu, nv = 60, 120
+    m = head_like.surface(nu, nv, caps=True)
+    i, j = 25, 41                                          # a vertex on the face side, away from seam and caps
+    k = i * nv + j
+    pix, verts = _loop_pixels(m, size)
+    image = np.zeros((size, size), bool)
+    px = pix[verts == k]
+    assert len(np.unique(px, axis=0)) == 1                 # all of vertex k's loops share one UV
+    image[px[0, 1], px[0, 0]] = True                       # the dot
+    hit = image[pix[:, 1], pix[:, 0]]
+    assert set(verts[hit]) == {k}
+    # the same (u, v) after a rebuild at another resolution: found only on that vertex's loops
+    m2 = head_like.surface(nu2, nv2, caps=True)
+    k2 = (i * step[0]) * nv2 + j * step[1]
+    assert np.allclose(m2.vertices[k2], m.vertices[k])
+    pix2, verts2 = _loop_pixels(m2, size)
+    hit2 = image[pix2[:, 1], pix2[:, 0]]
+    assert hit2.any() and set(verts2[hit2]) == {k2}
