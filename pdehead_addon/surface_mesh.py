@@ -483,15 +483,12 @@ def _tube_mesh(pts: np.ndarray, orientation: int, caps=None, uv: bool = False,
     return mesh
 
 
-def _island_uv(verts, quads, cap_faces, nu: int, nv: int, u: np.ndarray, orientation: int, layout: dict):
-    """Per-corner UVs of the tube, dome and cap islands (:func:`uv_islands`), each a function of (u, v).
+#: The tube's and dome's quad UVs depend on (nu, nv) and the study's layout only: the shape sliders reuse them.
+_QUAD_UV_CACHE: dict = {}
 
-    Tube: ``U = left + width * v / 2 pi`` (mirrored for the other winding), ``V = bottom + height *
-    u / u_top``. Dome (quads whose centre lies above ``u_top``, and the pole's fan): polar, radius
-    ``(1 - u) / (1 - u_top)``, angle v. Caps: polar, radius the cap ring's fraction of the end curve.
-    No island is mirrored (the winding of each is checked).
-    """
-    isl = uv_islands(float(layout["aspect"]))
+
+def _tube_and_dome_uv(quads, nu: int, nv: int, u: np.ndarray, orientation: int, layout: dict, isl: dict):
+    """Per-corner UVs of the tube's quads: the tube island, and the dome's disc above ``u_top``."""
     x0, y0, width, height = isl["tube"]
     u_top = float(layout["u_top"])
     v_cols = TWO_PI_ * np.arange(nv + 1) / nv                                  # the seam column gets 2 pi
@@ -513,6 +510,29 @@ def _island_uv(verts, quads, cap_faces, nu: int, nv: int, u: np.ndarray, orienta
             rho_v = np.repeat((1.0 - u[r0:]) / (1.0 - u_top), nv)
             ang_v = np.tile(TWO_PI_ * np.arange(nv) / nv, nu - r0)
             quad_uv[sel] = _disc_uv(isl["dome"], isl["radius"], rho_v, ang_v, q)
+    return quad_uv
+
+
+def _island_uv(verts, quads, cap_faces, nu: int, nv: int, u: np.ndarray, orientation: int, layout: dict):
+    """Per-corner UVs of the tube, dome and cap islands (:func:`uv_islands`), each a function of (u, v).
+
+    Tube: ``U = left + width * v / 2 pi`` (mirrored for the other winding), ``V = bottom + height *
+    u / u_top``. Dome (quads whose centre lies above ``u_top``, and the pole's fan): polar, radius
+    ``(1 - u) / (1 - u_top)``, angle v. Caps: polar, radius the cap ring's fraction of the end curve.
+    No island is mirrored (the winding of each is checked).
+    """
+    isl = uv_islands(float(layout["aspect"]))
+    u_top = float(layout["u_top"])
+    shear = layout.get("shear")
+    key = (nu, nv, orientation, u_top, float(layout["aspect"]), hash(u.tobytes()),
+           None if shear is None else (shear.ctypes.data, shear.shape, float(shear.sum())))
+    quad_uv = _QUAD_UV_CACHE.get(key)
+    if quad_uv is None:
+        quad_uv = _tube_and_dome_uv(quads, nu, nv, u, orientation, layout, isl)
+        quad_uv.flags.writeable = False
+        if len(_QUAD_UV_CACHE) >= 8:
+            _QUAD_UV_CACHE.pop(next(iter(_QUAD_UV_CACHE)))
+        _QUAD_UV_CACHE[key] = quad_uv
     tri_uv = []
     for end, t, polar in cap_faces:
         dome_fan = end == 1 and u_top < 1.0

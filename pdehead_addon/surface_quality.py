@@ -206,7 +206,7 @@ def uv_quality(mesh, middle: float = 0.8) -> dict[str, float]:
     * ``mirrored``: faces whose UV polygon winds against their 3-D winding (negative UV area);
       ``zero_area``: faces with UV area <= 1e-12 (neither can be painted);
     * ``stretch_p99_p1``: over the faces whose centre lies in the middle ``middle`` of the mesh's
-      height (z), the ratio p99 / p1 of UV area / 3-D area (1 = the texel density is even);
+      height (z), the ratio p99 / p1 of |UV area| / 3-D area (1 = the texel density is even);
     * ``angle_p95_deg``: over the same faces, p95 of |UV angle - 3-D angle| per corner.
 
     Quads are measured as quads (signed polygon area, their four corner angles).
@@ -229,7 +229,7 @@ def uv_quality(mesh, middle: float = 0.8) -> dict[str, float]:
         zero += int(np.count_nonzero(np.abs(a_uv) <= 1e-12))
         total += len(f)
         mid = (c[:, 0, 2] >= lo + margin) & (c[:, 0, 2] <= hi - margin) & (a_3d > 0)
-        stretch.append(a_uv[mid] / a_3d[mid])
+        stretch.append(np.abs(a_uv[mid]) / a_3d[mid])                      # mirrored faces count by size
 
         def corner_angles(q):
             e1 = np.roll(q, -1, axis=1) - q

@@ -122,3 +122,30 @@ def test_a_painted_dot_stays_on_its_vertex_when_the_mesh_is_rebuilt(head_like, n
     pix2, verts2 = _loop_pixels(m2, size)
     hit2 = image[pix2[:, 1], pix2[:, 0]]
     assert hit2.any() and set(verts2[hit2]) == {k2}
+
+
+# ----------------------------------------------------------------------------- the visible-face measure
+
+def _ellipsoid_mc(radii, cavity: bool):
+    from skimage import measure
+    z, y, x = np.mgrid[-70:71, -60:61, -50:51].astype(float)            # 1 mm voxels, patient mm = index
+    inside = (x / radii[0]) ** 2 + (y / radii[1]) ** 2 + (z / radii[2]) ** 2 <= 1.0
+    inside &= ~((z < -45) & (np.hypot(x, y) > 25))                           # a neck below
+    if cavity:                                                               # an airway the skin does not show
+        inside &= ~((x ** 2 + (y + radii[1] - 18) ** 2 + z ** 2) <= 8 ** 2)
+    verts, faces, _, _ = measure.marching_cubes(inside.astype(np.float32), 0.5)
+    return verts[:, ::-1] + np.array([-50.0, -60.0, -70.0]), faces        # (x, y, z) mm
+
+
+def test_visible_face_measure_drops_the_inside_and_measures_the_offset():
+    from pdehead_addon.surface_metrics import visible_face_distance, visible_face_points
+    mask = _ellipsoid_mc((40.0, 50.0, 60.0), cavity=True)
+    centroids = mask[0][mask[1]].mean(axis=1)
+    kept = visible_face_points(centroids, (0.0, 0.0))
+    cavity = np.linalg.norm(centroids - [0.0, -32.0, 0.0], axis=1) < 10
+    assert cavity.sum() > 100 and not kept[cavity].any()                    # the airway's walls drop out
+    same = visible_face_distance(*_ellipsoid_mc((40.0, 50.0, 60.0), cavity=False), *mask, (0.0, 0.0))
+    assert same["score_mean"] < 0.05 and same["score_p95"] < 0.2
+    assert abs(same["pronasale"][1] + 50.0) < 1.0                              # the most anterior midline point
+    bigger = visible_face_distance(*_ellipsoid_mc((41.5, 51.5, 61.5), cavity=False), *mask, (0.0, 0.0))
+    assert 1.2 < bigger["score_mean"] < 1.8                                  # 1.5 mm outward
