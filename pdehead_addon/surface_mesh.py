@@ -27,6 +27,8 @@ from .mesh import Mesh
 
 __all__ = ["signed_volume"]
 
+TWO_PI = 2.0 * np.pi
+
 
 def _check_count(n, name: str, minimum: int) -> int:
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or int(n) < minimum:
@@ -229,7 +231,7 @@ def _zipper(keys: list[np.ndarray], offsets: np.ndarray) -> np.ndarray:
 def _edge_angles(p: np.ndarray) -> np.ndarray:
     """Unwrapped polar angle (from p[0]'s) of the middle of each edge of a star-shaped ring p (n, 2)."""
     th = np.unwrap(np.arctan2(p[:, 1], p[:, 0]))
-    th = np.concatenate([th, [th[0] + TWO_PI_]])
+    th = np.concatenate([th, [th[0] + TWO_PI]])
     th -= th[0]
     return 0.5 * (th[:-1] + th[1:])
 
@@ -264,7 +266,7 @@ class DiscCap:
         rings = max(1, int(np.ceil(np.linalg.norm(flat, axis=1).max() / edge)))
         closed = np.vstack([p2, p2[:1]])
         arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(closed, axis=0), axis=1))])
-        theta_c = np.concatenate([theta, [TWO_PI_]])
+        theta_c = np.concatenate([theta, [TWO_PI]])
         f = 1.0 - np.arange(1, rings) / rings                                  # the inner rings' scale
         m = np.maximum(6, np.ceil(f * arc[-1] / edge).astype(np.int64))
         ring_of = np.repeat(np.arange(len(f)), m)
@@ -275,7 +277,7 @@ class DiscCap:
         th = np.interp(s, arc, theta_c)                                          # polar angle, from 0
         # edge-middle angles of each inner ring (its points run from angle 0 up to 2 pi)
         th_next = np.where(np.arange(m.sum()) + 1 < np.append(first[1:], m.sum())[ring_of],
-                           np.roll(th, -1), TWO_PI_)
+                           np.roll(th, -1), TWO_PI)
         keys = [_edge_angles(p2)] + np.split(0.5 * (th + th_next), first[1:])
         offsets = np.concatenate([[0], n + first, [n + m.sum()]])
         tris = [_zipper(keys, offsets[:-1])] if len(f) else []
@@ -287,10 +289,8 @@ class DiscCap:
                                         np.asarray(centre, float)[None]])
         self.triangles = np.concatenate(tris)
         self.radius = np.concatenate([fr, [0.0]])
-        self.angle = np.concatenate([TWO_PI_ * np.interp(th, theta_c, np.arange(n + 1)) / n, [0.0]])
+        self.angle = np.concatenate([TWO_PI * np.interp(th, theta_c, np.arange(n + 1)) / n, [0.0]])
 
-
-TWO_PI_ = 2.0 * np.pi
 
 
 #: The disc caps' step (radially and along each ring) in mean edges of the tube: a flat disc needs no
@@ -333,7 +333,7 @@ def uv_islands(aspect: float) -> dict:
 
 
 #: The shear correction of the tube's UVs keeps the harmonics up to this order around the ring (no UV folds).
-UV_SHEAR_HARMONICS = 12
+UV_SHEAR_HARMONICS = 3
 
 
 def uv_shear(curves: np.ndarray, curve_u: np.ndarray) -> np.ndarray:
@@ -349,7 +349,7 @@ def uv_shear(curves: np.ndarray, curve_u: np.ndarray) -> np.ndarray:
     n, M, _ = c.shape
     if n < 2:
         return np.zeros((n, M))
-    xv = (np.roll(c, -1, axis=1) - np.roll(c, 1, axis=1)) * (M / (2.0 * TWO_PI_))
+    xv = (np.roll(c, -1, axis=1) - np.roll(c, 1, axis=1)) * (M / (2.0 * TWO_PI))
     xu = np.gradient(c, np.asarray(curve_u, float), axis=0)
     rate = -np.einsum("ijk,ijk->ij", xu, xv) / np.maximum(np.einsum("ijk,ijk->ij", xv, xv), 1e-12)
     du = np.diff(curve_u)[:, None]
@@ -358,7 +358,7 @@ def uv_shear(curves: np.ndarray, curve_u: np.ndarray) -> np.ndarray:
     spec = np.fft.rfft(phi, axis=1)
     spec[:, UV_SHEAR_HARMONICS + 1:] = 0.0
     phi = np.fft.irfft(spec, n=M, axis=1)
-    slope = (np.roll(phi, -1, axis=1) - phi) * (M / TWO_PI_)
+    slope = (np.roll(phi, -1, axis=1) - phi) * (M / TWO_PI)
     worst = slope.max()
     if worst > 0.7:                                                     # keep dU/dv >= 0.3 of the unsheared
         phi *= 0.7 / worst
@@ -375,7 +375,7 @@ def _shear_at(layout: dict, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     j = np.clip(np.searchsorted(cu, u, side="right") - 1, 0, len(cu) - 2)
     w = np.clip((u - cu[j]) / np.maximum(cu[j + 1] - cu[j], 1e-12), 0.0, 1.0)[:, None]
     rows = shear[j] * (1 - w) + shear[j + 1] * w                               # (k, M)
-    x = np.mod(v, TWO_PI_) * (M / TWO_PI_)
+    x = np.mod(v, TWO_PI) * (M / TWO_PI)
     lo = np.floor(x).astype(np.int64) % M
     f = x - np.floor(x)
     return rows[:, lo] * (1 - f) + rows[:, (lo + 1) % M] * f
@@ -440,7 +440,7 @@ def _tube_mesh(pts: np.ndarray, orientation: int, caps=None, uv: bool = False,
                 extra_u.append(np.full(len(cap.vertices), end_u))
                 extra_v.append(cap.angle)
                 polar = (np.concatenate([np.ones(nv), cap.radius]),
-                         np.concatenate([TWO_PI_ * np.arange(nv) / nv, cap.angle]), base, nvert)
+                         np.concatenate([TWO_PI * np.arange(nv) / nv, cap.angle]), base, nvert)
                 nvert += len(cap.vertices)
             else:
                 centre, t = cap
@@ -450,7 +450,7 @@ def _tube_mesh(pts: np.ndarray, orientation: int, caps=None, uv: bool = False,
                     extra_u.append(np.array([end_u]))
                     extra_v.append(np.zeros(1))
                     polar = (np.concatenate([np.ones(nv), [0.0]]),
-                             np.concatenate([TWO_PI_ * np.arange(nv) / nv, [0.0]]), base, nvert)
+                             np.concatenate([TWO_PI * np.arange(nv) / nv, [0.0]]), base, nvert)
                     t = np.where(t < 0, nvert, t + base)
                     nvert += 1
                 else:
@@ -491,10 +491,10 @@ def _tube_and_dome_uv(quads, nu: int, nv: int, u: np.ndarray, orientation: int, 
     """Per-corner UVs of the tube's quads: the tube island, and the dome's disc above ``u_top``."""
     x0, y0, width, height = isl["tube"]
     u_top = float(layout["u_top"])
-    v_cols = TWO_PI_ * np.arange(nv + 1) / nv                                  # the seam column gets 2 pi
+    v_cols = TWO_PI * np.arange(nv + 1) / nv                                  # the seam column gets 2 pi
     phi = _shear_at(layout, u, v_cols)                                          # (nu, nv + 1)
     seam = _shear_at(layout, np.asarray(layout.get("curve_u", [0.0, 1.0]), float), np.zeros(1))[:, 0]
-    span = TWO_PI_ + seam.max() - seam.min()                                  # the island's wavy left/right edges
+    span = TWO_PI + seam.max() - seam.min()                                  # the island's wavy left/right edges
     frac = (v_cols[None, :] - phi + seam.max()) / span
     frac = frac if orientation > 0 else 1.0 - frac
     grid = np.empty((nu, nv + 1, 2))
@@ -508,7 +508,7 @@ def _tube_and_dome_uv(quads, nu: int, nv: int, u: np.ndarray, orientation: int, 
             sel = np.repeat(dome_rows, nv)
             q = quads[sel] - r0 * nv
             rho_v = np.repeat((1.0 - u[r0:]) / (1.0 - u_top), nv)
-            ang_v = np.tile(TWO_PI_ * np.arange(nv) / nv, nu - r0)
+            ang_v = np.tile(TWO_PI * np.arange(nv) / nv, nu - r0)
             quad_uv[sel] = _disc_uv(isl["dome"], isl["radius"], rho_v, ang_v, q)
     return quad_uv
 
