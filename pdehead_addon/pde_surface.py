@@ -702,14 +702,26 @@ class PDEHead:
 
         def compute():
             c = self.bset.curves
-            circumference = float(np.linalg.norm(np.roll(c, -1, axis=1) - c, axis=2).sum(axis=1).mean())
-            length = float(_curve_positions(self.bset)[-1])
-            return length / max(circumference, 1e-9)
-        aspect = _derived(self.bset, "uv_aspect", compute)
+            perimeter = np.linalg.norm(np.roll(c, -1, axis=1) - c, axis=2).sum(axis=1)
+            steps = np.diff(_curve_positions(self.bset))
+            length = float(steps.sum())
+            tube = float((0.5 * (perimeter[1:] + perimeter[:-1]) * steps).sum())
+
+            def flat_area(ring):
+                d = ring - ring.mean(axis=0)
+                return 0.5 * float(np.linalg.norm(np.cross(d, np.roll(d, -1, axis=0)).sum(axis=0)))
+            # a spherical cap's area is pi times the squared chord from its pole to its rim
+            r_top = float(np.linalg.norm(c[-1] - c[-1].mean(axis=0), axis=1).mean())
+            h = dome_height(c, self.bset.heights, self.bset.meta.get("vertex_z"))
+            top = np.pi * (r_top ** 2 + h ** 2) if self.vertex is not None else flat_area(c[-1])
+            return (length / max(float(perimeter.mean()), 1e-9), top / max(tube, 1e-9),
+                    flat_area(c[0]) / max(tube, 1e-9))
+        aspect, dome_ratio, cap_ratio = _derived(self.bset, f"uv_areas{self.vertex is not None}", compute)
         u_top = float(self.curve_u[-1]) if self.vertex is not None else 1.0
         curve_u = np.asarray(self.curve_u, float)
         shear = _derived(self.bset, "uv_shear", lambda: uv_shear(self.bset.curves, curve_u))
-        return {"u_top": u_top, "aspect": aspect, "curve_u": curve_u, "shear": shear}
+        return {"u_top": u_top, "aspect": aspect, "curve_u": curve_u, "shear": shear, "dome_ratio": dome_ratio,
+                "cap_ratio": cap_ratio}
 
     def solid(self, nu: int, nv: int, nw: int, u_range: tuple[float, float] = (0.0, 1.0),
               v_range: tuple[float, float] = (0.0, TWO_PI), w_range: tuple[float, float] = (0.0, 1.0)) -> Mesh:

@@ -316,20 +316,27 @@ def disc_caps(pts: np.ndarray, spine_ends: np.ndarray, ends: tuple[int, ...] = (
 UV_MARGIN = 0.02
 
 
-def uv_islands(aspect: float) -> dict:
+def uv_islands(aspect: float, dome_ratio: float | None = None, cap_ratio: float | None = None) -> dict:
     """Where the surface's UV islands lie in [0, 1]^2 (one layout per study: a function of (u, v) only).
 
     The tube (curves' u range x v) is a rectangle across the bottom of the texture, as wide as the
     margins allow and as high as ``aspect`` (the tube's length over its mean circumference) makes
-    it; the crown's dome and the bottom cap are discs side by side above it.
+    it; the crown's dome and the bottom cap are discs side by side above it, each as large as the
+    space allows but no larger than the tube's texel density gives its 3-D area (``dome_ratio`` /
+    ``cap_ratio``: its area over the tube's), so the islands' texels are about the same size.
     """
     m = UV_MARGIN
     width = 1.0 - 2.0 * m
     height = float(np.clip(width * aspect, 0.2, 1.0 - 3.0 * m - 0.3))
-    radius = min(0.5 * (1.0 - 3.0 * m - height), 0.25 * (1.0 - 3.0 * m))
-    top = 1.0 - m - radius
-    return {"tube": (m, m, width, height), "radius": radius,
-            "dome": (0.25 + 0.25 * m, top), "cap": (0.75 - 0.25 * m, top)}
+    room = min(0.5 * (1.0 - 3.0 * m - height), 0.25 * (1.0 - 3.0 * m))
+    top = 1.0 - m - room
+
+    def disc(ratio):
+        if ratio is None or not np.isfinite(ratio) or ratio <= 0:
+            return room
+        return float(min(room, np.sqrt(width * height * ratio / np.pi) / 0.9))
+    return {"tube": (m, m, width, height), "radius": room, "dome_radius": disc(dome_ratio),
+            "cap_radius": disc(cap_ratio), "dome": (0.25 + 0.25 * m, top), "cap": (0.75 - 0.25 * m, top)}
 
 
 #: The shear correction of the tube's UVs keeps the harmonics up to this order around the ring (no UV folds).
@@ -509,7 +516,7 @@ def _tube_and_dome_uv(quads, nu: int, nv: int, u: np.ndarray, orientation: int, 
             q = quads[sel] - r0 * nv
             rho_v = np.repeat((1.0 - u[r0:]) / (1.0 - u_top), nv)
             ang_v = np.tile(TWO_PI * np.arange(nv) / nv, nu - r0)
-            quad_uv[sel] = _disc_uv(isl["dome"], isl["radius"], rho_v, ang_v, q)
+            quad_uv[sel] = _disc_uv(isl["dome"], isl["dome_radius"], rho_v, ang_v, q)
     return quad_uv
 
 
@@ -521,10 +528,10 @@ def _island_uv(verts, quads, cap_faces, nu: int, nv: int, u: np.ndarray, orienta
     ``(1 - u) / (1 - u_top)``, angle v. Caps: polar, radius the cap ring's fraction of the end curve.
     No island is mirrored (the winding of each is checked).
     """
-    isl = uv_islands(float(layout["aspect"]))
+    isl = uv_islands(float(layout["aspect"]), layout.get("dome_ratio"), layout.get("cap_ratio"))
     u_top = float(layout["u_top"])
     shear = layout.get("shear")
-    key = (nu, nv, orientation, u_top, float(layout["aspect"]), hash(u.tobytes()),
+    key = (nu, nv, orientation, u_top, float(layout["aspect"]), isl["dome_radius"], hash(u.tobytes()),
            None if shear is None else (shear.ctypes.data, shear.shape, float(shear.sum())))
     quad_uv = _QUAD_UV_CACHE.get(key)
     if quad_uv is None:
@@ -543,7 +550,7 @@ def _island_uv(verts, quads, cap_faces, nu: int, nv: int, u: np.ndarray, orienta
             if dome_fan:                                                         # the pole fan: dome polar
                 rho[:nv] = (1.0 - u[-1]) / (1.0 - u_top)
             local = np.where(t >= first_new, t - first_new + nv, t - base)
-            tri_uv.append(_disc_uv(centre, isl["radius"], rho, ang, local))
+            tri_uv.append(_disc_uv(centre, isl["dome_radius" if end == 1 else "cap_radius"], rho, ang, local))
         else:                                                                    # polygon cap: planar projection
             ring = verts[t]
             c = verts[np.unique(t)].mean(axis=0)
@@ -553,5 +560,6 @@ def _island_uv(verts, quads, cap_faces, nu: int, nv: int, u: np.ndarray, orienta
             p /= np.abs(p).max() or 1.0
             rho, ang = np.hypot(p[..., 0], p[..., 1]), np.arctan2(p[..., 1], p[..., 0])
             flat = np.arange(t.size).reshape(t.shape)
-            tri_uv.append(_disc_uv(centre, isl["radius"], rho.ravel(), ang.ravel(), flat))
+            tri_uv.append(_disc_uv(centre, isl["dome_radius" if end == 1 else "cap_radius"], rho.ravel(), ang.ravel(),
+                                   flat))
     return quad_uv, (np.concatenate(tri_uv) if tri_uv else None)
