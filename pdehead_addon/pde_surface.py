@@ -684,13 +684,34 @@ class PDEHead:
             nu = max(nu, 3)
             u = np.linspace(0.0, 1.0, nu)
             pts = self._grid(u[:-1], nv)
-            bottom = disc_caps(pts, ends, ends=(0,))[0] if caps else None
+            bottom = disc_caps(pts, ends, ends=(0,), reference=self.cap_reference(nu, nv))[0] if caps else None
             top = (np.asarray(self.vertex, float), _fan_indices(nv))
             return _tube_mesh(pts, self.orientation, [bottom, top], uv=True, u=u[:-1], top_u=1.0,
                               uv_layout=self.uv_layout())
         pts = self._grid(u, nv)
-        cap_tris = disc_caps(pts, ends) if caps else None
+        cap_tris = disc_caps(pts, ends, reference=self.cap_reference(nu, nv)) if caps else None
         return _tube_mesh(pts, self.orientation, cap_tris, uv=True, u=u, uv_layout=self.uv_layout())
+
+    def cap_reference(self, nu: int, nv: int) -> dict:
+        """What fixes the disc caps' vertex counts (:func:`.surface_mesh.disc_caps`): the tube's mean edge
+        at (nu, nv) and the end curves' perimeters and largest radii, from the boundary curves alone, so
+        the shape sliders rebuild the surface with the same topology."""
+        def compute():
+            c = self.bset.curves
+            perimeter = np.linalg.norm(np.roll(c, -1, axis=1) - c, axis=2).sum(axis=1)
+            radius = np.linalg.norm(c - c.mean(axis=1, keepdims=True), axis=2).max(axis=1)
+            span = float(_curve_positions(self.bset)[-1])
+            if self.vertex is not None:
+                span += float(np.linalg.norm(c[-1] - c[-1].mean(axis=0), axis=1).mean())
+            def arc_fraction(ring):                          # cumulative length at v = 2 pi k / M, k = 0 .. M
+                closed = np.vstack([ring, ring[:1]])
+                arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(closed, axis=0), axis=1))])
+                return arc / arc[-1]
+            return span, float(perimeter.mean()), ((perimeter[0], radius[0], arc_fraction(c[0])),
+                                                   (perimeter[-1], radius[-1], arc_fraction(c[-1])))
+        span, mean_perimeter, end_rings = _derived(self.bset, f"cap_ref{self.vertex is not None}", compute)
+        edge = 0.5 * (span / max(nu - 1, 1) + mean_perimeter / nv)
+        return {"edge": edge, "ends": end_rings}
 
     def uv_layout(self) -> dict:
         """The surface's UV islands (:func:`.surface_mesh.uv_islands`), from the boundary curves alone, so

@@ -200,10 +200,10 @@ def _fan_indices(n: int) -> np.ndarray:
 
 
 def _zipper(keys: list[np.ndarray], offsets: np.ndarray) -> np.ndarray:
-    """Triangles between each closed ring k and ring k+1 inside it, joined in the order of their angles.
+    """Triangles between each closed ring k and ring k+1 inside it, joined in the order of their positions.
 
-    ``keys[k]``: increasing angle (unwrapped, radians from the same start) of the middle of each edge
-    i -> i+1 of ring k; ``offsets[k]``: the index of ring k's first point. Every triangle has one edge
+    ``keys[k]``: increasing position (a fraction of the turn, from the same start) of the middle of each
+    edge i -> i+1 of ring k; ``offsets[k]``: the index of ring k's first point. Every triangle has one edge
     on a ring, so none spans more than a step of either; counter-clockwise like the rings. All ring
     pairs at once (one sort).
     """
@@ -228,26 +228,19 @@ def _zipper(keys: list[np.ndarray], offsets: np.ndarray) -> np.ndarray:
     return np.where(kind[:, None], np.stack([a0, b1, b0], axis=1), np.stack([a0, a1, b0], axis=1))
 
 
-def _edge_angles(p: np.ndarray) -> np.ndarray:
-    """Unwrapped polar angle (from p[0]'s) of the middle of each edge of a star-shaped ring p (n, 2)."""
-    th = np.unwrap(np.arctan2(p[:, 1], p[:, 0]))
-    th = np.concatenate([th, [th[0] + TWO_PI]])
-    th -= th[0]
-    return 0.5 * (th[:-1] + th[1:])
-
-
 class DiscCap:
     """A flat cap triangulated ring by ring (issue 21: the neck closed without a fan of long triangles).
 
     Rings of the end curve scaled toward its centre in the curve's plane, radial steps of at most
-    ``edge`` mm (at the ring's farthest point), each resampled evenly along its length at about
-    ``edge`` mm, joined in the order of their angle (:func:`_zipper`); the last ring is joined to the
-    centre. Attributes: ``vertices`` (the new points), ``triangles`` (ring indices 0 .. n-1, new points
+    ``edge`` mm (at the ring's farthest point), each with about one point per ``edge`` mm placed at
+    even fractions of the end curve's samples (its v), joined in the order of those fractions
+    (:func:`_zipper`); the last ring is joined to the centre. With ``plan`` (a reference perimeter and
+    radius) the counts, hence the connectivity, do not depend on the ring of the moment. Attributes: ``vertices`` (the new points), ``triangles`` (ring indices 0 .. n-1, new points
     from n), counter-clockwise like the ring, ``radius`` (fraction of the end curve, 0 at the centre)
     and ``angle`` (the v of the end curve in the same direction, radians) of every new point.
     """
 
-    def __init__(self, ring: np.ndarray, centre: np.ndarray, edge: float):
+    def __init__(self, ring: np.ndarray, centre: np.ndarray, edge: float, plan: tuple | None = None):
         n = len(ring)
         d = ring - centre
         normal = np.cross(d, np.roll(d, -1, axis=0)).sum(axis=0)
@@ -263,22 +256,32 @@ class DiscCap:
             e2 = -e2
             theta = -theta
         edge = max(float(edge), 1e-9)
-        rings = max(1, int(np.ceil(np.linalg.norm(flat, axis=1).max() / edge)))
+        # plan: (perimeter, largest radius) of a reference ring that fixes the counts, so the topology
+        # does not change while the shape sliders move the ring a little (in-place rebuilds)
         closed = np.vstack([p2, p2[:1]])
-        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(closed, axis=0), axis=1))])
-        theta_c = np.concatenate([theta, [TWO_PI]])
+        own_arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(closed, axis=0), axis=1))])
+        if plan is None:
+            p_ref, r_ref, arc_fraction = None, float(np.linalg.norm(flat, axis=1).max()), own_arc / own_arc[-1]
+        else:
+            p_ref, r_ref, arc_fraction = plan                 # arc_fraction: at v = 2 pi k / K, k = 0 .. K
+        rings = max(1, int(np.ceil(r_ref / edge)))
         f = 1.0 - np.arange(1, rings) / rings                                  # the inner rings' scale
-        m = np.maximum(6, np.ceil(f * arc[-1] / edge).astype(np.int64))
+        perimeter = float(np.linalg.norm(np.roll(p2, -1, axis=0) - p2, axis=1).sum()) if p_ref is None else p_ref
+        m = np.maximum(6, np.ceil(f * perimeter / edge).astype(np.int64))
         ring_of = np.repeat(np.arange(len(f)), m)
         first = np.concatenate([[0], np.cumsum(m)[:-1]])
-        s = arc[-1] * (np.arange(m.sum()) - first[ring_of]) / m[ring_of]          # even along each ring
-        q = np.stack([np.interp(s, arc, closed[:, 0]), np.interp(s, arc, closed[:, 1])], axis=1)
+        j = np.arange(m.sum()) - first[ring_of]
+        # each inner ring evenly along the (reference) end curve's length, at fixed fractions of its
+        # samples (its v): the connectivity depends on the counts only, a shape slider rebuilds in place
+        v_frac = np.interp(j / m[ring_of], arc_fraction, np.linspace(0.0, 1.0, len(arc_fraction)))
+        idx = v_frac * n
+        lo = np.floor(idx).astype(np.int64)
+        w = (idx - lo)[:, None]
+        q = p2[lo % n] * (1 - w) + p2[(lo + 1) % n] * w
         fr = f[ring_of]
-        th = np.interp(s, arc, theta_c)                                          # polar angle, from 0
-        # edge-middle angles of each inner ring (its points run from angle 0 up to 2 pi)
-        th_next = np.where(np.arange(m.sum()) + 1 < np.append(first[1:], m.sum())[ring_of],
-                           np.roll(th, -1), TWO_PI)
-        keys = [_edge_angles(p2)] + np.split(0.5 * (th + th_next), first[1:])
+        mid = np.where(np.arange(m.sum()) + 1 < (first + m)[ring_of], 0.5 * (v_frac + np.roll(v_frac, -1)),
+                       0.5 * (v_frac + 1.0))
+        keys = [(np.arange(n) + 0.5) / n] + np.split(mid, first[1:])
         offsets = np.concatenate([[0], n + first, [n + m.sum()]])
         tris = [_zipper(keys, offsets[:-1])] if len(f) else []
         centre_index = n + int(m.sum())
@@ -289,7 +292,7 @@ class DiscCap:
                                         np.asarray(centre, float)[None]])
         self.triangles = np.concatenate(tris)
         self.radius = np.concatenate([fr, [0.0]])
-        self.angle = np.concatenate([TWO_PI * np.interp(th, theta_c, np.arange(n + 1)) / n, [0.0]])
+        self.angle = np.concatenate([TWO_PI * idx / n, [0.0]])
 
 
 
@@ -298,17 +301,26 @@ class DiscCap:
 CAP_EDGE = 1.5
 
 
-def disc_caps(pts: np.ndarray, spine_ends: np.ndarray, ends: tuple[int, ...] = (0, 1)) -> list:
+def disc_caps(pts: np.ndarray, spine_ends: np.ndarray, ends: tuple[int, ...] = (0, 1),
+              reference: dict | None = None) -> list:
     """Caps of the first / last ring: a :class:`DiscCap` where the ring is star-shaped around its spine
-    point, else the polygon triangulation of :func:`_fan_caps`. The step is :data:`CAP_EDGE` tube edges."""
-    du = np.linalg.norm(np.diff(pts, axis=0), axis=-1).mean() if len(pts) > 1 else 0.0
-    dv = np.linalg.norm(np.roll(pts, -1, axis=1) - pts, axis=-1).mean()
-    edge = CAP_EDGE * (0.5 * (du + dv) if du > 0 else dv)
+    point, else the polygon triangulation of :func:`_fan_caps`. The step is :data:`CAP_EDGE` tube edges.
+
+    ``reference`` (:meth:`.pde_surface.PDEHead.cap_reference`): the tube's edge and each end ring's
+    perimeter and radius from the boundary curves, so the caps' vertex counts depend on nu and nv only.
+    """
+    if reference is not None:
+        edge = CAP_EDGE * float(reference["edge"])
+    else:
+        du = np.linalg.norm(np.diff(pts, axis=0), axis=-1).mean() if len(pts) > 1 else 0.0
+        dv = np.linalg.norm(np.roll(pts, -1, axis=1) - pts, axis=-1).mean()
+        edge = CAP_EDGE * (0.5 * (du + dv) if du > 0 else dv)
     out = []
     for end in ends:
         ring, centre = (pts[0], spine_ends[0]) if end == 0 else (pts[-1], spine_ends[1])
         star, _, _ = _star_shaped(ring, centre)
-        out.append(DiscCap(ring, centre, edge) if star else _fan_caps(pts, spine_ends, ends=(end,))[0])
+        plan = None if reference is None else reference["ends"][end]
+        out.append(DiscCap(ring, centre, edge, plan) if star else _fan_caps(pts, spine_ends, ends=(end,))[0])
     return out
 
 

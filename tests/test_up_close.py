@@ -149,3 +149,15 @@ def test_visible_face_measure_drops_the_inside_and_measures_the_offset():
     assert abs(same["pronasale"][1] + 50.0) < 1.0                              # the most anterior midline point
     bigger = visible_face_distance(*_ellipsoid_mc((41.5, 51.5, 61.5), cavity=False), *mask, (0.0, 0.0))
     assert 1.2 < bigger["score_mean"] < 1.8                                  # 1.5 mm outward
+
+
+def test_a_shape_slider_keeps_the_surface_topology():
+    """The caps' vertex counts come from the curves, not from the ring of the moment: the add-on rebuilds
+    the surface in place while a slider moves (and a painted texture keeps its loops)."""
+    from pde_synthetic import head_bset
+    b = head_bset(patches=6, samples=256)
+    a, c = solve_pde(b, approximation_mm=0), solve_pde(b, approximation_mm=15.0)
+    ma, mc = a.surface(60, 120, caps=True), c.surface(60, 120, caps=True)
+    assert np.abs(ma.vertices - mc.vertices).max() > 0.5                       # the shape moved ...
+    assert np.array_equal(ma.triangles, mc.triangles) and np.array_equal(ma.quads, mc.quads)   # ... not the mesh
+    assert np.allclose(ma.loop_uv(), mc.loop_uv())
