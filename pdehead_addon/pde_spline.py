@@ -50,6 +50,15 @@ from .pde_basis import basis_derivatives, inverse_4x4, small_matmul
 #: Exponent per harmonic of eq. 1 inside the dome span (local s): ripples of the top curve fade
 #: toward the pole instead of converging there as radial ridges (harmonic h decays like e^{-0.25 h s}).
 DOME_DAMPING = 0.25
+#: Inside the dome span the ring's non-circular part fades toward the pole (issue 21: the "star" on the
+#: crown). The radius harmonics n >= 3 of a smooth pole shrink like r^n (r: the distance from the pole);
+#: the Hermite data alone make every harmonic h >= 2 shrink like r^2 and the ring's ellipticity like r,
+#: which keeps the slope ripple n A_n / r of the radius constant into the pole. Harmonic h >= 2 of the
+#: ring is multiplied by ``dome_fade(DOME_FADE_EXTRA + h - 1, 1 - s)``, the elliptic part of h = 1 and the
+#: spine's sideways offset from the pole by ``dome_fade(DOME_FADE_EXTRA, 1 - s)``: value and u-derivative
+#: at the top curve are kept (C1 with the tube, as before), the dome's height and its tangent plane at the
+#: pole too (the spine's height and the circular part of h = 1 are not faded).
+DOME_FADE_EXTRA = 3
 #: Dome height limits, as fractions of the top curve's equivalent radius sqrt(area / pi).
 DOME_MIN_FRACTION = 0.15
 DOME_MAX_FRACTION = 1.2
@@ -191,6 +200,57 @@ def dome_height(curves: np.ndarray, heights: np.ndarray, vertex_z: float | None 
     if slope < 0:                                       # area shrinking upward: extrapolate to zero
         return float(np.clip(-aa[-1] / slope, lo, hi))
     return float(np.sqrt(lo * hi))
+
+
+def dome_fade(power: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """``t^p (1 + p (1 - t))``: 1 with zero slope at t = 1 (the top curve), ``~ t^p`` at t = 0 (the pole).
+
+    Increasing on [0, 1] for p >= 0, so a faded harmonic never grows; ``power`` and ``t`` broadcast.
+    """
+    t = np.clip(np.asarray(t, dtype=np.float64), 0.0, 1.0)
+    p = np.asarray(power, dtype=np.float64)
+    return t ** p * (1.0 + p * (1.0 - t))
+
+
+def fade_dome_amplitudes(amp: np.ndarray, s: np.ndarray, pole: np.ndarray, minor: int) -> np.ndarray:
+    """The dome span's ring amplitudes with the non-circular part faded toward the pole (in place).
+
+    Parameters
+    ----------
+    amp : ndarray of complex, shape (n, H, 3)
+        Harmonic amplitudes at local s of the dome span (s = 0 the top curve, 1 the pole).
+    s : ndarray, shape (n,)
+    pole : ndarray, shape (3,)
+        The vertex.
+    minor : {+1, -1}
+        Which rotating part of harmonic 1 in the axial plane is the ellipticity: the one
+        turning against the ring (-1: ``e^{-iv}``, the usual counter-clockwise ring).
+
+    Notes
+    -----
+    Harmonic 1's x and y are split into the parts turning with and against the ring,
+    ``x + i y = alpha e^{iv} + conj(gamma) e^{-iv}`` with ``alpha = (a_x + i a_y) / 2`` and
+    ``gamma = (a_x - i a_y) / 2``; only the smaller (the ring's ellipticity) is faded, so
+    the ring tends to a circle about the pole. See :data:`DOME_FADE_EXTRA`.
+    """
+    t = 1.0 - np.asarray(s, dtype=np.float64)
+    H = amp.shape[1]
+    extra = float(DOME_FADE_EXTRA)
+    if H > 2:
+        amp[:, 2:] *= dome_fade(extra + np.arange(1, H - 1)[None, :], t[:, None])[..., None]
+    base = dome_fade(extra, t)
+    pole = np.asarray(pole, dtype=np.float64)
+    amp[:, 0, :2] = pole[:2] + (amp[:, 0, :2] - pole[:2]) * base[:, None]
+    if H > 1:
+        ax, ay = amp[:, 1, 0], amp[:, 1, 1]
+        alpha, gamma = 0.5 * (ax + 1j * ay), 0.5 * (ax - 1j * ay)
+        if minor < 0:
+            gamma = gamma * base
+        else:
+            alpha = alpha * base
+        amp[:, 1, 0] = alpha + gamma
+        amp[:, 1, 1] = -1j * (alpha - gamma)
+    return amp
 
 
 def _pole_clamped(H: int) -> np.ndarray:

@@ -102,9 +102,9 @@ from .boundary_set import BoundarySet
 from .errors import PDEError
 from .mesh import Mesh
 from .pde_basis import basis, basis_grid, curve_harmonics, inverse_4x4, small_matmul
-from .pde_spline import c2_spans, dome_height, smoothing_spline_values
+from .pde_spline import c2_spans, dome_height, fade_dome_amplitudes, smoothing_spline_values
 # (signed_volume and _tube_mesh are also imported from here by scripts/bench_pde.py and scripts/bench_smooth.py)
-from .surface_mesh import _check_count, _fan_caps, _fan_indices, _tube_mesh, signed_volume
+from .surface_mesh import _check_count, _fan_caps, _fan_indices, _tube_mesh, disc_caps, signed_volume
 from .parameterisation import align_parameterisation  # noqa: F401  (re-export; solve_pde(align=True))
 
 #: The default a keeps the top harmonic's Lebesgue constant within this factor of the cubic one.
@@ -444,6 +444,12 @@ class PDEHead:
         self._cubic_spans = ~np.any(exponents, axis=1)
         S_, H_ = coefficients.shape[:2]
         self._coef_flat = np.ascontiguousarray(self._coef_real.transpose(0, 2, 1, 3)).reshape(S_ * 4, H_ * 6)
+        # the crown's dome (last span): which rotating part of the top ring's harmonic 1 is its ellipticity
+        self._dome_minor = 0
+        if vertex is not None and S > 0 and H_ > 1:
+            a1 = basis(exponents[-1, 1], 0.0) @ coefficients[-1, 1]
+            self._dome_minor = -1 if abs(a1[0] + 1j * a1[1]) >= abs(a1[0] - 1j * a1[1]) else 1
+            self._cubic_spans[-1] = False                                      # evaluated with its fade
         self.orientation = 1
         self.orientation = self._measure_orientation()
         self._deviation = None
@@ -526,7 +532,10 @@ class PDEHead:
             g = basis_grid(self.exponents[k, :H], s[sel])                    # (n, H, 4)
             # batched over h: (H, n, 4) @ (H, 4, 6 = re xyz, im xyz)
             prod = np.einsum("hnb,hbc->nhc", g.transpose(1, 0, 2), self._coef_real[k, :H])
-            out[sel] = prod[..., :3] + 1j * prod[..., 3:]
+            amp = prod[..., :3] + 1j * prod[..., 3:]
+            if self._dome_minor and k == self.spans - 1:                     # the crown's dome span
+                amp = fade_dome_amplitudes(amp, s[sel], self.vertex, self._dome_minor)
+            out[sel] = amp
         return out
 
     def spine(self, u: np.ndarray | float) -> np.ndarray:
@@ -656,28 +665,84 @@ class PDEHead:
         nv : int
             Columns along v (>= 3); ``v_j = 2 pi j / nv``, the seam is stitched.
         caps : bool
-            Close the bottom (and, without a dome, the top) with triangles (a fan
-            to the spine point when the end curve is star-shaped around it, else
-            a triangulation of the ring), making the mesh watertight for 3-D printing.
+            Close the bottom (and, without a dome, the top) with triangles: a flat disc
+            triangulated ring by ring (:class:`.surface_mesh.DiscCap`, no triangle much
+            longer than the tube's edges) when the end curve is star-shaped around its
+            spine point, else a triangulation of the ring; watertight for 3-D printing.
 
         Returns
         -------
         Mesh
-            Quads wound outward, per-corner UVs ``(u, v / 2 pi)`` with 1.0 on the seam
-            side, vertex attributes ``u`` and ``v``.
+            Quads wound outward; per-corner UVs in islands that are functions of (u, v)
+            (:meth:`uv_layout`: the tube, the crown's dome and the cap, none mirrored),
+            vertex attributes ``u`` and ``v`` (cap points: the end's u and their v).
         """
         nu, nv = _check_count(nu, "nu", 2), _check_count(nv, "nv", 3)
         u = np.linspace(0.0, 1.0, nu)
+        ends = self.spine(np.array([0.0, 1.0]))
         if self.vertex is not None:
             nu = max(nu, 3)
             u = np.linspace(0.0, 1.0, nu)
             pts = self._grid(u[:-1], nv)
-            bottom = _fan_caps(pts, self.spine(np.array([0.0, 1.0])), ends=(0,))[0] if caps else None
+            bottom = disc_caps(pts, ends, ends=(0,), reference=self.cap_reference(nu, nv))[0] if caps else None
             top = (np.asarray(self.vertex, float), _fan_indices(nv))
-            return _tube_mesh(pts, self.orientation, [bottom, top], uv=True, u=u[:-1], top_u=1.0)
+            return _tube_mesh(pts, self.orientation, [bottom, top], uv=True, u=u[:-1], top_u=1.0,
+                              uv_layout=self.uv_layout())
         pts = self._grid(u, nv)
-        cap_tris = _fan_caps(pts, self.spine(np.array([0.0, 1.0]))) if caps else None
-        return _tube_mesh(pts, self.orientation, cap_tris, uv=True, u=u)
+        cap_tris = disc_caps(pts, ends, reference=self.cap_reference(nu, nv)) if caps else None
+        return _tube_mesh(pts, self.orientation, cap_tris, uv=True, u=u, uv_layout=self.uv_layout())
+
+    def cap_reference(self, nu: int, nv: int) -> dict:
+        """What fixes the disc caps' vertex counts (:func:`.surface_mesh.disc_caps`): the tube's mean edge
+        at (nu, nv) and the end curves' perimeters and largest radii, from the boundary curves alone, so
+        the shape sliders rebuild the surface with the same topology."""
+        def compute():
+            c = self.bset.curves
+            perimeter = np.linalg.norm(np.roll(c, -1, axis=1) - c, axis=2).sum(axis=1)
+            radius = np.linalg.norm(c - c.mean(axis=1, keepdims=True), axis=2).max(axis=1)
+            span = float(_curve_positions(self.bset)[-1])
+            if self.vertex is not None:
+                span += float(np.linalg.norm(c[-1] - c[-1].mean(axis=0), axis=1).mean())
+            def arc_fraction(ring):                          # cumulative length at v = 2 pi k / M, k = 0 .. M
+                closed = np.vstack([ring, ring[:1]])
+                arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(closed, axis=0), axis=1))])
+                return arc / arc[-1]
+            return span, float(perimeter.mean()), ((perimeter[0], radius[0], arc_fraction(c[0])),
+                                                   (perimeter[-1], radius[-1], arc_fraction(c[-1])))
+        span, mean_perimeter, end_rings = _derived(self.bset, f"cap_ref{self.vertex is not None}", compute)
+        edge = 0.5 * (span / max(nu - 1, 1) + mean_perimeter / nv)
+        return {"edge": edge, "ends": end_rings}
+
+    def uv_layout(self) -> dict:
+        """The surface's UV islands (:func:`.surface_mesh.uv_islands`), from the boundary curves alone, so
+        the UVs are one function of (u, v) for a study: nu, nv and the shape sliders do not move a
+        painted texture. ``u_top``: where the dome starts in u; ``aspect``: the tube's length over its
+        mean circumference; ``shear``: :func:`.surface_mesh.uv_shear` of the curves (the sideways drift of
+        the v = const lines, undone in U so the tube's UV quads keep their 3-D corner angles)."""
+        from .surface_mesh import uv_shear
+
+        def compute():
+            c = self.bset.curves
+            perimeter = np.linalg.norm(np.roll(c, -1, axis=1) - c, axis=2).sum(axis=1)
+            steps = np.diff(_curve_positions(self.bset))
+            length = float(steps.sum())
+            tube = float((0.5 * (perimeter[1:] + perimeter[:-1]) * steps).sum())
+
+            def flat_area(ring):
+                d = ring - ring.mean(axis=0)
+                return 0.5 * float(np.linalg.norm(np.cross(d, np.roll(d, -1, axis=0)).sum(axis=0)))
+            # a spherical cap's area is pi times the squared chord from its pole to its rim
+            r_top = float(np.linalg.norm(c[-1] - c[-1].mean(axis=0), axis=1).mean())
+            h = dome_height(c, self.bset.heights, self.bset.meta.get("vertex_z"))
+            top = np.pi * (r_top ** 2 + h ** 2) if self.vertex is not None else flat_area(c[-1])
+            return (length / max(float(perimeter.mean()), 1e-9), top / max(tube, 1e-9),
+                    flat_area(c[0]) / max(tube, 1e-9))
+        aspect, dome_ratio, cap_ratio = _derived(self.bset, f"uv_areas{self.vertex is not None}", compute)
+        u_top = float(self.curve_u[-1]) if self.vertex is not None else 1.0
+        curve_u = np.asarray(self.curve_u, float)
+        shear = _derived(self.bset, "uv_shear", lambda: uv_shear(self.bset.curves, curve_u))
+        return {"u_top": u_top, "aspect": aspect, "curve_u": curve_u, "shear": shear, "dome_ratio": dome_ratio,
+                "cap_ratio": cap_ratio}
 
     def solid(self, nu: int, nv: int, nw: int, u_range: tuple[float, float] = (0.0, 1.0),
               v_range: tuple[float, float] = (0.0, TWO_PI), w_range: tuple[float, float] = (0.0, 1.0)) -> Mesh:

@@ -3,10 +3,18 @@
 The PDE head (eq. 1-13) is evaluated on a grid u x v (:meth:`.pde_surface.PDEHead.surface`);
 this module turns such a (nu, nv, 3) grid into a :class:`~.mesh.Mesh`: the quads
 of the tube with the last column joined to the first (the v seam), per-corner
-UVs ``(u, v / 2 pi)`` with 1.0 on the seam side, the end rings closed by a fan
-to the spine point when the ring is star-shaped around it or else by a
-triangulation of the ring polygon (Delaunay, ear clipping), and the signed
-enclosed volume that fixes the outward winding.
+UVs, the end rings closed by a flat disc triangulated ring by ring when the ring
+is star-shaped around its spine point (:class:`DiscCap`; a fan to that point for
+the crown's pole and the orientation test) or else by a triangulation of the ring
+polygon (Delaunay, ear clipping), and the signed enclosed volume that fixes the
+outward winding.
+
+UVs (issue 21, :func:`uv_islands`): the tube is one island (v across, u up, the
+sideways drift of the v = const lines undone by :func:`uv_shear`), the crown's
+dome and each cap a disc; every island is a function of (u, v) fixed per study
+(from the boundary curves), none is mirrored, and each keeps :data:`UV_MARGIN`
+from the texture's border and the seam. Without a layout the UVs are the old
+``(u, v / 2 pi)`` (used by the orientation test and the benchmarks' "before").
 """
 from __future__ import annotations
 
@@ -18,6 +26,8 @@ from .errors import PDEError
 from .mesh import Mesh
 
 __all__ = ["signed_volume"]
+
+TWO_PI = 2.0 * np.pi
 
 
 def _check_count(n, name: str, minimum: int) -> int:
@@ -189,53 +199,379 @@ def _fan_indices(n: int) -> np.ndarray:
     return np.stack([np.full(n, -1), j, (j + 1) % n], axis=1)
 
 
+def _zipper(keys: list[np.ndarray], offsets: np.ndarray) -> np.ndarray:
+    """Triangles between each closed ring k and ring k+1 inside it, joined in the order of their positions.
+
+    ``keys[k]``: increasing position (a fraction of the turn, from the same start) of the middle of each
+    edge i -> i+1 of ring k; ``offsets[k]``: the index of ring k's first point. Every triangle has one edge
+    on a ring, so none spans more than a step of either; counter-clockwise like the rings. All ring
+    pairs at once (one sort).
+    """
+    sizes = np.array([len(k) for k in keys])
+    pairs = len(keys) - 1
+    a_sizes, b_sizes = sizes[:-1], sizes[1:]
+    key = np.concatenate(keys[:-1] + keys[1:])
+    pair = np.concatenate([np.repeat(np.arange(pairs), a_sizes), np.repeat(np.arange(pairs), b_sizes)])
+    kind = np.concatenate([np.zeros(a_sizes.sum(), bool), np.ones(b_sizes.sum(), bool)])
+    order = np.lexsort((kind, key, pair))
+    pair, kind = pair[order], kind[order]
+    start = np.concatenate([[0], np.cumsum(a_sizes + b_sizes)[:-1]])        # first event of each pair
+    ca, cb = np.cumsum(~kind), np.cumsum(kind)
+    before_a = np.concatenate([[0], ca])[start]
+    before_b = np.concatenate([[0], cb])[start]
+    ia = ca - (~kind) - before_a[pair]
+    ib = cb - kind - before_b[pair]
+    na, nb = a_sizes[pair], b_sizes[pair]
+    oa, ob = np.asarray(offsets)[:-1][pair], np.asarray(offsets)[1:][pair]
+    a0, a1 = oa + ia % na, oa + (ia + 1) % na
+    b0, b1 = ob + ib % nb, ob + (ib + 1) % nb
+    return np.where(kind[:, None], np.stack([a0, b1, b0], axis=1), np.stack([a0, a1, b0], axis=1))
+
+
+class DiscCap:
+    """A flat cap triangulated ring by ring (issue 21: the neck closed without a fan of long triangles).
+
+    Rings of the end curve scaled toward its centre in the curve's plane, radial steps of at most
+    ``edge`` mm (at the ring's farthest point), each with about one point per ``edge`` mm placed at
+    even fractions of the end curve's samples (its v), joined in the order of those fractions
+    (:func:`_zipper`); the last ring is joined to the centre. With ``plan`` (a reference perimeter and
+    radius) the counts, hence the connectivity, do not depend on the ring of the moment. Attributes: ``vertices`` (the new points), ``triangles`` (ring indices 0 .. n-1, new points
+    from n), counter-clockwise like the ring, ``radius`` (fraction of the end curve, 0 at the centre)
+    and ``angle`` (the v of the end curve in the same direction, radians) of every new point.
+    """
+
+    def __init__(self, ring: np.ndarray, centre: np.ndarray, edge: float, plan: tuple | None = None):
+        n = len(ring)
+        d = ring - centre
+        normal = np.cross(d, np.roll(d, -1, axis=0)).sum(axis=0)
+        normal /= np.linalg.norm(normal) or 1.0
+        flat = d - np.outer(d @ normal, normal)                               # the ring in the cap's plane
+        e1 = flat[0] / (np.linalg.norm(flat[0]) or 1.0)
+        e2 = np.cross(normal, e1)
+        p2 = np.stack([flat @ e1, flat @ e2], axis=1)
+        theta = np.unwrap(np.arctan2(p2[:, 1], p2[:, 0]))
+        theta -= theta[0]
+        if theta[-1] < 0:                                                     # clockwise in this frame
+            p2[:, 1] *= -1
+            e2 = -e2
+            theta = -theta
+        edge = max(float(edge), 1e-9)
+        # plan: (perimeter, largest radius) of a reference ring that fixes the counts, so the topology
+        # does not change while the shape sliders move the ring a little (in-place rebuilds)
+        closed = np.vstack([p2, p2[:1]])
+        own_arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(closed, axis=0), axis=1))])
+        if plan is None:
+            p_ref, r_ref, arc_fraction = None, float(np.linalg.norm(flat, axis=1).max()), own_arc / own_arc[-1]
+        else:
+            p_ref, r_ref, arc_fraction = plan                 # arc_fraction: at v = 2 pi k / K, k = 0 .. K
+        rings = max(1, int(np.ceil(r_ref / edge)))
+        f = 1.0 - np.arange(1, rings) / rings                                  # the inner rings' scale
+        perimeter = float(np.linalg.norm(np.roll(p2, -1, axis=0) - p2, axis=1).sum()) if p_ref is None else p_ref
+        m = np.maximum(6, np.ceil(f * perimeter / edge).astype(np.int64))
+        ring_of = np.repeat(np.arange(len(f)), m)
+        first = np.concatenate([[0], np.cumsum(m)[:-1]])
+        j = np.arange(m.sum()) - first[ring_of]
+        # each inner ring evenly along the (reference) end curve's length, at fixed fractions of its
+        # samples (its v): the connectivity depends on the counts only, a shape slider rebuilds in place
+        v_frac = np.interp(j / m[ring_of], arc_fraction, np.linspace(0.0, 1.0, len(arc_fraction)))
+        idx = v_frac * n
+        lo = np.floor(idx).astype(np.int64)
+        w = (idx - lo)[:, None]
+        q = p2[lo % n] * (1 - w) + p2[(lo + 1) % n] * w
+        fr = f[ring_of]
+        mid = np.where(np.arange(m.sum()) + 1 < (first + m)[ring_of], 0.5 * (v_frac + np.roll(v_frac, -1)),
+                       0.5 * (v_frac + 1.0))
+        keys = [(np.arange(n) + 0.5) / n] + np.split(mid, first[1:])
+        offsets = np.concatenate([[0], n + first, [n + m.sum()]])
+        tris = [_zipper(keys, offsets[:-1])] if len(f) else []
+        centre_index = n + int(m.sum())
+        last_off, last_n = (offsets[-2], int(m[-1])) if len(f) else (0, n)
+        j = np.arange(last_n)
+        tris.append(np.stack([np.full(last_n, centre_index), last_off + j, last_off + (j + 1) % last_n], axis=1))
+        self.vertices = np.concatenate([centre + fr[:, None] * (q[:, :1] * e1 + q[:, 1:] * e2),
+                                        np.asarray(centre, float)[None]])
+        self.triangles = np.concatenate(tris)
+        self.radius = np.concatenate([fr, [0.0]])
+        self.angle = np.concatenate([TWO_PI * idx / n, [0.0]])
+
+
+
+#: The disc caps' step (radially and along each ring) in mean edges of the tube: a flat disc needs no
+#: finer triangles, and issue 21 asks for none longer than 3 mean edges.
+CAP_EDGE = 1.5
+
+
+def disc_caps(pts: np.ndarray, spine_ends: np.ndarray, ends: tuple[int, ...] = (0, 1),
+              reference: dict | None = None) -> list:
+    """Caps of the first / last ring: a :class:`DiscCap` where the ring is star-shaped around its spine
+    point, else the polygon triangulation of :func:`_fan_caps`. The step is :data:`CAP_EDGE` tube edges.
+
+    ``reference`` (:meth:`.pde_surface.PDEHead.cap_reference`): the tube's edge and each end ring's
+    perimeter and radius from the boundary curves, so the caps' vertex counts depend on nu and nv only.
+    """
+    if reference is not None:
+        edge = CAP_EDGE * float(reference["edge"])
+    else:
+        du = np.linalg.norm(np.diff(pts, axis=0), axis=-1).mean() if len(pts) > 1 else 0.0
+        dv = np.linalg.norm(np.roll(pts, -1, axis=1) - pts, axis=-1).mean()
+        edge = CAP_EDGE * (0.5 * (du + dv) if du > 0 else dv)
+    out = []
+    for end in ends:
+        ring, centre = (pts[0], spine_ends[0]) if end == 0 else (pts[-1], spine_ends[1])
+        star, _, _ = _star_shaped(ring, centre)
+        plan = None if reference is None else reference["ends"][end]
+        out.append(DiscCap(ring, centre, edge, plan) if star else _fan_caps(pts, spine_ends, ends=(end,))[0])
+    return out
+
+
+#: Gap (fraction of the texture) around every UV island: texture painting bleeds into it, not across the seam.
+UV_MARGIN = 0.02
+
+
+def uv_islands(aspect: float, dome_ratio: float | None = None, cap_ratio: float | None = None) -> dict:
+    """Where the surface's UV islands lie in [0, 1]^2 (one layout per study: a function of (u, v) only).
+
+    The tube (curves' u range x v) is a rectangle across the bottom of the texture, as wide as the
+    margins allow and as high as ``aspect`` (the tube's length over its mean circumference) makes
+    it; the crown's dome and the bottom cap are discs side by side above it, each as large as the
+    space allows but no larger than the tube's texel density gives its 3-D area (``dome_ratio`` /
+    ``cap_ratio``: its area over the tube's), so the islands' texels are about the same size.
+    """
+    m = UV_MARGIN
+    width = 1.0 - 2.0 * m
+    height = float(np.clip(width * aspect, 0.2, 1.0 - 3.0 * m - 0.3))
+    room = min(0.5 * (1.0 - 3.0 * m - height), 0.25 * (1.0 - 3.0 * m))
+    top = 1.0 - m - room
+
+    def disc(ratio):
+        if ratio is None or not np.isfinite(ratio) or ratio <= 0:
+            return room
+        return float(min(room, np.sqrt(width * height * ratio / np.pi) / 0.9))
+    return {"tube": (m, m, width, height), "radius": room, "dome_radius": disc(dome_ratio),
+            "cap_radius": disc(cap_ratio), "dome": (0.25 + 0.25 * m, top), "cap": (0.75 - 0.25 * m, top)}
+
+
+#: The shear correction of the tube's UVs keeps the harmonics up to this order around the ring (no UV folds).
+UV_SHEAR_HARMONICS = 3
+
+
+def uv_shear(curves: np.ndarray, curve_u: np.ndarray) -> np.ndarray:
+    """Sideways drift phi(u, v) (radians of v) of the v = const lines, at the curves, shape (n, M).
+
+    Along u the line v = const moves along the ring by ``X_u . X_v / |X_v|^2`` radians per unit u
+    (curves: the boundary curves, equal v = corresponding points; ``X_u`` by differences between
+    curves, ``X_v`` around each curve). Integrated over u (zero mean over the curves) and low-passed
+    around the ring (:data:`UV_SHEAR_HARMONICS`; scaled down if needed so ``v - phi`` stays increasing),
+    ``U ~ v - phi`` is constant along the curves' orthogonal trajectories.
+    """
+    c = np.asarray(curves, float)
+    n, M, _ = c.shape
+    if n < 2:
+        return np.zeros((n, M))
+    xv = (np.roll(c, -1, axis=1) - np.roll(c, 1, axis=1)) * (M / (2.0 * TWO_PI))
+    xu = np.gradient(c, np.asarray(curve_u, float), axis=0)
+    rate = -np.einsum("ijk,ijk->ij", xu, xv) / np.maximum(np.einsum("ijk,ijk->ij", xv, xv), 1e-12)
+    du = np.diff(curve_u)[:, None]
+    phi = np.concatenate([np.zeros((1, M)), np.cumsum(0.5 * (rate[1:] + rate[:-1]) * du, axis=0)])
+    phi -= phi.mean(axis=0, keepdims=True)
+    spec = np.fft.rfft(phi, axis=1)
+    spec[:, UV_SHEAR_HARMONICS + 1:] = 0.0
+    phi = np.fft.irfft(spec, n=M, axis=1)
+    slope = (np.roll(phi, -1, axis=1) - phi) * (M / TWO_PI)
+    worst = slope.max()
+    if worst > 0.7:                                                     # keep dU/dv >= 0.3 of the unsheared
+        phi *= 0.7 / worst
+    return phi
+
+
+def _shear_at(layout: dict, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """phi of :func:`uv_shear` at rows u (k,) and angles v (m,), linear in u between curves and around v."""
+    shear = layout.get("shear")
+    if shear is None:
+        return np.zeros((len(u), len(v)))
+    cu = np.asarray(layout["curve_u"], float)
+    M = shear.shape[1]
+    j = np.clip(np.searchsorted(cu, u, side="right") - 1, 0, len(cu) - 2)
+    w = np.clip((u - cu[j]) / np.maximum(cu[j + 1] - cu[j], 1e-12), 0.0, 1.0)[:, None]
+    rows = shear[j] * (1 - w) + shear[j + 1] * w                               # (k, M)
+    x = np.mod(v, TWO_PI) * (M / TWO_PI)
+    lo = np.floor(x).astype(np.int64) % M
+    f = x - np.floor(x)
+    return rows[:, lo] * (1 - f) + rows[:, (lo + 1) % M] * f
+
+
+def _signed_uv_area(uv: np.ndarray) -> np.ndarray:
+    """Signed area of each UV polygon (..., k, 2), > 0 counter-clockwise."""
+    x, y = uv[..., 0], uv[..., 1]
+    return 0.5 * (x * np.roll(y, -1, axis=-1) - np.roll(x, -1, axis=-1) * y).sum(axis=-1)
+
+
+def _disc_uv(centre, radius: float, rho: np.ndarray, angle: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Polar UVs ``centre + radius * rho * (cos, sin)(+-angle)`` of the vertices (rho, angle), per corner
+    of ``faces`` (indices into them), turned so the faces are not mirrored."""
+    r = np.clip(rho, 0.0, 1.0 / 0.9) * (0.9 * radius)
+    uv = np.stack([centre[0] + r * np.cos(angle), centre[1] + r * np.sin(angle)], axis=-1)[faces]
+    if np.sum(_signed_uv_area(uv)) < 0:                                      # mirrored: turn the other way
+        uv[..., 1] = 2.0 * centre[1] - uv[..., 1]
+    return uv
+
+
+@lru_cache(maxsize=8)
+def _corner_grid_index(nu: int, nv: int, orientation: int) -> np.ndarray:
+    """Per quad corner, the index into an (nu, nv + 1) grid of (row, column) with the seam column nv."""
+    i = np.arange(nu - 1)[:, None, None] + np.array([0, 0, 1, 1])[None, None, :]
+    j = np.arange(nv)[None, :, None] + np.array([0, 1, 1, 0])[None, None, :]
+    idx = (i * (nv + 1) + j).reshape(-1, 4)
+    idx = idx if orientation > 0 else np.ascontiguousarray(idx[:, ::-1])
+    idx.flags.writeable = False
+    return idx
+
+
 def _tube_mesh(pts: np.ndarray, orientation: int, caps=None, uv: bool = False,
-               u: np.ndarray | None = None, top_u: float = 1.0) -> Mesh:
-    """Tube mesh from a (nu, nv, 3) grid, stitched along v; optional caps from :func:`_fan_caps`.
+               u: np.ndarray | None = None, top_u: float = 1.0, uv_layout: dict | None = None) -> Mesh:
+    """Tube mesh from a (nu, nv, 3) grid, stitched along v; optional caps (:func:`disc_caps`, :func:`_fan_caps`).
 
     ``caps`` is a (bottom, top) pair, either of which may be None (left open). With
     ``u`` (the rows' parameters) the vertex attributes ``u`` and ``v`` are set (cap
-    centres get v = 0, the top centre u = ``top_u``).
+    centres get v = 0, the top centre u = ``top_u``). ``uv_layout`` (with ``u``):
+    ``{"u_top": u where the dome starts (1 without), "aspect": tube length / circumference}``
+    gives the UV islands of :func:`uv_islands`; else per-corner ``(u, v / 2 pi)``.
     """
     nu, nv = pts.shape[:2]
     verts = [pts.reshape(-1, 3)]
-    extra_u = []
+    extra_u, extra_v = [], []
     quads, quad_uv = _tube_topology(nu, nv, orientation)
     tris = []
-    tri_uv = []
+    cap_faces = []                                   # (end, triangles, polar radius / angle per vertex or None)
     if caps is not None:
         nvert = nu * nv
         for end, cap in enumerate(caps):
             if cap is None:
                 continue
-            centre, tri = cap
             row = 0 if end == 0 else nu - 1
             base = row * nv
-            t = tri.copy()
-            if centre is not None:
-                verts.append(centre[None])
-                extra_u.append(0.0 if end == 0 else top_u)
-                t = np.where(t < 0, nvert, t + base)
-                nvert += 1
+            end_u = 0.0 if end == 0 else top_u
+            if isinstance(cap, DiscCap):
+                t = cap.triangles.copy()
+                new = t >= nv
+                t = np.where(new, t - nv + nvert, t + base)
+                verts.append(cap.vertices)
+                extra_u.append(np.full(len(cap.vertices), end_u))
+                extra_v.append(cap.angle)
+                polar = (np.concatenate([np.ones(nv), cap.radius]),
+                         np.concatenate([TWO_PI * np.arange(nv) / nv, cap.angle]), base, nvert)
+                nvert += len(cap.vertices)
             else:
-                t = t + base
+                centre, t = cap
+                t = t.copy()
+                if centre is not None:
+                    verts.append(centre[None])
+                    extra_u.append(np.array([end_u]))
+                    extra_v.append(np.zeros(1))
+                    polar = (np.concatenate([np.ones(nv), [0.0]]),
+                             np.concatenate([TWO_PI * np.arange(nv) / nv, [0.0]]), base, nvert)
+                    t = np.where(t < 0, nvert, t + base)
+                    nvert += 1
+                else:
+                    polar = None
+                    t = t + base
             # ring order j -> j+1 is counter-clockwise around +u when the tube quads face
             # outward with orientation +1 (checked by the signed volume); the bottom cap faces -u
             if (end == 0) == (orientation > 0):
                 t = t[:, ::-1]
             tris.append(t)
-            if uv:
-                u_end = 0.0 if end == 0 else 1.0
-                local = np.where(t >= nu * nv, -1, (t - base) % nv)
-                vv = np.where(local < 0, 0.5, local / nv)
-                tri_uv.append(np.stack([np.full(vv.shape, u_end), vv], axis=-1))
-    mesh = Mesh(np.concatenate(verts), quads,
-                np.concatenate(tris) if tris else np.zeros((0, 3), np.int64))
-    if uv:
+            cap_faces.append((end, t, polar))
+    all_verts = np.concatenate(verts)
+    mesh = Mesh(all_verts, quads, np.concatenate(tris) if tris else np.zeros((0, 3), np.int64))
+    if uv and uv_layout is not None and u is not None:
+        mesh.quad_uv, mesh.triangle_uv = _island_uv(all_verts, quads, cap_faces, nu, nv, np.asarray(u, float),
+                                                    orientation, uv_layout)
+    elif uv:
+        tri_uv = []
+        for end, t, _ in cap_faces:
+            base = (0 if end == 0 else nu - 1) * nv
+            u_end = 0.0 if end == 0 else 1.0
+            local = np.where(t >= nu * nv, -1, (t - base) % nv)
+            vv = np.where(local < 0, 0.5, local / nv)
+            tri_uv.append(np.stack([np.full(vv.shape, u_end), vv], axis=-1))
         mesh.quad_uv = quad_uv
         mesh.triangle_uv = np.concatenate(tri_uv) if tri_uv else None
     if u is not None:
-        mesh.vertex_attributes["u"] = np.concatenate([np.repeat(u, nv), extra_u])
-        mesh.vertex_attributes["v"] = np.concatenate([np.tile(np.arange(nv) * (2.0 * np.pi / nv), nu),
-                                                      np.zeros(len(extra_u))])
+        mesh.vertex_attributes["u"] = np.concatenate([np.repeat(u, nv)] + extra_u)
+        mesh.vertex_attributes["v"] = np.concatenate([np.tile(np.arange(nv) * (2.0 * np.pi / nv), nu)] + extra_v)
     return mesh
+
+
+#: The tube's and dome's quad UVs depend on (nu, nv) and the study's layout only: the shape sliders reuse them.
+_QUAD_UV_CACHE: dict = {}
+
+
+def _tube_and_dome_uv(quads, nu: int, nv: int, u: np.ndarray, orientation: int, layout: dict, isl: dict):
+    """Per-corner UVs of the tube's quads: the tube island, and the dome's disc above ``u_top``."""
+    x0, y0, width, height = isl["tube"]
+    u_top = float(layout["u_top"])
+    v_cols = TWO_PI * np.arange(nv + 1) / nv                                  # the seam column gets 2 pi
+    phi = _shear_at(layout, u, v_cols)                                          # (nu, nv + 1)
+    seam = _shear_at(layout, np.asarray(layout.get("curve_u", [0.0, 1.0]), float), np.zeros(1))[:, 0]
+    span = TWO_PI + seam.max() - seam.min()                                  # the island's wavy left/right edges
+    frac = (v_cols[None, :] - phi + seam.max()) / span
+    frac = frac if orientation > 0 else 1.0 - frac
+    grid = np.empty((nu, nv + 1, 2))
+    grid[..., 0] = x0 + width * frac
+    grid[..., 1] = (y0 + height * u / u_top)[:, None]
+    quad_uv = grid.reshape(-1, 2)[_corner_grid_index(nu, nv, orientation)]
+    if u_top < 1.0:
+        dome_rows = (0.5 * (u[:-1] + u[1:]) > u_top)
+        if np.any(dome_rows):
+            r0 = int(np.argmax(dome_rows))
+            sel = np.repeat(dome_rows, nv)
+            q = quads[sel] - r0 * nv
+            rho_v = np.repeat((1.0 - u[r0:]) / (1.0 - u_top), nv)
+            ang_v = np.tile(TWO_PI * np.arange(nv) / nv, nu - r0)
+            quad_uv[sel] = _disc_uv(isl["dome"], isl["dome_radius"], rho_v, ang_v, q)
+    return quad_uv
+
+
+def _island_uv(verts, quads, cap_faces, nu: int, nv: int, u: np.ndarray, orientation: int, layout: dict):
+    """Per-corner UVs of the tube, dome and cap islands (:func:`uv_islands`), each a function of (u, v).
+
+    Tube: ``U = left + width * v / 2 pi`` (mirrored for the other winding), ``V = bottom + height *
+    u / u_top``. Dome (quads whose centre lies above ``u_top``, and the pole's fan): polar, radius
+    ``(1 - u) / (1 - u_top)``, angle v. Caps: polar, radius the cap ring's fraction of the end curve.
+    No island is mirrored (the winding of each is checked).
+    """
+    isl = uv_islands(float(layout["aspect"]), layout.get("dome_ratio"), layout.get("cap_ratio"))
+    u_top = float(layout["u_top"])
+    shear = layout.get("shear")
+    key = (nu, nv, orientation, u_top, float(layout["aspect"]), isl["dome_radius"], hash(u.tobytes()),
+           None if shear is None else (shear.ctypes.data, shear.shape, float(shear.sum())))
+    quad_uv = _QUAD_UV_CACHE.get(key)
+    if quad_uv is None:
+        quad_uv = _tube_and_dome_uv(quads, nu, nv, u, orientation, layout, isl)
+        quad_uv.flags.writeable = False
+        if len(_QUAD_UV_CACHE) >= 8:
+            _QUAD_UV_CACHE.pop(next(iter(_QUAD_UV_CACHE)))
+        _QUAD_UV_CACHE[key] = quad_uv
+    tri_uv = []
+    for end, t, polar in cap_faces:
+        dome_fan = end == 1 and u_top < 1.0
+        centre = isl["dome"] if end == 1 else isl["cap"]           # without a dome the top cap takes its place
+        if polar is not None:
+            rho, ang, base, first_new = polar
+            rho = rho.copy()
+            if dome_fan:                                                         # the pole fan: dome polar
+                rho[:nv] = (1.0 - u[-1]) / (1.0 - u_top)
+            local = np.where(t >= first_new, t - first_new + nv, t - base)
+            tri_uv.append(_disc_uv(centre, isl["dome_radius" if end == 1 else "cap_radius"], rho, ang, local))
+        else:                                                                    # polygon cap: planar projection
+            ring = verts[t]
+            c = verts[np.unique(t)].mean(axis=0)
+            d = verts[np.unique(t)] - c
+            _, _, vt = np.linalg.svd(d, full_matrices=False)
+            p = (ring - c) @ vt[:2].T
+            p /= np.abs(p).max() or 1.0
+            rho, ang = np.hypot(p[..., 0], p[..., 1]), np.arctan2(p[..., 1], p[..., 0])
+            flat = np.arange(t.size).reshape(t.shape)
+            tri_uv.append(_disc_uv(centre, isl["dome_radius" if end == 1 else "cap_radius"], rho.ravel(), ang.ravel(),
+                                   flat))
+    return quad_uv, (np.concatenate(tri_uv) if tri_uv else None)

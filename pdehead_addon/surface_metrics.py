@@ -170,3 +170,129 @@ def symmetric_surface_distance(verts_a: np.ndarray, faces_a: np.ndarray, verts_b
     out["a_to_b"] = _summary(d_ab)
     out["b_to_a"] = _summary(d_ba)
     return out
+
+
+# ----------------------------------------------------------------------------- the visible face (issue 21)
+
+#: The visible-face measure's settings (issue 21; shared with the face-from-skull benchmark, issue 23).
+FACE_BIN_MM = 1.0            # height of a bin (patient z)
+FACE_BIN_DEG = 1.0           # angle of a bin around the vertical axis through the mask's centroid
+FACE_DEPTH_MM = 3.0          # kept: within this of the outermost point of its bin
+FACE_HALF_ANGLE_DEG = 60.0   # +- this of straight ahead (-y)
+FACE_BELOW_MM = 70.0         # the band below ...
+FACE_ABOVE_MM = 60.0         # ... and above the pronasale
+FACE_MIDLINE_MM = 20.0       # the pronasale: most anterior kept point this close to the mid-sagittal line
+
+
+def _face_polar(points: np.ndarray, centre_xy) -> tuple[np.ndarray, np.ndarray]:
+    """Angle (degrees, 0 = straight ahead = -y, + toward the patient's left +x) and distance from the
+    vertical axis through ``centre_xy``."""
+    d = np.asarray(points, float)[:, :2] - np.asarray(centre_xy, float)[None, :2]
+    return np.degrees(np.arctan2(d[:, 0], -d[:, 1])), np.hypot(d[:, 0], d[:, 1])
+
+
+def visible_face_points(points: np.ndarray, centre_xy, bin_mm: float = FACE_BIN_MM,
+                        bin_deg: float = FACE_BIN_DEG, depth_mm: float = FACE_DEPTH_MM) -> np.ndarray:
+    """Which points lie on the visible outside of the head: within ``depth_mm`` of the outermost point of
+    their bin (``bin_mm`` of height x ``bin_deg`` around the vertical axis through ``centre_xy``).
+
+    Drops what a marching-cubes surface of the head mask also holds inside: the nasal cavity, the
+    airway, the mouth's interior.
+
+    Returns
+    -------
+    ndarray of bool, shape (n,)
+    """
+    p = np.asarray(points, float)
+    angle, radius = _face_polar(p, centre_xy)
+    zb = np.floor(p[:, 2] / bin_mm).astype(np.int64)
+    ab = np.floor((angle + 180.0) / bin_deg).astype(np.int64)
+    key = (zb - zb.min()) * (int(np.ceil(360.0 / bin_deg)) + 1) + ab
+    _, inverse = np.unique(key, return_inverse=True)
+    outer = np.full(inverse.max() + 1, -np.inf)
+    np.maximum.at(outer, inverse, radius)
+    return radius >= outer[inverse] - depth_mm
+
+
+def face_window(points: np.ndarray, centre_xy, pronasale: np.ndarray, half_angle_deg: float = FACE_HALF_ANGLE_DEG,
+                below_mm: float = FACE_BELOW_MM, above_mm: float = FACE_ABOVE_MM) -> np.ndarray:
+    """Points within +- ``half_angle_deg`` of straight ahead and from ``below_mm`` under to ``above_mm``
+    over the pronasale's height (bool, shape (n,))."""
+    p = np.asarray(points, float)
+    angle, _ = _face_polar(p, centre_xy)
+    z0 = float(pronasale[2])
+    return (np.abs(angle) <= half_angle_deg) & (p[:, 2] >= z0 - below_mm) & (p[:, 2] <= z0 + above_mm)
+
+
+def pronasale(points: np.ndarray, centre_xy, midline_mm: float = FACE_MIDLINE_MM) -> np.ndarray:
+    """The most anterior (smallest y) of ``points`` within ``midline_mm`` of the mid-sagittal line
+    (the line through ``centre_xy`` along y)."""
+    p = np.asarray(points, float)
+    near = np.abs(p[:, 0] - float(centre_xy[0])) <= midline_mm
+    if not np.any(near):
+        raise PDEHeadError("no point near the mid-sagittal line: cannot find the pronasale")
+    return p[near][np.argmin(p[near, 1])]
+
+
+def _area_samples(vertices, triangles, density: float, rng) -> tuple[np.ndarray, np.ndarray]:
+    v = np.asarray(vertices, float)
+    t = triangulate(triangles)
+    area = 0.5 * np.linalg.norm(np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]), axis=1).sum()
+    return sample_surface(v, t, max(1000, int(np.ceil(area * density))), rng)
+
+
+def visible_face_distance(surface_vertices: np.ndarray, surface_faces: np.ndarray, mask_vertices: np.ndarray,
+                          mask_faces: np.ndarray, centre_xy, density: float = 1.0, seed: int = 0) -> dict[str, Any]:
+    """How closely a surface follows the visible face of a head mask (issue 21's measure, in mm).
+
+    Parameters
+    ----------
+    surface_vertices, surface_faces
+        The surface measured (e.g. the exported ``skin.stl``), patient mm; triangles or quads.
+    mask_vertices, mask_faces
+        Marching cubes of the segmentation mask, patient mm.
+    centre_xy : (2,)
+        The mask's centroid (x, y): the vertical axis of the bins and the angle.
+    density : float
+        Points per mm^2 sampled on each surface (at least 1 for the issue's measure).
+
+    Returns
+    -------
+    dict
+        ``score_mean``: the mean of the two directed mean distances; ``score_p95``: the larger of
+        the two directed p95; ``surface_to_mask`` / ``mask_to_surface``: mean and p95 each;
+        ``pronasale`` (mm) and the point counts.
+
+    Notes
+    -----
+    The mask's triangles are kept where their centroid lies within ``FACE_DEPTH_MM`` of the
+    outermost point of its 1 mm x 1 deg bin (:func:`visible_face_points`): the nasal cavity,
+    airway and mouth interior drop out. Both sides are sampled uniformly by area; both point
+    sets are restricted to :func:`face_window` around the pronasale (:func:`pronasale` of the
+    kept mask triangles' centroids). The surface's samples are kept by the same two rules (a closed
+    skin loses nothing; a marching-cubes surface, e.g. the floor of a smoothed mask, loses its
+    interior like the mask). Distances are exact point-to-triangle distances to the
+    other side (the kept mask triangles, or all of the surface's triangles).
+    """
+    rng = np.random.default_rng(seed)
+    mv = np.asarray(mask_vertices, float)
+    mt = triangulate(mask_faces)
+    centroids = mv[mt].mean(axis=1)
+    kept = visible_face_points(centroids, centre_xy)
+    tip = pronasale(centroids[kept], centre_xy)
+    mask_win = kept & face_window(centroids, centre_xy, tip)
+    mt_face = mt[mask_win]
+    mp, _ = _area_samples(mv, mt_face, density, rng)
+    sv = np.asarray(surface_vertices, float)
+    st = triangulate(surface_faces)
+    sp, _ = _area_samples(sv, st, density, rng)
+    sp = sp[face_window(sp, centre_xy, tip) & visible_face_points(sp, centre_xy)]
+    d_sm = point_surface_distance(sp, mv, mt_face, seed=seed + 1)
+    d_ms = point_surface_distance(mp, sv, st, seed=seed + 2)
+    out: dict[str, Any] = {
+        "surface_to_mask": {"mean": float(d_sm.mean()), "p95": float(np.percentile(d_sm, 95))},
+        "mask_to_surface": {"mean": float(d_ms.mean()), "p95": float(np.percentile(d_ms, 95))},
+        "pronasale": tip.tolist(), "surface_points": int(len(sp)), "mask_points": int(len(mp))}
+    out["score_mean"] = 0.5 * (out["surface_to_mask"]["mean"] + out["mask_to_surface"]["mean"])
+    out["score_p95"] = max(out["surface_to_mask"]["p95"], out["mask_to_surface"]["p95"])
+    return out

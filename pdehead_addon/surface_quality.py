@@ -125,3 +125,133 @@ def surface_quality(head, nv: int = 360) -> dict[str, float]:
         "notch_fraction": notch_fraction(head, nv=nv),
         "terracing_rms_mm": terracing_rms(head, nv=nv),
     }
+
+
+#: Rings of the crown's dome within this distance (mm) of the pole are measured by :func:`pole_ripple`.
+POLE_RADIUS_MM = 10.0
+
+
+def _pole_frame(head, u_near: float) -> tuple[np.ndarray, np.ndarray]:
+    """The pole and its unit normal (pointing away from the head): the Newell normal of a ring close to it."""
+    pole = np.asarray(head.vertex, float)
+    ring = head.evaluate(np.full(720, u_near), TWO_PI * np.arange(720) / 720)
+    d = ring - pole
+    n = np.cross(d, np.roll(d, -1, axis=0)).sum(axis=0)
+    n /= np.linalg.norm(n)
+    if n @ (pole - head.spine(np.array([head.curve_u[-1]]))[0]) < 0:
+        n = -n
+    return pole, n
+
+
+def pole_ripple(head, radius_mm: float = POLE_RADIUS_MM, rings: int = 160, nv: int = 720) -> dict[str, float]:
+    """The star at the crown's pole, in numbers (issue 21).
+
+    On every ring ``X(u, .)`` of the dome whose mean distance from the pole is at most
+    ``radius_mm``, the ring's radius about the pole in the pole's tangent plane,
+    ``r(theta)`` (resampled at equal angles theta around the pole), is split into its
+    harmonics ``A_n``; the RMS around the ring of the slope ripple of the harmonics
+    ``n >= 3`` is ``sqrt(sum_{n>=3} (n A_n / r_mean)^2 / 2)`` (radians, reported in
+    degrees). Harmonics that fade like ``r^n`` toward the pole (a smooth pole) give a
+    ripple that vanishes there; harmonics that shrink only like ``r`` keep it constant,
+    which shades as radial ridges.
+
+    Returns
+    -------
+    dict
+        ``worst_deg`` (the worst ring), ``mean_deg``, ``rings`` measured, the pole's
+        unit normal ``normal`` and the dome's height above the top curve ``dome_height_mm``
+        (0 and empty when the head has no dome).
+    """
+    if head.vertex is None:
+        return {"worst_deg": 0.0, "mean_deg": 0.0, "rings": 0, "normal": [], "dome_height_mm": 0.0}
+    u0 = float(head.curve_u[-1])
+    u = u0 + (1.0 - u0) * (1.0 - np.geomspace(1.0, 1e-4, rings))[1:]          # denser toward the pole
+    pole, n = _pole_frame(head, 1.0 - 1e-4 * (1.0 - u0))
+    v = TWO_PI * np.arange(nv) / nv
+    pts = head.evaluate(u[:, None], v[None, :]) - pole                        # (R, nv, 3)
+    e1 = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(n, e1)
+    x, y = pts @ e1, pts @ e2
+    r = np.hypot(x, y)
+    keep = (np.linalg.norm(pts, axis=-1).mean(axis=1) <= radius_mm) & (r.min(axis=1) > 0)
+    theta = np.arctan2(y, x)
+    grid = -np.pi + TWO_PI * np.arange(nv) / nv
+    ripple = []
+    for i in np.nonzero(keep)[0]:
+        order = np.argsort(theta[i])
+        th, rr = theta[i, order], r[i, order]
+        ri = np.interp(grid, th, rr, period=TWO_PI)
+        c = np.fft.rfft(ri) / nv
+        amp = 2.0 * np.abs(c[1:])                                            # A_n, n = 1 ..
+        nn = np.arange(1, len(c))
+        hi = nn >= 3
+        ripple.append(np.sqrt(np.sum((nn[hi] * amp[hi] / ri.mean()) ** 2) / 2.0))
+    ripple = np.degrees(np.array(ripple)) if ripple else np.zeros(1)
+    top = head.evaluate(np.full(nv, u0), v)
+    return {"worst_deg": float(ripple.max()), "mean_deg": float(ripple.mean()), "rings": int(keep.sum()),
+            "normal": n.tolist(), "dome_height_mm": float((pole - top.mean(axis=0)) @ n)}
+
+
+def _face_corners(mesh):
+    """(faces as vertex-index lists, their per-corner UVs): quads then triangles."""
+    faces = [f for f in (mesh.quads, mesh.triangles) if len(f)]
+    uvs = [x for x, f in ((mesh.quad_uv, mesh.quads), (mesh.triangle_uv, mesh.triangles)) if len(f)]
+    return faces, uvs
+
+
+def uv_quality(mesh, middle: float = 0.8) -> dict[str, float]:
+    """How paintable a mesh's UVs are (issue 21): mirrored and empty faces, area stretch, angle distortion.
+
+    * ``mirrored``: faces whose UV polygon winds against their 3-D winding (negative UV area);
+      ``zero_area``: faces with UV area <= 1e-12 (neither can be painted);
+    * ``stretch_p99_p1``: over the faces whose centre lies in the middle ``middle`` of the mesh's
+      height (z), the ratio p99 / p1 of |UV area| / 3-D area (1 = the texel density is even);
+    * ``angle_p95_deg``: over the same faces, p95 of |UV angle - 3-D angle| per corner.
+
+    Quads are measured as quads (signed polygon area, their four corner angles).
+    """
+    faces, uvs = _face_corners(mesh)
+    v = mesh.vertices
+    mirrored = zero = total = 0
+    stretch, angle = [], []
+    z = v[:, 2]
+    lo, hi = z.min(), z.max()
+    margin = 0.5 * (1.0 - middle) * (hi - lo)
+    for f, uv in zip(faces, uvs):
+        uv = np.asarray(uv, float)
+        p = v[f]
+        x, y = uv[..., 0], uv[..., 1]
+        a_uv = 0.5 * (x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y).sum(axis=1)
+        c = p.mean(axis=1, keepdims=True)
+        a_3d = 0.5 * np.linalg.norm(np.cross(p - c, np.roll(p, -1, axis=1) - c).sum(axis=1), axis=1)
+        mirrored += int(np.count_nonzero(a_uv < -1e-12))
+        zero += int(np.count_nonzero(np.abs(a_uv) <= 1e-12))
+        total += len(f)
+        mid = (c[:, 0, 2] >= lo + margin) & (c[:, 0, 2] <= hi - margin) & (a_3d > 0)
+        stretch.append(np.abs(a_uv[mid]) / a_3d[mid])                      # mirrored faces count by size
+
+        def corner_angles(q):
+            e1 = np.roll(q, -1, axis=1) - q
+            e0 = np.roll(q, 1, axis=1) - q
+            cos = np.einsum("...i,...i", e0, e1) / np.maximum(
+                np.linalg.norm(e0, axis=-1) * np.linalg.norm(e1, axis=-1), 1e-300)
+            return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+        angle.append(np.abs(corner_angles(uv[mid]) - corner_angles(p[mid])).ravel())
+    stretch = np.concatenate(stretch)
+    angle = np.concatenate(angle)
+    ok = stretch > 0
+    return {"faces": total, "mirrored": mirrored, "zero_area": zero,
+            "stretch_p99_p1": float(np.percentile(stretch[ok], 99) / np.percentile(stretch[ok], 1)) if ok.any() else float("inf"),
+            "angle_p95_deg": float(np.percentile(angle, 95)) if angle.size else 0.0}
+
+
+def cap_edge_ratio(mesh) -> float:
+    """Longest edge of the mesh's triangles (the caps and the pole's fan) over the mean edge of the whole mesh."""
+    if not len(mesh.triangles):
+        return 0.0
+    e = mesh.edges()
+    mean = np.linalg.norm(mesh.vertices[e[:, 0]] - mesh.vertices[e[:, 1]], axis=1).mean()
+    t = mesh.vertices[mesh.triangles]
+    longest = np.linalg.norm(t - np.roll(t, -1, axis=1), axis=-1).max()
+    return float(longest / mean)

@@ -15,6 +15,10 @@ slice selection, 3-D envelope, star hulls, angular samples):
   ``vtkFlyingEdges3D`` (one thread: the Sequential SMP backend; what 3D Slicer
   uses) on the same mask, each median of ``--repeats`` in the same process.
 
+``--up-close`` runs issue 21's measures instead (:func:`up_close`: the crown's pole ripple, the neck
+cap, the surface's UVs and the visible face, before and after, into ``docs/benchmarks_up_close.json``
+and the ``up-close`` section of ``docs/benchmarks.md``).
+
 The result goes to ``docs/benchmarks_smooth.json`` and to its own section of
 ``docs/benchmarks.md`` (between ``<!-- section:smooth -->`` markers, which
 ``scripts/bench.py`` keeps when it rewrites the file). ``--quick`` runs CThead
@@ -121,6 +125,131 @@ def speed(seg, mc_fn, repeats: int) -> dict:
     return out
 
 
+# ----------------------------------------------------------------------------- issue 21: up close
+
+UP_CLOSE_TARGETS = {"pole_ripple_deg": 0.5, "cap_edge_ratio": 3.0, "uv_stretch_p99_p1": 4.0,
+                    "uv_angle_p95_deg": 10.0, "face_mean_mm": 0.33, "face_p95_mm": 0.80}
+
+
+def legacy_surface(head, nu: int, nv: int):
+    """The surface as it was built before issue 21 (the 'before' column): no fade in the dome, the
+    bottom closed by a fan to the spine point, per-corner UVs (u, v / 2 pi)."""
+    from pdehead_addon.surface_mesh import _fan_caps, _fan_indices, _tube_mesh
+    minor, head._dome_minor = head._dome_minor, 0
+    try:
+        u = np.linspace(0.0, 1.0, nu)
+        pts = head._grid(u[:-1], nv)
+        bottom = _fan_caps(pts, head.spine(np.array([0.0, 1.0])), ends=(0,))[0]
+        top = (np.asarray(head.vertex, float), _fan_indices(nv))
+        return _tube_mesh(pts, head.orientation, [bottom, top], uv=True, u=u[:-1], top_u=1.0)
+    finally:
+        head._dome_minor = minor
+
+
+def pole_ripple_before_after(head) -> dict:
+    from pdehead_addon.surface_quality import pole_ripple
+    after = pole_ripple(head)
+    minor, head._dome_minor = head._dome_minor, 0
+    try:
+        before = pole_ripple(head)
+    finally:
+        head._dome_minor = minor
+    return {"before": before, "after": after}
+
+
+def mask_centre(seg) -> np.ndarray:
+    """The segmentation mask's centroid in patient mm."""
+    return seg.ct.index_to_patient(np.argwhere(seg.mask).mean(axis=0)[None])[0]
+
+
+def visible_face(seg, mesh, mc) -> dict:
+    """Issue 21's visible-face measure of a mesh against marching cubes of the mask (pdehead_addon.surface_metrics)."""
+    from pdehead_addon.surface_metrics import visible_face_distance
+    faces = np.concatenate([mesh.quads[:, [0, 1, 2]], mesh.quads[:, [0, 2, 3]], mesh.triangles]) \
+        if len(mesh.quads) else mesh.triangles
+    r = visible_face_distance(mesh.vertices, faces, mc[0], mc[1], mask_centre(seg)[:2])
+    return {k: r[k] for k in ("score_mean", "score_p95", "surface_to_mask", "mask_to_surface")}
+
+
+def face_floor(seg, mc, sigma_mm: float = 1.2) -> dict:
+    """The visible-face measure of marching cubes of the Gaussian-smoothed mask: what a smooth surface can keep."""
+    from scipy import ndimage
+    from skimage import measure
+    from pdehead_addon.surface_metrics import visible_face_distance
+    sm = ndimage.gaussian_filter(seg.mask.astype(np.float32), sigma_mm / np.asarray(seg.ct.spacing, float))
+    verts, faces, _, _ = measure.marching_cubes(sm, 0.5)
+    r = visible_face_distance(seg.ct.index_to_patient(verts), faces, mc[0], mc[1], mask_centre(seg)[:2])
+    return {k: r[k] for k in ("score_mean", "score_p95")}
+
+
+def up_close(repeats: int = 5) -> dict:
+    """Issue 21's measures, before and after, on CThead (t = 10) and GE (t = 8) at the add-on's defaults."""
+    from pdehead_addon.surface_quality import cap_edge_ratio, uv_quality
+    nu, nv = D.NU.default, D.NV.default
+    res: dict = {"nu": nu, "nv": nv, "selection": SELECTION, "datasets": {}}
+    for name, t in (("cthead", 10), ("ge", 8)):
+        seg = load(name)
+        bset = E.extract_boundaries(seg, patches=t, selection=SELECTION)
+        head = E.solve_pde(bset)
+        new, old = head.surface(nu, nv, caps=True), legacy_surface(head, nu, nv)
+        row = {"t": t, "pole": pole_ripple_before_after(head),
+               "cap_edge_ratio": {"before": cap_edge_ratio(old), "after": cap_edge_ratio(new)},
+               "uv": {"before": uv_quality(old), "after": uv_quality(new)},
+               "surface_ms": {"before": 1e3 * median_time(lambda: legacy_surface(head, nu, nv), repeats)[0],
+                              "after": 1e3 * median_time(lambda: head.surface(nu, nv, caps=True), repeats)[0]},
+               "triangles": {"before": int(len(old.triangles)), "after": int(len(new.triangles))}}
+        if name == "cthead":
+            mc = marching_cubes(seg)
+            row["face"] = {"default": visible_face(seg, new, mc),
+                           "t31": visible_face(seg, E.solve_pde(E.extract_boundaries(
+                               seg, patches=31, selection=SELECTION)).surface(nu, nv, caps=True), mc),
+                           "floor_smoothed_mask": face_floor(seg, mc)}
+        res["datasets"][name] = row
+        print(name, json.dumps(row, default=float)[:2000], flush=True)
+    return res
+
+
+def up_close_markdown(res: dict) -> str:
+    T = UP_CLOSE_TARGETS
+    lines = ["## Up close (issue 21): `python3 scripts/bench_smooth.py --up-close`", "",
+             f"Add-on defaults ({res['selection']} slices, C2 surface, nu x nv = {res['nu']} x {res['nv']}, caps). "
+             "*Before*: the same head meshed as before issue 21 (no fade in the dome, a fan at the neck, UVs "
+             "(u, v / 2 pi)); *after*: the current `head.surface`.", "",
+             "| measure (target) | CThead t=10 before | after | GE t=8 before | after |", "|---|---|---|---|---|"]
+    c, g = res["datasets"]["cthead"], res["datasets"]["ge"]
+
+    def row(label, fn, fmt):
+        lines.append(f"| {label} | " + " | ".join(fmt.format(fn(d, k)) for d in (c, g) for k in ("before", "after"))
+                     + " |")
+    row(f"crown: worst pole ripple within 10 mm, deg (≤ {T['pole_ripple_deg']})",
+        lambda d, k: d["pole"][k]["worst_deg"], "{:.2f}")
+    row("crown: dome height above the top curve, mm (kept)", lambda d, k: d["pole"][k]["dome_height_mm"], "{:.2f}")
+    row(f"neck: longest cap / pole-fan triangle edge over the mean edge (≤ {T['cap_edge_ratio']:.0f})",
+        lambda d, k: d["cap_edge_ratio"][k], "{:.2f}")
+    row("UV: mirrored faces (0)", lambda d, k: d["uv"][k]["mirrored"], "{}")
+    row("UV: faces of zero UV area (0)", lambda d, k: d["uv"][k]["zero_area"], "{}")
+    row(f"UV: area stretch p99 / p1, middle 80 % of the height (≤ {T['uv_stretch_p99_p1']:.0f})",
+        lambda d, k: d["uv"][k]["stretch_p99_p1"], "{:.2f}")
+    row(f"UV: angle distortion p95, deg (≤ {T['uv_angle_p95_deg']:.0f})",
+        lambda d, k: d["uv"][k]["angle_p95_deg"], "{:.1f}")
+    row("faces (quads + triangles)", lambda d, k: d["uv"][k]["faces"], "{}")
+    row("surface(nu, nv, caps) median ms", lambda d, k: d["surface_ms"][k], "{:.1f}")
+    f = c["face"]
+    lines += ["", f"Visible face (CThead; target at the defaults ≤ {T['face_mean_mm']} mm mean, ≤ "
+              f"{T['face_p95_mm']} mm p95; `pdehead_addon.surface_metrics.visible_face_distance`):", "",
+              "| surface | score mean | score p95 | skin → mask mean / p95 | mask → skin mean / p95 |",
+              "|---|---|---|---|---|"]
+    for key, label in (("default", "default (t = 10)"), ("t31", "t = 31")):
+        d = f[key]
+        lines.append(f"| {label} | {d['score_mean']:.3f} | {d['score_p95']:.2f} | "
+                     f"{d['surface_to_mask']['mean']:.3f} / {d['surface_to_mask']['p95']:.2f} | "
+                     f"{d['mask_to_surface']['mean']:.3f} / {d['mask_to_surface']['p95']:.2f} |")
+    fl = f["floor_smoothed_mask"]
+    lines += [f"| floor: marching cubes of the mask smoothed by σ = 1.2 mm | {fl['score_mean']:.3f} | "
+              f"{fl['score_p95']:.2f} | | |", ""]
+    return "\n".join(lines)
+
+
 def run(quick: bool, repeats: int) -> dict:
     cases = [("cthead", (10,))] if quick else [("cthead", (4, 10, 31)), ("ge", (8,)), ("phantom", (10,))]
     samples = 20_000 if quick else 60_000
@@ -189,8 +318,16 @@ def main(argv=None) -> int:
     ap.add_argument("--json", type=Path, default=ROOT / "docs" / "benchmarks_smooth.json")
     ap.add_argument("--md", type=Path, default=ROOT / "docs" / "benchmarks.md")
     ap.add_argument("--no-write", action="store_true", help="print only")
+    ap.add_argument("--up-close", action="store_true",
+                    help="issue 21's measures only (crown, neck cap, UVs, visible face; before and after)")
     args = ap.parse_args(argv)
     repeats = args.repeats or (2 if args.quick else 7)
+    if args.up_close:
+        res = up_close(repeats)
+        if not args.no_write:
+            (ROOT / "docs" / "benchmarks_up_close.json").write_text(json.dumps(res, indent=1, default=float))
+            write_section(args.md, "up-close", up_close_markdown(res))
+        return 0
     res = run(args.quick, repeats)
     if not args.no_write:
         args.json.write_text(json.dumps(res, indent=1))

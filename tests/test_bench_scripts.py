@@ -63,7 +63,8 @@ def test_phantom_stages(quick_phantom):
     assert bd["patches"] == 10 and bd["samples"] == 256 and len(idx) == 31 and idx == sorted(set(idx))
 
     su = ph["surface"]
-    assert su["ours"]["vertices"] == 39 * 60 + 2       # capped tube with a dome: the bottom centre and the crown's pole
+    # capped tube with a dome: the crown's pole, and the bottom closed by a flat disc of rings (issue 21)
+    assert 39 * 60 + 2 < su["ours"]["vertices"] < 39 * 60 + 2 + 60 * 40
     assert su["peer"]["faces"] > 20 * su["ours"]["faces"]
     assert su["ratio_engine"] > 0 and su["ratio_total"] > 0
     assert su["ours"]["blender"]["polygons"] == su["ours"]["faces"]

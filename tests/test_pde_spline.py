@@ -128,7 +128,11 @@ def test_equal_circles_give_a_cylinder_and_a_round_dome():
     assert slope.max() < 0.05                                            # tangent plane horizontal at the pole
     mesh = head.surface(40, 64, caps=True)
     assert mesh.is_watertight()
-    assert len(mesh.vertices) == 39 * 64 + 2                             # the pole is one vertex
+    tube = 39 * 64
+    assert np.allclose(mesh.vertices[-1], head.vertex)                    # the pole is one vertex
+    assert np.count_nonzero(np.all(np.isclose(mesh.vertices, head.vertex), axis=1)) == 1
+    cap = mesh.vertices[tube:-1]                                          # the bottom: a flat disc, ring by ring
+    assert len(cap) > 1 and np.allclose(cap[:, 2], 0.0, atol=1e-9) and np.hypot(cap[:, 0], cap[:, 1]).max() < 80
 
 
 def test_settings_are_checked(synthetic):

@@ -1,0 +1,114 @@
+"""Renders for issue 21 ("Up close"): the crown's pole, the neck's cap and the surface's UVs, before and after.
+
+CThead (t = 10) and the GE tilted series (t = 8) at the add-on's defaults (automatic slices, C2
+surface, nu x nv = 120 x 240, caps), Cycles CPU, into ``docs/figures/up_close_*.png``:
+
+* ``up_close_crown.png``: seen from above; before (the dome without the fade: radial ridges into the
+  pole) and after;
+* ``up_close_neck.png``: seen from below; before (a fan of long triangles to the spine point) and after
+  (a flat disc triangulated ring by ring);
+* ``up_close_uv.png``: a UV grid texture on CThead, front and three-quarter; before (mirrored UVs (u, v),
+  caps of zero UV area) and after (the tube, dome and cap islands).
+
+"Before" is ``bench_smooth.legacy_surface``: the same head meshed as before issue 21.
+
+    python3 scripts/up_close_figures.py [--size 384] [--samples 16]
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+from PIL import Image, ImageDraw
+
+ROOT = Path(__file__).resolve().parents[1]
+for p in (str(ROOT), str(ROOT / "scripts")):
+    if p not in sys.path:
+        sys.path.insert(0, p)
+
+import bench  # noqa: E402
+import bench_smooth  # noqa: E402
+import pdehead_addon as E  # noqa: E402
+
+CASES = {"cthead": 10, "ge": 8}
+
+
+def uv_grid_material(bpy):
+    """A material showing Blender's generated colour grid through the mesh's UVs."""
+    mat = bpy.data.materials.get("up close UV grid") or bpy.data.materials.new("up close UV grid")
+    mat.use_nodes = True
+    nt = mat.node_tree
+    bsdf = nt.nodes.get("Principled BSDF")
+    img = bpy.data.images.get("uv grid") or bpy.data.images.new("uv grid", 1024, 1024)
+    img.generated_type = "COLOR_GRID"
+    tex = nt.nodes.new("ShaderNodeTexImage")
+    tex.image = img
+    nt.links.new(tex.outputs["Color"], bsdf.inputs["Base Color"])
+    return mat
+
+
+def sheet(tiles: list[list[Image.Image]], path: Path) -> None:
+    h, w = tiles[0][0].size[1], tiles[0][0].size[0]
+    out = Image.new("RGB", (w * len(tiles[0]), h * len(tiles)))
+    for i, row in enumerate(tiles):
+        for j, tile in enumerate(row):
+            out.paste(tile, (j * w, i * h))
+    out.save(path, optimize=True)
+    print(path, flush=True)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--size", type=int, default=384)
+    ap.add_argument("--samples", type=int, default=16)
+    ap.add_argument("--out", type=Path, default=ROOT / "docs" / "figures")
+    args = ap.parse_args(argv)
+    bl = bench.blender()
+    bpy, objects, render = bl["bpy"], bl["objects"], bl["render"]
+    render.VIEWS.setdefault("BOTTOM", ((0.0, 0.0, 1.0), (0.0, -1.0, 0.0)))   # from below, the face up
+    bpy.ops.wm.read_homefile(use_empty=True)
+    from pdehead_addon import defaults as D
+    nu, nv = D.NU.default, D.NV.default
+    tmp = args.out / ".tile_up_close.png"
+    crown, neck, uv = [], [], []
+    for name, t in CASES.items():
+        seg = bench_smooth.load(name)
+        head = E.solve_pde(E.extract_boundaries(seg, patches=t, selection=bench_smooth.SELECTION))
+        coll = objects.study_collection(f"up close {name}")
+        meshes = [("before", bench_smooth.legacy_surface(head, nu, nv)), ("after", head.surface(nu, nv, caps=True))]
+        built = []
+        for label, mesh in meshes:
+            obj = objects.build_mesh_object(mesh, coll, f"{name} {label}", smooth=True)
+            obj.data.materials.append(objects.ensure_skin_material())
+            built.append((label, obj))
+        bounds = render.world_bounds([o for _, o in built])
+
+        def tile(obj, view, text):
+            render.render_objects_png([obj], tmp, view=view, resolution=(args.size, args.size),
+                                      samples=args.samples, bounds=bounds)
+            with Image.open(tmp) as im:
+                im = im.convert("RGB").copy()
+            ImageDraw.Draw(im).text((8, 6), text, fill=(235, 235, 235))
+            return im
+        crown.append([tile(obj, "TOP", f"{name} t={t} {label}: crown from above") for label, obj in built])
+        neck.append([tile(obj, "BOTTOM", f"{name} t={t} {label}: neck from below") for label, obj in built])
+        if name == "cthead":
+            mat = uv_grid_material(bpy)
+            for label, obj in built:
+                obj.data.materials[0] = mat
+            uv.append([tile(obj, view, f"{name} {label}: UV grid, {view.lower().replace('_', '-')}")
+                       for label, obj in built for view in ("FRONT", "THREE_QUARTER")])
+        for _, obj in built:
+            bench.remove_object(obj)
+    tmp.unlink(missing_ok=True)
+    sheet(crown, args.out / "up_close_crown.png")
+    sheet(neck, args.out / "up_close_neck.png")
+    sheet(uv, args.out / "up_close_uv.png")
+    return 0
+
+
+if __name__ == "__main__":
+    np.seterr(all="ignore")
+    raise SystemExit(main())

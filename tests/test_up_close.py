@@ -1,0 +1,163 @@
+"""Issue 21 ("Up close"): the crown's pole without a star, the neck cap without a fan, UVs an artist can paint."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pdehead_addon import solve_pde
+from pdehead_addon.boundary_set import BoundarySet, knots_from_heights
+from pdehead_addon.surface_quality import pole_ripple
+
+TWO_PI = 2.0 * np.pi
+
+
+def rippled_bset(samples: int = 256) -> BoundarySet:
+    """Elliptic rings (aspect 1.35) shrinking toward the top, each with a 4th and a 5th harmonic of 2 mm
+    in its radius (CThead's top curve carries a 4th harmonic of 1.85 mm)."""
+    z = np.linspace(0.0, 150.0, 11)
+    scale = np.sqrt(np.clip(1.0 - (z / 175.0) ** 2, 0.05, None))
+    theta = np.pi / 2 + TWO_PI * np.arange(samples) / samples
+    curves = np.empty((len(z), samples, 3))
+    for j, (zj, s) in enumerate(zip(z, scale)):
+        a, b = 70.0 * s, 92.0 * s
+        r = a * b / np.sqrt((b * np.cos(theta)) ** 2 + (a * np.sin(theta)) ** 2)
+        r = r + 2.0 * np.cos(4 * theta) + 2.0 * np.sin(5 * theta)
+        curves[j, :, 0] = r * np.cos(theta)
+        curves[j, :, 1] = 10.0 + r * np.sin(theta)
+        curves[j, :, 2] = zj
+    return BoundarySet(curves, np.arange(len(z)), z, knots_from_heights(z), {})
+
+
+@pytest.fixture(scope="module")
+def domed():
+    head = solve_pde(rippled_bset(), approximation_mm=0)
+    old = solve_pde(rippled_bset(), approximation_mm=0)
+    old._dome_minor = 0                          # the dome without the fade: the behaviour before issue 21
+    return head, old
+
+
+def test_pole_harmonics_fade_so_the_crown_has_no_star(domed):
+    head, old = domed
+    before, after = pole_ripple(old), pole_ripple(head)
+    assert after["rings"] > 20
+    assert before["worst_deg"] > 3.0             # the star: the ripple stays constant into the pole
+    assert after["worst_deg"] <= 0.5             # issue 21's target
+    # the dome keeps its height and its (horizontal) tangent plane at the pole
+    assert np.isclose(after["dome_height_mm"], before["dome_height_mm"], atol=1e-6)
+    assert np.allclose(after["normal"], [0.0, 0.0, 1.0], atol=1e-6)
+    u = np.linspace(head.curve_u[-1], 1.0, 30)
+    assert np.allclose(head.spine(u)[:, 2], old.spine(u)[:, 2], atol=1e-9)   # the crown's height profile
+
+
+def test_pole_fade_keeps_the_top_curve_and_its_tangent(domed):
+    head, old = domed
+    u0 = float(head.curve_u[-1])
+    v = TWO_PI * np.arange(64) / 64
+    # value and u-derivative at the top curve are kept (C1 with the tube): the two differ by O(du^2) above it
+    assert np.abs(head.evaluate(u0, v) - old.evaluate(u0, v)).max() < 1e-9
+    d1, d2 = (np.abs(head.evaluate(u0 + du, v) - old.evaluate(u0 + du, v)).max() for du in (1e-4, 2e-4))
+    assert 3.0 < d2 / d1 < 5.0
+    # and the rings shrink monotonically to the pole
+    rings = head.evaluate(np.linspace(u0, 1.0, 40)[:, None], v[None, :])
+    r = np.linalg.norm(rings[..., :2] - head.vertex[:2], axis=-1).mean(axis=1)
+    assert np.all(np.diff(r) < 0) and r[-1] < 1e-6
+
+
+# ----------------------------------------------------------------------------- the neck's cap, the UVs
+
+@pytest.fixture(scope="module")
+def head_like():
+    from pde_synthetic import head_bset
+    return solve_pde(head_bset(patches=6, samples=256))
+
+
+def test_bottom_is_a_flat_disc_without_long_triangles(head_like):
+    from pdehead_addon.surface_mesh import signed_volume
+    from pdehead_addon.surface_quality import cap_edge_ratio
+    m = head_like.surface(60, 120, caps=True)
+    assert m.is_watertight() and signed_volume(m) > 0
+    assert cap_edge_ratio(m) <= 3.0                       # the fan's triangles ran from the centre to the ring
+    tube = 59 * 120
+    bottom = m.triangles[np.all((m.triangles < 120) | (m.triangles > tube), axis=1)]
+    t = m.vertices[bottom]
+    assert len(bottom) > 3 * 120                           # ring by ring, not one fan of 120
+    nz = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    nz = nz[:, 2] / np.linalg.norm(nz, axis=1)
+    assert np.all(nz < -0.999)                             # flat, facing down, nothing folded
+
+
+def _loop_pixels(mesh, size):
+    uv = mesh.loop_uv()
+    return np.clip(np.floor(uv * size).astype(np.int64), 0, size - 1), mesh.loop_vertex_indices()
+
+
+def test_uvs_are_paintable(head_like):
+    from pdehead_addon.surface_quality import uv_quality
+    m = head_like.surface(60, 120, caps=True)
+    q = uv_quality(m)
+    assert q["mirrored"] == 0 and q["zero_area"] == 0     # before: every tube quad mirrored, caps of zero area
+    assert q["stretch_p99_p1"] <= 4.0 and q["angle_p95_deg"] <= 10.0
+    uv = m.loop_uv()
+    assert uv.min() >= 0.0 and uv.max() <= 1.0
+
+
+@pytest.mark.parametrize("nu2, nv2, step", [(119, 120, (2, 1)), (60, 240, (1, 2))])
+def test_a_painted_dot_stays_on_its_vertex_when_the_mesh_is_rebuilt(head_like, nu2, nv2, step):
+    size = 2048
+    nu, nv = 60, 120
+    m = head_like.surface(nu, nv, caps=True)
+    i, j = 25, 41                                          # a vertex on the face side, away from seam and caps
+    k = i * nv + j
+    pix, verts = _loop_pixels(m, size)
+    image = np.zeros((size, size), bool)
+    px = pix[verts == k]
+    assert len(np.unique(px, axis=0)) == 1                 # all of vertex k's loops share one UV
+    image[px[0, 1], px[0, 0]] = True                       # the dot
+    hit = image[pix[:, 1], pix[:, 0]]
+    assert set(verts[hit]) == {k}
+    # the same (u, v) after a rebuild at another resolution: found only on that vertex's loops
+    m2 = head_like.surface(nu2, nv2, caps=True)
+    k2 = (i * step[0]) * nv2 + j * step[1]
+    assert np.allclose(m2.vertices[k2], m.vertices[k])
+    pix2, verts2 = _loop_pixels(m2, size)
+    hit2 = image[pix2[:, 1], pix2[:, 0]]
+    assert hit2.any() and set(verts2[hit2]) == {k2}
+
+
+# ----------------------------------------------------------------------------- the visible-face measure
+
+def _ellipsoid_mc(radii, cavity: bool):
+    from skimage import measure
+    z, y, x = np.mgrid[-70:71, -60:61, -50:51].astype(float)            # 1 mm voxels, patient mm = index
+    inside = (x / radii[0]) ** 2 + (y / radii[1]) ** 2 + (z / radii[2]) ** 2 <= 1.0
+    inside &= ~((z < -45) & (np.hypot(x, y) > 25))                           # a neck below
+    if cavity:                                                               # an airway the skin does not show
+        inside &= ~((x ** 2 + (y + radii[1] - 18) ** 2 + z ** 2) <= 8 ** 2)
+    verts, faces, _, _ = measure.marching_cubes(inside.astype(np.float32), 0.5)
+    return verts[:, ::-1] + np.array([-50.0, -60.0, -70.0]), faces        # (x, y, z) mm
+
+
+def test_visible_face_measure_drops_the_inside_and_measures_the_offset():
+    from pdehead_addon.surface_metrics import visible_face_distance, visible_face_points
+    mask = _ellipsoid_mc((40.0, 50.0, 60.0), cavity=True)
+    centroids = mask[0][mask[1]].mean(axis=1)
+    kept = visible_face_points(centroids, (0.0, 0.0))
+    cavity = np.linalg.norm(centroids - [0.0, -32.0, 0.0], axis=1) < 10
+    assert cavity.sum() > 100 and not kept[cavity].any()                    # the airway's walls drop out
+    same = visible_face_distance(*_ellipsoid_mc((40.0, 50.0, 60.0), cavity=False), *mask, (0.0, 0.0))
+    assert same["score_mean"] < 0.05 and same["score_p95"] < 0.2
+    assert abs(same["pronasale"][1] + 50.0) < 1.0                              # the most anterior midline point
+    bigger = visible_face_distance(*_ellipsoid_mc((41.5, 51.5, 61.5), cavity=False), *mask, (0.0, 0.0))
+    assert 1.2 < bigger["score_mean"] < 1.8                                  # 1.5 mm outward
+
+
+def test_a_shape_slider_keeps_the_surface_topology():
+    """The caps' vertex counts come from the curves, not from the ring of the moment: the add-on rebuilds
+    the surface in place while a slider moves (and a painted texture keeps its loops)."""
+    from pde_synthetic import head_bset
+    b = head_bset(patches=6, samples=256)
+    a, c = solve_pde(b, approximation_mm=0), solve_pde(b, approximation_mm=15.0)
+    ma, mc = a.surface(60, 120, caps=True), c.surface(60, 120, caps=True)
+    assert np.abs(ma.vertices - mc.vertices).max() > 0.5                       # the shape moved ...
+    assert np.array_equal(ma.triangles, mc.triangles) and np.array_equal(ma.quads, mc.quads)   # ... not the mesh
+    assert np.allclose(ma.loop_uv(), mc.loop_uv())
