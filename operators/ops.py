@@ -23,7 +23,10 @@ from .study import STEP_FUNCTIONS, Rollback
 
 
 def _report_exception(op, exc: BaseException) -> None:
-    if isinstance(exc, PDEHeadError):
+    from ..pdehead_addon import Cancelled
+    if isinstance(exc, Cancelled):
+        op.report({'WARNING'}, "PDE Head: cancelled; the study is as it was before")
+    elif isinstance(exc, PDEHeadError):
         op.report({'ERROR'}, str(exc))
     elif isinstance(exc, NotImplementedError):
         op.report({'ERROR'}, f"PDE Head: this step is not available in this version ({exc})")
@@ -294,9 +297,11 @@ class PDEHEAD_OT_build_solid(Operator, StudyOperator):
             self.store_settings(s)
             if state.boundary_set(coll) is None:
                 study.step_boundaries(coll)
-            study.step_solid(coll)
+            notice = study.step_solid(coll)
             n = len(s.solid_object.data.vertices)
             self.report({'INFO'}, f"PDE solid of '{coll.name}': {n} vertices ({state.timings(coll)['solid']:.2f} s)")
+            if notice:
+                self.report({'WARNING'}, notice[:300])
         return _guarded(self, context, body)
 
 
