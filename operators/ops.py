@@ -425,6 +425,9 @@ class PDEHEAD_OT_run_pipeline(Operator, LoaderOptions):
         wm = context.window_manager
         self._timer = wm.event_timer_add(0.05, window=context.window)
         wm.progress_begin(0, len(self._run.steps))
+        run = self._run
+        # within a step: the engine's progress moves the progress indicator between the step marks
+        study.PROGRESS_HOOK[0] = lambda _step, fraction, _message="": wm.progress_update(run.index + fraction)
         _status(context, f"PDE Head: {self._run.next_label}... (Esc to cancel)")
         wm.modal_handler_add(self)
         return {'RUNNING_MODAL'}
@@ -454,6 +457,7 @@ class PDEHEAD_OT_run_pipeline(Operator, LoaderOptions):
         return {'RUNNING_MODAL'}
 
     def _end_ui(self, context) -> None:
+        study.PROGRESS_HOOK[0] = None
         wm = context.window_manager
         timer = getattr(self, "_timer", None)
         if timer is not None and wm is not None:
