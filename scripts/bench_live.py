@@ -112,8 +112,10 @@ def _timed_change(s, coll, prop, value) -> tuple[float, float | None]:
     colours = None
     if study.colours_pending(coll):
         t = time.perf_counter()
+        c = time.process_time()
         study.flush_colour_refresh()
         colours = time.perf_counter() - t
+        _CPU.append(time.process_time() - c)
         if s.last_error:
             raise RuntimeError(f"{prop} (colours): {s.last_error}")
     return total, colours
@@ -143,12 +145,13 @@ def bench_dataset(name: str, repeats: int) -> dict:
                 setattr(s, key, value)
         original = getattr(s, prop)
         original = tuple(original) if not isinstance(original, (int, float, str, bool)) else original
-        totals, cpus, colours, surfaces, solids = [], [], [], [], []
+        totals, cpus, colours, colour_cpus, surfaces, solids = [], [], [], [], [], []
         for i in range(repeats):
             s.timings_json = ""
             total, colour = _timed_change(s, coll, prop, values(i))
             totals.append(total)
             cpus.append(_CPU[0])
+            colour_cpus.append(_CPU[1] if len(_CPU) > 1 else None)
             colours.append(colour)
             steps = state.timings(coll)
             surfaces.append(steps.get("surface"))
@@ -166,6 +169,7 @@ def bench_dataset(name: str, repeats: int) -> dict:
             row["solid_s"] = statistics.median(solids)
         if any(x is not None for x in colours):
             row["colours_s"] = statistics.median([x for x in colours if x is not None])
+            row["colours_cpu_s"] = statistics.median([x for x in colour_cpus if x is not None])
         row["met"] = row["total_s"] <= GEOMETRY_TARGET_S and row.get("colours_s", 0.0) <= COLOURS_TARGET_S
         out["rows"].append(row)
 
@@ -175,15 +179,15 @@ def bench_dataset(name: str, repeats: int) -> dict:
     bpy.context.view_layer.update()
     totals = []
     for i in range(repeats):
-        box.location.x += 0.002
-        ranges = tuple(s.v_range) + tuple(s.u_range)
+        box.location.x += 0.004
+        s.timings_json = ""
         t = time.perf_counter()
         bpy.context.view_layer.update()   # the depsgraph update runs the handler, which applies the cutter
         totals.append(time.perf_counter() - t)
         if s.last_error:
             raise RuntimeError(f"cutter: {s.last_error}")
-        if tuple(s.v_range) + tuple(s.u_range) == ranges:
-            raise RuntimeError("cutter: moving it did not change the cut (the handler did not run)")
+        if state.timings(coll).get("solid") is None:
+            raise RuntimeError("cutter: moving it did not rebuild the solid (the handler did not run)")
     out["rows"].append({"label": "cutter moved (solid)", "property": "cutter", "repeats": repeats,
                         "total_s": statistics.median(totals), "all_s": totals, "target_s": GEOMETRY_TARGET_S,
                         "met": statistics.median(totals) <= GEOMETRY_TARGET_S})
@@ -255,16 +259,21 @@ def markdown(result: dict) -> str:
              "dragging; booleans and enums alternate); add-on defaults (t = 10, 120 x 240, nw = 5, volume built). "
              "As in Blender with a UI, a PDE change rebuilds the geometry at once with the previous solution's CT "
              "colours, and a timer re-tabulates the CT right after: that refresh is the *colours follow* column. "
-             f"Targets: the whole callback <= {1000 * GEOMETRY_TARGET_S:.0f} ms, the colours <= {COLOURS_TARGET_S:g} s.",
+             f"Targets: the whole callback <= {1000 * GEOMETRY_TARGET_S:.0f} ms, the colours <= {COLOURS_TARGET_S:g} s; "
+             "*status* judges the wall clock. The CPU-time columns (this process, all threads) show the work "
+             "itself, which a loaded machine inflates much less than the wall clock (for reference, issue 20 "
+             "measured a whole nu change at 41 ms on a quiet machine).",
              ""]
     fmt = lambda x: f"{1000 * x:.0f} ms" if x is not None else "-"  # noqa: E731
     for name, d in result["datasets"].items():
         lines += [f"### {name}: surface {d['surface_vertices']} vertices, solid {d['solid_vertices']} vertices",
-                  "", "| change | surface step | solid step | whole callback | (its CPU time) | colours follow | status |",
-                  "|---|---|---|---|---|---|---|"]
+                  "", "| change | surface step | solid step | whole callback | (its CPU time) | colours follow "
+                      "| (their CPU time) | status |",
+                  "|---|---|---|---|---|---|---|---|"]
         for r in d["rows"]:
             lines.append(f"| {r['label']} | {fmt(r.get('surface_s'))} | {fmt(r.get('solid_s'))} | "
                          f"{fmt(r['total_s'])} | {fmt(r.get('cpu_s'))} | {fmt(r.get('colours_s'))} | "
+                         f"{fmt(r.get('colours_cpu_s'))} | "
                          f"{'**met**' if r['met'] else '**NOT met**'} |")
         lim = d["limits"]
         lines += ["", f"Pipeline (with the volume) {d['pipeline_s']:.1f} s; Build Solid in it (incl. tabulating the CT "
