@@ -16,7 +16,7 @@
 The CT itself is never stored in the .blend; :func:`study.require_ct` re-reads it from these
 recorded paths when a step needs it. What the solid shows of it is: save_pre stores the solid's CT
 table (the CT tabulated in the solid's (u, v, w), 8-bit over the display window, zlib; at most
-8.4 MB before compression, budget 16 MB) in the study collection, so after reopening -- or in a
+4.2 MB before compression, budget 16 MB) in the study collection, so after reopening -- or in a
 file sent without its CT -- cutaways and nw are live at once (:func:`study.current_ct_table`).
 """
 from __future__ import annotations

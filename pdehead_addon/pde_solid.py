@@ -521,7 +521,9 @@ class SolidCTTable:
     ct : CTVolume
     nu, nv, nw : int, optional
         Table resolution. Defaults: about one CT voxel per sample along u and around v and
-        two voxels along w, capped at 256 x 512 x 64 (~34 MB float32).
+        two voxels along w, capped at 256 x 256 x 64 (~17 MB float32). 256 around v is twice what
+        the solid shows by default (its 128-pixel atlas tiles, nv = 240) and halves the time a PDE
+        change waits for its colours (CThead: 512 -> 256 samples around a 600 mm perimeter).
     chunk : int
         u rows sampled together (bounds the temporary position arrays).
     progress : callable, optional
@@ -535,7 +537,7 @@ class SolidCTTable:
     (v with one closing column at 2 pi).
     """
 
-    MAX_SHAPE = (256, 512, 64)
+    MAX_SHAPE = (256, 256, 64)
 
     def __init__(self, head, ct: CTVolume, nu: int | None = None, nv: int | None = None,
                  nw: int | None = None, chunk: int = 16, progress=None):
@@ -660,8 +662,8 @@ class SolidCTTable:
         Quantising the CT values (not the windowed ones) keeps the interpolation between table
         samples the same as with the float table: every displayed value moves by at most half a
         level (CThead: 0.5 x 12.8 / 2462 of the window = 0.0026). At the largest table
-        (:attr:`MAX_SHAPE`) the 8-bit array is 8.4 MB before compression; a head's table (a third
-        of it is air) compresses to about 3 MB (CThead, 239 x 512 x 62).
+        (:attr:`MAX_SHAPE`) the 8-bit array is 4.2 MB before compression; a head's table (a third
+        of it is air) compresses to about 1.5 MB (CThead, 239 x 256 x 62).
         """
         import json
         import zlib
