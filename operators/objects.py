@@ -612,7 +612,7 @@ def build_solid(head, collection, nu: int = D.NU.default, nv: int = D.NV.default
     faces = None
     if "w" in mesh.vertex_attributes and mesh.quad_uv is not None:
         faces = _box_faces(mesh, (u_range, v_range, w_range))  # once: the atlas and the flat cut faces use it
-    if ct is not None:
+    if ct is not None or (ct_table is not None and window is not None):  # the table alone serves (no CT)
         window = intensity_window(ct) if window is None else window
         if ct_table is not None and {"u", "v", "w"} <= set(mesh.vertex_attributes):
             raw = _vertex_values_from_table(ct_table, mesh)

@@ -24,7 +24,10 @@ from .study import STEP_FUNCTIONS, Rollback
 
 def _report_exception(op, exc: BaseException) -> None:
     state.last_exception = exc
-    if isinstance(exc, PDEHeadError):
+    from ..pdehead_addon import Cancelled
+    if isinstance(exc, Cancelled):
+        op.report({'WARNING'}, "PDE Head: cancelled; the study is as it was before")
+    elif isinstance(exc, PDEHeadError):
         op.report({'ERROR'}, state.user_text(str(exc)))
     elif isinstance(exc, NotImplementedError):
         op.report({'ERROR'}, f"PDE Head: this step is not available in this version ({exc})")
@@ -303,9 +306,11 @@ class PDEHEAD_OT_build_solid(Operator, StudyOperator):
             self.store_settings(s)
             if state.boundary_set(coll) is None:
                 study.step_boundaries(coll)
-            study.step_solid(coll)
+            notice = study.step_solid(coll)
             n = len(s.solid_object.data.vertices)
             self.report({'INFO'}, f"PDE solid of '{coll.name}': {n} vertices ({state.timings(coll)['solid']:.2f} s)")
+            if notice:
+                self.report({'WARNING'}, notice[:300])
         return _guarded(self, context, body)
 
 
@@ -429,6 +434,9 @@ class PDEHEAD_OT_run_pipeline(Operator, LoaderOptions):
         wm = context.window_manager
         self._timer = wm.event_timer_add(0.05, window=context.window)
         wm.progress_begin(0, len(self._run.steps))
+        run = self._run
+        # within a step: the engine's progress moves the progress indicator between the step marks
+        study.PROGRESS_HOOK[0] = lambda _step, fraction, _message="": wm.progress_update(run.index + fraction)
         _status(context, f"PDE Head: {self._run.next_label}... (Esc to cancel)")
         wm.modal_handler_add(self)
         return {'RUNNING_MODAL'}
@@ -458,6 +466,7 @@ class PDEHEAD_OT_run_pipeline(Operator, LoaderOptions):
         return {'RUNNING_MODAL'}
 
     def _end_ui(self, context) -> None:
+        study.PROGRESS_HOOK[0] = None
         wm = context.window_manager
         timer = getattr(self, "_timer", None)
         if timer is not None and wm is not None:

@@ -30,6 +30,8 @@ from ..pdehead_addon import StorageError
 
 NO_STUDY_MESSAGE = "No PDE Head study: import a CT (File > Import > CT Head) or load the phantom"
 BOUNDARY_KEY = "pdehead_boundaries"  # collection custom property: base64 of dumps_boundaries()
+CT_TABLE_KEY = "pdehead_ct_table"  # collection custom property: base64 of SolidCTTable.to_bytes() (save_pre)
+CT_TABLE_FOR = "pdehead_ct_table_for"  # ... and the JSON of the table_key() it was tabulated for
 PROP = "pdehead"  # name of the PointerProperty on Object (study settings) / Scene
 SETTINGS_OBJECT = "pdehead_settings_object"  # Collection -> its settings object
 SETTINGS_KIND = "study_settings"  # Object["pdehead_kind"] of a settings object
@@ -46,7 +48,8 @@ class StudyCache:
     head_key: tuple | None = None  # (smoothing, modes) the head was solved with
     wfield: Any = None        # WField of the last volume
     window: tuple | None = None     # the CT's intensity window (ct_volume.intensity_window), per CT
-    ct_table: tuple | None = None   # (head, ct, SolidCTTable): the CT in the solid's (u, v, w)
+    stored_window: tuple | None = None  # the window of the CT table stored in the .blend (no CT needed)
+    ct_table: tuple | None = None   # (table_key, SolidCTTable): the CT in the solid's (u, v, w)
     cutter_signature: tuple | None = None  # the cutter transform last applied (study.pdehead_cutter_update)
     forensic: dict = field(default_factory=dict)  # the skull, bone mesh and depth results (forensic_study.py)
 
@@ -298,6 +301,48 @@ def boundary_set(collection):
     if cache.bset is None:
         cache.bset = load_stored_boundaries(collection)
     return cache.bset
+
+
+def boundary_digest(collection) -> str:
+    """A short digest of the stored boundary conditions (which curves a CT table belongs to)."""
+    import hashlib
+    return hashlib.sha1(str(collection.get(BOUNDARY_KEY, "")).encode("ascii", "replace")).hexdigest()[:16]
+
+
+def table_key(collection) -> str:
+    """What the solid's CT table depends on, as JSON: the PDE controls, the curves and the CT's size.
+
+    The same key after reopening the file means the same PDE solution (it is solved again from
+    the same stored curves with the same controls), so a table stored in the .blend is reused.
+    """
+    s = settings(collection)
+    return json.dumps([list(pde_key(collection)), boundary_digest(collection), [int(n) for n in s.dimensions]])
+
+
+def store_ct_table(collection, key: str, table, window) -> int:
+    """Keep the solid's CT table in the .blend (8-bit, compressed; :meth:`SolidCTTable.to_bytes`); returns bytes."""
+    raw = table.to_bytes(window)
+    collection[CT_TABLE_KEY] = base64.b64encode(raw).decode("ascii")
+    collection[CT_TABLE_FOR] = key
+    return len(raw)
+
+
+def stored_ct_table_key(collection) -> str:
+    return str(collection.get(CT_TABLE_FOR, ""))
+
+
+def load_stored_ct_table(collection):
+    """``(key, table, window)`` of the CT table stored in the .blend, or None (none stored / unreadable)."""
+    text = collection.get(CT_TABLE_KEY)
+    if not text:
+        return None
+    from ..pdehead_addon.pde_solid import SolidCTTable
+    try:
+        table, window = SolidCTTable.from_bytes(base64.b64decode(str(text).encode("ascii"), validate=True))
+    except Exception as exc:  # noqa: BLE001 - a damaged table is as good as none; the CT can re-make it
+        print(f"PDE Head: study '{collection.name}': the stored CT table is unreadable ({exc})")
+        return None
+    return stored_ct_table_key(collection), table, window
 
 
 def continuity(collection) -> str:

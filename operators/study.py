@@ -13,6 +13,7 @@ study collection; the operators, :func:`live_update` and :class:`PipelineRun` sh
 """
 from __future__ import annotations
 
+import copy
 import json
 import re
 import traceback
@@ -24,6 +25,19 @@ import numpy as np
 from ..pdehead_addon import PDEHeadError, max_patches
 from . import cutter, objects, prefs, scene, state, volume
 from .state import suspended_updates
+
+#: ``hook(step, fraction, message)`` called by the long steps while a pipeline or an operator runs; it
+#: may raise :class:`~pdehead_addon.Cancelled` (Esc in Blender, Ctrl-C on the CLI). Set by the runner.
+PROGRESS_HOOK: list = [None]
+
+
+def step_progress(step: str):
+    """The engine progress callback for ``step`` (None when nobody listens)."""
+    hook = PROGRESS_HOOK[0]
+    if hook is None:
+        return None
+    return lambda fraction, message="": hook(step, fraction, message)
+
 
 STEP_LABELS = {
     "import": "Import CT",
@@ -155,19 +169,73 @@ def reload_ct(collection):
     return ct
 
 
-def ct_table(collection, head, ct):
-    """The CT tabulated in the solid's (u, v, w) for this PDE solution (built once, ~0.5 s on CThead).
+def current_ct_table(collection):
+    """The solid's CT table for the study's current PDE solution, from memory or from the .blend, or None.
 
-    Kept until the PDE is re-solved (another head) or the CT is re-read, so cutaway and
-    resolution sliders only look values up.
+    A table saved in the .blend (:func:`store_ct_table_for_save`) is used when it was tabulated
+    for the same curves and controls: a reopened file, or one sent without its CT, keeps live
+    cutaways and nw without reading the CT. Its window becomes the study's window when none is known.
     """
-    from ..pdehead_addon.pde_solid import SolidCTTable
     cache = state.cache_for(state.settings(collection).study_id)
-    entry = cache.ct_table
-    if entry is None or entry[0] is not head or entry[1] is not ct:
-        entry = (head, ct, SolidCTTable(head, ct))
-        cache.ct_table = entry
-    return entry[2]
+    key = state.table_key(collection)
+    if cache.ct_table is not None and cache.ct_table[0] == key:
+        return cache.ct_table[1]
+    if state.stored_ct_table_key(collection) == key:
+        stored = state.load_stored_ct_table(collection)
+        if stored is not None:
+            cache.ct_table = (key, stored[1])
+            if cache.window is None:
+                cache.window = stored[2]
+            cache.stored_window = stored[2]
+            return stored[1]
+    return None
+
+
+def previous_ct_table(collection):
+    """``(table, window)`` of an earlier PDE solution of this study (memory, else the .blend), or None.
+
+    Looked up in (u, v, w), it gives the new solid nearly the right colours at once (the
+    parameterisation moves little with a control); :func:`refresh_solid_colours` replaces them.
+    """
+    cache = state.cache_for(state.settings(collection).study_id)
+    if cache.ct_table is not None:
+        window = cache.window or cache.stored_window
+        if window is not None:
+            return cache.ct_table[1], window
+    stored = state.load_stored_ct_table(collection)
+    if stored is not None:
+        cache.stored_window = stored[2]
+        return stored[1], (cache.window or stored[2])
+    return None
+
+
+def ct_table(collection, head, ct):
+    """The CT tabulated in the solid's (u, v, w) for this PDE solution (built once, ~0.5-1.3 s on CThead).
+
+    Kept until the PDE is re-solved with other controls or curves, or the CT is re-read, so
+    cutaway and resolution sliders only look values up.
+    """
+    table = current_ct_table(collection)
+    if table is None:
+        from ..pdehead_addon.pde_solid import SolidCTTable
+        table = SolidCTTable(head, ct, progress=step_progress("solid"))
+        state.cache_for(state.settings(collection).study_id).ct_table = (state.table_key(collection), table)
+    return table
+
+
+def store_ct_table_for_save(collection) -> int:
+    """Put the current CT table into the .blend unless it is there already (save_pre); returns bytes written."""
+    s = state.settings(collection)
+    if s.solid_object is None:
+        return 0
+    cache = state.cache_for(s.study_id)
+    key = state.table_key(collection)
+    if cache.ct_table is None or cache.ct_table[0] != key or state.stored_ct_table_key(collection) == key:
+        return 0
+    window = cache.window or cache.stored_window
+    if window is None:
+        return 0
+    return state.store_ct_table(collection, key, cache.ct_table[1], window)
 
 
 def ct_window(collection, ct=None) -> tuple[float, float]:
@@ -291,7 +359,7 @@ def step_segment(coll) -> None:
     ct = require_ct(coll)
     cache = state.cache_for(s.study_id)
     with state.Timer() as t:
-        seg = segment_head(ct)
+        seg = segment_head(ct, progress=step_progress("segment"))
     cache.drop_from("seg")
     cache.seg = seg
     with suspended_updates():
@@ -348,7 +416,8 @@ def step_boundaries(coll) -> None:
         warnings.simplefilter("always", SelectionWarning)
         bset = extract_boundaries(cache.seg, patches=s.patches, samples=s.samples,
                                   selection="auto" if tolerance else s.selection,
-                                  parameterisation="angular" if s.align_curves else "arc-length", **tolerance)
+                                  parameterisation="angular" if s.align_curves else "arc-length",
+                                  progress=step_progress("boundaries"), **tolerance)
     messages = [str(w.message) for w in caught if issubclass(w.category, SelectionWarning)]
     if messages:  # the tolerance could not be met with every usable slice: said beside the other warnings
         state.add_warnings(s, messages)
@@ -381,17 +450,120 @@ def step_surface(coll) -> None:
     state.record_timing(coll, "surface", t.seconds)
 
 
-def step_solid(coll) -> None:
+#: A live change of the PDE (smoothing, modes, ...) rebuilds the solid's geometry at once with the CT
+#: colours of the previous solution's table and re-tabulates the CT in a timer right after
+#: (:func:`refresh_solid_colours`). None: when Blender has a UI (in background mode -- scripts, the
+#: CLI, tests -- the colours are made at once, as there is no event loop to run the timer).
+DEFER_CT_COLOURS: bool | None = None
+
+#: The studies whose solid waits for its CT colours: study id -> time of the last live change.
+_COLOURS_PENDING: dict[str, float] = {}
+_REFRESH_DELAY_S = 0.15   # a slider still moving within this time keeps postponing the refresh
+
+
+def defer_ct_colours() -> bool:
+    return (not bpy.app.background) if DEFER_CT_COLOURS is None else bool(DEFER_CT_COLOURS)
+
+
+def colours_pending(coll) -> bool:
+    return state.settings(coll).study_id in _COLOURS_PENDING
+
+
+def step_solid(coll, live: bool = False) -> str:
+    """Build or rebuild the solid; returns a notice for the sidebar ('' when the colours are exact).
+
+    With ``live`` and :func:`defer_ct_colours`, a solid whose PDE solution has no CT table yet
+    gets the previous table's colours now and the exact ones from :func:`refresh_solid_colours`.
+    Without the CT (a file sent without it), the table stored in the .blend serves; when even
+    that belongs to another PDE solution, the geometry still follows the surface and the notice
+    says the colours are approximate.
+    """
     s = state.settings(coll)
     head = _solve(coll)
-    ct = require_ct(coll)  # re-read after reopening: a solid without its CT colours is a loss
-    window = ct_window(coll, ct)
+    notice = ""
+    table = current_ct_table(coll)
+    cache = state.cache_for(s.study_id)
+    window = cache.window or cache.stored_window
+    if table is None:
+        ct = None
+        if live and defer_ct_colours():
+            previous = previous_ct_table(coll)
+            if previous is not None:
+                table, window = previous
+            _COLOURS_PENDING[s.study_id] = _now()
+            _schedule_colour_refresh()
+        else:
+            try:
+                ct = require_ct(coll)  # re-read after reopening: a solid without its CT colours is a loss
+            except PDEHeadError as exc:
+                previous = previous_ct_table(coll)
+                if previous is None:
+                    raise
+                table, window = previous
+                notice = (f"the solid's CT colours are those of the previous PDE solution (the table saved in "
+                          f"the file): {exc}").replace("; nothing was changed", "")
+            if ct is not None:
+                window = ct_window(coll, ct)
+                table = ct_table(coll, head, ct)
+                _COLOURS_PENDING.pop(s.study_id, None)
+    else:
+        _COLOURS_PENDING.pop(s.study_id, None)
     with state.Timer() as t:
         s.solid_object = objects.build_solid(
             head, coll, nu=s.nu, nv=s.nv, nw=s.nw, u_range=tuple(s.u_range), v_range=tuple(s.v_range),
-            w_range=tuple(s.w_range), ct=ct, obj=s.solid_object, name=f"{coll.name} Solid", window=window,
-            ct_table=ct_table(coll, head, ct))
+            w_range=tuple(s.w_range), ct=None, obj=s.solid_object, name=f"{coll.name} Solid",
+            window=window if table is not None else None, ct_table=table)
     state.record_timing(coll, "solid", t.seconds)
+    return notice
+
+
+def _now() -> float:
+    import time
+    return time.monotonic()
+
+
+def _schedule_colour_refresh() -> None:
+    if not bpy.app.timers.is_registered(_colour_refresh_timer):
+        bpy.app.timers.register(_colour_refresh_timer, first_interval=_REFRESH_DELAY_S)
+
+
+def _colour_refresh_timer():
+    """bpy.app.timers callback: the CT colours of every solid left waiting by a live change."""
+    now = _now()
+    if any(now - t < _REFRESH_DELAY_S for t in _COLOURS_PENDING.values()):
+        return _REFRESH_DELAY_S  # still dragging: come back
+    flush_colour_refresh()
+    return None
+
+
+def flush_colour_refresh() -> int:
+    """Give every waiting solid its exact CT colours now (the timer, and before a save); returns the count."""
+    count = 0
+    for study_id in list(_COLOURS_PENDING):
+        coll = next((c for c in state.studies() if state.settings(c).study_id == study_id), None)
+        if coll is None:
+            _COLOURS_PENDING.pop(study_id, None)
+            continue
+        refresh_solid_colours(coll)
+        count += 1
+    return count
+
+
+def refresh_solid_colours(coll) -> None:
+    """Tabulate the CT for the current PDE solution and rebuild the solid with its exact colours.
+
+    What a live change deferred (:func:`step_solid` with ``live``); errors go to the sidebar.
+    """
+    s = state.settings(coll)
+    _COLOURS_PENDING.pop(s.study_id, None)
+    if s.solid_object is None:
+        return
+    try:
+        s.last_error = step_solid(coll)
+    except Exception as exc:  # noqa: BLE001 - runs from a timer: never raise into Blender
+        if not isinstance(exc, PDEHeadError):
+            traceback.print_exc()
+        s.last_error = f"the solid's CT colours could not be updated: {exc}"[:500]
 
 
 def volume_settings(s) -> dict:
@@ -412,7 +584,7 @@ def step_volume(coll, context=None) -> None:
             s.voxel_size = size
     with state.Timer() as t:
         grid = ct if s.use_ct_grid else float(s.voxel_size)
-        wfield = head.w_field(grid, ct=ct)
+        wfield = head.w_field(grid, ct=ct, progress=step_progress("volume"))
     state.record_timing(coll, "w_field", t.seconds)
     cache.wfield = wfield
     with state.Timer() as t:
@@ -443,6 +615,7 @@ def live_update(coll, what: str, context=None) -> None:
     (shown in the sidebar) and the console.
     """
     s = state.settings(coll)
+    notice = ""
     try:
         if what == "pde_auto":
             what = "pde"
@@ -466,8 +639,8 @@ def live_update(coll, what: str, context=None) -> None:
             if what in ("surface", "surface_solid", "pde") and s.surface_object is not None:
                 step_surface(coll)
             if what in ("solid", "surface_solid", "pde") and s.solid_object is not None:
-                step_solid(coll)
-        s.last_error = ""
+                notice = step_solid(coll, live=True)
+        s.last_error = notice[:500]
     except Exception as exc:  # noqa: BLE001 - an update callback must never raise into the UI
         if not isinstance(exc, PDEHeadError):
             traceback.print_exc()
@@ -493,8 +666,7 @@ def apply_cutter(coll, matrix=None) -> str:
     with suspended_updates():
         s.u_range, s.v_range = u_range, v_range
     state.cache_for(s.study_id).cutter_signature = cutter.signature(box, matrix)
-    if s.solid_object is not None:
-        step_solid(coll)
+    s.last_error = step_solid(coll, live=True)[:500] if s.solid_object is not None else ""
     return kind
 
 
@@ -531,8 +703,7 @@ def pdehead_cutter_update(_scene, depsgraph=None) -> None:
             if cache.cutter_signature == cutter.signature(box):
                 continue
             try:
-                apply_cutter(coll)
-                s.last_error = ""
+                apply_cutter(coll)  # sets last_error ('' or a notice about the colours)
             except Exception as exc:  # noqa: BLE001 - a handler must not raise into Blender
                 cache.cutter_signature = cutter.signature(box)  # do not retry every update
                 if not isinstance(exc, PDEHeadError):
@@ -544,6 +715,54 @@ def pdehead_cutter_update(_scene, depsgraph=None) -> None:
 
 # ------------------------------------------------------------------------------------------
 # The one-click pipeline and removing a study
+
+
+class StudySnapshot:
+    """A study's settings, stored curves and in-memory results before a run, to put back on cancel.
+
+    Objects the run created are removed by :class:`Rollback`; objects it rebuilt in place
+    (curves, surface, solid) are rebuilt again from the restored state.
+    """
+
+    def __init__(self, coll):
+        s = state.settings(coll)
+        self.collection_name = coll.name
+        self.study_id = s.study_id
+        self.values = {}
+        for prop in s.bl_rna.properties:
+            if prop.identifier == "rna_type" or prop.is_readonly or prop.type in ("POINTER", "COLLECTION"):
+                continue
+            value = getattr(s, prop.identifier)
+            self.values[prop.identifier] = tuple(value) if getattr(prop, "is_array", False) else value
+        self.boundaries = coll.get(state.BOUNDARY_KEY)
+        self.cache = copy.copy(state.cache_for(s.study_id))
+
+    def restore(self, rebuilt: set) -> None:
+        coll = bpy.data.collections.get(self.collection_name)
+        if coll is None:
+            return
+        s = state.settings(coll)
+        with suspended_updates():
+            for name, value in self.values.items():
+                now = getattr(s, name)
+                if (tuple(now) if isinstance(value, tuple) else now) == value:
+                    continue  # unchanged: not even marked as set (continuity, smoothing read is_property_set)
+                try:
+                    setattr(s, name, value)
+                except (AttributeError, TypeError, ValueError):
+                    pass
+        if self.boundaries is None:
+            coll.pop(state.BOUNDARY_KEY, None)
+        else:
+            coll[state.BOUNDARY_KEY] = self.boundaries
+        state._CACHE[self.study_id] = copy.copy(self.cache)
+        if "boundaries" in rebuilt and s.curves_object is not None and state.boundary_set(coll) is not None:
+            objects.build_boundary_curves(state.boundary_set(coll), coll, name=s.curves_object.name,
+                                          obj=s.curves_object)
+        if rebuilt & {"boundaries", "surface"} and s.surface_object is not None:
+            step_surface(coll)
+        if rebuilt & {"boundaries", "surface", "solid"} and s.solid_object is not None:
+            step_solid(coll)
 
 
 class PipelineRun:
@@ -570,14 +789,18 @@ class PipelineRun:
         self.steps = (["import"] if source in ("PHANTOM", "FILES") else []) + \
             ["segment", "boundaries", "surface", "solid"] + (["volume"] if volume else []) + ["scene"]
         self.index = 0
+        self.started: set[str] = set()
         self.rollback = Rollback()
         if source == "ACTIVE":
             coll = state.active_study(context, study)
             if coll is None:
                 raise PDEHeadError("No PDE Head study to run on: import a CT or load the phantom first")
+            self.snapshot = StudySnapshot(coll)
             self.collection_name = coll.name
             self._apply_settings(coll)
             state.settings(coll).timings_json = ""
+
+    snapshot: StudySnapshot | None = None
 
     @property
     def collection(self):
@@ -600,6 +823,7 @@ class PipelineRun:
     def step(self) -> bool:
         """Run the next step; True when the pipeline is complete."""
         name = self.steps[self.index]
+        self.started.add(name)
         if name == "import":
             if self.source == "PHANTOM":
                 coll = phantom_study(self.context)
@@ -624,8 +848,11 @@ class PipelineRun:
             self.step()
 
     def cancel(self) -> None:
-        """Remove every object, collection and datablock this run created."""
+        """Remove every object, collection and datablock this run created; a study the run worked on
+        gets its settings, curves and meshes back as they were before the run."""
         self.rollback.undo()
+        if self.snapshot is not None:
+            self.snapshot.restore(self.started)
         self.index = len(self.steps)
 
 

@@ -17,7 +17,7 @@ Forensic toolkit: :mod:`.skull` (the skull as a second PDE surface and a bone me
 :mod:`.tissue_depth` (skin-skull depth per vertex), :mod:`.landmarks` (landmarks, depth
 markers, Frankfurt horizontal, mid-sagittal mirror), :mod:`.export` (STL/OBJ/PLY in mm).
 """
-from .errors import PDEHeadError, CTImportError, SegmentationError, BoundaryError, PDEError, StorageError
+from .errors import PDEHeadError, CTImportError, SegmentationError, BoundaryError, PDEError, StorageError, Cancelled
 from .ct_volume import CTVolume
 from .mesh import Mesh
 from .ct_import import load_ct, list_series, SeriesInfo, CTImportWarning

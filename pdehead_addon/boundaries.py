@@ -85,7 +85,7 @@ from skimage import measure
 
 from .boundary_set import MIN_CURVES, BoundarySet, knots_from_heights
 from .envelope import ENVELOPE_CLOSING_MM, ENVELOPE_SIGMA_MM, head_envelope, outer_region
-from .errors import BoundaryError
+from .errors import BoundaryError, report_progress
 from .parameterisation import PARAMETERISATIONS, align_parameterisation, closed_arc_length, smooth_closed_curve
 
 __all__ = [
@@ -849,7 +849,8 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
                        curve_sigma: float | None = None, max_stretch: float = 8.0,
                        closing_mm: float | None = None, envelope_sigma_mm: float = ENVELOPE_SIGMA_MM,
                        star_shaped: bool = True, star_slope: float = STAR_MAX_SLOPE, curves: int | None = None,
-                       tolerance_mm: float | None = None, max_tolerance_mm: float | None = None) -> BoundarySet:
+                       tolerance_mm: float | None = None, max_tolerance_mm: float | None = None,
+                       progress=None) -> BoundarySet:
     """The 3t+1 PDE boundary curves of a segmented head (paper eq. 22, sections 3 and 4.1).
 
     Parameters
@@ -1029,10 +1030,13 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
     if level_field == "envelope":
         if not (np.isfinite(envelope_sigma_mm) and envelope_sigma_mm >= 0):
             raise BoundaryError(f"envelope_sigma_mm must be >= 0, got {envelope_sigma_mm!r}")
+        report_progress(progress, 0.0, "the head's envelope")
         field, window = head_envelope(mask, (dz, dy, dx), closing_mm=float(closing_mm),
                                       sigma_mm=float(envelope_sigma_mm))
     outlines, areas, coverage = [], [], []
     for c, k in enumerate(chosen):
+        if c % 8 == 0:
+            report_progress(progress, 0.3 + 0.3 * c / len(chosen), f"tracing slice {c + 1} of {len(chosen)}")
         try:
             if level_field == "envelope":
                 rc, info = contour_from_field(field[k - window[0].start], origin=(window[1].start, window[2].start))
@@ -1082,6 +1086,7 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
             m["patches"] = BoundarySet.patches_for(len(pos))
         return BoundarySet(cv, np.asarray(chosen)[pos], h, knots_from_heights(h), m)
 
+    report_progress(progress, 0.6, "choosing the curves" if auto else "the curves")
     if not auto:
         bset = make_bset(np.arange(len(chosen)))
     else:
@@ -1098,4 +1103,5 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
         S.attach_candidates(bset, cand)
     if parameterisation == "aligned":
         bset = align_parameterisation(bset, max_stretch=max_stretch)
+    report_progress(progress, 1.0, "boundary curves done")
     return bset

@@ -319,7 +319,7 @@ def chan_vese_soft(img: np.ndarray, spacing: Sequence[float], lam: float, theta:
                    tau: float | None = None, iterations: int = 30, inner: int = 1,
                    tolerance: float = 0.0, q0: np.ndarray | None = None,
                    c0: tuple[float, float] | None = None, sig0=None, threads: int = 1,
-                   slab: int | None = None) -> dict[str, Any]:
+                   slab: int | None = None, progress=None) -> dict[str, Any]:
     """Minimise eq. 16 on one grid by alternating eq. 17, eq. 20 and eq. 21.
 
     Parameters
@@ -339,6 +339,9 @@ def chan_vese_soft(img: np.ndarray, spacing: Sequence[float], lam: float, theta:
     q0, c0, sig0 :
         Warm start: membership, (c1, c2) and scaled dual ``s_a / h_a``.  The
         arrays are taken over and modified in place (memory).
+    progress : callable, optional
+        ``progress(iterations_done)`` after every outer iteration; it may raise
+        :class:`~pdehead_addon.errors.Cancelled` (the worker threads are stopped).
 
     Returns
     -------
@@ -371,6 +374,8 @@ def chan_vese_soft(img: np.ndarray, spacing: Sequence[float], lam: float, theta:
             c1, c2 = _region_means(sums[0], sums[1], state.img_sum, count)
             change = math.sqrt(sums[2] / count)
             done = it + 1
+            if progress is not None:
+                progress(done)
             if change < tolerance:
                 break
         return dict(q=state.membership(release=True), c1=used[0], c2=used[1], iterations=done, change=change,
@@ -425,7 +430,7 @@ def _resample_nearest(a: np.ndarray, from_factors: Sequence[int], to_factors: Se
 
 def _solve_pyramid(img: np.ndarray, spacing: Sequence[float], lam: float, theta: float, tau: float | None,
                    levels_mm: Sequence[float], level_iterations: Sequence[int], iterations: int, inner: int,
-                   tolerance: float, threads: int) -> tuple[dict, dict]:
+                   tolerance: float, threads: int, progress=None) -> tuple[dict, dict]:
     """Eq. 16-21 coarse to fine: block-mean levels of ~``levels_mm`` voxels, then the full grid.
 
     Each level starts from the previous one's membership q, means (c1, c2) and
@@ -453,6 +458,13 @@ def _solve_pyramid(img: np.ndarray, spacing: Sequence[float], lam: float, theta:
         carry = 0
     iterations = int(iterations) + carry
     info: dict[str, Any] = {"levels": [], "tau": None}
+    # progress: iterations run so far over the most that can run (a level may stop early)
+    planned = max(1, sum(max(n, 0) for _, n in plan) + iterations)
+    before = [0]
+
+    def level_progress(done: int) -> None:
+        if progress is not None:
+            progress((before[0] + done) / planned, f"Chan-Vese iteration {before[0] + done} of at most {planned}")
     q = c = sig = None
     prev = None
     for fac, n in plan:
@@ -466,7 +478,8 @@ def _solve_pyramid(img: np.ndarray, spacing: Sequence[float], lam: float, theta:
                         for sa, fp, ff in zip(sig, prev, fac))
         level_tau = bound(level_spacing) if tau is None else tau * min(f * f for f in fac)
         res = chan_vese_soft(level_img, level_spacing, lam, theta, level_tau, n, inner, tolerance,
-                             q0=q, c0=c, sig0=sig, threads=threads)
+                             q0=q, c0=c, sig0=sig, threads=threads, progress=level_progress)
+        before[0] += n
         info["levels"].append(dict(factors=tuple(int(f) for f in fac), shape=tuple(level_img.shape),
                                    iterations=res["iterations"], change=res["change"]))
         q, c, sig, prev = res["q"], (res["c1"], res["c2"]), res["sig"], fac
@@ -476,6 +489,6 @@ def _solve_pyramid(img: np.ndarray, spacing: Sequence[float], lam: float, theta:
         sig = tuple(_resample_nearest(sa * np.float32(fp), prev, (1, 1, 1), img.shape) for sa, fp in zip(sig, prev))
     fine_tau = bound(spacing) if tau is None else tau
     res = chan_vese_soft(img, spacing, lam, theta, fine_tau, iterations, inner, tolerance,
-                         q0=q, c0=c, sig0=sig, threads=threads)
+                         q0=q, c0=c, sig0=sig, threads=threads, progress=level_progress)
     info.update(tau=fine_tau, fine_iterations=res["iterations"], fine_change=res["change"])
     return res, info

@@ -44,3 +44,32 @@ class PDEError(PDEHeadError, ValueError):
 
 class StorageError(PDEHeadError, ValueError):
     """A boundary file is unreadable, truncated or of an unknown version."""
+
+
+class Cancelled(Exception):
+    """Raised by a progress callback to stop a long engine step (Esc in Blender, Ctrl-C on the CLI).
+
+    Not a :class:`PDEHeadError`: nothing is wrong. A step that is cancelled returns nothing and
+    leaves nothing behind (worker threads are stopped, inputs are not modified).
+    """
+
+    def __init__(self, message: str = "cancelled"):
+        super().__init__(message)
+
+
+def report_progress(progress, fraction: float, message: str = "") -> None:
+    """Call ``progress(fraction, message)`` when a callback is given (it may raise :class:`Cancelled`).
+
+    ``fraction`` is clipped to [0, 1]; the engine's long steps (``segment_head``,
+    ``extract_boundaries``, ``w_field``, ``SolidCTTable``) report at least every few hundred
+    milliseconds on a head scan.
+    """
+    if progress is not None:
+        progress(min(max(float(fraction), 0.0), 1.0), message)
+
+
+def scaled_progress(progress, start: float, stop: float):
+    """A callback mapping [0, 1] onto [start, stop] of ``progress`` (None stays None)."""
+    if progress is None:
+        return None
+    return lambda fraction, message="": progress(start + (stop - start) * fraction, message)

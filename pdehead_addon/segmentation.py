@@ -28,7 +28,7 @@ from scipy import ndimage as ndi
 from . import input_checks
 from .chan_vese import _solve_pyramid, chan_vese_soft, divergence, gradient, tau_bound
 from .ct_volume import CTVolume, apply_window
-from .errors import SegmentationError
+from .errors import SegmentationError, report_progress, scaled_progress
 from .mask_cleanup import (clean_head_mask, close_disk, cut_at_neck, dilate_disk, erode_disk, estimate_noise,
                            fill_cavities, fill_holes_per_slice, find_cushion, head_envelope, largest_component,
                            metal_slices, open_disk, smoothing_sigma, streak_components)
@@ -160,7 +160,7 @@ def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: flo
                  window: tuple[float, float] | None = None, threshold: float = 0.5, cleanup: bool = True,
                  opening_mm: float = 2.5, cushion_level: float | None = 0.85, cushion_mm: float = 2.0,
                  close_mm: float = 6.0, slices: Sequence[int] | None = None, threads: int | None = None,
-                 max_memory_gb: float | None = MEMORY_BUDGET_GB) -> Segmentation:
+                 max_memory_gb: float | None = MEMORY_BUDGET_GB, progress=None) -> Segmentation:
     """Segment the head with the 3-D Chan-Vese soft model (eq. 16-21) and clean it up.
 
     The intensities are first windowed to [0, 1] (air -> 0, soft tissue -> 1,
@@ -214,6 +214,10 @@ def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: flo
         Refuse (before any work) a volume whose segmentation would need more than
         this, with the advice to downsample (``load_ct(..., downsample=2)``, CLI
         ``--downsample 2``, import dialog "Downsample"); None: no limit.
+    progress : callable, optional
+        ``progress(fraction, message)`` after every solver iteration and clean-up stage; it
+        may raise :class:`~pdehead_addon.errors.Cancelled`, which stops the segmentation
+        (worker threads included) and propagates; nothing is returned or kept.
 
     Returns
     -------
@@ -280,18 +284,21 @@ def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: flo
         # pillows are recognised by CT densities; in MRI the skull and scalp look like one
         cushion_level = None
     clean_kw = dict(opening_mm=opening_mm, cushion_level=cushion_level, cushion_mm=cushion_mm, close_mm=close_mm)
+    report_progress(progress, 0.0, "windowing the intensities")
     img = window_intensities(data, window)
     if slices is not None:
         seg = _segment_slices(ct, img, spacing, params, clean_kw, [int(k) for k in slices], threads)
         return _check_result(seg, spacing, seg_warnings)
     res, info = _solve_pyramid(img, spacing, lam, theta, tau, levels_mm, level_iterations, iterations, inner,
-                               tolerance, threads)
+                               tolerance, threads, progress=scaled_progress(progress, 0.02, 0.8))
     del img
     q = res.pop("q")
     stats: dict[str, Any] = {}
     mask = q > np.float32(threshold)
     if cleanup:
+        report_progress(progress, 0.8, "cleaning up the head mask")
         mask, stats = clean_head_mask(mask, data, window, spacing, **clean_kw)
+        report_progress(progress, 0.95, "finding the neck")
         mask, neck = cut_at_neck(mask, spacing)
         stats["neck_cut"] = neck
         if neck is not None:
@@ -303,6 +310,7 @@ def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: flo
     meta = dict(mode="volume", window=window, params=params, solver=info, cleanup=stats)
     total = int(info["fine_iterations"]) + sum(int(level["iterations"]) for level in info["levels"])
     seg = Segmentation(mask=mask, probability=q, c1=res["c1"], c2=res["c2"], iterations=total, ct=ct, meta=meta)
+    report_progress(progress, 1.0, "segmentation done")
     return _check_result(seg, spacing, seg_warnings)
 
 

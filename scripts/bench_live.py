@@ -1,22 +1,27 @@
 #!/usr/bin/env python3
 """Slider timings of the PDE Head sidebar in real Blender (bpy): is each live change within a frame?
 
-Runs the add-on from this repository's source (as the CLI does), builds a CThead study with the
-add-on's defaults (t = 10, surface/solid 120 x 240, nw = 5; no volume), then changes each live
-parameter the way the sidebar does (setting the study property, which runs its update callback)
-and times the whole callback: the median of ``--repeats`` changes, each to a new value.
+Runs the add-on from this repository's source (as the CLI does), builds a study with the add-on's
+defaults (t = 10, surface/solid 120 x 240, nw = 5, and the volume) on CThead and GE, then changes
+every live parameter the way the sidebar does (setting the study property, which runs its update
+callback; the cutter by moving it and running the depsgraph handler) and times the whole callback:
+the median of ``--repeats`` changes, each to a new value.
 
-Targets (issue 10): a nu/nv change of the surface <= 50 ms; a cutaway (u/v/w range) or nw change of
-the solid <= 100 ms, on CThead. A nu/nv change also rebuilds the solid (both share the resolution):
-the table lists the surface's own step and the whole callback.
+As in Blender with a UI, a PDE change (smoothing, modes, ...) rebuilds the geometry at once with the
+previous solution's CT colours and re-tabulates the CT in a timer right after
+(``study.DEFER_CT_COLOURS``): that refresh is timed as the "colours follow" column.
+
+Targets (issue 20): every live change updates the geometry in <= 100 ms; the solid's CT colours follow
+within 1 s; after reopening the file the first live change <= 1 s; a change at the limits
+(nu = ``D.NU.max``, nv = ``D.NV.max``) <= 2 s and <= 2 GB.
 
 Writes ``docs/benchmarks_live.json`` and its own section ``live-sliders`` of ``docs/benchmarks.md``
 (:mod:`md_sections`: the rest of that file belongs to ``scripts/bench.py`` and the other benchmarks).
 
 Usage::
 
-    python3 scripts/bench_live.py                 # CThead, 7 repeats
-    python3 scripts/bench_live.py --repeats 3 --datasets cthead ge
+    python3 scripts/bench_live.py                 # CThead and GE, 7 repeats
+    python3 scripts/bench_live.py --repeats 3 --datasets cthead
 """
 from __future__ import annotations
 
@@ -25,6 +30,7 @@ import json
 import math
 import os
 import platform
+import resource
 import statistics
 import sys
 import tempfile
@@ -35,24 +41,47 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "scripts"))
 
 SECTION = "live-sliders"
-SURFACE_TARGET_S = 0.050
-SOLID_TARGET_S = 0.100
+GEOMETRY_TARGET_S = 0.100
+COLOURS_TARGET_S = 1.0
+REOPEN_TARGET_S = 1.0
+LIMIT_TARGET_S = 2.0
+LIMIT_TARGET_GB = 2.0
 
 
 def _changes():
-    """(label, property, value of step i, target, which timing is the target's) for each slider.
+    """(label, property, value of step i, set-up before the series) for each live parameter.
 
-    Every step sets a value not used before, as dragging a slider does (no cache can help).
+    Every step sets a value not used before where the property allows it (as dragging a slider
+    does); booleans and enums alternate.
     """
     two_pi = 2 * math.pi
+    alternate = lambda a, b: (lambda i: a if i % 2 == 0 else b)  # noqa: E731
+    manual = {"smoothing_auto": False, "approximation_auto": False}
     return [
-        ("nu (surface + solid)", "nu", lambda i: 121 + i, SURFACE_TARGET_S, "surface"),
-        ("nv (surface + solid)", "nv", lambda i: 241 + i, SURFACE_TARGET_S, "surface"),
-        ("nw (solid)", "nw", lambda i: 6 + i, SOLID_TARGET_S, "total"),
-        ("v range cutaway (solid)", "v_range", lambda i: (math.pi / 2 + 0.013 * i, two_pi), SOLID_TARGET_S, "total"),
-        ("u range cutaway (solid)", "u_range", lambda i: (0.0, 0.8 - 0.011 * i), SOLID_TARGET_S, "total"),
-        ("w range cutaway (solid)", "w_range", lambda i: (0.0, 0.8 - 0.011 * i), SOLID_TARGET_S, "total"),
+        ("nu (surface + solid)", "nu", lambda i: 121 + i, {}),
+        ("nv (surface + solid)", "nv", lambda i: 241 + i, {}),
+        ("caps (surface)", "caps", alternate(False, True), {}),
+        ("continuity (PDE)", "continuity", alternate("paper", "c2"), {}),
+        ("dome (PDE)", "dome", alternate(False, True), {}),
+        ("auto smoothing (PDE)", "smoothing_auto", alternate(False, True), {}),
+        ("smoothing (PDE)", "smoothing", lambda i: 0.30 + 0.013 * i, manual),
+        ("auto approximation (PDE)", "approximation_auto", alternate(False, True), {}),
+        ("approximation (PDE)", "approximation", lambda i: 0.30 + 0.013 * i, manual),
+        ("Fourier modes (PDE)", "modes", lambda i: 24 + i, {}),
+        ("nw (solid)", "nw", lambda i: 6 + i, {}),
+        ("v range cutaway (solid)", "v_range", lambda i: (math.pi / 2 + 0.013 * i, two_pi), {}),
+        ("u range cutaway (solid)", "u_range", lambda i: (0.0, 0.8 - 0.011 * i), {}),
+        ("w range cutaway (solid)", "w_range", lambda i: (0.0, 0.8 - 0.011 * i), {}),
+        ("low alpha (volume)", "low_alpha", lambda i: 0.05 + 0.011 * i, {}),
+        ("high alpha (volume)", "high_alpha", lambda i: 0.80 + 0.013 * i, {}),
+        ("density (volume)", "density", lambda i: 1.0 + 0.1 * i, {}),
+        ("colour preset (volume)", "colour_preset", None, {}),
+        ("alpha mode (volume)", "alpha_mode", alternate("INTENSITY", "EQ24"), {}),
     ]
+
+
+def _peak_rss_gb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024 ** 2   # KiB on Linux
 
 
 def _load_options(name: str):
@@ -67,58 +96,143 @@ def _load_options(name: str):
     raise SystemExit(f"unknown dataset {name!r} (cthead, ge)")
 
 
+_CPU: list[float] = []   # CPU seconds of the last timed change (the machine may be shared: wall clock is noisy)
+
+
+def _timed_change(s, coll, prop, value) -> tuple[float, float | None]:
+    """(whole callback, the deferred colour refresh or None) of one change, wall clock."""
+    from pdehead_dev.operators import study
+    t = time.perf_counter()
+    c = time.process_time()
+    setattr(s, prop, value)
+    total = time.perf_counter() - t
+    _CPU[:] = [time.process_time() - c]
+    if s.last_error:
+        raise RuntimeError(f"{prop}: {s.last_error}")
+    colours = None
+    if study.colours_pending(coll):
+        t = time.perf_counter()
+        c = time.process_time()
+        study.flush_colour_refresh()
+        colours = time.perf_counter() - t
+        _CPU.append(time.process_time() - c)
+        if s.last_error:
+            raise RuntimeError(f"{prop} (colours): {s.last_error}")
+    return total, colours
+
+
 def bench_dataset(name: str, repeats: int) -> dict:
     import bpy
 
-    from pdehead_dev.operators import state
+    from pdehead_dev.operators import state, study
+    from pdehead_dev.operators.props import COLOUR_ITEMS
     bpy.ops.wm.read_homefile(use_empty=True)
+    study.DEFER_CT_COLOURS = True   # as in Blender with a UI (the colour refresh is timed on its own)
     t0 = time.perf_counter()
-    assert bpy.ops.pdehead.run_pipeline(source='FILES', build_volume=False, **_load_options(name)) == {'FINISHED'}
+    assert bpy.ops.pdehead.run_pipeline(source='FILES', build_volume=True, **_load_options(name)) == {'FINISHED'}
     coll = bpy.context.scene.pdehead.active_study
     s = coll.pdehead
-    out = {"pipeline_s": time.perf_counter() - t0, "build_solid_s": state.timings(coll).get("solid"),
-           "surface_vertices": len(s.surface_object.data.vertices),
+    tm = state.timings(coll)
+    out = {"pipeline_s": time.perf_counter() - t0, "build_solid_s": tm.get("solid"),
+           "pipeline_steps": tm, "surface_vertices": len(s.surface_object.data.vertices),
            "solid_vertices": len(s.solid_object.data.vertices), "rows": []}
-    for label, prop, values, target, basis in _changes():
-        totals, surfaces, solids = [], [], []
+    presets = [key for key, *_ in COLOUR_ITEMS]
+    for label, prop, values, setup in _changes():
+        if values is None:   # the colour presets in turn, never the current one
+            values = (lambda i, p=presets, c=s.colour_preset: p[(p.index(c) + 1 + i) % len(p)])
+        with state.suspended_updates():
+            for key, value in setup.items():
+                setattr(s, key, value)
         original = getattr(s, prop)
-        original = tuple(original) if not isinstance(original, (int, float)) else original
+        original = tuple(original) if not isinstance(original, (int, float, str, bool)) else original
+        totals, cpus, colours, colour_cpus, surfaces, solids = [], [], [], [], [], []
         for i in range(repeats):
             s.timings_json = ""
-            t = time.perf_counter()
-            setattr(s, prop, values(i))
-            totals.append(time.perf_counter() - t)
-            if s.last_error:
-                raise RuntimeError(f"{label}: {s.last_error}")
-            tm = state.timings(coll)
-            surfaces.append(tm.get("surface"))
-            solids.append(tm.get("solid"))
+            total, colour = _timed_change(s, coll, prop, values(i))
+            totals.append(total)
+            cpus.append(_CPU[0])
+            colour_cpus.append(_CPU[1] if len(_CPU) > 1 else None)
+            colours.append(colour)
+            steps = state.timings(coll)
+            surfaces.append(steps.get("surface"))
+            solids.append(steps.get("solid"))
         setattr(s, prop, original)
+        study.flush_colour_refresh()
+        with state.suspended_updates():
+            for key in setup:
+                setattr(s, key, not setup[key])
         row = {"label": label, "property": prop, "repeats": repeats, "total_s": statistics.median(totals),
-               "all_s": totals, "target_s": target, "basis": basis}
+               "all_s": totals, "cpu_s": statistics.median(cpus), "target_s": GEOMETRY_TARGET_S}
         if all(x is not None for x in surfaces):
             row["surface_s"] = statistics.median(surfaces)
         if all(x is not None for x in solids):
             row["solid_s"] = statistics.median(solids)
-        measured = row["surface_s"] if basis == "surface" else row["total_s"]
-        row["met"] = measured <= target
+        if any(x is not None for x in colours):
+            row["colours_s"] = statistics.median([x for x in colours if x is not None])
+            row["colours_cpu_s"] = statistics.median([x for x in colour_cpus if x is not None])
+        row["met"] = row["total_s"] <= GEOMETRY_TARGET_S and row.get("colours_s", 0.0) <= COLOURS_TARGET_S
         out["rows"].append(row)
 
-    # after reopening (new session: nothing in memory): the first cutaway re-reads the CT and tabulates it
+    # the cutter: moved in the viewport / from Python, applied by the depsgraph handler
+    box, _kind = study.add_cutter(bpy.context, coll)
+    s.use_cutter = True
+    bpy.context.view_layer.update()
+    totals = []
+    for i in range(repeats):
+        box.location.x += 0.004
+        s.timings_json = ""
+        t = time.perf_counter()
+        bpy.context.view_layer.update()   # the depsgraph update runs the handler, which applies the cutter
+        totals.append(time.perf_counter() - t)
+        if s.last_error:
+            raise RuntimeError(f"cutter: {s.last_error}")
+        if state.timings(coll).get("solid") is None:
+            raise RuntimeError("cutter: moving it did not rebuild the solid (the handler did not run)")
+    out["rows"].append({"label": "cutter moved (solid)", "property": "cutter", "repeats": repeats,
+                        "total_s": statistics.median(totals), "all_s": totals, "target_s": GEOMETRY_TARGET_S,
+                        "met": statistics.median(totals) <= GEOMETRY_TARGET_S})
+    s.use_cutter = False
+    bpy.data.objects.remove(box)
+    s.u_range, s.v_range = (0.0, 1.0), (0.0, 2 * math.pi)
+
+    # after reopening (new session: nothing in memory): the solid's CT table comes from the .blend
     with tempfile.TemporaryDirectory() as tmp:
         blend = os.path.join(tmp, "live.blend")
         bpy.ops.wm.save_as_mainfile(filepath=blend)
+        out["blend_mb"] = os.path.getsize(blend) / 1e6
         bpy.ops.wm.open_mainfile(filepath=blend)
         state.drop_cache()
         coll = [c for c in bpy.data.collections if c.pdehead.is_study][0]
         s = coll.pdehead
+        out["stored_table_mb"] = len(coll.get(state.CT_TABLE_KEY, "")) * 3 / 4 / 1e6
         t = time.perf_counter()
         s.v_range = (math.pi / 2, 2 * math.pi)
         out["first_cutaway_after_reopen_s"] = time.perf_counter() - t
+        out["ct_read_on_first_cutaway"] = state.cache_for(s.study_id).ct is not None
         t = time.perf_counter()
         s.v_range = (math.pi / 3, 2 * math.pi)
         out["second_cutaway_after_reopen_s"] = time.perf_counter() - t
+        state.drop_cache()
+        bpy.ops.wm.open_mainfile(filepath=blend)
+        coll = [c for c in bpy.data.collections if c.pdehead.is_study][0]
+        s = coll.pdehead
+        total, colours = _timed_change(s, coll, "modes", 31)
+        out["first_pde_change_after_reopen_s"], out["first_pde_change_colours_s"] = total, colours
+
+        # at the limits: the largest nu and nv the sidebar allows (time and the process's peak RSS)
+        from pdehead_dev.pdehead_addon import defaults as D
+        rss0 = _peak_rss_gb()
+        t = time.perf_counter()
+        with state.suspended_updates():
+            s.nu = D.NU.max
+        s.nv = D.NV.max
+        out["limits"] = {"nu": D.NU.max, "nv": D.NV.max, "nw": s.nw, "total_s": time.perf_counter() - t,
+                         "peak_rss_gb_before": rss0, "peak_rss_gb": _peak_rss_gb(),
+                         "solid_vertices": len(s.solid_object.data.vertices)}
+        if s.last_error:
+            raise RuntimeError(f"limits: {s.last_error}")
         bpy.ops.wm.read_homefile(use_empty=True)
+    study.DEFER_CT_COLOURS = None
     return out
 
 
@@ -138,32 +252,52 @@ def machine() -> dict:
 def markdown(result: dict) -> str:
     m = result["machine"]
     lines = ["## Live sliders in Blender (`scripts/bench_live.py`)", "",
-             f"Generated by `python3 scripts/bench_live.py` on {m['date']} (bpy {m['bpy']}, {m['cores']} cores, "
-             f"load average at start {m['load_average']}; the machine is shared, timings are wall clock). "
-             "Each row: one live parameter set as the sidebar does (its update callback rebuilds the objects), "
-             f"median of {result['repeats']} changes, each to a value not used before (as when dragging); add-on defaults "
-             "(t = 10, 120 x 240, nw = 5). A nu/nv change rebuilds the surface and the solid: the target is the "
-             "surface's step, the whole callback is listed too.", ""]
+             f"Generated by `python3 {result['command']}` on {m['date']} (bpy {m['bpy']}, {m['cores']} cores, "
+             f"load average at start {m['load_average']}; **the machine was shared with other jobs**, timings are "
+             "wall clock and noisy). Each row: one live parameter set as the sidebar does (its update callback "
+             f"rebuilds the objects), median of {result['repeats']} changes, each to a value not used before (as when "
+             "dragging; booleans and enums alternate); add-on defaults (t = 10, 120 x 240, nw = 5, volume built). "
+             "As in Blender with a UI, a PDE change rebuilds the geometry at once with the previous solution's CT "
+             "colours, and a timer re-tabulates the CT right after: that refresh is the *colours follow* column. "
+             f"Targets: the whole callback <= {1000 * GEOMETRY_TARGET_S:.0f} ms, the colours <= {COLOURS_TARGET_S:g} s; "
+             "*status* judges the wall clock. The CPU-time columns (this process, all threads) show the work "
+             "itself, which a loaded machine inflates much less than the wall clock (for reference, issue 20 "
+             "measured a whole nu change at 41 ms on a quiet machine).",
+             ""]
+    fmt = lambda x: f"{1000 * x:.0f} ms" if x is not None else "-"  # noqa: E731
     for name, d in result["datasets"].items():
         lines += [f"### {name}: surface {d['surface_vertices']} vertices, solid {d['solid_vertices']} vertices",
-                  "", "| change | surface step | solid step | whole callback | target | status |",
-                  "|---|---|---|---|---|---|"]
+                  "", "| change | surface step | solid step | whole callback | (its CPU time) | colours follow "
+                      "| (their CPU time) | status |",
+                  "|---|---|---|---|---|---|---|---|"]
         for r in d["rows"]:
-            fmt = lambda x: f"{1000 * x:.0f} ms" if x is not None else "-"  # noqa: E731
             lines.append(f"| {r['label']} | {fmt(r.get('surface_s'))} | {fmt(r.get('solid_s'))} | "
-                         f"{fmt(r['total_s'])} | <= {1000 * r['target_s']:.0f} ms ({r['basis']}) | "
+                         f"{fmt(r['total_s'])} | {fmt(r.get('cpu_s'))} | {fmt(r.get('colours_s'))} | "
+                         f"{fmt(r.get('colours_cpu_s'))} | "
                          f"{'**met**' if r['met'] else '**NOT met**'} |")
-        lines += ["", f"Build Solid in the pipeline (incl. tabulating the CT in (u, v, w) once): "
-                      f"{d['build_solid_s']:.2f} s. After reopening the file (nothing in memory) the first cutaway "
-                      f"re-reads the CT and tabulates it: {d['first_cutaway_after_reopen_s']:.2f} s; the next one "
-                      f"{1000 * d['second_cutaway_after_reopen_s']:.0f} ms.", ""]
+        lim = d["limits"]
+        lines += ["", f"Pipeline (with the volume) {d['pipeline_s']:.1f} s; Build Solid in it (incl. tabulating the CT "
+                      f"in (u, v, w) once) {d['build_solid_s']:.2f} s.",
+                  "",
+                  f"After reopening the file (nothing in memory; the solid's CT table is stored in the .blend, "
+                  f"{d['stored_table_mb']:.1f} MB of {d['blend_mb']:.1f} MB): the first cutaway "
+                  f"{1000 * d['first_cutaway_after_reopen_s']:.0f} ms (CT read: "
+                  f"{'yes' if d['ct_read_on_first_cutaway'] else 'no'}; target <= {REOPEN_TARGET_S:g} s), the next one "
+                  f"{1000 * d['second_cutaway_after_reopen_s']:.0f} ms; the first PDE change (Fourier modes) "
+                  f"{1000 * d['first_pde_change_after_reopen_s']:.0f} ms, its colours follow in "
+                  f"{fmt(d['first_pde_change_colours_s'])} (the CT is re-read and tabulated).",
+                  "",
+                  f"At the limits (nu = {lim['nu']}, nv = {lim['nv']}, nw = {lim['nw']}: {lim['solid_vertices']} solid "
+                  f"vertices): {lim['total_s']:.2f} s (target <= {LIMIT_TARGET_S:g} s), the process's peak RSS "
+                  f"{lim['peak_rss_gb_before']:.2f} -> {lim['peak_rss_gb']:.2f} GB (target <= {LIMIT_TARGET_GB:g} GB).",
+                  ""]
     return "\n".join(lines)
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--repeats", type=int, default=7)
-    p.add_argument("--datasets", nargs="+", default=["cthead"])
+    p.add_argument("--datasets", nargs="+", default=["cthead", "ge"])
     p.add_argument("--json", type=Path, default=ROOT / "docs" / "benchmarks_live.json")
     p.add_argument("--md", type=Path, default=ROOT / "docs" / "benchmarks.md")
     args = p.parse_args(argv)
@@ -179,9 +313,10 @@ def main(argv=None) -> int:
     write_section(args.md, SECTION, markdown(result))
     for name, d in result["datasets"].items():
         for r in d["rows"]:
-            print(f"{name:8s} {r['label']:28s} total {1000 * r['total_s']:6.1f} ms  "
-                  f"surface {1000 * (r.get('surface_s') or 0):5.1f} ms  solid {1000 * (r.get('solid_s') or 0):5.1f} ms"
-                  f"  {'met' if r['met'] else 'NOT met'}")
+            print(f"{name:8s} {r['label']:28s} total {1000 * r['total_s']:6.1f} ms  colours "
+                  f"{1000 * (r.get('colours_s') or 0):6.1f} ms  {'met' if r['met'] else 'NOT met'}")
+        print(f"{name:8s} first cutaway after reopen {d['first_cutaway_after_reopen_s']:.3f} s; "
+              f"limits {d['limits']['total_s']:.2f} s, peak RSS {d['limits']['peak_rss_gb']:.2f} GB")
     return 0 if all(r["met"] for d in result["datasets"].values() for r in d["rows"]) else 1
 
 

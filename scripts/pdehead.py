@@ -17,9 +17,11 @@ module: the add-on is registered straight from this repository's source (as the 
 preferences are never touched. The .vdb of the volume is written beside the .blend
 (``pdehead_vdb/``, stored as a relative path). Prints per-step timings and a summary on stdout
 (``--summary-json FILE``: the same as JSON for scripts) and each warning once, as one line on stderr,
-naming this command's flags.
+naming this command's flags. Progress of the long steps goes to stderr: a bar on a terminal, one plain
+line per update when piped.
 Exit status: 0 on success, 2 on bad arguments or input (a folder that is empty or holds no head CT, an
-output that cannot be written: one-line error), 1 on an internal error.
+output that cannot be written: one-line error), 1 on an internal error, 130 on Ctrl-C (the running step
+stops within about a second; no output file is left behind).
 """
 from __future__ import annotations
 
@@ -27,6 +29,7 @@ import argparse
 import contextlib
 import json
 import os
+import signal
 import sys
 import tempfile
 import time
@@ -248,6 +251,62 @@ def _blender_stdout(drop=("Error:", "Warning:")):
                 print("\n".join(kept), flush=True)
 
 
+class Interrupted(Exception):
+    """Ctrl-C: the run stops, the files it wrote are removed, the exit status is 130."""
+
+
+#: Set by the SIGINT handler; the engine's progress callback then raises Cancelled (a second Ctrl-C
+#: raises KeyboardInterrupt at once).
+_SIGINT = [False]
+
+
+def _on_sigint(_signum, _frame):
+    if _SIGINT[0]:
+        raise KeyboardInterrupt
+    _SIGINT[0] = True
+
+
+class Progress:
+    """The engine's progress on stderr: a bar redrawn in place on a terminal, plain lines when piped.
+
+    Installed as the add-on's progress hook (``study.PROGRESS_HOOK``); raises the engine's
+    ``Cancelled`` after Ctrl-C so the running step stops at its next report.
+    """
+
+    MIN_INTERVAL_S = 0.5
+
+    def __init__(self, stream=None):
+        self.stream = stream or sys.stderr
+        self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
+        self.step, self.last, self.shown = None, 0.0, -1.0
+
+    def __call__(self, step, fraction, message=""):
+        if _SIGINT[0]:
+            from pdehead_dev.pdehead_addon import Cancelled
+            raise Cancelled("cancelled by Ctrl-C")
+        now = time.perf_counter()
+        if step != self.step:
+            self.end()
+            self.step, self.start, self.last, self.shown = step, now, now, -1.0
+        # one report per half second at most, the first after half a second (short steps stay silent)
+        if now - self.last < self.MIN_INTERVAL_S or now - self.start < self.MIN_INTERVAL_S:
+            return
+        self.last, self.shown = now, fraction
+        text = f"{step} {100 * fraction:3.0f} %" + (f" ({message})" if message else "")
+        if self.tty:
+            bar = "#" * int(20 * fraction)
+            self.stream.write(f"\r{PROG}: [{bar:<20}] {text}\033[K")
+        else:
+            self.stream.write(f"{PROG}: {text}\n")
+        self.stream.flush()
+
+    def end(self):
+        if self.tty and self.shown >= 0:
+            self.stream.write("\n")
+            self.stream.flush()
+        self.shown = -1.0
+
+
 def _call(op, **kwargs) -> None:
     """Run one operator; its ERROR report becomes a CLIError: exit 2 when the engine refused the input
     (a PDEHeadError: bad files, bad options), 1 for anything else (a bug); the study's new warnings are
@@ -258,7 +317,11 @@ def _call(op, **kwargs) -> None:
     try:
         with _blender_stdout():
             result = op(**kwargs)
+        if _SIGINT[0]:
+            raise Interrupted()
     except RuntimeError as exc:
+        if _SIGINT[0]:
+            raise Interrupted() from None
         failure = state.last_exception
         if isinstance(failure, addon.pdehead_addon.PDEHeadError):
             raise CLIError(state.user_text(str(failure)), 2) from None
@@ -380,6 +443,38 @@ def _check_writable_folder(folder: Path, flag: str) -> None:
         raise CLIError(f"{flag} {folder}: cannot write there ({existing} is not a writable folder)", 2)
 
 
+def _outputs(args) -> list[Path]:
+    """Every file the run may write: the .blend, its volume folder, the renders and frames, the exports."""
+    paths = [p for p in (args.out, args.render, args.render_volume, args.render_animation) if p is not None]
+    if args.out:
+        paths.append(args.out.resolve().parent / "pdehead_vdb")
+    if args.export:
+        paths.append(args.export)
+    return [Path(p).resolve() for p in paths]
+
+
+def _snapshot(paths: list[Path]) -> set[Path]:
+    """The files and folders that exist now at or under ``paths`` (and their parents)."""
+    found: set[Path] = set()
+    for p in paths:
+        for q in (p, *p.parents):
+            if q.exists():
+                found.add(q)
+        if p.is_dir():
+            found.update(p.rglob("*"))
+    return found
+
+
+def _remove_new(paths: list[Path], before: set[Path]) -> None:
+    """Delete what the run created at or under ``paths`` (files, then folders it made), nothing else."""
+    created = _snapshot(paths) - before
+    for q in sorted(created, key=lambda x: len(x.parts), reverse=True):
+        try:
+            q.rmdir() if q.is_dir() else q.unlink()
+        except OSError:
+            pass
+
+
 def run(args) -> dict:
     import bpy
     import warnings
@@ -389,6 +484,21 @@ def run(args) -> dict:
     warnings.showwarning = WARNINGS.showwarning  # one line each, no source line
     bpy.ops.wm.read_homefile(use_empty=True)
     bpy.context.preferences.filepaths.save_version = 0  # no .blend1 backups (temporary user folder)
+    progress = Progress()
+    addon.operators.study.PROGRESS_HOOK[0] = progress
+    outputs = _outputs(args)
+    before = _snapshot(outputs)
+    try:
+        return _run(args, bpy, addon, state)
+    except (Interrupted, KeyboardInterrupt):
+        _remove_new(outputs, before)
+        raise Interrupted() from None
+    finally:
+        progress.end()
+        addon.operators.study.PROGRESS_HOOK[0] = None
+
+
+def _run(args, bpy, addon, state) -> dict:
     scratch = None
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
@@ -589,11 +699,21 @@ def main(argv=None) -> int:
         args = parse_args(argv)
         # Keep Blender away from the real user folder (must precede `import bpy`).
         os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="pdehead-cli-"))
-        summary = run(args)
+        previous = signal.signal(signal.SIGINT, _on_sigint)
+        try:
+            summary = run(args)
+        finally:
+            signal.signal(signal.SIGINT, previous)
         if args.summary_json:
             write_summary_json(args.summary_json, summary)
             print(f"wrote {args.summary_json}")
+    except (Interrupted, KeyboardInterrupt):
+        print(f"{PROG}: cancelled (Ctrl-C); no output was written", file=sys.stderr)
+        return 130
     except CLIError as exc:
+        if _SIGINT[0]:
+            print(f"{PROG}: cancelled (Ctrl-C); no output was written", file=sys.stderr)
+            return 130
         message = " ".join(str(exc).split())
         print(f"{PROG}: error: {message}", file=sys.stderr)
         if args is not None and args.summary_json and "--summary-json" not in message:

@@ -93,7 +93,7 @@ def test_param_limits_check_and_help():
     assert D.PATCHES.check(60) == 60
     with pytest.raises(ValueError, match="patches must be at least 1, got 0"):
         D.PATCHES.check(0)
-    with pytest.raises(ValueError, match="--nv must be at most 2000"):
+    with pytest.raises(ValueError, match="--nv must be at most 800"):
         D.NV.check(5000, "--nv")
     with pytest.raises(ValueError, match="selection must be one of uniform, shape-change"):
         D.SELECTION.check("random")

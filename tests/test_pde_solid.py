@@ -346,3 +346,21 @@ def test_solid_ct_table_is_the_ct_at_the_solid_points(phantom):
     assert grid.shape == (7, 11, 3)
     np.testing.assert_allclose(grid, table.sample(U, V, W), atol=1e-3)
     assert np.ptp(grid) > 0.3 * np.ptp(ct.data)  # crosses skin, bone and brain: a real check
+    # 8-bit packing (what the .blend keeps): every displayed (windowed) value within half a grey level
+    from pdehead_addon.ct_volume import apply_window, intensity_window
+    window = intensity_window(ct)
+    raw = table.to_bytes(window)
+    assert len(raw) < table.table.size  # fewer bytes than one per value (compressed)
+    back, back_window = SolidCTTable.from_bytes(raw)
+    assert back.shape == table.shape and back_window == tuple(window)
+    import json
+    a, b = json.loads(raw[4:4 + int.from_bytes(raw[:4], "little")])["range"]  # the span of the 256 levels
+    step = (b - a) / 255
+    assert a <= window[0] and b >= window[1] and b - a <= 3 * (window[1] - window[0]) + 1e-3
+    kept = (table.table >= a) & (table.table <= b)
+    assert kept.mean() > 0.99 and np.abs(back.table - table.table)[kept].max() <= 0.5 * step * 1.001
+    shown, shown_back = (apply_window(t.sample(u, v, w), window) for t in (table, back))
+    assert np.abs(shown_back - shown).max() <= 0.5 * step / (window[1] - window[0]) * 1.001 + 1e-6
+    assert np.ptp(shown_back) > 0.5
+    with pytest.raises(PDEError, match="cannot be read"):
+        SolidCTTable.from_bytes(raw[:40])

@@ -143,3 +143,31 @@ def test_cli_tolerance_picks_the_count_and_prints_the_achieved_error(tmp_path):
     assert result.returncode == 2 and "give either --patches or --tolerance" in result.stderr
     result = run_cli("--phantom", "--tolerance", 0.3, "--selection", "uniform", tmp_path=tmp_path)
     assert result.returncode == 2 and "chooses the slices itself" in result.stderr
+
+
+def test_ctrl_c_stops_the_cli_with_130_and_leaves_no_output(tmp_path):
+    """SIGINT while the segmentation runs: exit 130, one line saying so, no .blend / .vdb / folder left."""
+    import signal
+    out = tmp_path / "out"
+    env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "blender-user"))
+    proc = subprocess.Popen([sys.executable, str(CLI), "--phantom", "--patches", "6", "--nu", "32", "--nv", "48",
+                             "--out", str(out / "phantom.blend"), "--render", str(out / "surface.png")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=tmp_path)
+    progress = []
+    try:
+        for line in proc.stderr:   # piped: plain progress lines, one per update
+            progress.append(line)
+            if line.startswith("pdehead: segment"):
+                proc.send_signal(signal.SIGINT)
+                break
+        rest = proc.stderr.read()
+        stdout = proc.stdout.read()
+        proc.wait(timeout=600)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert progress and progress[-1].startswith("pdehead: segment") and "%" in progress[-1], progress
+    assert proc.returncode == 130, (stdout[-2000:], rest[-2000:])
+    assert "cancelled (Ctrl-C)" in rest and "Traceback" not in rest
+    assert not out.exists(), sorted(str(p) for p in out.rglob("*"))
+    assert "wrote" not in stdout

@@ -10,7 +10,9 @@ next to the .blend, so the test can move the whole project and later delete the 
    rebuilds the solid (CT colours equal those before the save), builds the volume (the ``ct``
    grid equals the original within float16, written to a new file, the old one kept until a
    save no longer needs it) and renders both with Cycles;
-3. the CT deleted: every step that needs it says the source is gone and changes nothing.
+3. the CT deleted: every step that needs it says the source is gone and changes nothing; the solid
+   keeps working from the CT table stored in the .blend (cutaways, nw, nu; a PDE change says its
+   colours are the previous solution's).
 """
 from __future__ import annotations
 
@@ -210,16 +212,30 @@ def test_reopen_in_a_new_process_rereads_the_ct_and_loses_nothing(ext, pdehead_e
     vdb_now = Path(bpy.path.abspath(s.volume_object.data.filepath))
     vdb_bytes = vdb_now.read_bytes()
     colour_now, pixels_now = _solid_arrays(ext, s.solid_object)
-    for op in (bpy.ops.pdehead.build_solid, bpy.ops.pdehead.build_volume, bpy.ops.pdehead.segment):
+    for op in (bpy.ops.pdehead.build_volume, bpy.ops.pdehead.segment):
         with pytest.raises(RuntimeError, match="source is gone"):
             op()
-    s.nw = 6  # a live change: refused the same way, reported in the sidebar
-    assert "source is gone" in s.last_error
     assert s.volume_object.data.filepath and Path(bpy.path.abspath(s.volume_object.data.filepath)) == vdb_now
     assert vdb_now.read_bytes() == vdb_bytes and sorted(p.name for p in vdb_now.parent.iterdir()) == [vdb_now.name]
+    # the solid's CT table (8-bit) travels in the .blend: Build Solid, nw, nu and cutaways work without the CT
+    assert coll.get(ext.state.CT_TABLE_KEY) and ext.state.stored_ct_table_key(coll) == ext.state.table_key(coll)
+    assert bpy.ops.pdehead.build_solid() == {'FINISHED'}
     colour_after, pixels_after = _solid_arrays(ext, s.solid_object)
-    np.testing.assert_array_equal(colour_after, colour_now)
-    np.testing.assert_array_equal(pixels_after, pixels_now)
+    np.testing.assert_allclose(colour_after, colour_now, atol=1.5 / 255)   # the table's 8 bits
+    np.testing.assert_allclose(pixels_after, pixels_now, atol=1.5 / 255)
+    s.nw = 6
+    assert s.last_error == "" and ext.state.cache_for(s.study_id).ct is None
+    assert len(s.solid_object.data.vertices) > len(colour_now) and _solid_arrays(ext, s.solid_object)[0].std() > 0.05
+    s.nu = 30  # surface and solid stay consistent (both at nu = 30)
+    assert s.last_error == ""
+    assert list(s.surface_object["pdehead_resolution"])[0] == 30 and list(s.solid_object["pdehead_resolution"])[0] == 30
+    # a PDE change: the geometry follows (surface and solid), the colours come from the stored table of the
+    # previous solution, and the sidebar says so
+    vertices_before = blender_inspect.mesh_world_vertices(s.solid_object).copy()
+    s.modes = 6
+    assert "previous PDE solution" in s.last_error and "source is gone" in s.last_error
+    assert np.abs(blender_inspect.mesh_world_vertices(s.solid_object) - vertices_before).max() > 1e-4
+    assert _solid_arrays(ext, s.solid_object)[0].std() > 0.05
 
 
 def test_a_different_ct_at_the_source_is_refused(ext, tmp_path):

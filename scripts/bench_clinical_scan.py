@@ -1,0 +1,256 @@
+#!/usr/bin/env python3
+"""Benchmark (not a CI test): a clinical-size head CT end to end through the command line, VTK as the peer.
+
+The scan is CThead (``../shared/data/cthead_stanford/raw16``) resampled with ``scipy.ndimage.zoom``
+(order 1) to 300 x 512 x 512 voxels at 0.753 x 0.5 x 0.5 mm (z, y, x), written as big-endian int16
+raw slices into a temporary folder (never into the repository). Per run it measures:
+
+- ``scripts/pdehead.py`` on that folder (the add-on's operators in bpy, automatic selection, t = 10,
+  the volume included): the step times the CLI prints (import .. volume; Blender's start and the
+  file save are not steps) and the CLI process's peak RSS (bpy included; sampled every 20 ms);
+- the peer in the same run: VTK's ``vtkFlyingEdges3D`` (what 3D Slicer's threshold + surface uses) on
+  the same array at the skin level (the middle of the segmentation's intensity window);
+- per-slice Jaccard of today's ``segment_head`` mask against the reference mask, computed once by
+  the full-resolution ``segment_head`` of the commit given by ``--reference-commit`` and cached in
+  ``--cache`` (outside the repository) so later engines are compared with it.
+
+Targets (issue 20): sum of the step times <= 15 s on a 2-core machine and <= 25 x VTK; segmentation
+<= 6 s; boundaries <= 3 s; CLI peak RSS <= 2.5 GB; Jaccard mean >= 0.99 and min >= 0.98 over the usable
+slices (slices whose reference mask covers at least 1 % of the slice).
+
+    python3 scripts/bench_clinical_scan.py --repeats 3          # medians of 3 runs
+    python3 scripts/bench_clinical_scan.py --repeats 1 --json /tmp/clinical.json
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import re
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "scripts"))
+
+SHAPE = (300, 512, 512)
+SPACING = (0.753, 0.5, 0.5)
+TARGETS = dict(total_s=15.0, vtk_ratio=25.0, segment_s=6.0, boundaries_s=3.0, peak_rss_gb=2.5,
+               jaccard_mean=0.99, jaccard_min=0.98)
+STEPS = ("import", "segment", "boundaries", "pde_solve", "surface", "solid", "w_field", "volume")
+
+
+def make_scan():
+    """CThead resampled to :data:`SHAPE` (order 1), as a CTVolume."""
+    from scipy.ndimage import zoom
+
+    from _common import CTHEAD_RAW16_OPTIONS, SHARED_DATA
+    from pdehead_addon import CTVolume, load_ct
+    ct = load_ct(SHARED_DATA / "cthead_stanford" / "raw16", **CTHEAD_RAW16_OPTIONS)
+    factors = [n / m for n, m in zip(SHAPE, ct.shape)]
+    data = zoom(ct.data.astype(np.float32), factors, order=1)
+    data = np.rint(data).astype(np.int16)
+    assert data.shape == SHAPE, data.shape
+    return CTVolume(data, SPACING, ct.origin.copy(), ct.direction.copy(), {"source": "CThead x zoom"})
+
+
+def write_raw_slices(ct, folder: Path) -> None:
+    """One big-endian int16 file per slice, numbered from the top (``--first-slice superior``)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    data = ct.data
+    # load_ct(first_slice="superior") put file 1 at data[-1] (the top) when the z axis points up
+    order = range(data.shape[0] - 1, -1, -1) if ct.direction[2, 2] > 0 else range(data.shape[0])
+    for n, k in enumerate(order, start=1):
+        (folder / f"CThead.{n}").write_bytes(data[k].astype(">i2").tobytes())
+
+
+class ChildPeakRSS:
+    """Peak RSS (bytes) of a process and its children, sampled every ``interval`` s."""
+
+    def __init__(self, pid: int, interval: float = 0.02):
+        import psutil
+        self.proc = psutil.Process(pid)
+        self.peak = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, args=(interval,), daemon=True)
+        self._thread.start()
+
+    def _run(self, interval):
+        import psutil
+        while not self._stop.is_set():
+            try:
+                rss = self.proc.memory_info().rss + sum(c.memory_info().rss for c in self.proc.children(True))
+                self.peak = max(self.peak, rss)
+            except psutil.Error:
+                break
+            time.sleep(interval)
+
+    def stop(self) -> int:
+        self._stop.set()
+        self._thread.join()
+        return self.peak
+
+
+def run_cli(folder: Path, out: Path) -> dict:
+    """The CLI on the raw slices; its printed step times and its peak RSS."""
+    cmd = [sys.executable, str(ROOT / "scripts" / "pdehead.py"), str(folder), "--raw-shape", str(SHAPE[1]),
+           str(SHAPE[2]), "--dtype", ">i2", "--spacing", *map(str, SPACING), "--first-slice", "superior",
+           "--patches", "10", "--selection", "auto", "--out", str(out)]
+    env = dict(os.environ, BLENDER_USER_RESOURCES=str(out.parent / "blender-user"))
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    rss = ChildPeakRSS(proc.pid)
+    stdout, stderr = proc.communicate()
+    peak = rss.stop()
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise SystemExit(f"pdehead.py failed ({proc.returncode}):\n{stdout[-2000:]}\n{stderr[-2000:]}")
+    steps = {}
+    block = stdout.split("timings (s):", 1)[1]
+    for name, value in re.findall(r"^\s+(\w+)\s+([0-9.]+)\s*$", block, re.M):
+        steps[name] = float(value)
+    return {"steps": steps, "sum_steps_s": sum(steps.get(k, 0.0) for k in STEPS), "peak_rss_gb": peak / 1e9,
+            "wall_s": wall}
+
+
+def vtk_flying_edges(ct, level: float) -> dict:
+    """The peer: vtkFlyingEdges3D on the same array at ``level`` (time of the filter's Update)."""
+    import vtk
+    from vtk.util import numpy_support
+    data = np.ascontiguousarray(ct.data)
+    image = vtk.vtkImageData()
+    nz, ny, nx = data.shape
+    image.SetDimensions(nx, ny, nz)
+    dz, dy, dx = ct.spacing
+    image.SetSpacing(dx, dy, dz)
+    image.GetPointData().SetScalars(numpy_support.numpy_to_vtk(data.ravel(), deep=True))
+    fe = vtk.vtkFlyingEdges3D()
+    fe.SetInputData(image)
+    fe.SetValue(0, float(level))
+    t = time.perf_counter()
+    fe.Update()
+    seconds = time.perf_counter() - t
+    return {"seconds": seconds, "triangles": int(fe.GetOutput().GetNumberOfPolys())}
+
+
+def per_slice_jaccard(mask: np.ndarray, reference: np.ndarray, min_fraction: float = 0.01) -> dict:
+    """Jaccard of each slice whose reference mask covers >= ``min_fraction`` of it."""
+    usable = reference.reshape(len(reference), -1).mean(axis=1) >= min_fraction
+    inter = np.logical_and(mask, reference).reshape(len(mask), -1).sum(axis=1)
+    union = np.logical_or(mask, reference).reshape(len(mask), -1).sum(axis=1)
+    j = inter[usable] / np.maximum(union[usable], 1)
+    return {"mean": float(j.mean()), "min": float(j.min()), "slices": int(usable.sum())}
+
+
+def reference_mask(ct, cache: Path, commit: str) -> np.ndarray:
+    """Today's full-resolution segment_head mask of the scan, computed once (cached in ``cache``)."""
+    path = cache / f"clinical_scan_reference_{commit}.npz"
+    if path.is_file():
+        return np.load(path)["mask"]
+    from pdehead_addon import segment_head
+    mask = segment_head(ct).mask
+    cache.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(path, mask=mask)
+    return mask
+
+
+def machine() -> dict:
+    try:
+        load = [round(x, 2) for x in os.getloadavg()]
+    except OSError:
+        load = None
+    return {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
+            "python": platform.python_version(), "numpy": np.__version__,
+            "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "load_average": load}
+
+
+def _git_head() -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
+                              text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def markdown(r: dict) -> str:
+    m, t = r["machine"], TARGETS
+    med = r["median"]
+    ok = lambda good: "**met**" if good else "**NOT met**"  # noqa: E731
+    lines = ["## A clinical-size scan end to end (`scripts/bench_clinical_scan.py`)", "",
+             f"CThead resampled (order 1) to {SHAPE[2]} x {SHAPE[1]} x {SHAPE[0]} voxels (x, y, z) at "
+             f"{SPACING[2]} x {SPACING[1]} x {SPACING[0]} mm, through `scripts/pdehead.py` (automatic selection, "
+             f"t = 10, volume included); medians of {r['repeats']} run(s) on {m['date']} ({m['cores']} cores, load "
+             f"average {m['load_average']}; **the machine was shared**, the ratio to the peer governs). Engine "
+             f"{r['commit']}; Jaccard against the full-resolution `segment_head` of {r['reference_commit']}.", "",
+             "| measure | value | target | status |", "|---|---|---|---|",
+             f"| sum of the CLI's step times | {med['sum_steps_s']:.1f} s | <= {t['total_s']:g} s | "
+             f"{ok(med['sum_steps_s'] <= t['total_s'])} |",
+             f"| VTK vtkFlyingEdges3D, same array, skin level | {med['vtk_s']:.2f} s | peer | |",
+             f"| ratio to VTK | {med['ratio']:.0f} x | <= {t['vtk_ratio']:g} x | {ok(med['ratio'] <= t['vtk_ratio'])} |",
+             f"| segmentation | {med['segment_s']:.1f} s | <= {t['segment_s']:g} s | {ok(med['segment_s'] <= t['segment_s'])} |",
+             f"| boundaries (automatic selection) | {med['boundaries_s']:.1f} s | <= {t['boundaries_s']:g} s | "
+             f"{ok(med['boundaries_s'] <= t['boundaries_s'])} |",
+             f"| CLI peak RSS (bpy included) | {med['peak_rss_gb']:.2f} GB | <= {t['peak_rss_gb']:g} GB | "
+             f"{ok(med['peak_rss_gb'] <= t['peak_rss_gb'])} |",
+             f"| per-slice Jaccard mean / min ({r['jaccard']['slices']} slices) | {r['jaccard']['mean']:.4f} / "
+             f"{r['jaccard']['min']:.4f} | >= {t['jaccard_mean']} / {t['jaccard_min']} | "
+             f"{ok(r['jaccard']['mean'] >= t['jaccard_mean'] and r['jaccard']['min'] >= t['jaccard_min'])} |", "",
+             "Steps (median s): " + ", ".join(f"{k} {v:.2f}" for k, v in med["steps"].items()) + ".", ""]
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "pdehead-bench-cache")
+    p.add_argument("--reference-commit", default=None,
+                   help="the engine whose segment_head is the reference (default: this checkout's HEAD)")
+    p.add_argument("--json", type=Path)
+    p.add_argument("--md", type=Path, help="write the Markdown section here (default: print it)")
+    args = p.parse_args(argv)
+    commit = _git_head()
+    ref_commit = args.reference_commit or commit
+    ct = make_scan()
+    runs, vtk_times = [], []
+    from pdehead_addon.segmentation import auto_window
+    lo, hi = auto_window(ct.data)
+    with tempfile.TemporaryDirectory(prefix="pdehead-clinical-") as tmp:
+        folder = Path(tmp) / "raw16"
+        write_raw_slices(ct, folder)
+        for i in range(args.repeats):
+            vtk_times.append(vtk_flying_edges(ct, 0.5 * (lo + hi))["seconds"])
+            runs.append(run_cli(folder, Path(tmp) / f"run{i}" / "scan.blend"))
+            print(f"run {i + 1}: steps {runs[-1]['sum_steps_s']:.1f} s, peak {runs[-1]['peak_rss_gb']:.2f} GB, "
+                  f"VTK {vtk_times[-1]:.2f} s", file=sys.stderr)
+    from pdehead_addon import segment_head
+    mask = segment_head(ct).mask
+    jac = per_slice_jaccard(mask, reference_mask(ct, args.cache, ref_commit))
+    med_steps = {k: statistics.median(r["steps"].get(k, 0.0) for r in runs) for k in runs[0]["steps"]}
+    median = {"sum_steps_s": statistics.median(r["sum_steps_s"] for r in runs),
+              "peak_rss_gb": statistics.median(r["peak_rss_gb"] for r in runs),
+              "vtk_s": statistics.median(vtk_times), "steps": med_steps,
+              "segment_s": med_steps.get("segment", 0.0), "boundaries_s": med_steps.get("boundaries", 0.0)}
+    median["ratio"] = median["sum_steps_s"] / median["vtk_s"]
+    result = {"machine": machine(), "repeats": args.repeats, "commit": commit, "reference_commit": ref_commit,
+              "runs": runs, "vtk_s": vtk_times, "median": median, "jaccard": jac, "targets": TARGETS}
+    if args.json:
+        args.json.write_text(json.dumps(result, indent=1))
+    text = markdown(result)
+    if args.md:
+        from md_sections import write_section
+        write_section(args.md, "clinical-scan", text)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,97 @@
+"""Progress and cancel of the engine's long steps: a callback reports, and may raise Cancelled to stop.
+
+A cancelled step returns nothing and leaves nothing: its worker threads are gone, its input is
+unchanged, and a later run gives the same result as one never interrupted.
+"""
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from pdehead_addon import Cancelled, extract_boundaries, segment_head
+from pdehead_addon.pde_solid import SolidCTTable, w_field
+from pdehead_addon.pde_surface import solve_pde
+
+
+def _timer_cancel(run, delay: float):
+    """Run ``run(progress)`` with a threading.Timer that asks for a cancel after ``delay`` seconds.
+
+    Returns (raised Cancelled?, fractions reported, the fraction at which it stopped)."""
+    stop = threading.Event()
+    seen: list[float] = []
+
+    def progress(fraction, message):
+        assert isinstance(message, str)
+        seen.append(fraction)
+        if stop.is_set():
+            raise Cancelled()
+
+    timer = threading.Timer(delay, stop.set)
+    timer.start()
+    try:
+        run(progress)
+        cancelled = False
+    except Cancelled:
+        cancelled = True
+    finally:
+        timer.cancel()
+    return cancelled, seen
+
+
+def test_a_timer_cancels_segment_head_half_way_and_nothing_is_left(phantom):
+    ct = phantom.ct
+    data = ct.data.copy()
+    fractions: list[float] = []
+    t0 = time.perf_counter()
+    full = segment_head(ct, progress=lambda f, m: fractions.append(f))
+    duration = time.perf_counter() - t0
+    # reported often, in order, from 0 to 1
+    assert len(fractions) >= 10 and fractions[0] == 0.0 and fractions[-1] == 1.0
+    assert np.all(np.diff(fractions) >= 0)
+    threads_before = threading.active_count()
+    delay = duration / 2
+    for _ in range(5):  # a busy machine may run faster or slower this time: half-way, else earlier
+        cancelled, seen = _timer_cancel(lambda p: segment_head(ct, progress=p), delay)
+        if cancelled:
+            break
+        delay /= 3
+    assert cancelled, "the timer never caught segment_head before it finished"
+    assert 0.0 < seen[-1] < 1.0                   # stopped in the middle, not at the end
+    # nothing left: the solver's worker threads are gone, the CT is untouched
+    for _ in range(50):
+        if threading.active_count() <= threads_before:
+            break
+        time.sleep(0.02)
+    assert threading.active_count() <= threads_before
+    np.testing.assert_array_equal(ct.data, data)
+    # and a new run gives the uninterrupted result (no state carried over)
+    again = segment_head(ct)
+    np.testing.assert_array_equal(again.mask, full.mask)
+
+
+def test_boundaries_w_field_and_the_ct_table_report_and_cancel(phantom):
+    seg = segment_head(phantom.ct)
+    seen: list[float] = []
+    bset = extract_boundaries(seg, patches=6, samples=128, progress=lambda f, m: seen.append(f))
+    assert seen[0] == 0.0 and seen[-1] == 1.0 and len(seen) >= 4 and np.all(np.diff(seen) >= 0)
+    head = solve_pde(bset)
+
+    def cancel_at(limit):
+        calls = []
+
+        def progress(fraction, message):
+            calls.append(fraction)
+            if len(calls) >= limit:
+                raise Cancelled()
+        return progress, calls
+
+    for run in (lambda p: extract_boundaries(seg, patches=6, samples=128, progress=p),
+                lambda p: w_field(head, 3.0, ct=phantom.ct, progress=p),
+                lambda p: SolidCTTable(head, phantom.ct, progress=p)):
+        progress, calls = cancel_at(2)
+        with pytest.raises(Cancelled):
+            run(progress)
+        assert len(calls) == 2 and calls[-1] < 1.0
