@@ -241,6 +241,20 @@ def test_render_animation_with_the_ct_gone_says_so(mods, tmp_path, capfd):
     bpy.ops.wm.open_mainfile(filepath=str(blend))
     mods.state.drop_cache()  # as in a new Blender session: nothing in memory, the CT must be re-read
     scene = bpy.context.scene
+    # the .blend carries the solid's CT table (issue 20): the cutaway animates without the CT
+    capfd.readouterr()
+    scene.render.filepath = str(tmp_path / "kept" / "frame_")
+    assert bpy.ops.render.render(animation=True) == {'FINISHED'}
+    err = capfd.readouterr().err
+    assert "hidden from the render" not in err
+    kept = [blender_inspect.read_png(tmp_path / "kept" / f"frame_{f:04d}.png")[..., :3] for f in (1, 2, 3)]
+    corner = kept[0][0, 0]
+    assert all(float((np.abs(img - corner).max(axis=2) > 0.05).mean()) > 0.05 for img in kept)  # the solid stays
+    # a file without that table (saved before it existed) and without its CT: said, not rendered stale
+    coll = bpy.data.collections[name]
+    coll.pop(mods.state.CT_TABLE_KEY, None)
+    coll.pop(mods.state.CT_TABLE_FOR, None)
+    mods.state.drop_cache()
     capfd.readouterr()
     scene.render.filepath = str(tmp_path / "anim" / "frame_")
     assert bpy.ops.render.render(animation=True) == {'FINISHED'}
