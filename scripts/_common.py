@@ -39,6 +39,19 @@ PAPER = {"storage_ours_kB": 62, "storage_mc_kB": 37647, "pde_seconds": 0.66, "mc
          "boundary_seconds": 14.23, "jaccard_mean": 0.9815}
 
 
+def addon_import_options(name: str) -> dict:
+    """``bpy.ops.pdehead.import_ct`` keyword arguments of a real data set ("cthead": the raw16 slices, "ge":
+    the tilted DICOM series): the add-on's dialog filled in as a user would (one copy for the Blender scripts)."""
+    if name == "cthead":
+        o = CTHEAD_RAW16_OPTIONS
+        return dict(directory=str(data_path("cthead_stanford", "raw16")), format='RAW', raw_shape=o["shape"],
+                    raw_dtype="i2", byte_order='BIG', use_spacing=True, spacing=o["spacing"],
+                    first_slice='SUPERIOR')
+    if name == "ge":
+        return dict(directory=str(data_path("ct_head_ge_tilt_dicom", "dicom")))
+    raise SystemExit(f"unknown dataset {name!r} (cthead, ge)")
+
+
 def data_path(*parts: str) -> Path:
     """A path inside :data:`SHARED_DATA`; a clear error naming it when it is not there."""
     path = SHARED_DATA.joinpath(*parts)

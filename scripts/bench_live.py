@@ -39,6 +39,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "scripts"))
+import _common  # noqa: E402
 
 SECTION = "live-sliders"
 GEOMETRY_TARGET_S = 0.100
@@ -84,18 +85,6 @@ def _peak_rss_gb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024 ** 2   # KiB on Linux
 
 
-def _load_options(name: str):
-    from _common import CTHEAD_RAW16_OPTIONS, data_path
-    if name == "cthead":
-        o = CTHEAD_RAW16_OPTIONS
-        return dict(directory=str(data_path("cthead_stanford", "raw16")), format='RAW', raw_shape=o["shape"],
-                    raw_dtype="i2", byte_order='BIG', use_spacing=True, spacing=o["spacing"],
-                    first_slice='SUPERIOR')
-    if name == "ge":
-        return dict(directory=str(data_path("ct_head_ge_tilt_dicom", "dicom")))
-    raise SystemExit(f"unknown dataset {name!r} (cthead, ge)")
-
-
 _CPU: list[float] = []   # CPU seconds of the last timed change (the machine may be shared: wall clock is noisy)
 
 
@@ -129,7 +118,7 @@ def bench_dataset(name: str, repeats: int) -> dict:
     bpy.ops.wm.read_homefile(use_empty=True)
     study.DEFER_CT_COLOURS = True   # as in Blender with a UI (the colour refresh is timed on its own)
     t0 = time.perf_counter()
-    assert bpy.ops.pdehead.run_pipeline(source='FILES', build_volume=True, **_load_options(name)) == {'FINISHED'}
+    assert bpy.ops.pdehead.run_pipeline(source='FILES', build_volume=True, **_common.addon_import_options(name)) == {'FINISHED'}
     coll = bpy.context.scene.pdehead.active_study
     s = coll.pdehead
     tm = state.timings(coll)

@@ -50,17 +50,14 @@ def colour_bar(height: int, width: int, max_mm: float, ramp) -> Image.Image:
 def main() -> int:
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="pdehead-fig-"))
     import pdehead
-    from _common import CTHEAD_RAW16_OPTIONS, SHARED_DATA
+    import _common
 
     import bpy
     addon = pdehead.register_addon()
     forensic = addon.operators.forensic_study
     render = addon.operators.render
     bpy.ops.wm.read_homefile(use_empty=True)
-    o = CTHEAD_RAW16_OPTIONS
-    bpy.ops.pdehead.import_ct(directory=str(SHARED_DATA / "cthead_stanford" / "raw16"), format='RAW',
-                              raw_shape=o["shape"], raw_dtype="i2", byte_order='BIG', spacing=o["spacing"],
-                              first_slice='SUPERIOR')
+    bpy.ops.pdehead.import_ct(**_common.addon_import_options("cthead"))
     coll = bpy.context.scene.pdehead.active_study
     bpy.ops.pdehead.segment()
     bpy.ops.pdehead.extract_boundaries(patches=10, samples=256, selection="shape-change")

@@ -85,7 +85,7 @@ def _figure(bpy, addon, coll, references, out_name, title):
 def main() -> int:
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="pdehead-fig-"))
     import pdehead
-    from _common import CTHEAD_RAW16_OPTIONS, SHARED_DATA
+    import _common
     from bench_landmarks import read_fixture
 
     import bpy
@@ -101,10 +101,7 @@ def main() -> int:
 
     # CThead
     bpy.ops.wm.read_homefile(use_empty=True)
-    o = CTHEAD_RAW16_OPTIONS
-    bpy.ops.pdehead.import_ct(directory=str(SHARED_DATA / "cthead_stanford" / "raw16"), format='RAW',
-                              raw_shape=o["shape"], raw_dtype="i2", byte_order='BIG', spacing=o["spacing"],
-                              first_slice='SUPERIOR')
+    bpy.ops.pdehead.import_ct(**_common.addon_import_options("cthead"))
     coll = bpy.context.scene.pdehead.active_study
     bpy.ops.pdehead.segment()
     bpy.ops.pdehead.extract_boundaries(patches=6, samples=128, selection="shape-change")

@@ -25,7 +25,7 @@ SIZE = 260
 def main() -> int:
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="pdehead-fig-"))
     import pdehead
-    from _common import CTHEAD_RAW16_OPTIONS, SHARED_DATA
+    import _common
 
     import bpy
     addon = pdehead.register_addon()
@@ -35,12 +35,9 @@ def main() -> int:
     for name in ("CThead", "GE"):
         bpy.ops.wm.read_homefile(use_empty=True)
         if name == "CThead":
-            o = CTHEAD_RAW16_OPTIONS
-            bpy.ops.pdehead.import_ct(directory=str(SHARED_DATA / "cthead_stanford" / "raw16"), format='RAW',
-                                      raw_shape=o["shape"], raw_dtype="i2", byte_order='BIG',
-                                      spacing=o["spacing"], first_slice='SUPERIOR')
+            bpy.ops.pdehead.import_ct(**_common.addon_import_options("cthead"))
         else:
-            bpy.ops.pdehead.import_ct(directory=str(SHARED_DATA / "ct_head_ge_tilt_dicom" / "dicom"))
+            bpy.ops.pdehead.import_ct(**_common.addon_import_options("ge"))
         coll = bpy.context.scene.pdehead.active_study
         bpy.ops.pdehead.segment()
         bpy.ops.pdehead.extract_boundaries(patches=8, samples=256)
