@@ -25,7 +25,9 @@ def test_find_landmarks_operator_on_the_phantom(pdehead_ext):
     # on the bone (snapped to the bone mesh) and near the analytic positions
     truth = _bone_landmarks()
     err = np.array([np.linalg.norm(lms[n] - p) for n, p in truth.items()])
-    assert np.median(err) <= 2.5 and err.max() <= 7.5, dict(zip(truth, err.round(1)))   # measured 1.3 / 7.0
+    # measured 1.3 / 7.0 mm on the intensity iso-surface; 2.6 / 7.5 mm since the landmarks snap to the bone
+    # skull of the binary bone mask (issue 22, 2 mm voxels), with this test's coarse study (t = 6, 40 x 80)
+    assert np.median(err) <= 3.0 and err.max() <= 8.5, dict(zip(truth, err.round(1)))
     obj = next(o for o in coll.all_objects if o.get(fs.LANDMARK_KEY) == "Pogonion")
     assert obj[fs.LANDMARK_FLAG] == "ok" and obj[fs.LANDMARK_EVIDENCE] == ""
     assert np.allclose(np.array(obj.matrix_world.translation) / 0.001, obj["patient_mm"], atol=1e-3)
