@@ -27,6 +27,7 @@ def _shifted_combine(mask: np.ndarray, offsets: Sequence[tuple[int, ...]], erode
     ``offsets`` are (dy, dx) in-slice or (dz, dy, dx); ``out[p] = op(mask[p + o])``.
     Outside the volume counts as True for erosion and False for dilation, so
     neither an opening nor a closing creates or removes anything at the border.
+    (The reference of :class:`_Packed`, which does the same on 64 voxels per word.)
     """
     out = mask.copy()
     for offset in offsets:
@@ -42,21 +43,98 @@ def _shifted_combine(mask: np.ndarray, offsets: Sequence[tuple[int, ...]], erode
     return out
 
 
+class _Packed:
+    """A boolean volume (nz, ny, nx) packed 64 voxels of a row to a uint64 word (bit i = voxel i).
+
+    Erosion and dilation by footprints of unit steps are then ANDs / ORs of
+    shifted word arrays: 64 x less memory traffic than on bytes, exactly the
+    same result as :func:`_shifted_combine` (outside the volume counts as True
+    for erosion and False for dilation; the padding bits of the last word are
+    kept at that value before each x shift).
+    """
+
+    def __init__(self, mask: np.ndarray):
+        mask = np.asarray(mask, dtype=bool)
+        if mask.ndim == 2:
+            mask = mask[None]
+        self.nx = mask.shape[-1]
+        words = -(-self.nx // 64)
+        packed = np.packbits(mask, axis=-1, bitorder="little")
+        if packed.shape[-1] != words * 8:
+            packed = np.concatenate([packed, np.zeros(packed.shape[:-1] + (words * 8 - packed.shape[-1],), np.uint8)],
+                                    axis=-1)
+        self.words = np.ascontiguousarray(packed).view("<u8").astype(np.uint64, copy=False)
+        tail = self.nx % 64
+        self.pad_bits = np.uint64(0) if tail == 0 else np.uint64(((1 << 64) - 1) ^ ((1 << tail) - 1))
+
+    def unpack(self, shape) -> np.ndarray:
+        raw = np.ascontiguousarray(self.words).view(np.uint8)
+        out = np.unpackbits(raw, axis=-1, count=self.nx, bitorder="little").view(bool)
+        return out.reshape(shape)
+
+    def _x_neighbour(self, w: np.ndarray, dx: int, fill: bool) -> np.ndarray:
+        """Words whose bit i is the voxel at x + dx (``fill`` outside the row)."""
+        one, s63 = np.uint64(1), np.uint64(63)
+        if dx == 1:
+            out = w >> one
+            out[..., :-1] |= w[..., 1:] << s63
+            if fill:
+                out[..., -1] |= np.uint64(1) << s63
+        else:
+            out = w << one
+            out[..., 1:] |= w[..., :-1] >> s63
+            if fill:
+                out[..., 0] |= one
+        return out
+
+    def combine(self, offsets: Sequence[tuple[int, ...]], erode: bool) -> None:
+        """In place: AND (erode) / OR of the volume shifted by each offset ((dy, dx) or (dz, dy, dx), |dx| <= 1)."""
+        w = self.words
+        if self.pad_bits:
+            if erode:
+                w[..., -1] |= self.pad_bits
+            else:
+                w[..., -1] &= ~self.pad_bits
+        out = w.copy()
+        shape = w.shape
+        for offset in offsets:
+            dz, dy, dx = (0,) * (3 - len(offset)) + tuple(int(o) for o in offset)
+            if not (dz or dy or dx):
+                continue
+            if abs(dx) > 1:
+                raise ValueError("packed morphology takes x steps of at most one voxel")
+            src_w = self._x_neighbour(w, dx, erode) if dx else w
+            dst = tuple(slice(max(0, -o), n - max(0, o)) for o, n in zip((dz, dy), shape[:2]))
+            src = tuple(slice(max(0, o), n - max(0, -o)) for o, n in zip((dz, dy), shape[:2]))
+            if erode:
+                out[dst] &= src_w[src]
+            else:
+                out[dst] |= src_w[src]
+        self.words = out
+
+
+def _run_steps(mask: np.ndarray, plan: Sequence[tuple[Sequence[tuple[int, ...]], bool]]) -> np.ndarray:
+    """Apply ``(offsets, erode)`` steps in order to a bool volume (2-D or 3-D) on packed words."""
+    shape = mask.shape
+    packed = _Packed(mask if mask.ndim == 3 else mask.reshape((1,) + shape))
+    for offsets, erode in plan:
+        packed.combine(offsets, erode)
+    return packed.unpack(shape)
+
+
 def _box_opening(mask: np.ndarray, size: Sequence[int]) -> np.ndarray:
     """Opening with a (nz, ny, nx) box (outside is background): the union of all boxes inside ``mask``.
 
     Erosion by [0, n-1] windows then dilation by [-(n-1), 0] windows, axis by axis.
     """
     pad = [(0, max(0, n - 1)) for n in size]
-    out = np.pad(mask, pad)
-    for axis, n in enumerate(size):
-        unit = tuple(1 if a == axis else 0 for a in range(3))
-        for _ in range(n - 1):
-            out = _shifted_combine(out, [unit], erode=True)
-    for axis, n in enumerate(size):
-        unit = tuple(-1 if a == axis else 0 for a in range(3))
-        for _ in range(n - 1):
-            out = _shifted_combine(out, [unit], erode=False)
+    padded = np.pad(mask, pad)
+    plan = []
+    for erode, sign in ((True, 1), (False, -1)):
+        for axis, n in enumerate(size):
+            unit = tuple(sign if a == axis else 0 for a in range(3))
+            plan += [([unit], erode)] * (n - 1)
+    out = _run_steps(padded, plan)
     return out[tuple(slice(0, n) for n in mask.shape)]
 
 
@@ -78,29 +156,25 @@ def _disk_steps(spacing_yx: Sequence[float], radius_mm: float) -> list[list[tupl
 
 
 def erode_disk(mask: np.ndarray, spacing_yx: Sequence[float], radius_mm: float) -> np.ndarray:
-    """In-slice erosion by an (octagonal) disk of ``radius_mm``; fast AND of shifted views."""
-    out = mask
-    for step in _disk_steps(spacing_yx, radius_mm):
-        out = _shifted_combine(out, step, erode=True)
-    return out if out is not mask else mask.copy()
+    """In-slice erosion by an (octagonal) disk of ``radius_mm``; AND of shifted packed words."""
+    return _run_steps(mask, [(step, True) for step in _disk_steps(spacing_yx, radius_mm)])
 
 
 def dilate_disk(mask: np.ndarray, spacing_yx: Sequence[float], radius_mm: float) -> np.ndarray:
-    """In-slice dilation by an (octagonal) disk of ``radius_mm``; fast OR of shifted views."""
-    out = mask
-    for step in _disk_steps(spacing_yx, radius_mm):
-        out = _shifted_combine(out, step, erode=False)
-    return out if out is not mask else mask.copy()
+    """In-slice dilation by an (octagonal) disk of ``radius_mm``; OR of shifted packed words."""
+    return _run_steps(mask, [(step, False) for step in _disk_steps(spacing_yx, radius_mm)])
 
 
 def open_disk(mask: np.ndarray, spacing_yx: Sequence[float], radius_mm: float) -> np.ndarray:
     """In-slice opening: removes what a disk of ``radius_mm`` does not fit in."""
-    return dilate_disk(erode_disk(mask, spacing_yx, radius_mm), spacing_yx, radius_mm)
+    steps = _disk_steps(spacing_yx, radius_mm)
+    return _run_steps(mask, [(step, True) for step in steps] + [(step, False) for step in steps])
 
 
 def close_disk(mask: np.ndarray, spacing_yx: Sequence[float], radius_mm: float) -> np.ndarray:
     """In-slice closing: bridges gaps narrower than the disk of ``radius_mm``."""
-    return erode_disk(dilate_disk(mask, spacing_yx, radius_mm), spacing_yx, radius_mm)
+    steps = _disk_steps(spacing_yx, radius_mm)
+    return _run_steps(mask, [(step, False) for step in steps] + [(step, True) for step in steps])
 
 
 def largest_component(mask: np.ndarray, structure: np.ndarray | None = None) -> np.ndarray:
