@@ -177,8 +177,22 @@ def close_disk(mask: np.ndarray, spacing_yx: Sequence[float], radius_mm: float) 
     return _run_steps(mask, [(step, False) for step in steps] + [(step, True) for step in steps])
 
 
+def _crop_box(mask: np.ndarray) -> tuple[slice, ...] | None:
+    """Bounding box of a 3-D ``mask`` grown by one voxel in y and x (None: empty); the whole array otherwise."""
+    if mask.ndim != 3:
+        return tuple(slice(0, n) for n in mask.shape)
+    return _bounding_box(mask, (0, 1, 1))
+
+
 def largest_component(mask: np.ndarray, structure: np.ndarray | None = None) -> np.ndarray:
     """The largest connected component of a boolean volume (6-connectivity by default)."""
+    box = _crop_box(mask)
+    if box is None:
+        return np.zeros(mask.shape, dtype=bool)
+    if any(b.stop - b.start < n for b, n in zip(box, mask.shape)):
+        out = np.zeros(mask.shape, dtype=bool)  # labels on the mask's bounding box only (same result)
+        out[box] = largest_component(np.ascontiguousarray(mask[box]), structure)
+        return out
     labels, n = ndi.label(mask, structure=structure)
     if n == 0:
         return np.zeros(mask.shape, dtype=bool)
@@ -202,6 +216,14 @@ def fill_holes_per_slice(mask: np.ndarray) -> np.ndarray:
     border), and also closes the nasal cavity, mouth and ear canals in the slices
     where they are enclosed although they open to the outside in 3-D.
     """
+    box = _crop_box(mask)
+    if box is None:
+        return mask.copy()
+    if any(b.stop - b.start < n for b, n in zip(box, mask.shape)):
+        # the ring of background around the bounding box reaches every slice's border: label the box only
+        out = np.zeros(mask.shape, dtype=bool)
+        out[box] = fill_holes_per_slice(np.ascontiguousarray(mask[box]))
+        return out
     labels, n = ndi.label(~mask, structure=_IN_SLICE)
     if n == 0:
         return mask.copy()
