@@ -105,6 +105,22 @@ def test_packed_morphology_equals_the_byte_reference(shape):
     assert np.array_equal(C.fill_holes_per_slice(m), ~np.isin(labels, border[border > 0]))
 
 
+@pytest.mark.parametrize("shape, spacing, radius", [((12, 30, 70), (0.753, 1.0, 1.0), 3.0),
+                                                    ((9, 40, 130), (2.0, 0.5, 0.7), 2.5)])
+def test_ball_morphology_equals_the_distance_transforms(shape, spacing, radius):
+    """The envelope's 3-D closing on packed words (issue 20: 7.5 -> 0.25 s on a 300 x 240 x 230 grid)
+    is exactly the pair of Euclidean distance transforms it replaced."""
+    from pdehead_addon import binary_morphology as B
+    rng = np.random.default_rng(shape[0])
+    m = ndi.gaussian_filter(rng.random(shape), 1.2) > 0.52
+    grown = ndi.distance_transform_edt(~m, sampling=spacing) <= radius
+    assert np.array_equal(B.ball_morphology(m, spacing, radius, erode=False), grown)
+    shrunk = ndi.distance_transform_edt(grown, sampling=spacing) > radius
+    assert np.array_equal(B.ball_morphology(grown, spacing, radius, erode=True), shrunk)
+    assert np.array_equal(B.ball_closing(m, spacing, radius), shrunk | m)
+    assert np.count_nonzero(shrunk & ~m) > 0             # the closing did add something here
+
+
 def test_morphology_helpers_match_definitions():
     rng = np.random.default_rng(5)
     m = ndi.gaussian_filter(rng.random((4, 40, 50)), (0, 2, 2)) > 0.5
