@@ -319,7 +319,7 @@ def chan_vese_soft(img: np.ndarray, spacing: Sequence[float], lam: float, theta:
                    tau: float | None = None, iterations: int = 30, inner: int = 1,
                    tolerance: float = 0.0, q0: np.ndarray | None = None,
                    c0: tuple[float, float] | None = None, sig0=None, threads: int = 1,
-                   slab: int | None = None, progress=None) -> dict[str, Any]:
+                   slab: int | None = None, progress=None, outside: tuple[float, int] = (0.0, 0)) -> dict[str, Any]:
     """Minimise eq. 16 on one grid by alternating eq. 17, eq. 20 and eq. 21.
 
     Parameters
@@ -339,6 +339,9 @@ def chan_vese_soft(img: np.ndarray, spacing: Sequence[float], lam: float, theta:
     q0, c0, sig0 :
         Warm start: membership, (c1, c2) and scaled dual ``s_a / h_a``.  The
         arrays are taken over and modified in place (memory).
+    outside : (sum of I, voxel count)
+        A region beyond ``img`` where q = 0 (the air around a cropped grid): its
+        intensities count in c2 of eq. 17 and its voxels in the RMS change.
     progress : callable, optional
         ``progress(iterations_done)`` after every outer iteration; it may raise
         :class:`~pdehead_addon.errors.Cancelled` (the worker threads are stopped).
@@ -352,10 +355,10 @@ def chan_vese_soft(img: np.ndarray, spacing: Sequence[float], lam: float, theta:
     if tau is None:
         tau = tau_bound(spacing)
     q = img if q0 is None else q0  # a given q0 is taken over (modified in place)
-    count = img.size
+    count = img.size + int(outside[1])
     if c0 is None:
         c1, c2 = _region_means(float(q.sum(dtype=np.float64)), float(np.vdot(img.ravel(), q.ravel())),
-                               float(img.sum(dtype=np.float64)), count)
+                               float(img.sum(dtype=np.float64)) + float(outside[0]), count)
     else:
         c1, c2 = c0
     state = _ChanVeseState(img, q, spacing, theta, tau, sig=sig0, slab=slab, threads=threads,
@@ -371,7 +374,7 @@ def chan_vese_soft(img: np.ndarray, spacing: Sequence[float], lam: float, theta:
                 coeffs = (lam * 2.0 * (c2 - c1), lam * (c1 * c1 - c2 * c2)) if last else None
                 sums = state.sweep(coeffs)
             used = (c1, c2)
-            c1, c2 = _region_means(sums[0], sums[1], state.img_sum, count)
+            c1, c2 = _region_means(sums[0], sums[1], state.img_sum + float(outside[0]), count)
             change = math.sqrt(sums[2] / count)
             done = it + 1
             if progress is not None:
@@ -484,11 +487,53 @@ def _solve_pyramid(img: np.ndarray, spacing: Sequence[float], lam: float, theta:
                                    iterations=res["iterations"], change=res["change"]))
         q, c, sig, prev = res["q"], (res["c1"], res["c2"]), res["sig"], fac
         del res, level_img
+    crop = None
     if prev is not None:
-        q = _resample_nearest(q, prev, (1, 1, 1), img.shape)
-        sig = tuple(_resample_nearest(sa * np.float32(fp), prev, (1, 1, 1), img.shape) for sa, fp in zip(sig, prev))
+        # the full grid only where the coarse head is (q > FINE_CROP_Q grown by FINE_CROP_MARGIN blocks):
+        # elsewhere q is 0 and stays 0; the region means (eq. 17) still count that air (``outside``)
+        crop = _fine_crop(q, prev, img.shape)
+        coarse_box = tuple(slice(b.start // f, -(-b.stop // f)) for b, f in zip(crop, prev))
+        shape = tuple(b.stop - b.start for b in crop)
+        q = _resample_nearest(q[coarse_box], prev, (1, 1, 1), shape)
+        sig = tuple(_resample_nearest(sa[coarse_box] * np.float32(fp), prev, (1, 1, 1), shape)
+                    for sa, fp in zip(sig, prev))
     fine_tau = bound(spacing) if tau is None else tau
-    res = chan_vese_soft(img, spacing, lam, theta, fine_tau, iterations, inner, tolerance,
-                         q0=q, c0=c, sig0=sig, threads=threads, progress=level_progress)
-    info.update(tau=fine_tau, fine_iterations=res["iterations"], fine_change=res["change"])
+    if crop is not None and any(b.stop - b.start < n for b, n in zip(crop, img.shape)):
+        fine_img = img[crop]
+        outside = (float(np.sum(img, dtype=np.float64)) - float(np.sum(fine_img, dtype=np.float64)),
+                   img.size - fine_img.size)
+        fine_img = np.ascontiguousarray(fine_img)
+    else:
+        crop, fine_img, outside = None, img, (0.0, 0)
+    res = chan_vese_soft(fine_img, spacing, lam, theta, fine_tau, iterations, inner, tolerance,
+                         q0=q, c0=c, sig0=sig, threads=threads, progress=level_progress, outside=outside)
+    if crop is not None:
+        full = np.zeros(img.shape, np.float32)
+        full[crop] = res["q"]
+        res["q"] = full
+        res["sig"] = None  # on the crop only
+    info.update(tau=fine_tau, fine_iterations=res["iterations"], fine_change=res["change"],
+                fine_box=None if crop is None else tuple((b.start, b.stop) for b in crop))
     return res, info
+
+
+#: The full-resolution level runs on the box where the coarse membership exceeds this ...
+FINE_CROP_Q = 1e-3
+#: ... grown by this many coarse blocks on every side.
+FINE_CROP_MARGIN = 2
+
+
+def _fine_crop(q_coarse: np.ndarray, factors: Sequence[int], shape: Sequence[int]) -> tuple[slice, ...]:
+    """The full grid's box (aligned to the coarse blocks) of the coarse head grown by a margin."""
+    head = q_coarse > np.float32(FINE_CROP_Q)
+    box = []
+    for axis in range(3):
+        other = tuple(a for a in range(3) if a != axis)
+        idx = np.flatnonzero(head.any(axis=other))
+        f, n = int(factors[axis]), int(shape[axis])
+        if idx.size == 0:
+            return tuple(slice(0, int(m)) for m in shape)
+        lo = max(0, int(idx[0]) - FINE_CROP_MARGIN) * f
+        hi = min(n, (int(idx[-1]) + 1 + FINE_CROP_MARGIN) * f)
+        box.append(slice(lo, hi))
+    return tuple(box)
