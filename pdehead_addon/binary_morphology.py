@@ -45,19 +45,25 @@ class _Packed:
         return out.reshape(shape)
 
     def _x_neighbour(self, w: np.ndarray, dx: int, fill: bool) -> np.ndarray:
-        """Words whose bit i is the voxel at x + dx (``fill`` outside the row)."""
+        """Words whose bit i is the voxel at x + dx (``fill`` outside the row).
+
+        Shifted on the flat array (contiguous, fast); the bit carried across a row end is then
+        replaced by ``fill``."""
         one, s63 = np.uint64(1), np.uint64(63)
+        flat = w.reshape(-1)
         if dx == 1:
-            out = w >> one
-            out[..., :-1] |= w[..., 1:] << s63
-            if fill:
-                out[..., -1] |= np.uint64(1) << s63
+            out = flat >> one
+            out[:-1] |= flat[1:] << s63
+            edge, bit = out.reshape(w.shape)[..., -1], one << s63
         else:
-            out = w << one
-            out[..., 1:] |= w[..., :-1] >> s63
-            if fill:
-                out[..., 0] |= one
-        return out
+            out = flat << one
+            out[1:] |= flat[:-1] >> s63
+            edge, bit = out.reshape(w.shape)[..., 0], one
+        if fill:
+            edge |= bit
+        else:
+            edge &= ~bit
+        return out.reshape(w.shape)
 
     def combine(self, offsets: Sequence[tuple[int, ...]], erode: bool) -> None:
         """In place: AND (erode) / OR of the volume shifted by each offset ((dy, dx) or (dz, dy, dx), |dx| <= 1)."""
