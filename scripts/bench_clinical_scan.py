@@ -106,12 +106,16 @@ def run_cli(folder: Path, out: Path) -> dict:
            str(SHAPE[2]), "--dtype", ">i2", "--spacing", *map(str, SPACING), "--first-slice", "superior",
            "--patches", "10", "--selection", "auto", "--out", str(out)]
     env = dict(os.environ, BLENDER_USER_RESOURCES=str(out.parent / "blender-user"))
+    import resource
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     rss = ChildPeakRSS(proc.pid)
     stdout, stderr = proc.communicate()
     peak = rss.stop()
     wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     if proc.returncode != 0:
         raise SystemExit(f"pdehead.py failed ({proc.returncode}):\n{stdout[-2000:]}\n{stderr[-2000:]}")
     steps = {}
@@ -119,7 +123,7 @@ def run_cli(folder: Path, out: Path) -> dict:
     for name, value in re.findall(r"^\s+(\w+)\s+([0-9.]+)\s*$", block, re.M):
         steps[name] = float(value)
     return {"steps": steps, "sum_steps_s": sum(steps.get(k, 0.0) for k in STEPS), "peak_rss_gb": peak / 1e9,
-            "wall_s": wall}
+            "wall_s": wall, "cpu_s": cpu}
 
 
 def vtk_flying_edges(ct, level: float) -> dict:
@@ -204,6 +208,9 @@ def markdown(r: dict) -> str:
              f"| per-slice Jaccard mean / min ({r['jaccard']['slices']} slices) | {r['jaccard']['mean']:.4f} / "
              f"{r['jaccard']['min']:.4f} | >= {t['jaccard_mean']} / {t['jaccard_min']} | "
              f"{ok(r['jaccard']['mean'] >= t['jaccard_mean'] and r['jaccard']['min'] >= t['jaccard_min'])} |", "",
+             f"The whole CLI process (Blender's start and the save included): {med['cli_wall_s']:.1f} s wall, "
+             f"{med['cli_cpu_s']:.1f} s CPU (user + system; on a shared machine the CPU time is the steadier "
+             "measure).", "",
              "Steps (median s): " + ", ".join(f"{k} {v:.2f}" for k, v in med["steps"].items()) + ".", ""]
     return "\n".join(lines)
 
@@ -237,6 +244,8 @@ def main(argv=None) -> int:
     med_steps = {k: statistics.median(r["steps"].get(k, 0.0) for r in runs) for k in runs[0]["steps"]}
     median = {"sum_steps_s": statistics.median(r["sum_steps_s"] for r in runs),
               "peak_rss_gb": statistics.median(r["peak_rss_gb"] for r in runs),
+              "cli_wall_s": statistics.median(r["wall_s"] for r in runs),
+              "cli_cpu_s": statistics.median(r.get("cpu_s", 0.0) for r in runs),
               "vtk_s": statistics.median(vtk_times), "steps": med_steps,
               "segment_s": med_steps.get("segment", 0.0), "boundaries_s": med_steps.get("boundaries", 0.0)}
     median["ratio"] = median["sum_steps_s"] / median["vtk_s"]
