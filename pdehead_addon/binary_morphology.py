@@ -116,7 +116,7 @@ def ball_offsets(spacing: Sequence[float], radius: float) -> dict[tuple[int, int
     """The ball {d : |d * spacing| <= radius} (voxel offsets, Euclidean as ``distance_transform_edt``
     measures it) as x-runs: (dz, dy) -> the largest |dx| of the ball in that row."""
     hz, hy, hx = (float(h) for h in spacing)
-    rz, ry, rx = (int(np.floor(radius / h)) for h in (hz, hy, hx))
+    rz, ry, rx = (int(np.floor(radius / h)) + 1 for h in (hz, hy, hx))   # a superset: the test below decides
     rows: dict[tuple[int, int], int] = {}
     for dz in range(-rz, rz + 1):
         for dy in range(-ry, ry + 1):
