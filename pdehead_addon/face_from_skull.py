@@ -75,6 +75,11 @@ PEG_NORMAL_RADIUS_MM = 8.0
 PEG_NORMAL_MIN_COS = 0.7
 #: A skull must give at least this many ``ok`` landmarks (:func:`_check_skull`).
 MIN_OK_LANDMARKS = 8
+#: Vertical Gaussian smoothing (mm) of the closed profile: each row's hull is made on its own, and rows a few mm
+#: apart step (the teeth, the zygomatic arches' edges); a skin does not.
+PROFILE_SMOOTH_MM = 4.0
+#: Width of the exact correction's Gaussians, as a fraction of ``spread_mm``.
+NARROW_FRACTION = 0.5
 #: Regularisation of the exact peg interpolation (relative to the kernel's unit diagonal).
 RBF_REGULARISATION = 0.05
 
@@ -118,7 +123,7 @@ def bone_profile(skull: Mesh, grid: _Grid, base_z: float | None = None,
        across the orbits, the nasal aperture, the temporal fossae and the cheeks (between the zygoma and
        the mandible), where no depth is measured;
     4. a grey closing over ``closing_mm`` of height (the vertical gaps, e.g. the nasal aperture above the
-       maxilla) and a light Gaussian smoothing (1.5 mm, 1 column).
+       maxilla) and a Gaussian smoothing (:data:`PROFILE_SMOOTH_MM` of height, 1 column).
 
     Returns
     -------
@@ -143,7 +148,7 @@ def bone_profile(skull: Mesh, grid: _Grid, base_z: float | None = None,
     closed = ndimage.grey_closing(padded, size=(kz, 1), mode="wrap")[pad:-pad]
     closed = np.maximum(closed, hull)
     sm = ndimage.gaussian_filter(np.pad(closed, ((pad, pad), (0, 0)), mode="edge"),
-                                 sigma=(1.5 / dz, 1.0), mode="wrap")[pad:-pad]
+                                 sigma=(PROFILE_SMOOTH_MM / dz, 1.0), mode="wrap")[pad:-pad]
     return raw, sm
 
 
@@ -543,7 +548,7 @@ class FaceModel:
         base_g = (Wg @ target + RULE_WEIGHT * RULE_DEPTH_MM) / (Wg.sum(1) + RULE_WEIGHT)
         base_s = (Ws @ target + RULE_WEIGHT * RULE_DEPTH_MM) / (Ws.sum(1) + RULE_WEIGHT)
         # narrow exact correction
-        s2 = 0.5 * sigma
+        s2 = NARROW_FRACTION * sigma
         Phi = _kernel(xs, xs, s2)
         w = np.linalg.solve(Phi + RBF_REGULARISATION * np.eye(len(xs)), target - base_s)
         corr = _kernel(self._grid_xyz, xs, s2) @ w
