@@ -79,8 +79,8 @@ def test_one_peg_moves_the_face_near_it_only(model, face):
     shift = np.linalg.norm(moved.mesh.vertices - face.mesh.vertices, axis=1)
     far = np.linalg.norm(face.mesh.vertices - face.tips[i], axis=1)
     # measured: up to 5.1 mm within 10 mm of the tip, the moved tip 1.1 mm from the new face; beyond 120 mm
-    # 0.04 mm at most (the neck cap, 40 mm
-    # below the chin): the vertices do not slide (the spline parameter is fixed by the first solve)
+    # 0.04 mm at most (the neck cap, 40 mm below the chin): the vertices do not slide (the spline parameter
+    # is fixed by the first solve)
     assert shift[far < 10].max() >= 3.0
     assert shift[far > 120].max() <= 0.1
     # and the moved tip is on the new face
