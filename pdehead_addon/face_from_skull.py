@@ -61,7 +61,8 @@ RULE_DEPTH_MM = 5.5
 RULE_WEIGHT = 0.04
 #: The neck below the skull: radius (mm) of the neck about its axis, which lies this far behind the
 #: skull's centroid axis. Adult neck circumference ~ 36-40 cm (anthropometric surveys, e.g. Ben-Noun et al.
-#: 2001, Obesity Research 9(8):470-477: men 38.0 cm, women 32.5 cm mean) -> radius ~ 55-60 mm.
+#: 2001, Obesity Research 9(8):470-477: men 38.0 cm, women 32.5 cm mean; cited from memory of that survey,
+#: not re-read) -> radius ~ 55-60 mm. It shapes only the neck, outside the scored face.
 NECK_RADIUS_MM = 57.0
 NECK_BEHIND_MM = 12.0
 #: How fast the neck recedes below the skull base (mm per mm of height: 0.8 ~ a 40 degree slope).
@@ -324,11 +325,13 @@ def predict_eyes(landmarks: dict) -> list[tuple[str, np.ndarray, float]]:
 #: Nasal tip protrusion (subnasale to pronasale, mm) and alar width (mm) of adults, both sexes pooled:
 #: Farkas LG (1994) Anthropometry of the Head and Face, 2nd ed., New York: Raven Press (North American
 #: Caucasian norms: sn-prn about 20 mm in men and 19 mm in women; al-al about 35 and 31 mm), as quoted in
-#: the forensic literature on nose prediction (e.g. Rynn, Wilkinson & Peters 2010, below).
+#: the forensic literature on nose prediction (e.g. Rynn, Wilkinson & Peters 2010, below). Cited from that
+#: literature, not re-read for this module: check the values against Farkas before casework.
 NOSE_PROTRUSION_MM = 19.5
 NOSE_ALAR_WIDTH_MM = 33.0
 #: Krogman's rule: the alae lie about 5 mm lateral of the nasal aperture's widest point on each side
-#: (Krogman WM, Iscan MY (1986) The Human Skeleton in Forensic Medicine, 2nd ed., Springfield: Thomas).
+#: (Krogman WM, Iscan MY (1986) The Human Skeleton in Forensic Medicine, 2nd ed., Springfield: Thomas;
+#: cited from the forensic literature, not re-read for this module).
 ALAR_MARGIN_MM = 5.0
 #: Where pronasale sits between subnasale and soft nasion (fraction of the nasal height): a proportion of
 #: the average profile (sn-prn height ~ 15 mm of ~ 52 mm n-sn in Farkas' norms), not a regression.
