@@ -1,0 +1,715 @@
+"""Face from the skull (issue 23): a closed PDE face solved through the tissue-depth pegs.
+
+The practitioner's end product in forensic facial approximation is a face; this module makes one from
+the bone skull, its landmarks and a depth table, by the same C2 PDE engine as the skin
+(:func:`.pde_surface.solve_pde`), fast enough to re-solve on every peg drag.
+
+Method
+------
+Everything is expressed on a cylinder of directions about the vertical (patient z) axis through the
+skull's centroid: a row every ``row_mm`` of height, a column every ``360 / columns`` degrees.
+
+1. *The bone's outer profile* (:func:`bone_profile`): per (row, column) bin the outermost point of the
+   bone skull; per row the 2-D convex hull of that ring (which bridges the orbits, the nasal aperture,
+   the temporal fossae and the cheeks), a grey closing and a Gaussian smoothing along the height. Where a
+   column meets no bone (below the skull base at the back, below the mandible) the neck rule of
+   :func:`_neck_fill` continues the profile downward.
+2. *The pegs*: each landmark of the depth table stands on the bone along the bone's outward normal,
+   averaged over the bone around it (:func:`peg_normals`); its tip (base + depth x normal) is where the skin must pass.
+   In the cylinder frame each tip is a site (z, angle) with a radial offset over the profile.
+3. *The tissue-depth field* (:meth:`FaceModel._offset_field`): over the whole head, a wide
+   normalised Gaussian average of the peg offsets (Shepard / partition of unity, radius
+   ``spread_mm``) with the rule depth where no peg stands (:data:`RULE_DEPTH_MM`: the vault and the
+   neck), plus a narrow Gaussian radial-basis correction (lightly regularised) that makes the field
+   pass through every tip (to a few tenths of a mm). It is linear in the depths; a peg's influence fades within about 2 ``spread_mm``.
+4. *Prediction rules* for what a depth field cannot make: the nose (:func:`predict_nose`) and the eyes
+   (:func:`predict_eyes`), each cited in its docstring. The mouth's width (:func:`predict_mouth`) is only
+   reported; the lips come from the pegs around them. The ears are not modelled.
+5. *The face*: profile + depth field + nose = radius per bin; each row is a closed boundary curve;
+   the C2 PDE surface through them (:func:`.pde_surface.solve_pde`, dome over the vertex, a flat cap
+   under the neck) is the face, a closed mesh in patient mm.
+
+Everything that does not depend on the depths (the profile, the grid, the kernels between the rule
+sites) is computed once in :meth:`FaceModel.prepare`; :meth:`FaceModel.solve` evaluates the linear
+field, adds the nose, solves the PDE and meshes it (tens of ms).
+
+Every result carries :data:`APPROXIMATION_LABEL` and its provenance: it is an approximation, not an
+identification.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import ndimage
+
+from . import defaults as D
+from .boundary_set import BoundarySet, knots_from_heights
+from .errors import PDEHeadError
+from .mesh import Mesh
+from .provenance import SOFTWARE_VERSION
+
+APPROXIMATION_LABEL = D.FACE_LABEL
+
+#: Depth (mm) where no peg stands: the vault and the back of the head. The T-Table 2023 grand means at
+#: vertex (5.0 mm) and opisthocranion (6.0 mm) (Hona & Stephan 2024, Int J Legal Med 138(2):519-535,
+#: doi:10.1007/s00414-023-03087-x, values as printed in esomjai/Forensic-Craniofacial-Approximation-
+#: Validation-Tool, "FSTT/Generating FSTT cylinders in Slicer.md"), rounded to their mean.
+RULE_DEPTH_MM = 5.5
+#: Weight of the rule depth in the Shepard average (a peg at distance ``spread_mm`` weighs e^-1 = 0.37).
+RULE_WEIGHT = 0.04
+#: The neck below the skull: radius (mm) of the neck about its axis, which lies this far behind the
+#: skull's centroid axis. Adult neck circumference ~ 36-40 cm (anthropometric surveys, e.g. Ben-Noun et al.
+#: 2001, Obesity Research 9(8):470-477: men 38.0 cm, women 32.5 cm mean; cited from memory of that survey,
+#: not re-read) -> radius ~ 55-60 mm. It shapes only the neck, outside the scored face.
+NECK_RADIUS_MM = 57.0
+NECK_BEHIND_MM = 12.0
+#: How fast the neck recedes below the skull base (mm per mm of height: 0.8 ~ a 40 degree slope).
+NECK_SLOPE = 0.8
+#: Closing of the bone's radius map: how wide a gap (mm) the envelope bridges (the orbit is ~ 40 mm wide,
+#: the nasal aperture ~ 25 mm).
+CLOSING_MM = 15.0
+#: Radius (mm) over which the bone's normal at a landmark is averaged (:func:`peg_normals`).
+PEG_NORMAL_RADIUS_MM = 8.0
+#: A peg follows the averaged bone normal unless it leans more than 45 degrees from the closed profile's
+#: normal (then the profile's): e.g. subspinale on a mask whose thin maxilla is gone faces up, not forward.
+PEG_NORMAL_MIN_COS = 0.7
+#: A skull must give at least this many ``ok`` landmarks (:func:`_check_skull`).
+MIN_OK_LANDMARKS = 8
+#: Vertical Gaussian smoothing (mm) of the closed profile: each row's hull is made on its own, and rows a few mm
+#: apart step (the teeth, the zygomatic arches' edges); a skin does not.
+PROFILE_SMOOTH_MM = 4.0
+#: Width of the exact correction's Gaussians, as a fraction of ``spread_mm``.
+NARROW_FRACTION = 0.5
+#: Regularisation of the exact peg interpolation (relative to the kernel's unit diagonal).
+RBF_REGULARISATION = 0.05
+
+
+# ------------------------------------------------------------------------------------------ geometry
+@dataclass
+class _Grid:
+    centre: np.ndarray          # (2,) x, y of the vertical axis
+    z: np.ndarray               # (K,) row heights, ascending
+    theta: np.ndarray           # (M,) column angles; 0 = posterior (+y), pi/2 = patient's left (+x)
+
+    def polar(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        d = np.asarray(p, float)[..., :2] - self.centre
+        return np.asarray(p, float)[..., 2], np.mod(np.arctan2(d[..., 0], d[..., 1]), 2 * np.pi), np.hypot(d[..., 0], d[..., 1])
+
+    def point(self, z, theta, r) -> np.ndarray:
+        z, theta, r = np.broadcast_arrays(np.asarray(z, float), np.asarray(theta, float), np.asarray(r, float))
+        return np.stack([self.centre[0] + r * np.sin(theta), self.centre[1] + r * np.cos(theta), z], axis=-1)
+
+    def sample(self, table: np.ndarray, z: np.ndarray, theta: np.ndarray) -> np.ndarray:
+        """Bilinear value of a (K, M) map at heights ``z`` and angles ``theta`` (periodic in the angle)."""
+        K, M = table.shape
+        fz = np.clip((np.asarray(z, float) - self.z[0]) / (self.z[1] - self.z[0]), 0, K - 1 - 1e-9)
+        ft = np.mod(np.asarray(theta, float), 2 * np.pi) / (2 * np.pi) * M
+        k0, j0 = np.floor(fz).astype(int), np.floor(ft).astype(int) % M
+        a, b = fz - k0, ft - np.floor(ft)
+        j1 = (j0 + 1) % M
+        k1 = np.minimum(k0 + 1, K - 1)
+        return ((1 - a) * (1 - b) * table[k0, j0] + (1 - a) * b * table[k0, j1]
+                + a * (1 - b) * table[k1, j0] + a * b * table[k1, j1])
+
+
+def bone_profile(skull: Mesh, grid: _Grid, base_z: float | None = None,
+                 closing_mm: float = CLOSING_MM) -> tuple[np.ndarray, np.ndarray]:
+    """The bone's outer radius per (row, column) bin and its closed envelope.
+
+    1. per bin the outermost skull vertex (NaN where the ray meets no bone);
+    2. gaps inside a column are interpolated along the height; below ``base_z`` (the skull base) the neck
+       rule of :func:`_neck_fill`;
+    3. per row the 2-D convex hull of the ring: the envelope a skin stretched over the bone would take
+       across the orbits, the nasal aperture, the temporal fossae and the cheeks (between the zygoma and
+       the mandible), where no depth is measured;
+    4. a grey closing over ``closing_mm`` of height (the vertical gaps, e.g. the nasal aperture above the
+       maxilla) and a Gaussian smoothing (:data:`PROFILE_SMOOTH_MM` of height, 1 column).
+
+    Returns
+    -------
+    raw : (K, M) outermost bone radius per bin (NaN where the bin meets no bone)
+    closed : (K, M) the closed, gap-filled, smoothed profile (no NaN)
+    """
+    z, th, r = grid.polar(skull.vertices)
+    dz = grid.z[1] - grid.z[0]
+    K, M = len(grid.z), len(grid.theta)
+    k = np.round((z - grid.z[0]) / dz).astype(int)
+    j = np.round(th / (2 * np.pi) * M).astype(int) % M
+    ok = (k >= 0) & (k < K)
+    raw = np.full(K * M, -np.inf)
+    np.maximum.at(raw, k[ok] * M + j[ok], r[ok])
+    raw = raw.reshape(K, M)
+    raw[~np.isfinite(raw)] = np.nan
+    filled = _neck_fill(raw, grid, base_z)
+    hull = _row_hulls(filled, grid.theta)
+    kz = max(1, int(round(closing_mm / dz)))
+    pad = kz
+    padded = np.pad(hull, ((pad, pad), (0, 0)), mode="edge")
+    closed = ndimage.grey_closing(padded, size=(kz, 1), mode="wrap")[pad:-pad]
+    closed = np.maximum(closed, hull)
+    sm = ndimage.gaussian_filter(np.pad(closed, ((pad, pad), (0, 0)), mode="edge"),
+                                 sigma=(PROFILE_SMOOTH_MM / dz, 1.0), mode="wrap")[pad:-pad]
+    return raw, sm
+
+
+def _row_hulls(radius: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """Per row, the radius along each column's ray of the 2-D convex hull of the row's ring."""
+    from scipy.spatial import ConvexHull
+
+    out = radius.copy()
+    s, c = np.sin(theta), np.cos(theta)
+    for k in range(radius.shape[0]):
+        xy = np.column_stack([radius[k] * s, radius[k] * c])
+        try:
+            idx = ConvexHull(xy).vertices
+        except Exception:                                     # degenerate row: keep it
+            continue
+        idx = np.sort(idx)                                    # hull vertices in angle order (rays are ordered)
+        # between consecutive hull vertices a and b, a ray at angle t meets the chord a-b
+        nxt = np.roll(idx, -1)
+        for a, b in zip(idx, nxt):
+            span = (np.arange(a, b + (len(theta) if b <= a else 0) + 1)) % len(theta)
+            pa, pb = xy[a], xy[b]
+            d = np.column_stack([s[span], c[span]])
+            e = pb - pa
+            # solve t * d = pa + u * e  ->  t = cross(pa, e) / cross(d, e)
+            den = d[:, 0] * e[1] - d[:, 1] * e[0]
+            num = pa[0] * e[1] - pa[1] * e[0]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = np.where(np.abs(den) > 1e-12, num / den, radius[k, span])
+            out[k, span] = np.maximum(radius[k, span], np.where(np.isfinite(t) & (t > 0), t, radius[k, span]))
+    return out
+
+
+def _neck_fill(raw: np.ndarray, grid: _Grid, base_z: float | None = None) -> np.ndarray:
+    """Fill bins that meet no bone, and shape the neck below the skull base.
+
+    Gaps inside a column are interpolated along the height; above the skull's top row the top is
+    repeated. Below ``base_z`` (the skull base) the rays meet the mandible, the mastoids and what is
+    left of the upper cervical spine, none of which is the neck's outline: there each column keeps its
+    bone where the bone lies further out, and otherwise recedes from the row above by at most
+    :data:`NECK_SLOPE` mm per mm of height (the occiput's curve into the nape, the chin's into the
+    throat) down to the neck, a circle of :data:`NECK_RADIUS_MM` about an axis :data:`NECK_BEHIND_MM`
+    behind the skull's axis. A rule, not a measurement of this head.
+    """
+    K, M = raw.shape
+    out = raw.copy()
+    good = np.isfinite(out)
+    rows = np.arange(K)
+    for j in np.nonzero(good.sum(0) >= 2)[0]:                 # gaps inside a column (per column: 180 at most)
+        gi = np.nonzero(good[:, j])[0]
+        inside = (rows >= gi[0]) & (rows <= gi[-1])
+        out[inside, j] = np.interp(rows[inside], gi, out[gi, j])
+    th = grid.theta
+    b = NECK_BEHIND_MM
+    neck = b * np.cos(th) + np.sqrt(np.maximum(NECK_RADIUS_MM ** 2 - (b * np.sin(th)) ** 2, 1.0))
+    dz = grid.z[1] - grid.z[0]
+    top = int(np.nonzero(np.isfinite(out).any(1))[0].max()) if np.isfinite(out).any() else K - 1
+    kb = top if base_z is None else int(np.clip(np.floor((base_z - grid.z[0]) / dz), 0, top))
+    for k in range(kb - 1, -1, -1):                           # downward from the skull base
+        above = out[k + 1]
+        bone = np.where(np.isfinite(out[k]), out[k], -np.inf)
+        out[k] = np.maximum(bone, np.maximum(np.minimum(above, neck), above - NECK_SLOPE * dz))
+    for k in range(1, K):                                     # above the top: repeat
+        miss = ~np.isfinite(out[k]) & np.isfinite(out[k - 1])
+        out[k, miss] = out[k - 1, miss]
+    for k in range(K - 2, -1, -1):
+        miss = ~np.isfinite(out[k]) & np.isfinite(out[k + 1])
+        out[k, miss] = out[k + 1, miss]
+    if not np.all(np.isfinite(out)):
+        out[~np.isfinite(out)] = NECK_RADIUS_MM
+    return out
+
+
+def envelope_normals(grid: _Grid, profile: np.ndarray, points: np.ndarray, smooth_mm: float = 6.0) -> np.ndarray:
+    """Outward unit normals of the closed profile (the surface r = profile(z, angle)) at the points' bins."""
+    dz = grid.z[1] - grid.z[0]
+    R = ndimage.gaussian_filter(profile, sigma=(smooth_mm / dz, 1.0), mode=("nearest", "wrap"))
+    Rz = np.gradient(R, dz, axis=0)
+    dth = grid.theta[1] - grid.theta[0]
+    Rt = (np.roll(R, -1, axis=1) - np.roll(R, 1, axis=1)) / (2 * dth)
+    z, th, _ = grid.polar(points)
+    r, rz, rt = grid.sample(R, z, th), grid.sample(Rz, z, th), grid.sample(Rt, z, th)
+    s, c = np.sin(th), np.cos(th)
+    d_th = np.stack([rt * s + r * c, rt * c - r * s, np.zeros_like(r)], -1)
+    d_z = np.stack([rz * s, rz * c, np.ones_like(r)], -1)
+    n = np.cross(d_th, d_z)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    radial = np.stack([s, c, np.zeros_like(s)], -1)
+    return np.where((np.einsum("ij,ij->i", n, radial) < 0)[:, None], -n, n)
+
+
+def peg_normals(skull: Mesh, bases: np.ndarray, grid: _Grid, profile: np.ndarray,
+                radius_mm: float = PEG_NORMAL_RADIUS_MM) -> np.ndarray:
+    """The direction each peg stands in: the bone's outward normal at the landmark, averaged over the bone
+    surface within ``radius_mm`` (area-weighted; a single triangle's normal on a thin or fragmentary bone,
+    e.g. the maxilla at the bone level, points anywhere); where that still points more than 45 degrees
+    away from the closed profile's outward normal (:data:`PEG_NORMAL_MIN_COS`), the profile's normal.
+    The T-Table's convention is a depth measured along the bone normal at the landmark."""
+    from scipy.spatial import cKDTree
+
+    v, t = skull.vertices, skull.triangles
+    if len(skull.quads):
+        t = np.concatenate([t, skull.quads[:, [0, 1, 2]], skull.quads[:, [0, 2, 3]]])
+    a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
+    fn = np.cross(b - a, c - a)                                    # area-weighted (|fn| = 2 area)
+    tree = cKDTree((a + b + c) / 3.0)
+    env = envelope_normals(grid, profile, bases)
+    out = np.empty_like(bases)
+    for i, p in enumerate(bases):
+        idx = tree.query_ball_point(p, radius_mm)
+        n = fn[idx].sum(axis=0) if idx else env[i]
+        norm = np.linalg.norm(n)
+        n = n / norm if norm > 0 else env[i]
+        out[i] = n if float(n @ env[i]) >= PEG_NORMAL_MIN_COS else env[i]
+    return out
+
+
+def _check_skull(landmarks: dict, flags: dict | None) -> None:
+    """Refuse what is not a skull: the face is built around the orbits, so both orbits must have been found
+    (Orbitale or Supraorbital, left and right), and at least :data:`MIN_OK_LANDMARKS` landmarks must be ``ok``
+    (an ellipsoid or a box gives a few ``uncertain`` guesses and nothing ``ok``)."""
+    have = set(landmarks) if flags is None else {n for n in landmarks if flags.get(n, "ok") != "not_found"}
+    orbits = all(f"Orbitale {s}" in have or f"Supraorbital {s}" in have for s in "LR")
+    ok = len(have) if flags is None else sum(1 for n in have if flags.get(n, "ok") == "ok")
+    if not orbits or ok < MIN_OK_LANDMARKS:
+        raise PDEHeadError(f"this does not look like a skull: {'no orbits were found' if not orbits else ''}"
+                           f"{' and ' if not orbits and ok < MIN_OK_LANDMARKS else ''}"
+                           f"{f'only {ok} landmarks were found with confidence' if ok < MIN_OK_LANDMARKS else ''}"
+                           " (a face is approximated only on a skull with its orbits; place the landmarks by hand "
+                           "if the automatic ones failed)")
+
+
+# ------------------------------------------------------------------------------------------ prediction rules
+def _pt(landmarks: dict, *names):
+    for n in names:
+        if n in landmarks and landmarks[n] is not None:
+            return np.asarray(landmarks[n], float)
+    return None
+
+
+def predict_eyes(landmarks: dict) -> list[tuple[str, np.ndarray, float]]:
+    """Eye sites: the corneal apex of each eye.
+
+    Method: the cornea's apex lies on the line from the mid-supraorbital to the mid-infraorbital margin
+    (the "tangent" guideline: Wilkinson CM, Mautner SA (2003) "Measurement of eyeball protrusion and its
+    application in facial reconstruction", J Forensic Sci 48(1):12-16; Stephan CN (2002) "Facial
+    approximation: globe projection guideline falsified by exophthalmometry literature", J Forensic Sci
+    47(4):730-735, which replaced the older 16 mm-from-lateral-orbit guideline). Both are cited from the
+    forensic literature, not re-read for this module. The apex is put on the midpoint of the
+    ``Supraorbital`` and ``Suborbital`` (or ``Orbitale``) landmarks, 1 mm in front of it for the lid.
+    Guyomarc'h P, Dutailly B, Couture C, Coqueugniot H (2012), "Anatomical placement of the human eyeball
+    in the orbit - validation using CT scans of living adults and prediction for facial approximation",
+    J Forensic Sci 57(5):1271-1275, place the globe from the orbit's breadth and height. The version read
+    was esomjai/Forensic-Craniofacial-Approximation-Validation-Tool, "Eye predictions/Guyomarc'h GUI.md",
+    where the corneal apex sits 0.513 x the orbit height in front of the deepest lateral orbital margin.
+    That method needs ectoconchion and dacryon, which the landmark set lacks, so it is not used here.
+
+    Returns
+    -------
+    list of (name, point patient mm, weight): the apex of each eye found.
+    """
+    out = []
+    for side in ("L", "R"):
+        so, sb = _pt(landmarks, f"Supraorbital {side}"), _pt(landmarks, f"Suborbital {side}", f"Orbitale {side}")
+        if so is None or sb is None:
+            continue
+        mid = 0.5 * (so + sb)
+        mid[1] -= 1.0                                  # the closed lid, ~1 mm over the cornea (anterior = -y)
+        out.append((f"Eye {side}", mid, 1.0))
+    return out
+
+
+#: Nasal tip protrusion (subnasale to pronasale, mm) and alar width (mm) of adults, both sexes pooled:
+#: Farkas LG (1994) Anthropometry of the Head and Face, 2nd ed., New York: Raven Press (North American
+#: Caucasian norms: sn-prn about 20 mm in men and 19 mm in women; al-al about 35 and 31 mm), as quoted in
+#: the forensic literature on nose prediction (e.g. Rynn, Wilkinson & Peters 2010, below). Cited from that
+#: literature, not re-read for this module: check the values against Farkas before casework.
+NOSE_PROTRUSION_MM = 19.5
+NOSE_ALAR_WIDTH_MM = 33.0
+#: Krogman's rule: the alae lie about 5 mm lateral of the nasal aperture's widest point on each side
+#: (Krogman WM, Iscan MY (1986) The Human Skeleton in Forensic Medicine, 2nd ed., Springfield: Thomas;
+#: cited from the forensic literature, not re-read for this module).
+ALAR_MARGIN_MM = 5.0
+#: Where pronasale sits between subnasale and soft nasion (fraction of the nasal height): a proportion of
+#: the average profile (sn-prn height ~ 15 mm of ~ 52 mm n-sn in Farkas' norms), not a regression.
+TIP_HEIGHT_FRACTION = 0.3
+#: Half the nose's breadth at its root (mm): the nasal root between the eyes (Farkas' intercanthal width
+#: en-en ~ 32 mm; the root ~ 2/3 of it), where the dorsum leaves the soft nasion.
+NOSE_ROOT_HALF_MM = 10.0
+#: Pegs that stand on the nasal dorsum: the nose's ridge runs through their tips.
+NOSE_DORSUM_PEGS = ("Rhinion", "Mid-nasal")
+
+
+def aperture_width(skull: Mesh, subspinale: np.ndarray, mid_x: float) -> float | None:
+    """Widest breadth (mm) of the nasal aperture: at heights 6-20 mm above subspinale, the widest gap around
+    the midline between the front bone (within 25 mm behind subspinale) on the two sides. None if not seen."""
+    v = skull.vertices
+    best = None
+    for dz in np.arange(6.0, 21.0, 2.0):
+        m = (np.abs(v[:, 2] - (subspinale[2] + dz)) < 1.0) & (v[:, 1] < subspinale[1] + 25.0)
+        x = v[m, 0]
+        left, right = x[x > mid_x + 2.0], x[x < mid_x - 2.0]
+        if left.size and right.size:
+            w = float(left.min() - right.max())
+            if 12.0 < w < 45.0 and (best is None or w > best):
+                best = w
+    return best
+
+
+def predict_nose(landmarks: dict, skull: Mesh | None = None) -> dict | None:
+    """The nose: what of it the bone predicts (its width, its base), the rest from population norms.
+
+    * *Width*: the alar width is the nasal aperture's greatest breadth plus ``2 x ALAR_MARGIN_MM``
+      (Krogman & Iscan 1986: the alae lie ~5 mm lateral of the aperture on each side); where the aperture
+      is not seen, ``NOSE_ALAR_WIDTH_MM`` (Farkas 1994). Rynn C, Wilkinson CM, Peters HL (2010),
+      "Prediction of nasal morphology from the skull", Forensic Sci Med Pathol 6(1):20-34, found the
+      aperture's width the best bony predictor of the alar width.
+    * *Base*: soft subnasale at the height of the anterior nasal spine (4 mm above subspinale) on the
+      subspinale peg's tip (its tissue depth from the table); soft nasion at the nasion peg's tip.
+    * *Pronasale*: ``NOSE_PROTRUSION_MM`` in front of subnasale (Farkas 1994 tip protrusion), at
+      ``TIP_HEIGHT_FRACTION`` of the nasal height above subnasale.
+
+    The threefold-ANS rule (Gerasimov 1955; Prokopec M, Ubelaker DH (2002) "Reconstructing the shape of
+    the nose according to the skull", Forensic Sci Commun 4(1); implemented in esomjai/Forensic-
+    Craniofacial-Approximation-Validation-Tool, "Nose predictions/Threefold ANS GUI.md": pronasale = the
+    soft mid-philtrum + 3 x the spine's length along the spine) needs the anterior nasal spine, a thin
+    bone that a binary mask at the bone level rarely keeps (on CThead it is not in the mask); it is not
+    used.
+
+    Returns the constant parts (``width_mm``, ``mid_x``); :meth:`FaceModel._nose_bump` places the nose on
+    the current peg tips.
+    """
+    n = _pt(landmarks, "Nasion", "Glabella")
+    ss = _pt(landmarks, "Subspinale", "Mid-philtrum")
+    if n is None or ss is None:
+        return None
+    mid_x = 0.5 * (n[0] + ss[0])
+    width, source = NOSE_ALAR_WIDTH_MM, "Farkas 1994 mean alar width"
+    if skull is not None:
+        ap = aperture_width(skull, ss, mid_x)
+        if ap is not None:
+            width, source = ap + 2 * ALAR_MARGIN_MM, f"aperture {ap:.1f} mm + 2 x {ALAR_MARGIN_MM:g} mm (Krogman)"
+    return dict(width_mm=float(width), width_source=source, mid_x=float(mid_x),
+                protrusion_mm=NOSE_PROTRUSION_MM)
+
+
+def predict_mouth(landmarks: dict) -> dict | None:
+    """The mouth's width from the canines, reported in the provenance. It does not shape the face yet.
+
+    Method: the inter-canine width is about 75 % of the mouth's width. Source: Stephan CN, Henneberg M
+    (2003) "Predicting mouth width from inter-canine width - a 75 % rule", J Forensic Sci 48(4):725-727,
+    cited from the forensic literature, not re-read for this module. The lips between the canines are
+    shaped only by the depth pegs around them (mid-philtrum, supradentale, infradentale, the canines). No
+    lip line or lip shape is modelled yet.
+    """
+    c = [_pt(landmarks, f"Supra canine {s}") for s in "LR"]
+    if c[0] is None or c[1] is None:
+        return None
+    icw = float(np.linalg.norm(c[0][:2] - c[1][:2]))
+    return dict(width_mm=icw / 0.75, centre=0.5 * (c[0] + c[1]))
+
+
+# ------------------------------------------------------------------------------------------ the model
+@dataclass
+class FaceResult:
+    """One solved face: the closed mesh (patient mm, the CT's frame) and where it came from."""
+
+    mesh: Mesh
+    provenance: dict
+    timings: dict
+    tips: np.ndarray | None = None
+    depths: np.ndarray | None = None
+    head: object = None
+
+
+def _kernel(a: np.ndarray, b: np.ndarray, sigma: float) -> np.ndarray:
+    """Gaussian kernel exp(-|a_i - b_j|^2 / sigma^2), (len(a), len(b)), float32-free but allocation-light."""
+    d2 = (a * a).sum(1)[:, None] + (b * b).sum(1)[None, :] - 2.0 * (a @ b.T)
+    np.maximum(d2, 0.0, out=d2)
+    d2 *= -1.0 / (sigma * sigma)
+    return np.exp(d2, out=d2)
+
+
+@dataclass
+class FaceModel:
+    """A face-from-skull model: everything that does not depend on the peg depths, prepared once.
+
+    Build it with :meth:`prepare`; :meth:`solve` makes a face for any depths or peg tips.
+    The model is re-created from (skull mesh, landmarks, table, options) alone: nothing in it needs
+    pickling.
+    """
+
+    peg_names: list
+    peg_bases: np.ndarray
+    peg_normals: np.ndarray
+    default_depths: np.ndarray
+    depth_sd: np.ndarray
+    grid: _Grid
+    raw: np.ndarray
+    profile: np.ndarray
+    rule_sites: list
+    nose: dict | None
+    mouth: dict | None
+    options: dict
+    provenance: dict
+    flags: dict = field(default_factory=dict)
+    prepare_seconds: float = 0.0
+
+    # -------------------------------------------------------------------- prepare
+    @classmethod
+    def prepare(cls, skull: Mesh, landmarks: dict, table, *, sex=None, flags: dict | None = None,
+                row_mm: float | None = None, columns: int = 180, spread_mm: float | None = None,
+                nu: int | None = None, nv: int | None = None, neck_mm: float = 40.0) -> "FaceModel":
+        """Prepare the face model of a skull.
+
+        Parameters
+        ----------
+        skull : Mesh
+            The bone skull (:func:`.skull.skull_mesh` or a ``--skull-mesh``), patient LPS mm.
+        landmarks : dict of str to (3,) array
+            Landmarks on the bone (patient mm); those the table has become pegs, the others feed the
+            prediction rules (nose, eyes, mouth).
+        table : DepthTable or dict
+            The depth table (mean depth per landmark name; SDs from ``table.sd`` where it has them).
+        sex : str, optional
+            Kept in the provenance; the shipped T-Table 2023 is pooled (no sex split).
+        flags : dict, optional
+            The landmarks' flags (``ok`` / ``uncertain`` / ``not_found``), for the provenance.
+        """
+        from .landmarks import marker_pegs
+
+        t0 = time.perf_counter()
+        if skull is None or len(skull.vertices) < 100:
+            raise PDEHeadError("the skull mesh is empty: no face can be approximated")
+        ext = np.ptp(skull.vertices, axis=0)
+        if np.any(ext < 60.0) or np.any(ext > 400.0):
+            raise PDEHeadError(f"the skull mesh is {ext[0]:.0f} x {ext[1]:.0f} x {ext[2]:.0f} mm: not a skull "
+                               "in mm (a skull is ~ 140 x 190 x 130 mm or more)")
+        row_mm = D.FACE_ROW_MM.default if row_mm is None else float(row_mm)
+        spread = D.FACE_SPREAD_MM.default if spread_mm is None else float(spread_mm)
+        lm = {k: np.asarray(v, float) for k, v in landmarks.items() if v is not None}
+        _check_skull(lm, flags)
+        pegs = marker_pegs(lm, skull, table)
+        if len(pegs) < 4:
+            raise PDEHeadError(f"only {len(pegs)} landmarks have a depth in the table: at least 4 are needed "
+                               "for a face (run Find Landmarks)")
+        names = [p[0] for p in pegs]
+        bases = np.array([p[1] for p in pegs])
+        depths = np.array([p[3] for p in pegs], float)
+        sd_of = getattr(table, "sd", None)
+        sds = np.array([(sd_of(n) if sd_of else None) or np.nan for n in names], float)
+        # the axis: the bone's centroid (area-weighted vertices are close enough: a dense uniform mesh)
+        centre = skull.vertices[:, :2].mean(axis=0)
+        zlo = float(skull.vertices[:, 2].min()) - neck_mm
+        zhi = float(skull.vertices[:, 2].max()) - 4.0
+        K = max(8, int(np.ceil((zhi - zlo) / row_mm)) + 1)
+        grid = _Grid(centre, np.linspace(zlo, zhi, K), np.arange(columns) * 2 * np.pi / columns)
+        base_z = None
+        po = [lm[n] for n in ("Porion L", "Porion R") if n in lm]
+        if po:
+            base_z = float(np.mean([p[2] for p in po])) - 15.0   # the skull base, ~15 mm below the ear canals
+        raw, profile = bone_profile(skull, grid, base_z)
+        normals = peg_normals(skull, bases, grid, profile)
+        rule_sites = [(n, p, w) for n, p, w in predict_eyes(lm)]
+        nose = predict_nose(lm, skull)
+        mouth = predict_mouth(lm)
+        from .provenance import provenance
+        prov_table = table.provenance_record() if hasattr(table, "provenance_record") else {"table": "imported table"}
+        prov = provenance(label=APPROXIMATION_LABEL, method="face from skull: PDE surface through tissue-depth "
+                          "pegs (pdehead_addon.face_from_skull)", sex=sex, **prov_table)
+        if flags:
+            prov["landmark_flags"] = {n: flags.get(n, "ok") for n in sorted(lm)}
+        options = dict(row_mm=row_mm, columns=columns, spread_mm=spread, nu=nu or D.FACE_NU.default,
+                       nv=nv or D.FACE_NV.default, neck_mm=neck_mm, sex=sex)
+        model = cls(names, bases, normals, depths, sds, grid, raw, profile, rule_sites, nose, mouth, options,
+                    prov, dict(flags or {}))
+        model.vertex_z = float(skull.vertices[:, 2].max())
+        model._grid_xyz = model._cyl(np.repeat(grid.z, columns), np.tile(grid.theta, K))
+        model.prepare_seconds = time.perf_counter() - t0
+        return model
+
+    # -------------------------------------------------------------------- the field
+    def _cyl(self, z, theta) -> np.ndarray:
+        """Sites on a cylinder of the mean radius: distances between them ~ distances over the head."""
+        rho = 85.0
+        return np.stack([rho * np.sin(theta), rho * np.cos(theta), np.asarray(z, float)], axis=-1)
+
+    def tips_for(self, depths: np.ndarray) -> np.ndarray:
+        return self.peg_bases + np.asarray(depths, float)[:, None] * self.peg_normals
+
+    def _offset_field(self, tips: np.ndarray) -> np.ndarray:
+        """(K, M) radial offset over the profile that passes through every tip (and rule site)."""
+        g = self.grid
+        sites = [np.asarray(tips, float)] + ([np.array([p for _, p, _ in self.rule_sites])] if self.rule_sites else [])
+        pts = np.concatenate(sites)
+        z, th, r = g.polar(pts)
+        target = r - g.sample(self.profile, z, th)                    # offset each site needs
+        xs = self._cyl(z, th)
+        sigma = self.options["spread_mm"]
+        # wide Shepard average with the rule depth
+        Wg = _kernel(self._grid_xyz, xs, sigma)                        # (G, n)
+        Ws = _kernel(xs, xs, sigma)
+        base_g = (Wg @ target + RULE_WEIGHT * RULE_DEPTH_MM) / (Wg.sum(1) + RULE_WEIGHT)
+        base_s = (Ws @ target + RULE_WEIGHT * RULE_DEPTH_MM) / (Ws.sum(1) + RULE_WEIGHT)
+        # narrow exact correction
+        s2 = NARROW_FRACTION * sigma
+        Phi = _kernel(xs, xs, s2)
+        w = np.linalg.solve(Phi + RBF_REGULARISATION * np.eye(len(xs)), target - base_s)
+        corr = _kernel(self._grid_xyz, xs, s2) @ w
+        return (base_g + corr).reshape(self.profile.shape)
+
+    def _peg_tip(self, tips: np.ndarray, *names) -> np.ndarray | None:
+        for n in names:
+            if n in self.peg_names:
+                return tips[self.peg_names.index(n)]
+        return None
+
+    def _nose_bump(self, base: np.ndarray, tips: np.ndarray) -> np.ndarray | None:
+        """Radial nose over the face ``base`` (K, M): the ridge from the soft nasion through pronasale to
+        subnasale (:func:`predict_nose`), placed on the current nasion and subspinale peg tips."""
+        nose = self.nose
+        n = self._peg_tip(tips, "Nasion", "Glabella")
+        ss = self._peg_tip(tips, "Subspinale", "Mid-philtrum")
+        if nose is None or n is None or ss is None:
+            return None
+        g = self.grid
+        zn, zs = float(n[2]), float(ss[2]) + 4.0
+        if zn - zs < 20.0:
+            return None
+        ys = float(ss[1])
+        zp, yp = zs + TIP_HEIGHT_FRACTION * (zn - zs), ys - nose["protrusion_mm"]
+        yn = float(n[1])
+        Z = g.z
+        ridge = np.full(Z.shape, np.nan)
+        up = (Z >= zp) & (Z <= zn)
+        t = (zn - Z[up]) / (zn - zp)
+        ridge[up] = yn + (yp - yn) * t ** 1.3                     # the dorsum, slightly concave under nasion
+        # pegs on the dorsum (rhinion, mid-nasal) are kept: the dorsum runs through their tips
+        on = [self._peg_tip(tips, nm) for nm in NOSE_DORSUM_PEGS]
+        on = sorted([(float(p[2]), float(p[1])) for p in on if p is not None and zp + 2.0 < p[2] < zn - 2.0])
+        if on:
+            zc = np.array([zp] + [a for a, _ in on] + [zn])
+            yc = np.array([yp] + [b for _, b in on] + [yn])
+            ridge[up] = np.interp(Z[up], zc, yc)
+        lo = (Z >= zs) & (Z < zp)
+        q = (zp - Z[lo]) / (zp - zs)
+        ridge[lo] = ys + (yp - ys) * np.sqrt(np.clip(1 - q * q, 0, 1))   # tip lobule and columella
+        rows = np.nonzero(np.isfinite(ridge))[0]
+        if rows.size == 0:
+            return None
+        cx, cy = g.centre
+        s, c = np.sin(g.theta), np.cos(g.theta)
+        front = c < -0.2
+        half = np.where(Z >= zp, NOSE_ROOT_HALF_MM + (0.5 * nose["width_mm"] - NOSE_ROOT_HALF_MM) * np.clip(1 - (Z - zp) / (zn - zp), 0, 1) ** 1.5,
+                        0.5 * nose["width_mm"])
+        bump = np.zeros_like(base)
+        mid_x = nose["mid_x"]
+        for k in rows:
+            # the ridge's radius on the midline ray vs the base's there
+            x = cx + base[k] * s                                   # where each ray meets the base face
+            dx = np.abs(x - mid_x)
+            jm = int(np.argmin(np.where(front, dx, np.inf)))
+            r_ridge = (ridge[k] - cy) / c[jm]
+            h = r_ridge - base[k, jm]
+            if h <= 0:
+                continue
+            w = np.clip(1 - (dx / half[k]) ** 1.8, 0, None) * front
+            bump[k] = h * w
+        return bump
+
+    # -------------------------------------------------------------------- solve
+    def _surface(self, radius: np.ndarray, nu=None, nv=None):
+        from .pde_surface import solve_pde
+
+        g = self.grid
+        curves = g.point(g.z[:, None], g.theta[None, :], radius)
+        bset = BoundarySet(curves, np.full(len(g.z), -1), g.z, knots_from_heights(g.z),
+                           meta={"vertex_z": self.vertex_z + RULE_DEPTH_MM, "parameterisation": "aligned"})
+        # The C2 spline's parameter (chord-length positions of the curves) and its smoothing (from the mean
+        # radius) are fixed by the first face solved, so a peg moved at the chin does not re-parameterise
+        # (slide) or re-smooth the whole head: only the curves near the peg change.
+        fixed = self.__dict__.setdefault("_pde_fixed", {})
+        if fixed:
+            cache = bset.__dict__.setdefault("_derived", {})
+            key = lambda name: (name, bset.curves.ctypes.data, bset.curves.shape)   # noqa: E731 (pde_surface's key)
+            cache[key("positions")] = fixed["positions"]
+            cache[key("radius")] = fixed["radius"]
+        head = solve_pde(bset, approximation_mm=0.0)
+        if not fixed:
+            from .pde_surface import _curve_positions, smoothing_range
+            smoothing_range(bset)                                # computes and caches the mean radius
+            fixed["positions"] = _curve_positions(bset)
+            fixed["radius"] = bset.__dict__["_derived"][("radius", bset.curves.ctypes.data, bset.curves.shape)]
+        return head
+
+    def _mesh(self, head, nu=None, nv=None) -> Mesh:
+        """The closed mesh of a solved face. The neck cap's vertex counts are fixed by the first face solved
+        at these (nu, nv), so every later solve (a dragged peg) gives the same topology: the Blender layer can
+        rewrite the positions in place."""
+        nu, nv = int(nu or self.options["nu"]), int(nv or self.options["nv"])
+        refs = self.__dict__.setdefault("_cap_refs", {})
+        if (nu, nv) not in refs:
+            refs[(nu, nv)] = head.cap_reference(nu, nv)
+        head.cap_reference = lambda _nu, _nv, _ref=refs[(nu, nv)]: _ref
+        return head.surface(nu, nv, caps=True)
+
+    def sd_faces(self, k: float = 1.0) -> tuple[FaceResult, FaceResult]:
+        """The faces at mean - k SD and mean + k SD at every peg (the range to show; depths never below 0;
+        a peg without an SD keeps its mean)."""
+        sd = np.nan_to_num(self.depth_sd, nan=0.0)
+        lo = self.solve(depths=np.maximum(self.default_depths - k * sd, 0.0))
+        hi = self.solve(depths=self.default_depths + k * sd)
+        for res, sign in ((lo, "-"), (hi, "+")):
+            res.provenance["depths"] = f"table mean {sign} {k:g} SD at every peg"
+        return lo, hi
+
+    def constant_depth(self, depth_mm: float) -> FaceResult:
+        """The peer: the bone's closed outer profile pushed out by one depth everywhere (no pegs, no nose)."""
+        head = self._surface(self.profile + float(depth_mm))
+        mesh = head.surface(int(self.options["nu"]), int(self.options["nv"]), caps=True)   # not live: own caps
+        prov = dict(self.provenance, method=f"constant depth {depth_mm:g} mm over the bone's closed profile")
+        return FaceResult(mesh, prov, {}, head=head)
+
+    def solve(self, *, depths: np.ndarray | None = None, tips: np.ndarray | None = None,
+              nu: int | None = None, nv: int | None = None) -> FaceResult:
+        """The face through the pegs at ``depths`` (mm, one per peg; default the table's means) or at
+        explicit peg-tip positions ``tips`` (patient mm, shape (n, 3): a dragged peg), which win."""
+        t0 = time.perf_counter()
+        if tips is None:
+            d = self.default_depths if depths is None else np.asarray(depths, float).reshape(-1)
+            if d.shape != self.default_depths.shape or not np.all(np.isfinite(d)):
+                raise PDEHeadError(f"depths: need {len(self.default_depths)} finite values, got {d.shape}")
+            tips = self.tips_for(d)
+        else:
+            tips = np.asarray(tips, float).reshape(-1, 3)
+            if tips.shape != self.peg_bases.shape or not np.all(np.isfinite(tips)):
+                raise PDEHeadError(f"tips: need {len(self.peg_bases)} finite points, got {tips.shape}")
+            d = np.einsum("ij,ij->i", tips - self.peg_bases, self.peg_normals)
+        offset = self._offset_field(tips)
+        radius = self.profile + offset
+        bump = self._nose_bump(radius, tips)
+        if bump is not None:
+            radius = radius + bump
+        t1 = time.perf_counter()
+        head = self._surface(radius)
+        t2 = time.perf_counter()
+        mesh = self._mesh(head, nu, nv)
+        t3 = time.perf_counter()
+        prov = dict(self.provenance)
+        if self.mouth is not None:
+            prov["predicted_mouth_width_mm"] = round(float(self.mouth["width_mm"]), 1)
+        prov["peg_depths_mm"] = {n: round(float(x), 2) for n, x in zip(self.peg_names, d)}
+        return FaceResult(mesh, prov, {"field": t1 - t0, "pde": t2 - t1, "mesh": t3 - t2, "total": t3 - t0},
+                          tips=tips, depths=d, head=head)
+
+
+def face_from_skull(skull: Mesh, landmarks: dict, table, **kw) -> FaceResult:
+    """Prepare and solve at the table's means: the face of a skull in one call (see :class:`FaceModel`)."""
+    solve_kw = {k: kw.pop(k) for k in ("depths", "tips") if k in kw}
+    model = FaceModel.prepare(skull, landmarks, table, **kw)
+    res = model.solve(**solve_kw)
+    res.timings["prepare"] = model.prepare_seconds
+    return res
