@@ -154,7 +154,7 @@ def face_model(coll):
         lms = {k: np.array(v, float) for k, v in opts["landmarks"].items()}
         with state.Timer() as t:
             model = _engine().FaceModel.prepare(skull_mesh(coll), lms, table, sex=opts.get("sex"),
-                                                **opts.get("options", {}))
+                                                flags=opts.get("flags"), **opts.get("options", {}))
         cache.update(face_model=model, face_build=opts["build"], face_tips=None, face_prepare_s=t.seconds)
     return cache["face_model"]
 
@@ -281,7 +281,7 @@ def build_face(coll) -> tuple:
     """Build the face of the study (skull and landmarks made first when missing): (face object, pegs)."""
     from . import objects
     from .forensic_study import (BASE_MATRIX_KEY, FRANKFURT_KEY, _frankfurt, _material, _set_material,
-                                 find_landmarks, landmarks, make_pegs, step_skull)
+                                 find_landmarks, flag_names, landmarks, make_pegs, step_skull)
 
     s = state.settings(coll)
     if _obj(coll, "pdehead_bone_object") is None:
@@ -291,13 +291,14 @@ def build_face(coll) -> tuple:
     table = face_table(coll)
     lms = landmarks(coll)
     sex = _sex(coll)
+    flags = flag_names(coll)
     with state.Timer() as t:
-        model = _engine().FaceModel.prepare(skull_mesh(coll), lms, table, sex=sex)
+        model = _engine().FaceModel.prepare(skull_mesh(coll), lms, table, sex=sex, flags=flags)
     if not len(model.peg_names):
         raise PDEHeadError(f"none of the landmarks ({', '.join(lms) or 'none'}) is in the depth table "
                            f"'{table.label}': no peg to build the face through")
     build = uuid.uuid4().hex
-    coll[FACE_OPTIONS_KEY] = json.dumps(dict(build=build, table=table.to_json(), sex=sex, options={},
+    coll[FACE_OPTIONS_KEY] = json.dumps(dict(build=build, table=table.to_json(), sex=sex, options={}, flags=flags,
                                              landmarks={k: [float(c) for c in v] for k, v in lms.items()},
                                              pegs=list(model.peg_names)))
     _cache(coll).update(face_model=model, face_build=build, face_tips=None, face_prepare_s=t.seconds)
