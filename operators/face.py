@@ -198,8 +198,10 @@ def peg_tips(coll, names: list[str]) -> np.ndarray:
     return tips
 
 
-def _write_positions(coll, obj, mesh) -> None:
-    """The face mesh's vertex positions rewritten in place (same topology), else the mesh refilled."""
+def _write_positions(coll, obj, mesh) -> bool:
+    """The face mesh's vertex positions rewritten in place (same topology: the fast path), else the same
+    mesh datablock refilled (the face's caps may gain or lose a vertex between two solves). Returns
+    whether it was refilled."""
     from . import objects
 
     me = obj.data
@@ -207,8 +209,9 @@ def _write_positions(coll, obj, mesh) -> None:
         local = np.asarray(mesh.vertices, np.float64) * MM_TO_M - np.asarray(objects.study_origin(coll))
         me.attributes["position"].data.foreach_set("vector", np.ascontiguousarray(local, np.float32).ravel())
         me.update()
-    else:
-        objects.build_mesh_object(mesh, coll, obj.name, obj=obj, smooth=True)
+        return False
+    objects.build_mesh_object(mesh, coll, obj.name, obj=obj, smooth=True)
+    return True
 
 
 def _provenance(coll, result, table) -> dict:
@@ -244,13 +247,15 @@ def solve_face(coll, tips: np.ndarray | None = None, table=None) -> dict:
     t1 = time.perf_counter()
     result = model.solve(tips=tips)
     t2 = time.perf_counter()
-    _write_positions(coll, obj, result.mesh)
+    refilled = _write_positions(coll, obj, result.mesh)
     obj[TIPS_PROP] = [float(v) for v in tips.ravel()]
     if table is not None:
         obj[PROVENANCE_PROP] = json.dumps(_provenance(coll, result, table))
     t3 = time.perf_counter()
     _cache(coll)["face_tips"] = tips
-    timings = {"tips": t1 - t0, "solve": t2 - t1, "write": t3 - t2, "total": t3 - t0}
+    timings = {"tips": t1 - t0, "solve": t2 - t1, "write": t3 - t2, "total": t3 - t0, "refilled": refilled,
+               "engine": dict(result.timings)}
+    _cache(coll)["face_timings"] = timings
     obj["pdehead_face_ms"] = round(1000 * timings["total"], 1)
     return timings
 
