@@ -92,6 +92,16 @@ def test_build_face_and_live_pegs(pdehead_ext, face_blend, tmp_path):
     gap = np.array([np.linalg.norm(verts - t, axis=1).min() for t in tips])
     assert np.median(gap) < 1.5, dict(zip(names, gap.round(1)))         # measured 0.78 mm (largest 4.3)
 
+    # the panel's Face from Skull section: table, Find Landmarks, Build Face, the label, the pegs' depths
+    from types import SimpleNamespace
+    from panel_recorder import RecordingLayout
+    forensic = sys.modules[f"{pdehead_ext.__name__}.operators.forensic"]
+    log = []
+    forensic.PDEHEAD_PT_forensic.draw(SimpleNamespace(layout=RecordingLayout(log)), bpy.context)
+    assert ("operator", "pdehead.build_face") in log and ("operator", "pdehead.face_sd_range") in log
+    assert ("prop", "face_table") in log and ("label", obj[face.LABEL_PROP]) in log
+    assert sum(1 for x in log if x[0] == "prop" and x[1] == '["depth_mm"]') == len(names)
+
     # drag: one peg 4 mm outward along its normal -> the face near it follows, far away it does not move
     name = "Glabella" if "Glabella" in pegs else names[0]
     i = names.index(name)
