@@ -426,7 +426,7 @@ class PDEHEAD_PT_forensic(Panel):
                      icon='EMPTY_SINGLE_ARROW').default_table = True
         row.operator(PDEHEAD_OT_import_depth_table.bl_idname, text="Depth Table...", icon='IMPORT')
         pegs = [o for o in coll.all_objects if "pdehead_peg" in o and PEG_DEPTH_PROP in o]
-        if pegs:
+        if pegs and coll.get("pdehead_face_object") is None:     # with a face: in its section below
             col = box.column(align=True)
             col.label(text=f"Peg depth (mm), {pegs[0].get('table_name', '')}: mean +- 2 SD")
             for peg in pegs[:40]:
