@@ -63,9 +63,13 @@ RULE_WEIGHT = 0.04
 #: 2001, Obesity Research 9(8):470-477: men 38.0 cm, women 32.5 cm mean) -> radius ~ 55-60 mm.
 NECK_RADIUS_MM = 57.0
 NECK_BEHIND_MM = 12.0
+#: How fast the neck recedes below the skull base (mm per mm of height: 0.8 ~ a 40 degree slope).
+NECK_SLOPE = 0.8
 #: Closing of the bone's radius map: how wide a gap (mm) the envelope bridges (the orbit is ~ 40 mm wide,
 #: the nasal aperture ~ 25 mm).
-CLOSING_MM = 36.0
+CLOSING_MM = 15.0
+#: Radius (mm) over which the bone's normal at a landmark is averaged (:func:`peg_normals`).
+PEG_NORMAL_RADIUS_MM = 8.0
 #: Regularisation of the exact peg interpolation (relative to the kernel's unit diagonal).
 RBF_REGULARISATION = 1e-3
 
@@ -98,8 +102,18 @@ class _Grid:
                 + a * (1 - b) * table[k1, j0] + a * b * table[k1, j1])
 
 
-def bone_profile(skull: Mesh, grid: _Grid, closing_mm: float = CLOSING_MM) -> tuple[np.ndarray, np.ndarray]:
+def bone_profile(skull: Mesh, grid: _Grid, base_z: float | None = None,
+                 closing_mm: float = CLOSING_MM) -> tuple[np.ndarray, np.ndarray]:
     """The bone's outer radius per (row, column) bin and its closed envelope.
+
+    1. per bin the outermost skull vertex (NaN where the ray meets no bone);
+    2. gaps inside a column are interpolated along the height; below ``base_z`` (the skull base) the neck
+       rule of :func:`_neck_fill`;
+    3. per row the 2-D convex hull of the ring: the envelope a skin stretched over the bone would take
+       across the orbits, the nasal aperture, the temporal fossae and the cheeks (between the zygoma and
+       the mandible), where no depth is measured;
+    4. a grey closing over ``closing_mm`` of height (the vertical gaps, e.g. the nasal aperture above the
+       maxilla) and a light Gaussian smoothing (1.5 mm, 1 column).
 
     Returns
     -------
@@ -116,58 +130,128 @@ def bone_profile(skull: Mesh, grid: _Grid, closing_mm: float = CLOSING_MM) -> tu
     np.maximum.at(raw, k[ok] * M + j[ok], r[ok])
     raw = raw.reshape(K, M)
     raw[~np.isfinite(raw)] = np.nan
-    filled = _neck_fill(raw, grid)
-    mean_r = float(np.nanmean(raw))
+    filled = _neck_fill(raw, grid, base_z)
+    hull = _row_hulls(filled, grid.theta)
     kz = max(1, int(round(closing_mm / dz)))
-    kt = max(1, int(round(closing_mm / (mean_r * 2 * np.pi / M))))
-    # close in (row, angle): periodic in the angle, edge rows repeated
     pad = kz
-    padded = np.pad(filled, ((pad, pad), (0, 0)), mode="edge")
-    closed = ndimage.grey_closing(padded, size=(kz, kt), mode="wrap")[pad:-pad]
-    # the closing must not reach below the bone (it only fills dips): max with the filled map
-    closed = np.maximum(closed, filled)
+    padded = np.pad(hull, ((pad, pad), (0, 0)), mode="edge")
+    closed = ndimage.grey_closing(padded, size=(kz, 1), mode="wrap")[pad:-pad]
+    closed = np.maximum(closed, hull)
     sm = ndimage.gaussian_filter(np.pad(closed, ((pad, pad), (0, 0)), mode="edge"),
-                                 sigma=(1.5 / dz * 1.0, 1.0), mode="wrap")[pad:-pad]
+                                 sigma=(1.5 / dz, 1.0), mode="wrap")[pad:-pad]
     return raw, sm
 
 
-def _neck_fill(raw: np.ndarray, grid: _Grid) -> np.ndarray:
-    """Fill bins that meet no bone.
+def _row_hulls(radius: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """Per row, the radius along each column's ray of the 2-D convex hull of the row's ring."""
+    from scipy.spatial import ConvexHull
 
-    Above the skull's top row the top is repeated. Below the bone (the neck behind the mandible,
-    under the chin) each column continues from the lowest bone above it toward the neck, a circle of
-    :data:`NECK_RADIUS_MM` about an axis :data:`NECK_BEHIND_MM` behind the skull's axis, receding by at
-    most 1 mm per mm of height (a 45 degree submental slope): a rule, not a measurement of this head.
+    out = radius.copy()
+    s, c = np.sin(theta), np.cos(theta)
+    for k in range(radius.shape[0]):
+        xy = np.column_stack([radius[k] * s, radius[k] * c])
+        try:
+            idx = ConvexHull(xy).vertices
+        except Exception:                                     # degenerate row: keep it
+            continue
+        idx = np.sort(idx)                                    # hull vertices in angle order (rays are ordered)
+        # between consecutive hull vertices a and b, a ray at angle t meets the chord a-b
+        nxt = np.roll(idx, -1)
+        for a, b in zip(idx, nxt):
+            span = (np.arange(a, b + (len(theta) if b <= a else 0) + 1)) % len(theta)
+            pa, pb = xy[a], xy[b]
+            d = np.column_stack([s[span], c[span]])
+            e = pb - pa
+            # solve t * d = pa + u * e  ->  t = cross(pa, e) / cross(d, e)
+            den = d[:, 0] * e[1] - d[:, 1] * e[0]
+            num = pa[0] * e[1] - pa[1] * e[0]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = np.where(np.abs(den) > 1e-12, num / den, radius[k, span])
+            out[k, span] = np.maximum(radius[k, span], np.where(np.isfinite(t) & (t > 0), t, radius[k, span]))
+    return out
+
+
+def _neck_fill(raw: np.ndarray, grid: _Grid, base_z: float | None = None) -> np.ndarray:
+    """Fill bins that meet no bone, and shape the neck below the skull base.
+
+    Gaps inside a column are interpolated along the height; above the skull's top row the top is
+    repeated. Below ``base_z`` (the skull base) the rays meet the mandible, the mastoids and what is
+    left of the upper cervical spine, none of which is the neck's outline: there each column keeps its
+    bone where the bone lies further out, and otherwise recedes from the row above by at most
+    :data:`NECK_SLOPE` mm per mm of height (the occiput's curve into the nape, the chin's into the
+    throat) down to the neck, a circle of :data:`NECK_RADIUS_MM` about an axis :data:`NECK_BEHIND_MM`
+    behind the skull's axis. A rule, not a measurement of this head.
     """
     K, M = raw.shape
     out = raw.copy()
-    # columns empty in the middle (rays through gaps above bone): interpolate along z per column first
-    for j in range(M):
-        col = out[:, j]
-        good = np.isfinite(col)
-        if good.sum() >= 2:
-            lo, hi = np.nonzero(good)[0][[0, -1]]
-            idx = np.arange(lo, hi + 1)
-            col[lo:hi + 1] = np.interp(idx, np.nonzero(good)[0], col[good])
-    # neck radius per column: distance from the skull axis to the neck circle along the ray
+    good = np.isfinite(out)
+    rows = np.arange(K)
+    for j in np.nonzero(good.sum(0) >= 2)[0]:                 # gaps inside a column (per column: 180 at most)
+        gi = np.nonzero(good[:, j])[0]
+        inside = (rows >= gi[0]) & (rows <= gi[-1])
+        out[inside, j] = np.interp(rows[inside], gi, out[gi, j])
     th = grid.theta
     b = NECK_BEHIND_MM
-    # ray from the axis centre c in direction (sin th, cos th); neck centre at c + (0, b)
-    proj = b * np.cos(th)
-    neck = proj + np.sqrt(np.maximum(NECK_RADIUS_MM ** 2 - (b * np.sin(th)) ** 2, 1.0))
+    neck = b * np.cos(th) + np.sqrt(np.maximum(NECK_RADIUS_MM ** 2 - (b * np.sin(th)) ** 2, 1.0))
     dz = grid.z[1] - grid.z[0]
-    top = np.nanmax(np.where(np.isfinite(out), np.arange(K)[:, None], -1), axis=0)
-    for k in range(K - 2, -1, -1):                    # downward: from the row above
-        miss = ~np.isfinite(out[k]) & np.isfinite(out[k + 1])
-        if np.any(miss):
-            above = out[k + 1, miss]
-            out[k, miss] = np.maximum(np.minimum(above, neck[miss]), above - dz)
-    for k in range(1, K):                             # upward (above the top): repeat
+    top = int(np.nonzero(np.isfinite(out).any(1))[0].max()) if np.isfinite(out).any() else K - 1
+    kb = top if base_z is None else int(np.clip(np.floor((base_z - grid.z[0]) / dz), 0, top))
+    for k in range(kb - 1, -1, -1):                           # downward from the skull base
+        above = out[k + 1]
+        bone = np.where(np.isfinite(out[k]), out[k], -np.inf)
+        out[k] = np.maximum(bone, np.maximum(np.minimum(above, neck), above - NECK_SLOPE * dz))
+    for k in range(1, K):                                     # above the top: repeat
         miss = ~np.isfinite(out[k]) & np.isfinite(out[k - 1])
         out[k, miss] = out[k - 1, miss]
-    if not np.all(np.isfinite(out)):                  # whole rows missing: the mean of the map
-        out[~np.isfinite(out)] = float(np.nanmean(out)) if np.isfinite(np.nanmean(out)) else NECK_RADIUS_MM
-    del top
+    for k in range(K - 2, -1, -1):
+        miss = ~np.isfinite(out[k]) & np.isfinite(out[k + 1])
+        out[k, miss] = out[k + 1, miss]
+    if not np.all(np.isfinite(out)):
+        out[~np.isfinite(out)] = NECK_RADIUS_MM
+    return out
+
+
+def envelope_normals(grid: _Grid, profile: np.ndarray, points: np.ndarray, smooth_mm: float = 3.0) -> np.ndarray:
+    """Outward unit normals of the closed profile (the surface r = profile(z, angle)) at the points' bins."""
+    dz = grid.z[1] - grid.z[0]
+    R = ndimage.gaussian_filter(profile, sigma=(smooth_mm / dz, 1.0), mode=("nearest", "wrap"))
+    Rz = np.gradient(R, dz, axis=0)
+    dth = grid.theta[1] - grid.theta[0]
+    Rt = (np.roll(R, -1, axis=1) - np.roll(R, 1, axis=1)) / (2 * dth)
+    z, th, _ = grid.polar(points)
+    r, rz, rt = grid.sample(R, z, th), grid.sample(Rz, z, th), grid.sample(Rt, z, th)
+    s, c = np.sin(th), np.cos(th)
+    d_th = np.stack([rt * s + r * c, rt * c - r * s, np.zeros_like(r)], -1)
+    d_z = np.stack([rz * s, rz * c, np.ones_like(r)], -1)
+    n = np.cross(d_th, d_z)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    radial = np.stack([s, c, np.zeros_like(s)], -1)
+    return np.where((np.einsum("ij,ij->i", n, radial) < 0)[:, None], -n, n)
+
+
+def peg_normals(skull: Mesh, bases: np.ndarray, grid: _Grid, profile: np.ndarray,
+                radius_mm: float = PEG_NORMAL_RADIUS_MM) -> np.ndarray:
+    """The direction each peg stands in: the bone's outward normal at the landmark, averaged over the bone
+    surface within ``radius_mm`` (area-weighted; a single triangle's normal on a thin or fragmentary bone,
+    e.g. the maxilla at the bone level, points anywhere); where that still points more than 60 degrees
+    away from the closed profile's outward normal (a bone fragment facing inward), the profile's normal.
+    The T-Table's convention is a depth measured along the bone normal at the landmark."""
+    from scipy.spatial import cKDTree
+
+    v, t = skull.vertices, skull.triangles
+    if len(skull.quads):
+        t = np.concatenate([t, skull.quads[:, [0, 1, 2]], skull.quads[:, [0, 2, 3]]])
+    a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
+    fn = np.cross(b - a, c - a)                                    # area-weighted (|fn| = 2 area)
+    tree = cKDTree((a + b + c) / 3.0)
+    env = envelope_normals(grid, profile, bases)
+    out = np.empty_like(bases)
+    for i, p in enumerate(bases):
+        idx = tree.query_ball_point(p, radius_mm)
+        n = fn[idx].sum(axis=0) if idx else env[i]
+        norm = np.linalg.norm(n)
+        n = n / norm if norm > 0 else env[i]
+        out[i] = n if float(n @ env[i]) >= 0.5 else env[i]
     return out
 
 
@@ -210,42 +294,71 @@ def predict_eyes(landmarks: dict) -> list[tuple[str, np.ndarray, float]]:
     return out
 
 
+#: Nasal tip protrusion (subnasale to pronasale, mm) and alar width (mm) of adults, both sexes pooled:
+#: Farkas LG (1994) Anthropometry of the Head and Face, 2nd ed., New York: Raven Press (North American
+#: Caucasian norms: sn-prn about 20 mm in men and 19 mm in women; al-al about 35 and 31 mm), as quoted in
+#: the forensic literature on nose prediction (e.g. Rynn, Wilkinson & Peters 2010, below).
+NOSE_PROTRUSION_MM = 19.5
+NOSE_ALAR_WIDTH_MM = 33.0
+#: Krogman's rule: the alae lie about 5 mm lateral of the nasal aperture's widest point on each side
+#: (Krogman WM, Iscan MY (1986) The Human Skeleton in Forensic Medicine, 2nd ed., Springfield: Thomas).
+ALAR_MARGIN_MM = 5.0
+#: Where pronasale sits between subnasale and soft nasion (fraction of the nasal height): a proportion of
+#: the average profile (sn-prn height ~ 15 mm of ~ 52 mm n-sn in Farkas' norms), not a regression.
+TIP_HEIGHT_FRACTION = 0.3
+
+
+def aperture_width(skull: Mesh, subspinale: np.ndarray, mid_x: float) -> float | None:
+    """Widest breadth (mm) of the nasal aperture: at heights 6-20 mm above subspinale, the widest gap around
+    the midline between the front bone (within 25 mm behind subspinale) on the two sides. None if not seen."""
+    v = skull.vertices
+    best = None
+    for dz in np.arange(6.0, 21.0, 2.0):
+        m = (np.abs(v[:, 2] - (subspinale[2] + dz)) < 1.0) & (v[:, 1] < subspinale[1] + 25.0)
+        x = v[m, 0]
+        left, right = x[x > mid_x + 2.0], x[x < mid_x - 2.0]
+        if left.size and right.size:
+            w = float(left.min() - right.max())
+            if 12.0 < w < 45.0 and (best is None or w > best):
+                best = w
+    return best
+
+
 def predict_nose(landmarks: dict, skull: Mesh | None = None) -> dict | None:
-    """The nose: pronasale and the nasal profile from the nasal aperture and the anterior nasal spine.
+    """The nose: what of it the bone predicts (its width, its base), the rest from population norms.
 
-    Method (the "threefold ANS" rule): the nose projects from the face about three times the length of
-    the anterior nasal spine - Prokopec M, Ubelaker DH (2002), "Reconstructing the shape of the nose
-    according to the skull", Forensic Science Communications 4(1), after Gerasimov MM (1955) - as
-    implemented in esomjai/Forensic-Craniofacial-Approximation-Validation-Tool, "Nose predictions/
-    Threefold ANS GUI.md". The nose's width at the alae is the aperture's width plus ~ 10 mm on each
-    side... here: the aperture width (alare curvature L-R) x 1.5, after Rynn C, Wilkinson CM, Peters HL
-    (2010), "Prediction of nasal morphology from the skull", Forensic Sci Med Pathol 6(1):20-34 (alar
-    width ~ 1.5 x... aperture width, their fig. / table of regressions) - a rounded rule, not their
-    regression.
+    * *Width*: the alar width is the nasal aperture's greatest breadth plus ``2 x ALAR_MARGIN_MM``
+      (Krogman & Iscan 1986: the alae lie ~5 mm lateral of the aperture on each side); where the aperture
+      is not seen, ``NOSE_ALAR_WIDTH_MM`` (Farkas 1994). Rynn C, Wilkinson CM, Peters HL (2010),
+      "Prediction of nasal morphology from the skull", Forensic Sci Med Pathol 6(1):20-34, found the
+      aperture's width the best bony predictor of the alar width.
+    * *Base*: soft subnasale at the height of the anterior nasal spine (4 mm above subspinale) on the
+      subspinale peg's tip (its tissue depth from the table); soft nasion at the nasion peg's tip.
+    * *Pronasale*: ``NOSE_PROTRUSION_MM`` in front of subnasale (Farkas 1994 tip protrusion), at
+      ``TIP_HEIGHT_FRACTION`` of the nasal height above subnasale.
 
-    The spine length is taken as the horizontal distance from subspinale to the most anterior bone
-    point of the midline between subspinale and 15 mm above it (the spine's tip, acanthion).
+    The threefold-ANS rule (Gerasimov 1955; Prokopec M, Ubelaker DH (2002) "Reconstructing the shape of
+    the nose according to the skull", Forensic Sci Commun 4(1); implemented in esomjai/Forensic-
+    Craniofacial-Approximation-Validation-Tool, "Nose predictions/Threefold ANS GUI.md": pronasale = the
+    soft mid-philtrum + 3 x the spine's length along the spine) needs the anterior nasal spine, a thin
+    bone that a binary mask at the bone level rarely keeps (on CThead it is not in the mask); it is not
+    used.
+
+    Returns the constant parts (``width_mm``, ``mid_x``); :meth:`FaceModel._nose_bump` places the nose on
+    the current peg tips.
     """
     n = _pt(landmarks, "Nasion", "Glabella")
-    ss = _pt(landmarks, "Subspinale")
+    ss = _pt(landmarks, "Subspinale", "Mid-philtrum")
     if n is None or ss is None:
         return None
-    tip = ss.copy()
+    mid_x = 0.5 * (n[0] + ss[0])
+    width, source = NOSE_ALAR_WIDTH_MM, "Farkas 1994 mean alar width"
     if skull is not None:
-        v = skull.vertices
-        near = (np.abs(v[:, 0] - ss[0]) < 3.0) & (v[:, 2] > ss[2]) & (v[:, 2] < ss[2] + 15.0)
-        if np.any(near):
-            tip = v[near][np.argmin(v[near, 1])]
-    spine = max(float(ss[1] - tip[1]), 0.0)
-    spine = float(np.clip(spine, 3.0, 12.0))            # a broken or unseen spine: within the adult range
-    width = 34.0
-    ac = [_pt(landmarks, f"Alare curvature {s}") for s in "LR"]
-    if ac[0] is not None and ac[1] is not None:
-        aw = abs(ac[0][0] - ac[1][0])
-        if 15.0 < aw < 40.0:
-            width = 1.5 * aw
-    return dict(acanthion=tip, spine_mm=spine, projection_mm=3.0 * spine, nasion=n, subspinale=ss,
-                alar_width_mm=width)
+        ap = aperture_width(skull, ss, mid_x)
+        if ap is not None:
+            width, source = ap + 2 * ALAR_MARGIN_MM, f"aperture {ap:.1f} mm + 2 x {ALAR_MARGIN_MM:g} mm (Krogman)"
+    return dict(width_mm=float(width), width_source=source, mid_x=float(mid_x),
+                protrusion_mm=NOSE_PROTRUSION_MM)
 
 
 def predict_mouth(landmarks: dict) -> dict | None:
@@ -276,8 +389,11 @@ class FaceResult:
 
 
 def _kernel(a: np.ndarray, b: np.ndarray, sigma: float) -> np.ndarray:
-    d2 = ((a[:, None, :] - b[None, :, :]) ** 2).sum(-1)
-    return np.exp(-d2 / (sigma * sigma))
+    """Gaussian kernel exp(-|a_i - b_j|^2 / sigma^2), (len(a), len(b)), float32-free but allocation-light."""
+    d2 = (a * a).sum(1)[:, None] + (b * b).sum(1)[None, :] - 2.0 * (a @ b.T)
+    np.maximum(d2, 0.0, out=d2)
+    d2 *= -1.0 / (sigma * sigma)
+    return np.exp(d2, out=d2)
 
 
 @dataclass
@@ -344,8 +460,6 @@ class FaceModel:
                                "for a face (run Find Landmarks)")
         names = [p[0] for p in pegs]
         bases = np.array([p[1] for p in pegs])
-        normals = np.array([p[2] for p in pegs])
-        normals /= np.linalg.norm(normals, axis=1, keepdims=True)
         depths = np.array([p[3] for p in pegs], float)
         sd_of = getattr(table, "sd", None)
         sds = np.array([(sd_of(n) if sd_of else None) or np.nan for n in names], float)
@@ -355,7 +469,12 @@ class FaceModel:
         zhi = float(skull.vertices[:, 2].max()) - 4.0
         K = max(8, int(np.ceil((zhi - zlo) / row_mm)) + 1)
         grid = _Grid(centre, np.linspace(zlo, zhi, K), np.arange(columns) * 2 * np.pi / columns)
-        raw, profile = bone_profile(skull, grid)
+        base_z = None
+        po = [lm[n] for n in ("Porion L", "Porion R") if n in lm]
+        if po:
+            base_z = float(np.mean([p[2] for p in po])) - 15.0   # the skull base, ~15 mm below the ear canals
+        raw, profile = bone_profile(skull, grid, base_z)
+        normals = peg_normals(skull, bases, grid, profile)
         rule_sites = [(n, p, w) for n, p, w in predict_eyes(lm)]
         nose = predict_nose(lm, skull)
         mouth = predict_mouth(lm)
@@ -404,34 +523,80 @@ class FaceModel:
         corr = _kernel(self._grid_xyz, xs, s2) @ w
         return (base_g + corr).reshape(self.profile.shape)
 
-    def _nose_bump(self) -> np.ndarray | None:
-        """Radial nose added to the face (K, M): pronasale projection from :func:`predict_nose`."""
+    def _peg_tip(self, tips: np.ndarray, *names) -> np.ndarray | None:
+        for n in names:
+            if n in self.peg_names:
+                return tips[self.peg_names.index(n)]
+        return None
+
+    def _nose_bump(self, base: np.ndarray, tips: np.ndarray) -> np.ndarray | None:
+        """Radial nose over the face ``base`` (K, M): the ridge from the soft nasion through pronasale to
+        subnasale (:func:`predict_nose`), placed on the current nasion and subspinale peg tips."""
         nose = self.nose
-        if nose is None:
+        n = self._peg_tip(tips, "Nasion", "Glabella")
+        ss = self._peg_tip(tips, "Subspinale", "Mid-philtrum")
+        if nose is None or n is None or ss is None:
             return None
         g = self.grid
-        n, ss, ac = nose["nasion"], nose["subspinale"], nose["acanthion"]
-        z_top, z_bot = n[2] - 8.0, ac[2] - 4.0                       # the nose from below nasion to subnasale
-        z_prn = z_bot + 0.25 * (z_top - z_bot)                         # pronasale about 1/4 up from subnasale
-        zc, thc, _ = g.polar(0.5 * (n + ss))
-        Z = g.z[:, None]
-        arc = np.angle(np.exp(1j * (g.theta[None, :] - thc))) * 70.0  # mm across the face at ~70 mm radius
-        proj = nose["projection_mm"]
-        # profile: rises linearly from the top to the pronasale, falls steeply to the subnasale
-        up = np.clip((z_top - Z) / max(z_top - z_prn, 1.0), 0.0, 1.0)
-        down = np.clip((Z - z_bot) / max(z_prn - z_bot, 1.0), 0.0, 1.0)
-        height = proj * np.where(Z >= z_prn, up, np.sqrt(down)) * ((Z <= z_top) & (Z >= z_bot - 2.0))
-        half = 0.5 * nose["alar_width_mm"] * np.where(Z >= z_prn, 0.45 + 0.55 * (1 - up), 1.0)
-        across = np.exp(-(arc / np.maximum(half, 1.0)) ** 4 * 1.5) * (1 - (arc / (half * 1.6)) ** 2).clip(0)
-        return height * across
+        zn, zs = float(n[2]), float(ss[2]) + 4.0
+        if zn - zs < 20.0:
+            return None
+        ys = float(ss[1])
+        zp, yp = zs + TIP_HEIGHT_FRACTION * (zn - zs), ys - nose["protrusion_mm"]
+        yn = float(n[1])
+        Z = g.z
+        ridge = np.full(Z.shape, np.nan)
+        up = (Z >= zp) & (Z <= zn)
+        t = (zn - Z[up]) / (zn - zp)
+        ridge[up] = yn + (yp - yn) * t ** 1.3                     # the dorsum, slightly concave under nasion
+        lo = (Z >= zs) & (Z < zp)
+        q = (zp - Z[lo]) / (zp - zs)
+        ridge[lo] = ys + (yp - ys) * np.sqrt(np.clip(1 - q * q, 0, 1))   # tip lobule and columella
+        rows = np.nonzero(np.isfinite(ridge))[0]
+        if rows.size == 0:
+            return None
+        cx, cy = g.centre
+        s, c = np.sin(g.theta), np.cos(g.theta)
+        front = c < -0.2
+        half = np.where(Z >= zp, 6.0 + (0.5 * nose["width_mm"] - 6.0) * np.clip(1 - (Z - zp) / (zn - zp), 0, 1) ** 1.5,
+                        0.5 * nose["width_mm"])
+        bump = np.zeros_like(base)
+        mid_x = nose["mid_x"]
+        for k in rows:
+            # the ridge's radius on the midline ray vs the base's there
+            x = cx + base[k] * s                                   # where each ray meets the base face
+            dx = np.abs(x - mid_x)
+            jm = int(np.argmin(np.where(front, dx, np.inf)))
+            r_ridge = (ridge[k] - cy) / c[jm]
+            h = r_ridge - base[k, jm]
+            if h <= 0:
+                continue
+            w = np.clip(1 - (dx / half[k]) ** 1.8, 0, None) * front
+            bump[k] = h * w
+        return bump
 
     # -------------------------------------------------------------------- solve
+    def _surface(self, radius: np.ndarray, nu=None, nv=None):
+        from .pde_surface import solve_pde
+
+        g = self.grid
+        curves = g.point(g.z[:, None], g.theta[None, :], radius)
+        bset = BoundarySet(curves, np.full(len(g.z), -1), g.z, knots_from_heights(g.z),
+                           meta={"vertex_z": self.vertex_z + RULE_DEPTH_MM, "parameterisation": "aligned"})
+        head = solve_pde(bset, approximation_mm=0.0)
+        return head
+
+    def constant_depth(self, depth_mm: float) -> FaceResult:
+        """The peer: the bone's closed outer profile pushed out by one depth everywhere (no pegs, no nose)."""
+        head = self._surface(self.profile + float(depth_mm))
+        mesh = head.surface(int(self.options["nu"]), int(self.options["nv"]), caps=True)
+        prov = dict(self.provenance, method=f"constant depth {depth_mm:g} mm over the bone's closed profile")
+        return FaceResult(mesh, prov, {}, head=head)
+
     def solve(self, *, depths: np.ndarray | None = None, tips: np.ndarray | None = None,
               nu: int | None = None, nv: int | None = None) -> FaceResult:
         """The face through the pegs at ``depths`` (mm, one per peg; default the table's means) or at
         explicit peg-tip positions ``tips`` (patient mm, shape (n, 3): a dragged peg), which win."""
-        from .pde_surface import solve_pde
-
         t0 = time.perf_counter()
         if tips is None:
             d = self.default_depths if depths is None else np.asarray(depths, float).reshape(-1)
@@ -445,15 +610,11 @@ class FaceModel:
             d = np.einsum("ij,ij->i", tips - self.peg_bases, self.peg_normals)
         offset = self._offset_field(tips)
         radius = self.profile + offset
-        bump = self._nose_bump()
+        bump = self._nose_bump(radius, tips)
         if bump is not None:
             radius = radius + bump
         t1 = time.perf_counter()
-        g = self.grid
-        curves = g.point(g.z[:, None], g.theta[None, :], radius)
-        bset = BoundarySet(curves, np.full(len(g.z), -1), g.z, knots_from_heights(g.z),
-                           meta={"vertex_z": self.vertex_z + RULE_DEPTH_MM, "parameterisation": "aligned"})
-        head = solve_pde(bset, approximation_mm=0.0)
+        head = self._surface(radius)
         t2 = time.perf_counter()
         mesh = head.surface(int(nu or self.options["nu"]), int(nv or self.options["nv"]), caps=True)
         t3 = time.perf_counter()

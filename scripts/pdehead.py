@@ -99,6 +99,10 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "between the air and bone modes)")
     f.add_argument("--skull-mesh", type=Path, metavar="FILE",
                    help="a skull mesh (STL/PLY/OBJ in mm, e.g. a surface scan) instead of a CT; implies --skull")
+    f.add_argument("--face-from-skull", action="store_true",
+                   help="with --export DIR: also approximate the face from the bone skull, its landmarks and the "
+                        "depth table (a PDE face through the tissue-depth pegs) and write face.<fmt> (closed, patient "
+                        "mm; an approximation, not an identification); implies --skull")
     p.add_argument("--render-samples", type=int, default=16, help="Cycles samples; default 16")
     a = p.add_argument_group("animation")
     a.add_argument("--turntable", type=int, metavar="N",
@@ -131,6 +135,10 @@ def parse_args(argv=None) -> argparse.Namespace:
         if args.bone_level is not None:
             p.error("--bone-level applies to a CT, not to --skull-mesh")
         args.input, args.skull = str(args.skull_mesh), True
+    if args.face_from_skull:
+        if args.export is None:
+            p.error("--face-from-skull needs --export DIR (where face.<fmt>, skull.<fmt> and landmarks.csv go)")
+        args.skull = True
     if args.bone_level is not None:
         try:
             D.BONE_LEVEL.check(args.bone_level, "--bone-level")
@@ -546,8 +554,9 @@ def _steps(args, bpy, addon, state) -> dict:
         # no landmarks given: the automatic ones (issue 22), each with its flag
         if not addon.operators.forensic_study.landmarks(coll):
             _call(ops.find_landmarks)
+        face = _face_from_skull(addon, coll) if args.face_from_skull else None
         if args.export:
-            _call(ops.export_print, directory=str(args.export.resolve()), format=args.export_format)
+            _export_with_face(args, ops, addon, face)
     total = time.perf_counter() - t0
 
     timings = state.timings(coll)
@@ -588,6 +597,11 @@ def _steps(args, bpy, addon, state) -> dict:
         if flags:
             print(f"  landmarks {len(flags) - flags.count('not_found')} of {len(flags)} found automatically "
                   f"({flags.count('ok')} ok, {flags.count('uncertain')} uncertain, {flags.count('not_found')} not found)")
+        if getattr(args, "face", None) is not None:
+            res, model = args.face
+            prov = res.provenance
+            print(f"  face      {model.label}: {len(model.peg_names)} pegs, table {prov.get('table', 'imported table')}, "
+                  f"{len(res.mesh.vertices)} vertices, closed")
         if args.export:
             written = sorted(p.name for p in args.export.iterdir() if not p.name.startswith("."))
             print(f"  export    {args.export}: {', '.join(written)}")
@@ -595,6 +609,9 @@ def _steps(args, bpy, addon, state) -> dict:
     for warning in warning_lines:
         print(f"  warning   {warning}")
     print("timings (s):")
+    if getattr(args, "face", None) is not None:     # the face's own steps (engine, not an operator)
+        res, model = args.face
+        timings = dict(timings, face_prepare=model.prepare_seconds, face_solve=res.timings["total"])
     for step, seconds in timings.items():
         print(f"  {step:<11}{seconds:8.3f}")
     print(f"  {'total':<11}{total:8.3f}")
@@ -632,6 +649,49 @@ def _steps(args, bpy, addon, state) -> dict:
             print(f"wrote {len(paths)} frames {paths[0]} .. {paths[-1].name} ({time.perf_counter() - t:.1f} s)")
             summary["outputs"]["render_animation"] = [str(x) for x in paths]
     return summary
+
+
+def _face_from_skull(addon, coll):
+    """The face approximated from the study's bone skull, landmarks and depth table (issue 23): (result, model).
+    A skull the engine refuses (too few landmarks with a depth, not a skull in mm) is exit 2."""
+    from importlib import import_module
+    ff = import_module(addon.__name__ + ".pdehead_addon.face_from_skull")
+    fs = addon.operators.forensic_study
+    try:
+        model = ff.FaceModel.prepare(fs.skull_engine_mesh(coll, "BONE"), fs.landmarks(coll), fs.study_depth_table(coll),
+                                     flags=fs.flag_names(coll))
+        res = model.solve()
+    except addon.pdehead_addon.PDEHeadError as exc:
+        raise CLIError(f"--face-from-skull: {exc}", 2) from None
+    if not res.mesh.is_watertight():
+        raise CLIError("--face-from-skull: the face mesh is not closed; nothing was written", 1)
+    model.label = ff.APPROXIMATION_LABEL
+    prov = dict(fs.forensic_provenance(coll, fs.study_depth_table(coll)), **res.provenance)
+    res.provenance = prov
+    return res, model
+
+
+def _export_with_face(args, ops, addon, face) -> None:
+    """Export for printing, plus face.<fmt> when the face was made: the face is written first to a hidden file
+    in DIR and moved into place only after the rest of the export succeeded (nothing half-written)."""
+    out = args.export.resolve()
+    args.face = face
+    if face is None:
+        _call(ops.export_print, directory=str(out), format=args.export_format)
+        return
+    from importlib import import_module
+    export = import_module(addon.__name__ + ".pdehead_addon.export")
+    res, _model = face
+    out.mkdir(parents=True, exist_ok=True)
+    tmp = out / f".face.pdehead-partial.{args.export_format}"
+    try:
+        export.export_mesh(res.mesh, tmp, fmt=args.export_format, name="face", provenance=res.provenance)
+        _call(ops.export_print, directory=str(out), format=args.export_format)
+        os.replace(tmp, out / f"face.{args.export_format}")
+    except addon.pdehead_addon.PDEHeadError as exc:
+        raise CLIError(f"--export {args.export}: {exc}", 2) from None
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def _save(bpy, path: Path, flag: str) -> None:
