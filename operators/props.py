@@ -45,6 +45,12 @@ def _face_table_update(self, context):
         face.live_table(coll)
 
 
+def _face_table_file_update(self, context):
+    """A new table file counts only while the face uses a table file (else the pegs keep their depths)."""
+    if self.face_table == 'FILE':
+        _face_table_update(self, context)
+
+
 SELECTION_ITEMS = [
     ("uniform", "Uniform", "Curves evenly spaced along the head axis"),
     ("shape-change", "Shape Change", "Denser curves where the head's cross-section changes fast (face)"),
@@ -104,7 +110,7 @@ class PDEHeadStudySettings(bpy.types.PropertyGroup):
     face_table: EnumProperty(name="Face Table", items=face.FACE_TABLE_ITEMS, default='DEFAULT',
                              update=_face_table_update, description="The depth table the face's pegs stand by")
     face_table_file: StringProperty(name="Table File", subtype="FILE_PATH", options=PATH_OPTIONS,
-                                    update=_face_table_update,
+                                    update=_face_table_file_update,
                                     description="A depth table CSV (landmark,mean_mm[,sd_mm,n])")
     face_sex: EnumProperty(name="Sex", items=face.FACE_SEX_ITEMS, default='POOLED',
                            description="Sex, for tables with separate values (used by the next Build Face)")
