@@ -239,20 +239,20 @@ def solve_face(coll, tips: np.ndarray | None = None, table=None) -> dict:
     names = list(model.peg_names)
     if tips is None:
         tips = peg_tips(coll, names)
-    tips = np.asarray(tips, float)
+    raw = np.asarray(tips, float)
+    tips = raw.copy()
     gone = ~np.isfinite(tips).all(axis=1)
-    if gone.any():     # a deleted peg: its tip back at the table's mean
-        tips = tips.copy()
+    if gone.any():     # a deleted peg: its tip back at the table's mean (the raw NaN is what is compared)
         tips[gone] = model.peg_bases[gone] + model.peg_normals[gone] * model.default_depths[gone, None]
     t1 = time.perf_counter()
     result = model.solve(tips=tips)
     t2 = time.perf_counter()
     refilled = _write_positions(coll, obj, result.mesh)
-    obj[TIPS_PROP] = [float(v) for v in tips.ravel()]
+    obj[TIPS_PROP] = [float(v) for v in raw.ravel()]
     if table is not None:
         obj[PROVENANCE_PROP] = json.dumps(_provenance(coll, result, table))
     t3 = time.perf_counter()
-    _cache(coll)["face_tips"] = tips
+    _cache(coll)["face_tips"] = raw
     timings = {"tips": t1 - t0, "solve": t2 - t1, "write": t3 - t2, "total": t3 - t0, "refilled": refilled,
                "engine": dict(result.timings)}
     _cache(coll)["face_timings"] = timings
@@ -276,9 +276,9 @@ def face_changed(coll) -> bool:
     now = peg_tips(coll, names)
     if now.shape != last.shape:
         return True
-    ok = np.isfinite(now).all(axis=1)
-    return bool(np.any(np.abs(now[ok] - last[ok]) > TIP_TOLERANCE_MM)) or bool((~ok).any() and
-                                                                              np.isfinite(last[~ok]).any())
+    same = np.abs(now - last) <= TIP_TOLERANCE_MM
+    same |= np.isnan(now) & np.isnan(last)             # a peg that is gone stays gone: no new solve
+    return not bool(same.all())
 
 
 # ------------------------------------------------------------------------------------------ build

@@ -197,3 +197,12 @@ def test_face_follows_a_peg_after_reopening(pdehead_ext, face_blend, tmp_path):
     near, moved, dist = _nearest_peg_vertex_motion(before, after, tip)
     assert np.median(moved[near]) == pytest.approx(3.0, abs=1.0)          # measured 2.95 mm (far: 0.07)
     assert np.percentile(moved[dist > 60.0], 95) < 0.3
+
+    # a peg deleted: the face solves once with that peg back at the table's mean, then stays (no solve per update)
+    cache = state.cache_for(state.settings(coll).study_id).forensic
+    bpy.data.objects.remove(pegs[names[1]])
+    bpy.context.view_layer.update()
+    assert cache["face_timings"] is not None and state.settings(coll).last_error == ""
+    cache["face_timings"] = None
+    bpy.context.view_layer.update()
+    assert cache["face_timings"] is None
