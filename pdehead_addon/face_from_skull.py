@@ -70,8 +70,13 @@ NECK_SLOPE = 0.8
 CLOSING_MM = 15.0
 #: Radius (mm) over which the bone's normal at a landmark is averaged (:func:`peg_normals`).
 PEG_NORMAL_RADIUS_MM = 8.0
+#: A peg follows the averaged bone normal unless it leans more than 45 degrees from the closed profile's
+#: normal (then the profile's): e.g. subspinale on a mask whose thin maxilla is gone faces up, not forward.
+PEG_NORMAL_MIN_COS = 0.7
+#: A skull must give at least this many ``ok`` landmarks (:func:`_check_skull`).
+MIN_OK_LANDMARKS = 8
 #: Regularisation of the exact peg interpolation (relative to the kernel's unit diagonal).
-RBF_REGULARISATION = 1e-3
+RBF_REGULARISATION = 0.05
 
 
 # ------------------------------------------------------------------------------------------ geometry
@@ -211,7 +216,7 @@ def _neck_fill(raw: np.ndarray, grid: _Grid, base_z: float | None = None) -> np.
     return out
 
 
-def envelope_normals(grid: _Grid, profile: np.ndarray, points: np.ndarray, smooth_mm: float = 3.0) -> np.ndarray:
+def envelope_normals(grid: _Grid, profile: np.ndarray, points: np.ndarray, smooth_mm: float = 6.0) -> np.ndarray:
     """Outward unit normals of the closed profile (the surface r = profile(z, angle)) at the points' bins."""
     dz = grid.z[1] - grid.z[0]
     R = ndimage.gaussian_filter(profile, sigma=(smooth_mm / dz, 1.0), mode=("nearest", "wrap"))
@@ -233,8 +238,8 @@ def peg_normals(skull: Mesh, bases: np.ndarray, grid: _Grid, profile: np.ndarray
                 radius_mm: float = PEG_NORMAL_RADIUS_MM) -> np.ndarray:
     """The direction each peg stands in: the bone's outward normal at the landmark, averaged over the bone
     surface within ``radius_mm`` (area-weighted; a single triangle's normal on a thin or fragmentary bone,
-    e.g. the maxilla at the bone level, points anywhere); where that still points more than 60 degrees
-    away from the closed profile's outward normal (a bone fragment facing inward), the profile's normal.
+    e.g. the maxilla at the bone level, points anywhere); where that still points more than 45 degrees
+    away from the closed profile's outward normal (:data:`PEG_NORMAL_MIN_COS`), the profile's normal.
     The T-Table's convention is a depth measured along the bone normal at the landmark."""
     from scipy.spatial import cKDTree
 
@@ -251,8 +256,23 @@ def peg_normals(skull: Mesh, bases: np.ndarray, grid: _Grid, profile: np.ndarray
         n = fn[idx].sum(axis=0) if idx else env[i]
         norm = np.linalg.norm(n)
         n = n / norm if norm > 0 else env[i]
-        out[i] = n if float(n @ env[i]) >= 0.5 else env[i]
+        out[i] = n if float(n @ env[i]) >= PEG_NORMAL_MIN_COS else env[i]
     return out
+
+
+def _check_skull(landmarks: dict, flags: dict | None) -> None:
+    """Refuse what is not a skull: the face is built around the orbits, so both orbits must have been found
+    (Orbitale or Supraorbital, left and right), and at least :data:`MIN_OK_LANDMARKS` landmarks must be ``ok``
+    (an ellipsoid or a box gives a few ``uncertain`` guesses and nothing ``ok``)."""
+    have = set(landmarks) if flags is None else {n for n in landmarks if flags.get(n, "ok") != "not_found"}
+    orbits = all(f"Orbitale {s}" in have or f"Supraorbital {s}" in have for s in "LR")
+    ok = len(have) if flags is None else sum(1 for n in have if flags.get(n, "ok") == "ok")
+    if not orbits or ok < MIN_OK_LANDMARKS:
+        raise PDEHeadError(f"this does not look like a skull: {'no orbits were found' if not orbits else ''}"
+                           f"{' and ' if not orbits and ok < MIN_OK_LANDMARKS else ''}"
+                           f"{f'only {ok} landmarks were found with confidence' if ok < MIN_OK_LANDMARKS else ''}"
+                           " (a face is approximated only on a skull with its orbits; place the landmarks by hand "
+                           "if the automatic ones failed)")
 
 
 # ------------------------------------------------------------------------------------------ prediction rules
@@ -306,6 +326,11 @@ ALAR_MARGIN_MM = 5.0
 #: Where pronasale sits between subnasale and soft nasion (fraction of the nasal height): a proportion of
 #: the average profile (sn-prn height ~ 15 mm of ~ 52 mm n-sn in Farkas' norms), not a regression.
 TIP_HEIGHT_FRACTION = 0.3
+#: Half the nose's breadth at its root (mm): the nasal root between the eyes (Farkas' intercanthal width
+#: en-en ~ 32 mm; the root ~ 2/3 of it), where the dorsum leaves the soft nasion.
+NOSE_ROOT_HALF_MM = 10.0
+#: Pegs that stand on the nasal dorsum: the nose's ridge runs through their tips.
+NOSE_DORSUM_PEGS = ("Rhinion", "Mid-nasal")
 
 
 def aperture_width(skull: Mesh, subspinale: np.ndarray, mid_x: float) -> float | None:
@@ -454,6 +479,7 @@ class FaceModel:
         row_mm = D.FACE_ROW_MM.default if row_mm is None else float(row_mm)
         spread = D.FACE_SPREAD_MM.default if spread_mm is None else float(spread_mm)
         lm = {k: np.asarray(v, float) for k, v in landmarks.items() if v is not None}
+        _check_skull(lm, flags)
         pegs = marker_pegs(lm, skull, table)
         if len(pegs) < 4:
             raise PDEHeadError(f"only {len(pegs)} landmarks have a depth in the table: at least 4 are needed "
@@ -549,6 +575,13 @@ class FaceModel:
         up = (Z >= zp) & (Z <= zn)
         t = (zn - Z[up]) / (zn - zp)
         ridge[up] = yn + (yp - yn) * t ** 1.3                     # the dorsum, slightly concave under nasion
+        # pegs on the dorsum (rhinion, mid-nasal) are kept: the dorsum runs through their tips
+        on = [self._peg_tip(tips, nm) for nm in NOSE_DORSUM_PEGS]
+        on = sorted([(float(p[2]), float(p[1])) for p in on if p is not None and zp + 2.0 < p[2] < zn - 2.0])
+        if on:
+            zc = np.array([zp] + [a for a, _ in on] + [zn])
+            yc = np.array([yp] + [b for _, b in on] + [yn])
+            ridge[up] = np.interp(Z[up], zc, yc)
         lo = (Z >= zs) & (Z < zp)
         q = (zp - Z[lo]) / (zp - zs)
         ridge[lo] = ys + (yp - ys) * np.sqrt(np.clip(1 - q * q, 0, 1))   # tip lobule and columella
@@ -558,7 +591,7 @@ class FaceModel:
         cx, cy = g.centre
         s, c = np.sin(g.theta), np.cos(g.theta)
         front = c < -0.2
-        half = np.where(Z >= zp, 6.0 + (0.5 * nose["width_mm"] - 6.0) * np.clip(1 - (Z - zp) / (zn - zp), 0, 1) ** 1.5,
+        half = np.where(Z >= zp, NOSE_ROOT_HALF_MM + (0.5 * nose["width_mm"] - NOSE_ROOT_HALF_MM) * np.clip(1 - (Z - zp) / (zn - zp), 0, 1) ** 1.5,
                         0.5 * nose["width_mm"])
         bump = np.zeros_like(base)
         mid_x = nose["mid_x"]
@@ -583,13 +616,38 @@ class FaceModel:
         curves = g.point(g.z[:, None], g.theta[None, :], radius)
         bset = BoundarySet(curves, np.full(len(g.z), -1), g.z, knots_from_heights(g.z),
                            meta={"vertex_z": self.vertex_z + RULE_DEPTH_MM, "parameterisation": "aligned"})
+        # The C2 spline's parameter (chord-length positions of the curves) and its smoothing (from the mean
+        # radius) are fixed by the first face solved, so a peg moved at the chin does not re-parameterise
+        # (slide) or re-smooth the whole head: only the curves near the peg change.
+        fixed = self.__dict__.setdefault("_pde_fixed", {})
+        if fixed:
+            cache = bset.__dict__.setdefault("_derived", {})
+            key = lambda name: (name, bset.curves.ctypes.data, bset.curves.shape)   # noqa: E731 (pde_surface's key)
+            cache[key("positions")] = fixed["positions"]
+            cache[key("radius")] = fixed["radius"]
         head = solve_pde(bset, approximation_mm=0.0)
+        if not fixed:
+            from .pde_surface import _curve_positions, smoothing_range
+            smoothing_range(bset)                                # computes and caches the mean radius
+            fixed["positions"] = _curve_positions(bset)
+            fixed["radius"] = bset.__dict__["_derived"][("radius", bset.curves.ctypes.data, bset.curves.shape)]
         return head
+
+    def _mesh(self, head, nu=None, nv=None) -> Mesh:
+        """The closed mesh of a solved face. The neck cap's vertex counts are fixed by the first face solved
+        at these (nu, nv), so every later solve (a dragged peg) gives the same topology: the Blender layer can
+        rewrite the positions in place."""
+        nu, nv = int(nu or self.options["nu"]), int(nv or self.options["nv"])
+        refs = self.__dict__.setdefault("_cap_refs", {})
+        if (nu, nv) not in refs:
+            refs[(nu, nv)] = head.cap_reference(nu, nv)
+        head.cap_reference = lambda _nu, _nv, _ref=refs[(nu, nv)]: _ref
+        return head.surface(nu, nv, caps=True)
 
     def constant_depth(self, depth_mm: float) -> FaceResult:
         """The peer: the bone's closed outer profile pushed out by one depth everywhere (no pegs, no nose)."""
         head = self._surface(self.profile + float(depth_mm))
-        mesh = head.surface(int(self.options["nu"]), int(self.options["nv"]), caps=True)
+        mesh = head.surface(int(self.options["nu"]), int(self.options["nv"]), caps=True)   # not live: own caps
         prov = dict(self.provenance, method=f"constant depth {depth_mm:g} mm over the bone's closed profile")
         return FaceResult(mesh, prov, {}, head=head)
 
@@ -616,7 +674,7 @@ class FaceModel:
         t1 = time.perf_counter()
         head = self._surface(radius)
         t2 = time.perf_counter()
-        mesh = head.surface(int(nu or self.options["nu"]), int(nv or self.options["nv"]), caps=True)
+        mesh = self._mesh(head, nu, nv)
         t3 = time.perf_counter()
         prov = dict(self.provenance)
         prov["peg_depths_mm"] = {n: round(float(x), 2) for n, x in zip(self.peg_names, d)}

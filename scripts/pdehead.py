@@ -611,7 +611,7 @@ def _steps(args, bpy, addon, state) -> dict:
     print("timings (s):")
     if getattr(args, "face", None) is not None:     # the face's own steps (engine, not an operator)
         res, model = args.face
-        timings = dict(timings, face_prepare=model.prepare_seconds, face_solve=res.timings["total"])
+        timings = dict(timings, face_prep=model.prepare_seconds, face_solve=res.timings["total"])
     for step, seconds in timings.items():
         print(f"  {step:<11}{seconds:8.3f}")
     print(f"  {'total':<11}{total:8.3f}")
@@ -687,11 +687,20 @@ def _export_with_face(args, ops, addon, face) -> None:
     try:
         export.export_mesh(res.mesh, tmp, fmt=args.export_format, name="face", provenance=res.provenance)
         _call(ops.export_print, directory=str(out), format=args.export_format)
+        # provenance.json names every file and the face's own record (its label, pegs and flags)
+        prov_path = out / "provenance.json"
+        record = json.loads(prov_path.read_text()) if prov_path.is_file() else {}
+        record["files"] = sorted(set(record.get("files", [])) | {f"face.{args.export_format}"})
+        record["face"] = res.provenance
+        tmp_prov = out / ".provenance.pdehead-partial.json"
+        tmp_prov.write_text(json.dumps(record, indent=2) + "\n")
         os.replace(tmp, out / f"face.{args.export_format}")
+        os.replace(tmp_prov, prov_path)
     except addon.pdehead_addon.PDEHeadError as exc:
         raise CLIError(f"--export {args.export}: {exc}", 2) from None
     finally:
         tmp.unlink(missing_ok=True)
+        (out / ".provenance.pdehead-partial.json").unlink(missing_ok=True)
 
 
 def _save(bpy, path: Path, flag: str) -> None:

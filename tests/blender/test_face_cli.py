@@ -1,0 +1,65 @@
+"""Face from the skull, headless (issue 23 point 4): `scripts/pdehead.py ... --face-from-skull --export DIR`."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from file_readers import read_stl
+from test_cli import run_cli
+
+SMALL = ("--no-volume", "--patches", 4, "--nu", 40, "--nv", 80)
+
+
+def test_cli_face_from_skull_writes_face_skull_landmarks(tmp_path):
+    out = tmp_path / "face"
+    result = run_cli("--phantom", *SMALL, "--face-from-skull", "--export", out, tmp_path=tmp_path)
+    assert result.returncode == 0, result.stderr[-3000:]
+    names = sorted(p.name for p in out.iterdir())
+    assert names == ["face.stl", "landmarks.csv", "provenance.json", "skin.stl", "skull.stl",
+                     "skull_envelope.stl", "tissue_depth.csv"]            # nothing hidden left behind
+    face, skull = read_stl(out / "face.stl"), read_stl(out / "skull.stl")
+    assert face.is_watertight() and len(face.triangles) > 50_000          # 160 x 240 quads, split
+    # patient mm, the CT's frame: the face wraps the skull with a few mm to a few cm of tissue
+    lo, hi = skull.vertices.min(0), skull.vertices.max(0)
+    assert np.all(face.vertices[:, :2].min(0) < lo[:2]) and np.all(face.vertices[:, :2].max(0) > hi[:2])
+    assert np.all(face.vertices[:, :2].min(0) > lo[:2] - 45) and np.all(face.vertices[:, :2].max(0) < hi[:2] + 45)
+    # the table used and the per-step times are printed; the label travels with the face
+    assert "table T-Table 2023" in result.stdout and "approximation — not an identification" in result.stdout
+    assert "face_prep" in result.stdout and "face_solve" in result.stdout
+    prov = json.loads((out / "provenance.json").read_text())
+    assert "face.stl" in prov["files"] and prov["face"]["label"] == "approximation — not an identification"
+    assert prov["face"]["table"].startswith("T-Table 2023") and "Pogonion" in prov["face"]["peg_depths_mm"]
+
+
+@pytest.mark.parametrize("case", ["no_export", "not_a_skull", "no_bone"])
+def test_cli_face_from_skull_bad_input_exit_2_nothing_written(tmp_path, case, phantom):
+    out = tmp_path / "out"
+    if case == "no_export":
+        result = run_cli("--phantom", *SMALL, "--face-from-skull", tmp_path=tmp_path)
+        assert result.returncode == 2 and "--face-from-skull needs --export DIR" in result.stderr
+        return
+    (tmp_path / "in").mkdir()
+    if case == "not_a_skull":                   # a closed ellipsoid of skull size: no orbits, nothing found
+        from skimage import measure
+
+        from pdehead_addon import Mesh
+        from pdehead_addon.export import export_mesh
+        z, y, x = np.mgrid[-100:101:2, -100:101:2, -100:101:2].astype(float)
+        vol = (x ** 2 / 80 ** 2 + y ** 2 / 95 ** 2 + z ** 2 / 85 ** 2) < 1
+        v, f, _, _ = measure.marching_cubes(vol.astype(np.float32), 0.5)
+        given = export_mesh(Mesh(v[:, ::-1] * 2 - 100, np.zeros((0, 4)), f[:, ::-1]), tmp_path / "in" / "egg.stl")
+        result = run_cli("--skull-mesh", given, *SMALL, "--face-from-skull", "--export", out, tmp_path=tmp_path)
+        message = "does not look like a skull: no orbits were found"
+    else:                                        # the phantom with every value above soft tissue cut off
+        from pdehead_addon import CTVolume, write_dicom_series
+        ct = phantom.ct
+        write_dicom_series(CTVolume(np.minimum(ct.data, 80.0), ct.spacing, origin=ct.origin, direction=ct.direction,
+                                    meta=dict(ct.meta)), tmp_path / "in" / "ct")
+        result = run_cli(tmp_path / "in" / "ct", *SMALL, "--face-from-skull", "--export", out, tmp_path=tmp_path)
+        message = "nothing is above the bone level"
+    assert result.returncode == 2, result.stderr[-3000:]
+    errors = [line for line in result.stderr.splitlines() if "error:" in line]
+    assert len(errors) == 1 and message in errors[0]
+    assert not out.exists()
