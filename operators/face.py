@@ -432,6 +432,9 @@ def pdehead_face_update(_scene, depsgraph=None) -> None:
         for coll in state.studies():
             if FACE_KEY not in coll:
                 continue
+            obj = face_object(coll)
+            if obj is None or obj.mode == 'EDIT':      # edited by hand: Blender's edit mesh would overwrite it
+                continue
             try:
                 if face_changed(coll):
                     solve_face(coll)
