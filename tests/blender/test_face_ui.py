@@ -168,6 +168,17 @@ def test_build_face_and_live_pegs(pdehead_ext, face_blend, tmp_path):
     assert r[0] < r[1] < r[2], r                                       # measured 95.1 < 96.0 < 97.0 mm
     assert lo[face.LABEL_PROP] == obj[face.LABEL_PROP]
 
+    # Build Face is one undo step: undone, the study has its earlier face (same build) and pegs again
+    build = face.face_options(coll)["build"]
+    bpy.ops.ed.undo_push(message="before Build Face")
+    assert bpy.ops.pdehead.build_face() == {'FINISHED'}
+    assert face.face_options(coll)["build"] != build
+    bpy.ops.ed.undo_push(message="Build Face")
+    bpy.ops.ed.undo()
+    coll = bpy.context.scene.pdehead.active_study
+    assert face.face_options(coll)["build"] == build
+    assert set(face._peg_objects(coll, names)) == set(names)
+
 
 def test_face_follows_a_peg_after_reopening(pdehead_ext, face_blend, tmp_path):
     import bpy
