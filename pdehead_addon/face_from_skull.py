@@ -22,8 +22,9 @@ skull's centroid: a row every ``row_mm`` of height, a column every ``360 / colum
    ``spread_mm``) with the rule depth where no peg stands (:data:`RULE_DEPTH_MM`: the vault and the
    neck), plus a narrow Gaussian radial-basis correction that makes the field pass through every
    tip exactly. It is linear in the depths; a peg's influence fades within about 2 ``spread_mm``.
-4. *Prediction rules* for what a depth field cannot make: the nose (:func:`predict_nose`), the eyes
-   (:func:`predict_eyes`) and the mouth (:func:`predict_mouth`), each cited in its docstring.
+4. *Prediction rules* for what a depth field cannot make: the nose (:func:`predict_nose`) and the eyes
+   (:func:`predict_eyes`), each cited in its docstring. The mouth's width (:func:`predict_mouth`) is only
+   reported; the lips come from the pegs around them. The ears are not modelled.
 5. *The face*: profile + depth field + nose = radius per bin; each row is a closed boundary curve;
    the C2 PDE surface through them (:func:`.pde_surface.solve_pde`, dome over the vertex, a flat cap
    under the neck) is the face, a closed mesh in patient mm.
@@ -75,6 +76,11 @@ PEG_NORMAL_RADIUS_MM = 8.0
 PEG_NORMAL_MIN_COS = 0.7
 #: A skull must give at least this many ``ok`` landmarks (:func:`_check_skull`).
 MIN_OK_LANDMARKS = 8
+#: Vertical Gaussian smoothing (mm) of the closed profile: each row's hull is made on its own, and rows a few mm
+#: apart step (the teeth, the zygomatic arches' edges); a skin does not.
+PROFILE_SMOOTH_MM = 4.0
+#: Width of the exact correction's Gaussians, as a fraction of ``spread_mm``.
+NARROW_FRACTION = 0.5
 #: Regularisation of the exact peg interpolation (relative to the kernel's unit diagonal).
 RBF_REGULARISATION = 0.05
 
@@ -118,7 +124,7 @@ def bone_profile(skull: Mesh, grid: _Grid, base_z: float | None = None,
        across the orbits, the nasal aperture, the temporal fossae and the cheeks (between the zygoma and
        the mandible), where no depth is measured;
     4. a grey closing over ``closing_mm`` of height (the vertical gaps, e.g. the nasal aperture above the
-       maxilla) and a light Gaussian smoothing (1.5 mm, 1 column).
+       maxilla) and a Gaussian smoothing (:data:`PROFILE_SMOOTH_MM` of height, 1 column).
 
     Returns
     -------
@@ -143,7 +149,7 @@ def bone_profile(skull: Mesh, grid: _Grid, base_z: float | None = None,
     closed = ndimage.grey_closing(padded, size=(kz, 1), mode="wrap")[pad:-pad]
     closed = np.maximum(closed, hull)
     sm = ndimage.gaussian_filter(np.pad(closed, ((pad, pad), (0, 0)), mode="edge"),
-                                 sigma=(1.5 / dz, 1.0), mode="wrap")[pad:-pad]
+                                 sigma=(PROFILE_SMOOTH_MM / dz, 1.0), mode="wrap")[pad:-pad]
     return raw, sm
 
 
@@ -284,24 +290,25 @@ def _pt(landmarks: dict, *names):
 
 
 def predict_eyes(landmarks: dict) -> list[tuple[str, np.ndarray, float]]:
-    """Eye sites: the corneal apex of each eye, where the closed lids lie.
+    """Eye sites: the corneal apex of each eye.
 
-    Method: Stephan CN, Huang T. "Eyeball protrusion": the cornea's apex lies close to the line from the
-    mid-supraorbital to the mid-infraorbital margin, on average about 1-2 mm behind it in adults
-    (Stephan CN, Huang T, Orbit-based prediction of eyeball protrusion, reviewed in Stephan CN (2002)
-    "Facial approximation: globe projection guideline falsified by exophthalmometry literature",
-    J Forensic Sci 47(4):730-735, which replaced the older 16 mm-from-lateral-orbit guideline); here the
-    apex is put on the mid-point of the supraorbital and suborbital landmarks (with the closed lid's
-    ~1 mm over it). Guyomarc'h P, Dutailly B, Couture C, Coqueugniot H (2012), "Anatomical placement of
-    the human eyeball in the orbit - validation using CT scans of living adults and prediction for facial
-    approximation", J Forensic Sci 57(5):1271-1275, place the globe from orbital breadth and height (read
-    in esomjai/Forensic-Craniofacial-Approximation-Validation-Tool, "Eye predictions/Guyomarc'h GUI.md":
-    corneal apex 0.513 x orbit height in front of the deepest lateral orbital margin); that needs
-    ectoconchion and dacryon, which our landmark set lacks.
+    Method: the cornea's apex lies on the line from the mid-supraorbital to the mid-infraorbital margin
+    (the "tangent" guideline: Wilkinson CM, Mautner SA (2003) "Measurement of eyeball protrusion and its
+    application in facial reconstruction", J Forensic Sci 48(1):12-16; Stephan CN (2002) "Facial
+    approximation: globe projection guideline falsified by exophthalmometry literature", J Forensic Sci
+    47(4):730-735, which replaced the older 16 mm-from-lateral-orbit guideline). Both are cited from the
+    forensic literature, not re-read for this module. The apex is put on the midpoint of the
+    ``Supraorbital`` and ``Suborbital`` (or ``Orbitale``) landmarks, 1 mm in front of it for the lid.
+    Guyomarc'h P, Dutailly B, Couture C, Coqueugniot H (2012), "Anatomical placement of the human eyeball
+    in the orbit - validation using CT scans of living adults and prediction for facial approximation",
+    J Forensic Sci 57(5):1271-1275, place the globe from the orbit's breadth and height. The version read
+    was esomjai/Forensic-Craniofacial-Approximation-Validation-Tool, "Eye predictions/Guyomarc'h GUI.md",
+    where the corneal apex sits 0.513 x the orbit height in front of the deepest lateral orbital margin.
+    That method needs ectoconchion and dacryon, which the landmark set lacks, so it is not used here.
 
     Returns
     -------
-    list of (name, point patient mm, weight): the apex of each eye found (lid surface).
+    list of (name, point patient mm, weight): the apex of each eye found.
     """
     out = []
     for side in ("L", "R"):
@@ -387,11 +394,13 @@ def predict_nose(landmarks: dict, skull: Mesh | None = None) -> dict | None:
 
 
 def predict_mouth(landmarks: dict) -> dict | None:
-    """The mouth: the stomion at the occlusal plane, mouth width from the canines.
+    """The mouth's width from the canines, reported in the provenance. It does not shape the face yet.
 
-    Method: mouth width ~ the distance between the canines' distal borders x ~1.3 (inter-canine width
-    predicts mouth width: Stephan CN, Henneberg M (2003), "Predicting mouth width from inter-canine width
-    - a 75 % rule", J Forensic Sci 48(4):725-727: the inter-canine width is ~75 % of the mouth width).
+    Method: the inter-canine width is about 75 % of the mouth's width. Source: Stephan CN, Henneberg M
+    (2003) "Predicting mouth width from inter-canine width - a 75 % rule", J Forensic Sci 48(4):725-727,
+    cited from the forensic literature, not re-read for this module. The lips between the canines are
+    shaped only by the depth pegs around them (mid-philtrum, supradentale, infradentale, the canines). No
+    lip line or lip shape is modelled yet.
     """
     c = [_pt(landmarks, f"Supra canine {s}") for s in "LR"]
     if c[0] is None or c[1] is None:
@@ -543,7 +552,7 @@ class FaceModel:
         base_g = (Wg @ target + RULE_WEIGHT * RULE_DEPTH_MM) / (Wg.sum(1) + RULE_WEIGHT)
         base_s = (Ws @ target + RULE_WEIGHT * RULE_DEPTH_MM) / (Ws.sum(1) + RULE_WEIGHT)
         # narrow exact correction
-        s2 = 0.5 * sigma
+        s2 = NARROW_FRACTION * sigma
         Phi = _kernel(xs, xs, s2)
         w = np.linalg.solve(Phi + RBF_REGULARISATION * np.eye(len(xs)), target - base_s)
         corr = _kernel(self._grid_xyz, xs, s2) @ w
@@ -677,6 +686,8 @@ class FaceModel:
         mesh = self._mesh(head, nu, nv)
         t3 = time.perf_counter()
         prov = dict(self.provenance)
+        if self.mouth is not None:
+            prov["predicted_mouth_width_mm"] = round(float(self.mouth["width_mm"]), 1)
         prov["peg_depths_mm"] = {n: round(float(x), 2) for n, x in zip(self.peg_names, d)}
         return FaceResult(mesh, prov, {"field": t1 - t0, "pde": t2 - t1, "mesh": t3 - t2, "total": t3 - t0},
                           tips=tips, depths=d, head=head)

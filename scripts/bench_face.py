@@ -219,23 +219,27 @@ def markdown(results: dict) -> str:
              "57:318–327), 63–74 % (Miranda et al. 2018, PLoS ONE 13:e0196770).", "",
              "| head | within ±2.5 mm | mean mm | p95 mm | pegs | prepare s | solve ms (median of 5) | closed |",
              "|---|---:|---:|---:|---:|---:|---:|---|"]
+    scored = {k: r for k, r in results.items() if "face" in r}
     for name, r in results.items():
+        if "refused" in r:
+            lines.append(f"| {name} | not scored: {r['refused']} | | | | | | |")
+            continue
         f = r["face"]
         lines.append(f"| {name} | {100 * f['within_2_5']:.1f} % | {f['mean_mm']:.2f} | {f['p95_mm']:.2f} | "
                      f"{r['pegs']} | {r['seconds']['prepare']:.1f} | {1000 * r['seconds']['solve_median']:.0f} | "
                      f"{'yes' if r['watertight'] else 'NO'} |")
     lines += ["", "Constant-depth peer (the bone's closed outer profile pushed out by one depth, no pegs, no "
               "nose), same run:", "", "| head | 5 mm | 8 mm | 11 mm |", "|---|---|---|---|"]
-    for name, r in results.items():
+    for name, r in scored.items():
         cells = [f"{100 * b['within_2_5']:.1f} % / {b['mean_mm']:.2f} mm" for b in r["baseline"].values()]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     lines += ["", "Soft-tissue landmarks (distance mm from the real skin's landmark to the approximation; the "
               "landmarks are read off the real mid-sagittal profile by the rules in `bench_face.soft_landmarks`):",
               "", "| head | " + " | ".join(SOFT_NAMES) + " |", "|---|" + "---:|" * len(SOFT_NAMES)]
-    for name, r in results.items():
+    for name, r in scored.items():
         s = r["soft_landmarks_mm"]
         lines.append(f"| {name} | " + " | ".join(f"{s[k]:.1f}" if k in s else "—" for k in SOFT_NAMES) + " |")
-    c = results.get("cthead")
+    c = scored.get("cthead")
     if c:
         f = c["face"]
         lines += ["", f"Against the target (CThead): {100 * f['within_2_5']:.1f} % within ±2.5 mm "
@@ -254,8 +258,14 @@ def main(argv=None) -> int:
                    "(needs bpy)")
     args = p.parse_args(argv)
     results = {}
+    from pdehead_addon.errors import PDEHeadError
     for name in args.only:
-        r = score(name)
+        try:
+            r = score(name)
+        except PDEHeadError as exc:                  # e.g. GE: the automatic landmarks find no orbits
+            results[name] = {"dataset": name, "refused": str(exc)}
+            print(f"{name}: not scored: {exc}", file=sys.stderr)
+            continue
         keep = r.pop("_keep")
         results[name] = r
         f = r["face"]

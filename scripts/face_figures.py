@@ -1,0 +1,121 @@
+#!/usr/bin/env python3
+"""Renders of the face from the skull (issue 23) into docs/figures/face_from_skull_<head>.png (Cycles CPU).
+
+Called by ``scripts/bench_face.py --figures`` with what it measured (one head per figure): the real skin
+(marching cubes of the full CT's head mask), the approximation made from the skull alone, and the real
+skin coloured by its signed distance to the approximation (blue: the approximation lies outside the real
+skin, red: inside; white within +-2.5 mm; grey: outside the scored face region), each from the front and
+in profile (the patient's right side), same framing in every picture.
+
+    python3 scripts/bench_face.py --only cthead --figures --no-write
+"""
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+from PIL import Image, ImageDraw
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "scripts"))
+OUT = ROOT / "docs" / "figures"
+SIZE = 300
+BAND = 2.5
+
+
+def deviation_colours(signed: np.ndarray, in_region: np.ndarray) -> np.ndarray:
+    """RGBA per vertex: white within +-BAND mm, to full blue (approximation outside) / red (inside) at 8 mm."""
+    t = np.clip((np.abs(signed) - BAND) / (8.0 - BAND), 0.0, 1.0)
+    out = np.ones((len(signed), 4))
+    red, blue = signed > 0, signed < 0
+    out[red, 1] = out[red, 2] = 1.0 - t[red]
+    out[blue, 0] = out[blue, 1] = 1.0 - t[blue]
+    out[~in_region, :3] = 0.55
+    return out
+
+
+def signed_distance(points: np.ndarray, mesh) -> np.ndarray:
+    """Distance (mm) from points to the mesh, + where the point lies outside it (real skin outside)."""
+    from scipy.spatial import cKDTree
+
+    from pdehead_addon.surface_metrics import point_surface_distance, triangulate
+    from pdehead_addon.tissue_depth import vertex_normals
+    faces = np.concatenate([triangulate(mesh.quads), mesh.triangles])
+    d = point_surface_distance(points, mesh.vertices, faces, seed=3)
+    _, nearest = cKDTree(mesh.vertices).query(points)
+    side = np.einsum("ij,ij->i", points - mesh.vertices[nearest], vertex_normals(mesh)[nearest])
+    return np.where(side >= 0, d, -d)
+
+
+def render_face_figures(name: str, keep: dict) -> Path:
+    os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="pdehead-fig-"))
+    import bpy
+
+    import pdehead
+    from pdehead_addon import Mesh
+    from pdehead_addon.surface_metrics import face_window, visible_face_points
+    addon = pdehead.register_addon()
+    render, objects = addon.operators.render, addon.operators.objects
+    bpy.ops.wm.read_homefile(use_empty=True)
+    coll = objects.study_collection(f"face {name}")
+
+    v, f = keep["skin"]
+    centre = keep["a"]["bone_centre"][:2]
+    in_region = visible_face_points(v, centre) & face_window(v, centre, keep["tip"])
+    signed = np.zeros(len(v))
+    signed[in_region] = signed_distance(v[in_region], keep["a"]["result"].mesh)
+    skin = Mesh(v, np.zeros((0, 4)), f[:, ::-1].copy(), vertex_attributes={"deviation": deviation_colours(signed, in_region)})
+    face = keep["a"]["result"].mesh
+
+    def material(mat_name, colour=None, attribute=None):
+        mat = bpy.data.materials.new(mat_name)
+        if mat.node_tree is None:
+            mat.use_nodes = True
+        bsdf = mat.node_tree.nodes.get("Principled BSDF")
+        bsdf.inputs["Roughness"].default_value = 0.55
+        if attribute:
+            node = mat.node_tree.nodes.new("ShaderNodeAttribute")
+            node.attribute_name = attribute
+            mat.node_tree.links.new(node.outputs["Color"], bsdf.inputs["Base Color"])
+        else:
+            bsdf.inputs["Base Color"].default_value = colour
+        return mat
+
+    real = objects.build_mesh_object(Mesh(v, np.zeros((0, 4)), f[:, ::-1].copy()), coll, "real skin")
+    real.data.materials.append(material("real", (0.80, 0.62, 0.52, 1.0)))
+    approx = objects.build_mesh_object(face, coll, "approximation")
+    approx.data.materials.append(material("approx", (0.72, 0.70, 0.66, 1.0)))
+    heat = objects.build_mesh_object(skin, coll, "deviation")
+    heat.data.materials.append(material("heat", attribute="deviation"))
+    # frame every picture on the real skin's face region and a bit around it (same bounds for all)
+    world = v * 0.001
+    lo = np.array([world[:, 0].min(), world[:, 1].min(), (keep["tip"][2] - 95) * 0.001])
+    hi = np.array([world[:, 0].max(), world[:, 1].max(), (keep["tip"][2] + 75) * 0.001])
+    bounds = (lo, hi)                                   # world metres (objects keep world = patient x 0.001)
+    for obj in (real, approx, heat):
+        obj.hide_render = True
+    tmp = Path(tempfile.mkdtemp())
+    pics = []
+    labels = ("real face (full CT)", "approximation (skull only)", "deviation (blue: approx. outside)")
+    for view in ("FRONT", "RIGHT"):
+        for obj in (real, approx, heat):
+            obj.hide_render = False
+            path = tmp / f"{obj.name}_{view}.png"
+            render.render_objects_png([obj], path, view=view, resolution=(SIZE, SIZE), samples=16, bounds=bounds)
+            obj.hide_render = True
+            pics.append(Image.open(path).convert("RGB"))
+    fig = Image.new("RGB", (3 * SIZE, 2 * (SIZE + 18)), (255, 255, 255))
+    draw = ImageDraw.Draw(fig)
+    for i, pic in enumerate(pics):
+        row, col = divmod(i, 3)
+        fig.paste(pic, (col * SIZE, row * (SIZE + 18) + 18))
+        draw.text((col * SIZE + 6, row * (SIZE + 18) + 3), f"{name}: {labels[col]}, {('front', 'profile')[row]}",
+                  fill=(0, 0, 0))
+    OUT.mkdir(parents=True, exist_ok=True)
+    target = OUT / f"face_from_skull_{name}.png"
+    fig.quantize(256, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE).save(target, optimize=True)
+    print(f"wrote {target}", file=sys.stderr)
+    return target
