@@ -90,7 +90,7 @@ def test_build_face_and_live_pegs(pdehead_ext, face_blend, tmp_path):
     verts = _world_vertices(obj)
     tips = face.peg_tips(coll, names)
     gap = np.array([np.linalg.norm(verts - t, axis=1).min() for t in tips])
-    assert np.median(gap) < 1.5, dict(zip(names, gap.round(1)))         # measured 0.90 mm (largest 9.8)
+    assert np.median(gap) < 1.5, dict(zip(names, gap.round(1)))         # measured 0.78-0.90 mm (largest 4.1-9.8)
 
     # the panel's Face from Skull section: table, Find Landmarks, Build Face, the label, the pegs' depths
     from types import SimpleNamespace
@@ -115,8 +115,8 @@ def test_build_face_and_live_pegs(pdehead_ext, face_blend, tmp_path):
     after = _world_vertices(obj)
     assert len(bpy.data.meshes) == n_meshes and obj.data.name == me_name     # same mesh, no new datablock
     near, moved, dist = _nearest_peg_vertex_motion(before, after, tips[i])
-    # measured (5.0.1): 3.79 mm near the peg, 95th percentile 0.09 mm beyond 60 mm from it
-    assert np.median(moved[near]) == pytest.approx(4.0, abs=1.0), np.median(moved[near])
+    # measured (5.0.1): 3.29-3.79 mm near the peg (engine versions), 95th percentile 0.09 mm beyond 60 mm
+    assert np.median(moved[near]) == pytest.approx(4.0, abs=1.5), np.median(moved[near])
     assert np.percentile(moved[dist > 60.0], 95) < 0.3
     assert face.peg_tips(coll, names)[i] == pytest.approx(tips[i] + 4.0 * normal, abs=1e-3)
 
@@ -127,7 +127,7 @@ def test_build_face_and_live_pegs(pdehead_ext, face_blend, tmp_path):
     bpy.context.view_layer.update()
     after = _world_vertices(obj)
     near, moved, dist = _nearest_peg_vertex_motion(before, after, tips[i] + 4.0 * normal)
-    assert np.median(moved[near]) == pytest.approx(2.0, abs=0.5)          # measured 2.07 mm
+    assert np.median(moved[near]) == pytest.approx(2.0, abs=0.7)          # measured 1.83-2.07 mm
 
     # undo: one step per drag (memfile undo: the peg and the face go back together)
     bpy.ops.ed.undo_push(message="before drag")
@@ -155,7 +155,7 @@ def test_build_face_and_live_pegs(pdehead_ext, face_blend, tmp_path):
     assert pegs[name][fs.PEG_DEPTH_PROP] == 15.5 and pegs[name]["table_name"] == "table"
     after = _world_vertices(obj)
     tip = face.peg_tips(coll, names)[i]
-    assert np.linalg.norm(after - tip, axis=1).min() < 1.5                 # the face reaches the new tip: 0.36 mm
+    assert np.linalg.norm(after - tip, axis=1).min() < 1.5                 # the face reaches the new tip: 0.36-0.51 mm
     assert json.loads(obj[face.PROVENANCE_PROP])["table"] == "table"
     s.face_table = 'DEFAULT'
     assert pegs[name][fs.PEG_DEPTH_PROP] == pytest.approx(5.5 if name == "Glabella" else pegs[name]["table_mean_mm"])
@@ -165,7 +165,7 @@ def test_build_face_and_live_pegs(pdehead_ext, face_blend, tmp_path):
     lo, hi = coll[face.SD_FACE_KEYS["minus"]], coll[face.SD_FACE_KEYS["plus"]]
     c = _world_vertices(obj).mean(0)
     r = [np.linalg.norm(_world_vertices(o) - c, axis=1).mean() for o in (lo, obj, hi)]
-    assert r[0] < r[1] < r[2], r                                       # measured 95.1 < 96.0 < 97.0 mm
+    assert r[0] < r[1] < r[2], r                                       # measured 95.3 < 96.3 < 97.3 mm
     assert lo[face.LABEL_PROP] == obj[face.LABEL_PROP]
 
     # Build Face is one undo step: undone, the study has its earlier face (same build) and pegs again
@@ -206,7 +206,7 @@ def test_face_follows_a_peg_after_reopening(pdehead_ext, face_blend, tmp_path):
     _drag(peg, 3.0 * normal)
     after = _world_vertices(obj)
     near, moved, dist = _nearest_peg_vertex_motion(before, after, tip)
-    assert np.median(moved[near]) == pytest.approx(3.0, abs=1.0)          # measured 2.95 mm (far: 0.07)
+    assert np.median(moved[near]) == pytest.approx(3.0, abs=1.0)          # measured 2.54-2.95 mm (far: 0.07)
     assert np.percentile(moved[dist > 60.0], 95) < 0.3
 
     # a peg deleted: the face solves once with that peg back at the table's mean, then stays (no solve per update)
