@@ -10,18 +10,18 @@ Everything is expressed on a cylinder of directions about the vertical (patient 
 skull's centroid: a row every ``row_mm`` of height, a column every ``360 / columns`` degrees.
 
 1. *The bone's outer profile* (:func:`bone_profile`): per (row, column) bin the outermost point of the
-   bone skull; a grey-level closing of that radius map closes the orbits, the nasal aperture, the
-   foramina and the gaps between the zygomatic arches and the temporal bone (a closed envelope of the
-   bone), then a light Gaussian smoothing. Where a column meets no bone (below the skull base at the
-   back, below the mandible) the neck rule of :func:`_neck_fill` continues the profile downward.
-2. *The pegs*: each landmark of the depth table stands on the bone along the bone's outward normal
-   (:func:`.landmarks.marker_pegs`); its tip (base + depth x normal) is where the skin must pass.
+   bone skull; per row the 2-D convex hull of that ring (which bridges the orbits, the nasal aperture,
+   the temporal fossae and the cheeks), a grey closing and a Gaussian smoothing along the height. Where a
+   column meets no bone (below the skull base at the back, below the mandible) the neck rule of
+   :func:`_neck_fill` continues the profile downward.
+2. *The pegs*: each landmark of the depth table stands on the bone along the bone's outward normal,
+   averaged over the bone around it (:func:`peg_normals`); its tip (base + depth x normal) is where the skin must pass.
    In the cylinder frame each tip is a site (z, angle) with a radial offset over the profile.
 3. *The tissue-depth field* (:meth:`FaceModel._offset_field`): over the whole head, a wide
    normalised Gaussian average of the peg offsets (Shepard / partition of unity, radius
    ``spread_mm``) with the rule depth where no peg stands (:data:`RULE_DEPTH_MM`: the vault and the
-   neck), plus a narrow Gaussian radial-basis correction that makes the field pass through every
-   tip exactly. It is linear in the depths; a peg's influence fades within about 2 ``spread_mm``.
+   neck), plus a narrow Gaussian radial-basis correction (lightly regularised) that makes the field
+   pass through every tip (to a few tenths of a mm). It is linear in the depths; a peg's influence fades within about 2 ``spread_mm``.
 4. *Prediction rules* for what a depth field cannot make: the nose (:func:`predict_nose`) and the eyes
    (:func:`predict_eyes`), each cited in its docstring. The mouth's width (:func:`predict_mouth`) is only
    reported; the lips come from the pegs around them. The ears are not modelled.
