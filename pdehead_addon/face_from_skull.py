@@ -653,6 +653,16 @@ class FaceModel:
         head.cap_reference = lambda _nu, _nv, _ref=refs[(nu, nv)]: _ref
         return head.surface(nu, nv, caps=True)
 
+    def sd_faces(self, k: float = 1.0) -> tuple[FaceResult, FaceResult]:
+        """The faces at mean - k SD and mean + k SD at every peg (the range to show; depths never below 0;
+        a peg without an SD keeps its mean)."""
+        sd = np.nan_to_num(self.depth_sd, nan=0.0)
+        lo = self.solve(depths=np.maximum(self.default_depths - k * sd, 0.0))
+        hi = self.solve(depths=self.default_depths + k * sd)
+        for res, sign in ((lo, "-"), (hi, "+")):
+            res.provenance["depths"] = f"table mean {sign} {k:g} SD at every peg"
+        return lo, hi
+
     def constant_depth(self, depth_mm: float) -> FaceResult:
         """The peer: the bone's closed outer profile pushed out by one depth everywhere (no pegs, no nose)."""
         head = self._surface(self.profile + float(depth_mm))

@@ -103,6 +103,16 @@ def test_tips_override_depths(model, face):
         model.solve(depths=np.full(len(model.peg_names), np.nan))
 
 
+def test_sd_faces_bracket_the_mean_face(model, face):
+    from pdehead_addon.surface_mesh import signed_volume
+    lo, hi = model.sd_faces()
+    v_lo, v_mean, v_hi = (abs(signed_volume(r.mesh)) for r in (lo, face, hi))
+    assert v_lo < v_mean < v_hi
+    i = model.peg_names.index("Supra M2 L")                   # SD 7 mm: its tip moves 7 mm each way
+    np.testing.assert_allclose(hi.tips[i] - face.tips[i], 7.0 * model.peg_normals[i], atol=1e-9)
+    assert hi.provenance["depths"] == "table mean + 1 SD at every peg"
+
+
 def test_convenience_and_rebuild_from_inputs(phantom_bone, face):
     skull, lms, flags = phantom_bone
     # what the Blender layer stores (skull, landmarks, table, options) gives the same face again
