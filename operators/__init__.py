@@ -2,7 +2,7 @@
 
 ``register()`` adds the property groups, preferences, operators (with the File > Import
 menu entry), the sidebar panels, the save/load handlers of :mod:`.persistence`, the cutter's
-depsgraph handler (:mod:`.study`), the frame handler and settings migration of :mod:`.animation` and one ``load_post`` handler that frees the in-memory caches
+depsgraph handlers (:mod:`.study`, and the face's of :mod:`.face`), the frame handler and settings migration of :mod:`.animation` and one ``load_post`` handler that frees the in-memory caches
 of studies that are not in the newly loaded file. ``unregister()`` removes all of it again,
 leaving no class, property, menu entry, handler or timer behind.
 """
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import bpy
 
-from . import animation, forensic, ops, panel, persistence, prefs, props, state, study
+from . import animation, face, forensic, ops, panel, persistence, prefs, props, state, study
 
 
 @bpy.app.handlers.persistent
@@ -34,6 +34,7 @@ def register() -> None:
     ops.add_menu()
     persistence.register()
     study.register()
+    face.register()
     bpy.app.handlers.load_post.append(pdehead_load_post)
     animation.register()
 
@@ -43,6 +44,7 @@ def unregister() -> None:
     for handler in list(bpy.app.handlers.load_post):
         if getattr(handler, "__name__", "") == "pdehead_load_post":
             bpy.app.handlers.load_post.remove(handler)
+    face.unregister()
     study.unregister()
     persistence.unregister()
     ops.remove_menu()

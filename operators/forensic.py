@@ -265,6 +265,89 @@ class PDEHEAD_OT_export_print(Operator, _ForensicOp):
         return ops._guarded(self, context, body)
 
 
+class PDEHEAD_OT_build_face(Operator, _ForensicOp):
+    """Build the face from the skull: a smooth face solved through the tissue-depth pegs (the study's table),
+    as its own object with the pegs as its children; drag a peg or change its depth and the face follows.
+    An approximation, not an identification"""
+
+    bl_idname = "pdehead.build_face"
+    bl_label = "Build Face"
+
+    def execute(self, context):
+        def body():
+            from . import face
+            coll = _study_or_raise(self, context)
+            obj, pegs = face.build_face(coll)
+            self.report({'INFO'}, f"{obj.name}: {len(obj.data.vertices)} vertices through {len(pegs)} pegs "
+                                  f"({face.approximation_label()})")
+        return ops._guarded(self, context, body)
+
+
+class PDEHEAD_OT_face_sd_range(Operator, _ForensicOp):
+    """Build the faces with every peg at its length - 1 SD and + 1 SD of the table (wire objects beside the
+    face): the range the depth table allows"""
+
+    bl_idname = "pdehead.face_sd_range"
+    bl_label = "Faces at -1 / +1 SD"
+
+    def execute(self, context):
+        def body():
+            from . import face
+            coll = _study_or_raise(self, context)
+            made = face.build_sd_faces(coll)
+            self.report({'INFO'}, "Built " + ", ".join(o.name for o in made))
+        return ops._guarded(self, context, body)
+
+
+def draw_face_section(layout, coll) -> None:
+    """The panel's Face from Skull section: table (and sex where the table has it), Find Landmarks,
+    Build Face, the pegs to drag and their depths, the +-1 SD faces, the label and provenance."""
+    from . import face
+    box = layout.box()
+    box.label(text="Face from Skull", icon='USER')
+    s = state.settings(coll)
+    box.prop(s, "face_table", text="Table")
+    if s.face_table == 'FILE':
+        box.prop(s, "face_table_file", text="")
+    try:
+        table = face.face_table(coll)
+    except PDEHeadError as exc:
+        table = None
+        box.label(text=str(exc), icon='ERROR')
+    if table is not None and face.table_has_sex(table):
+        box.prop(s, "face_sex")
+    row = box.row(align=True)
+    row.operator(PDEHEAD_OT_find_landmarks.bl_idname, icon='VIEWZOOM')
+    row.operator(PDEHEAD_OT_build_face.bl_idname, icon='USER')
+    obj = face.face_object(coll)
+    if obj is None:
+        box.label(text="Builds the skull and finds the landmarks first if needed")
+        return
+    box.label(text=str(obj.get(face.LABEL_PROP, "")), icon='ERROR')
+    prov = json.loads(obj.get(face.PROVENANCE_PROP, "{}") or "{}")
+    col = box.column(align=True)
+    if prov.get("table"):
+        col.label(text=f"Table: {prov['table']}" + (f", {prov['sex']}" if prov.get("sex") else ""))
+    flags = list((prov.get("landmarks") or {}).values())
+    if flags:
+        col.label(text=f"Landmarks: {flags.count('ok')} ok, {flags.count('uncertain')} uncertain")
+    if prov.get("software"):
+        col.label(text=str(prov["software"]))
+    if "pdehead_face_ms" in obj:
+        col.label(text=f"Last solve {obj['pdehead_face_ms']:.0f} ms")
+    names = face.face_options(coll).get("pegs", [])
+    pegs = face._peg_objects(coll, names)
+    col = box.column(align=True)
+    col.label(text=f"{len(pegs)} pegs: drag one (G) or set its depth (mm)")
+    for name in names[:40]:
+        peg = pegs.get(name)
+        if peg is not None:
+            col.prop(peg, f'["{PEG_DEPTH_PROP}"]', text=name)
+    box.operator(PDEHEAD_OT_face_sd_range.bl_idname, icon='MOD_THICKNESS')
+    if s.last_error.startswith("face:"):
+        box.label(text=s.last_error, icon='ERROR')
+
+
 class PDEHEAD_PT_forensic(Panel):
     bl_space_type = 'VIEW_3D'
     bl_region_type = 'UI'
@@ -343,7 +426,7 @@ class PDEHEAD_PT_forensic(Panel):
                      icon='EMPTY_SINGLE_ARROW').default_table = True
         row.operator(PDEHEAD_OT_import_depth_table.bl_idname, text="Depth Table...", icon='IMPORT')
         pegs = [o for o in coll.all_objects if "pdehead_peg" in o and PEG_DEPTH_PROP in o]
-        if pegs:
+        if pegs and coll.get("pdehead_face_object") is None:     # with a face: in its section below
             col = box.column(align=True)
             col.label(text=f"Peg depth (mm), {pegs[0].get('table_name', '')}: mean +- 2 SD")
             for peg in pegs[:40]:
@@ -355,6 +438,7 @@ class PDEHEAD_PT_forensic(Panel):
         row = box.row(align=True)
         row.operator(PDEHEAD_OT_mirror.bl_idname, text="Mirror Active", icon='MOD_MIRROR').plane = 'AUTO'
         row.operator(PDEHEAD_OT_mirror.bl_idname, text="By Skull Symmetry").plane = 'SKULL'
+        draw_face_section(layout, coll)
         layout.operator(PDEHEAD_OT_export_print.bl_idname, icon='EXPORT')
 
 
@@ -369,5 +453,7 @@ CLASSES = (
     PDEHEAD_OT_frankfurt,
     PDEHEAD_OT_mirror,
     PDEHEAD_OT_export_print,
+    PDEHEAD_OT_build_face,
+    PDEHEAD_OT_face_sd_range,
     PDEHEAD_PT_forensic,
 )

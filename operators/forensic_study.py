@@ -473,12 +473,14 @@ def _peg_matrix(base_mm: np.ndarray, normal: np.ndarray):
     return Matrix.Translation(Vector((base_mm * MM_TO_M).tolist())) @ rot
 
 
-def make_pegs(coll, table, target: str = "BONE") -> list:
+def make_pegs(coll, table, target: str = "BONE", pegs=None) -> list:
     """Marker pegs on the skull at the placed landmarks that ``table`` has.
 
     Each peg stands on the bone along the bone normal (the depth table's convention) with the table's
     mean as its length. The length is the peg's custom property ``depth_mm`` (animatable; its slider
-    is limited to the table's mean +- 2 SD), which drives the object's Z scale.
+    is limited to the table's mean +- 2 SD), which drives the object's Z scale. ``pegs``: the pegs'
+    (name, base mm, unit normal, length mm) when they come from elsewhere (the face model of
+    :mod:`.face`) instead of the landmarks snapped to ``target``.
     """
     from ..pdehead_addon.depth_table import DepthEntry, DepthTable
     from ..pdehead_addon.landmarks import marker_pegs
@@ -486,7 +488,8 @@ def make_pegs(coll, table, target: str = "BONE") -> list:
     if not isinstance(table, DepthTable):     # a plain {name: depth} mapping (no SDs)
         table = DepthTable(entries={k: DepthEntry(k, float(v)) for k, v in table.items()}, name="imported table")
     lms = landmarks(coll)
-    pegs = marker_pegs(lms, skull_engine_mesh(coll, target), table)
+    if pegs is None:
+        pegs = marker_pegs(lms, skull_engine_mesh(coll, target), table)
     if not pegs:
         raise PDEHeadError(f"none of the placed landmarks ({', '.join(lms) or 'none'}) is in the depth table "
                            f"'{table.label}'")

@@ -19,7 +19,7 @@ from bpy.props import (BoolProperty, EnumProperty, FloatProperty, FloatVectorPro
                        IntVectorProperty, PointerProperty, StringProperty)
 
 from ..pdehead_addon import defaults as D
-from . import state, study
+from . import face, state, study
 
 #: Blender >= 4.5 warns about "//" in path properties unless they declare blend-relative support.
 PATH_OPTIONS = {'PATH_SUPPORTS_BLEND_RELATIVE'} if bpy.app.version >= (4, 5, 0) else set()
@@ -34,6 +34,21 @@ def _live(what: str):
         if coll is not None:
             study.live_update(coll, what, context)
     return update
+
+
+def _face_table_update(self, context):
+    """Switching the face's table re-solves the face (nothing while updates are suspended)."""
+    if state.updates_suspended() or not self.is_study:
+        return
+    coll = state.study_of_settings(self)
+    if coll is not None:
+        face.live_table(coll)
+
+
+def _face_table_file_update(self, context):
+    """A new table file counts only while the face uses a table file (else the pegs keep their depths)."""
+    if self.face_table == 'FILE':
+        _face_table_update(self, context)
 
 
 SELECTION_ITEMS = [
@@ -90,6 +105,15 @@ class PDEHeadStudySettings(bpy.types.PropertyGroup):
     use_bone_level: BoolProperty(name="Set Bone Level", **D.USE_BONE_LEVEL.limits(),
                                  description=D.USE_BONE_LEVEL.description)
     bone_level: FloatProperty(name="Bone Level", **D.BONE_LEVEL.limits(), description=D.BONE_LEVEL.description)
+
+    # Forensic: Face from Skull (issue 23): the table the face uses; switching it re-solves the face at once
+    face_table: EnumProperty(name="Face Table", items=face.FACE_TABLE_ITEMS, default='DEFAULT',
+                             update=_face_table_update, description="The depth table the face's pegs stand by")
+    face_table_file: StringProperty(name="Table File", subtype="FILE_PATH", options=PATH_OPTIONS,
+                                    update=_face_table_file_update,
+                                    description="A depth table CSV (landmark,mean_mm[,sd_mm,n])")
+    face_sex: EnumProperty(name="Sex", items=face.FACE_SEX_ITEMS, default='POOLED',
+                           description="Sex, for tables with separate values (used by the next Build Face)")
 
     # Segmentation (results, for the panel)
     seg_fraction: FloatProperty(name="Head Fraction", description="Fraction of voxels inside the head mask")

@@ -16,7 +16,8 @@ import build_extension  # noqa: E402
 
 OPERATORS = ["import_ct", "load_phantom", "segment", "extract_boundaries", "reconstruct_surface",
              "build_solid", "build_volume", "run_pipeline", "frame_study", "add_cutter", "remove_study"]
-OUR_HANDLERS = ["depsgraph_update_post:pdehead_cutter_update", "frame_change_post:pdehead_frame_change",
+OUR_HANDLERS = ["depsgraph_update_post:pdehead_cutter_update", "depsgraph_update_post:pdehead_face_update",
+                "frame_change_post:pdehead_frame_change",
                 "frame_change_pre:pdehead_frame_change_pre", "load_post:pdehead_load_post",
                 "load_post:pdehead_migrate_load_post", "load_post:pdehead_volume_load_post",
                 "save_post:pdehead_save_post", "save_pre:pdehead_save_pre"]

@@ -1,0 +1,465 @@
+"""Face from Skull in Blender: the face object, its pegs, and the live re-solve when a peg moves.
+
+The engine (:mod:`pdehead_addon.face_from_skull`) prepares a :class:`FaceModel` from the skull, the
+landmarks and a depth table (seconds), then solves a face through the peg tips (fast). This module is
+the Blender side of it:
+
+* **Build Face** (:func:`build_face`) prepares the model, builds the face as its own object in the
+  study's collection (shaded smooth) and the pegs as child objects of it (one per peg of the model,
+  standing on the bone along the bone normal, as long as the table's mean). The label
+  :data:`APPROXIMATION_LABEL` and the provenance are custom properties of the face object.
+* **Live.** A ``depsgraph_update_post`` handler (:func:`pdehead_face_update`, registered once, guarded
+  against recursion) compares each face's peg tips (a peg's tip: its origin on the bone plus its
+  ``depth_mm`` along its own Z axis) with the tips of the last solve; when one moved -- a peg dragged
+  with G, moved by a script, or its depth changed -- the model is solved through the new tips and only
+  the vertex positions of the same mesh are rewritten (``foreach_set``; no new datablock). Switching the
+  table (study setting ``face_table``) sets every peg to the new table's mean and re-solves at once.
+* **Save and reopen.** Everything the face needs is in the .blend: the bone skull object's mesh, the
+  landmarks the face was built from, the table, the options (JSON on the collection) and the tips of
+  the last solve (on the face object). The :class:`FaceModel` itself is a runtime cache, prepared again
+  on the first change after reopening (or after undo to another build).
+"""
+from __future__ import annotations
+
+import json
+import time
+import uuid
+
+import numpy as np
+
+import bpy
+
+from ..pdehead_addon import PDEHeadError
+from . import state
+from .coords import MM_TO_M
+
+FACE_KEY = "pdehead_face_object"            # collection -> the face object
+FACE_OPTIONS_KEY = "pdehead_face_options"   # collection: JSON of what the face was built from
+SD_FACE_KEYS = {"minus": "pdehead_face_minus_sd_object", "plus": "pdehead_face_plus_sd_object"}
+LABEL_PROP = "pdehead_label"                # face object: the approximation label
+PROVENANCE_PROP = "pdehead_provenance"      # face object: JSON provenance
+TIPS_PROP = "pdehead_face_tips"             # face object: the peg tips (patient mm) of the last solve
+FACE_KIND = "face"
+FACE_MATERIAL = "PDE Head Face"
+SD_MATERIALS = {"minus": ("PDE Head Face -1 SD", (0.25, 0.45, 0.95, 1.0)),
+                "plus": ("PDE Head Face +1 SD", (0.95, 0.3, 0.25, 1.0))}
+
+#: Depth tables the face can use (study setting ``face_table``).
+FACE_TABLE_ITEMS = [
+    ('DEFAULT', "T-Table 2023", "The shipped T-Table 2023 (Hona & Stephan 2024), pooled grand means and SDs"),
+    ('FILE', "Table File", "A depth table CSV (landmark,mean_mm[,sd_mm,n]; our names or Caple & Stephan codes)"),
+]
+#: Sex for tables that have separate values for it (study setting ``face_sex``).
+FACE_SEX_ITEMS = [
+    ('POOLED', "Pooled", "Both sexes pooled (every table has it)"),
+    ('FEMALE', "Female", "The table's female values, where it has them"),
+    ('MALE', "Male", "The table's male values, where it has them"),
+]
+#: Tips closer than this (mm) to the last solve's count as unchanged.
+TIP_TOLERANCE_MM = 1e-4
+
+
+def _engine():
+    from ..pdehead_addon import face_from_skull
+    return face_from_skull
+
+
+def approximation_label() -> str:
+    return _engine().APPROXIMATION_LABEL
+
+
+def _cache(coll) -> dict:
+    return state.cache_for(state.settings(coll).study_id).forensic
+
+
+def _obj(coll, key):
+    obj = coll.get(key)
+    return obj if isinstance(obj, bpy.types.Object) and obj.name in bpy.data.objects else None
+
+
+def face_object(coll):
+    return _obj(coll, FACE_KEY)
+
+
+def face_options(coll) -> dict:
+    return json.loads(coll.get(FACE_OPTIONS_KEY, "{}") or "{}")
+
+
+# ------------------------------------------------------------------------------------------ inputs
+def skull_mesh(coll):
+    """The bone skull as an engine Mesh (patient mm): read from the study's bone object (what the .blend
+    holds, so a reopened file prepares the same model), else built from the CT."""
+    from ..pdehead_addon.mesh import Mesh
+    from .forensic_study import skull_engine_mesh
+    from .objects import study_origin
+
+    obj = _obj(coll, "pdehead_bone_object")
+    if obj is None or obj.type != 'MESH' or len(obj.data.polygons) == 0:
+        return skull_engine_mesh(coll, "BONE")
+    me = obj.data
+    me.calc_loop_triangles()
+    co = np.empty(len(me.vertices) * 3, np.float32)
+    me.vertices.foreach_get("co", co)
+    tris = np.empty(len(me.loop_triangles) * 3, np.int32)
+    me.loop_triangles.foreach_get("vertices", tris)
+    origin = np.array(study_origin(coll), float)
+    vertices = (co.reshape(-1, 3).astype(np.float64) + origin) / MM_TO_M
+    return Mesh(vertices, np.zeros((0, 4), np.int64), tris.reshape(-1, 3).astype(np.int64))
+
+
+_TABLES: dict = {}
+
+
+def face_table(coll):
+    """The depth table the study's face uses (setting ``face_table``): the shipped T-Table 2023 or a CSV."""
+    import os
+
+    from ..pdehead_addon.depth_table import default_table, read_depth_table
+
+    s = state.settings(coll)
+    if s.face_table == 'FILE':
+        if not s.face_table_file:
+            raise PDEHeadError("choose a depth table file (Table File), or the T-Table 2023")
+        path = bpy.path.abspath(s.face_table_file)
+        if not os.path.isfile(path):
+            raise PDEHeadError(f"{path}: no such depth table file")
+        key = (path, os.path.getmtime(path))
+    else:
+        key = ("default",)
+    if key not in _TABLES:
+        _TABLES[key] = default_table() if key == ("default",) else read_depth_table(path)
+    return _TABLES[key]
+
+
+def _sex(coll) -> str | None:
+    value = state.settings(coll).face_sex
+    return None if value == 'POOLED' else value.lower()
+
+
+def table_has_sex(table) -> bool:
+    """Whether ``table`` holds separate values per sex (the shipped T-Table 2023 is pooled)."""
+    return bool(getattr(table, "sexes", None) or getattr(table, "by_sex", None))
+
+
+# ------------------------------------------------------------------------------------------ model
+def face_model(coll):
+    """The study's prepared FaceModel (runtime cache; prepared again from the .blend's data when missing)."""
+    opts = face_options(coll)
+    if not opts:
+        raise PDEHeadError(f"study '{coll.name}' has no face yet: run Build Face")
+    cache = _cache(coll)
+    if cache.get("face_model") is None or cache.get("face_build") != opts["build"]:
+        from ..pdehead_addon.depth_table import DepthTable
+        table = DepthTable.from_json(opts["table"])
+        lms = {k: np.array(v, float) for k, v in opts["landmarks"].items()}
+        with state.Timer() as t:
+            model = _engine().FaceModel.prepare(skull_mesh(coll), lms, table, sex=opts.get("sex"),
+                                                flags=opts.get("flags"), **opts.get("options", {}))
+        cache.update(face_model=model, face_build=opts["build"], face_tips=None, face_prepare_s=t.seconds)
+    return cache["face_model"]
+
+
+def _peg_objects(coll, names: list[str]) -> dict:
+    """name -> the study's peg object of that landmark (the face's children first)."""
+    face = face_object(coll)
+    found = {}
+    if face is not None:
+        for o in face.children:
+            name = o.get("pdehead_peg")
+            if name in names and name not in found:
+                found[name] = o
+    if len(found) < len(names):
+        for o in coll.all_objects:
+            name = o.get("pdehead_peg")
+            if name in names and name not in found:
+                found[name] = o
+    return found
+
+
+def peg_tips(coll, names: list[str]) -> np.ndarray:
+    """The peg tips (patient mm), in ``names`` order: each peg's origin plus ``depth_mm`` along its Z axis.
+    A peg that is gone gives NaN."""
+    from .forensic_study import PEG_DEPTH_PROP, _frankfurt
+
+    pegs = _peg_objects(coll, names)
+    inverse = np.array(_frankfurt(coll).inverted())
+    tips = np.full((len(names), 3), np.nan)
+    for i, name in enumerate(names):
+        peg = pegs.get(name)
+        if peg is None:
+            continue
+        m = np.array(peg.matrix_world)
+        axis = m[:3, 2]
+        length = np.linalg.norm(axis)
+        if not length > 0:
+            continue
+        tip = m[:3, 3] + axis / length * float(peg.get(PEG_DEPTH_PROP, 0.0)) * MM_TO_M
+        tips[i] = (inverse[:3, :3] @ tip + inverse[:3, 3]) / MM_TO_M
+    return tips
+
+
+def _write_positions(coll, obj, mesh) -> bool:
+    """The face mesh's vertex positions rewritten in place (same topology: the fast path), else the same
+    mesh datablock refilled (the face's caps may gain or lose a vertex between two solves). Returns
+    whether it was refilled."""
+    from . import objects
+
+    me = obj.data
+    if len(me.vertices) == len(mesh.vertices) and len(me.polygons) == mesh.face_count:
+        local = np.asarray(mesh.vertices, np.float64) * MM_TO_M - np.asarray(objects.study_origin(coll))
+        me.attributes["position"].data.foreach_set("vector", np.ascontiguousarray(local, np.float32).ravel())
+        me.update()
+        return False
+    objects.build_mesh_object(mesh, coll, obj.name, obj=obj, smooth=True)
+    return True
+
+
+def _provenance(coll, result, table) -> dict:
+    from .forensic_study import flag_names
+    from ..pdehead_addon.provenance import provenance
+
+    opts = face_options(coll)
+    rec = provenance(label=approximation_label(), **(table.provenance_record() if table is not None else {}))
+    rec.update({k: v for k, v in dict(result.provenance).items() if k not in rec})
+    flags = flag_names(coll)
+    rec["landmarks"] = {n: flags.get(n, "ok") for n in opts.get("landmarks", {})}
+    rec["sex"] = opts.get("sex") or "pooled"
+    rec["label"] = approximation_label()
+    return rec
+
+
+def solve_face(coll, tips: np.ndarray | None = None, table=None) -> dict:
+    """Solve the face through ``tips`` (default: the pegs' tips now) and rewrite the face object's vertices.
+    Returns the timings (seconds): ``solve`` (the engine), ``write`` (Blender) and ``total``."""
+    t0 = time.perf_counter()
+    obj = face_object(coll)
+    if obj is None:
+        raise PDEHeadError(f"study '{coll.name}' has no face: run Build Face")
+    model = face_model(coll)
+    names = list(model.peg_names)
+    if tips is None:
+        tips = peg_tips(coll, names)
+    raw = np.asarray(tips, float)
+    tips = raw.copy()
+    gone = ~np.isfinite(tips).all(axis=1)
+    if gone.any():     # a deleted peg: its tip back at the table's mean (the raw NaN is what is compared)
+        tips[gone] = model.peg_bases[gone] + model.peg_normals[gone] * model.default_depths[gone, None]
+    t1 = time.perf_counter()
+    result = model.solve(tips=tips)
+    t2 = time.perf_counter()
+    refilled = _write_positions(coll, obj, result.mesh)
+    obj[TIPS_PROP] = [float(v) for v in raw.ravel()]
+    if table is not None:
+        obj[PROVENANCE_PROP] = json.dumps(_provenance(coll, result, table))
+    t3 = time.perf_counter()
+    _cache(coll)["face_tips"] = raw
+    timings = {"tips": t1 - t0, "solve": t2 - t1, "write": t3 - t2, "total": t3 - t0, "refilled": refilled,
+               "engine": dict(result.timings)}
+    _cache(coll)["face_timings"] = timings
+    obj["pdehead_face_ms"] = round(1000 * timings["total"], 1)
+    return timings
+
+
+def face_changed(coll) -> bool:
+    """Whether a peg tip moved since the last solve (cheap: no model needed)."""
+    obj = face_object(coll)
+    if obj is None:
+        return False
+    last = _cache(coll).get("face_tips")
+    if last is None:
+        stored = obj.get(TIPS_PROP)
+        if stored is None:
+            return True
+        last = np.array(stored, float).reshape(-1, 3)
+        _cache(coll)["face_tips"] = last
+    names = face_options(coll).get("pegs", [])
+    now = peg_tips(coll, names)
+    if now.shape != last.shape:
+        return True
+    same = np.abs(now - last) <= TIP_TOLERANCE_MM
+    same |= np.isnan(now) & np.isnan(last)             # a peg that is gone stays gone: no new solve
+    return not bool(same.all())
+
+
+# ------------------------------------------------------------------------------------------ build
+def build_face(coll) -> tuple:
+    """Build the face of the study (skull and landmarks made first when missing): (face object, pegs)."""
+    from . import objects
+    from .forensic_study import (BASE_MATRIX_KEY, FRANKFURT_KEY, _frankfurt, _material, _set_material,
+                                 find_landmarks, flag_names, landmarks, make_pegs, step_skull)
+
+    s = state.settings(coll)
+    if _obj(coll, "pdehead_bone_object") is None:
+        step_skull(coll, s.nu, s.nv)
+    if not landmarks(coll):
+        find_landmarks(coll)
+    table = face_table(coll)
+    lms = landmarks(coll)
+    sex = _sex(coll)
+    flags = flag_names(coll)
+    with state.Timer() as t:
+        model = _engine().FaceModel.prepare(skull_mesh(coll), lms, table, sex=sex, flags=flags)
+    if not len(model.peg_names):
+        raise PDEHeadError(f"none of the landmarks ({', '.join(lms) or 'none'}) is in the depth table "
+                           f"'{table.label}': no peg to build the face through")
+    build = uuid.uuid4().hex
+    coll[FACE_OPTIONS_KEY] = json.dumps(dict(build=build, table=table.to_json(), sex=sex, options={}, flags=flags,
+                                             landmarks={k: [float(c) for c in v] for k, v in lms.items()},
+                                             pegs=list(model.peg_names)))
+    _cache(coll).update(face_model=model, face_build=build, face_tips=None, face_prepare_s=t.seconds)
+    result = model.solve()
+    obj = objects.build_mesh_object(result.mesh, coll, f"{coll.name} Face", obj=face_object(coll), smooth=True)
+    obj["pdehead_kind"] = FACE_KIND
+    obj[LABEL_PROP] = approximation_label()
+    coll[FACE_KEY] = obj
+    _set_material(obj, _material(FACE_MATERIAL, (0.80, 0.62, 0.52, 1.0)))
+    if coll.get(FRANKFURT_KEY):
+        obj[BASE_MATRIX_KEY] = [v for row in obj.matrix_world for v in row]
+        obj.matrix_world = _frankfurt(coll) @ obj.matrix_world
+    # the pegs: one per peg of the model (old pegs of the study are replaced), children of the face
+    pegs = make_pegs(coll, table, pegs=[(n, model.peg_bases[i], model.peg_normals[i],
+                                         float(model.default_depths[i])) for i, n in enumerate(model.peg_names)])
+    for peg in pegs:
+        world = peg.matrix_world.copy()
+        peg.parent = obj
+        peg.matrix_parent_inverse = obj.matrix_world.inverted()
+        peg.matrix_world = world
+    tips = model.peg_bases + model.peg_normals * np.asarray(model.default_depths, float)[:, None]
+    obj[TIPS_PROP] = [float(v) for v in tips.ravel()]
+    obj[PROVENANCE_PROP] = json.dumps(_provenance(coll, result, table))
+    _cache(coll)["face_tips"] = tips
+    state.record_timing(coll, "face_prepare", t.seconds)
+    return obj, pegs
+
+
+def switch_table(coll) -> dict | None:
+    """The face's pegs set to the mean (and mean +- 2 SD range) of the study's table now, and the face
+    re-solved; pegs the new table lacks keep their length. None when the study has no face."""
+    from .forensic_study import PEG_DEPTH_PROP
+
+    obj = face_object(coll)
+    if obj is None:
+        return None
+    table = face_table(coll)
+    opts = face_options(coll)
+    pegs = _peg_objects(coll, opts.get("pegs", []))
+    for name, peg in pegs.items():
+        entry = table.entries.get(name)
+        if entry is None:
+            continue
+        lo, hi = entry.range_mm(2.0)
+        peg[PEG_DEPTH_PROP] = float(entry.mean_mm)
+        peg.id_properties_ui(PEG_DEPTH_PROP).update(min=lo, max=hi, soft_min=lo, soft_max=hi,
+                                                    default=float(entry.mean_mm))
+        peg["table_mean_mm"] = float(entry.mean_mm)
+        if entry.sd_mm is not None:
+            peg["table_sd_mm"] = float(entry.sd_mm)
+        else:
+            peg.pop("table_sd_mm", None)
+        peg["table_name"] = table.label
+        peg.scale[2] = float(entry.mean_mm)       # what the driver will say; the tip is read from depth_mm
+    opts["table"] = table.to_json()
+    coll[FACE_OPTIONS_KEY] = json.dumps(opts)
+    return solve_face(coll, table=table)
+
+
+def set_peg_depth(coll, peg, depth_mm: float) -> float:
+    """A face peg's length (limited to its table's mean +- 2 SD) and the face re-solved; returns the length."""
+    from .forensic_study import set_peg_depth as set_depth
+    value = set_depth(peg, depth_mm)
+    if face_object(coll) is not None:
+        solve_face(coll)
+    return value
+
+
+def build_sd_faces(coll) -> list:
+    """The faces with every peg at its length - 1 SD and + 1 SD (pegs without an SD stay), as two objects
+    beside the face (wire display): the range the table allows. Returns [minus, plus]."""
+    from . import objects
+    from .forensic_study import _material, _set_material
+
+    face = face_object(coll)
+    if face is None:
+        raise PDEHeadError(f"study '{coll.name}' has no face: run Build Face")
+    model = face_model(coll)
+    names = list(model.peg_names)
+    tips = peg_tips(coll, names)
+    depth = np.einsum("ij,ij->i", tips - model.peg_bases, model.peg_normals)
+    sd = np.nan_to_num(np.asarray(model.depth_sd, float), nan=0.0)
+    made = []
+    for sign, key in ((-1.0, "minus"), (1.0, "plus")):
+        result = model.solve(depths=np.maximum(depth + sign * sd, 0.0))
+        label = "-1 SD" if sign < 0 else "+1 SD"
+        obj = objects.build_mesh_object(result.mesh, coll, f"{coll.name} Face {label}",
+                                        obj=_obj(coll, SD_FACE_KEYS[key]), smooth=True)
+        obj["pdehead_kind"] = f"face_{key}_sd"
+        obj[LABEL_PROP] = approximation_label()
+        obj[PROVENANCE_PROP] = json.dumps(dict(json.loads(face.get(PROVENANCE_PROP, "{}")),
+                                               depths=f"every peg at its length {label}"))
+        obj.display_type = 'WIRE'
+        obj.matrix_world = face.matrix_world
+        _set_material(obj, _material(*SD_MATERIALS[key]))
+        coll[SD_FACE_KEYS[key]] = obj
+        made.append(obj)
+    return made
+
+
+# ------------------------------------------------------------------------------------------ live
+def live_table(coll) -> None:
+    """Update callback of ``face_table`` / ``face_table_file`` (never raises into the UI)."""
+    s = state.settings(coll)
+    try:
+        switch_table(coll)
+        s.last_error = ""
+    except Exception as exc:  # noqa: BLE001 - an update callback must never raise into the UI
+        s.last_error = f"face: {exc}"[:500]
+
+
+_BUSY = [False]
+
+
+@bpy.app.handlers.persistent
+def pdehead_face_update(_scene, depsgraph=None) -> None:
+    """After a depsgraph update: re-solve each study's face whose peg tips moved since its last solve.
+
+    A scene without a face costs one key lookup per study; a face whose pegs did not move, one
+    matrix read per peg.
+    """
+    if _BUSY[0] or state.updates_suspended():
+        return
+    _BUSY[0] = True
+    try:
+        for coll in state.studies():
+            if FACE_KEY not in coll:
+                continue
+            obj = face_object(coll)
+            if obj is None or obj.mode == 'EDIT':      # edited by hand: Blender's edit mesh would overwrite it
+                continue
+            try:
+                if face_changed(coll):
+                    solve_face(coll)
+            except Exception as exc:  # noqa: BLE001 - a handler must not raise into Blender
+                obj = face_object(coll)
+                if obj is not None:      # do not retry on every update: remember the tips tried
+                    _cache(coll)["face_tips"] = peg_tips(coll, face_options(coll).get("pegs", []))
+                state.settings(coll).last_error = f"face: {exc}"[:500]
+                print(f"PDE Head: face of '{coll.name}' not updated: {exc}")
+    finally:
+        _BUSY[0] = False
+
+
+def _remove_handler() -> None:
+    handlers = bpy.app.handlers.depsgraph_update_post
+    for h in list(handlers):
+        if getattr(h, "__name__", "") == pdehead_face_update.__name__ and getattr(h, "__module__", "") == __name__:
+            handlers.remove(h)
+
+
+def register() -> None:
+    _remove_handler()      # never twice (a re-register after a reload)
+    bpy.app.handlers.depsgraph_update_post.append(pdehead_face_update)
+
+
+def unregister() -> None:
+    _remove_handler()
+    _TABLES.clear()
