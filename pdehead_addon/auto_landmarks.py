@@ -80,8 +80,8 @@ MIRROR_TOLERANCE_MM = 12.0
 #: plane x = 0; "front view" etc. are the depth images of the module docstring.
 RULES: dict[str, str] = {
     "po": "Porion: the highest point of the upper margin of the external acoustic meatus -- in the side view, "
-          "the outermost bone just above the meatus opening's highest pixel; where that roof reaches more than "
-          "3 mm beyond the canal's floor, half way back along it (uncertain).",
+          "the outermost bone just above the meatus opening's highest pixel, moved half way back along the roof to "
+          "where the canal has a floor (uncertain where the roof reaches more than 3 mm beyond it).",
     "or": "Orbitale: the lowest point of the infraorbital margin -- in the front view, the bone just below the "
           "lowest pixel of the orbit opening.",
     "v": "Vertex: the highest point of the skull near the mid-sagittal plane (the middle of a flat top: the top "
@@ -392,7 +392,8 @@ def porion_overhang(v: _Views, side: int, meatus: np.ndarray, p: np.ndarray, sea
     Going medially from porion along its row, the canal's lateral end is the first x where there is bone
     within ``PORION_FLOOR_MM`` below the opening's top (a floor). Where the roof overhangs it (the root of
     the zygomatic arch, the supramastoid crest) a reader may put porion on the roof's edge or above the
-    canal's end: the rule's point is then uncertain by this much, and :func:`find_landmarks` puts it half way (the roof above the middle).
+    canal's end: the rule's point is uncertain by this much; :func:`find_landmarks` puts it half way (the roof
+    above the middle) and flags it ``uncertain`` beyond ``PORION_OVERHANG_MM``.
     """
     fr = v.fr
     top = int(np.flatnonzero(meatus.any(0)).max())
@@ -734,8 +735,9 @@ def find_landmarks(ct, bone: np.ndarray, *, grid_mm: float = LANDMARK_GRID_MM) -
             out[f"po_{tag}_d"] = d
             if out[f"po_{tag}"] is not None:
                 over = out[f"po_{tag}_overhang"] = porion_overhang(v, side, m, out[f"po_{tag}"])
-                if over > PORION_OVERHANG_MM:
+                if over > 0:
                     # half way between the roof's edge and the canal's end (the two readings), on the roof
+                    # (always, not only when flagged: a threshold would make porion jump with the grid)
                     p = out[f"po_{tag}"]
                     ix, iy = fr.index(0, p[0] - side * 0.5 * over), fr.index(1, p[1])
                     top = int(np.flatnonzero(m.any(0)).max())
