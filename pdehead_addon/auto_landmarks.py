@@ -59,8 +59,18 @@ SIDE_CLOSING_MM = 9.0
 #: lower central incisor crowns (Wheeler's Dental Anatomy, 10th ed., table 1-1: 10.5 and 9.0 mm).
 UPPER_INCISOR_CROWN_MM = 10.5
 LOWER_INCISOR_CROWN_MM = 9.0
-#: Bone voxel centres used for the first frame's symmetry plane (a random subset).
-SYMMETRY_POINTS = 4000
+#: Bone surface voxel centres used for the first frame's symmetry plane (a random subset).
+SYMMETRY_POINTS = 20000
+#: Length of the nasal bones, nasion to rhinion (mm; adult means are about 20-25 mm): without them in the
+#: bone mask, the maxilla is looked for from this far below nasion.
+NASAL_BONE_LENGTH_MM = 20.0
+#: A flat side (the zygomatic arch): the outermost point is the middle of the bone within this (mm) of it.
+SIDE_EXTREME_TOLERANCE_MM = 1.0
+#: The margin of an opening (supraorbital, lateral orbit): the front-most point of this much bone (mm)
+#: next to the opening.
+RIM_MM = 3.0
+#: Vertex is looked for on the vault's top within this distance (mm) of the mid-sagittal plane.
+VERTEX_HALF_WIDTH_MM = 30.0
 #: Porions (orbitales) farther than this from mirror images of each other are flagged uncertain (mm).
 MIRROR_TOLERANCE_MM = 12.0
 
@@ -70,11 +80,13 @@ MIRROR_TOLERANCE_MM = 12.0
 #: plane x = 0; "front view" etc. are the depth images of the module docstring.
 RULES: dict[str, str] = {
     "po": "Porion: the highest point of the upper margin of the external acoustic meatus -- in the side view, "
-          "the outermost bone just above the meatus opening's highest pixel.",
+          "the outermost bone just above the meatus opening's highest pixel, moved half way back along the roof to "
+          "where the canal has a floor (uncertain where the roof reaches more than 3 mm beyond it).",
     "or": "Orbitale: the lowest point of the infraorbital margin -- in the front view, the bone just below the "
           "lowest pixel of the orbit opening.",
-    "v": "Vertex: the highest point of the skull on the mid-sagittal plane (the middle of a flat top: the points "
-         "within 1.5 mm of the highest).",
+    "v": "Vertex: the highest point of the skull near the mid-sagittal plane (the middle of a flat top: the top "
+         "columns within 30 mm of the plane and 1.5 mm of the highest; a vault is rarely symmetric about the "
+         "whole skull's plane).",
     "op": "Opisthocranion: the most posterior point of the skull on the mid-sagittal plane (middle of a flat back).",
     "g": "Glabella: the most anterior point of the mid-sagittal profile 25-65 mm above orbitale.",
     "n": "Nasion: the deepest (most posterior) point of the profile's concavity below glabella, on the profile "
@@ -336,34 +348,76 @@ def _rim_below(v: _Views, hole: np.ndarray, ix: int) -> np.ndarray | None:
     return None
 
 
+def _front_most(v: _Views, pixels) -> np.ndarray | None:
+    """The most anterior front-view point of the first ``RIM_MM`` of bone along a list of (ix, iz) pixels
+    leaving an opening: the margin of the opening, where a steep rim (under a brow ridge, the lateral
+    orbital wall) would otherwise put the first bone pixel far behind its front edge."""
+    pts = []
+    for ix, iz in pixels:
+        p = v.front_point(ix, iz)
+        if p is not None:
+            pts.append(p)
+        if pts and len(pts) * v.fr.step >= RIM_MM:
+            break
+    return min(pts, key=lambda p: p[1]) if pts else None
+
+
 def _rim_above(v: _Views, hole: np.ndarray, ix: int) -> np.ndarray | None:
     col = np.flatnonzero(hole[ix])
     if not len(col):
         return None
-    for iz in range(col.max() + 1, min(col.max() + 6, hole.shape[1])):
-        p = v.front_point(ix, iz)
-        if p is not None:
-            return p
-    return None
+    return _front_most(v, [(ix, iz) for iz in range(col.max() + 1, min(col.max() + 9, hole.shape[1]))])
 
 
 def orbitale(v: _Views, orbit: np.ndarray) -> np.ndarray | None:
     """Orbitale: the lowest point of the infraorbital margin -- over the orbit opening's columns in the
-    front view, the bone pixel just below the opening's lowest pixel, the lowest of them."""
+    front view, the bone pixel just below the opening's lowest pixel, the lowest of them (a flat rim:
+    the middle of the columns within one grid step of the lowest)."""
     cols = np.flatnonzero(orbit.any(1))
     lows = [(np.flatnonzero(orbit[ix]).min(), ix) for ix in cols]
     lowest = min(l for l, _ in lows)
-    ixs = [ix for l, ix in lows if l == lowest]
+    ixs = [ix for l, ix in lows if l <= lowest + 1]
     return _rim_below(v, orbit, ixs[len(ixs) // 2])
+
+
+#: The meatus' floor is looked for this far (mm) below the opening's top (for :func:`porion_overhang`).
+PORION_FLOOR_MM = 14.0
+#: A roof reaching more than this (mm) beyond the canal's floor makes porion ``uncertain``.
+PORION_OVERHANG_MM = 3.0
+
+
+def porion_overhang(v: _Views, side: int, meatus: np.ndarray, p: np.ndarray, search_mm: float = 15.0) -> float:
+    """How far (mm) the bone above the meatus reaches laterally beyond the canal's floor at porion ``p``.
+
+    Going medially from porion along its row, the canal's lateral end is the first x where there is bone
+    within ``PORION_FLOOR_MM`` below the opening's top (a floor). Where the roof overhangs it (the root of
+    the zygomatic arch, the supramastoid crest) a reader may put porion on the roof's edge or above the
+    canal's end: the rule's point is uncertain by this much; :func:`find_landmarks` puts it half way (the roof
+    above the middle) and flags it ``uncertain`` beyond ``PORION_OVERHANG_MM``.
+    """
+    fr = v.fr
+    top = int(np.flatnonzero(meatus.any(0)).max())
+    iy, ix0 = fr.index(1, p[1]), fr.index(0, p[0])
+    n_floor = max(1, int(round(PORION_FLOOR_MM / fr.step)))
+    for k in range(int(round(search_mm / fr.step)) + 1):
+        ix = ix0 - side * k
+        if not 0 <= ix < fr.shape[0]:
+            break
+        if fr.bone[ix, iy, max(top - n_floor, 0):max(top - 1, 0)].any():
+            return k * fr.step
+    return search_mm
 
 
 def porion(v: _Views, side: int, meatus: np.ndarray) -> np.ndarray | None:
     """Porion: the highest point of the upper margin of the external acoustic meatus -- in the side
-    view, the bone pixel just above the opening's highest pixel (the outermost bone there)."""
+    view, the bone pixel just above the opening's highest pixel (the outermost bone there); see
+    :func:`porion_overhang` for when it is uncertain."""
     rows = np.flatnonzero(meatus.any(0))
     top = rows.max()
-    iys = np.flatnonzero(meatus[:, top])
-    iy = iys[len(iys) // 2]
+    # the middle of the opening's top 2 mm (its top row alone may be a pixel or two: a slightly different
+    # frame would move porion along y by the width of the opening)
+    iys = np.flatnonzero(meatus[:, max(top - int(round(2.0 / v.fr.step)), 0):top + 1].any(1))
+    iy = int(round(0.5 * (iys.min() + iys.max())))
     for iz in range(top + 1, min(top + 6, meatus.shape[1])):
         p = v.side_point(side, iy, iz)
         if p is not None:
@@ -408,10 +462,18 @@ def _midline(res, fr, v, mid_x, skull_ids, mand_ids, orb_z, aperture, mand_top=N
             res[key] = (None, NOT_FOUND, "no skull bone on the mid-sagittal plane")
         return {}
     # a flat top (or back) gives a plateau: its middle, from the points within 1.5 mm of the extreme
-    top = pts[pts[:, 1] >= pts[:, 1].max() - 1.5 / fr.step]
-    iy = int(np.round(np.median(top[:, 0])))
-    iz = int(np.flatnonzero(skull_slab[iy]).max())
-    res["v"] = (np.array([mid_x, fr.coord(1, iy), fr.coord(2, iz)]), OK, "")
+    # vertex: a vault is rarely symmetric about the whole skull's plane (its top may sit several mm to
+    # one side), and a flat top makes the plane's x decide the point: take the top surface within
+    # VERTEX_HALF_WIDTH_MM of the plane, the columns within 1.5 mm of its highest, and their middle
+    ix_lo, ix_hi = fr.index(0, mid_x - VERTEX_HALF_WIDTH_MM), fr.index(0, mid_x + VERTEX_HALF_WIDTH_MM)
+    band = fr.bone[ix_lo:ix_hi + 1] & np.isin(fr.comp[ix_lo:ix_hi + 1], skull_ids)
+    top_iz, top_has = _first_true(band, 2, reverse=True)                 # (nx', ny)
+    height = np.where(top_has, top_iz, -1)
+    cols = np.argwhere(height >= height.max() - 1.5 / fr.step)
+    cx, cy = np.median(cols, axis=0)
+    k = int(np.argmin((cols[:, 0] - cx) ** 2 + (cols[:, 1] - cy) ** 2))   # a top column nearest the middle
+    ixv, iyv = int(cols[k, 0]), int(cols[k, 1])
+    res["v"] = (np.array([fr.coord(0, ix_lo + ixv), fr.coord(1, iyv), fr.coord(2, height[ixv, iyv])]), OK, "")
     back = pts[pts[:, 0] >= pts[:, 0].max() - 1.5 / fr.step]
     iz = int(np.round(np.median(back[:, 1])))
     iy = int(np.flatnonzero(skull_slab[:, iz]).max())
@@ -463,6 +525,10 @@ def _midline(res, fr, v, mid_x, skull_ids, mand_ids, orb_z, aperture, mand_top=N
     face = has & has_all & np.isin(front_comp, skull_ids) & (np.abs(fr.coord(1, iy_all) - py) < 1.5)
     face &= py < py[i_n] + 15
     k = i_rhi - int(round(3 / fr.step))
+    if res["rhi"][0] is None:
+        # the nasal bones are not in the mask: the bone just below nasion (frontal processes, bits of the
+        # nasal bones) would pass for the maxilla; look from one nasal-bone length below nasion
+        k = min(k, fr.index(2, z[i_n] - NASAL_BONE_LENGTH_MM))
     while k > 0 and not face[k]:
         k -= 1
     if k <= 0 or z[k] < orb_z - 80:
@@ -552,12 +618,13 @@ def _mandible_midline(res, fr, mid_x, mand_ids):
 
 
 def _side_extreme(fr, side, mask):
-    """Outermost (|x|) bone point of ``mask`` (frame grid) on ``side``; None if empty."""
+    """Outermost (|x|) bone point of ``mask`` (frame grid) on ``side`` (the middle of the bone within
+    ``SIDE_EXTREME_TOLERANCE_MM`` of the outermost, snapped to the bone); None if empty."""
     idx = np.argwhere(mask)
     if not len(idx):
         return None
     k = np.argmax(side * idx[:, 0])
-    far = idx[side * idx[:, 0] >= side * idx[k, 0] - 0.5]
+    far = idx[side * idx[:, 0] >= side * idx[k, 0] - SIDE_EXTREME_TOLERANCE_MM / fr.step - 0.01]
     p = fr.lo + fr.step * far.mean(0)
     return _nearest_surface(fr, p, None, 3.0)
 
@@ -629,10 +696,16 @@ def find_landmarks(ct, bone: np.ndarray, *, grid_mm: float = LANDMARK_GRID_MM) -
     info: dict = {"components": int(nlab)}
 
     # 1. first frame: symmetry plane
-    idx = np.argwhere(bone)
-    sub = idx[np.random.default_rng(0).permutation(len(idx))[:20000]]
+    # on the bone's surface voxels (what a mirror image must match; thick bone's inside adds weight, not
+    # evidence), with enough points that the subset's noise stays under a millimetre at the face
+    # (CThead: 4,000 voxels of the whole bone left the chin 1.9 mm and the vault's top 5 mm off the plane)
+    surface = bone & ~ndimage.binary_erosion(bone, structure=ndimage.generate_binary_structure(3, 1))
+    # a fixed random field picks the voxels, so that a voxel's choice does not depend on the rest of the
+    # bone (the skull without its mandible keeps the same points of the skull, and the same plane)
+    frac = min(1.0, SYMMETRY_POINTS / max(int(surface.sum()), 1))
+    sub = np.argwhere(surface & (np.random.default_rng(0).random(bone.shape, dtype=np.float32) < frac))
     pts = ct.index_to_patient(sub.astype(float))
-    c, n, sym = symmetry_plane(pts, max_points=SYMMETRY_POINTS)
+    c, n, sym = symmetry_plane(pts, max_points=len(pts))
     info["symmetry_residual_mm"] = sym["residual_mm"]
     x_ax = n / np.linalg.norm(n)
     z_ax = np.array([0.0, 0.0, 1.0]) - x_ax[2] * x_ax
@@ -660,6 +733,17 @@ def find_landmarks(ct, bone: np.ndarray, *, grid_mm: float = LANDMARK_GRID_MM) -
             m, d = _meatus(v, side, expect_y, expect_z)
             out[f"po_{tag}"] = None if m is None else porion(v, side, m)
             out[f"po_{tag}_d"] = d
+            if out[f"po_{tag}"] is not None:
+                over = out[f"po_{tag}_overhang"] = porion_overhang(v, side, m, out[f"po_{tag}"])
+                if over > 0:
+                    # half way between the roof's edge and the canal's end (the two readings), on the roof
+                    # (always, not only when flagged: a threshold would make porion jump with the grid)
+                    p = out[f"po_{tag}"]
+                    ix, iy = fr.index(0, p[0] - side * 0.5 * over), fr.index(1, p[1])
+                    top = int(np.flatnonzero(m.any(0)).max())
+                    roof = np.flatnonzero(fr.bone[ix, iy, top - 1:top + 6])
+                    z = fr.coord(2, top - 1 + roof[0]) if len(roof) else p[2]
+                    out[f"po_{tag}"] = np.array([fr.coord(0, ix), p[1], z])
         return v, orb_l, orb_r, aperture, out
 
     fr0 = _Frame(ct, bone, labels, rot, c, grid_mm)
@@ -700,9 +784,14 @@ def find_landmarks(ct, bone: np.ndarray, *, grid_mm: float = LANDMARK_GRID_MM) -
         if p is None:
             found[f"po_{t.lower()}"] = (None, NOT_FOUND, "no external acoustic meatus opening in the side view")
         else:
-            d = fp[f"po_{t}_d"]
-            found[f"po_{t.lower()}"] = (p, OK if d < 20 else UNCERTAIN,
-                                        "" if d < 20 else f"the meatus is {d:.0f} mm from where it was expected")
+            d, over = fp[f"po_{t}_d"], fp[f"po_{t}_overhang"]
+            if d >= 20:
+                found[f"po_{t.lower()}"] = (p, UNCERTAIN, f"the meatus is {d:.0f} mm from where it was expected")
+            elif over > PORION_OVERHANG_MM:
+                found[f"po_{t.lower()}"] = (p, UNCERTAIN, f"the bone above the meatus reaches {over:.0f} mm beyond "
+                                                           "the canal's floor: porion placed half way")
+            else:
+                found[f"po_{t.lower()}"] = (p, OK, "")
     ors = [found[k][0] for k in ("or_l", "or_r") if found[k][0] is not None]
     orb_z = float(np.mean([p[2] for p in ors])) if ors else 0.0
     pos = [found[k][0] for k in ("po_l", "po_r") if found[k][0] is not None]
@@ -725,11 +814,7 @@ def find_landmarks(ct, bone: np.ndarray, *, grid_mm: float = LANDMARK_GRID_MM) -
         p = None
         if len(row):
             edge = row.max() if side > 0 else row.min()
-            for ix in range(edge + side, edge + 6 * side, side):
-                if 0 <= ix < fr.shape[0]:
-                    p = v.front_point(ix, izl)
-                    if p is not None:
-                        break
+            p = _front_most(v, [(ix, izl) for ix in range(edge + side, edge + 9 * side, side) if 0 <= ix < fr.shape[0]])
         found[f"lo_{t}"] = _pt(p, "no bone lateral to the orbit")
         # frontal eminence: most prominent point above the orbit's centre, relative to the chord
         so = found[f"so_{t}"][0]

@@ -120,15 +120,22 @@ def markdown(results: dict, cthead_flags: dict) -> str:
               f"CThead: median {c['median_mm']:.1f} mm (target <= 3 mm: "
               f"{'met' if c['median_mm'] <= 3 else 'NOT met'}); largest `ok` error {c['max_ok_mm']:.1f} mm "
               f"(target <= 6 mm: {'met' if c['max_ok_mm'] <= 6 else 'NOT met'}).", "",
-              "Where the error comes from (CThead): the automatic mid-sagittal plane (the symmetry plane of the "
-              "whole bone) passes 2-3 mm lateral of the face's own midline, which every midline landmark carries; "
-              "porion sits on the outermost bone above the meatus, 4-5 mm lateral of where the bony canal's roof "
-              "starts; the maxilla's thin front (subspinale, prosthion) lies partly below the bone level, so the "
-              "mask's outline is a few mm behind the cortex a person reads; zygion and gonion lie on flat or "
-              "rounded stretches of bone where a person and a rule can pick points several mm apart. The "
-              "references themselves are good to about 1-2 mm. On the phantom the outliers are the supraorbital "
-              "margins (6.8 and 8.8 mm): the rim under the brow ridge is steep, so a row higher in the front view "
-              "is several mm further forward.", "",
+              "Where the error comes from (CThead), measured landmark by landmark: the mid-sagittal plane is the "
+              "symmetry plane of the bone's surface voxels (20,000, picked by a fixed random field); the whole "
+              "bone's 4,000 voxels used before put the chin 1.9 mm and the vault's top 5 mm off the bone's own "
+              "midline. The symphysis' front-most bone spans x = 99..123 (centre 110.8) where the fixture "
+              "places every facial landmark on the single sagittal slice x = 108: about 3 mm of the chin "
+              "landmarks' error is that x. The vault's top is flat and sits 3-4 mm to the right of the skull's "
+              "plane, so vertex is the middle of the top within 30 mm of the plane (its y along the flat top is "
+              "the rest of its error). Porion: the temporal bone above the meatus reaches 4-6 mm beyond the "
+              "canal's floor; porion is put half way back along the roof, and flagged "
+              "`uncertain` beyond 3 mm (the fixture puts it at the canal's lateral end). Glabella: this forehead has no "
+              "prominence, the fixture places it 12 mm above nasion. Supradentale, infradentale: teeth and "
+              "alveolar bone are one object in a bone mask (`uncertain`). Zygion and gonion lie on flat or "
+              "rounded bone, where a person and a rule pick points several mm apart. The references themselves "
+              "are good to about 1-2 mm. On the phantom the margins of the orbits (supraorbital, lateral orbit) "
+              "are the front-most bone of the first 3 mm next to the opening: the first bone pixel of a steep rim "
+              "lies up to 10 mm behind its edge.", "",
               "Flags on CThead of the landmarks without a hand-placed reference (the evidence for `uncertain` "
               "and `not_found`):", "", "| landmark | flag | evidence |", "|---|---|---|"]
     ref = results["cthead"]["errors"]

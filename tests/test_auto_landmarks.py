@@ -62,10 +62,13 @@ def test_phantom_every_landmark_found_and_accurate(phantom_search, phantom_truth
     assert phantom_search.frankfurt is not None and phantom_search.info["frame"] == "frankfurt"
     err = {n: float(np.linalg.norm(phantom_search.landmarks[n].point - p)) for n, p in phantom_truth.items()}
     print({n: round(e, 2) for n, e in err.items()})
-    # default grid 2.3 x 2 x 2 mm with 20 HU noise: about a voxel (measured: median 1.3, largest 6.8 mm at a
-    # supraorbital margin, where the rim's front is steep and a slice higher is 5 mm further forward)
+    # default grid 2.3 x 2 x 2 mm with 20 HU noise: about a voxel (measured: median 1.5, largest 5.2 mm at
+    # porion L, flagged uncertain: the roof reaches 4 mm beyond the canal's floor, and porion is put half way;
+    # the supraorbital margins, 6.8 mm before the margins took the rim's front-most point, are 3.2 / 3.0)
     assert np.median(list(err.values())) <= 2.0
-    assert max(err.values()) <= 7.5, max(err.items(), key=lambda kv: kv[1])
+    assert max(err.values()) <= 6.0, max(err.items(), key=lambda kv: kv[1])
+    for name in ("Supraorbital L", "Supraorbital R", "Lateral orbit L", "Lateral orbit R"):
+        assert err[name] <= 4.0, (name, err[name])
     # every uncertain landmark says why
     assert all(lm.evidence for lm in phantom_search.landmarks.values() if lm.flag != OK)
 
@@ -109,13 +112,19 @@ def test_cthead_landmarks_against_the_hand_placed_ones(cthead_ct):
     # measured (docs/benchmarks.md, bench_landmarks.py); the targets are 3 / 6 mm
     assert np.median(list(err.values())) <= CTHEAD_MEDIAN_MM
     assert max(e for n, e in err.items() if search.landmarks[n].flag == OK) <= CTHEAD_MAX_OK_MM
-    # the Frankfurt landmarks themselves are within 6 mm
+    # the Frankfurt landmarks themselves are within 5 mm (measured: porion 1.4 / 4.4, orbitale 3.1 / 1.5)
     for name in ("Porion L", "Porion R", "Orbitale L", "Orbitale R"):
-        assert err[name] <= 6.0, (name, err[name])
+        assert err[name] <= 5.0, (name, err[name])
+    # the mid-sagittal plane (symmetry of the bone's surface): the chin's landmarks lie on the bone's own
+    # midline there (the front-most bone of the symphysis spans x = 99..123, centre 110.8; measured 111.5-111.6)
+    for name in ("Pogonion", "Gnathion", "Menton"):
+        assert abs(search.landmarks[name].point[0] - 110.8) <= 1.0, (name, search.landmarks[name].point)
 
 
-CTHEAD_MEDIAN_MM = 5.0
-CTHEAD_MAX_OK_MM = 10.0
+# measured (bench_landmarks.py): median 3.9 mm, largest ok 6.0 mm (subspinale; vertex 5.3, glabella 5.5); the
+# issue's targets are 3 / 6 mm. Before this session's plane, vertex, rim and porion rules: 5.0 / 6.3 mm.
+CTHEAD_MEDIAN_MM = 4.5
+CTHEAD_MAX_OK_MM = 6.5
 
 
 def test_every_landmark_has_a_written_rule():

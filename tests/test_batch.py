@@ -258,13 +258,17 @@ def test_skull_batch_measures_known_vault_thickness_and_builds_a_table(collectio
         assert {r["flag"] for r in table} <= {"ok", "uncertain", "not_found"}
         assert int(row["n_landmarks"]) == sum(r["flag"] != "not_found" for r in table) >= 20
         by_name = {r["landmark"]: r for r in table}
-        # the vault behind and in front (the crown's vertex depends on the PDE dome above the top slice: 4 mm
-        # slices here, and is not used)
-        for name in ("Opisthocranion", "Frontal eminence L", "Frontal eminence R"):
+        # the vault behind, in front and at the crown. The truth is measured from the skin point above the
+        # landmark along the analytic skull's normal (the vertex was left out while that point was taken
+        # horizontally away from the head's axis, which at the crown is no direction: its "2 mm" was the
+        # truth's error, not the PDE dome's; measured 5.9 / 6.6 mm against 6.0 / 6.7)
+        for name in ("Opisthocranion", "Frontal eminence L", "Frontal eminence R", "Vertex"):
             r = by_name[name]
             assert r["flag"] == "ok"
             bone = np.array([float(r[k]) for k in ("x_mm", "y_mm", "z_mm")])
-            outward = bone - np.array([0.0, 4.0 * scale, bone[2]])  # horizontal, away from the head's centre line
+            q = bone / scale
+            outward = np.array([(phantom.skull_signed_distance((q + e)[None])[0]
+                                 - phantom.skull_signed_distance((q - e)[None])[0]) for e in 0.05 * np.eye(3)])
             outward /= np.linalg.norm(outward)
             truth = scale * float(phantom.tissue_depth((bone / scale + 6.0 * outward)[None])[0])
             assert abs(float(r["depth_mm"]) - truth) < 1.0, (name, r["depth_mm"], truth)

@@ -157,3 +157,26 @@ def test_open_skull_mesh_is_repaired_or_refused_saying_where(tmp_path, phantom_s
     path = export_mesh(metres, tmp_path / "metres.stl")
     with pytest.raises(CTImportError, match="scale it to mm"):
         load_ct(path)
+
+
+def test_thick_slices_are_interpolated_shape_based_before_meshing():
+    """GE's 4 mm slices over 0.49 mm pixels are divided in four (shape-based interpolation); CThead (2 x 1 mm)
+    and the phantom are meshed as they are. On a sphere (R 25 mm, 4 mm slices) the interpolated slices'
+    areas follow the sphere's cross-sections (measured: 3.8 % mean error where the nearest slice, the
+    terrace marching cubes would mesh, is off by 9.8 %)."""
+    from pdehead_addon.skull import shape_based_upsample, slice_upsampling
+    assert slice_upsampling((4.0, 0.488, 0.488)) == 4 and slice_upsampling((7.0, 0.5, 0.5)) == 4
+    assert slice_upsampling((2.0, 1.0, 1.0)) == 1 and slice_upsampling((2.3, 2.0, 2.0)) == 1
+    dz, radius = 4.0, 25.0
+    z = np.arange(-28.0, 29.0, dz)
+    y, x = np.mgrid[-30:31, -30:31].astype(float)
+    mask = np.stack([x ** 2 + y ** 2 <= radius ** 2 - zz ** 2 for zz in z])
+    up = shape_based_upsample(mask, 4, (1.0, 1.0))
+    assert up.shape == ((len(z) - 1) * 4 + 1, 61, 61) and (up[::4] == mask).all()
+    zu = np.linspace(z[0], z[-1], len(up))
+    true = np.pi * np.maximum(radius ** 2 - zu ** 2, 0.0)
+    nearest = mask[np.clip(np.round((zu - z[0]) / dz).astype(int), 0, len(z) - 1)].sum((1, 2))
+    inner = slice(4, -4)
+    err = np.mean(np.abs(up.sum((1, 2)) - true)[inner] / true[inner])
+    err_nearest = np.mean(np.abs(nearest - true)[inner] / true[inner])
+    assert err < 0.05 and err < 0.5 * err_nearest, (err, err_nearest)

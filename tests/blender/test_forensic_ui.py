@@ -88,10 +88,11 @@ def test_cli_ge_skull_export(tmp_path):
     skin, skull, pts, depth = _check_export(out)
     assert "no mandible found: the face will stop at the maxilla" in result.stdout      # the missing-mandible path
     assert 120 < np.ptp(skull.vertices[:, 0]) < 170 and np.ptp(skull.vertices[:, 0]) < np.ptp(skin.vertices[:, 0])
-    top = pts[:, 2] > pts[:, 2].max() - 60                  # the vault: measured on three quarters of it
-    # against the bone skull from the binary bone mask (issue 22): 0.77 measured; the thin vault in the
-    # 4-7 mm tilted slices has slits and sub-level voxels that the old intensity iso-surface bridged (> 0.9)
-    assert np.isfinite(depth[top]).mean() > 0.7 and 3.0 < np.nanmedian(depth[top]) < 10.0
+    top = pts[:, 2] > pts[:, 2].max() - 60                  # the vault: measured on nine tenths of it
+    # against the bone skull from the binary bone mask (issue 22): 0.77 measured with the 4 mm tilted slices
+    # meshed as they are (terraces one slice high and slits in the thin vault); 0.91 (engine, t = 8, 120 x 240)
+    # since skull_mesh interpolates 3 slices between each two (shape-based) before marching cubes
+    assert np.isfinite(depth[top]).mean() > 0.85 and 3.0 < np.nanmedian(depth[top]) < 10.0
 
 
 def test_forensic_operators_on_the_phantom(pdehead_ext, tmp_path):
