@@ -124,7 +124,7 @@ def cut_figure(bl, args) -> int:
     vr = (0.0, math.pi)                                # the patient's right half (x < spine): cut at the midline
     new = objects.build_solid(head, coll, ct=ct, v_range=vr, name="cut after", window=window)
     old = objects.build_solid(head, coll, ct=ct, v_range=vr, name="cut before", window=window, texture_size=128,
-                              skin="ct")
+                              skin="ct", skin_depth_mm=0.0)            # as before issue 21: the CT on the skin
     tmp = args.out / ".tile_up_close.png"
     lo, hi = render.world_bounds([new])
     tiles = []
