@@ -427,16 +427,81 @@ def _surface_grid(head, us: np.ndarray, vs: np.ndarray) -> np.ndarray:
     return head.evaluate(np.asarray(us)[:, None], np.asarray(vs)[None, :], 1.0)
 
 
-def ct_texture_atlas(head, mesh, ct, window, ranges, size: int = 128, pad: int = 2, table=None, faces=None):
+def _tile_speeds(mesh, params, family, axes, need_shells: bool = True) -> list[tuple[float, float]]:
+    """Per box face: the largest mm per unit of its row and its column parameter along the mesh's edges.
+
+    A texel spans (parameter extent / pixels) of each; times this speed it is the texel's world
+    footprint, so tiles sized from it keep every texel within the CT voxel (issue 21).
+    """
+    starts, totals = mesh.loop_starts_and_totals()
+    nxt = np.arange(len(params)) + 1
+    ends = starts + totals - 1
+    nxt[ends] = starts
+    corner_family = np.repeat(family, totals)
+    keep = np.flatnonzero(corner_family >= (0 if need_shells else 2))        # the shells only when they show CT
+    corner_family, nxt = corner_family[keep], nxt[keep]
+    vert = mesh.loop_vertex_indices()
+    vertices = np.asarray(mesh.vertices, np.float64)
+    dp = params[nxt] - params[keep]
+    dp[:, 1] = np.abs(dp[:, 1])
+    dp[:, 1] = np.minimum(dp[:, 1], 2.0 * math.pi - dp[:, 1])       # the v seam wraps
+    length = np.linalg.norm(vertices[vert[nxt]] - vertices[vert[keep]], axis=1)
+    scale = np.array([1.0, 2.0 * math.pi, 1.0])
+    out = []
+    for k, pair in enumerate(axes):
+        sel_k = corner_family == k
+        speeds = []
+        for axis in pair:
+            others = [a for a in range(3) if a != axis]
+            step = np.abs(dp[:, axis])
+            along = sel_k & (step > 1e-9 * scale[axis]) & np.all(np.abs(dp[:, others]) <= 1e-6 * scale[others], axis=1)
+            speeds.append(float((length[along] / step[along]).max()) if along.any() else 0.0)
+        out.append(tuple(speeds))
+    return out
+
+
+def _pack_tiles(shapes: list[tuple[int, int]], width: int | None = None) -> tuple[list[tuple[int, int]], int, int]:
+    """Shelf packing of (rows, cols) tiles: their (row, col) offsets and the atlas height and width."""
+    area = sum(r * c for r, c in shapes)
+    if width is None:
+        width = max(max(c for _, c in shapes), int(math.ceil(math.sqrt(area) * 1.25)))
+    order = sorted(range(len(shapes)), key=lambda k: -shapes[k][0])
+    offsets = [(0, 0)] * len(shapes)
+    y = x = shelf = 0
+    for k in order:
+        r, c = shapes[k]
+        if x + c > width:
+            y, x, shelf = y + shelf, 0, 0
+        offsets[k] = (y, x)
+        x += c
+        shelf = max(shelf, r)
+    return offsets, y + shelf, width
+
+
+def ct_texture_atlas(head, mesh, ct, window, ranges, size: int | None = None, pad: int = 2, table=None, faces=None,
+                     budget_mp: float = D.CT_TEXTURE_BUDGET.default, voxel_mm: float | None = None,
+                     skin: str = D.SOLID_SKIN.default, skin_depth_mm: float = D.SOLID_SKIN_DEPTH.default,
+                     cut_ct=None):
     """CT texture of the solid's faces: an atlas image and a UV per corner (paper section 4.3.1).
 
-    Each face of the parametric box (outer/inner w shells, u ends, v cuts) gets
-    a `size` x `size` tile sampling the windowed CT trilinearly at ``X(u, v, w)``
-    (eq. 23) on a regular parameter grid, so a cutaway shows the CT inside the
-    solid at texture resolution instead of at the few w samples of the mesh.
+    Each face of the parametric box (outer/inner w shells, u ends, v cuts) gets a
+    tile sampling the windowed CT trilinearly at ``X(u, v, w)`` (eq. 23) on a regular
+    parameter grid, so a cutaway shows the CT inside the solid at texture resolution
+    instead of at the few w samples of the mesh.
+
+    Tile sizes (issue 21): with ``size`` every tile is ``size`` x ``size`` (the layout before
+    issue 21). Without it each tile gets as many texels along its row and column parameter as
+    the face's largest extent in mm along them divided by ``voxel_mm`` (default: the CT's finest
+    spacing), so a texel's world footprint is at most one CT voxel; if all tiles together need
+    more than ``budget_mp`` megapixels they are scaled down together. The cut faces (u ends,
+    v cuts) sample the CT itself (``cut_ct``, else ``ct``) at their texels' positions: the CT's
+    own resolution, not the (u, v, w) table's. The outer shell (w = 1) is the skin, a
+    partial-volume mix of air and tissue: with ``skin="surface"`` it gets a token tile (the solid
+    shows the surface's material there); with ``skin="ct"`` its tile samples the CT
+    ``skin_depth_mm`` inside the skin.
 
     With `table` (a :class:`~pdehead_addon.pde_solid.SolidCTTable` of this head and CT) the
-    tiles are looked up in the CT tabulated once in (u, v, w): no PDE evaluation and no CT
+    shells are looked up in the CT tabulated once in (u, v, w): no PDE evaluation and no CT
     interpolation per step, which keeps cutaway sliders live.
 
     Returns
@@ -447,54 +512,103 @@ def ct_texture_atlas(head, mesh, ct, window, ranges, size: int = 128, pad: int =
 
     (u0, u1), (v0, v1), (w0, w1) = ranges
     params, family = _box_faces(mesh, ranges) if faces is None else faces
-    n = int(size)
-    span = n - 2 * pad
-    t = np.clip((np.arange(n) + 0.5 - pad) / span, 0.0, 1.0)  # pixel centre -> [0, 1] (padding clamps)
-    us, vs, ws = u0 + t * (u1 - u0), v0 + t * (v1 - v0), w0 + t * (w1 - w0)
-
-    def u_end(u):          # rows: w, columns: v
-        spine = head.spine(np.array([u]))[0]
-        return spine + ws[:, None, None] * (head.evaluate(np.full(n, u), vs, 1.0)[None] - spine)
-
-    def v_cut(v):          # rows: w, columns: u
-        spine = head.spine(us)[None]
-        return spine + ws[:, None, None] * (head.evaluate(us, np.full(n, v), 1.0)[None] - spine)
-
     # (row, column) parameters of each tile: shells (u, v), u ends (w, v), v cuts (w, u)
     axes = [(0, 1), (0, 1), (2, 1), (2, 1)]
     cuts = bool(np.any(family >= 4))
     if cuts:
         axes += [(2, 0), (2, 0)]
-    if table is not None:  # CT values straight from the (u, v, w) table
-        g = table.sample_grid  # (u, v, w) grids; tiles are (rows, columns) = shells (u, v), u ends (w, v), v cuts (w, u)
-        values = [g(us, vs, w1)[:, :, 0], g(us, vs, w0)[:, :, 0], g(u1, vs, ws)[0].T, g(u0, vs, ws)[0].T]
-        if cuts:
-            values += [g(us, v1, ws)[:, 0].T, g(us, v0, ws)[:, 0].T]
-    else:
-        surface = _surface_grid(head, us, vs)
-        spine_u = head.spine(us)[:, None, :]
-        tiles = [spine_u + w1 * (surface - spine_u), spine_u + w0 * (surface - spine_u), u_end(u1), u_end(u0)]
-        if cuts:
-            tiles += [v_cut(v1), v_cut(v0)]
-        values = [sample_ct(ct, pts.reshape(-1, 3)) for pts in tiles]
-    cols = 3
-    rows = -(-len(values) // cols)
-    atlas = np.ones((rows * n, cols * n, 4), np.float32)
-    for k, raw in enumerate(values):
-        grey = apply_window(raw, window).reshape(n, n)
-        r, c = divmod(k, cols)
-        atlas[r * n:(r + 1) * n, c * n:(c + 1) * n, :3] = grey[..., None]
-    lo = np.array([u0, v0, w0])
     extent = np.array([u1 - u0, v1 - v0, w1 - w0])
+    outer_is_skin = w1 >= 1.0 - 1e-9
+    token = skin == "surface" and outer_is_skin
+    if size is not None:
+        spans = [(int(size) - 2 * pad, int(size) - 2 * pad)] * len(axes)
+    else:
+        sample = cut_ct if cut_ct is not None else ct
+        voxel = float(voxel_mm) if voxel_mm else (float(min(sample.spacing)) if sample is not None
+                                                  else float(min(getattr(table, "voxel_mm", 1.0), 1.0)))
+        speeds = _tile_speeds(mesh, params, family, axes, need_shells=not token or w0 > 0)
+        spans = [tuple(max(4, int(math.ceil(sp * extent[a] / voxel))) for sp, a in zip(speed, pair))
+                 for speed, pair in zip(speeds, axes)]
+        if token:
+            spans[0] = (4, 4)
+        need = sum((r + 2 * pad) * (c + 2 * pad) for r, c in spans)
+        if need > budget_mp * 1e6:
+            f = math.sqrt(budget_mp * 1e6 / need)
+            spans = [(max(4, int(r * f)), max(4, int(c * f))) for r, c in spans]
+    shapes = [(r + 2 * pad, c + 2 * pad) for r, c in spans]
+
+    def grid(k, axis):       # pixel centres -> parameter (padding clamps)
+        n, span = shapes[k][axes[k].index(axis)], spans[k][axes[k].index(axis)]
+        t = np.clip((np.arange(n) + 0.5 - pad) / span, 0.0, 1.0)
+        lo = (u0, v0, w0)[axis]
+        return lo + t * extent[axis]
+
+    direct = cut_ct if cut_ct is not None else ct
+    air = float(direct.data.min()) if direct is not None and any(f >= 2 for f in family) else 0.0
+
+    def cut_tile(k):       # u ends (rows w, columns v) and v cuts (rows w, columns u) from the CT itself
+        ws = grid(k, 2)
+        if k in (2, 3):
+            u = u1 if k == 2 else u0
+            vs = grid(k, 1)
+            spine = head.spine(np.array([u]))[0]
+            pts = spine + ws[:, None, None] * (_surface_grid(head, np.array([u]), vs)[0][None] - spine)
+        else:
+            v = v1 if k == 4 else v0
+            us = grid(k, 0)
+            spine = head.spine(us)[None]
+            # the surface along the cut at <= 97 heights, linear between them (its sagitta there is
+            # ~0.03 mm): the PDE amplitudes per height are the cost, not the texels
+            coarse = np.linspace(us[0], us[-1], min(len(us), 97))
+            line = _surface_grid(head, coarse, np.array([v]))[:, 0]
+            edge = np.column_stack([np.interp(us, coarse, line[:, i]) for i in range(3)])
+            pts = spine + ws[:, None, None] * (edge[None] - spine)
+        from scipy.ndimage import map_coordinates   # trilinear; the lowest CT value outside (as sample_ct)
+        kji = direct.patient_to_index(pts.reshape(-1, 3))
+        return map_coordinates(direct.data, kji.T, order=1, mode="constant", cval=air,
+                               prefilter=False, output=np.float32)
+
+    def shell_w(k):
+        if k == 1:
+            return w0
+        if skin == "ct" and outer_is_skin and skin_depth_mm > 0:
+            radius = float(np.mean(np.linalg.norm(head.evaluate(np.full(64, 0.5), np.linspace(0, 2 * math.pi, 64,
+                           endpoint=False), 1.0) - head.spine(np.array([0.5])), axis=1)))
+            return max(w0, w1 - float(skin_depth_mm) / max(radius, 1e-6))
+        return w1
+
+    values = []
+    for k in range(len(axes)):
+        if k >= 2 and direct is not None:
+            values.append(cut_tile(k))
+        elif table is not None:
+            g = table.sample_grid
+            if k < 2:
+                values.append(g(grid(k, 0), grid(k, 1), shell_w(k))[:, :, 0])
+            elif k in (2, 3):
+                values.append(g(u1 if k == 2 else u0, grid(k, 1), grid(k, 2))[0].T)
+            else:
+                values.append(g(grid(k, 0), v1 if k == 4 else v0, grid(k, 2))[:, 0].T)
+        else:
+            us, vs = grid(k, 0), grid(k, 1)
+            surface = _surface_grid(head, us, vs)
+            spine_u = head.spine(us)[:, None, :]
+            values.append(sample_ct(ct, (spine_u + shell_w(k) * (surface - spine_u)).reshape(-1, 3)))
+    offsets, height, width = _pack_tiles(shapes, None if size is None else 3 * int(size))   # fixed: 3 a row
+    atlas = np.ones((height, width, 4), np.float32)
+    for k, raw in enumerate(values):
+        (r0, c0), (nr, nc) = offsets[k], shapes[k]
+        atlas[r0:r0 + nr, c0:c0 + nc, :3] = apply_window(raw, window).reshape(nr, nc)[..., None]
+    lo = np.array([u0, v0, w0])
     norm = (params - lo) / np.where(extent > 0, extent, 1.0)
     starts, totals = mesh.loop_starts_and_totals()
     corner_family = np.repeat(family, totals)
     corner_uv = np.zeros((len(params), 2))
     for k, (row_axis, col_axis) in enumerate(axes):
         sel = corner_family == k
-        r, c = divmod(k, cols)
-        corner_uv[sel, 0] = (c * n + pad + norm[sel, col_axis] * span) / (cols * n)
-        corner_uv[sel, 1] = (r * n + pad + norm[sel, row_axis] * span) / (rows * n)
+        (r0, c0), (sr, sc) = offsets[k], spans[k]
+        corner_uv[sel, 0] = (c0 + pad + norm[sel, col_axis] * sc) / width
+        corner_uv[sel, 1] = (r0 + pad + norm[sel, row_axis] * sr) / height
     return atlas, corner_uv
 
 
@@ -562,6 +676,20 @@ def _sharp_cut_faces(obj, family: np.ndarray) -> None:
     me.update()
 
 
+def _skin_faces(obj, family: np.ndarray, on: bool) -> None:
+    """The outer shell (w = 1) in material slot 1, the skin (issue 21): the surface's material unless the
+    user put another there; the cut faces keep slot 0 (the CT). Off: every face shows the CT."""
+    me = obj.data
+    if on:
+        while len(me.materials) < 2:
+            me.materials.append(None)
+        if me.materials[1] is None:
+            me.materials[1] = ensure_skin_material()
+    index = np.where(np.asarray(family) == 0, 1, 0) if on else np.zeros(len(family), int)
+    me.polygons.foreach_set("material_index", index.astype(np.int32))
+    me.update()
+
+
 def _snap_range(r, top: float, tol: float = 1e-5) -> tuple[float, float]:
     """A parameter range with float32 round-off at 0 and `top` removed (Blender float properties are float32,
     so 2 pi comes back as 6.2831855 > 2 pi, which the engine rightly rejects)."""
@@ -573,7 +701,9 @@ def _snap_range(r, top: float, tol: float = 1e-5) -> tuple[float, float]:
 def build_solid(head, collection, nu: int = D.NU.default, nv: int = D.NV.default, nw: int = D.NW.default,
                 u_range=D.U_RANGE.default, v_range=D.V_RANGE.default, w_range=D.W_RANGE.default, ct=None, obj=None,
                 name: str = "Solid",
-                window=None, texture_size: int = 128, ct_table=None):
+                window=None, texture_size: int | None = None, ct_table=None,
+                texture_budget: float = D.CT_TEXTURE_BUDGET.default, skin: str = D.SOLID_SKIN.default,
+                skin_depth_mm: float = D.SOLID_SKIN_DEPTH.default, cut_ct=None):
     """The PDE solid X(u, v, w) (eq. 23; Fig. 7, 14) with cutaway ranges, coloured by the CT.
 
     Parameters
@@ -592,11 +722,20 @@ def build_solid(head, collection, nu: int = D.NU.default, nv: int = D.NV.default
         Intensity window (default ``intensity_window(ct)``).
     obj : bpy.types.Object, optional
         Rebuild in place.
-    texture_size : int
-        Pixels per box face of the CT texture atlas (:func:`ct_texture_atlas`;
-        0 for vertex colours only).
+    texture_size : int, optional
+        Pixels per box face of the CT texture atlas, all faces alike (the layout before issue 21;
+        0 for vertex colours only). Default: tiles sized from each face's extent in mm
+        (:func:`ct_texture_atlas`), about one texel per CT voxel within ``texture_budget``.
     ct_table : SolidCTTable, optional
         The CT tabulated in (u, v, w) for this head (fast atlas for live cutaways).
+    texture_budget : float
+        Megapixels the atlas may use (``defaults.CT_TEXTURE_BUDGET``).
+    skin, skin_depth_mm
+        What the outside (w = 1) shows: ``"surface"`` the skin material (slot 1, the surface's
+        material), ``"ct"`` the CT ``skin_depth_mm`` inside the skin (``defaults.SOLID_SKIN``).
+    cut_ct : CTVolume, optional
+        The CT the cut faces are sampled from when ``ct`` is not given (the live path: the CT in
+        memory, while the vertex colours come from the table).
 
     Notes
     -----
@@ -620,9 +759,11 @@ def build_solid(head, collection, nu: int = D.NU.default, nv: int = D.NV.default
             raw = sample_ct(ct, mesh.vertices)
         _set_ct_colour(obj, apply_window(raw, window))
         obj["pdehead_window"] = [float(window[0]), float(window[1])]
-        if texture_size and mesh.quad_uv is not None and "w" in mesh.vertex_attributes:
+        if texture_size != 0 and mesh.quad_uv is not None and "w" in mesh.vertex_attributes:
             atlas, corner_uv = ct_texture_atlas(head, mesh, ct, window, (u_range, v_range, w_range),
-                                                size=int(texture_size), table=ct_table, faces=faces)
+                                                size=None if texture_size is None else int(texture_size),
+                                                table=ct_table, faces=faces, budget_mp=float(texture_budget),
+                                                skin=skin, skin_depth_mm=float(skin_depth_mm), cut_ct=cut_ct)
             image = _set_ct_texture(obj, atlas, corner_uv)
     elif "intensity" in mesh.vertex_attributes:
         values = np.asarray(mesh.vertex_attributes["intensity"], np.float32)
@@ -637,6 +778,8 @@ def build_solid(head, collection, nu: int = D.NU.default, nv: int = D.NV.default
             slots[0] = mat
         else:
             slots.append(mat)
+    if faces is not None:
+        _skin_faces(obj, faces[1], skin == "surface" and w_range[1] >= 1.0 - 1e-9)
     obj["pdehead_kind"] = "solid"
     obj["pdehead_resolution"] = [int(nu), int(nv), int(nw)]
     obj["pdehead_ranges"] = [float(x) for x in (*u_range, *v_range, *w_range)]

@@ -484,8 +484,8 @@ def step_solid(coll, live: bool = False) -> str:
     table = current_ct_table(coll)
     cache = state.cache_for(s.study_id)
     window = cache.window or cache.stored_window
+    ct = None
     if table is None:
-        ct = None
         if live and defer_ct_colours():
             previous = previous_ct_table(coll)
             if previous is not None:
@@ -506,13 +506,28 @@ def step_solid(coll, live: bool = False) -> str:
                 window = ct_window(coll, ct)
                 table = ct_table(coll, head, ct)
                 _COLOURS_PENDING.pop(s.study_id, None)
+    elif live and defer_ct_colours() and cache.ct is not None:
+        # issue 21: while a slider moves, the cut faces come from the (u, v, w) table in 128-pixel tiles
+        # (the geometry step stays within a frame); the timer right after redraws them from the CT itself
+        _COLOURS_PENDING[s.study_id] = _now()
+        _schedule_colour_refresh()
     else:
         _COLOURS_PENDING.pop(s.study_id, None)
+    quick = live and defer_ct_colours()
+    cut_ct = None
+    if not quick and table is not None:        # the cut faces at the CT's own resolution (issue 21)
+        cut_ct = ct if ct is not None else cache.ct
+        if cut_ct is None:
+            try:
+                cut_ct = require_ct(coll)
+            except PDEHeadError:
+                cut_ct = None                  # a file sent without its CT: the table's resolution
     with state.Timer() as t:
         s.solid_object = objects.build_solid(
             head, coll, nu=s.nu, nv=s.nv, nw=s.nw, u_range=tuple(s.u_range), v_range=tuple(s.v_range),
             w_range=tuple(s.w_range), ct=None, obj=s.solid_object, name=f"{coll.name} Solid",
-            window=window if table is not None else None, ct_table=table)
+            window=window if table is not None else None, ct_table=table, texture_size=128 if quick else None,
+            cut_ct=cut_ct)
     state.record_timing(coll, "solid", t.seconds)
     return notice
 

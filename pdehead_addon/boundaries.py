@@ -107,11 +107,13 @@ CLOSING_MM = 3.0
 #: Default low-pass along each curve (Gaussian sigma, pixels) against the pixel-grid ripple.
 CURVE_SIGMA_PX = 1.0
 #: The same for the envelope's curves: its 3-D smoothing makes neighbouring outlines agree, so what
-#: is left of the CT noise on the outline repeats from curve to curve as vertical wrinkles (1.5 px).
-ENVELOPE_CURVE_SIGMA_PX = 1.5
-#: Star hull: bound on |d ln r / d theta| (2: the normal stays within 63 degrees of the ray; at 3 and more
-#: the corners of the mouth keep a pit on CThead).
-STAR_MAX_SLOPE = 2.0
+#: is left of the CT noise on the outline repeats from curve to curve as vertical wrinkles. 0.5 px
+#: (issue 21; was 1.5): on top of the envelope's Gaussian a 1.5 px low-pass only took the face off.
+ENVELOPE_CURVE_SIGMA_PX = 0.5
+#: Star hull: bound on |d ln r / d theta| (3: the normal stays within 72 degrees of the ray). Issue 21:
+#: 2 (63 degrees) filled the groove beside the nose wings, whose sides run almost along the ray; at 3
+#: CThead's mouth corners keep no pit any more (notch fraction 0 with the 1 mm envelope).
+STAR_MAX_SLOPE = 3.0
 #: Smoothing length (mm) of the centroid track that the angular parameterisation is centred on.
 SPINE_SMOOTHING_MM = 10.0
 #: Sources of the level line traced per slice.

@@ -166,6 +166,18 @@ V_RANGE = _param("v_range", (0.0, 2 * math.pi), min=-2 * math.pi, max=4 * math.p
                  description="Cutaway: the angle interval around the head (v) the solid keeps, shown in "
                              "degrees; may wrap past 360 (at most one turn)")
 W_RANGE = _param("w_range", (0.0, 1.0), min=0.0, max=1.0, description="Cutaway: w interval of the solid")
+#: Issue 21: the solid's CT atlas. Its cut faces get tiles sized from their own extent in mm (about one
+#: texel per finest CT voxel) within this many pixels; the outside shows the skin (the surface's material)
+#: unless ``solid_skin`` is "ct" (the CT ``solid_skin_depth`` mm inside the skin: the skin itself is a
+#: partial-volume mix of air and tissue, mottled or banded).
+CT_TEXTURE_BUDGET = _param("ct_texture_budget", 4.0, min=0.25, max=64.0, unit="megapixels",
+                           description="Pixels of the solid's CT texture: its cut faces at up to one texel per CT "
+                                       "voxel within this budget")
+SOLID_SKIN = _param("solid_skin", "surface", choices=("surface", "ct"),
+                    description="What the solid's outside shows: the surface's skin material, or the CT a little "
+                                "inside the skin")
+SOLID_SKIN_DEPTH = _param("solid_skin_depth", 2.0, min=0.0, max=20.0, unit="mm",
+                          description="With solid_skin 'ct': how far inside the skin the CT is sampled")
 USE_CUTTER = _param("use_cutter", False,
                     description="The study's cutter box (an empty you move, rotate and scale) sets the u and v "
                                 "ranges: the solid is cut away where the box is")

@@ -168,7 +168,7 @@ def visible_face(seg, mesh, mc) -> dict:
     faces = np.concatenate([mesh.quads[:, [0, 1, 2]], mesh.quads[:, [0, 2, 3]], mesh.triangles]) \
         if len(mesh.quads) else mesh.triangles
     r = visible_face_distance(mesh.vertices, faces, mc[0], mc[1], mask_centre(seg)[:2])
-    return {k: r[k] for k in ("score_mean", "score_p95", "surface_to_mask", "mask_to_surface")}
+    return {k: r[k] for k in ("score_mean", "score_p95", "surface_to_mask", "mask_to_surface", "pronasale")}
 
 
 def face_floor(seg, mc, sigma_mm: float = 1.2) -> dict:
@@ -180,6 +180,18 @@ def face_floor(seg, mc, sigma_mm: float = 1.2) -> dict:
     verts, faces, _, _ = measure.marching_cubes(sm, 0.5)
     r = visible_face_distance(seg.ct.index_to_patient(verts), faces, mc[0], mc[1], mask_centre(seg)[:2])
     return {k: r[k] for k in ("score_mean", "score_p95")}
+
+
+#: The envelope before issue 21's item 1 (3-D Gaussian 1.5 mm, 1.5 px along each curve, star slope 2).
+OLD_ENVELOPE = {"envelope_sigma_mm": 1.5, "curve_sigma": 1.5, "star_slope": 2.0}
+
+
+def storage_bytes(head) -> int:
+    """Bytes of the boundary conditions as the add-on stores them (``save_boundaries``)."""
+    import tempfile
+    from pdehead_addon.storage import save_boundaries
+    with tempfile.TemporaryDirectory() as d:
+        return int(save_boundaries(head, Path(d) / "head.pdeh"))
 
 
 def up_close(repeats: int = 5) -> dict:
@@ -201,9 +213,14 @@ def up_close(repeats: int = 5) -> dict:
         if name == "cthead":
             mc = marching_cubes(seg)
             row["face"] = {"default": visible_face(seg, new, mc),
-                           "t31": visible_face(seg, E.solve_pde(E.extract_boundaries(
-                               seg, patches=31, selection=SELECTION)).surface(nu, nv, caps=True), mc),
+                           "before": visible_face(seg, E.solve_pde(E.extract_boundaries(
+                               seg, patches=t, selection=SELECTION, **OLD_ENVELOPE)).surface(nu, nv, caps=True), mc),
                            "floor_smoothed_mask": face_floor(seg, mc)}
+            for tt in (15, 20, 31):                 # a denser default: what more curves buy, and their storage
+                dense = E.solve_pde(E.extract_boundaries(seg, patches=tt, selection=SELECTION))
+                row["face"][f"t{tt}"] = visible_face(seg, dense.surface(nu, nv, caps=True), mc)
+                row["face"][f"t{tt}"]["storage_bytes"] = storage_bytes(dense)
+            row["face"]["default"]["storage_bytes"] = storage_bytes(head)
         res["datasets"][name] = row
         print(name, json.dumps(row, default=float)[:2000], flush=True)
     return res
@@ -239,14 +256,21 @@ def up_close_markdown(res: dict) -> str:
               f"{T['face_p95_mm']} mm p95; `pdehead_addon.surface_metrics.visible_face_distance`):", "",
               "| surface | score mean | score p95 | skin → mask mean / p95 | mask → skin mean / p95 |",
               "|---|---|---|---|---|"]
-    for key, label in (("default", "default (t = 10)"), ("t31", "t = 31")):
-        d = f[key]
+    lines[-2] += " storage |"
+    lines[-1] += "---|"
+    for key, label in (("before", "before issue 21's envelope (t = 10: 1.5 mm, 1.5 px, slope 2)"),
+                       ("default", "default (t = 10: 1 mm, 0.5 px, slope 3)"), ("t15", "t = 15"),
+                       ("t20", "t = 20"), ("t31", "t = 31")):
+        d = f.get(key)
+        if d is None:
+            continue
+        kb = f"{d['storage_bytes'] / 1000:.1f} kB" if "storage_bytes" in d else ""
         lines.append(f"| {label} | {d['score_mean']:.3f} | {d['score_p95']:.2f} | "
                      f"{d['surface_to_mask']['mean']:.3f} / {d['surface_to_mask']['p95']:.2f} | "
-                     f"{d['mask_to_surface']['mean']:.3f} / {d['mask_to_surface']['p95']:.2f} |")
+                     f"{d['mask_to_surface']['mean']:.3f} / {d['mask_to_surface']['p95']:.2f} | {kb} |")
     fl = f["floor_smoothed_mask"]
     lines += [f"| floor: marching cubes of the mask smoothed by σ = 1.2 mm | {fl['score_mean']:.3f} | "
-              f"{fl['score_p95']:.2f} | | |", ""]
+              f"{fl['score_p95']:.2f} | | | |", ""]
     return "\n".join(lines)
 
 

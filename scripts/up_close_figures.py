@@ -12,6 +12,14 @@ surface, nu x nv = 120 x 240, caps), Cycles CPU, into ``docs/figures/up_close_*.
 
 "Before" is ``bench_smooth.legacy_surface``: the same head meshed as before issue 21.
 
+* ``up_close_face.png`` (``--face``, only this figure): CThead's face, front and three-quarter, close up:
+  marching cubes of the mask, the default surface with the envelope before issue 21 (1.5 mm Gaussian,
+  1.5 px curve low-pass, star slope 2) and after (1 mm, 0.5 px, 3); the visible-face score on each tile.
+* ``up_close_cut.png`` (``--cut``, only this figure): CThead's solid cut at the mid-sagittal plane
+  (v from 0 to 180 degrees: the patient's right half), seen from its left at the add-on's defaults (skin
+  outside, the cut faces from the CT at <= 1 voxel a texel), beside the CT resampled on the plane
+  x = the spine's mean x, same window, and the solid as before issue 21 (one 128-pixel tile a face).
+
     python3 scripts/up_close_figures.py [--size 384] [--samples 16]
 """
 from __future__ import annotations
@@ -59,13 +67,109 @@ def sheet(tiles: list[list[Image.Image]], path: Path) -> None:
     print(path, flush=True)
 
 
+def face_figure(bl, args) -> int:
+    """CThead's face up close: marching cubes, the default surface before and after issue 21's envelope."""
+    from _common import marching_cubes
+    from pdehead_addon import defaults as D
+    bpy, objects, render = bl["bpy"], bl["objects"], bl["render"]
+    bpy.ops.wm.read_homefile(use_empty=True)
+    nu, nv = D.NU.default, D.NV.default
+    seg = bench_smooth.load("cthead")
+    mc = marching_cubes(seg)
+    meshes = [("marching cubes", bench.marching_cubes_mesh(seg.mask, seg.ct))]
+    for label, kw in (("before", bench_smooth.OLD_ENVELOPE), ("after", {})):
+        head = E.solve_pde(E.extract_boundaries(seg, patches=10, selection=bench_smooth.SELECTION, **kw))
+        meshes.append((label, head.surface(nu, nv, caps=True)))
+    scores = {label: bench_smooth.visible_face(seg, m, mc) for label, m in meshes[1:]}
+    tip = np.asarray(scores["after"].get("pronasale") or [0, 0, 0], float)
+    coll = objects.study_collection("up close face")
+    built = []
+    for label, mesh in meshes:
+        obj = objects.build_mesh_object(mesh, coll, f"face {label}", smooth=label != "marching cubes")
+        obj.data.materials.append(objects.ensure_skin_material())
+        built.append((label, obj))
+    # the face's box: 60 mm either side, 70 mm below to 60 mm above the nose tip, 60 mm deep
+    lo = 0.001 * (tip + np.array([-60.0, 0.0, -70.0]))
+    hi = 0.001 * (tip + np.array([60.0, 60.0, 60.0]))
+    tmp = args.out / ".tile_up_close.png"
+    rows = []
+    for view in ("FRONT", "THREE_QUARTER"):
+        row = []
+        for label, obj in built:
+            render.render_objects_png([obj], tmp, view=view, resolution=(args.size, args.size),
+                                      samples=args.samples, bounds=(lo, hi))
+            with Image.open(tmp) as im:
+                im = im.convert("RGB").copy()
+            s = scores.get(label)
+            text = f"CThead {label}" + (f": face {s['score_mean']:.2f} / {s['score_p95']:.2f} mm" if s else "")
+            ImageDraw.Draw(im).text((8, 6), text, fill=(235, 235, 235))
+            row.append(im)
+        rows.append(row)
+    tmp.unlink(missing_ok=True)
+    sheet(rows, args.out / "up_close_face.png")
+    return 0
+
+
+def cut_figure(bl, args) -> int:
+    """CThead's solid cut at the mid-sagittal plane beside the CT on that plane (issue 21 item 3)."""
+    import math
+    from pdehead_addon.ct_volume import intensity_window, sample_ct, apply_window
+    bpy, objects, render = bl["bpy"], bl["objects"], bl["render"]
+    bpy.ops.wm.read_homefile(use_empty=True)
+    seg = bench_smooth.load("cthead")
+    ct = seg.ct
+    head = E.solve_pde(E.extract_boundaries(seg, patches=10, selection=bench_smooth.SELECTION))
+    window = intensity_window(ct)
+    coll = objects.study_collection("up close cut")
+    vr = (0.0, math.pi)                                # the patient's right half (x < spine): cut at the midline
+    new = objects.build_solid(head, coll, ct=ct, v_range=vr, name="cut after", window=window)
+    old = objects.build_solid(head, coll, ct=ct, v_range=vr, name="cut before", window=window, texture_size=128,
+                              skin="ct", skin_depth_mm=0.0)            # as before issue 21: the CT on the skin
+    tmp = args.out / ".tile_up_close.png"
+    lo, hi = render.world_bounds([new])
+    tiles = []
+    for obj, text in ((old, "before: one 128-px tile a face, CT on the skin"),
+                      (new, "after: skin outside, cut faces <= 1 voxel a texel")):
+        render.render_objects_png([obj], tmp, view="LEFT", resolution=(args.size, args.size), samples=args.samples,
+                                  bounds=(lo, hi))
+        with Image.open(tmp) as im:
+            im = im.convert("RGB").copy()
+        ImageDraw.Draw(im).text((8, 6), text, fill=(235, 235, 235))
+        tiles.append(im)
+    tmp.unlink(missing_ok=True)
+    # the CT on the plane x = the spine's mean x, over the same box (y across, z up; seen from the left
+    # (camera along -x) the patient's front (-y) is on the screen's left)
+    x = float(np.mean(head.spine(np.linspace(0, 1, 50))[:, 0]))
+    (y0, z0), (y1, z1) = 1000 * np.asarray(lo)[1:], 1000 * np.asarray(hi)[1:]
+    span = max(y1 - y0, z1 - z0) * 1.08
+    yc, zc = 0.5 * (y0 + y1), 0.5 * (z0 + z1)
+    n = args.size
+    ys = yc - span / 2 + span * (np.arange(n) + 0.5) / n
+    zs = zc + span / 2 - span * (np.arange(n) + 0.5) / n
+    Z, Y = np.meshgrid(zs, ys, indexing="ij")
+    pts = np.stack([np.full(Z.size, x), Y.ravel(), Z.ravel()], axis=1)
+    grey = apply_window(sample_ct(ct, pts), window).reshape(n, n)
+    srgb = np.clip(grey, 0, 1) ** (1 / 2.2)                     # the render is sRGB: the same tone for the eye
+    im = Image.fromarray((255 * srgb).astype(np.uint8)).convert("RGB")
+    ImageDraw.Draw(im).text((8, 6), f"the CT on the plane x = {x:.0f} mm (linear)", fill=(235, 235, 235))
+    tiles.append(im)
+    sheet([tiles], args.out / "up_close_cut.png")
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=384)
     ap.add_argument("--samples", type=int, default=16)
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "figures")
+    ap.add_argument("--face", action="store_true", help="only up_close_face.png (issue 21 item 1)")
+    ap.add_argument("--cut", action="store_true", help="only up_close_cut.png (issue 21 item 3)")
     args = ap.parse_args(argv)
     bl = bench.blender()
+    if args.face:
+        return face_figure(bl, args)
+    if args.cut:
+        return cut_figure(bl, args)
     bpy, objects, render = bl["bpy"], bl["objects"], bl["render"]
     render.VIEWS.setdefault("BOTTOM", ((0.0, 0.0, 1.0), (0.0, -1.0, 0.0)))   # from below, the face up
     bpy.ops.wm.read_homefile(use_empty=True)
