@@ -87,7 +87,7 @@ PROFILE_SMOOTH_MM = 4.0
 #: mandible's rows, the cheeks' bridges) that no peg corrects; smoothing around the head instead costs
 #: accuracy (the profile's shape across the face is information), so the smoothing is mostly along the height.
 #: Within about :data:`PROFILE_NEAR_MM` of a peg tip the lightly smoothed profile is kept (Gaussian blend).
-#: CThead (bench_face, issue 23b): 57.4 % / mean 2.86 / p95 7.96 mm before, 57.5 % / 2.80 / 7.77 after;
+#: CThead (bench_face, issue 23b): 57.3 % / mean 2.86 / p95 7.99 mm before, 57.5 % / 2.80 / 7.78 after;
 #: row-to-row second difference of the face's radius over the scored region 0.48 -> 0.40 mm.
 PROFILE_SMOOTH_FAR_MM = 8.0
 PROFILE_SMOOTH_FAR_ARC_MM = 2.0
@@ -545,6 +545,7 @@ class FaceModel:
             base_z = float(np.mean([p[2] for p in po])) - 15.0   # the skull base, ~15 mm below the ear canals
         raw, profile = bone_profile(skull, grid, base_z)
         normals = peg_normals(skull, bases, grid, profile)
+        hull_profile = profile
         profile = _smooth_far_from_pegs(profile, grid, bases + depths[:, None] * normals)
         rule_sites = [(n, p, w) for n, p, w in predict_eyes(lm)]
         nose = predict_nose(lm, skull)
@@ -560,6 +561,7 @@ class FaceModel:
         model = cls(names, bases, normals, depths, sds, grid, raw, profile, rule_sites, nose, mouth, options,
                     prov, dict(flags or {}))
         model.vertex_z = float(skull.vertices[:, 2].max())
+        model.hull_profile = hull_profile                    # the peer (constant_depth) keeps the bone's own profile
         model._grid_xyz = model._cyl(np.repeat(grid.z, columns), np.tile(grid.theta, K))
         model.prepare_seconds = time.perf_counter() - t0
         return model
@@ -701,7 +703,7 @@ class FaceModel:
 
     def constant_depth(self, depth_mm: float) -> FaceResult:
         """The peer: the bone's closed outer profile pushed out by one depth everywhere (no pegs, no nose)."""
-        head = self._surface(self.profile + float(depth_mm))
+        head = self._surface(getattr(self, "hull_profile", self.profile) + float(depth_mm))
         mesh = head.surface(int(self.options["nu"]), int(self.options["nv"]), caps=True)   # not live: own caps
         prov = dict(self.provenance, method=f"constant depth {depth_mm:g} mm over the bone's closed profile")
         return FaceResult(mesh, prov, {}, head=head)
