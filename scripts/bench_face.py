@@ -260,8 +260,11 @@ def markdown(results: dict) -> str:
               "- The automatic landmarks carry errors: median 4.2 mm on CThead, with one side of the alare "
               "curvature on the malar bone. The thin maxilla is mostly below the bone level, so several normals "
               "had to be taken from the closed profile.",
-              "- The lower face is lumpy between the pegs (the figure's middle column): the exact Gaussian "
-              "correction follows each peg. There is no lip shape and there are no ears.",
+              "- The lower face is still lumpy between the pegs (the figure's middle column): the exact Gaussian "
+              "correction follows each peg. The horizontal ridges the rows' convex hulls left across the lower "
+              "face are smoothed along the height away from the pegs (`face_from_skull._smooth_far_from_pegs`; "
+              "CThead before that: 57.3 % / mean 2.86 / p95 7.99 mm in the same pipeline); some remain at the "
+              "jaw's sides. The nose is a beak-like ridge. There is no lip shape and there are no ears.",
               "- GE is not scored: issue 22's automatic landmarks find no orbits on its tilted, thick slices, "
               "and the engine refuses a skull without orbits.",
               "- The phantom is a consistency check only: its soft tissue is not the table's.",
