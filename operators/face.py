@@ -448,18 +448,10 @@ def pdehead_face_update(_scene, depsgraph=None) -> None:
         _BUSY[0] = False
 
 
-def _remove_handler() -> None:
-    handlers = bpy.app.handlers.depsgraph_update_post
-    for h in list(handlers):
-        if getattr(h, "__name__", "") == pdehead_face_update.__name__ and getattr(h, "__module__", "") == __name__:
-            handlers.remove(h)
-
-
 def register() -> None:
-    _remove_handler()      # never twice (a re-register after a reload)
-    bpy.app.handlers.depsgraph_update_post.append(pdehead_face_update)
+    state.install_depsgraph_handler(pdehead_face_update)
 
 
 def unregister() -> None:
-    _remove_handler()
+    state.remove_depsgraph_handler(pdehead_face_update)
     _TABLES.clear()

@@ -439,3 +439,22 @@ class Timer:
     def __exit__(self, *exc):
         self.seconds = time.perf_counter() - self.start
         return False
+
+
+def remove_depsgraph_handler(handler) -> None:
+    """Remove ``handler`` from ``depsgraph_update_post``, every copy of it.
+
+    Matched by name and module, not identity: after a reload of the add-on the module's function is a
+    new object, and the old one must not stay registered beside it.
+    """
+    handlers = bpy.app.handlers.depsgraph_update_post
+    for h in list(handlers):
+        if getattr(h, "__name__", "") == handler.__name__ and \
+                getattr(h, "__module__", "") == handler.__module__:
+            handlers.remove(h)
+
+
+def install_depsgraph_handler(handler) -> None:
+    """Register ``handler`` on ``depsgraph_update_post`` exactly once (also after a re-register)."""
+    remove_depsgraph_handler(handler)
+    bpy.app.handlers.depsgraph_update_post.append(handler)

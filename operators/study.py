@@ -904,18 +904,9 @@ def _fall_back_to_other_studies() -> None:
                               if cam is not None), None)
 
 
-def _remove_cutter_handler() -> None:
-    handlers = bpy.app.handlers.depsgraph_update_post
-    for h in list(handlers):
-        if getattr(h, "__name__", "") == pdehead_cutter_update.__name__ and \
-                getattr(h, "__module__", "") == __name__:
-            handlers.remove(h)
-
-
 def register() -> None:
-    _remove_cutter_handler()  # never twice (a re-register after a reload)
-    bpy.app.handlers.depsgraph_update_post.append(pdehead_cutter_update)
+    state.install_depsgraph_handler(pdehead_cutter_update)
 
 
 def unregister() -> None:
-    _remove_cutter_handler()
+    state.remove_depsgraph_handler(pdehead_cutter_update)

@@ -168,7 +168,9 @@ def test_bad_arguments_exit_2_with_one_line(tmp_path, args, message):
 def test_ctrl_c_exits_130_and_leaves_no_half_written_study(collection, tmp_path):
     out = tmp_path / "interrupted"
     proc = subprocess.Popen([sys.executable, str(SCRIPTS / "pdehead_batch.py"), "run", *map(str, collection),
-                             "--out", str(out), "--workers", "0"], stderr=subprocess.PIPE, text=True)
+                             "--out", str(out), "--workers", "0"], stderr=subprocess.PIPE, text=True,
+                            # a shell's background job ignores SIGINT, and Python then keeps ignoring it
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 120
     while not list(out.glob(".work-*")) and time.monotonic() < deadline:  # a study is running
         time.sleep(0.05)

@@ -223,6 +223,7 @@ def test_fine_level_in_a_band_matches_the_whole_grid(phantom, monkeypatch):
     # whole blocks of 3 x 3 x 3 voxels (the band needs them; otherwise the box is solved)
     ct = CTVolume(np.pad(data, ((1, 1), (22, 24), (22, 24)), constant_values=air), phantom.ct.spacing)
     levels = dict(levels_mm=(6.0,))
+    monkeypatch.setattr(chan_vese, "FINE_BAND", True)     # off by default (see chan_vese.FINE_BAND)
     band = segment_head(ct, **levels)
     info = band.meta["solver"].get("fine_band")
     assert info and 0 < info["band_voxels"] < 0.5 * ct.data.size, info

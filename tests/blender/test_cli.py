@@ -152,7 +152,9 @@ def test_ctrl_c_stops_the_cli_with_130_and_leaves_no_output(tmp_path):
     env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "blender-user"))
     proc = subprocess.Popen([sys.executable, str(CLI), "--phantom", "--patches", "6", "--nu", "32", "--nv", "48",
                              "--out", str(out / "phantom.blend"), "--render", str(out / "surface.png")],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=tmp_path)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=tmp_path,
+                            # a shell's background job ignores SIGINT, and Python then keeps ignoring it
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     progress = []
     try:
         for line in proc.stderr:   # piped: plain progress lines, one per update
