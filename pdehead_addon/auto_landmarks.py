@@ -71,6 +71,14 @@ SIDE_EXTREME_TOLERANCE_MM = 1.0
 RIM_MM = 3.0
 #: Vertex is looked for on the vault's top within this distance (mm) of the mid-sagittal plane.
 VERTEX_HALF_WIDTH_MM = 30.0
+#: The upper jaw's mid-sagittal profile: rows whose front lies up to this far (mm) behind nasion's depth, down to
+#: the first row whose front-most bone is more than OCCLUSAL_GAP_MM behind the last jaw row (below the incisors).
+UPPER_JAW_DEPTH_MM = 25.0
+OCCLUSAL_GAP_MM = 20.0
+#: Glabella on a forehead without a prominence: the profile's turn is measured over this (mm) either side.
+GLABELLA_TURN_MM = 5.0
+#: Vertex's x is the middle of the vault's left-right extent this far (mm) below its top.
+VERTEX_CHORD_MM = 15.0
 #: Porions (orbitales) farther than this from mirror images of each other are flagged uncertain (mm).
 MIRROR_TOLERANCE_MM = 12.0
 
@@ -86,9 +94,13 @@ RULES: dict[str, str] = {
           "lowest pixel of the orbit opening.",
     "v": "Vertex: the highest point of the skull near the mid-sagittal plane (the middle of a flat top: the top "
          "columns within 30 mm of the plane and 1.5 mm of the highest; a vault is rarely symmetric about the "
-         "whole skull's plane).",
+         "whole skull's plane), moved across to the vault's own midline there (the middle of its left-right "
+         "extent 15 mm below the top) and taken at the top of that column.",
     "op": "Opisthocranion: the most posterior point of the skull on the mid-sagittal plane (middle of a flat back).",
-    "g": "Glabella: the most anterior point of the mid-sagittal profile 25-65 mm above orbitale.",
+    "g": "Glabella: the most anterior point of the mid-sagittal profile 25-65 mm above orbitale; where that is the "
+         "band's lowest row and the profile comes forward all the way down to nasion (no prominence), the point "
+         "of greatest convexity between nasion and 25 mm above it, where the nasal root turns into the forehead "
+         "(uncertain).",
     "n": "Nasion: the deepest (most posterior) point of the profile's concavity below glabella, on the profile "
          "walked down continuously from glabella; with no concavity (receding forehead, nasal bones not in the "
          "mask), the lowest point of that walk -- where the frontal bone ends (uncertain).",
@@ -216,16 +228,20 @@ def _disc(radius_px: float) -> np.ndarray:
     return xx ** 2 + yy ** 2 <= radius_px ** 2
 
 
-def _pits(height: np.ndarray, valid: np.ndarray, radius_px: float, depth_px: float) -> np.ndarray:
+def _pits(height: np.ndarray, valid: np.ndarray, radius_px: float, depth_px: float,
+          raw: bool = False) -> np.ndarray:
     """Labelled openings of a height image (larger = nearer the viewer): closing minus image > depth.
 
     Pixels where no bone is seen (``~valid``) count as infinitely deep; a pit must be enclosed
     by bone seen in the image (a component touching the image border or the outside is dropped).
+    With ``raw`` the boolean pit mask before that test is returned.
     """
     low = np.nanmin(np.where(valid, height, np.nan)) - 10 * depth_px
     h = np.where(valid, height, low)
     closed = ndimage.grey_closing(h, footprint=_disc(radius_px))
     pits = (closed - h) > depth_px
+    if raw:
+        return pits
     lab, n = ndimage.label(pits)
     if n == 0:
         return lab
@@ -288,6 +304,7 @@ def _orbits_and_aperture(v: _Views, mid_x: float):
         cand = [i for i in range(n) if side * cx[i] > 15 and area[i] >= 300]
         if cand:
             orbits[side] = max(cand, key=lambda i: area[i])
+    mirrored = _mirrored_orbit(v, mid_x, lab, orbits)
     top_z = min((cz[i] for i in orbits.values()), default=np.inf)
     ix_mid = fr.index(0, mid_x)
     crossing = [i for i in range(n) if (lab[max(ix_mid - 1, 0):ix_mid + 2] == i + 1).any(0).sum() >= 5
@@ -309,7 +326,65 @@ def _orbits_and_aperture(v: _Views, mid_x: float):
         while bottom > 0 and col[bottom - 1]:
             bottom -= 1
         aperture[:, :bottom] = False
-    return get(orbits.get(1)), get(orbits.get(-1)), aperture, lab
+    out = {side: get(orbits.get(side)) for side in (1, -1)}
+    out.update(mirrored)
+    return out[1], out[-1], aperture, lab
+
+
+#: An orbit whose opening runs into another one (its rim broken in the bone mask, e.g. thick oblique slices
+#: at the orbit floor) is cut to the mirror image of the other orbit's opening grown by this much (mm).
+ORBIT_MIRROR_GROW_MM = 3.0
+
+
+class _MirroredOrbit(np.ndarray):
+    """An orbit opening cut to the mirror image of the other orbit (a boolean mask; ``evidence`` says why)."""
+
+    evidence = ""
+
+
+def _mirror_fill(fr, pts: dict, fmt: str, orbits: dict) -> None:
+    """For an orbit cut to the other's mirror image (:class:`_MirroredOrbit`), keep its landmark ``pts[fmt(tag)]``
+    only within ``MIRROR_TOLERANCE_MM`` of the mirror image (x -> -x in the frame) of the other side's; else
+    put the mirror image there (its broken rim gave a point inside the orbit)."""
+    for tag, other in (("L", "R"), ("R", "L")):
+        if not getattr(orbits.get(tag), "evidence", ""):
+            continue
+        q = pts.get(fmt.format(other))
+        if q is None:
+            continue
+        m = np.asarray(q, float) * np.array([-1.0, 1.0, 1.0])
+        p = pts.get(fmt.format(tag))
+        if p is None or np.linalg.norm(np.asarray(p) - m) > MIRROR_TOLERANCE_MM:
+            pts[fmt.format(tag)] = m
+
+
+def _mirrored_orbit(v: _Views, mid_x: float, lab: np.ndarray, orbits: dict) -> dict:
+    """When only one orbit opening is enclosed by bone in the front view, look for the other as the pit
+    pixels (before the enclosure test) inside the mirror image of the found one across the mid-sagittal
+    plane, grown by ``ORBIT_MIRROR_GROW_MM``; accepted when they cover at least 60 % of the mirror image.
+    Returns {side: mask} for the side found this way (empty if none)."""
+    if len(orbits) != 1:
+        return {}
+    fr = v.fr
+    (side, i), = orbits.items()
+    found = lab == i + 1
+    xs = fr.coord(0, np.arange(fr.shape[0]))
+    src = np.clip(np.round((2 * mid_x - xs - fr.lo[0]) / fr.step).astype(int), 0, fr.shape[0] - 1)
+    mirror = found[src]                                   # mirror[ix] = found at the reflected column
+    if not mirror.any():
+        return {}
+    raw = _pits(-v.front_y, v.front_has, FRONT_CLOSING_MM / fr.step, HOLE_DEPTH_MM / fr.step, raw=True)
+    grow = ndimage.binary_dilation(mirror, structure=_disc(ORBIT_MIRROR_GROW_MM / fr.step))
+    cand = raw & grow
+    if cand.sum() < 0.6 * mirror.sum():
+        return {}
+    # the largest connected piece, so that a neighbouring opening's corner does not come along
+    cl, n = ndimage.label(cand)
+    cand = cl == 1 + int(np.argmax(ndimage.sum(np.ones_like(cl), cl, np.arange(1, n + 1))))
+    out = cand.view(_MirroredOrbit)
+    out.evidence = ("the orbit's opening runs into another opening in the bone mask (its rim is broken): cut to "
+                    "the mirror image of the other orbit")
+    return {-side: out}
 
 
 def _meatus(v: _Views, side: int, expect_y: float, expect_z: float):
@@ -473,6 +548,15 @@ def _midline(res, fr, v, mid_x, skull_ids, mand_ids, orb_z, aperture, mand_top=N
     cx, cy = np.median(cols, axis=0)
     k = int(np.argmin((cols[:, 0] - cx) ** 2 + (cols[:, 1] - cy) ** 2))   # a top column nearest the middle
     ixv, iyv = int(cols[k, 0]), int(cols[k, 1])
+    # the vault's own midline at that y: the middle of its left-right extent VERTEX_CHORD_MM below the top (a
+    # vault is rarely symmetric about the whole skull's plane; CThead's top sits 2-4 mm beside it)
+    iz_c = int(height[ixv, iyv] - round(VERTEX_CHORD_MM / fr.step))
+    if iz_c >= 0:
+        row = np.flatnonzero(fr.bone[:, iyv, iz_c] & np.isin(fr.comp[:, iyv, iz_c], skull_ids))
+        if len(row) >= 2:
+            ixm = int(round(0.5 * (row.min() + row.max()))) - ix_lo
+            if 0 <= ixm < height.shape[0] and height[ixm, iyv] >= height.max() - 3.0 / fr.step:
+                ixv = ixm
     res["v"] = (np.array([fr.coord(0, ix_lo + ixv), fr.coord(1, iyv), fr.coord(2, height[ixv, iyv])]), OK, "")
     back = pts[pts[:, 0] >= pts[:, 0].max() - 1.5 / fr.step]
     iz = int(np.round(np.median(back[:, 1])))
@@ -513,6 +597,20 @@ def _midline(res, fr, v, mid_x, skull_ids, mand_ids, orb_z, aperture, mand_top=N
                     "no concavity below glabella: nasion taken where the frontal bone's outline ends")
         i_rhi = i_n
         res["rhi"] = (None, NOT_FOUND, "the nasal bones are not in the bone mask below nasion")
+    if ig <= int(np.flatnonzero(band).min()) + 1 and z[i_n] < z[ig] and py[i_n] < py[ig] - 2.0:
+        # no prominence between the brows: the profile still comes forward below the band, all the way down to
+        # nasion, which stands more than 2 mm in front of the band's front-most point (a receding forehead). Glabella is then where the profile turns from the nasal root up into
+        # the forehead: its greatest convexity (the slope's largest fall over GLABELLA_TURN_MM either side)
+        # between nasion and 25 mm above it
+        w = max(1, int(round(GLABELLA_TURN_MM / fr.step)))
+        ks = np.arange(i_n + w, min(fr.index(2, z[i_n] + 25.0), len(z) - 1 - w) + 1)
+        ks = ks[has[ks] & has[ks - w] & has[ks + w]]
+        if len(ks):
+            turn = (py[ks] - py[ks - w]) - (py[ks + w] - py[ks])      # slope below minus slope above
+            k = int(ks[np.argmax(turn)])
+            res["g"] = (np.array([mid_x, py[k], z[k]]), UNCERTAIN,
+                        "the forehead has no prominence (the profile comes forward all the way down to nasion): "
+                        "glabella taken where the profile turns from the nasal root into the forehead")
     i_mn = int(np.round(0.5 * (i_n + i_rhi)))
     res["mn"] = (None, NOT_FOUND, res["rhi"][2]) if res["rhi"][0] is None else \
         (np.array([mid_x, py[i_mn] if has[i_mn] else py[i_n], z[i_mn]]), res["rhi"][1], res["rhi"][2])
@@ -522,8 +620,8 @@ def _midline(res, fr, v, mid_x, skull_ids, mand_ids, orb_z, aperture, mand_top=N
     # the upper skeleton's and lies within 15 mm of nasion's depth (the anterior nasal spine)
     iy_all, has_all = _first_true(slab, 0)
     front_comp = fr.comp[max(ix - 1, 0):ix + 2].max(0)[iy_all, np.arange(fr.shape[2])]
-    face = has & has_all & np.isin(front_comp, skull_ids) & (np.abs(fr.coord(1, iy_all) - py) < 1.5)
-    face &= py < py[i_n] + 15
+    face_any = has & has_all & np.isin(front_comp, skull_ids) & (np.abs(fr.coord(1, iy_all) - py) < 1.5)
+    face = face_any & (py < py[i_n] + 15)
     k = i_rhi - int(round(3 / fr.step))
     if res["rhi"][0] is None:
         # the nasal bones are not in the mask: the bone just below nasion (frontal processes, bits of the
@@ -540,8 +638,16 @@ def _midline(res, fr, v, mid_x, skull_ids, mand_ids, orb_z, aperture, mand_top=N
     i_top = k
     i_low, gap, j = i_top, 0, i_top - 1
     mand = set(mand_ids)
+    # below the spine the maxilla's front may lie deeper than 15 mm behind nasion (the concavity of subspinale
+    # on a skull whose nasal root juts forward): the profile rows go UPPER_JAW_DEPTH_MM behind it
+    face = face_any & (py < py[i_n] + UPPER_JAW_DEPTH_MM)
+    face[i_top + 1:] = False
     while j > 0:
         if has_all[j] and front_comp[j] in mand:
+            break
+        if has_all[j] and fr.coord(1, iy_all[j]) - py[i_low] > OCCLUSAL_GAP_MM:
+            # the front-most bone jumps far back: below the upper incisors' edges (the lower teeth behind them
+            # are split from the mandible by the threshold and would pass for the upper jaw)
             break
         if face[j]:
             i_low, gap = j, 0
@@ -563,11 +669,16 @@ def _midline(res, fr, v, mid_x, skull_ids, mand_ids, orb_z, aperture, mand_top=N
     # deepest relative to the chord from prosthion to the spine
     if len(upper) >= 3 and i_ans != i_sd:
         chord = py[i_sd] + (py[i_ans] - py[i_sd]) * (z[upper] - z[i_sd]) / (z[i_ans] - z[i_sd])
-        i_ss = int(upper[np.argmax(py[upper] - chord)])
+        # the median of three rows: a single row missing the thin cortex in front of the maxilla is a notch of
+        # the mask, not of the bone
+        smooth = np.array([np.median(py[seg[max(i - 1, 0):i + 2]]) for i in np.searchsorted(seg, upper)])
+        i_ss = int(upper[np.argmax(smooth - chord)])
+        ss_y = float(smooth[np.argmax(smooth - chord)])
     else:
         top_rows = seg[seg > i_sd]
         i_ss = int(top_rows[np.argmax(py[top_rows])]) if len(top_rows) else i_sd
-    res["ss"] = (np.array([mid_x, py[i_ss], z[i_ss]]), UNCERTAIN if upper_ev else OK, upper_ev)
+        ss_y = float(py[i_ss])
+    res["ss"] = (np.array([mid_x, ss_y, z[i_ss]]), UNCERTAIN if upper_ev else OK, upper_ev)
     res["sd"] = (np.array([mid_x, py[i_sd], z[i_sd]]), UNCERTAIN,
                  f"teeth and alveolar bone are one in a bone mask: placed {UPPER_INCISOR_CROWN_MM:g} mm "
                  "(an upper incisor crown) above the lowest point of the upper jaw")
@@ -724,6 +835,7 @@ def find_landmarks(ct, bone: np.ndarray, *, grid_mm: float = LANDMARK_GRID_MM) -
                 out[f"or_{tag}"] = None
                 continue
             out[f"or_{tag}"] = orbitale(v, orb)
+        _mirror_fill(fr, out, "or_{}", {"L": orb_l, "R": orb_r})
         skull_front = np.nanmin(np.where(v.front_has, v.front_y, np.nan))
         skull_back = fr.coord(1, np.flatnonzero(fr.bone.any((0, 2))).max())
         ors = [p for p in (out["or_L"], out["or_R"]) if p is not None]
@@ -842,6 +954,23 @@ def find_landmarks(ct, bone: np.ndarray, *, grid_mm: float = LANDMARK_GRID_MM) -
                 break
             iz -= 1
         found[f"im_{t}"] = (p_im, OK, "") if p_im is not None else (None, NOT_FOUND, ev)
+
+    # an orbit cut to the other's mirror image (its rim broken in the mask): its margins are checked against the
+    # mirror images of the other side's, and replaced by them (snapped to the bone) where they are not there
+    for side in (1, -1):
+        orb, t = orbits[side], tags[side].lower()
+        if not getattr(orb, "evidence", ""):
+            continue
+        for key in ("so", "sbo", "lo", "fe", "im"):
+            pts = {f"{key}_L": found[f"{key}_l"][0], f"{key}_R": found[f"{key}_r"][0]}
+            _mirror_fill(fr, pts, key + "_{}", {"L": orbits[1], "R": orbits[-1]})
+            p = pts[f"{key}_{tags[side]}"]
+            if p is not None and found[f"{key}_{t}"][0] is not p:
+                p = _nearest_surface(fr, p, None, 6.0)
+            found[f"{key}_{t}"] = (p, UNCERTAIN, orb.evidence) if p is not None else \
+                (None, NOT_FOUND, orb.evidence + "; no bone near the mirror image of the other side's")
+        found[f"or_{t}"] = (found[f"or_{t}"][0], UNCERTAIN, orb.evidence) if found[f"or_{t}"][0] is not None \
+            else found[f"or_{t}"]
 
     # zygion and supraglenoid from the side views
     for side in (1, -1):

@@ -170,16 +170,89 @@ def marker_pegs(landmarks: dict[str, np.ndarray], skull: Mesh, table: dict[str, 
     return [(n, base[i], normal[i], float(table[n])) for i, n in enumerate(names)]
 
 
+#: Radius (mm) of the bone surface around a landmark whose exposed normals give its measurement direction.
+DEPTH_NORMAL_RADIUS_MM = 6.0
+#: A triangle of that neighbourhood is exposed when a ray along its normal meets no bone within this (mm):
+#: the walls of an orbit, the nasal aperture or the ear canal face other bone across the opening.
+DEPTH_EXPOSURE_MM = 60.0
+
+
+def exposed_normals(points: np.ndarray, skull: Mesh, radius_mm: float = DEPTH_NORMAL_RADIUS_MM,
+                    exposure_mm: float = DEPTH_EXPOSURE_MM, max_triangles: int = 160,
+                    nearest_normals: np.ndarray | None = None) -> np.ndarray:
+    """The measurement direction of a tissue depth at bone surface points: the bone's outward normal
+    averaged (area-weighted) over the triangles within ``radius_mm`` that face the outside.
+
+    At the rim of an opening (nasion, orbitale, the orbit margins, porion) the normal of the nearest
+    triangle is no direction: the surface turns into the opening there, and a ray along it runs into
+    the orbit or the ear canal and meets the skin far away, or not at all. The walls of an opening face
+    other bone across it, so a triangle counts only when a ray along its own normal meets no bone within
+    ``exposure_mm`` (the outer face of the skull around the opening does); their mean normal is the normal
+    of the bone's outer face with the opening bridged -- the way a caliper or a peg is set perpendicular
+    to the bone beside an opening. On smooth bone it is the local normal averaged over the radius. Where no
+    triangle qualifies, the nearest triangle's normal is kept.
+
+    Parameters
+    ----------
+    points : ndarray (n, 3)
+        Points on (or snapped to) the skull surface, mm.
+    skull : Mesh
+        Closed outward-wound bone surface.
+    nearest_normals : ndarray (n, 3), optional
+        The nearest triangles' normals (from :func:`snap_to_surface`), kept where no triangle is exposed.
+
+    Returns
+    -------
+    ndarray (n, 3)
+        Unit outward directions.
+    """
+    from .tissue_depth import _MeshDistance, cast_rays
+
+    v, t = mesh_triangles(skull)
+    pts = np.atleast_2d(np.asarray(points, np.float64))
+    a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
+    cross = np.cross(b - a, c - a)
+    area2 = np.linalg.norm(cross, axis=1)
+    tn = cross / np.maximum(area2, 1e-12)[:, None]
+    cen = (a + b + c) / 3.0
+    nearest = snap_to_surface(pts, skull)[1] if nearest_normals is None else np.asarray(nearest_normals, float)
+    groups, origins, dirs = [], [], []
+    for p in pts:
+        idx = np.flatnonzero(np.einsum("ij,ij->i", cen - p, cen - p) <= radius_mm ** 2)
+        if len(idx) > max_triangles:                     # an even subset: the mean, not every triangle
+            idx = idx[np.linspace(0, len(idx) - 1, max_triangles).round().astype(int)]
+        groups.append(idx)
+        origins.append(cen[idx] + 0.3 * tn[idx])
+        dirs.append(tn[idx])
+    if not any(len(g) for g in groups):
+        return nearest
+    hit = cast_rays(np.concatenate(origins), np.concatenate(dirs), skull, exposure_mm,
+                    distance=_MeshDistance(v, t))
+    out = nearest.copy()
+    k = 0
+    for i, idx in enumerate(groups):
+        free = ~np.isfinite(hit[k:k + len(idx)])
+        k += len(idx)
+        if free.any():
+            m = (tn[idx[free]] * area2[idx[free], None]).sum(0)
+            if np.linalg.norm(m) > 1e-9:
+                out[i] = m / np.linalg.norm(m)
+    return out
+
+
 def landmark_depths(landmarks: dict[str, np.ndarray], skull: Mesh, skin: Mesh,
                     max_depth_mm: float = 60.0) -> dict[str, tuple[np.ndarray, float]]:
-    """Measured tissue depth at each landmark: skull point, and distance along the skull's outward
-    normal to the skin (mm, NaN if the skin is not met within ``max_depth_mm``)."""
+    """Measured tissue depth at each landmark: skull point, and distance to the skin along the skull's
+    outward normal there (mm, NaN if the skin is not met within ``max_depth_mm``). The normal is the
+    bone's outer face's (:func:`exposed_normals`), so that at the rim of an opening the depth is taken
+    perpendicular to the bone beside the opening, not into it."""
     from .tissue_depth import cast_rays
 
     names = list(landmarks)
     if not names:
         return {}
-    base, normal = snap_to_surface(np.array([landmarks[n] for n in names]), skull)
+    base, nearest = snap_to_surface(np.array([landmarks[n] for n in names]), skull)
+    normal = exposed_normals(base, skull, nearest_normals=nearest)
     depth = cast_rays(base, normal, skin, max_depth_mm)
     return {n: (base[i], float(depth[i])) for i, n in enumerate(names)}
 

@@ -121,10 +121,13 @@ def test_cthead_landmarks_against_the_hand_placed_ones(cthead_ct):
         assert abs(search.landmarks[name].point[0] - 110.8) <= 1.0, (name, search.landmarks[name].point)
 
 
-# measured (bench_landmarks.py): median 3.9 mm, largest ok 6.0 mm (subspinale; vertex 5.3, glabella 5.5); the
-# issue's targets are 3 / 6 mm. Before this session's plane, vertex, rim and porion rules: 5.0 / 6.3 mm.
-CTHEAD_MEDIAN_MM = 4.5
-CTHEAD_MAX_OK_MM = 6.5
+# measured (bench_landmarks.py): median 2.85 mm, largest ok 5.7 mm (subspinale: the thin cortex in front of the
+# maxilla is not in the bone mask; gonion 4.5 / 4.5, vertex 4.6); glabella 5.7 is uncertain (no prominence). The
+# issue's targets are 3 / 6 mm. Before: 3.9 / 6.0 (fixture x = 108 for the face), 5.0 / 6.3 before that. Of the
+# 3.9 -> 2.85, the fixture's corrected x took the chin landmarks from 3.8-3.9 to 1.0-1.9 mm; supradentale went
+# 10.6 -> 6.2 (the upper jaw stops at the incisors' edges), vertex 5.3 -> 4.6 (the vault's own midline).
+CTHEAD_MEDIAN_MM = 3.0
+CTHEAD_MAX_OK_MM = 6.0
 
 
 def test_every_landmark_has_a_written_rule():
@@ -141,6 +144,12 @@ def test_ge_has_no_mandible(ge_ct):
         lm = search.landmarks[name]
         assert lm.flag == NOT_FOUND and "mandible" in lm.evidence, (name, lm)
     assert search.landmarks["Vertex"].point is not None and search.landmarks["Porion R"].point is not None
-    # without a Frankfurt frame (its left orbit is not found) nothing found is called ok
-    if search.frankfurt is None:
-        assert all(lm.flag != OK for lm in search.landmarks.values())
+    # the Frankfurt frame without a mandible: the left orbit's opening runs into the space below it in the bone
+    # mask (its rim is broken on the 4 mm tilted slices), so it is cut to the right orbit's mirror image and its
+    # margins are uncertain; orbitale L 40 mm and R 34 mm from the face's midline (x = -22), both at z = -8
+    assert search.frankfurt is not None and search.info["frame"] == "frankfurt"
+    ol, orr = search.landmarks["Orbitale L"], search.landmarks["Orbitale R"]
+    assert ol.flag == UNCERTAIN and "mirror" in ol.evidence and orr.flag == OK
+    assert abs(ol.point[2] - orr.point[2]) < 3.0 and ol.point[0] > 0 > orr.point[0]
+    # the face from the skull needs both orbits and 8 ok landmarks (measured 13 ok, 22 found)
+    assert sum(lm.flag == OK for lm in search.landmarks.values()) >= 10
