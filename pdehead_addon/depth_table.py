@@ -15,7 +15,8 @@ against the paper before casework.
 **Convention.** The depth is measured from the bone landmark to the skin along the bone's surface
 normal at the landmark (perpendicular to the bone), the convention of the tables: the pegs of
 :func:`~.landmarks.marker_pegs` stand along that normal and :func:`~.landmarks.landmark_depths`
-measures along it.
+measures along it (the normal of the bone's outer face around the landmark,
+:func:`~.landmarks.exposed_normals`, so that the rim of an opening is not measured into the opening).
 
 **Codes.** The table uses Caple & Stephan's (2016) codes. :data:`CODE_MAP` maps them to the landmark
 set of :mod:`.landmarks`; a bilateral code without a side (``zy``) means both sides. The set holds every
