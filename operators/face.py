@@ -285,19 +285,20 @@ def peg_tips(coll, names: list[str]) -> np.ndarray:
     from .forensic_study import PEG_DEPTH_PROP, _frankfurt
 
     pegs = _peg_objects(coll, names)
-    inverse = np.array(_frankfurt(coll).inverted())
     tips = np.full((len(names), 3), np.nan)
-    for i, name in enumerate(names):
-        peg = pegs.get(name)
-        if peg is None:
-            continue
-        m = np.array(peg.matrix_world)
-        axis = m[:3, 2]
-        length = np.linalg.norm(axis)
-        if not length > 0:
-            continue
-        tip = m[:3, 3] + axis / length * float(peg.get(PEG_DEPTH_PROP, 0.0)) * MM_TO_M
-        tips[i] = (inverse[:3, :3] @ tip + inverse[:3, 3]) / MM_TO_M
+    rows = [i for i, name in enumerate(names) if name in pegs]
+    if not rows:
+        return tips
+    inverse = np.array(_frankfurt(coll).inverted())
+    found = [pegs[names[i]] for i in rows]
+    m = np.array([p.matrix_world for p in found], float)                       # (k, 4, 4), one read per peg
+    depth = np.array([float(p.get(PEG_DEPTH_PROP, 0.0)) for p in found])
+    axis = m[:, :3, 2]
+    length = np.linalg.norm(axis, axis=1)
+    ok = length > 0
+    tip = m[:, :3, 3] + axis / np.where(ok, length, 1.0)[:, None] * (depth * MM_TO_M)[:, None]
+    world = (tip @ inverse[:3, :3].T + inverse[:3, 3]) / MM_TO_M
+    tips[np.asarray(rows)[ok]] = world[ok]
     return tips
 
 
@@ -369,23 +370,28 @@ def solve_face(coll, tips: np.ndarray | None = None, table=None) -> dict:
 
 def face_changed(coll) -> bool:
     """Whether a peg tip moved since the last solve (cheap: no model needed)."""
+    return _moved_tips(coll) is not None
+
+
+def _moved_tips(coll) -> np.ndarray | None:
+    """The pegs' tips now when one moved since the last solve, else None (read once: the handler solves
+    through these same tips)."""
     obj = face_object(coll)
     if obj is None:
-        return False
+        return None
     last = _cache(coll).get("face_tips")
     if last is None:
         stored = obj.get(TIPS_PROP)
-        if stored is None:
-            return True
-        last = np.array(stored, float).reshape(-1, 3)
-        _cache(coll)["face_tips"] = last
+        if stored is not None:
+            last = np.array(stored, float).reshape(-1, 3)
+            _cache(coll)["face_tips"] = last
     names = face_options(coll).get("pegs", [])
     now = peg_tips(coll, names)
-    if now.shape != last.shape:
-        return True
+    if last is None or now.shape != last.shape:
+        return now
     same = np.abs(now - last) <= TIP_TOLERANCE_MM
     same |= np.isnan(now) & np.isnan(last)             # a peg that is gone stays gone: no new solve
-    return not bool(same.all())
+    return None if bool(same.all()) else now
 
 
 # ------------------------------------------------------------------------------------------ build
@@ -547,8 +553,9 @@ def pdehead_face_update(_scene, depsgraph=None) -> None:
             if obj is None or obj.mode == 'EDIT':      # edited by hand: Blender's edit mesh would overwrite it
                 continue
             try:
-                if face_changed(coll):
-                    solve_face(coll)
+                tips = _moved_tips(coll)
+                if tips is not None:
+                    solve_face(coll, tips=tips)
             except Exception as exc:  # noqa: BLE001 - a handler must not raise into Blender
                 obj = face_object(coll)
                 if obj is not None:      # do not retry on every update: remember the tips tried

@@ -151,8 +151,11 @@ class LiveFace:
         rows = np.flatnonzero(cubic)
         if rows.size:
             w = basis(np.zeros(1), s[rows, None])[:, 0]                          # (n, 4)
-            cf = head._coef_flat.reshape(head.spans, 4, H * 6)
-            amp = np.einsum("nb,nbc->nc", w, cf[patch[rows]]).reshape(rows.size, H, 6)
+            cf, first = head._coef_flat, 4 * patch[rows]
+            amp = w[:, :1] * cf[first]
+            for b in range(1, 4):
+                amp += w[:, b:b + 1] * cf[first + b]
+            amp = amp.reshape(rows.size, H, 6)
             spec[rows, :, :H] = (amp[..., :3] + 1j * amp[..., 3:]).transpose(0, 2, 1)
         if not np.all(cubic):
             other = np.flatnonzero(~cubic)
@@ -164,8 +167,6 @@ class LiveFace:
         return np.fft.irfft(spec, n=nv, axis=-1).transpose(0, 2, 1)
 
     def _positions(self, tips: np.ndarray) -> np.ndarray | None:
-        from .surface_mesh import DiscCap, disc_caps
-
         m = self.model
         tips = np.asarray(tips, float).reshape(-1, 3)
         radius = m.profile + self.offset_field(tips)
@@ -177,12 +178,52 @@ class LiveFace:
             return None
         pts = self._grid(head)
         ends = head.spine(np.array([0.0, 1.0]))
-        cap = disc_caps(pts, ends, ends=(0,), reference=self._cap_ref)[0]
-        if not isinstance(cap, DiscCap):                  # the fan cap of a ring that is not star-shaped
+        cap = self._cap_vertices(pts[0], ends[0])
+        if cap is None:                                   # the fan cap of a ring that is not star-shaped
             return None
-        out = np.concatenate([pts.reshape(-1, 3), cap.vertices, np.asarray(head.vertex, float)[None]])
+        out = np.concatenate([pts.reshape(-1, 3), cap, np.asarray(head.vertex, float)[None]])
         self.last_orientation = head.orientation
         return out if self.vertex_count is None or len(out) == self.vertex_count else None
+
+    def _cap_vertices(self, ring: np.ndarray, centre: np.ndarray) -> np.ndarray | None:
+        """The neck cap's new points (:class:`.surface_mesh.DiscCap`'s ``vertices`` for the model's cap
+        reference), without its triangles: what depends on the counts alone is kept from the first call."""
+        from .surface_mesh import CAP_EDGE, DiscCap, _star_shaped
+
+        if not _star_shaped(ring, centre)[0]:
+            return None
+        fixed = self.__dict__.get("_cap_fixed")
+        if fixed is None:                                  # the plan's counts and sample fractions: once
+            edge = CAP_EDGE * float(self._cap_ref["edge"])
+            probe = DiscCap(ring, centre, edge, self._cap_ref["ends"][0])
+            p_ref, r_ref, arc_fraction = self._cap_ref["ends"][0]
+            edge = max(float(edge), 1e-9)
+            rings = max(1, int(np.ceil(r_ref / edge)))
+            f = 1.0 - np.arange(1, rings) / rings
+            m = np.maximum(6, np.ceil(f * p_ref / edge).astype(np.int64))
+            ring_of = np.repeat(np.arange(len(f)), m)
+            first = np.concatenate([[0], np.cumsum(m)[:-1]])
+            j = np.arange(m.sum()) - first[ring_of]
+            v_frac = np.interp(j / m[ring_of], arc_fraction, np.linspace(0.0, 1.0, len(arc_fraction)))
+            idx = v_frac * len(ring)
+            lo = np.floor(idx).astype(np.int64)
+            fixed = self._cap_fixed = (lo % len(ring), (lo + 1) % len(ring), (idx - lo)[:, None], f[ring_of][:, None],
+                                       len(probe.vertices))
+        lo, hi, w, fr, count = fixed
+        d = ring - centre
+        normal = np.cross(d, np.roll(d, -1, axis=0)).sum(axis=0)
+        normal /= np.linalg.norm(normal) or 1.0
+        flat = d - np.outer(d @ normal, normal)
+        e1 = flat[0] / (np.linalg.norm(flat[0]) or 1.0)
+        e2 = np.cross(normal, e1)
+        p2 = np.stack([flat @ e1, flat @ e2], axis=1)
+        theta = np.unwrap(np.arctan2(p2[:, 1], p2[:, 0]))
+        if theta[-1] - theta[0] < 0:                        # clockwise in this frame
+            p2[:, 1] *= -1
+            e2 = -e2
+        q = p2[lo] * (1 - w) + p2[hi] * w
+        out = np.concatenate([centre + fr * (q[:, :1] * e1 + q[:, 1:] * e2), np.asarray(centre, float)[None]])
+        return out if len(out) == count else None
 
     def positions(self, tips: np.ndarray) -> np.ndarray | None:
         """The face's vertex positions (patient mm, (vertex_count, 3)) through the peg ``tips`` ((n, 3),
