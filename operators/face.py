@@ -368,6 +368,16 @@ def solve_face(coll, tips: np.ndarray | None = None, table=None) -> dict:
     return timings
 
 
+def live_status(coll) -> str | None:
+    """One line for the panel: how the last change was solved (None before the first change)."""
+    cache = _cache(coll)
+    timings = cache.get("face_timings")
+    if not timings:
+        return None
+    text = "Live: vertex positions only" if timings.get("fast") else "Live: whole mesh solved (slower)"
+    return text + (", model from the file" if cache.get("face_model_source") == "file" else "")
+
+
 def face_changed(coll) -> bool:
     """Whether a peg tip moved since the last solve (cheap: no model needed)."""
     return _moved_tips(coll) is not None

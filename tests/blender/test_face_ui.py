@@ -220,6 +220,12 @@ def test_face_follows_a_peg_after_reopening(pdehead_ext, face_blend, tmp_path):
     assert face.PREPARE_CALLS[0] == prepared and cache["face_model_source"] == "file"
     assert cache["face_timings"]["fast"] and not cache["face_timings"]["refilled"]
     assert np.abs(face._mesh_positions(coll, obj) - expected).max() < 1e-3     # float32 metres: ~1e-5 mm
+    from types import SimpleNamespace
+    from panel_recorder import RecordingLayout
+    log = []
+    sys.modules[f"{pdehead_ext.__name__}.operators.forensic"].PDEHEAD_PT_forensic.draw(
+        SimpleNamespace(layout=RecordingLayout(log)), bpy.context)
+    assert ("label", "Live: vertex positions only, model from the file") in log
     # a kept model that does not belong to this face (another build): prepared again, the face still follows
     coll[face.FACE_MODEL_KEY] = "another build\n" + coll[face.FACE_MODEL_KEY].partition("\n")[2]
     state.drop_cache()
