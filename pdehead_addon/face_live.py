@@ -143,6 +143,7 @@ class LiveFace:
 
         u, nv = self._u, self.nv
         H, nb = head.harmonics, nv // 2 + 1
+        self._spine0 = None
         if H > (nv + 1) // 2:                                     # harmonics folded: the head's own
             return head._grid(u, nv)
         patch, s = head._patch_of(u)
@@ -156,6 +157,8 @@ class LiveFace:
             for b in range(1, 4):
                 amp += w[:, b:b + 1] * cf[first + b]
             amp = amp.reshape(rows.size, H, 6)
+            if rows[0] == 0:                              # u = 0: the spine's bottom end, the neck cap's centre
+                self._spine0 = amp[0, 0, :3].copy()
             spec[rows, :, :H] = (amp[..., :3] + 1j * amp[..., 3:]).transpose(0, 2, 1)
         if not np.all(cubic):
             other = np.flatnonzero(~cubic)
@@ -177,8 +180,8 @@ class LiveFace:
         if head.vertex is None or self._cap_ref is None:
             return None
         pts = self._grid(head)
-        ends = head.spine(np.array([0.0, 1.0]))
-        cap = self._cap_vertices(pts[0], ends[0])
+        centre = self._spine0 if self._spine0 is not None else head.spine(np.array([0.0]))[0]
+        cap = self._cap_vertices(pts[0], centre)
         if cap is None:                                   # the fan cap of a ring that is not star-shaped
             return None
         out = np.concatenate([pts.reshape(-1, 3), cap, np.asarray(head.vertex, float)[None]])
