@@ -221,7 +221,11 @@ def _restore_model(coll, opts):
 def _keep_model(coll, model, build: str) -> None:
     """The prepared model into the file (the collection), after its first solve fixed its parameter."""
     from ..pdehead_addon import face_live as engine_live
-    coll[FACE_MODEL_KEY] = build + "\n" + engine_live.model_state(model)
+    try:
+        coll[FACE_MODEL_KEY] = build + "\n" + engine_live.model_state(model)
+    except (TypeError, ValueError) as exc:     # a model this version cannot keep: prepared again after reopening
+        coll.pop(FACE_MODEL_KEY, None)
+        print(f"PDE Head: the face model is not kept in the file ({exc}); reopening will prepare it again")
 
 
 def face_model(coll):
