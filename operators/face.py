@@ -16,8 +16,14 @@ the Blender side of it:
   table (study setting ``face_table``) sets every peg to the new table's mean and re-solves at once.
 * **Save and reopen.** Everything the face needs is in the .blend: the bone skull object's mesh, the
   landmarks the face was built from, the table, the options (JSON on the collection) and the tips of
-  the last solve (on the face object). The :class:`FaceModel` itself is a runtime cache, prepared again
-  on the first change after reopening (or after undo to another build).
+  the last solve (on the face object). The prepared :class:`FaceModel` is kept too
+  (:func:`.face_live.model_state`: its arrays, ~0.5 MB on CThead, on the collection under
+  :data:`FACE_MODEL_KEY`): the first change after reopening rebuilds it from there in milliseconds and
+  checks it (its solve at the saved tips must give the saved face, within :data:`RESTORE_TOLERANCE_MM`);
+  only when that fails (a file from another version) is the model prepared again from the skull
+  (seconds).
+* **Speed.** A change goes through :class:`.face_live.LiveFace`: the vertex positions alone, the same
+  numbers as the model's whole solve (checked when it is made), written into the same mesh.
 """
 from __future__ import annotations
 
@@ -39,6 +45,8 @@ SD_FACE_KEYS = {"minus": "pdehead_face_minus_sd_object", "plus": "pdehead_face_p
 LABEL_PROP = "pdehead_label"                # face object: the approximation label
 PROVENANCE_PROP = "pdehead_provenance"      # face object: JSON provenance
 TIPS_PROP = "pdehead_face_tips"             # face object: the peg tips (patient mm) of the last solve
+FACE_MODEL_KEY = "_pdehead_face_model"      # collection: the prepared FaceModel (face_live.model_state JSON;
+                                            # "_": not listed in the Custom Properties panel)
 FACE_KIND = "face"
 FACE_MATERIAL = "PDE Head Face"
 SD_MATERIALS = {"minus": ("PDE Head Face -1 SD", (0.25, 0.45, 0.95, 1.0)),
@@ -57,6 +65,12 @@ FACE_SEX_ITEMS = [
 ]
 #: Tips closer than this (mm) to the last solve's count as unchanged.
 TIP_TOLERANCE_MM = 1e-4
+#: A model rebuilt from the file must give the saved face at the saved tips within this (mm; the mesh keeps
+#: float32 metres, ~1e-5 mm at a head's size).
+RESTORE_TOLERANCE_MM = 1e-3
+#: How many times this session prepared a face model from a skull (Build Face, or a kept model that could
+#: not be used): a reopened file's first drag must not add one.
+PREPARE_CALLS = [0]
 
 
 def _engine():
@@ -142,21 +156,114 @@ def table_has_sex(table) -> bool:
 
 
 # ------------------------------------------------------------------------------------------ model
+def _prepare(skull, lms, table, **kw):
+    PREPARE_CALLS[0] += 1
+    return _engine().FaceModel.prepare(skull, lms, table, **kw)
+
+
+def _stored_tips(coll, obj, model) -> np.ndarray | None:
+    stored = obj.get(TIPS_PROP) if obj is not None else None
+    if stored is None:
+        return None
+    tips = np.array(stored, float).reshape(-1, 3)
+    if tips.shape != model.peg_bases.shape:
+        return None
+    return _fill_gone(model, tips)
+
+
+def _fill_gone(model, raw: np.ndarray) -> np.ndarray:
+    """A deleted peg's tip (NaN) back at the table's mean."""
+    tips = np.array(raw, float)
+    gone = ~np.isfinite(tips).all(axis=1)
+    if gone.any():
+        tips[gone] = model.peg_bases[gone] + model.peg_normals[gone] * model.default_depths[gone, None]
+    return tips
+
+
+def _mesh_positions(coll, obj) -> np.ndarray:
+    """The face mesh's vertices in patient mm (the study's frame, before the object's transform)."""
+    from . import objects
+    co = np.empty(len(obj.data.vertices) * 3, np.float32)
+    obj.data.attributes["position"].data.foreach_get("vector", co)
+    return (co.reshape(-1, 3).astype(np.float64) + np.asarray(objects.study_origin(coll))) / MM_TO_M
+
+
+def _restore_model(coll, opts):
+    """The model kept in the file, checked against the saved face (None when there is none or it does not
+    give the saved face): (model, LiveFace)."""
+    from ..pdehead_addon import face_live as engine_live
+
+    text = coll.get(FACE_MODEL_KEY)
+    obj = face_object(coll)
+    if not text or obj is None:
+        return None
+    try:
+        head, _, body = str(text).partition("\n")
+        if head != opts["build"]:
+            return None
+        model = engine_live.model_from_state(body)
+        tips = _stored_tips(coll, obj, model)
+        if tips is None:
+            return None
+        live = engine_live.LiveFace(model, check=False)
+        got = live.positions(tips)
+        saved = _mesh_positions(coll, obj)
+        if got is None or got.shape != saved.shape or not np.abs(got - saved).max() <= RESTORE_TOLERANCE_MM:
+            return None
+        live.vertex_count = len(got)
+        live.max_difference_mm = float(np.abs(got - saved).max())
+        return model, live
+    except Exception as exc:  # noqa: BLE001 - a kept model that cannot be used: prepare it again
+        print(f"PDE Head: the face model kept in the file is not used ({exc}); preparing it again")
+        return None
+
+
+def _keep_model(coll, model, build: str) -> None:
+    """The prepared model into the file (the collection), after its first solve fixed its parameter."""
+    from ..pdehead_addon import face_live as engine_live
+    try:
+        coll[FACE_MODEL_KEY] = build + "\n" + engine_live.model_state(model)
+    except (TypeError, ValueError) as exc:     # a model this version cannot keep: prepared again after reopening
+        coll.pop(FACE_MODEL_KEY, None)
+        print(f"PDE Head: the face model is not kept in the file ({exc}); reopening will prepare it again")
+
+
 def face_model(coll):
-    """The study's prepared FaceModel (runtime cache; prepared again from the .blend's data when missing)."""
+    """The study's prepared FaceModel (runtime cache; when missing, rebuilt from the model kept in the
+    .blend, else prepared again from the .blend's skull, landmarks and table)."""
     opts = face_options(coll)
     if not opts:
         raise PDEHeadError(f"study '{coll.name}' has no face yet: run Build Face")
     cache = _cache(coll)
     if cache.get("face_model") is None or cache.get("face_build") != opts["build"]:
-        from ..pdehead_addon.depth_table import DepthTable
-        table = DepthTable.from_json(opts["table"])
-        lms = {k: np.array(v, float) for k, v in opts["landmarks"].items()}
         with state.Timer() as t:
-            model = _engine().FaceModel.prepare(skull_mesh(coll), lms, table, sex=opts.get("sex"),
-                                                flags=opts.get("flags"), **opts.get("options", {}))
-        cache.update(face_model=model, face_build=opts["build"], face_tips=None, face_prepare_s=t.seconds)
+            restored = _restore_model(coll, opts)
+        if restored is not None:
+            model, live = restored
+            cache.update(face_model=model, face_live=live, face_build=opts["build"], face_tips=None,
+                         face_model_source="file", face_restore_s=t.seconds)
+        else:
+            from ..pdehead_addon.depth_table import DepthTable
+            table = DepthTable.from_json(opts["table"])
+            lms = {k: np.array(v, float) for k, v in opts["landmarks"].items()}
+            with state.Timer() as t:
+                model = _prepare(skull_mesh(coll), lms, table, sex=opts.get("sex"),
+                                 flags=opts.get("flags"), **opts.get("options", {}))
+            cache.update(face_model=model, face_live=None, face_build=opts["build"], face_tips=None,
+                         face_prepare_s=t.seconds, face_model_source="prepared")
     return cache["face_model"]
+
+
+def face_live(coll):
+    """The study's :class:`.face_live.LiveFace` (made on first use: it checks itself against the model)."""
+    model = face_model(coll)
+    cache = _cache(coll)
+    live = cache.get("face_live")
+    if live is None or live.model is not model:
+        from ..pdehead_addon.face_live import LiveFace
+        live = LiveFace(model)
+        cache["face_live"] = live
+    return live
 
 
 def _peg_objects(coll, names: list[str]) -> dict:
@@ -182,45 +289,49 @@ def peg_tips(coll, names: list[str]) -> np.ndarray:
     from .forensic_study import PEG_DEPTH_PROP, _frankfurt
 
     pegs = _peg_objects(coll, names)
-    inverse = np.array(_frankfurt(coll).inverted())
     tips = np.full((len(names), 3), np.nan)
-    for i, name in enumerate(names):
-        peg = pegs.get(name)
-        if peg is None:
-            continue
-        m = np.array(peg.matrix_world)
-        axis = m[:3, 2]
-        length = np.linalg.norm(axis)
-        if not length > 0:
-            continue
-        tip = m[:3, 3] + axis / length * float(peg.get(PEG_DEPTH_PROP, 0.0)) * MM_TO_M
-        tips[i] = (inverse[:3, :3] @ tip + inverse[:3, 3]) / MM_TO_M
+    rows = [i for i, name in enumerate(names) if name in pegs]
+    if not rows:
+        return tips
+    inverse = np.array(_frankfurt(coll).inverted())
+    found = [pegs[names[i]] for i in rows]
+    m = np.array([p.matrix_world for p in found], float)                       # (k, 4, 4), one read per peg
+    depth = np.array([float(p.get(PEG_DEPTH_PROP, 0.0)) for p in found])
+    axis = m[:, :3, 2]
+    length = np.linalg.norm(axis, axis=1)
+    ok = length > 0
+    tip = m[:, :3, 3] + axis / np.where(ok, length, 1.0)[:, None] * (depth * MM_TO_M)[:, None]
+    world = (tip @ inverse[:3, :3].T + inverse[:3, 3]) / MM_TO_M
+    tips[np.asarray(rows)[ok]] = world[ok]
     return tips
 
 
-def _write_positions(coll, obj, mesh) -> bool:
+def _write_positions(coll, obj, mesh=None, positions=None) -> bool:
     """The face mesh's vertex positions rewritten in place (same topology: the fast path), else the same
-    mesh datablock refilled (the face's caps may gain or lose a vertex between two solves). Returns
-    whether it was refilled."""
+    mesh datablock refilled (the face's caps may gain or lose a vertex between two solves). ``positions``
+    (patient mm) instead of a ``mesh``: only the positions. Returns whether the mesh was refilled."""
     from . import objects
 
     me = obj.data
-    if len(me.vertices) == len(mesh.vertices) and len(me.polygons) == mesh.face_count:
-        local = np.asarray(mesh.vertices, np.float64) * MM_TO_M - np.asarray(objects.study_origin(coll))
+    verts = positions if positions is not None else mesh.vertices
+    if len(me.vertices) == len(verts) and (positions is not None or len(me.polygons) == mesh.face_count):
+        local = np.asarray(verts, np.float64) * MM_TO_M - np.asarray(objects.study_origin(coll))
         me.attributes["position"].data.foreach_set("vector", np.ascontiguousarray(local, np.float32).ravel())
         me.update()
         return False
+    if mesh is None:
+        raise ValueError("the face's vertex count changed: a whole mesh is needed")
     objects.build_mesh_object(mesh, coll, obj.name, obj=obj, smooth=True)
     return True
 
 
-def _provenance(coll, result, table) -> dict:
+def _provenance(coll, result_provenance: dict, table) -> dict:
     from .forensic_study import flag_names
     from ..pdehead_addon.provenance import provenance
 
     opts = face_options(coll)
     rec = provenance(label=approximation_label(), **(table.provenance_record() if table is not None else {}))
-    rec.update({k: v for k, v in dict(result.provenance).items() if k not in rec})
+    rec.update({k: v for k, v in dict(result_provenance).items() if k not in rec})
     flags = flag_names(coll)
     rec["landmarks"] = {n: flags.get(n, "ok") for n in opts.get("landmarks", {})}
     rec["sex"] = opts.get("sex") or "pooled"
@@ -230,55 +341,71 @@ def _provenance(coll, result, table) -> dict:
 
 def solve_face(coll, tips: np.ndarray | None = None, table=None) -> dict:
     """Solve the face through ``tips`` (default: the pegs' tips now) and rewrite the face object's vertices.
-    Returns the timings (seconds): ``solve`` (the engine), ``write`` (Blender) and ``total``."""
+    Returns the timings (seconds): ``solve`` (the engine), ``write`` (Blender) and ``total``; ``fast``:
+    whether the positions came from :class:`.face_live.LiveFace` (else the model's whole solve)."""
     t0 = time.perf_counter()
     obj = face_object(coll)
     if obj is None:
         raise PDEHeadError(f"study '{coll.name}' has no face: run Build Face")
     model = face_model(coll)
+    live = face_live(coll)
     names = list(model.peg_names)
     if tips is None:
         tips = peg_tips(coll, names)
     raw = np.asarray(tips, float)
-    tips = raw.copy()
-    gone = ~np.isfinite(tips).all(axis=1)
-    if gone.any():     # a deleted peg: its tip back at the table's mean (the raw NaN is what is compared)
-        tips[gone] = model.peg_bases[gone] + model.peg_normals[gone] * model.default_depths[gone, None]
+    tips = _fill_gone(model, raw)     # a deleted peg: its tip back at the table's mean (the raw NaN is compared)
     t1 = time.perf_counter()
-    result = model.solve(tips=tips)
+    positions = live.positions(tips) if len(obj.data.vertices) == live.vertex_count else None
+    result = model.solve(tips=tips) if positions is None else None
     t2 = time.perf_counter()
-    refilled = _write_positions(coll, obj, result.mesh)
+    refilled = _write_positions(coll, obj, mesh=result.mesh if result is not None else None, positions=positions)
     obj[TIPS_PROP] = [float(v) for v in raw.ravel()]
     if table is not None:
-        obj[PROVENANCE_PROP] = json.dumps(_provenance(coll, result, table))
+        prov = live.provenance(tips) if result is None else result.provenance
+        obj[PROVENANCE_PROP] = json.dumps(_provenance(coll, prov, table))
     t3 = time.perf_counter()
     _cache(coll)["face_tips"] = raw
     timings = {"tips": t1 - t0, "solve": t2 - t1, "write": t3 - t2, "total": t3 - t0, "refilled": refilled,
-               "engine": dict(result.timings)}
+               "fast": positions is not None, "engine": dict(result.timings) if result is not None else {}}
     _cache(coll)["face_timings"] = timings
     obj["pdehead_face_ms"] = round(1000 * timings["total"], 1)
     return timings
 
 
+def live_status(coll) -> str | None:
+    """One line for the panel: how the last change was solved (None before the first change)."""
+    cache = _cache(coll)
+    timings = cache.get("face_timings")
+    if not timings:
+        return None
+    text = "Live: vertex positions only" if timings.get("fast") else "Live: whole mesh solved (slower)"
+    return text + (", model from the file" if cache.get("face_model_source") == "file" else "")
+
+
 def face_changed(coll) -> bool:
     """Whether a peg tip moved since the last solve (cheap: no model needed)."""
+    return _moved_tips(coll) is not None
+
+
+def _moved_tips(coll) -> np.ndarray | None:
+    """The pegs' tips now when one moved since the last solve, else None (read once: the handler solves
+    through these same tips)."""
     obj = face_object(coll)
     if obj is None:
-        return False
+        return None
     last = _cache(coll).get("face_tips")
     if last is None:
         stored = obj.get(TIPS_PROP)
-        if stored is None:
-            return True
-        last = np.array(stored, float).reshape(-1, 3)
-        _cache(coll)["face_tips"] = last
+        if stored is not None:
+            last = np.array(stored, float).reshape(-1, 3)
+            _cache(coll)["face_tips"] = last
     names = face_options(coll).get("pegs", [])
     now = peg_tips(coll, names)
-    if now.shape != last.shape:
-        return True
+    if last is None or now.shape != last.shape:
+        return now
     same = np.abs(now - last) <= TIP_TOLERANCE_MM
     same |= np.isnan(now) & np.isnan(last)             # a peg that is gone stays gone: no new solve
-    return not bool(same.all())
+    return None if bool(same.all()) else now
 
 
 # ------------------------------------------------------------------------------------------ build
@@ -298,7 +425,7 @@ def build_face(coll) -> tuple:
     sex = _sex(coll)
     flags = flag_names(coll)
     with state.Timer() as t:
-        model = _engine().FaceModel.prepare(skull_mesh(coll), lms, table, sex=sex, flags=flags)
+        model = _prepare(skull_mesh(coll), lms, table, sex=sex, flags=flags)
     if not len(model.peg_names):
         raise PDEHeadError(f"none of the landmarks ({', '.join(lms) or 'none'}) is in the depth table "
                            f"'{table.label}': no peg to build the face through")
@@ -306,7 +433,8 @@ def build_face(coll) -> tuple:
     coll[FACE_OPTIONS_KEY] = json.dumps(dict(build=build, table=table.to_json(), sex=sex, options={}, flags=flags,
                                              landmarks={k: [float(c) for c in v] for k, v in lms.items()},
                                              pegs=list(model.peg_names)))
-    _cache(coll).update(face_model=model, face_build=build, face_tips=None, face_prepare_s=t.seconds)
+    _cache(coll).update(face_model=model, face_live=None, face_build=build, face_tips=None,
+                        face_prepare_s=t.seconds, face_model_source="prepared")
     result = model.solve()
     obj = objects.build_mesh_object(result.mesh, coll, f"{coll.name} Face", obj=face_object(coll), smooth=True)
     obj["pdehead_kind"] = FACE_KIND
@@ -326,8 +454,11 @@ def build_face(coll) -> tuple:
         peg.matrix_world = world
     tips = model.peg_bases + model.peg_normals * np.asarray(model.default_depths, float)[:, None]
     obj[TIPS_PROP] = [float(v) for v in tips.ravel()]
-    obj[PROVENANCE_PROP] = json.dumps(_provenance(coll, result, table))
+    obj[PROVENANCE_PROP] = json.dumps(_provenance(coll, result.provenance, table))
     _cache(coll)["face_tips"] = tips
+    _keep_model(coll, model, build)
+    from ..pdehead_addon.face_live import LiveFace
+    _cache(coll)["face_live"] = LiveFace(model)
     state.record_timing(coll, "face_prepare", t.seconds)
     return obj, pegs
 
@@ -436,8 +567,9 @@ def pdehead_face_update(_scene, depsgraph=None) -> None:
             if obj is None or obj.mode == 'EDIT':      # edited by hand: Blender's edit mesh would overwrite it
                 continue
             try:
-                if face_changed(coll):
-                    solve_face(coll)
+                tips = _moved_tips(coll)
+                if tips is not None:
+                    solve_face(coll, tips=tips)
             except Exception as exc:  # noqa: BLE001 - a handler must not raise into Blender
                 obj = face_object(coll)
                 if obj is not None:      # do not retry on every update: remember the tips tried

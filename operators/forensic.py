@@ -335,6 +335,9 @@ def draw_face_section(layout, coll) -> None:
         col.label(text=str(prov["software"]))
     if "pdehead_face_ms" in obj:
         col.label(text=f"Last solve {obj['pdehead_face_ms']:.0f} ms")
+    status = face.live_status(coll)
+    if status:
+        col.label(text=status)
     names = face.face_options(coll).get("pegs", [])
     pegs = face._peg_objects(coll, names)
     col = box.column(align=True)

@@ -351,10 +351,14 @@ def c2_spans(spec: np.ndarray, u: np.ndarray, smoothing: float, modes: int,
         natural, clamped = _cubic_operator(np.ascontiguousarray(u, dtype=np.float64).tobytes(), pole is not None)
         flat = p.reshape(n, -1)
         pr = np.concatenate([flat.real, flat.imag], axis=1)      # (n, 2 * H * 3)
-        out = small_matmul(natural, pr).reshape(S, 4, 2, H, 3)
-        if clamped is not None:
-            alt = small_matmul(clamped, pr).reshape(S, 4, 2, H, 3)
-            out = np.where(clamp[None, None, None], alt, out)
+        if clamped is None:
+            out = small_matmul(natural, pr).reshape(S, 4, 2, H, 3)
+        else:                  # each column by the one map it uses (the clamped: h >= 2, most of them)
+            cols = np.tile(clamp.ravel(), 2)                     # pr's columns: (re / im, h, xyz)
+            out = np.empty((S * 4, pr.shape[1]))
+            out[:, ~cols] = small_matmul(natural, np.ascontiguousarray(pr[:, ~cols]))
+            out[:, cols] = small_matmul(clamped, np.ascontiguousarray(pr[:, cols]))
+            out = out.reshape(S, 4, 2, H, 3)
         coefficients = (out[:, :, 0] + 1j * out[:, :, 1]).transpose(0, 2, 1, 3)   # (S, H, 4, 3)
         if pole is not None:
             exponents, coefficients = _damp_dome(exponents, coefficients, H)

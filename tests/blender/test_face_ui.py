@@ -184,30 +184,54 @@ def test_face_follows_a_peg_after_reopening(pdehead_ext, face_blend, tmp_path):
     import bpy
     face, fs, state = _mods(pdehead_ext)
     coll = _open(face_blend)
+    names = face.face_options(coll)["pegs"]
+    # what this session's model (prepared by Build Face) gives for the drag made after reopening
+    model = face.face_model(coll)
+    normal = np.array(face._peg_objects(coll, names)[names[0]].matrix_world)[:3, 2]
+    normal /= np.linalg.norm(normal)
+    dragged = face.peg_tips(coll, names)
+    dragged[0] += 3.0 * normal
+    expected = model.solve(tips=dragged).mesh.vertices
+    assert len(coll[face.FACE_MODEL_KEY]) < 1_000_000            # the kept model: budget 1 MB (measured 0.4 MB)
     saved = tmp_path / "again.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(saved))
     state.drop_cache()                                  # as in a new Blender session: no model in memory
     bpy.ops.wm.open_mainfile(filepath=str(saved))
     coll = bpy.context.scene.pdehead.active_study
     obj = face.face_object(coll)
-    names = face.face_options(coll)["pegs"]
     pegs = face._peg_objects(coll, names)
     assert obj is not None and set(pegs) == set(names) and fs.landmarks(coll)
     assert obj[face.LABEL_PROP] == "approximation — not an identification"
     before = _world_vertices(obj)
     bpy.context.view_layer.update()                     # nothing moved: no re-solve, no model prepared
     assert np.array_equal(_world_vertices(obj), before)
-    assert state.cache_for(state.settings(coll).study_id).forensic.get("face_model") is None
+    cache = state.cache_for(state.settings(coll).study_id).forensic
+    assert cache.get("face_model") is None
+    prepared = face.PREPARE_CALLS[0]
     name = names[0]
     peg = pegs[name]
-    normal = np.array(peg.matrix_world)[:3, 2]
-    normal /= np.linalg.norm(normal)
     tip = face.peg_tips(coll, names)[0]
     _drag(peg, 3.0 * normal)
     after = _world_vertices(obj)
     near, moved, dist = _nearest_peg_vertex_motion(before, after, tip)
     assert np.median(moved[near]) == pytest.approx(3.0, abs=1.0)          # measured 2.54-2.95 mm (far: 0.07)
     assert np.percentile(moved[dist > 60.0], 95) < 0.3
+    # the model came from the file, not from preparing it again, and gives the face the first session's gives
+    assert face.PREPARE_CALLS[0] == prepared and cache["face_model_source"] == "file"
+    assert cache["face_timings"]["fast"] and not cache["face_timings"]["refilled"]
+    assert np.abs(face._mesh_positions(coll, obj) - expected).max() < 1e-3     # float32 metres: ~1e-5 mm
+    from types import SimpleNamespace
+    from panel_recorder import RecordingLayout
+    log = []
+    sys.modules[f"{pdehead_ext.__name__}.operators.forensic"].PDEHEAD_PT_forensic.draw(
+        SimpleNamespace(layout=RecordingLayout(log)), bpy.context)
+    assert ("label", "Live: vertex positions only, model from the file") in log
+    # a kept model that does not belong to this face (another build): prepared again, the face still follows
+    coll[face.FACE_MODEL_KEY] = "another build\n" + coll[face.FACE_MODEL_KEY].partition("\n")[2]
+    state.drop_cache()
+    _drag(peg, -1.0 * normal)
+    assert face.PREPARE_CALLS[0] == prepared + 1 and cache_source(state, coll) == "prepared"
+    assert np.abs(face.peg_tips(coll, names)[0] - (tip + 2.0 * normal)).max() < 1e-3
 
     # a peg deleted: the face solves once with that peg back at the table's mean, then stays (no solve per update)
     cache = state.cache_for(state.settings(coll).study_id).forensic
@@ -217,3 +241,7 @@ def test_face_follows_a_peg_after_reopening(pdehead_ext, face_blend, tmp_path):
     cache["face_timings"] = None
     bpy.context.view_layer.update()
     assert cache["face_timings"] is None
+
+
+def cache_source(state, coll) -> str:
+    return state.cache_for(state.settings(coll).study_id).forensic.get("face_model_source")

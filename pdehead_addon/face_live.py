@@ -1,0 +1,345 @@
+"""The live face (issue 23, point 2): a dragged peg's fast path, and a prepared face model kept in a file.
+
+:class:`.face_from_skull.FaceModel` solves a face through the peg tips; :meth:`~.FaceModel.solve` makes a
+whole :class:`~.mesh.Mesh` (topology, UV islands, attributes) every time, which a dragged peg does not
+need: the face's topology is fixed by the model's first solve. This module is the Blender-free part of
+the live loop:
+
+* :class:`LiveFace` gives the face's vertex positions for new peg tips, the same numbers as
+  ``model.solve(tips=...).mesh.vertices`` (checked when it is made: :attr:`LiveFace.exact`), faster:
+
+  - the tissue-depth field's Gaussians over the (row, column) grid are separable on the model's
+    cylinder (``exp(-|a - b|^2 / s^2) = exp(-dz^2 / s^2) exp(-chord^2 / s^2)``): two small kernels
+    (rows x sites, columns x sites) and one product instead of one kernel of grid x sites;
+  - the PDE surface is the model's own (:meth:`FaceModel._surface`), evaluated on the mesh's grid by
+    gathering each row's four cubic basis weights (not a dense weights x coefficients product) and one
+    inverse real FFT; the neck cap's points are the model's own :func:`.surface_mesh.disc_caps`; no
+    topology, UVs or attributes are made.
+
+  When the fast path cannot give the same face (a cap that changes its vertex count, a model whose
+  field is not the one this module knows), :meth:`LiveFace.positions` returns None and the caller solves
+  the whole mesh.
+* :func:`model_state` / :func:`model_from_state` keep a prepared :class:`FaceModel` as plain JSON (arrays
+  as base64 of their bytes), so a reopened file rebuilds the model in milliseconds instead of preparing
+  it again from the skull (seconds: the bone's profile is extracted from the whole skull mesh). No
+  pickle: a file's data is never executed.
+"""
+from __future__ import annotations
+
+import base64
+import json
+import time
+from dataclasses import fields, is_dataclass
+
+import numpy as np
+
+from . import face_from_skull as F
+from .pde_basis import basis, small_matmul
+
+#: Largest difference (mm) between the fast positions and the model's own solve for :attr:`LiveFace.exact`.
+EXACT_TOLERANCE_MM = 1e-6
+#: What :func:`model_state` does not keep: the sites of the field's grid (made again from the grid).
+_DERIVED = ("_grid_xyz",)
+#: Format of :func:`model_state` (a reader refuses other formats: the caller prepares the model again).
+STATE_FORMAT = 1
+
+
+# ------------------------------------------------------------------------------------------ fast solve
+def _gauss(d2: np.ndarray, sigma: float) -> np.ndarray:
+    return np.exp(d2 * (-1.0 / (sigma * sigma)))
+
+
+class LiveFace:
+    """The fast path of :meth:`FaceModel.solve` for a dragged peg: vertex positions only.
+
+    Parameters
+    ----------
+    model : FaceModel
+        A prepared model. Its first solve (which fixes the spline's parameter and the neck cap's counts)
+        is made here if it was not made yet.
+    nu, nv : int, optional
+        The mesh's resolution (default: the model's).
+    check : bool
+        Compare the fast path with the model's own solve now (two solves). False: the caller checks it
+        (a model rebuilt from a file, against the face saved with it) and sets :attr:`vertex_count`.
+
+    Attributes
+    ----------
+    exact : bool
+        Whether the fast positions equal the model's own solve (max difference below
+        :data:`EXACT_TOLERANCE_MM`) for the table's depths and for one peg moved 3 mm; when False,
+        :meth:`positions` always returns None.
+    max_difference_mm : float
+        The largest difference found in that check.
+    vertex_count : int
+        The mesh's vertex count (the reference topology; None until known).
+    """
+
+    def __init__(self, model, nu: int | None = None, nv: int | None = None, check: bool = True):
+        self.model = model
+        self.nu = int(nu or model.options["nu"])
+        self.nv = int(nv or model.options["nv"])
+        nu_ = max(self.nu, 3)
+        ref = None
+        if check or (nu_, self.nv) not in model.__dict__.get("_cap_refs", {}) or "_pde_fixed" not in model.__dict__:
+            ref = model.solve(nu=self.nu, nv=self.nv)                  # fixes _pde_fixed and the cap counts
+        self.vertex_count = len(ref.mesh.vertices) if ref is not None else None
+        g = model.grid
+        self._rho = float(model._cyl(np.zeros(1), np.zeros(1))[0, 1])  # the model's site cylinder
+        self._grid_z = np.asarray(g.z, float)
+        self._ring = self._rho * np.stack([np.sin(g.theta), np.cos(g.theta)], axis=-1)   # (M, 2)
+        self._u = np.linspace(0.0, 1.0, nu_)[:-1]
+        self._cap_ref = model.__dict__.get("_cap_refs", {}).get((nu_, self.nv))
+        if not check:             # the caller checks (a model kept in a file: against the saved face)
+            self.exact, self.max_difference_mm = True, float("nan")
+            return
+        self.exact, self.max_difference_mm = False, float("inf")
+        try:
+            tips0 = model.tips_for(model.default_depths)
+            moved = tips0.copy()
+            moved[0] = moved[0] + 3.0 * model.peg_normals[0]
+            worst = 0.0
+            for tips, reference in ((tips0, ref), (moved, model.solve(tips=moved, nu=self.nu, nv=self.nv))):
+                fast = self._positions(tips)
+                if fast is None or fast.shape != reference.mesh.vertices.shape:
+                    worst = float("inf")
+                    break
+                worst = max(worst, float(np.abs(fast - reference.mesh.vertices).max()))
+            self.max_difference_mm = worst
+            self.exact = worst <= EXACT_TOLERANCE_MM
+        except Exception:                                               # noqa: BLE001 - then the full solve
+            self.exact = False
+
+    # -------------------------------------------------------------------- the field
+    def offset_field(self, tips: np.ndarray) -> np.ndarray:
+        """The model's tissue-depth offset field (:meth:`FaceModel._offset_field`), with the grid's Gaussians
+        separated into rows x sites and columns x sites."""
+        m, g = self.model, self.model.grid
+        sites = [np.asarray(tips, float)] + ([np.array([p for _, p, _ in m.rule_sites])] if m.rule_sites else [])
+        pts = np.concatenate(sites)
+        z, th, r = g.polar(pts)
+        target = r - g.sample(m.profile, z, th)
+        xs = m._cyl(z, th)
+        sigma = float(m.options["spread_mm"])
+        dz2 = (self._grid_z[:, None] - z[None, :]) ** 2                          # (K, n)
+        dc2 = ((self._ring[:, None, :] - xs[None, :, :2]) ** 2).sum(-1)         # (M, n)
+        Ws = F._kernel(xs, xs, sigma)
+        Ez, Et = _gauss(dz2, sigma), _gauss(dc2, sigma)
+        EtT = np.ascontiguousarray(Et.T)                      # small_matmul: BLAS threads cost more than these products
+        base_g = ((small_matmul(Ez * target, EtT) + F.RULE_WEIGHT * F.RULE_DEPTH_MM)
+                  / (small_matmul(Ez, EtT) + F.RULE_WEIGHT))
+        base_s = (Ws @ target + F.RULE_WEIGHT * F.RULE_DEPTH_MM) / (Ws.sum(1) + F.RULE_WEIGHT)
+        s2 = F.NARROW_FRACTION * sigma
+        Phi = F._kernel(xs, xs, s2)
+        w = np.linalg.solve(Phi + F.RBF_REGULARISATION * np.eye(len(xs)), target - base_s)
+        corr = small_matmul(_gauss(dz2, s2) * w, np.ascontiguousarray(_gauss(dc2, s2).T))
+        return base_g + corr
+
+    # -------------------------------------------------------------------- the surface on the mesh's grid
+    def _grid(self, head) -> np.ndarray:
+        """``head._grid(u, nv)`` (the tube's points, (nu - 1, nv, 3)) with each cubic row's four basis
+        weights gathered instead of a dense rows x (spans x 4) product."""
+        from .pde_surface import _fold
+
+        u, nv = self._u, self.nv
+        H, nb = head.harmonics, nv // 2 + 1
+        self._spine0 = None
+        if H > (nv + 1) // 2:                                     # harmonics folded: the head's own
+            return head._grid(u, nv)
+        patch, s = head._patch_of(u)
+        cubic = head._cubic_spans[patch]
+        spec = np.zeros((u.size, 3, nb), np.complex128)
+        rows = np.flatnonzero(cubic)
+        if rows.size:
+            w = basis(np.zeros(1), s[rows, None])[:, 0]                          # (n, 4)
+            cf, first = head._coef_flat, 4 * patch[rows]
+            amp = w[:, :1] * cf[first]
+            for b in range(1, 4):
+                amp += w[:, b:b + 1] * cf[first + b]
+            amp = amp.reshape(rows.size, H, 6)
+            if rows[0] == 0:                              # u = 0: the spine's bottom end, the neck cap's centre
+                self._spine0 = amp[0, 0, :3].copy()
+            spec[rows, :, :H] = (amp[..., :3] + 1j * amp[..., 3:]).transpose(0, 2, 1)
+        if not np.all(cubic):
+            other = np.flatnonzero(~cubic)
+            spec[other] = _fold(head._amplitudes(u[other]).transpose(0, 2, 1), nv)
+        spec *= nv / 2.0
+        spec[..., 0] *= 2.0
+        if nv % 2 == 0:
+            spec[..., -1] *= 2.0
+        return np.fft.irfft(spec, n=nv, axis=-1).transpose(0, 2, 1)
+
+    def _positions(self, tips: np.ndarray) -> np.ndarray | None:
+        m = self.model
+        tips = np.asarray(tips, float).reshape(-1, 3)
+        radius = m.profile + self.offset_field(tips)
+        bump = m._nose_bump(radius, tips)
+        if bump is not None:
+            radius = radius + bump
+        head = m._surface(radius)
+        if head.vertex is None or self._cap_ref is None:
+            return None
+        pts = self._grid(head)
+        centre = self._spine0 if self._spine0 is not None else head.spine(np.array([0.0]))[0]
+        cap = self._cap_vertices(pts[0], centre)
+        if cap is None:                                   # the fan cap of a ring that is not star-shaped
+            return None
+        out = np.concatenate([pts.reshape(-1, 3), cap, np.asarray(head.vertex, float)[None]])
+        self.last_orientation = head.orientation
+        return out if self.vertex_count is None or len(out) == self.vertex_count else None
+
+    def _cap_vertices(self, ring: np.ndarray, centre: np.ndarray) -> np.ndarray | None:
+        """The neck cap's new points (:class:`.surface_mesh.DiscCap`'s ``vertices`` for the model's cap
+        reference), without its triangles: what depends on the counts alone is kept from the first call."""
+        from .surface_mesh import CAP_EDGE, DiscCap, _star_shaped
+
+        if not _star_shaped(ring, centre)[0]:
+            return None
+        fixed = self.__dict__.get("_cap_fixed")
+        if fixed is None:                                  # the plan's counts and sample fractions: once
+            edge = CAP_EDGE * float(self._cap_ref["edge"])
+            probe = DiscCap(ring, centre, edge, self._cap_ref["ends"][0])
+            p_ref, r_ref, arc_fraction = self._cap_ref["ends"][0]
+            edge = max(float(edge), 1e-9)
+            rings = max(1, int(np.ceil(r_ref / edge)))
+            f = 1.0 - np.arange(1, rings) / rings
+            m = np.maximum(6, np.ceil(f * p_ref / edge).astype(np.int64))
+            ring_of = np.repeat(np.arange(len(f)), m)
+            first = np.concatenate([[0], np.cumsum(m)[:-1]])
+            j = np.arange(m.sum()) - first[ring_of]
+            v_frac = np.interp(j / m[ring_of], arc_fraction, np.linspace(0.0, 1.0, len(arc_fraction)))
+            idx = v_frac * len(ring)
+            lo = np.floor(idx).astype(np.int64)
+            fixed = self._cap_fixed = (lo % len(ring), (lo + 1) % len(ring), (idx - lo)[:, None], f[ring_of][:, None],
+                                       len(probe.vertices))
+        lo, hi, w, fr, count = fixed
+        d = ring - centre
+        normal = np.cross(d, np.roll(d, -1, axis=0)).sum(axis=0)
+        normal /= np.linalg.norm(normal) or 1.0
+        flat = d - np.outer(d @ normal, normal)
+        e1 = flat[0] / (np.linalg.norm(flat[0]) or 1.0)
+        e2 = np.cross(normal, e1)
+        p2 = np.stack([flat @ e1, flat @ e2], axis=1)
+        theta = np.unwrap(np.arctan2(p2[:, 1], p2[:, 0]))
+        if theta[-1] - theta[0] < 0:                        # clockwise in this frame
+            p2[:, 1] *= -1
+            e2 = -e2
+        q = p2[lo] * (1 - w) + p2[hi] * w
+        out = np.concatenate([centre + fr * (q[:, :1] * e1 + q[:, 1:] * e2), np.asarray(centre, float)[None]])
+        return out if len(out) == count else None
+
+    def positions(self, tips: np.ndarray) -> np.ndarray | None:
+        """The face's vertex positions (patient mm, (vertex_count, 3)) through the peg ``tips`` ((n, 3),
+        patient mm), in the order of the model's mesh; None when only a whole solve gives them (the caller
+        then runs :meth:`FaceModel.solve`): the fast path is not :attr:`exact`, or this face's topology
+        differs from the reference's."""
+        if not self.exact:
+            return None
+        tips = np.asarray(tips, float).reshape(-1, 3)
+        if tips.shape != self.model.peg_bases.shape or not np.all(np.isfinite(tips)):
+            return None
+        return self._positions(tips)
+
+    def provenance(self, tips: np.ndarray) -> dict:
+        """What :meth:`FaceModel.solve` puts in its result's provenance for these tips."""
+        m = self.model
+        d = np.einsum("ij,ij->i", np.asarray(tips, float) - m.peg_bases, m.peg_normals)
+        prov = dict(m.provenance)
+        if m.mouth is not None:
+            prov["predicted_mouth_width_mm"] = round(float(m.mouth["width_mm"]), 1)
+        prov["peg_depths_mm"] = {n: round(float(x), 2) for n, x in zip(m.peg_names, d)}
+        return prov
+
+
+# ------------------------------------------------------------------------------------------ the model kept
+def _encode(value):
+    if isinstance(value, np.ndarray):
+        a = np.ascontiguousarray(value)
+        if a.dtype == object:
+            raise TypeError("object arrays are not stored")
+        return {"__array__": base64.b64encode(a.astype(a.dtype.newbyteorder("<"), copy=False).tobytes()).decode(),
+                "dtype": a.dtype.newbyteorder("<").str, "shape": list(a.shape)}
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, F._Grid):
+        return {"__grid__": {f.name: _encode(getattr(value, f.name)) for f in fields(value)}}
+    if isinstance(value, dict):
+        if all(isinstance(k, str) for k in value):
+            return {"__dict__": {k: _encode(v) for k, v in value.items()}}
+        return {"__items__": [[_encode(k), _encode(v)] for k, v in value.items()]}
+    if isinstance(value, tuple):
+        return {"__tuple__": [_encode(v) for v in value]}
+    if isinstance(value, list):
+        return [_encode(v) for v in value]
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    raise TypeError(f"{type(value).__name__} is not stored")
+
+
+def _decode(value):
+    if isinstance(value, list):
+        return [_decode(v) for v in value]
+    if not isinstance(value, dict):
+        return value
+    if "__array__" in value:
+        a = np.frombuffer(base64.b64decode(value["__array__"]), dtype=np.dtype(value["dtype"]))
+        return a.reshape(value["shape"]).astype(np.dtype(value["dtype"]).newbyteorder("="))
+    if "__grid__" in value:
+        return F._Grid(**{k: _decode(v) for k, v in value["__grid__"].items()})
+    if "__dict__" in value:
+        return {k: _decode(v) for k, v in value["__dict__"].items()}
+    if "__items__" in value:
+        return {_hashable(_decode(k)): _decode(v) for k, v in value["__items__"]}
+    if "__tuple__" in value:
+        return tuple(_decode(v) for v in value["__tuple__"])
+    raise ValueError(f"unknown stored value {sorted(value)}")
+
+
+def _hashable(key):
+    return tuple(_hashable(k) for k in key) if isinstance(key, (list, tuple)) else key
+
+
+def model_state(model) -> str:
+    """The prepared ``model`` as one JSON string: its fields and what its first solve fixed (the spline's
+    parameter, the neck cap's counts), arrays as base64 of their little-endian bytes. CThead: ~ 0.5 MB."""
+    from .provenance import SOFTWARE_VERSION
+
+    names = {f.name for f in fields(model)} if is_dataclass(model) else set()
+    state = {}
+    for key, value in model.__dict__.items():
+        if key in _DERIVED:
+            continue
+        try:
+            state[key] = _encode(value)
+        except TypeError:
+            if key in names:                       # a field that cannot be kept: the model cannot be rebuilt
+                raise
+    return json.dumps({"format": STATE_FORMAT, "software": SOFTWARE_VERSION,
+                       "fields": sorted(names), "state": state}, separators=(",", ":"))
+
+
+def model_from_state(text: str):
+    """The :class:`FaceModel` kept by :func:`model_state`; ValueError when the text is not one this version
+    reads (another format, another software version, a field missing): then prepare the model again."""
+    from .provenance import SOFTWARE_VERSION
+
+    t0 = time.perf_counter()
+    try:
+        data = json.loads(text)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"the stored face model is not JSON: {exc}") from None
+    if data.get("format") != STATE_FORMAT or data.get("software") != SOFTWARE_VERSION:
+        raise ValueError(f"the stored face model is format {data.get('format')} of {data.get('software')}, "
+                         f"this is format {STATE_FORMAT} of {SOFTWARE_VERSION}")
+    names = [f.name for f in fields(F.FaceModel)]
+    state = {k: _decode(v) for k, v in data["state"].items()}
+    missing = [n for n in names if n not in state and n != "flags" and n != "prepare_seconds"]
+    if missing or sorted(names) != sorted(data.get("fields", [])):
+        raise ValueError(f"the stored face model does not have this version's fields ({', '.join(missing) or 'changed'})")
+    model = F.FaceModel(**{n: state.pop(n) for n in names if n in state})
+    model.__dict__.update(state)
+    if "_grid_xyz" not in model.__dict__:                 # as prepare makes it (not kept: 3 x the profile's size)
+        g = model.grid
+        model._grid_xyz = model._cyl(np.repeat(g.z, len(g.theta)), np.tile(g.theta, len(g.z)))
+    model.restored_seconds = time.perf_counter() - t0
+    return model
