@@ -1034,7 +1034,7 @@ def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Se
             raise BoundaryError(f"envelope_sigma_mm must be >= 0, got {envelope_sigma_mm!r}")
         report_progress(progress, 0.0, "the head's envelope")
         field, window = head_envelope(mask, (dz, dy, dx), closing_mm=float(closing_mm),
-                                      sigma_mm=float(envelope_sigma_mm))
+                                      sigma_mm=float(envelope_sigma_mm), slices=chosen)
     outlines, areas, coverage = [], [], []
     for c, k in enumerate(chosen):
         if c % 8 == 0:

@@ -529,10 +529,13 @@ def _solve_pyramid(img: np.ndarray, spacing: Sequence[float], lam: float, theta:
     res = chan_vese_soft(fine_img, spacing, lam, theta, fine_tau, iterations, inner, tolerance,
                          q0=q, c0=c, sig0=sig, threads=threads, progress=level_progress, outside=outside)
     if crop is not None:
+        # the dual (three volumes of the box) goes before the whole grid's q is made: this was the
+        # segmentation's peak of memory
+        q = sig = None
+        res["sig"] = None  # on the crop only
         full = np.zeros(img.shape, np.float32)
         full[crop] = res["q"]
         res["q"] = full
-        res["sig"] = None  # on the crop only
     info.update(tau=fine_tau, fine_iterations=res["iterations"], fine_change=res["change"],
                 fine_box=None if crop is None else tuple((b.start, b.stop) for b in crop))
     return res, info

@@ -123,8 +123,8 @@ def closing_3d(mask: np.ndarray, spacing: tuple[float, float, float], radius_mm:
 
 
 def head_envelope(mask: np.ndarray, spacing: tuple[float, float, float],
-                  closing_mm: float = ENVELOPE_CLOSING_MM, sigma_mm: float = ENVELOPE_SIGMA_MM
-                  ) -> tuple[np.ndarray, tuple[slice, slice, slice]]:
+                  closing_mm: float = ENVELOPE_CLOSING_MM, sigma_mm: float = ENVELOPE_SIGMA_MM,
+                  slices=None) -> tuple[np.ndarray, tuple[slice, slice, slice]]:
     """Soft membership in [0, 1] of the smoothed, closed head (see the module docstring).
 
     Parameters
@@ -135,6 +135,9 @@ def head_envelope(mask: np.ndarray, spacing: tuple[float, float, float],
         Voxel spacing in mm.
     closing_mm, sigma_mm : float
         3-D closing radius and Gaussian standard deviation (mm); 0 disables either.
+    slices : sequence of int, optional
+        Only these slices (indices of ``mask``) are wanted: the Gaussian's in-plane passes run on them
+        alone (the result there is the same to the bit; every other slice of ``field`` is 0).
 
     Returns
     -------
@@ -168,7 +171,20 @@ def head_envelope(mask: np.ndarray, spacing: tuple[float, float, float],
     field = closed.astype(np.float32)
     if sigma_mm > 0:
         sigma_z = max(sigma_mm, 0.5 * dz)
-        field = ndi.gaussian_filter(field, (sigma_z / dz, sigma_mm / dy, sigma_mm / dx), mode="nearest")
+        if slices is None:
+            field = ndi.gaussian_filter(field, (sigma_z / dz, sigma_mm / dy, sigma_mm / dx), mode="nearest")
+        else:
+            # gaussian_filter's passes one axis after the other (z, y, x; float32 in between), with the
+            # in-plane passes only on the wanted slices: the same numbers there, a third of the work
+            # when the boundaries trace 128 of 300 slices
+            field = ndi.gaussian_filter1d(field, sigma_z / dz, axis=0, mode="nearest")
+            wanted = np.zeros(len(field), dtype=bool)
+            for k in np.unique(np.asarray(slices, np.int64)) - window[0].start + mz:
+                if mz <= k < len(field) - mz:
+                    wanted[k] = True
+                    plane = ndi.gaussian_filter1d(field[k], sigma_mm / dy, axis=0, mode="nearest")
+                    ndi.gaussian_filter1d(plane, sigma_mm / dx, axis=1, output=field[k], mode="nearest")
+            field[~wanted] = 0.0
     field = field[mz:len(field) - mz]
     # the crop's y/x origin in the volume (may be negative: padded beyond the array)
     y0, x0 = window[1].start - my, window[2].start - mx

@@ -293,6 +293,7 @@ def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: flo
                                tolerance, threads, progress=scaled_progress(progress, 0.02, 0.8))
     del img
     q = res.pop("q")
+    res.pop("sig", None)  # the dual of an uncropped fine level: three volumes not needed in the clean-up
     stats: dict[str, Any] = {}
     mask = q > np.float32(threshold)
     if cleanup:

@@ -1,0 +1,82 @@
+"""Issue 20's shortcuts give the same numbers as the slow paths they replace (bit for bit).
+
+Each shortcut was also checked on the 512 x 512 x 300 clinical scan and on CThead (mask and curves
+identical, docs/benchmarks.md, section clinical-scan-speed); these tests keep them honest on small
+synthetic volumes in a fraction of a second.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import ndimage as ndi
+
+from pdehead_addon import mask_cleanup as C
+from pdehead_addon.envelope import head_envelope
+
+
+def _blobs(shape, seed, fraction=0.35, sigma=2.0):
+    rng = np.random.default_rng(seed)
+    return ndi.gaussian_filter(rng.random(shape), sigma) > np.quantile(
+        ndi.gaussian_filter(rng.random(shape), sigma), 1.0 - fraction)
+
+
+def test_the_thin_parts_joined_by_adjacency_are_the_largest_component():
+    """_core_with_kept == largest_component(core | keep[labels]), with and without its fallback."""
+    shape = (10, 40, 50)
+    work = _blobs(shape, 1, 0.45)
+    opened = C.open_disk(work, (1.0, 1.0), 1.5)
+    core = C.largest_component(opened)
+    thin = work & ~opened
+    labels, n = ndi.label(thin)
+    assert n > 20                                            # many thin components, some touching the core
+    flat = np.flatnonzero(thin)
+    thin_labels = labels.reshape(-1)[flat]
+    total = np.bincount(thin_labels, minlength=n + 1)
+    rng = np.random.default_rng(2)
+    for trial in range(5):
+        keep = rng.random(n + 1) < 0.6
+        keep[0] = False
+        got = C._core_with_kept(core, labels, keep, flat, thin_labels, total)
+        assert np.array_equal(got, C.largest_component(core | keep[labels])), trial
+    # a kept component far bigger than the core's: the fallback labels the volume
+    small_core = np.zeros(shape, bool)
+    small_core[0, 0, :3] = True
+    big = np.zeros(shape, bool)
+    big[5:9, 10:30, 10:40] = True
+    labels, n = ndi.label(big)
+    flat = np.flatnonzero(big)
+    thin_labels = labels.reshape(-1)[flat]
+    keep = np.array([False, True])
+    got = C._core_with_kept(small_core, labels, keep, flat, thin_labels, np.bincount(thin_labels, minlength=2))
+    assert np.array_equal(got, big)
+
+
+@pytest.mark.parametrize("seed", [3, 4])
+def test_per_slice_hole_filling_equals_the_in_slice_labelling(seed):
+    m = _blobs((6, 50, 70), seed, 0.55, 1.5)
+    m[2] = False                                             # an empty slice
+    m[3, 0, :] = True                                        # a slice touching its border
+    labels, _ = ndi.label(~m, structure=C._IN_SLICE)
+    border = np.unique(np.concatenate([labels[:, [0, -1], :].ravel(), labels[:, :, [0, -1]].ravel()]))
+    ref = ~np.isin(labels, border[border > 0])
+    out = C.fill_holes_per_slice(m)
+    assert np.count_nonzero(out & ~m) > 50                   # holes were filled
+    assert np.array_equal(out, ref)
+    assert np.array_equal(C.fill_holes_per_slice(m[4]), ref[4])          # a 2-D slice
+
+
+def test_envelope_on_wanted_slices_is_the_whole_envelope_there():
+    """head_envelope(slices=...) gives the same float32 field on those slices as the whole Gaussian."""
+    z, y, x = np.mgrid[0:40, 0:60, 0:64]
+    mask = ((z - 20) / 18.0) ** 2 + ((y - 30) / 22.0) ** 2 + ((x - 32) / 25.0) ** 2 < 1.0
+    mask[:, 28:32, 5:12] = False                             # a notch for the closing
+    spacing = (1.5, 0.8, 0.8)
+    full, window = head_envelope(mask, spacing)
+    wanted = np.array([window[0].start, 4, 10, 21, 22, 30, window[0].stop - 1])
+    part, window2 = head_envelope(mask, spacing, slices=wanted)
+    assert window2 == window
+    k = wanted - window[0].start
+    assert np.array_equal(part[k], full[k])
+    assert part[k].max() > 0.99 and part[k].min() == 0.0
+    others = np.setdiff1d(np.arange(len(part)), k)
+    assert not part[others].any()
