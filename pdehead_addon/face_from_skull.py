@@ -428,20 +428,77 @@ def predict_nose(landmarks: dict, skull: Mesh | None = None) -> dict | None:
                 protrusion_mm=NOSE_PROTRUSION_MM)
 
 
-def predict_mouth(landmarks: dict) -> dict | None:
-    """The mouth's width from the canines, reported in the provenance. It does not shape the face yet.
+#: Depth (mm) of the oral fissure behind the lips at the midline, tapering to nothing at the mouth's corners.
+#: A shape choice for a closed, relaxed mouth (the lips' vermilion rolls meet in a groove), not a measurement.
+LIP_GROOVE_MM = 3.0
+#: Half-height (mm, Gaussian sigma) of the groove; the lip line is drawn by the C2 surface through the 3 mm rows.
+LIP_GROOVE_HALF_MM = 2.0
+#: How far (mm) each vermilion roll bulges in front of the depth field, above and below the fissure, centred
+#: :data:`LIP_ROLL_OFFSET_MM` from it: a shape choice (the lips' fullness is what no bone predicts).
+LIP_ROLL_MM = 1.0
+LIP_ROLL_OFFSET_MM = 5.0
 
-    Method: the inter-canine width is about 75 % of the mouth's width. Source: Stephan CN, Henneberg M
-    (2003) "Predicting mouth width from inter-canine width - a 75 % rule", J Forensic Sci 48(4):725-727,
-    cited from the forensic literature, not re-read for this module. The lips between the canines are
-    shaped only by the depth pegs around them (mid-philtrum, supradentale, infradentale, the canines). No
-    lip line or lip shape is modelled yet.
+
+def predict_mouth(landmarks: dict) -> dict | None:
+    """The mouth: its width from the canines and its line (the oral fissure, stomion) from the teeth.
+
+    * *Width*: the inter-canine width is about 75 % of the mouth's width (cheilion to cheilion): Stephan CN,
+      Henneberg M (2003) "Predicting mouth width from inter-canine width - a 75 % rule", J Forensic Sci
+      48(4):725-727 (abstract read at the ASME digital collection's page of the article; the rule is in
+      its title). The canines are ``Supra canine L/R`` (the maxillary canine eminences).
+    * *Line*: the oral fissure lies at the occlusal plane, where the upper and lower incisors meet; its
+      height is taken half way between the alveolar crests, supradentale and infradentale (the incisors'
+      crowns are of similar height). Wilkinson CM, Motwani M, Chiang E (2003) "The relationship between
+      the soft tissues and the skeletal detail of the mouth", J Forensic Sci 48(4):728-732, relate the
+      lips' thickness to the teeth's height (abstract read at ojp.gov, NCJ 201544); without the teeth's
+      crowns in a bone mask their regression is not used: the lips' thickness is the depth pegs'
+      (mid-philtrum, supradentale, infradentale) and the vermilion rolls are a shape choice
+      (:data:`LIP_ROLL_MM`).
+
+    Returns ``width_mm``, ``centre`` (the canines' midpoint), ``mid_x`` and ``stomion_z`` (None where the
+    incisors' crests are not found), or None without both canines.
     """
     c = [_pt(landmarks, f"Supra canine {s}") for s in "LR"]
     if c[0] is None or c[1] is None:
         return None
     icw = float(np.linalg.norm(c[0][:2] - c[1][:2]))
-    return dict(width_mm=icw / 0.75, centre=0.5 * (c[0] + c[1]))
+    centre = 0.5 * (c[0] + c[1])
+    sd, idn = _pt(landmarks, "Supradentale"), _pt(landmarks, "Infradentale")
+    stomion_z = float(0.5 * (sd[2] + idn[2])) if sd is not None and idn is not None and sd[2] > idn[2] else None
+    mid = [p for p in (sd, idn, _pt(landmarks, "Subspinale")) if p is not None]
+    mid_x = float(np.mean([p[0] for p in mid])) if mid else float(centre[0])
+    return dict(width_mm=icw / 0.75, centre=centre, mid_x=mid_x, stomion_z=stomion_z)
+
+
+#: The external ear (Farkas LG (1994) Anthropometry of the Head and Face, 2nd ed., Raven Press: adult ear
+#: length sa-sba ~ 62 mm in men and 59 mm in women, width pra-pa ~ 35 and 32 mm; cited from the
+#: anthropometric literature, not re-read for this module): a default ear, the same for every skull, since no
+#: bone predicts the ear's shape (Wilkinson 2010, J Anat 216(2):235-250: the ears are among what "needs
+#: artistic interpretation").
+EAR_LENGTH_MM = 60.0
+EAR_WIDTH_MM = 33.0
+#: How far the auricle's rim stands off the head (mm) and the concha's hollow (mm): a shape choice for the
+#: radial representation (it cannot fold the helix over), not a measurement.
+EAR_PROTRUSION_MM = 12.0
+EAR_CONCHA_MM = 6.0
+#: The auricle's centre relative to porion (the ear canal's top): up (mm), back (mm), and the long axis' tilt
+#: backward from vertical (degrees; the ear's usual inclination, a shape choice).
+EAR_UP_MM = 8.0
+EAR_BACK_MM = 10.0
+EAR_TILT_DEG = 15.0
+
+
+def predict_ears(landmarks: dict) -> list[dict]:
+    """The ears at the porions: a default auricle (:data:`EAR_LENGTH_MM` x :data:`EAR_WIDTH_MM`, its centre
+    :data:`EAR_UP_MM` above and :data:`EAR_BACK_MM` behind porion, the ear canal at its front lower part),
+    one per porion found. Returns dicts with ``side`` and ``centre`` (patient mm)."""
+    out = []
+    for side in "LR":
+        po = _pt(landmarks, f"Porion {side}")
+        if po is None:
+            continue
+        out.append(dict(side=side, porion=po, centre=po + np.array([0.0, EAR_BACK_MM, EAR_UP_MM])))
+    return out
 
 
 # ------------------------------------------------------------------------------------------ the model
@@ -561,6 +618,8 @@ class FaceModel:
         model = cls(names, bases, normals, depths, sds, grid, raw, profile, rule_sites, nose, mouth, options,
                     prov, dict(flags or {}))
         model.vertex_z = float(skull.vertices[:, 2].max())
+        model._in_rows = grid.polar(model.tips_for(depths))[0] <= grid.z[-1]
+        model.landmarks_used = lm
         model.hull_profile = hull_profile                    # the peer (constant_depth) keeps the bone's own profile
         model._grid_xyz = model._cyl(np.repeat(grid.z, columns), np.tile(grid.theta, K))
         model.prepare_seconds = time.perf_counter() - t0
@@ -578,7 +637,10 @@ class FaceModel:
     def _offset_field(self, tips: np.ndarray) -> np.ndarray:
         """(K, M) radial offset over the profile that passes through every tip (and rule site)."""
         g = self.grid
-        sites = [np.asarray(tips, float)] + ([np.array([p for _, p, _ in self.rule_sites])] if self.rule_sites else [])
+        # a tip above the last row (vertex) is left to the dome over the vault: near the axis its radial offset
+        # to the top row's radius is meaningless (-21 mm on CThead)
+        sites = [np.asarray(tips, float)[self._in_rows]]
+        sites += [np.array([p for _, p, _ in self.rule_sites])] if self.rule_sites else []
         pts = np.concatenate(sites)
         z, th, r = g.polar(pts)
         target = r - g.sample(self.profile, z, th)                    # offset each site needs
@@ -595,6 +657,59 @@ class FaceModel:
         w = np.linalg.solve(Phi + RBF_REGULARISATION * np.eye(len(xs)), target - base_s)
         corr = _kernel(self._grid_xyz, xs, s2) @ w
         return (base_g + corr).reshape(self.profile.shape)
+
+    def _mouth_shape(self, base: np.ndarray) -> np.ndarray | None:
+        """Radial change (K, M) of the lips over the face ``base``: the oral fissure (a groove of
+        :data:`LIP_GROOVE_MM` at the midline along the stomion's height, tapering to nothing at the corners
+        of the mouth, :func:`predict_mouth`'s width) and the two vermilion rolls above and below it."""
+        mouth = self.mouth
+        if mouth is None or mouth.get("stomion_z") is None:
+            return None
+        g = self.grid
+        cx = g.centre[0]
+        s, c = np.sin(g.theta), np.cos(g.theta)
+        front = c < -0.2
+        x = cx + base * s[None, :]                                  # where each ray meets the face
+        u = np.clip(np.abs(x - mouth["mid_x"]) / (0.5 * mouth["width_mm"]), 0.0, 1.0)
+        across = (1.0 - u * u) ** 2 * front[None, :]                 # 1 at the midline, 0 at the corners
+        dz = g.z[:, None] - mouth["stomion_z"]
+        groove = -LIP_GROOVE_MM * np.exp(-0.5 * (dz / LIP_GROOVE_HALF_MM) ** 2)
+        rolls = LIP_ROLL_MM * (np.exp(-0.5 * ((dz - LIP_ROLL_OFFSET_MM) / 2.5) ** 2)
+                               + np.exp(-0.5 * ((dz + LIP_ROLL_OFFSET_MM) / 2.5) ** 2))
+        return (groove + rolls) * across
+
+    def _ear_shape(self) -> np.ndarray | None:
+        """Radial ear bumps (K, M) at the porions (:func:`predict_ears`): a raised rim (the helix and the
+        lobule, :data:`EAR_PROTRUSION_MM`) around a hollow concha, on an ellipse of the ear's length and
+        width tilted :data:`EAR_TILT_DEG` back. Fixed by the skull: computed once."""
+        cached = self.__dict__.get("_ears")
+        if cached is not None or "_ears" in self.__dict__:
+            return cached
+        ears = predict_ears(getattr(self, "landmarks_used", {}) or {})
+        if not ears:
+            self.__dict__["_ears"] = None
+            return None
+        g = self.grid
+        out = np.zeros((len(g.z), len(g.theta)))
+        for ear in ears:
+            z0, th0, r0 = g.polar(ear["centre"][None])
+            z0, th0, r0 = float(z0[0]), float(th0[0]), float(r0[0])
+            arc = np.angle(np.exp(1j * (g.theta[None, :] - th0))) * r0   # mm along the head, + toward +theta
+            dz = g.z[:, None] - z0
+            # theta = 0 is posterior: on the left (theta ~ pi/2) the back is toward smaller theta, on the right
+            # (theta ~ 3 pi/2) toward larger; post > 0 behind the ear's centre
+            post = -arc if ear["side"] == "L" else arc
+            t = np.radians(EAR_TILT_DEG)
+            a = dz * np.cos(t) + post * np.sin(t)                       # along the ear's long axis
+            b = -dz * np.sin(t) + post * np.cos(t)
+            q = np.sqrt((a / (0.5 * EAR_LENGTH_MM)) ** 2 + (b / (0.5 * EAR_WIDTH_MM)) ** 2)
+            plate = np.clip(1.0 - q ** 6, 0.0, None)                     # flat top, steep edge
+            concha = np.exp(-0.5 * (((a + 0.1 * EAR_LENGTH_MM) / (0.17 * EAR_LENGTH_MM)) ** 2
+                                    + ((b + 0.1 * EAR_WIDTH_MM) / (0.2 * EAR_WIDTH_MM)) ** 2))
+            out = np.maximum(out, EAR_PROTRUSION_MM * plate - EAR_CONCHA_MM * concha * (plate > 0.2))
+        out = ndimage.gaussian_filter(out, sigma=(0.7, 0.7), mode=("nearest", "wrap"))
+        self.__dict__["_ears"] = out
+        return out
 
     def _peg_tip(self, tips: np.ndarray, *names) -> np.ndarray | None:
         for n in names:
@@ -728,6 +843,12 @@ class FaceModel:
         bump = self._nose_bump(radius, tips)
         if bump is not None:
             radius = radius + bump
+        lips = self._mouth_shape(radius)
+        if lips is not None:
+            radius = radius + lips
+        ears = self._ear_shape()
+        if ears is not None:
+            radius = radius + ears
         t1 = time.perf_counter()
         head = self._surface(radius)
         t2 = time.perf_counter()
@@ -736,6 +857,10 @@ class FaceModel:
         prov = dict(self.provenance)
         if self.mouth is not None:
             prov["predicted_mouth_width_mm"] = round(float(self.mouth["width_mm"]), 1)
+            if self.mouth.get("stomion_z") is not None:
+                prov["predicted_stomion_z_mm"] = round(float(self.mouth["stomion_z"]), 1)
+        if self._ear_shape() is not None:
+            prov["ears"] = f"default ear ({EAR_LENGTH_MM:g} x {EAR_WIDTH_MM:g} mm, Farkas 1994 norms) at each porion"
         prov["peg_depths_mm"] = {n: round(float(x), 2) for n, x in zip(self.peg_names, d)}
         return FaceResult(mesh, prov, {"field": t1 - t0, "pde": t2 - t1, "mesh": t3 - t2, "total": t3 - t0},
                           tips=tips, depths=d, head=head)

@@ -139,18 +139,22 @@ def face_region(verts, faces, centre_xy, scan_z, floor_z: float | None = None, s
 
 def soft_landmarks(outer: np.ndarray, tip: np.ndarray, bone: dict) -> dict[str, np.ndarray]:
     """Soft-tissue landmarks read off the real skin's mid-sagittal profile (the visible points within 2 mm
-    of the pronasale's sagittal plane), each by a written rule:
+    of the pronasale's sagittal plane and less than 60 mm behind it: the face, not the back of the head),
+    each by a written rule:
 
     * pronasale: the score's pronasale (most anterior visible point within 20 mm of the mid-sagittal line);
     * glabella: the most anterior profile point within 12 mm of the bony glabella's height;
     * nasion: the most posterior profile point between glabella and pronasale;
-    * labrale superius: the most anterior point 8-30 mm below pronasale;
-    * subnasale: the most posterior point between pronasale - 4 mm and labrale superius;
-    * stomion: the most posterior point 4-20 mm below labrale superius; labrale inferius: the most anterior
-      point 2-18 mm below stomion;
+    * subnasale: the most posterior point 4-30 mm below pronasale;
+    * labrale superius: the most anterior point 3-25 mm below subnasale;
+    * stomion: the most posterior point 3-15 mm below labrale superius; labrale inferius: the most anterior
+      point 2-15 mm below stomion;
     * soft-tissue pogonion: the most anterior point within 10 mm of the bony pogonion's height.
+
+    (Until issue 23's fourth session the profile also held the back of the head, so "the most posterior
+    point" gave the occiput for nasion and subnasale, and labrale superius was the nose's underside.)
     """
-    prof = outer[np.abs(outer[:, 0] - tip[0]) <= 2.0]
+    prof = outer[(np.abs(outer[:, 0] - tip[0]) <= 2.0) & (outer[:, 1] < tip[1] + 60.0)]
     z, y = prof[:, 2], prof[:, 1]
 
     def pick(lo, hi, anterior=True):
@@ -166,13 +170,15 @@ def soft_landmarks(outer: np.ndarray, tip: np.ndarray, bone: dict) -> dict[str, 
         out["glabella"] = pick(g[2] - 12, g[2] + 12)
         if out["glabella"] is not None:
             out["nasion"] = pick(tip[2] + 10, out["glabella"][2] - 2, anterior=False)
-    ls = pick(tip[2] - 30, tip[2] - 8)
-    if ls is not None:
-        out["labrale superius"] = ls
-        out["subnasale"] = pick(ls[2] + 1, tip[2] - 4, anterior=False)
-        st = pick(ls[2] - 20, ls[2] - 4, anterior=False)
-        if st is not None:
-            out["labrale inferius"] = pick(st[2] - 18, st[2] - 2)
+    sn = pick(tip[2] - 30, tip[2] - 4, anterior=False)
+    if sn is not None:
+        out["subnasale"] = sn
+        ls = pick(sn[2] - 25, sn[2] - 3)
+        if ls is not None:
+            out["labrale superius"] = ls
+            st = pick(ls[2] - 15, ls[2] - 3, anterior=False)
+            if st is not None:
+                out["labrale inferius"] = pick(st[2] - 15, st[2] - 2)
     pg = bone.get("Pogonion")
     if pg is not None:
         out["soft-tissue pogonion"] = pick(pg[2] - 10, pg[2] + 10)
