@@ -371,6 +371,14 @@ TIP_HEIGHT_FRACTION = 0.3
 #: Half the nose's breadth at its root (mm): the nasal root between the eyes (Farkas' intercanthal width
 #: en-en ~ 32 mm; the root ~ 2/3 of it), where the dorsum leaves the soft nasion.
 NOSE_ROOT_HALF_MM = 10.0
+#: The nose's profile between the soft nasion and pronasale, ridge = nasion + (tip - nasion) x t^exponent
+#: (t: 0 at nasion, 1 at the tip's height): 1 is a straight dorsum, the average adult profile; the first
+#: version's 1.3 (a dorsum concave under nasion) with a quarter-ellipse lobule that met subnasale vertically
+#: read as a beak in the renders. Below the tip the lobule and the columella follow (1 - q^2)^exponent (q: 0
+#: at the tip, 1 at subnasale): 1 gives the columella a finite slope at subnasale (a nasolabial angle rather
+#: than a vertical cliff); 0.5 was the quarter ellipse. Shape choices, not measurements.
+NOSE_DORSUM_EXPONENT = 1.0
+NOSE_LOBULE_EXPONENT = 1.0
 #: Pegs that stand on the nasal dorsum: the nose's ridge runs through their tips.
 NOSE_DORSUM_PEGS = ("Rhinion", "Mid-nasal")
 
@@ -736,7 +744,7 @@ class FaceModel:
         ridge = np.full(Z.shape, np.nan)
         up = (Z >= zp) & (Z <= zn)
         t = (zn - Z[up]) / (zn - zp)
-        ridge[up] = yn + (yp - yn) * t ** 1.3                     # the dorsum, slightly concave under nasion
+        ridge[up] = yn + (yp - yn) * t ** NOSE_DORSUM_EXPONENT     # the dorsum (straight by default)
         # pegs on the dorsum (rhinion, mid-nasal) are kept: the dorsum runs through their tips
         on = [self._peg_tip(tips, nm) for nm in NOSE_DORSUM_PEGS]
         on = sorted([(float(p[2]), float(p[1])) for p in on if p is not None and zp + 2.0 < p[2] < zn - 2.0])
@@ -746,7 +754,7 @@ class FaceModel:
             ridge[up] = np.interp(Z[up], zc, yc)
         lo = (Z >= zs) & (Z < zp)
         q = (zp - Z[lo]) / (zp - zs)
-        ridge[lo] = ys + (yp - ys) * np.sqrt(np.clip(1 - q * q, 0, 1))   # tip lobule and columella
+        ridge[lo] = ys + (yp - ys) * np.clip(1 - q * q, 0, 1) ** NOSE_LOBULE_EXPONENT   # tip lobule and columella
         rows = np.nonzero(np.isfinite(ridge))[0]
         if rows.size == 0:
             return None
