@@ -257,22 +257,34 @@ def markdown(results: dict) -> str:
                   f"({'met' if f['within_2_5'] >= TARGET_SHARE else 'NOT met'}), mean {f['mean_mm']:.2f} mm "
                   f"({'met' if f['mean_mm'] <= TARGET_MEAN else 'NOT met'})."]
     lines += ["", "What limits it (CThead):",
-              "- The approximation is too thick over the mouth and chin (the blue band in the figure). Over the "
-              "lips and the chin, this cadaver head has less tissue than the T-Table means (mid-philtrum 11.5 mm, "
-              "supradentale 12, infradentale 13.5, pogonion 11). The means are used as they are: nothing is "
-              "fitted to the head being scored.",
-              "- The eyes are too deep by 3–6 mm (red). The corneal apex sits on the line between the automatic "
-              "supraorbital and suborbital landmarks.",
-              "- The automatic landmarks carry errors: median 4.2 mm on CThead, with one side of the alare "
-              "curvature on the malar bone. The thin maxilla is mostly below the bone level, so several normals "
-              "had to be taken from the closed profile.",
-              "- The lower face is still lumpy between the pegs (the figure's middle column): the exact Gaussian "
-              "correction follows each peg. The horizontal ridges the rows' convex hulls left across the lower "
-              "face are smoothed along the height away from the pegs (`face_from_skull._smooth_far_from_pegs`; "
-              "CThead before that: 57.3 % / mean 2.86 / p95 7.99 mm in the same pipeline); some remain at the "
-              "jaw's sides. The nose is a beak-like ridge. There is no lip shape and there are no ears.",
-              "- GE is not scored: issue 22's automatic landmarks find no orbits on its tilted, thick slices, "
-              "and the engine refuses a skull without orbits.",
+              "- The table's means themselves lie outside this head's skin over the lower face: the signed "
+              "distance from each peg tip (bone landmark + T-Table mean along the bone normal) to the real skin is "
+              "+8 to +10 mm at supra-M2, +12 to +13 mm at sub-M2, +6 mm at supradentale, +4 mm at mid-philtrum "
+              "and infradentale and +2 to +6 mm at mid-ramus (a diagnostic read off the real skin after the fact, "
+              "used for nothing). A face through those tips is 4-7 mm too thick over the mouth, the cheeks and "
+              "the jaw's sides (the blue in the figure), and the 26 mm cheek pegs next to 8-13 mm pegs at the "
+              "mandible's border leave lumps there. Nothing is fitted to the head being scored, so this stays.",
+              "- Tried in issue 23's fourth session and not kept (CThead, same pipeline, 57.5 % / 2.74 mm "
+              "before): the cornea 4 mm in front of the orbital tangent line (Stephan 2002: the tangent "
+              "under-predicts the globe's projection by 4 mm on average) -> 54.5 %, because the closed envelope "
+              "and the field over the orbit already lie 1-2 mm in front of the real lids between the brow and "
+              "the cheek; the eye as a lidded globe (smooth maximum with the face) -> 51.6 %; a thin-plate "
+              "spline depth field (the least-bending field through the tips) -> 50.4 % / 3.40 mm (it overshoots "
+              "between the 26 mm cheek pegs and their neighbours); leaving the two alare-curvature pegs that the "
+              "automatic landmarks put on the malar bone out of the field -> 52.5 % (they happen to thin an "
+              "over-thick cheek); wider or more regularised exact corrections (no smoother: second differences "
+              "0.11-0.15 mm whatever the width).",
+              "- Kept: the lips (the oral fissure half way between supradentale and infradentale, the mouth's "
+              "width = inter-canine width / 0.75, Stephan & Henneberg 2003; a 3 mm groove between two vermilion "
+              "rolls), a straight nasal dorsum and a columella with a finite slope (the first version's concave "
+              "dorsum and vertical columella read as a beak), default ears at the porions (outside the scored "
+              "region), and the vertex peg left to the dome (its radial offset near the axis was -21 mm).",
+              "- The automatic landmarks carry errors (issue 22): the alare curvatures on the malar bone, "
+              "glabella without a prominence. The soft-tissue landmark rules read glabella and nasion on a "
+              "profile with no concavity there (CThead's forehead runs straight into the nose), so those two "
+              "errors are rough.",
+              "- GE is not scored: issue 22's automatic landmarks find no orbits and nothing `ok` on it (no "
+              "mandible, no Frankfurt frame), and a face is approximated only around both orbits.",
               "- The phantom is a consistency check only: its soft tissue is not the table's.",
               "",
               "Renders (looked at): [face_from_skull_cthead.png](figures/face_from_skull_cthead.png): real "
