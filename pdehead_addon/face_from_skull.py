@@ -23,10 +23,12 @@ skull's centroid: a row every ``row_mm`` of height, a column every ``360 / colum
    ``spread_mm``) with the rule depth where no peg stands (:data:`RULE_DEPTH_MM`: the vault and the
    neck), plus a narrow Gaussian radial-basis correction (lightly regularised) that makes the field
    pass through every tip (to a few tenths of a mm). It is linear in the depths; a peg's influence fades within about 2 ``spread_mm``.
-4. *Prediction rules* for what a depth field cannot make: the nose (:func:`predict_nose`) and the eyes
-   (:func:`predict_eyes`), each cited in its docstring. The mouth's width (:func:`predict_mouth`) is only
-   reported; the lips come from the pegs around them. The ears are not modelled.
-5. *The face*: profile + depth field + nose = radius per bin; each row is a closed boundary curve;
+4. *Prediction rules* for what a depth field cannot make: the nose (:func:`predict_nose`), the eyes
+   (:func:`predict_eyes`), the mouth (:func:`predict_mouth`: the oral fissure at the occlusal midpoint of
+   the incisors' crests, the width from the canines; :meth:`FaceModel._mouth_shape` draws the lip line and
+   the vermilion rolls) and a default ear at each porion (:func:`predict_ears`,
+   :meth:`FaceModel._ear_shape`), each cited in its docstring.
+5. *The face*: profile + depth field + nose + lips + ears = radius per bin; each row is a closed boundary curve;
    the C2 PDE surface through them (:func:`.pde_surface.solve_pde`, dome over the vertex, a flat cap
    under the neck) is the face, a closed mesh in patient mm.
 
@@ -379,6 +381,12 @@ NOSE_ROOT_HALF_MM = 10.0
 #: than a vertical cliff); 0.5 was the quarter ellipse. Shape choices, not measurements.
 NOSE_DORSUM_EXPONENT = 1.0
 NOSE_LOBULE_EXPONENT = 1.0
+#: The nose's cross-section: its height over the face falls as 1 - (distance from the midline / half width)^e;
+#: 1.8 (the first version) gave a sharp ridge, a larger exponent a rounder, fuller nose. And the profile's
+#: corner where the straight dorsum meets the lobule is rounded by a Gaussian of this many mm along the height.
+#: Shape choices, not measurements.
+NOSE_SECTION_EXPONENT = 2.5
+NOSE_TIP_ROUND_MM = 3.0
 #: Pegs that stand on the nasal dorsum: the nose's ridge runs through their tips.
 NOSE_DORSUM_PEGS = ("Rhinion", "Mid-nasal")
 
@@ -758,6 +766,13 @@ class FaceModel:
         rows = np.nonzero(np.isfinite(ridge))[0]
         if rows.size == 0:
             return None
+        if NOSE_TIP_ROUND_MM > 0 and rows.size > 2:              # round the corner where dorsum meets lobule
+            dz = float(Z[1] - Z[0])
+            seg = ridge[rows[0]:rows[-1] + 1]
+            sm = ndimage.gaussian_filter1d(seg, NOSE_TIP_ROUND_MM / dz, mode="nearest")
+            ends = np.zeros(seg.size, bool)
+            ends[[0, -1]] = True                                  # keep subnasale and nasion where they are
+            ridge[rows[0]:rows[-1] + 1] = np.where(ends, seg, sm)
         cx, cy = g.centre
         s, c = np.sin(g.theta), np.cos(g.theta)
         front = c < -0.2
@@ -774,7 +789,7 @@ class FaceModel:
             h = r_ridge - base[k, jm]
             if h <= 0:
                 continue
-            w = np.clip(1 - (dx / half[k]) ** 1.8, 0, None) * front
+            w = np.clip(1 - (dx / half[k]) ** NOSE_SECTION_EXPONENT, 0, None) * front
             bump[k] = h * w
         return bump
 

@@ -276,23 +276,33 @@ def markdown(results: dict) -> str:
               "0.11-0.15 mm whatever the width).",
               "- Kept: the lips (the oral fissure half way between supradentale and infradentale, the mouth's "
               "width = inter-canine width / 0.75, Stephan & Henneberg 2003; a 3 mm groove between two vermilion "
-              "rolls), a straight nasal dorsum and a columella with a finite slope (the first version's concave "
-              "dorsum and vertical columella read as a beak), default ears at the porions (outside the scored "
-              "region), and the vertex peg left to the dome (its radial offset near the axis was -21 mm).",
+              "rolls: 57.5 -> 57.5 %, mean 2.74 -> 2.72 mm), a straight nasal dorsum, a columella with a finite "
+              "slope, a rounder cross-section and a rounded tip (the first version's concave dorsum and vertical "
+              "columella read as a beak: 57.5 -> 58.1-58.3 %; in profile the nose is still a cone), default ears "
+              "at the porions (outside the scored region: a disc with a hollow concha, no helix), and the vertex "
+              "peg left to the dome (its radial offset near the axis was -21 mm; no change to the score).",
               "- The automatic landmarks carry errors (issue 22): the alare curvatures on the malar bone, "
               "glabella without a prominence. The soft-tissue landmark rules read glabella and nasion on a "
               "profile with no concavity there (CThead's forehead runs straight into the nose), so those two "
-              "errors are rough.",
+              "errors are rough. Until this session the rules also read the back of the head (nasion and "
+              "subnasale on the occiput, labrale superius on the nose's underside): earlier soft-landmark rows "
+              "are not comparable.",
               "- GE is not scored: issue 22's automatic landmarks find no orbits and nothing `ok` on it (no "
               "mandible, no Frankfurt frame), and a face is approximated only around both orbits.",
               "- The phantom is a consistency check only: its soft tissue is not the table's.",
               "",
               "Renders (looked at): [face_from_skull_cthead.png](figures/face_from_skull_cthead.png): real "
-              "face, approximation and deviation, front and profile.",
+              "face, approximation and deviation, front and profile. What they show (issue 23's fourth session): "
+              "the head's shape, the brow and the nose's position are plausible; the ears are rounded discs with "
+              "a hollow at the right height, a little forward of the real ear; the lip line is a horizontal "
+              "groove across the mouth, but the mouth region bulges forward in profile and the lower face is "
+              "still lumpy at the jaw's sides (most on the patient's left) - not yet a face an artist would keep.",
               "", "Timings: one run on the shared 2-core machine with other jobs running (load average 7–11). "
               "Solve is the median of 9 solves at the defaults (field, PDE and a 160 × 240 mesh), wall-clock and CPU "
               "time of the process; on this loaded machine the CPU time is the better guide to the ≤ 100 ms target "
-              "(the UI's own measure is scripts/bench_live.py's)."]
+              "(the UI's own measure is scripts/bench_live.py's). Issue 23's fourth session ran three jobs at once; "
+              "the lips and ears cost nothing measurable (CThead, same process: solve 91 ms CPU with them, 94 ms "
+              "without)."]
     lines.append("")
     return "\n".join(lines)
 
