@@ -655,7 +655,8 @@ class FaceModel:
         g = self.grid
         # a tip above the last row (vertex) is left to the dome over the vault: near the axis its radial offset
         # to the top row's radius is meaningless (-21 mm on CThead)
-        sites = [np.asarray(tips, float)[self._in_rows]]
+        in_rows = getattr(self, "_in_rows", None)
+        sites = [np.asarray(tips, float)[in_rows if in_rows is not None else slice(None)]]
         sites += [np.array([p for _, p, _ in self.rule_sites])] if self.rule_sites else []
         pts = np.concatenate(sites)
         z, th, r = g.polar(pts)
@@ -794,13 +795,14 @@ class FaceModel:
         return bump
 
     # -------------------------------------------------------------------- solve
-    def _surface(self, radius: np.ndarray, nu=None, nv=None):
+    def _surface(self, radius: np.ndarray, nu=None, nv=None, top_z: float | None = None):
         from .pde_surface import solve_pde
 
         g = self.grid
         curves = g.point(g.z[:, None], g.theta[None, :], radius)
+        top = self.vertex_z + RULE_DEPTH_MM if top_z is None else float(top_z)
         bset = BoundarySet(curves, np.full(len(g.z), -1), g.z, knots_from_heights(g.z),
-                           meta={"vertex_z": self.vertex_z + RULE_DEPTH_MM, "parameterisation": "aligned"})
+                           meta={"vertex_z": top, "parameterisation": "aligned"})
         # The C2 spline's parameter (chord-length positions of the curves) and its smoothing (from the mean
         # radius) are fixed by the first face solved, so a peg moved at the chin does not re-parameterise
         # (slide) or re-smooth the whole head: only the curves near the peg change.
@@ -873,7 +875,9 @@ class FaceModel:
         if ears is not None:
             radius = radius + ears
         t1 = time.perf_counter()
-        head = self._surface(radius)
+        # the vertex peg (above the rows, not in the radial field) sets the dome's top
+        vertex = self._peg_tip(tips, "Vertex")
+        head = self._surface(radius, top_z=float(vertex[2]) if vertex is not None else None)
         t2 = time.perf_counter()
         mesh = self._mesh(head, nu, nv)
         t3 = time.perf_counter()

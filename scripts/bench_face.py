@@ -280,7 +280,8 @@ def markdown(results: dict) -> str:
               "slope, a rounder cross-section and a rounded tip (the first version's concave dorsum and vertical "
               "columella read as a beak: 57.5 -> 58.1-58.3 %; in profile the nose is still a cone), default ears "
               "at the porions (outside the scored region: a disc with a hollow concha, no helix), and the vertex "
-              "peg left to the dome (its radial offset near the axis was -21 mm; no change to the score).",
+              "peg left to the dome, whose top now follows the vertex peg's tip (its radial offset near the axis was "
+              "-21 mm; no change to the score).",
               "- The automatic landmarks carry errors (issue 22): the alare curvatures on the malar bone, "
               "glabella without a prominence. The soft-tissue landmark rules read glabella and nasion on a "
               "profile with no concavity there (CThead's forehead runs straight into the nose), so those two "

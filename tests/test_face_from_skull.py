@@ -175,7 +175,7 @@ def test_lips_from_the_teeth_and_canines(model, face, phantom_bone):
     z0 = mouth["stomion_z"]
     groove = front_y(z0) - min(front_y(z0 + 5.0), front_y(z0 - 5.0))
     print(f"phantom: mouth {mouth['width_mm']:.1f} mm wide, stomion z {z0:.1f}, groove {groove:.2f} mm")
-    # measured on the phantom: 42.7 mm wide, the fissure 3.53 mm behind the nearer vermilion roll
+    # measured on the phantom: 42.7 mm wide, the fissure 3.48-3.53 mm behind the nearer vermilion roll
     assert 2.0 <= groove <= 6.0
     # without the lip shape the profile there has no groove (< 1 mm): the dent is the lips', not the bone's
     no_lips = dict(model.__dict__)
@@ -212,3 +212,18 @@ def test_ears_at_the_porions(model, face, phantom_bone):
         assert 0.7 * F.EAR_PROTRUSION_MM <= shift[near].max() <= 1.3 * F.EAR_PROTRUSION_MM
     front = v[:, 1] < model.grid.centre[1] - 40.0          # the face, 40 mm in front of the axis
     assert shift[front].max() < 0.05
+
+
+def test_vertex_peg_sets_the_top_of_the_head(model, face):
+    """The vertex peg stands above the last boundary row, so it is not in the radial depth field (its radial
+    offset near the axis is meaningless); the dome over the vault is raised to its tip instead."""
+    i = model.peg_names.index("Vertex")
+    depths = model.default_depths.copy()
+    depths[i] += 4.0
+    raised = model.solve(depths=depths)
+    top, top2 = face.mesh.vertices[:, 2].max(), raised.mesh.vertices[:, 2].max()
+    print(f"top of the head {top:.2f} -> {top2:.2f} mm (tip {face.tips[i][2]:.2f} -> {raised.tips[i][2]:.2f})")
+    # measured on the phantom: 97.89 -> 101.80 mm for a tip at 97.80 -> 101.80 (CThead: 220.68 -> 223.93, tip
+    # 219.95 -> 223.93)
+    assert top2 - top >= 3.0
+    assert abs(top2 - raised.tips[i][2]) <= 1.0
