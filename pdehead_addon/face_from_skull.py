@@ -23,10 +23,12 @@ skull's centroid: a row every ``row_mm`` of height, a column every ``360 / colum
    ``spread_mm``) with the rule depth where no peg stands (:data:`RULE_DEPTH_MM`: the vault and the
    neck), plus a narrow Gaussian radial-basis correction (lightly regularised) that makes the field
    pass through every tip (to a few tenths of a mm). It is linear in the depths; a peg's influence fades within about 2 ``spread_mm``.
-4. *Prediction rules* for what a depth field cannot make: the nose (:func:`predict_nose`) and the eyes
-   (:func:`predict_eyes`), each cited in its docstring. The mouth's width (:func:`predict_mouth`) is only
-   reported; the lips come from the pegs around them. The ears are not modelled.
-5. *The face*: profile + depth field + nose = radius per bin; each row is a closed boundary curve;
+4. *Prediction rules* for what a depth field cannot make: the nose (:func:`predict_nose`), the eyes
+   (:func:`predict_eyes`), the mouth (:func:`predict_mouth`: the oral fissure at the occlusal midpoint of
+   the incisors' crests, the width from the canines; :meth:`FaceModel._mouth_shape` draws the lip line and
+   the vermilion rolls) and a default ear at each porion (:func:`predict_ears`,
+   :meth:`FaceModel._ear_shape`), each cited in its docstring.
+5. *The face*: profile + depth field + nose + lips + ears = radius per bin; each row is a closed boundary curve;
    the C2 PDE surface through them (:func:`.pde_surface.solve_pde`, dome over the vertex, a flat cap
    under the neck) is the face, a closed mesh in patient mm.
 
@@ -371,6 +373,20 @@ TIP_HEIGHT_FRACTION = 0.3
 #: Half the nose's breadth at its root (mm): the nasal root between the eyes (Farkas' intercanthal width
 #: en-en ~ 32 mm; the root ~ 2/3 of it), where the dorsum leaves the soft nasion.
 NOSE_ROOT_HALF_MM = 10.0
+#: The nose's profile between the soft nasion and pronasale, ridge = nasion + (tip - nasion) x t^exponent
+#: (t: 0 at nasion, 1 at the tip's height): 1 is a straight dorsum, the average adult profile; the first
+#: version's 1.3 (a dorsum concave under nasion) with a quarter-ellipse lobule that met subnasale vertically
+#: read as a beak in the renders. Below the tip the lobule and the columella follow (1 - q^2)^exponent (q: 0
+#: at the tip, 1 at subnasale): 1 gives the columella a finite slope at subnasale (a nasolabial angle rather
+#: than a vertical cliff); 0.5 was the quarter ellipse. Shape choices, not measurements.
+NOSE_DORSUM_EXPONENT = 1.0
+NOSE_LOBULE_EXPONENT = 1.0
+#: The nose's cross-section: its height over the face falls as 1 - (distance from the midline / half width)^e;
+#: 1.8 (the first version) gave a sharp ridge, a larger exponent a rounder, fuller nose. And the profile's
+#: corner where the straight dorsum meets the lobule is rounded by a Gaussian of this many mm along the height.
+#: Shape choices, not measurements.
+NOSE_SECTION_EXPONENT = 2.5
+NOSE_TIP_ROUND_MM = 3.0
 #: Pegs that stand on the nasal dorsum: the nose's ridge runs through their tips.
 NOSE_DORSUM_PEGS = ("Rhinion", "Mid-nasal")
 
@@ -428,20 +444,77 @@ def predict_nose(landmarks: dict, skull: Mesh | None = None) -> dict | None:
                 protrusion_mm=NOSE_PROTRUSION_MM)
 
 
-def predict_mouth(landmarks: dict) -> dict | None:
-    """The mouth's width from the canines, reported in the provenance. It does not shape the face yet.
+#: Depth (mm) of the oral fissure behind the lips at the midline, tapering to nothing at the mouth's corners.
+#: A shape choice for a closed, relaxed mouth (the lips' vermilion rolls meet in a groove), not a measurement.
+LIP_GROOVE_MM = 3.0
+#: Half-height (mm, Gaussian sigma) of the groove; the lip line is drawn by the C2 surface through the 3 mm rows.
+LIP_GROOVE_HALF_MM = 2.0
+#: How far (mm) each vermilion roll bulges in front of the depth field, above and below the fissure, centred
+#: :data:`LIP_ROLL_OFFSET_MM` from it: a shape choice (the lips' fullness is what no bone predicts).
+LIP_ROLL_MM = 1.0
+LIP_ROLL_OFFSET_MM = 5.0
 
-    Method: the inter-canine width is about 75 % of the mouth's width. Source: Stephan CN, Henneberg M
-    (2003) "Predicting mouth width from inter-canine width - a 75 % rule", J Forensic Sci 48(4):725-727,
-    cited from the forensic literature, not re-read for this module. The lips between the canines are
-    shaped only by the depth pegs around them (mid-philtrum, supradentale, infradentale, the canines). No
-    lip line or lip shape is modelled yet.
+
+def predict_mouth(landmarks: dict) -> dict | None:
+    """The mouth: its width from the canines and its line (the oral fissure, stomion) from the teeth.
+
+    * *Width*: the inter-canine width is about 75 % of the mouth's width (cheilion to cheilion): Stephan CN,
+      Henneberg M (2003) "Predicting mouth width from inter-canine width - a 75 % rule", J Forensic Sci
+      48(4):725-727 (abstract read at the ASME digital collection's page of the article; the rule is in
+      its title). The canines are ``Supra canine L/R`` (the maxillary canine eminences).
+    * *Line*: the oral fissure lies at the occlusal plane, where the upper and lower incisors meet; its
+      height is taken half way between the alveolar crests, supradentale and infradentale (the incisors'
+      crowns are of similar height). Wilkinson CM, Motwani M, Chiang E (2003) "The relationship between
+      the soft tissues and the skeletal detail of the mouth", J Forensic Sci 48(4):728-732, relate the
+      lips' thickness to the teeth's height (abstract read at ojp.gov, NCJ 201544); without the teeth's
+      crowns in a bone mask their regression is not used: the lips' thickness is the depth pegs'
+      (mid-philtrum, supradentale, infradentale) and the vermilion rolls are a shape choice
+      (:data:`LIP_ROLL_MM`).
+
+    Returns ``width_mm``, ``centre`` (the canines' midpoint), ``mid_x`` and ``stomion_z`` (None where the
+    incisors' crests are not found), or None without both canines.
     """
     c = [_pt(landmarks, f"Supra canine {s}") for s in "LR"]
     if c[0] is None or c[1] is None:
         return None
     icw = float(np.linalg.norm(c[0][:2] - c[1][:2]))
-    return dict(width_mm=icw / 0.75, centre=0.5 * (c[0] + c[1]))
+    centre = 0.5 * (c[0] + c[1])
+    sd, idn = _pt(landmarks, "Supradentale"), _pt(landmarks, "Infradentale")
+    stomion_z = float(0.5 * (sd[2] + idn[2])) if sd is not None and idn is not None and sd[2] > idn[2] else None
+    mid = [p for p in (sd, idn, _pt(landmarks, "Subspinale")) if p is not None]
+    mid_x = float(np.mean([p[0] for p in mid])) if mid else float(centre[0])
+    return dict(width_mm=icw / 0.75, centre=centre, mid_x=mid_x, stomion_z=stomion_z)
+
+
+#: The external ear (Farkas LG (1994) Anthropometry of the Head and Face, 2nd ed., Raven Press: adult ear
+#: length sa-sba ~ 62 mm in men and 59 mm in women, width pra-pa ~ 35 and 32 mm; cited from the
+#: anthropometric literature, not re-read for this module): a default ear, the same for every skull, since no
+#: bone predicts the ear's shape (Wilkinson 2010, J Anat 216(2):235-250: the ears are among what "needs
+#: artistic interpretation").
+EAR_LENGTH_MM = 60.0
+EAR_WIDTH_MM = 33.0
+#: How far the auricle's rim stands off the head (mm) and the concha's hollow (mm): a shape choice for the
+#: radial representation (it cannot fold the helix over), not a measurement.
+EAR_PROTRUSION_MM = 12.0
+EAR_CONCHA_MM = 6.0
+#: The auricle's centre relative to porion (the ear canal's top): up (mm), back (mm), and the long axis' tilt
+#: backward from vertical (degrees; the ear's usual inclination, a shape choice).
+EAR_UP_MM = 8.0
+EAR_BACK_MM = 10.0
+EAR_TILT_DEG = 15.0
+
+
+def predict_ears(landmarks: dict) -> list[dict]:
+    """The ears at the porions: a default auricle (:data:`EAR_LENGTH_MM` x :data:`EAR_WIDTH_MM`, its centre
+    :data:`EAR_UP_MM` above and :data:`EAR_BACK_MM` behind porion, the ear canal at its front lower part),
+    one per porion found. Returns dicts with ``side`` and ``centre`` (patient mm)."""
+    out = []
+    for side in "LR":
+        po = _pt(landmarks, f"Porion {side}")
+        if po is None:
+            continue
+        out.append(dict(side=side, porion=po, centre=po + np.array([0.0, EAR_BACK_MM, EAR_UP_MM])))
+    return out
 
 
 # ------------------------------------------------------------------------------------------ the model
@@ -561,6 +634,8 @@ class FaceModel:
         model = cls(names, bases, normals, depths, sds, grid, raw, profile, rule_sites, nose, mouth, options,
                     prov, dict(flags or {}))
         model.vertex_z = float(skull.vertices[:, 2].max())
+        model._in_rows = grid.polar(model.tips_for(depths))[0] <= grid.z[-1]
+        model.landmarks_used = lm
         model.hull_profile = hull_profile                    # the peer (constant_depth) keeps the bone's own profile
         model._grid_xyz = model._cyl(np.repeat(grid.z, columns), np.tile(grid.theta, K))
         model.prepare_seconds = time.perf_counter() - t0
@@ -578,7 +653,11 @@ class FaceModel:
     def _offset_field(self, tips: np.ndarray) -> np.ndarray:
         """(K, M) radial offset over the profile that passes through every tip (and rule site)."""
         g = self.grid
-        sites = [np.asarray(tips, float)] + ([np.array([p for _, p, _ in self.rule_sites])] if self.rule_sites else [])
+        # a tip above the last row (vertex) is left to the dome over the vault: near the axis its radial offset
+        # to the top row's radius is meaningless (-21 mm on CThead)
+        in_rows = getattr(self, "_in_rows", None)
+        sites = [np.asarray(tips, float)[in_rows if in_rows is not None else slice(None)]]
+        sites += [np.array([p for _, p, _ in self.rule_sites])] if self.rule_sites else []
         pts = np.concatenate(sites)
         z, th, r = g.polar(pts)
         target = r - g.sample(self.profile, z, th)                    # offset each site needs
@@ -595,6 +674,59 @@ class FaceModel:
         w = np.linalg.solve(Phi + RBF_REGULARISATION * np.eye(len(xs)), target - base_s)
         corr = _kernel(self._grid_xyz, xs, s2) @ w
         return (base_g + corr).reshape(self.profile.shape)
+
+    def _mouth_shape(self, base: np.ndarray) -> np.ndarray | None:
+        """Radial change (K, M) of the lips over the face ``base``: the oral fissure (a groove of
+        :data:`LIP_GROOVE_MM` at the midline along the stomion's height, tapering to nothing at the corners
+        of the mouth, :func:`predict_mouth`'s width) and the two vermilion rolls above and below it."""
+        mouth = self.mouth
+        if mouth is None or mouth.get("stomion_z") is None:
+            return None
+        g = self.grid
+        cx = g.centre[0]
+        s, c = np.sin(g.theta), np.cos(g.theta)
+        front = c < -0.2
+        x = cx + base * s[None, :]                                  # where each ray meets the face
+        u = np.clip(np.abs(x - mouth["mid_x"]) / (0.5 * mouth["width_mm"]), 0.0, 1.0)
+        across = (1.0 - u * u) ** 2 * front[None, :]                 # 1 at the midline, 0 at the corners
+        dz = g.z[:, None] - mouth["stomion_z"]
+        groove = -LIP_GROOVE_MM * np.exp(-0.5 * (dz / LIP_GROOVE_HALF_MM) ** 2)
+        rolls = LIP_ROLL_MM * (np.exp(-0.5 * ((dz - LIP_ROLL_OFFSET_MM) / 2.5) ** 2)
+                               + np.exp(-0.5 * ((dz + LIP_ROLL_OFFSET_MM) / 2.5) ** 2))
+        return (groove + rolls) * across
+
+    def _ear_shape(self) -> np.ndarray | None:
+        """Radial ear bumps (K, M) at the porions (:func:`predict_ears`): a raised rim (the helix and the
+        lobule, :data:`EAR_PROTRUSION_MM`) around a hollow concha, on an ellipse of the ear's length and
+        width tilted :data:`EAR_TILT_DEG` back. Fixed by the skull: computed once."""
+        cached = self.__dict__.get("_ears")
+        if cached is not None or "_ears" in self.__dict__:
+            return cached
+        ears = predict_ears(getattr(self, "landmarks_used", {}) or {})
+        if not ears:
+            self.__dict__["_ears"] = None
+            return None
+        g = self.grid
+        out = np.zeros((len(g.z), len(g.theta)))
+        for ear in ears:
+            z0, th0, r0 = g.polar(ear["centre"][None])
+            z0, th0, r0 = float(z0[0]), float(th0[0]), float(r0[0])
+            arc = np.angle(np.exp(1j * (g.theta[None, :] - th0))) * r0   # mm along the head, + toward +theta
+            dz = g.z[:, None] - z0
+            # theta = 0 is posterior: on the left (theta ~ pi/2) the back is toward smaller theta, on the right
+            # (theta ~ 3 pi/2) toward larger; post > 0 behind the ear's centre
+            post = -arc if ear["side"] == "L" else arc
+            t = np.radians(EAR_TILT_DEG)
+            a = dz * np.cos(t) + post * np.sin(t)                       # along the ear's long axis
+            b = -dz * np.sin(t) + post * np.cos(t)
+            q = np.sqrt((a / (0.5 * EAR_LENGTH_MM)) ** 2 + (b / (0.5 * EAR_WIDTH_MM)) ** 2)
+            plate = np.clip(1.0 - q ** 6, 0.0, None)                     # flat top, steep edge
+            concha = np.exp(-0.5 * (((a + 0.1 * EAR_LENGTH_MM) / (0.17 * EAR_LENGTH_MM)) ** 2
+                                    + ((b + 0.1 * EAR_WIDTH_MM) / (0.2 * EAR_WIDTH_MM)) ** 2))
+            out = np.maximum(out, EAR_PROTRUSION_MM * plate - EAR_CONCHA_MM * concha * (plate > 0.2))
+        out = ndimage.gaussian_filter(out, sigma=(0.7, 0.7), mode=("nearest", "wrap"))
+        self.__dict__["_ears"] = out
+        return out
 
     def _peg_tip(self, tips: np.ndarray, *names) -> np.ndarray | None:
         for n in names:
@@ -621,7 +753,7 @@ class FaceModel:
         ridge = np.full(Z.shape, np.nan)
         up = (Z >= zp) & (Z <= zn)
         t = (zn - Z[up]) / (zn - zp)
-        ridge[up] = yn + (yp - yn) * t ** 1.3                     # the dorsum, slightly concave under nasion
+        ridge[up] = yn + (yp - yn) * t ** NOSE_DORSUM_EXPONENT     # the dorsum (straight by default)
         # pegs on the dorsum (rhinion, mid-nasal) are kept: the dorsum runs through their tips
         on = [self._peg_tip(tips, nm) for nm in NOSE_DORSUM_PEGS]
         on = sorted([(float(p[2]), float(p[1])) for p in on if p is not None and zp + 2.0 < p[2] < zn - 2.0])
@@ -631,10 +763,17 @@ class FaceModel:
             ridge[up] = np.interp(Z[up], zc, yc)
         lo = (Z >= zs) & (Z < zp)
         q = (zp - Z[lo]) / (zp - zs)
-        ridge[lo] = ys + (yp - ys) * np.sqrt(np.clip(1 - q * q, 0, 1))   # tip lobule and columella
+        ridge[lo] = ys + (yp - ys) * np.clip(1 - q * q, 0, 1) ** NOSE_LOBULE_EXPONENT   # tip lobule and columella
         rows = np.nonzero(np.isfinite(ridge))[0]
         if rows.size == 0:
             return None
+        if NOSE_TIP_ROUND_MM > 0 and rows.size > 2:              # round the corner where dorsum meets lobule
+            dz = float(Z[1] - Z[0])
+            seg = ridge[rows[0]:rows[-1] + 1]
+            sm = ndimage.gaussian_filter1d(seg, NOSE_TIP_ROUND_MM / dz, mode="nearest")
+            ends = np.zeros(seg.size, bool)
+            ends[[0, -1]] = True                                  # keep subnasale and nasion where they are
+            ridge[rows[0]:rows[-1] + 1] = np.where(ends, seg, sm)
         cx, cy = g.centre
         s, c = np.sin(g.theta), np.cos(g.theta)
         front = c < -0.2
@@ -651,18 +790,19 @@ class FaceModel:
             h = r_ridge - base[k, jm]
             if h <= 0:
                 continue
-            w = np.clip(1 - (dx / half[k]) ** 1.8, 0, None) * front
+            w = np.clip(1 - (dx / half[k]) ** NOSE_SECTION_EXPONENT, 0, None) * front
             bump[k] = h * w
         return bump
 
     # -------------------------------------------------------------------- solve
-    def _surface(self, radius: np.ndarray, nu=None, nv=None):
+    def _surface(self, radius: np.ndarray, nu=None, nv=None, top_z: float | None = None):
         from .pde_surface import solve_pde
 
         g = self.grid
         curves = g.point(g.z[:, None], g.theta[None, :], radius)
+        top = self.vertex_z + RULE_DEPTH_MM if top_z is None else float(top_z)
         bset = BoundarySet(curves, np.full(len(g.z), -1), g.z, knots_from_heights(g.z),
-                           meta={"vertex_z": self.vertex_z + RULE_DEPTH_MM, "parameterisation": "aligned"})
+                           meta={"vertex_z": top, "parameterisation": "aligned"})
         # The C2 spline's parameter (chord-length positions of the curves) and its smoothing (from the mean
         # radius) are fixed by the first face solved, so a peg moved at the chin does not re-parameterise
         # (slide) or re-smooth the whole head: only the curves near the peg change.
@@ -728,14 +868,26 @@ class FaceModel:
         bump = self._nose_bump(radius, tips)
         if bump is not None:
             radius = radius + bump
+        lips = self._mouth_shape(radius)
+        if lips is not None:
+            radius = radius + lips
+        ears = self._ear_shape()
+        if ears is not None:
+            radius = radius + ears
         t1 = time.perf_counter()
-        head = self._surface(radius)
+        # the vertex peg (above the rows, not in the radial field) sets the dome's top
+        vertex = self._peg_tip(tips, "Vertex")
+        head = self._surface(radius, top_z=float(vertex[2]) if vertex is not None else None)
         t2 = time.perf_counter()
         mesh = self._mesh(head, nu, nv)
         t3 = time.perf_counter()
         prov = dict(self.provenance)
         if self.mouth is not None:
             prov["predicted_mouth_width_mm"] = round(float(self.mouth["width_mm"]), 1)
+            if self.mouth.get("stomion_z") is not None:
+                prov["predicted_stomion_z_mm"] = round(float(self.mouth["stomion_z"]), 1)
+        if self._ear_shape() is not None:
+            prov["ears"] = f"default ear ({EAR_LENGTH_MM:g} x {EAR_WIDTH_MM:g} mm, Farkas 1994 norms) at each porion"
         prov["peg_depths_mm"] = {n: round(float(x), 2) for n, x in zip(self.peg_names, d)}
         return FaceResult(mesh, prov, {"field": t1 - t0, "pde": t2 - t1, "mesh": t3 - t2, "total": t3 - t0},
                           tips=tips, depths=d, head=head)

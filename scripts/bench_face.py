@@ -139,18 +139,22 @@ def face_region(verts, faces, centre_xy, scan_z, floor_z: float | None = None, s
 
 def soft_landmarks(outer: np.ndarray, tip: np.ndarray, bone: dict) -> dict[str, np.ndarray]:
     """Soft-tissue landmarks read off the real skin's mid-sagittal profile (the visible points within 2 mm
-    of the pronasale's sagittal plane), each by a written rule:
+    of the pronasale's sagittal plane and less than 60 mm behind it: the face, not the back of the head),
+    each by a written rule:
 
     * pronasale: the score's pronasale (most anterior visible point within 20 mm of the mid-sagittal line);
     * glabella: the most anterior profile point within 12 mm of the bony glabella's height;
     * nasion: the most posterior profile point between glabella and pronasale;
-    * labrale superius: the most anterior point 8-30 mm below pronasale;
-    * subnasale: the most posterior point between pronasale - 4 mm and labrale superius;
-    * stomion: the most posterior point 4-20 mm below labrale superius; labrale inferius: the most anterior
-      point 2-18 mm below stomion;
+    * subnasale: the most posterior point 4-30 mm below pronasale;
+    * labrale superius: the most anterior point 3-25 mm below subnasale;
+    * stomion: the most posterior point 3-15 mm below labrale superius; labrale inferius: the most anterior
+      point 2-15 mm below stomion;
     * soft-tissue pogonion: the most anterior point within 10 mm of the bony pogonion's height.
+
+    (Until issue 23's fourth session the profile also held the back of the head, so "the most posterior
+    point" gave the occiput for nasion and subnasale, and labrale superius was the nose's underside.)
     """
-    prof = outer[np.abs(outer[:, 0] - tip[0]) <= 2.0]
+    prof = outer[(np.abs(outer[:, 0] - tip[0]) <= 2.0) & (outer[:, 1] < tip[1] + 60.0)]
     z, y = prof[:, 2], prof[:, 1]
 
     def pick(lo, hi, anterior=True):
@@ -166,13 +170,15 @@ def soft_landmarks(outer: np.ndarray, tip: np.ndarray, bone: dict) -> dict[str, 
         out["glabella"] = pick(g[2] - 12, g[2] + 12)
         if out["glabella"] is not None:
             out["nasion"] = pick(tip[2] + 10, out["glabella"][2] - 2, anterior=False)
-    ls = pick(tip[2] - 30, tip[2] - 8)
-    if ls is not None:
-        out["labrale superius"] = ls
-        out["subnasale"] = pick(ls[2] + 1, tip[2] - 4, anterior=False)
-        st = pick(ls[2] - 20, ls[2] - 4, anterior=False)
-        if st is not None:
-            out["labrale inferius"] = pick(st[2] - 18, st[2] - 2)
+    sn = pick(tip[2] - 30, tip[2] - 4, anterior=False)
+    if sn is not None:
+        out["subnasale"] = sn
+        ls = pick(sn[2] - 25, sn[2] - 3)
+        if ls is not None:
+            out["labrale superius"] = ls
+            st = pick(ls[2] - 15, ls[2] - 3, anterior=False)
+            if st is not None:
+                out["labrale inferius"] = pick(st[2] - 15, st[2] - 2)
     pg = bone.get("Pogonion")
     if pg is not None:
         out["soft-tissue pogonion"] = pick(pg[2] - 10, pg[2] + 10)
@@ -251,30 +257,53 @@ def markdown(results: dict) -> str:
                   f"({'met' if f['within_2_5'] >= TARGET_SHARE else 'NOT met'}), mean {f['mean_mm']:.2f} mm "
                   f"({'met' if f['mean_mm'] <= TARGET_MEAN else 'NOT met'})."]
     lines += ["", "What limits it (CThead):",
-              "- The approximation is too thick over the mouth and chin (the blue band in the figure). Over the "
-              "lips and the chin, this cadaver head has less tissue than the T-Table means (mid-philtrum 11.5 mm, "
-              "supradentale 12, infradentale 13.5, pogonion 11). The means are used as they are: nothing is "
-              "fitted to the head being scored.",
-              "- The eyes are too deep by 3–6 mm (red). The corneal apex sits on the line between the automatic "
-              "supraorbital and suborbital landmarks.",
-              "- The automatic landmarks carry errors: median 4.2 mm on CThead, with one side of the alare "
-              "curvature on the malar bone. The thin maxilla is mostly below the bone level, so several normals "
-              "had to be taken from the closed profile.",
-              "- The lower face is still lumpy between the pegs (the figure's middle column): the exact Gaussian "
-              "correction follows each peg. The horizontal ridges the rows' convex hulls left across the lower "
-              "face are smoothed along the height away from the pegs (`face_from_skull._smooth_far_from_pegs`; "
-              "CThead before that: 57.3 % / mean 2.86 / p95 7.99 mm in the same pipeline); some remain at the "
-              "jaw's sides. The nose is a beak-like ridge. There is no lip shape and there are no ears.",
-              "- GE is not scored: issue 22's automatic landmarks find no orbits on its tilted, thick slices, "
-              "and the engine refuses a skull without orbits.",
+              "- The table's means themselves lie outside this head's skin over the lower face: the signed "
+              "distance from each peg tip (bone landmark + T-Table mean along the bone normal) to the real skin is "
+              "+8 to +10 mm at supra-M2, +12 to +13 mm at sub-M2, +6 mm at supradentale, +4 mm at mid-philtrum "
+              "and infradentale and +2 to +6 mm at mid-ramus (a diagnostic read off the real skin after the fact, "
+              "used for nothing). A face through those tips is 4-7 mm too thick over the mouth, the cheeks and "
+              "the jaw's sides (the blue in the figure), and the 26 mm cheek pegs next to 8-13 mm pegs at the "
+              "mandible's border leave lumps there. Nothing is fitted to the head being scored, so this stays.",
+              "- Tried in issue 23's fourth session and not kept (CThead, same pipeline, 57.5 % / 2.74 mm "
+              "before): the cornea 4 mm in front of the orbital tangent line (Stephan 2002: the tangent "
+              "under-predicts the globe's projection by 4 mm on average) -> 54.5 %, because the closed envelope "
+              "and the field over the orbit already lie 1-2 mm in front of the real lids between the brow and "
+              "the cheek; the eye as a lidded globe (smooth maximum with the face) -> 51.6 %; a thin-plate "
+              "spline depth field (the least-bending field through the tips) -> 50.4 % / 3.40 mm (it overshoots "
+              "between the 26 mm cheek pegs and their neighbours); leaving the two alare-curvature pegs that the "
+              "automatic landmarks put on the malar bone out of the field -> 52.5 % (they happen to thin an "
+              "over-thick cheek); wider or more regularised exact corrections (no smoother: second differences "
+              "0.11-0.15 mm whatever the width).",
+              "- Kept: the lips (the oral fissure half way between supradentale and infradentale, the mouth's "
+              "width = inter-canine width / 0.75, Stephan & Henneberg 2003; a 3 mm groove between two vermilion "
+              "rolls: 57.5 -> 57.5 %, mean 2.74 -> 2.72 mm), a straight nasal dorsum, a columella with a finite "
+              "slope, a rounder cross-section and a rounded tip (the first version's concave dorsum and vertical "
+              "columella read as a beak: 57.5 -> 58.1-58.3 %; in profile the nose is still a cone), default ears "
+              "at the porions (outside the scored region: a disc with a hollow concha, no helix), and the vertex "
+              "peg left to the dome, whose top now follows the vertex peg's tip (its radial offset near the axis was "
+              "-21 mm; no change to the score).",
+              "- The automatic landmarks carry errors (issue 22): the alare curvatures on the malar bone, "
+              "glabella without a prominence. The soft-tissue landmark rules read glabella and nasion on a "
+              "profile with no concavity there (CThead's forehead runs straight into the nose), so those two "
+              "errors are rough. Until this session the rules also read the back of the head (nasion and "
+              "subnasale on the occiput, labrale superius on the nose's underside): earlier soft-landmark rows "
+              "are not comparable.",
+              "- GE is not scored: issue 22's automatic landmarks find no orbits and nothing `ok` on it (no "
+              "mandible, no Frankfurt frame), and a face is approximated only around both orbits.",
               "- The phantom is a consistency check only: its soft tissue is not the table's.",
               "",
               "Renders (looked at): [face_from_skull_cthead.png](figures/face_from_skull_cthead.png): real "
-              "face, approximation and deviation, front and profile.",
+              "face, approximation and deviation, front and profile. What they show (issue 23's fourth session): "
+              "the head's shape, the brow and the nose's position are plausible; the ears are rounded discs with "
+              "a hollow at the right height, a little forward of the real ear; the lip line is a horizontal "
+              "groove across the mouth, but the mouth region bulges forward in profile and the lower face is "
+              "still lumpy at the jaw's sides (most on the patient's left) - not yet a face an artist would keep.",
               "", "Timings: one run on the shared 2-core machine with other jobs running (load average 7–11). "
               "Solve is the median of 9 solves at the defaults (field, PDE and a 160 × 240 mesh), wall-clock and CPU "
               "time of the process; on this loaded machine the CPU time is the better guide to the ≤ 100 ms target "
-              "(the UI's own measure is scripts/bench_live.py's)."]
+              "(the UI's own measure is scripts/bench_live.py's). Issue 23's fourth session ran three jobs at once; "
+              "the lips and ears cost nothing measurable (CThead, same process: solve 91 ms CPU with them, 94 ms "
+              "without)."]
     lines.append("")
     return "\n".join(lines)
 

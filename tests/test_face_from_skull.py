@@ -152,3 +152,78 @@ def test_profile_is_smoothed_along_the_height_away_from_the_pegs(model, face):
     before, after = ridges(model.hull_profile), ridges(model.profile)
     print(f"row-to-row second difference: hull profile {before:.3f} mm, smoothed {after:.3f} mm")
     assert after < 0.8 * before                     # measured on the phantom: 0.197 -> 0.143 mm (0.73)
+
+
+def test_lips_from_the_teeth_and_canines(model, face, phantom_bone):
+    """The mouth (face_from_skull.predict_mouth): width = inter-canine width / 0.75 (Stephan & Henneberg 2003),
+    the oral fissure half way between supradentale and infradentale, drawn as a groove in the face's midline
+    profile between the two vermilion rolls."""
+    _, lms, _ = phantom_bone
+    mouth = model.mouth
+    icw = np.linalg.norm(np.asarray(lms["Supra canine L"])[:2] - np.asarray(lms["Supra canine R"])[:2])
+    assert mouth["width_mm"] == pytest.approx(icw / 0.75)
+    assert mouth["stomion_z"] == pytest.approx(0.5 * (lms["Supradentale"][2] + lms["Infradentale"][2]))
+    assert face.provenance["predicted_stomion_z_mm"] == pytest.approx(mouth["stomion_z"], abs=0.05)
+    v = face.mesh.vertices
+    centre_y = model.grid.centre[1]
+    mid = v[(np.abs(v[:, 0] - mouth["mid_x"]) < 2.0) & (v[:, 1] < centre_y)]
+
+    def front_y(z):                                  # the most anterior (smallest y) face point at height z
+        m = np.abs(mid[:, 2] - z) < 1.0
+        return float(mid[m, 1].min())
+
+    z0 = mouth["stomion_z"]
+    groove = front_y(z0) - min(front_y(z0 + 5.0), front_y(z0 - 5.0))
+    print(f"phantom: mouth {mouth['width_mm']:.1f} mm wide, stomion z {z0:.1f}, groove {groove:.2f} mm")
+    # measured on the phantom: 42.7 mm wide, the fissure 3.48-3.53 mm behind the nearer vermilion roll
+    assert 2.0 <= groove <= 6.0
+    # without the lip shape the profile there has no groove (< 1 mm): the dent is the lips', not the bone's
+    no_lips = dict(model.__dict__)
+    try:
+        model.mouth = None
+        flat = model.solve().mesh.vertices
+    finally:
+        model.__dict__.clear()
+        model.__dict__.update(no_lips)
+    fm = flat[(np.abs(flat[:, 0] - mouth["mid_x"]) < 2.0) & (flat[:, 1] < centre_y)]
+    fy = lambda z: float(fm[np.abs(fm[:, 2] - z) < 1.0, 1].min())      # noqa: E731
+    assert fy(z0) - min(fy(z0 + 5.0), fy(z0 - 5.0)) < 1.0
+
+
+def test_ears_at_the_porions(model, face, phantom_bone):
+    """A default ear (face_from_skull.predict_ears) stands off the head at each porion and touches nothing of
+    the face in front."""
+    from pdehead_addon import face_from_skull as F
+    _, lms, _ = phantom_bone
+    ears = model._ear_shape()
+    assert ears is not None and face.provenance["ears"].startswith("default ear")
+    saved = model.__dict__["_ears"]
+    try:
+        model.__dict__["_ears"] = None
+        bare = model.solve().mesh.vertices
+    finally:
+        model.__dict__["_ears"] = saved
+    v = face.mesh.vertices
+    shift = np.linalg.norm(v - bare, axis=1)
+    for side in "LR":
+        near = np.linalg.norm(v - np.asarray(lms[f"Porion {side}"]), axis=1) < 40.0
+        print(f"ear {side}: stands off up to {shift[near].max():.1f} mm")
+        # measured on the phantom: 10.9 mm on both sides (EAR_PROTRUSION_MM = 12) within 40 mm of each porion
+        assert 0.7 * F.EAR_PROTRUSION_MM <= shift[near].max() <= 1.3 * F.EAR_PROTRUSION_MM
+    front = v[:, 1] < model.grid.centre[1] - 40.0          # the face, 40 mm in front of the axis
+    assert shift[front].max() < 0.05
+
+
+def test_vertex_peg_sets_the_top_of_the_head(model, face):
+    """The vertex peg stands above the last boundary row, so it is not in the radial depth field (its radial
+    offset near the axis is meaningless); the dome over the vault is raised to its tip instead."""
+    i = model.peg_names.index("Vertex")
+    depths = model.default_depths.copy()
+    depths[i] += 4.0
+    raised = model.solve(depths=depths)
+    top, top2 = face.mesh.vertices[:, 2].max(), raised.mesh.vertices[:, 2].max()
+    print(f"top of the head {top:.2f} -> {top2:.2f} mm (tip {face.tips[i][2]:.2f} -> {raised.tips[i][2]:.2f})")
+    # measured on the phantom: 97.89 -> 101.80 mm for a tip at 97.80 -> 101.80 (CThead: 220.68 -> 223.93, tip
+    # 219.95 -> 223.93)
+    assert top2 - top >= 3.0
+    assert abs(top2 - raised.tips[i][2]) <= 1.0
