@@ -650,16 +650,20 @@ class FaceModel:
     def tips_for(self, depths: np.ndarray) -> np.ndarray:
         return self.peg_bases + np.asarray(depths, float)[:, None] * self.peg_normals
 
-    def _offset_field(self, tips: np.ndarray) -> np.ndarray:
-        """(K, M) radial offset over the profile that passes through every tip (and rule site)."""
-        g = self.grid
+    def field_sites(self, tips: np.ndarray) -> np.ndarray:
+        """The points (n, 3) the tissue-depth field passes through: the peg tips within the profile's rows
+        and the rule sites (vault, temples, neck)."""
         # a tip above the last row (vertex) is left to the dome over the vault: near the axis its radial offset
         # to the top row's radius is meaningless (-21 mm on CThead)
         in_rows = getattr(self, "_in_rows", None)
         sites = [np.asarray(tips, float)[in_rows if in_rows is not None else slice(None)]]
         sites += [np.array([p for _, p, _ in self.rule_sites])] if self.rule_sites else []
-        pts = np.concatenate(sites)
-        z, th, r = g.polar(pts)
+        return np.concatenate(sites)
+
+    def _offset_field(self, tips: np.ndarray) -> np.ndarray:
+        """(K, M) radial offset over the profile that passes through every tip (and rule site)."""
+        g = self.grid
+        z, th, r = g.polar(self.field_sites(tips))
         target = r - g.sample(self.profile, z, th)                    # offset each site needs
         xs = self._cyl(z, th)
         sigma = self.options["spread_mm"]
@@ -863,7 +867,19 @@ class FaceModel:
             if tips.shape != self.peg_bases.shape or not np.all(np.isfinite(tips)):
                 raise PDEHeadError(f"tips: need {len(self.peg_bases)} finite points, got {tips.shape}")
             d = np.einsum("ij,ij->i", tips - self.peg_bases, self.peg_normals)
-        offset = self._offset_field(tips)
+        radius = self.shaped_radius(self._offset_field(tips), tips)
+        t1 = time.perf_counter()
+        head = self._surface(radius, top_z=self.top_z_for(tips))
+        t2 = time.perf_counter()
+        mesh = self._mesh(head, nu, nv)
+        t3 = time.perf_counter()
+        return FaceResult(mesh, self.provenance_for(d),
+                          {"field": t1 - t0, "pde": t2 - t1, "mesh": t3 - t2, "total": t3 - t0},
+                          tips=tips, depths=d, head=head)
+
+    def shaped_radius(self, offset: np.ndarray, tips: np.ndarray) -> np.ndarray:
+        """The face's radius (K, M) over the profile: the tissue-depth ``offset`` field, then what a depth
+        field cannot make (the nose, the lips, the ears). One place for :meth:`solve` and the live path."""
         radius = self.profile + offset
         bump = self._nose_bump(radius, tips)
         if bump is not None:
@@ -874,13 +890,15 @@ class FaceModel:
         ears = self._ear_shape()
         if ears is not None:
             radius = radius + ears
-        t1 = time.perf_counter()
-        # the vertex peg (above the rows, not in the radial field) sets the dome's top
+        return radius
+
+    def top_z_for(self, tips: np.ndarray) -> float | None:
+        """The dome's top: the vertex peg's tip height (above the rows, not in the radial field), if any."""
         vertex = self._peg_tip(tips, "Vertex")
-        head = self._surface(radius, top_z=float(vertex[2]) if vertex is not None else None)
-        t2 = time.perf_counter()
-        mesh = self._mesh(head, nu, nv)
-        t3 = time.perf_counter()
+        return float(vertex[2]) if vertex is not None else None
+
+    def provenance_for(self, depths: np.ndarray) -> dict:
+        """The provenance of a face solved with the pegs at ``depths`` (mm)."""
         prov = dict(self.provenance)
         if self.mouth is not None:
             prov["predicted_mouth_width_mm"] = round(float(self.mouth["width_mm"]), 1)
@@ -888,9 +906,8 @@ class FaceModel:
                 prov["predicted_stomion_z_mm"] = round(float(self.mouth["stomion_z"]), 1)
         if self._ear_shape() is not None:
             prov["ears"] = f"default ear ({EAR_LENGTH_MM:g} x {EAR_WIDTH_MM:g} mm, Farkas 1994 norms) at each porion"
-        prov["peg_depths_mm"] = {n: round(float(x), 2) for n, x in zip(self.peg_names, d)}
-        return FaceResult(mesh, prov, {"field": t1 - t0, "pde": t2 - t1, "mesh": t3 - t2, "total": t3 - t0},
-                          tips=tips, depths=d, head=head)
+        prov["peg_depths_mm"] = {n: round(float(x), 2) for n, x in zip(self.peg_names, depths)}
+        return prov
 
 
 def face_from_skull(skull: Mesh, landmarks: dict, table, **kw) -> FaceResult:

@@ -115,9 +115,7 @@ class LiveFace:
         """The model's tissue-depth offset field (:meth:`FaceModel._offset_field`), with the grid's Gaussians
         separated into rows x sites and columns x sites."""
         m, g = self.model, self.model.grid
-        sites = [np.asarray(tips, float)] + ([np.array([p for _, p, _ in m.rule_sites])] if m.rule_sites else [])
-        pts = np.concatenate(sites)
-        z, th, r = g.polar(pts)
+        z, th, r = g.polar(m.field_sites(tips))
         target = r - g.sample(m.profile, z, th)
         xs = m._cyl(z, th)
         sigma = float(m.options["spread_mm"])
@@ -172,11 +170,8 @@ class LiveFace:
     def _positions(self, tips: np.ndarray) -> np.ndarray | None:
         m = self.model
         tips = np.asarray(tips, float).reshape(-1, 3)
-        radius = m.profile + self.offset_field(tips)
-        bump = m._nose_bump(radius, tips)
-        if bump is not None:
-            radius = radius + bump
-        head = m._surface(radius)
+        radius = m.shaped_radius(self.offset_field(tips), tips)
+        head = m._surface(radius, top_z=m.top_z_for(tips))
         if head.vertex is None or self._cap_ref is None:
             return None
         pts = self._grid(head)
@@ -243,12 +238,7 @@ class LiveFace:
     def provenance(self, tips: np.ndarray) -> dict:
         """What :meth:`FaceModel.solve` puts in its result's provenance for these tips."""
         m = self.model
-        d = np.einsum("ij,ij->i", np.asarray(tips, float) - m.peg_bases, m.peg_normals)
-        prov = dict(m.provenance)
-        if m.mouth is not None:
-            prov["predicted_mouth_width_mm"] = round(float(m.mouth["width_mm"]), 1)
-        prov["peg_depths_mm"] = {n: round(float(x), 2) for n, x in zip(m.peg_names, d)}
-        return prov
+        return m.provenance_for(np.einsum("ij,ij->i", np.asarray(tips, float) - m.peg_bases, m.peg_normals))
 
 
 # ------------------------------------------------------------------------------------------ the model kept
