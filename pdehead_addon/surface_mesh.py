@@ -402,8 +402,9 @@ def uv_tube_map(curves: np.ndarray, curve_u: np.ndarray, scale_weight: float = U
     should take them to ``w_v, w_u`` with
 
     * ``w_v z_u - w_u z_v = 0`` (the cell's corner angles kept: a discrete Cauchy-Riemann condition, as
-      in least-squares conformal maps, Levy et al. 2002, SIGGRAPH, "Least squares conformal maps for
-      automatic texture atlas generation", read in its published form), scaled by ``1 / sqrt(|z_u||z_v|)``;
+      in least-squares conformal maps: B. Levy, S. Petitjean, N. Ray, J. Maillot, "Least squares conformal
+      maps for automatic texture atlas generation", ACM Trans. Graph. 21(3), 362-371 (SIGGRAPH 2002);
+      cited from the literature, not re-read here), weighted by the cell's sine over ``|z_u||z_v|^1.5``;
     * ``w_v = z_v``, ``w_u = z_u`` weighted by ``sqrt(scale_weight)`` (one texel size, the rings' direction
       along U).
 
