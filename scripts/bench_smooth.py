@@ -278,8 +278,10 @@ def up_close_markdown(res: dict) -> str:
               "distortion from the face and ears, where the v = const lines drift more than 3 harmonics follow. "
               "Now it is `surface_mesh.uv_tube_map`: a least-squares map of the curves (a cubic spline between "
               "them, 61 × 128 samples) that keeps each cell's angles (the conformal condition of least-squares "
-              "conformal maps) and its size (weight 1), blended to straight rows around any fold; ~0.65 s CPU "
-              "once per study.",
+              "conformal maps) and its size (weight 0.8), blended to straight rows around any cell that is folded "
+              "or not convex; ~0.65 s CPU "
+              "once per study (cached with the curves, so the timing row above, the surface of a study "
+              "whose curves it has seen, does not include it; that row is noisy on a shared machine).",
               "- **Neck cap (GE).** The longest cap triangle edge is the tube's own bottom ring edge: where GE's "
               "neck outline runs nearly radially one v step of the angular curves is 8.4 mm (4.24 mean edges), "
               "and every triangle on that edge inherits it. The cap's own edges reach 3.71 there. Meeting ≤ 3 "
