@@ -656,7 +656,7 @@ class PDEHead:
         mesh = _tube_mesh(rings, orientation=1, caps=_fan_caps(rings, rings[[0, -1]].mean(axis=1), fan_only=True))
         return 1 if signed_volume(mesh) >= 0 else -1
 
-    def surface(self, nu: int, nv: int, caps: bool = False) -> Mesh:
+    def surface(self, nu: int, nv: int, caps: bool = False, uv: bool = True) -> Mesh:
         """The head surface as a tube of quads (paper Fig. 4, 5, 13).
 
         Parameters
@@ -671,6 +671,9 @@ class PDEHead:
             triangulated ring by ring (:class:`.surface_mesh.DiscCap`, no triangle much
             longer than the tube's edges) when the end curve is star-shaped around its
             spine point, else a triangulation of the ring; watertight for 3-D printing.
+        uv : bool
+            Per-corner UVs (:meth:`uv_layout`, computed once per boundary set: ~0.65 s CPU on a head).
+            False for a mesh only measured (the slice selection's verification).
 
         Returns
         -------
@@ -688,11 +691,11 @@ class PDEHead:
             pts = self._grid(u[:-1], nv)
             bottom = disc_caps(pts, ends, ends=(0,), reference=self.cap_reference(nu, nv))[0] if caps else None
             top = (np.asarray(self.vertex, float), _fan_indices(nv))
-            return _tube_mesh(pts, self.orientation, [bottom, top], uv=True, u=u[:-1], top_u=1.0,
-                              uv_layout=self.uv_layout())
+            return _tube_mesh(pts, self.orientation, [bottom, top], uv=uv, u=u[:-1], top_u=1.0,
+                              uv_layout=self.uv_layout() if uv else None)
         pts = self._grid(u, nv)
         cap_tris = disc_caps(pts, ends, reference=self.cap_reference(nu, nv)) if caps else None
-        return _tube_mesh(pts, self.orientation, cap_tris, uv=True, u=u, uv_layout=self.uv_layout())
+        return _tube_mesh(pts, self.orientation, cap_tris, uv=uv, u=u, uv_layout=self.uv_layout() if uv else None)
 
     def cap_reference(self, nu: int, nv: int) -> dict:
         """What fixes the disc caps' vertex counts (:func:`.surface_mesh.disc_caps`): the tube's mean edge
@@ -753,7 +756,8 @@ class PDEHead:
             U, V, W = uv_tube_map(rings, map_u)
             box = (float(U.min()), float(max(U.max(), (U[:, 0] + W).max())), float(V.min()), float(V.max()))
             return (U, V, W), box, map_u
-        table, box, map_u = _derived(self.bset, "uv_tube_map", tube_map)
+        # keyed by the curves' u too: the paper's patches and the C2 spline place the same curves at other u
+        table, box, map_u = _derived(self.bset, f"uv_tube_map{hash(curve_u.tobytes())}", tube_map)
         return {"u_top": u_top, "aspect": (box[3] - box[2]) / (box[1] - box[0]), "curve_u": curve_u, "map_u": map_u,
                 "shear": None, "tube_map": table, "tube_box": box, "dome_ratio": dome_ratio,
                 "cap_ratio": cap_ratio}
