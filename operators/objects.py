@@ -533,8 +533,14 @@ def ct_texture_atlas(head, mesh, ct, window, ranges, size: int | None = None, pa
             spans[0] = (4, 4)
         need = sum((r + 2 * pad) * (c + 2 * pad) for r, c in spans)
         if need > budget_mp * 1e6:
-            f = math.sqrt(budget_mp * 1e6 / need)
-            spans = [(max(4, int(r * f)), max(4, int(c * f))) for r, c in spans]
+            full, f = spans, math.sqrt(budget_mp * 1e6 / need)
+            # the packed atlas (shelves, padding) is larger than its tiles: shrink until the atlas fits
+            for _ in range(20):
+                spans = [(max(4, int(r * f)), max(4, int(c * f))) for r, c in full]
+                _, h, w = _pack_tiles([(r + 2 * pad, c + 2 * pad) for r, c in spans])
+                if h * w <= budget_mp * 1e6:
+                    break
+                f *= 0.97 * math.sqrt(budget_mp * 1e6 / (h * w))
     shapes = [(r + 2 * pad, c + 2 * pad) for r, c in spans]
 
     def grid(k, axis):       # pixel centres -> parameter (padding clamps)

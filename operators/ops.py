@@ -289,8 +289,15 @@ class PDEHEAD_OT_build_solid(Operator, StudyOperator):
     u_range: FloatVectorProperty(name="u Range", size=2, **D.U_RANGE.limits())
     v_range: FloatVectorProperty(name="v Range", size=2, **D.V_RANGE.limits(), unit="ROTATION")
     w_range: FloatVectorProperty(name="w Range", size=2, **D.W_RANGE.limits())
+    ct_texture_budget: FloatProperty(name="CT Texture (MP)", **D.CT_TEXTURE_BUDGET.limits(),
+                                     description=D.CT_TEXTURE_BUDGET.description + " (megapixels)")
+    solid_skin: EnumProperty(name="Outside", items=props.SOLID_SKIN_ITEMS, default=D.SOLID_SKIN.default,
+                             description=D.SOLID_SKIN.description)
+    solid_skin_depth: FloatProperty(name="Skin Depth (mm)", **D.SOLID_SKIN_DEPTH.limits(),
+                                    description=D.SOLID_SKIN_DEPTH.description)
 
-    mirrored_settings = ("nu", "nv", "nw", "u_range", "v_range", "w_range")
+    mirrored_settings = ("nu", "nv", "nw", "u_range", "v_range", "w_range", "ct_texture_budget", "solid_skin",
+                         "solid_skin_depth")
 
     def execute(self, context):
         coll = _active_or_report(self, context)

@@ -164,6 +164,12 @@ class PDEHEAD_PT_solid(_StudyPanel, bpy.types.Panel):
         row = layout.row(align=True)
         row.operator("pdehead.add_cutter", icon='MOD_BOOLEAN')
         row.prop(s, "use_cutter", text="", icon='RESTRICT_SELECT_OFF')
+        col = layout.column(align=True)                  # the CT texture (issue 21)
+        col.prop(s, "ct_texture_budget")
+        col.prop(s, "solid_skin", text="")
+        sub = col.row()
+        sub.enabled = s.solid_skin == "ct"
+        sub.prop(s, "solid_skin_depth")
         layout.operator("pdehead.build_solid", icon='MESH_CUBE')
 
 

@@ -68,6 +68,12 @@ def _colour_items():
 
 
 COLOUR_ITEMS = _colour_items()
+#: What the solid's outside shows (issue 21; engine values of ``defaults.SOLID_SKIN``).
+SOLID_SKIN_ITEMS = [
+    ("surface", "Skin Material", "The outside shows the surface's skin material (the skin itself is a "
+                                 "partial-volume mix of air and tissue in the CT)"),
+    ("ct", "CT Inside the Skin", "The outside shows the CT sampled a little inside the skin (Skin Depth)"),
+]
 ALPHA_MODE_ITEMS = [
     ("EQ24", "Eq. 24 (w)", "Opacity from the PDE parameter w: alpha = (low - high) w + high"),
     ("INTENSITY", "Intensity", "Opacity from the CT intensity inside the PDE solid"),
@@ -170,6 +176,13 @@ class PDEHeadStudySettings(bpy.types.PropertyGroup):
                                  description=D.W_RANGE.description)
     use_cutter: BoolProperty(name="Use Cutter", **D.USE_CUTTER.limits(), update=_live("cutter"),
                              description=D.USE_CUTTER.description)
+    # The solid's CT texture (issue 21): atlas budget and what its outside shows
+    ct_texture_budget: FloatProperty(name="CT Texture (MP)", **D.CT_TEXTURE_BUDGET.limits(), update=_live("solid"),
+                                     description=D.CT_TEXTURE_BUDGET.description + " (megapixels)")
+    solid_skin: EnumProperty(name="Outside", items=SOLID_SKIN_ITEMS, default=D.SOLID_SKIN.default,
+                             update=_live("solid"), description=D.SOLID_SKIN.description)
+    solid_skin_depth: FloatProperty(name="Skin Depth (mm)", **D.SOLID_SKIN_DEPTH.limits(), update=_live("solid"),
+                                    description=D.SOLID_SKIN_DEPTH.description)
 
     # Volume (live: material only)
     use_ct_grid: BoolProperty(name="CT Grid", **D.USE_CT_GRID.limits(), description=D.USE_CT_GRID.description)

@@ -527,7 +527,7 @@ def step_solid(coll, live: bool = False) -> str:
             head, coll, nu=s.nu, nv=s.nv, nw=s.nw, u_range=tuple(s.u_range), v_range=tuple(s.v_range),
             w_range=tuple(s.w_range), ct=None, obj=s.solid_object, name=f"{coll.name} Solid",
             window=window if table is not None else None, ct_table=table, texture_size=128 if quick else None,
-            cut_ct=cut_ct)
+            cut_ct=cut_ct, texture_budget=s.ct_texture_budget, skin=s.solid_skin, skin_depth_mm=s.solid_skin_depth)
     state.record_timing(coll, "solid", t.seconds)
     return notice
 

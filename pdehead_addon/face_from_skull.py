@@ -833,6 +833,12 @@ class FaceModel:
         if (nu, nv) not in refs:
             refs[(nu, nv)] = head.cap_reference(nu, nv)
         head.cap_reference = lambda _nu, _nv, _ref=refs[(nu, nv)]: _ref
+        # the UV layout too (issue 21's tube map costs ~0.65 s per new set of curves): fixed by the first
+        # face, so a dragged peg neither waits for it nor moves a painted texture
+        layout = self.__dict__.get("_uv_layout")
+        if layout is None:
+            layout = self._uv_layout = head.uv_layout()
+        head.uv_layout = lambda _layout=layout: _layout
         return head.surface(nu, nv, caps=True)
 
     def sd_faces(self, k: float = 1.0) -> tuple[FaceResult, FaceResult]:

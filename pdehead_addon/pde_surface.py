@@ -656,7 +656,7 @@ class PDEHead:
         mesh = _tube_mesh(rings, orientation=1, caps=_fan_caps(rings, rings[[0, -1]].mean(axis=1), fan_only=True))
         return 1 if signed_volume(mesh) >= 0 else -1
 
-    def surface(self, nu: int, nv: int, caps: bool = False) -> Mesh:
+    def surface(self, nu: int, nv: int, caps: bool = False, uv: bool = True) -> Mesh:
         """The head surface as a tube of quads (paper Fig. 4, 5, 13).
 
         Parameters
@@ -671,6 +671,9 @@ class PDEHead:
             triangulated ring by ring (:class:`.surface_mesh.DiscCap`, no triangle much
             longer than the tube's edges) when the end curve is star-shaped around its
             spine point, else a triangulation of the ring; watertight for 3-D printing.
+        uv : bool
+            Per-corner UVs (:meth:`uv_layout`, computed once per boundary set: ~0.65 s CPU on a head).
+            False for a mesh only measured (the slice selection's verification).
 
         Returns
         -------
@@ -688,11 +691,11 @@ class PDEHead:
             pts = self._grid(u[:-1], nv)
             bottom = disc_caps(pts, ends, ends=(0,), reference=self.cap_reference(nu, nv))[0] if caps else None
             top = (np.asarray(self.vertex, float), _fan_indices(nv))
-            return _tube_mesh(pts, self.orientation, [bottom, top], uv=True, u=u[:-1], top_u=1.0,
-                              uv_layout=self.uv_layout())
+            return _tube_mesh(pts, self.orientation, [bottom, top], uv=uv, u=u[:-1], top_u=1.0,
+                              uv_layout=self.uv_layout() if uv else None)
         pts = self._grid(u, nv)
         cap_tris = disc_caps(pts, ends, reference=self.cap_reference(nu, nv)) if caps else None
-        return _tube_mesh(pts, self.orientation, cap_tris, uv=True, u=u, uv_layout=self.uv_layout())
+        return _tube_mesh(pts, self.orientation, cap_tris, uv=uv, u=u, uv_layout=self.uv_layout() if uv else None)
 
     def cap_reference(self, nu: int, nv: int) -> dict:
         """What fixes the disc caps' vertex counts (:func:`.surface_mesh.disc_caps`): the tube's mean edge
@@ -718,10 +721,11 @@ class PDEHead:
     def uv_layout(self) -> dict:
         """The surface's UV islands (:func:`.surface_mesh.uv_islands`), from the boundary curves alone, so
         the UVs are one function of (u, v) for a study: nu, nv and the shape sliders do not move a
-        painted texture. ``u_top``: where the dome starts in u; ``aspect``: the tube's length over its
-        mean circumference; ``shear``: :func:`.surface_mesh.uv_shear` of the curves (the sideways drift of
-        the v = const lines, undone in U so the tube's UV quads keep their 3-D corner angles)."""
-        from .surface_mesh import uv_shear
+        painted texture. ``u_top``: where the dome starts in u; ``aspect``: the tube island's height over
+        its width; ``tube_map``: :func:`.surface_mesh.uv_tube_map` of the curves (U, V in mm at the
+        samples of :func:`.surface_mesh.uv_map_grid`, rows ``map_u``) and ``tube_box`` its extent; with a
+        single curve ``shear`` (:func:`.surface_mesh.uv_shear`) instead."""
+        from .surface_mesh import uv_map_grid, uv_shear, uv_tube_map
 
         def compute():
             c = self.bset.curves
@@ -742,8 +746,20 @@ class PDEHead:
         aspect, dome_ratio, cap_ratio = _derived(self.bset, f"uv_areas{self.vertex is not None}", compute)
         u_top = float(self.curve_u[-1]) if self.vertex is not None else 1.0
         curve_u = np.asarray(self.curve_u, float)
-        shear = _derived(self.bset, "uv_shear", lambda: uv_shear(self.bset.curves, curve_u))
-        return {"u_top": u_top, "aspect": aspect, "curve_u": curve_u, "shear": shear, "dome_ratio": dome_ratio,
+        if len(curve_u) < 2:
+            shear = _derived(self.bset, "uv_shear", lambda: uv_shear(self.bset.curves, curve_u))
+            return {"u_top": u_top, "aspect": aspect, "curve_u": curve_u, "shear": shear,
+                    "dome_ratio": dome_ratio, "cap_ratio": cap_ratio}
+
+        def tube_map():                 # issue 21: near-conformal, even-scale UVs of the tube (mm)
+            rings, map_u = uv_map_grid(self.bset.curves, curve_u)
+            U, V, W = uv_tube_map(rings, map_u)
+            box = (float(U.min()), float(max(U.max(), (U[:, 0] + W).max())), float(V.min()), float(V.max()))
+            return (U, V, W), box, map_u
+        # keyed by the curves' u too: the paper's patches and the C2 spline place the same curves at other u
+        table, box, map_u = _derived(self.bset, f"uv_tube_map{hash(curve_u.tobytes())}", tube_map)
+        return {"u_top": u_top, "aspect": (box[3] - box[2]) / (box[1] - box[0]), "curve_u": curve_u, "map_u": map_u,
+                "shear": None, "tube_map": table, "tube_box": box, "dome_ratio": dome_ratio,
                 "cap_ratio": cap_ratio}
 
     def solid(self, nu: int, nv: int, nw: int, u_range: tuple[float, float] = (0.0, 1.0),

@@ -388,7 +388,7 @@ def surface_error(bset, cand: Candidates, head=None) -> dict[str, Any]:
     from .surface_metrics import mesh_triangles, point_surface_distance
     head = solve_pde(bset) if head is None else head
     nu = max(8, REAL_ROWS_PER_GAP * cand.count + 2)
-    mesh = head.surface(nu, cand.curves.shape[1])
+    mesh = head.surface(nu, cand.curves.shape[1], uv=False)      # measured only: no UV map per candidate
     verts, tris = mesh_triangles(mesh)
     pts = cand.curves.reshape(-1, 3)
     d = point_surface_distance(pts, verts, tris, dense=REAL_DENSE_SAMPLES).reshape(cand.count, -1)

@@ -271,6 +271,21 @@ def up_close_markdown(res: dict) -> str:
     fl = f["floor_smoothed_mask"]
     lines += [f"| floor: marching cubes of the mask smoothed by σ = 1.2 mm | {fl['score_mean']:.3f} | "
               f"{fl['score_p95']:.2f} | | | |", ""]
+    lines += ["Notes (this stop):", "",
+              "- **UVs.** The tube island was (v - a 3-harmonic shear) across and u up, its width the same for "
+              "every ring: CThead's stretch came from the neck's short rings at the bottom of the middle band "
+              "(their faces had 2.3 × the median texel density) and the face's long v steps (0.6 ×), its angle "
+              "distortion from the face and ears, where the v = const lines drift more than 3 harmonics follow. "
+              "Now it is `surface_mesh.uv_tube_map`: a least-squares map of the curves (a cubic spline between "
+              "them, 61 × 128 samples) that keeps each cell's angles (the conformal condition of least-squares "
+              "conformal maps) and its size (weight 0.8), blended to straight rows around any cell that is folded "
+              "or not convex; ~0.65 s CPU "
+              "once per study (cached with the curves, so the timing row above, the surface of a study "
+              "whose curves it has seen, does not include it; that row is noisy on a shared machine).",
+              "- **Neck cap (GE).** The longest cap triangle edge is the tube's own bottom ring edge: where GE's "
+              "neck outline runs nearly radially one v step of the angular curves is 8.4 mm (4.24 mean edges), "
+              "and every triangle on that edge inherits it. The cap's own edges reach 3.71 there. Meeting ≤ 3 "
+              "needs the end ring sampled by length (a parameterisation change), not a different cap.", ""]
     return "\n".join(lines)
 
 

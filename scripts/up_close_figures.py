@@ -20,7 +20,7 @@ surface, nu x nv = 120 x 240, caps), Cycles CPU, into ``docs/figures/up_close_*.
   outside, the cut faces from the CT at <= 1 voxel a texel), beside the CT resampled on the plane
   x = the spine's mean x, same window, and the solid as before issue 21 (one 128-pixel tile a face).
 
-    python3 scripts/up_close_figures.py [--size 384] [--samples 16]
+    python3 scripts/up_close_figures.py [--size 384] [--samples 16] [--face | --cut | --uv]
 """
 from __future__ import annotations
 
@@ -164,6 +164,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "figures")
     ap.add_argument("--face", action="store_true", help="only up_close_face.png (issue 21 item 1)")
     ap.add_argument("--cut", action="store_true", help="only up_close_cut.png (issue 21 item 3)")
+    ap.add_argument("--uv", action="store_true", help="only up_close_uv.png (issue 21 item 4)")
     args = ap.parse_args(argv)
     bl = bench.blender()
     if args.face:
@@ -178,6 +179,8 @@ def main(argv=None) -> int:
     tmp = args.out / ".tile_up_close.png"
     crown, neck, uv = [], [], []
     for name, t in CASES.items():
+        if args.uv and name != "cthead":
+            continue
         seg = bench_smooth.load(name)
         head = E.solve_pde(E.extract_boundaries(seg, patches=t, selection=bench_smooth.SELECTION))
         coll = objects.study_collection(f"up close {name}")
@@ -196,8 +199,9 @@ def main(argv=None) -> int:
                 im = im.convert("RGB").copy()
             ImageDraw.Draw(im).text((8, 6), text, fill=(235, 235, 235))
             return im
-        crown.append([tile(obj, "TOP", f"{name} t={t} {label}: crown from above") for label, obj in built])
-        neck.append([tile(obj, "BOTTOM", f"{name} t={t} {label}: neck from below") for label, obj in built])
+        if not args.uv:
+            crown.append([tile(obj, "TOP", f"{name} t={t} {label}: crown from above") for label, obj in built])
+            neck.append([tile(obj, "BOTTOM", f"{name} t={t} {label}: neck from below") for label, obj in built])
         if name == "cthead":
             mat = uv_grid_material(bpy)
             for label, obj in built:
@@ -207,8 +211,9 @@ def main(argv=None) -> int:
         for _, obj in built:
             bench.remove_object(obj)
     tmp.unlink(missing_ok=True)
-    sheet(crown, args.out / "up_close_crown.png")
-    sheet(neck, args.out / "up_close_neck.png")
+    if not args.uv:
+        sheet(crown, args.out / "up_close_crown.png")
+        sheet(neck, args.out / "up_close_neck.png")
     sheet(uv, args.out / "up_close_uv.png")
     return 0
 

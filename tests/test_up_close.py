@@ -179,3 +179,19 @@ def test_the_default_envelope_keeps_the_face_of_cthead(cthead_seg, cthead_bset):
     r = visible_face_distance(surf.vertices, faces, mv, mf, centre)
     # measured (uniform t = 10, the fixture): 0.307 / 1.08 mm; before issue 21's envelope: 0.354 / 1.29
     assert r["score_mean"] < 0.33 and r["score_p95"] < 1.18
+
+
+def test_cthead_uvs_keep_texel_size_and_angles(cthead_bset):
+    """Issue 21 item 4 on CThead at the add-on's defaults (nu x nv from defaults.py, caps): no mirrored or
+    empty faces, area stretch p99 / p1 over the middle 80 % of the height <= 4, angle distortion p95
+    bounded, also at a finer mesh. Measured on this fixture's curves: 0 / 0, stretch 4.17, angle 9.8 deg
+    (the benchmark's CThead curves: 3.80, 10.5 deg; at 300 x 480: 0 / 0, 4.04, 11.1 deg); before (a
+    v / 2 pi island with a 3-harmonic shear): stretch 5.42, angle 14.1 deg on the benchmark's curves."""
+    from pdehead_addon import defaults as D
+    from pdehead_addon.surface_quality import uv_quality
+    q = uv_quality(solve_pde(cthead_bset).surface(D.NU.default, D.NV.default, caps=True))
+    assert q["mirrored"] == 0 and q["zero_area"] == 0
+    assert q["stretch_p99_p1"] <= 4.4, q
+    assert q["angle_p95_deg"] <= 11.5, q
+    fine = uv_quality(solve_pde(cthead_bset).surface(300, 480, caps=True))
+    assert fine["mirrored"] == 0 and fine["zero_area"] == 0, fine

@@ -348,3 +348,56 @@ def test_invoking_an_operator_starts_from_the_study_settings_and_running_stores_
     assert bpy.ops.pdehead.reconstruct_surface(nu=30, nv=40, caps=False) == {'FINISHED'}
     assert (s.nu, s.nv) == (30, 40)
     assert len(s.surface_object.data.vertices) == 29 * 40 + 1       # the dome's crown is one vertex
+
+
+def test_solid_texture_fields_are_drawn_and_change_the_solid(ext, cthead_blend):
+    """Issue 21 item 3: the solid's CT texture budget, what its outside shows and the skin depth are
+    sidebar fields (Solid panel), and changing each rebuilds the solid with it (CThead, 1 mm voxels)."""
+    import bpy
+    coll = open_blend(cthead_blend)
+    bpy.context.scene.pdehead.active_study = coll
+    panel_mod = sys.modules[ext.ops.__name__.rpartition(".")[0] + ".panel"]
+    log = []
+    panel_mod.PDEHEAD_PT_solid.draw(SimpleNamespace(layout=_Layout(log), study=panel_mod.PDEHEAD_PT_solid.study),
+                                    bpy.context)
+    assert {"ct_texture_budget", "solid_skin", "solid_skin_depth"} <= {x[1] for x in log if x[0] == "prop"}
+    s = coll.pdehead
+    D = sys.modules[ext.engine.__name__ + ".defaults"]
+    assert s.solid_skin == D.SOLID_SKIN.default == "surface"
+    assert (s.ct_texture_budget, s.solid_skin_depth) == pytest.approx(
+        (D.CT_TEXTURE_BUDGET.default, D.SOLID_SKIN_DEPTH.default))
+    solid = s.solid_object
+
+    def materials():
+        m = np.empty(len(solid.data.polygons), np.int32)
+        solid.data.polygons.foreach_get("material_index", m)
+        return m
+
+    def atlas():
+        image = solid.data.materials[0].node_tree.nodes["CT texture"].image
+        w, h = image.size
+        px = np.empty(w * h * 4, np.float32)
+        image.pixels.foreach_get(px)
+        return (w, h), px.reshape(h, w, 4)[..., 0]
+
+    skin_faces = int(np.count_nonzero(materials() == 1))
+    assert skin_faces > 1000                    # the outer shell shows the skin material by default
+    (w0, h0), _ = atlas()
+    s.solid_skin = "ct"
+    assert s.last_error == ""
+    assert not materials().any()                 # the CT everywhere, the outer shell included
+    (w1, h1), ct2 = atlas()
+    # measured: 261 x 557 (0.15 MP) with the skin material; the skin's CT tile makes it larger
+    assert w1 * h1 > w0 * h0
+    s.solid_skin_depth = 8.0
+    assert s.last_error == ""
+    (w2, h2), ct8 = atlas()
+    assert (w2, h2) == (w1, h1)
+    changed = np.abs(ct8 - ct2) > 0.05
+    assert changed.mean() > 0.05, changed.mean()          # the outer tile samples deeper tissue
+    s.ct_texture_budget = D.CT_TEXTURE_BUDGET.min
+    assert s.last_error == ""
+    (w3, h3), _ = atlas()
+    assert w3 * h3 <= D.CT_TEXTURE_BUDGET.min * 1e6 < w1 * h1, (w1, h1, w3, h3)
+    s.ct_texture_budget, s.solid_skin = D.CT_TEXTURE_BUDGET.default, "surface"
+    assert np.count_nonzero(materials() == 1) == skin_faces
