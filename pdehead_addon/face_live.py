@@ -38,8 +38,12 @@ from .pde_basis import basis, small_matmul
 
 #: Largest difference (mm) between the fast positions and the model's own solve for :attr:`LiveFace.exact`.
 EXACT_TOLERANCE_MM = 1e-6
-#: What :func:`model_state` does not keep: the sites of the field's grid (made again from the grid).
-_DERIVED = ("_grid_xyz",)
+#: What :func:`model_state` does not keep: the sites of the field's grid (made again from the grid) and the
+#: ears' radial bumps (made again from the landmarks kept, in milliseconds).
+_DERIVED = ("_grid_xyz", "_ears")
+#: What :func:`model_state` keeps in single precision: the face's UV layout (texture coordinates need no
+#: more; it is half of the text otherwise: 0.56 of 1.14 MB on the phantom).
+_SINGLE = ("_uv_layout",)
 #: Format of :func:`model_state` (a reader refuses other formats: the caller prepares the model again).
 STATE_FORMAT = 1
 
@@ -285,6 +289,17 @@ def _decode(value):
     raise ValueError(f"unknown stored value {sorted(value)}")
 
 
+def _cast(value, dtype):
+    """``value`` with its floating-point arrays (in dicts, tuples and lists) cast to ``dtype``."""
+    if isinstance(value, np.ndarray):
+        return value.astype(dtype) if value.dtype.kind == "f" else value
+    if isinstance(value, dict):
+        return {k: _cast(v, dtype) for k, v in value.items()}
+    if isinstance(value, (tuple, list)):
+        return type(value)(_cast(v, dtype) for v in value)
+    return value
+
+
 def _hashable(key):
     return tuple(_hashable(k) for k in key) if isinstance(key, (list, tuple)) else key
 
@@ -300,7 +315,7 @@ def model_state(model) -> str:
         if key in _DERIVED:
             continue
         try:
-            state[key] = _encode(value)
+            state[key] = _encode(_cast(value, np.float32) if key in _SINGLE else value)
         except TypeError:
             if key in names:                       # a field that cannot be kept: the model cannot be rebuilt
                 raise
@@ -326,6 +341,9 @@ def model_from_state(text: str):
     missing = [n for n in names if n not in state and n != "flags" and n != "prepare_seconds"]
     if missing or sorted(names) != sorted(data.get("fields", [])):
         raise ValueError(f"the stored face model does not have this version's fields ({', '.join(missing) or 'changed'})")
+    for key in _SINGLE:
+        if key in state:
+            state[key] = _cast(state[key], np.float64)
     model = F.FaceModel(**{n: state.pop(n) for n in names if n in state})
     model.__dict__.update(state)
     if "_grid_xyz" not in model.__dict__:                 # as prepare makes it (not kept: 3 x the profile's size)
