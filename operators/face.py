@@ -17,7 +17,7 @@ the Blender side of it:
 * **Save and reopen.** Everything the face needs is in the .blend: the bone skull object's mesh, the
   landmarks the face was built from, the table, the options (JSON on the collection) and the tips of
   the last solve (on the face object). The prepared :class:`FaceModel` is kept too
-  (:func:`.face_live.model_state`: its arrays, ~0.5 MB on CThead, on the collection under
+  (:func:`.face_live.model_state`: its arrays and UV layout, under 1 MB (phantom 0.72 MB), on the collection under
   :data:`FACE_MODEL_KEY`): the first change after reopening rebuilds it from there in milliseconds and
   checks it (its solve at the saved tips must give the saved face, within :data:`RESTORE_TOLERANCE_MM`);
   only when that fails (a file from another version) is the model prepared again from the skull
