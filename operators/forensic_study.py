@@ -706,6 +706,10 @@ def export_study(coll, directory: str, fmt: str = "stl", depth_target: str = "BO
         depths = {n: (base[i], float("nan")) for i, n in enumerate(lms)}
     else:
         depths = {}
+    # a landmark Find Landmarks did not find keeps its row (flag, no coordinates), as the batch's landmarks.csv does
+    for name, flag in flag_names(coll).items():
+        if flag == "not_found" and name not in depths:
+            depths[name] = (np.full(3, np.nan), float("nan"))
     table = study_depth_table(coll)
     prov = forensic_provenance(coll, table)
     # ---- then write: into a hidden folder in the target, moved into place when all are written

@@ -212,6 +212,11 @@ class _Frame:
         return int(np.clip(np.round((value - self.lo[axis]) / self.step), 0, self.shape[axis] - 1))
 
 
+#: Supra canine is not found when the front-most bone above the canine lies this far (mm) behind supradentale:
+#: that bone is not the maxilla (CThead and the phantom: 4-16 mm behind).
+SUPRA_CANINE_BEHIND_MM = 25.0
+
+
 def _first_true(mask: np.ndarray, axis: int, reverse: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Index of the first True along ``axis`` (from the end if ``reverse``) and whether there is one."""
     m = np.flip(mask, axis) if reverse else mask
@@ -1058,8 +1063,15 @@ def find_landmarks(ct, bone: np.ndarray, *, grid_mm: float = LANDMARK_GRID_MM) -
         ixc = fr.index(0, mid_x + side * 0.13 * breadth)
         if up:
             iz = fr.index(2, up["sd_z"] + 10)
-            found[f"sc_{t}"] = _pt(v.front_point(ixc, iz), "no maxilla above the canine", UNCERTAIN,
-                                   "the canine's place is taken 13 % of the bizygomatic breadth from the midline")
+            p = v.front_point(ixc, iz)
+            if p is not None and p[1] - up["sd_y"] > SUPRA_CANINE_BEHIND_MM:
+                # the maxilla above the canine is not in the mask: the column's front-most bone is the skull
+                # base or the occiput, not the canine's (seen on a voxelised skull mesh: 190 mm behind)
+                found[f"sc_{t}"] = (None, NOT_FOUND, f"no maxilla above the canine (the front-most bone there is "
+                                                     f"{p[1] - up['sd_y']:.0f} mm behind supradentale)")
+            else:
+                found[f"sc_{t}"] = _pt(p, "no maxilla above the canine", UNCERTAIN,
+                                       "the canine's place is taken 13 % of the bizygomatic breadth from the midline")
         else:
             found[f"sc_{t}"] = (None, NOT_FOUND, "no upper jaw found on the midline")
         if low:

@@ -6,7 +6,11 @@
 * ``landmarks_cthead.png``: CThead's marching-cubes bone with every landmark Find Landmarks placed, front and
   right views: green = ``ok``, yellow = ``uncertain`` (``not_found`` ones have no marker); the hand-placed
   references of ``tests/fixtures/cthead_landmarks.csv`` as small blue markers;
-* ``landmarks_phantom.png``: the same on the phantom's facial skeleton, with its analytic landmarks in blue.
+* ``landmarks_phantom.png``: the same on the phantom's facial skeleton, with its analytic landmarks in blue;
+* ``landmarks_ge.png``: the clinical GE scan (no mandible: its mandible landmarks are ``not_found``; an orbit
+  whose opening runs into another is cut to the other orbit's mirror image), no hand-placed reference.
+
+``--only cthead ge`` renders a subset.
 
 It runs the add-on's operators (registered from this repository, like scripts/pdehead.py).
 """
@@ -82,7 +86,11 @@ def _figure(bpy, addon, coll, references, out_name, title):
     print("wrote", OUT / out_name)
 
 
-def main() -> int:
+def main(argv=None) -> int:
+    import argparse
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", nargs="*", choices=["phantom", "cthead", "ge"], default=["phantom", "cthead", "ge"])
+    only = ap.parse_args(argv).only
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="pdehead-fig-"))
     import pdehead
     import _common
@@ -91,23 +99,28 @@ def main() -> int:
     import bpy
     addon = pdehead.register_addon()
 
-    # the phantom
-    bpy.ops.wm.read_homefile(use_empty=True)
-    bpy.ops.pdehead.run_pipeline(source='PHANTOM', patches=6, nu=40, nv=80, nw=4, voxel_size=6.0)
-    coll = bpy.context.scene.pdehead.active_study
-    bpy.ops.pdehead.build_skull()
-    from pdehead_addon.phantom import _bone_landmarks
-    _figure(bpy, addon, coll, _bone_landmarks(), "landmarks_phantom.png", "Phantom")
+    if "phantom" in only:
+        bpy.ops.wm.read_homefile(use_empty=True)
+        bpy.ops.pdehead.run_pipeline(source='PHANTOM', patches=6, nu=40, nv=80, nw=4, voxel_size=6.0)
+        coll = bpy.context.scene.pdehead.active_study
+        bpy.ops.pdehead.build_skull()
+        from pdehead_addon.phantom import _bone_landmarks
+        _figure(bpy, addon, coll, _bone_landmarks(), "landmarks_phantom.png", "Phantom")
 
-    # CThead
-    bpy.ops.wm.read_homefile(use_empty=True)
-    bpy.ops.pdehead.import_ct(**_common.addon_import_options("cthead"))
-    coll = bpy.context.scene.pdehead.active_study
-    bpy.ops.pdehead.segment()
-    bpy.ops.pdehead.extract_boundaries(patches=6, samples=128, selection="shape-change")
-    bpy.ops.pdehead.reconstruct_surface(nu=40, nv=80)
-    bpy.ops.pdehead.build_skull()
-    _figure(bpy, addon, coll, {n: p for n, (p, _) in read_fixture().items()}, "landmarks_cthead.png", "CThead")
+    for name in ("cthead", "ge"):
+        if name not in only:
+            continue
+        bpy.ops.wm.read_homefile(use_empty=True)
+        bpy.ops.pdehead.import_ct(**_common.addon_import_options(name))
+        coll = bpy.context.scene.pdehead.active_study
+        bpy.ops.pdehead.segment()
+        bpy.ops.pdehead.extract_boundaries(patches=6, samples=128, selection="shape-change")
+        bpy.ops.pdehead.reconstruct_surface(nu=40, nv=80)
+        bpy.ops.pdehead.build_skull()
+        if name == "cthead":
+            _figure(bpy, addon, coll, {n: p for n, (p, _) in read_fixture().items()}, "landmarks_cthead.png", "CThead")
+        else:
+            _figure(bpy, addon, coll, {}, "landmarks_ge.png", "GE (no mandible)")
     return 0
 
 

@@ -40,3 +40,35 @@ def test_rim_of_an_opening_is_measured_perpendicular_to_the_bone_beside_it(holed
         assert _angle(e, up) < 10.0, e
     # on flat bone the direction is the local normal
     assert _angle(exposed[2], nearest[2]) < 3.0
+
+
+def test_pegs_stand_along_the_direction_the_depth_is_measured(holed_slab):
+    """marker_pegs and landmark_depths share one direction: at a rim the peg does not lean into the opening.
+
+    The skin is a plane tilted 45 deg over the slab, so the measured depth depends on the direction: the depth
+    cast along the peg equals landmark_depths' (measured: 21.64 / 10.63 / 32.50 mm both ways, identical), and the peg
+    is within 1 deg of the direction landmark_depths uses (measured 0.0 deg) while the nearest triangle's normal, what
+    the pegs stood on before, is 51.3 / 50.4 deg off at the two rims (the old code fails here)."""
+    from pdehead_addon.landmarks import landmark_depths, marker_pegs
+    from pdehead_addon.tissue_depth import cast_rays
+
+    ax = np.arange(-44.0, 45.0, 4.0)                                  # a coarse grid: the field is piecewise linear
+    x, y, z = np.meshgrid(ax, ax, ax, indexing="ij")
+    inside = np.minimum.reduce([20.0 + 0.5 * x + 0.5 * y - z, 38 - np.abs(x), 38 - np.abs(y), z + 20])
+    verts, faces, _, _ = marching_cubes(inside.astype(np.float32), 0.0, spacing=(4.0, 4.0, 4.0))
+    skin = Mesh(vertices=verts + ax[0], quads=np.zeros((0, 4), np.int64), triangles=faces)
+
+    lms = {"Nasion": np.array([12.0, 0.0, 4.0]), "Orbitale L": np.array([0.0, -12.0, 4.0]),
+           "Glabella": np.array([22.0, 10.0, 4.0])}                      # two rim points, one on flat bone
+    pegs = marker_pegs(lms, holed_slab, {"Nasion": 6.0, "Orbitale L": 6.5, "Glabella": 5.5})
+    depths = landmark_depths(lms, holed_slab, skin)
+    base, nearest = snap_to_surface(np.array(list(lms.values())), holed_slab)
+    measured_direction = exposed_normals(base, holed_slab, nearest_normals=nearest)   # as landmark_depths does
+    for i, (name, peg_base, peg_dir, length) in enumerate(pegs):
+        assert name == list(lms)[i] and np.allclose(peg_base, depths[name][0])
+        assert abs(np.linalg.norm(peg_dir) - 1.0) < 1e-9
+        assert _angle(peg_dir, measured_direction[i]) < 1.0, name
+        along_peg = cast_rays(peg_base[None], peg_dir[None], skin, 60.0)[0]
+        assert abs(along_peg - depths[name][1]) < 0.05, (name, along_peg, depths[name][1])
+    # at the rims, the nearest triangle's normal (what the pegs stood on before) is far from the peg
+    assert _angle(pegs[0][2], nearest[0]) > 30.0 and _angle(pegs[1][2], nearest[1]) > 30.0

@@ -87,6 +87,12 @@ def test_cli_ge_skull_export(tmp_path):
     assert result.returncode == 0, result.stderr[-3000:]
     skin, skull, pts, depth = _check_export(out)
     assert "no mandible found: the face will stop at the maxilla" in result.stdout      # the missing-mandible path
+    # landmarks Find Landmarks did not find keep a row in landmarks.csv, flagged, without coordinates (measured 28 of
+    # 50, every mandible landmark among them)
+    lines = [ln for ln in (out / "landmarks.csv").read_text().splitlines() if not ln.startswith("#")]
+    missing = [r for r in csv.DictReader(lines) if r["flag"] == "not_found"]
+    assert len(missing) >= 20 and all(r["x_mm"] == "" and r["depth_mm"] == "" for r in missing)
+    assert {"Pogonion", "Menton", "Gonion L", "Gonion R"} <= {r["landmark"] for r in missing}
     assert 120 < np.ptp(skull.vertices[:, 0]) < 170 and np.ptp(skull.vertices[:, 0]) < np.ptp(skin.vertices[:, 0])
     top = pts[:, 2] > pts[:, 2].max() - 60                  # the vault: measured on nine tenths of it
     # against the bone skull from the binary bone mask (issue 22): 0.77 measured with the 4 mm tilted slices
