@@ -597,7 +597,7 @@ class FaceModel:
         spread = D.FACE_SPREAD_MM.default if spread_mm is None else float(spread_mm)
         lm = {k: np.asarray(v, float) for k, v in landmarks.items() if v is not None}
         _check_skull(lm, flags)
-        pegs = marker_pegs(lm, skull, table)
+        pegs = marker_pegs(lm, skull, table, measured_direction=False)     # the face sets its own normals
         if len(pegs) < 4:
             raise PDEHeadError(f"only {len(pegs)} landmarks have a depth in the table: at least 4 are needed "
                                "for a face (run Find Landmarks)")
