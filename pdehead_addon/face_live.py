@@ -141,7 +141,7 @@ class LiveFace:
     def _grid(self, head) -> np.ndarray:
         """``head._grid(u, nv)`` (the tube's points, (nu - 1, nv, 3)) with each cubic row's four basis
         weights gathered instead of a dense rows x (spans x 4) product."""
-        from .pde_surface import _fold
+        from .pde_surface import _fold, ring_points
 
         u, nv = self._u, self.nv
         H, nb = head.harmonics, nv // 2 + 1
@@ -165,11 +165,7 @@ class LiveFace:
         if not np.all(cubic):
             other = np.flatnonzero(~cubic)
             spec[other] = _fold(head._amplitudes(u[other]).transpose(0, 2, 1), nv)
-        spec *= nv / 2.0
-        spec[..., 0] *= 2.0
-        if nv % 2 == 0:
-            spec[..., -1] *= 2.0
-        return np.fft.irfft(spec, n=nv, axis=-1).transpose(0, 2, 1)
+        return ring_points(spec, nv)
 
     def _positions(self, tips: np.ndarray) -> np.ndarray | None:
         m = self.model

@@ -605,13 +605,7 @@ class PDEHead:
         if not np.all(cubic):
             rows = np.flatnonzero(~cubic)
             spec[rows] = _fold(self._amplitudes(u[rows]).transpose(0, 2, 1), nv)
-        # irfft weights: x_j = (1/nv)[Y_0 + 2 Re sum Y_b w^bj + Y_{nv/2} (-1)^j]
-        spec *= nv / 2.0
-        spec[..., 0] *= 2.0
-        if nv % 2 == 0:
-            spec[..., -1] *= 2.0
-        pts = np.fft.irfft(spec, n=nv, axis=-1)                               # (nu, 3, nv)
-        return pts.transpose(0, 2, 1)
+        return ring_points(spec, nv)
 
     def _folded(self, nv: int) -> np.ndarray:
         """The (span, basis) x (bin, re/im xyz) coefficients with the harmonics folded onto the nv//2 + 1
@@ -1088,3 +1082,14 @@ def _solve_paper(bset: BoundarySet, smoothing, n_modes: int, keep: int | None = 
         raise PDEError("the PDE solution is not finite (degenerate boundary curves or knots?)")
     return PDEHead(bset, a, n_modes, local, exponents, coefficients, condition, planar,
                    span_edges=np.arange(t + 1) / t, curve_u=bset.u_knots, continuity="paper")
+
+
+def ring_points(spec: np.ndarray, nv: int) -> np.ndarray:
+    """The rings' points (rows, nv, 3) from their folded Fourier amplitudes ``spec`` (rows, 3, nv//2 + 1):
+    ``x_j = a_0 + sum_b (a_b cos + b_b sin)``, as one inverse real FFT (``spec`` is scaled in place)."""
+    # irfft weights: x_j = (1/nv)[Y_0 + 2 Re sum Y_b w^bj + Y_{nv/2} (-1)^j]
+    spec *= nv / 2.0
+    spec[..., 0] *= 2.0
+    if nv % 2 == 0:
+        spec[..., -1] *= 2.0
+    return np.fft.irfft(spec, n=nv, axis=-1).transpose(0, 2, 1)
