@@ -288,8 +288,11 @@ def markdown(results: dict) -> str:
               "errors are rough. Until this session the rules also read the back of the head (nasion and "
               "subnasale on the occiput, labrale superius on the nose's underside): earlier soft-landmark rows "
               "are not comparable.",
-              "- GE is not scored: issue 22's automatic landmarks find no orbits and nothing `ok` on it (no "
-              "mandible, no Frankfurt frame), and a face is approximated only around both orbits.",
+              "- GE (no mandible) is scored since issue 22's automatic landmarks give it a Frankfurt frame (its "
+              "left orbit from the right one's mirror image, flagged uncertain). Only the pegs above the "
+              "mandible stand, the face below the maxilla is the neck rule, and the approximation scores "
+              "below the constant-depth peer at 8 mm: a skull without a mandible gives too few pegs for this "
+              "field to beat one well-chosen depth.",
               "- The phantom is a consistency check only: its soft tissue is not the table's.",
               "",
               "Renders (looked at): [face_from_skull_cthead.png](figures/face_from_skull_cthead.png): real "
