@@ -300,7 +300,10 @@ def markdown(results: dict) -> str:
               "the head's shape, the brow and the nose's position are plausible; the ears are rounded discs with "
               "a hollow at the right height, a little forward of the real ear; the lip line is a horizontal "
               "groove across the mouth, but the mouth region bulges forward in profile and the lower face is "
-              "still lumpy at the jaw's sides (most on the patient's left) - not yet a face an artist would keep.",
+              "still lumpy at the jaw's sides (most on the patient's left) - not yet a face an artist would keep. "
+              "[face_from_skull_ge.png](figures/face_from_skull_ge.png) (GE, no mandible; re-rendered on the "
+              "merged tree): the vault, brow, orbits and ears are plausible; below the maxilla the face is the "
+              "neck rule, a straight column with no jaw.",
               "", "Timings: one run on the shared 2-core machine with other jobs running (load average 7–11). "
               "Solve is the median of 9 solves at the defaults (field, PDE and a 160 × 240 mesh), wall-clock and CPU "
               "time of the process; on this loaded machine the CPU time is the better guide to the ≤ 100 ms target "
