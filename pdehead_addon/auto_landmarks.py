@@ -392,10 +392,15 @@ def _mirrored_orbit(v: _Views, mid_x: float, lab: np.ndarray, orbits: dict) -> d
     return {-side: out}
 
 
+#: Smallest side-view pit (mm^2) taken for the ear canal (an adult's is 40-50 mm^2 on CThead): the 10-16 mm^2
+#: pits beside it (foramina, sutures) were nearer the expected point on a skull mesh of CThead (issue 22).
+MEATUS_MIN_MM2 = 25.0
+
+
 def _meatus(v: _Views, side: int, expect_y: float, expect_z: float):
     """Side-view opening of the external acoustic meatus on ``side`` (+1 left, -1 right) or None.
 
-    The pit of the side view with an area of 12-250 mm^2 nearest (expect_y, expect_z), within 30 mm.
+    The pit of the side view with an area of MEATUS_MIN_MM2-250 mm^2 nearest (expect_y, expect_z), within 30 mm.
     """
     fr = v.fr
     px = fr.step
@@ -408,7 +413,7 @@ def _meatus(v: _Views, side: int, expect_y: float, expect_z: float):
         area = ndimage.sum(np.ones_like(lab), lab, idx) * px * px
         com = np.array(ndimage.center_of_mass(np.ones_like(lab), lab, idx))
         for i in range(n):
-            if not 12 <= area[i] <= 250:
+            if not MEATUS_MIN_MM2 <= area[i] <= 250:
                 continue
             d = np.hypot(fr.coord(1, com[i, 0]) - expect_y, fr.coord(2, com[i, 1]) - expect_z)
             if d < best_d:
