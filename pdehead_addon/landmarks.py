@@ -13,6 +13,9 @@ operators (:mod:`operators.forensic`) and the tests share it:
   the skull along its normal with those lengths;
 * :func:`landmark_depths`: the measured depth (skull to skin along the skull
   normal) at each placed landmark (written by :func:`.depth_table.write_landmark_csv`);
+* :func:`landmark_depths_on_ct`: the same rays, with the bone and skin points at the level
+  crossings of the CT's interpolated intensities, and whether the profile along the ray supports
+  the depth (the batch runner's depths);
 * :func:`frankfurt_transform`: the rigid transform that makes the Frankfurt
   plane (porions and orbitales) horizontal with the face toward -y;
 * :func:`midsagittal_plane` / :func:`mirror_matrix`: the plane fitted to
