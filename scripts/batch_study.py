@@ -13,7 +13,8 @@ What a study writes (section 5.2's compact storage and the forensic ground work)
   their tissue depths and flags);
 - ``log.txt``: per-step times and warnings (with ``skull``: each depth's ray, and why a depth is
   uncertain); ``settings.json``: the software version, the settings, the input fingerprint and the
-  series that was used (plus the sex and age a depth table may split by; never a patient's name or ID); ``result.json``: the record that ``summary.csv`` gets.
+  series that was used (plus the sex and age a depth table may split by; never a patient's name or ID);
+  ``result.json``: the record that ``summary.csv`` gets.
 
 A re-run skips a study whose input fingerprint (every file's size and modification time) and settings
 are unchanged (:func:`is_current`).
