@@ -13,6 +13,9 @@ operators (:mod:`operators.forensic`) and the tests share it:
   the skull along its normal with those lengths;
 * :func:`landmark_depths`: the measured depth (skull to skin along the skull
   normal) at each placed landmark (written by :func:`.depth_table.write_landmark_csv`);
+* :func:`landmark_depths_on_ct`: the same rays, with the bone and skin points at the level
+  crossings of the CT's interpolated intensities, and whether the profile along the ray supports
+  the depth (the batch runner's depths);
 * :func:`frankfurt_transform`: the rigid transform that makes the Frankfurt
   plane (porions and orbitales) horizontal with the face toward -y;
 * :func:`midsagittal_plane` / :func:`mirror_matrix`: the plane fitted to
@@ -263,6 +266,170 @@ def landmark_depths(landmarks: dict[str, np.ndarray], skull: Mesh, skin: Mesh,
     normal = exposed_normals(base, skull, nearest_normals=nearest)
     depth = cast_rays(base, normal, skin, max_depth_mm)
     return {n: (base[i], float(depth[i])) for i, n in enumerate(names)}
+
+
+#: The bone point is refined along the ray to the bone level's crossing in the interpolated CT within this many
+#: voxel sizes (the largest) of the mesh's point: the bone mesh of thin margins lies up to a slice off the bone.
+DEPTH_SEARCH_VOXELS = 2.0
+#: Step (mm) of the intensity profile sampled along each landmark's ray (trilinear interpolation).
+DEPTH_PROFILE_STEP_MM = 0.05
+#: Bone thicker than this (mm) met by the ray between the bone point and the skin makes the depth ``uncertain``.
+DEPTH_BONE_IN_FRONT_MM = 0.5
+#: The bone's plateau is looked for this far (mm) inside the bone point along the ray ...
+DEPTH_PLATEAU_MM = 4.0
+#: ... and reached when the peak there is at least this fraction of the way from the bone level to the bone mode.
+DEPTH_PLATEAU_FRACTION = 0.8
+
+
+@dataclass
+class DepthOnCT:
+    """A landmark's depth measured on the CT's intensities (:func:`landmark_depths_on_ct`).
+
+    ``point``: the bone point (patient mm; the bone level's crossing along the ray); ``depth``: mm to the skin
+    level's crossing along the bone's exposed normal (NaN when no skin is met); ``mesh_depth``: the depth from
+    the meshes alone (:func:`landmark_depths`); ``direction``: the ray's unit direction (the bone's exposed
+    normal); ``trusted``: False when the profile along the ray says the measurement cannot be trusted,
+    ``evidence`` then says why (measured numbers)."""
+
+    point: np.ndarray
+    depth: float
+    mesh_depth: float
+    direction: np.ndarray
+    trusted: bool
+    evidence: str = ""
+
+
+def landmark_depths_on_ct(landmarks: dict[str, np.ndarray], skull: Mesh, skin: Mesh, volume: np.ndarray, ct,
+                          bone_level: float, skin_level: float, bone_mode: float | None = None,
+                          head_mask: np.ndarray | None = None, max_depth_mm: float = 60.0,
+                          search_mm: float | None = None) -> dict[str, DepthOnCT]:
+    """Landmark depths with sub-voxel bone and skin points: the level crossings of the CT's trilinearly
+    interpolated intensities along each landmark's ray, not the meshes' surfaces.
+
+    The ray is the one :func:`landmark_depths` casts (from the landmark snapped onto the bone mesh, along the
+    bone's exposed normal, :func:`exposed_normals`). Along it the intensities ``volume`` (the CT's grid,
+    e.g. ``SkullSegmentation.hu``) are sampled every :data:`DEPTH_PROFILE_STEP_MM` by trilinear
+    interpolation. The bone point is the outward crossing of ``bone_level`` nearest the mesh point within
+    ``search_mm`` (default :data:`DEPTH_SEARCH_VOXELS` of the largest voxel size): on thick slices the
+    smoothed mesh of a thin margin or an arch lies 1.5-3 mm off the bone, the iso-surface of the
+    interpolated intensities does not (a level set between samples, not the binary mask's staircase). The
+    skin point is the first outward crossing of ``skin_level`` beyond the bone point: the CT's own skin
+    where the PDE skin smooths over a fold (the nasion's notch, the lips).
+
+    A depth is not trusted (``trusted`` False, the measured reason in ``evidence``) when
+
+    * no outward crossing of the bone level lies within ``search_mm`` of the mesh point;
+    * the ray meets bone again (more than :data:`DEPTH_BONE_IN_FRONT_MM` of it) between the bone point and
+      the skin: the landmark lies behind other bone along its normal, the depth would run through it;
+    * the bone along the ray never reaches its plateau: its peak within :data:`DEPTH_PLATEAU_MM` inside the
+      bone point is below :data:`DEPTH_PLATEAU_FRACTION` of the way from ``bone_level`` to ``bone_mode`` (a
+      margin or a plate thinner than the blur of the slices: partial volume lowers it, and the level crossing
+      of a bone that never reaches its own value lies off its surface);
+    * no skin is met within ``max_depth_mm``.
+
+    Where the skin touches something outside the head (a pillow, a head holder: the skin level's crossing lies
+    more than a voxel beyond the head mask's), the skin point is the PDE skin's (or the head mask's) instead.
+
+    Parameters
+    ----------
+    landmarks : dict
+        name -> patient mm.
+    skull, skin : Mesh
+        The bone mesh (:func:`~.skull.skull_mesh`) and the skin (the PDE skin): the ray's start and direction,
+        and ``mesh_depth``.
+    volume : ndarray (nz, ny, nx)
+        Intensities on ``ct``'s grid in the units of the two levels.
+    ct : CTVolume
+        The grid's geometry (``patient_to_index``, ``spacing``).
+    bone_level, skin_level : float
+        The bone's iso-level (the one the bone mask was thresholded at) and the skin's (half way between air
+        and soft tissue).
+    bone_mode : float, optional
+        The bone's own value (the histogram's bone mode); without it the plateau is not checked.
+    head_mask : ndarray of bool, optional
+        The head segmentation's mask on ``ct``'s grid (pillows and holders outside it).
+
+    Returns
+    -------
+    dict name -> :class:`DepthOnCT`
+    """
+    from scipy import ndimage as ndi
+
+    from .tissue_depth import cast_rays
+
+    names = list(landmarks)
+    if not names:
+        return {}
+    vol = np.asarray(volume)
+    if vol.shape != tuple(ct.shape):
+        raise PDEHeadError(f"landmark depths: the intensities' shape {vol.shape} is not the CT's {tuple(ct.shape)}")
+    base, nearest = snap_to_surface(np.array([landmarks[n] for n in names]), skull)
+    normal = exposed_normals(base, skull, nearest_normals=nearest)
+    mesh_depth = cast_rays(base, normal, skin, max_depth_mm)
+    search = float(DEPTH_SEARCH_VOXELS * max(ct.spacing)) if search_mm is None else float(search_mm)
+    step = DEPTH_PROFILE_STEP_MM
+    s = np.arange(-search, max_depth_mm + search + step / 2, step)
+    pts = base[:, None, :] + s[None, :, None] * normal[:, None, :]
+    idx = ct.patient_to_index(pts.reshape(-1, 3)).T
+    prof = ndi.map_coordinates(vol.astype(np.float32, copy=False), idx, order=1, mode="nearest").reshape(len(names), -1)
+    mask_prof = None
+    if head_mask is not None:
+        mask_prof = ndi.map_coordinates(np.asarray(head_mask, np.float32), idx, order=1, mode="constant",
+                                        cval=0.0).reshape(len(names), -1)
+
+    def crossings(v, level):
+        """Sub-sample positions (mm along the ray) where the profile falls through ``level`` going outward."""
+        i = np.flatnonzero((v[:-1] >= level) & (v[1:] < level))
+        return s[i] + (v[i] - level) / (v[i] - v[i + 1]) * step
+
+    out: dict[str, DepthOnCT] = {}
+    for k, name in enumerate(names):
+        v = prof[k]
+        mesh_d = float(mesh_depth[k])
+        exits = crossings(v, bone_level)
+        near = exits[np.abs(exits) <= search]
+        if not len(near):
+            out[name] = DepthOnCT(base[k], mesh_d, mesh_d, normal[k], False,
+                                  f"no crossing of the bone level {bone_level:g} within {search:.1f} mm of the bone "
+                                  f"mesh along the ray (the profile peaks at {v[np.abs(s) <= search].max():.0f}): "
+                                  "bone thinner than the voxels, hidden by partial volume")
+            continue
+        sb = float(near[np.argmin(np.abs(near))])
+        point = base[k] + sb * normal[k]
+        skins = crossings(v, skin_level)
+        skins = skins[skins > sb]
+        if not len(skins) or skins[0] - sb > max_depth_mm:
+            out[name] = DepthOnCT(point, float("nan"), mesh_d, normal[k], False,
+                                  f"the ray meets no skin within {max_depth_mm:g} mm of the bone")
+            continue
+        ss = float(skins[0])
+        if mask_prof is not None:
+            edge = crossings(mask_prof[k], 0.5)
+            edge = edge[edge > sb]
+            voxel = float(max(ct.spacing))
+            if len(edge) and ss > edge[0] + voxel:   # the skin level runs on into a pillow or a holder
+                ss = sb + mesh_d if np.isfinite(mesh_d) and abs(sb + mesh_d - edge[0]) <= voxel else float(edge[0])
+        inside = (s <= sb) & (s > sb - DEPTH_PLATEAU_MM)
+        if bone_mode is not None and inside.any():
+            peak = float(v[inside].max())
+            need = bone_level + DEPTH_PLATEAU_FRACTION * (bone_mode - bone_level)
+            if peak < need:
+                out[name] = DepthOnCT(point, ss - sb, mesh_d, normal[k], False,
+                                      f"the bone along the ray peaks at {peak:.0f} within {DEPTH_PLATEAU_MM:g} mm, "
+                                      f"below {need:.0f} ({DEPTH_PLATEAU_FRACTION:.0%} of the way from the bone level "
+                                      f"{bone_level:g} to the bone mode {bone_mode:g}): bone thinner than the slices' "
+                                      "blur, partial volume moves its surface")
+                continue
+        between = (s > sb + step) & (s < ss)
+        again = float(np.count_nonzero(v[between] >= bone_level) * step)
+        if again > DEPTH_BONE_IN_FRONT_MM:
+            first = float(s[between][np.argmax(v[between] >= bone_level)] - sb)
+            out[name] = DepthOnCT(point, ss - sb, mesh_d, normal[k], False,
+                                  f"the ray meets {again:.1f} mm of bone {first:.1f} mm in front of the bone point "
+                                  "before the skin: the landmark lies behind other bone along its normal")
+            continue
+        out[name] = DepthOnCT(point, ss - sb, mesh_d, normal[k], True, "")
+    return out
 
 
 # --------------------------------------------------------------------------- orientation

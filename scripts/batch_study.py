@@ -11,9 +11,10 @@ What a study writes (section 5.2's compact storage and the forensic ground work)
 - ``boundaries.pdeh``: the boundary file (:func:`pdehead_addon.save_boundaries`);
 - with ``skull``: ``skull.stl`` (the bone surface) and ``landmarks.csv`` (the automatic landmarks with
   their tissue depths and flags);
-- ``log.txt``: per-step times and warnings; ``settings.json``: the software version, the settings, the
-  input fingerprint and the series that was used (plus the sex and age a depth table may split by; never
-  a patient's name or ID); ``result.json``: the record that ``summary.csv`` gets.
+- ``log.txt``: per-step times and warnings (with ``skull``: each depth's ray, and why a depth is
+  uncertain); ``settings.json``: the software version, the settings, the input fingerprint and the
+  series that was used (plus the sex and age a depth table may split by; never a patient's name or ID);
+  ``result.json``: the record that ``summary.csv`` gets.
 
 A re-run skips a study whose input fingerprint (every file's size and modification time) and settings
 are unchanged (:func:`is_current`).
@@ -37,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 #: Bumped when what a study writes changes, so that a re-run redoes studies made by an older runner.
-RUNNER_VERSION = 1
+RUNNER_VERSION = 2
 #: Default per-study limits: wall time (s) and resident memory of the study's process (MB). A study of a
 #: 512 x 512 x 300 head CT takes about 40 s and 3 GB; these leave room for larger scans on a slow machine.
 DEFAULT_TIME_LIMIT_S = 900.0
@@ -326,10 +327,13 @@ def _child(input_path: str, work: Path, settings: dict) -> int:
 
 def _skull_outputs(eng, ct, seg, bset, work: Path, settings: dict) -> int:
     """skull.stl (the bone), and landmarks.csv: every automatic landmark with its flag, its depth along the
-    bone normal to the PDE skin, and the default table's mean and SD; returns the number found."""
-    from pdehead_addon.auto_landmarks import find_landmarks
+    bone's exposed normal from the bone level's crossing to the skin level's in the CT's interpolated
+    intensities (:func:`~pdehead_addon.landmarks.landmark_depths_on_ct`), and the default table's mean and SD;
+    returns the number found. A depth the intensity profile does not support turns an ``ok`` landmark
+    ``uncertain``; the measured reason goes to log.txt."""
+    from pdehead_addon.auto_landmarks import OK, UNCERTAIN, find_landmarks
     from pdehead_addon.depth_table import default_table, write_landmark_csv
-    from pdehead_addon.landmarks import landmark_depths
+    from pdehead_addon.landmarks import landmark_depths_on_ct
     from pdehead_addon.provenance import provenance
     from pdehead_addon.skull import segment_skull, skull_mesh
 
@@ -339,14 +343,36 @@ def _skull_outputs(eng, ct, seg, bset, work: Path, settings: dict) -> int:
     skin = eng.solve_pde(bset).surface(int(settings.get("nu", 120)), int(settings.get("nv", 240)), caps=True)
     search = find_landmarks(ct, skull.bone)
     found = search.points()  # ok and uncertain
-    depths = landmark_depths(found, bone, skin) if found else {}
+    levels = depth_levels(skull)
+    measured = landmark_depths_on_ct(found, bone, skin, skull.hu, ct, head_mask=seg.mask, **levels) if found else {}
+    flags = search.flags()
+    for name, m in measured.items():  # the ray of every depth, for an audit (and the tests' truth)
+        print(f"depth ray: {name}: direction {m.direction[0]:.5f} {m.direction[1]:.5f} {m.direction[2]:.5f}, "
+              f"mesh depth {m.mesh_depth:.2f} mm", flush=True)
+        if not m.trusted:
+            print(f"depth uncertain: {name}: {m.evidence}", flush=True)
+            if flags[name] == OK:
+                flags[name] = UNCERTAIN
     missing = (np.full(3, np.nan), float("nan"))
-    rows = {name: depths.get(name, missing) for name in search.landmarks}  # not_found rows stay, flagged
+    rows = {name: (measured[name].point, measured[name].depth) if name in measured else missing
+            for name in search.landmarks}  # not_found rows stay, flagged
     table = default_table()
-    write_landmark_csv(work / "landmarks.csv", rows, table, flags=search.flags(),
+    write_landmark_csv(work / "landmarks.csv", rows, table, flags=flags,
                        provenance=provenance(table=table.label, bone_level=round(float(skull.bone_level), 1),
+                                             skin_level=round(levels["skin_level"], 1),
+                                             depth="bone level to skin level in the CT along the bone's exposed normal",
                                              frame="CT patient LPS mm", runner="scripts/pdehead_batch.py"))
     return len(found)
+
+
+def depth_levels(skull) -> dict:
+    """The levels of :func:`~pdehead_addon.landmarks.landmark_depths_on_ct` in the units of ``skull.hu``: the
+    bone level the mask was made at, the bone mode (None when the histogram had none) and the skin level half
+    way between air (-1000 HU) and the soft-tissue mode (``skull.c2``)."""
+    hist = skull.meta.get("histogram") or {}
+    mode = hist.get("bone_mode")
+    return {"bone_level": float(skull.bone_level), "bone_mode": None if mode is None else float(mode),
+            "skin_level": 0.5 * (-1000.0 + float(skull.c2))}
 
 
 def main(argv=None) -> int:
