@@ -124,3 +124,26 @@ def test_banded_smoother_is_the_dense_solve_without_dense_lapack(monkeypatch):
         assert np.abs(S @ (3.0 * x - 7.0) - (3.0 * x - 7.0)).max() < 1e-9       # lines are kept
         assert np.abs(S.sum(axis=1) - 1.0).max() < 1e-12                       # constants too
     P._smoother.cache_clear()
+
+
+@pytest.mark.parametrize("continuity, smoothing", [("c2", None), ("c2", 0.0), ("paper", None)])
+def test_surface_and_solid_share_one_grid_and_its_rows_are_independent(continuity, smoothing):
+    """The dome surface's rows are the solid's grid without its pole row, bit for bit, and a live change
+    synthesises that grid once for both (the surface's points are what the solid reads)."""
+    from pde_synthetic import head_bset
+    from pdehead_addon.pde_surface import solve_pde
+    head = solve_pde(head_bset(patches=4, samples=128), continuity=continuity, smoothing=smoothing)
+    for nu, nv in ((40, 60), (41, 97), (3, 3)):
+        u = np.linspace(0.0, 1.0, nu)
+        assert np.array_equal(head._grid(u, nv)[:-1], head._grid(u[:-1], nv))
+    calls = []
+    synth = head._grid
+    head._grid = lambda *a, **k: calls.append(1) or synth(*a, **k)
+    surf = head.surface(40, 60)
+    solid = head.solid(40, 60, 5)
+    assert len(calls) == 1
+    grid = head.grid(np.linspace(0.0, 1.0, 40), 60)
+    tube = grid[:-1] if head.vertex is not None else grid
+    assert np.array_equal(surf.vertices[:tube.shape[0] * 60], tube.reshape(-1, 3))
+    assert len(solid.vertices) > len(surf.vertices)
+    assert grid.flags.writeable is False
