@@ -106,23 +106,14 @@ def test_surface_and_solid_share_one_grid_and_its_rows_are_independent(continuit
 
 
 def _dense_smoother(x, length):
-    """The Reinsch smoother as the dense solve it replaced (pde_spline before session 5)."""
-    m = len(x)
+    """The Reinsch smoother as a dense solve (what pde_spline did before session 5), written with
+    difference operators: ``Q^T`` is the second divided difference, ``W`` the knots' half spacings."""
     h = np.diff(x)
-    w = np.empty(m)
-    w[1:-1] = 0.5 * (h[:-1] + h[1:])
-    w[0], w[-1] = 0.5 * h[0], 0.5 * h[-1]
-    n = m - 2
-    Q = np.zeros((m, n))
-    idx = np.arange(n)
-    Q[idx, idx] = 1.0 / h[:-1]
-    Q[idx + 1, idx] = -1.0 / h[:-1] - 1.0 / h[1:]
-    Q[idx + 2, idx] = 1.0 / h[1:]
-    R = np.zeros((n, n))
-    R[idx, idx] = (h[:-1] + h[1:]) / 3.0
-    R[idx[:-1], idx[:-1] + 1] = R[idx[:-1] + 1, idx[:-1]] = h[1:-1] / 6.0
+    w = np.convolve(h, [0.5, 0.5])
+    Qt = np.diff(np.diff(np.eye(len(x)), axis=0) / h[:, None], axis=0)
+    R = np.diag((h[:-1] + h[1:]) / 3.0) + np.diag(h[1:-1] / 6.0, 1) + np.diag(h[1:-1] / 6.0, -1)
     lam = float(length) ** 4
-    return np.eye(m) - lam * (Q / w[:, None]) @ np.linalg.solve(R + lam * (Q.T / w) @ Q, Q.T)
+    return np.eye(len(x)) - lam * (Qt.T / w[:, None]) @ np.linalg.solve(R + lam * (Qt / w) @ Qt.T, Qt)
 
 
 def test_banded_smoother_is_the_dense_solve_without_dense_lapack(monkeypatch):
