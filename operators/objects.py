@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from ..pdehead_addon import defaults as D
-from ..pdehead_addon.ct_volume import apply_window, intensity_window, sample_ct
+from ..pdehead_addon.ct_volume import apply_window, intensity_window, sample_ct, trilinear
 from .coords import MM_TO_M
 
 ORIGIN_KEY = "pdehead_origin_m"
@@ -569,10 +569,10 @@ def ct_texture_atlas(head, mesh, ct, window, ranges, size: int | None = None, pa
             line = _surface_grid(head, coarse, np.array([v]))[:, 0]
             edge = np.column_stack([np.interp(us, coarse, line[:, i]) for i in range(3)])
             pts = spine + ws[:, None, None] * (edge[None] - spine)
-        from scipy.ndimage import map_coordinates   # trilinear; the lowest CT value outside (as sample_ct)
-        kji = direct.patient_to_index(pts.reshape(-1, 3))
-        return map_coordinates(direct.data, kji.T, order=1, mode="constant", cval=air,
-                               prefilter=False, output=np.float32)
+        # trilinear, the lowest CT value outside, the edge value within the outer half voxel (as sample_ct):
+        # the bottom u end lies on the scan's first slice, and micrometres below it (a reopened study's
+        # curves, stored compact) must not turn that whole face to air
+        return trilinear(direct.data, direct.patient_to_index(pts.reshape(-1, 3)), cval=air)
 
     def shell_w(k):
         if k == 1:

@@ -9,7 +9,6 @@ texture of section 4.3.1); :func:`alpha_from_w` is eq. 24.
 """
 from __future__ import annotations
 
-import weakref
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -132,24 +131,12 @@ def solid_mesh(head, nu: int, nv: int, nw: int, u_range: tuple[float, float] = (
                 {"u": u[iu], "v": v[iv], "w": w[iw]})
 
 
-#: The last few surface grids X(u_i, v_j) of each head (a w-range or nw change reuses them).
-_GRID_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-
-
 def _surface_grid_cached(head, u: np.ndarray, v: np.ndarray, nv_uniform: int | None) -> np.ndarray:
-    """``head._grid`` on u x v, remembered per head for the last 4 (u, v) samplings."""
-    key = (u.tobytes(), v.tobytes(), nv_uniform)
-    try:
-        entries = _GRID_CACHE.setdefault(head, {})
-    except TypeError:  # not weak-referenceable: no caching
-        entries = {}
-    surf = entries.get(key)
-    if surf is None:
-        surf = head._grid(u, nv_uniform) if nv_uniform is not None else head._grid(u, None, v=v)
-        if len(entries) >= 4:
-            entries.pop(next(iter(entries)))
-        entries[key] = surf
-    return surf
+    """The surface grid X(u_i, v_j): the head's cached :meth:`~.pde_surface.PDEHead.grid` (shared with
+    its surface mesh) when it has one, else its ``_grid``."""
+    if hasattr(head, "grid"):
+        return head.grid(u, nv_uniform) if nv_uniform is not None else head.grid(u, v=v)
+    return head._grid(u, nv_uniform) if nv_uniform is not None else head._grid(u, None, v=v)
 
 
 _TOPOLOGY_CACHE: dict = {}

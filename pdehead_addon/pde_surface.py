@@ -607,6 +607,26 @@ class PDEHead:
             spec[rows] = _fold(self._amplitudes(u[rows]).transpose(0, 2, 1), nv)
         return ring_points(spec, nv)
 
+    def grid(self, u: np.ndarray, nv: int | None = None, v: np.ndarray | None = None) -> np.ndarray:
+        """:meth:`_grid`, remembered per head for its last four samplings (read-only arrays).
+
+        A live change rebuilds the surface and then the solid on the same (nu, nv) grid: the solid
+        reads the surface's points instead of synthesising them again, and a w-range or nw change
+        reuses them too. Rows do not depend on each other (``_grid(u)[:-1]`` is ``_grid(u[:-1])``
+        bit for bit: ``tests/test_speed_identities.py``), so the dome's surface takes the first rows.
+        """
+        u = np.asarray(u, dtype=np.float64)
+        key = (u.tobytes(), None if nv is not None else np.asarray(v, float).tobytes(), nv)
+        entries = self.__dict__.setdefault("_grid_cache", {})
+        pts = entries.get(key)
+        if pts is None:
+            pts = self._grid(u, nv) if nv is not None else self._grid(u, None, v=v)
+            pts.flags.writeable = False
+            if len(entries) >= 4:
+                entries.pop(next(iter(entries)))
+            entries[key] = pts
+        return pts
+
     def _folded(self, nv: int) -> np.ndarray:
         """The (span, basis) x (bin, re/im xyz) coefficients with the harmonics folded onto the nv//2 + 1
         bins of an nv-point ring (cached per nv: the sliders rebuild at a few resolutions)."""
@@ -682,12 +702,12 @@ class PDEHead:
         if self.vertex is not None:
             nu = max(nu, 3)
             u = np.linspace(0.0, 1.0, nu)
-            pts = self._grid(u[:-1], nv)
+            pts = self.grid(u, nv)[:-1]                      # the solid's grid too (it has the pole row)
             bottom = disc_caps(pts, ends, ends=(0,), reference=self.cap_reference(nu, nv))[0] if caps else None
             top = (np.asarray(self.vertex, float), _fan_indices(nv))
             return _tube_mesh(pts, self.orientation, [bottom, top], uv=uv, u=u[:-1], top_u=1.0,
                               uv_layout=self.uv_layout() if uv else None)
-        pts = self._grid(u, nv)
+        pts = self.grid(u, nv)
         cap_tris = disc_caps(pts, ends, reference=self.cap_reference(nu, nv)) if caps else None
         return _tube_mesh(pts, self.orientation, cap_tris, uv=uv, u=u, uv_layout=self.uv_layout() if uv else None)
 

@@ -80,3 +80,61 @@ def test_envelope_on_wanted_slices_is_the_whole_envelope_there():
     assert part[k].max() > 0.99 and part[k].min() == 0.0
     others = np.setdiff1d(np.arange(len(part)), k)
     assert not part[others].any()
+
+
+@pytest.mark.parametrize("continuity, smoothing", [("c2", None), ("c2", 0.0), ("paper", None)])
+def test_surface_and_solid_share_one_grid_and_its_rows_are_independent(continuity, smoothing):
+    """The dome surface's rows are the solid's grid without its pole row, bit for bit, and a live change
+    synthesises that grid once for both (the surface's points are what the solid reads)."""
+    from pde_synthetic import head_bset
+    from pdehead_addon.pde_surface import solve_pde
+    head = solve_pde(head_bset(patches=4, samples=128), continuity=continuity, smoothing=smoothing)
+    for nu, nv in ((40, 60), (41, 97), (3, 3)):
+        u = np.linspace(0.0, 1.0, nu)
+        assert np.array_equal(head._grid(u, nv)[:-1], head._grid(u[:-1], nv))
+    calls = []
+    synth = head._grid
+    head._grid = lambda *a, **k: calls.append(1) or synth(*a, **k)
+    surf = head.surface(40, 60)
+    solid = head.solid(40, 60, 5)
+    assert len(calls) == 1
+    grid = head.grid(np.linspace(0.0, 1.0, 40), 60)
+    tube = grid[:-1] if head.vertex is not None else grid
+    assert np.array_equal(surf.vertices[:tube.shape[0] * 60], tube.reshape(-1, 3))
+    assert len(solid.vertices) > len(surf.vertices)
+    assert grid.flags.writeable is False
+
+
+def _dense_smoother(x, length):
+    """The Reinsch smoother as a dense solve (what pde_spline did before session 5), written with
+    difference operators: ``Q^T`` is the second divided difference, ``W`` the knots' half spacings."""
+    h = np.diff(x)
+    w = np.convolve(h, [0.5, 0.5])
+    Qt = np.diff(np.diff(np.eye(len(x)), axis=0) / h[:, None], axis=0)
+    R = np.diag((h[:-1] + h[1:]) / 3.0) + np.diag(h[1:-1] / 6.0, 1) + np.diag(h[1:-1] / 6.0, -1)
+    lam = float(length) ** 4
+    return np.eye(len(x)) - lam * (Qt.T / w[:, None]) @ np.linalg.solve(R + lam * (Qt / w) @ Qt.T, Qt)
+
+
+def test_banded_smoother_is_the_dense_solve_without_dense_lapack(monkeypatch):
+    """The smoothing spline's matrix from the banded Cholesky equals the dense solve's to ~1e-12, and
+    no dense (OpenBLAS-threaded) solve is called: the selection's ~800 small solves stay on one thread.
+
+    Not bit-identical: on CThead, GE (t = 4, 6), the phantom and the 512 x 512 x 300 scan the automatic
+    selection chose the same slices and the curves moved at most 1.3e-12 mm (docs/benchmarks.md)."""
+    from pdehead_addon import pde_spline as P
+    rng = np.random.default_rng(7)
+    cases = [(np.cumsum(rng.uniform(0.3, 9.0, m)), float(rng.uniform(0.5, 40.0))) for m in (3, 4, 5, 31, 128)]
+    expected = [_dense_smoother(x, L) for x, L in cases]
+
+    def no_dense(*a, **k):
+        raise AssertionError("dense np.linalg.solve called")
+    monkeypatch.setattr(np.linalg, "solve", no_dense)
+    P._smoother.cache_clear()
+    for (x, L), ref in zip(cases, expected):
+        S = P._smoother(x.tobytes(), L)
+        assert S.shape == ref.shape
+        assert np.abs(S - ref).max() <= 1e-11 * max(1.0, np.abs(ref).max())
+        assert np.abs(S @ (3.0 * x - 7.0) - (3.0 * x - 7.0)).max() < 1e-9       # lines are kept
+        assert np.abs(S.sum(axis=1) - 1.0).max() < 1e-12                       # constants too
+    P._smoother.cache_clear()
