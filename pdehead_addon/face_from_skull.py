@@ -22,7 +22,9 @@ skull's centroid: a row every ``row_mm`` of height, a column every ``360 / colum
    normalised Gaussian average of the peg offsets (Shepard / partition of unity, radius
    ``spread_mm``) with the rule depth where no peg stands (:data:`RULE_DEPTH_MM`: the vault and the
    neck), plus a narrow Gaussian radial-basis correction (lightly regularised) that makes the field
-   pass through every tip (to a few tenths of a mm). It is linear in the depths; a peg's influence fades within about 2 ``spread_mm``.
+   pass through every tip (to a few tenths of a mm), except a peg that disagrees with its neighbours by more
+   than :data:`DAMP_FREE_MM` at the table's means, which it follows less closely (:meth:`FaceModel._site_damping`).
+   It is linear in the depths; a peg's influence fades within about 2 ``spread_mm``.
 4. *Prediction rules* for what a depth field cannot make: the nose (:func:`predict_nose`), the eyes
    (:func:`predict_eyes`), the mouth (:func:`predict_mouth`: the oral fissure at the occlusal midpoint of
    the incisors' crests, the width from the canines; :meth:`FaceModel._mouth_shape` draws the lip line and
