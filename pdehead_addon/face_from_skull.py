@@ -22,7 +22,9 @@ skull's centroid: a row every ``row_mm`` of height, a column every ``360 / colum
    normalised Gaussian average of the peg offsets (Shepard / partition of unity, radius
    ``spread_mm``) with the rule depth where no peg stands (:data:`RULE_DEPTH_MM`: the vault and the
    neck), plus a narrow Gaussian radial-basis correction (lightly regularised) that makes the field
-   pass through every tip (to a few tenths of a mm). It is linear in the depths; a peg's influence fades within about 2 ``spread_mm``.
+   pass through every tip (to a few tenths of a mm), except a peg that disagrees with its neighbours by more
+   than :data:`DAMP_FREE_MM` at the table's means, which it follows less closely (:meth:`FaceModel._site_damping`).
+   It is linear in the depths; a peg's influence fades within about 2 ``spread_mm``.
 4. *Prediction rules* for what a depth field cannot make: the nose (:func:`predict_nose`), the eyes
    (:func:`predict_eyes`), the mouth (:func:`predict_mouth`: the oral fissure at the occlusal midpoint of
    the incisors' crests, the width from the canines; :meth:`FaceModel._mouth_shape` draws the lip line and
@@ -98,6 +100,19 @@ PROFILE_NEAR_MM = 10.0
 NARROW_FRACTION = 0.5
 #: Regularisation of the exact peg interpolation (relative to the kernel's unit diagonal).
 RBF_REGULARISATION = 0.05
+#: A peg whose offset disagrees with what its neighbours give there (the wide field without it) by more than
+#: :data:`DAMP_FREE_MM` is followed less closely by the exact correction: its regularisation grows by
+#: ((disagreement - DAMP_FREE_MM) / DAMP_SCALE_MM)^2 (:meth:`FaceModel._site_damping`). The T-Table's 26 mm
+#: supra-M2 and 22 mm sub-M2 pegs stand 10-15 mm off their 8-13 mm neighbours at the jaw's border: a field
+#: through all of them exactly is lumpy there. Computed once, at the table's means, from the skull and the table
+#: alone (nothing of the scored skin); the pegs on the mid-sagittal profile (within
+#: :data:`DAMP_MIDLINE_DEG` of straight ahead) stay exact: the nose and the lips stand on them. CThead
+#: (bench_face, issue 23's fifth session): 60.1 % / mean 2.66 / p95 7.47 mm before, 62.0 % / 2.56 / 7.38 after;
+#: mean second difference of the face's radius over the front of the lower face 0.49 -> 0.38 mm along the
+#: height, 0.38 -> 0.25 mm around the head; GE unchanged (34.2 %).
+DAMP_FREE_MM = 4.0
+DAMP_SCALE_MM = 5.0
+DAMP_MIDLINE_DEG = 10.0
 
 
 # ------------------------------------------------------------------------------------------ geometry
@@ -367,9 +382,18 @@ NOSE_ALAR_WIDTH_MM = 33.0
 #: (Krogman WM, Iscan MY (1986) The Human Skeleton in Forensic Medicine, 2nd ed., Springfield: Thomas;
 #: cited from the forensic literature, not re-read for this module).
 ALAR_MARGIN_MM = 5.0
-#: Where pronasale sits between subnasale and soft nasion (fraction of the nasal height): a proportion of
-#: the average profile (sn-prn height ~ 15 mm of ~ 52 mm n-sn in Farkas' norms), not a regression.
-TIP_HEIGHT_FRACTION = 0.3
+#: Nasal length (soft nasion to pronasale, mm) from the bony nasion-subspinale distance Z:
+#: NL = NASAL_LENGTH_SLOPE x Z + NASAL_LENGTH_INTERCEPT_MM, Rynn C, Wilkinson CM, Peters HL (2010) "Prediction of
+#: nasal morphology from the skull", Forensic Sci Med Pathol 6(1):20-34, their European-ancestry equation for
+#: both sexes. Read in esomjai/Forensic-Craniofacial-Approximation-Validation-Tool, the guide "Rynn et al.
+#: 2010's technique", table "Nasal length" ("pred Rynn EA NL = 0.74 x Z + 3.5", Z the nasion-subspinale line);
+#: not re-read in the paper.
+NASAL_LENGTH_SLOPE = 0.74
+NASAL_LENGTH_INTERCEPT_MM = 3.5
+#: The nasal aperture's lower border is looked for in a band this wide (mm, half width) about the midline, at
+#: most this far (mm) behind the upper jaw's front (:func:`aperture_floor`).
+APERTURE_BAND_MM = 4.0
+APERTURE_DEPTH_MM = 25.0
 #: Half the nose's breadth at its root (mm): the nasal root between the eyes (Farkas' intercanthal width
 #: en-en ~ 32 mm; the root ~ 2/3 of it), where the dorsum leaves the soft nasion.
 NOSE_ROOT_HALF_MM = 10.0
@@ -407,6 +431,42 @@ def aperture_width(skull: Mesh, subspinale: np.ndarray, mid_x: float) -> float |
     return best
 
 
+def aperture_floor(skull: Mesh, subspinale: np.ndarray, nasion: np.ndarray, mid_x: float) -> float | None:
+    """Height (patient z, mm) of the nasal aperture's lower border at the midline: the lowest 1 mm row above
+    subspinale where the mid-sagittal band (|x - mid_x| < :data:`APERTURE_BAND_MM`) has no bone within
+    :data:`APERTURE_DEPTH_MM` behind subspinale, on a run of at least 5 such rows (the aperture, not a hole in a
+    thin maxilla). A property of the whole aperture's outline, not of the anterior nasal spine's tip (a thin
+    bone a bone mask rarely keeps). None when no such run lies between subspinale and 10 mm below nasion."""
+    v = skull.vertices
+    band = (np.abs(v[:, 0] - mid_x) < APERTURE_BAND_MM) & (v[:, 1] < subspinale[1] + APERTURE_DEPTH_MM)
+    z0, z1 = float(subspinale[2]), float(nasion[2]) - 10.0
+    if z1 - z0 < 10.0:
+        return None
+    rows = np.arange(z0, z1, 1.0)
+    k = np.floor(v[band, 2] - z0).astype(int)
+    bone = np.zeros(rows.size, bool)
+    bone[k[(k >= 0) & (k < rows.size)]] = True
+    gap = ~bone
+    # runs of empty rows: the first run of 5 or more from below
+    run = np.convolve(gap.astype(int), np.ones(5, int), mode="valid") == 5
+    starts = np.nonzero(run)[0]
+    return float(rows[starts[0]]) if starts.size else None
+
+
+def _circle_meet(a: np.ndarray, ra: float, b: np.ndarray, rb: float) -> np.ndarray:
+    """The anterior (smaller y) meeting point in the (y, z) plane of the circles about ``a`` (radius ``ra``) and
+    ``b`` (radius ``rb``); where they do not meet, the point on the line a-b that splits the gap."""
+    d_vec = b - a
+    d = float(np.hypot(*d_vec))
+    u = d_vec / max(d, 1e-9)
+    along = (d * d + ra * ra - rb * rb) / (2 * max(d, 1e-9))
+    h = np.sqrt(max(ra * ra - along * along, 0.0))
+    perp = np.array([-u[1], u[0]])
+    if perp[0] > 0:                                           # anterior is -y
+        perp = -perp
+    return a + along * u + h * perp
+
+
 def predict_nose(landmarks: dict, skull: Mesh | None = None) -> dict | None:
     """The nose: what of it the bone predicts (its width, its base), the rest from population norms.
 
@@ -415,10 +475,15 @@ def predict_nose(landmarks: dict, skull: Mesh | None = None) -> dict | None:
       is not seen, ``NOSE_ALAR_WIDTH_MM`` (Farkas 1994). Rynn C, Wilkinson CM, Peters HL (2010),
       "Prediction of nasal morphology from the skull", Forensic Sci Med Pathol 6(1):20-34, found the
       aperture's width the best bony predictor of the alar width.
-    * *Base*: soft subnasale at the height of the anterior nasal spine (4 mm above subspinale) on the
-      subspinale peg's tip (its tissue depth from the table); soft nasion at the nasion peg's tip.
-    * *Pronasale*: ``NOSE_PROTRUSION_MM`` in front of subnasale (Farkas 1994 tip protrusion), at
-      ``TIP_HEIGHT_FRACTION`` of the nasal height above subnasale.
+    * *Base*: soft subnasale at the height of the nasal aperture's lower border (:func:`aperture_floor`,
+      the outline of the whole aperture, not the anterior nasal spine's tip or subspinale's depth), on the face
+      the depth field makes there (the pegs around it, not one peg's tip); where the aperture's border is not
+      found, 4 mm above subspinale. Soft nasion at the nasion peg's tip.
+    * *Pronasale*: where two distances from the skull meet, in the mid-sagittal plane, in front: the nasal
+      length from soft nasion, NL = 0.74 x Z + 3.5 mm (Z = bony nasion to subspinale; Rynn, Wilkinson & Peters
+      2010, European-ancestry equation, :data:`NASAL_LENGTH_SLOPE`), and the tip's protrusion from subnasale,
+      ``NOSE_PROTRUSION_MM`` (Farkas 1994). Z is a long, mostly vertical distance: a few mm of error in
+      subspinale's depth (a thin bone on the bone mask's outline) moves it by a fraction of a mm.
 
     The threefold-ANS rule (Gerasimov 1955; Prokopec M, Ubelaker DH (2002) "Reconstructing the shape of
     the nose according to the skull", Forensic Sci Commun 4(1); implemented in esomjai/Forensic-
@@ -440,8 +505,11 @@ def predict_nose(landmarks: dict, skull: Mesh | None = None) -> dict | None:
         ap = aperture_width(skull, ss, mid_x)
         if ap is not None:
             width, source = ap + 2 * ALAR_MARGIN_MM, f"aperture {ap:.1f} mm + 2 x {ALAR_MARGIN_MM:g} mm (Krogman)"
+    floor = aperture_floor(skull, ss, n, mid_x) if skull is not None else None
+    z_len = float(np.hypot(n[1] - ss[1], n[2] - ss[2]))
     return dict(width_mm=float(width), width_source=source, mid_x=float(mid_x),
-                protrusion_mm=NOSE_PROTRUSION_MM)
+                protrusion_mm=NOSE_PROTRUSION_MM, subnasale_z=floor,
+                length_mm=NASAL_LENGTH_SLOPE * z_len + NASAL_LENGTH_INTERCEPT_MM)
 
 
 #: Depth (mm) of the oral fissure behind the lips at the midline, tapering to nothing at the mouth's corners.
@@ -638,6 +706,7 @@ class FaceModel:
         model.landmarks_used = lm
         model.hull_profile = hull_profile                    # the peer (constant_depth) keeps the bone's own profile
         model._grid_xyz = model._cyl(np.repeat(grid.z, columns), np.tile(grid.theta, K))
+        model._damping = model._site_damping()
         model.prepare_seconds = time.perf_counter() - t0
         return model
 
@@ -674,10 +743,37 @@ class FaceModel:
         base_s = (Ws @ target + RULE_WEIGHT * RULE_DEPTH_MM) / (Ws.sum(1) + RULE_WEIGHT)
         # narrow exact correction
         s2 = NARROW_FRACTION * sigma
-        Phi = _kernel(xs, xs, s2)
-        w = np.linalg.solve(Phi + RBF_REGULARISATION * np.eye(len(xs)), target - base_s)
+        w = self._correction_weights(xs, target - base_s)
         corr = _kernel(self._grid_xyz, xs, s2) @ w
         return (base_g + corr).reshape(self.profile.shape)
+
+    def _correction_weights(self, xs: np.ndarray, residual: np.ndarray) -> np.ndarray:
+        """Weights of the narrow Gaussians of the exact correction at the field sites ``xs`` for the
+        ``residual`` (offset minus the wide field at each site), regularised per site
+        (:meth:`_site_damping`). One place for :meth:`_offset_field` and the live path."""
+        Phi = _kernel(xs, xs, NARROW_FRACTION * self.options["spread_mm"])
+        lam = self.__dict__.get("_damping")
+        lam = RBF_REGULARISATION * np.ones(len(xs)) if lam is None or len(lam) != len(xs) else lam
+        Phi[np.diag_indices_from(Phi)] += lam
+        return np.linalg.solve(Phi, residual)
+
+    def _site_damping(self) -> np.ndarray:
+        """Per field site, the exact correction's regularisation: :data:`RBF_REGULARISATION`, plus
+        ((|disagreement| - :data:`DAMP_FREE_MM`) / :data:`DAMP_SCALE_MM`)^2 where a site's offset at the table's
+        means disagrees with the wide field of the other sites (leave-one-out Shepard average) by more than
+        :data:`DAMP_FREE_MM`; the mid-sagittal pegs are not damped. A robust-interpolation rule (an outlying
+        peg pulls the face less than its neighbours agree on), fixed by the skull and the table."""
+        g = self.grid
+        z, th, r = g.polar(self.field_sites(self.tips_for(self.default_depths)))
+        target = r - g.sample(self.profile, z, th)
+        xs = self._cyl(z, th)
+        W = _kernel(xs, xs, self.options["spread_mm"])
+        np.fill_diagonal(W, 0.0)
+        others = (W @ target + RULE_WEIGHT * RULE_DEPTH_MM) / (W.sum(1) + RULE_WEIGHT)
+        off = np.abs(target - others)
+        midline = np.abs(np.angle(np.exp(1j * (th - np.pi)))) < np.radians(DAMP_MIDLINE_DEG)
+        excess = np.where(midline, 0.0, np.maximum(off - DAMP_FREE_MM, 0.0))
+        return RBF_REGULARISATION + (excess / DAMP_SCALE_MM) ** 2
 
     def _mouth_shape(self, base: np.ndarray) -> np.ndarray | None:
         """Radial change (K, M) of the lips over the face ``base``: the oral fissure (a groove of
@@ -740,19 +836,34 @@ class FaceModel:
 
     def _nose_bump(self, base: np.ndarray, tips: np.ndarray) -> np.ndarray | None:
         """Radial nose over the face ``base`` (K, M): the ridge from the soft nasion through pronasale to
-        subnasale (:func:`predict_nose`), placed on the current nasion and subspinale peg tips."""
+        subnasale (:func:`predict_nose`): soft nasion on the nasion peg's tip, subnasale on the face ``base`` at the
+        aperture's lower border, pronasale where the nasal length and the tip's protrusion meet."""
         nose = self.nose
         n = self._peg_tip(tips, "Nasion", "Glabella")
         ss = self._peg_tip(tips, "Subspinale", "Mid-philtrum")
         if nose is None or n is None or ss is None:
             return None
         g = self.grid
-        zn, zs = float(n[2]), float(ss[2]) + 4.0
+        cx, cy = g.centre
+        s, c = np.sin(g.theta), np.cos(g.theta)
+        front = c < -0.2
+        zn = float(n[2])
+        zs = nose.get("subnasale_z")
+        zs = float(ss[2]) + 4.0 if zs is None else float(zs)
         if zn - zs < 20.0:
             return None
-        ys = float(ss[1])
-        zp, yp = zs + TIP_HEIGHT_FRACTION * (zn - zs), ys - nose["protrusion_mm"]
+        # subnasale on the face the depth field makes at its height (the midline ray of that row)
+        ks = int(np.clip(np.round((zs - g.z[0]) / (g.z[1] - g.z[0])), 0, len(g.z) - 1))
+        xs_row = cx + base[ks] * s
+        js = int(np.argmin(np.where(front, np.abs(xs_row - nose["mid_x"]), np.inf)))
+        ys = float(cy + base[ks, js] * c[js])
         yn = float(n[1])
+        length = nose.get("length_mm")
+        if length is None:                                   # a model kept before the nasal-length rule
+            zp, yp = zs + 0.3 * (zn - zs), ys - nose["protrusion_mm"]
+        else:
+            yp, zp = _circle_meet(np.array([yn, zn]), float(length), np.array([ys, zs]), nose["protrusion_mm"])
+            zp = float(np.clip(zp, zs + 2.0, zn - 5.0))
         Z = g.z
         ridge = np.full(Z.shape, np.nan)
         up = (Z >= zp) & (Z <= zn)
@@ -778,9 +889,6 @@ class FaceModel:
             ends = np.zeros(seg.size, bool)
             ends[[0, -1]] = True                                  # keep subnasale and nasion where they are
             ridge[rows[0]:rows[-1] + 1] = np.where(ends, seg, sm)
-        cx, cy = g.centre
-        s, c = np.sin(g.theta), np.cos(g.theta)
-        front = c < -0.2
         half = np.where(Z >= zp, NOSE_ROOT_HALF_MM + (0.5 * nose["width_mm"] - NOSE_ROOT_HALF_MM) * np.clip(1 - (Z - zp) / (zn - zp), 0, 1) ** 1.5,
                         0.5 * nose["width_mm"])
         bump = np.zeros_like(base)

@@ -132,8 +132,7 @@ class LiveFace:
                   / (small_matmul(Ez, EtT) + F.RULE_WEIGHT))
         base_s = (Ws @ target + F.RULE_WEIGHT * F.RULE_DEPTH_MM) / (Ws.sum(1) + F.RULE_WEIGHT)
         s2 = F.NARROW_FRACTION * sigma
-        Phi = F._kernel(xs, xs, s2)
-        w = np.linalg.solve(Phi + F.RBF_REGULARISATION * np.eye(len(xs)), target - base_s)
+        w = m._correction_weights(xs, target - base_s)
         corr = small_matmul(_gauss(dz2, s2) * w, np.ascontiguousarray(_gauss(dc2, s2).T))
         return base_g + corr
 

@@ -61,12 +61,71 @@ def test_face_is_closed_labelled_and_traced(model, face):
     assert set(face.timings) >= {"field", "pde", "mesh", "total"}
 
 
+def _peg_damping(model) -> np.ndarray:
+    """The exact correction's regularisation per peg (pegs above the rows are left to the dome: undamped)."""
+    from pdehead_addon.face_from_skull import RBF_REGULARISATION
+    lam = np.full(len(model.peg_names), RBF_REGULARISATION)
+    lam[model._in_rows] = model._damping[:int(model._in_rows.sum())]
+    return lam
+
+
 def test_face_passes_through_the_peg_tips(model, face):
+    from pdehead_addon.face_from_skull import RBF_REGULARISATION
     d = point_surface_distance(face.tips, face.mesh.vertices, _faces(face.mesh), seed=0)
+    lam = _peg_damping(model)
     away = np.array([n not in NOSE_PEGS for n in model.peg_names])
-    # measured on the phantom: median 0.17 mm, largest 1.8 mm (menton, at the chin's underside)
-    assert np.median(d[away]) <= 0.5
-    assert d[away].max() <= 2.5
+    exact = away & (lam == RBF_REGULARISATION)
+    damped = away & ~exact
+    # measured on the phantom: median 0.32 mm, largest 2.4 mm; the damped pegs (the jaw's sides) within
+    # 0.03-4.2 mm (supra-M2, 26 mm deep beside 10-13 mm neighbours, the farthest)
+    assert np.median(d[exact]) <= 0.5
+    assert d[exact].max() <= 2.5
+    assert d[damped].max() <= 5.0
+
+
+def test_outlying_pegs_are_damped_and_the_jaw_is_smoother(model, face):
+    from pdehead_addon.face_from_skull import RBF_REGULARISATION
+    lam = dict(zip(model.peg_names, _peg_damping(model)))
+    for name in ("Glabella", "Nasion", "Mid-philtrum", "Supradentale", "Pogonion", "Menton"):
+        assert lam[name] == RBF_REGULARISATION                 # the mid-sagittal profile stays exact
+    assert lam["Supra M2 L"] > 1.0 and lam["Supra M2 R"] > 1.0  # measured 2.46 / 2.42
+
+    def roughness():
+        g = model.grid
+        radius = model.shaped_radius(model._offset_field(face.tips), face.tips)
+        rows = (g.z > face.tips[model.peg_names.index("Menton")][2]) & (g.z < face.tips[model.peg_names.index("Mid-philtrum")][2])
+        r = radius[np.ix_(rows, np.cos(g.theta) < 0.0)]              # the front half: the jaw's sides too
+        return np.abs(np.diff(r, 2, axis=0)).mean(), np.abs(np.diff(r, 2, axis=1)).mean()
+
+    damped = roughness()
+    kept = model.__dict__.pop("_damping")
+    try:
+        exact = roughness()                                     # every peg passed exactly (the old field)
+    finally:
+        model._damping = kept
+    # measured on the phantom: mean second difference of the radius 0.25 / 0.16 mm (along the height / around)
+    # against 0.29 / 0.19 mm with every peg passed exactly
+    assert damped[0] < 0.9 * exact[0] and damped[1] < 0.9 * exact[1]
+
+
+def test_nose_base_from_the_aperture_and_tip_from_the_nasal_length():
+    from pdehead_addon.face_from_skull import _circle_meet, aperture_floor, predict_nose
+    # a midline plate of bone (y = 0, x 90..130, z 0..100) with a nasal aperture (|x - 110| < 10, z 40..80)
+    x, z = np.meshgrid(np.arange(90.0, 130.0, 1.0), np.arange(0.0, 100.0, 0.5))
+    keep = ~((np.abs(x - 110) < 10) & (z >= 40) & (z < 80))
+    skull = Mesh(np.column_stack([x[keep], np.zeros(keep.sum()), z[keep]]), np.zeros((0, 4), int))
+    lms = {"Nasion": np.array([110.0, 0.0, 95.0]), "Subspinale": np.array([110.0, 0.0, 30.0])}
+    assert aperture_floor(skull, lms["Subspinale"], lms["Nasion"], 110.0) == pytest.approx(40.0, abs=1.0)
+    nose = predict_nose(lms, skull)
+    assert nose["subnasale_z"] == pytest.approx(40.0, abs=1.0)
+    assert nose["length_mm"] == pytest.approx(0.74 * 65.0 + 3.5)            # Rynn et al. 2010, Z = 65 mm
+    assert nose["width_mm"] == pytest.approx(20.0 + 10.0, abs=1.5)          # the aperture + 2 x 5 mm
+    # pronasale: NL from soft nasion and the protrusion from subnasale, in front (anterior = -y)
+    n, sn = np.array([-6.0, 95.0]), np.array([-12.0, 40.0])
+    p = _circle_meet(n, nose["length_mm"], sn, nose["protrusion_mm"])
+    assert np.hypot(*(p - n)) == pytest.approx(nose["length_mm"], abs=1e-6)
+    assert np.hypot(*(p - sn)) == pytest.approx(nose["protrusion_mm"], abs=1e-6)
+    assert p[0] < sn[0] - 10.0 and sn[1] < p[1] < n[1]
 
 
 def test_one_peg_moves_the_face_near_it_only(model, face):
