@@ -62,18 +62,28 @@ def test_every_study_reopens_with_its_settings_objects_and_forensic_state(reopen
 def test_the_reopened_face_follows_a_dragged_peg_and_both_studies_stay_live(reopened):
     bpy, state, _ = reopened
     from mathutils import Vector
+    face_ops = sys.modules[state.__name__.rsplit(".", 1)[0] + ".face"]
     coll = bpy.data.collections["Phantom forensic"]
     face = next(o for o in coll.all_objects if o.name.endswith(" Face"))
     peg = next(o for o in coll.all_objects if o.get("pdehead_peg") == "Nasion")
-    before = maker.world_mm(face)
-    tip = np.array(peg.matrix_world.translation) / 0.001
+    # The first drag may re-prepare the face model (a model kept by another version is refused and
+    # made again by this one): the face then passes through the dragged peg's tip.
     peg.matrix_world.translation += Vector((0.0, 0.003, 0.0))  # back by the 3 mm it was dragged forward
     bpy.context.view_layer.update()
-    moved = np.linalg.norm(maker.world_mm(face) - before, axis=1)
     assert state.settings(coll).last_error == ""
-    assert 1.0 < moved.max() < 6.0                                   # the face followed the peg
-    assert np.linalg.norm(maker.world_mm(face)[moved.argmax()] - tip) < 25.0  # ... where the peg stands
-    assert np.median(moved) < 0.01                                  # ... and nowhere else
+    tip = face_ops.peg_tips(coll, ["Nasion"])[0]
+    before = maker.world_mm(face)
+    assert np.linalg.norm(before - tip, axis=1).min() < 1.5
+    # and follows the next drag at once: at the peg (and the nose it carries), nowhere else
+    peg.matrix_world.translation += Vector((0.0, -0.002, 0.0))
+    bpy.context.view_layer.update()
+    after = maker.world_mm(face)
+    moved = np.linalg.norm(after - before, axis=1)
+    assert 1.0 < moved.max() < 4.0
+    tip = face_ops.peg_tips(coll, ["Nasion"])[0]
+    nearest = np.linalg.norm(after - tip, axis=1).argmin()
+    assert np.linalg.norm(after[nearest] - tip) < 1.5 and moved[nearest] > 1.5  # the skin at the peg moved
+    assert np.median(moved) < 0.01
 
     other = bpy.data.collections["Phantom pipeline only"]
     s = state.settings(other)
