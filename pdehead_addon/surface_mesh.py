@@ -388,7 +388,8 @@ def uv_shear(curves: np.ndarray, curve_u: np.ndarray) -> np.ndarray:
 #: CThead's mesh grid the conformal term alone keeps the angles (angle p95 2.8 deg) but lets the texel
 #: size follow the neck's and the face's shape (area stretch p99 / p1 6.2); the scale term alone keeps
 #: the texel size (2.9) but not the angles (13 deg). Issue 21 asks for both (<= 4 and <= 10 deg); 0.8
-#: gives 3.80 and 10.5 deg at the defaults (1: 3.70 / 13.1, the fold guard then straightens more rows).
+#: gives 3.81 and 9.8 deg at the defaults (3.80 / 10.5 with the 4-sample fold blend of session 4; weight 1:
+#: 3.70 / 13.1 then, the fold guard straightening more rows).
 UV_SCALE_WEIGHT = 0.8
 
 
