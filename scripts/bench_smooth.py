@@ -278,14 +278,18 @@ def up_close_markdown(res: dict) -> str:
               "distortion from the face and ears, where the v = const lines drift more than 3 harmonics follow. "
               "Now it is `surface_mesh.uv_tube_map`: a least-squares map of the curves (a cubic spline between "
               "them, 61 × 128 samples) that keeps each cell's angles (the conformal condition of least-squares "
-              "conformal maps) and its size (weight 0.8), blended to straight rows around any cell that is folded "
-              "or not convex; ~0.65 s CPU "
+              "conformal maps) and its size (weight 0.8), blended to straight rows within one sample (and a "
+              "one-sample taper) of any cell that is folded or not convex (4 samples before this stop: angle p95 "
+              "10.48 -> 9.77 deg on CThead); ~0.65 s CPU "
               "once per study (cached with the curves, so the timing row above, the surface of a study "
               "whose curves it has seen, does not include it; that row is noisy on a shared machine).",
               "- **Neck cap (GE).** The longest cap triangle edge is the tube's own bottom ring edge: where GE's "
               "neck outline runs nearly radially one v step of the angular curves is 8.4 mm (4.24 mean edges), "
-              "and every triangle on that edge inherits it. The cap's own edges reach 3.71 there. Meeting ≤ 3 "
-              "needs the end ring sampled by length (a parameterisation change), not a different cap.", ""]
+              "and every triangle on that edge inherits it (the tube's own quads are as long there: rows 0-26 have "
+              "ring edges over 3 mean edges). Meeting ≤ 3 needs that edge split: the bottom row's quad on it "
+              "made a triangle and a quad with a new end-curve point at the edge's middle, the splits decided "
+              "from the boundary curves (not the ring of the moment, so a slider keeps the topology) and the "
+              "DiscCap zipped to the refined ring; or the end rows sampled by arc length. Not done this stop.", ""]
     return "\n".join(lines)
 
 

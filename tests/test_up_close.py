@@ -184,14 +184,30 @@ def test_the_default_envelope_keeps_the_face_of_cthead(cthead_seg, cthead_bset):
 def test_cthead_uvs_keep_texel_size_and_angles(cthead_bset):
     """Issue 21 item 4 on CThead at the add-on's defaults (nu x nv from defaults.py, caps): no mirrored or
     empty faces, area stretch p99 / p1 over the middle 80 % of the height <= 4, angle distortion p95
-    bounded, also at a finer mesh. Measured on this fixture's curves: 0 / 0, stretch 4.17, angle 9.8 deg
-    (the benchmark's CThead curves: 3.80, 10.5 deg; at 300 x 480: 0 / 0, 4.04, 11.1 deg); before (a
-    v / 2 pi island with a 3-harmonic shear): stretch 5.42, angle 14.1 deg on the benchmark's curves."""
+    p95 <= 10 deg, also no mirrored face at a finer mesh. Measured on this fixture's curves: 0 / 0,
+    stretch 4.29, angle 9.63 deg (the benchmark's CThead curves: 3.81, 9.77 deg; at 300 x 480: 0 / 0,
+    4.08, 10.3 deg); with the blend of 4 samples around folds: fixture 4.17 / 9.79, benchmark 3.80 /
+    10.48; before (a v / 2 pi island with a 3-harmonic shear): stretch 5.42, angle 14.1 deg on the
+    benchmark's curves."""
     from pdehead_addon import defaults as D
     from pdehead_addon.surface_quality import uv_quality
     q = uv_quality(solve_pde(cthead_bset).surface(D.NU.default, D.NV.default, caps=True))
     assert q["mirrored"] == 0 and q["zero_area"] == 0
     assert q["stretch_p99_p1"] <= 4.4, q
-    assert q["angle_p95_deg"] <= 11.5, q
+    assert q["angle_p95_deg"] <= 10.0, q
     fine = uv_quality(solve_pde(cthead_bset).surface(300, 480, caps=True))
     assert fine["mirrored"] == 0 and fine["zero_area"] == 0, fine
+
+
+def test_uv_map_leaves_the_angle_keeping_map_only_around_folds(cthead_bset, monkeypatch):
+    """The tube map is the free (angle-keeping) least-squares map, blended toward straight rows only within
+    a sample (and a taper) of a folded cell. The blend over 4 samples took it off 1.8 % of this fixture's
+    samples (4.1 % on the benchmark's CThead curves: angle p95 10.48 deg); now 0.9 % (1.7 %: 9.77 deg)."""
+    from pdehead_addon import surface_mesh as SM
+    head = solve_pde(cthead_bset)
+    rings, map_u = SM.uv_map_grid(cthead_bset.curves, np.asarray(head.curve_u, float))
+    U, V, _ = SM.uv_tube_map(rings, map_u)
+    monkeypatch.setattr(SM, "UV_FOLD_MARGIN", -np.inf)                    # nothing counts as folded: the free map
+    Uf, Vf, _ = SM.uv_tube_map(rings, map_u)
+    blended = np.hypot(U - Uf, V - Vf) > 1e-6
+    assert 0 < blended.mean() <= 0.012, blended.mean()
