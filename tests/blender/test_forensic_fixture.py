@@ -59,6 +59,15 @@ def test_every_study_reopens_with_its_settings_objects_and_forensic_state(reopen
     assert sum(1 for o in forensic.values() if "pdehead_landmark" in o["custom"]) == 50
 
 
+def _to_face(obj, vertices_mm, point_mm) -> float:
+    """Distance (mm) of a point to the mesh of ``obj`` with its vertices at ``vertices_mm``."""
+    from pdehead_addon.surface_metrics import point_surface_distance
+    obj.data.calc_loop_triangles()
+    tri = np.empty(len(obj.data.loop_triangles) * 3, np.int64)
+    obj.data.loop_triangles.foreach_get("vertices", tri)
+    return float(point_surface_distance(np.asarray(point_mm, float)[None], vertices_mm, tri.reshape(-1, 3))[0])
+
+
 def test_the_reopened_face_follows_a_dragged_peg_and_both_studies_stay_live(reopened):
     bpy, state, _ = reopened
     from mathutils import Vector
@@ -73,7 +82,7 @@ def test_the_reopened_face_follows_a_dragged_peg_and_both_studies_stay_live(reop
     assert state.settings(coll).last_error == ""
     tip = face_ops.peg_tips(coll, ["Nasion"])[0]
     before = maker.world_mm(face)
-    assert np.linalg.norm(before - tip, axis=1).min() < 1.5
+    assert _to_face(face, before, tip) < 1.0                        # 0.49 mm measured
     # and follows the next drag at once: at the peg (and the nose it carries), nowhere else
     peg.matrix_world.translation += Vector((0.0, -0.002, 0.0))
     bpy.context.view_layer.update()
@@ -81,8 +90,10 @@ def test_the_reopened_face_follows_a_dragged_peg_and_both_studies_stay_live(reop
     moved = np.linalg.norm(after - before, axis=1)
     assert 1.0 < moved.max() < 4.0
     tip = face_ops.peg_tips(coll, ["Nasion"])[0]
-    nearest = np.linalg.norm(after - tip, axis=1).argmin()
-    assert np.linalg.norm(after[nearest] - tip) < 1.5 and moved[nearest] > 1.5  # the skin at the peg moved
+    # the skin at the peg came to the tip (measured on this 48 x 80 face: 2.07 -> 1.06 mm; the mesh's
+    # facets between its rows cut the narrow bump the 2 mm drag makes)
+    gap_before, gap_after = _to_face(face, before, tip), _to_face(face, after, tip)
+    assert gap_after < 1.5 and gap_before - gap_after > 0.8
     assert np.median(moved) < 0.01
 
     other = bpy.data.collections["Phantom pipeline only"]
