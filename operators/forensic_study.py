@@ -665,10 +665,13 @@ def measured_landmark_depths(coll, skull, skin) -> tuple[dict, dict[str, str], s
     measured = measure_landmark_depths(lms, skull, skin, sk, head_mask=None if head is None else head.mask)
     flags = depth_flags(flag_names(coll), measured)
     rows = {n: (m.point, m.depth) for n, m in measured.items()}
-    on_ct = bool(measured) and all(m.method == "ct" for m in measured.values())
     why = next((m.evidence for m in measured.values() if m.method == "mesh"), "")
-    method = ("bone level to skin level in the CT along the bone's exposed normal" if on_ct or not measured
-              else f"mesh to mesh along the bone's exposed normal ({why})")
+    if skin is None:
+        method = "not measured (no skin)"
+    elif why:
+        method = f"bone mesh to skin mesh along the bone's exposed normal ({why})"
+    else:
+        method = "bone level to skin level in the CT along the bone's exposed normal"
     return rows, flags, method
 
 

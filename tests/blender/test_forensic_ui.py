@@ -28,6 +28,7 @@ def _check_export(folder, n_skin_vertices=None, handles=True):
     assert open(folder / "skull.stl", "rb").read(80).decode("ascii").startswith("skull (patient LPS, mm); PDE Head")
     lm = (folder / "landmarks.csv").read_text().splitlines()
     assert lm[0].startswith("# software: PDE Head") and any(ln.startswith("# bone_level: ") for ln in lm)
+    assert "# depth: bone level to skin level in the CT along the bone's exposed normal" in lm   # as the batch
     assert [ln for ln in lm if not ln.startswith("#")][0] == \
         "landmark,x_mm,y_mm,z_mm,depth_mm,table_mm,table_name,sd_mm,flag"
     rows = [r for r in csv.reader(open(folder / "tissue_depth.csv")) if not r[0].startswith("#")]
