@@ -18,8 +18,8 @@ from ..pdehead_addon import PDEHeadError
 from ..pdehead_addon.landmarks import STANDARD_LANDMARKS
 from . import ops, state
 from .forensic_study import (DEPTH_ATTRIBUTE, DEPTH_MATERIAL, DEPTH_STATS_KEY, MIRROR_PLANES, SKULL_INFO_KEY, _obj,
-                             PEG_DEPTH_PROP, apply_frankfurt, export_study, find_landmarks, flag_names,
-                             forensic_provenance,
+                             PEG_DEPTH_PROP, apply_frankfurt, export_study, find_landmarks,
+                             forensic_provenance, measured_landmark_depths,
                              landmark_flags, landmarks, make_pegs, mirror_object, place_landmark, skin_engine_mesh,
                              skull_engine_mesh, snap_moved_landmarks, step_depth, step_skull, study_depth_table,
                              world_to_patient)
@@ -199,17 +199,16 @@ class PDEHEAD_OT_export_landmark_depths(Operator, _LandmarkCSVOp):
 
     def execute(self, context):
         def body():
-            from ..pdehead_addon.landmarks import landmark_depths
             from ..pdehead_addon.depth_table import write_landmark_csv
             coll = _study_or_raise(self, context)
-            lms = landmarks(coll)
-            if not lms:
+            if not landmarks(coll):
                 raise PDEHeadError("no landmarks placed yet")
-            depths = landmark_depths(lms, skull_engine_mesh(coll, self.target), skin_engine_mesh(coll))
+            depths, flags, method = measured_landmark_depths(coll, skull_engine_mesh(coll, self.target),
+                                                             skin_engine_mesh(coll))
             table = study_depth_table(coll)
-            n = write_landmark_csv(bpy.path.abspath(self.filepath), depths, table, flag_names(coll),
-                                   provenance=forensic_provenance(coll, table))
-            self.report({'INFO'}, f"{n} landmark depths written to {self.filepath}")
+            n = write_landmark_csv(bpy.path.abspath(self.filepath), depths, table, flags,
+                                   provenance=dict(forensic_provenance(coll, table), depth=method))
+            self.report({'INFO'}, f"{n} landmark depths written to {self.filepath} ({method.split(' (')[0]})")
         return ops._guarded(self, context, body)
 
 

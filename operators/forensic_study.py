@@ -651,6 +651,30 @@ def forensic_provenance(coll, table=None) -> dict:
     return provenance(**rec)
 
 
+def measured_landmark_depths(coll, skull, skin) -> tuple[dict, dict[str, str], str]:
+    """The placed landmarks' depths for landmarks.csv, measured as the batch measures them
+    (:func:`~pdehead_addon.landmarks.measure_landmark_depths`: on the CT's intensities along the bone's exposed
+    normal; on the meshes only when the study's skull carries no CT intensities). Returns the rows
+    (name -> (bone point, depth mm)), the flags (an ``ok`` landmark whose depth the CT's profile does not
+    support turns ``uncertain``) and the method's description for the provenance."""
+    from ..pdehead_addon.landmarks import depth_flags, measure_landmark_depths
+
+    lms = landmarks(coll)
+    sk = _skull_seg(coll)
+    head = state.cache_for(state.settings(coll).study_id).seg
+    measured = measure_landmark_depths(lms, skull, skin, sk, head_mask=None if head is None else head.mask)
+    flags = depth_flags(flag_names(coll), measured)
+    rows = {n: (m.point, m.depth) for n, m in measured.items()}
+    why = next((m.evidence for m in measured.values() if m.method == "mesh"), "")
+    if skin is None:
+        method = "not measured (no skin)"
+    elif why:
+        method = f"bone mesh to skin mesh along the bone's exposed normal ({why})"
+    else:
+        method = "bone level to skin level in the CT along the bone's exposed normal"
+    return rows, flags, method
+
+
 def _has_skin(coll) -> bool:
     """False when the study's CT has no soft tissue to make a skin of (a dry skull, soft tissue removed)."""
     return bool(_skull_seg(coll).meta.get("has_skin", True))
@@ -670,7 +694,6 @@ def export_study(coll, directory: str, fmt: str = "stl", depth_target: str = "BO
 
     from ..pdehead_addon.depth_table import write_landmark_csv
     from ..pdehead_addon.export import FORMATS, export_mesh
-    from ..pdehead_addon.landmarks import landmark_depths, snap_to_surface
     from ..pdehead_addon.tissue_depth import tissue_depth, write_depth_csv
 
     if fmt not in FORMATS:
@@ -698,20 +721,14 @@ def export_study(coll, directory: str, fmt: str = "stl", depth_target: str = "BO
         res = _cache(coll).get("depth")
         if res is None or res.points.shape != skin.vertices.shape or not np.allclose(res.points, skin.vertices):
             res = tissue_depth(skin, skull_engine_mesh(coll, depth_target), envelope=_skull_seg(coll))
-    lms = landmarks(coll)
-    if lms and skin is not None:
-        depths = landmark_depths(lms, skull, skin)
-    elif lms:
-        base, _ = snap_to_surface(np.array(list(lms.values())), skull)
-        depths = {n: (base[i], float("nan")) for i, n in enumerate(lms)}
-    else:
-        depths = {}
+    depths, flags, method = measured_landmark_depths(coll, skull, skin)
     # a landmark Find Landmarks did not find keeps its row (flag, no coordinates), as the batch's landmarks.csv does
-    for name, flag in flag_names(coll).items():
+    for name, flag in flags.items():
         if flag == "not_found" and name not in depths:
             depths[name] = (np.full(3, np.nan), float("nan"))
     table = study_depth_table(coll)
     prov = forensic_provenance(coll, table)
+    prov_lm = dict(prov, depth=method)
     # ---- then write: into a hidden folder in the target, moved into place when all are written
     out.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=".pdehead-export-", dir=out))
@@ -723,7 +740,7 @@ def export_study(coll, directory: str, fmt: str = "stl", depth_target: str = "BO
         if res is not None:
             write_depth_csv(res, tmp / "tissue_depth.csv", provenance=prov)
             names.append("tissue_depth.csv")
-        write_landmark_csv(tmp / "landmarks.csv", depths, table, flag_names(coll), provenance=prov)
+        write_landmark_csv(tmp / "landmarks.csv", depths, table, flags, provenance=prov_lm)
         names.append("landmarks.csv")
         (tmp / "provenance.json").write_text(json.dumps(dict(prov, files=names), indent=2) + "\n")
         names.append("provenance.json")

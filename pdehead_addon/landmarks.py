@@ -15,7 +15,8 @@ operators (:mod:`operators.forensic`) and the tests share it:
   normal) at each placed landmark (written by :func:`.depth_table.write_landmark_csv`);
 * :func:`landmark_depths_on_ct`: the same rays, with the bone and skin points at the level
   crossings of the CT's interpolated intensities, and whether the profile along the ray supports
-  the depth (the batch runner's depths);
+  the depth; :func:`measure_landmark_depths`: the one entry every depth output uses (the CT's when the
+  study has one, else the meshes', with the method recorded);
 * :func:`frankfurt_transform`: the rigid transform that makes the Frankfurt
   plane (porions and orbitales) horizontal with the face toward -y;
 * :func:`midsagittal_plane` / :func:`mirror_matrix`: the plane fitted to
@@ -257,15 +258,22 @@ def landmark_depths(landmarks: dict[str, np.ndarray], skull: Mesh, skin: Mesh,
     outward normal there (mm, NaN if the skin is not met within ``max_depth_mm``). The normal is the
     bone's outer face's (:func:`exposed_normals`), so that at the rim of an opening the depth is taken
     perpendicular to the bone beside the opening, not into it."""
-    from .tissue_depth import cast_rays
-
     names = list(landmarks)
     if not names:
         return {}
-    base, nearest = snap_to_surface(np.array([landmarks[n] for n in names]), skull)
-    normal = exposed_normals(base, skull, nearest_normals=nearest)
-    depth = cast_rays(base, normal, skin, max_depth_mm)
+    base, normal, depth = _depth_rays(landmarks, skull, skin, max_depth_mm)
     return {n: (base[i], float(depth[i])) for i, n in enumerate(names)}
+
+
+def _depth_rays(landmarks: dict[str, np.ndarray], skull: Mesh, skin: Mesh | None, max_depth_mm: float):
+    """The depth rays of the landmarks (in their order): bone points (snapped onto ``skull``), the bone's
+    exposed normals there, and the meshes' depth along them (NaN without ``skin``)."""
+    from .tissue_depth import cast_rays
+
+    base, nearest = snap_to_surface(np.array([landmarks[n] for n in landmarks]), skull)
+    normal = exposed_normals(base, skull, nearest_normals=nearest)
+    depth = cast_rays(base, normal, skin, max_depth_mm) if skin is not None else np.full(len(base), np.nan)
+    return base, normal, depth
 
 
 #: The bone point is refined along the ray to the bone level's crossing in the interpolated CT within this many
@@ -279,6 +287,13 @@ DEPTH_BONE_IN_FRONT_MM = 0.5
 DEPTH_PLATEAU_MM = 4.0
 #: ... and reached when the peak there is at least this fraction of the way from the bone level to the bone mode.
 DEPTH_PLATEAU_FRACTION = 0.8
+#: A ray that runs within the slices (its slice index changes by less than this per slice spacing along it) is
+#: checked between the two slices either side of it: their own crossings along its path may lie at most this many
+#: slice spacings apart (1: the surface meets the ray at 45 deg or more between the slices) ...
+DEPTH_SLICE_RUN = 0.5
+DEPTH_SLICE_SHIFT = 1.0
+#: ... where the nearer slice's weight is at least this (a ray on a slice measures that slice).
+DEPTH_SLICE_WEIGHT = 0.1
 
 
 @dataclass
@@ -289,7 +304,8 @@ class DepthOnCT:
     level's crossing along the bone's exposed normal (NaN when no skin is met); ``mesh_depth``: the depth from
     the meshes alone (:func:`landmark_depths`); ``direction``: the ray's unit direction (the bone's exposed
     normal); ``trusted``: False when the profile along the ray says the measurement cannot be trusted,
-    ``evidence`` then says why (measured numbers)."""
+    ``evidence`` then says why (measured numbers); ``method``: ``"ct"``, or ``"mesh"`` when
+    :func:`measure_landmark_depths` fell back to the meshes (no CT intensities)."""
 
     point: np.ndarray
     depth: float
@@ -297,6 +313,7 @@ class DepthOnCT:
     direction: np.ndarray
     trusted: bool
     evidence: str = ""
+    method: str = "ct"          # "ct": on the CT's intensities; "mesh": on the meshes (no usable CT)
 
 
 def landmark_depths_on_ct(landmarks: dict[str, np.ndarray], skull: Mesh, skin: Mesh, volume: np.ndarray, ct,
@@ -325,7 +342,14 @@ def landmark_depths_on_ct(landmarks: dict[str, np.ndarray], skull: Mesh, skin: M
       bone point is below :data:`DEPTH_PLATEAU_FRACTION` of the way from ``bone_level`` to ``bone_mode`` (a
       margin or a plate thinner than the blur of the slices: partial volume lowers it, and the level crossing
       of a bone that never reaches its own value lies off its surface);
-    * no skin is met within ``max_depth_mm``.
+    * no skin is met within ``max_depth_mm``;
+    * the ray runs within the slices (it crosses less than :data:`DEPTH_SLICE_RUN` of a slice spacing per slice
+      spacing along it) and the two slices either side of it disagree on a crossing: along the ray's path, each
+      slice's own crossing of the level lies more than :data:`DEPTH_SLICE_SHIFT` slice spacings from the other's,
+      or one slice has none within ``search_mm`` (an edge of bone or a lip that ends between the slices: the
+      surface meets the ray at a grazing angle there, and the crossing interpolated between the two slices is
+      the interpolation's, not the CT's). Checked where the farther slice weighs at least
+      :data:`DEPTH_SLICE_WEIGHT`.
 
     Where the skin touches something outside the head (a pillow, a head holder: the skin level's crossing lies
     more than a voxel beyond the head mask's), the skin point is the PDE skin's (or the head mask's) instead.
@@ -355,23 +379,20 @@ def landmark_depths_on_ct(landmarks: dict[str, np.ndarray], skull: Mesh, skin: M
     """
     from scipy import ndimage as ndi
 
-    from .tissue_depth import cast_rays
-
     names = list(landmarks)
     if not names:
         return {}
     vol = np.asarray(volume)
     if vol.shape != tuple(ct.shape):
         raise PDEHeadError(f"landmark depths: the intensities' shape {vol.shape} is not the CT's {tuple(ct.shape)}")
-    base, nearest = snap_to_surface(np.array([landmarks[n] for n in names]), skull)
-    normal = exposed_normals(base, skull, nearest_normals=nearest)
-    mesh_depth = cast_rays(base, normal, skin, max_depth_mm)
+    base, normal, mesh_depth = _depth_rays(landmarks, skull, skin, max_depth_mm)
     search = float(DEPTH_SEARCH_VOXELS * max(ct.spacing)) if search_mm is None else float(search_mm)
     step = DEPTH_PROFILE_STEP_MM
     s = np.arange(-search, max_depth_mm + search + step / 2, step)
     pts = base[:, None, :] + s[None, :, None] * normal[:, None, :]
     idx = ct.patient_to_index(pts.reshape(-1, 3)).T
-    prof = ndi.map_coordinates(vol.astype(np.float32, copy=False), idx, order=1, mode="nearest").reshape(len(names), -1)
+    vol32 = vol.astype(np.float32, copy=False)
+    prof = ndi.map_coordinates(vol32, idx, order=1, mode="nearest").reshape(len(names), -1)
     mask_prof = None
     if head_mask is not None:
         mask_prof = ndi.map_coordinates(np.asarray(head_mask, np.float32), idx, order=1, mode="constant",
@@ -381,6 +402,41 @@ def landmark_depths_on_ct(landmarks: dict[str, np.ndarray], skull: Mesh, skin: M
         """Sub-sample positions (mm along the ray) where the profile falls through ``level`` going outward."""
         i = np.flatnonzero((v[:-1] >= level) & (v[1:] < level))
         return s[i] + (v[i] - level) / (v[i] - v[i + 1]) * step
+
+    slice_mm = float(ct.spacing[0])
+    k_index = idx[0].reshape(len(names), -1)
+
+    def between_slices(k, at, level, what):
+        """Why the crossing at ``at`` (mm along ray ``k``) is not the CT's, when the ray runs between two slices
+        that disagree on it (see the docstring); "" when they agree or the ray does not run within the slices."""
+        near = np.abs(s - at) <= slice_mm
+        kk = k_index[k][near]
+        if not near.any() or np.ptp(kk) >= 2.0 * DEPTH_SLICE_RUN:
+            return ""
+        kc = float(np.interp(at, s, k_index[k]))
+        k0 = int(np.floor(kc))
+        f = kc - k0
+        if min(f, 1.0 - f) < DEPTH_SLICE_WEIGHT or k0 < 0 or k0 + 1 >= vol.shape[0]:
+            return ""
+        window = np.abs(s - at) <= search
+        sub = idx.reshape(3, len(names), -1)[:, k][:, window]
+        found = []
+        for kz in (k0, k0 + 1):
+            plane = sub.copy()
+            plane[0] = kz
+            v = ndi.map_coordinates(vol32, plane, order=1, mode="nearest")
+            sw = s[window]
+            i = np.flatnonzero((v[:-1] >= level) & (v[1:] < level))
+            c = sw[i] + (v[i] - level) / (v[i] - v[i + 1]) * step
+            found.append(float(c[np.argmin(np.abs(c - at))]) if len(c) else float("nan"))
+        a, b = found
+        if np.isfinite(a) and np.isfinite(b) and abs(a - b) <= DEPTH_SLICE_SHIFT * slice_mm:
+            return ""
+        where = ", ".join(f"slice {kz}: " + (f"{c - at:+.1f} mm" if np.isfinite(c) else f"none within {search:.1f} mm")
+                          for kz, c in zip((k0, k0 + 1), found))
+        return (f"the ray runs between two slices {slice_mm:.1f} mm apart ({f:.2f} of the way) that disagree on "
+                f"the {what}'s crossing along it ({where}): an edge between the slices, met at a grazing angle; "
+                "the interpolated crossing is not measured")
 
     out: dict[str, DepthOnCT] = {}
     for k, name in enumerate(names):
@@ -403,11 +459,13 @@ def landmark_depths_on_ct(landmarks: dict[str, np.ndarray], skull: Mesh, skin: M
                                   f"the ray meets no skin within {max_depth_mm:g} mm of the bone")
             continue
         ss = float(skins[0])
+        holder = False
         if mask_prof is not None:
             edge = crossings(mask_prof[k], 0.5)
             edge = edge[edge > sb]
             voxel = float(max(ct.spacing))
             if len(edge) and ss > edge[0] + voxel:   # the skin level runs on into a pillow or a holder
+                holder = True
                 ss = sb + mesh_d if np.isfinite(mesh_d) and abs(sb + mesh_d - edge[0]) <= voxel else float(edge[0])
         inside = (s <= sb) & (s > sb - DEPTH_PLATEAU_MM)
         if bone_mode is not None and inside.any():
@@ -428,7 +486,55 @@ def landmark_depths_on_ct(landmarks: dict[str, np.ndarray], skull: Mesh, skin: M
                                   f"the ray meets {again:.1f} mm of bone {first:.1f} mm in front of the bone point "
                                   "before the skin: the landmark lies behind other bone along its normal")
             continue
-        out[name] = DepthOnCT(point, ss - sb, mesh_d, normal[k], True, "")
+        why = between_slices(k, sb, bone_level, "bone") or ("" if holder else between_slices(k, ss, skin_level, "skin"))
+        out[name] = DepthOnCT(point, ss - sb, mesh_d, normal[k], not why, why)
+    return out
+
+
+def depth_levels(skull_seg) -> dict:
+    """The levels of :func:`landmark_depths_on_ct` in the units of ``skull_seg.hu`` (a
+    :class:`~.skull.SkullSegmentation`): the bone level the mask was made at, the bone mode (None when the
+    histogram had none) and the skin level half way between air (-1000 HU) and the soft-tissue mode
+    (``skull_seg.c2``)."""
+    hist = skull_seg.meta.get("histogram") or {}
+    mode = hist.get("bone_mode")
+    return {"bone_level": float(skull_seg.bone_level), "bone_mode": None if mode is None else float(mode),
+            "skin_level": 0.5 * (-1000.0 + float(skull_seg.c2))}
+
+
+def measure_landmark_depths(landmarks: dict[str, np.ndarray], skull: Mesh, skin: Mesh | None, skull_seg=None,
+                            head_mask: np.ndarray | None = None,
+                            max_depth_mm: float = 60.0) -> dict[str, DepthOnCT]:
+    """The landmark depths every output writes (the batch's landmarks.csv, the add-on's Export Landmark Depths
+    and Export for Printing): on the CT's intensities (:func:`landmark_depths_on_ct`, levels from
+    :func:`depth_levels`) when ``skull_seg`` carries them and the CT shows soft tissue; otherwise on the meshes
+    (:func:`landmark_depths`), each result's ``method`` ``"mesh"`` and its ``evidence`` saying why.
+    Without a skin the depths are NaN (the bone point is the landmark snapped onto ``skull``)."""
+    names = list(landmarks)
+    if not names:
+        return {}
+    why = ""
+    if skin is None:
+        why = "no skin: depths not measured"
+    elif skull_seg is None or getattr(skull_seg, "hu", None) is None or getattr(skull_seg, "ct", None) is None:
+        why = "no CT intensities: depths measured on the meshes"
+    elif not skull_seg.meta.get("has_skin", True):
+        why = "the CT shows no soft tissue: depths measured on the meshes"
+    if not why:
+        return landmark_depths_on_ct(landmarks, skull, skin, skull_seg.hu, skull_seg.ct, head_mask=head_mask,
+                                     max_depth_mm=max_depth_mm, **depth_levels(skull_seg))
+    base, normal, depth = _depth_rays(landmarks, skull, skin, max_depth_mm)
+    return {n: DepthOnCT(base[i], float(depth[i]), float(depth[i]), normal[i], True, why, "mesh")
+            for i, n in enumerate(names)}
+
+
+def depth_flags(flags: dict[str, str], measured: dict[str, DepthOnCT]) -> dict[str, str]:
+    """The landmarks' flags with every ``ok`` landmark whose depth the CT's profile does not support
+    (``trusted`` False) turned ``uncertain``; landmarks without a flag count as ``ok``."""
+    out = dict(flags)
+    for name, m in measured.items():
+        if not m.trusted and out.get(name, "ok") == "ok":
+            out[name] = "uncertain"
     return out
 
 

@@ -331,9 +331,9 @@ def _skull_outputs(eng, ct, seg, bset, work: Path, settings: dict) -> int:
     intensities (:func:`~pdehead_addon.landmarks.landmark_depths_on_ct`), and the default table's mean and SD;
     returns the number found. A depth the intensity profile does not support turns an ``ok`` landmark
     ``uncertain``; the measured reason goes to log.txt."""
-    from pdehead_addon.auto_landmarks import OK, UNCERTAIN, find_landmarks
+    from pdehead_addon.auto_landmarks import find_landmarks
     from pdehead_addon.depth_table import default_table, write_landmark_csv
-    from pdehead_addon.landmarks import landmark_depths_on_ct
+    from pdehead_addon.landmarks import depth_flags, depth_levels, measure_landmark_depths
     from pdehead_addon.provenance import provenance
     from pdehead_addon.skull import segment_skull, skull_mesh
 
@@ -344,15 +344,13 @@ def _skull_outputs(eng, ct, seg, bset, work: Path, settings: dict) -> int:
     search = find_landmarks(ct, skull.bone)
     found = search.points()  # ok and uncertain
     levels = depth_levels(skull)
-    measured = landmark_depths_on_ct(found, bone, skin, skull.hu, ct, head_mask=seg.mask, **levels) if found else {}
-    flags = search.flags()
+    measured = measure_landmark_depths(found, bone, skin, skull, head_mask=seg.mask)
+    flags = depth_flags(search.flags(), measured)
     for name, m in measured.items():  # the ray of every depth, for an audit (and the tests' truth)
         print(f"depth ray: {name}: direction {m.direction[0]:.5f} {m.direction[1]:.5f} {m.direction[2]:.5f}, "
               f"mesh depth {m.mesh_depth:.2f} mm", flush=True)
         if not m.trusted:
             print(f"depth uncertain: {name}: {m.evidence}", flush=True)
-            if flags[name] == OK:
-                flags[name] = UNCERTAIN
     missing = (np.full(3, np.nan), float("nan"))
     rows = {name: (measured[name].point, measured[name].depth) if name in measured else missing
             for name in search.landmarks}  # not_found rows stay, flagged
@@ -363,16 +361,6 @@ def _skull_outputs(eng, ct, seg, bset, work: Path, settings: dict) -> int:
                                              depth="bone level to skin level in the CT along the bone's exposed normal",
                                              frame="CT patient LPS mm", runner="scripts/pdehead_batch.py"))
     return len(found)
-
-
-def depth_levels(skull) -> dict:
-    """The levels of :func:`~pdehead_addon.landmarks.landmark_depths_on_ct` in the units of ``skull.hu``: the
-    bone level the mask was made at, the bone mode (None when the histogram had none) and the skin level half
-    way between air (-1000 HU) and the soft-tissue mode (``skull.c2``)."""
-    hist = skull.meta.get("histogram") or {}
-    mode = hist.get("bone_mode")
-    return {"bone_level": float(skull.bone_level), "bone_mode": None if mode is None else float(mode),
-            "skin_level": 0.5 * (-1000.0 + float(skull.c2))}
 
 
 def main(argv=None) -> int:

@@ -240,10 +240,13 @@ def test_age_from_dicom_fields():
 
 
 # --------------------------------------------------------------------------- --skull: landmarks and their depths
-#: Depth error (mm) at the scale-1.12 study's ``ok`` landmarks that exceed the issue's 1 mm (measured on this
-#: 4.3 mm-slice grid, whose phantom is sampled point-wise in z: a ledge between two slices is interpolated, not
-#: imaged): mid-philtrum -2.6 (the alveolus' lower edge lies between two slices), supramentale -1.4, vertex -1.0.
-KNOWN_OVER_1MM = {"Mid-philtrum": 2.7, "Supramentale": 1.5, "Vertex": 1.1}
+#: Depth error (mm) at the scale-1.12 study's ``ok`` landmarks that still exceed the issue's 1 mm (measured): both
+#: rays run across the 4.3 mm slices (|d_z| 0.99-1.0) of a phantom imaged point-wise in z with a 1.2 mm blur, so
+#: each edge lies inside one slice interval and its linear crossing is off by up to 0.15 slice (0.63 mm) with the
+#: edge's phase: vertex bone +0.54, skin -0.48 (-1.02); supramentale (found on the palate's underside, 17 deg to
+#: the slices) bone +0.98, skin -0.39 (-1.37). Mid-philtrum (-2.57) is no longer here: its ray runs between two
+#: slices whose bone crossings lie 8.6 mm apart, and it is flagged uncertain with that reason.
+KNOWN_OVER_1MM = {"Supramentale": 1.4, "Vertex": 1.05}
 
 
 def _truth_along_ray(phantom, point, direction, scale):
@@ -268,7 +271,7 @@ def test_skull_batch_recovers_known_depths_at_ok_landmarks_and_builds_a_table(co
     """With --skull every study gets the bone skull and its automatic landmarks with flags. The depth is measured
     on the CT's interpolated intensities (bone level to skin level along the bone's exposed normal); at every
     landmark flagged ``ok`` it recovers the phantom's analytic depth along the same line within 1 mm (the scale-1
-    study; three named landmarks of the scale-1.12 study within the bounds of KNOWN_OVER_1MM). Before (the bone
+    study; two named landmarks of the scale-1.12 study within the bounds of KNOWN_OVER_1MM). Before (the bone
     mesh and the PDE skin): nasion +9.4, rhinion +12.5, orbitale +9.6, lateral orbit +3.5 / +3.7, opisthocranion
     -0.7 mm (scale 1). A landmark whose ray profile cannot be trusted is ``uncertain``, its reason in log.txt."""
     out = tmp_path / "skull"
@@ -289,7 +292,9 @@ def test_skull_batch_recovers_known_depths_at_ok_landmarks_and_builds_a_table(co
         assert {r["flag"] for r in table} <= {"ok", "uncertain", "not_found"}
         assert int(row["n_landmarks"]) == sum(r["flag"] != "not_found" for r in table) >= 20
         ok = [r for r in table if r["flag"] == "ok"]
-        assert len(ok) >= 24, [r["landmark"] for r in ok]  # the table still carries what a lab needs
+        # the table still carries what a lab needs (scale 1: 23; mid-philtrum and supradentale, whose ray runs
+        # between two slices that disagree on the alveolus' edge, are uncertain)
+        assert len(ok) >= 23, [r["landmark"] for r in ok]
         assert {r["landmark"] for r in ok} >= set(vault) | {"Glabella", "Zygomatic arch L", "Zygomatic arch R",
                                                             "Gonion L", "Gonion R", "Pogonion", "Menton"}
         log = (folder / "log.txt").read_text()
@@ -310,8 +315,11 @@ def test_skull_batch_recovers_known_depths_at_ok_landmarks_and_builds_a_table(co
         for line in (x for x in log.splitlines() if x.startswith("depth uncertain: ")):
             name = line.split(": ")[1]
             assert next(r["flag"] for r in table if r["landmark"] == name) == "uncertain"
-            assert any(w in line for w in ("peaks at", "no crossing", "meets", "no skin")), line
+            assert any(w in line for w in ("peaks at", "no crossing", "meets", "no skin", "between two slices")), line
         assert "depth uncertain: Supraorbital L: the bone along the ray peaks at" in log
+        assert re.search(r"^depth uncertain: Mid-philtrum: the ray runs between two slices .* disagree on the bone's",
+                         log, flags=re.M)
+        assert next(r["flag"] for r in table if r["landmark"] == "Mid-philtrum") == "uncertain"
     _cli("depth-table", out, "--out", tmp_path / "table.csv", check_code=0)
     made = _read_table(tmp_path / "table.csv")
     for name, truths in expected.items():

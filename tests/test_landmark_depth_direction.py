@@ -72,3 +72,50 @@ def test_pegs_stand_along_the_direction_the_depth_is_measured(holed_slab):
         assert abs(along_peg - depths[name][1]) < 0.05, (name, along_peg, depths[name][1])
     # at the rims, the nearest triangle's normal (what the pegs stood on before) is far from the peg
     assert _angle(pegs[0][2], nearest[0]) > 30.0 and _angle(pegs[1][2], nearest[1]) > 30.0
+
+
+def test_one_depth_function_on_the_ct_with_a_mesh_fallback(holed_slab):
+    """measure_landmark_depths (every depth output's: the batch's landmarks.csv, the add-on's Export Landmark
+    Depths and Export for Printing) measures on the CT's intensities when it has them, and falls back to the meshes,
+    saying so, when it has not. The CT's skin lies 6 mm above the slab's top; the skin mesh 8 mm (a PDE skin that
+    smooths over): the CT method gives 6 mm (measured 6.00), the meshes 8 mm."""
+    from types import SimpleNamespace
+
+    from scipy.special import erfc
+
+    from pdehead_addon.ct_volume import CTVolume
+    from pdehead_addon.landmarks import depth_flags, landmark_depths, measure_landmark_depths
+
+    ax = np.arange(-40.0, 41.0)
+    z, y, x = np.meshgrid(ax, ax, ax, indexing="ij")
+    bone = np.minimum.reduce([30 - np.abs(x), 30 - np.abs(y), 4 - np.abs(z), np.hypot(x, y) - 12])  # > 0 inside
+    edge = lambda d: 0.5 * erfc(-d / (np.sqrt(2.0) * 0.8))                                      # noqa: E731
+    hu = -1000.0 + 1040.0 * edge(10.0 - z) + 1060.0 * edge(bone)
+    ct = CTVolume(hu.astype(np.float32), (1.0, 1.0, 1.0), origin=(ax[0], ax[0], ax[0]), direction=np.eye(3))
+    seg = SimpleNamespace(hu=ct.data, ct=ct, bone_level=570.0, c2=40.0, meta={"has_skin": True,
+                                                                               "histogram": {"bone_mode": 1100.0}})
+    gx, gy = np.meshgrid(np.arange(-40.0, 41.0, 4.0), np.arange(-40.0, 41.0, 4.0), indexing="ij")
+    verts = np.stack([gx.ravel(), gy.ravel(), np.full(gx.size, 12.0)], 1)
+    n = gx.shape[0]
+    q = np.array([[i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1] for i in range(n - 1) for j in range(n - 1)]
+                 + [[i * n + j, (i + 1) * n + j + 1, i * n + j + 1] for i in range(n - 1) for j in range(n - 1)])
+    skin = Mesh(vertices=verts, quads=np.zeros((0, 4), np.int64), triangles=q)
+    lms = {"Glabella": np.array([22.0, 10.0, 4.0]), "Vertex": np.array([-20.0, -15.0, 4.0])}
+
+    on_ct = measure_landmark_depths(lms, holed_slab, skin, seg)
+    on_mesh = measure_landmark_depths(lms, holed_slab, skin, None)
+    mesh_only = landmark_depths(lms, holed_slab, skin)
+    for name in lms:
+        assert on_ct[name].method == "ct" and on_ct[name].trusted, on_ct[name].evidence
+        assert on_ct[name].depth == pytest.approx(6.0, abs=0.1)
+        assert on_mesh[name].method == "mesh" and on_mesh[name].evidence.startswith("no CT intensities")
+        assert on_mesh[name].depth == mesh_only[name][1] == pytest.approx(8.0, abs=0.6)
+    seg.meta["has_skin"] = False                        # a dry skull: the CT's skin level means nothing
+    assert {m.method for m in measure_landmark_depths(lms, holed_slab, skin, seg).values()} == {"mesh"}
+    no_skin = measure_landmark_depths(lms, holed_slab, None, seg)
+    assert all(np.isnan(m.depth) and m.evidence.startswith("no skin") for m in no_skin.values())
+    # a depth the CT's profile does not support turns an ok landmark uncertain; other flags stay
+    on_ct["Vertex"].trusted = False
+    assert depth_flags({"Glabella": "ok", "Vertex": "ok"}, on_ct) == {"Glabella": "ok", "Vertex": "uncertain"}
+    assert depth_flags({"Vertex": "not_found"}, on_ct) == {"Vertex": "not_found"}
+    assert depth_flags({}, on_ct) == {"Vertex": "uncertain"}        # a placed landmark without a flag

@@ -48,6 +48,11 @@ def test_cli_skull_only_ct_gives_the_same_skull(tmp_path, phantom_dicoms):
     assert {"skin.stl", "tissue_depth.csv"} <= {p.name for p in (tmp_path / "full").iterdir()}
     prov = json.loads((tmp_path / "only" / "provenance.json").read_text())
     assert prov["bone_level"].startswith(f"{level:g} HU, given")
+    # landmarks.csv says how its depths were measured: on the CT where it has skin, not at all where it has none
+    heads = {d: [ln for ln in (tmp_path / d / "landmarks.csv").read_text().splitlines() if ln.startswith("# depth: ")]
+             for d in ("full", "only")}
+    assert heads == {"full": ["# depth: bone level to skin level in the CT along the bone's exposed normal"],
+                     "only": ["# depth: not measured (no skin)"]}
     # the phantom's mandible has condyles on its rami (issue 22's facial skeleton): articulated, so neither
     # a missing nor a non-articulated mandible is reported (warnings go to stderr, issue 18)
     assert "mandible" not in only.stderr and "mandible" not in only.stdout

@@ -28,6 +28,7 @@ def _check_export(folder, n_skin_vertices=None, handles=True):
     assert open(folder / "skull.stl", "rb").read(80).decode("ascii").startswith("skull (patient LPS, mm); PDE Head")
     lm = (folder / "landmarks.csv").read_text().splitlines()
     assert lm[0].startswith("# software: PDE Head") and any(ln.startswith("# bone_level: ") for ln in lm)
+    assert "# depth: bone level to skin level in the CT along the bone's exposed normal" in lm   # as the batch
     assert [ln for ln in lm if not ln.startswith("#")][0] == \
         "landmark,x_mm,y_mm,z_mm,depth_mm,table_mm,table_name,sd_mm,flag"
     rows = [r for r in csv.reader(open(folder / "tissue_depth.csv")) if not r[0].startswith("#")]
@@ -168,7 +169,30 @@ def test_forensic_operators_on_the_phantom(pdehead_ext, tmp_path):
     assert len(body) == 1 + len(points) and body[0][-3:] == ["table_name", "sd_mm", "flag"]
     vertex = next(r for r in body if r[0] == "Vertex")
     assert vertex[5:] == ["5", peg["table_name"], "1.5", "ok"]
-    assert [float(c) for c in vertex[1:4]] == pytest.approx(lms["Vertex"], abs=1e-3)   # patient frame
+    # patient frame: the bone point of the depth, on the landmark's ray (the bone level's crossing in the CT)
+    assert np.linalg.norm(np.array([float(c) for c in vertex[1:4]]) - lms["Vertex"]) < 1.0
+    # the depth is measured as the batch measures it: on the CT's intensities along the bone's exposed normal
+    # (landmarks.measure_landmark_depths), not from the bone mesh to the PDE skin; the phantom's vault: 6.0 mm
+    from pdehead_addon.landmarks import landmark_depths, measure_landmark_depths
+    header = [r[0] for r in csv.reader(open(csv_path)) if r[0].startswith("#")]
+    assert "# depth: bone level to skin level in the CT along the bone's exposed normal" in header
+    skull_mesh, skin_mesh = forensic.skull_engine_mesh(coll, "BONE"), forensic.skin_engine_mesh(coll)
+    head = forensic.state.cache_for(forensic.state.settings(coll).study_id).seg
+    on_ct = measure_landmark_depths(lms, skull_mesh, skin_mesh, forensic._skull_seg(coll), head_mask=head.mask)
+    assert {m.method for m in on_ct.values()} == {"ct"}
+    assert float(vertex[4]) == pytest.approx(on_ct["Vertex"].depth, abs=0.005)
+    assert float(vertex[4]) == pytest.approx(6.0, abs=0.5)
+    for r in body[1:]:   # every row: the CT's bone point and depth; the flag demoted where the profile says so
+        m = on_ct[r[0]]
+        assert [float(c) for c in r[1:4]] == pytest.approx(m.point, abs=1e-3)
+        assert (r[4] == "" and not np.isfinite(m.depth)) or float(r[4]) == pytest.approx(m.depth, abs=0.005)
+        assert m.trusted or r[-1] == "uncertain"
+    # without CT intensities the same function falls back to the meshes, and says so
+    on_mesh = measure_landmark_depths(lms, skull_mesh, skin_mesh, None)
+    mesh_only = landmark_depths(lms, skull_mesh, skin_mesh)
+    assert {m.method for m in on_mesh.values()} == {"mesh"}
+    assert all(m.evidence.startswith("no CT intensities") for m in on_mesh.values())
+    assert all(m.depth == mesh_only[n][1] or not np.isfinite(m.depth) for n, m in on_mesh.items())
 
     assert bpy.ops.pdehead.frankfurt() == {'FINISHED'}
     m = np.array(coll["pdehead_frankfurt"]).reshape(4, 4)
