@@ -550,7 +550,7 @@ def ct_texture_atlas(head, mesh, ct, window, ranges, size: int | None = None, pa
         return lo + t * extent[axis]
 
     direct = cut_ct if cut_ct is not None else ct
-    air = float(direct.data.min()) if direct is not None and any(f >= 2 for f in family) else 0.0
+    air = float(direct.data.min()) if direct is not None and bool(np.any(family >= 2)) else 0.0
 
     def cut_tile(k):       # u ends (rows w, columns v) and v cuts (rows w, columns u) from the CT itself
         ws = grid(k, 2)

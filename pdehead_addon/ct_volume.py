@@ -262,6 +262,15 @@ def head_mask_on_grid(wfield, shape, spacing, origin, direction, margin_mm: floa
     m = to_w @ grid_affine(spacing, origin, direction)  # grid (i, j, k, 1) -> w-field (i, j, k, 1)
     nz, ny, nx = (int(n) for n in shape)
     wz, wy, wx = inside.shape
+    lin = m[:3, :3]
+    if not np.any(lin - np.diag(np.diag(lin))):
+        # axis-aligned grids (the usual case: the CT's decimated grid and the w-field share a direction):
+        # each index maps on its own, the same rounded indices as the per-slice loop below (its terms
+        # off the diagonal are exact zeros), looked up once as an outer product
+        index = [np.rint(lin[a, a] * np.arange(n) + m[a, 3]).astype(np.int64) for a, n in enumerate((nx, ny, nz))]
+        ok = [(ix >= 0) & (ix < w) for ix, w in zip(index, (wx, wy, wz))]
+        i, j, k = (np.where(o, ix, 0) for o, ix in zip(ok, index))
+        return inside[np.ix_(k, j, i)] & ok[2][:, None, None] & ok[1][None, :, None] & ok[0][None, None, :]
     jj, ii = np.mgrid[0:ny, 0:nx]
     base = m[:3, 0][:, None] * ii.ravel() + m[:3, 1][:, None] * jj.ravel() + m[:3, 3][:, None]
     out = np.zeros((nz, ny, nx), bool)

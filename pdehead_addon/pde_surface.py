@@ -765,13 +765,21 @@ class PDEHead:
             return {"u_top": u_top, "aspect": aspect, "curve_u": curve_u, "shear": shear,
                     "dome_ratio": dome_ratio, "cap_ratio": cap_ratio}
 
+        # The map is a function of the curves' u up to scale (the spline through the curves and the
+        # tangents' directions do not change when u is scaled), and the dome's tip rescales u at every
+        # approximation or smoothing change: solved on u / u[-1] (rounded to 12 digits, so the key and
+        # the result do not depend on the last bits of the scale), its rows scaled back to u.
+        span = float(curve_u[-1] - curve_u[0])
+        unit_u = np.round((curve_u - curve_u[0]) / span, 12) if span > 0 else curve_u
+
         def tube_map():                 # issue 21: near-conformal, even-scale UVs of the tube (mm)
-            rings, map_u = uv_map_grid(self.bset.curves, curve_u)
+            rings, map_u = uv_map_grid(self.bset.curves, unit_u)
             U, V, W = uv_tube_map(rings, map_u)
             box = (float(U.min()), float(max(U.max(), (U[:, 0] + W).max())), float(V.min()), float(V.max()))
             return (U, V, W), box, map_u
         # keyed by the curves' u too: the paper's patches and the C2 spline place the same curves at other u
-        table, box, map_u = _derived(self.bset, f"uv_tube_map{hash(curve_u.tobytes())}", tube_map)
+        table, box, unit_map_u = _derived(self.bset, f"uv_tube_map{hash(unit_u.tobytes())}", tube_map)
+        map_u = curve_u[0] + unit_map_u * span if span > 0 else unit_map_u
         return {"u_top": u_top, "aspect": (box[3] - box[2]) / (box[1] - box[0]), "curve_u": curve_u, "map_u": map_u,
                 "shear": None, "tube_map": table, "tube_box": box, "dome_ratio": dome_ratio,
                 "cap_ratio": cap_ratio}

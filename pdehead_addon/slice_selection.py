@@ -141,39 +141,6 @@ def candidates_of(bset) -> Candidates | None:
 
 
 # --------------------------------------------------------------------------- the proxy surface
-def _natural_spline_matrix(x: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """``A`` with ``f(s) = A @ y`` for the natural cubic spline through ``(x, y)``; shape (len(s), len(x))."""
-    m = len(x)
-    h = np.diff(x)
-    A = np.zeros((len(s), m))
-    span = np.clip(np.searchsorted(x, s, side="right") - 1, 0, m - 2)
-    t = (s - x[span]) / h[span]
-    rows = np.arange(len(s))
-    A[rows, span] += 1.0 - t
-    A[rows, span + 1] += t
-    if m > 2:
-        # second derivatives at the knots: T M = D y, M_0 = M_{m-1} = 0
-        from scipy.linalg import solve_banded
-        k = m - 2
-        i = np.arange(k)
-        band = np.zeros((3, k))
-        band[0, 1:] = h[1:-1]                                         # upper diagonal
-        band[1] = 2.0 * (h[:-1] + h[1:])
-        band[2, :-1] = h[1:-1]                                        # lower diagonal
-        D = np.zeros((k, m))
-        D[i, i] = 6.0 / h[:-1]
-        D[i, i + 1] = -6.0 / h[:-1] - 6.0 / h[1:]
-        D[i, i + 2] = 6.0 / h[1:]
-        Mpp = np.zeros((m, m))
-        # a banded solve: a dense LAPACK solve costs ~5x more here (BLAS threads on busy cores)
-        Mpp[1:-1] = solve_banded((1, 1), band, D, check_finite=False)
-        hs = h[span]
-        a = hs ** 2 / 6.0 * ((1.0 - t) ** 3 - (1.0 - t))
-        b = hs ** 2 / 6.0 * (t ** 3 - t)
-        A += a[:, None] * Mpp[span] + b[:, None] * Mpp[span + 1]
-    return A
-
-
 def _approximation(cand: Candidates, heights: np.ndarray) -> float:
     """The real solver's default smoothing length for curves at ``heights`` (its own function)."""
     from .pde_surface import default_approximation
@@ -202,7 +169,7 @@ def proxy_errors(cand: Candidates, chosen: np.ndarray, dome: bool = True) -> tup
 
 def _proxy_errors(cand: Candidates, idx: np.ndarray, dome: bool) -> tuple[np.ndarray, np.ndarray]:
     from .pde_basis import small_matmul
-    from .pde_spline import dome_height, smoothing_spline_values
+    from .pde_spline import dome_height, natural_spline_matrix, smoothing_spline_values
     sub = cand.sub
     n, m = idx.size, sub.shape[1]
     Y = sub[idx]                                                         # (n, m, 3)
@@ -230,7 +197,7 @@ def _proxy_errors(cand: Candidates, idx: np.ndarray, dome: bool) -> tuple[np.nda
     s = pos[j] + (cand.chord - f0) / (f1 - f0) * (pos[j + 1] - pos[j])
     # in column blocks that stay single-threaded in BLAS (the same numbers, measured bit for bit on the
     # scan's 775 sets; OpenBLAS's threads made this 128 x 32 by 32 x 192 product 4-5 x slower on 2 busy cores)
-    pred = small_matmul(_natural_spline_matrix(knots, s), data).reshape(cand.count, m, 3)
+    pred = small_matmul(natural_spline_matrix(knots, s), data).reshape(cand.count, m, 3)
     off = np.abs(np.einsum("kmc,kmc->km", pred - sub, cand.normals))
     return off.mean(axis=1), off.max(axis=1)
 

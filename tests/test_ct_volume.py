@@ -100,3 +100,26 @@ def test_param_limits_check_and_help():
     assert D.VOXEL_SIZE.help("volume voxel size") == "volume voxel size; default 2 mm"
     with pytest.raises(ValueError, match="defined twice"):
         D._param("patches", 3)
+
+
+def test_head_mask_on_an_axis_aligned_grid_is_the_per_voxel_lookup():
+    """The intensity grid's head mask on a grid of the w-field's direction (the outer-product lookup)
+    equals the nearest w-field voxel looked up voxel by voxel through the full affine map."""
+    from types import SimpleNamespace
+
+    from pdehead_addon.ct_volume import grid_affine, head_mask_on_grid
+    rng = np.random.default_rng(3)
+    w = np.where(rng.random((12, 15, 17)) < 0.03, 0.5, 2.0).astype(np.float32)
+    wf = SimpleNamespace(w=w, spacing=(2.0, 1.1, 0.9), origin=np.array([-7.0, 3.0, 11.0]), direction=np.eye(3))
+    shape, spacing, origin = (9, 13, 11), (2.7, 1.6, 1.3), np.array([-9.5, 1.2, 8.0])    # reaches past it
+    mask = head_mask_on_grid(wf, shape, spacing, origin, np.eye(3), margin_mm=1.0)
+    from scipy.ndimage import binary_dilation
+    inside = binary_dilation(w <= 1.0, iterations=2)                    # ceil(1.0 / 0.9) steps
+    m = np.linalg.inv(grid_affine(wf.spacing, wf.origin, wf.direction)) @ grid_affine(spacing, origin, np.eye(3))
+    k, j, i = np.indices(shape).reshape(3, -1)
+    ijk = np.rint(m[:3, :3] @ np.stack([i, j, k]) + m[:3, 3:]).astype(np.int64)
+    ok = np.all((ijk >= 0) & (ijk < np.array(w.shape[::-1])[:, None]), axis=0)
+    expected = np.zeros(len(k), bool)
+    expected[ok] = inside[ijk[2, ok], ijk[1, ok], ijk[0, ok]]
+    assert 0 < mask.sum() < mask.size and not ok.all()
+    assert np.array_equal(mask.ravel(), expected)
