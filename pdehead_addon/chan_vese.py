@@ -689,31 +689,31 @@ def _band_fine_solve(img: np.ndarray, spacing: Sequence[float], lam: float, thet
     ostrides = (fac[1] * fac[2], fac[2], 1)
     local = np.arange(per, dtype=np.int32)
 
-    def neighbours(count: int, axis: int, step: int, outside: np.ndarray | None) -> np.ndarray:
-        """Compact index of each voxel's neighbour one step along ``axis`` (blocks ``:count``)."""
+    def face_neighbours(count: int, axis: int, step: int) -> tuple[np.ndarray, np.ndarray]:
+        """The entries of blocks ``:count`` on their face towards ``step`` along ``axis`` (compact
+        indices) and each one's neighbour in the next block: the zero slot where there is no block
+        (backward), the entry itself at the grid's end (forward: gradient 0)."""
         f = fac[axis]
-        edge = ocoords[axis] == (0 if step < 0 else f - 1)          # the neighbour is in the next block
-        inner = local + np.int32(step * ostrides[axis])
-        across = local - np.int32(step * (f - 1) * ostrides[axis])
+        on_face = local[ocoords[axis] == (0 if step < 0 else f - 1)]
+        across = on_face - np.int32(step * (f - 1) * ostrides[axis])
         bc = bcoords[axis][:count]
         inside_grid = (bc > 0) if step < 0 else (bc < cshape[axis] - 1)
         nblock = np.full(count, n_all, np.int32)
         nblock[inside_grid] = block_lut[blocks[:count][inside_grid] + np.int32(step * cstrides[axis])]
-        base = np.arange(count, dtype=np.int32)[:, None] * np.int32(per)
-        out = base + np.where(edge, 0, inner)[None, :]
-        cross = nblock[:, None] * np.int32(per) + across[None, :]
-        np.copyto(out, cross, where=edge[None, :])
-        missing = (nblock == n_all)[:, None] & edge[None, :]
-        if outside is None:          # backward: no block there -> the zero slot
-            out[missing] = ne
-        else:                        # forward: the grid's end -> itself (gradient 0)
-            last = (~inside_grid)[:, None] & edge[None, :]
-            out[last] = (base + local[None, :])[last]
-        return out.reshape(-1)
+        pos = np.arange(count, dtype=np.int32)[:, None] * np.int32(per) + on_face[None, :]
+        nbr = nblock[:, None] * np.int32(per) + across[None, :]
+        if step < 0:
+            nbr[nblock == n_all] = ne
+        else:
+            nbr[~inside_grid] = pos[~inside_grid]
+        return pos.reshape(-1), nbr.reshape(-1)
 
-    back = [neighbours(n_t, ax, -1, None) for ax in range(3)]
-    fwd = [neighbours(n_band, ax, +1, np.empty(0)) for ax in range(3)]
-    if any(int(f.max(initial=0)) >= ne for f in fwd):
+    # inside a block the neighbour along an axis is ``ostrides[axis]`` entries on: the sweep shifts the
+    # whole vector and corrects only the entries on the block's face (a third to a quarter of them),
+    # whose neighbour lies in another block (or is the zero slot / itself at the grid's end)
+    back_edge = [face_neighbours(n_t, ax, -1) for ax in range(3)]
+    fwd_edge = [face_neighbours(n_band, ax, +1) for ax in range(3)]
+    if any(int(nbr.max(initial=0)) >= ne for _, nbr in fwd_edge):
         raise AssertionError("band without its ring")  # cannot happen: the ring surrounds the band
     # warm start: the coarse q and s (s/h rescaled to the fine step; 0 at the grid's last index, eq. 21)
     neg_q = np.empty(ne + 1, np.float32)
@@ -745,8 +745,8 @@ def _band_fine_solve(img: np.ndarray, spacing: Sequence[float], lam: float, thet
     used = (c1, c2)
     change = float("nan")
     done = 0
-    t = np.empty(nt, np.float32)
-    gathered = np.empty(nt, np.float32)
+    t_pad = np.zeros(nt + per, np.float32)      # t and room for the shifted reads past the band's end
+    t = t_pad[:nt]
     w = np.empty(nb, np.float32)
     n = np.empty(nb, np.float32)
     g = [np.empty(nb, np.float32) for _ in range(3)]
@@ -756,8 +756,11 @@ def _band_fine_solve(img: np.ndarray, spacing: Sequence[float], lam: float, thet
         t += sig[1][:nt]
         t += sig[2][:nt]
         for ax in range(3):
-            np.take(sig[ax], back[ax], out=gathered)
-            t -= gathered
+            st = ostrides[ax]
+            pos, nbr = back_edge[ax]
+            kept = t[pos]
+            t[st:] -= sig[ax][:nt - st]
+            t[pos] = kept - sig[ax][nbr]
         tb = t[:nb]
         # eq. 20 on the band: neg_q = clip(t + lam r, -1/theta, 0)
         lam_alpha, lam_beta = lam * 2.0 * (c2 - c1), lam * (c1 * c1 - c2 * c2)
@@ -772,8 +775,10 @@ def _band_fine_solve(img: np.ndarray, spacing: Sequence[float], lam: float, thet
         sum_iq = -theta * float(np.vdot(band_img, w))
         # eq. 21 on the band from t
         for ax in range(3):
-            np.take(t, fwd[ax], out=g[ax])
-            g[ax] -= tb
+            st = ostrides[ax]
+            pos, nbr = fwd_edge[ax]
+            np.subtract(t_pad[st:st + nb], tb, out=g[ax])
+            g[ax][pos] = t[nbr] - tb[pos]
         np.multiply(g[0], g[0], out=n)
         n *= weights[0]
         for ax in (1, 2):
