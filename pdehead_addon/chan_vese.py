@@ -579,7 +579,7 @@ FINE_BAND = False
 #: nothing from it (CThead, 7.4 M voxels: 1.6-1.7 s CPU for segment_head either way, the band's index
 #: building eats the saving) and keep the box solve, so their masks are unchanged (CThead, GE and the
 #: phantom are the golden cases of the selection and the visible-face score).  On the 512 x 512 x 300
-#: scan (78.6 M voxels) the solver takes 7.0 s CPU instead of 10.0 s (docs/benchmarks.md).
+#: scan (78.6 M voxels) the solver takes 5.2-6.3 s CPU instead of 9.8-10.2 s (docs/benchmarks.md, issue 20).
 FINE_BAND_MIN_VOXELS = 40_000_000
 #: Coarse blocks are undecided when their membership lies in (UNDECIDED_Q, 1 - UNDECIDED_Q) or when
 #: they touch the boundary of ``q > 0.5`` (either side, 26-neighbours); the band is those blocks grown
