@@ -508,7 +508,7 @@ def _solve_pyramid(img: np.ndarray, spacing: Sequence[float], lam: float, theta:
     if prev is not None and (FINE_BAND or img.size >= FINE_BAND_MIN_VOXELS) and not two_d and int(inner) == 1:
         # the full grid only in a band of coarse blocks around the coarse boundary
         res, band_info = _band_fine_solve(img, spacing, lam, theta, fine_tau, iterations, tolerance, q, sig, c,
-                                          prev, progress=level_progress)
+                                          prev, progress=level_progress, threads=threads)
         if res is not None:
             info.update(tau=fine_tau, fine_iterations=res["iterations"], fine_change=res["change"],
                         fine_box=None, fine_band=band_info)
@@ -588,6 +588,8 @@ FINE_BAND_MIN_VOXELS = 40_000_000
 #: 0.54 / 0.83); with the boundary's blocks on both sides (6.6 M voxels, 8.4 %) it is 0.9934.
 UNDECIDED_Q = 0.02
 FINE_BAND_MARGIN = 0
+#: The band's sweep is split over the solver's threads in parts of at least this many voxels.
+BAND_PART_VOXELS = 1_000_000
 
 
 #: Also put in the band every block whose full-resolution intensities straddle the fine level's
@@ -638,7 +640,7 @@ def _band_blocks(q_coarse: np.ndarray, margin: int, img: np.ndarray | None = Non
 
 def _band_fine_solve(img: np.ndarray, spacing: Sequence[float], lam: float, theta: float, tau: float,
                      iterations: int, tolerance: float, q_coarse: np.ndarray, sig_coarse, c0, factors,
-                     progress=None, margin: int | None = None) -> tuple[dict | None, dict]:
+                     progress=None, margin: int | None = None, threads: int = 1) -> tuple[dict | None, dict]:
     """The full-resolution level of eq. 16-21 only in a band of coarse blocks around the coarse boundary.
 
     Outside the band the membership keeps the coarse level's value (nearest-neighbour upsampled; there
@@ -750,57 +752,98 @@ def _band_fine_solve(img: np.ndarray, spacing: Sequence[float], lam: float, thet
     w = np.empty(nb, np.float32)
     n = np.empty(nb, np.float32)
     g = [np.empty(nb, np.float32) for _ in range(3)]
-    for it in range(int(iterations)):
-        # t = div s - q/theta on band and ring (div = -grad^T: s[i] - s[i - e_a])
-        np.add(neg_q[:nt], sig[0][:nt], out=t)
-        t += sig[1][:nt]
-        t += sig[2][:nt]
+    # the sweep's element-wise phases run on ranges of the vectors, one per thread (numpy releases
+    # the GIL); the sums of eq. 17 are taken on the whole vectors: the same numbers as one thread
+    parts = max(1, min(int(threads), nb // BAND_PART_VOXELS or 1))
+    t_cuts = np.linspace(0, nt, parts + 1).round().astype(np.int64)
+    b_cuts = np.linspace(0, nb, parts + 1).round().astype(np.int64)
+    back_cut = [np.searchsorted(pos, t_cuts) for pos, _ in back_edge]
+    fwd_cut = [np.searchsorted(pos, b_cuts) for pos, _ in fwd_edge]
+    pool = ThreadPoolExecutor(parts) if parts > 1 else None
+
+    def run(phase, *args):
+        if pool is None:
+            phase(0, *args)
+        else:
+            list(pool.map(lambda k: phase(k, *args), range(parts)))
+
+    def phase_t(k):
+        """t = div s - q/theta on band and ring (div = -grad^T: s[i] - s[i - e_a]), entries of part k."""
+        lo, hi = int(t_cuts[k]), int(t_cuts[k + 1])
+        tr = t[lo:hi]
+        np.add(neg_q[lo:hi], sig[0][lo:hi], out=tr)
+        tr += sig[1][lo:hi]
+        tr += sig[2][lo:hi]
         for ax in range(3):
             st = ostrides[ax]
             pos, nbr = back_edge[ax]
+            a, b = int(back_cut[ax][k]), int(back_cut[ax][k + 1])
+            pos, nbr = pos[a:b], nbr[a:b]
             kept = t[pos]
-            t[st:] -= sig[ax][:nt - st]
+            s0 = max(lo, st)
+            if hi > s0:
+                t[s0:hi] -= sig[ax][s0 - st:hi - st]
             t[pos] = kept - sig[ax][nbr]
-        tb = t[:nb]
-        # eq. 20 on the band: neg_q = clip(t + lam r, -1/theta, 0)
-        lam_alpha, lam_beta = lam * 2.0 * (c2 - c1), lam * (c1 * c1 - c2 * c2)
-        np.multiply(band_img, np.float32(lam_alpha), out=w)
-        w += tb
-        w += np.float32(lam_beta)
-        np.clip(w, low, np.float32(0.0), out=w)
-        np.subtract(w, neg_q[:nb], out=n)
-        d = float(np.vdot(n, n))
-        neg_q[:nb] = w
-        sum_q = -theta * float(w.sum(dtype=np.float64))
-        sum_iq = -theta * float(np.vdot(band_img, w))
-        # eq. 21 on the band from t
+
+    def phase_q(k, lam_alpha, lam_beta):
+        """eq. 20 on the band: neg_q = clip(t + lam r, -1/theta, 0) into w; n = w - the old neg_q."""
+        lo, hi = int(b_cuts[k]), int(b_cuts[k + 1])
+        wr, nr = w[lo:hi], n[lo:hi]
+        np.multiply(band_img[lo:hi], np.float32(lam_alpha), out=wr)
+        wr += t[lo:hi]
+        wr += np.float32(lam_beta)
+        np.clip(wr, low, np.float32(0.0), out=wr)
+        np.subtract(wr, neg_q[lo:hi], out=nr)
+
+    def phase_s(k):
+        """neg_q = w, then eq. 21 on the band from t, entries of part k."""
+        lo, hi = int(b_cuts[k]), int(b_cuts[k + 1])
+        neg_q[lo:hi] = w[lo:hi]
+        tb = t[lo:hi]
+        wr, nr = w[lo:hi], n[lo:hi]
+        gr = [ga[lo:hi] for ga in g]
         for ax in range(3):
             st = ostrides[ax]
             pos, nbr = fwd_edge[ax]
-            np.subtract(t_pad[st:st + nb], tb, out=g[ax])
-            g[ax][pos] = t[nbr] - tb[pos]
-        np.multiply(g[0], g[0], out=n)
-        n *= weights[0]
+            a, b = int(fwd_cut[ax][k]), int(fwd_cut[ax][k + 1])
+            pos, nbr = pos[a:b], nbr[a:b]
+            np.subtract(t_pad[lo + st:hi + st], tb, out=gr[ax])
+            g[ax][pos] = t[nbr] - t[pos]
+        np.multiply(gr[0], gr[0], out=nr)
+        nr *= weights[0]
         for ax in (1, 2):
-            np.multiply(g[ax], g[ax], out=w)
-            w *= weights[ax]
-            n += w
-        np.sqrt(n, out=n)
-        n *= tau32
-        n += np.float32(1.0)
-        np.reciprocal(n, out=n)
+            np.multiply(gr[ax], gr[ax], out=wr)
+            wr *= weights[ax]
+            nr += wr
+        np.sqrt(nr, out=nr)
+        nr *= tau32
+        nr += np.float32(1.0)
+        np.reciprocal(nr, out=nr)
         for ax in range(3):
-            g[ax] *= np.float32(tau * weights[ax])
-            g[ax] += sig[ax][:nb]
-            np.multiply(g[ax], n, out=sig[ax][:nb])
-        used = (c1, c2)
-        c1, c2 = _region_means(frozen_q + sum_q, frozen_iq + sum_iq, total_i, count)
-        change = math.sqrt(theta * theta * d / count)
-        done = it + 1
-        if progress is not None:
-            progress(done)
-        if change < tolerance:
-            break
+            gr[ax] *= np.float32(tau * weights[ax])
+            gr[ax] += sig[ax][lo:hi]
+            np.multiply(gr[ax], nr, out=sig[ax][lo:hi])
+
+    try:
+        for it in range(int(iterations)):
+            run(phase_t)
+            lam_alpha, lam_beta = lam * 2.0 * (c2 - c1), lam * (c1 * c1 - c2 * c2)
+            run(phase_q, lam_alpha, lam_beta)
+            d = float(np.vdot(n, n))
+            sum_q = -theta * float(w.sum(dtype=np.float64))
+            sum_iq = -theta * float(np.vdot(band_img, w))
+            run(phase_s)
+            used = (c1, c2)
+            c1, c2 = _region_means(frozen_q + sum_q, frozen_iq + sum_iq, total_i, count)
+            change = math.sqrt(theta * theta * d / count)
+            done = it + 1
+            if progress is not None:
+                progress(done)
+            if change < tolerance:
+                break
+    finally:
+        if pool is not None:
+            pool.shutdown()
     q6 = q_full.reshape(img6.shape)
     q6[bz[:n_band], :, by[:n_band], :, bx[:n_band], :] = (neg_q[:nb] * np.float32(-theta)).reshape(n_band, *fac)
     res = dict(q=q_full, c1=used[0], c2=used[1], iterations=done, change=change, sig=None)

@@ -261,8 +261,13 @@ def test_band_holds_every_block_that_straddles_the_level_and_large_grids_use_it(
     box = segment_head(ct, **levels)
     assert box.meta["solver"]["fine_box"] is not None and not box.meta["solver"].get("fine_band")
     monkeypatch.setattr(chan_vese, "FINE_BAND_MIN_VOXELS", ct.data.size)
-    band = segment_head(ct, **levels)
+    band = segment_head(ct, threads=1, **levels)
     assert band.meta["solver"].get("fine_band"), band.meta["solver"]
+    # the band's sweep split over two threads: the same numbers to the bit
+    monkeypatch.setattr(chan_vese, "BAND_PART_VOXELS", 1000)
+    split = segment_head(ct, threads=2, **levels)
+    np.testing.assert_array_equal(split.probability, band.probability)
+    assert split.c1 == band.c1 and split.c2 == band.c2
     monkeypatch.setattr(chan_vese, "FINE_BAND_STRADDLE", False)
     plain = segment_head(ct, **levels)
     assert plain.meta["solver"]["fine_band"]["band_voxels"] < band.meta["solver"]["fine_band"]["band_voxels"]
