@@ -420,6 +420,10 @@ def _resample_nearest(a: np.ndarray, from_factors: Sequence[int], to_factors: Se
         nz, ny, nx = (int(n) for n in shape)
         row = np.repeat(a, reps[2], axis=2)[:, :, :nx] if reps[2] > 1 else a[:, :, :nx]
         out = np.empty((nz, ny, nx), np.float32)
+        if nz == a.shape[0] * reps[0] and ny == a.shape[1] * reps[1]:
+            # the grid is whole blocks in z and y: one broadcast write (~35 % less time than the loop)
+            out.reshape(a.shape[0], reps[0], a.shape[1], reps[1], nx)[...] = row[:, None, :, None, :]
+            return out
         for k in range(reps[0]):
             for j in range(reps[1]):
                 dst = out[k::reps[0], j::reps[1]]
@@ -501,10 +505,10 @@ def _solve_pyramid(img: np.ndarray, spacing: Sequence[float], lam: float, theta:
         q, c, sig, prev = res["q"], (res["c1"], res["c2"]), res["sig"], fac
         del res, level_img
     fine_tau = bound(spacing) if tau is None else tau
-    if prev is not None and FINE_BAND and not two_d and int(inner) == 1:
+    if prev is not None and (FINE_BAND or img.size >= FINE_BAND_MIN_VOXELS) and not two_d and int(inner) == 1:
         # the full grid only in a band of coarse blocks around the coarse boundary
         res, band_info = _band_fine_solve(img, spacing, lam, theta, fine_tau, iterations, tolerance, q, sig, c,
-                                          prev, progress=level_progress)
+                                          prev, progress=level_progress, threads=threads)
         if res is not None:
             info.update(tau=fine_tau, fine_iterations=res["iterations"], fine_change=res["change"],
                         fine_box=None, fine_band=band_info)
@@ -568,12 +572,15 @@ def _fine_crop(q_coarse: np.ndarray, factors: Sequence[int], shape: Sequence[int
 # ----------------------------------------------------------------------------------------------
 
 #: Run the full-resolution level only in a band of coarse blocks around the coarse boundary
-#: (:func:`_band_fine_solve`); False runs it on the coarse head's box (:func:`_fine_crop`).
-#: Off by default: the band keeps the per-slice Jaccard (0.9999 / 0.992 on the 512 x 512 x 300 scan)
-#: and saves ~40 % of the solver's CPU, but its 654 changed voxels on CThead sit on the face's thin
-#: features (nostrils, lips) and the visible-face score of issue 21 went from 0.307 / 1.08 mm to
-#: 0.334 / 1.19 mm (mean / p95, t = 10): the face is worth more than the 2-3 s.
+#: (:func:`_band_fine_solve`) on every grid; False: only on grids of at least
+#: :data:`FINE_BAND_MIN_VOXELS` (smaller ones solve the coarse head's box, :func:`_fine_crop`).
 FINE_BAND = False
+#: Grids of at least this many voxels run the full-resolution level in the band.  Smaller grids gain
+#: nothing from it (CThead, 7.4 M voxels: 1.6-1.7 s CPU for segment_head either way, the band's index
+#: building eats the saving) and keep the box solve, so their masks are unchanged (CThead, GE and the
+#: phantom are the golden cases of the selection and the visible-face score).  On the 512 x 512 x 300
+#: scan (78.6 M voxels) the solver takes 5.2-6.3 s CPU instead of 9.8-10.2 s (docs/benchmarks.md, issue 20).
+FINE_BAND_MIN_VOXELS = 40_000_000
 #: Coarse blocks are undecided when their membership lies in (UNDECIDED_Q, 1 - UNDECIDED_Q) or when
 #: they touch the boundary of ``q > 0.5`` (either side, 26-neighbours); the band is those blocks grown
 #: by FINE_BAND_MARGIN blocks.  Measured on the 512 x 512 x 300 scan (3 x 4 x 4 blocks): the undecided
@@ -581,13 +588,48 @@ FINE_BAND = False
 #: 0.54 / 0.83); with the boundary's blocks on both sides (6.6 M voxels, 8.4 %) it is 0.9934.
 UNDECIDED_Q = 0.02
 FINE_BAND_MARGIN = 0
+#: The band's sweep is split over the solver's threads in parts of at least this many voxels.
+BAND_PART_VOXELS = 1_000_000
 
 
-def _band_blocks(q_coarse: np.ndarray, margin: int) -> np.ndarray:
-    """Coarse blocks of the band: undecided or on the coarse boundary, grown by ``margin`` blocks (26-conn.)."""
+#: Also put in the band every block whose full-resolution intensities straddle the fine level's
+#: boundary level (c1 + c2) / 2 (eq. 18: where the data term changes sign), so thin features the coarse
+#: level smoothed away (nostrils, lips, ear rims) are solved at full resolution.  Measured against the
+#: box solve: CThead 670 -> 66 voxels differ (per-slice Jaccard min 0.970 -> 0.997), the 512 x 512 x 300
+#: scan 2,623 -> 1,110 (min 0.9923 -> 0.9931), the band 6.6 -> 7.3 M voxels.
+FINE_BAND_STRADDLE = True
+
+
+def _block_range(img: np.ndarray, factors: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
+    """Minimum and maximum of ``img`` over blocks of ``factors`` voxels (the grid is whole blocks)."""
+    fz, fy, fx = (int(f) for f in factors)
+    lo = hi = None
+    for dz in range(fz):
+        for dy in range(fy):
+            for dx in range(fx):
+                view = img[dz::fz, dy::fy, dx::fx]
+                if lo is None:
+                    lo, hi = view.copy(), view.copy()
+                else:
+                    np.minimum(lo, view, out=lo)
+                    np.maximum(hi, view, out=hi)
+    return lo, hi
+
+
+def _band_blocks(q_coarse: np.ndarray, margin: int, img: np.ndarray | None = None, factors=None,
+                 level: float | None = None) -> np.ndarray:
+    """Coarse blocks of the band: undecided or on the coarse boundary, grown by ``margin`` blocks (26-conn.).
+
+    With ``img`` (the full grid, whole blocks of ``factors``) and ``level``, also the blocks whose
+    intensities straddle ``level`` (:data:`FINE_BAND_STRADDLE`).
+    """
     from scipy import ndimage
     lo = np.float32(UNDECIDED_Q)
     undecided = (q_coarse > lo) & (q_coarse < np.float32(1.0) - lo)
+    if img is not None and level is not None:
+        bmin, bmax = _block_range(img, factors)
+        undecided |= (bmin < np.float32(level)) & (bmax > np.float32(level))
+        del bmin, bmax
     inside = q_coarse > np.float32(0.5)
     cube = np.ones((3, 3, 3), bool)
     undecided |= ndimage.binary_dilation(inside, cube) & ~ndimage.binary_erosion(inside, cube, border_value=1)
@@ -598,7 +640,7 @@ def _band_blocks(q_coarse: np.ndarray, margin: int) -> np.ndarray:
 
 def _band_fine_solve(img: np.ndarray, spacing: Sequence[float], lam: float, theta: float, tau: float,
                      iterations: int, tolerance: float, q_coarse: np.ndarray, sig_coarse, c0, factors,
-                     progress=None, margin: int | None = None) -> tuple[dict | None, dict]:
+                     progress=None, margin: int | None = None, threads: int = 1) -> tuple[dict | None, dict]:
     """The full-resolution level of eq. 16-21 only in a band of coarse blocks around the coarse boundary.
 
     Outside the band the membership keeps the coarse level's value (nearest-neighbour upsampled; there
@@ -615,7 +657,10 @@ def _band_fine_solve(img: np.ndarray, spacing: Sequence[float], lam: float, thet
     cshape = tuple(int(n) for n in q_coarse.shape)
     if any(n != m * f for n, m, f in zip(shape, cshape, fac)):
         return None, {}
-    band = _band_blocks(q_coarse, margin)
+    if FINE_BAND_STRADDLE:
+        band = _band_blocks(q_coarse, margin, img, fac, 0.5 * (float(c0[0]) + float(c0[1])))
+    else:
+        band = _band_blocks(q_coarse, margin)
     if not band.any():
         return None, {}
     from scipy import ndimage
@@ -646,31 +691,31 @@ def _band_fine_solve(img: np.ndarray, spacing: Sequence[float], lam: float, thet
     ostrides = (fac[1] * fac[2], fac[2], 1)
     local = np.arange(per, dtype=np.int32)
 
-    def neighbours(count: int, axis: int, step: int, outside: np.ndarray | None) -> np.ndarray:
-        """Compact index of each voxel's neighbour one step along ``axis`` (blocks ``:count``)."""
+    def face_neighbours(count: int, axis: int, step: int) -> tuple[np.ndarray, np.ndarray]:
+        """The entries of blocks ``:count`` on their face towards ``step`` along ``axis`` (compact
+        indices) and each one's neighbour in the next block: the zero slot where there is no block
+        (backward), the entry itself at the grid's end (forward: gradient 0)."""
         f = fac[axis]
-        edge = ocoords[axis] == (0 if step < 0 else f - 1)          # the neighbour is in the next block
-        inner = local + np.int32(step * ostrides[axis])
-        across = local - np.int32(step * (f - 1) * ostrides[axis])
+        on_face = local[ocoords[axis] == (0 if step < 0 else f - 1)]
+        across = on_face - np.int32(step * (f - 1) * ostrides[axis])
         bc = bcoords[axis][:count]
         inside_grid = (bc > 0) if step < 0 else (bc < cshape[axis] - 1)
         nblock = np.full(count, n_all, np.int32)
         nblock[inside_grid] = block_lut[blocks[:count][inside_grid] + np.int32(step * cstrides[axis])]
-        base = np.arange(count, dtype=np.int32)[:, None] * np.int32(per)
-        out = base + np.where(edge, 0, inner)[None, :]
-        cross = nblock[:, None] * np.int32(per) + across[None, :]
-        np.copyto(out, cross, where=edge[None, :])
-        missing = (nblock == n_all)[:, None] & edge[None, :]
-        if outside is None:          # backward: no block there -> the zero slot
-            out[missing] = ne
-        else:                        # forward: the grid's end -> itself (gradient 0)
-            last = (~inside_grid)[:, None] & edge[None, :]
-            out[last] = (base + local[None, :])[last]
-        return out.reshape(-1)
+        pos = np.arange(count, dtype=np.int32)[:, None] * np.int32(per) + on_face[None, :]
+        nbr = nblock[:, None] * np.int32(per) + across[None, :]
+        if step < 0:
+            nbr[nblock == n_all] = ne
+        else:
+            nbr[~inside_grid] = pos[~inside_grid]
+        return pos.reshape(-1), nbr.reshape(-1)
 
-    back = [neighbours(n_t, ax, -1, None) for ax in range(3)]
-    fwd = [neighbours(n_band, ax, +1, np.empty(0)) for ax in range(3)]
-    if any(int(f.max(initial=0)) >= ne for f in fwd):
+    # inside a block the neighbour along an axis is ``ostrides[axis]`` entries on: the sweep shifts the
+    # whole vector and corrects only the entries on the block's face (a third to a quarter of them),
+    # whose neighbour lies in another block (or is the zero slot / itself at the grid's end)
+    back_edge = [face_neighbours(n_t, ax, -1) for ax in range(3)]
+    fwd_edge = [face_neighbours(n_band, ax, +1) for ax in range(3)]
+    if any(int(nbr.max(initial=0)) >= ne for _, nbr in fwd_edge):
         raise AssertionError("band without its ring")  # cannot happen: the ring surrounds the band
     # warm start: the coarse q and s (s/h rescaled to the fine step; 0 at the grid's last index, eq. 21)
     neg_q = np.empty(ne + 1, np.float32)
@@ -702,57 +747,103 @@ def _band_fine_solve(img: np.ndarray, spacing: Sequence[float], lam: float, thet
     used = (c1, c2)
     change = float("nan")
     done = 0
-    t = np.empty(nt, np.float32)
-    gathered = np.empty(nt, np.float32)
+    t_pad = np.zeros(nt + per, np.float32)      # t and room for the shifted reads past the band's end
+    t = t_pad[:nt]
     w = np.empty(nb, np.float32)
     n = np.empty(nb, np.float32)
     g = [np.empty(nb, np.float32) for _ in range(3)]
-    for it in range(int(iterations)):
-        # t = div s - q/theta on band and ring (div = -grad^T: s[i] - s[i - e_a])
-        np.add(neg_q[:nt], sig[0][:nt], out=t)
-        t += sig[1][:nt]
-        t += sig[2][:nt]
+    # the sweep's element-wise phases run on ranges of the vectors, one per thread (numpy releases
+    # the GIL); the sums of eq. 17 are taken on the whole vectors: the same numbers as one thread
+    parts = max(1, min(int(threads), nb // BAND_PART_VOXELS or 1))
+    t_cuts = np.linspace(0, nt, parts + 1).round().astype(np.int64)
+    b_cuts = np.linspace(0, nb, parts + 1).round().astype(np.int64)
+    back_cut = [np.searchsorted(pos, t_cuts) for pos, _ in back_edge]
+    fwd_cut = [np.searchsorted(pos, b_cuts) for pos, _ in fwd_edge]
+    pool = ThreadPoolExecutor(parts) if parts > 1 else None
+
+    def run(phase, *args):
+        if pool is None:
+            phase(0, *args)
+        else:
+            list(pool.map(lambda k: phase(k, *args), range(parts)))
+
+    def phase_t(k):
+        """t = div s - q/theta on band and ring (div = -grad^T: s[i] - s[i - e_a]), entries of part k."""
+        lo, hi = int(t_cuts[k]), int(t_cuts[k + 1])
+        tr = t[lo:hi]
+        np.add(neg_q[lo:hi], sig[0][lo:hi], out=tr)
+        tr += sig[1][lo:hi]
+        tr += sig[2][lo:hi]
         for ax in range(3):
-            np.take(sig[ax], back[ax], out=gathered)
-            t -= gathered
-        tb = t[:nb]
-        # eq. 20 on the band: neg_q = clip(t + lam r, -1/theta, 0)
-        lam_alpha, lam_beta = lam * 2.0 * (c2 - c1), lam * (c1 * c1 - c2 * c2)
-        np.multiply(band_img, np.float32(lam_alpha), out=w)
-        w += tb
-        w += np.float32(lam_beta)
-        np.clip(w, low, np.float32(0.0), out=w)
-        np.subtract(w, neg_q[:nb], out=n)
-        d = float(np.vdot(n, n))
-        neg_q[:nb] = w
-        sum_q = -theta * float(w.sum(dtype=np.float64))
-        sum_iq = -theta * float(np.vdot(band_img, w))
-        # eq. 21 on the band from t
+            st = ostrides[ax]
+            pos, nbr = back_edge[ax]
+            a, b = int(back_cut[ax][k]), int(back_cut[ax][k + 1])
+            pos, nbr = pos[a:b], nbr[a:b]
+            kept = t[pos]
+            s0 = max(lo, st)
+            if hi > s0:
+                t[s0:hi] -= sig[ax][s0 - st:hi - st]
+            t[pos] = kept - sig[ax][nbr]
+
+    def phase_q(k, lam_alpha, lam_beta):
+        """eq. 20 on the band: neg_q = clip(t + lam r, -1/theta, 0) into w; n = w - the old neg_q."""
+        lo, hi = int(b_cuts[k]), int(b_cuts[k + 1])
+        wr, nr = w[lo:hi], n[lo:hi]
+        np.multiply(band_img[lo:hi], np.float32(lam_alpha), out=wr)
+        wr += t[lo:hi]
+        wr += np.float32(lam_beta)
+        np.clip(wr, low, np.float32(0.0), out=wr)
+        np.subtract(wr, neg_q[lo:hi], out=nr)
+
+    def phase_s(k):
+        """neg_q = w, then eq. 21 on the band from t, entries of part k."""
+        lo, hi = int(b_cuts[k]), int(b_cuts[k + 1])
+        neg_q[lo:hi] = w[lo:hi]
+        tb = t[lo:hi]
+        wr, nr = w[lo:hi], n[lo:hi]
+        gr = [ga[lo:hi] for ga in g]
         for ax in range(3):
-            np.take(t, fwd[ax], out=g[ax])
-            g[ax] -= tb
-        np.multiply(g[0], g[0], out=n)
-        n *= weights[0]
+            st = ostrides[ax]
+            pos, nbr = fwd_edge[ax]
+            a, b = int(fwd_cut[ax][k]), int(fwd_cut[ax][k + 1])
+            pos, nbr = pos[a:b], nbr[a:b]
+            np.subtract(t_pad[lo + st:hi + st], tb, out=gr[ax])
+            g[ax][pos] = t[nbr] - t[pos]
+        np.multiply(gr[0], gr[0], out=nr)
+        nr *= weights[0]
         for ax in (1, 2):
-            np.multiply(g[ax], g[ax], out=w)
-            w *= weights[ax]
-            n += w
-        np.sqrt(n, out=n)
-        n *= tau32
-        n += np.float32(1.0)
-        np.reciprocal(n, out=n)
+            np.multiply(gr[ax], gr[ax], out=wr)
+            wr *= weights[ax]
+            nr += wr
+        np.sqrt(nr, out=nr)
+        nr *= tau32
+        nr += np.float32(1.0)
+        np.reciprocal(nr, out=nr)
         for ax in range(3):
-            g[ax] *= np.float32(tau * weights[ax])
-            g[ax] += sig[ax][:nb]
-            np.multiply(g[ax], n, out=sig[ax][:nb])
-        used = (c1, c2)
-        c1, c2 = _region_means(frozen_q + sum_q, frozen_iq + sum_iq, total_i, count)
-        change = math.sqrt(theta * theta * d / count)
-        done = it + 1
-        if progress is not None:
-            progress(done)
-        if change < tolerance:
-            break
+            gr[ax] *= np.float32(tau * weights[ax])
+            gr[ax] += sig[ax][lo:hi]
+            np.multiply(gr[ax], nr, out=sig[ax][lo:hi])
+
+    try:
+        for it in range(int(iterations)):
+            run(phase_t)
+            lam_alpha, lam_beta = lam * 2.0 * (c2 - c1), lam * (c1 * c1 - c2 * c2)
+            run(phase_q, lam_alpha, lam_beta)
+            d = float(np.vdot(n, n))
+            sum_q = -theta * float(w.sum(dtype=np.float64))
+            sum_iq = -theta * float(np.vdot(band_img, w))
+            run(phase_s)
+            used = (c1, c2)
+            c1, c2 = _region_means(frozen_q + sum_q, frozen_iq + sum_iq, total_i, count)
+            change = math.sqrt(theta * theta * d / count)
+            done = it + 1
+            if progress is not None:
+                progress(done)
+            if change < tolerance:
+                break
+    finally:
+        if pool is not None:
+            pool.shutdown()
     q6 = q_full.reshape(img6.shape)
     q6[bz[:n_band], :, by[:n_band], :, bx[:n_band], :] = (neg_q[:nb] * np.float32(-theta)).reshape(n_band, *fac)
     res = dict(q=q_full, c1=used[0], c2=used[1], iterations=done, change=change, sig=None)

@@ -95,3 +95,36 @@ def test_boundaries_w_field_and_the_ct_table_report_and_cancel(phantom):
         with pytest.raises(Cancelled):
             run(progress)
         assert len(calls) == 2 and calls[-1] < 1.0
+
+
+def test_the_band_fine_level_reports_and_cancels(phantom, monkeypatch):
+    """Issue 20: grids of >= chan_vese.FINE_BAND_MIN_VOXELS solve the full-resolution level in a band
+    (chan_vese._band_fine_solve); it reports every iteration and a Cancelled raised there stops the
+    segmentation, after which a new run gives the uninterrupted result."""
+    from pdehead_addon import CTVolume, chan_vese
+    data = phantom.ct.data
+    air = float(np.median(np.concatenate([data[:, 0].ravel(), data[:, -1].ravel()])))
+    ct = CTVolume(np.pad(data, ((1, 1), (22, 24), (22, 24)), constant_values=air), phantom.ct.spacing)
+    monkeypatch.setattr(chan_vese, "FINE_BAND_MIN_VOXELS", ct.data.size)     # this small grid uses the band
+    in_band = []
+    solve = chan_vese._band_fine_solve
+
+    def spy(*args, **kwargs):
+        in_band.append(True)
+        return solve(*args, **kwargs)
+    monkeypatch.setattr(chan_vese, "_band_fine_solve", spy)
+    full = segment_head(ct, levels_mm=(6.0,))
+    assert in_band and full.meta["solver"].get("fine_band"), full.meta["solver"]
+    reports = []
+
+    def progress(fraction, message):
+        if in_band and "Chan-Vese iteration" in message:
+            reports.append(fraction)
+            if len(reports) == 2:
+                raise Cancelled()
+    in_band.clear()
+    with pytest.raises(Cancelled):
+        segment_head(ct, levels_mm=(6.0,), progress=progress)
+    assert len(reports) == 2 and 0.0 < reports[0] < reports[1] < 1.0
+    again = segment_head(ct, levels_mm=(6.0,))
+    np.testing.assert_array_equal(again.mask, full.mask)
