@@ -113,13 +113,6 @@ def _solid_arrays(ext, solid):
     return blender_inspect.mesh_attribute(solid, ext.objects.CT_COLOUR_ATTRIBUTE).copy(), pixels
 
 
-@pytest.fixture()
-def ext(pdehead_ext):
-    from types import SimpleNamespace
-    name = pdehead_ext.__name__
-    return SimpleNamespace(**{m: sys.modules[f"{name}.operators.{m}"] for m in ("ops", "state", "study", "objects", "volume")})
-
-
 def test_reopen_in_a_new_process_rereads_the_ct_and_loses_nothing(ext, pdehead_ext, extension_zip, tmp_path):
     import bpy
     from datasets import CTHEAD_RAW16_OPTIONS as o
