@@ -117,7 +117,6 @@ def test_timed_median():
     assert stats["min_s"] <= stats["median_s"] <= max(stats["runs_s"])
 
 
-@pytest.mark.slow
 def test_bench_smooth_quick_smoke(tmp_path):
     """scripts/bench_smooth.py --quick on CThead t=10: the issue-8 measures, the peers, the markdown section."""
     import bench_smooth
