@@ -16,6 +16,13 @@ import blender_inspect  # tests/blender/blender_inspect.py
 MM = 0.001
 
 
+def eevee_engine() -> str:
+    """The EEVEE render-engine id: ``BLENDER_EEVEE_NEXT`` in 4.2 - 4.5, ``BLENDER_EEVEE`` before and from 5.0."""
+    import bpy
+
+    return "BLENDER_EEVEE_NEXT" if (4, 2, 0) <= bpy.app.version < (5, 0, 0) else "BLENDER_EEVEE"
+
+
 @pytest.fixture(scope="module")
 def cthead_head(cthead_bset):
     from pdehead_addon import solve_pde
@@ -105,7 +112,7 @@ def test_render_restores_the_scene(ext, phantom_head, tmp_path):
     user_cam = bpy.data.objects.new("user camera", bpy.data.cameras.new("user camera"))
     scene.collection.objects.link(user_cam)
     scene.camera = user_cam
-    scene.render.engine = ext.compat.eevee_engine()
+    scene.render.engine = eevee_engine()
     scene.render.resolution_x, scene.render.resolution_y = 1920, 1080
     scene.cycles.samples = 77
     world = scene.world
@@ -114,7 +121,7 @@ def test_render_restores_the_scene(ext, phantom_head, tmp_path):
     stats = blender_inspect.image_stats(png)
     assert blender_inspect.read_png(png).shape == (96, 96, 4)
     assert 0.05 < stats["foreground_fraction"] < 0.8  # from alpha
-    assert scene.camera == user_cam and scene.render.engine == ext.compat.eevee_engine() and scene.world == world
+    assert scene.camera == user_cam and scene.render.engine == eevee_engine() and scene.world == world
     assert (scene.render.resolution_x, scene.render.resolution_y, scene.cycles.samples) == (1920, 1080, 77)
     assert not other.hide_render and not scene.render.film_transparent
     assert {k: len(getattr(bpy.data, k)) for k in counts} == counts  # temporaries removed

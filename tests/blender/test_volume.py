@@ -50,7 +50,7 @@ def _oblique_wfield():
 def _needs_openvdb(ext):
     """Skip the rest of a test that reads .vdb files back, on Blenders without OpenVDB bindings (bpy 4.2)."""
     import bpy
-    if not ext.compat.has_openvdb():
+    if not vdb_read.has_openvdb():
         pytest.skip(f"bpy {bpy.app.version_string} has no OpenVDB Python bindings to read .vdb files back; "
                     "its volumes come from operators/vdb_writer.py (tests/blender/test_vdb_writer.py)")
 
