@@ -15,7 +15,6 @@ Tested with bpy from PyPI 4.2.23, 4.5.15, 5.0.1 (Python 3.11, numpy 1.26) and 5.
 """
 from __future__ import annotations
 
-import sys
 from types import ModuleType
 
 _UNSET = object()
@@ -52,18 +51,6 @@ def openvdb_module() -> ModuleType | None:
     return _openvdb_cache  # type: ignore[return-value]
 
 
-def has_openvdb() -> bool:
-    """True if this Blender has OpenVDB Python bindings (else .vdb files come from :mod:`.vdb_writer`)."""
-    return openvdb_module() is not None
-
-
-def extension_site_packages(extensions_dir) -> str:
-    """Folder where Blender unpacks extension wheels, for the running Python (3.11 or 3.13)."""
-    import os
-    return os.path.join(os.fspath(extensions_dir), ".local", "lib",
-                        f"python{sys.version_info[0]}.{sys.version_info[1]}", "site-packages")
-
-
 def unregister_at_exit(unregister) -> None:
     """Call ``unregister`` when the Python process exits (for the ``bpy`` module, not the Blender app).
 
@@ -80,13 +67,6 @@ def unregister_at_exit(unregister) -> None:
             pass
 
     atexit.register(_unregister)
-
-
-def eevee_engine() -> str:
-    """The EEVEE render-engine id: ``BLENDER_EEVEE_NEXT`` in 4.2 - 4.5, ``BLENDER_EEVEE`` before and from 5.0."""
-    import bpy
-
-    return "BLENDER_EEVEE_NEXT" if (4, 2, 0) <= bpy.app.version < (5, 0, 0) else "BLENDER_EEVEE"
 
 
 def node_tree(material_or_world):

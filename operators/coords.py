@@ -14,11 +14,6 @@ from ..pdehead_addon.ct_volume import grid_affine
 MM_TO_M = 0.001
 
 
-def lps_to_blender(points_mm: np.ndarray) -> np.ndarray:
-    """Blender world coordinates (metres) of patient LPS points in mm, shape preserved."""
-    return np.asarray(points_mm, dtype=np.float64) * MM_TO_M
-
-
 def grid_affine_world(spacing, origin, direction) -> np.ndarray:
     """4x4 matrix from voxel index ``(i, j, k, 1)`` to Blender world metres.
 
@@ -28,10 +23,3 @@ def grid_affine_world(spacing, origin, direction) -> np.ndarray:
     m = grid_affine(spacing, origin, direction)
     m[:3, :] *= MM_TO_M  # LPS mm -> Blender metres (axes unchanged)
     return m
-
-
-def grid_matrix_world(spacing, origin, direction):
-    """:func:`grid_affine_world` as a ``mathutils.Matrix`` (voxel index -> world metres)."""
-    from mathutils import Matrix
-
-    return Matrix(grid_affine_world(spacing, origin, direction).tolist())

@@ -310,14 +310,6 @@ def _display_values(mesh, depth: np.ndarray, passes: int = 4) -> np.ndarray:
     return np.nan_to_num(out, nan=0.0).astype(np.float32)
 
 
-def _depth_result(coll):
-    res = _cache(coll).get("depth")
-    if res is None:
-        step_depth(coll)
-        res = _cache(coll)["depth"]
-    return res
-
-
 # ------------------------------------------------------------------------------------------ landmarks
 def blender_matrix(m_mm: np.ndarray):
     """A patient-mm 4x4 transform as a Blender world (metre) ``mathutils.Matrix``."""

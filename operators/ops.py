@@ -29,8 +29,6 @@ def _report_exception(op, exc: BaseException) -> None:
         op.report({'WARNING'}, "PDE Head: cancelled; the study is as it was before")
     elif isinstance(exc, PDEHeadError):
         op.report({'ERROR'}, state.user_text(str(exc)))
-    elif isinstance(exc, NotImplementedError):
-        op.report({'ERROR'}, f"PDE Head: this step is not available in this version ({exc})")
     else:  # a bug: keep the details in the console, give the user one clear line
         traceback.print_exc()
         op.report({'ERROR'}, f"PDE Head internal error: {type(exc).__name__}: {exc}")

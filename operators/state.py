@@ -58,9 +58,8 @@ class StudyCache:
         order = ["ct", "seg", "bset", "head"]
         for name in order[order.index(step):]:
             setattr(self, name, None)
-        if step in order[:4]:
-            self.head_key = None
-            self.wfield = None
+        self.head_key = None
+        self.wfield = None
 
 
 _CACHE: dict[str, StudyCache] = {}

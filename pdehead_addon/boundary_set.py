@@ -121,11 +121,3 @@ class BoundarySet:
     def samples(self) -> int:
         """Number M of samples per curve."""
         return self.curves.shape[1]
-
-    @classmethod
-    def from_curves(cls, curves: np.ndarray, heights: np.ndarray | None = None,
-                    meta: dict[str, Any] | None = None) -> "BoundarySet":
-        """Build a set from curves alone (synthetic input); heights default to mean z."""
-        curves = np.asarray(curves, dtype=np.float64)
-        h = curves[..., 2].mean(axis=1) if heights is None else np.asarray(heights, float)
-        return cls(curves, np.full(len(curves), -1), h, knots_from_heights(h), meta or {})

@@ -1,7 +1,7 @@
 """Watertight STL / OBJ / PLY of the skin and the skull for 3-D printing, in millimetres.
 
 Every writer triangulates the :class:`~.mesh.Mesh` (quads split along their 0-2
-diagonal, the split :func:`~.surface_metrics.triangulate` uses), keeps the
+diagonal, the split :func:`~.mesh_geometry.triangulate` uses), keeps the
 outward winding and writes patient LPS millimetres (1 unit = 1 mm, the unit
 slicers assume for STL).  :func:`export_mesh` refuses a mesh that is not
 watertight (every edge shared by exactly two faces with opposite directions),
@@ -17,7 +17,7 @@ import numpy as np
 from .errors import PDEHeadError
 from .mesh import Mesh
 from .provenance import provenance_lines, short_provenance
-from .surface_metrics import mesh_triangles
+from .mesh_geometry import mesh_triangles
 
 FORMATS = ("stl", "obj", "ply")
 

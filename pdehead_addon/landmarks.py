@@ -31,8 +31,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import PDEHeadError
+from .mesh_geometry import MeshDistance, closest_point_on_triangle, mesh_triangles
 from .mesh import Mesh
-from .surface_metrics import mesh_triangles
 
 
 @dataclass(frozen=True)
@@ -107,30 +107,6 @@ def bilateral_pairs(names) -> list[tuple[str, str]]:
 
 
 # --------------------------------------------------------------------------- snapping
-def _closest_on_triangles(p, a, b, c):
-    """Closest points on triangles (a, b, c) to points p (all (n, 3)); Ericson 5.1.5."""
-    ab, ac, ap = b - a, c - a, p - a
-    d1, d2 = np.einsum("ij,ij->i", ab, ap), np.einsum("ij,ij->i", ac, ap)
-    bp = p - b
-    d3, d4 = np.einsum("ij,ij->i", ab, bp), np.einsum("ij,ij->i", ac, bp)
-    cp = p - c
-    d5, d6 = np.einsum("ij,ij->i", ab, cp), np.einsum("ij,ij->i", ac, cp)
-    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        denom = va + vb + vc
-        out = a + (vb / denom)[:, None] * ab + (vc / denom)[:, None] * ac
-        t_ab = np.clip(d1 / (d1 - d3), 0, 1)
-        t_ac = np.clip(d2 / (d2 - d6), 0, 1)
-        t_bc = np.clip((d4 - d3) / ((d4 - d3) + (d5 - d6)), 0, 1)
-    out = np.where(((va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0))[:, None], b + np.nan_to_num(t_bc)[:, None] * (c - b), out)
-    out = np.where(((vb <= 0) & (d2 >= 0) & (d6 <= 0))[:, None], a + np.nan_to_num(t_ac)[:, None] * ac, out)
-    out = np.where(((vc <= 0) & (d1 >= 0) & (d3 <= 0))[:, None], a + np.nan_to_num(t_ab)[:, None] * ab, out)
-    out = np.where(((d6 >= 0) & (d5 <= d6))[:, None], c, out)
-    out = np.where(((d3 >= 0) & (d4 <= d3))[:, None], b, out)
-    out = np.where(((d1 <= 0) & (d2 <= 0))[:, None], a, out)
-    return out
-
-
 def snap_to_surface(points: np.ndarray, mesh: Mesh, chunk: int = 200_000) -> tuple[np.ndarray, np.ndarray]:
     """The nearest surface points of ``mesh`` to ``points`` and the unit outward normals there.
 
@@ -152,7 +128,7 @@ def snap_to_surface(points: np.ndarray, mesh: Mesh, chunk: int = 200_000) -> tup
         tt = t[s:s + chunk]
         a, b, c = v[tt[:, 0]], v[tt[:, 1]], v[tt[:, 2]]
         for i, p in enumerate(pts):
-            q = _closest_on_triangles(np.broadcast_to(p, a.shape), a, b, c)
+            q = closest_point_on_triangle(p, a, b, c)
             d = np.einsum("ij,ij->i", q - p, q - p)
             j = int(np.argmin(d))
             if d[j] < best_d[i]:
@@ -218,7 +194,7 @@ def exposed_normals(points: np.ndarray, skull: Mesh, radius_mm: float = DEPTH_NO
     ndarray (n, 3)
         Unit outward directions.
     """
-    from .tissue_depth import _MeshDistance, cast_rays
+    from .tissue_depth import cast_rays
 
     v, t = mesh_triangles(skull)
     pts = np.atleast_2d(np.asarray(points, np.float64))
@@ -239,7 +215,7 @@ def exposed_normals(points: np.ndarray, skull: Mesh, radius_mm: float = DEPTH_NO
     if not any(len(g) for g in groups):
         return nearest
     hit = cast_rays(np.concatenate(origins), np.concatenate(dirs), skull, exposure_mm,
-                    distance=_MeshDistance(v, t))
+                    distance=MeshDistance(v, t))
     out = nearest.copy()
     k = 0
     for i, idx in enumerate(groups):

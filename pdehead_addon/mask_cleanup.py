@@ -230,7 +230,7 @@ def _component_extents(labels: np.ndarray, n: int, spacing_yx: Sequence[float],
     return extent
 
 
-def head_envelope(tissue: np.ndarray, spacing_yx: Sequence[float], opening_mm: float = 2.5,
+def tissue_envelope(tissue: np.ndarray, spacing_yx: Sequence[float], opening_mm: float = 2.5,
                   close_mm: float = 3.0) -> np.ndarray:
     """Filled per-slice envelope of the head's own tissue.
 
@@ -260,7 +260,7 @@ def find_cushion(mask: np.ndarray, smooth: np.ndarray, spacing: Sequence[float],
         such a box when t > thickness_mm / sqrt(2), whatever its orientation,
         so the grazing cut of the vertex is spared), and
     (b) lies outside ``envelope``, the envelope of the head's tissue
-        (:func:`head_envelope` of the voxels ``>= level``), so intermediate
+        (:func:`tissue_envelope` of the voxels ``>= level``), so intermediate
         regions enclosed by skin (metal-streak shadows, sinus walls) are never
         cushion.
 
@@ -375,7 +375,7 @@ def clean_head_mask(mask: np.ndarray, data: np.ndarray, window: tuple[float, flo
     """The paper's clean-up of the thresholded soft membership, extended to real scans.
 
     1. Envelope: the filled outline of the head's own tissue (windowed
-       intensity ``>= cushion_level``; :func:`head_envelope`).
+       intensity ``>= cushion_level``; :func:`tissue_envelope`).
     2. Cushions: thick intermediate-density layers outside that envelope are
        removed (:func:`find_cushion`).  The intensities are smoothed first only
        when the noise (:func:`estimate_noise`) calls for it (:func:`smoothing_sigma`).
@@ -438,7 +438,7 @@ def clean_head_mask(mask: np.ndarray, data: np.ndarray, window: tuple[float, flo
         smooth = ndi.gaussian_filter(smooth, sigma=sigma, mode="nearest", truncate=3.0)
     stats.update(noise=noise, smoothing_sigma=sigma)
     level = 0.85 if cushion_level is None else float(cushion_level)
-    envelope = head_envelope(work & (smooth >= np.float32(level)), yx, opening_mm, envelope_mm)
+    envelope = tissue_envelope(work & (smooth >= np.float32(level)), yx, opening_mm, envelope_mm)
     if cushion_level is not None:
         # heavier smoothing widens the skin's own intermediate rim: demand a correspondingly thicker layer
         thickness = cushion_mm + 2.0 * max(0.0, sigma - 0.5) * max(dz, dy, dx)

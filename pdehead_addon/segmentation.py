@@ -30,7 +30,7 @@ from .chan_vese import _solve_pyramid, chan_vese_soft, divergence, gradient, tau
 from .ct_volume import CTVolume, apply_window
 from .errors import SegmentationError, report_progress, scaled_progress
 from .mask_cleanup import (clean_head_mask, close_disk, cut_at_neck, dilate_disk, erode_disk, estimate_noise,
-                           fill_cavities, fill_holes_per_slice, find_cushion, head_envelope, largest_component,
+                           fill_cavities, fill_holes_per_slice, find_cushion, tissue_envelope, largest_component,
                            metal_slices, open_disk, smoothing_sigma, streak_components)
 
 __all__ = [
@@ -39,7 +39,7 @@ __all__ = [
     # eq. 16-21 (.chan_vese)
     "chan_vese_soft", "gradient", "divergence", "tau_bound",
     # clean-up (.mask_cleanup)
-    "clean_head_mask", "cut_at_neck", "head_envelope", "find_cushion", "metal_slices", "streak_components",
+    "clean_head_mask", "cut_at_neck", "tissue_envelope", "find_cushion", "metal_slices", "streak_components",
     "erode_disk", "dilate_disk", "open_disk", "close_disk", "largest_component", "fill_holes_per_slice",
     "fill_cavities", "estimate_noise", "smoothing_sigma",
 ]

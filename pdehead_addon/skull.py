@@ -52,6 +52,7 @@ from scipy import ndimage as ndi
 
 from .ct_volume import CTVolume
 from .errors import SegmentationError
+from .mesh_geometry import signed_volume
 from .mesh import Mesh
 from .segmentation import Segmentation, auto_window, segment_head
 
@@ -659,7 +660,7 @@ def skull_mesh(skull: SkullSegmentation, step: int = 1, max_triangles: int = MAX
         verts[:, 0] = (verts[:, 0] - 2.0) / factor + 2.0
     pts = skull.ct.index_to_patient(verts + origin)
     mesh = Mesh(vertices=pts, quads=np.zeros((0, 4), np.int64), triangles=faces)
-    if _signed_volume(mesh) < 0:  # index (k, j, i) -> patient may flip handedness
+    if signed_volume(mesh) < 0:  # index (k, j, i) -> patient may flip handedness
         mesh.triangles = faces[:, ::-1].copy()
     mesh.vertex_attributes = {}
     return mesh
@@ -687,9 +688,3 @@ def taubin_smooth(vertices: np.ndarray, triangles: np.ndarray, passes: int = 8, 
         for f in (lam, mu):
             v += f * (adj @ v * inv - v)
     return v
-
-
-def _signed_volume(mesh: Mesh) -> float:
-    v = mesh.vertices
-    t = mesh.triangles
-    return float(np.einsum("ij,ij->i", v[t[:, 0]], np.cross(v[t[:, 1]], v[t[:, 2]])).sum() / 6.0)

@@ -177,7 +177,7 @@ def loads_boundaries(data: bytes, name: str = "<bytes>") -> BoundarySet:
     try:
         header = json.loads(header_bytes.decode("utf-8"))
         n, M = int(header["curves"]), int(header["samples"])
-        quantum, planar = float(header["quantum_mm"]), bool(header["planar_z"])
+        quantum = float(header["quantum_mm"])
         coords, planes = int(header["coords"]), int(header["byte_planes"])
         derived_knots = bool(header.get("knots_from_heights", False))
     except (ValueError, KeyError, TypeError, UnicodeDecodeError) as exc:

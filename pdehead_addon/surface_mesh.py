@@ -23,8 +23,10 @@ from functools import lru_cache
 import numpy as np
 
 from .errors import PDEError
+from .mesh_geometry import signed_volume
 from .mesh import Mesh
 
+#: signed_volume is .mesh_geometry's, imported from here by pde_surface, the scripts and the tests
 __all__ = ["signed_volume"]
 
 TWO_PI = 2.0 * np.pi
@@ -34,19 +36,6 @@ def _check_count(n, name: str, minimum: int) -> int:
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or int(n) < minimum:
         raise PDEError(f"{name} must be an integer >= {minimum}, got {n!r}")
     return int(n)
-
-
-def signed_volume(mesh: Mesh) -> float:
-    """Signed enclosed volume (mm^3) by the divergence theorem; > 0 for outward normals."""
-    v = mesh.vertices
-    tris = [mesh.triangles]
-    if len(mesh.quads):
-        q = mesh.quads
-        tris += [q[:, [0, 1, 2]], q[:, [0, 2, 3]]]
-    t = np.concatenate(tris)
-    if not len(t):
-        return 0.0
-    return float(np.einsum("ij,ij->i", v[t[:, 0]], np.cross(v[t[:, 1]], v[t[:, 2]])).sum() / 6.0)
 
 
 @lru_cache(maxsize=8)

@@ -1,132 +1,26 @@
 """Distances between two surfaces given as vertices and faces (fidelity of the PDE head, section 5.2).
 
 Points are sampled uniformly by area on each surface; the distance of a point to
-the other surface is the exact point-to-triangle distance to the best of a few
-candidate triangles, the candidates being the triangles that own the nearest
-points of a dense area-uniform sampling of the other surface (KD-tree). The
-result is therefore never larger than the plain nearest-sample distance and
-never smaller than the true point-to-surface distance; it equals the true
-distance unless the nearest triangle owns none of the ``candidates`` nearest
-samples, which needs a sliver triangle much larger than the sample spacing.
+the other surface is :func:`~.mesh_geometry.point_surface_distance`: the exact
+point-to-triangle distance to the best of a few candidate triangles, the
+candidates being the triangles that own the nearest points of a dense
+area-uniform sampling of the other surface (KD-tree). The result is therefore
+never larger than the plain nearest-sample distance and never smaller than the
+true point-to-surface distance; it equals the true distance unless the nearest
+triangle owns none of the ``candidates`` nearest samples, which needs a sliver
+triangle much larger than the sample spacing.
 """
 from __future__ import annotations
 
 from typing import Any
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from .errors import PDEHeadError
-
-
-def triangulate(faces: np.ndarray) -> np.ndarray:
-    """Triangles of a face array: (m, 3) as is, (m, 4) quads split along the 0-2 diagonal."""
-    f = np.asarray(faces, dtype=np.int64)
-    if f.ndim != 2 or f.shape[1] not in (3, 4):
-        raise PDEHeadError(f"faces must have shape (m, 3) or (m, 4), got {f.shape}")
-    if f.shape[1] == 3:
-        return f
-    return np.concatenate([f[:, [0, 1, 2]], f[:, [0, 2, 3]]])
-
-
-def mesh_triangles(mesh) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices and all triangles (quads split) of a :class:`~pdehead_addon.mesh.Mesh`."""
-    tris = [mesh.triangles]
-    if len(mesh.quads):
-        tris.insert(0, triangulate(mesh.quads))
-    return mesh.vertices, np.concatenate(tris) if tris else np.zeros((0, 3), np.int64)
-
-
-def sample_surface(vertices: np.ndarray, triangles: np.ndarray, count: int,
-                   rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """``count`` points uniform by area on the triangles, and the triangle index of each."""
-    v = np.asarray(vertices, dtype=np.float64)
-    a, b, c = v[triangles[:, 0]], v[triangles[:, 1]], v[triangles[:, 2]]
-    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
-    total = area.sum()
-    if not np.isfinite(total) or total <= 0:
-        raise PDEHeadError("surface has no area to sample")
-    tri = rng.choice(len(triangles), size=count, p=area / total)
-    r1 = np.sqrt(rng.random(count))
-    r2 = rng.random(count)
-    pts = (1 - r1)[:, None] * a[tri] + (r1 * (1 - r2))[:, None] * b[tri] + (r1 * r2)[:, None] * c[tri]
-    return pts, tri
-
-
-def point_triangle_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """Exact Euclidean distance from points p to triangles (a, b, c), all (..., 3), vectorised.
-
-    Region classification of Ericson, *Real-Time Collision Detection* 5.1.5; degenerate
-    triangles fall back to the nearest of their edges.
-    """
-    ab, ac, ap = b - a, c - a, p - a
-    d1 = np.einsum("...i,...i", ab, ap)
-    d2 = np.einsum("...i,...i", ac, ap)
-    bp = p - b
-    d3 = np.einsum("...i,...i", ab, bp)
-    d4 = np.einsum("...i,...i", ac, bp)
-    cp = p - c
-    d5 = np.einsum("...i,...i", ab, cp)
-    d6 = np.einsum("...i,...i", ac, cp)
-    va = d3 * d6 - d5 * d4
-    vb = d5 * d2 - d1 * d6
-    vc = d1 * d4 - d3 * d2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        denom = va + vb + vc
-        v_in = vb / denom
-        w_in = vc / denom
-        closest = a + v_in[..., None] * ab + w_in[..., None] * ac              # interior
-        # edges
-        t_ab = np.clip(d1 / (d1 - d3), 0, 1)
-        t_ac = np.clip(d2 / (d2 - d6), 0, 1)
-        t_bc = np.clip((d4 - d3) / ((d4 - d3) + (d5 - d6)), 0, 1)
-    on_ab = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
-    on_ac = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
-    on_bc = (va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0)
-    closest = np.where(on_bc[..., None], b + np.nan_to_num(t_bc)[..., None] * (c - b), closest)
-    closest = np.where(on_ac[..., None], a + np.nan_to_num(t_ac)[..., None] * ac, closest)
-    closest = np.where(on_ab[..., None], a + np.nan_to_num(t_ab)[..., None] * ab, closest)
-    closest = np.where(((d6 >= 0) & (d5 <= d6))[..., None], c, closest)
-    closest = np.where(((d3 >= 0) & (d4 <= d3))[..., None], b, closest)
-    closest = np.where(((d1 <= 0) & (d2 <= 0))[..., None], a, closest)
-    dist = np.linalg.norm(p - closest, axis=-1)
-    bad = ~np.isfinite(dist)
-    if np.any(bad):  # degenerate triangle: distance to its three edges
-        def seg(q, s0, s1):
-            d = s1 - s0
-            with np.errstate(divide="ignore", invalid="ignore"):
-                t = np.clip(np.nan_to_num(np.einsum("...i,...i", q - s0, d) / np.einsum("...i,...i", d, d)), 0, 1)
-            return np.linalg.norm(q - (s0 + t[..., None] * d), axis=-1)
-        alt = np.minimum(np.minimum(seg(p, a, b), seg(p, b, c)), seg(p, a, c))
-        dist = np.where(bad, alt, dist)
-    return dist
-
-
-def point_surface_distance(points: np.ndarray, vertices: np.ndarray, triangles: np.ndarray,
-                           dense: int = 400_000, candidates: int = 8, seed: int = 0,
-                           chunk: int = 65536) -> np.ndarray:
-    """Distance of each point to the triangle surface (see the module docstring for accuracy)."""
-    rng = np.random.default_rng(seed)
-    v = np.asarray(vertices, dtype=np.float64)
-    dense_pts, dense_tri = sample_surface(v, triangles, dense, rng)
-    # the vertices themselves are exact surface points too (owned by any incident triangle)
-    owner = np.empty(len(v), np.int64)
-    owner[triangles.ravel()] = np.repeat(np.arange(len(triangles)), 3)
-    used = np.unique(triangles.ravel())
-    tree_pts = np.concatenate([dense_pts, v[used]])
-    tree_tri = np.concatenate([dense_tri, owner[used]])
-    tree = cKDTree(tree_pts)
-    points = np.asarray(points, dtype=np.float64)
-    out = np.empty(len(points))
-    k = max(1, int(candidates))
-    for start in range(0, len(points), chunk):
-        p = points[start:start + chunk]
-        _, idx = tree.query(p, k=k)
-        idx = idx.reshape(len(p), k)
-        tri = triangles[tree_tri[idx]]                                       # (n, k, 3)
-        d = point_triangle_distance(p[:, None, :], v[tri[..., 0]], v[tri[..., 1]], v[tri[..., 2]])
-        out[start:start + chunk] = d.min(axis=1)
-    return out
+# the mesh primitives live in .mesh_geometry (shipped code imports them from there); these names stay importable
+# from here for the measures' callers (scripts, tests, slice_selection)
+from .mesh_geometry import (mesh_triangles, point_surface_distance, point_triangle_distance,  # noqa: F401
+                       sample_surface, triangulate)
 
 
 def _summary(d: np.ndarray) -> dict[str, float]:

@@ -9,8 +9,8 @@ Two distances per skin vertex, in mm:
   shortest way to bone; never larger than ``depth``).
 
 The ray is cast by sphere tracing on the exact point-to-mesh distance
-(:func:`~.surface_metrics.point_triangle_distance` on KD-tree candidate
-triangles): each step advances by the distance to the nearest skull point,
+(:class:`~.mesh_geometry.MeshDistance`: :func:`~.mesh_geometry.point_triangle_distance` on KD-tree
+candidate triangles): each step advances by the distance to the nearest skull point,
 which can never cross the surface, so the first crossing is found, not some
 later one; a ray stops when it is within ``tolerance`` of the skull.
 
@@ -33,11 +33,10 @@ from typing import Any
 
 import numpy as np
 from scipy import ndimage as ndi
-from scipy.spatial import cKDTree
 
 from .errors import PDEHeadError
+from .mesh_geometry import MeshDistance, mesh_triangles
 from .mesh import Mesh
-from .surface_metrics import mesh_triangles, point_triangle_distance, sample_surface
 
 MEASURED, NO_BONE, ENVELOPE, INSIDE = 0, 1, 2, 3
 #: Longest depth searched (mm); deeper rays end in the airway, the orbit or the other side of the head.
@@ -103,58 +102,8 @@ def vertex_normals(mesh: Mesh) -> np.ndarray:
     return np.divide(out, norm, out=np.zeros_like(out), where=norm > 0)
 
 
-def _edge_neighbours(triangles: np.ndarray) -> np.ndarray:
-    """(m, 3): the triangle across each edge of each triangle (itself on a boundary edge)."""
-    m = len(triangles)
-    e = np.stack([triangles, np.roll(triangles, -1, axis=1)], axis=-1).reshape(-1, 2)
-    key = np.sort(e, axis=1)
-    order = np.lexsort((key[:, 1], key[:, 0]))
-    ks = key[order]
-    same = np.all(ks[1:] == ks[:-1], axis=1)
-    out = np.repeat(np.arange(m), 3)                     # default: itself
-    a, b = order[:-1][same], order[1:][same]             # the two half-edges of a shared edge
-    out[a] = b // 3
-    out[b] = a // 3
-    return out.reshape(m, 3)
-
-
-class _MeshDistance:
-    """Exact distance from points to a triangle mesh (see surface_metrics), with safer candidates.
-
-    The candidates are the triangles owning the ``candidates`` nearest points of a dense
-    area-uniform sampling AND their edge neighbours: near a crease of a coarse mesh the nearest
-    triangle can own none of the nearest samples (seen on the PDE skull), and a sphere tracer
-    whose distance is too large steps through the surface.
-    """
-
-    def __init__(self, vertices: np.ndarray, triangles: np.ndarray, dense: int = 400_000, candidates: int = 6):
-        self.v = np.asarray(vertices, np.float64)
-        self.t = np.asarray(triangles, np.int64)
-        rng = np.random.default_rng(0)
-        pts, tri = sample_surface(self.v, self.t, dense, rng)
-        owner = np.empty(len(self.v), np.int64)
-        owner[self.t.ravel()] = np.repeat(np.arange(len(self.t)), 3)
-        used = np.unique(self.t.ravel())
-        self.tree = cKDTree(np.concatenate([pts, self.v[used]]))
-        self.owner = np.concatenate([tri, owner[used]])
-        self.neighbours = _edge_neighbours(self.t)
-        self.k = int(candidates)
-
-    def __call__(self, p: np.ndarray, chunk: int = 16384) -> np.ndarray:
-        out = np.empty(len(p))
-        for s in range(0, len(p), chunk):
-            q = p[s:s + chunk]
-            _, idx = self.tree.query(q, k=self.k)
-            own = self.owner[idx.reshape(len(q), self.k)]
-            cand = np.concatenate([own, self.neighbours[own].reshape(len(q), -1)], axis=1)
-            tri = self.t[cand]
-            d = point_triangle_distance(q[:, None, :], self.v[tri[..., 0]], self.v[tri[..., 1]], self.v[tri[..., 2]])
-            out[s:s + chunk] = d.min(axis=1)
-        return out
-
-
 def cast_rays(origins: np.ndarray, directions: np.ndarray, mesh: Mesh, max_distance: float,
-              tolerance: float = 0.01, max_steps: int = 400, distance: _MeshDistance | None = None) -> np.ndarray:
+              tolerance: float = 0.01, max_steps: int = 400, distance: MeshDistance | None = None) -> np.ndarray:
     """Distance along each ray to the first crossing of a closed mesh (sphere tracing), NaN if none.
 
     Parameters
@@ -174,7 +123,7 @@ def cast_rays(origins: np.ndarray, directions: np.ndarray, mesh: Mesh, max_dista
     A ray also counts as a hit when its distance grows again right after falling below
     :data:`CROSSING_MM` (it crossed the surface within the last step, or grazed it that closely).
     """
-    dist = distance or _MeshDistance(*mesh_triangles(mesh))
+    dist = distance or MeshDistance(*mesh_triangles(mesh))
     o = np.asarray(origins, np.float64)
     d = np.asarray(directions, np.float64)
     t = np.zeros(len(o))
@@ -268,7 +217,7 @@ def tissue_depth(skin: Mesh, skull: Mesh, *, envelope=None, max_depth_mm: float 
     n_out = vertex_normals(skin) if normals is None else np.asarray(normals, np.float64)
     inward = -n_out
     sv, st = mesh_triangles(skull)
-    dist = _MeshDistance(sv, st)
+    dist = MeshDistance(sv, st)
     along = cast_rays(pts, inward, skull, max_depth_mm, tolerance=tolerance_mm, distance=dist)
     nearest = dist(pts)
     reason = np.where(np.isfinite(along), MEASURED, NO_BONE).astype(np.uint8)

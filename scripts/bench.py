@@ -144,8 +144,8 @@ def tracemalloc_peak(fn: Callable[[], Any]) -> float:
 
 
 def error_text(exc: BaseException) -> str:
-    if isinstance(exc, (NotImplementedError, ImportError)):
-        return f"not available yet ({exc or 'NotImplementedError'})"
+    if isinstance(exc, ImportError):
+        return f"not available ({exc})"
     return f"{type(exc).__name__}: {exc}"
 
 
@@ -245,23 +245,6 @@ FIDELITY_DEFINITION = ("open PDE tube (caps=False, nu = 8t+1, nv = 256) against 
                        " highest boundary curve (the z range the PDE surface covers)")
 
 
-def write_binary_stl(vertices: np.ndarray, triangles: np.ndarray, path) -> int:
-    """Binary STL (80-byte header, uint32 count, 50 bytes per triangle) written with numpy; bytes written."""
-    v = np.asarray(vertices, np.float64)
-    tri = np.asarray(triangles, np.int64)
-    a, b, c = v[tri[:, 0]], v[tri[:, 1]], v[tri[:, 2]]
-    n = np.cross(b - a, c - a)
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
-    rec = np.zeros(len(tri), dtype=np.dtype([("n", "<f4", 3), ("v", "<f4", (3, 3)), ("attr", "<u2")]))
-    rec["n"] = n
-    rec["v"] = np.stack([a, b, c], axis=1)
-    with open(path, "wb") as f:
-        f.write(b"PDE Head benchmark: marching cubes surface, mm".ljust(80, b" "))
-        f.write(np.uint32(len(tri)).tobytes())
-        f.write(rec.tobytes())
-    return os.path.getsize(path)
-
-
 #: The add-on's default slice selection (pdehead_addon/defaults.py).
 SELECTION = D.SELECTION.default
 
@@ -351,7 +334,7 @@ class Bench:
             res[name] = value
         except Exception as exc:  # one failing stage must not stop the others
             res[name] = {"error": error_text(exc)}
-            if not isinstance(exc, (NotImplementedError, ImportError, E.PDEHeadError)):
+            if not isinstance(exc, (ImportError, E.PDEHeadError)):
                 traceback.print_exc()
             value = None
         print(f"  [{name}] {time.perf_counter() - t0:.1f} s" + (f"  ERROR {res[name]['error']}" if value is None else ""),
@@ -513,12 +496,17 @@ class Bench:
 
     # ------------------------------------------------------------------ storage
     def storage(self, st) -> dict:
-        """bench_pde.bench_storage, plus the STL of the peer actually written (binary, with numpy)."""
+        """bench_pde.bench_storage, plus the STL of the peer actually written (binary, by export.write_stl)."""
         pb = _pdebench()
         head, mc = st["head"], st["mc"]
         r = pb.bench_storage(head, len(mc.triangles))
         stl = self.tmp / "mc.stl"
-        s_stl, nbytes = timed(lambda: write_binary_stl(mc.vertices, mc.triangles, stl), 1)
+        from pdehead_addon.export import write_stl
+
+        def write() -> int:
+            write_stl(mc, stl, name="PDE Head benchmark: marching cubes surface")
+            return os.path.getsize(stl)
+        s_stl, nbytes = timed(write, 1)
         if nbytes != r["peer_stl_bytes"]:
             raise RuntimeError(f"STL size {nbytes} != 84 + 50 x triangles = {r['peer_stl_bytes']}")
         bset = head.bset

@@ -98,18 +98,6 @@ def test_markdown_report(quick_phantom):
     assert all("CThead" not in t["name"] for t in out["targets"])
 
 
-def test_binary_stl(tmp_path):
-    verts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
-    tris = np.array([[0, 2, 1], [0, 1, 3]])
-    path = tmp_path / "t.stl"
-    assert bench.write_binary_stl(verts, tris, path) == 84 + 2 * 50
-    raw = path.read_bytes()
-    assert int(np.frombuffer(raw[80:84], "<u4")[0]) == 2
-    rec = np.frombuffer(raw[84:], dtype=np.dtype([("n", "<f4", 3), ("v", "<f4", (3, 3)), ("attr", "<u2")]))
-    np.testing.assert_allclose(rec["n"], [[0, 0, -1], [0, -1, 0]], atol=1e-7)
-    np.testing.assert_allclose(rec["v"][1], verts[[0, 1, 3]])
-
-
 def test_timed_median():
     calls = []
     stats, result = bench.timed(lambda: calls.append(1) or len(calls), 5)
@@ -117,7 +105,6 @@ def test_timed_median():
     assert stats["min_s"] <= stats["median_s"] <= max(stats["runs_s"])
 
 
-@pytest.mark.slow
 def test_bench_smooth_quick_smoke(tmp_path):
     """scripts/bench_smooth.py --quick on CThead t=10: the issue-8 measures, the peers, the markdown section."""
     import bench_smooth

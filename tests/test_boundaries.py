@@ -9,8 +9,8 @@ from scipy.spatial import cKDTree
 from pdehead_addon import BoundaryError, BoundarySet, CTVolume, Segmentation
 from pdehead_addon import extract_boundaries as _extract_default
 
-#: The per-slice path (2-D mask outline, aligned samples) these tests were written for; the 3-D
-#: envelope default with star hulls and angular samples is tested in test_envelope.py.
+#: The per-slice path (2-D mask outline, aligned samples) these tests were written for; the default path
+#: (the 3-D envelope, star hulls, the spine, angular samples) is tested in test_envelope.py.
 PER_SLICE = dict(level_field="mask", parameterisation="aligned", star_shaped=False)
 
 

@@ -171,6 +171,23 @@ def test_export_watertight_and_in_mm(tmp_path, phantom_surfaces, fmt):
     assert 140 < hi[0] - lo[0] < 175          # the phantom is 150 (166 with ears) mm wide: mm, not m
 
 
+def test_write_stl_records(tmp_path):
+    """Binary STL: 80-byte header (not starting "solid"), uint32 count, 50 bytes per triangle with the unit
+    normal of the winding (0 for a degenerate triangle) and the corners as float32."""
+    from pdehead_addon.export import write_stl
+    from pdehead_addon.mesh import Mesh
+    verts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
+    tris = np.array([[0, 2, 1], [0, 1, 3], [0, 1, 1]])
+    path = tmp_path / "t.stl"
+    write_stl(Mesh(verts, np.zeros((0, 4), np.int64), tris), path, name="solid part")
+    raw = path.read_bytes()
+    assert len(raw) == 84 + 3 * 50 and not raw[:80].startswith(b"solid") and b"part (patient LPS, mm)" in raw[:80]
+    assert int(np.frombuffer(raw[80:84], "<u4")[0]) == 3
+    rec = np.frombuffer(raw[84:], dtype=np.dtype([("n", "<f4", 3), ("v", "<f4", (3, 3)), ("attr", "<u2")]))
+    np.testing.assert_allclose(rec["n"], [[0, 0, -1], [0, -1, 0], [0, 0, 0]], atol=1e-7)
+    np.testing.assert_allclose(rec["v"][1], verts[[0, 1, 3]])
+
+
 def test_export_refuses_open_mesh(tmp_path, phantom_seg):
     head = solve_pde(extract_boundaries(phantom_seg, patches=4, samples=64))
     open_mesh = head.surface(20, 32, caps=False)

@@ -194,7 +194,6 @@ def test_quality_measures_detect_what_they_measure():
     assert q["notch_fraction"] == 0 and q["terracing_rms_mm"] < 0.05 and q["crease_p95_deg"] < 0.1
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("dataset,t", [("cthead", 10), ("ge", 8), ("phantom", 10)])
 def test_default_head_is_smooth_on_real_scans(request, dataset, t):
     """The issue's smoothness measures on the add-on's default pipeline (its default slice selection)."""

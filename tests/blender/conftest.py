@@ -6,8 +6,11 @@
 - ``pdehead_ext`` (session): that zip installed and enabled offline with
   ``bpy.ops.extensions.package_install_files`` into ``BLENDER_USER_RESOURCES`` (a temp folder set by
   tests/conftest.py before bpy is imported); returns the module ``bl_ext.user_default.pdehead``.
+- ``ext``: handles on the installed extension's modules: ``ext.engine`` (its ``pdehead_addon``) and every
+  module of its Blender layer by short name (``ext.ops``, ``ext.state``, ``ext.study``, ``ext.volume``, ...);
+  the one fixture the tests reach the installed code through.
 - ``clean_scene`` (autouse): an empty file around every test, so tests do not see each other's objects.
-- ``phantom_study`` / ``cthead_study`` (session): the one-click pipeline run once on the phantom /
+- ``phantom_blend`` / ``cthead_blend`` (session): the one-click pipeline run once on the phantom /
   on CThead raw16 and saved to a temp .blend; tests reopen that file instead of recomputing.
 """
 from __future__ import annotations
@@ -133,14 +136,14 @@ def cthead_blend(pdehead_ext, tmp_path_factory, pytestconfig) -> Path:
     return _run_and_save(pdehead_ext, tmp_path_factory, "cthead", run)
 
 
-@pytest.fixture(scope="session")
-def B(pdehead_ext):
-    """The installed extension's Blender-layer modules (coords, objects, volume, render, compat, vdb_writer)."""
-    import importlib
+@pytest.fixture()
+def ext(pdehead_ext):
+    """The installed extension's modules: ``engine`` (its pdehead_addon) and every ``operators`` module by name."""
+    import pkgutil
     from types import SimpleNamespace
     ops = pdehead_ext.operators
-    return SimpleNamespace(**{n: importlib.import_module(f"{ops.__name__}.{n}")
-                              for n in ("coords", "objects", "volume", "render", "compat", "vdb_writer")})
+    layer = {m.name: importlib.import_module(f"{ops.__name__}.{m.name}") for m in pkgutil.iter_modules(ops.__path__)}
+    return SimpleNamespace(engine=importlib.import_module(f"{pdehead_ext.__name__}.pdehead_addon"), **layer)
 
 
 @pytest.fixture(scope="session")

@@ -15,21 +15,13 @@ import blender_inspect  # tests/blender/blender_inspect.py
 DATA = Path(__file__).resolve().parent / "data"
 
 
-@pytest.fixture()
-def mods(pdehead_ext):
-    from types import SimpleNamespace
-    name = pdehead_ext.__name__
-    return SimpleNamespace(**{m: sys.modules[f"{name}.operators.{m}"]
-                              for m in ("animation", "compat", "cutter", "render", "state", "study")})
-
-
 def _solid_mm(obj) -> np.ndarray:
     return blender_inspect.mesh_world_vertices(obj) * 1000.0
 
 
-def _expected_solid(mods, coll, **ranges):
-    s = mods.state.settings(coll)
-    head = mods.study.pde_head(coll)
+def _expected_solid(ext, coll, **ranges):
+    s = ext.state.settings(coll)
+    head = ext.study.pde_head(coll)
     nw = ranges.pop("nw", s.nw)
     v_range = tuple(min(float(v), 2 * math.pi) for v in s.v_range)  # float32 2π is a hair above float64 2π
     kw = dict(u_range=tuple(s.u_range), v_range=v_range, w_range=tuple(s.w_range))
@@ -37,7 +29,7 @@ def _expected_solid(mods, coll, **ranges):
     return head.solid(s.nu, s.nv, nw, **kw).vertices
 
 
-def test_settings_keyframed_like_any_property(mods, monkeypatch):
+def test_settings_keyframed_like_any_property(ext, monkeypatch):
     """keyframe_insert on the study's settings (the README's line), frame_set shows each frame's solid,
     the same frame twice rebuilds nothing, and the keys are F-Curves of the settings object."""
     import bpy
@@ -45,7 +37,7 @@ def test_settings_keyframed_like_any_property(mods, monkeypatch):
                                         build_volume=False) == {'FINISHED'}
     scene = bpy.context.scene
     coll = scene.pdehead.active_study
-    s = mods.state.settings(coll)
+    s = ext.state.settings(coll)
     owner = s.id_data
     assert owner.type == 'EMPTY' and owner.name in coll.objects and coll.pdehead == s
     full = (0.0, 2 * math.pi)
@@ -59,7 +51,7 @@ def test_settings_keyframed_like_any_property(mods, monkeypatch):
     s.keyframe_insert("nw", frame=1)
     s.nw = 5
     s.keyframe_insert("nw", frame=3)
-    paths = {(fc.data_path, fc.array_index) for fc in mods.compat.animation_fcurves(owner)}
+    paths = {(fc.data_path, fc.array_index) for fc in ext.compat.animation_fcurves(owner)}
     assert {("pdehead.v_range", 0), ("pdehead.v_range", 1), ("pdehead.nw", 0)} <= paths
 
     solid = s.solid_object
@@ -67,15 +59,15 @@ def test_settings_keyframed_like_any_property(mods, monkeypatch):
         scene.frame_set(frame)
         assert s.last_error == ""
         assert tuple(s.v_range) == pytest.approx((0.0, v_hi), abs=1e-5) and s.nw == nw
-        expected = _expected_solid(mods, coll, v_range=(0.0, v_hi), nw=nw)
+        expected = _expected_solid(ext, coll, v_range=(0.0, v_hi), nw=nw)
         got = _solid_mm(solid)
         assert got.shape == expected.shape
         np.testing.assert_allclose(got, expected, atol=0.05)
 
     # same frame and parameters: no rebuild; another frame: one
     calls = []
-    real = mods.study.step_solid
-    monkeypatch.setattr(mods.study, "step_solid", lambda c: (calls.append(c.name), real(c)))
+    real = ext.study.step_solid
+    monkeypatch.setattr(ext.study, "step_solid", lambda c: (calls.append(c.name), real(c)))
     scene.frame_set(1)
     assert calls == []
     scene.frame_set(2)
@@ -91,11 +83,11 @@ def test_settings_keyframed_like_any_property(mods, monkeypatch):
     for frame in (3, 1):
         scene.frame_set(frame)
         assert s.w_range[0] == pytest.approx((frame - 1) * 0.25) and s.last_error == ""
-        np.testing.assert_allclose(_solid_mm(solid), _expected_solid(mods, coll), atol=0.05)
+        np.testing.assert_allclose(_solid_mm(solid), _expected_solid(ext, coll), atol=0.05)
 
 
 @pytest.mark.parametrize("saved_by", [(4, 2), (5, 0)], ids=["blender4.2", "blender5.0"])
-def test_settings_of_a_0_1_0_file_are_migrated(mods, tmp_path, saved_by):
+def test_settings_of_a_0_1_0_file_are_migrated(ext, tmp_path, saved_by):
     """A .blend saved by 0.1.0 (settings on the Collection) opens with every setting, now animatable
     (saved by Blender 4.2.23 and by 5.0.1, which stores registered properties apart from custom ones)."""
     import bpy
@@ -106,9 +98,9 @@ def test_settings_of_a_0_1_0_file_are_migrated(mods, tmp_path, saved_by):
     shutil.copy(DATA / name, blend)
     bpy.ops.wm.open_mainfile(filepath=str(blend))
     coll = bpy.data.collections["Phantom"]
-    assert mods.state.is_study(coll) and bpy.context.scene.pdehead.active_study == coll
-    s = mods.state.settings(coll)
-    stored = mods.compat.registered_id_properties(coll)
+    assert ext.state.is_study(coll) and bpy.context.scene.pdehead.active_study == coll
+    s = ext.state.settings(coll)
+    stored = ext.compat.registered_id_properties(coll)
     assert s.id_data.type == 'EMPTY' and stored.get("pdehead") is None  # one copy of the settings
     assert coll.get("pdehead") is None  # and no stale custom property
     assert (s.source_kind, s.nu, s.nv, s.nw, s.patches) == ('PHANTOM', 16, 24, 3, 4)
@@ -117,20 +109,20 @@ def test_settings_of_a_0_1_0_file_are_migrated(mods, tmp_path, saved_by):
     assert (s.colour_preset, s.alpha_mode) == ('xray', 'INTENSITY')
     assert s.surface_object.name == "Phantom Surface" and s.solid_object.name == "Phantom Solid"
     assert s.curves_object.name == "Phantom Boundary curves" and len(s.study_id) == 32
-    assert mods.state.boundary_set(coll).patches == 4
+    assert ext.state.boundary_set(coll).patches == 4
     # live and animatable after the move
     s.keyframe_insert("w_range", frame=1)
     s.w_range = (0.6, 1.0)
     assert s.last_error == ""
-    expected = _expected_solid(mods, coll)
+    expected = _expected_solid(ext, coll)
     np.testing.assert_allclose(_solid_mm(s.solid_object), expected, atol=0.05)
     # saved and reopened once more: still there, still keyed
     bpy.ops.wm.save_mainfile()
     bpy.ops.wm.open_mainfile(filepath=str(blend))
-    s = mods.state.settings(bpy.data.collections["Phantom"])
+    s = ext.state.settings(bpy.data.collections["Phantom"])
     assert tuple(s.v_range) == pytest.approx((0.5, 5.0)) and s.colour_preset == 'xray'
     assert ("pdehead.w_range", 0) in {(fc.data_path, fc.array_index)
-                                      for fc in mods.compat.animation_fcurves(s.id_data)}
+                                      for fc in ext.compat.animation_fcurves(s.id_data)}
 
 
 
@@ -156,7 +148,7 @@ def _strip(rows, path):
         (grid.shape[1] * 2, grid.shape[0] * 2), Image.NEAREST).save(path)
 
 
-def test_render_animation_renders_what_each_frame_shows(mods, tmp_path):
+def test_render_animation_renders_what_each_frame_shows(ext, tmp_path):
     """Keyframed cutter (outside the head at frame 1, over its front-left quarter at frame 3), keyframed
     w range and keyframed lα: each frame of Render Animation equals the still of the same frame."""
     import bpy
@@ -165,7 +157,7 @@ def test_render_animation_renders_what_each_frame_shows(mods, tmp_path):
                                         voxel_size=6.0) == {'FINISHED'}
     scene = bpy.context.scene
     coll = scene.pdehead.active_study
-    s = mods.state.settings(coll)
+    s = ext.state.settings(coll)
     for obj, shown in ((s.surface_object, False), (s.curves_object, False), (s.solid_object, True),
                        (s.volume_object, True)):
         obj.hide_render = not shown
@@ -174,7 +166,7 @@ def test_render_animation_renders_what_each_frame_shows(mods, tmp_path):
 
     scene.frame_set(1)
     assert bpy.ops.pdehead.add_cutter() == {'FINISHED'}
-    box = mods.cutter.cutter_of(coll)
+    box = ext.cutter.cutter_of(coll)
     inside = box.matrix_world.copy()
     box.matrix_world = Matrix.Translation((1.0, 0.0, 0.0)) @ inside  # a metre to the side: nothing cut
     for path in ("location", "rotation_euler", "scale"):
@@ -216,7 +208,7 @@ def test_render_animation_renders_what_each_frame_shows(mods, tmp_path):
         assert diff <= 0.005, f"frame {f}: Render Animation differs from the still by {diff:.4f}"
 
 
-def test_render_animation_with_the_ct_gone_says_so(mods, tmp_path, capfd):
+def test_render_animation_with_the_ct_gone_says_so(ext, tmp_path, capfd):
     """A keyframed study whose CT cannot be re-read: Render Animation names the study and the cause and
     leaves the solid out of the frames it cannot rebuild, instead of rendering the stale solid."""
     import bpy
@@ -225,7 +217,7 @@ def test_render_animation_with_the_ct_gone_says_so(mods, tmp_path, capfd):
     scene = bpy.context.scene
     coll = scene.pdehead.active_study
     name = coll.name
-    s = mods.state.settings(coll)
+    s = ext.state.settings(coll)
     s.surface_object.hide_render, s.solid_object.hide_render = True, False
     _render_setup(scene, tmp_path)
     scene.cycles.samples = 2
@@ -239,7 +231,7 @@ def test_render_animation_with_the_ct_gone_says_so(mods, tmp_path, capfd):
     blend = tmp_path / "gone.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
     bpy.ops.wm.open_mainfile(filepath=str(blend))
-    mods.state.drop_cache()  # as in a new Blender session: nothing in memory, the CT must be re-read
+    ext.state.drop_cache()  # as in a new Blender session: nothing in memory, the CT must be re-read
     scene = bpy.context.scene
     # the .blend carries the solid's CT table (issue 20): the cutaway animates without the CT
     capfd.readouterr()
@@ -252,9 +244,9 @@ def test_render_animation_with_the_ct_gone_says_so(mods, tmp_path, capfd):
     assert all(float((np.abs(img - corner).max(axis=2) > 0.05).mean()) > 0.05 for img in kept)  # the solid stays
     # a file without that table (saved before it existed) and without its CT: said, not rendered stale
     coll = bpy.data.collections[name]
-    coll.pop(mods.state.CT_TABLE_KEY, None)
-    coll.pop(mods.state.CT_TABLE_FOR, None)
-    mods.state.drop_cache()
+    coll.pop(ext.state.CT_TABLE_KEY, None)
+    coll.pop(ext.state.CT_TABLE_FOR, None)
+    ext.state.drop_cache()
     capfd.readouterr()
     scene.render.filepath = str(tmp_path / "anim" / "frame_")
     assert bpy.ops.render.render(animation=True) == {'FINISHED'}
@@ -267,7 +259,7 @@ def test_render_animation_with_the_ct_gone_says_so(mods, tmp_path, capfd):
     assert shown[0] > 0.05 and shown[1] == 0.0 and shown[2] == 0.0  # frame 1 is what was saved
 
 
-def test_turntable_orbits_the_camera_around_the_head(mods):
+def test_turntable_orbits_the_camera_around_the_head(ext):
     """Turntable (8 frames): the study camera circles the head's vertical axis, 45° a frame, always
     looking at the head, and frame 9 would be frame 1 again (a seamless loop)."""
     import bpy
@@ -275,12 +267,12 @@ def test_turntable_orbits_the_camera_around_the_head(mods):
                                         build_volume=False) == {'FINISHED'}
     scene = bpy.context.scene
     coll = scene.pdehead.active_study
-    s = mods.state.settings(coll)
+    s = ext.state.settings(coll)
     assert bpy.ops.pdehead.turntable(frames=8) == {'FINISHED'}
     assert (scene.frame_start, scene.frame_end) == (1, 8)
     camera = scene.camera
     assert camera.get("pdehead_kind") == "camera" and camera.name in coll.objects
-    lo, hi = mods.render.world_bounds([s.surface_object])
+    lo, hi = ext.render.world_bounds([s.surface_object])
     centre = 0.5 * (lo + hi)
     from bpy_extras.object_utils import world_to_camera_view
     from mathutils import Vector

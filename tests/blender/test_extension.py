@@ -144,7 +144,9 @@ def test_shipped_wheels_import_from_the_extension_site_packages(pdehead_ext):
     uncompressed pixels, and a baseline JPEG decodes to its RGB shape.
     """
     import bpy
-    site = Path(pdehead_ext.operators.compat.extension_site_packages(bpy.utils.user_resource('EXTENSIONS')))
+    # where Blender unpacks extension wheels, for the running Python (3.11 or 3.13)
+    site = (Path(bpy.utils.user_resource('EXTENSIONS')) / ".local" / "lib"
+            / f"python{sys.version_info[0]}.{sys.version_info[1]}" / "site-packages")
     assert (site / "skimage").is_dir() and (site / "pydicom").is_dir() and (site / "scipy").is_dir()
     assert (site / "pylibjpeg").is_dir() and (site / "openjpeg").is_dir() and (site / "libjpeg").is_dir()
     assert not (site / "numpy").exists()  # Blender's own numpy is used

@@ -31,17 +31,6 @@ def open_blend(path: Path):
     return studies[0]
 
 
-@pytest.fixture()
-def ext(pdehead_ext):
-    """Handles on the installed extension's modules."""
-    name = pdehead_ext.__name__
-    return SimpleNamespace(engine=sys.modules[name + ".pdehead_addon"], ops=sys.modules[name + ".operators.ops"],
-                           state=sys.modules[name + ".operators.state"],
-                           study=sys.modules[name + ".operators.study"],
-                           objects=sys.modules[name + ".operators.objects"],
-                           volume=sys.modules[name + ".operators.volume"])
-
-
 def stored_head(ext, coll, controls: bool = False, **pde):
     """The PDE head solved independently from the boundary bytes stored in the .blend (``controls``:
     through the engine's mapping of the normalised sliders, ``solve_with_controls``)."""

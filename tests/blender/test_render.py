@@ -16,6 +16,13 @@ import blender_inspect  # tests/blender/blender_inspect.py
 MM = 0.001
 
 
+def eevee_engine() -> str:
+    """The EEVEE render-engine id: ``BLENDER_EEVEE_NEXT`` in 4.2 - 4.5, ``BLENDER_EEVEE`` before and from 5.0."""
+    import bpy
+
+    return "BLENDER_EEVEE_NEXT" if (4, 2, 0) <= bpy.app.version < (5, 0, 0) else "BLENDER_EEVEE"
+
+
 @pytest.fixture(scope="module")
 def cthead_head(cthead_bset):
     from pdehead_addon import solve_pde
@@ -30,10 +37,10 @@ def _keep(path, name):
     return path
 
 
-def _emissive(B, name, rgb):
+def _emissive(ext, name, rgb):
     import bpy
     mat = bpy.data.materials.new(name)
-    bsdf = B.compat.node_tree(mat).nodes["Principled BSDF"]
+    bsdf = ext.compat.node_tree(mat).nodes["Principled BSDF"]
     bsdf.inputs["Base Color"].default_value = (*rgb, 1.0)
     bsdf.inputs["Emission Color"].default_value = (*rgb, 1.0)
     bsdf.inputs["Emission Strength"].default_value = 1.0
@@ -41,13 +48,13 @@ def _emissive(B, name, rgb):
     return mat
 
 
-def _marker(B, coll, name, centre_mm, rgb, size_mm=8.0):
+def _marker(ext, coll, name, centre_mm, rgb, size_mm=8.0):
     from pdehead_addon import Mesh
     h = size_mm / 2
     cube = np.array([[x, y, z] for x in (-h, h) for y in (-h, h) for z in (-h, h)]) + np.asarray(centre_mm)
     quads = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]]
-    obj = B.objects.build_mesh_object(Mesh(cube, quads), coll, name)
-    obj.data.materials.append(_emissive(B, name, rgb))
+    obj = ext.objects.build_mesh_object(Mesh(cube, quads), coll, name)
+    obj.data.materials.append(_emissive(ext, name, rgb))
     obj.visible_diffuse = obj.visible_glossy = obj.visible_transmission = False  # no light onto the head
     obj.visible_shadow = False
     return obj
@@ -68,16 +75,16 @@ def B_render_read(path):
         return np.asarray(im.convert("RGB"), np.float32) / 255.0
 
 
-def test_front_render_shows_the_face_with_the_patients_left_on_the_right(B, phantom, phantom_head, tmp_path):
-    coll = B.objects.study_collection("Phantom")
-    surface = B.objects.build_surface(phantom_head, coll, nu=60, nv=90)
+def test_front_render_shows_the_face_with_the_patients_left_on_the_right(ext, phantom, phantom_head, tmp_path):
+    coll = ext.objects.study_collection("Phantom")
+    surface = ext.objects.build_surface(phantom_head, coll, nu=60, nv=90)
     world_mm = blender_inspect.mesh_world_vertices(surface) / MM
     left = np.array([world_mm[:, 0].max() + 12.0, world_mm[:, 1].mean(), 0.0])  # beside the patient's left side
     front = np.asarray(phantom.params["nose_tip"]) + [0.0, -10.0, 25.0]         # in front of the face
-    red = _marker(B, coll, "left marker", left, (1.0, 0.0, 0.0))
-    green = _marker(B, coll, "front marker", front, (0.0, 1.0, 0.0))
+    red = _marker(ext, coll, "left marker", left, (1.0, 0.0, 0.0))
+    green = _marker(ext, coll, "front marker", front, (0.0, 1.0, 0.0))
     objs = [surface, red, green]
-    png = _keep(B.render.render_objects_png(objs, tmp_path / "front.png", "FRONT", (128, 128), 16),
+    png = _keep(ext.render.render_objects_png(objs, tmp_path / "front.png", "FRONT", (128, 128), 16),
                 "phantom_surface_front.png")
     stats = blender_inspect.image_stats(png)
     assert (stats["width"], stats["height"]) == (128, 128)
@@ -87,43 +94,43 @@ def test_front_render_shows_the_face_with_the_patients_left_on_the_right(B, phan
     x_green, _ = _colour_centroid(png, 1)
     assert x_red > 0.75 and abs(x_green - 0.5) < 0.1  # patient's left on screen right; face marker centred
     # the patient's right side (camera at -X): anterior (the green marker) on the screen's right
-    png = _keep(B.render.render_objects_png(objs, tmp_path / "right.png", "RIGHT", (128, 128), 8),
+    png = _keep(ext.render.render_objects_png(objs, tmp_path / "right.png", "RIGHT", (128, 128), 8),
                 "phantom_surface_right.png")
     assert _colour_centroid(png, 1)[0] > 0.75
     # top view (numpad 7): patient's left on the right, face at the bottom
-    png = B.render.render_objects_png(objs, tmp_path / "top.png", "TOP", (96, 96), 8)
+    png = ext.render.render_objects_png(objs, tmp_path / "top.png", "TOP", (96, 96), 8)
     assert _colour_centroid(png, 0)[0] > 0.75 and _colour_centroid(png, 1)[1] > 0.75
 
 
-def test_render_restores_the_scene(B, phantom_head, tmp_path):
+def test_render_restores_the_scene(ext, phantom_head, tmp_path):
     import bpy
     scene = bpy.context.scene
-    coll = B.objects.study_collection("Phantom")
-    surface = B.objects.build_surface(phantom_head, coll, nu=20, nv=30)
+    coll = ext.objects.study_collection("Phantom")
+    surface = ext.objects.build_surface(phantom_head, coll, nu=20, nv=30)
     other = bpy.data.objects.new("user empty", None)
     scene.collection.objects.link(other)
     user_cam = bpy.data.objects.new("user camera", bpy.data.cameras.new("user camera"))
     scene.collection.objects.link(user_cam)
     scene.camera = user_cam
-    scene.render.engine = B.compat.eevee_engine()
+    scene.render.engine = eevee_engine()
     scene.render.resolution_x, scene.render.resolution_y = 1920, 1080
     scene.cycles.samples = 77
     world = scene.world
     counts = {k: len(getattr(bpy.data, k)) for k in ("objects", "cameras", "lights", "worlds", "materials")}
-    png = B.render.render_objects_png([surface], tmp_path / "s.png", "THREE_QUARTER", (96, 96), 8, transparent=True)
+    png = ext.render.render_objects_png([surface], tmp_path / "s.png", "THREE_QUARTER", (96, 96), 8, transparent=True)
     stats = blender_inspect.image_stats(png)
     assert blender_inspect.read_png(png).shape == (96, 96, 4)
     assert 0.05 < stats["foreground_fraction"] < 0.8  # from alpha
-    assert scene.camera == user_cam and scene.render.engine == B.compat.eevee_engine() and scene.world == world
+    assert scene.camera == user_cam and scene.render.engine == eevee_engine() and scene.world == world
     assert (scene.render.resolution_x, scene.render.resolution_y, scene.cycles.samples) == (1920, 1080, 77)
     assert not other.hide_render and not scene.render.film_transparent
     assert {k: len(getattr(bpy.data, k)) for k in counts} == counts  # temporaries removed
     with pytest.raises(ValueError):
-        B.render.render_objects_png([surface], tmp_path / "x.png", "DIAGONAL")
+        ext.render.render_objects_png([surface], tmp_path / "x.png", "DIAGONAL")
 
 
-def _silhouette(B, objs, bounds, path, resolution):
-    png = B.render.render_objects_png(objs, path, "FRONT", resolution, 4, transparent=True, bounds=bounds)
+def _silhouette(ext, objs, bounds, path, resolution):
+    png = ext.render.render_objects_png(objs, path, "FRONT", resolution, 4, transparent=True, bounds=bounds)
     return blender_inspect.image_stats(png)["mask"]
 
 
@@ -132,19 +139,19 @@ def _dilate(mask, r):
     return binary_dilation(mask, iterations=r)
 
 
-def _compare_eq24_and_baseline(B, ct, head, wfield, tmp_path, tag, view="FRONT", res=(128, 128), samples=12):
-    coll = B.objects.study_collection(tag)
-    surface = B.objects.build_surface(head, coll, nu=60, nv=90)
-    vol = B.volume.build_volume(wfield, coll, tmp_path / f"{tag}.vdb", ct=ct)
-    bounds = B.render.world_bounds([vol])  # same framing for every picture: the whole CT box
+def _compare_eq24_and_baseline(ext, ct, head, wfield, tmp_path, tag, view="FRONT", res=(128, 128), samples=12):
+    coll = ext.objects.study_collection(tag)
+    surface = ext.objects.build_surface(head, coll, nu=60, nv=90)
+    vol = ext.volume.build_volume(wfield, coll, tmp_path / f"{tag}.vdb", ct=ct)
+    bounds = ext.render.world_bounds([vol])  # same framing for every picture: the whole CT box
     kw = dict(resolution=res, samples=samples, bounds=bounds, volume_step_rate=4.0)
-    eq24 = _keep(B.render.render_objects_png([vol], tmp_path / "eq24.png", view, **kw), f"{tag}_volume_eq24.png")
-    B.volume.set_volume_settings(vol, alpha_mode="INTENSITY")
-    base = _keep(B.render.render_objects_png([vol], tmp_path / "int.png", view, **kw),
+    eq24 = _keep(ext.render.render_objects_png([vol], tmp_path / "eq24.png", view, **kw), f"{tag}_volume_eq24.png")
+    ext.volume.set_volume_settings(vol, alpha_mode="INTENSITY")
+    base = _keep(ext.render.render_objects_png([vol], tmp_path / "int.png", view, **kw),
                  f"{tag}_volume_intensity_alpha.png")
-    B.volume.set_volume_settings(vol, alpha_mode="EQ24", colour_preset="skin")
-    _keep(B.render.render_objects_png([vol], tmp_path / "skin.png", view, **kw), f"{tag}_volume_eq24_skin.png")
-    head_mask = B.render.render_objects_png([surface], tmp_path / "sil.png", view, res, 4, transparent=True,
+    ext.volume.set_volume_settings(vol, alpha_mode="EQ24", colour_preset="skin")
+    _keep(ext.render.render_objects_png([vol], tmp_path / "skin.png", view, **kw), f"{tag}_volume_eq24_skin.png")
+    head_mask = ext.render.render_objects_png([surface], tmp_path / "sil.png", view, res, 4, transparent=True,
                                             bounds=bounds)
     head_mask = _dilate(blender_inspect.image_stats(head_mask)["mask"], 3)
     s24, sint = blender_inspect.image_stats(eq24), blender_inspect.image_stats(base)
@@ -165,18 +172,18 @@ def _compare_eq24_and_baseline(B, ct, head, wfield, tmp_path, tag, view="FRONT",
     assert sint["foreground_mean"] > 0.0 and s24["mask"][head_mask].mean() > 0.5
 
 
-def test_volume_eq24_differs_from_intensity_alpha_on_the_phantom(B, phantom, phantom_head, tmp_path):
+def test_volume_eq24_differs_from_intensity_alpha_on_the_phantom(ext, phantom, phantom_head, tmp_path):
     wfield = phantom_head.w_field(3.0, ct=phantom.ct)
-    _compare_eq24_and_baseline(B, phantom.ct, phantom_head, wfield, tmp_path, "phantom")
+    _compare_eq24_and_baseline(ext, phantom.ct, phantom_head, wfield, tmp_path, "phantom")
 
 
-def test_cthead_surface_and_volume_renders(B, cthead_ct, cthead_head, tmp_path):
-    coll = B.objects.study_collection("CThead")
-    surface = B.objects.build_surface(cthead_head, coll, nu=80, nv=120)
+def test_cthead_surface_and_volume_renders(ext, cthead_ct, cthead_head, tmp_path):
+    coll = ext.objects.study_collection("CThead")
+    surface = ext.objects.build_surface(cthead_head, coll, nu=80, nv=120)
     for view in ("FRONT", "LEFT"):
-        png = _keep(B.render.render_objects_png([surface], tmp_path / f"{view}.png", view, (160, 160), 16),
+        png = _keep(ext.render.render_objects_png([surface], tmp_path / f"{view}.png", view, (160, 160), 16),
                     f"cthead_surface_{view.lower()}.png")
         stats = blender_inspect.image_stats(png)
         assert 0.05 < stats["foreground_fraction"] < 0.8 and stats["std"] > 0.05
     wfield = cthead_head.w_field(3.0, ct=cthead_ct)
-    _compare_eq24_and_baseline(B, cthead_ct, cthead_head, wfield, tmp_path, "cthead", view="LEFT")
+    _compare_eq24_and_baseline(ext, cthead_ct, cthead_head, wfield, tmp_path, "cthead", view="LEFT")

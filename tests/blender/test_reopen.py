@@ -79,7 +79,7 @@ np.savez(args["out"] + "_solid.npz", colour=blender_inspect.mesh_attribute(solid
 if args.get("volume"):
     assert bpy.ops.pdehead.build_volume() == {"FINISHED"}
     out["vdb_after"] = bpy.path.abspath(s.volume_object.data.filepath)
-    if volume.compat.has_openvdb():  # bpy 4.2 cannot read .vdb files back (its volumes: operators/vdb_writer.py)
+    if vdb_read.has_openvdb():  # bpy 4.2 cannot read .vdb files back (its volumes: operators/vdb_writer.py)
         ct, lo = vdb_read.read_vdb_array(out["vdb_after"], "ct")
         np.save(args["out"] + "_ct.npy", ct)
         out["ct_lo"] = lo
@@ -113,13 +113,6 @@ def _solid_arrays(ext, solid):
     return blender_inspect.mesh_attribute(solid, ext.objects.CT_COLOUR_ATTRIBUTE).copy(), pixels
 
 
-@pytest.fixture()
-def ext(pdehead_ext):
-    from types import SimpleNamespace
-    name = pdehead_ext.__name__
-    return SimpleNamespace(**{m: sys.modules[f"{name}.operators.{m}"] for m in ("ops", "state", "study", "objects", "volume")})
-
-
 def test_reopen_in_a_new_process_rereads_the_ct_and_loses_nothing(ext, pdehead_ext, extension_zip, tmp_path):
     import bpy
     from datasets import CTHEAD_RAW16_OPTIONS as o
@@ -146,7 +139,7 @@ def test_reopen_in_a_new_process_rereads_the_ct_and_loses_nothing(ext, pdehead_e
     assert colour_before.std() > 0.05 and pixels_before.reshape(-1, 4)[:, 0].std() > 0.05
     temp_vdb = Path(s.volume_object.data.filepath)
     assert temp_vdb.is_absolute() and temp_vdb.parent == unsaved_folder.resolve() and temp_vdb.is_file()
-    can_read_vdb = ext.volume.compat.has_openvdb()  # bpy 4.2: no OpenVDB bindings to read files back
+    can_read_vdb = vdb_read.has_openvdb()  # bpy 4.2: no OpenVDB bindings to read files back
     ct_before, lo_before = vdb_read.read_vdb_array(temp_vdb, "ct") if can_read_vdb else (None, None)
 
     blend = project / "study.blend"

@@ -7,19 +7,10 @@ from __future__ import annotations
 
 import os
 import shutil
-import sys
 
 import numpy as np
-import pytest
 
 import blender_inspect  # tests/blender/blender_inspect.py
-
-
-@pytest.fixture()
-def mods(pdehead_ext):
-    from types import SimpleNamespace
-    name = pdehead_ext.__name__
-    return SimpleNamespace(**{m: sys.modules[f"{name}.operators.{m}"] for m in ("scene", "render", "state")})
 
 
 def _f12(scene, path):
@@ -33,12 +24,12 @@ def _f12(scene, path):
     return path
 
 
-def test_pipeline_in_the_startup_scene_frames_the_face_and_f12_renders_it(mods, tmp_path):
+def test_pipeline_in_the_startup_scene_frames_the_face_and_f12_renders_it(ext, tmp_path):
     import bpy
     bpy.ops.wm.read_homefile(use_empty=False)  # Blender's startup scene: cube, camera, light
     scene = bpy.context.scene
     cube = scene.objects["Cube"]
-    assert mods.scene.is_startup_cube(cube)
+    assert ext.scene.is_startup_cube(cube)
     scene.render.resolution_x = scene.render.resolution_y = 96
     scene.render.resolution_percentage = 100
     assert bpy.ops.pdehead.run_pipeline(source='PHANTOM', patches=6, nu=40, nv=80, nw=4,
@@ -52,7 +43,7 @@ def test_pipeline_in_the_startup_scene_frames_the_face_and_f12_renders_it(mods, 
         assert obj.hide_render and obj.hide_get()
     cam = scene.camera
     assert cam.get("pdehead_kind") == "camera" and cam.name in coll.objects and cam.data.type == "PERSP"
-    head_lo, head_hi = mods.render.world_bounds([s.surface_object])
+    head_lo, head_hi = ext.render.world_bounds([s.surface_object])
     m = np.array(cam.matrix_world)
     assert m[1, 3] < head_lo[1] - 0.1  # in front of the face (anterior is -Y)
     np.testing.assert_allclose(-m[:3, 2], [0.0, 1.0, 0.0], atol=1e-6)  # looking along +Y: the front view
@@ -83,19 +74,19 @@ def test_pipeline_in_the_startup_scene_frames_the_face_and_f12_renders_it(mods, 
     assert not s.solid_object.hide_render and s.surface_object.hide_render
 
 
-def test_a_changed_cube_is_left_alone_and_each_study_gets_its_camera(mods):
+def test_a_changed_cube_is_left_alone_and_each_study_gets_its_camera(ext):
     import bpy
     bpy.ops.wm.read_homefile(use_empty=False)
     scene = bpy.context.scene
     cube = scene.objects["Cube"]
     cube.scale = (0.05, 0.05, 0.05)  # the user's own object now
     bpy.context.view_layer.update()
-    assert not mods.scene.is_startup_cube(cube)
+    assert not ext.scene.is_startup_cube(cube)
     for _ in range(2):
         assert bpy.ops.pdehead.run_pipeline(source='PHANTOM', patches=4, nu=20, nv=30, nw=3,
                                             build_volume=False) == {'FINISHED'}
     assert not cube.hide_render and not cube.hide_get()
-    studies = mods.state.studies()
+    studies = ext.state.studies()
     assert len(studies) == 2
     cams = [next(o for o in c.objects if o.get("pdehead_kind") == "camera") for c in studies]
     assert cams[0] != cams[1] and scene.camera == cams[1]  # the newest study is framed

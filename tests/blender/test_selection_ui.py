@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from panel_recorder import RecordingLayout
-from test_operators import ext, open_blend  # noqa: F401  (the ext fixture)
+from test_operators import open_blend
 
 
 def _stored(ext, coll):

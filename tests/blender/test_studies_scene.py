@@ -6,14 +6,6 @@ import sys
 import pytest
 
 
-@pytest.fixture()
-def mods(pdehead_ext):
-    from types import SimpleNamespace
-    name = pdehead_ext.__name__
-    return SimpleNamespace(**{m: sys.modules[f"{name}.operators.{m}"]
-                              for m in ("render", "scene", "state", "study", "volume")})
-
-
 @pytest.fixture(scope="module")
 def phantom_dicom(tmp_path_factory):
     """The phantom as an untilted DICOM series (what a user drops in or imports)."""
@@ -32,7 +24,7 @@ def _on_screen(camera, scene, point) -> tuple[float, float]:
     return float(co.x), float(co.y)
 
 
-def test_import_with_build_the_head_ends_framed(mods, phantom_dicom):
+def test_import_with_build_the_head_ends_framed(ext, phantom_dicom):
     """File > Import > CT Head with "Build the Head" on Blender's startup file: the study camera is the
     scene camera and looks at the head, the startup cube is hidden, the surface is what F12 shows."""
     import bpy
@@ -42,13 +34,13 @@ def test_import_with_build_the_head_ends_framed(mods, phantom_dicom):
     assert default_camera is not None and not cube.hide_render
     assert bpy.ops.pdehead.import_ct(directory=str(phantom_dicom), run_pipeline=True) == {'FINISHED'}
     coll = scene.pdehead.active_study
-    s = mods.state.settings(coll)
+    s = ext.state.settings(coll)
     assert s.surface_object and s.solid_object
-    camera = mods.scene._study_object(coll, mods.scene.CAMERA_KIND)
+    camera = ext.scene._study_object(coll, ext.scene.CAMERA_KIND)
     assert camera is not None and scene.camera == camera and camera != default_camera
     assert cube.hide_render and not cube.visible_get()
     assert not s.surface_object.hide_render and s.solid_object.hide_render and s.curves_object.hide_render
-    lo, hi = mods.render.world_bounds([s.surface_object])
+    lo, hi = ext.render.world_bounds([s.surface_object])
     x, y = _on_screen(camera, scene, 0.5 * (lo + hi))
     assert x == pytest.approx(0.5, abs=0.02) and y == pytest.approx(0.5, abs=0.02)
     corners = [_on_screen(camera, scene, (a, b, c)) for a in (lo[0], hi[0]) for b in (lo[1], hi[1])
@@ -61,20 +53,20 @@ def _pipeline(bpy, **kw):
     return bpy.context.scene.pdehead.active_study
 
 
-def test_remove_study_falls_back_to_another_studys_camera(mods):
+def test_remove_study_falls_back_to_another_studys_camera(ext):
     import bpy
     first = _pipeline(bpy, build_volume=False)
     first_name = first.name
     second = _pipeline(bpy, build_volume=False)
     scene = bpy.context.scene
-    assert scene.camera == mods.scene._study_object(second, mods.scene.CAMERA_KIND)
+    assert scene.camera == ext.scene._study_object(second, ext.scene.CAMERA_KIND)
     assert bpy.ops.pdehead.remove_study() == {'FINISHED'}  # the active study: the second
     first = bpy.data.collections[first_name]
     assert scene.pdehead.active_study == first
-    assert scene.camera is not None and scene.camera == mods.scene._study_object(first, mods.scene.CAMERA_KIND)
+    assert scene.camera is not None and scene.camera == ext.scene._study_object(first, ext.scene.CAMERA_KIND)
 
 
-def test_save_removes_the_vdb_of_a_study_deleted_in_the_outliner(mods, tmp_path):
+def test_save_removes_the_vdb_of_a_study_deleted_in_the_outliner(ext, tmp_path):
     """Only this file's own .vdb that no volume uses any more goes; the other study's, a foreign .vdb
     and other files in the folder stay."""
     import bpy
@@ -83,9 +75,9 @@ def test_save_removes_the_vdb_of_a_study_deleted_in_the_outliner(mods, tmp_path)
     kept = _pipeline(bpy, voxel_size=8.0)
     gone = _pipeline(bpy, voxel_size=8.0)
     bpy.ops.wm.save_mainfile()
-    folder = tmp_path / mods.volume.VDB_FOLDER_NAME
-    kept_vdb = folder / bpy.path.basename(mods.state.settings(kept).volume_object.data.filepath)
-    gone_vdb = folder / bpy.path.basename(mods.state.settings(gone).volume_object.data.filepath)
+    folder = tmp_path / ext.volume.VDB_FOLDER_NAME
+    kept_vdb = folder / bpy.path.basename(ext.state.settings(kept).volume_object.data.filepath)
+    gone_vdb = folder / bpy.path.basename(ext.state.settings(gone).volume_object.data.filepath)
     assert kept_vdb.is_file() and gone_vdb.is_file() and kept_vdb != gone_vdb
     foreign = folder / "someone_else.vdb"
     foreign.write_bytes(gone_vdb.read_bytes())
@@ -108,7 +100,7 @@ def test_save_removes_the_vdb_of_a_study_deleted_in_the_outliner(mods, tmp_path)
     assert sorted(p.name for p in folder.glob("*.vdb")) == sorted([kept_vdb.name, foreign.name])
 
 
-def test_drag_and_drop_opens_the_import_with_the_file(mods, pdehead_ext, phantom_dicom, pytestconfig):
+def test_drag_and_drop_opens_the_import_with_the_file(ext, pdehead_ext, phantom_dicom, pytestconfig):
     """Blender's FileHandler for the 3D View: a dropped .dcm opens the import on its series folder, a
     .nii.gz on the file alone, a .raw / .tif on its stack's folder; the dialog's values import the CT."""
     import bpy
@@ -130,6 +122,6 @@ def test_drag_and_drop_opens_the_import_with_the_file(mods, pdehead_ext, phantom
 
     # the dialog's OK: what Blender runs with the dropped file's values
     assert bpy.ops.pdehead.import_ct(files=[{"name": dcm}], **got) == {'FINISHED'}
-    s = mods.state.settings(bpy.context.scene.pdehead.active_study)
+    s = ext.state.settings(bpy.context.scene.pdehead.active_study)
     assert s.source_kind == 'FILES' and s.source == str(phantom_dicom)
     assert tuple(s.dimensions)[:2] == (128, 128) and s.dimensions[2] > 20  # the whole series, not one slice

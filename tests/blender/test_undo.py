@@ -9,7 +9,6 @@ undo while a modal operator runs.
 from __future__ import annotations
 
 import math
-import sys
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -24,53 +23,44 @@ ALL_OPERATORS = ("segment", "extract_boundaries", "reconstruct_surface", "build_
                  "frame_study", "add_cutter")
 
 
-@pytest.fixture()
-def mods(pdehead_ext):
-    name = pdehead_ext.__name__
-    return SimpleNamespace(**{m: sys.modules[f"{name}.operators.{m}"]
-                              for m in ("state", "study", "volume", "objects", "panel", "cutter")})
-
-
-
-
-def draw_panels(mods):
+def draw_panels(ext):
     import bpy
     log = []
-    for cls in mods.panel.CLASSES:
+    for cls in ext.panel.CLASSES:
         if hasattr(cls, "poll") and not cls.poll(bpy.context):
             continue
         cls.draw(SimpleNamespace(layout=_Layout(log), study=cls.study), bpy.context)
     return log
 
 
-def run_every_operator(mods, study: str):
+def run_every_operator(ext, study: str):
     import bpy
     for name in ALL_OPERATORS:
         assert getattr(bpy.ops.pdehead, name)(study=study) == {'FINISHED'}, name
-    log = draw_panels(mods)
+    log = draw_panels(ext)
     assert ("operator", "pdehead.add_cutter") in log and any(x[0] == "prop" and x[1] == "v_range" for x in log)
 
 
-def _study(mods, name):
+def _study(ext, name):
     import bpy
     coll = bpy.data.collections[name]
-    assert mods.state.is_study(coll)
+    assert ext.state.is_study(coll)
     return coll, coll.pdehead
 
 
-def test_undo_restores_the_study_and_every_operator_works_after_it(mods, tmp_path):
+def test_undo_restores_the_study_and_every_operator_works_after_it(ext, tmp_path):
     import bpy
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "undo.blend"))
     assert bpy.ops.pdehead.run_pipeline(source='PHANTOM', patches=4, nu=24, nv=36, nw=3,
                                         voxel_size=6.0) == {'FINISHED'}
     name = bpy.context.scene.pdehead.active_study.name
-    coll, s = _study(mods, name)
+    coll, s = _study(ext, name)
     n_full = len(s.solid_object.data.vertices)
     vdb_first = Path(bpy.path.abspath(s.volume_object.data.filepath))
     bpy.ops.ed.undo_push(message="built")
 
     assert bpy.ops.pdehead.add_cutter() == {'FINISHED'}
-    _, s = _study(mods, name)
+    _, s = _study(ext, name)
     assert s.use_cutter and s.v_range[1] - s.v_range[0] < 2 * math.pi - 0.5
     assert bpy.ops.pdehead.build_volume() == {'FINISHED'}
     vdb_second = Path(bpy.path.abspath(s.volume_object.data.filepath))
@@ -78,50 +68,50 @@ def test_undo_restores_the_study_and_every_operator_works_after_it(mods, tmp_pat
     bpy.ops.ed.undo_push(message="cut")
 
     assert bpy.ops.ed.undo() == {'FINISHED'}  # Ctrl+Z: back to "built"
-    coll, s = _study(mods, name)  # every datablock is new after undo
-    assert mods.cutter.cutter_of(coll) is None and not s.use_cutter
+    coll, s = _study(ext, name)  # every datablock is new after undo
+    assert ext.cutter.cutter_of(coll) is None and not s.use_cutter
     assert tuple(s.v_range) == pytest.approx((0.0, 2 * math.pi))
     assert len(s.solid_object.data.vertices) == n_full
     assert Path(bpy.path.abspath(s.volume_object.data.filepath)) == vdb_first
-    assert mods.volume.check_volume(s.volume_object) is None  # the file the undone state needs is there
+    assert ext.volume.check_volume(s.volume_object) is None  # the file the undone state needs is there
 
     # live parameters and every operator work on the restored study
     s.nw = 4
     assert s.last_error == "" and len(s.solid_object.data.vertices) > n_full
     s.v_range = (math.pi / 2, 2 * math.pi)
     assert s.last_error == ""
-    run_every_operator(mods, name)
+    run_every_operator(ext, name)
 
     assert bpy.ops.ed.redo.poll() or True  # redo after new actions has nothing to redo: no crash either way
     bpy.ops.ed.undo_push(message="after")
     assert bpy.ops.ed.undo() == {'FINISHED'}
-    coll, s = _study(mods, name)
-    assert s.solid_object is not None and mods.study.pde_head(coll) is not None
+    coll, s = _study(ext, name)
+    assert s.solid_object is not None and ext.study.pde_head(coll) is not None
 
 
-def test_two_studies_after_reopening_each_operator_acts_on_its_own_study(mods, tmp_path):
+def test_two_studies_after_reopening_each_operator_acts_on_its_own_study(ext, tmp_path):
     import bpy
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "two.blend"))
     for _ in range(2):
         assert bpy.ops.pdehead.run_pipeline(source='PHANTOM', patches=4, nu=20, nv=30, nw=3,
                                             voxel_size=6.0) == {'FINISHED'}
-    names = sorted(c.name for c in mods.state.studies())
+    names = sorted(c.name for c in ext.state.studies())
     assert len(names) == 2
     bpy.ops.wm.save_mainfile()
     bpy.ops.wm.open_mainfile(filepath=str(tmp_path / "two.blend"))
-    mods.state.drop_cache()  # as in a new session
+    ext.state.drop_cache()  # as in a new session
 
-    first, second = (_study(mods, n) for n in names)
+    first, second = (_study(ext, n) for n in names)
     before = blender_inspect.mesh_world_vertices(second[1].solid_object).copy()
     vdb_second = second[1].volume_object.data.filepath
     assert bpy.ops.pdehead.build_solid(study=names[0], nw=5) == {'FINISHED'}
     assert first[1].nw == 5 and second[1].nw == 3
     np.testing.assert_array_equal(blender_inspect.mesh_world_vertices(second[1].solid_object), before)
-    run_every_operator(mods, names[0])
+    run_every_operator(ext, names[0])
     assert second[1].volume_object.data.filepath == vdb_second  # the other study's volume is untouched
-    assert mods.cutter.cutter_of(second[0]) is None
+    assert ext.cutter.cutter_of(second[0]) is None
     bpy.context.scene.pdehead.active_study = second[0]
-    run_every_operator(mods, "")  # the active study
+    run_every_operator(ext, "")  # the active study
     cams = {c.name: next(o for o in c.objects if o.get("pdehead_kind") == "camera") for c in (first[0], second[0])}
     assert bpy.context.scene.camera == cams[names[1]] and cams[names[0]] != cams[names[1]]
     bpy.ops.wm.save_mainfile()

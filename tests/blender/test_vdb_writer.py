@@ -24,22 +24,22 @@ def _grids():
     return w, intensity, matrix
 
 
-def _write(B, path):
+def _write(ext, path):
     w, intensity, matrix = _grids()
-    DenseGrid = B.vdb_writer.DenseGrid
-    B.vdb_writer.write_vdb(path, (DenseGrid("w", w, 2.0, False, matrix.tolist(), {"pdehead_window": "-5.0 900.0"}),
+    DenseGrid = ext.vdb_writer.DenseGrid
+    ext.vdb_writer.write_vdb(path, (DenseGrid("w", w, 2.0, False, matrix.tolist(), {"pdehead_window": "-5.0 900.0"}),
                                   DenseGrid("intensity", intensity, 0.0, True, matrix.tolist(), {})))
     return w, intensity, matrix
 
 
-def test_files_read_back_with_openvdb_equal_copy_from_array(B, tmp_path):
+def test_files_read_back_with_openvdb_equal_copy_from_array(ext, tmp_path):
     import bpy
-    openvdb = B.compat.openvdb_module()
+    openvdb = ext.compat.openvdb_module()
     if openvdb is None:
         pytest.skip(f"bpy {bpy.app.version_string} has no OpenVDB bindings to read the file back "
                     "(checked on the Blenders that have them)")
     path = tmp_path / "own.vdb"
-    w, intensity, matrix = _write(B, path)
+    w, intensity, matrix = _write(ext, path)
     assert not (tmp_path / "own.vdb.partial").exists()
     grids, _meta = openvdb.readAll(str(path))
     try:
@@ -69,11 +69,11 @@ def test_files_read_back_with_openvdb_equal_copy_from_array(B, tmp_path):
         gc.collect()
 
 
-def test_blender_loads_the_files_with_their_grids_and_transforms(B, tmp_path):
+def test_blender_loads_the_files_with_their_grids_and_transforms(ext, tmp_path):
     """On every Blender (4.2 included): a Volume reading our file lists its grids with our transforms."""
     import bpy
     path = tmp_path / "own.vdb"
-    w, intensity, matrix = _write(B, path)
+    w, intensity, matrix = _write(ext, path)
     vol = bpy.data.volumes.new("own")
     vol.filepath = str(path)
     grids = vol.grids
@@ -86,13 +86,13 @@ def test_blender_loads_the_files_with_their_grids_and_transforms(B, tmp_path):
         np.testing.assert_allclose(np.array(g.matrix_object), matrix.T, atol=1e-7)
 
 
-def test_bad_grids_are_refused_and_leave_no_file(B, tmp_path):
-    DenseGrid = B.vdb_writer.DenseGrid
+def test_bad_grids_are_refused_and_leave_no_file(ext, tmp_path):
+    DenseGrid = ext.vdb_writer.DenseGrid
     eye = np.eye(4).tolist()
     path = tmp_path / "bad.vdb"
     with pytest.raises(ValueError, match="used twice"):
-        B.vdb_writer.write_vdb(path, [DenseGrid("a", np.ones((2, 2, 2)), 0.0, False, eye, {}),
+        ext.vdb_writer.write_vdb(path, [DenseGrid("a", np.ones((2, 2, 2)), 0.0, False, eye, {}),
                                       DenseGrid("a", np.ones((2, 2, 2)), 0.0, False, eye, {})])
     with pytest.raises(ValueError, match="3-D"):
-        B.vdb_writer.write_vdb(path, [DenseGrid("b", np.ones((4, 4)), 0.0, False, eye, {})])
+        ext.vdb_writer.write_vdb(path, [DenseGrid("b", np.ones((4, 4)), 0.0, False, eye, {})])
     assert list(tmp_path.iterdir()) == []
