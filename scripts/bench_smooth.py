@@ -283,13 +283,17 @@ def up_close_markdown(res: dict) -> str:
               "10.48 -> 9.77 deg on CThead); ~0.65 s CPU "
               "once per study (cached with the curves, so the timing row above, the surface of a study "
               "whose curves it has seen, does not include it; that row is noisy on a shared machine).",
-              "- **Neck cap (GE).** The longest cap triangle edge is the tube's own bottom ring edge: where GE's "
-              "neck outline runs nearly radially one v step of the angular curves is 8.4 mm (4.24 mean edges), "
-              "and every triangle on that edge inherits it (the tube's own quads are as long there: rows 0-26 have "
-              "ring edges over 3 mean edges). Meeting ≤ 3 needs that edge split: the bottom row's quad on it "
-              "made a triangle and a quad with a new end-curve point at the edge's middle, the splits decided "
-              "from the boundary curves (not the ring of the moment, so a slider keeps the topology) and the "
-              "DiscCap zipped to the refined ring; or the end rows sampled by arc length. Not done this stop.", ""]
+              "- **Neck cap (GE).** Before this stop the longest cap triangle edge was the tube's own bottom ring "
+              "edge: where GE's neck outline runs nearly radially one equal v step is 8.4 mm (4.24 mean edges). "
+              "The columns now lie closer in v there (`PDEHead.v_columns`: `surface_mesh.column_density` of the "
+              "capped end curve, no step longer than 1.5 x its mean sample step; one warp of v per study, the "
+              "same for every row, so nu, nv and the sliders keep the topology and the UVs, whose tube table is "
+              "sampled at the same columns). Then the cap's own zipper triangles were the longest (3.18: on a "
+              "radial run a ring's step and the step to the next ring lie along one line); `CAP_EDGE` 1.5 -> 1.2 "
+              "brings them to the figure above. Not bounded: GE's middle rings (rows around the ears) keep ring "
+              "edges up to ~4.3 mean edges (quads, not in this measure); a warp from every curve bounded them "
+              "(2.5) but moved CThead's faces into its ears and its UV stretch to 4.61 (target 4). At 300 x 480 "
+              "GE's cap ratio is 3.62.", ""]
     return "\n".join(lines)
 
 
