@@ -350,11 +350,7 @@ def column_density(curves: np.ndarray, limit: float = V_STEP_LIMIT) -> np.ndarra
 def column_v(density: np.ndarray | None, nv: int) -> np.ndarray:
     """The v of nv columns spaced by ``density`` (:func:`column_density`): column j at the fraction j / nv of
     the density's integral over the turn (piecewise linear), so v_0 = 0 and the columns increase."""
-    if density is None:
-        return TWO_PI * np.arange(nv) / nv
-    M = len(density)
-    G = np.concatenate([[0.0], np.cumsum(density)])
-    return np.interp(np.arange(nv) / nv, G / G[-1], TWO_PI * np.arange(M + 1) / M)
+    return TWO_PI * column_fraction_inverse(density, np.arange(nv) / nv)
 
 
 def column_fraction_inverse(density: np.ndarray | None, s: np.ndarray) -> np.ndarray:

@@ -122,6 +122,8 @@ def test_a_radial_neck_outline_gets_closer_columns_not_long_cap_triangles(monkey
     assert np.allclose(m.vertex_attributes["v"][:120], v)
     assert np.allclose(head.evaluate(0.0, v), m.vertices[:120])          # the columns lie on the surface
     assert np.allclose(head.v_columns(240)[::2], v, atol=1e-12)          # one warp of v for every nv
+    solid = head.solid(60, 120, 5)                                       # the solid's skin: the same columns
+    assert np.allclose(np.unique(solid.vertex_attributes["v"]), np.unique(v))
     monkeypatch.setattr(PS, "column_density", lambda curves: None)      # before: equal v steps, the old cap step
     monkeypatch.setattr(SM, "CAP_EDGE", 1.5)
     old = solve_pde(notched_bset(), approximation_mm=0).surface(60, 120, caps=True)
