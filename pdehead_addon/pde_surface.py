@@ -705,7 +705,7 @@ class PDEHead:
         if self.vertex is not None:
             nu = max(nu, 3)
             u = np.linspace(0.0, 1.0, nu)
-            # equal v steps: the solid's grid too (it has the pole row)
+            # the solid's grid too (it has the pole row; pde_solid takes the same columns)
             pts = (self.grid(u, nv) if density is None else self.grid(u, v=self.v_columns(nv)))[:-1]
             bottom = disc_caps(pts, ends, ends=(0,), reference=self.cap_reference(nu, nv))[0] if caps else None
             top = (np.asarray(self.vertex, float), _fan_indices(nv))

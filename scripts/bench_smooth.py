@@ -307,9 +307,9 @@ def up_close_markdown(res: dict) -> str:
               "than today's 0.287 / 0.96; the default u smoothing (approximation 2 mm on CThead) off: t = 10 0.279 / "
               "0.92, t = 13 0.252 / 0.78, t = 15 0.249 / 0.79, t = 17 0.234 / 0.76, t = 20 0.223 / 0.70 (with it: "
               "0.265 / 0.85, 0.263 / 0.87, 0.253 / 0.85, 0.243 / 0.79), crease p95 at t = 10 1.04 -> 1.22 deg, no folds, "
-              "no notches (GE and the phantom not measured, their default u smoothing comes from the slice "
-              "thickness). A default of t = 13 with that smoothing off would meet both targets at ~20 kB; not "
-              "changed here (it moves the selection, every default-setting test and the pipeline's timings).", ""]
+              "no notches, on slices chosen with the smoothing; with the selection's proxy also without it (what a "
+              "changed default would do) t = 13 chose other slices: 0.256 / 0.83 at 19.4 kB (missed). GE's default "
+              "u smoothing comes from its slice thickness and would not change. Not adopted.", ""]
     return "\n".join(lines)
 
 
