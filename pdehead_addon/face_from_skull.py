@@ -941,6 +941,9 @@ class FaceModel:
         if (nu, nv) not in refs:
             refs[(nu, nv)] = head.cap_reference(nu, nv)
         head.cap_reference = lambda _nu, _nv, _ref=refs[(nu, nv)]: _ref
+        # the columns' v steps (issue 21: closer where an outline runs radially) too, for the same reason
+        density = self.__dict__.setdefault("_v_density", [head.v_density()])[0]
+        head.v_density = lambda _d=density: _d
         # the UV layout too (issue 21's tube map costs ~0.65 s per new set of curves): fixed by the first
         # face, so a dragged peg neither waits for it nor moves a painted texture
         layout = self.__dict__.get("_uv_layout")

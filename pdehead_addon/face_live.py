@@ -145,6 +145,10 @@ class LiveFace:
         u, nv = self._u, self.nv
         H, nb = head.harmonics, nv // 2 + 1
         self._spine0 = None
+        density = self.model.__dict__.get("_v_density", [None])[0]
+        if density is not None:                                   # columns closer where an outline runs radially
+            from .surface_mesh import column_v
+            return head._grid(u, None, v=column_v(density, nv))
         if H > (nv + 1) // 2:                                     # harmonics folded: the head's own
             return head._grid(u, nv)
         patch, s = head._patch_of(u)

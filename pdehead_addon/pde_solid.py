@@ -117,7 +117,11 @@ def solid_mesh(head, nu: int, nv: int, nw: int, u_range: tuple[float, float] = (
     u = np.linspace(u0, u1, nu)
     w = np.linspace(w0, w1, nw)
     v = v0 + TWO_PI * np.arange(nv) / nv if full else np.linspace(v0, v1, nv)
-    surf = _surface_grid_cached(head, u, v, nv if (full and v0 == 0.0) else None)
+    uniform = nv if (full and v0 == 0.0) else None
+    density = head.v_density() if uniform is not None and hasattr(head, "v_density") else None
+    if density is not None:             # the surface's columns (PDEHead.v_columns): its skin, its grid
+        v, uniform = head.v_columns(nv), None
+    surf = _surface_grid_cached(head, u, v, uniform)
     spine = head.spine(u)                                                    # (nu, 3)
     crown = getattr(head, "vertex", None) is not None and u1 == 1.0
     quads, tris, quad_c, tri_c, iu, iv, iw = _solid_topology(nu, nv, nw, full, w0 == 0.0, head.orientation > 0,

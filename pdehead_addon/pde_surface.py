@@ -104,7 +104,8 @@ from .mesh import Mesh
 from .pde_basis import basis, basis_grid, curve_harmonics, inverse_4x4, small_matmul
 from .pde_spline import c2_spans, dome_height, fade_dome_amplitudes, smoothing_spline_values
 # (signed_volume and _tube_mesh are also imported from here by scripts/bench_pde.py and scripts/bench_smooth.py)
-from .surface_mesh import _check_count, _fan_caps, _fan_indices, _tube_mesh, disc_caps, signed_volume
+from .surface_mesh import (_check_count, _fan_caps, _fan_indices, _tube_mesh, column_density, column_v,
+                           disc_caps, signed_volume)
 from .parameterisation import align_parameterisation  # noqa: F401  (re-export; solve_pde(align=True))
 
 #: The default a keeps the top harmonic's Lebesgue constant within this factor of the cubic one.
@@ -679,7 +680,8 @@ class PDEHead:
             Rows along u, including u = 0 and u = 1 (>= 2). With a dome the row
             u = 1 is the single vertex of the crown, joined by a triangle fan.
         nv : int
-            Columns along v (>= 3); ``v_j = 2 pi j / nv``, the seam is stitched.
+            Columns along v (>= 3), the seam stitched; ``v_j = 2 pi j / nv``, closer in v where an outline
+            runs nearly radially (:meth:`v_columns`: no ring edge much longer than the curves' mean step).
         caps : bool
             Close the bottom (and, without a dome, the top) with triangles: a flat disc
             triangulated ring by ring (:class:`.surface_mesh.DiscCap`, no triangle much
@@ -699,17 +701,38 @@ class PDEHead:
         nu, nv = _check_count(nu, "nu", 2), _check_count(nv, "nv", 3)
         u = np.linspace(0.0, 1.0, nu)
         ends = self.spine(np.array([0.0, 1.0]))
+        density = self.v_density()
         if self.vertex is not None:
             nu = max(nu, 3)
             u = np.linspace(0.0, 1.0, nu)
-            pts = self.grid(u, nv)[:-1]                      # the solid's grid too (it has the pole row)
+            # the solid's grid too (it has the pole row; pde_solid takes the same columns)
+            pts = (self.grid(u, nv) if density is None else self.grid(u, v=self.v_columns(nv)))[:-1]
             bottom = disc_caps(pts, ends, ends=(0,), reference=self.cap_reference(nu, nv))[0] if caps else None
             top = (np.asarray(self.vertex, float), _fan_indices(nv))
             return _tube_mesh(pts, self.orientation, [bottom, top], uv=uv, u=u[:-1], top_u=1.0,
-                              uv_layout=self.uv_layout() if uv else None)
-        pts = self.grid(u, nv)
+                              uv_layout=self.uv_layout() if uv else None, v_density=density)
+        pts = self.grid(u, nv) if density is None else self.grid(u, v=self.v_columns(nv))
         cap_tris = disc_caps(pts, ends, reference=self.cap_reference(nu, nv)) if caps else None
-        return _tube_mesh(pts, self.orientation, cap_tris, uv=uv, u=u, uv_layout=self.uv_layout() if uv else None)
+        return _tube_mesh(pts, self.orientation, cap_tris, uv=uv, u=u, uv_layout=self.uv_layout() if uv else None,
+                          v_density=density)
+
+    def v_density(self) -> np.ndarray | None:
+        """How densely the surface's columns sample each of the curves' v steps
+        (:func:`.surface_mesh.column_density` of the end curves the caps close: the bottom one, and the top
+        one without a dome), None for equal steps. From the boundary curves alone: one per study.
+
+        Only the capped ends: the same density from every curve also evened CThead's ears, but it moved
+        faces into them and the UVs' area stretch there went from 3.81 to 4.61 (target 4), angle p95
+        9.8 -> 11.6 deg; from the bottom curve it is 3.86 / 9.2 deg, GE's bottom ring 4.24 -> 2.90 mean
+        edges (its middle rings keep edges up to ~4.3 mean edges)."""
+        ends = [0] if self.vertex is not None else [0, -1]
+        return _derived(self.bset, f"v_density{len(ends)}", lambda: column_density(self.bset.curves[ends]))
+
+    def v_columns(self, nv: int) -> np.ndarray:
+        """The v (radians) of the surface's nv columns (:func:`.surface_mesh.column_v`): ``2 pi j / nv``
+        where the end curve's samples are about evenly spaced, closer where its outline runs nearly
+        radially (issue 21: GE's neck ring had 8.4 mm edges, 4.2 x the tube's mean edge)."""
+        return column_v(self.v_density(), int(nv))
 
     def cap_reference(self, nu: int, nv: int) -> dict:
         """What fixes the disc caps' vertex counts (:func:`.surface_mesh.disc_caps`): the tube's mean edge
@@ -722,10 +745,18 @@ class PDEHead:
             span = float(_curve_positions(self.bset)[-1])
             if self.vertex is not None:
                 span += float(np.linalg.norm(c[-1] - c[-1].mean(axis=0), axis=1).mean())
-            def arc_fraction(ring):                          # cumulative length at v = 2 pi k / M, k = 0 .. M
+            density = self.v_density()
+
+            def arc_fraction(ring):
+                """Cumulative length at the column fraction k / K, k = 0 .. K (with equal v steps: at
+                v = 2 pi k / M), the abscissa of the cap's ring points (:class:`.surface_mesh.DiscCap`)."""
                 closed = np.vstack([ring, ring[:1]])
                 arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(closed, axis=0), axis=1))])
-                return arc / arc[-1]
+                if density is None:
+                    return arc / arc[-1]
+                K = 4 * len(ring)
+                v = column_v(density, K)
+                return np.append(np.interp(v, TWO_PI * np.arange(len(ring) + 1) / len(ring), arc), arc[-1]) / arc[-1]
             return span, float(perimeter.mean()), ((perimeter[0], radius[0], arc_fraction(c[0])),
                                                    (perimeter[-1], radius[-1], arc_fraction(c[-1])))
         span, mean_perimeter, end_rings = _derived(self.bset, f"cap_ref{self.vertex is not None}", compute)
@@ -772,8 +803,10 @@ class PDEHead:
         span = float(curve_u[-1] - curve_u[0])
         unit_u = np.round((curve_u - curve_u[0]) / span, 12) if span > 0 else curve_u
 
+        density = self.v_density()
+
         def tube_map():                 # issue 21: near-conformal, even-scale UVs of the tube (mm)
-            rings, map_u = uv_map_grid(self.bset.curves, unit_u)
+            rings, map_u = uv_map_grid(self.bset.curves, unit_u, v_density=density)
             U, V, W = uv_tube_map(rings, map_u)
             box = (float(U.min()), float(max(U.max(), (U[:, 0] + W).max())), float(V.min()), float(V.max()))
             return (U, V, W), box, map_u
@@ -782,7 +815,7 @@ class PDEHead:
         map_u = curve_u[0] + unit_map_u * span if span > 0 else unit_map_u
         return {"u_top": u_top, "aspect": (box[3] - box[2]) / (box[1] - box[0]), "curve_u": curve_u, "map_u": map_u,
                 "shear": None, "tube_map": table, "tube_box": box, "dome_ratio": dome_ratio,
-                "cap_ratio": cap_ratio}
+                "cap_ratio": cap_ratio, "v_density": density}
 
     def solid(self, nu: int, nv: int, nw: int, u_range: tuple[float, float] = (0.0, 1.0),
               v_range: tuple[float, float] = (0.0, TWO_PI), w_range: tuple[float, float] = (0.0, 1.0)) -> Mesh:

@@ -286,8 +286,11 @@ class DiscCap:
 
 
 #: The disc caps' step (radially and along each ring) in mean edges of the tube: a flat disc needs no
-#: finer triangles, and issue 21 asks for none longer than 3 mean edges.
-CAP_EDGE = 1.5
+#: finer triangles, and issue 21 asks for none longer than 3 mean edges. 1.2, not 1.5: where the outline
+#: runs radially a ring's step and the step to the next ring lie along one line, so a zipper triangle
+#: there spans both (GE: 3.18 mean edges at 1.5 once the bottom ring's own edges were bounded, 2.90 at 1.2;
+#: CThead 2.6 -> 2.2). The caps' triangle count grows by ~1.5x (GE 7,832 -> 12,092 with the tube's fan).
+CAP_EDGE = 1.2
 
 
 def disc_caps(pts: np.ndarray, spine_ends: np.ndarray, ends: tuple[int, ...] = (0, 1),
@@ -311,6 +314,52 @@ def disc_caps(pts: np.ndarray, spine_ends: np.ndarray, ends: tuple[int, ...] = (
         plan = None if reference is None else reference["ends"][end]
         out.append(DiscCap(ring, centre, edge, plan) if star else _fan_caps(pts, spine_ends, ends=(end,))[0])
     return out
+
+
+#: The surface's columns (issue 21): no step of v may carry the capped end curve further than this many
+#: times its mean sample step. Where an outline runs nearly radially (GE's wide neck) equal steps of the
+#: angular parameter v are long on the surface (8.4 mm at the defaults: 4.2 mean edges of the tube at GE's
+#: bottom ring), and so is every cap triangle on them; there the columns are placed closer in v
+#: (:func:`column_density`). 1.5: GE's bottom ring 2.9 mean edges (1.2: 2.5, but CThead's UV angle p95
+#: 10.6 deg).
+V_STEP_LIMIT = 1.5
+
+
+def column_density(curves: np.ndarray, limit: float = V_STEP_LIMIT) -> np.ndarray | None:
+    """How densely the surface's columns sample each step ``v_k -> v_k+1`` of the curves' M samples, shape
+    (M,): ``max(1, longest step of any curve there / (limit * the curves' mean step))``; None when that is 1
+    everywhere (equal steps of v). A function of the boundary curves alone (one per study): nu, nv and the
+    shape sliders keep it, so the columns' v and hence the UVs stay put."""
+    c = np.asarray(curves, float)
+    e = np.linalg.norm(np.roll(c, -1, axis=1) - c, axis=-1)                 # (n, M): step k -> k + 1
+    d = np.maximum(1.0, e.max(axis=0) / (float(limit) * max(float(e.mean()), 1e-12)))
+    return None if np.all(d <= 1.0) else d
+
+
+def column_v(density: np.ndarray | None, nv: int) -> np.ndarray:
+    """The v of nv columns spaced by ``density`` (:func:`column_density`): column j at the fraction j / nv of
+    the density's integral over the turn (piecewise linear), so v_0 = 0 and the columns increase."""
+    return TWO_PI * column_fraction_inverse(density, np.arange(nv) / nv)
+
+
+def column_fraction_inverse(density: np.ndarray | None, s: np.ndarray) -> np.ndarray:
+    """v / 2 pi at the column fraction s (:func:`column_v` at any s in [0, 1])."""
+    s = np.asarray(s, float)
+    if density is None:
+        return s
+    M = len(density)
+    G = np.concatenate([[0.0], np.cumsum(density)])
+    return np.interp(s, G / G[-1], np.arange(M + 1) / M)
+
+
+def column_fraction(density: np.ndarray | None, v: np.ndarray) -> np.ndarray:
+    """The inverse of :func:`column_v`: the column fraction s in [0, 1] at v (radians, in [0, 2 pi])."""
+    v = np.asarray(v, float)
+    if density is None:
+        return v / TWO_PI
+    M = len(density)
+    G = np.concatenate([[0.0], np.cumsum(density)])
+    return np.interp(v, TWO_PI * np.arange(M + 1) / M, G / G[-1])
 
 
 #: Gap (fraction of the texture) around every UV island: texture painting bleeds into it, not across the seam.
@@ -547,14 +596,24 @@ UV_MAP_SAMPLES = 128
 
 
 def uv_map_grid(curves: np.ndarray, curve_u: np.ndarray, subrows: int = UV_MAP_SUBROWS,
-                samples: int = UV_MAP_SAMPLES) -> tuple[np.ndarray, np.ndarray]:
-    """The grid :func:`uv_tube_map` is solved on: the curves (every ``M // samples``-th sample) and
-    ``subrows - 1`` rows between each pair from a natural cubic spline through them along u (its own
-    matrix, :func:`.pde_spline.natural_spline_matrix`: scipy's CubicSpline gave the same rows to ~1e-13 mm,
-    and importing ``scipy.interpolate`` cost a first surface ~0.2 s CPU)."""
+                samples: int = UV_MAP_SAMPLES, v_density: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The grid :func:`uv_tube_map` is solved on: the curves (every ``M // samples``-th sample; with
+    ``v_density``, :func:`column_density`, ``samples`` points at :func:`column_v` from their harmonics, so
+    the map is as fine along the ring where the surface's columns crowd) and ``subrows - 1`` rows between
+    each pair from a natural cubic spline through them along u (its own matrix,
+    :func:`.pde_spline.natural_spline_matrix`: scipy's CubicSpline gave the same rows to ~1e-13 mm, and
+    importing ``scipy.interpolate`` cost a first surface ~0.2 s CPU)."""
     from .pde_spline import natural_spline_matrix
     c = np.asarray(curves, float)
-    c = c[:, ::max(1, c.shape[1] // samples)]
+    if v_density is None:
+        c = c[:, ::max(1, c.shape[1] // samples)]
+    else:
+        M = c.shape[1]
+        spec = np.fft.rfft(c, axis=1) / M                                   # (n, H, 3)
+        h = np.arange(spec.shape[1])
+        weight = np.where((h == 0) | (2 * h == M), 1.0, 2.0)
+        phase = np.exp(1j * np.outer(column_v(v_density, samples), h)) * weight     # (samples, H)
+        c = np.einsum("sh,nhc->nsc", phase, spec).real
     cu = np.asarray(curve_u, float)
     if len(cu) < 3 or subrows <= 1:
         return c, cu
@@ -571,7 +630,13 @@ def _table_at(layout: dict, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, n
     M = U.shape[1]
     j = np.clip(np.searchsorted(cu, u, side="right") - 1, 0, len(cu) - 2)
     w = np.clip((u - cu[j]) / np.maximum(cu[j + 1] - cu[j], 1e-12), 0.0, 1.0)[:, None]
-    x = np.asarray(v, float) * (M / TWO_PI)
+    density = layout.get("v_density")
+    if density is None:
+        x = np.asarray(v, float) * (M / TWO_PI)
+    else:                                            # the table's samples lie at column_v(density, M)
+        v = np.asarray(v, float)
+        turns = np.floor_divide(v, TWO_PI)
+        x = (column_fraction(density, v - TWO_PI * turns) + turns) * M
     lo = np.floor(x).astype(np.int64)
     f = x - lo
     turns_lo, turns_hi = np.floor_divide(lo, M), np.floor_divide(lo + 1, M)
@@ -627,14 +692,17 @@ def _corner_grid_index(nu: int, nv: int, orientation: int) -> np.ndarray:
 
 
 def _tube_mesh(pts: np.ndarray, orientation: int, caps=None, uv: bool = False,
-               u: np.ndarray | None = None, top_u: float = 1.0, uv_layout: dict | None = None) -> Mesh:
+               u: np.ndarray | None = None, top_u: float = 1.0, uv_layout: dict | None = None,
+               v_density: np.ndarray | None = None) -> Mesh:
     """Tube mesh from a (nu, nv, 3) grid, stitched along v; optional caps (:func:`disc_caps`, :func:`_fan_caps`).
 
     ``caps`` is a (bottom, top) pair, either of which may be None (left open). With
     ``u`` (the rows' parameters) the vertex attributes ``u`` and ``v`` are set (cap
     centres get v = 0, the top centre u = ``top_u``). ``uv_layout`` (with ``u``):
     ``{"u_top": u where the dome starts (1 without), "aspect": tube length / circumference}``
-    gives the UV islands of :func:`uv_islands`; else per-corner ``(u, v / 2 pi)``.
+    gives the UV islands of :func:`uv_islands`; else per-corner ``(u, v / 2 pi)``. ``v_density``
+    (:func:`column_density`): the columns lie at :func:`column_v` (the attribute ``v`` and the tube's UVs
+    follow it; the discs' polar angle is the column fraction, a function of v too).
     """
     nu, nv = pts.shape[:2]
     verts = [pts.reshape(-1, 3)]
@@ -656,7 +724,7 @@ def _tube_mesh(pts: np.ndarray, orientation: int, caps=None, uv: bool = False,
                 t = np.where(new, t - nv + nvert, t + base)
                 verts.append(cap.vertices)
                 extra_u.append(np.full(len(cap.vertices), end_u))
-                extra_v.append(cap.angle)
+                extra_v.append(TWO_PI * column_fraction_inverse(v_density, cap.angle / TWO_PI))
                 polar = (np.concatenate([np.ones(nv), cap.radius]),
                          np.concatenate([TWO_PI * np.arange(nv) / nv, cap.angle]), base, nvert)
                 nvert += len(cap.vertices)
@@ -684,7 +752,7 @@ def _tube_mesh(pts: np.ndarray, orientation: int, caps=None, uv: bool = False,
     mesh = Mesh(all_verts, quads, np.concatenate(tris) if tris else np.zeros((0, 3), np.int64))
     if uv and uv_layout is not None and u is not None:
         mesh.quad_uv, mesh.triangle_uv = _island_uv(all_verts, quads, cap_faces, nu, nv, np.asarray(u, float),
-                                                    orientation, uv_layout)
+                                                    orientation, uv_layout, v_density)
     elif uv:
         tri_uv = []
         for end, t, _ in cap_faces:
@@ -697,7 +765,7 @@ def _tube_mesh(pts: np.ndarray, orientation: int, caps=None, uv: bool = False,
         mesh.triangle_uv = np.concatenate(tri_uv) if tri_uv else None
     if u is not None:
         mesh.vertex_attributes["u"] = np.concatenate([np.repeat(u, nv)] + extra_u)
-        mesh.vertex_attributes["v"] = np.concatenate([np.tile(np.arange(nv) * (2.0 * np.pi / nv), nu)] + extra_v)
+        mesh.vertex_attributes["v"] = np.concatenate([np.tile(column_v(v_density, nv), nu)] + extra_v)
     return mesh
 
 
@@ -705,11 +773,12 @@ def _tube_mesh(pts: np.ndarray, orientation: int, caps=None, uv: bool = False,
 _QUAD_UV_CACHE: dict = {}
 
 
-def _tube_and_dome_uv(quads, nu: int, nv: int, u: np.ndarray, orientation: int, layout: dict, isl: dict):
+def _tube_and_dome_uv(quads, nu: int, nv: int, u: np.ndarray, orientation: int, layout: dict, isl: dict,
+                      v_density: np.ndarray | None = None):
     """Per-corner UVs of the tube's quads: the tube island, and the dome's disc above ``u_top``."""
     x0, y0, width, height = isl["tube"]
     u_top = float(layout["u_top"])
-    v_cols = TWO_PI * np.arange(nv + 1) / nv                                  # the seam column gets 2 pi
+    v_cols = np.append(column_v(v_density, nv), TWO_PI)                      # the seam column gets 2 pi
     grid = np.empty((nu, nv + 1, 2))
     if layout.get("tube_map") is not None:
         # issue 21: the near-conformal, even-scale map of the curves (uv_tube_map), one scale for U and V
@@ -741,7 +810,8 @@ def _tube_and_dome_uv(quads, nu: int, nv: int, u: np.ndarray, orientation: int, 
     return quad_uv
 
 
-def _island_uv(verts, quads, cap_faces, nu: int, nv: int, u: np.ndarray, orientation: int, layout: dict):
+def _island_uv(verts, quads, cap_faces, nu: int, nv: int, u: np.ndarray, orientation: int, layout: dict,
+               v_density: np.ndarray | None = None):
     """Per-corner UVs of the tube, dome and cap islands (:func:`uv_islands`), each a function of (u, v).
 
     Tube: ``U = left + width * v / 2 pi`` (mirrored for the other winding), ``V = bottom + height *
@@ -755,10 +825,11 @@ def _island_uv(verts, quads, cap_faces, nu: int, nv: int, u: np.ndarray, orienta
     tube_map = layout.get("tube_map")
     key = (nu, nv, orientation, u_top, float(layout["aspect"]), isl["dome_radius"], hash(u.tobytes()),
            None if shear is None else (shear.ctypes.data, shear.shape, float(shear.sum())),
-           None if tube_map is None else (tube_map[0].ctypes.data, tube_map[0].shape, float(tube_map[0].sum())))
+           None if tube_map is None else (tube_map[0].ctypes.data, tube_map[0].shape, float(tube_map[0].sum())),
+           None if v_density is None else hash(np.asarray(v_density, float).tobytes()))
     quad_uv = _QUAD_UV_CACHE.get(key)
     if quad_uv is None:
-        quad_uv = _tube_and_dome_uv(quads, nu, nv, u, orientation, layout, isl)
+        quad_uv = _tube_and_dome_uv(quads, nu, nv, u, orientation, layout, isl, v_density)
         quad_uv.flags.writeable = False
         if len(_QUAD_UV_CACHE) >= 8:
             _QUAD_UV_CACHE.pop(next(iter(_QUAD_UV_CACHE)))

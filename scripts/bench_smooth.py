@@ -198,7 +198,8 @@ def up_close(repeats: int = 5) -> dict:
     """Issue 21's measures, before and after, on CThead (t = 10) and GE (t = 8) at the add-on's defaults."""
     from pdehead_addon.surface_quality import cap_edge_ratio, uv_quality
     nu, nv = D.NU.default, D.NV.default
-    res: dict = {"nu": nu, "nv": nv, "selection": SELECTION, "datasets": {}}
+    import os
+    res: dict = {"nu": nu, "nv": nv, "selection": SELECTION, "datasets": {}, "load_start": os.getloadavg()[0]}
     for name, t in (("cthead", 10), ("ge", 8)):
         seg = load(name)
         bset = E.extract_boundaries(seg, patches=t, selection=SELECTION)
@@ -223,6 +224,7 @@ def up_close(repeats: int = 5) -> dict:
             row["face"]["default"]["storage_bytes"] = storage_bytes(head)
         res["datasets"][name] = row
         print(name, json.dumps(row, default=float)[:2000], flush=True)
+    res["load_end"] = os.getloadavg()[0]
     return res
 
 
@@ -231,7 +233,9 @@ def up_close_markdown(res: dict) -> str:
     lines = ["## Up close (issue 21): `python3 scripts/bench_smooth.py --up-close`", "",
              f"Add-on defaults ({res['selection']} slices, C2 surface, nu x nv = {res['nu']} x {res['nv']}, caps). "
              "*Before*: the same head meshed as before issue 21 (no fade in the dome, a fan at the neck, UVs "
-             "(u, v / 2 pi)); *after*: the current `head.surface`.", "",
+             "(u, v / 2 pi)); *after*: the current `head.surface`. Machine load average (2 cores, shared): "
+             f"{res.get('load_start', float('nan')):.1f} at the start, {res.get('load_end', float('nan')):.1f} "
+             "at the end; the timings are wall medians and move with it.", "",
              "| measure (target) | CThead t=10 before | after | GE t=8 before | after |", "|---|---|---|---|---|"]
     c, g = res["datasets"]["cthead"], res["datasets"]["ge"]
 
@@ -283,13 +287,29 @@ def up_close_markdown(res: dict) -> str:
               "10.48 -> 9.77 deg on CThead); ~0.65 s CPU "
               "once per study (cached with the curves, so the timing row above, the surface of a study "
               "whose curves it has seen, does not include it; that row is noisy on a shared machine).",
-              "- **Neck cap (GE).** The longest cap triangle edge is the tube's own bottom ring edge: where GE's "
-              "neck outline runs nearly radially one v step of the angular curves is 8.4 mm (4.24 mean edges), "
-              "and every triangle on that edge inherits it (the tube's own quads are as long there: rows 0-26 have "
-              "ring edges over 3 mean edges). Meeting ≤ 3 needs that edge split: the bottom row's quad on it "
-              "made a triangle and a quad with a new end-curve point at the edge's middle, the splits decided "
-              "from the boundary curves (not the ring of the moment, so a slider keeps the topology) and the "
-              "DiscCap zipped to the refined ring; or the end rows sampled by arc length. Not done this stop.", ""]
+              "- **Neck cap (GE).** Before this stop the longest cap triangle edge was the tube's own bottom ring "
+              "edge: where GE's neck outline runs nearly radially one equal v step is 8.4 mm (4.24 mean edges). "
+              "The columns now lie closer in v there (`PDEHead.v_columns`: `surface_mesh.column_density` of the "
+              "capped end curve, no step longer than 1.5 x its mean sample step; one warp of v per study, the "
+              "same for every row, so nu, nv and the sliders keep the topology and the UVs, whose tube table is "
+              "sampled at the same columns). Then the cap's own zipper triangles were the longest (3.18: on a "
+              "radial run a ring's step and the step to the next ring lie along one line); `CAP_EDGE` 1.5 -> 1.2 "
+              "brings them to the figure above. Not bounded: GE's middle rings (rows around the ears) keep ring "
+              "edges up to ~4.3 mean edges (quads, not in this measure); a warp from every curve bounded them "
+              "(2.5) but moved CThead's faces into its ears and its UV stretch to 4.61 (target 4). At 300 x 480 "
+              "GE's cap ratio is 3.62.",
+              "- **Visible face p95 (missed at t = 10).** Where it is (CThead, t = 10, mask -> surface distances above "
+              "their p95): 52 % lie 30-50 mm below the pronasale (lower lip, mentolabial groove: 12-20 % of that band's "
+              "points), 71 % within 15 deg of the midline; the curves there are 4-6 mm apart; the envelope's own 0.5 "
+              "level scores 0.154 / 0.48, so it is the curves' spacing and the u smoothing, not the envelope. Measured "
+              "this stop, not adopted (one run each, load 6-15; the t series on the columns before this stop): the selection's proxy weighted 4x on the +-60 deg "
+              "front (0.296 / 1.02) or summing each slice's RMS offset instead of its mean (0.294 / 1.01): both worse "
+              "than today's 0.287 / 0.96; the default u smoothing (approximation 2 mm on CThead) off: t = 10 0.279 / "
+              "0.92, t = 13 0.252 / 0.78, t = 15 0.249 / 0.79, t = 17 0.234 / 0.76, t = 20 0.223 / 0.70 (with it: "
+              "0.265 / 0.85, 0.263 / 0.87, 0.253 / 0.85, 0.243 / 0.79), crease p95 at t = 10 1.04 -> 1.22 deg, no folds, "
+              "no notches, on slices chosen with the smoothing; with the selection's proxy also without it (what a "
+              "changed default would do) t = 13 chose other slices: 0.256 / 0.83 at 19.4 kB (missed). GE's default "
+              "u smoothing comes from its slice thickness and would not change. Not adopted.", ""]
     return "\n".join(lines)
 
 

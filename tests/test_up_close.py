@@ -86,6 +86,50 @@ def test_bottom_is_a_flat_disc_without_long_triangles(head_like):
     assert np.all(nz < -0.999)                             # flat, facing down, nothing folded
 
 
+def notched_bset(samples: int = 256, depth: float = 25.0, width_deg: float = 4.0) -> BoundarySet:
+    """Elliptic rings with a V notch (``depth`` mm deep, ``width_deg`` either side) in the lower curves, fading
+    out by 60 mm: there the outline runs nearly radially, as GE's wide neck does."""
+    z = np.linspace(0.0, 150.0, 13)
+    scale = np.sqrt(np.clip(1.0 - (z / 175.0) ** 2, 0.05, None))
+    theta = TWO_PI * np.arange(samples) / samples
+    off = np.abs(np.angle(np.exp(1j * (theta - np.radians(250.0)))))
+    curves = np.empty((len(z), samples, 3))
+    for j, (zj, s) in enumerate(zip(z, scale)):
+        a, b = 70.0 * s, 92.0 * s
+        r = a * b / np.sqrt((b * np.cos(theta)) ** 2 + (a * np.sin(theta)) ** 2)
+        r = r - np.clip(1.0 - off / np.radians(width_deg), 0.0, None) * depth * max(0.0, 1.0 - zj / 60.0)
+        curves[j, :, 0] = r * np.cos(theta)
+        curves[j, :, 1] = 10.0 + r * np.sin(theta)
+        curves[j, :, 2] = zj
+    return BoundarySet(curves, np.arange(len(z)), z, knots_from_heights(z), {})
+
+
+def test_a_radial_neck_outline_gets_closer_columns_not_long_cap_triangles(monkeypatch):
+    """Issue 21: where the bottom outline runs radially, equal v steps are long on the surface and so is
+    every cap triangle on them (GE: 4.24 mean edges). The columns lie closer in v there, fixed by the curves
+    (the same v for every row and for nu, nv: the UVs stay registered). Measured: before 4.93, after 2.59."""
+    from pdehead_addon import pde_surface as PS, surface_mesh as SM
+    from pdehead_addon.surface_quality import cap_edge_ratio, uv_quality
+    head = solve_pde(notched_bset(), approximation_mm=0)
+    m = head.surface(60, 120, caps=True)
+    assert m.is_watertight() and SM.signed_volume(m) > 0
+    assert cap_edge_ratio(m) <= 3.0
+    q = uv_quality(m)
+    assert q["mirrored"] == 0 and q["zero_area"] == 0
+    v = head.v_columns(120)
+    assert v[0] == 0.0 and np.all(np.diff(v) > 0) and v[-1] < TWO_PI
+    assert np.diff(v).max() / np.diff(v).min() > 2.0                     # closer in v at the notch
+    assert np.allclose(m.vertex_attributes["v"][:120], v)
+    assert np.allclose(head.evaluate(0.0, v), m.vertices[:120])          # the columns lie on the surface
+    assert np.allclose(head.v_columns(240)[::2], v, atol=1e-12)          # one warp of v for every nv
+    solid = head.solid(60, 120, 5)                                       # the solid's skin: the same columns
+    assert np.allclose(np.unique(solid.vertex_attributes["v"]), np.unique(v))
+    monkeypatch.setattr(PS, "column_density", lambda curves: None)      # before: equal v steps, the old cap step
+    monkeypatch.setattr(SM, "CAP_EDGE", 1.5)
+    old = solve_pde(notched_bset(), approximation_mm=0).surface(60, 120, caps=True)
+    assert cap_edge_ratio(old) > 4.0
+
+
 def _loop_pixels(mesh, size):
     uv = mesh.loop_uv()
     return np.clip(np.floor(uv * size).astype(np.int64), 0, size - 1), mesh.loop_vertex_indices()
