@@ -449,9 +449,9 @@ APERTURE_DEPTH_MM = 25.0
 #: en-en ~ 32 mm; the root ~ 2/3 of it), where the dorsum leaves the soft nasion.
 NOSE_ROOT_HALF_MM = 10.0
 #: The nose's parts (:meth:`FaceModel._nose_bump`). Half widths (mm): the dorsum at the tip's height (at the root it
-#: is :data:`NOSE_ROOT_HALF_MM`), the tip lobule (the domes: Farkas 1994's tip width ~ 15-20 mm... as quoted in the
-#: rhinoplasty literature; a shape choice), the columella (~ 7 mm wide). The lobule reaches :data:`NOSE_TIP_UP_MM`
-#: up the dorsum (the supratip) and :data:`NOSE_TIP_DOWN_FRACTION` of the way down to subnasale.
+#: is :data:`NOSE_ROOT_HALF_MM`), the tip lobule (across the domes) and the columella (~ 7 mm wide). The lobule
+#: reaches :data:`NOSE_TIP_UP_MM` up the dorsum (the supratip) and :data:`NOSE_TIP_DOWN_FRACTION` of the way down
+#: to subnasale. Shape choices of an average adult nose (no bone predicts them), not measurements.
 NOSE_DORSUM_HALF_MM = 8.0
 NOSE_TIP_HALF_MM = 11.0
 NOSE_TIP_UP_MM = 11.0
@@ -464,10 +464,10 @@ NOSE_TIP_BLUNT = 0.45
 #: the whole way to the face: a rounded tip rather than a point. A shape choice.
 NOSE_TIP_DEPTH_MM = 9.0
 NOSE_COLUMELLA_HALF_MM = 3.5
-#: The alae: each :data:`NOSE_ALA_HALF_MM` half wide and :data:`NOSE_ALA_HEIGHT_MM` high (Farkas 1994: alar length
-#: ~ 30-35 mm ... a shape choice), standing :data:`NOSE_ALA_FRACTION` of the tip's protrusion (subnasale to
-#: pronasale) off the face, a groove :data:`NOSE_ALAR_GROOVE_MM` deep round them. Their outer edges are at half
-#: the alar width (:func:`predict_nose`, from the aperture). Shape choices, not measurements.
+#: The alae: each :data:`NOSE_ALA_HALF_MM` half wide and :data:`NOSE_ALA_HEIGHT_MM` high, standing
+#: :data:`NOSE_ALA_FRACTION` of the tip's protrusion (subnasale to pronasale) off the face, a groove
+#: :data:`NOSE_ALAR_GROOVE_MM` deep round them. Their outer edges are at half the alar width (:func:`predict_nose`,
+#: from the aperture). Shape choices, not measurements.
 NOSE_ALA_HALF_MM = 9.0
 NOSE_ALA_HEIGHT_MM = 16.0
 NOSE_ALA_FRACTION = 0.33
