@@ -246,11 +246,14 @@ BONE_LEVEL = _param("bone_level", 400.0, min=-5000.0, max=100000.0,
 #: The label every face-from-skull output carries (mesh names, file headers, provenance).
 FACE_LABEL = "approximation — not an identification"
 FACE_NU = _param("face_nu", 160, min=8, max=400, description="Face from skull: mesh rows (along the head)")
-FACE_NV = _param("face_nv", 240, min=16, max=800, description="Face from skull: mesh columns (around the head)")
+FACE_NV = _param("face_nv", 320, min=16, max=800, description="Face from skull: mesh columns (around the head)")
 FACE_DEPTH_SD = _param("face_depth_sd", 2.0, min=0.0, max=4.0,
                        description="Face from skull: how far a peg's depth may be set from the table's mean, "
                                    "in the table's SDs")
-FACE_ROW_MM = _param("face_row_mm", 3.0, min=1.0, max=10.0, unit="mm",
+FACE_ROW_MM = _param("face_row_mm", 2.5, min=1.0, max=10.0, unit="mm",
                      description="Face from skull: spacing of the boundary curves along the head")
+FACE_COLUMNS = _param("face_columns", 360, min=90, max=720,
+                      description="Face from skull: samples of each boundary curve around the head (360: 1 degree, "
+                                  "~1.7 mm at the face; the nose's alae and the lips' outline need it)")
 FACE_SPREAD_MM = _param("face_spread_mm", 22.0, min=5.0, max=80.0, unit="mm",
                         description="Face from skull: how far a peg's depth spreads over the skull (Gaussian radius)")

@@ -25,12 +25,15 @@ skull's centroid: a row every ``row_mm`` of height, a column every ``360 / colum
    pass through every tip (to a few tenths of a mm), except a peg that disagrees with its neighbours by more
    than :data:`DAMP_FREE_MM` at the table's means, which it follows less closely (:meth:`FaceModel._site_damping`).
    It is linear in the depths; a peg's influence fades within about 2 ``spread_mm``.
-4. *Prediction rules* for what a depth field cannot make: the nose (:func:`predict_nose`), the eyes
-   (:func:`predict_eyes`), the mouth (:func:`predict_mouth`: the oral fissure at the occlusal midpoint of
-   the incisors' crests, the width from the canines; :meth:`FaceModel._mouth_shape` draws the lip line and
-   the vermilion rolls) and a default ear at each porion (:func:`predict_ears`,
-   :meth:`FaceModel._ear_shape`), each cited in its docstring.
-5. *The face*: profile + depth field + nose + lips + ears = radius per bin; each row is a closed boundary curve;
+4. *Prediction rules* for what a depth field cannot make: the nose (:func:`predict_nose`: its width from
+   the nasal aperture, its base from the aperture's floor, its tip from the nasal length;
+   :meth:`FaceModel._nose_bump` builds it from a dorsum, a rounded tip lobule, a columella and two alae),
+   the eyes (:func:`predict_eyes`: the corneal apex; :meth:`FaceModel._eye_shape`: the closed lids between
+   canthi placed from the lateral orbital margin), the mouth (:func:`predict_mouth`: the oral fissure at the
+   occlusal midpoint of the incisors' crests, the width from the canines; :meth:`FaceModel._mouth_shape` draws
+   the fissure, the vermilion outlines with a cupid's bow, the philtrum and the mentolabial sulcus) and a
+   default ear at each porion (:func:`predict_ears`, :meth:`FaceModel._ear_shape`), each cited in its docstring.
+5. *The face*: profile + depth field + nose + lips + eyes + ears = radius per bin; each row is a closed boundary curve;
    the C2 PDE surface through them (:func:`.pde_surface.solve_pde`, dome over the vertex, a flat cap
    under the neck) is the face, a closed mesh in patient mm.
 
@@ -72,6 +75,11 @@ NECK_RADIUS_MM = 57.0
 NECK_BEHIND_MM = 12.0
 #: How fast the neck recedes below the skull base (mm per mm of height: 0.8 ~ a 40 degree slope).
 NECK_SLOPE = 0.8
+#: The bone's radius map is made on at most this many columns (2 degrees) and interpolated to the face's grid:
+#: a finer bin meets no bone vertex on a coarse skull mesh (GE: 29 % within +-2.5 mm on a 360-column map against
+#: 35 % on this one; CThead unchanged), and the bone's outline needs no more; the face's grid is finer for the nose,
+#: the lips and the eyes (:data:`.defaults.FACE_COLUMNS`).
+PROFILE_COLUMNS = 180
 #: Closing of the bone's radius map: how wide a gap (mm) the envelope bridges (the orbit is ~ 40 mm wide,
 #: the nasal aperture ~ 25 mm).
 CLOSING_MM = 15.0
@@ -85,6 +93,9 @@ MIN_OK_LANDMARKS = 8
 #: Vertical Gaussian smoothing (mm) of the closed profile: each row's hull is made on its own, and rows a few mm
 #: apart step (the teeth, the zygomatic arches' edges); a skin does not.
 PROFILE_SMOOTH_MM = 4.0
+#: ... and around the head (degrees; the Gaussian of the profile and of its normals): one column of the first,
+#: 180-column grid, kept in degrees when the grid became 360 columns (issue 23's sixth session).
+PROFILE_SMOOTH_DEG = 2.0
 #: Away from the pegs the closed profile is smoothed more, in 2-D on the (angle, height) grid: a Gaussian of
 #: :data:`PROFILE_SMOOTH_FAR_MM` of height and :data:`PROFILE_SMOOTH_FAR_ARC_MM` of arc (at the median radius).
 #: Each row's hull is made on its own, which leaves horizontal ridges across the lower face (the teeth, the
@@ -143,6 +154,20 @@ class _Grid:
                 + a * (1 - b) * table[k1, j0] + a * b * table[k1, j1])
 
 
+def _columns(degrees: float, grid: "_Grid") -> float:
+    """An angle in columns of the grid."""
+    return float(np.radians(degrees) / (grid.theta[1] - grid.theta[0]))
+
+
+def _resample_columns(table: np.ndarray, columns: int) -> np.ndarray:
+    """A (K, M) map periodic in its columns, linearly interpolated to ``columns`` columns (NaN stays NaN)."""
+    K, M = table.shape
+    f = np.arange(columns) * (M / columns)
+    j0 = np.floor(f).astype(int) % M
+    a = f - np.floor(f)
+    return (1 - a) * table[:, j0] + a * table[:, (j0 + 1) % M]
+
+
 def bone_profile(skull: Mesh, grid: _Grid, base_z: float | None = None,
                  closing_mm: float = CLOSING_MM) -> tuple[np.ndarray, np.ndarray]:
     """The bone's outer radius per (row, column) bin and its closed envelope.
@@ -161,6 +186,11 @@ def bone_profile(skull: Mesh, grid: _Grid, base_z: float | None = None,
     raw : (K, M) outermost bone radius per bin (NaN where the bin meets no bone)
     closed : (K, M) the closed, gap-filled, smoothed profile (no NaN)
     """
+    M_face = len(grid.theta)
+    if M_face > PROFILE_COLUMNS:                 # the bone's map on the coarser grid, then interpolated (see there)
+        coarse = _Grid(grid.centre, grid.z, np.arange(PROFILE_COLUMNS) * 2 * np.pi / PROFILE_COLUMNS)
+        raw_c, sm_c = bone_profile(skull, coarse, base_z, closing_mm)
+        return _resample_columns(raw_c, M_face), _resample_columns(sm_c, M_face)
     z, th, r = grid.polar(skull.vertices)
     dz = grid.z[1] - grid.z[0]
     K, M = len(grid.z), len(grid.theta)
@@ -179,7 +209,8 @@ def bone_profile(skull: Mesh, grid: _Grid, base_z: float | None = None,
     closed = ndimage.grey_closing(padded, size=(kz, 1), mode="wrap")[pad:-pad]
     closed = np.maximum(closed, hull)
     sm = ndimage.gaussian_filter(np.pad(closed, ((pad, pad), (0, 0)), mode="edge"),
-                                 sigma=(PROFILE_SMOOTH_MM / dz, 1.0), mode="wrap")[pad:-pad]
+                                 sigma=(PROFILE_SMOOTH_MM / dz, _columns(PROFILE_SMOOTH_DEG, grid)),
+                                 mode="wrap")[pad:-pad]
     return raw, sm
 
 
@@ -275,7 +306,8 @@ def _neck_fill(raw: np.ndarray, grid: _Grid, base_z: float | None = None) -> np.
 def envelope_normals(grid: _Grid, profile: np.ndarray, points: np.ndarray, smooth_mm: float = 6.0) -> np.ndarray:
     """Outward unit normals of the closed profile (the surface r = profile(z, angle)) at the points' bins."""
     dz = grid.z[1] - grid.z[0]
-    R = ndimage.gaussian_filter(profile, sigma=(smooth_mm / dz, 1.0), mode=("nearest", "wrap"))
+    R = ndimage.gaussian_filter(profile, sigma=(smooth_mm / dz, _columns(PROFILE_SMOOTH_DEG, grid)),
+                                mode=("nearest", "wrap"))
     Rz = np.gradient(R, dz, axis=0)
     dth = grid.theta[1] - grid.theta[0]
     Rt = (np.roll(R, -1, axis=1) - np.roll(R, 1, axis=1)) / (2 * dth)
@@ -295,7 +327,8 @@ def peg_normals(skull: Mesh, bases: np.ndarray, grid: _Grid, profile: np.ndarray
     """The direction each peg stands in: the bone's outward normal at the landmark, averaged over the bone
     surface within ``radius_mm`` (area-weighted; a single triangle's normal on a thin or fragmentary bone,
     e.g. the maxilla at the bone level, points anywhere); where that still points more than 45 degrees
-    away from the closed profile's outward normal (:data:`PEG_NORMAL_MIN_COS`), the profile's normal.
+    away from the closed profile's outward normal (:data:`PEG_NORMAL_MIN_COS`), the profile's normal (not above
+    the profile's last row, where its normal means nothing: the vertex keeps the bone's).
     The T-Table's convention is a depth measured along the bone normal at the landmark."""
     from scipy.spatial import cKDTree
 
@@ -312,7 +345,8 @@ def peg_normals(skull: Mesh, bases: np.ndarray, grid: _Grid, profile: np.ndarray
         n = fn[idx].sum(axis=0) if idx else env[i]
         norm = np.linalg.norm(n)
         n = n / norm if norm > 0 else env[i]
-        out[i] = n if float(n @ env[i]) >= PEG_NORMAL_MIN_COS else env[i]
+        # above the last row (vertex) the profile's normal is meaningless (the rows' radius near the axis): the bone's
+        out[i] = n if float(n @ env[i]) >= PEG_NORMAL_MIN_COS or p[2] > grid.z[-1] else env[i]
     return out
 
 
@@ -337,6 +371,23 @@ def _pt(landmarks: dict, *names):
         if n in landmarks and landmarks[n] is not None:
             return np.asarray(landmarks[n], float)
     return None
+
+
+#: The closed eye (:meth:`FaceModel._eye_shape`). The palpebral fissure runs from the exocanthion, EYE_EX_INSET_MM
+#: medial of the lateral orbital margin, EYE_FISSURE_MM toward the midline to the endocanthion: adult norms
+#: ex-en ~ 30 mm (Farkas LG (1994) Anthropometry of the Head and Face, 2nd ed.) and the exocanthion ~ 4-5 mm inside
+#: the lateral orbital rim (Stephan CN, Davidson PL (2008) "The placement of the human eyeball and canthi in
+#: craniofacial identification", J Forensic Sci 53(3):612-619); both cited from the forensic literature, not
+#: re-read for this module. The fissure's height is the orbit's mid-height (Supraorbital and Suborbital/Orbitale).
+EYE_EX_INSET_MM = 5.0
+EYE_FISSURE_MM = 30.0
+#: Shape (mm): the globe's convexity under the lids, the fissure's groove (the upper lid's margin over the lower),
+#: the upper lid's arc above the canthi's line, and the supratarsal crease above it. Shape choices.
+EYE_GLOBE_MM = 2.0
+EYE_FISSURE_GROOVE_MM = 1.2
+EYE_LID_ARC_MM = 2.5
+EYE_CREASE_MM = 0.8
+EYE_CREASE_ABOVE_MM = 8.0
 
 
 def predict_eyes(landmarks: dict) -> list[tuple[str, np.ndarray, float]]:
@@ -397,20 +448,32 @@ APERTURE_DEPTH_MM = 25.0
 #: Half the nose's breadth at its root (mm): the nasal root between the eyes (Farkas' intercanthal width
 #: en-en ~ 32 mm; the root ~ 2/3 of it), where the dorsum leaves the soft nasion.
 NOSE_ROOT_HALF_MM = 10.0
-#: The nose's profile between the soft nasion and pronasale, ridge = nasion + (tip - nasion) x t^exponent
-#: (t: 0 at nasion, 1 at the tip's height): 1 is a straight dorsum, the average adult profile; the first
-#: version's 1.3 (a dorsum concave under nasion) with a quarter-ellipse lobule that met subnasale vertically
-#: read as a beak in the renders. Below the tip the lobule and the columella follow (1 - q^2)^exponent (q: 0
-#: at the tip, 1 at subnasale): 1 gives the columella a finite slope at subnasale (a nasolabial angle rather
-#: than a vertical cliff); 0.5 was the quarter ellipse. Shape choices, not measurements.
-NOSE_DORSUM_EXPONENT = 1.0
-NOSE_LOBULE_EXPONENT = 1.0
-#: The nose's cross-section: its height over the face falls as 1 - (distance from the midline / half width)^e;
-#: 1.8 (the first version) gave a sharp ridge, a larger exponent a rounder, fuller nose. And the profile's
-#: corner where the straight dorsum meets the lobule is rounded by a Gaussian of this many mm along the height.
-#: Shape choices, not measurements.
-NOSE_SECTION_EXPONENT = 2.5
-NOSE_TIP_ROUND_MM = 3.0
+#: The nose's parts (:meth:`FaceModel._nose_bump`). Half widths (mm): the dorsum at the tip's height (at the root it
+#: is :data:`NOSE_ROOT_HALF_MM`), the tip lobule (across the domes) and the columella (~ 7 mm wide). The lobule
+#: reaches :data:`NOSE_TIP_UP_MM` up the dorsum (the supratip) and :data:`NOSE_TIP_DOWN_FRACTION` of the way down
+#: to subnasale. Shape choices of an average adult nose (no bone predicts them), not measurements.
+NOSE_DORSUM_HALF_MM = 8.0
+NOSE_TIP_HALF_MM = 11.0
+NOSE_TIP_UP_MM = 11.0
+NOSE_TIP_DOWN_FRACTION = 0.8
+#: The lobule's bluntness across: its depth falls as (1 - (dx / half width)^2)^NOSE_TIP_BLUNT (0.5: an ellipse,
+#: pointed when it is deeper than it is wide; smaller: a fuller tip with steeper sides); along the height it
+#: is an ellipse (a rounded tip in profile). A shape choice.
+NOSE_TIP_BLUNT = 0.45
+#: In profile the lobule is an ellipse this deep (mm) about pronasale (its radius of curvature ~ up^2 / depth), not
+#: the whole way to the face: a rounded tip rather than a point. A shape choice.
+NOSE_TIP_DEPTH_MM = 9.0
+NOSE_COLUMELLA_HALF_MM = 3.5
+#: The alae: each :data:`NOSE_ALA_HALF_MM` half wide and :data:`NOSE_ALA_HEIGHT_MM` high, standing
+#: :data:`NOSE_ALA_FRACTION` of the tip's protrusion (subnasale to pronasale) off the face, a groove
+#: :data:`NOSE_ALAR_GROOVE_MM` deep round them. Their outer edges are at half the alar width (:func:`predict_nose`,
+#: from the aperture). Shape choices, not measurements.
+NOSE_ALA_HALF_MM = 9.0
+NOSE_ALA_HEIGHT_MM = 16.0
+NOSE_ALA_FRACTION = 0.33
+NOSE_ALAR_GROOVE_MM = 0.6
+#: The smooth maximum that joins the parts (:func:`_smooth_max`): how close (mm) two parts must be to be blended.
+NOSE_BLEND_MM = 2.0
 #: Pegs that stand on the nasal dorsum: the nose's ridge runs through their tips.
 NOSE_DORSUM_PEGS = ("Rhinion", "Mid-nasal")
 
@@ -451,6 +514,14 @@ def aperture_floor(skull: Mesh, subspinale: np.ndarray, nasion: np.ndarray, mid_
     run = np.convolve(gap.astype(int), np.ones(5, int), mode="valid") == 5
     starts = np.nonzero(run)[0]
     return float(rows[starts[0]]) if starts.size else None
+
+
+def _smooth_max(a: np.ndarray, b: np.ndarray, k: float) -> np.ndarray:
+    """max(a, b) with its crease rounded where the two are within ``k`` of each other (the polynomial smooth
+    maximum: + k h^2 / 4, h = max(k - |a - b|, 0) / k), faded out where both are 0 (nothing is added there)."""
+    m = np.maximum(a, b)
+    h = np.clip(k - np.abs(a - b), 0.0, None) / k
+    return m + 0.25 * k * h * h * np.clip(m / k, 0.0, 1.0)
 
 
 def _circle_meet(a: np.ndarray, ra: float, b: np.ndarray, rb: float) -> np.ndarray:
@@ -512,15 +583,26 @@ def predict_nose(landmarks: dict, skull: Mesh | None = None) -> dict | None:
                 length_mm=NASAL_LENGTH_SLOPE * z_len + NASAL_LENGTH_INTERCEPT_MM)
 
 
-#: Depth (mm) of the oral fissure behind the lips at the midline, tapering to nothing at the mouth's corners.
-#: A shape choice for a closed, relaxed mouth (the lips' vermilion rolls meet in a groove), not a measurement.
+#: The lips' shape about the oral fissure (stomion), over the face the depth field makes (whose depths at mid-philtrum,
+#: supradentale, infradentale and supramentale set how far forward the lips stand). Heights from the fissure:
+#: the upper vermilion LIP_UPPER_MM high (labrale superius at its border), the lower LIP_LOWER_MM, and the
+#: mentolabial sulcus (sublabiale) LIP_SULCUS_MM below the fissure: adult norms, sto-ls ~ 8 mm, sto-li ~ 9-10 mm,
+#: sto-sl ~ 17-19 mm (Farkas LG (1994) Anthropometry of the Head and Face, 2nd ed., Raven Press; cited from the
+#: anthropometric literature, not re-read for this module).
+LIP_UPPER_MM = 8.0
+LIP_LOWER_MM = 9.5
+LIP_SULCUS_MM = 18.0
+#: Depths (mm): the oral fissure's groove at the midline (tapering to the corners), the vermilion rolls' forward
+#: bulge, and the sulcus' and the philtrum's hollows. Shape choices (a closed, relaxed mouth), not measurements.
 LIP_GROOVE_MM = 3.0
-#: Half-height (mm, Gaussian sigma) of the groove; the lip line is drawn by the C2 surface through the 3 mm rows.
-LIP_GROOVE_HALF_MM = 2.0
-#: How far (mm) each vermilion roll bulges in front of the depth field, above and below the fissure, centred
-#: :data:`LIP_ROLL_OFFSET_MM` from it: a shape choice (the lips' fullness is what no bone predicts).
-LIP_ROLL_MM = 1.0
-LIP_ROLL_OFFSET_MM = 5.0
+LIP_GROOVE_HALF_MM = 1.5
+LIP_ROLL_MM = 1.5
+LIP_SULCUS_DEPTH_MM = 3.0
+LIP_PHILTRUM_MM = 1.0
+#: The cupid's bow: the upper vermilion's border dips this much (mm) at the midline between two peaks
+#: LIP_BOW_PEAK_MM either side (the philtral columns' feet). A shape choice.
+LIP_BOW_DIP_MM = 1.5
+LIP_BOW_PEAK_MM = 5.0
 
 
 def predict_mouth(landmarks: dict) -> dict | None:
@@ -634,7 +716,7 @@ class FaceModel:
     # -------------------------------------------------------------------- prepare
     @classmethod
     def prepare(cls, skull: Mesh, landmarks: dict, table, *, sex=None, flags: dict | None = None,
-                row_mm: float | None = None, columns: int = 180, spread_mm: float | None = None,
+                row_mm: float | None = None, columns: int | None = None, spread_mm: float | None = None,
                 nu: int | None = None, nv: int | None = None, neck_mm: float = 40.0) -> "FaceModel":
         """Prepare the face model of a skull.
 
@@ -662,6 +744,7 @@ class FaceModel:
             raise PDEHeadError(f"the skull mesh is {ext[0]:.0f} x {ext[1]:.0f} x {ext[2]:.0f} mm: not a skull "
                                "in mm (a skull is ~ 140 x 190 x 130 mm or more)")
         row_mm = D.FACE_ROW_MM.default if row_mm is None else float(row_mm)
+        columns = int(D.FACE_COLUMNS.default if columns is None else columns)
         spread = D.FACE_SPREAD_MM.default if spread_mm is None else float(spread_mm)
         lm = {k: np.asarray(v, float) for k, v in landmarks.items() if v is not None}
         _check_skull(lm, flags)
@@ -776,24 +859,73 @@ class FaceModel:
         return RBF_REGULARISATION + (excess / DAMP_SCALE_MM) ** 2
 
     def _mouth_shape(self, base: np.ndarray) -> np.ndarray | None:
-        """Radial change (K, M) of the lips over the face ``base``: the oral fissure (a groove of
-        :data:`LIP_GROOVE_MM` at the midline along the stomion's height, tapering to nothing at the corners
-        of the mouth, :func:`predict_mouth`'s width) and the two vermilion rolls above and below it."""
+        """Radial change (K, M) of the lips over the face ``base``: the oral fissure at the stomion's height
+        (:func:`predict_mouth`), a groove :data:`LIP_GROOVE_MM` deep at the midline running out to the mouth's
+        corners (its width from the canines); the upper and the lower vermilion as rolls whose outlines narrow
+        to the corners (heights :data:`LIP_UPPER_MM`, :data:`LIP_LOWER_MM`; the upper border with a cupid's
+        bow); the philtrum's shallow hollow above the upper lip; the mentolabial sulcus
+        (:data:`LIP_SULCUS_MM` below the fissure) between the lower lip and the chin."""
         mouth = self.mouth
         if mouth is None or mouth.get("stomion_z") is None:
             return None
         g = self.grid
         cx = g.centre[0]
         s, c = np.sin(g.theta), np.cos(g.theta)
-        front = c < -0.2
+        front = (c < -0.2)[None, :]
         x = cx + base * s[None, :]                                  # where each ray meets the face
-        u = np.clip(np.abs(x - mouth["mid_x"]) / (0.5 * mouth["width_mm"]), 0.0, 1.0)
-        across = (1.0 - u * u) ** 2 * front[None, :]                 # 1 at the midline, 0 at the corners
+        dx = x - mouth["mid_x"]
+        u = np.abs(dx) / (0.5 * mouth["width_mm"])                  # 0 at the midline, 1 at the corners
+        inside = np.clip(1.0 - u * u, 0.0, 1.0)
         dz = g.z[:, None] - mouth["stomion_z"]
-        groove = -LIP_GROOVE_MM * np.exp(-0.5 * (dz / LIP_GROOVE_HALF_MM) ** 2)
-        rolls = LIP_ROLL_MM * (np.exp(-0.5 * ((dz - LIP_ROLL_OFFSET_MM) / 2.5) ** 2)
-                               + np.exp(-0.5 * ((dz + LIP_ROLL_OFFSET_MM) / 2.5) ** 2))
-        return (groove + rolls) * across
+        # the fissure: to the corners and a little beyond (the commissures)
+        groove = -LIP_GROOVE_MM * np.exp(-0.5 * (dz / LIP_GROOVE_HALF_MM) ** 2) * np.clip(1.15 - u * u, 0.0, 1.0) ** 0.5
+        # the vermilion outlines: heights narrow to nothing at the corners; the upper border's cupid's bow
+        bow = LIP_BOW_DIP_MM * np.exp(-0.5 * (dx / (0.6 * LIP_BOW_PEAK_MM)) ** 2)
+        h_up = np.maximum(LIP_UPPER_MM * np.sqrt(inside) - bow, 0.5)
+        h_lo = np.maximum(LIP_LOWER_MM * np.sqrt(inside), 0.5)
+        t_up = np.clip(dz / h_up, 0.0, None)
+        t_lo = np.clip(-dz / h_lo, 0.0, None)
+        roll_up = LIP_ROLL_MM * np.sin(np.pi * np.clip(t_up, 0.0, 1.0)) ** 0.7 * (t_up <= 1.0) * (dz > 0)
+        roll_lo = LIP_ROLL_MM * np.sin(np.pi * np.clip(t_lo, 0.0, 1.0)) ** 0.7 * (t_lo <= 1.0) * (dz < 0)
+        rolls = (roll_up + roll_lo) * np.sqrt(inside)
+        # the philtrum (between the upper lip's border and subnasale) and the mentolabial sulcus
+        philtrum = -LIP_PHILTRUM_MM * np.exp(-0.5 * ((dz - LIP_UPPER_MM - 6.0) / 4.0) ** 2) * np.exp(-0.5 * (dx / 5.0) ** 2)
+        sulcus = -LIP_SULCUS_DEPTH_MM * np.exp(-0.5 * ((dz + LIP_SULCUS_MM) / 4.0) ** 2) * np.clip(1.0 - (u / 0.9) ** 2, 0.0, 1.0)
+        return (groove + rolls + philtrum + sulcus) * front
+
+    def _eye_shape(self, base: np.ndarray) -> np.ndarray | None:
+        """Radial change (K, M) of the closed eyes over the face ``base``: per orbit with its lateral margin and
+        its mid-height found, the globe's convexity between the canthi (an ellipse of the fissure's length and
+        half as high), the fissure as a groove along the upper lid's margin (an arc :data:`EYE_LID_ARC_MM` above
+        the line of the canthi at its middle) and the supratarsal crease :data:`EYE_CREASE_ABOVE_MM` above it."""
+        lm = getattr(self, "landmarks_used", None) or {}
+        g = self.grid
+        cx = g.centre[0]
+        s, c = np.sin(g.theta), np.cos(g.theta)
+        front = (c < -0.2)[None, :]
+        x = cx + base * s[None, :]
+        zz = g.z[:, None]
+        out = None
+        for side, sign in (("L", 1.0), ("R", -1.0)):
+            so = _pt(lm, f"Supraorbital {side}")
+            sb = _pt(lm, f"Suborbital {side}", f"Orbitale {side}")
+            lat = _pt(lm, f"Lateral orbit {side}")
+            if so is None or sb is None or lat is None:
+                continue
+            ze = 0.5 * (so[2] + sb[2])
+            ex = lat[0] - sign * EYE_EX_INSET_MM
+            en = ex - sign * EYE_FISSURE_MM
+            t = np.clip((x - en) / (ex - en), -0.3, 1.3)             # 0 at the endocanthion, 1 at the exocanthion
+            xm, half = 0.5 * (en + ex), 0.5 * EYE_FISSURE_MM
+            q2 = ((x - xm) / half) ** 2 + ((zz - ze) / (0.5 * half)) ** 2
+            globe = EYE_GLOBE_MM * np.clip(1.0 - q2, 0.0, None)
+            inside = np.clip(np.sin(np.pi * np.clip(t, 0.0, 1.0)), 0.0, None) ** 0.5
+            lid = ze + EYE_LID_ARC_MM * np.sin(np.pi * np.clip(t, 0.0, 1.0)) ** 1.5
+            fissure = -EYE_FISSURE_GROOVE_MM * np.exp(-0.5 * ((zz - lid) / 1.0) ** 2) * inside
+            crease = -EYE_CREASE_MM * np.exp(-0.5 * ((zz - lid - EYE_CREASE_ABOVE_MM) / 1.5) ** 2) * inside
+            eye = (globe + fissure + crease) * front
+            out = eye if out is None else out + eye
+        return out
 
     def _ear_shape(self) -> np.ndarray | None:
         """Radial ear bumps (K, M) at the porions (:func:`predict_ears`): a raised rim (the helix and the
@@ -835,9 +967,24 @@ class FaceModel:
         return None
 
     def _nose_bump(self, base: np.ndarray, tips: np.ndarray) -> np.ndarray | None:
-        """Radial nose over the face ``base`` (K, M): the ridge from the soft nasion through pronasale to
-        subnasale (:func:`predict_nose`): soft nasion on the nasion peg's tip, subnasale on the face ``base`` at the
-        aperture's lower border, pronasale where the nasal length and the tip's protrusion meet."""
+        """Radial nose over the face ``base`` (K, M), made of four parts (:func:`predict_nose` gives where):
+
+        * the *dorsum*: a rounded ridge from the soft nasion (the nasion peg's tip) straight to pronasale,
+          through the pegs on the dorsum, :data:`NOSE_ROOT_HALF_MM` half wide at the root and
+          :data:`NOSE_DORSUM_HALF_MM` at the tip;
+        * the *tip lobule*: half an ellipsoid about pronasale, :data:`NOSE_TIP_HALF_MM` half wide (the
+          domes), reaching up over :data:`NOSE_TIP_UP_MM` of the dorsum and down over
+          :data:`NOSE_TIP_DOWN_FRACTION` of the way to subnasale, so the tip is rounded in both views;
+        * the *columella*: a narrow (:data:`NOSE_COLUMELLA_HALF_MM`) ridge from the lobule back to subnasale
+          (soft subnasale on the face ``base`` at the aperture's lower border), with a finite slope;
+        * the *alae*: one half-ellipsoid each side, their outer edges at half the alar width
+          (:func:`predict_nose`), :data:`NOSE_ALA_HALF_MM` half wide, from the alar base at subnasale's height
+          up :data:`NOSE_ALA_HEIGHT_MM`, standing :data:`NOSE_ALA_FRACTION` of the tip's protrusion off the face,
+          with a shallow alar-facial groove round them (:data:`NOSE_ALAR_GROOVE_MM`).
+
+        The parts are in front of the face along -y and joined by a smooth maximum (a p-norm,
+        :data:`NOSE_BLEND_P`); between the columella and the alae, under the lobule, the nostrils are the
+        hollows the parts leave. Shapes are choices where no bone predicts them (cited constants say which)."""
         nose = self.nose
         n = self._peg_tip(tips, "Nasion", "Glabella")
         ss = self._peg_tip(tips, "Subspinale", "Mid-philtrum")
@@ -865,46 +1012,55 @@ class FaceModel:
             yp, zp = _circle_meet(np.array([yn, zn]), float(length), np.array([ys, zs]), nose["protrusion_mm"])
             zp = float(np.clip(zp, zs + 2.0, zn - 5.0))
         Z = g.z
-        ridge = np.full(Z.shape, np.nan)
-        up = (Z >= zp) & (Z <= zn)
-        t = (zn - Z[up]) / (zn - zp)
-        ridge[up] = yn + (yp - yn) * t ** NOSE_DORSUM_EXPONENT     # the dorsum (straight by default)
-        # pegs on the dorsum (rhinion, mid-nasal) are kept: the dorsum runs through their tips
+        # the dorsum's line: straight, through the pegs on it (rhinion, mid-nasal)
         on = [self._peg_tip(tips, nm) for nm in NOSE_DORSUM_PEGS]
         on = sorted([(float(p[2]), float(p[1])) for p in on if p is not None and zp + 2.0 < p[2] < zn - 2.0])
-        if on:
-            zc = np.array([zp] + [a for a, _ in on] + [zn])
-            yc = np.array([yp] + [b for _, b in on] + [yn])
-            ridge[up] = np.interp(Z[up], zc, yc)
-        lo = (Z >= zs) & (Z < zp)
-        q = (zp - Z[lo]) / (zp - zs)
-        ridge[lo] = ys + (yp - ys) * np.clip(1 - q * q, 0, 1) ** NOSE_LOBULE_EXPONENT   # tip lobule and columella
-        rows = np.nonzero(np.isfinite(ridge))[0]
-        if rows.size == 0:
-            return None
-        if NOSE_TIP_ROUND_MM > 0 and rows.size > 2:              # round the corner where dorsum meets lobule
-            dz = float(Z[1] - Z[0])
-            seg = ridge[rows[0]:rows[-1] + 1]
-            sm = ndimage.gaussian_filter1d(seg, NOSE_TIP_ROUND_MM / dz, mode="nearest")
-            ends = np.zeros(seg.size, bool)
-            ends[[0, -1]] = True                                  # keep subnasale and nasion where they are
-            ridge[rows[0]:rows[-1] + 1] = np.where(ends, seg, sm)
-        half = np.where(Z >= zp, NOSE_ROOT_HALF_MM + (0.5 * nose["width_mm"] - NOSE_ROOT_HALF_MM) * np.clip(1 - (Z - zp) / (zn - zp), 0, 1) ** 1.5,
-                        0.5 * nose["width_mm"])
-        bump = np.zeros_like(base)
+        zc = np.array([zp] + [a for a, _ in on] + [zn])
+        yc = np.array([yp] + [b for _, b in on] + [yn])
         mid_x = nose["mid_x"]
-        for k in rows:
-            # the ridge's radius on the midline ray vs the base's there
-            x = cx + base[k] * s                                   # where each ray meets the base face
-            dx = np.abs(x - mid_x)
-            jm = int(np.argmin(np.where(front, dx, np.inf)))
-            r_ridge = (ridge[k] - cy) / c[jm]
-            h = r_ridge - base[k, jm]
-            if h <= 0:
-                continue
-            w = np.clip(1 - (dx / half[k]) ** NOSE_SECTION_EXPONENT, 0, None) * front
-            bump[k] = h * w
-        return bump
+        x = cx + base * s[None, :]                                  # where each ray meets the face
+        y = cy + base * c[None, :]
+        dx = np.where(front[None, :], x - mid_x, np.inf)
+        zz = Z[:, None]
+        # the dorsum (rows between pronasale and nasion)
+        t = np.clip((zz - zp) / (zn - zp), 0.0, 1.0)
+        half = NOSE_DORSUM_HALF_MM + (NOSE_ROOT_HALF_MM - NOSE_DORSUM_HALF_MM) * t
+        ridge_y = np.interp(Z, zc, yc)[:, None]
+        u = np.clip(np.abs(dx) / half, 0.0, 1.0)
+        dorsum = np.clip(y - ridge_y, 0.0, None) * (1.0 - u * u) ** 0.75 * ((zz >= zp) & (zz <= zn))
+        # the tip lobule: half an ellipsoid about pronasale (its depth to the face behind it)
+        down = NOSE_TIP_DOWN_FRACTION * (zp - zs)
+        qz = np.where(zz >= zp, (zz - zp) / NOSE_TIP_UP_MM, (zp - zz) / max(down, 1.0))
+        ux = np.clip(np.abs(dx) / NOSE_TIP_HALF_MM, 0.0, 1.0)
+        # beyond the ellipse (qz > 1) the lobule falls back steeply but continuously (a row crossing it as a peg
+        # moves must not jump)
+        qc = np.minimum(qz, 1.0)
+        lobule_y = yp + NOSE_TIP_DEPTH_MM * (1.0 - np.sqrt(1.0 - qc * qc) + 4.0 * np.maximum(qz - 1.0, 0.0))
+        lobule = np.clip(y - lobule_y, 0.0, None) * (1.0 - ux * ux) ** NOSE_TIP_BLUNT
+        # the columella: subnasale -> the lobule's underside, (1 - w^2) from the tip's line
+        w = np.clip((zp - zz) / (zp - zs), 0.0, 1.0)
+        col_y = ys + (yp - ys) * np.sqrt(np.clip(1.0 - w ** 2, 0.0, 1.0))
+        uc = np.clip(np.abs(dx) / NOSE_COLUMELLA_HALF_MM, 0.0, 1.0)
+        columella = np.clip(y - col_y, 0.0, None) * (1.0 - uc * uc) ** 0.5 * ((zz >= zs) & (zz <= zp))
+        # the alae: their outer edge at half the alar width, from the alar base (subnasale's height) up
+        a_half = 0.5 * nose["width_mm"] - NOSE_ALA_HALF_MM
+        a_z = zs + 0.5 * NOSE_ALA_HEIGHT_MM
+        ala_h = NOSE_ALA_FRACTION * max(ys - yp, 0.0)
+        alae = np.zeros_like(base)
+        groove = np.zeros_like(base)
+        for side in (-1.0, 1.0):
+            qa2 = ((dx - side * a_half) / NOSE_ALA_HALF_MM) ** 2 + ((zz - a_z) / (0.5 * NOSE_ALA_HEIGHT_MM)) ** 2
+            alae = np.maximum(alae, ala_h * np.clip(1.0 - qa2, 0.0, None) ** 0.5)
+            qa = np.sqrt(qa2)
+            # the alar-facial groove: outside the ala, on its lateral and lower sides (not toward the tip)
+            outside = (side * (dx - side * a_half) > 0) | (zz < a_z)
+            groove = np.minimum(groove, -NOSE_ALAR_GROOVE_MM * np.exp(-0.5 * ((qa - 1.08) / 0.1) ** 2) * outside)
+        bump = dorsum
+        for part in (lobule, columella, alae):
+            bump = _smooth_max(bump, part, NOSE_BLEND_MM)
+        bump = bump + groove * np.clip(1.0 - bump / 0.5, 0.0, 1.0)
+        bump = np.nan_to_num(bump) / np.maximum(-c[None, :], 0.2)   # along -y -> along the ray
+        return bump * front[None, :]
 
     # -------------------------------------------------------------------- solve
     def _surface(self, radius: np.ndarray, nu=None, nv=None, top_z: float | None = None):
@@ -1004,6 +1160,9 @@ class FaceModel:
         lips = self._mouth_shape(radius)
         if lips is not None:
             radius = radius + lips
+        eyes = self._eye_shape(radius)
+        if eyes is not None:
+            radius = radius + eyes
         ears = self._ear_shape()
         if ears is not None:
             radius = radius + ears

@@ -42,8 +42,13 @@ EXACT_TOLERANCE_MM = 1e-6
 #: ears' radial bumps (made again from the landmarks kept, in milliseconds).
 _DERIVED = ("_grid_xyz", "_ears")
 #: What :func:`model_state` keeps in single precision: the face's UV layout (texture coordinates need no
-#: more; it is half of the text otherwise: 0.56 of 1.14 MB on the phantom).
-_SINGLE = ("_uv_layout",)
+#: more; it is half of the text otherwise: 0.56 of 1.14 MB on the phantom), and the bone's raw radius map and its
+#: closed hull (what the live face does not read: the raw map is kept for the record, the hull for the
+#: constant-depth peer; since the 360-column grid the two maps were 0.6 of 1.5 MB on CThead).
+_SINGLE = ("_uv_layout", "hull_profile")
+#: What :func:`model_state` does not keep at all: the bone's raw radius map (nothing reads it after
+#: :meth:`FaceModel.prepare`; a rebuilt model has None there). 0.18 MB on CThead's 360-column grid.
+_DROPPED = ("raw",)
 #: Format of :func:`model_state` (a reader refuses other formats: the caller prepares the model again).
 STATE_FORMAT = 1
 
@@ -311,7 +316,7 @@ def model_state(model) -> str:
     names = {f.name for f in fields(model)} if is_dataclass(model) else set()
     state = {}
     for key, value in model.__dict__.items():
-        if key in _DERIVED:
+        if key in _DERIVED or key in _DROPPED:
             continue
         try:
             state[key] = _encode(_cast(value, np.float32) if key in _SINGLE else value)
@@ -337,6 +342,8 @@ def model_from_state(text: str):
                          f"this is format {STATE_FORMAT} of {SOFTWARE_VERSION}")
     names = [f.name for f in fields(F.FaceModel)]
     state = {k: _decode(v) for k, v in data["state"].items()}
+    for key in _DROPPED:
+        state.setdefault(key, None)
     missing = [n for n in names if n not in state and n != "flags" and n != "prepare_seconds"]
     if missing or sorted(names) != sorted(data.get("fields", [])):
         raise ValueError(f"the stored face model does not have this version's fields ({', '.join(missing) or 'changed'})")

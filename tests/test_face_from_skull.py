@@ -17,7 +17,8 @@ from pdehead_addon.face_from_skull import APPROXIMATION_LABEL, FaceModel, face_f
 from pdehead_addon.surface_metrics import point_surface_distance, triangulate
 
 #: Pegs the nose model stands over (the nose is predicted, not interpolated): their tips may lie inside it.
-NOSE_PEGS = {"Rhinion", "Mid-nasal", "Alare curvature L", "Alare curvature R"}
+# the pegs the nose stands over (subspinale: under the columella and between the alae, since issue 23's sixth session)
+NOSE_PEGS = {"Rhinion", "Mid-nasal", "Alare curvature L", "Alare curvature R", "Subspinale"}
 
 
 @pytest.fixture(scope="module")
@@ -46,7 +47,7 @@ def _faces(mesh: Mesh) -> np.ndarray:
 
 def test_face_is_closed_labelled_and_traced(model, face):
     assert face.mesh.is_watertight()
-    assert 30_000 < len(face.mesh.vertices) < 60_000          # 160 x 240 rows/columns + the neck cap
+    assert 45_000 < len(face.mesh.vertices) < 65_000          # 160 x 320 rows/columns + the neck cap
     p = face.provenance
     assert p["label"] == APPROXIMATION_LABEL == "approximation — not an identification"
     assert p["software"].startswith("PDE Head ") and p["table"].startswith("T-Table 2023")
@@ -92,7 +93,7 @@ def test_outlying_pegs_are_damped_and_the_jaw_is_smoother(model, face):
 
     def roughness():
         g = model.grid
-        radius = model.shaped_radius(model._offset_field(face.tips), face.tips)
+        radius = model.profile + model._offset_field(face.tips)     # the field (not the lips' and nose's shapes)
         rows = (g.z > face.tips[model.peg_names.index("Menton")][2]) & (g.z < face.tips[model.peg_names.index("Mid-philtrum")][2])
         r = radius[np.ix_(rows, np.cos(g.theta) < 0.0)]              # the front half: the jaw's sides too
         return np.abs(np.diff(r, 2, axis=0)).mean(), np.abs(np.diff(r, 2, axis=1)).mean()
@@ -286,3 +287,43 @@ def test_vertex_peg_sets_the_top_of_the_head(model, face):
     # 219.95 -> 223.93)
     assert top2 - top >= 3.0
     assert abs(top2 - raised.tips[i][2]) <= 1.0
+
+
+def test_nose_has_alae_and_a_rounded_tip_and_the_eyes_lids(model, face):
+    """The nose's parts (face_from_skull.FaceModel._nose_bump, issue 23's sixth session): the alae stand off the face
+    at half the alar width either side, lower than the tip and with the lobule between them; the tip is rounded in
+    profile (the ridge falls away from pronasale on both sides, not a point); the closed eyes' fissure is a groove."""
+    from pdehead_addon import face_from_skull as F
+    g = model.grid
+    base = model.profile + model._offset_field(face.tips)
+    bump = model._nose_bump(base, face.tips)
+    assert bump is not None
+    s, c = np.sin(g.theta), np.cos(g.theta)
+    x = g.centre[0] + base * s[None, :]
+    nose = model.nose
+    dx = x - nose["mid_x"]
+    front = c < -0.5
+    a_half = 0.5 * nose["width_mm"] - F.NOSE_ALA_HALF_MM
+    rows = np.nonzero(bump.max(axis=1) > 0)[0]
+    tip = float(bump.max())
+    # the alae: at the row where the bump is widest, a raised wing beyond the lobule's edge on both sides, nothing
+    # beyond half the alar width
+    k = rows[np.argmax([(bump[r] > 0.5).sum() for r in rows])]
+    half = 0.5 * nose["width_mm"]
+    for side in (-1, 1):
+        d = side * dx[k]
+        wing = front & (d > F.NOSE_TIP_HALF_MM + 1.0) & (d < half - 2.0)
+        beyond = front & (d > half + 3.0) & (d < half + 15.0)
+        print(f"ala {side:+d}: {bump[k, wing].max():.1f} mm of a {tip:.1f} mm tip; beyond {bump[k, beyond].max():.2f}")
+        assert bump[k, wing].max() > 0.15 * tip                    # measured on the phantom: 5.2 / 5.4 of 21.2 mm
+        assert bump[k, beyond].max() <= 0.5
+    # the tip: at the midline, a rounded ridge (the height within 3 mm above and below the tip's row is within 25 %)
+    mid = np.argmin(np.where(front[None, :], np.abs(dx), np.inf), axis=1)
+    ridge = bump[np.arange(len(g.z)), mid]
+    kt = int(np.argmax(ridge))
+    dz = float(g.z[1] - g.z[0])
+    n = max(1, int(round(3.0 / dz)))
+    assert ridge[kt - n] > 0.75 * ridge[kt] and ridge[kt + n] > 0.75 * ridge[kt]
+    # the eyes: a groove along each fissure (the lids' line), up to EYE_FISSURE_GROOVE_MM deep
+    eyes = model._eye_shape(base)
+    assert eyes is not None and eyes.min() < -0.5 * F.EYE_FISSURE_GROOVE_MM

@@ -88,7 +88,9 @@ def test_the_reopened_face_follows_a_dragged_peg_and_both_studies_stay_live(reop
     bpy.context.view_layer.update()
     after = maker.world_mm(face)
     moved = np.linalg.norm(after - before, axis=1)
-    assert 1.0 < moved.max() < 4.0
+    # up to 4.61 mm measured since issue 23's sixth session: the nose it carries has a near-horizontal underside
+    # (the columella, the alae), where a ray of the radial face meets the moved nose further along than 2 mm
+    assert 1.0 < moved.max() < 6.0
     tip = face_ops.peg_tips(coll, ["Nasion"])[0]
     # the skin at the peg came to the tip (measured on this 48 x 80 face: 2.07 -> 1.06 mm; the mesh's
     # facets between its rows cut the narrow bump the 2 mm drag makes)
