@@ -75,6 +75,14 @@ VERTEX_HALF_WIDTH_MM = 30.0
 #: the first row whose front-most bone is more than OCCLUSAL_GAP_MM behind the last jaw row (below the incisors).
 UPPER_JAW_DEPTH_MM = 25.0
 OCCLUSAL_GAP_MM = 20.0
+#: A piece of bone between the jaws (lower teeth split from the mandible by the threshold) counts as the
+#: mandible's when it lies within this (mm) of it and no farther from it than from the upper skeleton.
+LOWER_PIECE_REACH_MM = 10.0
+#: Supramentale is uncertain where the mandible's profile from pogonion to infradentale misses more than
+#: SUPRAMENTALE_GAP_MM of rows, or its deepest point lies more than SUPRAMENTALE_MAX_DEPTH_MM behind the chord
+#: (the concavity above an adult chin is a few mm deep; deeper is other bone behind the mandible's front).
+SUPRAMENTALE_GAP_MM = 3.0
+SUPRAMENTALE_MAX_DEPTH_MM = 8.0
 #: Glabella on a forehead without a prominence: the profile's turn is measured over this (mm) either side.
 GLABELLA_TURN_MM = 5.0
 #: Vertex's x is the middle of the vault's left-right extent this far (mm) below its top.
@@ -115,7 +123,9 @@ RULES: dict[str, str] = {
     "id": "Infradentale: the mandible's profile point one lower incisor crown (9 mm) below its highest front "
           "point (always uncertain, as prosthion).",
     "sm": "Supramentale (B point): the deepest point of the mandible's profile relative to the chord from "
-          "pogonion to infradentale.",
+          "pogonion to infradentale (the mandible with the lower teeth split from it: pieces between the jaws "
+          "nearer the mandible than the upper skeleton); uncertain with no concavity (under 1 mm), a concavity "
+          "deeper than 8 mm, or a gap of more than 3 mm in the profile.",
     "pog": "Pogonion: the most anterior point of the lower half of the mandible's mid-sagittal profile.",
     "gn": "Gnathion: the point of the symphysis between pogonion and menton farthest along the "
           "anterior-inferior bisector.",
@@ -726,8 +736,19 @@ def _mandible_midline(res, fr, mid_x, mand_ids):
         chord = py[i_pog] + (py[i_id] - py[i_pog]) * (z[seg] - z[i_pog]) / (z[i_id] - z[i_pog])
         dep = py[seg] - chord
         i_sm = int(seg[np.argmax(dep)])
-        res["sm"] = (np.array([mid_x, py[i_sm], z[i_sm]]), OK if dep.max() >= 1.0 else UNCERTAIN,
-                     "" if dep.max() >= 1.0 else "the mandible's front has no concavity above the chin")
+        gap = float((np.diff(seg).max() - 1) * fr.step) if len(seg) > 1 else 0.0   # rows without the mandible
+        if gap > SUPRAMENTALE_GAP_MM:
+            flag, ev = UNCERTAIN, (f"the mandible's profile between pogonion and infradentale has a gap of "
+                                   f"{gap:.0f} mm: not one anterior surface")
+        elif dep.max() > SUPRAMENTALE_MAX_DEPTH_MM:
+            flag, ev = UNCERTAIN, (f"the profile runs {dep.max():.0f} mm behind the chord from pogonion to "
+                                   f"infradentale (more than {SUPRAMENTALE_MAX_DEPTH_MM:g} mm): bone behind the "
+                                   "mandible's front, not its concavity")
+        elif dep.max() < 1.0:
+            flag, ev = UNCERTAIN, "the mandible's front has no concavity above the chin"
+        else:
+            flag, ev = OK, ""
+        res["sm"] = (np.array([mid_x, py[i_sm], z[i_sm]]), flag, ev)
     else:
         res["sm"] = (None, NOT_FOUND, "no mandible profile between infradentale and pogonion")
     # gnathion: the profile point between pogonion and menton farthest along the anterior-inferior bisector
@@ -736,6 +757,35 @@ def _mandible_midline(res, fr, mid_x, mand_ids):
     j = int(np.argmax(-cand[:, 0] - cand[:, 1]))
     res["gn"] = (np.array([mid_x, cand[j, 0], cand[j, 1]]), OK, "")
     return {"id_z": z[i_id], "me": me}
+
+
+def _lower_teeth_pieces(fr, pieces: list[int], mand_id: int) -> list[int]:
+    """Of the bone pieces (components) between the jaws, those of the mandible: lower teeth split from it by
+    the threshold lie next to it, a palate or upper teeth split from the skull lie next to the upper
+    skeleton. A piece counts as the mandible's when its gap (mm) to the mandible is no larger than its gap to
+    the rest of the bone (every other component; the pieces themselves left out), both measured within
+    ``LOWER_PIECE_REACH_MM`` of it (a piece with neither within reach is left out)."""
+    if not pieces:
+        return []
+    inside = np.isin(fr.comp, pieces)
+    where = np.argwhere(inside)
+    reach = int(np.ceil(LOWER_PIECE_REACH_MM / fr.step))
+    lo = np.maximum(where.min(0) - reach, 0)
+    hi = np.minimum(where.max(0) + reach + 1, fr.shape)
+    box = tuple(slice(a, b) for a, b in zip(lo, hi))
+    comp, bone, piece = fr.comp[box], fr.bone[box], inside[box]
+    mand = comp == mand_id
+    upper = bone & ~mand & ~piece
+    far = float(LOWER_PIECE_REACH_MM) + fr.step
+    to_mand = ndimage.distance_transform_edt(~mand, sampling=fr.step) if mand.any() else np.full(comp.shape, far)
+    to_upper = ndimage.distance_transform_edt(~upper, sampling=fr.step) if upper.any() else np.full(comp.shape, far)
+    keep = []
+    for i in pieces:
+        own = comp == i
+        gap_m, gap_u = float(to_mand[own].min()), float(to_upper[own].min())
+        if gap_m <= min(gap_u, LOWER_PIECE_REACH_MM):
+            keep.append(int(i))
+    return keep
 
 
 def _side_extreme(fr, side, mask):
@@ -1027,7 +1077,8 @@ def find_landmarks(ct, bone: np.ndarray, *, grid_mm: float = LANDMARK_GRID_MM) -
         low = {}
     else:
         # lower teeth split from the mandible by the threshold count as the mandible: the pieces on the
-        # midline between the upper jaw and the mandible's top
+        # midline between the upper jaw and the mandible's top that lie nearer the mandible than the upper
+        # skeleton (a palate or upper teeth split from the skull reach down into that window too)
         ids = [mand_id]
         if up and mand_top is not None:
             ixm = fr.index(0, mid_x)
@@ -1035,7 +1086,7 @@ def find_landmarks(ct, bone: np.ndarray, *, grid_mm: float = LANDMARK_GRID_MM) -
             n_pt = found.get("n", (None,))[0]
             iy_lim = fr.shape[1] if n_pt is None else fr.index(1, n_pt[1] + 40.0)   # the face, not the spine
             pieces = np.unique(fr.comp[max(ixm - 1, 0):ixm + 2, :iy_lim, izs])
-            ids += [int(i) for i in pieces if i not in (0, skull_id, mand_id)]
+            ids += _lower_teeth_pieces(fr, [int(i) for i in pieces if i not in (0, skull_id, mand_id)], mand_id)
         low = _mandible_midline(found, fr, mid_x, ids)
 
     # alare curvature (bony proxy): the outermost point of the nasal aperture's margin

@@ -270,6 +270,16 @@ DEPTH_SLICE_RUN = 0.5
 DEPTH_SLICE_SHIFT = 1.0
 #: ... where the nearer slice's weight is at least this (a ray on a slice measures that slice).
 DEPTH_SLICE_WEIGHT = 0.1
+#: A ray within this angle (deg) of the slices' normal crosses its bone and skin edges between two slices, sampled
+#: a slice spacing apart: there the crossing is located with the blurred-step model of the slices
+#: (:func:`step_crossing`) instead of the linear interpolation of the two slices.
+DEPTH_STEP_MODEL_DEG = 30.0
+#: The slices' edge spread (:func:`slice_edge_spread`) is measured on the skin where its slope against the slices
+#: is at most this (deg), from at least DEPTH_SPREAD_MIN_COLUMNS columns (else no step model is used).
+DEPTH_SPREAD_MAX_SLOPE_DEG = 45.0
+DEPTH_SPREAD_MIN_COLUMNS = 100
+#: Air (HU): the skin level is half way between it and soft tissue.
+AIR_HU = -1000.0
 
 
 @dataclass
@@ -292,10 +302,77 @@ class DepthOnCT:
     method: str = "ct"          # "ct": on the CT's intensities; "mesh": on the meshes (no usable CT)
 
 
+def slice_edge_spread(volume: np.ndarray, spacing, air: float, tissue: float,
+                      max_slope_deg: float = DEPTH_SPREAD_MAX_SLOPE_DEG) -> tuple[float | None, int]:
+    """The spread (mm, the standard deviation of an equivalent Gaussian edge) of the CT's edges across the slices,
+    measured on the head's own skin: the slice profile (a thick slice's box, the scanner's blur) sets how far an
+    edge between two slices shows in them.
+
+    In every column of the slices (a fixed in-plane position, along the slice axis) the outermost crossing of the
+    half-way level between ``air`` and ``tissue`` (the top of the head, and the other way the chin and the neck) is
+    an air/skin edge; where its surface slopes at most ``max_slope_deg`` against the slices (the slope from the
+    neighbouring columns' crossings), with tissue two slices inside and air two slices outside, the samples near it
+    between 10 % and 90 % of the way from air to tissue are counted. An edge blurred by a Gaussian of s.d.
+    ``sigma`` along its normal, at a random place between the slices of spacing ``h``, shows in 2 * 1.2816 *
+    sigma / (h cos(slope)) such samples on average: ``sigma = h * mean(count * cos(slope)) / 2.563``. (A box of
+    the slice spacing gives 0.8 per edge: 0.31 h, against its s.d. of 0.29 h.)
+
+    Returns (sigma mm, number of columns); sigma is None with fewer than :data:`DEPTH_SPREAD_MIN_COLUMNS` columns.
+    """
+    from scipy.special import ndtri
+
+    h, dy, dx = (float(v) for v in spacing[:3])
+    f_all = (np.asarray(volume, np.float32) - np.float32(air)) / np.float32(tissue - air)
+    counts, weights = [], []
+    for f in (f_all, f_all[::-1]):             # the outermost edge from either end of the slice axis
+        nz = f.shape[0]
+        above = f >= 0.5
+        has = above.any(0)
+        top = nz - 1 - np.argmax(above[::-1], axis=0)
+        t = np.clip(top, 2, nz - 3)
+
+        def at(o):
+            return np.take_along_axis(f, (t + o)[None], 0)[0]
+
+        f0, f1 = at(0), at(1)
+        zc = (t + (f0 - 0.5) / np.maximum(f0 - f1, 1e-6)) * h          # the edge's height, linearly
+        gy, gx = np.gradient(zc, dy, dx)
+        slope = np.hypot(gy, gx)
+        ok = has & (top >= 2) & (top <= nz - 3) & (slope <= np.tan(np.radians(max_slope_deg)))
+        ok &= (at(-2) > 0.9) & (at(2) < 0.1)
+        n = sum(((at(o) > 0.1) & (at(o) < 0.9)).astype(np.float32) for o in (-1, 0, 1, 2))
+        counts.append(n[ok])
+        weights.append(1.0 / np.sqrt(1.0 + slope[ok] ** 2))
+    count, cos = np.concatenate(counts), np.concatenate(weights)
+    if len(count) < DEPTH_SPREAD_MIN_COLUMNS:
+        return None, int(len(count))
+    return float(h * np.mean(count * cos) / (2.0 * ndtri(0.9))), int(len(count))
+
+
+def step_crossing(samples: np.ndarray, values: np.ndarray, level: float, inside: float, outside: float,
+                  spread: float) -> float | None:
+    """The crossing of ``level`` by an edge from ``inside`` to ``outside`` (values) seen in a few samples along a
+    ray (``samples`` mm along it, outward), modelled as a blurred step ``outside + (inside - outside) *
+    Phi((s_e - s) / spread)``: from the sample most nearly half way (its fraction f of the way strictly between
+    2 % and 98 %), ``s_e = s + spread * Phi^-1(f)``, and the level's crossing ``s_e - spread * Phi^-1(f_level)``.
+    None when no sample lies on the edge's slope (the edge is then no better located than by interpolation)."""
+    from scipy.special import ndtri
+
+    f = (np.asarray(values, float) - outside) / (inside - outside)
+    on = (f > 0.02) & (f < 0.98)
+    if not on.any() or not 0.0 < (level - outside) / (inside - outside) < 1.0:
+        return None
+    # the sample on the outer side of the edge: its fraction leans on the outside's level (air, soft tissue), which
+    # is known, far less than on the inside's (a bone's own value, fat or muscle under the skin)
+    i = np.flatnonzero(on)[np.argmin(f[on])]
+    fl = (level - outside) / (inside - outside)
+    return float(samples[i] + spread * (ndtri(f[i]) - ndtri(fl)))
+
+
 def landmark_depths_on_ct(landmarks: dict[str, np.ndarray], skull: Mesh, skin: Mesh, volume: np.ndarray, ct,
                           bone_level: float, skin_level: float, bone_mode: float | None = None,
                           head_mask: np.ndarray | None = None, max_depth_mm: float = 60.0,
-                          search_mm: float | None = None) -> dict[str, DepthOnCT]:
+                          search_mm: float | None = None, slice_spread_mm: float | None = None) -> dict[str, DepthOnCT]:
     """Landmark depths with sub-voxel bone and skin points: the level crossings of the CT's trilinearly
     interpolated intensities along each landmark's ray, not the meshes' surfaces.
 
@@ -329,6 +406,15 @@ def landmark_depths_on_ct(landmarks: dict[str, np.ndarray], skull: Mesh, skin: M
 
     Where the skin touches something outside the head (a pillow, a head holder: the skin level's crossing lies
     more than a voxel beyond the head mask's), the skin point is the PDE skin's (or the head mask's) instead.
+
+    A ray within :data:`DEPTH_STEP_MODEL_DEG` of the slices' normal crosses each edge between two slices a slice
+    spacing apart, and the linear crossing between them moves with where the edge lies between them (on the
+    phantom's 4.3 mm slices by up to 0.6 mm per edge). Where the edge's own surface also faces the slices (the bone
+    mesh's normal at the bone point, the skin mesh's at the skin point, within the same angle) the crossing is
+    located instead with the blurred-step model of the slices (:func:`step_crossing`): the edge's spread across
+    the slices is measured on the study's own skin (:func:`slice_edge_spread`, or ``slice_spread_mm``), divided by
+    the cosine between the edge's normal and the ray; the plateaus are air and soft tissue (2 * skin_level + 1000)
+    for the skin, soft tissue and the larger of ``bone_mode`` and the bone's peak along the ray for the bone.
 
     Parameters
     ----------
@@ -414,6 +500,32 @@ def landmark_depths_on_ct(landmarks: dict[str, np.ndarray], skull: Mesh, skin: M
                 f"the {what}'s crossing along it ({where}): an edge between the slices, met at a grazing angle; "
                 "the interpolated crossing is not measured")
 
+    spread = slice_spread_mm
+    if spread is None:
+        spread = slice_edge_spread(vol, ct.spacing, AIR_HU, 2.0 * skin_level - AIR_HU)[0]
+    tissue = 2.0 * skin_level - AIR_HU
+    # the ray's slice index per mm along it: |dk/ds| * slice spacing is the cosine to the slices' normal
+    dk = (k_index[:, -1] - k_index[:, 0]) / (s[-1] - s[0])
+    bone_normal = snap_to_surface(base, skull)[1]
+    steep = np.abs(dk) * slice_mm >= np.cos(np.radians(DEPTH_STEP_MODEL_DEG))
+
+    # the slices' normal in patient mm (the slice index's gradient)
+    axis = ct.patient_to_index(np.vstack([np.zeros(3), np.eye(3)]))[:, 0]
+    slice_normal = (axis[1:] - axis[0]) / np.linalg.norm(axis[1:] - axis[0])
+    across = np.cos(np.radians(DEPTH_STEP_MODEL_DEG))
+
+    def on_slices(k, at, level, inside, outside, edge_normal):
+        """The crossing near ``at`` on ray ``k`` by the blurred-step model from the two slices either side, where
+        the edge (its surface's ``edge_normal``) also faces the slices; an edge oblique to the ray spreads along it
+        by 1 / cos of the angle between them."""
+        if abs(float(edge_normal @ slice_normal)) < across:
+            return at
+        cos = abs(float(edge_normal @ normal[k]))
+        kc = float(np.interp(at, s, k_index[k]))
+        si = at + (np.array([np.floor(kc), np.floor(kc) + 1.0]) - kc) / dk[k]
+        got = step_crossing(si, np.interp(si, s, prof[k]), level, inside, outside, spread / cos)
+        return at if got is None or abs(got - at) > slice_mm else got
+
     out: dict[str, DepthOnCT] = {}
     for k, name in enumerate(names):
         v = prof[k]
@@ -463,6 +575,18 @@ def landmark_depths_on_ct(landmarks: dict[str, np.ndarray], skull: Mesh, skin: M
                                   "before the skin: the landmark lies behind other bone along its normal")
             continue
         why = between_slices(k, sb, bone_level, "bone") or ("" if holder else between_slices(k, ss, skin_level, "skin"))
+        if spread and steep[k]:
+            # across the slices: each edge lies between two slices a spacing apart, and the linear crossing moves
+            # with the edge's place between them (up to 0.15 of a spacing for the slices' own spread): the
+            # blurred-step model of the slices locates it
+            if bone_mode is not None:
+                sb = on_slices(k, sb, bone_level, max(float(bone_mode), float(v[inside].max()) if inside.any() else -np.inf),
+                               tissue,
+                               bone_normal[k])
+                point = base[k] + sb * normal[k]
+            if not holder:
+                ss = on_slices(k, ss, skin_level, tissue, AIR_HU,
+                               snap_to_surface(base[k] + ss * normal[k], skin)[1][0])
         out[name] = DepthOnCT(point, ss - sb, mesh_d, normal[k], not why, why)
     return out
 

@@ -153,3 +153,41 @@ def test_ge_has_no_mandible(ge_ct):
     assert abs(ol.point[2] - orr.point[2]) < 3.0 and ol.point[0] > 0 > orr.point[0]
     # the face from the skull needs both orbits and 8 ok landmarks (measured 13 ok, 22 found)
     assert sum(lm.flag == OK for lm in search.landmarks.values()) >= 10
+
+
+def test_scaled_phantom_mandible_midline_is_on_the_mandible(monkeypatch):
+    """The phantom scaled by 1.12 (test_batch's second study): the floor of the face block (the palate), split
+    from the skull by the threshold, hangs between the jaws on the midline. It was taken for lower teeth split
+    from the mandible, and infradentale and supramentale landed on it (supramentale 30 mm behind pogonion, ok).
+    A piece between the jaws now counts as the mandible's only when it lies no farther from the mandible than
+    from the upper skeleton; and supramentale on a profile with a gap is uncertain."""
+    import pdehead_addon.auto_landmarks as A
+    from pdehead_addon import CTVolume, make_phantom
+    from pdehead_addon.phantom import _mandible_sd
+
+    scale = 1.12
+    ct = make_phantom(shape=(60, 96, 96), seed=1).ct
+    ct = CTVolume(ct.data, tuple(np.asarray(ct.spacing) * scale), origin=np.asarray(ct.origin) * scale,
+                  direction=ct.direction, meta=dict(ct.meta))
+    bone = segment_skull(ct).bone
+
+    class Q:  # the phantom's point record (x, y, z, |x|), in the unscaled head
+        def __init__(self, p):
+            self.x, self.y, self.z = p[:, 0] / scale, p[:, 1] / scale, p[:, 2] / scale
+            self.ax = np.abs(self.x)
+
+    search = find_landmarks(ct, bone)
+    for name in ("Infradentale", "Supramentale"):
+        lm = search.landmarks[name]
+        gap = float(_mandible_sd(Q(lm.point[None]))[0]) * scale   # mm from the mandible's surface (+ outside)
+        assert abs(gap) <= 2.5, (name, lm.point, gap)
+    pog = search.landmarks["Pogonion"].point
+    sm = search.landmarks["Supramentale"]
+    assert abs(sm.point[1] - pog[1]) < 10.0                       # was 31.6 mm behind pogonion
+    # the phantom's chin has no concavity above it (chin ellipsoid on a straight front): uncertain, says why
+    assert sm.flag == UNCERTAIN and "no concavity" in sm.evidence
+    # the old rule (every piece between the jaws is the mandible's) lands on the palate: no longer silent
+    monkeypatch.setattr(A, "_lower_teeth_pieces", lambda fr, pieces, mand_id: pieces)
+    old = find_landmarks(ct, bone).landmarks["Supramentale"]
+    assert abs(old.point[1] - pog[1]) > 20.0
+    assert old.flag == UNCERTAIN and "gap" in old.evidence, old
