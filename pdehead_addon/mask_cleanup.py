@@ -13,6 +13,7 @@ from typing import Any, Sequence
 import numpy as np
 from scipy import ndimage as ndi
 
+from . import run_labels
 from .binary_morphology import _Packed, run_steps as _run_steps  # noqa: F401 (re-exported)
 from .errors import SegmentationError
 
@@ -107,7 +108,12 @@ def _crop_box(mask: np.ndarray) -> tuple[slice, ...] | None:
 
 
 def largest_component(mask: np.ndarray, structure: np.ndarray | None = None) -> np.ndarray:
-    """The largest connected component of a boolean volume (6-connectivity by default)."""
+    """The largest connected component of a boolean volume (6-connectivity by default).
+
+    6-connectivity (the default) is found on the runs along x (:func:`.run_labels.largest_component`,
+    the same voxels as ``ndi.label``'s largest component for a fraction of its time); any other
+    ``structure`` is labelled with ``ndi.label``.
+    """
     box = _crop_box(mask)
     if box is None:
         return np.zeros(mask.shape, dtype=bool)
@@ -115,19 +121,15 @@ def largest_component(mask: np.ndarray, structure: np.ndarray | None = None) -> 
         out = np.zeros(mask.shape, dtype=bool)  # labels on the mask's bounding box only (same result)
         out[box] = largest_component(np.ascontiguousarray(mask[box]), structure)
         return out
+    if structure is None and mask.ndim == 3:
+        return run_labels.largest_component(mask)
     labels, n = ndi.label(mask, structure=structure)
     if n == 0:
         return np.zeros(mask.shape, dtype=bool)
     if n == 1:
         return labels == 1
-    # count on a subsample first (bincount of a big label volume is slow); exact when close
-    sample = labels[::2, ::2, ::2].reshape(-1)
-    counts = np.bincount(sample, minlength=n + 1)
+    counts = np.bincount(labels[mask], minlength=n + 1)
     counts[0] = 0
-    order = np.argsort(counts)
-    if counts[order[-2]] * 1.5 > counts[order[-1]]:
-        counts = np.bincount(labels[mask], minlength=n + 1)
-        counts[0] = 0
     return labels == np.argmax(counts)
 
 
@@ -137,29 +139,12 @@ def fill_holes_per_slice(mask: np.ndarray) -> np.ndarray:
     This is a superset of the 3-D hole filling (a 3-D cavity never reaches a slice
     border), and also closes the nasal cavity, mouth and ear canals in the slices
     where they are enclosed although they open to the outside in 3-D.
+    The background's runs along x are linked within each slice
+    (:func:`.run_labels.fill_holes_per_slice`; the same as labelling each slice's background).
     """
     if mask.ndim == 2:
         return fill_holes_per_slice(mask[None])[0]
-    # slice by slice, each on the bounding box of its own pixels: background that touches that box's
-    # edge joins the background ring around it, which reaches the slice's border along rows or columns.
-    # Labelling 2-D slices one by one takes about half the time of one 3-D labelling with no links
-    # between slices (measured: 0.46 s against 0.86 s on a 300 x 450 x 360 box); the result is the same.
-    out = mask.copy()
-    rows, cols = mask.any(axis=2), mask.any(axis=1)
-    for k in np.flatnonzero(rows.any(axis=1)):
-        ys, xs = np.flatnonzero(rows[k]), np.flatnonzero(cols[k])
-        y0, y1, x0, x1 = int(ys[0]), int(ys[-1]) + 1, int(xs[0]), int(xs[-1]) + 1
-        if y1 - y0 < 3 or x1 - x0 < 3:
-            continue                                     # no pixel of the box is away from its edge
-        labels, n = ndi.label(~mask[k, y0:y1, x0:x1])
-        if n == 0:
-            continue
-        edge = np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]])
-        outside = np.zeros(n + 1, dtype=bool)
-        outside[edge] = True
-        outside[0] = True                                # the slice's own pixels stay as they are
-        out[k, y0:y1, x0:x1] |= ~outside[labels]
-    return out
+    return run_labels.fill_holes_per_slice(mask)
 
 
 def fill_cavities(mask: np.ndarray, spacing_yx: Sequence[float], radius_mm: float = 4.0) -> np.ndarray:
@@ -457,14 +442,14 @@ def clean_head_mask(mask: np.ndarray, data: np.ndarray, window: tuple[float, flo
         raise SegmentationError(f"no part of the head is thicker than the {2 * opening_mm:g} mm opening")
     thin = work & ~opened
     del opened
-    labels, n = ndi.label(thin)
+    labels, n, runs, thin_run_labels = run_labels.label(thin)    # ndi.label(thin), on its runs
     head = core
     if n:
-        thin_at = np.flatnonzero(thin)                   # the thin voxels (flat indices) and their labels
-        thin_labels = labels.reshape(-1)[thin_at]
+        thin_at = runs.voxels()                          # the thin voxels (flat indices) and their labels
+        thin_labels = np.repeat(thin_run_labels, runs.length)
         total = np.bincount(thin_labels, minlength=n + 1)
         inside = np.bincount(thin_labels[envelope.reshape(-1)[thin_at]], minlength=n + 1)
-        objects = ndi.find_objects(labels)
+        objects = runs.objects(thin_run_labels, n)       # ndi.find_objects(labels)
         keep = (_component_extents(labels, n, yx, objects) <= max_thin_extent_mm) | (2 * inside > total)
         if metal is not None:
             streak = streak_components(labels, n, metal, yx, objects=objects, sizes=total) & ~(2 * inside > total)
@@ -474,7 +459,7 @@ def clean_head_mask(mask: np.ndarray, data: np.ndarray, window: tuple[float, flo
         stats["thin_kept_voxels"] = int(total[keep].sum())
         stats["thin_dropped_voxels"] = int(total[1:].sum() - total[keep].sum())
         head = _core_with_kept(core, labels, keep, thin_at, thin_labels, total)
-    del labels, thin
+    del labels, thin, runs
     head = fill_cavities(head, yx, close_mm) if close_mm > 0 else fill_holes_per_slice(head)
     if metal is not None and streak_close_mm > 0:
         # near the metal only: open away the bumps of bright streaks, close the notches of dark ones

@@ -138,3 +138,38 @@ def test_banded_smoother_is_the_dense_solve_without_dense_lapack(monkeypatch):
         assert np.abs(S @ (3.0 * x - 7.0) - (3.0 * x - 7.0)).max() < 1e-9       # lines are kept
         assert np.abs(S.sum(axis=1) - 1.0).max() < 1e-12                       # constants too
     P._smoother.cache_clear()
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_run_labels_equal_ndi_label(seed):
+    """The labelling on runs along x numbers, counts and boxes the components exactly as ndi.label."""
+    from pdehead_addon import run_labels as RL
+    rng = np.random.default_rng(seed)
+    shape = (int(rng.integers(1, 12)), int(rng.integers(2, 40)), int(rng.integers(2, 50)))
+    m = _blobs(shape, seed, float(rng.uniform(0.1, 0.4)), float(rng.uniform(0.6, 2.0)))
+    m[0, :, -1] = True                                       # runs that end at the row's end
+    ref, n = ndi.label(m)
+    got, n2, runs, run_labels = RL.label(m)
+    assert n > 1 and n2 == n and np.array_equal(got, ref)
+    assert runs.objects(run_labels, n) == ndi.find_objects(ref)
+    ref_in, n_in = ndi.label(m, structure=C._IN_SLICE)
+    got_in, n2_in, _, _ = RL.label(m, in_slice=True)
+    assert n2_in == n_in and np.array_equal(got_in, ref_in)
+    counts = np.bincount(ref.reshape(-1), minlength=n + 1)
+    counts[0] = 0
+    assert np.array_equal(RL.largest_component(m), ref == np.argmax(counts))
+    pick = rng.random(run_labels.size) < 0.5
+    for which in (None, pick, ~pick):                        # both ways of painting runs
+        want = np.zeros(m.size, dtype=bool)
+        want[runs.voxels(which)] = True
+        assert np.array_equal(runs.paint(which).reshape(-1), want)
+    assert np.array_equal(runs.paint(), m)
+
+
+def test_largest_component_on_runs_with_a_tie_takes_the_first():
+    m = np.zeros((3, 8, 9), dtype=bool)
+    m[2, 1:3, 1:3] = True                                    # later in raster order
+    m[0, 5:7, 5:7] = True                                    # first, same size
+    m[1, 0, 0] = True
+    out = C.largest_component(m)
+    assert np.count_nonzero(out) == 4 and out[0, 5, 5] and not out[2, 1, 1]
