@@ -23,6 +23,10 @@ _IN_SLICE = np.zeros((3, 3, 3), dtype=bool)
 _IN_SLICE[1] = ndi.generate_binary_structure(2, 1)
 
 
+#: :func:`find_cushion`'s lower bound of a cushion's windowed intensity (darker: a gap, not a pillow).
+CUSHION_LOW = 0.4
+
+
 def _shifted_combine(mask: np.ndarray, offsets: Sequence[tuple[int, ...]], erode: bool) -> np.ndarray:
     """AND (erosion) or OR (dilation) of shifted copies of a boolean volume.
 
@@ -184,8 +188,17 @@ def estimate_noise(img: np.ndarray, max_samples: int = 1_000_000) -> float:
     difference is noise with standard deviation ``sqrt(2) * sigma``; the median
     absolute difference ignores the edges.
     """
-    step = max(1, img.shape[0] * img.shape[1] // max(1, max_samples // max(1, img.shape[2])))
-    rows = img.reshape(-1, img.shape[2])[::step]
+    step = _noise_row_step(img.shape, max_samples)
+    return _noise_of_rows(img.reshape(-1, img.shape[2])[::step])
+
+
+def _noise_row_step(shape: Sequence[int], max_samples: int = 1_000_000) -> int:
+    """:func:`estimate_noise` reads every this many x-rows of a (z, y, x) volume."""
+    return max(1, shape[0] * shape[1] // max(1, max_samples // max(1, shape[2])))
+
+
+def _noise_of_rows(rows: np.ndarray) -> float:
+    """:func:`estimate_noise` of the sampled x-rows (2-D)."""
     diff = np.abs(np.diff(rows, axis=1)).ravel()
     diff = diff[diff > 0] if np.count_nonzero(diff) > diff.size // 2 else diff
     return float(np.median(diff) / (0.6745 * math.sqrt(2.0))) if diff.size else 0.0
@@ -229,7 +242,7 @@ def head_envelope(tissue: np.ndarray, spacing_yx: Sequence[float], opening_mm: f
 
 
 def find_cushion(mask: np.ndarray, smooth: np.ndarray, spacing: Sequence[float], envelope: np.ndarray,
-                 level: float = 0.85, thickness_mm: float = 2.0, low: float = 0.4) -> np.ndarray:
+                 level: float = 0.85, thickness_mm: float = 2.0, low: float = CUSHION_LOW) -> np.ndarray:
     """Voxels of ``mask`` that belong to a pillow or foam layer pressed against the head.
 
     A pillow or cloth pressed against the head is denser than air but clearly
@@ -253,9 +266,47 @@ def find_cushion(mask: np.ndarray, smooth: np.ndarray, spacing: Sequence[float],
     ear and the scalp), not cushion either.  Returns a subset of ``mask``.
     """
     band = mask & (smooth < np.float32(level)) & (smooth > np.float32(low)) & ~envelope
+    return _cushion_of_band(band, spacing, thickness_mm)
+
+
+def _cushion_of_band(band: np.ndarray, spacing: Sequence[float], thickness_mm: float) -> np.ndarray:
+    """:func:`find_cushion`'s opening of its candidate ``band`` (intermediate, in the mask, outside the envelope)."""
     dz, dy, dx = (float(h) for h in spacing)
-    size = tuple(min(n, max(2, 1 + math.ceil(thickness_mm / h))) for n, h in zip(mask.shape, (dz, dy, dx)))
+    size = tuple(min(n, max(2, 1 + math.ceil(thickness_mm / h))) for n, h in zip(band.shape, (dz, dy, dx)))
     return _box_opening(band, size)
+
+
+def _windowed_test(raw: np.ndarray, window: tuple[float, float], test) -> np.ndarray | None:
+    """``test(windowed)`` for integer intensities of at most 16 bits without the float volume.
+
+    ``windowed`` is ``(raw - low) * (1 / (high - low))`` in float32, as the clean-up computes it;
+    ``test`` (a comparison of float32 values) is evaluated once per possible integer value. When
+    the values that pass form one range [a, b] (a threshold or a band: the windowing is monotone),
+    the result is ``a <= raw <= b`` on the integers, voxel for voxel what the float volume gives,
+    without its 4 bytes per voxel. None for other data types or other sets of values.
+    """
+    if raw.dtype.kind not in "iu" or raw.dtype.itemsize > 2:
+        return None
+    info = np.iinfo(raw.dtype)
+    values = np.arange(info.min, info.max + 1, dtype=np.int64).astype(raw.dtype)
+    low, high = window
+    windowed = np.subtract(values, np.float32(low), dtype=np.float32)
+    windowed *= np.float32(1.0 / (high - low))
+    passed = np.flatnonzero(test(windowed))
+    if passed.size == 0:
+        return np.zeros(raw.shape, dtype=bool)
+    first, last = int(passed[0]), int(passed[-1])
+    if last - first + 1 != passed.size:
+        return None
+    if first == 0 and last == values.size - 1:
+        return np.ones(raw.shape, dtype=bool)
+    if first == 0:
+        return raw <= values[last]
+    if last == values.size - 1:
+        return raw >= values[first]
+    out = raw >= values[first]
+    out &= raw <= values[last]
+    return out
 
 
 def metal_slices(data: np.ndarray, window: tuple[float, float], level: float = 3.0,
@@ -414,20 +465,44 @@ def clean_head_mask(mask: np.ndarray, data: np.ndarray, window: tuple[float, flo
         raise SegmentationError("nothing in the volume is brighter than air: no head found")
     work = mask[box]
     low, high = window
-    smooth = np.subtract(data[box], np.float32(low), dtype=np.float32)
-    smooth *= np.float32(1.0 / (high - low))
-    if noise is None:
-        noise = estimate_noise(smooth)
-    sigma = smoothing_sigma(noise)
-    if sigma > 0:
-        smooth = ndi.gaussian_filter(smooth, sigma=sigma, mode="nearest", truncate=3.0)
-    stats.update(noise=noise, smoothing_sigma=sigma)
+    raw = data[box]
+    scale = np.float32(1.0 / (high - low))
     level = 0.85 if cushion_level is None else float(cushion_level)
-    envelope = head_envelope(work & (smooth >= np.float32(level)), yx, opening_mm, envelope_mm)
+    smooth = None
+    if noise is None:
+        nz, ny, nx = raw.shape
+        step = _noise_row_step(raw.shape)
+        rows = np.arange(0, nz * ny, step)
+        sample = np.subtract(raw[rows // ny, rows % ny], np.float32(low), dtype=np.float32)
+        sample *= scale                                  # estimate_noise of the windowed volume, on its rows
+        noise = _noise_of_rows(sample)
+    sigma = smoothing_sigma(noise)
+    stats.update(noise=noise, smoothing_sigma=sigma)
+    tissue = None if sigma > 0 else _windowed_test(raw, window, lambda w: w >= np.float32(level))
+    if tissue is None:                                   # smoothed, or not 8/16-bit integers: the float volume
+        smooth = np.subtract(raw, np.float32(low), dtype=np.float32)
+        smooth *= scale
+        if sigma > 0:
+            smooth = ndi.gaussian_filter(smooth, sigma=sigma, mode="nearest", truncate=3.0)
+        tissue = smooth >= np.float32(level)
+    tissue &= work
+    envelope = head_envelope(tissue, yx, opening_mm, envelope_mm)
+    del tissue
     if cushion_level is not None:
         # heavier smoothing widens the skin's own intermediate rim: demand a correspondingly thicker layer
         thickness = cushion_mm + 2.0 * max(0.0, sigma - 0.5) * max(dz, dy, dx)
-        cushion = find_cushion(work, smooth, spacing, envelope, level, thickness)
+        band = None if smooth is not None else _windowed_test(
+            raw, window, lambda w: (w < np.float32(level)) & (w > np.float32(CUSHION_LOW)))
+        if band is None:
+            if smooth is None:
+                smooth = np.subtract(raw, np.float32(low), dtype=np.float32)
+                smooth *= scale
+            cushion = find_cushion(work, smooth, spacing, envelope, level, thickness)
+        else:                                            # find_cushion's band, on the integers
+            band &= work
+            band &= ~envelope
+            cushion = _cushion_of_band(band, spacing, thickness)
+            del band
         stats["cushion_voxels"] = int(np.count_nonzero(cushion))
         work &= ~cushion
     del smooth

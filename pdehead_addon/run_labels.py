@@ -14,6 +14,10 @@ from __future__ import annotations
 import numpy as np
 
 
+#: Rows of a volume are scanned for runs in chunks of about this many bytes.
+_CHUNK_BYTES = 1 << 20
+
+
 class Runs:
     """The runs of True along the last axis of a bool volume (z, y, x).
 
@@ -28,10 +32,19 @@ class Runs:
         self.shape = mask.shape
         nx = mask.shape[-1]
         rows = mask.reshape(-1, nx)
-        pad = np.zeros((rows.shape[0], nx + 2), dtype=bool)
-        pad[:, 1:-1] = rows
-        edges = np.flatnonzero(pad[:, 1:] != pad[:, :-1])    # per row: start, end, start, end, ...
-        del pad
+        # per row: start, end, start, end, ... (where a row padded with False changes); in chunks of rows
+        # whose two buffers are reused (a temporary of the whole volume costs more in fresh pages)
+        chunk = max(1, min(rows.shape[0], _CHUNK_BYTES // (nx + 2)))
+        pad = np.zeros((chunk, nx + 2), dtype=bool)
+        change = np.empty((chunk, nx + 1), dtype=bool)
+        parts = []
+        for r0 in range(0, rows.shape[0], chunk):
+            n = min(chunk, rows.shape[0] - r0)
+            pad[:n, 1:-1] = rows[r0:r0 + n]
+            np.not_equal(pad[:n, 1:], pad[:n, :-1], out=change[:n])
+            parts.append(np.flatnonzero(change[:n]) + r0 * (nx + 1))
+        edges = np.concatenate(parts)
+        del pad, change
         self.start, self.end = edges[0::2], edges[1::2]
         self.row = self.start // (nx + 1)
         self.x0 = self.start - self.row * (nx + 1)

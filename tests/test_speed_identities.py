@@ -173,3 +173,34 @@ def test_largest_component_on_runs_with_a_tie_takes_the_first():
     m[1, 0, 0] = True
     out = C.largest_component(m)
     assert np.count_nonzero(out) == 4 and out[0, 5, 5] and not out[2, 1, 1]
+
+
+@pytest.mark.parametrize("dtype", [np.int16, np.uint8])
+def test_windowed_tests_on_integers_equal_the_float_volume(dtype):
+    rng = np.random.default_rng(5)
+    info = np.iinfo(dtype)
+    raw = rng.integers(info.min, info.max, size=(4, 30, 40), endpoint=True).astype(dtype)
+    for window in ((-1000.0, 40.0), (0.5, 200.25), (float(info.min), float(info.max))):
+        w = np.subtract(raw, np.float32(window[0]), dtype=np.float32)
+        w *= np.float32(1.0 / (window[1] - window[0]))
+        for test in (lambda v: v >= np.float32(0.85), lambda v: (v < np.float32(0.85)) & (v > np.float32(0.4)),
+                     lambda v: v > np.float32(1e9), lambda v: v > np.float32(-1e9)):
+            got = C._windowed_test(raw, window, test)
+            assert got is not None and np.array_equal(got, test(w))
+    assert C._windowed_test(raw.astype(np.float32), (0.0, 1.0), lambda v: v > 0.5) is None
+    assert C._windowed_test(raw, (0.0, 100.0), lambda v: (v < 0.2) | (v > 0.8)) is None   # two ranges
+
+
+def test_clean_up_on_integers_equals_the_float_volume(phantom_seg, phantom):
+    """The clean-up of 16-bit intensities thresholds the integers (no float volume): the same mask and
+    statistics as the same values given as float32; with and without the noise's smoothing."""
+    mask = phantom_seg.probability > np.float32(0.5)
+    window = phantom_seg.meta["window"]
+    raw = np.rint(phantom.ct.data).astype(np.int16)
+    for noise in (None, 0.0, 0.2):
+        got, got_stats = C.clean_head_mask(mask.copy(), raw, window, phantom.ct.spacing, noise=noise)
+        ref, ref_stats = C.clean_head_mask(mask.copy(), raw.astype(np.float32), window, phantom.ct.spacing,
+                                           noise=noise)
+        assert np.array_equal(got, ref) and got_stats == ref_stats, noise
+        assert got_stats["cushion_voxels"] > 0
+    assert got_stats["smoothing_sigma"] > 0
