@@ -276,36 +276,76 @@ def _cushion_of_band(band: np.ndarray, spacing: Sequence[float], thickness_mm: f
     return _box_opening(band, size)
 
 
-def _windowed_test(raw: np.ndarray, window: tuple[float, float], test) -> np.ndarray | None:
-    """``test(windowed)`` for integer intensities of at most 16 bits without the float volume.
-
-    ``windowed`` is ``(raw - low) * (1 / (high - low))`` in float32, as the clean-up computes it;
-    ``test`` (a comparison of float32 values) is evaluated once per possible integer value. When
-    the values that pass form one range [a, b] (a threshold or a band: the windowing is monotone),
-    the result is ``a <= raw <= b`` on the integers, voxel for voxel what the float volume gives,
-    without its 4 bytes per voxel. None for other data types or other sets of values.
-    """
-    if raw.dtype.kind not in "iu" or raw.dtype.itemsize > 2:
-        return None
-    info = np.iinfo(raw.dtype)
-    values = np.arange(info.min, info.max + 1, dtype=np.int64).astype(raw.dtype)
+def _windowed(values: np.ndarray, window: tuple[float, float]) -> np.ndarray:
+    """The clean-up's windowed intensity ``(values - low) * (1 / (high - low))`` in float32."""
     low, high = window
-    windowed = np.subtract(values, np.float32(low), dtype=np.float32)
-    windowed *= np.float32(1.0 / (high - low))
-    passed = np.flatnonzero(test(windowed))
-    if passed.size == 0:
-        return np.zeros(raw.shape, dtype=bool)
-    first, last = int(passed[0]), int(passed[-1])
-    if last - first + 1 != passed.size:
+    out = np.subtract(values, np.float32(low), dtype=np.float32)
+    out *= np.float32(1.0 / (high - low))
+    return out
+
+
+def _first_passing(dtype: np.dtype, window: tuple[float, float], level: float, strict: bool):
+    """The smallest value v of ``dtype`` whose windowed intensity is >= ``level`` (> when ``strict``);
+    None when no value passes. The windowing is monotone (float32 rounding is), so the values that
+    pass are exactly those >= v: found among the 8/16-bit integers by tabulating them all, among the
+    float32 values by bisection on their order."""
+    level = np.float32(level)
+
+    def passes(v):
+        w = _windowed(np.asarray(v, dtype=dtype), window)
+        return (w > level) if strict else (w >= level)
+
+    if dtype.kind in "iu":
+        info = np.iinfo(dtype)
+        ok = np.flatnonzero(passes(np.arange(info.min, info.max + 1, dtype=np.int64).astype(dtype)))
+        return None if ok.size == 0 else dtype.type(info.min + int(ok[0]))
+    # float32: the finite values in order are the int32 keys k -> bits (k >= 0) or ~bits of -v (k < 0)
+    def value(k: int) -> np.float32:
+        bits = np.array(k if k >= 0 else -k, dtype=np.int32).view(np.float32)
+        return np.float32(bits if k >= 0 else -bits)
+
+    big = int(np.array(np.finfo(np.float32).max, dtype=np.float32).view(np.int32))
+    lo, hi = -big, big
+    if not passes(value(hi)):
+        return np.float32(np.inf) if passes(np.float32(np.inf)) else None
+    if passes(value(lo)):
+        return value(lo)
+    while hi - lo > 1:                                   # passes(value(hi)) and not passes(value(lo))
+        mid = (lo + hi) // 2
+        if passes(value(mid)):
+            hi = mid
+        else:
+            lo = mid
+    return value(hi)
+
+
+def _windowed_range(raw: np.ndarray, window: tuple[float, float], above: tuple[float, bool] | None,
+                    below: float | None) -> np.ndarray | None:
+    """``windowed >= above[0]`` (``>`` when ``above[1]``) and ``windowed < below`` without the float volume.
+
+    ``windowed`` is :func:`_windowed` of ``raw``, as the clean-up computes it; since the windowing is
+    monotone each bound is one comparison of the raw values with the first value that passes
+    (:func:`_first_passing`): voxel for voxel what the float volume gives, without its 4 bytes per
+    voxel and the time to fill them. For 8/16-bit integers and float32; None for other data types.
+    """
+    dtype = raw.dtype
+    if not ((dtype.kind in "iu" and dtype.itemsize <= 2) or dtype == np.float32):
         return None
-    if first == 0 and last == values.size - 1:
-        return np.ones(raw.shape, dtype=bool)
-    if first == 0:
-        return raw <= values[last]
-    if last == values.size - 1:
-        return raw >= values[first]
-    out = raw >= values[first]
-    out &= raw <= values[last]
+    out = None
+    if above is not None:
+        first = _first_passing(dtype, window, above[0], above[1])
+        if first is None:
+            return np.zeros(raw.shape, dtype=bool)
+        out = raw >= first
+    if below is not None:
+        first = _first_passing(dtype, window, below, False)  # the values below it are < below
+        if first is not None:
+            if out is None:
+                out = raw < first
+            else:
+                out &= raw < first
+        elif out is None:
+            out = ~np.isnan(raw) if dtype.kind == "f" else np.ones(raw.shape, dtype=bool)
     return out
 
 
@@ -478,8 +518,8 @@ def clean_head_mask(mask: np.ndarray, data: np.ndarray, window: tuple[float, flo
         noise = _noise_of_rows(sample)
     sigma = smoothing_sigma(noise)
     stats.update(noise=noise, smoothing_sigma=sigma)
-    tissue = None if sigma > 0 else _windowed_test(raw, window, lambda w: w >= np.float32(level))
-    if tissue is None:                                   # smoothed, or not 8/16-bit integers: the float volume
+    tissue = None if sigma > 0 else _windowed_range(raw, window, (level, False), None)
+    if tissue is None:                                   # smoothed, or another data type: the float volume
         smooth = np.subtract(raw, np.float32(low), dtype=np.float32)
         smooth *= scale
         if sigma > 0:
@@ -491,8 +531,7 @@ def clean_head_mask(mask: np.ndarray, data: np.ndarray, window: tuple[float, flo
     if cushion_level is not None:
         # heavier smoothing widens the skin's own intermediate rim: demand a correspondingly thicker layer
         thickness = cushion_mm + 2.0 * max(0.0, sigma - 0.5) * max(dz, dy, dx)
-        band = None if smooth is not None else _windowed_test(
-            raw, window, lambda w: (w < np.float32(level)) & (w > np.float32(CUSHION_LOW)))
+        band = None if smooth is not None else _windowed_range(raw, window, (CUSHION_LOW, True), level)
         if band is None:
             if smooth is None:
                 smooth = np.subtract(raw, np.float32(low), dtype=np.float32)

@@ -175,32 +175,49 @@ def test_largest_component_on_runs_with_a_tie_takes_the_first():
     assert np.count_nonzero(out) == 4 and out[0, 5, 5] and not out[2, 1, 1]
 
 
-@pytest.mark.parametrize("dtype", [np.int16, np.uint8])
-def test_windowed_tests_on_integers_equal_the_float_volume(dtype):
+@pytest.mark.parametrize("dtype", [np.int16, np.uint8, np.float32])
+def test_windowed_ranges_equal_the_float_volume(dtype):
+    """_windowed_range's comparisons of the raw values give the float volume's tests voxel for voxel."""
     rng = np.random.default_rng(5)
-    info = np.iinfo(dtype)
-    raw = rng.integers(info.min, info.max, size=(4, 30, 40), endpoint=True).astype(dtype)
-    for window in ((-1000.0, 40.0), (0.5, 200.25), (float(info.min), float(info.max))):
+    if dtype == np.float32:
+        raw = np.concatenate([rng.normal(0, 1500, 4000), rng.uniform(-1100, 200, 4000),
+                              [np.inf, -np.inf, np.nan, -0.0, 0.0, 3e38, -3e38]]).astype(np.float32)
+        # every float32 within a few ulps of the bounds' crossings
+        for window in ((-1000.0, 40.0), (0.5, 200.25)):
+            for level in (0.85, 0.4):
+                x = np.float32(window[0] + level * (window[1] - window[0]))
+                raw = np.concatenate([raw, x + np.arange(-40, 41, dtype=np.float32) * np.spacing(x)])
+        raw = raw.astype(np.float32)
+    else:
+        info = np.iinfo(dtype)
+        raw = rng.integers(info.min, info.max, size=8000, endpoint=True).astype(dtype)
+    raw = raw.reshape(1, 1, -1)
+    for window in ((-1000.0, 40.0), (0.5, 200.25), (-30000.0, 30000.0)):
         w = np.subtract(raw, np.float32(window[0]), dtype=np.float32)
         w *= np.float32(1.0 / (window[1] - window[0]))
-        for test in (lambda v: v >= np.float32(0.85), lambda v: (v < np.float32(0.85)) & (v > np.float32(0.4)),
-                     lambda v: v > np.float32(1e9), lambda v: v > np.float32(-1e9)):
-            got = C._windowed_test(raw, window, test)
-            assert got is not None and np.array_equal(got, test(w))
-    assert C._windowed_test(raw.astype(np.float32), (0.0, 1.0), lambda v: v > 0.5) is None
-    assert C._windowed_test(raw, (0.0, 100.0), lambda v: (v < 0.2) | (v > 0.8)) is None   # two ranges
+        for above, below, want in (((0.85, False), None, w >= np.float32(0.85)),
+                                   ((0.4, True), 0.85, (w > np.float32(0.4)) & (w < np.float32(0.85))),
+                                   ((1e9, False), None, w >= np.float32(1e9)),
+                                   (None, -1e9, w < np.float32(-1e9)), (None, 1e9, w < np.float32(1e9))):
+            got = C._windowed_range(raw, window, above, below)
+            assert np.array_equal(got, want), (window, above, below)
+        if window[0] == 0.5:                                 # not all on one side
+            assert 100 < np.count_nonzero(C._windowed_range(raw, window, (0.85, False), None)) < raw.size - 100
+    assert C._windowed_range(raw.astype(np.float64), (0.0, 1.0), (0.5, False), None) is None
 
 
-def test_clean_up_on_integers_equals_the_float_volume(phantom_seg, phantom):
-    """The clean-up of 16-bit intensities thresholds the integers (no float volume): the same mask and
-    statistics as the same values given as float32; with and without the noise's smoothing."""
+def test_clean_up_without_the_float_volume_equals_it(phantom_seg, phantom):
+    """The clean-up of 16-bit and float32 intensities thresholds the raw values (no float volume): the
+    same mask and statistics as float64 data, which takes the float volume; with and without the
+    noise's smoothing (which needs the float volume)."""
     mask = phantom_seg.probability > np.float32(0.5)
     window = phantom_seg.meta["window"]
     raw = np.rint(phantom.ct.data).astype(np.int16)
     for noise in (None, 0.0, 0.2):
-        got, got_stats = C.clean_head_mask(mask.copy(), raw, window, phantom.ct.spacing, noise=noise)
-        ref, ref_stats = C.clean_head_mask(mask.copy(), raw.astype(np.float32), window, phantom.ct.spacing,
-                                           noise=noise)
-        assert np.array_equal(got, ref) and got_stats == ref_stats, noise
-        assert got_stats["cushion_voxels"] > 0
+        for data in (raw, raw.astype(np.float32), phantom.ct.data.astype(np.float32)):
+            got, got_stats = C.clean_head_mask(mask.copy(), data, window, phantom.ct.spacing, noise=noise)
+            ref, ref_stats = C.clean_head_mask(mask.copy(), data.astype(np.float64), window, phantom.ct.spacing,
+                                               noise=noise)
+            assert np.array_equal(got, ref) and got_stats == ref_stats, (noise, data.dtype)
+            assert ref_stats["cushion_voxels"] > 0
     assert got_stats["smoothing_sigma"] > 0
