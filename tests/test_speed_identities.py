@@ -171,3 +171,86 @@ def test_approximation_change_reuses_the_tube_uv_map(monkeypatch):
         reference = head.surface(40, 60)
         assert np.array_equal(mesh.vertices, reference.vertices)
         assert np.abs(mesh.loop_uv() - reference.loop_uv()).max() < 1e-9
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_run_labels_equal_ndi_label(seed):
+    """The labelling on runs along x numbers, counts and boxes the components exactly as ndi.label."""
+    from pdehead_addon import run_labels as RL
+    rng = np.random.default_rng(seed)
+    shape = (int(rng.integers(1, 12)), int(rng.integers(2, 40)), int(rng.integers(2, 50)))
+    m = _blobs(shape, seed, float(rng.uniform(0.1, 0.4)), float(rng.uniform(0.6, 2.0)))
+    m[0, :, -1] = True                                       # runs that end at the row's end
+    ref, n = ndi.label(m)
+    got, n2, runs, run_labels = RL.label(m)
+    assert n > 1 and n2 == n and np.array_equal(got, ref)
+    assert runs.objects(run_labels, n) == ndi.find_objects(ref)
+    ref_in, n_in = ndi.label(m, structure=C._IN_SLICE)
+    got_in, n2_in, _, _ = RL.label(m, in_slice=True)
+    assert n2_in == n_in and np.array_equal(got_in, ref_in)
+    counts = np.bincount(ref.reshape(-1), minlength=n + 1)
+    counts[0] = 0
+    assert np.array_equal(RL.largest_component(m), ref == np.argmax(counts))
+    pick = rng.random(run_labels.size) < 0.5
+    for which in (None, pick, ~pick):                        # both ways of painting runs
+        want = np.zeros(m.size, dtype=bool)
+        want[runs.voxels(which)] = True
+        assert np.array_equal(runs.paint(which).reshape(-1), want)
+    assert np.array_equal(runs.paint(), m)
+
+
+def test_largest_component_on_runs_with_a_tie_takes_the_first():
+    m = np.zeros((3, 8, 9), dtype=bool)
+    m[2, 1:3, 1:3] = True                                    # later in raster order
+    m[0, 5:7, 5:7] = True                                    # first, same size
+    m[1, 0, 0] = True
+    out = C.largest_component(m)
+    assert np.count_nonzero(out) == 4 and out[0, 5, 5] and not out[2, 1, 1]
+
+
+@pytest.mark.parametrize("dtype", [np.int16, np.uint8, np.float32])
+def test_windowed_ranges_equal_the_float_volume(dtype):
+    """_windowed_range's comparisons of the raw values give the float volume's tests voxel for voxel."""
+    rng = np.random.default_rng(5)
+    if dtype == np.float32:
+        raw = np.concatenate([rng.normal(0, 1500, 4000), rng.uniform(-1100, 200, 4000),
+                              [np.inf, -np.inf, np.nan, -0.0, 0.0, 3e38, -3e38]]).astype(np.float32)
+        # every float32 within a few ulps of the bounds' crossings
+        for window in ((-1000.0, 40.0), (0.5, 200.25)):
+            for level in (0.85, 0.4):
+                x = np.float32(window[0] + level * (window[1] - window[0]))
+                raw = np.concatenate([raw, x + np.arange(-40, 41, dtype=np.float32) * np.spacing(x)])
+        raw = raw.astype(np.float32)
+    else:
+        info = np.iinfo(dtype)
+        raw = rng.integers(info.min, info.max, size=8000, endpoint=True).astype(dtype)
+    raw = raw.reshape(1, 1, -1)
+    for window in ((-1000.0, 40.0), (0.5, 200.25), (-30000.0, 30000.0)):
+        w = np.subtract(raw, np.float32(window[0]), dtype=np.float32)
+        w *= np.float32(1.0 / (window[1] - window[0]))
+        for above, below, want in (((0.85, False), None, w >= np.float32(0.85)),
+                                   ((0.4, True), 0.85, (w > np.float32(0.4)) & (w < np.float32(0.85))),
+                                   ((1e9, False), None, w >= np.float32(1e9)),
+                                   (None, -1e9, w < np.float32(-1e9)), (None, 1e9, w < np.float32(1e9))):
+            got = C._windowed_range(raw, window, above, below)
+            assert np.array_equal(got, want), (window, above, below)
+        if window[0] == 0.5:                                 # not all on one side
+            assert 100 < np.count_nonzero(C._windowed_range(raw, window, (0.85, False), None)) < raw.size - 100
+    assert C._windowed_range(raw.astype(np.float64), (0.0, 1.0), (0.5, False), None) is None
+
+
+def test_clean_up_without_the_float_volume_equals_it(phantom_seg, phantom):
+    """The clean-up of 16-bit and float32 intensities thresholds the raw values (no float volume): the
+    same mask and statistics as float64 data, which takes the float volume; with and without the
+    noise's smoothing (which needs the float volume)."""
+    mask = phantom_seg.probability > np.float32(0.5)
+    window = phantom_seg.meta["window"]
+    raw = np.rint(phantom.ct.data).astype(np.int16)
+    for noise in (None, 0.0, 0.2):
+        for data in (raw, raw.astype(np.float32), phantom.ct.data.astype(np.float32)):
+            got, got_stats = C.clean_head_mask(mask.copy(), data, window, phantom.ct.spacing, noise=noise)
+            ref, ref_stats = C.clean_head_mask(mask.copy(), data.astype(np.float64), window, phantom.ct.spacing,
+                                               noise=noise)
+            assert np.array_equal(got, ref) and got_stats == ref_stats, (noise, data.dtype)
+            assert ref_stats["cushion_voxels"] > 0
+    assert got_stats["smoothing_sigma"] > 0
