@@ -484,9 +484,19 @@ def w_field(head, grid, ct: CTVolume | None = None, directions: int = 4096,
             from scipy.ndimage import map_coordinates
             kk, jj2, ii2 = np.nonzero(inside_all)
             grid_vol = CTVolume(np.zeros((1, 1, 1), np.float32), spacing, origin, direction)
-            xyz = grid_vol.index_to_patient(np.stack([kk, jj2, ii2], axis=1).astype(np.float64))
-            idx = ct.patient_to_index(xyz)
-            vals = map_coordinates(ct.data, idx.T, order=1, mode="constant", cval=float(ct.data.min()))
+            # grid index -> CT index is affine: built row by row in place from its origin and the images of
+            # the unit steps (no (N, 3) stack through patient mm: ~0.3 s of CThead's 0.9 s w-field)
+            steps = ct.patient_to_index(grid_vol.index_to_patient(np.array(
+                [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], np.float64)))
+            base, unit = steps[0], steps[1:] - steps[0]
+            idx = np.empty((3, kk.size))
+            for c in range(3):                       # the three index coordinates, not a loop over voxels
+                row = idx[c]
+                np.multiply(kk, unit[0, c], out=row)
+                row += jj2 * unit[1, c]
+                row += ii2 * unit[2, c]
+                row += base[c]
+            vals = map_coordinates(ct.data, idx, order=1, mode="constant", cval=float(ct.data.min()))
             intensity[kk, jj2, ii2] = vals.astype(np.float32)
     meta = {"method": "scanline inside test + farthest crossing from the spine", "directions": int(directions),
             "section_samples": int(n_sec), "outside_w": OUTSIDE_W}

@@ -263,6 +263,22 @@ def test_w_field_voxel_size_grid_and_intensity_sampling(head):
     grid = CTVolume(np.zeros((1, 1, 1), np.float32), wf2.spacing, wf2.origin, wf2.direction)
     idx = lin.patient_to_index(grid.index_to_patient(np.stack([k, j, i], 1).astype(float)))
     assert np.allclose(wf2.intensity[k, j, i], 3 * idx[:, 0] + 2 * idx[:, 1] + idx[:, 2], atol=1e-2)
+    # ... also from a CT turned 30 degrees about z and tilted 10 about x (the index map's off-diagonal terms)
+    a, b = np.radians(30.0), np.radians(10.0)
+    turn = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    tilt = np.array([[1, 0, 0], [0, np.cos(b), -np.sin(b)], [0, np.sin(b), np.cos(b)]])
+    centre = lin.index_to_patient(np.array(lin.shape, float) / 2)
+    direction = tilt @ turn
+    origin = centre - CTVolume(lin.data, lin.spacing, np.zeros(3), direction).index_to_patient(
+        np.array(lin.shape, float) / 2)
+    turned = CTVolume(lin.data, lin.spacing, origin, direction)
+    wf3 = w_field(head, 1.5, ct=turned)
+    k, j, i = np.nonzero(wf3.w <= 1)
+    idx = turned.patient_to_index(grid.index_to_patient(np.stack([k, j, i], 1).astype(float)))
+    within = np.all((idx >= 0) & (idx <= np.array(lin.shape) - 1), axis=1)
+    assert within.mean() > 0.5
+    assert np.allclose(wf3.intensity[k, j, i][within], (3 * idx[:, 0] + 2 * idx[:, 1] + idx[:, 2])[within],
+                       atol=1e-2)
     vol_ct = wf.to_ctvolume("alpha")
     assert vol_ct.data.max() <= 0.9 + 1e-6 and vol_ct.spacing == wf.spacing
 
