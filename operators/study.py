@@ -504,7 +504,9 @@ def step_solid(coll, live: bool = False) -> str:
                           f"the file): {exc}").replace("; nothing was changed", "")
             if ct is not None:
                 window = ct_window(coll, ct)
-                table = ct_table(coll, head, ct)
+                with state.Timer() as t:
+                    table = ct_table(coll, head, ct)
+                state.record_timing(coll, "ct_table", t.seconds)   # issue 20: with the w-field <= 1 s
                 _COLOURS_PENDING.pop(s.study_id, None)
     elif live and defer_ct_colours() and cache.ct is not None:
         # issue 21: while a slider moves, the cut faces come from the (u, v, w) table in 128-pixel tiles
