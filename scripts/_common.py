@@ -60,6 +60,16 @@ def data_path(*parts: str) -> Path:
     return path
 
 
+def load_note(load, cores) -> str:
+    """How busy the machine was, for a benchmark's heading: 'quiet' when the 1-minute load average at the
+    start was below the core count (the benchmark's own processes come after), else shared."""
+    if not load:
+        return "load not recorded"
+    if load[0] < (cores or 1):
+        return "the machine otherwise quiet"
+    return "**the machine was shared with other jobs**: the wall clock is inflated, CPU time much less"
+
+
 def median(xs) -> float:
     return float(statistics.median(xs)) if xs else float("nan")
 

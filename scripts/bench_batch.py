@@ -72,6 +72,8 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
 
     results: dict[str, list[dict]] = {"serial": [], "1 worker": [], "2 workers": []}
+    load_start = os.getloadavg()[0]
+    date = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     with tempfile.TemporaryDirectory(prefix="pdehead-bench-batch-") as tmp:
         tmp = Path(tmp)
         t0 = time.perf_counter()
@@ -102,7 +104,8 @@ def main(argv=None) -> int:
         "scaling_2_over_1": round(rate["2 workers"] / rate["1 worker"], 2),
         "median_study_s": round(study_s, 2), "scheduler_overhead_s_per_study": round(overhead, 3),
         "serial_overhead_s_per_study": round(serial_overhead, 3),
-        "peak_study_mb": round(peak, 1),
+        "peak_study_mb": round(peak, 1), "date": date,
+        "load_average": [round(load_start, 2), round(os.getloadavg()[0], 2)],
     }
     print(json.dumps(summary, indent=2))
     if not args.no_write:
@@ -111,7 +114,24 @@ def main(argv=None) -> int:
     return 0
 
 
+#: One clinical study's cost for the arithmetic on paper: the command line's whole process on issue 20's
+#: 512 x 512 x 300 scan (Blender's start and the volume included, more than a batch worker does), CPU seconds
+#: and peak RSS, from docs/benchmarks.md's clinical-scan section of 2026-12-03 (20.6 s CPU, 2.01 GB).
+CLINICAL_STUDY_CPU_S = 21.0
+CLINICAL_STUDY_GB = 2.0
+CLINICAL_SOURCE = "the command line's whole process on issue 20's clinical scan, docs/benchmarks.md, 2026-12-03"
+
+
+def _load_text(s: dict) -> str:
+    load = s.get("load_average")
+    if not load:
+        return "load not recorded"
+    return (f"1-minute load average {load[0]:.1f} at the start and {load[1]:.1f} at the end, the benchmark's own "
+            "processes included")
+
+
 def markdown(s: dict) -> str:
+    T, GB = CLINICAL_STUDY_CPU_S, CLINICAL_STUDY_GB
     n = s["studies"]
     per = s["median_study_s"]
     over = max(s["scheduler_overhead_s_per_study"], 0.0)
@@ -121,7 +141,7 @@ def markdown(s: dict) -> str:
         "",
         f"{n} generated phantom studies ({' x '.join(map(str, s['shape']))} voxels, DICOM, {mb:.1f} MB each"
         f"{', with --skull' if s['skull'] else ''}), `scripts/pdehead_batch.py run`, median of {s['repeats']} runs "
-        f"on this {s['cores']}-core machine (shared with other work while measured: the rates are lower bounds).",
+        f"on this {s['cores']}-core machine ({s.get('date', 'date not recorded')}; {_load_text(s)}).",
         "",
         "| run | wall (s) | studies / min |",
         "|---|---|---|",
@@ -139,15 +159,16 @@ def markdown(s: dict) -> str:
         f"- Peak resident memory of one study's process: {s['peak_study_mb']:.0f} MB.",
         "",
         "**1,000 studies on N workers, on paper.** A study of a clinical head CT (512 x 512 x 300, about 160 MB "
-        "of DICOM) takes T = 40 s on one core today (docs/benchmarks.md, issue 20's clinical scan), and about 3 GB. "
+        f"of DICOM) takes T = {T:g} s of CPU on one core today ({CLINICAL_SOURCE}), and at most about {GB:g} GB. "
         f"With the scheduler's {over:.2f} s per study, N workers finish 1,000 studies in "
-        f"1000 x (T + {over:.2f} s) / N: N = 2: {1000 * (40 + over) / 2 / 3600:.1f} h; N = 16: "
-        f"{1000 * (40 + over) / 16 / 60:.0f} min ({16 * 60 / (40 + over):.0f} studies/min); N = 64: "
-        f"{1000 * (40 + over) / 64 / 60:.0f} min. What bounds it:",
-        "- the per-study time, while N x 3 GB fits the workers' memory (a 16-worker node needs about 48 GB);",
+        f"1000 x (T + {over:.2f} s) / N: N = 2: {1000 * (T + over) / 2 / 3600:.1f} h; N = 16: "
+        f"{1000 * (T + over) / 16 / 60:.0f} min ({16 * 60 / (T + over):.0f} studies/min); N = 64: "
+        f"{1000 * (T + over) / 64 / 60:.0f} min. What bounds it:",
+        f"- the per-study time, while N x {GB:g} GB fits the workers' memory (a 16-worker node needs about "
+        f"{16 * GB:g} GB);",
         "- reading the inputs: 1,000 x 160 MB = 160 GB; at 1 GB/s from shared storage that is 160 s of reading in "
         "all, but the rate of N workers is capped at (1 GB/s / 160 MB) x 60 = 375 studies/min, reached at about "
-        "N = 375 x 40 / 60 = 250 workers;",
+        f"N = 375 x {T:g} / 60 = {375 * T / 60:.0f} workers;",
         f"- the scheduler: at {max(over, 0.01):.2f} s of overhead per study the studies themselves dominate; "
         "Dask's scheduler handles thousands of tasks per second, and each study is one task with a small record.",
     ]
