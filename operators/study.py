@@ -22,7 +22,7 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from ..pdehead_addon import PDEHeadError, max_patches
+from ..pdehead_addon import PDEHeadError, patches_for_scan
 from . import cutter, objects, prefs, scene, state, volume
 from .state import suspended_updates
 
@@ -403,12 +403,10 @@ def step_boundaries(coll) -> None:
     tolerance = selection_tolerance(s)
     if tolerance and not s.align_curves:
         raise PDEHeadError("a tolerance chooses the curves automatically, which needs Align Curves")
-    limit = max_patches(cache.seg)
-    if not tolerance and 1 <= limit < s.patches:  # short scans (e.g. the tilted GE slab) cannot give 3t+1 slices
-        message = (f"the scan has usable head outlines for at most {limit} patches "
-                   f"({3 * limit + 1} slices): patches reduced from {s.patches} to {limit}")
+    patches, message = (s.patches, None) if tolerance else patches_for_scan(cache.seg, s.patches)
+    if message:  # short scans (e.g. the tilted GE slab) cannot give 3t+1 slices
         with suspended_updates():
-            s.patches = limit
+            s.patches = patches
         state.add_warnings(s, [message])
     import warnings
     from ..pdehead_addon import SelectionWarning

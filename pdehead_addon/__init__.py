@@ -27,7 +27,7 @@ from .dicom_export import write_dicom_series, write_phantom_series
 from .segmentation import Segmentation, segment_head
 from .metrics import jaccard, per_slice_jaccard, reference_head_mask
 from .boundary_set import BoundarySet, knots_from_heights
-from .boundaries import (extract_boundaries, max_patches, boundary_ring, contour_from_mask, parameter_offsets, scan_edge_slices,
+from .boundaries import (extract_boundaries, max_patches, patches_for_scan, boundary_ring, contour_from_mask, parameter_offsets, scan_edge_slices,
                          register_selection, SELECTION_STRATEGIES)
 from . import slice_selection
 from .slice_selection import SelectionWarning, select_for_tolerance

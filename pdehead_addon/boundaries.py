@@ -845,6 +845,18 @@ def max_patches(seg, min_area_fraction: float = MIN_AREA_FRACTION) -> int:
     return max((len(usable) - 1) // 3, 0)
 
 
+def patches_for_scan(seg, patches: int) -> tuple[int, str | None]:
+    """The patches a scan can give: ``patches`` when it has 3t+1 usable slices for them, else the largest t
+    it has (:func:`max_patches`, e.g. the tilted GE slab: 28 usable slices, t <= 9), with the message that
+    says so. One rule for the add-on and the batch. With not even t = 1 usable, ``patches`` unchanged and
+    no message: :func:`extract_boundaries` then says why it cannot."""
+    limit = max_patches(seg)
+    if 1 <= limit < patches:
+        return limit, (f"the scan has usable head outlines for at most {limit} patches "
+                       f"({3 * limit + 1} slices): patches reduced from {patches} to {limit}")
+    return patches, None
+
+
 def extract_boundaries(seg, patches: int = 10, samples: int = 256, selection: Selection = "uniform",
                        min_area_fraction: float = MIN_AREA_FRACTION, sigma: float = 0.7,
                        level_field: str = "envelope", band: int = 1, parameterisation: str = "angular",

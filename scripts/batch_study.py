@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 #: Bumped when what a study writes changes, so that a re-run redoes studies made by an older runner.
-RUNNER_VERSION = 2
+RUNNER_VERSION = 3
 #: Default per-study limits: wall time (s) and resident memory of the study's process (MB). A study of a
 #: 512 x 512 x 300 head CT takes about 40 s and 3 GB; these leave room for larger scans on a slow machine.
 DEFAULT_TIME_LIMIT_S = 900.0
@@ -149,7 +149,7 @@ def run_study(input_path: str, out_dir: str, settings: dict, time_limit_s: float
     }
     meta = {"software": _software(), "settings": settings, "input": str(input_path),
             "fingerprint": fingerprint, "series": child.get("series", {}), "subject": child.get("subject", {}),
-            "limits": {"time_s": time_limit_s, "memory_mb": memory_limit_mb}}
+            "patches_used": child.get("patches"), "limits": {"time_s": time_limit_s, "memory_mb": memory_limit_mb}}
     if error:  # nothing half-written: a failed study keeps only its log, settings and error
         for f in work.iterdir():
             if f.name not in (LOG_FILE,):
@@ -304,8 +304,13 @@ def _child(input_path: str, work: Path, settings: dict) -> int:
         ct = step("import", lambda: eng.load_ct(input_path))
         state["series"], state["subject"] = _series_and_subject(ct, input_path)
         seg = step("segment", lambda: eng.segment_head(ct))
+        # a short scan gives the patches it can, as in the add-on, said among the study's warnings
+        patches, message = eng.patches_for_scan(seg, settings["patches"])
+        if message:
+            caught.append(f"boundaries: {message}")
+        state["patches"] = patches
         bset = step("boundaries", lambda: eng.extract_boundaries(
-            seg, patches=settings["patches"], samples=settings["samples"], selection=settings["selection"]))
+            seg, patches=patches, samples=settings["samples"], selection=settings["selection"]))
         step("save", lambda: eng.save_boundaries(bset, work / BOUNDARY_FILE))
         if settings.get("skull"):
             state["n_landmarks"] = step("skull", lambda: _skull_outputs(eng, ct, seg, bset, work, settings))

@@ -534,3 +534,19 @@ def test_max_patches_is_the_largest_t_the_named_selections_accept(ge_seg, cthead
         with pytest.raises(BoundaryError, match="use fewer patches"):
             extract_boundaries(seg, patches=t + 1, samples=64)
     assert max_patches(ge_seg) < 10 <= max_patches(cthead_seg)  # the tilted GE slab is short
+
+
+def test_patches_for_scan_gives_a_short_scan_the_patches_it_has(phantom_seg):
+    """One rule for the add-on and the batch: a scan with fewer than 3t+1 usable slices gets the largest t it
+    has, with the message that says so (the batch failed the GE slab, 28 usable slices, at t = 10 before)."""
+    from pdehead_addon import max_patches, patches_for_scan
+    limit = max_patches(phantom_seg)
+    assert limit >= 4
+    assert patches_for_scan(phantom_seg, limit) == (limit, None)
+    assert patches_for_scan(phantom_seg, limit - 2) == (limit - 2, None)
+    patches, message = patches_for_scan(phantom_seg, limit + 5)
+    assert patches == limit
+    assert f"patches reduced from {limit + 5} to {limit}" in message and f"({3 * limit + 1} slices)" in message
+    extract_boundaries(phantom_seg, patches=patches)          # the reduced count is extractable
+    with pytest.raises(BoundaryError):
+        extract_boundaries(phantom_seg, patches=limit + 5)
