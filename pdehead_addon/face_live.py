@@ -145,7 +145,7 @@ class LiveFace:
     def _grid(self, head) -> np.ndarray:
         """``head._grid(u, nv)`` (the tube's points, (nu - 1, nv, 3)) with each cubic row's four basis
         weights gathered instead of a dense rows x (spans x 4) product."""
-        from .pde_surface import _fold, ring_points
+        from .pde_surface import fold_harmonics, ring_points
 
         u, nv = self._u, self.nv
         H, nb = head.harmonics, nv // 2 + 1
@@ -172,7 +172,7 @@ class LiveFace:
             spec[rows, :, :H] = (amp[..., :3] + 1j * amp[..., 3:]).transpose(0, 2, 1)
         if not np.all(cubic):
             other = np.flatnonzero(~cubic)
-            spec[other] = _fold(head._amplitudes(u[other]).transpose(0, 2, 1), nv)
+            spec[other] = fold_harmonics(head._amplitudes(u[other]).transpose(0, 2, 1), nv)
         return ring_points(spec, nv)
 
     def _positions(self, tips: np.ndarray) -> np.ndarray | None:
@@ -194,9 +194,9 @@ class LiveFace:
     def _cap_vertices(self, ring: np.ndarray, centre: np.ndarray) -> np.ndarray | None:
         """The neck cap's new points (:class:`.surface_mesh.DiscCap`'s ``vertices`` for the model's cap
         reference), without its triangles: what depends on the counts alone is kept from the first call."""
-        from .surface_mesh import CAP_EDGE, DiscCap, _star_shaped
+        from .surface_mesh import CAP_EDGE, DiscCap, star_shaped_ring
 
-        if not _star_shaped(ring, centre)[0]:
+        if not star_shaped_ring(ring, centre)[0]:
             return None
         fixed = self.__dict__.get("_cap_fixed")
         if fixed is None:                                  # the plan's counts and sample fractions: once

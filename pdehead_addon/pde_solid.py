@@ -17,7 +17,7 @@ import numpy as np
 from .ct_volume import CTVolume
 from .errors import PDEError, report_progress
 from .mesh import Mesh
-from .surface_mesh import _check_count
+from .surface_mesh import check_count
 
 #: Value of the w-field at voxels outside the solid (any value > 1 means outside).
 OUTSIDE_W = 2.0
@@ -106,14 +106,14 @@ def solid_mesh(head, nu: int, nv: int, nw: int, u_range: tuple[float, float] = (
         the spine become triangles, so the mesh stays a valid closed 2-manifold
         without zero-area faces.
     """
-    nu, nw = _check_count(nu, "nu", 2), _check_count(nw, "nw", 2)
+    nu, nw = check_count(nu, "nu", 2), check_count(nw, "nw", 2)
     u0, u1 = _range(u_range, "u_range", 0.0, 1.0)
     v0, v1 = _range(v_range, "v_range", -TWO_PI, 2 * TWO_PI)
     w0, w1 = _range(w_range, "w_range", 0.0, 1.0)
     if v1 - v0 > TWO_PI + 1e-9:
         raise PDEError(f"v_range spans more than 2 pi: ({v0:g}, {v1:g})")
     full = v1 - v0 >= TWO_PI - 1e-9
-    nv = _check_count(nv, "nv", 3 if full else 2)
+    nv = check_count(nv, "nv", 3 if full else 2)
     u = np.linspace(u0, u1, nu)
     w = np.linspace(w0, w1, nw)
     v = v0 + TWO_PI * np.arange(nv) / nv if full else np.linspace(v0, v1, nv)
@@ -121,7 +121,7 @@ def solid_mesh(head, nu: int, nv: int, nw: int, u_range: tuple[float, float] = (
     density = head.v_density() if uniform is not None and hasattr(head, "v_density") else None
     if density is not None:             # the surface's columns (PDEHead.v_columns): its skin, its grid
         v, uniform = head.v_columns(nv), None
-    surf = _surface_grid_cached(head, u, v, uniform)
+    surf = surface_grid_cached(head, u, v, uniform)
     spine = head.spine(u)                                                    # (nu, 3)
     crown = getattr(head, "vertex", None) is not None and u1 == 1.0
     quads, tris, quad_c, tri_c, iu, iv, iw = _solid_topology(nu, nv, nw, full, w0 == 0.0, head.orientation > 0,
@@ -135,7 +135,7 @@ def solid_mesh(head, nu: int, nv: int, nw: int, u_range: tuple[float, float] = (
                 {"u": u[iu], "v": v[iv], "w": w[iw]})
 
 
-def _surface_grid_cached(head, u: np.ndarray, v: np.ndarray, nv_uniform: int | None) -> np.ndarray:
+def surface_grid_cached(head, u: np.ndarray, v: np.ndarray, nv_uniform: int | None) -> np.ndarray:
     """The surface grid X(u_i, v_j): the head's cached :meth:`~.pde_surface.PDEHead.grid` (shared with
     its surface mesh) when it has one, else its ``_grid``."""
     if hasattr(head, "grid"):

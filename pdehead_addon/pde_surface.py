@@ -103,8 +103,8 @@ from .errors import PDEError
 from .mesh import Mesh
 from .pde_basis import basis, basis_grid, curve_harmonics, inverse_4x4, small_matmul
 from .pde_spline import c2_spans, dome_height, fade_dome_amplitudes, smoothing_spline_values
-# (signed_volume and _tube_mesh are also imported from here by scripts/bench_pde.py and scripts/bench_smooth.py)
-from .surface_mesh import (_check_count, _fan_caps, _fan_indices, _tube_mesh, column_density, column_v,
+# (signed_volume and tube_mesh are also imported from here by scripts/bench_pde.py and scripts/bench_smooth.py)
+from .surface_mesh import (check_count, fan_caps, fan_indices, tube_mesh, column_density, column_v,
                            disc_caps, signed_volume)
 from .parameterisation import align_parameterisation  # noqa: F401  (re-export; solve_pde(align=True))
 
@@ -605,7 +605,7 @@ class PDEHead:
             spec[rows] = (folded[..., :3] + 1j * folded[..., 3:]).transpose(0, 2, 1)
         if not np.all(cubic):
             rows = np.flatnonzero(~cubic)
-            spec[rows] = _fold(self._amplitudes(u[rows]).transpose(0, 2, 1), nv)
+            spec[rows] = fold_harmonics(self._amplitudes(u[rows]).transpose(0, 2, 1), nv)
         return ring_points(spec, nv)
 
     def grid(self, u: np.ndarray, nv: int | None = None, v: np.ndarray | None = None) -> np.ndarray:
@@ -668,7 +668,7 @@ class PDEHead:
         if (np.all(area > 0) or np.all(area < 0)) and (np.all(dz > 0) or np.all(dz < 0)):
             return 1 if area[0] * dz[0] > 0 else -1
         rings = c[:, ::max(1, self.bset.samples // 64)]
-        mesh = _tube_mesh(rings, orientation=1, caps=_fan_caps(rings, rings[[0, -1]].mean(axis=1), fan_only=True))
+        mesh = tube_mesh(rings, orientation=1, caps=fan_caps(rings, rings[[0, -1]].mean(axis=1), fan_only=True))
         return 1 if signed_volume(mesh) >= 0 else -1
 
     def surface(self, nu: int, nv: int, caps: bool = False, uv: bool = True) -> Mesh:
@@ -698,7 +698,7 @@ class PDEHead:
             (:meth:`uv_layout`: the tube, the crown's dome and the cap, none mirrored),
             vertex attributes ``u`` and ``v`` (cap points: the end's u and their v).
         """
-        nu, nv = _check_count(nu, "nu", 2), _check_count(nv, "nv", 3)
+        nu, nv = check_count(nu, "nu", 2), check_count(nv, "nv", 3)
         u = np.linspace(0.0, 1.0, nu)
         ends = self.spine(np.array([0.0, 1.0]))
         density = self.v_density()
@@ -708,12 +708,12 @@ class PDEHead:
             # the solid's grid too (it has the pole row; pde_solid takes the same columns)
             pts = (self.grid(u, nv) if density is None else self.grid(u, v=self.v_columns(nv)))[:-1]
             bottom = disc_caps(pts, ends, ends=(0,), reference=self.cap_reference(nu, nv))[0] if caps else None
-            top = (np.asarray(self.vertex, float), _fan_indices(nv))
-            return _tube_mesh(pts, self.orientation, [bottom, top], uv=uv, u=u[:-1], top_u=1.0,
+            top = (np.asarray(self.vertex, float), fan_indices(nv))
+            return tube_mesh(pts, self.orientation, [bottom, top], uv=uv, u=u[:-1], top_u=1.0,
                               uv_layout=self.uv_layout() if uv else None, v_density=density)
         pts = self.grid(u, nv) if density is None else self.grid(u, v=self.v_columns(nv))
         cap_tris = disc_caps(pts, ends, reference=self.cap_reference(nu, nv)) if caps else None
-        return _tube_mesh(pts, self.orientation, cap_tris, uv=uv, u=u, uv_layout=self.uv_layout() if uv else None,
+        return tube_mesh(pts, self.orientation, cap_tris, uv=uv, u=u, uv_layout=self.uv_layout() if uv else None,
                           v_density=density)
 
     def v_density(self) -> np.ndarray | None:
@@ -742,7 +742,7 @@ class PDEHead:
             c = self.bset.curves
             perimeter = np.linalg.norm(np.roll(c, -1, axis=1) - c, axis=2).sum(axis=1)
             radius = np.linalg.norm(c - c.mean(axis=1, keepdims=True), axis=2).max(axis=1)
-            span = float(_curve_positions(self.bset)[-1])
+            span = float(curve_positions(self.bset)[-1])
             if self.vertex is not None:
                 span += float(np.linalg.norm(c[-1] - c[-1].mean(axis=0), axis=1).mean())
             density = self.v_density()
@@ -775,7 +775,7 @@ class PDEHead:
         def compute():
             c = self.bset.curves
             perimeter = np.linalg.norm(np.roll(c, -1, axis=1) - c, axis=2).sum(axis=1)
-            steps = np.diff(_curve_positions(self.bset))
+            steps = np.diff(curve_positions(self.bset))
             length = float(steps.sum())
             tube = float((0.5 * (perimeter[1:] + perimeter[:-1]) * steps).sum())
 
@@ -834,7 +834,7 @@ class PDEHead:
                 f"smoothing={np.round(self.smoothing, 4).tolist()}, approximation_mm={self.approximation_mm:g})")
 
 
-def _fold(a: np.ndarray, nv: int) -> np.ndarray:
+def fold_harmonics(a: np.ndarray, nv: int) -> np.ndarray:
     """Complex harmonics (..., H) folded onto the nv//2 + 1 bins of an nv-point real signal (exact at the samples)."""
     H = a.shape[-1]
     nb = nv // 2 + 1
@@ -943,7 +943,7 @@ def solve_pde(bset: BoundarySet, smoothing: float | Sequence[float] | None = Non
     return head
 
 
-def _curve_positions(bset: BoundarySet) -> np.ndarray:
+def curve_positions(bset: BoundarySet) -> np.ndarray:
     """Positions (mm) of the curves along the surface: cumulative mean distance between equal-v points
     of consecutive curves (chord length). The C2 spline's parameter: near the crown, where the
     rings shrink fast over little height, the spans are as long as the surface is, so neither the
@@ -962,7 +962,7 @@ def default_approximation(bset: BoundarySet) -> float:
     curves: keep what they say). Thick or tilted slices step from plane to plane by
     more than the resampled grid's step: there at least ``APPROXIMATION_PER_THICKNESS``
     times the source slices' thickness along z (``thickness / cos(tilt)``), up to one
-    gap. The length is measured along the surface (:func:`_curve_positions`).
+    gap. The length is measured along the surface (:func:`curve_positions`).
     """
     meta = bset.meta
     spacing = meta.get("source_slice_step_mm") or (meta.get("spacing") or [0.0])[0]
@@ -1067,7 +1067,7 @@ def solve_with_controls(bset: BoundarySet, continuity: str | None = None, smooth
 def _solve_c2(bset: BoundarySet, smoothing, n_modes: int, approximation_mm, dome: bool,
               keep: int | None = None) -> PDEHead:
     spec, planar = _harmonics(bset, keep)                                     # (m, H, 3)
-    z = _curve_positions(bset)
+    z = curve_positions(bset)
     default_a, max_a = smoothing_range(bset)
     if smoothing is None:
         a = default_a

@@ -881,7 +881,7 @@ class Phantom:
         orbitale), so the phantom is already in the Frankfurt orientation. Landmarks whose rule
         depends on other estimates (canines, molars, rami, mid-points) are not listed.
         """
-        return _bone_landmarks()
+        return phantom_bone_landmarks()
 
     def labels_at(self, points_xyz: np.ndarray) -> np.ndarray:
         """Tissue label (uint8, see :data:`LABEL_NAMES`) at patient LPS points (..., 3)."""
@@ -1045,7 +1045,7 @@ def _first_bone(start, direction, length: float = 150.0, step: float = 0.02) -> 
     return pts[hit[0]]
 
 
-def _bone_landmarks() -> dict[str, np.ndarray]:
+def phantom_bone_landmarks() -> dict[str, np.ndarray]:
     f = GEOMETRY["facial_skeleton"]
     (ox, oz), (orx, orz) = f["orbit"]
     (my, mz), mrad, _ = f["meatus"]

@@ -16,7 +16,7 @@ Proxy of the surface (fast, vectorised)
     The default surface (:func:`~.pde_surface.solve_pde`, ``continuity="c2"``,
     a = 0) is, per harmonic and hence per sample point, the natural cubic spline
     through the chosen curves over their chord-length positions
-    (``_curve_positions``: cumulative mean distance of equal-v points), after the
+    (``curve_positions``: cumulative mean distance of equal-v points), after the
     Reinsch smoothing of length :func:`~.pde_surface.default_approximation`
     along it, closed by the crown's pole (:func:`~.pde_spline.dome_height`). The
     proxy builds exactly that spline as a matrix in point space (the pole's

@@ -32,7 +32,7 @@ __all__ = ["signed_volume"]
 TWO_PI = 2.0 * np.pi
 
 
-def _check_count(n, name: str, minimum: int) -> int:
+def check_count(n, name: str, minimum: int) -> int:
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or int(n) < minimum:
         raise PDEError(f"{name} must be an integer >= {minimum}, got {n!r}")
     return int(n)
@@ -67,7 +67,7 @@ def _tube_uv(nu: int, nv: int, orientation: int) -> np.ndarray:
     return uv if orientation > 0 else np.ascontiguousarray(uv[:, ::-1])
 
 
-def _star_shaped(ring: np.ndarray, centre: np.ndarray) -> tuple[bool, np.ndarray, np.ndarray]:
+def star_shaped_ring(ring: np.ndarray, centre: np.ndarray) -> tuple[bool, np.ndarray, np.ndarray]:
     """Whether a closed ring winds once monotonically around centre (in its own plane)."""
     d = ring - centre
     normal = np.cross(d, np.roll(d, -1, axis=0)).sum(axis=0)                 # Newell normal * 2
@@ -157,7 +157,7 @@ def _polygon_triangles(p: np.ndarray) -> np.ndarray:
     return _ear_clip(p)
 
 
-def _fan_caps(pts: np.ndarray, spine_ends: np.ndarray, fan_only: bool = False, ends: tuple[int, ...] = (0, 1)
+def fan_caps(pts: np.ndarray, spine_ends: np.ndarray, fan_only: bool = False, ends: tuple[int, ...] = (0, 1)
               ) -> list[tuple[np.ndarray | None, np.ndarray]]:
     """Cap triangulations of the first and last ring: (centre or None, triangles in ring indices).
 
@@ -170,9 +170,9 @@ def _fan_caps(pts: np.ndarray, spine_ends: np.ndarray, fan_only: bool = False, e
     for end in ends:
         ring, centre = (pts[0], spine_ends[0]) if end == 0 else (pts[-1], spine_ends[1])
         n = len(ring)
-        star, p, _ = (True, None, None) if fan_only else _star_shaped(ring, centre)
+        star, p, _ = (True, None, None) if fan_only else star_shaped_ring(ring, centre)
         if star:
-            caps.append((centre, _fan_indices(n)))
+            caps.append((centre, fan_indices(n)))
             continue
         ccw = (p[:, 0] * np.roll(p[:, 1], -1) - p[:, 1] * np.roll(p[:, 0], -1)).sum() > 0
         tri = _polygon_triangles(p if ccw else p[::-1])
@@ -182,7 +182,7 @@ def _fan_caps(pts: np.ndarray, spine_ends: np.ndarray, fan_only: bool = False, e
     return caps
 
 
-def _fan_indices(n: int) -> np.ndarray:
+def fan_indices(n: int) -> np.ndarray:
     """A fan from a centre (index -1) to a ring of n points, counter-clockwise like the ring."""
     j = np.arange(n)
     return np.stack([np.full(n, -1), j, (j + 1) % n], axis=1)
@@ -296,7 +296,7 @@ CAP_EDGE = 1.2
 def disc_caps(pts: np.ndarray, spine_ends: np.ndarray, ends: tuple[int, ...] = (0, 1),
               reference: dict | None = None) -> list:
     """Caps of the first / last ring: a :class:`DiscCap` where the ring is star-shaped around its spine
-    point, else the polygon triangulation of :func:`_fan_caps`. The step is :data:`CAP_EDGE` tube edges.
+    point, else the polygon triangulation of :func:`fan_caps`. The step is :data:`CAP_EDGE` tube edges.
 
     ``reference`` (:meth:`.pde_surface.PDEHead.cap_reference`): the tube's edge and each end ring's
     perimeter and radius from the boundary curves, so the caps' vertex counts depend on nu and nv only.
@@ -310,9 +310,9 @@ def disc_caps(pts: np.ndarray, spine_ends: np.ndarray, ends: tuple[int, ...] = (
     out = []
     for end in ends:
         ring, centre = (pts[0], spine_ends[0]) if end == 0 else (pts[-1], spine_ends[1])
-        star, _, _ = _star_shaped(ring, centre)
+        star, _, _ = star_shaped_ring(ring, centre)
         plan = None if reference is None else reference["ends"][end]
-        out.append(DiscCap(ring, centre, edge, plan) if star else _fan_caps(pts, spine_ends, ends=(end,))[0])
+        out.append(DiscCap(ring, centre, edge, plan) if star else fan_caps(pts, spine_ends, ends=(end,))[0])
     return out
 
 
@@ -691,10 +691,10 @@ def _corner_grid_index(nu: int, nv: int, orientation: int) -> np.ndarray:
     return idx
 
 
-def _tube_mesh(pts: np.ndarray, orientation: int, caps=None, uv: bool = False,
+def tube_mesh(pts: np.ndarray, orientation: int, caps=None, uv: bool = False,
                u: np.ndarray | None = None, top_u: float = 1.0, uv_layout: dict | None = None,
                v_density: np.ndarray | None = None) -> Mesh:
-    """Tube mesh from a (nu, nv, 3) grid, stitched along v; optional caps (:func:`disc_caps`, :func:`_fan_caps`).
+    """Tube mesh from a (nu, nv, 3) grid, stitched along v; optional caps (:func:`disc_caps`, :func:`fan_caps`).
 
     ``caps`` is a (bottom, top) pair, either of which may be None (left open). With
     ``u`` (the rows' parameters) the vertex attributes ``u`` and ``v`` are set (cap
