@@ -16,10 +16,12 @@ PER_SLICE = dict(level_field="mask", parameterisation="aligned", star_shaped=Fal
 
 def extract_boundaries(seg, **kwargs):
     return _extract_default(seg, **{**PER_SLICE, **kwargs})
-from pdehead_addon.boundaries import (
-    _assign_monotone, boundary_ring, contour_from_mask, outer_contour, outer_region, parameter_offsets,
-    polygon_centroid, register_selection, resample_closed_curve, self_intersections, signed_area,
-    usable_slices, scan_edge_slices, SELECTION_STRATEGIES,
+from pdehead_addon.curve_sampling import (
+    contour_from_mask, parameter_offsets, polygon_centroid, resample_closed_curve, self_intersections, signed_area,
+)
+from pdehead_addon.slice_outlines import boundary_ring, outer_contour, outer_region
+from pdehead_addon.slice_selection import (
+    _assign_monotone, register_selection, usable_slices, scan_edge_slices, SELECTION_STRATEGIES,
 )
 
 SPACING = (2.0, 0.8, 0.9)          # dz, dy, dx: anisotropic on purpose
@@ -467,7 +469,7 @@ def test_smooth_closed_curve_removes_pixel_ripple_keeps_shape():
 
 
 def test_close_region_bridges_narrow_inlets_only():
-    from pdehead_addon.boundaries import close_region
+    from pdehead_addon.slice_outlines import close_region
     yy, xx = np.mgrid[:80, :80]
     disk = (yy - 40) ** 2 + (xx - 40) ** 2 <= 30 ** 2
     notched = disk & ~((np.abs(yy - 40) <= 1) & (xx > 50))        # 3 px wide, 20 px deep slit
