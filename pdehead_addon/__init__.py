@@ -10,7 +10,8 @@ pipeline of the paper "A PDE-based head visualization method with CT data"
 3. :mod:`.boundaries`    - eq. 22 boundary curves, 3t+1 of them as a :class:`BoundarySet`
    (:mod:`.slice_selection`: the choice of the slices, automatic or by a named strategy, the paper's
    open problem; :mod:`.slice_outlines`: each slice's outline; :mod:`.curve_sampling`: the curves' samples)
-4. :mod:`.pde_surface`   - t Bloor-Wilson PDE patches (eq. 1-13)
+4. :mod:`.pde_surface`   - t Bloor-Wilson PDE patches (eq. 1-13), solved into a :class:`PDEHead` (:mod:`.pde_head`;
+                           the smoothing a of the paper's patches: :mod:`.pde_smoothing`)
 5. :mod:`.pde_solid`     - the solid (eq. 23), its w-field and eq. 24 opacity
 6. :mod:`.storage`       - the compact boundary file (section 5.2)
 
@@ -33,7 +34,9 @@ from .slice_outlines import boundary_ring
 from .curve_sampling import contour_from_mask, parameter_offsets
 from . import slice_selection
 from .slice_selection import SelectionWarning, select_for_tolerance, scan_edge_slices, register_selection, SELECTION_STRATEGIES
-from .pde_surface import solve_pde, PDEHead, smoothing_bounds, control_ranges, solve_with_controls
+from .pde_surface import solve_pde, control_ranges, solve_with_controls
+from .pde_head import PDEHead
+from .pde_smoothing import smoothing_bounds
 from .surface_quality import surface_quality
 from .parameterisation import align_parameterisation, smooth_closed_curve, correspondence_error
 from .pde_solid import alpha_from_w, w_field, solid_mesh, WField, OUTSIDE_W

@@ -145,7 +145,7 @@ class LiveFace:
     def _grid(self, head) -> np.ndarray:
         """``head._grid(u, nv)`` (the tube's points, (nu - 1, nv, 3)) with each cubic row's four basis
         weights gathered instead of a dense rows x (spans x 4) product."""
-        from .pde_surface import fold_harmonics, ring_points
+        from .pde_head import fold_harmonics, ring_points
 
         u, nv = self._u, self.nv
         H, nb = head.harmonics, nv // 2 + 1
