@@ -152,7 +152,7 @@ class LiveFace:
         self._spine0 = None
         density = self.model.__dict__.get("_v_density", [None])[0]
         if density is not None:                                   # columns closer where an outline runs radially
-            from .surface_mesh import column_v
+            from .surface_columns import column_v
             return head._grid(u, None, v=column_v(density, nv))
         if H > (nv + 1) // 2:                                     # harmonics folded: the head's own
             return head._grid(u, nv)

@@ -14,8 +14,8 @@ from .mesh import Mesh
 from .pde_basis import basis, basis_grid, small_matmul
 from .pde_smoothing import lebesgue_constant
 from .pde_spline import dome_height, fade_dome_amplitudes
-from .surface_mesh import (check_count, fan_caps, fan_indices, tube_mesh, column_density, column_v,
-                           disc_caps, signed_volume)
+from .surface_columns import column_density, column_v
+from .surface_mesh import check_count, disc_caps, fan_caps, fan_indices, signed_volume, tube_mesh
 
 __all__ = ["PDEHead", "curve_positions", "derived_once", "fold_harmonics", "ring_points", "TWO_PI"]
 
@@ -395,7 +395,7 @@ class PDEHead:
 
     def v_density(self) -> np.ndarray | None:
         """How densely the surface's columns sample each of the curves' v steps
-        (:func:`.surface_mesh.column_density` of the end curves the caps close: the bottom one, and the top
+        (:func:`.surface_columns.column_density` of the end curves the caps close: the bottom one, and the top
         one without a dome), None for equal steps. From the boundary curves alone: one per study.
 
         Only the capped ends: the same density from every curve also evened CThead's ears, but it moved
@@ -406,7 +406,7 @@ class PDEHead:
         return derived_once(self.bset, f"v_density{len(ends)}", lambda: column_density(self.bset.curves[ends]))
 
     def v_columns(self, nv: int) -> np.ndarray:
-        """The v (radians) of the surface's nv columns (:func:`.surface_mesh.column_v`): ``2 pi j / nv``
+        """The v (radians) of the surface's nv columns (:func:`.surface_columns.column_v`): ``2 pi j / nv``
         where the end curve's samples are about evenly spaced, closer where its outline runs nearly
         radially (issue 21: GE's neck ring had 8.4 mm edges, 4.2 x the tube's mean edge)."""
         return column_v(self.v_density(), int(nv))
@@ -441,13 +441,13 @@ class PDEHead:
         return {"edge": edge, "ends": end_rings}
 
     def uv_layout(self) -> dict:
-        """The surface's UV islands (:func:`.surface_mesh.uv_islands`), from the boundary curves alone, so
+        """The surface's UV islands (:func:`.surface_uv_map.uv_islands`), from the boundary curves alone, so
         the UVs are one function of (u, v) for a study: nu, nv and the shape sliders do not move a
         painted texture. ``u_top``: where the dome starts in u; ``aspect``: the tube island's height over
-        its width; ``tube_map``: :func:`.surface_mesh.uv_tube_map` of the curves (U, V in mm at the
-        samples of :func:`.surface_mesh.uv_map_grid`, rows ``map_u``) and ``tube_box`` its extent; with a
-        single curve ``shear`` (:func:`.surface_mesh.uv_shear`) instead."""
-        from .surface_mesh import uv_map_grid, uv_shear, uv_tube_map
+        its width; ``tube_map``: :func:`.surface_uv_map.uv_tube_map` of the curves (U, V in mm at the
+        samples of :func:`.surface_uv_map.uv_map_grid`, rows ``map_u``) and ``tube_box`` its extent; with a
+        single curve ``shear`` (:func:`.surface_uv_map.uv_shear`) instead."""
+        from .surface_uv_map import uv_map_grid, uv_shear, uv_tube_map
 
         def compute():
             c = self.bset.curves

@@ -136,7 +136,7 @@ def solid_mesh(head, nu: int, nv: int, nw: int, u_range: tuple[float, float] = (
 
 
 def surface_grid_cached(head, u: np.ndarray, v: np.ndarray, nv_uniform: int | None) -> np.ndarray:
-    """The surface grid X(u_i, v_j): the head's cached :meth:`~.pde_surface.PDEHead.grid` (shared with
+    """The surface grid X(u_i, v_j): the head's cached :meth:`~.pde_head.PDEHead.grid` (shared with
     its surface mesh) when it has one, else its ``_grid``."""
     if hasattr(head, "grid"):
         return head.grid(u, nv_uniform) if nv_uniform is not None else head.grid(u, v=v)
