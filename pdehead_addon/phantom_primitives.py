@@ -144,7 +144,8 @@ class Ellipsoid:
         self.centre, self.radii = np.asarray(centre, float), tuple(float(r) for r in radii)
         self.mirror, self.axes, self.half = mirror, axes, half
 
-    def sd(self, p) -> np.ndarray:
+    def local(self, p):
+        """The points in the primitive's local axes (u, v, w) about its centre (``|x|`` if mirrored)."""
         dx = (p.ax if self.mirror else p.x) - self.centre[0]
         dy, dz = p.y - self.centre[1], p.z - self.centre[2]
         if self.axes is not None:
@@ -152,6 +153,10 @@ class Ellipsoid:
             dx, dy, dz = (a[0, 0] * dx + a[0, 1] * dy + a[0, 2] * dz,
                           a[1, 0] * dx + a[1, 1] * dy + a[1, 2] * dz,
                           a[2, 0] * dx + a[2, 1] * dy + a[2, 2] * dz)
+        return dx, dy, dz
+
+    def sd(self, p) -> np.ndarray:
+        dx, dy, dz = self.local(p)
         d = ellipsoid_sd(dx, dy, dz, self.radii)
         return np.maximum(d, -dy) if self.half else d  # half: keep local v >= 0 only
 
@@ -166,13 +171,7 @@ class Plate(Ellipsoid):
     its rim does not taper, so any sampling finer than its thickness keeps it connected."""
 
     def sd(self, p) -> np.ndarray:
-        dx = (p.ax if self.mirror else p.x) - self.centre[0]
-        dy, dz = p.y - self.centre[1], p.z - self.centre[2]
-        if self.axes is not None:
-            a = self.axes
-            dx, dy, dz = (a[0, 0] * dx + a[0, 1] * dy + a[0, 2] * dz,
-                          a[1, 0] * dx + a[1, 1] * dy + a[1, 2] * dz,
-                          a[2, 0] * dx + a[2, 1] * dy + a[2, 2] * dz)
+        dx, dy, dz = self.local(p)
         d = smax(ellipse_sd(dy, dz, self.radii[1:]), np.abs(dx) - self.radii[0], 1.5)
         return np.maximum(d, -dy) if self.half else d
 
