@@ -552,3 +552,27 @@ def test_patches_for_scan_gives_a_short_scan_the_patches_it_has(phantom_seg):
     extract_boundaries(phantom_seg, patches=patches)          # the reduced count is extractable
     with pytest.raises(BoundaryError):
         extract_boundaries(phantom_seg, patches=limit + 5)
+
+
+def test_options_object_gives_what_the_keyword_arguments_give():
+    """extract_boundaries(seg, BoundaryOptions(...)) == extract_boundaries(seg, **same fields); keywords override
+    the options' fields; anything else than a BoundaryOptions in second place, or an unknown name, is refused."""
+    from dataclasses import FrozenInstanceError
+
+    from pdehead_addon import BoundaryOptions
+    seg = make_seg(ellipse_stack(nz=30))
+    kw = dict(PER_SLICE, patches=2, samples=48, selection="shape-change")
+    by_keywords = _extract_default(seg, **kw)
+    by_options = _extract_default(seg, BoundaryOptions(**kw))
+    assert np.array_equal(by_keywords.curves, by_options.curves)
+    assert np.array_equal(by_keywords.slice_indices, by_options.slice_indices)
+    assert by_keywords.meta == by_options.meta
+    overridden = _extract_default(seg, BoundaryOptions(**kw), samples=64)
+    assert overridden.curves.shape == (7, 64, 3)
+    assert BoundaryOptions().parameterisation == "angular" and BoundaryOptions().patches == 10
+    with pytest.raises(FrozenInstanceError):
+        BoundaryOptions().patches = 3
+    with pytest.raises(TypeError, match="BoundaryOptions"):
+        _extract_default(seg, 3)
+    with pytest.raises(TypeError):
+        _extract_default(seg, no_such_option=1)
