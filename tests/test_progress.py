@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from pdehead_addon import Cancelled, extract_boundaries, segment_head
-from pdehead_addon.pde_solid import SolidCTTable, w_field
+from pdehead_addon.pde_solid import w_field
+from pdehead_addon.solid_ct_table import SolidCTTable
 from pdehead_addon.pde_surface import solve_pde
 
 
