@@ -14,7 +14,7 @@ import numpy as np
 from scipy import ndimage as ndi
 
 from . import run_labels
-from .binary_morphology import _Packed, run_steps as _run_steps  # noqa: F401 (re-exported)
+from .binary_morphology import run_steps as _run_steps
 from .errors import SegmentationError
 
 
