@@ -117,15 +117,17 @@ def auto_window(data: np.ndarray, max_samples: int = 1_000_000, bins: int = 256)
     """
     data = np.asarray(data)
     if data.ndim == 3 and min(data.shape) >= 2:
-        nz, ny, nx = (n - n % 2 for n in data.shape)
-        block = data[:nz, :ny, :nx]
-        sample = (block[0::2, 0::2, 0::2].astype(np.float32) + block[1::2, 0::2, 0::2] + block[0::2, 1::2, 0::2]
-                  + block[0::2, 0::2, 1::2] + block[1::2, 1::2, 0::2] + block[1::2, 0::2, 1::2]
-                  + block[0::2, 1::2, 1::2] + block[1::2, 1::2, 1::2]) * np.float32(0.125)
+        # every step-th block mean (flat order), computed for those blocks only: the same numbers as
+        # taking every step-th of all the block means, for a fraction of the time on large scans
+        blocks = tuple(n // 2 for n in data.shape)
+        size = blocks[0] * blocks[1] * blocks[2]
+        z, y, x = (2 * c for c in np.unravel_index(np.arange(0, size, max(1, size // max_samples)), blocks))
+        sample = (data[z, y, x].astype(np.float32) + data[z + 1, y, x] + data[z, y + 1, x]
+                  + data[z, y, x + 1] + data[z + 1, y + 1, x] + data[z + 1, y, x + 1]
+                  + data[z, y + 1, x + 1] + data[z + 1, y + 1, x + 1]) * np.float32(0.125)
     else:
-        sample = data.astype(np.float32)
-    sample = sample.reshape(-1)
-    sample = sample[:: max(1, sample.size // max_samples)]
+        sample = data.astype(np.float32).reshape(-1)
+        sample = sample[:: max(1, sample.size // max_samples)]
     sample = sample[np.isfinite(sample)]
     if sample.size == 0:
         raise SegmentationError("the volume has no finite intensities")
@@ -259,8 +261,8 @@ def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: flo
         seg = _segment_slices(ct, img, spacing, params, clean_kw, [int(k) for k in slices], threads)
         return _check_result(seg, spacing, seg_warnings)
     res, info = solve_pyramid(img, spacing, lam, theta, tau, levels_mm, level_iterations, iterations, inner,
-                               tolerance, threads, progress=scaled_progress(progress, 0.02, 0.8))
-    del img
+                               tolerance, threads, progress=scaled_progress(progress, 0.02, 0.8), own_img=True)
+    del img  # q may live in its buffer now (own_img)
     q = res.pop("q")
     res.pop("sig", None)  # the dual of an uncropped fine level: three volumes not needed in the clean-up
     stats: dict[str, Any] = {}
