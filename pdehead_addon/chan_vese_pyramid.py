@@ -245,6 +245,9 @@ UNDECIDED_Q = 0.02
 FINE_BAND_MARGIN = 0
 #: The band's sweep is split over the solver's threads in parts of at least this many voxels.
 BAND_PART_VOXELS = 1_000_000
+#: Blocks per chunk of the band's sweep (:class:`_BandSweep`): 1024 blocks of 48 voxels keep a chunk's
+#: arrays (about 2 MB) in cache.
+BAND_CHUNK_BLOCKS = 1024
 
 
 #: Also put in the band every block whose full-resolution intensities straddle the fine level's
@@ -472,8 +475,11 @@ class _BandSweep:
     """One outer iteration of eq. 20-21 on the band's compact vectors (:class:`_BandLayout`).
 
     Warm-started from the coarse q and s (s/h rescaled to the fine step; 0 at the grid's last index,
-    eq. 21).  The element-wise phases run on ranges of the vectors, one per thread (numpy releases the
-    GIL); the sums of eq. 17 are taken on the whole vectors: the same numbers as one thread.
+    eq. 21).  The vectors are swept in chunks of :data:`BAND_CHUNK_BLOCKS` blocks, small enough that
+    a chunk's dozen arrays stay in cache through the chain of element-wise operations: first t on
+    every chunk, then per chunk the q step, its sums for eq. 17 (float64) and the dual step.  The
+    chunks are split over the threads (numpy releases the GIL); the sums are added chunk by chunk in
+    order, so the numbers do not depend on the thread count.
     """
 
     def __init__(self, lay: _BandLayout, img: np.ndarray, q_coarse: np.ndarray, sig_coarse, spacing,
@@ -502,13 +508,11 @@ class _BandSweep:
         self.weights = tuple(np.float32(1.0 / float(h) ** 2) for h in spacing)
         self.t_pad = np.zeros(nt + per, np.float32)      # t and room for the shifted reads past the band's end
         self.t = self.t_pad[:nt]
-        self.w = np.empty(nb, np.float32)
-        self.n = np.empty(nb, np.float32)
-        self.g = [np.empty(nb, np.float32) for _ in range(3)]
+        self.chunk = max(1, int(BAND_CHUNK_BLOCKS))
         self.parts = parts = max(1, min(int(threads), nb // BAND_PART_VOXELS or 1))
-        # whole blocks per part (the faces are views of whole blocks)
-        self.t_cuts = np.linspace(0, lay.n_t, parts + 1).round().astype(np.int64)
-        self.b_cuts = np.linspace(0, lay.n_band, parts + 1).round().astype(np.int64)
+        size = self.chunk * per
+        self.scratch = [dict(w=np.empty(size, np.float32), n=np.empty(size, np.float32),
+                             g=[np.empty(size, np.float32) for _ in range(3)]) for _ in range(parts)]
         self.pool = ThreadPoolExecutor(parts) if parts > 1 else None
 
     def close(self) -> None:
@@ -516,30 +520,31 @@ class _BandSweep:
             self.pool.shutdown()
             self.pool = None
 
-    def run(self, phase, *args) -> None:
+    def run(self, phase, n_blocks: int, *args) -> None:
+        """``phase(part, b0, b1, chunk index, *args)`` on every chunk of blocks ``:n_blocks``, the
+        chunks split in whole runs over the threads."""
+        chunks = -(-int(n_blocks) // self.chunk)
+        cuts = np.linspace(0, chunks, self.parts + 1).round().astype(int)
+
+        def part(k: int) -> None:
+            for c in range(int(cuts[k]), int(cuts[k + 1])):
+                phase(k, c * self.chunk, min((c + 1) * self.chunk, int(n_blocks)), c, *args)
         if self.pool is None:
-            phase(0, *args)
+            part(0)
         else:
-            list(self.pool.map(lambda k: phase(k, *args), range(self.parts)))
+            list(self.pool.map(part, range(self.parts)))
 
     def step(self, lam: float, c1: float, c2: float) -> tuple[float, float, float]:
         """eq. 20 with (c1, c2) and one eq. 21 step: ``(sum (dq theta)^2 / theta^2, sum q, sum I q)`` of the band."""
-        self.run(self.phase_t)
-        self.run(self.phase_q, lam * 2.0 * (c2 - c1), lam * (c1 * c1 - c2 * c2))
-        # sums in float64 (np.vdot of float32 accumulates in float32: 1e-3 off on this many terms)
-        n = self.n
-        np.multiply(n, n, out=n)
-        d = float(n.sum(dtype=np.float64))
-        sum_q = -self.theta * float(self.w.sum(dtype=np.float64))
-        np.multiply(self.band_img, self.w, out=n)
-        sum_iq = -self.theta * float(n.sum(dtype=np.float64))
-        self.run(self.phase_s)
-        return d, sum_q, sum_iq
+        self.run(self.phase_t, self.lay.n_t)
+        sums = np.zeros((-(-self.lay.n_band // self.chunk), 3))
+        self.run(self.phase_qs, self.lay.n_band, lam * 2.0 * (c2 - c1), lam * (c1 * c1 - c2 * c2), sums)
+        d, sum_w, sum_iw = (math.fsum(col) for col in sums.T)
+        return d, -self.theta * sum_w, -self.theta * sum_iw
 
-    def phase_t(self, k: int) -> None:
-        """t = div s - q/theta on band and ring (div = -grad^T: s[i] - s[i - e_a]), entries of part k."""
+    def phase_t(self, k: int, b0: int, b1: int, c: int) -> None:
+        """t = div s - q/theta on band and ring (div = -grad^T: s[i] - s[i - e_a]), blocks b0..b1."""
         t, sig, lay = self.t, self.sig, self.lay
-        b0, b1 = int(self.t_cuts[k]), int(self.t_cuts[k + 1])
         lo, hi = b0 * lay.per, b1 * lay.per
         tr = t[lo:hi]
         np.add(self.neg_q[lo:hi], sig[0][lo:hi], out=tr)
@@ -556,25 +561,28 @@ class _BandSweep:
             kept -= sig[ax][lay.back_nbr[ax][b0 * m:b1 * m]].reshape(kept.shape)
             face[...] = kept
 
-    def phase_q(self, k: int, lam_alpha: float, lam_beta: float) -> None:
-        """eq. 20 on the band: neg_q = clip(t + lam r, -1/theta, 0) into w; n = w - the old neg_q."""
-        lo, hi = int(self.b_cuts[k]) * self.lay.per, int(self.b_cuts[k + 1]) * self.lay.per
-        wr, nr = self.w[lo:hi], self.n[lo:hi]
-        np.multiply(self.band_img[lo:hi], np.float32(lam_alpha), out=wr)
-        wr += self.t[lo:hi]
+    def phase_qs(self, k: int, b0: int, b1: int, c: int, lam_alpha: float, lam_beta: float,
+                 sums: np.ndarray) -> None:
+        """Blocks b0..b1 of the band: eq. 20 (neg_q = clip(t + lam r, -1/theta, 0)), the chunk's sums
+        of (dq)^2, q and I q (``sums[c]``, float64, in units of neg_q), then eq. 21 from t."""
+        t, sig, weights, lay = self.t, self.sig, self.weights, self.lay
+        lo, hi = b0 * lay.per, b1 * lay.per
+        size = hi - lo
+        buf = self.scratch[k]
+        wr, nr = buf["w"][:size], buf["n"][:size]
+        gr = [ga[:size] for ga in buf["g"]]
+        tb, nq, im = t[lo:hi], self.neg_q[lo:hi], self.band_img[lo:hi]
+        np.multiply(im, np.float32(lam_alpha), out=wr)
+        wr += tb
         wr += np.float32(lam_beta)
         np.clip(wr, np.float32(-1.0 / self.theta), np.float32(0.0), out=wr)
-        np.subtract(wr, self.neg_q[lo:hi], out=nr)
-
-    def phase_s(self, k: int) -> None:
-        """neg_q = w, then eq. 21 on the band from t, entries of part k."""
-        t, g, sig, weights, lay = self.t, self.g, self.sig, self.weights, self.lay
-        b0, b1 = int(self.b_cuts[k]), int(self.b_cuts[k + 1])
-        lo, hi = b0 * lay.per, b1 * lay.per
-        self.neg_q[lo:hi] = self.w[lo:hi]
-        tb = t[lo:hi]
-        wr, nr = self.w[lo:hi], self.n[lo:hi]
-        gr = [ga[lo:hi] for ga in g]
+        np.subtract(wr, nq, out=nr)
+        np.multiply(nr, nr, out=nr)
+        sums[c, 0] = nr.sum(dtype=np.float64)
+        sums[c, 1] = wr.sum(dtype=np.float64)
+        np.multiply(im, wr, out=nr)
+        sums[c, 2] = nr.sum(dtype=np.float64)
+        nq[...] = wr
         for ax in range(3):
             st = lay.ostrides[ax]
             m = lay.per // lay.fac[ax]
