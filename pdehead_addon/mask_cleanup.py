@@ -176,9 +176,15 @@ def fill_cavities(mask: np.ndarray, spacing_yx: Sequence[float], radius_mm: floa
     slice (a superset of the 3-D holes).
     """
     closed = close_disk(mask, spacing_yx, radius_mm)
-    cavities = fill_holes_per_slice(closed) & ~closed
-    seals = closed & ~mask & dilate_disk(cavities, spacing_yx, radius_mm)
-    return fill_holes_per_slice(mask | cavities | seals)
+    cavities = fill_holes_per_slice(closed)
+    np.greater(cavities, closed, out=cavities)                   # filled & ~closed (in place: fewer passes)
+    seals = dilate_disk(cavities, spacing_yx, radius_mm)
+    np.greater(closed, mask, out=closed)                         # closed & ~mask
+    seals &= closed
+    del closed
+    seals |= cavities
+    seals |= mask
+    return fill_holes_per_slice(seals)
 
 
 def _bounding_box(mask: np.ndarray, margin: Sequence[int]) -> tuple[slice, ...] | None:
@@ -345,6 +351,24 @@ def _windowed_range(raw: np.ndarray, window: tuple[float, float], above: tuple[f
     dtype = raw.dtype
     if not ((dtype.kind in "iu" and dtype.itemsize <= 2) or dtype == np.float32):
         return None
+    if raw.ndim == 3 and raw.size >= PARALLEL_VOXELS and THREADS > 1 and raw.shape[0] >= THREADS:
+        # large volumes: slabs of slices in threads (element-wise: the same result)
+        out = np.empty(raw.shape, dtype=bool)
+        cuts = np.linspace(0, raw.shape[0], THREADS + 1).round().astype(int)
+
+        def slab(k: int) -> None:
+            a, b = int(cuts[k]), int(cuts[k + 1])
+            out[a:b] = _windowed_range_serial(raw[a:b], window, above, below)
+        with ThreadPoolExecutor(THREADS) as pool:
+            list(pool.map(slab, range(THREADS)))
+        return out
+    return _windowed_range_serial(raw, window, above, below)
+
+
+def _windowed_range_serial(raw: np.ndarray, window: tuple[float, float], above: tuple[float, bool] | None,
+                           below: float | None) -> np.ndarray:
+    """:func:`_windowed_range` in the calling thread (``raw`` of a supported data type)."""
+    dtype = raw.dtype
     out = None
     if above is not None:
         first = _first_passing(dtype, window, above[0], above[1])
