@@ -636,8 +636,8 @@ def cut_at_neck(mask: np.ndarray, spacing: Sequence[float], head_height_mm: floa
     A head-and-neck scan reaches the shoulders, which join the neck in the mask; the
     PDE head (and its boundary curves) must end at the neck. The head's widest slice
     is looked for in the top ``head_height_mm`` of the mask (the widest level, at the
-    ears, lies 90-130 mm below the vertex; the shoulders 200 mm or more). Going down from it the cross-section shrinks to the neck; the
-    trunk starts at the first slice whose area exceeds ``area_jump`` times the
+    ears, lies 90-130 mm below the vertex; the shoulders 200 mm or more). Going down
+    from it the cross-section shrinks to the neck; the trunk starts at the first slice whose area exceeds ``area_jump`` times the
     smallest area above it and which is wider than the head. The mask is cut below
     the neck: the lowest slice between the head's widest slice and the trunk whose
     area is within ``neck_margin`` of that smallest area. Scans without shoulders are
