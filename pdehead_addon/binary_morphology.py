@@ -122,20 +122,27 @@ def run_steps(mask: np.ndarray, plan: Sequence[tuple[Sequence[tuple[int, ...]], 
     shape = mask.shape
     volume = mask if mask.ndim == 3 else mask.reshape((1,) + shape)
     in_slice = all(len(o) == 2 or int(o[0]) == 0 for offsets, _ in plan for o in offsets)
-    nz = volume.shape[0]
-    parts = min(THREADS, nz) if in_slice and volume.size >= PARALLEL_VOXELS else 1
-    if parts <= 1:
+    if not in_slice or volume.size < PARALLEL_VOXELS or THREADS < 2 or volume.shape[0] < 2:
         return _run_slab(volume, plan).reshape(shape)
-    cuts = np.linspace(0, nz, parts + 1).round().astype(int)
     out = np.empty(volume.shape, dtype=bool)
 
-    def slab(k: int) -> None:
-        a, b = int(cuts[k]), int(cuts[k + 1])
+    def slab(a: int, b: int) -> None:
         out[a:b] = _run_slab(volume[a:b], plan)
 
-    with ThreadPoolExecutor(parts) as pool:
-        list(pool.map(slab, range(parts)))
+    in_slabs(volume.shape[0], slab)
     return out.reshape(shape)
+
+
+def in_slabs(n: int, work, parts: int | None = None) -> None:
+    """``work(a, b)`` on ``parts`` (default :data:`THREADS`) consecutive ranges of ``range(n)``, one
+    per thread (numpy releases the GIL in its loops); the first exception is raised."""
+    parts = max(1, min(THREADS if parts is None else int(parts), int(n)))
+    cuts = np.linspace(0, n, parts + 1).round().astype(int)
+    if parts == 1:
+        work(0, int(n))
+        return
+    with ThreadPoolExecutor(parts) as pool:
+        list(pool.map(lambda k: work(int(cuts[k]), int(cuts[k + 1])), range(parts)))
 
 
 def _run_slab(volume: np.ndarray, plan) -> np.ndarray:

@@ -12,6 +12,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from .binary_morphology import in_slabs
 from .chan_vese import chan_vese_soft, region_means, tau_bound
 
 
@@ -31,13 +32,15 @@ def _by_block_slabs(reduce, img: np.ndarray, factors: Sequence[int], threads: in
     slabs of block rows, one per thread, stacked."""
     fz = int(factors[0])
     cz = img.shape[0] // fz
-    parts = max(1, min(int(threads), cz)) if img.size >= PARALLEL_VOXELS else 1
-    if parts == 1:
+    if img.size < PARALLEL_VOXELS or threads < 2 or cz < 2:
         return reduce(img, factors, *args)
-    cuts = np.linspace(0, cz, parts + 1).round().astype(int)
-    with ThreadPoolExecutor(parts) as pool:
-        pieces = list(pool.map(lambda k: reduce(img[cuts[k] * fz:cuts[k + 1] * fz], factors, *args), range(parts)))
-    return np.concatenate(pieces, axis=0)
+    pieces = {}
+
+    def slab(a: int, b: int) -> None:
+        pieces[a] = reduce(img[a * fz:b * fz], factors, *args)
+
+    in_slabs(cz, slab, threads)
+    return np.concatenate([pieces[a] for a in sorted(pieces)], axis=0)
 
 
 def _block_mean(img: np.ndarray, factors: Sequence[int], threads: int = 1) -> np.ndarray:

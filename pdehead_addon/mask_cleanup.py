@@ -8,14 +8,14 @@ the shoulders.  In-slice disk morphology with radii in mm, numpy only.
 from __future__ import annotations
 
 import math
-from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Sequence
 
 import numpy as np
 from scipy import ndimage as ndi
 
 from . import run_labels
-from .binary_morphology import PARALLEL_VOXELS, THREADS, run_steps as _run_steps
+from .binary_morphology import PARALLEL_VOXELS, THREADS, in_slabs
+from .binary_morphology import run_steps as _run_steps
 from .errors import SegmentationError
 
 
@@ -154,14 +154,11 @@ def fill_holes_per_slice(mask: np.ndarray) -> np.ndarray:
         return run_labels.fill_holes_per_slice(mask)
     # large volumes: two slabs of slices in threads (the slices are independent: the same result)
     out = np.empty(mask.shape, dtype=bool)
-    cuts = np.linspace(0, nz, THREADS + 1).round().astype(int)
 
-    def slab(k: int) -> None:
-        a, b = int(cuts[k]), int(cuts[k + 1])
+    def slab(a: int, b: int) -> None:
         out[a:b] = run_labels.fill_holes_per_slice(mask[a:b])
 
-    with ThreadPoolExecutor(THREADS) as pool:
-        list(pool.map(slab, range(THREADS)))
+    in_slabs(nz, slab)
     return out
 
 
@@ -354,13 +351,11 @@ def _windowed_range(raw: np.ndarray, window: tuple[float, float], above: tuple[f
     if raw.ndim == 3 and raw.size >= PARALLEL_VOXELS and THREADS > 1 and raw.shape[0] >= THREADS:
         # large volumes: slabs of slices in threads (element-wise: the same result)
         out = np.empty(raw.shape, dtype=bool)
-        cuts = np.linspace(0, raw.shape[0], THREADS + 1).round().astype(int)
 
-        def slab(k: int) -> None:
-            a, b = int(cuts[k]), int(cuts[k + 1])
+        def slab(a: int, b: int) -> None:
             out[a:b] = _windowed_range_serial(raw[a:b], window, above, below)
-        with ThreadPoolExecutor(THREADS) as pool:
-            list(pool.map(slab, range(THREADS)))
+
+        in_slabs(raw.shape[0], slab)
         return out
     return _windowed_range_serial(raw, window, above, below)
 
@@ -637,7 +632,8 @@ def cut_at_neck(mask: np.ndarray, spacing: Sequence[float], head_height_mm: floa
     PDE head (and its boundary curves) must end at the neck. The head's widest slice
     is looked for in the top ``head_height_mm`` of the mask (the widest level, at the
     ears, lies 90-130 mm below the vertex; the shoulders 200 mm or more). Going down
-    from it the cross-section shrinks to the neck; the trunk starts at the first slice whose area exceeds ``area_jump`` times the
+    from it the cross-section shrinks to the neck; the trunk starts at the first slice
+    whose area exceeds ``area_jump`` times the
     smallest area above it and which is wider than the head. The mask is cut below
     the neck: the lowest slice between the head's widest slice and the trunk whose
     area is within ``neck_margin`` of that smallest area. Scans without shoulders are

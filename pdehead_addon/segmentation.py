@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import math
 import os
-from concurrent.futures import ThreadPoolExecutor
 import warnings
 from dataclasses import dataclass, field
 from typing import Any, Sequence
@@ -27,7 +26,7 @@ import numpy as np
 from scipy import ndimage as ndi
 
 from . import input_checks
-from .binary_morphology import PARALLEL_VOXELS, THREADS
+from .binary_morphology import PARALLEL_VOXELS, THREADS, in_slabs
 from .chan_vese import chan_vese_soft, divergence, gradient, tau_bound
 from .chan_vese_pyramid import solve_pyramid
 from .ct_volume import CTVolume, apply_window
@@ -163,11 +162,11 @@ def window_intensities(data: np.ndarray, window: tuple[float, float], out: np.nd
     out = np.empty(data.shape, np.float32)
     step = max(1, 262144 // max(1, data.shape[1] * data.shape[2]))
 
-    def slab(a: int) -> None:
-        apply_window(data[a:a + step], (low, high), out=out[a:a + step], finite=False)
+    def slab(a: int, b: int) -> None:
+        for k in range(a, b, step):
+            apply_window(data[k:min(k + step, b)], (low, high), out=out[k:min(k + step, b)], finite=False)
 
-    with ThreadPoolExecutor(THREADS) as pool:
-        list(pool.map(slab, range(0, data.shape[0], step)))
+    in_slabs(data.shape[0], slab)
     return out
 
 
