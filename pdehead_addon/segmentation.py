@@ -123,9 +123,14 @@ def auto_window(data: np.ndarray, max_samples: int = 1_000_000, bins: int = 256)
         blocks = tuple(n // 2 for n in data.shape)
         size = blocks[0] * blocks[1] * blocks[2]
         z, y, x = (2 * c for c in np.unravel_index(np.arange(0, size, max(1, size // max_samples)), blocks))
-        sample = (data[z, y, x].astype(np.float32) + data[z + 1, y, x] + data[z, y + 1, x]
-                  + data[z, y, x + 1] + data[z + 1, y + 1, x] + data[z + 1, y, x + 1]
-                  + data[z, y + 1, x + 1] + data[z + 1, y + 1, x + 1]) * np.float32(0.125)
+        flat = np.ascontiguousarray(data).reshape(-1)
+        at = np.ravel_multi_index((z, y, x), data.shape)            # the block's first voxel, then its 7 others
+        sz, sy = data.shape[1] * data.shape[2], data.shape[2]
+
+        def voxel(offset: int) -> np.ndarray:
+            return np.take(flat, at + offset if offset else at)
+        sample = (voxel(0).astype(np.float32) + voxel(sz) + voxel(sy) + voxel(1) + voxel(sz + sy)
+                  + voxel(sz + 1) + voxel(sy + 1) + voxel(sz + sy + 1)) * np.float32(0.125)
     else:
         sample = data.astype(np.float32).reshape(-1)
         sample = sample[:: max(1, sample.size // max_samples)]
