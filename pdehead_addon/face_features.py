@@ -46,8 +46,12 @@ def point_of(landmarks: dict, *names):
 #: medial of the lateral orbital margin, EYE_FISSURE_MM toward the midline to the endocanthion: adult norms
 #: ex-en ~ 30 mm (Farkas LG (1994) Anthropometry of the Head and Face, 2nd ed.) and the exocanthion ~ 4-5 mm inside
 #: the lateral orbital rim (Stephan CN, Davidson PL (2008) "The placement of the human eyeball and canthi in
-#: craniofacial identification", J Forensic Sci 53(3):612-619); both cited from the forensic literature, not
-#: re-read for this module. The fissure's height is the orbit's mid-height (Supraorbital and Suborbital/Orbitale).
+#: craniofacial identification", J Forensic Sci 53(3):612-619); both cited from the forensic literature. Checked in
+#: issue 23's seventh session: Stephan & Davidson's abstract (PubMed 18471206; four cadavers dissected) reports the
+#: eyeball 1-2 mm nearer the orbital roof and lateral wall than central, and Stephan, Huang & Davidson 2009 (J Forensic
+#: Sci 54(2):267-269, abstract) 1.4 mm up and 2.3 mm lateral (medians of 13 cadavers); neither abstract gives the
+#: canthus' inset, so the 5 mm stays a figure quoted from the literature, not read in the paper: check it before
+#: casework. The fissure's height is the orbit's mid-height (Supraorbital and Suborbital/Orbitale).
 EYE_EX_INSET_MM = 5.0
 EYE_FISSURE_MM = 30.0
 #: Shape (mm): the globe's convexity under the lids, the fissure's groove (the upper lid's margin over the lower),
@@ -257,7 +261,11 @@ def predict_nose(landmarks: dict, skull: Mesh | None = None) -> dict | None:
 #: the upper vermilion LIP_UPPER_MM high (labrale superius at its border), the lower LIP_LOWER_MM, and the
 #: mentolabial sulcus (sublabiale) LIP_SULCUS_MM below the fissure: adult norms, sto-ls ~ 8 mm, sto-li ~ 9-10 mm,
 #: sto-sl ~ 17-19 mm (Farkas LG (1994) Anthropometry of the Head and Face, 2nd ed., Raven Press; cited from the
-#: anthropometric literature, not re-read for this module).
+#: anthropometric literature, not re-read). Looked for in issue 23's seventh session and not found in what could be
+#: read: Farkas, Katic, Hreczko, Deutsch & Munro (1984) "Anthropometric proportions in the upper lip-lower lip-chin
+#: area of the lower face in young white adults", Am J Orthod 86(1):52-60, give in their abstract proportions only
+#: (the lower lip 83-85 % of the upper; vermilion more of the lower lip than of the upper), consistent with a lower
+#: vermilion taller than the upper as here, but no heights in mm: check these three values before casework.
 LIP_UPPER_MM = 8.0
 LIP_LOWER_MM = 9.5
 LIP_SULCUS_MM = 18.0

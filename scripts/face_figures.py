@@ -50,7 +50,9 @@ def signed_distance(points: np.ndarray, mesh) -> np.ndarray:
     return np.where(side >= 0, d, -d)
 
 
-def render_face_figures(name: str, keep: dict) -> Path:
+def render_face_figures(name: str, keep: dict, out_dir: Path = OUT, views=("FRONT", "RIGHT")) -> Path:
+    """One figure per head: real skin, approximation and deviation (columns), one row per view
+    (:data:`operators.render.VIEWS`: e.g. ``THREE_QUARTER`` for trials); written to ``out_dir``."""
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="pdehead-fig-"))
     import bpy
 
@@ -100,22 +102,23 @@ def render_face_figures(name: str, keep: dict) -> Path:
     tmp = Path(tempfile.mkdtemp())
     pics = []
     labels = ("real face (full CT)", "approximation (skull only)", "deviation (blue: approx. outside)")
-    for view in ("FRONT", "RIGHT"):
+    for view in views:
         for obj in (real, approx, heat):
             obj.hide_render = False
             path = tmp / f"{obj.name}_{view}.png"
             render.render_objects_png([obj], path, view=view, resolution=(SIZE, SIZE), samples=16, bounds=bounds)
             obj.hide_render = True
             pics.append(Image.open(path).convert("RGB"))
-    fig = Image.new("RGB", (3 * SIZE, 2 * (SIZE + 18)), (255, 255, 255))
+    fig = Image.new("RGB", (3 * SIZE, len(views) * (SIZE + 18)), (255, 255, 255))
     draw = ImageDraw.Draw(fig)
     for i, pic in enumerate(pics):
         row, col = divmod(i, 3)
         fig.paste(pic, (col * SIZE, row * (SIZE + 18) + 18))
-        draw.text((col * SIZE + 6, row * (SIZE + 18) + 3), f"{name}: {labels[col]}, {('front', 'profile')[row]}",
+        draw.text((col * SIZE + 6, row * (SIZE + 18) + 3), f"{name}: {labels[col]}, {views[row].lower().replace('right', 'profile')}",
                   fill=(0, 0, 0))
-    OUT.mkdir(parents=True, exist_ok=True)
-    target = OUT / f"face_from_skull_{name}.png"
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    target = out_dir / f"face_from_skull_{name}.png"
     fig.quantize(256, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE).save(target, optimize=True)
     print(f"wrote {target}", file=sys.stderr)
     return target
