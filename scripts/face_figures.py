@@ -114,8 +114,8 @@ def render_face_figures(name: str, keep: dict, out_dir: Path = OUT, views=("FRON
     for i, pic in enumerate(pics):
         row, col = divmod(i, 3)
         fig.paste(pic, (col * SIZE, row * (SIZE + 18) + 18))
-        draw.text((col * SIZE + 6, row * (SIZE + 18) + 3), f"{name}: {labels[col]}, {views[row].lower().replace('right', 'profile')}",
-                  fill=(0, 0, 0))
+        view_name = views[row].lower().replace("right", "profile").replace("_", " ")
+        draw.text((col * SIZE + 6, row * (SIZE + 18) + 3), f"{name}: {labels[col]}, {view_name}", fill=(0, 0, 0))
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     target = out_dir / f"face_from_skull_{name}.png"
