@@ -4,8 +4,8 @@
 Called by ``scripts/bench_face.py --figures`` with what it measured (one head per figure): the real skin
 (marching cubes of the full CT's head mask), the approximation made from the skull alone, and the real
 skin coloured by its signed distance to the approximation (blue: the approximation lies outside the real
-skin, red: inside; white within +-2.5 mm; grey: outside the scored face region), each from the front and
-in profile (the patient's right side), same framing in every picture.
+skin, red: inside; white within +-2.5 mm; grey: outside the scored face region, which leaves out the
+scan's cut), each from the front and in profile (the patient's right side), same framing in every picture.
 
     python3 scripts/bench_face.py --only cthead --figures --no-write
 """
@@ -67,6 +67,8 @@ def render_face_figures(name: str, keep: dict, out_dir: Path = OUT, views=("FRON
     v, f = keep["skin"]
     centre = keep["a"]["bone_centre"][:2]
     in_region = visible_face_points(v, centre) & face_window(v, centre, keep["tip"])
+    if keep.get("inside") is not None:                  # the scored region: not the scan's cut (bench_face.inside_scan)
+        in_region[in_region] = keep["inside"](v[in_region], centre)
     signed = np.zeros(len(v))
     signed[in_region] = signed_distance(v[in_region], keep["a"]["result"].mesh)
     skin = Mesh(v, np.zeros((0, 4)), f[:, ::-1].copy(), vertex_attributes={"deviation": deviation_colours(signed, in_region)})
