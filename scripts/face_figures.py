@@ -4,8 +4,8 @@
 Called by ``scripts/bench_face.py --figures`` with what it measured (one head per figure): the real skin
 (marching cubes of the full CT's head mask), the approximation made from the skull alone, and the real
 skin coloured by its signed distance to the approximation (blue: the approximation lies outside the real
-skin, red: inside; white within +-2.5 mm; grey: outside the scored face region), each from the front and
-in profile (the patient's right side), same framing in every picture.
+skin, red: inside; white within +-2.5 mm; grey: outside the scored face region, which leaves out the
+scan's cut), each from the front and in profile (the patient's right side), same framing in every picture.
 
     python3 scripts/bench_face.py --only cthead --figures --no-write
 """
@@ -50,7 +50,9 @@ def signed_distance(points: np.ndarray, mesh) -> np.ndarray:
     return np.where(side >= 0, d, -d)
 
 
-def render_face_figures(name: str, keep: dict) -> Path:
+def render_face_figures(name: str, keep: dict, out_dir: Path = OUT, views=("FRONT", "RIGHT")) -> Path:
+    """One figure per head: real skin, approximation and deviation (columns), one row per view
+    (:data:`operators.render.VIEWS`: e.g. ``THREE_QUARTER`` for trials); written to ``out_dir``."""
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="pdehead-fig-"))
     import bpy
 
@@ -65,6 +67,8 @@ def render_face_figures(name: str, keep: dict) -> Path:
     v, f = keep["skin"]
     centre = keep["a"]["bone_centre"][:2]
     in_region = visible_face_points(v, centre) & face_window(v, centre, keep["tip"])
+    if keep.get("inside") is not None:                  # the scored region: not the scan's cut (bench_face.inside_scan)
+        in_region[in_region] = keep["inside"](v[in_region], centre)
     signed = np.zeros(len(v))
     signed[in_region] = signed_distance(v[in_region], keep["a"]["result"].mesh)
     skin = Mesh(v, np.zeros((0, 4)), f[:, ::-1].copy(), vertex_attributes={"deviation": deviation_colours(signed, in_region)})
@@ -100,22 +104,23 @@ def render_face_figures(name: str, keep: dict) -> Path:
     tmp = Path(tempfile.mkdtemp())
     pics = []
     labels = ("real face (full CT)", "approximation (skull only)", "deviation (blue: approx. outside)")
-    for view in ("FRONT", "RIGHT"):
+    for view in views:
         for obj in (real, approx, heat):
             obj.hide_render = False
             path = tmp / f"{obj.name}_{view}.png"
             render.render_objects_png([obj], path, view=view, resolution=(SIZE, SIZE), samples=16, bounds=bounds)
             obj.hide_render = True
             pics.append(Image.open(path).convert("RGB"))
-    fig = Image.new("RGB", (3 * SIZE, 2 * (SIZE + 18)), (255, 255, 255))
+    fig = Image.new("RGB", (3 * SIZE, len(views) * (SIZE + 18)), (255, 255, 255))
     draw = ImageDraw.Draw(fig)
     for i, pic in enumerate(pics):
         row, col = divmod(i, 3)
         fig.paste(pic, (col * SIZE, row * (SIZE + 18) + 18))
-        draw.text((col * SIZE + 6, row * (SIZE + 18) + 3), f"{name}: {labels[col]}, {('front', 'profile')[row]}",
-                  fill=(0, 0, 0))
-    OUT.mkdir(parents=True, exist_ok=True)
-    target = OUT / f"face_from_skull_{name}.png"
+        view_name = views[row].lower().replace("right", "profile").replace("_", " ")
+        draw.text((col * SIZE + 6, row * (SIZE + 18) + 3), f"{name}: {labels[col]}, {view_name}", fill=(0, 0, 0))
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    target = out_dir / f"face_from_skull_{name}.png"
     fig.quantize(256, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE).save(target, optimize=True)
     print(f"wrote {target}", file=sys.stderr)
     return target

@@ -110,7 +110,7 @@ def test_outlying_pegs_are_damped_and_the_jaw_is_smoother(model, face):
 
 
 def test_nose_base_from_the_aperture_and_tip_from_the_nasal_length():
-    from pdehead_addon.face_from_skull import _circle_meet, aperture_floor, predict_nose
+    from pdehead_addon.face_features import aperture_floor, circle_meet, predict_nose
     # a midline plate of bone (y = 0, x 90..130, z 0..100) with a nasal aperture (|x - 110| < 10, z 40..80)
     x, z = np.meshgrid(np.arange(90.0, 130.0, 1.0), np.arange(0.0, 100.0, 0.5))
     keep = ~((np.abs(x - 110) < 10) & (z >= 40) & (z < 80))
@@ -123,7 +123,7 @@ def test_nose_base_from_the_aperture_and_tip_from_the_nasal_length():
     assert nose["width_mm"] == pytest.approx(20.0 + 10.0, abs=1.5)          # the aperture + 2 x 5 mm
     # pronasale: NL from soft nasion and the protrusion from subnasale, in front (anterior = -y)
     n, sn = np.array([-6.0, 95.0]), np.array([-12.0, 40.0])
-    p = _circle_meet(n, nose["length_mm"], sn, nose["protrusion_mm"])
+    p = circle_meet(n, nose["length_mm"], sn, nose["protrusion_mm"])
     assert np.hypot(*(p - n)) == pytest.approx(nose["length_mm"], abs=1e-6)
     assert np.hypot(*(p - sn)) == pytest.approx(nose["protrusion_mm"], abs=1e-6)
     assert p[0] < sn[0] - 10.0 and sn[1] < p[1] < n[1]
@@ -215,7 +215,7 @@ def test_profile_is_smoothed_along_the_height_away_from_the_pegs(model, face):
 
 
 def test_lips_from_the_teeth_and_canines(model, face, phantom_bone):
-    """The mouth (face_from_skull.predict_mouth): width = inter-canine width / 0.75 (Stephan & Henneberg 2003),
+    """The mouth (face_features.predict_mouth): width = inter-canine width / 0.75 (Stephan & Henneberg 2003),
     the oral fissure half way between supradentale and infradentale, drawn as a groove in the face's midline
     profile between the two vermilion rolls."""
     _, lms, _ = phantom_bone
@@ -251,9 +251,9 @@ def test_lips_from_the_teeth_and_canines(model, face, phantom_bone):
 
 
 def test_ears_at_the_porions(model, face, phantom_bone):
-    """A default ear (face_from_skull.predict_ears) stands off the head at each porion and touches nothing of
+    """A default ear (face_features.predict_ears) stands off the head at each porion and touches nothing of
     the face in front."""
-    from pdehead_addon import face_from_skull as F
+    from pdehead_addon import face_features as F
     _, lms, _ = phantom_bone
     ears = model._ear_shape()
     assert ears is not None and face.provenance["ears"].startswith("default ear")
@@ -290,10 +290,10 @@ def test_vertex_peg_sets_the_top_of_the_head(model, face):
 
 
 def test_nose_has_alae_and_a_rounded_tip_and_the_eyes_lids(model, face):
-    """The nose's parts (face_from_skull.FaceModel._nose_bump, issue 23's sixth session): the alae stand off the face
+    """The nose's parts (face_features.nose_bump, issue 23's sixth session): the alae stand off the face
     at half the alar width either side, lower than the tip and with the lobule between them; the tip is rounded in
     profile (the ridge falls away from pronasale on both sides, not a point); the closed eyes' fissure is a groove."""
-    from pdehead_addon import face_from_skull as F
+    from pdehead_addon import face_features as F
     g = model.grid
     base = model.profile + model._offset_field(face.tips)
     bump = model._nose_bump(base, face.tips)
