@@ -559,6 +559,7 @@ class FaceModel:
         return nose_bump(self.grid, self.nose, base, lambda *names: self._peg_tip(tips, *names))
 
     def _surface(self, radius: np.ndarray, nu=None, nv=None, top_z: float | None = None):
+        from .pde_head import derived_once
         from .pde_surface import solve_pde
 
         g = self.grid
@@ -571,16 +572,14 @@ class FaceModel:
         # (slide) or re-smooth the whole head: only the curves near the peg change.
         fixed = self.__dict__.setdefault("_pde_fixed", {})
         if fixed:
-            cache = bset.__dict__.setdefault("_derived", {})
-            key = lambda name: (name, bset.curves.ctypes.data, bset.curves.shape)   # noqa: E731 (pde_surface's key)
-            cache[key("positions")] = fixed["positions"]
-            cache[key("radius")] = fixed["radius"]
+            derived_once(bset, "positions", lambda: fixed["positions"])
+            derived_once(bset, "radius", lambda: fixed["radius"])
         head = solve_pde(bset, approximation_mm=0.0)
         if not fixed:
             from .pde_surface import curve_positions, smoothing_range
             smoothing_range(bset)                                # computes and caches the mean radius
             fixed["positions"] = curve_positions(bset)
-            fixed["radius"] = bset.__dict__["_derived"][("radius", bset.curves.ctypes.data, bset.curves.shape)]
+            fixed["radius"] = derived_once(bset, "radius", lambda: None)   # the value smoothing_range cached
         return head
 
     def _mesh(self, head, nu=None, nv=None) -> Mesh:
