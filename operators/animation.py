@@ -279,16 +279,16 @@ def turntable(context, coll, frames: int, start: int = 1):
         raise PDEHeadError(f"a turntable needs at least 2 frames, got {frames}")
     scene = context.scene
     s = state.settings(coll)
-    cam = scene_mod._study_object(coll, scene_mod.CAMERA_KIND)
+    cam = scene_mod.study_object(coll, scene_mod.CAMERA_KIND)
     if cam is None:
         scene_mod.frame_study(context, coll)
-        cam = scene_mod._study_object(coll, scene_mod.CAMERA_KIND)
+        cam = scene_mod.study_object(coll, scene_mod.CAMERA_KIND)
     shown = [o for o in (s.surface_object, s.solid_object, s.volume_object) if o is not None and not o.hide_render]
     shown = shown or [o for o in (s.surface_object, s.solid_object, s.volume_object) if o is not None]
     lo, hi = render.world_bounds(shown)
     centre = 0.5 * (lo + hi)
 
-    pivot = scene_mod._study_object(coll, TURNTABLE_KIND)
+    pivot = scene_mod.study_object(coll, TURNTABLE_KIND)
     if pivot is None:
         pivot = bpy.data.objects.new(f"{coll.name} Turntable", None)
         pivot["pdehead_kind"] = TURNTABLE_KIND

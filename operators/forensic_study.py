@@ -71,12 +71,12 @@ def _cache(coll):
     return state.cache_for(state.settings(coll).study_id).forensic
 
 
-def _obj(coll, key):
+def linked_object(coll, key):
     obj = coll.get(key)
     return obj if isinstance(obj, bpy.types.Object) and obj.name in bpy.data.objects else None
 
 
-def _material(name: str, colour):
+def plain_material(name: str, colour):
     mat = bpy.data.materials.get(name)
     if mat is None:
         mat = bpy.data.materials.new(name)
@@ -89,7 +89,7 @@ def _material(name: str, colour):
     return mat
 
 
-def _set_material(obj, mat) -> None:
+def set_material(obj, mat) -> None:
     if obj.data.materials:
         obj.data.materials[0] = mat
     else:
@@ -199,9 +199,9 @@ def step_skull(coll, nu: int, nv: int, bone: bool = True, bone_step: int = 1) ->
         mesh = head.surface(int(nu), int(nv), caps=True)
     coll[SKULL_BOUNDARY_KEY] = base64.b64encode(dumps_boundaries(bset)).decode("ascii")
     extra.update(skull_head=head, skull_mesh=mesh, depth=None)
-    obj = objects.build_mesh_object(mesh, coll, f"{coll.name} Skull", obj=_obj(coll, "pdehead_skull_object"))
+    obj = objects.build_mesh_object(mesh, coll, f"{coll.name} Skull", obj=linked_object(coll, "pdehead_skull_object"))
     obj["pdehead_kind"] = "skull"
-    _set_material(obj, _material(BONE_MATERIAL, (0.85, 0.82, 0.72, 1.0)))
+    set_material(obj, plain_material(BONE_MATERIAL, (0.85, 0.82, 0.72, 1.0)))
     coll["pdehead_skull_object"] = obj
     info = dict(bone_level=sk.bone_level, calibrated=sk.meta["calibrated"], source=sk.meta["histogram"].get("source"),
                 patches=patches, components=sk.meta["kept_components"], bone_cm3=sk.meta["bone_mm3"] / 1000.0,
@@ -212,10 +212,10 @@ def step_skull(coll, nu: int, nv: int, bone: bool = True, bone_step: int = 1) ->
     if bone:
         bmesh = skull_mesh(sk, step=int(bone_step))
         extra["bone_mesh"] = bmesh
-        bobj = objects.build_mesh_object(bmesh, coll, f"{coll.name} Bone", obj=_obj(coll, "pdehead_bone_object"),
+        bobj = objects.build_mesh_object(bmesh, coll, f"{coll.name} Bone", obj=linked_object(coll, "pdehead_bone_object"),
                                          smooth=True)
         bobj["pdehead_kind"] = "bone_mesh"
-        _set_material(bobj, _material(BONE_MATERIAL, (0.85, 0.82, 0.72, 1.0)))
+        set_material(bobj, plain_material(BONE_MATERIAL, (0.85, 0.82, 0.72, 1.0)))
         coll["pdehead_bone_object"] = bobj
         info["bone_triangles"] = len(bmesh.triangles)
     coll[SKULL_INFO_KEY] = json.dumps(info)
@@ -277,7 +277,7 @@ def step_depth(coll, target: str = "BONE", max_depth_mm: float = 40.0) -> dict:
             me.attributes.remove(me.attributes[name])
         attr = me.attributes.new(name, kind, 'POINT')
         attr.data.foreach_set("value", np.ascontiguousarray(values, np.float32 if kind == 'FLOAT' else np.int32))
-    _set_material(obj, depth_material())
+    set_material(obj, depth_material())
     stats = res.statistics()
     stats.update(target=target, max_depth_mm=float(max_depth_mm), seconds=round(t.seconds, 2))
     coll[DEPTH_STATS_KEY] = json.dumps(stats)
@@ -319,7 +319,7 @@ def blender_matrix(m_mm: np.ndarray):
     return Matrix(m.tolist())
 
 
-def _frankfurt(coll):
+def frankfurt_matrix(coll):
     from mathutils import Matrix
     values = coll.get(FRANKFURT_KEY)
     return Matrix(np.array(values, float).reshape(4, 4).tolist()) if values else Matrix.Identity(4)
@@ -327,7 +327,7 @@ def _frankfurt(coll):
 
 def world_to_patient(coll, world) -> np.ndarray:
     """Patient LPS mm of a Blender world point (undoing the study's Frankfurt transform)."""
-    p = _frankfurt(coll).inverted() @ world
+    p = frankfurt_matrix(coll).inverted() @ world
     return np.array(p, float) / MM_TO_M
 
 
@@ -368,7 +368,7 @@ def _landmark_empty(coll, name: str, snapped: np.ndarray, normal: np.ndarray):
     obj["patient_mm"] = [float(c) for c in snapped[0]]
     obj["normal"] = [float(c) for c in normal[0]]
     from mathutils import Matrix, Vector
-    obj.matrix_world = _frankfurt(coll) @ Matrix.Translation(Vector(snapped[0] * MM_TO_M))
+    obj.matrix_world = frankfurt_matrix(coll) @ Matrix.Translation(Vector(snapped[0] * MM_TO_M))
     return obj
 
 
@@ -491,12 +491,12 @@ def make_pegs(coll, table, target: str = "BONE", pegs=None) -> list:
         bpy.data.objects.remove(o)
         if me is not None and me.users == 0:
             bpy.data.meshes.remove(me)
-    mat = _material(PEG_MATERIAL, (0.95, 0.45, 0.05, 1.0))
+    mat = plain_material(PEG_MATERIAL, (0.95, 0.45, 0.05, 1.0))
     bsdf = mat.node_tree.nodes.get("Principled BSDF")
     bsdf.inputs["Emission Color"].default_value = (0.95, 0.45, 0.05, 1.0)
     bsdf.inputs["Emission Strength"].default_value = 0.6
     made = []
-    frank = _frankfurt(coll)
+    frank = frankfurt_matrix(coll)
     for name, base, normal, length in pegs:
         entry = table.entries[name]
         obj = bpy.data.objects.new(f"Peg {name}", _unit_peg_mesh(f"Peg {name}", PEG_RADIUS_MM))
@@ -512,7 +512,7 @@ def make_pegs(coll, table, target: str = "BONE", pegs=None) -> list:
         if entry.sd_mm is not None:
             obj["table_sd_mm"] = float(entry.sd_mm)
         obj["table_name"] = table.label
-        _set_material(obj, mat)
+        set_material(obj, mat)
         obj.matrix_world = frank @ _peg_matrix(base, normal)
         obj.scale[2] = float(length)
         drv = obj.driver_add("scale", 2).driver
@@ -597,7 +597,7 @@ def mirror_object(coll, obj, source: str = "AUTO"):
     from ..pdehead_addon.landmarks import mirror_matrix
 
     point, normal, how = mirror_plane(coll, source)
-    m = _frankfurt(coll) @ blender_matrix(mirror_matrix(point, normal)) @ _frankfurt(coll).inverted()
+    m = frankfurt_matrix(coll) @ blender_matrix(mirror_matrix(point, normal)) @ frankfurt_matrix(coll).inverted()
     copy = obj.copy()
     copy.name = f"{obj.name} Mirrored"
     for c in obj.users_collection[:1]:

@@ -1,14 +1,11 @@
 """All ``pdehead.*`` operators of the pipeline: import, the steps, the one-click pipeline.
 
 Thin: an operator reads its properties, calls the application layer (:mod:`.study`) and
-reports. Every operator catches the engine's :class:`PDEHeadError` (and, as a last resort,
-any other exception), reports it as an ERROR and returns ``{'CANCELLED'}`` after removing
-whatever it had created (:class:`study.Rollback`), so a failed step never leaves half-built
-objects behind. Defaults and ranges come from ``pdehead_addon/defaults.py``.
+reports, in its ``run``; the one ``execute`` (fetch the study or cancel, run, report any failure
+and undo what the step created) is :mod:`.base`'s. Defaults and ranges come from
+``pdehead_addon/defaults.py``.
 """
 from __future__ import annotations
-
-import traceback
 
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntProperty, StringProperty
@@ -17,107 +14,12 @@ from bpy.types import Operator
 from ..pdehead_addon import PDEHeadError
 from ..pdehead_addon import defaults as D
 from . import props, scene, state, study
+from .base import GuardedOperator, StudyOperator, report_exception, set_status
 from .import_options import PDEHEAD_FH_import_ct, LoaderOptions, dropped_file_options
-from .state import NO_STUDY_MESSAGE, suspended_updates
-from .study import STEP_FUNCTIONS, Rollback
+from .study import STEP_FUNCTIONS
 
 
-def _report_exception(op, exc: BaseException) -> None:
-    state.last_exception = exc
-    from ..pdehead_addon import Cancelled
-    if isinstance(exc, Cancelled):
-        op.report({'WARNING'}, "PDE Head: cancelled; the study is as it was before")
-    elif isinstance(exc, PDEHeadError):
-        op.report({'ERROR'}, state.user_text(str(exc)))
-    else:  # a bug: keep the details in the console, give the user one clear line
-        traceback.print_exc()
-        op.report({'ERROR'}, f"PDE Head internal error: {type(exc).__name__}: {exc}")
-
-
-def _status(context, text: str | None) -> None:
-    workspace = getattr(context, "workspace", None)
-    if workspace is not None:
-        try:
-            workspace.status_text_set(text)
-        except (AttributeError, RuntimeError):
-            pass
-
-
-def _guarded(op, context, body) -> set:
-    """Run ``body()``; on any error report it, undo what it created and cancel.
-
-    With a UI, the wait cursor/progress indicator and the status bar show the step meanwhile.
-    """
-    rollback = Rollback()
-    wm = context.window_manager if getattr(context, "window", None) is not None else None
-    if wm is not None:
-        wm.progress_begin(0, 1)
-        _status(context, f"PDE Head: {op.bl_label}...")
-    try:
-        result = body()
-    except Exception as exc:  # noqa: BLE001 - every failure must reach the user as a report
-        rollback.undo()
-        _report_exception(op, exc)
-        return {'CANCELLED'}
-    finally:
-        if wm is not None:
-            wm.progress_end()
-            _status(context, None)
-    return result if result is not None else {'FINISHED'}
-
-
-# ------------------------------------------------------------------------------------------
-# Operators
-
-
-def _active_or_report(op, context):
-    coll = state.active_study(context, getattr(op, "study", ""))
-    if coll is None:
-        op.report({'ERROR'}, NO_STUDY_MESSAGE)
-    return coll
-
-
-class StudyOperator:
-    """Mixin: operators that work on the active study (or the one named by ``study``)."""
-
-    study: StringProperty(name="Study", default="", options={'SKIP_SAVE'},
-                          description="Collection name of the study (empty: the active study)")
-
-    #: Operator properties that mirror the study's settings: read when invoked, written back when run.
-    mirrored_settings = ()
-
-    @classmethod
-    def poll(cls, context):
-        if state.active_study(context) is not None or state.studies():
-            return True
-        cls.poll_message_set(NO_STUDY_MESSAGE)
-        return False
-
-    def invoke(self, context, event):
-        coll = state.active_study(context, self.study)
-        if coll is not None:
-            s = state.settings(coll)
-            for name in self.mirrored_settings:
-                setattr(self, name, getattr(s, name))
-        return self.execute(context)
-
-    def store_settings(self, s) -> None:
-        """Copy the operator's values into the study settings without triggering live rebuilds.
-
-        A value the caller did not set (``bpy.ops.pdehead.build_solid()`` from a script or
-        headless, where invoke is not called) is taken from the study instead, so running an
-        operator never resets the study's settings to the operator's defaults.
-        """
-        is_set = getattr(getattr(self, "properties", None), "is_property_set", None)
-        with suspended_updates():
-            for name in self.mirrored_settings:
-                if is_set is not None and not is_set(name):
-                    setattr(self, name, getattr(s, name))
-                else:
-                    setattr(s, name, getattr(self, name))
-
-
-class PDEHEAD_OT_import_ct(Operator, LoaderOptions):
+class PDEHEAD_OT_import_ct(Operator, GuardedOperator, LoaderOptions):
     """Import head CT slices (DICOM series, numbered TIFF/PNG images or headerless raw) as a PDE Head study"""
 
     bl_idname = "pdehead.import_ct"
@@ -143,36 +45,32 @@ class PDEHEAD_OT_import_ct(Operator, LoaderOptions):
         self.draw_loader_options(self.layout)
         self.layout.prop(self, "run_pipeline")
 
-    def execute(self, context):
-        def body():
-            path = self.input_path()
-            coll = study.import_study(context, path, self.loader_options())
-            self.apply_study_options(coll)
-            s = state.settings(coll)
-            if self.run_pipeline:
-                for step in ("segment", "boundaries", "surface", "solid"):
-                    STEP_FUNCTIONS[step](coll)
-                scene.frame_study(context, coll)  # ends as Run Pipeline does: camera, light, cube hidden
-            nx, ny, nz = s.dimensions
-            self.report({'INFO'}, f"Imported '{coll.name}': {nx}x{ny}x{nz} voxels, spacing "
-                        f"{', '.join(f'{v:g}' for v in s.spacing)} mm")
-            for warning in state.warning_list(s):  # one report per warning, in the dialog's words
-                self.report({'WARNING'}, state.user_text(warning))
-        return _guarded(self, context, body)
+    def run(self, context):
+        path = self.input_path()
+        coll = study.import_study(context, path, self.loader_options())
+        self.apply_study_options(coll)
+        s = state.settings(coll)
+        if self.run_pipeline:
+            for step in ("segment", "boundaries", "surface", "solid"):
+                STEP_FUNCTIONS[step](coll)
+            scene.frame_study(context, coll)  # ends as Run Pipeline does: camera, light, cube hidden
+        nx, ny, nz = s.dimensions
+        self.report({'INFO'}, f"Imported '{coll.name}': {nx}x{ny}x{nz} voxels, spacing "
+                    f"{', '.join(f'{v:g}' for v in s.spacing)} mm")
+        for warning in state.warning_list(s):  # one report per warning, in the dialog's words
+            self.report({'WARNING'}, state.user_text(warning))
 
 
-class PDEHEAD_OT_load_phantom(Operator):
+class PDEHEAD_OT_load_phantom(Operator, GuardedOperator):
     bl_idname = "pdehead.load_phantom"
     bl_label = "Load Phantom"
     bl_description = "Create a study from the built-in synthetic head CT (try PDE Head without data)"
     bl_options = {'REGISTER', 'UNDO'}
 
-    def execute(self, context):
-        def body():
-            coll = study.phantom_study(context)
-            nx, ny, nz = state.settings(coll).dimensions
-            self.report({'INFO'}, f"Phantom loaded: {nx}x{ny}x{nz} voxels")
-        return _guarded(self, context, body)
+    def run(self, context):
+        coll = study.phantom_study(context)
+        nx, ny, nz = state.settings(coll).dimensions
+        self.report({'INFO'}, f"Phantom loaded: {nx}x{ny}x{nz} voxels")
 
 
 class PDEHEAD_OT_segment(Operator, StudyOperator):
@@ -181,17 +79,11 @@ class PDEHEAD_OT_segment(Operator, StudyOperator):
     bl_description = "Segment the head from the CT with the 3D Chan-Vese soft model (eq. 16-21) and clean-up"
     bl_options = {'REGISTER', 'UNDO'}
 
-    def execute(self, context):
-        coll = _active_or_report(self, context)
-        if coll is None:
-            return {'CANCELLED'}
-
-        def body():
-            study.step_segment(coll)
-            s = state.settings(coll)
-            self.report({'INFO'}, f"Segmented '{coll.name}': head = {100 * s.seg_fraction:.1f} % of the "
-                        f"voxels ({s.seg_iterations} iterations, {state.timings(coll)['segment']:.2f} s)")
-        return _guarded(self, context, body)
+    def run(self, context, coll):
+        study.step_segment(coll)
+        s = state.settings(coll)
+        self.report({'INFO'}, f"Segmented '{coll.name}': head = {100 * s.seg_fraction:.1f} % of the "
+                    f"voxels ({s.seg_iterations} iterations, {state.timings(coll)['segment']:.2f} s)")
 
 
 class PDEHEAD_OT_extract_boundaries(Operator, StudyOperator):
@@ -218,24 +110,18 @@ class PDEHEAD_OT_extract_boundaries(Operator, StudyOperator):
     mirrored_settings = ("patches", "samples", "selection", "align_curves", "use_tolerance", "tolerance_mm",
                          "max_tolerance_mm")
 
-    def execute(self, context):
-        coll = _active_or_report(self, context)
-        if coll is None:
-            return {'CANCELLED'}
-
-        def body():
-            s = state.settings(coll)
-            self.store_settings(s)
-            warnings_before = state.warning_list(s)
-            study.step_boundaries(coll)
-            self.patches = s.patches  # may have been reduced to what the scan allows
-            achieved = (f"; surface from all {abs(s.outline_candidates)} usable outlines: mean "
-                        f"{s.outline_mean_mm:.2f} mm, max {s.outline_max_mm:.2f} mm" if s.outline_candidates else "")
-            self.report({'INFO'}, f"{s.curve_count} boundary curves of {self.samples} points extracted "
-                        f"from '{coll.name}' ({state.timings(coll)['boundaries']:.2f} s){achieved}")
-            for warning in state.warning_list(s)[len(warnings_before):]:
-                self.report({'WARNING'}, state.user_text(warning))
-        return _guarded(self, context, body)
+    def run(self, context, coll):
+        s = state.settings(coll)
+        self.store_settings(s)
+        warnings_before = state.warning_list(s)
+        study.step_boundaries(coll)
+        self.patches = s.patches  # may have been reduced to what the scan allows
+        achieved = (f"; surface from all {abs(s.outline_candidates)} usable outlines: mean "
+                    f"{s.outline_mean_mm:.2f} mm, max {s.outline_max_mm:.2f} mm" if s.outline_candidates else "")
+        self.report({'INFO'}, f"{s.curve_count} boundary curves of {self.samples} points extracted "
+                    f"from '{coll.name}' ({state.timings(coll)['boundaries']:.2f} s){achieved}")
+        for warning in state.warning_list(s)[len(warnings_before):]:
+            self.report({'WARNING'}, state.user_text(warning))
 
 
 class PDEHEAD_OT_reconstruct_surface(Operator, StudyOperator):
@@ -258,21 +144,15 @@ class PDEHEAD_OT_reconstruct_surface(Operator, StudyOperator):
     mirrored_settings = ("nu", "nv", "caps", "continuity", "dome", "smoothing_auto", "smoothing",
                          "approximation_auto", "approximation", "modes")
 
-    def execute(self, context):
-        coll = _active_or_report(self, context)
-        if coll is None:
-            return {'CANCELLED'}
-
-        def body():
-            s = state.settings(coll)
-            self.store_settings(s)
-            if state.boundary_set(coll) is None:
-                study.step_boundaries(coll)
-            study.step_surface(coll)
-            n = len(s.surface_object.data.vertices)
-            self.report({'INFO'}, f"PDE surface of '{coll.name}': {n} vertices "
-                        f"({state.timings(coll)['surface']:.2f} s)")
-        return _guarded(self, context, body)
+    def run(self, context, coll):
+        s = state.settings(coll)
+        self.store_settings(s)
+        if state.boundary_set(coll) is None:
+            study.step_boundaries(coll)
+        study.step_surface(coll)
+        n = len(s.surface_object.data.vertices)
+        self.report({'INFO'}, f"PDE surface of '{coll.name}': {n} vertices "
+                    f"({state.timings(coll)['surface']:.2f} s)")
 
 
 class PDEHEAD_OT_build_solid(Operator, StudyOperator):
@@ -297,26 +177,20 @@ class PDEHEAD_OT_build_solid(Operator, StudyOperator):
     mirrored_settings = ("nu", "nv", "nw", "u_range", "v_range", "w_range", "ct_texture_budget", "solid_skin",
                          "solid_skin_depth")
 
-    def execute(self, context):
-        coll = _active_or_report(self, context)
-        if coll is None:
-            return {'CANCELLED'}
-
-        def body():
-            s = state.settings(coll)
-            for name, lo_hi in (("u", self.u_range), ("v", self.v_range), ("w", self.w_range)):
-                if lo_hi[0] >= lo_hi[1]:
-                    raise PDEHeadError(f"{name} range must have its start below its end, got "
-                                       f"{lo_hi[0]:g}..{lo_hi[1]:g}")
-            self.store_settings(s)
-            if state.boundary_set(coll) is None:
-                study.step_boundaries(coll)
-            notice = study.step_solid(coll)
-            n = len(s.solid_object.data.vertices)
-            self.report({'INFO'}, f"PDE solid of '{coll.name}': {n} vertices ({state.timings(coll)['solid']:.2f} s)")
-            if notice:
-                self.report({'WARNING'}, notice[:300])
-        return _guarded(self, context, body)
+    def run(self, context, coll):
+        s = state.settings(coll)
+        for name, lo_hi in (("u", self.u_range), ("v", self.v_range), ("w", self.w_range)):
+            if lo_hi[0] >= lo_hi[1]:
+                raise PDEHeadError(f"{name} range must have its start below its end, got "
+                                   f"{lo_hi[0]:g}..{lo_hi[1]:g}")
+        self.store_settings(s)
+        if state.boundary_set(coll) is None:
+            study.step_boundaries(coll)
+        notice = study.step_solid(coll)
+        n = len(s.solid_object.data.vertices)
+        self.report({'INFO'}, f"PDE solid of '{coll.name}': {n} vertices ({state.timings(coll)['solid']:.2f} s)")
+        if notice:
+            self.report({'WARNING'}, notice[:300])
 
 
 class PDEHEAD_OT_build_volume(Operator, StudyOperator):
@@ -338,23 +212,17 @@ class PDEHEAD_OT_build_volume(Operator, StudyOperator):
     mirrored_settings = ("use_ct_grid", "voxel_auto", "voxel_size", "low_alpha", "high_alpha", "density", "colour_preset",
                          "alpha_mode")
 
-    def execute(self, context):
-        coll = _active_or_report(self, context)
-        if coll is None:
-            return {'CANCELLED'}
-
-        def body():
-            s = state.settings(coll)
-            if self.properties.is_property_set("voxel_size") and not self.properties.is_property_set("voxel_auto"):
-                self.voxel_auto = False  # a size given by the caller is meant
-            self.store_settings(s)
-            if state.boundary_set(coll) is None:
-                study.step_boundaries(coll)
-            study.step_volume(coll, context)
-            t = state.timings(coll)
-            self.report({'INFO'}, f"Volume of '{coll.name}' built (w-field {t['w_field']:.2f} s, "
-                        f"VDB + material {t['volume']:.2f} s)")
-        return _guarded(self, context, body)
+    def run(self, context, coll):
+        s = state.settings(coll)
+        if self.properties.is_property_set("voxel_size") and not self.properties.is_property_set("voxel_auto"):
+            self.voxel_auto = False  # a size given by the caller is meant
+        self.store_settings(s)
+        if state.boundary_set(coll) is None:
+            study.step_boundaries(coll)
+        study.step_volume(coll, context)
+        t = state.timings(coll)
+        self.report({'INFO'}, f"Volume of '{coll.name}' built (w-field {t['w_field']:.2f} s, "
+                    f"VDB + material {t['volume']:.2f} s)")
 
 
 # ------------------------------------------------------------------------------------------
@@ -368,7 +236,7 @@ SOURCE_ITEMS = [
 ]
 
 
-class PDEHEAD_OT_run_pipeline(Operator, LoaderOptions):
+class PDEHEAD_OT_run_pipeline(Operator, GuardedOperator, LoaderOptions):
     bl_idname = "pdehead.run_pipeline"
     bl_label = "Run PDE Head Pipeline"
     bl_description = ("One click: segment, extract boundaries, reconstruct the PDE surface and solid and "
@@ -409,17 +277,15 @@ class PDEHEAD_OT_run_pipeline(Operator, LoaderOptions):
         for name in ("patches", "samples", "nu", "nv", "nw", "build_volume", "voxel_size"):
             layout.prop(self, name)
 
-    def execute(self, context):
+    def run(self, context):
         """Synchronous (scripts, the CLI, redo)."""
-        def body():
-            run = self.make_run(context)
-            try:
-                run.run_all()
-            except BaseException:
-                run.cancel()
-                raise
-            self._report_done(run)
-        return _guarded(self, context, body)
+        run = self.make_run(context)
+        try:
+            run.run_all()
+        except BaseException:
+            run.cancel()
+            raise
+        self._report_done(run)
 
     def _report_done(self, run) -> None:
         coll = run.collection
@@ -434,7 +300,7 @@ class PDEHEAD_OT_run_pipeline(Operator, LoaderOptions):
         try:
             self._run = self.make_run(context)
         except Exception as exc:  # noqa: BLE001
-            _report_exception(self, exc)
+            report_exception(self, exc)
             return {'CANCELLED'}
         wm = context.window_manager
         self._timer = wm.event_timer_add(0.05, window=context.window)
@@ -442,7 +308,7 @@ class PDEHEAD_OT_run_pipeline(Operator, LoaderOptions):
         run = self._run
         # within a step: the engine's progress moves the progress indicator between the step marks
         study.PROGRESS_HOOK[0] = lambda _step, fraction, _message="": wm.progress_update(run.index + fraction)
-        _status(context, f"PDE Head: {self._run.next_label}... (Esc to cancel)")
+        set_status(context, f"PDE Head: {self._run.next_label}... (Esc to cancel)")
         wm.modal_handler_add(self)
         return {'RUNNING_MODAL'}
 
@@ -458,7 +324,7 @@ class PDEHEAD_OT_run_pipeline(Operator, LoaderOptions):
             run.step()
         except Exception as exc:  # noqa: BLE001
             self.cancel(context)
-            _report_exception(self, exc)
+            report_exception(self, exc)
             return {'CANCELLED'}
         wm = context.window_manager
         if wm is not None:
@@ -467,7 +333,7 @@ class PDEHEAD_OT_run_pipeline(Operator, LoaderOptions):
             self._end_ui(context)
             self._report_done(run)
             return {'FINISHED'}
-        _status(context, f"PDE Head: {run.next_label}... (Esc to cancel)")
+        set_status(context, f"PDE Head: {run.next_label}... (Esc to cancel)")
         return {'RUNNING_MODAL'}
 
     def _end_ui(self, context) -> None:
@@ -479,7 +345,7 @@ class PDEHEAD_OT_run_pipeline(Operator, LoaderOptions):
             self._timer = None
         if wm is not None:
             wm.progress_end()
-        _status(context, None)
+        set_status(context, None)
 
     def cancel(self, context):
         """Esc, an error or Blender closing the operator: undo everything this run created."""
@@ -505,16 +371,10 @@ class PDEHEAD_OT_frame_study(Operator, StudyOperator):
                                            ("THREE_QUARTER", "Three Quarter", "From front right, above")],
                        default="FRONT")
 
-    def execute(self, context):
-        coll = _active_or_report(self, context)
-        if coll is None:
-            return {'CANCELLED'}
-
-        def body():
-            done = scene.frame_study(context, coll, show=self.show, view=self.view)
-            extra = "; startup cube hidden" if done["hidden_cube"] else ""
-            self.report({'INFO'}, f"'{coll.name}': camera and light set, showing {done['shown']}{extra}")
-        return _guarded(self, context, body)
+    def run(self, context, coll):
+        done = scene.frame_study(context, coll, show=self.show, view=self.view)
+        extra = "; startup cube hidden" if done["hidden_cube"] else ""
+        self.report({'INFO'}, f"'{coll.name}': camera and light set, showing {done['shown']}{extra}")
 
 
 class PDEHEAD_OT_turntable(Operator, StudyOperator):
@@ -527,17 +387,11 @@ class PDEHEAD_OT_turntable(Operator, StudyOperator):
     frames: IntProperty(name="Frames", default=D.TURNTABLE_FRAMES.default, min=D.TURNTABLE_FRAMES.min,
                         max=D.TURNTABLE_FRAMES.max, description=D.TURNTABLE_FRAMES.description)
 
-    def execute(self, context):
-        coll = _active_or_report(self, context)
-        if coll is None:
-            return {'CANCELLED'}
-
-        def body():
-            from . import animation
-            pivot = animation.turntable(context, coll, self.frames, start=context.scene.frame_start)
-            self.report({'INFO'}, f"'{coll.name}': turntable of {self.frames} frames around '{pivot.name}' "
-                                  "(Render > Render Animation)")
-        return _guarded(self, context, body)
+    def run(self, context, coll):
+        from . import animation
+        pivot = animation.turntable(context, coll, self.frames, start=context.scene.frame_start)
+        self.report({'INFO'}, f"'{coll.name}': turntable of {self.frames} frames around '{pivot.name}' "
+                              "(Render > Render Animation)")
 
 
 class PDEHEAD_OT_add_cutter(Operator, StudyOperator):
@@ -547,15 +401,9 @@ class PDEHEAD_OT_add_cutter(Operator, StudyOperator):
                       "away where it is (a wedge in v or a slab in u)")
     bl_options = {'REGISTER', 'UNDO'}
 
-    def execute(self, context):
-        coll = _active_or_report(self, context)
-        if coll is None:
-            return {'CANCELLED'}
-
-        def body():
-            obj, kind = study.add_cutter(context, coll)
-            self.report({'INFO'}, f"Cutter '{obj.name}' added ({kind} cut): move it to cut the solid elsewhere")
-        return _guarded(self, context, body)
+    def run(self, context, coll):
+        obj, kind = study.add_cutter(context, coll)
+        self.report({'INFO'}, f"Cutter '{obj.name}' added ({kind} cut): move it to cut the solid elsewhere")
 
 
 class PDEHEAD_OT_remove_study(Operator, StudyOperator):
@@ -564,14 +412,10 @@ class PDEHEAD_OT_remove_study(Operator, StudyOperator):
     bl_description = "Delete the study's collection, its objects and its in-memory data"
     bl_options = {'REGISTER', 'UNDO'}
 
-    def execute(self, context):
-        coll = _active_or_report(self, context)
-        if coll is None:
-            return {'CANCELLED'}
+    def run(self, context, coll):
         name = coll.name
         study.remove_study(coll)
         self.report({'INFO'}, f"Removed study '{name}'")
-        return {'FINISHED'}
 
 
 def menu_import(self, context):

@@ -124,6 +124,11 @@ def cache_for(study_id: str) -> StudyCache:
     return _CACHE.setdefault(study_id, StudyCache())
 
 
+def restore_cache(study_id: str, cache: StudyCache) -> None:
+    """Put back a study's cache (a snapshot's copy, see study.StudySnapshot)."""
+    _CACHE[study_id] = cache
+
+
 def drop_cache(study_id: str | None = None) -> None:
     """Free one study's cache, or all of them."""
     if study_id is None:

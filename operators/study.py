@@ -770,7 +770,7 @@ class StudySnapshot:
             coll.pop(state.BOUNDARY_KEY, None)
         else:
             coll[state.BOUNDARY_KEY] = self.boundaries
-        state._CACHE[self.study_id] = copy.copy(self.cache)
+        state.restore_cache(self.study_id, copy.copy(self.cache))
         if "boundaries" in rebuilt and s.curves_object is not None and state.boundary_set(coll) is not None:
             objects.build_boundary_curves(state.boundary_set(coll), coll, name=s.curves_object.name,
                                           obj=s.curves_object)
@@ -851,7 +851,7 @@ class PipelineRun:
         elif name == "scene":
             coll = self.collection
             # a new study, or one never framed: camera, light, the surface shown, the startup cube hidden
-            if self.source != "ACTIVE" or scene._study_object(coll, scene.CAMERA_KIND) is None:
+            if self.source != "ACTIVE" or scene.study_object(coll, scene.CAMERA_KIND) is None:
                 scene.frame_study(self.context, coll)
         else:
             STEP_FUNCTIONS[name](self.collection)
@@ -900,7 +900,7 @@ def _fall_back_to_other_studies() -> None:
             sc.pdehead.active_study = others[0]
         if sc.camera is None:
             order = [sc.pdehead.active_study] + [c for c in others if c != sc.pdehead.active_study]
-            sc.camera = next((cam for cam in (scene._study_object(c, scene.CAMERA_KIND) for c in order)
+            sc.camera = next((cam for cam in (scene.study_object(c, scene.CAMERA_KIND) for c in order)
                               if cam is not None), None)
 
 
