@@ -27,7 +27,7 @@ import traceback
 
 import bpy
 
-from . import cutter, state, study, volume
+from . import cutter, state, study, volume_material
 from .state import suspended_updates
 
 #: Animatable settings, grouped by what a change rebuilds (study.live_update's ``what``).
@@ -172,7 +172,7 @@ def apply_frame(scene, depsgraph=None) -> dict[str, list[str]]:
 def _rebuild(coll, s, group: str) -> None:
     """Rebuild one group like the sidebar's live update, but raising instead of recording the error."""
     if group == "volume":
-        volume.set_volume_settings(s.volume_object, **study.volume_settings(s))
+        volume_material.set_volume_settings(s.volume_object, **study.volume_settings(s))
         return
     if group == "pde" and s.volume_object is not None:
         s.volume_stale = True

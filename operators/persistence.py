@@ -8,7 +8,7 @@
   or a Save As to another folder) is copied into its ``pdehead_vdb/`` folder and the object
   switched to the copy, before Blender writes the file.
 - **save_post**: .vdb files replaced by a rebuild or left behind by a move are deleted once the
-  saved file no longer references them (:func:`volume.purge_superseded`); a file that an older
+  saved file no longer references them (:func:`vdb_files.purge_superseded`); a file that an older
   .blend beside it still uses is never touched (it is not in the superseded set).
 - **save_post** also removes the .vdb files PDE Head wrote for this file (recorded in the file at each
   save, ``Scene.pdehead.vdb_files``) that no saved Volume datablock references any more (a study
@@ -30,7 +30,7 @@ from pathlib import Path
 
 import bpy
 
-from . import state, volume
+from . import state, vdb_files
 
 
 def _volume_objects() -> list:
@@ -62,11 +62,11 @@ def move_volumes_beside(blend_path: str) -> list[Path]:
     unsaved = not bpy.data.filepath
     for obj in _volume_objects():
         src = Path(bpy.path.abspath(obj.data.filepath)).resolve() if obj.data.filepath else None
-        dst = volume.relocate_vdb(obj, blend_path=blend_path)
+        dst = vdb_files.relocate_vdb(obj, blend_path=blend_path)
         if dst is not None:
             moved.append(dst)
             if unsaved and src is not None:
-                volume.supersede(src)  # a temp-folder file of an unsaved session: moved, not copied
+                vdb_files.supersede(src)  # a temp-folder file of an unsaved session: moved, not copied
     return moved
 
 
@@ -109,7 +109,7 @@ def remove_orphan_volume_files() -> list[Path]:
     in the ``pdehead_vdb`` folder beside the saved file; returns the removed files."""
     if not bpy.data.filepath:
         return []
-    folder = volume.vdb_folder_for(bpy.data.filepath).resolve()
+    folder = vdb_files.vdb_folder_for(bpy.data.filepath).resolve()
     recorded = _recorded_volume_files()
     used = _saved_volume_files()
     removed, kept = [], set()
@@ -153,7 +153,7 @@ def pdehead_save_pre(filepath="", *_args) -> None:
 @bpy.app.handlers.persistent
 def pdehead_save_post(*_args) -> None:
     try:
-        volume.purge_superseded()
+        vdb_files.purge_superseded()
         remove_orphan_volume_files()
     except Exception as exc:  # noqa: BLE001
         print(f"PDE Head: could not remove replaced volume files: {exc}")
@@ -163,14 +163,14 @@ def pdehead_save_post(*_args) -> None:
 def pdehead_volume_load_post(*_args) -> None:
     if not bpy.data.filepath:
         return
-    folder = volume.vdb_folder_for(bpy.data.filepath)
+    folder = vdb_files.vdb_folder_for(bpy.data.filepath)
     for obj in _volume_objects():
         data = obj.data
         if not data.filepath or os.path.isfile(bpy.path.abspath(data.filepath)):
             continue
         beside = folder / Path(bpy.path.abspath(data.filepath)).name
         if beside.is_file():
-            data.filepath = volume.blender_filepath(beside)
+            data.filepath = vdb_files.blender_filepath(beside)
             data.grids.unload()
             data.grids.load()
 

@@ -63,7 +63,7 @@ CONTINUITY_ITEMS = [
     ("paper", "Paper Patches", "The paper's t patches through four curves each; creased where they meet"),
 ]
 def _colour_items():
-    from .volume import COLOUR_LABELS, COLOUR_PRESETS  # the presets' one owner
+    from .volume_material import COLOUR_LABELS, COLOUR_PRESETS  # the presets' one owner
     return [(key, *COLOUR_LABELS.get(key, (key.title(), ""))) for key in COLOUR_PRESETS]
 
 

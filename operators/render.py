@@ -60,14 +60,14 @@ def world_bounds(objects, tight_volumes: bool = True) -> tuple[np.ndarray, np.nd
     """
     import bpy
 
-    from . import volume
+    from . import volume, volume_material
 
     bpy.context.view_layer.update()
     pts = []
     for obj in objects:
         if obj.type == "VOLUME":
             box = volume.solid_box(obj) if tight_volumes else None
-            if box is not None and volume.get_volume_settings(obj)["alpha_mode"] == "EQ24":
+            if box is not None and volume_material.get_volume_settings(obj)["alpha_mode"] == "EQ24":
                 pts.append(np.array(box))
                 continue
             obj.data.grids.load()

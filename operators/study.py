@@ -23,7 +23,7 @@ import bpy
 import numpy as np
 
 from ..pdehead_addon import PDEHeadError, patches_for_scan
-from . import cutter, objects, prefs, scene, state, volume
+from . import cutter, objects, prefs, scene, state, vdb_files, vdb_grids, volume, volume_material
 from .state import suspended_updates
 
 #: ``hook(step, fraction, message)`` called by the long steps while a pipeline or an operator runs; it
@@ -594,7 +594,7 @@ def step_volume(coll, context=None) -> None:
     ct = require_ct(coll)
     window = ct_window(coll, ct)
     if not s.use_ct_grid and s.voxel_auto:
-        size = volume.auto_voxel_size(ct, head)
+        size = vdb_grids.auto_voxel_size(ct, head)
         with suspended_updates():
             s.voxel_size = size
     with state.Timer() as t:
@@ -603,7 +603,7 @@ def step_volume(coll, context=None) -> None:
     state.record_timing(coll, "w_field", t.seconds)
     cache.wfield = wfield
     with state.Timer() as t:
-        vdb_path = volume.vdb_path_for(coll.name, bpy.data.filepath or None, prefs.vdb_prefs_folder(context))
+        vdb_path = vdb_files.vdb_path_for(coll.name, bpy.data.filepath or None, prefs.vdb_prefs_folder(context))
         s.volume_object = volume.build_volume(wfield, coll, vdb_path, name=f"{coll.name} Volume",
                                               obj=s.volume_object, ct=ct, window=window, **volume_settings(s))
         s.volume_stale = False
@@ -647,7 +647,7 @@ def live_update(coll, what: str, context=None) -> None:
                 apply_cutter(coll)
         elif what == "volume":
             if s.volume_object is not None:
-                volume.set_volume_settings(s.volume_object, **volume_settings(s))
+                volume_material.set_volume_settings(s.volume_object, **volume_settings(s))
         else:
             if what == "pde" and s.volume_object is not None:
                 s.volume_stale = True  # the w-field follows the PDE; rebuilt on request (heavy)

@@ -179,7 +179,7 @@ def test_live_parameters_after_reopen_without_resegmenting(ext, phantom_blend, m
     vol = s.volume_object
     s.low_alpha, s.high_alpha, s.density = 0.25, 0.75, 12.5
     s.colour_preset, s.alpha_mode = "skin", "INTENSITY"
-    got = ext.volume.get_volume_settings(vol)
+    got = ext.volume_material.get_volume_settings(vol)
     assert got["low_alpha"] == pytest.approx(0.25) and got["high_alpha"] == pytest.approx(0.75)
     assert got["density"] == pytest.approx(12.5)
     assert (got["colour_preset"], got["alpha_mode"]) == ("skin", "INTENSITY")

@@ -75,7 +75,7 @@ def test_save_removes_the_vdb_of_a_study_deleted_in_the_outliner(ext, tmp_path):
     kept = _pipeline(bpy, voxel_size=8.0)
     gone = _pipeline(bpy, voxel_size=8.0)
     bpy.ops.wm.save_mainfile()
-    folder = tmp_path / ext.volume.VDB_FOLDER_NAME
+    folder = tmp_path / ext.vdb_files.VDB_FOLDER_NAME
     kept_vdb = folder / bpy.path.basename(ext.state.settings(kept).volume_object.data.filepath)
     gone_vdb = folder / bpy.path.basename(ext.state.settings(gone).volume_object.data.filepath)
     assert kept_vdb.is_file() and gone_vdb.is_file() and kept_vdb != gone_vdb
