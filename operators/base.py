@@ -5,7 +5,7 @@ An operator subclasses :class:`GuardedOperator` (works without a study: import, 
 writes ``run``; ``execute`` is the template here. Every failure is caught by :func:`guarded`: the
 engine's :class:`PDEHeadError` (and, as a last resort, any other exception) is reported as an ERROR
 and the operator returns ``{'CANCELLED'}`` after removing whatever it had created
-(:class:`.study.Rollback`), so a failed step never leaves half-built objects behind.
+(:class:`.pipeline_run.Rollback`), so a failed step never leaves half-built objects behind.
 """
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from bpy.props import StringProperty
 from ..pdehead_addon import PDEHeadError
 from . import state
 from .state import NO_STUDY_MESSAGE, suspended_updates
-from .study import Rollback
+from .pipeline_run import Rollback
 
 
 def report_exception(op, exc: BaseException) -> None:

@@ -104,7 +104,7 @@ def skull_mesh(coll):
     """The bone skull as an engine Mesh (patient mm): read from the study's bone object (what the .blend
     holds, so a reopened file prepares the same model), else built from the CT."""
     from ..pdehead_addon.mesh import Mesh
-    from .forensic_study import skull_engine_mesh
+    from .forensic_skull import skull_engine_mesh
     from .objects import study_origin
 
     obj = _obj(coll, "pdehead_bone_object")
@@ -412,8 +412,10 @@ def _moved_tips(coll) -> np.ndarray | None:
 def build_face(coll) -> tuple:
     """Build the face of the study (skull and landmarks made first when missing): (face object, pegs)."""
     from . import objects
-    from .forensic_study import (BASE_MATRIX_KEY, FRANKFURT_KEY, frankfurt_matrix, plain_material, set_material,
-                                 find_landmarks, flag_names, landmarks, make_pegs, step_skull)
+    from .forensic_objects import plain_material, set_material
+    from .forensic_skull import step_skull
+    from .forensic_study import (BASE_MATRIX_KEY, FRANKFURT_KEY, find_landmarks, flag_names, frankfurt_matrix, landmarks,
+                                 make_pegs)
 
     s = state.settings(coll)
     if _obj(coll, "pdehead_bone_object") is None:
@@ -507,7 +509,7 @@ def build_sd_faces(coll) -> list:
     """The faces with every peg at its length - 1 SD and + 1 SD (pegs without an SD stay), as two objects
     beside the face (wire display): the range the table allows. Returns [minus, plus]."""
     from . import objects
-    from .forensic_study import plain_material, set_material
+    from .forensic_objects import plain_material, set_material
 
     face = face_object(coll)
     if face is None:

@@ -18,12 +18,12 @@ from ..pdehead_addon import PDEHeadError
 from ..pdehead_addon.landmarks import STANDARD_LANDMARKS
 from . import state
 from .base import StudyOperator
-from .forensic_study import (DEPTH_ATTRIBUTE, DEPTH_MATERIAL, DEPTH_STATS_KEY, MIRROR_PLANES, SKULL_INFO_KEY, linked_object,
-                             PEG_DEPTH_PROP, apply_frankfurt, export_study, find_landmarks,
-                             forensic_provenance, measured_landmark_depths,
-                             landmark_flags, landmarks, make_pegs, mirror_object, place_landmark, skin_engine_mesh,
-                             skull_engine_mesh, snap_moved_landmarks, step_depth, step_skull, study_depth_table,
-                             world_to_patient)
+from .forensic_objects import linked_object
+from .forensic_skull import (DEPTH_ATTRIBUTE, DEPTH_MATERIAL, DEPTH_STATS_KEY, SKULL_INFO_KEY, skin_engine_mesh,
+                             skull_engine_mesh, step_depth, step_skull)
+from .forensic_study import (MIRROR_PLANES, PEG_DEPTH_PROP, apply_frankfurt, export_study, find_landmarks,
+                             forensic_provenance, landmark_flags, landmarks, make_pegs, measured_landmark_depths,
+                             mirror_object, place_landmark, snap_moved_landmarks, study_depth_table, world_to_patient)
 
 _LANDMARK_ITEMS = [(d.name, d.name, d.description) for d in STANDARD_LANDMARKS]
 

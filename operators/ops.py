@@ -13,7 +13,7 @@ from bpy.types import Operator
 
 from ..pdehead_addon import PDEHeadError
 from ..pdehead_addon import defaults as D
-from . import props, scene, state, study
+from . import pipeline_run, progress, props, scene, state, study
 from .base import GuardedOperator, StudyOperator, report_exception, set_status
 from .import_options import PDEHEAD_FH_import_ct, LoaderOptions, dropped_file_options
 from .study import STEP_FUNCTIONS
@@ -260,14 +260,14 @@ class PDEHEAD_OT_run_pipeline(Operator, GuardedOperator, LoaderOptions):
             return "FILES"
         return "ACTIVE"
 
-    def make_run(self, context) -> study.PipelineRun:
+    def make_run(self, context) -> pipeline_run.PipelineRun:
         source = self._resolved_source(context)
         path = self.input_path() if source == "FILES" else None
         options = self.loader_options() if source == "FILES" else None
         settings = dict(patches=self.patches, samples=self.samples, nu=self.nu, nv=self.nv, nw=self.nw)
         if self.properties.is_property_set("voxel_size"):  # else the study's automatic size from the CT
             settings.update(voxel_size=self.voxel_size, voxel_auto=False)
-        return study.PipelineRun(context, source, path, options, settings, self.study, self.build_volume)
+        return pipeline_run.PipelineRun(context, source, path, options, settings, self.study, self.build_volume)
 
     def draw(self, context):
         layout = self.layout
@@ -307,7 +307,7 @@ class PDEHEAD_OT_run_pipeline(Operator, GuardedOperator, LoaderOptions):
         wm.progress_begin(0, len(self._run.steps))
         run = self._run
         # within a step: the engine's progress moves the progress indicator between the step marks
-        study.PROGRESS_HOOK[0] = lambda _step, fraction, _message="": wm.progress_update(run.index + fraction)
+        progress.PROGRESS_HOOK[0] = lambda _step, fraction, _message="": wm.progress_update(run.index + fraction)
         set_status(context, f"PDE Head: {self._run.next_label}... (Esc to cancel)")
         wm.modal_handler_add(self)
         return {'RUNNING_MODAL'}
@@ -337,7 +337,7 @@ class PDEHEAD_OT_run_pipeline(Operator, GuardedOperator, LoaderOptions):
         return {'RUNNING_MODAL'}
 
     def _end_ui(self, context) -> None:
-        study.PROGRESS_HOOK[0] = None
+        progress.PROGRESS_HOOK[0] = None
         wm = context.window_manager
         timer = getattr(self, "_timer", None)
         if timer is not None and wm is not None:

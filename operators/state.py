@@ -51,7 +51,7 @@ class StudyCache:
     stored_window: tuple | None = None  # the window of the CT table stored in the .blend (no CT needed)
     ct_table: tuple | None = None   # (table_key, SolidCTTable): the CT in the solid's (u, v, w)
     cutter_signature: tuple | None = None  # the cutter transform last applied (study.pdehead_cutter_update)
-    forensic: dict = field(default_factory=dict)  # the skull, bone mesh and depth results (forensic_study.py)
+    forensic: dict = field(default_factory=dict)  # the skull, bone mesh and depth results (forensic_skull.py)
 
     def drop_from(self, step: str) -> None:
         """Forget everything that depends on ``step`` ("ct", "seg", "bset", "head")."""
@@ -125,7 +125,7 @@ def cache_for(study_id: str) -> StudyCache:
 
 
 def restore_cache(study_id: str, cache: StudyCache) -> None:
-    """Put back a study's cache (a snapshot's copy, see study.StudySnapshot)."""
+    """Put back a study's cache (a snapshot's copy, see pipeline_run.StudySnapshot)."""
     _CACHE[study_id] = cache
 
 

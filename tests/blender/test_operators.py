@@ -232,7 +232,7 @@ def test_modal_pipeline_esc_removes_everything(ext, phantom, monkeypatch):
                               active_object=None, preferences=bpy.context.preferences)
     reports = []
     op_cls = ext.ops.PDEHEAD_OT_run_pipeline
-    op = SimpleNamespace(_run=ext.study.PipelineRun(bpy.context, "PHANTOM", settings=dict(patches=4, nu=16, nv=24)),
+    op = SimpleNamespace(_run=ext.pipeline_run.PipelineRun(bpy.context, "PHANTOM", settings=dict(patches=4, nu=16, nv=24)),
                          _timer=object(), report=lambda kind, msg: reports.append((kind, msg)))
     op._end_ui = lambda ctx: op_cls._end_ui(op, ctx)
     op.cancel = lambda ctx: op_cls.cancel(op, ctx)
