@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import bpy
 
-from . import state
+from . import compat, state
 
 
 def sub_collection(coll, suffix: str):
@@ -32,8 +32,7 @@ def plain_material(name: str, colour):
     mat = bpy.data.materials.get(name)
     if mat is None:
         mat = bpy.data.materials.new(name)
-        if mat.node_tree is None:
-            mat.use_nodes = True
+        compat.node_tree(mat)  # nodes on where Blender < 5.0 starts without
         bsdf = mat.node_tree.nodes.get("Principled BSDF")
         bsdf.inputs["Base Color"].default_value = colour
         bsdf.inputs["Roughness"].default_value = 0.6

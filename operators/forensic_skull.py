@@ -17,7 +17,7 @@ import numpy as np
 import bpy
 
 from ..pdehead_addon import PDEHeadError
-from . import state, study, study_ct
+from . import compat, state, study, study_ct
 from .forensic_objects import forensic_cache, linked_object, plain_material, set_material
 
 SKULL_BOUNDARY_KEY = "pdehead_skull_boundaries"
@@ -202,8 +202,7 @@ def depth_material():
     if mat is not None:
         return mat
     mat = bpy.data.materials.new(DEPTH_MATERIAL)
-    if mat.node_tree is None:
-        mat.use_nodes = True
+    compat.node_tree(mat)  # nodes on where Blender < 5.0 starts without
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
     bsdf = nodes.get("Principled BSDF")
     bsdf.inputs["Roughness"].default_value = 0.6

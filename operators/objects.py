@@ -15,6 +15,7 @@ import numpy as np
 
 from ..pdehead_addon import defaults as D
 from ..pdehead_addon.ct_volume import apply_window, intensity_window, sample_ct
+from . import compat
 from .coords import MM_TO_M
 from .ct_texture import box_faces, ct_texture_atlas
 
@@ -84,8 +85,7 @@ def _material(name: str):
     created = mat is None
     if created:
         mat = bpy.data.materials.new(name)
-        if mat.node_tree is None:
-            mat.use_nodes = True
+        compat.node_tree(mat)  # nodes on where Blender < 5.0 starts without
     return mat, created
 
 
@@ -118,8 +118,7 @@ def ensure_ct_material(obj=None, image=None):
     mat = bpy.data.materials.get(name)
     if mat is None:
         mat = bpy.data.materials.new(name)
-        if mat.node_tree is None:
-            mat.use_nodes = True
+        compat.node_tree(mat)  # nodes on where Blender < 5.0 starts without
         mat["pdehead_ct_material"] = 1
         nodes = mat.node_tree.nodes
         bsdf = nodes.get("Principled BSDF")

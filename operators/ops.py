@@ -364,12 +364,8 @@ class PDEHEAD_OT_frame_study(Operator, StudyOperator):
     bl_options = {'REGISTER', 'UNDO'}
 
     show: EnumProperty(name="Show", items=scene.SHOW_ITEMS, default="SURFACE")
-    view: EnumProperty(name="View", items=[("FRONT", "Front", "The face (Blender's front view)"),
-                                           ("RIGHT", "Right", "The patient's right side"),
-                                           ("LEFT", "Left", "The patient's left side"),
-                                           ("BACK", "Back", "The back of the head"),
-                                           ("THREE_QUARTER", "Three Quarter", "From front right, above")],
-                       default="FRONT")
+    view: EnumProperty(name="View", items=[(k, *D.VIEWS[k]) for k in D.VIEWS if k != "TOP"],
+                       default=D.VIEW.default)
 
     def run(self, context, coll):
         done = scene.frame_study(context, coll, show=self.show, view=self.view)

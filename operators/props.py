@@ -19,10 +19,10 @@ from bpy.props import (BoolProperty, EnumProperty, FloatProperty, FloatVectorPro
                        IntVectorProperty, PointerProperty, StringProperty)
 
 from ..pdehead_addon import defaults as D
-from . import face, state, study
+from . import compat, face, state, study
 
 #: Blender >= 4.5 warns about "//" in path properties unless they declare blend-relative support.
-PATH_OPTIONS = {'PATH_SUPPORTS_BLEND_RELATIVE'} if bpy.app.version >= (4, 5, 0) else set()
+PATH_OPTIONS = compat.blend_relative_path_options()
 
 def _live(what: str):
     """An update callback that rebuilds ``what`` of the study owning the settings (:func:`study.live_update`;

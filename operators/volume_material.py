@@ -12,6 +12,7 @@ import numpy as np
 
 from ..pdehead_addon import OUTSIDE_W
 from ..pdehead_addon import defaults as D
+from . import compat
 from .vdb_grids import GRID_NAMES
 
 GROUP_NAME = "PDE Head eq. 24"
@@ -230,8 +231,7 @@ def ensure_volume_material(obj=None, name: str | None = None):
     mat = bpy.data.materials.new(name)
     mat["pdehead_volume_material"] = 1
     mat["pdehead_volume_version"] = VOLUME_MATERIAL_VERSION
-    if mat.node_tree is None:
-        mat.use_nodes = True
+    compat.node_tree(mat)  # nodes on where Blender < 5.0 starts without
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
     nodes.clear()
 

@@ -231,6 +231,17 @@ FIRST_SLICE_CHOICES = ("auto", "superior", "inferior")
 TURNTABLE_FRAMES = _param("turntable_frames", 120, min=2, max=10000,
                           description="Frames of one camera orbit around the study (the scene's frame range)")
 
+# ----------------------------------------------------------------------------- views
+#: The named views of renders, Frame Study and the CLI's ``--view``: name -> (label, description). Each view's
+#: camera direction is in operators/render.py (``VIEWS``); Frame Study offers all but TOP.
+VIEWS = {"FRONT": ("Front", "The face (Blender's front view)"),
+         "RIGHT": ("Right", "The patient's right side"),
+         "LEFT": ("Left", "The patient's left side"),
+         "BACK": ("Back", "The back of the head"),
+         "TOP": ("Top", "From above (Blender's top view)"),
+         "THREE_QUARTER": ("Three Quarter", "From front right, above")}
+VIEW = _param("view", "FRONT", choices=tuple(VIEWS), description="The view to render or frame")
+
 # ----------------------------------------------------------------------------- forensic (issue 22)
 #: The bone level in the scan's stored units (HU where calibrated). Off: the documented rule of
 #: :func:`pdehead_addon.skull.segment_skull` (HU scans: half way between the soft-tissue and bone modes,

@@ -82,7 +82,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="render the volume (front view) to this .png or .jpg")
     p.add_argument("--summary-json", type=Path, metavar="FILE",
                    help="also write the summary (study, counts, timings, warnings, outputs) as JSON to FILE")
-    p.add_argument("--view", default="FRONT", choices=["FRONT", "RIGHT", "LEFT", "BACK", "TOP", "THREE_QUARTER"],
+    p.add_argument("--view", default=D.VIEW.default, choices=list(D.VIEWS),
                    help="render view; default FRONT (face, patient left on screen right)")
     p.add_argument("--resolution", type=int, default=320, help="render size in pixels; default 320")
     f = p.add_argument_group("forensic")
