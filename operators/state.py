@@ -351,7 +351,7 @@ def load_stored_ct_table(collection):
 
 def continuity(collection) -> str:
     """The study's surface continuity: the property once the user set it, else what the stored
-    boundary conditions were made for (files saved before the C2 surface: the paper's patches)."""
+    boundary conditions were made for."""
     s = settings(collection)
     if s.is_property_set("continuity"):
         return s.continuity
@@ -359,7 +359,7 @@ def continuity(collection) -> str:
     stored = bset.meta.get("pde_settings") if bset is not None else None
     if not isinstance(stored, dict):              # curves extracted in this session: today's default
         return s.continuity
-    return stored.get("continuity", "paper")
+    return stored.get("continuity", s.continuity)
 
 
 def pde_key(collection) -> tuple:

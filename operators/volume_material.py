@@ -223,14 +223,11 @@ def ensure_volume_material(obj=None, name: str | None = None):
     if obj is not None and obj.material_slots and obj.material_slots[0].material is not None:
         mat = obj.material_slots[0].material
         if mat.get("pdehead_volume_material") == 1:
-            if mat.get("pdehead_volume_version", 1) < VOLUME_MATERIAL_VERSION:
-                _upgrade_volume_material(mat)
             return mat
     if name is None:
         name = f"PDE Head Volume {obj.name}" if obj is not None else "PDE Head Volume"
     mat = bpy.data.materials.new(name)
     mat["pdehead_volume_material"] = 1
-    mat["pdehead_volume_version"] = VOLUME_MATERIAL_VERSION
     compat.node_tree(mat)  # nodes on where Blender < 5.0 starts without
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
     nodes.clear()
@@ -276,9 +273,6 @@ def ensure_volume_material(obj=None, name: str | None = None):
     return mat
 
 
-VOLUME_MATERIAL_VERSION = 2  #: 2: the colour ramp's alpha is the transfer function's opacity
-
-
 def _link_transfer(nodes, links, group_node, ramp, pv) -> None:
     """Density and emission of the volume = the eq. 24 group's outputs x the colour ramp's alpha."""
     for out_name, in_name, y in (("Density", "Density", 250), ("Emission Strength", "Emission Strength", 50)):
@@ -287,18 +281,6 @@ def _link_transfer(nodes, links, group_node, ramp, pv) -> None:
         links.new(group_node.outputs[out_name], node.inputs[0])
         links.new(ramp.outputs["Alpha"], node.inputs[1])
         links.new(node.outputs[0], pv.inputs[in_name])
-
-
-def _upgrade_volume_material(mat) -> None:
-    """A volume material of an older file (version 1): add the transfer-function opacity."""
-    nodes, links = mat.node_tree.nodes, mat.node_tree.links
-    group_node, ramp = nodes.get(GROUP_NAME), nodes.get("Intensity colour")
-    pv = next((n for n in nodes if n.bl_idname == "ShaderNodeVolumePrincipled"), None)
-    if group_node is not None and ramp is not None and pv is not None:
-        for element in ramp.color_ramp.elements:  # old presets had alpha 1: the look stays as it was
-            element.color = (*tuple(element.color)[:3], 1.0)
-        _link_transfer(nodes, links, group_node, ramp, pv)
-    mat["pdehead_volume_version"] = VOLUME_MATERIAL_VERSION
 
 
 def _volume_nodes(obj):
