@@ -355,6 +355,10 @@ class PDEHEAD_OT_run_pipeline(Operator, GuardedOperator, LoaderOptions):
         self._end_ui(context)
 
 
+#: The views Frame Study offers: every named view (defaults.VIEWS) but TOP.
+FRAME_VIEW_ITEMS = [(name, *D.VIEWS[name]) for name in D.VIEWS if name != "TOP"]
+
+
 class PDEHEAD_OT_frame_study(Operator, StudyOperator):
     bl_idname = "pdehead.frame_study"
     bl_label = "Frame Study"
@@ -364,8 +368,7 @@ class PDEHEAD_OT_frame_study(Operator, StudyOperator):
     bl_options = {'REGISTER', 'UNDO'}
 
     show: EnumProperty(name="Show", items=scene.SHOW_ITEMS, default="SURFACE")
-    view: EnumProperty(name="View", items=[(k, *D.VIEWS[k]) for k in D.VIEWS if k != "TOP"],
-                       default=D.VIEW.default)
+    view: EnumProperty(name="View", items=FRAME_VIEW_ITEMS, default=D.VIEW.default)
 
     def run(self, context, coll):
         done = scene.frame_study(context, coll, show=self.show, view=self.view)
