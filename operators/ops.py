@@ -92,19 +92,19 @@ class PDEHEAD_OT_extract_boundaries(Operator, StudyOperator):
     bl_description = "Extract the 3t+1 boundary curves (eq. 22) of t PDE patches from the segmentation"
     bl_options = {'REGISTER', 'UNDO'}
 
-    patches: IntProperty(name="Patches (t)", **D.PATCHES.limits())
-    samples: IntProperty(name="Samples (M)", **D.SAMPLES.limits())
-    selection: EnumProperty(name="Selection", items=props.SELECTION_ITEMS, default=D.SELECTION.default)
+    patches: IntProperty(name=D.PATCHES.label, **D.PATCHES.limits())
+    samples: IntProperty(name=D.SAMPLES.label, **D.SAMPLES.limits())
+    selection: EnumProperty(name=D.SELECTION.label, items=props.SELECTION_ITEMS, default=D.SELECTION.default)
     # equal v = the same direction from the spine
-    align_curves: BoolProperty(name="Align Curves", **D.ALIGN_CURVES.limits(),
+    align_curves: BoolProperty(name=D.ALIGN_CURVES.label, **D.ALIGN_CURVES.limits(),
                                description="Re-sample the curves so that equal v joins corresponding points "
                                            "(avoids folds where a feature such as the nose is on one curve only)")
 
-    use_tolerance: BoolProperty(name="Tolerance Instead of t", **D.USE_TOLERANCE.limits(),
+    use_tolerance: BoolProperty(name=D.USE_TOLERANCE.label, **D.USE_TOLERANCE.limits(),
                                 description=D.USE_TOLERANCE.description)
-    tolerance_mm: FloatProperty(name="Mean Tolerance", **D.TOLERANCE_MM.limits(),
+    tolerance_mm: FloatProperty(name=D.TOLERANCE_MM.label, **D.TOLERANCE_MM.limits(),
                                 description=D.TOLERANCE_MM.description)
-    max_tolerance_mm: FloatProperty(name="Max Tolerance", **D.MAX_TOLERANCE_MM.limits(),
+    max_tolerance_mm: FloatProperty(name=D.MAX_TOLERANCE_MM.label, **D.MAX_TOLERANCE_MM.limits(),
                                     description=D.MAX_TOLERANCE_MM.description)
 
     mirrored_settings = ("patches", "samples", "selection", "align_curves", "use_tolerance", "tolerance_mm",
@@ -130,16 +130,16 @@ class PDEHEAD_OT_reconstruct_surface(Operator, StudyOperator):
     bl_description = "Solve the Bloor-Wilson PDEs (eq. 1-13) on the boundary curves and build the head surface"
     bl_options = {'REGISTER', 'UNDO'}
 
-    nu: IntProperty(name="nu", **D.NU.limits())
-    nv: IntProperty(name="nv", **D.NV.limits())
-    caps: BoolProperty(name="Caps", **D.CAPS.limits())
-    continuity: EnumProperty(name="Continuity", items=props.CONTINUITY_ITEMS, default=D.CONTINUITY.default)
-    dome: BoolProperty(name="Dome", **D.DOME.limits())
-    smoothing_auto: BoolProperty(name="Auto Smoothing", **D.SMOOTHING_AUTO.limits())
-    smoothing: FloatProperty(name="Smoothing (a)", **D.SMOOTHING.limits(), subtype='FACTOR')
-    approximation_auto: BoolProperty(name="Auto Approximation", **D.APPROXIMATION_AUTO.limits())
-    approximation: FloatProperty(name="Smooth Along Axis", **D.APPROXIMATION.limits(), subtype='FACTOR')
-    modes: IntProperty(name="Fourier Modes", **D.MODES.limits(), description="0 = all")
+    nu: IntProperty(name=D.NU.label, **D.NU.limits())
+    nv: IntProperty(name=D.NV.label, **D.NV.limits())
+    caps: BoolProperty(name=D.CAPS.label, **D.CAPS.limits())
+    continuity: EnumProperty(name=D.CONTINUITY.label, items=props.CONTINUITY_ITEMS, default=D.CONTINUITY.default)
+    dome: BoolProperty(name=D.DOME.label, **D.DOME.limits())
+    smoothing_auto: BoolProperty(name=D.SMOOTHING_AUTO.label, **D.SMOOTHING_AUTO.limits())
+    smoothing: FloatProperty(name=D.SMOOTHING.label, **D.SMOOTHING.limits(), subtype='FACTOR')
+    approximation_auto: BoolProperty(name=D.APPROXIMATION_AUTO.label, **D.APPROXIMATION_AUTO.limits())
+    approximation: FloatProperty(name=D.APPROXIMATION.label, **D.APPROXIMATION.limits(), subtype='FACTOR')
+    modes: IntProperty(name=D.MODES.label, **D.MODES.limits(), description="0 = all")
 
     mirrored_settings = ("nu", "nv", "caps", "continuity", "dome", "smoothing_auto", "smoothing",
                          "approximation_auto", "approximation", "modes")
@@ -161,17 +161,17 @@ class PDEHEAD_OT_build_solid(Operator, StudyOperator):
     bl_description = "Build the PDE solid (eq. 23): the head sampled in u, v and w from the spine to the surface"
     bl_options = {'REGISTER', 'UNDO'}
 
-    nu: IntProperty(name="nu", **D.NU.limits())
-    nv: IntProperty(name="nv", **D.NV.limits())
-    nw: IntProperty(name="nw", **D.NW.limits())
-    u_range: FloatVectorProperty(name="u Range", size=2, **D.U_RANGE.limits())
-    v_range: FloatVectorProperty(name="v Range", size=2, **D.V_RANGE.limits(), unit="ROTATION")
-    w_range: FloatVectorProperty(name="w Range", size=2, **D.W_RANGE.limits())
-    ct_texture_budget: FloatProperty(name="CT Texture (MP)", **D.CT_TEXTURE_BUDGET.limits(),
+    nu: IntProperty(name=D.NU.label, **D.NU.limits())
+    nv: IntProperty(name=D.NV.label, **D.NV.limits())
+    nw: IntProperty(name=D.NW.label, **D.NW.limits())
+    u_range: FloatVectorProperty(name=D.U_RANGE.label, size=2, **D.U_RANGE.limits())
+    v_range: FloatVectorProperty(name=D.V_RANGE.label, size=2, **D.V_RANGE.limits(), unit="ROTATION")
+    w_range: FloatVectorProperty(name=D.W_RANGE.label, size=2, **D.W_RANGE.limits())
+    ct_texture_budget: FloatProperty(name=D.CT_TEXTURE_BUDGET.label, **D.CT_TEXTURE_BUDGET.limits(),
                                      description=D.CT_TEXTURE_BUDGET.description + " (megapixels)")
-    solid_skin: EnumProperty(name="Outside", items=props.SOLID_SKIN_ITEMS, default=D.SOLID_SKIN.default,
+    solid_skin: EnumProperty(name=D.SOLID_SKIN.label, items=props.SOLID_SKIN_ITEMS, default=D.SOLID_SKIN.default,
                              description=D.SOLID_SKIN.description)
-    solid_skin_depth: FloatProperty(name="Skin Depth (mm)", **D.SOLID_SKIN_DEPTH.limits(),
+    solid_skin_depth: FloatProperty(name=D.SOLID_SKIN_DEPTH.label, **D.SOLID_SKIN_DEPTH.limits(),
                                     description=D.SOLID_SKIN_DEPTH.description)
 
     mirrored_settings = ("nu", "nv", "nw", "u_range", "v_range", "w_range", "ct_texture_budget", "solid_skin",
@@ -200,14 +200,14 @@ class PDEHEAD_OT_build_volume(Operator, StudyOperator):
                       "and render it as a volume with eq. 24 opacity")
     bl_options = {'REGISTER', 'UNDO'}
 
-    use_ct_grid: BoolProperty(name="CT Grid", **D.USE_CT_GRID.limits())
-    voxel_auto: BoolProperty(name="Auto Voxel Size", **D.VOXEL_AUTO.limits())
+    use_ct_grid: BoolProperty(name=D.USE_CT_GRID.label, **D.USE_CT_GRID.limits())
+    voxel_auto: BoolProperty(name=D.VOXEL_AUTO.label, **D.VOXEL_AUTO.limits())
     voxel_size: FloatProperty(name="Voxel Size (mm)", **D.VOXEL_SIZE.limits())
-    low_alpha: FloatProperty(name="Low Alpha", **D.LOW_ALPHA.limits())
-    high_alpha: FloatProperty(name="High Alpha", **D.HIGH_ALPHA.limits())
-    density: FloatProperty(name="Density", **D.DENSITY.limits())
+    low_alpha: FloatProperty(name=D.LOW_ALPHA.label, **D.LOW_ALPHA.limits())
+    high_alpha: FloatProperty(name=D.HIGH_ALPHA.label, **D.HIGH_ALPHA.limits())
+    density: FloatProperty(name=D.DENSITY.label, **D.DENSITY.limits())
     colour_preset: EnumProperty(name="Colour", items=props.COLOUR_ITEMS, default=D.COLOUR_PRESET.default)
-    alpha_mode: EnumProperty(name="Alpha Mode", items=props.ALPHA_MODE_ITEMS, default=D.ALPHA_MODE.default)
+    alpha_mode: EnumProperty(name=D.ALPHA_MODE.label, items=props.ALPHA_MODE_ITEMS, default=D.ALPHA_MODE.default)
 
     mirrored_settings = ("use_ct_grid", "voxel_auto", "voxel_size", "low_alpha", "high_alpha", "density", "colour_preset",
                          "alpha_mode")
@@ -245,11 +245,11 @@ class PDEHEAD_OT_run_pipeline(Operator, GuardedOperator, LoaderOptions):
 
     source: EnumProperty(name="Source", items=SOURCE_ITEMS, default="AUTO")
     study: StringProperty(name="Study", default="", options={'SKIP_SAVE'})
-    patches: IntProperty(name="Patches (t)", **D.PATCHES.limits())
-    samples: IntProperty(name="Samples (M)", **D.SAMPLES.limits())
-    nu: IntProperty(name="nu", **D.NU.limits())
-    nv: IntProperty(name="nv", **D.NV.limits())
-    nw: IntProperty(name="nw", **D.NW.limits())
+    patches: IntProperty(name=D.PATCHES.label, **D.PATCHES.limits())
+    samples: IntProperty(name=D.SAMPLES.label, **D.SAMPLES.limits())
+    nu: IntProperty(name=D.NU.label, **D.NU.limits())
+    nv: IntProperty(name=D.NV.label, **D.NV.limits())
+    nw: IntProperty(name=D.NW.label, **D.NW.limits())
     build_volume: BoolProperty(name="Volume", default=True, description="Also build the volume")
     voxel_size: FloatProperty(name="Voxel Size (mm)", **D.VOXEL_SIZE.limits())
 
@@ -383,7 +383,7 @@ class PDEHEAD_OT_turntable(Operator, StudyOperator):
                       "number of frames (the scene's frame range); Render Animation renders it")
     bl_options = {'REGISTER', 'UNDO'}
 
-    frames: IntProperty(name="Frames", default=D.TURNTABLE_FRAMES.default, min=D.TURNTABLE_FRAMES.min,
+    frames: IntProperty(name=D.TURNTABLE_FRAMES.label, default=D.TURNTABLE_FRAMES.default, min=D.TURNTABLE_FRAMES.min,
                         max=D.TURNTABLE_FRAMES.max, description=D.TURNTABLE_FRAMES.description)
 
     def run(self, context, coll):
