@@ -340,7 +340,7 @@ def load_stored_ct_table(collection):
     text = collection.get(CT_TABLE_KEY)
     if not text:
         return None
-    from ..pdehead_addon.pde_solid import SolidCTTable
+    from ..pdehead_addon.solid_ct_table import SolidCTTable
     try:
         table, window = SolidCTTable.from_bytes(base64.b64decode(str(text).encode("ascii"), validate=True))
     except Exception as exc:  # noqa: BLE001 - a damaged table is as good as none; the CT can re-make it

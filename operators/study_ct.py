@@ -106,7 +106,7 @@ def ct_table(collection, head, ct):
     """
     table = current_ct_table(collection)
     if table is None:
-        from ..pdehead_addon.pde_solid import SolidCTTable
+        from ..pdehead_addon.solid_ct_table import SolidCTTable
         table = SolidCTTable(head, ct, progress=step_progress("solid"))
         state.cache_for(state.settings(collection).study_id).ct_table = (state.table_key(collection), table)
     return table

@@ -8,8 +8,10 @@ pipeline of the paper "A PDE-based head visualization method with CT data"
 2. :mod:`.segmentation`  - 3D Chan-Vese soft segmentation (eq. 16-21, :mod:`.chan_vese`) and clean-up
                            (:mod:`.mask_cleanup`)
 3. :mod:`.boundaries`    - eq. 22 boundary curves, 3t+1 of them as a :class:`BoundarySet`
-   (:mod:`.slice_selection`: the automatic choice of the slices, the paper's open problem)
-4. :mod:`.pde_surface`   - t Bloor-Wilson PDE patches (eq. 1-13)
+   (:mod:`.slice_selection`: the choice of the slices, automatic or by a named strategy, the paper's
+   open problem; :mod:`.slice_outlines`: each slice's outline; :mod:`.curve_sampling`: the curves' samples)
+4. :mod:`.pde_surface`   - t Bloor-Wilson PDE patches (eq. 1-13), solved into a :class:`PDEHead` (:mod:`.pde_head`;
+                           the smoothing a of the paper's patches: :mod:`.pde_smoothing`)
 5. :mod:`.pde_solid`     - the solid (eq. 23), its w-field and eq. 24 opacity
 6. :mod:`.storage`       - the compact boundary file (section 5.2)
 
@@ -27,11 +29,14 @@ from .dicom_export import write_dicom_series, write_phantom_series
 from .segmentation import Segmentation, segment_head
 from .metrics import jaccard, per_slice_jaccard, reference_head_mask
 from .boundary_set import BoundarySet, knots_from_heights
-from .boundaries import (extract_boundaries, max_patches, patches_for_scan, boundary_ring, contour_from_mask, parameter_offsets, scan_edge_slices,
-                         register_selection, SELECTION_STRATEGIES)
+from .boundaries import extract_boundaries, BoundaryOptions, max_patches, patches_for_scan
+from .slice_outlines import boundary_ring
+from .curve_sampling import contour_from_mask, parameter_offsets
 from . import slice_selection
-from .slice_selection import SelectionWarning, select_for_tolerance
-from .pde_surface import solve_pde, PDEHead, smoothing_bounds, control_ranges, solve_with_controls
+from .slice_selection import SelectionWarning, select_for_tolerance, scan_edge_slices, register_selection, SELECTION_STRATEGIES
+from .pde_surface import solve_pde, control_ranges, solve_with_controls
+from .pde_head import PDEHead
+from .pde_smoothing import smoothing_bounds
 from .surface_quality import surface_quality
 from .parameterisation import align_parameterisation, smooth_closed_curve, correspondence_error
 from .pde_solid import alpha_from_w, w_field, solid_mesh, WField, OUTSIDE_W

@@ -10,6 +10,8 @@ transforms it replaces).
 """
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from typing import Sequence
 
 import numpy as np
@@ -44,26 +46,39 @@ class _Packed:
         out = np.unpackbits(raw, axis=-1, count=self.nx, bitorder="little").view(bool)
         return out.reshape(shape)
 
+    def _scratch(self, name: str) -> np.ndarray:
+        """A work array shaped like the words, kept between steps (fresh large arrays cost page faults)."""
+        buf = self.__dict__.get(name)
+        if buf is None or buf.shape != self.words.shape:
+            buf = np.empty_like(self.words)
+            setattr(self, name, buf)
+        return buf
+
     def _x_neighbour(self, w: np.ndarray, dx: int, fill: bool) -> np.ndarray:
-        """Words whose bit i is the voxel at x + dx (``fill`` outside the row).
+        """Words whose bit i is the voxel at x + dx (``fill`` outside the row), in a scratch array.
 
         Shifted on the flat array (contiguous, fast); the bit carried across a row end is then
         replaced by ``fill``."""
         one, s63 = np.uint64(1), np.uint64(63)
         flat = w.reshape(-1)
+        out = self._scratch("_xbuf")
+        carry = self._scratch("_carry").reshape(-1)
+        res = out.reshape(-1)
         if dx == 1:
-            out = flat >> one
-            out[:-1] |= flat[1:] << s63
-            edge, bit = out.reshape(w.shape)[..., -1], one << s63
+            np.right_shift(flat, one, out=res)
+            np.left_shift(flat[1:], s63, out=carry[:-1])
+            np.bitwise_or(res[:-1], carry[:-1], out=res[:-1])
+            edge, bit = out[..., -1], one << s63
         else:
-            out = flat << one
-            out[1:] |= flat[:-1] >> s63
-            edge, bit = out.reshape(w.shape)[..., 0], one
+            np.left_shift(flat, one, out=res)
+            np.right_shift(flat[:-1], s63, out=carry[1:])
+            np.bitwise_or(res[1:], carry[1:], out=res[1:])
+            edge, bit = out[..., 0], one
         if fill:
             edge |= bit
         else:
             edge &= ~bit
-        return out.reshape(w.shape)
+        return out
 
     def combine(self, offsets: Sequence[tuple[int, ...]], erode: bool) -> None:
         """In place: AND (erode) / OR of the volume shifted by each offset ((dy, dx) or (dz, dy, dx), |dx| <= 1)."""
@@ -73,7 +88,8 @@ class _Packed:
                 w[..., -1] |= self.pad_bits
             else:
                 w[..., -1] &= ~self.pad_bits
-        out = w.copy()
+        out = self._scratch("_spare")
+        np.copyto(out, w)
         shape = w.shape
         for offset in offsets:
             dz, dy, dx = (0,) * (3 - len(offset)) + tuple(int(o) for o in offset)
@@ -88,16 +104,52 @@ class _Packed:
                 out[dst] &= src_w[src]
             else:
                 out[dst] |= src_w[src]
-        self.words = out
+        self._spare, self.words = w, out      # the old words are the next step's spare
+
+
+#: In-slice plans on volumes of at least this many voxels run on slabs of slices in parallel threads
+#: (numpy releases the GIL in the word operations; the slices are independent, so the result is the same).
+PARALLEL_VOXELS = 4_000_000
+#: Threads of :func:`run_steps` (the machines of the benchmarks have two cores).
+THREADS = min(2, os.cpu_count() or 1)
 
 
 def run_steps(mask: np.ndarray, plan: Sequence[tuple[Sequence[tuple[int, ...]], bool]]) -> np.ndarray:
-    """Apply ``(offsets, erode)`` steps in order to a bool volume (2-D or 3-D) on packed words."""
+    """Apply ``(offsets, erode)`` steps in order to a bool volume (2-D or 3-D) on packed words.
+
+    A plan whose offsets all stay in the slice (no z step) runs on :data:`THREADS` slabs of slices at
+    once when the volume has at least :data:`PARALLEL_VOXELS` voxels."""
     shape = mask.shape
-    packed = _Packed(mask if mask.ndim == 3 else mask.reshape((1,) + shape))
+    volume = mask if mask.ndim == 3 else mask.reshape((1,) + shape)
+    in_slice = all(len(o) == 2 or int(o[0]) == 0 for offsets, _ in plan for o in offsets)
+    if not in_slice or volume.size < PARALLEL_VOXELS or THREADS < 2 or volume.shape[0] < 2:
+        return _run_slab(volume, plan).reshape(shape)
+    out = np.empty(volume.shape, dtype=bool)
+
+    def slab(a: int, b: int) -> None:
+        out[a:b] = _run_slab(volume[a:b], plan)
+
+    in_slabs(volume.shape[0], slab)
+    return out.reshape(shape)
+
+
+def in_slabs(n: int, work, parts: int | None = None) -> None:
+    """``work(a, b)`` on ``parts`` (default :data:`THREADS`) consecutive ranges of ``range(n)``, one
+    per thread (numpy releases the GIL in its loops); the first exception is raised."""
+    parts = max(1, min(THREADS if parts is None else int(parts), int(n)))
+    cuts = np.linspace(0, n, parts + 1).round().astype(int)
+    if parts == 1:
+        work(0, int(n))
+        return
+    with ThreadPoolExecutor(parts) as pool:
+        list(pool.map(lambda k: work(int(cuts[k]), int(cuts[k + 1])), range(parts)))
+
+
+def _run_slab(volume: np.ndarray, plan) -> np.ndarray:
+    packed = _Packed(volume)
     for offsets, erode in plan:
         packed.combine(offsets, erode)
-    return packed.unpack(shape)
+    return packed.unpack(volume.shape)
 
 
 def _x_runs(packed: _Packed, widths, erode: bool) -> dict[int, np.ndarray]:

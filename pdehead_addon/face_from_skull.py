@@ -1082,9 +1082,9 @@ class FaceModel:
             cache[key("radius")] = fixed["radius"]
         head = solve_pde(bset, approximation_mm=0.0)
         if not fixed:
-            from .pde_surface import _curve_positions, smoothing_range
+            from .pde_surface import curve_positions, smoothing_range
             smoothing_range(bset)                                # computes and caches the mean radius
-            fixed["positions"] = _curve_positions(bset)
+            fixed["positions"] = curve_positions(bset)
             fixed["radius"] = bset.__dict__["_derived"][("radius", bset.curves.ctypes.data, bset.curves.shape)]
         return head
 

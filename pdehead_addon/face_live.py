@@ -145,14 +145,14 @@ class LiveFace:
     def _grid(self, head) -> np.ndarray:
         """``head._grid(u, nv)`` (the tube's points, (nu - 1, nv, 3)) with each cubic row's four basis
         weights gathered instead of a dense rows x (spans x 4) product."""
-        from .pde_surface import _fold, ring_points
+        from .pde_head import fold_harmonics, ring_points
 
         u, nv = self._u, self.nv
         H, nb = head.harmonics, nv // 2 + 1
         self._spine0 = None
         density = self.model.__dict__.get("_v_density", [None])[0]
         if density is not None:                                   # columns closer where an outline runs radially
-            from .surface_mesh import column_v
+            from .surface_columns import column_v
             return head._grid(u, None, v=column_v(density, nv))
         if H > (nv + 1) // 2:                                     # harmonics folded: the head's own
             return head._grid(u, nv)
@@ -172,7 +172,7 @@ class LiveFace:
             spec[rows, :, :H] = (amp[..., :3] + 1j * amp[..., 3:]).transpose(0, 2, 1)
         if not np.all(cubic):
             other = np.flatnonzero(~cubic)
-            spec[other] = _fold(head._amplitudes(u[other]).transpose(0, 2, 1), nv)
+            spec[other] = fold_harmonics(head._amplitudes(u[other]).transpose(0, 2, 1), nv)
         return ring_points(spec, nv)
 
     def _positions(self, tips: np.ndarray) -> np.ndarray | None:
@@ -194,9 +194,9 @@ class LiveFace:
     def _cap_vertices(self, ring: np.ndarray, centre: np.ndarray) -> np.ndarray | None:
         """The neck cap's new points (:class:`.surface_mesh.DiscCap`'s ``vertices`` for the model's cap
         reference), without its triangles: what depends on the counts alone is kept from the first call."""
-        from .surface_mesh import CAP_EDGE, DiscCap, _star_shaped
+        from .surface_mesh import CAP_EDGE, DiscCap, star_shaped_ring
 
-        if not _star_shaped(ring, centre)[0]:
+        if not star_shaped_ring(ring, centre)[0]:
             return None
         fixed = self.__dict__.get("_cap_fixed")
         if fixed is None:                                  # the plan's counts and sample fractions: once

@@ -14,7 +14,8 @@ import numpy as np
 from scipy import ndimage as ndi
 
 from . import run_labels
-from .binary_morphology import _Packed, run_steps as _run_steps  # noqa: F401 (re-exported)
+from .binary_morphology import PARALLEL_VOXELS, THREADS, in_slabs
+from .binary_morphology import run_steps as _run_steps
 from .errors import SegmentationError
 
 
@@ -148,7 +149,17 @@ def fill_holes_per_slice(mask: np.ndarray) -> np.ndarray:
     """
     if mask.ndim == 2:
         return fill_holes_per_slice(mask[None])[0]
-    return run_labels.fill_holes_per_slice(mask)
+    nz = mask.shape[0]
+    if mask.size < PARALLEL_VOXELS or THREADS < 2 or nz < 2:
+        return run_labels.fill_holes_per_slice(mask)
+    # large volumes: two slabs of slices in threads (the slices are independent: the same result)
+    out = np.empty(mask.shape, dtype=bool)
+
+    def slab(a: int, b: int) -> None:
+        out[a:b] = run_labels.fill_holes_per_slice(mask[a:b])
+
+    in_slabs(nz, slab)
+    return out
 
 
 def fill_cavities(mask: np.ndarray, spacing_yx: Sequence[float], radius_mm: float = 4.0) -> np.ndarray:
@@ -162,9 +173,15 @@ def fill_cavities(mask: np.ndarray, spacing_yx: Sequence[float], radius_mm: floa
     slice (a superset of the 3-D holes).
     """
     closed = close_disk(mask, spacing_yx, radius_mm)
-    cavities = fill_holes_per_slice(closed) & ~closed
-    seals = closed & ~mask & dilate_disk(cavities, spacing_yx, radius_mm)
-    return fill_holes_per_slice(mask | cavities | seals)
+    cavities = fill_holes_per_slice(closed)
+    np.greater(cavities, closed, out=cavities)                   # filled & ~closed (in place: fewer passes)
+    seals = dilate_disk(cavities, spacing_yx, radius_mm)
+    np.greater(closed, mask, out=closed)                         # closed & ~mask
+    seals &= closed
+    del closed
+    seals |= cavities
+    seals |= mask
+    return fill_holes_per_slice(seals)
 
 
 def _bounding_box(mask: np.ndarray, margin: Sequence[int]) -> tuple[slice, ...] | None:
@@ -331,6 +348,22 @@ def _windowed_range(raw: np.ndarray, window: tuple[float, float], above: tuple[f
     dtype = raw.dtype
     if not ((dtype.kind in "iu" and dtype.itemsize <= 2) or dtype == np.float32):
         return None
+    if raw.ndim == 3 and raw.size >= PARALLEL_VOXELS and THREADS > 1 and raw.shape[0] >= THREADS:
+        # large volumes: slabs of slices in threads (element-wise: the same result)
+        out = np.empty(raw.shape, dtype=bool)
+
+        def slab(a: int, b: int) -> None:
+            out[a:b] = _windowed_range_serial(raw[a:b], window, above, below)
+
+        in_slabs(raw.shape[0], slab)
+        return out
+    return _windowed_range_serial(raw, window, above, below)
+
+
+def _windowed_range_serial(raw: np.ndarray, window: tuple[float, float], above: tuple[float, bool] | None,
+                           below: float | None) -> np.ndarray:
+    """:func:`_windowed_range` in the calling thread (``raw`` of a supported data type)."""
+    dtype = raw.dtype
     out = None
     if above is not None:
         first = _first_passing(dtype, window, above[0], above[1])
@@ -598,8 +631,9 @@ def cut_at_neck(mask: np.ndarray, spacing: Sequence[float], head_height_mm: floa
     A head-and-neck scan reaches the shoulders, which join the neck in the mask; the
     PDE head (and its boundary curves) must end at the neck. The head's widest slice
     is looked for in the top ``head_height_mm`` of the mask (the widest level, at the
-    ears, lies 90-130 mm below the vertex; the shoulders 200 mm or more). Going down from it the cross-section shrinks to the neck; the
-    trunk starts at the first slice whose area exceeds ``area_jump`` times the
+    ears, lies 90-130 mm below the vertex; the shoulders 200 mm or more). Going down
+    from it the cross-section shrinks to the neck; the trunk starts at the first slice
+    whose area exceeds ``area_jump`` times the
     smallest area above it and which is wider than the head. The mask is cut below
     the neck: the lowest slice between the head's widest slice and the trunk whose
     area is within ``neck_margin`` of that smallest area. Scans without shoulders are

@@ -5,7 +5,8 @@ remainder R of eq. 11 scaled by w as well, so that w = 1 is exactly the
 surface and w = 0 the spine A0). :func:`solid_mesh` meshes the boundary of a
 parametric box of it (the cut-aways of Fig. 14); :func:`w_field` tabulates w
 on a voxel grid together with the CT intensity masked by the solid (the 3-D
-texture of section 4.3.1); :func:`alpha_from_w` is eq. 24.
+texture of section 4.3.1); :func:`alpha_from_w` is eq. 24. The CT on a (u, v, w) grid of the
+solid, for live cut-aways, is :mod:`.solid_ct_table`'s.
 """
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ import numpy as np
 from .ct_volume import CTVolume
 from .errors import PDEError, report_progress
 from .mesh import Mesh
-from .surface_mesh import _check_count
+from .surface_mesh import check_count
 
 #: Value of the w-field at voxels outside the solid (any value > 1 means outside).
 OUTSIDE_W = 2.0
@@ -106,14 +107,14 @@ def solid_mesh(head, nu: int, nv: int, nw: int, u_range: tuple[float, float] = (
         the spine become triangles, so the mesh stays a valid closed 2-manifold
         without zero-area faces.
     """
-    nu, nw = _check_count(nu, "nu", 2), _check_count(nw, "nw", 2)
+    nu, nw = check_count(nu, "nu", 2), check_count(nw, "nw", 2)
     u0, u1 = _range(u_range, "u_range", 0.0, 1.0)
     v0, v1 = _range(v_range, "v_range", -TWO_PI, 2 * TWO_PI)
     w0, w1 = _range(w_range, "w_range", 0.0, 1.0)
     if v1 - v0 > TWO_PI + 1e-9:
         raise PDEError(f"v_range spans more than 2 pi: ({v0:g}, {v1:g})")
     full = v1 - v0 >= TWO_PI - 1e-9
-    nv = _check_count(nv, "nv", 3 if full else 2)
+    nv = check_count(nv, "nv", 3 if full else 2)
     u = np.linspace(u0, u1, nu)
     w = np.linspace(w0, w1, nw)
     v = v0 + TWO_PI * np.arange(nv) / nv if full else np.linspace(v0, v1, nv)
@@ -121,7 +122,7 @@ def solid_mesh(head, nu: int, nv: int, nw: int, u_range: tuple[float, float] = (
     density = head.v_density() if uniform is not None and hasattr(head, "v_density") else None
     if density is not None:             # the surface's columns (PDEHead.v_columns): its skin, its grid
         v, uniform = head.v_columns(nv), None
-    surf = _surface_grid_cached(head, u, v, uniform)
+    surf = surface_grid_cached(head, u, v, uniform)
     spine = head.spine(u)                                                    # (nu, 3)
     crown = getattr(head, "vertex", None) is not None and u1 == 1.0
     quads, tris, quad_c, tri_c, iu, iv, iw = _solid_topology(nu, nv, nw, full, w0 == 0.0, head.orientation > 0,
@@ -135,8 +136,8 @@ def solid_mesh(head, nu: int, nv: int, nw: int, u_range: tuple[float, float] = (
                 {"u": u[iu], "v": v[iv], "w": w[iw]})
 
 
-def _surface_grid_cached(head, u: np.ndarray, v: np.ndarray, nv_uniform: int | None) -> np.ndarray:
-    """The surface grid X(u_i, v_j): the head's cached :meth:`~.pde_surface.PDEHead.grid` (shared with
+def surface_grid_cached(head, u: np.ndarray, v: np.ndarray, nv_uniform: int | None) -> np.ndarray:
+    """The surface grid X(u_i, v_j): the head's cached :meth:`~.pde_head.PDEHead.grid` (shared with
     its surface mesh) when it has one, else its ``_grid``."""
     if hasattr(head, "grid"):
         return head.grid(u, nv_uniform) if nv_uniform is not None else head.grid(u, v=v)
@@ -265,7 +266,7 @@ class WField:
                         {"source": "pde w_field", "channel": which, **self.meta})
 
 
-def _axial_grid(spacing, origin, direction) -> tuple[np.ndarray, np.ndarray, float, float]:
+def axial_grid(spacing, origin, direction) -> tuple[np.ndarray, np.ndarray, float, float]:
     """In-plane affine of an axial grid: (2x2 matrix index(i,j)->xy, xy origin, z0, dz per k)."""
     D = np.asarray(direction, float)
     dz, dy, dx = spacing
@@ -435,7 +436,7 @@ def w_field(head, grid, ct: CTVolume | None = None, directions: int = 4096,
         spacing, origin, direction = (size, size, size), lo, np.eye(3)
     if ct is not None and not isinstance(ct, CTVolume):
         raise PDEError(f"ct must be a CTVolume, got {type(ct).__name__}")
-    A, oxy, z0, dzk = _axial_grid(spacing, origin, direction)
+    A, oxy, z0, dzk = axial_grid(spacing, origin, direction)
     A_inv = np.linalg.inv(A)
     nz, nj, ni = shape
     w_out = np.full(shape, OUTSIDE_W, np.float32)
@@ -502,235 +503,3 @@ def w_field(head, grid, ct: CTVolume | None = None, directions: int = 4096,
             "section_samples": int(n_sec), "outside_w": OUTSIDE_W}
     return WField(w_out, intensity, tuple(float(s) for s in spacing), np.asarray(origin, float).copy(),
                   np.asarray(direction, float).copy(), meta)
-
-
-# ----------------------------------------------------------------------------- CT in parameter space
-
-
-class SolidCTTable:
-    """The CT tabulated once on a regular (u, v, w) grid of the solid (eq. 23), for live cutaways.
-
-    Texturing a cutaway (section 4.3.1) samples the CT at ``X(u, v, w)`` over every face of
-    the parametric box. Evaluating the PDE surface and interpolating the CT for each slider
-    step costs tens of milliseconds; the positions depend only on the PDE solution, so the CT
-    is sampled once at ``X(u_i, v_j, w_k)`` on a fine regular parameter grid and every later
-    look-up is a trilinear interpolation in (u, v, w) with the period 2 pi in v.
-
-    Parameters
-    ----------
-    head : PDEHead
-    ct : CTVolume
-    nu, nv, nw : int, optional
-        Table resolution. Defaults: about one CT voxel per sample along u and around v and
-        two voxels along w, capped at 256 x 256 x 64 (~17 MB float32). 256 around v is twice what
-        the solid shows by default (its 128-pixel atlas tiles, nv = 240) and halves the time a PDE
-        change waits for its colours (CThead: 512 -> 256 samples around a 600 mm perimeter).
-    chunk : int
-        u rows sampled together (bounds the temporary position arrays).
-    progress : callable, optional
-        ``progress(fraction, message)`` per chunk of u rows; it may raise
-        :class:`~pdehead_addon.errors.Cancelled`.
-
-    Notes
-    -----
-    Values are raw CT units (window them afterwards). Outside the CT box the lowest CT
-    value is used, as :func:`ct_volume.sample_ct` does. ``table`` is stored ``[w, u, v]``
-    (v with one closing column at 2 pi).
-    """
-
-    MAX_SHAPE = (256, 256, 64)
-
-    def __init__(self, head, ct: CTVolume, nu: int | None = None, nv: int | None = None,
-                 nw: int | None = None, chunk: int = 16, progress=None):
-        from .ct_volume import trilinear
-
-        if nu is None or nv is None or nw is None:
-            probe_u = np.linspace(0.0, 1.0, 33)
-            probe = head._grid(probe_u, 64)                                     # (33, 64, 3) mm
-            voxel = float(min(ct.spacing))
-            height = float(np.linalg.norm(np.diff(head.spine(probe_u), axis=0), axis=1).sum())
-            perimeter = float(np.max(np.linalg.norm(np.diff(probe, axis=1, append=probe[:, :1]), axis=2).sum(axis=1)))
-            radius = float(np.max(np.linalg.norm(probe - head.spine(probe_u)[:, None, :], axis=2)))
-            auto = (height / voxel, perimeter / voxel, radius / (2.0 * voxel))
-            nu_a, nv_a, nw_a = (int(np.clip(np.ceil(n), 16, m)) for n, m in zip(auto, self.MAX_SHAPE))
-            nu, nv, nw = nu or nu_a, nv or nv_a, nw or nw_a
-        self.shape = (int(nu), int(nv), int(nw))
-        self.u = np.linspace(0.0, 1.0, self.shape[0])
-        self.v = TWO_PI * np.arange(self.shape[1]) / self.shape[1]
-        self.w = np.linspace(0.0, 1.0, self.shape[2])
-        inv = np.linalg.inv(ct.affine[:3, :3])
-        cval = float(np.min(ct.data)) if ct.data.size else 0.0
-        table = np.empty((self.shape[0], self.shape[1] + 1, self.shape[2]), np.float32)
-        if self._fill_planar(table, head, ct, cval, chunk, progress):
-            self.table = np.ascontiguousarray(table.transpose(2, 0, 1))
-            return
-        for start in range(0, self.shape[0], chunk):
-            report_progress(progress, start / self.shape[0], "tabulating the CT in (u, v, w)")
-            us = self.u[start:start + chunk]
-            surf = head._grid(us, self.shape[1])                                # (c, nv, 3)
-            spine = head.spine(us)[:, None, None, :]
-            pts = spine + self.w[None, None, :, None] * (surf[:, :, None, :] - spine)
-            ijk = (pts.reshape(-1, 3) - ct.origin) @ inv.T
-            vals = trilinear(ct.data, ijk[:, ::-1], cval=cval)
-            table[start:start + len(us), :-1] = vals.reshape(len(us), self.shape[1], self.shape[2])
-        table[:, -1] = table[:, 0]                                               # v = 2 pi is v = 0
-        # stored w-major, [w, u, v]: a face at one w (the shells, most texels) is one contiguous slab
-        self.table = np.ascontiguousarray(table.transpose(2, 0, 1))
-
-    def _fill_planar(self, table: np.ndarray, head, ct: CTVolume, cval: float, chunk: int, progress=None) -> bool:
-        """Fill ``table`` ([u, v, w]) when every u is one axial CT plane; False when it is not.
-
-        For a head solved from axial curves (``planar_z``) on an axial CT grid, all the points
-        ``X(u, v, w)`` of one u lie in the plane ``z = A0_z(u)``: the CT is interpolated once
-        between the two slices around it and then bilinearly in that plane (4 gathers in float32
-        instead of 8 in float64): the same values as :func:`ct_volume.trilinear` (edge half-voxels
-        included, `cval` beyond), about 3x faster.
-        """
-        if not getattr(head, "planar_z", False) or ct.shape[0] < 2 or min(ct.shape[1:]) < 2:
-            return False
-        try:
-            A, oxy, z0, dzk = _axial_grid(ct.spacing, ct.origin, ct.direction)
-        except PDEError:
-            return False
-        A_inv = np.linalg.inv(A).astype(np.float32)
-        data = ct.data
-        nz, ny, nx = data.shape
-        w = self.w.astype(np.float32)[None, None, :, None]
-        for start in range(0, self.shape[0], chunk):
-            report_progress(progress, start / self.shape[0], "tabulating the CT in (u, v, w)")
-            us = self.u[start:start + chunk]
-            c = len(us)
-            spine = head.spine(us)                                               # (c, 3)
-            kf = (spine[:, 2] - z0) / dzk
-            k_ok = (kf >= -0.5) & (kf <= nz - 0.5)
-            kc = np.clip(kf, 0.0, nz - 1)
-            k0 = np.clip(np.floor(kc), 0, nz - 2).astype(np.int64)
-            fk = np.clip(kc - k0, 0.0, 1.0).astype(np.float32)[:, None, None]
-            lower = data[k0].astype(np.float32, copy=False)
-            planes = (lower + fk * (data[k0 + 1] - lower)).reshape(-1)           # (c * ny * nx,)
-            sxy = spine[:, None, None, :2].astype(np.float32)
-            surf = head._grid(us, self.shape[1])[..., :2].astype(np.float32)      # (c, nv, 2)
-            xy = sxy + w * (surf[:, :, None, :] - sxy)                           # (c, nv, nw, 2)
-            ij = (xy - oxy.astype(np.float32)) @ A_inv.T                         # (i, j) index coordinates
-            fi, fj = ij[..., 0], ij[..., 1]
-            inside = (fi >= -0.5) & (fi <= nx - 0.5) & (fj >= -0.5) & (fj <= ny - 0.5) & k_ok[:, None, None]
-            fi = np.clip(fi, 0.0, nx - 1)
-            fj = np.clip(fj, 0.0, ny - 1)
-            i0 = np.minimum(fi.astype(np.int64), nx - 2)
-            j0 = np.minimum(fj.astype(np.int64), ny - 2)
-            ti = fi - i0
-            tj = fj - j0
-            idx = (np.arange(c).reshape(c, 1, 1) * ny + j0) * nx + i0
-            a = planes[idx]
-            b = planes[idx + 1]
-            lo = a + ti * (b - a)
-            a = planes[idx + nx]
-            b = planes[idx + nx + 1]
-            hi = a + ti * (b - a)
-            vals = lo + tj * (hi - lo)
-            vals[~inside] = np.float32(cval)
-            table[start:start + c, :-1] = vals
-        table[:, -1] = table[:, 0]
-        return True
-
-    @property
-    def nbytes(self) -> int:
-        return int(self.table.nbytes)
-
-    @classmethod
-    def from_table(cls, table: np.ndarray) -> "SolidCTTable":
-        """A table from its stored values ``[w, u, v]`` (v with the closing column), no CT needed."""
-        self = cls.__new__(cls)
-        table = np.ascontiguousarray(table, np.float32)
-        if table.ndim != 3 or min(table.shape) < 2:
-            raise PDEError(f"a solid CT table needs a 3-D [w, u, v] array, got shape {table.shape}")
-        nw, nu, nv1 = table.shape
-        self.shape = (int(nu), int(nv1 - 1), int(nw))
-        self.u = np.linspace(0.0, 1.0, self.shape[0])
-        self.v = TWO_PI * np.arange(self.shape[1]) / self.shape[1]
-        self.w = np.linspace(0.0, 1.0, self.shape[2])
-        self.table = table
-        return self
-
-    #: Format tag of :meth:`to_bytes` (8-bit levels of the CT values, zlib-compressed).
-    PACK_FORMAT = "pdehead-solid-ct-table-u8-v1"
-
-    def to_bytes(self, window: tuple[float, float], level: int = 1) -> bytes:
-        """The table as compact bytes: 8-bit levels, zlib-compressed, with the intensity window.
-
-        The 256 levels span the table's values, bounded to one window width beyond each end of
-        the window ``(lo, hi)`` the solid is shown through (metal streaks do not spread them).
-        Quantising the CT values (not the windowed ones) keeps the interpolation between table
-        samples the same as with the float table: every displayed value moves by at most half a
-        level (CThead: 0.5 x 12.8 / 2462 of the window = 0.0026). At the largest table
-        (:attr:`MAX_SHAPE`) the 8-bit array is 4.2 MB before compression; a head's table (a third
-        of it is air) compresses to about 1.5 MB (CThead, 239 x 256 x 62).
-        """
-        import json
-        import zlib
-
-        lo, hi = (float(x) for x in window)
-        if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
-            raise PDEError(f"the table's window must satisfy lo < hi, got ({lo}, {hi})")
-        width = hi - lo
-        a = max(min(float(self.table.min()), lo), lo - width)
-        b = min(max(float(self.table.max()), hi), hi + width)
-        q = np.clip(np.rint((self.table - np.float32(a)) * np.float32(255.0 / (b - a))), 0, 255).astype(np.uint8)
-        header = json.dumps({"format": self.PACK_FORMAT, "shape": list(q.shape), "window": [lo, hi],
-                             "range": [a, b]}).encode()
-        return len(header).to_bytes(4, "little") + header + zlib.compress(q.tobytes(), level)
-
-    @classmethod
-    def from_bytes(cls, raw: bytes) -> tuple["SolidCTTable", tuple[float, float]]:
-        """``(table, window)`` from :meth:`to_bytes`; values in CT units (lo + level (hi - lo) / 255)."""
-        import json
-        import zlib
-
-        try:
-            n = int.from_bytes(raw[:4], "little")
-            header = json.loads(raw[4:4 + n].decode())
-            if header.get("format") != cls.PACK_FORMAT:
-                raise ValueError(f"unknown format {header.get('format')!r}")
-            shape = tuple(int(x) for x in header["shape"])
-            q = np.frombuffer(zlib.decompress(raw[4 + n:]), np.uint8).reshape(shape)
-            lo, hi = (float(x) for x in header["window"])
-            a, b = (float(x) for x in header["range"])
-        except (ValueError, KeyError, TypeError, zlib.error) as exc:
-            raise PDEError(f"the stored solid CT table cannot be read ({exc})") from None
-        values = q.astype(np.float32) * np.float32((b - a) / 255.0) + np.float32(a)
-        return cls.from_table(values), (lo, hi)
-
-    def sample(self, u, v, w) -> np.ndarray:
-        """CT values (float32) at parameters (u, v, w), broadcast together; v taken modulo 2 pi."""
-        from .ct_volume import trilinear
-
-        u, v, w = np.broadcast_arrays(np.asarray(u, float), np.asarray(v, float), np.asarray(w, float))
-        idx = np.empty(u.shape + (3,))                                           # table order [w, u, v]
-        idx[..., 0] = np.clip(w, 0.0, 1.0) * (self.shape[2] - 1)
-        idx[..., 1] = np.clip(u, 0.0, 1.0) * (self.shape[0] - 1)
-        idx[..., 2] = np.mod(v, TWO_PI) * (self.shape[1] / TWO_PI)
-        return trilinear(self.table, idx)
-
-    def sample_grid(self, u, v, w) -> np.ndarray:
-        """CT values on the outer-product grid of 1-D parameter samples, shape (len(u), len(v), len(w)).
-
-        Separable linear interpolation, one axis at a time starting with the shortest, so a
-        face of the parametric box (one parameter fixed) costs a few hundred thousand flops:
-        identical to :meth:`sample` on the grid points, ~10x faster.
-        """
-        u, v, w = (np.atleast_1d(np.asarray(x, float)) for x in (u, v, w))
-        idx = [np.clip(w, 0.0, 1.0) * (self.shape[2] - 1),                      # table order [w, u, v]
-               np.clip(u, 0.0, 1.0) * (self.shape[0] - 1),
-               np.mod(v, TWO_PI) * (self.shape[1] / TWO_PI)]
-        out = self.table
-        for axis in sorted(range(3), key=lambda a: len(idx[a])):
-            n = out.shape[axis]
-            i0 = np.clip(np.floor(idx[axis]).astype(np.int64), 0, max(n - 2, 0))
-            f = np.clip(idx[axis] - i0, 0.0, 1.0).astype(np.float32)
-            i1 = np.minimum(i0 + 1, n - 1)
-            shape = [1, 1, 1]
-            shape[axis] = len(f)
-            f = f.reshape(shape)
-            a = np.take(out, i0, axis=axis)
-            out = a + f * (np.take(out, i1, axis=axis) - a)
-        return np.moveaxis(out, 0, 2).astype(np.float32, copy=False)               # -> [u, v, w]

@@ -74,7 +74,7 @@ def _unzigzag(z: np.ndarray) -> np.ndarray:
 
 
 def _split(obj) -> tuple[BoundarySet, dict | None]:
-    from .pde_surface import PDEHead
+    from .pde_head import PDEHead
     if isinstance(obj, PDEHead):
         settings = {"smoothing": [float(a) for a in obj.smoothing], "modes": int(obj.modes),
                     "smoothing_is_default": bool(getattr(obj, "smoothing_is_default", False)),

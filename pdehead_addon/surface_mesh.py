@@ -1,6 +1,6 @@
 """Tube meshes of a sampled surface grid: quads stitched along the v seam, caps, UVs, signed volume.
 
-The PDE head (eq. 1-13) is evaluated on a grid u x v (:meth:`.pde_surface.PDEHead.surface`);
+The PDE head (eq. 1-13) is evaluated on a grid u x v (:meth:`.pde_head.PDEHead.surface`);
 this module turns such a (nu, nv, 3) grid into a :class:`~.mesh.Mesh`: the quads
 of the tube with the last column joined to the first (the v seam), per-corner
 UVs, the end rings closed by a flat disc triangulated ring by ring when the ring
@@ -9,11 +9,11 @@ the crown's pole and the orientation test) or else by a triangulation of the rin
 polygon (Delaunay, ear clipping), and the signed enclosed volume that fixes the
 outward winding.
 
-UVs (issue 21, :func:`uv_islands`): the tube is one island (v across, u up: a least-squares
-map of the boundary curves that keeps the cells' angles and texel size, :func:`uv_tube_map`), the crown's
-dome and each cap a disc; every island is a function of (u, v) fixed per study
-(from the boundary curves), none is mirrored, and each keeps :data:`UV_MARGIN`
-from the texture's border and the seam. Without a layout the UVs are the old
+UVs (issue 21; the map and the islands are :mod:`.surface_uv_map`'s, the columns' v :mod:`.surface_columns`'):
+the tube is one island (v across, u up: a least-squares map of the boundary curves that keeps the cells'
+angles and texel size), the crown's dome and each cap a disc; every island is a function of (u, v) fixed
+per study (from the boundary curves), none is mirrored, and each keeps ``UV_MARGIN``
+from the texture's border and the seam. This module gives each face corner its UV. Without a layout the UVs are the old
 ``(u, v / 2 pi)`` (used by the orientation test and the benchmarks' "before").
 """
 from __future__ import annotations
@@ -25,6 +25,8 @@ import numpy as np
 from .errors import PDEError
 from .mesh_geometry import signed_volume
 from .mesh import Mesh
+from .surface_columns import column_fraction, column_fraction_inverse, column_v
+from .surface_uv_map import uv_islands
 
 #: signed_volume is .mesh_geometry's, imported from here by pde_surface, the scripts and the tests
 __all__ = ["signed_volume"]
@@ -32,7 +34,7 @@ __all__ = ["signed_volume"]
 TWO_PI = 2.0 * np.pi
 
 
-def _check_count(n, name: str, minimum: int) -> int:
+def check_count(n, name: str, minimum: int) -> int:
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or int(n) < minimum:
         raise PDEError(f"{name} must be an integer >= {minimum}, got {n!r}")
     return int(n)
@@ -67,7 +69,7 @@ def _tube_uv(nu: int, nv: int, orientation: int) -> np.ndarray:
     return uv if orientation > 0 else np.ascontiguousarray(uv[:, ::-1])
 
 
-def _star_shaped(ring: np.ndarray, centre: np.ndarray) -> tuple[bool, np.ndarray, np.ndarray]:
+def star_shaped_ring(ring: np.ndarray, centre: np.ndarray) -> tuple[bool, np.ndarray, np.ndarray]:
     """Whether a closed ring winds once monotonically around centre (in its own plane)."""
     d = ring - centre
     normal = np.cross(d, np.roll(d, -1, axis=0)).sum(axis=0)                 # Newell normal * 2
@@ -157,7 +159,7 @@ def _polygon_triangles(p: np.ndarray) -> np.ndarray:
     return _ear_clip(p)
 
 
-def _fan_caps(pts: np.ndarray, spine_ends: np.ndarray, fan_only: bool = False, ends: tuple[int, ...] = (0, 1)
+def fan_caps(pts: np.ndarray, spine_ends: np.ndarray, fan_only: bool = False, ends: tuple[int, ...] = (0, 1)
               ) -> list[tuple[np.ndarray | None, np.ndarray]]:
     """Cap triangulations of the first and last ring: (centre or None, triangles in ring indices).
 
@@ -170,9 +172,9 @@ def _fan_caps(pts: np.ndarray, spine_ends: np.ndarray, fan_only: bool = False, e
     for end in ends:
         ring, centre = (pts[0], spine_ends[0]) if end == 0 else (pts[-1], spine_ends[1])
         n = len(ring)
-        star, p, _ = (True, None, None) if fan_only else _star_shaped(ring, centre)
+        star, p, _ = (True, None, None) if fan_only else star_shaped_ring(ring, centre)
         if star:
-            caps.append((centre, _fan_indices(n)))
+            caps.append((centre, fan_indices(n)))
             continue
         ccw = (p[:, 0] * np.roll(p[:, 1], -1) - p[:, 1] * np.roll(p[:, 0], -1)).sum() > 0
         tri = _polygon_triangles(p if ccw else p[::-1])
@@ -182,7 +184,7 @@ def _fan_caps(pts: np.ndarray, spine_ends: np.ndarray, fan_only: bool = False, e
     return caps
 
 
-def _fan_indices(n: int) -> np.ndarray:
+def fan_indices(n: int) -> np.ndarray:
     """A fan from a centre (index -1) to a ring of n points, counter-clockwise like the ring."""
     j = np.arange(n)
     return np.stack([np.full(n, -1), j, (j + 1) % n], axis=1)
@@ -296,9 +298,9 @@ CAP_EDGE = 1.2
 def disc_caps(pts: np.ndarray, spine_ends: np.ndarray, ends: tuple[int, ...] = (0, 1),
               reference: dict | None = None) -> list:
     """Caps of the first / last ring: a :class:`DiscCap` where the ring is star-shaped around its spine
-    point, else the polygon triangulation of :func:`_fan_caps`. The step is :data:`CAP_EDGE` tube edges.
+    point, else the polygon triangulation of :func:`fan_caps`. The step is :data:`CAP_EDGE` tube edges.
 
-    ``reference`` (:meth:`.pde_surface.PDEHead.cap_reference`): the tube's edge and each end ring's
+    ``reference`` (:meth:`.pde_head.PDEHead.cap_reference`): the tube's edge and each end ring's
     perimeter and radius from the boundary curves, so the caps' vertex counts depend on nu and nv only.
     """
     if reference is not None:
@@ -310,316 +312,11 @@ def disc_caps(pts: np.ndarray, spine_ends: np.ndarray, ends: tuple[int, ...] = (
     out = []
     for end in ends:
         ring, centre = (pts[0], spine_ends[0]) if end == 0 else (pts[-1], spine_ends[1])
-        star, _, _ = _star_shaped(ring, centre)
+        star, _, _ = star_shaped_ring(ring, centre)
         plan = None if reference is None else reference["ends"][end]
-        out.append(DiscCap(ring, centre, edge, plan) if star else _fan_caps(pts, spine_ends, ends=(end,))[0])
+        out.append(DiscCap(ring, centre, edge, plan) if star else fan_caps(pts, spine_ends, ends=(end,))[0])
     return out
 
-
-#: The surface's columns (issue 21): no step of v may carry the capped end curve further than this many
-#: times its mean sample step. Where an outline runs nearly radially (GE's wide neck) equal steps of the
-#: angular parameter v are long on the surface (8.4 mm at the defaults: 4.2 mean edges of the tube at GE's
-#: bottom ring), and so is every cap triangle on them; there the columns are placed closer in v
-#: (:func:`column_density`). 1.5: GE's bottom ring 2.9 mean edges (1.2: 2.5, but CThead's UV angle p95
-#: 10.6 deg).
-V_STEP_LIMIT = 1.5
-
-
-def column_density(curves: np.ndarray, limit: float = V_STEP_LIMIT) -> np.ndarray | None:
-    """How densely the surface's columns sample each step ``v_k -> v_k+1`` of the curves' M samples, shape
-    (M,): ``max(1, longest step of any curve there / (limit * the curves' mean step))``; None when that is 1
-    everywhere (equal steps of v). A function of the boundary curves alone (one per study): nu, nv and the
-    shape sliders keep it, so the columns' v and hence the UVs stay put."""
-    c = np.asarray(curves, float)
-    e = np.linalg.norm(np.roll(c, -1, axis=1) - c, axis=-1)                 # (n, M): step k -> k + 1
-    d = np.maximum(1.0, e.max(axis=0) / (float(limit) * max(float(e.mean()), 1e-12)))
-    return None if np.all(d <= 1.0) else d
-
-
-def column_v(density: np.ndarray | None, nv: int) -> np.ndarray:
-    """The v of nv columns spaced by ``density`` (:func:`column_density`): column j at the fraction j / nv of
-    the density's integral over the turn (piecewise linear), so v_0 = 0 and the columns increase."""
-    return TWO_PI * column_fraction_inverse(density, np.arange(nv) / nv)
-
-
-def column_fraction_inverse(density: np.ndarray | None, s: np.ndarray) -> np.ndarray:
-    """v / 2 pi at the column fraction s (:func:`column_v` at any s in [0, 1])."""
-    s = np.asarray(s, float)
-    if density is None:
-        return s
-    M = len(density)
-    G = np.concatenate([[0.0], np.cumsum(density)])
-    return np.interp(s, G / G[-1], np.arange(M + 1) / M)
-
-
-def column_fraction(density: np.ndarray | None, v: np.ndarray) -> np.ndarray:
-    """The inverse of :func:`column_v`: the column fraction s in [0, 1] at v (radians, in [0, 2 pi])."""
-    v = np.asarray(v, float)
-    if density is None:
-        return v / TWO_PI
-    M = len(density)
-    G = np.concatenate([[0.0], np.cumsum(density)])
-    return np.interp(v, TWO_PI * np.arange(M + 1) / M, G / G[-1])
-
-
-#: Gap (fraction of the texture) around every UV island: texture painting bleeds into it, not across the seam.
-UV_MARGIN = 0.02
-
-
-def uv_islands(aspect: float, dome_ratio: float | None = None, cap_ratio: float | None = None) -> dict:
-    """Where the surface's UV islands lie in [0, 1]^2 (one layout per study: a function of (u, v) only).
-
-    The tube (curves' u range x v) is a rectangle across the bottom of the texture, as wide as the
-    margins allow and as high as ``aspect`` (the tube's length over its mean circumference) makes
-    it; the crown's dome and the bottom cap are discs side by side above it, each as large as the
-    space allows but no larger than the tube's texel density gives its 3-D area (``dome_ratio`` /
-    ``cap_ratio``: its area over the tube's), so the islands' texels are about the same size.
-    """
-    m = UV_MARGIN
-    width = 1.0 - 2.0 * m
-    height = float(np.clip(width * aspect, 0.2, 1.0 - 3.0 * m - 0.3))
-    room = min(0.5 * (1.0 - 3.0 * m - height), 0.25 * (1.0 - 3.0 * m))
-    top = 1.0 - m - room
-
-    def disc(ratio):
-        if ratio is None or not np.isfinite(ratio) or ratio <= 0:
-            return room
-        return float(min(room, np.sqrt(width * height * ratio / np.pi) / 0.9))
-    return {"tube": (m, m, width, height), "radius": room, "dome_radius": disc(dome_ratio),
-            "cap_radius": disc(cap_ratio), "dome": (0.25 + 0.25 * m, top), "cap": (0.75 - 0.25 * m, top)}
-
-
-#: The shear correction of the tube's UVs keeps the harmonics up to this order around the ring (no UV folds).
-UV_SHEAR_HARMONICS = 3
-
-
-def uv_shear(curves: np.ndarray, curve_u: np.ndarray) -> np.ndarray:
-    """Sideways drift phi(u, v) (radians of v) of the v = const lines, at the curves, shape (n, M).
-
-    Along u the line v = const moves along the ring by ``X_u . X_v / |X_v|^2`` radians per unit u
-    (curves: the boundary curves, equal v = corresponding points; ``X_u`` by differences between
-    curves, ``X_v`` around each curve). Integrated over u (zero mean over the curves) and low-passed
-    around the ring (:data:`UV_SHEAR_HARMONICS`; scaled down if needed so ``v - phi`` stays increasing),
-    ``U ~ v - phi`` is constant along the curves' orthogonal trajectories.
-    """
-    c = np.asarray(curves, float)
-    n, M, _ = c.shape
-    if n < 2:
-        return np.zeros((n, M))
-    xv = (np.roll(c, -1, axis=1) - np.roll(c, 1, axis=1)) * (M / (2.0 * TWO_PI))
-    xu = np.gradient(c, np.asarray(curve_u, float), axis=0)
-    rate = -np.einsum("ijk,ijk->ij", xu, xv) / np.maximum(np.einsum("ijk,ijk->ij", xv, xv), 1e-12)
-    du = np.diff(curve_u)[:, None]
-    phi = np.concatenate([np.zeros((1, M)), np.cumsum(0.5 * (rate[1:] + rate[:-1]) * du, axis=0)])
-    phi -= phi.mean(axis=0, keepdims=True)
-    spec = np.fft.rfft(phi, axis=1)
-    spec[:, UV_SHEAR_HARMONICS + 1:] = 0.0
-    phi = np.fft.irfft(spec, n=M, axis=1)
-    slope = (np.roll(phi, -1, axis=1) - phi) * (M / TWO_PI)
-    worst = slope.max()
-    if worst > 0.7:                                                     # keep dU/dv >= 0.3 of the unsheared
-        phi *= 0.7 / worst
-    return phi
-
-
-#: Weight of the even-scale term against the conformal term in :func:`uv_tube_map` (mm-normalised). On
-#: CThead's mesh grid the conformal term alone keeps the angles (angle p95 2.8 deg) but lets the texel
-#: size follow the neck's and the face's shape (area stretch p99 / p1 6.2); the scale term alone keeps
-#: the texel size (2.9) but not the angles (13 deg). Issue 21 asks for both (<= 4 and <= 10 deg); 0.8
-#: gives 3.81 and 9.8 deg at the defaults (3.80 / 10.5 with the 4-sample fold blend of session 4; weight 1:
-#: 3.70 / 13.1 then, the fold guard straightening more rows).
-UV_SCALE_WEIGHT = 0.8
-
-
-def uv_tube_map(curves: np.ndarray, curve_u: np.ndarray, scale_weight: float = UV_SCALE_WEIGHT
-                ) -> tuple[np.ndarray, np.ndarray, float]:
-    """The tube's UVs (mm) at the boundary curves' samples: a least-squares map that is nearly conformal
-    and nearly of one scale, shape ``(n, M)`` each, and the wrap ``W`` (mm) of U around the ring.
-
-    Each cell between curves ``k, k+1`` and samples ``j, j+1`` gives its two edges in the surface's local
-    frame (along the ring, across it), ``z_v`` and ``z_u`` (complex numbers, mm). The map ``w = U + iV``
-    should take them to ``w_v, w_u`` with
-
-    * ``w_v z_u - w_u z_v = 0`` (the cell's corner angles kept: a discrete Cauchy-Riemann condition, as
-      in least-squares conformal maps: B. Levy, S. Petitjean, N. Ray, J. Maillot, "Least squares conformal
-      maps for automatic texture atlas generation", ACM Trans. Graph. 21(3), 362-371 (SIGGRAPH 2002);
-      cited from the literature, not re-read here), weighted by the cell's sine over ``|z_u||z_v|^1.5``;
-    * ``w_v = z_v``, ``w_u = z_u`` weighted by ``sqrt(scale_weight)`` (one texel size, the rings' direction
-      along U).
-
-    U wraps by ``W`` (the curves' mean perimeter) around the ring, V is periodic: the seam is a cut of
-    one island. Both are fixed by the curves alone (one layout per study).
-
-    Least squares does not promise a map without folds, so it is solved twice: with one V per ring
-    (straight rows: with U increasing along every ring, which a last step enforces, no cell can fold)
-    and with V free (better angles). The map is the free one, blended back toward the straight one
-    around every cell that is folded or not convex (``UV_FOLD_MARGIN``; within ``UV_FOLD_GROW``
-    samples and a one-sample taper, the free share halved up to six times, then straight there), so no
-    mesh face inside it folds at any nu, nv (checked on CThead and GE from 40 x 60 to 300 x 480). CPU ~0.65 s once per study on
-    CThead and GE (61 x 128 samples: :func:`uv_map_grid`).
-    """
-    from scipy.sparse import csr_matrix
-    from scipy.sparse.linalg import splu
-    R = np.asarray(curves, float)
-    k, M, _ = R.shape
-    xv = np.roll(R, -1, axis=1) - np.roll(R, 1, axis=1)
-    xu = np.gradient(R, np.asarray(curve_u, float), axis=0) if k > 1 else np.zeros_like(R)
-    normal = np.cross(xv, xu)
-    normal /= np.maximum(np.linalg.norm(normal, axis=-1, keepdims=True), 1e-12)
-    t1 = xv / np.maximum(np.linalg.norm(xv, axis=-1, keepdims=True), 1e-12)
-    t2 = np.cross(normal, t1)
-    if np.mean(np.einsum("ijk,ijk->ij", t2, xu)) < 0:
-        t2 = -t2
-    W = float(np.linalg.norm(np.roll(R, -1, axis=1) - R, axis=-1).sum(axis=1).mean())
-    N = k * M
-    i2, j2 = np.meshgrid(np.arange(k - 1), np.arange(M), indexing="ij")
-    o = (i2 * M + j2).ravel()
-    pv = (i2 * M + (j2 + 1) % M).ravel()
-    pu = ((i2 + 1) * M + j2).ravel()
-    wrap = (j2 == M - 1).ravel() * W
-    Rf, T1, T2 = R.reshape(-1, 3), t1.reshape(-1, 3), t2.reshape(-1, 3)
-    ev, eu = Rf[pv] - Rf[o], Rf[pu] - Rf[o]
-    zv = np.einsum("ij,ij->i", ev, T1[o]) + 1j * np.einsum("ij,ij->i", ev, T2[o])
-    zu = np.einsum("ij,ij->i", eu, T1[o]) + 1j * np.einsum("ij,ij->i", eu, T2[o])
-    m = len(o)
-    # scale-free, and weighted by the cell's sine: a sliver cell (its edges nearly parallel, where rows
-    # crowd under the nose) cannot say which way its angles go
-    area3 = (zu * np.conj(zv)).imag                                          # > 0: the frame's orientation
-    s = np.abs(area3) / np.maximum(np.abs(zu) * np.abs(zv), 1e-12) ** 1.5
-    a, b, c, d = zu.real * s, zu.imag * s, zv.real * s, zv.imag * s
-    floor = 0.2 * np.linalg.norm(np.roll(R, -1, axis=1) - R, axis=-1)
-
-    def solve(straight_rows: bool):
-        """U (k, M) increasing along every ring, V (k, M); ``straight_rows``: one V per ring."""
-        rows, cols, vals, rhs = [], [], [], []
-        count = 0
-        unknowns = N + (k if straight_rows else N)
-
-        def add(index, coefs, rhs_part):
-            nonlocal count
-            for ix, cf in zip(index, coefs):
-                rows.append(count + np.arange(m))
-                cols.append(ix)
-                vals.append(cf)
-            rhs.append(rhs_part)
-            count += m
-        Vpv, Vo, Vpu = (N + pv // M, N + o // M, N + pu // M) if straight_rows else (N + pv, N + o, N + pu)
-        add([pv, o, Vpv, Vo, pu, o, Vpu, Vo], [a, -a, -b, b, -c, c, d, -d], -a * wrap)
-        add([pv, o, Vpv, Vo, pu, o, Vpu, Vo], [b, -b, a, -a, -d, d, -c, c], -b * wrap)
-        L = np.full(m, np.sqrt(float(scale_weight)))
-        add([pv, o], [L, -L], L * (zv.real - wrap))
-        add([pu, o], [L, -L], L * zu.real)
-        add([Vpu, Vo], [L, -L], L * zu.imag)
-        if not straight_rows:
-            add([Vpv, Vo], [L, -L], L * zv.imag)
-        A = csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(count, unknowns))
-        gauge = csr_matrix((np.ones(2), ([0, 1], [0, N])), shape=(2, unknowns))  # U = V = 0 at the first sample
-        # the normal matrix is symmetric positive definite: no pivoting (SuperLU's symmetric mode) factors
-        # it in ~60 % of the CPU (CThead 0.41 -> 0.26 s for both solves), the map within 2e-10 mm of pivoting's
-        x = splu((A.T @ A + gauge.T @ gauge).tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                 options={"SymmetricMode": True}).solve(A.T @ np.concatenate(rhs))
-        U = x[:N].reshape(k, M)
-        V = (np.broadcast_to(np.maximum.accumulate(x[N:])[:, None], (k, M)).copy() if straight_rows
-             else x[N:].reshape(k, M))
-        # where U steps back along a ring (a cell folded beside the nose or an ear), give each step at
-        # least a fifth of its 3-D length and take the excess from the ring's other steps (each row spans W)
-        step = np.diff(np.concatenate([U, U[:, :1] + W], axis=1), axis=1)
-        low = step < floor
-        if np.any(low):
-            lifted = np.where(low, floor, step)
-            spare = np.where(low, 0.0, step - floor)
-            excess = lifted.sum(axis=1, keepdims=True) - W
-            lifted -= spare * (excess / np.maximum(spare.sum(axis=1, keepdims=True), 1e-12))
-            U = U[:, :1] + np.concatenate([np.zeros((k, 1)), np.cumsum(lifted, axis=1)[:, :-1]], axis=1)
-        return U, V
-
-    pvu = ((i2 + 1) * M + (j2 + 1) % M).ravel()
-
-    def folded(U, V):
-        """Cells with a corner whose UV triangle (the corner and its two cell neighbours) is under
-        ``UV_FOLD_MARGIN`` of the cell's 3-D area: folded or not convex, so a finer mesh inside the cell
-        (bilinear in it) could fold; shape (k - 1, M)."""
-        w = U.ravel() + 1j * V.ravel()
-        a, b, c, d = w[o], w[pv] + wrap, w[pvu] + wrap, w[pu]                 # counter-clockwise
-        corner = np.min([((b - a).conjugate() * (d - a)).imag, ((c - b).conjugate() * (a - b)).imag,
-                         ((d - c).conjugate() * (b - c)).imag, ((a - d).conjugate() * (c - d)).imag], axis=0)
-        return (corner <= UV_FOLD_MARGIN * area3).reshape(k - 1, M)
-
-    # Straight rows (one V per ring) cannot fold once U increases along each ring; free rows keep the
-    # angles better (CThead: angle p95 10 deg against 13.5) but least squares may fold a few cells (GE's
-    # lowest rings). The map is the free one, blended back to the straight one around any fold.
-    Us, Vs = solve(True)
-    Uf, Vf = solve(False)
-    keep = np.ones((k, M))
-    ever = np.zeros((k, M), bool)
-    for _ in range(6):
-        U, V = Us + keep * (Uf - Us), Vs + keep * (Vf - Vs)
-        bad = folded(U, V)
-        if not bad.any():
-            break
-        near = np.zeros((k, M), bool)
-        near[:-1] |= bad
-        near[1:] |= bad
-        for _ in range(UV_FOLD_GROW):                                         # and a few samples around
-            near = near | np.roll(near, 1, axis=1) | np.roll(near, -1, axis=1)
-            near[1:] |= near[:-1].copy()
-            near[:-1] |= near[1:].copy()
-        keep = np.where(near, 0.5 * keep, keep)
-        ever |= near
-        # a gentle rim: a step in keep folds the cells at its edge (the fold walked outward, and after
-        # six halvings the whole map fell back to straight rows)
-        ext = np.concatenate([keep[:1], keep, keep[-1:]])
-        keep = np.minimum(keep, (ext[:-2] + ext[1:-1] + ext[2:] + np.roll(keep, 1, axis=1)
-                                 + np.roll(keep, -1, axis=1)) / 5.0)
-    else:
-        # not mended by halving: straight rows on every cell flagged so far (and around), else everywhere
-        keep = np.where(ever, 0.0, keep)
-        U, V = Us + keep * (Uf - Us), Vs + keep * (Vf - Vs)
-        if folded(U, V).any():
-            U, V = Us, Vs
-    return U, V, W
-
-
-#: A cell of :func:`uv_tube_map` with a corner whose UV triangle is under this share of the cell's 3-D
-#: area counts as folded (not convex: a finer mesh inside it could fold; 0.1 also straightens good rows).
-UV_FOLD_MARGIN = 0.02
-
-#: Samples around a flagged cell that :func:`uv_tube_map` blends toward straight rows (then a one-sample
-#: taper). Four (before) took the angle-keeping map off ~4 % of CThead's samples (angle p95 10.5 deg at
-#: the defaults); one takes it off ~1.7 % (9.8 deg).
-UV_FOLD_GROW = 1
-
-#: Rows of :func:`uv_tube_map` between consecutive curves (a cubic spline through the curves along u)
-#: and the curves' samples it uses around the ring: cells close to square, as the conformal term needs.
-UV_MAP_SUBROWS = 2
-UV_MAP_SAMPLES = 128
-
-
-def uv_map_grid(curves: np.ndarray, curve_u: np.ndarray, subrows: int = UV_MAP_SUBROWS,
-                samples: int = UV_MAP_SAMPLES, v_density: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """The grid :func:`uv_tube_map` is solved on: the curves (every ``M // samples``-th sample; with
-    ``v_density``, :func:`column_density`, ``samples`` points at :func:`column_v` from their harmonics, so
-    the map is as fine along the ring where the surface's columns crowd) and ``subrows - 1`` rows between
-    each pair from a natural cubic spline through them along u (its own matrix,
-    :func:`.pde_spline.natural_spline_matrix`: scipy's CubicSpline gave the same rows to ~1e-13 mm, and
-    importing ``scipy.interpolate`` cost a first surface ~0.2 s CPU)."""
-    from .pde_spline import natural_spline_matrix
-    c = np.asarray(curves, float)
-    if v_density is None:
-        c = c[:, ::max(1, c.shape[1] // samples)]
-    else:
-        M = c.shape[1]
-        spec = np.fft.rfft(c, axis=1) / M                                   # (n, H, 3)
-        h = np.arange(spec.shape[1])
-        weight = np.where((h == 0) | (2 * h == M), 1.0, 2.0)
-        phase = np.exp(1j * np.outer(column_v(v_density, samples), h)) * weight     # (samples, H)
-        c = np.einsum("sh,nhc->nsc", phase, spec).real
-    cu = np.asarray(curve_u, float)
-    if len(cu) < 3 or subrows <= 1:
-        return c, cu
-    t = np.linspace(0.0, 1.0, subrows + 1)[:-1]
-    u = np.concatenate([cu[:-1, None] + t[None] * np.diff(cu)[:, None], cu[-1:, None]], axis=None)
-    return np.tensordot(natural_spline_matrix(cu, u), c, axes=(1, 0)), u
 
 
 def _table_at(layout: dict, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -691,10 +388,10 @@ def _corner_grid_index(nu: int, nv: int, orientation: int) -> np.ndarray:
     return idx
 
 
-def _tube_mesh(pts: np.ndarray, orientation: int, caps=None, uv: bool = False,
+def tube_mesh(pts: np.ndarray, orientation: int, caps=None, uv: bool = False,
                u: np.ndarray | None = None, top_u: float = 1.0, uv_layout: dict | None = None,
                v_density: np.ndarray | None = None) -> Mesh:
-    """Tube mesh from a (nu, nv, 3) grid, stitched along v; optional caps (:func:`disc_caps`, :func:`_fan_caps`).
+    """Tube mesh from a (nu, nv, 3) grid, stitched along v; optional caps (:func:`disc_caps`, :func:`fan_caps`).
 
     ``caps`` is a (bottom, top) pair, either of which may be None (left open). With
     ``u`` (the rows' parameters) the vertex attributes ``u`` and ``v`` are set (cap

@@ -134,14 +134,14 @@ UP_CLOSE_TARGETS = {"pole_ripple_deg": 0.5, "cap_edge_ratio": 3.0, "uv_stretch_p
 def legacy_surface(head, nu: int, nv: int):
     """The surface as it was built before issue 21 (the 'before' column): no fade in the dome, the
     bottom closed by a fan to the spine point, per-corner UVs (u, v / 2 pi)."""
-    from pdehead_addon.surface_mesh import _fan_caps, _fan_indices, _tube_mesh
+    from pdehead_addon.surface_mesh import fan_caps, fan_indices, tube_mesh
     minor, head._dome_minor = head._dome_minor, 0
     try:
         u = np.linspace(0.0, 1.0, nu)
         pts = head._grid(u[:-1], nv)
-        bottom = _fan_caps(pts, head.spine(np.array([0.0, 1.0])), ends=(0,))[0]
-        top = (np.asarray(head.vertex, float), _fan_indices(nv))
-        return _tube_mesh(pts, head.orientation, [bottom, top], uv=True, u=u[:-1], top_u=1.0)
+        bottom = fan_caps(pts, head.spine(np.array([0.0, 1.0])), ends=(0,))[0]
+        top = (np.asarray(head.vertex, float), fan_indices(nv))
+        return tube_mesh(pts, head.orientation, [bottom, top], uv=True, u=u[:-1], top_u=1.0)
     finally:
         head._dome_minor = minor
 

@@ -236,7 +236,7 @@ def union_bounds(bs):
 # ============================================================================= figures
 def fig03(data: Data, bl: Blender | None, args) -> list[Path]:
     """Pipeline on four slices: CT, soft segmentation p (eq. 16-21), cleaned mask, boundary (eq. 22) in red."""
-    from pdehead_addon.boundaries import boundary_ring
+    from pdehead_addon.slice_outlines import boundary_ring
     ct, seg = data.ct, data.seg
     nz = ct.shape[0]
     ks = [nz - n for n in FIG3_SLICES]  # loaded k points superior; file 1 is the top slice

@@ -163,7 +163,7 @@ def test_scaled_phantom_mandible_midline_is_on_the_mandible(monkeypatch):
     from the upper skeleton; and supramentale on a profile with a gap is uncertain."""
     import pdehead_addon.auto_landmarks as A
     from pdehead_addon import CTVolume, make_phantom
-    from pdehead_addon.phantom import _mandible_sd
+    from pdehead_addon.phantom_anatomy import _mandible_sd
 
     scale = 1.12
     ct = make_phantom(shape=(60, 96, 96), seed=1).ct

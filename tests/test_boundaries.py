@@ -16,10 +16,12 @@ PER_SLICE = dict(level_field="mask", parameterisation="aligned", star_shaped=Fal
 
 def extract_boundaries(seg, **kwargs):
     return _extract_default(seg, **{**PER_SLICE, **kwargs})
-from pdehead_addon.boundaries import (
-    _assign_monotone, boundary_ring, contour_from_mask, outer_contour, outer_region, parameter_offsets,
-    polygon_centroid, register_selection, resample_closed_curve, self_intersections, signed_area,
-    usable_slices, scan_edge_slices, SELECTION_STRATEGIES,
+from pdehead_addon.curve_sampling import (
+    contour_from_mask, parameter_offsets, polygon_centroid, resample_closed_curve, self_intersections, signed_area,
+)
+from pdehead_addon.slice_outlines import boundary_ring, outer_contour, outer_region
+from pdehead_addon.slice_selection import (
+    _assign_monotone, register_selection, usable_slices, scan_edge_slices, SELECTION_STRATEGIES,
 )
 
 SPACING = (2.0, 0.8, 0.9)          # dz, dy, dx: anisotropic on purpose
@@ -467,7 +469,7 @@ def test_smooth_closed_curve_removes_pixel_ripple_keeps_shape():
 
 
 def test_close_region_bridges_narrow_inlets_only():
-    from pdehead_addon.boundaries import close_region
+    from pdehead_addon.slice_outlines import close_region
     yy, xx = np.mgrid[:80, :80]
     disk = (yy - 40) ** 2 + (xx - 40) ** 2 <= 30 ** 2
     notched = disk & ~((np.abs(yy - 40) <= 1) & (xx > 50))        # 3 px wide, 20 px deep slit
@@ -550,3 +552,27 @@ def test_patches_for_scan_gives_a_short_scan_the_patches_it_has(phantom_seg):
     extract_boundaries(phantom_seg, patches=patches)          # the reduced count is extractable
     with pytest.raises(BoundaryError):
         extract_boundaries(phantom_seg, patches=limit + 5)
+
+
+def test_options_object_gives_what_the_keyword_arguments_give():
+    """extract_boundaries(seg, BoundaryOptions(...)) == extract_boundaries(seg, **same fields); keywords override
+    the options' fields; anything else than a BoundaryOptions in second place, or an unknown name, is refused."""
+    from dataclasses import FrozenInstanceError
+
+    from pdehead_addon import BoundaryOptions
+    seg = make_seg(ellipse_stack(nz=30))
+    kw = dict(PER_SLICE, patches=2, samples=48, selection="shape-change")
+    by_keywords = _extract_default(seg, **kw)
+    by_options = _extract_default(seg, BoundaryOptions(**kw))
+    assert np.array_equal(by_keywords.curves, by_options.curves)
+    assert np.array_equal(by_keywords.slice_indices, by_options.slice_indices)
+    assert by_keywords.meta == by_options.meta
+    overridden = _extract_default(seg, BoundaryOptions(**kw), samples=64)
+    assert overridden.curves.shape == (7, 64, 3)
+    assert BoundaryOptions().parameterisation == "angular" and BoundaryOptions().patches == 10
+    with pytest.raises(FrozenInstanceError):
+        BoundaryOptions().patches = 3
+    with pytest.raises(TypeError, match="BoundaryOptions"):
+        _extract_default(seg, 3)
+    with pytest.raises(TypeError):
+        _extract_default(seg, no_such_option=1)

@@ -265,7 +265,7 @@ def test_the_walk_sees_every_module_and_every_kind_of_import(graph):
     assert ("pdehead_addon", "pdehead_addon.ct_import") in pairs                       # from .ct_import import ...
     assert ("pdehead_addon.ct_import.load", "pdehead_addon.input_checks") in pairs     # from .. import input_checks
     assert ("pdehead_addon.ct_import.load", "pdehead_addon.ct_volume") in pairs        # from ..ct_volume import ...
-    assert ("pdehead_addon.pde_surface", "pdehead_addon.pde_solid") in pairs           # inside a method
+    assert ("pdehead_addon.pde_head", "pdehead_addon.pde_solid") in pairs              # inside a method
     assert ("operators.ops", "pdehead_addon") in pairs                                 # from ..pdehead_addon import
     assert ("", "operators") in pairs                                                  # from . import operators
     external = {(e.source, e.target) for e in graph.edges if e.external}

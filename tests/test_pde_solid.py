@@ -343,7 +343,7 @@ def test_solid_ct_table_is_the_ct_at_the_solid_points(phantom):
     from scipy.ndimage import map_coordinates
 
     from pdehead_addon import extract_boundaries, segment_head
-    from pdehead_addon.pde_solid import SolidCTTable
+    from pdehead_addon.solid_ct_table import SolidCTTable
     ct = phantom.ct
     head = solve_pde(extract_boundaries(segment_head(ct), patches=6, samples=128))
     table = SolidCTTable(head, ct)

@@ -209,14 +209,14 @@ def test_default_head_is_smooth_on_real_scans(request, dataset, t):
     paper = solve_pde(b, continuity="paper")
     assert q["crease_p95_deg"] < 0.2 * surface_quality(paper)["crease_p95_deg"]
     if dataset == "cthead":      # distance to marching cubes of the mask: a regression guard at today's value
-        from pdehead_addon.surface_mesh import _tube_mesh
+        from pdehead_addon.surface_mesh import tube_mesh
         from skimage import measure
         verts, faces, _, _ = measure.marching_cubes(seg.mask.astype(np.float32), 0.5)
         verts = seg.ct.index_to_patient(verts)
         cz = verts[faces][:, :, 2].mean(axis=1)
         z = b.curves[..., 2]
         faces = faces[(cz >= z.min()) & (cz <= z.max())]
-        tube = _tube_mesh(head._grid(np.linspace(head.curve_u[0], head.curve_u[-1], 81), 256), head.orientation)
+        tube = tube_mesh(head._grid(np.linspace(head.curve_u[0], head.curve_u[-1], 81), 256), head.orientation)
         from pdehead_addon import symmetric_surface_distance
         d = symmetric_surface_distance(tube.vertices, tube.quads, verts, faces, samples=20_000)
         print("CThead t=10 to marching cubes", round(d["mean"], 3), round(d["p95"], 3))

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from pdehead_addon import BoundarySet, Mesh, PDEError, knots_from_heights
-from pdehead_addon.pde_surface import (
-    MAX_DEVIATION_MM, PDEHead, align_parameterisation, lebesgue_constant, smoothing_bounds, solve_pde,
-)
+from pdehead_addon.pde_head import PDEHead
+from pdehead_addon.pde_smoothing import MAX_DEVIATION_MM, lebesgue_constant, smoothing_bounds
+from pdehead_addon.pde_surface import align_parameterisation, solve_pde
 from pdehead_addon.surface_mesh import signed_volume
 from pde_synthetic import circles_bset, head_bset, polar_curve, radial_excess
 

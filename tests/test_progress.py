@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from pdehead_addon import Cancelled, extract_boundaries, segment_head
-from pdehead_addon.pde_solid import SolidCTTable, w_field
+from pdehead_addon.pde_solid import w_field
+from pdehead_addon.solid_ct_table import SolidCTTable
 from pdehead_addon.pde_surface import solve_pde
 
 
@@ -98,21 +99,22 @@ def test_boundaries_w_field_and_the_ct_table_report_and_cancel(phantom):
 
 
 def test_the_band_fine_level_reports_and_cancels(phantom, monkeypatch):
-    """Issue 20: grids of >= chan_vese.FINE_BAND_MIN_VOXELS solve the full-resolution level in a band
-    (chan_vese._band_fine_solve); it reports every iteration and a Cancelled raised there stops the
+    """Issue 20: grids of >= chan_vese_pyramid.FINE_BAND_MIN_VOXELS solve the full-resolution level in a band
+    (chan_vese_pyramid._band_fine_solve); it reports every iteration and a Cancelled raised there stops the
     segmentation, after which a new run gives the uninterrupted result."""
-    from pdehead_addon import CTVolume, chan_vese
+    from pdehead_addon import CTVolume
+    from pdehead_addon import chan_vese_pyramid
     data = phantom.ct.data
     air = float(np.median(np.concatenate([data[:, 0].ravel(), data[:, -1].ravel()])))
     ct = CTVolume(np.pad(data, ((1, 1), (22, 24), (22, 24)), constant_values=air), phantom.ct.spacing)
-    monkeypatch.setattr(chan_vese, "FINE_BAND_MIN_VOXELS", ct.data.size)     # this small grid uses the band
+    monkeypatch.setattr(chan_vese_pyramid, "FINE_BAND_MIN_VOXELS", ct.data.size)     # this small grid uses the band
     in_band = []
-    solve = chan_vese._band_fine_solve
+    solve = chan_vese_pyramid._band_fine_solve
 
     def spy(*args, **kwargs):
         in_band.append(True)
         return solve(*args, **kwargs)
-    monkeypatch.setattr(chan_vese, "_band_fine_solve", spy)
+    monkeypatch.setattr(chan_vese_pyramid, "_band_fine_solve", spy)
     full = segment_head(ct, levels_mm=(6.0,))
     assert in_band and full.meta["solver"].get("fine_band"), full.meta["solver"]
     reports = []

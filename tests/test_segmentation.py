@@ -191,7 +191,7 @@ def test_fine_level_on_the_coarse_heads_box_matches_the_whole_grid(phantom, monk
     same (measured on the phantom with 24 voxels of air around it and a 6 mm coarse level: every per-slice
     Jaccard 1.0; on the
     512 x 512 x 300 scan the mask is identical too)."""
-    from pdehead_addon import chan_vese
+    from pdehead_addon import chan_vese_pyramid
     data = phantom.ct.data
     air = float(np.median(np.concatenate([data[:, 0].ravel(), data[:, -1].ravel()])))
     ct = CTVolume(np.pad(data, ((0, 0), (24, 24), (24, 24)), constant_values=air), phantom.ct.spacing)
@@ -199,7 +199,7 @@ def test_fine_level_on_the_coarse_heads_box_matches_the_whole_grid(phantom, monk
     cropped = segment_head(ct, **levels)
     box = cropped.meta["solver"]["fine_box"]
     assert box is not None and any(b - a < n for (a, b), n in zip(box, ct.shape))   # the crop took effect
-    monkeypatch.setattr(chan_vese, "FINE_CROP_MARGIN", 10 ** 6)                      # the whole grid
+    monkeypatch.setattr(chan_vese_pyramid, "FINE_CROP_MARGIN", 10 ** 6)                      # the whole grid
     whole = segment_head(ct, **levels)
     assert whole.meta["solver"]["fine_box"] is None
     per = M.slice_jaccard_on_head(cropped.mask, whole.mask)
@@ -212,23 +212,23 @@ def test_fine_level_on_the_coarse_heads_box_matches_the_whole_grid(phantom, monk
 
 def test_fine_level_in_a_band_matches_the_whole_grid(phantom, monkeypatch):
     """Issue 20: the full-resolution Chan-Vese level runs only in a band of coarse blocks around the
-    coarse boundary (chan_vese._band_fine_solve); against the whole-grid solve (the reference method)
+    coarse boundary (chan_vese_pyramid._band_fine_solve); against the whole-grid solve (the reference method)
     the mask keeps per-slice Jaccard >= 0.99 (measured on the phantom padded to whole 6 mm blocks, the
     band 0.33 M of 3.1 M voxels: cleaned mask mean 0.99985, min 0.99805; q > 0.5 mean 0.9958, min
     0.9852; on the 512 x 512 x 300 scan: q > 0.5 mean 0.9994, min 0.9934, the cleaned mask against
     the benchmark's cached reference in docs/benchmarks.md)."""
-    from pdehead_addon import chan_vese
+    from pdehead_addon import chan_vese_pyramid
     data = phantom.ct.data
     air = float(np.median(np.concatenate([data[:, 0].ravel(), data[:, -1].ravel()])))
     # whole blocks of 3 x 3 x 3 voxels (the band needs them; otherwise the box is solved)
     ct = CTVolume(np.pad(data, ((1, 1), (22, 24), (22, 24)), constant_values=air), phantom.ct.spacing)
     levels = dict(levels_mm=(6.0,))
-    monkeypatch.setattr(chan_vese, "FINE_BAND", True)     # off by default (see chan_vese.FINE_BAND)
+    monkeypatch.setattr(chan_vese_pyramid, "FINE_BAND", True)     # off by default (see chan_vese_pyramid.FINE_BAND)
     band = segment_head(ct, **levels)
     info = band.meta["solver"].get("fine_band")
     assert info and 0 < info["band_voxels"] < 0.5 * ct.data.size, info
-    monkeypatch.setattr(chan_vese, "FINE_BAND", False)
-    monkeypatch.setattr(chan_vese, "FINE_CROP_MARGIN", 10 ** 6)                      # the whole grid
+    monkeypatch.setattr(chan_vese_pyramid, "FINE_BAND", False)
+    monkeypatch.setattr(chan_vese_pyramid, "FINE_CROP_MARGIN", 10 ** 6)                      # the whole grid
     whole = segment_head(ct, **levels)
     assert whole.meta["solver"]["fine_box"] is None and not whole.meta["solver"].get("fine_band")
     per = M.slice_jaccard_on_head(band.mask, whole.mask)
@@ -242,33 +242,33 @@ def test_fine_level_in_a_band_matches_the_whole_grid(phantom, monkeypatch):
 def test_band_holds_every_block_that_straddles_the_level_and_large_grids_use_it(phantom, monkeypatch):
     """Issue 20 (session 6): the band also takes every coarse block whose full-resolution intensities
     straddle (c1 + c2) / 2 (thin features the coarse level smoothed away), and grids of at least
-    chan_vese.FINE_BAND_MIN_VOXELS solve the fine level in the band by default; smaller grids keep
+    chan_vese_pyramid.FINE_BAND_MIN_VOXELS solve the fine level in the band by default; smaller grids keep
     the box solve (their masks unchanged)."""
-    from pdehead_addon import chan_vese
+    from pdehead_addon import chan_vese_pyramid
     rng = np.random.default_rng(3)
     img = (np.linspace(0.0, 1.0, 12, dtype=np.float32) + 0.05 * rng.random((6, 8, 12), dtype=np.float32))
-    lo, hi = chan_vese._block_range(img, (3, 2, 4))
+    lo, hi = chan_vese_pyramid._block_range(img, (3, 2, 4))
     blocks = img.reshape(2, 3, 4, 2, 3, 4).transpose(0, 2, 4, 1, 3, 5).reshape(2, 4, 3, -1)
     assert np.array_equal(lo, blocks.min(axis=-1)) and np.array_equal(hi, blocks.max(axis=-1))
     q = np.zeros((2, 4, 3), np.float32)                   # coarse: all air, so only the straddle counts
-    band = chan_vese._band_blocks(q, 0, img, (3, 2, 4), 0.5)
+    band = chan_vese_pyramid._band_blocks(q, 0, img, (3, 2, 4), 0.5)
     assert np.array_equal(band, (lo < 0.5) & (hi > 0.5)) and band.any() and not band.all()
-    assert not chan_vese._band_blocks(q, 0).any()
+    assert not chan_vese_pyramid._band_blocks(q, 0).any()
     data = phantom.ct.data
     air = float(np.median(np.concatenate([data[:, 0].ravel(), data[:, -1].ravel()])))
     ct = CTVolume(np.pad(data, ((1, 1), (22, 24), (22, 24)), constant_values=air), phantom.ct.spacing)
     levels = dict(levels_mm=(6.0,))
     box = segment_head(ct, **levels)
     assert box.meta["solver"]["fine_box"] is not None and not box.meta["solver"].get("fine_band")
-    monkeypatch.setattr(chan_vese, "FINE_BAND_MIN_VOXELS", ct.data.size)
+    monkeypatch.setattr(chan_vese_pyramid, "FINE_BAND_MIN_VOXELS", ct.data.size)
     band = segment_head(ct, threads=1, **levels)
     assert band.meta["solver"].get("fine_band"), band.meta["solver"]
     # the band's sweep split over two threads: the same numbers to the bit
-    monkeypatch.setattr(chan_vese, "BAND_PART_VOXELS", 1000)
+    monkeypatch.setattr(chan_vese_pyramid, "BAND_PART_VOXELS", 1000)
     split = segment_head(ct, threads=2, **levels)
     np.testing.assert_array_equal(split.probability, band.probability)
     assert split.c1 == band.c1 and split.c2 == band.c2
-    monkeypatch.setattr(chan_vese, "FINE_BAND_STRADDLE", False)
+    monkeypatch.setattr(chan_vese_pyramid, "FINE_BAND_STRADDLE", False)
     plain = segment_head(ct, **levels)
     assert plain.meta["solver"]["fine_band"]["band_voxels"] < band.meta["solver"]["fine_band"]["band_voxels"]
     # the straddling blocks bring the band's mask closer to the box solve's (the reference method)

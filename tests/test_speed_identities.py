@@ -142,22 +142,22 @@ def test_banded_smoother_is_the_dense_solve_without_dense_lapack(monkeypatch):
 
 def test_approximation_change_reuses_the_tube_uv_map(monkeypatch):
     """The dome's tip moves with the approximation slider and rescales the curves' u; the tube's UV map
-    (:func:`.surface_mesh.uv_tube_map`, ~0.5 s CPU on a head) is a function of u up to scale, so it is
+    (:func:`.surface_uv_map.uv_tube_map`, ~0.5 s CPU on a head) is a function of u up to scale, so it is
     solved once for all approximation values (the map was re-solved at every change before session 6),
     and the surface's UVs and vertices are those of the map solved on each change's own u to ~1e-9."""
     from pde_synthetic import head_bset
-    from pdehead_addon import surface_mesh as SM
+    from pdehead_addon import surface_mesh as SM, surface_uv_map as UV
     from pdehead_addon.pde_surface import solve_with_controls
     bset = head_bset(patches=4, samples=128)
     calls = []
-    solve_map = SM.uv_tube_map
-    monkeypatch.setattr(SM, "uv_tube_map", lambda *a, **k: calls.append(1) or solve_map(*a, **k))
+    solve_map = UV.uv_tube_map
+    monkeypatch.setattr(UV, "uv_tube_map", lambda *a, **k: calls.append(1) or solve_map(*a, **k))
     heads = [solve_with_controls(bset, "c2", approximation=f, dome=True) for f in (0.30, 0.313, 0.326, 0.9)]
     assert len({float(h.curve_u[-1]) for h in heads}) == len(heads)          # u is rescaled at every change
     meshes = [h.surface(40, 60) for h in heads]
     assert len(calls) == 1
     for head, mesh in zip(heads, meshes):
-        rings, map_u = SM.uv_map_grid(bset.curves, head.curve_u)             # solved on this change's own u
+        rings, map_u = UV.uv_map_grid(bset.curves, head.curve_u)             # solved on this change's own u
         U, V, W = solve_map(rings, map_u)
         layout = head.uv_layout()
         assert np.abs(layout["map_u"] - map_u).max() < 1e-12

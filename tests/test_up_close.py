@@ -108,7 +108,7 @@ def test_a_radial_neck_outline_gets_closer_columns_not_long_cap_triangles(monkey
     """Issue 21: where the bottom outline runs radially, equal v steps are long on the surface and so is
     every cap triangle on them (GE: 4.24 mean edges). The columns lie closer in v there, fixed by the curves
     (the same v for every row and for nu, nv: the UVs stay registered). Measured: before 4.93, after 2.59."""
-    from pdehead_addon import pde_surface as PS, surface_mesh as SM
+    from pdehead_addon import pde_head as PS, surface_mesh as SM
     from pdehead_addon.surface_quality import cap_edge_ratio, uv_quality
     head = solve_pde(notched_bset(), approximation_mm=0)
     m = head.surface(60, 120, caps=True)
@@ -247,7 +247,7 @@ def test_uv_map_leaves_the_angle_keeping_map_only_around_folds(cthead_bset, monk
     """The tube map is the free (angle-keeping) least-squares map, blended toward straight rows only within
     a sample (and a taper) of a folded cell. The blend over 4 samples took it off 1.8 % of this fixture's
     samples (4.1 % on the benchmark's CThead curves: angle p95 10.48 deg); now 0.9 % (1.7 %: 9.77 deg)."""
-    from pdehead_addon import surface_mesh as SM
+    from pdehead_addon import surface_uv_map as SM
     head = solve_pde(cthead_bset)
     rings, map_u = SM.uv_map_grid(cthead_bset.curves, np.asarray(head.curve_u, float))
     U, V, _ = SM.uv_tube_map(rings, map_u)

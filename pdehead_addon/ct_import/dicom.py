@@ -4,7 +4,7 @@ The headers were read by :mod:`.discovery`; here the chosen series is checked
 (one orientation, one size, no duplicate positions), sorted by
 ImagePositionPatient along the slice normal, decoded (clear errors naming the
 missing decoder package) and rescaled to HU, then either placed as it is
-(:func:`.geometry._canonical`) or resampled (:func:`.geometry._resample_slices`)
+(:func:`.geometry.to_canonical`) or resampled (:func:`.geometry.resample_slices`)
 when the grid is sheared by gantry tilt, unevenly spaced or oblique.
 """
 from __future__ import annotations
@@ -18,8 +18,8 @@ import numpy as np
 from ..ct_volume import CTVolume
 from ..errors import CTImportError
 from ..input_checks import AIR_HU
-from .discovery import _Frame, _Series, _float_or, _pydicom, _ranked_series, _scan_dicom, _series_info, _skip_summary
-from .geometry import _ALIGNED_TOL, _canonical, _resample_slices
+from .discovery import DicomFrame, DicomSeries, float_or, import_pydicom, ranked_series, scan_dicom, series_info, skip_summary
+from .geometry import ALIGNED_TOL, to_canonical, resample_slices
 
 # Tolerances of the stack checks (see _stack_geometry; the axis tolerances live in .geometry).
 _SHEAR_TOL_PX = 0.1        # in-plane drift of the slice origins (pixels) before the grid counts as sheared
@@ -42,9 +42,9 @@ _DECODER_PACKAGES = {
 
 
 
-def _load_dicom(files, label, series_uid, resample_spacing, warns) -> CTVolume:
-    scan = _scan_dicom(files)
-    ranked = _ranked_series(scan.series)
+def load_dicom(files, label, series_uid, resample_spacing, warns) -> CTVolume:
+    scan = scan_dicom(files)
+    ranked = ranked_series(scan.series)
     if not ranked and len(files) == 1 and scan.unreadable:
         raise CTImportError(f"cannot read this DICOM file: {scan.unreadable[files[0]]}", files[0])
     if not ranked:
@@ -53,17 +53,17 @@ def _load_dicom(files, label, series_uid, resample_spacing, warns) -> CTVolume:
             f, err = next(iter(scan.unreadable.items()))
             details.append(f"{len(scan.unreadable)} DICOM-looking file(s) could not be read, e.g. {f}: {err}")
         if scan.skipped:
-            details.append("skipped: " + _skip_summary(scan.skipped))
+            details.append("skipped: " + skip_summary(scan.skipped))
         raise CTImportError("no DICOM image series found" + (" (" + "; ".join(details) + ")" if details else ""),
                             label)
     if series_uid is not None:
         chosen = scan.series.get(str(series_uid))
         if chosen is None:
-            available = ", ".join(f"{s.uid} [{_series_info(s).label}]" for s in ranked)
+            available = ", ".join(f"{s.uid} [{series_info(s).label}]" for s in ranked)
             raise CTImportError(f"series_uid {series_uid!r} not found; available series: {available}", label)
     else:
         chosen = ranked[0]
-    info = _series_info(chosen)
+    info = series_info(chosen)
     broken = scan.incomplete.get(chosen.uid)
     if broken:
         raise CTImportError(f"truncated file: {scan.unreadable[broken[0]]}; it belongs to the series being "
@@ -91,7 +91,7 @@ def _load_dicom(files, label, series_uid, resample_spacing, warns) -> CTVolume:
 
     reasons = geometry["resample_reasons"]
     if reasons:
-        data, origin, spacing, coverage = _resample_slices(
+        data, origin, spacing, coverage = resample_slices(
             stack, geometry["positions"], geometry["u"], geometry["v"], geometry["dr"], geometry["dc"],
             geometry["steps"], resample_spacing, pad_info["fill"])
         direction = np.eye(3)
@@ -99,7 +99,7 @@ def _load_dicom(files, label, series_uid, resample_spacing, warns) -> CTVolume:
         coverage = None
         if resample_spacing is not None:
             warns.append("resample_spacing ignored: the slices are regular and axis-aligned (no resampling)")
-        data, spacing, origin, direction = _canonical(
+        data, spacing, origin, direction = to_canonical(
             stack, [geometry["n"], geometry["v"], geometry["u"]],
             [geometry["step"], geometry["dr"], geometry["dc"]], geometry["positions"][0])
     del stack
@@ -123,7 +123,7 @@ def _load_dicom(files, label, series_uid, resample_spacing, warns) -> CTVolume:
         "slice_steps_mm": [round(float(s), 4) for s in geometry["steps"]],
         "slice_thickness_mm": sorted({fr.thickness for fr in frames if fr.thickness}),
         "gantry_tilt_deg": round(geometry["tilt_deg"], 3),
-        "gantry_tilt_header_deg": _float_or(ds.get("GantryDetectorTilt"), None),
+        "gantry_tilt_header_deg": float_or(ds.get("GantryDetectorTilt"), None),
         "resampled": bool(reasons),
         "resample_reason": "; ".join(reasons),
         "units": "HU" if pad_info["hu"] else "stored value x slope + intercept",
@@ -140,7 +140,7 @@ def _load_dicom(files, label, series_uid, resample_spacing, warns) -> CTVolume:
     return CTVolume(data, spacing, origin, direction, meta, coverage=coverage)
 
 
-def _consistent_frames(series: _Series, warns: list[str]) -> list[_Frame]:
+def _consistent_frames(series: DicomSeries, warns: list[str]) -> list[DicomFrame]:
     """The frames of the dominant orientation, with exact duplicates removed; mixed sizes are an error."""
     frames = series.frames
     missing = [fr for fr in frames if fr.ipp is None or fr.iop is None or fr.pixel_spacing is None]
@@ -152,7 +152,7 @@ def _consistent_frames(series: _Series, warns: list[str]) -> list[_Frame]:
                      + ", ".join(fr.path.name for fr in missing[:5]))
         missing_ids = {id(fr) for fr in missing}
         frames = [fr for fr in frames if id(fr) not in missing_ids]
-    groups: dict[tuple, list[_Frame]] = {}
+    groups: dict[tuple, list[DicomFrame]] = {}
     for fr in frames:
         groups.setdefault(tuple(np.round(fr.iop, 3)), []).append(fr)
     if len(groups) > 1:
@@ -162,7 +162,7 @@ def _consistent_frames(series: _Series, warns: list[str]) -> list[_Frame]:
                      + ", ".join(fr.path.name for fr in others[:5]))
         frames = main
     # The same file reached twice (copied into two folders): keep one.
-    seen: dict[tuple, _Frame] = {}
+    seen: dict[tuple, DicomFrame] = {}
     duplicates = []
     for fr in frames:
         key = (fr.sop_uid, fr.frame)
@@ -176,7 +176,7 @@ def _consistent_frames(series: _Series, warns: list[str]) -> list[_Frame]:
         frames = list(seen.values())
     sizes = {(fr.rows, fr.cols) for fr in frames}
     if len(sizes) > 1:
-        by_size: dict[tuple, _Frame] = {}
+        by_size: dict[tuple, DicomFrame] = {}
         for fr in frames:
             by_size.setdefault((fr.rows, fr.cols), fr)
         example = "; ".join(f"{r}x{c} in {fr.path}" for (r, c), fr in by_size.items())
@@ -187,7 +187,7 @@ def _consistent_frames(series: _Series, warns: list[str]) -> list[_Frame]:
     return frames
 
 
-def _stack_geometry(frames: list[_Frame], label: str, warns: list[str]) -> dict:
+def _stack_geometry(frames: list[DicomFrame], label: str, warns: list[str]) -> dict:
     """Sort the slices along their normal and decide whether the grid must be resampled.
 
     The slice normal is the cross product of the ImageOrientationPatient row and
@@ -252,7 +252,7 @@ def _stack_geometry(frames: list[_Frame], label: str, warns: list[str]) -> dict:
                      f"{step:g} mm; a PDE head needs at least 4 slices (3t + 1 boundary curves, t >= 1)")
         steps = np.array([step])
     axes = np.abs(np.stack([u, v, n]))
-    if axes.max(axis=1).min() < 1 - _ALIGNED_TOL or len(set(np.argmax(axes, axis=1))) < 3:
+    if axes.max(axis=1).min() < 1 - ALIGNED_TOL or len(set(np.argmax(axes, axis=1))) < 3:
         reasons.append("image planes oblique to the patient axes (ImageOrientationPatient "
                        + np.array2string(np.round(iop, 4), separator=",") + ")")
     return dict(u=u, v=v, n=n, dr=float(dr), dc=float(dc), positions=positions, steps=steps, step=float(step),
@@ -260,7 +260,7 @@ def _stack_geometry(frames: list[_Frame], label: str, warns: list[str]) -> dict:
 
 
 def _transfer_syntax(ds):
-    pydicom = _pydicom()
+    pydicom = import_pydicom()
     meta = getattr(ds, "file_meta", None)
     ts = getattr(meta, "TransferSyntaxUID", None) if meta is not None else None
     if ts is None:
@@ -325,7 +325,7 @@ def _decode_file(ds, path: Path) -> np.ndarray:
     return arr.reshape((-1,) + arr.shape[-2:])
 
 
-def _read_pixels(frames: list[_Frame], is_ct: bool) -> tuple[np.ndarray, dict]:
+def _read_pixels(frames: list[DicomFrame], is_ct: bool) -> tuple[np.ndarray, dict]:
     """Rescaled float32 stack (n, rows, cols); padding pixels set to air."""
     n, rows, cols = len(frames), frames[0].rows, frames[0].cols
     stack = np.empty((n, rows, cols), dtype=np.float32)

@@ -19,7 +19,7 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 
 from ..errors import CTImportError
-from .geometry import _ALIGNED_TOL
+from .geometry import ALIGNED_TOL
 
 IMAGE_EXTENSIONS = (".tif", ".tiff", ".png", ".jpg", ".jpeg", ".bmp", ".gif", ".pgm", ".ppm")
 NIFTI_EXTENSIONS = (".nii", ".nii.gz")
@@ -105,10 +105,10 @@ def list_series(path: str | os.PathLike | Sequence[str | os.PathLike]) -> list[S
     CTImportError
         If the path does not exist or the folder is empty.
     """
-    files, label = _gather_files(path)
-    files = _expand_dicomdir(files, label, [])
-    scan = _scan_dicom(files)
-    return [_series_info(s) for s in _ranked_series(scan.series)]
+    files, label = gather_files(path)
+    files = expand_dicomdir(files, label, [])
+    scan = scan_dicom(files)
+    return [series_info(s) for s in ranked_series(scan.series)]
 
 
 def series_of_file(path: str | os.PathLike) -> str | None:
@@ -116,7 +116,7 @@ def series_of_file(path: str | os.PathLike) -> str | None:
     loads the whole series from its folder (``load_ct(folder, series_uid=...)``); None for anything
     else (not DICOM, unreadable, no UID, or a multi-frame file that is a volume by itself)."""
     f = Path(path)
-    if not f.is_file() or _has_ext(f, IMAGE_EXTENSIONS + NIFTI_EXTENSIONS) or not _looks_like_dicom(f):
+    if not f.is_file() or has_ext(f, IMAGE_EXTENSIONS + NIFTI_EXTENSIONS) or not _looks_like_dicom(f):
         return None
     try:
         ds = _read_dicom_header(f)
@@ -134,7 +134,7 @@ def series_of_file(path: str | os.PathLike) -> str | None:
 # Files and format detection
 # ----------------------------------------------------------------------------------------------
 
-def _label(path) -> str:
+def source_label(path) -> str:
     if isinstance(path, (str, os.PathLike)):
         return os.fspath(path)
     try:
@@ -144,7 +144,7 @@ def _label(path) -> str:
     return f"{os.fspath(items[0])} (+{len(items) - 1} more files)" if items else "(empty file list)"
 
 
-def _gather_files(path) -> tuple[list[Path], str]:
+def gather_files(path) -> tuple[list[Path], str]:
     """All regular files of a folder (recursively, sorted), a single file, or a list of files."""
     if isinstance(path, (str, os.PathLike)):
         p = Path(path)
@@ -165,7 +165,7 @@ def _gather_files(path) -> tuple[list[Path], str]:
         items = [Path(f) for f in path]
     except TypeError:
         raise CTImportError(f"expected a folder, a file or a list of files, got {type(path).__name__}") from None
-    label = _label(items)
+    label = source_label(items)
     if not items:
         raise CTImportError("the list of files is empty")
     for f in items:
@@ -178,7 +178,7 @@ def _is_dicomdir(f: Path) -> bool:
     return f.name.upper() == "DICOMDIR" and _looks_like_dicom(f)
 
 
-def _expand_dicomdir(files: list[Path], label: str, warns: list[str]) -> list[Path]:
+def expand_dicomdir(files: list[Path], label: str, warns: list[str]) -> list[Path]:
     """Add the image files a DICOMDIR (a DICOM file-set's index) refers to.
 
     A DICOMDIR names its files by ReferencedFileID (path components relative to
@@ -190,7 +190,7 @@ def _expand_dicomdir(files: list[Path], label: str, warns: list[str]) -> list[Pa
     dirs = [f for f in files if _is_dicomdir(f)]
     if not dirs:
         return files
-    pydicom = _pydicom()
+    pydicom = import_pydicom()
     out = list(files)
     seen = {os.path.normcase(os.path.abspath(f)) for f in files}
     for d in dirs:
@@ -226,7 +226,7 @@ def _expand_dicomdir(files: list[Path], label: str, warns: list[str]) -> list[Pa
     return out
 
 
-def _top_level(files: list[Path], label: str) -> list[Path]:
+def top_level(files: list[Path], label: str) -> list[Path]:
     """Files directly in the folder (image and raw stacks are not searched recursively)."""
     root = Path(label)
     if root.is_dir():
@@ -234,7 +234,7 @@ def _top_level(files: list[Path], label: str) -> list[Path]:
     return files
 
 
-def _has_ext(f: Path, exts: Iterable[str]) -> bool:
+def has_ext(f: Path, exts: Iterable[str]) -> bool:
     name = f.name.lower()
     return any(name.endswith(e) for e in exts)
 
@@ -253,7 +253,7 @@ def _numbered_key(f: Path) -> tuple:
     return (template, int(last.group()), name)
 
 
-def _numbered_files(files: list[Path], label: str, what: str, warns: list[str]) -> list[Path]:
+def numbered_files(files: list[Path], label: str, what: str, warns: list[str]) -> list[Path]:
     ordered = sorted(files, key=_numbered_key)
     templates = {_numbered_key(f)[0] for f in ordered}
     if len(templates) > 1:
@@ -274,19 +274,19 @@ def _looks_like_dicom(f: Path) -> bool:
     return len(head) >= 8 and head[:2] in (b"\x02\x00", b"\x08\x00")
 
 
-def _detect_format(files: list[Path], label: str, shape) -> str:
+def detect_format(files: list[Path], label: str, shape) -> str:
     if shape is not None:
         return "raw"
-    if len(files) == 1 and _has_ext(files[0], NIFTI_EXTENSIONS):
+    if len(files) == 1 and has_ext(files[0], NIFTI_EXTENSIONS):
         return "nifti"
-    if any(_looks_like_dicom(f) for f in files if not _has_ext(f, IMAGE_EXTENSIONS + NIFTI_EXTENSIONS)):
+    if any(_looks_like_dicom(f) for f in files if not has_ext(f, IMAGE_EXTENSIONS + NIFTI_EXTENSIONS)):
         return "dicom"
-    top = _top_level(files, label)
-    if any(_has_ext(f, IMAGE_EXTENSIONS) for f in top):
+    top = top_level(files, label)
+    if any(has_ext(f, IMAGE_EXTENSIONS) for f in top):
         return "image"
-    if any(_has_ext(f, NIFTI_EXTENSIONS) for f in top):
+    if any(has_ext(f, NIFTI_EXTENSIONS) for f in top):
         raise CTImportError("found NIfTI files; pass one .nii/.nii.gz file, not the folder", label)
-    if any(_has_ext(f, IMAGE_EXTENSIONS) for f in files):
+    if any(has_ext(f, IMAGE_EXTENSIONS) for f in files):
         raise CTImportError("no slices directly in this folder (images found only in subfolders); "
                             "choose the folder that holds the numbered images", label)
     raise CTImportError(
@@ -299,7 +299,7 @@ def _detect_format(files: list[Path], label: str, shape) -> str:
 # ----------------------------------------------------------------------------------------------
 
 @dataclass(eq=False)
-class _Frame:
+class DicomFrame:
     """One 2-D image of a DICOM series (a file, or one frame of a multi-frame file)."""
 
     path: Path
@@ -317,9 +317,9 @@ class _Frame:
 
 
 @dataclass
-class _Series:
+class DicomSeries:
     uid: str
-    frames: list[_Frame] = field(default_factory=list)
+    frames: list[DicomFrame] = field(default_factory=list)
     localizers: int = 0
 
     @property
@@ -329,13 +329,13 @@ class _Series:
 
 @dataclass
 class _Scan:
-    series: dict[str, _Series]
+    series: dict[str, DicomSeries]
     skipped: dict[str, list[Path]]      # reason -> files
     unreadable: dict[Path, str]         # DICOM-looking files that failed to parse -> error
     incomplete: dict[str, list[Path]]   # series uid -> image files cut off before their pixel data
 
 
-def _pydicom():
+def import_pydicom():
     try:
         import pydicom
     except ImportError as exc:  # pragma: no cover - pydicom is a hard dependency
@@ -345,7 +345,7 @@ def _pydicom():
 
 def _read_dicom_header(f: Path):
     """The dataset with pixel data deferred (read lazily from the file)."""
-    pydicom = _pydicom()
+    pydicom = import_pydicom()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         ds = pydicom.dcmread(f, defer_size=4096, force=True)
@@ -367,7 +367,7 @@ def _floats(value, n: int) -> np.ndarray | None:
     return arr if arr.shape == (n,) and np.all(np.isfinite(arr)) else None
 
 
-def _float_or(value, default):
+def float_or(value, default):
     try:
         out = float(value)
     except (TypeError, ValueError):
@@ -388,7 +388,7 @@ def _group_value(groups: Sequence, sequence: str, keyword: str):
     return None
 
 
-def _frames_of(f: Path, ds) -> list[_Frame]:
+def _frames_of(f: Path, ds) -> list[DicomFrame]:
     rows, cols = int(ds.get("Rows", 0) or 0), int(ds.get("Columns", 0) or 0)
     sop_uid = str(ds.get("SOPInstanceUID", f))
     try:
@@ -406,21 +406,21 @@ def _frames_of(f: Path, ds) -> list[_Frame]:
         iop = _floats(_group_value(groups, "PlaneOrientationSequence", "ImageOrientationPatient")
                       or ds.get("ImageOrientationPatient"), 6)
         ps = _floats(_group_value(groups, "PixelMeasuresSequence", "PixelSpacing") or ds.get("PixelSpacing"), 2)
-        thickness = _float_or(_group_value(groups, "PixelMeasuresSequence", "SliceThickness")
+        thickness = float_or(_group_value(groups, "PixelMeasuresSequence", "SliceThickness")
                               or ds.get("SliceThickness"), None)
-        slope = _float_or(_group_value(groups, "PixelValueTransformationSequence", "RescaleSlope")
+        slope = float_or(_group_value(groups, "PixelValueTransformationSequence", "RescaleSlope")
                           or ds.get("RescaleSlope"), 1.0)
-        intercept = _float_or(_group_value(groups, "PixelValueTransformationSequence", "RescaleIntercept")
+        intercept = float_or(_group_value(groups, "PixelValueTransformationSequence", "RescaleIntercept")
                               or ds.get("RescaleIntercept"), 0.0)
-        frames.append(_Frame(f, index if nframes > 1 else None, ds, ipp, iop,
+        frames.append(DicomFrame(f, index if nframes > 1 else None, ds, ipp, iop,
                              None if ps is None else (float(ps[0]), float(ps[1])),
                              thickness if thickness and thickness > 0 else None,
                              slope if slope != 0 else 1.0, intercept, rows, cols, sop_uid))
     return frames
 
 
-def _scan_dicom(files: list[Path]) -> _Scan:
-    series: dict[str, _Series] = {}
+def scan_dicom(files: list[Path]) -> _Scan:
+    series: dict[str, DicomSeries] = {}
     skipped: dict[str, list[Path]] = {}
     unreadable: dict[Path, str] = {}
     incomplete: dict[str, list[Path]] = {}
@@ -432,7 +432,7 @@ def _scan_dicom(files: list[Path]) -> _Scan:
         if f.name.upper() == "DICOMDIR":
             skip("DICOMDIR", f)
             continue
-        if _has_ext(f, IMAGE_EXTENSIONS + NIFTI_EXTENSIONS + TEXT_EXTENSIONS) or not _looks_like_dicom(f):
+        if has_ext(f, IMAGE_EXTENSIONS + NIFTI_EXTENSIONS + TEXT_EXTENSIONS) or not _looks_like_dicom(f):
             skip("not DICOM", f)
             continue
         try:
@@ -454,7 +454,7 @@ def _scan_dicom(files: list[Path]) -> _Scan:
                 skip("no pixel data (not an image)", f)
             continue
         uid = str(ds.get("SeriesInstanceUID", "") or "(no SeriesInstanceUID)")
-        entry = series.setdefault(uid, _Series(uid))
+        entry = series.setdefault(uid, DicomSeries(uid))
         image_type = ds.get("ImageType") or []
         if isinstance(image_type, str):
             image_type = image_type.split("\\")
@@ -476,12 +476,12 @@ def _orientation_name(iop: np.ndarray | None) -> str:
         return "unknown"
     normal = np.abs(normal / norm)
     axis = int(np.argmax(normal))
-    if normal[axis] < 1 - _ALIGNED_TOL:
+    if normal[axis] < 1 - ALIGNED_TOL:
         return "oblique"
     return ("sagittal", "coronal", "axial")[axis]
 
 
-def _series_info(s: _Series) -> SeriesInfo:
+def series_info(s: DicomSeries) -> SeriesInfo:
     ds = s.first
     sizes: dict[tuple[int, int], int] = {}
     for fr in s.frames:
@@ -509,8 +509,8 @@ def _series_info(s: _Series) -> SeriesInfo:
     )
 
 
-def _ranked_series(series: dict[str, _Series]) -> list[_Series]:
-    def key(s: _Series):
+def ranked_series(series: dict[str, DicomSeries]) -> list[DicomSeries]:
+    def key(s: DicomSeries):
         info_number = s.first.get("SeriesNumber")
         try:
             number = int(info_number)
@@ -520,7 +520,7 @@ def _ranked_series(series: dict[str, _Series]) -> list[_Series]:
     return sorted(series.values(), key=key)
 
 
-def _skip_summary(skipped: dict[str, list[Path]]) -> str:
+def skip_summary(skipped: dict[str, list[Path]]) -> str:
     parts = []
     for reason, fs in skipped.items():
         names = ", ".join(f.name for f in fs[:3]) + (", ..." if len(fs) > 3 else "")

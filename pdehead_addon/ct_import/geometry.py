@@ -2,9 +2,9 @@
 
 Every reader ends in the same grid: ``data[k, j, i]`` with k toward the
 patient's SUPERIOR side, j POSTERIOR, i LEFT (``direction`` the identity).
-Axis-aligned sources are only flipped and transposed (:func:`_canonical`);
+Axis-aligned sources are only flipped and transposed (:func:`to_canonical`);
 parallel slices that are tilted, oblique or unevenly spaced are resampled
-linearly (:func:`_resample_slices`) so that every source pixel keeps its true
+linearly (:func:`resample_slices`) so that every source pixel keeps its true
 patient position ``IPP + col*dc*rowdir + row*dr*coldir``.
 """
 from __future__ import annotations
@@ -19,11 +19,11 @@ from ..ct_volume import CTVolume
 from ..errors import CTImportError
 
 # Tolerances of the axis checks (the stack checks of .dicom._stack_geometry and of .nifti use them too).
-_ALIGNED_TOL = 1e-3        # direction cosine off an axis before the grid counts as oblique (0.25 mm at 250 mm)
+ALIGNED_TOL = 1e-3        # direction cosine off an axis before the grid counts as oblique (0.25 mm at 250 mm)
 _IDENTITY_SNAP = 1e-5      # below this the direction is reported as the exact identity
 
 
-def _canonical(data: np.ndarray, axis_dirs: Sequence[np.ndarray], axis_spacing: Sequence[float],
+def to_canonical(data: np.ndarray, axis_dirs: Sequence[np.ndarray], axis_spacing: Sequence[float],
                origin: np.ndarray) -> tuple[np.ndarray, tuple, np.ndarray, np.ndarray]:
     """Flip/transpose a regular axis-aligned grid to ``[z, y, x]`` with k superior, j posterior, i left.
 
@@ -82,7 +82,7 @@ def _output_grid(positions, u, v, n, dr, dc, rows, cols, steps, resample_spacing
     return lo, spacing_xyz, counts
 
 
-def _resample_slices(stack: np.ndarray, positions: np.ndarray, u: np.ndarray, v: np.ndarray, dr: float,
+def resample_slices(stack: np.ndarray, positions: np.ndarray, u: np.ndarray, v: np.ndarray, dr: float,
                      dc: float, steps: np.ndarray, resample_spacing, fill: float,
                      max_voxels: int = 600_000_000) -> tuple[np.ndarray, np.ndarray, tuple]:
     """Resample parallel slices (any tilt, spacing or orientation) onto a regular LPS grid.
@@ -152,7 +152,7 @@ def _bracket(delta: np.ndarray, along: np.ndarray):
 
 
 def _resample_lines(source, positions, other_dir, other_sp, n, along, lo, sp, counts, a, fill):
-    """Fast path of :func:`_resample_slices`: output lines along patient axis ``a`` copy source lines."""
+    """Fast path of :func:`resample_slices`: output lines along patient axis ``a`` copy source lines."""
     nslices, nlines, line_len = source.shape
     assert line_len == counts[a]
     b, c = [p for p in (2, 1, 0) if p != a]                 # output array order is z, y, x
@@ -201,7 +201,7 @@ def _resample_lines(source, positions, other_dir, other_sp, n, along, lo, sp, co
 
 
 def _resample_general(stack, positions, u, v, dr, dc, n, along, lo, sp, counts, fill):
-    """General path of :func:`_resample_slices` (double-oblique planes): bilinear lookups per slab."""
+    """General path of :func:`resample_slices` (double-oblique planes): bilinear lookups per slab."""
     from scipy import ndimage
 
     nslices, rows, cols = stack.shape
@@ -238,7 +238,7 @@ def _resample_general(stack, positions, u, v, dr, dc, n, along, lo, sp, counts, 
 
 
 
-def _headerless_volume(data, label, fmt, spacing, axes, oriented, hu, warns, extra) -> CTVolume:
+def headerless_volume(data, label, fmt, spacing, axes, oriented, hu, warns, extra) -> CTVolume:
     """Place a stack without geometry, in file order ``[file, row, column]``, by the orientation
     code's axis directions ``axes = [column, row, slice]`` (default LPS: row -> posterior,
     column -> patient left, later files superior); the origin stays at 0 (no patient position)."""
@@ -247,7 +247,7 @@ def _headerless_volume(data, label, fmt, spacing, axes, oriented, hu, warns, ext
         warns.append("no spacing given: assumed (dz, dy, dx) = (1, 1, 1) mm; pass spacing=(dz, dy, dx)")
     spacing = _spacing_option(spacing, label)
     col, row, sl = axes
-    data, spacing, _, direction = _canonical(data, [sl, row, col], spacing, np.zeros(3))
+    data, spacing, _, direction = to_canonical(data, [sl, row, col], spacing, np.zeros(3))
     code = input_checks.orientation_code(col, row, sl)
     meta = {
         "source": label,

@@ -7,8 +7,8 @@ import numpy as np
 
 from ..ct_volume import CTVolume
 from ..errors import CTImportError
-from .discovery import IMAGE_EXTENSIONS, _has_ext, _numbered_files, _top_level
-from .geometry import _headerless_volume
+from .discovery import IMAGE_EXTENSIONS, has_ext, numbered_files, top_level
+from .geometry import headerless_volume
 
 
 
@@ -17,7 +17,7 @@ def _read_image(f: Path) -> tuple[np.ndarray, float | None]:
     when it was converted from colour, its mean colour saturation (max - min of R, G, B as a share
     of the value range; 0 for colour files holding grey pixels), else None."""
     arr = None
-    if _has_ext(f, (".tif", ".tiff")):
+    if has_ext(f, (".tif", ".tiff")):
         try:
             import tifffile
             arr = tifffile.imread(f)
@@ -52,15 +52,15 @@ def _read_image(f: Path) -> tuple[np.ndarray, float | None]:
     return arr, None
 
 
-def _load_images(files, label, spacing, axes, oriented, hu, warns) -> CTVolume:
-    top = _top_level(files, label)
-    images = [f for f in top if _has_ext(f, IMAGE_EXTENSIONS)]
+def load_images(files, label, spacing, axes, oriented, hu, warns) -> CTVolume:
+    top = top_level(files, label)
+    images = [f for f in top if has_ext(f, IMAGE_EXTENSIONS)]
     others = [f for f in top if f not in images]
     if not images:
         raise CTImportError("no image files (TIFF/PNG/JPEG/BMP) found", label if len(files) != 1 else files[0])
     if others:
         warns.append(f"skipped {len(others)} non-image file(s): " + ", ".join(f.name for f in others[:5]))
-    images = _numbered_files(images, label, "image", warns)
+    images = numbered_files(images, label, "image", warns)
     slices = []
     colour, chroma = False, []
     shapes: dict[tuple, Path] = {}
@@ -86,7 +86,7 @@ def _load_images(files, label, spacing, axes, oriented, hu, warns) -> CTVolume:
     for k, s in enumerate(slices):
         data[k] = s
     del slices
-    return _headerless_volume(data, label, "image", spacing, axes, oriented, hu, warns,
+    return headerless_volume(data, label, "image", spacing, axes, oriented, hu, warns,
                               {"files": len(images), "first_file": images[0].name, "last_file": images[-1].name})
 
 

@@ -14,12 +14,11 @@ import numpy as np
 from .. import input_checks
 from ..ct_volume import CTVolume, downsample_volume
 from ..errors import CTImportError
-from .dicom import _load_dicom
-from .discovery import _detect_format, _expand_dicomdir, _gather_files, _label
-from .images import _load_images
-from .nifti import _load_nifti
-from .raw import _load_raw
-
+from .dicom import load_dicom
+from .discovery import detect_format, expand_dicomdir, gather_files, source_label
+from .images import load_images
+from .nifti import load_nifti
+from .raw import load_raw
 
 
 class CTImportWarning(UserWarning):
@@ -117,37 +116,71 @@ def load_ct(
             and os.fspath(path).lower().endswith((".stl", ".ply", ".obj")):
         from ..mesh_input import load_skull_mesh      # a skull given as a surface mesh (issue 22)
         return load_skull_mesh(path)
+    fmt, first_slice, hu_said, axes = _checked_options(path, format, fmt, first_slice, orientation, units)
+    # headerless stacks: no first_slice and no orientation = Auto (the documented default, defaults.FIRST_SLICE)
+    auto_orientation = first_slice is None and orientation is None
+    files, label = gather_files(path)
+    if fmt in ("auto", "dicom"):
+        files = expand_dicomdir(files, label, warns)
+
+    if fmt == "auto":
+        fmt = detect_format(files, label, shape)
+    _warn_ignored_options(fmt, spacing, first_slice, orientation, units, series_uid, warns)
+    if axes is None:
+        axes = input_checks.parse_orientation("LPI" if first_slice == "superior" else "LPS")
+
+    if fmt == "dicom":
+        ct = load_dicom(files, label, series_uid, resample_spacing, warns)
+    elif fmt == "nifti":
+        ct = load_nifti(files, label, resample_spacing, warns, hu_said)
+    elif fmt == "image":
+        ct = load_images(files, label, spacing, axes, orientation is not None, hu_said, warns)
+    else:
+        ct = load_raw(files, label, shape, dtype, byte_order, header_bytes, spacing, axes,
+                      orientation is not None, hu_said, warns)
+    _check_values(ct, label, warns)
+    if downsample is not None and np.any(np.asarray(downsample) != 1):
+        ct = _downsampled(ct, downsample, label, warns)
+    if fmt in ("image", "raw"):
+        ct = _check_crown(ct, auto_orientation, warns)
+        _check_face_side(ct, warns)
+
+    ct.meta["warnings"] = list(warns)
+    for message in warns:
+        warnings.warn(f"{label}: {message}", CTImportWarning, stacklevel=2)
+    return ct
+
+
+def _checked_options(path, format, fmt: str, first_slice, orientation, units):
+    """``(format, first_slice, units said HU, axes or None)`` from the options, or ``CTImportError``."""
     if fmt in ("images", "tiff", "tif", "png"):
         fmt = "image"
     if fmt not in ("auto", "dicom", "image", "raw", "nifti"):
         raise CTImportError(f"unknown format {format!r}; use 'auto', 'dicom', 'image', 'raw' or 'nifti'",
-                            _label(path))
+                            source_label(path))
     if first_slice == "auto":
         first_slice = None
     if first_slice not in (None, "inferior", "superior"):
         raise CTImportError(f"first_slice must be 'auto', 'inferior' or 'superior', got {first_slice!r}",
-                            _label(path))
-    # headerless stacks: no first_slice and no orientation = Auto (the documented default, defaults.FIRST_SLICE)
-    auto_orientation = first_slice is None and orientation is None
+                            source_label(path))
     if units is not None and str(units).lower() not in ("hu", "stored"):
-        raise CTImportError(f"units must be 'HU' or 'stored', got {units!r}", _label(path))
+        raise CTImportError(f"units must be 'HU' or 'stored', got {units!r}", source_label(path))
     hu_said = units is not None and str(units).lower() == "hu"
     axes = None
     if orientation is not None:
         try:
             axes = input_checks.parse_orientation(orientation)
         except ValueError as exc:
-            raise CTImportError(str(exc), _label(path)) from None
+            raise CTImportError(str(exc), source_label(path)) from None
         if first_slice is not None and not (abs(axes[2][2]) == 1
                                             and (axes[2][2] > 0) == (first_slice == "inferior")):
             raise CTImportError(f"first_slice={first_slice!r} contradicts orientation={orientation!r} "
-                                "(its third letter says where the files go); give only orientation", _label(path))
-    files, label = _gather_files(path)
-    if fmt in ("auto", "dicom"):
-        files = _expand_dicomdir(files, label, warns)
+                                "(its third letter says where the files go); give only orientation", source_label(path))
+    return fmt, first_slice, hu_said, axes
 
-    if fmt == "auto":
-        fmt = _detect_format(files, label, shape)
+
+def _warn_ignored_options(fmt: str, spacing, first_slice, orientation, units, series_uid, warns: list[str]) -> None:
+    """A warning for each option the detected format does not use."""
     if fmt in ("dicom", "nifti"):
         if spacing is not None:
             warns.append(f"spacing={tuple(spacing)} ignored: {fmt.upper()} files carry their own geometry")
@@ -159,33 +192,16 @@ def load_ct(
             warns.append(f"units={units!r} ignored: DICOM says its own units (Modality, RescaleType)")
     elif series_uid is not None:
         warns.append("series_uid ignored: the input is not DICOM")
-    if axes is None:
-        axes = input_checks.parse_orientation("LPI" if first_slice == "superior" else "LPS")
 
-    if fmt == "dicom":
-        ct = _load_dicom(files, label, series_uid, resample_spacing, warns)
-    elif fmt == "nifti":
-        ct = _load_nifti(files, label, resample_spacing, warns, hu_said)
-    elif fmt == "image":
-        ct = _load_images(files, label, spacing, axes, orientation is not None, hu_said, warns)
-    else:
-        ct = _load_raw(files, label, shape, dtype, byte_order, header_bytes, spacing, axes,
-                       orientation is not None, hu_said, warns)
-    _check_values(ct, label, warns)
-    if downsample is not None and np.any(np.asarray(downsample) != 1):
-        try:
-            ct = downsample_volume(ct, downsample)
-        except (ValueError, TypeError) as exc:
-            raise CTImportError(f"downsample: {exc}", label) from None
-        warns.append(f"downsampled {ct.meta['shape_before_downsample']} -> {ct.shape} voxels (block means of "
-                     f"{' x '.join(map(str, ct.meta['downsampled']))}); spacing now {ct.spacing} mm (dz, dy, dx)")
-    if fmt in ("image", "raw"):
-        ct = _check_crown(ct, auto_orientation, warns)
-        _check_face_side(ct, warns)
 
-    ct.meta["warnings"] = list(warns)
-    for message in warns:
-        warnings.warn(f"{label}: {message}", CTImportWarning, stacklevel=2)
+def _downsampled(ct: CTVolume, downsample, label: str, warns: list[str]) -> CTVolume:
+    """Block means of the loaded volume (:func:`~pdehead_addon.ct_volume.downsample_volume`), with a warning."""
+    try:
+        ct = downsample_volume(ct, downsample)
+    except (ValueError, TypeError) as exc:
+        raise CTImportError(f"downsample: {exc}", label) from None
+    warns.append(f"downsampled {ct.meta['shape_before_downsample']} -> {ct.shape} voxels (block means of "
+                 f"{' x '.join(map(str, ct.meta['downsampled']))}); spacing now {ct.spacing} mm (dz, dy, dx)")
     return ct
 
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..ct_volume import CTVolume
 from ..errors import CTImportError
-from .geometry import _ALIGNED_TOL, _canonical, _resample_slices
+from .geometry import ALIGNED_TOL, to_canonical, resample_slices
 
 
 
@@ -42,7 +42,7 @@ def _nifti_affine(hdr: dict) -> np.ndarray:
     return m
 
 
-def _load_nifti(files, label, resample_spacing, warns, hu=False) -> CTVolume:
+def load_nifti(files, label, resample_spacing, warns, hu=False) -> CTVolume:
     f = files[0]
     try:
         opener = gzip.open if f.name.lower().endswith(".gz") else open
@@ -103,12 +103,12 @@ def _load_nifti(files, label, resample_spacing, warns, hu=False) -> CTVolume:
         raise CTImportError("NIfTI affine has a zero-length axis", f)
     units = columns / zooms                              # unit vectors of i, j, k
     origin = affine[:3, 3]
-    aligned = (np.abs(units).max(axis=0).min() > 1 - _ALIGNED_TOL
+    aligned = (np.abs(units).max(axis=0).min() > 1 - ALIGNED_TOL
                and len(set(np.argmax(np.abs(units), axis=0).tolist())) == 3)
     reasons = []
     coverage = None
     if aligned:
-        out, spacing, origin_out, direction = _canonical(data, [units[:, 2], units[:, 1], units[:, 0]],
+        out, spacing, origin_out, direction = to_canonical(data, [units[:, 2], units[:, 1], units[:, 0]],
                                                          [zooms[2], zooms[1], zooms[0]], origin)
     else:
         reasons.append("oblique or sheared NIfTI affine")
@@ -121,7 +121,7 @@ def _load_nifti(files, label, resample_spacing, warns, hu=False) -> CTVolume:
         if along[-1] < along[0]:
             positions, data = positions[::-1], data[::-1]
         steps = np.abs(np.diff(positions @ n))
-        out, origin_out, spacing, coverage = _resample_slices(np.ascontiguousarray(data), positions, u, v,
+        out, origin_out, spacing, coverage = resample_slices(np.ascontiguousarray(data), positions, u, v,
                                                     float(zooms[1]), float(zooms[0]), steps, resample_spacing,
                                                     float(data.min()))
         direction = np.eye(3)

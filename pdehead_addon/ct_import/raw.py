@@ -8,8 +8,8 @@ import numpy as np
 
 from ..ct_volume import CTVolume
 from ..errors import CTImportError
-from .discovery import TEXT_EXTENSIONS, _has_ext, _numbered_files, _top_level
-from .geometry import _headerless_volume
+from .discovery import TEXT_EXTENSIONS, has_ext, numbered_files, top_level
+from .geometry import headerless_volume
 
 
 
@@ -49,7 +49,7 @@ def _raw_samples(f: Path, raw: bytes | None, dt: np.dtype, count: int, offset: i
     return np.frombuffer(raw, dtype=dt, count=count, offset=offset)
 
 
-def _load_raw(files, label, shape, dtype, byte_order, header_bytes, spacing, axes, oriented, hu,
+def load_raw(files, label, shape, dtype, byte_order, header_bytes, spacing, axes, oriented, hu,
               warns) -> CTVolume:
     if shape is None:
         raise CTImportError("raw data needs shape=(ny, nx) for one slice per file or (nz, ny, nx)", label)
@@ -69,14 +69,14 @@ def _load_raw(files, label, shape, dtype, byte_order, header_bytes, spacing, axe
     ny, nx = shape[-2:]
     slice_bytes = ny * nx * dt.itemsize
 
-    top = _top_level(files, label)
-    candidates = [f for f in top if not _has_ext(f, TEXT_EXTENSIONS)]
+    top = top_level(files, label)
+    candidates = [f for f in top if not has_ext(f, TEXT_EXTENSIONS)]
     if len(candidates) < len(top):
         skipped = [f.name for f in top if f not in candidates]
         warns.append(f"skipped {len(skipped)} text file(s): {', '.join(skipped[:5])}")
     if not candidates:
         raise CTImportError("no raw data files found", label)
-    candidates = _numbered_files(candidates, label, "raw", warns)
+    candidates = numbered_files(candidates, label, "raw", warns)
 
     if len(candidates) == 1:
         # one file holding the whole volume
@@ -118,7 +118,7 @@ def _load_raw(files, label, shape, dtype, byte_order, header_bytes, spacing, axe
                                     f"bytes = {expected} bytes", f)
             data[k] = _raw_samples(f, raw, dt, ny * nx, header_bytes).reshape(ny, nx)
     _refuse_wrong_byte_order(data, dt, label)
-    return _headerless_volume(data, label, "raw", spacing, axes, oriented, hu, warns,
+    return headerless_volume(data, label, "raw", spacing, axes, oriented, hu, warns,
                               {"files": len(candidates), "first_file": candidates[0].name,
                                "last_file": candidates[-1].name, "source_dtype": dt.str,
                                "header_bytes": header_bytes})

@@ -6,7 +6,7 @@ import numpy as np
 from test_cli import run_cli
 
 from pdehead_addon.landmarks import STANDARD_LANDMARKS
-from pdehead_addon.phantom import _bone_landmarks
+from pdehead_addon.phantom import phantom_bone_landmarks
 
 
 def test_find_landmarks_operator_on_the_phantom(pdehead_ext):
@@ -24,7 +24,7 @@ def test_find_landmarks_operator_on_the_phantom(pdehead_ext):
     assert set(flags) == names and set(lms) == names                      # the phantom has every one
     assert {f for f, _ in flags.values()} <= {"ok", "uncertain"}
     # on the bone (snapped to the bone mesh) and near the analytic positions
-    truth = _bone_landmarks()
+    truth = phantom_bone_landmarks()
     err = np.array([np.linalg.norm(lms[n] - p) for n, p in truth.items()])
     # measured 1.3 / 7.0 mm on the intensity iso-surface; 2.6 / 7.5 mm since the landmarks snap to the bone
     # skull of the binary bone mask (issue 22, 2 mm voxels), with this test's coarse study (t = 6, 40 x 80)
