@@ -213,7 +213,7 @@ COLOUR_PRESET = _param("colour_preset", "grayscale", choices=("grayscale", "skin
 ALPHA_MODE = _param("alpha_mode", "EQ24", choices=("EQ24", "INTENSITY"),
                     description="Opacity from eq. 24's w, or from the CT intensity (the paper's baseline)",
                     label="Alpha Mode")
-#: The budget of the automatic voxel size (:func:`ct_volume.auto_voxel_size`): the .vdb stays below
+#: The budget of the automatic voxel size (operators/vdb_grids.auto_voxel_size): the .vdb stays below
 #: this many bytes (issue 10: small files beside the .blend) ...
 MAX_VDB_BYTES = _param("max_vdb_bytes", 64 * 2 ** 20, min=1, unit="bytes",
                        description="Largest .vdb the automatic voxel size allows")
