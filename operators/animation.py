@@ -27,7 +27,7 @@ import traceback
 
 import bpy
 
-from . import cutter, state, study, volume
+from . import cutter, state, study, volume_material
 from .state import suspended_updates
 
 #: Animatable settings, grouped by what a change rebuilds (study.live_update's ``what``).
@@ -172,7 +172,7 @@ def apply_frame(scene, depsgraph=None) -> dict[str, list[str]]:
 def _rebuild(coll, s, group: str) -> None:
     """Rebuild one group like the sidebar's live update, but raising instead of recording the error."""
     if group == "volume":
-        volume.set_volume_settings(s.volume_object, **study.volume_settings(s))
+        volume_material.set_volume_settings(s.volume_object, **study.volume_settings(s))
         return
     if group == "pde" and s.volume_object is not None:
         s.volume_stale = True
@@ -279,16 +279,16 @@ def turntable(context, coll, frames: int, start: int = 1):
         raise PDEHeadError(f"a turntable needs at least 2 frames, got {frames}")
     scene = context.scene
     s = state.settings(coll)
-    cam = scene_mod._study_object(coll, scene_mod.CAMERA_KIND)
+    cam = scene_mod.study_object(coll, scene_mod.CAMERA_KIND)
     if cam is None:
         scene_mod.frame_study(context, coll)
-        cam = scene_mod._study_object(coll, scene_mod.CAMERA_KIND)
+        cam = scene_mod.study_object(coll, scene_mod.CAMERA_KIND)
     shown = [o for o in (s.surface_object, s.solid_object, s.volume_object) if o is not None and not o.hide_render]
     shown = shown or [o for o in (s.surface_object, s.solid_object, s.volume_object) if o is not None]
     lo, hi = render.world_bounds(shown)
     centre = 0.5 * (lo + hi)
 
-    pivot = scene_mod._study_object(coll, TURNTABLE_KIND)
+    pivot = scene_mod.study_object(coll, TURNTABLE_KIND)
     if pivot is None:
         pivot = bpy.data.objects.new(f"{coll.name} Turntable", None)
         pivot["pdehead_kind"] = TURNTABLE_KIND

@@ -69,6 +69,14 @@ def unregister_at_exit(unregister) -> None:
     atexit.register(_unregister)
 
 
+def blend_relative_path_options() -> set:
+    """``options`` of a file-path StringProperty that may be relative to the .blend: the flag
+    ``PATH_SUPPORTS_BLEND_RELATIVE`` exists from Blender 4.5 (before, every path property was)."""
+    import bpy
+
+    return {'PATH_SUPPORTS_BLEND_RELATIVE'} if bpy.app.version >= (4, 5, 0) else set()
+
+
 def node_tree(material_or_world):
     """The shader node tree of a material or world, turning nodes on first where needed.
 

@@ -104,7 +104,7 @@ def skull_mesh(coll):
     """The bone skull as an engine Mesh (patient mm): read from the study's bone object (what the .blend
     holds, so a reopened file prepares the same model), else built from the CT."""
     from ..pdehead_addon.mesh import Mesh
-    from .forensic_study import skull_engine_mesh
+    from .forensic_skull import skull_engine_mesh
     from .objects import study_origin
 
     obj = _obj(coll, "pdehead_bone_object")
@@ -266,7 +266,7 @@ def face_live(coll):
     return live
 
 
-def _peg_objects(coll, names: list[str]) -> dict:
+def peg_objects(coll, names: list[str]) -> dict:
     """name -> the study's peg object of that landmark (the face's children first)."""
     face = face_object(coll)
     found = {}
@@ -286,14 +286,14 @@ def _peg_objects(coll, names: list[str]) -> dict:
 def peg_tips(coll, names: list[str]) -> np.ndarray:
     """The peg tips (patient mm), in ``names`` order: each peg's origin plus ``depth_mm`` along its Z axis.
     A peg that is gone gives NaN."""
-    from .forensic_study import PEG_DEPTH_PROP, _frankfurt
+    from .forensic_study import PEG_DEPTH_PROP, frankfurt_matrix
 
-    pegs = _peg_objects(coll, names)
+    pegs = peg_objects(coll, names)
     tips = np.full((len(names), 3), np.nan)
     rows = [i for i, name in enumerate(names) if name in pegs]
     if not rows:
         return tips
-    inverse = np.array(_frankfurt(coll).inverted())
+    inverse = np.array(frankfurt_matrix(coll).inverted())
     found = [pegs[names[i]] for i in rows]
     m = np.array([p.matrix_world for p in found], float)                       # (k, 4, 4), one read per peg
     depth = np.array([float(p.get(PEG_DEPTH_PROP, 0.0)) for p in found])
@@ -412,8 +412,10 @@ def _moved_tips(coll) -> np.ndarray | None:
 def build_face(coll) -> tuple:
     """Build the face of the study (skull and landmarks made first when missing): (face object, pegs)."""
     from . import objects
-    from .forensic_study import (BASE_MATRIX_KEY, FRANKFURT_KEY, _frankfurt, _material, _set_material,
-                                 find_landmarks, flag_names, landmarks, make_pegs, step_skull)
+    from .forensic_objects import plain_material, set_material
+    from .forensic_skull import step_skull
+    from .forensic_study import (BASE_MATRIX_KEY, FRANKFURT_KEY, find_landmarks, flag_names, frankfurt_matrix, landmarks,
+                                 make_pegs)
 
     s = state.settings(coll)
     if _obj(coll, "pdehead_bone_object") is None:
@@ -440,10 +442,10 @@ def build_face(coll) -> tuple:
     obj["pdehead_kind"] = FACE_KIND
     obj[LABEL_PROP] = approximation_label()
     coll[FACE_KEY] = obj
-    _set_material(obj, _material(FACE_MATERIAL, (0.80, 0.62, 0.52, 1.0)))
+    set_material(obj, plain_material(FACE_MATERIAL, (0.80, 0.62, 0.52, 1.0)))
     if coll.get(FRANKFURT_KEY):
         obj[BASE_MATRIX_KEY] = [v for row in obj.matrix_world for v in row]
-        obj.matrix_world = _frankfurt(coll) @ obj.matrix_world
+        obj.matrix_world = frankfurt_matrix(coll) @ obj.matrix_world
     # the pegs: one per peg of the model (old pegs of the study are replaced), children of the face
     pegs = make_pegs(coll, table, pegs=[(n, model.peg_bases[i], model.peg_normals[i],
                                          float(model.default_depths[i])) for i, n in enumerate(model.peg_names)])
@@ -473,7 +475,7 @@ def switch_table(coll) -> dict | None:
         return None
     table = face_table(coll)
     opts = face_options(coll)
-    pegs = _peg_objects(coll, opts.get("pegs", []))
+    pegs = peg_objects(coll, opts.get("pegs", []))
     for name, peg in pegs.items():
         entry = table.entries.get(name)
         if entry is None:
@@ -507,7 +509,7 @@ def build_sd_faces(coll) -> list:
     """The faces with every peg at its length - 1 SD and + 1 SD (pegs without an SD stay), as two objects
     beside the face (wire display): the range the table allows. Returns [minus, plus]."""
     from . import objects
-    from .forensic_study import _material, _set_material
+    from .forensic_objects import plain_material, set_material
 
     face = face_object(coll)
     if face is None:
@@ -529,7 +531,7 @@ def build_sd_faces(coll) -> list:
                                                depths=f"every peg at its length {label}"))
         obj.display_type = 'WIRE'
         obj.matrix_world = face.matrix_world
-        _set_material(obj, _material(*SD_MATERIALS[key]))
+        set_material(obj, plain_material(*SD_MATERIALS[key]))
         coll[SD_FACE_KEYS[key]] = obj
         made.append(obj)
     return made

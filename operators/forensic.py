@@ -16,23 +16,16 @@ from bpy.types import Operator, Panel
 
 from ..pdehead_addon import PDEHeadError
 from ..pdehead_addon.landmarks import STANDARD_LANDMARKS
-from . import ops, state
-from .forensic_study import (DEPTH_ATTRIBUTE, DEPTH_MATERIAL, DEPTH_STATS_KEY, MIRROR_PLANES, SKULL_INFO_KEY, _obj,
-                             PEG_DEPTH_PROP, apply_frankfurt, export_study, find_landmarks,
-                             forensic_provenance, measured_landmark_depths,
-                             landmark_flags, landmarks, make_pegs, mirror_object, place_landmark, skin_engine_mesh,
-                             skull_engine_mesh, snap_moved_landmarks, step_depth, step_skull, study_depth_table,
-                             world_to_patient)
+from . import state
+from .base import StudyOperator
+from .forensic_objects import linked_object
+from .forensic_skull import (DEPTH_ATTRIBUTE, DEPTH_MATERIAL, DEPTH_STATS_KEY, SKULL_INFO_KEY, skin_engine_mesh,
+                             skull_engine_mesh, step_depth, step_skull)
+from .forensic_study import (MIRROR_PLANES, PEG_DEPTH_PROP, apply_frankfurt, export_study, find_landmarks,
+                             forensic_provenance, landmark_flags, landmarks, make_pegs, measured_landmark_depths,
+                             mirror_object, place_landmark, snap_moved_landmarks, study_depth_table, world_to_patient)
 
 _LANDMARK_ITEMS = [(d.name, d.name, d.description) for d in STANDARD_LANDMARKS]
-
-
-# ------------------------------------------------------------------------------------------ helpers
-def _study_or_raise(op, context):
-    coll = state.active_study(context, getattr(op, "study", ""))
-    if coll is None:
-        raise PDEHeadError(state.NO_STUDY_MESSAGE)
-    return coll
 
 
 # ------------------------------------------------------------------------------------------ operators
@@ -41,7 +34,7 @@ TARGET_ITEMS = [('BONE', "Bone skull", "The bone surface: smoothed marching cube
                                         "(skull_envelope.<fmt>)")]
 
 
-class _ForensicOp(ops.StudyOperator):
+class _ForensicOp(StudyOperator):
     bl_options = {'REGISTER', 'UNDO'}
 
 
@@ -56,13 +49,10 @@ class PDEHEAD_OT_build_skull(Operator, _ForensicOp):
                             description="Also build the bone skull (smoothed marching cubes of the bone)")
     bone_step: IntProperty(name="Bone Step", default=1, min=1, max=4, description="Marching-cubes step (voxels)")
 
-    def execute(self, context):
-        def body():
-            coll = _study_or_raise(self, context)
-            s = state.settings(coll)
-            step_skull(coll, self.nu or s.nu, self.nv or s.nv, self.bone_mesh, self.bone_step)
-            self.report({'INFO'}, f"Skull of '{coll.name}' built")
-        return ops._guarded(self, context, body)
+    def run(self, context, coll):
+        s = state.settings(coll)
+        step_skull(coll, self.nu or s.nu, self.nv or s.nv, self.bone_mesh, self.bone_step)
+        self.report({'INFO'}, f"Skull of '{coll.name}' built")
 
 
 class PDEHEAD_OT_tissue_depth(Operator, _ForensicOp):
@@ -74,13 +64,10 @@ class PDEHEAD_OT_tissue_depth(Operator, _ForensicOp):
     max_depth: FloatProperty(name="Max Depth", default=40.0, min=1.0, max=100.0, subtype='DISTANCE',
                              description="Longest depth searched (mm); deeper: no value")
 
-    def execute(self, context):
-        def body():
-            coll = _study_or_raise(self, context)
-            st = step_depth(coll, self.target, self.max_depth)
-            self.report({'INFO'}, f"Tissue depth: {st['measured']} of {st['vertices']} vertices measured, "
-                                  f"median {st.get('median', float('nan')):.1f} mm")
-        return ops._guarded(self, context, body)
+    def run(self, context, coll):
+        st = step_depth(coll, self.target, self.max_depth)
+        self.report({'INFO'}, f"Tissue depth: {st['measured']} of {st['vertices']} vertices measured, "
+                              f"median {st.get('median', float('nan')):.1f} mm")
 
 
 class PDEHEAD_OT_place_landmark(Operator, _ForensicOp):
@@ -94,14 +81,11 @@ class PDEHEAD_OT_place_landmark(Operator, _ForensicOp):
     use_location: BoolProperty(default=False, options={'SKIP_SAVE', 'HIDDEN'})
     target: EnumProperty(name="Snap To", items=TARGET_ITEMS, default='BONE')
 
-    def execute(self, context):
-        def body():
-            from mathutils import Vector
-            coll = _study_or_raise(self, context)
-            world = Vector(self.location) if self.use_location else context.scene.cursor.location.copy()
-            obj = place_landmark(coll, self.name, world_to_patient(coll, world), self.target)
-            self.report({'INFO'}, f"{obj.name} at {np.round(obj['patient_mm'], 1).tolist()} mm")
-        return ops._guarded(self, context, body)
+    def run(self, context, coll):
+        from mathutils import Vector
+        world = Vector(self.location) if self.use_location else context.scene.cursor.location.copy()
+        obj = place_landmark(coll, self.name, world_to_patient(coll, world), self.target)
+        self.report({'INFO'}, f"{obj.name} at {np.round(obj['patient_mm'], 1).tolist()} mm")
 
 
 class PDEHEAD_OT_find_landmarks(Operator, _ForensicOp):
@@ -114,20 +98,17 @@ class PDEHEAD_OT_find_landmarks(Operator, _ForensicOp):
     keep_edited: BoolProperty(name="Keep Edited", default=True,
                               description="Leave the landmarks placed or moved by hand where they are")
 
-    def execute(self, context):
-        def body():
-            coll = _study_or_raise(self, context)
-            search = find_landmarks(coll, self.target, self.keep_edited)
-            flags = [lm.flag for lm in search.landmarks.values()]
-            msg = (f"{flags.count('ok')} landmarks ok, {flags.count('uncertain')} uncertain, "
-                   f"{flags.count('not_found')} not found")
-            missing = [n for n, lm in search.landmarks.items() if lm.flag == 'not_found']
-            if missing:
-                why = search.landmarks[missing[0]].evidence
-                self.report({'WARNING'}, f"{msg} (e.g. {missing[0]}: {why})")
-            else:
-                self.report({'INFO'}, msg)
-        return ops._guarded(self, context, body)
+    def run(self, context, coll):
+        search = find_landmarks(coll, self.target, self.keep_edited)
+        flags = [lm.flag for lm in search.landmarks.values()]
+        msg = (f"{flags.count('ok')} landmarks ok, {flags.count('uncertain')} uncertain, "
+               f"{flags.count('not_found')} not found")
+        missing = [n for n, lm in search.landmarks.items() if lm.flag == 'not_found']
+        if missing:
+            why = search.landmarks[missing[0]].evidence
+            self.report({'WARNING'}, f"{msg} (e.g. {missing[0]}: {why})")
+        else:
+            self.report({'INFO'}, msg)
 
 
 class PDEHEAD_OT_snap_landmarks(Operator, _ForensicOp):
@@ -137,13 +118,10 @@ class PDEHEAD_OT_snap_landmarks(Operator, _ForensicOp):
     bl_label = "Snap Moved Landmarks"
     target: EnumProperty(name="Snap To", items=TARGET_ITEMS, default='BONE')
 
-    def execute(self, context):
-        def body():
-            coll = _study_or_raise(self, context)
-            names = snap_moved_landmarks(coll, self.target)
-            self.report({'INFO'}, f"{len(names)} landmark(s) snapped to the bone" +
-                        (": " + ", ".join(names[:4]) if names else ""))
-        return ops._guarded(self, context, body)
+    def run(self, context, coll):
+        names = snap_moved_landmarks(coll, self.target)
+        self.report({'INFO'}, f"{len(names)} landmark(s) snapped to the bone" +
+                    (": " + ", ".join(names[:4]) if names else ""))
 
 
 class _LandmarkCSVOp(_ForensicOp):
@@ -176,17 +154,14 @@ class PDEHEAD_OT_import_depth_table(Operator, _LandmarkCSVOp):
             return self.execute(context)
         return super().invoke(context, event)
 
-    def execute(self, context):
-        def body():
-            from ..pdehead_addon.depth_table import default_table, read_depth_table
-            coll = _study_or_raise(self, context)
-            if self.default_table or not self.filepath:
-                table = default_table()
-            else:
-                table = read_depth_table(bpy.path.abspath(self.filepath))
-            pegs = make_pegs(coll, table, self.target)
-            self.report({'INFO'}, f"{len(pegs)} marker pegs from {table.label}")
-        return ops._guarded(self, context, body)
+    def run(self, context, coll):
+        from ..pdehead_addon.depth_table import default_table, read_depth_table
+        if self.default_table or not self.filepath:
+            table = default_table()
+        else:
+            table = read_depth_table(bpy.path.abspath(self.filepath))
+        pegs = make_pegs(coll, table, self.target)
+        self.report({'INFO'}, f"{len(pegs)} marker pegs from {table.label}")
 
 
 class PDEHEAD_OT_export_landmark_depths(Operator, _LandmarkCSVOp):
@@ -197,19 +172,16 @@ class PDEHEAD_OT_export_landmark_depths(Operator, _LandmarkCSVOp):
     bl_label = "Export Landmark Depths"
     default_name = "landmarks.csv"
 
-    def execute(self, context):
-        def body():
-            from ..pdehead_addon.depth_table import write_landmark_csv
-            coll = _study_or_raise(self, context)
-            if not landmarks(coll):
-                raise PDEHeadError("no landmarks placed yet")
-            depths, flags, method = measured_landmark_depths(coll, skull_engine_mesh(coll, self.target),
-                                                             skin_engine_mesh(coll))
-            table = study_depth_table(coll)
-            n = write_landmark_csv(bpy.path.abspath(self.filepath), depths, table, flags,
-                                   provenance=dict(forensic_provenance(coll, table), depth=method))
-            self.report({'INFO'}, f"{n} landmark depths written to {self.filepath} ({method.split(' (')[0]})")
-        return ops._guarded(self, context, body)
+    def run(self, context, coll):
+        from ..pdehead_addon.depth_table import write_landmark_csv
+        if not landmarks(coll):
+            raise PDEHeadError("no landmarks placed yet")
+        depths, flags, method = measured_landmark_depths(coll, skull_engine_mesh(coll, self.target),
+                                                         skin_engine_mesh(coll))
+        table = study_depth_table(coll)
+        n = write_landmark_csv(bpy.path.abspath(self.filepath), depths, table, flags,
+                               provenance=dict(forensic_provenance(coll, table), depth=method))
+        self.report({'INFO'}, f"{n} landmark depths written to {self.filepath} ({method.split(' (')[0]})")
 
 
 class PDEHEAD_OT_frankfurt(Operator, _ForensicOp):
@@ -219,10 +191,8 @@ class PDEHEAD_OT_frankfurt(Operator, _ForensicOp):
     bl_label = "Frankfurt Horizontal"
     reset: BoolProperty(name="Reset", default=False, description="Back to patient coordinates")
 
-    def execute(self, context):
-        def body():
-            apply_frankfurt(_study_or_raise(self, context), self.reset)
-        return ops._guarded(self, context, body)
+    def run(self, context, coll):
+        apply_frankfurt(coll, self.reset)
 
 
 class PDEHEAD_OT_mirror(Operator, _ForensicOp):
@@ -232,16 +202,13 @@ class PDEHEAD_OT_mirror(Operator, _ForensicOp):
     bl_label = "Mirror Across Mid-Sagittal Plane"
     plane: EnumProperty(name="Plane", items=MIRROR_PLANES, default='AUTO')
 
-    def execute(self, context):
-        def body():
-            coll = _study_or_raise(self, context)
-            obj = context.active_object or _obj(coll, "pdehead_skull_object")
-            if obj is None:
-                raise PDEHeadError("select the object to mirror")
-            copy, point, normal, how = mirror_object(coll, obj, self.plane)
-            self.report({'INFO'}, f"{copy.name}: plane from {how}, through {np.round(point, 1).tolist()} mm, "
-                                  f"normal {np.round(normal, 3).tolist()}")
-        return ops._guarded(self, context, body)
+    def run(self, context, coll):
+        obj = context.active_object or linked_object(coll, "pdehead_skull_object")
+        if obj is None:
+            raise PDEHeadError("select the object to mirror")
+        copy, point, normal, how = mirror_object(coll, obj, self.plane)
+        self.report({'INFO'}, f"{copy.name}: plane from {how}, through {np.round(point, 1).tolist()} mm, "
+                              f"normal {np.round(normal, 3).tolist()}")
 
 
 class PDEHEAD_OT_export_print(Operator, _ForensicOp):
@@ -257,11 +224,9 @@ class PDEHEAD_OT_export_print(Operator, _ForensicOp):
         context.window_manager.fileselect_add(self)
         return {'RUNNING_MODAL'}
 
-    def execute(self, context):
-        def body():
-            files = export_study(_study_or_raise(self, context), self.directory, self.format)
-            self.report({'INFO'}, "Wrote " + ", ".join(os.path.basename(f) for f in files))
-        return ops._guarded(self, context, body)
+    def run(self, context, coll):
+        files = export_study(coll, self.directory, self.format)
+        self.report({'INFO'}, "Wrote " + ", ".join(os.path.basename(f) for f in files))
 
 
 class PDEHEAD_OT_build_face(Operator, _ForensicOp):
@@ -272,14 +237,11 @@ class PDEHEAD_OT_build_face(Operator, _ForensicOp):
     bl_idname = "pdehead.build_face"
     bl_label = "Build Face"
 
-    def execute(self, context):
-        def body():
-            from . import face
-            coll = _study_or_raise(self, context)
-            obj, pegs = face.build_face(coll)
-            self.report({'INFO'}, f"{obj.name}: {len(obj.data.vertices)} vertices through {len(pegs)} pegs "
-                                  f"({face.approximation_label()})")
-        return ops._guarded(self, context, body)
+    def run(self, context, coll):
+        from . import face
+        obj, pegs = face.build_face(coll)
+        self.report({'INFO'}, f"{obj.name}: {len(obj.data.vertices)} vertices through {len(pegs)} pegs "
+                              f"({face.approximation_label()})")
 
 
 class PDEHEAD_OT_face_sd_range(Operator, _ForensicOp):
@@ -289,13 +251,10 @@ class PDEHEAD_OT_face_sd_range(Operator, _ForensicOp):
     bl_idname = "pdehead.face_sd_range"
     bl_label = "Faces at -1 / +1 SD"
 
-    def execute(self, context):
-        def body():
-            from . import face
-            coll = _study_or_raise(self, context)
-            made = face.build_sd_faces(coll)
-            self.report({'INFO'}, "Built " + ", ".join(o.name for o in made))
-        return ops._guarded(self, context, body)
+    def run(self, context, coll):
+        from . import face
+        made = face.build_sd_faces(coll)
+        self.report({'INFO'}, "Built " + ", ".join(o.name for o in made))
 
 
 def draw_face_section(layout, coll) -> None:
@@ -338,7 +297,7 @@ def draw_face_section(layout, coll) -> None:
     if status:
         col.label(text=status)
     names = face.face_options(coll).get("pegs", [])
-    pegs = face._peg_objects(coll, names)
+    pegs = face.peg_objects(coll, names)
     col = box.column(align=True)
     col.label(text=f"{len(pegs)} pegs: drag one (G) or set its depth (mm)")
     for name in names[:40]:

@@ -1,4 +1,5 @@
-"""The forensic toolkit's application layer: skull, depth map, landmarks, pegs, orientation, export.
+"""The forensic toolkit's application layer: landmarks, pegs, orientation, export (the skull and the depth
+map: :mod:`.forensic_skull`; shared objects and materials: :mod:`.forensic_objects`).
 
 The steps behind the operators of :mod:`.forensic` (which only read options, call these and
 report), over the engine (:mod:`pdehead_addon.skull`, :mod:`~pdehead_addon.tissue_depth`,
@@ -17,7 +18,6 @@ report), over the engine (:mod:`pdehead_addon.skull`, :mod:`~pdehead_addon.tissu
 """
 from __future__ import annotations
 
-import base64
 import json
 from pathlib import Path
 
@@ -26,20 +26,13 @@ import numpy as np
 import bpy
 
 from ..pdehead_addon import PDEHeadError
-from . import state, study
+from . import state, study, study_ct
 from .coords import MM_TO_M
+from .forensic_objects import forensic_cache, plain_material, set_material, sub_collection
+from .forensic_skull import SKULL_BOUNDARY_KEY, skull_engine_mesh, skull_segmentation
 
-SKULL_BOUNDARY_KEY = "pdehead_skull_boundaries"
-DEPTH_STATS_KEY = "pdehead_depth_stats"
-SKULL_INFO_KEY = "pdehead_skull_info"
 FRANKFURT_KEY = "pdehead_frankfurt"         # 16 floats: the Blender-space transform applied
 BASE_MATRIX_KEY = "pdehead_base_matrix"     # per object: its matrix before the Frankfurt transform
-DEPTH_ATTRIBUTE = "tissue_depth"
-REASON_ATTRIBUTE = "tissue_depth_reason"
-DISPLAY_ATTRIBUTE = "tissue_depth_display"   # shading only (see _display_values)
-VALID_ATTRIBUTE = "tissue_depth_valid"
-DEPTH_MATERIAL = "PDE Head Tissue Depth"
-BONE_MATERIAL = "PDE Head Bone"
 PEG_MATERIAL = "PDE Head Depth Peg"
 LANDMARK_KEY = "pdehead_landmark"
 LANDMARK_FLAGS_KEY = "pdehead_landmark_flags"   # JSON {name: [flag, evidence]} of the last Find Landmarks
@@ -50,264 +43,6 @@ PLACED_BY_HAND = "placed by hand"
 _BY_HAND = (MOVED_BY_HAND, PLACED_BY_HAND)
 #: Radius of a marker peg (mm).
 PEG_RADIUS_MM = 1.5
-#: Depth (mm) at the red end of the colour map.
-DEPTH_DISPLAY_MAX_MM = 25.0
-
-
-
-
-# ------------------------------------------------------------------------------------------ helpers
-def _sub_collection(coll, suffix: str):
-    name = f"{coll.name} {suffix}"
-    sub = bpy.data.collections.get(name)
-    if sub is None:
-        sub = bpy.data.collections.new(name)
-    if sub.name not in coll.children:
-        coll.children.link(sub)
-    return sub
-
-
-def _cache(coll):
-    return state.cache_for(state.settings(coll).study_id).forensic
-
-
-def _obj(coll, key):
-    obj = coll.get(key)
-    return obj if isinstance(obj, bpy.types.Object) and obj.name in bpy.data.objects else None
-
-
-def _material(name: str, colour):
-    mat = bpy.data.materials.get(name)
-    if mat is None:
-        mat = bpy.data.materials.new(name)
-        if mat.node_tree is None:
-            mat.use_nodes = True
-        bsdf = mat.node_tree.nodes.get("Principled BSDF")
-        bsdf.inputs["Base Color"].default_value = colour
-        bsdf.inputs["Roughness"].default_value = 0.6
-        mat.diffuse_color = colour
-    return mat
-
-
-def _set_material(obj, mat) -> None:
-    if obj.data.materials:
-        obj.data.materials[0] = mat
-    else:
-        obj.data.materials.append(mat)
-
-
-def depth_material():
-    """Attribute ``tissue_depth_display`` -> Map Range (0..DEPTH_DISPLAY_MAX_MM) -> Color Ramp; grey where
-    ``tissue_depth_valid`` < 0.5 (no value)."""
-    mat = bpy.data.materials.get(DEPTH_MATERIAL)
-    if mat is not None:
-        return mat
-    mat = bpy.data.materials.new(DEPTH_MATERIAL)
-    if mat.node_tree is None:
-        mat.use_nodes = True
-    nodes, links = mat.node_tree.nodes, mat.node_tree.links
-    bsdf = nodes.get("Principled BSDF")
-    bsdf.inputs["Roughness"].default_value = 0.6
-    attr = nodes.new("ShaderNodeAttribute")
-    attr.attribute_name = DISPLAY_ATTRIBUTE
-    attr.attribute_type = 'GEOMETRY'
-    attr.location = (-900, 200)
-    valid_attr = nodes.new("ShaderNodeAttribute")
-    valid_attr.attribute_name = VALID_ATTRIBUTE
-    valid_attr.attribute_type = 'GEOMETRY'
-    valid_attr.location = (-900, -50)
-    rng = nodes.new("ShaderNodeMapRange")
-    rng.name = rng.label = "Depth range"
-    rng.inputs["From Min"].default_value = 0.0
-    rng.inputs["From Max"].default_value = DEPTH_DISPLAY_MAX_MM
-    rng.location = (-700, 200)
-    ramp = nodes.new("ShaderNodeValToRGB")
-    ramp.name = ramp.label = "Depth legend"
-    ramp.location = (-500, 200)
-    els = ramp.color_ramp.elements
-    els[0].position, els[0].color = 0.0, (0.05, 0.15, 0.85, 1.0)     # thin: blue
-    els[1].position, els[1].color = 1.0, (0.85, 0.05, 0.05, 1.0)     # thick: red
-    for pos, col in ((0.25, (0.0, 0.7, 0.9, 1.0)), (0.5, (0.1, 0.8, 0.2, 1.0)), (0.75, (0.95, 0.85, 0.1, 1.0))):
-        e = els.new(pos)
-        e.color = col
-    valid = nodes.new("ShaderNodeMath")
-    valid.operation = 'GREATER_THAN'
-    valid.inputs[1].default_value = 0.5     # grey where the interpolated validity is below one half
-    valid.location = (-500, -50)
-    mix = nodes.new("ShaderNodeMix")
-    mix.data_type = 'RGBA'
-    mix.location = (-250, 100)
-    mix.inputs["A"].default_value = (0.55, 0.55, 0.55, 1.0)         # no value: grey
-    links.new(attr.outputs["Fac"], rng.inputs["Value"])
-    links.new(rng.outputs["Result"], ramp.inputs["Fac"])
-    links.new(valid_attr.outputs["Fac"], valid.inputs[0])
-    links.new(valid.outputs["Value"], mix.inputs["Factor"])
-    links.new(ramp.outputs["Color"], mix.inputs["B"])
-    links.new(mix.outputs["Result"], bsdf.inputs["Base Color"])
-    mat.diffuse_color = (0.3, 0.7, 0.3, 1.0)
-    return mat
-
-
-# ------------------------------------------------------------------------------------------ skull
-def _skull_seg(coll):
-    """The skull segmentation of the study (cached; computed from the CT and the head segmentation)."""
-    from ..pdehead_addon.skull import segment_skull
-
-    extra = _cache(coll)
-    cache = state.cache_for(state.settings(coll).study_id)
-    if cache.seg is None:
-        study.step_segment(coll)
-    s = state.settings(coll)
-    level = float(s.bone_level) if s.use_bone_level else None
-    if extra.get("skull_seg") is None or extra.get("skull_seg_of") is not cache.seg \
-            or extra.get("skull_seg_level") != level:
-        # a new head segmentation (or CT, or bone level) makes the skull and everything measured on it stale
-        if extra.get("skull_seg") is not None and extra.get("skull_seg_level") != level:
-            coll.pop(SKULL_BOUNDARY_KEY, None)          # the stored envelope was of the old level
-        extra.update(skull_seg=segment_skull(study.require_ct(coll), cache.seg, bone_level=level),
-                     skull_seg_of=cache.seg, skull_seg_level=level, bone_mesh=None, skull_mesh=None, depth=None)
-        for w in extra["skull_seg"].meta.get("warnings", []):
-            if w not in s.warnings:
-                s.warnings = "; ".join(filter(None, [s.warnings, w]))
-    return extra["skull_seg"]
-
-
-def _envelope_head(coll):
-    """The PDE skull envelope (boundary set, solved head, t) from the skull segmentation, by the skin's path."""
-    from ..pdehead_addon import extract_boundaries, max_patches, solve_pde
-
-    s = state.settings(coll)
-    sk = _skull_seg(coll)
-    limit = max_patches(sk)
-    if limit < 1:
-        raise PDEHeadError(f"study '{coll.name}': the skull has fewer than 4 usable outlines; no PDE skull envelope")
-    patches = min(int(s.patches), limit)
-    bset = extract_boundaries(sk, patches=patches, samples=int(s.samples), selection=s.selection)
-    return bset, solve_pde(bset), patches
-
-
-def step_skull(coll, nu: int, nv: int, bone: bool = True, bone_step: int = 1) -> None:
-    """The bone skull (smoothed marching cubes of the bone: what skull.<fmt> is) and the PDE skull envelope."""
-    from ..pdehead_addon import dumps_boundaries
-    from ..pdehead_addon.skull import skull_mesh
-    from . import objects
-
-    extra = _cache(coll)
-    with state.Timer() as t:
-        sk = _skull_seg(coll)
-        bset, head, patches = _envelope_head(coll)
-        mesh = head.surface(int(nu), int(nv), caps=True)
-    coll[SKULL_BOUNDARY_KEY] = base64.b64encode(dumps_boundaries(bset)).decode("ascii")
-    extra.update(skull_head=head, skull_mesh=mesh, depth=None)
-    obj = objects.build_mesh_object(mesh, coll, f"{coll.name} Skull", obj=_obj(coll, "pdehead_skull_object"))
-    obj["pdehead_kind"] = "skull"
-    _set_material(obj, _material(BONE_MATERIAL, (0.85, 0.82, 0.72, 1.0)))
-    coll["pdehead_skull_object"] = obj
-    info = dict(bone_level=sk.bone_level, calibrated=sk.meta["calibrated"], source=sk.meta["histogram"].get("source"),
-                patches=patches, components=sk.meta["kept_components"], bone_cm3=sk.meta["bone_mm3"] / 1000.0,
-                metal_voxels=sk.meta["metal_voxels"])
-    for key in ("bone_level_stored", "units", "warnings", "mandible", "has_skin", "skull_mesh_file"):
-        if key in sk.meta:
-            info[key] = sk.meta[key]
-    if bone:
-        bmesh = skull_mesh(sk, step=int(bone_step))
-        extra["bone_mesh"] = bmesh
-        bobj = objects.build_mesh_object(bmesh, coll, f"{coll.name} Bone", obj=_obj(coll, "pdehead_bone_object"),
-                                         smooth=True)
-        bobj["pdehead_kind"] = "bone_mesh"
-        _set_material(bobj, _material(BONE_MATERIAL, (0.85, 0.82, 0.72, 1.0)))
-        coll["pdehead_bone_object"] = bobj
-        info["bone_triangles"] = len(bmesh.triangles)
-    coll[SKULL_INFO_KEY] = json.dumps(info)
-    state.record_timing(coll, "skull", t.seconds)
-
-
-def skull_engine_mesh(coll, target: str = "BONE"):
-    """The skull as an engine Mesh (patient mm): the bone skull, or the PDE skull envelope (built when
-    missing, rebuilt from the stored curves after reopening)."""
-    from ..pdehead_addon import dumps_boundaries, loads_boundaries, solve_pde
-    from ..pdehead_addon.skull import skull_mesh
-
-    extra = _cache(coll)
-    if target == "BONE":
-        if extra.get("bone_mesh") is None:
-            extra["bone_mesh"] = skull_mesh(_skull_seg(coll))
-        return extra["bone_mesh"]
-    if extra.get("skull_mesh") is None:
-        s = state.settings(coll)
-        text = coll.get(SKULL_BOUNDARY_KEY)
-        if text:
-            head = solve_pde(loads_boundaries(base64.b64decode(text)))
-        else:
-            bset, head, _ = _envelope_head(coll)
-            coll[SKULL_BOUNDARY_KEY] = base64.b64encode(dumps_boundaries(bset)).decode("ascii")
-        extra["skull_head"], extra["skull_mesh"] = head, head.surface(int(s.nu), int(s.nv), caps=True)
-    return extra["skull_mesh"]
-
-
-def skin_engine_mesh(coll):
-    """The PDE skin as an engine Mesh with the surface object's vertex order (same nu, nv, caps)."""
-    s = state.settings(coll)
-    return study.pde_head(coll).surface(int(s.nu), int(s.nv), caps=bool(s.caps))
-
-
-# ------------------------------------------------------------------------------------------ depth
-def step_depth(coll, target: str = "BONE", max_depth_mm: float = 40.0) -> dict:
-    """Tissue depth of the skin surface against the skull; stored on the surface object; returns stats."""
-    from ..pdehead_addon.tissue_depth import tissue_depth
-
-    s = state.settings(coll)
-    if s.surface_object is None:
-        study.step_surface(coll)
-    obj = s.surface_object
-    skin = skin_engine_mesh(coll)
-    if len(skin.vertices) != len(obj.data.vertices):  # the surface was edited or built otherwise
-        study.step_surface(coll)
-        obj = s.surface_object
-    with state.Timer() as t:
-        res = tissue_depth(skin, skull_engine_mesh(coll, target), envelope=_skull_seg(coll),
-                           max_depth_mm=float(max_depth_mm))
-    me = obj.data
-    valid = np.isfinite(res.depth)
-    for name, kind, values in ((DEPTH_ATTRIBUTE, 'FLOAT', np.where(valid, res.depth, -1.0)),
-                               (DISPLAY_ATTRIBUTE, 'FLOAT', _display_values(skin, res.depth)),
-                               (VALID_ATTRIBUTE, 'FLOAT', valid.astype(np.float32)),
-                               (REASON_ATTRIBUTE, 'INT', res.reason.astype(np.int32))):
-        if name in me.attributes:
-            me.attributes.remove(me.attributes[name])
-        attr = me.attributes.new(name, kind, 'POINT')
-        attr.data.foreach_set("value", np.ascontiguousarray(values, np.float32 if kind == 'FLOAT' else np.int32))
-    _set_material(obj, depth_material())
-    stats = res.statistics()
-    stats.update(target=target, max_depth_mm=float(max_depth_mm), seconds=round(t.seconds, 2))
-    coll[DEPTH_STATS_KEY] = json.dumps(stats)
-    _cache(coll)["depth"] = res
-    state.record_timing(coll, "depth", t.seconds)
-    return stats
-
-
-def _display_values(mesh, depth: np.ndarray, passes: int = 4) -> np.ndarray:
-    """Depth for shading: vertices without a value take the mean of their measured neighbours.
-
-    Shading interpolates between vertices; a stored -1 next to a measured 10 mm would paint every
-    value in between (a blue seam around each grey patch). The grey itself comes from
-    ``tissue_depth_valid``, so these fill-in values are never shown as depths.
-    """
-    out = np.where(np.isfinite(depth), depth, np.nan).astype(np.float64)
-    e = mesh.edges()
-    for _ in range(passes):
-        known = np.isfinite(out)
-        if known.all():
-            break
-        acc = np.zeros(len(out))
-        cnt = np.zeros(len(out))
-        for a, b in ((e[:, 0], e[:, 1]), (e[:, 1], e[:, 0])):
-            k = known[b] & ~known[a]
-            np.add.at(acc, a[k], out[b[k]])
-            np.add.at(cnt, a[k], 1.0)
-        fill = cnt > 0
-        out[fill] = acc[fill] / cnt[fill]
-    return np.nan_to_num(out, nan=0.0).astype(np.float32)
 
 
 # ------------------------------------------------------------------------------------------ landmarks
@@ -319,7 +54,7 @@ def blender_matrix(m_mm: np.ndarray):
     return Matrix(m.tolist())
 
 
-def _frankfurt(coll):
+def frankfurt_matrix(coll):
     from mathutils import Matrix
     values = coll.get(FRANKFURT_KEY)
     return Matrix(np.array(values, float).reshape(4, 4).tolist()) if values else Matrix.Identity(4)
@@ -327,7 +62,7 @@ def _frankfurt(coll):
 
 def world_to_patient(coll, world) -> np.ndarray:
     """Patient LPS mm of a Blender world point (undoing the study's Frankfurt transform)."""
-    p = _frankfurt(coll).inverted() @ world
+    p = frankfurt_matrix(coll).inverted() @ world
     return np.array(p, float) / MM_TO_M
 
 
@@ -356,7 +91,7 @@ def _landmark_empty(coll, name: str, snapped: np.ndarray, normal: np.ndarray):
     from ..pdehead_addon.landmarks import landmark
 
     d = landmark(name)
-    sub = _sub_collection(coll, "Landmarks")
+    sub = sub_collection(coll, "Landmarks")
     obj_name = f"LM {d.name}"
     obj = next((o for o in sub.objects if o.get(LANDMARK_KEY) == d.name), None)
     if obj is None:
@@ -368,7 +103,7 @@ def _landmark_empty(coll, name: str, snapped: np.ndarray, normal: np.ndarray):
     obj["patient_mm"] = [float(c) for c in snapped[0]]
     obj["normal"] = [float(c) for c in normal[0]]
     from mathutils import Matrix, Vector
-    obj.matrix_world = _frankfurt(coll) @ Matrix.Translation(Vector(snapped[0] * MM_TO_M))
+    obj.matrix_world = frankfurt_matrix(coll) @ Matrix.Translation(Vector(snapped[0] * MM_TO_M))
     return obj
 
 
@@ -384,8 +119,8 @@ def find_landmarks(coll, target: str = "BONE", keep_edited: bool = True):
     from ..pdehead_addon.auto_landmarks import find_landmarks as engine_find
     from ..pdehead_addon.landmarks import snap_to_surface
 
-    sk = _skull_seg(coll)
-    search = engine_find(study.require_ct(coll), sk.bone)
+    sk = skull_segmentation(coll)
+    search = engine_find(study_ct.require_ct(coll), sk.bone)
     edited = {str(o.get(LANDMARK_KEY)) for o in coll.all_objects
               if o.get(LANDMARK_KEY) and o.get(LANDMARK_EVIDENCE) in _BY_HAND} if keep_edited else set()
     found = {n: lm for n, lm in search.landmarks.items() if lm.point is not None and n not in edited}
@@ -485,18 +220,18 @@ def make_pegs(coll, table, target: str = "BONE", pegs=None) -> list:
     if not pegs:
         raise PDEHeadError(f"none of the placed landmarks ({', '.join(lms) or 'none'}) is in the depth table "
                            f"'{table.label}'")
-    sub = _sub_collection(coll, "Pegs")
+    sub = sub_collection(coll, "Pegs")
     for o in list(sub.objects):
         me = o.data
         bpy.data.objects.remove(o)
         if me is not None and me.users == 0:
             bpy.data.meshes.remove(me)
-    mat = _material(PEG_MATERIAL, (0.95, 0.45, 0.05, 1.0))
+    mat = plain_material(PEG_MATERIAL, (0.95, 0.45, 0.05, 1.0))
     bsdf = mat.node_tree.nodes.get("Principled BSDF")
     bsdf.inputs["Emission Color"].default_value = (0.95, 0.45, 0.05, 1.0)
     bsdf.inputs["Emission Strength"].default_value = 0.6
     made = []
-    frank = _frankfurt(coll)
+    frank = frankfurt_matrix(coll)
     for name, base, normal, length in pegs:
         entry = table.entries[name]
         obj = bpy.data.objects.new(f"Peg {name}", _unit_peg_mesh(f"Peg {name}", PEG_RADIUS_MM))
@@ -512,7 +247,7 @@ def make_pegs(coll, table, target: str = "BONE", pegs=None) -> list:
         if entry.sd_mm is not None:
             obj["table_sd_mm"] = float(entry.sd_mm)
         obj["table_name"] = table.label
-        _set_material(obj, mat)
+        set_material(obj, mat)
         obj.matrix_world = frank @ _peg_matrix(base, normal)
         obj.scale[2] = float(length)
         drv = obj.driver_add("scale", 2).driver
@@ -597,7 +332,7 @@ def mirror_object(coll, obj, source: str = "AUTO"):
     from ..pdehead_addon.landmarks import mirror_matrix
 
     point, normal, how = mirror_plane(coll, source)
-    m = _frankfurt(coll) @ blender_matrix(mirror_matrix(point, normal)) @ _frankfurt(coll).inverted()
+    m = frankfurt_matrix(coll) @ blender_matrix(mirror_matrix(point, normal)) @ frankfurt_matrix(coll).inverted()
     copy = obj.copy()
     copy.name = f"{obj.name} Mirrored"
     for c in obj.users_collection[:1]:
@@ -627,7 +362,7 @@ def forensic_provenance(coll, table=None) -> dict:
     from ..pdehead_addon.provenance import provenance
 
     s = state.settings(coll)
-    sk = _skull_seg(coll)
+    sk = skull_segmentation(coll)
     m = sk.meta
     if m.get("skull_mesh_file"):
         level = f"none (skull from the mesh {m['skull_mesh_file']})"
@@ -652,7 +387,7 @@ def measured_landmark_depths(coll, skull, skin) -> tuple[dict, dict[str, str], s
     from ..pdehead_addon.landmarks import depth_flags, measure_landmark_depths
 
     lms = landmarks(coll)
-    sk = _skull_seg(coll)
+    sk = skull_segmentation(coll)
     head = state.cache_for(state.settings(coll).study_id).seg
     measured = measure_landmark_depths(lms, skull, skin, sk, head_mask=None if head is None else head.mask)
     flags = depth_flags(flag_names(coll), measured)
@@ -669,7 +404,7 @@ def measured_landmark_depths(coll, skull, skin) -> tuple[dict, dict[str, str], s
 
 def _has_skin(coll) -> bool:
     """False when the study's CT has no soft tissue to make a skin of (a dry skull, soft tissue removed)."""
-    return bool(_skull_seg(coll).meta.get("has_skin", True))
+    return bool(skull_segmentation(coll).meta.get("has_skin", True))
 
 
 # ------------------------------------------------------------------------------------------ export
@@ -710,9 +445,9 @@ def export_study(coll, directory: str, fmt: str = "stl", depth_target: str = "BO
             raise PDEHeadError(f"study '{coll.name}': the {name} mesh is not watertight; nothing was written")
     res = None
     if skin is not None:
-        res = _cache(coll).get("depth")
+        res = forensic_cache(coll).get("depth")
         if res is None or res.points.shape != skin.vertices.shape or not np.allclose(res.points, skin.vertices):
-            res = tissue_depth(skin, skull_engine_mesh(coll, depth_target), envelope=_skull_seg(coll))
+            res = tissue_depth(skin, skull_engine_mesh(coll, depth_target), envelope=skull_segmentation(coll))
     depths, flags, method = measured_landmark_depths(coll, skull, skin)
     # a landmark Find Landmarks did not find keeps its row (flag, no coordinates), as the batch's landmarks.csv does
     for name, flag in flags.items():

@@ -89,13 +89,13 @@ class LoaderOptions:
     units: EnumProperty(name="Units", default="AUTO",
                         items=[("AUTO", "Auto", "DICOM says its units; raw and images are stored values"),
                                ("HU", "HU", "The raw or image samples are Hounsfield units (air -1000)")])
-    downsample: IntProperty(name="Downsample", **D.DOWNSAMPLE.limits(), description=D.DOWNSAMPLE.description)
+    downsample: IntProperty(name=D.DOWNSAMPLE.label, **D.DOWNSAMPLE.limits(), description=D.DOWNSAMPLE.description)
     series_uid: StringProperty(name="Series UID", default="",
                                description="DICOM: the SeriesInstanceUID to load when the folder "
                                            "holds several series (empty: the only/largest one)")
-    use_bone_level: BoolProperty(name="Set Bone Level", **D.USE_BONE_LEVEL.limits(),
+    use_bone_level: BoolProperty(name=D.USE_BONE_LEVEL.label, **D.USE_BONE_LEVEL.limits(),
                                  description=D.USE_BONE_LEVEL.description)
-    bone_level: FloatProperty(name="Bone Level", **D.BONE_LEVEL.limits(), description=D.BONE_LEVEL.description)
+    bone_level: FloatProperty(name=D.BONE_LEVEL.label, **D.BONE_LEVEL.limits(), description=D.BONE_LEVEL.description)
 
     def apply_study_options(self, coll) -> None:
         """Options of the dialog that belong to the study, not the loader (the forensic bone level)."""

@@ -1,14 +1,11 @@
 """All ``pdehead.*`` operators of the pipeline: import, the steps, the one-click pipeline.
 
 Thin: an operator reads its properties, calls the application layer (:mod:`.study`) and
-reports. Every operator catches the engine's :class:`PDEHeadError` (and, as a last resort,
-any other exception), reports it as an ERROR and returns ``{'CANCELLED'}`` after removing
-whatever it had created (:class:`study.Rollback`), so a failed step never leaves half-built
-objects behind. Defaults and ranges come from ``pdehead_addon/defaults.py``.
+reports, in its ``run``; the one ``execute`` (fetch the study or cancel, run, report any failure
+and undo what the step created) is :mod:`.base`'s. Defaults and ranges come from
+``pdehead_addon/defaults.py``.
 """
 from __future__ import annotations
-
-import traceback
 
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntProperty, StringProperty
@@ -16,108 +13,13 @@ from bpy.types import Operator
 
 from ..pdehead_addon import PDEHeadError
 from ..pdehead_addon import defaults as D
-from . import props, scene, state, study
+from . import pipeline_run, progress, props, scene, state, study
+from .base import GuardedOperator, StudyOperator, report_exception, set_status
 from .import_options import PDEHEAD_FH_import_ct, LoaderOptions, dropped_file_options
-from .state import NO_STUDY_MESSAGE, suspended_updates
-from .study import STEP_FUNCTIONS, Rollback
+from .study import STEP_FUNCTIONS
 
 
-def _report_exception(op, exc: BaseException) -> None:
-    state.last_exception = exc
-    from ..pdehead_addon import Cancelled
-    if isinstance(exc, Cancelled):
-        op.report({'WARNING'}, "PDE Head: cancelled; the study is as it was before")
-    elif isinstance(exc, PDEHeadError):
-        op.report({'ERROR'}, state.user_text(str(exc)))
-    else:  # a bug: keep the details in the console, give the user one clear line
-        traceback.print_exc()
-        op.report({'ERROR'}, f"PDE Head internal error: {type(exc).__name__}: {exc}")
-
-
-def _status(context, text: str | None) -> None:
-    workspace = getattr(context, "workspace", None)
-    if workspace is not None:
-        try:
-            workspace.status_text_set(text)
-        except (AttributeError, RuntimeError):
-            pass
-
-
-def _guarded(op, context, body) -> set:
-    """Run ``body()``; on any error report it, undo what it created and cancel.
-
-    With a UI, the wait cursor/progress indicator and the status bar show the step meanwhile.
-    """
-    rollback = Rollback()
-    wm = context.window_manager if getattr(context, "window", None) is not None else None
-    if wm is not None:
-        wm.progress_begin(0, 1)
-        _status(context, f"PDE Head: {op.bl_label}...")
-    try:
-        result = body()
-    except Exception as exc:  # noqa: BLE001 - every failure must reach the user as a report
-        rollback.undo()
-        _report_exception(op, exc)
-        return {'CANCELLED'}
-    finally:
-        if wm is not None:
-            wm.progress_end()
-            _status(context, None)
-    return result if result is not None else {'FINISHED'}
-
-
-# ------------------------------------------------------------------------------------------
-# Operators
-
-
-def _active_or_report(op, context):
-    coll = state.active_study(context, getattr(op, "study", ""))
-    if coll is None:
-        op.report({'ERROR'}, NO_STUDY_MESSAGE)
-    return coll
-
-
-class StudyOperator:
-    """Mixin: operators that work on the active study (or the one named by ``study``)."""
-
-    study: StringProperty(name="Study", default="", options={'SKIP_SAVE'},
-                          description="Collection name of the study (empty: the active study)")
-
-    #: Operator properties that mirror the study's settings: read when invoked, written back when run.
-    mirrored_settings = ()
-
-    @classmethod
-    def poll(cls, context):
-        if state.active_study(context) is not None or state.studies():
-            return True
-        cls.poll_message_set(NO_STUDY_MESSAGE)
-        return False
-
-    def invoke(self, context, event):
-        coll = state.active_study(context, self.study)
-        if coll is not None:
-            s = state.settings(coll)
-            for name in self.mirrored_settings:
-                setattr(self, name, getattr(s, name))
-        return self.execute(context)
-
-    def store_settings(self, s) -> None:
-        """Copy the operator's values into the study settings without triggering live rebuilds.
-
-        A value the caller did not set (``bpy.ops.pdehead.build_solid()`` from a script or
-        headless, where invoke is not called) is taken from the study instead, so running an
-        operator never resets the study's settings to the operator's defaults.
-        """
-        is_set = getattr(getattr(self, "properties", None), "is_property_set", None)
-        with suspended_updates():
-            for name in self.mirrored_settings:
-                if is_set is not None and not is_set(name):
-                    setattr(self, name, getattr(s, name))
-                else:
-                    setattr(s, name, getattr(self, name))
-
-
-class PDEHEAD_OT_import_ct(Operator, LoaderOptions):
+class PDEHEAD_OT_import_ct(Operator, GuardedOperator, LoaderOptions):
     """Import head CT slices (DICOM series, numbered TIFF/PNG images or headerless raw) as a PDE Head study"""
 
     bl_idname = "pdehead.import_ct"
@@ -143,36 +45,32 @@ class PDEHEAD_OT_import_ct(Operator, LoaderOptions):
         self.draw_loader_options(self.layout)
         self.layout.prop(self, "run_pipeline")
 
-    def execute(self, context):
-        def body():
-            path = self.input_path()
-            coll = study.import_study(context, path, self.loader_options())
-            self.apply_study_options(coll)
-            s = state.settings(coll)
-            if self.run_pipeline:
-                for step in ("segment", "boundaries", "surface", "solid"):
-                    STEP_FUNCTIONS[step](coll)
-                scene.frame_study(context, coll)  # ends as Run Pipeline does: camera, light, cube hidden
-            nx, ny, nz = s.dimensions
-            self.report({'INFO'}, f"Imported '{coll.name}': {nx}x{ny}x{nz} voxels, spacing "
-                        f"{', '.join(f'{v:g}' for v in s.spacing)} mm")
-            for warning in state.warning_list(s):  # one report per warning, in the dialog's words
-                self.report({'WARNING'}, state.user_text(warning))
-        return _guarded(self, context, body)
+    def run(self, context):
+        path = self.input_path()
+        coll = study.import_study(context, path, self.loader_options())
+        self.apply_study_options(coll)
+        s = state.settings(coll)
+        if self.run_pipeline:
+            for step in ("segment", "boundaries", "surface", "solid"):
+                STEP_FUNCTIONS[step](coll)
+            scene.frame_study(context, coll)  # ends as Run Pipeline does: camera, light, cube hidden
+        nx, ny, nz = s.dimensions
+        self.report({'INFO'}, f"Imported '{coll.name}': {nx}x{ny}x{nz} voxels, spacing "
+                    f"{', '.join(f'{v:g}' for v in s.spacing)} mm")
+        for warning in state.warning_list(s):  # one report per warning, in the dialog's words
+            self.report({'WARNING'}, state.user_text(warning))
 
 
-class PDEHEAD_OT_load_phantom(Operator):
+class PDEHEAD_OT_load_phantom(Operator, GuardedOperator):
     bl_idname = "pdehead.load_phantom"
     bl_label = "Load Phantom"
     bl_description = "Create a study from the built-in synthetic head CT (try PDE Head without data)"
     bl_options = {'REGISTER', 'UNDO'}
 
-    def execute(self, context):
-        def body():
-            coll = study.phantom_study(context)
-            nx, ny, nz = state.settings(coll).dimensions
-            self.report({'INFO'}, f"Phantom loaded: {nx}x{ny}x{nz} voxels")
-        return _guarded(self, context, body)
+    def run(self, context):
+        coll = study.phantom_study(context)
+        nx, ny, nz = state.settings(coll).dimensions
+        self.report({'INFO'}, f"Phantom loaded: {nx}x{ny}x{nz} voxels")
 
 
 class PDEHEAD_OT_segment(Operator, StudyOperator):
@@ -181,17 +79,11 @@ class PDEHEAD_OT_segment(Operator, StudyOperator):
     bl_description = "Segment the head from the CT with the 3D Chan-Vese soft model (eq. 16-21) and clean-up"
     bl_options = {'REGISTER', 'UNDO'}
 
-    def execute(self, context):
-        coll = _active_or_report(self, context)
-        if coll is None:
-            return {'CANCELLED'}
-
-        def body():
-            study.step_segment(coll)
-            s = state.settings(coll)
-            self.report({'INFO'}, f"Segmented '{coll.name}': head = {100 * s.seg_fraction:.1f} % of the "
-                        f"voxels ({s.seg_iterations} iterations, {state.timings(coll)['segment']:.2f} s)")
-        return _guarded(self, context, body)
+    def run(self, context, coll):
+        study.step_segment(coll)
+        s = state.settings(coll)
+        self.report({'INFO'}, f"Segmented '{coll.name}': head = {100 * s.seg_fraction:.1f} % of the "
+                    f"voxels ({s.seg_iterations} iterations, {state.timings(coll)['segment']:.2f} s)")
 
 
 class PDEHEAD_OT_extract_boundaries(Operator, StudyOperator):
@@ -200,42 +92,36 @@ class PDEHEAD_OT_extract_boundaries(Operator, StudyOperator):
     bl_description = "Extract the 3t+1 boundary curves (eq. 22) of t PDE patches from the segmentation"
     bl_options = {'REGISTER', 'UNDO'}
 
-    patches: IntProperty(name="Patches (t)", **D.PATCHES.limits())
-    samples: IntProperty(name="Samples (M)", **D.SAMPLES.limits())
-    selection: EnumProperty(name="Selection", items=props.SELECTION_ITEMS, default=D.SELECTION.default)
+    patches: IntProperty(name=D.PATCHES.label, **D.PATCHES.limits())
+    samples: IntProperty(name=D.SAMPLES.label, **D.SAMPLES.limits())
+    selection: EnumProperty(name=D.SELECTION.label, items=props.SELECTION_ITEMS, default=D.SELECTION.default)
     # equal v = the same direction from the spine
-    align_curves: BoolProperty(name="Align Curves", **D.ALIGN_CURVES.limits(),
+    align_curves: BoolProperty(name=D.ALIGN_CURVES.label, **D.ALIGN_CURVES.limits(),
                                description="Re-sample the curves so that equal v joins corresponding points "
                                            "(avoids folds where a feature such as the nose is on one curve only)")
 
-    use_tolerance: BoolProperty(name="Tolerance Instead of t", **D.USE_TOLERANCE.limits(),
+    use_tolerance: BoolProperty(name=D.USE_TOLERANCE.label, **D.USE_TOLERANCE.limits(),
                                 description=D.USE_TOLERANCE.description)
-    tolerance_mm: FloatProperty(name="Mean Tolerance", **D.TOLERANCE_MM.limits(),
+    tolerance_mm: FloatProperty(name=D.TOLERANCE_MM.label, **D.TOLERANCE_MM.limits(),
                                 description=D.TOLERANCE_MM.description)
-    max_tolerance_mm: FloatProperty(name="Max Tolerance", **D.MAX_TOLERANCE_MM.limits(),
+    max_tolerance_mm: FloatProperty(name=D.MAX_TOLERANCE_MM.label, **D.MAX_TOLERANCE_MM.limits(),
                                     description=D.MAX_TOLERANCE_MM.description)
 
     mirrored_settings = ("patches", "samples", "selection", "align_curves", "use_tolerance", "tolerance_mm",
                          "max_tolerance_mm")
 
-    def execute(self, context):
-        coll = _active_or_report(self, context)
-        if coll is None:
-            return {'CANCELLED'}
-
-        def body():
-            s = state.settings(coll)
-            self.store_settings(s)
-            warnings_before = state.warning_list(s)
-            study.step_boundaries(coll)
-            self.patches = s.patches  # may have been reduced to what the scan allows
-            achieved = (f"; surface from all {abs(s.outline_candidates)} usable outlines: mean "
-                        f"{s.outline_mean_mm:.2f} mm, max {s.outline_max_mm:.2f} mm" if s.outline_candidates else "")
-            self.report({'INFO'}, f"{s.curve_count} boundary curves of {self.samples} points extracted "
-                        f"from '{coll.name}' ({state.timings(coll)['boundaries']:.2f} s){achieved}")
-            for warning in state.warning_list(s)[len(warnings_before):]:
-                self.report({'WARNING'}, state.user_text(warning))
-        return _guarded(self, context, body)
+    def run(self, context, coll):
+        s = state.settings(coll)
+        self.store_settings(s)
+        warnings_before = state.warning_list(s)
+        study.step_boundaries(coll)
+        self.patches = s.patches  # may have been reduced to what the scan allows
+        achieved = (f"; surface from all {abs(s.outline_candidates)} usable outlines: mean "
+                    f"{s.outline_mean_mm:.2f} mm, max {s.outline_max_mm:.2f} mm" if s.outline_candidates else "")
+        self.report({'INFO'}, f"{s.curve_count} boundary curves of {self.samples} points extracted "
+                    f"from '{coll.name}' ({state.timings(coll)['boundaries']:.2f} s){achieved}")
+        for warning in state.warning_list(s)[len(warnings_before):]:
+            self.report({'WARNING'}, state.user_text(warning))
 
 
 class PDEHEAD_OT_reconstruct_surface(Operator, StudyOperator):
@@ -244,35 +130,29 @@ class PDEHEAD_OT_reconstruct_surface(Operator, StudyOperator):
     bl_description = "Solve the Bloor-Wilson PDEs (eq. 1-13) on the boundary curves and build the head surface"
     bl_options = {'REGISTER', 'UNDO'}
 
-    nu: IntProperty(name="nu", **D.NU.limits())
-    nv: IntProperty(name="nv", **D.NV.limits())
-    caps: BoolProperty(name="Caps", **D.CAPS.limits())
-    continuity: EnumProperty(name="Continuity", items=props.CONTINUITY_ITEMS, default=D.CONTINUITY.default)
-    dome: BoolProperty(name="Dome", **D.DOME.limits())
-    smoothing_auto: BoolProperty(name="Auto Smoothing", **D.SMOOTHING_AUTO.limits())
-    smoothing: FloatProperty(name="Smoothing (a)", **D.SMOOTHING.limits(), subtype='FACTOR')
-    approximation_auto: BoolProperty(name="Auto Approximation", **D.APPROXIMATION_AUTO.limits())
-    approximation: FloatProperty(name="Smooth Along Axis", **D.APPROXIMATION.limits(), subtype='FACTOR')
-    modes: IntProperty(name="Fourier Modes", **D.MODES.limits(), description="0 = all")
+    nu: IntProperty(name=D.NU.label, **D.NU.limits())
+    nv: IntProperty(name=D.NV.label, **D.NV.limits())
+    caps: BoolProperty(name=D.CAPS.label, **D.CAPS.limits())
+    continuity: EnumProperty(name=D.CONTINUITY.label, items=props.CONTINUITY_ITEMS, default=D.CONTINUITY.default)
+    dome: BoolProperty(name=D.DOME.label, **D.DOME.limits())
+    smoothing_auto: BoolProperty(name=D.SMOOTHING_AUTO.label, **D.SMOOTHING_AUTO.limits())
+    smoothing: FloatProperty(name=D.SMOOTHING.label, **D.SMOOTHING.limits(), subtype='FACTOR')
+    approximation_auto: BoolProperty(name=D.APPROXIMATION_AUTO.label, **D.APPROXIMATION_AUTO.limits())
+    approximation: FloatProperty(name=D.APPROXIMATION.label, **D.APPROXIMATION.limits(), subtype='FACTOR')
+    modes: IntProperty(name=D.MODES.label, **D.MODES.limits(), description="0 = all")
 
     mirrored_settings = ("nu", "nv", "caps", "continuity", "dome", "smoothing_auto", "smoothing",
                          "approximation_auto", "approximation", "modes")
 
-    def execute(self, context):
-        coll = _active_or_report(self, context)
-        if coll is None:
-            return {'CANCELLED'}
-
-        def body():
-            s = state.settings(coll)
-            self.store_settings(s)
-            if state.boundary_set(coll) is None:
-                study.step_boundaries(coll)
-            study.step_surface(coll)
-            n = len(s.surface_object.data.vertices)
-            self.report({'INFO'}, f"PDE surface of '{coll.name}': {n} vertices "
-                        f"({state.timings(coll)['surface']:.2f} s)")
-        return _guarded(self, context, body)
+    def run(self, context, coll):
+        s = state.settings(coll)
+        self.store_settings(s)
+        if state.boundary_set(coll) is None:
+            study.step_boundaries(coll)
+        study.step_surface(coll)
+        n = len(s.surface_object.data.vertices)
+        self.report({'INFO'}, f"PDE surface of '{coll.name}': {n} vertices "
+                    f"({state.timings(coll)['surface']:.2f} s)")
 
 
 class PDEHEAD_OT_build_solid(Operator, StudyOperator):
@@ -281,42 +161,36 @@ class PDEHEAD_OT_build_solid(Operator, StudyOperator):
     bl_description = "Build the PDE solid (eq. 23): the head sampled in u, v and w from the spine to the surface"
     bl_options = {'REGISTER', 'UNDO'}
 
-    nu: IntProperty(name="nu", **D.NU.limits())
-    nv: IntProperty(name="nv", **D.NV.limits())
-    nw: IntProperty(name="nw", **D.NW.limits())
-    u_range: FloatVectorProperty(name="u Range", size=2, **D.U_RANGE.limits())
-    v_range: FloatVectorProperty(name="v Range", size=2, **D.V_RANGE.limits(), unit="ROTATION")
-    w_range: FloatVectorProperty(name="w Range", size=2, **D.W_RANGE.limits())
-    ct_texture_budget: FloatProperty(name="CT Texture (MP)", **D.CT_TEXTURE_BUDGET.limits(),
+    nu: IntProperty(name=D.NU.label, **D.NU.limits())
+    nv: IntProperty(name=D.NV.label, **D.NV.limits())
+    nw: IntProperty(name=D.NW.label, **D.NW.limits())
+    u_range: FloatVectorProperty(name=D.U_RANGE.label, size=2, **D.U_RANGE.limits())
+    v_range: FloatVectorProperty(name=D.V_RANGE.label, size=2, **D.V_RANGE.limits(), unit="ROTATION")
+    w_range: FloatVectorProperty(name=D.W_RANGE.label, size=2, **D.W_RANGE.limits())
+    ct_texture_budget: FloatProperty(name=D.CT_TEXTURE_BUDGET.label, **D.CT_TEXTURE_BUDGET.limits(),
                                      description=D.CT_TEXTURE_BUDGET.description + " (megapixels)")
-    solid_skin: EnumProperty(name="Outside", items=props.SOLID_SKIN_ITEMS, default=D.SOLID_SKIN.default,
+    solid_skin: EnumProperty(name=D.SOLID_SKIN.label, items=props.SOLID_SKIN_ITEMS, default=D.SOLID_SKIN.default,
                              description=D.SOLID_SKIN.description)
-    solid_skin_depth: FloatProperty(name="Skin Depth (mm)", **D.SOLID_SKIN_DEPTH.limits(),
+    solid_skin_depth: FloatProperty(name=D.SOLID_SKIN_DEPTH.label, **D.SOLID_SKIN_DEPTH.limits(),
                                     description=D.SOLID_SKIN_DEPTH.description)
 
     mirrored_settings = ("nu", "nv", "nw", "u_range", "v_range", "w_range", "ct_texture_budget", "solid_skin",
                          "solid_skin_depth")
 
-    def execute(self, context):
-        coll = _active_or_report(self, context)
-        if coll is None:
-            return {'CANCELLED'}
-
-        def body():
-            s = state.settings(coll)
-            for name, lo_hi in (("u", self.u_range), ("v", self.v_range), ("w", self.w_range)):
-                if lo_hi[0] >= lo_hi[1]:
-                    raise PDEHeadError(f"{name} range must have its start below its end, got "
-                                       f"{lo_hi[0]:g}..{lo_hi[1]:g}")
-            self.store_settings(s)
-            if state.boundary_set(coll) is None:
-                study.step_boundaries(coll)
-            notice = study.step_solid(coll)
-            n = len(s.solid_object.data.vertices)
-            self.report({'INFO'}, f"PDE solid of '{coll.name}': {n} vertices ({state.timings(coll)['solid']:.2f} s)")
-            if notice:
-                self.report({'WARNING'}, notice[:300])
-        return _guarded(self, context, body)
+    def run(self, context, coll):
+        s = state.settings(coll)
+        for name, lo_hi in (("u", self.u_range), ("v", self.v_range), ("w", self.w_range)):
+            if lo_hi[0] >= lo_hi[1]:
+                raise PDEHeadError(f"{name} range must have its start below its end, got "
+                                   f"{lo_hi[0]:g}..{lo_hi[1]:g}")
+        self.store_settings(s)
+        if state.boundary_set(coll) is None:
+            study.step_boundaries(coll)
+        notice = study.step_solid(coll)
+        n = len(s.solid_object.data.vertices)
+        self.report({'INFO'}, f"PDE solid of '{coll.name}': {n} vertices ({state.timings(coll)['solid']:.2f} s)")
+        if notice:
+            self.report({'WARNING'}, notice[:300])
 
 
 class PDEHEAD_OT_build_volume(Operator, StudyOperator):
@@ -326,35 +200,29 @@ class PDEHEAD_OT_build_volume(Operator, StudyOperator):
                       "and render it as a volume with eq. 24 opacity")
     bl_options = {'REGISTER', 'UNDO'}
 
-    use_ct_grid: BoolProperty(name="CT Grid", **D.USE_CT_GRID.limits())
-    voxel_auto: BoolProperty(name="Auto Voxel Size", **D.VOXEL_AUTO.limits())
+    use_ct_grid: BoolProperty(name=D.USE_CT_GRID.label, **D.USE_CT_GRID.limits())
+    voxel_auto: BoolProperty(name=D.VOXEL_AUTO.label, **D.VOXEL_AUTO.limits())
     voxel_size: FloatProperty(name="Voxel Size (mm)", **D.VOXEL_SIZE.limits())
-    low_alpha: FloatProperty(name="Low Alpha", **D.LOW_ALPHA.limits())
-    high_alpha: FloatProperty(name="High Alpha", **D.HIGH_ALPHA.limits())
-    density: FloatProperty(name="Density", **D.DENSITY.limits())
+    low_alpha: FloatProperty(name=D.LOW_ALPHA.label, **D.LOW_ALPHA.limits())
+    high_alpha: FloatProperty(name=D.HIGH_ALPHA.label, **D.HIGH_ALPHA.limits())
+    density: FloatProperty(name=D.DENSITY.label, **D.DENSITY.limits())
     colour_preset: EnumProperty(name="Colour", items=props.COLOUR_ITEMS, default=D.COLOUR_PRESET.default)
-    alpha_mode: EnumProperty(name="Alpha Mode", items=props.ALPHA_MODE_ITEMS, default=D.ALPHA_MODE.default)
+    alpha_mode: EnumProperty(name=D.ALPHA_MODE.label, items=props.ALPHA_MODE_ITEMS, default=D.ALPHA_MODE.default)
 
     mirrored_settings = ("use_ct_grid", "voxel_auto", "voxel_size", "low_alpha", "high_alpha", "density", "colour_preset",
                          "alpha_mode")
 
-    def execute(self, context):
-        coll = _active_or_report(self, context)
-        if coll is None:
-            return {'CANCELLED'}
-
-        def body():
-            s = state.settings(coll)
-            if self.properties.is_property_set("voxel_size") and not self.properties.is_property_set("voxel_auto"):
-                self.voxel_auto = False  # a size given by the caller is meant
-            self.store_settings(s)
-            if state.boundary_set(coll) is None:
-                study.step_boundaries(coll)
-            study.step_volume(coll, context)
-            t = state.timings(coll)
-            self.report({'INFO'}, f"Volume of '{coll.name}' built (w-field {t['w_field']:.2f} s, "
-                        f"VDB + material {t['volume']:.2f} s)")
-        return _guarded(self, context, body)
+    def run(self, context, coll):
+        s = state.settings(coll)
+        if self.properties.is_property_set("voxel_size") and not self.properties.is_property_set("voxel_auto"):
+            self.voxel_auto = False  # a size given by the caller is meant
+        self.store_settings(s)
+        if state.boundary_set(coll) is None:
+            study.step_boundaries(coll)
+        study.step_volume(coll, context)
+        t = state.timings(coll)
+        self.report({'INFO'}, f"Volume of '{coll.name}' built (w-field {t['w_field']:.2f} s, "
+                    f"VDB + material {t['volume']:.2f} s)")
 
 
 # ------------------------------------------------------------------------------------------
@@ -368,7 +236,7 @@ SOURCE_ITEMS = [
 ]
 
 
-class PDEHEAD_OT_run_pipeline(Operator, LoaderOptions):
+class PDEHEAD_OT_run_pipeline(Operator, GuardedOperator, LoaderOptions):
     bl_idname = "pdehead.run_pipeline"
     bl_label = "Run PDE Head Pipeline"
     bl_description = ("One click: segment, extract boundaries, reconstruct the PDE surface and solid and "
@@ -377,11 +245,11 @@ class PDEHEAD_OT_run_pipeline(Operator, LoaderOptions):
 
     source: EnumProperty(name="Source", items=SOURCE_ITEMS, default="AUTO")
     study: StringProperty(name="Study", default="", options={'SKIP_SAVE'})
-    patches: IntProperty(name="Patches (t)", **D.PATCHES.limits())
-    samples: IntProperty(name="Samples (M)", **D.SAMPLES.limits())
-    nu: IntProperty(name="nu", **D.NU.limits())
-    nv: IntProperty(name="nv", **D.NV.limits())
-    nw: IntProperty(name="nw", **D.NW.limits())
+    patches: IntProperty(name=D.PATCHES.label, **D.PATCHES.limits())
+    samples: IntProperty(name=D.SAMPLES.label, **D.SAMPLES.limits())
+    nu: IntProperty(name=D.NU.label, **D.NU.limits())
+    nv: IntProperty(name=D.NV.label, **D.NV.limits())
+    nw: IntProperty(name=D.NW.label, **D.NW.limits())
     build_volume: BoolProperty(name="Volume", default=True, description="Also build the volume")
     voxel_size: FloatProperty(name="Voxel Size (mm)", **D.VOXEL_SIZE.limits())
 
@@ -392,14 +260,14 @@ class PDEHEAD_OT_run_pipeline(Operator, LoaderOptions):
             return "FILES"
         return "ACTIVE"
 
-    def make_run(self, context) -> study.PipelineRun:
+    def make_run(self, context) -> pipeline_run.PipelineRun:
         source = self._resolved_source(context)
         path = self.input_path() if source == "FILES" else None
         options = self.loader_options() if source == "FILES" else None
         settings = dict(patches=self.patches, samples=self.samples, nu=self.nu, nv=self.nv, nw=self.nw)
         if self.properties.is_property_set("voxel_size"):  # else the study's automatic size from the CT
             settings.update(voxel_size=self.voxel_size, voxel_auto=False)
-        return study.PipelineRun(context, source, path, options, settings, self.study, self.build_volume)
+        return pipeline_run.PipelineRun(context, source, path, options, settings, self.study, self.build_volume)
 
     def draw(self, context):
         layout = self.layout
@@ -409,17 +277,15 @@ class PDEHEAD_OT_run_pipeline(Operator, LoaderOptions):
         for name in ("patches", "samples", "nu", "nv", "nw", "build_volume", "voxel_size"):
             layout.prop(self, name)
 
-    def execute(self, context):
+    def run(self, context):
         """Synchronous (scripts, the CLI, redo)."""
-        def body():
-            run = self.make_run(context)
-            try:
-                run.run_all()
-            except BaseException:
-                run.cancel()
-                raise
-            self._report_done(run)
-        return _guarded(self, context, body)
+        run = self.make_run(context)
+        try:
+            run.run_all()
+        except BaseException:
+            run.cancel()
+            raise
+        self._report_done(run)
 
     def _report_done(self, run) -> None:
         coll = run.collection
@@ -434,15 +300,15 @@ class PDEHEAD_OT_run_pipeline(Operator, LoaderOptions):
         try:
             self._run = self.make_run(context)
         except Exception as exc:  # noqa: BLE001
-            _report_exception(self, exc)
+            report_exception(self, exc)
             return {'CANCELLED'}
         wm = context.window_manager
         self._timer = wm.event_timer_add(0.05, window=context.window)
         wm.progress_begin(0, len(self._run.steps))
         run = self._run
         # within a step: the engine's progress moves the progress indicator between the step marks
-        study.PROGRESS_HOOK[0] = lambda _step, fraction, _message="": wm.progress_update(run.index + fraction)
-        _status(context, f"PDE Head: {self._run.next_label}... (Esc to cancel)")
+        progress.PROGRESS_HOOK[0] = lambda _step, fraction, _message="": wm.progress_update(run.index + fraction)
+        set_status(context, f"PDE Head: {self._run.next_label}... (Esc to cancel)")
         wm.modal_handler_add(self)
         return {'RUNNING_MODAL'}
 
@@ -458,7 +324,7 @@ class PDEHEAD_OT_run_pipeline(Operator, LoaderOptions):
             run.step()
         except Exception as exc:  # noqa: BLE001
             self.cancel(context)
-            _report_exception(self, exc)
+            report_exception(self, exc)
             return {'CANCELLED'}
         wm = context.window_manager
         if wm is not None:
@@ -467,11 +333,11 @@ class PDEHEAD_OT_run_pipeline(Operator, LoaderOptions):
             self._end_ui(context)
             self._report_done(run)
             return {'FINISHED'}
-        _status(context, f"PDE Head: {run.next_label}... (Esc to cancel)")
+        set_status(context, f"PDE Head: {run.next_label}... (Esc to cancel)")
         return {'RUNNING_MODAL'}
 
     def _end_ui(self, context) -> None:
-        study.PROGRESS_HOOK[0] = None
+        progress.PROGRESS_HOOK[0] = None
         wm = context.window_manager
         timer = getattr(self, "_timer", None)
         if timer is not None and wm is not None:
@@ -479,7 +345,7 @@ class PDEHEAD_OT_run_pipeline(Operator, LoaderOptions):
             self._timer = None
         if wm is not None:
             wm.progress_end()
-        _status(context, None)
+        set_status(context, None)
 
     def cancel(self, context):
         """Esc, an error or Blender closing the operator: undo everything this run created."""
@@ -487,6 +353,10 @@ class PDEHEAD_OT_run_pipeline(Operator, LoaderOptions):
         if run is not None:
             run.cancel()
         self._end_ui(context)
+
+
+#: The views Frame Study offers: every named view (defaults.VIEWS) but TOP.
+FRAME_VIEW_ITEMS = [(name, *D.VIEWS[name]) for name in D.VIEWS if name != "TOP"]
 
 
 class PDEHEAD_OT_frame_study(Operator, StudyOperator):
@@ -498,23 +368,12 @@ class PDEHEAD_OT_frame_study(Operator, StudyOperator):
     bl_options = {'REGISTER', 'UNDO'}
 
     show: EnumProperty(name="Show", items=scene.SHOW_ITEMS, default="SURFACE")
-    view: EnumProperty(name="View", items=[("FRONT", "Front", "The face (Blender's front view)"),
-                                           ("RIGHT", "Right", "The patient's right side"),
-                                           ("LEFT", "Left", "The patient's left side"),
-                                           ("BACK", "Back", "The back of the head"),
-                                           ("THREE_QUARTER", "Three Quarter", "From front right, above")],
-                       default="FRONT")
+    view: EnumProperty(name="View", items=FRAME_VIEW_ITEMS, default=D.VIEW.default)
 
-    def execute(self, context):
-        coll = _active_or_report(self, context)
-        if coll is None:
-            return {'CANCELLED'}
-
-        def body():
-            done = scene.frame_study(context, coll, show=self.show, view=self.view)
-            extra = "; startup cube hidden" if done["hidden_cube"] else ""
-            self.report({'INFO'}, f"'{coll.name}': camera and light set, showing {done['shown']}{extra}")
-        return _guarded(self, context, body)
+    def run(self, context, coll):
+        done = scene.frame_study(context, coll, show=self.show, view=self.view)
+        extra = "; startup cube hidden" if done["hidden_cube"] else ""
+        self.report({'INFO'}, f"'{coll.name}': camera and light set, showing {done['shown']}{extra}")
 
 
 class PDEHEAD_OT_turntable(Operator, StudyOperator):
@@ -524,20 +383,14 @@ class PDEHEAD_OT_turntable(Operator, StudyOperator):
                       "number of frames (the scene's frame range); Render Animation renders it")
     bl_options = {'REGISTER', 'UNDO'}
 
-    frames: IntProperty(name="Frames", default=D.TURNTABLE_FRAMES.default, min=D.TURNTABLE_FRAMES.min,
+    frames: IntProperty(name=D.TURNTABLE_FRAMES.label, default=D.TURNTABLE_FRAMES.default, min=D.TURNTABLE_FRAMES.min,
                         max=D.TURNTABLE_FRAMES.max, description=D.TURNTABLE_FRAMES.description)
 
-    def execute(self, context):
-        coll = _active_or_report(self, context)
-        if coll is None:
-            return {'CANCELLED'}
-
-        def body():
-            from . import animation
-            pivot = animation.turntable(context, coll, self.frames, start=context.scene.frame_start)
-            self.report({'INFO'}, f"'{coll.name}': turntable of {self.frames} frames around '{pivot.name}' "
-                                  "(Render > Render Animation)")
-        return _guarded(self, context, body)
+    def run(self, context, coll):
+        from . import animation
+        pivot = animation.turntable(context, coll, self.frames, start=context.scene.frame_start)
+        self.report({'INFO'}, f"'{coll.name}': turntable of {self.frames} frames around '{pivot.name}' "
+                              "(Render > Render Animation)")
 
 
 class PDEHEAD_OT_add_cutter(Operator, StudyOperator):
@@ -547,15 +400,9 @@ class PDEHEAD_OT_add_cutter(Operator, StudyOperator):
                       "away where it is (a wedge in v or a slab in u)")
     bl_options = {'REGISTER', 'UNDO'}
 
-    def execute(self, context):
-        coll = _active_or_report(self, context)
-        if coll is None:
-            return {'CANCELLED'}
-
-        def body():
-            obj, kind = study.add_cutter(context, coll)
-            self.report({'INFO'}, f"Cutter '{obj.name}' added ({kind} cut): move it to cut the solid elsewhere")
-        return _guarded(self, context, body)
+    def run(self, context, coll):
+        obj, kind = study.add_cutter(context, coll)
+        self.report({'INFO'}, f"Cutter '{obj.name}' added ({kind} cut): move it to cut the solid elsewhere")
 
 
 class PDEHEAD_OT_remove_study(Operator, StudyOperator):
@@ -564,14 +411,10 @@ class PDEHEAD_OT_remove_study(Operator, StudyOperator):
     bl_description = "Delete the study's collection, its objects and its in-memory data"
     bl_options = {'REGISTER', 'UNDO'}
 
-    def execute(self, context):
-        coll = _active_or_report(self, context)
-        if coll is None:
-            return {'CANCELLED'}
+    def run(self, context, coll):
         name = coll.name
         study.remove_study(coll)
         self.report({'INFO'}, f"Removed study '{name}'")
-        return {'FINISHED'}
 
 
 def menu_import(self, context):

@@ -113,8 +113,7 @@ class PDEHEAD_PT_boundaries(_StudyPanel, bpy.types.Panel):
                 box.label(text="Tolerance not met with every slice")
         if state.has_stored_boundaries(coll):
             kb = len(coll[state.BOUNDARY_KEY]) * 3 / 4 / 1024
-            count = s.curve_count or 3 * s.patches + 1   # files saved before the count was recorded
-            layout.label(text=f"{count} curves stored in the .blend ({kb:.0f} kB)", icon='FILE_BLEND')
+            layout.label(text=f"{s.curve_count} curves stored in the .blend ({kb:.0f} kB)", icon='FILE_BLEND')
 
 
 class PDEHEAD_PT_surface(_StudyPanel, bpy.types.Panel):

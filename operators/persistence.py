@@ -8,7 +8,7 @@
   or a Save As to another folder) is copied into its ``pdehead_vdb/`` folder and the object
   switched to the copy, before Blender writes the file.
 - **save_post**: .vdb files replaced by a rebuild or left behind by a move are deleted once the
-  saved file no longer references them (:func:`volume.purge_superseded`); a file that an older
+  saved file no longer references them (:func:`vdb_files.purge_superseded`); a file that an older
   .blend beside it still uses is never touched (it is not in the superseded set).
 - **save_post** also removes the .vdb files PDE Head wrote for this file (recorded in the file at each
   save, ``Scene.pdehead.vdb_files``) that no saved Volume datablock references any more (a study
@@ -17,11 +17,11 @@
 - **load_post**: a volume whose recorded .vdb is missing but whose file lies in ``pdehead_vdb/``
   beside the opened .blend (an absolute path written with relative paths off) is re-pointed there.
 
-The CT itself is never stored in the .blend; :func:`study.require_ct` re-reads it from these
+The CT itself is never stored in the .blend; :func:`study_ct.require_ct` re-reads it from these
 recorded paths when a step needs it. What the solid shows of it is: save_pre stores the solid's CT
 table (the CT tabulated in the solid's (u, v, w), 8-bit over the display window, zlib; at most
 4.2 MB before compression, budget 16 MB) in the study collection, so after reopening -- or in a
-file sent without its CT -- cutaways and nw are live at once (:func:`study.current_ct_table`).
+file sent without its CT -- cutaways and nw are live at once (:func:`study_ct.current_ct_table`).
 """
 from __future__ import annotations
 
@@ -30,7 +30,7 @@ from pathlib import Path
 
 import bpy
 
-from . import state, volume
+from . import state, vdb_files
 
 
 def _volume_objects() -> list:
@@ -62,11 +62,11 @@ def move_volumes_beside(blend_path: str) -> list[Path]:
     unsaved = not bpy.data.filepath
     for obj in _volume_objects():
         src = Path(bpy.path.abspath(obj.data.filepath)).resolve() if obj.data.filepath else None
-        dst = volume.relocate_vdb(obj, blend_path=blend_path)
+        dst = vdb_files.relocate_vdb(obj, blend_path=blend_path)
         if dst is not None:
             moved.append(dst)
             if unsaved and src is not None:
-                volume.supersede(src)  # a temp-folder file of an unsaved session: moved, not copied
+                vdb_files.supersede(src)  # a temp-folder file of an unsaved session: moved, not copied
     return moved
 
 
@@ -109,7 +109,7 @@ def remove_orphan_volume_files() -> list[Path]:
     in the ``pdehead_vdb`` folder beside the saved file; returns the removed files."""
     if not bpy.data.filepath:
         return []
-    folder = volume.vdb_folder_for(bpy.data.filepath).resolve()
+    folder = vdb_files.vdb_folder_for(bpy.data.filepath).resolve()
     recorded = _recorded_volume_files()
     used = _saved_volume_files()
     removed, kept = [], set()
@@ -136,11 +136,11 @@ def pdehead_save_pre(filepath="", *_args) -> None:
     if not filepath:
         return
     try:
-        from . import objects, study
+        from . import objects, study, study_ct
         study.flush_colour_refresh()  # a solid still waiting for its CT colours gets them before the save
         objects.pack_ct_images()  # live cutaways update the CT atlases without re-packing each step
         for coll in state.studies():  # the solid's CT table (8-bit) travels in the file: live without the CT
-            study.store_ct_table_for_save(coll)
+            study_ct.store_ct_table_for_save(coll)
         record_sources(filepath)
         move_volumes_beside(filepath)
         record_volume_files()
@@ -153,7 +153,7 @@ def pdehead_save_pre(filepath="", *_args) -> None:
 @bpy.app.handlers.persistent
 def pdehead_save_post(*_args) -> None:
     try:
-        volume.purge_superseded()
+        vdb_files.purge_superseded()
         remove_orphan_volume_files()
     except Exception as exc:  # noqa: BLE001
         print(f"PDE Head: could not remove replaced volume files: {exc}")
@@ -163,14 +163,14 @@ def pdehead_save_post(*_args) -> None:
 def pdehead_volume_load_post(*_args) -> None:
     if not bpy.data.filepath:
         return
-    folder = volume.vdb_folder_for(bpy.data.filepath)
+    folder = vdb_files.vdb_folder_for(bpy.data.filepath)
     for obj in _volume_objects():
         data = obj.data
         if not data.filepath or os.path.isfile(bpy.path.abspath(data.filepath)):
             continue
         beside = folder / Path(bpy.path.abspath(data.filepath)).name
         if beside.is_file():
-            data.filepath = volume.blender_filepath(beside)
+            data.filepath = vdb_files.blender_filepath(beside)
             data.grids.unload()
             data.grids.load()
 

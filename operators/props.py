@@ -19,10 +19,10 @@ from bpy.props import (BoolProperty, EnumProperty, FloatProperty, FloatVectorPro
                        IntVectorProperty, PointerProperty, StringProperty)
 
 from ..pdehead_addon import defaults as D
-from . import face, state, study
+from . import compat, face, state, study
 
 #: Blender >= 4.5 warns about "//" in path properties unless they declare blend-relative support.
-PATH_OPTIONS = {'PATH_SUPPORTS_BLEND_RELATIVE'} if bpy.app.version >= (4, 5, 0) else set()
+PATH_OPTIONS = compat.blend_relative_path_options()
 
 def _live(what: str):
     """An update callback that rebuilds ``what`` of the study owning the settings (:func:`study.live_update`;
@@ -63,7 +63,7 @@ CONTINUITY_ITEMS = [
     ("paper", "Paper Patches", "The paper's t patches through four curves each; creased where they meet"),
 ]
 def _colour_items():
-    from .volume import COLOUR_LABELS, COLOUR_PRESETS  # the presets' one owner
+    from .volume_material import COLOUR_LABELS, COLOUR_PRESETS  # the presets' one owner
     return [(key, *COLOUR_LABELS.get(key, (key.title(), ""))) for key in COLOUR_PRESETS]
 
 
@@ -108,9 +108,9 @@ class PDEHeadStudySettings(bpy.types.PropertyGroup):
     warnings: StringProperty(name="Warnings")
 
     # Forensic: the bone level (issue 22; also in the import dialog)
-    use_bone_level: BoolProperty(name="Set Bone Level", **D.USE_BONE_LEVEL.limits(),
+    use_bone_level: BoolProperty(name=D.USE_BONE_LEVEL.label, **D.USE_BONE_LEVEL.limits(),
                                  description=D.USE_BONE_LEVEL.description)
-    bone_level: FloatProperty(name="Bone Level", **D.BONE_LEVEL.limits(), description=D.BONE_LEVEL.description)
+    bone_level: FloatProperty(name=D.BONE_LEVEL.label, **D.BONE_LEVEL.limits(), description=D.BONE_LEVEL.description)
 
     # Forensic: Face from Skull (issue 23): the table the face uses; switching it re-solves the face at once
     face_table: EnumProperty(name="Face Table", items=face.FACE_TABLE_ITEMS, default='DEFAULT',
@@ -128,16 +128,17 @@ class PDEHeadStudySettings(bpy.types.PropertyGroup):
     seg_c2: FloatProperty(name="c2 (air)")
 
     # Boundaries (defaults, ranges and descriptions: pdehead_addon/defaults.py)
-    patches: IntProperty(name="Patches (t)", **D.PATCHES.limits(), description=D.PATCHES.description)
-    samples: IntProperty(name="Samples (M)", **D.SAMPLES.limits(), description=D.SAMPLES.description)
-    selection: EnumProperty(name="Selection", items=SELECTION_ITEMS, default=D.SELECTION.default,
+    patches: IntProperty(name=D.PATCHES.label, **D.PATCHES.limits(), description=D.PATCHES.description)
+    samples: IntProperty(name=D.SAMPLES.label, **D.SAMPLES.limits(), description=D.SAMPLES.description)
+    selection: EnumProperty(name=D.SELECTION.label, items=SELECTION_ITEMS, default=D.SELECTION.default,
                             description=D.SELECTION.description)
-    align_curves: BoolProperty(name="Align Curves", **D.ALIGN_CURVES.limits(), description=D.ALIGN_CURVES.description)
-    use_tolerance: BoolProperty(name="Tolerance Instead of t", **D.USE_TOLERANCE.limits(),
+    align_curves: BoolProperty(name=D.ALIGN_CURVES.label, **D.ALIGN_CURVES.limits(),
+                               description=D.ALIGN_CURVES.description)
+    use_tolerance: BoolProperty(name=D.USE_TOLERANCE.label, **D.USE_TOLERANCE.limits(),
                                 description=D.USE_TOLERANCE.description)
-    tolerance_mm: FloatProperty(name="Mean Tolerance", **D.TOLERANCE_MM.limits(), precision=2,
+    tolerance_mm: FloatProperty(name=D.TOLERANCE_MM.label, **D.TOLERANCE_MM.limits(), precision=2,
                                 description=D.TOLERANCE_MM.description)
-    max_tolerance_mm: FloatProperty(name="Max Tolerance", **D.MAX_TOLERANCE_MM.limits(), precision=2,
+    max_tolerance_mm: FloatProperty(name=D.MAX_TOLERANCE_MM.label, **D.MAX_TOLERANCE_MM.limits(), precision=2,
                                     description=D.MAX_TOLERANCE_MM.description)
     # what the last extraction gave (shown in the panel, saved with the file)
     curve_count: IntProperty(name="Curves", description="Boundary curves of the last extraction")
@@ -150,53 +151,53 @@ class PDEHeadStudySettings(bpy.types.PropertyGroup):
                                   description="The surface's largest distance (mm) from any usable slice's outline")
 
     # Surface (live)
-    nu: IntProperty(name="nu", **D.NU.limits(), update=_live("surface_solid"), description=D.NU.description)
-    nv: IntProperty(name="nv", **D.NV.limits(), update=_live("surface_solid"), description=D.NV.description)
-    caps: BoolProperty(name="Caps", **D.CAPS.limits(), update=_live("surface"), description=D.CAPS.description)
-    continuity: EnumProperty(name="Continuity", items=CONTINUITY_ITEMS, default=D.CONTINUITY.default,
+    nu: IntProperty(name=D.NU.label, **D.NU.limits(), update=_live("surface_solid"), description=D.NU.description)
+    nv: IntProperty(name=D.NV.label, **D.NV.limits(), update=_live("surface_solid"), description=D.NV.description)
+    caps: BoolProperty(name=D.CAPS.label, **D.CAPS.limits(), update=_live("surface"), description=D.CAPS.description)
+    continuity: EnumProperty(name=D.CONTINUITY.label, items=CONTINUITY_ITEMS, default=D.CONTINUITY.default,
                              update=_live("pde"), description=D.CONTINUITY.description)
-    dome: BoolProperty(name="Dome", **D.DOME.limits(), update=_live("pde"), description=D.DOME.description)
-    smoothing_auto: BoolProperty(name="Auto Smoothing", **D.SMOOTHING_AUTO.limits(), update=_live("pde_auto"),
+    dome: BoolProperty(name=D.DOME.label, **D.DOME.limits(), update=_live("pde"), description=D.DOME.description)
+    smoothing_auto: BoolProperty(name=D.SMOOTHING_AUTO.label, **D.SMOOTHING_AUTO.limits(), update=_live("pde_auto"),
                                  description=D.SMOOTHING_AUTO.description)
-    smoothing: FloatProperty(name="Smoothing (a)", **D.SMOOTHING.limits(), subtype='FACTOR', update=_live("pde"),
+    smoothing: FloatProperty(name=D.SMOOTHING.label, **D.SMOOTHING.limits(), subtype='FACTOR', update=_live("pde"),
                              description=D.SMOOTHING.description)
-    approximation_auto: BoolProperty(name="Auto Approximation", **D.APPROXIMATION_AUTO.limits(),
+    approximation_auto: BoolProperty(name=D.APPROXIMATION_AUTO.label, **D.APPROXIMATION_AUTO.limits(),
                                      update=_live("pde_auto"), description=D.APPROXIMATION_AUTO.description)
-    approximation: FloatProperty(name="Smooth Along Axis", **D.APPROXIMATION.limits(), subtype='FACTOR',
+    approximation: FloatProperty(name=D.APPROXIMATION.label, **D.APPROXIMATION.limits(), subtype='FACTOR',
                                  update=_live("pde"), description=D.APPROXIMATION.description)
-    modes: IntProperty(name="Fourier Modes", **D.MODES.limits(), update=_live("pde"), description=D.MODES.description)
+    modes: IntProperty(name=D.MODES.label, **D.MODES.limits(), update=_live("pde"), description=D.MODES.description)
 
     # Solid (live)
-    nw: IntProperty(name="nw", **D.NW.limits(), update=_live("solid"), description=D.NW.description)
-    u_range: FloatVectorProperty(name="u Range", size=2, **D.U_RANGE.limits(), update=_live("solid"),
+    nw: IntProperty(name=D.NW.label, **D.NW.limits(), update=_live("solid"), description=D.NW.description)
+    u_range: FloatVectorProperty(name=D.U_RANGE.label, size=2, **D.U_RANGE.limits(), update=_live("solid"),
                                  description=D.U_RANGE.description)
-    v_range: FloatVectorProperty(name="v Range", size=2, **D.V_RANGE.limits(), subtype="NONE", unit="ROTATION",
+    v_range: FloatVectorProperty(name=D.V_RANGE.label, size=2, **D.V_RANGE.limits(), subtype="NONE", unit="ROTATION",
                                  update=_live("solid"), description=D.V_RANGE.description)
-    w_range: FloatVectorProperty(name="w Range", size=2, **D.W_RANGE.limits(), update=_live("solid"),
+    w_range: FloatVectorProperty(name=D.W_RANGE.label, size=2, **D.W_RANGE.limits(), update=_live("solid"),
                                  description=D.W_RANGE.description)
-    use_cutter: BoolProperty(name="Use Cutter", **D.USE_CUTTER.limits(), update=_live("cutter"),
+    use_cutter: BoolProperty(name=D.USE_CUTTER.label, **D.USE_CUTTER.limits(), update=_live("cutter"),
                              description=D.USE_CUTTER.description)
     # The solid's CT texture (issue 21): atlas budget and what its outside shows
-    ct_texture_budget: FloatProperty(name="CT Texture (MP)", **D.CT_TEXTURE_BUDGET.limits(), update=_live("solid"),
-                                     description=D.CT_TEXTURE_BUDGET.description + " (megapixels)")
-    solid_skin: EnumProperty(name="Outside", items=SOLID_SKIN_ITEMS, default=D.SOLID_SKIN.default,
+    ct_texture_budget: FloatProperty(name=D.CT_TEXTURE_BUDGET.label, **D.CT_TEXTURE_BUDGET.limits(),
+                                     update=_live("solid"), description=D.CT_TEXTURE_BUDGET.description + " (megapixels)")
+    solid_skin: EnumProperty(name=D.SOLID_SKIN.label, items=SOLID_SKIN_ITEMS, default=D.SOLID_SKIN.default,
                              update=_live("solid"), description=D.SOLID_SKIN.description)
-    solid_skin_depth: FloatProperty(name="Skin Depth (mm)", **D.SOLID_SKIN_DEPTH.limits(), update=_live("solid"),
+    solid_skin_depth: FloatProperty(name=D.SOLID_SKIN_DEPTH.label, **D.SOLID_SKIN_DEPTH.limits(), update=_live("solid"),
                                     description=D.SOLID_SKIN_DEPTH.description)
 
     # Volume (live: material only)
-    use_ct_grid: BoolProperty(name="CT Grid", **D.USE_CT_GRID.limits(), description=D.USE_CT_GRID.description)
-    voxel_auto: BoolProperty(name="Auto Voxel Size", **D.VOXEL_AUTO.limits(), description=D.VOXEL_AUTO.description)
-    voxel_size: FloatProperty(name="Voxel Size", **D.VOXEL_SIZE.limits(), description=D.VOXEL_SIZE.description)
-    low_alpha: FloatProperty(name="Low Alpha", **D.LOW_ALPHA.limits(), update=_live("volume"),
+    use_ct_grid: BoolProperty(name=D.USE_CT_GRID.label, **D.USE_CT_GRID.limits(), description=D.USE_CT_GRID.description)
+    voxel_auto: BoolProperty(name=D.VOXEL_AUTO.label, **D.VOXEL_AUTO.limits(), description=D.VOXEL_AUTO.description)
+    voxel_size: FloatProperty(name=D.VOXEL_SIZE.label, **D.VOXEL_SIZE.limits(), description=D.VOXEL_SIZE.description)
+    low_alpha: FloatProperty(name=D.LOW_ALPHA.label, **D.LOW_ALPHA.limits(), update=_live("volume"),
                              description=D.LOW_ALPHA.description)
-    high_alpha: FloatProperty(name="High Alpha", **D.HIGH_ALPHA.limits(), update=_live("volume"),
+    high_alpha: FloatProperty(name=D.HIGH_ALPHA.label, **D.HIGH_ALPHA.limits(), update=_live("volume"),
                               description=D.HIGH_ALPHA.description)
-    density: FloatProperty(name="Density", **D.DENSITY.limits(), update=_live("volume"),
+    density: FloatProperty(name=D.DENSITY.label, **D.DENSITY.limits(), update=_live("volume"),
                            description=D.DENSITY.description)
-    colour_preset: EnumProperty(name="Transfer Function", items=COLOUR_ITEMS, default=D.COLOUR_PRESET.default,
+    colour_preset: EnumProperty(name=D.COLOUR_PRESET.label, items=COLOUR_ITEMS, default=D.COLOUR_PRESET.default,
                                 update=_live("volume"), description=D.COLOUR_PRESET.description)
-    alpha_mode: EnumProperty(name="Alpha Mode", items=ALPHA_MODE_ITEMS, default=D.ALPHA_MODE.default,
+    alpha_mode: EnumProperty(name=D.ALPHA_MODE.label, items=ALPHA_MODE_ITEMS, default=D.ALPHA_MODE.default,
                              update=_live("volume"))
 
     # Objects of the study

@@ -25,6 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ..pdehead_addon import defaults as D
+from . import compat
+
 VIEWS: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] = {
     # name: (direction the camera looks along, world up)
     "FRONT": ((0.0, 1.0, 0.0), (0.0, 0.0, 1.0)),
@@ -34,6 +37,7 @@ VIEWS: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] 
     "TOP": ((0.0, 0.0, -1.0), (0.0, 1.0, 0.0)),
     "THREE_QUARTER": ((0.6, 1.0, -0.35), (0.0, 0.0, 1.0)),
 }
+assert set(VIEWS) == set(D.VIEWS), "every named view (defaults.VIEWS) needs its camera direction here"
 BACKGROUND_RGB = (0.05, 0.05, 0.06)  # world colour (linear); dark so volumes' emission shows
 
 
@@ -60,14 +64,14 @@ def world_bounds(objects, tight_volumes: bool = True) -> tuple[np.ndarray, np.nd
     """
     import bpy
 
-    from . import volume
+    from . import volume, volume_material
 
     bpy.context.view_layer.update()
     pts = []
     for obj in objects:
         if obj.type == "VOLUME":
             box = volume.solid_box(obj) if tight_volumes else None
-            if box is not None and volume.get_volume_settings(obj)["alpha_mode"] == "EQ24":
+            if box is not None and volume_material.get_volume_settings(obj)["alpha_mode"] == "EQ24":
                 pts.append(np.array(box))
                 continue
             obj.data.grids.load()
@@ -191,8 +195,7 @@ def render_objects_png(objects, path, view: str = "FRONT", resolution=(160, 160)
         sun.matrix_world = _camera_matrix(k_right, np.cross(k_right, key), key, centre - key * distance)
 
         world = bpy.data.worlds.new("PDE Head render world")
-        if world.node_tree is None:
-            world.use_nodes = True
+        compat.node_tree(world)  # nodes on where Blender < 5.0 starts without
         bg = world.node_tree.nodes.get("Background")
         bg.inputs["Color"].default_value = (*BACKGROUND_RGB, 1.0)
         bg.inputs["Strength"].default_value = 1.0

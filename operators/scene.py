@@ -59,7 +59,7 @@ def _set_visible(obj, visible: bool, view_layer) -> None:
         pass
 
 
-def _study_object(coll, kind: str):
+def study_object(coll, kind: str):
     for obj in coll.objects:
         if obj.get("pdehead_kind") == kind:
             return obj
@@ -132,7 +132,7 @@ def frame_study(context, coll, show: str = "SURFACE", view: str = "FRONT", hide_
     half_y = math.atan(math.tan(half_x) / aspect)
     distance = 0.5 * depth + MARGIN * max(0.5 * width / math.tan(half_x), 0.5 * height / math.tan(half_y))
 
-    cam = _study_object(coll, CAMERA_KIND)
+    cam = study_object(coll, CAMERA_KIND)
     if cam is None:
         cam = bpy.data.objects.new(f"{coll.name} Camera", bpy.data.cameras.new(f"{coll.name} Camera"))
         cam["pdehead_kind"] = CAMERA_KIND
@@ -144,7 +144,7 @@ def frame_study(context, coll, show: str = "SURFACE", view: str = "FRONT", hide_
     cam.matrix_world = _matrix(_look_along(forward, up), centre - forward * distance)
     scene.camera = cam
 
-    light = _study_object(coll, LIGHT_KIND)
+    light = study_object(coll, LIGHT_KIND)
     if light is None:
         light = bpy.data.objects.new(f"{coll.name} Key Light", bpy.data.lights.new(f"{coll.name} Key Light", "AREA"))
         light["pdehead_kind"] = LIGHT_KIND

@@ -51,7 +51,7 @@ class StudyCache:
     stored_window: tuple | None = None  # the window of the CT table stored in the .blend (no CT needed)
     ct_table: tuple | None = None   # (table_key, SolidCTTable): the CT in the solid's (u, v, w)
     cutter_signature: tuple | None = None  # the cutter transform last applied (study.pdehead_cutter_update)
-    forensic: dict = field(default_factory=dict)  # the skull, bone mesh and depth results (forensic_study.py)
+    forensic: dict = field(default_factory=dict)  # the skull, bone mesh and depth results (forensic_skull.py)
 
     def drop_from(self, step: str) -> None:
         """Forget everything that depends on ``step`` ("ct", "seg", "bset", "head")."""
@@ -122,6 +122,11 @@ def updates_suspended() -> bool:
 def cache_for(study_id: str) -> StudyCache:
     """The (possibly empty) in-memory cache of a study."""
     return _CACHE.setdefault(study_id, StudyCache())
+
+
+def restore_cache(study_id: str, cache: StudyCache) -> None:
+    """Put back a study's cache (a snapshot's copy, see pipeline_run.StudySnapshot)."""
+    _CACHE[study_id] = cache
 
 
 def drop_cache(study_id: str | None = None) -> None:
@@ -346,7 +351,7 @@ def load_stored_ct_table(collection):
 
 def continuity(collection) -> str:
     """The study's surface continuity: the property once the user set it, else what the stored
-    boundary conditions were made for (files saved before the C2 surface: the paper's patches)."""
+    boundary conditions were made for."""
     s = settings(collection)
     if s.is_property_set("continuity"):
         return s.continuity
@@ -354,7 +359,7 @@ def continuity(collection) -> str:
     stored = bset.meta.get("pde_settings") if bset is not None else None
     if not isinstance(stored, dict):              # curves extracted in this session: today's default
         return s.continuity
-    return stored.get("continuity", "paper")
+    return stored.get("continuity", s.continuity)
 
 
 def pde_key(collection) -> tuple:

@@ -9,11 +9,11 @@ imports an operator module, so the dependency runs one way::
     ops / forensic / panel / props  ->  study  ->  state / objects / volume / cutter / scene  ->  engine
 
 The step functions (:func:`import_study`, :func:`step_segment`, ...) are plain functions on a
-study collection; the operators, :func:`live_update` and :class:`PipelineRun` share them.
+study collection; the operators, :func:`live_update` and :class:`.pipeline_run.PipelineRun` share them.
+The study's CT and its (u, v, w) table: :mod:`.study_ct`; progress: :mod:`.progress`.
 """
 from __future__ import annotations
 
-import copy
 import json
 import re
 import traceback
@@ -23,21 +23,10 @@ import bpy
 import numpy as np
 
 from ..pdehead_addon import PDEHeadError, patches_for_scan
-from . import cutter, objects, prefs, scene, state, volume
+from . import cutter, objects, prefs, scene, state, vdb_files, vdb_grids, volume, volume_material
+from .progress import step_progress
 from .state import suspended_updates
-
-#: ``hook(step, fraction, message)`` called by the long steps while a pipeline or an operator runs; it
-#: may raise :class:`~pdehead_addon.Cancelled` (Esc in Blender, Ctrl-C on the CLI). Set by the runner.
-PROGRESS_HOOK: list = [None]
-
-
-def step_progress(step: str):
-    """The engine progress callback for ``step`` (None when nobody listens)."""
-    hook = PROGRESS_HOOK[0]
-    if hook is None:
-        return None
-    return lambda fraction, message="": hook(step, fraction, message)
-
+from .study_ct import ct_table, ct_window, current_ct_table, previous_ct_table, require_ct
 
 STEP_LABELS = {
     "import": "Import CT",
@@ -48,38 +37,6 @@ STEP_LABELS = {
     "volume": "Volume",
     "scene": "Camera and light",
 }
-
-
-# ------------------------------------------------------------------------------------------
-# Undo of a failed/cancelled step: remove every datablock created since the snapshot
-
-
-_ROLLBACK_KINDS = ("objects", "collections", "meshes", "curves", "volumes", "materials", "node_groups",
-                   "images", "texts", "cameras", "lights")
-
-
-class Rollback:
-    """Snapshot of the datablocks; :meth:`undo` removes all created after it."""
-
-    def __init__(self):
-        self.before = {kind: {id_.as_pointer() for id_ in getattr(bpy.data, kind)} for kind in _ROLLBACK_KINDS}
-        self.study_ids = set(state.cached_study_ids())
-
-    def created(self, kind: str) -> list:
-        return [id_ for id_ in getattr(bpy.data, kind) if id_.as_pointer() not in self.before[kind]]
-
-    def undo(self) -> None:
-        for coll in self.created("collections"):
-            if state.is_study(coll):
-                state.drop_cache(state.settings(coll).study_id)
-        for kind in _ROLLBACK_KINDS:  # objects first, then their data
-            for id_ in self.created(kind):
-                try:
-                    getattr(bpy.data, kind).remove(id_)
-                except (ReferenceError, RuntimeError):
-                    pass
-        for study_id in set(state.cached_study_ids()) - self.study_ids:
-            state.drop_cache(study_id)
 
 
 # ------------------------------------------------------------------------------------------
@@ -119,132 +76,6 @@ def default_controls(collection) -> tuple[float, float]:
             f = np.where(m > 0, d / m, 0.0)
         return float(np.clip(np.mean(f), 0.0, 1.0))
     return fraction(ranges["smoothing"]), fraction(ranges["approximation_mm"])
-
-
-def require_ct(collection):
-    """The study's CT volume from memory, else re-read from its recorded source (:func:`reload_ct`).
-
-    Raises a :class:`PDEHeadError` that names the missing source when it cannot be re-read,
-    so a step that needs the CT (solid colours, volume, segmentation) never runs without it.
-    """
-    s = state.settings(collection)
-    ct = state.cache_for(s.study_id).ct
-    if ct is None:
-        ct = reload_ct(collection)
-    return ct
-
-
-def reload_ct(collection):
-    """Load the CT again from the recorded source (phantom or path + the recorded loader options).
-
-    The re-read CT must have the recorded dimensions; a different CT at that path is refused
-    (its colours would not belong to this study's head).
-    """
-    s = state.settings(collection)
-    cache = state.cache_for(s.study_id)
-    if s.source_kind == "PHANTOM":
-        from ..pdehead_addon import make_phantom
-        ct = make_phantom().ct
-    elif s.source_kind == "FILES":
-        path = state.resolve_source(collection)
-        if path is None:
-            raise PDEHeadError(state.source_missing_message(collection))
-        from ..pdehead_addon import load_ct
-        options = json.loads(s.load_options or "{}")
-        for key in ("shape", "spacing", "resample_spacing"):
-            if isinstance(options.get(key), list):
-                options[key] = tuple(options[key])
-        ct = load_ct(path, **options)
-    else:
-        raise PDEHeadError(f"study '{collection.name}': the CT is not in memory and has no source to reload")
-    nz, ny, nx = ct.shape
-    expected = tuple(int(n) for n in s.dimensions)
-    if any(expected) and (nx, ny, nz) != expected:
-        raise PDEHeadError(f"study '{collection.name}': the CT re-read from {s.source or 'the phantom'} has "
-                           f"{nx} x {ny} x {nz} voxels, the study was built from {' x '.join(map(str, expected))}; "
-                           "refusing to mix them (point Source at the original CT)")
-    cache.ct = ct
-    cache.window = None
-    cache.ct_table = None
-    return ct
-
-
-def current_ct_table(collection):
-    """The solid's CT table for the study's current PDE solution, from memory or from the .blend, or None.
-
-    A table saved in the .blend (:func:`store_ct_table_for_save`) is used when it was tabulated
-    for the same curves and controls: a reopened file, or one sent without its CT, keeps live
-    cutaways and nw without reading the CT. Its window becomes the study's window when none is known.
-    """
-    cache = state.cache_for(state.settings(collection).study_id)
-    key = state.table_key(collection)
-    if cache.ct_table is not None and cache.ct_table[0] == key:
-        return cache.ct_table[1]
-    if state.stored_ct_table_key(collection) == key:
-        stored = state.load_stored_ct_table(collection)
-        if stored is not None:
-            cache.ct_table = (key, stored[1])
-            if cache.window is None:
-                cache.window = stored[2]
-            cache.stored_window = stored[2]
-            return stored[1]
-    return None
-
-
-def previous_ct_table(collection):
-    """``(table, window)`` of an earlier PDE solution of this study (memory, else the .blend), or None.
-
-    Looked up in (u, v, w), it gives the new solid nearly the right colours at once (the
-    parameterisation moves little with a control); :func:`refresh_solid_colours` replaces them.
-    """
-    cache = state.cache_for(state.settings(collection).study_id)
-    if cache.ct_table is not None:
-        window = cache.window or cache.stored_window
-        if window is not None:
-            return cache.ct_table[1], window
-    stored = state.load_stored_ct_table(collection)
-    if stored is not None:
-        cache.stored_window = stored[2]
-        return stored[1], (cache.window or stored[2])
-    return None
-
-
-def ct_table(collection, head, ct):
-    """The CT tabulated in the solid's (u, v, w) for this PDE solution (built once, ~0.5-1.3 s on CThead).
-
-    Kept until the PDE is re-solved with other controls or curves, or the CT is re-read, so
-    cutaway and resolution sliders only look values up.
-    """
-    table = current_ct_table(collection)
-    if table is None:
-        from ..pdehead_addon.solid_ct_table import SolidCTTable
-        table = SolidCTTable(head, ct, progress=step_progress("solid"))
-        state.cache_for(state.settings(collection).study_id).ct_table = (state.table_key(collection), table)
-    return table
-
-
-def store_ct_table_for_save(collection) -> int:
-    """Put the current CT table into the .blend unless it is there already (save_pre); returns bytes written."""
-    s = state.settings(collection)
-    if s.solid_object is None:
-        return 0
-    cache = state.cache_for(s.study_id)
-    key = state.table_key(collection)
-    if cache.ct_table is None or cache.ct_table[0] != key or state.stored_ct_table_key(collection) == key:
-        return 0
-    window = cache.window or cache.stored_window
-    if window is None:
-        return 0
-    return state.store_ct_table(collection, key, cache.ct_table[1], window)
-
-
-def ct_window(collection, ct=None) -> tuple[float, float]:
-    """The study's CT intensity window (:func:`ct_volume.intensity_window`), computed once per CT."""
-    cache = state.cache_for(state.settings(collection).study_id)
-    if cache.window is None:
-        from ..pdehead_addon.ct_volume import intensity_window
-        cache.window = intensity_window(ct if ct is not None else require_ct(collection))
-    return cache.window
 
 
 # ------------------------------------------------------------------------------------------
@@ -594,7 +425,7 @@ def step_volume(coll, context=None) -> None:
     ct = require_ct(coll)
     window = ct_window(coll, ct)
     if not s.use_ct_grid and s.voxel_auto:
-        size = volume.auto_voxel_size(ct, head)
+        size = vdb_grids.auto_voxel_size(ct, head)
         with suspended_updates():
             s.voxel_size = size
     with state.Timer() as t:
@@ -603,7 +434,7 @@ def step_volume(coll, context=None) -> None:
     state.record_timing(coll, "w_field", t.seconds)
     cache.wfield = wfield
     with state.Timer() as t:
-        vdb_path = volume.vdb_path_for(coll.name, bpy.data.filepath or None, prefs.vdb_prefs_folder(context))
+        vdb_path = vdb_files.vdb_path_for(coll.name, bpy.data.filepath or None, prefs.vdb_prefs_folder(context))
         s.volume_object = volume.build_volume(wfield, coll, vdb_path, name=f"{coll.name} Volume",
                                               obj=s.volume_object, ct=ct, window=window, **volume_settings(s))
         s.volume_stale = False
@@ -647,7 +478,7 @@ def live_update(coll, what: str, context=None) -> None:
                 apply_cutter(coll)
         elif what == "volume":
             if s.volume_object is not None:
-                volume.set_volume_settings(s.volume_object, **volume_settings(s))
+                volume_material.set_volume_settings(s.volume_object, **volume_settings(s))
         else:
             if what == "pde" and s.volume_object is not None:
                 s.volume_stale = True  # the w-field follows the PDE; rebuilt on request (heavy)
@@ -732,145 +563,6 @@ def pdehead_cutter_update(_scene, depsgraph=None) -> None:
 # The one-click pipeline and removing a study
 
 
-class StudySnapshot:
-    """A study's settings, stored curves and in-memory results before a run, to put back on cancel.
-
-    Objects the run created are removed by :class:`Rollback`; objects it rebuilt in place
-    (curves, surface, solid) are rebuilt again from the restored state.
-    """
-
-    def __init__(self, coll):
-        s = state.settings(coll)
-        self.collection_name = coll.name
-        self.study_id = s.study_id
-        self.values = {}
-        for prop in s.bl_rna.properties:
-            if prop.identifier == "rna_type" or prop.is_readonly or prop.type in ("POINTER", "COLLECTION"):
-                continue
-            value = getattr(s, prop.identifier)
-            self.values[prop.identifier] = tuple(value) if getattr(prop, "is_array", False) else value
-        self.boundaries = coll.get(state.BOUNDARY_KEY)
-        self.cache = copy.copy(state.cache_for(s.study_id))
-
-    def restore(self, rebuilt: set) -> None:
-        coll = bpy.data.collections.get(self.collection_name)
-        if coll is None:
-            return
-        s = state.settings(coll)
-        with suspended_updates():
-            for name, value in self.values.items():
-                now = getattr(s, name)
-                if (tuple(now) if isinstance(value, tuple) else now) == value:
-                    continue  # unchanged: not even marked as set (continuity, smoothing read is_property_set)
-                try:
-                    setattr(s, name, value)
-                except (AttributeError, TypeError, ValueError):
-                    pass
-        if self.boundaries is None:
-            coll.pop(state.BOUNDARY_KEY, None)
-        else:
-            coll[state.BOUNDARY_KEY] = self.boundaries
-        state._CACHE[self.study_id] = copy.copy(self.cache)
-        if "boundaries" in rebuilt and s.curves_object is not None and state.boundary_set(coll) is not None:
-            objects.build_boundary_curves(state.boundary_set(coll), coll, name=s.curves_object.name,
-                                          obj=s.curves_object)
-        if rebuilt & {"boundaries", "surface"} and s.surface_object is not None:
-            step_surface(coll)
-        if rebuilt & {"boundaries", "surface", "solid"} and s.solid_object is not None:
-            step_solid(coll)
-
-
-class PipelineRun:
-    """One run of the pipeline, step by step; :meth:`cancel` removes everything it created.
-
-    Parameters
-    ----------
-    context : bpy.types.Context
-    source : "ACTIVE" | "PHANTOM" | "FILES"
-    path, options : the input and loader options when ``source == "FILES"``
-    settings : study settings to apply before running (patches, nu, ...)
-    study : collection name of the study for "ACTIVE" ("" = active)
-    volume : also build the volume
-    """
-
-    def __init__(self, context, source: str, path: Path | None = None, options: dict | None = None,
-                 settings: dict | None = None, study: str = "", volume: bool = True):
-        self.context = context
-        self.source = source
-        self.path, self.options = path, options or {}
-        self.settings = settings or {}
-        self.study_name = study
-        self.collection_name: str | None = None
-        self.steps = (["import"] if source in ("PHANTOM", "FILES") else []) + \
-            ["segment", "boundaries", "surface", "solid"] + (["volume"] if volume else []) + ["scene"]
-        self.index = 0
-        self.started: set[str] = set()
-        self.rollback = Rollback()
-        if source == "ACTIVE":
-            coll = state.active_study(context, study)
-            if coll is None:
-                raise PDEHeadError("No PDE Head study to run on: import a CT or load the phantom first")
-            self.snapshot = StudySnapshot(coll)
-            self.collection_name = coll.name
-            self._apply_settings(coll)
-            state.settings(coll).timings_json = ""
-
-    snapshot: StudySnapshot | None = None
-
-    @property
-    def collection(self):
-        return bpy.data.collections.get(self.collection_name) if self.collection_name else None
-
-    @property
-    def done(self) -> bool:
-        return self.index >= len(self.steps)
-
-    @property
-    def next_label(self) -> str:
-        return STEP_LABELS[self.steps[self.index]] if not self.done else "done"
-
-    def _apply_settings(self, coll) -> None:
-        s = state.settings(coll)
-        with suspended_updates():
-            for name, value in self.settings.items():
-                setattr(s, name, value)
-
-    def step(self) -> bool:
-        """Run the next step; True when the pipeline is complete."""
-        name = self.steps[self.index]
-        self.started.add(name)
-        if name == "import":
-            if self.source == "PHANTOM":
-                coll = phantom_study(self.context)
-            else:
-                coll = import_study(self.context, self.path, self.options)
-            self.collection_name = coll.name
-            self._apply_settings(coll)
-        elif name == "volume":
-            step_volume(self.collection, self.context)
-        elif name == "scene":
-            coll = self.collection
-            # a new study, or one never framed: camera, light, the surface shown, the startup cube hidden
-            if self.source != "ACTIVE" or scene._study_object(coll, scene.CAMERA_KIND) is None:
-                scene.frame_study(self.context, coll)
-        else:
-            STEP_FUNCTIONS[name](self.collection)
-        self.index += 1
-        return self.done
-
-    def run_all(self) -> None:
-        while not self.done:
-            self.step()
-
-    def cancel(self) -> None:
-        """Remove every object, collection and datablock this run created; a study the run worked on
-        gets its settings, curves and meshes back as they were before the run."""
-        self.rollback.undo()
-        if self.snapshot is not None:
-            self.snapshot.restore(self.started)
-        self.index = len(self.steps)
-
-
 def remove_study(coll) -> None:
     """Delete a study's objects, data and collection; a scene left without a camera (or active study)
     falls back to another study's."""
@@ -900,7 +592,7 @@ def _fall_back_to_other_studies() -> None:
             sc.pdehead.active_study = others[0]
         if sc.camera is None:
             order = [sc.pdehead.active_study] + [c for c in others if c != sc.pdehead.active_study]
-            sc.camera = next((cam for cam in (scene._study_object(c, scene.CAMERA_KIND) for c in order)
+            sc.camera = next((cam for cam in (scene.study_object(c, scene.CAMERA_KIND) for c in order)
                               if cam is not None), None)
 
 

@@ -42,6 +42,8 @@ class Param:
         One sentence for tooltips and ``--help``.
     choices : tuple of str
         The allowed values of an enumeration.
+    label : str
+        The property's name in Blender (sidebar, operator options), the same wherever it is shown.
     """
 
     name: str
@@ -53,6 +55,7 @@ class Param:
     unit: str = ""
     description: str = ""
     choices: tuple = ()
+    label: str = ""
 
     def limits(self) -> dict:
         """Keyword arguments ``default``, ``min``, ``max`` (and ``soft_min``/``soft_max``) for a
@@ -102,28 +105,30 @@ def default(name: str):
 
 # ----------------------------------------------------------------------------- boundaries (eq. 22)
 PATCHES = _param("patches", 10, min=1, max=60,
-                 description="Number t of PDE patches; 3t+1 boundary curves are extracted")
-SAMPLES = _param("samples", 256, min=16, max=4096, description="Points per boundary curve")
+                 description="Number t of PDE patches; 3t+1 boundary curves are extracted", label="Patches (t)")
+SAMPLES = _param("samples", 256, min=16, max=4096, description="Points per boundary curve", label="Samples (M)")
 #: The paper's uniform choice loses the nose and lips at t = 10 with the paper's patches (the
 #: interpolation between four curves folds where the face changes fast); shape-change keeps them;
 #: auto (issue 14, the default) chooses the curves whose surface is closest to every slice's outline:
 #: closer than both to the outlines and to marching cubes on the phantom, CThead and GE at every t
 #: measured but one (GE t = 4), for about a second more (docs/benchmarks.md, section selection).
 SELECTION = _param("selection", "auto", choices=("uniform", "shape-change", "auto"),
-                   description="How the 3t+1 slices are chosen")
+                   description="How the 3t+1 slices are chosen", label="Selection")
 #: A tolerance instead of t (issue 14): the fewest curves whose surface keeps within it of every
 #: usable slice's outline (chosen or not), verified on the real surface.
 USE_TOLERANCE = _param("use_tolerance", False,
-                       description="Choose the number of curves for a tolerance instead of t (automatic selection)")
+                       description="Choose the number of curves for a tolerance instead of t (automatic selection)",
+                       label="Tolerance Instead of t")
 TOLERANCE_MM = _param("tolerance_mm", 0.5, min=0.0, max=20.0, soft_max=3.0, unit="mm",
                       description="Largest mean distance (mm) of the surface from every slice's outline; "
-                                  "0 = no mean bound (then Max Tolerance)")
+                                  "0 = no mean bound (then Max Tolerance)", label="Mean Tolerance")
 MAX_TOLERANCE_MM = _param("max_tolerance_mm", 0.0, min=0.0, max=100.0, soft_max=10.0, unit="mm",
-                          description="Largest distance (mm) of the surface from any slice's outline; 0 = no bound")
+                          description="Largest distance (mm) of the surface from any slice's outline; 0 = no bound",
+                          label="Max Tolerance")
 ALIGN_CURVES = _param("align_curves", True,
                       description="Sample every curve at the same directions from a smooth spine, so that "
                                   "equal v joins corresponding points (no folds or cheek ripples); off: "
-                                  "samples evenly spaced along each curve")
+                                  "samples evenly spaced along each curve", label="Align Curves")
 
 # ----------------------------------------------------------------------------- surface (eq. 1-13)
 #: Fine enough that a nose (~30 mm wide) gets ~10 samples around v and the lips several along u;
@@ -131,80 +136,84 @@ ALIGN_CURVES = _param("align_curves", True,
 #: The maxima are what a live change can afford (issue 20: <= 2 s and 2 GB per change): 400 x 800 with
 #: nw = 6 rebuilt the CThead surface and solid in 1.9 s CPU at 0.73 GB peak (2000 x 2000 took 30 s, 5.2 GB).
 NU = _param("nu", 120, min=4, max=400,
-            description="Resolution along the head axis (u); rebuilds the meshes at once")
+            description="Resolution along the head axis (u); rebuilds the meshes at once", label="nu")
 NV = _param("nv", 240, min=4, max=800,
-            description="Resolution around the head (v); rebuilds the meshes at once")
-CAPS = _param("caps", True, description="Close the top and bottom of the surface")
+            description="Resolution around the head (v); rebuilds the meshes at once", label="nv")
+CAPS = _param("caps", True, description="Close the top and bottom of the surface", label="Caps")
 CONTINUITY = _param("continuity", "c2", choices=("c2", "paper"),
                     description="Smooth: one Bloor-Wilson span between consecutive curves, C2 across every "
                                 "curve (default). Paper: t patches through four curves each (eq. 3-6), "
-                                "creased at the joints")
+                                "creased at the joints", label="Continuity")
 DOME = _param("dome", True, description="Close the crown with a round dome through the vertex above the top "
-                                        "curve (Smooth continuity)")
+                                        "curve (Smooth continuity)", label="Dome")
 SMOOTHING_AUTO = _param("smoothing_auto", True,
-                        description="Let the solver choose the smoothing parameter a of eq. 1")
+                        description="Let the solver choose the smoothing parameter a of eq. 1", label="Auto Smoothing")
 SMOOTHING = _param("smoothing", 0.0, min=0.0, max=1.0,
                    description="Smoothing parameter a of eq. 1 as a fraction of this study's maximum (Smooth: "
                                "the isotropic height/radius ratio; Paper: the largest stable a of each patch). "
-                               "Every value solves")
+                               "Every value solves", label="Smoothing (a)")
 APPROXIMATION_AUTO = _param("approximation_auto", True,
                             description="Smooth along the head axis by the solver's default length (one slice "
-                                        "step of the scan, at most half a curve gap)")
+                                        "step of the scan, at most half a curve gap)", label="Auto Approximation")
 APPROXIMATION = _param("approximation", 0.0, min=0.0, max=1.0,
                        description="Approximating mode: how strongly the surface may leave the curves to smooth "
                                    "slice steps and streaks (0 = through every curve; 1 = a smoothing length of "
-                                   "1.5 curve gaps). Smooth continuity only")
+                                   "1.5 curve gaps). Smooth continuity only", label="Smooth Along Axis")
 MODES = _param("modes", 0, min=0, max=512,
                description="Harmonics kept around each ring (0 = all: the surface passes through the curves; "
-                           "fewer: eq. 13's truncated series, a simpler head)")
+                           "fewer: eq. 13's truncated series, a simpler head)", label="Fourier Modes")
 
 # ----------------------------------------------------------------------------- solid (eq. 23), cutaway
-NW = _param("nw", 5, min=2, max=200, description="w levels from the spine (0) to the surface (1), eq. 23")
-U_RANGE = _param("u_range", (0.0, 1.0), min=0.0, max=1.0, description="Cutaway: u interval of the solid")
+NW = _param("nw", 5, min=2, max=200, description="w levels from the spine (0) to the surface (1), eq. 23", label="nw")
+U_RANGE = _param("u_range", (0.0, 1.0), min=0.0, max=1.0, description="Cutaway: u interval of the solid",
+                 label="u Range")
 V_RANGE = _param("v_range", (0.0, 2 * math.pi), min=-2 * math.pi, max=4 * math.pi, soft_min=0.0,
                  soft_max=2 * math.pi, unit="rad",
                  description="Cutaway: the angle interval around the head (v) the solid keeps, shown in "
-                             "degrees; may wrap past 360 (at most one turn)")
-W_RANGE = _param("w_range", (0.0, 1.0), min=0.0, max=1.0, description="Cutaway: w interval of the solid")
+                             "degrees; may wrap past 360 (at most one turn)", label="v Range")
+W_RANGE = _param("w_range", (0.0, 1.0), min=0.0, max=1.0, description="Cutaway: w interval of the solid",
+                 label="w Range")
 #: Issue 21: the solid's CT atlas. Its cut faces get tiles sized from their own extent in mm (about one
 #: texel per finest CT voxel) within this many pixels; the outside shows the skin (the surface's material)
 #: unless ``solid_skin`` is "ct" (the CT ``solid_skin_depth`` mm inside the skin: the skin itself is a
 #: partial-volume mix of air and tissue, mottled or banded).
 CT_TEXTURE_BUDGET = _param("ct_texture_budget", 4.0, min=0.25, max=64.0, unit="megapixels",
                            description="Pixels of the solid's CT texture: its cut faces at up to one texel per CT "
-                                       "voxel within this budget")
+                                       "voxel within this budget", label="CT Texture (MP)")
 SOLID_SKIN = _param("solid_skin", "surface", choices=("surface", "ct"),
                     description="What the solid's outside shows: the surface's skin material, or the CT a little "
-                                "inside the skin")
+                                "inside the skin", label="Outside")
 SOLID_SKIN_DEPTH = _param("solid_skin_depth", 2.0, min=0.0, max=20.0, unit="mm",
-                          description="With solid_skin 'ct': how far inside the skin the CT is sampled")
+                          description="With solid_skin 'ct': how far inside the skin the CT is sampled",
+                          label="Skin Depth (mm)")
 USE_CUTTER = _param("use_cutter", False,
                     description="The study's cutter box (an empty you move, rotate and scale) sets the u and v "
-                                "ranges: the solid is cut away where the box is")
+                                "ranges: the solid is cut away where the box is", label="Use Cutter")
 
 # ----------------------------------------------------------------------------- volume (eq. 24)
-USE_CT_GRID = _param("use_ct_grid", False, description="Sample the w-field on the CT's own voxel grid")
+USE_CT_GRID = _param("use_ct_grid", False, description="Sample the w-field on the CT's own voxel grid", label="CT Grid")
 VOXEL_AUTO = _param("voxel_auto", True,
                     description="Voxel size from the CT spacing, coarsened only as far as needed to keep the .vdb "
-                                "small and the w-field fast (see volume.auto_voxel_size)")
+                                "small and the w-field fast (see volume.auto_voxel_size)", label="Auto Voxel Size")
 VOXEL_SIZE = _param("voxel_size", 2.0, min=0.25, max=20.0, unit="mm",
                     description="Voxel size in mm of the volume grid (when CT Grid and Auto are off; with Auto "
-                                "on, the size the last build used)")
+                                "on, the size the last build used)", label="Voxel Size")
 LOW_ALPHA = _param("low_alpha", 0.1, min=0.0, max=1.0,          # section 5.3: alpha in [0.1, 0.9]
-                   description="l_alpha of eq. 24: opacity at the surface (w = 1)")
+                   description="l_alpha of eq. 24: opacity at the surface (w = 1)", label="Low Alpha")
 HIGH_ALPHA = _param("high_alpha", 0.9, min=0.0, max=1.0,
-                    description="h_alpha of eq. 24: opacity at the spine (w = 0)")
+                    description="h_alpha of eq. 24: opacity at the spine (w = 0)", label="High Alpha")
 #: Cycles extinction per metre at alpha = 1: a ~0.2 m head is translucent, the face still readable.
 DENSITY = _param("density", 40.0, min=0.0, max=10000.0, unit="1/m",
-                 description="Volume density scale (per metre)")
+                 description="Volume density scale (per metre)", label="Density")
 #: Emission per unit density: the alpha-blended texture look of the paper.
 EMISSION = _param("emission", 0.7, min=0.0, description="Volume emission per unit density")
 COLOUR_PRESET = _param("colour_preset", "grayscale", choices=("grayscale", "skin", "bone", "xray"),
                        description="Preset of the volume's colour ramp (colour and opacity over the CT "
-                                   "intensity); the ramp itself is editable in the material")
+                                   "intensity); the ramp itself is editable in the material", label="Transfer Function")
 ALPHA_MODE = _param("alpha_mode", "EQ24", choices=("EQ24", "INTENSITY"),
-                    description="Opacity from eq. 24's w, or from the CT intensity (the paper's baseline)")
-#: The budget of the automatic voxel size (:func:`ct_volume.auto_voxel_size`): the .vdb stays below
+                    description="Opacity from eq. 24's w, or from the CT intensity (the paper's baseline)",
+                    label="Alpha Mode")
+#: The budget of the automatic voxel size (operators/vdb_grids.auto_voxel_size): the .vdb stays below
 #: this many bytes (issue 10: small files beside the .blend) ...
 MAX_VDB_BYTES = _param("max_vdb_bytes", 64 * 2 ** 20, min=1, unit="bytes",
                        description="Largest .vdb the automatic voxel size allows")
@@ -215,7 +224,7 @@ MAX_WFIELD_VOXELS = _param("max_wfield_voxels", 5_000_000, min=1,
 # ----------------------------------------------------------------------------- import
 DOWNSAMPLE = _param("downsample", 1, min=1, max=8,
                     description="Average blocks of N x N x N voxels on import (for very large scans: 2 needs "
-                                "about 1/8 of the memory)")
+                                "about 1/8 of the memory)", label="Downsample")
 #: Headerless stacks (raw slices, numbered images): where the first file lies. "auto" (the default of the
 #: engine's ``load_ct``, the import dialog's First Slice and the CLI's ``--first-slice``): the first file is
 #: inferior (orientation LPS: row 0 anterior, column 0 the patient's right, later files superior) unless the
@@ -229,7 +238,19 @@ FIRST_SLICE_CHOICES = ("auto", "superior", "inferior")
 # ----------------------------------------------------------------------------- animation (issue 19)
 #: 120 frames: a 5-second orbit at 24 fps, each frame 3 degrees on.
 TURNTABLE_FRAMES = _param("turntable_frames", 120, min=2, max=10000,
-                          description="Frames of one camera orbit around the study (the scene's frame range)")
+                          description="Frames of one camera orbit around the study (the scene's frame range)",
+                          label="Frames")
+
+# ----------------------------------------------------------------------------- views
+#: The named views of renders, Frame Study and the CLI's ``--view``: name -> (label, description). Each view's
+#: camera direction is in operators/render.py (``VIEWS``); Frame Study offers all but TOP.
+VIEWS = {"FRONT": ("Front", "The face (Blender's front view)"),
+         "RIGHT": ("Right", "The patient's right side"),
+         "LEFT": ("Left", "The patient's left side"),
+         "BACK": ("Back", "The back of the head"),
+         "TOP": ("Top", "From above (Blender's top view)"),
+         "THREE_QUARTER": ("Three Quarter", "From front right, above")}
+VIEW = _param("view", "FRONT", choices=tuple(VIEWS), description="The view to render or frame")
 
 # ----------------------------------------------------------------------------- forensic (issue 22)
 #: The bone level in the scan's stored units (HU where calibrated). Off: the documented rule of
@@ -237,10 +258,10 @@ TURNTABLE_FRAMES = _param("turntable_frames", 120, min=2, max=10000,
 #: 400 HU without them; uncalibrated scans without soft tissue: half way between the air and bone modes).
 USE_BONE_LEVEL = _param("use_bone_level", False,
                         description="Set the bone level yourself (in the scan's stored units); off: the "
-                                    "documented automatic level")
+                                    "documented automatic level", label="Set Bone Level")
 BONE_LEVEL = _param("bone_level", 400.0, min=-5000.0, max=100000.0,
                     description="Bone level in the scan's stored units (HU where calibrated): from this level "
-                                "on, the skull is the bone mask alone")
+                                "on, the skull is the bone mask alone", label="Bone Level")
 
 # ----------------------------------------------------------------------------- face from skull (issue 23)
 #: The label every face-from-skull output carries (mesh names, file headers, provenance).

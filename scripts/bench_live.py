@@ -373,7 +373,7 @@ def bench_face_dataset(name: str, repeats: int) -> dict:
     coll, steps = _face_study(name)
     obj = face.face_object(coll)
     names = face.face_options(coll)["pegs"]
-    pegs = face._peg_objects(coll, names)
+    pegs = face.peg_objects(coll, names)
     out = {"steps_s": steps, "face_vertices": len(obj.data.vertices), "pegs": len(names),
            "prepare_s": state.cache_for(coll.pdehead.study_id).forensic.get("face_prepare_s"), "rows": []}
 
@@ -443,7 +443,7 @@ def bench_face_dataset(name: str, repeats: int) -> dict:
     bpy.ops.wm.open_mainfile(filepath=str(blend))
     coll = bpy.context.scene.pdehead.active_study
     obj = face.face_object(coll)
-    pegs = face._peg_objects(coll, names)
+    pegs = face.peg_objects(coll, names)
     prepared = face.PREPARE_CALLS[0]
     out["first_drag_after_reopen_s"], out["first_drag_after_reopen_cpu_s"] = _timed_update(drag(0))
     fcache = state.cache_for(coll.pdehead.study_id).forensic

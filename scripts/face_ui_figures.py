@@ -53,7 +53,7 @@ def main(argv=None) -> int:
     obj = face.face_object(coll)
     bone = coll["pdehead_bone_object"]
     names = face.face_options(coll)["pegs"]
-    pegs = face._peg_objects(coll, names)
+    pegs = face.peg_objects(coll, names)
     for o in list(coll.all_objects):                # only what the pictures show (a list: hide_render
         # rebuilds the collection's object cache while it would be iterated)
         if o not in (obj, bone, *pegs.values()):

@@ -54,7 +54,7 @@ def main() -> int:
 
     import bpy
     addon = pdehead.register_addon()
-    forensic = addon.operators.forensic_study
+    skull = addon.operators.forensic_skull
     render = addon.operators.render
     bpy.ops.wm.read_homefile(use_empty=True)
     bpy.ops.pdehead.import_ct(**_common.addon_import_options("cthead"))
@@ -73,10 +73,10 @@ def main() -> int:
         path = tmp / f"depth_{view}.png"
         render.render_objects_png([skin], path, view=view, resolution=(300, 300), samples=16)
         views.append(Image.open(path).convert("RGB"))
-    mat = bpy.data.materials[forensic.DEPTH_MATERIAL]
+    mat = bpy.data.materials[skull.DEPTH_MATERIAL]
     els = mat.node_tree.nodes["Depth legend"].color_ramp.elements
     ramp = [(e.position, tuple(e.color)[:3]) for e in els]
-    bar = colour_bar(300, 80, forensic.DEPTH_DISPLAY_MAX_MM, ramp)
+    bar = colour_bar(300, 80, skull.DEPTH_DISPLAY_MAX_MM, ramp)
     fig = Image.new("RGB", (680, 300), (255, 255, 255))
     fig.paste(views[0], (0, 0))
     fig.paste(views[1], (300, 0))
@@ -84,9 +84,9 @@ def main() -> int:
     fig.quantize(256, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE).save(OUT / "forensic_depth_map.png", optimize=True)
 
     # landmarks from the bone mesh's geometry (patient mm), then pegs with the measured depths
-    bone = forensic.skull_engine_mesh(coll, "BONE")
+    bone = skull.skull_engine_mesh(coll, "BONE")
     v = bone.vertices
-    skin_v = forensic.skin_engine_mesh(coll).vertices
+    skin_v = skull.skin_engine_mesh(coll).vertices
     xc = 0.5 * (skin_v[:, 0].min() + skin_v[:, 0].max())
     tip_z = skin_v[np.argmin(skin_v[:, 1]), 2]
 

@@ -9,7 +9,7 @@ Regenerate all (a few minutes on 2 cores)::
 
 3-D figures go through the add-on's own Blender layer, loaded from this repository by
 the dev shim (``scripts/_common.py``, ``load_addon``): ``operators/objects.py`` (boundary curves, surface
-and solid meshes), ``operators/volume.py`` (the w-field .vdb and the eq. 24 material) and
+and solid meshes), ``operators/volume.py`` (the w-field .vdb; its eq. 24 material: ``volume_material.py``) and
 ``operators/render.py`` (``render_objects_png``: Cycles on the CPU; EEVEE and Workbench
 render blank without a GPU). 2-D figures (slices, the Jaccard plot, colour bars) are drawn
 with numpy + PIL. Views follow Blender's: FRONT looks along +Y at the face with the
@@ -174,6 +174,7 @@ class Blender:
         self.bl = bench.blender()
         self.bpy = self.bl["bpy"]
         self.objects, self.volume, self.render = self.bl["objects"], self.bl["volume"], self.bl["render"]
+        self.volume_material = self.bl["volume_material"]
         self.samples = samples
         self.tmp = Path(tempfile.mkdtemp(prefix="pdehead-figs-"))
         self.n = 0
@@ -453,7 +454,7 @@ def fig15(data: Data, bl: Blender, args) -> list[Path]:
     for mode, view, name in (("INTENSITY", "FRONT", "(a) intuitive: alpha = intensity"),
                              ("EQ24", "FRONT", "(b) eq. 24, front"),
                              ("EQ24", "RIGHT", "(c) eq. 24, side")):
-        bl.volume.set_volume_settings(vol, alpha_mode=mode, low_alpha=0.1, high_alpha=0.9)
+        bl.volume_material.set_volume_settings(vol, alpha_mode=mode, low_alpha=0.1, high_alpha=0.9)
         tiles.append(label(bl.png([vol], view, (160, 190), samples=args.volume_samples), name, 10,
                            colour=(255, 255, 255), box=None))
     out = title_bar(grid(tiles, 3, bg=(0, 0, 0)), "Fig. 15  CThead volume (Cycles): the paper's intuitive texture\n"

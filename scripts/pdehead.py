@@ -82,7 +82,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="render the volume (front view) to this .png or .jpg")
     p.add_argument("--summary-json", type=Path, metavar="FILE",
                    help="also write the summary (study, counts, timings, warnings, outputs) as JSON to FILE")
-    p.add_argument("--view", default="FRONT", choices=["FRONT", "RIGHT", "LEFT", "BACK", "TOP", "THREE_QUARTER"],
+    p.add_argument("--view", default=D.VIEW.default, choices=list(D.VIEWS),
                    help="render view; default FRONT (face, patient left on screen right)")
     p.add_argument("--resolution", type=int, default=320, help="render size in pixels; default 320")
     f = p.add_argument_group("forensic")
@@ -277,7 +277,7 @@ def _on_sigint(_signum, _frame):
 class Progress:
     """The engine's progress on stderr: a bar redrawn in place on a terminal, plain lines when piped.
 
-    Installed as the add-on's progress hook (``study.PROGRESS_HOOK``); raises the engine's
+    Installed as the add-on's progress hook (``progress.PROGRESS_HOOK``); raises the engine's
     ``Cancelled`` after Ctrl-C so the running step stops at its next report.
     """
 
@@ -493,7 +493,7 @@ def run(args) -> dict:
     bpy.ops.wm.read_homefile(use_empty=True)
     bpy.context.preferences.filepaths.save_version = 0  # no .blend1 backups (temporary user folder)
     progress = Progress()
-    addon.operators.study.PROGRESS_HOOK[0] = progress
+    addon.operators.progress.PROGRESS_HOOK[0] = progress
     outputs = _outputs(args)
     before = _snapshot(outputs)
     try:
@@ -503,7 +503,7 @@ def run(args) -> dict:
         raise Interrupted() from None
     finally:
         progress.end()
-        addon.operators.study.PROGRESS_HOOK[0] = None
+        addon.operators.progress.PROGRESS_HOOK[0] = None
 
 
 def _run(args, bpy, addon, state) -> dict:
@@ -658,7 +658,7 @@ def _face_from_skull(addon, coll):
     ff = import_module(addon.__name__ + ".pdehead_addon.face_from_skull")
     fs = addon.operators.forensic_study
     try:
-        model = ff.FaceModel.prepare(fs.skull_engine_mesh(coll, "BONE"), fs.landmarks(coll), fs.study_depth_table(coll),
+        model = ff.FaceModel.prepare(addon.operators.forensic_skull.skull_engine_mesh(coll, "BONE"), fs.landmarks(coll), fs.study_depth_table(coll),
                                      flags=fs.flag_names(coll))
         res = model.solve()
     except addon.pdehead_addon.PDEHeadError as exc:

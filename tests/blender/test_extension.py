@@ -129,8 +129,8 @@ def test_every_setting_operator_option_and_preference_reads_the_defaults_table(p
         assert check(rna, op) >= at_least, op
     prefs = bpy.context.preferences.addons[name].preferences.bl_rna.properties["default_patches"]
     assert (prefs.default, prefs.hard_min, prefs.hard_max) == (D.PATCHES.default, D.PATCHES.min, D.PATCHES.max)
-    volume = sys.modules[name + ".operators.volume"]
-    group = volume.ensure_eq24_group()
+    volume_material = sys.modules[name + ".operators.volume_material"]
+    group = volume_material.ensure_eq24_group()
     sockets = {s.name: s for s in group.interface.items_tree if getattr(s, "in_out", "") == "INPUT"}
     assert sockets["Density"].default_value == pytest.approx(D.DENSITY.default) == pytest.approx(40.0)
     assert sockets["W"].default_value == pytest.approx(sys.modules[name + ".pdehead_addon"].OUTSIDE_W)

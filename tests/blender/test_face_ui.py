@@ -83,7 +83,7 @@ def test_build_face_and_live_pegs(pdehead_ext, face_blend, tmp_path):
     assert prov["label"] == obj[face.LABEL_PROP] and prov["table"].startswith("T-Table 2023")
     assert prov["software"].startswith("PDE Head ") and set(prov["landmarks"].values()) <= {"ok", "uncertain"}
     names = face.face_options(coll)["pegs"]
-    pegs = face._peg_objects(coll, names)
+    pegs = face.peg_objects(coll, names)
     assert len(names) >= 10 and set(pegs) == set(names)
     assert all(p.parent == obj for p in pegs.values())                   # the pegs are the face's children
     # the face passes through the pegs' tips (within the engine's fit)
@@ -147,7 +147,7 @@ def test_build_face_and_live_pegs(pdehead_ext, face_blend, tmp_path):
     table.write_text("# test values, not a published table\nlandmark,mean_mm,sd_mm\n" +
                      "".join(f"{n},{15.5 if n == name else 6.0},1.0\n" for n in names))
     s = state.settings(coll)
-    pegs = face._peg_objects(coll, names)
+    pegs = face.peg_objects(coll, names)
     before = _world_vertices(obj)
     s.face_table_file = str(table)
     s.face_table = 'FILE'
@@ -177,7 +177,7 @@ def test_build_face_and_live_pegs(pdehead_ext, face_blend, tmp_path):
     bpy.ops.ed.undo()
     coll = bpy.context.scene.pdehead.active_study
     assert face.face_options(coll)["build"] == build
-    assert set(face._peg_objects(coll, names)) == set(names)
+    assert set(face.peg_objects(coll, names)) == set(names)
 
 
 def test_face_follows_a_peg_after_reopening(pdehead_ext, face_blend, tmp_path):
@@ -187,7 +187,7 @@ def test_face_follows_a_peg_after_reopening(pdehead_ext, face_blend, tmp_path):
     names = face.face_options(coll)["pegs"]
     # what this session's model (prepared by Build Face) gives for the drag made after reopening
     model = face.face_model(coll)
-    normal = np.array(face._peg_objects(coll, names)[names[0]].matrix_world)[:3, 2]
+    normal = np.array(face.peg_objects(coll, names)[names[0]].matrix_world)[:3, 2]
     normal /= np.linalg.norm(normal)
     dragged = face.peg_tips(coll, names)
     dragged[0] += 3.0 * normal
@@ -199,7 +199,7 @@ def test_face_follows_a_peg_after_reopening(pdehead_ext, face_blend, tmp_path):
     bpy.ops.wm.open_mainfile(filepath=str(saved))
     coll = bpy.context.scene.pdehead.active_study
     obj = face.face_object(coll)
-    pegs = face._peg_objects(coll, names)
+    pegs = face.peg_objects(coll, names)
     assert obj is not None and set(pegs) == set(names) and fs.landmarks(coll)
     assert obj[face.LABEL_PROP] == "approximation — not an identification"
     before = _world_vertices(obj)

@@ -95,7 +95,7 @@ def test_bone_level_field_and_export_builds_or_refuses(pdehead_ext, tmp_path, ph
 
     root, level = phantom_dicoms
     ext = pdehead_ext
-    forensic = __import__(f"{ext.__name__}.operators.forensic_study", fromlist=["x"])
+    forensic_skull = __import__(f"{ext.__name__}.operators.forensic_skull", fromlist=["x"])
     # the import dialog's Bone Level field sets the study's, which the forensic panel shows
     assert bpy.ops.pdehead.import_ct(directory=str(root / "stripped"), use_bone_level=True,
                                      bone_level=level) == {'FINISHED'}
@@ -114,12 +114,12 @@ def test_bone_level_field_and_export_builds_or_refuses(pdehead_ext, tmp_path, ph
     assert bpy.ops.pdehead.export_print(directory=str(out), format='stl') == {'FINISHED'}
     assert sorted(p.name for p in out.iterdir()) == ["landmarks.csv", "provenance.json", "skull.stl",
                                                      "skull_envelope.stl"]
-    info = forensic._skull_seg(coll).meta
+    info = forensic_skull.skull_segmentation(coll).meta
     assert info["bone_level_stored"] == level and not info["has_skin"]
     first = read_stl(out / "skull.stl")
     # the panel's field changes the level: the skull is rebuilt from it
     s.bone_level = 900.0
-    assert forensic._skull_seg(coll).meta["bone_level_stored"] == 900.0
+    assert forensic_skull.skull_segmentation(coll).meta["bone_level_stored"] == 900.0
     # a failure while writing leaves nothing behind (everything is written to a hidden folder first)
     depth_table = __import__(f"{ext.__name__}.pdehead_addon.depth_table", fromlist=["x"])
     saved = depth_table.write_landmark_csv

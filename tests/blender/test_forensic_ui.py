@@ -107,12 +107,13 @@ def test_forensic_operators_on_the_phantom(pdehead_ext, tmp_path):
     from mathutils import Vector
 
     forensic = __import__(f"{pdehead_ext.__name__}.operators.forensic_study", fromlist=["x"])
+    skull = __import__(f"{pdehead_ext.__name__}.operators.forensic_skull", fromlist=["x"])
     bpy.ops.pdehead.run_pipeline(source='PHANTOM', patches=6, nu=40, nv=80, nw=4, voxel_size=6.0)
     coll = bpy.context.scene.pdehead.active_study
     assert bpy.ops.pdehead.build_skull() == {'FINISHED'}
     skull_obj = coll["pdehead_skull_object"]
     bone_obj = coll["pdehead_bone_object"]
-    assert len(skull_obj.data.vertices) == len(forensic.skull_engine_mesh(coll, "PDE").vertices) > 2000
+    assert len(skull_obj.data.vertices) == len(skull.skull_engine_mesh(coll, "PDE").vertices) > 2000
     assert len(bone_obj.data.polygons) > 10000
 
     assert bpy.ops.pdehead.tissue_depth() == {'FINISHED'}
@@ -127,7 +128,7 @@ def test_forensic_operators_on_the_phantom(pdehead_ext, tmp_path):
     assert (depth == -1).sum() > 0                                       # no value below the skull
     stats = json.loads(coll["pdehead_depth_stats"])
     assert stats["measured"] == int((depth >= 0).sum())
-    assert surf.data.materials[0].name == forensic.DEPTH_MATERIAL
+    assert surf.data.materials[0].name == skull.DEPTH_MATERIAL
 
     # landmarks snapped to the skull, pegs from a depth table, Frankfurt, mirror
     g_c, g_r = np.array(GEOMETRY["skull_outer"][0]), np.array(GEOMETRY["skull_outer"][1])
@@ -176,9 +177,9 @@ def test_forensic_operators_on_the_phantom(pdehead_ext, tmp_path):
     from pdehead_addon.landmarks import landmark_depths, measure_landmark_depths
     header = [r[0] for r in csv.reader(open(csv_path)) if r[0].startswith("#")]
     assert "# depth: bone level to skin level in the CT along the bone's exposed normal" in header
-    skull_mesh, skin_mesh = forensic.skull_engine_mesh(coll, "BONE"), forensic.skin_engine_mesh(coll)
+    skull_mesh, skin_mesh = skull.skull_engine_mesh(coll, "BONE"), skull.skin_engine_mesh(coll)
     head = forensic.state.cache_for(forensic.state.settings(coll).study_id).seg
-    on_ct = measure_landmark_depths(lms, skull_mesh, skin_mesh, forensic._skull_seg(coll), head_mask=head.mask)
+    on_ct = measure_landmark_depths(lms, skull_mesh, skin_mesh, skull.skull_segmentation(coll), head_mask=head.mask)
     assert {m.method for m in on_ct.values()} == {"ct"}
     assert float(vertex[4]) == pytest.approx(on_ct["Vertex"].depth, abs=0.005)
     assert float(vertex[4]) == pytest.approx(6.0, abs=0.5)

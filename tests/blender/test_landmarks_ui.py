@@ -14,6 +14,7 @@ def test_find_landmarks_operator_on_the_phantom(pdehead_ext):
     from mathutils import Vector
 
     fs = __import__(f"{pdehead_ext.__name__}.operators.forensic_study", fromlist=["x"])
+    skull = __import__(f"{pdehead_ext.__name__}.operators.forensic_skull", fromlist=["x"])
     bpy.ops.pdehead.run_pipeline(source='PHANTOM', patches=6, nu=40, nv=80, nw=4, voxel_size=6.0)
     coll = bpy.context.scene.pdehead.active_study
     assert bpy.ops.pdehead.build_skull() == {'FINISHED'}
@@ -45,7 +46,7 @@ def test_find_landmarks_operator_on_the_phantom(pdehead_ext):
     assert np.allclose(np.array(obj["patient_mm"]), after)
     assert fs.landmark_flags(coll)["Pogonion"] == ("ok", fs.MOVED_BY_HAND)
     # without the mandible in the bone mask: its landmarks are not found, and the report says so
-    sk = fs._skull_seg(coll)
+    sk = skull.skull_segmentation(coll)
     from pdehead_addon.auto_landmarks import _components
     labels, _ = _components(sk.bone)
     k = tuple(np.round(sk.ct.patient_to_index([0.0, -67.0, -79.0])).astype(int))

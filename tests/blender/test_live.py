@@ -112,6 +112,11 @@ def _cancel_in(study, step_name: str, after_calls: int = 2):
     return hook, seen
 
 
+def _progress(study):
+    """The extension's operators.progress (the runners' progress hook)."""
+    return sys.modules[study.__name__.rsplit(".", 1)[0] + ".progress"]
+
+
 def study_cancelled(study):
     """The extension's Cancelled class (the installed package, not the repository's engine)."""
     return sys.modules[study.__name__.rsplit(".operators", 1)[0] + ".pdehead_addon"].Cancelled
@@ -127,11 +132,11 @@ def test_a_new_study_cancelled_mid_step_leaves_nothing(pdehead_ext):
     study = sys.modules[f"{pdehead_ext.__name__}.operators.study"]
     before = _datablocks(bpy)
     hook, seen = _cancel_in(study, "boundaries")
-    study.PROGRESS_HOOK[0] = hook
+    _progress(study).PROGRESS_HOOK[0] = hook
     try:
         result = bpy.ops.pdehead.run_pipeline(source='PHANTOM', patches=6, nu=32, nv=48, nw=4, build_volume=False)
     finally:
-        study.PROGRESS_HOOK[0] = None
+        _progress(study).PROGRESS_HOOK[0] = None
     assert result == {'CANCELLED'}
     steps = [s for s, _ in seen]
     assert "segment" in steps and steps[-1] == "boundaries"   # it ran, reported, and stopped in the middle
@@ -150,12 +155,12 @@ def test_an_existing_study_cancelled_mid_step_is_as_it_was(live):
     names = _datablocks(bpy)
     for step in ("boundaries", "volume"):   # before the meshes were rebuilt, and after
         hook, seen = _cancel_in(study, step)
-        study.PROGRESS_HOOK[0] = hook
+        _progress(study).PROGRESS_HOOK[0] = hook
         try:
             result = bpy.ops.pdehead.run_pipeline(source='ACTIVE', patches=patches - 1, nu=nu + 8, nv=s.nv,
                                                   nw=s.nw, build_volume=True)
         finally:
-            study.PROGRESS_HOOK[0] = None
+            _progress(study).PROGRESS_HOOK[0] = None
         assert result == {'CANCELLED'} and seen[-1][0] == step
         assert (s.patches, s.nu) == (patches, nu)
         assert coll[state.BOUNDARY_KEY] == curves_before

@@ -348,7 +348,7 @@ def test_solid_shows_skin_outside_and_the_ct_at_its_own_resolution_on_the_cut_fa
     tex = ct_mat.node_tree.nodes["CT texture"]
     assert tex.interpolation == "Linear"
     mesh = phantom_head.solid(40, 60, 5, **ranges)
-    _, family = ext.objects._box_faces(mesh, tuple(ranges.values()))
+    _, family = ext.ct_texture.box_faces(mesh, tuple(ranges.values()))
     np.testing.assert_array_equal(material, (family == 0).astype(int))        # outer shell: skin; cut faces: CT
     width, height = tex.image.size
     uv = np.empty(len(me.loops) * 2, np.float32)

@@ -179,7 +179,7 @@ def test_live_parameters_after_reopen_without_resegmenting(ext, phantom_blend, m
     vol = s.volume_object
     s.low_alpha, s.high_alpha, s.density = 0.25, 0.75, 12.5
     s.colour_preset, s.alpha_mode = "skin", "INTENSITY"
-    got = ext.volume.get_volume_settings(vol)
+    got = ext.volume_material.get_volume_settings(vol)
     assert got["low_alpha"] == pytest.approx(0.25) and got["high_alpha"] == pytest.approx(0.75)
     assert got["density"] == pytest.approx(12.5)
     assert (got["colour_preset"], got["alpha_mode"]) == ("skin", "INTENSITY")
@@ -232,7 +232,7 @@ def test_modal_pipeline_esc_removes_everything(ext, phantom, monkeypatch):
                               active_object=None, preferences=bpy.context.preferences)
     reports = []
     op_cls = ext.ops.PDEHEAD_OT_run_pipeline
-    op = SimpleNamespace(_run=ext.study.PipelineRun(bpy.context, "PHANTOM", settings=dict(patches=4, nu=16, nv=24)),
+    op = SimpleNamespace(_run=ext.pipeline_run.PipelineRun(bpy.context, "PHANTOM", settings=dict(patches=4, nu=16, nv=24)),
                          _timer=object(), report=lambda kind, msg: reports.append((kind, msg)))
     op._end_ui = lambda ctx: op_cls._end_ui(op, ctx)
     op.cancel = lambda ctx: op_cls.cancel(op, ctx)

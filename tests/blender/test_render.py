@@ -146,10 +146,10 @@ def _compare_eq24_and_baseline(ext, ct, head, wfield, tmp_path, tag, view="FRONT
     bounds = ext.render.world_bounds([vol])  # same framing for every picture: the whole CT box
     kw = dict(resolution=res, samples=samples, bounds=bounds, volume_step_rate=4.0)
     eq24 = _keep(ext.render.render_objects_png([vol], tmp_path / "eq24.png", view, **kw), f"{tag}_volume_eq24.png")
-    ext.volume.set_volume_settings(vol, alpha_mode="INTENSITY")
+    ext.volume_material.set_volume_settings(vol, alpha_mode="INTENSITY")
     base = _keep(ext.render.render_objects_png([vol], tmp_path / "int.png", view, **kw),
                  f"{tag}_volume_intensity_alpha.png")
-    ext.volume.set_volume_settings(vol, alpha_mode="EQ24", colour_preset="skin")
+    ext.volume_material.set_volume_settings(vol, alpha_mode="EQ24", colour_preset="skin")
     _keep(ext.render.render_objects_png([vol], tmp_path / "skin.png", view, **kw), f"{tag}_volume_eq24_skin.png")
     head_mask = ext.render.render_objects_png([surface], tmp_path / "sil.png", view, res, 4, transparent=True,
                                             bounds=bounds)

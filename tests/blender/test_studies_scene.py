@@ -36,7 +36,7 @@ def test_import_with_build_the_head_ends_framed(ext, phantom_dicom):
     coll = scene.pdehead.active_study
     s = ext.state.settings(coll)
     assert s.surface_object and s.solid_object
-    camera = ext.scene._study_object(coll, ext.scene.CAMERA_KIND)
+    camera = ext.scene.study_object(coll, ext.scene.CAMERA_KIND)
     assert camera is not None and scene.camera == camera and camera != default_camera
     assert cube.hide_render and not cube.visible_get()
     assert not s.surface_object.hide_render and s.solid_object.hide_render and s.curves_object.hide_render
@@ -59,11 +59,11 @@ def test_remove_study_falls_back_to_another_studys_camera(ext):
     first_name = first.name
     second = _pipeline(bpy, build_volume=False)
     scene = bpy.context.scene
-    assert scene.camera == ext.scene._study_object(second, ext.scene.CAMERA_KIND)
+    assert scene.camera == ext.scene.study_object(second, ext.scene.CAMERA_KIND)
     assert bpy.ops.pdehead.remove_study() == {'FINISHED'}  # the active study: the second
     first = bpy.data.collections[first_name]
     assert scene.pdehead.active_study == first
-    assert scene.camera is not None and scene.camera == ext.scene._study_object(first, ext.scene.CAMERA_KIND)
+    assert scene.camera is not None and scene.camera == ext.scene.study_object(first, ext.scene.CAMERA_KIND)
 
 
 def test_save_removes_the_vdb_of_a_study_deleted_in_the_outliner(ext, tmp_path):
@@ -75,7 +75,7 @@ def test_save_removes_the_vdb_of_a_study_deleted_in_the_outliner(ext, tmp_path):
     kept = _pipeline(bpy, voxel_size=8.0)
     gone = _pipeline(bpy, voxel_size=8.0)
     bpy.ops.wm.save_mainfile()
-    folder = tmp_path / ext.volume.VDB_FOLDER_NAME
+    folder = tmp_path / ext.vdb_files.VDB_FOLDER_NAME
     kept_vdb = folder / bpy.path.basename(ext.state.settings(kept).volume_object.data.filepath)
     gone_vdb = folder / bpy.path.basename(ext.state.settings(gone).volume_object.data.filepath)
     assert kept_vdb.is_file() and gone_vdb.is_file() and kept_vdb != gone_vdb

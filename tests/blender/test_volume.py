@@ -1,4 +1,5 @@
-"""The VDB volume and its eq. 24 material (operators/volume.py; its windowing and grids: tests/test_ct_volume.py).
+"""The VDB volume and its eq. 24 material (operators/volume.py, vdb_files.py, vdb_grids.py, volume_material.py;
+its windowing and grids: tests/test_ct_volume.py).
 
 - the .vdb grids and their index -> world transform (numpy [z, y, x] vs OpenVDB (x, y, z)),
 - the Volume object of the phantom's w-field lining up with the PDE surface,
@@ -62,7 +63,7 @@ def test_write_vdb_grids_values_and_transform(ext, tmp_path):
     ct = CTVolume(wf.intensity + 5.0, wf.spacing, wf.origin, wf.direction)  # the full CT on the same grid
     window = (0.0, 900.0)
     origin_m = np.array([0.01, -0.02, 0.03])
-    path = ext.volume.write_vdb(wf, tmp_path / "sub" / "t.vdb", window, ct=ct, origin_m=origin_m)
+    path = ext.vdb_grids.write_vdb(wf, tmp_path / "sub" / "t.vdb", window, ct=ct, origin_m=origin_m)
     assert path.is_file()
     info = vdb_read.read_vdb_grids(path)
     assert set(info) == {"w", "intensity", "ct"}
@@ -102,7 +103,7 @@ def test_ct_grid_covers_the_whole_ct_box_on_its_own_grid(ext, tmp_path):
     fine = np.fromfunction(lambda k, j, i: 3.0 * i + 2.0 * j + 1.0 * k, (30, 40, 50), dtype=np.float32)
     ct = CTVolume(fine, (0.5, 0.3, 0.3), origin=(-125.0, 25.0, 50.0))   # finer: decimated by (2, 3, 3)
     origin_m = np.array([0.002, 0.004, -0.001])
-    path = ext.volume.write_vdb(wf, tmp_path / "r.vdb", (0.0, 400.0), ct=ct, origin_m=origin_m)
+    path = ext.vdb_grids.write_vdb(wf, tmp_path / "r.vdb", (0.0, 400.0), ct=ct, origin_m=origin_m)
     info = vdb_read.read_vdb_grids(path)
     np.testing.assert_allclose(info["ct"]["axes"], np.diag([0.9, 0.9, 1.0]) * MM, atol=1e-12)
     # blocks of 2 slices average slices 2k-1, 2k: their centre is half a slice below slice 2k
@@ -159,7 +160,7 @@ def test_volume_object_lines_up_with_the_surface(ext, phantom, phantom_head, pha
     lo, hi = ext.render.world_bounds([vol])
     np.testing.assert_allclose(lo, surf_world.min(0), atol=2 * voxel)  # voxel box + half a voxel
     np.testing.assert_allclose(hi, surf_world.max(0), atol=2 * voxel)
-    ext.volume.set_volume_settings(vol, alpha_mode="INTENSITY")
+    ext.volume_material.set_volume_settings(vol, alpha_mode="INTENSITY")
     lo, hi = ext.render.world_bounds([vol])
     ct_lo, ct_hi = (np.asarray(b) * MM for b in phantom.ct.bounds())
     margin = HEAD_MARGIN_MM * MM
@@ -223,7 +224,7 @@ def test_volume_material_node_tree(ext, tmp_path):
          "input W"],
         ["MAXIMUM", "MULTIPLY", "ShaderNodeClamp", "ShaderNodeMix", "MULTIPLY", "LESS_THAN", "input W"]])
     less = next(n for n in g.nodes if n.bl_idname == "ShaderNodeMath" and n.operation == "LESS_THAN")
-    assert less.inputs[1].default_value == pytest.approx(1.0 + ext.volume.INSIDE_EPS)  # w > 1 (outside) -> 0
+    assert less.inputs[1].default_value == pytest.approx(1.0 + ext.volume_material.INSIDE_EPS)  # w > 1 (outside) -> 0
     assert bpy.data.node_groups["PDE Head eq. 24"].users >= 1
 
 
@@ -280,14 +281,14 @@ class _Evaluator:
 
 
 def test_eq24_density_computed_in_nodes_and_never_negative(ext):
-    g = ext.volume.ensure_eq24_group()
+    g = ext.volume_material.ensure_eq24_group()
     base = dict(Intensity=0.4, CT=0.7, Emission=0.5)
     for low, high in ((0.1, 0.9), (0.9, 0.1), (0.0, 1.0), (0.3, 0.3)):
         for w in np.linspace(-0.5, 3.0, 36):
             ev = _Evaluator(g, dict(base, W=w, **{"Low Alpha": low, "High Alpha": high, "Density": 20.0,
                                                   "Intensity Alpha": 0.0}))
             wc = min(max(w, 0.0), 1.0)
-            alpha = (low - high) * wc + high if w <= 1.0 + ext.volume.INSIDE_EPS else 0.0   # eq. 24, 0 outside
+            alpha = (low - high) * wc + high if w <= 1.0 + ext.volume_material.INSIDE_EPS else 0.0   # eq. 24, 0 outside
             assert ev.output("Alpha") == pytest.approx(alpha, abs=1e-9)
             assert ev.output("Density") == pytest.approx(20.0 * alpha, abs=1e-9)
             assert ev.output("Emission Strength") == pytest.approx(10.0 * alpha, abs=1e-9)
@@ -313,37 +314,37 @@ def test_eq24_density_computed_in_nodes_and_never_negative(ext):
 def test_set_volume_settings(ext, tmp_path):
     coll = ext.objects.study_collection("S")
     vol = ext.volume.build_volume(_oblique_wfield(), coll, tmp_path / "S.vdb", low_alpha=0.2, density=33.0)
-    s = ext.volume.get_volume_settings(vol)
+    s = ext.volume_material.get_volume_settings(vol)
     assert s["low_alpha"] == pytest.approx(0.2) and s["high_alpha"] == pytest.approx(0.9)
     assert s["density"] == pytest.approx(33.0) and s["alpha_mode"] == "EQ24" and s["colour_preset"] == "grayscale"
-    ext.volume.set_volume_settings(vol, high_alpha=0.7, colour_preset="skin", alpha_mode="INTENSITY")
-    s = ext.volume.get_volume_settings(vol)
+    ext.volume_material.set_volume_settings(vol, high_alpha=0.7, colour_preset="skin", alpha_mode="INTENSITY")
+    s = ext.volume_material.get_volume_settings(vol)
     assert s["low_alpha"] == pytest.approx(0.2) and s["high_alpha"] == pytest.approx(0.7)  # None kept low_alpha
     assert s["alpha_mode"] == "INTENSITY" and s["colour_preset"] == "skin"
     ramp = vol.material_slots[0].material.node_tree.nodes["Intensity colour"]
     stops = [(e.position, tuple(e.color)) for e in ramp.color_ramp.elements]
-    assert len(stops) == len(ext.volume.COLOUR_PRESETS["skin"]) and stops[0][0] == 0.0 and stops[-1][0] == 1.0
+    assert len(stops) == len(ext.volume_material.COLOUR_PRESETS["skin"]) and stops[0][0] == 0.0 and stops[-1][0] == 1.0
     assert stops[2][1][0] > stops[2][1][1] > stops[2][1][2]  # skin tone: red > green > blue
-    ext.volume.set_volume_settings(vol, colour_preset="grayscale", low_alpha=-3.0, density=-1.0)
-    s = ext.volume.get_volume_settings(vol)
+    ext.volume_material.set_volume_settings(vol, colour_preset="grayscale", low_alpha=-3.0, density=-1.0)
+    s = ext.volume_material.get_volume_settings(vol)
     assert s["low_alpha"] == 0.0 and s["density"] == 0.0  # clamped, never negative
     assert [tuple(e.color)[:3] for e in ramp.color_ramp.elements] == [(0, 0, 0), (1, 1, 1)]
     with pytest.raises(ValueError):
-        ext.volume.set_volume_settings(vol, alpha_mode="TRANSFER")
+        ext.volume_material.set_volume_settings(vol, alpha_mode="TRANSFER")
     with pytest.raises(ValueError):
-        ext.volume.set_volume_settings(vol, colour_preset="rainbow")
+        ext.volume_material.set_volume_settings(vol, colour_preset="rainbow")
 
 
 # ----------------------------------------------------------------------------- files
 def test_vdb_folder_rules(ext, tmp_path):
     import tempfile
     blend = tmp_path / "a" / "study.blend"
-    assert ext.volume.vdb_folder_for(str(blend), "/ignored") == (tmp_path / "a" / "pdehead_vdb").resolve()
-    assert ext.volume.vdb_folder_for(None, str(tmp_path / "prefs")) == (tmp_path / "prefs").resolve()
-    assert ext.volume.vdb_folder_for(None, "") == __import__("pathlib").Path(tempfile.gettempdir()) / "pdehead_vdb"
-    assert ext.volume.vdb_path_for("CT head: 1/2", str(blend)).parent == (tmp_path / "a" / "pdehead_vdb").resolve()
-    assert "/" not in ext.volume.vdb_path_for("CT head: 1/2", str(blend)).name
-    names = {ext.volume.vdb_path_for(n, str(blend)).name for n in ("CT head", "CT_head", "CT-head", "CThead")}
+    assert ext.vdb_files.vdb_folder_for(str(blend), "/ignored") == (tmp_path / "a" / "pdehead_vdb").resolve()
+    assert ext.vdb_files.vdb_folder_for(None, str(tmp_path / "prefs")) == (tmp_path / "prefs").resolve()
+    assert ext.vdb_files.vdb_folder_for(None, "") == __import__("pathlib").Path(tempfile.gettempdir()) / "pdehead_vdb"
+    assert ext.vdb_files.vdb_path_for("CT head: 1/2", str(blend)).parent == (tmp_path / "a" / "pdehead_vdb").resolve()
+    assert "/" not in ext.vdb_files.vdb_path_for("CT head: 1/2", str(blend)).name
+    names = {ext.vdb_files.vdb_path_for(n, str(blend)).name for n in ("CT head", "CT_head", "CT-head", "CThead")}
     assert len(names) == 4 and "CThead.vdb" in names  # distinct studies never share a file
 
 
@@ -353,7 +354,7 @@ def test_saved_file_reopens_with_its_volume_and_missing_vdb_is_reported(ext, tmp
     blend.parent.mkdir()
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
     coll = ext.objects.study_collection("Study 1")
-    vdb = ext.volume.vdb_path_for("Study 1", bpy.data.filepath, None)
+    vdb = ext.vdb_files.vdb_path_for("Study 1", bpy.data.filepath, None)
     vol = ext.volume.build_volume(_oblique_wfield(), coll, vdb, name="Study 1 Volume", high_alpha=0.8)
     assert vol.data.filepath == f"//pdehead_vdb/{vdb.name}" and vdb.name.startswith("Study_1-")
     assert vdb.is_file() and vdb.parent == blend.parent / "pdehead_vdb"
@@ -365,7 +366,7 @@ def test_saved_file_reopens_with_its_volume_and_missing_vdb_is_reported(ext, tmp
     assert ext.volume.check_volume(vol) is None
     assert vol.data.grids.load()
     assert {"w", "intensity"} <= {g.name for g in vol.data.grids}
-    assert ext.volume.get_volume_settings(vol)["high_alpha"] == pytest.approx(0.8)
+    assert ext.volume_material.get_volume_settings(vol)["high_alpha"] == pytest.approx(0.8)
 
     # the project folder moved without its pdehead_vdb folder: a clear message, no exception
     moved = tmp_path / "moved"
@@ -381,11 +382,11 @@ def test_volume_built_unsaved_follows_the_file_when_saved(ext, tmp_path):
     import bpy
     prefs_folder = tmp_path / "prefs"
     coll = ext.objects.study_collection("Unsaved")
-    vdb = ext.volume.vdb_path_for("Unsaved", None, str(prefs_folder))
+    vdb = ext.vdb_files.vdb_path_for("Unsaved", None, str(prefs_folder))
     assert vdb.parent == prefs_folder.resolve()
     vol = ext.volume.build_volume(_oblique_wfield(), coll, vdb)
     assert vol.data.filepath == str(vdb)  # absolute while the file is unsaved
-    assert ext.volume.relocate_vdb(vol) is None  # nowhere to go yet
+    assert ext.vdb_files.relocate_vdb(vol) is None  # nowhere to go yet
     blend = tmp_path / "saved" / "s.blend"
     blend.parent.mkdir()
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
@@ -393,14 +394,14 @@ def test_volume_built_unsaved_follows_the_file_when_saved(ext, tmp_path):
     new = blend.parent / "pdehead_vdb" / "Unsaved.vdb"
     assert new.is_file() and not vdb.exists()
     assert vol.data.filepath == "//pdehead_vdb/Unsaved.vdb" and ext.volume.check_volume(vol) is None
-    assert ext.volume.relocate_vdb(vol) is None  # already there
+    assert ext.vdb_files.relocate_vdb(vol) is None  # already there
 
     # relocate_vdb itself (also used by that handler): copies, never overwrites a different file
     other = tmp_path / "other"
-    assert ext.volume.relocate_vdb(vol, folder=other) == other.resolve() / "Unsaved.vdb"
+    assert ext.vdb_files.relocate_vdb(vol, folder=other) == other.resolve() / "Unsaved.vdb"
     assert Path(bpy.path.abspath(vol.data.filepath)).resolve() == other.resolve() / "Unsaved.vdb" and new.is_file()
     (blend.parent / "pdehead_vdb" / "Unsaved.vdb").write_bytes(b"a different file")
-    moved = ext.volume.relocate_vdb(vol)
+    moved = ext.vdb_files.relocate_vdb(vol)
     assert moved == blend.parent / "pdehead_vdb" / "Unsaved-2.vdb" and moved.is_file()
     assert new.read_bytes() == b"a different file" and ext.volume.check_volume(vol) is None
 
@@ -411,7 +412,7 @@ def test_rebuilt_volume_goes_to_a_new_file_and_the_old_one_is_removed_after_savi
     blend.parent.mkdir()
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
     coll = ext.objects.study_collection("S")
-    path = ext.volume.vdb_path_for("S", bpy.data.filepath)
+    path = ext.vdb_files.vdb_path_for("S", bpy.data.filepath)
     vol = ext.volume.build_volume(_oblique_wfield(), coll, path)
     first = Path(bpy.path.abspath(vol.data.filepath))
     first_bytes = first.read_bytes()
@@ -427,16 +428,16 @@ def test_transfer_function_presets_set_colour_and_opacity(ext, tmp_path):
     coll = ext.objects.study_collection("TF")
     vol = ext.volume.build_volume(_oblique_wfield(), coll, tmp_path / "tf.vdb")
     ramp = vol.material_slots[0].material.node_tree.nodes["Intensity colour"].color_ramp
-    assert {"grayscale", "skin", "bone", "xray"} <= set(ext.volume.COLOUR_PRESETS)
-    ext.volume.set_volume_settings(vol, colour_preset="bone")
+    assert {"grayscale", "skin", "bone", "xray"} <= set(ext.volume_material.COLOUR_PRESETS)
+    ext.volume_material.set_volume_settings(vol, colour_preset="bone")
     assert ramp.evaluate(0.3)[3] == pytest.approx(0.0) and ramp.evaluate(0.95)[3] > 0.8  # soft tissue hidden
-    ext.volume.set_volume_settings(vol, colour_preset="xray")
+    ext.volume_material.set_volume_settings(vol, colour_preset="xray")
     air, mid, dense = (ramp.evaluate(x) for x in (0.02, 0.5, 1.0))
     assert air[3] == pytest.approx(0.0) and 0.2 < mid[3] < dense[3] and abs(mid[0] - mid[2]) < 1e-6  # grey
-    ext.volume.set_volume_settings(vol, colour_preset="skin")
+    ext.volume_material.set_volume_settings(vol, colour_preset="skin")
     tissue = ramp.evaluate(0.3)
     assert tissue[3] == pytest.approx(1.0) and tissue[0] > tissue[2] + 0.1 and ramp.evaluate(0.03)[3] < 0.05
-    ext.volume.set_volume_settings(vol, colour_preset="grayscale")
+    ext.volume_material.set_volume_settings(vol, colour_preset="grayscale")
     assert all(ramp.evaluate(x)[3] == pytest.approx(1.0) for x in (0.0, 0.5, 1.0))  # eq. 24 alone
 
 
@@ -444,17 +445,17 @@ def test_auto_voxel_size_follows_the_ct_spacing_within_the_budgets(ext, phantom,
     from pdehead_addon import CTVolume
     pts = phantom_head.surface(32, 64).vertices
     box = (pts.min(axis=0), pts.max(axis=0))
-    size = ext.volume.auto_voxel_size(phantom.ct, phantom_head)
+    size = ext.vdb_grids.auto_voxel_size(phantom.ct, phantom_head)
     assert size >= min(phantom.ct.spacing) - 1e-9
-    nbytes, voxels = ext.volume.estimate_vdb(phantom.ct, box, size)
+    nbytes, voxels = ext.vdb_grids.estimate_vdb(phantom.ct, box, size)
     assert nbytes <= D.MAX_VDB_BYTES.default and voxels <= D.MAX_WFIELD_VOXELS.default
     # a much finer CT over the same box is coarsened only as far as the budgets need
     fine = CTVolume(np.zeros((4, 4, 4), np.float32), (0.3, 0.3, 0.3), origin=phantom.ct.origin)
     fine.data = np.zeros((600, 700, 700), np.float32)[:1, :1, :1]  # spacing matters, not the data
-    small = ext.volume.auto_voxel_size(fine, phantom_head, max_voxels=1e6)
-    assert ext.volume.estimate_vdb(fine, box, small)[1] <= 1e6 < ext.volume.estimate_vdb(fine, box, small / 1.06)[1]
+    small = ext.vdb_grids.auto_voxel_size(fine, phantom_head, max_voxels=1e6)
+    assert ext.vdb_grids.estimate_vdb(fine, box, small)[1] <= 1e6 < ext.vdb_grids.estimate_vdb(fine, box, small / 1.06)[1]
     coarse = CTVolume(np.zeros((4, 4, 4), np.float32), (3.0, 3.0, 3.0))
-    assert ext.volume.auto_voxel_size(coarse, phantom_head) == pytest.approx(3.0)  # a 3 mm CT keeps 3 mm
+    assert ext.vdb_grids.auto_voxel_size(coarse, phantom_head) == pytest.approx(3.0)  # a 3 mm CT keeps 3 mm
 
 
 def test_cutaway_angles_are_degrees_in_the_ui(pdehead_ext):

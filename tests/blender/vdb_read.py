@@ -1,4 +1,4 @@
-"""Reading .vdb files back, for the tests (the add-on only writes them: operators/volume.py).
+"""Reading .vdb files back, for the tests (the add-on only writes them: operators/vdb_grids.py).
 
 Needs Blender's OpenVDB bindings (``openvdb``, before 4.4 ``pyopenvdb``); bpy 4.2 from PyPI has
 none (its files come from ``operators/vdb_writer.py``), so callers check :func:`has_openvdb` first.
