@@ -13,8 +13,9 @@ surface, nu x nv = 120 x 240, caps), Cycles CPU, into ``docs/figures/up_close_*.
 "Before" is ``bench_smooth.legacy_surface``: the same head meshed as before issue 21.
 
 * ``up_close_face.png`` (``--face``, only this figure): CThead's face, front and three-quarter, close up:
-  marching cubes of the mask, the default surface with the envelope before issue 21 (1.5 mm Gaussian,
-  1.5 px curve low-pass, star slope 2) and after (1 mm, 0.5 px, 3); the visible-face score on each tile.
+  marching cubes of the mask, the surface at t = 10 with the u smoothing of one slice step (the defaults
+  before issue 21's last change) and at the add-on's defaults (t = 15, half a slice step); the
+  visible-face score on each tile.
 * ``up_close_cut.png`` (``--cut``, only this figure): CThead's solid cut at the mid-sagittal plane
   (v from 0 to 180 degrees: the patient's right half), seen from its left at the add-on's defaults (skin
   outside, the cut faces from the CT at <= 1 voxel a texel), beside the CT resampled on the plane
@@ -77,11 +78,19 @@ def face_figure(bl, args) -> int:
     seg = bench_smooth.load("cthead")
     mc = marching_cubes(seg)
     meshes = [("marching cubes", bench.marching_cubes_mesh(seg.mask, seg.ct))]
-    for label, kw in (("before", bench_smooth.OLD_ENVELOPE), ("after", {})):
-        head = E.solve_pde(E.extract_boundaries(seg, patches=10, selection=bench_smooth.SELECTION, **kw))
-        meshes.append((label, head.surface(nu, nv, caps=True)))
+    from pdehead_addon import pde_surface as PS
+    per_slice = PS.APPROXIMATION_PER_SLICE
+    # before: t = 10 and the u smoothing of one slice step (the defaults before issue 21's last stop); after:
+    # the add-on's defaults (t = 15, half a slice step)
+    for label, t, step in (("t=10 before", 10, 1.0), ("after", D.PATCHES.default, per_slice)):
+        PS.APPROXIMATION_PER_SLICE = step
+        try:
+            head = E.solve_pde(E.extract_boundaries(seg, patches=t, selection=bench_smooth.SELECTION))
+        finally:
+            PS.APPROXIMATION_PER_SLICE = per_slice
+        meshes.append((label if label != "after" else f"t={t} after", head.surface(nu, nv, caps=True)))
     scores = {label: bench_smooth.visible_face(seg, m, mc) for label, m in meshes[1:]}
-    tip = np.asarray(scores["after"].get("pronasale") or [0, 0, 0], float)
+    tip = np.asarray(scores[meshes[-1][0]].get("pronasale") or [0, 0, 0], float)
     coll = objects.study_collection("up close face")
     built = []
     for label, mesh in meshes:

@@ -80,14 +80,14 @@ def test_the_values_the_add_on_user_sees():
     # where two owners disagreed before the one table, the add-on's value won (issue 13)
     assert (D.NU.default, D.NV.default) == (120, 240)
     assert D.DENSITY.default == 40.0
-    assert (D.PATCHES.default, D.PATCHES.min, D.PATCHES.max) == (10, 1, 60)
+    assert (D.PATCHES.default, D.PATCHES.min, D.PATCHES.max) == (15, 1, 60)
     assert D.SELECTION.default == "auto" and D.CONTINUITY.default == "c2"
     assert (D.LOW_ALPHA.default, D.HIGH_ALPHA.default) == (0.1, 0.9)   # section 5.3
     assert D.default("samples") == 256
 
 
 def test_param_limits_check_and_help():
-    assert D.PATCHES.limits() == {"default": 10, "min": 1, "max": 60}
+    assert D.PATCHES.limits() == {"default": 15, "min": 1, "max": 60}
     assert D.V_RANGE.limits()["soft_max"] == pytest.approx(2 * np.pi)
     assert "soft_min" not in D.NU.limits()
     assert D.PATCHES.check(60) == 60
