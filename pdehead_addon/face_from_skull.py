@@ -121,7 +121,9 @@ DAMP_MIDLINE_DEG = 10.0
 
 # ------------------------------------------------------------------------------------------ geometry
 @dataclass
-class _Grid:
+class FaceGrid:
+    """The face's grid: rows at heights ``z`` and columns at angles ``theta`` around the vertical axis
+    through ``centre`` (patient mm, radians)."""
     centre: np.ndarray          # (2,) x, y of the vertical axis
     z: np.ndarray               # (K,) row heights, ascending
     theta: np.ndarray           # (M,) column angles; 0 = posterior (+y), pi/2 = patient's left (+x)
@@ -147,7 +149,7 @@ class _Grid:
                 + a * (1 - b) * table[k1, j0] + a * b * table[k1, j1])
 
 
-def _columns(degrees: float, grid: "_Grid") -> float:
+def _columns(degrees: float, grid: "FaceGrid") -> float:
     """An angle in columns of the grid."""
     return float(np.radians(degrees) / (grid.theta[1] - grid.theta[0]))
 
@@ -161,7 +163,7 @@ def _resample_columns(table: np.ndarray, columns: int) -> np.ndarray:
     return (1 - a) * table[:, j0] + a * table[:, (j0 + 1) % M]
 
 
-def bone_profile(skull: Mesh, grid: _Grid, base_z: float | None = None,
+def bone_profile(skull: Mesh, grid: FaceGrid, base_z: float | None = None,
                  closing_mm: float = CLOSING_MM) -> tuple[np.ndarray, np.ndarray]:
     """The bone's outer radius per (row, column) bin and its closed envelope.
 
@@ -181,7 +183,7 @@ def bone_profile(skull: Mesh, grid: _Grid, base_z: float | None = None,
     """
     M_face = len(grid.theta)
     if M_face > PROFILE_COLUMNS:                 # the bone's map on the coarser grid, then interpolated (see there)
-        coarse = _Grid(grid.centre, grid.z, np.arange(PROFILE_COLUMNS) * 2 * np.pi / PROFILE_COLUMNS)
+        coarse = FaceGrid(grid.centre, grid.z, np.arange(PROFILE_COLUMNS) * 2 * np.pi / PROFILE_COLUMNS)
         raw_c, sm_c = bone_profile(skull, coarse, base_z, closing_mm)
         return _resample_columns(raw_c, M_face), _resample_columns(sm_c, M_face)
     z, th, r = grid.polar(skull.vertices)
@@ -207,7 +209,7 @@ def bone_profile(skull: Mesh, grid: _Grid, base_z: float | None = None,
     return raw, sm
 
 
-def _smooth_far_from_pegs(profile: np.ndarray, grid: _Grid, sites: np.ndarray) -> np.ndarray:
+def _smooth_far_from_pegs(profile: np.ndarray, grid: FaceGrid, sites: np.ndarray) -> np.ndarray:
     """The closed profile smoothed in 2-D (:data:`PROFILE_SMOOTH_FAR_MM` of height,
     :data:`PROFILE_SMOOTH_FAR_ARC_MM` of arc) where no peg stands, blended into the lightly smoothed one
     within ~ :data:`PROFILE_NEAR_MM` of the peg tips (weight: the largest Gaussian of the distance on the
@@ -256,7 +258,7 @@ def _row_hulls(radius: np.ndarray, theta: np.ndarray) -> np.ndarray:
     return out
 
 
-def _neck_fill(raw: np.ndarray, grid: _Grid, base_z: float | None = None) -> np.ndarray:
+def _neck_fill(raw: np.ndarray, grid: FaceGrid, base_z: float | None = None) -> np.ndarray:
     """Fill bins that meet no bone, and shape the neck below the skull base.
 
     Gaps inside a column are interpolated along the height; above the skull's top row the top is
@@ -296,7 +298,7 @@ def _neck_fill(raw: np.ndarray, grid: _Grid, base_z: float | None = None) -> np.
     return out
 
 
-def envelope_normals(grid: _Grid, profile: np.ndarray, points: np.ndarray, smooth_mm: float = 6.0) -> np.ndarray:
+def envelope_normals(grid: FaceGrid, profile: np.ndarray, points: np.ndarray, smooth_mm: float = 6.0) -> np.ndarray:
     """Outward unit normals of the closed profile (the surface r = profile(z, angle)) at the points' bins."""
     dz = grid.z[1] - grid.z[0]
     R = ndimage.gaussian_filter(profile, sigma=(smooth_mm / dz, _columns(PROFILE_SMOOTH_DEG, grid)),
@@ -315,7 +317,7 @@ def envelope_normals(grid: _Grid, profile: np.ndarray, points: np.ndarray, smoot
     return np.where((np.einsum("ij,ij->i", n, radial) < 0)[:, None], -n, n)
 
 
-def peg_normals(skull: Mesh, bases: np.ndarray, grid: _Grid, profile: np.ndarray,
+def peg_normals(skull: Mesh, bases: np.ndarray, grid: FaceGrid, profile: np.ndarray,
                 radius_mm: float = PEG_NORMAL_RADIUS_MM) -> np.ndarray:
     """The direction each peg stands in: the bone's outward normal at the landmark, averaged over the bone
     surface within ``radius_mm`` (area-weighted; a single triangle's normal on a thin or fragmentary bone,
@@ -356,7 +358,7 @@ class FaceResult:
     head: object = None
 
 
-def _kernel(a: np.ndarray, b: np.ndarray, sigma: float) -> np.ndarray:
+def peg_kernel(a: np.ndarray, b: np.ndarray, sigma: float) -> np.ndarray:
     """Gaussian kernel exp(-|a_i - b_j|^2 / sigma^2), (len(a), len(b)), float32-free but allocation-light."""
     d2 = (a * a).sum(1)[:, None] + (b * b).sum(1)[None, :] - 2.0 * (a @ b.T)
     np.maximum(d2, 0.0, out=d2)
@@ -378,7 +380,7 @@ class FaceModel:
     peg_normals: np.ndarray
     default_depths: np.ndarray
     depth_sd: np.ndarray
-    grid: _Grid
+    grid: FaceGrid
     raw: np.ndarray
     profile: np.ndarray
     rule_sites: list
@@ -438,7 +440,7 @@ class FaceModel:
         zlo = float(skull.vertices[:, 2].min()) - neck_mm
         zhi = float(skull.vertices[:, 2].max()) - 4.0
         K = max(8, int(np.ceil((zhi - zlo) / row_mm)) + 1)
-        grid = _Grid(centre, np.linspace(zlo, zhi, K), np.arange(columns) * 2 * np.pi / columns)
+        grid = FaceGrid(centre, np.linspace(zlo, zhi, K), np.arange(columns) * 2 * np.pi / columns)
         base_z = None
         po = [lm[n] for n in ("Porion L", "Porion R") if n in lm]
         if po:
@@ -496,21 +498,21 @@ class FaceModel:
         xs = self._cyl(z, th)
         sigma = self.options["spread_mm"]
         # wide Shepard average with the rule depth
-        Wg = _kernel(self._grid_xyz, xs, sigma)                        # (G, n)
-        Ws = _kernel(xs, xs, sigma)
+        Wg = peg_kernel(self._grid_xyz, xs, sigma)                        # (G, n)
+        Ws = peg_kernel(xs, xs, sigma)
         base_g = (Wg @ target + RULE_WEIGHT * RULE_DEPTH_MM) / (Wg.sum(1) + RULE_WEIGHT)
         base_s = (Ws @ target + RULE_WEIGHT * RULE_DEPTH_MM) / (Ws.sum(1) + RULE_WEIGHT)
         # narrow exact correction
         s2 = NARROW_FRACTION * sigma
         w = self._correction_weights(xs, target - base_s)
-        corr = _kernel(self._grid_xyz, xs, s2) @ w
+        corr = peg_kernel(self._grid_xyz, xs, s2) @ w
         return (base_g + corr).reshape(self.profile.shape)
 
     def _correction_weights(self, xs: np.ndarray, residual: np.ndarray) -> np.ndarray:
         """Weights of the narrow Gaussians of the exact correction at the field sites ``xs`` for the
         ``residual`` (offset minus the wide field at each site), regularised per site
         (:meth:`_site_damping`). One place for :meth:`_offset_field` and the live path."""
-        Phi = _kernel(xs, xs, NARROW_FRACTION * self.options["spread_mm"])
+        Phi = peg_kernel(xs, xs, NARROW_FRACTION * self.options["spread_mm"])
         lam = self.__dict__.get("_damping")
         lam = RBF_REGULARISATION * np.ones(len(xs)) if lam is None or len(lam) != len(xs) else lam
         Phi[np.diag_indices_from(Phi)] += lam
@@ -526,7 +528,7 @@ class FaceModel:
         z, th, r = g.polar(self.field_sites(self.tips_for(self.default_depths)))
         target = r - g.sample(self.profile, z, th)
         xs = self._cyl(z, th)
-        W = _kernel(xs, xs, self.options["spread_mm"])
+        W = peg_kernel(xs, xs, self.options["spread_mm"])
         np.fill_diagonal(W, 0.0)
         others = (W @ target + RULE_WEIGHT * RULE_DEPTH_MM) / (W.sum(1) + RULE_WEIGHT)
         off = np.abs(target - others)

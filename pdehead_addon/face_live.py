@@ -35,6 +35,7 @@ import numpy as np
 
 from . import face_from_skull as F
 from .pde_basis import basis, small_matmul
+from .surface_mesh import ring_in_plane
 
 #: Largest difference (mm) between the fast positions and the model's own solve for :attr:`LiveFace.exact`.
 EXACT_TOLERANCE_MM = 1e-6
@@ -130,7 +131,7 @@ class LiveFace:
         sigma = float(m.options["spread_mm"])
         dz2 = (self._grid_z[:, None] - z[None, :]) ** 2                          # (K, n)
         dc2 = ((self._ring[:, None, :] - xs[None, :, :2]) ** 2).sum(-1)         # (M, n)
-        Ws = F._kernel(xs, xs, sigma)
+        Ws = F.peg_kernel(xs, xs, sigma)
         Ez, Et = _gauss(dz2, sigma), _gauss(dc2, sigma)
         EtT = np.ascontiguousarray(Et.T)                      # small_matmul: BLAS threads cost more than these products
         base_g = ((small_matmul(Ez * target, EtT) + F.RULE_WEIGHT * F.RULE_DEPTH_MM)
@@ -216,17 +217,7 @@ class LiveFace:
             fixed = self._cap_fixed = (lo % len(ring), (lo + 1) % len(ring), (idx - lo)[:, None], f[ring_of][:, None],
                                        len(probe.vertices))
         lo, hi, w, fr, count = fixed
-        d = ring - centre
-        normal = np.cross(d, np.roll(d, -1, axis=0)).sum(axis=0)
-        normal /= np.linalg.norm(normal) or 1.0
-        flat = d - np.outer(d @ normal, normal)
-        e1 = flat[0] / (np.linalg.norm(flat[0]) or 1.0)
-        e2 = np.cross(normal, e1)
-        p2 = np.stack([flat @ e1, flat @ e2], axis=1)
-        theta = np.unwrap(np.arctan2(p2[:, 1], p2[:, 0]))
-        if theta[-1] - theta[0] < 0:                        # clockwise in this frame
-            p2[:, 1] *= -1
-            e2 = -e2
+        _, e1, e2, p2, _ = ring_in_plane(ring, centre)          # the cap's own frame, as surface_mesh builds it
         q = p2[lo] * (1 - w) + p2[hi] * w
         out = np.concatenate([centre + fr * (q[:, :1] * e1 + q[:, 1:] * e2), np.asarray(centre, float)[None]])
         return out if len(out) == count else None
@@ -259,7 +250,7 @@ def _encode(value):
                 "dtype": a.dtype.newbyteorder("<").str, "shape": list(a.shape)}
     if isinstance(value, np.generic):
         return value.item()
-    if isinstance(value, F._Grid):
+    if isinstance(value, F.FaceGrid):
         return {"__grid__": {f.name: _encode(getattr(value, f.name)) for f in fields(value)}}
     if isinstance(value, dict):
         if all(isinstance(k, str) for k in value):
@@ -283,7 +274,7 @@ def _decode(value):
         a = np.frombuffer(base64.b64decode(value["__array__"]), dtype=np.dtype(value["dtype"]))
         return a.reshape(value["shape"]).astype(np.dtype(value["dtype"]).newbyteorder("="))
     if "__grid__" in value:
-        return F._Grid(**{k: _decode(v) for k, v in value["__grid__"].items()})
+        return F.FaceGrid(**{k: _decode(v) for k, v in value["__grid__"].items()})
     if "__dict__" in value:
         return {k: _decode(v) for k, v in value["__dict__"].items()}
     if "__items__" in value:

@@ -219,6 +219,30 @@ def _zipper(keys: list[np.ndarray], offsets: np.ndarray) -> np.ndarray:
     return np.where(kind[:, None], np.stack([a0, b1, b0], axis=1), np.stack([a0, a1, b0], axis=1))
 
 
+def ring_in_plane(ring: np.ndarray, centre: np.ndarray):
+    """A closed ring's coordinates in its own plane through ``centre``, counter-clockwise.
+
+    The plane's normal is the ring's area vector about ``centre``. Returns ``flat`` (the ring's offsets
+    from ``centre`` projected into the plane, (n, 3)), the in-plane axes ``e1`` (towards the first point)
+    and ``e2``, the 2-D points ``p2`` ((n, 2)) and their unwrapped angle ``theta`` (0 at the first point,
+    increasing).
+    """
+    d = ring - centre
+    normal = np.cross(d, np.roll(d, -1, axis=0)).sum(axis=0)
+    normal /= np.linalg.norm(normal) or 1.0
+    flat = d - np.outer(d @ normal, normal)
+    e1 = flat[0] / (np.linalg.norm(flat[0]) or 1.0)
+    e2 = np.cross(normal, e1)
+    p2 = np.stack([flat @ e1, flat @ e2], axis=1)
+    theta = np.unwrap(np.arctan2(p2[:, 1], p2[:, 0]))
+    theta -= theta[0]
+    if theta[-1] < 0:                                   # clockwise in this frame
+        p2[:, 1] *= -1
+        e2 = -e2
+        theta = -theta
+    return flat, e1, e2, p2, theta
+
+
 class DiscCap:
     """A flat cap triangulated ring by ring (issue 21: the neck closed without a fan of long triangles).
 
@@ -233,19 +257,7 @@ class DiscCap:
 
     def __init__(self, ring: np.ndarray, centre: np.ndarray, edge: float, plan: tuple | None = None):
         n = len(ring)
-        d = ring - centre
-        normal = np.cross(d, np.roll(d, -1, axis=0)).sum(axis=0)
-        normal /= np.linalg.norm(normal) or 1.0
-        flat = d - np.outer(d @ normal, normal)                               # the ring in the cap's plane
-        e1 = flat[0] / (np.linalg.norm(flat[0]) or 1.0)
-        e2 = np.cross(normal, e1)
-        p2 = np.stack([flat @ e1, flat @ e2], axis=1)
-        theta = np.unwrap(np.arctan2(p2[:, 1], p2[:, 0]))
-        theta -= theta[0]
-        if theta[-1] < 0:                                                     # clockwise in this frame
-            p2[:, 1] *= -1
-            e2 = -e2
-            theta = -theta
+        flat, e1, e2, p2, theta = ring_in_plane(ring, centre)
         edge = max(float(edge), 1e-9)
         # plan: (perimeter, largest radius) of a reference ring that fixes the counts, so the topology
         # does not change while the shape sliders move the ring a little (in-place rebuilds)
