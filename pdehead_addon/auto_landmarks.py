@@ -23,12 +23,16 @@ Method (every step a pure function of the mask):
 4. **Frankfurt horizontal.** Porion (top of the meatus) and orbitale (lowest point of the
    orbit margin) on both sides give :func:`~pdehead_addon.landmarks.frankfurt_transform`;
    steps 2-3 are repeated in that frame and every other landmark is found there by the rule
-   in :data:`RULES` (also in this module's functions' docstrings).
+   in :data:`RULES` (also in the docstrings of the rules' functions).
 5. Points are mapped back to patient LPS mm (the CT's frame, not the aligned one).
 
 Flags: ``ok`` (the rule's evidence was found as expected), ``uncertain`` (the rule placed a
 point but its evidence was weak; :attr:`FoundLandmark.evidence` says which) and
 ``not_found`` (no point; the evidence says why, e.g. no mandible in the scan).
+
+Code: this module runs the steps (:func:`find_landmarks`); the frame and its depth images are in
+:mod:`.landmark_frame`, the openings and the Frankfurt points in :mod:`.landmark_openings`, the rules of
+the mid-sagittal landmarks in :mod:`.landmark_midline` and of the bilateral ones in :mod:`.landmark_bilateral`.
 
 Nomenclature: the landmark set of :data:`~pdehead_addon.landmarks.STANDARD_LANDMARKS`,
 with the depth-table codes of Caple & Stephan (2016) where they differ (pr = Supradentale,

@@ -212,8 +212,9 @@ def porion_overhang(v: DepthViews, side: int, meatus: np.ndarray, p: np.ndarray,
     Going medially from porion along its row, the canal's lateral end is the first x where there is bone
     within ``PORION_FLOOR_MM`` below the opening's top (a floor). Where the roof overhangs it (the root of
     the zygomatic arch, the supramastoid crest) a reader may put porion on the roof's edge or above the
-    canal's end: the rule's point is uncertain by this much; :func:`find_landmarks` puts it half way (the roof
-    above the middle) and flags it ``uncertain`` beyond ``PORION_OVERHANG_MM``.
+    canal's end: the rule's point is uncertain by this much; :func:`frankfurt_points` puts it half way (the roof
+    above the middle) and :func:`~.auto_landmarks.find_landmarks` flags it ``uncertain`` beyond
+    ``PORION_OVERHANG_MM``.
     """
     fr = v.fr
     top = int(np.flatnonzero(meatus.any(0)).max())
