@@ -840,20 +840,22 @@ def _md_speed(ds: dict) -> list[str]:
     return L
 
 
+def _error_row(lab: str, stage: str, record: dict) -> list[str]:
+    """The speed table's row of a stage that failed ([] when its record has no error either)."""
+    return [f"| {lab} | {stage} | {record['error']} | | | |"] if "error" in record else []
+
+
 def _speed_load(lab: str, r: dict) -> list[str]:
     ld = r.get("load", {})
     if "time" in ld:
         return [f"| {lab} | load {('x'.join(map(str, ld['shape'])))} | {_ms(ld['time']['median_s'])} | - | - | - |"]
-    if "error" in ld:
-        return [f"| {lab} | load | {ld['error']} | | | |"]
-    return []
+    return _error_row(lab, "load", ld)
 
 
 def _speed_segmentation(key: str, r: dict) -> list[str]:
-    lab = key
     sg = r.get("segmentation", {})
     if "ours" not in sg:
-        return [f"| {lab} | segmentation | {sg['error']} | | | |"] if "error" in sg else []
+        return _error_row(key, "segmentation", sg)
     peer = sg.get("peer")
     jo = sg["ours"].get("slice_jaccard_mean")
     ours_txt = f"{_ms(sg['ours']['time']['median_s'])}" + (f", slice J {jo:.4f}" if jo is not None else "")
@@ -865,11 +867,11 @@ def _speed_segmentation(key: str, r: dict) -> list[str]:
                 f" (ours {peer['ours_slice_jaccard_mean_same_slices']:.4f} there)"
                 + (f" [{peer['slices']}-slice subset, extrapolated]" if peer["subset"] else
                    f" [all {peer['slices']} head slices, measured]"))
-        return [f"| {lab} | segmentation | {ours_txt} | {ptxt} | {sg['ratio']:.1f}x | "
+        return [f"| {key} | segmentation | {ours_txt} | {ptxt} | {sg['ratio']:.1f}x | "
                 + ("<= 2 s, >= 5x" if key == "cthead" else "-") + " |"]
     extra = (f"; mask = {100 * sg['ours']['mask_fraction']:.1f}% of the volume"
              if "mask_fraction" in sg["ours"] else "")
-    return [f"| {lab} | segmentation | {ours_txt}{extra} | {sg.get('note', '-')} | - | - |"]
+    return [f"| {key} | segmentation | {ours_txt}{extra} | {sg.get('note', '-')} | - | - |"]
 
 
 def _speed_boundaries(lab: str, r: dict) -> list[str]:
@@ -878,38 +880,34 @@ def _speed_boundaries(lab: str, r: dict) -> list[str]:
         return [f"| {lab} | boundaries t={bd['patches']}, M=256{', ' + bd['parameterisation'] if bd.get('parameterisation') else ''} | "
                 f"{_ms(bd['time']['median_s'])} | - | - | "
                 f"(paper: {PAPER['boundary_seconds']} s) |"]
-    if "error" in bd:
-        return [f"| {lab} | boundaries | {bd['error']} | | | |"]
-    return []
+    return _error_row(lab, "boundaries", bd)
 
 
 def _speed_surface(key: str, r: dict) -> list[str]:
-    lab = key
     su = r.get("surface", {})
     if "ours" not in su:
-        return [f"| {lab} | solve+surface | {su['error']} | | | |"] if "error" in su else []
+        return _error_row(key, "solve+surface", su)
     o, p = su["ours"], su["peer"]
-    L = [f"| {lab} | solve + surface(40,60), engine | {_ms(o['engine']['median_s'])} (solve alone "
+    L = [f"| {key} | solve + surface(40,60), engine | {_ms(o['engine']['median_s'])} (solve alone "
          f"{_ms(o['solve_only']['median_s'])}) | marching cubes {_ms(p['engine']['median_s'])} "
          f"({p['faces']:,} triangles) | {su['ratio_engine']:.0f}x | - |"]
     if "blender" in o:
-        L.append(f"| {lab} | Blender mesh build | {_ms(o['blender']['median_s'])} ({o['faces']} faces, capped) | "
+        L.append(f"| {key} | Blender mesh build | {_ms(o['blender']['median_s'])} ({o['faces']} faces, capped) | "
                  f"{_ms(p['blender']['median_s'])} | {p['blender']['median_s'] / o['blender']['median_s']:.0f}x | - |")
-        L.append(f"| {lab} | **engine (capped) + Blender** | {_ms(o['total_median_s'])} | "
+        L.append(f"| {key} | **engine (capped) + Blender** | {_ms(o['total_median_s'])} | "
                  f"{_ms(p['total_median_s'])} | **{su['ratio_total']:.0f}x** | "
                  + (">= 100x" if key == "cthead" else "-") + " |")
     return L
 
 
 def _speed_wfield(key: str, r: dict) -> list[str]:
-    lab = key
     wf = r.get("wfield", {})
     if "ours" not in wf:
-        return [f"| {lab} | w_field | {wf['error']} | | | |"] if "error" in wf else []
-    L = [f"| {lab} | w_field {'x'.join(map(str, wf['ours']['grid']))} | {_ms(wf['ours']['time']['median_s'])}"
+        return _error_row(key, "w_field", wf)
+    L = [f"| {key} | w_field {'x'.join(map(str, wf['ours']['grid']))} | {_ms(wf['ours']['time']['median_s'])}"
          f" | - | - | " + ("<= 1 s" if key == "cthead" else "-") + " |"]
     if "vdb" in wf:
-        L.append(f"| {lab} | write_vdb | {_ms(wf['vdb']['time']['median_s'])} ({wf['vdb']['bytes'] / 1024:.0f} kB)"
+        L.append(f"| {key} | write_vdb | {_ms(wf['vdb']['time']['median_s'])} ({wf['vdb']['bytes'] / 1024:.0f} kB)"
                  f" | - | - | - |")
     return L
 
