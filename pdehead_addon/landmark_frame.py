@@ -180,14 +180,8 @@ def bone_components(bone: np.ndarray) -> tuple[np.ndarray, int]:
     (a closed bite or a joint at partial volume no longer joins the mandible to the skull), then the
     eroded rim given back to the component next to it (three constrained label dilations).
     """
-    cross = ndimage.generate_binary_structure(3, 1)
-    full = np.ones((3, 3, 3), bool)
-    core = ndimage.binary_erosion(bone, structure=cross)
-    if not core.any():
-        core = bone
-    labels, n = ndimage.label(core, structure=full)
-    for _ in range(3):
-        spread = ndimage.grey_dilation(labels, footprint=full)
-        labels = np.where(bone & (labels == 0), spread, labels)
-    return labels.astype(np.int32), int(n)
+    from .skull import eroded_components, give_back_rim
+
+    _, labels, n = eroded_components(bone)
+    return give_back_rim(labels, bone).astype(np.int32), int(n)
 
