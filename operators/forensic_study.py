@@ -380,11 +380,11 @@ def forensic_provenance(coll, table=None) -> dict:
 
 def measured_landmark_depths(coll, skull, skin) -> tuple[dict, dict[str, str], str]:
     """The placed landmarks' depths for landmarks.csv, measured as the batch measures them
-    (:func:`~pdehead_addon.landmarks.measure_landmark_depths`: on the CT's intensities along the bone's exposed
+    (:func:`~pdehead_addon.depth_on_ct.measure_landmark_depths`: on the CT's intensities along the bone's exposed
     normal; on the meshes only when the study's skull carries no CT intensities). Returns the rows
     (name -> (bone point, depth mm)), the flags (an ``ok`` landmark whose depth the CT's profile does not
     support turns ``uncertain``) and the method's description for the provenance."""
-    from ..pdehead_addon.landmarks import depth_flags, measure_landmark_depths
+    from ..pdehead_addon.depth_on_ct import depth_flags, measure_landmark_depths
 
     lms = landmarks(coll)
     sk = skull_segmentation(coll)

@@ -1,12 +1,10 @@
 """The skull from the same CT: bone segmentation, the skull envelope for the PDE path, a bone mesh.
 
-Forensic facial reconstruction works on the skull (the outer table of the
-cranial vault and the facial skeleton) and on the soft tissue between it and
-the skin.  :func:`segment_skull` finds the bone in the head CT and returns a
-:class:`SkullSegmentation`, which is a :class:`~.segmentation.Segmentation`
-whose ``mask`` is the skull's filled outer *envelope*: so the skull becomes a
-second PDE surface by exactly the skin's path (paper eq. 22 boundary curves,
-section 4.1 slice choice, eq. 1-13 patches)::
+Forensic facial reconstruction works on the skull (the outer table of the cranial vault and the facial
+skeleton) and on the soft tissue between it and the skin.  :func:`segment_skull` finds the bone in the head CT
+and returns a :class:`SkullSegmentation`, which is a :class:`~.segmentation.Segmentation` whose ``mask`` is the
+skull's filled outer *envelope*: so the skull becomes a second PDE surface by exactly the skin's path (paper
+eq. 22 boundary curves, section 4.1 slice choice, eq. 1-13 patches)::
 
     skull = segment_skull(ct, head=seg)
     bset = extract_boundaries(skull, patches=t)       # the skull's 3t+1 outer outlines
@@ -258,6 +256,26 @@ def _to_hu(value: float, calibrated: bool, window) -> float | None:
     return float(AIR_HU + (value - low) * (TISSUE_HU - AIR_HU) / (high - low))
 
 
+def eroded_components(bone: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """The components of the bone eroded by one voxel (a joint or a tooth contact at partial volume no longer joins
+    them; thicker bone stays whole): (the eroded core, or the bone when nothing is left; its labels; their count)."""
+    core = ndi.binary_erosion(bone, structure=ndi.generate_binary_structure(3, 1))
+    if not core.any():
+        core = bone
+    labels, n = ndi.label(core, structure=np.ones((3, 3, 3), bool))
+    return core, labels, n
+
+
+def give_back_rim(labels: np.ndarray, bone: np.ndarray, steps: int = 3) -> np.ndarray:
+    """The labels of :func:`eroded_components` with the eroded rim given back to the component next to it
+    (``steps`` label dilations constrained to ``bone``)."""
+    full = np.ones((3, 3, 3), bool)
+    for _ in range(steps):
+        spread = ndi.grey_dilation(labels, footprint=full)
+        labels = np.where(bone & (labels == 0), spread, labels)
+    return labels
+
+
 def _vertebra_components(labels: np.ndarray, centroids_xyz: np.ndarray, cranium: int, ct: CTVolume) -> np.ndarray:
     """True for components that are cervical vertebrae: below the skull base, not in front of the cranium.
 
@@ -432,15 +450,9 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
     if not bone.any():
         raise SegmentationError(f"{ct.meta.get('source', 'the CT')}: nothing is above the bone level {stored:g} "
                                 f"({units})")
-    # components on the bone eroded by one voxel: joints and tooth contacts at partial volume
-    # (atlanto-occipital, TMJ, closed bite) join the vertebrae or the mandible to the cranium at the
-    # bone level; one voxel of erosion separates them (CThead), thicker bone stays whole
-    cross = ndi.generate_binary_structure(3, 1)
-    full = np.ones((3, 3, 3), bool)
-    core = ndi.binary_erosion(bone, structure=cross)
-    if not core.any():
-        core = bone
-    labels, n = ndi.label(core, structure=full)
+    # joints and tooth contacts at partial volume (atlanto-occipital, TMJ, closed bite) join the vertebrae or the
+    # mandible to the cranium at the bone level; one voxel of erosion separates them (CThead)
+    core, labels, n = eroded_components(bone)
     sizes = np.bincount(labels.reshape(-1), minlength=n + 1)[1:]
     boxes = ndi.find_objects(labels)
     # the cranium: the largest component clear of the scan's side borders (a table or a holder running
@@ -470,14 +482,11 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
     keep[cranium - 1] = True
     mandible = _mandible_report(labels, keep, sizes, centroids_xyz, cranium, ct, voxel_mm3, crbox, boxes)
     # give the eroded rim back to the component it came from (a few constrained label dilations)
-    grown = labels
-    for _ in range(3):
-        spread = ndi.grey_dilation(grown, footprint=full)
-        grown = np.where(bone & (grown == 0), spread, grown)
+    grown = give_back_rim(labels, bone)
     dropped = bone & np.concatenate([[False], vertebra | outside])[grown]
     dropped_vertebra = int(np.count_nonzero(dropped & np.concatenate([[False], vertebra])[grown]))
     dropped_support = int(np.count_nonzero(dropped)) - dropped_vertebra
-    rest, m = ndi.label(bone & ~dropped, structure=full)
+    rest, m = ndi.label(bone & ~dropped, structure=np.ones((3, 3, 3), bool))
     holds_kept = np.unique(rest[np.concatenate([[False], keep])[grown] & (rest > 0)])
     skull = np.isin(rest, holds_kept[holds_kept > 0])
     mandible_mask = (skull & (grown == mandible["component"])) if mandible["present"] else None

@@ -52,6 +52,18 @@ class CLIError(Exception):
 
 
 def parse_args(argv=None) -> argparse.Namespace:
+    p = _parser()
+    args = p.parse_args(argv)
+    _check_skull_args(p, args)
+    _check_input_args(p, args)
+    _check_curve_args(p, args)
+    _check_ranges(p, args)
+    _check_render_args(p, args)
+    check_outputs(args)
+    return args
+
+
+def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=PROG, description="Build a smooth PDE head in Blender from head CT slices.")
     p.add_argument("input", nargs="?", help="DICOM folder, image-stack folder, raw-slice folder or file")
     p.add_argument("--phantom", action="store_true", help="use the built-in synthetic head instead of INPUT")
@@ -126,7 +138,19 @@ def parse_args(argv=None) -> argparse.Namespace:
     g.add_argument("--downsample", type=int, default=D.DOWNSAMPLE.default, metavar="N",
                    help=D.DOWNSAMPLE.help("average N x N x N voxel blocks on import (very large scans: 2 needs "
                                           "1/8 of the memory)"))
-    args = p.parse_args(argv)
+    return p
+
+
+def _check_range(p, param, value, flag: str) -> None:
+    """The add-on's range of ``param`` (:mod:`pdehead_addon.defaults`): a usage error (exit 2) outside it."""
+    try:
+        param.check(value, flag)
+    except ValueError as exc:
+        p.error(str(exc))
+
+
+def _check_skull_args(p, args) -> None:
+    """--skull-mesh, --face-from-skull and --bone-level (the first two imply --skull)."""
     if args.skull_mesh is not None:
         if args.input or args.phantom:
             p.error("give either INPUT, --phantom or --skull-mesh")
@@ -140,10 +164,12 @@ def parse_args(argv=None) -> argparse.Namespace:
             p.error("--face-from-skull needs --export DIR (where face.<fmt>, skull.<fmt> and landmarks.csv go)")
         args.skull = True
     if args.bone_level is not None:
-        try:
-            D.BONE_LEVEL.check(args.bone_level, "--bone-level")
-        except ValueError as exc:
-            p.error(str(exc))
+        _check_range(p, D.BONE_LEVEL, args.bone_level, "--bone-level")
+
+
+def _check_input_args(p, args) -> None:
+    """The defaults of --patches and --selection (and whether they were given), INPUT or --phantom, the raw
+    loader's options, and the options that need another."""
     args.patches_given, args.selection_given = args.patches is not None, args.selection is not None
     args.patches = D.PATCHES.default if args.patches is None else args.patches
     args.selection = D.SELECTION.default if args.selection is None else args.selection
@@ -159,6 +185,10 @@ def parse_args(argv=None) -> argparse.Namespace:
         p.error("--render-volume needs the volume (drop --no-volume)")
     if args.export and not args.skull:
         p.error("--export needs --skull")
+
+
+def _check_curve_args(p, args) -> None:
+    """--tolerance / --max-tolerance against --patches and --selection (a tolerance selects automatically)."""
     tol = args.tolerance is not None or args.max_tolerance is not None
     if tol and args.patches_given:
         p.error("give either --patches or --tolerance (the tolerance chooses the number of curves)")
@@ -170,24 +200,23 @@ def parse_args(argv=None) -> argparse.Namespace:
             p.error(f"--{name.replace('_', '-')} must be a distance > 0 mm, got {value}")
     if tol:
         args.selection = "auto"
+
+
+def _check_ranges(p, args) -> None:
+    """Every number in the add-on's range (or the CLI's own lower bounds)."""
     for name in ("patches", "samples", "downsample", "nu", "nv", "nw"):  # the add-on's ranges
-        try:
-            D.PARAMS[name].check(getattr(args, name), f"--{name}")
-        except ValueError as exc:
-            p.error(str(exc))
+        _check_range(p, D.PARAMS[name], getattr(args, name), f"--{name}")
     for name, low in (("resolution", 16), ("render_samples", 1)):
         if getattr(args, name) < low:
             p.error(f"--{name.replace('_', '-')} must be at least {low}, got {getattr(args, name)}")
     if args.voxel_size is not None:
-        try:
-            D.VOXEL_SIZE.check(args.voxel_size, "--voxel-size")
-        except ValueError as exc:
-            p.error(str(exc))
+        _check_range(p, D.VOXEL_SIZE, args.voxel_size, "--voxel-size")
     if args.turntable is not None:
-        try:
-            D.TURNTABLE_FRAMES.check(args.turntable, "--turntable")
-        except ValueError as exc:
-            p.error(str(exc))
+        _check_range(p, D.TURNTABLE_FRAMES, args.turntable, "--turntable")
+
+
+def _check_render_args(p, args) -> None:
+    """--render-animation, --orientation against --first-slice, and the renders' file names."""
     if args.render_animation is not None:
         if args.turntable is None:
             p.error("--render-animation needs --turntable N (the animation to render)")
@@ -200,8 +229,6 @@ def parse_args(argv=None) -> argparse.Namespace:
         if path is not None and path.suffix.lower() not in IMAGE_SUFFIXES:
             p.error(f"--{flag.replace('_', '-')} {path}: the file name must end in "
                     f"{', '.join(IMAGE_SUFFIXES)} (PNG or JPEG)")
-    check_outputs(args)
-    return args
 
 
 #: What --render / --render-volume write (operators/render.py IMAGE_FORMATS).
@@ -524,6 +551,41 @@ def _run(args, bpy, addon, state) -> dict:
 def _steps(args, bpy, addon, state) -> dict:
     ops = bpy.ops.pdehead
     t0 = time.perf_counter()
+    coll, selection_info, skin = _build(args, bpy, addon, ops)
+    total = time.perf_counter() - t0
+
+    timings = state.timings(coll)
+    s = coll.pdehead
+    _print_study(args, bpy, state, coll, selection_info)
+    if args.skull:
+        _print_skull(args, addon, coll, skin)
+    warning_lines = [state.user_text(w) for w in state.warning_list(s)]
+    for warning in warning_lines:
+        print(f"  warning   {warning}")
+    print("timings (s):")
+    if getattr(args, "face", None) is not None:     # the face's own steps (engine, not an operator)
+        res, model = args.face
+        timings = dict(timings, face_prep=model.prepare_seconds, face_solve=res.timings["total"])
+    for step, seconds in timings.items():
+        print(f"  {step:<11}{seconds:8.3f}")
+    print(f"  {'total':<11}{total:8.3f}")
+
+    summary = _summary(args, addon, coll, timings, total, selection_info, warning_lines)
+    if args.out:
+        _save(bpy, args.out.resolve(), "--out")
+        print(f"wrote {args.out}")
+        summary["outputs"]["blend"] = str(args.out)
+    else:
+        print("not saved: no --out given (pass --out FILE.blend to keep the result)")
+    _render(args, addon, s, summary)
+    if args.turntable:
+        _turntable(args, bpy, addon, ops, coll, summary)
+    return summary
+
+
+def _build(args, bpy, addon, ops):
+    """Every step of the study, as the add-on's operators: (the study's collection, the automatic selection's
+    report or None, whether the scan has skin)."""
     if args.phantom:
         _call(ops.load_phantom)
     else:
@@ -546,7 +608,6 @@ def _steps(args, bpy, addon, state) -> dict:
         _call(ops.build_volume, **({} if args.voxel_size is None else dict(voxel_size=args.voxel_size)))
     skin = True
     if args.skull:
-        import json
         _call(ops.build_skull)
         skin = json.loads(coll.get("pdehead_skull_info", "{}")).get("has_skin", True)
         if skin:
@@ -557,9 +618,12 @@ def _steps(args, bpy, addon, state) -> dict:
         face = _face_from_skull(addon, coll) if args.face_from_skull else None
         if args.export:
             _export_with_face(args, ops, addon, face)
-    total = time.perf_counter() - t0
+    return coll, selection_info, skin
 
-    timings = state.timings(coll)
+
+def _print_study(args, bpy, state, coll, selection_info) -> None:
+    """The summary's lines for the CT, the segmentation, the curves, the surface, the solid and the volume."""
+    s = coll.pdehead
     print(f"{PROG}: study '{coll.name}'")
     nx, ny, nz = s.dimensions
     dz, dy, dx = s.spacing
@@ -578,51 +642,39 @@ def _steps(args, bpy, addon, state) -> dict:
     if s.volume_object is not None:
         size = "CT grid" if s.use_ct_grid else f"{s.voxel_size:g} mm voxels" + (" (automatic)" if s.voxel_auto else "")
         print(f"  volume    {bpy.path.abspath(s.volume_object.data.filepath)}, {size}")
-    if args.skull:
-        import json
-        info = json.loads(coll.get("pdehead_skull_info", "{}"))
-        depth = json.loads(coll.get("pdehead_depth_stats", "{}"))
-        if info.get("skull_mesh_file"):
-            level = f"none (the skull is the mesh {info['skull_mesh_file']})"
-        else:
-            level = f"{info.get('bone_level_stored', info.get('bone_level', 0)):g} {info.get('units', 'HU')}"
-        print(f"  skull     bone level {level}, {info.get('patches')} patches, "
-              f"{info.get('bone_triangles', 0)} bone-skull triangles")
-        if not skin:
-            print("  skin      none: the scan has no soft tissue (a skull alone): no skin.stl, no tissue_depth.csv")
-        if "median" in depth:
-            print(f"  depth     {depth['measured']} of {depth['vertices']} skin vertices, median {depth['median']:.1f} "
-                  f"mm, p95 {depth['p95']:.1f} mm (no bone {depth['no_bone']}, envelope {depth['envelope']})")
-        flags = [f for f, _ in addon.operators.forensic_study.landmark_flags(coll).values()]
-        if flags:
-            print(f"  landmarks {len(flags) - flags.count('not_found')} of {len(flags)} found automatically "
-                  f"({flags.count('ok')} ok, {flags.count('uncertain')} uncertain, {flags.count('not_found')} not found)")
-        if getattr(args, "face", None) is not None:
-            res, model = args.face
-            prov = res.provenance
-            print(f"  face      {model.label}: {len(model.peg_names)} pegs, table {prov.get('table', 'imported table')}, "
-                  f"{len(res.mesh.vertices)} vertices, closed")
-        if args.export:
-            written = sorted(p.name for p in args.export.iterdir() if not p.name.startswith("."))
-            print(f"  export    {args.export}: {', '.join(written)}")
-    warning_lines = [state.user_text(w) for w in state.warning_list(s)]
-    for warning in warning_lines:
-        print(f"  warning   {warning}")
-    print("timings (s):")
-    if getattr(args, "face", None) is not None:     # the face's own steps (engine, not an operator)
-        res, model = args.face
-        timings = dict(timings, face_prep=model.prepare_seconds, face_solve=res.timings["total"])
-    for step, seconds in timings.items():
-        print(f"  {step:<11}{seconds:8.3f}")
-    print(f"  {'total':<11}{total:8.3f}")
 
-    summary = _summary(args, addon, coll, timings, total, selection_info, warning_lines)
-    if args.out:
-        _save(bpy, args.out.resolve(), "--out")
-        print(f"wrote {args.out}")
-        summary["outputs"]["blend"] = str(args.out)
+
+def _print_skull(args, addon, coll, skin) -> None:
+    """The summary's lines for the skull, the skin, the depth map, the landmarks, the face and the export."""
+    info = json.loads(coll.get("pdehead_skull_info", "{}"))
+    depth = json.loads(coll.get("pdehead_depth_stats", "{}"))
+    if info.get("skull_mesh_file"):
+        level = f"none (the skull is the mesh {info['skull_mesh_file']})"
     else:
-        print("not saved: no --out given (pass --out FILE.blend to keep the result)")
+        level = f"{info.get('bone_level_stored', info.get('bone_level', 0)):g} {info.get('units', 'HU')}"
+    print(f"  skull     bone level {level}, {info.get('patches')} patches, "
+          f"{info.get('bone_triangles', 0)} bone-skull triangles")
+    if not skin:
+        print("  skin      none: the scan has no soft tissue (a skull alone): no skin.stl, no tissue_depth.csv")
+    if "median" in depth:
+        print(f"  depth     {depth['measured']} of {depth['vertices']} skin vertices, median {depth['median']:.1f} "
+              f"mm, p95 {depth['p95']:.1f} mm (no bone {depth['no_bone']}, envelope {depth['envelope']})")
+    flags = [f for f, _ in addon.operators.forensic_study.landmark_flags(coll).values()]
+    if flags:
+        print(f"  landmarks {len(flags) - flags.count('not_found')} of {len(flags)} found automatically "
+              f"({flags.count('ok')} ok, {flags.count('uncertain')} uncertain, {flags.count('not_found')} not found)")
+    if getattr(args, "face", None) is not None:
+        res, model = args.face
+        prov = res.provenance
+        print(f"  face      {model.label}: {len(model.peg_names)} pegs, table {prov.get('table', 'imported table')}, "
+              f"{len(res.mesh.vertices)} vertices, closed")
+    if args.export:
+        written = sorted(p.name for p in args.export.iterdir() if not p.name.startswith("."))
+        print(f"  export    {args.export}: {', '.join(written)}")
+
+
+def _render(args, addon, s, summary) -> None:
+    """--render and --render-volume."""
     render = addon.operators.render
     size = (args.resolution, args.resolution)
     for flag, obj in (("render", s.surface_object), ("render_volume", s.volume_object)):
@@ -636,19 +688,22 @@ def _steps(args, bpy, addon, state) -> dict:
             raise CLIError(f"--{flag.replace('_', '-')} {path}: the render was not written", 1)
         print(f"wrote {path} ({time.perf_counter() - t:.1f} s)")
         summary["outputs"][flag] = str(path)
-    if args.turntable:
-        _call(ops.turntable, frames=args.turntable)
-        print(f"  turntable {args.turntable} frames (1..{args.turntable}) around '{coll.name}'")
-        if args.out:
-            _save(bpy, args.out.resolve(), "--out")
-        if args.render_animation:
-            t = time.perf_counter()
-            with _blender_stdout(drop=("Fra:", "Time:", "Saved:", "Info:")):
-                paths = addon.operators.animation.render_animation(bpy.context.scene, args.render_animation.resolve(),
-                                                                   size, args.render_samples)
-            print(f"wrote {len(paths)} frames {paths[0]} .. {paths[-1].name} ({time.perf_counter() - t:.1f} s)")
-            summary["outputs"]["render_animation"] = [str(x) for x in paths]
-    return summary
+
+
+def _turntable(args, bpy, addon, ops, coll, summary) -> None:
+    """--turntable (saved into --out again) and --render-animation."""
+    size = (args.resolution, args.resolution)
+    _call(ops.turntable, frames=args.turntable)
+    print(f"  turntable {args.turntable} frames (1..{args.turntable}) around '{coll.name}'")
+    if args.out:
+        _save(bpy, args.out.resolve(), "--out")
+    if args.render_animation:
+        t = time.perf_counter()
+        with _blender_stdout(drop=("Fra:", "Time:", "Saved:", "Info:")):
+            paths = addon.operators.animation.render_animation(bpy.context.scene, args.render_animation.resolve(),
+                                                               size, args.render_samples)
+        print(f"wrote {len(paths)} frames {paths[0]} .. {paths[-1].name} ({time.perf_counter() - t:.1f} s)")
+        summary["outputs"]["render_animation"] = [str(x) for x in paths]
 
 
 def _face_from_skull(addon, coll):

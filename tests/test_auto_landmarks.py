@@ -74,8 +74,8 @@ def test_phantom_every_landmark_found_and_accurate(phantom_search, phantom_truth
 
 
 def test_phantom_without_mandible_reports_it(phantom, phantom_bone, phantom_search):
-    from pdehead_addon.auto_landmarks import _components
-    labels, _ = _components(phantom_bone)
+    from pdehead_addon.landmark_frame import bone_components
+    labels, _ = bone_components(phantom_bone)
     mandible = labels == labels[tuple(np.round(phantom.ct.patient_to_index([0.0, -67.0, -79.0])).astype(int))]
     assert 0.02 < mandible.mean() / phantom_bone.mean() < 0.2
     search = find_landmarks(phantom.ct, phantom_bone & ~mandible)
@@ -161,7 +161,7 @@ def test_scaled_phantom_mandible_midline_is_on_the_mandible(monkeypatch):
     from the mandible, and infradentale and supramentale landed on it (supramentale 30 mm behind pogonion, ok).
     A piece between the jaws now counts as the mandible's only when it lies no farther from the mandible than
     from the upper skeleton; and supramentale on a profile with a gap is uncertain."""
-    import pdehead_addon.auto_landmarks as A
+    import pdehead_addon.landmark_midline as M
     from pdehead_addon import CTVolume, make_phantom
     from pdehead_addon.phantom_anatomy import _mandible_sd
 
@@ -187,7 +187,7 @@ def test_scaled_phantom_mandible_midline_is_on_the_mandible(monkeypatch):
     # the phantom's chin has no concavity above it (chin ellipsoid on a straight front): uncertain, says why
     assert sm.flag == UNCERTAIN and "no concavity" in sm.evidence
     # the old rule (every piece between the jaws is the mandible's) lands on the palate: no longer silent
-    monkeypatch.setattr(A, "_lower_teeth_pieces", lambda fr, pieces, mand_id: pieces)
+    monkeypatch.setattr(M, "_lower_teeth_pieces", lambda fr, pieces, mand_id: pieces)
     old = find_landmarks(ct, bone).landmarks["Supramentale"]
     assert abs(old.point[1] - pog[1]) > 20.0
     assert old.flag == UNCERTAIN and "gap" in old.evidence, old

@@ -84,7 +84,8 @@ def test_one_depth_function_on_the_ct_with_a_mesh_fallback(holed_slab):
     from scipy.special import erfc
 
     from pdehead_addon.ct_volume import CTVolume
-    from pdehead_addon.landmarks import depth_flags, landmark_depths, measure_landmark_depths
+    from pdehead_addon.depth_on_ct import depth_flags, measure_landmark_depths
+    from pdehead_addon.landmarks import landmark_depths
 
     ax = np.arange(-40.0, 41.0)
     z, y, x = np.meshgrid(ax, ax, ax, indexing="ij")
@@ -127,7 +128,7 @@ def test_slice_edge_spread_is_measured_on_the_skin(sigma):
     wise on 4.3 mm slices of 2 mm pixels: the spread across the slices is recovered from the skin alone."""
     from scipy.special import ndtr
 
-    from pdehead_addon.landmarks import slice_edge_spread
+    from pdehead_addon.depth_on_ct import slice_edge_spread
 
     h, px, radius = 4.3, 2.0, 80.0
     z = (np.arange(48) - 23.7) * h
@@ -146,7 +147,7 @@ def test_step_crossing_locates_an_edge_between_two_slices():
     with the spread recovers it within 0.05 mm, also for a level off half way (the bone's)."""
     from scipy.special import ndtr, ndtri
 
-    from pdehead_addon.landmarks import step_crossing
+    from pdehead_addon.depth_on_ct import step_crossing
 
     sigma, h, inside, outside = 1.2, 4.3, 1300.0, 40.0
     worst_linear, worst_model = 0.0, 0.0

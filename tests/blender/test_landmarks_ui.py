@@ -47,8 +47,8 @@ def test_find_landmarks_operator_on_the_phantom(pdehead_ext):
     assert fs.landmark_flags(coll)["Pogonion"] == ("ok", fs.MOVED_BY_HAND)
     # without the mandible in the bone mask: its landmarks are not found, and the report says so
     sk = skull.skull_segmentation(coll)
-    from pdehead_addon.auto_landmarks import _components
-    labels, _ = _components(sk.bone)
+    from pdehead_addon.landmark_frame import bone_components
+    labels, _ = bone_components(sk.bone)
     k = tuple(np.round(sk.ct.patient_to_index([0.0, -67.0, -79.0])).astype(int))
     sk.bone[labels == labels[k]] = False
     assert bpy.ops.pdehead.find_landmarks(keep_edited=False) == {'FINISHED'}
