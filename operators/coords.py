@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..pdehead_addon.ct_volume import grid_affine
+from ..pdehead_addon.core.ct_volume import grid_affine
 
 MM_TO_M = 0.001
 
@@ -17,7 +17,7 @@ MM_TO_M = 0.001
 def grid_affine_world(spacing, origin, direction) -> np.ndarray:
     """4x4 matrix from voxel index ``(i, j, k, 1)`` to Blender world metres.
 
-    The engine's :func:`pdehead_addon.ct_volume.grid_affine` (same arguments: spacing ``(dz, dy, dx)``
+    The engine's :func:`pdehead_addon.core.ct_volume.grid_affine` (same arguments: spacing ``(dz, dy, dx)``
     mm, origin ``(x, y, z)`` LPS mm, direction columns of the i, j, k axes) scaled to metres.
     """
     m = grid_affine(spacing, origin, direction)

@@ -9,7 +9,7 @@ import math
 import numpy as np
 
 from ..pdehead_addon import defaults as D
-from ..pdehead_addon.ct_volume import apply_window, sample_ct, trilinear
+from ..pdehead_addon.core.ct_volume import apply_window, sample_ct, trilinear
 
 FAMILIES = ("w1", "w0", "u1", "u0", "v1", "v0")  # the faces of the parametric box (Fig. 14)
 
@@ -119,7 +119,7 @@ def ct_texture_atlas(head, mesh, ct, window, ranges, size: int | None = None, pa
     shows the surface's material there); with ``skin="ct"`` its tile samples the CT
     ``skin_depth_mm`` inside the skin.
 
-    With `table` (a :class:`~pdehead_addon.solid_ct_table.SolidCTTable` of this head and CT) the
+    With `table` (a :class:`~pdehead_addon.pde.solid_ct_table.SolidCTTable` of this head and CT) the
     shells are looked up in the CT tabulated once in (u, v, w): no PDE evaluation and no CT
     interpolation per step, which keeps cutaway sliders live.
 

@@ -1,6 +1,6 @@
 """Face from Skull in Blender: the face object, its pegs, and the live re-solve when a peg moves.
 
-The engine (:mod:`pdehead_addon.face_from_skull`) prepares a :class:`FaceModel` from the skull, the
+The engine (:mod:`pdehead_addon.forensic.face_from_skull`) prepares a :class:`FaceModel` from the skull, the
 landmarks and a depth table (seconds), then solves a face through the peg tips (fast). This module is
 the Blender side of it:
 
@@ -74,7 +74,7 @@ PREPARE_CALLS = [0]
 
 
 def _engine():
-    from ..pdehead_addon import face_from_skull
+    from ..pdehead_addon.forensic import face_from_skull
     return face_from_skull
 
 
@@ -103,7 +103,7 @@ def face_options(coll) -> dict:
 def skull_mesh(coll):
     """The bone skull as an engine Mesh (patient mm): read from the study's bone object (what the .blend
     holds, so a reopened file prepares the same model), else built from the CT."""
-    from ..pdehead_addon.mesh import Mesh
+    from ..pdehead_addon.core.mesh import Mesh
     from .forensic_skull import skull_engine_mesh
     from .objects import study_origin
 
@@ -128,7 +128,7 @@ def face_table(coll):
     """The depth table the study's face uses (setting ``face_table``): the shipped T-Table 2023 or a CSV."""
     import os
 
-    from ..pdehead_addon.depth_table import default_table, read_depth_table
+    from ..pdehead_addon.forensic.depth_table import default_table, read_depth_table
 
     s = state.settings(coll)
     if s.face_table == 'FILE':
@@ -191,7 +191,7 @@ def _mesh_positions(coll, obj) -> np.ndarray:
 def _restore_model(coll, opts):
     """The model kept in the file, checked against the saved face (None when there is none or it does not
     give the saved face): (model, LiveFace)."""
-    from ..pdehead_addon import face_live as engine_live
+    from ..pdehead_addon.forensic import face_live as engine_live
 
     text = coll.get(FACE_MODEL_KEY)
     obj = face_object(coll)
@@ -220,7 +220,7 @@ def _restore_model(coll, opts):
 
 def _keep_model(coll, model, build: str) -> None:
     """The prepared model into the file (the collection), after its first solve fixed its parameter."""
-    from ..pdehead_addon import face_live as engine_live
+    from ..pdehead_addon.forensic import face_live as engine_live
     try:
         coll[FACE_MODEL_KEY] = build + "\n" + engine_live.model_state(model)
     except (TypeError, ValueError) as exc:     # a model this version cannot keep: prepared again after reopening
@@ -243,7 +243,7 @@ def face_model(coll):
             cache.update(face_model=model, face_live=live, face_build=opts["build"], face_tips=None,
                          face_model_source="file", face_restore_s=t.seconds)
         else:
-            from ..pdehead_addon.depth_table import DepthTable
+            from ..pdehead_addon.forensic.depth_table import DepthTable
             table = DepthTable.from_json(opts["table"])
             lms = {k: np.array(v, float) for k, v in opts["landmarks"].items()}
             with state.Timer() as t:
@@ -260,7 +260,7 @@ def face_live(coll):
     cache = _cache(coll)
     live = cache.get("face_live")
     if live is None or live.model is not model:
-        from ..pdehead_addon.face_live import LiveFace
+        from ..pdehead_addon.forensic.face_live import LiveFace
         live = LiveFace(model)
         cache["face_live"] = live
     return live
@@ -327,7 +327,7 @@ def _write_positions(coll, obj, mesh=None, positions=None) -> bool:
 
 def _provenance(coll, result_provenance: dict, table) -> dict:
     from .forensic_study import flag_names
-    from ..pdehead_addon.provenance import provenance
+    from ..pdehead_addon.core.provenance import provenance
 
     opts = face_options(coll)
     rec = provenance(label=approximation_label(), **(table.provenance_record() if table is not None else {}))
@@ -459,7 +459,7 @@ def build_face(coll) -> tuple:
     obj[PROVENANCE_PROP] = json.dumps(_provenance(coll, result.provenance, table))
     _cache(coll)["face_tips"] = tips
     _keep_model(coll, model, build)
-    from ..pdehead_addon.face_live import LiveFace
+    from ..pdehead_addon.forensic.face_live import LiveFace
     _cache(coll)["face_live"] = LiveFace(model)
     state.record_timing(coll, "face_prepare", t.seconds)
     return obj, pegs

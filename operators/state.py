@@ -68,7 +68,7 @@ _CACHE: dict[str, StudyCache] = {}
 # Messages: stored in the engine's words, shown in the words of where they appear
 
 #: Where messages are shown: "dialog" (Blender's UI: field names) or "cli" (scripts/pdehead.py sets it:
-#: flags). The engine names its Python arguments; :func:`user_text` rewrites them (pdehead_addon.wording).
+#: flags). The engine names its Python arguments; :func:`user_text` rewrites them (pdehead_addon.core.wording).
 AUDIENCE = "dialog"
 #: The last exception an operator reported (the CLI tells bad input, exit 2, from a bug, exit 1).
 last_exception: BaseException | None = None
@@ -79,7 +79,7 @@ _MAX_WARNINGS_CHARS = 4000
 
 def user_text(message: str) -> str:
     """An engine message in the words of :data:`AUDIENCE`, on one line."""
-    from ..pdehead_addon import wording
+    from ..pdehead_addon.core import wording
     return wording.for_cli(message) if AUDIENCE == "cli" else wording.for_dialog(message)
 
 
@@ -340,7 +340,7 @@ def load_stored_ct_table(collection):
     text = collection.get(CT_TABLE_KEY)
     if not text:
         return None
-    from ..pdehead_addon.solid_ct_table import SolidCTTable
+    from ..pdehead_addon.pde.solid_ct_table import SolidCTTable
     try:
         table, window = SolidCTTable.from_bytes(base64.b64decode(str(text).encode("ascii"), validate=True))
     except Exception as exc:  # noqa: BLE001 - a damaged table is as good as none; the CT can re-make it

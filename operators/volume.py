@@ -13,7 +13,7 @@ float grids:
 
 ``w``
     w in [0, 1] inside the solid; outside voxels hold the engine's background value
-    ``OUTSIDE_W`` (> 1, :mod:`pdehead_addon.pde_solid`), which the shader maps to zero density.
+    ``OUTSIDE_W`` (> 1, :mod:`pdehead_addon.pde.pde_solid`), which the shader maps to zero density.
 ``intensity``
     the CT intensity inside the solid, windowed to [0, 1]; 0 outside.
 ``ct``
@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..pdehead_addon.ct_volume import intensity_window
+from ..pdehead_addon.core.ct_volume import intensity_window
 from .coords import grid_affine_world
 from .vdb_files import VDB_FOLDER_NAME, blender_filepath, fresh_vdb_path, supersede
 from .vdb_grids import REQUIRED_GRIDS, write_vdb

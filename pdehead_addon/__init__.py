@@ -19,32 +19,32 @@ Forensic toolkit: :mod:`.skull` (the skull as a second PDE surface and a bone me
 :mod:`.tissue_depth` (skin-skull depth per vertex), :mod:`.landmarks` (landmarks, depth
 markers, Frankfurt horizontal, mid-sagittal mirror), :mod:`.export` (STL/OBJ/PLY in mm).
 """
-from .errors import PDEHeadError, CTImportError, SegmentationError, BoundaryError, PDEError, StorageError, Cancelled
-from .ct_volume import CTVolume
-from .mesh import Mesh
-from .ct_import import load_ct, list_series, SeriesInfo, CTImportWarning
-from .input_checks import HeadSizeWarning
-from .phantom import make_phantom, Phantom
-from .dicom_export import write_dicom_series, write_phantom_series
-from .segmentation import Segmentation, segment_head
-from .metrics import jaccard, per_slice_jaccard, reference_head_mask
-from .boundary_set import BoundarySet, knots_from_heights
-from .boundaries import extract_boundaries, BoundaryOptions, max_patches, patches_for_scan
-from .slice_outlines import boundary_ring
-from .curve_sampling import contour_from_mask, parameter_offsets
-from . import slice_selection
-from .slice_selection import SelectionWarning, select_for_tolerance, scan_edge_slices, register_selection, SELECTION_STRATEGIES
-from .pde_surface import solve_pde, control_ranges, solve_with_controls
-from .pde_head import PDEHead
-from .pde_smoothing import smoothing_bounds
-from .surface_quality import surface_quality
-from .parameterisation import align_parameterisation, smooth_closed_curve, correspondence_error
-from .pde_solid import alpha_from_w, w_field, solid_mesh, WField, OUTSIDE_W
-from .storage import save_boundaries, load_boundaries, dumps_boundaries, loads_boundaries, load_head, loads_head
-from .surface_metrics import symmetric_surface_distance
-from .skull import SkullSegmentation, segment_skull, skull_mesh
-from .tissue_depth import TissueDepth, tissue_depth, write_depth_csv
-from .export import export_mesh
-from .depth_table import DepthTable, DepthEntry, read_depth_table, default_table, write_landmark_csv
+from .core.errors import PDEHeadError, CTImportError, SegmentationError, BoundaryError, PDEError, StorageError, Cancelled
+from .core.ct_volume import CTVolume
+from .core.mesh import Mesh
+from .io.ct_import import load_ct, list_series, SeriesInfo, CTImportWarning
+from .io.input_checks import HeadSizeWarning
+from .io.phantom import make_phantom, Phantom
+from .validation.dicom_export import write_dicom_series, write_phantom_series
+from .segment.segmentation import Segmentation, segment_head
+from .validation.metrics import jaccard, per_slice_jaccard, reference_head_mask
+from .core.boundary_set import BoundarySet, knots_from_heights
+from .curves.boundaries import extract_boundaries, BoundaryOptions, max_patches, patches_for_scan
+from .curves.slice_outlines import boundary_ring
+from .curves.curve_sampling import contour_from_mask, parameter_offsets
+from .curves import slice_selection
+from .curves.slice_selection import SelectionWarning, select_for_tolerance, scan_edge_slices, register_selection, SELECTION_STRATEGIES
+from .pde.pde_surface import solve_pde, control_ranges, solve_with_controls
+from .pde.pde_head import PDEHead
+from .pde.pde_smoothing import smoothing_bounds
+from .validation.surface_quality import surface_quality
+from .curves.parameterisation import align_parameterisation, smooth_closed_curve, correspondence_error
+from .pde.pde_solid import alpha_from_w, w_field, solid_mesh, WField, OUTSIDE_W
+from .io.storage import save_boundaries, load_boundaries, dumps_boundaries, loads_boundaries, load_head, loads_head
+from .validation.surface_metrics import symmetric_surface_distance
+from .forensic.skull import SkullSegmentation, segment_skull, skull_mesh
+from .forensic.tissue_depth import TissueDepth, tissue_depth, write_depth_csv
+from .io.export import export_mesh
+from .forensic.depth_table import DepthTable, DepthEntry, read_depth_table, default_table, write_landmark_csv
 
-from .provenance import SOFTWARE_VERSION as __version__  # noqa: E402
+from .core.provenance import SOFTWARE_VERSION as __version__  # noqa: E402

@@ -260,7 +260,7 @@ VIEW = _param("view", "FRONT", choices=tuple(VIEWS), description="The view to re
 
 # ----------------------------------------------------------------------------- forensic (issue 22)
 #: The bone level in the scan's stored units (HU where calibrated). Off: the documented rule of
-#: :func:`pdehead_addon.skull.segment_skull` (HU scans: half way between the soft-tissue and bone modes,
+#: :func:`pdehead_addon.forensic.skull.segment_skull` (HU scans: half way between the soft-tissue and bone modes,
 #: 400 HU without them; uncalibrated scans without soft tissue: half way between the air and bone modes).
 USE_BONE_LEVEL = _param("use_bone_level", False,
                         description="Set the bone level yourself (in the scan's stored units); off: the "

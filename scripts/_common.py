@@ -169,11 +169,11 @@ def tube_fidelity(head, verts, faces, samples: int, everything: bool = False) ->
     with ``everything``, all that ``symmetric_surface_distance`` returns)."""
     import numpy as np
     import pdehead_addon as E
-    from pdehead_addon.surface_mesh import tube_mesh
+    from pdehead_addon.pde.surface_mesh import tube_mesh
     z = head.bset.curves[..., 2]
     cz = verts[faces][:, :, 2].mean(axis=1)
     sel = faces[(cz >= z.min()) & (cz <= z.max())]
     u = np.linspace(head.curve_u[0], head.curve_u[-1], 8 * head.patches + 1)
     tube = tube_mesh(head._grid(u, 256), head.orientation)
-    d = E.symmetric_surface_distance(tube.vertices, tube.quads, verts, sel, samples=samples)
+    d = E.validation.symmetric_surface_distance(tube.vertices, tube.quads, verts, sel, samples=samples)
     return d if everything else {k: float(d[k]) for k in ("mean", "p95", "max")}

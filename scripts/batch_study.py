@@ -333,14 +333,14 @@ def _child(input_path: str, work: Path, settings: dict) -> int:
 def _skull_outputs(eng, ct, seg, bset, work: Path, settings: dict) -> int:
     """skull.stl (the bone), and landmarks.csv: every automatic landmark with its flag, its depth along the
     bone's exposed normal from the bone level's crossing to the skin level's in the CT's interpolated
-    intensities (:func:`~pdehead_addon.depth_on_ct.landmark_depths_on_ct`), and the default table's mean and SD;
+    intensities (:func:`~pdehead_addon.forensic.depth_on_ct.landmark_depths_on_ct`), and the default table's mean and SD;
     returns the number found. A depth the intensity profile does not support turns an ``ok`` landmark
     ``uncertain``; the measured reason goes to log.txt."""
-    from pdehead_addon.auto_landmarks import find_landmarks
-    from pdehead_addon.depth_table import default_table, write_landmark_csv
-    from pdehead_addon.depth_on_ct import depth_flags, depth_levels, measure_landmark_depths
-    from pdehead_addon.provenance import provenance
-    from pdehead_addon.skull import segment_skull, skull_mesh
+    from pdehead_addon.forensic.auto_landmarks import find_landmarks
+    from pdehead_addon.forensic.depth_table import default_table, write_landmark_csv
+    from pdehead_addon.forensic.depth_on_ct import depth_flags, depth_levels, measure_landmark_depths
+    from pdehead_addon.core.provenance import provenance
+    from pdehead_addon.forensic.skull import segment_skull, skull_mesh
 
     skull = segment_skull(ct, seg)
     bone = skull_mesh(skull)

@@ -20,7 +20,7 @@ adds the Blender builds, the STL, the VDB, memory, the data sets and the report.
 Every speed row is the MEDIAN over ``--repeats`` runs of ours and of the peer in the same
 process and run: segmentation (``segment_head`` against ``skimage.segmentation.chan_vese``
 slice by slice on the same slices, both scored by Jaccard against the independent
-threshold reference of :mod:`pdehead_addon.metrics`), boundary extraction, PDE solve +
+threshold reference of :mod:`pdehead_addon.validation.metrics`), boundary extraction, PDE solve +
 surface against ``skimage.measure.marching_cubes`` on the same mask (each INCLUDING the
 build of the Blender mesh with the add-on's ``build_mesh_object``, reported separately
 and together), storage (our boundary file against a binary STL of the marching-cubes
@@ -399,7 +399,7 @@ class Bench:
     # ------------------------------------------------------------------ segmentation
     def segmentation(self, key, st, ds) -> dict:
         """bench_segmentation.measure_segmentation (ours) and .measure_peer (skimage chan_vese per slice)."""
-        from pdehead_addon.metrics import head_slices, slice_jaccard_on_head
+        from pdehead_addon.validation.metrics import head_slices, slice_jaccard_on_head
         sb = _segbench()
         ct, ph = st["ct"], st["phantom"]
         ref, ref_desc = (None, "none (MRI)") if ds["kind"] == "mri" else reference_mask(key, ct, ph)
@@ -504,7 +504,7 @@ class Bench:
         head, mc = st["head"], st["mc"]
         r = pb.bench_storage(head, len(mc.triangles))
         stl = self.tmp / "mc.stl"
-        from pdehead_addon.export import write_stl
+        from pdehead_addon.io.export import write_stl
 
         def write() -> int:
             write_stl(mc, stl, name="PDE Head benchmark: marching cubes surface")
@@ -587,7 +587,7 @@ class Bench:
         if self.use_blender:
             wf = head.w_field(ct)
             vol = blender()["vdb_grids"]
-            window = E.ct_volume.intensity_window(ct)
+            window = E.core.ct_volume.intensity_window(ct)
             path = self.tmp / "bench.vdb"
             s_vdb, _ = timed(lambda: vol.write_vdb(wf, path, window, ct=ct), self.repeats, warmup=True)
             out["vdb"] = {"name": "operators/vdb_grids.write_vdb (grids w, intensity, ct)", "time": s_vdb,
@@ -656,7 +656,7 @@ def memory_probe(shape_text: str) -> None:
     stages: dict[str, Any] = {}
     with tempfile.TemporaryDirectory(prefix="pdehead-mem-") as tmp:
         ph = E.make_phantom(shape=shape)
-        E.write_dicom_series(ph.ct, Path(tmp) / "dicom")
+        E.validation.write_dicom_series(ph.ct, Path(tmp) / "dicom")
         del ph
         gc.collect()
         # before the first reset: the high-water mark of making and writing the phantom (not the pipeline)
@@ -940,7 +940,7 @@ def _fidelity_cells(row: dict, prefix: str) -> str:
 
 def _md_fidelity(ds: dict) -> list[str]:
     L = ["## Fidelity: PDE surface against marching cubes (paper Fig. 12 in numbers)", "",
-         "Symmetric surface distance (`pdehead_addon.surface_metrics.symmetric_surface_distance`, mm), both"
+         "Symmetric surface distance (`pdehead_addon.validation.surface_metrics.symmetric_surface_distance`, mm), both"
          f" directions pooled: {FIDELITY_DEFINITION}. t=10 and t=31 are the targets' rows.", "",
          f"Slices chosen by `{SELECTION}` (the add-on's default; the targets' numbers); the last columns"
          " use the paper's evenly spaced (`uniform`) slices for comparison. The max is dominated by the"

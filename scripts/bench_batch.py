@@ -41,7 +41,7 @@ def make_collection(folder: Path, n: int, shape) -> list[Path]:
         scaled = E.CTVolume(ct.data, tuple(np.asarray(ct.spacing) * s), origin=np.asarray(ct.origin) * s,
                             direction=ct.direction, meta=dict(ct.meta))
         path = folder / f"study{i:03d}"
-        E.write_dicom_series(scaled, path, uid_seed=i)
+        E.validation.write_dicom_series(scaled, path, uid_seed=i)
         inputs.append(path)
     return inputs
 

@@ -246,7 +246,7 @@ def main(argv=None) -> int:
     start = machine()             # the load before the benchmark's own processes
     ct = make_scan()
     runs, vtk_times = [], []
-    from pdehead_addon.segmentation import auto_window
+    from pdehead_addon.segment.segmentation import auto_window
     lo, hi = auto_window(ct.data)
     with tempfile.TemporaryDirectory(prefix="pdehead-clinical-") as tmp:
         folder = Path(tmp) / "raw16"

@@ -70,11 +70,11 @@ def load(name: str):
 
 def approximate(ct, **options) -> dict:
     """The face-from-skull pipeline on a CT with its soft tissue removed (what a practitioner would run)."""
-    from pdehead_addon.auto_landmarks import find_landmarks
-    from pdehead_addon.depth_table import default_table
-    from pdehead_addon.face_from_skull import FaceModel
-    from pdehead_addon.landmarks import snap_to_surface
-    from pdehead_addon.skull import segment_skull, skull_mesh
+    from pdehead_addon.forensic.auto_landmarks import find_landmarks
+    from pdehead_addon.forensic.depth_table import default_table
+    from pdehead_addon.forensic.face_from_skull import FaceModel
+    from pdehead_addon.forensic.landmarks import snap_to_surface
+    from pdehead_addon.forensic.skull import segment_skull, skull_mesh
 
     t0 = time.perf_counter()
     full = segment_skull(ct)
@@ -173,7 +173,7 @@ def inside_scan(ct):
 def face_region(verts, faces, centre_xy, scan_z, floor_z: float | None = None, seed: int = 0, inside=None):
     """Points sampled on the real visible face region (1 per mm^2) and the pronasale. ``inside``
     (:func:`inside_scan`) drops the scan's cut before the pronasale is looked for."""
-    from pdehead_addon.surface_metrics import (face_window, pronasale, sample_surface, triangulate,
+    from pdehead_addon.validation.surface_metrics import (face_window, pronasale, sample_surface, triangulate,
                                                visible_face_points)
     t = triangulate(faces)
     cen = verts[t].mean(axis=1)
@@ -240,7 +240,7 @@ def soft_landmarks(outer: np.ndarray, tip: np.ndarray, bone: dict) -> dict[str, 
 
 
 def distances(points: np.ndarray, mesh) -> np.ndarray:
-    from pdehead_addon.surface_metrics import point_surface_distance, triangulate
+    from pdehead_addon.validation.surface_metrics import point_surface_distance, triangulate
     faces = np.concatenate([triangulate(mesh.quads), mesh.triangles]) if len(mesh.quads) else mesh.triangles
     return point_surface_distance(points, mesh.vertices, faces, seed=1)
 
@@ -300,7 +300,7 @@ def score(name: str, **options) -> dict:
 def markdown(results: dict) -> str:
     lines = ["## Face from the skull (issue 23): `python3 scripts/bench_face.py`", "",
              "The approximation made from the skull alone (soft tissue removed: every voxel below the bone level "
-             "set to air; automatic landmarks; the T-Table 2023 means; `pdehead_addon.face_from_skull`) against "
+             "set to air; automatic landmarks; the T-Table 2023 means; `pdehead_addon.forensic.face_from_skull`) against "
              "the full CT's real skin (marching cubes of `segment_head`). Face region: the visible outer skin "
              "within ±60° of straight ahead, from 70 mm below to 60 mm above the real pronasale, clipped to the "
              "scan (GE: from the maxilla up, it has no mandible). One-sided distances from the real face "
@@ -459,7 +459,7 @@ def main(argv=None) -> int:
         write_section(ROOT / "docs" / "benchmarks.md", "face-from-skull", markdown(json.loads(args.from_json.read_text())))
         return 0
     results = {}
-    from pdehead_addon.errors import PDEHeadError
+    from pdehead_addon.core.errors import PDEHeadError
     for name in args.only:
         try:
             r = score(name)

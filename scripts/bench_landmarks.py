@@ -64,8 +64,8 @@ def summary(errs: dict[str, tuple[str, float]]) -> dict:
 
 def run_phantom(shape=None) -> tuple[dict, float]:
     from pdehead_addon import make_phantom
-    from pdehead_addon.auto_landmarks import find_landmarks
-    from pdehead_addon.skull import segment_skull
+    from pdehead_addon.forensic.auto_landmarks import find_landmarks
+    from pdehead_addon.forensic.skull import segment_skull
 
     ph = make_phantom() if shape is None else make_phantom(shape=shape)
     bone = segment_skull(ph.ct).bone
@@ -77,8 +77,8 @@ def run_phantom(shape=None) -> tuple[dict, float]:
 
 def run_cthead() -> tuple[dict, float, dict]:
     from pdehead_addon import load_ct
-    from pdehead_addon.auto_landmarks import find_landmarks
-    from pdehead_addon.skull import segment_skull
+    from pdehead_addon.forensic.auto_landmarks import find_landmarks
+    from pdehead_addon.forensic.skull import segment_skull
 
     ct = load_ct(SHARED_DATA / "cthead_stanford" / "raw16", **CTHEAD_RAW16_OPTIONS)
     bone = segment_skull(ct).bone

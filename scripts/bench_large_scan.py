@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from pdehead_addon import CTVolume, make_phantom, segment_head  # noqa: E402
-from pdehead_addon.ct_volume import downsample_volume  # noqa: E402
+from pdehead_addon.core.ct_volume import downsample_volume  # noqa: E402
 
 #: The shoulders: trunk half-width / half-depth (mm), the z of the shoulder line at the neck
 #: and at the trunk's sides (mm, patient z; the phantom's chin is at -91).
@@ -130,7 +130,7 @@ def run(shape, downsample: int, out_json: Path | None) -> dict:
     result["mask_voxels_in_trunk_slices"] = int(mask[trunk].sum())
     result["shoulder_top_z_mm"] = SHOULDER["z_neck"]
     above = ~trunk
-    from pdehead_addon import metrics as M
+    from pdehead_addon.validation import metrics as M
     per = M.slice_jaccard_on_head(mask[above], truth[above], 0.01)
     result["jaccard_above_shoulders_mean"] = float(per.mean())
     result["jaccard_above_shoulders_min"] = float(per.min())

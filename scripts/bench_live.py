@@ -417,7 +417,7 @@ def bench_face_dataset(name: str, repeats: int) -> dict:
 
     folder = Path(tempfile.mkdtemp(prefix="pdehead-bench-face-"))
     table = folder / "table_plus1.csv"
-    from pdehead_dev.pdehead_addon.depth_table import default_table
+    from pdehead_dev.pdehead_addon.forensic.depth_table import default_table
     t0 = default_table()
     table.write_text("# the T-Table 2023 + 1 mm (a second table to switch to)\nlandmark,mean_mm,sd_mm\n" +
                      "".join(f"{n},{e.mean_mm + 1.0},{e.sd_mm or ''}\n" for n, e in t0.entries.items()))

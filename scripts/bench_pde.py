@@ -30,8 +30,8 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 import pdehead_addon as E  # noqa: E402
-from pdehead_addon.pde_surface import align_parameterisation  # noqa: E402
-from pdehead_addon.surface_mesh import signed_volume  # noqa: E402
+from pdehead_addon.pde.pde_surface import align_parameterisation  # noqa: E402
+from pdehead_addon.pde.surface_mesh import signed_volume  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "scripts"))
 from _common import CTHEAD_RAW16_OPTIONS as CTHEAD_RAW16, PAPER, SHARED_DATA as DATA  # noqa: E402

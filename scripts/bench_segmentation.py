@@ -5,7 +5,7 @@ What it measures, in one run on this machine:
 
 * ``segment_head`` on the whole CThead (113 x 256 x 256): median (and all) wall times of
   ``--repeats`` runs, its per-slice Jaccard against the independent threshold reference
-  (:func:`pdehead_addon.metrics.reference_head_mask` with ``REFERENCE_SETTINGS``);
+  (:func:`pdehead_addon.validation.metrics.reference_head_mask` with ``REFERENCE_SETTINGS``);
 * the peer: ``skimage.segmentation.chan_vese`` run once on every one of the same head slices,
   given a fair set-up (the same windowed [0, 1] image, its default length weight mu=0.25,
   lambda1 = lambda2 = 1, tol 1e-3, ``--peer-iterations`` at most (default 200: its energy has
@@ -45,8 +45,8 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
 from pdehead_addon import CTVolume, load_ct, segment_head  # noqa: E402
-from pdehead_addon import metrics as M  # noqa: E402
-from pdehead_addon import segmentation as S  # noqa: E402
+from pdehead_addon.validation import metrics as M  # noqa: E402
+from pdehead_addon.segment import segmentation as S  # noqa: E402
 
 from _common import CTHEAD_RAW16_OPTIONS, CTHEAD_TIFF8_OPTIONS, SHARED_DATA as DATA, timed  # noqa: E402
 
@@ -70,7 +70,7 @@ def reference_for(key: str, ct: CTVolume) -> tuple[np.ndarray | None, str]:
     if settings is None:
         return None, "no reference for this data set"
     text = ", ".join(f"{k}={v:g}" for k, v in settings.items())
-    return M.reference_head_mask(ct, **settings), f"pdehead_addon.metrics.reference_head_mask({text})"
+    return M.reference_head_mask(ct, **settings), f"pdehead_addon.validation.metrics.reference_head_mask({text})"
 
 
 def measure_segmentation(ct: CTVolume, repeats: int = 5, reference: np.ndarray | None = None,

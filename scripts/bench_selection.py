@@ -39,7 +39,7 @@ for _p in (str(ROOT), str(ROOT / "scripts")):
         sys.path.insert(0, _p)
 
 import pdehead_addon as E  # noqa: E402
-from pdehead_addon import slice_selection as S  # noqa: E402
+from pdehead_addon.curves import slice_selection as S  # noqa: E402
 from _common import load_segmentation as load, marching_cubes, tube_fidelity as fidelity  # noqa: E402
 from md_sections import write_section  # noqa: E402
 

@@ -4,7 +4,7 @@ For CThead (t = 4, 10, 31), the GE tilted series (t = 8, the most its usable sli
 allow) and the phantom (t = 10), with the add-on's boundary pipeline (its default
 slice selection, 3-D envelope, star hulls, angular samples):
 
-* the smoothness measures of :mod:`pdehead_addon.surface_quality` on a (20t+1) x 360
+* the smoothness measures of :mod:`pdehead_addon.validation.surface_quality` on a (20t+1) x 360
   grid (crease p95 at the interior curves, folds, notch share, terracing RMS) for the
   default C2 surface and the paper's four-curve patches on the same curves;
 * the distance to marching cubes of the mask ``segment_head`` returns (the open tube
@@ -39,7 +39,7 @@ for _p in (str(ROOT), str(ROOT / "scripts")):
         sys.path.insert(0, _p)
 
 import pdehead_addon as E  # noqa: E402
-from pdehead_addon.surface_quality import surface_quality  # noqa: E402
+from pdehead_addon.validation.surface_quality import surface_quality  # noqa: E402
 from _common import load_segmentation as load, marching_cubes, timed, tube_fidelity as fidelity  # noqa: E402
 from md_sections import write_section  # noqa: E402
 from pdehead_addon import defaults as D  # noqa: E402
@@ -89,7 +89,7 @@ class _AtHeights:
 def anatomy_terracing(seg, bset) -> float:
     """terracing_rms of the surface through (nearly) every slice, at ``bset``'s curve heights and midpoints:
     how much of the measure is the head's own curvature along its axis at those gaps."""
-    from pdehead_addon.surface_quality import terracing_rms
+    from pdehead_addon.validation.surface_quality import terracing_rms
     dense_set = E.extract_boundaries(seg, patches=E.max_patches(seg), selection="uniform")
     dense = E.solve_pde(dense_set, approximation_mm=0, dome=False)
     return terracing_rms(_AtHeights(dense, bset.heights, bset.patches))
@@ -134,7 +134,7 @@ UP_CLOSE_TARGETS = {"pole_ripple_deg": 0.5, "cap_edge_ratio": 3.0, "uv_stretch_p
 def legacy_surface(head, nu: int, nv: int):
     """The surface as it was built before issue 21 (the 'before' column): no fade in the dome, the
     bottom closed by a fan to the spine point, per-corner UVs (u, v / 2 pi)."""
-    from pdehead_addon.surface_mesh import fan_caps, fan_indices, tube_mesh
+    from pdehead_addon.pde.surface_mesh import fan_caps, fan_indices, tube_mesh
     minor, head._dome_minor = head._dome_minor, 0
     try:
         u = np.linspace(0.0, 1.0, nu)
@@ -147,7 +147,7 @@ def legacy_surface(head, nu: int, nv: int):
 
 
 def pole_ripple_before_after(head) -> dict:
-    from pdehead_addon.surface_quality import pole_ripple
+    from pdehead_addon.validation.surface_quality import pole_ripple
     after = pole_ripple(head)
     minor, head._dome_minor = head._dome_minor, 0
     try:
@@ -163,8 +163,8 @@ def mask_centre(seg) -> np.ndarray:
 
 
 def visible_face(seg, mesh, mc) -> dict:
-    """Issue 21's visible-face measure of a mesh against marching cubes of the mask (pdehead_addon.surface_metrics)."""
-    from pdehead_addon.surface_metrics import visible_face_distance
+    """Issue 21's visible-face measure of a mesh against marching cubes of the mask (pdehead_addon.validation.surface_metrics)."""
+    from pdehead_addon.validation.surface_metrics import visible_face_distance
     faces = np.concatenate([mesh.quads[:, [0, 1, 2]], mesh.quads[:, [0, 2, 3]], mesh.triangles]) \
         if len(mesh.quads) else mesh.triangles
     r = visible_face_distance(mesh.vertices, faces, mc[0], mc[1], mask_centre(seg)[:2])
@@ -175,7 +175,7 @@ def face_floor(seg, mc, sigma_mm: float = 1.2) -> dict:
     """The visible-face measure of marching cubes of the Gaussian-smoothed mask: what a smooth surface can keep."""
     from scipy import ndimage
     from skimage import measure
-    from pdehead_addon.surface_metrics import visible_face_distance
+    from pdehead_addon.validation.surface_metrics import visible_face_distance
     sm = ndimage.gaussian_filter(seg.mask.astype(np.float32), sigma_mm / np.asarray(seg.ct.spacing, float))
     verts, faces, _, _ = measure.marching_cubes(sm, 0.5)
     r = visible_face_distance(seg.ct.index_to_patient(verts), faces, mc[0], mc[1], mask_centre(seg)[:2])
@@ -189,14 +189,14 @@ OLD_ENVELOPE = {"envelope_sigma_mm": 1.5, "curve_sigma": 1.5, "star_slope": 2.0}
 def storage_bytes(head) -> int:
     """Bytes of the boundary conditions as the add-on stores them (``save_boundaries``)."""
     import tempfile
-    from pdehead_addon.storage import save_boundaries
+    from pdehead_addon.io.storage import save_boundaries
     with tempfile.TemporaryDirectory() as d:
         return int(save_boundaries(head, Path(d) / "head.pdeh"))
 
 
 def up_close(repeats: int = 5) -> dict:
     """Issue 21's measures, before and after, on CThead (t = 10) and GE (t = 8) at the add-on's defaults."""
-    from pdehead_addon.surface_quality import cap_edge_ratio, uv_quality
+    from pdehead_addon.validation.surface_quality import cap_edge_ratio, uv_quality
     nu, nv = D.NU.default, D.NV.default
     import os
     res: dict = {"nu": nu, "nv": nv, "selection": SELECTION, "datasets": {}, "load_start": os.getloadavg()[0]}
@@ -258,7 +258,7 @@ def up_close_markdown(res: dict) -> str:
     row("surface(nu, nv, caps) median ms", lambda d, k: d["surface_ms"][k], "{:.1f}")
     f = c["face"]
     lines += ["", f"Visible face (CThead; target at the defaults ≤ {T['face_mean_mm']} mm mean, ≤ "
-              f"{T['face_p95_mm']} mm p95; `pdehead_addon.surface_metrics.visible_face_distance`):", "",
+              f"{T['face_p95_mm']} mm p95; `pdehead_addon.validation.surface_metrics.visible_face_distance`):", "",
               "| surface | score mean | score p95 | skin → mask mean / p95 | mask → skin mean / p95 |",
               "|---|---|---|---|---|"]
     lines[-2] += " storage |"

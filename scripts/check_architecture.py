@@ -37,8 +37,8 @@ ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = ("pdehead_addon", "operators")
 MAX_LINES, MAX_LINES_OPS, MAX_COMPLEXITY, MIN_SIMILAR = 700, 600, 20, 6
 #: Validation code (measures for the tests and the benchmarks) as it sits today, and the package it goes to.
-VALIDATION_FILES = ("pdehead_addon/metrics.py", "pdehead_addon/surface_quality.py",
-                    "pdehead_addon/surface_metrics.py", "pdehead_addon/dicom_export.py")
+VALIDATION_FILES = ("pdehead_addon/validation/metrics.py", "pdehead_addon/validation/surface_quality.py",
+                    "pdehead_addon/validation/surface_metrics.py", "pdehead_addon/validation/dicom_export.py")
 VALIDATION_PACKAGE = "pdehead_addon/validation"
 
 

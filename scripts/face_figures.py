@@ -41,8 +41,8 @@ def signed_distance(points: np.ndarray, mesh) -> np.ndarray:
     """Distance (mm) from points to the mesh, + where the point lies outside it (real skin outside)."""
     from scipy.spatial import cKDTree
 
-    from pdehead_addon.surface_metrics import point_surface_distance, triangulate
-    from pdehead_addon.tissue_depth import vertex_normals
+    from pdehead_addon.validation.surface_metrics import point_surface_distance, triangulate
+    from pdehead_addon.forensic.tissue_depth import vertex_normals
     faces = np.concatenate([triangulate(mesh.quads), mesh.triangles])
     d = point_surface_distance(points, mesh.vertices, faces, seed=3)
     _, nearest = cKDTree(mesh.vertices).query(points)
@@ -58,7 +58,7 @@ def render_face_figures(name: str, keep: dict, out_dir: Path = OUT, views=("FRON
 
     import pdehead
     from pdehead_addon import Mesh
-    from pdehead_addon.surface_metrics import face_window, visible_face_points
+    from pdehead_addon.validation.surface_metrics import face_window, visible_face_points
     addon = pdehead.register_addon()
     render, objects = addon.operators.render, addon.operators.objects
     bpy.ops.wm.read_homefile(use_empty=True)

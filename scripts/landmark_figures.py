@@ -104,7 +104,7 @@ def main(argv=None) -> int:
         bpy.ops.pdehead.run_pipeline(source='PHANTOM', patches=6, nu=40, nv=80, nw=4, voxel_size=6.0)
         coll = bpy.context.scene.pdehead.active_study
         bpy.ops.pdehead.build_skull()
-        from pdehead_addon.phantom import phantom_bone_landmarks
+        from pdehead_addon.io.phantom import phantom_bone_landmarks
         _figure(bpy, addon, coll, phantom_bone_landmarks(), "landmarks_phantom.png", "Phantom")
 
     for name in ("cthead", "ge"):

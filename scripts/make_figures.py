@@ -236,7 +236,7 @@ def union_bounds(bs):
 # ============================================================================= figures
 def fig03(data: Data, bl: Blender | None, args) -> list[Path]:
     """Pipeline on four slices: CT, soft segmentation p (eq. 16-21), cleaned mask, boundary (eq. 22) in red."""
-    from pdehead_addon.slice_outlines import boundary_ring
+    from pdehead_addon.curves.slice_outlines import boundary_ring
     ct, seg = data.ct, data.seg
     nz = ct.shape[0]
     ks = [nz - n for n in FIG3_SLICES]  # loaded k points superior; file 1 is the top slice
@@ -273,7 +273,7 @@ def fig03(data: Data, bl: Blender | None, args) -> list[Path]:
 
 def fig10(data: Data, bl, args) -> list[Path]:
     """Per-slice Jaccard of the segmentation against the independent reference (paper Fig. 10)."""
-    from pdehead_addon.metrics import head_slices, slice_jaccard_on_head
+    from pdehead_addon.validation.metrics import head_slices, slice_jaccard_on_head
     seg, ref = data.seg, data.reference
     ks = head_slices(ref)
     j = slice_jaccard_on_head(seg.mask, ref)
@@ -464,7 +464,7 @@ def fig15(data: Data, bl: Blender, args) -> list[Path]:
 
 def deviation(data: Data, bl: Blender, args) -> list[Path]:
     """Per-vertex distance of the PDE surface (t=10) to the marching-cubes mesh, as colour on the surface."""
-    from pdehead_addon.surface_metrics import point_surface_distance
+    from pdehead_addon.validation.surface_metrics import point_surface_distance
     bl.reset()
     head, mc = data.head(10), data.mc
     # as in the fidelity numbers (bench.FIDELITY_DEFINITION): the open tube against the MC triangles

@@ -439,7 +439,7 @@ def loader_kwargs(args) -> dict:
 
 
 def _dicom_series_file(path: Path) -> bool:
-    from pdehead_dev.pdehead_addon.ct_import.discovery import series_of_file
+    from pdehead_dev.pdehead_addon.io.ct_import.discovery import series_of_file
     return series_of_file(path) is not None
 
 
@@ -710,7 +710,7 @@ def _face_from_skull(addon, coll):
     """The face approximated from the study's bone skull, landmarks and depth table (issue 23): (result, model).
     A skull the engine refuses (too few landmarks with a depth, not a skull in mm) is exit 2."""
     from importlib import import_module
-    ff = import_module(addon.__name__ + ".pdehead_addon.face_from_skull")
+    ff = import_module(addon.__name__ + ".pdehead_addon.forensic.face_from_skull")
     fs = addon.operators.forensic_study
     try:
         model = ff.FaceModel.prepare(addon.operators.forensic_skull.skull_engine_mesh(coll, "BONE"), fs.landmarks(coll), fs.study_depth_table(coll),
@@ -735,7 +735,7 @@ def _export_with_face(args, ops, addon, face) -> None:
         _call(ops.export_print, directory=str(out), format=args.export_format)
         return
     from importlib import import_module
-    export = import_module(addon.__name__ + ".pdehead_addon.export")
+    export = import_module(addon.__name__ + ".pdehead_addon.io.export")
     res, _model = face
     out.mkdir(parents=True, exist_ok=True)
     tmp = out / f".face.pdehead-partial.{args.export_format}"

@@ -78,7 +78,7 @@ def face_figure(bl, args) -> int:
     seg = bench_smooth.load("cthead")
     mc = marching_cubes(seg)
     meshes = [("marching cubes", bench.marching_cubes_mesh(seg.mask, seg.ct))]
-    from pdehead_addon import pde_surface as PS
+    from pdehead_addon.pde import pde_surface as PS
     per_slice = PS.APPROXIMATION_PER_SLICE
     # before: t = 10 and the u smoothing of one slice step (the defaults before issue 21's last stop); after:
     # the add-on's defaults (t = 15, half a slice step)
@@ -122,7 +122,7 @@ def face_figure(bl, args) -> int:
 def cut_figure(bl, args) -> int:
     """CThead's solid cut at the mid-sagittal plane beside the CT on that plane (issue 21 item 3)."""
     import math
-    from pdehead_addon.ct_volume import intensity_window, sample_ct, apply_window
+    from pdehead_addon.core.ct_volume import intensity_window, sample_ct, apply_window
     bpy, objects, render = bl["bpy"], bl["objects"], bl["render"]
     bpy.ops.wm.read_homefile(use_empty=True)
     seg = bench_smooth.load("cthead")

@@ -1,7 +1,7 @@
 """Readers of files the engine writes, for the tests' round-trip checks (not shipped in the add-on).
 
-The engine only writes these formats (:func:`pdehead_addon.export.export_mesh`,
-:func:`pdehead_addon.tissue_depth.write_depth_csv`); the tests read them back to
+The engine only writes these formats (:func:`pdehead_addon.io.export.export_mesh`,
+:func:`pdehead_addon.forensic.tissue_depth.write_depth_csv`); the tests read them back to
 check what was written.
 """
 from __future__ import annotations
@@ -13,7 +13,7 @@ import struct
 import numpy as np
 
 from pdehead_addon import PDEHeadError
-from pdehead_addon.mesh import Mesh
+from pdehead_addon.core.mesh import Mesh
 
 
 def read_stl(path: str | os.PathLike) -> Mesh:
@@ -33,7 +33,7 @@ def read_stl(path: str | os.PathLike) -> Mesh:
 
 
 def read_depth_csv(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
-    """Points (n, 3) and depth (n,) (NaN where empty) of a file written by :func:`pdehead_addon.tissue_depth.write_depth_csv`."""
+    """Points (n, 3) and depth (n,) (NaN where empty) of a file written by :func:`pdehead_addon.forensic.tissue_depth.write_depth_csv`."""
     path = os.fspath(path)
     try:
         with open(path, newline="") as fh:

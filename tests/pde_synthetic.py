@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pdehead_addon.boundary_set import BoundarySet, knots_from_heights
+from pdehead_addon.core.boundary_set import BoundarySet, knots_from_heights
 
 
 def resample_arc_length(xy: np.ndarray, samples: int) -> np.ndarray:

@@ -53,7 +53,7 @@ def collection(tmp_path_factory) -> list[Path]:
         scaled = E.CTVolume(ct.data, tuple(np.asarray(ct.spacing) * scale), origin=np.asarray(ct.origin) * scale,
                             direction=ct.direction, meta=dict(ct.meta))
         folder = root / f"study{i}"
-        E.write_dicom_series(scaled, folder, uid_seed=i, patient_name="Doe^Jane",
+        E.validation.write_dicom_series(scaled, folder, uid_seed=i, patient_name="Doe^Jane",
                              extra_tags={"PatientSex": sex, "PatientAge": age})
         inputs.append(folder)
     broken = root / "broken"
@@ -244,7 +244,7 @@ def _truth_along_ray(phantom, point, direction, scale):
     """Analytic depth along the line ``point + s direction`` (scaled head): from the exit of the phantom's bone
     (every bone label: the facial skeleton, not only the cranium's ellipsoid) nearest the point to the first
     exit of the skin after it."""
-    from pdehead_addon.phantom import BONE
+    from pdehead_addon.io.phantom import BONE
 
     s = np.arange(-10.0, 70.0, 0.02)
     pts = (point[None] + s[:, None] * direction[None]) / scale

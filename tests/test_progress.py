@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from pdehead_addon import Cancelled, extract_boundaries, segment_head
-from pdehead_addon.pde_solid import w_field
-from pdehead_addon.solid_ct_table import SolidCTTable
-from pdehead_addon.pde_surface import solve_pde
+from pdehead_addon.pde.pde_solid import w_field
+from pdehead_addon.pde.solid_ct_table import SolidCTTable
+from pdehead_addon.pde.pde_surface import solve_pde
 
 
 def _timer_cancel(run, delay: float):
@@ -103,7 +103,7 @@ def test_the_band_fine_level_reports_and_cancels(phantom, monkeypatch):
     (chan_vese_pyramid._band_fine_solve); it reports every iteration and a Cancelled raised there stops the
     segmentation, after which a new run gives the uninterrupted result."""
     from pdehead_addon import CTVolume
-    from pdehead_addon import chan_vese_pyramid
+    from pdehead_addon.segment import chan_vese_pyramid
     data = phantom.ct.data
     air = float(np.median(np.concatenate([data[:, 0].ravel(), data[:, -1].ravel()])))
     ct = CTVolume(np.pad(data, ((1, 1), (22, 24), (22, 24)), constant_values=air), phantom.ct.spacing)

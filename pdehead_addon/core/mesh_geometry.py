@@ -34,7 +34,7 @@ def triangulate(faces: np.ndarray) -> np.ndarray:
 
 
 def mesh_triangles(mesh) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices and all triangles (quads split) of a :class:`~pdehead_addon.mesh.Mesh`."""
+    """Vertices and all triangles (quads split) of a :class:`~pdehead_addon.core.mesh.Mesh`."""
     tris = [mesh.triangles]
     if len(mesh.quads):
         tris.insert(0, triangulate(mesh.quads))

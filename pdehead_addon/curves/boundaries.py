@@ -90,11 +90,11 @@ from typing import Sequence, Union
 
 import numpy as np
 
-from . import defaults as D
-from .boundary_set import MIN_CURVES, BoundarySet, knots_from_heights
+from .. import defaults as D
+from ..core.boundary_set import MIN_CURVES, BoundarySet, knots_from_heights
 from .curve_sampling import STAR_MAX_SLOPE, angular_curves, check_samples, orient_and_resample, star_hull
 from .envelope import ENVELOPE_CLOSING_MM, ENVELOPE_SIGMA_MM, head_envelope
-from .errors import BoundaryError, report_progress
+from ..core.errors import BoundaryError, report_progress
 from .parameterisation import PARAMETERISATIONS, align_parameterisation
 from .slice_outlines import contour_from_field, outer_contour
 from .slice_selection import MIN_AREA_FRACTION, SELECTION_STRATEGIES, SelectionFunc, scan_edge_slices, usable_slices

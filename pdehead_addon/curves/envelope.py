@@ -28,8 +28,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage as ndi
 
-from .binary_morphology import ball_closing
-from .errors import BoundaryError
+from ..segment.binary_morphology import ball_closing
+from ..core.errors import BoundaryError
 
 #: Radius (mm) of the 3-D closing ball: bridges inlets up to about twice as wide.
 ENVELOPE_CLOSING_MM = 3.0

@@ -22,8 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .boundary_set import BoundarySet
-from .errors import BoundaryError
+from ..core.boundary_set import BoundarySet
+from ..core.errors import BoundaryError
 
 __all__ = ["smooth_closed_curve", "align_parameterisation", "correspondence_error", "PARAMETERISATIONS"]
 

@@ -16,7 +16,7 @@ from scipy import ndimage as ndi
 from skimage import measure
 
 from .envelope import outer_region
-from .errors import BoundaryError
+from ..core.errors import BoundaryError
 
 __all__ = ["boundary_ring", "close_region", "outer_contour", "contour_from_field", "outer_region", "shoelace"]
 

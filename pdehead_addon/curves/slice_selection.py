@@ -57,7 +57,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from .errors import BoundaryError
+from ..core.errors import BoundaryError
 
 #: Largest share of a slice's outline that may be the edge of the scanned slab (tilted series).
 MAX_SCAN_EDGE_FRACTION = 0.1
@@ -299,7 +299,7 @@ def candidates_of(bset) -> Candidates | None:
 # --------------------------------------------------------------------------- the proxy surface
 def _approximation(cand: Candidates, heights: np.ndarray) -> float:
     """The real solver's default smoothing length for curves at ``heights`` (its own function)."""
-    from .pde_surface import default_approximation
+    from ..pde.pde_surface import default_approximation
     return default_approximation(SimpleNamespace(meta=cand.meta, heights=heights))
 
 
@@ -324,8 +324,8 @@ def proxy_errors(cand: Candidates, chosen: np.ndarray, dome: bool = True) -> tup
 
 
 def _proxy_errors(cand: Candidates, idx: np.ndarray, dome: bool) -> tuple[np.ndarray, np.ndarray]:
-    from .pde_basis import small_matmul
-    from .pde_spline import dome_height, natural_spline_matrix, smoothing_spline_values
+    from ..pde.pde_basis import small_matmul
+    from ..pde.pde_spline import dome_height, natural_spline_matrix, smoothing_spline_values
     sub = cand.sub
     n, m = idx.size, sub.shape[1]
     Y = sub[idx]                                                         # (n, m, 3)
@@ -507,8 +507,8 @@ def surface_error(bset, cand: Candidates, head=None) -> dict[str, Any]:
         ``mean_mm`` (over every sample of every usable slice), ``max_mm``, ``p95_mm`` and
         ``per_slice_mm`` (mean per candidate slice).
     """
-    from .pde_surface import solve_pde
-    from .surface_metrics import mesh_triangles, point_surface_distance
+    from ..pde.pde_surface import solve_pde
+    from ..core.mesh_geometry import mesh_triangles, point_surface_distance
     head = solve_pde(bset) if head is None else head
     nu = max(8, REAL_ROWS_PER_GAP * cand.count + 2)
     mesh = head.surface(nu, cand.curves.shape[1], uv=False)      # measured only: no UV map per candidate

@@ -1,13 +1,13 @@
 """Automatic craniometric landmarks on the bone, each by a written rule, with a confidence flag.
 
 The input is the binary bone mask (the CT thresholded at a bone level and cleaned,
-:attr:`pdehead_addon.skull.SkullSegmentation.bone`) and the CT's geometry: no grey
+:attr:`pdehead_addon.forensic.skull.SkullSegmentation.bone`) and the CT's geometry: no grey
 values are used, so the same code runs on a head CT and on a dry-skull CT.
 
 Method (every step a pure function of the mask):
 
 1. **A first frame.** The skull's plane of reflective symmetry
-   (:func:`~pdehead_addon.landmarks.symmetry_plane`, mirror ICP on the bone's voxel
+   (:func:`~pdehead_addon.forensic.landmarks.symmetry_plane`, mirror ICP on the bone's voxel
    centres) gives the left-right axis; superior is the patient's +z made orthogonal to it.
 2. **Views of the bone.** The mask is resampled in the frame on a 1 mm grid
    (``LANDMARK_GRID_MM``); three depth images are read off it: the *front* view (for each
@@ -21,7 +21,7 @@ Method (every step a pure function of the mask):
    (level with the orbit floor, half way back along the skull) is the **external acoustic
    meatus**.
 4. **Frankfurt horizontal.** Porion (top of the meatus) and orbitale (lowest point of the
-   orbit margin) on both sides give :func:`~pdehead_addon.landmarks.frankfurt_transform`;
+   orbit margin) on both sides give :func:`~pdehead_addon.forensic.landmarks.frankfurt_transform`;
    steps 2-3 are repeated in that frame and every other landmark is found there by the rule
    in :data:`RULES` (also in the docstrings of the rules' functions).
 5. Points are mapped back to patient LPS mm (the CT's frame, not the aligned one).
@@ -34,7 +34,7 @@ Code: this module runs the steps (:func:`find_landmarks`); the frame and its dep
 :mod:`.landmark_frame`, the openings and the Frankfurt points in :mod:`.landmark_openings`, the rules of
 the mid-sagittal landmarks in :mod:`.landmark_midline` and of the bilateral ones in :mod:`.landmark_bilateral`.
 
-Nomenclature: the landmark set of :data:`~pdehead_addon.landmarks.STANDARD_LANDMARKS`,
+Nomenclature: the landmark set of :data:`~pdehead_addon.forensic.landmarks.STANDARD_LANDMARKS`,
 with the depth-table codes of Caple & Stephan (2016) where they differ (pr = Supradentale,
 pg = Pogonion, zy = Zygomatic arch, mso = Supraorbital, mio = Suborbital, sM2 = Supra M2,
 iM2 = Sub M2) and the table's landmarks the set lacked (mn, ss, gn, ac, sC, iC, mr, mmb).
@@ -46,7 +46,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
-from .errors import PDEHeadError
+from ..core.errors import PDEHeadError
 from .landmark_bilateral import (alare, canine_points, mandible_bilateral, orbit_margins,
                                  zygion_supraglenoid)
 from .landmark_frame import (FLAGS, NOT_FOUND, OK, UNCERTAIN, LandmarkFrame,
@@ -62,7 +62,7 @@ LANDMARK_GRID_MM = 1.0
 SYMMETRY_POINTS = 20000
 
 
-#: The rule of every landmark (by the key of :data:`~pdehead_addon.landmarks.STANDARD_LANDMARKS`; "L/R"
+#: The rule of every landmark (by the key of :data:`~pdehead_addon.forensic.landmarks.STANDARD_LANDMARKS`; "L/R"
 #: rules apply to each side). Frame: the Frankfurt frame (x left, y posterior, z up), the mid-sagittal
 #: plane x = 0; "front view" etc. are the depth images of the module docstring.
 RULES: dict[str, str] = {
@@ -157,7 +157,7 @@ class LandmarkSearch:
 
 
 def find_landmarks(ct, bone: np.ndarray, *, grid_mm: float = LANDMARK_GRID_MM) -> LandmarkSearch:
-    """Find every landmark of :data:`~pdehead_addon.landmarks.STANDARD_LANDMARKS` (and the depth
+    """Find every landmark of :data:`~pdehead_addon.forensic.landmarks.STANDARD_LANDMARKS` (and the depth
     table's extra ones) on a binary bone mask, with a flag each; see the module docstring and
     :data:`RULES`.
 

@@ -1,7 +1,7 @@
 """Landmark tissue depths measured on the CT's intensities: the bone and skin points at the level crossings of the
 interpolated CT along each landmark's ray (:func:`landmark_depths_on_ct`), whether the profile along the ray supports
 the depth, and :func:`measure_landmark_depths`, the one entry every depth output uses (the CT's when the study has
-one, else the meshes' of :func:`~pdehead_addon.landmarks.landmark_depths`, with the method recorded).
+one, else the meshes' of :func:`~pdehead_addon.forensic.landmarks.landmark_depths`, with the method recorded).
 """
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import PDEHeadError
+from ..core.errors import PDEHeadError
 from .landmarks import depth_rays, snap_to_surface
-from .mesh import Mesh
+from ..core.mesh import Mesh
 
 #: The bone point is refined along the ray to the bone level's crossing in the interpolated CT within this many
 #: voxel sizes (the largest) of the mesh's point: the bone mesh of thin margins lies up to a slice off the bone.

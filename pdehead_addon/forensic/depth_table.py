@@ -37,9 +37,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import PDEHeadError
+from ..core.errors import PDEHeadError
 from .landmarks import STANDARD_LANDMARKS, landmark
-from .provenance import provenance_lines
+from ..core.provenance import provenance_lines
 
 #: The shipped default table.
 DEFAULT_TABLE_PATH = Path(__file__).resolve().parent / "data" / "t_table_2023.csv"

@@ -13,8 +13,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-from .errors import PDEHeadError
-from .mesh import Mesh
+from ..core.errors import PDEHeadError
+from ..core.mesh import Mesh
 
 #: A skull must give at least this many ``ok`` landmarks (:func:`_check_skull`).
 MIN_OK_LANDMARKS = 8

@@ -47,12 +47,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
-from . import defaults as D
-from .boundary_set import BoundarySet, knots_from_heights
-from .errors import PDEHeadError
+from .. import defaults as D
+from ..core.boundary_set import BoundarySet, knots_from_heights
+from ..core.errors import PDEHeadError
 from .face_features import (EAR_LENGTH_MM, EAR_WIDTH_MM, check_skull, ear_shape, eye_shape, mouth_shape, nose_bump,
                             predict_eyes, predict_mouth, predict_nose)
-from .mesh import Mesh
+from ..core.mesh import Mesh
 
 APPROXIMATION_LABEL = D.FACE_LABEL
 
@@ -452,10 +452,10 @@ class FaceModel:
         rule_sites = [(n, p, w) for n, p, w in predict_eyes(lm)]
         nose = predict_nose(lm, skull)
         mouth = predict_mouth(lm)
-        from .provenance import provenance
+        from ..core.provenance import provenance
         prov_table = table.provenance_record() if hasattr(table, "provenance_record") else {"table": "imported table"}
         prov = provenance(label=APPROXIMATION_LABEL, method="face from skull: PDE surface through tissue-depth "
-                          "pegs (pdehead_addon.face_from_skull)", sex=sex, **prov_table)
+                          "pegs (pdehead_addon.forensic.face_from_skull)", sex=sex, **prov_table)
         if flags:
             prov["landmark_flags"] = {n: flags.get(n, "ok") for n in sorted(lm)}
         options = dict(row_mm=row_mm, columns=columns, spread_mm=spread, nu=nu or D.FACE_NU.default,
@@ -561,8 +561,8 @@ class FaceModel:
         return nose_bump(self.grid, self.nose, base, lambda *names: self._peg_tip(tips, *names))
 
     def _surface(self, radius: np.ndarray, nu=None, nv=None, top_z: float | None = None):
-        from .pde_head import derived_once
-        from .pde_surface import solve_pde
+        from ..pde.pde_head import derived_once
+        from ..pde.pde_surface import solve_pde
 
         g = self.grid
         curves = g.point(g.z[:, None], g.theta[None, :], radius)
@@ -578,7 +578,7 @@ class FaceModel:
             derived_once(bset, "radius", lambda: fixed["radius"])
         head = solve_pde(bset, approximation_mm=0.0)
         if not fixed:
-            from .pde_surface import curve_positions, smoothing_range
+            from ..pde.pde_surface import curve_positions, smoothing_range
             smoothing_range(bset)                                # computes and caches the mean radius
             fixed["positions"] = curve_positions(bset)
             fixed["radius"] = derived_once(bset, "radius", lambda: None)   # the value smoothing_range cached

@@ -34,8 +34,8 @@ from dataclasses import fields, is_dataclass
 import numpy as np
 
 from . import face_from_skull as F
-from .pde_basis import basis, small_matmul
-from .surface_mesh import ring_in_plane
+from ..pde.pde_basis import basis, small_matmul
+from ..pde.surface_mesh import ring_in_plane
 
 #: Largest difference (mm) between the fast positions and the model's own solve for :attr:`LiveFace.exact`.
 EXACT_TOLERANCE_MM = 1e-6
@@ -146,14 +146,14 @@ class LiveFace:
     def _grid(self, head) -> np.ndarray:
         """``head._grid(u, nv)`` (the tube's points, (nu - 1, nv, 3)) with each cubic row's four basis
         weights gathered instead of a dense rows x (spans x 4) product."""
-        from .pde_head import fold_harmonics, ring_points
+        from ..pde.pde_head import fold_harmonics, ring_points
 
         u, nv = self._u, self.nv
         H, nb = head.harmonics, nv // 2 + 1
         self._spine0 = None
         density = self.model.__dict__.get("_v_density", [None])[0]
         if density is not None:                                   # columns closer where an outline runs radially
-            from .surface_columns import column_v
+            from ..pde.surface_columns import column_v
             return head._grid(u, None, v=column_v(density, nv))
         if H > (nv + 1) // 2:                                     # harmonics folded: the head's own
             return head._grid(u, nv)
@@ -195,7 +195,7 @@ class LiveFace:
     def _cap_vertices(self, ring: np.ndarray, centre: np.ndarray) -> np.ndarray | None:
         """The neck cap's new points (:class:`.surface_mesh.DiscCap`'s ``vertices`` for the model's cap
         reference), without its triangles: what depends on the counts alone is kept from the first call."""
-        from .surface_mesh import CAP_EDGE, DiscCap, star_shaped_ring
+        from ..pde.surface_mesh import CAP_EDGE, DiscCap, star_shaped_ring
 
         if not star_shaped_ring(ring, centre)[0]:
             return None
@@ -302,7 +302,7 @@ def _hashable(key):
 def model_state(model) -> str:
     """The prepared ``model`` as one JSON string: its fields and what its first solve fixed (the spline's
     parameter, the neck cap's counts), arrays as base64 of their little-endian bytes. CThead: ~ 0.5 MB."""
-    from .provenance import SOFTWARE_VERSION
+    from ..core.provenance import SOFTWARE_VERSION
 
     names = {f.name for f in fields(model)} if is_dataclass(model) else set()
     state = {}
@@ -321,7 +321,7 @@ def model_state(model) -> str:
 def model_from_state(text: str):
     """The :class:`FaceModel` kept by :func:`model_state`; ValueError when the text is not one this version
     reads (another format, another software version, a field missing): then prepare the model again."""
-    from .provenance import SOFTWARE_VERSION
+    from ..core.provenance import SOFTWARE_VERSION
 
     t0 = time.perf_counter()
     try:

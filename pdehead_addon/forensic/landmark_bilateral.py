@@ -1,7 +1,7 @@
 """Bilateral landmarks in the landmark frame, each side by the same rule: the orbit margins (supraorbital,
 suborbital, lateral orbit, frontal eminence, inferior malar), zygion and supraglenoid, alare curvature, the canine
 points and the mandible's (gonion, occlusal line, sub/supra M2, mid-ramus, mid-mandibular border); rules in
-:data:`pdehead_addon.auto_landmarks.RULES`."""
+:data:`pdehead_addon.forensic.auto_landmarks.RULES`."""
 from __future__ import annotations
 
 import numpy as np

@@ -1,5 +1,5 @@
 """The landmark frame: the bone mask resampled on a grid of a rigid frame, its depth images (views) and the
-pixel tools the landmark rules share (:mod:`pdehead_addon.auto_landmarks` says the method)."""
+pixel tools the landmark rules share (:mod:`pdehead_addon.forensic.auto_landmarks` says the method)."""
 from __future__ import annotations
 
 import numpy as np
@@ -176,7 +176,7 @@ def box_mask(fr, x, y, z):
 def bone_components(bone: np.ndarray) -> tuple[np.ndarray, int]:
     """Connected components of the bone, separated where they touch at partial volume.
 
-    As in :func:`~pdehead_addon.skull.segment_skull`: the components of the bone eroded by one voxel
+    As in :func:`~pdehead_addon.forensic.skull.segment_skull`: the components of the bone eroded by one voxel
     (a closed bite or a joint at partial volume no longer joins the mandible to the skull), then the
     eroded rim given back to the component next to it (three constrained label dilations).
     """

@@ -1,6 +1,6 @@
 """Mid-sagittal landmarks on the landmark frame's profile: vertex, opisthocranion, the nasal profile (glabella,
 nasion, rhinion, mid-nasal), the upper jaw (subspinale, mid-philtrum, supradentale) and the mandible's (infradentale,
-supramentale, pogonion, gnathion, menton); rules in :data:`pdehead_addon.auto_landmarks.RULES`."""
+supramentale, pogonion, gnathion, menton); rules in :data:`pdehead_addon.forensic.auto_landmarks.RULES`."""
 from __future__ import annotations
 
 import numpy as np
@@ -36,7 +36,7 @@ VERTEX_CHORD_MM = 15.0
 
 
 def _midline_upper(res, fr, mid_x, skull_ids, mand_ids, orb_z, aperture):
-    """Midline landmarks of the skull (rules in :data:`~pdehead_addon.auto_landmarks.RULES`); returns the upper
+    """Midline landmarks of the skull (rules in :data:`~pdehead_addon.forensic.auto_landmarks.RULES`); returns the upper
     jaw's heights for the other rules ({} when the profile stops before it)."""
     ix = fr.index(0, mid_x)
     slab = fr.bone[max(ix - 1, 0):ix + 2].any(0)                        # (ny, nz)

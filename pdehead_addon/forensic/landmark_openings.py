@@ -1,6 +1,6 @@
 """Openings of the bone in the landmark frame's depth images -- the orbits, the nasal aperture, the external
 acoustic meatus -- and the Frankfurt landmarks on their margins (orbitale, porion); method in
-:mod:`pdehead_addon.auto_landmarks`."""
+:mod:`pdehead_addon.forensic.auto_landmarks`."""
 from __future__ import annotations
 
 import numpy as np

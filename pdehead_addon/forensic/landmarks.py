@@ -27,9 +27,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import PDEHeadError
-from .mesh_geometry import MeshDistance, closest_point_on_triangle, mesh_triangles
-from .mesh import Mesh
+from ..core.errors import PDEHeadError
+from ..core.mesh_geometry import MeshDistance, closest_point_on_triangle, mesh_triangles
+from ..core.mesh import Mesh
 
 
 @dataclass(frozen=True)

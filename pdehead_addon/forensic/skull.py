@@ -48,11 +48,11 @@ from typing import Any
 import numpy as np
 from scipy import ndimage as ndi
 
-from .ct_volume import CTVolume
-from .errors import SegmentationError
-from .mesh_geometry import signed_volume
-from .mesh import Mesh
-from .segmentation import Segmentation, auto_window, segment_head
+from ..core.ct_volume import CTVolume
+from ..core.errors import SegmentationError
+from ..core.mesh_geometry import signed_volume
+from ..core.mesh import Mesh
+from ..segment.segmentation import Segmentation, auto_window, segment_head
 
 #: HU assigned to the air and soft-tissue modes when the scan is not calibrated.
 AIR_HU, TISSUE_HU = -1000.0, 40.0

@@ -14,10 +14,10 @@ import struct
 
 import numpy as np
 
-from .errors import PDEHeadError
-from .mesh import Mesh
-from .provenance import provenance_lines, short_provenance
-from .mesh_geometry import mesh_triangles
+from ..core.errors import PDEHeadError
+from ..core.mesh import Mesh
+from ..core.provenance import provenance_lines, short_provenance
+from ..core.mesh_geometry import mesh_triangles
 
 FORMATS = ("stl", "obj", "ply")
 

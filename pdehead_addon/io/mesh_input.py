@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .ct_volume import CTVolume
-from .errors import CTImportError
-from .mesh import Mesh
+from ..core.ct_volume import CTVolume
+from ..core.errors import CTImportError
+from ..core.mesh import Mesh
 
 MESH_EXTENSIONS = (".stl", ".ply", ".obj")
 #: Holes up to this many boundary edges are filled; larger openings are refused (a surface scan's small

@@ -45,7 +45,7 @@ from typing import Any
 
 import numpy as np
 
-from .ct_volume import CTVolume
+from ..core.ct_volume import CTVolume
 from .phantom_anatomy import (AIR, BONE, BRAIN, CENTRE_Y, CHUNK_VOXELS, CSF, CUSHION, DEFAULT_FOV_MM, DEFAULT_HU,
                               DEFAULT_SHAPE, EYE, GEOMETRY, HOLDER, INTERNAL_AIR, LABEL_NAMES, METAL,
                               SOFT_TISSUE, TOP_Z, PhantomParameterError, evaluate_tissues, head_sd,
@@ -179,7 +179,7 @@ class Phantom:
     def bone_landmarks(self) -> dict[str, np.ndarray]:
         """Analytic craniometric landmarks of the facial skeleton (patient mm, by standard name).
 
-        Each is the rule of :mod:`pdehead_addon.auto_landmarks` applied to the exact geometry
+        Each is the rule of :mod:`pdehead_addon.forensic.auto_landmarks` applied to the exact geometry
         (bone crossings found along rays sampled every 0.02 mm, or extremes of the bone on a
         0.1 mm grid), not to a voxel grid; the phantom's Frankfurt plane is z = -14 (porion and
         orbitale), so the phantom is already in the Frankfurt orientation. Landmarks whose rule

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 from scipy.special import erfc
 
-from .errors import PDEHeadError
+from ..core.errors import PDEHeadError
 from .phantom_primitives import (EMPTY, Cylinder, Ellipsoid, Plate, Points, SmoothUnion, blend, ellipse_sd,
                                  ellipsoid_sd, rotation_about_x, rotation_ear, smax)
 

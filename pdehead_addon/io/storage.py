@@ -20,9 +20,9 @@ from typing import Any
 
 import numpy as np
 
-from .boundary_set import BoundarySet, knots_from_heights
-from .errors import BoundaryError, PDEError, StorageError
-from .pde_surface import DEFAULT_CONTINUITY
+from ..core.boundary_set import BoundarySet, knots_from_heights
+from ..core.errors import BoundaryError, PDEError, StorageError
+from ..pde.pde_surface import DEFAULT_CONTINUITY
 
 MAGIC = b"PDEHBND\x00"
 VERSION = 1
@@ -74,7 +74,7 @@ def _unzigzag(z: np.ndarray) -> np.ndarray:
 
 
 def _split(obj) -> tuple[BoundarySet, dict | None]:
-    from .pde_head import PDEHead
+    from ..pde.pde_head import PDEHead
     if isinstance(obj, PDEHead):
         settings = {"smoothing": [float(a) for a in obj.smoothing], "modes": int(obj.modes),
                     "smoothing_is_default": bool(getattr(obj, "smoothing_is_default", False)),
@@ -255,7 +255,7 @@ def load_boundaries(path: str | os.PathLike) -> BoundarySet:
 
 def head_from_boundaries(bset: BoundarySet, name: str = "<bytes>"):
     """Solve a loaded BoundarySet with its stored settings (defaults when none are stored)."""
-    from .pde_surface import solve_pde
+    from ..pde.pde_surface import solve_pde
     settings = bset.meta.get("pde_settings") or {}
     smoothing = None if settings.get("smoothing_is_default", True) else settings.get("smoothing")
     # files written before the C2 surface existed carry no continuity: they were the paper's patches

@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .boundary_set import BoundarySet
-from .errors import PDEError
-from .mesh import Mesh
+from ..core.boundary_set import BoundarySet
+from ..core.errors import PDEError
+from ..core.mesh import Mesh
 from .pde_basis import basis, basis_grid, small_matmul
 from .pde_smoothing import lebesgue_constant
 from .pde_spline import dome_height, fade_dome_amplitudes
@@ -291,7 +291,7 @@ class PDEHead:
         A live change rebuilds the surface and then the solid on the same (nu, nv) grid: the solid
         reads the surface's points instead of synthesising them again, and a w-range or nw change
         reuses them too. Rows do not depend on each other (``_grid(u)[:-1]`` is ``_grid(u[:-1])``
-        bit for bit: ``tests/test_speed_identities.py``), so the dome's surface takes the first rows.
+        bit for bit: ``tests/segment/test_speed_identities.py``), so the dome's surface takes the first rows.
         """
         u = np.asarray(u, dtype=np.float64)
         key = (u.tobytes(), None if nv is not None else np.asarray(v, float).tobytes(), nv)

@@ -50,8 +50,8 @@ from typing import Sequence
 
 import numpy as np
 
-from .boundary_set import BoundarySet
-from .errors import PDEError
+from ..core.boundary_set import BoundarySet
+from ..core.errors import PDEError
 from .pde_basis import basis, curve_harmonics
 
 __all__ = ["lebesgue_constant", "smoothing_bounds", "smoothing_limits", "check_modes", "local_knots",

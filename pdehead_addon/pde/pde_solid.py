@@ -15,9 +15,9 @@ from typing import Any
 
 import numpy as np
 
-from .ct_volume import CTVolume
-from .errors import PDEError, report_progress
-from .mesh import Mesh
+from ..core.ct_volume import CTVolume
+from ..core.errors import PDEError, report_progress
+from ..core.mesh import Mesh
 from .surface_mesh import check_count
 
 #: Value of the w-field at voxels outside the solid (any value > 1 means outside).
@@ -392,7 +392,7 @@ def w_field(head, grid, ct: CTVolume | None = None, directions: int = 4096,
         Planes processed together (bounds peak memory).
     progress : callable, optional
         ``progress(fraction, message)`` after every chunk of planes; it may raise
-        :class:`~pdehead_addon.errors.Cancelled` (nothing is returned).
+        :class:`~pdehead_addon.core.errors.Cancelled` (nothing is returned).
 
     Returns
     -------

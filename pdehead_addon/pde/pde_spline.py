@@ -193,7 +193,7 @@ def _smoother(x_bytes: bytes, length: float) -> np.ndarray:
     (LAPACK ``pbsv``); the product with ``Q`` is three shifted rows. Nothing goes through a dense BLAS / LAPACK call, whose OpenBLAS worker
     threads made the automatic selection's ~800 small solves cost 0.4-2.8 s of CPU in identical runs
     on two busy cores (0.03 s with one thread). Same matrix as the dense solve within ~1e-12
-    (``tests/test_speed_identities.py``).
+    (``tests/segment/test_speed_identities.py``).
 
     References
     ----------

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .ct_volume import CTVolume
-from .errors import PDEError, report_progress
+from ..core.ct_volume import CTVolume
+from ..core.errors import PDEError, report_progress
 from .pde_solid import TWO_PI, axial_grid
 
 __all__ = ["SolidCTTable"]
@@ -36,7 +36,7 @@ class SolidCTTable:
         u rows sampled together (bounds the temporary position arrays).
     progress : callable, optional
         ``progress(fraction, message)`` per chunk of u rows; it may raise
-        :class:`~pdehead_addon.errors.Cancelled`.
+        :class:`~pdehead_addon.core.errors.Cancelled`.
 
     Notes
     -----
@@ -49,7 +49,7 @@ class SolidCTTable:
 
     def __init__(self, head, ct: CTVolume, nu: int | None = None, nv: int | None = None,
                  nw: int | None = None, chunk: int = 16, progress=None):
-        from .ct_volume import trilinear
+        from ..core.ct_volume import trilinear
 
         if nu is None or nv is None or nw is None:
             probe_u = np.linspace(0.0, 1.0, 33)
@@ -209,7 +209,7 @@ class SolidCTTable:
 
     def sample(self, u, v, w) -> np.ndarray:
         """CT values (float32) at parameters (u, v, w), broadcast together; v taken modulo 2 pi."""
-        from .ct_volume import trilinear
+        from ..core.ct_volume import trilinear
 
         u, v, w = np.broadcast_arrays(np.asarray(u, float), np.asarray(v, float), np.asarray(w, float))
         idx = np.empty(u.shape + (3,))                                           # table order [w, u, v]

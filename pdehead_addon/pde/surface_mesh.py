@@ -22,9 +22,9 @@ from functools import lru_cache
 
 import numpy as np
 
-from .errors import PDEError
-from .mesh_geometry import signed_volume
-from .mesh import Mesh
+from ..core.errors import PDEError
+from ..core.mesh_geometry import signed_volume
+from ..core.mesh import Mesh
 from .surface_columns import column_fraction, column_fraction_inverse, column_v
 from .surface_uv_map import uv_islands
 

@@ -1,7 +1,7 @@
 """The 3-D Chan-Vese soft model (paper eq. 16-21) solved with Chambolle's dual projection.
 
 :func:`chan_vese_soft` minimises eq. 16 on one grid;
-:func:`.chan_vese_pyramid.solve_pyramid` runs it coarse to fine.  :func:`~pdehead_addon.segmentation.segment_head`
+:func:`.chan_vese_pyramid.solve_pyramid` runs it coarse to fine.  :func:`~pdehead_addon.segment.segmentation.segment_head`
 windows the intensities, calls the pyramid and cleans up the thresholded
 membership (:mod:`.mask_cleanup`).
 
@@ -344,7 +344,7 @@ def chan_vese_soft(img: np.ndarray, spacing: Sequence[float], lam: float, theta:
         intensities count in c2 of eq. 17 and its voxels in the RMS change.
     progress : callable, optional
         ``progress(iterations_done)`` after every outer iteration; it may raise
-        :class:`~pdehead_addon.errors.Cancelled` (the worker threads are stopped).
+        :class:`~pdehead_addon.core.errors.Cancelled` (the worker threads are stopped).
 
     Returns
     -------

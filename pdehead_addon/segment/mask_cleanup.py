@@ -16,7 +16,7 @@ from scipy import ndimage as ndi
 from . import run_labels
 from .binary_morphology import PARALLEL_VOXELS, THREADS, in_slabs
 from .binary_morphology import run_steps as _run_steps
-from .errors import SegmentationError
+from ..core.errors import SegmentationError
 
 
 #: 4-connectivity inside each axial slice, no links between slices (per-slice 2-D labelling).

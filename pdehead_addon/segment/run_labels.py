@@ -7,7 +7,7 @@ the same slice, or z +- 1 at the same y) and share an x. Those links, found with
 give the components of a head mask for a fraction of ``scipy.ndimage.label``'s time (it visits
 every voxel; there are ~100 x fewer runs than voxels). The labels are numbered as
 ``ndi.label`` numbers them (by their first voxel in raster order), so every result here is
-exactly that of the labelling it replaces (``tests/test_speed_identities.py``).
+exactly that of the labelling it replaces (``tests/segment/test_speed_identities.py``).
 """
 from __future__ import annotations
 

@@ -25,12 +25,12 @@ from typing import Any, Sequence
 import numpy as np
 from scipy import ndimage as ndi
 
-from . import input_checks
+from ..io import input_checks
 from .binary_morphology import PARALLEL_VOXELS, THREADS, in_slabs
 from .chan_vese import chan_vese_soft, divergence, gradient, tau_bound
 from .chan_vese_pyramid import solve_pyramid
-from .ct_volume import CTVolume, apply_window
-from .errors import SegmentationError, report_progress, scaled_progress
+from ..core.ct_volume import CTVolume, apply_window
+from ..core.errors import SegmentationError, report_progress, scaled_progress
 from .mask_cleanup import (clean_head_mask, close_disk, cut_at_neck, dilate_disk, erode_disk, estimate_noise,
                            fill_cavities, fill_holes_per_slice, find_cushion, tissue_envelope, largest_component,
                            metal_slices, open_disk, smoothing_sigma, streak_components)
@@ -237,7 +237,7 @@ def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: flo
         ``--downsample 2``, import dialog "Downsample"); None: no limit.
     progress : callable, optional
         ``progress(fraction, message)`` after every solver iteration and clean-up stage; it
-        may raise :class:`~pdehead_addon.errors.Cancelled`, which stops the segmentation
+        may raise :class:`~pdehead_addon.core.errors.Cancelled`, which stops the segmentation
         (worker threads included) and propagates; nothing is returned or kept.
 
     Returns

@@ -28,8 +28,8 @@ import pydicom
 from pydicom.dataset import FileDataset, FileMetaDataset
 from pydicom.uid import CTImageStorage, ExplicitVRLittleEndian, PYDICOM_IMPLEMENTATION_UID, generate_uid
 
-from .ct_volume import CTVolume
-from .errors import PDEHeadError
+from ..core.ct_volume import CTVolume
+from ..core.errors import PDEHeadError
 
 _INT16_MIN, _INT16_MAX = -32768, 32767
 

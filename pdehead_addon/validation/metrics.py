@@ -17,7 +17,7 @@ from typing import Sequence
 import numpy as np
 from scipy import ndimage as ndi
 
-from .ct_volume import CTVolume
+from ..core.ct_volume import CTVolume
 
 
 def jaccard(a: np.ndarray, b: np.ndarray) -> float:

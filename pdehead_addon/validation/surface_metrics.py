@@ -16,10 +16,10 @@ from typing import Any
 
 import numpy as np
 
-from .errors import PDEHeadError
+from ..core.errors import PDEHeadError
 # the mesh primitives live in .mesh_geometry (shipped code imports them from there); these names stay importable
 # from here for the measures' callers (scripts, tests, slice_selection)
-from .mesh_geometry import (mesh_triangles, point_surface_distance, point_triangle_distance,  # noqa: F401
+from ..core.mesh_geometry import (mesh_triangles, point_surface_distance, point_triangle_distance,  # noqa: F401
                        sample_surface, triangulate)
 
 

@@ -113,7 +113,8 @@ def test_single_dicom_file_loads_the_series_it_belongs_to(tmp_path):
     """A folder with two series; the file given belongs to the smaller one (the folder default would
     load the larger, main loaded the one file)."""
     sys.path.insert(0, str(ROOT))
-    from pdehead_addon import CTVolume, make_phantom, write_dicom_series
+    from pdehead_addon import CTVolume, make_phantom
+    from pdehead_addon.validation import write_dicom_series
     ph = make_phantom(noise=0.0)
     folder = tmp_path / "dicom"
     head = write_dicom_series(ph.ct, folder, series_description="phantom head", series_number=1, file_prefix="A",

@@ -49,7 +49,7 @@ def test_zip_contents(extension_zip):
     with zipfile.ZipFile(extension_zip) as z:
         names = z.namelist()
         manifest = tomllib.loads(z.read("blender_manifest.toml").decode())
-    assert "__init__.py" in names and "operators/ops.py" in names and "pdehead_addon/pde_surface.py" in names
+    assert "__init__.py" in names and "operators/ops.py" in names and "pdehead_addon/pde/pde_surface.py" in names
     assert "operators/study.py" in names and "pdehead_addon/defaults.py" in names  # issue 13's modules ship
     assert not any(n.startswith(("tests/", "scripts/", "docs/")) or "__pycache__" in n for n in names)
     wheels = sorted(n for n in names if n.startswith("wheels/"))

@@ -45,7 +45,7 @@ def test_cli_face_from_skull_bad_input_exit_2_nothing_written(tmp_path, case, ph
         from skimage import measure
 
         from pdehead_addon import Mesh
-        from pdehead_addon.export import export_mesh
+        from pdehead_addon.io.export import export_mesh
         z, y, x = np.mgrid[-100:101:2, -100:101:2, -100:101:2].astype(float)
         vol = (x ** 2 / 80 ** 2 + y ** 2 / 95 ** 2 + z ** 2 / 85 ** 2) < 1
         v, f, _, _ = measure.marching_cubes(vol.astype(np.float32), 0.5)
@@ -53,7 +53,8 @@ def test_cli_face_from_skull_bad_input_exit_2_nothing_written(tmp_path, case, ph
         result = run_cli("--skull-mesh", given, *SMALL, "--face-from-skull", "--export", out, tmp_path=tmp_path)
         message = "does not look like a skull: no orbits were found"
     else:                                        # the phantom with every value above soft tissue cut off
-        from pdehead_addon import CTVolume, write_dicom_series
+        from pdehead_addon import CTVolume
+        from pdehead_addon.validation import write_dicom_series
         ct = phantom.ct
         write_dicom_series(CTVolume(np.minimum(ct.data, 80.0), ct.spacing, origin=ct.origin, direction=ct.direction,
                                     meta=dict(ct.meta)), tmp_path / "in" / "ct")

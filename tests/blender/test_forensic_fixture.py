@@ -61,7 +61,7 @@ def test_every_study_reopens_with_its_settings_objects_and_forensic_state(reopen
 
 def _to_face(obj, vertices_mm, point_mm) -> float:
     """Distance (mm) of a point to the mesh of ``obj`` with its vertices at ``vertices_mm``."""
-    from pdehead_addon.surface_metrics import point_surface_distance
+    from pdehead_addon.validation.surface_metrics import point_surface_distance
     obj.data.calc_loop_triangles()
     tri = np.empty(len(obj.data.loop_triangles) * 3, np.int64)
     obj.data.loop_triangles.foreach_get("vertices", tri)

@@ -18,7 +18,8 @@ def _body(path):
 @pytest.fixture(scope="module")
 def phantom_dicoms(tmp_path_factory, phantom):
     """The phantom written as DICOM, and the same series with every voxel below the bone level set to air."""
-    from pdehead_addon import CTVolume, load_ct, write_dicom_series
+    from pdehead_addon import CTVolume, load_ct
+    from pdehead_addon.validation import write_dicom_series
     root = tmp_path_factory.mktemp("skull_only")
     write_dicom_series(phantom.ct, root / "full")
     full = load_ct(root / "full")                      # the values as stored (integers)
@@ -59,8 +60,8 @@ def test_cli_skull_only_ct_gives_the_same_skull(tmp_path, phantom_dicoms):
 
 
 def test_cli_skull_mesh_replaces_the_ct(tmp_path, phantom, phantom_seg):
-    from pdehead_addon.export import export_mesh
-    from pdehead_addon.skull import segment_skull, skull_mesh
+    from pdehead_addon.io.export import export_mesh
+    from pdehead_addon.forensic.skull import segment_skull, skull_mesh
     bone = skull_mesh(segment_skull(phantom.ct, phantom_seg))
     (tmp_path / "in").mkdir()
     given = export_mesh(bone, tmp_path / "in" / "scan.ply", name="scan")
@@ -121,7 +122,7 @@ def test_bone_level_field_and_export_builds_or_refuses(pdehead_ext, tmp_path, ph
     s.bone_level = 900.0
     assert forensic_skull.skull_segmentation(coll).meta["bone_level_stored"] == 900.0
     # a failure while writing leaves nothing behind (everything is written to a hidden folder first)
-    depth_table = __import__(f"{ext.__name__}.pdehead_addon.depth_table", fromlist=["x"])
+    depth_table = __import__(f"{ext.__name__}.pdehead_addon.forensic.depth_table", fromlist=["x"])
     saved = depth_table.write_landmark_csv
 
     def broken(*a, **k):

@@ -10,7 +10,7 @@ import pytest
 from file_readers import read_stl
 from test_cli import run_cli
 
-from pdehead_addon.phantom import GEOMETRY
+from pdehead_addon.io.phantom import GEOMETRY
 
 
 def _check_export(folder, n_skin_vertices=None, handles=True):
@@ -174,8 +174,8 @@ def test_forensic_operators_on_the_phantom(pdehead_ext, tmp_path):
     assert np.linalg.norm(np.array([float(c) for c in vertex[1:4]]) - lms["Vertex"]) < 1.0
     # the depth is measured as the batch measures it: on the CT's intensities along the bone's exposed normal
     # (depth_on_ct.measure_landmark_depths), not from the bone mesh to the PDE skin; the phantom's vault: 6.0 mm
-    from pdehead_addon.depth_on_ct import measure_landmark_depths
-    from pdehead_addon.landmarks import landmark_depths
+    from pdehead_addon.forensic.depth_on_ct import measure_landmark_depths
+    from pdehead_addon.forensic.landmarks import landmark_depths
     header = [r[0] for r in csv.reader(open(csv_path)) if r[0].startswith("#")]
     assert "# depth: bone level to skin level in the CT along the bone's exposed normal" in header
     skull_mesh, skin_mesh = skull.skull_engine_mesh(coll, "BONE"), skull.skin_engine_mesh(coll)

@@ -5,8 +5,8 @@ import numpy as np
 
 from test_cli import run_cli
 
-from pdehead_addon.landmarks import STANDARD_LANDMARKS
-from pdehead_addon.phantom import phantom_bone_landmarks
+from pdehead_addon.forensic.landmarks import STANDARD_LANDMARKS
+from pdehead_addon.io.phantom import phantom_bone_landmarks
 
 
 def test_find_landmarks_operator_on_the_phantom(pdehead_ext):
@@ -47,7 +47,7 @@ def test_find_landmarks_operator_on_the_phantom(pdehead_ext):
     assert fs.landmark_flags(coll)["Pogonion"] == ("ok", fs.MOVED_BY_HAND)
     # without the mandible in the bone mask: its landmarks are not found, and the report says so
     sk = skull.skull_segmentation(coll)
-    from pdehead_addon.landmark_frame import bone_components
+    from pdehead_addon.forensic.landmark_frame import bone_components
     labels, _ = bone_components(sk.bone)
     k = tuple(np.round(sk.ct.patient_to_index([0.0, -67.0, -79.0])).astype(int))
     sk.bone[labels == labels[k]] = False

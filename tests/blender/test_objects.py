@@ -298,7 +298,7 @@ def test_live_solid_uses_the_ct_table_and_rewrites_a_same_topology_mesh_in_place
     """The live path: CT from the (u, v, w) table; a cutaway at the same resolution only moves vertices."""
     from scipy.ndimage import map_coordinates
 
-    from pdehead_addon.solid_ct_table import SolidCTTable
+    from pdehead_addon.pde.solid_ct_table import SolidCTTable
     coll = ext.objects.study_collection("Phantom")
     ct = phantom.ct
     table = SolidCTTable(phantom_head, ct)

@@ -10,7 +10,7 @@ import pytest
 def phantom_dicom(tmp_path_factory):
     """The phantom as an untilted DICOM series (what a user drops in or imports)."""
     from pdehead_addon import make_phantom
-    from pdehead_addon.dicom_export import write_phantom_series
+    from pdehead_addon.validation.dicom_export import write_phantom_series
     folder = tmp_path_factory.mktemp("phantom-dicom") / "series"
     write_phantom_series(make_phantom(), folder, gantry_tilt=0.0, rows=128, columns=128, pixel_spacing=(2.0, 2.0),
                          noise=False)

@@ -1,5 +1,5 @@
 """The VDB volume and its eq. 24 material (operators/volume.py, vdb_files.py, vdb_grids.py, volume_material.py;
-its windowing and grids: tests/test_ct_volume.py).
+its windowing and grids: tests/core/test_ct_volume.py).
 
 - the .vdb grids and their index -> world transform (numpy [z, y, x] vs OpenVDB (x, y, z)),
 - the Volume object of the phantom's w-field lining up with the PDE surface,
@@ -21,7 +21,7 @@ import blender_inspect  # tests/blender/blender_inspect.py
 
 from pdehead_addon import OUTSIDE_W
 from pdehead_addon import defaults as D
-from pdehead_addon.ct_volume import HEAD_MARGIN_MM, head_mask_on_grid
+from pdehead_addon.core.ct_volume import HEAD_MARGIN_MM, head_mask_on_grid
 
 import vdb_read  # tests/blender/vdb_read.py
 

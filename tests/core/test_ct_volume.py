@@ -1,11 +1,11 @@
-"""The engine's CT volume helpers (pdehead_addon/ct_volume.py) and the defaults table (defaults.py)."""
+"""The engine's CT volume helpers (pdehead_addon/core/ct_volume.py) and the defaults table (defaults.py)."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
 from pdehead_addon import CTVolume
-from pdehead_addon import ct_volume as CV
+from pdehead_addon.core import ct_volume as CV
 from pdehead_addon import defaults as D
 
 
@@ -107,7 +107,7 @@ def test_head_mask_on_an_axis_aligned_grid_is_the_per_voxel_lookup():
     equals the nearest w-field voxel looked up voxel by voxel through the full affine map."""
     from types import SimpleNamespace
 
-    from pdehead_addon.ct_volume import grid_affine, head_mask_on_grid
+    from pdehead_addon.core.ct_volume import grid_affine, head_mask_on_grid
     rng = np.random.default_rng(3)
     w = np.where(rng.random((12, 15, 17)) < 0.03, 0.5, 2.0).astype(np.float32)
     wf = SimpleNamespace(w=w, spacing=(2.0, 1.1, 0.9), origin=np.array([-7.0, 3.0, 11.0]), direction=np.eye(3))

@@ -1,12 +1,12 @@
-"""pdehead_addon.mesh_geometry: the one copy of each mesh routine, on shapes with known answers."""
+"""pdehead_addon.core.mesh_geometry: the one copy of each mesh routine, on shapes with known answers."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from pdehead_addon.mesh_geometry import (MeshDistance, closest_point_on_triangle, edge_neighbours, mesh_triangles,
+from pdehead_addon.core.mesh_geometry import (MeshDistance, closest_point_on_triangle, edge_neighbours, mesh_triangles,
                                     point_surface_distance, point_triangle_distance, signed_volume)
-from pdehead_addon.mesh import Mesh
+from pdehead_addon.core.mesh import Mesh
 
 TRI = np.array([[0.0, 0.0, 0.0], [4.0, 0.0, 0.0], [0.0, 3.0, 0.0]])
 

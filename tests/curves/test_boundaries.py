@@ -16,11 +16,11 @@ PER_SLICE = dict(level_field="mask", parameterisation="aligned", star_shaped=Fal
 
 def extract_boundaries(seg, **kwargs):
     return _extract_default(seg, **{**PER_SLICE, **kwargs})
-from pdehead_addon.curve_sampling import (
+from pdehead_addon.curves.curve_sampling import (
     contour_from_mask, parameter_offsets, polygon_centroid, resample_closed_curve, self_intersections, signed_area,
 )
-from pdehead_addon.slice_outlines import boundary_ring, outer_contour, outer_region
-from pdehead_addon.slice_selection import (
+from pdehead_addon.curves.slice_outlines import boundary_ring, outer_contour, outer_region
+from pdehead_addon.curves.slice_selection import (
     _assign_monotone, register_selection, usable_slices, scan_edge_slices, SELECTION_STRATEGIES,
 )
 
@@ -455,7 +455,7 @@ def _distance_to_polyline(q, curve):
 
 
 def test_smooth_closed_curve_removes_pixel_ripple_keeps_shape():
-    from pdehead_addon.parameterisation import smooth_closed_curve
+    from pdehead_addon.curves.parameterisation import smooth_closed_curve
     th = np.linspace(0, 2 * np.pi, 720, endpoint=False)
     r = 80 + 0.08 * np.sin(240 * th)                          # ~2 mm wavelength ripple on an 80 mm circle
     pts = np.column_stack([r * np.cos(th), r * np.sin(th), np.full_like(th, 12.5)])
@@ -469,7 +469,7 @@ def test_smooth_closed_curve_removes_pixel_ripple_keeps_shape():
 
 
 def test_close_region_bridges_narrow_inlets_only():
-    from pdehead_addon.slice_outlines import close_region
+    from pdehead_addon.curves.slice_outlines import close_region
     yy, xx = np.mgrid[:80, :80]
     disk = (yy - 40) ** 2 + (xx - 40) ** 2 <= 30 ** 2
     notched = disk & ~((np.abs(yy - 40) <= 1) & (xx > 50))        # 3 px wide, 20 px deep slit
@@ -494,7 +494,7 @@ def test_extract_boundaries_parameterisation_options():
 
 
 def test_cthead_aligned_default_keeps_polylines_and_improves_correspondence(cthead_seg):
-    from pdehead_addon.parameterisation import align_parameterisation, correspondence_error
+    from pdehead_addon.curves.parameterisation import align_parameterisation, correspondence_error
     arc = extract_boundaries(cthead_seg, patches=10, samples=256, parameterisation="arc-length")
     aligned = extract_boundaries(cthead_seg, patches=10, samples=256)
     assert np.array_equal(arc.slice_indices, aligned.slice_indices)

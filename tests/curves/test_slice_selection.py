@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 import pdehead_addon as E
-from pdehead_addon import slice_selection as S
-from pdehead_addon.errors import BoundaryError, PDEError
+from pdehead_addon.curves import slice_selection as S
+from pdehead_addon.core.errors import BoundaryError, PDEError
 
 
 def _positions(cand, bset):

@@ -8,12 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pdehead_addon.auto_landmarks import NOT_FOUND, OK, UNCERTAIN, find_landmarks
-from pdehead_addon.landmarks import STANDARD_LANDMARKS, landmark
-from pdehead_addon.phantom import GEOMETRY
-from pdehead_addon.skull import segment_skull
+from pdehead_addon.forensic.auto_landmarks import NOT_FOUND, OK, UNCERTAIN, find_landmarks
+from pdehead_addon.forensic.landmarks import STANDARD_LANDMARKS, landmark
+from pdehead_addon.io.phantom import GEOMETRY
+from pdehead_addon.forensic.skull import segment_skull
 
-FIXTURE = Path(__file__).parent / "fixtures" / "cthead_landmarks.csv"
+FIXTURE = Path(__file__).parent.parent / "fixtures" / "cthead_landmarks.csv"
 MANDIBLE = {"Infradentale", "Supramentale", "Pogonion", "Gnathion", "Menton"} | {
     f"{n} {s}" for n in ("Gonion", "Occlusal line", "Sub M2", "Infra canine", "Mid-ramus", "Mid-mandibular border")
     for s in "LR"}
@@ -74,7 +74,7 @@ def test_phantom_every_landmark_found_and_accurate(phantom_search, phantom_truth
 
 
 def test_phantom_without_mandible_reports_it(phantom, phantom_bone, phantom_search):
-    from pdehead_addon.landmark_frame import bone_components
+    from pdehead_addon.forensic.landmark_frame import bone_components
     labels, _ = bone_components(phantom_bone)
     mandible = labels == labels[tuple(np.round(phantom.ct.patient_to_index([0.0, -67.0, -79.0])).astype(int))]
     assert 0.02 < mandible.mean() / phantom_bone.mean() < 0.2
@@ -131,7 +131,7 @@ CTHEAD_MAX_OK_MM = 6.0
 
 
 def test_every_landmark_has_a_written_rule():
-    from pdehead_addon.auto_landmarks import RULES
+    from pdehead_addon.forensic.auto_landmarks import RULES
     keys = {d.key.rsplit("_", 1)[0] if d.bilateral else d.key for d in STANDARD_LANDMARKS}
     assert keys == set(RULES) and all(len(r) > 40 for r in RULES.values())
 
@@ -161,9 +161,9 @@ def test_scaled_phantom_mandible_midline_is_on_the_mandible(monkeypatch):
     from the mandible, and infradentale and supramentale landed on it (supramentale 30 mm behind pogonion, ok).
     A piece between the jaws now counts as the mandible's only when it lies no farther from the mandible than
     from the upper skeleton; and supramentale on a profile with a gap is uncertain."""
-    import pdehead_addon.landmark_midline as M
+    import pdehead_addon.forensic.landmark_midline as M
     from pdehead_addon import CTVolume, make_phantom
-    from pdehead_addon.phantom_anatomy import _mandible_sd
+    from pdehead_addon.io.phantom_anatomy import _mandible_sd
 
     scale = 1.12
     ct = make_phantom(shape=(60, 96, 96), seed=1).ct

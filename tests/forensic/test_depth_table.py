@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 from pdehead_addon import PDEHeadError
-from pdehead_addon.depth_table import (CODE_MAP, DEFAULT_TABLE_PATH, DepthTable, default_table, read_depth_table,
+from pdehead_addon.forensic.depth_table import (CODE_MAP, DEFAULT_TABLE_PATH, DepthTable, default_table, read_depth_table,
                                        resolve_landmark, uncovered_landmarks, write_landmark_csv)
-from pdehead_addon.landmarks import STANDARD_LANDMARKS
-from pdehead_addon.provenance import SOFTWARE, provenance
+from pdehead_addon.forensic.landmarks import STANDARD_LANDMARKS
+from pdehead_addon.core.provenance import SOFTWARE, provenance
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PROVENANCE = ("values as printed in the public repository esomjai/Forensic-Craniofacial-Approximation-Validation-Tool "
               "(FSTT/Generating FSTT cylinders in Slicer.md), which attributes them to this paper; check them against "
               "the paper before casework")
@@ -124,4 +124,4 @@ def test_default_table_file_ships_inside_the_extension():
     import tomllib
     manifest = tomllib.loads((ROOT / "blender_manifest.toml").read_text())
     excluded = manifest["build"]["paths_exclude_pattern"]
-    assert not any(p.strip("/") in ("pdehead_addon/data", "data", "*.csv") for p in excluded)
+    assert not any(p.strip("/") in ("pdehead_addon/forensic/data", "data", "*.csv") for p in excluded)

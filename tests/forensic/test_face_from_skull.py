@@ -1,4 +1,4 @@
-"""Face from the skull (issue 23): the engine (pdehead_addon.face_from_skull) on the phantom's bone skull.
+"""Face from the skull (issue 23): the engine (pdehead_addon.forensic.face_from_skull) on the phantom's bone skull.
 
 The phantom is a consistency check, not a score (its soft tissue is its own, not the table's): these tests
 check what the engine promises - a closed face through the peg tips, local response to one peg, the same
@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from pdehead_addon import Mesh
-from pdehead_addon.depth_table import default_table
-from pdehead_addon.errors import PDEHeadError
-from pdehead_addon.face_from_skull import APPROXIMATION_LABEL, FaceModel, face_from_skull
-from pdehead_addon.surface_metrics import point_surface_distance, triangulate
+from pdehead_addon.forensic.depth_table import default_table
+from pdehead_addon.core.errors import PDEHeadError
+from pdehead_addon.forensic.face_from_skull import APPROXIMATION_LABEL, FaceModel, face_from_skull
+from pdehead_addon.validation.surface_metrics import point_surface_distance, triangulate
 
 #: Pegs the nose model stands over (the nose is predicted, not interpolated): their tips may lie inside it.
 # the pegs the nose stands over (subspinale: under the columella and between the alae, since issue 23's sixth session)
@@ -23,8 +23,8 @@ NOSE_PEGS = {"Rhinion", "Mid-nasal", "Alare curvature L", "Alare curvature R", "
 
 @pytest.fixture(scope="module")
 def phantom_bone(phantom, phantom_seg):
-    from pdehead_addon.auto_landmarks import find_landmarks
-    from pdehead_addon.skull import segment_skull, skull_mesh
+    from pdehead_addon.forensic.auto_landmarks import find_landmarks
+    from pdehead_addon.forensic.skull import segment_skull, skull_mesh
     sk = segment_skull(phantom.ct, phantom_seg)
     search = find_landmarks(phantom.ct, sk.bone)
     return skull_mesh(sk), search.points(), search.flags()
@@ -64,14 +64,14 @@ def test_face_is_closed_labelled_and_traced(model, face):
 
 def _peg_damping(model) -> np.ndarray:
     """The exact correction's regularisation per peg (pegs above the rows are left to the dome: undamped)."""
-    from pdehead_addon.face_from_skull import RBF_REGULARISATION
+    from pdehead_addon.forensic.face_from_skull import RBF_REGULARISATION
     lam = np.full(len(model.peg_names), RBF_REGULARISATION)
     lam[model._in_rows] = model._damping[:int(model._in_rows.sum())]
     return lam
 
 
 def test_face_passes_through_the_peg_tips(model, face):
-    from pdehead_addon.face_from_skull import RBF_REGULARISATION
+    from pdehead_addon.forensic.face_from_skull import RBF_REGULARISATION
     d = point_surface_distance(face.tips, face.mesh.vertices, _faces(face.mesh), seed=0)
     lam = _peg_damping(model)
     away = np.array([n not in NOSE_PEGS for n in model.peg_names])
@@ -85,7 +85,7 @@ def test_face_passes_through_the_peg_tips(model, face):
 
 
 def test_outlying_pegs_are_damped_and_the_jaw_is_smoother(model, face):
-    from pdehead_addon.face_from_skull import RBF_REGULARISATION
+    from pdehead_addon.forensic.face_from_skull import RBF_REGULARISATION
     lam = dict(zip(model.peg_names, _peg_damping(model)))
     for name in ("Glabella", "Nasion", "Mid-philtrum", "Supradentale", "Pogonion", "Menton"):
         assert lam[name] == RBF_REGULARISATION                 # the mid-sagittal profile stays exact
@@ -110,7 +110,7 @@ def test_outlying_pegs_are_damped_and_the_jaw_is_smoother(model, face):
 
 
 def test_nose_base_from_the_aperture_and_tip_from_the_nasal_length():
-    from pdehead_addon.face_features import aperture_floor, circle_meet, predict_nose
+    from pdehead_addon.forensic.face_features import aperture_floor, circle_meet, predict_nose
     # a midline plate of bone (y = 0, x 90..130, z 0..100) with a nasal aperture (|x - 110| < 10, z 40..80)
     x, z = np.meshgrid(np.arange(90.0, 130.0, 1.0), np.arange(0.0, 100.0, 0.5))
     keep = ~((np.abs(x - 110) < 10) & (z >= 40) & (z < 80))
@@ -164,7 +164,7 @@ def test_tips_override_depths(model, face):
 
 
 def test_sd_faces_bracket_the_mean_face(model, face):
-    from pdehead_addon.surface_mesh import signed_volume
+    from pdehead_addon.pde.surface_mesh import signed_volume
     lo, hi = model.sd_faces()
     v_lo, v_mean, v_hi = (abs(signed_volume(r.mesh)) for r in (lo, face, hi))
     assert v_lo < v_mean < v_hi
@@ -253,7 +253,7 @@ def test_lips_from_the_teeth_and_canines(model, face, phantom_bone):
 def test_ears_at_the_porions(model, face, phantom_bone):
     """A default ear (face_features.predict_ears) stands off the head at each porion and touches nothing of
     the face in front."""
-    from pdehead_addon import face_features as F
+    from pdehead_addon.forensic import face_features as F
     _, lms, _ = phantom_bone
     ears = model._ear_shape()
     assert ears is not None and face.provenance["ears"].startswith("default ear")
@@ -293,7 +293,7 @@ def test_nose_has_alae_and_a_rounded_tip_and_the_eyes_lids(model, face):
     """The nose's parts (face_features.nose_bump, issue 23's sixth session): the alae stand off the face
     at half the alar width either side, lower than the tip and with the lobule between them; the tip is rounded in
     profile (the ridge falls away from pronasale on both sides, not a point); the closed eyes' fissure is a groove."""
-    from pdehead_addon import face_features as F
+    from pdehead_addon.forensic import face_features as F
     g = model.grid
     base = model.profile + model._offset_field(face.tips)
     bump = model._nose_bump(base, face.tips)

@@ -1,4 +1,4 @@
-"""The live face's engine side (issue 23, point 2): pdehead_addon.face_live on the phantom's bone skull.
+"""The live face's engine side (issue 23, point 2): pdehead_addon.forensic.face_live on the phantom's bone skull.
 
 :class:`LiveFace` must give the very face :meth:`FaceModel.solve` gives (it is only faster), and a model
 kept as text (:func:`model_state`) must come back as the same model without preparing it again.
@@ -10,15 +10,15 @@ import json
 import numpy as np
 import pytest
 
-from pdehead_addon.depth_table import default_table
-from pdehead_addon.face_from_skull import FaceModel
-from pdehead_addon.face_live import EXACT_TOLERANCE_MM, LiveFace, model_from_state, model_state
+from pdehead_addon.forensic.depth_table import default_table
+from pdehead_addon.forensic.face_from_skull import FaceModel
+from pdehead_addon.forensic.face_live import EXACT_TOLERANCE_MM, LiveFace, model_from_state, model_state
 
 
 @pytest.fixture(scope="module")
 def model(phantom, phantom_seg):
-    from pdehead_addon.auto_landmarks import find_landmarks
-    from pdehead_addon.skull import segment_skull, skull_mesh
+    from pdehead_addon.forensic.auto_landmarks import find_landmarks
+    from pdehead_addon.forensic.skull import segment_skull, skull_mesh
     sk = segment_skull(phantom.ct, phantom_seg)
     search = find_landmarks(phantom.ct, sk.bone)
     return FaceModel.prepare(skull_mesh(sk), search.points(), default_table(), flags=search.flags())

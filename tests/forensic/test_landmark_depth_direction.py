@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from skimage.measure import marching_cubes
 
-from pdehead_addon.landmarks import exposed_normals, snap_to_surface
-from pdehead_addon.mesh import Mesh
+from pdehead_addon.forensic.landmarks import exposed_normals, snap_to_surface
+from pdehead_addon.core.mesh import Mesh
 
 
 @pytest.fixture(scope="module")
@@ -49,8 +49,8 @@ def test_pegs_stand_along_the_direction_the_depth_is_measured(holed_slab):
     cast along the peg equals landmark_depths' (measured: 21.64 / 10.63 / 32.50 mm both ways, identical), and the peg
     is within 1 deg of the direction landmark_depths uses (measured 0.0 deg) while the nearest triangle's normal, what
     the pegs stood on before, is 51.3 / 50.4 deg off at the two rims (the old code fails here)."""
-    from pdehead_addon.landmarks import landmark_depths, marker_pegs
-    from pdehead_addon.tissue_depth import cast_rays
+    from pdehead_addon.forensic.landmarks import landmark_depths, marker_pegs
+    from pdehead_addon.forensic.tissue_depth import cast_rays
 
     ax = np.arange(-44.0, 45.0, 4.0)                                  # a coarse grid: the field is piecewise linear
     x, y, z = np.meshgrid(ax, ax, ax, indexing="ij")
@@ -83,9 +83,9 @@ def test_one_depth_function_on_the_ct_with_a_mesh_fallback(holed_slab):
 
     from scipy.special import erfc
 
-    from pdehead_addon.ct_volume import CTVolume
-    from pdehead_addon.depth_on_ct import depth_flags, measure_landmark_depths
-    from pdehead_addon.landmarks import landmark_depths
+    from pdehead_addon.core.ct_volume import CTVolume
+    from pdehead_addon.forensic.depth_on_ct import depth_flags, measure_landmark_depths
+    from pdehead_addon.forensic.landmarks import landmark_depths
 
     ax = np.arange(-40.0, 41.0)
     z, y, x = np.meshgrid(ax, ax, ax, indexing="ij")
@@ -128,7 +128,7 @@ def test_slice_edge_spread_is_measured_on_the_skin(sigma):
     wise on 4.3 mm slices of 2 mm pixels: the spread across the slices is recovered from the skin alone."""
     from scipy.special import ndtr
 
-    from pdehead_addon.depth_on_ct import slice_edge_spread
+    from pdehead_addon.forensic.depth_on_ct import slice_edge_spread
 
     h, px, radius = 4.3, 2.0, 80.0
     z = (np.arange(48) - 23.7) * h
@@ -147,7 +147,7 @@ def test_step_crossing_locates_an_edge_between_two_slices():
     with the spread recovers it within 0.05 mm, also for a level off half way (the bone's)."""
     from scipy.special import ndtr, ndtri
 
-    from pdehead_addon.depth_on_ct import step_crossing
+    from pdehead_addon.forensic.depth_on_ct import step_crossing
 
     sigma, h, inside, outside = 1.2, 4.3, 1300.0, 40.0
     worst_linear, worst_model = 0.0, 0.0

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pdehead_addon import CTVolume
-from pdehead_addon.skull import segment_skull, skull_mesh
+from pdehead_addon.forensic.skull import segment_skull, skull_mesh
 
 
 def stripped(ct: CTVolume, level: float, air: float | None = None) -> CTVolume:
@@ -116,7 +116,7 @@ def test_bone_skull_is_open_where_bone_is_and_within_budget(phantom, phantom_sku
 @pytest.mark.parametrize("fmt", ["stl", "ply", "obj"])
 def test_skull_mesh_replaces_the_ct(tmp_path, phantom_skull, fmt):
     from pdehead_addon import load_ct
-    from pdehead_addon.export import export_mesh
+    from pdehead_addon.io.export import export_mesh
     bone = skull_mesh(phantom_skull)
     path = export_mesh(bone, tmp_path / f"skull.{fmt}", name="skull")
     ct = load_ct(path)
@@ -134,7 +134,7 @@ def test_skull_mesh_replaces_the_ct(tmp_path, phantom_skull, fmt):
 
 def test_open_skull_mesh_is_repaired_or_refused_saying_where(tmp_path, phantom_skull):
     from pdehead_addon import CTImportError, Mesh, load_ct
-    from pdehead_addon.export import export_mesh
+    from pdehead_addon.io.export import export_mesh
     bone = skull_mesh(phantom_skull)
     centres = bone.vertices[bone.triangles].mean(axis=1)
     top = bone.vertices[np.argmax(bone.vertices[:, 2])]
@@ -165,7 +165,7 @@ def test_thick_slices_are_interpolated_shape_based_before_meshing():
     and the phantom are meshed as they are. On a sphere (R 25 mm, 4 mm slices) the interpolated slices'
     areas follow the sphere's cross-sections (measured: 3.8 % mean error where the nearest slice, the
     terrace marching cubes would mesh, is off by 9.8 %)."""
-    from pdehead_addon.skull import shape_based_upsample, slice_upsampling
+    from pdehead_addon.forensic.skull import shape_based_upsample, slice_upsampling
     assert slice_upsampling((4.0, 0.488, 0.488)) == 4 and slice_upsampling((7.0, 0.5, 0.5)) == 4
     assert slice_upsampling((2.0, 1.0, 1.0)) == 1 and slice_upsampling((2.3, 2.0, 2.0)) == 1
     dz, radius = 4.0, 25.0
@@ -187,8 +187,8 @@ def test_cthead_skull_mesh_porions_match_the_ct(tmp_path, cthead_ct, cthead_seg)
     """The CT's bone skull given back as a mesh: its porions within 3 mm of the CT's (issue 22; with 1 mm
     voxels the thin bone under the left ear canal was lost and porion L / R were 24 / 45 mm off)."""
     from pdehead_addon import load_ct
-    from pdehead_addon.auto_landmarks import find_landmarks
-    from pdehead_addon.export import export_mesh
+    from pdehead_addon.forensic.auto_landmarks import find_landmarks
+    from pdehead_addon.io.export import export_mesh
     full = segment_skull(cthead_ct, cthead_seg)
     ref = find_landmarks(cthead_ct, full.bone).landmarks
     ct = load_ct(export_mesh(skull_mesh(full), tmp_path / "skull.stl", name="skull"))

@@ -1,4 +1,4 @@
-"""CT import (pdehead_addon.ct_import): real data sets, exact geometry on synthetic series, bad input.
+"""CT import (pdehead_addon.io.ct_import): real data sets, exact geometry on synthetic series, bad input.
 
 Synthetic DICOM files are written with pydicom into tmp_path; real files are read in place
 (or a few copied into tmp_path when they must be modified).

@@ -15,10 +15,11 @@ import pytest
 from pydicom.uid import JPEG2000Lossless, RLELossless
 
 from datasets import shared_data
-from pdehead_addon import (CTImportError, CTImportWarning, CTVolume, HeadSizeWarning, SegmentationError,
-                           load_ct, make_phantom, segment_head, write_dicom_series)
-from pdehead_addon import metrics as M
-from pdehead_addon.input_checks import parse_orientation
+from pdehead_addon import (CTImportError, CTImportWarning, CTVolume, HeadSizeWarning, SegmentationError, load_ct,
+                           make_phantom, segment_head)
+from pdehead_addon.validation import write_dicom_series
+from pdehead_addon.validation import metrics as M
+from pdehead_addon.io.input_checks import parse_orientation
 
 
 def load_w(*args, **kw):
@@ -280,7 +281,7 @@ def test_dicomdir_file_set_is_read(phantom_series, plain_seg, tmp_path):
 
 # ------------------------------------------------------------------------- large scans
 def test_downsample_keeps_patient_positions_and_means(ph, tmp_path):
-    from pdehead_addon.ct_volume import downsample_volume
+    from pdehead_addon.core.ct_volume import downsample_volume
     small = downsample_volume(ph.ct, 2)
     assert small.shape == (50, 64, 64) and small.spacing == tuple(2 * h for h in ph.ct.spacing)
     np.testing.assert_allclose(small.data[3, 4, 5], ph.ct.data[6:8, 8:10, 10:12].mean(), rtol=1e-5)
@@ -293,7 +294,7 @@ def test_downsample_keeps_patient_positions_and_means(ph, tmp_path):
 
 def test_shoulders_do_not_join_the_head_mask():
     """A head-and-neck scan (the phantom with a trunk painted below the neck) stops at the neck."""
-    sys_path = str(Path(__file__).resolve().parents[1] / "scripts")
+    sys_path = str(Path(__file__).resolve().parents[2] / "scripts")
     import sys
     sys.path.insert(0, sys_path)
     import bench_large_scan as B

@@ -8,10 +8,11 @@ import pydicom
 import pytest
 from scipy import ndimage as ndi
 
-from pdehead_addon import PDEHeadError, make_phantom, write_dicom_series
-from pdehead_addon.ct_volume import CTVolume
-from pdehead_addon.dicom_export import GE_LIKE_NORMAL_STEPS, write_phantom_series
-from pdehead_addon.phantom import (AIR, BONE, BRAIN, CUSHION, EYE, HOLDER, INTERNAL_AIR, LABEL_NAMES,
+from pdehead_addon import PDEHeadError, make_phantom
+from pdehead_addon.validation import write_dicom_series
+from pdehead_addon.core.ct_volume import CTVolume
+from pdehead_addon.validation.dicom_export import GE_LIKE_NORMAL_STEPS, write_phantom_series
+from pdehead_addon.io.phantom import (AIR, BONE, BRAIN, CUSHION, EYE, HOLDER, INTERNAL_AIR, LABEL_NAMES,
                                    SOFT_TISSUE, Phantom)
 
 
@@ -327,7 +328,7 @@ def test_load_ct_reads_the_writer(phantom, small_ct, tmp_path):
 
 
 def test_metal_fillings_and_streaks_change_hu_only():
-    from pdehead_addon.phantom import METAL
+    from pdehead_addon.io.phantom import METAL
     plain, metal = make_phantom(noise=0.0), make_phantom(noise=0.0, metal=True)
     assert np.array_equal(plain.head_mask, metal.head_mask)        # streaks are not tissue
     fillings = metal.labels == METAL

@@ -169,7 +169,7 @@ def test_grey_ct_saved_as_colour_png_still_loads(tmp_path):
 
 # ------------------------------------------------------------------ 4. messages in the words of where they are shown
 def test_engine_messages_become_flags_or_dialog_fields():
-    from pdehead_addon.wording import for_cli, for_dialog
+    from pdehead_addon.core.wording import for_cli, for_dialog
     crown = "read with the first file superior; pass first_slice='inferior' if the first file is the bottom"
     assert for_cli(crown).endswith("; pass --first-slice inferior if the first file is the bottom")
     assert for_dialog(crown).endswith("; set 'First Slice' Inferior if the first file is the bottom")
@@ -184,7 +184,7 @@ def test_engine_messages_become_flags_or_dialog_fields():
 
 
 def test_byte_order_error_in_cli_and_dialog_words(tmp_path):
-    from pdehead_addon.wording import for_cli, for_dialog
+    from pdehead_addon.core.wording import for_cli, for_dialog
     with pytest.raises(CTImportError) as err:
         load_ct(shared_data("cthead_stanford", "raw16"), format="raw", shape=(256, 256), dtype="<i2",
                 spacing=(2, 1, 1))

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from pdehead_addon import BoundarySet, PDEHead, StorageError
-from pdehead_addon.pde_surface import solve_pde
-from pdehead_addon.storage import (
+from pdehead_addon.pde.pde_surface import solve_pde
+from pdehead_addon.io.storage import (
     MAGIC, QUANTUM_MM, dumps_boundaries, load_boundaries, load_head, loads_boundaries, loads_head,
     save_boundaries,
 )

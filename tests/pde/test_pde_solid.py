@@ -6,9 +6,9 @@ import pytest
 from skimage.draw import polygon2mask
 
 from pdehead_addon import BoundarySet, CTVolume, PDEError, knots_from_heights
-from pdehead_addon.pde_solid import OUTSIDE_W, WField, alpha_from_w, w_field
-from pdehead_addon.pde_surface import solve_pde
-from pdehead_addon.surface_mesh import signed_volume
+from pdehead_addon.pde.pde_solid import OUTSIDE_W, WField, alpha_from_w, w_field
+from pdehead_addon.pde.pde_surface import solve_pde
+from pdehead_addon.pde.surface_mesh import signed_volume
 from pde_synthetic import head_bset, resample_arc_length
 
 TWO_PI = 2 * np.pi
@@ -319,7 +319,7 @@ def test_w_field_cthead(cthead_bset, cthead_ct, cthead_seg):
 def test_trilinear_matches_map_coordinates_inside_and_cval_outside():
     from scipy.ndimage import map_coordinates
 
-    from pdehead_addon.ct_volume import trilinear
+    from pdehead_addon.core.ct_volume import trilinear
     rng = np.random.default_rng(3)
     data = rng.random((7, 9, 11)).astype(np.float32)
     pts = rng.random((5000, 3)) * (np.array(data.shape) + 1.0) - 1.0   # some outside the box
@@ -343,7 +343,7 @@ def test_solid_ct_table_is_the_ct_at_the_solid_points(phantom):
     from scipy.ndimage import map_coordinates
 
     from pdehead_addon import extract_boundaries, segment_head
-    from pdehead_addon.solid_ct_table import SolidCTTable
+    from pdehead_addon.pde.solid_ct_table import SolidCTTable
     ct = phantom.ct
     head = solve_pde(extract_boundaries(segment_head(ct), patches=6, samples=128))
     table = SolidCTTable(head, ct)
@@ -363,7 +363,7 @@ def test_solid_ct_table_is_the_ct_at_the_solid_points(phantom):
     np.testing.assert_allclose(grid, table.sample(U, V, W), atol=1e-3)
     assert np.ptp(grid) > 0.3 * np.ptp(ct.data)  # crosses skin, bone and brain: a real check
     # 8-bit packing (what the .blend keeps): every displayed (windowed) value within half a grey level
-    from pdehead_addon.ct_volume import apply_window, intensity_window
+    from pdehead_addon.core.ct_volume import apply_window, intensity_window
     window = intensity_window(ct)
     raw = table.to_bytes(window)
     assert len(raw) < table.table.size  # fewer bytes than one per value (compressed)

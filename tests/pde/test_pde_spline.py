@@ -7,8 +7,8 @@ import pytest
 
 from pdehead_addon import (BoundarySet, PDEError, dumps_boundaries, extract_boundaries, knots_from_heights,
                            loads_head, solve_pde)
-from pdehead_addon.pde_spline import hermite_systems, smoothing_spline_values, tridiagonal_solve
-from pdehead_addon.surface_quality import (crease_angles, fold_count, notch_fraction, surface_quality,
+from pdehead_addon.pde.pde_spline import hermite_systems, smoothing_spline_values, tridiagonal_solve
+from pdehead_addon.validation.surface_quality import (crease_angles, fold_count, notch_fraction, surface_quality,
                                            terracing_rms)
 from pde_synthetic import circles_bset, head_bset
 
@@ -25,7 +25,7 @@ def test_hermite_cubic_limit_and_derivatives():
     assert np.allclose(alpha[0], [-6, 6, -4, -2], atol=1e-9)
     assert np.allclose(alpha[1], alpha[0], atol=1e-6)                  # continuous in k
     # k > 0: f''(0) from alpha equals a finite difference of the Hermite interpolant
-    from pdehead_addon.pde_basis import basis
+    from pdehead_addon.pde.pde_basis import basis
     data = np.array([1.0, -0.5, 0.3, 2.0])
     for i, k in enumerate([0.7, 3.0, 12.0], start=2):
         c = G_inv[i] @ data
@@ -136,7 +136,7 @@ def test_equal_circles_give_a_cylinder_and_a_round_dome():
 
 
 def test_settings_are_checked(synthetic):
-    _, a_max = __import__("pdehead_addon").pde_surface.smoothing_range(synthetic)
+    _, a_max = __import__("pdehead_addon").pde.pde_surface.smoothing_range(synthetic)
     with pytest.raises(PDEError, match="maximum"):
         solve_pde(synthetic, smoothing=1.01 * a_max)
     with pytest.raises(PDEError, match="one smoothing value"):
@@ -162,7 +162,7 @@ def test_storage_keeps_the_continuity(synthetic):
     data = dumps_boundaries(old)
     import json
     import struct
-    from pdehead_addon.storage import _FIXED
+    from pdehead_addon.io.storage import _FIXED
     magic, version, hlen = _FIXED.unpack_from(data)
     header = json.loads(data[_FIXED.size:_FIXED.size + hlen])
     assert header["pde_settings"]["continuity"] == "c2"                # new files say it ...
@@ -209,7 +209,7 @@ def test_default_head_is_smooth_on_real_scans(request, dataset, t):
     paper = solve_pde(b, continuity="paper")
     assert q["crease_p95_deg"] < 0.2 * surface_quality(paper)["crease_p95_deg"]
     if dataset == "cthead":      # distance to marching cubes of the mask: a regression guard at today's value
-        from pdehead_addon.surface_mesh import tube_mesh
+        from pdehead_addon.pde.surface_mesh import tube_mesh
         from skimage import measure
         verts, faces, _, _ = measure.marching_cubes(seg.mask.astype(np.float32), 0.5)
         verts = seg.ct.index_to_patient(verts)
@@ -217,7 +217,7 @@ def test_default_head_is_smooth_on_real_scans(request, dataset, t):
         z = b.curves[..., 2]
         faces = faces[(cz >= z.min()) & (cz <= z.max())]
         tube = tube_mesh(head._grid(np.linspace(head.curve_u[0], head.curve_u[-1], 81), 256), head.orientation)
-        from pdehead_addon import symmetric_surface_distance
+        from pdehead_addon.validation import symmetric_surface_distance
         d = symmetric_surface_distance(tube.vertices, tube.quads, verts, faces, samples=20_000)
         print("CThead t=10 to marching cubes", round(d["mean"], 3), round(d["p95"], 3))
         assert d["mean"] < 0.70 and d["p95"] < 2.3

@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 
 from pdehead_addon import BoundarySet, Mesh, PDEError, knots_from_heights
-from pdehead_addon.pde_head import PDEHead
-from pdehead_addon.pde_smoothing import MAX_DEVIATION_MM, lebesgue_constant, smoothing_bounds
-from pdehead_addon.pde_surface import align_parameterisation, solve_pde
-from pdehead_addon.surface_mesh import signed_volume
+from pdehead_addon.pde.pde_head import PDEHead
+from pdehead_addon.pde.pde_smoothing import MAX_DEVIATION_MM, lebesgue_constant, smoothing_bounds
+from pdehead_addon.pde.pde_surface import align_parameterisation, solve_pde
+from pdehead_addon.pde.surface_mesh import signed_volume
 from pde_synthetic import circles_bset, head_bset, polar_curve, radial_excess
 
 
@@ -426,7 +426,7 @@ def fidelity(head, seg):
     """Symmetric distance between the open PDE tube (caps=False, nu = 8t+1, nv = 256) and the
     marching-cubes surface of the same mask restricted to the triangles whose centroid lies between
     the lowest and the highest curve (the z range the PDE surface covers)."""
-    from pdehead_addon.surface_metrics import symmetric_surface_distance
+    from pdehead_addon.validation.surface_metrics import symmetric_surface_distance
     z = head.bset.curves[..., 2]
     verts, faces = mc_surface(seg, (z.min(), z.max()))
     m = head.surface(8 * head.patches + 1, 256)

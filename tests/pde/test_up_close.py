@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from pdehead_addon import solve_pde
-from pdehead_addon.boundary_set import BoundarySet, knots_from_heights
-from pdehead_addon.surface_quality import pole_ripple
+from pdehead_addon.core.boundary_set import BoundarySet, knots_from_heights
+from pdehead_addon.validation.surface_quality import pole_ripple
 
 TWO_PI = 2.0 * np.pi
 
@@ -72,8 +72,8 @@ def head_like():
 
 
 def test_bottom_is_a_flat_disc_without_long_triangles(head_like):
-    from pdehead_addon.surface_mesh import signed_volume
-    from pdehead_addon.surface_quality import cap_edge_ratio
+    from pdehead_addon.pde.surface_mesh import signed_volume
+    from pdehead_addon.validation.surface_quality import cap_edge_ratio
     m = head_like.surface(60, 120, caps=True)
     assert m.is_watertight() and signed_volume(m) > 0
     assert cap_edge_ratio(m) <= 3.0                       # the fan's triangles ran from the centre to the ring
@@ -108,8 +108,8 @@ def test_a_radial_neck_outline_gets_closer_columns_not_long_cap_triangles(monkey
     """Issue 21: where the bottom outline runs radially, equal v steps are long on the surface and so is
     every cap triangle on them (GE: 4.24 mean edges). The columns lie closer in v there, fixed by the curves
     (the same v for every row and for nu, nv: the UVs stay registered). Measured: before 4.93, after 2.59."""
-    from pdehead_addon import pde_head as PS, surface_mesh as SM
-    from pdehead_addon.surface_quality import cap_edge_ratio, uv_quality
+    from pdehead_addon.pde import pde_head as PS, surface_mesh as SM
+    from pdehead_addon.validation.surface_quality import cap_edge_ratio, uv_quality
     head = solve_pde(notched_bset(), approximation_mm=0)
     m = head.surface(60, 120, caps=True)
     assert m.is_watertight() and SM.signed_volume(m) > 0
@@ -136,7 +136,7 @@ def _loop_pixels(mesh, size):
 
 
 def test_uvs_are_paintable(head_like):
-    from pdehead_addon.surface_quality import uv_quality
+    from pdehead_addon.validation.surface_quality import uv_quality
     m = head_like.surface(60, 120, caps=True)
     q = uv_quality(m)
     assert q["mirrored"] == 0 and q["zero_area"] == 0     # before: every tube quad mirrored, caps of zero area
@@ -182,7 +182,7 @@ def _ellipsoid_mc(radii, cavity: bool):
 
 
 def test_visible_face_measure_drops_the_inside_and_measures_the_offset():
-    from pdehead_addon.surface_metrics import visible_face_distance, visible_face_points
+    from pdehead_addon.validation.surface_metrics import visible_face_distance, visible_face_points
     mask = _ellipsoid_mc((40.0, 50.0, 60.0), cavity=True)
     centroids = mask[0][mask[1]].mean(axis=1)
     kept = visible_face_points(centroids, (0.0, 0.0))
@@ -211,7 +211,7 @@ def _cthead_face(seg, **kw):
     from skimage import measure
     from pdehead_addon import defaults as D
     from pdehead_addon import extract_boundaries
-    from pdehead_addon.surface_metrics import visible_face_distance
+    from pdehead_addon.validation.surface_metrics import visible_face_distance
     mask = seg.mask
     mv, mf, _, _ = measure.marching_cubes(mask.astype(np.float32), 0.5)
     mv = seg.ct.index_to_patient(mv)
@@ -231,7 +231,7 @@ def test_the_default_surface_keeps_the_face_of_cthead(cthead_seg, monkeypatch):
     between curves 6 mm apart) and the u smoothing of one slice step on top of the envelope's 3-D Gaussian.
     Measured: t = 15 with half a slice step 0.243 / 0.76; the old defaults (t = 10, one slice step) 0.287 / 0.96."""
     from pdehead_addon import defaults as D
-    from pdehead_addon import pde_surface as PS
+    from pdehead_addon.pde import pde_surface as PS
     r = _cthead_face(cthead_seg)
     assert r["score_mean"] <= 0.33 and r["score_p95"] <= 0.80, r
     assert D.PATCHES.default == 15 and PS.APPROXIMATION_PER_SLICE == 0.5
@@ -249,7 +249,7 @@ def test_cthead_uvs_keep_texel_size_and_angles(cthead_bset):
     10.48; before (a v / 2 pi island with a 3-harmonic shear): stretch 5.42, angle 14.1 deg on the
     benchmark's curves."""
     from pdehead_addon import defaults as D
-    from pdehead_addon.surface_quality import uv_quality
+    from pdehead_addon.validation.surface_quality import uv_quality
     q = uv_quality(solve_pde(cthead_bset).surface(D.NU.default, D.NV.default, caps=True))
     assert q["mirrored"] == 0 and q["zero_area"] == 0
     assert q["stretch_p99_p1"] <= 4.4, q
@@ -262,7 +262,7 @@ def test_uv_map_leaves_the_angle_keeping_map_only_around_folds(cthead_bset, monk
     """The tube map is the free (angle-keeping) least-squares map, blended toward straight rows only within
     a sample (and a taper) of a folded cell. The blend over 4 samples took it off 1.8 % of this fixture's
     samples (4.1 % on the benchmark's CThead curves: angle p95 10.48 deg); now 0.9 % (1.7 %: 9.77 deg)."""
-    from pdehead_addon import surface_uv_map as SM
+    from pdehead_addon.pde import surface_uv_map as SM
     head = solve_pde(cthead_bset)
     rings, map_u = SM.uv_map_grid(cthead_bset.curves, np.asarray(head.curve_u, float))
     U, V, _ = SM.uv_tube_map(rings, map_u)

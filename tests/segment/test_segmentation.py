@@ -1,7 +1,7 @@
 """Head segmentation: the 3-D Chan-Vese soft model (paper eq. 16-21), its clean-up, and its accuracy.
 
 Accuracy is asserted against an independent threshold reference on the real scans
-(pdehead_addon.metrics.reference_head_mask) and against the exact truth of the phantom.
+(pdehead_addon.validation.metrics.reference_head_mask) and against the exact truth of the phantom.
 No wall-clock limits here (scripts/bench_segmentation.py measures time and memory).
 """
 from __future__ import annotations
@@ -11,11 +11,11 @@ import pytest
 from scipy import ndimage as ndi
 
 from pdehead_addon import CTVolume, SegmentationError, make_phantom, segment_head
-from pdehead_addon import metrics as M
-from pdehead_addon import segmentation as S
-from pdehead_addon.chan_vese import _ChanVeseState
-from pdehead_addon.mask_cleanup import _box_opening
-from pdehead_addon.phantom import CUSHION, HOLDER
+from pdehead_addon.validation import metrics as M
+from pdehead_addon.segment import segmentation as S
+from pdehead_addon.segment.chan_vese import _ChanVeseState
+from pdehead_addon.segment.mask_cleanup import _box_opening
+from pdehead_addon.io.phantom import CUSHION, HOLDER
 
 
 # ----------------------------------------------------------------------------------- numerics
@@ -86,7 +86,7 @@ def test_packed_morphology_equals_the_byte_reference(shape):
     """Disk and box morphology on 64-voxel words (issue 20's speed-up) give exactly the byte version's
     result, widths that are and are not multiples of 64 included, and so do the bounding-box crops of
     the labelling (hole filling, largest component)."""
-    from pdehead_addon import mask_cleanup as C
+    from pdehead_addon.segment import mask_cleanup as C
     rng = np.random.default_rng(sum(shape))
     m = ndi.gaussian_filter(rng.random(shape), (0, 1.5, 1.5)) > 0.5
     m[:, :2] = False                                  # an empty margin: the crops take effect
@@ -110,7 +110,7 @@ def test_packed_morphology_equals_the_byte_reference(shape):
 def test_ball_morphology_equals_the_distance_transforms(shape, spacing, radius):
     """The envelope's 3-D closing on packed words (issue 20: 7.5 -> 0.25 s on a 300 x 240 x 230 grid)
     is exactly the pair of Euclidean distance transforms it replaced."""
-    from pdehead_addon import binary_morphology as B
+    from pdehead_addon.segment import binary_morphology as B
     rng = np.random.default_rng(shape[0])
     m = ndi.gaussian_filter(rng.random(shape), 1.2) > 0.52
     grown = ndi.distance_transform_edt(~m, sampling=spacing) <= radius
@@ -191,7 +191,7 @@ def test_fine_level_on_the_coarse_heads_box_matches_the_whole_grid(phantom, monk
     same (measured on the phantom with 24 voxels of air around it and a 6 mm coarse level: every per-slice
     Jaccard 1.0; on the
     512 x 512 x 300 scan the mask is identical too)."""
-    from pdehead_addon import chan_vese_pyramid
+    from pdehead_addon.segment import chan_vese_pyramid
     data = phantom.ct.data
     air = float(np.median(np.concatenate([data[:, 0].ravel(), data[:, -1].ravel()])))
     ct = CTVolume(np.pad(data, ((0, 0), (24, 24), (24, 24)), constant_values=air), phantom.ct.spacing)
@@ -217,7 +217,7 @@ def test_fine_level_in_a_band_matches_the_whole_grid(phantom, monkeypatch):
     band 0.33 M of 3.1 M voxels: cleaned mask mean 0.99985, min 0.99805; q > 0.5 mean 0.9958, min
     0.9852; on the 512 x 512 x 300 scan: q > 0.5 mean 0.9994, min 0.9934, the cleaned mask against
     the benchmark's cached reference in docs/benchmarks.md)."""
-    from pdehead_addon import chan_vese_pyramid
+    from pdehead_addon.segment import chan_vese_pyramid
     data = phantom.ct.data
     air = float(np.median(np.concatenate([data[:, 0].ravel(), data[:, -1].ravel()])))
     # whole blocks of 3 x 3 x 3 voxels (the band needs them; otherwise the box is solved)
@@ -244,7 +244,7 @@ def test_band_holds_every_block_that_straddles_the_level_and_large_grids_use_it(
     straddle (c1 + c2) / 2 (thin features the coarse level smoothed away), and grids of at least
     chan_vese_pyramid.FINE_BAND_MIN_VOXELS solve the fine level in the band by default; smaller grids keep
     the box solve (their masks unchanged)."""
-    from pdehead_addon import chan_vese_pyramid
+    from pdehead_addon.segment import chan_vese_pyramid
     rng = np.random.default_rng(3)
     img = (np.linspace(0.0, 1.0, 12, dtype=np.float32) + 0.05 * rng.random((6, 8, 12), dtype=np.float32))
     lo, hi = chan_vese_pyramid._block_range(img, (3, 2, 4))

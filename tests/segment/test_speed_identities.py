@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from scipy import ndimage as ndi
 
-from pdehead_addon import mask_cleanup as C
-from pdehead_addon.envelope import head_envelope
+from pdehead_addon.segment import mask_cleanup as C
+from pdehead_addon.curves.envelope import head_envelope
 
 
 def _blobs(shape, seed, fraction=0.35, sigma=2.0):
@@ -87,7 +87,7 @@ def test_surface_and_solid_share_one_grid_and_its_rows_are_independent(continuit
     """The dome surface's rows are the solid's grid without its pole row, bit for bit, and a live change
     synthesises that grid once for both (the surface's points are what the solid reads)."""
     from pde_synthetic import head_bset
-    from pdehead_addon.pde_surface import solve_pde
+    from pdehead_addon.pde.pde_surface import solve_pde
     head = solve_pde(head_bset(patches=4, samples=128), continuity=continuity, smoothing=smoothing)
     for nu, nv in ((40, 60), (41, 97), (3, 3)):
         u = np.linspace(0.0, 1.0, nu)
@@ -122,7 +122,7 @@ def test_banded_smoother_is_the_dense_solve_without_dense_lapack(monkeypatch):
 
     Not bit-identical: on CThead, GE (t = 4, 6), the phantom and the 512 x 512 x 300 scan the automatic
     selection chose the same slices and the curves moved at most 1.3e-12 mm (docs/benchmarks.md)."""
-    from pdehead_addon import pde_spline as P
+    from pdehead_addon.pde import pde_spline as P
     rng = np.random.default_rng(7)
     cases = [(np.cumsum(rng.uniform(0.3, 9.0, m)), float(rng.uniform(0.5, 40.0))) for m in (3, 4, 5, 31, 128)]
     expected = [_dense_smoother(x, L) for x, L in cases]
@@ -146,8 +146,8 @@ def test_approximation_change_reuses_the_tube_uv_map(monkeypatch):
     solved once for all approximation values (the map was re-solved at every change before session 6),
     and the surface's UVs and vertices are those of the map solved on each change's own u to ~1e-9."""
     from pde_synthetic import head_bset
-    from pdehead_addon import surface_mesh as SM, surface_uv_map as UV
-    from pdehead_addon.pde_surface import solve_with_controls
+    from pdehead_addon.pde import surface_mesh as SM, surface_uv_map as UV
+    from pdehead_addon.pde.pde_surface import solve_with_controls
     bset = head_bset(patches=4, samples=128)
     calls = []
     solve_map = UV.uv_tube_map
@@ -176,7 +176,7 @@ def test_approximation_change_reuses_the_tube_uv_map(monkeypatch):
 @pytest.mark.parametrize("seed", range(6))
 def test_run_labels_equal_ndi_label(seed):
     """The labelling on runs along x numbers, counts and boxes the components exactly as ndi.label."""
-    from pdehead_addon import run_labels as RL
+    from pdehead_addon.segment import run_labels as RL
     rng = np.random.default_rng(seed)
     shape = (int(rng.integers(1, 12)), int(rng.integers(2, 40)), int(rng.integers(2, 50)))
     m = _blobs(shape, seed, float(rng.uniform(0.1, 0.4)), float(rng.uniform(0.6, 2.0)))

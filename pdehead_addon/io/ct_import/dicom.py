@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..ct_volume import CTVolume
-from ..errors import CTImportError
+from ...core.ct_volume import CTVolume
+from ...core.errors import CTImportError
 from ..input_checks import AIR_HU
 from .discovery import DicomFrame, DicomSeries, float_or, import_pydicom, ranked_series, scan_dicom, series_info, skip_summary
 from .geometry import ALIGNED_TOL, to_canonical, resample_slices

@@ -1,6 +1,6 @@
 """What is in a folder: the files, their format, and the DICOM series in them (:func:`list_series`).
 
-:func:`~pdehead_addon.ct_import.load_ct` starts here: the files of a folder
+:func:`~pdehead_addon.io.ct_import.load_ct` starts here: the files of a folder
 (recursively), a single file or a list, DICOMDIR file-sets expanded to the
 files they index, the format detected (DICOM by its preamble or a leading
 group 0002/0008 tag, images and NIfTI by extension), and for DICOM every
@@ -18,7 +18,7 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
-from ..errors import CTImportError
+from ...core.errors import CTImportError
 from .geometry import ALIGNED_TOL
 
 IMAGE_EXTENSIONS = (".tif", ".tiff", ".png", ".jpg", ".jpeg", ".bmp", ".gif", ".pgm", ".ppm")

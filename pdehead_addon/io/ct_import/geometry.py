@@ -15,8 +15,8 @@ from typing import Sequence
 import numpy as np
 
 from .. import input_checks
-from ..ct_volume import CTVolume
-from ..errors import CTImportError
+from ...core.ct_volume import CTVolume
+from ...core.errors import CTImportError
 
 # Tolerances of the axis checks (the stack checks of .dicom._stack_geometry and of .nifti use them too).
 ALIGNED_TOL = 1e-3        # direction cosine off an axis before the grid counts as oblique (0.25 mm at 250 mm)

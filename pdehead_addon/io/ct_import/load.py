@@ -1,7 +1,7 @@
 """``load_ct``: one entry point that dispatches to the format readers and checks the values.
 
 The paper (Fig. 1) starts from "a sequence of head cross-sectional slices";
-see :mod:`pdehead_addon.ct_import` for the axis convention every reader ends in.
+see :mod:`pdehead_addon.io.ct_import` for the axis convention every reader ends in.
 """
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ from typing import Sequence
 import numpy as np
 
 from .. import input_checks
-from ..ct_volume import CTVolume, downsample_volume
-from ..errors import CTImportError
+from ...core.ct_volume import CTVolume, downsample_volume
+from ...core.errors import CTImportError
 from .dicom import load_dicom
 from .discovery import detect_format, expand_dicomdir, gather_files, source_label
 from .images import load_images
@@ -63,7 +63,7 @@ def load_ct(
         Images and raw data: where the first slice of the numeric order lies. Same as
         ``orientation="LPS"`` / ``"LPI"``. Default (None or "auto", ``defaults.FIRST_SLICE``): inferior,
         unless the head's crown (the end whose cross-section closes to nothing inside the scan,
-        :func:`~pdehead_addon.input_checks.crown_end`) lies at the first file; then the stack is read
+        :func:`~pdehead_addon.io.input_checks.crown_end`) lies at the first file; then the stack is read
         with the first file superior and a warning says so. A given value is used as it is (with a
         warning when the crown then lies at the bottom).
     orientation : str, optional
@@ -90,7 +90,7 @@ def load_ct(
         (tilted, oblique or uneven). Default: the in-plane pixel spacing and the
         median slice step.
     downsample : int or (fz, fy, fx), optional
-        Average blocks of voxels after loading (:func:`~pdehead_addon.ct_volume.downsample_volume`),
+        Average blocks of voxels after loading (:func:`~pdehead_addon.core.ct_volume.downsample_volume`),
         for scans too large to segment in memory (``segment_head`` says when).
 
     Returns
@@ -195,7 +195,7 @@ def _warn_ignored_options(fmt: str, spacing, first_slice, orientation, units, se
 
 
 def _downsampled(ct: CTVolume, downsample, label: str, warns: list[str]) -> CTVolume:
-    """Block means of the loaded volume (:func:`~pdehead_addon.ct_volume.downsample_volume`), with a warning."""
+    """Block means of the loaded volume (:func:`~pdehead_addon.core.ct_volume.downsample_volume`), with a warning."""
     try:
         ct = downsample_volume(ct, downsample)
     except (ValueError, TypeError) as exc:

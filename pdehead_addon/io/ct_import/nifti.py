@@ -7,8 +7,8 @@ import struct
 
 import numpy as np
 
-from ..ct_volume import CTVolume
-from ..errors import CTImportError
+from ...core.ct_volume import CTVolume
+from ...core.errors import CTImportError
 from .geometry import ALIGNED_TOL, to_canonical, resample_slices
 
 

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..ct_volume import CTVolume
-from ..errors import CTImportError
+from ...core.ct_volume import CTVolume
+from ...core.errors import CTImportError
 from .discovery import TEXT_EXTENSIONS, has_ext, numbered_files, top_level
 from .geometry import headerless_volume
 
