@@ -16,7 +16,8 @@ What it does:
    numpy is *not* shipped: Blender brings its own (1.26 up to 5.0, 2.x from 5.1).
    Blender installs only the wheels matching its own Python and platform, so one zip
    per platform serves every Blender from 4.2 to 5.3.
-2. copies the shipped sources (root ``__init__.py``, ``operators/``, ``pdehead_addon/``)
+2. copies the shipped sources (root ``__init__.py``, ``operators/``, ``pdehead_addon/`` without
+   ``pdehead_addon/validation/``, the measures used by tests and benchmarks only)
    into ``build/extension_src/`` with the wheels, and writes a build copy of
    ``blender_manifest.toml`` there that lists the ``wheels`` and ``platforms``
    (the tracked manifest is never modified, so the repo stays clean).
@@ -75,6 +76,8 @@ TRANSITIVE_PINS = {
 }
 NOT_SHIPPED = {"numpy"}
 SHIPPED_SOURCES = ("__init__.py", "operators", "pdehead_addon", "LICENSE", "LICENSE.txt", "README.md")
+#: Folders of the shipped sources left out of the zip: the engine's measures for tests and benchmarks.
+NOT_SHIPPED_SOURCES = ("pdehead_addon/validation",)
 
 
 def _python(python: str | None) -> str:
@@ -334,7 +337,12 @@ def stage_sources(stage: Path) -> None:
     if stage.exists():
         shutil.rmtree(stage)
     stage.mkdir(parents=True)
-    ignore = shutil.ignore_patterns("__pycache__", "*.pyc", ".*")
+    patterns = shutil.ignore_patterns("__pycache__", "*.pyc", ".*")
+
+    def ignore(folder, names):
+        left_out = {n for n in names if (Path(folder) / n).relative_to(ROOT).as_posix() in NOT_SHIPPED_SOURCES}
+        return set(patterns(folder, names)) | left_out
+
     for name in SHIPPED_SOURCES:
         src = ROOT / name
         if src.is_dir():

@@ -6,6 +6,7 @@ made from a complete cache builds offline; otherwise the build downloads what is
 """
 from __future__ import annotations
 
+import ast
 import json
 import os
 import shutil
@@ -56,6 +57,26 @@ def wheel_names(zip_path: Path) -> list[str]:
 
 def index_key(req: str) -> str:
     return f"{req} {','.join(B.PLATFORM_TAGS[PLATFORM])}"
+
+
+def test_the_validation_package_stays_out_of_the_zip(tmp_path):
+    """Issue 25: the zip ships the engine's subpackages but not pdehead_addon/validation/ (tests and
+    benchmarks only), and no shipped engine module imports it."""
+    stage = tmp_path / "stage"
+    B.stage_sources(stage)
+    engine = stage / "pdehead_addon"
+    assert (ROOT / "pdehead_addon" / "validation" / "metrics.py").is_file()      # it exists in the repo ...
+    assert not (engine / "validation").exists()                                 # ... and is not staged
+    for sub in ("core", "io", "segment", "curves", "pde", "forensic"):
+        assert (engine / sub / "__init__.py").is_file(), sub
+    assert (engine / "io" / "ct_import" / "load.py").is_file() and (engine / "forensic" / "data").is_dir()
+    shipped = sorted(engine.rglob("*.py"))
+    assert len(shipped) > 30
+    imports = [(p.relative_to(stage).as_posix(), node.lineno) for p in shipped
+               for node in ast.walk(ast.parse(p.read_text(encoding="utf-8")))
+               if isinstance(node, ast.ImportFrom) and "validation" in (node.module or "").split(".")
+               or isinstance(node, ast.Import) and any("validation" in a.name.split(".") for a in node.names)]
+    assert imports == []
 
 
 def test_wheels_are_chosen_by_file_name():
