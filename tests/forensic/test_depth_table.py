@@ -120,8 +120,9 @@ def test_landmarks_csv_columns_flags_and_provenance(tmp_path):
 
 
 def test_default_table_file_ships_inside_the_extension():
-    assert DEFAULT_TABLE_PATH.is_file() and DEFAULT_TABLE_PATH.parent.parent.name == "pdehead_addon"
+    assert DEFAULT_TABLE_PATH.is_file() and DEFAULT_TABLE_PATH.parent == ROOT / "pdehead_addon" / "forensic" / "data"
     import tomllib
     manifest = tomllib.loads((ROOT / "blender_manifest.toml").read_text())
     excluded = manifest["build"]["paths_exclude_pattern"]
-    assert not any(p.strip("/") in ("pdehead_addon/forensic/data", "data", "*.csv") for p in excluded)
+    assert not any(p.strip("/") in ("pdehead_addon/forensic/data", "pdehead_addon/forensic", "data", "*.csv")
+                   for p in excluded)
