@@ -115,7 +115,9 @@ def load_addon(register: bool = False, engine=None):
     """
     import bpy  # noqa: F401  (bpy first: the add-on imports it)
     if engine is not None:
-        sys.modules.setdefault(f"{DEV_PACKAGE}.pdehead_addon", engine)
+        for name, mod in list(sys.modules.items()):  # the package and its subpackages (issue 25's layout)
+            if name == engine.__name__ or name.startswith(engine.__name__ + "."):
+                sys.modules.setdefault(f"{DEV_PACKAGE}.pdehead_addon{name[len(engine.__name__):]}", mod)
     module = sys.modules.get(DEV_PACKAGE)
     if module is None:
         spec = importlib.util.spec_from_file_location(DEV_PACKAGE, ROOT / "__init__.py",
