@@ -1,0 +1,38 @@
+"""Issue 25: the README's layout table is the tree: every engine subpackage has a row, and the row names
+each of its modules (and nothing that is not there)."""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+ENGINE = ROOT / "pdehead_addon"
+
+
+def layout_rows() -> dict[str, str]:
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    section = text.split("## Layout", 1)[1].split("\n## ", 1)[0]
+    return {m.group(1): m.group(2) for m in re.finditer(r"^\| `(pdehead_addon/[\w/]*)` \| (.*) \|$", section, re.M)}
+
+
+def subpackages() -> list[Path]:
+    return sorted(p for p in ENGINE.iterdir() if (p / "__init__.py").is_file())
+
+
+def test_every_subpackage_has_a_row_naming_its_modules():
+    rows = layout_rows()
+    assert subpackages(), "no engine subpackages found"
+    for pkg in subpackages():
+        key = f"pdehead_addon/{pkg.name}/"
+        assert key in rows, f"README layout table has no row for {key}"
+        named = set(re.findall(r"`(\w+)`", rows[key]))
+        modules = {p.stem for p in pkg.rglob("*.py") if p.stem != "__init__" and "__pycache__" not in p.parts} | {
+            p.parent.name for p in pkg.rglob("__init__.py") if p.parent != pkg}
+        assert modules - named == set(), f"{key}: the README does not name {sorted(modules - named)}"
+        assert named - modules == set(), f"{key}: the README names {sorted(named - modules)}, not in the tree"
+    assert set(rows) - {"pdehead_addon/"} == {f"pdehead_addon/{p.name}/" for p in subpackages()}
+
+
+def test_the_engine_top_level_is_only_the_api_and_the_defaults():
+    top = sorted(p.name for p in ENGINE.glob("*.py"))
+    assert top == ["__init__.py", "defaults.py"], top
