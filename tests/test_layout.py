@@ -33,6 +33,13 @@ def test_every_subpackage_has_a_row_naming_its_modules():
     assert set(rows) - {"pdehead_addon/"} == {f"pdehead_addon/{p.name}/" for p in subpackages()}
 
 
+def test_test_folders_mirror_the_subpackages():
+    tests = ROOT / "tests"
+    folders = {p.name for p in tests.iterdir() if p.is_dir() and p.name not in ("blender", "fixtures", "__pycache__")
+               and not p.name.startswith(".")}
+    assert folders and folders <= {p.name for p in subpackages()}, folders
+
+
 def test_the_engine_top_level_is_only_the_api_and_the_defaults():
     top = sorted(p.name for p in ENGINE.glob("*.py"))
     assert top == ["__init__.py", "defaults.py"], top
