@@ -8,6 +8,7 @@ from scipy.spatial import cKDTree
 
 from pdehead_addon import BoundaryError, BoundarySet, CTVolume, Segmentation
 from pdehead_addon import extract_boundaries as _extract_default
+from pdehead_addon import defaults
 
 #: The per-slice path (2-D mask outline, aligned samples) these tests were written for; the default path
 #: (the 3-D envelope, star hulls, the spine, angular samples) is tested in test_envelope.py.
@@ -569,7 +570,7 @@ def test_options_object_gives_what_the_keyword_arguments_give():
     assert by_keywords.meta == by_options.meta
     overridden = _extract_default(seg, BoundaryOptions(**kw), samples=64)
     assert overridden.curves.shape == (7, 64, 3)
-    assert BoundaryOptions().parameterisation == "angular" and BoundaryOptions().patches == 10
+    assert BoundaryOptions().parameterisation == "angular" and BoundaryOptions().patches == defaults.PATCHES.default
     with pytest.raises(FrozenInstanceError):
         BoundaryOptions().patches = 3
     with pytest.raises(TypeError, match="BoundaryOptions"):
