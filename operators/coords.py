@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..pdehead_addon.core.ct_volume import grid_affine
+from ..pdehead_addon import grid_affine
 
 MM_TO_M = 0.001
 

@@ -9,7 +9,7 @@ import math
 import numpy as np
 
 from ..pdehead_addon import defaults as D
-from ..pdehead_addon.core.ct_volume import apply_window, sample_ct, trilinear
+from ..pdehead_addon import apply_window, sample_ct, trilinear
 
 FAMILIES = ("w1", "w0", "u1", "u0", "v1", "v0")  # the faces of the parametric box (Fig. 14)
 

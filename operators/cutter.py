@@ -69,7 +69,7 @@ def cutter_ranges(head, inverse_matrix_mm: np.ndarray, size: float):
     u = np.linspace(0.0, 1.0, SAMPLES_U)
     v = TWO_PI * np.arange(SAMPLES_V) / SAMPLES_V
     if hasattr(head, "_grid"):  # the solid's cached grid synthesis (inverse FFT): same points, ~50x faster
-        from ..pdehead_addon.pde.pde_solid import surface_grid_cached
+        from ..pdehead_addon import surface_grid_cached
         surface = surface_grid_cached(head, u, v, SAMPLES_V)              # (nu, nv, 3)
     else:
         surface = head.evaluate(u[:, None], v[None, :], 1.0)

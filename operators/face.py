@@ -73,13 +73,9 @@ RESTORE_TOLERANCE_MM = 1e-3
 PREPARE_CALLS = [0]
 
 
-def _engine():
-    from ..pdehead_addon.forensic import face_from_skull
-    return face_from_skull
-
-
 def approximation_label() -> str:
-    return _engine().APPROXIMATION_LABEL
+    from ..pdehead_addon import APPROXIMATION_LABEL
+    return APPROXIMATION_LABEL
 
 
 def _cache(coll) -> dict:
@@ -103,7 +99,7 @@ def face_options(coll) -> dict:
 def skull_mesh(coll):
     """The bone skull as an engine Mesh (patient mm): read from the study's bone object (what the .blend
     holds, so a reopened file prepares the same model), else built from the CT."""
-    from ..pdehead_addon.core.mesh import Mesh
+    from ..pdehead_addon import Mesh
     from .forensic_skull import skull_engine_mesh
     from .objects import study_origin
 
@@ -128,7 +124,7 @@ def face_table(coll):
     """The depth table the study's face uses (setting ``face_table``): the shipped T-Table 2023 or a CSV."""
     import os
 
-    from ..pdehead_addon.forensic.depth_table import default_table, read_depth_table
+    from ..pdehead_addon import default_table, read_depth_table
 
     s = state.settings(coll)
     if s.face_table == 'FILE':
@@ -158,7 +154,8 @@ def table_has_sex(table) -> bool:
 # ------------------------------------------------------------------------------------------ model
 def _prepare(skull, lms, table, **kw):
     PREPARE_CALLS[0] += 1
-    return _engine().FaceModel.prepare(skull, lms, table, **kw)
+    from ..pdehead_addon import FaceModel
+    return FaceModel.prepare(skull, lms, table, **kw)
 
 
 def _stored_tips(coll, obj, model) -> np.ndarray | None:
@@ -191,7 +188,7 @@ def _mesh_positions(coll, obj) -> np.ndarray:
 def _restore_model(coll, opts):
     """The model kept in the file, checked against the saved face (None when there is none or it does not
     give the saved face): (model, LiveFace)."""
-    from ..pdehead_addon.forensic import face_live as engine_live
+    from ..pdehead_addon import LiveFace, face_model_from_state
 
     text = coll.get(FACE_MODEL_KEY)
     obj = face_object(coll)
@@ -201,11 +198,11 @@ def _restore_model(coll, opts):
         head, _, body = str(text).partition("\n")
         if head != opts["build"]:
             return None
-        model = engine_live.model_from_state(body)
+        model = face_model_from_state(body)
         tips = _stored_tips(coll, obj, model)
         if tips is None:
             return None
-        live = engine_live.LiveFace(model, check=False)
+        live = LiveFace(model, check=False)
         got = live.positions(tips)
         saved = _mesh_positions(coll, obj)
         if got is None or got.shape != saved.shape or not np.abs(got - saved).max() <= RESTORE_TOLERANCE_MM:
@@ -220,9 +217,9 @@ def _restore_model(coll, opts):
 
 def _keep_model(coll, model, build: str) -> None:
     """The prepared model into the file (the collection), after its first solve fixed its parameter."""
-    from ..pdehead_addon.forensic import face_live as engine_live
+    from ..pdehead_addon import face_model_state
     try:
-        coll[FACE_MODEL_KEY] = build + "\n" + engine_live.model_state(model)
+        coll[FACE_MODEL_KEY] = build + "\n" + face_model_state(model)
     except (TypeError, ValueError) as exc:     # a model this version cannot keep: prepared again after reopening
         coll.pop(FACE_MODEL_KEY, None)
         print(f"PDE Head: the face model is not kept in the file ({exc}); reopening will prepare it again")
@@ -243,7 +240,7 @@ def face_model(coll):
             cache.update(face_model=model, face_live=live, face_build=opts["build"], face_tips=None,
                          face_model_source="file", face_restore_s=t.seconds)
         else:
-            from ..pdehead_addon.forensic.depth_table import DepthTable
+            from ..pdehead_addon import DepthTable
             table = DepthTable.from_json(opts["table"])
             lms = {k: np.array(v, float) for k, v in opts["landmarks"].items()}
             with state.Timer() as t:
@@ -260,7 +257,7 @@ def face_live(coll):
     cache = _cache(coll)
     live = cache.get("face_live")
     if live is None or live.model is not model:
-        from ..pdehead_addon.forensic.face_live import LiveFace
+        from ..pdehead_addon import LiveFace
         live = LiveFace(model)
         cache["face_live"] = live
     return live
@@ -327,7 +324,7 @@ def _write_positions(coll, obj, mesh=None, positions=None) -> bool:
 
 def _provenance(coll, result_provenance: dict, table) -> dict:
     from .forensic_study import flag_names
-    from ..pdehead_addon.core.provenance import provenance
+    from ..pdehead_addon import provenance
 
     opts = face_options(coll)
     rec = provenance(label=approximation_label(), **(table.provenance_record() if table is not None else {}))
@@ -459,7 +456,7 @@ def build_face(coll) -> tuple:
     obj[PROVENANCE_PROP] = json.dumps(_provenance(coll, result.provenance, table))
     _cache(coll)["face_tips"] = tips
     _keep_model(coll, model, build)
-    from ..pdehead_addon.forensic.face_live import LiveFace
+    from ..pdehead_addon import LiveFace
     _cache(coll)["face_live"] = LiveFace(model)
     state.record_timing(coll, "face_prepare", t.seconds)
     return obj, pegs

@@ -15,7 +15,7 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, FloatVectorProp
 from bpy.types import Operator, Panel
 
 from ..pdehead_addon import PDEHeadError
-from ..pdehead_addon.forensic.landmarks import STANDARD_LANDMARKS
+from ..pdehead_addon import STANDARD_LANDMARKS
 from . import state
 from .base import StudyOperator
 from .forensic_objects import linked_object
@@ -155,7 +155,7 @@ class PDEHEAD_OT_import_depth_table(Operator, _LandmarkCSVOp):
         return super().invoke(context, event)
 
     def run(self, context, coll):
-        from ..pdehead_addon.forensic.depth_table import default_table, read_depth_table
+        from ..pdehead_addon import default_table, read_depth_table
         if self.default_table or not self.filepath:
             table = default_table()
         else:
@@ -173,7 +173,7 @@ class PDEHEAD_OT_export_landmark_depths(Operator, _LandmarkCSVOp):
     default_name = "landmarks.csv"
 
     def run(self, context, coll):
-        from ..pdehead_addon.forensic.depth_table import write_landmark_csv
+        from ..pdehead_addon import write_landmark_csv
         if not landmarks(coll):
             raise PDEHeadError("no landmarks placed yet")
         depths, flags, method = measured_landmark_depths(coll, skull_engine_mesh(coll, self.target),

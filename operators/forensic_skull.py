@@ -36,7 +36,7 @@ DEPTH_DISPLAY_MAX_MM = 25.0
 # ------------------------------------------------------------------------------------------ skull
 def skull_segmentation(coll):
     """The skull segmentation of the study (cached; computed from the CT and the head segmentation)."""
-    from ..pdehead_addon.forensic.skull import segment_skull
+    from ..pdehead_addon import segment_skull
 
     extra = forensic_cache(coll)
     cache = state.cache_for(state.settings(coll).study_id)
@@ -74,7 +74,7 @@ def _envelope_head(coll):
 def step_skull(coll, nu: int, nv: int, bone: bool = True, bone_step: int = 1) -> None:
     """The bone skull (smoothed marching cubes of the bone: what skull.<fmt> is) and the PDE skull envelope."""
     from ..pdehead_addon import dumps_boundaries
-    from ..pdehead_addon.forensic.skull import skull_mesh
+    from ..pdehead_addon import skull_mesh
     from . import objects
 
     extra = forensic_cache(coll)
@@ -111,7 +111,7 @@ def skull_engine_mesh(coll, target: str = "BONE"):
     """The skull as an engine Mesh (patient mm): the bone skull, or the PDE skull envelope (built when
     missing, rebuilt from the stored curves after reopening)."""
     from ..pdehead_addon import dumps_boundaries, loads_boundaries, solve_pde
-    from ..pdehead_addon.forensic.skull import skull_mesh
+    from ..pdehead_addon import skull_mesh
 
     extra = forensic_cache(coll)
     if target == "BONE":
@@ -139,7 +139,7 @@ def skin_engine_mesh(coll):
 # ------------------------------------------------------------------------------------------ depth
 def step_depth(coll, target: str = "BONE", max_depth_mm: float = 40.0) -> dict:
     """Tissue depth of the skin surface against the skull; stored on the surface object; returns stats."""
-    from ..pdehead_addon.forensic.tissue_depth import tissue_depth
+    from ..pdehead_addon import tissue_depth
 
     s = state.settings(coll)
     if s.surface_object is None:

@@ -77,7 +77,7 @@ def landmarks(coll) -> dict[str, np.ndarray]:
 
 
 def place_landmark(coll, name: str, patient_mm, target: str = "BONE"):
-    from ..pdehead_addon.forensic.landmarks import snap_to_surface
+    from ..pdehead_addon import snap_to_surface
 
     snapped, normal = snap_to_surface(np.asarray(patient_mm, float)[None], skull_engine_mesh(coll, target))
     obj = _landmark_empty(coll, name, snapped, normal)
@@ -88,7 +88,7 @@ def place_landmark(coll, name: str, patient_mm, target: str = "BONE"):
 
 def _landmark_empty(coll, name: str, snapped: np.ndarray, normal: np.ndarray):
     """The study's empty of landmark ``name`` (made if missing) at a snapped point (patient mm, shape (1, 3))."""
-    from ..pdehead_addon.forensic.landmarks import landmark
+    from ..pdehead_addon import landmark
 
     d = landmark(name)
     sub = sub_collection(coll, "Landmarks")
@@ -116,8 +116,8 @@ def find_landmarks(coll, target: str = "BONE", keep_edited: bool = True):
     (``LANDMARK_FLAGS_KEY``) for the outputs. With ``keep_edited``, landmarks placed or moved by
     hand are left where they are. Returns the engine's ``LandmarkSearch``.
     """
-    from ..pdehead_addon.forensic.auto_landmarks import find_landmarks as engine_find
-    from ..pdehead_addon.forensic.landmarks import snap_to_surface
+    from ..pdehead_addon import find_landmarks as engine_find
+    from ..pdehead_addon import snap_to_surface
 
     sk = skull_segmentation(coll)
     search = engine_find(study_ct.require_ct(coll), sk.bone)
@@ -153,7 +153,7 @@ def landmark_flags(coll) -> dict[str, tuple[str, str]]:
 def snap_moved_landmarks(coll, target: str = "BONE", tolerance_mm: float = 0.01) -> list[str]:
     """Landmarks whose empty was moved in the viewport go back onto the bone at the nearest point;
     their flag becomes ``ok`` (a person placed them). Returns the names snapped."""
-    from ..pdehead_addon.forensic.landmarks import snap_to_surface
+    from ..pdehead_addon import snap_to_surface
 
     moved = []
     for obj in list(coll.all_objects):
@@ -209,8 +209,8 @@ def make_pegs(coll, table, target: str = "BONE", pegs=None) -> list:
     (name, base mm, unit normal, length mm) when they come from elsewhere (the face model of
     :mod:`.face`) instead of the landmarks snapped to ``target``.
     """
-    from ..pdehead_addon.forensic.depth_table import DepthEntry, DepthTable
-    from ..pdehead_addon.forensic.landmarks import marker_pegs
+    from ..pdehead_addon import DepthEntry, DepthTable
+    from ..pdehead_addon import marker_pegs
 
     if not isinstance(table, DepthTable):     # a plain {name: depth} mapping (no SDs)
         table = DepthTable(entries={k: DepthEntry(k, float(v)) for k, v in table.items()}, name="imported table")
@@ -276,7 +276,7 @@ def set_peg_depth(peg, depth_mm: float) -> float:
 
 def apply_frankfurt(coll, reset: bool = False):
     """Transform every object of the study into the Frankfurt horizontal (or back)."""
-    from ..pdehead_addon.forensic.landmarks import frankfurt_transform
+    from ..pdehead_addon import frankfurt_transform
     from mathutils import Matrix
 
     if reset:
@@ -307,7 +307,7 @@ MIRROR_PLANES = [
 
 def mirror_plane(coll, source: str = "AUTO") -> tuple[np.ndarray, np.ndarray, str]:
     """The mid-sagittal plane (point, normal in patient mm) and a sentence saying where it came from."""
-    from ..pdehead_addon.forensic.landmarks import bilateral_pairs, midsagittal_plane, symmetry_plane
+    from ..pdehead_addon import bilateral_pairs, midsagittal_plane, symmetry_plane
 
     lms = landmarks(coll)
     pairs = bilateral_pairs(list(lms))
@@ -329,7 +329,7 @@ def mirror_plane(coll, source: str = "AUTO") -> tuple[np.ndarray, np.ndarray, st
 
 def mirror_object(coll, obj, source: str = "AUTO"):
     """A linked copy of ``obj`` mirrored across the mid-sagittal plane (:func:`mirror_plane`)."""
-    from ..pdehead_addon.forensic.landmarks import mirror_matrix
+    from ..pdehead_addon import mirror_matrix
 
     point, normal, how = mirror_plane(coll, source)
     m = frankfurt_matrix(coll) @ blender_matrix(mirror_matrix(point, normal)) @ frankfurt_matrix(coll).inverted()
@@ -345,7 +345,7 @@ def mirror_object(coll, obj, source: str = "AUTO"):
 # ------------------------------------------------------------------------------------------ provenance
 def study_depth_table(coll):
     """The study's depth table: the one its pegs came from, else the shipped T-Table 2023."""
-    from ..pdehead_addon.forensic.depth_table import DepthTable, default_table
+    from ..pdehead_addon import DepthTable, default_table
 
     text = coll.get("pdehead_depth_table")
     return DepthTable.from_json(text) if text else default_table()
@@ -359,7 +359,7 @@ def flag_names(coll) -> dict[str, str]:
 
 def forensic_provenance(coll, table=None) -> dict:
     """Provenance of the study's forensic outputs: software, CT, bone level, depth table, frame."""
-    from ..pdehead_addon.core.provenance import provenance
+    from ..pdehead_addon import provenance
 
     s = state.settings(coll)
     sk = skull_segmentation(coll)
@@ -384,7 +384,7 @@ def measured_landmark_depths(coll, skull, skin) -> tuple[dict, dict[str, str], s
     normal; on the meshes only when the study's skull carries no CT intensities). Returns the rows
     (name -> (bone point, depth mm)), the flags (an ``ok`` landmark whose depth the CT's profile does not
     support turns ``uncertain``) and the method's description for the provenance."""
-    from ..pdehead_addon.forensic.depth_on_ct import depth_flags, measure_landmark_depths
+    from ..pdehead_addon import depth_flags, measure_landmark_depths
 
     lms = landmarks(coll)
     sk = skull_segmentation(coll)
@@ -419,9 +419,9 @@ def export_study(coll, directory: str, fmt: str = "stl", depth_target: str = "BO
     import shutil
     import tempfile
 
-    from ..pdehead_addon.forensic.depth_table import write_landmark_csv
-    from ..pdehead_addon.io.export import FORMATS, export_mesh
-    from ..pdehead_addon.forensic.tissue_depth import tissue_depth, write_depth_csv
+    from ..pdehead_addon import write_landmark_csv
+    from ..pdehead_addon import EXPORT_FORMATS as FORMATS, export_mesh
+    from ..pdehead_addon import tissue_depth, write_depth_csv
 
     if fmt not in FORMATS:
         raise PDEHeadError(f"unknown mesh format {fmt!r}; use one of {', '.join(FORMATS)}")

@@ -151,7 +151,7 @@ class LoaderOptions:
             options["series_uid"] = self.series_uid.strip()
         elif self.format in {"AUTO", "DICOM"} and self.filepath and not self.single_file:
             # one DICOM file chosen: the series it belongs to, from its folder (not the folder's largest)
-            from ..pdehead_addon.io.ct_import.discovery import series_of_file
+            from ..pdehead_addon import series_of_file
             uid = series_of_file(bpy.path.abspath(self.filepath))
             if uid:
                 options["series_uid"] = uid

@@ -14,7 +14,7 @@ import math
 import numpy as np
 
 from ..pdehead_addon import defaults as D
-from ..pdehead_addon.core.ct_volume import apply_window, intensity_window, sample_ct
+from ..pdehead_addon import apply_window, intensity_window, sample_ct
 from . import compat
 from .coords import MM_TO_M
 from .ct_texture import box_faces, ct_texture_atlas

@@ -79,8 +79,8 @@ _MAX_WARNINGS_CHARS = 4000
 
 def user_text(message: str) -> str:
     """An engine message in the words of :data:`AUDIENCE`, on one line."""
-    from ..pdehead_addon.core import wording
-    return wording.for_cli(message) if AUDIENCE == "cli" else wording.for_dialog(message)
+    from ..pdehead_addon import message_for_cli, message_for_dialog
+    return message_for_cli(message) if AUDIENCE == "cli" else message_for_dialog(message)
 
 
 def warning_list(s) -> list[str]:
@@ -340,7 +340,7 @@ def load_stored_ct_table(collection):
     text = collection.get(CT_TABLE_KEY)
     if not text:
         return None
-    from ..pdehead_addon.pde.solid_ct_table import SolidCTTable
+    from ..pdehead_addon import SolidCTTable
     try:
         table, window = SolidCTTable.from_bytes(base64.b64decode(str(text).encode("ascii"), validate=True))
     except Exception as exc:  # noqa: BLE001 - a damaged table is as good as none; the CT can re-make it

@@ -106,7 +106,7 @@ def ct_table(collection, head, ct):
     """
     table = current_ct_table(collection)
     if table is None:
-        from ..pdehead_addon.pde.solid_ct_table import SolidCTTable
+        from ..pdehead_addon import SolidCTTable
         table = SolidCTTable(head, ct, progress=step_progress("solid"))
         state.cache_for(state.settings(collection).study_id).ct_table = (state.table_key(collection), table)
     return table
@@ -131,6 +131,6 @@ def ct_window(collection, ct=None) -> tuple[float, float]:
     """The study's CT intensity window (:func:`ct_volume.intensity_window`), computed once per CT."""
     cache = state.cache_for(state.settings(collection).study_id)
     if cache.window is None:
-        from ..pdehead_addon.core.ct_volume import intensity_window
+        from ..pdehead_addon import intensity_window
         cache.window = intensity_window(ct if ct is not None else require_ct(collection))
     return cache.window

@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..pdehead_addon.core.ct_volume import intensity_window
+from ..pdehead_addon import intensity_window
 from .coords import grid_affine_world
 from .vdb_files import VDB_FOLDER_NAME, blender_filepath, fresh_vdb_path, supersede
 from .vdb_grids import REQUIRED_GRIDS, write_vdb

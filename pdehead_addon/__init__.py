@@ -49,6 +49,42 @@ from .forensic.depth_table import DepthTable, DepthEntry, read_depth_table, defa
 from .core.provenance import SOFTWARE_VERSION as __version__  # noqa: E402
 
 
+#: Public names loaded on first use (PEP 562), so importing the package stays light: the Blender
+#: layer and the scripts take them from here, not from the modules that define them.
+_LAZY = {
+    "apply_window": (".core.ct_volume", "apply_window"),
+    "ct_grid_for": (".core.ct_volume", "ct_grid_for"),
+    "grid_affine": (".core.ct_volume", "grid_affine"),
+    "head_mask_on_grid": (".core.ct_volume", "head_mask_on_grid"),
+    "intensity_window": (".core.ct_volume", "intensity_window"),
+    "sample_ct": (".core.ct_volume", "sample_ct"),
+    "trilinear": (".core.ct_volume", "trilinear"),
+    "provenance": (".core.provenance", "provenance"),
+    "message_for_cli": (".core.wording", "for_cli"),
+    "message_for_dialog": (".core.wording", "for_dialog"),
+    "find_landmarks": (".forensic.auto_landmarks", "find_landmarks"),
+    "depth_flags": (".forensic.depth_on_ct", "depth_flags"),
+    "measure_landmark_depths": (".forensic.depth_on_ct", "measure_landmark_depths"),
+    "APPROXIMATION_LABEL": (".forensic.face_from_skull", "APPROXIMATION_LABEL"),
+    "FaceModel": (".forensic.face_from_skull", "FaceModel"),
+    "LiveFace": (".forensic.face_live", "LiveFace"),
+    "face_model_from_state": (".forensic.face_live", "model_from_state"),
+    "face_model_state": (".forensic.face_live", "model_state"),
+    "STANDARD_LANDMARKS": (".forensic.landmarks", "STANDARD_LANDMARKS"),
+    "bilateral_pairs": (".forensic.landmarks", "bilateral_pairs"),
+    "frankfurt_transform": (".forensic.landmarks", "frankfurt_transform"),
+    "landmark": (".forensic.landmarks", "landmark"),
+    "marker_pegs": (".forensic.landmarks", "marker_pegs"),
+    "midsagittal_plane": (".forensic.landmarks", "midsagittal_plane"),
+    "mirror_matrix": (".forensic.landmarks", "mirror_matrix"),
+    "snap_to_surface": (".forensic.landmarks", "snap_to_surface"),
+    "symmetry_plane": (".forensic.landmarks", "symmetry_plane"),
+    "series_of_file": (".io.ct_import.discovery", "series_of_file"),
+    "EXPORT_FORMATS": (".io.export", "FORMATS"),
+    "surface_grid_cached": (".pde.pde_solid", "surface_grid_cached"),
+    "SolidCTTable": (".pde.solid_ct_table", "SolidCTTable"),
+}
+
 __all__ = [  # the public API
     "PDEHeadError", "CTImportError", "SegmentationError", "BoundaryError", "PDEError", "StorageError",
     "Cancelled", "CTVolume", "Mesh", "load_ct", "list_series", "SeriesInfo", "CTImportWarning",
@@ -63,12 +99,23 @@ __all__ = [  # the public API
     "write_depth_csv", "export_mesh", "DepthTable", "DepthEntry", "read_depth_table", "default_table",
     "write_landmark_csv",
     "__version__",
+    *_LAZY,
 ]
 
 
 def __getattr__(name: str):
-    """``pdehead_addon.validation`` on first use (tests, benchmarks); it is not shipped in the zip."""
+    """The names of :data:`_LAZY`, and ``pdehead_addon.validation`` (tests, benchmarks; not shipped in the zip),
+    on first use."""
+    import importlib
     if name == "validation":
-        import importlib
         return importlib.import_module(".validation", __name__)
+    if name in _LAZY:
+        module, attribute = _LAZY[name]
+        value = getattr(importlib.import_module(module, __name__), attribute)
+        globals()[name] = value
+        return value
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))

@@ -135,6 +135,10 @@ def private_imports(folders) -> list[dict]:
     return out
 
 
+#: Engine modules the Blender layer may import whole: the one table of defaults, ranges and labels.
+PUBLIC_ENGINE_MODULES = {"pdehead_addon.defaults"}
+
+
 def internal_engine_imports() -> list[dict]:
     """Imports in operators/ of an engine module other than the package itself (``..pdehead_addon.x``)."""
     out = []
@@ -146,6 +150,8 @@ def internal_engine_imports() -> list[dict]:
                 source = resolve(me, is_package, node.module, node.level)
                 targets = [source] if source != "pdehead_addon" else [f"pdehead_addon.{a.name}" for a in node.names]
                 for t in targets:
+                    if t in PUBLIC_ENGINE_MODULES:
+                        continue
                     if t.startswith("pdehead_addon.") and (ROOT / (t.replace(".", "/") + ".py")).exists() \
                             or t.startswith("pdehead_addon.") and (ROOT / t.replace(".", "/")).is_dir():
                         out.append({"where": f"{rel(path)}:{node.lineno}", "module": t})
