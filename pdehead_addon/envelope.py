@@ -84,10 +84,13 @@ def outer_region(mask2d: np.ndarray, connectivity: int = 2) -> np.ndarray:
 
 
 def _slice_regions(mask: np.ndarray) -> np.ndarray:
-    """Largest 8-connected component of every slice with its holes filled."""
+    """Largest 8-connected component of every slice with its holes filled (each on its slice's bounding box)."""
     out = np.zeros_like(mask)
-    for k in np.flatnonzero(mask.reshape(len(mask), -1).any(axis=1)):
-        out[k] = outer_region(mask[k])
+    rows, cols = mask.any(axis=2), mask.any(axis=1)
+    for k in np.flatnonzero(rows.any(axis=1)):
+        r, c = np.flatnonzero(rows[k]), np.flatnonzero(cols[k])
+        box = (k, slice(r[0], r[-1] + 1), slice(c[0], c[-1] + 1))
+        out[box] = outer_region(mask[box])
     return out
 
 
