@@ -227,9 +227,15 @@ def head_envelope(mask: np.ndarray, spacing: tuple[float, float, float],
                 if mz <= k < len(closed) - mz:
                     wanted[k] = True
             field = binary_gaussian_z(closed, sigma_z / dz, wanted)
+            # each on the slice's non-zero box with the kernels' reach around it (0 stays 0 outside)
+            ry, rx = (int(4.0 * (sigma_mm / d) + 0.5) + 1 for d in (dy, dx))
             for k in np.flatnonzero(wanted):
-                plane = ndi.gaussian_filter1d(field[k], sigma_mm / dy, axis=0, mode="nearest")
-                ndi.gaussian_filter1d(plane, sigma_mm / dx, axis=1, output=field[k], mode="nearest")
+                rows, cols = np.flatnonzero(field[k].any(axis=1)), np.flatnonzero(field[k].any(axis=0))
+                if rows.size == 0:
+                    continue
+                box = (k, slice(max(rows[0] - ry, 0), rows[-1] + 1 + ry), slice(max(cols[0] - rx, 0), cols[-1] + 1 + rx))
+                plane = ndi.gaussian_filter1d(field[box], sigma_mm / dy, axis=0, mode="nearest")
+                ndi.gaussian_filter1d(plane, sigma_mm / dx, axis=1, output=field[box], mode="nearest")
     field = field[mz:len(field) - mz]
     # the crop's y/x origin in the volume (may be negative: padded beyond the array)
     y0, x0 = window[1].start - my, window[2].start - mx
