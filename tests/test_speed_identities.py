@@ -6,6 +6,8 @@ synthetic volumes in a fraction of a second.
 """
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 import pytest
 from scipy import ndimage as ndi
@@ -86,7 +88,7 @@ def test_envelope_on_wanted_slices_is_the_whole_envelope_there():
 def test_binary_gaussian_z_is_the_float_gaussian_on_the_wanted_slices(sigma):
     """The table lookup gives gaussian_filter1d's float32 values to the bit (the filter itself near the
     array's ends and for kernels too long for a table: sigma 4.5 -> 37 taps)."""
-    from pdehead_addon.envelope import binary_gaussian_z
+    binary_gaussian_z = sys.modules[head_envelope.__module__].binary_gaussian_z   # wherever the module sits
     rng = np.random.default_rng(3)
     region = ndi.binary_opening(rng.random((50, 30, 45)) < 0.55)
     for wanted_at in ([20, 21, 24, 33], [0, 12, 49], []):
@@ -102,7 +104,8 @@ def test_binary_gaussian_z_is_the_float_gaussian_on_the_wanted_slices(sigma):
 
 
 def test_slice_regions_on_bounding_boxes_equal_the_whole_slices():
-    from pdehead_addon.envelope import _slice_regions, outer_region
+    envelope = sys.modules[head_envelope.__module__]                          # wherever the module sits
+    _slice_regions, outer_region = envelope._slice_regions, envelope.outer_region
     rng = np.random.default_rng(4)
     mask = ndi.binary_dilation(rng.random((12, 40, 50)) < 0.05)
     mask[3] = False
