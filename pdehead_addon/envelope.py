@@ -233,7 +233,8 @@ def head_envelope(mask: np.ndarray, spacing: tuple[float, float, float],
                 rows, cols = np.flatnonzero(field[k].any(axis=1)), np.flatnonzero(field[k].any(axis=0))
                 if rows.size == 0:
                     continue
-                box = (k, slice(max(rows[0] - ry, 0), rows[-1] + 1 + ry), slice(max(cols[0] - rx, 0), cols[-1] + 1 + rx))
+                box = (k, slice(max(rows[0] - ry, 0), rows[-1] + 1 + ry),
+                       slice(max(cols[0] - rx, 0), cols[-1] + 1 + rx))
                 plane = ndi.gaussian_filter1d(field[box], sigma_mm / dy, axis=0, mode="nearest")
                 ndi.gaussian_filter1d(plane, sigma_mm / dx, axis=1, output=field[box], mode="nearest")
     field = field[mz:len(field) - mz]
