@@ -23,7 +23,7 @@ for p in (str(ROOT), str(ROOT / "scripts")):
     if p not in sys.path:
         sys.path.insert(0, p)
 
-import bench  # noqa: E402  (the dev-shim loader of the add-on's Blender modules)
+import _common  # noqa: E402  (the dev-shim loader of the add-on's Blender modules)
 import bench_smooth  # noqa: E402
 import pdehead_addon as E  # noqa: E402
 
@@ -36,7 +36,7 @@ def surfaces(seg, t: int) -> list[tuple[str, E.Mesh]]:
     n = 20 * t + 1
     c2 = E.solve_pde(bset).surface(n, 360, caps=True)
     paper = E.solve_pde(bset, continuity="paper").surface(n, 360, caps=True)
-    mc = bench.marching_cubes_mesh(seg.mask, seg.ct)
+    mc = _common.marching_cubes_mesh(seg.mask, seg.ct)
     return [(f"C2 default (t={t})", c2), (f"paper patches (t={t})", paper), ("marching cubes (all slices)", mc)]
 
 
@@ -51,7 +51,7 @@ def selection_surfaces(seg, t: int) -> list[tuple[str, E.Mesh]]:
 
 
 def render_case(name: str, t: int, size: int, samples: int, out: Path, selections: bool = False) -> Path:
-    bl = bench.blender()
+    bl = _common.blender()
     bpy, objects, render = bl["bpy"], bl["objects"], bl["render"]
     bpy.ops.wm.read_homefile(use_empty=True)
     seg = bench_smooth.load(name)
