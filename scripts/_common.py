@@ -12,8 +12,10 @@ One owner for each, so the benchmarks, the figure scripts and the CLI cannot dri
   marching-cubes peer, the tube fidelity, the boundaries at the add-on's defaults, and the Blender
   layer loaded once (:func:`blender`, :func:`remove_object`).
 
-Scripts put ``scripts/`` on ``sys.path`` (Python does that for the script being run) and
-``import _common``.
+Scripts put ``scripts/`` on ``sys.path`` (Python does that for a script run from ``scripts/``; the
+benchmarks and figure scripts in ``scripts/bench/`` insert it themselves) and ``import _common``. It
+stays in ``scripts/``, not ``scripts/bench/``: the CLI (``pdehead.py``, ``pdehead_batch.py``),
+``input_cases.py`` and the tests use it too.
 """
 from __future__ import annotations
 

@@ -3,9 +3,9 @@
 
 Regenerate all (a few minutes on 2 cores)::
 
-    python3 scripts/make_figures.py
-    python3 scripts/make_figures.py --only fig12,fig14     # some of them
-    python3 scripts/make_figures.py --list                 # what there is
+    python3 scripts/bench/make_figures.py
+    python3 scripts/bench/make_figures.py --only fig12,fig14     # some of them
+    python3 scripts/bench/make_figures.py --list                 # what there is
 
 3-D figures go through the add-on's own Blender layer, loaded from this repository by
 the dev shim (``scripts/_common.py``, ``load_addon``): ``operators/objects.py`` (boundary curves, surface
@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "scripts"))
 sys.path.insert(0, str(ROOT))
 

@@ -5,8 +5,8 @@ boundary pipeline, each of the three surfaces from the front, the patient's righ
 three-quarter, Cycles CPU at 512 px per tile, into ``docs/figures/smooth_<data>.png``
 (rows: C2 default, paper patches, marching cubes of the segmentation mask).
 
-    python3 scripts/smooth_figures.py [--size 512] [--samples 16] [--only cthead]
-    python3 scripts/smooth_figures.py --selections 4 --only cthead   # issue 14: uniform / shape-change /
+    python3 scripts/bench/smooth_figures.py [--size 512] [--samples 16] [--only cthead]
+    python3 scripts/bench/smooth_figures.py --selections 4 --only cthead   # issue 14: uniform / shape-change /
                                       # auto rows at t = 4 into docs/figures/selection_<data>_t4.png
 """
 from __future__ import annotations
@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 for p in (str(ROOT), str(ROOT / "scripts")):
     if p not in sys.path:
         sys.path.insert(0, p)

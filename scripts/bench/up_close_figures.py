@@ -21,7 +21,7 @@ surface, nu x nv = 120 x 240, caps), Cycles CPU, into ``docs/figures/up_close_*.
   outside, the cut faces from the CT at <= 1 voxel a texel), beside the CT resampled on the plane
   x = the spine's mean x, same window, and the solid as before issue 21 (one 128-pixel tile a face).
 
-    python3 scripts/up_close_figures.py [--size 384] [--samples 16] [--face | --cut | --uv]
+    python3 scripts/bench/up_close_figures.py [--size 384] [--samples 16] [--face | --cut | --uv]
 """
 from __future__ import annotations
 
@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 for p in (str(ROOT), str(ROOT / "scripts")):
     if p not in sys.path:
         sys.path.insert(0, p)
