@@ -122,20 +122,20 @@ def test_bone_level_field_and_export_builds_or_refuses(pdehead_ext, tmp_path, ph
     s.bone_level = 900.0
     assert forensic_skull.skull_segmentation(coll).meta["bone_level_stored"] == 900.0
     # a failure while writing leaves nothing behind (everything is written to a hidden folder first)
-    depth_table = __import__(f"{ext.__name__}.pdehead_addon.forensic.depth_table", fromlist=["x"])
-    saved = depth_table.write_landmark_csv
+    engine = __import__(f"{ext.__name__}.pdehead_addon", fromlist=["x"])   # the operators use its public names
+    saved = engine.write_landmark_csv
 
     def broken(*a, **k):
         raise OSError(28, "No space left on device")
 
-    depth_table.write_landmark_csv = broken
+    engine.write_landmark_csv = broken
     try:
         out2 = tmp_path / "export2"
         with pytest.raises(RuntimeError, match="cannot write the export"):
             bpy.ops.pdehead.export_print(directory=str(out2), format='stl')
         assert list(out2.iterdir()) == []
     finally:
-        depth_table.write_landmark_csv = saved
+        engine.write_landmark_csv = saved
     assert bpy.ops.pdehead.export_print(directory=str(out), format='stl') == {'FINISHED'}
     second = read_stl(out / "skull.stl")
     assert len(second.triangles) != len(first.triangles)                # a higher level: a thinner skull
