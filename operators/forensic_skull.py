@@ -19,6 +19,7 @@ import bpy
 from ..pdehead_addon import PDEHeadError
 from . import compat, state, study, study_ct
 from .forensic_objects import forensic_cache, linked_object, plain_material, set_material
+from .study_entity import Study
 
 SKULL_BOUNDARY_KEY = "pdehead_skull_boundaries"
 DEPTH_STATS_KEY = "pdehead_depth_stats"
@@ -104,7 +105,7 @@ def step_skull(coll, nu: int, nv: int, bone: bool = True, bone_step: int = 1) ->
         coll["pdehead_bone_object"] = bobj
         info["bone_triangles"] = len(bmesh.triangles)
     coll[SKULL_INFO_KEY] = json.dumps(info)
-    state.record_timing(coll, "skull", t.seconds)
+    Study.of(coll).record_timing("skull", t.seconds)
 
 
 def skull_engine_mesh(coll, target: str = "BONE"):
@@ -167,7 +168,7 @@ def step_depth(coll, target: str = "BONE", max_depth_mm: float = 40.0) -> dict:
     stats.update(target=target, max_depth_mm=float(max_depth_mm), seconds=round(t.seconds, 2))
     coll[DEPTH_STATS_KEY] = json.dumps(stats)
     forensic_cache(coll)["depth"] = res
-    state.record_timing(coll, "depth", t.seconds)
+    Study.of(coll).record_timing("depth", t.seconds)
     return stats
 
 

@@ -6,6 +6,7 @@ import os
 import bpy
 
 from . import state
+from .study_entity import Study
 
 
 class _PDEHeadPanel:
@@ -54,7 +55,7 @@ class PDEHEAD_PT_study(_PDEHeadPanel, bpy.types.Panel):
         col.label(text=f"Source: {source}")
         for warning in state.warning_list(s)[:4]:  # one line each, in the dialog's words
             col.label(text=state.user_text(warning)[:160], icon='ERROR')
-        text, icon = state.ct_status(coll)
+        text, icon = Study.of(coll).ct_status()
         col.label(text=text[:160], icon=icon)
         if icon == 'ERROR':  # the CT moved: let the user point the study at it again
             layout.prop(s, "source", text="CT Source")
@@ -205,7 +206,7 @@ class PDEHEAD_PT_timings(_StudyPanel, bpy.types.Panel):
 
     def draw(self, context):
         layout = self.layout
-        t = state.timings(self.study(context))
+        t = Study.of(self.study(context)).timings
         if not t:
             layout.label(text="No step run yet")
             return

@@ -31,6 +31,7 @@ from pathlib import Path
 import bpy
 
 from . import state, vdb_files
+from .study_entity import Study
 
 
 def _volume_objects() -> list:
@@ -44,7 +45,7 @@ def record_sources(blend_path: str) -> None:
         s = state.settings(coll)
         if s.source_kind != "FILES":
             continue
-        path = state.resolve_source(coll)
+        path = Study.of(coll).resolve_source()
         if path is None:  # gone: keep what was recorded, the panel says it is missing
             continue
         path = path.resolve()

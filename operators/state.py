@@ -21,7 +21,6 @@ import json
 import time
 import uuid
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import bpy
@@ -369,68 +368,6 @@ def pde_key(collection) -> tuple:
     approximation = None if s.approximation_auto else float(s.approximation)
     modes = None if s.modes <= 0 else int(s.modes)
     return continuity(collection), smoothing, approximation, modes, bool(s.dome)
-
-
-def source_candidates(collection) -> list[Path]:
-    """Where the study's CT may be, best first.
-
-    The recorded ``source`` (``//``-relative to the .blend after a save, so a project folder
-    moved as a whole still finds its CT), then the absolute path recorded at the last save
-    (the .blend alone moved).
-    """
-    s = settings(collection)
-    out: list[Path] = []
-    for text in (s.source, s.source_absolute):
-        if not text:
-            continue
-        if text.startswith("//") and not bpy.data.filepath:
-            continue  # relative to a file that is not saved: meaningless
-        path = Path(bpy.path.abspath(text))
-        if path not in out:
-            out.append(path)
-    return out
-
-
-def resolve_source(collection) -> Path | None:
-    """The first existing :func:`source_candidates` path, or None (source gone)."""
-    for path in source_candidates(collection):
-        if path.exists():
-            return path
-    return None
-
-
-def ct_status(collection) -> tuple[str, str]:
-    """(text, icon) for the Study panel: CT in memory, re-readable from a path, or missing."""
-    s = settings(collection)
-    if cache_for(s.study_id).ct is not None:
-        return "CT in memory", "CHECKMARK"
-    if s.source_kind == "PHANTOM":
-        return "CT re-made on demand (phantom)", "FILE_REFRESH"
-    path = resolve_source(collection) if s.source_kind == "FILES" else None
-    if path is not None:
-        return f"CT re-read on demand from {path}", "FILE_REFRESH"
-    where = ", ".join(str(p) for p in source_candidates(collection)) or "(no source recorded)"
-    return f"CT source missing: {where}", "ERROR"
-
-
-def source_missing_message(collection) -> str:
-    where = " or ".join(str(p) for p in source_candidates(collection)) or "(no source recorded)"
-    return (f"study '{collection.name}': the CT is not in memory and its source is gone: {where} not found. "
-            "Point Source (Study panel) at the CT folder to re-read it; nothing was changed")
-
-
-# --- timings ---------------------------------------------------------------------------------
-
-def record_timing(collection, step: str, seconds: float) -> None:
-    """Remember how long a step took (shown in the Timings panel; the last run's values)."""
-    s = settings(collection)
-    timings = json.loads(s.timings_json or "{}")
-    timings[step] = round(float(seconds), 4)
-    s.timings_json = json.dumps(timings)
-
-
-def timings(collection) -> dict[str, float]:
-    return json.loads(settings(collection).timings_json or "{}")
 
 
 class Timer:

@@ -27,6 +27,7 @@ from . import cutter, objects, prefs, scene, state, vdb_files, vdb_grids, volume
 from .progress import step_progress
 from .state import suspended_updates
 from .study_ct import ct_table, ct_window, current_ct_table, previous_ct_table, require_ct
+from .study_entity import Study
 
 STEP_LABELS = {
     "import": "Import CT",
@@ -169,7 +170,7 @@ def import_study(context, path: Path, options: dict):
     # the loader's warnings (single slice, uneven steps, ...) stay visible in the Study panel
     state.add_warnings(s, [str(w.message) for w in caught if issubclass(w.category, UserWarning)])
     s.timings_json = ""
-    state.record_timing(coll, "import", t.seconds)
+    Study.of(coll).record_timing("import", t.seconds)
     return coll
 
 
@@ -180,7 +181,7 @@ def phantom_study(context):
         phantom = make_phantom()
     coll = create_study(context, phantom.ct, "Phantom", "PHANTOM")
     state.settings(coll).timings_json = ""
-    state.record_timing(coll, "import", t.seconds)
+    Study.of(coll).record_timing("import", t.seconds)
     return coll
 
 
@@ -199,7 +200,7 @@ def step_segment(coll) -> None:
         s.seg_c1, s.seg_c2 = float(seg.c1), float(seg.c2)
         # head size outside the human range, shoulders cut off: shown with the loader's warnings
         state.add_warnings(s, seg.meta.get("warnings", []))
-    state.record_timing(coll, "segment", t.seconds)
+    Study.of(coll).record_timing("segment", t.seconds)
 
 
 def selection_tolerance(s) -> dict:
@@ -257,7 +258,7 @@ def step_boundaries(coll) -> None:
         _record_selection(s, bset)
     s.curves_object = objects.build_boundary_curves(bset, coll, name=f"{coll.name} Boundary curves",
                                                     obj=s.curves_object)
-    state.record_timing(coll, "boundaries", t.seconds)
+    Study.of(coll).record_timing("boundaries", t.seconds)
 
 
 def _solve(coll) -> object:
@@ -266,7 +267,7 @@ def _solve(coll) -> object:
         fresh = cache.head is None or cache.head_key != state.pde_key(coll)
         head = pde_head(coll)
     if fresh:
-        state.record_timing(coll, "pde_solve", t.seconds)
+        Study.of(coll).record_timing("pde_solve", t.seconds)
     return head
 
 
@@ -276,7 +277,7 @@ def step_surface(coll) -> None:
     with state.Timer() as t:
         s.surface_object = objects.build_surface(head, coll, nu=s.nu, nv=s.nv, caps=s.caps, obj=s.surface_object,
                                                  name=f"{coll.name} Surface")
-    state.record_timing(coll, "surface", t.seconds)
+    Study.of(coll).record_timing("surface", t.seconds)
 
 
 #: A live change of the PDE (smoothing, modes, ...) rebuilds the solid's geometry at once with the CT
@@ -335,7 +336,7 @@ def step_solid(coll, live: bool = False) -> str:
                 window = ct_window(coll, ct)
                 with state.Timer() as t:
                     table = ct_table(coll, head, ct)
-                state.record_timing(coll, "ct_table", t.seconds)   # issue 20: with the w-field <= 1 s
+                Study.of(coll).record_timing("ct_table", t.seconds)   # issue 20: with the w-field <= 1 s
                 _COLOURS_PENDING.pop(s.study_id, None)
     elif live and defer_ct_colours() and cache.ct is not None:
         # issue 21: while a slider moves, the cut faces come from the (u, v, w) table in 128-pixel tiles
@@ -359,7 +360,7 @@ def step_solid(coll, live: bool = False) -> str:
             w_range=tuple(s.w_range), ct=None, obj=s.solid_object, name=f"{coll.name} Solid",
             window=window if table is not None else None, ct_table=table, texture_size=128 if quick else None,
             cut_ct=cut_ct, texture_budget=s.ct_texture_budget, skin=s.solid_skin, skin_depth_mm=s.solid_skin_depth)
-    state.record_timing(coll, "solid", t.seconds)
+    Study.of(coll).record_timing("solid", t.seconds)
     return notice
 
 
@@ -431,14 +432,14 @@ def step_volume(coll, context=None) -> None:
     with state.Timer() as t:
         grid = ct if s.use_ct_grid else float(s.voxel_size)
         wfield = head.w_field(grid, ct=ct, progress=step_progress("volume"))
-    state.record_timing(coll, "w_field", t.seconds)
+    Study.of(coll).record_timing("w_field", t.seconds)
     cache.wfield = wfield
     with state.Timer() as t:
         vdb_path = vdb_files.vdb_path_for(coll.name, bpy.data.filepath or None, prefs.vdb_prefs_folder(context))
         s.volume_object = volume.build_volume(wfield, coll, vdb_path, name=f"{coll.name} Volume",
                                               obj=s.volume_object, ct=ct, window=window, **volume_settings(s))
         s.volume_stale = False
-    state.record_timing(coll, "volume", t.seconds)
+    Study.of(coll).record_timing("volume", t.seconds)
 
 
 STEP_FUNCTIONS = {

@@ -8,6 +8,7 @@ import json
 from ..pdehead_addon import PDEHeadError
 from . import state
 from .progress import step_progress
+from .study_entity import Study
 
 
 def require_ct(collection):
@@ -35,9 +36,9 @@ def reload_ct(collection):
         from ..pdehead_addon import make_phantom
         ct = make_phantom().ct
     elif s.source_kind == "FILES":
-        path = state.resolve_source(collection)
+        path = Study.of(collection).resolve_source()
         if path is None:
-            raise PDEHeadError(state.source_missing_message(collection))
+            raise PDEHeadError(Study.of(collection).source_missing_message())
         from ..pdehead_addon import load_ct
         options = json.loads(s.load_options or "{}")
         for key in ("shape", "spacing", "resample_spacing"):

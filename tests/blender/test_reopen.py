@@ -58,6 +58,7 @@ if args["layout"] == "zip":  # the bpy 4.2 / 4.5 modules crash / hang at exit wi
     sys.modules[name + ".operators.compat"].unregister_at_exit(
         lambda: __import__("addon_utils").disable(name, default_set=False))
 state = sys.modules[name + ".operators.state"]
+Study = sys.modules[name + ".operators.study_entity"].Study
 study = sys.modules[name + ".operators.study"]
 objects = sys.modules[name + ".operators.objects"]
 volume = sys.modules[name + ".operators.volume"]
@@ -65,7 +66,7 @@ render = sys.modules[name + ".operators.render"]
 bpy.ops.wm.open_mainfile(filepath=args["blend"])
 coll = [c for c in bpy.data.collections if c.pdehead.is_study][0]
 s = coll.pdehead
-out = {"cached": state.cache_for(s.study_id).ct is not None, "status": state.ct_status(coll)[0],
+out = {"cached": state.cache_for(s.study_id).ct is not None, "status": Study.of(coll).ct_status()[0],
        "source": s.source, "vdb_before": bpy.path.abspath(s.volume_object.data.filepath)}
 def atlas_pixels(solid):
     image = solid.data.materials[0].node_tree.nodes["CT texture"].image
@@ -200,7 +201,7 @@ def test_reopen_in_a_new_process_rereads_the_ct_and_loses_nothing(ext, pdehead_e
     ext.state.drop_cache()
     coll = [c for c in bpy.data.collections if c.pdehead.is_study][0]
     s = coll.pdehead
-    text, icon = ext.state.ct_status(coll)
+    text, icon = ext.study_entity.Study.of(coll).ct_status()
     assert icon == 'ERROR' and "missing" in text and str(moved / "ct" / "raw16") in text
     vdb_now = Path(bpy.path.abspath(s.volume_object.data.filepath))
     vdb_bytes = vdb_now.read_bytes()
