@@ -148,7 +148,7 @@ class PDEHEAD_OT_reconstruct_surface(Operator, StudyOperator):
     def run(self, context, coll):
         s = state.settings(coll)
         self.store_settings(s)
-        if state.boundary_set(coll) is None:
+        if Study.of(coll).boundary_set() is None:
             study.step_boundaries(coll)
         study.step_surface(coll)
         n = len(s.surface_object.data.vertices)
@@ -185,7 +185,7 @@ class PDEHEAD_OT_build_solid(Operator, StudyOperator):
                 raise PDEHeadError(f"{name} range must have its start below its end, got "
                                    f"{lo_hi[0]:g}..{lo_hi[1]:g}")
         self.store_settings(s)
-        if state.boundary_set(coll) is None:
+        if Study.of(coll).boundary_set() is None:
             study.step_boundaries(coll)
         notice = study.step_solid(coll)
         n = len(s.solid_object.data.vertices)
@@ -218,7 +218,7 @@ class PDEHEAD_OT_build_volume(Operator, StudyOperator):
         if self.properties.is_property_set("voxel_size") and not self.properties.is_property_set("voxel_auto"):
             self.voxel_auto = False  # a size given by the caller is meant
         self.store_settings(s)
-        if state.boundary_set(coll) is None:
+        if Study.of(coll).boundary_set() is None:
             study.step_boundaries(coll)
         study.step_volume(coll, context)
         t = Study.of(coll).timings

@@ -112,7 +112,7 @@ class PDEHEAD_PT_boundaries(_StudyPanel, bpy.types.Panel):
             box.label(text=f"mean {s.outline_mean_mm:.2f} mm, max {s.outline_max_mm:.2f} mm")
             if s.outline_candidates < 0:
                 box.label(text="Tolerance not met with every slice")
-        if state.has_stored_boundaries(coll):
+        if Study.of(coll).has_stored_boundaries():
             kb = len(coll[state.BOUNDARY_KEY]) * 3 / 4 / 1024
             layout.label(text=f"{s.curve_count} curves stored in the .blend ({kb:.0f} kB)", icon='FILE_BLEND')
 

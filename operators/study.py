@@ -49,9 +49,9 @@ def pde_head(collection):
     from ..pdehead_addon import solve_with_controls
     s = state.settings(collection)
     cache = state.cache_for(s.study_id)
-    key = state.pde_key(collection)
+    key = Study.of(collection).pde_key()
     if cache.head is None or cache.head_key != key:
-        bset = state.boundary_set(collection)
+        bset = Study.of(collection).boundary_set()
         if bset is None:
             raise PDEHeadError(f"study '{collection.name}' has no boundary curves yet: run Extract Boundaries")
         cont, smoothing, approximation, modes, dome = key
@@ -69,7 +69,8 @@ def default_controls(collection) -> tuple[float, float]:
     from ..pdehead_addon import control_ranges
     s = state.settings(collection)
     modes = None if s.modes <= 0 else s.modes
-    ranges = control_ranges(state.boundary_set(collection), state.continuity(collection), modes)
+    study = Study.of(collection)
+    ranges = control_ranges(study.boundary_set(), study.continuity(), modes)
 
     def fraction(pair):
         d, m = (np.asarray(x, float) for x in pair)
@@ -251,7 +252,7 @@ def step_boundaries(coll) -> None:
     messages = [str(w.message) for w in caught if issubclass(w.category, SelectionWarning)]
     if messages:  # the tolerance could not be met with every usable slice: said beside the other warnings
         state.add_warnings(s, messages)
-    state.store_boundaries(coll, bset)
+    Study.of(coll).store_boundaries(bset)
     cache.drop_from("bset")
     cache.bset = bset
     with suspended_updates():
@@ -264,7 +265,7 @@ def step_boundaries(coll) -> None:
 def _solve(coll) -> object:
     with state.Timer() as t:
         cache = state.cache_for(state.settings(coll).study_id)
-        fresh = cache.head is None or cache.head_key != state.pde_key(coll)
+        fresh = cache.head is None or cache.head_key != Study.of(coll).pde_key()
         head = pde_head(coll)
     if fresh:
         Study.of(coll).record_timing("pde_solve", t.seconds)
@@ -466,7 +467,7 @@ def live_update(coll, what: str, context=None) -> None:
     try:
         if what == "pde_auto":
             what = "pde"
-            if state.boundary_set(coll) is not None and not (s.smoothing_auto and s.approximation_auto):
+            if Study.of(coll).boundary_set() is not None and not (s.smoothing_auto and s.approximation_auto):
                 # start a manual slider from the automatic value (as a fraction of the study's range)
                 smoothing, approximation = default_controls(coll)
                 with suspended_updates():

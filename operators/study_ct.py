@@ -67,11 +67,11 @@ def current_ct_table(collection):
     cutaways and nw without reading the CT. Its window becomes the study's window when none is known.
     """
     cache = state.cache_for(state.settings(collection).study_id)
-    key = state.table_key(collection)
+    key = Study.of(collection).table_key()
     if cache.ct_table is not None and cache.ct_table[0] == key:
         return cache.ct_table[1]
-    if state.stored_ct_table_key(collection) == key:
-        stored = state.load_stored_ct_table(collection)
+    if Study.of(collection).stored_ct_table_key() == key:
+        stored = Study.of(collection).load_stored_ct_table()
         if stored is not None:
             cache.ct_table = (key, stored[1])
             if cache.window is None:
@@ -92,7 +92,7 @@ def previous_ct_table(collection):
         window = cache.window or cache.stored_window
         if window is not None:
             return cache.ct_table[1], window
-    stored = state.load_stored_ct_table(collection)
+    stored = Study.of(collection).load_stored_ct_table()
     if stored is not None:
         cache.stored_window = stored[2]
         return stored[1], (cache.window or stored[2])
@@ -109,7 +109,7 @@ def ct_table(collection, head, ct):
     if table is None:
         from ..pdehead_addon import SolidCTTable
         table = SolidCTTable(head, ct, progress=step_progress("solid"))
-        state.cache_for(state.settings(collection).study_id).ct_table = (state.table_key(collection), table)
+        state.cache_for(state.settings(collection).study_id).ct_table = (Study.of(collection).table_key(), table)
     return table
 
 
@@ -119,13 +119,13 @@ def store_ct_table_for_save(collection) -> int:
     if s.solid_object is None:
         return 0
     cache = state.cache_for(s.study_id)
-    key = state.table_key(collection)
-    if cache.ct_table is None or cache.ct_table[0] != key or state.stored_ct_table_key(collection) == key:
+    key = Study.of(collection).table_key()
+    if cache.ct_table is None or cache.ct_table[0] != key or Study.of(collection).stored_ct_table_key() == key:
         return 0
     window = cache.window or cache.stored_window
     if window is None:
         return 0
-    return state.store_ct_table(collection, key, cache.ct_table[1], window)
+    return Study.of(collection).store_ct_table(key, cache.ct_table[1], window)
 
 
 def ct_window(collection, ct=None) -> tuple[float, float]:

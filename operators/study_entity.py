@@ -9,12 +9,15 @@ What a study saves is unchanged (state.py's custom properties and settings objec
 """
 from __future__ import annotations
 
+import base64
 import json
 from pathlib import Path
 
 import bpy
 
+from ..pdehead_addon import StorageError
 from . import state
+from .state import BOUNDARY_KEY, CT_TABLE_FOR, CT_TABLE_KEY
 
 
 class Study:
@@ -143,3 +146,91 @@ class Study:
         where = " or ".join(str(p) for p in self.source_candidates()) or "(no source recorded)"
         return (f"study '{self.name}': the CT is not in memory and its source is gone: {where} not found. "
                 "Point Source (Study panel) at the CT folder to re-read it; nothing was changed")
+
+    # --- the PDE boundary conditions and the CT table stored in the .blend ---------------------
+
+    def store_boundaries(self, bset_or_head) -> int:
+        """Store the boundary conditions in the collection (base64 custom property); returns bytes."""
+        from ..pdehead_addon import dumps_boundaries
+        raw = dumps_boundaries(bset_or_head)
+        self.collection[BOUNDARY_KEY] = base64.b64encode(raw).decode("ascii")
+        return len(raw)
+
+    def has_stored_boundaries(self) -> bool:
+        return bool(self.collection.get(BOUNDARY_KEY))
+
+    def load_stored_boundaries(self):
+        """The BoundarySet stored in the collection, or None."""
+        text = self.collection.get(BOUNDARY_KEY)
+        if not text:
+            return None
+        from ..pdehead_addon import loads_boundaries
+        try:
+            raw = base64.b64decode(text.encode("ascii"), validate=True)
+        except (ValueError, TypeError) as exc:
+            raise StorageError(f"study '{self.name}': stored boundary data is corrupt ({exc})") from None
+        return loads_boundaries(raw)
+
+    def boundary_set(self):
+        """The study's BoundarySet: from memory, else from the .blend, else None."""
+        cache = self.cache
+        if cache.bset is None:
+            cache.bset = self.load_stored_boundaries()
+        return cache.bset
+
+    def boundary_digest(self) -> str:
+        """A short digest of the stored boundary conditions (which curves a CT table belongs to)."""
+        import hashlib
+        return hashlib.sha1(str(self.collection.get(BOUNDARY_KEY, "")).encode("ascii", "replace")).hexdigest()[:16]
+
+    def table_key(self) -> str:
+        """What the solid's CT table depends on, as JSON: the PDE controls, the curves and the CT's size.
+
+        The same key after reopening the file means the same PDE solution (it is solved again from
+        the same stored curves with the same controls), so a table stored in the .blend is reused.
+        """
+        s = self.settings
+        return json.dumps([list(self.pde_key()), self.boundary_digest(), [int(n) for n in s.dimensions]])
+
+    def store_ct_table(self, key: str, table, window) -> int:
+        """Keep the solid's CT table in the .blend (8-bit, compressed; :meth:`SolidCTTable.to_bytes`); returns bytes."""
+        raw = table.to_bytes(window)
+        self.collection[CT_TABLE_KEY] = base64.b64encode(raw).decode("ascii")
+        self.collection[CT_TABLE_FOR] = key
+        return len(raw)
+
+    def stored_ct_table_key(self) -> str:
+        return str(self.collection.get(CT_TABLE_FOR, ""))
+
+    def load_stored_ct_table(self):
+        """``(key, table, window)`` of the CT table stored in the .blend, or None (none stored / unreadable)."""
+        text = self.collection.get(CT_TABLE_KEY)
+        if not text:
+            return None
+        from ..pdehead_addon import SolidCTTable
+        try:
+            table, window = SolidCTTable.from_bytes(base64.b64decode(str(text).encode("ascii"), validate=True))
+        except Exception as exc:  # noqa: BLE001 - a damaged table is as good as none; the CT can re-make it
+            print(f"PDE Head: study '{self.name}': the stored CT table is unreadable ({exc})")
+            return None
+        return self.stored_ct_table_key(), table, window
+
+    def continuity(self) -> str:
+        """The study's surface continuity: the property once the user set it, else what the stored
+        boundary conditions were made for."""
+        s = self.settings
+        if s.is_property_set("continuity"):
+            return s.continuity
+        bset = self.boundary_set()
+        stored = bset.meta.get("pde_settings") if bset is not None else None
+        if not isinstance(stored, dict):              # curves extracted in this session: today's default
+            return s.continuity
+        return stored.get("continuity", s.continuity)
+
+    def pde_key(self) -> tuple:
+        """The controls the solved head depends on: (continuity, smoothing, approximation, modes, dome)."""
+        s = self.settings
+        smoothing = None if s.smoothing_auto else float(s.smoothing)
+        approximation = None if s.approximation_auto else float(s.approximation)
+        modes = None if s.modes <= 0 else int(s.modes)
+        return self.continuity(), smoothing, approximation, modes, bool(s.dome)

@@ -109,7 +109,7 @@ def test_settings_of_a_0_1_0_file_are_migrated(ext, tmp_path, saved_by):
     assert (s.colour_preset, s.alpha_mode) == ('xray', 'INTENSITY')
     assert s.surface_object.name == "Phantom Surface" and s.solid_object.name == "Phantom Solid"
     assert s.curves_object.name == "Phantom Boundary curves" and len(s.study_id) == 32
-    assert ext.state.boundary_set(coll).patches == 4
+    assert ext.study_entity.Study.of(coll).boundary_set().patches == 4
     # live and animatable after the move
     s.keyframe_insert("w_range", frame=1)
     s.w_range = (0.6, 1.0)

@@ -61,7 +61,8 @@ def test_a_pde_change_moves_the_geometry_at_once_and_the_colours_follow(live, tm
     assert study.flush_colour_refresh() == 1   # what the timer does right after
     assert not study.colours_pending(coll) and s.last_error == ""
     cache = state.cache_for(s.study_id)
-    assert cache.ct_table[0] == state.table_key(coll) and cache.ct is not None
+    entity = sys.modules[f"{study.__name__.rsplit('.', 1)[0]}.study_entity"].Study.of(coll)
+    assert cache.ct_table[0] == entity.table_key() and cache.ct is not None
     np.testing.assert_array_equal(blender_inspect.mesh_world_vertices(s.solid_object), moved)
     exact = _colours(objects, s.solid_object)
     # the previous solution's colours were nearly right (a few % of the grey range where the shape moved),
@@ -78,7 +79,7 @@ def test_a_pde_change_moves_the_geometry_at_once_and_the_colours_follow(live, tm
     assert study.colours_pending(coll)
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "live.blend"))
     assert not study.colours_pending(coll)
-    assert state.stored_ct_table_key(coll) == state.table_key(coll)
+    assert entity.stored_ct_table_key() == entity.table_key()
 
 
 def test_the_table_in_the_file_serves_a_pde_change_without_the_ct(live):

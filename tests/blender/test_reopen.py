@@ -212,7 +212,8 @@ def test_reopen_in_a_new_process_rereads_the_ct_and_loses_nothing(ext, pdehead_e
     assert s.volume_object.data.filepath and Path(bpy.path.abspath(s.volume_object.data.filepath)) == vdb_now
     assert vdb_now.read_bytes() == vdb_bytes and sorted(p.name for p in vdb_now.parent.iterdir()) == [vdb_now.name]
     # the solid's CT table (8-bit) travels in the .blend: Build Solid, nw, nu and cutaways work without the CT
-    assert coll.get(ext.state.CT_TABLE_KEY) and ext.state.stored_ct_table_key(coll) == ext.state.table_key(coll)
+    entity = ext.study_entity.Study.of(coll)
+    assert coll.get(ext.state.CT_TABLE_KEY) and entity.stored_ct_table_key() == entity.table_key()
     assert bpy.ops.pdehead.build_solid() == {'FINISHED'}
     colour_after, pixels_after = _solid_arrays(ext, s.solid_object)
     np.testing.assert_allclose(colour_after, colour_now, atol=1.5 / 255)   # the table's 8 bits
