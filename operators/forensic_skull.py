@@ -17,7 +17,7 @@ import numpy as np
 import bpy
 
 from ..pdehead_addon import PDEHeadError
-from . import compat, state, study, study_ct
+from . import compat, state, study
 from .forensic_objects import forensic_cache, linked_object, plain_material, set_material
 from .study_entity import Study
 
@@ -50,7 +50,7 @@ def skull_segmentation(coll):
         # a new head segmentation (or CT, or bone level) makes the skull and everything measured on it stale
         if extra.get("skull_seg") is not None and extra.get("skull_seg_level") != level:
             coll.pop(SKULL_BOUNDARY_KEY, None)          # the stored envelope was of the old level
-        extra.update(skull_seg=segment_skull(study_ct.require_ct(coll), cache.seg, bone_level=level),
+        extra.update(skull_seg=segment_skull(Study.of(coll).ct, cache.seg, bone_level=level),
                      skull_seg_of=cache.seg, skull_seg_level=level, bone_mesh=None, skull_mesh=None, depth=None)
         for w in extra["skull_seg"].meta.get("warnings", []):
             if w not in s.warnings:

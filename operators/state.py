@@ -13,11 +13,12 @@ The heavy, re-computable objects (CT volume, segmentation, solved PDE head, w-fi
 are cached in memory per study, keyed by the study's id (a uuid string kept in the
 collection settings; collection names may change). Nothing here holds a reference to a
 ``bpy`` datablock (they become invalid after undo or file load).
+
+One study as an object (its cache, CT, stored curves and CT table, timings): :class:`.study_entity.Study`,
+built on the accessors here.
 """
 from __future__ import annotations
 
-import base64
-import json
 import time
 import uuid
 from dataclasses import dataclass, field
@@ -25,7 +26,6 @@ from typing import Any
 
 import bpy
 
-from ..pdehead_addon import StorageError
 
 NO_STUDY_MESSAGE = "No PDE Head study: import a CT (File > Import > CT Head) or load the phantom"
 BOUNDARY_KEY = "pdehead_boundaries"  # collection custom property: base64 of dumps_boundaries()

@@ -10,7 +10,7 @@ imports an operator module, so the dependency runs one way::
 
 The step functions (:func:`import_study`, :func:`step_segment`, ...) are plain functions on a
 study collection; the operators, :func:`live_update` and :class:`.pipeline_run.PipelineRun` share them.
-The study's CT and its (u, v, w) table: :mod:`.study_ct`; progress: :mod:`.progress`.
+The study's CT and its (u, v, w) table: :class:`.study_entity.Study`; progress: :mod:`.progress`.
 """
 from __future__ import annotations
 
@@ -26,7 +26,6 @@ from ..pdehead_addon import PDEHeadError, patches_for_scan
 from . import cutter, objects, prefs, scene, state, vdb_files, vdb_grids, volume, volume_material
 from .progress import step_progress
 from .state import suspended_updates
-from .study_ct import ct_table, ct_window, current_ct_table, previous_ct_table, require_ct
 from .study_entity import Study
 
 STEP_LABELS = {
@@ -189,7 +188,7 @@ def phantom_study(context):
 def step_segment(coll) -> None:
     from ..pdehead_addon import segment_head
     s = state.settings(coll)
-    ct = require_ct(coll)
+    ct = Study.of(coll).ct
     cache = state.cache_for(s.study_id)
     with state.Timer() as t:
         seg = segment_head(ct, progress=step_progress("segment"))
@@ -312,31 +311,31 @@ def step_solid(coll, live: bool = False) -> str:
     s = state.settings(coll)
     head = _solve(coll)
     notice = ""
-    table = current_ct_table(coll)
+    table = Study.of(coll).current_ct_table()
     cache = state.cache_for(s.study_id)
     window = cache.window or cache.stored_window
     ct = None
     if table is None:
         if live and defer_ct_colours():
-            previous = previous_ct_table(coll)
+            previous = Study.of(coll).previous_ct_table()
             if previous is not None:
                 table, window = previous
             _COLOURS_PENDING[s.study_id] = _now()
             _schedule_colour_refresh()
         else:
             try:
-                ct = require_ct(coll)  # re-read after reopening: a solid without its CT colours is a loss
+                ct = Study.of(coll).ct  # re-read after reopening: a solid without its CT colours is a loss
             except PDEHeadError as exc:
-                previous = previous_ct_table(coll)
+                previous = Study.of(coll).previous_ct_table()
                 if previous is None:
                     raise
                 table, window = previous
                 notice = (f"the solid's CT colours are those of the previous PDE solution (the table saved in "
                           f"the file): {exc}").replace("; nothing was changed", "")
             if ct is not None:
-                window = ct_window(coll, ct)
+                window = Study.of(coll).ct_window(ct)
                 with state.Timer() as t:
-                    table = ct_table(coll, head, ct)
+                    table = Study.of(coll).ct_table(head, ct)
                 Study.of(coll).record_timing("ct_table", t.seconds)   # issue 20: with the w-field <= 1 s
                 _COLOURS_PENDING.pop(s.study_id, None)
     elif live and defer_ct_colours() and cache.ct is not None:
@@ -352,7 +351,7 @@ def step_solid(coll, live: bool = False) -> str:
         cut_ct = ct if ct is not None else cache.ct
         if cut_ct is None:
             try:
-                cut_ct = require_ct(coll)
+                cut_ct = Study.of(coll).ct
             except PDEHeadError:
                 cut_ct = None                  # a file sent without its CT: the table's resolution
     with state.Timer() as t:
@@ -424,8 +423,8 @@ def step_volume(coll, context=None) -> None:
     head = _solve(coll)
     cache = state.cache_for(s.study_id)
     # always with the CT (re-read after reopening): a volume without CT intensities is never built
-    ct = require_ct(coll)
-    window = ct_window(coll, ct)
+    ct = Study.of(coll).ct
+    window = Study.of(coll).ct_window(ct)
     if not s.use_ct_grid and s.voxel_auto:
         size = vdb_grids.auto_voxel_size(ct, head)
         with suspended_updates():

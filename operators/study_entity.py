@@ -15,8 +15,9 @@ from pathlib import Path
 
 import bpy
 
-from ..pdehead_addon import StorageError
+from ..pdehead_addon import PDEHeadError, StorageError
 from . import state
+from .progress import step_progress
 from .state import BOUNDARY_KEY, CT_TABLE_FOR, CT_TABLE_KEY
 
 
@@ -75,12 +76,6 @@ class Study:
     def cache(self) -> state.StudyCache:
         """The in-memory results (CT, segmentation, curves, head, ...)."""
         return state.cache_for(self.study_id)
-
-    @property
-    def ct(self):
-        """The CT volume, re-read from the recorded source when not in memory (study_ct.require_ct)."""
-        from . import study_ct
-        return study_ct.require_ct(self.collection)
 
     @property
     def head(self):
@@ -234,3 +229,124 @@ class Study:
         approximation = None if s.approximation_auto else float(s.approximation)
         modes = None if s.modes <= 0 else int(s.modes)
         return self.continuity(), smoothing, approximation, modes, bool(s.dome)
+
+    # --- the CT and the CT table of the solid (in memory, re-read or from the .blend) -------------
+
+    @property
+    def ct(self):
+        """The study's CT volume from memory, else re-read from its recorded source (:meth:`reload_ct`).
+
+        Raises a :class:`PDEHeadError` that names the missing source when it cannot be re-read,
+        so a step that needs the CT (solid colours, volume, segmentation) never runs without it.
+        """
+        ct = self.cache.ct
+        if ct is None:
+            ct = self.reload_ct()
+        return ct
+
+    def reload_ct(self):
+        """Load the CT again from the recorded source (phantom or path + the recorded loader options).
+
+        The re-read CT must have the recorded dimensions; a different CT at that path is refused
+        (its colours would not belong to this study's head).
+        """
+        s = self.settings
+        cache = self.cache
+        if s.source_kind == "PHANTOM":
+            from ..pdehead_addon import make_phantom
+            ct = make_phantom().ct
+        elif s.source_kind == "FILES":
+            path = self.resolve_source()
+            if path is None:
+                raise PDEHeadError(self.source_missing_message())
+            from ..pdehead_addon import load_ct
+            options = json.loads(s.load_options or "{}")
+            for key in ("shape", "spacing", "resample_spacing"):
+                if isinstance(options.get(key), list):
+                    options[key] = tuple(options[key])
+            ct = load_ct(path, **options)
+        else:
+            raise PDEHeadError(f"study '{self.name}': the CT is not in memory and has no source to reload")
+        nz, ny, nx = ct.shape
+        expected = tuple(int(n) for n in s.dimensions)
+        if any(expected) and (nx, ny, nz) != expected:
+            raise PDEHeadError(f"study '{self.name}': the CT re-read from {s.source or 'the phantom'} has "
+                               f"{nx} x {ny} x {nz} voxels, the study was built from {' x '.join(map(str, expected))}; "
+                               "refusing to mix them (point Source at the original CT)")
+        cache.ct = ct
+        cache.window = None
+        cache.ct_table = None
+        return ct
+
+    def current_ct_table(self):
+        """The solid's CT table for the study's current PDE solution, from memory or from the .blend, or None.
+
+        A table saved in the .blend (:meth:`store_ct_table_for_save`) is used when it was tabulated
+        for the same curves and controls: a reopened file, or one sent without its CT, keeps live
+        cutaways and nw without reading the CT. Its window becomes the study's window when none is known.
+        """
+        cache = self.cache
+        key = self.table_key()
+        if cache.ct_table is not None and cache.ct_table[0] == key:
+            return cache.ct_table[1]
+        if self.stored_ct_table_key() == key:
+            stored = self.load_stored_ct_table()
+            if stored is not None:
+                cache.ct_table = (key, stored[1])
+                if cache.window is None:
+                    cache.window = stored[2]
+                cache.stored_window = stored[2]
+                return stored[1]
+        return None
+
+    def previous_ct_table(self):
+        """``(table, window)`` of an earlier PDE solution of this study (memory, else the .blend), or None.
+
+        Looked up in (u, v, w), it gives the new solid nearly the right colours at once (the
+        parameterisation moves little with a control); :func:`.study.refresh_solid_colours` replaces them.
+        """
+        cache = self.cache
+        if cache.ct_table is not None:
+            window = cache.window or cache.stored_window
+            if window is not None:
+                return cache.ct_table[1], window
+        stored = self.load_stored_ct_table()
+        if stored is not None:
+            cache.stored_window = stored[2]
+            return stored[1], (cache.window or stored[2])
+        return None
+
+    def ct_table(self, head, ct):
+        """The CT tabulated in the solid's (u, v, w) for this PDE solution (built once, ~0.5-1.3 s on CThead).
+
+        Kept until the PDE is re-solved with other controls or curves, or the CT is re-read, so
+        cutaway and resolution sliders only look values up.
+        """
+        table = self.current_ct_table()
+        if table is None:
+            from ..pdehead_addon import SolidCTTable
+            table = SolidCTTable(head, ct, progress=step_progress("solid"))
+            self.cache.ct_table = (self.table_key(), table)
+        return table
+
+    def store_ct_table_for_save(self) -> int:
+        """Put the current CT table into the .blend unless it is there already (save_pre); returns bytes written."""
+        s = self.settings
+        if s.solid_object is None:
+            return 0
+        cache = self.cache
+        key = self.table_key()
+        if cache.ct_table is None or cache.ct_table[0] != key or self.stored_ct_table_key() == key:
+            return 0
+        window = cache.window or cache.stored_window
+        if window is None:
+            return 0
+        return self.store_ct_table(key, cache.ct_table[1], window)
+
+    def ct_window(self, ct=None) -> tuple[float, float]:
+        """The study's CT intensity window (:func:`ct_volume.intensity_window`), computed once per CT."""
+        cache = self.cache
+        if cache.window is None:
+            from ..pdehead_addon import intensity_window
+            cache.window = intensity_window(ct if ct is not None else self.ct)
+        return cache.window
