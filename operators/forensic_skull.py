@@ -134,7 +134,7 @@ def skull_engine_mesh(coll, target: str = "BONE"):
 def skin_engine_mesh(coll):
     """The PDE skin as an engine Mesh with the surface object's vertex order (same nu, nv, caps)."""
     s = state.settings(coll)
-    return study.pde_head(coll).surface(int(s.nu), int(s.nv), caps=bool(s.caps))
+    return Study.of(coll).head.surface(int(s.nu), int(s.nv), caps=bool(s.caps))
 
 
 # ------------------------------------------------------------------------------------------ depth

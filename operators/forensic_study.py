@@ -26,7 +26,7 @@ import numpy as np
 import bpy
 
 from ..pdehead_addon import PDEHeadError
-from . import state, study
+from . import state
 from .coords import MM_TO_M
 from .forensic_objects import forensic_cache, plain_material, set_material, sub_collection
 from .forensic_skull import SKULL_BOUNDARY_KEY, skull_engine_mesh, skull_segmentation
@@ -439,7 +439,7 @@ def export_study(coll, directory: str, fmt: str = "stl", depth_target: str = "BO
     meshes = [("skull", skull), ("skull_envelope", envelope)]
     skin = None
     if _has_skin(coll):
-        skin = study.pde_head(coll).surface(int(s.nu), int(s.nv), caps=True)
+        skin = Study.of(coll).head.surface(int(s.nu), int(s.nv), caps=True)
         meshes.insert(0, ("skin", skin))
     for name, mesh in meshes:
         if mesh.face_count == 0 or not mesh.is_watertight():

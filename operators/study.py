@@ -43,24 +43,6 @@ STEP_LABELS = {
 # The engine results of a study, cached in memory (state.StudyCache)
 
 
-def pde_head(collection):
-    """The solved PDE head for the study's current controls (cached, re-solved on change)."""
-    from ..pdehead_addon import solve_with_controls
-    s = state.settings(collection)
-    cache = state.cache_for(s.study_id)
-    key = Study.of(collection).pde_key()
-    if cache.head is None or cache.head_key != key:
-        bset = Study.of(collection).boundary_set()
-        if bset is None:
-            raise PDEHeadError(f"study '{collection.name}' has no boundary curves yet: run Extract Boundaries")
-        cont, smoothing, approximation, modes, dome = key
-        cache.head = solve_with_controls(bset, cont, smoothing=smoothing, approximation=approximation,
-                                         modes=modes, dome=dome)
-        cache.head_key = key
-        cache.wfield = None
-    return cache.head
-
-
 def default_controls(collection) -> tuple[float, float]:
     """The solver's default smoothing and approximation as fractions of the study's maxima (the
     values a slider starts from when its Auto box is cleared)."""
@@ -261,19 +243,9 @@ def step_boundaries(coll) -> None:
     Study.of(coll).record_timing("boundaries", t.seconds)
 
 
-def _solve(coll) -> object:
-    with state.Timer() as t:
-        cache = state.cache_for(state.settings(coll).study_id)
-        fresh = cache.head is None or cache.head_key != Study.of(coll).pde_key()
-        head = pde_head(coll)
-    if fresh:
-        Study.of(coll).record_timing("pde_solve", t.seconds)
-    return head
-
-
 def step_surface(coll) -> None:
     s = state.settings(coll)
-    head = _solve(coll)
+    head = Study.of(coll).solve()
     with state.Timer() as t:
         s.surface_object = objects.build_surface(head, coll, nu=s.nu, nv=s.nv, caps=s.caps, obj=s.surface_object,
                                                  name=f"{coll.name} Surface")
@@ -309,7 +281,7 @@ def step_solid(coll, live: bool = False) -> str:
     says the colours are approximate.
     """
     s = state.settings(coll)
-    head = _solve(coll)
+    head = Study.of(coll).solve()
     notice = ""
     table = Study.of(coll).current_ct_table()
     cache = state.cache_for(s.study_id)
@@ -420,7 +392,7 @@ def volume_settings(s) -> dict:
 
 def step_volume(coll, context=None) -> None:
     s = state.settings(coll)
-    head = _solve(coll)
+    head = Study.of(coll).solve()
     cache = state.cache_for(s.study_id)
     # always with the CT (re-read after reopening): a volume without CT intensities is never built
     ct = Study.of(coll).ct
@@ -506,7 +478,7 @@ def apply_cutter(coll, matrix=None) -> str:
     if box is None:
         raise PDEHeadError(f"study '{coll.name}' has no cutter: add one first")
     matrix = box.matrix_world if matrix is None else matrix
-    head = pde_head(coll)
+    head = Study.of(coll).head
     # world metres = LPS mm * 0.001, so LPS mm -> cutter local = inverse(matrix_world) @ scale(0.001)
     inverse = np.array(matrix.inverted_safe() @ Matrix.Scale(0.001, 4))
     u_range, v_range, _kept, kind = cutter.cutter_ranges(head, inverse, float(box.empty_display_size))

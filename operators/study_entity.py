@@ -79,8 +79,30 @@ class Study:
 
     @property
     def head(self):
-        """The solved PDE head in memory, or None (Build Surface solves it)."""
-        return self.cache.head
+        """The solved PDE head for the study's current controls (cached, re-solved on change)."""
+        from ..pdehead_addon import solve_with_controls
+        cache = self.cache
+        key = self.pde_key()
+        if cache.head is None or cache.head_key != key:
+            bset = self.boundary_set()
+            if bset is None:
+                raise PDEHeadError(f"study '{self.name}' has no boundary curves yet: run Extract Boundaries")
+            cont, smoothing, approximation, modes, dome = key
+            cache.head = solve_with_controls(bset, cont, smoothing=smoothing, approximation=approximation,
+                                             modes=modes, dome=dome)
+            cache.head_key = key
+            cache.wfield = None
+        return cache.head
+
+    def solve(self):
+        """:attr:`head`, recording the solve time (``pde_solve``) when it was solved afresh."""
+        with state.Timer() as t:
+            cache = self.cache
+            fresh = cache.head is None or cache.head_key != self.pde_key()
+            head = self.head
+        if fresh:
+            self.record_timing("pde_solve", t.seconds)
+        return head
 
     # --- timings --------------------------------------------------------------------------------
 

@@ -21,7 +21,7 @@ def _solid_mm(obj) -> np.ndarray:
 
 def _expected_solid(ext, coll, **ranges):
     s = ext.state.settings(coll)
-    head = ext.study.pde_head(coll)
+    head = ext.study_entity.Study.of(coll).head
     nw = ranges.pop("nw", s.nw)
     v_range = tuple(min(float(v), 2 * math.pi) for v in s.v_range)  # float32 2π is a hair above float64 2π
     kw = dict(u_range=tuple(s.u_range), v_range=v_range, w_range=tuple(s.w_range))
