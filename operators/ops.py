@@ -414,7 +414,7 @@ class PDEHEAD_OT_remove_study(Operator, StudyOperator):
 
     def run(self, context, coll):
         name = coll.name
-        study.remove_study(coll)
+        Study.of(coll).remove()
         self.report({'INFO'}, f"Removed study '{name}'")
 
 

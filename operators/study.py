@@ -23,7 +23,7 @@ import bpy
 import numpy as np
 
 from ..pdehead_addon import PDEHeadError, patches_for_scan
-from . import cutter, objects, prefs, scene, state, vdb_files, vdb_grids, volume, volume_material
+from . import cutter, objects, prefs, state, vdb_files, vdb_grids, volume, volume_material
 from .progress import step_progress
 from .state import suspended_updates
 from .study_entity import Study
@@ -40,29 +40,7 @@ STEP_LABELS = {
 
 
 # ------------------------------------------------------------------------------------------
-# The engine results of a study, cached in memory (state.StudyCache)
-
-
-def default_controls(collection) -> tuple[float, float]:
-    """The solver's default smoothing and approximation as fractions of the study's maxima (the
-    values a slider starts from when its Auto box is cleared)."""
-    import numpy as np
-    from ..pdehead_addon import control_ranges
-    s = state.settings(collection)
-    modes = None if s.modes <= 0 else s.modes
-    study = Study.of(collection)
-    ranges = control_ranges(study.boundary_set(), study.continuity(), modes)
-
-    def fraction(pair):
-        d, m = (np.asarray(x, float) for x in pair)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            f = np.where(m > 0, d / m, 0.0)
-        return float(np.clip(np.mean(f), 0.0, 1.0))
-    return fraction(ranges["smoothing"]), fraction(ranges["approximation_mm"])
-
-
-# ------------------------------------------------------------------------------------------
-# The steps (plain functions on a study collection)
+# The steps (plain functions on a study collection; the study's cached results, CT and head: study_entity.Study)
 
 
 def _unique_collection_name(base: str) -> str:
@@ -440,7 +418,7 @@ def live_update(coll, what: str, context=None) -> None:
             what = "pde"
             if Study.of(coll).boundary_set() is not None and not (s.smoothing_auto and s.approximation_auto):
                 # start a manual slider from the automatic value (as a fraction of the study's range)
-                smoothing, approximation = default_controls(coll)
+                smoothing, approximation = Study.of(coll).default_controls()
                 with suspended_updates():
                     if not s.smoothing_auto and not s.is_property_set("smoothing"):
                         s.smoothing = smoothing
@@ -534,39 +512,6 @@ def pdehead_cutter_update(_scene, depsgraph=None) -> None:
 
 # ------------------------------------------------------------------------------------------
 # The one-click pipeline and removing a study
-
-
-def remove_study(coll) -> None:
-    """Delete a study's objects, data and collection; a scene left without a camera (or active study)
-    falls back to another study's."""
-    state.drop_cache(state.settings(coll).study_id)
-    for obj in list(coll.all_objects):
-        data = obj.data
-        bpy.data.objects.remove(obj)
-        if data is not None and data.users == 0:
-            for kind in ("meshes", "curves", "volumes", "cameras", "lights"):
-                collection = getattr(bpy.data, kind)
-                if data.name in collection and collection[data.name] == data:
-                    collection.remove(data)
-                    break
-    for child in list(coll.children_recursive):
-        bpy.data.collections.remove(child)
-    bpy.data.collections.remove(coll)
-    _fall_back_to_other_studies()
-
-
-def _fall_back_to_other_studies() -> None:
-    for sc in bpy.data.scenes:
-        inside = {c.name for c in sc.collection.children_recursive}
-        others = [c for c in state.studies() if c.name in inside]
-        if not others:
-            continue
-        if sc.pdehead.active_study is None:
-            sc.pdehead.active_study = others[0]
-        if sc.camera is None:
-            order = [sc.pdehead.active_study] + [c for c in others if c != sc.pdehead.active_study]
-            sc.camera = next((cam for cam in (scene.study_object(c, scene.CAMERA_KIND) for c in order)
-                              if cam is not None), None)
 
 
 def register() -> None:

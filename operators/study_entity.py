@@ -16,7 +16,7 @@ from pathlib import Path
 import bpy
 
 from ..pdehead_addon import PDEHeadError, StorageError
-from . import state
+from . import scene, state
 from .progress import step_progress
 from .state import BOUNDARY_KEY, CT_TABLE_FOR, CT_TABLE_KEY
 
@@ -372,3 +372,55 @@ class Study:
             from ..pdehead_addon import intensity_window
             cache.window = intensity_window(ct if ct is not None else self.ct)
         return cache.window
+
+    # --- controls and removal ---------------------------------------------------------------------
+
+    def default_controls(self) -> tuple[float, float]:
+        """The solver's default smoothing and approximation as fractions of the study's maxima (the
+        values a slider starts from when its Auto box is cleared)."""
+        import numpy as np
+        from ..pdehead_addon import control_ranges
+        s = self.settings
+        modes = None if s.modes <= 0 else s.modes
+        ranges = control_ranges(self.boundary_set(), self.continuity(), modes)
+
+        def fraction(pair):
+            d, m = (np.asarray(x, float) for x in pair)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                f = np.where(m > 0, d / m, 0.0)
+            return float(np.clip(np.mean(f), 0.0, 1.0))
+        return fraction(ranges["smoothing"]), fraction(ranges["approximation_mm"])
+
+    def remove(self) -> None:
+        """Delete a study's objects, data and collection; a scene left without a camera (or active study)
+        falls back to another study's."""
+        coll = self.collection
+        state.drop_cache(self.study_id)
+        Study.forget(self.study_id)
+        for obj in list(coll.all_objects):
+            data = obj.data
+            bpy.data.objects.remove(obj)
+            if data is not None and data.users == 0:
+                for kind in ("meshes", "curves", "volumes", "cameras", "lights"):
+                    collection = getattr(bpy.data, kind)
+                    if data.name in collection and collection[data.name] == data:
+                        collection.remove(data)
+                        break
+        for child in list(coll.children_recursive):
+            bpy.data.collections.remove(child)
+        bpy.data.collections.remove(coll)
+        _fall_back_to_other_studies()
+
+
+def _fall_back_to_other_studies() -> None:
+    for sc in bpy.data.scenes:
+        inside = {c.name for c in sc.collection.children_recursive}
+        others = [c for c in state.studies() if c.name in inside]
+        if not others:
+            continue
+        if sc.pdehead.active_study is None:
+            sc.pdehead.active_study = others[0]
+        if sc.camera is None:
+            order = [sc.pdehead.active_study] + [c for c in others if c != sc.pdehead.active_study]
+            sc.camera = next((cam for cam in (scene.study_object(c, scene.CAMERA_KIND) for c in order)
+                              if cam is not None), None)
