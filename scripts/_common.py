@@ -7,10 +7,15 @@ One owner for each, so the benchmarks, the figure scripts and the CLI cannot dri
 - :data:`PAPER`: the paper's measured numbers the benchmarks compare with;
 - :func:`timed`: median / min / all wall times of a call;
 - :func:`load_addon`: the add-on loaded from this repository as package ``pdehead_dev`` (no zip);
-- :func:`defaults`: the one table of user-facing defaults (``pdehead_addon/defaults.py``).
+- :func:`defaults`: the one table of user-facing defaults (``pdehead_addon/defaults.py``);
+- for the benchmarks and figure scripts (``scripts/bench/``): the data sets' segmentation, the
+  marching-cubes peer, the tube fidelity, the boundaries at the add-on's defaults, and the Blender
+  layer loaded once (:func:`blender`, :func:`remove_object`).
 
-Scripts put ``scripts/`` on ``sys.path`` (Python does that for the script being run) and
-``import _common``.
+Scripts put ``scripts/`` on ``sys.path`` (Python does that for a script run from ``scripts/``; the
+benchmarks and figure scripts in ``scripts/bench/`` insert it themselves) and ``import _common``. It
+stays in ``scripts/``, not ``scripts/bench/``: the CLI (``pdehead.py``, ``pdehead_batch.py``),
+``input_cases.py`` and the tests use it too.
 """
 from __future__ import annotations
 
@@ -159,10 +164,74 @@ def load_segmentation(name: str):
 
 def marching_cubes(seg):
     """The peer: skimage's marching cubes of the mask at 0.5, vertices in patient mm, and its triangles."""
+    return marching_cubes_arrays(seg.mask, seg.ct)
+
+
+def marching_cubes_arrays(mask, ct):
+    """Marching cubes (skimage, level 0.5, whole mask): vertices in patient mm and the triangles."""
     import numpy as np
     from skimage import measure
-    verts, faces, _, _ = measure.marching_cubes(seg.mask.astype(np.float32, copy=False), 0.5)
-    return seg.ct.index_to_patient(verts), faces
+    verts, faces, _, _ = measure.marching_cubes(mask.astype(np.float32, copy=False), 0.5)
+    return ct.index_to_patient(verts), faces
+
+
+def marching_cubes_mesh(mask, ct):
+    """The peer mesh: :func:`marching_cubes_arrays` as an engine ``Mesh`` (LPS mm, triangles only)."""
+    import numpy as np
+    import pdehead_addon as E
+    verts, faces = marching_cubes_arrays(mask, ct)
+    return E.Mesh(vertices=verts, quads=np.zeros((0, 4), np.int64), triangles=np.asarray(faces, np.int64))
+
+
+def boundaries(seg, patches: int | None = None, samples: int | None = None, selection: str | None = None):
+    """Boundary curves as the add-on makes them by default (``pdehead_addon/defaults.py``: its default
+    slice selection, patches and samples; the angular samples around a smooth spine)."""
+    import pdehead_addon as E
+    D = defaults()
+    return E.extract_boundaries(seg, patches=D.PATCHES.default if patches is None else patches,
+                                samples=D.SAMPLES.default if samples is None else samples,
+                                selection=D.SELECTION.default if selection is None else selection)
+
+
+def error_text(exc: BaseException) -> str:
+    """A failed step's one-line text for a report ("not available (...)" for a missing package)."""
+    if isinstance(exc, ImportError):
+        return f"not available ({exc})"
+    return f"{type(exc).__name__}: {exc}"
+
+
+# ----------------------------------------------------------------------------- the Blender layer (dev shim)
+_BLENDER: dict | None = None
+
+
+def blender() -> dict:
+    """bpy and the add-on's operators.objects/volume/render, loaded from this repo (:func:`load_addon`,
+    sharing the already imported engine ``pdehead_addon``); loaded once per process."""
+    global _BLENDER
+    if _BLENDER is None:
+        import tempfile
+        os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="pdehead-bench-blender-"))
+        t0 = time.perf_counter()
+        import bpy
+        import pdehead_addon as E
+        # one copy of the engine: the add-on's relative imports resolve to the module already loaded
+        load_addon(engine=E)
+        mods = {name: importlib.import_module(f"{DEV_PACKAGE}.operators.{name}")
+                for name in ("objects", "volume", "vdb_grids", "volume_material", "render")}
+        _BLENDER = {"bpy": bpy, **mods, "import_s": time.perf_counter() - t0, "version": bpy.app.version_string}
+    return _BLENDER
+
+
+def remove_object(obj) -> None:
+    """Remove a Blender object and its mesh / volume data when nothing else uses it."""
+    bpy = blender()["bpy"]
+    data = obj.data
+    bpy.data.objects.remove(obj)
+    if data is not None and data.users == 0:
+        if isinstance(data, bpy.types.Mesh):
+            bpy.data.meshes.remove(data)
+        elif isinstance(data, bpy.types.Volume):
+            bpy.data.volumes.remove(data)
 
 
 def tube_fidelity(head, verts, faces, samples: int, everything: bool = False) -> dict:

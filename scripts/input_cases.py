@@ -382,7 +382,7 @@ def main(argv=None) -> int:
             "(or real files read in place) and fed to `load_ct` / `segment_head`; the outcome is the error "
             "raised, the warnings issued, or ok with a measured note. File names are relative to the "
             "temporary folder of the case. Asserted in `tests/io/test_input_cases.py` (and "
-            "`tests/blender/test_cli.py` for the command line; large scans: `scripts/bench_large_scan.py`, "
+            "`tests/blender/test_cli.py` for the command line; large scans: `scripts/bench/bench_large_scan.py`, "
             "docs/benchmarks.md).\n\n" + table() + "\n")
     if args.print:
         print(text)

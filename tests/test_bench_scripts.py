@@ -1,4 +1,4 @@
-"""Smoke test of scripts/bench.py: the --quick logic on the phantom only, and its STL writer.
+"""Smoke test of scripts/bench/bench.py: the --quick logic on the phantom only, and its STL writer.
 
 No wall-clock assertions: only that the JSON has the expected structure and sane values
 (counts, Jaccard, byte sizes, distances) and that the markdown report is written.
@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "scripts"))
+sys.path.insert(0, str(ROOT / "scripts"))           # _common
+sys.path.insert(0, str(ROOT / "scripts" / "bench"))  # the benchmarks
 
 import bench  # noqa: E402
 
@@ -106,7 +107,7 @@ def test_timed_median():
 
 
 def test_bench_smooth_quick_smoke(tmp_path):
-    """scripts/bench_smooth.py --quick on CThead t=10: the issue-8 measures, the peers, the markdown section."""
+    """scripts/bench/bench_smooth.py --quick on CThead t=10: the issue-8 measures, the peers, the markdown section."""
     import bench_smooth
     md = tmp_path / "benchmarks.md"
     md.write_text("# Benchmarks\n\nother text\n")

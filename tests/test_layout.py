@@ -43,3 +43,16 @@ def test_test_folders_mirror_the_subpackages():
 def test_the_engine_top_level_is_only_the_api_and_the_defaults():
     top = sorted(p.name for p in ENGINE.glob("*.py"))
     assert top == ["__init__.py", "defaults.py"], top
+
+
+def test_the_scripts_rows_name_every_script():
+    """The `scripts/` and `scripts/bench/` rows name each script in that folder, and nothing that is not there."""
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    section = text.split("## Layout", 1)[1].split("\n## ", 1)[0]
+    rows = {m.group(1): m.group(2) for m in re.finditer(r"^\| `(scripts/[\w/]*)` \| (.*) \|$", section, re.M)}
+    assert set(rows) == {"scripts/", "scripts/bench/"}, sorted(rows)
+    for key, row in rows.items():
+        named = set(re.findall(r"`(\w+\.(?:py|sh))`", row))
+        files = {p.name for p in (ROOT / key).iterdir() if p.suffix in (".py", ".sh")}
+        assert files - named == set(), f"{key}: the README does not name {sorted(files - named)}"
+        assert named - files == set(), f"{key}: the README names {sorted(named - files)}, not in the folder"

@@ -339,8 +339,13 @@ def _proxy_errors(cand: Candidates, idx: np.ndarray, dome: bool) -> tuple[np.nda
     if dome:
         top = cand.curves[idx[-1]]
         zt = float(top[:, 2].mean())
-        # dome_height reads the top three curves only (their areas): the same height, 10x less work
-        height = dome_height(cand.curves[idx[-3:]], cand.heights[idx[-3:]], cand.meta.get("vertex_z"))
+        # dome_height reads the top three curves only (their areas): the same height, 10x less work;
+        # the searches keep the top three for most of their sets (one height per top three)
+        domes = cand.__dict__.setdefault("_dome_memo", {})
+        top3 = idx[-3:].tobytes()
+        if top3 not in domes:
+            domes[top3] = dome_height(cand.curves[idx[-3:]], cand.heights[idx[-3:]], cand.meta.get("vertex_z"))
+        height = domes[top3]
         sign = 1.0 if cand.heights[-1] >= cand.heights[0] else -1.0
         ring = Ys[-1].reshape(m, 3)
         vertex = np.array([ring[:, 0].mean(), ring[:, 1].mean(), zt + sign * height])

@@ -49,7 +49,7 @@ __all__ = [
 #: Smallest slice (pixels per side) that can hold a head outline with its clean-up openings.
 MIN_SLICE_PIXELS = 16
 #: Peak memory of segment_head per voxel beyond the CT itself: 5.33 GB measured on 512 x 512 x 800
-#: (scripts/bench_large_scan.py, docs/benchmarks.md), rounded up.
+#: (scripts/bench/bench_large_scan.py, docs/benchmarks.md), rounded up.
 SEGMENT_BYTES_PER_VOXEL = 26
 #: Default memory budget of segment_head (GB): larger scans are refused with the downsample advice.
 MEMORY_BUDGET_GB = 8.0

@@ -83,12 +83,12 @@ def test_bad_inputs_exit_2_with_one_line(tmp_path):
 
 def test_folder_of_photos_exits_2_before_segmentation(tmp_path):
     from PIL import Image
-    from test_silently_wrong import _photo
+    from made_inputs import photo
     rng = np.random.default_rng(3)
     photos = tmp_path / "photos"
     photos.mkdir()
     for k in range(20):
-        Image.fromarray(_photo(rng)).save(photos / f"DSC{k:04d}.png")
+        Image.fromarray(photo(rng)).save(photos / f"DSC{k:04d}.png")
     out = tmp_path / "photos.blend"
     result = run_cli(photos, "--out", out, tmp_path=tmp_path)
     assert_one_line_error(result, 2, "does not look like a head CT", "colour images", "20 image(s) of 320 x 240")

@@ -3,7 +3,7 @@
 The phantom is a consistency check, not a score (its soft tissue is its own, not the table's): these tests
 check what the engine promises - a closed face through the peg tips, local response to one peg, the same
 face from tips as from depths, the label and the provenance, refusal of what is not a skull. The score on
-CThead is scripts/bench_face.py's (docs/benchmarks.md).
+CThead is scripts/bench/bench_face.py's (docs/benchmarks.md).
 """
 from __future__ import annotations
 

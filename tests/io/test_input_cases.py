@@ -294,7 +294,7 @@ def test_downsample_keeps_patient_positions_and_means(ph, tmp_path):
 
 def test_shoulders_do_not_join_the_head_mask():
     """A head-and-neck scan (the phantom with a trunk painted below the neck) stops at the neck."""
-    sys_path = str(Path(__file__).resolve().parents[2] / "scripts")
+    sys_path = str(Path(__file__).resolve().parents[2] / "scripts" / "bench")
     import sys
     sys.path.insert(0, sys_path)
     import bench_large_scan as B

@@ -12,6 +12,7 @@ import pytest
 
 from datasets import shared_data
 from pdehead_addon import CTImportError, load_ct
+from made_inputs import photo
 
 
 def load_w(path, **kw):
@@ -119,26 +120,13 @@ def test_partial_scan_without_crown_is_allowed(tmp_path):
 
 
 # ------------------------------------------------------------------ 3. photographs are not a head CT
-def _photo(rng, ny=240, nx=320, block=True):
-    """A photo-like colour image: a sky-to-ground gradient, texture, and (optionally) a coloured block."""
-    yy, xx = np.mgrid[:ny, :nx] / np.array([ny, nx])[:, None, None]
-    sky = np.stack([90 + 80 * yy, 140 + 60 * yy, 230 - 120 * yy], axis=-1)
-    ground = np.stack([60 + 40 * xx, 120 + 30 * xx, 40 + 20 * xx], axis=-1)
-    img = np.where((yy > 0.55 + 0.1 * np.sin(6 * xx))[..., None], ground, sky)
-    img = img + rng.normal(0, 12, img.shape)
-    if block:
-        y0, x0 = rng.integers(20, ny // 2), rng.integers(20, nx // 2)
-        img[y0:y0 + 60, x0:x0 + 80] = (220, 40, 30)
-    return np.clip(img, 0, 255).astype(np.uint8)
-
-
 def test_folder_of_photos_is_refused_with_what_was_seen(tmp_path):
     from PIL import Image
     rng = np.random.default_rng(18)
     folder = tmp_path / "holiday"
     folder.mkdir()
     for k in range(20):
-        Image.fromarray(_photo(rng)).save(folder / f"IMG_{k + 1:04d}.png")
+        Image.fromarray(photo(rng)).save(folder / f"IMG_{k + 1:04d}.png")
     with pytest.raises(CTImportError, match="does not look like a head CT") as err:
         load_ct(folder)
     message = str(err.value)
@@ -147,7 +135,7 @@ def test_folder_of_photos_is_refused_with_what_was_seen(tmp_path):
     grey = tmp_path / "grey"
     grey.mkdir()
     for k in range(12):
-        Image.fromarray(_photo(rng, block=False)).convert("L").save(grey / f"scan{k + 1}.png")
+        Image.fromarray(photo(rng, block=False)).convert("L").save(grey / f"scan{k + 1}.png")
     with pytest.raises(CTImportError, match="does not look like a head CT.*no air/soft-tissue histogram"):
         load_ct(grey, spacing=(1, 1, 1))
 

@@ -2,7 +2,7 @@
 
 Accuracy is asserted against an independent threshold reference on the real scans
 (pdehead_addon.validation.metrics.reference_head_mask) and against the exact truth of the phantom.
-No wall-clock limits here (scripts/bench_segmentation.py measures time and memory).
+No wall-clock limits here (scripts/bench/bench_segmentation.py measures time and memory).
 """
 from __future__ import annotations
 

@@ -6,6 +6,8 @@ synthetic volumes in a fraction of a second.
 """
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 import pytest
 from scipy import ndimage as ndi
@@ -80,6 +82,38 @@ def test_envelope_on_wanted_slices_is_the_whole_envelope_there():
     assert part[k].max() > 0.99 and part[k].min() == 0.0
     others = np.setdiff1d(np.arange(len(part)), k)
     assert not part[others].any()
+
+
+@pytest.mark.parametrize("sigma", [0.4, 1.328, 2.9, 4.5])
+def test_binary_gaussian_z_is_the_float_gaussian_on_the_wanted_slices(sigma):
+    """The table lookup gives gaussian_filter1d's float32 values to the bit (the filter itself near the
+    array's ends and for kernels too long for a table: sigma 4.5 -> 37 taps)."""
+    binary_gaussian_z = sys.modules[head_envelope.__module__].binary_gaussian_z   # wherever the module sits
+    rng = np.random.default_rng(3)
+    region = ndi.binary_opening(rng.random((50, 30, 45)) < 0.55)
+    for wanted_at in ([20, 21, 24, 33], [0, 12, 49], []):
+        wanted = np.zeros(len(region), bool)
+        wanted[wanted_at] = True
+        ref = ndi.gaussian_filter1d(region.astype(np.float32), sigma, axis=0, mode="nearest")
+        ref[~wanted] = 0.0
+        out = binary_gaussian_z(region, sigma, wanted)
+        assert out.dtype == np.float32
+        assert np.array_equal(out, ref)
+        if wanted_at:
+            assert 0.0 < out[wanted].mean() < 1.0
+
+
+def test_slice_regions_on_bounding_boxes_equal_the_whole_slices():
+    envelope = sys.modules[head_envelope.__module__]                          # wherever the module sits
+    _slice_regions, outer_region = envelope._slice_regions, envelope.outer_region
+    rng = np.random.default_rng(4)
+    mask = ndi.binary_dilation(rng.random((12, 40, 50)) < 0.05)
+    mask[3] = False
+    mask[5, 0, :] = True                                     # touching the edge
+    out = _slice_regions(mask)
+    ref = np.stack([outer_region(m) if m.any() else np.zeros_like(m) for m in mask])
+    assert np.array_equal(out, ref)
+    assert np.count_nonzero(out & ~mask) > 0 and np.count_nonzero(mask & ~out) > 0   # filled and dropped
 
 
 @pytest.mark.parametrize("continuity, smoothing", [("c2", None), ("c2", 0.0), ("paper", None)])

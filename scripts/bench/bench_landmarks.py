@@ -13,8 +13,8 @@ reference point. Targets (CThead): median <= 3 mm, every ``ok`` landmark <= 6 mm
 
 Usage::
 
-    python3 scripts/bench_landmarks.py                   # prints the table, writes docs/benchmarks.md section
-    python3 scripts/bench_landmarks.py --no-write --summary-json out.json
+    python3 scripts/bench/bench_landmarks.py                   # prints the table, writes docs/benchmarks.md section
+    python3 scripts/bench/bench_landmarks.py --no-write --summary-json out.json
 """
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
@@ -95,7 +95,7 @@ def _fmt(e: float) -> str:
 
 
 def markdown(results: dict, cthead_flags: dict) -> str:
-    lines = ["## Automatic craniometric landmarks (issue 22): `python3 scripts/bench_landmarks.py`", "",
+    lines = ["## Automatic craniometric landmarks (issue 22): `python3 scripts/bench/bench_landmarks.py`", "",
              "Distance (mm) from each automatic landmark (`find_landmarks` on `segment_skull(ct).bone`) to its "
              "reference, and the landmark's flag. References: the phantom's analytic facial skeleton "
              "(`Phantom.bone_landmarks`: the written rule evaluated on the exact geometry); on CThead, positions "

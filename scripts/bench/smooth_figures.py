@@ -5,8 +5,8 @@ boundary pipeline, each of the three surfaces from the front, the patient's righ
 three-quarter, Cycles CPU at 512 px per tile, into ``docs/figures/smooth_<data>.png``
 (rows: C2 default, paper patches, marching cubes of the segmentation mask).
 
-    python3 scripts/smooth_figures.py [--size 512] [--samples 16] [--only cthead]
-    python3 scripts/smooth_figures.py --selections 4 --only cthead   # issue 14: uniform / shape-change /
+    python3 scripts/bench/smooth_figures.py [--size 512] [--samples 16] [--only cthead]
+    python3 scripts/bench/smooth_figures.py --selections 4 --only cthead   # issue 14: uniform / shape-change /
                                       # auto rows at t = 4 into docs/figures/selection_<data>_t4.png
 """
 from __future__ import annotations
@@ -18,12 +18,12 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 for p in (str(ROOT), str(ROOT / "scripts")):
     if p not in sys.path:
         sys.path.insert(0, p)
 
-import bench  # noqa: E402  (the dev-shim loader of the add-on's Blender modules)
+import _common  # noqa: E402  (the dev-shim loader of the add-on's Blender modules)
 import bench_smooth  # noqa: E402
 import pdehead_addon as E  # noqa: E402
 
@@ -36,7 +36,7 @@ def surfaces(seg, t: int) -> list[tuple[str, E.Mesh]]:
     n = 20 * t + 1
     c2 = E.solve_pde(bset).surface(n, 360, caps=True)
     paper = E.solve_pde(bset, continuity="paper").surface(n, 360, caps=True)
-    mc = bench.marching_cubes_mesh(seg.mask, seg.ct)
+    mc = _common.marching_cubes_mesh(seg.mask, seg.ct)
     return [(f"C2 default (t={t})", c2), (f"paper patches (t={t})", paper), ("marching cubes (all slices)", mc)]
 
 
@@ -51,7 +51,7 @@ def selection_surfaces(seg, t: int) -> list[tuple[str, E.Mesh]]:
 
 
 def render_case(name: str, t: int, size: int, samples: int, out: Path, selections: bool = False) -> Path:
-    bl = bench.blender()
+    bl = _common.blender()
     bpy, objects, render = bl["bpy"], bl["objects"], bl["render"]
     bpy.ops.wm.read_homefile(use_empty=True)
     seg = bench_smooth.load(name)

@@ -18,7 +18,7 @@ For the phantom, CThead and the GE tilted series, with the add-on's boundary pip
   interleaved runs of ``extract_boundaries`` with ``auto`` and with ``uniform``).
 
 Writes ``docs/benchmarks_selection.json``, the section ``selection`` of
-``docs/benchmarks.md`` (``scripts/md_sections.py``) and ``docs/figures/selection_accuracy.png``.
+``docs/benchmarks.md`` (``scripts/bench/md_sections.py``) and ``docs/figures/selection_accuracy.png``.
 ``--quick``: CThead and the phantom at t = 4 and 10 only, 2 repeats (for development).
 """
 from __future__ import annotations
@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 for _p in (str(ROOT), str(ROOT / "scripts")):
     if _p not in sys.path:
         sys.path.insert(0, _p)
@@ -217,7 +217,7 @@ def _met(ok: bool) -> str:
 
 def markdown(res: dict, figure_name: str) -> str:
     T = TARGETS
-    lines = ["## Automatic slice selection (issue 14): `python3 scripts/bench_selection.py`", "",
+    lines = ["## Automatic slice selection (issue 14): `python3 scripts/bench/bench_selection.py`", "",
              "Default C2 surface through the curves of each selection (3-D envelope, star hulls, angular samples). "
              "*to MC*: symmetric distance to marching cubes of the mask (open tube in the curves' z range); *floor*: "
              "uniform with the most curves the scan allows; *excess* = mean − floor. *outlines*: mean distance of the "
@@ -288,7 +288,7 @@ def markdown(res: dict, figure_name: str) -> str:
             lines.append(f"| {name}, t={r['t']} | {pc['correlation']:.3f} | {pc['real_over_proxy']:.3f} |")
     lines += ["", f"![selection accuracy](figures/{figure_name})", "",
               "Renders (CThead, t = 4, 13 curves each; rows uniform / shape-change / auto; "
-              "`python3 scripts/smooth_figures.py --selections 4 --only cthead`): "
+              "`python3 scripts/bench/smooth_figures.py --selections 4 --only cthead`): "
               "[figures/selection_cthead_t4.png](figures/selection_cthead_t4.png)", ""]
     return "\n".join(lines)
 

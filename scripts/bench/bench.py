@@ -3,17 +3,17 @@
 
 Regenerate the committed tables (full run, median of 5, several minutes on 2 cores)::
 
-    python3 scripts/bench.py
+    python3 scripts/bench/bench.py
 
 Other uses::
 
-    python3 scripts/bench.py --quick                 # < 1 min: phantom + CThead, fewer repeats, slow peers on a subset
-    python3 scripts/bench.py --repeats 1 --datasets cthead --stages seg,surface --out /tmp/b.json --md /tmp/b.md
-    PDEHEAD_DATA=/path/to/data python3 scripts/bench.py   # data folder (default ../shared/data beside the repo)
+    python3 scripts/bench/bench.py --quick                 # < 1 min: phantom + CThead, fewer repeats, slow peers on a subset
+    python3 scripts/bench/bench.py --repeats 1 --datasets cthead --stages seg,surface --out /tmp/b.json --md /tmp/b.md
+    PDEHEAD_DATA=/path/to/data python3 scripts/bench/bench.py   # data folder (default ../shared/data beside the repo)
 
 The measurements themselves are the other helpers' importable functions
-(``scripts/bench_segmentation.py``: ``measure_segmentation``, ``measure_peer``,
-``reference_for``; ``scripts/bench_pde.py``: ``bench_solve_vs_mc``, ``bench_surface``,
+(``scripts/bench/bench_segmentation.py``: ``measure_segmentation``, ``measure_peer``,
+``reference_for``; ``scripts/bench/bench_pde.py``: ``bench_solve_vs_mc``, ``bench_surface``,
 ``bench_w_field``, ``bench_storage``, ``bench_fidelity``, ``marching_cubes``); this script
 adds the Blender builds, the STL, the VDB, memory, the data sets and the report.
 
@@ -58,7 +58,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 for _p in (str(ROOT), str(ROOT / "scripts")):
     if _p not in sys.path:
         sys.path.insert(0, _p)
@@ -68,6 +68,7 @@ DOCS = ROOT / "docs"
 import _common  # noqa: E402  (data sets and their loader options, the paper's numbers, timing, dev shim)
 import pdehead_addon as E  # noqa: E402
 from _common import CTHEAD_RAW16_OPTIONS, CTHEAD_TIFF8_OPTIONS, PAPER, median, timed  # noqa: E402,F401
+from _common import blender, boundaries, error_text, marching_cubes_mesh, remove_object  # noqa: E402,F401
 from pdehead_addon import defaults as D  # noqa: E402
 
 DATA = _common.SHARED_DATA
@@ -143,12 +144,6 @@ def tracemalloc_peak(fn: Callable[[], Any]) -> float:
     return peak / 1024 ** 2
 
 
-def error_text(exc: BaseException) -> str:
-    if isinstance(exc, ImportError):
-        return f"not available ({exc})"
-    return f"{type(exc).__name__}: {exc}"
-
-
 def machine_info() -> dict[str, Any]:
     cpu = platform.processor() or "unknown"
     try:
@@ -183,40 +178,6 @@ def machine_info() -> dict[str, Any]:
 
 
 # ============================================================================= Blender layer (dev shim)
-_BLENDER: dict[str, Any] | None = None
-
-
-def blender() -> dict[str, Any]:
-    """bpy and the add-on's operators.objects/volume/render, loaded from this repo (``_common.load_addon``)."""
-    global _BLENDER
-    if _BLENDER is None:
-        os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="pdehead-bench-blender-"))
-        t0 = time.perf_counter()
-        import bpy
-        # one copy of the engine: the add-on's relative imports resolve to the module already loaded
-        _common.load_addon(engine=E)
-        objects = importlib.import_module("pdehead_dev.operators.objects")
-        volume = importlib.import_module("pdehead_dev.operators.volume")
-        vdb_grids = importlib.import_module("pdehead_dev.operators.vdb_grids")
-        volume_material = importlib.import_module("pdehead_dev.operators.volume_material")
-        render = importlib.import_module("pdehead_dev.operators.render")
-        _BLENDER = {"bpy": bpy, "objects": objects, "volume": volume, "vdb_grids": vdb_grids,
-                    "volume_material": volume_material, "render": render,
-                    "import_s": time.perf_counter() - t0, "version": bpy.app.version_string}
-    return _BLENDER
-
-
-def remove_object(obj) -> None:
-    bpy = blender()["bpy"]
-    data = obj.data
-    bpy.data.objects.remove(obj)
-    if data is not None and data.users == 0:
-        if isinstance(data, bpy.types.Mesh):
-            bpy.data.meshes.remove(data)
-        elif isinstance(data, bpy.types.Volume):
-            bpy.data.volumes.remove(data)
-
-
 def blender_build_time(mesh, collection, repeats: int, name: str) -> dict[str, Any]:
     """Median time of ``build_mesh_object(mesh, collection, name)`` (each built object is removed untimed)."""
     objects = blender()["objects"]
@@ -237,12 +198,6 @@ def blender_build_time(mesh, collection, repeats: int, name: str) -> dict[str, A
 
 
 # ============================================================================= peers
-def marching_cubes_mesh(mask: np.ndarray, ct) -> "E.Mesh":
-    """The peer mesh: bench_pde.marching_cubes (skimage, level 0.5, whole mask) as an engine Mesh (LPS mm)."""
-    verts, faces = _pdebench().marching_cubes(mask, ct)
-    return E.Mesh(vertices=verts, quads=np.zeros((0, 4), np.int64), triangles=np.asarray(faces, np.int64))
-
-
 FIDELITY_DEFINITION = ("open PDE tube (caps=False, nu = 8t+1, nv = 256) against the marching-cubes surface of the"
                        " same mask restricted to the triangles whose centroid lies between the lowest and the"
                        " highest boundary curve (the z range the PDE surface covers)")
@@ -252,24 +207,18 @@ FIDELITY_DEFINITION = ("open PDE tube (caps=False, nu = 8t+1, nv = 256) against 
 SELECTION = D.SELECTION.default
 
 
-def boundaries(seg, patches: int = D.PATCHES.default, samples: int = D.SAMPLES.default, selection: str = SELECTION):
-    """Boundary curves as the add-on makes them by default: its default slice selection and the
-    angular samples around a smooth spine (the "Align Curves" option, extract_boundaries' default)."""
-    return E.extract_boundaries(seg, patches=patches, samples=samples, selection=selection)
-
-
 def _stats(d: dict) -> dict:
     """The timing fields of a bench_pde result."""
     return {k: d[k] for k in ("median_s", "min_s", "runs_s") if k in d}
 
 
 def _segbench():
-    """The segmentation helper's importable measurement functions (scripts/bench_segmentation.py)."""
+    """The segmentation helper's importable measurement functions (scripts/bench/bench_segmentation.py)."""
     return importlib.import_module("bench_segmentation")
 
 
 def _pdebench():
-    """The PDE helper's importable measurement functions (scripts/bench_pde.py)."""
+    """The PDE helper's importable measurement functions (scripts/bench/bench_pde.py)."""
     return importlib.import_module("bench_pde")
 
 
@@ -315,7 +264,7 @@ class Bench:
         self.use_blender = not args.no_blender
         self.tmp = Path(tempfile.mkdtemp(prefix="pdehead-bench-"))
         self.out: dict[str, Any] = {
-            "command": "python3 scripts/bench.py" + (" " + " ".join(sys.argv[1:]) if sys.argv[1:] else ""),
+            "command": "python3 scripts/bench/bench.py" + (" " + " ".join(sys.argv[1:]) if sys.argv[1:] else ""),
             "mode": "quick" if self.quick else "full", "repeats": self.repeats, "machine": machine_info(),
             "data_folder": str(DATA), "datasets": {}, "notes": [],
         }
@@ -790,7 +739,7 @@ def _md_header(out: dict) -> list[str]:
     m = out["machine"]
     L = ["# PDE Head benchmarks", "",
          f"Generated by `{out['command']}` ({out['mode']} mode, median of {out['repeats']} runs"
-         " unless a row says otherwise). Do not edit by hand: rerun `python3 scripts/bench.py`"
+         " unless a row says otherwise). Do not edit by hand: rerun `python3 scripts/bench/bench.py`"
          " (full; `--quick` for a < 1 min check). Raw numbers: `docs/benchmarks.json`.", "",
          "## Machine", "",
          "| | |", "|---|---|",

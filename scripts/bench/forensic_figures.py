@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Renders of the forensic toolkit on CThead (Cycles CPU) into docs/figures/.
 
-    python3 scripts/forensic_figures.py            # about a minute on 2 cores
+    python3 scripts/bench/forensic_figures.py            # about a minute on 2 cores
 
 * ``forensic_depth_map.png``: the PDE skin (t = 10, 120 x 240) coloured by the soft-tissue depth to
   the marching-cubes bone (0 mm blue .. 25 mm red, grey = no value), front and right views, with a
@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "scripts"))
 OUT = ROOT / "docs" / "figures"
 
@@ -142,4 +142,6 @@ def main() -> int:
 
 
 if __name__ == "__main__":
+    import argparse  # no options: --help prints what the script renders, and renders nothing
+    argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter).parse_args()
     sys.exit(main())

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Renders of the bone skull (issue 22) on CThead and GE (Cycles CPU) into docs/figures/forensic_bone_skull.png.
 
-    python3 scripts/skull_figures.py            # a few minutes on 2 shared cores
+    python3 scripts/bench/skull_figures.py            # a few minutes on 2 shared cores
 
 Top row CThead, bottom row GE: the bone skull (``skull.stl``: smoothed marching cubes of the bone mask)
 from the front and three-quarter, and the PDE skull envelope (``skull_envelope.stl``) from the front:
@@ -16,7 +16,7 @@ from pathlib import Path
 
 from PIL import Image, ImageDraw
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "scripts"))
 OUT = ROOT / "docs" / "figures"
 SIZE = 260
@@ -67,4 +67,6 @@ def main() -> int:
 
 
 if __name__ == "__main__":
+    import argparse  # no options: --help prints what the script renders, and renders nothing
+    argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter).parse_args()
     sys.exit(main())

@@ -21,7 +21,7 @@ and the ``up-close`` section of ``docs/benchmarks.md``).
 
 The result goes to ``docs/benchmarks_smooth.json`` and to its own section of
 ``docs/benchmarks.md`` (between ``<!-- section:smooth -->`` markers, which
-``scripts/bench.py`` keeps when it rewrites the file). ``--quick`` runs CThead
+``scripts/bench/bench.py`` keeps when it rewrites the file). ``--quick`` runs CThead
 t = 10 only with few repeats (the CI smoke test).
 """
 from __future__ import annotations
@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 for _p in (str(ROOT), str(ROOT / "scripts")):
     if _p not in sys.path:
         sys.path.insert(0, _p)
@@ -231,7 +231,7 @@ def up_close(repeats: int = 5) -> dict:
 
 def up_close_markdown(res: dict) -> str:
     T = UP_CLOSE_TARGETS
-    lines = ["## Up close (issue 21): `python3 scripts/bench_smooth.py --up-close`", "",
+    lines = ["## Up close (issue 21): `python3 scripts/bench/bench_smooth.py --up-close`", "",
              f"Add-on defaults ({res['selection']} slices, C2 surface, nu x nv = {res['nu']} x {res['nv']}, caps). "
              "*Before*: the same head meshed as before issue 21 (no fade in the dome, a fan at the neck, UVs "
              "(u, v / 2 pi)); *after*: the current `head.surface`. Machine load average (2 cores, shared): "
@@ -346,7 +346,7 @@ def run(quick: bool, repeats: int) -> dict:
 
 def markdown(res: dict) -> str:
     T = TARGETS
-    lines = ["## Smooth surface (issue 8): `python3 scripts/bench_smooth.py`", "",
+    lines = ["## Smooth surface (issue 8): `python3 scripts/bench/bench_smooth.py`", "",
              f"Boundaries as the add-on makes them ({res['selection']} slices, 3-D envelope, star hulls, angular "
              "samples); the same curves solved as the default C2 surface and as the paper's four-curve patches. "
              "Measures on a (20t+1) x 360 grid; distance to marching cubes of the segmentation mask (open tube in the "

@@ -1,13 +1,13 @@
 #!/usr/bin/env python3
 """Renders of the face from the skull (issue 23) into docs/figures/face_from_skull_<head>.png (Cycles CPU).
 
-Called by ``scripts/bench_face.py --figures`` with what it measured (one head per figure): the real skin
+Called by ``scripts/bench/bench_face.py --figures`` with what it measured (one head per figure): the real skin
 (marching cubes of the full CT's head mask), the approximation made from the skull alone, and the real
 skin coloured by its signed distance to the approximation (blue: the approximation lies outside the real
 skin, red: inside; white within +-2.5 mm; grey: outside the scored face region, which leaves out the
 scan's cut), each from the front and in profile (the patient's right side), same framing in every picture.
 
-    python3 scripts/bench_face.py --only cthead --figures --no-write
+    python3 scripts/bench/bench_face.py --only cthead --figures --no-write
 """
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "scripts"))
 OUT = ROOT / "docs" / "figures"
 SIZE = 300

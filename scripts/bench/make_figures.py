@@ -3,9 +3,9 @@
 
 Regenerate all (a few minutes on 2 cores)::
 
-    python3 scripts/make_figures.py
-    python3 scripts/make_figures.py --only fig12,fig14     # some of them
-    python3 scripts/make_figures.py --list                 # what there is
+    python3 scripts/bench/make_figures.py
+    python3 scripts/bench/make_figures.py --only fig12,fig14     # some of them
+    python3 scripts/bench/make_figures.py --list                 # what there is
 
 3-D figures go through the add-on's own Blender layer, loaded from this repository by
 the dev shim (``scripts/_common.py``, ``load_addon``): ``operators/objects.py`` (boundary curves, surface
@@ -38,11 +38,12 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "scripts"))
 sys.path.insert(0, str(ROOT))
 
-import bench  # noqa: E402  (data paths, the dev-shim Blender loader, marching cubes)
+import _common  # noqa: E402  (data paths, the dev-shim Blender loader, marching cubes)
+import bench_segmentation  # noqa: E402  (the reference mask)
 import pdehead_addon as E  # noqa: E402
 
 OUT = ROOT / "docs" / "figures"
@@ -147,31 +148,31 @@ class Data:
 
     @property
     def ct(self):
-        return self._get("ct", lambda: E.load_ct(bench.DATA / "cthead_stanford" / "raw16", **bench.CTHEAD_RAW16_OPTIONS))
+        return self._get("ct", lambda: E.load_ct(_common.SHARED_DATA / "cthead_stanford" / "raw16", **_common.CTHEAD_RAW16_OPTIONS))
 
     @property
     def seg(self):
         return self._get("seg", lambda: E.segment_head(self.ct))
 
     def bset(self, t: int = 10):
-        return self._get(f"bset{t}", lambda: bench.boundaries(self.seg, t, 256))
+        return self._get(f"bset{t}", lambda: _common.boundaries(self.seg, t, 256))
 
     def head(self, t: int = 10):
         return self._get(f"head{t}", lambda: E.solve_pde(self.bset(t)))
 
     @property
     def reference(self):
-        return self._get("reference", lambda: bench.reference_mask("cthead", self.ct)[0])
+        return self._get("reference", lambda: bench_segmentation.reference_for("cthead", self.ct)[0])
 
     @property
     def mc(self):
-        return self._get("mc", lambda: bench.marching_cubes_mesh(self.seg.mask, self.ct))
+        return self._get("mc", lambda: _common.marching_cubes_mesh(self.seg.mask, self.ct))
 
 
 # ============================================================================= Blender helpers
 class Blender:
     def __init__(self, samples: int):
-        self.bl = bench.blender()
+        self.bl = _common.blender()
         self.bpy = self.bl["bpy"]
         self.objects, self.volume, self.render = self.bl["objects"], self.bl["volume"], self.bl["render"]
         self.volume_material = self.bl["volume_material"]
@@ -299,7 +300,7 @@ def fig10(data: Data, bl, args) -> list[Path]:
         d.text((X(f) - 7, H - mb + 5), str(f), fill=(0, 0, 0), font=f9)
     d.rectangle((ml, mt, W - mr, H - mb), outline=(0, 0, 0))
     mean = float(j.mean())
-    paper = bench.PAPER["jaccard_mean"]
+    paper = _common.PAPER["jaccard_mean"]
     if paper >= ylo:
         d.line((ml, Y(paper), W - mr, Y(paper)), fill=(150, 150, 150), width=1)
     d.line((ml, Y(mean), W - mr, Y(mean)), fill=(40, 110, 220), width=1)
@@ -467,7 +468,7 @@ def deviation(data: Data, bl: Blender, args) -> list[Path]:
     from pdehead_addon.validation.surface_metrics import point_surface_distance
     bl.reset()
     head, mc = data.head(10), data.mc
-    # as in the fidelity numbers (bench.FIDELITY_DEFINITION): the open tube against the MC triangles
+    # as in the fidelity numbers (bench.py's FIDELITY_DEFINITION): the open tube against the MC triangles
     # within the z range of the boundary curves
     z = head.bset.curves[..., 2]
     cz = mc.vertices[mc.triangles][:, :, 2].mean(axis=1)
@@ -573,7 +574,7 @@ def main(argv=None) -> int:
         except Exception as exc:  # keep going: report every failing figure at the end
             import traceback
             traceback.print_exc()
-            failed.append(f"{name}: {bench.error_text(exc)}")
+            failed.append(f"{name}: {_common.error_text(exc)}")
         print(f"   {time.perf_counter() - t1:.1f} s", flush=True)
     print(f"done in {time.perf_counter() - t0:.0f} s")
     if failed:

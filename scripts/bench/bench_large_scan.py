@@ -8,9 +8,9 @@ neck to the shoulder line), as in a head-and-neck scan. It measures, per step, t
 mask stops at the neck (the shoulders do not join it) and prints a Markdown section for
 docs/benchmarks.md (its own section ``large-scan``, kept by bench.py when it rewrites the file; pasted by hand).
 
-    python3 scripts/bench_large_scan.py                       # 800 x 512 x 512 (about 5 GB, minutes)
-    python3 scripts/bench_large_scan.py --shape 200 256 256   # a quick look
-    python3 scripts/bench_large_scan.py --downsample 2        # the volume block-averaged 2x per axis first
+    python3 scripts/bench/bench_large_scan.py                       # 800 x 512 x 512 (about 5 GB, minutes)
+    python3 scripts/bench/bench_large_scan.py --shape 200 256 256   # a quick look
+    python3 scripts/bench/bench_large_scan.py --downsample 2        # the volume block-averaged 2x per axis first
 """
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from pdehead_addon import CTVolume, make_phantom, segment_head  # noqa: E402

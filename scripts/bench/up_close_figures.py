@@ -21,7 +21,7 @@ surface, nu x nv = 120 x 240, caps), Cycles CPU, into ``docs/figures/up_close_*.
   outside, the cut faces from the CT at <= 1 voxel a texel), beside the CT resampled on the plane
   x = the spine's mean x, same window, and the solid as before issue 21 (one 128-pixel tile a face).
 
-    python3 scripts/up_close_figures.py [--size 384] [--samples 16] [--face | --cut | --uv]
+    python3 scripts/bench/up_close_figures.py [--size 384] [--samples 16] [--face | --cut | --uv]
 """
 from __future__ import annotations
 
@@ -32,12 +32,12 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 for p in (str(ROOT), str(ROOT / "scripts")):
     if p not in sys.path:
         sys.path.insert(0, p)
 
-import bench  # noqa: E402
+import _common  # noqa: E402
 import bench_smooth  # noqa: E402
 import pdehead_addon as E  # noqa: E402
 
@@ -77,7 +77,7 @@ def face_figure(bl, args) -> int:
     nu, nv = D.NU.default, D.NV.default
     seg = bench_smooth.load("cthead")
     mc = marching_cubes(seg)
-    meshes = [("marching cubes", bench.marching_cubes_mesh(seg.mask, seg.ct))]
+    meshes = [("marching cubes", _common.marching_cubes_mesh(seg.mask, seg.ct))]
     from pdehead_addon.pde import pde_surface as PS
     per_slice = PS.APPROXIMATION_PER_SLICE
     # before: t = 10 and the u smoothing of one slice step (the defaults before issue 21's last stop); after:
@@ -175,7 +175,7 @@ def main(argv=None) -> int:
     ap.add_argument("--cut", action="store_true", help="only up_close_cut.png (issue 21 item 3)")
     ap.add_argument("--uv", action="store_true", help="only up_close_uv.png (issue 21 item 4)")
     args = ap.parse_args(argv)
-    bl = bench.blender()
+    bl = _common.blender()
     if args.face:
         return face_figure(bl, args)
     if args.cut:
@@ -218,7 +218,7 @@ def main(argv=None) -> int:
             uv.append([tile(obj, view, f"{name} {label}: UV grid, {view.lower().replace('_', '-')}")
                        for label, obj in built for view in ("FRONT", "THREE_QUARTER")])
         for _, obj in built:
-            bench.remove_object(obj)
+            _common.remove_object(obj)
     tmp.unlink(missing_ok=True)
     if not args.uv:
         sheet(crown, args.out / "up_close_crown.png")

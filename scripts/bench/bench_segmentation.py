@@ -18,10 +18,10 @@ What it measures, in one run on this machine:
 
 Usage::
 
-    python3 scripts/bench_segmentation.py [--repeats 5] [--json out.json] [--skip-peer] [--skip-memory]
+    python3 scripts/bench/bench_segmentation.py [--repeats 5] [--json out.json] [--skip-peer] [--skip-memory]
 
 The measurements are importable (``measure_segmentation``, ``measure_peer``,
-``measure_memory``, ``reference_for``) for scripts/bench.py.
+``measure_memory``, ``reference_for``) for scripts/bench/bench.py.
 """
 from __future__ import annotations
 
@@ -40,7 +40,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 

@@ -5,13 +5,13 @@ Every time is the MEDIAN of ``--repeats`` runs (min and all runs are kept in the
 the peer (``skimage.measure.marching_cubes`` on the same mask) runs in the same process
 and run. The measurements are importable functions (``bench_solve_vs_mc``,
 ``bench_surface``, ``bench_w_field``, ``bench_storage``, ``bench_fidelity``) so that
-``scripts/bench.py`` can fold them in.
+``scripts/bench/bench.py`` can fold them in.
 
 Usage::
 
-    python3 scripts/bench_pde.py                       # CThead raw16, t = 10, 7 repeats
-    python3 scripts/bench_pde.py --repeats 3 --json /tmp/pde.json
-    PDEHEAD_DATA=/path/to/data python3 scripts/bench_pde.py
+    python3 scripts/bench/bench_pde.py                       # CThead raw16, t = 10, 7 repeats
+    python3 scripts/bench/bench_pde.py --repeats 3 --json /tmp/pde.json
+    PDEHEAD_DATA=/path/to/data python3 scripts/bench/bench_pde.py
 """
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 

@@ -26,8 +26,8 @@ phantom's own, not tuned to the table).
 
 Usage::
 
-    python3 scripts/bench_face.py                       # CThead, GE, phantom; writes the docs section
-    python3 scripts/bench_face.py --only cthead --no-write --summary-json out.json
+    python3 scripts/bench/bench_face.py                       # CThead, GE, phantom; writes the docs section
+    python3 scripts/bench/bench_face.py --only cthead --no-write --summary-json out.json
 """
 from __future__ import annotations
 
@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
@@ -298,7 +298,7 @@ def score(name: str, **options) -> dict:
 
 
 def markdown(results: dict) -> str:
-    lines = ["## Face from the skull (issue 23): `python3 scripts/bench_face.py`", "",
+    lines = ["## Face from the skull (issue 23): `python3 scripts/bench/bench_face.py`", "",
              "The approximation made from the skull alone (soft tissue removed: every voxel below the bone level "
              "set to air; automatic landmarks; the T-Table 2023 means; `pdehead_addon.forensic.face_from_skull`) against "
              "the full CT's real skin (marching cubes of `segment_head`). Face region: the visible outer skin "
@@ -434,13 +434,13 @@ def markdown(results: dict) -> str:
               "", "Timings: one run on the shared 2-core machine with other jobs running (load average 7–11). "
               "Solve is the median of 9 solves at the defaults (field, PDE and a 160 × 240 mesh), wall-clock and CPU "
               "time of the process; on this loaded machine the CPU time is the better guide to the ≤ 100 ms target "
-              "(the UI's own measure is scripts/bench_live.py's). Issue 23's fourth session ran three jobs at once; "
+              "(the UI's own measure is scripts/bench/bench_live.py's). Issue 23's fourth session ran three jobs at once; "
               "the lips and ears cost nothing measurable (CThead, same process: solve 91 ms CPU with them, 94 ms "
               "without). Issue 23's fifth session ran at load average 5-6 (the solve times above, with BLAS free to "
               "start threads, are inflated by it); one thread each, one after the other, CThead solve CPU 67 / 81 ms "
               "before the nose and damping changes and 76 / 88 ms after (field 35-38 -> 45-50 ms). Issue 23's sixth "
               "session ran at load average 9-14 (four other helpers' jobs): the 360-column grid costs about 3 x the "
-              "180-column one's field and mesh (scripts/bench_live.py --face has the live figures)."]
+              "180-column one's field and mesh (scripts/bench/bench_live.py --face has the live figures)."]
     lines.append("")
     return "\n".join(lines)
 

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Renders of the automatic craniometric landmarks (issue 22) on the bone (Cycles CPU) into docs/figures/.
 
-    python3 scripts/landmark_figures.py            # a few minutes on 2 cores
+    python3 scripts/bench/landmark_figures.py            # a few minutes on 2 cores
 
 * ``landmarks_cthead.png``: CThead's marching-cubes bone with every landmark Find Landmarks placed, front and
   right views: green = ``ok``, yellow = ``uncertain`` (``not_found`` ones have no marker); the hand-placed
@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "scripts"))
 sys.path.insert(0, str(ROOT))
 OUT = ROOT / "docs" / "figures"

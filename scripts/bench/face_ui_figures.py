@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
 """Renders of Face from Skull in Blender (Cycles CPU) into docs/figures/face_ui_<dataset>.png.
 
-    python3 scripts/face_ui_figures.py                   # CThead, a few minutes on 2 cores
-    python3 scripts/face_ui_figures.py --dataset phantom
+    python3 scripts/bench/face_ui_figures.py                   # CThead, a few minutes on 2 cores
+    python3 scripts/bench/face_ui_figures.py --dataset phantom
 
 Runs the add-on's operators as a user clicks them (registered from this repository, like
 scripts/pdehead.py): the CT imported, Build Skull, Find Landmarks, Build Face. Four pictures:
@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "scripts"))
 OUT = ROOT / "docs" / "figures"
 

@@ -24,8 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
-import _common
-from md_sections import write_section
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # scripts/: _common
+import _common  # noqa: E402
+from md_sections import write_section  # noqa: E402
 
 ROOT = _common.ROOT
 SCRIPT = ROOT / "scripts" / "pdehead_batch.py"
@@ -137,7 +138,7 @@ def markdown(s: dict) -> str:
     over = max(s["scheduler_overhead_s_per_study"], 0.0)
     mb = s["input_mb"] / n
     lines = [
-        "## Batch runs on Dask (issue 24): `python3 scripts/bench_batch.py`",
+        "## Batch runs on Dask (issue 24): `python3 scripts/bench/bench_batch.py`",
         "",
         f"{n} generated phantom studies ({' x '.join(map(str, s['shape']))} voxels, DICOM, {mb:.1f} MB each"
         f"{', with --skull' if s['skull'] else ''}), `scripts/pdehead_batch.py run`, median of {s['repeats']} runs "

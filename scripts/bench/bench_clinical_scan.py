@@ -18,8 +18,8 @@ Targets (issue 20): sum of the step times <= 15 s on a 2-core machine and <= 25 
 <= 6 s; boundaries <= 3 s; CLI peak RSS <= 2.5 GB; Jaccard mean >= 0.99 and min >= 0.98 over the usable
 slices (slices whose reference mask covers at least 1 % of the slice).
 
-    python3 scripts/bench_clinical_scan.py --repeats 3          # medians of 3 runs
-    python3 scripts/bench_clinical_scan.py --repeats 1 --json /tmp/clinical.json
+    python3 scripts/bench/bench_clinical_scan.py --repeats 3          # medians of 3 runs
+    python3 scripts/bench/bench_clinical_scan.py --repeats 1 --json /tmp/clinical.json
 """
 from __future__ import annotations
 
@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
@@ -205,7 +205,7 @@ def markdown(r: dict) -> str:
     m, t = r["machine"], TARGETS
     med = r["median"]
     ok = lambda good: "**met**" if good else "**NOT met**"  # noqa: E731
-    lines = ["## A clinical-size scan end to end (`scripts/bench_clinical_scan.py`)", "",
+    lines = ["## A clinical-size scan end to end (`scripts/bench/bench_clinical_scan.py`)", "",
              f"CThead resampled (order 1) to {SHAPE[2]} x {SHAPE[1]} x {SHAPE[0]} voxels (x, y, z) at "
              f"{SPACING[2]} x {SPACING[1]} x {SPACING[0]} mm, through `scripts/pdehead.py` (automatic selection, "
              f"t = 10, volume included); medians of {r['repeats']} run(s) on {m['date']} ({m['cores']} cores, load "
