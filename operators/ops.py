@@ -16,7 +16,6 @@ from ..pdehead_addon import defaults as D
 from . import pipeline_run, progress, props, scene, state, study
 from .base import GuardedOperator, StudyOperator, report_exception, set_status
 from .import_options import PDEHEAD_FH_import_ct, LoaderOptions, dropped_file_options
-from .study import STEP_FUNCTIONS
 from .study_entity import Study
 
 
@@ -53,7 +52,7 @@ class PDEHEAD_OT_import_ct(Operator, GuardedOperator, LoaderOptions):
         s = state.settings(coll)
         if self.run_pipeline:
             for step in ("segment", "boundaries", "surface", "solid"):
-                STEP_FUNCTIONS[step](coll)
+                Study.of(coll).run_step(step)
             scene.frame_study(context, coll)  # ends as Run Pipeline does: camera, light, cube hidden
         nx, ny, nz = s.dimensions
         self.report({'INFO'}, f"Imported '{coll.name}': {nx}x{ny}x{nz} voxels, spacing "

@@ -16,7 +16,7 @@ from ..pdehead_addon import PDEHeadError
 from . import objects, scene, state
 from .state import suspended_updates
 from .study_entity import Study
-from .study import STEP_FUNCTIONS, STEP_LABELS, import_study, phantom_study, step_solid, step_surface, step_volume
+from .study import STEP_LABELS, import_study, phantom_study, step_solid, step_surface, step_volume
 
 
 # Undo of a failed/cancelled step: remove every datablock created since the snapshot
@@ -173,7 +173,7 @@ class PipelineRun:
             if self.source != "ACTIVE" or scene.study_object(coll, scene.CAMERA_KIND) is None:
                 scene.frame_study(self.context, coll)
         else:
-            STEP_FUNCTIONS[name](self.collection)
+            Study.of(self.collection).run_step(name)
         self.index += 1
         return self.done
 

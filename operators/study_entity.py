@@ -373,6 +373,13 @@ class Study:
             cache.window = intensity_window(ct if ct is not None else self.ct)
         return cache.window
 
+    # --- the steps (operators/study.py) ------------------------------------------------------------
+
+    def run_step(self, name: str) -> None:
+        """Run one pipeline step on this study: "segment", "boundaries", "surface", "solid" or "volume"."""
+        from .study import STEP_FUNCTIONS
+        STEP_FUNCTIONS[name](self.collection)
+
     # --- controls and removal ---------------------------------------------------------------------
 
     def default_controls(self) -> tuple[float, float]:
