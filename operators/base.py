@@ -16,6 +16,7 @@ from bpy.props import StringProperty
 from ..pdehead_addon import PDEHeadError
 from . import state
 from .state import NO_STUDY_MESSAGE, suspended_updates
+from .study_entity import Study
 from .pipeline_run import Rollback
 
 
@@ -79,7 +80,7 @@ class GuardedOperator:
 class StudyOperator(GuardedOperator):
     """Mixin: operators that work on the active study (or the one named by ``study``).
 
-    ``execute`` fetches the study (no study: an ERROR report and ``{'CANCELLED'}``), then runs
+    ``execute`` fetches the :class:`~.study_entity.Study` (no study: an ERROR report and ``{'CANCELLED'}``), then runs
     ``run(context, coll)`` under :func:`guarded`.
     """
 
@@ -105,11 +106,11 @@ class StudyOperator(GuardedOperator):
         return self.execute(context)
 
     def execute(self, context):
-        coll = state.active_study(context, self.study)
-        if coll is None:
+        study = Study.active(context, self.study)
+        if study is None:
             self.report({'ERROR'}, NO_STUDY_MESSAGE)
             return {'CANCELLED'}
-        return guarded(self, context, lambda: self.run(context, coll))
+        return guarded(self, context, lambda: self.run(context, study.collection))
 
     def run(self, context, coll):
         raise NotImplementedError(type(self).__name__)

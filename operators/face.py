@@ -38,6 +38,7 @@ import bpy
 from ..pdehead_addon import PDEHeadError
 from . import state
 from .coords import MM_TO_M
+from .study_entity import Study
 
 FACE_KEY = "pdehead_face_object"            # collection -> the face object
 FACE_OPTIONS_KEY = "pdehead_face_options"   # collection: JSON of what the face was built from
@@ -458,7 +459,7 @@ def build_face(coll) -> tuple:
     _keep_model(coll, model, build)
     from ..pdehead_addon import LiveFace
     _cache(coll)["face_live"] = LiveFace(model)
-    state.record_timing(coll, "face_prepare", t.seconds)
+    Study.of(coll).record_timing("face_prepare", t.seconds)
     return obj, pegs
 
 

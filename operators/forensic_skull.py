@@ -17,8 +17,9 @@ import numpy as np
 import bpy
 
 from ..pdehead_addon import PDEHeadError
-from . import compat, state, study, study_ct
+from . import compat, state, study
 from .forensic_objects import forensic_cache, linked_object, plain_material, set_material
+from .study_entity import Study
 
 SKULL_BOUNDARY_KEY = "pdehead_skull_boundaries"
 DEPTH_STATS_KEY = "pdehead_depth_stats"
@@ -49,7 +50,7 @@ def skull_segmentation(coll):
         # a new head segmentation (or CT, or bone level) makes the skull and everything measured on it stale
         if extra.get("skull_seg") is not None and extra.get("skull_seg_level") != level:
             coll.pop(SKULL_BOUNDARY_KEY, None)          # the stored envelope was of the old level
-        extra.update(skull_seg=segment_skull(study_ct.require_ct(coll), cache.seg, bone_level=level),
+        extra.update(skull_seg=segment_skull(Study.of(coll).ct, cache.seg, bone_level=level),
                      skull_seg_of=cache.seg, skull_seg_level=level, bone_mesh=None, skull_mesh=None, depth=None)
         for w in extra["skull_seg"].meta.get("warnings", []):
             if w not in s.warnings:
@@ -104,7 +105,7 @@ def step_skull(coll, nu: int, nv: int, bone: bool = True, bone_step: int = 1) ->
         coll["pdehead_bone_object"] = bobj
         info["bone_triangles"] = len(bmesh.triangles)
     coll[SKULL_INFO_KEY] = json.dumps(info)
-    state.record_timing(coll, "skull", t.seconds)
+    Study.of(coll).record_timing("skull", t.seconds)
 
 
 def skull_engine_mesh(coll, target: str = "BONE"):
@@ -133,7 +134,7 @@ def skull_engine_mesh(coll, target: str = "BONE"):
 def skin_engine_mesh(coll):
     """The PDE skin as an engine Mesh with the surface object's vertex order (same nu, nv, caps)."""
     s = state.settings(coll)
-    return study.pde_head(coll).surface(int(s.nu), int(s.nv), caps=bool(s.caps))
+    return Study.of(coll).head.surface(int(s.nu), int(s.nv), caps=bool(s.caps))
 
 
 # ------------------------------------------------------------------------------------------ depth
@@ -167,7 +168,7 @@ def step_depth(coll, target: str = "BONE", max_depth_mm: float = 40.0) -> dict:
     stats.update(target=target, max_depth_mm=float(max_depth_mm), seconds=round(t.seconds, 2))
     coll[DEPTH_STATS_KEY] = json.dumps(stats)
     forensic_cache(coll)["depth"] = res
-    state.record_timing(coll, "depth", t.seconds)
+    Study.of(coll).record_timing("depth", t.seconds)
     return stats
 
 

@@ -26,10 +26,11 @@ import numpy as np
 import bpy
 
 from ..pdehead_addon import PDEHeadError
-from . import state, study, study_ct
+from . import state
 from .coords import MM_TO_M
 from .forensic_objects import forensic_cache, plain_material, set_material, sub_collection
 from .forensic_skull import SKULL_BOUNDARY_KEY, skull_engine_mesh, skull_segmentation
+from .study_entity import Study
 
 FRANKFURT_KEY = "pdehead_frankfurt"         # 16 floats: the Blender-space transform applied
 BASE_MATRIX_KEY = "pdehead_base_matrix"     # per object: its matrix before the Frankfurt transform
@@ -120,7 +121,7 @@ def find_landmarks(coll, target: str = "BONE", keep_edited: bool = True):
     from ..pdehead_addon import snap_to_surface
 
     sk = skull_segmentation(coll)
-    search = engine_find(study_ct.require_ct(coll), sk.bone)
+    search = engine_find(Study.of(coll).ct, sk.bone)
     edited = {str(o.get(LANDMARK_KEY)) for o in coll.all_objects
               if o.get(LANDMARK_KEY) and o.get(LANDMARK_EVIDENCE) in _BY_HAND} if keep_edited else set()
     found = {n: lm for n, lm in search.landmarks.items() if lm.point is not None and n not in edited}
@@ -438,7 +439,7 @@ def export_study(coll, directory: str, fmt: str = "stl", depth_target: str = "BO
     meshes = [("skull", skull), ("skull_envelope", envelope)]
     skin = None
     if _has_skin(coll):
-        skin = study.pde_head(coll).surface(int(s.nu), int(s.nv), caps=True)
+        skin = Study.of(coll).head.surface(int(s.nu), int(s.nv), caps=True)
         meshes.insert(0, ("skin", skin))
     for name, mesh in meshes:
         if mesh.face_count == 0 or not mesh.is_watertight():

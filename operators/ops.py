@@ -16,7 +16,7 @@ from ..pdehead_addon import defaults as D
 from . import pipeline_run, progress, props, scene, state, study
 from .base import GuardedOperator, StudyOperator, report_exception, set_status
 from .import_options import PDEHEAD_FH_import_ct, LoaderOptions, dropped_file_options
-from .study import STEP_FUNCTIONS
+from .study_entity import Study
 
 
 class PDEHEAD_OT_import_ct(Operator, GuardedOperator, LoaderOptions):
@@ -52,7 +52,7 @@ class PDEHEAD_OT_import_ct(Operator, GuardedOperator, LoaderOptions):
         s = state.settings(coll)
         if self.run_pipeline:
             for step in ("segment", "boundaries", "surface", "solid"):
-                STEP_FUNCTIONS[step](coll)
+                Study.of(coll).run_step(step)
             scene.frame_study(context, coll)  # ends as Run Pipeline does: camera, light, cube hidden
         nx, ny, nz = s.dimensions
         self.report({'INFO'}, f"Imported '{coll.name}': {nx}x{ny}x{nz} voxels, spacing "
@@ -83,7 +83,7 @@ class PDEHEAD_OT_segment(Operator, StudyOperator):
         study.step_segment(coll)
         s = state.settings(coll)
         self.report({'INFO'}, f"Segmented '{coll.name}': head = {100 * s.seg_fraction:.1f} % of the "
-                    f"voxels ({s.seg_iterations} iterations, {state.timings(coll)['segment']:.2f} s)")
+                    f"voxels ({s.seg_iterations} iterations, {Study.of(coll).timings['segment']:.2f} s)")
 
 
 class PDEHEAD_OT_extract_boundaries(Operator, StudyOperator):
@@ -119,7 +119,7 @@ class PDEHEAD_OT_extract_boundaries(Operator, StudyOperator):
         achieved = (f"; surface from all {abs(s.outline_candidates)} usable outlines: mean "
                     f"{s.outline_mean_mm:.2f} mm, max {s.outline_max_mm:.2f} mm" if s.outline_candidates else "")
         self.report({'INFO'}, f"{s.curve_count} boundary curves of {self.samples} points extracted "
-                    f"from '{coll.name}' ({state.timings(coll)['boundaries']:.2f} s){achieved}")
+                    f"from '{coll.name}' ({Study.of(coll).timings['boundaries']:.2f} s){achieved}")
         for warning in state.warning_list(s)[len(warnings_before):]:
             self.report({'WARNING'}, state.user_text(warning))
 
@@ -147,12 +147,12 @@ class PDEHEAD_OT_reconstruct_surface(Operator, StudyOperator):
     def run(self, context, coll):
         s = state.settings(coll)
         self.store_settings(s)
-        if state.boundary_set(coll) is None:
+        if Study.of(coll).boundary_set() is None:
             study.step_boundaries(coll)
         study.step_surface(coll)
         n = len(s.surface_object.data.vertices)
         self.report({'INFO'}, f"PDE surface of '{coll.name}': {n} vertices "
-                    f"({state.timings(coll)['surface']:.2f} s)")
+                    f"({Study.of(coll).timings['surface']:.2f} s)")
 
 
 class PDEHEAD_OT_build_solid(Operator, StudyOperator):
@@ -184,11 +184,11 @@ class PDEHEAD_OT_build_solid(Operator, StudyOperator):
                 raise PDEHeadError(f"{name} range must have its start below its end, got "
                                    f"{lo_hi[0]:g}..{lo_hi[1]:g}")
         self.store_settings(s)
-        if state.boundary_set(coll) is None:
+        if Study.of(coll).boundary_set() is None:
             study.step_boundaries(coll)
         notice = study.step_solid(coll)
         n = len(s.solid_object.data.vertices)
-        self.report({'INFO'}, f"PDE solid of '{coll.name}': {n} vertices ({state.timings(coll)['solid']:.2f} s)")
+        self.report({'INFO'}, f"PDE solid of '{coll.name}': {n} vertices ({Study.of(coll).timings['solid']:.2f} s)")
         if notice:
             self.report({'WARNING'}, notice[:300])
 
@@ -217,10 +217,10 @@ class PDEHEAD_OT_build_volume(Operator, StudyOperator):
         if self.properties.is_property_set("voxel_size") and not self.properties.is_property_set("voxel_auto"):
             self.voxel_auto = False  # a size given by the caller is meant
         self.store_settings(s)
-        if state.boundary_set(coll) is None:
+        if Study.of(coll).boundary_set() is None:
             study.step_boundaries(coll)
         study.step_volume(coll, context)
-        t = state.timings(coll)
+        t = Study.of(coll).timings
         self.report({'INFO'}, f"Volume of '{coll.name}' built (w-field {t['w_field']:.2f} s, "
                     f"VDB + material {t['volume']:.2f} s)")
 
@@ -289,7 +289,7 @@ class PDEHEAD_OT_run_pipeline(Operator, GuardedOperator, LoaderOptions):
 
     def _report_done(self, run) -> None:
         coll = run.collection
-        t = state.timings(coll)
+        t = Study.of(coll).timings
         total = sum(t.values())
         self.report({'INFO'}, f"PDE Head '{coll.name}' built in {total:.1f} s (" +
                     ", ".join(f"{k} {v:.2f} s" for k, v in t.items()) + ")")
@@ -413,7 +413,7 @@ class PDEHEAD_OT_remove_study(Operator, StudyOperator):
 
     def run(self, context, coll):
         name = coll.name
-        study.remove_study(coll)
+        Study.of(coll).remove()
         self.report({'INFO'}, f"Removed study '{name}'")
 
 

@@ -6,6 +6,7 @@ import os
 import bpy
 
 from . import state
+from .study_entity import Study
 
 
 class _PDEHeadPanel:
@@ -54,7 +55,7 @@ class PDEHEAD_PT_study(_PDEHeadPanel, bpy.types.Panel):
         col.label(text=f"Source: {source}")
         for warning in state.warning_list(s)[:4]:  # one line each, in the dialog's words
             col.label(text=state.user_text(warning)[:160], icon='ERROR')
-        text, icon = state.ct_status(coll)
+        text, icon = Study.of(coll).ct_status()
         col.label(text=text[:160], icon=icon)
         if icon == 'ERROR':  # the CT moved: let the user point the study at it again
             layout.prop(s, "source", text="CT Source")
@@ -111,7 +112,7 @@ class PDEHEAD_PT_boundaries(_StudyPanel, bpy.types.Panel):
             box.label(text=f"mean {s.outline_mean_mm:.2f} mm, max {s.outline_max_mm:.2f} mm")
             if s.outline_candidates < 0:
                 box.label(text="Tolerance not met with every slice")
-        if state.has_stored_boundaries(coll):
+        if Study.of(coll).has_stored_boundaries():
             kb = len(coll[state.BOUNDARY_KEY]) * 3 / 4 / 1024
             layout.label(text=f"{s.curve_count} curves stored in the .blend ({kb:.0f} kB)", icon='FILE_BLEND')
 
@@ -205,7 +206,7 @@ class PDEHEAD_PT_timings(_StudyPanel, bpy.types.Panel):
 
     def draw(self, context):
         layout = self.layout
-        t = state.timings(self.study(context))
+        t = Study.of(self.study(context)).timings
         if not t:
             layout.label(text="No step run yet")
             return

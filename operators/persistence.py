@@ -17,11 +17,11 @@
 - **load_post**: a volume whose recorded .vdb is missing but whose file lies in ``pdehead_vdb/``
   beside the opened .blend (an absolute path written with relative paths off) is re-pointed there.
 
-The CT itself is never stored in the .blend; :func:`study_ct.require_ct` re-reads it from these
+The CT itself is never stored in the .blend; :attr:`.study_entity.Study.ct` re-reads it from these
 recorded paths when a step needs it. What the solid shows of it is: save_pre stores the solid's CT
 table (the CT tabulated in the solid's (u, v, w), 8-bit over the display window, zlib; at most
 4.2 MB before compression, budget 16 MB) in the study collection, so after reopening -- or in a
-file sent without its CT -- cutaways and nw are live at once (:func:`study_ct.current_ct_table`).
+file sent without its CT -- cutaways and nw are live at once (:meth:`.study_entity.Study.current_ct_table`).
 """
 from __future__ import annotations
 
@@ -31,6 +31,7 @@ from pathlib import Path
 import bpy
 
 from . import state, vdb_files
+from .study_entity import Study
 
 
 def _volume_objects() -> list:
@@ -44,7 +45,7 @@ def record_sources(blend_path: str) -> None:
         s = state.settings(coll)
         if s.source_kind != "FILES":
             continue
-        path = state.resolve_source(coll)
+        path = Study.of(coll).resolve_source()
         if path is None:  # gone: keep what was recorded, the panel says it is missing
             continue
         path = path.resolve()
@@ -136,11 +137,11 @@ def pdehead_save_pre(filepath="", *_args) -> None:
     if not filepath:
         return
     try:
-        from . import objects, study, study_ct
+        from . import objects, study
         study.flush_colour_refresh()  # a solid still waiting for its CT colours gets them before the save
         objects.pack_ct_images()  # live cutaways update the CT atlases without re-packing each step
         for coll in state.studies():  # the solid's CT table (8-bit) travels in the file: live without the CT
-            study_ct.store_ct_table_for_save(coll)
+            Study.of(coll).store_ct_table_for_save()
         record_sources(filepath)
         move_volumes_beside(filepath)
         record_volume_files()

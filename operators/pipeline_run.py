@@ -15,7 +15,8 @@ import bpy
 from ..pdehead_addon import PDEHeadError
 from . import objects, scene, state
 from .state import suspended_updates
-from .study import STEP_FUNCTIONS, STEP_LABELS, import_study, phantom_study, step_solid, step_surface, step_volume
+from .study_entity import Study
+from .study import STEP_LABELS, import_study, phantom_study, step_solid, step_surface, step_volume
 
 
 # Undo of a failed/cancelled step: remove every datablock created since the snapshot
@@ -88,8 +89,9 @@ class StudySnapshot:
         else:
             coll[state.BOUNDARY_KEY] = self.boundaries
         state.restore_cache(self.study_id, copy.copy(self.cache))
-        if "boundaries" in rebuilt and s.curves_object is not None and state.boundary_set(coll) is not None:
-            objects.build_boundary_curves(state.boundary_set(coll), coll, name=s.curves_object.name,
+        bset = Study.of(coll).boundary_set() if "boundaries" in rebuilt else None
+        if s.curves_object is not None and bset is not None:
+            objects.build_boundary_curves(bset, coll, name=s.curves_object.name,
                                           obj=s.curves_object)
         if rebuilt & {"boundaries", "surface"} and s.surface_object is not None:
             step_surface(coll)
@@ -171,7 +173,7 @@ class PipelineRun:
             if self.source != "ACTIVE" or scene.study_object(coll, scene.CAMERA_KIND) is None:
                 scene.frame_study(self.context, coll)
         else:
-            STEP_FUNCTIONS[name](self.collection)
+            Study.of(self.collection).run_step(name)
         self.index += 1
         return self.done
 

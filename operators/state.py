@@ -13,20 +13,19 @@ The heavy, re-computable objects (CT volume, segmentation, solved PDE head, w-fi
 are cached in memory per study, keyed by the study's id (a uuid string kept in the
 collection settings; collection names may change). Nothing here holds a reference to a
 ``bpy`` datablock (they become invalid after undo or file load).
+
+One study as an object (its cache, CT, stored curves and CT table, timings): :class:`.study_entity.Study`,
+built on the accessors here.
 """
 from __future__ import annotations
 
-import base64
-import json
 import time
 import uuid
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import bpy
 
-from ..pdehead_addon import StorageError
 
 NO_STUDY_MESSAGE = "No PDE Head study: import a CT (File > Import > CT Head) or load the phantom"
 BOUNDARY_KEY = "pdehead_boundaries"  # collection custom property: base64 of dumps_boundaries()
@@ -270,167 +269,6 @@ def active_study(context=None, name: str = "") -> bpy.types.Collection | None:
                     return coll
     all_studies = studies()
     return all_studies[0] if len(all_studies) == 1 else None
-
-
-# --- PDE boundary conditions stored in the .blend ----------------------------------------
-
-def store_boundaries(collection, bset_or_head) -> int:
-    """Store the boundary conditions in the collection (base64 custom property); returns bytes."""
-    from ..pdehead_addon import dumps_boundaries
-    raw = dumps_boundaries(bset_or_head)
-    collection[BOUNDARY_KEY] = base64.b64encode(raw).decode("ascii")
-    return len(raw)
-
-
-def has_stored_boundaries(collection) -> bool:
-    return bool(collection.get(BOUNDARY_KEY))
-
-
-def load_stored_boundaries(collection):
-    """The BoundarySet stored in the collection, or None."""
-    text = collection.get(BOUNDARY_KEY)
-    if not text:
-        return None
-    from ..pdehead_addon import loads_boundaries
-    try:
-        raw = base64.b64decode(text.encode("ascii"), validate=True)
-    except (ValueError, TypeError) as exc:
-        raise StorageError(f"study '{collection.name}': stored boundary data is corrupt ({exc})") from None
-    return loads_boundaries(raw)
-
-
-def boundary_set(collection):
-    """The study's BoundarySet: from memory, else from the .blend, else None."""
-    cache = cache_for(settings(collection).study_id)
-    if cache.bset is None:
-        cache.bset = load_stored_boundaries(collection)
-    return cache.bset
-
-
-def boundary_digest(collection) -> str:
-    """A short digest of the stored boundary conditions (which curves a CT table belongs to)."""
-    import hashlib
-    return hashlib.sha1(str(collection.get(BOUNDARY_KEY, "")).encode("ascii", "replace")).hexdigest()[:16]
-
-
-def table_key(collection) -> str:
-    """What the solid's CT table depends on, as JSON: the PDE controls, the curves and the CT's size.
-
-    The same key after reopening the file means the same PDE solution (it is solved again from
-    the same stored curves with the same controls), so a table stored in the .blend is reused.
-    """
-    s = settings(collection)
-    return json.dumps([list(pde_key(collection)), boundary_digest(collection), [int(n) for n in s.dimensions]])
-
-
-def store_ct_table(collection, key: str, table, window) -> int:
-    """Keep the solid's CT table in the .blend (8-bit, compressed; :meth:`SolidCTTable.to_bytes`); returns bytes."""
-    raw = table.to_bytes(window)
-    collection[CT_TABLE_KEY] = base64.b64encode(raw).decode("ascii")
-    collection[CT_TABLE_FOR] = key
-    return len(raw)
-
-
-def stored_ct_table_key(collection) -> str:
-    return str(collection.get(CT_TABLE_FOR, ""))
-
-
-def load_stored_ct_table(collection):
-    """``(key, table, window)`` of the CT table stored in the .blend, or None (none stored / unreadable)."""
-    text = collection.get(CT_TABLE_KEY)
-    if not text:
-        return None
-    from ..pdehead_addon import SolidCTTable
-    try:
-        table, window = SolidCTTable.from_bytes(base64.b64decode(str(text).encode("ascii"), validate=True))
-    except Exception as exc:  # noqa: BLE001 - a damaged table is as good as none; the CT can re-make it
-        print(f"PDE Head: study '{collection.name}': the stored CT table is unreadable ({exc})")
-        return None
-    return stored_ct_table_key(collection), table, window
-
-
-def continuity(collection) -> str:
-    """The study's surface continuity: the property once the user set it, else what the stored
-    boundary conditions were made for."""
-    s = settings(collection)
-    if s.is_property_set("continuity"):
-        return s.continuity
-    bset = boundary_set(collection)
-    stored = bset.meta.get("pde_settings") if bset is not None else None
-    if not isinstance(stored, dict):              # curves extracted in this session: today's default
-        return s.continuity
-    return stored.get("continuity", s.continuity)
-
-
-def pde_key(collection) -> tuple:
-    """The controls the solved head depends on: (continuity, smoothing, approximation, modes, dome)."""
-    s = settings(collection)
-    smoothing = None if s.smoothing_auto else float(s.smoothing)
-    approximation = None if s.approximation_auto else float(s.approximation)
-    modes = None if s.modes <= 0 else int(s.modes)
-    return continuity(collection), smoothing, approximation, modes, bool(s.dome)
-
-
-def source_candidates(collection) -> list[Path]:
-    """Where the study's CT may be, best first.
-
-    The recorded ``source`` (``//``-relative to the .blend after a save, so a project folder
-    moved as a whole still finds its CT), then the absolute path recorded at the last save
-    (the .blend alone moved).
-    """
-    s = settings(collection)
-    out: list[Path] = []
-    for text in (s.source, s.source_absolute):
-        if not text:
-            continue
-        if text.startswith("//") and not bpy.data.filepath:
-            continue  # relative to a file that is not saved: meaningless
-        path = Path(bpy.path.abspath(text))
-        if path not in out:
-            out.append(path)
-    return out
-
-
-def resolve_source(collection) -> Path | None:
-    """The first existing :func:`source_candidates` path, or None (source gone)."""
-    for path in source_candidates(collection):
-        if path.exists():
-            return path
-    return None
-
-
-def ct_status(collection) -> tuple[str, str]:
-    """(text, icon) for the Study panel: CT in memory, re-readable from a path, or missing."""
-    s = settings(collection)
-    if cache_for(s.study_id).ct is not None:
-        return "CT in memory", "CHECKMARK"
-    if s.source_kind == "PHANTOM":
-        return "CT re-made on demand (phantom)", "FILE_REFRESH"
-    path = resolve_source(collection) if s.source_kind == "FILES" else None
-    if path is not None:
-        return f"CT re-read on demand from {path}", "FILE_REFRESH"
-    where = ", ".join(str(p) for p in source_candidates(collection)) or "(no source recorded)"
-    return f"CT source missing: {where}", "ERROR"
-
-
-def source_missing_message(collection) -> str:
-    where = " or ".join(str(p) for p in source_candidates(collection)) or "(no source recorded)"
-    return (f"study '{collection.name}': the CT is not in memory and its source is gone: {where} not found. "
-            "Point Source (Study panel) at the CT folder to re-read it; nothing was changed")
-
-
-# --- timings ---------------------------------------------------------------------------------
-
-def record_timing(collection, step: str, seconds: float) -> None:
-    """Remember how long a step took (shown in the Timings panel; the last run's values)."""
-    s = settings(collection)
-    timings = json.loads(s.timings_json or "{}")
-    timings[step] = round(float(seconds), 4)
-    s.timings_json = json.dumps(timings)
-
-
-def timings(collection) -> dict[str, float]:
-    return json.loads(settings(collection).timings_json or "{}")
 
 
 class Timer:

@@ -10,7 +10,7 @@ imports an operator module, so the dependency runs one way::
 
 The step functions (:func:`import_study`, :func:`step_segment`, ...) are plain functions on a
 study collection; the operators, :func:`live_update` and :class:`.pipeline_run.PipelineRun` share them.
-The study's CT and its (u, v, w) table: :mod:`.study_ct`; progress: :mod:`.progress`.
+The study's CT and its (u, v, w) table: :class:`.study_entity.Study`; progress: :mod:`.progress`.
 """
 from __future__ import annotations
 
@@ -23,10 +23,10 @@ import bpy
 import numpy as np
 
 from ..pdehead_addon import PDEHeadError, patches_for_scan
-from . import cutter, objects, prefs, scene, state, vdb_files, vdb_grids, volume, volume_material
+from . import cutter, objects, prefs, state, vdb_files, vdb_grids, volume, volume_material
 from .progress import step_progress
 from .state import suspended_updates
-from .study_ct import ct_table, ct_window, current_ct_table, previous_ct_table, require_ct
+from .study_entity import Study
 
 STEP_LABELS = {
     "import": "Import CT",
@@ -40,46 +40,7 @@ STEP_LABELS = {
 
 
 # ------------------------------------------------------------------------------------------
-# The engine results of a study, cached in memory (state.StudyCache)
-
-
-def pde_head(collection):
-    """The solved PDE head for the study's current controls (cached, re-solved on change)."""
-    from ..pdehead_addon import solve_with_controls
-    s = state.settings(collection)
-    cache = state.cache_for(s.study_id)
-    key = state.pde_key(collection)
-    if cache.head is None or cache.head_key != key:
-        bset = state.boundary_set(collection)
-        if bset is None:
-            raise PDEHeadError(f"study '{collection.name}' has no boundary curves yet: run Extract Boundaries")
-        cont, smoothing, approximation, modes, dome = key
-        cache.head = solve_with_controls(bset, cont, smoothing=smoothing, approximation=approximation,
-                                         modes=modes, dome=dome)
-        cache.head_key = key
-        cache.wfield = None
-    return cache.head
-
-
-def default_controls(collection) -> tuple[float, float]:
-    """The solver's default smoothing and approximation as fractions of the study's maxima (the
-    values a slider starts from when its Auto box is cleared)."""
-    import numpy as np
-    from ..pdehead_addon import control_ranges
-    s = state.settings(collection)
-    modes = None if s.modes <= 0 else s.modes
-    ranges = control_ranges(state.boundary_set(collection), state.continuity(collection), modes)
-
-    def fraction(pair):
-        d, m = (np.asarray(x, float) for x in pair)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            f = np.where(m > 0, d / m, 0.0)
-        return float(np.clip(np.mean(f), 0.0, 1.0))
-    return fraction(ranges["smoothing"]), fraction(ranges["approximation_mm"])
-
-
-# ------------------------------------------------------------------------------------------
-# The steps (plain functions on a study collection)
+# The steps (plain functions on a study collection; the study's cached results, CT and head: study_entity.Study)
 
 
 def _unique_collection_name(base: str) -> str:
@@ -169,7 +130,7 @@ def import_study(context, path: Path, options: dict):
     # the loader's warnings (single slice, uneven steps, ...) stay visible in the Study panel
     state.add_warnings(s, [str(w.message) for w in caught if issubclass(w.category, UserWarning)])
     s.timings_json = ""
-    state.record_timing(coll, "import", t.seconds)
+    Study.of(coll).record_timing("import", t.seconds)
     return coll
 
 
@@ -180,14 +141,14 @@ def phantom_study(context):
         phantom = make_phantom()
     coll = create_study(context, phantom.ct, "Phantom", "PHANTOM")
     state.settings(coll).timings_json = ""
-    state.record_timing(coll, "import", t.seconds)
+    Study.of(coll).record_timing("import", t.seconds)
     return coll
 
 
 def step_segment(coll) -> None:
     from ..pdehead_addon import segment_head
     s = state.settings(coll)
-    ct = require_ct(coll)
+    ct = Study.of(coll).ct
     cache = state.cache_for(s.study_id)
     with state.Timer() as t:
         seg = segment_head(ct, progress=step_progress("segment"))
@@ -199,7 +160,7 @@ def step_segment(coll) -> None:
         s.seg_c1, s.seg_c2 = float(seg.c1), float(seg.c2)
         # head size outside the human range, shoulders cut off: shown with the loader's warnings
         state.add_warnings(s, seg.meta.get("warnings", []))
-    state.record_timing(coll, "segment", t.seconds)
+    Study.of(coll).record_timing("segment", t.seconds)
 
 
 def selection_tolerance(s) -> dict:
@@ -250,33 +211,23 @@ def step_boundaries(coll) -> None:
     messages = [str(w.message) for w in caught if issubclass(w.category, SelectionWarning)]
     if messages:  # the tolerance could not be met with every usable slice: said beside the other warnings
         state.add_warnings(s, messages)
-    state.store_boundaries(coll, bset)
+    Study.of(coll).store_boundaries(bset)
     cache.drop_from("bset")
     cache.bset = bset
     with suspended_updates():
         _record_selection(s, bset)
     s.curves_object = objects.build_boundary_curves(bset, coll, name=f"{coll.name} Boundary curves",
                                                     obj=s.curves_object)
-    state.record_timing(coll, "boundaries", t.seconds)
-
-
-def _solve(coll) -> object:
-    with state.Timer() as t:
-        cache = state.cache_for(state.settings(coll).study_id)
-        fresh = cache.head is None or cache.head_key != state.pde_key(coll)
-        head = pde_head(coll)
-    if fresh:
-        state.record_timing(coll, "pde_solve", t.seconds)
-    return head
+    Study.of(coll).record_timing("boundaries", t.seconds)
 
 
 def step_surface(coll) -> None:
     s = state.settings(coll)
-    head = _solve(coll)
+    head = Study.of(coll).solve()
     with state.Timer() as t:
         s.surface_object = objects.build_surface(head, coll, nu=s.nu, nv=s.nv, caps=s.caps, obj=s.surface_object,
                                                  name=f"{coll.name} Surface")
-    state.record_timing(coll, "surface", t.seconds)
+    Study.of(coll).record_timing("surface", t.seconds)
 
 
 #: A live change of the PDE (smoothing, modes, ...) rebuilds the solid's geometry at once with the CT
@@ -308,34 +259,34 @@ def step_solid(coll, live: bool = False) -> str:
     says the colours are approximate.
     """
     s = state.settings(coll)
-    head = _solve(coll)
+    head = Study.of(coll).solve()
     notice = ""
-    table = current_ct_table(coll)
+    table = Study.of(coll).current_ct_table()
     cache = state.cache_for(s.study_id)
     window = cache.window or cache.stored_window
     ct = None
     if table is None:
         if live and defer_ct_colours():
-            previous = previous_ct_table(coll)
+            previous = Study.of(coll).previous_ct_table()
             if previous is not None:
                 table, window = previous
             _COLOURS_PENDING[s.study_id] = _now()
             _schedule_colour_refresh()
         else:
             try:
-                ct = require_ct(coll)  # re-read after reopening: a solid without its CT colours is a loss
+                ct = Study.of(coll).ct  # re-read after reopening: a solid without its CT colours is a loss
             except PDEHeadError as exc:
-                previous = previous_ct_table(coll)
+                previous = Study.of(coll).previous_ct_table()
                 if previous is None:
                     raise
                 table, window = previous
                 notice = (f"the solid's CT colours are those of the previous PDE solution (the table saved in "
                           f"the file): {exc}").replace("; nothing was changed", "")
             if ct is not None:
-                window = ct_window(coll, ct)
+                window = Study.of(coll).ct_window(ct)
                 with state.Timer() as t:
-                    table = ct_table(coll, head, ct)
-                state.record_timing(coll, "ct_table", t.seconds)   # issue 20: with the w-field <= 1 s
+                    table = Study.of(coll).ct_table(head, ct)
+                Study.of(coll).record_timing("ct_table", t.seconds)   # issue 20: with the w-field <= 1 s
                 _COLOURS_PENDING.pop(s.study_id, None)
     elif live and defer_ct_colours() and cache.ct is not None:
         # issue 21: while a slider moves, the cut faces come from the (u, v, w) table in 128-pixel tiles
@@ -350,7 +301,7 @@ def step_solid(coll, live: bool = False) -> str:
         cut_ct = ct if ct is not None else cache.ct
         if cut_ct is None:
             try:
-                cut_ct = require_ct(coll)
+                cut_ct = Study.of(coll).ct
             except PDEHeadError:
                 cut_ct = None                  # a file sent without its CT: the table's resolution
     with state.Timer() as t:
@@ -359,7 +310,7 @@ def step_solid(coll, live: bool = False) -> str:
             w_range=tuple(s.w_range), ct=None, obj=s.solid_object, name=f"{coll.name} Solid",
             window=window if table is not None else None, ct_table=table, texture_size=128 if quick else None,
             cut_ct=cut_ct, texture_budget=s.ct_texture_budget, skin=s.solid_skin, skin_depth_mm=s.solid_skin_depth)
-    state.record_timing(coll, "solid", t.seconds)
+    Study.of(coll).record_timing("solid", t.seconds)
     return notice
 
 
@@ -419,11 +370,11 @@ def volume_settings(s) -> dict:
 
 def step_volume(coll, context=None) -> None:
     s = state.settings(coll)
-    head = _solve(coll)
+    head = Study.of(coll).solve()
     cache = state.cache_for(s.study_id)
     # always with the CT (re-read after reopening): a volume without CT intensities is never built
-    ct = require_ct(coll)
-    window = ct_window(coll, ct)
+    ct = Study.of(coll).ct
+    window = Study.of(coll).ct_window(ct)
     if not s.use_ct_grid and s.voxel_auto:
         size = vdb_grids.auto_voxel_size(ct, head)
         with suspended_updates():
@@ -431,14 +382,14 @@ def step_volume(coll, context=None) -> None:
     with state.Timer() as t:
         grid = ct if s.use_ct_grid else float(s.voxel_size)
         wfield = head.w_field(grid, ct=ct, progress=step_progress("volume"))
-    state.record_timing(coll, "w_field", t.seconds)
+    Study.of(coll).record_timing("w_field", t.seconds)
     cache.wfield = wfield
     with state.Timer() as t:
         vdb_path = vdb_files.vdb_path_for(coll.name, bpy.data.filepath or None, prefs.vdb_prefs_folder(context))
         s.volume_object = volume.build_volume(wfield, coll, vdb_path, name=f"{coll.name} Volume",
                                               obj=s.volume_object, ct=ct, window=window, **volume_settings(s))
         s.volume_stale = False
-    state.record_timing(coll, "volume", t.seconds)
+    Study.of(coll).record_timing("volume", t.seconds)
 
 
 STEP_FUNCTIONS = {
@@ -465,9 +416,9 @@ def live_update(coll, what: str, context=None) -> None:
     try:
         if what == "pde_auto":
             what = "pde"
-            if state.boundary_set(coll) is not None and not (s.smoothing_auto and s.approximation_auto):
+            if Study.of(coll).boundary_set() is not None and not (s.smoothing_auto and s.approximation_auto):
                 # start a manual slider from the automatic value (as a fraction of the study's range)
-                smoothing, approximation = default_controls(coll)
+                smoothing, approximation = Study.of(coll).default_controls()
                 with suspended_updates():
                     if not s.smoothing_auto and not s.is_property_set("smoothing"):
                         s.smoothing = smoothing
@@ -505,7 +456,7 @@ def apply_cutter(coll, matrix=None) -> str:
     if box is None:
         raise PDEHeadError(f"study '{coll.name}' has no cutter: add one first")
     matrix = box.matrix_world if matrix is None else matrix
-    head = pde_head(coll)
+    head = Study.of(coll).head
     # world metres = LPS mm * 0.001, so LPS mm -> cutter local = inverse(matrix_world) @ scale(0.001)
     inverse = np.array(matrix.inverted_safe() @ Matrix.Scale(0.001, 4))
     u_range, v_range, _kept, kind = cutter.cutter_ranges(head, inverse, float(box.empty_display_size))
@@ -561,39 +512,6 @@ def pdehead_cutter_update(_scene, depsgraph=None) -> None:
 
 # ------------------------------------------------------------------------------------------
 # The one-click pipeline and removing a study
-
-
-def remove_study(coll) -> None:
-    """Delete a study's objects, data and collection; a scene left without a camera (or active study)
-    falls back to another study's."""
-    state.drop_cache(state.settings(coll).study_id)
-    for obj in list(coll.all_objects):
-        data = obj.data
-        bpy.data.objects.remove(obj)
-        if data is not None and data.users == 0:
-            for kind in ("meshes", "curves", "volumes", "cameras", "lights"):
-                collection = getattr(bpy.data, kind)
-                if data.name in collection and collection[data.name] == data:
-                    collection.remove(data)
-                    break
-    for child in list(coll.children_recursive):
-        bpy.data.collections.remove(child)
-    bpy.data.collections.remove(coll)
-    _fall_back_to_other_studies()
-
-
-def _fall_back_to_other_studies() -> None:
-    for sc in bpy.data.scenes:
-        inside = {c.name for c in sc.collection.children_recursive}
-        others = [c for c in state.studies() if c.name in inside]
-        if not others:
-            continue
-        if sc.pdehead.active_study is None:
-            sc.pdehead.active_study = others[0]
-        if sc.camera is None:
-            order = [sc.pdehead.active_study] + [c for c in others if c != sc.pdehead.active_study]
-            sc.camera = next((cam for cam in (scene.study_object(c, scene.CAMERA_KIND) for c in order)
-                              if cam is not None), None)
 
 
 def register() -> None:

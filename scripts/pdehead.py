@@ -554,7 +554,7 @@ def _steps(args, bpy, addon, state) -> dict:
     coll, selection_info, skin = _build(args, bpy, addon, ops)
     total = time.perf_counter() - t0
 
-    timings = state.timings(coll)
+    timings = addon.operators.study_entity.Study.of(coll).timings
     s = coll.pdehead
     _print_study(args, bpy, state, coll, selection_info)
     if args.skull:

@@ -119,6 +119,7 @@ def bench_dataset(name: str, repeats: int) -> dict:
 
     from pdehead_dev.operators import state, study
     from pdehead_dev.operators.props import COLOUR_ITEMS
+    from pdehead_dev.operators.study_entity import Study
     study.DEFER_CT_COLOURS = True   # as in Blender with a UI (the colour refresh is timed on its own)
     runs = []
     for _ in range(PIPELINE_RUNS):  # each in an empty file; the sliders below use the last run's study
@@ -129,7 +130,7 @@ def bench_dataset(name: str, repeats: int) -> dict:
         runs.append(time.perf_counter() - t0)
     coll = bpy.context.scene.pdehead.active_study
     s = coll.pdehead
-    tm = state.timings(coll)
+    tm = Study.of(coll).timings
     out = {"pipeline_s": float(statistics.median(runs)), "pipeline_runs_s": runs, "build_solid_s": tm.get("solid"),
            "pipeline_steps": tm, "surface_vertices": len(s.surface_object.data.vertices),
            "solid_vertices": len(s.solid_object.data.vertices), "rows": []}
@@ -150,7 +151,7 @@ def bench_dataset(name: str, repeats: int) -> dict:
             cpus.append(_CPU[0])
             colour_cpus.append(_CPU[1] if len(_CPU) > 1 else None)
             colours.append(colour)
-            steps = state.timings(coll)
+            steps = Study.of(coll).timings
             surfaces.append(steps.get("surface"))
             solids.append(steps.get("solid"))
         setattr(s, prop, original)
@@ -183,7 +184,7 @@ def bench_dataset(name: str, repeats: int) -> dict:
         totals.append(time.perf_counter() - t)
         if s.last_error:
             raise RuntimeError(f"cutter: {s.last_error}")
-        if state.timings(coll).get("solid") is None:
+        if Study.of(coll).timings.get("solid") is None:
             raise RuntimeError("cutter: moving it did not rebuild the solid (the handler did not run)")
     out["rows"].append({"label": "cutter moved (solid)", "property": "cutter", "repeats": repeats,
                         "total_s": statistics.median(totals), "all_s": totals, "target_s": GEOMETRY_TARGET_S,

@@ -21,7 +21,7 @@ def _solid_mm(obj) -> np.ndarray:
 
 def _expected_solid(ext, coll, **ranges):
     s = ext.state.settings(coll)
-    head = ext.study.pde_head(coll)
+    head = ext.study_entity.Study.of(coll).head
     nw = ranges.pop("nw", s.nw)
     v_range = tuple(min(float(v), 2 * math.pi) for v in s.v_range)  # float32 2π is a hair above float64 2π
     kw = dict(u_range=tuple(s.u_range), v_range=v_range, w_range=tuple(s.w_range))
@@ -109,7 +109,7 @@ def test_settings_of_a_0_1_0_file_are_migrated(ext, tmp_path, saved_by):
     assert (s.colour_preset, s.alpha_mode) == ('xray', 'INTENSITY')
     assert s.surface_object.name == "Phantom Surface" and s.solid_object.name == "Phantom Solid"
     assert s.curves_object.name == "Phantom Boundary curves" and len(s.study_id) == 32
-    assert ext.state.boundary_set(coll).patches == 4
+    assert ext.study_entity.Study.of(coll).boundary_set().patches == 4
     # live and animatable after the move
     s.keyframe_insert("w_range", frame=1)
     s.w_range = (0.6, 1.0)

@@ -65,7 +65,7 @@ def test_moving_the_cutter_cuts_the_solid_where_it_is(ext, monkeypatch):
     cutter.matrix_world = Matrix.Translation((centre[0] + 1.0, centre[1], centre[2])) @ Matrix.Scale(0.05, 4)
     bpy.context.view_layer.update()
     assert tuple(s.u_range) == pytest.approx((0.0, 1.0)) and tuple(s.v_range) == pytest.approx((0.0, 2 * math.pi))
-    head = ext.study.pde_head(coll)
+    head = ext.study_entity.Study.of(coll).head
     assert len(s.solid_object.data.vertices) == len(head.solid(40, 60, 4).vertices)
 
     # switched off: moving it changes nothing

@@ -53,15 +53,16 @@ def test_a_pde_change_moves_the_geometry_at_once_and_the_colours_follow(live, tm
     assert moved.shape == before.shape and np.abs(moved - before).max() > 1e-4
     # the solid's geometry is the new solution's (world = patient mm x 0.001)
     snap = objects._snap_range
-    mesh = study.pde_head(coll).solid(s.nu, s.nv, s.nw, snap(s.u_range, 1.0), snap(s.v_range, 2 * np.pi),
-                                      snap(s.w_range, 1.0))
+    entity = sys.modules[f"{study.__name__.rsplit('.', 1)[0]}.study_entity"].Study.of(coll)
+    mesh = entity.head.solid(s.nu, s.nv, s.nw, snap(s.u_range, 1.0), snap(s.v_range, 2 * np.pi),
+                             snap(s.w_range, 1.0))
     np.testing.assert_allclose(moved, mesh.vertices * 0.001, atol=1e-6)
     approx = _colours(objects, s.solid_object)
 
     assert study.flush_colour_refresh() == 1   # what the timer does right after
     assert not study.colours_pending(coll) and s.last_error == ""
     cache = state.cache_for(s.study_id)
-    assert cache.ct_table[0] == state.table_key(coll) and cache.ct is not None
+    assert cache.ct_table[0] == entity.table_key() and cache.ct is not None
     np.testing.assert_array_equal(blender_inspect.mesh_world_vertices(s.solid_object), moved)
     exact = _colours(objects, s.solid_object)
     # the previous solution's colours were nearly right (a few % of the grey range where the shape moved),
@@ -78,7 +79,7 @@ def test_a_pde_change_moves_the_geometry_at_once_and_the_colours_follow(live, tm
     assert study.colours_pending(coll)
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "live.blend"))
     assert not study.colours_pending(coll)
-    assert state.stored_ct_table_key(coll) == state.table_key(coll)
+    assert entity.stored_ct_table_key() == entity.table_key()
 
 
 def test_the_table_in_the_file_serves_a_pde_change_without_the_ct(live):

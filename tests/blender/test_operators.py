@@ -68,7 +68,7 @@ def check_study(ext, coll, t: int, nu: int, nv: int, nw: int, volume: bool = Tru
         assert Path(bpy.path.abspath(vol.data.filepath)).is_file()
         assert vol.data.grids.load()
         assert {"w", "intensity"} <= {g.name for g in vol.data.grids}
-    timings = ext.state.timings(coll)
+    timings = ext.study_entity.Study.of(coll).timings
     assert {"segment", "boundaries", "surface", "solid"} <= set(timings)
     assert all(v >= 0 for v in timings.values())
     return head
@@ -88,7 +88,15 @@ def test_phantom_pipeline(ext, phantom_blend):
     assert -115 < v[:, 1].min() < -95
     assert abs(v[np.argmin(v[:, 1]), 0]) < 10  # the nose is on the midline
     assert {"import", "segment", "boundaries", "pde_solve", "surface", "solid", "w_field", "volume"} \
-        <= set(ext.state.timings(coll))
+        <= set(ext.study_entity.Study.of(coll).timings)
+    # the Study object: one per study_id for the session, wrapping this collection, sharing its cache
+    import bpy
+    study = ext.study_entity.Study.of(coll)
+    assert ext.study_entity.Study.of(coll) is study and study.collection == coll
+    assert ext.study_entity.Study.active(bpy.context) is study
+    assert study.settings == s and study.cache is ext.state.cache_for(s.study_id) and study.head is study.cache.head
+    ct = study.ct  # from memory, or re-made (phantom) and then kept
+    assert ct is study.cache.ct and study.ct_status() == ("CT in memory", "CHECKMARK")
 
 
 def test_cthead_operators(ext, cthead_blend):

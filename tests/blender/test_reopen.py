@@ -58,6 +58,7 @@ if args["layout"] == "zip":  # the bpy 4.2 / 4.5 modules crash / hang at exit wi
     sys.modules[name + ".operators.compat"].unregister_at_exit(
         lambda: __import__("addon_utils").disable(name, default_set=False))
 state = sys.modules[name + ".operators.state"]
+Study = sys.modules[name + ".operators.study_entity"].Study
 study = sys.modules[name + ".operators.study"]
 objects = sys.modules[name + ".operators.objects"]
 volume = sys.modules[name + ".operators.volume"]
@@ -65,7 +66,7 @@ render = sys.modules[name + ".operators.render"]
 bpy.ops.wm.open_mainfile(filepath=args["blend"])
 coll = [c for c in bpy.data.collections if c.pdehead.is_study][0]
 s = coll.pdehead
-out = {"cached": state.cache_for(s.study_id).ct is not None, "status": state.ct_status(coll)[0],
+out = {"cached": state.cache_for(s.study_id).ct is not None, "status": Study.of(coll).ct_status()[0],
        "source": s.source, "vdb_before": bpy.path.abspath(s.volume_object.data.filepath)}
 def atlas_pixels(solid):
     image = solid.data.materials[0].node_tree.nodes["CT texture"].image
@@ -206,7 +207,7 @@ def test_reopen_in_a_new_process_rereads_the_ct_and_loses_nothing(ext, pdehead_e
     ext.state.drop_cache()
     coll = [c for c in bpy.data.collections if c.pdehead.is_study][0]
     s = coll.pdehead
-    text, icon = ext.state.ct_status(coll)
+    text, icon = ext.study_entity.Study.of(coll).ct_status()
     assert icon == 'ERROR' and "missing" in text and str(moved / "ct" / "raw16") in text
     vdb_now = Path(bpy.path.abspath(s.volume_object.data.filepath))
     vdb_bytes = vdb_now.read_bytes()
@@ -217,7 +218,8 @@ def test_reopen_in_a_new_process_rereads_the_ct_and_loses_nothing(ext, pdehead_e
     assert s.volume_object.data.filepath and Path(bpy.path.abspath(s.volume_object.data.filepath)) == vdb_now
     assert vdb_now.read_bytes() == vdb_bytes and sorted(p.name for p in vdb_now.parent.iterdir()) == [vdb_now.name]
     # the solid's CT table (8-bit) travels in the .blend: Build Solid, nw, nu and cutaways work without the CT
-    assert coll.get(ext.state.CT_TABLE_KEY) and ext.state.stored_ct_table_key(coll) == ext.state.table_key(coll)
+    entity = ext.study_entity.Study.of(coll)
+    assert coll.get(ext.state.CT_TABLE_KEY) and entity.stored_ct_table_key() == entity.table_key()
     assert bpy.ops.pdehead.build_solid() == {'FINISHED'}
     colour_after, pixels_after = _solid_arrays(ext, s.solid_object)
     np.testing.assert_allclose(colour_after, colour_now, atol=1.5 / 255)   # the table's 8 bits
@@ -251,8 +253,8 @@ def test_a_different_ct_at_the_source_is_refused(ext, tmp_path):
     s.source_absolute = ""
     ext.state.drop_cache()
     with pytest.raises(Exception, match="source is gone"):
-        ext.study_ct.require_ct(coll)
+        ext.study_entity.Study.of(coll).ct
     s.source_kind = "PHANTOM"
     s.dimensions = (10, 10, 10)
     with pytest.raises(Exception, match="refusing to mix"):
-        ext.study_ct.require_ct(coll)
+        ext.study_entity.Study.of(coll).ct

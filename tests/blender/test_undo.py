@@ -86,7 +86,7 @@ def test_undo_restores_the_study_and_every_operator_works_after_it(ext, tmp_path
     bpy.ops.ed.undo_push(message="after")
     assert bpy.ops.ed.undo() == {'FINISHED'}
     coll, s = _study(ext, name)
-    assert s.solid_object is not None and ext.study.pde_head(coll) is not None
+    assert s.solid_object is not None and ext.study_entity.Study.of(coll).head is not None
 
 
 def test_two_studies_after_reopening_each_operator_acts_on_its_own_study(ext, tmp_path):
