@@ -389,6 +389,8 @@ def bench_face_dataset(name: str, repeats: int) -> dict:
             wall.append(w)
             cpu.append(c)
             tm = cache.get("face_timings") or {}
+            if not tm:                              # the change did not reach the face: nothing was measured
+                raise RuntimeError(f"{label}: change {i + 1} did not re-solve the face")
             solve.append(tm.get("total", float("nan")))
             engine.append(tm.get("solve", float("nan")))
             write.append(tm.get("write", float("nan")))
@@ -415,7 +417,9 @@ def bench_face_dataset(name: str, repeats: int) -> dict:
 
     def depth(i):
         peg = pegs[peg_names[i % len(peg_names)]]
-        return lambda: fs.set_peg_depth(peg, float(peg["table_mean_mm"]) + (0.5 if i % 2 == 0 else -0.5))
+        # a value not used before on this peg (GE has only two of the four pegs: the same value twice is no change)
+        offset = (0.5 + 0.05 * i) * (1.0 if i % 2 == 0 else -1.0)
+        return lambda: fs.set_peg_depth(peg, float(peg["table_mean_mm"]) + offset)
     series("peg depth (+-0.5 mm)", depth)
 
     folder = Path(tempfile.mkdtemp(prefix="pdehead-bench-face-"))
