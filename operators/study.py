@@ -399,6 +399,7 @@ STEP_FUNCTIONS = {
     "solid": step_solid,
     "volume": step_volume,
 }
+Study.steps.update(STEP_FUNCTIONS)
 
 
 # ------------------------------------------------------------------------------------------

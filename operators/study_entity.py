@@ -375,10 +375,13 @@ class Study:
 
     # --- the steps (operators/study.py) ------------------------------------------------------------
 
+    #: The pipeline steps by name, registered by operators/study.py (which defines them and imports this
+    #: module, so this module does not import it back).
+    steps: dict = {}
+
     def run_step(self, name: str) -> None:
         """Run one pipeline step on this study: "segment", "boundaries", "surface", "solid" or "volume"."""
-        from .study import STEP_FUNCTIONS
-        STEP_FUNCTIONS[name](self.collection)
+        self.steps[name](self.collection)
 
     # --- controls and removal ---------------------------------------------------------------------
 
