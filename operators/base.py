@@ -81,7 +81,7 @@ class StudyOperator(GuardedOperator):
     """Mixin: operators that work on the active study (or the one named by ``study``).
 
     ``execute`` fetches the :class:`~.study_entity.Study` (no study: an ERROR report and ``{'CANCELLED'}``), then runs
-    ``run(context, coll)`` under :func:`guarded`.
+    ``run(context, study)`` under :func:`guarded`, ``study`` being that :class:`~.study_entity.Study`.
     """
 
     study: StringProperty(name="Study", default="", options={'SKIP_SAVE'},
@@ -110,9 +110,9 @@ class StudyOperator(GuardedOperator):
         if study is None:
             self.report({'ERROR'}, NO_STUDY_MESSAGE)
             return {'CANCELLED'}
-        return guarded(self, context, lambda: self.run(context, study.collection))
+        return guarded(self, context, lambda: self.run(context, study))
 
-    def run(self, context, coll):
+    def run(self, context, study: Study):
         raise NotImplementedError(type(self).__name__)
 
     def store_settings(self, s) -> None:

@@ -49,7 +49,8 @@ class PDEHEAD_OT_build_skull(Operator, _ForensicOp):
                             description="Also build the bone skull (smoothed marching cubes of the bone)")
     bone_step: IntProperty(name="Bone Step", default=1, min=1, max=4, description="Marching-cubes step (voxels)")
 
-    def run(self, context, coll):
+    def run(self, context, study):
+        coll = study.collection
         s = state.settings(coll)
         step_skull(coll, self.nu or s.nu, self.nv or s.nv, self.bone_mesh, self.bone_step)
         self.report({'INFO'}, f"Skull of '{coll.name}' built")
@@ -64,7 +65,8 @@ class PDEHEAD_OT_tissue_depth(Operator, _ForensicOp):
     max_depth: FloatProperty(name="Max Depth", default=40.0, min=1.0, max=100.0, subtype='DISTANCE',
                              description="Longest depth searched (mm); deeper: no value")
 
-    def run(self, context, coll):
+    def run(self, context, study):
+        coll = study.collection
         st = step_depth(coll, self.target, self.max_depth)
         self.report({'INFO'}, f"Tissue depth: {st['measured']} of {st['vertices']} vertices measured, "
                               f"median {st.get('median', float('nan')):.1f} mm")
@@ -81,7 +83,8 @@ class PDEHEAD_OT_place_landmark(Operator, _ForensicOp):
     use_location: BoolProperty(default=False, options={'SKIP_SAVE', 'HIDDEN'})
     target: EnumProperty(name="Snap To", items=TARGET_ITEMS, default='BONE')
 
-    def run(self, context, coll):
+    def run(self, context, study):
+        coll = study.collection
         from mathutils import Vector
         world = Vector(self.location) if self.use_location else context.scene.cursor.location.copy()
         obj = place_landmark(coll, self.name, world_to_patient(coll, world), self.target)
@@ -98,7 +101,8 @@ class PDEHEAD_OT_find_landmarks(Operator, _ForensicOp):
     keep_edited: BoolProperty(name="Keep Edited", default=True,
                               description="Leave the landmarks placed or moved by hand where they are")
 
-    def run(self, context, coll):
+    def run(self, context, study):
+        coll = study.collection
         search = find_landmarks(coll, self.target, self.keep_edited)
         flags = [lm.flag for lm in search.landmarks.values()]
         msg = (f"{flags.count('ok')} landmarks ok, {flags.count('uncertain')} uncertain, "
@@ -118,7 +122,8 @@ class PDEHEAD_OT_snap_landmarks(Operator, _ForensicOp):
     bl_label = "Snap Moved Landmarks"
     target: EnumProperty(name="Snap To", items=TARGET_ITEMS, default='BONE')
 
-    def run(self, context, coll):
+    def run(self, context, study):
+        coll = study.collection
         names = snap_moved_landmarks(coll, self.target)
         self.report({'INFO'}, f"{len(names)} landmark(s) snapped to the bone" +
                     (": " + ", ".join(names[:4]) if names else ""))
@@ -154,7 +159,8 @@ class PDEHEAD_OT_import_depth_table(Operator, _LandmarkCSVOp):
             return self.execute(context)
         return super().invoke(context, event)
 
-    def run(self, context, coll):
+    def run(self, context, study):
+        coll = study.collection
         from ..pdehead_addon import default_table, read_depth_table
         if self.default_table or not self.filepath:
             table = default_table()
@@ -172,7 +178,8 @@ class PDEHEAD_OT_export_landmark_depths(Operator, _LandmarkCSVOp):
     bl_label = "Export Landmark Depths"
     default_name = "landmarks.csv"
 
-    def run(self, context, coll):
+    def run(self, context, study):
+        coll = study.collection
         from ..pdehead_addon import write_landmark_csv
         if not landmarks(coll):
             raise PDEHeadError("no landmarks placed yet")
@@ -191,7 +198,8 @@ class PDEHEAD_OT_frankfurt(Operator, _ForensicOp):
     bl_label = "Frankfurt Horizontal"
     reset: BoolProperty(name="Reset", default=False, description="Back to patient coordinates")
 
-    def run(self, context, coll):
+    def run(self, context, study):
+        coll = study.collection
         apply_frankfurt(coll, self.reset)
 
 
@@ -202,7 +210,8 @@ class PDEHEAD_OT_mirror(Operator, _ForensicOp):
     bl_label = "Mirror Across Mid-Sagittal Plane"
     plane: EnumProperty(name="Plane", items=MIRROR_PLANES, default='AUTO')
 
-    def run(self, context, coll):
+    def run(self, context, study):
+        coll = study.collection
         obj = context.active_object or linked_object(coll, "pdehead_skull_object")
         if obj is None:
             raise PDEHeadError("select the object to mirror")
@@ -224,7 +233,8 @@ class PDEHEAD_OT_export_print(Operator, _ForensicOp):
         context.window_manager.fileselect_add(self)
         return {'RUNNING_MODAL'}
 
-    def run(self, context, coll):
+    def run(self, context, study):
+        coll = study.collection
         files = export_study(coll, self.directory, self.format)
         self.report({'INFO'}, "Wrote " + ", ".join(os.path.basename(f) for f in files))
 
@@ -237,7 +247,8 @@ class PDEHEAD_OT_build_face(Operator, _ForensicOp):
     bl_idname = "pdehead.build_face"
     bl_label = "Build Face"
 
-    def run(self, context, coll):
+    def run(self, context, study):
+        coll = study.collection
         from . import face
         obj, pegs = face.build_face(coll)
         self.report({'INFO'}, f"{obj.name}: {len(obj.data.vertices)} vertices through {len(pegs)} pegs "
@@ -251,7 +262,8 @@ class PDEHEAD_OT_face_sd_range(Operator, _ForensicOp):
     bl_idname = "pdehead.face_sd_range"
     bl_label = "Faces at -1 / +1 SD"
 
-    def run(self, context, coll):
+    def run(self, context, study):
+        coll = study.collection
         from . import face
         made = face.build_sd_faces(coll)
         self.report({'INFO'}, "Built " + ", ".join(o.name for o in made))

@@ -13,7 +13,8 @@ from bpy.types import Operator
 
 from ..pdehead_addon import PDEHeadError
 from ..pdehead_addon import defaults as D
-from . import pipeline_run, progress, props, scene, state, study
+from . import pipeline_run, progress, props, scene, state
+from . import study as study_steps
 from .base import GuardedOperator, StudyOperator, report_exception, set_status
 from .import_options import PDEHEAD_FH_import_ct, LoaderOptions, dropped_file_options
 from .study_entity import Study
@@ -47,7 +48,7 @@ class PDEHEAD_OT_import_ct(Operator, GuardedOperator, LoaderOptions):
 
     def run(self, context):
         path = self.input_path()
-        coll = study.import_study(context, path, self.loader_options())
+        coll = study_steps.import_study(context, path, self.loader_options())
         self.apply_study_options(coll)
         s = state.settings(coll)
         if self.run_pipeline:
@@ -68,7 +69,7 @@ class PDEHEAD_OT_load_phantom(Operator, GuardedOperator):
     bl_options = {'REGISTER', 'UNDO'}
 
     def run(self, context):
-        coll = study.phantom_study(context)
+        coll = study_steps.phantom_study(context)
         nx, ny, nz = state.settings(coll).dimensions
         self.report({'INFO'}, f"Phantom loaded: {nx}x{ny}x{nz} voxels")
 
@@ -79,11 +80,12 @@ class PDEHEAD_OT_segment(Operator, StudyOperator):
     bl_description = "Segment the head from the CT with the 3D Chan-Vese soft model (eq. 16-21) and clean-up"
     bl_options = {'REGISTER', 'UNDO'}
 
-    def run(self, context, coll):
-        study.step_segment(coll)
+    def run(self, context, study):
+        coll = study.collection
+        study_steps.step_segment(coll)
         s = state.settings(coll)
         self.report({'INFO'}, f"Segmented '{coll.name}': head = {100 * s.seg_fraction:.1f} % of the "
-                    f"voxels ({s.seg_iterations} iterations, {Study.of(coll).timings['segment']:.2f} s)")
+                    f"voxels ({s.seg_iterations} iterations, {study.timings['segment']:.2f} s)")
 
 
 class PDEHEAD_OT_extract_boundaries(Operator, StudyOperator):
@@ -110,16 +112,17 @@ class PDEHEAD_OT_extract_boundaries(Operator, StudyOperator):
     mirrored_settings = ("patches", "samples", "selection", "align_curves", "use_tolerance", "tolerance_mm",
                          "max_tolerance_mm")
 
-    def run(self, context, coll):
+    def run(self, context, study):
+        coll = study.collection
         s = state.settings(coll)
         self.store_settings(s)
         warnings_before = state.warning_list(s)
-        study.step_boundaries(coll)
+        study_steps.step_boundaries(coll)
         self.patches = s.patches  # may have been reduced to what the scan allows
         achieved = (f"; surface from all {abs(s.outline_candidates)} usable outlines: mean "
                     f"{s.outline_mean_mm:.2f} mm, max {s.outline_max_mm:.2f} mm" if s.outline_candidates else "")
         self.report({'INFO'}, f"{s.curve_count} boundary curves of {self.samples} points extracted "
-                    f"from '{coll.name}' ({Study.of(coll).timings['boundaries']:.2f} s){achieved}")
+                    f"from '{coll.name}' ({study.timings['boundaries']:.2f} s){achieved}")
         for warning in state.warning_list(s)[len(warnings_before):]:
             self.report({'WARNING'}, state.user_text(warning))
 
@@ -144,15 +147,16 @@ class PDEHEAD_OT_reconstruct_surface(Operator, StudyOperator):
     mirrored_settings = ("nu", "nv", "caps", "continuity", "dome", "smoothing_auto", "smoothing",
                          "approximation_auto", "approximation", "modes")
 
-    def run(self, context, coll):
+    def run(self, context, study):
+        coll = study.collection
         s = state.settings(coll)
         self.store_settings(s)
-        if Study.of(coll).boundary_set() is None:
-            study.step_boundaries(coll)
-        study.step_surface(coll)
+        if study.boundary_set() is None:
+            study_steps.step_boundaries(coll)
+        study_steps.step_surface(coll)
         n = len(s.surface_object.data.vertices)
         self.report({'INFO'}, f"PDE surface of '{coll.name}': {n} vertices "
-                    f"({Study.of(coll).timings['surface']:.2f} s)")
+                    f"({study.timings['surface']:.2f} s)")
 
 
 class PDEHEAD_OT_build_solid(Operator, StudyOperator):
@@ -177,18 +181,19 @@ class PDEHEAD_OT_build_solid(Operator, StudyOperator):
     mirrored_settings = ("nu", "nv", "nw", "u_range", "v_range", "w_range", "ct_texture_budget", "solid_skin",
                          "solid_skin_depth")
 
-    def run(self, context, coll):
+    def run(self, context, study):
+        coll = study.collection
         s = state.settings(coll)
         for name, lo_hi in (("u", self.u_range), ("v", self.v_range), ("w", self.w_range)):
             if lo_hi[0] >= lo_hi[1]:
                 raise PDEHeadError(f"{name} range must have its start below its end, got "
                                    f"{lo_hi[0]:g}..{lo_hi[1]:g}")
         self.store_settings(s)
-        if Study.of(coll).boundary_set() is None:
-            study.step_boundaries(coll)
-        notice = study.step_solid(coll)
+        if study.boundary_set() is None:
+            study_steps.step_boundaries(coll)
+        notice = study_steps.step_solid(coll)
         n = len(s.solid_object.data.vertices)
-        self.report({'INFO'}, f"PDE solid of '{coll.name}': {n} vertices ({Study.of(coll).timings['solid']:.2f} s)")
+        self.report({'INFO'}, f"PDE solid of '{coll.name}': {n} vertices ({study.timings['solid']:.2f} s)")
         if notice:
             self.report({'WARNING'}, notice[:300])
 
@@ -212,15 +217,16 @@ class PDEHEAD_OT_build_volume(Operator, StudyOperator):
     mirrored_settings = ("use_ct_grid", "voxel_auto", "voxel_size", "low_alpha", "high_alpha", "density", "colour_preset",
                          "alpha_mode")
 
-    def run(self, context, coll):
+    def run(self, context, study):
+        coll = study.collection
         s = state.settings(coll)
         if self.properties.is_property_set("voxel_size") and not self.properties.is_property_set("voxel_auto"):
             self.voxel_auto = False  # a size given by the caller is meant
         self.store_settings(s)
-        if Study.of(coll).boundary_set() is None:
-            study.step_boundaries(coll)
-        study.step_volume(coll, context)
-        t = Study.of(coll).timings
+        if study.boundary_set() is None:
+            study_steps.step_boundaries(coll)
+        study_steps.step_volume(coll, context)
+        t = study.timings
         self.report({'INFO'}, f"Volume of '{coll.name}' built (w-field {t['w_field']:.2f} s, "
                     f"VDB + material {t['volume']:.2f} s)")
 
@@ -370,7 +376,8 @@ class PDEHEAD_OT_frame_study(Operator, StudyOperator):
     show: EnumProperty(name="Show", items=scene.SHOW_ITEMS, default="SURFACE")
     view: EnumProperty(name="View", items=FRAME_VIEW_ITEMS, default=D.VIEW.default)
 
-    def run(self, context, coll):
+    def run(self, context, study):
+        coll = study.collection
         done = scene.frame_study(context, coll, show=self.show, view=self.view)
         extra = "; startup cube hidden" if done["hidden_cube"] else ""
         self.report({'INFO'}, f"'{coll.name}': camera and light set, showing {done['shown']}{extra}")
@@ -386,7 +393,8 @@ class PDEHEAD_OT_turntable(Operator, StudyOperator):
     frames: IntProperty(name=D.TURNTABLE_FRAMES.label, default=D.TURNTABLE_FRAMES.default, min=D.TURNTABLE_FRAMES.min,
                         max=D.TURNTABLE_FRAMES.max, description=D.TURNTABLE_FRAMES.description)
 
-    def run(self, context, coll):
+    def run(self, context, study):
+        coll = study.collection
         from . import animation
         pivot = animation.turntable(context, coll, self.frames, start=context.scene.frame_start)
         self.report({'INFO'}, f"'{coll.name}': turntable of {self.frames} frames around '{pivot.name}' "
@@ -400,8 +408,9 @@ class PDEHEAD_OT_add_cutter(Operator, StudyOperator):
                       "away where it is (a wedge in v or a slab in u)")
     bl_options = {'REGISTER', 'UNDO'}
 
-    def run(self, context, coll):
-        obj, kind = study.add_cutter(context, coll)
+    def run(self, context, study):
+        coll = study.collection
+        obj, kind = study_steps.add_cutter(context, coll)
         self.report({'INFO'}, f"Cutter '{obj.name}' added ({kind} cut): move it to cut the solid elsewhere")
 
 
@@ -411,9 +420,9 @@ class PDEHEAD_OT_remove_study(Operator, StudyOperator):
     bl_description = "Delete the study's collection, its objects and its in-memory data"
     bl_options = {'REGISTER', 'UNDO'}
 
-    def run(self, context, coll):
-        name = coll.name
-        Study.of(coll).remove()
+    def run(self, context, study):
+        name = study.collection.name
+        study.remove()
         self.report({'INFO'}, f"Removed study '{name}'")
 
 
