@@ -83,7 +83,8 @@ def uv_shear(curves: np.ndarray, curve_u: np.ndarray) -> np.ndarray:
 #: size follow the neck's and the face's shape (area stretch p99 / p1 6.2); the scale term alone keeps
 #: the texel size (2.9) but not the angles (13 deg). Issue 21 asks for both (<= 4 and <= 10 deg); 0.8
 #: gives 3.81 and 9.8 deg at the defaults (3.80 / 10.5 with the 4-sample fold blend of session 4; weight 1:
-#: 3.70 / 13.1 then, the fold guard straightening more rows).
+#: 3.70 / 13.1 then, the fold guard straightening more rows). Those were measured with one triangle of each
+#: cell in the map's equations; with both (issue 21 at t = 15): CThead t = 15 3.86 / 9.6 deg, t = 10 3.82 / 8.7.
 UV_SCALE_WEIGHT = 0.8
 
 
@@ -92,9 +93,10 @@ def uv_tube_map(curves: np.ndarray, curve_u: np.ndarray, scale_weight: float = U
     """The tube's UVs (mm) at the boundary curves' samples: a least-squares map that is nearly conformal
     and nearly of one scale, shape ``(n, M)`` each, and the wrap ``W`` (mm) of U around the ring.
 
-    Each cell between curves ``k, k+1`` and samples ``j, j+1`` gives its two edges in the surface's local
-    frame (along the ring, across it), ``z_v`` and ``z_u`` (complex numbers, mm). The map ``w = U + iV``
-    should take them to ``w_v, w_u`` with
+    Each cell between curves ``k, k+1`` and samples ``j, j+1`` gives, at each of two opposite corners
+    ((k, j) and (k+1, j+1): both of the cell's triangles), the corner's two edges in the surface's local
+    frame there (along the ring, across it), ``z_v`` and ``z_u`` (complex numbers, mm). The map
+    ``w = U + iV`` should take them to ``w_v, w_u`` with
 
     * ``w_v z_u - w_u z_v = 0`` (the cell's corner angles kept: a discrete Cauchy-Riemann condition, as
       in least-squares conformal maps: B. Levy, S. Petitjean, N. Ray, J. Maillot, "Least squares conformal
@@ -111,8 +113,8 @@ def uv_tube_map(curves: np.ndarray, curve_u: np.ndarray, scale_weight: float = U
     and with V free (better angles). The map is the free one, blended back toward the straight one
     around every cell that is folded or not convex (``UV_FOLD_MARGIN``; within ``UV_FOLD_GROW``
     samples and a one-sample taper, the free share halved up to six times, then straight there), so no
-    mesh face inside it folds at any nu, nv (checked on CThead and GE from 40 x 60 to 300 x 480). CPU ~0.65 s once per study on
-    CThead and GE (61 x 128 samples: :func:`uv_map_grid`).
+    mesh face inside it folds at any nu, nv (checked on CThead and GE from 40 x 60 to 300 x 480). CPU ~0.4 s once per
+    study on CThead at t = 15 (91 x 128 samples: :func:`uv_map_grid`), ~0.15 s on GE (t = 8).
     """
     from scipy.sparse import csr_matrix
     from scipy.sparse.linalg import splu
@@ -134,15 +136,24 @@ def uv_tube_map(curves: np.ndarray, curve_u: np.ndarray, scale_weight: float = U
     pu = ((i2 + 1) * M + j2).ravel()
     wrap = (j2 == M - 1).ravel() * W
     Rf, T1, T2 = R.reshape(-1, 3), t1.reshape(-1, 3), t2.reshape(-1, 3)
-    ev, eu = Rf[pv] - Rf[o], Rf[pu] - Rf[o]
-    zv = np.einsum("ij,ij->i", ev, T1[o]) + 1j * np.einsum("ij,ij->i", ev, T2[o])
-    zu = np.einsum("ij,ij->i", eu, T1[o]) + 1j * np.einsum("ij,ij->i", eu, T2[o])
+    pvu = ((i2 + 1) * M + (j2 + 1) % M).ravel()
     m = len(o)
-    # scale-free, and weighted by the cell's sine: a sliver cell (its edges nearly parallel, where rows
-    # crowd under the nose) cannot say which way its angles go
-    area3 = (zu * np.conj(zv)).imag                                          # > 0: the frame's orientation
-    s = np.abs(area3) / np.maximum(np.abs(zu) * np.abs(zv), 1e-12) ** 1.5
-    a, b, c, d = zu.real * s, zu.imag * s, zv.real * s, zv.imag * s
+
+    def corner(c0, cv, cu, wrap_v):
+        """A cell's corner ``c0`` with its neighbours along v (``cv``) and u (``cu``), and U's wrap on the way
+        to ``cv``: the two edges in ``c0``'s frame, ``z_v`` and ``z_u``, and the conformal weight."""
+        ev, eu = Rf[cv] - Rf[c0], Rf[cu] - Rf[c0]
+        zv = np.einsum("ij,ij->i", ev, T1[c0]) + 1j * np.einsum("ij,ij->i", ev, T2[c0])
+        zu = np.einsum("ij,ij->i", eu, T1[c0]) + 1j * np.einsum("ij,ij->i", eu, T2[c0])
+        # scale-free, and weighted by the cell's sine: a sliver cell (its edges nearly parallel, where rows
+        # crowd under the nose) cannot say which way its angles go
+        s = np.abs((zu * np.conj(zv)).imag) / np.maximum(np.abs(zu) * np.abs(zv), 1e-12) ** 1.5
+        return c0, cv, cu, wrap_v, zv, zu, s
+    # Both triangles of every cell: the corner o (edges to pv and pu) and the opposite corner pvu (edges
+    # back to pu and pv). With o alone (before) the triangle (pv, pvu, pu) of each cell was in no equation:
+    # CThead's angle p95 at the defaults (t = 15) 11.4 -> 9.6 deg, t = 10 9.4 -> 8.7, GE 8.5 -> 8.3.
+    corners = [corner(o, pv, pu, wrap), corner(pvu, pu, pv, -wrap)]
+    area3 = (corners[0][5] * np.conj(corners[0][4])).imag                    # > 0: the frame's orientation
     floor = 0.2 * np.linalg.norm(np.roll(R, -1, axis=1) - R, axis=-1)
 
     def solve(straight_rows: bool):
@@ -159,15 +170,17 @@ def uv_tube_map(curves: np.ndarray, curve_u: np.ndarray, scale_weight: float = U
                 vals.append(cf)
             rhs.append(rhs_part)
             count += m
-        Vpv, Vo, Vpu = (N + pv // M, N + o // M, N + pu // M) if straight_rows else (N + pv, N + o, N + pu)
-        add([pv, o, Vpv, Vo, pu, o, Vpu, Vo], [a, -a, -b, b, -c, c, d, -d], -a * wrap)
-        add([pv, o, Vpv, Vo, pu, o, Vpu, Vo], [b, -b, a, -a, -d, d, -c, c], -b * wrap)
         L = np.full(m, np.sqrt(float(scale_weight)))
-        add([pv, o], [L, -L], L * (zv.real - wrap))
-        add([pu, o], [L, -L], L * zu.real)
-        add([Vpu, Vo], [L, -L], L * zu.imag)
-        if not straight_rows:
-            add([Vpv, Vo], [L, -L], L * zv.imag)
+        for c0, cv, cu, wv, zv, zu, s in corners:
+            a, b, c, d = zu.real * s, zu.imag * s, zv.real * s, zv.imag * s
+            Vv, V0, Vu = (N + cv // M, N + c0 // M, N + cu // M) if straight_rows else (N + cv, N + c0, N + cu)
+            add([cv, c0, Vv, V0, cu, c0, Vu, V0], [a, -a, -b, b, -c, c, d, -d], -a * wv)
+            add([cv, c0, Vv, V0, cu, c0, Vu, V0], [b, -b, a, -a, -d, d, -c, c], -b * wv)
+            add([cv, c0], [L, -L], L * (zv.real - wv))
+            add([cu, c0], [L, -L], L * zu.real)
+            add([Vu, V0], [L, -L], L * zu.imag)
+            if not straight_rows:
+                add([Vv, V0], [L, -L], L * zv.imag)
         A = csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(count, unknowns))
         gauge = csr_matrix((np.ones(2), ([0, 1], [0, N])), shape=(2, unknowns))  # U = V = 0 at the first sample
         # the normal matrix is symmetric positive definite: no pivoting (SuperLU's symmetric mode) factors
@@ -188,8 +201,6 @@ def uv_tube_map(curves: np.ndarray, curve_u: np.ndarray, scale_weight: float = U
             lifted -= spare * (excess / np.maximum(spare.sum(axis=1, keepdims=True), 1e-12))
             U = U[:, :1] + np.concatenate([np.zeros((k, 1)), np.cumsum(lifted, axis=1)[:, :-1]], axis=1)
         return U, V
-
-    pvu = ((i2 + 1) * M + (j2 + 1) % M).ravel()
 
     def folded(U, V):
         """Cells with a corner whose UV triangle (the corner and its two cell neighbours) is under

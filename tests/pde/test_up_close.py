@@ -240,33 +240,43 @@ def test_the_default_surface_keeps_the_face_of_cthead(cthead_seg, monkeypatch):
     assert old["score_p95"] > 0.9, old
 
 
-def test_cthead_uvs_keep_texel_size_and_angles(cthead_bset):
-    """Issue 21 item 4 on CThead at the add-on's defaults (nu x nv from defaults.py, caps): no mirrored or
-    empty faces, area stretch p99 / p1 over the middle 80 % of the height <= 4, angle distortion p95
-    p95 <= 10 deg, also no mirrored face at a finer mesh. Measured on this fixture's curves: 0 / 0,
-    stretch 4.29, angle 9.63 deg (the benchmark's CThead curves: 3.81, 9.77 deg; at 300 x 480: 0 / 0,
-    4.08, 10.3 deg); with the blend of 4 samples around folds: fixture 4.17 / 9.79, benchmark 3.80 /
-    10.48; before (a v / 2 pi island with a 3-harmonic shear): stretch 5.42, angle 14.1 deg on the
-    benchmark's curves."""
+@pytest.fixture(scope="module")
+def cthead_default_bset(cthead_seg):
+    """CThead's curves at the add-on's defaults (t, samples, slice selection), as the benchmark takes them."""
+    from pdehead_addon import defaults as D
+    from pdehead_addon import extract_boundaries
+    return extract_boundaries(cthead_seg, patches=D.PATCHES.default, samples=D.SAMPLES.default,
+                              selection=D.SELECTION.default)
+
+
+def test_cthead_uvs_keep_texel_size_and_angles(cthead_default_bset):
+    """Issue 21 item 4 on CThead at the add-on's defaults (t = 15, nu x nv from defaults.py, caps): no mirrored
+    or empty faces, area stretch p99 / p1 over the middle 80 % of the height <= 4, angle distortion p95
+    <= 10 deg, also no mirrored face at a finer mesh. Measured (the benchmark's curves): stretch 3.86, angle
+    9.6 deg (at 300 x 480: 0 / 0, 4.08, 9.8 deg). Before (`surface_uv_map.uv_tube_map` with one triangle of
+    each cell in its equations): 3.94 / 11.4 deg at t = 15 (this test checked t = 10 only: 4.04 / 9.4)."""
     from pdehead_addon import defaults as D
     from pdehead_addon.validation.surface_quality import uv_quality
-    q = uv_quality(solve_pde(cthead_bset).surface(D.NU.default, D.NV.default, caps=True))
+    assert D.PATCHES.default == 15 and len(cthead_default_bset.curves) == 3 * 15 + 1
+    head = solve_pde(cthead_default_bset)
+    q = uv_quality(head.surface(D.NU.default, D.NV.default, caps=True))
     assert q["mirrored"] == 0 and q["zero_area"] == 0
-    assert q["stretch_p99_p1"] <= 4.4, q
+    assert q["stretch_p99_p1"] <= 4.0, q
     assert q["angle_p95_deg"] <= 10.0, q
-    fine = uv_quality(solve_pde(cthead_bset).surface(300, 480, caps=True))
+    fine = uv_quality(head.surface(300, 480, caps=True))
     assert fine["mirrored"] == 0 and fine["zero_area"] == 0, fine
 
 
-def test_uv_map_leaves_the_angle_keeping_map_only_around_folds(cthead_bset, monkeypatch):
+def test_uv_map_leaves_the_angle_keeping_map_only_around_folds(cthead_default_bset, monkeypatch):
     """The tube map is the free (angle-keeping) least-squares map, blended toward straight rows only within
-    a sample (and a taper) of a folded cell. The blend over 4 samples took it off 1.8 % of this fixture's
-    samples (4.1 % on the benchmark's CThead curves: angle p95 10.48 deg); now 0.9 % (1.7 %: 9.77 deg)."""
+    a sample (and a taper) of a folded cell. At the default t = 15 it blended 6.7 % of the map's samples
+    with one triangle of each cell in the equations (angle p95 11.4 deg); with both, 1.9 % (9.6 deg)."""
     from pdehead_addon.pde import surface_uv_map as SM
-    head = solve_pde(cthead_bset)
-    rings, map_u = SM.uv_map_grid(cthead_bset.curves, np.asarray(head.curve_u, float))
+    head = solve_pde(cthead_default_bset)
+    rings, map_u = SM.uv_map_grid(cthead_default_bset.curves, np.asarray(head.curve_u, float),
+                                  v_density=head.v_density())
     U, V, _ = SM.uv_tube_map(rings, map_u)
     monkeypatch.setattr(SM, "UV_FOLD_MARGIN", -np.inf)                    # nothing counts as folded: the free map
     Uf, Vf, _ = SM.uv_tube_map(rings, map_u)
     blended = np.hypot(U - Uf, V - Vf) > 1e-6
-    assert 0 < blended.mean() <= 0.012, blended.mean()
+    assert 0 < blended.mean() <= 0.03, blended.mean()
