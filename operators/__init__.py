@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import bpy
 
-from . import animation, face, forensic, ops, panel, persistence, prefs, props, state, study
+from . import animation, face, forensic, forensic_props, ops, panel, persistence, prefs, props, state, study
 
 
 @bpy.app.handlers.persistent
@@ -31,6 +31,7 @@ def register() -> None:
     for cls in CLASSES:
         bpy.utils.register_class(cls)
     props.attach()
+    forensic_props.register()
     ops.add_menu()
     persistence.register()
     study.register()
@@ -48,6 +49,7 @@ def unregister() -> None:
     study.unregister()
     persistence.unregister()
     ops.remove_menu()
+    forensic_props.unregister()
     props.detach()
     for cls in reversed(CLASSES):
         bpy.utils.unregister_class(cls)

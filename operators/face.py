@@ -4,7 +4,9 @@ The engine (:mod:`pdehead_addon.forensic.face_from_skull`) prepares a :class:`Fa
 landmarks and a depth table (seconds), then solves a face through the peg tips (fast). This module is
 the Blender side of it:
 
-* **Build Face** (:func:`build_face`) prepares the model, builds the face as its own object in the
+The steps are methods of :class:`.forensic_study.ForensicStudy` (defined here in :class:`FaceSteps`):
+
+* **Build Face** (:meth:`FaceSteps.build_face`) prepares the model, builds the face as its own object in the
   study's collection (shaded smooth) and the pegs as child objects of it (one per peg of the model,
   standing on the bone along the bone normal, as long as the table's mean). The label
   :data:`APPROXIMATION_LABEL` and the provenance are custom properties of the face object.
@@ -38,10 +40,12 @@ import bpy
 from ..pdehead_addon import PDEHeadError
 from . import state
 from .coords import MM_TO_M
+from .forensic_export import PEG_DEPTH_PROP, set_peg_depth
+from .forensic_objects import ForensicBase, plain_material, set_material
+from .forensic_props import face_options_of, store_face_options
 from .study_entity import Study
 
 FACE_KEY = "pdehead_face_object"            # collection -> the face object
-FACE_OPTIONS_KEY = "pdehead_face_options"   # collection: JSON of what the face was built from
 SD_FACE_KEYS = {"minus": "pdehead_face_minus_sd_object", "plus": "pdehead_face_plus_sd_object"}
 LABEL_PROP = "pdehead_label"                # face object: the approximation label
 PROVENANCE_PROP = "pdehead_provenance"      # face object: JSON provenance
@@ -79,72 +83,7 @@ def approximation_label() -> str:
     return APPROXIMATION_LABEL
 
 
-def _cache(coll) -> dict:
-    return state.cache_for(state.settings(coll).study_id).forensic
-
-
-def _obj(coll, key):
-    obj = coll.get(key)
-    return obj if isinstance(obj, bpy.types.Object) and obj.name in bpy.data.objects else None
-
-
-def face_object(coll):
-    return _obj(coll, FACE_KEY)
-
-
-def face_options(coll) -> dict:
-    return json.loads(coll.get(FACE_OPTIONS_KEY, "{}") or "{}")
-
-
-# ------------------------------------------------------------------------------------------ inputs
-def skull_mesh(coll):
-    """The bone skull as an engine Mesh (patient mm): read from the study's bone object (what the .blend
-    holds, so a reopened file prepares the same model), else built from the CT."""
-    from ..pdehead_addon import Mesh
-    from .forensic_skull import skull_engine_mesh
-    from .objects import study_origin
-
-    obj = _obj(coll, "pdehead_bone_object")
-    if obj is None or obj.type != 'MESH' or len(obj.data.polygons) == 0:
-        return skull_engine_mesh(coll, "BONE")
-    me = obj.data
-    me.calc_loop_triangles()
-    co = np.empty(len(me.vertices) * 3, np.float32)
-    me.vertices.foreach_get("co", co)
-    tris = np.empty(len(me.loop_triangles) * 3, np.int32)
-    me.loop_triangles.foreach_get("vertices", tris)
-    origin = np.array(study_origin(coll), float)
-    vertices = (co.reshape(-1, 3).astype(np.float64) + origin) / MM_TO_M
-    return Mesh(vertices, np.zeros((0, 4), np.int64), tris.reshape(-1, 3).astype(np.int64))
-
-
 _TABLES: dict = {}
-
-
-def face_table(coll):
-    """The depth table the study's face uses (setting ``face_table``): the shipped T-Table 2023 or a CSV."""
-    import os
-
-    from ..pdehead_addon import default_table, read_depth_table
-
-    s = state.settings(coll)
-    if s.face_table == 'FILE':
-        if not s.face_table_file:
-            raise PDEHeadError("choose a depth table file (Table File), or the T-Table 2023")
-        path = bpy.path.abspath(s.face_table_file)
-        if not os.path.isfile(path):
-            raise PDEHeadError(f"{path}: no such depth table file")
-        key = (path, os.path.getmtime(path))
-    else:
-        key = ("default",)
-    if key not in _TABLES:
-        _TABLES[key] = default_table() if key == ("default",) else read_depth_table(path)
-    return _TABLES[key]
-
-
-def _sex(coll) -> str | None:
-    value = state.settings(coll).face_sex
-    return None if value == 'POOLED' else value.lower()
 
 
 def table_has_sex(table) -> bool:
@@ -152,21 +91,10 @@ def table_has_sex(table) -> bool:
     return bool(getattr(table, "sexes", None) or getattr(table, "by_sex", None))
 
 
-# ------------------------------------------------------------------------------------------ model
 def _prepare(skull, lms, table, **kw):
     PREPARE_CALLS[0] += 1
     from ..pdehead_addon import FaceModel
     return FaceModel.prepare(skull, lms, table, **kw)
-
-
-def _stored_tips(coll, obj, model) -> np.ndarray | None:
-    stored = obj.get(TIPS_PROP) if obj is not None else None
-    if stored is None:
-        return None
-    tips = np.array(stored, float).reshape(-1, 3)
-    if tips.shape != model.peg_bases.shape:
-        return None
-    return _fill_gone(model, tips)
 
 
 def _fill_gone(model, raw: np.ndarray) -> np.ndarray:
@@ -178,372 +106,418 @@ def _fill_gone(model, raw: np.ndarray) -> np.ndarray:
     return tips
 
 
-def _mesh_positions(coll, obj) -> np.ndarray:
-    """The face mesh's vertices in patient mm (the study's frame, before the object's transform)."""
-    from . import objects
-    co = np.empty(len(obj.data.vertices) * 3, np.float32)
-    obj.data.attributes["position"].data.foreach_get("vector", co)
-    return (co.reshape(-1, 3).astype(np.float64) + np.asarray(objects.study_origin(coll))) / MM_TO_M
-
-
-def _restore_model(coll, opts):
-    """The model kept in the file, checked against the saved face (None when there is none or it does not
-    give the saved face): (model, LiveFace)."""
-    from ..pdehead_addon import LiveFace, face_model_from_state
-
-    text = coll.get(FACE_MODEL_KEY)
-    obj = face_object(coll)
-    if not text or obj is None:
+def _stored_tips(obj, model) -> np.ndarray | None:
+    stored = obj.get(TIPS_PROP) if obj is not None else None
+    if stored is None:
         return None
-    try:
-        head, _, body = str(text).partition("\n")
-        if head != opts["build"]:
-            return None
-        model = face_model_from_state(body)
-        tips = _stored_tips(coll, obj, model)
-        if tips is None:
-            return None
-        live = LiveFace(model, check=False)
-        got = live.positions(tips)
-        saved = _mesh_positions(coll, obj)
-        if got is None or got.shape != saved.shape or not np.abs(got - saved).max() <= RESTORE_TOLERANCE_MM:
-            return None
-        live.vertex_count = len(got)
-        live.max_difference_mm = float(np.abs(got - saved).max())
-        return model, live
-    except Exception as exc:  # noqa: BLE001 - a kept model that cannot be used: prepare it again
-        print(f"PDE Head: the face model kept in the file is not used ({exc}); preparing it again")
+    tips = np.array(stored, float).reshape(-1, 3)
+    if tips.shape != model.peg_bases.shape:
         return None
+    return _fill_gone(model, tips)
 
 
-def _keep_model(coll, model, build: str) -> None:
-    """The prepared model into the file (the collection), after its first solve fixed its parameter."""
-    from ..pdehead_addon import face_model_state
-    try:
-        coll[FACE_MODEL_KEY] = build + "\n" + face_model_state(model)
-    except (TypeError, ValueError) as exc:     # a model this version cannot keep: prepared again after reopening
-        coll.pop(FACE_MODEL_KEY, None)
-        print(f"PDE Head: the face model is not kept in the file ({exc}); reopening will prepare it again")
+def _update_peg_table(peg, entry, table) -> None:
+    """A peg's length set to ``entry``'s mean (and its slider to mean +- 2 SD) of ``table``."""
+    lo, hi = entry.range_mm(2.0)
+    peg[PEG_DEPTH_PROP] = float(entry.mean_mm)
+    peg.id_properties_ui(PEG_DEPTH_PROP).update(min=lo, max=hi, soft_min=lo, soft_max=hi,
+                                                default=float(entry.mean_mm))
+    peg["table_mean_mm"] = float(entry.mean_mm)
+    if entry.sd_mm is not None:
+        peg["table_sd_mm"] = float(entry.sd_mm)
+    else:
+        peg.pop("table_sd_mm", None)
+    peg["table_name"] = table.label
+    peg.scale[2] = float(entry.mean_mm)       # what the driver will say; the tip is read from depth_mm
 
 
-def face_model(coll):
-    """The study's prepared FaceModel (runtime cache; when missing, rebuilt from the model kept in the
-    .blend, else prepared again from the .blend's skull, landmarks and table)."""
-    opts = face_options(coll)
-    if not opts:
-        raise PDEHeadError(f"study '{coll.name}' has no face yet: run Build Face")
-    cache = _cache(coll)
-    if cache.get("face_model") is None or cache.get("face_build") != opts["build"]:
-        with state.Timer() as t:
-            restored = _restore_model(coll, opts)
-        if restored is not None:
-            model, live = restored
-            cache.update(face_model=model, face_live=live, face_build=opts["build"], face_tips=None,
-                         face_model_source="file", face_restore_s=t.seconds)
+class FaceSteps:
+    """The face from the skull of a study (part of :class:`.forensic_study.ForensicStudy`)."""
+
+    def face_object(self):
+        return self.linked_object(FACE_KEY)
+
+    def face_options(self) -> dict:
+        """What the face was built from: build id, table JSON, sex, options, flags, landmarks, pegs ({}: none)."""
+        return face_options_of(self.props)
+
+    def face_peg_names(self) -> list[str]:
+        """The landmarks the face has a peg at, in the model's order ([] before Build Face)."""
+        return [g.name for g in self.props.face_pegs]
+
+    # -------------------------------------------------------------------------------------- inputs
+    def face_skull_mesh(self):
+        """The bone skull as an engine Mesh (patient mm): read from the study's bone object (what the .blend
+        holds, so a reopened file prepares the same model), else built from the CT."""
+        from ..pdehead_addon import Mesh
+        from .objects import study_origin
+
+        obj = self.linked_object("pdehead_bone_object")
+        if obj is None or obj.type != 'MESH' or len(obj.data.polygons) == 0:
+            return self.skull_engine_mesh("BONE")
+        me = obj.data
+        me.calc_loop_triangles()
+        co = np.empty(len(me.vertices) * 3, np.float32)
+        me.vertices.foreach_get("co", co)
+        tris = np.empty(len(me.loop_triangles) * 3, np.int32)
+        me.loop_triangles.foreach_get("vertices", tris)
+        origin = np.array(study_origin(self.collection), float)
+        vertices = (co.reshape(-1, 3).astype(np.float64) + origin) / MM_TO_M
+        return Mesh(vertices, np.zeros((0, 4), np.int64), tris.reshape(-1, 3).astype(np.int64))
+
+    def face_table(self):
+        """The depth table the study's face uses (setting ``face_table``): the shipped T-Table 2023 or a CSV."""
+        import os
+
+        from ..pdehead_addon import default_table, read_depth_table
+
+        s = self.settings
+        if s.face_table == 'FILE':
+            if not s.face_table_file:
+                raise PDEHeadError("choose a depth table file (Table File), or the T-Table 2023")
+            path = bpy.path.abspath(s.face_table_file)
+            if not os.path.isfile(path):
+                raise PDEHeadError(f"{path}: no such depth table file")
+            key = (path, os.path.getmtime(path))
         else:
-            from ..pdehead_addon import DepthTable
-            table = DepthTable.from_json(opts["table"])
-            lms = {k: np.array(v, float) for k, v in opts["landmarks"].items()}
+            key = ("default",)
+        if key not in _TABLES:
+            _TABLES[key] = default_table() if key == ("default",) else read_depth_table(path)
+        return _TABLES[key]
+
+    def face_sex(self) -> str | None:
+        value = self.settings.face_sex
+        return None if value == 'POOLED' else value.lower()
+
+    # -------------------------------------------------------------------------------------- model
+    def _mesh_positions(self, obj) -> np.ndarray:
+        """The face mesh's vertices in patient mm (the study's frame, before the object's transform)."""
+        from . import objects
+        co = np.empty(len(obj.data.vertices) * 3, np.float32)
+        obj.data.attributes["position"].data.foreach_get("vector", co)
+        return (co.reshape(-1, 3).astype(np.float64) + np.asarray(objects.study_origin(self.collection))) / MM_TO_M
+
+    def _restore_model(self, opts):
+        """The model kept in the file, checked against the saved face (None when there is none or it does not
+        give the saved face): (model, LiveFace)."""
+        from ..pdehead_addon import LiveFace, face_model_from_state
+
+        text = self.collection.get(FACE_MODEL_KEY)
+        obj = self.face_object()
+        if not text or obj is None:
+            return None
+        try:
+            head, _, body = str(text).partition("\n")
+            if head != opts["build"]:
+                return None
+            model = face_model_from_state(body)
+            tips = _stored_tips(obj, model)
+            if tips is None:
+                return None
+            live = LiveFace(model, check=False)
+            got = live.positions(tips)
+            saved = self._mesh_positions(obj)
+            if got is None or got.shape != saved.shape or not np.abs(got - saved).max() <= RESTORE_TOLERANCE_MM:
+                return None
+            live.vertex_count = len(got)
+            live.max_difference_mm = float(np.abs(got - saved).max())
+            return model, live
+        except Exception as exc:  # noqa: BLE001 - a kept model that cannot be used: prepare it again
+            print(f"PDE Head: the face model kept in the file is not used ({exc}); preparing it again")
+            return None
+
+    def _keep_model(self, model, build: str) -> None:
+        """The prepared model into the file (the collection), after its first solve fixed its parameter."""
+        from ..pdehead_addon import face_model_state
+        try:
+            self.collection[FACE_MODEL_KEY] = build + "\n" + face_model_state(model)
+        except (TypeError, ValueError) as exc:     # a model this version cannot keep: prepared again after reopening
+            self.collection.pop(FACE_MODEL_KEY, None)
+            print(f"PDE Head: the face model is not kept in the file ({exc}); reopening will prepare it again")
+
+    def face_model(self):
+        """The study's prepared FaceModel (runtime cache; when missing, rebuilt from the model kept in the
+        .blend, else prepared again from the .blend's skull, landmarks and table)."""
+        opts = self.face_options()
+        if not opts:
+            raise PDEHeadError(f"study '{self.name}' has no face yet: run Build Face")
+        cache = self.cache
+        if cache.get("face_model") is None or cache.get("face_build") != opts["build"]:
             with state.Timer() as t:
-                model = _prepare(skull_mesh(coll), lms, table, sex=opts.get("sex"),
-                                 flags=opts.get("flags"), **opts.get("options", {}))
-            cache.update(face_model=model, face_live=None, face_build=opts["build"], face_tips=None,
-                         face_prepare_s=t.seconds, face_model_source="prepared")
-    return cache["face_model"]
+                restored = self._restore_model(opts)
+            if restored is not None:
+                model, live = restored
+                cache.update(face_model=model, face_live=live, face_build=opts["build"], face_tips=None,
+                             face_model_source="file", face_restore_s=t.seconds)
+            else:
+                from ..pdehead_addon import DepthTable
+                table = DepthTable.from_json(opts["table"])
+                lms = {k: np.array(v, float) for k, v in opts["landmarks"].items()}
+                with state.Timer() as t:
+                    model = _prepare(self.face_skull_mesh(), lms, table, sex=opts.get("sex"),
+                                     flags=opts.get("flags"), **opts.get("options", {}))
+                cache.update(face_model=model, face_live=None, face_build=opts["build"], face_tips=None,
+                             face_prepare_s=t.seconds, face_model_source="prepared")
+        return cache["face_model"]
 
+    def face_live(self):
+        """The study's :class:`.face_live.LiveFace` (made on first use: it checks itself against the model)."""
+        model = self.face_model()
+        live = self.cache.get("face_live")
+        if live is None or live.model is not model:
+            from ..pdehead_addon import LiveFace
+            live = LiveFace(model)
+            self.cache["face_live"] = live
+        return live
 
-def face_live(coll):
-    """The study's :class:`.face_live.LiveFace` (made on first use: it checks itself against the model)."""
-    model = face_model(coll)
-    cache = _cache(coll)
-    live = cache.get("face_live")
-    if live is None or live.model is not model:
-        from ..pdehead_addon import LiveFace
-        live = LiveFace(model)
-        cache["face_live"] = live
-    return live
+    def peg_objects(self, names: list[str]) -> dict:
+        """name -> the study's peg object of that landmark (the face's children first)."""
+        face = self.face_object()
+        found = {}
+        if face is not None:
+            for o in face.children:
+                name = o.get("pdehead_peg")
+                if name in names and name not in found:
+                    found[name] = o
+        if len(found) < len(names):
+            for o in self.collection.all_objects:
+                name = o.get("pdehead_peg")
+                if name in names and name not in found:
+                    found[name] = o
+        return found
 
-
-def peg_objects(coll, names: list[str]) -> dict:
-    """name -> the study's peg object of that landmark (the face's children first)."""
-    face = face_object(coll)
-    found = {}
-    if face is not None:
-        for o in face.children:
-            name = o.get("pdehead_peg")
-            if name in names and name not in found:
-                found[name] = o
-    if len(found) < len(names):
-        for o in coll.all_objects:
-            name = o.get("pdehead_peg")
-            if name in names and name not in found:
-                found[name] = o
-    return found
-
-
-def peg_tips(coll, names: list[str]) -> np.ndarray:
-    """The peg tips (patient mm), in ``names`` order: each peg's origin plus ``depth_mm`` along its Z axis.
-    A peg that is gone gives NaN."""
-    from .forensic_study import PEG_DEPTH_PROP, frankfurt_matrix
-
-    pegs = peg_objects(coll, names)
-    tips = np.full((len(names), 3), np.nan)
-    rows = [i for i, name in enumerate(names) if name in pegs]
-    if not rows:
+    def peg_tips(self, names: list[str]) -> np.ndarray:
+        """The peg tips (patient mm), in ``names`` order: each peg's origin plus ``depth_mm`` along its Z axis.
+        A peg that is gone gives NaN."""
+        pegs = self.peg_objects(names)
+        tips = np.full((len(names), 3), np.nan)
+        rows = [i for i, name in enumerate(names) if name in pegs]
+        if not rows:
+            return tips
+        inverse = np.array(self.frankfurt_matrix().inverted())
+        found = [pegs[names[i]] for i in rows]
+        m = np.array([p.matrix_world for p in found], float)                       # (k, 4, 4), one read per peg
+        depth = np.array([float(p.get(PEG_DEPTH_PROP, 0.0)) for p in found])
+        axis = m[:, :3, 2]
+        length = np.linalg.norm(axis, axis=1)
+        ok = length > 0
+        tip = m[:, :3, 3] + axis / np.where(ok, length, 1.0)[:, None] * (depth * MM_TO_M)[:, None]
+        world = (tip @ inverse[:3, :3].T + inverse[:3, 3]) / MM_TO_M
+        tips[np.asarray(rows)[ok]] = world[ok]
         return tips
-    inverse = np.array(frankfurt_matrix(coll).inverted())
-    found = [pegs[names[i]] for i in rows]
-    m = np.array([p.matrix_world for p in found], float)                       # (k, 4, 4), one read per peg
-    depth = np.array([float(p.get(PEG_DEPTH_PROP, 0.0)) for p in found])
-    axis = m[:, :3, 2]
-    length = np.linalg.norm(axis, axis=1)
-    ok = length > 0
-    tip = m[:, :3, 3] + axis / np.where(ok, length, 1.0)[:, None] * (depth * MM_TO_M)[:, None]
-    world = (tip @ inverse[:3, :3].T + inverse[:3, 3]) / MM_TO_M
-    tips[np.asarray(rows)[ok]] = world[ok]
-    return tips
 
+    def _write_positions(self, obj, mesh=None, positions=None) -> bool:
+        """The face mesh's vertex positions rewritten in place (same topology: the fast path), else the same
+        mesh datablock refilled (the face's caps may gain or lose a vertex between two solves). ``positions``
+        (patient mm) instead of a ``mesh``: only the positions. Returns whether the mesh was refilled."""
+        from . import objects
 
-def _write_positions(coll, obj, mesh=None, positions=None) -> bool:
-    """The face mesh's vertex positions rewritten in place (same topology: the fast path), else the same
-    mesh datablock refilled (the face's caps may gain or lose a vertex between two solves). ``positions``
-    (patient mm) instead of a ``mesh``: only the positions. Returns whether the mesh was refilled."""
-    from . import objects
+        me = obj.data
+        verts = positions if positions is not None else mesh.vertices
+        if len(me.vertices) == len(verts) and (positions is not None or len(me.polygons) == mesh.face_count):
+            local = np.asarray(verts, np.float64) * MM_TO_M - np.asarray(objects.study_origin(self.collection))
+            me.attributes["position"].data.foreach_set("vector", np.ascontiguousarray(local, np.float32).ravel())
+            me.update()
+            return False
+        if mesh is None:
+            raise ValueError("the face's vertex count changed: a whole mesh is needed")
+        objects.build_mesh_object(mesh, self.collection, obj.name, obj=obj, smooth=True)
+        return True
 
-    me = obj.data
-    verts = positions if positions is not None else mesh.vertices
-    if len(me.vertices) == len(verts) and (positions is not None or len(me.polygons) == mesh.face_count):
-        local = np.asarray(verts, np.float64) * MM_TO_M - np.asarray(objects.study_origin(coll))
-        me.attributes["position"].data.foreach_set("vector", np.ascontiguousarray(local, np.float32).ravel())
-        me.update()
-        return False
-    if mesh is None:
-        raise ValueError("the face's vertex count changed: a whole mesh is needed")
-    objects.build_mesh_object(mesh, coll, obj.name, obj=obj, smooth=True)
-    return True
+    def _face_provenance(self, result_provenance: dict, table) -> dict:
+        from ..pdehead_addon import provenance
 
+        opts = self.face_options()
+        rec = provenance(label=approximation_label(), **(table.provenance_record() if table is not None else {}))
+        rec.update({k: v for k, v in dict(result_provenance).items() if k not in rec})
+        flags = self.flag_names()
+        rec["landmarks"] = {n: flags.get(n, "ok") for n in opts.get("landmarks", {})}
+        rec["sex"] = opts.get("sex") or "pooled"
+        rec["label"] = approximation_label()
+        return rec
 
-def _provenance(coll, result_provenance: dict, table) -> dict:
-    from .forensic_study import flag_names
-    from ..pdehead_addon import provenance
+    def solve_face(self, tips: np.ndarray | None = None, table=None) -> dict:
+        """Solve the face through ``tips`` (default: the pegs' tips now) and rewrite the face object's vertices.
+        Returns the timings (seconds): ``solve`` (the engine), ``write`` (Blender) and ``total``; ``fast``:
+        whether the positions came from :class:`.face_live.LiveFace` (else the model's whole solve)."""
+        t0 = time.perf_counter()
+        obj = self.face_object()
+        if obj is None:
+            raise PDEHeadError(f"study '{self.name}' has no face: run Build Face")
+        model = self.face_model()
+        live = self.face_live()
+        names = list(model.peg_names)
+        if tips is None:
+            tips = self.peg_tips(names)
+        raw = np.asarray(tips, float)
+        tips = _fill_gone(model, raw)     # a deleted peg: its tip back at the table's mean (the raw NaN is compared)
+        t1 = time.perf_counter()
+        positions = live.positions(tips) if len(obj.data.vertices) == live.vertex_count else None
+        result = model.solve(tips=tips) if positions is None else None
+        t2 = time.perf_counter()
+        refilled = self._write_positions(obj, mesh=result.mesh if result is not None else None, positions=positions)
+        obj[TIPS_PROP] = [float(v) for v in raw.ravel()]
+        if table is not None:
+            prov = live.provenance(tips) if result is None else result.provenance
+            obj[PROVENANCE_PROP] = json.dumps(self._face_provenance(prov, table))
+        t3 = time.perf_counter()
+        self.cache["face_tips"] = raw
+        timings = {"tips": t1 - t0, "solve": t2 - t1, "write": t3 - t2, "total": t3 - t0, "refilled": refilled,
+                   "fast": positions is not None, "engine": dict(result.timings) if result is not None else {}}
+        self.cache["face_timings"] = timings
+        obj["pdehead_face_ms"] = round(1000 * timings["total"], 1)
+        return timings
 
-    opts = face_options(coll)
-    rec = provenance(label=approximation_label(), **(table.provenance_record() if table is not None else {}))
-    rec.update({k: v for k, v in dict(result_provenance).items() if k not in rec})
-    flags = flag_names(coll)
-    rec["landmarks"] = {n: flags.get(n, "ok") for n in opts.get("landmarks", {})}
-    rec["sex"] = opts.get("sex") or "pooled"
-    rec["label"] = approximation_label()
-    return rec
+    def live_status(self) -> str | None:
+        """One line for the panel: how the last change was solved (None before the first change)."""
+        timings = self.cache.get("face_timings")
+        if not timings:
+            return None
+        text = "Live: vertex positions only" if timings.get("fast") else "Live: whole mesh solved (slower)"
+        return text + (", model from the file" if self.cache.get("face_model_source") == "file" else "")
 
+    def face_changed(self) -> bool:
+        """Whether a peg tip moved since the last solve (cheap: no model needed)."""
+        return self.moved_tips() is not None
 
-def solve_face(coll, tips: np.ndarray | None = None, table=None) -> dict:
-    """Solve the face through ``tips`` (default: the pegs' tips now) and rewrite the face object's vertices.
-    Returns the timings (seconds): ``solve`` (the engine), ``write`` (Blender) and ``total``; ``fast``:
-    whether the positions came from :class:`.face_live.LiveFace` (else the model's whole solve)."""
-    t0 = time.perf_counter()
-    obj = face_object(coll)
-    if obj is None:
-        raise PDEHeadError(f"study '{coll.name}' has no face: run Build Face")
-    model = face_model(coll)
-    live = face_live(coll)
-    names = list(model.peg_names)
-    if tips is None:
-        tips = peg_tips(coll, names)
-    raw = np.asarray(tips, float)
-    tips = _fill_gone(model, raw)     # a deleted peg: its tip back at the table's mean (the raw NaN is compared)
-    t1 = time.perf_counter()
-    positions = live.positions(tips) if len(obj.data.vertices) == live.vertex_count else None
-    result = model.solve(tips=tips) if positions is None else None
-    t2 = time.perf_counter()
-    refilled = _write_positions(coll, obj, mesh=result.mesh if result is not None else None, positions=positions)
-    obj[TIPS_PROP] = [float(v) for v in raw.ravel()]
-    if table is not None:
-        prov = live.provenance(tips) if result is None else result.provenance
-        obj[PROVENANCE_PROP] = json.dumps(_provenance(coll, prov, table))
-    t3 = time.perf_counter()
-    _cache(coll)["face_tips"] = raw
-    timings = {"tips": t1 - t0, "solve": t2 - t1, "write": t3 - t2, "total": t3 - t0, "refilled": refilled,
-               "fast": positions is not None, "engine": dict(result.timings) if result is not None else {}}
-    _cache(coll)["face_timings"] = timings
-    obj["pdehead_face_ms"] = round(1000 * timings["total"], 1)
-    return timings
+    def moved_tips(self) -> np.ndarray | None:
+        """The pegs' tips now when one moved since the last solve, else None (read once: the handler solves
+        through these same tips)."""
+        obj = self.face_object()
+        if obj is None:
+            return None
+        last = self.cache.get("face_tips")
+        if last is None:
+            stored = obj.get(TIPS_PROP)
+            if stored is not None:
+                last = np.array(stored, float).reshape(-1, 3)
+                self.cache["face_tips"] = last
+        now = self.peg_tips(self.face_peg_names())
+        if last is None or now.shape != last.shape:
+            return now
+        same = np.abs(now - last) <= TIP_TOLERANCE_MM
+        same |= np.isnan(now) & np.isnan(last)             # a peg that is gone stays gone: no new solve
+        return None if bool(same.all()) else now
 
+    # -------------------------------------------------------------------------------------- build
+    def build_face(self) -> tuple:
+        """Build the face of the study (skull and landmarks made first when missing): (face object, pegs)."""
+        from . import objects
 
-def live_status(coll) -> str | None:
-    """One line for the panel: how the last change was solved (None before the first change)."""
-    cache = _cache(coll)
-    timings = cache.get("face_timings")
-    if not timings:
-        return None
-    text = "Live: vertex positions only" if timings.get("fast") else "Live: whole mesh solved (slower)"
-    return text + (", model from the file" if cache.get("face_model_source") == "file" else "")
-
-
-def face_changed(coll) -> bool:
-    """Whether a peg tip moved since the last solve (cheap: no model needed)."""
-    return _moved_tips(coll) is not None
-
-
-def _moved_tips(coll) -> np.ndarray | None:
-    """The pegs' tips now when one moved since the last solve, else None (read once: the handler solves
-    through these same tips)."""
-    obj = face_object(coll)
-    if obj is None:
-        return None
-    last = _cache(coll).get("face_tips")
-    if last is None:
-        stored = obj.get(TIPS_PROP)
-        if stored is not None:
-            last = np.array(stored, float).reshape(-1, 3)
-            _cache(coll)["face_tips"] = last
-    names = face_options(coll).get("pegs", [])
-    now = peg_tips(coll, names)
-    if last is None or now.shape != last.shape:
-        return now
-    same = np.abs(now - last) <= TIP_TOLERANCE_MM
-    same |= np.isnan(now) & np.isnan(last)             # a peg that is gone stays gone: no new solve
-    return None if bool(same.all()) else now
-
-
-# ------------------------------------------------------------------------------------------ build
-def build_face(coll) -> tuple:
-    """Build the face of the study (skull and landmarks made first when missing): (face object, pegs)."""
-    from . import objects
-    from .forensic_objects import plain_material, set_material
-    from .forensic_skull import step_skull
-    from .forensic_study import (BASE_MATRIX_KEY, FRANKFURT_KEY, find_landmarks, flag_names, frankfurt_matrix, landmarks,
-                                 make_pegs)
-
-    s = state.settings(coll)
-    if _obj(coll, "pdehead_bone_object") is None:
-        step_skull(coll, s.nu, s.nv)
-    if not landmarks(coll):
-        find_landmarks(coll)
-    table = face_table(coll)
-    lms = landmarks(coll)
-    sex = _sex(coll)
-    flags = flag_names(coll)
-    with state.Timer() as t:
-        model = _prepare(skull_mesh(coll), lms, table, sex=sex, flags=flags)
-    if not len(model.peg_names):
-        raise PDEHeadError(f"none of the landmarks ({', '.join(lms) or 'none'}) is in the depth table "
-                           f"'{table.label}': no peg to build the face through")
-    build = uuid.uuid4().hex
-    coll[FACE_OPTIONS_KEY] = json.dumps(dict(build=build, table=table.to_json(), sex=sex, options={}, flags=flags,
-                                             landmarks={k: [float(c) for c in v] for k, v in lms.items()},
-                                             pegs=list(model.peg_names)))
-    _cache(coll).update(face_model=model, face_live=None, face_build=build, face_tips=None,
-                        face_prepare_s=t.seconds, face_model_source="prepared")
-    result = model.solve()
-    obj = objects.build_mesh_object(result.mesh, coll, f"{coll.name} Face", obj=face_object(coll), smooth=True)
-    obj["pdehead_kind"] = FACE_KIND
-    obj[LABEL_PROP] = approximation_label()
-    coll[FACE_KEY] = obj
-    set_material(obj, plain_material(FACE_MATERIAL, (0.80, 0.62, 0.52, 1.0)))
-    if coll.get(FRANKFURT_KEY):
-        obj[BASE_MATRIX_KEY] = [v for row in obj.matrix_world for v in row]
-        obj.matrix_world = frankfurt_matrix(coll) @ obj.matrix_world
-    # the pegs: one per peg of the model (old pegs of the study are replaced), children of the face
-    pegs = make_pegs(coll, table, pegs=[(n, model.peg_bases[i], model.peg_normals[i],
-                                         float(model.default_depths[i])) for i, n in enumerate(model.peg_names)])
-    for peg in pegs:
-        world = peg.matrix_world.copy()
-        peg.parent = obj
-        peg.matrix_parent_inverse = obj.matrix_world.inverted()
-        peg.matrix_world = world
-    tips = model.peg_bases + model.peg_normals * np.asarray(model.default_depths, float)[:, None]
-    obj[TIPS_PROP] = [float(v) for v in tips.ravel()]
-    obj[PROVENANCE_PROP] = json.dumps(_provenance(coll, result.provenance, table))
-    _cache(coll)["face_tips"] = tips
-    _keep_model(coll, model, build)
-    from ..pdehead_addon import LiveFace
-    _cache(coll)["face_live"] = LiveFace(model)
-    Study.of(coll).record_timing("face_prepare", t.seconds)
-    return obj, pegs
-
-
-def switch_table(coll) -> dict | None:
-    """The face's pegs set to the mean (and mean +- 2 SD range) of the study's table now, and the face
-    re-solved; pegs the new table lacks keep their length. None when the study has no face."""
-    from .forensic_study import PEG_DEPTH_PROP
-
-    obj = face_object(coll)
-    if obj is None:
-        return None
-    table = face_table(coll)
-    opts = face_options(coll)
-    pegs = peg_objects(coll, opts.get("pegs", []))
-    for name, peg in pegs.items():
-        entry = table.entries.get(name)
-        if entry is None:
-            continue
-        lo, hi = entry.range_mm(2.0)
-        peg[PEG_DEPTH_PROP] = float(entry.mean_mm)
-        peg.id_properties_ui(PEG_DEPTH_PROP).update(min=lo, max=hi, soft_min=lo, soft_max=hi,
-                                                    default=float(entry.mean_mm))
-        peg["table_mean_mm"] = float(entry.mean_mm)
-        if entry.sd_mm is not None:
-            peg["table_sd_mm"] = float(entry.sd_mm)
-        else:
-            peg.pop("table_sd_mm", None)
-        peg["table_name"] = table.label
-        peg.scale[2] = float(entry.mean_mm)       # what the driver will say; the tip is read from depth_mm
-    opts["table"] = table.to_json()
-    coll[FACE_OPTIONS_KEY] = json.dumps(opts)
-    return solve_face(coll, table=table)
-
-
-def set_peg_depth(coll, peg, depth_mm: float) -> float:
-    """A face peg's length (limited to its table's mean +- 2 SD) and the face re-solved; returns the length."""
-    from .forensic_study import set_peg_depth as set_depth
-    value = set_depth(peg, depth_mm)
-    if face_object(coll) is not None:
-        solve_face(coll)
-    return value
-
-
-def build_sd_faces(coll) -> list:
-    """The faces with every peg at its length - 1 SD and + 1 SD (pegs without an SD stay), as two objects
-    beside the face (wire display): the range the table allows. Returns [minus, plus]."""
-    from . import objects
-    from .forensic_objects import plain_material, set_material
-
-    face = face_object(coll)
-    if face is None:
-        raise PDEHeadError(f"study '{coll.name}' has no face: run Build Face")
-    model = face_model(coll)
-    names = list(model.peg_names)
-    tips = peg_tips(coll, names)
-    depth = np.einsum("ij,ij->i", tips - model.peg_bases, model.peg_normals)
-    sd = np.nan_to_num(np.asarray(model.depth_sd, float), nan=0.0)
-    made = []
-    for sign, key in ((-1.0, "minus"), (1.0, "plus")):
-        result = model.solve(depths=np.maximum(depth + sign * sd, 0.0))
-        label = "-1 SD" if sign < 0 else "+1 SD"
-        obj = objects.build_mesh_object(result.mesh, coll, f"{coll.name} Face {label}",
-                                        obj=_obj(coll, SD_FACE_KEYS[key]), smooth=True)
-        obj["pdehead_kind"] = f"face_{key}_sd"
+        coll = self.collection
+        s = self.settings
+        if self.linked_object("pdehead_bone_object") is None:
+            self.step_skull(s.nu, s.nv)
+        if not self.landmarks():
+            self.find_landmarks()
+        table = self.face_table()
+        lms = self.landmarks()
+        sex = self.face_sex()
+        flags = self.flag_names()
+        with state.Timer() as t:
+            model = _prepare(self.face_skull_mesh(), lms, table, sex=sex, flags=flags)
+        if not len(model.peg_names):
+            raise PDEHeadError(f"none of the landmarks ({', '.join(lms) or 'none'}) is in the depth table "
+                               f"'{table.label}': no peg to build the face through")
+        build = uuid.uuid4().hex
+        store_face_options(self.props, dict(build=build, table=table.to_json(), sex=sex, options={}, flags=flags,
+                                            landmarks={k: [float(c) for c in v] for k, v in lms.items()},
+                                            pegs=list(model.peg_names)))
+        self.cache.update(face_model=model, face_live=None, face_build=build, face_tips=None,
+                          face_prepare_s=t.seconds, face_model_source="prepared")
+        result = model.solve()
+        obj = objects.build_mesh_object(result.mesh, coll, f"{coll.name} Face", obj=self.face_object(), smooth=True)
+        obj["pdehead_kind"] = FACE_KIND
         obj[LABEL_PROP] = approximation_label()
-        obj[PROVENANCE_PROP] = json.dumps(dict(json.loads(face.get(PROVENANCE_PROP, "{}")),
-                                               depths=f"every peg at its length {label}"))
-        obj.display_type = 'WIRE'
-        obj.matrix_world = face.matrix_world
-        set_material(obj, plain_material(*SD_MATERIALS[key]))
-        coll[SD_FACE_KEYS[key]] = obj
-        made.append(obj)
-    return made
+        coll[FACE_KEY] = obj
+        set_material(obj, plain_material(FACE_MATERIAL, (0.80, 0.62, 0.52, 1.0)))
+        self.to_frankfurt(obj)
+        # the pegs: one per peg of the model (old pegs of the study are replaced), children of the face
+        pegs = self.make_pegs(table, pegs=[(n, model.peg_bases[i], model.peg_normals[i],
+                                            float(model.default_depths[i])) for i, n in enumerate(model.peg_names)])
+        for peg in pegs:
+            world = peg.matrix_world.copy()
+            peg.parent = obj
+            peg.matrix_parent_inverse = obj.matrix_world.inverted()
+            peg.matrix_world = world
+        tips = model.peg_bases + model.peg_normals * np.asarray(model.default_depths, float)[:, None]
+        obj[TIPS_PROP] = [float(v) for v in tips.ravel()]
+        obj[PROVENANCE_PROP] = json.dumps(self._face_provenance(result.provenance, table))
+        self.cache["face_tips"] = tips
+        self._keep_model(model, build)
+        from ..pdehead_addon import LiveFace
+        self.cache["face_live"] = LiveFace(model)
+        self.study.record_timing("face_prepare", t.seconds)
+        return obj, pegs
+
+    def switch_table(self) -> dict | None:
+        """The face's pegs set to the mean (and mean +- 2 SD range) of the study's table now, and the face
+        re-solved; pegs the new table lacks keep their length. None when the study has no face."""
+        if self.face_object() is None:
+            return None
+        table = self.face_table()
+        for name, peg in self.peg_objects(self.face_peg_names()).items():
+            entry = table.entries.get(name)
+            if entry is not None:
+                _update_peg_table(peg, entry, table)
+        self.props.face_table = table.to_json()
+        return self.solve_face(table=table)
+
+    def set_face_peg_depth(self, peg, depth_mm: float) -> float:
+        """A face peg's length (limited to its table's mean +- 2 SD) and the face re-solved; returns the length."""
+        value = set_peg_depth(peg, depth_mm)
+        if self.face_object() is not None:
+            self.solve_face()
+        return value
+
+    def build_sd_faces(self) -> list:
+        """The faces with every peg at its length - 1 SD and + 1 SD (pegs without an SD stay), as two objects
+        beside the face (wire display): the range the table allows. Returns [minus, plus]."""
+        from . import objects
+
+        coll = self.collection
+        face = self.face_object()
+        if face is None:
+            raise PDEHeadError(f"study '{self.name}' has no face: run Build Face")
+        model = self.face_model()
+        tips = self.peg_tips(list(model.peg_names))
+        depth = np.einsum("ij,ij->i", tips - model.peg_bases, model.peg_normals)
+        sd = np.nan_to_num(np.asarray(model.depth_sd, float), nan=0.0)
+        made = []
+        for sign, key in ((-1.0, "minus"), (1.0, "plus")):
+            result = model.solve(depths=np.maximum(depth + sign * sd, 0.0))
+            label = "-1 SD" if sign < 0 else "+1 SD"
+            obj = objects.build_mesh_object(result.mesh, coll, f"{coll.name} Face {label}",
+                                            obj=self.linked_object(SD_FACE_KEYS[key]), smooth=True)
+            obj["pdehead_kind"] = f"face_{key}_sd"
+            obj[LABEL_PROP] = approximation_label()
+            obj[PROVENANCE_PROP] = json.dumps(dict(json.loads(face.get(PROVENANCE_PROP, "{}")),
+                                                   depths=f"every peg at its length {label}"))
+            obj.display_type = 'WIRE'
+            obj.matrix_world = face.matrix_world
+            set_material(obj, plain_material(*SD_MATERIALS[key]))
+            coll[SD_FACE_KEYS[key]] = obj
+            made.append(obj)
+        return made
+
+    def live_table(self) -> None:
+        """After ``face_table`` / ``face_table_file`` changed: :meth:`switch_table` (never raises into the UI)."""
+        try:
+            self.switch_table()
+            self.settings.last_error = ""
+        except Exception as exc:  # noqa: BLE001 - an update callback must never raise into the UI
+            self.settings.last_error = f"face: {exc}"[:500]
 
 
 # ------------------------------------------------------------------------------------------ live
+def forensic_of(coll):
+    """The forensic side (:class:`.forensic_study.ForensicStudy`) of a study collection."""
+    return ForensicBase.of(Study.of(coll))
+
+
 def live_table(coll) -> None:
-    """Update callback of ``face_table`` / ``face_table_file`` (never raises into the UI)."""
-    s = state.settings(coll)
-    try:
-        switch_table(coll)
-        s.last_error = ""
-    except Exception as exc:  # noqa: BLE001 - an update callback must never raise into the UI
-        s.last_error = f"face: {exc}"[:500]
+    """Update callback of the study settings ``face_table`` / ``face_table_file`` (:mod:`.props`)."""
+    forensic_of(coll).live_table()
 
 
 _BUSY = [False]
@@ -563,18 +537,18 @@ def pdehead_face_update(_scene, depsgraph=None) -> None:
         for coll in state.studies():
             if FACE_KEY not in coll:
                 continue
-            obj = face_object(coll)
+            fs = forensic_of(coll)
+            obj = fs.face_object()
             if obj is None or obj.mode == 'EDIT':      # edited by hand: Blender's edit mesh would overwrite it
                 continue
             try:
-                tips = _moved_tips(coll)
+                tips = fs.moved_tips()
                 if tips is not None:
-                    solve_face(coll, tips=tips)
+                    fs.solve_face(tips=tips)
             except Exception as exc:  # noqa: BLE001 - a handler must not raise into Blender
-                obj = face_object(coll)
-                if obj is not None:      # do not retry on every update: remember the tips tried
-                    _cache(coll)["face_tips"] = peg_tips(coll, face_options(coll).get("pegs", []))
-                state.settings(coll).last_error = f"face: {exc}"[:500]
+                if fs.face_object() is not None:      # do not retry on every update: remember the tips tried
+                    fs.cache["face_tips"] = fs.peg_tips(fs.face_peg_names())
+                fs.settings.last_error = f"face: {exc}"[:500]
                 print(f"PDE Head: face of '{coll.name}' not updated: {exc}")
     finally:
         _BUSY[0] = False

@@ -1,7 +1,9 @@
-"""Forensic toolkit in Blender: the operators and the sidebar panel (steps in :mod:`.forensic_study`).
+"""Forensic toolkit in Blender: the operators and the sidebar panel (steps: :class:`.forensic_study.ForensicStudy`).
 
 Build Skull, Tissue Depth, Place Landmark, Depth Table, Depths CSV, Frankfurt, Mirror and Export
-for Printing: each reads its options, calls one step of :mod:`.forensic_study` and reports.
+for Printing: each reads its options, calls one step of the study's :class:`.forensic_study.ForensicStudy`
+and reports. The skull they measure on (``target``) and the longest depth searched are remembered in the
+study's forensic settings (:mod:`.forensic_props`) and offered again when an operator is invoked from the UI.
 """
 from __future__ import annotations
 
@@ -16,26 +18,55 @@ from bpy.types import Operator, Panel
 
 from ..pdehead_addon import PDEHeadError
 from ..pdehead_addon import STANDARD_LANDMARKS
+from ..pdehead_addon import defaults as D
 from . import state
 from .base import StudyOperator
-from .forensic_objects import linked_object
-from .forensic_skull import (DEPTH_ATTRIBUTE, DEPTH_MATERIAL, DEPTH_STATS_KEY, SKULL_INFO_KEY, skin_engine_mesh,
-                             skull_engine_mesh, step_depth, step_skull)
-from .forensic_study import (MIRROR_PLANES, PEG_DEPTH_PROP, apply_frankfurt, export_study, find_landmarks,
-                             forensic_provenance, landmark_flags, landmarks, make_pegs, measured_landmark_depths,
-                             mirror_object, place_landmark, snap_moved_landmarks, study_depth_table, world_to_patient)
+from .face import FACE_KEY, LABEL_PROP, PROVENANCE_PROP, approximation_label, table_has_sex
+from .forensic_export import PEG_DEPTH_PROP
+from .forensic_props import TARGET_ITEMS
+from .forensic_skull import DEPTH_ATTRIBUTE, DEPTH_MATERIAL
+from .forensic_study import MIRROR_PLANES, ForensicStudy
+from .study_entity import Study
 
 _LANDMARK_ITEMS = [(d.name, d.name, d.description) for d in STANDARD_LANDMARKS]
+_FORMAT_ITEMS = [('stl', "STL", ""), ('obj', "OBJ", ""), ('ply', "PLY", "")]
 
 
 # ------------------------------------------------------------------------------------------ operators
-TARGET_ITEMS = [('BONE', "Bone skull", "The bone surface: smoothed marching cubes of the bone (skull.<fmt>)"),
-                ('PDE', "PDE envelope", "The smooth PDE skull envelope over orbits and nasal aperture "
-                                        "(skull_envelope.<fmt>)")]
+def _target_property(label: str = D.DEPTH_TARGET.label):
+    return EnumProperty(name=label, items=TARGET_ITEMS, default=D.DEPTH_TARGET.default,
+                        description=D.DEPTH_TARGET.description)
 
 
 class _ForensicOp(StudyOperator):
+    """A forensic operator: ``run_forensic(context, fs)`` on the study's :class:`.forensic_study.ForensicStudy`.
+
+    Its ``target`` / ``max_depth`` (where it has them) are the study's forensic settings: offered again when
+    invoked from the UI, recorded when run."""
+
     bl_options = {'REGISTER', 'UNDO'}
+    #: Operator properties that are forensic settings of the study (:class:`.forensic_props.PDEHeadForensicSettings`).
+    forensic_settings = ()
+
+    def invoke(self, context, event):
+        self.offer_forensic_settings(context)
+        return self.execute(context)
+
+    def offer_forensic_settings(self, context) -> None:
+        study = Study.active(context, self.study)
+        if study is not None and self.forensic_settings:
+            p = ForensicStudy.of(study).props
+            for name in self.forensic_settings:
+                setattr(self, name, getattr(p, name))
+
+    def run(self, context, study):
+        fs = ForensicStudy.of(study)
+        for name in self.forensic_settings:
+            setattr(fs.props, name, getattr(self, name))
+        return self.run_forensic(context, fs)
+
+    def run_forensic(self, context, fs: ForensicStudy):
+        raise NotImplementedError(type(self).__name__)
 
 
 class PDEHEAD_OT_build_skull(Operator, _ForensicOp):
@@ -43,17 +74,15 @@ class PDEHEAD_OT_build_skull(Operator, _ForensicOp):
 
     bl_idname = "pdehead.build_skull"
     bl_label = "Build Skull"
-    nu: IntProperty(name="u Resolution", default=0, min=0, max=2000, description="0: the skin's")
-    nv: IntProperty(name="v Resolution", default=0, min=0, max=4000, description="0: the skin's")
-    bone_mesh: BoolProperty(name="Bone Skull", default=True,
-                            description="Also build the bone skull (smoothed marching cubes of the bone)")
-    bone_step: IntProperty(name="Bone Step", default=1, min=1, max=4, description="Marching-cubes step (voxels)")
+    nu: IntProperty(name=D.SKULL_NU.label, **D.SKULL_NU.limits(), description=D.SKULL_NU.description)
+    nv: IntProperty(name=D.SKULL_NV.label, **D.SKULL_NV.limits(), description=D.SKULL_NV.description)
+    bone_mesh: BoolProperty(name=D.BONE_MESH.label, **D.BONE_MESH.limits(), description=D.BONE_MESH.description)
+    bone_step: IntProperty(name=D.BONE_STEP.label, **D.BONE_STEP.limits(), description=D.BONE_STEP.description)
 
-    def run(self, context, study):
-        coll = study.collection
-        s = state.settings(coll)
-        step_skull(coll, self.nu or s.nu, self.nv or s.nv, self.bone_mesh, self.bone_step)
-        self.report({'INFO'}, f"Skull of '{coll.name}' built")
+    def run_forensic(self, context, fs):
+        s = fs.settings
+        fs.step_skull(self.nu or s.nu, self.nv or s.nv, self.bone_mesh, self.bone_step)
+        self.report({'INFO'}, f"Skull of '{fs.name}' built")
 
 
 class PDEHEAD_OT_tissue_depth(Operator, _ForensicOp):
@@ -61,13 +90,13 @@ class PDEHEAD_OT_tissue_depth(Operator, _ForensicOp):
 
     bl_idname = "pdehead.tissue_depth"
     bl_label = "Tissue Depth"
-    target: EnumProperty(name="Skull", items=TARGET_ITEMS, default='BONE')
-    max_depth: FloatProperty(name="Max Depth", default=40.0, min=1.0, max=100.0, subtype='DISTANCE',
-                             description="Longest depth searched (mm); deeper: no value")
+    target: _target_property()
+    max_depth: FloatProperty(name=D.MAX_DEPTH.label, **D.MAX_DEPTH.limits(), subtype='DISTANCE',
+                             description=D.MAX_DEPTH.description)
+    forensic_settings = ("target", "max_depth")
 
-    def run(self, context, study):
-        coll = study.collection
-        st = step_depth(coll, self.target, self.max_depth)
+    def run_forensic(self, context, fs):
+        st = fs.step_depth(self.target, self.max_depth)
         self.report({'INFO'}, f"Tissue depth: {st['measured']} of {st['vertices']} vertices measured, "
                               f"median {st.get('median', float('nan')):.1f} mm")
 
@@ -81,13 +110,13 @@ class PDEHEAD_OT_place_landmark(Operator, _ForensicOp):
     location: FloatVectorProperty(name="Location", size=3, subtype='TRANSLATION', options={'SKIP_SAVE'},
                                   description="World location (default: the 3D cursor)")
     use_location: BoolProperty(default=False, options={'SKIP_SAVE', 'HIDDEN'})
-    target: EnumProperty(name="Snap To", items=TARGET_ITEMS, default='BONE')
+    target: _target_property("Snap To")
+    forensic_settings = ("target",)
 
-    def run(self, context, study):
-        coll = study.collection
+    def run_forensic(self, context, fs):
         from mathutils import Vector
         world = Vector(self.location) if self.use_location else context.scene.cursor.location.copy()
-        obj = place_landmark(coll, self.name, world_to_patient(coll, world), self.target)
+        obj = fs.place_landmark(self.name, fs.world_to_patient(world), self.target)
         self.report({'INFO'}, f"{obj.name} at {np.round(obj['patient_mm'], 1).tolist()} mm")
 
 
@@ -97,13 +126,13 @@ class PDEHEAD_OT_find_landmarks(Operator, _ForensicOp):
 
     bl_idname = "pdehead.find_landmarks"
     bl_label = "Find Landmarks"
-    target: EnumProperty(name="Snap To", items=TARGET_ITEMS, default='BONE')
-    keep_edited: BoolProperty(name="Keep Edited", default=True,
-                              description="Leave the landmarks placed or moved by hand where they are")
+    target: _target_property("Snap To")
+    keep_edited: BoolProperty(name=D.KEEP_EDITED.label, **D.KEEP_EDITED.limits(),
+                              description=D.KEEP_EDITED.description)
+    forensic_settings = ("target",)
 
-    def run(self, context, study):
-        coll = study.collection
-        search = find_landmarks(coll, self.target, self.keep_edited)
+    def run_forensic(self, context, fs):
+        search = fs.find_landmarks(self.target, self.keep_edited)
         flags = [lm.flag for lm in search.landmarks.values()]
         msg = (f"{flags.count('ok')} landmarks ok, {flags.count('uncertain')} uncertain, "
                f"{flags.count('not_found')} not found")
@@ -120,11 +149,11 @@ class PDEHEAD_OT_snap_landmarks(Operator, _ForensicOp):
 
     bl_idname = "pdehead.snap_landmarks"
     bl_label = "Snap Moved Landmarks"
-    target: EnumProperty(name="Snap To", items=TARGET_ITEMS, default='BONE')
+    target: _target_property("Snap To")
+    forensic_settings = ("target",)
 
-    def run(self, context, study):
-        coll = study.collection
-        names = snap_moved_landmarks(coll, self.target)
+    def run_forensic(self, context, fs):
+        names = fs.snap_moved_landmarks(self.target)
         self.report({'INFO'}, f"{len(names)} landmark(s) snapped to the bone" +
                     (": " + ", ".join(names[:4]) if names else ""))
 
@@ -134,10 +163,12 @@ class _LandmarkCSVOp(_ForensicOp):
 
     filepath: StringProperty(subtype='FILE_PATH')
     filter_glob: StringProperty(default="*.csv", options={'HIDDEN'})
-    target: EnumProperty(name="Skull", items=TARGET_ITEMS, default='BONE')
+    target: _target_property()
+    forensic_settings = ("target",)
     default_name = ""   # the file name the browser proposes (writers only)
 
     def invoke(self, context, event):
+        self.offer_forensic_settings(context)
         if self.default_name:
             self.filepath = self.default_name
         context.window_manager.fileselect_add(self)
@@ -159,14 +190,13 @@ class PDEHEAD_OT_import_depth_table(Operator, _LandmarkCSVOp):
             return self.execute(context)
         return super().invoke(context, event)
 
-    def run(self, context, study):
-        coll = study.collection
+    def run_forensic(self, context, fs):
         from ..pdehead_addon import default_table, read_depth_table
         if self.default_table or not self.filepath:
             table = default_table()
         else:
             table = read_depth_table(bpy.path.abspath(self.filepath))
-        pegs = make_pegs(coll, table, self.target)
+        pegs = fs.make_pegs(table, self.target)
         self.report({'INFO'}, f"{len(pegs)} marker pegs from {table.label}")
 
 
@@ -178,16 +208,14 @@ class PDEHEAD_OT_export_landmark_depths(Operator, _LandmarkCSVOp):
     bl_label = "Export Landmark Depths"
     default_name = "landmarks.csv"
 
-    def run(self, context, study):
-        coll = study.collection
+    def run_forensic(self, context, fs):
         from ..pdehead_addon import write_landmark_csv
-        if not landmarks(coll):
+        if not fs.landmarks():
             raise PDEHeadError("no landmarks placed yet")
-        depths, flags, method = measured_landmark_depths(coll, skull_engine_mesh(coll, self.target),
-                                                         skin_engine_mesh(coll))
-        table = study_depth_table(coll)
+        depths, flags, method = fs.measured_landmark_depths(fs.skull_engine_mesh(self.target), fs.skin_engine_mesh())
+        table = fs.depth_table()
         n = write_landmark_csv(bpy.path.abspath(self.filepath), depths, table, flags,
-                               provenance=dict(forensic_provenance(coll, table), depth=method))
+                               provenance=dict(fs.provenance(table), depth=method))
         self.report({'INFO'}, f"{n} landmark depths written to {self.filepath} ({method.split(' (')[0]})")
 
 
@@ -198,9 +226,8 @@ class PDEHEAD_OT_frankfurt(Operator, _ForensicOp):
     bl_label = "Frankfurt Horizontal"
     reset: BoolProperty(name="Reset", default=False, description="Back to patient coordinates")
 
-    def run(self, context, study):
-        coll = study.collection
-        apply_frankfurt(coll, self.reset)
+    def run_forensic(self, context, fs):
+        fs.apply_frankfurt(self.reset)
 
 
 class PDEHEAD_OT_mirror(Operator, _ForensicOp):
@@ -208,14 +235,14 @@ class PDEHEAD_OT_mirror(Operator, _ForensicOp):
 
     bl_idname = "pdehead.mirror"
     bl_label = "Mirror Across Mid-Sagittal Plane"
-    plane: EnumProperty(name="Plane", items=MIRROR_PLANES, default='AUTO')
+    plane: EnumProperty(name=D.MIRROR_PLANE.label, items=MIRROR_PLANES, default=D.MIRROR_PLANE.default,
+                        description=D.MIRROR_PLANE.description)
 
-    def run(self, context, study):
-        coll = study.collection
-        obj = context.active_object or linked_object(coll, "pdehead_skull_object")
+    def run_forensic(self, context, fs):
+        obj = context.active_object or fs.linked_object("pdehead_skull_object")
         if obj is None:
             raise PDEHeadError("select the object to mirror")
-        copy, point, normal, how = mirror_object(coll, obj, self.plane)
+        copy, point, normal, how = fs.mirror_object(obj, self.plane)
         self.report({'INFO'}, f"{copy.name}: plane from {how}, through {np.round(point, 1).tolist()} mm, "
                               f"normal {np.round(normal, 3).tolist()}")
 
@@ -227,15 +254,15 @@ class PDEHEAD_OT_export_print(Operator, _ForensicOp):
     bl_idname = "pdehead.export_print"
     bl_label = "Export for Printing"
     directory: StringProperty(subtype='DIR_PATH')
-    format: EnumProperty(name="Format", items=[('stl', "STL", ""), ('obj', "OBJ", ""), ('ply', "PLY", "")])
+    format: EnumProperty(name=D.EXPORT_FORMAT.label, items=_FORMAT_ITEMS, default=D.EXPORT_FORMAT.default,
+                         description=D.EXPORT_FORMAT.description)
 
     def invoke(self, context, event):
         context.window_manager.fileselect_add(self)
         return {'RUNNING_MODAL'}
 
-    def run(self, context, study):
-        coll = study.collection
-        files = export_study(coll, self.directory, self.format)
+    def run_forensic(self, context, fs):
+        files = fs.export(self.directory, self.format)
         self.report({'INFO'}, "Wrote " + ", ".join(os.path.basename(f) for f in files))
 
 
@@ -247,12 +274,10 @@ class PDEHEAD_OT_build_face(Operator, _ForensicOp):
     bl_idname = "pdehead.build_face"
     bl_label = "Build Face"
 
-    def run(self, context, study):
-        coll = study.collection
-        from . import face
-        obj, pegs = face.build_face(coll)
+    def run_forensic(self, context, fs):
+        obj, pegs = fs.build_face()
         self.report({'INFO'}, f"{obj.name}: {len(obj.data.vertices)} vertices through {len(pegs)} pegs "
-                              f"({face.approximation_label()})")
+                              f"({approximation_label()})")
 
 
 class PDEHEAD_OT_face_sd_range(Operator, _ForensicOp):
@@ -262,39 +287,36 @@ class PDEHEAD_OT_face_sd_range(Operator, _ForensicOp):
     bl_idname = "pdehead.face_sd_range"
     bl_label = "Faces at -1 / +1 SD"
 
-    def run(self, context, study):
-        coll = study.collection
-        from . import face
-        made = face.build_sd_faces(coll)
+    def run_forensic(self, context, fs):
+        made = fs.build_sd_faces()
         self.report({'INFO'}, "Built " + ", ".join(o.name for o in made))
 
 
-def draw_face_section(layout, coll) -> None:
+def draw_face_section(layout, fs) -> None:
     """The panel's Face from Skull section: table (and sex where the table has it), Find Landmarks,
     Build Face, the pegs to drag and their depths, the +-1 SD faces, the label and provenance."""
-    from . import face
     box = layout.box()
     box.label(text="Face from Skull", icon='USER')
-    s = state.settings(coll)
+    s = fs.settings
     box.prop(s, "face_table", text="Table")
     if s.face_table == 'FILE':
         box.prop(s, "face_table_file", text="")
     try:
-        table = face.face_table(coll)
+        table = fs.face_table()
     except PDEHeadError as exc:
         table = None
         box.label(text=str(exc), icon='ERROR')
-    if table is not None and face.table_has_sex(table):
+    if table is not None and table_has_sex(table):
         box.prop(s, "face_sex")
     row = box.row(align=True)
     row.operator(PDEHEAD_OT_find_landmarks.bl_idname, icon='VIEWZOOM')
     row.operator(PDEHEAD_OT_build_face.bl_idname, icon='USER')
-    obj = face.face_object(coll)
+    obj = fs.face_object()
     if obj is None:
         box.label(text="Builds the skull and finds the landmarks first if needed")
         return
-    box.label(text=str(obj.get(face.LABEL_PROP, "")), icon='ERROR')
-    prov = json.loads(obj.get(face.PROVENANCE_PROP, "{}") or "{}")
+    box.label(text=str(obj.get(LABEL_PROP, "")), icon='ERROR')
+    prov = json.loads(obj.get(PROVENANCE_PROP, "{}") or "{}")
     col = box.column(align=True)
     if prov.get("table"):
         col.label(text=f"Table: {prov['table']}" + (f", {prov['sex']}" if prov.get("sex") else ""))
@@ -305,11 +327,11 @@ def draw_face_section(layout, coll) -> None:
         col.label(text=str(prov["software"]))
     if "pdehead_face_ms" in obj:
         col.label(text=f"Last solve {obj['pdehead_face_ms']:.0f} ms")
-    status = face.live_status(coll)
+    status = fs.live_status()
     if status:
         col.label(text=status)
-    names = face.face_options(coll).get("pegs", [])
-    pegs = face.peg_objects(coll, names)
+    names = fs.face_peg_names()
+    pegs = fs.peg_objects(names)
     col = box.column(align=True)
     col.label(text=f"{len(pegs)} pegs: drag one (G) or set its depth (mm)")
     for name in names[:40]:
@@ -319,6 +341,93 @@ def draw_face_section(layout, coll) -> None:
     box.operator(PDEHEAD_OT_face_sd_range.bl_idname, icon='MOD_THICKNESS')
     if s.last_error.startswith("face:"):
         box.label(text=s.last_error, icon='ERROR')
+
+
+def _draw_skull(layout, fs) -> None:
+    """The bone level, Build Skull and what the last Build Skull recorded."""
+    col = layout.column(align=True)
+    s = fs.settings
+    row = col.row(align=True)
+    row.prop(s, "use_bone_level", text="Bone Level")
+    sub = row.row(align=True)
+    sub.active = s.use_bone_level
+    sub.prop(s, "bone_level", text="")
+    col.operator(PDEHEAD_OT_build_skull.bl_idname, icon='MESH_UVSPHERE')
+    info = fs.skull_info()
+    if info:
+        stored = info.get("bone_level_stored")
+        level = f"{stored:g} {info.get('units', '')}" if stored is not None else f"{info['bone_level']:.0f} HU"
+        col.label(text=f"Bone level {level}, {info['components']} parts, {info['bone_cm3']:.0f} cm3")
+        mandible = info.get("mandible") or {}
+        if not mandible.get("present", True):
+            col.label(text="No mandible: the face stops at the maxilla", icon='ERROR')
+        elif mandible.get("articulated") is False:
+            col.label(text=f"Mandible not articulated ({mandible.get('condyle_gap_mm', 0):.0f} mm gap)",
+                      icon='ERROR')
+
+
+def _draw_depth(layout, fs) -> None:
+    """Tissue Depth, its colour legend and the statistics of the last run."""
+    box = layout.box()
+    box.operator(PDEHEAD_OT_tissue_depth.bl_idname, icon='MOD_THICKNESS')
+    stats = fs.depth_stats()
+    s = fs.settings
+    mat = bpy.data.materials.get(DEPTH_MATERIAL)
+    if mat is not None and mat.node_tree.nodes.get("Depth legend") is not None:
+        rng = mat.node_tree.nodes["Depth range"].inputs["From Max"].default_value
+        box.template_color_ramp(mat.node_tree.nodes["Depth legend"], "color_ramp", expand=False)
+        row = box.row()
+        row.label(text="0 mm")
+        row.label(text=f"{rng / 2:.0f} mm")
+        row.label(text=f"{rng:.0f} mm")
+        box.label(text="Grey: no value (no bone along the normal, or only", icon='INFO')
+        box.label(text="the smoothed envelope: orbits, nasal aperture, neck)")
+    if stats:
+        stale = s.surface_object is None or DEPTH_ATTRIBUTE not in s.surface_object.data.attributes
+        c = box.column(align=True)
+        c.label(text=f"Measured {stats['measured']} / {stats['vertices']} vertices ({stats['target']})")
+        if "median" in stats:
+            c.label(text=f"Median {stats['median']:.1f}  mean {stats['mean']:.1f}  p95 {stats['p95']:.1f} mm")
+            c.label(text=f"Min {stats['min']:.1f}  max {stats['max']:.1f} mm")
+        c.label(text=f"No bone {stats['no_bone']}, envelope {stats['envelope']}, inside {stats['inside']}")
+        if stale:
+            c.label(text="Surface rebuilt since: compute again", icon='ERROR')
+
+
+def _draw_landmarks(layout, fs) -> None:
+    """Find / snap / place landmarks, their flags, the pegs, Landmarks CSV, Frankfurt and mirror."""
+    box = layout.box()
+    box.label(text="Landmarks")
+    row = box.row(align=True)
+    row.operator(PDEHEAD_OT_find_landmarks.bl_idname, icon='VIEWZOOM')
+    row.operator(PDEHEAD_OT_snap_landmarks.bl_idname, text="Snap Moved", icon='SNAP_ON')
+    box.label(text="Or click to put the 3D cursor on the skull, then:")
+    box.operator_menu_enum(PDEHEAD_OT_place_landmark.bl_idname, "name", text="Place at Cursor",
+                           icon='EMPTY_SINGLE_ARROW')
+    placed = fs.landmarks()
+    box.label(text=f"{len(placed)} placed" + (": " + ", ".join(list(placed)[:4]) if placed else ""))
+    flags = fs.landmark_flags()
+    if flags:
+        counts = {f: sum(1 for v in flags.values() if v[0] == f) for f in ("ok", "uncertain", "not_found")}
+        box.label(text=f"{counts['ok']} ok, {counts['uncertain']} uncertain, {counts['not_found']} not found",
+                  icon='INFO' if not counts['not_found'] else 'ERROR')
+    row = box.row(align=True)
+    row.operator(PDEHEAD_OT_import_depth_table.bl_idname, text="Pegs: T-Table 2023",
+                 icon='EMPTY_SINGLE_ARROW').default_table = True
+    row.operator(PDEHEAD_OT_import_depth_table.bl_idname, text="Depth Table...", icon='IMPORT')
+    pegs = fs.peg_objects_all()
+    if pegs and fs.collection.get(FACE_KEY) is None:     # with a face: in its section below
+        col = box.column(align=True)
+        col.label(text=f"Peg depth (mm), {pegs[0].get('table_name', '')}: mean +- 2 SD")
+        for peg in pegs[:40]:
+            col.prop(peg, f'["{PEG_DEPTH_PROP}"]', text=str(peg["pdehead_peg"]))
+    box.operator(PDEHEAD_OT_export_landmark_depths.bl_idname, text="Landmarks CSV", icon='EXPORT')
+    row = box.row(align=True)
+    row.operator(PDEHEAD_OT_frankfurt.bl_idname, text="Frankfurt", icon='ORIENTATION_GLOBAL')
+    row.operator(PDEHEAD_OT_frankfurt.bl_idname, text="Reset").reset = True
+    row = box.row(align=True)
+    row.operator(PDEHEAD_OT_mirror.bl_idname, text="Mirror Active", icon='MOD_MIRROR').plane = 'AUTO'
+    row.operator(PDEHEAD_OT_mirror.bl_idname, text="By Skull Symmetry").plane = 'SKULL'
 
 
 class PDEHEAD_PT_forensic(Panel):
@@ -335,83 +444,11 @@ class PDEHEAD_PT_forensic(Panel):
 
     def draw(self, context):
         layout = self.layout
-        coll = state.active_study(context)
-        col = layout.column(align=True)
-        s = state.settings(coll)
-        row = col.row(align=True)
-        row.prop(s, "use_bone_level", text="Bone Level")
-        sub = row.row(align=True)
-        sub.active = s.use_bone_level
-        sub.prop(s, "bone_level", text="")
-        col.operator(PDEHEAD_OT_build_skull.bl_idname, icon='MESH_UVSPHERE')
-        info = json.loads(coll.get(SKULL_INFO_KEY, "{}") or "{}")
-        if info:
-            stored = info.get("bone_level_stored")
-            level = f"{stored:g} {info.get('units', '')}" if stored is not None else f"{info['bone_level']:.0f} HU"
-            col.label(text=f"Bone level {level}, {info['components']} parts, {info['bone_cm3']:.0f} cm3")
-            mandible = info.get("mandible") or {}
-            if not mandible.get("present", True):
-                col.label(text="No mandible: the face stops at the maxilla", icon='ERROR')
-            elif mandible.get("articulated") is False:
-                col.label(text=f"Mandible not articulated ({mandible.get('condyle_gap_mm', 0):.0f} mm gap)",
-                          icon='ERROR')
-        box = layout.box()
-        box.operator(PDEHEAD_OT_tissue_depth.bl_idname, icon='MOD_THICKNESS')
-        stats = json.loads(coll.get(DEPTH_STATS_KEY, "{}") or "{}")
-        s = state.settings(coll)
-        mat = bpy.data.materials.get(DEPTH_MATERIAL)
-        if mat is not None and mat.node_tree.nodes.get("Depth legend") is not None:
-            rng = mat.node_tree.nodes["Depth range"].inputs["From Max"].default_value
-            box.template_color_ramp(mat.node_tree.nodes["Depth legend"], "color_ramp", expand=False)
-            row = box.row()
-            row.label(text="0 mm")
-            row.label(text=f"{rng / 2:.0f} mm")
-            row.label(text=f"{rng:.0f} mm")
-            box.label(text="Grey: no value (no bone along the normal, or only", icon='INFO')
-            box.label(text="the smoothed envelope: orbits, nasal aperture, neck)")
-        if stats:
-            stale = s.surface_object is None or DEPTH_ATTRIBUTE not in s.surface_object.data.attributes
-            c = box.column(align=True)
-            c.label(text=f"Measured {stats['measured']} / {stats['vertices']} vertices ({stats['target']})")
-            if "median" in stats:
-                c.label(text=f"Median {stats['median']:.1f}  mean {stats['mean']:.1f}  p95 {stats['p95']:.1f} mm")
-                c.label(text=f"Min {stats['min']:.1f}  max {stats['max']:.1f} mm")
-            c.label(text=f"No bone {stats['no_bone']}, envelope {stats['envelope']}, inside {stats['inside']}")
-            if stale:
-                c.label(text="Surface rebuilt since: compute again", icon='ERROR')
-        box = layout.box()
-        box.label(text="Landmarks")
-        row = box.row(align=True)
-        row.operator(PDEHEAD_OT_find_landmarks.bl_idname, icon='VIEWZOOM')
-        row.operator(PDEHEAD_OT_snap_landmarks.bl_idname, text="Snap Moved", icon='SNAP_ON')
-        box.label(text="Or click to put the 3D cursor on the skull, then:")
-        box.operator_menu_enum(PDEHEAD_OT_place_landmark.bl_idname, "name", text="Place at Cursor",
-                               icon='EMPTY_SINGLE_ARROW')
-        placed = landmarks(coll)
-        box.label(text=f"{len(placed)} placed" + (": " + ", ".join(list(placed)[:4]) if placed else ""))
-        flags = landmark_flags(coll)
-        if flags:
-            counts = {f: sum(1 for v in flags.values() if v[0] == f) for f in ("ok", "uncertain", "not_found")}
-            box.label(text=f"{counts['ok']} ok, {counts['uncertain']} uncertain, {counts['not_found']} not found",
-                      icon='INFO' if not counts['not_found'] else 'ERROR')
-        row = box.row(align=True)
-        row.operator(PDEHEAD_OT_import_depth_table.bl_idname, text="Pegs: T-Table 2023",
-                     icon='EMPTY_SINGLE_ARROW').default_table = True
-        row.operator(PDEHEAD_OT_import_depth_table.bl_idname, text="Depth Table...", icon='IMPORT')
-        pegs = [o for o in coll.all_objects if "pdehead_peg" in o and PEG_DEPTH_PROP in o]
-        if pegs and coll.get("pdehead_face_object") is None:     # with a face: in its section below
-            col = box.column(align=True)
-            col.label(text=f"Peg depth (mm), {pegs[0].get('table_name', '')}: mean +- 2 SD")
-            for peg in pegs[:40]:
-                col.prop(peg, f'["{PEG_DEPTH_PROP}"]', text=str(peg["pdehead_peg"]))
-        box.operator(PDEHEAD_OT_export_landmark_depths.bl_idname, text="Landmarks CSV", icon='EXPORT')
-        row = box.row(align=True)
-        row.operator(PDEHEAD_OT_frankfurt.bl_idname, text="Frankfurt", icon='ORIENTATION_GLOBAL')
-        row.operator(PDEHEAD_OT_frankfurt.bl_idname, text="Reset").reset = True
-        row = box.row(align=True)
-        row.operator(PDEHEAD_OT_mirror.bl_idname, text="Mirror Active", icon='MOD_MIRROR').plane = 'AUTO'
-        row.operator(PDEHEAD_OT_mirror.bl_idname, text="By Skull Symmetry").plane = 'SKULL'
-        draw_face_section(layout, coll)
+        fs = ForensicStudy.of(Study.active(context))
+        _draw_skull(layout, fs)
+        _draw_depth(layout, fs)
+        _draw_landmarks(layout, fs)
+        draw_face_section(layout, fs)
         layout.operator(PDEHEAD_OT_export_print.bl_idname, icon='EXPORT')
 
 

@@ -1,31 +1,94 @@
-"""Blender objects of the forensic toolkit: the study's sub-collections, the forensic cache, objects
-linked from the study collection and the plain materials (:mod:`.forensic_skull`, :mod:`.forensic_study`
-and :mod:`.face` share them).
+"""The forensic study entity's base, and the plain materials of the forensic objects.
+
+:class:`ForensicBase` is what every part of :class:`.forensic_study.ForensicStudy` shares (the skull,
+:mod:`.forensic_skull`; the landmarks, :mod:`.forensic_study`; pegs and export, :mod:`.forensic_export`;
+the face, :mod:`.face`): the registry (one object per study for the session, as
+:class:`.study_entity.Study` has), the study it belongs to, its collection, settings, forensic
+PropertyGroup (:mod:`.forensic_props`) and in-memory cache, its sub-collections and the objects the
+collection points at.
 """
 from __future__ import annotations
 
 import bpy
 
-from . import compat, state
+from . import compat
+from .forensic_props import FORMAT_VERSION, forensic_settings, migrate
 
 
-def sub_collection(coll, suffix: str):
-    name = f"{coll.name} {suffix}"
-    sub = bpy.data.collections.get(name)
-    if sub is None:
-        sub = bpy.data.collections.new(name)
-    if sub.name not in coll.children:
-        coll.children.link(sub)
-    return sub
+class ForensicBase:
+    """One study's forensic side; get it with ``ForensicStudy.of(study)`` (``study``: a :class:`.study_entity.Study`)."""
 
+    _registry: dict = {}
+    #: The class :meth:`of` makes: the full entity (set when :class:`.forensic_study.ForensicStudy` is defined),
+    #: so the parts that define its methods never import it back.
+    entity_type: type | None = None
 
-def forensic_cache(coll):
-    return state.cache_for(state.settings(coll).study_id).forensic
+    def __init_subclass__(cls, **kw):
+        super().__init_subclass__(**kw)
+        ForensicBase.entity_type = cls
 
+    def __init__(self, study):
+        self.study = study
 
-def linked_object(coll, key):
-    obj = coll.get(key)
-    return obj if isinstance(obj, bpy.types.Object) and obj.name in bpy.data.objects else None
+    @classmethod
+    def of(cls, study):
+        """The forensic side of ``study`` (a :class:`.study_entity.Study`; one object per study id)."""
+        key = study.study_id
+        kind = ForensicBase.entity_type or cls
+        entity = ForensicBase._registry.get(key)
+        if not isinstance(entity, kind):
+            entity = ForensicBase._registry[key] = kind(study)
+        entity.study = study
+        if entity.props.format_version < FORMAT_VERSION:
+            entity.migrate()
+        return entity
+
+    def migrate(self) -> None:
+        """The study's forensic state of an older file format into the PropertyGroup (:func:`.forensic_props.migrate`;
+        not possible while Blender draws: then after the next file load or step)."""
+        try:
+            migrate(self.collection)
+        except AttributeError:     # "Writing to ID classes in this context is not allowed" (a panel's draw)
+            pass
+
+    @property
+    def collection(self):
+        return self.study.collection
+
+    @property
+    def name(self) -> str:
+        return self.collection.name
+
+    @property
+    def settings(self):
+        """The study settings (:class:`.props.PDEHeadStudySettings`)."""
+        return self.study.settings
+
+    @property
+    def props(self):
+        """The forensic settings and state (:class:`.forensic_props.PDEHeadForensicSettings`)."""
+        return forensic_settings(self.collection)
+
+    @property
+    def cache(self) -> dict:
+        """The in-memory forensic results: skull segmentation, meshes, depth result, face model."""
+        return self.study.cache.forensic
+
+    def sub_collection(self, suffix: str):
+        """The study's child collection ``"<study> <suffix>"`` (made when missing)."""
+        coll = self.collection
+        name = f"{coll.name} {suffix}"
+        sub = bpy.data.collections.get(name)
+        if sub is None:
+            sub = bpy.data.collections.new(name)
+        if sub.name not in coll.children:
+            coll.children.link(sub)
+        return sub
+
+    def linked_object(self, key: str):
+        """The object the study collection's custom property ``key`` points at (None when gone)."""
+        obj = self.collection.get(key)
+        return obj if isinstance(obj, bpy.types.Object) and obj.name in bpy.data.objects else None
 
 
 def plain_material(name: str, colour):

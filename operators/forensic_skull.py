@@ -6,6 +6,8 @@
 * **depth** (on demand, never on a slider step) writes the per-vertex depth into the skin surface
   as the POINT attributes ``tissue_depth`` (mm, -1 = no value) and ``tissue_depth_reason`` and
   gives it a colour-ramp material; the ramp is the legend in the panel.
+
+They are methods of :class:`.forensic_study.ForensicStudy` (defined here in :class:`SkullSteps`).
 """
 from __future__ import annotations
 
@@ -17,9 +19,9 @@ import numpy as np
 import bpy
 
 from ..pdehead_addon import PDEHeadError
-from . import compat, state, study
-from .forensic_objects import forensic_cache, linked_object, plain_material, set_material
-from .study_entity import Study
+from ..pdehead_addon import defaults as D
+from . import compat, state
+from .forensic_objects import plain_material, set_material
 
 SKULL_BOUNDARY_KEY = "pdehead_skull_boundaries"
 DEPTH_STATS_KEY = "pdehead_depth_stats"
@@ -31,147 +33,158 @@ VALID_ATTRIBUTE = "tissue_depth_valid"
 DEPTH_MATERIAL = "PDE Head Tissue Depth"
 BONE_MATERIAL = "PDE Head Bone"
 #: Depth (mm) at the red end of the colour map.
-DEPTH_DISPLAY_MAX_MM = 25.0
+DEPTH_DISPLAY_MAX_MM = D.DEPTH_DISPLAY_MAX.default
 
 
 # ------------------------------------------------------------------------------------------ skull
-def skull_segmentation(coll):
-    """The skull segmentation of the study (cached; computed from the CT and the head segmentation)."""
-    from ..pdehead_addon import segment_skull
+class SkullSteps:
+    """The skull and the depth map of a study (part of :class:`.forensic_study.ForensicStudy`)."""
 
-    extra = forensic_cache(coll)
-    cache = state.cache_for(state.settings(coll).study_id)
-    if cache.seg is None:
-        study.step_segment(coll)
-    s = state.settings(coll)
-    level = float(s.bone_level) if s.use_bone_level else None
-    if extra.get("skull_seg") is None or extra.get("skull_seg_of") is not cache.seg \
-            or extra.get("skull_seg_level") != level:
-        # a new head segmentation (or CT, or bone level) makes the skull and everything measured on it stale
-        if extra.get("skull_seg") is not None and extra.get("skull_seg_level") != level:
-            coll.pop(SKULL_BOUNDARY_KEY, None)          # the stored envelope was of the old level
-        extra.update(skull_seg=segment_skull(Study.of(coll).ct, cache.seg, bone_level=level),
-                     skull_seg_of=cache.seg, skull_seg_level=level, bone_mesh=None, skull_mesh=None, depth=None)
-        for w in extra["skull_seg"].meta.get("warnings", []):
-            if w not in s.warnings:
-                s.warnings = "; ".join(filter(None, [s.warnings, w]))
-    return extra["skull_seg"]
+    def skull_segmentation(self):
+        """The skull segmentation of the study (cached; computed from the CT and the head segmentation)."""
+        from ..pdehead_addon import segment_skull
 
+        extra = self.cache
+        cache = self.study.cache
+        if cache.seg is None:
+            self.study.run_step("segment")
+        s = self.settings
+        level = float(s.bone_level) if s.use_bone_level else None
+        if extra.get("skull_seg") is None or extra.get("skull_seg_of") is not cache.seg \
+                or extra.get("skull_seg_level") != level:
+            # a new head segmentation (or CT, or bone level) makes the skull and everything measured on it stale
+            if extra.get("skull_seg") is not None and extra.get("skull_seg_level") != level:
+                self.collection.pop(SKULL_BOUNDARY_KEY, None)      # the stored envelope was of the old level
+            extra.update(skull_seg=segment_skull(self.study.ct, cache.seg, bone_level=level),
+                         skull_seg_of=cache.seg, skull_seg_level=level, bone_mesh=None, skull_mesh=None, depth=None)
+            for w in extra["skull_seg"].meta.get("warnings", []):
+                if w not in s.warnings:
+                    s.warnings = "; ".join(filter(None, [s.warnings, w]))
+        return extra["skull_seg"]
 
-def _envelope_head(coll):
-    """The PDE skull envelope (boundary set, solved head, t) from the skull segmentation, by the skin's path."""
-    from ..pdehead_addon import extract_boundaries, max_patches, solve_pde
+    def _envelope_head(self):
+        """The PDE skull envelope (boundary set, solved head, t) from the skull segmentation, by the skin's path."""
+        from ..pdehead_addon import extract_boundaries, max_patches, solve_pde
 
-    s = state.settings(coll)
-    sk = skull_segmentation(coll)
-    limit = max_patches(sk)
-    if limit < 1:
-        raise PDEHeadError(f"study '{coll.name}': the skull has fewer than 4 usable outlines; no PDE skull envelope")
-    patches = min(int(s.patches), limit)
-    bset = extract_boundaries(sk, patches=patches, samples=int(s.samples), selection=s.selection)
-    return bset, solve_pde(bset), patches
+        s = self.settings
+        sk = self.skull_segmentation()
+        limit = max_patches(sk)
+        if limit < 1:
+            raise PDEHeadError(f"study '{self.name}': the skull has fewer than 4 usable outlines; "
+                               "no PDE skull envelope")
+        patches = min(int(s.patches), limit)
+        bset = extract_boundaries(sk, patches=patches, samples=int(s.samples), selection=s.selection)
+        return bset, solve_pde(bset), patches
 
+    def step_skull(self, nu: int, nv: int, bone: bool = D.BONE_MESH.default,
+                   bone_step: int = D.BONE_STEP.default) -> None:
+        """The bone skull (smoothed marching cubes of the bone: what skull.<fmt> is) and the PDE skull envelope."""
+        from ..pdehead_addon import dumps_boundaries
+        from ..pdehead_addon import skull_mesh
+        from . import objects
 
-def step_skull(coll, nu: int, nv: int, bone: bool = True, bone_step: int = 1) -> None:
-    """The bone skull (smoothed marching cubes of the bone: what skull.<fmt> is) and the PDE skull envelope."""
-    from ..pdehead_addon import dumps_boundaries
-    from ..pdehead_addon import skull_mesh
-    from . import objects
+        coll = self.collection
+        extra = self.cache
+        with state.Timer() as t:
+            sk = self.skull_segmentation()
+            bset, head, patches = self._envelope_head()
+            mesh = head.surface(int(nu), int(nv), caps=True)
+        coll[SKULL_BOUNDARY_KEY] = base64.b64encode(dumps_boundaries(bset)).decode("ascii")
+        extra.update(skull_head=head, skull_mesh=mesh, depth=None)
+        obj = objects.build_mesh_object(mesh, coll, f"{coll.name} Skull", obj=self.linked_object("pdehead_skull_object"))
+        obj["pdehead_kind"] = "skull"
+        set_material(obj, plain_material(BONE_MATERIAL, (0.85, 0.82, 0.72, 1.0)))
+        coll["pdehead_skull_object"] = obj
+        info = dict(bone_level=sk.bone_level, calibrated=sk.meta["calibrated"],
+                    source=sk.meta["histogram"].get("source"), patches=patches,
+                    components=sk.meta["kept_components"], bone_cm3=sk.meta["bone_mm3"] / 1000.0,
+                    metal_voxels=sk.meta["metal_voxels"])
+        for key in ("bone_level_stored", "units", "warnings", "mandible", "has_skin", "skull_mesh_file"):
+            if key in sk.meta:
+                info[key] = sk.meta[key]
+        if bone:
+            bmesh = skull_mesh(sk, step=int(bone_step))
+            extra["bone_mesh"] = bmesh
+            bobj = objects.build_mesh_object(bmesh, coll, f"{coll.name} Bone",
+                                             obj=self.linked_object("pdehead_bone_object"), smooth=True)
+            bobj["pdehead_kind"] = "bone_mesh"
+            set_material(bobj, plain_material(BONE_MATERIAL, (0.85, 0.82, 0.72, 1.0)))
+            coll["pdehead_bone_object"] = bobj
+            info["bone_triangles"] = len(bmesh.triangles)
+        coll[SKULL_INFO_KEY] = json.dumps(info)
+        self.study.record_timing("skull", t.seconds)
 
-    extra = forensic_cache(coll)
-    with state.Timer() as t:
-        sk = skull_segmentation(coll)
-        bset, head, patches = _envelope_head(coll)
-        mesh = head.surface(int(nu), int(nv), caps=True)
-    coll[SKULL_BOUNDARY_KEY] = base64.b64encode(dumps_boundaries(bset)).decode("ascii")
-    extra.update(skull_head=head, skull_mesh=mesh, depth=None)
-    obj = objects.build_mesh_object(mesh, coll, f"{coll.name} Skull", obj=linked_object(coll, "pdehead_skull_object"))
-    obj["pdehead_kind"] = "skull"
-    set_material(obj, plain_material(BONE_MATERIAL, (0.85, 0.82, 0.72, 1.0)))
-    coll["pdehead_skull_object"] = obj
-    info = dict(bone_level=sk.bone_level, calibrated=sk.meta["calibrated"], source=sk.meta["histogram"].get("source"),
-                patches=patches, components=sk.meta["kept_components"], bone_cm3=sk.meta["bone_mm3"] / 1000.0,
-                metal_voxels=sk.meta["metal_voxels"])
-    for key in ("bone_level_stored", "units", "warnings", "mandible", "has_skin", "skull_mesh_file"):
-        if key in sk.meta:
-            info[key] = sk.meta[key]
-    if bone:
-        bmesh = skull_mesh(sk, step=int(bone_step))
-        extra["bone_mesh"] = bmesh
-        bobj = objects.build_mesh_object(bmesh, coll, f"{coll.name} Bone", obj=linked_object(coll, "pdehead_bone_object"),
-                                         smooth=True)
-        bobj["pdehead_kind"] = "bone_mesh"
-        set_material(bobj, plain_material(BONE_MATERIAL, (0.85, 0.82, 0.72, 1.0)))
-        coll["pdehead_bone_object"] = bobj
-        info["bone_triangles"] = len(bmesh.triangles)
-    coll[SKULL_INFO_KEY] = json.dumps(info)
-    Study.of(coll).record_timing("skull", t.seconds)
+    def skull_info(self) -> dict:
+        """What the last Build Skull recorded (bone level, parts, volume, mandible; {} before it)."""
+        return json.loads(self.collection.get(SKULL_INFO_KEY, "{}") or "{}")
 
+    def skull_engine_mesh(self, target: str = D.DEPTH_TARGET.default):
+        """The skull as an engine Mesh (patient mm): the bone skull, or the PDE skull envelope (built when
+        missing, rebuilt from the stored curves after reopening)."""
+        from ..pdehead_addon import dumps_boundaries, loads_boundaries, solve_pde
+        from ..pdehead_addon import skull_mesh
 
-def skull_engine_mesh(coll, target: str = "BONE"):
-    """The skull as an engine Mesh (patient mm): the bone skull, or the PDE skull envelope (built when
-    missing, rebuilt from the stored curves after reopening)."""
-    from ..pdehead_addon import dumps_boundaries, loads_boundaries, solve_pde
-    from ..pdehead_addon import skull_mesh
+        extra = self.cache
+        if target == "BONE":
+            if extra.get("bone_mesh") is None:
+                extra["bone_mesh"] = skull_mesh(self.skull_segmentation())
+            return extra["bone_mesh"]
+        if extra.get("skull_mesh") is None:
+            s = self.settings
+            text = self.collection.get(SKULL_BOUNDARY_KEY)
+            if text:
+                head = solve_pde(loads_boundaries(base64.b64decode(text)))
+            else:
+                bset, head, _ = self._envelope_head()
+                self.collection[SKULL_BOUNDARY_KEY] = base64.b64encode(dumps_boundaries(bset)).decode("ascii")
+            extra["skull_head"], extra["skull_mesh"] = head, head.surface(int(s.nu), int(s.nv), caps=True)
+        return extra["skull_mesh"]
 
-    extra = forensic_cache(coll)
-    if target == "BONE":
-        if extra.get("bone_mesh") is None:
-            extra["bone_mesh"] = skull_mesh(skull_segmentation(coll))
-        return extra["bone_mesh"]
-    if extra.get("skull_mesh") is None:
-        s = state.settings(coll)
-        text = coll.get(SKULL_BOUNDARY_KEY)
-        if text:
-            head = solve_pde(loads_boundaries(base64.b64decode(text)))
-        else:
-            bset, head, _ = _envelope_head(coll)
-            coll[SKULL_BOUNDARY_KEY] = base64.b64encode(dumps_boundaries(bset)).decode("ascii")
-        extra["skull_head"], extra["skull_mesh"] = head, head.surface(int(s.nu), int(s.nv), caps=True)
-    return extra["skull_mesh"]
+    def skin_engine_mesh(self):
+        """The PDE skin as an engine Mesh with the surface object's vertex order (same nu, nv, caps)."""
+        s = self.settings
+        return self.study.head.surface(int(s.nu), int(s.nv), caps=bool(s.caps))
 
+    # -------------------------------------------------------------------------------------- depth
+    def step_depth(self, target: str = D.DEPTH_TARGET.default, max_depth_mm: float = D.MAX_DEPTH.default) -> dict:
+        """Tissue depth of the skin surface against the skull; stored on the surface object; returns stats."""
+        from ..pdehead_addon import tissue_depth
 
-def skin_engine_mesh(coll):
-    """The PDE skin as an engine Mesh with the surface object's vertex order (same nu, nv, caps)."""
-    s = state.settings(coll)
-    return Study.of(coll).head.surface(int(s.nu), int(s.nv), caps=bool(s.caps))
-
-
-# ------------------------------------------------------------------------------------------ depth
-def step_depth(coll, target: str = "BONE", max_depth_mm: float = 40.0) -> dict:
-    """Tissue depth of the skin surface against the skull; stored on the surface object; returns stats."""
-    from ..pdehead_addon import tissue_depth
-
-    s = state.settings(coll)
-    if s.surface_object is None:
-        study.step_surface(coll)
-    obj = s.surface_object
-    skin = skin_engine_mesh(coll)
-    if len(skin.vertices) != len(obj.data.vertices):  # the surface was edited or built otherwise
-        study.step_surface(coll)
+        s = self.settings
+        if s.surface_object is None:
+            self.study.run_step("surface")
         obj = s.surface_object
-    with state.Timer() as t:
-        res = tissue_depth(skin, skull_engine_mesh(coll, target), envelope=skull_segmentation(coll),
-                           max_depth_mm=float(max_depth_mm))
-    me = obj.data
-    valid = np.isfinite(res.depth)
-    for name, kind, values in ((DEPTH_ATTRIBUTE, 'FLOAT', np.where(valid, res.depth, -1.0)),
-                               (DISPLAY_ATTRIBUTE, 'FLOAT', _display_values(skin, res.depth)),
-                               (VALID_ATTRIBUTE, 'FLOAT', valid.astype(np.float32)),
-                               (REASON_ATTRIBUTE, 'INT', res.reason.astype(np.int32))):
-        if name in me.attributes:
-            me.attributes.remove(me.attributes[name])
-        attr = me.attributes.new(name, kind, 'POINT')
-        attr.data.foreach_set("value", np.ascontiguousarray(values, np.float32 if kind == 'FLOAT' else np.int32))
-    set_material(obj, depth_material())
-    stats = res.statistics()
-    stats.update(target=target, max_depth_mm=float(max_depth_mm), seconds=round(t.seconds, 2))
-    coll[DEPTH_STATS_KEY] = json.dumps(stats)
-    forensic_cache(coll)["depth"] = res
-    Study.of(coll).record_timing("depth", t.seconds)
-    return stats
+        skin = self.skin_engine_mesh()
+        if len(skin.vertices) != len(obj.data.vertices):  # the surface was edited or built otherwise
+            self.study.run_step("surface")
+            obj = s.surface_object
+        with state.Timer() as t:
+            res = tissue_depth(skin, self.skull_engine_mesh(target), envelope=self.skull_segmentation(),
+                               max_depth_mm=float(max_depth_mm))
+        me = obj.data
+        valid = np.isfinite(res.depth)
+        for name, kind, values in ((DEPTH_ATTRIBUTE, 'FLOAT', np.where(valid, res.depth, -1.0)),
+                                   (DISPLAY_ATTRIBUTE, 'FLOAT', _display_values(skin, res.depth)),
+                                   (VALID_ATTRIBUTE, 'FLOAT', valid.astype(np.float32)),
+                                   (REASON_ATTRIBUTE, 'INT', res.reason.astype(np.int32))):
+            if name in me.attributes:
+                me.attributes.remove(me.attributes[name])
+            attr = me.attributes.new(name, kind, 'POINT')
+            attr.data.foreach_set("value", np.ascontiguousarray(values, np.float32 if kind == 'FLOAT' else np.int32))
+        set_material(obj, depth_material())
+        stats = res.statistics()
+        stats.update(target=target, max_depth_mm=float(max_depth_mm), seconds=round(t.seconds, 2))
+        self.collection[DEPTH_STATS_KEY] = json.dumps(stats)
+        self.cache["depth"] = res
+        self.study.record_timing("depth", t.seconds)
+        return stats
+
+    def depth_stats(self) -> dict:
+        """The statistics of the last Tissue Depth ({} before it)."""
+        return json.loads(self.collection.get(DEPTH_STATS_KEY, "{}") or "{}")
 
 
+# ------------------------------------------------------------------------------------------ depth map
 def _display_values(mesh, depth: np.ndarray, passes: int = 4) -> np.ndarray:
     """Depth for shading: vertices without a value take the mean of their measured neighbours.
 

@@ -284,3 +284,25 @@ FACE_COLUMNS = _param("face_columns", 360, min=90, max=720,
                                   "~1.7 mm at the face; the nose's alae and the lips' outline need it)")
 FACE_SPREAD_MM = _param("face_spread_mm", 22.0, min=5.0, max=80.0, unit="mm",
                         description="Face from skull: how far a peg's depth spreads over the skull (Gaussian radius)")
+
+# ----------------------------------------------------------------------------- forensic operators (issue 25)
+#: The skull the forensic steps measure on / snap to (operators/forensic.py TARGET_ITEMS).
+DEPTH_TARGET = _param("depth_target", "BONE", choices=("BONE", "PDE"), label="Skull",
+                      description="The skull measured on or snapped to: the bone skull (smoothed marching cubes "
+                                  "of the bone) or the smooth PDE skull envelope")
+MAX_DEPTH = _param("max_depth", 40.0, min=1.0, max=100.0, unit="mm", label="Max Depth",
+                   description="Longest depth searched (mm); deeper: no value")
+SKULL_NU = _param("skull_nu", 0, min=0, max=2000, label="u Resolution", description="0: the skin's")
+SKULL_NV = _param("skull_nv", 0, min=0, max=4000, label="v Resolution", description="0: the skin's")
+BONE_MESH = _param("bone_mesh", True, label="Bone Skull",
+                   description="Also build the bone skull (smoothed marching cubes of the bone)")
+BONE_STEP = _param("bone_step", 1, min=1, max=4, label="Bone Step", description="Marching-cubes step (voxels)")
+KEEP_EDITED = _param("keep_edited", True, label="Keep Edited",
+                     description="Leave the landmarks placed or moved by hand where they are")
+MIRROR_PLANE = _param("mirror_plane", "AUTO", choices=("AUTO", "LANDMARKS", "SKULL"), label="Plane",
+                      description="Where the mid-sagittal plane comes from")
+EXPORT_FORMAT = _param("export_format", "stl", choices=("stl", "obj", "ply"), label="Format",
+                       description="Mesh format of Export for Printing")
+DEPTH_DISPLAY_MAX = _param("depth_display_max", 25.0, min=1.0, max=100.0, unit="mm",
+                           description="Tissue depth at the red end of the depth map's colour ramp")
+PEG_RADIUS = _param("peg_radius", 1.5, min=0.1, max=10.0, unit="mm", description="Radius of a marker peg")

@@ -609,11 +609,11 @@ def _build(args, bpy, addon, ops):
     skin = True
     if args.skull:
         _call(ops.build_skull)
-        skin = json.loads(coll.get("pdehead_skull_info", "{}")).get("has_skin", True)
+        skin = _forensic(addon, coll).skull_info().get("has_skin", True)
         if skin:
             _call(ops.tissue_depth)
         # no landmarks given: the automatic ones (issue 22), each with its flag
-        if not addon.operators.forensic_study.landmarks(coll):
+        if not _forensic(addon, coll).landmarks():
             _call(ops.find_landmarks)
         face = _face_from_skull(addon, coll) if args.face_from_skull else None
         if args.export:
@@ -646,8 +646,8 @@ def _print_study(args, bpy, state, coll, selection_info) -> None:
 
 def _print_skull(args, addon, coll, skin) -> None:
     """The summary's lines for the skull, the skin, the depth map, the landmarks, the face and the export."""
-    info = json.loads(coll.get("pdehead_skull_info", "{}"))
-    depth = json.loads(coll.get("pdehead_depth_stats", "{}"))
+    fs = _forensic(addon, coll)
+    info, depth = fs.skull_info(), fs.depth_stats()
     if info.get("skull_mesh_file"):
         level = f"none (the skull is the mesh {info['skull_mesh_file']})"
     else:
@@ -659,7 +659,7 @@ def _print_skull(args, addon, coll, skin) -> None:
     if "median" in depth:
         print(f"  depth     {depth['measured']} of {depth['vertices']} skin vertices, median {depth['median']:.1f} "
               f"mm, p95 {depth['p95']:.1f} mm (no bone {depth['no_bone']}, envelope {depth['envelope']})")
-    flags = [f for f, _ in addon.operators.forensic_study.landmark_flags(coll).values()]
+    flags = [f for f, _ in fs.landmark_flags().values()]
     if flags:
         print(f"  landmarks {len(flags) - flags.count('not_found')} of {len(flags)} found automatically "
               f"({flags.count('ok')} ok, {flags.count('uncertain')} uncertain, {flags.count('not_found')} not found)")
@@ -706,22 +706,27 @@ def _turntable(args, bpy, addon, ops, coll, summary) -> None:
         summary["outputs"]["render_animation"] = [str(x) for x in paths]
 
 
+def _forensic(addon, coll):
+    """The study's forensic side (operators/forensic_study.py's ForensicStudy)."""
+    study = addon.operators.study_entity.Study.of(coll)
+    return addon.operators.forensic_study.ForensicStudy.of(study)
+
+
 def _face_from_skull(addon, coll):
     """The face approximated from the study's bone skull, landmarks and depth table (issue 23): (result, model).
     A skull the engine refuses (too few landmarks with a depth, not a skull in mm) is exit 2."""
     from importlib import import_module
     ff = import_module(addon.__name__ + ".pdehead_addon.forensic.face_from_skull")
-    fs = addon.operators.forensic_study
+    fs = _forensic(addon, coll)
     try:
-        model = ff.FaceModel.prepare(addon.operators.forensic_skull.skull_engine_mesh(coll, "BONE"), fs.landmarks(coll), fs.study_depth_table(coll),
-                                     flags=fs.flag_names(coll))
+        model = ff.FaceModel.prepare(fs.skull_engine_mesh("BONE"), fs.landmarks(), fs.depth_table(), flags=fs.flag_names())
         res = model.solve()
     except addon.pdehead_addon.PDEHeadError as exc:
         raise CLIError(f"--face-from-skull: {exc}", 2) from None
     if not res.mesh.is_watertight():
         raise CLIError("--face-from-skull: the face mesh is not closed; nothing was written", 1)
     model.label = ff.APPROXIMATION_LABEL
-    prov = dict(fs.forensic_provenance(coll, fs.study_depth_table(coll)), **res.provenance)
+    prov = dict(fs.provenance(fs.depth_table()), **res.provenance)
     res.provenance = prov
     return res, model
 

@@ -372,11 +372,14 @@ def bench_face_dataset(name: str, repeats: int) -> dict:
     import numpy as np
     from mathutils import Vector
 
-    from pdehead_dev.operators import face, forensic_study as fs, state
+    from pdehead_dev.operators import face, forensic_export, state
+    from pdehead_dev.operators.forensic_study import ForensicStudy
+    from pdehead_dev.operators.study_entity import Study
     coll, steps = _face_study(name)
-    obj = face.face_object(coll)
-    names = face.face_options(coll)["pegs"]
-    pegs = face.peg_objects(coll, names)
+    fs = ForensicStudy.of(Study.of(coll))
+    obj = fs.face_object()
+    names = fs.face_options()["pegs"]
+    pegs = fs.peg_objects(names)
     out = {"steps_s": steps, "face_vertices": len(obj.data.vertices), "pegs": len(names),
            "prepare_s": state.cache_for(coll.pdehead.study_id).forensic.get("face_prepare_s"), "rows": []}
 
@@ -419,7 +422,7 @@ def bench_face_dataset(name: str, repeats: int) -> dict:
         peg = pegs[peg_names[i % len(peg_names)]]
         # a value not used before on this peg (GE has only two of the four pegs: the same value twice is no change)
         offset = (0.5 + 0.05 * i) * (1.0 if i % 2 == 0 else -1.0)
-        return lambda: fs.set_peg_depth(peg, float(peg["table_mean_mm"]) + offset)
+        return lambda: forensic_export.set_peg_depth(peg, float(peg["table_mean_mm"]) + offset)
     series("peg depth (+-0.5 mm)", depth)
 
     folder = Path(tempfile.mkdtemp(prefix="pdehead-bench-face-"))
@@ -449,8 +452,9 @@ def bench_face_dataset(name: str, repeats: int) -> dict:
     state.drop_cache()
     bpy.ops.wm.open_mainfile(filepath=str(blend))
     coll = bpy.context.scene.pdehead.active_study
-    obj = face.face_object(coll)
-    pegs = face.peg_objects(coll, names)
+    fs = ForensicStudy.of(Study.of(coll))
+    obj = fs.face_object()
+    pegs = fs.peg_objects(names)
     prepared = face.PREPARE_CALLS[0]
     out["first_drag_after_reopen_s"], out["first_drag_after_reopen_cpu_s"] = _timed_update(drag(0))
     fcache = state.cache_for(coll.pdehead.study_id).forensic

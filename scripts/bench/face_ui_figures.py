@@ -50,10 +50,11 @@ def main(argv=None) -> int:
     coll = bpy.context.scene.pdehead.active_study
     for op in ("build_skull", "find_landmarks", "build_face"):
         assert getattr(bpy.ops.pdehead, op)() == {'FINISHED'}, op
-    obj = face.face_object(coll)
+    fs = addon.operators.forensic_study.ForensicStudy.of(addon.operators.study_entity.Study.of(coll))
+    obj = fs.face_object()
     bone = coll["pdehead_bone_object"]
-    names = face.face_options(coll)["pegs"]
-    pegs = face.peg_objects(coll, names)
+    names = fs.face_options()["pegs"]
+    pegs = fs.peg_objects(names)
     for o in list(coll.all_objects):                # only what the pictures show (a list: hide_render
         # rebuilds the collection's object cache while it would be iterated)
         if o not in (obj, bone, *pegs.values()):
@@ -92,7 +93,7 @@ def main(argv=None) -> int:
         fig.paste(im, (i * size, 0))
         draw.text((i * size + 6, size + 4), caption, fill=(0, 0, 0))
     draw.text((6, size + 24), f"{args.dataset}: {label} (PDE Head, Face from Skull, "
-                              f"{face.face_options(coll)['pegs'].__len__()} pegs, T-Table 2023)", fill=(160, 0, 0))
+                              f"{len(names)} pegs, T-Table 2023)", fill=(160, 0, 0))
     OUT.mkdir(parents=True, exist_ok=True)
     out = OUT / f"face_ui_{args.dataset}.png"
     fig.quantize(256, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE).save(out, optimize=True)

@@ -64,6 +64,7 @@ def main() -> int:
     bpy.ops.pdehead.reconstruct_surface(nu=120, nv=240)
     bpy.ops.pdehead.build_skull()
     bpy.ops.pdehead.tissue_depth(target='BONE')
+    fs = addon.operators.forensic_study.ForensicStudy.of(addon.operators.study_entity.Study.of(coll))
     s = coll.pdehead
     skin = s.surface_object
     OUT.mkdir(parents=True, exist_ok=True)
@@ -84,9 +85,9 @@ def main() -> int:
     fig.quantize(256, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE).save(OUT / "forensic_depth_map.png", optimize=True)
 
     # landmarks from the bone mesh's geometry (patient mm), then pegs with the measured depths
-    bone = skull.skull_engine_mesh(coll, "BONE")
+    bone = fs.skull_engine_mesh("BONE")
     v = bone.vertices
-    skin_v = skull.skin_engine_mesh(coll).vertices
+    skin_v = fs.skin_engine_mesh().vertices
     xc = 0.5 * (skin_v[:, 0].min() + skin_v[:, 0].max())
     tip_z = skin_v[np.argmin(skin_v[:, 1]), 2]
 

@@ -57,12 +57,12 @@ def _ball(bpy, coll, name, patient_mm, radius_mm, mat):
 
 
 def _figure(bpy, addon, coll, references, out_name, title):
-    fs = addon.operators.forensic_study
+    fs = addon.operators.forensic_study.ForensicStudy.of(addon.operators.study_entity.Study.of(coll))
     render = addon.operators.render
     assert bpy.ops.pdehead.find_landmarks() == {'FINISHED'}
-    flags = fs.landmark_flags(coll)
+    flags = fs.landmark_flags()
     balls = []
-    for name, p in fs.landmarks(coll).items():
+    for name, p in fs.landmarks().items():
         flag = flags.get(name, ("ok", ""))[0]
         balls.append(_ball(bpy, coll, f"auto {name}", p, 2.2, _material(bpy, f"lm {flag}", COLOURS[flag])))
     for name, p in references.items():

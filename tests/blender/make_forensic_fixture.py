@@ -56,7 +56,7 @@ def custom_of(idblock) -> dict:
     """The custom properties of an ID: strings by SHA-256 (JSON states can be large), the rest as JSON."""
     out = {}
     for key in idblock.keys():
-        if key in {"pdehead", "_RNA_UI"}:
+        if key in {"pdehead", "pdehead_forensic", "_RNA_UI"}:      # registered properties (Blender < 5.0 lists them)
             continue
         value = idblock[key]
         if isinstance(value, str):

@@ -30,9 +30,14 @@ def face_blend(pdehead_ext, tmp_path_factory):
 
 
 def _mods(pdehead_ext):
+    """(the face module, a function giving a study collection's ForensicStudy, the state module)."""
     name = pdehead_ext.__name__
-    return (sys.modules[f"{name}.operators.face"], sys.modules[f"{name}.operators.forensic_study"],
-            sys.modules[f"{name}.operators.state"])
+    forensic_study = sys.modules[f"{name}.operators.forensic_study"]
+    study_entity = sys.modules[f"{name}.operators.study_entity"]
+
+    def forensic(coll):
+        return forensic_study.ForensicStudy.of(study_entity.Study.of(coll))
+    return sys.modules[f"{name}.operators.face"], forensic, sys.modules[f"{name}.operators.state"]
 
 
 def _world_vertices(obj) -> np.ndarray:
@@ -73,7 +78,7 @@ def test_build_face_and_live_pegs(pdehead_ext, face_blend, tmp_path):
     import bpy
     face, fs, state = _mods(pdehead_ext)
     coll = _open(face_blend)
-    obj = face.face_object(coll)
+    obj = fs(coll).face_object()
     # the face: its own object in the study, shaded smooth, closed, with the label and provenance on it
     assert obj is not None and obj.name in coll.objects and obj["pdehead_kind"] == "face"
     me = obj.data
@@ -82,13 +87,13 @@ def test_build_face_and_live_pegs(pdehead_ext, face_blend, tmp_path):
     prov = json.loads(obj[face.PROVENANCE_PROP])
     assert prov["label"] == obj[face.LABEL_PROP] and prov["table"].startswith("T-Table 2023")
     assert prov["software"].startswith("PDE Head ") and set(prov["landmarks"].values()) <= {"ok", "uncertain"}
-    names = face.face_options(coll)["pegs"]
-    pegs = face.peg_objects(coll, names)
+    names = fs(coll).face_options()["pegs"]
+    pegs = fs(coll).peg_objects(names)
     assert len(names) >= 10 and set(pegs) == set(names)
     assert all(p.parent == obj for p in pegs.values())                   # the pegs are the face's children
     # the face passes through the pegs' tips (within the engine's fit)
     verts = _world_vertices(obj)
-    tips = face.peg_tips(coll, names)
+    tips = fs(coll).peg_tips(names)
     gap = np.array([np.linalg.norm(verts - t, axis=1).min() for t in tips])
     assert np.median(gap) < 1.5, dict(zip(names, gap.round(1)))         # measured 0.78-0.90 mm (largest 4.1-9.8)
 
@@ -118,12 +123,12 @@ def test_build_face_and_live_pegs(pdehead_ext, face_blend, tmp_path):
     # measured (5.0.1): 3.29-3.79 mm near the peg (engine versions), 95th percentile 0.09 mm beyond 60 mm
     assert np.median(moved[near]) == pytest.approx(4.0, abs=1.5), np.median(moved[near])
     assert np.percentile(moved[dist > 60.0], 95) < 0.3
-    assert face.peg_tips(coll, names)[i] == pytest.approx(tips[i] + 4.0 * normal, abs=1e-3)
+    assert fs(coll).peg_tips(names)[i] == pytest.approx(tips[i] + 4.0 * normal, abs=1e-3)
 
     # depth: the same peg 2 mm longer -> the face near its tip moves out about 2 mm more
     before = after
-    depth = float(peg[fs.PEG_DEPTH_PROP])
-    assert face.set_peg_depth(coll, peg, depth + 2.0) == pytest.approx(depth + 2.0)
+    depth = float(peg[face.PEG_DEPTH_PROP])
+    assert fs(coll).set_face_peg_depth(peg, depth + 2.0) == pytest.approx(depth + 2.0)
     bpy.context.view_layer.update()
     after = _world_vertices(obj)
     near, moved, dist = _nearest_peg_vertex_motion(before, after, tips[i] + 4.0 * normal)
@@ -137,7 +142,7 @@ def test_build_face_and_live_pegs(pdehead_ext, face_blend, tmp_path):
     assert _nearest_peg_vertex_motion(snapshot, _world_vertices(obj), tips[i])[1].max() > 1.0
     bpy.ops.ed.undo()
     coll = bpy.context.scene.pdehead.active_study
-    obj = face.face_object(coll)
+    obj = fs(coll).face_object()
     bpy.context.view_layer.update()
     back = _world_vertices(obj)
     assert back.shape == snapshot.shape and np.abs(back - snapshot).max() < 1e-3
@@ -147,18 +152,18 @@ def test_build_face_and_live_pegs(pdehead_ext, face_blend, tmp_path):
     table.write_text("# test values, not a published table\nlandmark,mean_mm,sd_mm\n" +
                      "".join(f"{n},{15.5 if n == name else 6.0},1.0\n" for n in names))
     s = state.settings(coll)
-    pegs = face.peg_objects(coll, names)
+    pegs = fs(coll).peg_objects(names)
     before = _world_vertices(obj)
     s.face_table_file = str(table)
     s.face_table = 'FILE'
     assert s.last_error == ""
-    assert pegs[name][fs.PEG_DEPTH_PROP] == 15.5 and pegs[name]["table_name"] == "table"
+    assert pegs[name][face.PEG_DEPTH_PROP] == 15.5 and pegs[name]["table_name"] == "table"
     after = _world_vertices(obj)
-    tip = face.peg_tips(coll, names)[i]
+    tip = fs(coll).peg_tips(names)[i]
     assert np.linalg.norm(after - tip, axis=1).min() < 1.5                 # the face reaches the new tip: 0.36-0.51 mm
     assert json.loads(obj[face.PROVENANCE_PROP])["table"] == "table"
     s.face_table = 'DEFAULT'
-    assert pegs[name][fs.PEG_DEPTH_PROP] == pytest.approx(5.5 if name == "Glabella" else pegs[name]["table_mean_mm"])
+    assert pegs[name][face.PEG_DEPTH_PROP] == pytest.approx(5.5 if name == "Glabella" else pegs[name]["table_mean_mm"])
 
     # the +-1 SD faces: thinner and thicker than the face everywhere a peg stands
     assert bpy.ops.pdehead.face_sd_range() == {'FINISHED'}
@@ -169,27 +174,27 @@ def test_build_face_and_live_pegs(pdehead_ext, face_blend, tmp_path):
     assert lo[face.LABEL_PROP] == obj[face.LABEL_PROP]
 
     # Build Face is one undo step: undone, the study has its earlier face (same build) and pegs again
-    build = face.face_options(coll)["build"]
+    build = fs(coll).face_options()["build"]
     bpy.ops.ed.undo_push(message="before Build Face")
     assert bpy.ops.pdehead.build_face() == {'FINISHED'}
-    assert face.face_options(coll)["build"] != build
+    assert fs(coll).face_options()["build"] != build
     bpy.ops.ed.undo_push(message="Build Face")
     bpy.ops.ed.undo()
     coll = bpy.context.scene.pdehead.active_study
-    assert face.face_options(coll)["build"] == build
-    assert set(face.peg_objects(coll, names)) == set(names)
+    assert fs(coll).face_options()["build"] == build
+    assert set(fs(coll).peg_objects(names)) == set(names)
 
 
 def test_face_follows_a_peg_after_reopening(pdehead_ext, face_blend, tmp_path):
     import bpy
     face, fs, state = _mods(pdehead_ext)
     coll = _open(face_blend)
-    names = face.face_options(coll)["pegs"]
+    names = fs(coll).face_options()["pegs"]
     # what this session's model (prepared by Build Face) gives for the drag made after reopening
-    model = face.face_model(coll)
-    normal = np.array(face.peg_objects(coll, names)[names[0]].matrix_world)[:3, 2]
+    model = fs(coll).face_model()
+    normal = np.array(fs(coll).peg_objects(names)[names[0]].matrix_world)[:3, 2]
     normal /= np.linalg.norm(normal)
-    dragged = face.peg_tips(coll, names)
+    dragged = fs(coll).peg_tips(names)
     dragged[0] += 3.0 * normal
     expected = model.solve(tips=dragged).mesh.vertices
     assert len(coll[face.FACE_MODEL_KEY]) < 1_000_000            # the kept model: budget 1 MB (measured 0.4 MB)
@@ -198,9 +203,9 @@ def test_face_follows_a_peg_after_reopening(pdehead_ext, face_blend, tmp_path):
     state.drop_cache()                                  # as in a new Blender session: no model in memory
     bpy.ops.wm.open_mainfile(filepath=str(saved))
     coll = bpy.context.scene.pdehead.active_study
-    obj = face.face_object(coll)
-    pegs = face.peg_objects(coll, names)
-    assert obj is not None and set(pegs) == set(names) and fs.landmarks(coll)
+    obj = fs(coll).face_object()
+    pegs = fs(coll).peg_objects(names)
+    assert obj is not None and set(pegs) == set(names) and fs(coll).landmarks()
     assert obj[face.LABEL_PROP] == "approximation — not an identification"
     before = _world_vertices(obj)
     bpy.context.view_layer.update()                     # nothing moved: no re-solve, no model prepared
@@ -210,7 +215,7 @@ def test_face_follows_a_peg_after_reopening(pdehead_ext, face_blend, tmp_path):
     prepared = face.PREPARE_CALLS[0]
     name = names[0]
     peg = pegs[name]
-    tip = face.peg_tips(coll, names)[0]
+    tip = fs(coll).peg_tips(names)[0]
     _drag(peg, 3.0 * normal)
     after = _world_vertices(obj)
     near, moved, dist = _nearest_peg_vertex_motion(before, after, tip)
@@ -219,7 +224,7 @@ def test_face_follows_a_peg_after_reopening(pdehead_ext, face_blend, tmp_path):
     # the model came from the file, not from preparing it again, and gives the face the first session's gives
     assert face.PREPARE_CALLS[0] == prepared and cache["face_model_source"] == "file"
     assert cache["face_timings"]["fast"] and not cache["face_timings"]["refilled"]
-    assert np.abs(face._mesh_positions(coll, obj) - expected).max() < 1e-3     # float32 metres: ~1e-5 mm
+    assert np.abs(fs(coll)._mesh_positions(obj) - expected).max() < 1e-3     # float32 metres: ~1e-5 mm
     from types import SimpleNamespace
     from panel_recorder import RecordingLayout
     log = []
@@ -231,7 +236,7 @@ def test_face_follows_a_peg_after_reopening(pdehead_ext, face_blend, tmp_path):
     state.drop_cache()
     _drag(peg, -1.0 * normal)
     assert face.PREPARE_CALLS[0] == prepared + 1 and cache_source(state, coll) == "prepared"
-    assert np.abs(face.peg_tips(coll, names)[0] - (tip + 2.0 * normal)).max() < 1e-3
+    assert np.abs(fs(coll).peg_tips(names)[0] - (tip + 2.0 * normal)).max() < 1e-3
 
     # a peg deleted: the face solves once with that peg back at the table's mean, then stays (no solve per update)
     cache = state.cache_for(state.settings(coll).study_id).forensic

@@ -96,7 +96,7 @@ def test_bone_level_field_and_export_builds_or_refuses(pdehead_ext, tmp_path, ph
 
     root, level = phantom_dicoms
     ext = pdehead_ext
-    forensic_skull = __import__(f"{ext.__name__}.operators.forensic_skull", fromlist=["x"])
+    forensic = __import__(f"{ext.__name__}.operators.forensic_study", fromlist=["x"])
     # the import dialog's Bone Level field sets the study's, which the forensic panel shows
     assert bpy.ops.pdehead.import_ct(directory=str(root / "stripped"), use_bone_level=True,
                                      bone_level=level) == {'FINISHED'}
@@ -115,12 +115,13 @@ def test_bone_level_field_and_export_builds_or_refuses(pdehead_ext, tmp_path, ph
     assert bpy.ops.pdehead.export_print(directory=str(out), format='stl') == {'FINISHED'}
     assert sorted(p.name for p in out.iterdir()) == ["landmarks.csv", "provenance.json", "skull.stl",
                                                      "skull_envelope.stl"]
-    info = forensic_skull.skull_segmentation(coll).meta
+    fs = forensic.ForensicStudy.of(ext.operators.study_entity.Study.of(coll))
+    info = fs.skull_segmentation().meta
     assert info["bone_level_stored"] == level and not info["has_skin"]
     first = read_stl(out / "skull.stl")
     # the panel's field changes the level: the skull is rebuilt from it
     s.bone_level = 900.0
-    assert forensic_skull.skull_segmentation(coll).meta["bone_level_stored"] == 900.0
+    assert fs.skull_segmentation().meta["bone_level_stored"] == 900.0
     # a failure while writing leaves nothing behind (everything is written to a hidden folder first)
     engine = __import__(f"{ext.__name__}.pdehead_addon", fromlist=["x"])   # the operators use its public names
     saved = engine.write_landmark_csv

@@ -108,15 +108,20 @@ def test_forensic_operators_on_the_phantom(pdehead_ext, tmp_path):
 
     forensic = __import__(f"{pdehead_ext.__name__}.operators.forensic_study", fromlist=["x"])
     skull = __import__(f"{pdehead_ext.__name__}.operators.forensic_skull", fromlist=["x"])
+    export = __import__(f"{pdehead_ext.__name__}.operators.forensic_export", fromlist=["x"])
+    study_entity = __import__(f"{pdehead_ext.__name__}.operators.study_entity", fromlist=["x"])
     bpy.ops.pdehead.run_pipeline(source='PHANTOM', patches=6, nu=40, nv=80, nw=4, voxel_size=6.0)
     coll = bpy.context.scene.pdehead.active_study
+    fs = forensic.ForensicStudy.of(study_entity.Study.of(coll))
+    assert fs is forensic.ForensicStudy.of(study_entity.Study.of(coll))      # one object per study
     assert bpy.ops.pdehead.build_skull() == {'FINISHED'}
     skull_obj = coll["pdehead_skull_object"]
     bone_obj = coll["pdehead_bone_object"]
-    assert len(skull_obj.data.vertices) == len(skull.skull_engine_mesh(coll, "PDE").vertices) > 2000
+    assert len(skull_obj.data.vertices) == len(fs.skull_engine_mesh("PDE").vertices) > 2000
     assert len(bone_obj.data.polygons) > 10000
 
-    assert bpy.ops.pdehead.tissue_depth() == {'FINISHED'}
+    assert bpy.ops.pdehead.tissue_depth(max_depth=35.0) == {'FINISHED'}
+    assert (fs.props.target, fs.props.max_depth) == ('BONE', 35.0)          # the study's forensic settings
     surf = coll.pdehead.surface_object
     depth = np.empty(len(surf.data.vertices), np.float32)
     surf.data.attributes["tissue_depth"].data.foreach_get("value", depth)
@@ -127,6 +132,7 @@ def test_forensic_operators_on_the_phantom(pdehead_ext, tmp_path):
     assert np.median(depth[vault]) == pytest.approx(6.0, abs=0.5)
     assert (depth == -1).sum() > 0                                       # no value below the skull
     stats = json.loads(coll["pdehead_depth_stats"])
+    assert stats == fs.depth_stats() and stats["max_depth_mm"] == 35.0
     assert stats["measured"] == int((depth >= 0).sum())
     assert surf.data.materials[0].name == skull.DEPTH_MATERIAL
 
@@ -137,7 +143,7 @@ def test_forensic_operators_on_the_phantom(pdehead_ext, tmp_path):
     for name, p in points.items():
         r = bpy.ops.pdehead.place_landmark(name=name, location=Vector(np.array(p) * 0.001), use_location=True)
         assert r == {'FINISHED'}
-    lms = forensic.landmarks(coll)
+    lms = fs.landmarks()
     assert set(lms) == set(points)
     assert lms["Vertex"][2] == pytest.approx(g_c[2] + g_r[2], abs=1.0)
     table = tmp_path / "table.csv"
@@ -145,6 +151,7 @@ def test_forensic_operators_on_the_phantom(pdehead_ext, tmp_path):
     assert bpy.ops.pdehead.import_depth_table(filepath=str(table)) == {'FINISHED'}
     pegs = {o["pdehead_peg"]: o for o in coll.all_objects if "pdehead_peg" in o}
     assert set(pegs) == {"Vertex", "Porion L"}
+    assert fs.props.depth_table_name == fs.depth_table().label and fs.depth_table().entries["Vertex"].mean_mm == 6.0
 
     def peg_world_z(peg):
         bpy.context.view_layer.update()                                  # the driver: depth_mm -> Z scale
@@ -160,8 +167,8 @@ def test_forensic_operators_on_the_phantom(pdehead_ext, tmp_path):
     ui = peg.id_properties_ui("depth_mm").as_dict()
     assert (ui["min"], ui["max"]) == (2.0, 8.0)
     assert np.ptp(peg_world_z(peg)) == pytest.approx(0.005, abs=0.0005)
-    assert forensic.set_peg_depth(peg, 7.5) == 7.5 and np.ptp(peg_world_z(peg)) == pytest.approx(0.0075, abs=0.0005)
-    assert forensic.set_peg_depth(peg, 30.0) == 8.0                      # limited to mean + 2 SD
+    assert export.set_peg_depth(peg, 7.5) == 7.5 and np.ptp(peg_world_z(peg)) == pytest.approx(0.0075, abs=0.0005)
+    assert export.set_peg_depth(peg, 30.0) == 8.0                      # limited to mean + 2 SD
     base = np.array(peg.matrix_world.translation) / 0.001
     assert base == pytest.approx(lms["Vertex"], abs=1.0)                 # the peg stands on the landmark
     csv_path = tmp_path / "lm.csv"
@@ -178,9 +185,9 @@ def test_forensic_operators_on_the_phantom(pdehead_ext, tmp_path):
     from pdehead_addon.forensic.landmarks import landmark_depths
     header = [r[0] for r in csv.reader(open(csv_path)) if r[0].startswith("#")]
     assert "# depth: bone level to skin level in the CT along the bone's exposed normal" in header
-    skull_mesh, skin_mesh = skull.skull_engine_mesh(coll, "BONE"), skull.skin_engine_mesh(coll)
-    head = forensic.state.cache_for(forensic.state.settings(coll).study_id).seg
-    on_ct = measure_landmark_depths(lms, skull_mesh, skin_mesh, skull.skull_segmentation(coll), head_mask=head.mask)
+    skull_mesh, skin_mesh = fs.skull_engine_mesh("BONE"), fs.skin_engine_mesh()
+    head = fs.study.cache.seg
+    on_ct = measure_landmark_depths(lms, skull_mesh, skin_mesh, fs.skull_segmentation(), head_mask=head.mask)
     assert {m.method for m in on_ct.values()} == {"ct"}
     assert float(vertex[4]) == pytest.approx(on_ct["Vertex"].depth, abs=0.005)
     assert float(vertex[4]) == pytest.approx(6.0, abs=0.5)
@@ -203,7 +210,7 @@ def test_forensic_operators_on_the_phantom(pdehead_ext, tmp_path):
     normal = np.linalg.svd(po - po.mean(0))[2][2]
     assert abs(normal[2]) > np.cos(np.radians(0.01))                     # the Frankfurt plane is horizontal
     assert np.array(coll["pdehead_skull_object"].matrix_world)[:3, :3] == pytest.approx(m[:3, :3])
-    assert forensic.landmarks(coll)["Vertex"] == pytest.approx(lms["Vertex"])   # patient mm kept
+    assert fs.landmarks()["Vertex"] == pytest.approx(lms["Vertex"])   # patient mm kept
     bpy.context.view_layer.objects.active = skull_obj
     assert bpy.ops.pdehead.mirror() == {'FINISHED'}
     mirrored = bpy.data.objects[f"{skull_obj.name} Mirrored"]
@@ -237,4 +244,7 @@ def test_forensic_operators_on_the_phantom(pdehead_ext, tmp_path):
     coll = [c for c in bpy.data.collections if c.get("pdehead_skull_boundaries")][0]
     surf = coll.pdehead.surface_object
     assert "tissue_depth" in surf.data.attributes and coll["pdehead_skull_object"] is not None
-    assert set(forensic.landmarks(coll)) == set(points)
+    fs = forensic.ForensicStudy.of(study_entity.Study.of(coll))
+    assert set(fs.landmarks()) == set(points)
+    assert fs.props.format_version == 1 and fs.props.max_depth == 35.0          # the forensic settings saved
+    assert fs.depth_table().label.startswith("T-Table 2023") and fs.props.depth_table_name == fs.depth_table().label
