@@ -17,7 +17,7 @@ import numpy as np
 import bpy
 
 from ..pdehead_addon import PDEHeadError
-from . import compat, state, study
+from . import compat, state
 from .forensic_objects import forensic_cache, linked_object, plain_material, set_material
 from .study_entity import Study
 
@@ -42,7 +42,7 @@ def skull_segmentation(coll):
     extra = forensic_cache(coll)
     cache = state.cache_for(state.settings(coll).study_id)
     if cache.seg is None:
-        study.step_segment(coll)
+        Study.of(coll).segment()
     s = state.settings(coll)
     level = float(s.bone_level) if s.use_bone_level else None
     if extra.get("skull_seg") is None or extra.get("skull_seg_of") is not cache.seg \
@@ -144,11 +144,11 @@ def step_depth(coll, target: str = "BONE", max_depth_mm: float = 40.0) -> dict:
 
     s = state.settings(coll)
     if s.surface_object is None:
-        study.step_surface(coll)
+        Study.of(coll).surface()
     obj = s.surface_object
     skin = skin_engine_mesh(coll)
     if len(skin.vertices) != len(obj.data.vertices):  # the surface was edited or built otherwise
-        study.step_surface(coll)
+        Study.of(coll).surface()
         obj = s.surface_object
     with state.Timer() as t:
         res = tissue_depth(skin, skull_engine_mesh(coll, target), envelope=skull_segmentation(coll),

@@ -390,7 +390,7 @@ class Warnings:
         addon = sys.modules[_common.DEV_PACKAGE]
         coll = bpy.context.scene.pdehead.active_study
         if coll is not None:
-            for warning in addon.operators.state.warning_list(coll.pdehead):
+            for warning in addon.operators.study_entity.Study.of(coll).warnings:
                 self.say(warning)
 
     def showwarning(self, message, category, filename, lineno, file=None, line=None) -> None:
@@ -559,7 +559,7 @@ def _steps(args, bpy, addon, state) -> dict:
     _print_study(args, bpy, state, coll, selection_info)
     if args.skull:
         _print_skull(args, addon, coll, skin)
-    warning_lines = [state.user_text(w) for w in state.warning_list(s)]
+    warning_lines = [state.user_text(w) for w in addon.operators.study_entity.Study.of(coll).warnings]
     for warning in warning_lines:
         print(f"  warning   {warning}")
     print("timings (s):")
