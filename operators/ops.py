@@ -28,8 +28,8 @@ class PDEHEAD_OT_import_ct(Operator, GuardedOperator, LoaderOptions):
                       "as a new PDE Head study collection")
     bl_options = {'REGISTER', 'UNDO'}
 
-    run_pipeline: BoolProperty(name="Build the Head", default=False,
-                               description="Run segmentation, boundaries, surface and solid after importing")
+    run_pipeline: BoolProperty(name=D.RUN_PIPELINE.label, **D.RUN_PIPELINE.limits(),
+                               description=D.RUN_PIPELINE.description)
 
     def invoke(self, context, event):
         if self.directory and len(self.files):  # dropped on the 3D View (PDEHEAD_FH_import_ct)
@@ -201,11 +201,11 @@ class PDEHEAD_OT_build_volume(Operator, StudyOperator):
 
     use_ct_grid: BoolProperty(name=D.USE_CT_GRID.label, **D.USE_CT_GRID.limits())
     voxel_auto: BoolProperty(name=D.VOXEL_AUTO.label, **D.VOXEL_AUTO.limits())
-    voxel_size: FloatProperty(name="Voxel Size (mm)", **D.VOXEL_SIZE.limits())
+    voxel_size: FloatProperty(name=D.VOXEL_SIZE.label, **D.VOXEL_SIZE.limits())
     low_alpha: FloatProperty(name=D.LOW_ALPHA.label, **D.LOW_ALPHA.limits())
     high_alpha: FloatProperty(name=D.HIGH_ALPHA.label, **D.HIGH_ALPHA.limits())
     density: FloatProperty(name=D.DENSITY.label, **D.DENSITY.limits())
-    colour_preset: EnumProperty(name="Colour", items=props.COLOUR_ITEMS, default=D.COLOUR_PRESET.default)
+    colour_preset: EnumProperty(name=D.COLOUR_PRESET.label, items=props.COLOUR_ITEMS, default=D.COLOUR_PRESET.default)
     alpha_mode: EnumProperty(name=D.ALPHA_MODE.label, items=props.ALPHA_MODE_ITEMS, default=D.ALPHA_MODE.default)
 
     mirrored_settings = ("use_ct_grid", "voxel_auto", "voxel_size", "low_alpha", "high_alpha", "density", "colour_preset",
@@ -249,8 +249,9 @@ class PDEHEAD_OT_run_pipeline(Operator, GuardedOperator, LoaderOptions):
     nu: IntProperty(name=D.NU.label, **D.NU.limits())
     nv: IntProperty(name=D.NV.label, **D.NV.limits())
     nw: IntProperty(name=D.NW.label, **D.NW.limits())
-    build_volume: BoolProperty(name="Volume", default=True, description="Also build the volume")
-    voxel_size: FloatProperty(name="Voxel Size (mm)", **D.VOXEL_SIZE.limits())
+    build_volume: BoolProperty(name=D.BUILD_VOLUME.label, **D.BUILD_VOLUME.limits(),
+                               description=D.BUILD_VOLUME.description)
+    voxel_size: FloatProperty(name=D.VOXEL_SIZE.label, **D.VOXEL_SIZE.limits())
 
     def _resolved_source(self, context) -> str:
         if self.source != "AUTO":
@@ -366,8 +367,8 @@ class PDEHEAD_OT_frame_study(Operator, StudyOperator):
                       "hidden, the 3D views framed on the head")
     bl_options = {'REGISTER', 'UNDO'}
 
-    show: EnumProperty(name="Show", items=scene.SHOW_ITEMS, default="SURFACE")
-    view: EnumProperty(name="View", items=FRAME_VIEW_ITEMS, default=D.VIEW.default)
+    show: EnumProperty(name=D.SHOW.label, items=scene.SHOW_ITEMS, default=D.SHOW.default)
+    view: EnumProperty(name=D.VIEW.label, items=FRAME_VIEW_ITEMS, default=D.VIEW.default)
 
     def run(self, context, study):
         done = scene.frame_study(context, study.collection, show=self.show, view=self.view)
@@ -382,8 +383,8 @@ class PDEHEAD_OT_turntable(Operator, StudyOperator):
                       "number of frames (the scene's frame range); Render Animation renders it")
     bl_options = {'REGISTER', 'UNDO'}
 
-    frames: IntProperty(name=D.TURNTABLE_FRAMES.label, default=D.TURNTABLE_FRAMES.default, min=D.TURNTABLE_FRAMES.min,
-                        max=D.TURNTABLE_FRAMES.max, description=D.TURNTABLE_FRAMES.description)
+    frames: IntProperty(name=D.TURNTABLE_FRAMES.label, **D.TURNTABLE_FRAMES.limits(),
+                        description=D.TURNTABLE_FRAMES.description)
 
     def run(self, context, study):
         from . import animation

@@ -96,7 +96,8 @@ def _camera_matrix(right, up, forward, position):
 IMAGE_FORMATS = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG"}
 
 
-def render_objects_png(objects, path, view: str = "FRONT", resolution=(160, 160), samples: int = 16,
+def render_objects_png(objects, path, view: str = D.VIEW.default, resolution=(160, 160),
+                       samples: int = D.RENDER_SAMPLES.default,
                        transparent: bool = False, isolate: bool = True, margin: float = 1.08,
                        denoise: bool = False, volume_step_rate: float = 2.0, bounds=None,
                        scene=None) -> Path:
