@@ -1,4 +1,5 @@
-"""The handler every study shares: a moved cutter re-cuts its study's solid.
+"""The handler every study shares: a moved cutter re-cuts its study's solid (and, on unregister, the end
+of the colour-refresh timer of :mod:`.study_live`).
 
 :func:`pdehead_cutter_update` runs after each depsgraph update (moving the cutter in the viewport,
 from Python or during playback) and applies each study's cutter whose transform changed
@@ -11,7 +12,7 @@ import traceback
 import bpy
 
 from ..pdehead_addon import PDEHeadError
-from . import cutter, state
+from . import cutter, state, study_live
 from .study_entity import Study
 
 _BUSY = [False]
@@ -52,3 +53,4 @@ def register() -> None:
 
 def unregister() -> None:
     state.remove_depsgraph_handler(pdehead_cutter_update)
+    study_live.cancel_colour_refresh()

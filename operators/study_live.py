@@ -28,6 +28,13 @@ def _schedule_colour_refresh() -> None:
         bpy.app.timers.register(_colour_refresh_timer, first_interval=_REFRESH_DELAY_S)
 
 
+def cancel_colour_refresh() -> None:
+    """Forget every waiting colour refresh and remove its timer (the add-on's unregister: no timer left behind)."""
+    _COLOURS_PENDING.clear()
+    if bpy.app.timers.is_registered(_colour_refresh_timer):
+        bpy.app.timers.unregister(_colour_refresh_timer)
+
+
 def _colour_refresh_timer():
     """bpy.app.timers callback: the CT colours of every solid left waiting by a live change."""
     now = time.monotonic()
