@@ -79,7 +79,7 @@ def _ct_description(ct) -> tuple[dict, list[str]]:
     return values, [warnings] if isinstance(warnings, str) else list(warnings)
 
 
-def selection_tolerance(s) -> dict:
+def _selection_tolerance(s) -> dict:
     """``tolerance_mm`` / ``max_tolerance_mm`` for :func:`extract_boundaries` from the study settings
     (empty when the curves are counted by t)."""
     if not s.use_tolerance:
@@ -186,7 +186,7 @@ class PipelineSteps:
         cache = self.cache
         if cache.seg is None:
             self.segment()
-        tolerance = selection_tolerance(s)
+        tolerance = _selection_tolerance(s)
         if tolerance and not s.align_curves:
             raise PDEHeadError("a tolerance chooses the curves automatically, which needs Align Curves")
         patches, message = (s.patches, None) if tolerance else patches_for_scan(cache.seg, s.patches)
