@@ -2,7 +2,7 @@
 
 ``register()`` adds the property groups, preferences, operators (with the File > Import
 menu entry), the sidebar panels, the save/load handlers of :mod:`.persistence`, the cutter's
-depsgraph handlers (:mod:`.study`, and the face's of :mod:`.face`), the frame handler and settings migration of :mod:`.animation` and one ``load_post`` handler that frees the in-memory caches
+depsgraph handler (:mod:`.study_handlers`, and the face's of :mod:`.face`), the frame handler and settings migration of :mod:`.animation` and one ``load_post`` handler that frees the in-memory caches
 of studies that are not in the newly loaded file. ``unregister()`` removes all of it again,
 leaving no class, property, menu entry, handler or timer behind.
 """
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import bpy
 
-from . import animation, face, forensic, forensic_props, ops, panel, persistence, prefs, props, state, study
+from . import animation, face, forensic, forensic_props, ops, panel, persistence, prefs, props, state, study_handlers
 
 
 @bpy.app.handlers.persistent
@@ -34,7 +34,7 @@ def register() -> None:
     forensic_props.register()
     ops.add_menu()
     persistence.register()
-    study.register()
+    study_handlers.register()
     face.register()
     bpy.app.handlers.load_post.append(pdehead_load_post)
     animation.register()
@@ -46,7 +46,7 @@ def unregister() -> None:
         if getattr(handler, "__name__", "") == "pdehead_load_post":
             bpy.app.handlers.load_post.remove(handler)
     face.unregister()
-    study.unregister()
+    study_handlers.unregister()
     persistence.unregister()
     ops.remove_menu()
     forensic_props.unregister()

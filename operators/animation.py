@@ -27,10 +27,12 @@ import traceback
 
 import bpy
 
-from . import cutter, state, study, volume_material
+from ..pdehead_addon import PDEHeadError
+from . import cutter, state, volume_material
 from .state import suspended_updates
+from .study_entity import Study
 
-#: Animatable settings, grouped by what a change rebuilds (study.live_update's ``what``).
+#: Animatable settings, grouped by what a change rebuilds (:meth:`.Study.live_update`'s ``what``).
 GROUPS = {
     "pde": ("continuity", "dome", "smoothing_auto", "smoothing", "approximation_auto", "approximation", "modes"),
     "surface_solid": ("nu", "nv"),
@@ -115,7 +117,8 @@ def apply_frame(scene, depsgraph=None) -> dict[str, list[str]]:
     done: dict[str, list[str]] = {}
     frame = scene.frame_current
     for coll in _scene_studies(scene):
-        obj = state.settings_object(coll)
+        study = Study.of(coll)
+        obj = study.settings_object
         s = obj.pdehead
         frame_s = _evaluated(obj, depsgraph).pdehead
         applied = _APPLIED.setdefault(s.study_id, {})  # filled by the frame_change_pre handler
@@ -138,24 +141,24 @@ def apply_frame(scene, depsgraph=None) -> dict[str, list[str]]:
             if not any(getattr(s, attr) is not None for attr in GROUP_OBJECTS[group]):
                 continue
             try:
-                _rebuild(coll, s, group)
+                _rebuild(study, group)
                 rebuilt.append(group)
             except Exception as exc:  # noqa: BLE001 - a handler must never raise into Blender
-                if not isinstance(exc, study.PDEHeadError):
+                if not isinstance(exc, PDEHeadError):
                     traceback.print_exc()
                 _report_failure(coll, s, group, exc, frame)
                 failed = True
         if box is not None:
             matrix = _evaluated(box, depsgraph).matrix_world.copy()
-            cache = state.cache_for(s.study_id)
+            cache = study.cache
             if cache.cutter_signature != cutter.signature(box, matrix):
                 try:
-                    study.apply_cutter(coll, matrix)
+                    study.apply_cutter(matrix)
                     rebuilt.append("cutter")
                     applied["solid"] = group_values(s, "solid", skip)
                 except Exception as exc:  # noqa: BLE001
                     cache.cutter_signature = cutter.signature(box, matrix)
-                    if not isinstance(exc, study.PDEHeadError):
+                    if not isinstance(exc, PDEHeadError):
                         traceback.print_exc()
                     _report_failure(coll, s, "solid", exc, frame)
                     failed = True
@@ -169,17 +172,18 @@ def apply_frame(scene, depsgraph=None) -> dict[str, list[str]]:
     return done
 
 
-def _rebuild(coll, s, group: str) -> None:
+def _rebuild(study: Study, group: str) -> None:
     """Rebuild one group like the sidebar's live update, but raising instead of recording the error."""
+    s = study.settings
     if group == "volume":
-        volume_material.set_volume_settings(s.volume_object, **study.volume_settings(s))
+        volume_material.set_volume_settings(s.volume_object, **study.volume_settings())
         return
     if group == "pde" and s.volume_object is not None:
         s.volume_stale = True
     if group in ("surface", "surface_solid", "pde") and s.surface_object is not None:
-        study.step_surface(coll)
+        study.surface()
     if group in ("solid", "surface_solid", "pde") and s.solid_object is not None:
-        study.step_solid(coll)
+        study.solid()
 
 
 def note_built(scene) -> None:

@@ -98,9 +98,9 @@ class StudyOperator(GuardedOperator):
         return False
 
     def invoke(self, context, event):
-        coll = state.active_study(context, self.study)
-        if coll is not None:
-            s = state.settings(coll)
+        study = Study.active(context, self.study)
+        if study is not None:
+            s = study.settings
             for name in self.mirrored_settings:
                 setattr(self, name, getattr(s, name))
         return self.execute(context)

@@ -12,6 +12,8 @@ Tested with bpy from PyPI 4.2.23, 4.5.15, 5.0.1 (Python 3.11, numpy 1.26) and 5.
   :mod:`.vdb_writer` (dense float grids), which every Blender reads.
 - The extension's wheels unpack into ``extensions/.local/lib/python3.X/site-packages``
   with the Python of the running Blender.
+- Mesh data: the ``.corner_vert`` attribute (4.0), ``sharp_face`` and ``Mesh.shade_smooth`` (4.1);
+  Cycles' ``volume_biased`` (5.0). The functions at the end of this module.
 """
 from __future__ import annotations
 
@@ -115,3 +117,37 @@ def registered_id_properties(id_):
     if getter is None:
         return id_
     return getter() or {}
+
+
+def set_corner_vertices(mesh, corner_verts) -> None:
+    """A new mesh's corner -> vertex indices in bulk: the ``.corner_vert`` attribute from Blender 4.0 (much
+    faster), ``loops.vertex_index`` where it does not exist."""
+    corner_vert = mesh.attributes.get(".corner_vert")
+    if corner_vert is not None:
+        corner_vert.data.foreach_set("value", corner_verts)
+    else:
+        mesh.loops.foreach_set("vertex_index", corner_verts)
+
+
+def set_sharp_faces(mesh, sharp) -> None:
+    """Flat shading per face: the ``sharp_face`` attribute from Blender 4.1 (``Mesh.shade_smooth`` exists),
+    ``polygons.use_smooth`` before."""
+    if hasattr(mesh, "shade_smooth"):
+        attr = mesh.attributes.get("sharp_face") or mesh.attributes.new("sharp_face", "BOOLEAN", "FACE")
+        attr.data.foreach_set("value", sharp)
+    else:
+        mesh.polygons.foreach_set("use_smooth", ~sharp)
+
+
+def cycles_volume_biased(cycles_settings):
+    """Cycles' biased volume ray marcher setting (``volume_biased``, Blender 5.0+), or None before."""
+    return getattr(cycles_settings, "volume_biased", None)
+
+
+def shade_smooth(mesh) -> None:
+    """Smooth shading of every face: ``Mesh.shade_smooth()`` from Blender 4.1, ``polygons.use_smooth`` before."""
+    if hasattr(mesh, "shade_smooth"):
+        mesh.shade_smooth()
+    else:
+        import numpy as np
+        mesh.polygons.foreach_set("use_smooth", np.ones(len(mesh.polygons), bool))

@@ -47,7 +47,7 @@ class SkullSteps:
         extra = self.cache
         cache = self.study.cache
         if cache.seg is None:
-            self.study.run_step("segment")
+            self.study.segment()
         s = self.settings
         level = float(s.bone_level) if s.use_bone_level else None
         if extra.get("skull_seg") is None or extra.get("skull_seg_of") is not cache.seg \
@@ -152,11 +152,11 @@ class SkullSteps:
 
         s = self.settings
         if s.surface_object is None:
-            self.study.run_step("surface")
+            self.study.surface()
         obj = s.surface_object
         skin = self.skin_engine_mesh()
         if len(skin.vertices) != len(obj.data.vertices):  # the surface was edited or built otherwise
-            self.study.run_step("surface")
+            self.study.surface()
             obj = s.surface_object
         with state.Timer() as t:
             res = tissue_depth(skin, self.skull_engine_mesh(target), envelope=self.skull_segmentation(),

@@ -237,11 +237,7 @@ def _fill_mesh(me, vertices_local: np.ndarray, mesh, smooth: bool) -> None:
     me.vertices.add(n)
     me.attributes["position"].data.foreach_set("vector", np.ascontiguousarray(vertices_local, np.float32).ravel())
     me.loops.add(len(corner_verts))
-    corner_vert = me.attributes.get(".corner_vert")  # Blender >= 4.0: direct attribute, much faster
-    if corner_vert is not None:
-        corner_vert.data.foreach_set("value", corner_verts)
-    else:
-        me.loops.foreach_set("vertex_index", corner_verts)
+    compat.set_corner_vertices(me, corner_verts)
     me.polygons.add(len(starts))
     me.polygons.foreach_set("loop_start", starts.astype(np.int32))
     me.update(calc_edges=True)
@@ -250,10 +246,7 @@ def _fill_mesh(me, vertices_local: np.ndarray, mesh, smooth: bool) -> None:
     if mesh.loop_uv() is not None:
         me.uv_layers.active = me.uv_layers[UV_NAME]
     if smooth:
-        if hasattr(me, "shade_smooth"):
-            me.shade_smooth()
-        else:  # Blender < 4.1
-            me.polygons.foreach_set("use_smooth", np.ones(len(me.polygons), bool))
+        compat.shade_smooth(me)
 
 
 def _same_topology(me, mesh, corner_verts: np.ndarray, n_vertices: int) -> bool:
@@ -449,11 +442,7 @@ def _sharp_cut_faces(obj, family: np.ndarray) -> None:
     """Flat-shade the u-end and v-cut faces (smooth shells): no smeared normals across the 90 degree edges."""
     me = obj.data
     sharp = np.asarray(family) >= 2
-    if hasattr(me, "shade_smooth"):  # Blender >= 4.1: the sharp_face attribute
-        attr = me.attributes.get("sharp_face") or me.attributes.new("sharp_face", "BOOLEAN", "FACE")
-        attr.data.foreach_set("value", sharp)
-    else:
-        me.polygons.foreach_set("use_smooth", ~sharp)
+    compat.set_sharp_faces(me, sharp)
     me.update()
 
 

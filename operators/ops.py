@@ -1,6 +1,6 @@
 """All ``pdehead.*`` operators of the pipeline: import, the steps, the one-click pipeline.
 
-Thin: an operator reads its properties, calls the application layer (:mod:`.study`) and
+Thin: an operator reads its properties, calls the study (:class:`.study_entity.Study`'s steps) and
 reports, in its ``run``; the one ``execute`` (fetch the study or cancel, run, report any failure
 and undo what the step created) is :mod:`.base`'s. Defaults and ranges come from
 ``pdehead_addon/defaults.py``.
@@ -14,7 +14,6 @@ from bpy.types import Operator
 from ..pdehead_addon import PDEHeadError
 from ..pdehead_addon import defaults as D
 from . import pipeline_run, progress, props, scene, state
-from . import study as study_steps
 from .base import GuardedOperator, StudyOperator, report_exception, set_status
 from .import_options import PDEHEAD_FH_import_ct, LoaderOptions, dropped_file_options
 from .study_entity import Study
@@ -29,8 +28,8 @@ class PDEHEAD_OT_import_ct(Operator, GuardedOperator, LoaderOptions):
                       "as a new PDE Head study collection")
     bl_options = {'REGISTER', 'UNDO'}
 
-    run_pipeline: BoolProperty(name="Build the Head", default=False,
-                               description="Run segmentation, boundaries, surface and solid after importing")
+    run_pipeline: BoolProperty(name=D.RUN_PIPELINE.label, **D.RUN_PIPELINE.limits(),
+                               description=D.RUN_PIPELINE.description)
 
     def invoke(self, context, event):
         if self.directory and len(self.files):  # dropped on the 3D View (PDEHEAD_FH_import_ct)
@@ -48,17 +47,17 @@ class PDEHEAD_OT_import_ct(Operator, GuardedOperator, LoaderOptions):
 
     def run(self, context):
         path = self.input_path()
-        coll = study_steps.import_study(context, path, self.loader_options())
-        self.apply_study_options(coll)
-        s = state.settings(coll)
+        study = Study.import_ct(context, path, self.loader_options())
+        self.apply_study_options(study.collection)
+        s = study.settings
         if self.run_pipeline:
             for step in ("segment", "boundaries", "surface", "solid"):
-                Study.of(coll).run_step(step)
-            scene.frame_study(context, coll)  # ends as Run Pipeline does: camera, light, cube hidden
+                study.run_step(step)
+            scene.frame_study(context, study.collection)  # ends as Run Pipeline does: camera, light, cube hidden
         nx, ny, nz = s.dimensions
-        self.report({'INFO'}, f"Imported '{coll.name}': {nx}x{ny}x{nz} voxels, spacing "
+        self.report({'INFO'}, f"Imported '{study.name}': {nx}x{ny}x{nz} voxels, spacing "
                     f"{', '.join(f'{v:g}' for v in s.spacing)} mm")
-        for warning in state.warning_list(s):  # one report per warning, in the dialog's words
+        for warning in study.warnings:  # one report per warning, in the dialog's words
             self.report({'WARNING'}, state.user_text(warning))
 
 
@@ -69,8 +68,7 @@ class PDEHEAD_OT_load_phantom(Operator, GuardedOperator):
     bl_options = {'REGISTER', 'UNDO'}
 
     def run(self, context):
-        coll = study_steps.phantom_study(context)
-        nx, ny, nz = state.settings(coll).dimensions
+        nx, ny, nz = Study.phantom(context).settings.dimensions
         self.report({'INFO'}, f"Phantom loaded: {nx}x{ny}x{nz} voxels")
 
 
@@ -81,10 +79,9 @@ class PDEHEAD_OT_segment(Operator, StudyOperator):
     bl_options = {'REGISTER', 'UNDO'}
 
     def run(self, context, study):
-        coll = study.collection
-        study_steps.step_segment(coll)
-        s = state.settings(coll)
-        self.report({'INFO'}, f"Segmented '{coll.name}': head = {100 * s.seg_fraction:.1f} % of the "
+        study.segment()
+        s = study.settings
+        self.report({'INFO'}, f"Segmented '{study.name}': head = {100 * s.seg_fraction:.1f} % of the "
                     f"voxels ({s.seg_iterations} iterations, {study.timings['segment']:.2f} s)")
 
 
@@ -113,17 +110,16 @@ class PDEHEAD_OT_extract_boundaries(Operator, StudyOperator):
                          "max_tolerance_mm")
 
     def run(self, context, study):
-        coll = study.collection
-        s = state.settings(coll)
+        s = study.settings
         self.store_settings(s)
-        warnings_before = state.warning_list(s)
-        study_steps.step_boundaries(coll)
+        warnings_before = study.warnings
+        study.boundaries()
         self.patches = s.patches  # may have been reduced to what the scan allows
         achieved = (f"; surface from all {abs(s.outline_candidates)} usable outlines: mean "
                     f"{s.outline_mean_mm:.2f} mm, max {s.outline_max_mm:.2f} mm" if s.outline_candidates else "")
         self.report({'INFO'}, f"{s.curve_count} boundary curves of {self.samples} points extracted "
-                    f"from '{coll.name}' ({study.timings['boundaries']:.2f} s){achieved}")
-        for warning in state.warning_list(s)[len(warnings_before):]:
+                    f"from '{study.name}' ({study.timings['boundaries']:.2f} s){achieved}")
+        for warning in study.warnings[len(warnings_before):]:
             self.report({'WARNING'}, state.user_text(warning))
 
 
@@ -148,14 +144,13 @@ class PDEHEAD_OT_reconstruct_surface(Operator, StudyOperator):
                          "approximation_auto", "approximation", "modes")
 
     def run(self, context, study):
-        coll = study.collection
-        s = state.settings(coll)
+        s = study.settings
         self.store_settings(s)
         if study.boundary_set() is None:
-            study_steps.step_boundaries(coll)
-        study_steps.step_surface(coll)
+            study.boundaries()
+        study.surface()
         n = len(s.surface_object.data.vertices)
-        self.report({'INFO'}, f"PDE surface of '{coll.name}': {n} vertices "
+        self.report({'INFO'}, f"PDE surface of '{study.name}': {n} vertices "
                     f"({study.timings['surface']:.2f} s)")
 
 
@@ -182,18 +177,17 @@ class PDEHEAD_OT_build_solid(Operator, StudyOperator):
                          "solid_skin_depth")
 
     def run(self, context, study):
-        coll = study.collection
-        s = state.settings(coll)
+        s = study.settings
         for name, lo_hi in (("u", self.u_range), ("v", self.v_range), ("w", self.w_range)):
             if lo_hi[0] >= lo_hi[1]:
                 raise PDEHeadError(f"{name} range must have its start below its end, got "
                                    f"{lo_hi[0]:g}..{lo_hi[1]:g}")
         self.store_settings(s)
         if study.boundary_set() is None:
-            study_steps.step_boundaries(coll)
-        notice = study_steps.step_solid(coll)
+            study.boundaries()
+        notice = study.solid()
         n = len(s.solid_object.data.vertices)
-        self.report({'INFO'}, f"PDE solid of '{coll.name}': {n} vertices ({study.timings['solid']:.2f} s)")
+        self.report({'INFO'}, f"PDE solid of '{study.name}': {n} vertices ({study.timings['solid']:.2f} s)")
         if notice:
             self.report({'WARNING'}, notice[:300])
 
@@ -207,27 +201,26 @@ class PDEHEAD_OT_build_volume(Operator, StudyOperator):
 
     use_ct_grid: BoolProperty(name=D.USE_CT_GRID.label, **D.USE_CT_GRID.limits())
     voxel_auto: BoolProperty(name=D.VOXEL_AUTO.label, **D.VOXEL_AUTO.limits())
-    voxel_size: FloatProperty(name="Voxel Size (mm)", **D.VOXEL_SIZE.limits())
+    voxel_size: FloatProperty(name=D.VOXEL_SIZE.label, **D.VOXEL_SIZE.limits())
     low_alpha: FloatProperty(name=D.LOW_ALPHA.label, **D.LOW_ALPHA.limits())
     high_alpha: FloatProperty(name=D.HIGH_ALPHA.label, **D.HIGH_ALPHA.limits())
     density: FloatProperty(name=D.DENSITY.label, **D.DENSITY.limits())
-    colour_preset: EnumProperty(name="Colour", items=props.COLOUR_ITEMS, default=D.COLOUR_PRESET.default)
+    colour_preset: EnumProperty(name=D.COLOUR_PRESET.label, items=props.COLOUR_ITEMS, default=D.COLOUR_PRESET.default)
     alpha_mode: EnumProperty(name=D.ALPHA_MODE.label, items=props.ALPHA_MODE_ITEMS, default=D.ALPHA_MODE.default)
 
     mirrored_settings = ("use_ct_grid", "voxel_auto", "voxel_size", "low_alpha", "high_alpha", "density", "colour_preset",
                          "alpha_mode")
 
     def run(self, context, study):
-        coll = study.collection
-        s = state.settings(coll)
+        s = study.settings
         if self.properties.is_property_set("voxel_size") and not self.properties.is_property_set("voxel_auto"):
             self.voxel_auto = False  # a size given by the caller is meant
         self.store_settings(s)
         if study.boundary_set() is None:
-            study_steps.step_boundaries(coll)
-        study_steps.step_volume(coll, context)
+            study.boundaries()
+        study.volume(context)
         t = study.timings
-        self.report({'INFO'}, f"Volume of '{coll.name}' built (w-field {t['w_field']:.2f} s, "
+        self.report({'INFO'}, f"Volume of '{study.name}' built (w-field {t['w_field']:.2f} s, "
                     f"VDB + material {t['volume']:.2f} s)")
 
 
@@ -256,8 +249,9 @@ class PDEHEAD_OT_run_pipeline(Operator, GuardedOperator, LoaderOptions):
     nu: IntProperty(name=D.NU.label, **D.NU.limits())
     nv: IntProperty(name=D.NV.label, **D.NV.limits())
     nw: IntProperty(name=D.NW.label, **D.NW.limits())
-    build_volume: BoolProperty(name="Volume", default=True, description="Also build the volume")
-    voxel_size: FloatProperty(name="Voxel Size (mm)", **D.VOXEL_SIZE.limits())
+    build_volume: BoolProperty(name=D.BUILD_VOLUME.label, **D.BUILD_VOLUME.limits(),
+                               description=D.BUILD_VOLUME.description)
+    voxel_size: FloatProperty(name=D.VOXEL_SIZE.label, **D.VOXEL_SIZE.limits())
 
     def _resolved_source(self, context) -> str:
         if self.source != "AUTO":
@@ -294,10 +288,10 @@ class PDEHEAD_OT_run_pipeline(Operator, GuardedOperator, LoaderOptions):
         self._report_done(run)
 
     def _report_done(self, run) -> None:
-        coll = run.collection
-        t = Study.of(coll).timings
+        study = run.study
+        t = study.timings
         total = sum(t.values())
-        self.report({'INFO'}, f"PDE Head '{coll.name}' built in {total:.1f} s (" +
+        self.report({'INFO'}, f"PDE Head '{study.name}' built in {total:.1f} s (" +
                     ", ".join(f"{k} {v:.2f} s" for k, v in t.items()) + ")")
 
     def invoke(self, context, event):
@@ -373,14 +367,13 @@ class PDEHEAD_OT_frame_study(Operator, StudyOperator):
                       "hidden, the 3D views framed on the head")
     bl_options = {'REGISTER', 'UNDO'}
 
-    show: EnumProperty(name="Show", items=scene.SHOW_ITEMS, default="SURFACE")
-    view: EnumProperty(name="View", items=FRAME_VIEW_ITEMS, default=D.VIEW.default)
+    show: EnumProperty(name=D.SHOW.label, items=scene.SHOW_ITEMS, default=D.SHOW.default)
+    view: EnumProperty(name=D.VIEW.label, items=FRAME_VIEW_ITEMS, default=D.VIEW.default)
 
     def run(self, context, study):
-        coll = study.collection
-        done = scene.frame_study(context, coll, show=self.show, view=self.view)
+        done = scene.frame_study(context, study.collection, show=self.show, view=self.view)
         extra = "; startup cube hidden" if done["hidden_cube"] else ""
-        self.report({'INFO'}, f"'{coll.name}': camera and light set, showing {done['shown']}{extra}")
+        self.report({'INFO'}, f"'{study.name}': camera and light set, showing {done['shown']}{extra}")
 
 
 class PDEHEAD_OT_turntable(Operator, StudyOperator):
@@ -390,14 +383,13 @@ class PDEHEAD_OT_turntable(Operator, StudyOperator):
                       "number of frames (the scene's frame range); Render Animation renders it")
     bl_options = {'REGISTER', 'UNDO'}
 
-    frames: IntProperty(name=D.TURNTABLE_FRAMES.label, default=D.TURNTABLE_FRAMES.default, min=D.TURNTABLE_FRAMES.min,
-                        max=D.TURNTABLE_FRAMES.max, description=D.TURNTABLE_FRAMES.description)
+    frames: IntProperty(name=D.TURNTABLE_FRAMES.label, **D.TURNTABLE_FRAMES.limits(),
+                        description=D.TURNTABLE_FRAMES.description)
 
     def run(self, context, study):
-        coll = study.collection
         from . import animation
-        pivot = animation.turntable(context, coll, self.frames, start=context.scene.frame_start)
-        self.report({'INFO'}, f"'{coll.name}': turntable of {self.frames} frames around '{pivot.name}' "
+        pivot = animation.turntable(context, study.collection, self.frames, start=context.scene.frame_start)
+        self.report({'INFO'}, f"'{study.name}': turntable of {self.frames} frames around '{pivot.name}' "
                               "(Render > Render Animation)")
 
 
@@ -409,8 +401,7 @@ class PDEHEAD_OT_add_cutter(Operator, StudyOperator):
     bl_options = {'REGISTER', 'UNDO'}
 
     def run(self, context, study):
-        coll = study.collection
-        obj, kind = study_steps.add_cutter(context, coll)
+        obj, kind = study.add_cutter(context)
         self.report({'INFO'}, f"Cutter '{obj.name}' added ({kind} cut): move it to cut the solid elsewhere")
 
 
@@ -421,7 +412,7 @@ class PDEHEAD_OT_remove_study(Operator, StudyOperator):
     bl_options = {'REGISTER', 'UNDO'}
 
     def run(self, context, study):
-        name = study.collection.name
+        name = study.name
         study.remove()
         self.report({'INFO'}, f"Removed study '{name}'")
 

@@ -15,8 +15,8 @@ class _PDEHeadPanel:
     bl_category = "PDE Head"
 
     @staticmethod
-    def study(context):
-        return state.active_study(context)
+    def study(context) -> Study | None:
+        return Study.active(context)
 
 
 class _StudyPanel(_PDEHeadPanel):
@@ -37,11 +37,11 @@ class PDEHEAD_PT_study(_PDEHeadPanel, bpy.types.Panel):
         row = layout.row(align=True)
         row.operator("pdehead.import_ct", text="Import CT", icon='IMPORT')
         row.operator("pdehead.load_phantom", text="Phantom", icon='USER')
-        coll = self.study(context)
-        if coll is None:
+        study = self.study(context)
+        if study is None:
             layout.label(text="No study yet: import a CT or load the phantom", icon='INFO')
             return
-        s = state.settings(coll)
+        s = study.settings
         col = layout.column(align=True)
         nx, ny, nz = s.dimensions
         col.label(text=f"Dimensions: {nx} x {ny} x {nz}")
@@ -53,9 +53,9 @@ class PDEHEAD_PT_study(_PDEHeadPanel, bpy.types.Panel):
             col.label(text=f"Series: {s.series}")
         source = "phantom" if s.source_kind == "PHANTOM" else (os.path.basename(s.source.rstrip("/\\")) or s.source)
         col.label(text=f"Source: {source}")
-        for warning in state.warning_list(s)[:4]:  # one line each, in the dialog's words
+        for warning in study.warnings[:4]:  # one line each, in the dialog's words
             col.label(text=state.user_text(warning)[:160], icon='ERROR')
-        text, icon = Study.of(coll).ct_status()
+        text, icon = study.ct_status()
         col.label(text=text[:160], icon=icon)
         if icon == 'ERROR':  # the CT moved: let the user point the study at it again
             layout.prop(s, "source", text="CT Source")
@@ -75,7 +75,7 @@ class PDEHEAD_PT_segmentation(_StudyPanel, bpy.types.Panel):
 
     def draw(self, context):
         layout = self.layout
-        s = state.settings(self.study(context))
+        s = self.study(context).settings
         layout.operator("pdehead.segment", icon='MOD_MASK')
         if s.seg_iterations:
             col = layout.column(align=True)
@@ -89,8 +89,8 @@ class PDEHEAD_PT_boundaries(_StudyPanel, bpy.types.Panel):
 
     def draw(self, context):
         layout = self.layout
-        coll = self.study(context)
-        s = state.settings(coll)
+        study = self.study(context)
+        s = study.settings
         col = layout.column(align=True)
         col.prop(s, "use_tolerance")
         if s.use_tolerance:  # the curves are counted by the tolerance, chosen automatically
@@ -112,8 +112,8 @@ class PDEHEAD_PT_boundaries(_StudyPanel, bpy.types.Panel):
             box.label(text=f"mean {s.outline_mean_mm:.2f} mm, max {s.outline_max_mm:.2f} mm")
             if s.outline_candidates < 0:
                 box.label(text="Tolerance not met with every slice")
-        if Study.of(coll).has_stored_boundaries():
-            kb = len(coll[state.BOUNDARY_KEY]) * 3 / 4 / 1024
+        if study.has_stored_boundaries():
+            kb = len(study.collection[state.BOUNDARY_KEY]) * 3 / 4 / 1024
             layout.label(text=f"{s.curve_count} curves stored in the .blend ({kb:.0f} kB)", icon='FILE_BLEND')
 
 
@@ -123,7 +123,7 @@ class PDEHEAD_PT_surface(_StudyPanel, bpy.types.Panel):
 
     def draw(self, context):
         layout = self.layout
-        s = state.settings(self.study(context))
+        s = self.study(context).settings
         col = layout.column(align=True)
         col.prop(s, "nu")
         col.prop(s, "nv")
@@ -155,7 +155,7 @@ class PDEHEAD_PT_solid(_StudyPanel, bpy.types.Panel):
 
     def draw(self, context):
         layout = self.layout
-        s = state.settings(self.study(context))
+        s = self.study(context).settings
         layout.prop(s, "nw")
         col = layout.column(align=True)
         col.prop(s, "u_range")
@@ -179,7 +179,7 @@ class PDEHEAD_PT_volume(_StudyPanel, bpy.types.Panel):
 
     def draw(self, context):
         layout = self.layout
-        s = state.settings(self.study(context))
+        s = self.study(context).settings
         row = layout.row()
         row.prop(s, "use_ct_grid")
         sub = row.row()
@@ -206,7 +206,7 @@ class PDEHEAD_PT_timings(_StudyPanel, bpy.types.Panel):
 
     def draw(self, context):
         layout = self.layout
-        t = Study.of(self.study(context)).timings
+        t = self.study(context).timings
         if not t:
             layout.label(text="No step run yet")
             return

@@ -42,10 +42,11 @@ def record_sources(blend_path: str) -> None:
     """Record each file-based study's CT source relative to `blend_path` and absolutely."""
     new_dir = Path(blend_path).resolve().parent
     for coll in state.studies():
-        s = state.settings(coll)
+        study = Study.of(coll)
+        s = study.settings
         if s.source_kind != "FILES":
             continue
-        path = Study.of(coll).resolve_source()
+        path = study.resolve_source()
         if path is None:  # gone: keep what was recorded, the panel says it is missing
             continue
         path = path.resolve()
@@ -137,8 +138,8 @@ def pdehead_save_pre(filepath="", *_args) -> None:
     if not filepath:
         return
     try:
-        from . import objects, study
-        study.flush_colour_refresh()  # a solid still waiting for its CT colours gets them before the save
+        from . import objects
+        Study.flush_colour_refresh()  # a solid still waiting for its CT colours gets them before the save
         objects.pack_ct_images()  # live cutaways update the CT atlases without re-packing each step
         for coll in state.studies():  # the solid's CT table (8-bit) travels in the file: live without the CT
             Study.of(coll).store_ct_table_for_save()

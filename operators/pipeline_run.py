@@ -3,7 +3,7 @@
 :class:`Rollback` removes every datablock created since it was made (each operator's guard,
 :func:`.base.guarded`, and the run use it); :class:`StudySnapshot` keeps a study's settings, stored
 curves and in-memory results before a run to put back on cancel; :class:`PipelineRun` runs the
-steps of :mod:`.study` one at a time (the modal operator: one per timer tick).
+steps of a :class:`.study_entity.Study` one at a time (the modal operator: one per timer tick).
 """
 from __future__ import annotations
 
@@ -16,7 +16,16 @@ from ..pdehead_addon import PDEHeadError
 from . import objects, scene, state
 from .state import suspended_updates
 from .study_entity import Study
-from .study import STEP_LABELS, import_study, phantom_study, step_solid, step_surface, step_volume
+
+STEP_LABELS = {
+    "import": "Import CT",
+    "segment": "Segmentation",
+    "boundaries": "Boundary curves",
+    "surface": "PDE surface",
+    "solid": "PDE solid",
+    "volume": "Volume",
+    "scene": "Camera and light",
+}
 
 
 # Undo of a failed/cancelled step: remove every datablock created since the snapshot
@@ -57,8 +66,9 @@ class StudySnapshot:
     (curves, surface, solid) are rebuilt again from the restored state.
     """
 
-    def __init__(self, coll):
-        s = state.settings(coll)
+    def __init__(self, study: Study):
+        s = study.settings
+        coll = study.collection
         self.collection_name = coll.name
         self.study_id = s.study_id
         self.values = {}
@@ -68,13 +78,14 @@ class StudySnapshot:
             value = getattr(s, prop.identifier)
             self.values[prop.identifier] = tuple(value) if getattr(prop, "is_array", False) else value
         self.boundaries = coll.get(state.BOUNDARY_KEY)
-        self.cache = copy.copy(state.cache_for(s.study_id))
+        self.cache = copy.copy(study.cache)
 
     def restore(self, rebuilt: set) -> None:
         coll = bpy.data.collections.get(self.collection_name)
         if coll is None:
             return
-        s = state.settings(coll)
+        study = Study.of(coll)
+        s = study.settings
         with suspended_updates():
             for name, value in self.values.items():
                 now = getattr(s, name)
@@ -89,14 +100,14 @@ class StudySnapshot:
         else:
             coll[state.BOUNDARY_KEY] = self.boundaries
         state.restore_cache(self.study_id, copy.copy(self.cache))
-        bset = Study.of(coll).boundary_set() if "boundaries" in rebuilt else None
+        bset = study.boundary_set() if "boundaries" in rebuilt else None
         if s.curves_object is not None and bset is not None:
             objects.build_boundary_curves(bset, coll, name=s.curves_object.name,
                                           obj=s.curves_object)
         if rebuilt & {"boundaries", "surface"} and s.surface_object is not None:
-            step_surface(coll)
+            study.surface()
         if rebuilt & {"boundaries", "surface", "solid"} and s.solid_object is not None:
-            step_solid(coll)
+            study.solid()
 
 
 class PipelineRun:
@@ -126,19 +137,25 @@ class PipelineRun:
         self.started: set[str] = set()
         self.rollback = Rollback()
         if source == "ACTIVE":
-            coll = state.active_study(context, study)
-            if coll is None:
+            active = Study.active(context, study)
+            if active is None:
                 raise PDEHeadError("No PDE Head study to run on: import a CT or load the phantom first")
-            self.snapshot = StudySnapshot(coll)
-            self.collection_name = coll.name
-            self._apply_settings(coll)
-            state.settings(coll).timings_json = ""
+            self.snapshot = StudySnapshot(active)
+            self.collection_name = active.name
+            self._apply_settings(active)
+            active.settings.timings_json = ""
 
     snapshot: StudySnapshot | None = None
 
     @property
     def collection(self):
         return bpy.data.collections.get(self.collection_name) if self.collection_name else None
+
+    @property
+    def study(self) -> Study | None:
+        """The study the run works on (None before the import step of a new one)."""
+        coll = self.collection
+        return Study.of(coll) if coll is not None else None
 
     @property
     def done(self) -> bool:
@@ -148,8 +165,8 @@ class PipelineRun:
     def next_label(self) -> str:
         return STEP_LABELS[self.steps[self.index]] if not self.done else "done"
 
-    def _apply_settings(self, coll) -> None:
-        s = state.settings(coll)
+    def _apply_settings(self, study: Study) -> None:
+        s = study.settings
         with suspended_updates():
             for name, value in self.settings.items():
                 setattr(s, name, value)
@@ -160,20 +177,18 @@ class PipelineRun:
         self.started.add(name)
         if name == "import":
             if self.source == "PHANTOM":
-                coll = phantom_study(self.context)
+                study = Study.phantom(self.context)
             else:
-                coll = import_study(self.context, self.path, self.options)
-            self.collection_name = coll.name
-            self._apply_settings(coll)
-        elif name == "volume":
-            step_volume(self.collection, self.context)
+                study = Study.import_ct(self.context, self.path, self.options)
+            self.collection_name = study.name
+            self._apply_settings(study)
         elif name == "scene":
             coll = self.collection
             # a new study, or one never framed: camera, light, the surface shown, the startup cube hidden
             if self.source != "ACTIVE" or scene.study_object(coll, scene.CAMERA_KIND) is None:
                 scene.frame_study(self.context, coll)
         else:
-            Study.of(self.collection).run_step(name)
+            self.study.run_step(name, self.context)
         self.index += 1
         return self.done
 

@@ -19,20 +19,21 @@ from bpy.props import (BoolProperty, EnumProperty, FloatProperty, FloatVectorPro
                        IntVectorProperty, PointerProperty, StringProperty)
 
 from ..pdehead_addon import defaults as D
-from . import compat, face, state, study
+from . import compat, face, state
+from .study_entity import Study
 
 #: Blender >= 4.5 warns about "//" in path properties unless they declare blend-relative support.
 PATH_OPTIONS = compat.blend_relative_path_options()
 
 def _live(what: str):
-    """An update callback that rebuilds ``what`` of the study owning the settings (:func:`study.live_update`;
+    """An update callback that rebuilds ``what`` of the study owning the settings (:meth:`.Study.live_update`;
     nothing while :class:`state.suspended_updates` is active)."""
     def update(self, context):
         if state.updates_suspended() or not self.is_study:
             return
-        coll = state.study_of_settings(self)
-        if coll is not None:
-            study.live_update(coll, what, context)
+        study = Study.of_settings(self)
+        if study is not None:
+            study.live_update(what)
     return update
 
 

@@ -96,7 +96,8 @@ def _camera_matrix(right, up, forward, position):
 IMAGE_FORMATS = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG"}
 
 
-def render_objects_png(objects, path, view: str = "FRONT", resolution=(160, 160), samples: int = 16,
+def render_objects_png(objects, path, view: str = D.VIEW.default, resolution=(160, 160),
+                       samples: int = D.RENDER_SAMPLES.default,
                        transparent: bool = False, isolate: bool = True, margin: float = 1.08,
                        denoise: bool = False, volume_step_rate: float = 2.0, bounds=None,
                        scene=None) -> Path:
@@ -167,7 +168,7 @@ def render_objects_png(objects, path, view: str = "FRONT", resolution=(160, 160)
         "depth": r.image_settings.color_depth, "view_transform": scene.view_settings.view_transform,
         "look": scene.view_settings.look, "exposure": scene.view_settings.exposure,
         "device": c.device, "samples": c.samples, "denoise": c.use_denoising,
-        "step_rate": c.volume_step_rate, "biased": getattr(c, "volume_biased", None),
+        "step_rate": c.volume_step_rate, "biased": compat.cycles_volume_biased(c),
     }
     hidden, shown = {}, {}
     temporaries = []
@@ -219,7 +220,7 @@ def render_objects_png(objects, path, view: str = "FRONT", resolution=(160, 160)
         c.samples = int(samples)
         c.use_denoising = bool(denoise)
         c.volume_step_rate = float(volume_step_rate)
-        if saved["biased"] is not None:  # Blender >= 5.0
+        if saved["biased"] is not None:  # compat.cycles_volume_biased: None before Blender 5.0
             c.volume_biased = True
         r.resolution_x, r.resolution_y, r.resolution_percentage = res_x, res_y, 100
         r.film_transparent = bool(transparent)

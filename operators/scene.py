@@ -19,6 +19,7 @@ import math
 import numpy as np
 
 from ..pdehead_addon import PDEHeadError
+from ..pdehead_addon import defaults as D
 from . import state
 
 CAMERA_KIND = "camera"
@@ -29,6 +30,7 @@ SHOW_ITEMS = [
     ("VOLUME", "Volume", "Show the volume, hide the others"),
     ("CURVES", "Boundary Curves", "Show the boundary curves, hide the others"),
 ]
+assert tuple(key for key, *_ in SHOW_ITEMS) == D.SHOW.choices, "every object Frame Study shows is in defaults.SHOW"
 _SHOW_ATTR = {"SURFACE": "surface_object", "SOLID": "solid_object", "VOLUME": "volume_object",
               "CURVES": "curves_object"}
 FOCAL_MM = 85.0      # a portrait lens: little perspective distortion of the face
@@ -84,7 +86,7 @@ def _matrix(rotation, position):
     return Matrix(m.tolist())
 
 
-def frame_study(context, coll, show: str = "SURFACE", view: str = "FRONT", hide_cube: bool = True) -> dict:
+def frame_study(context, coll, show: str = D.SHOW.default, view: str = D.VIEW.default, hide_cube: bool = True) -> dict:
     """Set the scene up to render study `coll` (see the module docstring); returns what it did.
 
     Parameters

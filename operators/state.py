@@ -14,8 +14,9 @@ are cached in memory per study, keyed by the study's id (a uuid string kept in t
 collection settings; collection names may change). Nothing here holds a reference to a
 ``bpy`` datablock (they become invalid after undo or file load).
 
-One study as an object (its cache, CT, stored curves and CT table, timings): :class:`.study_entity.Study`,
-built on the accessors here.
+One study as an object (its settings, cache, CT, stored curves and CT table, warnings, timings and
+steps): :class:`.study_entity.Study`, built on the accessors here; code that has a study uses it, and
+:func:`settings` is for code that has only a collection (is it a study? which study id?).
 """
 from __future__ import annotations
 
@@ -71,9 +72,6 @@ _CACHE: dict[str, StudyCache] = {}
 AUDIENCE = "dialog"
 #: The last exception an operator reported (the CLI tells bad input, exit 2, from a bug, exit 1).
 last_exception: BaseException | None = None
-#: A study's warnings are one string property, one warning per line (a warning may contain "; ").
-WARNING_SEPARATOR = "\n"
-_MAX_WARNINGS_CHARS = 4000
 
 
 def user_text(message: str) -> str:
@@ -81,22 +79,6 @@ def user_text(message: str) -> str:
     from ..pdehead_addon import message_for_cli, message_for_dialog
     return message_for_cli(message) if AUDIENCE == "cli" else message_for_dialog(message)
 
-
-def warning_list(s) -> list[str]:
-    """The study's warnings, one per item, in the engine's words (files saved before kept "; ")."""
-    text = s.warnings or ""
-    parts = text.split(WARNING_SEPARATOR)
-    return [p for p in parts if p.strip()]
-
-
-def add_warnings(s, messages) -> list[str]:
-    """Append the messages not yet among the study's warnings; returns those added."""
-    known = warning_list(s)
-    new = [str(m).strip() for m in dict.fromkeys(messages)
-           if str(m).strip() and not any(k in str(m) or str(m) in k for k in known)]
-    if new:
-        s.warnings = WARNING_SEPARATOR.join(known + new)[:_MAX_WARNINGS_CHARS]
-    return new
 
 # Set while operators write many settings at once, so that no update callback rebuilds anything.
 _SUSPEND = [0]
@@ -146,7 +128,7 @@ def new_study_id() -> str:
 
 # --- which study ----------------------------------------------------------------------------
 
-def settings_object(collection):
+def _settings_object(collection):
     """The Empty that holds a study's settings (animatable), or None for a collection that is no study."""
     obj = getattr(collection, SETTINGS_OBJECT, None) if collection is not None else None
     if obj is not None and collection in obj.users_collection:
@@ -165,7 +147,7 @@ def settings(collection: bpy.types.Collection):
     They live on the study's settings object, so ``settings(coll).keyframe_insert("v_range")``
     keyframes them like any Blender property.
     """
-    obj = settings_object(collection)
+    obj = _settings_object(collection)
     return getattr(obj, PROP, None) if obj is not None else None
 
 
@@ -173,7 +155,7 @@ def study_of_settings(study_settings):
     """The study collection whose settings these are (the inverse of :func:`settings`), or None."""
     obj = study_settings.id_data
     for coll in getattr(obj, "users_collection", ()):
-        if settings_object(coll) == obj:
+        if _settings_object(coll) == obj:
             return coll
     return None
 

@@ -1,5 +1,8 @@
 """One PDE Head study as an object: :class:`Study` wraps a study collection and owns its settings,
-in-memory cache, CT, head, stored boundary conditions, CT table and timings.
+in-memory cache, CT, head, stored boundary conditions, CT table, warnings and timings, and runs its
+pipeline steps (:class:`.study_steps.PipelineSteps`: ``Study.import_ct``, ``segment``, ``boundaries``,
+``surface``, ``volume``) and live updates (:class:`.study_live.LiveSolid`: ``solid``, ``live_update``,
+``apply_cutter``, ``add_cutter``).
 
 The pattern is MolecularNodes' entity + session registry: an entity is looked up by a uuid that
 lives in the .blend (here the study settings' ``study_id``), and the registry holds one Python object
@@ -19,10 +22,17 @@ from ..pdehead_addon import PDEHeadError, StorageError
 from . import scene, state
 from .progress import step_progress
 from .state import BOUNDARY_KEY, CT_TABLE_FOR, CT_TABLE_KEY
+from .study_live import LiveSolid
+from .study_steps import PipelineSteps
+
+#: A study's warnings are one string property, one warning per line (a warning may contain "; ").
+WARNING_SEPARATOR = "\n"
+_MAX_WARNINGS_CHARS = 4000
 
 
-class Study:
-    """One study (a collection with study settings); get it with :meth:`of` or :meth:`active`."""
+class Study(PipelineSteps, LiveSolid):
+    """One study (a collection with study settings); get it with :meth:`of`, :meth:`active` or
+    :meth:`of_settings`, make one with :meth:`import_ct`, :meth:`phantom` or :meth:`create`."""
 
     _registry: dict[str, Study] = {}
 
@@ -50,6 +60,12 @@ class Study:
         return cls.of(coll) if coll is not None else None
 
     @classmethod
+    def of_settings(cls, study_settings) -> Study | None:
+        """The study whose settings these are (an update callback's ``self``), or None."""
+        coll = state.study_of_settings(study_settings)
+        return cls.of(coll) if coll is not None else None
+
+    @classmethod
     def forget(cls, study_id: str | None = None) -> None:
         """Drop one study (or all) from the registry (the .blend keeps them)."""
         if study_id is None:
@@ -69,8 +85,28 @@ class Study:
         return state.settings(self.collection)
 
     @property
+    def settings_object(self):
+        """The Empty that holds the settings (what Blender animates)."""
+        return self.settings.id_data
+
+    @property
     def study_id(self) -> str:
         return self.settings.study_id
+
+    @property
+    def warnings(self) -> list[str]:
+        """The study's warnings (loader, segmentation, curves), one per item, in the engine's words."""
+        text = self.settings.warnings or ""
+        return [p for p in text.split(WARNING_SEPARATOR) if p.strip()]
+
+    def add_warnings(self, messages) -> list[str]:
+        """Append the messages not yet among the study's warnings; returns those added."""
+        known = self.warnings
+        new = [str(m).strip() for m in dict.fromkeys(messages)
+               if str(m).strip() and not any(k in str(m) or str(m) in k for k in known)]
+        if new:
+            self.settings.warnings = WARNING_SEPARATOR.join(known + new)[:_MAX_WARNINGS_CHARS]
+        return new
 
     @property
     def cache(self) -> state.StudyCache:
@@ -325,7 +361,7 @@ class Study:
         """``(table, window)`` of an earlier PDE solution of this study (memory, else the .blend), or None.
 
         Looked up in (u, v, w), it gives the new solid nearly the right colours at once (the
-        parameterisation moves little with a control); :func:`.study.refresh_solid_colours` replaces them.
+        parameterisation moves little with a control); :meth:`refresh_solid_colours` replaces them.
         """
         cache = self.cache
         if cache.ct_table is not None:
@@ -372,16 +408,6 @@ class Study:
             from ..pdehead_addon import intensity_window
             cache.window = intensity_window(ct if ct is not None else self.ct)
         return cache.window
-
-    # --- the steps (operators/study.py) ------------------------------------------------------------
-
-    #: The pipeline steps by name, registered by operators/study.py (which defines them and imports this
-    #: module, so this module does not import it back).
-    steps: dict = {}
-
-    def run_step(self, name: str) -> None:
-        """Run one pipeline step on this study: "segment", "boundaries", "surface", "solid" or "volume"."""
-        self.steps[name](self.collection)
 
     # --- controls and removal ---------------------------------------------------------------------
 

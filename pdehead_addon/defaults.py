@@ -256,7 +256,7 @@ VIEWS = {"FRONT": ("Front", "The face (Blender's front view)"),
          "BACK": ("Back", "The back of the head"),
          "TOP": ("Top", "From above (Blender's top view)"),
          "THREE_QUARTER": ("Three Quarter", "From front right, above")}
-VIEW = _param("view", "FRONT", choices=tuple(VIEWS), description="The view to render or frame")
+VIEW = _param("view", "FRONT", choices=tuple(VIEWS), description="The view to render or frame", label="View")
 
 # ----------------------------------------------------------------------------- forensic (issue 22)
 #: The bone level in the scan's stored units (HU where calibrated). Off: the documented rule of
@@ -306,3 +306,18 @@ EXPORT_FORMAT = _param("export_format", "stl", choices=("stl", "obj", "ply"), la
 DEPTH_DISPLAY_MAX = _param("depth_display_max", 25.0, min=1.0, max=100.0, unit="mm",
                            description="Tissue depth at the red end of the depth map's colour ramp")
 PEG_RADIUS = _param("peg_radius", 1.5, min=0.1, max=10.0, unit="mm", description="Radius of a marker peg")
+
+# ----------------------------------------------------------------------------- renders and the one-click run (issue 25)
+#: The CLI's renders (``--render``, ``--render-volume``, ``--render-animation``): Cycles on the CPU, small and quick.
+RENDER_RESOLUTION = _param("resolution", 320, min=16, unit="px", description="Render size in pixels (square)",
+                           label="Resolution")
+RENDER_SAMPLES = _param("render_samples", 16, min=1, description="Cycles samples per pixel", label="Render Samples")
+#: What a one-click run builds: *Run Pipeline* builds the volume too (the CLI's ``--no-volume`` skips it);
+#: *Import CT* builds the head only when asked (``Build the Head``).
+BUILD_VOLUME = _param("build_volume", True, description="Also build the volume", label="Volume")
+RUN_PIPELINE = _param("run_pipeline", False,
+                      description="Run segmentation, boundaries, surface and solid after importing",
+                      label="Build the Head")
+#: The study object Frame Study (and the pipeline's last step) shows; the others overlap it and are hidden.
+SHOW = _param("show", "SURFACE", choices=("SURFACE", "SOLID", "VOLUME", "CURVES"),
+              description="The study object to show (the others are hidden)", label="Show")

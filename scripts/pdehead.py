@@ -96,7 +96,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="also write the summary (study, counts, timings, warnings, outputs) as JSON to FILE")
     p.add_argument("--view", default=D.VIEW.default, choices=list(D.VIEWS),
                    help="render view; default FRONT (face, patient left on screen right)")
-    p.add_argument("--resolution", type=int, default=320, help="render size in pixels; default 320")
+    p.add_argument("--resolution", type=int, default=D.RENDER_RESOLUTION.default,
+                   help=D.RENDER_RESOLUTION.help("render size in pixels"))
     f = p.add_argument_group("forensic")
     f.add_argument("--skull", action="store_true",
                    help="also build the skull (PDE surface + bone mesh) and the skin's tissue-depth map")
@@ -115,7 +116,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="with --export DIR: also approximate the face from the bone skull, its landmarks and the "
                         "depth table (a PDE face through the tissue-depth pegs) and write face.<fmt> (closed, patient "
                         "mm; an approximation, not an identification); implies --skull")
-    p.add_argument("--render-samples", type=int, default=16, help="Cycles samples; default 16")
+    p.add_argument("--render-samples", type=int, default=D.RENDER_SAMPLES.default,
+                   help=D.RENDER_SAMPLES.help("Cycles samples"))
     a = p.add_argument_group("animation")
     a.add_argument("--turntable", type=int, metavar="N",
                    help=D.TURNTABLE_FRAMES.help("a camera orbit of N frames around the head (frames 1..N)"))
@@ -203,12 +205,9 @@ def _check_curve_args(p, args) -> None:
 
 
 def _check_ranges(p, args) -> None:
-    """Every number in the add-on's range (or the CLI's own lower bounds)."""
-    for name in ("patches", "samples", "downsample", "nu", "nv", "nw"):  # the add-on's ranges
-        _check_range(p, D.PARAMS[name], getattr(args, name), f"--{name}")
-    for name, low in (("resolution", 16), ("render_samples", 1)):
-        if getattr(args, name) < low:
-            p.error(f"--{name.replace('_', '-')} must be at least {low}, got {getattr(args, name)}")
+    """Every number in its range (:mod:`pdehead_addon.defaults`)."""
+    for name in ("patches", "samples", "downsample", "nu", "nv", "nw", "resolution", "render_samples"):
+        _check_range(p, D.PARAMS[name], getattr(args, name), f"--{name.replace('_', '-')}")
     if args.voxel_size is not None:
         _check_range(p, D.VOXEL_SIZE, args.voxel_size, "--voxel-size")
     if args.turntable is not None:
@@ -390,7 +389,7 @@ class Warnings:
         addon = sys.modules[_common.DEV_PACKAGE]
         coll = bpy.context.scene.pdehead.active_study
         if coll is not None:
-            for warning in addon.operators.state.warning_list(coll.pdehead):
+            for warning in addon.operators.study_entity.Study.of(coll).warnings:
                 self.say(warning)
 
     def showwarning(self, message, category, filename, lineno, file=None, line=None) -> None:
@@ -559,7 +558,7 @@ def _steps(args, bpy, addon, state) -> dict:
     _print_study(args, bpy, state, coll, selection_info)
     if args.skull:
         _print_skull(args, addon, coll, skin)
-    warning_lines = [state.user_text(w) for w in state.warning_list(s)]
+    warning_lines = [state.user_text(w) for w in addon.operators.study_entity.Study.of(coll).warnings]
     for warning in warning_lines:
         print(f"  warning   {warning}")
     print("timings (s):")

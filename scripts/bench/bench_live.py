@@ -9,7 +9,7 @@ the median of ``--repeats`` changes, each to a new value.
 
 As in Blender with a UI, a PDE change (smoothing, modes, ...) rebuilds the geometry at once with the
 previous solution's CT colours and re-tabulates the CT in a timer right after
-(``study.DEFER_CT_COLOURS``): that refresh is timed as the "colours follow" column.
+(``Study.DEFER_CT_COLOURS``): that refresh is timed as the "colours follow" column.
 
 Targets (issue 20): every live change updates the geometry in <= 100 ms; the solid's CT colours follow
 within 1 s; after reopening the file the first live change <= 1 s; a change at the limits
@@ -94,7 +94,7 @@ _CPU: list[float] = []   # CPU seconds of the last timed change (the machine may
 
 def _timed_change(s, coll, prop, value) -> tuple[float, float | None]:
     """(whole callback, the deferred colour refresh or None) of one change, wall clock."""
-    from pdehead_dev.operators import study
+    from pdehead_dev.operators.study_entity import Study
     t = time.perf_counter()
     c = time.process_time()
     setattr(s, prop, value)
@@ -103,10 +103,10 @@ def _timed_change(s, coll, prop, value) -> tuple[float, float | None]:
     if s.last_error:
         raise RuntimeError(f"{prop}: {s.last_error}")
     colours = None
-    if study.colours_pending(coll):
+    if Study.of(coll).colours_pending():
         t = time.perf_counter()
         c = time.process_time()
-        study.flush_colour_refresh()
+        Study.flush_colour_refresh()
         colours = time.perf_counter() - t
         _CPU.append(time.process_time() - c)
         if s.last_error:
@@ -117,10 +117,10 @@ def _timed_change(s, coll, prop, value) -> tuple[float, float | None]:
 def bench_dataset(name: str, repeats: int) -> dict:
     import bpy
 
-    from pdehead_dev.operators import state, study
+    from pdehead_dev.operators import state
     from pdehead_dev.operators.props import COLOUR_ITEMS
     from pdehead_dev.operators.study_entity import Study
-    study.DEFER_CT_COLOURS = True   # as in Blender with a UI (the colour refresh is timed on its own)
+    Study.DEFER_CT_COLOURS = True   # as in Blender with a UI (the colour refresh is timed on its own)
     runs = []
     for _ in range(PIPELINE_RUNS):  # each in an empty file; the sliders below use the last run's study
         bpy.ops.wm.read_homefile(use_empty=True)
@@ -155,7 +155,7 @@ def bench_dataset(name: str, repeats: int) -> dict:
             surfaces.append(steps.get("surface"))
             solids.append(steps.get("solid"))
         setattr(s, prop, original)
-        study.flush_colour_refresh()
+        Study.flush_colour_refresh()
         with state.suspended_updates():
             for key in setup:
                 setattr(s, key, not setup[key])
@@ -172,7 +172,7 @@ def bench_dataset(name: str, repeats: int) -> dict:
         out["rows"].append(row)
 
     # the cutter: moved in the viewport / from Python, applied by the depsgraph handler
-    box, _kind = study.add_cutter(bpy.context, coll)
+    box, _kind = Study.of(coll).add_cutter(bpy.context)
     s.use_cutter = True
     bpy.context.view_layer.update()
     totals = []
@@ -230,7 +230,7 @@ def bench_dataset(name: str, repeats: int) -> dict:
         if s.last_error:
             raise RuntimeError(f"limits: {s.last_error}")
         bpy.ops.wm.read_homefile(use_empty=True)
-    study.DEFER_CT_COLOURS = None
+    Study.DEFER_CT_COLOURS = None
     return out
 
 

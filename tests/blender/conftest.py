@@ -7,7 +7,7 @@
   ``bpy.ops.extensions.package_install_files`` into ``BLENDER_USER_RESOURCES`` (a temp folder set by
   tests/conftest.py before bpy is imported); returns the module ``bl_ext.user_default.pdehead``.
 - ``ext``: handles on the installed extension's modules: ``ext.engine`` (its ``pdehead_addon``) and every
-  module of its Blender layer by short name (``ext.ops``, ``ext.state``, ``ext.study``, ``ext.volume``, ...);
+  module of its Blender layer by short name (``ext.ops``, ``ext.state``, ``ext.study_entity``, ``ext.volume``, ...);
   the one fixture the tests reach the installed code through.
 - ``clean_scene`` (autouse): an empty file around every test, so tests do not see each other's objects.
 - ``phantom_blend`` / ``cthead_blend`` (session): the one-click pipeline run once on the phantom /

@@ -66,8 +66,9 @@ def test_settings_keyframed_like_any_property(ext, monkeypatch):
 
     # same frame and parameters: no rebuild; another frame: one
     calls = []
-    real = ext.study.step_solid
-    monkeypatch.setattr(ext.study, "step_solid", lambda c: (calls.append(c.name), real(c)))
+    real = ext.study_entity.Study.solid
+    monkeypatch.setattr(ext.study_entity.Study, "solid", lambda study, live=False: (calls.append(study.name),
+                                                                                    real(study, live))[1])
     scene.frame_set(1)
     assert calls == []
     scene.frame_set(2)

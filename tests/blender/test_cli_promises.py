@@ -148,7 +148,7 @@ out = {}
 r = bpy.ops.pdehead.import_ct(directory=sys.argv[2], format='IMAGES', use_spacing=True, spacing=(2, 1, 1))
 coll = bpy.context.scene.pdehead.active_study
 s = coll.pdehead
-out["auto"] = [state.user_text(w) for w in state.warning_list(s)]
+out["auto"] = [state.user_text(w) for w in addon.operators.study_entity.Study.of(coll).warnings]
 out["orientation"] = state.cache_for(s.study_id).ct.meta["orientation"]
 try:
     bpy.ops.pdehead.import_ct(directory=sys.argv[3], format='RAW', raw_shape=(256, 256), raw_dtype='i2',

@@ -55,7 +55,7 @@ def test_moving_the_cutter_cuts_the_solid_where_it_is(ext, monkeypatch):
 
     # an update that does not move the cutter rebuilds nothing
     calls = []
-    monkeypatch.setattr(ext.study, "step_solid", lambda coll: calls.append(coll.name))
+    monkeypatch.setattr(ext.study_entity.Study, "solid", lambda study, live=False: calls.append(study.name))
     s.surface_object.location.x += 0.0
     bpy.context.view_layer.update()
     assert calls == []

@@ -50,7 +50,7 @@ def test_zip_contents(extension_zip):
         names = z.namelist()
         manifest = tomllib.loads(z.read("blender_manifest.toml").decode())
     assert "__init__.py" in names and "operators/ops.py" in names and "pdehead_addon/pde/pde_surface.py" in names
-    assert "operators/study.py" in names and "pdehead_addon/defaults.py" in names  # issue 13's modules ship
+    assert "operators/study_steps.py" in names and "pdehead_addon/defaults.py" in names  # issue 13's modules ship
     assert not any(n.startswith(("tests/", "scripts/", "docs/")) or "__pycache__" in n for n in names)
     wheels = sorted(n for n in names if n.startswith("wheels/"))
     assert not any("numpy" in w for w in wheels)

@@ -3,7 +3,7 @@
 A PDE change (smoothing, modes, ...) makes a new PDE solution whose CT table (the CT tabulated in the
 solid's (u, v, w), ~0.5 s on CThead) does not exist yet. With a UI the update callback rebuilds the
 surface and the solid's geometry at once, colours the solid from the previous solution's table and
-leaves the exact colours to a timer (``study.DEFER_CT_COLOURS``; background scripts get them at once).
+leaves the exact colours to a timer (``Study.DEFER_CT_COLOURS``; background scripts get them at once).
 """
 from __future__ import annotations
 
@@ -19,7 +19,8 @@ import blender_inspect  # tests/blender/blender_inspect.py
 def live(pdehead_ext, phantom_blend):
     import bpy
     name = pdehead_ext.__name__
-    study = sys.modules[f"{name}.operators.study"]
+    study = sys.modules[f"{name}.operators.study_entity"].Study
+    live_module = sys.modules[f"{name}.operators.study_live"]
     state = sys.modules[f"{name}.operators.state"]
     objects = sys.modules[f"{name}.operators.objects"]
     bpy.ops.wm.open_mainfile(filepath=str(phantom_blend))
@@ -30,7 +31,7 @@ def live(pdehead_ext, phantom_blend):
         yield study, state, objects, coll
     finally:
         study.DEFER_CT_COLOURS = None
-        study._COLOURS_PENDING.clear()
+        live_module._COLOURS_PENDING.clear()
 
 
 def _colours(objects, obj):
@@ -44,23 +45,23 @@ def test_a_pde_change_moves_the_geometry_at_once_and_the_colours_follow(live, tm
     # the reopened file carries the solid's CT table: a cutaway needs no CT
     s.v_range = (1.5, 6.2)
     assert s.last_error == "" and state.cache_for(s.study_id).ct is None
-    assert not study.colours_pending(coll)
+    entity = study.of(coll)
+    assert not entity.colours_pending()
     before = blender_inspect.mesh_world_vertices(s.solid_object)
 
     s.modes = 16  # a new PDE solution: geometry now, colours from the previous table
-    assert s.last_error == "" and study.colours_pending(coll)
+    assert s.last_error == "" and entity.colours_pending()
     moved = blender_inspect.mesh_world_vertices(s.solid_object)
     assert moved.shape == before.shape and np.abs(moved - before).max() > 1e-4
     # the solid's geometry is the new solution's (world = patient mm x 0.001)
     snap = objects._snap_range
-    entity = sys.modules[f"{study.__name__.rsplit('.', 1)[0]}.study_entity"].Study.of(coll)
     mesh = entity.head.solid(s.nu, s.nv, s.nw, snap(s.u_range, 1.0), snap(s.v_range, 2 * np.pi),
                              snap(s.w_range, 1.0))
     np.testing.assert_allclose(moved, mesh.vertices * 0.001, atol=1e-6)
     approx = _colours(objects, s.solid_object)
 
     assert study.flush_colour_refresh() == 1   # what the timer does right after
-    assert not study.colours_pending(coll) and s.last_error == ""
+    assert not entity.colours_pending() and s.last_error == ""
     cache = state.cache_for(s.study_id)
     assert cache.ct_table[0] == entity.table_key() and cache.ct is not None
     np.testing.assert_array_equal(blender_inspect.mesh_world_vertices(s.solid_object), moved)
@@ -70,15 +71,15 @@ def test_a_pde_change_moves_the_geometry_at_once_and_the_colours_follow(live, tm
     assert 0 < np.abs(approx - exact).mean() < 0.05 and exact.std() > 0.05
     cache.ct_table = None
     study.DEFER_CT_COLOURS = False
-    study.step_solid(coll)                       # colours made at once (background default)
+    entity.solid()                               # colours made at once (background default)
     np.testing.assert_allclose(_colours(objects, s.solid_object), exact, atol=1e-6)
 
     # a save never keeps approximate colours: save_pre refreshes them and stores the new table
     study.DEFER_CT_COLOURS = True
     s.modes = 6
-    assert study.colours_pending(coll)
+    assert entity.colours_pending()
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "live.blend"))
-    assert not study.colours_pending(coll)
+    assert not entity.colours_pending()
     assert entity.stored_ct_table_key() == entity.table_key()
 
 
@@ -103,24 +104,24 @@ def test_the_table_in_the_file_serves_a_pde_change_without_the_ct(live):
 # Progress and cancel of a pipeline run (Esc in Blender, Ctrl-C on the CLI raise Cancelled in the hook)
 
 
-def _cancel_in(study, step_name: str, after_calls: int = 2):
+def _cancel_in(module, step_name: str, after_calls: int = 2):
     seen = []
 
     def hook(step, fraction, message):
         seen.append((step, fraction))
         if step == step_name and sum(1 for s, _ in seen if s == step_name) >= after_calls:
-            raise study_cancelled(study)()
+            raise study_cancelled(module)()
     return hook, seen
 
 
-def _progress(study):
-    """The extension's operators.progress (the runners' progress hook)."""
-    return sys.modules[study.__name__.rsplit(".", 1)[0] + ".progress"]
+def _progress(module):
+    """The extension's operators.progress (the runners' progress hook); ``module``: one of its operators modules."""
+    return sys.modules[module.__name__.rsplit(".", 1)[0] + ".progress"]
 
 
-def study_cancelled(study):
+def study_cancelled(module):
     """The extension's Cancelled class (the installed package, not the repository's engine)."""
-    return sys.modules[study.__name__.rsplit(".operators", 1)[0] + ".pdehead_addon"].Cancelled
+    return sys.modules[module.__name__.rsplit(".operators", 1)[0] + ".pdehead_addon"].Cancelled
 
 
 def _datablocks(bpy) -> dict:
@@ -130,14 +131,14 @@ def _datablocks(bpy) -> dict:
 
 def test_a_new_study_cancelled_mid_step_leaves_nothing(pdehead_ext):
     import bpy
-    study = sys.modules[f"{pdehead_ext.__name__}.operators.study"]
+    state = sys.modules[f"{pdehead_ext.__name__}.operators.state"]
     before = _datablocks(bpy)
-    hook, seen = _cancel_in(study, "boundaries")
-    _progress(study).PROGRESS_HOOK[0] = hook
+    hook, seen = _cancel_in(state, "boundaries")
+    _progress(state).PROGRESS_HOOK[0] = hook
     try:
         result = bpy.ops.pdehead.run_pipeline(source='PHANTOM', patches=6, nu=32, nv=48, nw=4, build_volume=False)
     finally:
-        _progress(study).PROGRESS_HOOK[0] = None
+        _progress(state).PROGRESS_HOOK[0] = None
     assert result == {'CANCELLED'}
     steps = [s for s, _ in seen]
     assert "segment" in steps and steps[-1] == "boundaries"   # it ran, reported, and stopped in the middle
@@ -155,13 +156,13 @@ def test_an_existing_study_cancelled_mid_step_is_as_it_was(live):
     patches, nu = s.patches, s.nu
     names = _datablocks(bpy)
     for step in ("boundaries", "volume"):   # before the meshes were rebuilt, and after
-        hook, seen = _cancel_in(study, step)
-        _progress(study).PROGRESS_HOOK[0] = hook
+        hook, seen = _cancel_in(state, step)
+        _progress(state).PROGRESS_HOOK[0] = hook
         try:
             result = bpy.ops.pdehead.run_pipeline(source='ACTIVE', patches=patches - 1, nu=nu + 8, nv=s.nv,
                                                   nw=s.nw, build_volume=True)
         finally:
-            _progress(study).PROGRESS_HOOK[0] = None
+            _progress(state).PROGRESS_HOOK[0] = None
         assert result == {'CANCELLED'} and seen[-1][0] == step
         assert (s.patches, s.nu) == (patches, nu)
         assert coll[state.BOUNDARY_KEY] == curves_before

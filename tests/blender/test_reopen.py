@@ -59,7 +59,6 @@ if args["layout"] == "zip":  # the bpy 4.2 / 4.5 modules crash / hang at exit wi
         lambda: __import__("addon_utils").disable(name, default_set=False))
 state = sys.modules[name + ".operators.state"]
 Study = sys.modules[name + ".operators.study_entity"].Study
-study = sys.modules[name + ".operators.study"]
 objects = sys.modules[name + ".operators.objects"]
 volume = sys.modules[name + ".operators.volume"]
 render = sys.modules[name + ".operators.render"]
