@@ -283,6 +283,46 @@ def head_mask_on_grid(wfield, shape, spacing, origin, direction, margin_mm: floa
     return out
 
 
+def decimated_block_mean(data: np.ndarray, steps) -> np.ndarray:
+    """``uniform_filter(data, size=steps, mode="nearest")[::steps[0], ::steps[1], ::steps[2]]``, bit for bit,
+    without filtering the voxels the decimation drops.
+
+    scipy's ``uniform_filter`` is one 1-D running mean per axis (in that order, each rounded to the
+    data's type); a line along one axis does not depend on the other lines, so each pass runs on the
+    output the earlier passes kept (the first pass on the whole CT, the later ones on 1/step of it).
+    The first pass along a power-of-two step of integer-valued data (CT numbers; int16 range) is the
+    plain sum times 1/step, which is what the running mean gives there exactly (every partial sum is
+    a whole or dyadic number, exact in float64 and float32); anything else keeps scipy's running mean.
+    """
+    from scipy.ndimage import uniform_filter1d
+
+    out, first = data, True
+    for axis, n in enumerate(int(s) for s in steps):
+        if n == 1:
+            continue
+        length = out.shape[axis]
+        keep = np.arange(0, length, n)
+        if first and n & (n - 1) == 0 and n <= 256 and _int16_valued(out):
+            # window of sample m: voxels m*n - n//2 ... m*n + n - n//2 - 1, clamped ("nearest")
+            src, out = out, None
+            for t in range(-(n // 2), n - n // 2):
+                part = np.take(src, np.clip(keep + t, 0, length - 1), axis=axis)
+                out = part if out is None else np.add(out, part, out=out)
+            out *= np.float32(1.0 / n)
+        else:
+            out = uniform_filter1d(out, n, axis=axis, mode="nearest")[(slice(None),) * axis + (slice(None, None, n),)]
+        first = False
+    return out
+
+
+def _int16_valued(data: np.ndarray, slab: int = 32) -> bool:
+    """True if the float32 `data` holds only whole numbers in the int16 range (slab by slab: small temporaries)."""
+    if data.dtype != np.float32:
+        return False
+    with np.errstate(invalid="ignore"):  # NaN and out-of-range values do not survive the round trip
+        return all(np.array_equal(c, c.astype(np.int16)) for c in (data[k:k + slab] for k in range(0, len(data), slab)))
+
+
 def ct_grid_for(ct, wfield):
     """The CT for the ``ct`` grid: (data [z, y, x] float32, spacing, origin, direction).
 
@@ -291,8 +331,6 @@ def ct_grid_for(ct, wfield):
     means to about the w-field's voxel size, so both grids have a comparable
     resolution and the file stays small.
     """
-    from scipy.ndimage import uniform_filter
-
     same = (tuple(ct.data.shape) == tuple(np.shape(wfield.w))
             and np.allclose(ct.affine, grid_affine(wfield.spacing, wfield.origin, wfield.direction), atol=1e-6))
     if same:
@@ -301,7 +339,7 @@ def ct_grid_for(ct, wfield):
     steps = tuple(max(1, int(round(voxel / s))) for s in ct.spacing)  # (k, j, i)
     data, origin = ct.data, np.asarray(ct.origin, float)
     if max(steps) > 1:
-        data = uniform_filter(data, size=steps, mode="nearest")[::steps[0], ::steps[1], ::steps[2]]
+        data = decimated_block_mean(data, steps)
         # sample n averages CT voxels n*step - step//2 ... : its centre is shifted for even steps
         shift_kji = np.array([(n - 1) / 2.0 - n // 2 for n in steps])
         origin = origin + np.asarray(ct.direction, float) @ (shift_kji[::-1] * np.array(ct.spacing)[::-1])
