@@ -300,19 +300,33 @@ def decimated_block_mean(data: np.ndarray, steps) -> np.ndarray:
     for axis, n in enumerate(int(s) for s in steps):
         if n == 1:
             continue
-        length = out.shape[axis]
-        keep = np.arange(0, length, n)
         if first and n & (n - 1) == 0 and n <= 256 and _int16_valued(out):
-            # window of sample m: voxels m*n - n//2 ... m*n + n - n//2 - 1, clamped ("nearest")
-            src, out = out, None
-            for t in range(-(n // 2), n - n // 2):
-                part = np.take(src, np.clip(keep + t, 0, length - 1), axis=axis)
-                out = part if out is None else np.add(out, part, out=out)
+            out = _window_sum(out, n, axis)
             out *= np.float32(1.0 / n)
         else:
             out = uniform_filter1d(out, n, axis=axis, mode="nearest")[(slice(None),) * axis + (slice(None, None, n),)]
         first = False
     return out
+
+
+def _window_sum(data: np.ndarray, n: int, axis: int) -> np.ndarray:
+    """Sum over the window of every n-th voxel along `axis` (voxels m*n - n//2 ... m*n + n - n//2 - 1, clamped to
+    the edge as scipy's mode "nearest"), float32, from strided views of `data` (no gathered copies)."""
+    src = np.moveaxis(data, axis, 0)
+    length = len(src)
+    count = -(-length // n)
+    out = np.empty((count,) + src.shape[1:], np.float32)
+    for t in range(-(n // 2), n - n // 2):
+        lo = -(-max(-t, 0) // n)                      # first sample whose voxel m*n + t is in the scan
+        hi = min(count, (length - 1 - t) // n + 1)    # ... and one past the last
+        parts = ((slice(0, lo), src[0]), (slice(lo, hi), src[lo * n + t:(hi - 1) * n + t + 1:n]),
+                 (slice(hi, count), src[length - 1]))
+        for rows, values in parts:
+            if t == -(n // 2):
+                out[rows] = values
+            else:
+                out[rows] += values
+    return np.moveaxis(out, 0, axis)
 
 
 def _int16_valued(data: np.ndarray, slab: int = 32) -> bool:
