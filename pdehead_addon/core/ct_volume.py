@@ -362,7 +362,7 @@ def _window_means(data: np.ndarray, n: int, axis: int, acc_dtype, outputs=None) 
     return acc.astype(np.float32, copy=False)
 
 
-def _whole_numbers(data: np.ndarray, slab: int = 32):
+def _whole_numbers(data: np.ndarray, slab: int = 4):
     """"unsigned" if the float32 `data` holds only whole numbers in 0 ... 65535, "signed" if in -32768 ... 32767,
     else None (slab by slab: small temporaries)."""
     if data.dtype != np.float32:
