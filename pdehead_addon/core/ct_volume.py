@@ -4,7 +4,7 @@
 - sampling: :func:`trilinear`, :func:`sample_ct` (intensity at patient points);
 - intensity windows for display: :func:`intensity_window`, :func:`apply_window`;
 - grids of the volume rendering (section 4.3, eq. 24): :func:`head_mask_on_grid`,
-  :func:`ct_grid_for`;
+  :func:`ct_grid_for` (its block means: :func:`decimated_block_mean`);
 - :func:`downsample_volume` for very large scans.
 """
 from __future__ import annotations
