@@ -127,3 +127,17 @@ def test_bench_smooth_quick_smoke(tmp_path):
     # a second run replaces its section instead of adding one
     assert bench_smooth.main(["--quick", "--repeats", "1", "--json", str(out), "--md", str(md)]) == 0
     assert md.read_text().count("<!-- section:smooth -->") == 1
+
+
+def test_clinical_scan_sums_every_printed_step():
+    """bench_clinical_scan.py sums every step the CLI prints (the solid's CT table included), never ``total``,
+    and stops on a step it does not know rather than leave it out of the sum."""
+    import bench_clinical_scan
+    stdout = ("Info: ...\ntimings (s):\n  import        0.400\n  segment       5.000\n  boundaries    2.500\n"
+              "  pde_solve     0.004\n  surface       0.250\n  ct_table      0.300\n  solid         0.120\n"
+              "  w_field       0.500\n  volume        1.000\n  total        10.500\nwrote x.blend\n")
+    steps = bench_clinical_scan.step_times(stdout)
+    assert steps["ct_table"] == 0.3 and steps["total"] == 10.5 and len(steps) == 10
+    assert bench_clinical_scan.sum_of_steps(steps) == pytest.approx(10.074)
+    with pytest.raises(SystemExit, match="new_step"):
+        bench_clinical_scan.sum_of_steps(dict(steps, new_step=1.0))

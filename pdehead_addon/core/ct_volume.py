@@ -4,7 +4,7 @@
 - sampling: :func:`trilinear`, :func:`sample_ct` (intensity at patient points);
 - intensity windows for display: :func:`intensity_window`, :func:`apply_window`;
 - grids of the volume rendering (section 4.3, eq. 24): :func:`head_mask_on_grid`,
-  :func:`ct_grid_for`;
+  :func:`ct_grid_for` (its block means: :func:`decimated_block_mean`);
 - :func:`downsample_volume` for very large scans.
 """
 from __future__ import annotations
@@ -283,6 +283,98 @@ def head_mask_on_grid(wfield, shape, spacing, origin, direction, margin_mm: floa
     return out
 
 
+def decimated_block_mean(data: np.ndarray, steps, block_bytes: int = 1 << 23) -> np.ndarray:
+    """``uniform_filter(data, size=steps, mode="nearest")[::steps[0], ::steps[1], ::steps[2]]``, bit for bit,
+    computing only the means the decimation keeps.
+
+    scipy's ``uniform_filter`` is one 1-D pass per axis with a step > 1 (in axis order), each a running
+    window sum in float64 divided by the step and rounded to float32. Where that running sum is exact,
+    a pass is the window sum at every step-th voxel divided by the step (:func:`_window_means`: a
+    third of the sums for a step of 3, no running chain). It is exact for CT numbers (whole numbers
+    within 2^16, :func:`_whole_numbers`): the first pass sums whole numbers; its means are multiples of
+    2^-(24 + log2 step), so the second pass's sums stay within float64's 53 bits; the third pass's too
+    when the data are never negative (no cancellation leaves a tiny residual); a pass that may not be
+    exact is scipy's own. For such data the passes run slab by slab along the first axis (a slab of the
+    output needs only its slab of the input): small temporaries, no full-size intermediate. Other data
+    take scipy's passes one after the other, each on the voxels the passes before it kept.
+    """
+    from scipy.ndimage import uniform_filter1d
+
+    steps = tuple(int(s) for s in steps)
+    kind = _whole_numbers(data)
+    passes, bits = [], 0                        # bits: log2 of the product of the earlier steps (rounded up)
+    for done, (axis, n) in enumerate((a, n) for a, n in enumerate(steps) if n > 1):
+        exact = kind is not None and (done == 0 and n <= 256 or done == 1 and (n << bits) <= 2048
+                                      or done == 2 and kind == "unsigned" and (n << bits) <= 2048)
+        passes.append((axis, n, (np.float32 if done == 0 else np.float64) if exact else None))
+        bits += int(np.ceil(np.log2(n)))
+
+    def run(block, todo):
+        for axis, n, acc in todo:
+            if acc is not None:
+                block = _window_means(block, n, axis, acc)
+            else:
+                block = uniform_filter1d(block, n, axis=axis, mode="nearest")[(slice(None),) * axis + (slice(None, None, n),)]
+        return block
+
+    if kind is None or not passes:
+        return run(data, passes)
+    count = -(-data.shape[0] // steps[0])
+    out = np.empty((count,) + tuple(-(-m // n) for m, n in zip(data.shape[1:], steps[1:])), np.float32)
+    rows = max(1, block_bytes // (4 * steps[0] * max(1, data[0].size)))
+    first = passes[0] if passes[0][0] == 0 else None      # the pass along the slab axis itself
+    for m0 in range(0, count, rows):
+        m1 = min(count, m0 + rows)
+        if first is not None:
+            block = _window_means(data, first[1], 0, first[2], (m0, m1))
+        else:
+            block = data[m0:m1]
+        out[m0:m1] = run(block, passes[1:] if first is not None else passes)
+    return out
+
+
+def _window_means(data: np.ndarray, n: int, axis: int, acc_dtype, outputs=None) -> np.ndarray:
+    """float32 means of the windows of every n-th voxel along `axis` (voxels m*n - n//2 ... m*n + n - n//2 - 1,
+    clamped to the edge as scipy's mode "nearest") for the samples m in ``outputs = (m0, m1)`` (default all):
+    the window sum in `acc_dtype` (the caller makes sure it is exact) divided by n, from strided views."""
+    length = data.shape[axis]
+    m0, m1 = outputs if outputs is not None else (0, -(-length // n))
+
+    def along(index):
+        return data[(slice(None),) * axis + (index,)]
+
+    shape = list(data.shape)
+    shape[axis] = m1 - m0
+    acc = np.empty(shape, acc_dtype)
+    for t in range(-(n // 2), n - n // 2):
+        lo = min(max(m0, -(-max(-t, 0) // n)), m1)      # samples lo..hi-1 have their voxel m*n + t in the scan
+        hi = max(min(m1, (length - 1 - t) // n + 1), lo)
+        inner = slice(lo * n + t, (hi - 1) * n + t + 1, n) if hi > lo else slice(0, 0)
+        pieces = ((slice(0, lo - m0), along(slice(0, 1))), (slice(lo - m0, hi - m0), along(inner)),
+                  (slice(hi - m0, m1 - m0), along(slice(length - 1, length))))
+        for where, values in pieces:
+            target = acc[(slice(None),) * axis + (where,)]
+            if t == -(n // 2):
+                target[...] = values
+            else:
+                target += values
+    np.divide(acc, acc_dtype(n), out=acc)
+    return acc.astype(np.float32, copy=False)
+
+
+def _whole_numbers(data: np.ndarray, slab: int = 4):
+    """"unsigned" if the float32 `data` holds only whole numbers in 0 ... 65535, "signed" if in -32768 ... 32767,
+    else None (slab by slab: small temporaries)."""
+    if data.dtype != np.float32:
+        return None
+    slabs = [data[k:k + slab] for k in range(0, len(data), slab)]
+    with np.errstate(invalid="ignore"):  # NaN and out-of-range values do not survive the round trip
+        for kind, dtype in (("unsigned", np.uint16), ("signed", np.int16)):
+            if all(np.array_equal(c, c.astype(dtype)) for c in slabs):
+                return kind
+    return None
+
+
 def ct_grid_for(ct, wfield):
     """The CT for the ``ct`` grid: (data [z, y, x] float32, spacing, origin, direction).
 
@@ -291,8 +383,6 @@ def ct_grid_for(ct, wfield):
     means to about the w-field's voxel size, so both grids have a comparable
     resolution and the file stays small.
     """
-    from scipy.ndimage import uniform_filter
-
     same = (tuple(ct.data.shape) == tuple(np.shape(wfield.w))
             and np.allclose(ct.affine, grid_affine(wfield.spacing, wfield.origin, wfield.direction), atol=1e-6))
     if same:
@@ -301,7 +391,7 @@ def ct_grid_for(ct, wfield):
     steps = tuple(max(1, int(round(voxel / s))) for s in ct.spacing)  # (k, j, i)
     data, origin = ct.data, np.asarray(ct.origin, float)
     if max(steps) > 1:
-        data = uniform_filter(data, size=steps, mode="nearest")[::steps[0], ::steps[1], ::steps[2]]
+        data = decimated_block_mean(data, steps)
         # sample n averages CT voxels n*step - step//2 ... : its centre is shifted for even steps
         shift_kji = np.array([(n - 1) / 2.0 - n // 2 for n in steps])
         origin = origin + np.asarray(ct.direction, float) @ (shift_kji[::-1] * np.array(ct.spacing)[::-1])

@@ -46,7 +46,10 @@ SHAPE = (300, 512, 512)
 SPACING = (0.753, 0.5, 0.5)
 TARGETS = dict(total_s=15.0, vtk_ratio=25.0, segment_s=6.0, boundaries_s=3.0, peak_rss_gb=2.5,
                jaccard_mean=0.99, jaccard_min=0.98)
-STEPS = ("import", "segment", "boundaries", "pde_solve", "surface", "solid", "w_field", "volume")
+#: The CLI's printed steps, import to volume (``total`` is their wall time with the glue between them). The
+#: solid's CT table is its own step since Run Pipeline named it apart from the solid's mesh (before, it was
+#: part of ``solid``); a step the CLI prints that is not here stops the benchmark instead of being left out.
+STEPS = ("import", "segment", "boundaries", "pde_solve", "surface", "ct_table", "solid", "w_field", "volume")
 
 
 def make_scan():
@@ -118,12 +121,22 @@ def run_cli(folder: Path, out: Path) -> dict:
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     if proc.returncode != 0:
         raise SystemExit(f"pdehead.py failed ({proc.returncode}):\n{stdout[-2000:]}\n{stderr[-2000:]}")
-    steps = {}
+    steps = step_times(stdout)
+    return {"steps": steps, "sum_steps_s": sum_of_steps(steps), "peak_rss_gb": peak / 1e9, "wall_s": wall, "cpu_s": cpu}
+
+
+def step_times(stdout: str) -> dict:
+    """The step times (s) of the CLI's ``timings (s):`` block, by name (``total`` included)."""
     block = stdout.split("timings (s):", 1)[1]
-    for name, value in re.findall(r"^\s+(\w+)\s+([0-9.]+)\s*$", block, re.M):
-        steps[name] = float(value)
-    return {"steps": steps, "sum_steps_s": sum(steps.get(k, 0.0) for k in STEPS), "peak_rss_gb": peak / 1e9,
-            "wall_s": wall, "cpu_s": cpu}
+    return {name: float(value) for name, value in re.findall(r"^\s+(\w+)\s+([0-9.]+)\s*$", block, re.M)}
+
+
+def sum_of_steps(steps: dict) -> float:
+    """The sum of the pipeline's printed step times (every step but ``total``, which is their wall time)."""
+    unknown = set(steps) - set(STEPS) - {"total"}
+    if unknown:
+        raise SystemExit(f"the CLI printed steps this benchmark does not know: {sorted(unknown)}; add them to STEPS")
+    return sum(steps.get(k, 0.0) for k in STEPS)
 
 
 def vtk_flying_edges(ct, level: float) -> dict:
@@ -213,7 +226,7 @@ def markdown(r: dict) -> str:
              f"the peer governs). Engine "
              f"{r['commit']}; Jaccard against the full-resolution `segment_head` of {r['reference_commit']}.", "",
              "| measure | value | target | status |", "|---|---|---|---|",
-             f"| sum of the CLI's step times | {med['sum_steps_s']:.1f} s | <= {t['total_s']:g} s | "
+             f"| sum of the CLI's step times (import to volume, the solid's CT table included) | {med['sum_steps_s']:.1f} s | <= {t['total_s']:g} s | "
              f"{ok(med['sum_steps_s'] <= t['total_s'])} |",
              f"| VTK vtkFlyingEdges3D, same array, skin level | {med['vtk_s']:.2f} s | peer | |",
              f"| ratio to VTK | {med['ratio']:.0f} x | <= {t['vtk_ratio']:g} x | {ok(med['ratio'] <= t['vtk_ratio'])} |",

@@ -123,3 +123,43 @@ def test_head_mask_on_an_axis_aligned_grid_is_the_per_voxel_lookup():
     expected[ok] = inside[ijk[2, ok], ijk[1, ok], ijk[0, ok]]
     assert 0 < mask.sum() < mask.size and not ok.all()
     assert np.array_equal(mask.ravel(), expected)
+
+
+# ----------------------------------------------------------------------------- the volume's decimated ct grid
+@pytest.mark.parametrize("values", ["unsigned", "signed", "fractional", "huge", "nan"])
+def test_decimated_block_mean_is_scipys_filter_then_decimation_bit_for_bit(values):
+    """The ct grid's block means are exactly what the whole-volume uniform_filter + decimation gave (the .vdb's
+    values must not move), for CT numbers (the fast exact sums) and for any other data (scipy's passes)."""
+    from scipy.ndimage import uniform_filter
+
+    rng = np.random.default_rng(5)
+    checked = 0
+    for shape in [(1, 5, 6), (4, 4, 4), (9, 13, 11), (33, 40, 37)]:
+        if values == "unsigned":      # CT numbers from 0 (raw scanner units), zeros of air among them
+            a = rng.integers(0, 65536, shape) * (rng.random(shape) < 0.7)
+        elif values == "signed":      # Hounsfield units
+            a = rng.integers(-32768, 32768, shape)
+        elif values == "fractional":  # rescaled with a non-integer slope
+            a = rng.random(shape) * 3000 - 1000
+        elif values == "huge":        # whole numbers beyond 16 bits: not the exact fast path
+            a = rng.integers(-200_000, 200_000, shape)
+        else:
+            a = rng.integers(0, 3000, shape).astype(float)
+            a.flat[3] = np.nan
+        a = a.astype(np.float32)
+        for steps in [(2, 3, 3), (1, 2, 2), (4, 1, 3), (3, 2, 1), (5, 4, 2), (8, 8, 8), (16, 16, 16), (1, 1, 1)]:
+            want = uniform_filter(a, size=steps, mode="nearest")[::steps[0], ::steps[1], ::steps[2]]
+            for block_bytes in (1, 1 << 23):  # one output slice per slab, and the default
+                got = CV.decimated_block_mean(a, steps, block_bytes=block_bytes)
+                assert got.dtype == np.float32 and got.shape == want.shape
+                assert np.array_equal(got, want, equal_nan=True), (shape, steps, block_bytes)
+                checked += 1
+    assert checked == 64
+
+
+def test_whole_numbers_tells_the_exact_fast_path():
+    assert CV._whole_numbers(np.array([[[0, 65535]]], np.float32)) == "unsigned"
+    assert CV._whole_numbers(np.array([[[-1024, 3071]]], np.float32)) == "signed"
+    for other in ([0.5, 1], [-1, 65535], [70000, 0], [np.nan, 0]):
+        assert CV._whole_numbers(np.array([[other]], np.float32)) is None
+    assert CV._whole_numbers(np.zeros((1, 1, 2), np.float64)) is None

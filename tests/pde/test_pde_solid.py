@@ -380,3 +380,18 @@ def test_solid_ct_table_is_the_ct_at_the_solid_points(phantom):
     assert np.ptp(shown_back) > 0.5
     with pytest.raises(PDEError, match="cannot be read"):
         SolidCTTable.from_bytes(raw[:40])
+
+
+def test_solid_ct_table_planar_fill_is_the_trilinear_ct(phantom, monkeypatch):
+    """The axial fast fill (the slices interpolated at the pixels the samples need) gives the general path's
+    trilinear CT at every table point, to float32 rounding, on a CT whose slices are not the solid's planes."""
+    from pdehead_addon import extract_boundaries, segment_head
+    from pdehead_addon.pde.solid_ct_table import SolidCTTable
+    ct = phantom.ct
+    head = solve_pde(extract_boundaries(segment_head(ct), patches=6, samples=128))
+    fast = SolidCTTable(head, ct, nu=40, nv=64, nw=12)
+    monkeypatch.setattr(SolidCTTable, "_fill_planar", lambda *args, **kwargs: False)
+    general = SolidCTTable(head, ct, nu=40, nv=64, nw=12)
+    assert fast.table.shape == general.table.shape == (12, 40, 65)
+    assert np.ptp(general.table) > 0.5 * np.ptp(ct.data)  # air, skin and bone: a real check
+    np.testing.assert_allclose(fast.table, general.table, rtol=0, atol=1e-5 * np.ptp(ct.data))
