@@ -26,6 +26,8 @@ landmark empties keep their own patient mm, flag and evidence.
 """
 from __future__ import annotations
 
+import traceback
+
 import json
 
 import bpy
@@ -157,7 +159,10 @@ def migrate_all() -> list[str]:
 @bpy.app.handlers.persistent
 def pdehead_forensic_load_post(*_args) -> None:
     """After a file is loaded: every study's forensic state in the current format."""
-    migrate_all()
+    try:
+        migrate_all()
+    except Exception:  # noqa: BLE001 - a load handler must never stop the load
+        traceback.print_exc()
 
 
 def register() -> None:
