@@ -70,15 +70,16 @@ class LoaderOptions:
                               description="Read only the selected file (a single-file volume), "
                                           "not the whole folder")
     format: EnumProperty(name="Format", items=FORMAT_ITEMS, default="AUTO")
-    raw_shape: IntVectorProperty(name="Slice Shape", size=2, default=(256, 256), min=1,
-                                 description="Raw slices: rows, columns (ny, nx)")
-    raw_dtype: EnumProperty(name="Data Type", items=DTYPE_ITEMS, default="i2")
-    byte_order: EnumProperty(name="Byte Order", items=BYTE_ORDER_ITEMS, default="BIG")
-    use_spacing: BoolProperty(name="Set Spacing", default=False,
-                              description="Give the voxel size (needed for raw and image stacks "
-                                          "without headers)")
-    spacing: FloatVectorProperty(name="Spacing (dz, dy, dx)", size=3, default=(1.0, 1.0, 1.0), min=1e-3,
-                                 description="Voxel size in mm: slice step, row step, column step")
+    raw_shape: IntVectorProperty(name=D.RAW_SHAPE.label, size=2, **D.RAW_SHAPE.limits(),
+                                 description=D.RAW_SHAPE.description)
+    raw_dtype: EnumProperty(name=D.RAW_DTYPE.label, items=DTYPE_ITEMS, default=D.RAW_DTYPE.default,
+                            description=D.RAW_DTYPE.description)
+    byte_order: EnumProperty(name=D.BYTE_ORDER.label, items=BYTE_ORDER_ITEMS, default=D.BYTE_ORDER.default,
+                             description=D.BYTE_ORDER.description)
+    use_spacing: BoolProperty(name=D.USE_SPACING.label, **D.USE_SPACING.limits(),
+                              description=D.USE_SPACING.description)
+    spacing: FloatVectorProperty(name=D.IMPORT_SPACING.label, size=3, **D.IMPORT_SPACING.limits(),
+                                 description=D.IMPORT_SPACING.description)
     first_slice: EnumProperty(name="First Slice", items=FIRST_SLICE_ITEMS, default=D.FIRST_SLICE.upper())
     orientation: StringProperty(name="Orientation", default="",
                                 description="Raw and image stacks: 3 letters for the patient directions in "

@@ -321,3 +321,19 @@ RUN_PIPELINE = _param("run_pipeline", False,
 #: The study object Frame Study (and the pipeline's last step) shows; the others overlap it and are hidden.
 SHOW = _param("show", "SURFACE", choices=("SURFACE", "SOLID", "VOLUME", "CURVES"),
               description="The study object to show (the others are hidden)", label="Show")
+
+# ----------------------------------------------------------------------------- import options (issue 25)
+#: What *Import CT* offers for headerless data before the user changes it: CThead's raw slices (256 x 256
+#: big-endian int16), 1 mm voxels. The CLI has no such defaults: ``--raw-shape``, ``--dtype`` and
+#: ``--spacing`` must be given for raw data.
+RAW_SHAPE = _param("raw_shape", (256, 256), min=1, label="Slice Shape",
+                   description="Raw slices: rows, columns (ny, nx)")
+RAW_DTYPE = _param("raw_dtype", "i2", choices=("i2", "u2", "u1", "i4", "f4"), label="Data Type",
+                   description="Raw samples: numpy kind and bytes")
+BYTE_ORDER = _param("byte_order", "BIG", choices=("BIG", "LITTLE"), label="Byte Order",
+                    description="Raw samples of more than one byte: most significant byte first (BIG) or last")
+USE_SPACING = _param("use_spacing", False, label="Set Spacing",
+                     description="Give the voxel size (needed for raw and image stacks without headers)")
+#: Named apart from the study setting ``spacing`` (the CT's measured voxel size, read-only).
+IMPORT_SPACING = _param("import_spacing", (1.0, 1.0, 1.0), min=1e-3, unit="mm", label="Spacing (dz, dy, dx)",
+                        description="Voxel size in mm: slice step, row step, column step")

@@ -125,9 +125,15 @@ def test_every_setting_operator_option_and_preference_reads_the_defaults_table(p
 
     assert check(settings, "study settings") == 35  # every study setting of the table (33 + the bone level pair)
     for op, at_least in (("run_pipeline", 6), ("extract_boundaries", 7), ("reconstruct_surface", 10),
-                         ("build_solid", 6), ("build_volume", 8), ("import_ct", 1)):
+                         ("build_solid", 6), ("build_volume", 8), ("import_ct", 4)):
         rna = getattr(bpy.ops.pdehead, op).get_rna_type().properties
         assert check(rna, op) >= at_least, op
+    # Import CT's voxel size is named apart from the study's measured spacing; its dtype list is the table's
+    imp = bpy.ops.pdehead.import_ct.get_rna_type().properties
+    assert tuple(imp["spacing"].default_array) == pytest.approx(D.IMPORT_SPACING.default)
+    assert imp["spacing"].hard_min == pytest.approx(D.IMPORT_SPACING.min)
+    assert tuple(i.identifier for i in imp["raw_dtype"].enum_items) == D.RAW_DTYPE.choices
+    assert tuple(i.identifier for i in imp["byte_order"].enum_items) == D.BYTE_ORDER.choices
     prefs = bpy.context.preferences.addons[name].preferences.bl_rna.properties["default_patches"]
     assert (prefs.default, prefs.hard_min, prefs.hard_max) == (D.PATCHES.default, D.PATCHES.min, D.PATCHES.max)
     volume_material = sys.modules[name + ".operators.volume_material"]
