@@ -23,8 +23,8 @@ skull's centroid: a row every ``row_mm`` of height, a column every ``360 / colum
    ``spread_mm``) with the rule depth where no peg stands (:data:`RULE_DEPTH_MM`: the vault and the
    neck), plus a narrow Gaussian radial-basis correction (lightly regularised) that makes the field
    pass through every tip (to a few tenths of a mm), except a peg that disagrees with its neighbours by more
-   than :data:`DAMP_FREE_MM` at the table's means, which it follows less closely (:meth:`FaceModel._site_damping`).
-   It is linear in the depths; a peg's influence fades within about 2 ``spread_mm``.
+   than :data:`DAMP_FREE_MM` (:meth:`FaceModel._site_damping`); kept from overshooting between the pegs
+   (:meth:`FaceModel._limited`). A peg's influence fades within about 2 ``spread_mm``.
 4. *Prediction rules* for what a depth field cannot make (:mod:`.face_features`, each cited there): the nose
    from the nasal aperture and the nasal length, the closed eyes in the orbits, the mouth from the teeth and the
    canines, a default ear at each porion.
@@ -32,9 +32,8 @@ skull's centroid: a row every ``row_mm`` of height, a column every ``360 / colum
    the C2 PDE surface through them (:func:`.pde_surface.solve_pde`, dome over the vertex, a flat cap
    under the neck) is the face, a closed mesh in patient mm.
 
-Everything that does not depend on the depths (the profile, the grid, the kernels between the rule
-sites) is computed once in :meth:`FaceModel.prepare`; :meth:`FaceModel.solve` evaluates the linear
-field, adds the nose, solves the PDE and meshes it (tens of ms).
+What does not depend on the depths is computed once in :meth:`FaceModel.prepare`; :meth:`FaceModel.solve`
+evaluates the field, adds the features, solves the PDE and meshes it (tens of ms).
 
 Every result carries :data:`APPROXIMATION_LABEL` and its provenance: it is an approximation, not an
 identification.
@@ -71,10 +70,8 @@ NECK_RADIUS_MM = 57.0
 NECK_BEHIND_MM = 12.0
 #: How fast the neck recedes below the skull base (mm per mm of height: 0.8 ~ a 40 degree slope).
 NECK_SLOPE = 0.8
-#: The bone's radius map is made on at most this many columns (2 degrees) and interpolated to the face's grid: a finer
-#: bin meets no bone vertex on a coarse skull mesh (GE: 29 % within +-2.5 mm on a 360-column map against 35 % on this
-#: one; CThead unchanged), and the bone's outline needs no more; the face's grid is finer for the nose, the lips and the
-#: eyes (:data:`.defaults.FACE_COLUMNS`).
+#: The bone's radius map is made on at most this many columns (2 degrees) and interpolated to the face's grid (finer
+#: bins meet no bone vertex on a coarse skull mesh: GE 29 % within +-2.5 mm on 360 columns, 35 % on 180).
 PROFILE_COLUMNS = 180
 #: Closing of the bone's radius map: how wide a gap (mm) the envelope bridges (the orbit is ~ 40 mm wide,
 #: the nasal aperture ~ 25 mm).
@@ -91,13 +88,10 @@ PROFILE_SMOOTH_MM = 4.0
 #: 180-column grid, kept in degrees when the grid became 360 columns (issue 23's sixth session).
 PROFILE_SMOOTH_DEG = 2.0
 #: Away from the pegs the closed profile is smoothed more, in 2-D on the (angle, height) grid: a Gaussian of
-#: :data:`PROFILE_SMOOTH_FAR_MM` of height and :data:`PROFILE_SMOOTH_FAR_ARC_MM` of arc (at the median radius). Each
-#: row's hull is made on its own, which leaves horizontal ridges across the lower face (the teeth, the mandible's rows,
-#: the cheeks' bridges) that no peg corrects; smoothing around the head instead costs accuracy (the profile's shape
-#: across the face is information), so the smoothing is mostly along the height. Within about :data:`PROFILE_NEAR_MM` of
-#: a peg tip the lightly smoothed profile is kept (Gaussian blend). CThead (bench_face, issue 23b): 57.3 % / mean 2.86 /
-#: p95 7.99 mm before, 57.5 % / 2.80 / 7.78 after; row-to-row second difference of the face's radius over the scored
-#: region 0.48 -> 0.40 mm.
+#: :data:`PROFILE_SMOOTH_FAR_MM` of height and :data:`PROFILE_SMOOTH_FAR_ARC_MM` of arc (at the median radius): each
+#: row's hull is made on its own, which leaves horizontal ridges across the lower face that no peg corrects. Within
+#: about :data:`PROFILE_NEAR_MM` of a peg tip the lightly smoothed profile is kept (Gaussian blend). CThead (issue
+#: 23b): 57.3 -> 57.5 % within +-2.5 mm; row-to-row second difference of the face's radius 0.48 -> 0.40 mm.
 PROFILE_SMOOTH_FAR_MM = 8.0
 PROFILE_SMOOTH_FAR_ARC_MM = 2.0
 PROFILE_NEAR_MM = 10.0
@@ -107,16 +101,21 @@ NARROW_FRACTION = 0.5
 RBF_REGULARISATION = 0.05
 #: A peg whose offset disagrees with what its neighbours give there (the wide field without it) by more than
 #: :data:`DAMP_FREE_MM` is followed less closely by the exact correction: its regularisation grows by ((disagreement -
-#: DAMP_FREE_MM) / DAMP_SCALE_MM)^2 (:meth:`FaceModel._site_damping`). The T-Table's 26 mm supra-M2 and 22 mm sub-M2
-#: pegs stand 10-15 mm off their 8-13 mm neighbours at the jaw's border: a field through all of them exactly is lumpy
-#: there. Computed once, at the table's means, from the skull and the table alone (nothing of the scored skin); the pegs
-#: on the mid-sagittal profile (within :data:`DAMP_MIDLINE_DEG` of straight ahead) stay exact: the nose and the lips
-#: stand on them. CThead (bench_face, issue 23's fifth session): 60.1 % / mean 2.66 / p95 7.47 mm before, 62.0 % / 2.56
-#: / 7.38 after; mean second difference of the face's radius over the front of the lower face 0.49 -> 0.38 mm along the
-#: height, 0.38 -> 0.25 mm around the head; GE unchanged (34.2 %).
+#: DAMP_FREE_MM) / DAMP_SCALE_MM)^2 (:meth:`FaceModel._site_damping`; the T-Table's 26 mm supra-M2 and 22 mm sub-M2
+#: pegs beside 8-13 mm ones made the jaw's border lumpy). Fixed at the table's means from the skull and the table
+#: alone; the mid-sagittal pegs (within :data:`DAMP_MIDLINE_DEG` of straight ahead) stay exact: the nose and the lips
+#: stand on them. CThead (issue 23's fifth session): 60.1 -> 62.0 % within +-2.5 mm; GE unchanged.
 DAMP_FREE_MM = 4.0
 DAMP_SCALE_MM = 5.0
 DAMP_MIDLINE_DEG = 10.0
+#: No overshoot between the pegs (:meth:`FaceModel._limited`): the field stays between the lowest and the highest
+#: blend base + k_i (target_i - base) of the wide field with each site's offset (k_i = exp(-(d / R)^4) along the
+#: height times the same around, R = LIMIT_RADIUS_FRACTION x ``spread_mm``; a smooth min / max LIMIT_SOFT_MM wide).
+#: The Gaussians' exact correction swings beyond two close sites of very different offsets (CThead, issue 23's 8th
+#: session: subspinale 3.8 and mid-philtrum 14.8 mm, 3.4 mm apart: 19.7 mm above them, 16.6 over the incisors where
+#: the pegs are 12-13). At a site the bound is its own offset: the field still passes through every tip.
+LIMIT_RADIUS_FRACTION = 1.0
+LIMIT_SOFT_MM = 1.0
 
 
 # ------------------------------------------------------------------------------------------ geometry
@@ -398,19 +397,10 @@ class FaceModel:
                 nu: int | None = None, nv: int | None = None, neck_mm: float = 40.0) -> "FaceModel":
         """Prepare the face model of a skull.
 
-        Parameters
-        ----------
-        skull : Mesh
-            The bone skull (:func:`.skull.skull_mesh` or a ``--skull-mesh``), patient LPS mm.
-        landmarks : dict of str to (3,) array
-            Landmarks on the bone (patient mm); those the table has become pegs, the others feed the
-            prediction rules (nose, eyes, mouth).
-        table : DepthTable or dict
-            The depth table (mean depth per landmark name; SDs from ``table.sd`` where it has them).
-        sex : str, optional
-            Kept in the provenance; the shipped T-Table 2023 is pooled (no sex split).
-        flags : dict, optional
-            The landmarks' flags (``ok`` / ``uncertain`` / ``not_found``), for the provenance.
+        ``skull``: the bone skull (:func:`.skull.skull_mesh` or a ``--skull-mesh``), patient LPS mm; ``landmarks``: on
+        the bone (patient mm), those the table has become pegs, the others feed the prediction rules; ``table``: a
+        DepthTable or dict (mean depth per landmark; SDs from ``table.sd``); ``sex`` (kept in the provenance; the
+        T-Table 2023 is pooled) and ``flags`` (``ok`` / ``uncertain`` / ``not_found``, for the provenance).
         """
         from .landmarks import marker_pegs
 
@@ -506,7 +496,25 @@ class FaceModel:
         s2 = NARROW_FRACTION * sigma
         w = self._correction_weights(xs, target - base_s)
         corr = peg_kernel(self._grid_xyz, xs, s2) @ w
-        return (base_g + corr).reshape(self.profile.shape)
+        shape = self.profile.shape
+        return self._limited((base_g + corr).reshape(shape), base_g.reshape(shape), xs, target)
+
+    def _limited(self, field: np.ndarray, base: np.ndarray, xs: np.ndarray, target: np.ndarray) -> np.ndarray:
+        """The field (K, M) kept within the blends of ``base`` with the sites' ``target`` (:data:`LIMIT_RADIUS_FRACTION`);
+        one place for :meth:`_offset_field` and the live path (sites ``xs`` on the model's cylinder)."""
+        if LIMIT_RADIUS_FRACTION <= 0 or not len(target):
+            return field
+        g, R = self.grid, LIMIT_RADIUS_FRACTION * float(self.options["spread_mm"])
+        ring = self._cyl(np.zeros(len(g.theta)), g.theta)[:, :2]
+        kz = np.exp(-((g.z[:, None] - xs[None, :, 2]) / R) ** 4)                                   # (K, n)
+        kt = np.exp(-(((ring[:, None, :] - xs[None, :, :2]) ** 2).sum(-1) / (R * R)) ** 2)       # (M, n)
+        dev = (kz[:, None, :] * kt[None, :, :]) * (np.asarray(target, float)[None, None, :] - base[:, :, None])
+        hi, lo = base + dev.max(-1), base + dev.min(-1)
+        k = LIMIT_SOFT_MM
+        h = np.clip(0.5 + 0.5 * (hi - field) / k, 0.0, 1.0)                 # smooth min(field, hi)
+        out = hi + (field - hi) * h - k * h * (1.0 - h)
+        h = np.clip(0.5 + 0.5 * (out - lo) / k, 0.0, 1.0)                   # smooth max(out, lo)
+        return lo + (out - lo) * h + k * h * (1.0 - h)
 
     def _correction_weights(self, xs: np.ndarray, residual: np.ndarray) -> np.ndarray:
         """Weights of the narrow Gaussians of the exact correction at the field sites ``xs`` for the

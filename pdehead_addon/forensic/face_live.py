@@ -140,7 +140,7 @@ class LiveFace:
         s2 = F.NARROW_FRACTION * sigma
         w = m._correction_weights(xs, target - base_s)
         corr = small_matmul(_gauss(dz2, s2) * w, np.ascontiguousarray(_gauss(dc2, s2).T))
-        return base_g + corr
+        return m._limited(base_g + corr, base_g, xs, target)
 
     # -------------------------------------------------------------------- the surface on the mesh's grid
     def _grid(self, head) -> np.ndarray:

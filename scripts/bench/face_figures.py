@@ -124,3 +124,46 @@ def render_face_figures(name: str, keep: dict, out_dir: Path = OUT, views=("FRON
     fig.quantize(256, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE).save(target, optimize=True)
     print(f"wrote {target}", file=sys.stderr)
     return target
+
+
+def error_map_png(points: np.ndarray, tip: np.ndarray, centre_xy, signed: np.ndarray, path: Path, title: str = "",
+                  cell: int = 14, lim_mm: float = 6.0) -> Path:
+    """The per-region signed error map (issue 23's eighth session): the median signed distance of the real face's
+    points to the approximation (:func:`signed_distance`: red, real skin outside = the approximation too thin;
+    blue, too thick; white within +-1 mm) per 5 mm of height about the real pronasale (rows, top = up) x 5 degrees
+    around the vertical axis from straight ahead (columns, the patient's right on the left as seen from the front),
+    as a small PNG; a cell with fewer than 5 points is grey."""
+    rel = points[:, :2] - np.asarray(centre_xy, float)[:2]
+    angle = np.degrees(np.arctan2(rel[:, 0], -rel[:, 1]))
+    dz = points[:, 2] - tip[2]
+    zb, ab = np.arange(-70.0, 61.0, 5.0), np.arange(-60.0, 61.0, 5.0)
+    iz, ia = np.digitize(dz, zb) - 1, np.digitize(angle, ab) - 1
+    K, M = len(zb) - 1, len(ab) - 1
+    ok = (iz >= 0) & (iz < K) & (ia >= 0) & (ia < M)
+    key = iz[ok] * M + ia[ok]
+    order = np.argsort(key, kind="stable")
+    keys, starts, counts = np.unique(key[order], return_index=True, return_counts=True)
+    med = np.full(K * M, np.nan)
+    med[keys] = [np.median(v) for v in np.split(signed[ok][order], starts[1:])]
+    med[keys[counts < 5]] = np.nan
+    med = med.reshape(K, M)
+    t = np.clip(np.nan_to_num(med) / lim_mm, -1.0, 1.0)
+    rgb = np.ones((K, M, 3))
+    rgb[..., 1] = 1.0 - np.abs(t)
+    rgb[..., 2] = np.where(t > 0, 1.0 - t, 1.0)
+    rgb[..., 0] = np.where(t < 0, 1.0 + t, 1.0)
+    rgb[np.isnan(med)] = 0.6
+    img = Image.fromarray((255 * rgb[::-1]).astype(np.uint8)).resize((M * cell, K * cell), Image.NEAREST)
+    fig = Image.new("RGB", (M * cell + 60, K * cell + 40), (255, 255, 255))
+    fig.paste(img, (50, 20))
+    draw = ImageDraw.Draw(fig)
+    draw.text((4, 4), title or f"median signed mm, +-{lim_mm:g} full colour (red: approx. inside)", fill=(0, 0, 0))
+    for z in range(-60, 61, 20):                                      # height labels (mm about pronasale)
+        y = 20 + int((zb[-1] - z) / 5.0 * cell)
+        draw.text((4, y - 6), f"{z:+d}", fill=(0, 0, 0))
+    for a in (-60, -30, 0, 30, 60):
+        draw.text((50 + int((a - ab[0]) / 5.0 * cell) - 8, K * cell + 24), f"{a:+d}", fill=(0, 0, 0))
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.save(path)
+    return path

@@ -327,3 +327,30 @@ def test_nose_has_alae_and_a_rounded_tip_and_the_eyes_lids(model, face):
     # the eyes: a groove along each fissure (the lids' line), up to EYE_FISSURE_GROOVE_MM deep
     eyes = model._eye_shape(base)
     assert eyes is not None and eyes.min() < -0.5 * F.EYE_FISSURE_GROOVE_MM
+
+
+def test_field_does_not_overshoot_between_conflicting_pegs(model, face, monkeypatch):
+    """Issue 23's eighth session: the narrow Gaussians' exact correction swung beyond two close pegs of very
+    different offsets (CThead: 19.7 mm above subspinale's 3.8 and mid-philtrum's 14.8); the limiter keeps the
+    field within the range of the offsets it interpolates (and the rule depth) and still through the tips."""
+    import pdehead_addon.forensic.face_from_skull as F
+    tips = face.tips.copy()
+    i, j = model.peg_names.index("Mid-philtrum"), model.peg_names.index("Subspinale")
+    tips[i] += 10.0 * model.peg_normals[i]                   # a conflicting pair, 10 mm out and 10 mm in
+    tips[j] -= 10.0 * model.peg_normals[j]
+    g = model.grid
+    z, th, r = g.polar(model.field_sites(tips))
+    target = r - g.sample(model.profile, z, th)
+    xs = model._cyl(z, th)
+    centre = model._cyl(*g.polar(tips[i][None])[:2])[0]
+    near = np.linalg.norm(model._grid_xyz - centre, axis=1) < 15.0           # the grid around the pair
+    top = max(target[np.linalg.norm(xs - centre, axis=1) < 45.0].max(), F.RULE_DEPTH_MM)
+    limited = model._offset_field(tips)
+    monkeypatch.setattr(F, "LIMIT_RADIUS_FRACTION", 0.0)
+    free = model._offset_field(tips)
+    # measured on the phantom: the free field 2.1 mm above the highest offset near the pair, the limited one 0.01 below
+    assert free.ravel()[near].max() > top + 1.0
+    assert limited.ravel()[near].max() <= top + 1e-9
+    # at the sites the limiter changes little (the field still passes through the tips)
+    at_sites = np.abs(g.sample(limited, z, th) - g.sample(free, z, th))
+    assert np.median(at_sites) < 0.3
