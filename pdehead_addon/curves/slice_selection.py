@@ -42,6 +42,19 @@ Search
     wins. For a tolerance (:func:`select_for_tolerance`) the count
     is searched on the proxy (bisection over n) and verified on the real surface.
 
+    Measured, not adopted (issue 21, the closed eyes; CThead, t = 15, visible-face score mean / p95
+    mm, now 0.243 / 0.76): the face's samples (+-60 deg of -y) weighted 3x in the search's error
+    0.237 / 0.74, 6x or more 0.251 / 0.81 (the curves spread over the whole face, 4-6 mm apart at the
+    eyes either way); squared offsets 0.236 / 0.74. Marching cubes' eyelid line is the upper lid's
+    edge: the mask's outline steps out 1.5-3 mm between two neighbouring slices (z 132 -> 134, 20-30
+    deg left of straight ahead), a one-slice feature; marching cubes of the mask smoothed by 1.2 mm
+    shows it too. Renders (Cycles, front and three-quarter, looked at) of the PDE surface show it
+    only with every slice chosen there (124-136, four cranium curves given up) AND no u smoothing AND
+    a 1.5 mm closing ball with a 0.6 mm envelope Gaussian, no curve low-pass (0.250 / 0.84: p95 over
+    its target). Left a soft socket: that with the default u smoothing (0.259 / 0.89), or with the
+    default envelope (0.232 / 0.71), or with the automatic slices (0.248 / 0.79); every slice there
+    alone 0.248 / 0.81, no curve low-pass alone 0.237 / 0.74. No choice of slices brings it alone.
+
 Real error
     :func:`surface_error` solves the real surface through a chosen set and
     measures the distance (:func:`~.surface_metrics.point_surface_distance`) of
