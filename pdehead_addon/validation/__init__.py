@@ -12,3 +12,6 @@ from .dicom_export import write_dicom_series, write_phantom_series
 from .metrics import jaccard, per_slice_jaccard, reference_head_mask
 from .surface_metrics import symmetric_surface_distance
 from .surface_quality import surface_quality
+
+__all__ = ["write_dicom_series", "write_phantom_series", "jaccard", "per_slice_jaccard", "reference_head_mask",
+           "symmetric_surface_distance", "surface_quality"]

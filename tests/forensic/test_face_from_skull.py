@@ -303,7 +303,6 @@ def test_nose_has_alae_and_a_rounded_tip_and_the_eyes_lids(model, face):
     nose = model.nose
     dx = x - nose["mid_x"]
     front = c < -0.5
-    a_half = 0.5 * nose["width_mm"] - F.NOSE_ALA_HALF_MM
     rows = np.nonzero(bump.max(axis=1) > 0)[0]
     tip = float(bump.max())
     # the alae: at the row where the bump is widest, a raised wing beyond the lobule's edge on both sides, nothing
