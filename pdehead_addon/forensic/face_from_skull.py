@@ -116,9 +116,29 @@ DAMP_MIDLINE_DEG = 10.0
 #: the pegs are 12-13). At a site the bound is its own offset: the field still passes through every tip.
 LIMIT_RADIUS_FRACTION = 1.0
 LIMIT_SOFT_MM = 1.0
+#: A site's blend weight below which the limiter leaves it out (its term is then below 1e-12 x its offset).
+LIMIT_WEIGHT_FLOOR = 1e-12
 
 
 # ------------------------------------------------------------------------------------------ geometry
+def _site_windows(rows_on: np.ndarray, cols_on: np.ndarray):
+    """For each site i (the columns of ``rows_on`` (K, n) and ``cols_on`` (M, n)): ``(i, rows, cols)`` as
+    basic slices (views) covering its rows and columns; a run of columns across the seam (column 0) gives
+    two windows. Rows and columns of one site are one run each (the weights fall off with distance)."""
+    M = len(cols_on)
+    for i in range(rows_on.shape[1]):
+        r, c = np.flatnonzero(rows_on[:, i]), np.flatnonzero(cols_on[:, i])
+        if not r.size or not c.size:
+            continue
+        rows = slice(r[0], r[-1] + 1)
+        if c[-1] - c[0] + 1 == c.size or c.size == M:
+            yield i, rows, slice(c[0], c[-1] + 1)
+        else:                                            # wraps: [gap end .. M) and [0 .. gap start)
+            gap = int(np.flatnonzero(np.diff(c) > 1)[0])
+            yield i, rows, slice(c[gap + 1], M)
+            yield i, rows, slice(0, c[gap] + 1)
+
+
 @dataclass
 class FaceGrid:
     """The face's grid: rows at heights ``z`` and columns at angles ``theta`` around the vertical axis
@@ -508,8 +528,18 @@ class FaceModel:
         ring = self._cyl(np.zeros(len(g.theta)), g.theta)[:, :2]
         kz = np.exp(-((g.z[:, None] - xs[None, :, 2]) / R) ** 4)                                   # (K, n)
         kt = np.exp(-(((ring[:, None, :] - xs[None, :, :2]) ** 2).sum(-1) / (R * R)) ** 2)       # (M, n)
-        dev = (kz[:, None, :] * kt[None, :, :]) * (np.asarray(target, float)[None, None, :] - base[:, :, None])
-        hi, lo = base + dev.max(-1), base + dev.min(-1)
+        target = np.asarray(target, float)
+        # max / min over the sites of kz kt (target - base), each site on the rows and columns where its weight
+        # exceeds LIMIT_WEIGHT_FLOOR (about 2 R around it: a few % of the grid): the dense (K, M, n) product
+        # cost 13 ms of the live face's ~100 ms; elsewhere a site's term is 0 to within 1e-12 x its offset
+        hi, lo = np.zeros_like(base), np.zeros_like(base)
+        for i, rows, cols in _site_windows(kz > LIMIT_WEIGHT_FLOOR, kt > LIMIT_WEIGHT_FLOOR):
+            dev = np.multiply.outer(kz[rows, i], kt[cols, i])
+            dev *= target[i] - base[rows, cols]
+            np.maximum(hi[rows, cols], dev, out=hi[rows, cols])
+            np.minimum(lo[rows, cols], dev, out=lo[rows, cols])
+        hi += base
+        lo += base
         k = LIMIT_SOFT_MM
         h = np.clip(0.5 + 0.5 * (hi - field) / k, 0.0, 1.0)                 # smooth min(field, hi)
         out = hi + (field - hi) * h - k * h * (1.0 - h)

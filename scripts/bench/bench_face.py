@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -43,7 +44,7 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
-from _common import CTHEAD_RAW16_OPTIONS, SHARED_DATA  # noqa: E402
+from _common import CTHEAD_RAW16_OPTIONS, SHARED_DATA, load_note  # noqa: E402
 
 TARGET_SHARE, TARGET_MEAN = 0.80, 1.8
 BAND_MM = 2.5
@@ -302,6 +303,15 @@ def score(name: str, **options) -> dict:
     return out
 
 
+def _machine_text(results: dict) -> str:
+    """When and on what the scores were taken (each result's ``machine``; older JSON files have none)."""
+    m = next((r["machine"] for r in results.values() if "machine" in r), None)
+    if m is None:
+        return "machine not recorded"
+    load = ", ".join(f"{x:.2f}" for x in m["load"])
+    return f"{m['utc']} UTC, {m['cores']} cores, load average at the start [{load}]; {load_note(m['load'], m['cores'])}"
+
+
 def markdown(results: dict) -> str:
     lines = ["## Face from the skull (issue 23): `python3 scripts/bench/bench_face.py`", "",
              "The approximation made from the skull alone (soft tissue removed: every voxel below the bone level "
@@ -471,9 +481,9 @@ def markdown(results: dict) -> str:
               "[face_from_skull_ge.png](figures/face_from_skull_ge.png) (GE, no mandible): the vault, brow, orbits, "
               "eyes and ears are plausible; below the maxilla the face is still the neck rule, a straight column "
               "with no jaw (not improved this session).",
-              "", "Timings: one run on the shared 2-core machine with other jobs running (load average 7–11). "
+              "", f"Timings: one run, {_machine_text(results)}. "
               "Solve is the median of 9 solves at the defaults (field, PDE and a 160 × 240 mesh), wall-clock and CPU "
-              "time of the process; on this loaded machine the CPU time is the better guide to the ≤ 100 ms target "
+              "time of the process; on a loaded machine the CPU time is the better guide to the ≤ 100 ms target "
               "(the UI's own measure is scripts/bench/bench_live.py's). Issue 23's fourth session ran three jobs at once; "
               "the lips and ears cost nothing measurable (CThead, same process: solve 91 ms CPU with them, 94 ms "
               "without). Issue 23's fifth session ran at load average 5-6 (the solve times above, with BLAS free to "
@@ -501,6 +511,8 @@ def main(argv=None) -> int:
         write_section(ROOT / "docs" / "benchmarks.md", "face-from-skull", markdown(json.loads(args.from_json.read_text())))
         return 0
     results = {}
+    machine = {"utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime()), "cores": os.cpu_count(),
+               "load": list(os.getloadavg())}
     from pdehead_addon.core.errors import PDEHeadError
     for name in args.only:
         try:
@@ -510,6 +522,7 @@ def main(argv=None) -> int:
             print(f"{name}: not scored: {exc}", file=sys.stderr)
             continue
         keep = r.pop("_keep")
+        r["machine"] = machine
         results[name] = r
         f = r["face"]
         print(f"{name}: {100 * f['within_2_5']:.1f} % within ±2.5 mm, mean {f['mean_mm']:.2f}, p95 {f['p95_mm']:.2f} "

@@ -353,3 +353,40 @@ def test_field_does_not_overshoot_between_conflicting_pegs(model, face, monkeypa
     # at the sites the limiter changes little (the field still passes through the tips)
     at_sites = np.abs(g.sample(limited, z, th) - g.sample(free, z, th))
     assert np.median(at_sites) < 0.3
+
+
+def test_limiter_on_each_sites_window_equals_the_dense_blend(model, face):
+    """The limiter works on each site's rows and columns only (speed: the live face); it gives what the dense
+    (rows x columns x sites) max / min of the blends gives, to 1e-9 mm, on a field far off its base."""
+    import pdehead_addon.forensic.face_from_skull as F
+    g = model.grid
+    z, th, r = g.polar(model.field_sites(face.tips))
+    target = r - g.sample(model.profile, z, th)
+    xs = model._cyl(z, th)
+    base = model._offset_field(face.tips)
+    field = base + np.random.default_rng(1).normal(0.0, 3.0, base.shape)
+    R = F.LIMIT_RADIUS_FRACTION * float(model.options["spread_mm"])
+    ring = model._cyl(np.zeros(len(g.theta)), g.theta)[:, :2]
+    kz = np.exp(-((g.z[:, None] - xs[None, :, 2]) / R) ** 4)
+    kt = np.exp(-(((ring[:, None, :] - xs[None, :, :2]) ** 2).sum(-1) / (R * R)) ** 2)
+    dev = (kz[:, None, :] * kt[None, :, :]) * (target[None, None, :] - base[:, :, None])
+    hi, lo = base + dev.max(-1), base + dev.min(-1)
+    k = F.LIMIT_SOFT_MM
+    h = np.clip(0.5 + 0.5 * (hi - field) / k, 0.0, 1.0)
+    out = hi + (field - hi) * h - k * h * (1.0 - h)
+    h = np.clip(0.5 + 0.5 * (out - lo) / k, 0.0, 1.0)
+    dense = lo + (out - lo) * h + k * h * (1.0 - h)
+    limited = model._limited(field, base, xs, target)
+    assert np.abs(limited - dense).max() < 1e-9
+    assert np.abs(limited - field).max() > 1.0                 # the limiter did act on this field
+
+
+def test_site_windows_split_a_run_across_the_seam():
+    from pdehead_addon.forensic.face_from_skull import _site_windows
+    rows = np.zeros((10, 2), bool)
+    rows[2:5, 0] = rows[6:9, 1] = True
+    cols = np.zeros((12, 2), bool)
+    cols[3:7, 0] = True
+    cols[[10, 11, 0, 1], 1] = True                             # across column 0
+    got = [(i, (r.start, r.stop), (c.start, c.stop)) for i, r, c in _site_windows(rows, cols)]
+    assert got == [(0, (2, 5), (3, 7)), (1, (6, 9), (10, 12)), (1, (6, 9), (0, 2))]
