@@ -350,6 +350,11 @@ def predict_ears(landmarks: dict) -> list[dict]:
 
 
 # ------------------------------------------------------------------------------------------ shapes
+#: The face's front: the columns whose direction has cos(theta) below this (theta = 0 behind the head),
+#: about 78 degrees either side of straight ahead. The nose, the lips and the eyes are zero elsewhere.
+FRONT_COS = -0.2
+
+
 def mouth_shape(grid, mouth: dict | None, base: np.ndarray) -> np.ndarray | None:
     """Radial change (K, M) of the lips over the face ``base``: the oral fissure at the stomion's height
     (:func:`predict_mouth`), a groove :data:`LIP_GROOVE_MM` deep at the midline running out to the mouth's
@@ -362,7 +367,7 @@ def mouth_shape(grid, mouth: dict | None, base: np.ndarray) -> np.ndarray | None
     g = grid
     cx = g.centre[0]
     s, c = np.sin(g.theta), np.cos(g.theta)
-    front = (c < -0.2)[None, :]
+    front = (c < FRONT_COS)[None, :]
     x = cx + base * s[None, :]                                  # where each ray meets the face
     dx = x - mouth["mid_x"]
     u = np.abs(dx) / (0.5 * mouth["width_mm"])                  # 0 at the midline, 1 at the corners
@@ -394,7 +399,7 @@ def eye_shape(grid, landmarks: dict, base: np.ndarray) -> np.ndarray | None:
     g = grid
     cx = g.centre[0]
     s, c = np.sin(g.theta), np.cos(g.theta)
-    front = (c < -0.2)[None, :]
+    front = (c < FRONT_COS)[None, :]
     x = cx + base * s[None, :]
     zz = g.z[:, None]
     out = None
@@ -475,7 +480,7 @@ def nose_bump(grid, nose: dict | None, base: np.ndarray, tip_of) -> np.ndarray |
     g = grid
     cx, cy = g.centre
     s, c = np.sin(g.theta), np.cos(g.theta)
-    front = c < -0.2
+    front = c < FRONT_COS
     zn = float(n[2])
     zs = nose.get("subnasale_z")
     zs = float(ss[2]) + 4.0 if zs is None else float(zs)

@@ -49,8 +49,8 @@ from scipy import ndimage
 from .. import defaults as D
 from ..core.boundary_set import BoundarySet, knots_from_heights
 from ..core.errors import PDEHeadError
-from .face_features import (EAR_LENGTH_MM, EAR_WIDTH_MM, check_skull, ear_shape, eye_shape, mouth_shape, nose_bump,
-                            predict_eyes, predict_mouth, predict_nose)
+from .face_features import (EAR_LENGTH_MM, EAR_WIDTH_MM, FRONT_COS, check_skull, ear_shape, eye_shape, mouth_shape,
+                            nose_bump, predict_eyes, predict_mouth, predict_nose)
 from ..core.mesh import Mesh
 
 APPROXIMATION_LABEL = D.FACE_LABEL
@@ -574,13 +574,13 @@ class FaceModel:
         excess = np.where(midline, 0.0, np.maximum(off - DAMP_FREE_MM, 0.0))
         return RBF_REGULARISATION + (excess / DAMP_SCALE_MM) ** 2
 
-    def _mouth_shape(self, base: np.ndarray) -> np.ndarray | None:
-        """The lips over the face ``base`` (:func:`.face_features.mouth_shape`)."""
-        return mouth_shape(self.grid, self.mouth, base)
+    def _mouth_shape(self, base: np.ndarray, grid: FaceGrid | None = None) -> np.ndarray | None:
+        """The lips over the face ``base`` (:func:`.face_features.mouth_shape`; on ``grid``, default the model's)."""
+        return mouth_shape(grid or self.grid, self.mouth, base)
 
-    def _eye_shape(self, base: np.ndarray) -> np.ndarray | None:
+    def _eye_shape(self, base: np.ndarray, grid: FaceGrid | None = None) -> np.ndarray | None:
         """The closed eyes over the face ``base`` (:func:`.face_features.eye_shape`)."""
-        return eye_shape(self.grid, getattr(self, "landmarks_used", None) or {}, base)
+        return eye_shape(grid or self.grid, getattr(self, "landmarks_used", None) or {}, base)
 
     def _ear_shape(self) -> np.ndarray | None:
         """The default ears at the porions (:func:`.face_features.ear_shape`). Fixed by the skull: computed once."""
@@ -594,9 +594,22 @@ class FaceModel:
                 return tips[self.peg_names.index(n)]
         return None
 
-    def _nose_bump(self, base: np.ndarray, tips: np.ndarray) -> np.ndarray | None:
+    def _nose_bump(self, base: np.ndarray, tips: np.ndarray, grid: FaceGrid | None = None) -> np.ndarray | None:
         """The nose over the face ``base`` on the current peg ``tips`` (:func:`.face_features.nose_bump`)."""
-        return nose_bump(self.grid, self.nose, base, lambda *names: self._peg_tip(tips, *names))
+        return nose_bump(grid or self.grid, self.nose, base, lambda *names: self._peg_tip(tips, *names))
+
+    def _front(self) -> tuple[slice, FaceGrid]:
+        """The columns the nose, the lips and the eyes can touch (``cos theta < -0.2``: all three are zero
+        elsewhere) as a slice, and the grid of those columns: the features are made there alone (live speed)."""
+        if "_front_grid" not in self.__dict__:
+            g = self.grid
+            j = np.flatnonzero(np.cos(g.theta) < FRONT_COS)
+            if j.size and j[-1] - j[0] + 1 == j.size:
+                cols = slice(int(j[0]), int(j[-1]) + 1)
+            else:                                     # never for theta = 0 behind the head; all columns then
+                cols = slice(0, len(g.theta))
+            self.__dict__["_front_grid"] = (cols, FaceGrid(g.centre, g.z, g.theta[cols]))
+        return self.__dict__["_front_grid"]
 
     def _surface(self, radius: np.ndarray, nu=None, nv=None, top_z: float | None = None):
         from ..pde.pde_head import derived_once
@@ -688,15 +701,18 @@ class FaceModel:
         """The face's radius (K, M) over the profile: the tissue-depth ``offset`` field, then what a depth
         field cannot make (the nose, the lips, the ears). One place for :meth:`solve` and the live path."""
         radius = self.profile + offset
-        bump = self._nose_bump(radius, tips)
+        cols, front = self._front()
+        face = radius[:, cols]
+        bump = self._nose_bump(face, tips, front)
         if bump is not None:
-            radius = radius + bump
-        lips = self._mouth_shape(radius)
+            face = face + bump
+        lips = self._mouth_shape(face, front)
         if lips is not None:
-            radius = radius + lips
-        eyes = self._eye_shape(radius)
+            face = face + lips
+        eyes = self._eye_shape(face, front)
         if eyes is not None:
-            radius = radius + eyes
+            face = face + eyes
+        radius[:, cols] = face
         ears = self._ear_shape()
         if ears is not None:
             radius = radius + ears

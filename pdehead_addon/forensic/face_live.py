@@ -41,7 +41,7 @@ from ..pde.surface_mesh import ring_in_plane
 EXACT_TOLERANCE_MM = 1e-6
 #: What :func:`model_state` does not keep: the sites of the field's grid (made again from the grid) and the
 #: ears' radial bumps (made again from the landmarks kept, in milliseconds).
-_DERIVED = ("_grid_xyz", "_ears")
+_DERIVED = ("_grid_xyz", "_ears", "_front_grid")
 #: What :func:`model_state` keeps in single precision: the face's UV layout (texture coordinates need no
 #: more; it is half of the text otherwise: 0.56 of 1.14 MB on the phantom), and the bone's raw radius map and its
 #: closed hull (what the live face does not read: the raw map is kept for the record, the hull for the

@@ -390,3 +390,18 @@ def test_site_windows_split_a_run_across_the_seam():
     cols[[10, 11, 0, 1], 1] = True                             # across column 0
     got = [(i, (r.start, r.stop), (c.start, c.stop)) for i, r, c in _site_windows(rows, cols)]
     assert got == [(0, (2, 5), (3, 7)), (1, (6, 9), (10, 12)), (1, (6, 9), (0, 2))]
+
+
+def test_features_made_on_the_front_columns_alone_are_those_of_the_whole_grid(model, face):
+    """The nose, the lips and the eyes are made on the front columns only (live speed): the face's radius is
+    the same, to the bit, as with each feature made over every column (they are zero behind the front)."""
+    offset = model._offset_field(face.tips)
+    radius = model.profile + offset
+    for feature in (lambda r: model._nose_bump(r, face.tips), model._mouth_shape, model._eye_shape):
+        d = feature(radius)
+        assert d is not None
+        radius = radius + d
+    radius = radius + model._ear_shape()
+    cols, _ = model._front()
+    assert 0 < cols.stop - cols.start < 0.5 * model.profile.shape[1]
+    np.testing.assert_array_equal(model.shaped_radius(offset, face.tips), radius)
