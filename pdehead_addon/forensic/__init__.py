@@ -10,6 +10,7 @@ Modules:
 - :mod:`.face_features`       Face from the skull (issue 23): what a tissue-depth field cannot make, from published prediction rules
 - :mod:`.face_from_skull`     Face from the skull (issue 23): a closed PDE face solved through the tissue-depth pegs
 - :mod:`.face_live`           The live face (issue 23, point 2): a dragged peg's fast path, and a prepared face model kept in a file
+- :mod:`.face_profile`        Face from the skull (issue 23): the face's grid and the bone's closed outer profile on it
 - :mod:`.landmark_bilateral`  Bilateral landmarks in the landmark frame, each side by the same rule (orbit margins, zygion, alare, canines, mandible)
 - :mod:`.landmark_frame`      The landmark frame: the bone mask resampled on a rigid frame's grid, its depth images and shared pixel tools
 - :mod:`.landmark_midline`    Mid-sagittal landmarks on the frame's profile: vertex, opisthocranion, the nasal profile, the jaws

@@ -9,14 +9,14 @@ Method
 Everything is expressed on a cylinder of directions about the vertical (patient z) axis through the
 skull's centroid: a row every ``row_mm`` of height, a column every ``360 / columns`` degrees.
 
-1. *The bone's outer profile* (:func:`bone_profile`): per (row, column) bin the outermost point of the
+1. *The bone's outer profile* (:func:`.face_profile.bone_profile`): per (row, column) bin the outermost point of the
    bone skull; per row the 2-D convex hull of that ring (which bridges the orbits, the nasal aperture,
    the temporal fossae and the cheeks), a grey closing and a Gaussian smoothing along the height, and
-   away from the pegs a stronger one (:func:`_smooth_far_from_pegs`: the rows' hulls step). Where a
-   column meets no bone (below the skull base at the back, below the mandible) the neck rule of
-   :func:`_neck_fill` continues the profile downward.
+   away from the pegs a stronger one (:func:`.face_profile.smooth_far_from_pegs`: the rows' hulls step). Where a
+   column meets no bone (below the skull base at the back, below the mandible) a neck rule
+   (:mod:`.face_profile`) continues the profile downward.
 2. *The pegs*: each landmark of the depth table stands on the bone along the bone's outward normal,
-   averaged over the bone around it (:func:`peg_normals`); its tip (base + depth x normal) is where the skin must pass.
+   averaged over the bone around it (:func:`.face_profile.peg_normals`); its tip (base + depth x normal) is where the skin must pass.
    In the cylinder frame each tip is a site (z, angle) with a radial offset over the profile.
 3. *The tissue-depth field* (:meth:`FaceModel._offset_field`): over the whole head, a wide
    normalised Gaussian average of the peg offsets (Shepard / partition of unity, radius
@@ -44,11 +44,11 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import ndimage
 
 from .. import defaults as D
 from ..core.boundary_set import BoundarySet, knots_from_heights
 from ..core.errors import PDEHeadError
+from .face_profile import FaceGrid, bone_profile, peg_normals, smooth_far_from_pegs
 from .face_features import (EAR_LENGTH_MM, EAR_WIDTH_MM, FRONT_COS, check_skull, ear_shape, eye_shape, mouth_shape,
                             nose_bump, predict_eyes, predict_mouth, predict_nose)
 from ..core.mesh import Mesh
@@ -62,39 +62,6 @@ APPROXIMATION_LABEL = D.FACE_LABEL
 RULE_DEPTH_MM = 5.5
 #: Weight of the rule depth in the Shepard average (a peg at distance ``spread_mm`` weighs e^-1 = 0.37).
 RULE_WEIGHT = 0.04
-#: The neck below the skull: radius (mm) of the neck about its axis, which lies this far behind the skull's centroid
-#: axis. Adult neck circumference ~ 36-40 cm (anthropometric surveys, e.g. Ben-Noun et al. 2001, Obesity Research
-#: 9(8):470-477: men 38.0 cm, women 32.5 cm mean; cited from memory of that survey, not re-read) -> radius ~ 55-60 mm.
-#: It shapes only the neck, outside the scored face.
-NECK_RADIUS_MM = 57.0
-NECK_BEHIND_MM = 12.0
-#: How fast the neck recedes below the skull base (mm per mm of height: 0.8 ~ a 40 degree slope).
-NECK_SLOPE = 0.8
-#: The bone's radius map is made on at most this many columns (2 degrees) and interpolated to the face's grid (finer
-#: bins meet no bone vertex on a coarse skull mesh: GE 29 % within +-2.5 mm on 360 columns, 35 % on 180).
-PROFILE_COLUMNS = 180
-#: Closing of the bone's radius map: how wide a gap (mm) the envelope bridges (the orbit is ~ 40 mm wide,
-#: the nasal aperture ~ 25 mm).
-CLOSING_MM = 15.0
-#: Radius (mm) over which the bone's normal at a landmark is averaged (:func:`peg_normals`).
-PEG_NORMAL_RADIUS_MM = 8.0
-#: A peg follows the averaged bone normal unless it leans more than 45 degrees from the closed profile's
-#: normal (then the profile's): e.g. subspinale on a mask whose thin maxilla is gone faces up, not forward.
-PEG_NORMAL_MIN_COS = 0.7
-#: Vertical Gaussian smoothing (mm) of the closed profile: each row's hull is made on its own, and rows a few mm
-#: apart step (the teeth, the zygomatic arches' edges); a skin does not.
-PROFILE_SMOOTH_MM = 4.0
-#: ... and around the head (degrees; the Gaussian of the profile and of its normals): one column of the first,
-#: 180-column grid, kept in degrees when the grid became 360 columns (issue 23's sixth session).
-PROFILE_SMOOTH_DEG = 2.0
-#: Away from the pegs the closed profile is smoothed more, in 2-D on the (angle, height) grid: a Gaussian of
-#: :data:`PROFILE_SMOOTH_FAR_MM` of height and :data:`PROFILE_SMOOTH_FAR_ARC_MM` of arc (at the median radius): each
-#: row's hull is made on its own, which leaves horizontal ridges across the lower face that no peg corrects. Within
-#: about :data:`PROFILE_NEAR_MM` of a peg tip the lightly smoothed profile is kept (Gaussian blend). CThead (issue
-#: 23b): 57.3 -> 57.5 % within +-2.5 mm; row-to-row second difference of the face's radius 0.48 -> 0.40 mm.
-PROFILE_SMOOTH_FAR_MM = 8.0
-PROFILE_SMOOTH_FAR_ARC_MM = 2.0
-PROFILE_NEAR_MM = 10.0
 #: Width of the exact correction's Gaussians, as a fraction of ``spread_mm``.
 NARROW_FRACTION = 0.5
 #: Regularisation of the exact peg interpolation (relative to the kernel's unit diagonal).
@@ -137,231 +104,6 @@ def _site_windows(rows_on: np.ndarray, cols_on: np.ndarray):
             gap = int(np.flatnonzero(np.diff(c) > 1)[0])
             yield i, rows, slice(c[gap + 1], M)
             yield i, rows, slice(0, c[gap] + 1)
-
-
-@dataclass
-class FaceGrid:
-    """The face's grid: rows at heights ``z`` and columns at angles ``theta`` around the vertical axis
-    through ``centre`` (patient mm, radians)."""
-    centre: np.ndarray          # (2,) x, y of the vertical axis
-    z: np.ndarray               # (K,) row heights, ascending
-    theta: np.ndarray           # (M,) column angles; 0 = posterior (+y), pi/2 = patient's left (+x)
-
-    def polar(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        d = np.asarray(p, float)[..., :2] - self.centre
-        return np.asarray(p, float)[..., 2], np.mod(np.arctan2(d[..., 0], d[..., 1]), 2 * np.pi), np.hypot(d[..., 0], d[..., 1])
-
-    def point(self, z, theta, r) -> np.ndarray:
-        z, theta, r = np.broadcast_arrays(np.asarray(z, float), np.asarray(theta, float), np.asarray(r, float))
-        return np.stack([self.centre[0] + r * np.sin(theta), self.centre[1] + r * np.cos(theta), z], axis=-1)
-
-    def sample(self, table: np.ndarray, z: np.ndarray, theta: np.ndarray) -> np.ndarray:
-        """Bilinear value of a (K, M) map at heights ``z`` and angles ``theta`` (periodic in the angle)."""
-        K, M = table.shape
-        fz = np.clip((np.asarray(z, float) - self.z[0]) / (self.z[1] - self.z[0]), 0, K - 1 - 1e-9)
-        ft = np.mod(np.asarray(theta, float), 2 * np.pi) / (2 * np.pi) * M
-        k0, j0 = np.floor(fz).astype(int), np.floor(ft).astype(int) % M
-        a, b = fz - k0, ft - np.floor(ft)
-        j1 = (j0 + 1) % M
-        k1 = np.minimum(k0 + 1, K - 1)
-        return ((1 - a) * (1 - b) * table[k0, j0] + (1 - a) * b * table[k0, j1]
-                + a * (1 - b) * table[k1, j0] + a * b * table[k1, j1])
-
-
-def _columns(degrees: float, grid: "FaceGrid") -> float:
-    """An angle in columns of the grid."""
-    return float(np.radians(degrees) / (grid.theta[1] - grid.theta[0]))
-
-
-def _resample_columns(table: np.ndarray, columns: int) -> np.ndarray:
-    """A (K, M) map periodic in its columns, linearly interpolated to ``columns`` columns (NaN stays NaN)."""
-    K, M = table.shape
-    f = np.arange(columns) * (M / columns)
-    j0 = np.floor(f).astype(int) % M
-    a = f - np.floor(f)
-    return (1 - a) * table[:, j0] + a * table[:, (j0 + 1) % M]
-
-
-def bone_profile(skull: Mesh, grid: FaceGrid, base_z: float | None = None,
-                 closing_mm: float = CLOSING_MM) -> tuple[np.ndarray, np.ndarray]:
-    """The bone's outer radius per (row, column) bin and its closed envelope.
-
-    1. per bin the outermost skull vertex (NaN where the ray meets no bone);
-    2. gaps inside a column are interpolated along the height; below ``base_z`` (the skull base) the neck
-       rule of :func:`_neck_fill`;
-    3. per row the 2-D convex hull of the ring: the envelope a skin stretched over the bone would take
-       across the orbits, the nasal aperture, the temporal fossae and the cheeks (between the zygoma and
-       the mandible), where no depth is measured;
-    4. a grey closing over ``closing_mm`` of height (the vertical gaps, e.g. the nasal aperture above the
-       maxilla) and a Gaussian smoothing (:data:`PROFILE_SMOOTH_MM` of height, 1 column).
-
-    Returns
-    -------
-    raw : (K, M) outermost bone radius per bin (NaN where the bin meets no bone)
-    closed : (K, M) the closed, gap-filled, smoothed profile (no NaN)
-    """
-    M_face = len(grid.theta)
-    if M_face > PROFILE_COLUMNS:                 # the bone's map on the coarser grid, then interpolated (see there)
-        coarse = FaceGrid(grid.centre, grid.z, np.arange(PROFILE_COLUMNS) * 2 * np.pi / PROFILE_COLUMNS)
-        raw_c, sm_c = bone_profile(skull, coarse, base_z, closing_mm)
-        return _resample_columns(raw_c, M_face), _resample_columns(sm_c, M_face)
-    z, th, r = grid.polar(skull.vertices)
-    dz = grid.z[1] - grid.z[0]
-    K, M = len(grid.z), len(grid.theta)
-    k = np.round((z - grid.z[0]) / dz).astype(int)
-    j = np.round(th / (2 * np.pi) * M).astype(int) % M
-    ok = (k >= 0) & (k < K)
-    raw = np.full(K * M, -np.inf)
-    np.maximum.at(raw, k[ok] * M + j[ok], r[ok])
-    raw = raw.reshape(K, M)
-    raw[~np.isfinite(raw)] = np.nan
-    filled = _neck_fill(raw, grid, base_z)
-    hull = _row_hulls(filled, grid.theta)
-    kz = max(1, int(round(closing_mm / dz)))
-    pad = kz
-    padded = np.pad(hull, ((pad, pad), (0, 0)), mode="edge")
-    closed = ndimage.grey_closing(padded, size=(kz, 1), mode="wrap")[pad:-pad]
-    closed = np.maximum(closed, hull)
-    sm = ndimage.gaussian_filter(np.pad(closed, ((pad, pad), (0, 0)), mode="edge"),
-                                 sigma=(PROFILE_SMOOTH_MM / dz, _columns(PROFILE_SMOOTH_DEG, grid)),
-                                 mode="wrap")[pad:-pad]
-    return raw, sm
-
-
-def _smooth_far_from_pegs(profile: np.ndarray, grid: FaceGrid, sites: np.ndarray) -> np.ndarray:
-    """The closed profile smoothed in 2-D (:data:`PROFILE_SMOOTH_FAR_MM` of height,
-    :data:`PROFILE_SMOOTH_FAR_ARC_MM` of arc) where no peg stands, blended into the lightly smoothed one
-    within ~ :data:`PROFILE_NEAR_MM` of the peg tips (weight: the largest Gaussian of the distance on the
-    cylinder of the median radius). Computed once in :meth:`FaceModel.prepare` (at the table's depths), so
-    solve() is unchanged."""
-    if PROFILE_SMOOTH_FAR_MM <= 0:
-        return profile
-    dz = float(grid.z[1] - grid.z[0])
-    dth = float(grid.theta[1] - grid.theta[0])
-    rho = float(np.median(profile))
-    sig = (PROFILE_SMOOTH_FAR_MM / dz, PROFILE_SMOOTH_FAR_ARC_MM / (rho * dth))
-    strong = ndimage.gaussian_filter(profile, sigma=sig, mode=("nearest", "wrap"))
-    z, th, _ = grid.polar(sites)
-    dzs = grid.z[:, None, None] - z[None, None, :]
-    dts = np.angle(np.exp(1j * (grid.theta[None, :, None] - th[None, None, :]))) * rho
-    near = np.exp(-(dzs ** 2 + dts ** 2) / (2 * PROFILE_NEAR_MM ** 2)).max(axis=2)
-    return near * profile + (1 - near) * strong
-
-
-def _row_hulls(radius: np.ndarray, theta: np.ndarray) -> np.ndarray:
-    """Per row, the radius along each column's ray of the 2-D convex hull of the row's ring."""
-    from scipy.spatial import ConvexHull
-
-    out = radius.copy()
-    s, c = np.sin(theta), np.cos(theta)
-    for k in range(radius.shape[0]):
-        xy = np.column_stack([radius[k] * s, radius[k] * c])
-        try:
-            idx = ConvexHull(xy).vertices
-        except Exception:                                     # degenerate row: keep it
-            continue
-        idx = np.sort(idx)                                    # hull vertices in angle order (rays are ordered)
-        # between consecutive hull vertices a and b, a ray at angle t meets the chord a-b
-        nxt = np.roll(idx, -1)
-        for a, b in zip(idx, nxt):
-            span = (np.arange(a, b + (len(theta) if b <= a else 0) + 1)) % len(theta)
-            pa, pb = xy[a], xy[b]
-            d = np.column_stack([s[span], c[span]])
-            e = pb - pa
-            # solve t * d = pa + u * e  ->  t = cross(pa, e) / cross(d, e)
-            den = d[:, 0] * e[1] - d[:, 1] * e[0]
-            num = pa[0] * e[1] - pa[1] * e[0]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                t = np.where(np.abs(den) > 1e-12, num / den, radius[k, span])
-            out[k, span] = np.maximum(radius[k, span], np.where(np.isfinite(t) & (t > 0), t, radius[k, span]))
-    return out
-
-
-def _neck_fill(raw: np.ndarray, grid: FaceGrid, base_z: float | None = None) -> np.ndarray:
-    """Fill bins that meet no bone, and shape the neck below the skull base.
-
-    Gaps inside a column are interpolated along the height; above the skull's top row the top is
-    repeated. Below ``base_z`` (the skull base) the rays meet the mandible, the mastoids and what is
-    left of the upper cervical spine, none of which is the neck's outline: there each column keeps its
-    bone where the bone lies further out, and otherwise recedes from the row above by at most
-    :data:`NECK_SLOPE` mm per mm of height (the occiput's curve into the nape, the chin's into the
-    throat) down to the neck, a circle of :data:`NECK_RADIUS_MM` about an axis :data:`NECK_BEHIND_MM`
-    behind the skull's axis. A rule, not a measurement of this head.
-    """
-    K, M = raw.shape
-    out = raw.copy()
-    good = np.isfinite(out)
-    rows = np.arange(K)
-    for j in np.nonzero(good.sum(0) >= 2)[0]:                 # gaps inside a column (per column: 180 at most)
-        gi = np.nonzero(good[:, j])[0]
-        inside = (rows >= gi[0]) & (rows <= gi[-1])
-        out[inside, j] = np.interp(rows[inside], gi, out[gi, j])
-    th = grid.theta
-    b = NECK_BEHIND_MM
-    neck = b * np.cos(th) + np.sqrt(np.maximum(NECK_RADIUS_MM ** 2 - (b * np.sin(th)) ** 2, 1.0))
-    dz = grid.z[1] - grid.z[0]
-    top = int(np.nonzero(np.isfinite(out).any(1))[0].max()) if np.isfinite(out).any() else K - 1
-    kb = top if base_z is None else int(np.clip(np.floor((base_z - grid.z[0]) / dz), 0, top))
-    for k in range(kb - 1, -1, -1):                           # downward from the skull base
-        above = out[k + 1]
-        bone = np.where(np.isfinite(out[k]), out[k], -np.inf)
-        out[k] = np.maximum(bone, np.maximum(np.minimum(above, neck), above - NECK_SLOPE * dz))
-    for k in range(1, K):                                     # above the top: repeat
-        miss = ~np.isfinite(out[k]) & np.isfinite(out[k - 1])
-        out[k, miss] = out[k - 1, miss]
-    for k in range(K - 2, -1, -1):
-        miss = ~np.isfinite(out[k]) & np.isfinite(out[k + 1])
-        out[k, miss] = out[k + 1, miss]
-    if not np.all(np.isfinite(out)):
-        out[~np.isfinite(out)] = NECK_RADIUS_MM
-    return out
-
-
-def envelope_normals(grid: FaceGrid, profile: np.ndarray, points: np.ndarray, smooth_mm: float = 6.0) -> np.ndarray:
-    """Outward unit normals of the closed profile (the surface r = profile(z, angle)) at the points' bins."""
-    dz = grid.z[1] - grid.z[0]
-    R = ndimage.gaussian_filter(profile, sigma=(smooth_mm / dz, _columns(PROFILE_SMOOTH_DEG, grid)),
-                                mode=("nearest", "wrap"))
-    Rz = np.gradient(R, dz, axis=0)
-    dth = grid.theta[1] - grid.theta[0]
-    Rt = (np.roll(R, -1, axis=1) - np.roll(R, 1, axis=1)) / (2 * dth)
-    z, th, _ = grid.polar(points)
-    r, rz, rt = grid.sample(R, z, th), grid.sample(Rz, z, th), grid.sample(Rt, z, th)
-    s, c = np.sin(th), np.cos(th)
-    d_th = np.stack([rt * s + r * c, rt * c - r * s, np.zeros_like(r)], -1)
-    d_z = np.stack([rz * s, rz * c, np.ones_like(r)], -1)
-    n = np.cross(d_th, d_z)
-    n /= np.linalg.norm(n, axis=1, keepdims=True)
-    radial = np.stack([s, c, np.zeros_like(s)], -1)
-    return np.where((np.einsum("ij,ij->i", n, radial) < 0)[:, None], -n, n)
-
-
-def peg_normals(skull: Mesh, bases: np.ndarray, grid: FaceGrid, profile: np.ndarray,
-                radius_mm: float = PEG_NORMAL_RADIUS_MM) -> np.ndarray:
-    """The direction each peg stands in: the bone's outward normal at the landmark, averaged over the bone
-    surface within ``radius_mm`` (area-weighted; a single triangle's normal on a thin or fragmentary bone,
-    e.g. the maxilla at the bone level, points anywhere); where that still points more than 45 degrees
-    away from the closed profile's outward normal (:data:`PEG_NORMAL_MIN_COS`), the profile's normal (not above
-    the profile's last row, where its normal means nothing: the vertex keeps the bone's).
-    The T-Table's convention is a depth measured along the bone normal at the landmark."""
-    from scipy.spatial import cKDTree
-
-    v, t = skull.vertices, skull.triangles
-    if len(skull.quads):
-        t = np.concatenate([t, skull.quads[:, [0, 1, 2]], skull.quads[:, [0, 2, 3]]])
-    a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
-    fn = np.cross(b - a, c - a)                                    # area-weighted (|fn| = 2 area)
-    tree = cKDTree((a + b + c) / 3.0)
-    env = envelope_normals(grid, profile, bases)
-    out = np.empty_like(bases)
-    for i, p in enumerate(bases):
-        idx = tree.query_ball_point(p, radius_mm)
-        n = fn[idx].sum(axis=0) if idx else env[i]
-        norm = np.linalg.norm(n)
-        n = n / norm if norm > 0 else env[i]
-        # above the last row (vertex) the profile's normal is meaningless (the rows' radius near the axis): the bone's
-        out[i] = n if float(n @ env[i]) >= PEG_NORMAL_MIN_COS or p[2] > grid.z[-1] else env[i]
-    return out
 
 
 # ------------------------------------------------------------------------------------------ the model
@@ -458,7 +200,7 @@ class FaceModel:
         raw, profile = bone_profile(skull, grid, base_z)
         normals = peg_normals(skull, bases, grid, profile)
         hull_profile = profile
-        profile = _smooth_far_from_pegs(profile, grid, bases + depths[:, None] * normals)
+        profile = smooth_far_from_pegs(profile, grid, bases + depths[:, None] * normals)
         rule_sites = [(n, p, w) for n, p, w in predict_eyes(lm)]
         nose = predict_nose(lm, skull)
         mouth = predict_mouth(lm)
