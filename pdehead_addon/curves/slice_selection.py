@@ -293,10 +293,30 @@ class Candidates:
         du = np.gradient(sub, self.chord, axis=0) if len(sub) > 1 else np.zeros_like(sub)
         n = np.cross(dv, du)
         self.normals = n / np.maximum(np.linalg.norm(n, axis=2, keepdims=True), 1e-12)
+        # the proxy works on planar rows (x of every sample, then y, then z): each coordinate's plane of
+        # a prediction is a contiguous block, and the samples' own offset along the normal is computed once
+        self.planar = np.ascontiguousarray(sub.transpose(0, 2, 1)).reshape(len(sub), -1)     # (N, 3m)
+        self.planar_normals = np.ascontiguousarray(self.normals.transpose(2, 0, 1))         # (3, N, m)
+        self.sample_offsets = np.einsum("kmc,kmc->km", sub, self.normals)                   # (N, m)
 
     @property
     def count(self) -> int:
         return int(self.slices.size)
+
+    def pair_gaps(self) -> np.ndarray:
+        """(N, N): the mean distance of equal-v proxy samples between candidates a < b (upper triangle).
+
+        The proxy's chord positions of every chosen set, read off one table (computed once per
+        candidate set, row by row: the same numbers as the differences of each set's curves).
+        """
+        table = self.__dict__.get("_pair_gaps")
+        if table is None:
+            sub, N = self.sub, self.count
+            table = np.zeros((N, N))
+            for a in range(N - 1):       # a loop over the ~100 candidates, each row one vectorised step
+                table[a, a + 1:] = np.linalg.norm(sub[a + 1:] - sub[a], axis=2).mean(axis=1)
+            self.__dict__["_pair_gaps"] = table
+        return table
 
 
 def attach_candidates(bset, cand: Candidates) -> None:
@@ -339,13 +359,11 @@ def proxy_errors(cand: Candidates, chosen: np.ndarray, dome: bool = True) -> tup
 def _proxy_errors(cand: Candidates, idx: np.ndarray, dome: bool) -> tuple[np.ndarray, np.ndarray]:
     from ..pde.pde_basis import small_matmul
     from ..pde.pde_spline import dome_height, natural_spline_matrix, smoothing_spline_values
-    sub = cand.sub
-    n, m = idx.size, sub.shape[1]
-    Y = sub[idx]                                                         # (n, m, 3)
-    gap = np.linalg.norm(np.diff(Y, axis=0), axis=2).mean(axis=1)
+    n, m = idx.size, cand.sub.shape[1]
+    gap = cand.pair_gaps()[idx[:-1], idx[1:]]
     pos = np.concatenate([[0.0], np.cumsum(np.maximum(gap, 1e-6))])
     L = _approximation(cand, cand.heights[idx])
-    Ys = Y.reshape(n, -1)
+    Ys = cand.planar[idx]                                                # (n, 3m): x, y, z planes
     if L > 0 and n >= 3:
         Ys = smoothing_spline_values(pos, Ys, float(L))
     knots, data = pos, Ys
@@ -360,19 +378,23 @@ def _proxy_errors(cand: Candidates, idx: np.ndarray, dome: bool) -> tuple[np.nda
             domes[top3] = dome_height(cand.curves[idx[-3:]], cand.heights[idx[-3:]], cand.meta.get("vertex_z"))
         height = domes[top3]
         sign = 1.0 if cand.heights[-1] >= cand.heights[0] else -1.0
-        ring = Ys[-1].reshape(m, 3)
-        vertex = np.array([ring[:, 0].mean(), ring[:, 1].mean(), zt + sign * height])
+        vertex = np.array([Ys[-1, :m].mean(), Ys[-1, m:2 * m].mean(), zt + sign * height])
         tip = pos[-1] + float(np.linalg.norm(top - vertex, axis=1).mean())
         knots = np.concatenate([pos, [tip]])
-        data = np.concatenate([Ys, np.tile(vertex, m)[None]])
+        data = np.concatenate([Ys, np.repeat(vertex, m)[None]])
     # each candidate's position: between its chosen neighbours, by the candidates' own chord length
     j = np.clip(np.searchsorted(idx, np.arange(cand.count), side="right") - 1, 0, n - 2)
     f0, f1 = cand.chord[idx[j]], cand.chord[idx[j + 1]]
     s = pos[j] + (cand.chord - f0) / (f1 - f0) * (pos[j + 1] - pos[j])
-    # in column blocks that stay single-threaded in BLAS (the same numbers, measured bit for bit on the
-    # scan's 775 sets; OpenBLAS's threads made this 128 x 32 by 32 x 192 product 4-5 x slower on 2 busy cores)
-    pred = small_matmul(natural_spline_matrix(knots, s), data).reshape(cand.count, m, 3)
-    off = np.abs(np.einsum("kmc,kmc->km", pred - sub, cand.normals))
+    # in column blocks that stay single-threaded in BLAS (OpenBLAS's threads made this 128 x 32 by 32 x 192
+    # product 4-5 x slower on 2 busy cores)
+    pred = small_matmul(natural_spline_matrix(knots, s), data)          # (N, 3m)
+    nx, ny, nz = cand.planar_normals
+    off = pred[:, :m] * nx
+    off += pred[:, m:2 * m] * ny
+    off += pred[:, 2 * m:] * nz
+    off -= cand.sample_offsets
+    np.abs(off, out=off)
     return off.mean(axis=1), off.max(axis=1)
 
 

@@ -132,25 +132,44 @@ def natural_spline_matrix(x: np.ndarray, s: np.ndarray) -> np.ndarray:
     A[rows, span + 1] += t
     if m > 2:
         # second derivatives at the knots: T M = D y, M_0 = M_{m-1} = 0
-        from scipy.linalg import solve_banded
         k = m - 2
-        i = np.arange(k)
-        band = np.zeros((3, k))
-        band[0, 1:] = h[1:-1]                                         # upper diagonal
-        band[1] = 2.0 * (h[:-1] + h[1:])
-        band[2, :-1] = h[1:-1]                                        # lower diagonal
         D = np.zeros((k, m))
-        D[i, i] = 6.0 / h[:-1]
-        D[i, i + 1] = -6.0 / h[:-1] - 6.0 / h[1:]
-        D[i, i + 2] = 6.0 / h[1:]
+        flat = np.arange(k) * (m + 1)                                   # D[i, i]
+        D.flat[flat] = 6.0 / h[:-1]
+        D.flat[flat + 1] = -6.0 / h[:-1] - 6.0 / h[1:]
+        D.flat[flat + 2] = 6.0 / h[1:]
         Mpp = np.zeros((m, m))
-        # a banded solve: a dense LAPACK solve costs ~5x more here (BLAS threads on busy cores)
-        Mpp[1:-1] = solve_banded((1, 1), band, D, check_finite=False)
+        Mpp[1:-1] = _tridiagonal_lapack(h[1:-1], 2.0 * (h[:-1] + h[1:]), D)
         hs = h[span]
         a = hs ** 2 / 6.0 * ((1.0 - t) ** 3 - (1.0 - t))
         b = hs ** 2 / 6.0 * (t ** 3 - t)
         A += a[:, None] * Mpp[span] + b[:, None] * Mpp[span + 1]
     return A
+
+
+@lru_cache(maxsize=1)
+def _lapack():
+    """LAPACK's ``gtsv`` (tridiagonal) and ``pbsv`` (symmetric positive definite band) for float64.
+
+    Called directly: scipy's ``solve_banded`` / ``solveh_banded`` call the same routines with the same
+    arguments (so the same numbers, bit for bit) after checks that cost more than these small solves
+    (the automatic selection makes ~900 of each: 0.25 s of wrappers on CThead). Never a dense BLAS /
+    LAPACK call, whose OpenBLAS worker threads made the selection's ~800 small solves cost 0.4-2.8 s
+    of CPU in identical runs on two busy cores.
+    """
+    from scipy.linalg.lapack import dgtsv, dpbsv
+    return dgtsv, dpbsv
+
+
+def _tridiagonal_lapack(off: np.ndarray, diag: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """Solve the symmetric tridiagonal system (``off`` below and above ``diag``) for ``rhs`` (k, ...)."""
+    if len(diag) == 1:                                  # as solve_banded: LAPACK wants one off-diagonal
+        return rhs / diag[0]
+    gtsv = _lapack()[0]
+    x, info = gtsv(off, diag, off, rhs)[3:]
+    if info != 0:
+        raise np.linalg.LinAlgError(f"tridiagonal spline system: LAPACK gtsv info {info}")
+    return x
 
 
 def smoothing_spline_values(x: np.ndarray, y: np.ndarray, length: float) -> np.ndarray:
@@ -199,7 +218,6 @@ def _smoother(x_bytes: bytes, length: float) -> np.ndarray:
     ----------
     Reinsch, C. H. (1967). Smoothing by spline functions. Numer. Math. 10, 177-183.
     """
-    from scipy.linalg import solveh_banded
     x = np.frombuffer(x_bytes, dtype=np.float64)
     m = len(x)
     h = np.diff(x)
@@ -217,7 +235,9 @@ def _smoother(x_bytes: bytes, length: float) -> np.ndarray:
     rhs = np.zeros((n, m))                              # Q^T
     j = np.arange(n)
     rhs[j, j], rhs[j, j + 1], rhs[j, j + 2] = a, b, c
-    X = solveh_banded(band, rhs, check_finite=False)    # A^-1 Q^T, (n, m)
+    X, info = _lapack()[1](band, rhs)[1:]               # A^-1 Q^T, (n, m): LAPACK pbsv, upper form
+    if info != 0:
+        raise np.linalg.LinAlgError(f"smoothing spline system: LAPACK pbsv info {info}")
     # the smoother is linear, so one small solve serves every harmonic and coordinate (real and
     # imaginary parts alike)
     QX = np.zeros((m, m))

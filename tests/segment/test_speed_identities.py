@@ -288,3 +288,72 @@ def test_clean_up_without_the_float_volume_equals_it(phantom_seg, phantom):
             assert np.array_equal(got, ref) and got_stats == ref_stats, (noise, data.dtype)
             assert ref_stats["cushion_voxels"] > 0
     assert got_stats["smoothing_sigma"] > 0
+
+
+def test_natural_spline_matrix_equals_scipys_banded_solve_bit_for_bit():
+    """The spline's second derivatives go to LAPACK's gtsv directly (scipy's ``solve_banded`` calls the
+    same routine after checks that cost more than these small solves): the same matrix, bit for bit."""
+    from scipy.linalg import solve_banded
+    from pdehead_addon.pde.pde_spline import natural_spline_matrix
+    rng = np.random.default_rng(11)
+    for m in (2, 3, 4, 17, 47):
+        x = np.cumsum(rng.uniform(0.2, 6.0, m))
+        s = np.sort(rng.uniform(x[0] - 1.0, x[-1] + 1.0, 90))
+        A = natural_spline_matrix(x, s)
+        h = np.diff(x)
+        span = np.clip(np.searchsorted(x, s, side="right") - 1, 0, m - 2)
+        t = (s - x[span]) / h[span]
+        ref = np.zeros((len(s), m))
+        ref[np.arange(len(s)), span] += 1.0 - t
+        ref[np.arange(len(s)), span + 1] += t
+        if m > 2:
+            k = m - 2
+            band = np.zeros((3, k))
+            band[0, 1:], band[1], band[2, :-1] = h[1:-1], 2.0 * (h[:-1] + h[1:]), h[1:-1]
+            D = np.zeros((k, m))
+            i = np.arange(k)
+            D[i, i], D[i, i + 1], D[i, i + 2] = 6.0 / h[:-1], -6.0 / h[:-1] - 6.0 / h[1:], 6.0 / h[1:]
+            Mpp = np.zeros((m, m))
+            Mpp[1:-1] = solve_banded((1, 1), band, D, check_finite=False)
+            hs = h[span]
+            ref += (hs ** 2 / 6.0 * ((1.0 - t) ** 3 - (1.0 - t)))[:, None] * Mpp[span] \
+                + (hs ** 2 / 6.0 * (t ** 3 - t))[:, None] * Mpp[span + 1]
+        assert np.array_equal(A, ref), m
+        assert np.abs(A @ (2.0 * x + 1.0) - (2.0 * s + 1.0)).max() < 1e-9          # lines are kept
+
+
+def test_planar_proxy_equals_the_interleaved_one():
+    """The selection's proxy on planar rows (x, y, z planes; each sample's own normal offset once) gives
+    the per-slice errors of the interleaved (sample, coordinate) layout it replaced to ~1e-12 mm."""
+    from pde_synthetic import head_bset
+    from pdehead_addon.curves import slice_selection as S
+    from pdehead_addon.pde.pde_spline import dome_height, natural_spline_matrix, smoothing_spline_values
+    bset = head_bset(patches=12, samples=192)
+    cand = S.Candidates(np.arange(len(bset.curves)), bset.curves, dict(bset.meta))
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        idx = np.unique(np.concatenate([[0, cand.count - 1], rng.choice(cand.count, 9, replace=False)]))
+        mean, peak = S.proxy_errors(cand, idx)
+        # the interleaved computation, written out as it was before
+        sub = cand.sub
+        m = sub.shape[1]
+        Y = sub[idx]
+        pos = np.concatenate([[0.0], np.cumsum(np.maximum(np.linalg.norm(np.diff(Y, axis=0), axis=2).mean(axis=1), 1e-6))])
+        L = S._approximation(cand, cand.heights[idx])
+        Ys = Y.reshape(len(idx), -1)
+        if L > 0 and len(idx) >= 3:
+            Ys = smoothing_spline_values(pos, Ys, float(L))
+        top = cand.curves[idx[-1]]
+        height = dome_height(cand.curves[idx[-3:]], cand.heights[idx[-3:]], cand.meta.get("vertex_z"))
+        ring = Ys[-1].reshape(m, 3)
+        vertex = np.array([ring[:, 0].mean(), ring[:, 1].mean(), top[:, 2].mean() + height])
+        knots = np.concatenate([pos, [pos[-1] + np.linalg.norm(top - vertex, axis=1).mean()]])
+        data = np.concatenate([Ys, np.tile(vertex, m)[None]])
+        j = np.clip(np.searchsorted(idx, np.arange(cand.count), side="right") - 1, 0, len(idx) - 2)
+        f0, f1 = cand.chord[idx[j]], cand.chord[idx[j + 1]]
+        s = pos[j] + (cand.chord - f0) / (f1 - f0) * (pos[j + 1] - pos[j])
+        pred = (natural_spline_matrix(knots, s) @ data).reshape(cand.count, m, 3)
+        off = np.abs(np.einsum("kmc,kmc->km", pred - sub, cand.normals))
+        assert np.abs(mean - off.mean(axis=1)).max() < 1e-11
+        assert np.abs(peak - off.max(axis=1)).max() < 1e-11
+        assert mean[idx].max() < mean.max()                     # the chosen curves are followed best
