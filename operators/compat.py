@@ -13,11 +13,15 @@ Tested with bpy from PyPI 4.2.23, 4.5.15, 5.0.1 (Python 3.11, numpy 1.26) and 5.
 - The extension's wheels unpack into ``extensions/.local/lib/python3.X/site-packages``
   with the Python of the running Blender.
 - Mesh data: the ``.corner_vert`` attribute (4.0), ``sharp_face`` and ``Mesh.shade_smooth`` (4.1);
-  Cycles' ``volume_biased`` (5.0). The functions at the end of this module.
+  Cycles' ``volume_biased`` (5.0); faces' material slots through the ``material_index`` attribute,
+  ~400x faster than ``polygons.foreach_set`` (every supported version has it). The functions at the end
+  of this module.
 """
 from __future__ import annotations
 
 from types import ModuleType
+
+import numpy as np
 
 _UNSET = object()
 _openvdb_cache: object = _UNSET
@@ -137,6 +141,27 @@ def set_sharp_faces(mesh, sharp) -> None:
         attr.data.foreach_set("value", sharp)
     else:
         mesh.polygons.foreach_set("use_smooth", ~sharp)
+
+
+def set_material_indices(mesh, index) -> None:
+    """Each face's material slot, through the ``material_index`` face attribute (Blender 3.4+): ~0.02 ms
+    for 29,000 faces, where ``polygons.foreach_set("material_index")`` takes 7-8 ms (measured in bpy 4.2
+    and 5.0); an unchanged index is not rewritten (a live change of the solid's shape keeps its faces)."""
+    index = np.ascontiguousarray(index, np.int32)
+    attr = mesh.attributes.get("material_index")
+    if attr is not None and (attr.data_type != "INT" or attr.domain != "FACE"):
+        mesh.polygons.foreach_set("material_index", index)
+        return
+    if attr is None:
+        if not index.any():
+            return                                       # no attribute reads as slot 0 everywhere
+        attr = mesh.attributes.new("material_index", "INT", "FACE")
+    else:
+        current = np.empty(len(index), np.int32)
+        attr.data.foreach_get("value", current)
+        if np.array_equal(current, index):
+            return
+    attr.data.foreach_set("value", index)
 
 
 def cycles_volume_biased(cycles_settings):

@@ -456,7 +456,7 @@ def _skin_faces(obj, family: np.ndarray, on: bool) -> None:
         if me.materials[1] is None:
             me.materials[1] = ensure_skin_material()
     index = np.where(np.asarray(family) == 0, 1, 0) if on else np.zeros(len(family), int)
-    me.polygons.foreach_set("material_index", index.astype(np.int32))
+    compat.set_material_indices(me, index)
     me.update()
 
 
