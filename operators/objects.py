@@ -395,19 +395,38 @@ def _vertex_values_from_table(table, mesh) -> np.ndarray:
     return grid[index[0], index[1], index[2]]
 
 
-def _set_ct_texture(obj, atlas: np.ndarray, corner_uv: np.ndarray):
-    """Store the atlas in the object's CT image (packed into the .blend) and its UV map."""
+def _set_ct_texture(obj, atlas: np.ndarray, corner_uv: np.ndarray, budget_px: float = 0.0, transient: bool = False):
+    """Store the atlas in the object's CT image (packed into the .blend) and its UV map.
+
+    ``Image.scale`` resamples the old pixels before the new ones are written (~9 ms on GE, most of a live
+    change's texture cost), and the atlas's size changes at every change: the quick 128-pixel tiles of a
+    live change (``transient``) and the full tiles of the colour refresh right after, whose shelves come
+    out in a few shapes as a slider moves the tiles' sizes. So an image that holds the atlas keeps its size
+    (the atlas in its corner, the UVs scaled to it): a transient atlas goes into any larger image; a full
+    one into an image up to :data:`ATLAS_REUSE_AREA` times its area, which grows to hold both shapes
+    while that fits ``budget_px``; else the image takes the atlas's own size.
+    """
     import bpy
 
     me = obj.data
-    _set_attribute(me, CT_UV_NAME, "FLOAT2", "CORNER", "vector", np.ascontiguousarray(corner_uv, np.float32).ravel())
     h, w = atlas.shape[:2]
     name = f"PDE Head CT {obj.name}"
     image = bpy.data.images.get(name)
     if image is None:
         image = bpy.data.images.new(name, w, h, alpha=False)
-    elif tuple(image.size) != (w, h):
-        image.scale(w, h)
+    else:
+        width, height = (int(x) for x in image.size)
+        holds = width >= w and height >= h
+        if not (holds and (transient or width * height <= ATLAS_REUSE_AREA * w * h)):
+            width, height = max(width, w), max(height, h)           # both shapes, within the budget
+            if transient or width * height > min(budget_px, ATLAS_REUSE_AREA * w * h):
+                width, height = w, h
+            image.scale(width, height)
+        if (width, height) != (w, h):
+            padded = np.ones((height, width, 4), np.float32)
+            padded[:h, :w] = atlas
+            atlas, corner_uv = padded, np.asarray(corner_uv) * (w / width, h / height)
+    _set_attribute(me, CT_UV_NAME, "FLOAT2", "CORNER", "vector", np.ascontiguousarray(corner_uv, np.float32).ravel())
     image.pixels.foreach_set(np.ascontiguousarray(atlas, np.float32).ravel())
     image.update()
     # generated images are lost on save unless packed; packing (PNG encoding) on every slider step
@@ -419,6 +438,9 @@ def _set_ct_texture(obj, atlas: np.ndarray, corner_uv: np.ndarray):
         _UNPACKED_CHANGES.add(image.name)
     return image
 
+
+#: A solid's CT image is reused for a smaller atlas (its corner; the UVs scaled) up to this area ratio.
+ATLAS_REUSE_AREA = 2.0
 
 #: Names of CT atlas images changed since they were last packed (see :func:`pack_ct_images`).
 _UNPACKED_CHANGES: set[str] = set()
@@ -534,7 +556,8 @@ def build_solid(head, collection, nu: int = D.NU.default, nv: int = D.NV.default
                                                 size=None if texture_size is None else int(texture_size),
                                                 table=ct_table, faces=faces, budget_mp=float(texture_budget),
                                                 skin=skin, skin_depth_mm=float(skin_depth_mm), cut_ct=cut_ct)
-            image = _set_ct_texture(obj, atlas, corner_uv)
+            image = _set_ct_texture(obj, atlas, corner_uv, budget_px=float(texture_budget) * 1e6,
+                                    transient=texture_size is not None)
     elif "intensity" in mesh.vertex_attributes:
         values = np.asarray(mesh.vertex_attributes["intensity"], np.float32)
         window = intensity_window(values) if window is None else window

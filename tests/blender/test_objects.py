@@ -327,6 +327,19 @@ def test_live_solid_uses_the_ct_table_and_rewrites_a_same_topology_mesh_in_place
     w = blender_inspect.mesh_attribute(obj, "w")
     assert w.max() == pytest.approx(0.8, abs=1e-6)
     _check_texture_matches_ct(obj, image, expected, phantom_head, ct, (lo, hi))
+    # a live change's quick 128-pixel tiles go into the corner of the larger image, the UVs scaled to it:
+    # no Image.scale (it resamples the old pixels, ~9 ms on GE) and the texture still shows the CT
+    size = tuple(image.size)
+    ext.objects.build_solid(phantom_head, coll, nu=40, nv=60, nw=5, ct=ct, ct_table=table, obj=obj,
+                            texture_size=128, **cut)
+    assert obj.material_slots[0].material.node_tree.nodes["CT texture"].image == image
+    quick_w, quick_h = 3 * 128, 2 * 128                        # six 128-pixel tiles, three a row
+    assert tuple(image.size) == size and size[0] * size[1] > quick_w * quick_h, size
+    uv = np.empty(len(me.loops) * 2, np.float32).reshape(-1, 2)
+    me.uv_layers["CT texture"].data.foreach_get("uv", uv.ravel())
+    # only the image's corner is used
+    assert uv[:, 0].max() <= quick_w / size[0] + 1e-6 and uv[:, 1].max() <= quick_h / size[1] + 1e-6
+    _check_texture_matches_ct(obj, image, expected, phantom_head, ct, (lo, hi))
     # another resolution is another topology: rebuilt (here refused by the patched refill)
     with pytest.raises(AssertionError, match="in place"):
         ext.objects.build_solid(phantom_head, coll, nu=40, nv=60, nw=6, ct=ct, ct_table=table, obj=obj, **cut)
