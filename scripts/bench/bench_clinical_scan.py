@@ -103,11 +103,16 @@ class ChildPeakRSS:
         return self.peak
 
 
+def cli_command(folder: Path, shape=SHAPE, spacing=SPACING) -> list[str]:
+    """``scripts/pdehead.py`` on raw big-endian int16 slices numbered from the top (automatic selection, t = 10)."""
+    return [sys.executable, str(ROOT / "scripts" / "pdehead.py"), str(folder), "--raw-shape", str(shape[1]),
+            str(shape[2]), "--dtype", ">i2", "--spacing", *map(str, spacing), "--first-slice", "superior",
+            "--patches", "10", "--selection", "auto"]
+
+
 def run_cli(folder: Path, out: Path) -> dict:
     """The CLI on the raw slices; its printed step times and its peak RSS."""
-    cmd = [sys.executable, str(ROOT / "scripts" / "pdehead.py"), str(folder), "--raw-shape", str(SHAPE[1]),
-           str(SHAPE[2]), "--dtype", ">i2", "--spacing", *map(str, SPACING), "--first-slice", "superior",
-           "--patches", "10", "--selection", "auto", "--out", str(out)]
+    cmd = cli_command(folder) + ["--out", str(out)]
     env = dict(os.environ, BLENDER_USER_RESOURCES=str(out.parent / "blender-user"))
     import resource
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -123,6 +128,38 @@ def run_cli(folder: Path, out: Path) -> dict:
         raise SystemExit(f"pdehead.py failed ({proc.returncode}):\n{stdout[-2000:]}\n{stderr[-2000:]}")
     steps = step_times(stdout)
     return {"steps": steps, "sum_steps_s": sum_of_steps(steps), "peak_rss_gb": peak / 1e9, "wall_s": wall, "cpu_s": cpu}
+
+
+def render_figure(folder: Path, out_png: Path, work: Path) -> None:
+    """The PDE surface of CThead as scanned (256 x 256 x 113 at 2 x 1 x 1 mm) beside that of the clinical-size
+    scan made from it, front and three-quarter views, through the CLI's own renders (Cycles, 320 px)."""
+    from PIL import Image, ImageDraw
+
+    from _common import CTHEAD_RAW16_OPTIONS, data_path
+    native = (data_path("cthead_stanford", "raw16"), (0,) + tuple(CTHEAD_RAW16_OPTIONS["shape"]),
+              CTHEAD_RAW16_OPTIONS["spacing"])
+    columns = [("CThead as scanned: 256 x 256 x 113, 2 x 1 x 1 mm", native),
+               ("clinical size: 512 x 512 x 300, 0.75 x 0.5 x 0.5 mm", (folder, SHAPE, SPACING))]
+    tiles = []
+    for view in ("FRONT", "THREE_QUARTER"):
+        for c, (_label, (src, shape, spacing)) in enumerate(columns):
+            png = work / f"render_{c}_{view.lower()}.png"
+            cmd = cli_command(Path(src), shape, spacing) + ["--no-volume", "--render", str(png), "--view", view]
+            env = dict(os.environ, BLENDER_USER_RESOURCES=str(work / "blender-user"))
+            done = subprocess.run(cmd, capture_output=True, text=True, env=env)
+            if done.returncode != 0:
+                raise SystemExit(f"pdehead.py --render failed ({done.returncode}):\n{done.stderr[-2000:]}")
+            tiles.append(Image.open(png).convert("RGB"))
+    w, h = tiles[0].size
+    top = 22
+    sheet = Image.new("RGB", (2 * w, top + 2 * h), "white")
+    draw = ImageDraw.Draw(sheet)
+    for c, (label, _) in enumerate(columns):
+        draw.text((c * w + 6, 5), label, fill="black")
+    for n, tile in enumerate(tiles):
+        sheet.paste(tile.resize((w, h)), ((n % 2) * w, top + (n // 2) * h))
+    out_png.parent.mkdir(parents=True, exist_ok=True)
+    sheet.save(out_png)
 
 
 def step_times(stdout: str) -> dict:
@@ -253,6 +290,8 @@ def main(argv=None) -> int:
                    help="the engine whose segment_head is the reference (default: this checkout's HEAD)")
     p.add_argument("--json", type=Path)
     p.add_argument("--md", type=Path, help="write the Markdown section here (default: print it)")
+    p.add_argument("--figure", type=Path, help="also render CThead as scanned and the clinical-size scan (front, "
+                   "three-quarter) to this PNG, e.g. docs/figures/clinical_scan.png (four more CLI runs)")
     args = p.parse_args(argv)
     commit = _git_head()
     ref_commit = args.reference_commit or commit
@@ -269,6 +308,9 @@ def main(argv=None) -> int:
             runs.append(run_cli(folder, Path(tmp) / f"run{i}" / "scan.blend"))
             print(f"run {i + 1}: steps {runs[-1]['sum_steps_s']:.1f} s, peak {runs[-1]['peak_rss_gb']:.2f} GB, "
                   f"VTK {vtk_times[-1]:.2f} s", file=sys.stderr)
+        if args.figure:
+            render_figure(folder, args.figure, Path(tmp))
+            print(f"figure: {args.figure}", file=sys.stderr)
     from pdehead_addon import segment_head
     mask = segment_head(ct).mask
     jac = per_slice_jaccard(mask, reference_mask(ct, args.cache, ref_commit))
