@@ -823,3 +823,30 @@ def test_tilted_series_records_which_voxels_the_scan_covered(ge_ct):
 
 def test_axis_aligned_series_has_no_coverage_mask(cthead_ct):
     assert cthead_ct.coverage is None
+
+
+def test_canonical_flip_in_place_equals_the_copy():
+    """``to_canonical(in_place=True)`` (a reader's own float32 stack: no 300 MB copy) gives the flipped copy's
+    data, origin and direction for every combination of flipped axes, and falls back to the copy where a
+    transpose is needed."""
+    import itertools
+
+    from pdehead_addon.io.ct_import.geometry import to_canonical
+    rng = np.random.default_rng(5)
+    base = rng.normal(size=(5, 4, 6)).astype(np.float32)
+    eye = np.eye(3)
+    for signs in itertools.product((1, -1), repeat=3):
+        # array axes 0, 1, 2 hold patient z, y, x
+        dirs = [signs[0] * eye[2], signs[1] * eye[1], signs[2] * eye[0]]
+        want = to_canonical(base.copy(), dirs, (2.0, 1.0, 0.5), np.array([3.0, -4.0, 7.0]))
+        scratch = base.copy()
+        got = to_canonical(scratch, dirs, (2.0, 1.0, 0.5), np.array([3.0, -4.0, 7.0]), in_place=True)
+        assert np.array_equal(got[0], want[0]) and got[0] is scratch
+        for a, b in zip(got[1:], want[1:]):
+            assert np.allclose(a, b)
+        if signs == (-1, 1, 1):
+            assert np.array_equal(got[0], base[::-1])        # slices stacked downward: reversed
+    # a transpose: the copy, the caller's array untouched
+    scratch = base.copy()
+    out = to_canonical(scratch, [eye[1], eye[2], eye[0]], (1.0, 2.0, 0.5), np.zeros(3), in_place=True)[0]
+    assert out is not scratch and np.array_equal(scratch, base) and out.shape == (4, 5, 6)

@@ -101,7 +101,8 @@ def load_dicom(files, label, series_uid, resample_spacing, warns) -> CTVolume:
             warns.append("resample_spacing ignored: the slices are regular and axis-aligned (no resampling)")
         data, spacing, origin, direction = to_canonical(
             stack, [geometry["n"], geometry["v"], geometry["u"]],
-            [geometry["step"], geometry["dr"], geometry["dc"]], geometry["positions"][0])
+            [geometry["step"], geometry["dr"], geometry["dc"]], geometry["positions"][0],
+            in_place=stack.dtype == np.float32)
     del stack
 
     ds = chosen.first

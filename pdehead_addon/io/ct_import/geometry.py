@@ -23,8 +23,26 @@ ALIGNED_TOL = 1e-3        # direction cosine off an axis before the grid counts 
 _IDENTITY_SNAP = 1e-5      # below this the direction is reported as the exact identity
 
 
+def _flip_in_place(data: np.ndarray, axes: Sequence[int]) -> np.ndarray:
+    """Reverse ``data`` along ``axes`` in its own memory (C-contiguous float32): slices swapped pairwise
+    through one slice of scratch, rows and columns per slice. A flipped copy of a 512 x 512 x 300 scan
+    costs ~0.35 s, mostly the first touch of a new 300 MB array; this writes nothing new."""
+    n = data.shape[0]
+    if 0 in axes:
+        scratch = np.empty_like(data[0])
+        for k in range(n // 2):
+            scratch[...] = data[k]
+            data[k] = data[n - 1 - k]
+            data[n - 1 - k] = scratch
+    inner = tuple(slice(None, None, -1) if a in axes else slice(None) for a in (1, 2))
+    if inner != (slice(None), slice(None)):
+        for k in range(n):
+            data[k] = data[k][inner].copy()
+    return data
+
+
 def to_canonical(data: np.ndarray, axis_dirs: Sequence[np.ndarray], axis_spacing: Sequence[float],
-               origin: np.ndarray) -> tuple[np.ndarray, tuple, np.ndarray, np.ndarray]:
+               origin: np.ndarray, in_place: bool = False) -> tuple[np.ndarray, tuple, np.ndarray, np.ndarray]:
     """Flip/transpose a regular axis-aligned grid to ``[z, y, x]`` with k superior, j posterior, i left.
 
     Parameters
@@ -33,6 +51,9 @@ def to_canonical(data: np.ndarray, axis_dirs: Sequence[np.ndarray], axis_spacing
     axis_dirs : three unit LPS vectors, the directions of array axes 0, 1, 2
     axis_spacing : the step (mm) along array axes 0, 1, 2
     origin : LPS position of ``data[0, 0, 0]``
+    in_place : bool
+        ``data`` is the caller's own scratch (a reader's fresh float32 stack): a flip without a transpose
+        reverses it in its own memory instead of copying it.
 
     Returns
     -------
@@ -50,10 +71,14 @@ def to_canonical(data: np.ndarray, axis_dirs: Sequence[np.ndarray], axis_spacing
             origin += (data.shape[m] - 1) * axis_spacing[m] * dirs[m]
             dirs[m] = -dirs[m]
             index[m] = slice(None, None, -1)
-    data = data[tuple(index)]
     # array axis that holds patient z, y, x (in that order)
     perm = [int(np.flatnonzero(patient_axis == p)[0]) for p in (2, 1, 0)]
-    data = np.ascontiguousarray(data.transpose(perm), dtype=np.float32)
+    flipped = [m for m in range(3) if index[m] != slice(None)]
+    if (in_place and perm == [0, 1, 2] and data.dtype == np.float32 and data.flags.c_contiguous
+            and data.flags.writeable):
+        data = _flip_in_place(data, flipped)
+    else:
+        data = np.ascontiguousarray(data[tuple(index)].transpose(perm), dtype=np.float32)
     spacing = tuple(float(axis_spacing[m]) for m in perm)
     direction = np.stack([dirs[perm[2]], dirs[perm[1]], dirs[perm[0]]], axis=1)  # columns i, j, k
     if np.abs(direction - np.eye(3)).max() < _IDENTITY_SNAP:
@@ -247,7 +272,7 @@ def headerless_volume(data, label, fmt, spacing, axes, oriented, hu, warns, extr
         warns.append("no spacing given: assumed (dz, dy, dx) = (1, 1, 1) mm; pass spacing=(dz, dy, dx)")
     spacing = _spacing_option(spacing, label)
     col, row, sl = axes
-    data, spacing, _, direction = to_canonical(data, [sl, row, col], spacing, np.zeros(3))
+    data, spacing, _, direction = to_canonical(data, [sl, row, col], spacing, np.zeros(3), in_place=True)
     code = input_checks.orientation_code(col, row, sl)
     meta = {
         "source": label,
