@@ -283,6 +283,24 @@ def test_w_field_voxel_size_grid_and_intensity_sampling(head):
     assert vol_ct.data.max() <= 0.9 + 1e-6 and vol_ct.spacing == wf.spacing
 
 
+def test_w_field_separable_intensity_equals_map_coordinates_with_the_ct_cropped(head):
+    """The axis-aligned grid's plane-by-plane interpolation gives map_coordinates' trilinear values (to
+    float32 rounding), and its lowest CT value outside the CT, here a CT cropped to half the head."""
+    from scipy.ndimage import map_coordinates
+    ct = grid_volume(head, spacing=(2.0, 1.0, 1.0))
+    rng = np.random.default_rng(2)
+    data = rng.normal(100.0, 40.0, ct.shape).astype(np.float32)
+    half = CTVolume(data[:, :, : ct.shape[2] // 2], ct.spacing, ct.origin, ct.direction)
+    wf = w_field(head, 1.3, ct=half)
+    k, j, i = np.nonzero(wf.w <= 1)
+    grid = CTVolume(np.zeros((1, 1, 1), np.float32), wf.spacing, wf.origin, wf.direction)
+    idx = half.patient_to_index(grid.index_to_patient(np.stack([k, j, i], 1).astype(float)))
+    want = map_coordinates(half.data, idx.T, order=1, mode="constant", cval=float(half.data.min()))
+    assert np.abs(wf.intensity[k, j, i] - want).max() < 1e-3
+    outside = np.any((idx < 0) | (idx > np.array(half.shape) - 1), axis=1)
+    assert 0.3 < outside.mean() < 0.7 and np.all(wf.intensity[k, j, i][outside] == half.data.min())
+
+
 def test_w_field_refuses_non_axial_input(head):
     c, s = np.cos(0.3), np.sin(0.3)
     tilted = CTVolume(np.zeros((4, 4, 4), np.float32), (1, 1, 1), (0, 0, 0), [[1, 0, 0], [0, c, -s], [0, s, c]])
