@@ -6,10 +6,13 @@ move) is a trilinear interpolation in (u, v, w), periodic in v. It serialises to
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 
 from ..core.ct_volume import CTVolume
 from ..core.errors import PDEError, report_progress
+from ..segment.binary_morphology import THREADS
 from .pde_solid import TWO_PI, axial_grid
 
 __all__ = ["SolidCTTable"]
@@ -112,8 +115,9 @@ class SolidCTTable:
         slab = ny * nx
 
         w = self.w.astype(np.float32)[None, None, :, None]
-        for start in range(0, self.shape[0], chunk):
-            report_progress(progress, start / self.shape[0], "tabulating the CT in (u, v, w)")
+
+        def rows(start):
+            """Table rows start .. start + chunk (their own slice of ``table``: the threads never share one)."""
             us = self.u[start:start + chunk]
             c = len(us)
             spine = head.spine(us)                                               # (c, 3)
@@ -144,6 +148,15 @@ class SolidCTTable:
             vals = lo + tj * (hi - lo)
             vals[~inside] = np.float32(cval)
             table[start:start + c, :-1] = vals
+
+        # the chunks of rows are independent and numpy releases the GIL in their large loops: two threads
+        starts = list(range(0, self.shape[0], chunk))
+        pool = ThreadPoolExecutor(max(1, min(THREADS, len(starts))))
+        try:
+            for n, _ in enumerate(pool.map(rows, starts)):
+                report_progress(progress, (n + 1) * chunk / self.shape[0], "tabulating the CT in (u, v, w)")
+        finally:                                 # a cancel (progress raised) drops the chunks not started
+            pool.shutdown(wait=True, cancel_futures=True)
         table[:, -1] = table[:, 0]
         return True
 
