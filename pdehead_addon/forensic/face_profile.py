@@ -162,6 +162,24 @@ def smooth_far_from_pegs(profile: np.ndarray, grid: FaceGrid, sites: np.ndarray)
     return near * profile + (1 - near) * strong
 
 
+def convex_rows(radius: np.ndarray, dtheta: float, span: int, passes: int = 2) -> np.ndarray:
+    """Each row of ``radius`` (rows x columns, columns ``dtheta`` radians apart, an open run of columns) lifted to
+    the chords between its columns up to ``span`` columns apart: the chord between the columns j - s and j + s meets
+    the ray j at 2 r_a r_b cos(s dtheta) / (r_a + r_b). ``passes`` sweeps over s = 1 .. span approximate the rows'
+    convex envelope within that span (vectorised: a few ms where a 2-D hull per row costs ~10 ms a row). The
+    ``span`` columns at each end of the run are kept (they have no chord on one side)."""
+    r = np.array(radius, float, copy=True)
+    n = r.shape[1]
+    if span < 1 or n <= 2 * span:
+        return r
+    mid = r[:, span:n - span]                                  # a view: updated in place
+    for _ in range(passes):
+        for s in range(1, span + 1):
+            a, b = r[:, span - s:n - span - s], r[:, span + s:n - span + s]
+            np.maximum(mid, 2.0 * np.cos(s * dtheta) * a * b / (a + b), out=mid)
+    return r
+
+
 def _row_hulls(radius: np.ndarray, theta: np.ndarray) -> np.ndarray:
     """Per row, the radius along each column's ray of the 2-D convex hull of the row's ring."""
     from scipy.spatial import ConvexHull

@@ -397,6 +397,8 @@ def test_features_made_on_the_front_columns_alone_are_those_of_the_whole_grid(mo
     the same, to the bit, as with each feature made over every column (they are zero behind the front)."""
     offset = model._offset_field(face.tips)
     radius = model.profile + offset
+    cols, front = model._front()
+    radius[:, cols] = model._cheeks(radius[:, cols], front)          # the convex cheeks: on the front columns
     for feature in (lambda r: model._nose_bump(r, face.tips), model._mouth_shape, model._eye_shape):
         d = feature(radius)
         assert d is not None
@@ -405,3 +407,38 @@ def test_features_made_on_the_front_columns_alone_are_those_of_the_whole_grid(mo
     cols, _ = model._front()
     assert 0 < cols.stop - cols.start < 0.5 * model.profile.shape[1]
     np.testing.assert_array_equal(model.shaped_radius(offset, face.tips), radius)
+
+
+def test_convex_rows_lift_a_dent_to_the_chord_and_keep_a_convex_row():
+    """:func:`convex_rows`: a circle stays (to round-off), a dent between two columns is lifted to about the
+    chord between the columns around it (the 2-D convex hull's radius there), never above it."""
+    from pdehead_addon.forensic.face_profile import convex_rows
+    dth = np.radians(1.0)
+    circle = np.full((2, 121), 90.0)
+    np.testing.assert_allclose(convex_rows(circle, dth, 30), circle, atol=1e-9)
+    dented = circle.copy()
+    dented[:, 50:71] -= 8.0 * np.sin(np.linspace(0, np.pi, 21))        # an 8 mm deep, 20-degree wide hollow
+    out = convex_rows(dented, dth, 30)
+    # the chord from 49 to 71 degrees of a 90 mm circle: 90 cos(11 deg) at its middle
+    assert out[0, 60] == pytest.approx(90.0 * np.cos(np.radians(11.0)), abs=0.5)
+    assert np.all(out >= dented - 1e-9) and np.all(out <= circle + 1e-9)
+    np.testing.assert_array_equal(out[:, :30], dented[:, :30])                     # the run's ends are kept
+
+
+def test_cheeks_convex_only_between_the_stomion_and_the_orbits_floor(model, face):
+    """The cheek rule (issue 23's ninth session) only lifts the face (never lowers it), only on rows between
+    the mouth's stomion and the orbitales' height (faded over CHEEK_RAMP_MM), and is part of the solve."""
+    from pdehead_addon.forensic.face_from_skull import CHEEK_RAMP_MM
+    w = model._cheek_weight()
+    assert w is not None
+    z = model.grid.z
+    lm = model.landmarks_used
+    top = np.mean([lm[n][2] for n in ("Orbitale L", "Orbitale R")])
+    assert np.all(w[z < model.mouth["stomion_z"] - CHEEK_RAMP_MM] == 0)
+    assert np.all(w[z > top + CHEEK_RAMP_MM] == 0)
+    assert np.any(w == 1.0)
+    cols, front = model._front()
+    base = (model.profile + model._offset_field(face.tips))[:, cols]
+    cheeks = model._cheeks(base, front)
+    assert np.all(cheeks >= base - 1e-9)
+    np.testing.assert_array_equal(cheeks[w == 0], base[w == 0])
