@@ -9,5 +9,6 @@ Modules:
 - :mod:`.mesh`           A plain polygon mesh in patient LPS mm: what the engine hands to the Blender layer
 - :mod:`.mesh_geometry`  Triangle-mesh geometry shared by the pipeline, the forensic tools and the measures: one copy of each routine
 - :mod:`.provenance`     Provenance of forensic outputs: which software, depth table and bone level made a file
+- :mod:`.threads`        Work on two threads: the engine's one thread count, slabs of a volume, chunks in order
 - :mod:`.wording`        Messages in the language of where they are shown: Python arguments, CLI flags, dialog fields
 """

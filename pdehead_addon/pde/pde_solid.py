@@ -10,7 +10,6 @@ solid, for live cut-aways, is :mod:`.solid_ct_table`'s.
 """
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -19,7 +18,7 @@ import numpy as np
 from ..core.ct_volume import CTVolume
 from ..core.errors import PDEError, report_progress
 from ..core.mesh import Mesh
-from ..segment.binary_morphology import THREADS
+from ..core.threads import map_in_order
 from .surface_mesh import check_count
 
 #: Value of the w-field at voxels outside the solid (any value > 1 means outside).
@@ -541,15 +540,13 @@ def w_field(head, grid, ct: CTVolume | None = None, directions: int = 4096,
         return _w_planes(head, ks, u_of[ks], n_sec, oxy, A_inv, ni, nj, directions)
     # the chunks' planes are independent and numpy releases the GIL in their large loops: two threads on
     # two cores (CThead's volume 0.7 -> 0.5 s); the results are placed in plane order, as one thread would
-    pool = ThreadPoolExecutor(max(1, min(THREADS, len(chunks))))
-    try:
-        for n, (kidx, j_idx, i_idx, wv) in enumerate(pool.map(chunk_w, chunks)):
-            report_progress(progress, 0.9 * (n + 1) * planes_per_chunk / max(len(planes), 1),
-                            f"w-field plane {min((n + 1) * planes_per_chunk, len(planes))} of {len(planes)}")
-            w_out[kidx, j_idx, i_idx] = wv
-            found.append((kidx, j_idx, i_idx))
-    finally:                                     # a cancel (progress raised) drops the chunks not started
-        pool.shutdown(wait=True, cancel_futures=True)
+    def place(n, result):
+        kidx, j_idx, i_idx, wv = result
+        report_progress(progress, 0.9 * (n + 1) * planes_per_chunk / max(len(planes), 1),
+                        f"w-field plane {min((n + 1) * planes_per_chunk, len(planes))} of {len(planes)}")
+        w_out[kidx, j_idx, i_idx] = wv
+        found.append((kidx, j_idx, i_idx))
+    map_in_order(chunk_w, chunks, place)
     inside_all = w_out <= 1.0
     intensity = np.zeros(shape, np.float32)
     if ct is not None:

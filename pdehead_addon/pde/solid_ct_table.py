@@ -6,13 +6,12 @@ move) is a trilinear interpolation in (u, v, w), periodic in v. It serialises to
 """
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
 from ..core.ct_volume import CTVolume
 from ..core.errors import PDEError, report_progress
-from ..segment.binary_morphology import THREADS
+from ..core.threads import map_in_order
 from .pde_solid import TWO_PI, axial_grid
 
 __all__ = ["SolidCTTable"]
@@ -150,13 +149,9 @@ class SolidCTTable:
             table[start:start + c, :-1] = vals
 
         # the chunks of rows are independent and numpy releases the GIL in their large loops: two threads
-        starts = list(range(0, self.shape[0], chunk))
-        pool = ThreadPoolExecutor(max(1, min(THREADS, len(starts))))
-        try:
-            for n, _ in enumerate(pool.map(rows, starts)):
-                report_progress(progress, (n + 1) * chunk / self.shape[0], "tabulating the CT in (u, v, w)")
-        finally:                                 # a cancel (progress raised) drops the chunks not started
-            pool.shutdown(wait=True, cancel_futures=True)
+        map_in_order(rows, list(range(0, self.shape[0], chunk)),
+                     lambda n, _: report_progress(progress, (n + 1) * chunk / self.shape[0],
+                                                  "tabulating the CT in (u, v, w)"))
         table[:, -1] = table[:, 0]
         return True
 

@@ -10,11 +10,11 @@ transforms it replaces).
 """
 from __future__ import annotations
 
-import os
-from concurrent.futures import ThreadPoolExecutor
 from typing import Sequence
 
 import numpy as np
+
+from ..core.threads import THREADS, in_slabs
 
 
 class _Packed:
@@ -110,8 +110,6 @@ class _Packed:
 #: In-slice plans on volumes of at least this many voxels run on slabs of slices in parallel threads
 #: (numpy releases the GIL in the word operations; the slices are independent, so the result is the same).
 PARALLEL_VOXELS = 4_000_000
-#: Threads of :func:`run_steps` (the machines of the benchmarks have two cores).
-THREADS = min(2, os.cpu_count() or 1)
 
 
 def run_steps(mask: np.ndarray, plan: Sequence[tuple[Sequence[tuple[int, ...]], bool]]) -> np.ndarray:
@@ -131,18 +129,6 @@ def run_steps(mask: np.ndarray, plan: Sequence[tuple[Sequence[tuple[int, ...]], 
 
     in_slabs(volume.shape[0], slab)
     return out.reshape(shape)
-
-
-def in_slabs(n: int, work, parts: int | None = None) -> None:
-    """``work(a, b)`` on ``parts`` (default :data:`THREADS`) consecutive ranges of ``range(n)``, one
-    per thread (numpy releases the GIL in its loops); the first exception is raised."""
-    parts = max(1, min(THREADS if parts is None else int(parts), int(n)))
-    cuts = np.linspace(0, n, parts + 1).round().astype(int)
-    if parts == 1:
-        work(0, int(n))
-        return
-    with ThreadPoolExecutor(parts) as pool:
-        list(pool.map(lambda k: work(int(cuts[k]), int(cuts[k + 1])), range(parts)))
 
 
 def _run_slab(volume: np.ndarray, plan) -> np.ndarray:

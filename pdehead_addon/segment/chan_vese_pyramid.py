@@ -12,7 +12,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .binary_morphology import in_slabs
+from ..core.threads import in_slabs
 from .chan_vese import chan_vese_soft, region_means, tau_bound
 
 

@@ -14,7 +14,8 @@ import numpy as np
 from scipy import ndimage as ndi
 
 from . import run_labels
-from .binary_morphology import PARALLEL_VOXELS, THREADS, in_slabs
+from ..core.threads import THREADS, in_slabs
+from .binary_morphology import PARALLEL_VOXELS
 from .binary_morphology import run_steps as _run_steps
 from ..core.errors import SegmentationError
 

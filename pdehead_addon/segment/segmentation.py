@@ -26,7 +26,8 @@ import numpy as np
 from scipy import ndimage as ndi
 
 from ..io import input_checks
-from .binary_morphology import PARALLEL_VOXELS, THREADS, in_slabs
+from ..core.threads import THREADS, in_slabs
+from .binary_morphology import PARALLEL_VOXELS
 from .chan_vese import chan_vese_soft, divergence, gradient, tau_bound
 from .chan_vese_pyramid import solve_pyramid
 from ..core.ct_volume import CTVolume, apply_window
