@@ -141,3 +141,15 @@ def test_clinical_scan_sums_every_printed_step():
     assert bench_clinical_scan.sum_of_steps(steps) == pytest.approx(10.074)
     with pytest.raises(SystemExit, match="new_step"):
         bench_clinical_scan.sum_of_steps(dict(steps, new_step=1.0))
+
+
+def test_clinical_scan_surface_against_the_reference_mask(phantom_seg):
+    """The benchmark's 0.2 mm check (issue 20): ~0 for the same mask (the sampled measure's own floor, a
+    point's nearest triangle missed among its candidates: ~0.003 mm), about the shift for a mask moved
+    2 voxels along x (a surface 2 mm to the side on the phantom's 1 mm pixels)."""
+    import bench_clinical_scan
+    same = bench_clinical_scan.surface_against_reference(phantom_seg, phantom_seg.mask)
+    assert same["mean"] < 0.01
+    moved = bench_clinical_scan.surface_against_reference(phantom_seg, np.roll(phantom_seg.mask, 2, axis=2))
+    dx = float(phantom_seg.ct.spacing[2])
+    assert 0.5 * dx < moved["mean"] < 2.0 * 2 * dx and moved["max"] >= 1.5 * dx
