@@ -62,6 +62,10 @@ def write_obj(mesh: Mesh, path: str | os.PathLike, name: str = "pdehead", proven
             np.savetxt(fh, mesh.triangles + 1, fmt="f %d %d %d")
 
 
+#: PLY headers are ASCII: the provenance's few other characters (the label's dash) spelt in ASCII.
+_ASCII_SPELLING = str.maketrans({"\u2014": "-", "\u2013": "-", "\u00b1": "+-", "\u00b0": " deg", "\u00d7": "x"})
+
+
 def write_ply(mesh: Mesh, path: str | os.PathLike, name: str = "pdehead", provenance: dict | None = None) -> None:
     """Binary little-endian PLY (float32 vertices in mm, triangle faces); provenance as comments."""
     v, t = _triangles(mesh)
@@ -74,7 +78,7 @@ def write_ply(mesh: Mesh, path: str | os.PathLike, name: str = "pdehead", proven
     faces["n"] = 3
     faces["i"] = t
     with open(os.fspath(path), "wb") as fh:
-        fh.write(header.encode("ascii"))
+        fh.write(header.translate(_ASCII_SPELLING).encode("ascii", "replace"))
         fh.write(v.astype("<f4").tobytes())
         fh.write(faces.tobytes())
 

@@ -141,6 +141,16 @@ def test_depth_csv_round_trip(tmp_path, phantom_surfaces, phantom_skull):
 
 
 # ----------------------------------------------------------------------------- export
+def test_ply_header_carries_the_label_in_ascii(tmp_path, phantom_surfaces):
+    """The face's label has an em dash; a PLY header is ASCII (it crashed the export before)."""
+    from pdehead_addon.defaults import FACE_LABEL
+    skin, _ = phantom_surfaces
+    path = export_mesh(skin, tmp_path / "face.ply", name="face", provenance={"label": FACE_LABEL})
+    head = open(path, "rb").read().split(b"end_header\n", 1)[0]
+    assert b"comment label: approximation - not an identification" in head
+    head.decode("ascii")
+
+
 @pytest.mark.parametrize("fmt", ["stl", "obj", "ply"])
 def test_export_watertight_and_in_mm(tmp_path, phantom_surfaces, fmt):
     skin, _ = phantom_surfaces
