@@ -6,7 +6,6 @@ move) is a trilinear interpolation in (u, v, w), periodic in v. It serialises to
 """
 from __future__ import annotations
 
-
 import numpy as np
 
 from ..core.ct_volume import CTVolume

@@ -237,10 +237,12 @@ def reference_mask(ct, cache: Path, commit: str) -> np.ndarray:
 
 
 def default_surface(seg):
-    """The CLI's surface of ``seg`` (automatic selection, t = 10; 120 x 240 with caps): (vertices, faces)."""
+    """The CLI's surface of ``seg`` (automatic selection, t = 10; the default nu x nv, caps): (vertices, faces)."""
+    from pdehead_addon import defaults as D
     from pdehead_addon import extract_boundaries, solve_pde
     from pdehead_addon.core.mesh_geometry import triangulate
-    mesh = solve_pde(extract_boundaries(seg, patches=10, selection="auto")).surface(120, 240, caps=True)
+    mesh = solve_pde(extract_boundaries(seg, patches=10, selection="auto")).surface(D.NU.default, D.NV.default,
+                                                                                    caps=True)
     return mesh.vertices, np.concatenate([triangulate(mesh.quads), mesh.triangles])
 
 
