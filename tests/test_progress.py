@@ -130,3 +130,31 @@ def test_the_band_fine_level_reports_and_cancels(phantom, monkeypatch):
     assert len(reports) == 2 and 0.0 < reports[0] < reports[1] < 1.0
     again = segment_head(ct, levels_mm=(6.0,))
     np.testing.assert_array_equal(again.mask, full.mask)
+
+
+@pytest.mark.parametrize("stage", ["preparing the full-resolution band", "thin attachments", "holes and cavities"])
+def test_the_band_set_up_and_the_clean_up_report_and_cancel(phantom, monkeypatch, stage):
+    """Issue 20: on the clinical scan the band's set-up (~1.5 s) and the mask's clean-up (~2 s) ran without a
+    report, so Ctrl-C waited 3.4 s for the next one. Each now reports its stages; a Cancelled raised at one
+    stops the segmentation there (no later stage is reached), and a new run gives the uninterrupted result."""
+    from pdehead_addon import CTVolume
+    from pdehead_addon.segment import chan_vese_pyramid
+    data = phantom.ct.data
+    air = float(np.median(np.concatenate([data[:, 0].ravel(), data[:, -1].ravel()])))
+    ct = CTVolume(np.pad(data, ((1, 1), (22, 24), (22, 24)), constant_values=air), phantom.ct.spacing)
+    monkeypatch.setattr(chan_vese_pyramid, "FINE_BAND_MIN_VOXELS", ct.data.size)     # this small grid uses the band
+    full = segment_head(ct, levels_mm=(6.0,))
+    messages = []
+
+    def progress(fraction, message):
+        messages.append(message)
+        if message == stage:
+            raise Cancelled()
+    with pytest.raises(Cancelled):
+        segment_head(ct, levels_mm=(6.0,), progress=progress)
+    assert messages[-1] == stage
+    assert "segmentation done" not in messages and "finding the neck" not in messages
+    if stage != "preparing the full-resolution band":
+        assert "cleaning up the head mask" in messages
+    again = segment_head(ct, levels_mm=(6.0,))
+    np.testing.assert_array_equal(again.mask, full.mask)

@@ -139,9 +139,10 @@ def solve_pyramid(img: np.ndarray, spacing: Sequence[float], lam: float, theta: 
     planned = max(1, sum(max(n, 0) for _, n in plan) + iterations)
     before = [0]
 
-    def level_progress(done: int) -> None:
+    def level_progress(done: int, message: str | None = None) -> None:
         if progress is not None:
-            progress((before[0] + done) / planned, f"Chan-Vese iteration {before[0] + done} of at most {planned}")
+            progress((before[0] + done) / planned,
+                     message or f"Chan-Vese iteration {before[0] + done} of at most {planned}")
     q = c = sig = None
     prev = None
     for fac, n in plan:
@@ -348,14 +349,24 @@ def _band_fine_solve(img: np.ndarray, spacing: Sequence[float], lam: float, thet
     cshape = tuple(int(n) for n in q_coarse.shape)
     if any(n != m * f for n, m, f in zip(shape, cshape, fac)):
         return None, {}
+    # its set-up takes seconds on a clinical scan: reported stage by stage, so a cancel is heard within it
+    preparing = (lambda: progress(0, "preparing the full-resolution band")) if progress is not None else (lambda: None)
+    preparing()
     if FINE_BAND_STRADDLE:
         band = _band_blocks(q_coarse, margin, img, fac, 0.5 * (float(c0[0]) + float(c0[1])), threads)
     else:
         band = _band_blocks(q_coarse, margin)
     if not band.any():
         return None, {}
+    preparing()
     lay = _BandLayout(band, fac)
+    preparing()
     sweep = _BandSweep(lay, img, q_coarse, sig_coarse, spacing, theta, tau, threads)
+    try:
+        preparing()
+    except BaseException:
+        sweep.close()  # its worker pool; from here on the loop's finally closes it
+        raise
     # eq. 17's sums of what stays frozen (the coarse q outside the band) and the whole grid's membership
     if coarse_img is not None and tuple(coarse_img.shape) == cshape:
         per = float(lay.per)

@@ -17,7 +17,7 @@ from . import run_labels
 from ..core.threads import THREADS, in_slabs
 from .binary_morphology import PARALLEL_VOXELS
 from .binary_morphology import run_steps as _run_steps
-from ..core.errors import SegmentationError
+from ..core.errors import SegmentationError, report_progress
 
 
 #: 4-connectivity inside each axial slice, no links between slices (per-slice 2-D labelling).
@@ -481,7 +481,8 @@ def clean_head_mask(mask: np.ndarray, data: np.ndarray, window: tuple[float, flo
                     opening_mm: float = 2.5, cushion_level: float | None = 0.85, cushion_mm: float = 2.0,
                     max_thin_extent_mm: float = 50.0, close_mm: float = 6.0, envelope_mm: float = 3.0,
                     noise: float | None = None, metal_level: float | None = 3.0,
-                    streak_close_mm: float = 3.0, streak_reach_mm: float = 40.0) -> tuple[np.ndarray, dict]:
+                    streak_close_mm: float = 3.0, streak_reach_mm: float = 40.0,
+                    progress=None) -> tuple[np.ndarray, dict]:
     """The paper's clean-up of the thresholded soft membership, extended to real scans.
 
     1. Envelope: the filled outline of the head's own tissue (windowed
@@ -523,6 +524,9 @@ def clean_head_mask(mask: np.ndarray, data: np.ndarray, window: tuple[float, flo
         Metal-streak handling (steps 3 and 5); ``metal_level=None`` disables it.
     noise : float, optional
         Noise std in window units (default estimated).
+    progress : callable, optional
+        ``progress(fraction, message)`` after each step above (seconds apart on a clinical scan); it may
+        raise :class:`~pdehead_addon.Cancelled`.
 
     Returns
     -------
@@ -560,8 +564,10 @@ def clean_head_mask(mask: np.ndarray, data: np.ndarray, window: tuple[float, flo
             smooth = ndi.gaussian_filter(smooth, sigma=sigma, mode="nearest", truncate=3.0)
         tissue = smooth >= np.float32(level)
     tissue &= work
+    report_progress(progress, 0.1, "the head's tissue envelope")
     envelope = tissue_envelope(tissue, yx, opening_mm, envelope_mm)
     del tissue
+    report_progress(progress, 0.25, "cushions outside the head")
     if cushion_level is not None:
         # heavier smoothing widens the skin's own intermediate rim: demand a correspondingly thicker layer
         thickness = cushion_mm + 2.0 * max(0.0, sigma - 0.5) * max(dz, dy, dx)
@@ -579,6 +585,7 @@ def clean_head_mask(mask: np.ndarray, data: np.ndarray, window: tuple[float, flo
         stats["cushion_voxels"] = int(np.count_nonzero(cushion))
         work &= ~cushion
     del smooth
+    report_progress(progress, 0.4, "thin attachments")
     metal = metal_slices(data[box], window, metal_level) if metal_level is not None else None
     if metal is not None and not metal.any():
         metal = None
@@ -590,6 +597,7 @@ def clean_head_mask(mask: np.ndarray, data: np.ndarray, window: tuple[float, flo
         raise SegmentationError(f"no part of the head is thicker than the {2 * opening_mm:g} mm opening")
     thin = work & ~opened
     del opened
+    report_progress(progress, 0.55, "thin attachments: what to give back")
     labels, n, runs, thin_run_labels = run_labels.label(thin)    # ndi.label(thin), on its runs
     head = core
     if n:
@@ -608,7 +616,9 @@ def clean_head_mask(mask: np.ndarray, data: np.ndarray, window: tuple[float, flo
         stats["thin_dropped_voxels"] = int(total[1:].sum() - total[keep].sum())
         head = _core_with_kept(core, labels, keep, thin_at, thin_labels, total)
     del labels, thin, runs
+    report_progress(progress, 0.7, "holes and cavities")
     head = fill_cavities(head, yx, close_mm) if close_mm > 0 else fill_holes_per_slice(head)
+    report_progress(progress, 0.9, "metal streaks")
     if metal is not None and streak_close_mm > 0:
         # near the metal only: open away the bumps of bright streaks, close the notches of dark ones
         ks = np.flatnonzero(metal.any(axis=(1, 2)))

@@ -288,7 +288,8 @@ def segment_head(ct: CTVolume, *, lam: float = 3.0, theta: float = 0.1, tau: flo
     mask = q > np.float32(threshold)
     if cleanup:
         report_progress(progress, 0.8, "cleaning up the head mask")
-        mask, stats = clean_head_mask(mask, data, window, spacing, **clean_kw)
+        mask, stats = clean_head_mask(mask, data, window, spacing, **clean_kw,
+                                      progress=scaled_progress(progress, 0.8, 0.95))
         report_progress(progress, 0.95, "finding the neck")
         mask, neck = cut_at_neck(mask, spacing)
         stats["neck_cut"] = neck
