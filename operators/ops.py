@@ -321,14 +321,16 @@ class PDEHEAD_OT_run_pipeline(Operator, GuardedOperator, LoaderOptions):
         if event.type != 'TIMER':
             return {'PASS_THROUGH'}
         try:
-            run.step()
+            run.step(on_thread=True)   # segment and boundaries work on a thread: Esc stops them mid-step
         except Exception as exc:  # noqa: BLE001
             self.cancel(context)
             report_exception(self, exc)
             return {'CANCELLED'}
         wm = context.window_manager
         if wm is not None:
-            wm.progress_update(run.index)
+            wm.progress_update(run.index + (run.job.fraction if run.job is not None else 0.0))
+        if run.job is not None:
+            return {'RUNNING_MODAL'}
         if run.done:
             self._end_ui(context)
             self._report_done(run)

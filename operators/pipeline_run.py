@@ -171,11 +171,35 @@ class PipelineRun:
             for name, value in self.settings.items():
                 setattr(s, name, value)
 
-    def step(self) -> bool:
-        """Run the next step; True when the pipeline is complete."""
+    #: Steps whose engine call the modal run puts on a worker thread (:meth:`step` with ``on_thread``),
+    #: so that Esc stops them within a progress report: the two that take seconds on a clinical scan.
+    THREADED_STEPS = ("segment", "boundaries")
+    job = None  # the running :class:`.progress.EngineJob` of a threaded step
+
+    def step(self, on_thread: bool = False) -> bool:
+        """Run the next step; True when the pipeline is complete.
+
+        With ``on_thread`` (the modal operator, one call per timer tick) a step of :attr:`THREADED_STEPS`
+        starts its engine call on a worker thread and returns at once; later calls return False while it
+        runs, and the call after it ended keeps its result (on the main thread) and moves on."""
         name = self.steps[self.index]
         self.started.add(name)
-        if name == "import":
+        if self.job is not None:
+            if not self.job.done:
+                return False
+            job, self.job = self.job, None
+            result = job.finish()
+            study = self.study
+            if name == "segment":
+                study.keep_segmentation(result, job.seconds)
+            else:
+                study.keep_boundaries(result, job.seconds)
+        elif on_thread and name in self.THREADED_STEPS and not (name == "boundaries" and self.study.cache.seg is None):
+            from .progress import EngineJob
+            study = self.study
+            self.job = EngineJob(study.segment_call() if name == "segment" else study.boundaries_call())
+            return False
+        elif name == "import":
             if self.source == "PHANTOM":
                 study = Study.phantom(self.context)
             else:
@@ -199,6 +223,9 @@ class PipelineRun:
     def cancel(self) -> None:
         """Remove every object, collection and datablock this run created; a study the run worked on
         gets its settings, curves and meshes back as they were before the run."""
+        if self.job is not None:  # a step on its worker thread stops at its next progress report
+            self.job.cancel()
+            self.job = None
         self.rollback.undo()
         if self.snapshot is not None:
             self.snapshot.restore(self.started)

@@ -162,12 +162,22 @@ class PipelineSteps:
 
     def segment(self) -> None:
         """Segment the head from the CT (Chan-Vese and clean-up); the study keeps the segmentation."""
-        from ..pdehead_addon import segment_head
-        s = self.settings
-        ct = self.ct
-        cache = self.cache
+        call = self.segment_call()
         with state.Timer() as t:
-            seg = segment_head(ct, progress=step_progress("segment"))
+            seg = call(step_progress("segment"))
+        self.keep_segmentation(seg, t.seconds)
+
+    def segment_call(self):
+        """The segmentation's engine call, ``call(progress) -> Segmentation``: it touches no Blender data,
+        so the modal pipeline runs it on a worker thread (:class:`.progress.EngineJob`)."""
+        from ..pdehead_addon import segment_head
+        ct = self.ct
+        return lambda progress: segment_head(ct, progress=progress)
+
+    def keep_segmentation(self, seg, seconds: float) -> None:
+        """Keep the segmentation :meth:`segment_call` made (on the main thread)."""
+        s = self.settings
+        cache = self.cache
         cache.drop_from("seg")
         cache.seg = seg
         with suspended_updates():
@@ -176,34 +186,52 @@ class PipelineSteps:
             s.seg_c1, s.seg_c2 = float(seg.c1), float(seg.c2)
             # head size outside the human range, shoulders cut off: shown with the loader's warnings
             self.add_warnings(seg.meta.get("warnings", []))
-        self.record_timing("segment", t.seconds)
+        self.record_timing("segment", seconds)
 
     def boundaries(self) -> None:
         """Extract the boundary curves (segmenting first when needed), store them in the .blend and
         build the curves object."""
-        from ..pdehead_addon import extract_boundaries
-        s = self.settings
-        cache = self.cache
-        if cache.seg is None:
+        if self.cache.seg is None:
             self.segment()
+        call = self.boundaries_call()
+        with state.Timer() as t:
+            found = call(step_progress("boundaries"))
+        self.keep_boundaries(found, t.seconds)
+
+    def boundaries_call(self):
+        """The boundary curves' engine call, ``call(progress) -> (BoundarySet, warnings)``, for the study's
+        segmentation (which must exist): no Blender data inside, so the modal pipeline runs it on a worker
+        thread (:class:`.progress.EngineJob`). A patch count the scan cannot give is corrected here."""
+        import warnings
+        from ..pdehead_addon import SelectionWarning, extract_boundaries
+        s = self.settings
+        seg = self.cache.seg
         tolerance = _selection_tolerance(s)
         if tolerance and not s.align_curves:
             raise PDEHeadError("a tolerance chooses the curves automatically, which needs Align Curves")
-        patches, message = (s.patches, None) if tolerance else patches_for_scan(cache.seg, s.patches)
+        patches, message = (s.patches, None) if tolerance else patches_for_scan(seg, s.patches)
         if message:  # short scans (e.g. the tilted GE slab) cannot give 3t+1 slices
             with suspended_updates():
                 s.patches = patches
             self.add_warnings([message])
-        import warnings
-        from ..pdehead_addon import SelectionWarning
-        with state.Timer() as t, warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", SelectionWarning)
-            bset = extract_boundaries(cache.seg, patches=s.patches, samples=s.samples,
-                                      selection="auto" if tolerance else s.selection,
-                                      parameterisation="angular" if s.align_curves else "arc-length",
-                                      progress=step_progress("boundaries"), **tolerance)
-        # the tolerance could not be met with every usable slice: said beside the other warnings
-        self.add_warnings([str(w.message) for w in caught if issubclass(w.category, SelectionWarning)])
+        options = dict(patches=s.patches, samples=s.samples, selection="auto" if tolerance else s.selection,
+                       parameterisation="angular" if s.align_curves else "arc-length", **tolerance)
+
+        def call(progress):
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always", SelectionWarning)
+                bset = extract_boundaries(seg, progress=progress, **options)
+            # the tolerance could not be met with every usable slice: said beside the other warnings
+            return bset, [str(w.message) for w in caught if issubclass(w.category, SelectionWarning)]
+        return call
+
+    def keep_boundaries(self, found, seconds: float) -> None:
+        """Store the curves :meth:`boundaries_call` found in the .blend and build the curves object (on the
+        main thread)."""
+        bset, selection_warnings = found
+        s = self.settings
+        cache = self.cache
+        self.add_warnings(selection_warnings)
         self.store_boundaries(bset)
         cache.drop_from("bset")
         cache.bset = bset
@@ -212,7 +240,7 @@ class PipelineSteps:
         coll = self.collection
         s.curves_object = objects.build_boundary_curves(bset, coll, name=f"{coll.name} Boundary curves",
                                                         obj=s.curves_object)
-        self.record_timing("boundaries", t.seconds)
+        self.record_timing("boundaries", seconds)
 
     def surface(self) -> None:
         """Build or rebuild the PDE surface (solving the PDE when its controls changed)."""

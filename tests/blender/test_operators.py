@@ -228,6 +228,88 @@ def test_engine_error_mid_pipeline_leaves_nothing(ext, tmp_path, monkeypatch):
     assert ext.state.cached_study_ids() == []
 
 
+def _tick_until_next_step(op_cls, op, context, timer, ticks: int = 500) -> None:
+    """Timer ticks until the run moves to its next step (a threaded step takes several)."""
+    import time
+    index = op._run.index
+    for _ in range(ticks):
+        assert op_cls.modal(op, context, timer) == {'RUNNING_MODAL'}
+        if op._run.index > index:
+            return
+        time.sleep(0.01)
+    raise AssertionError(f"step {op._run.steps[index]} did not end in {ticks} ticks")
+
+
+def _modal_pipeline_op(ext):
+    """The Run Pipeline operator's modal methods on a stand-in operator and context (no window in bpy as a
+    module): the progress it reports and the reports it makes are recorded."""
+    import bpy
+    progress, reports = [], []
+    wm = SimpleNamespace(progress_update=progress.append, progress_end=lambda: progress.append("end"),
+                         event_timer_remove=lambda timer: progress.append("timer removed"))
+    context = SimpleNamespace(window_manager=wm, workspace=None, scene=bpy.context.scene,
+                              active_object=None, preferences=bpy.context.preferences)
+    op_cls = ext.ops.PDEHEAD_OT_run_pipeline
+    op = SimpleNamespace(_run=ext.pipeline_run.PipelineRun(bpy.context, "PHANTOM", settings=dict(patches=4, nu=16, nv=24)),
+                         _timer=object(), report=lambda kind, msg: reports.append((kind, msg)))
+    op._end_ui = lambda ctx: op_cls._end_ui(op, ctx)
+    op.cancel = lambda ctx: op_cls.cancel(op, ctx)
+    return op_cls, op, context, progress, reports
+
+
+def test_modal_pipeline_esc_stops_a_step_in_the_middle(ext, phantom, monkeypatch):
+    """Esc while the segmentation works on its thread: it stops at its next progress report (not at the
+    step's end, 10 s away), the thread has ended, and nothing of the run is left."""
+    import threading
+    import time
+    import bpy
+    calls, started = [], threading.Event()
+
+    def slow_segmentation(ct, progress=None, **kw):
+        for i in range(1000):   # 10 s if nobody stops it
+            progress(i / 1000, "Chan-Vese")
+            calls.append(i)
+            started.set()
+            time.sleep(0.01)
+        return ext.engine.Segmentation(phantom.head_mask, phantom.head_mask.astype(np.float32), 1.0, 0.0, 1, ct)
+    monkeypatch.setattr(ext.engine, "segment_head", slow_segmentation)
+    op_cls, op, context, progress, reports = _modal_pipeline_op(ext)
+    timer, esc = (SimpleNamespace(type=t) for t in ("TIMER", "ESC"))
+    _tick_until_next_step(op_cls, op, context, timer)              # import
+    assert op_cls.modal(op, context, timer) == {'RUNNING_MODAL'}   # the segmentation starts on its thread
+    job = op._run.job
+    assert job is not None and started.wait(5)
+    time.sleep(0.1)
+    assert op_cls.modal(op, context, timer) == {'RUNNING_MODAL'}   # still working: the tick returns at once
+    assert 1 < progress[-1] < 2                                     # its fraction between the step marks
+    assert op_cls.modal(op, context, esc) == {'CANCELLED'}
+    assert job.done and 0 < len(calls) < 200                        # stopped mid-step
+    assert len(bpy.data.objects) == 0 and len(bpy.data.collections) == 0 and len(bpy.data.meshes) == 0
+    assert ext.state.cached_study_ids() == []
+    assert reports and reports[-1][0] == {'WARNING'} and "cancelled" in reports[-1][1]
+
+
+def test_modal_pipeline_error_on_the_thread_is_reported(ext, phantom, monkeypatch):
+    """An engine error on the worker thread reaches the user as the synchronous run's would, and the run is
+    undone."""
+    import bpy
+
+    def failing_segmentation(ct, progress=None, **kw):
+        raise ext.engine.PDEHeadError("no head found in this CT")
+    monkeypatch.setattr(ext.engine, "segment_head", failing_segmentation)
+    op_cls, op, context, progress, reports = _modal_pipeline_op(ext)
+    timer = SimpleNamespace(type="TIMER")
+    _tick_until_next_step(op_cls, op, context, timer)              # import
+    result = None
+    for _ in range(500):
+        result = op_cls.modal(op, context, timer)
+        if result != {'RUNNING_MODAL'}:
+            break
+    assert result == {'CANCELLED'}
+    assert any("no head found" in msg for _, msg in reports)
+    assert len(bpy.data.objects) == 0 and len(bpy.data.collections) == 0
+
+
 def test_modal_pipeline_esc_removes_everything(ext, phantom, monkeypatch):
     """The UI path: one step per timer tick, progress, then Esc -> nothing of this run is left."""
     import bpy
@@ -249,8 +331,10 @@ def test_modal_pipeline_esc_removes_everything(ext, phantom, monkeypatch):
     assert op_cls.modal(op, context, mouse) == {'PASS_THROUGH'}
     for expected_step in ("import", "segment", "boundaries", "surface"):
         assert op._run.steps[op._run.index] == expected_step
-        assert op_cls.modal(op, context, timer) == {'RUNNING_MODAL'}
-    assert progress == [1, 2, 3, 4]
+        _tick_until_next_step(op_cls, op, context, timer)
+    # the step marks in order (a step on its worker thread adds its fraction between them)
+    assert progress == sorted(progress) and [p for p in progress if p in (1, 2, 3, 4)][-1] == 4
+    assert {1, 2, 3, 4} <= set(progress)
     coll = op._run.collection
     assert coll is not None and coll.pdehead.surface_object is not None and coll.pdehead.curves_object
     assert len(bpy.data.objects) == 3 and len(bpy.data.meshes) == 1  # curves, surface, the settings Empty
