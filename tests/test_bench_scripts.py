@@ -153,3 +153,23 @@ def test_clinical_scan_surface_against_the_reference_mask(phantom_seg):
     moved = bench_clinical_scan.surface_against_reference(phantom_seg, np.roll(phantom_seg.mask, 2, axis=2))
     dx = float(phantom_seg.ct.spacing[2])
     assert 0.5 * dx < moved["mean"] < 2.0 * 2 * dx and moved["max"] >= 1.5 * dx
+
+
+def test_clinical_scan_judges_reopen_and_ctrl_c():
+    """The reopen and Ctrl-C rows judge the worst case and the clean exit, not the first or the median."""
+    import bench_clinical_scan
+    cancels = [{"at_s": 3.0, "finished_before": False, "latency_s": 0.4, "exit_code": 130, "output_left": False},
+               {"at_s": 6.0, "finished_before": False, "latency_s": 0.9, "exit_code": 130, "output_left": False},
+               {"at_s": 10.5, "finished_before": True}]
+    reopen = {"first_cutaway_s": 0.5, "first_pde_change_s": 2.0, "cutaway_error": "", "pde_change_error": ""}
+    rows = bench_clinical_scan._reopen_and_cancel_rows({"reopen": reopen, "cancels": cancels})
+    assert len(rows) == 2 and all(row.endswith("**met** |") for row in rows)
+    assert "0.90 s (worst)" in rows[1]
+    slow = [dict(cancels[0]), dict(cancels[1], latency_s=1.3)]
+    assert bench_clinical_scan._reopen_and_cancel_rows({"cancels": slow})[0].endswith("**NOT met** |")
+    left = [dict(cancels[0], output_left=True)]
+    assert bench_clinical_scan._reopen_and_cancel_rows({"cancels": left})[0].endswith("**NOT met** |")
+    wrong_exit = [dict(cancels[0], exit_code=1)]
+    assert bench_clinical_scan._reopen_and_cancel_rows({"cancels": wrong_exit})[0].endswith("**NOT met** |")
+    slow_reopen = dict(reopen, first_pde_change_s=3.5)
+    assert bench_clinical_scan._reopen_and_cancel_rows({"reopen": slow_reopen})[0].endswith("**NOT met** |")

@@ -33,6 +33,7 @@ import os
 import platform
 import re
 import statistics
+import signal
 import subprocess
 import sys
 import tempfile
@@ -49,7 +50,10 @@ sys.path.insert(0, str(ROOT / "scripts"))
 SHAPE = (300, 512, 512)
 SPACING = (0.753, 0.5, 0.5)
 TARGETS = dict(total_s=15.0, vtk_ratio=25.0, segment_s=6.0, boundaries_s=3.0, peak_rss_gb=2.5,
-               jaccard_mean=0.99, jaccard_min=0.98, surface_mean_mm=0.2)
+               jaccard_mean=0.99, jaccard_min=0.98, surface_mean_mm=0.2, cancel_s=1.0, reopen_change_s=3.0)
+#: When Ctrl-C is sent to the CLI, in seconds after its start (Blender's start ~1.5 s, then import, a
+#: segmentation of ~6 s and the boundaries of ~3 s on this machine kind): inside each long step.
+CANCEL_AT_S = (3.0, 6.0, 9.0, 10.5)
 #: The CLI's printed steps, import to volume (``total`` is their wall time with the glue between them). The
 #: solid's CT table is its own step since Run Pipeline named it apart from the solid's mesh (before, it was
 #: part of ``solid``); a step the CLI prints that is not here stops the benchmark instead of being left out.
@@ -132,6 +136,71 @@ def run_cli(folder: Path, out: Path) -> dict:
         raise SystemExit(f"pdehead.py failed ({proc.returncode}):\n{stdout[-2000:]}\n{stderr[-2000:]}")
     steps = step_times(stdout)
     return {"steps": steps, "sum_steps_s": sum_of_steps(steps), "peak_rss_gb": peak / 1e9, "wall_s": wall, "cpu_s": cpu}
+
+
+def cancel_latency(folder: Path, work: Path, at_s: float) -> dict:
+    """Ctrl-C (SIGINT) sent to the CLI ``at_s`` seconds after its start: the seconds until the process has
+    exited, its exit code (130 expected), the step it was in (its last progress line) and whether it left
+    its output behind (it must not)."""
+    out = work / f"cancel-{at_s:g}" / "scan.blend"
+    env = dict(os.environ, BLENDER_USER_RESOURCES=str(work / "blender-user"))
+    proc = subprocess.Popen(cli_command(folder) + ["--out", str(out)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=env)
+    time.sleep(at_s)
+    if proc.poll() is not None:
+        return {"at_s": at_s, "finished_before": True}
+    t = time.perf_counter()
+    proc.send_signal(signal.SIGINT)
+    _, stderr = proc.communicate()
+    latency = time.perf_counter() - t
+    lines = [ln for ln in stderr.splitlines() if ln.strip()]
+    return {"at_s": at_s, "finished_before": False, "latency_s": latency, "exit_code": proc.returncode,
+            "last_line": lines[-2] if len(lines) > 1 else "", "output_left": out.exists() or out.parent.exists()
+            and any(out.parent.iterdir())}
+
+
+#: Run in a fresh Blender process (nothing in memory): reopen the CLI's .blend, time the first cutaway,
+#: then (reopened again) the first PDE change. argv: scripts folder, the .blend.
+_REOPEN_CODE = r"""
+import json, math, sys, time
+sys.path.insert(0, sys.argv[1])
+import pdehead
+pdehead.register_addon()
+import bpy
+from pdehead_dev.operators import state
+
+def study():
+    bpy.ops.wm.open_mainfile(filepath=sys.argv[2])
+    state.drop_cache()
+    return [c for c in bpy.data.collections if c.pdehead.is_study][0].pdehead
+
+out = {}
+s = study()
+t = time.perf_counter()
+s.v_range = (math.pi / 2, 2 * math.pi)
+out["first_cutaway_s"] = time.perf_counter() - t
+out["ct_read_on_first_cutaway"] = state.cache_for(s.study_id).ct is not None
+out["cutaway_error"] = s.last_error
+s = study()
+t = time.perf_counter()
+s.modes = 31
+out["first_pde_change_s"] = time.perf_counter() - t
+out["pde_change_error"] = s.last_error
+print("REOPEN " + json.dumps(out))
+"""
+
+
+def reopen_first_changes(blend: Path, work: Path) -> dict:
+    """The first live changes after reopening the CLI's .blend in a new Blender process (issue 20: <= 3 s
+    on this scan): a cutaway (the solid's CT table comes from the file) and a PDE change (Fourier modes,
+    which re-reads the CT and tabulates it; its colours at once, as headless Blender has no timer)."""
+    env = dict(os.environ, BLENDER_USER_RESOURCES=str(work / "blender-user"))
+    done = subprocess.run([sys.executable, "-c", _REOPEN_CODE, str(ROOT / "scripts"), str(blend)],
+                          capture_output=True, text=True, env=env)
+    line = [ln for ln in done.stdout.splitlines() if ln.startswith("REOPEN ")]
+    if done.returncode != 0 or not line:
+        raise SystemExit(f"reopening {blend} failed ({done.returncode}):\n{done.stdout[-2000:]}\n{done.stderr[-2000:]}")
+    return json.loads(line[-1][len("REOPEN "):])
 
 
 def render_figure(folder: Path, out_png: Path, work: Path) -> None:
@@ -276,6 +345,27 @@ def _git_head() -> str:
         return "unknown"
 
 
+def _reopen_and_cancel_rows(r: dict) -> list[str]:
+    """The table rows of the first changes after reopening and of Ctrl-C's latency (absent in old JSON)."""
+    ok = lambda good: "**met**" if good else "**NOT met**"  # noqa: E731
+    t, rows = TARGETS, []
+    if "reopen" in r:
+        ro = r["reopen"]
+        worst = max(ro["first_cutaway_s"], ro["first_pde_change_s"])
+        rows.append(f"| after reopening (a new Blender process): the first cutaway / the first PDE change (Fourier "
+                    f"modes, the CT re-read) | {ro['first_cutaway_s']:.2f} s / {ro['first_pde_change_s']:.2f} s | "
+                    f"<= {t['reopen_change_s']:g} s | {ok(worst <= t['reopen_change_s'] and not ro['cutaway_error'] and not ro['pde_change_error'])} |")
+    cancelled = [c for c in r.get("cancels", []) if not c["finished_before"]]
+    if cancelled:
+        worst = max(c["latency_s"] for c in cancelled)
+        clean = all(c["exit_code"] == 130 and not c["output_left"] for c in cancelled)
+        at = ", ".join(f"{c['at_s']:g} s: {c['latency_s']:.2f}" for c in cancelled)
+        rows.append(f"| Ctrl-C to the CLI: seconds until it has exited (sent at {at}); exit 130 and no output "
+                    f"left in every case: {'yes' if clean else 'NO'} | {worst:.2f} s (worst) | "
+                    f"<= {t['cancel_s']:g} s | {ok(worst <= t['cancel_s'] and clean)} |")
+    return rows
+
+
 def markdown(r: dict) -> str:
     from _common import load_note
     m, t = r["machine"], TARGETS
@@ -292,7 +382,7 @@ def markdown(r: dict) -> str:
              f"| sum of the CLI's step times (import to volume, the solid's CT table included) | {med['sum_steps_s']:.1f} s | <= {t['total_s']:g} s | "
              f"{ok(med['sum_steps_s'] <= t['total_s'])} |",
              f"| VTK vtkFlyingEdges3D, same array, skin level | {med['vtk_s']:.2f} s | peer | |",
-             f"| ratio to VTK | {med['ratio']:.0f} x | <= {t['vtk_ratio']:g} x | {ok(med['ratio'] <= t['vtk_ratio'])} |",
+             f"| ratio to VTK | {med['ratio']:.1f} x | <= {t['vtk_ratio']:g} x | {ok(med['ratio'] <= t['vtk_ratio'])} |",
              f"| segmentation | {med['segment_s']:.1f} s | <= {t['segment_s']:g} s | {ok(med['segment_s'] <= t['segment_s'])} |",
              f"| boundaries (automatic selection) | {med['boundaries_s']:.1f} s | <= {t['boundaries_s']:g} s | "
              f"{ok(med['boundaries_s'] <= t['boundaries_s'])} |",
@@ -304,7 +394,8 @@ def markdown(r: dict) -> str:
              f"| default surface (t = 10, 120 x 240) through today's mask against through the reference's: "
              f"symmetric mean (p95, max) | {r['surface_mm']['mean']:.3f} mm ({r['surface_mm']['p95']:.2f}, "
              f"{r['surface_mm']['max']:.2f}) | <= {t['surface_mean_mm']:g} mm | "
-             f"{ok(r['surface_mm']['mean'] <= t['surface_mean_mm'])} |", "",
+             f"{ok(r['surface_mm']['mean'] <= t['surface_mean_mm'])} |",
+             *_reopen_and_cancel_rows(r), "",
              f"The whole CLI process (Blender's start and the save included): {med['cli_wall_s']:.1f} s wall, "
              f"{med['cli_cpu_s']:.1f} s CPU (user + system; on a shared machine the CPU time is the steadier "
              "measure).", "",
@@ -338,6 +429,13 @@ def main(argv=None) -> int:
             runs.append(run_cli(folder, Path(tmp) / f"run{i}" / "scan.blend"))
             print(f"run {i + 1}: steps {runs[-1]['sum_steps_s']:.1f} s, peak {runs[-1]['peak_rss_gb']:.2f} GB, "
                   f"VTK {vtk_times[-1]:.2f} s", file=sys.stderr)
+        reopen = reopen_first_changes(Path(tmp) / f"run{args.repeats - 1}" / "scan.blend", Path(tmp))
+        print(f"after reopening: first cutaway {reopen['first_cutaway_s']:.2f} s, first PDE change "
+              f"{reopen['first_pde_change_s']:.2f} s", file=sys.stderr)
+        cancels = [cancel_latency(folder, Path(tmp), at) for at in CANCEL_AT_S]
+        for c in cancels:
+            print(f"Ctrl-C at {c['at_s']:g} s: " + ("finished before" if c["finished_before"] else
+                  f"exit {c['exit_code']} after {c['latency_s']:.2f} s ({c['last_line'][:60]})"), file=sys.stderr)
         if args.figure:
             render_figure(folder, args.figure, Path(tmp))
             print(f"figure: {args.figure}", file=sys.stderr)
@@ -357,6 +455,7 @@ def main(argv=None) -> int:
     median["ratio"] = median["sum_steps_s"] / median["vtk_s"]
     result = {"machine": start, "repeats": args.repeats, "commit": commit, "reference_commit": ref_commit,
               "runs": runs, "vtk_s": vtk_times, "median": median, "jaccard": jac, "surface_mm": surface,
+              "reopen": reopen, "cancels": cancels,
               "targets": TARGETS}
     if args.json:
         args.json.write_text(json.dumps(result, indent=1))
