@@ -300,11 +300,13 @@ def test_modal_pipeline_error_on_the_thread_is_reported(ext, phantom, monkeypatc
     op_cls, op, context, progress, reports = _modal_pipeline_op(ext)
     timer = SimpleNamespace(type="TIMER")
     _tick_until_next_step(op_cls, op, context, timer)              # import
+    import time
     result = None
     for _ in range(500):
         result = op_cls.modal(op, context, timer)
         if result != {'RUNNING_MODAL'}:
             break
+        time.sleep(0.01)   # the worker thread's turn
     assert result == {'CANCELLED'}
     assert any("no head found" in msg for _, msg in reports)
     assert len(bpy.data.objects) == 0 and len(bpy.data.collections) == 0
