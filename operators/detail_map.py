@@ -1,4 +1,4 @@
-"""The surface's CT detail map in Blender: a float image in the surface's UVs, shaded as bump.
+"""The surface's CT detail map in Blender: a 16-bit height image in the surface's UVs, shaded as bump.
 
 The engine (:func:`pdehead_addon.ct_detail_map`) gives per texel the offset (mm) along the PDE surface's
 outward normal from the surface to the CT's skin. Here it becomes the image "PDE Head Detail <surface>"
@@ -55,8 +55,6 @@ def png16(values01: np.ndarray) -> bytes:
 def set_detail_image(obj, height_mm: np.ndarray, range_mm: float):
     """The object's detail image: ``height_mm`` (rows from UV v = 0) stored as ``0.5 + mm / (2 range_mm)`` in a
     16-bit PNG packed into the .blend (Blender reads it back as float); a previous one is replaced."""
-    import bpy
-
     h, w = height_mm.shape
     return _pack_png(obj, png16(np.asarray(height_mm, np.float64) / (2.0 * float(range_mm)) + 0.5), range_mm, (w, h))
 
