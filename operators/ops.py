@@ -224,6 +224,22 @@ class PDEHEAD_OT_build_volume(Operator, StudyOperator):
                     f"VDB + material {t['volume']:.2f} s)")
 
 
+class PDEHEAD_OT_build_detail_map(Operator, StudyOperator):
+    bl_idname = "pdehead.build_detail_map"
+    bl_label = "Rebuild CT Detail"
+    bl_description = ("Rebuild the surface's CT detail map: the CT's fine relief (eyelids, lips, nose wings) as a "
+                      "bump map in the surface's UVs (seconds; the geometry stays the smooth PDE surface)")
+    bl_options = {'REGISTER', 'UNDO'}
+
+    def run(self, context, study):
+        s = study.settings
+        if s.surface_object is None:
+            raise PDEHeadError("Build the surface first")
+        study.detail_map()
+        self.report({'INFO'}, f"CT detail map of '{study.name}': {s.detail_resolution} px "
+                    f"({study.timings['detail_map']:.2f} s)")
+
+
 # ------------------------------------------------------------------------------------------
 # The one-click pipeline: synchronous from scripts, modal (one step per timer tick, Esc cancels) from the UI
 
@@ -430,6 +446,7 @@ CLASSES = (
     PDEHEAD_OT_reconstruct_surface,
     PDEHEAD_OT_build_solid,
     PDEHEAD_OT_build_volume,
+    PDEHEAD_OT_build_detail_map,
     PDEHEAD_OT_run_pipeline,
     PDEHEAD_OT_frame_study,
     PDEHEAD_OT_add_cutter,

@@ -147,6 +147,15 @@ class PDEHEAD_PT_surface(_StudyPanel, bpy.types.Panel):
         layout.operator("pdehead.reconstruct_surface", icon='MESH_UVSPHERE')
         if s.surface_object is not None:
             layout.label(text=f"{len(s.surface_object.data.vertices)} vertices")
+        col = layout.column(align=True)                  # the CT detail map (issue 21)
+        col.prop(s, "use_detail_map")
+        sub = col.column(align=True)
+        sub.enabled = s.use_detail_map
+        sub.prop(s, "detail_strength", slider=True)
+        sub.prop(s, "detail_resolution")
+        sub.operator("pdehead.build_detail_map", icon='MOD_DISPLACE')
+        if s.detail_stale:
+            col.label(text="The PDE changed: rebuild the CT detail", icon='ERROR')
 
 
 class PDEHEAD_PT_solid(_StudyPanel, bpy.types.Panel):

@@ -20,7 +20,7 @@ from pathlib import Path
 import bpy
 
 from ..pdehead_addon import PDEHeadError, patches_for_scan
-from . import objects, prefs, state, vdb_files, vdb_grids, volume
+from . import detail_map, objects, prefs, state, vdb_files, vdb_grids, volume
 from .progress import step_progress
 from .state import suspended_updates
 
@@ -224,6 +224,34 @@ class PipelineSteps:
                                                      obj=s.surface_object, name=f"{coll.name} Surface")
         self.record_timing("surface", t.seconds)
 
+    def detail_map(self) -> None:
+        """Build the surface's CT detail map (issue 21: eyelids, lips and nose wings as bump shading; the
+        segmentation is re-run when this session has none, e.g. after reopening the file)."""
+        s = self.settings
+        if s.surface_object is None:
+            return
+        if self.cache.seg is None:
+            self.segment()
+        head = self.solve()
+        with state.Timer() as t:
+            detail_map.build_detail_map(s.surface_object, head, self.cache.seg, s.detail_resolution,
+                                        s.detail_strength, s.use_detail_map)
+            with suspended_updates():
+                s.detail_stale = False
+        self.record_timing("detail_map", t.seconds)
+
+    def detail_shading(self) -> None:
+        """The sidebar's CT Detail toggle and strength: the bump plugged in or out; turned on without a map
+        (or with one out of date) the map is built."""
+        s = self.settings
+        obj = s.surface_object
+        if obj is None:
+            return
+        if s.use_detail_map and (detail_map.detail_image(obj) is None or s.detail_stale):
+            self.detail_map()
+        else:
+            detail_map.set_detail_shading(obj, s.detail_strength, s.use_detail_map and not s.detail_stale)
+
     def volume_settings(self) -> dict:
         """The volume material's settings (eq. 24 alphas, density, colour, alpha mode)."""
         s = self.settings
@@ -260,5 +288,7 @@ class PipelineSteps:
             self.volume(context)
         elif name in ("segment", "boundaries", "surface", "solid"):
             getattr(self, name)()
+            if name == "surface" and self.settings.use_detail_map:
+                self.detail_map()
         else:
             raise ValueError(f"no pipeline step '{name}'")
