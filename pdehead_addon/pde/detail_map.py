@@ -155,9 +155,9 @@ def _vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """Area-weighted unit vertex normals of outward-wound triangles."""
     v = vertices
     n = np.cross(v[triangles[:, 1]] - v[triangles[:, 0]], v[triangles[:, 2]] - v[triangles[:, 0]])
-    out = np.zeros_like(v)
-    for k in range(3):
-        np.add.at(out, triangles[:, k], n)
+    # the face normals summed at their corners (bincount: np.add.at is ~10x slower on a million faces)
+    corner = triangles.ravel()
+    out = np.stack([np.bincount(corner, np.repeat(n[:, c], 3), minlength=len(v)) for c in range(3)], axis=1)
     return out / np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-12)
 
 
@@ -196,9 +196,30 @@ def texel_surface(head, resolution: int, mesh_per_texel: float = MESH_PER_TEXEL)
     return texel, points, nrm
 
 
+#: The sampler's first pass along the normal takes every ``COARSE_STEPS``-th of the ``step_mm`` samples; only
+#: the coarse intervals where it crosses the level, and those nearer the surface than that crossing (a gap
+#: or sliver under a coarse step can hide a crossing between two coarse samples), are then sampled at
+#: ``step_mm``: the same samples, the same linear placement and so the same offsets as sampling every
+#: ``step_mm`` throughout, at ~12 samples a texel instead of 25 (CThead at the defaults).
+COARSE_STEPS = 4
+
+
+def _level_crossings(f: np.ndarray, t: np.ndarray, step_mm: float):
+    """Per row of ``f`` (the field minus the level at offsets ``t``, ``step_mm`` apart): the crossing from
+    inside (> 0) to outside (<= 0) nearest offset 0, placed linearly between its two samples (offset 0
+    where there is none), whether there is one, and the index of its interval."""
+    cross = (f[:, :-1] > 0) & (f[:, 1:] <= 0)                            # inside -> outside going outward
+    frac = f[:, :-1] / np.where(cross, f[:, :-1] - f[:, 1:], 1.0)
+    at = t[..., :-1] + step_mm * frac
+    best = np.argmin(np.where(cross, np.abs(at), np.inf), axis=1)
+    rows = np.arange(len(f))
+    hit = cross[rows, best]
+    return np.where(hit, at[rows, best], 0.0), hit, best
+
+
 def offset_to_level(field3d: np.ndarray, to_index: np.ndarray, points: np.ndarray, normals: np.ndarray,
-                    max_mm: float, step_mm: float, level: float = 0.5, chunk: int = 65536
-                    ) -> tuple[np.ndarray, np.ndarray]:
+                    max_mm: float, step_mm: float, level: float = 0.5, chunk: int = 65536,
+                    coarse_steps: int = COARSE_STEPS) -> tuple[np.ndarray, np.ndarray]:
     """Signed distance (mm) along each normal to the nearest crossing of ``level`` from above to below.
 
     Parameters
@@ -211,6 +232,9 @@ def offset_to_level(field3d: np.ndarray, to_index: np.ndarray, points: np.ndarra
         Where to start and the (unit) direction of positive offsets.
     max_mm, step_mm : float
         Samples at ``-max_mm .. max_mm`` every ``step_mm``.
+    coarse_steps : int
+        Search every ``coarse_steps``-th sample first, then refine the interval of the nearest crossing
+        (:data:`COARSE_STEPS`; 1: every sample at once).
 
     Returns
     -------
@@ -220,26 +244,59 @@ def offset_to_level(field3d: np.ndarray, to_index: np.ndarray, points: np.ndarra
     """
     from scipy.ndimage import map_coordinates
     k = max(1, int(round(max_mm / step_mm)))
+    # the coarse samples are a subset of the fine ones: the coarse step divides the whole span
+    coarse = next(c for c in range(max(1, int(coarse_steps)), 0, -1) if (2 * k) % c == 0)
     t = np.linspace(-k * step_mm, k * step_mm, 2 * k + 1)
+    t_coarse = t[::coarse]
+    inner = np.arange(1, coarse) * step_mm                                 # the fine samples inside an interval
     A, b = to_index[:3, :3], to_index[:3, 3]
     m = len(points)
     offset = np.zeros(m, np.float32)
     found = np.zeros(m, bool)
     vol = np.asarray(field3d, np.float32)
+
+    def sample(p0, d, offsets):
+        """The field minus ``level`` at ``p0 + offsets d`` (offsets: (K,) or (c, K))."""
+        offsets = np.broadcast_to(offsets, (len(p0), np.shape(offsets)[-1]))
+        coords = p0[:, None, :] + offsets[..., None] * d[:, None, :]      # (c, K, 3)
+        f = map_coordinates(vol, coords.reshape(-1, 3).T, order=1, mode="constant", cval=0.0)
+        return f.reshape(offsets.shape) - level
+
+    def refine(f, p0, d, row, i):
+        """The nearest crossing inside coarse interval ``i`` of texel ``row`` at every fine sample (pairs)."""
+        lo = t_coarse[i]
+        fine = np.concatenate([f[row, i][:, None], sample(p0[row], d[row], lo[:, None] + inner),
+                               f[row, i + 1][:, None]], axis=1)
+        at, hit, _ = _level_crossings(fine, lo[:, None] + np.arange(coarse + 1) * step_mm, step_mm)
+        return np.where(hit, at, np.nan)
+
+    # how near offset 0 each coarse interval comes
+    reach = np.where((t_coarse[:-1] < 0) & (t_coarse[1:] > 0), 0.0,
+                     np.minimum(np.abs(t_coarse[:-1]), np.abs(t_coarse[1:])))
     for start in range(0, m, chunk):
         sl = slice(start, start + chunk)
         p0 = points[sl] @ A.T + b                                        # (c, 3) voxel index
         d = normals[sl] @ A.T                                            # index per mm along the normal
-        coords = p0[:, None, :] + t[None, :, None] * d[:, None, :]       # (c, K, 3)
-        f = map_coordinates(vol, coords.reshape(-1, 3).T, order=1, mode="constant", cval=0.0)
-        f = f.reshape(len(p0), len(t)) - level
-        cross = (f[:, :-1] > 0) & (f[:, 1:] <= 0)                        # inside -> outside going outward
-        frac = f[:, :-1] / np.where(cross, f[:, :-1] - f[:, 1:], 1.0)
-        at = t[:-1][None, :] + step_mm * frac
-        best = np.argmin(np.where(cross, np.abs(at), np.inf), axis=1)
-        rows = np.arange(len(p0))
-        hit = cross[rows, best]
-        offset[sl] = np.where(hit, at[rows, best], 0.0)
+        f = sample(p0, d, t_coarse)
+        at, hit, _ = _level_crossings(f, t_coarse, coarse * step_mm)
+        if coarse > 1:
+            # 1. every coarse interval that crosses, at every fine sample
+            row, i = np.nonzero((f[:, :-1] > 0) & (f[:, 1:] <= 0))
+            got = refine(f, p0, d, row, i)
+            nearest = np.full(len(f), np.inf)
+            np.minimum.at(nearest, row, np.abs(got))
+            # 2. the intervals nearer the surface than that crossing (all of them without one): a gap or a
+            # sliver under a coarse step can hide a crossing from the coarse samples
+            row2, i2 = np.nonzero((reach[None, :] < nearest[:, None])
+                                  & ~((f[:, :-1] > 0) & (f[:, 1:] <= 0)))
+            row, got = np.concatenate([row, row2]), np.concatenate([got, refine(f, p0, d, row2, i2)])
+            keep = ~np.isnan(got)
+            row, got = row[keep], got[keep]
+            order = np.lexsort((np.abs(got), row))                       # by texel, the nearest first
+            first = order[np.unique(row[order], return_index=True)[1]]
+            at, hit = np.zeros(len(f)), np.zeros(len(f), bool)
+            at[row[first]], hit[row[first]] = got[first], True
+        offset[sl] = at
         found[sl] = hit
     return offset, found
 

@@ -98,3 +98,22 @@ def test_the_slice_axis_is_smoothed_at_least_by_part_of_a_slice_step():
     width_z = np.sqrt((prof_z * (np.arange(21) - 10) ** 2).sum() / prof_z.sum()) * 3.0
     width_x = np.sqrt((prof_x * (np.arange(21) - 10) ** 2).sum() / prof_x.sum()) * 1.0
     assert width_z == pytest.approx(DM.SLICE_SIGMA * 3.0, rel=0.1) and width_x == pytest.approx(1.0, rel=0.1)
+
+
+def test_the_coarse_search_finds_the_same_crossings_as_every_sample():
+    """The sampler's coarse pass then refine (:data:`DM.COARSE_STEPS`) gives the offsets of sampling every
+    step: on a field that wiggles faster than a coarse step (gaps and slivers a coarse pass steps over)."""
+    from scipy.ndimage import gaussian_filter
+    rng = np.random.default_rng(7)
+    field = gaussian_filter(rng.random((40, 40, 40)).astype(np.float32), 1.0)
+    field = (field - field.mean()) / field.std() * 0.3 + 0.5           # crosses 0.5 every ~1.5 voxels
+    to_index = np.diag([2.0, 2.0, 2.0, 1.0])                            # 0.5 mm voxels: (x, y, z) -> (k, j, i)
+    to_index[:3, :3] = to_index[:3, :3][::-1]
+    points = rng.uniform(5.0, 15.0, (4000, 3))
+    normals = rng.normal(size=(4000, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    every, found_every = DM.offset_to_level(field, to_index, points, normals, 3.0, 0.25, coarse_steps=1)
+    coarse, found_coarse = DM.offset_to_level(field, to_index, points, normals, 3.0, 0.25, coarse_steps=4)
+    assert found_every.mean() > 0.8
+    np.testing.assert_array_equal(found_coarse, found_every)
+    assert np.abs(coarse - every).max() < 1e-5
