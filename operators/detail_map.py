@@ -9,10 +9,13 @@ surface's object space is metres, world = LPS mm x 0.001) on the Material Output
 displacement method "Bump only": the shading shows the eyelids, lips and nose wings, the geometry and the
 exports stay the smooth PDE surface.
 
-A live change of the PDE moves the surface away from the map's: the map is then marked out of date and
-its bump unplugged (not left silently stale) until it is rebuilt (the sidebar's *Rebuild CT Detail*, or Run
-Pipeline): rebuilding costs seconds (~5 s at 1024 x 1024 on CThead), far beyond a slider's 100 ms step.
-nu, nv and caps do not change the map (the UVs are a function of (u, v)).
+Off by default (``use_detail_map``): Run Pipeline builds it only when it is on, and turning it on never
+builds it inside the property's update (that would block the UI for seconds): the Surface panel then
+shows *Build CT Detail* (:class:`~.ops.PDEHEAD_OT_build_detail_map`: modal with progress, Esc keeps the old
+map; synchronous from scripts). A live change of the PDE moves the surface away from the map's: the map is
+then marked out of date and its bump unplugged (not left silently stale) until it is rebuilt (*Rebuild CT
+Detail*, or Run Pipeline): rebuilding costs seconds (~2-3 s at 1024 x 1024 on CThead), far beyond a
+slider's 100 ms step. nu, nv and caps do not change the map (the UVs are a function of (u, v)).
 """
 from __future__ import annotations
 
@@ -193,9 +196,21 @@ def set_detail_shading(obj, strength: float, enabled: bool) -> bool:
 
 def build_detail_map(obj, head, seg, resolution: int, strength: float, enabled: bool = True) -> dict:
     """Compute the detail map of ``head`` from ``seg`` (its mask and CT geometry) and give it to ``obj``."""
-    from ..pdehead_addon import ct_detail_map
+    stages = detail_map_stages(obj, head, seg, resolution, strength, enabled)
+    while True:
+        try:
+            next(stages)
+        except StopIteration as done:
+            return done.value
 
-    dmap = ct_detail_map(head, seg.mask, seg.ct, resolution=int(resolution))
+
+def detail_map_stages(obj, head, seg, resolution: int, strength: float, enabled: bool = True):
+    """:func:`build_detail_map` one engine stage at a time (a generator yielding ``(fraction, message)``,
+    returning the map's meta): the object's image and material change only after the last stage, so a
+    caller that stops early (Esc in :class:`~.ops.PDEHEAD_OT_build_detail_map`) keeps the old map."""
+    from ..pdehead_addon import detail_map_stages as engine_stages
+
+    dmap = yield from engine_stages(head, seg.mask, seg.ct, resolution=int(resolution))
     image = set_detail_image(obj, dmap.height, dmap.meta["max_mm"])
     ensure_detail_material(obj, image)
     set_detail_shading(obj, strength, enabled)

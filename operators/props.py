@@ -39,7 +39,8 @@ def _live(what: str):
 
 def _detail_update(self, context):
     """The CT Detail toggle and strength: the surface's bump plugged in or out (:meth:`.Study.detail_shading`;
-    errors go to the sidebar, an update callback must not raise)."""
+    never builds the map: that is *Build CT Detail*'s; errors go to the sidebar, an update callback must not
+    raise)."""
     if state.updates_suspended() or not self.is_study:
         return
     study = Study.of_settings(self)
@@ -188,7 +189,7 @@ class PDEHeadStudySettings(bpy.types.PropertyGroup):
     detail_strength: FloatProperty(name=D.DETAIL_STRENGTH.label, **D.DETAIL_STRENGTH.limits(), update=_detail_update,
                                    description=D.DETAIL_STRENGTH.description)
     detail_resolution: IntProperty(name=D.DETAIL_RESOLUTION.label, **D.DETAIL_RESOLUTION.limits(),
-                                   description=D.DETAIL_RESOLUTION.description + " (used at the next build)")
+                                   description=D.DETAIL_RESOLUTION.description)
     detail_stale: BoolProperty(name="CT Detail Out of Date", default=False,
                                description="The PDE changed since the CT detail map was built: rebuild it")
 

@@ -53,6 +53,7 @@ from .core.provenance import SOFTWARE_VERSION as __version__  # noqa: E402
 #: layer and the scripts take them from here, not from the modules that define them.
 _LAZY = {
     "ct_detail_map": (".pde.detail_map", "ct_detail_map"),
+    "detail_map_stages": (".pde.detail_map", "detail_map_stages"),
     "apply_window": (".core.ct_volume", "apply_window"),
     "ct_grid_for": (".core.ct_volume", "ct_grid_for"),
     "grid_affine": (".core.ct_volume", "grid_affine"),

@@ -45,7 +45,7 @@ import numpy as np
 
 from .. import defaults as D
 
-__all__ = ["ct_detail_map", "DetailMap", "texel_surface", "rasterise_triangles", "smooth_mask",
+__all__ = ["ct_detail_map", "detail_map_stages", "DetailMap", "texel_surface", "rasterise_triangles", "smooth_mask",
            "offset_to_level", "SLICE_SIGMA", "PAD_TEXELS"]
 
 #: The Gaussian along the slice axis is at least this share of the slice step (mm): a stack of 2 mm
@@ -334,7 +334,7 @@ def _slice_axis(ct) -> np.ndarray:
 
 def ct_detail_map(head, mask: np.ndarray, ct, resolution: int = D.DETAIL_RESOLUTION.default,
                   sigma_mm: float = D.DETAIL_SIGMA.default, max_mm: float = D.DETAIL_MAX_OFFSET.default,
-                  step_mm: float = 0.25) -> DetailMap:
+                  step_mm: float = 0.25, coarse_steps: int = COARSE_STEPS, progress=None) -> DetailMap:
     """The CT detail map of a PDE head: per texel of its UV layout, the offset (mm) along the surface's
     outward normal from the PDE surface to the 0.5 level of the smoothed head mask (module docstring).
 
@@ -354,6 +354,12 @@ def ct_detail_map(head, mask: np.ndarray, ct, resolution: int = D.DETAIL_RESOLUT
         How far along the normal the skin is looked for (either side); the map's values lie within it.
     step_mm : float
         The sampling step along the normal (the crossing is placed linearly between two samples).
+    coarse_steps : int
+        The sampler's first pass takes every ``coarse_steps``-th sample (:data:`COARSE_STEPS`; 1: every
+        sample, as before: the same map).
+    progress : callable, optional
+        ``progress(fraction, message)`` between the stages and the sampler's chunks; it may raise
+        :class:`~..core.errors.Cancelled` (nothing is returned or kept).
 
     Returns
     -------
@@ -361,27 +367,57 @@ def ct_detail_map(head, mask: np.ndarray, ct, resolution: int = D.DETAIL_RESOLUT
 
     Notes
     -----
-    Cost on CThead (256 x 256 x 113 voxels, t = 15) at 1024 x 1024 (531k texels covered), 2 shared cores:
-    5.3 s (7.6 s with the machine loaded): the mask's Gaussian 0.2-0.4 s, the texels 2.8 s (of which the UV
-    layout 0.65 s, once per study), sampling 2.2 s (25 samples a texel), softening and gutters 0.1 s; the
-    peak memory grows by ~0.4 GB (the texel mesh's ~1M vertices and the sampling chunks).
+    Cost on CThead (256 x 256 x 113 voxels, t = 15) at 1024 x 1024 (529k texels covered), 2 shared cores,
+    measured in the README ("The closed eyes: a CT detail map"): the mask's Gaussian ~0.2 s, the texels
+    ~1.2 s (the surface meshed at ~1M vertices and rasterised), sampling ~0.8 s (13 samples a texel where
+    sampling every 0.25 mm took 25 and ~1.3 s), softening and gutters 0.1 s; ~0.4 GB at its peak (the
+    texel mesh and its rasterised triangles).
+    """
+    from ..core.errors import report_progress
+    stages = detail_map_stages(head, mask, ct, resolution, sigma_mm, max_mm, step_mm, coarse_steps)
+    while True:
+        try:
+            fraction, message = next(stages)
+        except StopIteration as done:
+            return done.value
+        report_progress(progress, fraction, message)
+
+
+def detail_map_stages(head, mask: np.ndarray, ct, resolution: int = D.DETAIL_RESOLUTION.default,
+                      sigma_mm: float = D.DETAIL_SIGMA.default, max_mm: float = D.DETAIL_MAX_OFFSET.default,
+                      step_mm: float = 0.25, coarse_steps: int = COARSE_STEPS, chunk: int = 65536):
+    """:func:`ct_detail_map` one stage at a time, for a caller that keeps a UI responsive between them (a
+    Blender modal operator: Esc between two stages stops it with nothing kept).
+
+    A generator: yields ``(fraction, message)`` after each stage (the mask's Gaussian, the texels, each
+    ``chunk`` of texels sampled; none takes more than ~1.5 s on CThead at 1024 px) and returns the
+    :class:`DetailMap` (``StopIteration.value``). Parameters as :func:`ct_detail_map`.
     """
     import time
     res = int(D.DETAIL_RESOLUTION.check(int(resolution), "resolution"))
     clock = {}
     t0 = time.perf_counter()
     smoothed = smooth_mask(mask, ct.spacing, float(sigma_mm))
+    clock["smooth_s"] = time.perf_counter() - t0
+    yield 0.1, "the texels of the surface's UV map"
     t1 = time.perf_counter()
-    clock["smooth_s"] = t1 - t0
     texel, points, normals = texel_surface(head, res)
-    t2 = time.perf_counter()
-    clock["texels_s"] = t2 - t1
+    clock["texels_s"] = time.perf_counter() - t1
+    yield 0.4, "sampling the skin along the normals"
     to_index = np.linalg.inv(ct.affine)[[2, 1, 0, 3]]                    # LPS -> (k, j, i)
-    offset, hit = offset_to_level(smoothed, to_index, points, normals, float(max_mm), float(step_mm))
+    offset = np.zeros(len(texel), np.float32)
+    hit = np.zeros(len(texel), bool)
+    clock["sample_s"] = 0.0
+    for start in range(0, len(texel), chunk):
+        t2 = time.perf_counter()
+        sl = slice(start, start + chunk)
+        offset[sl], hit[sl] = offset_to_level(smoothed, to_index, points[sl], normals[sl], float(max_mm),
+                                              float(step_mm), chunk=chunk, coarse_steps=coarse_steps)
+        clock["sample_s"] += time.perf_counter() - t2
+        yield 0.4 + 0.55 * min(start + chunk, len(texel)) / len(texel), "sampling the skin along the normals"
+    t3 = time.perf_counter()
     offset *= np.clip((UP_FADE[1] - normals @ _slice_axis(ct)) / (UP_FADE[1] - UP_FADE[0]), 0.0, 1.0).astype(np.float32)
     del smoothed
-    t3 = time.perf_counter()
-    clock["sample_s"] = t3 - t2
     height = np.zeros(res * res, np.float32)
     covered = np.zeros(res * res, bool)
     found = np.zeros(res * res, bool)

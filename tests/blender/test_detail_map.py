@@ -1,6 +1,7 @@
 """The surface's CT detail map in Blender (issue 21, the closed eyes): a float image in the surface's UVs,
 wired as bump ("Bump only") into the surface's own skin material, packed into the .blend (a 16-bit PNG), and
-marked out of date (its bump unplugged) when a PDE change moves the surface.
+marked out of date (its bump unplugged) when a PDE change moves the surface. Off by default: Run Pipeline
+builds none, the toggle never builds, *Build CT Detail* (``pdehead.build_detail_map``) does.
 """
 from __future__ import annotations
 
@@ -16,15 +17,64 @@ def _modules(pdehead_ext):
             sys.modules[f"{name}.operators.study_entity"].Study)
 
 
-@pytest.fixture()
-def reopened(pdehead_ext, phantom_blend):
-    """The phantom's saved pipeline reopened: (detail_map module, state, Study, study collection)."""
+def _open_study(state, path):
     import bpy
-    detail, state, study = _modules(pdehead_ext)
-    bpy.ops.wm.open_mainfile(filepath=str(phantom_blend))
+    bpy.ops.wm.open_mainfile(filepath=str(path))
     state.drop_cache()
-    coll = [c for c in bpy.data.collections if c.pdehead.is_study][0]
-    return detail, state, study, coll
+    return [c for c in bpy.data.collections if c.pdehead.is_study][0]
+
+
+@pytest.fixture(scope="module")
+def detail_blend(pdehead_ext, phantom_blend, tmp_path_factory):
+    """The phantom's saved pipeline (the defaults: no detail map) with the map turned on and built by the
+    operator, as a script would, saved."""
+    import bpy
+    detail, state, _study = _modules(pdehead_ext)
+    coll = _open_study(state, phantom_blend)
+    coll.pdehead.use_detail_map = True
+    assert bpy.ops.pdehead.build_detail_map(study=coll.name) == {'FINISHED'}
+    path = tmp_path_factory.mktemp("detail") / "phantom_detail.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    bpy.ops.wm.read_homefile(use_empty=True)
+    return path
+
+
+@pytest.fixture()
+def reopened(pdehead_ext, detail_blend):
+    """The phantom's saved pipeline with its detail map, reopened: (detail_map module, state, Study, study
+    collection)."""
+    detail, state, study = _modules(pdehead_ext)
+    return detail, state, study, _open_study(state, detail_blend)
+
+
+def test_run_pipeline_at_the_defaults_builds_no_map_and_the_operator_builds_the_branchs(ext, pdehead_ext,
+                                                                                        phantom_blend):
+    """Off by default: Run Pipeline (the phantom's, at the defaults) leaves no detail image or material;
+    turning it on does not build one (no seconds in an update callback); the operator does, and its values
+    are those of sampling every 0.25 mm along the normals (the branch's way, ``coarse_steps=1``)."""
+    import bpy
+    detail, state, study_cls = _modules(pdehead_ext)
+    E = ext.engine
+    coll = _open_study(state, phantom_blend)
+    s = coll.pdehead
+    obj = s.surface_object
+    assert s.use_detail_map is False and E.defaults.USE_DETAIL_MAP.default is False
+    assert detail.detail_image(obj) is None and detail.detail_material(obj) is None
+    assert not [im for im in bpy.data.images if im.get(detail.DETAIL_IMAGE_KEY) == 1]
+    s.use_detail_map = True                                      # the toggle alone: nothing built
+    assert detail.detail_image(obj) is None and s.last_error == ""
+    assert not study_cls.of(coll).detail_map_current()
+    assert bpy.ops.pdehead.build_detail_map(study=coll.name) == {'FINISHED'}
+    image = detail.detail_image(obj)
+    assert image is not None and study_cls.of(coll).detail_map_current()
+    assert len(_bump_wiring(detail, obj)[2]) == 1
+    study = study_cls.of(coll)
+    branch = E.ct_detail_map(study.solve(), study.cache.seg.mask, study.cache.seg.ct,
+                             resolution=s.detail_resolution, coarse_steps=1).height
+    got = detail.image_height_mm(image)
+    assert got.shape == branch.shape and np.abs(branch).max() > 0.5
+    # the 16-bit PNG holds 0.5 + mm / 6: a step of 1e-4 mm
+    assert np.abs(got - branch).max() < 1e-3, np.abs(got - branch).max()
 
 
 def _bump_wiring(detail, obj):
