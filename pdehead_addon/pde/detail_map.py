@@ -123,9 +123,10 @@ def rasterise_triangles(uv: np.ndarray, resolution: int) -> tuple[np.ndarray, np
         Its barycentric coordinates in that triangle.
     """
     p = np.asarray(uv, float) * resolution - 0.5                     # texel-centre coordinates
-    lo = np.ceil(p.min(axis=1) - 1e-9).astype(np.int64)             # (n, 2): the first centre inside the box
-    extent = (np.floor(p.max(axis=1) + 1e-9).astype(np.int64) - lo + 1).clip(0)
     a, b, c = p[:, 0], p[:, 1], p[:, 2]
+    # the corners' min and max by pairs: a reduction over the middle axis of (n, 3, 2) is ~10x slower
+    lo = np.ceil(np.minimum(np.minimum(a, b), c) - 1e-9).astype(np.int64)   # (n, 2): the box's first centre
+    extent = (np.floor(np.maximum(np.maximum(a, b), c) + 1e-9).astype(np.int64) - lo + 1).clip(0)
     e1, e2 = b - a, c - a
     det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
     ok = np.abs(det) > 1e-14
@@ -189,9 +190,13 @@ def texel_surface(head, resolution: int, mesh_per_texel: float = MESH_PER_TEXEL)
     texel, tri, bary = rasterise_triangles(tri_uv, resolution)
     texel, first = np.unique(texel, return_index=True)      # a texel on a shared edge: one of its triangles
     corners = tris[tri[first]]
-    w = bary[first][..., None]
-    points = (mesh.vertices[corners] * w).sum(axis=1)
-    nrm = (normals[corners] * w).sum(axis=1)
+    w = bary[first]
+
+    def interpolate(at_vertices):
+        # corner by corner: a sum over the middle axis of (m, 3, 3) is several times slower
+        return sum(at_vertices[corners[:, k]] * w[:, k, None] for k in range(3))
+    points = interpolate(mesh.vertices)
+    nrm = interpolate(normals)
     nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
     return texel, points, nrm
 
