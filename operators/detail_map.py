@@ -14,7 +14,7 @@ builds it inside the property's update (that would block the UI for seconds): th
 shows *Build CT Detail* (:class:`~.ops.PDEHEAD_OT_build_detail_map`: modal with progress, Esc keeps the old
 map; synchronous from scripts). A live change of the PDE moves the surface away from the map's: the map is
 then marked out of date and its bump unplugged (not left silently stale) until it is rebuilt (*Rebuild CT
-Detail*, or Run Pipeline): rebuilding costs seconds (~2-3 s at 1024 x 1024 on CThead), far beyond a
+Detail*, or Run Pipeline): rebuilding costs seconds (~2.6 s of CPU at 1024 x 1024 on CThead), far beyond a
 slider's 100 ms step. nu, nv and caps do not change the map (the UVs are a function of (u, v)).
 """
 from __future__ import annotations
