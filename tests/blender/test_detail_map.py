@@ -243,3 +243,36 @@ def test_a_cancelled_run_puts_the_old_map_back(ext, reopened):
     assert image is not None and image.name == detail.image_name(obj)
     np.testing.assert_array_equal(detail.image_height_mm(image), before)
     assert len(_bump_wiring(detail, obj)[2]) == 1
+
+
+def test_the_panel_offers_build_ct_detail_when_on_without_a_current_map(ext, pdehead_ext, phantom_blend):
+    """The Surface panel: off, no build button; on without a map, a Build CT Detail box; once built, only
+    the rebuild button; after a shape change, the box again (drawn into a recording layout)."""
+    import bpy
+    from types import SimpleNamespace
+    from panel_recorder import RecordingLayout
+    detail, state, study_cls = _modules(pdehead_ext)
+    panel = sys.modules[f"{pdehead_ext.__name__}.operators.panel"]
+    coll = _open_study(state, phantom_blend)
+    bpy.context.scene.pdehead.active_study = coll
+    s = coll.pdehead
+
+    def drawn():
+        log = []
+        panel.PDEHEAD_PT_surface.draw(SimpleNamespace(layout=RecordingLayout(log), study=panel.PDEHEAD_PT_surface.study),
+                                      bpy.context)
+        ops = [x[1] for x in log if x[0] == "operator"]
+        labels = " ".join(str(x[1]) for x in log if x[0] == "label")
+        return ops.count("pdehead.build_detail_map"), labels
+
+    count, labels = drawn()
+    assert count == 0 and "CT detail" not in labels                # off (the default): nothing to build
+    s.use_detail_map = True
+    count, labels = drawn()
+    assert count == 1 and "No CT detail map yet" in labels
+    assert bpy.ops.pdehead.build_detail_map(study=coll.name) == {'FINISHED'}
+    count, labels = drawn()
+    assert count == 1 and "CT detail" not in labels
+    s.modes = 6                                                  # the surface moves: out of date
+    count, labels = drawn()
+    assert count == 1 and "rebuild the CT detail" in labels
