@@ -136,6 +136,7 @@ def test_the_map_survives_save_and_reopen(ext, reopened, tmp_path):
     bpy.ops.wm.read_homefile(use_empty=True)
     bpy.ops.wm.open_mainfile(filepath=str(path))
     coll = [c for c in bpy.data.collections if c.pdehead.is_study][0]
+    assert coll.pdehead.use_detail_map is True and not coll.pdehead.detail_stale   # the on state kept too
     obj = coll.pdehead.surface_object
     image = detail.detail_image(obj)
     assert image is not None and image.packed_file is not None
