@@ -182,6 +182,8 @@ def _rebuild(study: Study, group: str) -> None:
         s.volume_stale = True
     if group in ("surface", "surface_solid", "pde") and s.surface_object is not None:
         study.surface()
+        if group == "pde":
+            study.detail_out_of_date()
     if group in ("solid", "surface_solid", "pde") and s.solid_object is not None:
         study.solid()
 

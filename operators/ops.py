@@ -224,6 +224,115 @@ class PDEHEAD_OT_build_volume(Operator, StudyOperator):
                     f"VDB + material {t['volume']:.2f} s)")
 
 
+class TimerModal:
+    """Mixin: a modal operator that does one stage of its work per timer tick, with the progress
+    indicator and the status bar meanwhile (Esc is seen between two ticks)."""
+
+    def start_ui(self, context, total: int, text: str) -> None:
+        wm = context.window_manager
+        self._timer = wm.event_timer_add(0.05, window=context.window)
+        wm.progress_begin(0, total)
+        set_status(context, text)
+        wm.modal_handler_add(self)
+
+    #: The warning Esc reports.
+    cancelled_message = "PDE Head: cancelled"
+
+    def tick(self, context) -> bool:
+        """One stage; True when the work is done."""
+        raise NotImplementedError(type(self).__name__)
+
+    def finished(self) -> None:
+        """Report what was done."""
+
+    def modal(self, context, event):
+        if event.type == 'ESC':
+            self.cancel(context)
+            self.report({'WARNING'}, self.cancelled_message)
+            return {'CANCELLED'}
+        if event.type != 'TIMER':
+            return {'PASS_THROUGH'}
+        try:
+            done = self.tick(context)
+        except Exception as exc:  # noqa: BLE001
+            self.cancel(context)
+            report_exception(self, exc)
+            return {'CANCELLED'}
+        if done:
+            self._end_ui(context)
+            self.finished()
+            return {'FINISHED'}
+        return {'RUNNING_MODAL'}
+
+    def _end_ui(self, context) -> None:
+        progress.PROGRESS_HOOK[0] = None
+        wm = context.window_manager
+        timer = getattr(self, "_timer", None)
+        if timer is not None and wm is not None:
+            wm.event_timer_remove(timer)
+            self._timer = None
+        if wm is not None:
+            wm.progress_end()
+        set_status(context, None)
+
+
+class PDEHEAD_OT_build_detail_map(Operator, StudyOperator, TimerModal):
+    bl_idname = "pdehead.build_detail_map"
+    bl_label = "Build CT Detail"
+    bl_description = ("Build (or rebuild) the surface's CT detail map: the CT's fine relief (eyelids, lips, nose "
+                      "wings) as a bump map in the surface's UVs (seconds; Esc cancels and keeps the old map; the "
+                      "geometry stays the smooth PDE surface)")
+    bl_options = {'REGISTER', 'UNDO'}
+
+    def run(self, context, study):
+        """Synchronous (scripts, headless, redo)."""
+        if study.settings.surface_object is None:
+            raise PDEHeadError("Build the surface first")
+        study.detail_map()
+        self._report_done(study)
+
+    def _report_done(self, study) -> None:
+        self.report({'INFO'}, f"CT detail map of '{study.name}': {study.settings.detail_resolution} px "
+                    f"({study.timings['detail_map']:.2f} s)")
+
+    def invoke(self, context, event):
+        """With a UI: one stage per timer tick (:meth:`.Study.detail_map_stages`), the progress indicator
+        between them, Esc cancels with the old map kept."""
+        if context.window is None:
+            return self.execute(context)
+        study = Study.active(context, self.study)
+        try:
+            if study is None:
+                raise PDEHeadError("No PDE Head study: import a CT first")
+            self._study, self._stages = study, study.detail_map_stages()
+        except Exception as exc:  # noqa: BLE001
+            report_exception(self, exc)
+            return {'CANCELLED'}
+        self.start_ui(context, 1, f"PDE Head: {self.bl_label}... (Esc to cancel)")
+        return {'RUNNING_MODAL'}
+
+    cancelled_message = "PDE Head: CT detail cancelled; the old map is kept"
+
+    def tick(self, context) -> bool:
+        try:
+            fraction, message = next(self._stages)
+        except StopIteration:
+            return True
+        context.window_manager.progress_update(fraction)
+        set_status(context, f"PDE Head: CT detail: {message}... (Esc to cancel)")
+        return False
+
+    def finished(self) -> None:
+        self._report_done(self._study)
+
+    def cancel(self, context):
+        """Esc, an error or Blender closing the operator: the stages stop before anything is written."""
+        stages = getattr(self, "_stages", None)
+        if stages is not None:
+            stages.close()
+        self._end_ui(context)
+
+
 # ------------------------------------------------------------------------------------------
 # The one-click pipeline: synchronous from scripts, modal (one step per timer tick, Esc cancels) from the UI
 
@@ -235,7 +344,7 @@ SOURCE_ITEMS = [
 ]
 
 
-class PDEHEAD_OT_run_pipeline(Operator, GuardedOperator, LoaderOptions):
+class PDEHEAD_OT_run_pipeline(Operator, GuardedOperator, LoaderOptions, TimerModal):
     bl_idname = "pdehead.run_pipeline"
     bl_label = "Run PDE Head Pipeline"
     bl_description = ("One click: segment, extract boundaries, reconstruct the PDE surface and solid and "
@@ -303,51 +412,26 @@ class PDEHEAD_OT_run_pipeline(Operator, GuardedOperator, LoaderOptions):
             report_exception(self, exc)
             return {'CANCELLED'}
         wm = context.window_manager
-        self._timer = wm.event_timer_add(0.05, window=context.window)
-        wm.progress_begin(0, len(self._run.steps))
         run = self._run
+        self.start_ui(context, len(run.steps), f"PDE Head: {run.next_label}... (Esc to cancel)")
         # within a step: the engine's progress moves the progress indicator between the step marks
         progress.PROGRESS_HOOK[0] = lambda _step, fraction, _message="": wm.progress_update(run.index + fraction)
-        set_status(context, f"PDE Head: {self._run.next_label}... (Esc to cancel)")
-        wm.modal_handler_add(self)
         return {'RUNNING_MODAL'}
 
-    def modal(self, context, event):
+    cancelled_message = "PDE Head pipeline cancelled: nothing was kept"
+
+    def tick(self, context) -> bool:
         run = self._run
-        if event.type == 'ESC':
-            self.cancel(context)
-            self.report({'WARNING'}, "PDE Head pipeline cancelled: nothing was kept")
-            return {'CANCELLED'}
-        if event.type != 'TIMER':
-            return {'PASS_THROUGH'}
-        try:
-            run.step(on_thread=True)   # segment and boundaries work on a thread: Esc stops them mid-step
-        except Exception as exc:  # noqa: BLE001
-            self.cancel(context)
-            report_exception(self, exc)
-            return {'CANCELLED'}
+        run.step(on_thread=True)   # segment and boundaries work on a thread: Esc stops them mid-step
         wm = context.window_manager
         if wm is not None:
             wm.progress_update(run.index + (run.job.fraction if run.job is not None else 0.0))
-        if run.job is not None:
-            return {'RUNNING_MODAL'}
-        if run.done:
-            self._end_ui(context)
-            self._report_done(run)
-            return {'FINISHED'}
-        set_status(context, f"PDE Head: {run.next_label}... (Esc to cancel)")
-        return {'RUNNING_MODAL'}
+        if run.job is None and not run.done:
+            set_status(context, f"PDE Head: {run.next_label}... (Esc to cancel)")
+        return run.done
 
-    def _end_ui(self, context) -> None:
-        progress.PROGRESS_HOOK[0] = None
-        wm = context.window_manager
-        timer = getattr(self, "_timer", None)
-        if timer is not None and wm is not None:
-            wm.event_timer_remove(timer)
-            self._timer = None
-        if wm is not None:
-            wm.progress_end()
-        set_status(context, None)
+    def finished(self) -> None:
+        self._report_done(self._run)
 
     def cancel(self, context):
         """Esc, an error or Blender closing the operator: undo everything this run created."""
@@ -432,6 +516,7 @@ CLASSES = (
     PDEHEAD_OT_reconstruct_surface,
     PDEHEAD_OT_build_solid,
     PDEHEAD_OT_build_volume,
+    PDEHEAD_OT_build_detail_map,
     PDEHEAD_OT_run_pipeline,
     PDEHEAD_OT_frame_study,
     PDEHEAD_OT_add_cutter,

@@ -117,13 +117,39 @@ class PDEHEAD_PT_boundaries(_StudyPanel, bpy.types.Panel):
             layout.label(text=f"{s.curve_count} curves stored in the .blend ({kb:.0f} kB)", icon='FILE_BLEND')
 
 
+def draw_detail_map(layout, study) -> None:
+    """The CT detail map (issue 21): off by default; turned on without a current map (never built, or
+    the PDE changed since), a *Build CT Detail* button says what is missing (the toggle itself never
+    builds: seconds in an update callback would freeze the UI)."""
+    s = study.settings
+    col = layout.column(align=True)
+    col.prop(s, "use_detail_map")
+    sub = col.column(align=True)
+    sub.enabled = s.use_detail_map
+    sub.prop(s, "detail_strength", slider=True)
+    sub.prop(s, "detail_resolution")
+    if not s.use_detail_map or s.surface_object is None:
+        return
+    if study.detail_map_current():
+        sub.operator("pdehead.build_detail_map", text="Rebuild CT Detail", icon='MOD_DISPLACE')
+        return
+    box = col.box()
+    box.label(text="The PDE changed: rebuild the CT detail" if s.detail_stale
+              else "No CT detail map yet (a few seconds)", icon='ERROR' if s.detail_stale else 'INFO')
+    row = box.row()
+    row.scale_y = 1.4
+    row.operator("pdehead.build_detail_map", text="Rebuild CT Detail" if s.detail_stale else "Build CT Detail",
+                 icon='MOD_DISPLACE')
+
+
 class PDEHEAD_PT_surface(_StudyPanel, bpy.types.Panel):
     bl_idname = "PDEHEAD_PT_surface"
     bl_label = "Surface"
 
     def draw(self, context):
         layout = self.layout
-        s = self.study(context).settings
+        study = self.study(context)
+        s = study.settings
         col = layout.column(align=True)
         col.prop(s, "nu")
         col.prop(s, "nv")
@@ -147,6 +173,7 @@ class PDEHEAD_PT_surface(_StudyPanel, bpy.types.Panel):
         layout.operator("pdehead.reconstruct_surface", icon='MESH_UVSPHERE')
         if s.surface_object is not None:
             layout.label(text=f"{len(s.surface_object.data.vertices)} vertices")
+        draw_detail_map(layout, study)
 
 
 class PDEHEAD_PT_solid(_StudyPanel, bpy.types.Panel):

@@ -13,7 +13,7 @@ from pathlib import Path
 import bpy
 
 from ..pdehead_addon import PDEHeadError
-from . import objects, scene, state
+from . import detail_map, objects, scene, state
 from .state import suspended_updates
 from .study_entity import Study
 
@@ -79,6 +79,7 @@ class StudySnapshot:
             self.values[prop.identifier] = tuple(value) if getattr(prop, "is_array", False) else value
         self.boundaries = coll.get(state.BOUNDARY_KEY)
         self.cache = copy.copy(study.cache)
+        self.detail = detail_map.packed_state(s.surface_object)      # the surface's CT detail map (~1 MB)
 
     def restore(self, rebuilt: set) -> None:
         coll = bpy.data.collections.get(self.collection_name)
@@ -106,6 +107,8 @@ class StudySnapshot:
                                           obj=s.curves_object)
         if rebuilt & {"boundaries", "surface"} and s.surface_object is not None:
             study.surface()
+            detail_map.restore_packed(s.surface_object, self.detail)
+            detail_map.set_detail_shading(s.surface_object, s.detail_strength, s.use_detail_map and not s.detail_stale)
         if rebuilt & {"boundaries", "surface", "solid"} and s.solid_object is not None:
             study.solid()
 

@@ -37,6 +37,21 @@ def _live(what: str):
     return update
 
 
+def _detail_update(self, context):
+    """The CT Detail toggle and strength: the surface's bump plugged in or out (:meth:`.Study.detail_shading`;
+    never builds the map: that is *Build CT Detail*'s; errors go to the sidebar, an update callback must not
+    raise)."""
+    if state.updates_suspended() or not self.is_study:
+        return
+    study = Study.of_settings(self)
+    if study is None:
+        return
+    try:
+        study.detail_shading()
+    except Exception as exc:  # noqa: BLE001
+        self.last_error = f"the CT detail map could not be updated: {exc}"[:500]
+
+
 def _face_table_update(self, context):
     """Switching the face's table re-solves the face (nothing while updates are suspended)."""
     if state.updates_suspended() or not self.is_study:
@@ -167,6 +182,16 @@ class PDEHeadStudySettings(bpy.types.PropertyGroup):
     approximation: FloatProperty(name=D.APPROXIMATION.label, **D.APPROXIMATION.limits(), subtype='FACTOR',
                                  update=_live("pde"), description=D.APPROXIMATION.description)
     modes: IntProperty(name=D.MODES.label, **D.MODES.limits(), update=_live("pde"), description=D.MODES.description)
+
+    # The surface's CT detail map (issue 21): bump shading of the CT's fine relief
+    use_detail_map: BoolProperty(name=D.USE_DETAIL_MAP.label, **D.USE_DETAIL_MAP.limits(), update=_detail_update,
+                                 description=D.USE_DETAIL_MAP.description)
+    detail_strength: FloatProperty(name=D.DETAIL_STRENGTH.label, **D.DETAIL_STRENGTH.limits(), update=_detail_update,
+                                   description=D.DETAIL_STRENGTH.description)
+    detail_resolution: IntProperty(name=D.DETAIL_RESOLUTION.label, **D.DETAIL_RESOLUTION.limits(),
+                                   description=D.DETAIL_RESOLUTION.description)
+    detail_stale: BoolProperty(name="CT Detail Out of Date", default=False,
+                               description="The PDE changed since the CT detail map was built: rebuild it")
 
     # Solid (live)
     nw: IntProperty(name=D.NW.label, **D.NW.limits(), update=_live("solid"), description=D.NW.description)

@@ -15,7 +15,7 @@ import bpy
 import numpy as np
 
 from ..pdehead_addon import PDEHeadError
-from . import cutter, objects, state, volume_material
+from . import cutter, detail_map, objects, state, volume_material
 from .state import suspended_updates
 
 #: The studies whose solid waits for its CT colours: study id -> (time of the last live change, the Study).
@@ -204,6 +204,8 @@ class LiveSolid:
                     s.volume_stale = True  # the w-field follows the PDE; rebuilt on request (heavy)
                 if what in ("surface", "surface_solid", "pde") and s.surface_object is not None:
                     self.surface()
+                    if what == "pde":
+                        self.detail_out_of_date()
                 if what in ("solid", "surface_solid", "pde") and s.solid_object is not None:
                     notice = self.solid(live=True)
             s.last_error = notice[:500]
@@ -212,6 +214,14 @@ class LiveSolid:
                 traceback.print_exc()
             s.last_error = str(exc)[:500]
             print(f"PDE Head: live update of {what} failed: {exc}")
+
+    def detail_out_of_date(self) -> None:
+        """The PDE moved the surface away from its CT detail map: the bump is unplugged and the map marked
+        out of date (rebuilding costs seconds, far beyond a slider's step: :mod:`.detail_map`)."""
+        s = self.settings
+        if s.surface_object is not None and detail_map.set_detail_shading(s.surface_object, s.detail_strength, False):
+            with suspended_updates():
+                s.detail_stale = True
 
     def apply_cutter(self, matrix=None) -> str:
         """Set the study's u/v ranges from its cutter and rebuild the solid; returns the cut's kind.

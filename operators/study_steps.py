@@ -15,12 +15,13 @@ from __future__ import annotations
 
 import json
 import re
+import time
 from pathlib import Path
 
 import bpy
 
 from ..pdehead_addon import PDEHeadError, patches_for_scan
-from . import objects, prefs, state, vdb_files, vdb_grids, volume
+from . import detail_map, objects, prefs, state, vdb_files, vdb_grids, volume
 from .progress import step_progress
 from .state import suspended_updates
 
@@ -252,6 +253,57 @@ class PipelineSteps:
                                                      obj=s.surface_object, name=f"{coll.name} Surface")
         self.record_timing("surface", t.seconds)
 
+    def detail_map(self) -> None:
+        """Build the surface's CT detail map (issue 21: eyelids, lips and nose wings as bump shading; the
+        segmentation is re-run when this session has none, e.g. after reopening the file)."""
+        progress = step_progress("detail_map")
+        for fraction, message in self.detail_map_stages():
+            if progress is not None:
+                progress(fraction, message)
+
+    def detail_map_stages(self):
+        """:meth:`detail_map` one stage at a time (a generator yielding ``(fraction, message)``): the map, its
+        material and ``detail_stale`` change only after the last stage, so stopping early keeps the old map.
+        The timing recorded is the stages' own time, not the pauses between them."""
+        s = self.settings
+        if s.surface_object is None:
+            raise PDEHeadError("Build the surface first")
+        busy = 0.0
+        with state.Timer() as t:
+            if self.cache.seg is None:
+                self.segment()
+            head = self.solve()
+        busy += t.seconds
+        stages = detail_map.detail_map_stages(s.surface_object, head, self.cache.seg, s.detail_resolution,
+                                              s.detail_strength, s.use_detail_map)
+        while True:
+            start = time.perf_counter()
+            try:
+                step = next(stages)
+            except StopIteration:
+                break
+            finally:
+                busy += time.perf_counter() - start
+            yield step
+        with suspended_updates():
+            s.detail_stale = False
+        self.record_timing("detail_map", busy)
+
+    def detail_shading(self) -> None:
+        """The sidebar's CT Detail toggle and strength: the bump plugged in or out. Never builds the map (an
+        update callback must not block for seconds): without a current map the Surface panel shows
+        *Build CT Detail*."""
+        s = self.settings
+        obj = s.surface_object
+        if obj is not None:
+            detail_map.set_detail_shading(obj, s.detail_strength, s.use_detail_map and not s.detail_stale)
+
+    def detail_map_current(self) -> bool:
+        """Whether the surface has a CT detail map that matches it (built, and no PDE change since)."""
+        s = self.settings
+        return s.surface_object is not None and detail_map.detail_image(s.surface_object) is not None \
+            and not s.detail_stale
+
     def volume_settings(self) -> dict:
         """The volume material's settings (eq. 24 alphas, density, colour, alpha mode)."""
         s = self.settings
@@ -288,5 +340,7 @@ class PipelineSteps:
             self.volume(context)
         elif name in ("segment", "boundaries", "surface", "solid"):
             getattr(self, name)()
+            if name == "surface" and self.settings.use_detail_map:
+                self.detail_map()
         else:
             raise ValueError(f"no pipeline step '{name}'")

@@ -52,6 +52,8 @@ from .core.provenance import SOFTWARE_VERSION as __version__  # noqa: E402
 #: Public names loaded on first use (PEP 562), so importing the package stays light: the Blender
 #: layer and the scripts take them from here, not from the modules that define them.
 _LAZY = {
+    "ct_detail_map": (".pde.detail_map", "ct_detail_map"),
+    "detail_map_stages": (".pde.detail_map", "detail_map_stages"),
     "apply_window": (".core.ct_volume", "apply_window"),
     "ct_grid_for": (".core.ct_volume", "ct_grid_for"),
     "grid_affine": (".core.ct_volume", "grid_affine"),

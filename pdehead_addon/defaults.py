@@ -196,6 +196,34 @@ USE_CUTTER = _param("use_cutter", False,
                     description="The study's cutter box (an empty you move, rotate and scale) sets the u and v "
                                 "ranges: the solid is cut away where the box is", label="Use Cutter")
 
+# ----------------------------------------------------------------------------- CT detail map (issue 21)
+#: Issue 21, the closed eyes: the CT's fine relief (eyelids, lips, nose wings) as a height map in the
+#: surface's UVs, shaded as bump by the skin material (the geometry and the exports stay the smooth PDE
+#: surface). :func:`pdehead_addon.pde.detail_map.ct_detail_map`. 1024 x 1024 is about 0.6 mm a texel on
+#: CThead's tube (its eyelid line is ~1 mm high). Off by default: building it costs seconds and ~0.4 GB
+#: (CThead, README "The closed eyes: a CT detail map"), which Run Pipeline's <= 5 s (issue 20) cannot
+#: carry; on, Run Pipeline builds it, and the Surface panel's *Build CT Detail* builds it on request.
+USE_DETAIL_MAP = _param("use_detail_map", False,
+                        description="Shade the surface with the CT's fine relief (eyelids, lips, nose wings) as "
+                                    "a bump map for close-ups; the geometry and the exports stay the smooth PDE "
+                                    "surface. Built by Build CT Detail (seconds) or by Run Pipeline while on",
+                        label="CT Detail")
+DETAIL_STRENGTH = _param("detail_strength", 1.0, min=0.0, max=10.0, soft_max=3.0,
+                         description="Scale of the CT detail bump: 1 = the CT's relief at its true height in mm",
+                         label="Detail Strength")
+DETAIL_RESOLUTION = _param("detail_resolution", 1024, min=64, max=4096, unit="pixels",
+                           description="Side of the square CT detail map (used at its next build; 1024 is about "
+                                       "0.6 mm a texel on an adult head)", label="Detail Map Size")
+#: The Gaussian of the head mask whose 0.5 level is the skin the map reaches (mm): marching cubes of the
+#: mask smoothed by 1.2 mm shows CThead's upper eyelid edge; the slice axis gets at least 0.6 slice steps
+#: (``detail_map.SLICE_SIGMA``).
+DETAIL_SIGMA = _param("detail_sigma", 1.2, min=0.3, max=5.0, unit="mm",
+                      description="Smoothing of the head mask before its skin is found (mm)", label="Detail Smoothing")
+#: How far along the surface's normal the skin is looked for, either side (mm); the map's values lie within.
+DETAIL_MAX_OFFSET = _param("detail_max_offset", 3.0, min=0.5, max=10.0, unit="mm",
+                           description="Largest offset of the CT's skin from the surface the detail map holds (mm)",
+                           label="Detail Range")
+
 # ----------------------------------------------------------------------------- volume (eq. 24)
 USE_CT_GRID = _param("use_ct_grid", False, description="Sample the w-field on the CT's own voxel grid", label="CT Grid")
 VOXEL_AUTO = _param("voxel_auto", True,

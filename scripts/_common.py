@@ -217,7 +217,7 @@ def blender() -> dict:
         # one copy of the engine: the add-on's relative imports resolve to the module already loaded
         load_addon(engine=E)
         mods = {name: importlib.import_module(f"{DEV_PACKAGE}.operators.{name}")
-                for name in ("objects", "volume", "vdb_grids", "volume_material", "render")}
+                for name in ("objects", "volume", "vdb_grids", "volume_material", "render", "detail_map")}
         _BLENDER = {"bpy": bpy, **mods, "import_s": time.perf_counter() - t0, "version": bpy.app.version_string}
     return _BLENDER
 

@@ -15,7 +15,8 @@ surface, nu x nv = 120 x 240, caps), Cycles CPU, into ``docs/figures/up_close_*.
 * ``up_close_face.png`` (``--face``, only this figure): CThead's face, front and three-quarter, close up:
   marching cubes of the mask, the surface at t = 10 with the u smoothing of one slice step (the defaults
   before issue 21's last change) and at the add-on's defaults (t = 15, half a slice step); the
-  visible-face score on each tile.
+  visible-face score on each tile; and the defaults' surface shaded with its CT detail map (the same
+  geometry, the scan's eyelids, lips and nose wings as bump: ``operators/detail_map.py``).
 * ``up_close_cut.png`` (``--cut``, only this figure): CThead's solid cut at the mid-sagittal plane
   (v from 0 to 180 degrees: the patient's right half), seen from its left at the add-on's defaults (skin
   outside, the cut faces from the CT at <= 1 voxel a texel), beside the CT resampled on the plane
@@ -90,12 +91,20 @@ def face_figure(bl, args) -> int:
             PS.APPROXIMATION_PER_SLICE = per_slice
         meshes.append((label if label != "after" else f"t={t} after", head.surface(nu, nv, caps=True)))
     scores = {label: bench_smooth.visible_face(seg, m, mc) for label, m in meshes[1:]}
-    tip = np.asarray(scores[meshes[-1][0]].get("pronasale") or [0, 0, 0], float)
+    # the defaults' surface again, shaded with its CT detail map (the same geometry: bump only)
+    detail_label = f"t={D.PATCHES.default} + CT detail"
+    meshes.append((detail_label, meshes[-1][1]))
+    tip = np.asarray(scores[meshes[-2][0]].get("pronasale") or [0, 0, 0], float)
     coll = objects.study_collection("up close face")
     built = []
     for label, mesh in meshes:
         obj = objects.build_mesh_object(mesh, coll, f"face {label}", smooth=label != "marching cubes")
         obj.data.materials.append(objects.ensure_skin_material())
+        if label == detail_label:
+            meta = bl["detail_map"].build_detail_map(obj, head, seg, D.DETAIL_RESOLUTION.default,
+                                                     D.DETAIL_STRENGTH.default)
+            print(f"CT detail map {meta['resolution']} px: smooth {meta['smooth_s']:.2f} s, texels "
+                  f"{meta['texels_s']:.2f} s, sampling {meta['sample_s']:.2f} s", flush=True)
         built.append((label, obj))
     # the face's box: 60 mm either side, 70 mm below to 60 mm above the nose tip, 60 mm deep
     lo = 0.001 * (tip + np.array([-60.0, 0.0, -70.0]))
@@ -109,7 +118,7 @@ def face_figure(bl, args) -> int:
                                       samples=args.samples, bounds=(lo, hi))
             with Image.open(tmp) as im:
                 im = im.convert("RGB").copy()
-            s = scores.get(label)
+            s = scores.get(label.replace(" + CT detail", " after"))
             text = f"CThead {label}" + (f": face {s['score_mean']:.2f} / {s['score_p95']:.2f} mm" if s else "")
             ImageDraw.Draw(im).text((8, 6), text, fill=(235, 235, 235))
             row.append(im)

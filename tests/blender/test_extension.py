@@ -125,7 +125,8 @@ def test_every_setting_operator_option_and_preference_reads_the_defaults_table(p
             checked += 1
         return checked
 
-    assert check(settings, "study settings") == 35  # every study setting of the table (33 + the bone level pair)
+    assert check(settings, "study settings") == 38  # every study setting of the table (33 + the bone level pair
+    #                                                 + the CT detail map's toggle, strength and size)
     for op, at_least in (("run_pipeline", 6), ("extract_boundaries", 7), ("reconstruct_surface", 10),
                          ("build_solid", 6), ("build_volume", 8), ("import_ct", 4)):
         rna = getattr(bpy.ops.pdehead, op).get_rna_type().properties

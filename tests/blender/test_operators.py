@@ -252,8 +252,10 @@ def _modal_pipeline_op(ext):
     op_cls = ext.ops.PDEHEAD_OT_run_pipeline
     op = SimpleNamespace(_run=ext.pipeline_run.PipelineRun(bpy.context, "PHANTOM", settings=dict(patches=4, nu=16, nv=24)),
                          _timer=object(), report=lambda kind, msg: reports.append((kind, msg)))
-    op._end_ui = lambda ctx: op_cls._end_ui(op, ctx)
-    op.cancel = lambda ctx: op_cls.cancel(op, ctx)
+    for name in ("_end_ui", "cancel", "tick"):           # the operator's methods, bound to the stand-in
+        setattr(op, name, getattr(op_cls, name).__get__(op))
+    op.finished = lambda: op_cls.finished(op)
+    op.cancelled_message = op_cls.cancelled_message
     return op_cls, op, context, progress, reports
 
 
@@ -317,17 +319,7 @@ def test_modal_pipeline_esc_removes_everything(ext, phantom, monkeypatch):
     import bpy
     monkeypatch.setattr(ext.engine, "segment_head", lambda ct, **kw: ext.engine.Segmentation(
         phantom.head_mask, phantom.head_mask.astype(np.float32), 1.0, 0.0, 1, ct))
-    progress = []
-    wm = SimpleNamespace(progress_update=progress.append, progress_end=lambda: progress.append("end"),
-                         event_timer_remove=lambda timer: progress.append("timer removed"))
-    context = SimpleNamespace(window_manager=wm, workspace=None, scene=bpy.context.scene,
-                              active_object=None, preferences=bpy.context.preferences)
-    reports = []
-    op_cls = ext.ops.PDEHEAD_OT_run_pipeline
-    op = SimpleNamespace(_run=ext.pipeline_run.PipelineRun(bpy.context, "PHANTOM", settings=dict(patches=4, nu=16, nv=24)),
-                         _timer=object(), report=lambda kind, msg: reports.append((kind, msg)))
-    op._end_ui = lambda ctx: op_cls._end_ui(op, ctx)
-    op.cancel = lambda ctx: op_cls.cancel(op, ctx)
+    op_cls, op, context, progress, reports = _modal_pipeline_op(ext)
     timer, esc, mouse = (SimpleNamespace(type=t) for t in ("TIMER", "ESC", "MOUSEMOVE"))
 
     assert op_cls.modal(op, context, mouse) == {'PASS_THROUGH'}
