@@ -26,6 +26,11 @@ The steps are methods of :class:`.forensic_study.ForensicStudy` (defined here in
   (seconds).
 * **Speed.** A change goes through :class:`.face_live.LiveFace`: the vertex positions alone, the same
   numbers as the model's whole solve (checked when it is made), written into the same mesh.
+* **Held pegs.** A peg the practitioner moved or whose depth was set is *held* (its custom property
+  :data:`HELD_PROP`, a toggle in the panel; Build Face makes every peg unheld): the engine never damps it, the
+  face passes through its tip. After every solve each peg carries its tip's distance to the face
+  (:data:`TIP_TO_FACE_PROP`) and the face's provenance lists the pegs more than 2 mm off (and why) and the
+  warnings of a peg in the bone or dragged implausibly far (:mod:`pdehead_addon.forensic.face_pegs`).
 """
 from __future__ import annotations
 
@@ -50,6 +55,8 @@ SD_FACE_KEYS = {"minus": "pdehead_face_minus_sd_object", "plus": "pdehead_face_p
 LABEL_PROP = "pdehead_label"                # face object: the approximation label
 PROVENANCE_PROP = "pdehead_provenance"      # face object: JSON provenance
 TIPS_PROP = "pdehead_face_tips"             # face object: the peg tips (patient mm) of the last solve
+HELD_PROP = "pdehead_held"                  # peg: held by the practitioner (moved or its depth set): never damped
+TIP_TO_FACE_PROP = "pdehead_tip_to_face_mm" # peg: its tip's distance to the face of the last solve (mm)
 FACE_MODEL_KEY = "_pdehead_face_model"      # collection: the prepared FaceModel (face_live.model_state JSON;
                                             # "_": not listed in the Custom Properties panel)
 FACE_KIND = "face"
@@ -306,6 +313,43 @@ class FaceSteps:
         tips[np.asarray(rows)[ok]] = world[ok]
         return tips
 
+    def peg_held(self, names: list[str]) -> np.ndarray:
+        """Whether each peg (in ``names`` order) is held (:data:`HELD_PROP`); a peg that is gone is not."""
+        pegs = self.peg_objects(names)
+        return np.array([bool(pegs[n].get(HELD_PROP, False)) if n in pegs else False for n in names], bool)
+
+    def _hold_touched(self, names: list[str], raw: np.ndarray) -> None:
+        """The pegs whose tip moved since the last solve (dragged, or their depth set) become held."""
+        last = self.cache.get("face_tips")
+        if last is None:                   # the model was just rebuilt (reopened file): the tips of the last solve
+            stored = self.face_object().get(TIPS_PROP)
+            last = np.array(stored, float).reshape(-1, 3) if stored is not None else None
+        if last is None or np.shape(last) != raw.shape:
+            return
+        moved = np.any(np.abs(raw - last) > TIP_TOLERANCE_MM, axis=1)      # NaN (a peg gone): not moved
+        if moved.any():
+            pegs = self.peg_objects(names)
+            for i in np.flatnonzero(moved):
+                if names[i] in pegs:
+                    pegs[names[i]][HELD_PROP] = True
+
+    def _show_report(self, obj, report) -> None:
+        """The pegs' report of a solve onto the pegs (:data:`TIP_TO_FACE_PROP`) and into the face's provenance."""
+        pegs = self.peg_objects(report.names)
+        for name, gap in zip(report.names, report.tip_to_face_mm):
+            if name in pegs:
+                pegs[name][TIP_TO_FACE_PROP] = round(float(gap), 2)
+        prov = json.loads(obj.get(PROVENANCE_PROP, "{}") or "{}")
+        prov.update(report.record())
+        obj[PROVENANCE_PROP] = json.dumps(prov)
+        self.cache["face_report"] = report
+
+    def peg_warnings(self) -> list[dict]:
+        """The warnings of the face's last solve (a peg in the bone, a peg dragged implausibly far)."""
+        obj = self.face_object()
+        prov = json.loads(obj.get(PROVENANCE_PROP, "{}") or "{}") if obj is not None else {}
+        return list(prov.get("peg_warnings") or [])
+
     def _write_positions(self, obj, mesh=None, positions=None) -> bool:
         """The face mesh's vertex positions rewritten in place (same topology: the fast path), else the same
         mesh datablock refilled (the face's caps may gain or lose a vertex between two solves). ``positions``
@@ -336,10 +380,13 @@ class FaceSteps:
         rec["label"] = approximation_label()
         return rec
 
-    def solve_face(self, tips: np.ndarray | None = None, table=None) -> dict:
+    def solve_face(self, tips: np.ndarray | None = None, table=None, hold_touched: bool = True) -> dict:
         """Solve the face through ``tips`` (default: the pegs' tips now) and rewrite the face object's vertices.
-        Returns the timings (seconds): ``solve`` (the engine), ``write`` (Blender) and ``total``; ``fast``:
-        whether the positions came from :class:`.face_live.LiveFace` (else the model's whole solve)."""
+        The pegs moved since the last solve become held (``hold_touched``; not for a table switch), the held
+        pegs are followed exactly, and each peg's distance to the face and the warnings are written
+        (:meth:`_show_report`). Returns the timings (seconds): ``solve`` (the engine), ``write`` (Blender) and
+        ``total``; ``fast``: whether the positions came from :class:`.face_live.LiveFace` (else the model's
+        whole solve); ``warnings``: the pegs' warnings (dicts with ``peg``, ``kind``, ``text``)."""
         t0 = time.perf_counter()
         obj = self.face_object()
         if obj is None:
@@ -351,19 +398,26 @@ class FaceSteps:
             tips = self.peg_tips(names)
         raw = np.asarray(tips, float)
         tips = _fill_gone(model, raw)     # a deleted peg: its tip back at the table's mean (the raw NaN is compared)
+        if hold_touched:
+            self._hold_touched(names, raw)
+        held = self.peg_held(names)
         t1 = time.perf_counter()
-        positions = live.positions(tips) if len(obj.data.vertices) == live.vertex_count else None
-        result = model.solve(tips=tips) if positions is None else None
+        positions = live.positions(tips, held) if len(obj.data.vertices) == live.vertex_count else None
+        result = model.solve(tips=tips, held=held) if positions is None else None
+        report = live.report(tips, positions, held) if result is None else result.pegs
         t2 = time.perf_counter()
         refilled = self._write_positions(obj, mesh=result.mesh if result is not None else None, positions=positions)
         obj[TIPS_PROP] = [float(v) for v in raw.ravel()]
         if table is not None:
-            prov = live.provenance(tips) if result is None else result.provenance
+            prov = live.provenance(tips, report) if result is None else result.provenance
             obj[PROVENANCE_PROP] = json.dumps(self._face_provenance(prov, table))
+        self._show_report(obj, report)
         t3 = time.perf_counter()
         self.cache["face_tips"] = raw
+        self.cache["face_held"] = held
         timings = {"tips": t1 - t0, "solve": t2 - t1, "write": t3 - t2, "total": t3 - t0, "refilled": refilled,
-                   "fast": positions is not None, "engine": dict(result.timings) if result is not None else {}}
+                   "fast": positions is not None, "engine": dict(result.timings) if result is not None else {},
+                   "warnings": list(report.warnings)}
         self.cache["face_timings"] = timings
         obj["pdehead_face_ms"] = round(1000 * timings["total"], 1)
         return timings
@@ -392,11 +446,18 @@ class FaceSteps:
             if stored is not None:
                 last = np.array(stored, float).reshape(-1, 3)
                 self.cache["face_tips"] = last
-        now = self.peg_tips(self.face_peg_names())
+        names = self.face_peg_names()
+        now = self.peg_tips(names)
         if last is None or now.shape != last.shape:
             return now
         same = np.abs(now - last) <= TIP_TOLERANCE_MM
         same |= np.isnan(now) & np.isnan(last)             # a peg that is gone stays gone: no new solve
+        held = self.cache.get("face_held")
+        if held is None:                   # a reopened file: the pegs held at the last solve, from its provenance
+            prov = json.loads(obj.get(PROVENANCE_PROP, "{}") or "{}")
+            held = self.cache["face_held"] = np.isin(names, prov.get("pegs_held") or [])
+        if not np.array_equal(held, self.peg_held(names)):
+            return now                                     # a peg held or let go in the panel: solve again
         return None if bool(same.all()) else now
 
     # -------------------------------------------------------------------------------------- build
@@ -440,10 +501,16 @@ class FaceSteps:
             peg.parent = obj
             peg.matrix_parent_inverse = obj.matrix_world.inverted()
             peg.matrix_world = world
+        for peg in pegs:                              # Build Face: no peg is held
+            peg[HELD_PROP] = False
+            peg.id_properties_ui(HELD_PROP).update(description="Held: the face passes through this peg's tip "
+                                                   "(set when the peg is moved or its depth set; never damped)")
         tips = model.peg_bases + model.peg_normals * np.asarray(model.default_depths, float)[:, None]
         obj[TIPS_PROP] = [float(v) for v in tips.ravel()]
         obj[PROVENANCE_PROP] = json.dumps(self._face_provenance(result.provenance, table))
+        self._show_report(obj, result.pegs)
         self.cache["face_tips"] = tips
+        self.cache["face_held"] = np.zeros(len(model.peg_names), bool)
         self._keep_model(model, build)
         from ..pdehead_addon import LiveFace
         self.cache["face_live"] = LiveFace(model)
@@ -461,7 +528,7 @@ class FaceSteps:
             if entry is not None:
                 _update_peg_table(peg, entry, table)
         self.props.face_table = table.to_json()
-        return self.solve_face(table=table)
+        return self.solve_face(table=table, hold_touched=False)     # the table moved the pegs, not the practitioner
 
     def set_face_peg_depth(self, peg, depth_mm: float) -> float:
         """A face peg's length (limited to its table's mean +- 2 SD) and the face re-solved; returns the length."""
@@ -485,7 +552,7 @@ class FaceSteps:
         sd = np.nan_to_num(np.asarray(model.depth_sd, float), nan=0.0)
         made = []
         for sign, key in ((-1.0, "minus"), (1.0, "plus")):
-            result = model.solve(depths=np.maximum(depth + sign * sd, 0.0))
+            result = model.solve(depths=np.maximum(depth + sign * sd, 0.0), held=self.peg_held(list(model.peg_names)))
             label = "-1 SD" if sign < 0 else "+1 SD"
             obj = objects.build_mesh_object(result.mesh, coll, f"{coll.name} Face {label}",
                                             obj=self.linked_object(SD_FACE_KEYS[key]), smooth=True)

@@ -21,7 +21,7 @@ from ..pdehead_addon import STANDARD_LANDMARKS
 from ..pdehead_addon import defaults as D
 from . import state
 from .base import StudyOperator
-from .face import FACE_KEY, LABEL_PROP, PROVENANCE_PROP, approximation_label, table_has_sex
+from .face import FACE_KEY, HELD_PROP, LABEL_PROP, PROVENANCE_PROP, approximation_label, table_has_sex
 from .forensic_export import PEG_DEPTH_PROP
 from .forensic_props import TARGET_ITEMS
 from .forensic_skull import DEPTH_ATTRIBUTE, DEPTH_MATERIAL
@@ -278,6 +278,10 @@ class PDEHEAD_OT_build_face(Operator, _ForensicOp):
         obj, pegs = fs.build_face()
         self.report({'INFO'}, f"{obj.name}: {len(obj.data.vertices)} vertices through {len(pegs)} pegs "
                               f"({approximation_label()})")
+        report = fs.cache.get("face_report")
+        line = report.summary() if report is not None else None
+        if line:
+            self.report({'WARNING'}, line + " (hold a peg in the panel to make the face pass through it)")
 
 
 class PDEHEAD_OT_face_sd_range(Operator, _ForensicOp):
@@ -333,14 +337,35 @@ def draw_face_section(layout, fs) -> None:
     names = fs.face_peg_names()
     pegs = fs.peg_objects(names)
     col = box.column(align=True)
-    col.label(text=f"{len(pegs)} pegs: drag one (G) or set its depth (mm)")
+    col.label(text=f"{len(pegs)} pegs: drag one (G) or set its depth (mm); pin: held (the face passes through it)")
     for name in names[:40]:
         peg = pegs.get(name)
         if peg is not None:
-            col.prop(peg, f'["{PEG_DEPTH_PROP}"]', text=name)
+            row = col.row(align=True)
+            row.prop(peg, f'["{PEG_DEPTH_PROP}"]', text=name)
+            if HELD_PROP in peg:
+                row.prop(peg, f'["{HELD_PROP}"]', text="", icon='PINNED' if peg[HELD_PROP] else 'UNPINNED')
+    _draw_peg_report(box, prov)
     box.operator(PDEHEAD_OT_face_sd_range.bl_idname, icon='MOD_THICKNESS')
     if s.last_error.startswith("face:"):
         box.label(text=s.last_error, icon='ERROR')
+
+
+def _draw_peg_report(layout, prov: dict) -> None:
+    """The pegs whose tip is off the face (distance and why) and the warnings of the last solve (from the face's
+    provenance: :meth:`.face.FaceSteps._show_report`)."""
+    off = prov.get("pegs_off_face") or []
+    warnings = prov.get("peg_warnings") or []
+    if not off and not warnings:
+        return
+    col = layout.column(align=True)
+    for w in warnings:
+        col.label(text=str(w.get("text", "")), icon='ERROR')
+    if off:
+        col.label(text=f"{len(off)} peg tips more than {D.FACE_PEG_OFF_MM:g} mm from the face "
+                       "(hold a peg to make the face pass through it):", icon='INFO')
+        for o in off:
+            col.label(text=f"{o['peg']}: {o['tip_to_face_mm']:.1f} mm, {o['why']}" + (" (held)" if o.get("held") else ""))
 
 
 def _draw_skull(layout, fs) -> None:

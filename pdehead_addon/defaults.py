@@ -312,6 +312,20 @@ FACE_COLUMNS = _param("face_columns", 360, min=90, max=720,
                                   "~1.7 mm at the face; the nose's alae and the lips' outline need it)")
 FACE_SPREAD_MM = _param("face_spread_mm", 22.0, min=5.0, max=80.0, unit="mm",
                         description="Face from skull: how far a peg's depth spreads over the skull (Gaussian radius)")
+#: A peg whose tip is farther than this (mm) from the solved face is listed (panel, provenance, CLI warning): the
+#: practitioner reads the face as passing through the tips, and the T-Table's SDs are 1-3 mm at most landmarks, so a
+#: tip 2 mm off is a visible share of the table's own spread.
+FACE_PEG_OFF_MM = 2.0
+#: A peg whose depth along its own axis (tip minus base, along the bone normal it stands on) is below this (mm) has
+#: its tip in the bone: no soft tissue has a negative thickness. Warned, the face still solves.
+FACE_PEG_MIN_DEPTH_MM = 0.0
+#: A peg whose tip lies farther than this (mm) from its axis (the line from its landmark along the bone normal) has
+#: been moved off its landmark: the automatic landmarks sit within a few mm of an expert's (issue 22's 2-5 mm), so
+#: 10 mm is a peg that no longer measures the landmark the table's depth is for. Warned, the face still solves.
+FACE_PEG_MAX_DRIFT_MM = 10.0
+#: A peg deeper than the table's mean + this many SDs is warned: beyond 3 SD lies ~0.1 % of a normal population
+#: (and a peg dragged far out by mistake). Pegs whose table has no SD are judged by the drift alone.
+FACE_PEG_MAX_DEPTH_SD = 3.0
 
 # ----------------------------------------------------------------------------- forensic operators (issue 25)
 #: The skull the forensic steps measure on / snap to (operators/forensic.py TARGET_ITEMS).

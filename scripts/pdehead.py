@@ -725,6 +725,9 @@ def _face_from_skull(addon, coll):
     if not res.mesh.is_watertight():
         raise CLIError("--face-from-skull: the face mesh is not closed; nothing was written", 1)
     model.label = ff.APPROXIMATION_LABEL
+    off = res.pegs.summary() if res.pegs is not None else None
+    if off:                                 # the face passes near, not through, these tips (damped, shaped)
+        WARNINGS.say(f"--face-from-skull: {off} (reasons in the face's provenance, pegs_off_face)")
     prov = dict(fs.provenance(fs.depth_table()), **res.provenance)
     res.provenance = prov
     return res, model

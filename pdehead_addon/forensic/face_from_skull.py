@@ -75,6 +75,10 @@ RBF_REGULARISATION = 0.05
 DAMP_FREE_MM = 4.0
 DAMP_SCALE_MM = 5.0
 DAMP_MIDLINE_DEG = 10.0
+#: A peg the practitioner holds (moved, or its depth set: the Blender layer holds it; headless, ``held=`` of
+#: :meth:`FaceModel.solve`) is never damped: its regularisation is this, the field passes through its tip to a few
+#: hundredths of a mm (the hand overrides the automatic rule; the shape rules and the surface between the rows remain).
+HELD_REGULARISATION = 1e-3
 #: No overshoot between the pegs (:meth:`FaceModel._limited`): the field stays between the lowest and the highest
 #: blend base + k_i (target_i - base) of the wide field with each site's offset (k_i = exp(-(d / R)^4) along the
 #: height times the same around, R = LIMIT_RADIUS_FRACTION x ``spread_mm``; a smooth min / max LIMIT_SOFT_MM wide).
@@ -131,6 +135,7 @@ class FaceResult:
     tips: np.ndarray | None = None
     depths: np.ndarray | None = None
     head: object = None
+    pegs: object = None          # .face_pegs.PegReport: each tip's distance to the face, damping, warnings
 
 
 def peg_kernel(a: np.ndarray, b: np.ndarray, sigma: float) -> np.ndarray:
@@ -256,8 +261,22 @@ class FaceModel:
         sites += [np.array([p for _, p, _ in self.rule_sites])] if self.rule_sites else []
         return np.concatenate(sites)
 
-    def _offset_field(self, tips: np.ndarray) -> np.ndarray:
-        """(K, M) radial offset over the profile that passes through every tip (and rule site)."""
+    def held_sites(self, held) -> np.ndarray | None:
+        """The field sites (:meth:`field_sites`) of the pegs ``held`` (names, or a bool array in the pegs' order;
+        None: none) as a bool array, or None when none is held."""
+        if held is None:
+            return None
+        from .face_pegs import held_mask
+        mask = held_mask(self.peg_names, held)
+        if not mask.any():
+            return None
+        in_rows = getattr(self, "_in_rows", None)
+        mask = mask[in_rows] if in_rows is not None else mask
+        return np.concatenate([mask, np.zeros(len(self.rule_sites or ()), bool)])
+
+    def _offset_field(self, tips: np.ndarray, held=None) -> np.ndarray:
+        """(K, M) radial offset over the profile that passes through every tip (and rule site); the pegs
+        ``held`` (see :meth:`held_sites`) are never damped."""
         g = self.grid
         z, th, r = g.polar(self.field_sites(tips))
         target = r - g.sample(self.profile, z, th)                    # offset each site needs
@@ -270,7 +289,7 @@ class FaceModel:
         base_s = (Ws @ target + RULE_WEIGHT * RULE_DEPTH_MM) / (Ws.sum(1) + RULE_WEIGHT)
         # narrow exact correction
         s2 = NARROW_FRACTION * sigma
-        w = self._correction_weights(xs, target - base_s)
+        w = self._correction_weights(xs, target - base_s, self.held_sites(held))
         corr = peg_kernel(self._grid_xyz, xs, s2) @ w
         shape = self.profile.shape
         return self._limited((base_g + corr).reshape(shape), base_g.reshape(shape), xs, target)
@@ -300,15 +319,20 @@ class FaceModel:
         h = np.clip(0.5 + 0.5 * (hi - field) / k, 0.0, 1.0)                 # smooth min(field, hi)
         out = hi + (field - hi) * h - k * h * (1.0 - h)
         h = np.clip(0.5 + 0.5 * (out - lo) / k, 0.0, 1.0)                   # smooth max(out, lo)
-        return lo + (out - lo) * h + k * h * (1.0 - h)
+        out = lo + (out - lo) * h + k * h * (1.0 - h)
+        self._last_limit_shift = out - field        # what the limiter did, for the pegs' report (.face_pegs)
+        return out
 
-    def _correction_weights(self, xs: np.ndarray, residual: np.ndarray) -> np.ndarray:
+    def _correction_weights(self, xs: np.ndarray, residual: np.ndarray, held: np.ndarray | None = None) -> np.ndarray:
         """Weights of the narrow Gaussians of the exact correction at the field sites ``xs`` for the
         ``residual`` (offset minus the wide field at each site), regularised per site
-        (:meth:`_site_damping`). One place for :meth:`_offset_field` and the live path."""
+        (:meth:`_site_damping`; the ``held`` sites (bool) at :data:`HELD_REGULARISATION`). One place for
+        :meth:`_offset_field` and the live path."""
         Phi = peg_kernel(xs, xs, NARROW_FRACTION * self.options["spread_mm"])
         lam = self.__dict__.get("_damping")
         lam = RBF_REGULARISATION * np.ones(len(xs)) if lam is None or len(lam) != len(xs) else lam
+        if held is not None and len(held) == len(lam):
+            lam = np.where(held, HELD_REGULARISATION, lam)
         Phi[np.diag_indices_from(Phi)] += lam
         return np.linalg.solve(Phi, residual)
 
@@ -318,17 +342,34 @@ class FaceModel:
         means disagrees with the wide field of the other sites (leave-one-out Shepard average) by more than
         :data:`DAMP_FREE_MM`; the mid-sagittal pegs are not damped. A robust-interpolation rule (an outlying
         peg pulls the face less than its neighbours agree on), fixed by the skull and the table."""
-        g = self.grid
-        z, th, r = g.polar(self.field_sites(self.tips_for(self.default_depths)))
-        target = r - g.sample(self.profile, z, th)
-        xs = self._cyl(z, th)
-        W = peg_kernel(xs, xs, self.options["spread_mm"])
-        np.fill_diagonal(W, 0.0)
-        others = (W @ target + RULE_WEIGHT * RULE_DEPTH_MM) / (W.sum(1) + RULE_WEIGHT)
-        off = np.abs(target - others)
-        midline = np.abs(np.angle(np.exp(1j * (th - np.pi)))) < np.radians(DAMP_MIDLINE_DEG)
+        return RBF_REGULARISATION + self.site_extra_damping()
+
+    def site_disagreement(self) -> np.ndarray:
+        """Per field site (:meth:`field_sites` at the table's means), how far (mm) its offset disagrees with the
+        wide field of the other sites (leave-one-out Shepard average, with the rule depth)."""
+        return self._disagreement()[0]
+
+    def site_extra_damping(self) -> np.ndarray:
+        """Per field site, the regularisation added to :data:`RBF_REGULARISATION` by the damping (0: followed
+        exactly): ((disagreement - :data:`DAMP_FREE_MM`) / :data:`DAMP_SCALE_MM`)^2 off the midline."""
+        off, midline = self._disagreement()
         excess = np.where(midline, 0.0, np.maximum(off - DAMP_FREE_MM, 0.0))
-        return RBF_REGULARISATION + (excess / DAMP_SCALE_MM) ** 2
+        return (excess / DAMP_SCALE_MM) ** 2
+
+    def _disagreement(self) -> tuple[np.ndarray, np.ndarray]:
+        """(disagreement per field site (mm), whether each site is mid-sagittal): fixed by the skull and the
+        table, computed once."""
+        if "_site_disagreement" not in self.__dict__:
+            g = self.grid
+            z, th, r = g.polar(self.field_sites(self.tips_for(self.default_depths)))
+            target = r - g.sample(self.profile, z, th)
+            xs = self._cyl(z, th)
+            W = peg_kernel(xs, xs, self.options["spread_mm"])
+            np.fill_diagonal(W, 0.0)
+            others = (W @ target + RULE_WEIGHT * RULE_DEPTH_MM) / (W.sum(1) + RULE_WEIGHT)
+            midline = np.abs(np.angle(np.exp(1j * (th - np.pi)))) < np.radians(DAMP_MIDLINE_DEG)
+            self.__dict__["_site_disagreement"] = (np.abs(target - others), midline)
+        return self.__dict__["_site_disagreement"]
 
     def _mouth_shape(self, base: np.ndarray, grid: FaceGrid | None = None) -> np.ndarray | None:
         """The lips over the face ``base`` (:func:`.face_features.mouth_shape`; on ``grid``, default the model's)."""
@@ -429,9 +470,13 @@ class FaceModel:
         return FaceResult(mesh, prov, {}, head=head)
 
     def solve(self, *, depths: np.ndarray | None = None, tips: np.ndarray | None = None,
-              nu: int | None = None, nv: int | None = None) -> FaceResult:
+              nu: int | None = None, nv: int | None = None, held=None) -> FaceResult:
         """The face through the pegs at ``depths`` (mm, one per peg; default the table's means) or at
-        explicit peg-tip positions ``tips`` (patient mm, shape (n, 3): a dragged peg), which win."""
+        explicit peg-tip positions ``tips`` (patient mm, shape (n, 3): a dragged peg), which win. ``held``: the
+        pegs the practitioner holds (landmark names, or a bool array in the pegs' order): never damped, the face
+        passes through their tips. The result's ``pegs`` (:class:`.face_pegs.PegReport`) says how far each tip is
+        from the face and why; its provenance lists the pegs off the face and the warnings."""
+        from .face_pegs import peg_report
         t0 = time.perf_counter()
         if tips is None:
             d = self.default_depths if depths is None else np.asarray(depths, float).reshape(-1)
@@ -443,15 +488,17 @@ class FaceModel:
             if tips.shape != self.peg_bases.shape or not np.all(np.isfinite(tips)):
                 raise PDEHeadError(f"tips: need {len(self.peg_bases)} finite points, got {tips.shape}")
             d = np.einsum("ij,ij->i", tips - self.peg_bases, self.peg_normals)
-        radius = self.shaped_radius(self._offset_field(tips), tips)
+        radius = self.shaped_radius(self._offset_field(tips, held), tips)
         t1 = time.perf_counter()
         head = self._surface(radius, top_z=self.top_z_for(tips))
         t2 = time.perf_counter()
         mesh = self._mesh(head, nu, nv)
         t3 = time.perf_counter()
-        return FaceResult(mesh, self.provenance_for(d),
-                          {"field": t1 - t0, "pde": t2 - t1, "mesh": t3 - t2, "total": t3 - t0},
-                          tips=tips, depths=d, head=head)
+        report = peg_report(self, tips, mesh.vertices, held, nu, nv)
+        t4 = time.perf_counter()
+        return FaceResult(mesh, self.provenance_for(d, report),
+                          {"field": t1 - t0, "pde": t2 - t1, "mesh": t3 - t2, "pegs": t4 - t3, "total": t4 - t0},
+                          tips=tips, depths=d, head=head, pegs=report)
 
     def shaped_radius(self, offset: np.ndarray, tips: np.ndarray) -> np.ndarray:
         """The face's radius (K, M) over the profile: the tissue-depth ``offset`` field, then what a depth
@@ -507,8 +554,9 @@ class FaceModel:
         vertex = self._peg_tip(tips, "Vertex")
         return float(vertex[2]) if vertex is not None else None
 
-    def provenance_for(self, depths: np.ndarray) -> dict:
-        """The provenance of a face solved with the pegs at ``depths`` (mm)."""
+    def provenance_for(self, depths: np.ndarray, report=None) -> dict:
+        """The provenance of a face solved with the pegs at ``depths`` (mm); with its pegs' ``report``
+        (:class:`.face_pegs.PegReport`): the pegs off the face (and why), the held pegs and the warnings."""
         prov = dict(self.provenance)
         if self.mouth is not None:
             prov["predicted_mouth_width_mm"] = round(float(self.mouth["width_mm"]), 1)
@@ -517,6 +565,8 @@ class FaceModel:
         if self._ear_shape() is not None:
             prov["ears"] = f"default ear ({EAR_LENGTH_MM:g} x {EAR_WIDTH_MM:g} mm, Farkas 1994 norms) at each porion"
         prov["peg_depths_mm"] = {n: round(float(x), 2) for n, x in zip(self.peg_names, depths)}
+        if report is not None:
+            prov.update(report.record())
         return prov
 
 

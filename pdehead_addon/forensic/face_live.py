@@ -39,9 +39,10 @@ from ..pde.surface_mesh import ring_in_plane
 
 #: Largest difference (mm) between the fast positions and the model's own solve for :attr:`LiveFace.exact`.
 EXACT_TOLERANCE_MM = 1e-6
-#: What :func:`model_state` does not keep: the sites of the field's grid (made again from the grid) and the
-#: ears' radial bumps (made again from the landmarks kept, in milliseconds).
-_DERIVED = ("_grid_xyz", "_ears", "_front_grid")
+#: What :func:`model_state` does not keep: the sites of the field's grid (made again from the grid), the
+#: ears' radial bumps (made again from the landmarks kept, in milliseconds), and what the pegs' report
+#: (:mod:`.face_pegs`) caches or reads from the last solve.
+_DERIVED = ("_grid_xyz", "_ears", "_front_grid", "_site_disagreement", "_last_limit_shift", "_tip_distance")
 #: What :func:`model_state` keeps in single precision: the face's UV layout (texture coordinates need no
 #: more; it is half of the text otherwise: 0.56 of 1.14 MB on the phantom), and the bone's raw radius map and its
 #: closed hull (what the live face does not read: the raw map is kept for the record, the hull for the
@@ -121,9 +122,9 @@ class LiveFace:
             self.exact = False
 
     # -------------------------------------------------------------------- the field
-    def offset_field(self, tips: np.ndarray) -> np.ndarray:
-        """The model's tissue-depth offset field (:meth:`FaceModel._offset_field`), with the grid's Gaussians
-        separated into rows x sites and columns x sites."""
+    def offset_field(self, tips: np.ndarray, held=None) -> np.ndarray:
+        """The model's tissue-depth offset field (:meth:`FaceModel._offset_field`, the pegs ``held`` never
+        damped), with the grid's Gaussians separated into rows x sites and columns x sites."""
         m, g = self.model, self.model.grid
         z, th, r = g.polar(m.field_sites(tips))
         target = r - g.sample(m.profile, z, th)
@@ -138,7 +139,7 @@ class LiveFace:
                   / (small_matmul(Ez, EtT) + F.RULE_WEIGHT))
         base_s = (Ws @ target + F.RULE_WEIGHT * F.RULE_DEPTH_MM) / (Ws.sum(1) + F.RULE_WEIGHT)
         s2 = F.NARROW_FRACTION * sigma
-        w = m._correction_weights(xs, target - base_s)
+        w = m._correction_weights(xs, target - base_s, m.held_sites(held))
         corr = small_matmul(_gauss(dz2, s2) * w, np.ascontiguousarray(_gauss(dc2, s2).T))
         return m._limited(base_g + corr, base_g, xs, target)
 
@@ -176,10 +177,10 @@ class LiveFace:
             spec[other] = fold_harmonics(head._amplitudes(u[other]).transpose(0, 2, 1), nv)
         return ring_points(spec, nv)
 
-    def _positions(self, tips: np.ndarray) -> np.ndarray | None:
+    def _positions(self, tips: np.ndarray, held=None) -> np.ndarray | None:
         m = self.model
         tips = np.asarray(tips, float).reshape(-1, 3)
-        radius = m.shaped_radius(self.offset_field(tips), tips)
+        radius = m.shaped_radius(self.offset_field(tips, held), tips)
         head = m._surface(radius, top_z=m.top_z_for(tips))
         if head.vertex is None or self._cap_ref is None:
             return None
@@ -222,22 +223,29 @@ class LiveFace:
         out = np.concatenate([centre + fr * (q[:, :1] * e1 + q[:, 1:] * e2), np.asarray(centre, float)[None]])
         return out if len(out) == count else None
 
-    def positions(self, tips: np.ndarray) -> np.ndarray | None:
+    def positions(self, tips: np.ndarray, held=None) -> np.ndarray | None:
         """The face's vertex positions (patient mm, (vertex_count, 3)) through the peg ``tips`` ((n, 3),
-        patient mm), in the order of the model's mesh; None when only a whole solve gives them (the caller
-        then runs :meth:`FaceModel.solve`): the fast path is not :attr:`exact`, or this face's topology
-        differs from the reference's."""
+        patient mm) with the pegs ``held`` (names or a bool array; see :meth:`FaceModel.solve`), in the order of
+        the model's mesh; None when only a whole solve gives them (the caller then runs
+        :meth:`FaceModel.solve`): the fast path is not :attr:`exact`, or this face's topology differs from the
+        reference's."""
         if not self.exact:
             return None
         tips = np.asarray(tips, float).reshape(-1, 3)
         if tips.shape != self.model.peg_bases.shape or not np.all(np.isfinite(tips)):
             return None
-        return self._positions(tips)
+        return self._positions(tips, held)
 
-    def provenance(self, tips: np.ndarray) -> dict:
-        """What :meth:`FaceModel.solve` puts in its result's provenance for these tips."""
+    def report(self, tips: np.ndarray, positions: np.ndarray, held=None):
+        """The pegs' report (:func:`.face_pegs.peg_report`) of the face ``positions`` just given by
+        :meth:`positions` for these ``tips`` and ``held`` pegs."""
+        from .face_pegs import peg_report
+        return peg_report(self.model, tips, positions, held, self.nu, self.nv)
+
+    def provenance(self, tips: np.ndarray, report=None) -> dict:
+        """What :meth:`FaceModel.solve` puts in its result's provenance for these tips (and the pegs' ``report``)."""
         m = self.model
-        return m.provenance_for(np.einsum("ij,ij->i", np.asarray(tips, float) - m.peg_bases, m.peg_normals))
+        return m.provenance_for(np.einsum("ij,ij->i", np.asarray(tips, float) - m.peg_bases, m.peg_normals), report)
 
 
 # ------------------------------------------------------------------------------------------ the model kept

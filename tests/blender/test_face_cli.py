@@ -31,6 +31,12 @@ def test_cli_face_from_skull_writes_face_skull_landmarks(tmp_path):
     prov = json.loads((out / "provenance.json").read_text())
     assert "face.stl" in prov["files"] and prov["face"]["label"] == "approximation — not an identification"
     assert prov["face"]["table"].startswith("T-Table 2023") and "Pogonion" in prov["face"]["peg_depths_mm"]
+    # issue 23: the peg tips the face passes more than 2 mm from, in one stderr warning line with their distances
+    off = prov["face"]["pegs_off_face"]
+    lines = [line for line in result.stderr.splitlines() if "mm from the face" in line]
+    assert off and len(lines) == 1 and lines[0].startswith("pdehead: warning: --face-from-skull: "), result.stderr
+    assert all(f"{o['peg']} {o['tip_to_face_mm']:.1f} mm" in lines[0] for o in off)
+    assert all(o["tip_to_face_mm"] > 2.0 and o["why"] for o in off)
 
 
 @pytest.mark.parametrize("case", ["no_export", "not_a_skull", "no_bone"])

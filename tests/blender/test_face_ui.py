@@ -196,7 +196,7 @@ def test_face_follows_a_peg_after_reopening(pdehead_ext, face_blend, tmp_path):
     normal /= np.linalg.norm(normal)
     dragged = fs(coll).peg_tips(names)
     dragged[0] += 3.0 * normal
-    expected = model.solve(tips=dragged).mesh.vertices
+    expected = model.solve(tips=dragged, held=[names[0]]).mesh.vertices      # a dragged peg is held
     assert len(coll[face.FACE_MODEL_KEY]) < 1_000_000            # the kept model: budget 1 MB (measured 0.4 MB)
     saved = tmp_path / "again.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(saved))
@@ -250,3 +250,90 @@ def test_face_follows_a_peg_after_reopening(pdehead_ext, face_blend, tmp_path):
 
 def cache_source(state, coll) -> str:
     return state.cache_for(state.settings(coll).study_id).forensic.get("face_model_source")
+
+
+def _tip_to_mesh_mm(pdehead_ext, obj, tip) -> float:
+    """The exact distance (mm) from ``tip`` (patient mm) to the face object's triangles (brute force)."""
+    import importlib
+    geometry = importlib.import_module(f"{pdehead_ext.__name__}.pdehead_addon.core.mesh_geometry")
+    me = obj.data
+    me.calc_loop_triangles()
+    tris = np.empty(len(me.loop_triangles) * 3, np.int64)
+    me.loop_triangles.foreach_get("vertices", tris)
+    v = _world_vertices(obj)
+    t = tris.reshape(-1, 3)
+    return float(geometry.point_triangle_distance(np.asarray(tip, float)[None], v[t[:, 0]], v[t[:, 1]],
+                                                  v[t[:, 2]]).min())
+
+
+def _panel_labels(pdehead_ext) -> list:
+    import bpy
+    from types import SimpleNamespace
+    from panel_recorder import RecordingLayout
+    forensic = sys.modules[f"{pdehead_ext.__name__}.operators.forensic"]
+    log = []
+    forensic.PDEHEAD_PT_forensic.draw(SimpleNamespace(layout=RecordingLayout(log)), bpy.context)
+    return log
+
+
+def test_pegs_off_the_face_are_shown_held_and_warned(pdehead_ext, face_blend):
+    """Issue 23: each peg carries its tip's distance to the face and the panel lists those more than 2 mm off and
+    why; a held peg (toggled in the panel, or dragged) is followed (tip within 0.5 mm); a peg pushed into the bone
+    or dragged 200 mm out is named in a warning while the face still solves; Build Face lets every peg go."""
+    import bpy
+    face, fs, state = _mods(pdehead_ext)
+    coll = _open(face_blend)
+    study = fs(coll)
+    obj = study.face_object()
+    names = study.face_peg_names()
+    pegs = study.peg_objects(names)
+    assert all(not p[face.HELD_PROP] for p in pegs.values())
+    gaps = {n: float(p[face.TIP_TO_FACE_PROP]) for n, p in pegs.items()}
+    tips = study.peg_tips(names)
+    for n in ("Glabella", "Supra M2 L", "Gonion R"):        # the property is the tip's distance to the face
+        assert gaps[n] == pytest.approx(_tip_to_mesh_mm(pdehead_ext, obj, tips[names.index(n)]), abs=0.05)
+    prov = json.loads(obj[face.PROVENANCE_PROP])
+    off = {o["peg"]: o for o in prov["pegs_off_face"]}
+    assert set(off) == {n for n, g in gaps.items() if g > 2.0} and off, gaps
+    assert prov["peg_warnings"] == [] and prov["pegs_held"] == []
+    damped = [n for n, o in off.items() if o["why"].startswith("damped: disagrees with its neighbours by")]
+    assert "Supra M2 L" in damped or "Supra M2 R" in damped, off
+    labels = [x[1] for x in _panel_labels(pdehead_ext) if x[0] == "label" and x[1]]
+    for n, o in off.items():
+        assert any(t.startswith(f"{n}: {o['tip_to_face_mm']:.1f} mm, ") for t in labels), (n, labels)
+
+    # hold the farthest damped peg (the pin in the panel): the face passes through its tip
+    name = max(damped, key=lambda n: gaps[n])
+    peg = pegs[name]
+    peg[face.HELD_PROP] = True
+    peg.update_tag()
+    bpy.context.view_layer.update()
+    i = names.index(name)
+    held_gap = _tip_to_mesh_mm(pdehead_ext, obj, study.peg_tips(names)[i])
+    # measured on the phantom (5.0.1): Supra M2 3.6 -> 0.2 mm
+    assert held_gap <= 0.5 and peg[face.TIP_TO_FACE_PROP] == pytest.approx(held_gap, abs=0.05), (name, gaps[name])
+    assert json.loads(obj[face.PROVENANCE_PROP])["pegs_held"] == [name]
+
+    # a peg pushed 3 mm into the bone: a warning naming it (a panel line), the face still solves, the peg is held
+    glabella = pegs["Glabella"]
+    normal = np.array(glabella.matrix_world)[:3, 2]
+    normal /= np.linalg.norm(normal)
+    _drag(glabella, -(float(glabella[face.PEG_DEPTH_PROP]) + 3.0) * normal)
+    warnings = study.peg_warnings()
+    assert [(w["peg"], w["kind"]) for w in warnings] == [("Glabella", "into_bone")], warnings
+    assert glabella[face.HELD_PROP] and not study.settings.last_error
+    assert any(t == warnings[0]["text"] for t in (x[1] for x in _panel_labels(pdehead_ext) if x[0] == "label"))
+    # ... and pulled back then dragged 200 mm out sideways: a warning that it is far from its landmark
+    _drag(glabella, (float(glabella[face.PEG_DEPTH_PROP]) + 3.0) * normal)
+    assert study.peg_warnings() == []
+    pogonion = pegs["Pogonion"]
+    _drag(pogonion, [200.0, 0.0, 0.0])
+    warnings = study.peg_warnings()
+    assert [(w["peg"], w["kind"]) for w in warnings][:1] == [("Pogonion", "far")], warnings
+    assert "200 mm off" in warnings[0]["text"] and not study.settings.last_error
+    assert np.isfinite(_world_vertices(obj)).all() and pogonion[face.HELD_PROP]       # the face still solves
+
+    # Build Face again: every peg let go
+    assert bpy.ops.pdehead.build_face() == {'FINISHED'}
+    pegs = study.peg_objects(study.face_peg_names())
+    assert pegs and all(not p[face.HELD_PROP] for p in pegs.values())

@@ -442,3 +442,65 @@ def test_cheeks_convex_only_between_the_stomion_and_the_orbits_floor(model, face
     cheeks = model._cheeks(base, front)
     assert np.all(cheeks >= base - 1e-9)
     np.testing.assert_array_equal(cheeks[w == 0], base[w == 0])
+
+
+def test_peg_report_gives_each_tips_distance_to_the_face_and_why(model, face):
+    """Issue 23: the tester's 10 CThead tips more than 2 mm off the face, silently. The report says how far each
+    tip is (the exact point-to-triangle distance) and why (damped: by how much its neighbours disagree)."""
+    from pdehead_addon.forensic.face_pegs import PegReport
+    report = face.pegs
+    assert isinstance(report, PegReport) and report.names == model.peg_names
+    exact = point_surface_distance(face.tips, face.mesh.vertices, _faces(face.mesh), seed=0)
+    # measured on the phantom: equal to the brute-force distance over every triangle; this sampled one within 0.003 mm
+    np.testing.assert_allclose(report.tip_to_face_mm, exact, atol=0.1)
+    lam = dict(zip(model.peg_names, _peg_damping(model)))
+    for i, name in enumerate(model.peg_names):
+        assert (report.damping[i] > 0) == (lam[name] > lam["Glabella"]), name
+    i = model.peg_names.index("Supra M2 L")
+    assert report.disagreement_mm[i] > 4.0 and report.why(i).startswith("damped: disagrees with its neighbours by")
+    off = report.off_face(0.0)
+    assert [o["peg"] for o in off][:3] == [model.peg_names[j] for j in np.argsort(-report.tip_to_face_mm)[:3]]
+    assert face.provenance["pegs_off_face"] == report.off_face() and face.provenance["peg_warnings"] == []
+    assert face.provenance["pegs_held"] == [] and report.warnings == []
+
+
+def test_a_held_peg_is_followed_and_no_held_peg_keeps_todays_face(model, face):
+    """Issue 23: the practitioner's hand overrides the automatic damping: a held damped peg's tip is on the face
+    (within 0.5 mm); holding none (or not passing ``held``) gives the same face as before, vertex for vertex."""
+    from pdehead_addon.forensic.face_live import LiveFace
+    report = face.pegs
+    damped = [i for i in np.flatnonzero(report.damping > 0) if model.peg_names[i] not in NOSE_PEGS]
+    worst = max(damped, key=lambda i: report.tip_to_face_mm[i])
+    name = model.peg_names[worst]
+    assert report.tip_to_face_mm[worst] > 0.5                   # measured on the phantom: Supra M2, 3-4 mm off
+    same = model.solve(held=[])
+    assert np.abs(same.mesh.vertices - face.mesh.vertices).max() <= 1e-6
+    held = model.solve(held=[name])
+    assert held.pegs.tip_to_face_mm[worst] <= 0.5, (name, held.pegs.tip_to_face_mm[worst])
+    assert held.pegs.held[worst] and held.pegs.damping[worst] == 0 and held.provenance["pegs_held"] == [name]
+    others = [i for i in damped if i != worst]
+    assert all(held.pegs.damping[i] > 0 for i in others)          # the untouched damped pegs stay damped
+    # the live path gives the same face for the same held pegs
+    live = LiveFace(model, check=False)
+    fast = live.positions(face.tips, held=[name])
+    assert fast is not None and np.abs(fast - held.mesh.vertices).max() <= 1e-6
+
+
+def test_a_peg_in_the_bone_or_dragged_far_is_warned(model, face):
+    """Issue 23: a peg pushed into the bone, or dragged 200 mm out, is named in a warning (data: peg, kind, text);
+    the face still solves."""
+    from pdehead_addon import defaults as D
+    names = model.peg_names
+    tips = face.tips.copy()
+    i, j, k = names.index("Glabella"), names.index("Pogonion"), names.index("Zygomatic arch L")
+    tips[i] = model.peg_bases[i] - 3.0 * model.peg_normals[i]                 # 3 mm into the bone
+    tips[j] = tips[j] + 200.0 * model.peg_normals[j]                          # 200 mm out along its axis
+    side = np.cross(model.peg_normals[k], [0.0, 0.0, 1.0])
+    tips[k] = tips[k] + 15.0 * side / np.linalg.norm(side)                    # 15 mm off its landmark
+    res = model.solve(tips=tips)
+    assert res.mesh.is_watertight()
+    kinds = {(w["peg"], w["kind"]) for w in res.pegs.warnings}
+    assert kinds == {("Glabella", "into_bone"), ("Pogonion", "far"), ("Zygomatic arch L", "far")}, res.pegs.warnings
+    assert res.pegs.depth_mm[i] == pytest.approx(-3.0) and res.pegs.drift_mm[k] == pytest.approx(15.0)
+    assert res.provenance["peg_warnings"] == res.pegs.warnings
+    assert D.FACE_PEG_MAX_DRIFT_MM == 10.0 and not model.solve().pegs.warnings
