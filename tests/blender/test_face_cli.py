@@ -33,7 +33,7 @@ def test_cli_face_from_skull_writes_face_skull_landmarks(tmp_path):
     assert prov["face"]["table"].startswith("T-Table 2023") and "Pogonion" in prov["face"]["peg_depths_mm"]
 
 
-@pytest.mark.parametrize("case", ["no_export", "not_a_skull", "no_bone"])
+@pytest.mark.parametrize("case", ["no_export", "not_a_skull", "cube", "no_bone"])
 def test_cli_face_from_skull_bad_input_exit_2_nothing_written(tmp_path, case, phantom):
     out = tmp_path / "out"
     if case == "no_export":
@@ -50,6 +50,14 @@ def test_cli_face_from_skull_bad_input_exit_2_nothing_written(tmp_path, case, ph
         vol = (x ** 2 / 80 ** 2 + y ** 2 / 95 ** 2 + z ** 2 / 85 ** 2) < 1
         v, f, _, _ = measure.marching_cubes(vol.astype(np.float32), 0.5)
         given = export_mesh(Mesh(v[:, ::-1] * 2 - 100, np.zeros((0, 4)), f[:, ::-1]), tmp_path / "in" / "egg.stl")
+        result = run_cli("--skull-mesh", given, *SMALL, "--face-from-skull", "--export", out, tmp_path=tmp_path)
+        message = "does not look like a skull: no orbits were found"
+    elif case == "cube":                         # a closed 150 mm cube: refused for what it is not, not as "empty"
+        from pdehead_addon import Mesh
+        from pdehead_addon.io.export import export_mesh
+        v = np.array([[x, y, z] for x in (-75, 75) for y in (-75, 75) for z in (-75, 75)], float)
+        quads = np.array([[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]])
+        given = export_mesh(Mesh(v, quads, np.zeros((0, 3), np.int64)), tmp_path / "in" / "cube.stl")
         result = run_cli("--skull-mesh", given, *SMALL, "--face-from-skull", "--export", out, tmp_path=tmp_path)
         message = "does not look like a skull: no orbits were found"
     else:                                        # the phantom with every value above soft tissue cut off
