@@ -50,7 +50,7 @@ from ..core.boundary_set import BoundarySet, knots_from_heights
 from ..core.errors import PDEHeadError
 from .face_profile import FaceGrid, bone_profile, convex_rows, peg_normals, smooth_far_from_pegs
 from .face_features import (EAR_LENGTH_MM, EAR_WIDTH_MM, FRONT_COS, check_skull, ear_shape, eye_shape, mouth_shape,
-                            nose_bump, predict_eyes, predict_mouth, predict_nose)
+                            nose_bump, predict_ears, predict_eyes, predict_mouth, predict_nose)
 from ..core.mesh import Mesh
 
 APPROXIMATION_LABEL = D.FACE_LABEL
@@ -520,7 +520,9 @@ class FaceModel:
             if self.mouth.get("stomion_z") is not None:
                 prov["predicted_stomion_z_mm"] = round(float(self.mouth["stomion_z"]), 1)
         if self._ear_shape() is not None:
-            prov["ears"] = f"default ear ({EAR_LENGTH_MM:g} x {EAR_WIDTH_MM:g} mm, Farkas 1994 norms) at each porion"
+            sides = [f"Porion {ear['side']}" for ear in predict_ears(getattr(self, "landmarks_used", {}) or {})]
+            prov["ears"] = (f"default ear ({EAR_LENGTH_MM:g} x {EAR_WIDTH_MM:g} mm, Farkas 1994 norms) at "
+                            f"{' and '.join(sides)}: one shape for everyone, not this person's ears")
         prov["peg_depths_mm"] = {n: round(float(x), 2) for n, x in zip(self.peg_names, depths)}
         return prov
 

@@ -7,6 +7,8 @@ CThead is scripts/bench/bench_face.py's (docs/benchmarks.md).
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -273,6 +275,10 @@ def test_ears_at_the_porions(model, face, phantom_bone):
     _, lms, _ = phantom_bone
     ears = model._ear_shape()
     assert ears is not None and face.provenance["ears"].startswith("default ear")
+    # the README's limits and the provenance say the same: a default ear at the porions found, not none
+    assert "at Porion L and Porion R" in face.provenance["ears"]
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    assert "The ears are not modelled" not in readme and "The ears are one default shape" in readme
     saved = model.__dict__["_ears"]
     try:
         model.__dict__["_ears"] = None
