@@ -29,6 +29,7 @@ import argparse
 import contextlib
 import json
 import os
+import shutil
 import signal
 import sys
 import tempfile
@@ -823,10 +824,13 @@ def write_summary_json(path: Path, summary: dict) -> None:
 
 def main(argv=None) -> int:
     args = None
+    user_folder = None
     try:
         args = parse_args(argv)
-        # Keep Blender away from the real user folder (must precede `import bpy`).
-        os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="pdehead-cli-"))
+        # Keep Blender away from the real user folder (must precede `import bpy`); ours is removed at the end.
+        if "BLENDER_USER_RESOURCES" not in os.environ:
+            user_folder = tempfile.mkdtemp(prefix="pdehead-cli-")
+            os.environ["BLENDER_USER_RESOURCES"] = user_folder
         previous = signal.signal(signal.SIGINT, _on_sigint)
         try:
             summary = run(args)
@@ -849,6 +853,11 @@ def main(argv=None) -> int:
                 write_summary_json(args.summary_json, {"status": "error", "exit_code": exc.code, "error": message,
                                                        "warnings": list(WARNINGS.printed)})
         return exc.code
+    finally:
+        if user_folder is not None:        # every exit: 0, 1 (an uncaught error), 2 and 130
+            shutil.rmtree(user_folder, ignore_errors=True)
+            if os.environ.get("BLENDER_USER_RESOURCES") == user_folder:
+                del os.environ["BLENDER_USER_RESOURCES"]
     return 0
 
 
