@@ -617,7 +617,7 @@ def _build(args, bpy, addon, ops):
             _call(ops.find_landmarks)
         face = _face_from_skull(addon, coll) if args.face_from_skull else None
         if args.export:
-            _export_with_face(args, ops, addon, face)
+            _export_with_face(args, ops, addon, coll, face)
     return coll, selection_info, skin
 
 
@@ -659,7 +659,7 @@ def _print_skull(args, addon, coll, skin) -> None:
     if "median" in depth:
         print(f"  depth     {depth['measured']} of {depth['vertices']} skin vertices, median {depth['median']:.1f} "
               f"mm, p95 {depth['p95']:.1f} mm (no bone {depth['no_bone']}, envelope {depth['envelope']})")
-    flags = [f for f, _ in fs.landmark_flags().values()]
+    flags = list(_output_flags(fs).values())
     if flags:
         print(f"  landmarks {len(flags) - flags.count('not_found')} of {len(flags)} found automatically "
               f"({flags.count('ok')} ok, {flags.count('uncertain')} uncertain, {flags.count('not_found')} not found)")
@@ -671,6 +671,12 @@ def _print_skull(args, addon, coll, skin) -> None:
     if args.export:
         written = sorted(p.name for p in args.export.iterdir() if not p.name.startswith("."))
         print(f"  export    {args.export}: {', '.join(written)}")
+
+
+def _output_flags(fs) -> dict:
+    """The landmarks' flags as the outputs carry them: those the export wrote (landmarks.csv and the face's
+    provenance), else Find Landmarks' own."""
+    return fs.cache.get("export_flags") or {name: flag for name, (flag, _) in fs.landmark_flags().items()}
 
 
 def _render(args, addon, s, summary) -> None:
@@ -731,36 +737,30 @@ def _face_from_skull(addon, coll):
     return res, model
 
 
-def _export_with_face(args, ops, addon, face) -> None:
-    """Export for printing, plus face.<fmt> when the face was made: the face is written first to a hidden file
-    in DIR and moved into place only after the rest of the export succeeded (nothing half-written)."""
+def _export_with_face(args, ops, addon, coll, face) -> None:
+    """Export for printing, plus face.<fmt> when the face was made: the study's export writes the face with the
+    rest (built and checked first, then moved into place: nothing half-written), its provenance's landmark
+    flags the same as landmarks.csv's. The written files are kept in ``args.written`` (name -> path)."""
     out = args.export.resolve()
     args.face = face
     if face is None:
         _call(ops.export_print, directory=str(out), format=args.export_format)
-        return
-    from importlib import import_module
-    export = import_module(addon.__name__ + ".pdehead_addon.io.export")
-    res, _model = face
-    out.mkdir(parents=True, exist_ok=True)
-    tmp = out / f".face.pdehead-partial.{args.export_format}"
-    try:
-        export.export_mesh(res.mesh, tmp, fmt=args.export_format, name="face", provenance=res.provenance)
-        _call(ops.export_print, directory=str(out), format=args.export_format)
-        # provenance.json names every file and the face's own record (its label, pegs and flags)
-        prov_path = out / "provenance.json"
-        record = json.loads(prov_path.read_text()) if prov_path.is_file() else {}
-        record["files"] = sorted(set(record.get("files", [])) | {f"face.{args.export_format}"})
-        record["face"] = res.provenance
-        tmp_prov = out / ".provenance.pdehead-partial.json"
-        tmp_prov.write_text(json.dumps(record, indent=2) + "\n")
-        os.replace(tmp, out / f"face.{args.export_format}")
-        os.replace(tmp_prov, prov_path)
-    except addon.pdehead_addon.PDEHeadError as exc:
-        raise CLIError(f"--export {args.export}: {exc}", 2) from None
-    finally:
-        tmp.unlink(missing_ok=True)
-        (out / ".provenance.pdehead-partial.json").unlink(missing_ok=True)
+        listed = json.loads((out / "provenance.json").read_text()).get("files", [])
+        files = [out / name for name in [*listed, "provenance.json"]]
+    else:
+        res, _model = face
+        try:
+            files = [Path(f) for f in _forensic(addon, coll).export(str(out), args.export_format,
+                                                                    face=(res.mesh, res.provenance))]
+        except addon.pdehead_addon.Cancelled:
+            raise Interrupted() from None
+        except addon.pdehead_addon.PDEHeadError as exc:
+            raise CLIError(f"--export {args.export}: {exc}", 2) from None
+        finally:
+            WARNINGS.from_study()
+    # "skull", "face", ... for the meshes (their format is --export-format), the file name for the others
+    mesh_suffix = "." + args.export_format
+    args.written = {(f.stem if f.suffix == mesh_suffix else f.name): str(f) for f in files}
 
 
 def _save(bpy, path: Path, flag: str) -> None:

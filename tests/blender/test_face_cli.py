@@ -1,6 +1,7 @@
 """Face from the skull, headless (issue 23 point 4): `scripts/pdehead.py ... --face-from-skull --export DIR`."""
 from __future__ import annotations
 
+import csv
 import json
 
 import numpy as np
@@ -12,13 +13,22 @@ from test_cli import run_cli
 SMALL = ("--no-volume", "--patches", 4, "--nu", 40, "--nv", 80)
 
 
+def landmark_csv_flags(path) -> dict:
+    """landmarks.csv's flag per landmark (its ``#`` provenance lines skipped)."""
+    rows = [line for line in path.read_text().splitlines() if not line.startswith("#")]
+    return {row["landmark"]: row["flag"] for row in csv.DictReader(rows)}
+
+
 def test_cli_face_from_skull_writes_face_skull_landmarks(tmp_path):
     out = tmp_path / "face"
-    result = run_cli("--phantom", *SMALL, "--face-from-skull", "--export", out, tmp_path=tmp_path)
+    result = run_cli("--phantom", *SMALL, "--face-from-skull", "--export", out, "--summary-json",
+                     tmp_path / "summary.json", tmp_path=tmp_path)
     assert result.returncode == 0, result.stderr[-3000:]
     names = sorted(p.name for p in out.iterdir())
     assert names == ["face.stl", "landmarks.csv", "provenance.json", "skin.stl", "skull.stl",
                      "skull_envelope.stl", "tissue_depth.csv"]            # nothing hidden left behind
+    # the 80-byte header starts with the label (ASCII)
+    assert (out / "face.stl").read_bytes()[:80].startswith(b"approximation - not an identification; face")
     face, skull = read_stl(out / "face.stl"), read_stl(out / "skull.stl")
     assert face.is_watertight() and len(face.triangles) > 50_000          # 160 x 240 quads, split
     # patient mm, the CT's frame: the face wraps the skull with a few mm to a few cm of tissue
@@ -31,6 +41,9 @@ def test_cli_face_from_skull_writes_face_skull_landmarks(tmp_path):
     prov = json.loads((out / "provenance.json").read_text())
     assert "face.stl" in prov["files"] and prov["face"]["label"] == "approximation — not an identification"
     assert prov["face"]["table"].startswith("T-Table 2023") and "Pogonion" in prov["face"]["peg_depths_mm"]
+    # one set of flags: landmarks.csv and the face's provenance list every landmark with the same flag
+    flags = landmark_csv_flags(out / "landmarks.csv")
+    assert len(flags) == 50 and prov["face"]["landmark_flags"] == flags
 
 
 @pytest.mark.parametrize("case", ["no_export", "not_a_skull", "cube", "no_bone"])
