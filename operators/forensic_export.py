@@ -246,7 +246,7 @@ class ExportSteps:
 
         if fmt not in FORMATS:
             raise PDEHeadError(f"unknown mesh format {fmt!r}; use one of {', '.join(FORMATS)}")
-        with state.Timer():
+        with state.Timer() as timer:
             out = self._export_folder(directory)
             # ---- build everything first
             meshes, skull, skin, res = self._export_meshes(depth_target)
@@ -271,6 +271,7 @@ class ExportSteps:
                 meshes.append(("face", face_mesh))
             names = self._write_export(out, fmt, meshes, res, depths, table, flags, prov, prov_lm, face_prov)
         self.cache["export_flags"] = dict(flags)
+        self.study.record_timing("export", timer.seconds)
         return [str(out / n) for n in names]
 
     def _write_export(self, out: Path, fmt: str, meshes, res, depths, table, flags, prov, prov_lm, face_prov):

@@ -563,9 +563,6 @@ def _steps(args, bpy, addon, state) -> dict:
     for warning in warning_lines:
         print(f"  warning   {warning}")
     print("timings (s):")
-    if getattr(args, "face", None) is not None:     # the face's own steps (engine, not an operator)
-        res, model = args.face
-        timings = dict(timings, face_prep=model.prepare_seconds, face_solve=res.timings["total"])
     for step, seconds in timings.items():
         print(f"  {step:<11}{seconds:8.3f}")
     print(f"  {'total':<11}{total:8.3f}")
@@ -732,6 +729,8 @@ def _face_from_skull(addon, coll):
     if not res.mesh.is_watertight():
         raise CLIError("--face-from-skull: the face mesh is not closed; nothing was written", 1)
     model.label = ff.APPROXIMATION_LABEL
+    fs.study.record_timing("face_prep", model.prepare_seconds)      # steps of the run, in the order they ran
+    fs.study.record_timing("face_solve", res.timings["total"])
     prov = dict(fs.provenance(fs.depth_table()), **res.provenance)
     res.provenance = prov
     return res, model
@@ -804,6 +803,16 @@ def _summary(args, addon, coll, timings, total, selection_info, warning_lines) -
     }
     if selection_info:
         out["selection"] = selection_info
+    out["outputs"].update(getattr(args, "written", {}))
+    if args.skull:
+        fs = _forensic(addon, coll)
+        flags = list(_output_flags(fs).values())
+        out["landmarks"] = {flag: flags.count(flag) for flag in ("ok", "uncertain", "not_found")}
+    if getattr(args, "face", None) is not None:
+        res, model = args.face
+        out["face"] = {"label": model.label, "table": res.provenance.get("table", "imported table"),
+                       "pegs": len(model.peg_names), "vertices": len(res.mesh.vertices),
+                       "landmarks": out["landmarks"]}
     if s.volume_object is not None:
         out["volume"] = {"vdb": s.volume_object.data.filepath,
                          "voxel_size_mm": None if s.use_ct_grid else _r(s.voxel_size, 4)}

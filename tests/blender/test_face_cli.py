@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 
 import numpy as np
 import pytest
@@ -44,6 +45,22 @@ def test_cli_face_from_skull_writes_face_skull_landmarks(tmp_path):
     # one set of flags: landmarks.csv and the face's provenance list every landmark with the same flag
     flags = landmark_csv_flags(out / "landmarks.csv")
     assert len(flags) == 50 and prov["face"]["landmark_flags"] == flags
+    # every step is timed (Find Landmarks and the export too: they were left out) and they add up to the total
+    timings = dict(re.findall(r"^  (\w+) +([0-9.]+)$", result.stdout.split("timings (s):")[1], re.M))
+    for step in ("skull", "depth", "landmarks", "face_prep", "face_solve", "export"):
+        assert step in timings, timings
+    total = float(timings.pop("total"))
+    assert sum(map(float, timings.values())) > 0.9 * total, (timings, total)
+    # --summary-json: every written file and its path, the table, the landmark counts by flag, the step times
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["outputs"] == {name: str(out.resolve() / file) for name, file in (
+        ("face", "face.stl"), ("skull", "skull.stl"), ("skull_envelope", "skull_envelope.stl"), ("skin", "skin.stl"),
+        ("tissue_depth.csv", "tissue_depth.csv"), ("landmarks.csv", "landmarks.csv"),
+        ("provenance.json", "provenance.json"))}
+    counts = {flag: list(flags.values()).count(flag) for flag in ("ok", "uncertain", "not_found")}
+    assert summary["face"]["table"] == "T-Table 2023 (pooled grand means)" and summary["face"]["landmarks"] == counts
+    assert summary["landmarks"] == counts and f"({counts['ok']} ok, {counts['uncertain']} uncertain" in result.stdout
+    assert {"landmarks", "face_prep", "face_solve", "export"} <= set(summary["timings_s"])
 
 
 @pytest.mark.parametrize("case", ["no_export", "not_a_skull", "cube", "no_bone"])
