@@ -169,7 +169,12 @@ class FaceSteps:
         return engine_mesh_of(obj, study_origin(self.collection)), prov
 
     def face_table(self):
-        """The depth table the study's face uses (setting ``face_table``): the shipped T-Table 2023 or a CSV."""
+        """The depth table the study's face uses (setting ``face_table``): the shipped T-Table 2023 or a CSV, with
+        the rows of the chosen sex (setting ``face_sex``) where the table has a ``sex`` column."""
+        return self.face_table_as_read().for_sex(self.face_sex())
+
+    def face_table_as_read(self):
+        """The study's depth table as read, every sex's rows in it (:meth:`face_table` picks them)."""
         import os
 
         from ..pdehead_addon import default_table, read_depth_table
@@ -335,7 +340,7 @@ class FaceSteps:
         rec.update({k: v for k, v in dict(result_provenance).items() if k not in rec})
         flags = self.flag_names()
         rec["landmarks"] = {n: flags.get(n, "ok") for n in opts.get("landmarks", {})}
-        rec["sex"] = opts.get("sex") or "pooled"
+        rec["sex"] = getattr(table, "sex", "") or opts.get("sex") or "pooled"
         rec["label"] = approximation_label()
         return rec
 
@@ -464,6 +469,7 @@ class FaceSteps:
             if entry is not None:
                 _update_peg_table(peg, entry, table)
         self.props.face_table = table.to_json()
+        self.props.face_sex = getattr(table, "sex", "")          # what the face now stands by
         return self.solve_face(table=table)
 
     def set_face_peg_depth(self, peg, depth_mm: float) -> float:

@@ -117,6 +117,12 @@ def _parser() -> argparse.ArgumentParser:
                    help="with --export DIR: also approximate the face from the bone skull, its landmarks and the "
                         "depth table (a PDE face through the tissue-depth pegs) and write face.<fmt> (closed, patient "
                         "mm; an approximation, not an identification); implies --skull")
+    f.add_argument("--depth-table", type=Path, metavar="FILE",
+                   help="with --face-from-skull: the depth table CSV (landmark,mean_mm[,sd_mm,n][,sex]); default: the "
+                        "shipped T-Table 2023 (pooled)")
+    f.add_argument("--sex", choices=["male", "female"],
+                   help="with --face-from-skull: the depth table's rows for this sex (a table with a sex column; the "
+                        "T-Table 2023 is pooled)")
     p.add_argument("--render-samples", type=int, default=D.RENDER_SAMPLES.default,
                    help=D.RENDER_SAMPLES.help("Cycles samples"))
     a = p.add_argument_group("animation")
@@ -162,6 +168,11 @@ def _check_skull_args(p, args) -> None:
         if args.bone_level is not None:
             p.error("--bone-level applies to a CT, not to --skull-mesh")
         args.input, args.skull = str(args.skull_mesh), True
+    for flag in ("depth_table", "sex"):
+        if getattr(args, flag) is not None and not args.face_from_skull:
+            p.error(f"--{flag.replace('_', '-')} needs --face-from-skull")
+    if args.depth_table is not None and not args.depth_table.is_file():
+        raise CLIError(f"--depth-table {args.depth_table}: no such file", 2)
     if args.face_from_skull:
         if args.export is None:
             p.error("--face-from-skull needs --export DIR (where face.<fmt>, skull.<fmt> and landmarks.csv go)")
@@ -583,11 +594,15 @@ def _steps(args, bpy, addon, state) -> dict:
 def _build(args, bpy, addon, ops):
     """Every step of the study, as the add-on's operators: (the study's collection, the automatic selection's
     report or None, whether the scan has skin)."""
+    table = _face_table(args, addon)          # a table or sex that cannot be used: exit 2 before the work
     if args.phantom:
         _call(ops.load_phantom)
     else:
         _call(ops.import_ct, **loader_kwargs(args))
     coll = bpy.context.scene.pdehead.active_study
+    if table is not None:                     # the study's table: the face's pegs and landmarks.csv use it
+        props = _forensic(addon, coll).props
+        props.depth_table, props.depth_table_name = table.to_json(), table.label
     s = coll.pdehead
     if args.bone_level is not None:          # the import dialog's / forensic panel's Bone Level field
         s.use_bone_level, s.bone_level = True, args.bone_level
@@ -715,6 +730,24 @@ def _forensic(addon, coll):
     return addon.operators.forensic_study.ForensicStudy.of(study)
 
 
+def _face_table(args, addon):
+    """The depth table of --depth-table FILE (default: the shipped T-Table 2023) with the rows of --sex, or None
+    when neither is given (the study's table). A file that is no depth table, or a sex the table has no values
+    for, is exit 2."""
+    if args.depth_table is None and args.sex is None:
+        return None
+    engine = addon.pdehead_addon
+    try:
+        table = engine.read_depth_table(args.depth_table) if args.depth_table else engine.default_table()
+    except engine.PDEHeadError as exc:
+        raise CLIError(f"--depth-table {exc}", 2) from None
+    try:
+        return table.for_sex(args.sex)
+    except engine.PDEHeadError as exc:
+        flag = f"--sex {args.sex}" if args.sex else "--depth-table"
+        raise CLIError(f"{flag}: {exc}" + (" (drop --sex)" if args.sex and not table.sexes else ""), 2) from None
+
+
 def _face_from_skull(addon, coll):
     """The face approximated from the study's bone skull, landmarks and depth table (issue 23): (result, model).
     A skull the engine refuses (too few landmarks with a depth, not a skull in mm) is exit 2."""
@@ -722,7 +755,9 @@ def _face_from_skull(addon, coll):
     ff = import_module(addon.__name__ + ".pdehead_addon.forensic.face_from_skull")
     fs = _forensic(addon, coll)
     try:
-        model = ff.FaceModel.prepare(fs.skull_engine_mesh("BONE"), fs.landmarks(), fs.depth_table(), flags=fs.flag_names())
+        table = fs.depth_table()
+        model = ff.FaceModel.prepare(fs.skull_engine_mesh("BONE"), fs.landmarks(), table, sex=table.sex or None,
+                                     flags=fs.flag_names())
         res = model.solve()
     except addon.pdehead_addon.PDEHeadError as exc:
         raise CLIError(f"--face-from-skull: {exc}", 2) from None

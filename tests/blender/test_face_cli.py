@@ -4,6 +4,7 @@ from __future__ import annotations
 import csv
 import json
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -102,3 +103,32 @@ def test_cli_face_from_skull_bad_input_exit_2_nothing_written(tmp_path, case, ph
     errors = [line for line in result.stderr.splitlines() if "error:" in line]
     assert len(errors) == 1 and message in errors[0]
     assert not out.exists()
+
+
+BY_SEX = Path(__file__).resolve().parents[1] / "fixtures" / "depth_table_by_sex.csv"
+
+
+def test_cli_sex_picks_the_rows_of_a_table_with_a_sex_column(tmp_path):
+    """--depth-table FILE --sex male: the face stands on the table's male rows (the table was refused before);
+    --sex with a pooled table is exit 2 with the reason, before any work and with nothing written."""
+    out = tmp_path / "face"
+    result = run_cli("--phantom", *SMALL, "--face-from-skull", "--export", out, "--depth-table", BY_SEX,
+                     "--sex", "male", tmp_path=tmp_path)
+    assert result.returncode == 0, result.stderr[-3000:]
+    prov = json.loads((out / "provenance.json").read_text())
+    assert prov["face"]["table"] == "Small table by sex, male" and prov["face"]["sex"] == "male"
+    assert prov["face"]["peg_depths_mm"]["Glabella"] == 6.0 and prov["face"]["peg_depths_mm"]["Pogonion"] == 12.0
+    assert "table Small table by sex, male" in result.stdout
+    rows = [line for line in (out / "landmarks.csv").read_text().splitlines() if not line.startswith("#")]
+    glabella = next(row for row in csv.DictReader(rows) if row["landmark"] == "Glabella")
+    assert glabella["table_mm"] == "6" and glabella["table_name"] == "Small table by sex, male"
+
+    pooled = tmp_path / "pooled"
+    result = run_cli("--phantom", *SMALL, "--face-from-skull", "--export", pooled, "--sex", "female",
+                     tmp_path=tmp_path)
+    assert result.returncode == 2, result.stderr[-3000:]
+    errors = [line for line in result.stderr.splitlines() if "error:" in line]
+    assert len(errors) == 1 and "--sex female: the depth table 'T-Table 2023 (pooled grand means)' is pooled" in errors[0]
+    assert "Phantom loaded" not in result.stdout and not pooled.exists()
+    result = run_cli("--phantom", *SMALL, "--sex", "male", tmp_path=tmp_path)
+    assert result.returncode == 2 and "--sex needs --face-from-skull" in result.stderr

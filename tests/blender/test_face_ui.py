@@ -285,3 +285,36 @@ def test_export_for_printing_writes_the_face_beside_the_head(pdehead_ext, face_b
     assert bpy.ops.pdehead.export_print(directory=str(tmp_path / "ply"), format='ply') == {'FINISHED'}
     head = (tmp_path / "ply" / "face.ply").read_bytes().split(b"end_header\n", 1)[0]
     assert b"comment label: approximation - not an identification" in head
+
+
+def test_sex_shows_for_a_table_with_a_sex_column_and_picks_its_rows(pdehead_ext, face_blend):
+    """A depth table with a `sex` column (tests/fixtures/depth_table_by_sex.csv) is read (it was refused:
+    "Glabella is given twice"), the panel then shows Sex, and choosing it sets the pegs to that sex's means
+    and re-solves the face; the shipped pooled table shows no Sex."""
+    from pathlib import Path
+    from types import SimpleNamespace
+    from panel_recorder import RecordingLayout
+    import bpy
+    face, fs, state = _mods(pdehead_ext)
+    forensic = sys.modules[f"{pdehead_ext.__name__}.operators.forensic"]
+    coll = _open(face_blend)
+
+    def panel():
+        log = []
+        forensic.PDEHEAD_PT_forensic.draw(SimpleNamespace(layout=RecordingLayout(log)), bpy.context)
+        return log
+
+    assert ("prop", "face_sex") not in panel()                    # the T-Table 2023 is pooled
+    s = state.settings(coll)
+    s.face_table_file = str(Path(__file__).resolve().parents[1] / "fixtures" / "depth_table_by_sex.csv")
+    s.face_table = 'FILE'
+    assert s.last_error == ""
+    assert ("prop", "face_sex") in panel()
+    obj = fs(coll).face_object()
+    glabella = fs(coll).peg_objects(["Glabella"])["Glabella"]
+    assert glabella[face.PEG_DEPTH_PROP] == 5.5                   # pooled rows
+    for sex, depth in (('MALE', 6.0), ('FEMALE', 5.0)):
+        s.face_sex = sex
+        assert s.last_error == "" and glabella[face.PEG_DEPTH_PROP] == depth
+        prov = json.loads(obj[face.PROVENANCE_PROP])
+        assert prov["sex"] == sex.lower() and prov["table"] == f"Small table by sex, {sex.lower()}"
