@@ -46,7 +46,7 @@ from ..pdehead_addon import PDEHeadError
 from . import state
 from .coords import MM_TO_M
 from .forensic_export import PEG_DEPTH_PROP, set_peg_depth
-from .forensic_objects import ForensicBase, plain_material, set_material
+from .forensic_objects import ForensicBase, engine_mesh_of, plain_material, set_material
 from .forensic_props import face_options_of, store_face_options
 from .study_entity import Study
 
@@ -156,24 +156,32 @@ class FaceSteps:
     def face_skull_mesh(self):
         """The bone skull as an engine Mesh (patient mm): read from the study's bone object (what the .blend
         holds, so a reopened file prepares the same model), else built from the CT."""
-        from ..pdehead_addon import Mesh
         from .objects import study_origin
 
         obj = self.linked_object("pdehead_bone_object")
         if obj is None or obj.type != 'MESH' or len(obj.data.polygons) == 0:
             return self.skull_engine_mesh("BONE")
-        me = obj.data
-        me.calc_loop_triangles()
-        co = np.empty(len(me.vertices) * 3, np.float32)
-        me.vertices.foreach_get("co", co)
-        tris = np.empty(len(me.loop_triangles) * 3, np.int32)
-        me.loop_triangles.foreach_get("vertices", tris)
-        origin = np.array(study_origin(self.collection), float)
-        vertices = (co.reshape(-1, 3).astype(np.float64) + origin) / MM_TO_M
-        return Mesh(vertices, np.zeros((0, 4), np.int64), tris.reshape(-1, 3).astype(np.int64))
+        return engine_mesh_of(obj, study_origin(self.collection))
+
+    def face_for_export(self):
+        """The study's face for Export for Printing: (engine Mesh in patient mm, its provenance with the label),
+        or None when the study has no face (Build Face not run)."""
+        from .objects import study_origin
+
+        obj = self.face_object()
+        if obj is None or obj.type != 'MESH' or len(obj.data.polygons) == 0:
+            return None
+        prov = json.loads(obj.get(PROVENANCE_PROP) or "{}")
+        prov["label"] = approximation_label()
+        return engine_mesh_of(obj, study_origin(self.collection)), prov
 
     def face_table(self):
-        """The depth table the study's face uses (setting ``face_table``): the shipped T-Table 2023 or a CSV."""
+        """The depth table the study's face uses (setting ``face_table``): the shipped T-Table 2023 or a CSV, with
+        the rows of the chosen sex (setting ``face_sex``) where the table has a ``sex`` column."""
+        return self.face_table_as_read().for_sex(self.face_sex())
+
+    def face_table_as_read(self):
+        """The study's depth table as read, every sex's rows in it (:meth:`face_table` picks them)."""
         import os
 
         from ..pdehead_addon import default_table, read_depth_table
@@ -376,7 +384,7 @@ class FaceSteps:
         rec.update({k: v for k, v in dict(result_provenance).items() if k not in rec})
         flags = self.flag_names()
         rec["landmarks"] = {n: flags.get(n, "ok") for n in opts.get("landmarks", {})}
-        rec["sex"] = opts.get("sex") or "pooled"
+        rec["sex"] = getattr(table, "sex", "") or opts.get("sex") or "pooled"
         rec["label"] = approximation_label()
         return rec
 
@@ -528,6 +536,7 @@ class FaceSteps:
             if entry is not None:
                 _update_peg_table(peg, entry, table)
         self.props.face_table = table.to_json()
+        self.props.face_sex = getattr(table, "sex", "")          # what the face now stands by
         return self.solve_face(table=table, hold_touched=False)     # the table moved the pegs, not the practitioner
 
     def set_face_peg_depth(self, peg, depth_mm: float) -> float:

@@ -306,12 +306,16 @@ def draw_face_section(layout, fs) -> None:
     if s.face_table == 'FILE':
         box.prop(s, "face_table_file", text="")
     try:
-        table = fs.face_table()
+        table = fs.face_table_as_read()
     except PDEHeadError as exc:
         table = None
         box.label(text=str(exc), icon='ERROR')
     if table is not None and table_has_sex(table):
         box.prop(s, "face_sex")
+        try:
+            fs.face_table()                   # the chosen sex's rows: a sex the table lacks says so here
+        except PDEHeadError as exc:
+            box.label(text=str(exc), icon='ERROR')
     row = box.row(align=True)
     row.operator(PDEHEAD_OT_find_landmarks.bl_idname, icon='VIEWZOOM')
     row.operator(PDEHEAD_OT_build_face.bl_idname, icon='USER')

@@ -16,6 +16,7 @@ import bpy
 from ..pdehead_addon import PDEHeadError
 from ..pdehead_addon import defaults as D
 from .coords import MM_TO_M
+from . import state
 from .forensic_objects import plain_material, set_material
 
 PEG_MATERIAL = "PDE Head Depth Peg"
@@ -229,48 +230,75 @@ class ExportSteps:
         return meshes, skull, skin, res
 
     def export(self, directory: str, fmt: str = D.EXPORT_FORMAT.default,
-               depth_target: str = D.DEPTH_TARGET.default) -> list[str]:
+               depth_target: str = D.DEPTH_TARGET.default, face=None) -> list[str]:
         """Export for printing: skull.<fmt> (the bone), skull_envelope.<fmt> (the PDE skull envelope),
-        skin.<fmt> (when the CT has skin), tissue_depth.csv, landmarks.csv and provenance.json.
+        skin.<fmt> (when the CT has skin), face.<fmt> (the face from the skull, when the study has one or
+        ``face`` = (Mesh, provenance) is given), tissue_depth.csv, landmarks.csv and provenance.json.
 
-        Everything is built and checked (watertight, in mm) before the first file is written, into a hidden
-        folder inside ``directory`` whose files are then moved into place: a failure leaves no partial set.
+        The landmarks' flags are decided once here (Find Landmarks' flags, an ``ok`` landmark whose depth the
+        CT does not support turned ``uncertain``, ``not_found`` ones kept): landmarks.csv, the face's
+        provenance (its file's comments and ``provenance.json``'s ``face``) list every landmark with the
+        same flag. Everything is built and checked (watertight, in mm) before the first file is written,
+        into a hidden folder inside ``directory`` whose files are then moved into place: a failure leaves no
+        partial set. The flags written are kept in the study's cache (``export_flags``).
         """
+        from ..pdehead_addon import EXPORT_FORMATS as FORMATS
+
+        if fmt not in FORMATS:
+            raise PDEHeadError(f"unknown mesh format {fmt!r}; use one of {', '.join(FORMATS)}")
+        with state.Timer() as timer:
+            out = self._export_folder(directory)
+            # ---- build everything first
+            meshes, skull, skin, res = self._export_meshes(depth_target)
+            depths, flags, method = self.measured_landmark_depths(skull, skin)
+            # a landmark Find Landmarks did not find keeps its row (flag, no coordinates), as the batch's
+            # landmarks.csv does
+            for name, flag in flags.items():
+                if flag == "not_found" and name not in depths:
+                    depths[name] = (np.full(3, np.nan), float("nan"))
+            flags = {name: flags.get(name, "ok") for name in depths}      # every row's flag: the one source
+            table = self.depth_table()
+            prov = self.provenance(table)
+            prov_lm = dict(prov, depth=method)
+            face = self.face_for_export() if face is None else face
+            face_prov = None
+            if face is not None:
+                face_mesh, face_prov = face
+                if face_mesh.face_count == 0 or not face_mesh.is_watertight():
+                    raise PDEHeadError(f"study '{self.name}': the face mesh is not watertight; nothing was written")
+                face_prov = {k: v for k, v in dict(face_prov).items() if k != "landmarks"}
+                face_prov["landmark_flags"] = dict(flags)
+                meshes.append(("face", face_mesh))
+            names = self._write_export(out, fmt, meshes, res, depths, table, flags, prov, prov_lm, face_prov)
+        self.cache["export_flags"] = dict(flags)
+        self.study.record_timing("export", timer.seconds)
+        return [str(out / n) for n in names]
+
+    def _write_export(self, out: Path, fmt: str, meshes, res, depths, table, flags, prov, prov_lm, face_prov):
+        """Write the export's files into a hidden folder in ``out``, then move them into place; their names."""
         import os
         import shutil
         import tempfile
 
         from ..pdehead_addon import write_landmark_csv
-        from ..pdehead_addon import EXPORT_FORMATS as FORMATS, export_mesh
+        from ..pdehead_addon import export_mesh
         from ..pdehead_addon import write_depth_csv
 
-        if fmt not in FORMATS:
-            raise PDEHeadError(f"unknown mesh format {fmt!r}; use one of {', '.join(FORMATS)}")
-        out = self._export_folder(directory)
-        # ---- build everything first
-        meshes, skull, skin, res = self._export_meshes(depth_target)
-        depths, flags, method = self.measured_landmark_depths(skull, skin)
-        # a landmark Find Landmarks did not find keeps its row (flag, no coordinates), as the batch's landmarks.csv does
-        for name, flag in flags.items():
-            if flag == "not_found" and name not in depths:
-                depths[name] = (np.full(3, np.nan), float("nan"))
-        table = self.depth_table()
-        prov = self.provenance(table)
-        prov_lm = dict(prov, depth=method)
         # ---- then write: into a hidden folder in the target, moved into place when all are written
         out.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=".pdehead-export-", dir=out))
         try:
             names = []
             for name, mesh in meshes:
-                export_mesh(mesh, tmp / f"{name}.{fmt}", name=name, provenance=prov)
+                export_mesh(mesh, tmp / f"{name}.{fmt}", name=name, provenance=face_prov if name == "face" else prov)
                 names.append(f"{name}.{fmt}")
             if res is not None:
                 write_depth_csv(res, tmp / "tissue_depth.csv", provenance=prov)
                 names.append("tissue_depth.csv")
             write_landmark_csv(tmp / "landmarks.csv", depths, table, flags, provenance=prov_lm)
             names.append("landmarks.csv")
-            (tmp / "provenance.json").write_text(json.dumps(dict(prov, files=names), indent=2) + "\n")
+            record = dict(prov, files=names, **({"face": face_prov} if face_prov is not None else {}))
+            (tmp / "provenance.json").write_text(json.dumps(record, indent=2) + "\n")
             names.append("provenance.json")
             for name in names:
                 os.replace(tmp / name, out / name)
@@ -278,4 +306,4 @@ class ExportSteps:
             raise PDEHeadError(f"{out}: cannot write the export ({exc.strerror})") from None
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
-        return [str(out / n) for n in names]
+        return names

@@ -9,6 +9,8 @@ collection points at.
 """
 from __future__ import annotations
 
+import numpy as np
+
 import bpy
 
 from . import compat
@@ -108,3 +110,19 @@ def set_material(obj, mat) -> None:
         obj.data.materials[0] = mat
     else:
         obj.data.materials.append(mat)
+
+
+def engine_mesh_of(obj, origin):
+    """The mesh of the study object ``obj`` as an engine Mesh in patient mm (its data's coordinates plus the
+    study's ``origin``, metres; the object's own transform, e.g. the Frankfurt view, left out), triangulated."""
+    from ..pdehead_addon import Mesh
+    from .coords import MM_TO_M
+
+    me = obj.data
+    me.calc_loop_triangles()
+    co = np.empty(len(me.vertices) * 3, np.float32)
+    me.vertices.foreach_get("co", co)
+    tris = np.empty(len(me.loop_triangles) * 3, np.int32)
+    me.loop_triangles.foreach_get("vertices", tris)
+    vertices = (co.reshape(-1, 3).astype(np.float64) + np.asarray(origin, float)) / MM_TO_M
+    return Mesh(vertices, np.zeros((0, 4), np.int64), tris.reshape(-1, 3).astype(np.int64))

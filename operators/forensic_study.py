@@ -19,6 +19,8 @@ shared parts (registry, cache, sub-collections) are :class:`.forensic_objects.Fo
 """
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 import bpy
@@ -123,6 +125,7 @@ class ForensicStudy(ForensicBase, SkullSteps, ExportSteps, FaceSteps):
         from ..pdehead_addon import snap_to_surface
 
         coll = self.collection
+        t0 = time.perf_counter()
         sk = self.skull_segmentation()
         search = engine_find(self.study.ct, sk.bone)
         edited = {str(o.get(LANDMARK_KEY)) for o in coll.all_objects
@@ -141,6 +144,7 @@ class ForensicStudy(ForensicBase, SkullSteps, ExportSteps, FaceSteps):
                 bpy.data.objects.remove(obj)
         set_flags(self.props.landmark_flags, {n: (lm.flag, lm.evidence) for n, lm in search.landmarks.items()
                                               if n not in edited})
+        self.study.record_timing("landmarks", time.perf_counter() - t0)
         return search
 
     def landmark_flags(self) -> dict[str, tuple[str, str]]:

@@ -134,8 +134,9 @@ class PDEHeadStudySettings(bpy.types.PropertyGroup):
     face_table_file: StringProperty(name="Table File", subtype="FILE_PATH", options=PATH_OPTIONS,
                                     update=_face_table_file_update,
                                     description="A depth table CSV (landmark,mean_mm[,sd_mm,n])")
-    face_sex: EnumProperty(name="Sex", items=face.FACE_SEX_ITEMS, default='POOLED',
-                           description="Sex, for tables with separate values (used by the next Build Face)")
+    face_sex: EnumProperty(name="Sex", items=face.FACE_SEX_ITEMS, default='POOLED', update=_face_table_update,
+                           description="Sex, for tables with separate values: picks the table's rows for it "
+                                       "(the face's pegs and the face follow at once)")
 
     # Segmentation (results, for the panel)
     seg_fraction: FloatProperty(name="Head Fraction", description="Fraction of voxels inside the head mask")

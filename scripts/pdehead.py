@@ -29,6 +29,7 @@ import argparse
 import contextlib
 import json
 import os
+import shutil
 import signal
 import sys
 import tempfile
@@ -116,6 +117,12 @@ def _parser() -> argparse.ArgumentParser:
                    help="with --export DIR: also approximate the face from the bone skull, its landmarks and the "
                         "depth table (a PDE face through the tissue-depth pegs) and write face.<fmt> (closed, patient "
                         "mm; an approximation, not an identification); implies --skull")
+    f.add_argument("--depth-table", type=Path, metavar="FILE",
+                   help="with --face-from-skull: the depth table CSV (landmark,mean_mm[,sd_mm,n][,sex]); default: the "
+                        "shipped T-Table 2023 (pooled)")
+    f.add_argument("--sex", choices=["male", "female"],
+                   help="with --face-from-skull: the depth table's rows for this sex (a table with a sex column; the "
+                        "T-Table 2023 is pooled)")
     p.add_argument("--render-samples", type=int, default=D.RENDER_SAMPLES.default,
                    help=D.RENDER_SAMPLES.help("Cycles samples"))
     a = p.add_argument_group("animation")
@@ -161,6 +168,11 @@ def _check_skull_args(p, args) -> None:
         if args.bone_level is not None:
             p.error("--bone-level applies to a CT, not to --skull-mesh")
         args.input, args.skull = str(args.skull_mesh), True
+    for flag in ("depth_table", "sex"):
+        if getattr(args, flag) is not None and not args.face_from_skull:
+            p.error(f"--{flag.replace('_', '-')} needs --face-from-skull")
+    if args.depth_table is not None and not args.depth_table.is_file():
+        raise CLIError(f"--depth-table {args.depth_table}: no such file", 2)
     if args.face_from_skull:
         if args.export is None:
             p.error("--face-from-skull needs --export DIR (where face.<fmt>, skull.<fmt> and landmarks.csv go)")
@@ -562,9 +574,6 @@ def _steps(args, bpy, addon, state) -> dict:
     for warning in warning_lines:
         print(f"  warning   {warning}")
     print("timings (s):")
-    if getattr(args, "face", None) is not None:     # the face's own steps (engine, not an operator)
-        res, model = args.face
-        timings = dict(timings, face_prep=model.prepare_seconds, face_solve=res.timings["total"])
     for step, seconds in timings.items():
         print(f"  {step:<11}{seconds:8.3f}")
     print(f"  {'total':<11}{total:8.3f}")
@@ -585,11 +594,15 @@ def _steps(args, bpy, addon, state) -> dict:
 def _build(args, bpy, addon, ops):
     """Every step of the study, as the add-on's operators: (the study's collection, the automatic selection's
     report or None, whether the scan has skin)."""
+    table = _face_table(args, addon)          # a table or sex that cannot be used: exit 2 before the work
     if args.phantom:
         _call(ops.load_phantom)
     else:
         _call(ops.import_ct, **loader_kwargs(args))
     coll = bpy.context.scene.pdehead.active_study
+    if table is not None:                     # the study's table: the face's pegs and landmarks.csv use it
+        props = _forensic(addon, coll).props
+        props.depth_table, props.depth_table_name = table.to_json(), table.label
     s = coll.pdehead
     if args.bone_level is not None:          # the import dialog's / forensic panel's Bone Level field
         s.use_bone_level, s.bone_level = True, args.bone_level
@@ -616,7 +629,7 @@ def _build(args, bpy, addon, ops):
             _call(ops.find_landmarks)
         face = _face_from_skull(addon, coll) if args.face_from_skull else None
         if args.export:
-            _export_with_face(args, ops, addon, face)
+            _export_with_face(args, ops, addon, coll, face)
     return coll, selection_info, skin
 
 
@@ -658,7 +671,7 @@ def _print_skull(args, addon, coll, skin) -> None:
     if "median" in depth:
         print(f"  depth     {depth['measured']} of {depth['vertices']} skin vertices, median {depth['median']:.1f} "
               f"mm, p95 {depth['p95']:.1f} mm (no bone {depth['no_bone']}, envelope {depth['envelope']})")
-    flags = [f for f, _ in fs.landmark_flags().values()]
+    flags = list(_output_flags(fs).values())
     if flags:
         print(f"  landmarks {len(flags) - flags.count('not_found')} of {len(flags)} found automatically "
               f"({flags.count('ok')} ok, {flags.count('uncertain')} uncertain, {flags.count('not_found')} not found)")
@@ -670,6 +683,12 @@ def _print_skull(args, addon, coll, skin) -> None:
     if args.export:
         written = sorted(p.name for p in args.export.iterdir() if not p.name.startswith("."))
         print(f"  export    {args.export}: {', '.join(written)}")
+
+
+def _output_flags(fs) -> dict:
+    """The landmarks' flags as the outputs carry them: those the export wrote (landmarks.csv and the face's
+    provenance), else Find Landmarks' own."""
+    return fs.cache.get("export_flags") or {name: flag for name, (flag, _) in fs.landmark_flags().items()}
 
 
 def _render(args, addon, s, summary) -> None:
@@ -711,6 +730,24 @@ def _forensic(addon, coll):
     return addon.operators.forensic_study.ForensicStudy.of(study)
 
 
+def _face_table(args, addon):
+    """The depth table of --depth-table FILE (default: the shipped T-Table 2023) with the rows of --sex, or None
+    when neither is given (the study's table). A file that is no depth table, or a sex the table has no values
+    for, is exit 2."""
+    if args.depth_table is None and args.sex is None:
+        return None
+    engine = addon.pdehead_addon
+    try:
+        table = engine.read_depth_table(args.depth_table) if args.depth_table else engine.default_table()
+    except engine.PDEHeadError as exc:
+        raise CLIError(f"--depth-table {exc}", 2) from None
+    try:
+        return table.for_sex(args.sex)
+    except engine.PDEHeadError as exc:
+        flag = f"--sex {args.sex}" if args.sex else "--depth-table"
+        raise CLIError(f"{flag}: {exc}" + (" (drop --sex)" if args.sex and not table.sexes else ""), 2) from None
+
+
 def _face_from_skull(addon, coll):
     """The face approximated from the study's bone skull, landmarks and depth table (issue 23): (result, model).
     A skull the engine refuses (too few landmarks with a depth, not a skull in mm) is exit 2."""
@@ -718,13 +755,17 @@ def _face_from_skull(addon, coll):
     ff = import_module(addon.__name__ + ".pdehead_addon.forensic.face_from_skull")
     fs = _forensic(addon, coll)
     try:
-        model = ff.FaceModel.prepare(fs.skull_engine_mesh("BONE"), fs.landmarks(), fs.depth_table(), flags=fs.flag_names())
+        table = fs.depth_table()
+        model = ff.FaceModel.prepare(fs.skull_engine_mesh("BONE"), fs.landmarks(), table, sex=table.sex or None,
+                                     flags=fs.flag_names())
         res = model.solve()
     except addon.pdehead_addon.PDEHeadError as exc:
         raise CLIError(f"--face-from-skull: {exc}", 2) from None
     if not res.mesh.is_watertight():
         raise CLIError("--face-from-skull: the face mesh is not closed; nothing was written", 1)
     model.label = ff.APPROXIMATION_LABEL
+    fs.study.record_timing("face_prep", model.prepare_seconds)      # steps of the run, in the order they ran
+    fs.study.record_timing("face_solve", res.timings["total"])
     off = res.pegs.summary() if res.pegs is not None else None
     if off:                                 # the face passes near, not through, these tips (damped, shaped)
         WARNINGS.say(f"--face-from-skull: {off} (reasons in the face's provenance, pegs_off_face)")
@@ -733,36 +774,30 @@ def _face_from_skull(addon, coll):
     return res, model
 
 
-def _export_with_face(args, ops, addon, face) -> None:
-    """Export for printing, plus face.<fmt> when the face was made: the face is written first to a hidden file
-    in DIR and moved into place only after the rest of the export succeeded (nothing half-written)."""
+def _export_with_face(args, ops, addon, coll, face) -> None:
+    """Export for printing, plus face.<fmt> when the face was made: the study's export writes the face with the
+    rest (built and checked first, then moved into place: nothing half-written), its provenance's landmark
+    flags the same as landmarks.csv's. The written files are kept in ``args.written`` (name -> path)."""
     out = args.export.resolve()
     args.face = face
     if face is None:
         _call(ops.export_print, directory=str(out), format=args.export_format)
-        return
-    from importlib import import_module
-    export = import_module(addon.__name__ + ".pdehead_addon.io.export")
-    res, _model = face
-    out.mkdir(parents=True, exist_ok=True)
-    tmp = out / f".face.pdehead-partial.{args.export_format}"
-    try:
-        export.export_mesh(res.mesh, tmp, fmt=args.export_format, name="face", provenance=res.provenance)
-        _call(ops.export_print, directory=str(out), format=args.export_format)
-        # provenance.json names every file and the face's own record (its label, pegs and flags)
-        prov_path = out / "provenance.json"
-        record = json.loads(prov_path.read_text()) if prov_path.is_file() else {}
-        record["files"] = sorted(set(record.get("files", [])) | {f"face.{args.export_format}"})
-        record["face"] = res.provenance
-        tmp_prov = out / ".provenance.pdehead-partial.json"
-        tmp_prov.write_text(json.dumps(record, indent=2) + "\n")
-        os.replace(tmp, out / f"face.{args.export_format}")
-        os.replace(tmp_prov, prov_path)
-    except addon.pdehead_addon.PDEHeadError as exc:
-        raise CLIError(f"--export {args.export}: {exc}", 2) from None
-    finally:
-        tmp.unlink(missing_ok=True)
-        (out / ".provenance.pdehead-partial.json").unlink(missing_ok=True)
+        listed = json.loads((out / "provenance.json").read_text()).get("files", [])
+        files = [out / name for name in [*listed, "provenance.json"]]
+    else:
+        res, _model = face
+        try:
+            files = [Path(f) for f in _forensic(addon, coll).export(str(out), args.export_format,
+                                                                    face=(res.mesh, res.provenance))]
+        except addon.pdehead_addon.Cancelled:
+            raise Interrupted() from None
+        except addon.pdehead_addon.PDEHeadError as exc:
+            raise CLIError(f"--export {args.export}: {exc}", 2) from None
+        finally:
+            WARNINGS.from_study()
+    # "skull", "face", ... for the meshes (their format is --export-format), the file name for the others
+    mesh_suffix = "." + args.export_format
+    args.written = {(f.stem if f.suffix == mesh_suffix else f.name): str(f) for f in files}
 
 
 def _save(bpy, path: Path, flag: str) -> None:
@@ -806,6 +841,16 @@ def _summary(args, addon, coll, timings, total, selection_info, warning_lines) -
     }
     if selection_info:
         out["selection"] = selection_info
+    out["outputs"].update(getattr(args, "written", {}))
+    if args.skull:
+        fs = _forensic(addon, coll)
+        flags = list(_output_flags(fs).values())
+        out["landmarks"] = {flag: flags.count(flag) for flag in ("ok", "uncertain", "not_found")}
+    if getattr(args, "face", None) is not None:
+        res, model = args.face
+        out["face"] = {"label": model.label, "table": res.provenance.get("table", "imported table"),
+                       "pegs": len(model.peg_names), "vertices": len(res.mesh.vertices),
+                       "landmarks": out["landmarks"]}
     if s.volume_object is not None:
         out["volume"] = {"vdb": s.volume_object.data.filepath,
                          "voxel_size_mm": None if s.use_ct_grid else _r(s.voxel_size, 4)}
@@ -826,10 +871,13 @@ def write_summary_json(path: Path, summary: dict) -> None:
 
 def main(argv=None) -> int:
     args = None
+    user_folder = None
     try:
         args = parse_args(argv)
-        # Keep Blender away from the real user folder (must precede `import bpy`).
-        os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="pdehead-cli-"))
+        # Keep Blender away from the real user folder (must precede `import bpy`); ours is removed at the end.
+        if "BLENDER_USER_RESOURCES" not in os.environ:
+            user_folder = tempfile.mkdtemp(prefix="pdehead-cli-")
+            os.environ["BLENDER_USER_RESOURCES"] = user_folder
         previous = signal.signal(signal.SIGINT, _on_sigint)
         try:
             summary = run(args)
@@ -852,6 +900,11 @@ def main(argv=None) -> int:
                 write_summary_json(args.summary_json, {"status": "error", "exit_code": exc.code, "error": message,
                                                        "warnings": list(WARNINGS.printed)})
         return exc.code
+    finally:
+        if user_folder is not None:        # every exit: 0, 1 (an uncaught error), 2 and 130
+            shutil.rmtree(user_folder, ignore_errors=True)
+            if os.environ.get("BLENDER_USER_RESOURCES") == user_folder:
+                del os.environ["BLENDER_USER_RESOURCES"]
     return 0
 
 

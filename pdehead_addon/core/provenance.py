@@ -25,13 +25,31 @@ def provenance_lines(record: dict | None, prefix: str = "# ") -> list[str]:
     return [f"{prefix}{k}: {' '.join(str(v).split())}" for k, v in record.items()]
 
 
-def short_provenance(record: dict | None, limit: int = 80) -> str:
-    """One short line (for the 80-byte STL header): software, bone level, table; cut to ``limit``."""
+#: The few non-ASCII characters of the provenance (the label's em dash, degrees, +-) spelt in ASCII, for the
+#: headers that are ASCII (STL, PLY).
+ASCII_SPELLING = str.maketrans({"\u2014": "-", "\u2013": "-", "\u00b1": "+-", "\u00b0": " deg", "\u00d7": "x"})
+
+
+def ascii_text(text: str) -> str:
+    """``text`` spelt in ASCII (:data:`ASCII_SPELLING`; any other non-ASCII character becomes ``?``)."""
+    return str(text).translate(ASCII_SPELLING).encode("ascii", "replace").decode("ascii")
+
+
+def short_provenance(record: dict | None, limit: int = 80, part: str | None = None) -> str:
+    """One short ASCII line (for the 80-byte STL header), cut to ``limit``.
+
+    The record's ``label`` comes first (a face from the skull: "approximation - not an identification" must
+    survive the cut), then ``part`` (what the file is), then as much provenance as fits: software, bone
+    level, table.
+    """
     if not record:
-        return SOFTWARE[:limit]
-    parts = [str(record.get("software", SOFTWARE))]
+        return ascii_text("; ".join(p for p in (part, SOFTWARE) if p))[:limit]
+    parts = [str(record["label"])] if record.get("label") else []
+    if part:
+        parts.append(part)
+    parts.append(str(record.get("software", SOFTWARE)))
     if record.get("bone_level") is not None:
         parts.append(f"bone {record['bone_level']}")
     if record.get("table"):
         parts.append(str(record["table"]))
-    return "; ".join(parts)[:limit]
+    return ascii_text("; ".join(parts))[:limit]

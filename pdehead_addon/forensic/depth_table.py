@@ -32,7 +32,7 @@ import json
 import os
 import re
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -74,6 +74,11 @@ CODE_MAP: dict[str, tuple[str | None, bool, str]] = {
 }
 #: Other spellings of codes (the soft-tissue names of the ectomolare pairs).
 CODE_ALIASES = {"sm2": "ecm2(s)", "im2": "ecm2(i)", "ecm2s": "ecm2(s)", "ecm2i": "ecm2(i)", "zyg": "zy"}
+#: The values of a depth table's ``sex`` column (besides ``pooled``, or empty: both sexes).
+SEXES = ("male", "female")
+#: Other spellings of the ``sex`` column's values.
+SEX_ALIASES = {"m": "male", "f": "female", "men": "male", "women": "female", "": "pooled", "all": "pooled",
+               "both": "pooled"}
 _SIDE = re.compile(r"^(?P<code>.+?)[\s_\-]*(?P<side>[LRlr])$")
 
 
@@ -109,6 +114,11 @@ class DepthTable(Mapping):
     provenance: str = ""
     convention: str = ""
     source: str = ""
+    #: Every row of a table with a ``sex`` column: ``"male"`` / ``"female"`` / ``"pooled"`` -> landmark -> entry
+    #: (empty for a pooled table). :attr:`entries` are the pooled rows, or one sex's after :meth:`for_sex`.
+    by_sex: dict[str, dict[str, DepthEntry]] = field(default_factory=dict)
+    #: The sex whose rows :attr:`entries` are ("" : pooled).
+    sex: str = ""
 
     def __getitem__(self, key: str) -> float:
         return self.entries[key].mean_mm
@@ -124,10 +134,38 @@ class DepthTable(Mapping):
 
     @property
     def label(self) -> str:
-        """``name`` and ``version`` as one short label (e.g. for the ``table_name`` column)."""
-        if self.version and self.version not in self.name:
-            return f"{self.name} v{self.version}"
-        return self.name
+        """``name`` and ``version`` as one short label (e.g. for the ``table_name`` column), and the sex whose
+        rows are used."""
+        text = f"{self.name} v{self.version}" if self.version and self.version not in self.name else self.name
+        return f"{text}, {self.sex}" if self.sex else text
+
+    @property
+    def sexes(self) -> tuple[str, ...]:
+        """The sexes the table has rows for (``()``: a pooled table)."""
+        return tuple(sex for sex in SEXES if sex in self.by_sex)
+
+    def for_sex(self, sex: str | None) -> "DepthTable":
+        """The table with one sex's rows as its entries (``None`` / ``"pooled"``: the pooled rows).
+
+        Raises
+        ------
+        PDEHeadError
+            A sex the table has no rows for (a pooled table has none), or pooled rows asked of a table that
+            gives its depths per sex only.
+        """
+        sex = (sex or "pooled").strip().lower()
+        if not self.by_sex:                                   # a pooled table
+            if sex == "pooled":
+                return self
+            raise PDEHeadError(f"the depth table '{self.name}' is pooled (it has no sex column): no {sex} values")
+        rows = self.by_sex.get(sex)
+        if not rows:
+            if sex == "pooled":
+                raise PDEHeadError(f"the depth table '{self.name}' gives its depths per sex only "
+                                   f"({', '.join(self.sexes)}): choose one")
+            raise PDEHeadError(f"the depth table '{self.name}' has rows for {', '.join(self.sexes)} only: "
+                               f"no {sex} values")
+        return replace(self, entries=dict(rows), sex="" if sex == "pooled" else sex)
 
     def provenance_record(self) -> dict:
         out = {"table": self.label, "table_citation": self.citation, "table_provenance": self.provenance,
@@ -135,8 +173,11 @@ class DepthTable(Mapping):
         return {k: v for k, v in out.items() if v}
 
     def to_json(self) -> str:
-        d = {k: getattr(self, k) for k in ("name", "version", "citation", "provenance", "convention", "source")}
+        d = {k: getattr(self, k) for k in ("name", "version", "citation", "provenance", "convention", "source",
+                                           "sex")}
         d["entries"] = [asdict(e) for e in self.entries.values()]
+        if self.by_sex:
+            d["by_sex"] = {sex: [asdict(e) for e in rows.values()] for sex, rows in self.by_sex.items()}
         return json.dumps(d)
 
     @classmethod
@@ -145,8 +186,12 @@ class DepthTable(Mapping):
         d = json.loads(text or "{}")
         if "entries" not in d:
             return cls(entries={k: DepthEntry(k, float(v)) for k, v in d.items()}, name="imported table")
-        entries = {e["landmark"]: DepthEntry(**e) for e in d.pop("entries")}
-        return cls(entries=entries, **d)
+        def rows(items):
+            return {e["landmark"]: DepthEntry(**e) for e in items}
+
+        entries = rows(d.pop("entries"))
+        by_sex = {sex: rows(items) for sex, items in d.pop("by_sex", {}).items()}
+        return cls(entries=entries, by_sex=by_sex, **d)
 
 
 def _code_key(text: str) -> str:
@@ -223,7 +268,8 @@ def read_depth_table(path: str | os.PathLike) -> DepthTable:
     """Read a depth table CSV.
 
     Columns ``landmark,mean_mm[,sd_mm,n]`` (the T-Table layout) or the older ``landmark,depth_mm``;
-    further columns are ignored. Landmark names may be ours (name or key, case-insensitive) or the
+    an optional ``sex`` column (``male``, ``female``, or ``pooled`` / empty) gives depths per sex
+    (:attr:`DepthTable.by_sex`, chosen with :meth:`DepthTable.for_sex`); further columns are ignored. Landmark names may be ours (name or key, case-insensitive) or the
     table's Caple & Stephan codes (:func:`resolve_landmark`). ``#`` lines are comments; ``# name:``,
     ``# version:``, ``# citation:``, ``# provenance:`` and ``# convention:`` lines give the table's
     provenance (the name defaults to the file's stem).
@@ -232,7 +278,7 @@ def read_depth_table(path: str | os.PathLike) -> DepthTable:
     ------
     PDEHeadError
         Unreadable file, no ``landmark`` and ``mean_mm``/``depth_mm`` columns, an unknown landmark, a
-        landmark given twice, or a bad number - naming the file and the line.
+        landmark given twice for the same sex, an unknown sex, or a bad number - naming the file and the line.
     """
     path = os.fspath(path)
     meta: dict[str, str] = {}
@@ -262,7 +308,8 @@ def read_depth_table(path: str | os.PathLike) -> DepthTable:
     li, mi = header.index("landmark"), header.index(mean_col)
     si = header.index("sd_mm") if "sd_mm" in header else None
     ni = header.index("n") if "n" in header else None
-    entries: dict[str, DepthEntry] = {}
+    xi = header.index("sex") if "sex" in header else None
+    by_sex: dict[str, dict[str, DepthEntry]] = {}
     for number, row in rows[1:]:
         where = f"{path}, line {number}"
         cell = lambda i: row[i] if i is not None and i < len(row) else ""   # noqa: E731
@@ -275,13 +322,19 @@ def read_depth_table(path: str | os.PathLike) -> DepthTable:
             raise PDEHeadError(f"{where}: no {mean_col} value for {cell(li).strip()!r}")
         sd = _number(cell(si), "sd", where, 0.0, 50.0)
         n = _number(cell(ni), "n", where, 1.0, 1e9)
+        sex = cell(xi).strip().lower()
+        sex = SEX_ALIASES.get(sex, sex)
+        if sex not in (*SEXES, "pooled"):
+            raise PDEHeadError(f"{where}: sex {cell(xi).strip()!r} is not one of male, female, pooled")
+        rows_of = by_sex.setdefault(sex, {})
         for name in names:
-            if name in entries:
-                raise PDEHeadError(f"{where}: {name} is given twice")
-            entries[name] = DepthEntry(name, mean, sd, None if n is None else int(n), cell(li).strip())
-    return DepthTable(entries=entries, name=meta.get("name") or Path(path).stem, version=meta.get("version", ""),
-                      citation=meta.get("citation", ""), provenance=meta.get("provenance", ""),
-                      convention=meta.get("convention", ""), source=os.path.basename(path))
+            if name in rows_of:
+                raise PDEHeadError(f"{where}: {name} is given twice" + ("" if sex == "pooled" else f" for {sex}"))
+            rows_of[name] = DepthEntry(name, mean, sd, None if n is None else int(n), cell(li).strip())
+    return DepthTable(entries=dict(by_sex.get("pooled", {})), name=meta.get("name") or Path(path).stem,
+                      version=meta.get("version", ""), citation=meta.get("citation", ""), provenance=meta.get("provenance", ""),
+                      convention=meta.get("convention", ""), source=os.path.basename(path),
+                      **({"by_sex": by_sex} if xi is not None else {}))
 
 
 def default_table() -> DepthTable:

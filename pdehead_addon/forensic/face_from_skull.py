@@ -50,10 +50,12 @@ from ..core.boundary_set import BoundarySet, knots_from_heights
 from ..core.errors import PDEHeadError
 from .face_profile import FaceGrid, bone_profile, convex_rows, peg_normals, smooth_far_from_pegs
 from .face_features import (EAR_LENGTH_MM, EAR_WIDTH_MM, FRONT_COS, check_skull, ear_shape, eye_shape, mouth_shape,
-                            nose_bump, predict_eyes, predict_mouth, predict_nose)
+                            nose_bump, predict_ears, predict_eyes, predict_mouth, predict_nose)
 from ..core.mesh import Mesh
 
 APPROXIMATION_LABEL = D.FACE_LABEL
+#: Fewer vertices than this cannot trace the bone's outer profile (a bone skull has 10^5).
+MIN_SKULL_VERTICES = 100
 
 #: Depth (mm) where no peg stands: the vault and the back of the head. The T-Table 2023 grand means at vertex (5.0 mm)
 #: and opisthocranion (6.0 mm) (Hona & Stephan 2024, Int J Legal Med 138(2):519-535, doi:10.1007/s00414-023-03087-x,
@@ -186,7 +188,7 @@ class FaceModel:
         from .landmarks import marker_pegs
 
         t0 = time.perf_counter()
-        if skull is None or len(skull.vertices) < 100:
+        if skull is None or len(skull.vertices) == 0 or skull.face_count == 0:
             raise PDEHeadError("the skull mesh is empty: no face can be approximated")
         ext = np.ptp(skull.vertices, axis=0)
         if np.any(ext < 60.0) or np.any(ext > 400.0):
@@ -197,6 +199,9 @@ class FaceModel:
         spread = D.FACE_SPREAD_MM.default if spread_mm is None else float(spread_mm)
         lm = {k: np.asarray(v, float) for k, v in landmarks.items() if v is not None}
         check_skull(lm, flags)
+        if len(skull.vertices) < MIN_SKULL_VERTICES:    # a skull's landmarks on a handful of vertices: no profile
+            raise PDEHeadError(f"the skull mesh has only {len(skull.vertices)} vertices: a closed mesh, but too coarse "
+                               f"to be a bone skull (at least {MIN_SKULL_VERTICES} are needed for its outer profile)")
         pegs = marker_pegs(lm, skull, table, measured_direction=False)     # the face sets its own normals
         if len(pegs) < 4:
             raise PDEHeadError(f"only {len(pegs)} landmarks have a depth in the table: at least 4 are needed "
@@ -563,7 +568,9 @@ class FaceModel:
             if self.mouth.get("stomion_z") is not None:
                 prov["predicted_stomion_z_mm"] = round(float(self.mouth["stomion_z"]), 1)
         if self._ear_shape() is not None:
-            prov["ears"] = f"default ear ({EAR_LENGTH_MM:g} x {EAR_WIDTH_MM:g} mm, Farkas 1994 norms) at each porion"
+            sides = [f"Porion {ear['side']}" for ear in predict_ears(getattr(self, "landmarks_used", {}) or {})]
+            prov["ears"] = (f"default ear ({EAR_LENGTH_MM:g} x {EAR_WIDTH_MM:g} mm, Farkas 1994 norms) at "
+                            f"{' and '.join(sides)}: one shape for everyone, not this person's ears")
         prov["peg_depths_mm"] = {n: round(float(x), 2) for n, x in zip(self.peg_names, depths)}
         if report is not None:
             prov.update(report.record())

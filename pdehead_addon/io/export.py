@@ -16,7 +16,7 @@ import numpy as np
 
 from ..core.errors import PDEHeadError
 from ..core.mesh import Mesh
-from ..core.provenance import provenance_lines, short_provenance
+from ..core.provenance import ASCII_SPELLING, provenance_lines, short_provenance
 from ..core.mesh_geometry import mesh_triangles
 
 FORMATS = ("stl", "obj", "ply")
@@ -28,8 +28,10 @@ def _triangles(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
 
 
 def write_stl(mesh: Mesh, path: str | os.PathLike, name: str = "pdehead", provenance: dict | None = None) -> None:
-    """Binary STL (little-endian, float32 mm, facet normals from the winding); the 80-byte header names
-    the part, the frame and a short provenance (software, bone level, table)."""
+    """Binary STL (little-endian, float32 mm, facet normals from the winding); the 80-byte ASCII header holds
+    the provenance's label first when it has one (a face from the skull: "approximation - not an
+    identification"), then the part, the frame and as much of a short provenance (software, bone level,
+    table) as fits."""
     v, t = _triangles(mesh)
     a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
     n = np.cross(b - a, c - a)
@@ -38,7 +40,8 @@ def write_stl(mesh: Mesh, path: str | os.PathLike, name: str = "pdehead", proven
     rec = np.zeros(len(t), dtype=[("n", "<f4", 3), ("a", "<f4", 3), ("b", "<f4", 3), ("c", "<f4", 3),
                                   ("attr", "<u2")])
     rec["n"], rec["a"], rec["b"], rec["c"] = n, a, b, c
-    text = f"{name} (patient LPS, mm)" + (f"; {short_provenance(provenance)}" if provenance else "")
+    part = f"{name} (patient LPS, mm)"
+    text = short_provenance(provenance, part=part) if provenance else part
     header = text.encode("ascii", "replace")[:80].ljust(80, b" ")
     if header.startswith(b"solid"):            # an ASCII STL marker would confuse readers
         header = b"_" + header[1:]
@@ -62,10 +65,6 @@ def write_obj(mesh: Mesh, path: str | os.PathLike, name: str = "pdehead", proven
             np.savetxt(fh, mesh.triangles + 1, fmt="f %d %d %d")
 
 
-#: PLY headers are ASCII: the provenance's few other characters (the label's dash) spelt in ASCII.
-_ASCII_SPELLING = str.maketrans({"\u2014": "-", "\u2013": "-", "\u00b1": "+-", "\u00b0": " deg", "\u00d7": "x"})
-
-
 def write_ply(mesh: Mesh, path: str | os.PathLike, name: str = "pdehead", provenance: dict | None = None) -> None:
     """Binary little-endian PLY (float32 vertices in mm, triangle faces); provenance as comments."""
     v, t = _triangles(mesh)
@@ -78,7 +77,7 @@ def write_ply(mesh: Mesh, path: str | os.PathLike, name: str = "pdehead", proven
     faces["n"] = 3
     faces["i"] = t
     with open(os.fspath(path), "wb") as fh:
-        fh.write(header.translate(_ASCII_SPELLING).encode("ascii", "replace"))
+        fh.write(header.translate(ASCII_SPELLING).encode("ascii", "replace"))
         fh.write(v.astype("<f4").tobytes())
         fh.write(faces.tobytes())
 

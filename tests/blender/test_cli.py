@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 CLI = ROOT / "scripts" / "pdehead.py"
@@ -175,3 +176,61 @@ def test_ctrl_c_stops_the_cli_with_130_and_leaves_no_output(tmp_path):
     assert "cancelled (Ctrl-C)" in rest and "Traceback" not in rest
     assert not out.exists(), sorted(str(p) for p in out.rglob("*"))
     assert "wrote" not in stdout
+
+
+def _cli_module():
+    """scripts/pdehead.py as a module (its folder on sys.path for ``_common``)."""
+    import importlib.util
+    sys.path.insert(0, str(CLI.parent))
+    spec = importlib.util.spec_from_file_location("pdehead_cli_under_test", CLI)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.parametrize("ending", ["ok", "internal_error", "bad_input", "ctrl_c"])
+def test_cli_removes_its_temporary_blender_folder_on_every_exit(tmp_path, monkeypatch, ending):
+    """The CLI's own Blender user folder (/tmp/pdehead-cli-*) is gone after exit 0, 1, 2 and 130 (each run
+    left an empty one behind); a folder given in BLENDER_USER_RESOURCES is the caller's and is not made."""
+    import tempfile
+    cli = _cli_module()
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    monkeypatch.setenv("BLENDER_USER_RESOURCES", "restored-after-the-test")
+    monkeypatch.delenv("BLENDER_USER_RESOURCES")
+    seen = []
+
+    def run(args):
+        folder = os.environ["BLENDER_USER_RESOURCES"]
+        seen.append(folder)
+        (Path(folder) / "config").mkdir()                    # Blender writes into it
+        if ending == "internal_error":
+            raise RuntimeError("a bug")
+        if ending == "bad_input":
+            raise cli.CLIError("INPUT: no head CT", 2)
+        if ending == "ctrl_c":
+            raise cli.Interrupted()
+        return {}
+
+    monkeypatch.setattr(cli, "run", run)
+    if ending == "internal_error":
+        with pytest.raises(RuntimeError):                    # uncaught: Python exits 1
+            cli.main(["--phantom"])
+    else:
+        assert cli.main(["--phantom"]) == {"ok": 0, "bad_input": 2, "ctrl_c": 130}[ending]
+    assert len(seen) == 1 and Path(seen[0]).parent == scratch and Path(seen[0]).name.startswith("pdehead-cli-")
+    assert list(scratch.iterdir()) == [] and "BLENDER_USER_RESOURCES" not in os.environ
+
+
+def test_cli_run_leaves_no_temporary_folder(tmp_path):
+    """The same with Blender itself: a real run that ends in exit 2 after Blender started (an empty folder)."""
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
+    (tmp_path / "empty").mkdir()
+    env = {k: v for k, v in os.environ.items() if k != "BLENDER_USER_RESOURCES"}
+    env["TMPDIR"] = str(scratch)
+    result = subprocess.run([sys.executable, str(CLI), str(tmp_path / "empty")], capture_output=True, text=True,
+                            env=env, cwd=tmp_path)
+    assert result.returncode == 2, result.stderr[-2000:]
+    assert not [p.name for p in scratch.iterdir() if p.name.startswith("pdehead-cli-")]

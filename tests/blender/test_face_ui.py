@@ -337,3 +337,71 @@ def test_pegs_off_the_face_are_shown_held_and_warned(pdehead_ext, face_blend):
     assert bpy.ops.pdehead.build_face() == {'FINISHED'}
     pegs = study.peg_objects(study.face_peg_names())
     assert pegs and all(not p[face.HELD_PROP] for p in pegs.values())
+
+
+def test_export_for_printing_writes_the_face_beside_the_head(pdehead_ext, face_blend, tmp_path):
+    """Export for Printing writes the study's face from the skull (as it stands: after a dragged peg) beside the
+    skull and the skin, in patient mm, the label first in the STL header and in the PLY comments, and its
+    provenance's landmark flags those of landmarks.csv (issue 23's tester: the face was not written)."""
+    import bpy
+    import csv
+    from file_readers import read_stl
+    from scipy.spatial import cKDTree
+    face, fs, state = _mods(pdehead_ext)
+    coll = _open(face_blend)
+    names = fs(coll).face_options()["pegs"]
+    _drag(fs(coll).peg_objects(names)[names[0]], (0.0, -3.0, 0.0))
+    obj = fs(coll).face_object()
+    shown = _world_vertices(obj)                            # patient mm (no Frankfurt here)
+    out = tmp_path / "print"
+    assert bpy.ops.pdehead.export_print(directory=str(out), format='stl') == {'FINISHED'}
+    written = sorted(p.name for p in out.iterdir())
+    assert written == ["face.stl", "landmarks.csv", "provenance.json", "skin.stl", "skull.stl",
+                       "skull_envelope.stl", "tissue_depth.csv"], written
+    stl = read_stl(out / "face.stl")
+    assert stl.is_watertight() and len(stl.vertices) == len(shown)
+    assert cKDTree(shown).query(stl.vertices)[0].max() < 1e-3        # the face as shown, in mm (float32)
+    assert (out / "face.stl").read_bytes()[:80].startswith(b"approximation - not an identification; face")
+    skull = read_stl(out / "skull.stl")
+    assert np.all(stl.vertices[:, :2].min(0) < skull.vertices[:, :2].min(0))   # the face wraps the bone
+    prov = json.loads((out / "provenance.json").read_text())
+    rows = [line for line in (out / "landmarks.csv").read_text().splitlines() if not line.startswith("#")]
+    flags = {row["landmark"]: row["flag"] for row in csv.DictReader(rows)}
+    assert "face.stl" in prov["files"] and prov["face"]["label"] == "approximation — not an identification"
+    assert prov["face"]["landmark_flags"] == flags and len(flags) >= 40
+    assert bpy.ops.pdehead.export_print(directory=str(tmp_path / "ply"), format='ply') == {'FINISHED'}
+    head = (tmp_path / "ply" / "face.ply").read_bytes().split(b"end_header\n", 1)[0]
+    assert b"comment label: approximation - not an identification" in head
+
+
+def test_sex_shows_for_a_table_with_a_sex_column_and_picks_its_rows(pdehead_ext, face_blend):
+    """A depth table with a `sex` column (tests/fixtures/depth_table_by_sex.csv) is read (it was refused:
+    "Glabella is given twice"), the panel then shows Sex, and choosing it sets the pegs to that sex's means
+    and re-solves the face; the shipped pooled table shows no Sex."""
+    from pathlib import Path
+    from types import SimpleNamespace
+    from panel_recorder import RecordingLayout
+    import bpy
+    face, fs, state = _mods(pdehead_ext)
+    forensic = sys.modules[f"{pdehead_ext.__name__}.operators.forensic"]
+    coll = _open(face_blend)
+
+    def panel():
+        log = []
+        forensic.PDEHEAD_PT_forensic.draw(SimpleNamespace(layout=RecordingLayout(log)), bpy.context)
+        return log
+
+    assert ("prop", "face_sex") not in panel()                    # the T-Table 2023 is pooled
+    s = state.settings(coll)
+    s.face_table_file = str(Path(__file__).resolve().parents[1] / "fixtures" / "depth_table_by_sex.csv")
+    s.face_table = 'FILE'
+    assert s.last_error == ""
+    assert ("prop", "face_sex") in panel()
+    obj = fs(coll).face_object()
+    glabella = fs(coll).peg_objects(["Glabella"])["Glabella"]
+    assert glabella[face.PEG_DEPTH_PROP] == 5.5                   # pooled rows
+    for sex, depth in (('MALE', 6.0), ('FEMALE', 5.0)):
+        s.face_sex = sex
+        assert s.last_error == "" and glabella[face.PEG_DEPTH_PROP] == depth
+        prov = json.loads(obj[face.PROVENANCE_PROP])
+        assert prov["sex"] == sex.lower() and prov["table"] == f"Small table by sex, {sex.lower()}"

@@ -126,3 +126,38 @@ def test_default_table_file_ships_inside_the_extension():
     excluded = manifest["build"]["paths_exclude_pattern"]
     assert not any(p.strip("/") in ("pdehead_addon/forensic/data", "pdehead_addon/forensic", "data", "*.csv")
                    for p in excluded)
+
+
+BY_SEX = Path(__file__).resolve().parents[1] / "fixtures" / "depth_table_by_sex.csv"
+
+
+def test_a_table_with_a_sex_column_is_read_and_sex_picks_its_rows(tmp_path):
+    """A `sex` column (male / female / pooled or empty) gives depths per sex (it was refused: "Glabella is
+    given twice"); for_sex picks the rows, the label says which; the JSON the .blend keeps round-trips."""
+    table = read_depth_table(BY_SEX)
+    assert table.sexes == ("male", "female")
+    assert table["Glabella"] == 5.5 and table["Nasion"] == 6.5 and len(table) == 5      # pooled (zy: both sides)
+    male, female = table.for_sex("male"), table.for_sex("female")
+    assert male["Glabella"] == 6.0 and female["Glabella"] == 5.0 and male["Zygomatic arch R"] == 8.0
+    assert male.sd("Pogonion") == 2.5 and male.entries["Pogonion"].n == 10
+    assert male.label == "Small table by sex, male" and male.provenance_record()["table"] == male.label
+    assert male.for_sex("pooled")["Glabella"] == 5.5 and table.for_sex(None)["Glabella"] == 5.5
+    again = DepthTable.from_json(male.to_json())
+    assert again.sex == "male" and again["Glabella"] == 6.0 and again.for_sex("female")["Glabella"] == 5.0
+    with pytest.raises(PDEHeadError, match="is pooled .*no male values"):
+        default_table().for_sex("male")
+    assert default_table().sexes == ()
+    # per sex only: the pooled rows cannot be used, the message says to choose
+    only = tmp_path / "only.csv"
+    only.write_text("landmark,sex,mean_mm\ng,male,6\ng,female,5\n")
+    with pytest.raises(PDEHeadError, match="per sex only .*male, female.*choose one"):
+        read_depth_table(only).for_sex(None)
+    # still refused: the same landmark twice for one sex, an unknown sex (naming the file and the line)
+    twice = tmp_path / "twice.csv"
+    twice.write_text("landmark,sex,mean_mm\ng,male,6\ng,male,5\n")
+    with pytest.raises(PDEHeadError, match=r"twice.csv, line 3: Glabella is given twice for male"):
+        read_depth_table(twice)
+    odd = tmp_path / "odd.csv"
+    odd.write_text("landmark,sex,mean_mm\ng,x,6\n")
+    with pytest.raises(PDEHeadError, match=r"odd.csv, line 2: sex 'x' is not one of male, female, pooled"):
+        read_depth_table(odd)

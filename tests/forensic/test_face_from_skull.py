@@ -7,6 +7,8 @@ CThead is scripts/bench/bench_face.py's (docs/benchmarks.md).
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -204,6 +206,22 @@ def test_not_a_skull_is_refused(phantom_bone):
         FaceModel.prepare(metres, {k: v * 0.001 for k, v in lms.items()}, default_table(), flags=flags)
 
 
+def test_a_closed_cube_is_refused_for_what_it_is_not_as_empty():
+    """A 150 mm cube (8 vertices, closed) given as the skull: the message says what was checked (the orbits and
+    the landmarks found with confidence), not "empty" (issue 23's tester: a cube STL to --skull-mesh)."""
+    v = np.array([[x, y, z] for x in (-75, 75) for y in (-75, 75) for z in (-75, 75)], float)
+    quads = np.array([[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]])
+    cube = Mesh(v, quads, np.zeros((0, 3), np.int64))
+    assert cube.is_watertight()
+    corners = {"Glabella": v[0], "Vertex": v[7]}                  # what a landmark search may put on a box
+    with pytest.raises(PDEHeadError, match="does not look like a skull: no orbits were found") as refused:
+        FaceModel.prepare(cube, corners, default_table(), flags={"Glabella": "uncertain", "Vertex": "uncertain"})
+    assert "empty" not in str(refused.value)
+    with pytest.raises(PDEHeadError, match="empty"):
+        FaceModel.prepare(Mesh(np.zeros((0, 3)), np.zeros((0, 4), np.int64), np.zeros((0, 3), np.int64)), {},
+                          default_table())
+
+
 def test_profile_is_smoothed_along_the_height_away_from_the_pegs(model, face):
     """The rows' hulls leave horizontal ridges; away from the pegs the profile is smoothed along the height
     (face_from_skull._smooth_far_from_pegs), while the face still passes through the tips (test above)."""
@@ -257,6 +275,10 @@ def test_ears_at_the_porions(model, face, phantom_bone):
     _, lms, _ = phantom_bone
     ears = model._ear_shape()
     assert ears is not None and face.provenance["ears"].startswith("default ear")
+    # the README's limits and the provenance say the same: a default ear at the porions found, not none
+    assert "at Porion L and Porion R" in face.provenance["ears"]
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    assert "The ears are not modelled" not in readme and "The ears are one default shape" in readme
     saved = model.__dict__["_ears"]
     try:
         model.__dict__["_ears"] = None

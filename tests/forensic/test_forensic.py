@@ -151,6 +151,22 @@ def test_ply_header_carries_the_label_in_ascii(tmp_path, phantom_surfaces):
     head.decode("ascii")
 
 
+def test_stl_header_starts_with_the_label_then_provenance(tmp_path, phantom_surfaces):
+    """The 80-byte STL header starts with the face's label (ASCII: the em dash spelt "-"); the provenance
+    fills what is left (it used to come first and cut the label off)."""
+    from pdehead_addon.core.provenance import provenance
+    from pdehead_addon.defaults import FACE_LABEL
+    skin, _ = phantom_surfaces
+    record = provenance(label=FACE_LABEL, bone_level="565 HU, histogram", table="T-Table 2023 (pooled grand means)")
+    path = export_mesh(skin, tmp_path / "face.stl", name="face", provenance=record)
+    header = open(path, "rb").read(80)
+    assert header.startswith(b"approximation - not an identification; face (patient LPS, mm); PDE Head 0.1.0")
+    header.decode("ascii")
+    # without a label the part comes first, as before
+    plain = open(export_mesh(skin, tmp_path / "skin.stl", name="skin", provenance={"software": "x"}), "rb").read(80)
+    assert plain.startswith(b"skin (patient LPS, mm); x")
+
+
 @pytest.mark.parametrize("fmt", ["stl", "obj", "ply"])
 def test_export_watertight_and_in_mm(tmp_path, phantom_surfaces, fmt):
     skin, _ = phantom_surfaces
