@@ -28,7 +28,9 @@ skull's centroid: a row every ``row_mm`` of height, a column every ``360 / colum
 4. *Prediction rules* for what a depth field cannot make (:mod:`.face_features`, each cited there): the nose
    from the nasal aperture and the nasal length, the closed eyes in the orbits, the mouth from the teeth and the
    canines, a default ear at each porion.
-5. *The face*: profile + depth field + nose + lips + eyes + ears = radius per bin; each row is a closed boundary curve;
+5. *The face*: profile + depth field + nose + lips + eyes + ears = radius per bin, never below the bone floor
+   (:func:`.face_profile.bone_floor`: the outermost bone plus :data:`.defaults.FACE_MIN_TISSUE_MM`, so no bone comes
+   through the face); each row is a closed boundary curve;
    the C2 PDE surface through them (:func:`.pde_surface.solve_pde`, dome over the vertex, a flat cap
    under the neck) is the face, a closed mesh in patient mm.
 
