@@ -295,6 +295,7 @@ FACE_NECK_MM = _param("face_neck_mm", 40.0, min=0.0, max=120.0, unit="mm",
                       description="Face from skull: the neck below the skull's lowest bone (a skull with a chin)")
 #: ... and without a chin: the least soft tissue (:data:`FACE_MIN_TISSUE_MM`) plus two rows of the face
 #: (:data:`FACE_ROW_MM`), rounded up: the lowest bone lies inside the rows that keep it covered, above the cap.
+#: The face ends at the lowest row of the whole head's grid within this margin (GE: 5.4 mm under the bone).
 FACE_CUT_MARGIN_MM = _param("face_cut_margin_mm", 7.0, min=0.0, max=40.0, unit="mm",
                             description="Face from skull: the face's end below the lowest bone when the skull "
                                         "has no mandible (the scan stops at the maxilla)")
