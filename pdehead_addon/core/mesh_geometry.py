@@ -8,7 +8,8 @@
 * :class:`MeshDistance`, :func:`point_surface_distance`: the distance from many points to a mesh, exact
   point-to-triangle distances to candidate triangles found with a KD-tree (see :class:`MeshDistance`);
 * :func:`edge_neighbours`: the triangle across each edge;
-* :func:`signed_volume`: the enclosed volume by the divergence theorem.
+* :func:`signed_volume`: the enclosed volume by the divergence theorem;
+* :func:`points_inside`: which points a closed mesh encloses (ray parity).
 
 Numpy and scipy only (no bpy), patient millimetres in and out.
 """
@@ -20,7 +21,8 @@ from scipy.spatial import cKDTree
 from .errors import PDEHeadError
 
 __all__ = ["triangulate", "mesh_triangles", "sample_surface", "closest_point_on_triangle",
-           "point_triangle_distance", "edge_neighbours", "MeshDistance", "point_surface_distance", "signed_volume"]
+           "point_triangle_distance", "edge_neighbours", "MeshDistance", "point_surface_distance", "signed_volume",
+           "points_inside"]
 
 
 def triangulate(faces: np.ndarray) -> np.ndarray:
@@ -197,3 +199,45 @@ def signed_volume(mesh) -> float:
     if not len(t):
         return 0.0
     return float(np.einsum("ij,ij->i", v[t[:, 0]], np.cross(v[t[:, 1]], v[t[:, 2]])).sum() / 6.0)
+
+
+def points_inside(points: np.ndarray, vertices: np.ndarray, triangles: np.ndarray, cell_mm: float = 2.0) -> np.ndarray:
+    """Whether each point lies inside a closed triangle mesh (even-odd rule, ray along +z).
+
+    The triangles are binned by their (x, y) bounding boxes on a grid of ``cell_mm``; a point's vertical ray
+    is tested only against the triangles of its cell (barycentric coordinates in x, y). The points are nudged
+    by an irrational fraction of a micrometre so no ray runs exactly through an edge or a vertex.
+    """
+    v = np.asarray(vertices, np.float64)
+    t = np.asarray(triangles, np.int64)
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
+    origin = v[:, :2].min(0) - cell_mm
+    lo = np.floor((np.minimum(np.minimum(a, b), c)[:, :2] - origin) / cell_mm).astype(np.int64)
+    hi = np.floor((np.maximum(np.maximum(a, b), c)[:, :2] - origin) / cell_mm).astype(np.int64)
+    nx = int(hi[:, 0].max()) + 2
+    width = hi - lo + 1
+    count = width[:, 0] * width[:, 1]
+    tri = np.repeat(np.arange(len(t)), count)
+    local = np.arange(tri.size) - np.repeat(np.cumsum(count) - count, count)
+    key = (lo[tri, 1] + local // width[tri, 0]) * nx + lo[tri, 0] + local % width[tri, 0]
+    order = np.argsort(key, kind="stable")
+    key, tri = key[order], tri[order]
+    cell = np.floor((p[:, :2] - origin) / cell_mm).astype(np.int64)
+    on_grid = (cell >= 0).all(1) & (cell[:, 0] < nx)
+    pkey = np.where(on_grid, cell[:, 1] * nx + cell[:, 0], -1)
+    start, stop = np.searchsorted(key, pkey, "left"), np.searchsorted(key, pkey, "right")
+    n = np.where(on_grid, stop - start, 0)
+    pi = np.repeat(np.arange(len(p)), n)
+    ti = tri[np.repeat(start, n) + np.arange(pi.size) - np.repeat(np.cumsum(n) - n, n)]
+    px, py = p[pi, 0] + 1e-7 * np.sqrt(2.0), p[pi, 1] + 1e-7 * np.sqrt(3.0)
+    A, B, C = a[ti], b[ti], c[ti]
+    det = (B[:, 0] - A[:, 0]) * (C[:, 1] - A[:, 1]) - (C[:, 0] - A[:, 0]) * (B[:, 1] - A[:, 1])
+    ok = np.abs(det) > 1e-14
+    det = np.where(ok, det, 1.0)
+    l1 = ((B[:, 0] - px) * (C[:, 1] - py) - (C[:, 0] - px) * (B[:, 1] - py)) / det
+    l2 = ((C[:, 0] - px) * (A[:, 1] - py) - (A[:, 0] - px) * (C[:, 1] - py)) / det
+    l3 = 1.0 - l1 - l2
+    z = l1 * A[:, 2] + l2 * B[:, 2] + l3 * C[:, 2]
+    crossing = ok & (l1 >= 0) & (l2 >= 0) & (l3 >= 0) & (z > p[pi, 2])
+    return (np.bincount(pi[crossing], minlength=len(p)) & 1).astype(bool)

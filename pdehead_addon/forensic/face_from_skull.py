@@ -28,7 +28,9 @@ skull's centroid: a row every ``row_mm`` of height, a column every ``360 / colum
 4. *Prediction rules* for what a depth field cannot make (:mod:`.face_features`, each cited there): the nose
    from the nasal aperture and the nasal length, the closed eyes in the orbits, the mouth from the teeth and the
    canines, a default ear at each porion.
-5. *The face*: profile + depth field + nose + lips + eyes + ears = radius per bin; each row is a closed boundary curve;
+5. *The face*: profile + depth field + nose + lips + eyes + ears = radius per bin, never below the bone floor
+   (:func:`.face_profile.bone_floor`: the outermost bone plus :data:`.defaults.FACE_MIN_TISSUE_MM`, so no bone comes
+   through the face); each row is a closed boundary curve;
    the C2 PDE surface through them (:func:`.pde_surface.solve_pde`, dome over the vertex, a flat cap
    under the neck) is the face, a closed mesh in patient mm.
 
@@ -48,7 +50,8 @@ import numpy as np
 from .. import defaults as D
 from ..core.boundary_set import BoundarySet, knots_from_heights
 from ..core.errors import PDEHeadError
-from .face_profile import FaceGrid, bone_profile, convex_rows, peg_normals, smooth_far_from_pegs
+from .face_profile import (FaceGrid, bone_floor, bone_profile, convex_rows, peg_normals, smooth_far_from_pegs,
+                           smooth_max, smooth_min)
 from .face_features import (EAR_LENGTH_MM, EAR_WIDTH_MM, FRONT_COS, check_skull, ear_shape, eye_shape, mouth_shape,
                             nose_bump, predict_ears, predict_eyes, predict_mouth, predict_nose)
 from ..core.mesh import Mesh
@@ -103,6 +106,9 @@ LIMIT_SOFT_MM = 1.0
 CHEEK_SPAN_DEG = 30.0
 CHEEK_PASSES = 2
 CHEEK_RAMP_MM = 5.0
+#: The landmarks on the mandible's chin (:meth:`FaceModel.prepare`): with none of them the skull has no mandible
+#: (the scan stops at the maxilla) and the face no neck.
+MANDIBLE_LANDMARKS = ("Menton", "Gnathion", "Pogonion")
 #: A site's blend weight below which the limiter leaves it out (its term is then below 1e-12 x its offset).
 LIMIT_WEIGHT_FLOOR = 1e-12
 
@@ -177,13 +183,16 @@ class FaceModel:
     @classmethod
     def prepare(cls, skull: Mesh, landmarks: dict, table, *, sex=None, flags: dict | None = None,
                 row_mm: float | None = None, columns: int | None = None, spread_mm: float | None = None,
-                nu: int | None = None, nv: int | None = None, neck_mm: float = 40.0) -> "FaceModel":
+                nu: int | None = None, nv: int | None = None, neck_mm: float | None = None) -> "FaceModel":
         """Prepare the face model of a skull.
 
         ``skull``: the bone skull (:func:`.skull.skull_mesh` or a ``--skull-mesh``), patient LPS mm; ``landmarks``: on
         the bone (patient mm), those the table has become pegs, the others feed the prediction rules; ``table``: a
         DepthTable or dict (mean depth per landmark; SDs from ``table.sd``); ``sex`` (kept in the provenance; the
         T-Table 2023 is pooled) and ``flags`` (``ok`` / ``uncertain`` / ``not_found``, for the provenance).
+        ``neck_mm``: how far below the skull's lowest bone the face ends (its neck cap); default
+        :data:`.defaults.FACE_NECK_MM` with a chin (a mandible landmark), else the skull stops at the maxilla (a scan
+        cut there, GE) and so does the face: at most :data:`.defaults.FACE_CUT_MARGIN_MM` under the lowest bone.
         """
         from .landmarks import marker_pegs
 
@@ -213,15 +222,28 @@ class FaceModel:
         sds = np.array([(sd_of(n) if sd_of else None) or np.nan for n in names], float)
         # the axis: the bone's centroid (area-weighted vertices are close enough: a dense uniform mesh)
         centre = skull.vertices[:, :2].mean(axis=0)
-        zlo = float(skull.vertices[:, 2].min()) - neck_mm
+        if neck_mm is None:
+            chin = any(n in lm for n in MANDIBLE_LANDMARKS)
+            neck_mm = (D.FACE_NECK_MM if chin else D.FACE_CUT_MARGIN_MM).default
+        neck_mm = float(neck_mm)
+        # the rows of a head with the whole neck, those more than neck_mm under the lowest bone left out: a shorter
+        # neck keeps the other rows where they were (the bone's profile is binned on them; GE moved by a row phase
+        # scored 40.9 % within 2.5 mm at a 7 mm cut, 41.7 % at 8.25 mm, 42.2 % with the neck)
+        zmin = float(skull.vertices[:, 2].min())
+        zlo = zmin - max(neck_mm, D.FACE_NECK_MM.default)
         zhi = float(skull.vertices[:, 2].max()) - 4.0
         K = max(8, int(np.ceil((zhi - zlo) / row_mm)) + 1)
-        grid = FaceGrid(centre, np.linspace(zlo, zhi, K), np.arange(columns) * 2 * np.pi / columns)
+        rows = np.linspace(zlo, zhi, K)
+        grid = FaceGrid(centre, rows[rows >= zmin - neck_mm - 1e-9], np.arange(columns) * 2 * np.pi / columns)
+        K = len(grid.z)
         base_z = None
         po = [lm[n] for n in ("Porion L", "Porion R") if n in lm]
         if po:
             base_z = float(np.mean([p[2] for p in po])) - 15.0   # the skull base, ~15 mm below the ear canals
         raw, profile = bone_profile(skull, grid, base_z)
+        # up to whole hundredths of a mm here (never lower), so the model kept as text in hundredths
+        # (:func:`.face_live.model_state`, 2 bytes a bin) is this one to the bit
+        floor = np.ceil(bone_floor(skull, grid, D.FACE_MIN_TISSUE_MM.default) * 100.0) / 100.0
         normals = peg_normals(skull, bases, grid, profile)
         hull_profile = profile
         profile = smooth_far_from_pegs(profile, grid, bases + depths[:, None] * normals)
@@ -242,6 +264,7 @@ class FaceModel:
         model._in_rows = grid.polar(model.tips_for(depths))[0] <= grid.z[-1]
         model.landmarks_used = lm
         model.hull_profile = hull_profile                    # the peer (constant_depth) keeps the bone's own profile
+        model.bone_floor = floor                             # no row of the face inside it (:meth:`shaped_radius`)
         model._grid_xyz = model._cyl(np.repeat(grid.z, columns), np.tile(grid.theta, K))
         model._damping = model._site_damping()
         model.prepare_seconds = time.perf_counter() - t0
@@ -320,11 +343,7 @@ class FaceModel:
             np.minimum(lo[rows, cols], dev, out=lo[rows, cols])
         hi += base
         lo += base
-        k = LIMIT_SOFT_MM
-        h = np.clip(0.5 + 0.5 * (hi - field) / k, 0.0, 1.0)                 # smooth min(field, hi)
-        out = hi + (field - hi) * h - k * h * (1.0 - h)
-        h = np.clip(0.5 + 0.5 * (out - lo) / k, 0.0, 1.0)                   # smooth max(out, lo)
-        out = lo + (out - lo) * h + k * h * (1.0 - h)
+        out = smooth_max(smooth_min(field, hi, LIMIT_SOFT_MM), lo, LIMIT_SOFT_MM)
         self._last_limit_shift = out - field        # what the limiter did, for the pegs' report (.face_pegs)
         return out
 
@@ -524,6 +543,9 @@ class FaceModel:
         ears = self._ear_shape()
         if ears is not None:
             radius = radius + ears
+        floor = self.__dict__.get("bone_floor")
+        if floor is not None:                       # last: nothing after it may bring the bone through the face
+            radius = smooth_max(radius, floor, LIMIT_SOFT_MM)
         return radius
 
     def _cheek_weight(self) -> np.ndarray | None:

@@ -48,11 +48,16 @@ _DERIVED = ("_grid_xyz", "_ears", "_front_grid", "_site_disagreement", "_last_li
 #: closed hull (what the live face does not read: the raw map is kept for the record, the hull for the
 #: constant-depth peer; since the 360-column grid the two maps were 0.6 of 1.5 MB on CThead).
 _SINGLE = ("_uv_layout", "hull_profile")
+#: What :func:`model_state` keeps in whole hundredths of a mm (uint16): the bone floor, which
+#: :meth:`FaceModel.prepare` makes in hundredths itself (so the kept model solves to the bit as the original; in
+#: double precision the floor took the phantom's state from 0.72 to 1.2 MB, over its 1 MB budget).
+_CENTI_MM = ("bone_floor",)
 #: What :func:`model_state` does not keep at all: the bone's raw radius map (nothing reads it after
 #: :meth:`FaceModel.prepare`; a rebuilt model has None there). 0.18 MB on CThead's 360-column grid.
 _DROPPED = ("raw",)
-#: Format of :func:`model_state` (a reader refuses other formats: the caller prepares the model again).
-STATE_FORMAT = 1
+#: Format of :func:`model_state` (a reader refuses other formats: the caller prepares the model again). 2: the
+#: bone floor (issue 23, GE: a kept model without it would let the bone through the face).
+STATE_FORMAT = 2
 
 
 # ------------------------------------------------------------------------------------------ fast solve
@@ -318,6 +323,8 @@ def model_state(model) -> str:
         if key in _DERIVED or key in _DROPPED:
             continue
         try:
+            if key in _CENTI_MM and value is not None:
+                value = np.round(np.asarray(value) * 100.0).astype(np.uint16)
             state[key] = _encode(_cast(value, np.float32) if key in _SINGLE else value)
         except TypeError:
             if key in names:                       # a field that cannot be kept: the model cannot be rebuilt
@@ -349,6 +356,9 @@ def model_from_state(text: str):
     for key in _SINGLE:
         if key in state:
             state[key] = _cast(state[key], np.float64)
+    for key in _CENTI_MM:
+        if isinstance(state.get(key), np.ndarray):
+            state[key] = state[key].astype(np.float64) / 100.0
     model = F.FaceModel(**{n: state.pop(n) for n in names if n in state})
     model.__dict__.update(state)
     if "_grid_xyz" not in model.__dict__:                 # as prepare makes it (not kept: 3 x the profile's size)

@@ -51,6 +51,10 @@ PROFILE_SMOOTH_DEG = 2.0
 PROFILE_SMOOTH_FAR_MM = 8.0
 PROFILE_SMOOTH_FAR_ARC_MM = 2.0
 PROFILE_NEAR_MM = 10.0
+#: The bone floor's recession under the bone (:func:`bone_floor`) is smoothed over this much height and angle: on
+#: GE each column's maxilla ends at its own height, and the recession made vertical ridges 5-10 degrees apart.
+FLOOR_SMOOTH_MM = 3.0
+FLOOR_SMOOTH_DEG = 4.0
 
 
 @dataclass
@@ -119,15 +123,8 @@ def bone_profile(skull: Mesh, grid: FaceGrid, base_z: float | None = None,
         coarse = FaceGrid(grid.centre, grid.z, np.arange(PROFILE_COLUMNS) * 2 * np.pi / PROFILE_COLUMNS)
         raw_c, sm_c = bone_profile(skull, coarse, base_z, closing_mm)
         return _resample_columns(raw_c, M_face), _resample_columns(sm_c, M_face)
-    z, th, r = grid.polar(skull.vertices)
     dz = grid.z[1] - grid.z[0]
-    K, M = len(grid.z), len(grid.theta)
-    k = np.round((z - grid.z[0]) / dz).astype(int)
-    j = np.round(th / (2 * np.pi) * M).astype(int) % M
-    ok = (k >= 0) & (k < K)
-    raw = np.full(K * M, -np.inf)
-    np.maximum.at(raw, k[ok] * M + j[ok], r[ok])
-    raw = raw.reshape(K, M)
+    raw = outermost_bone(skull, grid)
     raw[~np.isfinite(raw)] = np.nan
     filled = _neck_fill(raw, grid, base_z)
     hull = _row_hulls(filled, grid.theta)
@@ -140,6 +137,59 @@ def bone_profile(skull: Mesh, grid: FaceGrid, base_z: float | None = None,
                                  sigma=(PROFILE_SMOOTH_MM / dz, _columns(PROFILE_SMOOTH_DEG, grid)),
                                  mode="wrap")[pad:-pad]
     return raw, sm
+
+
+def outermost_bone(skull: Mesh, grid: FaceGrid) -> np.ndarray:
+    """(K, M) per bin of ``grid`` (each skull vertex in the row and the column nearest to it) the radius of the
+    outermost skull vertex; -inf where no vertex falls (and for the vertices above the top row or below the
+    bottom one, which no row holds)."""
+    z, th, r = grid.polar(skull.vertices)
+    dz = grid.z[1] - grid.z[0]
+    K, M = len(grid.z), len(grid.theta)
+    k = np.round((z - grid.z[0]) / dz).astype(int)
+    j = np.round(th / (2 * np.pi) * M).astype(int) % M
+    ok = (k >= 0) & (k < K)
+    raw = np.full(K * M, -np.inf)
+    np.maximum.at(raw, k[ok] * M + j[ok], r[ok])
+    return raw.reshape(K, M)
+
+
+def bone_floor(skull: Mesh, grid: FaceGrid, min_tissue_mm: float) -> np.ndarray:
+    """(K, M) the least radius the face may have in each bin of ``grid``: the outermost skull vertex in the bin
+    and the columns on either side (:func:`outermost_bone`), plus ``min_tissue_mm``; below the bone, receding
+    no faster than the neck (:data:`NECK_SLOPE` mm per mm of height); 0 where no bone is above.
+
+    Why: the closed profile's smoothing lowers the bone's peaks (the maxilla's front, the zygomas) and the depth
+    field may go below zero between the pegs, so without a floor the face cut through the bone (GE's maxilla:
+    495-509 skull vertices outside the face, by up to 3.5 mm). The columns on either side: a vertex between two
+    columns lies under the face between them. Not the rows above and below: on the crown, where the radius
+    falls steeply with the height, the row below's bone pushed the face out by up to 6 mm (GE); a vertex
+    between two rows is covered by ``min_tissue_mm`` (GE, CThead and the phantom: no vertex outside). The
+    recession under the bone: where the bone ends (GE's maxilla cut by the scan) the face would step in by
+    the whole floor within one row, a ragged shelf along the bone's cut edge.
+    """
+    near = ndimage.maximum_filter(outermost_bone(skull, grid), size=(1, 3), mode=("nearest", "wrap"))
+    floor = np.where(np.isfinite(near), near + float(min_tissue_mm), 0.0)
+    dz = float(grid.z[1] - grid.z[0])
+    receding = floor.copy()
+    for k in range(len(grid.z) - 2, -1, -1):                 # downward: per row, vectorised over the columns
+        np.maximum(receding[k], receding[k + 1] - NECK_SLOPE * dz, out=receding[k])
+    # the recession smoothed (each column's bone ends at its own height: unsmoothed, vertical ridges); only
+    # the cosmetic recession is smoothed, the bone's own floor is kept as it is (the guarantee)
+    receding = ndimage.gaussian_filter(receding, sigma=(FLOOR_SMOOTH_MM / dz, _columns(FLOOR_SMOOTH_DEG, grid)),
+                                       mode=("nearest", "wrap"))
+    return np.maximum(floor, receding)
+
+
+def smooth_max(a: np.ndarray, b: np.ndarray, width: float) -> np.ndarray:
+    """max(a, b) with its corner rounded over ``width`` (a quadratic blend); never below max(a, b)."""
+    h = np.clip(0.5 + 0.5 * (a - b) / width, 0.0, 1.0)
+    return b + (a - b) * h + width * h * (1.0 - h)
+
+
+def smooth_min(a: np.ndarray, b: np.ndarray, width: float) -> np.ndarray:
+    """min(a, b) with its corner rounded over ``width``; never above min(a, b)."""
+    return -smooth_max(-np.asarray(a), -np.asarray(b), width)
 
 
 def smooth_far_from_pegs(profile: np.ndarray, grid: FaceGrid, sites: np.ndarray) -> np.ndarray:

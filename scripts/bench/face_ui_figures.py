@@ -3,6 +3,7 @@
 
     python3 scripts/bench/face_ui_figures.py                   # CThead, a few minutes on 2 cores
     python3 scripts/bench/face_ui_figures.py --dataset phantom
+    python3 scripts/bench/face_ui_figures.py --dataset ge --out-dir /tmp/figures    # not into docs/
 
 Runs the add-on's operators as a user clicks them (registered from this repository, like
 scripts/pdehead.py): the CT imported, Build Skull, Find Landmarks, Build Face. Four pictures:
@@ -31,6 +32,7 @@ def main(argv=None) -> int:
     p.add_argument("--dataset", default="cthead", choices=["cthead", "ge", "phantom"])
     p.add_argument("--size", type=int, default=300)
     p.add_argument("--samples", type=int, default=16)
+    p.add_argument("--out-dir", type=Path, default=OUT, help="where face_ui_<dataset>.png goes; default docs/figures")
     args = p.parse_args(argv)
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="pdehead-fig-"))
     import pdehead
@@ -93,8 +95,8 @@ def main(argv=None) -> int:
         draw.text((i * size + 6, size + 4), caption, fill=(0, 0, 0))
     draw.text((6, size + 24), f"{args.dataset}: {label} (PDE Head, Face from Skull, "
                               f"{len(names)} pegs, T-Table 2023)", fill=(160, 0, 0))
-    OUT.mkdir(parents=True, exist_ok=True)
-    out = OUT / f"face_ui_{args.dataset}.png"
+    args.out_dir.mkdir(parents=True, exist_ok=True)
+    out = args.out_dir / f"face_ui_{args.dataset}.png"
     fig.quantize(256, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE).save(out, optimize=True)
     print("wrote", out)
     return 0

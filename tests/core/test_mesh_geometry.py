@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from pdehead_addon.core.mesh_geometry import (MeshDistance, closest_point_on_triangle, edge_neighbours, mesh_triangles,
-                                    point_surface_distance, point_triangle_distance, signed_volume)
+                                    point_surface_distance, point_triangle_distance, points_inside, signed_volume)
 from pdehead_addon.core.mesh import Mesh
 
 TRI = np.array([[0.0, 0.0, 0.0], [4.0, 0.0, 0.0], [0.0, 3.0, 0.0]])
@@ -76,3 +76,25 @@ def test_mesh_distance_is_the_exact_distance_to_a_cube():
     for dist in (MeshDistance(v, t, dense=20_000), MeshDistance(v, t, dense=20_000, candidates=8, neighbours=False)):
         np.testing.assert_allclose(dist(p, chunk=97), exact, atol=1e-12)
     np.testing.assert_allclose(point_surface_distance(p, v, t, dense=20_000), exact, atol=1e-12)
+
+
+def test_points_inside_a_cube_and_a_sphere():
+    """Ray parity against shapes whose inside is known: a 2 mm cube (rays through its edges and vertices too)
+    and a sphere of 30 mm made of triangles (points near it judged against its polyhedron)."""
+    v, t = mesh_triangles(cube())
+    rng = np.random.default_rng(2)
+    p = np.concatenate([rng.uniform(-1.0, 3.0, (2000, 3)), [[1.0, 1.0, 1.0], [0.0, 0.0, 1.0], [2.0, 2.0, -1.0]]])
+    expected = np.all((p > 0) & (p < 2), axis=1)
+    expected[-2:] = False                                          # on an edge and below a vertex: outside
+    got = points_inside(p, v, t, cell_mm=0.7)
+    edge = np.any(np.isclose(p, 0.0) | np.isclose(p, 2.0), axis=1)
+    assert np.array_equal(got[~edge], expected[~edge]) and got[-3] and not got[-1]
+    from skimage import measure
+    grid = np.linalg.norm(np.mgrid[-40:41, -40:41, -40:41].astype(float), axis=0)
+    sv, st, _, _ = measure.marching_cubes(grid, 30.0)
+    sv -= 40.0
+    q = rng.normal(size=(3000, 3))
+    q *= (rng.uniform(20.0, 40.0, 3000) / np.linalg.norm(q, axis=1))[:, None]
+    r = np.linalg.norm(q, axis=1)
+    far = np.abs(r - 30.0) > 0.5                                   # the polyhedron is within 0.5 mm of the sphere
+    assert np.array_equal(points_inside(q, sv, st)[far], r[far] < 30.0)

@@ -197,6 +197,66 @@ def test_face_is_near_the_phantoms_own_skin(phantom_seg, face):
     assert np.median(d) <= 2.5 and np.percentile(d, 90) <= 10.0
 
 
+def bone_outside(face_mesh: Mesh, skull: Mesh) -> tuple[int, float]:
+    """How many skull vertices lie outside the closed face (ray parity), and the farthest of them (mm)."""
+    from pdehead_addon.core.mesh_geometry import MeshDistance, points_inside
+    fv, ft = face_mesh.vertices, _faces(face_mesh)
+    outside = ~points_inside(skull.vertices, fv, ft)
+    far = MeshDistance(fv, ft)(skull.vertices[outside]).max() if outside.any() else 0.0
+    return int(outside.sum()), float(far)
+
+
+def test_no_bone_comes_through_the_face(model, face, phantom_bone):
+    """Every row of the face keeps the least soft tissue over the bone's outermost vertices
+    (face_profile.bone_floor), so no skull vertex lies outside the face: at the table's means, at -1 SD and
+    with every peg at 0 mm (the floor, not the pegs, then holds the face off the bone)."""
+    from pdehead_addon import defaults as D
+    skull = phantom_bone[0]
+    assert bone_outside(face.mesh, skull) == (0, 0.0)
+    minus, _ = model.sd_faces()
+    assert bone_outside(minus.mesh, skull) == (0, 0.0)
+    flat = model.solve(depths=np.zeros_like(model.default_depths))
+    count, far = bone_outside(flat.mesh, skull)
+    assert count == 0 and far <= 0.1
+    # the floor: each bin's outermost bone (or its neighbours', if farther) plus the least tissue
+    from pdehead_addon.forensic.face_profile import outermost_bone
+    bone = outermost_bone(skull, model.grid)
+    held = np.isfinite(bone)
+    assert held.sum() > 1000
+    assert np.all(model.bone_floor[held] >= bone[held] + D.FACE_MIN_TISSUE_MM.default - 1e-9)
+
+
+@pytest.fixture(scope="module")
+def ge_face(ge_ct, ge_seg):
+    """The GE series (a living patient's head CT that stops at the maxilla): the face from its bone skull and its
+    automatic landmarks, as the CLI makes it."""
+    from pdehead_addon.forensic.auto_landmarks import find_landmarks
+    from pdehead_addon.forensic.skull import segment_skull, skull_mesh
+    sk = segment_skull(ge_ct, ge_seg)
+    search = find_landmarks(ge_ct, sk.bone)
+    skull = skull_mesh(sk)
+    model = FaceModel.prepare(skull, search.points(), default_table(), flags=search.flags())
+    return skull, model, model.solve()
+
+
+def test_ge_face_holds_its_bone_and_stops_under_the_maxilla(ge_face):
+    """Issue 23 on GE (the tester's (a) and (b)): no skull vertex outside the face (503, up to 3.6 mm, before
+    the bone floor), and no neck the scan never had: without a mandible the face's cap lies
+    FACE_CUT_MARGIN_MM under the lowest bone (before: 40 mm, 69 mm under the scan's lowest skin)."""
+    from pdehead_addon import defaults as D
+    skull, model, face = ge_face
+    assert face.mesh.is_watertight()
+    count, far = bone_outside(face.mesh, skull)
+    assert count == 0 and far <= 0.1
+    lowest_bone = skull.vertices[:, 2].min()
+    drop = lowest_bone - face.mesh.vertices[:, 2].min()
+    assert 0.0 <= drop <= D.FACE_CUT_MARGIN_MM.default + 0.01
+    assert model.options["neck_mm"] == D.FACE_CUT_MARGIN_MM.default
+    # the landmarks that are a fallback on GE say so in the provenance (the left orbit mirrored: uncertain)
+    flags = face.provenance["landmark_flags"]
+    assert "uncertain" in flags.values() and len(model.peg_names) >= 8
+
+
 def test_not_a_skull_is_refused(phantom_bone):
     skull, lms, flags = phantom_bone
     with pytest.raises(PDEHeadError, match="does not look like a skull"):
@@ -426,6 +486,9 @@ def test_features_made_on_the_front_columns_alone_are_those_of_the_whole_grid(mo
         assert d is not None
         radius = radius + d
     radius = radius + model._ear_shape()
+    from pdehead_addon.forensic.face_from_skull import LIMIT_SOFT_MM
+    from pdehead_addon.forensic.face_profile import smooth_max
+    radius = smooth_max(radius, model.bone_floor, LIMIT_SOFT_MM)    # last, over every column: the bone floor
     cols, _ = model._front()
     assert 0 < cols.stop - cols.start < 0.5 * model.profile.shape[1]
     np.testing.assert_array_equal(model.shaped_radius(offset, face.tips), radius)
