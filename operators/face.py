@@ -230,7 +230,9 @@ class FaceSteps:
             if tips is None:
                 return None
             live = LiveFace(model, check=False)
-            got = live.positions(tips)
+            # the saved face was solved with the pegs held then (a dragged peg is held): the same here
+            prov = json.loads(obj.get(PROVENANCE_PROP, "{}") or "{}")
+            got = live.positions(tips, prov.get("pegs_held") or None)
             saved = self._mesh_positions(obj)
             if got is None or got.shape != saved.shape or not np.abs(got - saved).max() <= RESTORE_TOLERANCE_MM:
                 return None
