@@ -497,6 +497,19 @@ def markdown(results: dict) -> str:
               "doi:10.1016/j.forsciint.2015.04.028), not their tables, and the esomjai tool's table is the T-Table's "
               "own 25 codes; so no inferior-malar peg (the automatic landmarks find it on both sides, the T-Table "
               "has no depth for it) until a table is read at its source.",
+              "- The bone floor and the pegs off the face (issue 23's tenth session). Every row of the face keeps "
+              "at least `FACE_MIN_TISSUE_MM` (2 mm: the T-Table's thinnest landmark, rhinion 3.0 mm, less one SD) "
+              "outside the outermost bone at its height and angle (`face_profile.bone_floor`): GE had 540 skull "
+              "vertices outside its face (up to 3.54 mm, the maxilla's front), now 0 on CThead, GE and the phantom. "
+              "A skull without a chin ends its face `FACE_CUT_MARGIN_MM` (7 mm) under its lowest bone (GE: 5.4 mm; "
+              "it ran 40 mm under, 69 mm below the scan's lowest skin). CThead 63.2 % / 2.48 mm unchanged, GE "
+              "41.8 -> 42.1 % (pronasale 3.7 -> 1.9 mm, glabella 2.0 -> 1.1 mm). At the table's means 10 of CThead's "
+              "34 peg tips lie more than 2 mm from the face (supra M2 7.1-7.3 mm, alare curvature 6.1-7.3, sub M2 "
+              "4.6-5.1, subspinale 3.3, gonion 2.0-2.4, mid-philtrum 2.2: damped, or under the nose and lip rules); "
+              "the face's provenance (`pegs_off_face`), the panel and the command line now list them with the "
+              "reason, and a held peg (dragged, or pinned in the panel) is never damped: supra M2 7.3 -> 0.24 mm, "
+              "sub M2 5.1 -> 0.25, gonion 2.4 -> 0.26, alare curvature L 7.3 -> 0.91, mid-philtrum 2.2 -> 0.92; "
+              "alare curvature R (4.4) and subspinale (2.1) stay off under the nose and lip rules.",
               "- The phantom is a consistency check only: its soft tissue is not the table's.",
               "",
               "Renders (looked at): [face_from_skull_cthead.png](figures/face_from_skull_cthead.png): real "
@@ -516,7 +529,12 @@ def markdown(results: dict) -> str:
               "eyes and ears are plausible; below the maxilla the face is still the neck rule, a straight column "
               "with no jaw (not improved this session). Issue 23's ninth session (the convex cheeks, CThead re-rendered "
               "and looked at): the hollow beside the nose's alae is shallower and the red patches on the cheeks in "
-              "the heat map smaller and lighter; no crease at the band's ends; the rest as before.",
+              "the heat map smaller and lighter; no crease at the band's ends; the rest as before. Issue 23's tenth "
+              "session (the bone floor; both re-rendered and looked at): CThead as before; GE's vault, brow, closed "
+              "eyes and ears plausible and no bone through the face, but under the cut maxilla the face recedes as a "
+              "flat apron to its cap, with a crease along the maxilla's cut edge, a stub of a nose with a dark "
+              "notch and one vertical fold: not a lower face an artist would keep (the scan holds no bone there to "
+              "stand a rule on).",
               "", f"Timings: one run, {_machine_text(results)}. "
               "Solve is the median of 9 solves at the defaults (field, PDE and a 160 × 240 mesh), wall-clock and CPU "
               "time of the process; on a loaded machine the CPU time is the better guide to the ≤ 100 ms target "

@@ -194,6 +194,40 @@ def storage_bytes(head) -> int:
         return int(save_boundaries(head, Path(d) / "head.pdeh"))
 
 
+def cut_face_texel_footprint(seg, head, nu: int, nv: int, nw: int = D.NW.default) -> dict:
+    """Issue 21 item 3: the solid cut at v in [90, 360] deg, its CT atlas at the default budget
+    (``operators.ct_texture.ct_texture_atlas``, no Blender data involved), and on every cut face the world
+    footprint of a texel: each face edge's 3-D length over its length in texels, in CT voxels (the finest
+    spacing). Target: at most 1 voxel; before issue 21 one 128-pixel tile a face."""
+    import math
+    import pdehead                       # the add-on's source as the CLI registers it (package pdehead_dev)
+    pdehead.register_addon()
+    from pdehead_dev.operators import ct_texture
+    ct = seg.ct
+    ranges = ((0.0, 1.0), (math.pi / 2, 2 * math.pi), (0.0, 1.0))
+    mesh = head.solid(nu, nv, nw, u_range=ranges[0], v_range=ranges[1], w_range=ranges[2])
+    window = E.intensity_window(ct)
+    voxel = float(min(ct.spacing))
+    out = {}
+    for key, size in (("before", 128), ("after", None)):
+        atlas, corner_uv = ct_texture.ct_texture_atlas(head, mesh, ct, window, ranges, size=size)
+        height, width = atlas.shape[:2]
+        _, family = ct_texture.box_faces(mesh, ranges)
+        starts, totals = mesh.loop_starts_and_totals()
+        corner_vert = mesh.loop_vertex_indices()
+        nxt = np.arange(len(corner_vert)) + 1
+        nxt[starts + totals - 1] = starts
+        texel = corner_uv * (width, height)
+        d3 = np.linalg.norm(mesh.vertices[corner_vert[nxt]] - mesh.vertices[corner_vert], axis=1)
+        dt = np.linalg.norm(texel[nxt] - texel, axis=1)
+        ok = np.repeat(family >= 2, totals) & (dt > 1e-3)
+        footprint = d3[ok] / dt[ok] / voxel
+        out[key] = {"max_voxels": float(footprint.max()), "median_voxels": float(np.median(footprint)),
+                    "atlas": [int(width), int(height)]}
+    out["budget_mp"] = float(D.CT_TEXTURE_BUDGET.default)
+    return out
+
+
 def up_close(repeats: int = 5) -> dict:
     """Issue 21's measures, before and after, at the add-on's defaults: CThead at the default t, GE at t = 8
     (its 28 usable slices give at most 9 patches)."""
@@ -224,6 +258,7 @@ def up_close(repeats: int = 5) -> dict:
                 row["face"][f"t{tt}"] = visible_face(seg, dense.surface(nu, nv, caps=True), mc)
                 row["face"][f"t{tt}"]["storage_bytes"] = storage_bytes(dense)
             row["face"]["default"] = row["face"][f"t{D.PATCHES.default}"]     # the add-on's default t
+        row["cut_texel"] = cut_face_texel_footprint(seg, head, nu, nv)
         res["datasets"][name] = row
         print(name, json.dumps(row, default=float)[:2000], flush=True)
     res["load_end"] = os.getloadavg()[0]
@@ -256,6 +291,10 @@ def up_close_markdown(res: dict) -> str:
         lambda d, k: d["uv"][k]["stretch_p99_p1"], "{:.2f}")
     row(f"UV: angle distortion p95, deg (≤ {T['uv_angle_p95_deg']:.0f})",
         lambda d, k: d["uv"][k]["angle_p95_deg"], "{:.1f}")
+    if "cut_texel" in c and "cut_texel" in g:
+        row(f"solid cut at v 90-360 deg: largest texel footprint on the cut faces, CT voxels (≤ 1; "
+            f"budget {c['cut_texel']['budget_mp']:g} MP)", lambda d, k: d["cut_texel"][k]["max_voxels"], "{:.2f}")
+        row("... its atlas, width x height", lambda d, k: "{} x {}".format(*d["cut_texel"][k]["atlas"]), "{}")
     row("faces (quads + triangles)", lambda d, k: d["uv"][k]["faces"], "{}")
     row("surface(nu, nv, caps) median ms", lambda d, k: d["surface_ms"][k], "{:.1f}")
     f = c["face"]
@@ -265,12 +304,12 @@ def up_close_markdown(res: dict) -> str:
               "|---|---|---|---|---|"]
     lines[-2] += " storage |"
     lines[-1] += "---|"
-    for key, label in (("before", "before issue 21's envelope (t = 10: 1.5 mm, 1.5 px, slope 2)"),
-                       ("t10", "t = 10 (1 mm, 0.5 px, slope 3)"),
-                       ("t15", "t = 15" + (" (the default)" if D.PATCHES.default == 15 else "")),
-                       ("t20", "t = 20"), ("t31", "t = 31")):
+    # "t10" is the key of the head at the add-on's default t (c["t"]), whatever that default is
+    for key, label in (("before", f"before issue 21's envelope (t = {c['t']}: 1.5 mm, 1.5 px, slope 2)"),
+                       ("t10", f"t = {c['t']}, the default (envelope 1 mm, 0.5 px, slope 3)"),
+                       ("t15", "t = 15"), ("t20", "t = 20"), ("t31", "t = 31")):
         d = f.get(key)
-        if d is None:
+        if d is None or (key != "t10" and key == f"t{c['t']}"):   # the default's row is there once
             continue
         kb = f"{d['storage_bytes'] / 1000:.1f} kB" if "storage_bytes" in d else ""
         lines.append(f"| {label} | {d['score_mean']:.3f} | {d['score_p95']:.2f} | "
