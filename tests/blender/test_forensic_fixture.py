@@ -76,7 +76,12 @@ def test_every_study_reopens_with_its_settings_objects_and_forensic_state(reopen
     assert sorted(now["studies"]) == sorted(saved["studies"]) == ["Phantom forensic", "Phantom pipeline only"]
     for name, was in saved["studies"].items():
         study = now["studies"][name]
-        assert study["settings"] == was["settings"], name
+        assert {k: v for k, v in study["settings"].items() if k in was["settings"]} == was["settings"], name
+        assert set(was["settings"]) <= set(study["settings"]), name
+        # settings added since the file was saved (the CT detail map's) come up at their declared defaults
+        rna = bpy.data.collections[name].pdehead.bl_rna.properties
+        added = {k: v for k, v in study["settings"].items() if k not in was["settings"]}
+        assert added == {k: rna[k].default for k in added}, (name, added)
         # the rest of the collection's custom properties: derived caches, CT table, face model
         assert study["custom"] == {k: v for k, v in was["custom"].items() if k not in legacy}, name
         assert study["children"] == was["children"], name
