@@ -50,8 +50,8 @@ import numpy as np
 from .. import defaults as D
 from ..core.boundary_set import BoundarySet, knots_from_heights
 from ..core.errors import PDEHeadError
-from .face_profile import (FaceGrid, bone_floor, bone_profile, convex_rows, peg_normals, smooth_far_from_pegs,
-                           smooth_max, smooth_min)
+from .face_profile import (FaceGrid, bone_floor, bone_profile, convex_rows, peg_normals, scan_cut_plane,
+                           smooth_far_from_pegs, smooth_floor_near_cut, smooth_max, smooth_min, tilted_rows)
 from .face_features import (EAR_LENGTH_MM, EAR_WIDTH_MM, FRONT_COS, check_skull, ear_shape, eye_shape, mouth_shape,
                             nose_bump, predict_ears, predict_eyes, predict_mouth, predict_nose)
 from ..core.mesh import Mesh
@@ -84,6 +84,10 @@ DAMP_MIDLINE_DEG = 10.0
 #: :meth:`FaceModel.solve`) is never damped: its regularisation is this, the field passes through its tip to a few
 #: hundredths of a mm (the hand overrides the automatic rule; the shape rules and the surface between the rows remain).
 HELD_REGULARISATION = 1e-3
+#: ... and after the shape rules (the nose, the lips, the eyes, the ears: :meth:`FaceModel._held_on_face`) the face
+#: is put back through a held peg's tip by a Gaussian bump this wide (mm, sigma on the field's cylinder): about the
+#: ala's or the philtrum's width, so a held peg reshapes the face around it and not the whole nose or mouth.
+HELD_SHAPE_MM = 5.0
 #: No overshoot between the pegs (:meth:`FaceModel._limited`): the field stays between the lowest and the highest
 #: blend base + k_i (target_i - base) of the wide field with each site's offset (k_i = exp(-(d / R)^4) along the
 #: height times the same around, R = LIMIT_RADIUS_FRACTION x ``spread_mm``; a smooth min / max LIMIT_SOFT_MM wide).
@@ -222,19 +226,24 @@ class FaceModel:
         sds = np.array([(sd_of(n) if sd_of else None) or np.nan for n in names], float)
         # the axis: the bone's centroid (area-weighted vertices are close enough: a dense uniform mesh)
         centre = skull.vertices[:, :2].mean(axis=0)
+        chin = any(n in lm for n in MANDIBLE_LANDMARKS)
         if neck_mm is None:
-            chin = any(n in lm for n in MANDIBLE_LANDMARKS)
             neck_mm = (D.FACE_NECK_MM if chin else D.FACE_CUT_MARGIN_MM).default
         neck_mm = float(neck_mm)
+        # without a chin the face ends along the scan's cut (its rows tilted to it, :meth:`_surface`), neck_mm
+        # under it, or where no cut is found, neck_mm under the lowest bone
+        cut_plane = None if chin else scan_cut_plane(skull)
         # the rows of a head with the whole neck, those more than neck_mm under the lowest bone left out: a shorter
         # neck keeps the other rows where they were (the bone's profile is binned on them; GE moved by a row phase
-        # scored 40.9 % within 2.5 mm at a 7 mm cut, 41.7 % at 8.25 mm, 42.2 % with the neck)
+        # scored 40.9 % within 2.5 mm at a 7 mm cut, 41.7 % at 8.25 mm, 42.2 % with the neck); a tilted cut keeps
+        # them all (the cut's back end lies below the lowest bone)
         zmin = float(skull.vertices[:, 2].min())
         zlo = zmin - max(neck_mm, D.FACE_NECK_MM.default)
         zhi = float(skull.vertices[:, 2].max()) - 4.0
         K = max(8, int(np.ceil((zhi - zlo) / row_mm)) + 1)
         rows = np.linspace(zlo, zhi, K)
-        grid = FaceGrid(centre, rows[rows >= zmin - neck_mm - 1e-9], np.arange(columns) * 2 * np.pi / columns)
+        kept = rows if cut_plane is not None else rows[rows >= zmin - neck_mm - 1e-9]
+        grid = FaceGrid(centre, kept, np.arange(columns) * 2 * np.pi / columns)
         K = len(grid.z)
         base_z = None
         po = [lm[n] for n in ("Porion L", "Porion R") if n in lm]
@@ -243,7 +252,10 @@ class FaceModel:
         raw, profile = bone_profile(skull, grid, base_z)
         # up to whole hundredths of a mm here (never lower), so the model kept as text in hundredths
         # (:func:`.face_live.model_state`, 2 bytes a bin) is this one to the bit
-        floor = np.ceil(bone_floor(skull, grid, D.FACE_MIN_TISSUE_MM.default) * 100.0) / 100.0
+        floor = bone_floor(skull, grid, D.FACE_MIN_TISSUE_MM.default)
+        if cut_plane is not None:                             # the cut bone's ragged edge, rounded
+            floor = smooth_floor_near_cut(floor, grid, cut_plane, profile)
+        floor = np.ceil(floor * 100.0) / 100.0
         normals = peg_normals(skull, bases, grid, profile)
         hull_profile = profile
         profile = smooth_far_from_pegs(profile, grid, bases + depths[:, None] * normals)
@@ -261,6 +273,7 @@ class FaceModel:
         model = cls(names, bases, normals, depths, sds, grid, raw, profile, rule_sites, nose, mouth, options,
                     prov, dict(flags or {}))
         model.vertex_z = float(skull.vertices[:, 2].max())
+        model.cut_plane = None if cut_plane is None else np.append(cut_plane[0], cut_plane[1])
         model._in_rows = grid.polar(model.tips_for(depths))[0] <= grid.z[-1]
         model.landmarks_used = lm
         model.hull_profile = hull_profile                    # the peer (constant_depth) keeps the bone's own profile
@@ -437,9 +450,15 @@ class FaceModel:
         from ..pde.pde_surface import solve_pde
 
         g = self.grid
-        curves = g.point(g.z[:, None], g.theta[None, :], radius)
+        plane = self.__dict__.get("cut_plane")
+        if plane is None:
+            z = np.broadcast_to(g.z[:, None], radius.shape)
+        else:                                   # a skull cut by its scan: the face ends along the cut
+            z, radius = tilted_rows(g, radius, (plane[:3], plane[3]), self.options["neck_mm"])
+        curves = g.point(z, g.theta[None, :], radius)
+        heights = z.mean(axis=1)
         top = self.vertex_z + RULE_DEPTH_MM if top_z is None else float(top_z)
-        bset = BoundarySet(curves, np.full(len(g.z), -1), g.z, knots_from_heights(g.z),
+        bset = BoundarySet(curves, np.full(len(g.z), -1), heights, knots_from_heights(heights),
                            meta={"vertex_z": top, "parameterisation": "aligned"})
         # The C2 spline's parameter (chord-length positions of the curves) and its smoothing (from the mean
         # radius) are fixed by the first face solved, so a peg moved at the chin does not re-parameterise
@@ -512,7 +531,7 @@ class FaceModel:
             if tips.shape != self.peg_bases.shape or not np.all(np.isfinite(tips)):
                 raise PDEHeadError(f"tips: need {len(self.peg_bases)} finite points, got {tips.shape}")
             d = np.einsum("ij,ij->i", tips - self.peg_bases, self.peg_normals)
-        radius = self.shaped_radius(self._offset_field(tips, held), tips)
+        radius = self.shaped_radius(self._offset_field(tips, held), tips, held)
         t1 = time.perf_counter()
         head = self._surface(radius, top_z=self.top_z_for(tips))
         t2 = time.perf_counter()
@@ -524,9 +543,10 @@ class FaceModel:
                           {"field": t1 - t0, "pde": t2 - t1, "mesh": t3 - t2, "pegs": t4 - t3, "total": t4 - t0},
                           tips=tips, depths=d, head=head, pegs=report)
 
-    def shaped_radius(self, offset: np.ndarray, tips: np.ndarray) -> np.ndarray:
+    def shaped_radius(self, offset: np.ndarray, tips: np.ndarray, held=None) -> np.ndarray:
         """The face's radius (K, M) over the profile: the tissue-depth ``offset`` field, then what a depth
-        field cannot make (the nose, the lips, the ears). One place for :meth:`solve` and the live path."""
+        field cannot make (the nose, the lips, the ears), then the pegs ``held`` put back on the face
+        (:meth:`_held_on_face`). One place for :meth:`solve` and the live path."""
         radius = self.profile + offset
         cols, front = self._front()
         face = self._cheeks(radius[:, cols], front)
@@ -543,10 +563,38 @@ class FaceModel:
         ears = self._ear_shape()
         if ears is not None:
             radius = radius + ears
+        radius = self._held_on_face(radius, tips, held)
         floor = self.__dict__.get("bone_floor")
         if floor is not None:                       # last: nothing after it may bring the bone through the face
             radius = smooth_max(radius, floor, LIMIT_SOFT_MM)
         return radius
+
+    def _held_on_face(self, radius: np.ndarray, tips: np.ndarray, held) -> np.ndarray:
+        """``radius`` with the held pegs' tips put back on it: the shape rules (the nose, the lips, the eyes, the
+        ears) are added over the depth field and moved a held peg's tip off the face (CThead: alare curvature R
+        4.4 mm, subspinale 2.1 mm), so the hand's peg wins there too: Gaussian bumps
+        (:data:`HELD_SHAPE_MM` wide on the cylinder of the field) whose sum is the residual at every held tip in
+        the rows. Not the bone floor, which comes after: a held peg dragged into the bone stays outside it."""
+        if held is None:
+            return radius
+        from .face_pegs import held_mask
+        mask = held_mask(self.peg_names, held)
+        in_rows = getattr(self, "_in_rows", None)
+        if in_rows is not None:                     # a tip above the rows (vertex) is the dome's
+            mask &= in_rows
+        if not mask.any():
+            return radius
+        g = self.grid
+        z, th, r = g.polar(np.asarray(tips, float)[mask])
+        residual = r - g.sample(radius, z, th)
+        sites = self._cyl(z, th)
+        coef = np.linalg.solve(peg_kernel(sites, sites, np.sqrt(2.0) * HELD_SHAPE_MM) + 1e-9 * np.eye(len(z)),
+                               residual)
+        rho = 85.0                                        # the field's cylinder (:meth:`_cyl`)
+        dz2 = (g.z[:, None] - z[None, :]) ** 2                                    # (K, n)
+        dt2 = (rho * np.angle(np.exp(1j * (g.theta[:, None] - th[None, :])))) ** 2  # (M, n)
+        s2 = 2.0 * HELD_SHAPE_MM ** 2
+        return radius + np.einsum("kn,mn->km", np.exp(-dz2 / s2) * coef, np.exp(-dt2 / s2))
 
     def _cheek_weight(self) -> np.ndarray | None:
         """Per row, the weight (0-1) of the convex cheeks (:data:`CHEEK_SPAN_DEG`): 1 from the stomion to the

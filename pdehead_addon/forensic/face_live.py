@@ -56,8 +56,9 @@ _CENTI_MM = ("bone_floor",)
 #: :meth:`FaceModel.prepare`; a rebuilt model has None there). 0.18 MB on CThead's 360-column grid.
 _DROPPED = ("raw",)
 #: Format of :func:`model_state` (a reader refuses other formats: the caller prepares the model again). 2: the
-#: bone floor (issue 23, GE: a kept model without it would let the bone through the face).
-STATE_FORMAT = 2
+#: bone floor (issue 23, GE: a kept model without it would let the bone through the face). 3: the scan's cut plane (a
+#: skull without a mandible: the face ends along it).
+STATE_FORMAT = 3
 
 
 # ------------------------------------------------------------------------------------------ fast solve
@@ -185,7 +186,7 @@ class LiveFace:
     def _positions(self, tips: np.ndarray, held=None) -> np.ndarray | None:
         m = self.model
         tips = np.asarray(tips, float).reshape(-1, 3)
-        radius = m.shaped_radius(self.offset_field(tips, held), tips)
+        radius = m.shaped_radius(self.offset_field(tips, held), tips, held)
         head = m._surface(radius, top_z=m.top_z_for(tips))
         if head.vertex is None or self._cap_ref is None:
             return None

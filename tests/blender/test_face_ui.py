@@ -374,6 +374,12 @@ def test_export_for_printing_writes_the_face_beside_the_head(pdehead_ext, face_b
     flags = {row["landmark"]: row["flag"] for row in csv.DictReader(rows)}
     assert "face.stl" in prov["files"] and prov["face"]["label"] == "approximation — not an identification"
     assert prov["face"]["landmark_flags"] == flags and len(flags) >= 40
+    # ... and after the export the study says what its files say: the face object's provenance (the panel's
+    # source) and the landmarks' flags (an ``ok`` one the CT's depth did not support is now ``uncertain`` there)
+    shown_prov = json.loads(obj[face.PROVENANCE_PROP])
+    assert shown_prov["landmark_flags"] == flags
+    assert {n: f for n, f in fs(coll).flag_names().items() if n in flags} == \
+        {n: f for n, f in flags.items() if n in fs(coll).flag_names()}
     assert bpy.ops.pdehead.export_print(directory=str(tmp_path / "ply"), format='ply') == {'FINISHED'}
     head = (tmp_path / "ply" / "face.ply").read_bytes().split(b"end_header\n", 1)[0]
     assert b"comment label: approximation - not an identification" in head
