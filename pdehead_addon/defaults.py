@@ -326,21 +326,24 @@ FACE_PEG_MAX_DRIFT_MM = 10.0
 #: A peg deeper than the table's mean + this many SDs is warned: beyond 3 SD lies ~0.1 % of a normal population
 #: (and a peg dragged far out by mistake). Pegs whose table has no SD are judged by the drift alone.
 FACE_PEG_MAX_DEPTH_SD = 3.0
-#: The least soft tissue over the bone anywhere on the face: the T-Table 2023's thinnest landmark, rhinion
-#: (3.0 mm, SD 1.0), less one SD. Every row of the face keeps at least this much outside the outermost bone at
-#: its height and angle (:func:`pdehead_addon.forensic.face_profile.bone_floor`), so no bone comes through the
-#: face, whatever the depth field, the pegs (a dragged peg down to 0 mm) or the features do.
 #: How far below the skull's lowest bone the face ends (its flat neck cap) when the skull has a chin: the neck
 #: under the mandible; no measurement of a head, a length that shows a neck. A CT that stops above the chin
-#: (GE: at the maxilla) holds no neck, and the face then ends :data:`FACE_CUT_MARGIN_MM` under the lowest bone.
+#: (GE: at the orbits' floor at the front) holds no neck, and the face then ends :data:`FACE_CUT_MARGIN_MM` beyond
+#: the scan's cut.
 FACE_NECK_MM = _param("face_neck_mm", 40.0, min=0.0, max=120.0, unit="mm",
                       description="Face from skull: the neck below the skull's lowest bone (a skull with a chin)")
 #: ... and without a chin: the least soft tissue (:data:`FACE_MIN_TISSUE_MM`) plus two rows of the face
 #: (:data:`FACE_ROW_MM`), rounded up: the lowest bone lies inside the rows that keep it covered, above the cap.
-#: The face ends at the lowest row of the whole head's grid within this margin (GE: 5.4 mm under the bone).
+#: The face ends this far beyond the scan's cut (:func:`pdehead_addon.forensic.face_profile.scan_cut_plane`: GE's
+#: 18.5-degree slab), along it; where no cut is found, at the lowest row of the whole head's grid within this margin
+#: under the lowest bone.
 FACE_CUT_MARGIN_MM = _param("face_cut_margin_mm", 7.0, min=0.0, max=40.0, unit="mm",
-                            description="Face from skull: the face's end below the lowest bone when the skull "
-                                        "has no mandible (the scan stops at the maxilla)")
+                            description="Face from skull: how far the face runs beyond the scan's cut when the "
+                                        "skull has no mandible (the scan stopped above the chin)")
+#: The least soft tissue over the bone anywhere on the face: the T-Table 2023's thinnest landmark, rhinion
+#: (3.0 mm, SD 1.0), less one SD. Every row of the face keeps at least this much outside the outermost bone at
+#: its height and angle (:func:`pdehead_addon.forensic.face_profile.bone_floor`), so no bone comes through the
+#: face, whatever the depth field, the pegs (a dragged peg down to 0 mm) or the features do.
 FACE_MIN_TISSUE_MM = _param("face_min_tissue_mm", 2.0, min=0.0, max=10.0, unit="mm",
                             description="Face from skull: least soft tissue over the bone anywhere on the face")
 

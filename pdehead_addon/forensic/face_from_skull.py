@@ -30,9 +30,10 @@ skull's centroid: a row every ``row_mm`` of height, a column every ``360 / colum
    canines, a default ear at each porion.
 5. *The face*: profile + depth field + nose + lips + eyes + ears = radius per bin, never below the bone floor
    (:func:`.face_profile.bone_floor`: the outermost bone plus :data:`.defaults.FACE_MIN_TISSUE_MM`, so no bone comes
-   through the face); each row is a closed boundary curve;
-   the C2 PDE surface through them (:func:`.pde_surface.solve_pde`, dome over the vertex, a flat cap
-   under the neck) is the face, a closed mesh in patient mm.
+   through the face), the pegs the practitioner holds put back on it (:meth:`FaceModel._held_on_face`); each row
+   is a closed boundary curve (a skull without a mandible: the rows tilted to end along the scan's cut,
+   :func:`.face_profile.tilted_rows`); the C2 PDE surface through them (:func:`.pde_surface.solve_pde`, dome over
+   the vertex, a flat cap under the neck or on the cut) is the face, a closed mesh in patient mm.
 
 What does not depend on the depths is computed once in :meth:`FaceModel.prepare`; :meth:`FaceModel.solve`
 evaluates the field, adds the features, solves the PDE and meshes it (tens of ms).
@@ -111,7 +112,7 @@ CHEEK_SPAN_DEG = 30.0
 CHEEK_PASSES = 2
 CHEEK_RAMP_MM = 5.0
 #: The landmarks on the mandible's chin (:meth:`FaceModel.prepare`): with none of them the skull has no mandible
-#: (the scan stops at the maxilla) and the face no neck.
+#: (the scan stopped above the chin) and the face no neck: it ends along the scan's cut.
 MANDIBLE_LANDMARKS = ("Menton", "Gnathion", "Pogonion")
 #: A site's blend weight below which the limiter leaves it out (its term is then below 1e-12 x its offset).
 LIMIT_WEIGHT_FLOOR = 1e-12
@@ -195,8 +196,10 @@ class FaceModel:
         DepthTable or dict (mean depth per landmark; SDs from ``table.sd``); ``sex`` (kept in the provenance; the
         T-Table 2023 is pooled) and ``flags`` (``ok`` / ``uncertain`` / ``not_found``, for the provenance).
         ``neck_mm``: how far below the skull's lowest bone the face ends (its neck cap); default
-        :data:`.defaults.FACE_NECK_MM` with a chin (a mandible landmark), else the skull stops at the maxilla (a scan
-        cut there, GE) and so does the face: at most :data:`.defaults.FACE_CUT_MARGIN_MM` under the lowest bone.
+        :data:`.defaults.FACE_NECK_MM` with a chin (a mandible landmark). Without one the scan stopped above the
+        chin: the face ends along the scan's cut (:func:`.face_profile.scan_cut_plane`, found from the skull alone;
+        GE: its 18.5-degree slab) ``neck_mm`` beyond it (default :data:`.defaults.FACE_CUT_MARGIN_MM`), on a flat
+        tilted cap (:func:`.face_profile.tilted_rows`), or where no cut is found ``neck_mm`` under the lowest bone.
         """
         from .landmarks import marker_pegs
 

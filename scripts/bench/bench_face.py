@@ -557,7 +557,7 @@ def markdown(results: dict) -> str:
               "apron, no crease, no fold. The lower face is not there to approximate: the scan holds no bone below "
               "the orbits' floor at the front.",
               "", f"Timings: one run, {_machine_text(results)}. "
-              "Solve is the median of 9 solves at the defaults (field, PDE and a 160 × 240 mesh), wall-clock and CPU "
+              "Solve is the median of 9 solves at the defaults (field, PDE and a 160 × 320 mesh), wall-clock and CPU "
               "time of the process; on a loaded machine the CPU time is the better guide to the ≤ 100 ms target "
               "(the UI's own measure is scripts/bench/bench_live.py's). Issue 23's fourth session ran three jobs at once; "
               "the lips and ears cost nothing measurable (CThead, same process: solve 91 ms CPU with them, 94 ms "
