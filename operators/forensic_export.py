@@ -197,14 +197,16 @@ class ExportSteps:
 
     # -------------------------------------------------------------------------------------- export
     def _export_folder(self, directory: str) -> Path:
-        """The export folder (absolute); never the CT's input folder or one inside it."""
+        """The export folder (absolute); never the input folder or one inside it, nor a file input's own folder
+        (:func:`~pdehead_addon.io.export.input_folder_conflict`)."""
+        from ..pdehead_addon import input_folder_conflict
+
         out = Path(bpy.path.abspath(directory)).resolve()
         s = self.settings
         if s.source_kind == "FILES" and s.source:
-            src = Path(bpy.path.abspath(s.source)).resolve()
-            src_dir = src if src.is_dir() else src.parent
-            if out == src_dir or src_dir in out.parents:
-                raise PDEHeadError(f"{out}: will not write into the CT's input folder; choose another folder")
+            why = input_folder_conflict(out, bpy.path.abspath(s.source))
+            if why:
+                raise PDEHeadError(why)
         return out
 
     def _export_meshes(self, depth_target: str):
@@ -274,36 +276,6 @@ class ExportSteps:
         self._adopt_export_flags(flags)
         self.study.record_timing("export", timer.seconds)
         return [str(out / n) for n in names]
-
-    def _adopt_export_flags(self, flags: dict[str, str]) -> None:
-        """After an export, the study says what its files say: a landmark the export turned ``uncertain`` (its
-        depth not supported by the CT's profile) is ``uncertain`` on its empty and in the study's landmark flags
-        (its evidence says why), and the face object's provenance (the panel's source) lists the written flags.
-        Before, the panel kept Find Landmarks' flags until the next Find Landmarks (issue 23's tester)."""
-        from .face import PROVENANCE_PROP
-        from .forensic_props import set_flags
-        from .forensic_study import LANDMARK_EVIDENCE, LANDMARK_FLAG, LANDMARK_KEY
-
-        why = "the CT's depth profile does not support it (Export for Printing)"
-        current = self.landmark_flags()
-        turned = {n for n, f in flags.items() if f == "uncertain" and current.get(n, ("ok", ""))[0] == "ok"}
-        if turned:
-            for obj in self.collection.all_objects:
-                name = obj.get(LANDMARK_KEY)
-                if name in turned:
-                    obj[LANDMARK_FLAG] = "uncertain"
-                    obj[LANDMARK_EVIDENCE] = "; ".join(e for e in (str(obj.get(LANDMARK_EVIDENCE, "")), why) if e)
-            stored = {f.name: (f.flag, f.evidence) for f in self.props.landmark_flags}
-            for n in turned & set(stored):
-                stored[n] = ("uncertain", "; ".join(e for e in (stored[n][1], why) if e))
-            set_flags(self.props.landmark_flags, stored)
-        face = self.face_object()
-        if face is not None and face.get(PROVENANCE_PROP):
-            prov = json.loads(face[PROVENANCE_PROP])
-            prov["landmark_flags"] = dict(flags)
-            if "landmarks" in prov:
-                prov["landmarks"] = {n: flags.get(n, f) for n, f in prov["landmarks"].items()}
-            face[PROVENANCE_PROP] = json.dumps(prov)
 
     def _write_export(self, out: Path, fmt: str, meshes, res, depths, table, flags, prov, prov_lm, face_prov):
         """Write the export's files into a hidden folder in ``out``, then move them into place; their names."""

@@ -19,6 +19,7 @@ shared parts (registry, cache, sub-collections) are :class:`.forensic_objects.Fo
 """
 from __future__ import annotations
 
+import json
 import time
 
 import numpy as np
@@ -28,7 +29,7 @@ import bpy
 from ..pdehead_addon import PDEHeadError
 from ..pdehead_addon import defaults as D
 from .coords import MM_TO_M
-from .face import FaceSteps
+from .face import PROVENANCE_PROP, FaceSteps
 from .forensic_export import ExportSteps
 from .forensic_objects import ForensicBase
 from .forensic_props import set_flags
@@ -146,6 +147,32 @@ class ForensicStudy(ForensicBase, SkullSteps, ExportSteps, FaceSteps):
                                               if n not in edited})
         self.study.record_timing("landmarks", time.perf_counter() - t0)
         return search
+
+    def _adopt_export_flags(self, flags: dict[str, str]) -> None:
+        """After an export, the study says what its files say: a landmark the export turned ``uncertain`` (its
+        depth not supported by the CT's profile) is ``uncertain`` on its empty and in the study's landmark flags
+        (its evidence says why), and the face object's provenance (the panel's source) lists the written flags.
+        Before, the panel kept Find Landmarks' flags until the next Find Landmarks (issue 23's tester)."""
+        why = "the CT's depth profile does not support it (Export for Printing)"
+        current = self.landmark_flags()
+        turned = {n for n, f in flags.items() if f == "uncertain" and current.get(n, ("ok", ""))[0] == "ok"}
+        if turned:
+            for obj in self.collection.all_objects:
+                name = obj.get(LANDMARK_KEY)
+                if name in turned:
+                    obj[LANDMARK_FLAG] = "uncertain"
+                    obj[LANDMARK_EVIDENCE] = "; ".join(e for e in (str(obj.get(LANDMARK_EVIDENCE, "")), why) if e)
+            stored = {f.name: (f.flag, f.evidence) for f in self.props.landmark_flags}
+            for n in turned & set(stored):
+                stored[n] = ("uncertain", "; ".join(e for e in (stored[n][1], why) if e))
+            set_flags(self.props.landmark_flags, stored)
+        face = self.face_object()
+        if face is not None and face.get(PROVENANCE_PROP):
+            prov = json.loads(face[PROVENANCE_PROP])
+            prov["landmark_flags"] = dict(flags)
+            if "landmarks" in prov:
+                prov["landmarks"] = {n: flags.get(n, f) for n, f in prov["landmarks"].items()}
+            face[PROVENANCE_PROP] = json.dumps(prov)
 
     def landmark_flags(self) -> dict[str, tuple[str, str]]:
         """name -> (flag, evidence): of the last Find Landmarks, updated by hand edits; placed by hand: ``ok``."""

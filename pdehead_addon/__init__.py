@@ -83,6 +83,7 @@ _LAZY = {
     "symmetry_plane": (".forensic.landmarks", "symmetry_plane"),
     "series_of_file": (".io.ct_import.discovery", "series_of_file"),
     "EXPORT_FORMATS": (".io.export", "FORMATS"),
+    "input_folder_conflict": (".io.export", "input_folder_conflict"),
     "surface_grid_cached": (".pde.pde_solid", "surface_grid_cached"),
     "SolidCTTable": (".pde.solid_ct_table", "SolidCTTable"),
 }

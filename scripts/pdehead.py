@@ -268,6 +268,11 @@ def check_outputs(args) -> None:
             _writable(getattr(args, flag), "--" + flag.replace("_", "-"))
     if args.export is not None:
         _writable(args.export, "--export", folder=True)
+        if args.input:                            # before the work, not after it (the export checks it again)
+            from pdehead_addon.io.export import input_folder_conflict
+            why = input_folder_conflict(args.export, args.input)
+            if why:
+                raise CLIError(f"--export {why}", 2)
 
 
 def register_addon():

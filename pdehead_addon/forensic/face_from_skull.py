@@ -271,6 +271,11 @@ class FaceModel:
                           "pegs (pdehead_addon.forensic.face_from_skull)", sex=sex, **prov_table)
         if flags:
             prov["landmark_flags"] = {n: flags.get(n, "ok") for n in sorted(lm)}
+        if cut_plane is not None:
+            prov["scan_cut"] = {"tilt_deg": round(float(np.degrees(np.arccos(-cut_plane[0][2]))), 1),
+                                "normal": [round(float(x), 4) for x in cut_plane[0]],
+                                "offset_mm": round(float(cut_plane[1]), 2), "face_beyond_mm": neck_mm,
+                                "why": "no mandible: the face ends along the scan's cut of the skull"}
         options = dict(row_mm=row_mm, columns=columns, spread_mm=spread, nu=nu or D.FACE_NU.default,
                        nv=nv or D.FACE_NV.default, neck_mm=neck_mm, sex=sex)
         model = cls(names, bases, normals, depths, sds, grid, raw, profile, rule_sites, nose, mouth, options,

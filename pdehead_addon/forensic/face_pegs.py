@@ -66,6 +66,8 @@ class PegReport:
 
     def why(self, i: int) -> str:
         """Why peg ``i``'s tip is off the face, in words."""
+        if self.held[i]:
+            return f"held: the face keeps at least {D.FACE_MIN_TISSUE_MM.default:g} mm over the bone"
         if self.damping[i] > 0:
             return f"damped: disagrees with its neighbours by {self.disagreement_mm[i]:.1f} mm"
         if abs(self.limited_mm[i]) > LIMITED_MM:
@@ -195,8 +197,14 @@ def peg_report(model, tips: np.ndarray, vertices: np.ndarray, held=None, nu: int
         g = model.grid
         z, th, _ = g.polar(tips)
         limited = np.where(model._in_rows, g.sample(shift, np.clip(z, g.z[0], g.z[-1]), th), 0.0)
-    return PegReport(names, dist, depth, drift, disagreement, damping, limited, held,
-                     peg_warnings(names, depth, drift, model.default_depths, model.depth_sd))
+    warnings = peg_warnings(names, depth, drift, model.default_depths, model.depth_sd)
+    warned = {w["peg"] for w in warnings}
+    for i in np.flatnonzero(held & (dist > D.FACE_PEG_OFF_MM)):
+        if names[i] not in warned:                  # a held peg the face cannot reach: say so (the tester's thin ala)
+            warnings.append({"peg": names[i], "kind": "held_off_face",
+                             "text": f"{names[i]}: held, but the face stays {dist[i]:.1f} mm from its tip (the face "
+                                     f"keeps at least {D.FACE_MIN_TISSUE_MM.default:g} mm over the bone)"})
+    return PegReport(names, dist, depth, drift, disagreement, damping, limited, held, warnings)
 
 
 def peg_warnings(names: list, depth: np.ndarray, drift: np.ndarray, mean: np.ndarray, sd: np.ndarray) -> list[dict]:

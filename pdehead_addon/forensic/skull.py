@@ -496,7 +496,7 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
 
     warnings_: list[str] = []
     if not mandible["present"]:
-        warnings_.append("no mandible found: the face will stop at the maxilla")
+        warnings_.append("no mandible found: the face has no jaw or chin and ends along the scan's cut")
     elif not mandible["articulated"]:
         warnings_.append(f"the mandible is not articulated (its condyles lie {mandible['condyle_gap_mm']:.0f} mm "
                          "from the glenoid fossae): articulate it before approximating the face")

@@ -22,6 +22,26 @@ from ..core.mesh_geometry import mesh_triangles
 FORMATS = ("stl", "obj", "ply")
 
 
+def input_folder_conflict(out: str | os.PathLike, source: str | os.PathLike | None) -> str | None:
+    """Why ``out`` may not take an export of the input ``source``, or None.
+
+    Nothing is written into the user's input: for a folder input (a DICOM series, an image stack) not the
+    folder or any folder inside it; for a file input (a ``--skull-mesh``, a NIfTI) not the file's own folder,
+    where the export's files (``skull.stl``, ...) could overwrite or mix with it, but a new folder beside or
+    below it is fine (``--skull-mesh skull.stl --export out/face``). Paths are compared resolved.
+    """
+    if not source:
+        return None
+    from pathlib import Path
+    out_p, src = Path(out).resolve(), Path(source).resolve()
+    if src.is_dir():
+        if out_p == src or src in out_p.parents:
+            return f"{out_p}: will not write into the input folder {src}; choose another folder"
+    elif out_p == src.parent:
+        return f"{out_p}: will not write beside the input file {src.name}; choose another folder"
+    return None
+
+
 def _triangles(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
     v, t = mesh_triangles(mesh)
     return np.asarray(v, np.float64), np.asarray(t, np.int64)

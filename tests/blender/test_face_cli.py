@@ -70,7 +70,7 @@ def test_cli_face_from_skull_writes_face_skull_landmarks(tmp_path):
     assert {"landmarks", "face_prep", "face_solve", "export"} <= set(summary["timings_s"])
 
 
-@pytest.mark.parametrize("case", ["no_export", "not_a_skull", "cube", "no_bone"])
+@pytest.mark.parametrize("case", ["no_export", "not_a_skull", "cube", "no_bone", "beside_the_mesh"])
 def test_cli_face_from_skull_bad_input_exit_2_nothing_written(tmp_path, case, phantom):
     out = tmp_path / "out"
     if case == "no_export":
@@ -97,6 +97,19 @@ def test_cli_face_from_skull_bad_input_exit_2_nothing_written(tmp_path, case, ph
         given = export_mesh(Mesh(v, quads, np.zeros((0, 3), np.int64)), tmp_path / "in" / "cube.stl")
         result = run_cli("--skull-mesh", given, *SMALL, "--face-from-skull", "--export", out, tmp_path=tmp_path)
         message = "does not look like a skull: no orbits were found"
+    elif case == "beside_the_mesh":              # --export into the mesh's own folder: refused before the work
+        from pdehead_addon import Mesh
+        from pdehead_addon.io.export import export_mesh
+        v = np.array([[x, y, z] for x in (-75, 75) for y in (-75, 75) for z in (-75, 75)], float)
+        quads = np.array([[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]])
+        given = Path(export_mesh(Mesh(v, quads, np.zeros((0, 3), np.int64)), tmp_path / "in" / "skull.stl"))
+        before = given.read_bytes()
+        result = run_cli("--skull-mesh", given, *SMALL, "--face-from-skull", "--export", tmp_path / "in",
+                         tmp_path=tmp_path)
+        assert "skull" not in " ".join(line for line in result.stderr.splitlines() if "error:" not in line)
+        assert sorted(p.name for p in (tmp_path / "in").iterdir()) == ["skull.stl"]
+        assert given.read_bytes() == before
+        message = "will not write beside the input file skull.stl"
     else:                                        # the phantom with every value above soft tissue cut off
         from pdehead_addon import CTVolume
         from pdehead_addon.validation import write_dicom_series

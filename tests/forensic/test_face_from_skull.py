@@ -642,6 +642,22 @@ def test_held_pegs_under_the_shape_rules_are_on_the_face_too(model, face):
     assert fast is not None and np.abs(fast - every.mesh.vertices).max() <= 1e-6
 
 
+def test_a_held_peg_the_face_cannot_reach_is_warned(model, face):
+    """A held peg set thinner than the face's least tissue over the bone (the bone floor) stays off the face:
+    a warning names it (kind held_off_face) and its reason says why (the tester: a held ala at 1 mm depth, 6.2 mm
+    off the face, said nothing)."""
+    from pdehead_addon import defaults as D
+    names = model.peg_names
+    thin = model.tips_for(np.full(len(names), 0.3))            # every tip 0.3 mm over its bone, all held
+    res = model.solve(tips=thin, held=list(names))
+    off = {names[i] for i in np.flatnonzero(res.pegs.tip_to_face_mm > D.FACE_PEG_OFF_MM)}
+    assert off, res.pegs.tip_to_face_mm                         # the check is not vacuous
+    warned = {w["peg"] for w in res.pegs.warnings if w["kind"] == "held_off_face"}
+    assert warned == off
+    assert all(o["why"].startswith("held") for o in res.pegs.off_face())
+    assert not any(w["kind"] == "held_off_face" for w in face.pegs.warnings)   # nothing held: no such warning
+
+
 def test_a_peg_in_the_bone_or_dragged_far_is_warned(model, face):
     """Issue 23: a peg pushed into the bone, or dragged 200 mm out, is named in a warning (data: peg, kind, text);
     the face still solves."""

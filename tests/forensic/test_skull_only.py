@@ -96,7 +96,7 @@ def test_cthead_uncalibrated_skull_only(cthead_ct, cthead_seg):
 def test_ge_has_no_mandible_and_says_so(ge_ct, ge_seg):
     sk = segment_skull(ge_ct, ge_seg)
     assert not sk.meta["mandible"]["present"] and sk.mandible is None
-    assert sk.meta["warnings"] == ["no mandible found: the face will stop at the maxilla"]
+    assert sk.meta["warnings"] == ["no mandible found: the face has no jaw or chin and ends along the scan's cut"]
 
 
 def test_bone_skull_is_open_where_bone_is_and_within_budget(phantom, phantom_skull):
