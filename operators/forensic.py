@@ -249,7 +249,8 @@ class PDEHEAD_OT_mirror(Operator, _ForensicOp):
 
 class PDEHEAD_OT_export_print(Operator, _ForensicOp):
     """Export watertight meshes in mm (STL/OBJ/PLY): skull (the bone), skull_envelope (PDE), skin; tissue_depth.csv,
-    landmarks.csv and provenance.json. Builds what it needs first; writes nothing if anything fails"""
+    landmarks.csv and provenance.json; skin and tissue_depth.csv only after the head pipeline (it says what it left
+    out). Builds what it needs first; writes nothing if anything fails"""
 
     bl_idname = "pdehead.export_print"
     bl_label = "Export for Printing"
@@ -264,6 +265,11 @@ class PDEHEAD_OT_export_print(Operator, _ForensicOp):
     def run_forensic(self, context, fs):
         files = fs.export(self.directory, self.format)
         self.report({'INFO'}, "Wrote " + ", ".join(os.path.basename(f) for f in files))
+        left = {}                                           # why -> the files left out for it
+        for name, why in fs.cache.get("export_not_written", {}).items():
+            left.setdefault(why, []).append(name)
+        if left:
+            self.report({'INFO'}, "; ".join(f"{' and '.join(names)} not written: {why}" for why, names in left.items()))
 
 
 class PDEHEAD_OT_build_face(Operator, _ForensicOp):

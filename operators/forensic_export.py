@@ -2,7 +2,8 @@
 
 A depth table CSV (or the shipped T-Table 2023) makes marker pegs along the skull normal at the placed
 landmarks; Export for Printing writes the skull, the skull envelope, the skin, tissue_depth.csv,
-landmarks.csv and provenance.json, all built and checked before the first file is written.
+landmarks.csv and provenance.json (the skin and tissue_depth.csv only when the study has a skin; what is
+left out is named in provenance.json), all built and checked before the first file is written.
 """
 from __future__ import annotations
 
@@ -209,8 +210,21 @@ class ExportSteps:
                 raise PDEHeadError(why)
         return out
 
+    def _skin_missing(self) -> str:
+        """Why the export has no skin (and so no tissue_depth.csv), or "" when it has one."""
+        if not self.has_skin():
+            return "the CT shows no soft tissue to make a skin of"
+        if self.study.boundary_set() is None:          # a face-from-skull study: the head pipeline never ran
+            return "run the head pipeline (Segment, Extract Boundaries, Reconstruct Surface) for them"
+        return ""
+
     def _export_meshes(self, depth_target: str):
-        """The meshes to export (name, Mesh), each checked watertight, and the depth result (None: no skin)."""
+        """The meshes to export (name, Mesh), each checked watertight, the bone skull, the skin (None: none), the
+        depth result (None: no skin) and why the skin is missing ("" when it is there).
+
+        The skull and its PDE envelope come from the skull segmentation (built here when missing); the skin is
+        the head pipeline's PDE surface, so a study without boundary curves (Build Skull, Find Landmarks and
+        Build Face only) exports no skin and no tissue_depth.csv instead of failing."""
         from ..pdehead_addon import tissue_depth
 
         s = self.settings
@@ -218,7 +232,8 @@ class ExportSteps:
         envelope = self.skull_engine_mesh("PDE")
         meshes = [("skull", skull), ("skull_envelope", envelope)]
         skin = None
-        if self.has_skin():
+        no_skin = self._skin_missing()
+        if not no_skin:
             skin = self.study.head.surface(int(s.nu), int(s.nv), caps=True)
             meshes.insert(0, ("skin", skin))
         for name, mesh in meshes:
@@ -229,13 +244,16 @@ class ExportSteps:
             res = self.cache.get("depth")
             if res is None or res.points.shape != skin.vertices.shape or not np.allclose(res.points, skin.vertices):
                 res = tissue_depth(skin, self.skull_engine_mesh(depth_target), envelope=self.skull_segmentation())
-        return meshes, skull, skin, res
+        return meshes, skull, skin, res, no_skin
 
     def export(self, directory: str, fmt: str = D.EXPORT_FORMAT.default,
                depth_target: str = D.DEPTH_TARGET.default, face=None) -> list[str]:
         """Export for printing: skull.<fmt> (the bone), skull_envelope.<fmt> (the PDE skull envelope),
         skin.<fmt> (when the CT has skin), face.<fmt> (the face from the skull, when the study has one or
         ``face`` = (Mesh, provenance) is given), tissue_depth.csv, landmarks.csv and provenance.json.
+        Without a skin (a CT without soft tissue, or a face-from-skull study where the head pipeline never ran)
+        skin.<fmt> and tissue_depth.csv are left out: provenance.json's ``not_written`` (file -> why) and the
+        study's cache (``export_not_written``) say so.
 
         The landmarks' flags are decided once here (Find Landmarks' flags, an ``ok`` landmark whose depth the
         CT does not support turned ``uncertain``, ``not_found`` ones kept): landmarks.csv, the face's
@@ -251,7 +269,8 @@ class ExportSteps:
         with state.Timer() as timer:
             out = self._export_folder(directory)
             # ---- build everything first
-            meshes, skull, skin, res = self._export_meshes(depth_target)
+            meshes, skull, skin, res, no_skin = self._export_meshes(depth_target)
+            not_written = {f"skin.{fmt}": no_skin, "tissue_depth.csv": no_skin} if no_skin else {}
             depths, flags, method = self.measured_landmark_depths(skull, skin)
             # a landmark Find Landmarks did not find keeps its row (flag, no coordinates), as the batch's
             # landmarks.csv does
@@ -271,14 +290,18 @@ class ExportSteps:
                 face_prov = {k: v for k, v in dict(face_prov).items() if k != "landmarks"}
                 face_prov["landmark_flags"] = dict(flags)
                 meshes.append(("face", face_mesh))
-            names = self._write_export(out, fmt, meshes, res, depths, table, flags, prov, prov_lm, face_prov)
+            names = self._write_export(out, fmt, meshes, res, depths, table, flags, prov, prov_lm, face_prov,
+                                       not_written)
         self.cache["export_flags"] = dict(flags)
+        self.cache["export_not_written"] = dict(not_written)
         self._adopt_export_flags(flags)
         self.study.record_timing("export", timer.seconds)
         return [str(out / n) for n in names]
 
-    def _write_export(self, out: Path, fmt: str, meshes, res, depths, table, flags, prov, prov_lm, face_prov):
-        """Write the export's files into a hidden folder in ``out``, then move them into place; their names."""
+    def _write_export(self, out: Path, fmt: str, meshes, res, depths, table, flags, prov, prov_lm, face_prov,
+                      not_written=None):
+        """Write the export's files into a hidden folder in ``out``, then move them into place; their names.
+        ``not_written``: the files left out (name -> why), recorded in provenance.json."""
         import os
         import shutil
         import tempfile
@@ -300,7 +323,8 @@ class ExportSteps:
                 names.append("tissue_depth.csv")
             write_landmark_csv(tmp / "landmarks.csv", depths, table, flags, provenance=prov_lm)
             names.append("landmarks.csv")
-            record = dict(prov, files=names, **({"face": face_prov} if face_prov is not None else {}))
+            record = dict(prov, files=names, **({"face": face_prov} if face_prov is not None else {}),
+                          **({"not_written": dict(not_written)} if not_written else {}))
             (tmp / "provenance.json").write_text(json.dumps(record, indent=2) + "\n")
             names.append("provenance.json")
             for name in names:

@@ -416,3 +416,32 @@ def test_sex_shows_for_a_table_with_a_sex_column_and_picks_its_rows(pdehead_ext,
         assert s.last_error == "" and glabella[face.PEG_DEPTH_PROP] == depth
         prov = json.loads(obj[face.PROVENANCE_PROP])
         assert prov["sex"] == sex.lower() and prov["table"] == f"Small table by sex, {sex.lower()}"
+
+
+def test_export_for_printing_after_face_from_skull_only(pdehead_ext, tmp_path, capfd):
+    """A face-from-skull study (CT imported, Build Skull, Find Landmarks, Build Face; the head pipeline never
+    run): Export for Printing writes what the study has (skull, envelope, face, landmarks.csv, provenance.json)
+    and says what it left out and why (the tester's: it failed "no boundary curves yet: run Extract Boundaries")."""
+    import bpy
+    import csv
+    from file_readers import read_stl
+    assert bpy.ops.pdehead.load_phantom() == {'FINISHED'}
+    for step in ("build_skull", "find_landmarks", "build_face"):
+        assert getattr(bpy.ops.pdehead, step)() == {'FINISHED'}, step
+    out = tmp_path / "print"
+    capfd.readouterr()
+    assert bpy.ops.pdehead.export_print(directory=str(out), format='stl') == {'FINISHED'}
+    said = "".join(capfd.readouterr())
+    written = sorted(p.name for p in out.iterdir())
+    assert written == ["face.stl", "landmarks.csv", "provenance.json", "skull.stl", "skull_envelope.stl"], written
+    assert read_stl(out / "face.stl").is_watertight() and read_stl(out / "skull.stl").is_watertight()
+    prov = json.loads((out / "provenance.json").read_text())
+    rows = [line for line in (out / "landmarks.csv").read_text().splitlines() if not line.startswith("#")]
+    flags = {row["landmark"]: row["flag"] for row in csv.DictReader(rows)}
+    assert prov["files"] == [n for n in prov["files"] if n in written] and "face.stl" in prov["files"]
+    assert prov["face"]["landmark_flags"] == flags and len(flags) >= 40
+    # what was left out, and why: in provenance.json and in the operator's report
+    assert sorted(prov["not_written"]) == ["skin.stl", "tissue_depth.csv"]
+    assert all("Extract Boundaries" in why for why in prov["not_written"].values())
+    line = next((ln for ln in said.splitlines() if "not written" in ln), "")
+    assert "skin.stl" in line and "tissue_depth.csv" in line and "Extract Boundaries" in line, said

@@ -115,6 +115,8 @@ def test_bone_level_field_and_export_builds_or_refuses(pdehead_ext, tmp_path, ph
     assert bpy.ops.pdehead.export_print(directory=str(out), format='stl') == {'FINISHED'}
     assert sorted(p.name for p in out.iterdir()) == ["landmarks.csv", "provenance.json", "skull.stl",
                                                      "skull_envelope.stl"]
+    assert json.loads((out / "provenance.json").read_text())["not_written"] == \
+        dict.fromkeys(["skin.stl", "tissue_depth.csv"], "the CT shows no soft tissue to make a skin of")
     fs = forensic.ForensicStudy.of(ext.operators.study_entity.Study.of(coll))
     info = fs.skull_segmentation().meta
     assert info["bone_level_stored"] == level and not info["has_skin"]
