@@ -177,8 +177,11 @@ class FaceSteps:
 
     def face_table(self):
         """The depth table the study's face uses (setting ``face_table``): the shipped T-Table 2023 or a CSV, with
-        the rows of the chosen sex (setting ``face_sex``) where the table has a ``sex`` column."""
-        return self.face_table_as_read().for_sex(self.face_sex())
+        the rows of the chosen sex (setting ``face_sex``) where the table has a ``sex`` column. A table without
+        one is used pooled whatever the setting (hidden then, and kept for a table with a sex column); an
+        explicit ``--sex`` for a pooled table is refused by the CLI, which calls ``for_sex`` itself."""
+        table = self.face_table_as_read()
+        return table.for_sex(self.face_sex() if table_has_sex(table) else None)
 
     def face_table_as_read(self):
         """The study's depth table as read, every sex's rows in it (:meth:`face_table` picks them)."""
@@ -483,7 +486,7 @@ class FaceSteps:
             self.find_landmarks()
         table = self.face_table()
         lms = self.landmarks()
-        sex = self.face_sex()
+        sex = table.sex or None                     # the rows used (a pooled table ignores the Sex setting)
         flags = self.flag_names()
         with state.Timer() as t:
             model = _prepare(self.face_skull_mesh(), lms, table, sex=sex, flags=flags)

@@ -388,7 +388,9 @@ def test_export_for_printing_writes_the_face_beside_the_head(pdehead_ext, face_b
 def test_sex_shows_for_a_table_with_a_sex_column_and_picks_its_rows(pdehead_ext, face_blend):
     """A depth table with a `sex` column (tests/fixtures/depth_table_by_sex.csv) is read (it was refused:
     "Glabella is given twice"), the panel then shows Sex, and choosing it sets the pegs to that sex's means
-    and re-solves the face; the shipped pooled table shows no Sex."""
+    and re-solves the face; the shipped pooled table shows no Sex. Back to the T-Table 2023 with Sex = Male
+    (hidden now): the pooled table is used pooled (the switch failed with "...pooled...no male values", the
+    face kept the male table, Build Face raised it), and the setting is kept for the sex table again."""
     from pathlib import Path
     from types import SimpleNamespace
     from panel_recorder import RecordingLayout
@@ -403,6 +405,12 @@ def test_sex_shows_for_a_table_with_a_sex_column_and_picks_its_rows(pdehead_ext,
         return log
 
     assert ("prop", "face_sex") not in panel()                    # the T-Table 2023 is pooled
+    ttable = json.loads(fs(coll).face_object()[face.PROVENANCE_PROP])["table"]
+    ttable_json = fs(coll).face_options()["table"]
+
+    def depths():
+        return {n: p[face.PEG_DEPTH_PROP] for n, p in fs(coll).peg_objects(fs(coll).face_peg_names()).items()}
+    t_depths = depths()                                            # the T-Table's means
     s = state.settings(coll)
     s.face_table_file = str(Path(__file__).resolve().parents[1] / "fixtures" / "depth_table_by_sex.csv")
     s.face_table = 'FILE'
@@ -417,6 +425,26 @@ def test_sex_shows_for_a_table_with_a_sex_column_and_picks_its_rows(pdehead_ext,
         prov = json.loads(obj[face.PROVENANCE_PROP])
         assert prov["sex"] == sex.lower() and prov["table"] == f"Small table by sex, {sex.lower()}"
 
+    # Sex = Male, then back to the pooled T-Table 2023: Sex is hidden, kept, and ignored
+    s.face_sex = 'MALE'
+    s.face_table = 'DEFAULT'
+    assert s.last_error == "" and ("prop", "face_sex") not in panel() and s.face_sex == 'MALE'
+    assert fs(coll).face_options()["table"] == ttable_json and not fs(coll).face_options()["sex"]
+    assert depths() == t_depths and t_depths["Pogonion"] != 12.0     # the T-Table's means, not the male rows
+    prov = json.loads(obj[face.PROVENANCE_PROP])
+    assert prov["sex"] == "pooled" and prov["table"] == ttable
+    assert bpy.ops.pdehead.build_face() == {'FINISHED'}
+    obj = fs(coll).face_object()
+    prov = json.loads(obj[face.PROVENANCE_PROP])
+    assert prov["sex"] == "pooled" and prov["table"] == ttable and fs(coll).face_options()["table"] == ttable_json
+    assert depths() == t_depths
+    glabella = fs(coll).peg_objects(["Glabella"])["Glabella"]
+    # ... and the sex table again: its male rows
+    s.face_table = 'FILE'
+    assert s.last_error == "" and ("prop", "face_sex") in panel()
+    assert glabella[face.PEG_DEPTH_PROP] == 6.0
+    prov = json.loads(obj[face.PROVENANCE_PROP])
+    assert prov["sex"] == "male" and prov["table"] == "Small table by sex, male"
 
 def test_export_for_printing_after_face_from_skull_only(pdehead_ext, tmp_path, capfd):
     """A face-from-skull study (CT imported, Build Skull, Find Landmarks, Build Face; the head pipeline never
