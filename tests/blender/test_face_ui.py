@@ -446,6 +446,7 @@ def test_sex_shows_for_a_table_with_a_sex_column_and_picks_its_rows(pdehead_ext,
     prov = json.loads(obj[face.PROVENANCE_PROP])
     assert prov["sex"] == "male" and prov["table"] == "Small table by sex, male"
 
+
 def test_export_for_printing_after_face_from_skull_only(pdehead_ext, tmp_path, capfd):
     """A face-from-skull study (CT imported, Build Skull, Find Landmarks, Build Face; the head pipeline never
     run): Export for Printing writes what the study has (skull, envelope, face, landmarks.csv, provenance.json)
