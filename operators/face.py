@@ -389,6 +389,9 @@ class FaceSteps:
         rec.update({k: v for k, v in dict(result_provenance).items() if k not in rec})
         flags = self.flag_names()
         rec["landmarks"] = {n: flags.get(n, "ok") for n in opts.get("landmarks", {})}
+        # every landmark's flag as the study holds it (not_found ones too; an export's adopted ones), so the face's
+        # provenance lists what landmarks.csv lists after a drag or a reopen as well (the tester: it dropped 28)
+        rec["landmark_flags"] = dict(sorted(flags.items()))
         rec["sex"] = getattr(table, "sex", "") or opts.get("sex") or "pooled"
         rec["label"] = approximation_label()
         return rec

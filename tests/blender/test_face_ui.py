@@ -380,6 +380,8 @@ def test_export_for_printing_writes_the_face_beside_the_head(pdehead_ext, face_b
     assert shown_prov["landmark_flags"] == flags
     assert {n: f for n, f in fs(coll).flag_names().items() if n in flags} == \
         {n: f for n, f in flags.items() if n in fs(coll).flag_names()}
+    _drag(fs(coll).peg_objects(names)[names[0]], (0.0, 1.0, 0.0))      # ... and after the next solve too
+    assert json.loads(fs(coll).face_object()[face.PROVENANCE_PROP])["landmark_flags"] == flags
     assert bpy.ops.pdehead.export_print(directory=str(tmp_path / "ply"), format='ply') == {'FINISHED'}
     head = (tmp_path / "ply" / "face.ply").read_bytes().split(b"end_header\n", 1)[0]
     assert b"comment label: approximation - not an identification" in head
