@@ -89,6 +89,9 @@ HELD_REGULARISATION = 1e-3
 #: is put back through a held peg's tip by a Gaussian bump this wide (mm, sigma on the field's cylinder): about the
 #: ala's or the philtrum's width, so a held peg reshapes the face around it and not the whole nose or mouth.
 HELD_SHAPE_MM = 5.0
+#: The radius (mm) of the cylinder the field's sites lie on (:meth:`FaceModel._cyl`, the held pegs' bumps): about
+#: the head's mean radius, so distances on it are about distances over the head.
+FIELD_RADIUS_MM = 85.0
 #: No overshoot between the pegs (:meth:`FaceModel._limited`): the field stays between the lowest and the highest
 #: blend base + k_i (target_i - base) of the wide field with each site's offset (k_i = exp(-(d / R)^4) along the
 #: height times the same around, R = LIMIT_RADIUS_FRACTION x ``spread_mm``; a smooth min / max LIMIT_SOFT_MM wide).
@@ -294,7 +297,7 @@ class FaceModel:
     # -------------------------------------------------------------------- the field
     def _cyl(self, z, theta) -> np.ndarray:
         """Sites on a cylinder of the mean radius: distances between them ~ distances over the head."""
-        rho = 85.0
+        rho = FIELD_RADIUS_MM
         return np.stack([rho * np.sin(theta), rho * np.cos(theta), np.asarray(z, float)], axis=-1)
 
     def tips_for(self, depths: np.ndarray) -> np.ndarray:
@@ -595,14 +598,19 @@ class FaceModel:
         g = self.grid
         z, th, r = g.polar(np.asarray(tips, float)[mask])
         residual = r - g.sample(radius, z, th)
-        sites = self._cyl(z, th)
-        coef = np.linalg.solve(peg_kernel(sites, sites, np.sqrt(2.0) * HELD_SHAPE_MM) + 1e-9 * np.eye(len(z)),
-                               residual)
-        rho = 85.0                                        # the field's cylinder (:meth:`_cyl`)
-        dz2 = (g.z[:, None] - z[None, :]) ** 2                                    # (K, n)
-        dt2 = (rho * np.angle(np.exp(1j * (g.theta[:, None] - th[None, :])))) ** 2  # (M, n)
         s2 = 2.0 * HELD_SHAPE_MM ** 2
-        return radius + np.einsum("kn,mn->km", np.exp(-dz2 / s2) * coef, np.exp(-dt2 / s2))
+
+        def bumps(zs, ths):
+            """The bumps' height and arc factors at heights ``zs`` and angles ``ths`` (one kernel for the tips'
+            system and the grid: the face passes through each held tip)."""
+            dz2 = (np.asarray(zs, float)[:, None] - z[None, :]) ** 2
+            arc = FIELD_RADIUS_MM * np.angle(np.exp(1j * (np.asarray(ths, float)[:, None] - th[None, :])))
+            return np.exp(-dz2 / s2), np.exp(-arc ** 2 / s2)
+
+        at_tips = np.multiply(*bumps(z, th))
+        coef = np.linalg.solve(at_tips + 1e-9 * np.eye(len(z)), residual)
+        height, around = bumps(g.z, g.theta)                                      # (K, n), (M, n)
+        return radius + np.einsum("kn,mn->km", height * coef, around)
 
     def _cheek_weight(self) -> np.ndarray | None:
         """Per row, the weight (0-1) of the convex cheeks (:data:`CHEEK_SPAN_DEG`): 1 from the stomion to the
