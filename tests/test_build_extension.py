@@ -157,6 +157,22 @@ def assert_repository_lists(folder: Path, zip_names: list[str]) -> None:
     assert not [p for p in folder.iterdir() if p.name.startswith(".")], list(folder.iterdir())
 
 
+INSTALL_FROM_REPOSITORY = """
+import os, sys
+os.environ["BLENDER_USER_RESOURCES"] = sys.argv[2]
+import bpy
+prefs = bpy.context.preferences
+prefs.system.use_online_access = True
+repo_dir = os.path.join(sys.argv[2], "repo")
+prefs.extensions.repos.new(name="PDE Head", module="pdehead_dist", custom_directory=repo_dir, remote_url=sys.argv[1])
+assert bpy.ops.extensions.repo_sync_all() == {"FINISHED"}
+index = next(i for i, r in enumerate(prefs.extensions.repos) if r.module == "pdehead_dist")
+assert bpy.ops.extensions.package_install(repo_index=index, pkg_id="pdehead") == {"FINISHED"}
+assert os.path.isfile(os.path.join(repo_dir, "pdehead", "blender_manifest.toml"))
+print("enabled:", *[m for m in prefs.addons.keys() if m.endswith(".pdehead")])
+"""
+
+
 def test_repository_index_follows_the_folder(tmp_path):
     """A build writes the folder's repository index (regenerated the same way when asked again); with
     --no-repository-index only the zip is written; a folder without a zip gets no index but an error."""
@@ -170,6 +186,12 @@ def test_repository_index_follows_the_folder(tmp_path):
     assert_repository_lists(dist, [zip_path.name])
     B.write_repository_index(dist)  # idempotent: the same listing
     assert_repository_lists(dist, [zip_path.name])
+    # Blender, as a user sets it up: the folder's index.json added as a remote repository, synced, and the
+    # extension installed from it (in a child process: this one may have the extension installed already)
+    result = subprocess.run([sys.executable, "-c", INSTALL_FROM_REPOSITORY, (dist / "index.json").as_uri(),
+                             str(tmp_path / "user")], capture_output=True, text=True, timeout=1200)
+    assert result.returncode == 0, (result.stdout + result.stderr)[-3000:]
+    assert "enabled: bl_ext.pdehead_dist.pdehead" in result.stdout, result.stdout[-3000:]
     bare = tmp_path / "bare"
     env = dict(os.environ, PDEHEAD_CACHE=str(cache))
     result = subprocess.run([sys.executable, str(SCRIPT), "--platform", PLATFORM, "--output-dir", str(bare),
