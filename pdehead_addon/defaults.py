@@ -201,7 +201,7 @@ USE_CUTTER = _param("use_cutter", False,
 #: surface's UVs, shaded as bump by the skin material (the geometry and the exports stay the smooth PDE
 #: surface). :func:`pdehead_addon.pde.detail_map.ct_detail_map`. 1024 x 1024 is about 0.6 mm a texel on
 #: CThead's tube (its eyelid line is ~1 mm high). Off by default: building it costs seconds and ~0.4 GB
-#: (CThead, README "The closed eyes: a CT detail map"), which Run Pipeline's <= 5 s (issue 20) cannot
+#: (CThead, docs/method.md "The closed eyes: a CT detail map"), which Run Pipeline's <= 5 s (issue 20) cannot
 #: carry; on, Run Pipeline builds it, and the Surface panel's *Build CT Detail* builds it on request.
 USE_DETAIL_MAP = _param("use_detail_map", False,
                         description="Shade the surface with the CT's fine relief (eyelids, lips, nose wings) as "
