@@ -4,18 +4,21 @@
   live cutaways are packed; every study's CT source is recorded
   relative to that .blend (``//...``, so a project folder moved as a whole still finds its CT)
   and as an absolute path (used when only the .blend moved); every PDE Head volume whose .vdb
-  is not yet beside that .blend (built before the first save, in the temp or preference folder,
-  or a Save As to another folder) is copied into its ``pdehead_vdb/`` folder and the object
-  switched to the copy, before Blender writes the file.
+  is not yet that .blend's own (built before the first save, in the temp or preference folder,
+  or a Save As, to another folder or the same one) is linked or copied into its ``pdehead_vdb/``
+  folder under the .blend's name (``<blend>.<study>.vdb``) and the object switched to the copy,
+  before Blender writes the file: the original .blend keeps its files untouched.
 - **save_post**: .vdb files replaced by a rebuild or left behind by a move are deleted once the
-  saved file no longer references them (:func:`vdb_files.purge_superseded`); a file that an older
-  .blend beside it still uses is never touched (it is not in the superseded set).
+  saved file no longer references them (:func:`vdb_files.purge_superseded`), and only the saved
+  file's own (:func:`vdb_files.is_owned`): a file another .blend may use is never touched.
 - **save_post** also removes the .vdb files PDE Head wrote for this file (recorded in the file at each
   save, ``Scene.pdehead.vdb_files``) that no saved Volume datablock references any more (a study
-  deleted in the outliner): only ``.vdb`` files in the ``pdehead_vdb/`` folder beside the saved file,
-  never anything else (:func:`remove_orphan_volume_files`).
+  deleted in the outliner): only this file's own ``.vdb`` files in the ``pdehead_vdb/`` folder beside
+  it, never anything else, whatever the record says (:func:`remove_orphan_volume_files`).
 - **load_post**: a volume whose recorded .vdb is missing but whose file lies in ``pdehead_vdb/``
-  beside the opened .blend (an absolute path written with relative paths off) is re-pointed there.
+  beside the opened .blend (an absolute path written with relative paths off) is re-pointed there;
+  a PDE Head volume whose path is no ``.vdb`` in that folder is cleared with one report naming the study
+  (a path stored in a .blend is data: PDE Head never reads, copies or deletes a file outside it).
 
 The CT itself is never stored in the .blend; :attr:`.study_entity.Study.ct` re-reads it from these
 recorded paths when a step needs it. What the solid shows of it is: save_pre stores the solid's CT
@@ -58,13 +61,25 @@ def record_sources(blend_path: str) -> None:
         s.source = relative
 
 
+def _report(obj, message: str) -> None:
+    """One report for the study of the Volume object `obj` (its warnings and the console)."""
+    print(f"PDE Head: {message}")
+    for coll in state.studies():
+        if obj.name in coll.all_objects:
+            Study.of(coll).add_warnings([message])
+
+
 def move_volumes_beside(blend_path: str) -> list[Path]:
-    """Copy every PDE Head .vdb that is not beside `blend_path` into its ``pdehead_vdb`` folder."""
+    """Link or copy every PDE Head .vdb that is not yet `blend_path`'s own into its ``pdehead_vdb`` folder."""
     moved = []
     unsaved = not bpy.data.filepath
     for obj in _volume_objects():
         src = Path(bpy.path.abspath(obj.data.filepath)).resolve() if obj.data.filepath else None
-        dst = vdb_files.relocate_vdb(obj, blend_path=blend_path)
+        try:
+            dst = vdb_files.relocate_vdb(obj, blend_path=blend_path)
+        except (vdb_files.UnsafeVolumeFile, OSError) as exc:  # this study's volume only: the save goes on
+            _report(obj, str(exc))
+            continue
         if dst is not None:
             moved.append(dst)
             if unsaved and src is not None:
@@ -81,14 +96,22 @@ def _saved_volume_files() -> set[str]:
     return out
 
 
+#: At most this many recorded .vdb files are read from a .blend (a study has one at a time).
+MAX_RECORDED_VDB_FILES = 4096
+
+
 def _recorded_volume_files() -> set[str]:
+    """The recorded .vdb files of the open file: only strings naming a ``.vdb`` (the record is data)."""
     import json
     out: set[str] = set()
     for scene in bpy.data.scenes:
         try:
-            out.update(json.loads(scene.pdehead.vdb_files or "[]"))
-        except (ValueError, TypeError):
+            items = json.loads(scene.pdehead.vdb_files or "[]")
+        except (ValueError, TypeError, RecursionError):
             continue
+        if isinstance(items, list):
+            out.update(str(Path(x).resolve()) for x in items[:MAX_RECORDED_VDB_FILES]
+                       if isinstance(x, str) and x.endswith(".vdb") and "\0" not in x)
     return out
 
 
@@ -107,11 +130,11 @@ def record_volume_files() -> None:
 
 
 def remove_orphan_volume_files() -> list[Path]:
-    """After a save: delete the recorded .vdb files no saved Volume datablock references, when they lie
-    in the ``pdehead_vdb`` folder beside the saved file; returns the removed files."""
+    """After a save: delete the recorded .vdb files no saved Volume datablock references, when they are
+    the saved file's own (:func:`vdb_files.is_owned`: its name, in the ``pdehead_vdb`` folder beside it);
+    returns the removed files. Recorded files of another .blend (a Save As) are forgotten, not deleted."""
     if not bpy.data.filepath:
         return []
-    folder = vdb_files.vdb_folder_for(bpy.data.filepath).resolve()
     recorded = _recorded_volume_files()
     used = _saved_volume_files()
     removed, kept = [], set()
@@ -120,8 +143,8 @@ def remove_orphan_volume_files() -> list[Path]:
         if text in used:
             kept.add(text)
             continue
-        if path.suffix != ".vdb" or path.parent != folder or not path.is_file():
-            continue  # not ours to touch (another folder), or already gone
+        if not vdb_files.is_owned(path, bpy.data.filepath) or not path.is_file():
+            continue  # not ours to touch (another folder, another .blend's file), or already gone
         try:
             path.unlink()
             removed.append(path)
@@ -168,13 +191,22 @@ def pdehead_volume_load_post(*_args) -> None:
     folder = vdb_files.vdb_folder_for(bpy.data.filepath)
     for obj in _volume_objects():
         data = obj.data
-        if not data.filepath or os.path.isfile(bpy.path.abspath(data.filepath)):
+        if not data.filepath:
             continue
-        beside = folder / Path(bpy.path.abspath(data.filepath)).name
-        if beside.is_file():
+        path = bpy.path.abspath(data.filepath)
+        inside = vdb_files.in_vdb_folder(path, bpy.data.filepath)
+        if inside and os.path.isfile(path):
+            continue
+        beside = folder / Path(path).name
+        if beside.suffix == ".vdb" and beside.is_file():  # an absolute path of the project's old place
             data.filepath = vdb_files.blender_filepath(beside)
             data.grids.unload()
             data.grids.load()
+        elif not inside:
+            _report(obj, f"volume '{obj.name}': its stored file path {data.filepath!r} is not a .vdb in "
+                         f"'//{vdb_files.VDB_FOLDER_NAME}/'; it was cleared (rebuild the volume)")
+            data.grids.unload()
+            data.filepath = ""
 
 
 _HANDLERS = (("save_pre", pdehead_save_pre), ("save_post", pdehead_save_post),

@@ -1,10 +1,13 @@
-"""The .vdb files of the volumes: where they go, their names, moving them beside a saved .blend and
-removing the ones a rebuild replaced.
+"""The .vdb files of the volumes: where they go, their names, which .blend owns them, moving them beside
+a saved .blend and removing the ones a rebuild replaced.
 
 .vdb files cannot be packed into a .blend, so a study's file lives in ``pdehead_vdb`` beside the
-saved file (``//pdehead_vdb/<study>.vdb``), or, for an unsaved file, in the preference folder or
-the system temp folder. A rebuild writes a new file and never overwrites one (:func:`fresh_vdb_path`);
-the replaced file is deleted after the next save that no longer references it (:func:`purge_superseded`).
+saved file, or, for an unsaved file, in the preference folder or the system temp folder. A file beside
+a saved .blend carries that .blend's name: ``//pdehead_vdb/<blend>.<study>.vdb`` (:func:`owner_token`),
+and a .blend only ever deletes files carrying its own name, so a Save As (which links or copies the
+files to the new name, :func:`relocate_vdb`) or another .blend in the same folder never loses its
+volume. A rebuild writes a new file and never overwrites one (:func:`fresh_vdb_path`); the replaced
+file is deleted after the next save that no longer references it (:func:`purge_superseded`).
 """
 from __future__ import annotations
 
@@ -32,20 +35,67 @@ def vdb_folder_for(blend_path: str | os.PathLike | None, prefs_folder: str | os.
     return Path(tempfile.gettempdir()) / VDB_FOLDER_NAME
 
 
-def vdb_path_for(study: str, blend_path=None, prefs_folder=None) -> Path:
-    """Absolute path of the .vdb of `study` (see :func:`vdb_folder_for`), file name made safe.
-
-    A name changed by the cleaning gets a short hash of the original, so that
-    "CT head" and "CT_head" never share (and overwrite) one file.
-    """
+def _safe_name(text: str, fallback: str) -> str:
+    """`text` as a file-name part without dots or separators; a changed name gets a short hash of the
+    original, so that "CT head" and "CT_head" never share (and overwrite) one file."""
     import hashlib
 
     import bpy
 
-    safe = bpy.path.clean_name(study) or "study"
-    if safe != study:
-        safe += "-" + hashlib.sha1(study.encode("utf-8")).hexdigest()[:6]
-    return vdb_folder_for(blend_path, prefs_folder) / f"{safe}.vdb"
+    safe = bpy.path.clean_name(text) or fallback  # every character but [A-Za-z0-9_-] becomes "_"
+    if safe != text:
+        safe += "-" + hashlib.sha1(text.encode("utf-8")).hexdigest()[:6]
+    return safe
+
+
+def owner_token(blend_path) -> str:
+    """The first part of the names of the .vdb files a saved .blend owns: its file name without
+    ``.blend``, made safe (no dots: the owner is everything before the first dot)."""
+    return _safe_name(Path(os.fspath(blend_path)).stem, "untitled")
+
+
+def vdb_path_for(study: str, blend_path=None, prefs_folder=None) -> Path:
+    """Absolute path of the .vdb of `study` (see :func:`vdb_folder_for`), file name made safe.
+
+    Beside a saved .blend the name starts with the .blend's :func:`owner_token`
+    (``<blend>.<study>.vdb``): the files of two .blend files in one folder never mix.
+    """
+    safe = _safe_name(study, "study")
+    if blend_path:
+        return vdb_folder_for(blend_path) / f"{owner_token(blend_path)}.{safe}.vdb"
+    return vdb_folder_for(None, prefs_folder) / f"{safe}.vdb"
+
+
+def is_owned(path, blend_path) -> bool:
+    """Whether the .vdb `path` belongs to the saved .blend `blend_path`: a ``.vdb`` in its
+    ``pdehead_vdb`` folder whose name starts with its :func:`owner_token` (only such files are ever
+    deleted on its behalf)."""
+    if not blend_path:
+        return False
+    path = Path(os.fspath(path))
+    return (path.suffix == ".vdb" and path.parent.resolve() == vdb_folder_for(blend_path)
+            and path.name.startswith(owner_token(blend_path) + "."))
+
+
+def in_vdb_folder(path, blend_path) -> bool:
+    """Whether `path` is a ``.vdb`` file name directly inside the ``pdehead_vdb`` folder of `blend_path`."""
+    if not blend_path:
+        return False
+    path = Path(os.fspath(path))
+    return path.suffix == ".vdb" and path.resolve().parent == vdb_folder_for(blend_path)
+
+
+#: The first 8 bytes of every OpenVDB file: the magic number 0x56444220 as a little-endian int64.
+VDB_MAGIC = (0x56444220).to_bytes(8, "little")
+
+
+def looks_like_vdb(path) -> bool:
+    """Whether `path` is a regular file that starts like an OpenVDB file."""
+    try:
+        with open(os.fspath(path), "rb") as f:
+            return Path(os.fspath(path)).is_file() and f.read(8) == VDB_MAGIC
+    except OSError:
+        return False
 
 
 def blender_filepath(path: str | os.PathLike) -> str:
@@ -115,9 +165,12 @@ def referenced_vdb_files() -> set[str]:
 def purge_superseded() -> list[Path]:
     """Delete the superseded .vdb files no Volume datablock references any more; returns them.
 
-    Only the add-on's own files are ever deleted: those in a ``pdehead_vdb`` folder or written
-    by :func:`.vdb_grids.write_vdb` in this session (the preference folder of unsaved files).
+    Only the saved file's own files are ever deleted (:func:`is_owned`), or, outside a ``pdehead_vdb``
+    folder, those written by :func:`.vdb_grids.write_vdb` in this session (the preference folder of unsaved
+    files).
     """
+    import bpy
+
     used = referenced_vdb_files()
     removed = []
     for text in sorted(_SUPERSEDED):
@@ -125,7 +178,9 @@ def purge_superseded() -> list[Path]:
         if text in used:
             continue
         _SUPERSEDED.discard(text)
-        ours = path.parent.name == VDB_FOLDER_NAME or text in _WRITTEN
+        # beside a saved file: only the saved file's own (another .blend may use the rest); elsewhere
+        # (the temp or preference folder of an unsaved session): only what this session wrote
+        ours = is_owned(path, bpy.data.filepath) or (text in _WRITTEN and path.parent.name != VDB_FOLDER_NAME)
         if ours and path.suffix == ".vdb" and path.is_file():
             try:
                 path.unlink()
@@ -135,44 +190,87 @@ def purge_superseded() -> list[Path]:
     return removed
 
 
+class UnsafeVolumeFile(ValueError):
+    """A Volume's stored file path that PDE Head refuses to read, copy or delete (not a .vdb of its own)."""
+
+
+def may_copy(src, blend_path=None) -> bool:
+    """Whether PDE Head may copy the .vdb `src` for a save: a file in the ``pdehead_vdb`` folder of the
+    open .blend (or of `blend_path`, the one being written), or one this session wrote; always a ``.vdb``
+    that starts like an OpenVDB file (a path stored in a .blend is data: never ``/etc/passwd``)."""
+    import bpy
+
+    src = Path(os.fspath(src))
+    inside = in_vdb_folder(src, bpy.data.filepath) or in_vdb_folder(src, blend_path)
+    return src.suffix == ".vdb" and (inside or str(src.resolve()) in _WRITTEN) and looks_like_vdb(src)
+
+
+def link_or_copy(src, dst) -> None:
+    """Put a copy of `src` at the new name `dst` without ever overwriting: a hard link where the file
+    system has them (instant, no space; each name deleted alone), else a checked copy (:func:`.safe_io.copy_checked`)."""
+    from ..pdehead_addon.io.safe_io import copy_checked
+
+    try:
+        os.link(src, dst)
+        return
+    except FileExistsError:
+        raise
+    except OSError:
+        pass
+    copy_checked(src, dst)
+
+
 def relocate_vdb(obj, folder=None, blend_path=None) -> Path | None:
     """Copy a Volume object's .vdb into `folder` and point the object at the copy.
 
-    `folder` defaults to ``pdehead_vdb`` beside `blend_path` (default: the saved .blend),
-    so a volume built while the file was unsaved (in the preference or temp folder) follows
-    the file once it is saved; the path is then stored relative (``//...``). A different file
-    already at the destination is never overwritten (the copy gets a free name). Returns the
-    new path, or None when there is nothing to do (no file, no saved .blend, or already there).
+    `folder` defaults to ``pdehead_vdb`` beside `blend_path` (default: the saved .blend), and the copy
+    is then named for that .blend (:func:`owner_token`), so a volume built while the file was unsaved (in
+    the preference or temp folder) follows the file once it is saved, and a Save As (even into the same
+    folder) gives the new file its own copy (a hard link where possible): the original's file is never
+    moved nor deleted. The path is then stored relative (``//...``). A different file already at the
+    destination is never overwritten (the copy gets a free name). Returns the new path, or None when there
+    is nothing to do (no file, no saved .blend, or already there).
+
+    Raises :class:`UnsafeVolumeFile` for a stored path that is not a .vdb of this file's ``pdehead_vdb``
+    folder nor one written in this session (:func:`may_copy`).
 
     ``blend_path`` lets the save_pre handler move files beside the file being written before
     Blender writes it; the stored path is then relative to the *current* .blend, which
     Blender's relative-path remapping turns into ``//pdehead_vdb/...`` of the new one.
     """
     import filecmp
-    import shutil
 
     import bpy
 
     if obj is None or obj.type != "VOLUME" or not obj.data.filepath:
         return None
     blend_path = blend_path or bpy.data.filepath
+    owner = None
     if folder is None:
         if not blend_path:
             return None
-        folder = vdb_folder_for(blend_path)
+        folder, owner = vdb_folder_for(blend_path), blend_path
+    folder = Path(os.fspath(folder)).resolve()
     src = Path(bpy.path.abspath(obj.data.filepath)).resolve()
-    dst = Path(os.fspath(folder)).resolve() / src.name
-    if src.parent == dst.parent:
+    if src.parent == folder and (owner is None or is_owned(src, owner)):
         if bpy.data.filepath and not obj.data.filepath.startswith("//"):
-            obj.data.filepath = blender_filepath(dst)
+            obj.data.filepath = blender_filepath(src)
         return None
     if not src.is_file():
         return None
+    if not may_copy(src, blend_path):
+        raise UnsafeVolumeFile(f"volume '{obj.name}': its file {src} is not a .vdb in the '{VDB_FOLDER_NAME}' "
+                               "folder beside the .blend; it was not copied (rebuild the volume)")
+    name = src.name
+    if owner is not None:  # named for the .blend being written: "<blend>.<study>.vdb"
+        rest = name.split(".", 1)[1] if name.count(".") >= 2 else name
+        name = f"{owner_token(owner)}.{rest}"
+    dst = folder / name
     dst.parent.mkdir(parents=True, exist_ok=True)
     if dst.exists() and not filecmp.cmp(src, dst, shallow=False):
         dst = fresh_vdb_path(dst)
     if not dst.exists():
-        shutil.copy2(src, dst)
+        link_or_copy(src, dst)
     obj.data.filepath = bpy.path.relpath(str(dst)) if bpy.data.filepath else str(dst)
     obj.data.grids.unload()
     obj.data.grids.load()

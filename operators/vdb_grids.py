@@ -12,6 +12,7 @@ import numpy as np
 from ..pdehead_addon import OUTSIDE_W
 from ..pdehead_addon import defaults as D
 from ..pdehead_addon import apply_window, ct_grid_for, head_mask_on_grid
+from ..pdehead_addon.io.safe_io import WriteError, check_size, checked_output
 from . import compat, vdb_writer
 from .coords import grid_affine_world
 from .vdb_files import mark_written
@@ -142,7 +143,16 @@ def write_vdb(wfield, path, window, *, ct=None, origin_m=(0.0, 0.0, 0.0)) -> Pat
             grid.saveFloatAsHalf = half  # display data in [0, 1]: half precision is plenty, half the file
             written.append(grid)
         written[0]["pdehead_window"] = window_meta
-        openvdb.write(str(path), grids=written)
+        # OpenVDB's write can fail without an error on a full disk: written to a temporary name, read
+        # back grid by grid (a short file does not read), then renamed (:mod:`.safe_io`)
+        with checked_output(path) as tmp:
+            openvdb.write(str(tmp), grids=written)
+            check_size(tmp, minimum=64)
+            for grid in written:
+                try:
+                    openvdb.read(str(tmp), grid.name)
+                except Exception as exc:  # noqa: BLE001 - OpenVDB raises its own types
+                    raise WriteError(f"{path}: the written file does not read back ({exc}; disk full?)") from None
         mark_written(path)
     finally:
         # free the grids now (they hold no reference cycle: no gc.collect, which walks the whole of Blender's

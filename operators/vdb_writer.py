@@ -27,6 +27,8 @@ from typing import BinaryIO, Iterable, NamedTuple
 
 import numpy as np
 
+from ..pdehead_addon.io.safe_io import check_size, checked_output
+
 FILE_FORMAT_VERSION = 224        # OPENVDB_FILE_VERSION_MULTIPASS_IO, what OpenVDB 6 - 12 write
 LIBRARY_VERSION = (11, 0)        # informational only; readers check the format version
 MAGIC = 0x56444220               # OPENVDB_MAGIC (" BDV")
@@ -192,8 +194,9 @@ def write_vdb(path: str | os.PathLike, grids: Iterable[DenseGrid]) -> Path:
     Path of the written file.
     """
     path = Path(os.fspath(path))
-    tmp = path.with_name(path.name + ".partial")
-    try:
+    # a temporary name of this write (two processes never share one), its size checked, then renamed:
+    # a full disk or a failure never leaves a half file under the real name (nor a partial one)
+    with checked_output(path) as tmp:
         with open(tmp, "wb") as f:
             f.write(struct.pack("<qIII", MAGIC, FILE_FORMAT_VERSION, *LIBRARY_VERSION))
             f.write(b"\x01")  # has grid offsets: readers may seek to each grid
@@ -212,8 +215,5 @@ def write_vdb(path: str | os.PathLike, grids: Iterable[DenseGrid]) -> Path:
             f.seek(count_at)
             f.write(struct.pack("<i", count))
             f.seek(end)
-        os.replace(tmp, path)  # a failed write never leaves a half file under the real name
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+        check_size(tmp, end)
     return path

@@ -345,7 +345,13 @@ def test_vdb_folder_rules(ext, tmp_path):
     assert ext.vdb_files.vdb_path_for("CT head: 1/2", str(blend)).parent == (tmp_path / "a" / "pdehead_vdb").resolve()
     assert "/" not in ext.vdb_files.vdb_path_for("CT head: 1/2", str(blend)).name
     names = {ext.vdb_files.vdb_path_for(n, str(blend)).name for n in ("CT head", "CT_head", "CT-head", "CThead")}
-    assert len(names) == 4 and "CThead.vdb" in names  # distinct studies never share a file
+    assert len(names) == 4 and "study.CThead.vdb" in names  # distinct studies never share a file
+    # named for their .blend: "a b.blend" and "a_b.blend" in one folder never own each other's files
+    a, b = (ext.vdb_files.vdb_path_for("S", str(tmp_path / "a" / f"{stem}.blend")) for stem in ("a b", "a_b"))
+    assert a.name != b.name and b.name == "a_b.S.vdb" and a.name.count(".") == 2
+    assert ext.vdb_files.is_owned(b, str(tmp_path / "a" / "a_b.blend"))
+    assert not ext.vdb_files.is_owned(b, str(tmp_path / "a" / "a b.blend"))
+    assert not ext.vdb_files.is_owned(b, str(tmp_path / "a" / "a.blend"))  # "a_b." does not start "a."
 
 
 def test_saved_file_reopens_with_its_volume_and_missing_vdb_is_reported(ext, tmp_path):
@@ -356,7 +362,7 @@ def test_saved_file_reopens_with_its_volume_and_missing_vdb_is_reported(ext, tmp
     coll = ext.objects.study_collection("Study 1")
     vdb = ext.vdb_files.vdb_path_for("Study 1", bpy.data.filepath, None)
     vol = ext.volume.build_volume(_oblique_wfield(), coll, vdb, name="Study 1 Volume", high_alpha=0.8)
-    assert vol.data.filepath == f"//pdehead_vdb/{vdb.name}" and vdb.name.startswith("Study_1-")
+    assert vol.data.filepath == f"//pdehead_vdb/{vdb.name}" and vdb.name.startswith("study.Study_1-")
     assert vdb.is_file() and vdb.parent == blend.parent / "pdehead_vdb"
     bpy.ops.wm.save_mainfile()
 
@@ -391,18 +397,20 @@ def test_volume_built_unsaved_follows_the_file_when_saved(ext, tmp_path):
     blend.parent.mkdir()
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
     # the save handler moved it beside the .blend (relative path) and removed the temporary file
-    new = blend.parent / "pdehead_vdb" / "Unsaved.vdb"
+    new = blend.parent / "pdehead_vdb" / "s.Unsaved.vdb"  # named for its .blend
     assert new.is_file() and not vdb.exists()
-    assert vol.data.filepath == "//pdehead_vdb/Unsaved.vdb" and ext.volume.check_volume(vol) is None
+    assert vol.data.filepath == "//pdehead_vdb/s.Unsaved.vdb" and ext.volume.check_volume(vol) is None
     assert ext.vdb_files.relocate_vdb(vol) is None  # already there
 
     # relocate_vdb itself (also used by that handler): copies, never overwrites a different file
     other = tmp_path / "other"
-    assert ext.vdb_files.relocate_vdb(vol, folder=other) == other.resolve() / "Unsaved.vdb"
-    assert Path(bpy.path.abspath(vol.data.filepath)).resolve() == other.resolve() / "Unsaved.vdb" and new.is_file()
-    (blend.parent / "pdehead_vdb" / "Unsaved.vdb").write_bytes(b"a different file")
+    assert ext.vdb_files.relocate_vdb(vol, folder=other) == other.resolve() / "s.Unsaved.vdb"
+    assert Path(bpy.path.abspath(vol.data.filepath)).resolve() == other.resolve() / "s.Unsaved.vdb" and new.is_file()
+    ext.vdb_files.mark_written(other / "s.Unsaved.vdb")  # from another folder: only what this session wrote
+    new.unlink()  # (the copy may be a hard link of it: replaced, not written into)
+    new.write_bytes(b"a different file")
     moved = ext.vdb_files.relocate_vdb(vol)
-    assert moved == blend.parent / "pdehead_vdb" / "Unsaved-2.vdb" and moved.is_file()
+    assert moved == blend.parent / "pdehead_vdb" / "s.Unsaved-2.vdb" and moved.is_file()
     assert new.read_bytes() == b"a different file" and ext.volume.check_volume(vol) is None
 
 
@@ -418,7 +426,7 @@ def test_rebuilt_volume_goes_to_a_new_file_and_the_old_one_is_removed_after_savi
     first_bytes = first.read_bytes()
     vol = ext.volume.build_volume(_oblique_wfield(), coll, path, obj=vol)  # same target: never overwritten
     second = Path(bpy.path.abspath(vol.data.filepath))
-    assert second != first and second.name == "S-2.vdb" and first.read_bytes() == first_bytes
+    assert second != first and second.name == "s.S-2.vdb" and first.read_bytes() == first_bytes
     bpy.ops.wm.save_mainfile()  # the saved file no longer needs the first one
     assert not first.exists() and second.is_file() and ext.volume.check_volume(vol) is None
 
