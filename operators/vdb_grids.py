@@ -12,7 +12,7 @@ import numpy as np
 from ..pdehead_addon import OUTSIDE_W
 from ..pdehead_addon import defaults as D
 from ..pdehead_addon import apply_window, ct_grid_for, head_mask_on_grid
-from ..pdehead_addon.io.safe_io import WriteError, check_size, checked_output
+from ..pdehead_addon.io.safe_io import WriteError, check_size, checked_output, disk_full
 from . import compat, vdb_writer
 from .coords import grid_affine_world
 from .vdb_files import mark_written
@@ -152,7 +152,8 @@ def write_vdb(wfield, path, window, *, ct=None, origin_m=(0.0, 0.0, 0.0)) -> Pat
                 try:
                     openvdb.read(str(tmp), grid.name)
                 except Exception as exc:  # noqa: BLE001 - OpenVDB raises its own types
-                    raise WriteError(f"{path}: the written file does not read back ({exc}; disk full?)") from None
+                    why = "no space left on device" if disk_full(tmp) else f"{exc}; disk full?"
+                    raise WriteError(f"{path}: cannot be written (the file does not read back: {why})") from None
         mark_written(path)
     finally:
         # free the grids now (they hold no reference cycle: no gc.collect, which walks the whole of Blender's

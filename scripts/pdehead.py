@@ -33,6 +33,7 @@ import shutil
 import signal
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -266,6 +267,11 @@ def check_outputs(args) -> None:
     for flag in ("out", "render", "render_volume", "summary_json"):
         if getattr(args, flag) is not None:
             _writable(getattr(args, flag), "--" + flag.replace("_", "-"))
+            if args.input:                        # the .blend, its pdehead_vdb/ and the images: never into the input
+                from pdehead_addon.io.export import input_folder_conflict
+                why = input_folder_conflict(Path(getattr(args, flag)).resolve().parent, args.input)
+                if why:
+                    raise CLIError(f"--{flag.replace('_', '-')} {why}", 2)
     if args.export is not None:
         _writable(args.export, "--export", folder=True)
         if args.input:                            # before the work, not after it (the export checks it again)
@@ -307,14 +313,71 @@ class Interrupted(Exception):
 
 
 #: Set by the SIGINT handler; the engine's progress callback then raises Cancelled (a second Ctrl-C
-#: raises KeyboardInterrupt at once).
+#: ends the run at once: :func:`_force_exit`).
 _SIGINT = [False]
+
+#: Seconds a step may take to stop after Ctrl-C before the run is ended without it (a render, a scan or a
+#: library call that reports no progress): its private files removed, exit 130.
+CTRL_C_GRACE_S = 1.0
+
+
+def _force_exit() -> None:
+    """End the process now, exit 130: this run's private files removed (nothing committed is touched)."""
+    with _OUTPUTS_LOCK:
+        for cleanup in list(_CLEANUPS):
+            with contextlib.suppress(Exception):
+                cleanup()
+        with contextlib.suppress(Exception):
+            sys.stdout.flush()
+        os.write(2, f"{PROG}: cancelled (Ctrl-C); no output was written\n".encode())
+        os._exit(130)
 
 
 def _on_sigint(_signum, _frame):
     if _SIGINT[0]:
-        raise KeyboardInterrupt
+        _force_exit()
     _SIGINT[0] = True
+
+
+class Watchdog:
+    """Ctrl-C honoured within about :data:`CTRL_C_GRACE_S` even while Blender or a library runs in C.
+
+    Python runs a signal handler only between bytecodes of the main thread, so a Cycles render or a long
+    C call would hold Ctrl-C back until it ends. The C-level handler also writes the signal to a pipe
+    (:func:`signal.set_wakeup_fd`); this thread reads it, gives the running step the grace time to stop
+    by itself (the normal path: it raises at its next progress report and cleans up), and otherwise, or
+    at a second Ctrl-C, removes this run's private files and ends the process (:func:`_force_exit`).
+    """
+
+    def __init__(self):
+        self.finished = threading.Event()
+        self.read_fd, write_fd = os.pipe()
+        os.set_blocking(write_fd, False)
+        self.write_fd = write_fd
+        self.previous_fd = signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
+        threading.Thread(target=self._watch, name="pdehead-ctrl-c", daemon=True).start()
+
+    def _watch(self) -> None:
+        count = 0
+        while True:
+            try:
+                data = os.read(self.read_fd, 64)
+            except OSError:
+                return
+            count += data.count(bytes([signal.SIGINT]))
+            if not data or self.finished.is_set():
+                return
+            if count >= 2:
+                _force_exit()
+            if count == 1 and not self.finished.wait(CTRL_C_GRACE_S):
+                _force_exit()
+
+    def close(self) -> None:
+        self.finished.set()
+        signal.set_wakeup_fd(self.previous_fd)
+        for fd in (self.write_fd,):
+            with contextlib.suppress(OSError):
+                os.close(fd)
 
 
 class Progress:
@@ -495,13 +558,9 @@ def _check_writable_folder(folder: Path, flag: str) -> None:
 
 
 def _outputs(args) -> list[Path]:
-    """Every file the run may write: the .blend, its volume folder, the renders and frames, the exports."""
-    paths = [p for p in (args.out, args.render, args.render_volume, args.render_animation) if p is not None]
-    if args.out:
-        paths.append(args.out.resolve().parent / "pdehead_vdb")
-    if args.export:
-        paths.append(args.export)
-    return [Path(p).resolve() for p in paths]
+    """The folders the run writes into directly: --export and --render-animation (the .blend, its volume
+    and the renders go through :class:`Staging`)."""
+    return [Path(p).resolve() for p in (args.export, args.render_animation) if p is not None]
 
 
 def _snapshot(paths: list[Path]) -> set[Path]:
@@ -526,6 +585,117 @@ def _remove_new(paths: list[Path], before: set[Path]) -> None:
             pass
 
 
+#: Held while outputs are moved into place or removed: a forced exit (:class:`Watchdog`) waits for it.
+_OUTPUTS_LOCK = threading.RLock()
+#: What a forced exit must remove (each a callable; :class:`Staging` and the temporary Blender folder).
+_CLEANUPS: list = []
+
+
+class Staging:
+    """This run's outputs, written privately and moved into place only at the end.
+
+    The .blend and its volume go into a private folder next to ``--out`` (``.pdehead-run-<stem>-XXXX/``,
+    made with :func:`tempfile.mkdtemp`: no two runs share one), the renders into one next to each
+    image; :meth:`commit` then links each .vdb into ``pdehead_vdb/`` beside ``--out`` under a name no
+    other file has (never overwriting another run's or file's volume), re-pointing the volume if the
+    name had to change, and renames the .blend and the images into place (``os.replace``: atomic).
+    :meth:`discard` (Ctrl-C, a failure) removes the private folders and whatever this run alone
+    placed, nothing else.
+    """
+
+    def __init__(self, args):
+        self.out = args.out.resolve() if args.out else None
+        self.folders: dict[Path, Path] = {}      # destination folder -> private folder
+        self.made: list[Path] = []               # folders this run created (removed if left empty)
+        self.placed: list[Path] = []             # files moved into place while committing
+        self.pending: list[tuple[Path, Path]] = []
+        self.committed = False
+        self.blend = self.private(self.out) if self.out else None
+
+    def _make_folder(self, folder: Path) -> None:
+        missing = [q for q in (folder, *folder.parents) if not q.exists()]
+        folder.mkdir(parents=True, exist_ok=True)
+        self.made.extend(missing)
+
+    def private(self, dest: Path) -> Path:
+        """Where to write ``dest`` for now: the same name in this run's private folder beside it."""
+        dest = Path(dest).resolve()
+        folder = self.folders.get(dest.parent)
+        if folder is None:
+            self._make_folder(dest.parent)
+            folder = Path(tempfile.mkdtemp(prefix=f".pdehead-run-{dest.stem[:40]}-", dir=dest.parent))
+            self.folders[dest.parent] = folder
+        return folder / dest.name
+
+    def add(self, tmp: Path, dest: Path) -> None:
+        """Move ``tmp`` to ``dest`` at :meth:`commit`."""
+        self.pending.append((Path(tmp), Path(dest).resolve()))
+
+    def commit(self, bpy, addon) -> None:
+        with _OUTPUTS_LOCK:
+            if _SIGINT[0]:
+                raise Interrupted()
+            if self.blend is not None:
+                self._commit_blend(bpy, addon)
+            for tmp, dest in self.pending:
+                if not tmp.is_file():
+                    raise CLIError(f"{dest}: was not written", 1)
+                os.replace(tmp, dest)
+                self.placed.append(dest)
+            self.committed = True
+            self._remove_folders()
+
+    def _commit_blend(self, bpy, addon) -> None:
+        vdb_files = addon.operators.vdb_files
+        src_folder = (self.blend.parent / vdb_files.VDB_FOLDER_NAME).resolve()
+        dst_folder = self.out.parent / vdb_files.VDB_FOLDER_NAME
+        renamed = False
+        for obj in bpy.data.objects:
+            if obj.type != "VOLUME" or obj.get("pdehead_kind") != "volume" or not obj.data.filepath:
+                continue
+            src = Path(bpy.path.abspath(obj.data.filepath)).resolve()
+            if src.parent != src_folder or not src.is_file():
+                continue
+            if not dst_folder.exists():
+                self._make_folder(dst_folder)
+            while True:  # a free name, taken atomically (a link fails on an existing name)
+                dst = vdb_files.fresh_vdb_path(dst_folder / src.name)
+                try:
+                    vdb_files.link_or_copy(src, dst)
+                    break
+                except FileExistsError:
+                    continue
+            self.placed.append(dst)
+            if dst.name != src.name:
+                obj.data.filepath = f"//{vdb_files.VDB_FOLDER_NAME}/{dst.name}"
+                renamed = True
+        if renamed:
+            _save(bpy, self.blend, "--out")
+        os.replace(self.blend, self.out)
+
+    def _remove_folders(self) -> None:
+        for folder in self.folders.values():
+            shutil.rmtree(folder, ignore_errors=True)
+        for folder in sorted(self.made, key=lambda q: len(q.parts), reverse=True):
+            with contextlib.suppress(OSError):
+                folder.rmdir()  # only if empty: another run may have put its files there meanwhile
+
+    def user_text(self, text: str) -> str:
+        """`text` with this run's private folders named as the destinations the user gave."""
+        for dest, folder in self.folders.items():
+            text = text.replace(str(folder), str(dest))
+        return text
+
+    def discard(self) -> None:
+        """Remove this run's private folders and what it placed (not yet committed), nothing else."""
+        with _OUTPUTS_LOCK:
+            if not self.committed:
+                for path in self.placed:
+                    with contextlib.suppress(OSError):
+                        path.unlink()
+            self._remove_folders()
+
+
 def run(args) -> dict:
     import bpy
     import warnings
@@ -539,32 +709,48 @@ def run(args) -> dict:
     addon.operators.progress.PROGRESS_HOOK[0] = progress
     outputs = _outputs(args)
     before = _snapshot(outputs)
+    staging = Staging(args)
+    _CLEANUPS.append(staging.discard)
     try:
-        return _run(args, bpy, addon, state)
+        return _run(args, bpy, addon, state, staging)
     except (Interrupted, KeyboardInterrupt):
+        staging.discard()
         _remove_new(outputs, before)
         raise Interrupted() from None
+    except CLIError as exc:
+        staging.discard()
+        raise CLIError(staging.user_text(str(exc)), exc.code) from None
+    except BaseException:
+        staging.discard()
+        raise
     finally:
         progress.end()
         addon.operators.progress.PROGRESS_HOOK[0] = None
+        with contextlib.suppress(ValueError):
+            _CLEANUPS.remove(staging.discard)
 
 
-def _run(args, bpy, addon, state) -> dict:
-    scratch = None
-    if args.out:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        # A scratch .blend beside the output gives the VDB its folder; the real file is written only
-        # when every step worked, so a failed run leaves an existing --out file as it was.
-        scratch = args.out.resolve().parent / f".{args.out.stem}.pdehead-partial.blend"
-        _save(bpy, scratch, "--out")
-    try:
-        return _steps(args, bpy, addon, state)
-    finally:
-        if scratch is not None:
-            scratch.unlink(missing_ok=True)
+def _run(args, bpy, addon, state, staging) -> dict:
+    if staging.blend is not None:
+        # The .blend is saved first into the run's private folder (the volume's .vdb goes beside it);
+        # it and the .vdb reach --out only when every step worked, so a failed run leaves an existing
+        # --out as it was, and another run's files are never touched.
+        _save(bpy, staging.blend, "--out")
+        _record_sources_for(bpy, addon, staging.out)
+    return _steps(args, bpy, addon, state, staging)
 
 
-def _steps(args, bpy, addon, state) -> dict:
+def _record_sources_for(bpy, addon, final) -> None:
+    """Each save in the private folder records the CT source relative to the final --out (one folder up)."""
+    persistence = addon.operators.persistence
+
+    @bpy.app.handlers.persistent
+    def pdehead_cli_sources(*_args):
+        persistence.record_sources(str(final))
+    bpy.app.handlers.save_pre.append(pdehead_cli_sources)
+
+
+def _steps(args, bpy, addon, state, staging) -> dict:
     ops = bpy.ops.pdehead
     t0 = time.perf_counter()
     coll, selection_info, skin = _build(args, bpy, addon, ops)
@@ -585,14 +771,21 @@ def _steps(args, bpy, addon, state) -> dict:
 
     summary = _summary(args, addon, coll, timings, total, selection_info, warning_lines)
     if args.out:
-        _save(bpy, args.out.resolve(), "--out")
+        _save(bpy, staging.blend, "--out")
+    _render(args, addon, s, summary, staging)
+    if args.turntable:
+        _turntable(args, bpy, addon, ops, coll, summary, staging)
+    staging.commit(bpy, addon)
+    if args.out:
         print(f"wrote {args.out}")
         summary["outputs"]["blend"] = str(args.out)
+        if s.volume_object is not None:
+            summary["volume"]["vdb"] = s.volume_object.data.filepath
     else:
         print("not saved: no --out given (pass --out FILE.blend to keep the result)")
-    _render(args, addon, s, summary)
-    if args.turntable:
-        _turntable(args, bpy, addon, ops, coll, summary)
+    for flag in ("render", "render_volume"):
+        if flag in summary["outputs"]:
+            print(f"wrote {summary['outputs'][flag]}")
     return summary
 
 
@@ -658,7 +851,9 @@ def _print_study(args, bpy, state, coll, selection_info) -> None:
     print(f"  solid     {len(s.solid_object.data.vertices)} vertices")
     if s.volume_object is not None:
         size = "CT grid" if s.use_ct_grid else f"{s.voxel_size:g} mm voxels" + (" (automatic)" if s.voxel_auto else "")
-        print(f"  volume    {bpy.path.abspath(s.volume_object.data.filepath)}, {size}")
+        vdb = s.volume_object.data.filepath
+        where = args.out.resolve().parent / vdb[2:] if args.out and vdb.startswith("//") else bpy.path.abspath(vdb)
+        print(f"  volume    {where}, {size}")
 
 
 def _print_skull(args, addon, coll, skin) -> None:
@@ -696,8 +891,8 @@ def _output_flags(fs) -> dict:
     return fs.cache.get("export_flags") or {name: flag for name, (flag, _) in fs.landmark_flags().items()}
 
 
-def _render(args, addon, s, summary) -> None:
-    """--render and --render-volume."""
+def _render(args, addon, s, summary, staging) -> None:
+    """--render and --render-volume (into the run's private folder; moved into place by the commit)."""
     render = addon.operators.render
     size = (args.resolution, args.resolution)
     for flag, obj in (("render", s.surface_object), ("render_volume", s.volume_object)):
@@ -705,21 +900,24 @@ def _render(args, addon, s, summary) -> None:
         if path is None:
             continue
         t = time.perf_counter()
-        written = render.render_objects_png([obj], path, view=args.view, resolution=size,
+        written = render.render_objects_png([obj], staging.private(path), view=args.view, resolution=size,
                                             samples=args.render_samples)
-        if not Path(written).is_file():
+        if _SIGINT[0]:
+            raise Interrupted()
+        if not Path(written).is_file() or Path(written).stat().st_size == 0:
             raise CLIError(f"--{flag.replace('_', '-')} {path}: the render was not written", 1)
-        print(f"wrote {path} ({time.perf_counter() - t:.1f} s)")
+        staging.add(written, path)
+        print(f"  rendered  {path.name} ({time.perf_counter() - t:.1f} s)")
         summary["outputs"][flag] = str(path)
 
 
-def _turntable(args, bpy, addon, ops, coll, summary) -> None:
+def _turntable(args, bpy, addon, ops, coll, summary, staging) -> None:
     """--turntable (saved into --out again) and --render-animation."""
     size = (args.resolution, args.resolution)
     _call(ops.turntable, frames=args.turntable)
     print(f"  turntable {args.turntable} frames (1..{args.turntable}) around '{coll.name}'")
     if args.out:
-        _save(bpy, args.out.resolve(), "--out")
+        _save(bpy, staging.blend, "--out")
     if args.render_animation:
         t = time.perf_counter()
         with _blender_stdout(drop=("Fra:", "Time:", "Saved:", "Info:")):
@@ -813,6 +1011,8 @@ def _save(bpy, path: Path, flag: str) -> None:
     except RuntimeError as exc:
         reason = " ".join(str(exc).split()).removeprefix("Error: ")
         raise CLIError(f"{flag} {path}: cannot be written ({reason})", 2) from None
+    if not path.is_file() or path.stat().st_size == 0:
+        raise CLIError(f"{flag} {path}: cannot be written (no file after the save; disk full?)", 2)
 
 
 def _r(value, digits: int = 3):
@@ -874,16 +1074,22 @@ def write_summary_json(path: Path, summary: dict) -> None:
         raise CLIError(f"--summary-json {path}: cannot be written ({exc.strerror or exc})", 2) from None
 
 
-def main(argv=None) -> int:
+def main(argv=None, watchdog: bool = False) -> int:
+    """The CLI; ``watchdog``: also end the process within about a second of Ctrl-C when a step does not stop
+    by itself (:class:`Watchdog`; only for the script itself: it may end the process)."""
     args = None
     user_folder = None
+    guard = None
     try:
         args = parse_args(argv)
         # Keep Blender away from the real user folder (must precede `import bpy`); ours is removed at the end.
         if "BLENDER_USER_RESOURCES" not in os.environ:
             user_folder = tempfile.mkdtemp(prefix="pdehead-cli-")
             os.environ["BLENDER_USER_RESOURCES"] = user_folder
+            _CLEANUPS.append(lambda: shutil.rmtree(user_folder, ignore_errors=True))
         previous = signal.signal(signal.SIGINT, _on_sigint)
+        if watchdog:
+            guard = Watchdog()
         try:
             summary = run(args)
         finally:
@@ -906,6 +1112,8 @@ def main(argv=None) -> int:
                                                        "warnings": list(WARNINGS.printed)})
         return exc.code
     finally:
+        if guard is not None:
+            guard.close()
         if user_folder is not None:        # every exit: 0, 1 (an uncaught error), 2 and 130
             shutil.rmtree(user_folder, ignore_errors=True)
             if os.environ.get("BLENDER_USER_RESOURCES") == user_folder:
@@ -914,4 +1122,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(main(watchdog=True))

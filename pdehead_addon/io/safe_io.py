@@ -46,12 +46,22 @@ def _sync(path: Path) -> None:
         os.close(fd)
 
 
+def disk_full(path: str | os.PathLike, needed: int = 1 << 20) -> bool:
+    """Whether the file system of `path` has less than `needed` bytes free (why a write came out short)."""
+    try:
+        st = os.statvfs(Path(os.fspath(path)).parent)
+    except (OSError, AttributeError):
+        return False
+    return st.f_bavail * st.f_frsize < needed
+
+
 def check_size(path: str | os.PathLike, expected: int | None = None, minimum: int = 1) -> int:
     """The size of the written `path`; raises :class:`WriteError` when it is not `expected` (or below `minimum`)."""
     size = os.stat(path).st_size
     if (expected is not None and size != expected) or size < minimum:
         want = f"{expected} bytes" if expected is not None else f"at least {minimum} bytes"
-        raise WriteError(f"{path}: the written file has {size} bytes, expected {want} (disk full?)")
+        why = "no space left on device" if disk_full(path) else "disk full?"
+        raise WriteError(f"{path}: the written file has {size} bytes, expected {want} ({why})")
     return size
 
 

@@ -46,7 +46,7 @@ def test_cli_phantom_writes_blend_vdb_and_renders(tmp_path):
     # one order (x, y, z) for dimensions and spacing: the phantom is 128 x 128 x 100 voxels of 2 x 2 x 2.3 mm
     assert "128 x 128 x 100 voxels (x, y, z), spacing 2 x 2 x 2.3 mm (x, y, z)" in stdout
     vdbs = list((out / "pdehead_vdb").glob("*.vdb"))
-    assert [v.name for v in vdbs] == ["Phantom.vdb"] and vdbs[0].stat().st_size > 10_000
+    assert [v.name for v in vdbs] == ["phantom.Phantom.vdb"] and vdbs[0].stat().st_size > 10_000
     for png in ("surface.png", "volume.png"):
         stats = png_stats(out / png)
         assert stats["shape"] == (120, 120, 3)
@@ -61,7 +61,7 @@ def test_cli_phantom_writes_blend_vdb_and_renders(tmp_path):
     reopened = subprocess.run([sys.executable, "-c", check, str(out / "phantom.blend")], capture_output=True,
                               text=True, env=dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "u2")))
     assert reopened.returncode == 0, reopened.stderr[-2000:]
-    assert reopened.stdout.split()[-3:] == ["Phantom", "5", "//pdehead_vdb/Phantom.vdb"]  # + the settings Empty
+    assert reopened.stdout.split()[-3:] == ["Phantom", "5", "//pdehead_vdb/phantom.Phantom.vdb"]  # + the settings Empty
 
 
 def test_cli_bad_input_is_one_clear_line(tmp_path):
