@@ -329,8 +329,9 @@ class ExportSteps:
             names.append("provenance.json")
             for name in names:
                 os.replace(tmp / name, out / name)
-        except OSError as exc:
-            raise PDEHeadError(f"{out}: cannot write the export ({exc.strerror})") from None
+        except OSError as exc:  # named as the file in `out` that could not be written (a full disk: no partial)
+            where = out / Path(exc.filename).name if getattr(exc, "filename", None) else out
+            raise PDEHeadError(f"{where}: cannot write the export ({exc.strerror or exc})") from None
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
         return names

@@ -209,8 +209,68 @@ def pdehead_volume_load_post(*_args) -> None:
             data.filepath = ""
 
 
+def _clamped(prop, value):
+    """`value` of the int/float property `prop` within its limits (NaN: its default), or None if it is."""
+    import math
+    lo, hi = prop.hard_min, prop.hard_max
+    if isinstance(value, float) and math.isnan(value):
+        return prop.default
+    if value < lo:
+        return lo
+    if value > hi:
+        return hi
+    return None
+
+
+def validate_study_settings(coll) -> list[str]:
+    """Bring a study's stored settings within their properties' limits (Blender does not check the numbers
+    a .blend holds: ``nu = 1e8`` would build a 9 GB mesh); returns what was changed, for the report."""
+    settings = state.settings(coll)
+    if settings is None:
+        return []
+    changed = []
+    with state.suspended_updates():  # no live rebuild from the repairs
+        for prop in settings.bl_rna.properties:
+            if prop.type not in {"INT", "FLOAT"} or prop.is_readonly:
+                continue
+            name = prop.identifier
+            value = getattr(settings, name)
+            if getattr(prop, "array_length", 0):
+                values = list(value)
+                fixed = [_clamped(prop, v) for v in values]
+                if any(f is not None for f in fixed):
+                    setattr(settings, name, [v if f is None else f for v, f in zip(values, fixed)])
+                    changed.append(f"{name} {values} -> {list(getattr(settings, name))}")
+            else:
+                fixed = _clamped(prop, value)
+                if fixed is not None:
+                    setattr(settings, name, fixed)
+                    changed.append(f"{name} {value:g} -> {getattr(settings, name):g}")
+        from .study_entity import parse_timings
+        if settings.timings_json and not parse_timings(settings.timings_json) and settings.timings_json != "{}":
+            settings.timings_json = ""
+            changed.append("timings (not a table of seconds) cleared")
+    return changed
+
+
+@bpy.app.handlers.persistent
+def pdehead_validate_load_post(*_args) -> None:
+    """The opened file's stored study state is data: numbers outside their limits are clamped, an
+    unreadable timings table cleared; one report per study (its warnings and the console)."""
+    for coll in state.studies():
+        try:
+            changed = validate_study_settings(coll)
+        except Exception as exc:  # noqa: BLE001 - one study's damage must not stop the file opening
+            changed = [f"could not be checked ({exc})"]
+        if changed:
+            message = (f"study '{coll.name}': the file held values outside their limits; "
+                       f"{'; '.join(changed)}")
+            print(f"PDE Head: {message}")
+            Study.of(coll).add_warnings([message])
+
+
 _HANDLERS = (("save_pre", pdehead_save_pre), ("save_post", pdehead_save_post),
-             ("load_post", pdehead_volume_load_post))
+             ("load_post", pdehead_volume_load_post), ("load_post", pdehead_validate_load_post))
 
 
 def _remove_handlers() -> list:

@@ -30,6 +30,28 @@ WARNING_SEPARATOR = "\n"
 _MAX_WARNINGS_CHARS = 4000
 
 
+#: At most this many characters of a stored timings table are parsed (a handful of steps: ~300).
+MAX_TIMINGS_JSON_CHARS = 65536
+
+
+def parse_timings(text) -> dict[str, float]:
+    """``{step: seconds}`` from the stored JSON, or {} for anything else (the .blend's state is data)."""
+    import math
+    if not text or not isinstance(text, str) or len(text) > MAX_TIMINGS_JSON_CHARS:
+        return {}
+    try:
+        data = json.loads(text)
+    except (ValueError, RecursionError):
+        return {}
+    if not isinstance(data, dict):
+        return {}
+    out = {}
+    for step, seconds in data.items():
+        if isinstance(seconds, (int, float)) and not isinstance(seconds, bool) and math.isfinite(seconds):
+            out[str(step)] = float(seconds)
+    return out
+
+
 class Study(PipelineSteps, LiveSolid):
     """One study (a collection with study settings); get it with :meth:`of`, :meth:`active` or
     :meth:`of_settings`, make one with :meth:`import_ct`, :meth:`phantom` or :meth:`create`."""
@@ -144,13 +166,14 @@ class Study(PipelineSteps, LiveSolid):
 
     @property
     def timings(self) -> dict[str, float]:
-        """The last run's seconds per step (the Timings panel)."""
-        return json.loads(self.settings.timings_json or "{}")
+        """The last run's seconds per step (the Timings panel); a stored value that is no such table
+        (a damaged or tampered .blend) reads as none, and so do entries that are no finite numbers."""
+        return parse_timings(self.settings.timings_json)
 
     def record_timing(self, step: str, seconds: float) -> None:
         """Remember how long a step took (shown in the Timings panel; the last run's values)."""
         s = self.settings
-        timings = json.loads(s.timings_json or "{}")
+        timings = parse_timings(s.timings_json)
         timings[step] = round(float(seconds), 4)
         s.timings_json = json.dumps(timings)
 

@@ -255,6 +255,16 @@ MAX_VDB_BYTES = _param("max_vdb_bytes", 64 * 2 ** 20, min=1, unit="bytes",
 MAX_WFIELD_VOXELS = _param("max_wfield_voxels", 5_000_000, min=1,
                            description="Largest w-field grid the automatic voxel size allows")
 
+# ----------------------------------------------------------------------------- what a .blend may hold
+#: Budgets of the data a .blend stores for a study, checked when it is read (a .blend is data: a tampered
+#: file must not make PDE Head allocate gigabytes). The boundary curves: a few hundred kB at most (a 3t+1
+#: = 151 curves x 1024 samples x 3 coordinates x 8 byte planes is 3.7 MB); the solid's CT table: 8-bit,
+#: at most about 4.2 MB at the texture budget's largest solid (persistence.py).
+MAX_STORED_BOUNDARY_BYTES = _param("max_stored_boundary_bytes", 16 * 2 ** 20, min=1, unit="bytes",
+                                   description="Largest decompressed boundary payload read from a .blend")
+MAX_STORED_CT_TABLE_BYTES = _param("max_stored_ct_table_bytes", 64 * 2 ** 20, min=1, unit="bytes",
+                                   description="Largest decompressed solid CT table read from a .blend")
+
 # ----------------------------------------------------------------------------- import
 DOWNSAMPLE = _param("downsample", 1, min=1, max=8,
                     description="Average blocks of N x N x N voxels on import (for very large scans: 2 needs "

@@ -124,8 +124,7 @@ def export_mesh(mesh: Mesh, path: str | os.PathLike, fmt: str | None = None, nam
     if require_watertight and not mesh.is_watertight():
         raise PDEHeadError(f"{path}: the mesh '{name}' is not watertight (open or inconsistently wound edges); "
                            "build the surface with caps")
-    try:
-        _WRITERS[fmt](mesh, path, name, provenance=provenance)
-    except OSError as exc:
-        raise PDEHeadError(f"{path}: cannot write ({exc.strerror})") from None
+    from .safe_io import write_with
+    # a temporary name, its size checked, then renamed: a full disk leaves no partial mesh
+    write_with(path, lambda tmp: _WRITERS[fmt](mesh, tmp, name, provenance=provenance), minimum=1)
     return path

@@ -86,7 +86,9 @@ def checked_output(path: str | os.PathLike, *, replace: bool = True) -> Iterator
             os.replace(tmp, path)
         else:
             os.link(tmp, path)  # fails if `path` exists: never overwrites
-    except (WriteError, FileExistsError):
+    except WriteError as exc:  # named as the user's file, not the temporary one
+        raise WriteError(str(exc).replace(str(tmp), str(path))) from None
+    except FileExistsError:
         raise
     except OSError as exc:
         raise WriteError(f"{path}: cannot be written ({_reason(exc)})") from None
@@ -132,3 +134,21 @@ def copy_checked(src: str | os.PathLike, dst: str | os.PathLike) -> Path:
         shutil.copyfile(src, tmp)
         check_size(tmp, size, minimum=0)
     return dst
+
+
+def decompress_bounded(packed: bytes, max_bytes: int, what: str) -> bytes:
+    """``zlib.decompress`` that never produces more than `max_bytes` (a stored payload is data: a small
+    compressed blob may claim gigabytes); raises :class:`StorageError` naming `what` beyond it."""
+    import zlib
+
+    d = zlib.decompressobj()
+    try:
+        out = d.decompress(packed, int(max_bytes))
+        if d.unconsumed_tail or (not d.eof and d.decompress(b"", 1)):
+            raise StorageError(f"{what}: more than {int(max_bytes) // 2 ** 20} MB when decompressed (the budget); "
+                               "not read")
+        if not d.eof:
+            raise StorageError(f"{what}: truncated compressed data")
+    except zlib.error as exc:
+        raise StorageError(f"{what}: corrupt compressed data ({exc})") from None
+    return out

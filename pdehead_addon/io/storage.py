@@ -184,8 +184,10 @@ def loads_boundaries(data: bytes, name: str = "<bytes>") -> BoundarySet:
         raise fail(f"corrupt header ({exc.__class__.__name__}: {exc})") from None
     if not (n >= 4 and M >= 8 and coords in (2, 3) and 1 <= planes <= 8 and quantum > 0):
         raise fail(f"corrupt header (curves={n}, samples={M}, coords={coords}, byte_planes={planes})")
+    from ..defaults import MAX_STORED_BOUNDARY_BYTES
+    from .safe_io import decompress_bounded
+    payload = decompress_bounded(packed, MAX_STORED_BOUNDARY_BYTES.default, name)
     try:
-        payload = zlib.decompress(packed)
         mlen = struct.unpack_from("<I", payload, 0)[0]
         meta = json.loads(payload[4:4 + mlen].decode("utf-8")) if mlen else {}
     except (zlib.error, struct.error, ValueError, UnicodeDecodeError) as exc:

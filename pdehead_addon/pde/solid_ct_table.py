@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.ct_volume import CTVolume
-from ..core.errors import PDEError, report_progress
+from ..core.errors import PDEError, PDEHeadError, report_progress
 from ..core.threads import map_in_order
 from .pde_solid import TWO_PI, axial_grid
 
@@ -207,16 +207,23 @@ class SolidCTTable:
         import json
         import zlib
 
+        from ..defaults import MAX_STORED_CT_TABLE_BYTES
+        from ..io.safe_io import decompress_bounded
+
         try:
             n = int.from_bytes(raw[:4], "little")
             header = json.loads(raw[4:4 + n].decode())
             if header.get("format") != cls.PACK_FORMAT:
                 raise ValueError(f"unknown format {header.get('format')!r}")
             shape = tuple(int(x) for x in header["shape"])
-            q = np.frombuffer(zlib.decompress(raw[4 + n:]), np.uint8).reshape(shape)
+            budget = MAX_STORED_CT_TABLE_BYTES.default
+            if len(shape) != 3 or min(shape) < 1 or int(np.prod(shape, dtype=np.float64)) > budget:
+                raise ValueError(f"shape {shape} is not a table within {budget // 2 ** 20} MB")
+            q = np.frombuffer(decompress_bounded(raw[4 + n:], budget, "the stored solid CT table"),
+                              np.uint8).reshape(shape)
             lo, hi = (float(x) for x in header["window"])
             a, b = (float(x) for x in header["range"])
-        except (ValueError, KeyError, TypeError, zlib.error) as exc:
+        except (ValueError, KeyError, TypeError, AttributeError, zlib.error, PDEHeadError) as exc:
             raise PDEError(f"the stored solid CT table cannot be read ({exc})") from None
         values = q.astype(np.float32) * np.float32((b - a) / 255.0) + np.float32(a)
         return cls.from_table(values), (lo, hi)
