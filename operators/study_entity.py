@@ -245,7 +245,7 @@ class Study(PipelineSteps, LiveSolid):
             raw = base64.b64decode(text.encode("ascii"), validate=True)
         except (ValueError, TypeError) as exc:
             raise StorageError(f"study '{self.name}': stored boundary data is corrupt ({exc})") from None
-        return loads_boundaries(raw)
+        return loads_boundaries(raw, f"study '{self.name}': the boundary curves stored in the .blend")
 
     def boundary_set(self):
         """The study's BoundarySet: from memory, else from the .blend, else None."""
