@@ -1065,13 +1065,23 @@ def _summary(args, addon, coll, timings, total, selection_info, warning_lines) -
 def write_summary_json(path: Path, summary: dict) -> None:
     """Write atomically (a temporary file beside it, then renamed): never a half-written file."""
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.pdehead-partial")
-    try:
-        tmp.write_text(json.dumps(summary, indent=1) + "\n")
+    data = (json.dumps(summary, indent=1) + "\n").encode("utf-8")
+    tmp = None
+    try:  # a temporary name of this run's own (two runs never share one), its size checked, then renamed
+        fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
+        tmp = Path(name)
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        if tmp.stat().st_size != len(data):
+            raise OSError(f"{tmp.stat().st_size} of {len(data)} bytes written")
         os.replace(tmp, path)
     except OSError as exc:
-        tmp.unlink(missing_ok=True)
         raise CLIError(f"--summary-json {path}: cannot be written ({exc.strerror or exc})", 2) from None
+    finally:
+        if tmp is not None:
+            tmp.unlink(missing_ok=True)
 
 
 def main(argv=None, watchdog: bool = False) -> int:

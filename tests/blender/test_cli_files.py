@@ -133,6 +133,44 @@ def test_a_second_ctrl_c_ends_the_run_at_once_without_a_traceback(tmp_path):
     assert not d.exists() or _files(d) == [], _files(d)
 
 
+def test_ctrl_c_during_the_dicom_scan_ends_the_run(tmp_path):
+    """A large folder (the GE series linked 150 times: 4200 files) is being scanned (a file of it open in the
+    process) when Ctrl-C comes: exit 130, nothing written."""
+    from datasets import shared_data
+    ge = shared_data("ct_head_ge_tilt_dicom", "dicom").resolve()
+    big = tmp_path / "big"
+    for n in range(150):
+        sub = big / f"s{n:03d}"
+        sub.mkdir(parents=True)
+        for f in sorted(ge.iterdir()):
+            (sub / f.name).symlink_to(f)
+    d = tmp_path / "d"
+    proc = _start(tmp_path, "scan", big, "--out", d / "x.blend")
+    try:
+        deadline = time.monotonic() + 600
+        while proc.poll() is None and time.monotonic() < deadline:
+            try:
+                links = [os.readlink(f"/proc/{proc.pid}/fd/{fd}") for fd in os.listdir(f"/proc/{proc.pid}/fd")]
+            except OSError:
+                links = []
+            if any(link.startswith(str(ge)) for link in links):
+                break
+            time.sleep(0.005)
+        assert proc.poll() is None, "the run ended before the test saw it scan"
+        proc.send_signal(signal.SIGINT)
+        t0 = time.perf_counter()
+        proc.wait(timeout=600)
+        latency = time.perf_counter() - t0
+        err = proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    print(f"Ctrl-C during the DICOM scan: exit after {latency:.2f} s")
+    assert proc.returncode == 130, err[-2000:]
+    assert "cancelled (Ctrl-C)" in err and "Traceback" not in err
+    assert not d.exists() or _files(d) == [], _files(d)
+
+
 def test_out_inside_the_input_folder_is_refused(tmp_path):
     dicom = tmp_path / "series"
     dicom.mkdir()

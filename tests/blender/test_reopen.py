@@ -144,9 +144,10 @@ def test_reopen_in_a_new_process_rereads_the_ct_and_loses_nothing(ext, pdehead_e
 
     blend = project / "study.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
-    # the volume built before the first save moved beside the .blend; the temp file is gone
-    assert s.volume_object.data.filepath == f"//pdehead_vdb/{temp_vdb.name}"
-    assert (project / "pdehead_vdb" / temp_vdb.name).is_file() and not temp_vdb.exists()
+    # the volume built before the first save moved beside the .blend, named for it; the temp file is gone
+    saved_vdb = f"study.{temp_vdb.name}"
+    assert s.volume_object.data.filepath == f"//pdehead_vdb/{saved_vdb}"
+    assert (project / "pdehead_vdb" / saved_vdb).is_file() and not temp_vdb.exists()
     assert s.source == "//ct/raw16" and s.source_absolute == str((project / "ct" / "raw16").resolve())
     bpy.ops.wm.read_homefile(use_empty=True)
 
@@ -167,7 +168,7 @@ def test_reopen_in_a_new_process_rereads_the_ct_and_loses_nothing(ext, pdehead_e
     assert solid["colour"].std() > 0.05
     # Build Volume after reopening: the ct grid is the original one within half-float precision,
     # written to a NEW file; the previous file was kept until the save no longer referenced it
-    assert Path(result["vdb_before"]) == moved / "pdehead_vdb" / temp_vdb.name
+    assert Path(result["vdb_before"]) == moved / "pdehead_vdb" / saved_vdb
     assert Path(result["vdb_after"]) != Path(result["vdb_before"])
     assert Path(result["vdb_after"]).parent == moved / "pdehead_vdb"
     assert not result["vdb_before_exists_after_save"]
