@@ -202,13 +202,22 @@ def expand_dicomdir(files: list[Path], label: str, warns: list[str]) -> list[Pat
         except Exception as exc:
             warns.append(f"cannot read DICOMDIR {d} ({type(exc).__name__}: {exc}); its folder is searched instead")
             continue
-        missing = []
+        missing, outside = [], []
+        root = os.path.realpath(d.parent)
         for rec in records:
-            ref = rec.get("ReferencedFileID")
+            try:
+                ref = rec.get("ReferencedFileID")
+            except Exception:  # noqa: BLE001 - a damaged record: its file is not loaded
+                continue
             if ref is None:
                 continue
             parts = [str(p) for p in ref] if not isinstance(ref, str) else str(ref).split("\\")
             target = d.parent.joinpath(*parts)
+            # a file-set's files lie in its own folder (PS3.10 8.5): never open a file outside it
+            if os.path.isabs(os.path.join(*parts)) or os.path.commonpath(
+                    [root, os.path.realpath(target)]) != root:
+                outside.append("/".join(parts))
+                continue
             if not target.is_file():
                 # file systems that lost the upper case of ISO 9660 names
                 alt = d.parent.joinpath(*(p.lower() for p in parts))
@@ -220,6 +229,9 @@ def expand_dicomdir(files: list[Path], label: str, warns: list[str]) -> list[Pat
             if key not in seen:
                 seen.add(key)
                 out.append(target)
+        if outside:
+            warns.append(f"DICOMDIR {d} refers to {len(outside)} file(s) outside its folder, not opened: "
+                         + ", ".join(outside[:3]) + (", ..." if len(outside) > 3 else ""))
         if missing:
             warns.append(f"DICOMDIR {d} refers to {len(missing)} missing file(s): " + ", ".join(missing[:3])
                          + (", ..." if len(missing) > 3 else ""))
@@ -314,6 +326,7 @@ class DicomFrame:
     rows: int
     cols: int
     sop_uid: str
+    notes: tuple = ()            # what was repaired in this frame's header (said in a warning)
 
 
 @dataclass
@@ -343,15 +356,112 @@ def import_pydicom():
     return pydicom
 
 
+_HEADER_KEYWORDS = ("SOPClassUID", "SeriesInstanceUID", "Rows", "Columns", "ImagePositionPatient",
+                    "ImageOrientationPatient", "PixelSpacing", "SliceThickness", "RescaleSlope", "RescaleIntercept",
+                    "NumberOfFrames", "SOPInstanceUID", "Modality", "ImageType", "SeriesNumber", "SeriesDescription",
+                    "StudyDescription", "Manufacturer", "PatientPosition", "GantryDetectorTilt", "SamplesPerPixel",
+                    "BitsAllocated", "BitsStored", "PixelRepresentation", "PhotometricInterpretation",
+                    "PixelPaddingValue", "PixelPaddingRangeLimit", "SharedFunctionalGroupsSequence",
+                    "PerFrameFunctionalGroupsSequence")
+
+
+class BadHeader(ValueError):
+    """A DICOM header whose values contradict each other or the file (the message says which)."""
+
+
+class TruncatedPixels(BadHeader):
+    """An image file whose pixel data is shorter than its header says (cut off)."""
+
+
+def _int_attr(ds, keyword: str, default=None) -> int | None:
+    value = ds.get(keyword, default)
+    if value is None or value == "":
+        return default
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise BadHeader(f"{keyword} is {value!r}, not a number") from None
+    if not math.isfinite(number) or number != int(number):
+        raise BadHeader(f"{keyword} is {value!r}, not a whole number")
+    return int(number)
+
+
+def check_image_header(f: Path, ds) -> int:
+    """The number of frames of an image file whose size attributes are consistent, else :class:`BadHeader`.
+
+    Rows, Columns, NumberOfFrames, BitsAllocated and SamplesPerPixel are checked for range, the transfer
+    syntax for being known, and the declared pixel bytes against the length of the PixelData element
+    (uncompressed) or the file (compressed) and the import memory budget, all before any pixel is read.
+    """
+    from ... import defaults
+    rows, cols = _int_attr(ds, "Rows", 0), _int_attr(ds, "Columns", 0)
+    if not (1 <= rows <= 65535 and 1 <= cols <= 65535):
+        raise BadHeader(f"image size Rows x Columns = {rows} x {cols} (each must be 1 to 65535)")
+    if rows < 8 or cols < 8:
+        raise BadHeader(f"image size Rows x Columns = {rows} x {cols}: too small to be a CT slice")
+    frames = _int_attr(ds, "NumberOfFrames", 1)
+    if frames < 1:
+        raise BadHeader(f"NumberOfFrames is {frames}")
+    bits = _int_attr(ds, "BitsAllocated", 16)
+    if bits not in (1, 8, 16, 32, 64):
+        raise BadHeader(f"BitsAllocated is {bits} (1, 8, 16, 32 or 64)")
+    samples = _int_attr(ds, "SamplesPerPixel", 1)
+    if not 1 <= samples <= 4:
+        raise BadHeader(f"SamplesPerPixel is {samples}")
+    meta = getattr(ds, "file_meta", None)
+    ts = meta.get("TransferSyntaxUID") if meta is not None else None
+    if ts is not None and not ts.is_transfer_syntax:
+        raise BadHeader(f"unknown TransferSyntaxUID {str(ts)!r}: the pixel data cannot be decoded")
+    stored = _int_attr(ds, "BitsStored", None)
+    if stored is not None and not (min(8, bits) <= stored <= bits):
+        raise BadHeader(f"BitsStored {stored} does not fit BitsAllocated {bits}")
+    photometric = str(ds.get("PhotometricInterpretation", "") or "").strip().upper()
+    if photometric and samples == 1 and photometric not in ("MONOCHROME1", "MONOCHROME2"):
+        raise BadHeader(f"PhotometricInterpretation is {photometric} with one sample per pixel (CT slices are "
+                        "MONOCHROME2)")
+    expected = (rows * cols * frames * samples * bits + 7) // 8
+    budget = defaults.IMPORT_MEMORY_BUDGET_BYTES
+    if rows * cols * frames * 4 > budget:
+        raise BadHeader(f"{rows} x {cols} x {frames} frame(s) would need {rows * cols * frames * 4 / 2 ** 30:.3g} GB "
+                        f"of memory, more than the import budget of {budget / 2 ** 30:.3g} GB")
+    element = ds.get_item("PixelData", keep_deferred=True)
+    length = getattr(element, "length", None)
+    if length is None:
+        value = getattr(element, "value", None)
+        length = len(value) if isinstance(value, (bytes, bytearray)) else None
+    compressed = ts is not None and ts.is_transfer_syntax and ts.is_compressed
+    if length is not None and length != 0xFFFFFFFF and not compressed:
+        if length < expected:
+            raise TruncatedPixels(f"the pixel data has {length} bytes, the header's {rows} x {cols} x {frames} frame(s) "
+                            f"of {bits} bits need {expected} (truncated file or wrong Rows/Columns/NumberOfFrames)")
+        if length > expected + (expected & 1) + 1:
+            raise BadHeader(f"the pixel data has {length} bytes, the header's {rows} x {cols} x {frames} frame(s) "
+                            f"of {bits} bits only {expected} (wrong Rows/Columns/NumberOfFrames/BitsAllocated)")
+    elif compressed or (length == 0xFFFFFFFF):
+        stored = f.stat().st_size
+        ratio = defaults.IMPORT_MAX_COMPRESSION_RATIO
+        if expected > defaults.IMPORT_RATIO_FLOOR_BYTES and expected > ratio * stored:
+            raise BadHeader(f"{rows} x {cols} x {frames} compressed frame(s) would decode to {expected} bytes from a "
+                            f"{stored}-byte file (more than {ratio} times: a corrupt header)")
+        if frames > stored // 4:
+            raise BadHeader(f"NumberOfFrames is {frames} in a file of {stored} bytes")
+    return frames
+
+
 def _read_dicom_header(f: Path):
     """The dataset with pixel data deferred (read lazily from the file)."""
     pydicom = import_pydicom()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         ds = pydicom.dcmread(f, defer_size=4096, force=True)
-        # Touch the tags we need now so that a header broken by truncation fails here.
-        for keyword in ("SOPClassUID", "SeriesInstanceUID", "Rows", "Columns", "ImagePositionPatient"):
+        # Touch the tags used later now, so that a header broken by truncation or a flipped byte (an
+        # unknown VR, a value of the wrong type) fails here, inside the caller's try.
+        for keyword in _HEADER_KEYWORDS:
             ds.get(keyword)
+        meta = getattr(ds, "file_meta", None)
+        if meta is not None:
+            meta.get("TransferSyntaxUID")
+            meta.get("MediaStorageSOPClassUID")
     if "SOPClassUID" not in ds and "SeriesInstanceUID" not in ds and "Rows" not in ds:
         raise ValueError("no SOP class, series or image attributes")
     return ds
@@ -388,34 +498,75 @@ def _group_value(groups: Sequence, sequence: str, keyword: str):
     return None
 
 
-def _frames_of(f: Path, ds) -> list[DicomFrame]:
+def _unit_pairs(iop: np.ndarray | None) -> np.ndarray | None:
+    """ImageOrientationPatient with two unit, perpendicular direction cosines, else None."""
+    if iop is None:
+        return None
+    a, b = iop[:3], iop[3:]
+    na, nb = np.linalg.norm(a), np.linalg.norm(b)
+    if not (0.9 < na < 1.1 and 0.9 < nb < 1.1) or abs(a @ b) / (na * nb) > 0.05:
+        return None
+    return iop
+
+
+def _scalar_or_note(value, default: float, keyword: str, notes: list[str], required: bool) -> float:
+    """A finite number, else ``default`` with a note saying why (missing: only when ``required``)."""
+    if value is None or value == "":
+        if required:
+            notes.append(f"{keyword} missing (taken as {default:g})")
+        return default
+    out = float_or(value, None)
+    if out is None:
+        notes.append(f"{keyword} {value!r} is not a finite number (taken as {default:g})")
+        return default
+    return out
+
+
+def _frames_of(f: Path, ds, nframes: int = 1) -> list[DicomFrame]:
     rows, cols = int(ds.get("Rows", 0) or 0), int(ds.get("Columns", 0) or 0)
     sop_uid = str(ds.get("SOPInstanceUID", f))
-    try:
-        nframes = int(ds.get("NumberOfFrames", 1) or 1)
-    except (TypeError, ValueError):
-        nframes = 1
+    is_ct = str(ds.get("Modality", "") or "").upper() == "CT"
     shared_seq = ds.get("SharedFunctionalGroupsSequence")
     shared = shared_seq[0] if shared_seq else None
     per_frame = ds.get("PerFrameFunctionalGroupsSequence")
     frames = []
     for index in range(nframes):
+        notes: list[str] = []
         groups = [per_frame[index] if per_frame is not None and index < len(per_frame) else None, shared]
         ipp = _floats(_group_value(groups, "PlanePositionSequence", "ImagePositionPatient")
                       or ds.get("ImagePositionPatient"), 3)
-        iop = _floats(_group_value(groups, "PlaneOrientationSequence", "ImageOrientationPatient")
-                      or ds.get("ImageOrientationPatient"), 6)
+        if ipp is not None and np.abs(ipp).max() > 1e5:
+            notes.append(f"ImagePositionPatient {np.round(ipp, 1).tolist()} lies more than 100 m away")
+            ipp = None
+        iop = _unit_pairs(_floats(_group_value(groups, "PlaneOrientationSequence", "ImageOrientationPatient")
+                                  or ds.get("ImageOrientationPatient"), 6))
         ps = _floats(_group_value(groups, "PixelMeasuresSequence", "PixelSpacing") or ds.get("PixelSpacing"), 2)
-        thickness = float_or(_group_value(groups, "PixelMeasuresSequence", "SliceThickness")
-                              or ds.get("SliceThickness"), None)
-        slope = float_or(_group_value(groups, "PixelValueTransformationSequence", "RescaleSlope")
-                          or ds.get("RescaleSlope"), 1.0)
-        intercept = float_or(_group_value(groups, "PixelValueTransformationSequence", "RescaleIntercept")
-                              or ds.get("RescaleIntercept"), 0.0)
+        if ps is not None and not np.all((ps >= 0.01) & (ps <= 100.0)):
+            notes.append(f"PixelSpacing {ps.tolist()} mm is outside 0.01 to 100 mm")
+            ps = None
+        thickness_value = _group_value(groups, "PixelMeasuresSequence", "SliceThickness") or ds.get("SliceThickness")
+        thickness = float_or(thickness_value, None)
+        if thickness_value not in (None, "") and not (thickness is not None and 0 < thickness <= 100):
+            notes.append(f"SliceThickness {thickness_value!r} is not a size of 0 to 100 mm (ignored)")
+            thickness = None
+        slope_value = _group_value(groups, "PixelValueTransformationSequence", "RescaleSlope")
+        slope_value = ds.get("RescaleSlope") if slope_value is None else slope_value
+        intercept_value = _group_value(groups, "PixelValueTransformationSequence", "RescaleIntercept")
+        intercept_value = ds.get("RescaleIntercept") if intercept_value is None else intercept_value
+        slope = _scalar_or_note(slope_value, 1.0, "RescaleSlope", notes, is_ct)
+        intercept = _scalar_or_note(intercept_value, 0.0, "RescaleIntercept", notes, is_ct)
+        if slope == 0:
+            notes.append("RescaleSlope 0 (taken as 1)")
+            slope = 1.0
+        if slope < 0 and is_ct:
+            raise BadHeader(f"RescaleSlope {slope:g} is negative: a CT's values would come out inverted")
+        if abs(slope) > 1e4 or abs(intercept) > 1e5:
+            raise BadHeader(f"RescaleSlope {slope:g} / RescaleIntercept {intercept:g}: no CT or MR scaling is this "
+                            "large (a corrupt header)")
         frames.append(DicomFrame(f, index if nframes > 1 else None, ds, ipp, iop,
                              None if ps is None else (float(ps[0]), float(ps[1])),
                              thickness if thickness and thickness > 0 else None,
-                             slope if slope != 0 else 1.0, intercept, rows, cols, sop_uid))
+                             slope, intercept, rows, cols, sop_uid, tuple(notes)))
     return frames
 
 
@@ -432,39 +583,63 @@ def scan_dicom(files: list[Path]) -> _Scan:
         if f.name.upper() == "DICOMDIR":
             skip("DICOMDIR", f)
             continue
-        if has_ext(f, IMAGE_EXTENSIONS + NIFTI_EXTENSIONS + TEXT_EXTENSIONS) or not _looks_like_dicom(f):
+        if has_ext(f, IMAGE_EXTENSIONS + NIFTI_EXTENSIONS + TEXT_EXTENSIONS):
+            skip("not DICOM", f)
+            continue
+        try:
+            with open(f, "rb") as fh:
+                empty = not fh.read(1)
+        except OSError as exc:
+            unreadable[f] = f"cannot open it: {exc.strerror or exc}"
+            continue
+        if empty:
+            unreadable[f] = "empty file (0 bytes)"
+            continue
+        if not _looks_like_dicom(f):
             skip("not DICOM", f)
             continue
         try:
             ds = _read_dicom_header(f)
+            _add_file(f, ds, series, skip, unreadable, incomplete)
+        except TruncatedPixels as exc:
+            unreadable[f] = f"truncated file: {exc}"
+            incomplete.setdefault(str(ds.get("SeriesInstanceUID", "")), []).append(f)
+        except BadHeader as exc:
+            unreadable[f] = str(exc)
         except Exception as exc:  # any parse failure of a DICOM-looking file
             unreadable[f] = f"{type(exc).__name__}: {exc}"
-            continue
-        media_class = str(getattr(ds, "file_meta", {}).get("MediaStorageSOPClassUID", ""))
-        if media_class == DICOMDIR_SOP_CLASS or str(ds.get("SOPClassUID", "")) == DICOMDIR_SOP_CLASS:
-            skip("DICOMDIR", f)
-            continue
-        if "PixelData" not in ds:
-            sop_class = ds.get("SOPClassUID")
-            if sop_class is not None and "image storage" in str(getattr(sop_class, "name", "")).lower():
-                # an image object without its pixels: the file was cut off inside the header
-                incomplete.setdefault(str(ds.get("SeriesInstanceUID", "")), []).append(f)
-                unreadable[f] = f"{sop_class.name} object without pixel data (file truncated?)"
-            else:
-                skip("no pixel data (not an image)", f)
-            continue
-        uid = str(ds.get("SeriesInstanceUID", "") or "(no SeriesInstanceUID)")
-        entry = series.setdefault(uid, DicomSeries(uid))
-        image_type = ds.get("ImageType") or []
-        if isinstance(image_type, str):
-            image_type = image_type.split("\\")
-        if "LOCALIZER" in {str(t).strip().upper() for t in image_type}:
-            entry.localizers += 1
-            skip("localizer", f)
-            continue
-        entry.frames.extend(_frames_of(f, ds))
     series = {uid: s for uid, s in series.items() if s.frames}
     return _Scan(series, skipped, unreadable, incomplete)
+
+
+def _add_file(f: Path, ds, series, skip, unreadable, incomplete) -> None:
+    """Put one file's frames into its series (or skip it, saying why)."""
+    media_class = str(getattr(ds, "file_meta", {}).get("MediaStorageSOPClassUID", ""))
+    if media_class == DICOMDIR_SOP_CLASS or str(ds.get("SOPClassUID", "")) == DICOMDIR_SOP_CLASS:
+        if "PixelData" in ds:
+            raise BadHeader("its SOP class says DICOMDIR (a file-set index) but it holds pixel data")
+        skip("DICOMDIR", f)
+        return
+    if "PixelData" not in ds:
+        sop_class = ds.get("SOPClassUID")
+        if sop_class is not None and "image storage" in str(getattr(sop_class, "name", "")).lower():
+            # an image object without its pixels: the file was cut off inside the header
+            incomplete.setdefault(str(ds.get("SeriesInstanceUID", "")), []).append(f)
+            unreadable[f] = f"{sop_class.name} object without pixel data (file truncated?)"
+        else:
+            skip("no pixel data (not an image)", f)
+        return
+    nframes = check_image_header(f, ds)
+    uid = str(ds.get("SeriesInstanceUID", "") or "(no SeriesInstanceUID)")
+    image_type = ds.get("ImageType") or []
+    if isinstance(image_type, str):
+        image_type = image_type.split("\\")
+    if "LOCALIZER" in {str(t).strip().upper() for t in image_type}:
+        series.setdefault(uid, DicomSeries(uid)).localizers += 1
+        skip("localizer", f)
+        return
+    frames = _frames_of(f, ds, nframes)
+    series.setdefault(uid, DicomSeries(uid)).frames.extend(frames)
 
 
 def _orientation_name(iop: np.ndarray | None) -> str:
