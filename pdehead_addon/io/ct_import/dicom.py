@@ -83,11 +83,6 @@ def load_dicom(files, label, series_uid, resample_spacing, warns) -> CTVolume:
     if not_dicom:
         warns.append(f"skipped {len(not_dicom)} non-DICOM file(s): "
                      + ", ".join(f.name for f in not_dicom[:5]) + (", ..." if len(not_dicom) > 5 else ""))
-    for reason in ("no pixel data (not an image)",):
-        if scan.skipped.get(reason):
-            fs = scan.skipped[reason]
-            warns.append(f"skipped {len(fs)} DICOM file(s) with {reason}: "
-                         + ", ".join(f.name for f in fs[:5]) + (", ..." if len(fs) > 5 else ""))
     notes: dict[str, list] = {}
     for fr in chosen.frames:
         for note in fr.notes:
@@ -173,11 +168,11 @@ def _consistent_frames(series: DicomSeries, warns: list[str]) -> list[DicomFrame
     frames = series.frames
     missing = [fr for fr in frames if fr.ipp is None or fr.iop is None or fr.pixel_spacing is None]
     if len(missing) == len(frames):
-        raise CTImportError("has no valid ImagePositionPatient / ImageOrientationPatient / PixelSpacing ("
+        raise CTImportError("has no ImagePositionPatient / ImageOrientationPatient / PixelSpacing (or an invalid one: "
                             + _missing_what(missing[0]) + "), so its slices cannot be placed in patient space",
                             missing[0].path)
     if missing:
-        warns.append(f"skipped {len(missing)} slice(s) without a valid position/orientation/pixel spacing ("
+        warns.append(f"skipped {len(missing)} slice(s) without position/orientation/pixel spacing or with an invalid one ("
                      + _missing_what(missing[0]) + "): " + ", ".join(fr.path.name for fr in missing[:5]))
         missing_ids = {id(fr) for fr in missing}
         frames = [fr for fr in frames if id(fr) not in missing_ids]

@@ -397,8 +397,6 @@ def check_image_header(f: Path, ds) -> int:
     rows, cols = _int_attr(ds, "Rows", 0), _int_attr(ds, "Columns", 0)
     if not (1 <= rows <= 65535 and 1 <= cols <= 65535):
         raise BadHeader(f"image size Rows x Columns = {rows} x {cols} (each must be 1 to 65535)")
-    if rows < 8 or cols < 8:
-        raise BadHeader(f"image size Rows x Columns = {rows} x {cols}: too small to be a CT slice")
     frames = _int_attr(ds, "NumberOfFrames", 1)
     if frames < 1:
         raise BadHeader(f"NumberOfFrames is {frames}")
