@@ -173,3 +173,14 @@ def test_twenty_refused_cases_through_the_cli(campaign):
         assert len(errors) == 1, (case.name, lines)
         problem = r["message"].split(": ", 1)[-1][:60]
         assert problem in errors[0], (case.name, problem, errors[0])
+
+
+def test_cli_refuses_a_zero_raw_shape_in_one_line():
+    """``--raw-shape 0 0`` was clamped to 1 x 1 by the operator's property and reported as such."""
+    raw16 = shared_data("cthead_stanford", "raw16")
+    proc = subprocess.run([sys.executable, str(ROOT / "scripts" / "pdehead.py"), str(raw16), "--raw-shape", "0", "0",
+                           "--dtype", ">i2", "--spacing", "2", "1", "1", "--no-volume"],
+                          capture_output=True, text=True, timeout=300, cwd=ROOT)
+    lines = [line for line in proc.stderr.splitlines() if line.strip()]
+    assert proc.returncode == 2 and lines == ["pdehead: error: --raw-shape must be two positive numbers of pixels "
+                                              "(rows, columns), got 0 0"], proc.stderr
