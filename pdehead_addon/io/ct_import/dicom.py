@@ -83,19 +83,7 @@ def load_dicom(files, label, series_uid, resample_spacing, warns) -> CTVolume:
     if not_dicom:
         warns.append(f"skipped {len(not_dicom)} non-DICOM file(s): "
                      + ", ".join(f.name for f in not_dicom[:5]) + (", ..." if len(not_dicom) > 5 else ""))
-    notes: dict[str, list] = {}
-    for fr in chosen.frames:
-        for note in fr.notes:
-            notes.setdefault(note, []).append(fr.path.name)
-    for note, names in notes.items():
-        warns.append(f"{note} in {len(names)} file(s) of the series, e.g. {names[0]}")
-    modalities: dict[str, list] = {}
-    for fr in chosen.frames:
-        modalities.setdefault(str(fr.ds.get("Modality", "") or "(none)"), []).append(fr.path.name)
-    if len(modalities) > 1:
-        warns.append("mixed Modality within the series: " + "; ".join(
-            f"{m} in {len(names)} file(s), e.g. {names[0]}" for m, names in modalities.items())
-            + f"; read as {info.modality or 'unknown'}")
+    _warn_repaired_headers(chosen, info, warns)
 
     frames = _consistent_frames(chosen, warns)
     geometry = _stack_geometry(frames, label, warns)
@@ -161,6 +149,23 @@ def load_dicom(files, label, series_uid, resample_spacing, warns) -> CTVolume:
         "covered_fraction": 1.0 if coverage is None else float(coverage.mean()),
     }
     return CTVolume(data, spacing, origin, direction, meta, coverage=coverage)
+
+
+def _warn_repaired_headers(chosen: DicomSeries, info, warns: list[str]) -> None:
+    """One warning per header repair of the series' frames (``DicomFrame.notes``) and for mixed modalities."""
+    notes: dict[str, list] = {}
+    for fr in chosen.frames:
+        for note in fr.notes:
+            notes.setdefault(note, []).append(fr.path.name)
+    for note, names in notes.items():
+        warns.append(f"{note} in {len(names)} file(s) of the series, e.g. {names[0]}")
+    modalities: dict[str, list] = {}
+    for fr in chosen.frames:
+        modalities.setdefault(str(fr.ds.get("Modality", "") or "(none)"), []).append(fr.path.name)
+    if len(modalities) > 1:
+        warns.append("mixed Modality within the series: " + "; ".join(
+            f"{m} in {len(names)} file(s), e.g. {names[0]}" for m, names in modalities.items())
+            + f"; read as {info.modality or 'unknown'}")
 
 
 def _consistent_frames(series: DicomSeries, warns: list[str]) -> list[DicomFrame]:

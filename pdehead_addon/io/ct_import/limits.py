@@ -1,10 +1,12 @@
 """Size limits of the readers: a file's declared size is checked against its real length and the memory
 budget (:data:`~pdehead_addon.defaults.IMPORT_MEMORY_BUDGET_BYTES`) before anything is allocated, and
-compressed streams are decompressed in bounded chunks, never past what the header asks for.
+compressed streams are decompressed in bounded chunks, never past what the header asks for; a DICOM
+image's size attributes are checked against its PixelData element (:func:`check_image_header`).
 """
 from __future__ import annotations
 
 import gzip
+import math
 import os
 import zlib
 from pathlib import Path
@@ -72,6 +74,82 @@ def gunzip_bounded(path: Path, limit: int, what: str = "gzip stream", verify: bo
     return b"".join(parts), extra
 
 
-def gzip_size_bound(path: Path) -> int:
-    """The most bytes a gzip file of this size can decompress to (deflate: 1032 x its stored size)."""
-    return 1032 * os.path.getsize(path) + 1024
+# ----------------------------------------------------------------------------- DICOM headers
+class BadHeader(ValueError):
+    """A DICOM header whose values contradict each other or the file (the message says which)."""
+
+
+class TruncatedPixels(BadHeader):
+    """An image file whose pixel data is shorter than its header says (cut off)."""
+
+
+def _int_attr(ds, keyword: str, default=None) -> int | None:
+    value = ds.get(keyword, default)
+    if value is None or value == "":
+        return default
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise BadHeader(f"{keyword} is {value!r}, not a number") from None
+    if not math.isfinite(number) or number != int(number):
+        raise BadHeader(f"{keyword} is {value!r}, not a whole number")
+    return int(number)
+
+
+def check_image_header(f: Path, ds) -> int:
+    """The number of frames of an image file whose size attributes are consistent, else :class:`BadHeader`.
+
+    Rows, Columns, NumberOfFrames, BitsAllocated and SamplesPerPixel are checked for range, the transfer
+    syntax for being known, and the declared pixel bytes against the length of the PixelData element
+    (uncompressed) or the file (compressed) and the import memory budget, all before any pixel is read.
+    """
+    rows, cols = _int_attr(ds, "Rows", 0), _int_attr(ds, "Columns", 0)
+    if not (1 <= rows <= 65535 and 1 <= cols <= 65535):
+        raise BadHeader(f"image size Rows x Columns = {rows} x {cols} (each must be 1 to 65535)")
+    frames = _int_attr(ds, "NumberOfFrames", 1)
+    if frames < 1:
+        raise BadHeader(f"NumberOfFrames is {frames}")
+    bits = _int_attr(ds, "BitsAllocated", 16)
+    if bits not in (1, 8, 16, 32, 64):
+        raise BadHeader(f"BitsAllocated is {bits} (1, 8, 16, 32 or 64)")
+    samples = _int_attr(ds, "SamplesPerPixel", 1)
+    if not 1 <= samples <= 4:
+        raise BadHeader(f"SamplesPerPixel is {samples}")
+    meta = getattr(ds, "file_meta", None)
+    ts = meta.get("TransferSyntaxUID") if meta is not None else None
+    if ts is not None and not ts.is_transfer_syntax:
+        raise BadHeader(f"unknown TransferSyntaxUID {str(ts)!r}: the pixel data cannot be decoded")
+    stored = _int_attr(ds, "BitsStored", None)
+    if stored is not None and not (min(8, bits) <= stored <= bits):
+        raise BadHeader(f"BitsStored {stored} does not fit BitsAllocated {bits}")
+    photometric = str(ds.get("PhotometricInterpretation", "") or "").strip().upper()
+    if photometric and samples == 1 and photometric not in ("MONOCHROME1", "MONOCHROME2"):
+        raise BadHeader(f"PhotometricInterpretation is {photometric} with one sample per pixel (CT slices are "
+                        "MONOCHROME2)")
+    expected = (rows * cols * frames * samples * bits + 7) // 8
+    budget = defaults.IMPORT_MEMORY_BUDGET_BYTES
+    if rows * cols * frames * 4 > budget:
+        raise BadHeader(f"{rows} x {cols} x {frames} frame(s) would need {rows * cols * frames * 4 / 2 ** 30:.3g} GB "
+                        f"of memory, more than the import budget of {budget / 2 ** 30:.3g} GB")
+    element = ds.get_item("PixelData", keep_deferred=True)
+    length = getattr(element, "length", None)
+    if length is None:
+        value = getattr(element, "value", None)
+        length = len(value) if isinstance(value, (bytes, bytearray)) else None
+    compressed = ts is not None and ts.is_transfer_syntax and ts.is_compressed
+    if length is not None and length != 0xFFFFFFFF and not compressed:
+        if length < expected:
+            raise TruncatedPixels(f"the pixel data has {length} bytes, the header's {rows} x {cols} x {frames} frame(s) "
+                            f"of {bits} bits need {expected} (truncated file or wrong Rows/Columns/NumberOfFrames)")
+        if length > expected + (expected & 1) + 1:
+            raise BadHeader(f"the pixel data has {length} bytes, the header's {rows} x {cols} x {frames} frame(s) "
+                            f"of {bits} bits only {expected} (wrong Rows/Columns/NumberOfFrames/BitsAllocated)")
+    elif compressed or (length == 0xFFFFFFFF):
+        stored = f.stat().st_size
+        ratio = defaults.IMPORT_MAX_COMPRESSION_RATIO
+        if expected > defaults.IMPORT_RATIO_FLOOR_BYTES and expected > ratio * stored:
+            raise BadHeader(f"{rows} x {cols} x {frames} compressed frame(s) would decode to {expected} bytes from a "
+                            f"{stored}-byte file (more than {ratio} times: a corrupt header)")
+        if frames > stored // 4:
+            raise BadHeader(f"NumberOfFrames is {frames} in a file of {stored} bytes")
+    return frames

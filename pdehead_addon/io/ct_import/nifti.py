@@ -98,9 +98,9 @@ def _check_geometry_fields(hdr: dict, f, warns: list[str]) -> None:
                      f"{fixed.tolist()} mm (a negative size is read as its absolute value, zero as 1 mm)")
 
 
-def load_nifti(files, label, resample_spacing, warns, hu=False) -> CTVolume:
-    f = files[0]
-    raw = _read_header(f)
+def _parse_header(raw: bytes, f, warns: list[str]):
+    """The header's fields, each checked: ((nx, ny, nz), dtype, vox_offset, (scl_slope, scl_inter),
+    the geometry fields, the description); a clear error for every impossible value."""
     if len(raw) < 348:
         raise CTImportError(f"not a NIfTI-1 file (only {len(raw)} bytes)", f)
     for endian in "<>":
@@ -146,6 +146,14 @@ def load_nifti(files, label, resample_spacing, warns, hu=False) -> CTVolume:
     if extra > 1:
         warns.append(f"NIfTI image has {extra} volumes; loaded the first")
     dt = np.dtype(endian + _NIFTI_DTYPES[datatype])
+    return (nx, ny, nz), dt, vox_offset, (scl_slope, scl_inter), hdr, description
+
+
+def load_nifti(files, label, resample_spacing, warns, hu=False) -> CTVolume:
+    f = files[0]
+    raw = _read_header(f)
+    (nx, ny, nz), dt, vox_offset, (scl_slope, scl_inter), hdr, description = _parse_header(raw, f, warns)
+    sform_code, qform_code = hdr["sform_code"], hdr["qform_code"]
     count = int(nx) * int(ny) * int(nz)
     check_budget(count * (4 + dt.itemsize), f"a {nx} x {ny} x {nz} NIfTI volume", f)
     if not math.isfinite(vox_offset + count * dt.itemsize) or vox_offset > 2 ** 40:
