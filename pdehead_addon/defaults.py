@@ -278,6 +278,17 @@ DOWNSAMPLE = _param("downsample", 1, min=1, max=8,
 #: enumeration spells it in capitals, AUTO / SUPERIOR / INFERIOR.)
 FIRST_SLICE = "auto"
 FIRST_SLICE_CHOICES = ("auto", "superior", "inferior")
+#: Import limits, checked BEFORE anything is allocated or decompressed (not Params: nothing a user sets).
+#: The float32 volume (and the source samples) a file's header asks for must fit this many bytes: 8 GB is a
+#: 2000-slice 1024 x 1024 scan, four times the largest segment_head takes without downsampling.
+IMPORT_MEMORY_BUDGET_BYTES = 8 * 2 ** 30
+#: Compressed inputs (.nii.gz, gzipped raw, compressed TIFF or DICOM) may decode to at most this many times
+#: their stored bytes once they decode to more than IMPORT_RATIO_FLOOR_BYTES: CT slices compress 2-10 times
+#: (an all-air slice a few hundred times, but it is small); deflate's own ceiling is 1032:1.
+IMPORT_MAX_COMPRESSION_RATIO = 64
+IMPORT_RATIO_FLOOR_BYTES = 64 * 2 ** 20
+#: Streams are decompressed in chunks of this many bytes (never more than the header asks for).
+IMPORT_CHUNK_BYTES = 8 * 2 ** 20
 
 # ----------------------------------------------------------------------------- animation (issue 19)
 #: 120 frames: a 5-second orbit at 24 fps, each frame 3 degrees on.

@@ -194,6 +194,9 @@ def _check_input_args(p, args) -> None:
         args.format = "raw"
     if args.format == "raw" and not (args.raw_shape and args.dtype and args.spacing):
         p.error("raw input needs --raw-shape NY NX, --dtype and --spacing DZ DY DX")
+    if args.raw_shape and min(args.raw_shape) < 1:
+        raise CLIError(f"--raw-shape must be two positive numbers of pixels (rows, columns), got "
+                       f"{' '.join(map(str, args.raw_shape))}", 2)
     if args.input and not Path(args.input).exists():
         raise CLIError(f"{args.input}: no such file or folder", 2)
     if args.render_volume and args.no_volume:

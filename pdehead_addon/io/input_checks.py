@@ -223,7 +223,8 @@ def object_mask(data: np.ndarray, spacing: Sequence[float], level: float | None 
         if finite.size == 0 or finite.min() == finite.max():
             return np.zeros(view.shape, bool), sp
         from skimage.filters import threshold_otsu
-        level = float(threshold_otsu(finite[:: max(1, finite.size // 500_000)]))
+        # float64: the histogram of float32 values spanning +-1e38 would overflow
+        level = float(threshold_otsu(finite[:: max(1, finite.size // 500_000)].astype(np.float64)))
     mask = view > level
     labels, n = ndi.label(mask)
     if n > 1:

@@ -527,7 +527,7 @@ def test_multiframe_enhanced_ct(tmp_path):
     frames = [pydicom.dcmread(f) for f in sorted((tmp_path / "single").iterdir())]
     ds = frames[0]
     ds.NumberOfFrames = len(frames)
-    ds.PixelData = b"".join(f.PixelData for f in frames)
+    pixels = [f.PixelData for f in frames]      # (ds is frames[0]: its own PixelData is replaced below)
     shared = Dataset()
     orientation = Dataset()
     orientation.ImageOrientationPatient = frames[0].ImageOrientationPatient
@@ -546,7 +546,7 @@ def test_multiframe_enhanced_ct(tmp_path):
         group.PlanePositionSequence = [plane]
         per_frame.append(group)
     ds.PerFrameFunctionalGroupsSequence = per_frame
-    ds.PixelData = b"".join(f.PixelData for f in frames[::-1])
+    ds.PixelData = b"".join(pixels[::-1])
     for keyword in ("ImagePositionPatient", "ImageOrientationPatient", "PixelSpacing", "RescaleSlope",
                     "RescaleIntercept"):
         delattr(ds, keyword)

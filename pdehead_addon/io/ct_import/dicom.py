@@ -19,12 +19,14 @@ from ...core.ct_volume import CTVolume
 from ...core.errors import CTImportError
 from ..input_checks import AIR_HU
 from .discovery import DicomFrame, DicomSeries, float_or, import_pydicom, ranked_series, scan_dicom, series_info, skip_summary
-from .geometry import ALIGNED_TOL, to_canonical, resample_slices
+from .geometry import ALIGNED_TOL, resample_limit, resample_slices, to_canonical
 
 # Tolerances of the stack checks (see _stack_geometry; the axis tolerances live in .geometry).
 _SHEAR_TOL_PX = 0.1        # in-plane drift of the slice origins (pixels) before the grid counts as sheared
 _UNEVEN_TOL = 0.1          # position deviation from a regular step (fraction of the step) -> uneven
 _MISSING_FACTOR = 1.5      # a step this many times the median (and the slice thickness) -> missing slice
+_MAX_TILT_DEG = 45.0       # CT gantries tilt up to about 30 deg; a stack leaning more has corrupt positions
+_OUTLIER_FACTOR = 4.0      # a slice this many median steps off the regular progression is misplaced
 
 # Transfer-syntax name words -> decoder family, first match wins (HTJ2K names also say "2000").
 _DECODER_FAMILIES = ((("high-throughput",), "htj2k"), (("htj2k",), "htj2k"), (("2000",), "jpeg2000"),
@@ -66,8 +68,10 @@ def load_dicom(files, label, series_uid, resample_spacing, warns) -> CTVolume:
     info = series_info(chosen)
     broken = scan.incomplete.get(chosen.uid)
     if broken:
-        raise CTImportError(f"truncated file: {scan.unreadable[broken[0]]}; it belongs to the series being "
-                            f"loaded ({len(broken)} such file(s))", broken[0])
+        problem = scan.unreadable[broken[0]]
+        problem = problem if problem.startswith("truncated file") else f"truncated file: {problem}"
+        raise CTImportError(f"{problem}; it belongs to the series being loaded ({len(broken)} such file(s))",
+                            broken[0])
     if not info.is_ct:
         warns.append(f"modality is {info.modality or 'unknown'}, not CT: intensities are not HU")
     if len(ranked) > 1 and series_uid is None:
@@ -79,6 +83,7 @@ def load_dicom(files, label, series_uid, resample_spacing, warns) -> CTVolume:
     if not_dicom:
         warns.append(f"skipped {len(not_dicom)} non-DICOM file(s): "
                      + ", ".join(f.name for f in not_dicom[:5]) + (", ..." if len(not_dicom) > 5 else ""))
+    _warn_repaired_headers(chosen, info, warns)
 
     frames = _consistent_frames(chosen, warns)
     geometry = _stack_geometry(frames, label, warns)
@@ -88,12 +93,17 @@ def load_dicom(files, label, series_uid, resample_spacing, warns) -> CTVolume:
                             + "; ".join(geometry["resample_reasons"]) + "); load the whole series",
                             frames[0].path)
     stack, pad_info = _read_pixels(frames, info.is_ct)
+    if pad_info["padded_slices"]:
+        names = pad_info["padded_slices"]
+        warns.append(f"PixelPaddingValue / PixelPaddingRangeLimit mark more than 95 % of {len(names)} slice(s) as "
+                     f"padding (set to air): " + ", ".join(names[:5]) + (", ..." if len(names) > 5 else ""))
 
     reasons = geometry["resample_reasons"]
     if reasons:
         data, origin, spacing, coverage = resample_slices(
             stack, geometry["positions"], geometry["u"], geometry["v"], geometry["dr"], geometry["dc"],
-            geometry["steps"], resample_spacing, pad_info["fill"])
+            geometry["steps"], resample_spacing, pad_info["fill"], max_voxels=resample_limit(stack.size),
+            label=label)
         direction = np.eye(3)
     else:
         coverage = None
@@ -141,16 +151,34 @@ def load_dicom(files, label, series_uid, resample_spacing, warns) -> CTVolume:
     return CTVolume(data, spacing, origin, direction, meta, coverage=coverage)
 
 
+def _warn_repaired_headers(chosen: DicomSeries, info, warns: list[str]) -> None:
+    """One warning per header repair of the series' frames (``DicomFrame.notes``) and for mixed modalities."""
+    notes: dict[str, list] = {}
+    for fr in chosen.frames:
+        for note in fr.notes:
+            notes.setdefault(note, []).append(fr.path.name)
+    for note, names in notes.items():
+        warns.append(f"{note} in {len(names)} file(s) of the series, e.g. {names[0]}")
+    modalities: dict[str, list] = {}
+    for fr in chosen.frames:
+        modalities.setdefault(str(fr.ds.get("Modality", "") or "(none)"), []).append(fr.path.name)
+    if len(modalities) > 1:
+        warns.append("mixed Modality within the series: " + "; ".join(
+            f"{m} in {len(names)} file(s), e.g. {names[0]}" for m, names in modalities.items())
+            + f"; read as {info.modality or 'unknown'}")
+
+
 def _consistent_frames(series: DicomSeries, warns: list[str]) -> list[DicomFrame]:
     """The frames of the dominant orientation, with exact duplicates removed; mixed sizes are an error."""
     frames = series.frames
     missing = [fr for fr in frames if fr.ipp is None or fr.iop is None or fr.pixel_spacing is None]
     if len(missing) == len(frames):
-        raise CTImportError("has no ImagePositionPatient / ImageOrientationPatient / PixelSpacing, so its "
-                            "slices cannot be placed in patient space", missing[0].path)
+        raise CTImportError("has no ImagePositionPatient / ImageOrientationPatient / PixelSpacing (or an invalid one: "
+                            + _missing_what(missing[0]) + "), so its slices cannot be placed in patient space",
+                            missing[0].path)
     if missing:
-        warns.append(f"skipped {len(missing)} slice(s) without position/orientation/pixel spacing: "
-                     + ", ".join(fr.path.name for fr in missing[:5]))
+        warns.append(f"skipped {len(missing)} slice(s) without position/orientation/pixel spacing or with an invalid one ("
+                     + _missing_what(missing[0]) + "): " + ", ".join(fr.path.name for fr in missing[:5]))
         missing_ids = {id(fr) for fr in missing}
         frames = [fr for fr in frames if id(fr) not in missing_ids]
     groups: dict[tuple, list[DicomFrame]] = {}
@@ -186,6 +214,13 @@ def _consistent_frames(series: DicomSeries, warns: list[str]) -> list[DicomFrame
     if len(spacings) > 1:
         raise CTImportError(f"mixed pixel spacings within one series: {sorted(spacings)}", frames[0].path.parent)
     return frames
+
+
+def _missing_what(fr: DicomFrame) -> str:
+    """Which placement attribute of a frame is missing or invalid, e.g. "PixelSpacing invalid in 03.dcm"."""
+    what = [name for name, value in (("ImagePositionPatient", fr.ipp), ("ImageOrientationPatient", fr.iop),
+                                     ("PixelSpacing", fr.pixel_spacing)) if value is None]
+    return " and ".join(what) + f" missing or invalid in {fr.path.name}"
 
 
 def _stack_geometry(frames: list[DicomFrame], label: str, warns: list[str]) -> dict:
@@ -230,6 +265,11 @@ def _stack_geometry(frames: list[DicomFrame], label: str, warns: list[str]) -> d
         drift_px = max(np.abs(in_plane @ u).max() / dc, np.abs(in_plane @ v).max() / dr)
         stack_dir = offsets[-1] / np.linalg.norm(offsets[-1])
         tilt_deg = float(np.degrees(np.arccos(np.clip(abs(stack_dir @ n), 0.0, 1.0))))
+        if tilt_deg > _MAX_TILT_DEG:
+            raise CTImportError(f"the slice positions (ImagePositionPatient) drift {tilt_deg:.0f} deg away from the "
+                                f"slice normal from {frames[0].path.name} to {frames[-1].path.name}: no gantry "
+                                f"tilts more than {_MAX_TILT_DEG:g} deg (corrupt positions?)", label)
+        _warn_outliers(frames, positions, n, u, v, warns)
         if drift_px > _SHEAR_TOL_PX:
             reasons.append(f"gantry tilt {tilt_deg:.2f} deg (image planes not perpendicular to the stacking "
                            "direction: sheared grid)")
@@ -258,6 +298,35 @@ def _stack_geometry(frames: list[DicomFrame], label: str, warns: list[str]) -> d
                        + np.array2string(np.round(iop, 4), separator=",") + ")")
     return dict(u=u, v=v, n=n, dr=float(dr), dc=float(dc), positions=positions, steps=steps, step=float(step),
                 tilt_deg=tilt_deg, resample_reasons=reasons)
+
+
+def _warn_outliers(frames: list[DicomFrame], positions: np.ndarray, n: np.ndarray, u: np.ndarray, v: np.ndarray,
+                   warns: list[str]) -> None:
+    """Warn about a slice whose position lies far off the others' regular progression (a corrupt or zeroed
+    ImagePositionPatient): the stack would be resampled around a gap or a shear that is not in the scan.
+
+    Along the normal and within the plane, each coordinate of the slice origins is fitted linearly in the
+    slice index without the worst slice; it is an outlier when it lies more than ``_OUTLIER_FACTOR`` median
+    slice steps and ten times the other slices' largest deviation off that line.
+    """
+    count = len(frames)
+    if count < 4:
+        return
+    index = np.arange(count, dtype=np.float64)
+    coords = positions @ np.stack([n, u, v], axis=1)
+    step = float(np.median(np.abs(np.diff(coords[:, 0]))))
+    for column in coords.T:
+        fit = np.polyval(np.polyfit(index, column, 1), index)
+        k = int(np.argmax(np.abs(column - fit)))
+        keep = np.arange(count) != k
+        line = np.polyfit(index[keep], column[keep], 1)
+        off = abs(column[k] - np.polyval(line, k))
+        rest = np.abs(column[keep] - np.polyval(line, index[keep])).max()
+        if step > 0 and off > _OUTLIER_FACTOR * step and off > 10 * max(rest, 1e-3):
+            warns.append(f"slice {frames[k].path.name} lies {off:.0f} mm off the regular progression of the other "
+                         f"slices' positions (ImagePositionPatient {np.round(frames[k].ipp, 2).tolist()}, median "
+                         f"step {step:.3g} mm): a misplaced slice; the stack is resampled around it")
+            return
 
 
 def _transfer_syntax(ds):
@@ -326,6 +395,31 @@ def _decode_file(ds, path: Path) -> np.ndarray:
     return arr.reshape((-1,) + arr.shape[-2:])
 
 
+#: Hounsfield units a CT stores: -1024 (or -3024 outside the field) to about 3071, 30,000 with extended
+#: ranges for metal (Siemens' extended scale: up to 30,710). Far above, the pixels were read with a wrong
+#: PixelRepresentation or rescale.
+_CT_VALID_HU = (-10000.0, 40000.0)
+
+
+def _check_ct_range(stack: np.ndarray, frames: list[DicomFrame]) -> None:
+    """Refuse CT slices whose rescaled values lie far outside any CT's range, naming the first such file.
+
+    Judged on each slice's 0.5th and 99.5th percentiles (of every 4th pixel): an out-of-field value
+    outside the circle (-3024, or -32768 without a PixelPaddingValue) or a few corrupt pixels do not
+    count; a whole slice read with a wrong PixelRepresentation or rescale does (its air wraps to the top)."""
+    sample = stack[:, ::4, ::4].reshape(len(stack), -1)
+    lo, hi = np.percentile(sample, [0.5, 99.5], axis=1)
+    # only the top: the bottom holds the out-of-field ring (21 % of a square slice), down to -32768 + intercept
+    bad = np.flatnonzero(hi > _CT_VALID_HU[1])
+    if bad.size:
+        k = int(bad[0])
+        fr = frames[k]
+        raise CTImportError(f"the pixels range from {lo[k]:.0f} to {hi[k]:.0f} HU after rescaling (a CT holds "
+                            f"{_CT_VALID_HU[0]:.0f} to {_CT_VALID_HU[1]:.0f}): wrong PixelRepresentation "
+                            f"({fr.ds.get('PixelRepresentation')}), BitsStored or RescaleSlope/Intercept "
+                            f"({fr.slope:g}/{fr.intercept:g}); {bad.size} slice(s) affected", fr.path)
+
+
 def _read_pixels(frames: list[DicomFrame], is_ct: bool) -> tuple[np.ndarray, dict]:
     """Rescaled float32 stack (n, rows, cols); padding pixels set to air."""
     n, rows, cols = len(frames), frames[0].rows, frames[0].cols
@@ -356,7 +450,16 @@ def _read_pixels(frames: list[DicomFrame], is_ct: bool) -> tuple[np.ndarray, dic
         np.multiply(image, fr.slope, out=stack[k], casting="unsafe")
         stack[k] += fr.intercept
     count = int(padding_mask.sum())
+    if count > 0.95 * padding_mask.size:
+        fr = frames[0]
+        raise CTImportError(f"PixelPaddingValue {fr.ds.get('PixelPaddingValue')} / PixelPaddingRangeLimit "
+                            f"{fr.ds.get('PixelPaddingRangeLimit')} mark {100 * count / padding_mask.size:.0f} % of "
+                            "the pixels as padding (outside the scan): the volume would be empty", fr.path)
+    per_slice = padding_mask.mean(axis=(1, 2))
+    padded_slices = [frames[k].path.name for k in np.flatnonzero(per_slice > 0.95)]
     hu = is_ct
+    if hu:
+        _check_ct_range(stack, frames)
     if hu:
         fill, rule = AIR_HU, "air = -1000 HU"
     else:
@@ -366,4 +469,5 @@ def _read_pixels(frames: list[DicomFrame], is_ct: bool) -> tuple[np.ndarray, dic
     if count:
         stack[padding_mask] = fill
     pad_value = sorted(padding_values)[0] if len(padding_values) == 1 else (sorted(padding_values) or None)
-    return stack, dict(fill=float(fill), fill_rule=rule, count=count, padding_value=pad_value, hu=hu)
+    return stack, dict(fill=float(fill), fill_rule=rule, count=count, padding_value=pad_value, hu=hu,
+                       padded_slices=padded_slices)

@@ -20,6 +20,7 @@ import numpy as np
 
 from ...core.errors import CTImportError
 from .geometry import ALIGNED_TOL
+from .limits import BadHeader, TruncatedPixels, check_image_header
 
 IMAGE_EXTENSIONS = (".tif", ".tiff", ".png", ".jpg", ".jpeg", ".bmp", ".gif", ".pgm", ".ppm")
 NIFTI_EXTENSIONS = (".nii", ".nii.gz")
@@ -202,13 +203,22 @@ def expand_dicomdir(files: list[Path], label: str, warns: list[str]) -> list[Pat
         except Exception as exc:
             warns.append(f"cannot read DICOMDIR {d} ({type(exc).__name__}: {exc}); its folder is searched instead")
             continue
-        missing = []
+        missing, outside = [], []
+        root = os.path.realpath(d.parent)
         for rec in records:
-            ref = rec.get("ReferencedFileID")
+            try:
+                ref = rec.get("ReferencedFileID")
+            except Exception:  # noqa: BLE001 - a damaged record: its file is not loaded
+                continue
             if ref is None:
                 continue
             parts = [str(p) for p in ref] if not isinstance(ref, str) else str(ref).split("\\")
             target = d.parent.joinpath(*parts)
+            # a file-set's files lie in its own folder (PS3.10 8.5): never open a file outside it
+            if os.path.isabs(os.path.join(*parts)) or os.path.commonpath(
+                    [root, os.path.realpath(target)]) != root:
+                outside.append("/".join(parts))
+                continue
             if not target.is_file():
                 # file systems that lost the upper case of ISO 9660 names
                 alt = d.parent.joinpath(*(p.lower() for p in parts))
@@ -220,6 +230,9 @@ def expand_dicomdir(files: list[Path], label: str, warns: list[str]) -> list[Pat
             if key not in seen:
                 seen.add(key)
                 out.append(target)
+        if outside:
+            warns.append(f"DICOMDIR {d} refers to {len(outside)} file(s) outside its folder, not opened: "
+                         + ", ".join(outside[:3]) + (", ..." if len(outside) > 3 else ""))
         if missing:
             warns.append(f"DICOMDIR {d} refers to {len(missing)} missing file(s): " + ", ".join(missing[:3])
                          + (", ..." if len(missing) > 3 else ""))
@@ -314,6 +327,7 @@ class DicomFrame:
     rows: int
     cols: int
     sop_uid: str
+    notes: tuple = ()            # what was repaired in this frame's header (said in a warning)
 
 
 @dataclass
@@ -343,15 +357,29 @@ def import_pydicom():
     return pydicom
 
 
+_HEADER_KEYWORDS = ("SOPClassUID", "SeriesInstanceUID", "Rows", "Columns", "ImagePositionPatient",
+                    "ImageOrientationPatient", "PixelSpacing", "SliceThickness", "RescaleSlope", "RescaleIntercept",
+                    "NumberOfFrames", "SOPInstanceUID", "Modality", "ImageType", "SeriesNumber", "SeriesDescription",
+                    "StudyDescription", "Manufacturer", "PatientPosition", "GantryDetectorTilt", "SamplesPerPixel",
+                    "BitsAllocated", "BitsStored", "PixelRepresentation", "PhotometricInterpretation",
+                    "PixelPaddingValue", "PixelPaddingRangeLimit", "SharedFunctionalGroupsSequence",
+                    "PerFrameFunctionalGroupsSequence")
+
+
 def _read_dicom_header(f: Path):
     """The dataset with pixel data deferred (read lazily from the file)."""
     pydicom = import_pydicom()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         ds = pydicom.dcmread(f, defer_size=4096, force=True)
-        # Touch the tags we need now so that a header broken by truncation fails here.
-        for keyword in ("SOPClassUID", "SeriesInstanceUID", "Rows", "Columns", "ImagePositionPatient"):
+        # Touch the tags used later now, so that a header broken by truncation or a flipped byte (an
+        # unknown VR, a value of the wrong type) fails here, inside the caller's try.
+        for keyword in _HEADER_KEYWORDS:
             ds.get(keyword)
+        meta = getattr(ds, "file_meta", None)
+        if meta is not None:
+            meta.get("TransferSyntaxUID")
+            meta.get("MediaStorageSOPClassUID")
     if "SOPClassUID" not in ds and "SeriesInstanceUID" not in ds and "Rows" not in ds:
         raise ValueError("no SOP class, series or image attributes")
     return ds
@@ -388,34 +416,75 @@ def _group_value(groups: Sequence, sequence: str, keyword: str):
     return None
 
 
-def _frames_of(f: Path, ds) -> list[DicomFrame]:
+def _unit_pairs(iop: np.ndarray | None) -> np.ndarray | None:
+    """ImageOrientationPatient with two unit, perpendicular direction cosines, else None."""
+    if iop is None:
+        return None
+    a, b = iop[:3], iop[3:]
+    na, nb = np.linalg.norm(a), np.linalg.norm(b)
+    if not (0.9 < na < 1.1 and 0.9 < nb < 1.1) or abs(a @ b) / (na * nb) > 0.05:
+        return None
+    return iop
+
+
+def _scalar_or_note(value, default: float, keyword: str, notes: list[str], required: bool) -> float:
+    """A finite number, else ``default`` with a note saying why (missing: only when ``required``)."""
+    if value is None or value == "":
+        if required:
+            notes.append(f"{keyword} missing (taken as {default:g})")
+        return default
+    out = float_or(value, None)
+    if out is None:
+        notes.append(f"{keyword} {value!r} is not a finite number (taken as {default:g})")
+        return default
+    return out
+
+
+def _frames_of(f: Path, ds, nframes: int = 1) -> list[DicomFrame]:
     rows, cols = int(ds.get("Rows", 0) or 0), int(ds.get("Columns", 0) or 0)
     sop_uid = str(ds.get("SOPInstanceUID", f))
-    try:
-        nframes = int(ds.get("NumberOfFrames", 1) or 1)
-    except (TypeError, ValueError):
-        nframes = 1
+    is_ct = str(ds.get("Modality", "") or "").upper() == "CT"
     shared_seq = ds.get("SharedFunctionalGroupsSequence")
     shared = shared_seq[0] if shared_seq else None
     per_frame = ds.get("PerFrameFunctionalGroupsSequence")
     frames = []
     for index in range(nframes):
+        notes: list[str] = []
         groups = [per_frame[index] if per_frame is not None and index < len(per_frame) else None, shared]
         ipp = _floats(_group_value(groups, "PlanePositionSequence", "ImagePositionPatient")
                       or ds.get("ImagePositionPatient"), 3)
-        iop = _floats(_group_value(groups, "PlaneOrientationSequence", "ImageOrientationPatient")
-                      or ds.get("ImageOrientationPatient"), 6)
+        if ipp is not None and np.abs(ipp).max() > 1e5:
+            notes.append(f"ImagePositionPatient {np.round(ipp, 1).tolist()} lies more than 100 m away")
+            ipp = None
+        iop = _unit_pairs(_floats(_group_value(groups, "PlaneOrientationSequence", "ImageOrientationPatient")
+                                  or ds.get("ImageOrientationPatient"), 6))
         ps = _floats(_group_value(groups, "PixelMeasuresSequence", "PixelSpacing") or ds.get("PixelSpacing"), 2)
-        thickness = float_or(_group_value(groups, "PixelMeasuresSequence", "SliceThickness")
-                              or ds.get("SliceThickness"), None)
-        slope = float_or(_group_value(groups, "PixelValueTransformationSequence", "RescaleSlope")
-                          or ds.get("RescaleSlope"), 1.0)
-        intercept = float_or(_group_value(groups, "PixelValueTransformationSequence", "RescaleIntercept")
-                              or ds.get("RescaleIntercept"), 0.0)
+        if ps is not None and not np.all((ps >= 0.01) & (ps <= 100.0)):
+            notes.append(f"PixelSpacing {ps.tolist()} mm is outside 0.01 to 100 mm")
+            ps = None
+        thickness_value = _group_value(groups, "PixelMeasuresSequence", "SliceThickness") or ds.get("SliceThickness")
+        thickness = float_or(thickness_value, None)
+        if thickness_value not in (None, "") and not (thickness is not None and 0 < thickness <= 100):
+            notes.append(f"SliceThickness {thickness_value!r} is not a size of 0 to 100 mm (ignored)")
+            thickness = None
+        slope_value = _group_value(groups, "PixelValueTransformationSequence", "RescaleSlope")
+        slope_value = ds.get("RescaleSlope") if slope_value is None else slope_value
+        intercept_value = _group_value(groups, "PixelValueTransformationSequence", "RescaleIntercept")
+        intercept_value = ds.get("RescaleIntercept") if intercept_value is None else intercept_value
+        slope = _scalar_or_note(slope_value, 1.0, "RescaleSlope", notes, is_ct)
+        intercept = _scalar_or_note(intercept_value, 0.0, "RescaleIntercept", notes, is_ct)
+        if slope == 0:
+            notes.append("RescaleSlope 0 (taken as 1)")
+            slope = 1.0
+        if slope < 0 and is_ct:
+            raise BadHeader(f"RescaleSlope {slope:g} is negative: a CT's values would come out inverted")
+        if abs(slope) > 1e4 or abs(intercept) > 1e5:
+            raise BadHeader(f"RescaleSlope {slope:g} / RescaleIntercept {intercept:g}: no CT or MR scaling is this "
+                            "large (a corrupt header)")
         frames.append(DicomFrame(f, index if nframes > 1 else None, ds, ipp, iop,
                              None if ps is None else (float(ps[0]), float(ps[1])),
                              thickness if thickness and thickness > 0 else None,
-                             slope if slope != 0 else 1.0, intercept, rows, cols, sop_uid))
+                             slope, intercept, rows, cols, sop_uid, tuple(notes)))
     return frames
 
 
@@ -432,39 +501,63 @@ def scan_dicom(files: list[Path]) -> _Scan:
         if f.name.upper() == "DICOMDIR":
             skip("DICOMDIR", f)
             continue
-        if has_ext(f, IMAGE_EXTENSIONS + NIFTI_EXTENSIONS + TEXT_EXTENSIONS) or not _looks_like_dicom(f):
+        if has_ext(f, IMAGE_EXTENSIONS + NIFTI_EXTENSIONS + TEXT_EXTENSIONS):
+            skip("not DICOM", f)
+            continue
+        try:
+            with open(f, "rb") as fh:
+                empty = not fh.read(1)
+        except OSError as exc:
+            unreadable[f] = f"cannot open it: {exc.strerror or exc}"
+            continue
+        if empty:
+            unreadable[f] = "empty file (0 bytes)"
+            continue
+        if not _looks_like_dicom(f):
             skip("not DICOM", f)
             continue
         try:
             ds = _read_dicom_header(f)
+            _add_file(f, ds, series, skip, unreadable, incomplete)
+        except TruncatedPixels as exc:
+            unreadable[f] = f"truncated file: {exc}"
+            incomplete.setdefault(str(ds.get("SeriesInstanceUID", "")), []).append(f)
+        except BadHeader as exc:
+            unreadable[f] = str(exc)
         except Exception as exc:  # any parse failure of a DICOM-looking file
             unreadable[f] = f"{type(exc).__name__}: {exc}"
-            continue
-        media_class = str(getattr(ds, "file_meta", {}).get("MediaStorageSOPClassUID", ""))
-        if media_class == DICOMDIR_SOP_CLASS or str(ds.get("SOPClassUID", "")) == DICOMDIR_SOP_CLASS:
-            skip("DICOMDIR", f)
-            continue
-        if "PixelData" not in ds:
-            sop_class = ds.get("SOPClassUID")
-            if sop_class is not None and "image storage" in str(getattr(sop_class, "name", "")).lower():
-                # an image object without its pixels: the file was cut off inside the header
-                incomplete.setdefault(str(ds.get("SeriesInstanceUID", "")), []).append(f)
-                unreadable[f] = f"{sop_class.name} object without pixel data (file truncated?)"
-            else:
-                skip("no pixel data (not an image)", f)
-            continue
-        uid = str(ds.get("SeriesInstanceUID", "") or "(no SeriesInstanceUID)")
-        entry = series.setdefault(uid, DicomSeries(uid))
-        image_type = ds.get("ImageType") or []
-        if isinstance(image_type, str):
-            image_type = image_type.split("\\")
-        if "LOCALIZER" in {str(t).strip().upper() for t in image_type}:
-            entry.localizers += 1
-            skip("localizer", f)
-            continue
-        entry.frames.extend(_frames_of(f, ds))
     series = {uid: s for uid, s in series.items() if s.frames}
     return _Scan(series, skipped, unreadable, incomplete)
+
+
+def _add_file(f: Path, ds, series, skip, unreadable, incomplete) -> None:
+    """Put one file's frames into its series (or skip it, saying why)."""
+    media_class = str(getattr(ds, "file_meta", {}).get("MediaStorageSOPClassUID", ""))
+    if media_class == DICOMDIR_SOP_CLASS or str(ds.get("SOPClassUID", "")) == DICOMDIR_SOP_CLASS:
+        if "PixelData" in ds:
+            raise BadHeader("its SOP class says DICOMDIR (a file-set index) but it holds pixel data")
+        skip("DICOMDIR", f)
+        return
+    if "PixelData" not in ds:
+        sop_class = ds.get("SOPClassUID")
+        if sop_class is not None and "image storage" in str(getattr(sop_class, "name", "")).lower():
+            # an image object without its pixels: the file was cut off inside the header
+            incomplete.setdefault(str(ds.get("SeriesInstanceUID", "")), []).append(f)
+            unreadable[f] = f"{sop_class.name} object without pixel data (file truncated?)"
+        else:
+            skip("no pixel data (not an image)", f)
+        return
+    nframes = check_image_header(f, ds)
+    uid = str(ds.get("SeriesInstanceUID", "") or "(no SeriesInstanceUID)")
+    image_type = ds.get("ImageType") or []
+    if isinstance(image_type, str):
+        image_type = image_type.split("\\")
+    if "LOCALIZER" in {str(t).strip().upper() for t in image_type}:
+        series.setdefault(uid, DicomSeries(uid)).localizers += 1
+        skip("localizer", f)
+        return
+    frames = _frames_of(f, ds, nframes)
+    series.setdefault(uid, DicomSeries(uid)).frames.extend(frames)
 
 
 def _orientation_name(iop: np.ndarray | None) -> str:

@@ -103,13 +103,23 @@ def _output_grid(positions, u, v, n, dr, dc, rows, cols, steps, resample_spacing
             a = int(np.argmax(np.abs(vec)))
             spacing_xyz[a] = sp if np.isnan(spacing_xyz[a]) else min(spacing_xyz[a], sp)
         spacing_xyz[np.isnan(spacing_xyz)] = min(dr, dc, median_step)
-    counts = np.floor((hi - lo) / spacing_xyz + 1e-6).astype(int) + 1
+    with np.errstate(all="ignore"):
+        counts = np.floor((hi - lo) / spacing_xyz + 1e-6)
+    counts = np.where(np.isfinite(counts), np.minimum(counts, 2 ** 40), 2 ** 40).astype(np.int64) + 1
     return lo, spacing_xyz, counts
+
+
+def resample_limit(source_voxels: int) -> int:
+    """Most voxels a resampled grid may have for ``source_voxels`` measured ones: a tilt or an uneven step
+    adds a few times the source (GE's 18.5 deg tilt: 4.3 times); more means corrupt positions. At least 64 M
+    voxels, at most what the import memory budget holds (float32 values and the coverage mask)."""
+    from ... import defaults
+    return int(min(defaults.IMPORT_MEMORY_BUDGET_BYTES // 5, max(64_000_000, 32 * int(source_voxels))))
 
 
 def resample_slices(stack: np.ndarray, positions: np.ndarray, u: np.ndarray, v: np.ndarray, dr: float,
                      dc: float, steps: np.ndarray, resample_spacing, fill: float,
-                     max_voxels: int = 600_000_000) -> tuple[np.ndarray, np.ndarray, tuple]:
+                     max_voxels: int = 600_000_000, label=None) -> tuple[np.ndarray, np.ndarray, tuple]:
     """Resample parallel slices (any tilt, spacing or orientation) onto a regular LPS grid.
 
     A point X of the output grid lies between the two source slices that
@@ -138,10 +148,15 @@ def resample_slices(stack: np.ndarray, positions: np.ndarray, u: np.ndarray, v: 
     n = np.cross(u, v)
     n /= np.linalg.norm(n)
     lo, sp, counts = _output_grid(positions, u, v, n, dr, dc, rows, cols, steps, resample_spacing)
-    total = int(np.prod(counts))
+    if not np.all(np.isfinite(counts.astype(np.float64))) or np.any(counts > 10 ** 7):
+        raise CTImportError(f"the slices' positions span {np.round(hi - lo, 1).tolist()} mm (x, y, z): no scan "
+                            "measures this (corrupt positions or spacing)", label)
+    total = int(np.prod(counts.astype(np.int64)))
     if total > max_voxels:
-        raise CTImportError(f"resampled grid would have {counts[::-1].tolist()} voxels ({total / 1e6:.0f} M); "
-                            "pass a coarser resample_spacing=(dz, dy, dx)")
+        raise CTImportError(f"resampled grid would have {counts[::-1].tolist()} voxels ({total / 1e6:.0f} M, "
+                            f"the slices hold {stack.size / 1e6:.3g} M): the slice positions spread far more than "
+                            "a tilted or uneven scan does (corrupt positions?), or pass a coarser "
+                            "resample_spacing=(dz, dy, dx)", label)
     along = positions @ n
     out = None
     # Fast path: one image axis is a patient axis and the slices do not move along it (the usual
@@ -304,4 +319,7 @@ def _spacing_option(spacing, label) -> tuple[float, float, float]:
         raise CTImportError(f"spacing must be three numbers (dz, dy, dx) in mm, got {spacing!r}", label) from None
     if len(values) != 3 or not all(math.isfinite(s) and s > 0 for s in values):
         raise CTImportError(f"spacing must be three positive numbers (dz, dy, dx) in mm, got {spacing!r}", label)
+    if not all(1e-3 <= s <= 1e3 for s in values):
+        raise CTImportError(f"spacing {values!r} mm (dz, dy, dx): a scan's voxels measure between 0.001 and "
+                            "1000 mm", label)
     return values

@@ -9,7 +9,39 @@ from ...core.ct_volume import CTVolume
 from ...core.errors import CTImportError
 from .discovery import IMAGE_EXTENSIONS, has_ext, numbered_files, top_level
 from .geometry import headerless_volume
+from .limits import check_budget, check_ratio
 
+
+
+def _read_tiff(tifffile, f: Path) -> np.ndarray:
+    """A TIFF's pixels, its declared size checked first against the file's bytes and the memory budget
+    (no pixel buffer is allocated before); tifffile's own log lines are kept off the console."""
+    import logging
+    log = logging.getLogger("tifffile")
+    level, log.level = log.level, logging.CRITICAL
+    try:
+        with tifffile.TiffFile(f) as tif:
+            page = tif.pages.first if hasattr(tif.pages, "first") else tif.pages[0]
+            shape = tuple(int(n) for n in page.shape)
+            count = len(tif.pages)
+            itemsize = np.dtype(page.dtype).itemsize if page.dtype is not None else 1
+            declared = int(np.prod(shape, dtype=np.float64)) * count * itemsize
+            check_budget(declared // itemsize * 4, f"a TIFF of {count} page(s) of {' x '.join(map(str, shape))} "
+                         "pixels", f)
+            stored = f.stat().st_size
+            if int(page.compression) == 1 and declared > stored:
+                raise CTImportError(f"truncated or corrupt TIFF: its {count} page(s) of "
+                                    f"{' x '.join(map(str, shape))} pixels need {declared} bytes, the file has "
+                                    f"{stored}", f)
+            check_ratio(declared, stored, "this TIFF", f)
+            return tif.asarray()
+    except CTImportError:
+        raise
+    except Exception as exc:
+        detail = " ".join(str(exc).split())
+        raise CTImportError(f"cannot read TIFF image: {type(exc).__name__}: {detail}", f) from None
+    finally:
+        log.level = level
 
 
 def _read_image(f: Path) -> tuple[np.ndarray, float | None]:
@@ -20,11 +52,10 @@ def _read_image(f: Path) -> tuple[np.ndarray, float | None]:
     if has_ext(f, (".tif", ".tiff")):
         try:
             import tifffile
-            arr = tifffile.imread(f)
         except ImportError:
-            arr = None
-        except Exception as exc:
-            raise CTImportError(f"cannot read TIFF image: {type(exc).__name__}: {exc}", f) from None
+            tifffile = None
+        if tifffile is not None:
+            arr = _read_tiff(tifffile, f)
     if arr is None:
         try:
             from PIL import Image
@@ -64,6 +95,7 @@ def load_images(files, label, spacing, axes, oriented, hu, warns) -> CTVolume:
     slices = []
     colour, chroma = False, []
     shapes: dict[tuple, Path] = {}
+    sample_types: dict[str, Path] = {}
     for f in images:
         arr, saturation = _read_image(f)
         if saturation is not None:
@@ -76,9 +108,13 @@ def load_images(files, label, spacing, axes, oriented, hu, warns) -> CTVolume:
         else:
             raise CTImportError(f"expected a 2-D greyscale image, got shape {arr.shape}", f)
         shapes.setdefault(arr.shape[-2:], f)
+        sample_types.setdefault(str(arr.dtype), f)
     if len(shapes) > 1:
         example = "; ".join(f"{s[0]}x{s[1]} in {f.name}" for s, f in shapes.items())
         raise CTImportError(f"mixed image sizes ({example})", label)
+    if len(sample_types) > 1:
+        example = "; ".join(f"{t} in {f.name}" for t, f in sample_types.items())
+        raise CTImportError(f"mixed sample types ({example}): the slices' values would not be comparable", label)
     _refuse_photos(slices, float(np.mean(chroma)) if chroma else 0.0, len(images), label)
     if colour:
         warns.append("colour images converted to grey (luminance)")

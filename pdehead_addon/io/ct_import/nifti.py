@@ -1,7 +1,6 @@
 """NIfTI-1 (single file .nii / .nii.gz): header parsed directly, sform/qform affine, RAS -> LPS."""
 from __future__ import annotations
 
-import gzip
 import math
 import struct
 
@@ -9,7 +8,8 @@ import numpy as np
 
 from ...core.ct_volume import CTVolume
 from ...core.errors import CTImportError
-from .geometry import ALIGNED_TOL, to_canonical, resample_slices
+from .geometry import ALIGNED_TOL, resample_limit, resample_slices, to_canonical
+from .limits import check_budget, check_ratio, gunzip_bounded
 
 
 
@@ -24,8 +24,8 @@ def _nifti_affine(hdr: dict) -> np.ndarray:
         m[:3] = np.array([hdr["srow_x"], hdr["srow_y"], hdr["srow_z"]])
         return m
     pixdim = hdr["pixdim"]
-    zooms = np.array(pixdim[1:4], dtype=np.float64)
-    zooms[zooms <= 0] = 1.0
+    zooms = np.abs(np.array(pixdim[1:4], dtype=np.float64))
+    zooms[zooms == 0] = 1.0
     if hdr["qform_code"] > 0:
         b, c, d = hdr["quatern"]
         a = math.sqrt(max(0.0, 1.0 - (b * b + c * c + d * d)))
@@ -42,14 +42,65 @@ def _nifti_affine(hdr: dict) -> np.ndarray:
     return m
 
 
-def load_nifti(files, label, resample_spacing, warns, hu=False) -> CTVolume:
-    f = files[0]
+def _read_header(f) -> bytes:
+    """The first 352 bytes (the header and the extension flag), read without decompressing more."""
     try:
-        opener = gzip.open if f.name.lower().endswith(".gz") else open
-        with opener(f, "rb") as fh:
-            raw = fh.read()
-    except (OSError, EOFError, gzip.BadGzipFile) as exc:
+        if f.name.lower().endswith(".gz"):
+            head, _ = gunzip_bounded(f, 352, "gzipped NIfTI file", verify=False)
+        else:
+            with open(f, "rb") as fh:
+                head = fh.read(352)
+    except OSError as exc:
         raise CTImportError(f"cannot read NIfTI file: {exc}", f) from None
+    return head
+
+
+def _read_body(f, needed: int, warns: list[str]) -> bytes:
+    """The first ``needed`` bytes of the file (decompressed in bounded chunks for .gz), or a clear error."""
+    gz = f.name.lower().endswith(".gz")
+    if gz:
+        check_ratio(needed, f.stat().st_size, "this gzipped NIfTI file's header says it", f)
+        raw, extra = gunzip_bounded(f, needed, "gzipped NIfTI file")
+        if extra:
+            warns.append(f"{extra} bytes follow the voxels in the gzipped NIfTI file (ignored)")
+    else:
+        size = f.stat().st_size
+        if size < needed:
+            raise CTImportError(f"truncated NIfTI file: {size} bytes, its header needs {needed}", f)
+        try:
+            with open(f, "rb") as fh:
+                raw = fh.read(needed)
+        except OSError as exc:
+            raise CTImportError(f"cannot read NIfTI file: {exc}", f) from None
+    if len(raw) < needed:
+        raise CTImportError(f"truncated NIfTI file: {len(raw)} {'decompressed ' if gz else ''}bytes, its header "
+                            f"needs {needed}", f)
+    return raw
+
+
+def _check_geometry_fields(hdr: dict, f, warns: list[str]) -> None:
+    """Refuse non-finite geometry; warn where a field is repaired (a zero or negative voxel size)."""
+    if hdr["sform_code"] > 0:
+        rows = np.array([hdr["srow_x"], hdr["srow_y"], hdr["srow_z"]], dtype=np.float64)
+        if not np.isfinite(rows).all():
+            raise CTImportError("NIfTI sform (srow_x/y/z) holds NaN or infinite values: the voxels cannot be "
+                                "placed in space", f)
+        return
+    zooms = np.array(hdr["pixdim"][1:4], dtype=np.float64)
+    if not np.isfinite(zooms).all():
+        raise CTImportError(f"NIfTI voxel size pixdim[1:4] = {zooms.tolist()} is not finite", f)
+    if hdr["qform_code"] > 0 and not np.isfinite(np.r_[hdr["quatern"], hdr["qoffset"]]).all():
+        raise CTImportError("NIfTI qform (quatern / qoffset) holds NaN or infinite values", f)
+    if (zooms <= 0).any():
+        fixed = np.abs(zooms)
+        fixed[fixed == 0] = 1.0
+        warns.append(f"NIfTI voxel size pixdim[1:4] = {zooms.tolist()} has zero or negative entries: used "
+                     f"{fixed.tolist()} mm (a negative size is read as its absolute value, zero as 1 mm)")
+
+
+def _parse_header(raw: bytes, f, warns: list[str]):
+    """The header's fields, each checked: ((nx, ny, nz), dtype, vox_offset, (scl_slope, scl_inter),
+    the geometry fields, the description); a clear error for every impossible value."""
     if len(raw) < 348:
         raise CTImportError(f"not a NIfTI-1 file (only {len(raw)} bytes)", f)
     for endian in "<>":
@@ -65,7 +116,7 @@ def load_nifti(files, label, resample_spacing, warns, hu=False) -> CTVolume:
     dim = struct.unpack(endian + "8h", raw[40:56])
     datatype = struct.unpack(endian + "h", raw[70:72])[0]
     pixdim = struct.unpack(endian + "8f", raw[76:108])
-    vox_offset = int(struct.unpack(endian + "f", raw[108:112])[0])
+    vox_offset_f = struct.unpack(endian + "f", raw[108:112])[0]
     scl_slope, scl_inter = struct.unpack(endian + "2f", raw[112:120])
     qform_code, sform_code = struct.unpack(endian + "2h", raw[252:256])
     hdr = dict(pixdim=pixdim, qform_code=qform_code, sform_code=sform_code,
@@ -81,27 +132,67 @@ def load_nifti(files, label, resample_spacing, warns, hu=False) -> CTVolume:
     if datatype not in _NIFTI_DTYPES:
         raise CTImportError(f"unsupported NIfTI datatype code {datatype}", f)
     nx, ny, nz = dim[1:4]
+    if min(nx, ny, nz) < 1:
+        raise CTImportError(f"NIfTI header gives dimensions {nx} x {ny} x {nz} (dim[1:4]); every one must be "
+                            "at least 1", f)
+    if any(d < 0 for d in dim[4:ndim + 1]):
+        raise CTImportError(f"NIfTI header gives a negative dimension ({list(dim[:ndim + 1])})", f)
+    # NIfTI-1: a single file's voxels start at vox_offset >= 352 (header + extension flag)
+    if not math.isfinite(vox_offset_f) or vox_offset_f < 352 or vox_offset_f != int(vox_offset_f):
+        raise CTImportError(f"NIfTI vox_offset is {vox_offset_f!r}: the voxels of a .nii file start at a whole "
+                            "byte offset of at least 352 (after the header)", f)
+    vox_offset = int(vox_offset_f)
     extra = int(np.prod([max(1, d) for d in dim[4:ndim + 1]])) if ndim > 3 else 1
     if extra > 1:
         warns.append(f"NIfTI image has {extra} volumes; loaded the first")
     dt = np.dtype(endian + _NIFTI_DTYPES[datatype])
-    count = nx * ny * nz
-    if len(raw) < vox_offset + count * dt.itemsize:
-        raise CTImportError(f"truncated NIfTI file: {len(raw)} bytes, needs {vox_offset + count * dt.itemsize}", f)
+    return (nx, ny, nz), dt, vox_offset, (scl_slope, scl_inter), hdr, description
+
+
+def load_nifti(files, label, resample_spacing, warns, hu=False) -> CTVolume:
+    f = files[0]
+    raw = _read_header(f)
+    (nx, ny, nz), dt, vox_offset, (scl_slope, scl_inter), hdr, description = _parse_header(raw, f, warns)
+    sform_code, qform_code = hdr["sform_code"], hdr["qform_code"]
+    count = int(nx) * int(ny) * int(nz)
+    check_budget(count * (4 + dt.itemsize), f"a {nx} x {ny} x {nz} NIfTI volume", f)
+    if not math.isfinite(vox_offset + count * dt.itemsize) or vox_offset > 2 ** 40:
+        raise CTImportError(f"NIfTI vox_offset {vox_offset} lies beyond any file", f)
+    needed = vox_offset + count * dt.itemsize
+    raw = _read_body(f, needed, warns)
+    _check_geometry_fields(hdr, f, warns)
     # stored with i fastest, so C order reads it as [k, j, i]
     data = np.frombuffer(raw, dtype=dt, count=count, offset=vox_offset).reshape(nz, ny, nx).astype(np.float32)
     del raw
-    if scl_slope not in (0.0, 1.0) and math.isfinite(scl_slope):
+    if not math.isfinite(scl_slope) or not math.isfinite(scl_inter):
+        warns.append(f"NIfTI scl_slope / scl_inter are {scl_slope!r} / {scl_inter!r} (not finite): ignored, the "
+                     "stored values are used as they are")
+    elif scl_slope < 0:
+        warns.append(f"NIfTI scl_slope is {scl_slope:g} (negative): the intensities come out inverted")
+    if math.isfinite(scl_slope) and math.isfinite(scl_inter) and scl_slope != 0.0 and (
+            abs(scl_slope) > 1e6 or abs(scl_inter) > 1e6):
+        raise CTImportError(f"NIfTI scl_slope / scl_inter are {scl_slope:g} / {scl_inter:g}: no CT or MRI "
+                            "intensity scaling is this large (a corrupt header)", f)
+    if scl_slope not in (0.0, 1.0) and math.isfinite(scl_slope) and math.isfinite(scl_inter):
         data *= scl_slope
-    if scl_inter != 0.0 and math.isfinite(scl_inter) and scl_slope != 0.0:
+    if scl_inter != 0.0 and math.isfinite(scl_inter) and math.isfinite(scl_slope) and scl_slope != 0.0:
         data += scl_inter
     affine = _nifti_affine(hdr)
     affine[:2] *= -1.0                                   # RAS -> LPS
     columns = affine[:3, :3]
     zooms = np.linalg.norm(columns, axis=0)
-    if np.any(zooms <= 0):
-        raise CTImportError("NIfTI affine has a zero-length axis", f)
+    if not np.all(zooms > 1e-3) or not np.all(zooms < 1e3):
+        raise CTImportError(f"NIfTI affine gives voxel sizes {np.round(zooms, 6).tolist()} mm (i, j, k); a scan's "
+                            "voxels measure between 0.001 and 1000 mm", f)
     units = columns / zooms                              # unit vectors of i, j, k
+    # the slices (i, j planes) are resampled as they are; a shear within them cannot be
+    in_plane = float(np.degrees(np.arccos(np.clip(abs(units[:, 0] @ units[:, 1]), 0.0, 1.0))))
+    if abs(in_plane - 90.0) > 1.0:
+        raise CTImportError(f"NIfTI affine shears the slices: its i and j axes meet at {in_plane:.1f} deg "
+                            "instead of 90 (a corrupt sform/qform?)", f)
+    if abs(float(np.linalg.det(units))) < 0.05:
+        raise CTImportError("NIfTI affine puts the slices (k) almost within their own plane: the voxels cannot "
+                            "be placed in space (a corrupt sform/qform?)", f)
     origin = affine[:3, 3]
     aligned = (np.abs(units).max(axis=0).min() > 1 - ALIGNED_TOL
                and len(set(np.argmax(np.abs(units), axis=0).tolist())) == 3)
@@ -123,8 +214,13 @@ def load_nifti(files, label, resample_spacing, warns, hu=False) -> CTVolume:
         steps = np.abs(np.diff(positions @ n))
         out, origin_out, spacing, coverage = resample_slices(np.ascontiguousarray(data), positions, u, v,
                                                     float(zooms[1]), float(zooms[0]), steps, resample_spacing,
-                                                    float(data.min()))
+                                                    float(data.min()), max_voxels=resample_limit(data.size),
+                                                    label=f)
         direction = np.eye(3)
+        covered = float(coverage.mean())
+        if covered < 0.25:
+            warns.append(f"the oblique or sheared NIfTI affine leaves only {100 * covered:.0f} % of the resampled "
+                         "grid inside the slices; check the sform/qform")
     meta = {
         "source": label,
         "format": "nifti",

@@ -1,7 +1,6 @@
 """Headerless raw slices: one file per slice or one file for the volume, optionally gzipped."""
 from __future__ import annotations
 
-import gzip
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +9,7 @@ from ...core.ct_volume import CTVolume
 from ...core.errors import CTImportError
 from .discovery import TEXT_EXTENSIONS, has_ext, numbered_files, top_level
 from .geometry import headerless_volume
+from .limits import check_budget, gunzip_bounded
 
 
 
@@ -31,16 +31,16 @@ def _raw_dtype(dtype, byte_order, label) -> np.dtype:
     return dt
 
 
-def _read_raw_bytes(f: Path) -> tuple[bytes | None, int]:
-    """(decompressed bytes, size) of a gzipped raw file; (None, size on disk) of a plain one."""
+def _read_raw_bytes(f: Path, limit: int) -> tuple[bytes | None, int]:
+    """(decompressed bytes, size) of a gzipped raw file; (None, size on disk) of a plain one.
+
+    A gzipped file is decompressed in chunks and at most ``limit + 1`` bytes are kept (enough to tell that
+    it does not match the shape); the stream is read through to check it, within
+    ``defaults.IMPORT_MAX_COMPRESSION_RATIO`` times the file's size."""
     if not f.name.lower().endswith(".gz"):
         return None, f.stat().st_size
-    try:
-        with gzip.open(f, "rb") as fh:
-            raw = fh.read()
-    except (OSError, EOFError, gzip.BadGzipFile) as exc:
-        raise CTImportError(f"cannot decompress the gzipped raw file: {exc}", f) from None
-    return raw, len(raw)
+    raw, extra = gunzip_bounded(f, limit + 1, "gzipped raw file")
+    return raw, len(raw) + extra
 
 
 def _raw_samples(f: Path, raw: bytes | None, dt: np.dtype, count: int, offset: int) -> np.ndarray:
@@ -81,7 +81,10 @@ def load_raw(files, label, shape, dtype, byte_order, header_bytes, spacing, axes
     if len(candidates) == 1:
         # one file holding the whole volume
         f = candidates[0]
-        raw, size = _read_raw_bytes(f)
+        from ... import defaults
+        limit = (header_bytes + shape[0] * slice_bytes if len(shape) == 3
+                 else defaults.IMPORT_MEMORY_BUDGET_BYTES // 2)
+        raw, size = _read_raw_bytes(f, limit)
         what = "decompressed (gzip) size" if raw is not None else "file size"
         if len(shape) == 3:
             expected = header_bytes + shape[0] * slice_bytes
@@ -95,6 +98,7 @@ def load_raw(files, label, shape, dtype, byte_order, header_bytes, spacing, axes
                 raise CTImportError(f"{what} {size} bytes is not {header_bytes} header bytes + a whole number "
                                     f"of {ny}x{nx} {dt.str} slices ({slice_bytes} bytes each)", f)
             nz = body // slice_bytes
+        check_budget(nz * ny * nx * 4, f"{nz} x {ny} x {nx} raw slices", f)
         data = np.empty((nz, ny, nx), dtype=np.float32)
         data[...] = _raw_samples(f, raw, dt, nz * ny * nx, header_bytes).reshape(nz, ny, nx)
         del raw
@@ -109,19 +113,34 @@ def load_raw(files, label, shape, dtype, byte_order, header_bytes, spacing, axes
             if size != expected:
                 raise CTImportError(f"file size {size} bytes does not match one {ny}x{nx} {dt.str} slice + "
                                     f"{header_bytes} header bytes = {expected} bytes", f)
+        check_budget(len(candidates) * ny * nx * 4, f"{len(candidates)} x {ny} x {nx} raw slices", label)
         data = np.empty((len(candidates), ny, nx), dtype=np.float32)
         for k, f in enumerate(candidates):
-            raw, size = _read_raw_bytes(f)
+            raw, size = _read_raw_bytes(f, expected)
             if size != expected:
                 raise CTImportError(f"{'decompressed (gzip) size' if raw is not None else 'file size'} {size} "
                                     f"bytes does not match one {ny}x{nx} {dt.str} slice + {header_bytes} header "
                                     f"bytes = {expected} bytes", f)
             data[k] = _raw_samples(f, raw, dt, ny * nx, header_bytes).reshape(ny, nx)
     _refuse_wrong_byte_order(data, dt, label)
+    _refuse_absurd_floats(data, dt, label)
     return headerless_volume(data, label, "raw", spacing, axes, oriented, hu, warns,
                               {"files": len(candidates), "first_file": candidates[0].name,
                                "last_file": candidates[-1].name, "source_dtype": dt.str,
                                "header_bytes": header_bytes})
+
+
+def _refuse_absurd_floats(data: np.ndarray, dt: np.dtype, label) -> None:
+    """Refuse float samples whose magnitudes no scan has (bytes read as the wrong type, shape or offset)."""
+    if dt.kind != "f":
+        return
+    sample = np.abs(data[:: max(1, data.shape[0] // 16)].astype(np.float64))
+    finite = sample[np.isfinite(sample)]
+    share = float(np.mean(finite > 1e6)) if finite.size else 1.0
+    if finite.size < 0.5 * sample.size or share > 0.01:
+        raise CTImportError(f"read as dtype={dt.str!r} the samples are not CT values ({100 * share:.0f} % beyond "
+                            f"1e6 in magnitude, {100 * (1 - finite.size / max(sample.size, 1)):.0f} % NaN or "
+                            "infinite): wrong dtype, byte order, shape or header_bytes", label)
 
 
 def _refuse_wrong_byte_order(data: np.ndarray, dt: np.dtype, label) -> None:
