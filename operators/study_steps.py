@@ -137,10 +137,11 @@ class PipelineSteps:
     def import_ct(cls, context, path: Path, options: dict):
         """Load a CT from disk into a new study."""
         import warnings
-        from ..pdehead_addon import load_ct
+        from ..pdehead_addon import check_head_scan, load_ct
         with state.Timer() as t, warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             ct = load_ct(path, **options)
+            check_head_scan(ct)                 # portraits, noise: refused before a study is made
         study = cls.create(context, ct, _study_name(ct, path), "FILES", str(path), options)
         # the loader's warnings (single slice, uneven steps, ...) stay visible in the Study panel
         study.add_warnings([str(w.message) for w in caught if issubclass(w.category, UserWarning)])

@@ -25,7 +25,7 @@ subpackage where they need more).
 from .core.errors import PDEHeadError, CTImportError, SegmentationError, BoundaryError, PDEError, StorageError, Cancelled
 from .core.ct_volume import CTVolume
 from .core.mesh import Mesh
-from .io.ct_import import load_ct, list_series, SeriesInfo, CTImportWarning
+from .io.ct_import import load_ct, check_head_scan, list_series, SeriesInfo, CTImportWarning
 from .io.input_checks import HeadSizeWarning
 from .io.phantom import make_phantom, Phantom
 from .segment.segmentation import Segmentation, segment_head
@@ -90,7 +90,7 @@ _LAZY = {
 
 __all__ = [  # the public API
     "PDEHeadError", "CTImportError", "SegmentationError", "BoundaryError", "PDEError", "StorageError",
-    "Cancelled", "CTVolume", "Mesh", "load_ct", "list_series", "SeriesInfo", "CTImportWarning",
+    "Cancelled", "CTVolume", "Mesh", "load_ct", "check_head_scan", "list_series", "SeriesInfo", "CTImportWarning",
     "HeadSizeWarning", "make_phantom", "Phantom", "Segmentation", "segment_head", "BoundarySet",
     "knots_from_heights", "extract_boundaries", "BoundaryOptions", "max_patches", "patches_for_scan", "boundary_ring",
     "contour_from_mask", "parameter_offsets", "scan_edge_slices", "register_selection",

@@ -232,6 +232,35 @@ def _check_values(ct: CTVolume, label: str, warns: list[str]) -> None:
 
 
 
+def check_head_scan(ct: CTVolume) -> dict:
+    """Refuse a volume that is no head scan (CT or MRI): portraits, smooth shapes, noise.
+
+    :func:`load_ct` reads any volume (the geometry tests feed it ramps); the add-on's import, the command line
+    and the batch call this right after it, before anything is segmented or built. The criteria are
+    :func:`~pdehead_addon.io.input_checks.head_scan_evidence`'s (coherent structure, a sharp outline, anatomy
+    inside it); its measures are kept in ``ct.meta["head_scan"]``.
+
+    Returns
+    -------
+    The measures (correlation, edge_sharpness, interior_detail).
+
+    Raises
+    ------
+    CTImportError
+        "not a head scan (CT or MRI): <what failed>", naming the source.
+    """
+    if ct.meta.get("format") == "mesh":          # a skull mesh voxelised (load_skull_mesh): checked there
+        return {}
+    evidence = input_checks.head_scan_evidence(ct.data)
+    measures = {k: v for k, v in evidence.items() if k != "failed"}
+    ct.meta["head_scan"] = measures
+    if evidence["failed"]:
+        nz, ny, nx = ct.shape
+        raise CTImportError(f"not a head scan (CT or MRI): {'; '.join(evidence['failed'])}; {nz} slice(s) of "
+                            f"{nx} x {ny} pixels", ct.meta.get("source") or None)
+    return measures
+
+
 def _check_crown(ct: CTVolume, auto: bool, warns: list[str]) -> CTVolume:
     """Headerless stacks: with Auto orientation a crown at the inferior end is put on top (flipped, with a
     warning naming first_slice); where the crown closes inside the scan, a vertex-to-widest-section height
