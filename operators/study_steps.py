@@ -126,7 +126,7 @@ class PipelineSteps:
             s.patches = prefs.default_patches(context)
             for key, value in described.items():
                 setattr(s, key, value)
-            s.warnings = ""
+            s.warnings = s.notes = ""
         study = cls.of(coll)
         study.add_warnings(warnings)
         study.cache.ct = ct
@@ -145,6 +145,7 @@ class PipelineSteps:
         study = cls.create(context, ct, _study_name(ct, path), "FILES", str(path), options)
         # the loader's warnings (single slice, uneven steps, ...) stay visible in the Study panel
         study.add_warnings([str(w.message) for w in caught if issubclass(w.category, UserWarning)])
+        study.add_notes(ct.meta.get("info", []))    # the automatic choices: shown as information
         study.settings.timings_json = ""
         study.record_timing("import", t.seconds)
         return study

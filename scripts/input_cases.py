@@ -300,7 +300,8 @@ def _shared(*parts) -> Path:
 @case("8", "CThead's 8-bit TIFF stack (first file at the top) with no first_slice (Auto)")
 def _(tmp):
     ct = load_ct(_shared("cthead_stanford", "tiff8"), spacing=(2, 1, 1))
-    return f"orientation {ct.meta['orientation']}, crown at k = {ct.shape[0] - 1} (the top)"
+    return (f"orientation {ct.meta['orientation']}, crown at k = {ct.shape[0] - 1} (the top); information, not a "
+            f"warning: {' / '.join(ct.meta.get('info', []))}")
 
 
 @case("8b", "CThead's big-endian raw slices read as little-endian (dtype='<i2')")

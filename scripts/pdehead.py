@@ -554,7 +554,11 @@ def _steps(args, bpy, addon, state) -> dict:
     _print_study(args, bpy, state, coll, selection_info)
     if args.skull:
         _print_skull(args, addon, coll, skin)
-    warning_lines = [state.user_text(w) for w in addon.operators.study_entity.Study.of(coll).warnings]
+    study = addon.operators.study_entity.Study.of(coll)
+    info_lines = [state.user_text(n) for n in study.notes]       # automatic choices: information
+    for note in info_lines:
+        print(f"  info      {note}")
+    warning_lines = [state.user_text(w) for w in study.warnings]
     for warning in warning_lines:
         print(f"  warning   {warning}")
     print("timings (s):")
@@ -563,6 +567,7 @@ def _steps(args, bpy, addon, state) -> dict:
     print(f"  {'total':<11}{total:8.3f}")
 
     summary = _summary(args, addon, coll, timings, total, selection_info, warning_lines)
+    summary["info"] = info_lines
     if args.out:
         _save(bpy, args.out.resolve(), "--out")
         print(f"wrote {args.out}")
