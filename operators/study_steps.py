@@ -173,8 +173,10 @@ class PipelineSteps:
     def segment_call(self):
         """The segmentation's engine call, ``call(progress) -> Segmentation``: it touches no Blender data,
         so the modal pipeline runs it on a worker thread (:class:`.progress.EngineJob`)."""
-        from ..pdehead_addon import segment_head
+        from ..pdehead_addon import check_bone_level, segment_head
         ct = self.ct
+        if self.settings.use_bone_level and ct.meta.get("format") != "mesh":
+            check_bone_level(ct, self.settings.bone_level)    # a level above the scan's bone: refused now
         return lambda progress: segment_head(ct, progress=progress)
 
     def keep_segmentation(self, seg, seconds: float) -> None:
