@@ -41,7 +41,8 @@ from .pde.pde_smoothing import smoothing_bounds
 from .curves.parameterisation import align_parameterisation, smooth_closed_curve, correspondence_error
 from .pde.pde_solid import alpha_from_w, w_field, solid_mesh, WField, OUTSIDE_W
 from .io.storage import save_boundaries, load_boundaries, dumps_boundaries, loads_boundaries, load_head, loads_head
-from .forensic.skull import SkullSegmentation, bone_level_range, check_bone_level, segment_skull, skull_mesh
+from .forensic.skull import SkullSegmentation, segment_skull, skull_mesh
+from .forensic.bone_levels import bone_level_range, check_bone_level
 from .forensic.tissue_depth import TissueDepth, tissue_depth, write_depth_csv
 from .io.export import export_mesh
 from .forensic.depth_table import DepthTable, DepthEntry, read_depth_table, default_table, write_landmark_csv

@@ -388,7 +388,10 @@ def main(argv=None) -> int:
     if args.print:
         print(text)
     else:
-        OUT.write_text(text)
+        # the sections after the generated table (## headings) are kept as they are
+        old = OUT.read_text() if OUT.exists() else ""
+        kept = old.find("\n## ")
+        OUT.write_text(text + (old[kept:] if kept >= 0 else ""))
         print(f"wrote {OUT}", file=sys.stderr)
     return 0
 

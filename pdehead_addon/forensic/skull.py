@@ -256,69 +256,6 @@ def _to_hu(value: float, calibrated: bool, window) -> float | None:
     return float(AIR_HU + (value - low) * (TISSUE_HU - AIR_HU) / (high - low))
 
 
-#: Valid bone levels keep at least this share of the scan's bone (its voxels from the lowest valid level up):
-#: above it the skull falls apart into its densest spots (CThead at 2800 stored keeps 1 %, the GE series at
-#: 1200 HU 11 %, the phantom at 1200 HU 12 %; their automatic levels keep 70 % to 100 %).
-BONE_LEVEL_MIN_KEPT = 0.25
-
-
-def bone_level_range(ct: CTVolume, has_skin: bool | None = None) -> dict:
-    """The bone levels that make a skull of this scan, in its stored units.
-
-    * lowest: the lowest level of the automatic rule, ``BONE_LEVEL_RANGE_HU[0]`` (below it cartilage and
-      contrast count as bone), in stored units (uncalibrated scans: on the pseudo-HU scale of
-      :func:`hounsfield`); a scan without soft tissue: Otsu's air/bone split (everything not air is bone);
-    * highest: the level that keeps :data:`BONE_LEVEL_MIN_KEPT` of the scan's bone (the voxels from the
-      lowest level up): the 75th percentile of their values.
-
-    Returns
-    -------
-    dict(low, high, max (the brightest voxel), units ("HU" or "stored"), bone_voxels)
-    """
-    calibrated = str(ct.meta.get("units", "")).upper() == "HU"
-    if has_skin is None:
-        has_skin = soft_tissue_present(ct.data)[0]
-    if not has_skin:
-        low = max(_air_split(ct.data), BONE_LEVEL_RANGE_HU[0]) if calibrated else _air_split(ct.data)
-    elif calibrated:
-        low = BONE_LEVEL_RANGE_HU[0]
-    else:
-        low = _to_stored(BONE_LEVEL_RANGE_HU[0], False, auto_window(ct.data))
-    sample = ct.data.reshape(-1)[:: max(1, ct.data.size // 8_000_000)]
-    bone = sample[sample >= np.float32(low)]
-    units = "HU" if calibrated else "stored"
-    if bone.size == 0:
-        return dict(low=float(low), high=float(low), max=float(np.nanmax(sample)), units=units, bone_voxels=0)
-    high = float(np.percentile(bone, 100.0 * (1.0 - BONE_LEVEL_MIN_KEPT)))
-    return dict(low=float(low), high=high, max=float(bone.max()), units=units, bone_voxels=int(bone.size))
-
-
-def check_bone_level(ct: CTVolume, bone_level: float, has_skin: bool | None = None) -> dict:
-    """Refuse a bone level outside :func:`bone_level_range` (before any segmentation), naming the range.
-
-    Raises
-    ------
-    SegmentationError
-        "bone_level=V is above (below) this scan's bone ...", with the valid levels.
-    """
-    r = bone_level_range(ct, has_skin)
-    level, units = float(bone_level), r["units"]
-    valid = (f"give a level from {r['low']:.0f} to {r['high']:.0f} {units}, or none (the automatic rule)")
-    if r["bone_voxels"] == 0:
-        raise SegmentationError(f"bone_level={level:g}: this scan has no bone (nothing from {r['low']:.0f} {units} "
-                                f"up; its brightest voxel is {r['max']:.0f})")
-    if level > r["high"]:
-        sample = ct.data.reshape(-1)[:: max(1, ct.data.size // 8_000_000)]
-        kept = float(np.count_nonzero(sample >= np.float32(level))) / r["bone_voxels"]
-        raise SegmentationError(f"bone_level={level:g} is above this scan's bone: its bone spans {r['low']:.0f} to "
-                                f"{r['max']:.0f} {units} and the level keeps {100 * kept:.0f} % of it (a skull needs "
-                                f"at least {100 * BONE_LEVEL_MIN_KEPT:.0f} %); {valid}")
-    if level < r["low"]:
-        raise SegmentationError(f"bone_level={level:g} is below this scan's bone (from {r['low']:.0f} {units}: "
-                                f"soft tissue would count as bone); {valid}")
-    return r
-
-
 def eroded_components(bone: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
     """The components of the bone eroded by one voxel (a joint or a tooth contact at partial volume no longer joins
     them; thicker bone stays whole): (the eroded core, or the bone when nothing is left; its labels; their count)."""
@@ -479,7 +416,6 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
     info: dict[str, Any] = {}
     units = "HU" if calibrated else "stored"
     if bone_level is not None:
-        check_bone_level(ct, bone_level, has_skin)
         stored = float(bone_level)
         info = {"source": "given (--bone-level)"}
     elif level is not None:

@@ -65,6 +65,11 @@ def test_every_real_scan_cropped_and_resampled_is_a_head_scan(cthead, ge, phanto
         assert got["correlation"] >= 1.8 * IC.HEAD_MIN_NEIGHBOUR_CORRELATION, (name, got)
         assert got["edge_sharpness"] >= 2.0 * IC.HEAD_MIN_EDGE_SHARPNESS, (name, got)
         assert got["interior_detail"] >= 2.0 * IC.HEAD_MIN_INTERIOR_DETAIL, (name, got)
+    # skull-only scans (everything below a bone level set to air: a dry skull's CT) are head scans too
+    for name, data, level, air in (("cthead", cthead.data, 1500, 0), ("ge", ge.data, 400, -1000),
+                                   ("phantom", phantom_ct.data, 565, -1000)):
+        got = IC.head_scan_evidence(np.where(data >= level, data, air).astype(np.float32))
+        assert got["failed"] == [] and got["interior_detail"] >= 1.4 * IC.HEAD_MIN_INTERIOR_DETAIL, (name, got)
 
 
 def _png_folder(folder: Path, images) -> Path:
@@ -139,12 +144,6 @@ def test_bone_level_above_the_scans_bone_is_refused_with_the_range(cthead, ge, p
         check_bone_level(ct, 0.5 * (low + high))
     with pytest.raises(SegmentationError, match="is below this scan's bone"):
         check_bone_level(ge, 100.0)
-
-
-def test_segment_skull_refuses_a_bone_level_above_the_bone_before_any_work(phantom_ct):
-    from pdehead_addon import segment_skull
-    with pytest.raises(SegmentationError, match=r"bone_level=1200 is above this scan's bone"):
-        segment_skull(phantom_ct, None, bone_level=1200.0)      # head=None: it would segment the head first
 
 
 # ------------------------------------------------------------------ 5. a cube or a sphere as the skull mesh
