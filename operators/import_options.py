@@ -33,7 +33,7 @@ BYTE_ORDER_ITEMS = [("BIG", "Big Endian", "Most significant byte first ('>')"),
                     ("LITTLE", "Little Endian", "Least significant byte first ('<')")]
 FIRST_SLICE_ITEMS = [("AUTO", "Auto", "DICOM: from the file headers. Raw and image stacks: the first file is "
                                      "inferior, unless the head's crown (where it closes) is at the first file: "
-                                     "then superior, with a warning"),
+                                     "then superior (said as information in the Study panel)"),
                      ("SUPERIOR", "Superior", "The first file is the top of the head"),
                      ("INFERIOR", "Inferior", "The first file is the bottom (neck)")]
 
