@@ -42,7 +42,7 @@ class SkullSteps:
 
     def skull_segmentation(self):
         """The skull segmentation of the study (cached; computed from the CT and the head segmentation)."""
-        from ..pdehead_addon import segment_skull
+        from ..pdehead_addon import check_bone_level, segment_skull
 
         extra = self.cache
         cache = self.study.cache
@@ -53,6 +53,8 @@ class SkullSteps:
         if extra.get("skull_seg") is None or extra.get("skull_seg_of") is not cache.seg \
                 or extra.get("skull_seg_level") != level:
             # a new head segmentation (or CT, or bone level) makes the skull and everything measured on it stale
+            if level is not None and self.study.ct.meta.get("format") != "mesh":
+                check_bone_level(self.study.ct, level)      # a level above the scan's bone: refused before the work
             if extra.get("skull_seg") is not None and extra.get("skull_seg_level") != level:
                 self.collection.pop(SKULL_BOUNDARY_KEY, None)      # the stored envelope was of the old level
             extra.update(skull_seg=segment_skull(self.study.ct, cache.seg, bone_level=level),

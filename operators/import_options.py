@@ -33,7 +33,7 @@ BYTE_ORDER_ITEMS = [("BIG", "Big Endian", "Most significant byte first ('>')"),
                     ("LITTLE", "Little Endian", "Least significant byte first ('<')")]
 FIRST_SLICE_ITEMS = [("AUTO", "Auto", "DICOM: from the file headers. Raw and image stacks: the first file is "
                                      "inferior, unless the head's crown (where it closes) is at the first file: "
-                                     "then superior, with a warning"),
+                                     "then superior (said as information in the Study panel)"),
                      ("SUPERIOR", "Superior", "The first file is the top of the head"),
                      ("INFERIOR", "Inferior", "The first file is the bottom (neck)")]
 
@@ -89,7 +89,9 @@ class LoaderOptions:
                                             "at the first file)")
     units: EnumProperty(name="Units", default="AUTO",
                         items=[("AUTO", "Auto", "DICOM says its units; raw and images are stored values"),
-                               ("HU", "HU", "The raw or image samples are Hounsfield units (air -1000)")])
+                               ("HU", "HU", "The raw or image samples are Hounsfield units (air -1000)"),
+                               ("STORED", "Stored", "The raw, image or NIfTI samples are stored values, not HU "
+                                                    "(what Auto assumes for them; DICOM says its own units)")])
     downsample: IntProperty(name=D.DOWNSAMPLE.label, **D.DOWNSAMPLE.limits(), description=D.DOWNSAMPLE.description)
     series_uid: StringProperty(name="Series UID", default="",
                                description="DICOM: the SeriesInstanceUID to load when the folder "
@@ -129,8 +131,8 @@ class LoaderOptions:
                 options["orientation"] = self.orientation.strip().upper()
             elif self.first_slice != "AUTO":      # Auto: the engine's rule (defaults.FIRST_SLICE), as for images
                 options["first_slice"] = self.first_slice.lower()
-            if self.units == "HU":
-                options["units"] = "HU"
+            if self.units != "AUTO":
+                options["units"] = "HU" if self.units == "HU" else "stored"
             if self.downsample > 1:
                 options["downsample"] = int(self.downsample)
             return options
@@ -144,8 +146,8 @@ class LoaderOptions:
             options["orientation"] = self.orientation.strip().upper()
         elif self.first_slice != "AUTO":
             options["first_slice"] = self.first_slice.lower()
-        if self.units == "HU":
-            options["units"] = "HU"
+        if self.units != "AUTO":
+            options["units"] = "HU" if self.units == "HU" else "stored"
         if self.downsample > 1:
             options["downsample"] = int(self.downsample)
         if self.series_uid.strip():

@@ -53,6 +53,8 @@ class PDEHEAD_PT_study(_PDEHeadPanel, bpy.types.Panel):
             col.label(text=f"Series: {s.series}")
         source = "phantom" if s.source_kind == "PHANTOM" else (os.path.basename(s.source.rstrip("/\\")) or s.source)
         col.label(text=f"Source: {source}")
+        for note in study.notes[:2]:        # automatic choices, in the dialog's words
+            col.label(text=state.user_text(note)[:160], icon='INFO')
         for warning in study.warnings[:4]:  # one line each, in the dialog's words
             col.label(text=state.user_text(warning)[:160], icon='ERROR')
         text, icon = study.ct_status()

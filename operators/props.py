@@ -122,6 +122,7 @@ class PDEHeadStudySettings(bpy.types.PropertyGroup):
     spacing: FloatVectorProperty(name="Spacing", size=3, unit="NONE", description="Voxel size (dz, dy, dx) in mm")
     value_range: FloatVectorProperty(name="Value Range", size=2, description="Min / max CT value (HU where calibrated)")
     warnings: StringProperty(name="Warnings")
+    notes: StringProperty(name="Information", description="Automatic choices the import made (one per line)")
 
     # Forensic: the bone level (issue 22; also in the import dialog)
     use_bone_level: BoolProperty(name=D.USE_BONE_LEVEL.label, **D.USE_BONE_LEVEL.limits(),

@@ -131,6 +131,19 @@ class Study(PipelineSteps, LiveSolid):
         return new
 
     @property
+    def notes(self) -> list[str]:
+        """The automatic choices the import made for a correct input (information, not warnings)."""
+        text = self.settings.notes or ""
+        return [p for p in text.split(WARNING_SEPARATOR) if p.strip()]
+
+    def add_notes(self, messages) -> None:
+        """Append the messages not yet among the study's notes."""
+        known = self.notes
+        new = [str(m).strip() for m in dict.fromkeys(messages) if str(m).strip() and str(m).strip() not in known]
+        if new:
+            self.settings.notes = WARNING_SEPARATOR.join(known + new)[:_MAX_WARNINGS_CHARS]
+
+    @property
     def cache(self) -> state.StudyCache:
         """The in-memory results (CT, segmentation, curves, head, ...)."""
         return state.cache_for(self.study_id)

@@ -126,7 +126,7 @@ class PipelineSteps:
             s.patches = prefs.default_patches(context)
             for key, value in described.items():
                 setattr(s, key, value)
-            s.warnings = ""
+            s.warnings = s.notes = ""
         study = cls.of(coll)
         study.add_warnings(warnings)
         study.cache.ct = ct
@@ -137,13 +137,15 @@ class PipelineSteps:
     def import_ct(cls, context, path: Path, options: dict):
         """Load a CT from disk into a new study."""
         import warnings
-        from ..pdehead_addon import load_ct
+        from ..pdehead_addon import check_head_scan, load_ct
         with state.Timer() as t, warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             ct = load_ct(path, **options)
+            check_head_scan(ct)                 # portraits, noise: refused before a study is made
         study = cls.create(context, ct, _study_name(ct, path), "FILES", str(path), options)
         # the loader's warnings (single slice, uneven steps, ...) stay visible in the Study panel
         study.add_warnings([str(w.message) for w in caught if issubclass(w.category, UserWarning)])
+        study.add_notes(ct.meta.get("info", []))    # the automatic choices: shown as information
         study.settings.timings_json = ""
         study.record_timing("import", t.seconds)
         return study
@@ -171,8 +173,10 @@ class PipelineSteps:
     def segment_call(self):
         """The segmentation's engine call, ``call(progress) -> Segmentation``: it touches no Blender data,
         so the modal pipeline runs it on a worker thread (:class:`.progress.EngineJob`)."""
-        from ..pdehead_addon import segment_head
+        from ..pdehead_addon import check_bone_level, segment_head
         ct = self.ct
+        if self.settings.use_bone_level and ct.meta.get("format") != "mesh":
+            check_bone_level(ct, self.settings.bone_level)    # a level above the scan's bone: refused now
         return lambda progress: segment_head(ct, progress=progress)
 
     def keep_segmentation(self, seg, seconds: float) -> None:

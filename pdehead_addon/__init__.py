@@ -25,7 +25,7 @@ subpackage where they need more).
 from .core.errors import PDEHeadError, CTImportError, SegmentationError, BoundaryError, PDEError, StorageError, Cancelled
 from .core.ct_volume import CTVolume
 from .core.mesh import Mesh
-from .io.ct_import import load_ct, list_series, SeriesInfo, CTImportWarning
+from .io.ct_import import load_ct, check_head_scan, list_series, SeriesInfo, CTImportWarning
 from .io.input_checks import HeadSizeWarning
 from .io.phantom import make_phantom, Phantom
 from .segment.segmentation import Segmentation, segment_head
@@ -42,6 +42,7 @@ from .curves.parameterisation import align_parameterisation, smooth_closed_curve
 from .pde.pde_solid import alpha_from_w, w_field, solid_mesh, WField, OUTSIDE_W
 from .io.storage import save_boundaries, load_boundaries, dumps_boundaries, loads_boundaries, load_head, loads_head
 from .forensic.skull import SkullSegmentation, segment_skull, skull_mesh
+from .forensic.bone_levels import bone_level_range, check_bone_level
 from .forensic.tissue_depth import TissueDepth, tissue_depth, write_depth_csv
 from .io.export import export_mesh
 from .forensic.depth_table import DepthTable, DepthEntry, read_depth_table, default_table, write_landmark_csv
@@ -90,7 +91,7 @@ _LAZY = {
 
 __all__ = [  # the public API
     "PDEHeadError", "CTImportError", "SegmentationError", "BoundaryError", "PDEError", "StorageError",
-    "Cancelled", "CTVolume", "Mesh", "load_ct", "list_series", "SeriesInfo", "CTImportWarning",
+    "Cancelled", "CTVolume", "Mesh", "load_ct", "check_head_scan", "list_series", "SeriesInfo", "CTImportWarning",
     "HeadSizeWarning", "make_phantom", "Phantom", "Segmentation", "segment_head", "BoundarySet",
     "knots_from_heights", "extract_boundaries", "BoundaryOptions", "max_patches", "patches_for_scan", "boundary_ring",
     "contour_from_mask", "parameter_offsets", "scan_edge_slices", "register_selection",
@@ -98,7 +99,7 @@ __all__ = [  # the public API
     "PDEHead", "smoothing_bounds", "control_ranges", "solve_with_controls", "align_parameterisation",
     "smooth_closed_curve", "correspondence_error", "alpha_from_w", "w_field", "solid_mesh", "WField",
     "OUTSIDE_W", "save_boundaries", "load_boundaries", "dumps_boundaries", "loads_boundaries", "load_head",
-    "loads_head", "SkullSegmentation", "segment_skull", "skull_mesh", "TissueDepth", "tissue_depth",
+    "loads_head", "SkullSegmentation", "bone_level_range", "check_bone_level", "segment_skull", "skull_mesh", "TissueDepth", "tissue_depth",
     "write_depth_csv", "export_mesh", "DepthTable", "DepthEntry", "read_depth_table", "default_table",
     "write_landmark_csv",
     "__version__",

@@ -248,3 +248,73 @@ def tube_fidelity(head, verts, faces, samples: int, everything: bool = False) ->
     tube = tube_mesh(head._grid(u, 256), head.orientation)
     d = E.validation.symmetric_surface_distance(tube.vertices, tube.quads, verts, sel, samples=samples)
     return d if everything else {k: float(d[k]) for k in ("mean", "p95", "max")}
+
+
+# --------------------------------------------------------------------------- the command lines' loader options
+#: The loader flags of ``pdehead.py`` and ``pdehead_batch.py run`` (argparse destinations).
+LOADER_FLAGS = ("format", "raw_shape", "dtype", "spacing", "first_slice", "orientation", "units", "series_uid",
+                "downsample")
+
+
+def add_loader_arguments(parser):
+    """The loader options group (``--format`` ... ``--downsample``): one definition for both command lines,
+    so a single CT and a batch of them are read the same way. Returns the group."""
+    D = defaults()
+    g = parser.add_argument_group("loader options")
+    g.add_argument("--format", default="auto", choices=["auto", "dicom", "images", "raw"])
+    g.add_argument("--raw-shape", type=int, nargs=2, metavar=("NY", "NX"), help="raw slices: rows, columns")
+    g.add_argument("--dtype", help="raw data type, numpy style: '>i2' (big-endian int16), '<u2', 'u1', '<f4'")
+    g.add_argument("--spacing", type=float, nargs=3, metavar=("DZ", "DY", "DX"), help="voxel size in mm")
+    g.add_argument("--first-slice", choices=list(D.FIRST_SLICE_CHOICES),
+                   help="raw/image stacks: where the first file lies; default auto: inferior, unless the head's "
+                        "crown (where it closes) is at the first file, then superior (said as information)")
+    g.add_argument("--orientation", metavar="CODE",
+                   help="raw/image stacks: 3 letters for the directions in which the column, row and file "
+                        "index increase, e.g. LPS (default), LAS (row 0 = back of the head), RAS, PIL")
+    g.add_argument("--units", choices=["HU", "stored"],
+                   help="raw/image stacks and NIfTI: the samples are HU, or stored values (the default for them)")
+    g.add_argument("--series-uid", help="DICOM SeriesInstanceUID when the folder holds several series")
+    g.add_argument("--downsample", type=int, default=D.DOWNSAMPLE.default, metavar="N",
+                   help=D.DOWNSAMPLE.help("average N x N x N voxel blocks on import (very large scans: 2 needs "
+                                          "1/8 of the memory)"))
+    return g
+
+
+def check_loader_args(error, args) -> None:
+    """The loader options together: raw input needs its shape, type and spacing (``--raw-shape`` or ``--dtype``
+    alone say raw), ``--orientation`` excludes ``--first-slice``, ``--downsample`` in its range. ``error(message)``
+    reports a usage error (it must not return)."""
+    D = defaults()
+    if args.raw_shape or args.dtype:
+        args.format = "raw"
+    if args.format == "raw" and not (args.raw_shape and args.dtype and args.spacing):
+        error("raw input needs --raw-shape NY NX, --dtype and --spacing DZ DY DX")
+    if args.orientation and args.first_slice not in (None, "auto"):
+        error("give either --orientation or --first-slice (the orientation's third letter says where the files go)")
+    try:
+        D.DOWNSAMPLE.check(args.downsample, "--downsample")
+    except ValueError as exc:
+        error(str(exc))
+
+
+def engine_loader_options(args) -> dict:
+    """``load_ct`` keyword arguments of the loader options (``pdehead_batch.py``'s workers run the engine
+    without Blender; ``pdehead.py`` fills the add-on's import dialog instead). Only what was given; JSON-able."""
+    options: dict = {}
+    if args.format != "auto":
+        options["format"] = args.format
+    if args.format == "raw":
+        options.update(shape=list(args.raw_shape), dtype=args.dtype)
+    if args.spacing:
+        options["spacing"] = list(args.spacing)
+    if args.first_slice and args.first_slice != "auto":
+        options["first_slice"] = args.first_slice
+    if args.orientation:
+        options["orientation"] = args.orientation.upper()
+    if args.units:
+        options["units"] = args.units
+    if args.series_uid:
+        options["series_uid"] = args.series_uid
+    if args.downsample > 1:
+        options["downsample"] = int(args.downsample)
+    return options

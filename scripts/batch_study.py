@@ -301,7 +301,8 @@ def _child(input_path: str, work: Path, settings: dict) -> int:
         return value
 
     try:
-        ct = step("import", lambda: eng.load_ct(input_path))
+        ct = step("import", lambda: eng.load_ct(input_path, **_loader_options(settings)))
+        eng.check_head_scan(ct)                 # portraits, noise: refused before the segmentation
         state["series"], state["subject"] = _series_and_subject(ct, input_path)
         seg = step("segment", lambda: eng.segment_head(ct))
         # a short scan gives the patches it can, as in the add-on, said among the study's warnings
@@ -328,6 +329,15 @@ def _child(input_path: str, work: Path, settings: dict) -> int:
         print(f"failed: {state['error']}", flush=True)
     (work / "child.json").write_text(json.dumps(state))
     return 0
+
+
+def _loader_options(settings: dict) -> dict:
+    """``load_ct`` keyword arguments of the batch's loader options (``_common.engine_loader_options``)."""
+    options = dict(settings.get("loader") or {})
+    for key in ("shape", "spacing"):                 # lists after the JSON round trip
+        if key in options:
+            options[key] = tuple(options[key])
+    return options
 
 
 def _skull_outputs(eng, ct, seg, bset, work: Path, settings: dict) -> int:

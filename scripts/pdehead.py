@@ -132,22 +132,7 @@ def _parser() -> argparse.ArgumentParser:
     a.add_argument("--render-animation", type=Path, metavar="DIR",
                    help="with --turntable: render the frames (Cycles, --resolution, --render-samples) to "
                         "DIR/frame_0001.png ...")
-    g = p.add_argument_group("loader options")
-    g.add_argument("--format", default="auto", choices=["auto", "dicom", "images", "raw"])
-    g.add_argument("--raw-shape", type=int, nargs=2, metavar=("NY", "NX"), help="raw slices: rows, columns")
-    g.add_argument("--dtype", help="raw data type, numpy style: '>i2' (big-endian int16), '<u2', 'u1', '<f4'")
-    g.add_argument("--spacing", type=float, nargs=3, metavar=("DZ", "DY", "DX"), help="voxel size in mm")
-    g.add_argument("--first-slice", choices=list(D.FIRST_SLICE_CHOICES),
-                   help="raw/image stacks: where the first file lies; default auto: inferior, unless the head's "
-                        "crown (where it closes) is at the first file, then superior with a warning")
-    g.add_argument("--orientation", metavar="CODE",
-                   help="raw/image stacks: 3 letters for the directions in which the column, row and file "
-                        "index increase, e.g. LPS (default), LAS (row 0 = back of the head), RAS, PIL")
-    g.add_argument("--units", choices=["HU", "stored"], help="raw/image stacks: the samples are HU (or not)")
-    g.add_argument("--series-uid", help="DICOM SeriesInstanceUID when the folder holds several series")
-    g.add_argument("--downsample", type=int, default=D.DOWNSAMPLE.default, metavar="N",
-                   help=D.DOWNSAMPLE.help("average N x N x N voxel blocks on import (very large scans: 2 needs "
-                                          "1/8 of the memory)"))
+    _common.add_loader_arguments(p)       # one definition, shared with pdehead_batch.py run
     return p
 
 
@@ -190,10 +175,7 @@ def _check_input_args(p, args) -> None:
     args.selection = D.SELECTION.default if args.selection is None else args.selection
     if args.phantom == bool(args.input):
         p.error("give either INPUT or --phantom")
-    if args.raw_shape or args.dtype:
-        args.format = "raw"
-    if args.format == "raw" and not (args.raw_shape and args.dtype and args.spacing):
-        p.error("raw input needs --raw-shape NY NX, --dtype and --spacing DZ DY DX")
+    _common.check_loader_args(p.error, args)
     if args.raw_shape and min(args.raw_shape) < 1:
         raise CLIError(f"--raw-shape must be two positive numbers of pixels (rows, columns), got "
                        f"{' '.join(map(str, args.raw_shape))}", 2)
@@ -222,7 +204,7 @@ def _check_curve_args(p, args) -> None:
 
 def _check_ranges(p, args) -> None:
     """Every number in its range (:mod:`pdehead_addon.defaults`)."""
-    for name in ("patches", "samples", "downsample", "nu", "nv", "nw", "resolution", "render_samples"):
+    for name in ("patches", "samples", "nu", "nv", "nw", "resolution", "render_samples"):
         _check_range(p, D.PARAMS[name], getattr(args, name), f"--{name.replace('_', '-')}")
     if args.voxel_size is not None:
         _check_range(p, D.VOXEL_SIZE, args.voxel_size, "--voxel-size")
@@ -231,14 +213,11 @@ def _check_ranges(p, args) -> None:
 
 
 def _check_render_args(p, args) -> None:
-    """--render-animation, --orientation against --first-slice, and the renders' file names."""
+    """--render-animation and the renders' file names."""
     if args.render_animation is not None:
         if args.turntable is None:
             p.error("--render-animation needs --turntable N (the animation to render)")
         _check_writable_folder(args.render_animation, "--render-animation")
-    if args.orientation and args.first_slice not in (None, "auto"):
-        p.error("give either --orientation or --first-slice (the orientation's third letter says where "
-                "the files go)")
     for flag in ("render", "render_volume"):
         path = getattr(args, flag)
         if path is not None and path.suffix.lower() not in IMAGE_SUFFIXES:
@@ -764,7 +743,11 @@ def _steps(args, bpy, addon, state, staging) -> dict:
     _print_study(args, bpy, state, coll, selection_info)
     if args.skull:
         _print_skull(args, addon, coll, skin)
-    warning_lines = [state.user_text(w) for w in addon.operators.study_entity.Study.of(coll).warnings]
+    study = addon.operators.study_entity.Study.of(coll)
+    info_lines = [state.user_text(n) for n in study.notes]       # automatic choices: information
+    for note in info_lines:
+        print(f"  info      {note}")
+    warning_lines = [state.user_text(w) for w in study.warnings]
     for warning in warning_lines:
         print(f"  warning   {warning}")
     print("timings (s):")
@@ -773,6 +756,7 @@ def _steps(args, bpy, addon, state, staging) -> dict:
     print(f"  {'total':<11}{total:8.3f}")
 
     summary = _summary(args, addon, coll, timings, total, selection_info, warning_lines)
+    summary["info"] = info_lines
     if args.out:
         _save(bpy, staging.blend, "--out")
     _render(args, addon, s, summary, staging)
@@ -1091,7 +1075,7 @@ def main(argv=None, watchdog: bool = False) -> int:
     """The CLI; ``watchdog``: also end the process within about a second of Ctrl-C when a step does not stop
     by itself (:class:`Watchdog`; only for the script itself: it may end the process)."""
     args = None
-    user_folder = None
+    user_folder = private_tmp = saved_tempdir = None
     guard = None
     try:
         args = parse_args(argv)
@@ -1100,6 +1084,10 @@ def main(argv=None, watchdog: bool = False) -> int:
             user_folder = tempfile.mkdtemp(prefix="pdehead-cli-")
             os.environ["BLENDER_USER_RESOURCES"] = user_folder
             _CLEANUPS.append(lambda: shutil.rmtree(user_folder, ignore_errors=True))
+        # The run's temporary files (the .vdb of a run without --out, captured output) go into a private
+        # folder removed at exit, not into the shared system temp folder (Blender's own stays as it is).
+        private_tmp, saved_tempdir = tempfile.mkdtemp(prefix="pdehead-cli-tmp-"), tempfile.tempdir
+        tempfile.tempdir = private_tmp
         previous = signal.signal(signal.SIGINT, _on_sigint)
         if watchdog:
             guard = Watchdog()
@@ -1127,6 +1115,9 @@ def main(argv=None, watchdog: bool = False) -> int:
     finally:
         if guard is not None:
             guard.close()
+        if private_tmp is not None:        # every exit, as the user folder below
+            tempfile.tempdir = saved_tempdir
+            shutil.rmtree(private_tmp, ignore_errors=True)
         if user_folder is not None:        # every exit: 0, 1 (an uncaught error), 2 and 130
             shutil.rmtree(user_folder, ignore_errors=True)
             if os.environ.get("BLENDER_USER_RESOURCES") == user_folder:

@@ -39,7 +39,7 @@ from collections import defaultdict
 from datetime import date
 from pathlib import Path
 
-import _common  # noqa: F401  (scripts/ on sys.path; the dev shim for the engine)
+import _common  # (scripts/ on sys.path; the dev shim for the engine, the loader options)
 import batch_study
 
 PROG = "pdehead_batch"
@@ -67,7 +67,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     sub = p.add_subparsers(dest="command", required=True)
     r = sub.add_parser("run", help="run many studies (engine only) into DIR/<study_id>/ and DIR/summary.csv")
     r.add_argument("inputs", nargs="+", metavar="INPUT",
-                   help="study folders or files (DICOM, NIfTI), or @list.txt with one per line")
+                   help="study folders or files (DICOM, NIfTI, image or raw stacks: see the loader options), or "
+                        "@list.txt with one per line")
     r.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder (created if missing)")
     where = r.add_mutually_exclusive_group()
     where.add_argument("--workers", type=int, default=None, metavar="N",
@@ -86,6 +87,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help=f"per-study memory limit (resident, MB); default {batch_study.DEFAULT_MEMORY_LIMIT_MB:g}")
     r.add_argument("--force", action="store_true", help="redo every study, also those that are current")
     r.add_argument("--summary-json", type=Path, metavar="FILE", help="also write the run's summary as JSON")
+    _common.add_loader_arguments(r)      # pdehead.py's loader options, the same definition: every study is read so
     t = sub.add_parser("depth-table", help="a population depth table from a batch's landmarks")
     t.add_argument("batch", type=Path, metavar="DIR", help="a batch output folder (of 'run --skull')")
     t.add_argument("--out", type=Path, required=True, metavar="TABLE.csv", help="the table to write")
@@ -102,7 +104,12 @@ def parse_args(argv=None) -> argparse.Namespace:
                 raise CLIError(f"--{flag} must be from {param.min:g} to {param.max:g}, got {value}")
         if not (args.time_limit > 0 and args.memory_limit > 0):
             raise CLIError("--time-limit and --memory-limit must be positive")
+        _common.check_loader_args(_usage_error, args)
     return args
+
+
+def _usage_error(message: str):
+    raise CLIError(message)
 
 
 def expand_inputs(items: list[str]) -> list[str]:
@@ -138,7 +145,7 @@ def expand_inputs(items: list[str]) -> list[str]:
 def study_settings(args) -> dict:
     """What a study's result depends on (besides its input); a change redoes the study."""
     return {"patches": int(args.patches), "samples": int(args.samples), "selection": str(args.selection),
-            "skull": bool(args.skull)}
+            "skull": bool(args.skull), "loader": _common.engine_loader_options(args)}
 
 
 class Progress:

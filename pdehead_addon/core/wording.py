@@ -23,6 +23,7 @@ OPTIONS = {
     "units": ("--units", "Units"),
     "series_uid": ("--series-uid", "Series UID"),
     "downsample": ("--downsample", "Downsample"),
+    "bone_level": ("--bone-level", "Bone Level"),
 }
 _DIALOG_DTYPES = {"i2": "int16", "u2": "uint16", "u1": "uint8", "i4": "int32", "f4": "float32"}
 _VALUE = r"(?:'[^']*'|\"[^\"]*\"|\([^()]*\)|[A-Za-z0-9_.\-]+)"

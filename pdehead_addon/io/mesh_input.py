@@ -21,6 +21,7 @@ import numpy as np
 from ..core.ct_volume import CTVolume
 from ..core.errors import CTImportError
 from ..core.mesh import Mesh
+from ..core.mesh_geometry import signed_volume
 
 MESH_EXTENSIONS = (".stl", ".ply", ".obj")
 #: Holes up to this many boundary edges are filled; larger openings are refused (a surface scan's small
@@ -299,6 +300,49 @@ def voxelize(mesh: Mesh, voxel_mm: float, pad: int = 3) -> tuple[np.ndarray, np.
     return inside, lo
 
 
+#: A skull fills a small share of its convex hull (its orbits, nasal aperture, temporal fossae, the space under
+#: the zygomatic arches and between the mandible and the cranium, and, for a bone mesh, the braincase): the bone
+#: meshes of CThead and the phantom fill 18 % and 22 %. A mesh filling more than this share is a convex solid
+#: (a cube or a sphere fill 98-100 %, an ellipsoid or an envelope nearly as much), not a skull.
+MAX_SKULL_HULL_FILL = 0.92
+
+
+def hull_fill(mesh: Mesh) -> float:
+    """The share of its convex hull (Qhull [1]_, through SciPy) that a closed mesh encloses.
+
+    Raises
+    ------
+    ValueError
+        When the vertices span no volume (all in one plane or on one line).
+
+    References
+    ----------
+    .. [1] C. B. Barber, D. P. Dobkin, H. Huhdanpaa, "The Quickhull algorithm for convex hulls", ACM Trans.
+       Math. Softw. 22(4):469-483, 1996.
+    """
+    from scipy.spatial import ConvexHull, QhullError
+    try:
+        hull = ConvexHull(np.asarray(mesh.vertices, np.float64))
+    except (QhullError, ValueError):
+        raise ValueError("its vertices span no volume (all in one plane or on one line)") from None
+    if not hull.volume > 0:
+        raise ValueError("its vertices span no volume")
+    return float(abs(signed_volume(mesh)) / hull.volume)
+
+
+def _refuse_convex(mesh: Mesh, path) -> None:
+    """A cube, a sphere or an envelope as the skull: refused at once, before any work (and without a library's
+    dump in the message)."""
+    try:
+        fill = hull_fill(mesh)
+    except ValueError as exc:
+        raise CTImportError(f"does not look like a skull: {exc}", path) from None
+    if fill > MAX_SKULL_HULL_FILL:
+        raise CTImportError(f"does not look like a skull: the mesh is convex (it fills {100 * fill:.0f} % of its "
+                            f"convex hull; a skull, with its orbits, nasal aperture and fossae, fills less than "
+                            f"{100 * MAX_SKULL_HULL_FILL:.0f} %): a cube, a sphere or an envelope?", path)
+
+
 def load_skull_mesh(path: str | os.PathLike, voxel_mm: float | None = None) -> CTVolume:
     """A skull mesh file (STL / PLY / OBJ, mm) as a CT-like volume (bone inside, air outside).
 
@@ -311,6 +355,7 @@ def load_skull_mesh(path: str | os.PathLike, voxel_mm: float | None = None) -> C
     if size.max() < 50 or size.max() > 400:
         raise CTImportError(f"the mesh is {size.max():.1f} units across: a skull in mm is 120-250 mm "
                             "(metres or inches? scale it to mm)", path)
+    _refuse_convex(mesh, path)
     step = float(voxel_mm or MESH_VOXEL_MM)
     while np.prod(size / step + 7) > MAX_MESH_VOXELS:
         step *= 1.25

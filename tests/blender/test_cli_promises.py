@@ -44,9 +44,11 @@ def test_image_stack_auto_flips_warns_once_in_flags_writes_jpeg_and_summary_json
                      tmp_path=tmp_path)
     assert result.returncode == 0, result.stderr[-3000:]
     warnings = [line for line in result.stderr.splitlines() if line.startswith("pdehead: warning: ")]
-    crown = [w for w in warnings if "crown" in w]
-    assert len(crown) == 1 and "--first-slice inferior" in crown[0], result.stderr
-    assert "first_slice" not in result.stderr and "orientation=" not in result.stderr   # no Python arguments
+    # the Auto first slice is right for this stack: information in the summary, not a warning
+    assert not any("crown" in w for w in warnings), result.stderr
+    crown = [line for line in result.stdout.splitlines() if line.startswith("  info ") and "crown" in line]
+    assert len(crown) == 1 and "--first-slice inferior" in crown[0], result.stdout
+    assert "first_slice" not in result.stdout + result.stderr and "orientation=" not in result.stderr  # no Python
     assert all(line.startswith("pdehead: ") for line in error_lines(result)), result.stderr  # no source lines
     # --render x.jpg writes a JPEG at that name, and only that
     assert jpg.read_bytes()[:3] == b"\xff\xd8\xff" and not jpg.with_suffix(".png").exists()
@@ -58,6 +60,7 @@ def test_image_stack_auto_flips_warns_once_in_flags_writes_jpeg_and_summary_json
     assert data["curves"]["count"] == 10 and data["surface"]["vertices"] > 500
     assert set(data["timings_s"]) >= {"import", "segment", "boundaries", "surface", "solid"}
     assert data["warnings"] == [w.removeprefix("pdehead: warning: ") for w in warnings]
+    assert data["info"] == [crown[0].split("info", 1)[1].strip()]
     assert data["outputs"] == {"render": str(jpg)}
 
 
@@ -147,6 +150,7 @@ r = bpy.ops.pdehead.import_ct(directory=sys.argv[2], format='IMAGES', use_spacin
 coll = bpy.context.scene.pdehead.active_study
 s = coll.pdehead
 out["auto"] = [state.user_text(w) for w in addon.operators.study_entity.Study.of(coll).warnings]
+out["info"] = [state.user_text(w) for w in addon.operators.study_entity.Study.of(coll).notes]
 out["orientation"] = state.cache_for(s.study_id).ct.meta["orientation"]
 try:
     bpy.ops.pdehead.import_ct(directory=sys.argv[3], format='RAW', raw_shape=(256, 256), raw_dtype='i2',
@@ -167,7 +171,8 @@ def test_import_dialog_auto_and_messages_name_its_fields(tmp_path):
     assert result.returncode == 0, result.stderr[-3000:]
     out = json.loads(result.stdout.split("RESULT", 1)[1])
     assert out["orientation"] == "LPI"                       # Auto in the dialog = the engine's rule
-    crown = [w for w in out["auto"] if "crown" in w]
+    assert not any("crown" in w for w in out["auto"]), out          # a correct stack: no warning ...
+    crown = [n for n in out["info"] if "crown" in n]                 # ... the automatic choice as information
     assert len(crown) == 1 and "set 'First Slice' Inferior" in crown[0] and "first_slice" not in crown[0], out
     error = out["byte_order_error"]
     assert "wrong byte order" in error and "'Byte Order' Big Endian" in error and "dtype=" not in error, error

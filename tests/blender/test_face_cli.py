@@ -88,7 +88,7 @@ def test_cli_face_from_skull_bad_input_exit_2_nothing_written(tmp_path, case, ph
         v, f, _, _ = measure.marching_cubes(vol.astype(np.float32), 0.5)
         given = export_mesh(Mesh(v[:, ::-1] * 2 - 100, np.zeros((0, 4)), f[:, ::-1]), tmp_path / "in" / "egg.stl")
         result = run_cli("--skull-mesh", given, *SMALL, "--face-from-skull", "--export", out, tmp_path=tmp_path)
-        message = "does not look like a skull: no orbits were found"
+        message = "does not look like a skull: the mesh is convex"        # refused on reading, before any work
     elif case == "cube":                         # a closed 150 mm cube: refused for what it is not, not as "empty"
         from pdehead_addon import Mesh
         from pdehead_addon.io.export import export_mesh
@@ -96,7 +96,7 @@ def test_cli_face_from_skull_bad_input_exit_2_nothing_written(tmp_path, case, ph
         quads = np.array([[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]])
         given = export_mesh(Mesh(v, quads, np.zeros((0, 3), np.int64)), tmp_path / "in" / "cube.stl")
         result = run_cli("--skull-mesh", given, *SMALL, "--face-from-skull", "--export", out, tmp_path=tmp_path)
-        message = "does not look like a skull: no orbits were found"
+        message = "does not look like a skull: the mesh is convex (it fills 100 % of its convex hull"
     elif case == "beside_the_mesh":              # --export into the mesh's own folder: refused before the work
         from pdehead_addon import Mesh
         from pdehead_addon.io.export import export_mesh

@@ -31,13 +31,15 @@ def tiff8_superior():
 
 def test_image_stack_auto_puts_the_crown_on_top_and_says_so(tiff8_superior):
     """`pdehead.py .../tiff8 --spacing 2 1 1` (no --first-slice): the crown at the first file is detected
-    and the stack flipped, with a warning naming first_slice (main put the crown at the bottom, silently)."""
+    and the stack flipped, said as information naming first_slice, not as a warning: the choice is right for
+    a correct stack (main put the crown at the bottom, silently)."""
     ct, warns = load_w(shared_data("cthead_stanford", "tiff8"), spacing=(2, 1, 1))
     np.testing.assert_array_equal(ct.data, tiff8_superior.data)
     assert ct.meta["orientation"] == "LPI" and ct.meta["first_slice"] == "superior"
     assert ct.meta["crown"]["end"] == "high"                      # k increases superior: the crown on top
-    hit = [w for w in warns if "crown" in w]
-    assert len(hit) == 1 and "first_slice='inferior'" in hit[0] and "cthead-8bit001.tif" in hit[0], warns
+    assert not any("crown" in w for w in warns), warns
+    hit = [n for n in ct.meta["info"] if "crown" in n]
+    assert len(hit) == 1 and "first_slice='inferior'" in hit[0] and "cthead-8bit001.tif" in hit[0], ct.meta
     # the top slices are air above the vertex, the bottom ones the jaw: cross-sections grow downward
     top, bottom = ct.data[-3:].mean(), ct.data[:3].mean()
     assert bottom > 3 * top, (top, bottom)
@@ -61,7 +63,8 @@ def test_raw_auto_is_the_same_rule_as_images(cthead_ct):
     ct, warns = load_w(shared_data("cthead_stanford", "raw16"), format="raw", shape=(256, 256), dtype=">i2",
                        spacing=(2, 1, 1))
     np.testing.assert_array_equal(ct.data, cthead_ct.data)                 # = first_slice="superior"
-    assert any("crown" in w and "first_slice='inferior'" in w for w in warns), warns
+    assert not any("crown" in w for w in warns), warns                    # a correct stack: no warning
+    assert any("crown" in n and "first_slice='inferior'" in n for n in ct.meta["info"]), ct.meta
 
 
 def test_stack_with_the_crown_last_is_not_flipped(tmp_path):

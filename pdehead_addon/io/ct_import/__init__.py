@@ -30,6 +30,6 @@ above it in this list):
 * :mod:`.load`      - :func:`load_ct`, the entry point, and the value checks
 """
 from .discovery import SeriesInfo, list_series
-from .load import CTImportWarning, load_ct
+from .load import CTImportWarning, check_head_scan, load_ct
 
-__all__ = ["load_ct", "list_series", "SeriesInfo", "CTImportWarning"]
+__all__ = ["load_ct", "check_head_scan", "list_series", "SeriesInfo", "CTImportWarning"]

@@ -64,7 +64,8 @@ def load_ct(
         ``orientation="LPS"`` / ``"LPI"``. Default (None or "auto", ``defaults.FIRST_SLICE``): inferior,
         unless the head's crown (the end whose cross-section closes to nothing inside the scan,
         :func:`~pdehead_addon.io.input_checks.crown_end`) lies at the first file; then the stack is read
-        with the first file superior and a warning says so. A given value is used as it is (with a
+        with the first file superior and ``meta["info"]`` says so (information: the choice is right for a
+        correct stack). A given value is used as it is (with a
         warning when the crown then lies at the bottom).
     orientation : str, optional
         Images and raw data: three letters naming the patient direction in which
@@ -101,7 +102,8 @@ def load_ct(
         ``series_description``, ``original_slice_count``, ``gantry_tilt_deg``,
         ``resampled``, ``resample_reason``, ``hu_range``, ``units`` and the
         list ``warnings`` (each also issued as a :class:`CTImportWarning`);
-        ``non_finite_voxels`` and ``out_of_field`` record repaired voxels.
+        ``info`` (when present) lists the automatic choices made for a correct input (the Auto first slice),
+        not issued as warnings; ``non_finite_voxels`` and ``out_of_field`` record repaired voxels.
 
     Raises
     ------
@@ -232,9 +234,38 @@ def _check_values(ct: CTVolume, label: str, warns: list[str]) -> None:
 
 
 
+def check_head_scan(ct: CTVolume) -> dict:
+    """Refuse a volume that is no head scan (CT or MRI): portraits, smooth shapes, noise.
+
+    :func:`load_ct` reads any volume (the geometry tests feed it ramps); the add-on's import, the command line
+    and the batch call this right after it, before anything is segmented or built. The criteria are
+    :func:`~pdehead_addon.io.input_checks.head_scan_evidence`'s (coherent structure, a sharp outline, anatomy
+    inside it); its measures are kept in ``ct.meta["head_scan"]``.
+
+    Returns
+    -------
+    The measures (correlation, edge_sharpness, interior_detail).
+
+    Raises
+    ------
+    CTImportError
+        "not a head scan (CT or MRI): <what failed>", naming the source.
+    """
+    if ct.meta.get("format") == "mesh":          # a skull mesh voxelised (load_skull_mesh): checked there
+        return {}
+    evidence = input_checks.head_scan_evidence(ct.data)
+    measures = {k: v for k, v in evidence.items() if k != "failed"}
+    ct.meta["head_scan"] = measures
+    if evidence["failed"]:
+        nz, ny, nx = ct.shape
+        raise CTImportError(f"not a head scan (CT or MRI): {'; '.join(evidence['failed'])}; {nz} slice(s) of "
+                            f"{nx} x {ny} pixels", ct.meta.get("source") or None)
+    return measures
+
+
 def _check_crown(ct: CTVolume, auto: bool, warns: list[str]) -> CTVolume:
-    """Headerless stacks: with Auto orientation a crown at the inferior end is put on top (flipped, with a
-    warning naming first_slice); where the crown closes inside the scan, a vertex-to-widest-section height
+    """Headerless stacks: with Auto orientation a crown at the inferior end is put on top (flipped; said as
+    information in ``ct.meta["info"]``, naming first_slice); where the crown closes inside the scan, a vertex-to-widest-section height
     under ``input_checks.MIN_VERTEX_TO_WIDEST_MM`` is not a human head and is said (partial scans stay
     allowed: no crown, no check)."""
     crown = input_checks.crown_end(ct.data, ct.spacing)
@@ -250,9 +281,13 @@ def _check_crown(ct: CTVolume, auto: bool, warns: list[str]) -> CTVolume:
         ct.meta["crown"]["end"] = "high"
         if "orientation_assumed" in ct.meta:
             ct.meta["orientation_assumed"] = ct.meta["orientation_assumed"].replace("upward", "downward")
-        warns.append(f"the head's crown (the end whose cross-section closes to nothing) is at the first file "
-                     f"({ct.meta.get('first_file', 'file 1')}): the stack was read with the first file superior "
-                     f"(the top of the head); pass first_slice='inferior' if the first file is the bottom")
+        # an automatic choice that is right for a correct stack: information, not a warning (warnings are
+        # for what may be wrong)
+        ct.meta.setdefault("info", []).append(
+            f"the head's crown (the end whose cross-section closes to nothing) is at the first file "
+            f"({ct.meta.get('first_file', 'file 1')}): the stack was read with the first file superior "
+            f"(the top of the head, orientation {ct.meta['orientation']!r}); pass first_slice='inferior' if the "
+            f"first file is the bottom")
     elif crown["end"] == "low":
         said = "first_slice" if "orientation_assumed" in ct.meta else "orientation"
         value = ct.meta.get("orientation") if said == "orientation" else ct.meta.get("first_slice")

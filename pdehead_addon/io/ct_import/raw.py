@@ -124,6 +124,7 @@ def load_raw(files, label, shape, dtype, byte_order, header_bytes, spacing, axes
             data[k] = _raw_samples(f, raw, dt, ny * nx, header_bytes).reshape(ny, nx)
     _refuse_wrong_byte_order(data, dt, label)
     _refuse_absurd_floats(data, dt, label)
+    _refuse_wrong_row_length(data, shape, label)
     return headerless_volume(data, label, "raw", spacing, axes, oriented, hu, warns,
                               {"files": len(candidates), "first_file": candidates[0].name,
                                "last_file": candidates[-1].name, "source_dtype": dt.str,
@@ -154,3 +155,17 @@ def _refuse_wrong_byte_order(data: np.ndarray, dt: np.dtype, label) -> None:
         raise CTImportError(f"wrong byte order: read as dtype={dt.str!r} the samples span {lo:.0f}..{hi:.0f} "
                             f"(noise, no CT spans that many values), read in the other byte order they span "
                             f"{slo:.0f}..{shi:.0f} like a CT; pass dtype={bad['swapped_dtype']!r} ({order})", label)
+
+
+def _refuse_wrong_row_length(data: np.ndarray, shape, label) -> None:
+    """Refuse slices read with a wrong row length (``input_checks.wrong_row_length``): with the right byte
+    count they would otherwise segment as garbage."""
+    from .. import input_checks
+    bad = input_checks.wrong_row_length(data)
+    if bad:
+        count = data.shape[1] * data.shape[2]
+        hint = (f"; the samples join up in rows of {bad['row_length']}: shape=({count // bad['row_length']}, "
+                f"{bad['row_length']})" if bad["row_length"] else "")
+        raise CTImportError(f"shape={tuple(shape)} is not the slices' shape: its rows do not join up (row-to-row "
+                            f"correlation {bad['rows']:.2f}, column-to-column {bad['columns']:.2f}; in a scan both "
+                            f"are high){hint}", label)
