@@ -208,7 +208,7 @@ def may_copy(src, blend_path=None) -> bool:
 def link_or_copy(src, dst) -> None:
     """Put a copy of `src` at the new name `dst` without ever overwriting: a hard link where the file
     system has them (instant, no space; each name deleted alone), else a checked copy (:func:`.safe_io.copy_checked`)."""
-    from ..pdehead_addon.io.safe_io import copy_checked
+    from ..pdehead_addon import copy_checked
 
     try:
         os.link(src, dst)

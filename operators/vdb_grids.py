@@ -12,7 +12,7 @@ import numpy as np
 from ..pdehead_addon import OUTSIDE_W
 from ..pdehead_addon import defaults as D
 from ..pdehead_addon import apply_window, ct_grid_for, head_mask_on_grid
-from ..pdehead_addon.io.safe_io import WriteError, check_size, checked_output, disk_full
+from ..pdehead_addon import WriteError, check_size, checked_output, disk_full
 from . import compat, vdb_writer
 from .coords import grid_affine_world
 from .vdb_files import mark_written

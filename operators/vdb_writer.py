@@ -27,7 +27,7 @@ from typing import BinaryIO, Iterable, NamedTuple
 
 import numpy as np
 
-from ..pdehead_addon.io.safe_io import check_size, checked_output
+from ..pdehead_addon import check_size, checked_output
 
 FILE_FORMAT_VERSION = 224        # OPENVDB_FILE_VERSION_MULTIPASS_IO, what OpenVDB 6 - 12 write
 LIBRARY_VERSION = (11, 0)        # informational only; readers check the format version

@@ -45,6 +45,7 @@ from .forensic.skull import SkullSegmentation, segment_skull, skull_mesh
 from .forensic.bone_levels import bone_level_range, check_bone_level
 from .forensic.tissue_depth import TissueDepth, tissue_depth, write_depth_csv
 from .io.export import export_mesh
+from .io.safe_io import WriteError, check_size, checked_output, copy_checked, disk_full
 from .forensic.depth_table import DepthTable, DepthEntry, read_depth_table, default_table, write_landmark_csv
 
 from .core.provenance import SOFTWARE_VERSION as __version__  # noqa: E402
@@ -90,6 +91,7 @@ _LAZY = {
 }
 
 __all__ = [  # the public API
+    "WriteError", "check_size", "checked_output", "copy_checked", "disk_full",
     "PDEHeadError", "CTImportError", "SegmentationError", "BoundaryError", "PDEError", "StorageError",
     "Cancelled", "CTVolume", "Mesh", "load_ct", "check_head_scan", "list_series", "SeriesInfo", "CTImportWarning",
     "HeadSizeWarning", "make_phantom", "Phantom", "Segmentation", "segment_head", "BoundarySet",

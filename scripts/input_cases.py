@@ -394,9 +394,7 @@ def main(argv=None) -> int:
     else:
         # the sections after the generated table (## headings, the fuzz campaign's marked one) are kept as they are
         old = OUT.read_text() if OUT.exists() else ""
-        starts = [i for i in (old.find("
-## "), old.find("
-" + FUZZ_BEGIN)) if i >= 0]
+        starts = [i for i in (old.find("\n## "), old.find("\n" + FUZZ_BEGIN)) if i >= 0]
         OUT.write_text(text + (old[min(starts):] if starts else ""))
         print(f"wrote {OUT}", file=sys.stderr)
     return 0
