@@ -312,7 +312,8 @@ def _solve_c2(bset: BoundarySet, smoothing, n_modes: int, approximation_mm, dome
     if dome:
         zt = float(bset.curves[-1, :, 2].mean())
         height = dome_height(bset.curves, bset.heights, bset.meta.get("vertex_z"))
-        spec = crown_low_pass(bset.curves, bset.heights, spec, height)
+        if L > 0:                                     # approximating the curves: the crown's too
+            spec = crown_low_pass(bset.curves, bset.heights, spec, height)
         sign = 1.0 if bset.heights[-1] >= bset.heights[0] else -1.0
         vertex = np.array([spec[-1, 0, 0].real, spec[-1, 0, 1].real, zt + sign * height])
         top = z[-1] + float(np.linalg.norm(bset.curves[-1] - vertex, axis=1).mean())
