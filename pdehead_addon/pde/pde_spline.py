@@ -31,7 +31,10 @@ Two extensions make the head what a user expects to see:
   zero u-derivative and the harmonics h >= 2 have a zero derivative too, so the
   rings shrink to a point with a horizontal tangent plane (near the pole
   ``z ~ z_v - c (1-u)^2`` while the rings shrink like ``(1-u)``): a round
-  crown instead of a flat fan.
+  crown instead of a flat fan. With the approximation on, the curves' harmonics
+  h >= 3 pass first through :func:`crown_low_pass`, wider where the slices cut
+  the skin at a grazing angle (the crown), so slice steps there do not run
+  across it as radial ridges.
 
 References
 ----------

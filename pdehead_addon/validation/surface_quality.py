@@ -259,6 +259,50 @@ def crown_ripple(vertices: np.ndarray, faces: np.ndarray, pole: np.ndarray, up: 
     return out
 
 
+def edge_bends(mesh, skip_u: float | None = 0.0) -> np.ndarray:
+    """The angle (degrees) between the normals of the two faces at every interior edge of a mesh.
+
+    Parameters
+    ----------
+    mesh : Mesh
+        Quads and triangles (:meth:`PDEHead.surface`).
+    skip_u : float or None
+        Edges with a vertex whose ``u`` attribute equals this (the bottom cap's boundary ring and the cap,
+        where the tube meets its flat disc at the neck's own angle) count as 0; None measures every edge.
+
+    Returns
+    -------
+    ndarray, shape (n_edges,)
+        One angle per edge shared by two faces; a slit or a pinched fold shows as edges above 60-90 deg.
+    """
+    V = np.asarray(mesh.vertices, dtype=np.float64)
+    polys = [np.asarray(mesh.quads, np.int64).reshape(-1, 4), np.asarray(mesh.triangles, np.int64).reshape(-1, 3)]
+    normals, a, b, face = [], [], [], []
+    offset = 0
+    for f in polys:
+        if not len(f):
+            continue
+        p = V[f]
+        n = np.cross(p, np.roll(p, -1, axis=1)).sum(axis=1)         # Newell's normal of each polygon
+        normals.append(n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300))
+        a.append(f.ravel())
+        b.append(np.roll(f, -1, axis=1).ravel())
+        face.append(np.repeat(np.arange(len(f)) + offset, f.shape[1]))
+        offset += len(f)
+    normals, a, b, face = np.concatenate(normals), np.concatenate(a), np.concatenate(b), np.concatenate(face)
+    key = np.minimum(a, b) * len(V) + np.maximum(a, b)
+    order = np.argsort(key, kind="stable")
+    key, face, lo = key[order], face[order], np.minimum(a, b)[order]
+    pair = np.nonzero(key[1:] == key[:-1])[0]
+    cos = np.einsum("ij,ij->i", normals[face[pair]], normals[face[pair + 1]])
+    angle = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    if skip_u is not None and "u" in mesh.vertex_attributes:
+        u = np.asarray(mesh.vertex_attributes["u"], dtype=np.float64)
+        hi = key[pair] - lo[pair] * len(V)
+        angle[(u[lo[pair]] == skip_u) | (u[hi] == skip_u)] = 0.0
+    return angle
+
+
 def _face_corners(mesh):
     """(faces as vertex-index lists, their per-corner UVs): quads then triangles."""
     faces = [f for f in (mesh.quads, mesh.triangles) if len(f)]

@@ -326,3 +326,22 @@ def test_the_crown_has_no_ridges_the_smoothed_head_lacks(name, cthead_seg, ge_se
                            lambda c, h, s, d: pde_spline.crown_low_pass(c, h, s, d, sigma_mm=0.0)):
             _, raw, _ = _crown_against_smoothed_mask(seg, bset)
         assert raw[40.0] > 1.5 * mc[40.0], raw
+
+
+def test_edge_bends_finds_a_slit_and_skips_the_bottom_ring():
+    """`surface_quality.edge_bends` (issue 41 item 4's measure): a smooth rippled head has no edge bending by
+    more than 60 deg off its bottom ring; a ring pushed in to a slit between two rows bends edges by > 90."""
+    from pdehead_addon.validation.surface_quality import edge_bends
+    head = solve_pde(rippled_bset(), approximation_mm=0)
+    mesh = head.surface(120, 240, caps=True)
+    bends = edge_bends(mesh)
+    assert (bends > 60).sum() == 0 and bends.max() > 0.0
+    assert edge_bends(mesh, skip_u=None).max() >= bends.max()          # the cap's ring counted too
+    u = np.asarray(mesh.vertex_attributes["u"])
+    row = np.nonzero(np.isclose(u, np.unique(u)[60]))[0][:8]          # 8 columns of one ring ...
+    slit = type(mesh)(vertices=mesh.vertices.copy(), quads=mesh.quads, triangles=mesh.triangles,
+                      vertex_attributes=mesh.vertex_attributes)
+    centre = slit.vertices[row].mean(axis=0)
+    axis = head.spine(np.array([float(u[row[0]])]))[0]
+    slit.vertices[row] = axis + 0.2 * (slit.vertices[row] - axis)    # ... pulled in to a slit
+    assert (edge_bends(slit) > 90).sum() >= 8, centre
