@@ -330,7 +330,7 @@ def up_close_markdown(res: dict) -> str:
         row("... marching cubes of the mask smoothed by 3 mm (the reference)",
             lambda d, k: radii_cells(d["crown"]["smoothed_mask_3mm"]), "{}")
         row("crown (issue 41): ripple at ρ = 5 / 10 mm, deg (≤ 0.5: no nub)",
-            lambda d, k: " / ".join(f"{d['crown'][k][r]:.2f}" for r in (5.0, 10.0)), "{}")
+            lambda d, k: " / ".join(f"{d['crown'][k].get(r, d['crown'][k].get(str(r))):.2f}" for r in (5.0, 10.0)), "{}")
     if "slits" in c and "slits" in g:
         row("slits (issue 41): edges bending > 60 deg (> 90) off the bottom ring, 120 × 240; 400 × 800 (0); "
             "before = after", lambda d, k: "{} ({}); {} ({})".format(
@@ -385,8 +385,11 @@ def up_close_markdown(res: dict) -> str:
               "below the crown, so its 3 mm-smoothed mask has a cut edge there: 5.8-8.7 deg). Width tried "
               "on CThead: 2 mm 0.92 / 0.75 / 1.03 / 1.16 / 1.58 deg (ρ 20-40; tube 0.515 mm), 3 mm (adopted), "
               "4 mm 0.59 / 0.31 / 0.26 / 0.46 / 0.91 (tube 0.527 mm); a power law (R / R_45°)^(h-2) instead "
-              "brought the ripple to 0.2-0.6 deg but the tube to 0.619 mm. Renders from above and grazing: "
-              "`scripts/bench/up_close_figures.py`.",
+              "brought the ripple to 0.2-0.6 deg but the tube to 0.619 mm. Renders from above and grazing "
+              "(`up_close_figures.py --crown`): [up_close_crown41.png](figures/up_close_crown41.png), looked at: "
+              "before, radial ridges run into the pole and meet in a pinched star; after, the crown is smooth "
+              "from above and along the grazing silhouette, no ridge, no nub (the smoothed mask shows the "
+              "slices' rings instead); the forehead's small waves below the crown are the same in both.",
               "- **Slits (issue 41 item 4, not done).** `surface_quality.edge_bends`: CThead 120 × 240 has 89 "
               "edges bending > 60 deg (17 > 90, up to 128.9) at u 0.29-0.41, v 1.2-1.6 and 4.7-5.2 rad (under "
               "the ears, the jaw), 400 × 800 21 (0 > 90, up to 82.0); GE 29 (4, up to 101.2) and 0 (up to "
