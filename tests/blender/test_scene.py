@@ -223,7 +223,6 @@ def test_a_cut_at_the_back_is_lit_by_the_study_lights(ext, tmp_path):
     assert cut.sum() > 100 and skin.sum() > 100, (cut.sum(), skin.sum())
     lum = _luminance(shaded)
     ratio = float(lum[cut].mean() / lum[skin].mean())
-    print("cut/skin luminance", ratio)
     assert ratio >= 0.20, ratio
 
 
