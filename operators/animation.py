@@ -271,7 +271,7 @@ TURNTABLE_KIND = "turntable"
 
 def turntable(context, coll, frames: int, start: int = 1):
     """A camera orbit of ``frames`` frames around study ``coll``: its camera (Frame Study's, made first if
-    needed) is parented to a pivot Empty "<study> Turntable" at the head's centre whose Z rotation is
+    needed) and key light (its fill light rides the camera) are parented to a pivot Empty "<study> Turntable" at the head's centre whose Z rotation is
     keyed linearly from 0 (frame ``start``) to 360° (frame ``start + frames``), so the frames
     ``start`` … ``start + frames - 1`` (the scene's new frame range) loop seamlessly. Returns the pivot."""
     from math import tau
@@ -307,12 +307,16 @@ def turntable(context, coll, frames: int, start: int = 1):
     pivot.location = centre
     pivot.scale = (1.0, 1.0, 1.0)
     at_rest = Matrix.Translation(centre)
-    world = cam.matrix_world.copy()
-    if cam.parent is not None and cam.parent != pivot:
-        cam.parent = None
-    cam.parent = pivot
-    cam.matrix_parent_inverse = at_rest.inverted()
-    cam.matrix_basis = world  # pivot at rest @ parent inverse = identity: the camera stays where it was
+    # the camera and the key light ride the pivot: the lit side turns with the camera, not away from it
+    for rider in (cam, scene_mod.study_object(coll, scene_mod.LIGHT_KIND)):
+        if rider is None:
+            continue
+        world = rider.matrix_world.copy()
+        if rider.parent is not None and rider.parent != pivot:
+            rider.parent = None
+        rider.parent = pivot
+        rider.matrix_parent_inverse = at_rest.inverted()
+        rider.matrix_basis = world  # pivot at rest @ parent inverse = identity: it stays where it was
     pivot.keyframe_insert("rotation_euler", index=2, frame=start)
     pivot.rotation_euler[2] = tau
     pivot.keyframe_insert("rotation_euler", index=2, frame=start + frames)

@@ -427,6 +427,11 @@ def _set_ct_texture(obj, atlas: np.ndarray, corner_uv: np.ndarray, budget_px: fl
             padded[:h, :w] = atlas
             atlas, corner_uv = padded, np.asarray(corner_uv) * (w / width, h / height)
     _set_attribute(me, CT_UV_NAME, "FLOAT2", "CORNER", "vector", np.ascontiguousarray(corner_uv, np.float32).ravel())
+    # the atlas's layer is the solid's clean one (no mirrored or empty face); its (u, v) layer folds the inner
+    # shell and the cut faces over the outer one, so it is not what painting or a UV-less texture should use
+    if CT_UV_NAME in me.uv_layers:
+        me.uv_layers.active = me.uv_layers[CT_UV_NAME]
+        me.uv_layers[CT_UV_NAME].active_render = True
     image.pixels.foreach_set(np.ascontiguousarray(atlas, np.float32).ravel())
     image.update()
     # generated images are lost on save unless packed; packing (PNG encoding) on every slider step

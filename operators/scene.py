@@ -4,8 +4,12 @@
 
 - a perspective camera "<study> Camera" in front of the head (Blender's front view: it looks along
   +Y, so it sees the face with the patient's left on the right), framing the shown object, made the
-  scene camera; an area key light "<study> Key Light" from the camera's upper left; both live in the
-  study collection (re-used when framing again, removed with the study);
+  scene camera. Its focal length is a driver of the scene's render size, so the head's box fills
+  1 / MARGIN of the frame's tight side at any size and shape of picture (square, landscape, portrait);
+- an area key light "<study> Key Light" from the camera's upper left and a soft fill light
+  "<study> Fill Light" on the camera (its child: it goes where the camera goes), so every face the
+  camera sees gets light, a cut face in the key light's shadow too; all three live in the study
+  collection (re-used when framing again, removed with the study);
 - Blender's untouched startup cube (2 m, around the 0.2 m head, so F12 would render the cube) is
   hidden in the viewport and in renders; a cube the user changed is left alone;
 - the chosen object (default: the surface) is shown and the study's other objects, which overlap it,
@@ -13,8 +17,6 @@
 - every 3D view of the open windows looks at the head from the front (headless Blender has none).
 """
 from __future__ import annotations
-
-import math
 
 import numpy as np
 
@@ -24,6 +26,7 @@ from . import state
 
 CAMERA_KIND = "camera"
 LIGHT_KIND = "key_light"
+FILL_KIND = "fill_light"
 SHOW_ITEMS = [
     ("SURFACE", "Surface", "Show the PDE surface, hide the solid, curves and volume"),
     ("SOLID", "Solid", "Show the PDE solid (cutaways), hide the others"),
@@ -36,6 +39,10 @@ _SHOW_ATTR = {"SURFACE": "surface_object", "SOLID": "solid_object", "VOLUME": "v
 FOCAL_MM = 85.0      # a portrait lens: little perspective distortion of the face
 SENSOR_MM = 36.0
 MARGIN = 1.15        # frame size relative to the head's extent
+#: The fill light's power over the key light's: enough that a face in the key's shadow (a cut face,
+#: the far side of a turned head) keeps a fifth of the lit skin's brightness, little enough that the
+#: key still models the face.
+FILL_RATIO = 0.35
 
 
 def is_startup_cube(obj) -> bool:
@@ -127,13 +134,9 @@ def frame_study(context, coll, show: str = D.SHOW.default, view: str = D.VIEW.de
     rel = corners - centre
     width, height = float(np.ptp(rel @ right)), float(np.ptp(rel @ up))
     depth = float(np.ptp(rel @ forward))
-    res_x, res_y = scene.render.resolution_x, scene.render.resolution_y
-    aspect = res_x / max(res_y, 1)
-    # the sensor fits the wider image side: half-angle per side from the 85 mm lens
-    half_x = math.atan(0.5 * SENSOR_MM / FOCAL_MM) if aspect >= 1 else math.atan(0.5 * SENSOR_MM * aspect / FOCAL_MM)
-    half_y = math.atan(math.tan(half_x) / aspect)
-    distance = 0.5 * depth + MARGIN * max(0.5 * width / math.tan(half_x), 0.5 * height / math.tan(half_y))
-
+    # the box's near face fills 1 / MARGIN of the frame's tight side; at a square frame with the 85 mm lens
+    near = FOCAL_MM * MARGIN * max(width, height) / SENSOR_MM
+    distance = near + 0.5 * depth
     cam = study_object(coll, CAMERA_KIND)
     if cam is None:
         cam = bpy.data.objects.new(f"{coll.name} Camera", bpy.data.cameras.new(f"{coll.name} Camera"))
@@ -141,6 +144,7 @@ def frame_study(context, coll, show: str = D.SHOW.default, view: str = D.VIEW.de
         coll.objects.link(cam)
     cam.data.type = "PERSP"
     cam.data.lens, cam.data.sensor_width, cam.data.sensor_fit = FOCAL_MM, SENSOR_MM, "AUTO"
+    fit_lens_to_render_size(cam, scene, MARGIN * width / (2.0 * near), MARGIN * height / (2.0 * near))
     cam.data.clip_start = max(1e-3, 0.05 * distance)
     cam.data.clip_end = 10.0 * (distance + depth)
     cam.matrix_world = _matrix(_look_along(forward, up), centre - forward * distance)
@@ -159,13 +163,49 @@ def frame_study(context, coll, show: str = D.SHOW.default, view: str = D.VIEW.de
     # ~ the same irradiance at the head for any head size: power grows with distance squared
     light.data.energy = 12.0 * (light_distance / 0.5) ** 2
     light.matrix_world = _matrix(_look_along(key, up), centre - key * light_distance)
-    for obj in (cam, light):
+    fill = study_object(coll, FILL_KIND)
+    if fill is None:
+        fill = bpy.data.objects.new(f"{coll.name} Fill Light", bpy.data.lights.new(f"{coll.name} Fill Light", "AREA"))
+        fill["pdehead_kind"] = FILL_KIND
+        coll.objects.link(fill)
+    fill.data.shape, fill.data.size = "DISK", 1.5 * size
+    fill.data.energy = FILL_RATIO * 12.0 * (distance / 0.5) ** 2
+    fill.parent = cam
+    fill.matrix_parent_inverse.identity()
+    fill.matrix_basis = _matrix(np.eye(3), np.zeros(3))          # at the camera, looking where it looks
+    for obj in (cam, light, fill):
         _set_visible(obj, True, view_layer)
         obj.hide_render = False
 
     framed = _frame_views(context, centre, distance, forward, up)
-    return {"shown": shown.name, "camera": cam.name, "light": light.name, "hidden_cube": hidden_cube,
+    return {"shown": shown.name, "camera": cam.name, "light": light.name, "fill": fill.name, "hidden_cube": hidden_cube,
             "views_framed": framed, "distance_m": distance}
+
+
+def fit_lens_to_render_size(cam, scene, tan_x: float, tan_y: float) -> None:
+    """Drive the camera's focal length by the scene's render size: the widest lens angle that still shows
+    ``tan_x`` / ``tan_y`` (half the view's width / height over the distance) at the current aspect.
+
+    With ``sensor_fit`` AUTO the sensor width spans the picture's longer side, so for an aspect ``a = x / y``
+    the half angles are ``tan = S / 2f`` along the longer side and ``S / 2f`` times ``min(a, 1 / a)`` along
+    the shorter one; the focal length is the smaller of the two that fit. A simple expression (min, /,
+    no Python), so it runs in files opened with scripts disabled and at render time from the render size
+    of that moment (F12 or the command line's ``-o`` at any resolution).
+    """
+    half_sensor = 0.5 * float(cam.data.sensor_width)
+    cam.data.driver_remove("lens")
+    drv = cam.data.driver_add("lens").driver
+    drv.type = "SCRIPTED"
+    for name, path in (("rx", "render.resolution_x"), ("ry", "render.resolution_y")):
+        var = drv.variables.new()
+        var.name, var.type = name, "SINGLE_PROP"
+        var.targets[0].id_type = "SCENE"
+        var.targets[0].id = scene
+        var.targets[0].data_path = path
+    drv.expression = (f"{half_sensor:.6g} * min(min(rx / max(ry, 1), 1) / {tan_x:.6g}, "
+                      f"min(ry / max(rx, 1), 1) / {tan_y:.6g})")
+    aspect = scene.render.resolution_x / max(scene.render.resolution_y, 1)
+    cam.data.lens = half_sensor * min(min(aspect, 1.0) / tan_x, min(1.0 / aspect, 1.0) / tan_y)
 
 
 def _frame_views(context, centre, distance, forward, up) -> int:

@@ -333,8 +333,11 @@ class PipelineSteps:
         coll = self.collection
         with state.Timer() as t:
             vdb_path = vdb_files.vdb_path_for(coll.name, bpy.data.filepath or None, prefs.vdb_prefs_folder(context))
+            new = s.volume_object is None
             s.volume_object = volume.build_volume(wfield, coll, vdb_path, name=f"{coll.name} Volume",
                                                   obj=s.volume_object, ct=ct, window=window, **self.volume_settings())
+            if new:      # out of F12 until the user shows it (Frame Study > Volume, or the camera icon)
+                s.volume_object.hide_render = True
             s.volume_stale = False
         self.record_timing("volume", t.seconds)
 

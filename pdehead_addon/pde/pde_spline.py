@@ -31,7 +31,10 @@ Two extensions make the head what a user expects to see:
   zero u-derivative and the harmonics h >= 2 have a zero derivative too, so the
   rings shrink to a point with a horizontal tangent plane (near the pole
   ``z ~ z_v - c (1-u)^2`` while the rings shrink like ``(1-u)``): a round
-  crown instead of a flat fan.
+  crown instead of a flat fan. With the approximation on, the curves' harmonics
+  h >= 3 pass first through :func:`crown_low_pass`, wider where the slices cut
+  the skin at a grazing angle (the crown), so slice steps there do not run
+  across it as radial ridges.
 
 References
 ----------
@@ -59,6 +62,12 @@ DOME_DAMPING = 0.25
 #: at the top curve are kept (C1 with the tube, as before), the dome's height and its tangent plane at the
 #: pole too (the spine's height and the circular part of h = 1 are not faded).
 DOME_FADE_EXTRA = 3
+#: The crown's low-pass (:func:`crown_low_pass`): the Gaussian's width along a boundary curve is this many
+#: millimetres times the cotangent of the skin's angle to the slice plane there, so a wall cut square by
+#: its slices keeps its curve as it is and the crown, cut at a grazing angle, is smoothed most. 3 mm is the
+#: scale of the large-scale head the crown is compared with (marching cubes of the mask smoothed by a 3 mm
+#: Gaussian); chosen on CThead, checked on GE and the phantom (docs/benchmarks.md, section up-close).
+CROWN_SIGMA_MM = 3.0
 #: Dome height limits, as fractions of the top curve's equivalent radius sqrt(area / pi).
 DOME_MIN_FRACTION = 0.15
 DOME_MAX_FRACTION = 1.2
@@ -273,6 +282,56 @@ def dome_height(curves: np.ndarray, heights: np.ndarray, vertex_z: float | None 
     if slope < 0:                                       # area shrinking upward: extrapolate to zero
         return float(np.clip(-aa[-1] / slope, lo, hi))
     return float(np.sqrt(lo * hi))
+
+
+def crown_low_pass(curves: np.ndarray, heights: np.ndarray, spec: np.ndarray, dome_height_mm: float,
+                   sigma_mm: float = CROWN_SIGMA_MM) -> np.ndarray:
+    """The curves' harmonics with the crown's ripples removed: harmonic h >= 3 of curve k times
+    ``exp(-(h sigma_k / R_k)^2 / 2)`` (a Gaussian of width ``sigma_k`` along a circle of radius ``R_k``).
+
+    Parameters
+    ----------
+    curves : ndarray, shape (m, M, 3)
+        The boundary curves (bottom to top), patient mm.
+    heights : ndarray, shape (m,)
+        Their heights along the slice axis.
+    spec : ndarray of complex, shape (m, H, 3)
+        Their harmonics (:func:`.pde_basis.curve_harmonics`, possibly smoothed along u).
+    dome_height_mm : float
+        The dome's height above the top curve (:func:`dome_height`).
+    sigma_mm : float
+        Width per unit cotangent (:data:`CROWN_SIGMA_MM`).
+
+    Returns
+    -------
+    ndarray
+        A filtered copy of ``spec``; harmonics 0-2 (position, the head's oval) are kept.
+
+    Notes
+    -----
+    Where a slice cuts the skin at an angle phi to the slice plane, a step of the slices or a speck in
+    the mask moves the boundary by about ``dz cot(phi)`` sideways, and harmonics of the curve that the
+    skin does not have turn into radial ridges across the crown (the height field ``h(rho, theta)`` of a
+    smooth crown has its n-th harmonic shrink like ``rho^n`` toward the pole). ``cot(phi)`` of curve k is
+    the shrink of its equivalent radius ``R = sqrt(area / pi)`` to the next curve toward the crown over
+    their height gap (0 where the next curve is wider: walls, the nose's underside), and for the top curve
+    that of the dome (``R / (2 height)``, a paraboloid's rim), at least its lower neighbour's. Walls
+    (cot ~ 0.1-0.5 on a face) stay as they are.
+    """
+    xy = curves[..., :2]
+    area = 0.5 * np.abs((xy[..., 0] * np.roll(xy[..., 1], -1, axis=1)
+                         - np.roll(xy[..., 0], -1, axis=1) * xy[..., 1]).sum(axis=1))
+    R = np.maximum(np.sqrt(area / np.pi), 1e-9)
+    z = np.asarray(heights, dtype=np.float64)
+    cot = np.zeros(len(z))
+    if len(z) > 1:
+        cot[:-1] = np.maximum(R[:-1] - R[1:], 0.0) / np.maximum(np.abs(np.diff(z)), 1e-9)
+        cot[-1] = cot[-2]
+    cot[-1] = max(cot[-1], R[-1] / (2.0 * max(float(dome_height_mm), 1e-9)))
+    h = np.arange(spec.shape[1], dtype=np.float64)
+    gain = np.exp(-0.5 * (h[None, :] * (sigma_mm * cot / R)[:, None]) ** 2)
+    gain[:, :3] = 1.0
+    return spec * gain[..., None]
 
 
 def dome_fade(power: np.ndarray, t: np.ndarray) -> np.ndarray:

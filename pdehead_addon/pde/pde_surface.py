@@ -71,7 +71,7 @@ from .pde_basis import basis, curve_harmonics, inverse_4x4
 from .pde_head import PDEHead, curve_positions, derived_once
 from .pde_smoothing import (MAX_DEVIATION_MM, MAX_LEBESGUE_GROWTH, check_modes, local_knots, require_3t_plus_1,
                             smoothing_bounds, smoothing_limits)
-from .pde_spline import c2_spans, dome_height, smoothing_spline_values
+from .pde_spline import c2_spans, crown_low_pass, dome_height, smoothing_spline_values
 from ..curves.parameterisation import align_parameterisation
 
 #: The surface's continuity across the curves: the C2 spans (default) or the paper's four-curve patches.
@@ -312,6 +312,8 @@ def _solve_c2(bset: BoundarySet, smoothing, n_modes: int, approximation_mm, dome
     if dome:
         zt = float(bset.curves[-1, :, 2].mean())
         height = dome_height(bset.curves, bset.heights, bset.meta.get("vertex_z"))
+        if L > 0:                                     # approximating the curves: the crown's too
+            spec = crown_low_pass(bset.curves, bset.heights, spec, height)
         sign = 1.0 if bset.heights[-1] >= bset.heights[0] else -1.0
         vertex = np.array([spec[-1, 0, 0].real, spec[-1, 0, 1].real, zt + sign * height])
         top = z[-1] + float(np.linalg.norm(bset.curves[-1] - vertex, axis=1).mean())

@@ -193,6 +193,116 @@ def pole_ripple(head, radius_mm: float = POLE_RADIUS_MM, rings: int = 160, nv: i
             "normal": n.tolist(), "dome_height_mm": float((pole - top.mean(axis=0)) @ n)}
 
 
+#: Circles about the crown's pole where :func:`crown_ripple` compares a head with the smoothed mask.
+CROWN_RADII_MM = (20.0, 25.0, 30.0, 35.0, 40.0)
+
+
+def crown_ripple(vertices: np.ndarray, faces: np.ndarray, pole: np.ndarray, up: np.ndarray,
+                 radii=CROWN_RADII_MM, angles: int = 360) -> dict[float, float]:
+    """Radial ridges across the crown, in numbers: the slope ripple of the height on circles about the pole.
+
+    On the circle of horizontal radius ``rho`` about ``pole`` (in the plane normal to ``up``), the
+    surface's height along ``up`` at ``angles`` equal angles is split into its harmonics ``A_n``; the
+    slope ripple is ``sqrt(sum_{n >= 3} (n A_n / rho)^2 / 2)`` (the RMS around the circle of the
+    tangential slope of those harmonics), in degrees. ``n <= 2`` is the head's oval. A smooth crown's
+    n-th height harmonic shrinks like ``rho^n`` toward its pole; ridges that run into the pole keep it.
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (N, 3)
+        Any triangle mesh of the head (the PDE surface, marching cubes), patient mm.
+    faces : ndarray of int, shape (F, 3)
+        Its triangles, outward.
+    pole : ndarray, shape (3,)
+        The crown's pole (``head.vertex``).
+    up : ndarray, shape (3,)
+        The direction out of the crown (the slice axis, toward the vertex).
+    radii : sequence of float
+        The circles' radii, mm.
+
+    Returns
+    -------
+    dict
+        ``{rho: ripple in degrees}``; NaN where the circle leaves the crown.
+
+    Notes
+    -----
+    The height is interpolated linearly over a Delaunay triangulation of the vertices of the faces
+    facing ``up`` within the cylinder ``rho <= max(radii) + 5`` and less than ``max(radii)`` below the
+    pole (the crown's top sheet, not the floor of a cavity inside it); on meshes as fine as 0.5 mm this
+    is the mesh's own height within its chord error.
+    """
+    from scipy.interpolate import LinearNDInterpolator
+    up = np.asarray(up, dtype=np.float64)
+    up = up / np.linalg.norm(up)
+    e1 = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(up, e1)
+    d = np.asarray(vertices, dtype=np.float64) - np.asarray(pole, dtype=np.float64)
+    x, y, h = d @ e1, d @ e2, d @ up
+    faces = np.asarray(faces)
+    tri = d[faces]
+    facing = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]) @ up > 0
+    rmax = float(max(radii))
+    keep = np.zeros(len(d), bool)
+    keep[faces[facing].ravel()] = True
+    keep &= (np.hypot(x, y) <= rmax + 5.0) & (h > -rmax)
+    height = LinearNDInterpolator(np.c_[x[keep], y[keep]], h[keep])
+    theta = TWO_PI * np.arange(angles) / angles
+    n = np.arange(1, angles // 2 + 1)
+    out = {}
+    for rho in radii:
+        z = height(rho * np.cos(theta), rho * np.sin(theta))
+        amp = 2.0 * np.abs(np.fft.rfft(z)[1:] / angles)
+        hi = n >= 3
+        out[float(rho)] = float(np.degrees(np.sqrt(np.sum((n[hi] * amp[hi] / rho) ** 2) / 2.0)))
+    return out
+
+
+def edge_bends(mesh, skip_u: float | None = 0.0) -> np.ndarray:
+    """The angle (degrees) between the normals of the two faces at every interior edge of a mesh.
+
+    Parameters
+    ----------
+    mesh : Mesh
+        Quads and triangles (:meth:`PDEHead.surface`).
+    skip_u : float or None
+        Edges with a vertex whose ``u`` attribute equals this (the bottom cap's boundary ring and the cap,
+        where the tube meets its flat disc at the neck's own angle) count as 0; None measures every edge.
+
+    Returns
+    -------
+    ndarray, shape (n_edges,)
+        One angle per edge shared by two faces; a slit or a pinched fold shows as edges above 60-90 deg.
+    """
+    V = np.asarray(mesh.vertices, dtype=np.float64)
+    polys = [np.asarray(mesh.quads, np.int64).reshape(-1, 4), np.asarray(mesh.triangles, np.int64).reshape(-1, 3)]
+    normals, a, b, face = [], [], [], []
+    offset = 0
+    for f in polys:
+        if not len(f):
+            continue
+        p = V[f]
+        n = np.cross(p, np.roll(p, -1, axis=1)).sum(axis=1)         # Newell's normal of each polygon
+        normals.append(n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300))
+        a.append(f.ravel())
+        b.append(np.roll(f, -1, axis=1).ravel())
+        face.append(np.repeat(np.arange(len(f)) + offset, f.shape[1]))
+        offset += len(f)
+    normals, a, b, face = np.concatenate(normals), np.concatenate(a), np.concatenate(b), np.concatenate(face)
+    key = np.minimum(a, b) * len(V) + np.maximum(a, b)
+    order = np.argsort(key, kind="stable")
+    key, face, lo = key[order], face[order], np.minimum(a, b)[order]
+    pair = np.nonzero(key[1:] == key[:-1])[0]
+    cos = np.einsum("ij,ij->i", normals[face[pair]], normals[face[pair + 1]])
+    angle = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    if skip_u is not None and "u" in mesh.vertex_attributes:
+        u = np.asarray(mesh.vertex_attributes["u"], dtype=np.float64)
+        hi = key[pair] - lo[pair] * len(V)
+        angle[(u[lo[pair]] == skip_u) | (u[hi] == skip_u)] = 0.0
+    return angle
+
+
 def _face_corners(mesh):
     """(faces as vertex-index lists, their per-corner UVs): quads then triangles."""
     faces = [f for f in (mesh.quads, mesh.triangles) if len(f)]

@@ -22,7 +22,11 @@ surface, nu x nv = 120 x 240, caps), Cycles CPU, into ``docs/figures/up_close_*.
   outside, the cut faces from the CT at <= 1 voxel a texel), beside the CT resampled on the plane
   x = the spine's mean x, same window, and the solid as before issue 21 (one 128-pixel tile a face).
 
-    python3 scripts/bench/up_close_figures.py [--size 384] [--samples 16] [--face | --cut | --uv]
+* ``up_close_crown41.png`` (``--crown``, only this figure; issue 41 item 2): CThead's crown at the add-on's
+  defaults (t = 15, a 400 x 800 surface) from above and at a grazing angle: without the crown's low-pass
+  (``pde_spline.crown_low_pass``), with it, and marching cubes of the mask smoothed by a 3 mm Gaussian.
+
+    python3 scripts/bench/up_close_figures.py [--size 384] [--samples 16] [--face | --cut | --uv | --crown]
 """
 from __future__ import annotations
 
@@ -177,6 +181,54 @@ def cut_figure(bl, args) -> int:
     return 0
 
 
+def crown_figure(bl, args) -> int:
+    """CThead's crown from above and grazing: before / after ``crown_low_pass`` and the 3 mm-smoothed mask."""
+    from unittest import mock
+    from scipy import ndimage
+    from skimage import measure
+    from pdehead_addon.pde import pde_spline, pde_surface
+    bpy, objects, render = bl["bpy"], bl["objects"], bl["render"]
+    render.VIEWS.setdefault("GRAZING", ((0.0, 1.0, -0.22), (0.0, 0.0, 1.0)))   # from the front, 12 deg down
+    bpy.ops.wm.read_homefile(use_empty=True)
+    from pdehead_addon import defaults as D
+    seg = bench_smooth.load("cthead")
+    bset = E.extract_boundaries(seg, patches=D.PATCHES.default, selection=bench_smooth.SELECTION)
+    off = lambda c, h, sp, d: pde_spline.crown_low_pass(c, h, sp, d, sigma_mm=0.0)   # noqa: E731
+    with mock.patch.object(pde_surface, "crown_low_pass", off):
+        before = E.solve_pde(bset).surface(400, 800, caps=True)
+    after = E.solve_pde(bset).surface(400, 800, caps=True)
+    sm = ndimage.gaussian_filter(seg.mask.astype(np.float32), 3.0 / np.asarray(seg.ct.spacing, float))
+    verts, tris, _, _ = measure.marching_cubes(sm, 0.5)
+    mc = E.Mesh(vertices=seg.ct.index_to_patient(verts), quads=np.zeros((0, 4), np.int64),
+                triangles=np.asarray(tris, np.int64)[:, ::-1])
+    coll = objects.study_collection("up close crown")
+    built = []
+    for label, mesh in (("before: no crown low-pass", before), ("after: crown low-pass", after),
+                        ("marching cubes, mask smoothed 3 mm", mc)):
+        obj = objects.build_mesh_object(mesh, coll, label[:20], smooth=True)
+        obj.data.materials.append(objects.ensure_skin_material())
+        built.append((label, obj))
+    lo, hi = render.world_bounds([built[1][1]])
+    top = np.array(hi, float)
+    crown_lo = np.array([0.5 * (lo[0] + hi[0]) - 0.06, 0.5 * (lo[1] + hi[1]) - 0.06, top[2] - 0.035])
+    crown_hi = np.array([0.5 * (lo[0] + hi[0]) + 0.06, 0.5 * (lo[1] + hi[1]) + 0.06, top[2]])
+    tmp = args.out / ".tile_up_close.png"
+    rows = []
+    for view in ("TOP", "GRAZING"):
+        row = []
+        for label, obj in built:
+            render.render_objects_png([obj], tmp, view=view, resolution=(args.size, args.size),
+                                      samples=args.samples, bounds=(crown_lo, crown_hi))
+            with Image.open(tmp) as im:
+                im = im.convert("RGB").copy()
+            ImageDraw.Draw(im).text((8, 6), f"CThead {label}, {view.lower()}", fill=(235, 235, 235))
+            row.append(im)
+        rows.append(row)
+    tmp.unlink(missing_ok=True)
+    sheet(rows, args.out / "up_close_crown41.png")
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=384)
@@ -185,12 +237,15 @@ def main(argv=None) -> int:
     ap.add_argument("--face", action="store_true", help="only up_close_face.png (issue 21 item 1)")
     ap.add_argument("--cut", action="store_true", help="only up_close_cut.png (issue 21 item 3)")
     ap.add_argument("--uv", action="store_true", help="only up_close_uv.png (issue 21 item 4)")
+    ap.add_argument("--crown", action="store_true", help="only up_close_crown41.png (issue 41 item 2)")
     args = ap.parse_args(argv)
     bl = _common.blender()
     if args.face:
         return face_figure(bl, args)
     if args.cut:
         return cut_figure(bl, args)
+    if args.crown:
+        return crown_figure(bl, args)
     bpy, objects, render = bl["bpy"], bl["objects"], bl["render"]
     render.VIEWS.setdefault("BOTTOM", ((0.0, 0.0, 1.0), (0.0, -1.0, 0.0)))   # from below, the face up
     bpy.ops.wm.read_homefile(use_empty=True)

@@ -48,7 +48,7 @@ def check_study(ext, coll, t: int, nu: int, nv: int, nw: int, volume: bool = Tru
     import bpy
     s = coll.pdehead
     assert s.curves_object and s.surface_object and s.solid_object
-    scene_kinds = {"camera", "key_light", "study_settings"}  # Frame Study's camera and light, the settings Empty
+    scene_kinds = {"camera", "key_light", "fill_light", "study_settings"}  # Frame Study's camera and lights, the settings Empty
     assert {o.name for o in coll.all_objects if o.get("pdehead_kind") not in scene_kinds} == {
         o.name for o in (s.curves_object, s.surface_object, s.solid_object, s.volume_object) if o}
     assert len(s.curves_object.data.splines) == 3 * t + 1
