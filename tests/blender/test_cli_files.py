@@ -2,7 +2,8 @@
 
 - two runs into one folder: Ctrl-C on one (during its render) keeps the other's finished .blend and .vdb,
   and a cancelled run with the same --out leaves the finished file as it was;
-- Ctrl-C during a Cycles render ends the run (exit 130, nothing of it left); a second Ctrl-C too;
+- Ctrl-C during a Cycles render, the DICOM scan or the skull steps ends the run (exit 130, nothing of it
+  left); a second Ctrl-C too;
 - --out (and the renders) inside the input folder are refused before any work (exit 2);
 - a full disk (a small tmpfs, where this machine lets the test mount one) ends in one error naming the
   file, and leaves no partial or orphan file.
@@ -166,6 +167,28 @@ def test_ctrl_c_during_the_dicom_scan_ends_the_run(tmp_path):
         if proc.poll() is None:
             proc.kill()
     print(f"Ctrl-C during the DICOM scan: exit after {latency:.2f} s")
+    assert proc.returncode == 130, err[-2000:]
+    assert "cancelled (Ctrl-C)" in err and "Traceback" not in err
+    assert not d.exists() or _files(d) == [], _files(d)
+
+
+def test_ctrl_c_during_the_skull_steps_ends_the_run(tmp_path):
+    """Ctrl-C just after the solid, while the skull is built: exit 130, nothing written, no traceback."""
+    d = tmp_path / "d"
+    proc = _start(tmp_path, "skull", *SMALL, "--no-volume", "--skull", "--out", d / "x.blend")
+    try:
+        _wait_for(proc.stdout, "Info: PDE solid of")   # the next step is the skull
+        time.sleep(0.5)
+        assert proc.poll() is None
+        proc.send_signal(signal.SIGINT)
+        t0 = time.perf_counter()
+        proc.wait(timeout=600)
+        latency = time.perf_counter() - t0
+        err = proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    print(f"Ctrl-C during the skull steps: exit after {latency:.2f} s")
     assert proc.returncode == 130, err[-2000:]
     assert "cancelled (Ctrl-C)" in err and "Traceback" not in err
     assert not d.exists() or _files(d) == [], _files(d)

@@ -20,7 +20,8 @@ OUR_HANDLERS = ["depsgraph_update_post:pdehead_cutter_update", "depsgraph_update
                 "frame_change_post:pdehead_frame_change",
                 "frame_change_pre:pdehead_frame_change_pre", "load_post:pdehead_forensic_load_post",
                 "load_post:pdehead_load_post",
-                "load_post:pdehead_migrate_load_post", "load_post:pdehead_volume_load_post",
+                "load_post:pdehead_migrate_load_post", "load_post:pdehead_validate_load_post",
+                "load_post:pdehead_volume_load_post",
                 "save_post:pdehead_save_post", "save_pre:pdehead_save_pre"]
 PANELS = ["PDEHEAD_PT_study", "PDEHEAD_PT_segmentation", "PDEHEAD_PT_boundaries", "PDEHEAD_PT_surface",
           "PDEHEAD_PT_solid", "PDEHEAD_PT_volume", "PDEHEAD_PT_timings"]
