@@ -1,0 +1,241 @@
+"""The CT's detail as geometry: the PDE surface displaced along its normals by its detail map, and the
+surface meshed at print resolution.
+
+The detail map (:func:`.detail_map.ct_detail_map`) holds, per texel of the surface's UV layout, the signed
+distance (mm) along the PDE surface's outward normal from the surface to the CT's skin. The detail layer
+puts it back as geometry: every vertex ``p`` of a mesh of the surface moves to ``p + s h(uv) n(p)``, with
+``h`` the map sampled bilinearly at the vertex's UVs, ``n`` the vertex's outward normal and ``s`` the
+detail strength (0: the PDE surface itself; 1: the CT's skin as the map holds it). The PDE surface stays
+the smooth, compact base; the map is the layer on top of it, as a sculpting program's displacement map.
+
+The vertices of the bottom cap (the neck's cut, not skin) are not displaced: a vertex takes the mean of
+the map over its tube and dome corners only, so the cap's rim moves with the tube and the mesh stays
+closed (the same vertices, only moved).
+
+Print resolution (:func:`print_resolution`): the rows and columns of the mesh are chosen so that the
+largest chord error (the distance from a triangle's edge and diagonal midpoints to the surface at the same
+parameters) stays within :data:`PRINT_CHORD_MM`, and the edges are short enough to carry the map's
+features (:data:`PRINT_EDGE_MM`), within :data:`PRINT_MAX_TRIANGLES`.
+
+References
+----------
+R. L. Cook, "Shade trees", Computer Graphics (SIGGRAPH '84) 18(3), 223-231 (1984): displacement maps,
+the surface point moved along its normal by a texture's value.
+V. Krishnamurthy, M. Levoy, "Fitting smooth surfaces to dense polygon meshes", SIGGRAPH '96, 313-324:
+a smooth base surface plus a displacement map along its normals to keep a scan's fine detail.
+(Both cited from the literature, not re-read here.)
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..core.mesh import Mesh
+
+__all__ = ["sample_map", "vertex_heights", "vertex_normals", "displace_mesh", "detail_surface",
+           "chord_error", "print_resolution", "PRINT_CHORD_MM", "PRINT_EDGE_MM", "PRINT_MAX_TRIANGLES"]
+
+#: The largest chord error of an exported skin (mm): a print layer is ~0.05-0.1 mm, so the facets do not
+#: show in a print.
+PRINT_CHORD_MM = 0.05
+
+#: The longest edge (mm, along the tube's rows and columns) of an export: a 1 mm feature of the detail map
+#: (a closed eyelid's line) spans two edges.
+PRINT_EDGE_MM = 0.5
+
+#: At most this many triangles in an exported skin (a slicer's comfortable load; ~100 MB of binary STL).
+PRINT_MAX_TRIANGLES = 2_000_000
+
+
+def sample_map(height: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """``height`` (rows from UV v = 0, texel centres at ``(i + 0.5) / res``) sampled bilinearly at ``uv``
+    (shape (n, 2)), clamped at the borders (the map's gutters hold the islands' edge values)."""
+    h = np.asarray(height, np.float32)
+    rows, cols = h.shape
+    x = np.clip(np.asarray(uv[:, 0], float) * cols - 0.5, 0.0, cols - 1.0)
+    y = np.clip(np.asarray(uv[:, 1], float) * rows - 0.5, 0.0, rows - 1.0)
+    x0 = np.minimum(np.floor(x).astype(np.int64), cols - 2)
+    y0 = np.minimum(np.floor(y).astype(np.int64), rows - 2)
+    fx, fy = x - x0, y - y0
+    top = h[y0, x0] * (1.0 - fx) + h[y0, x0 + 1] * fx
+    bottom = h[y0 + 1, x0] * (1.0 - fx) + h[y0 + 1, x0 + 1] * fx
+    return top * (1.0 - fy) + bottom * fy
+
+
+def _cap_corners(uv: np.ndarray, islands: dict | None) -> np.ndarray:
+    """Which corners lie in the bottom cap's UV island (True: not displaced)."""
+    if islands is None:
+        return np.zeros(len(uv), bool)
+    cx, cy = islands["cap"]
+    return np.hypot(uv[:, 0] - cx, uv[:, 1] - cy) <= islands["cap_radius"] * 1.0001
+
+
+def vertex_heights(mesh: Mesh, height: np.ndarray, islands: dict | None = None) -> np.ndarray:
+    """Per vertex of ``mesh`` the map's mean over the vertex's corners outside the cap island (0 for a
+    vertex with none: the cap's inside).
+
+    Parameters
+    ----------
+    mesh : Mesh
+        With per-corner UVs in the map's layout (:meth:`.pde_head.PDEHead.surface`).
+    height : ndarray, shape (res, res)
+        The detail map (mm).
+    islands : dict, optional
+        :func:`.surface_uv_map.uv_islands` of the layout: corners in its cap disc are left out.
+    """
+    uv = mesh.loop_uv()
+    if uv is None:
+        raise ValueError("the mesh has no UVs: it cannot take a detail map")
+    corner = mesh.loop_vertex_indices()
+    keep = ~_cap_corners(uv, islands)
+    n = len(mesh.vertices)
+    total = np.bincount(corner[keep], sample_map(height, uv[keep]), minlength=n)
+    count = np.bincount(corner[keep], minlength=n)
+    return np.where(count > 0, total / np.maximum(count, 1), 0.0)
+
+
+def vertex_normals(mesh: Mesh) -> np.ndarray:
+    """Area-weighted unit vertex normals of an outward-wound mesh (quads split along their 0-2 diagonal)."""
+    from .detail_map import _vertex_normals
+    tris = np.concatenate([mesh.quads[:, [0, 1, 2]], mesh.quads[:, [0, 2, 3]], mesh.triangles])
+    return _vertex_normals(mesh.vertices, tris)
+
+
+def displace_mesh(mesh: Mesh, height: np.ndarray, strength: float, islands: dict | None = None) -> Mesh:
+    """``mesh`` with every vertex moved ``strength x`` the map's height along its outward normal (module
+    docstring); the faces, UVs and attributes are kept. Strength 0 returns ``mesh`` itself."""
+    s = float(strength)
+    if s == 0.0:
+        return mesh
+    h = vertex_heights(mesh, height, islands)
+    moved = mesh.vertices + (s * h)[:, None] * vertex_normals(mesh)
+    return Mesh(moved, mesh.quads, mesh.triangles, mesh.quad_uv, mesh.triangle_uv, dict(mesh.vertex_attributes))
+
+
+def _islands(head) -> dict:
+    from .surface_uv_map import uv_islands
+    layout = head.uv_layout()
+    return uv_islands(float(layout["aspect"]), layout.get("dome_ratio"), layout.get("cap_ratio"))
+
+
+def detail_surface(head, height: np.ndarray | None, strength: float, nu: int, nv: int, caps: bool = True) -> Mesh:
+    """The head's surface at ``nu x nv`` with its detail layer at ``strength`` (:func:`displace_mesh`; the
+    plain PDE surface when the strength is 0 or there is no map)."""
+    mesh = head.surface(int(nu), int(nv), caps=caps)
+    if height is None or float(strength) == 0.0:
+        return mesh
+    return displace_mesh(mesh, height, strength, _islands(head))
+
+
+def _half_columns(head, nv: int) -> tuple[np.ndarray, np.ndarray]:
+    """The surface's column parameters v (radians) and the midpoints between neighbours (the last wraps)."""
+    v = np.asarray(head.v_columns(nv), float) if head.v_density() is not None else 2 * np.pi * np.arange(nv) / nv
+    nxt = np.append(v[1:], v[0] + 2 * np.pi)
+    return v, 0.5 * (v + nxt)
+
+
+def chord_error(head, nu: int, nv: int, window=None) -> dict:
+    """How far the flat triangles of ``head.surface(nu, nv)`` leave the surface (mm).
+
+    Measured on the tube's quads (split along their 0-2 diagonal, as the exports split them): at the
+    midpoint of each row edge, column edge and diagonal, the distance from the mesh to the surface at the
+    midpoint's parameters. The parametric midpoint is not the nearest surface point, so this bounds the
+    geometric chord error from above.
+
+    Parameters
+    ----------
+    window : callable, optional
+        ``window(points) -> bool mask``: only the quads whose centres it keeps (e.g.
+        :func:`~..validation.surface_metrics.face_window`).
+
+    Returns
+    -------
+    dict
+        ``max`` and ``p99`` over the kept quads (the worst of their three midpoints); ``rows_max`` (the column
+        edges' midpoints: the rows' spacing, nu, decides it), ``columns_max`` (the row edges': nv),
+        ``diagonal_max``; ``quads``.
+    """
+    nu, nv = int(nu), int(nv)
+    u = np.linspace(0.0, 1.0, max(nu, 3) if head.vertex is not None else nu)
+    if head.vertex is not None:
+        u = u[:-1]                                     # the pole row is the fan's single vertex
+    um = 0.5 * (u[:-1] + u[1:])
+    v, vm = _half_columns(head, nv)
+    # the uncached synthesis: four large grids would push the viewport's samplings out of the head's cache
+    grid = getattr(head, "_grid", head.grid)
+    corners = grid(u, v=v)                             # (nu, nv, 3)
+    row_mid = grid(um, v=v)                            # midpoints of the column edges (between rows)
+    col_mid = grid(u, v=vm)                            # midpoints of the row edges (between columns)
+    centre = grid(um, v=vm)                            # the quads' parametric centres
+    a, b = corners[:-1], corners[1:]
+    b_next = np.roll(b, -1, axis=1)
+    a_next = np.roll(a, -1, axis=1)
+    e_col = np.linalg.norm(0.5 * (a + b) - row_mid[:, :], axis=-1)
+    e_row = np.linalg.norm(0.5 * (a + a_next) - col_mid[:-1], axis=-1)
+    # either diagonal (the quads' winding decides which one the split uses)
+    e_diag = np.minimum(np.linalg.norm(0.5 * (a + b_next) - centre, axis=-1),
+                        np.linalg.norm(0.5 * (b + a_next) - centre, axis=-1))
+    along_u = np.maximum(e_col, np.roll(e_col, -1, axis=1))     # the rows' spacing (nu) decides it
+    keep = None if window is None else np.asarray(window(centre.reshape(-1, 3)), bool)
+
+    def stats(e):
+        e = e.reshape(-1) if keep is None else e.reshape(-1)[keep]
+        return (float(e.max()), float(np.percentile(e, 99))) if e.size else (0.0, 0.0)
+    worst, p99 = stats(np.maximum(np.maximum(along_u, e_row), e_diag))
+    return {"max": worst, "p99": p99, "rows_max": stats(along_u)[0], "columns_max": stats(e_row)[0],
+            "diagonal_max": stats(e_diag)[0], "quads": int(e_col.size if keep is None else keep.sum())}
+
+
+def surface_window(head, nv: int = 256):
+    """The face window (:func:`~..validation.surface_metrics.face_window`) of the head's own surface: about
+    the vertical through the surface's centroid, around its most anterior point near the mid-sagittal line
+    (a callable ``points -> bool mask``)."""
+    from ..validation.surface_metrics import face_window, pronasale
+    pts = head.surface(120, nv, caps=False, uv=False).vertices
+    centre = pts[:, :2].mean(axis=0)
+    tip = pronasale(pts, centre)
+    return lambda p: face_window(p, centre, tip)
+
+
+def print_resolution(head, chord_mm: float = PRINT_CHORD_MM, edge_mm: float = PRINT_EDGE_MM,
+                     max_triangles: int = PRINT_MAX_TRIANGLES, window="face") -> tuple[int, int]:
+    """Rows and columns (nu, nv) of a print-resolution mesh of ``head``'s surface.
+
+    The tube's length along its spine and its largest circumference give the counts for edges of
+    ``edge_mm``. Then each count grows with the chord error its own edges leave (:func:`chord_error`; a
+    chord error falls with the square of the edge: the count times ``sqrt(error / chord_mm)``) until the
+    largest is within ``chord_mm`` over ``window`` ("face": :func:`surface_window`; None: everywhere), and
+    both are scaled down together when ``2 nu nv`` (the tube's triangles) would pass ``max_triangles``.
+    """
+    if isinstance(window, str):
+        window = surface_window(head)
+    u = np.linspace(0.0, 1.0, 64)
+    length = float(np.linalg.norm(np.diff(head.spine(u), axis=0), axis=1).sum())
+    rows_u = np.linspace(0.0, 1.0, 33)[:-1] if head.vertex is not None else np.linspace(0.0, 1.0, 33)
+    rings = head.grid(rows_u, nv=256)
+    circumference = float(np.linalg.norm(np.roll(rings, -1, axis=1) - rings, axis=-1).sum(axis=1).max())
+    nu = int(np.ceil(length / edge_mm)) + 1
+    nv = int(np.ceil(circumference / edge_mm))
+    budget = max_triangles // 2 - 2 * nv                  # the caps' triangles: counted below
+
+    def fit(a, b):
+        if a * b <= budget:
+            return a, b
+        k = np.sqrt(budget / (a * b))
+        return max(3, int(a * k)), max(8, int(b * k))
+    nu, nv = fit(nu, nv)
+    for _ in range(4):
+        err = chord_error(head, nu, nv, window)
+        if err["max"] <= chord_mm or nu * nv >= budget * 0.98:
+            break
+        grow_u = np.sqrt(max(err["rows_max"], err["diagonal_max"]) / chord_mm) * 1.05
+        grow_v = np.sqrt(max(err["columns_max"], err["diagonal_max"]) / chord_mm) * 1.05
+        nu, nv = fit(int(np.ceil(nu * max(grow_u, 1.0))), int(np.ceil(nv * max(grow_v, 1.0))))
+    # the caps' triangles grow with the columns (a disc triangulated ring by ring): counted, not estimated
+    for _ in range(8):
+        mesh = head.surface(nu, nv, caps=True, uv=False)
+        count = 2 * len(mesh.quads) + len(mesh.triangles)
+        if count <= max_triangles:
+            break
+        k = np.sqrt(max_triangles / count) * 0.995
+        nu, nv = max(3, int(nu * k)), max(8, int(nv * k))
+    return nu, nv

@@ -1,0 +1,96 @@
+"""The CT detail as geometry: the PDE surface displaced along its normals by its detail map, and meshed at
+print resolution, on a case whose answer is known (a PDE head through rings of a sphere, a ball's mask)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pdehead_addon import ct_detail_map, detail_surface, print_resolution
+from pdehead_addon.pde import detail_displace as DDX
+from pdehead_addon.pde import detail_map as DM
+
+from test_ct_detail_map import R, _sphere_head, sphere_mask  # noqa: E402  (tests/pde on sys.path: rootdir-relative imports)
+
+
+@pytest.fixture(scope="module")
+def sphere_head():
+    return _sphere_head()
+
+
+@pytest.fixture(scope="module")
+def outer_map(sphere_head):
+    """The detail map of the sphere head against a ball 1.5 mm larger."""
+    mask, ct = sphere_mask(R + 1.5)
+    return ct_detail_map(sphere_head, mask, ct, resolution=256, sigma_mm=1.0, max_mm=3.0)
+
+
+def test_sample_map_is_bilinear_at_texel_centres():
+    res = 16
+    yy, xx = np.mgrid[:res, :res].astype(float)
+    height = (2.0 * xx - 3.0 * yy).astype(np.float32)          # linear: bilinear sampling is exact
+    rng = np.random.default_rng(0)
+    uv = rng.uniform(0.5 / res, 1 - 0.5 / res, (500, 2))
+    got = DDX.sample_map(height, uv)
+    truth = 2.0 * (uv[:, 0] * res - 0.5) - 3.0 * (uv[:, 1] * res - 0.5)
+    assert np.abs(got - truth).max() < 1e-4
+    # outside the centres it clamps to the border texels
+    assert DDX.sample_map(height, np.array([[0.0, 0.0], [1.0, 1.0]])).tolist() == [0.0, 2.0 * 15 - 3.0 * 15]
+
+
+@pytest.mark.parametrize("strength", [0.5, 1.0])
+def test_displacement_moves_the_surface_to_the_skin_by_the_strength(sphere_head, outer_map, strength):
+    base = sphere_head.surface(60, 128, caps=True)
+    mesh = detail_surface(sphere_head, outer_map.height, strength, 60, 128)
+    assert mesh.is_watertight() and mesh.vertices.shape == base.vertices.shape
+    assert np.array_equal(mesh.quads, base.quads) and np.array_equal(mesh.triangles, base.triangles)
+    normals = DDX.vertex_normals(base)
+    moved = ((mesh.vertices - base.vertices) * normals).sum(axis=1)
+    # along the normal only
+    assert np.abs(np.linalg.norm(mesh.vertices - base.vertices, axis=1) - np.abs(moved)).max() < 1e-9
+    r0, r1 = np.linalg.norm(base.vertices, axis=1), np.linalg.norm(mesh.vertices, axis=1)
+    z = base.vertices[:, 2]
+    side = (z > -40.0) & (z < 30.0) & (np.abs(normals[:, 2]) < DM.UP_FADE[0])   # full height, away from the ends
+    assert side.sum() > 2000
+    # the ball's skin lies 1.5 mm outside the sphere the curves came from: strength x that, within the map's
+    # error (the binary ball's voxel steps, smoothed: test_ct_detail_map)
+    reach = (R + 1.5) - r0[side]
+    assert np.median(np.abs((r1 - r0)[side] - strength * reach)) < 0.08 * max(strength, 0.5)
+    assert abs(np.median((r1 - r0)[side]) - strength * np.median(reach)) < 0.05
+
+
+def test_strength_zero_is_the_pde_surface_and_the_cap_stays(sphere_head, outer_map):
+    base = sphere_head.surface(40, 96, caps=True)
+    same = detail_surface(sphere_head, outer_map.height, 0.0, 40, 96)
+    assert np.array_equal(same.vertices, base.vertices)
+    assert np.array_equal(detail_surface(sphere_head, None, 1.0, 40, 96).vertices, base.vertices)
+    moved = detail_surface(sphere_head, outer_map.height, 1.0, 40, 96)
+    shift = np.linalg.norm(moved.vertices - base.vertices, axis=1)
+    # the bottom cap's inside (vertices after the tube's grid and the dome's pole) does not move; its rim
+    # (the tube's first row) moves with the tube
+    nu_rows = 39                                                    # the dome drops the pole row
+    cap_inside = np.arange(nu_rows * 96, len(base.vertices) - 1)
+    assert len(cap_inside) > 50 and shift[cap_inside].max() == 0.0
+    assert np.median(shift[:96]) > 0.5
+
+
+def test_chord_error_falls_with_the_square_of_the_edge(sphere_head):
+    coarse = DDX.chord_error(sphere_head, 40, 80)
+    fine = DDX.chord_error(sphere_head, 80, 160)
+    # a sphere of radius 60 mm: the chord error of an edge h is ~ h^2 / (8 R)
+    assert 0.15 < fine["max"] / coarse["max"] < 0.35, (coarse, fine)
+    h = 2 * np.pi * R / 80
+    assert 0.3 * h * h / (8 * R) < coarse["columns_max"] < 3.0 * h * h / (8 * R)
+
+
+def test_print_resolution_meets_the_chord_error_within_the_budget(sphere_head):
+    nu, nv = print_resolution(sphere_head, window=None)
+    err = DDX.chord_error(sphere_head, nu, nv)
+    assert err["max"] <= DDX.PRINT_CHORD_MM, err
+    mesh = sphere_head.surface(nu, nv, caps=True, uv=False)
+    assert mesh.is_watertight() and 2 * len(mesh.quads) + len(mesh.triangles) <= DDX.PRINT_MAX_TRIANGLES
+    # the edges carry a 1 mm feature: at most PRINT_EDGE_MM along the equator
+    assert 2 * np.pi * R / nv <= DDX.PRINT_EDGE_MM * 1.01
+    # a tight budget is kept (the counts scale down together)
+    nu2, nv2 = print_resolution(sphere_head, window=None, max_triangles=100_000)
+    small = sphere_head.surface(nu2, nv2, caps=True, uv=False)
+    assert 80_000 < 2 * len(small.quads) + len(small.triangles) <= 100_000
