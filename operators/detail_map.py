@@ -325,6 +325,31 @@ def set_detail_shading(obj, strength: float, enabled: bool) -> bool:
     return True
 
 
+def detail_height(study):
+    """The study's detail layer for an export: its map's heights (mm) and strength, or (None, 0.0) when the
+    layer is off, out of date, not built or at strength 0 (the PDE surface)."""
+    s = study.settings
+    strength = float(s.detail_strength)
+    if not s.use_detail_map or s.detail_stale or strength == 0.0 or s.surface_object is None:
+        return None, 0.0
+    image = detail_image(s.surface_object)
+    if image is None:
+        return None, 0.0
+    return image_height_mm(image), strength
+
+
+def print_skin(study):
+    """The study's skin for Export for Printing: the PDE surface meshed at print resolution
+    (:func:`pdehead_addon.print_resolution`: chord error within 0.05 mm over the face, at most 2 M
+    triangles), displaced by its CT detail at the study's strength (:func:`pdehead_addon.detail_surface`)."""
+    from ..pdehead_addon import detail_surface, print_resolution
+
+    head = study.head
+    height, strength = detail_height(study)
+    nu, nv = print_resolution(head)
+    return detail_surface(head, height, strength, nu, nv, caps=True)
+
+
 def build_detail_map(obj, head, seg, resolution: int, strength: float, enabled: bool = True) -> dict:
     """Compute the detail map of ``head`` from ``seg`` (its mask and CT geometry) and give it to ``obj``."""
     stages = detail_map_stages(obj, head, seg, resolution, strength, enabled)

@@ -185,15 +185,28 @@ def chord_error(head, nu: int, nv: int, window=None) -> dict:
             "diagonal_max": stats(e_diag)[0], "quads": int(e_col.size if keep is None else keep.sum())}
 
 
+#: The face a print's chord error is held on: +- this of straight ahead (-y), from ``FACE_BELOW_MM`` under
+#: to ``FACE_ABOVE_MM`` over the nose tip (the visible-face measure's window,
+#: ``validation.surface_metrics.face_window``, which the add-on does not ship).
+FACE_HALF_ANGLE_DEG, FACE_BELOW_MM, FACE_ABOVE_MM = 60.0, 70.0, 60.0
+
+
 def surface_window(head, nv: int = 256):
-    """The face window (:func:`~..validation.surface_metrics.face_window`) of the head's own surface: about
-    the vertical through the surface's centroid, around its most anterior point near the mid-sagittal line
-    (a callable ``points -> bool mask``)."""
-    from ..validation.surface_metrics import face_window, pronasale
+    """The face window of the head's own surface (a callable ``points -> bool mask``): within
+    :data:`FACE_HALF_ANGLE_DEG` of straight ahead about the vertical through the surface's centroid, from
+    :data:`FACE_BELOW_MM` under to :data:`FACE_ABOVE_MM` over its most anterior point within 20 mm of the
+    mid-sagittal line (the nose tip)."""
     pts = head.surface(120, nv, caps=False, uv=False).vertices
     centre = pts[:, :2].mean(axis=0)
-    tip = pronasale(pts, centre)
-    return lambda p: face_window(p, centre, tip)
+    near = np.abs(pts[:, 0] - centre[0]) <= 20.0
+    tip = (pts[near] if near.any() else pts)[np.argmin((pts[near] if near.any() else pts)[:, 1])]
+
+    def window(p):
+        p = np.asarray(p, float)
+        angle = np.degrees(np.arctan2(p[:, 0] - centre[0], -(p[:, 1] - centre[1])))
+        return (np.abs(angle) <= FACE_HALF_ANGLE_DEG) & (p[:, 2] >= tip[2] - FACE_BELOW_MM) \
+            & (p[:, 2] <= tip[2] + FACE_ABOVE_MM)
+    return window
 
 
 def print_resolution(head, chord_mm: float = PRINT_CHORD_MM, edge_mm: float = PRINT_EDGE_MM,

@@ -356,3 +356,48 @@ def test_the_panel_offers_build_ct_detail_when_on_without_a_current_map(ext, pde
     s.modes = 6                                                  # the surface moves: out of date
     count, labels = drawn()
     assert count == 1 and "rebuild the CT detail" in labels
+
+
+def test_the_print_skin_carries_the_detail_at_the_strength_set(ext, reopened):
+    """Export for Printing's skin (:func:`detail_map.print_skin`): the PDE surface at print resolution
+    (chord error within 0.05 mm over the face, at most 2 M triangles, watertight) at strength 0; at strength
+    1 the same mesh moved along its normals by the map; off or out of date, the PDE surface again."""
+    detail, _state, study_cls, coll = reopened
+    E = ext.engine
+    DDX = __import__(E.__name__ + ".pde.detail_displace", fromlist=["x"])
+    s = coll.pdehead
+    study = study_cls.of(coll)
+    s.detail_strength = 0.0
+    flat = detail.print_skin(study)
+    nu, nv = E.print_resolution(study.head)
+    assert flat.is_watertight() and 2 * len(flat.quads) + len(flat.triangles) <= 2_000_000
+    np.testing.assert_array_equal(flat.vertices, study.head.surface(nu, nv, caps=True).vertices)
+    assert DDX.chord_error(study.head, nu, nv, DDX.surface_window(study.head))["max"] <= 0.05
+    s.detail_strength = 1.0
+    moved = detail.print_skin(study)
+    assert moved.is_watertight() and np.array_equal(moved.quads, flat.quads)
+    shift = ((moved.vertices - flat.vertices) * DDX.vertex_normals(flat)).sum(axis=1)
+    rng = E.defaults.DETAIL_MAX_OFFSET.default
+    assert np.abs(shift).max() <= rng + 1e-3 and (np.abs(shift) > 0.5).sum() > 100
+    height = detail.image_height_mm(detail.detail_image(s.surface_object))
+    np.testing.assert_allclose(shift, DDX.vertex_heights(flat, height, DDX._islands(study.head)), atol=1e-6)
+    s.use_detail_map = False
+    np.testing.assert_array_equal(detail.print_skin(study).vertices, flat.vertices)
+    s.use_detail_map = True
+
+
+def test_cli_detail_flag(tmp_path):
+    """--detail STRENGTH: out of range is a usage error naming the flag; in range the exported skin is at
+    print resolution, closed, and the summary's timings hold the detail step."""
+    import json
+    from file_readers import read_stl
+    from test_cli import run_cli
+    bad = run_cli("--phantom", "--no-volume", "--detail", -1, tmp_path=tmp_path)
+    assert bad.returncode == 2 and "--detail" in bad.stderr
+    out, summary = tmp_path / "print", tmp_path / "summary.json"
+    result = run_cli("--phantom", "--no-volume", "--patches", 6, "--skull", "--detail", 1, "--export", out,
+                     "--summary-json", summary, tmp_path=tmp_path)
+    assert result.returncode == 0, result.stderr[-3000:]
+    skin = read_stl(out / "skin.stl")
+    assert skin.is_watertight() and 300_000 < len(skin.triangles) <= 2_000_000
+    assert "detail_map" in json.dumps(json.loads(summary.read_text()))

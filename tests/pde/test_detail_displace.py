@@ -94,3 +94,15 @@ def test_print_resolution_meets_the_chord_error_within_the_budget(sphere_head):
     nu2, nv2 = print_resolution(sphere_head, window=None, max_triangles=100_000)
     small = sphere_head.surface(nu2, nv2, caps=True, uv=False)
     assert 80_000 < 2 * len(small.quads) + len(small.triangles) <= 100_000
+
+
+def test_the_print_window_is_the_visible_face_measures(sphere_head):
+    """The add-on does not ship validation/: its face window repeats surface_metrics.face_window's."""
+    from pdehead_addon.validation import surface_metrics as SM
+    assert (DDX.FACE_HALF_ANGLE_DEG, DDX.FACE_BELOW_MM, DDX.FACE_ABOVE_MM) == \
+        (SM.FACE_HALF_ANGLE_DEG, SM.FACE_BELOW_MM, SM.FACE_ABOVE_MM)
+    pts = sphere_head.surface(120, 256, caps=False, uv=False).vertices
+    centre = pts[:, :2].mean(axis=0)
+    tip = SM.pronasale(pts, centre)
+    probe = np.random.default_rng(1).uniform(-80, 80, (5000, 3))
+    assert np.array_equal(DDX.surface_window(sphere_head)(probe), SM.face_window(probe, centre, tip))
