@@ -347,7 +347,7 @@ def print_skin(study):
     head = study.head
     height, strength = detail_height(study)
     nu, nv = print_resolution(head)
-    return detail_surface(head, height, strength, nu, nv, caps=True)
+    return detail_surface(head, height, strength, nu, nv, caps=True, split=True)
 
 
 def build_detail_map(obj, head, seg, resolution: int, strength: float, enabled: bool = True) -> dict:

@@ -32,7 +32,7 @@ import numpy as np
 from ..core.mesh import Mesh
 
 __all__ = ["sample_map", "vertex_heights", "vertex_normals", "displace_mesh", "detail_surface",
-           "chord_error", "print_resolution", "PRINT_CHORD_MM", "PRINT_EDGE_MM", "PRINT_MAX_TRIANGLES"]
+           "chord_error", "print_resolution", "split_quads", "PRINT_CHORD_MM", "PRINT_EDGE_MM", "PRINT_MAX_TRIANGLES"]
 
 #: The largest chord error of an exported skin (mm): a print layer is ~0.05-0.1 mm, so the facets do not
 #: show in a print.
@@ -117,10 +117,14 @@ def _islands(head) -> dict:
     return uv_islands(float(layout["aspect"]), layout.get("dome_ratio"), layout.get("cap_ratio"))
 
 
-def detail_surface(head, height: np.ndarray | None, strength: float, nu: int, nv: int, caps: bool = True) -> Mesh:
+def detail_surface(head, height: np.ndarray | None, strength: float, nu: int, nv: int, caps: bool = True,
+                   split: bool = False) -> Mesh:
     """The head's surface at ``nu x nv`` with its detail layer at ``strength`` (:func:`displace_mesh`; the
-    plain PDE surface when the strength is 0 or there is no map)."""
+    plain PDE surface when the strength is 0 or there is no map); ``split``: each quad's corners ordered
+    for the split with the smaller chord error (:func:`split_quads`, the exports')."""
     mesh = head.surface(int(nu), int(nv), caps=caps)
+    if split:
+        mesh = split_quads(head, mesh, nu, nv)
     if height is None or float(strength) == 0.0:
         return mesh
     return displace_mesh(mesh, height, strength, _islands(head))
@@ -171,7 +175,7 @@ def chord_error(head, nu: int, nv: int, window=None) -> dict:
     a_next = np.roll(a, -1, axis=1)
     e_col = np.linalg.norm(0.5 * (a + b) - row_mid[:, :], axis=-1)
     e_row = np.linalg.norm(0.5 * (a + a_next) - col_mid[:-1], axis=-1)
-    # either diagonal (the quads' winding decides which one the split uses)
+    # each quad is split along the diagonal whose midpoint lies nearer the surface (:func:`split_quads`)
     e_diag = np.minimum(np.linalg.norm(0.5 * (a + b_next) - centre, axis=-1),
                         np.linalg.norm(0.5 * (b + a_next) - centre, axis=-1))
     along_u = np.maximum(e_col, np.roll(e_col, -1, axis=1))     # the rows' spacing (nu) decides it
@@ -189,6 +193,34 @@ def chord_error(head, nu: int, nv: int, window=None) -> dict:
 #: to ``FACE_ABOVE_MM`` over the nose tip (the visible-face measure's window,
 #: ``validation.surface_metrics.face_window``, which the add-on does not ship).
 FACE_HALF_ANGLE_DEG, FACE_BELOW_MM, FACE_ABOVE_MM = 60.0, 70.0, 60.0
+
+
+def split_quads(head, mesh: Mesh, nu: int, nv: int) -> Mesh:
+    """``head.surface(nu, nv)``'s mesh with each tube quad's corners rotated so that the exports' split
+    along corners 0-2 takes the diagonal whose midpoint lies nearer the surface at the quad's parametric
+    centre (the smaller chord error, :func:`chord_error`); the geometry's vertices are unchanged."""
+    nu, nv = int(nu), int(nv)
+    u = np.linspace(0.0, 1.0, max(nu, 3) if head.vertex is not None else nu)
+    if head.vertex is not None:
+        u = u[:-1]
+    rows = len(u) - 1
+    v, vm = _half_columns(head, nv)
+    grid = getattr(head, "_grid", head.grid)
+    centre = grid(0.5 * (u[:-1] + u[1:]), v=vm).reshape(-1, 3)
+    quads = np.array(mesh.quads[: rows * nv])
+    p = mesh.vertices
+    d02 = np.linalg.norm(0.5 * (p[quads[:, 0]] + p[quads[:, 2]]) - centre, axis=1)
+    d13 = np.linalg.norm(0.5 * (p[quads[:, 1]] + p[quads[:, 3]]) - centre, axis=1)
+    flip = d13 < d02
+    if not flip.any():
+        return mesh
+    out_quads = np.array(mesh.quads)
+    out_quads[: rows * nv][flip] = np.roll(quads[flip], -1, axis=1)
+    quad_uv = None
+    if mesh.quad_uv is not None:
+        quad_uv = np.array(mesh.quad_uv)
+        quad_uv[: rows * nv][flip] = np.roll(quad_uv[: rows * nv][flip], -1, axis=1)
+    return Mesh(mesh.vertices, out_quads, mesh.triangles, quad_uv, mesh.triangle_uv, dict(mesh.vertex_attributes))
 
 
 def surface_window(head, nv: int = 256):

@@ -106,3 +106,25 @@ def test_the_print_window_is_the_visible_face_measures(sphere_head):
     tip = SM.pronasale(pts, centre)
     probe = np.random.default_rng(1).uniform(-80, 80, (5000, 3))
     assert np.array_equal(DDX.surface_window(sphere_head)(probe), SM.face_window(probe, centre, tip))
+
+
+def test_split_quads_takes_the_diagonal_nearer_the_surface(sphere_head):
+    """The exports split quads along corners 0-2: after split_quads that diagonal's midpoint is the nearer
+    one to the surface, the vertices and the closed topology are kept, and the mesh's true chord error at
+    the diagonals is chord_error's."""
+    nu, nv = 30, 64
+    base = sphere_head.surface(nu, nv, caps=True)
+    mesh = DDX.split_quads(sphere_head, base, nu, nv)
+    assert np.array_equal(mesh.vertices, base.vertices) and mesh.is_watertight()
+    assert np.array_equal(np.sort(mesh.quads, axis=1), np.sort(base.quads, axis=1))
+    rows = nu - 2                                            # the dome: the pole row is the fan's vertex
+    u = np.linspace(0, 1, nu)[:-1]
+    v = 2 * np.pi * np.arange(nv) / nv if sphere_head.v_density() is None else sphere_head.v_columns(nv)
+    vm = 0.5 * (v + np.append(v[1:], v[0] + 2 * np.pi))
+    centre = sphere_head.grid(0.5 * (u[:-1] + u[1:]), v=vm).reshape(-1, 3)
+    q = mesh.quads[: rows * nv]
+    p = mesh.vertices
+    d02 = np.linalg.norm(0.5 * (p[q[:, 0]] + p[q[:, 2]]) - centre, axis=1)
+    d13 = np.linalg.norm(0.5 * (p[q[:, 1]] + p[q[:, 3]]) - centre, axis=1)
+    assert np.all(d02 <= d13 + 1e-12)
+    assert d02.max() == pytest.approx(DDX.chord_error(sphere_head, nu, nv)["diagonal_max"], rel=1e-9)
