@@ -31,7 +31,7 @@ import numpy as np
 
 from ..core.mesh import Mesh
 
-__all__ = ["sample_map", "vertex_heights", "vertex_normals", "displace_mesh", "detail_surface",
+__all__ = ["sample_map", "vertex_heights", "vertex_normals", "uv_island_layout", "displace_mesh", "detail_surface",
            "chord_error", "print_resolution", "split_quads", "PRINT_CHORD_MM", "PRINT_EDGE_MM", "PRINT_MAX_TRIANGLES"]
 
 #: The largest chord error of an exported skin (mm): a print layer is ~0.05-0.1 mm, so the facets do not
@@ -95,9 +95,9 @@ def vertex_heights(mesh: Mesh, height: np.ndarray, islands: dict | None = None) 
 
 def vertex_normals(mesh: Mesh) -> np.ndarray:
     """Area-weighted unit vertex normals of an outward-wound mesh (quads split along their 0-2 diagonal)."""
-    from .detail_map import _vertex_normals
+    from .detail_map import area_vertex_normals
     tris = np.concatenate([mesh.quads[:, [0, 1, 2]], mesh.quads[:, [0, 2, 3]], mesh.triangles])
-    return _vertex_normals(mesh.vertices, tris)
+    return area_vertex_normals(mesh.vertices, tris)
 
 
 def displace_mesh(mesh: Mesh, height: np.ndarray, strength: float, islands: dict | None = None) -> Mesh:
@@ -111,7 +111,8 @@ def displace_mesh(mesh: Mesh, height: np.ndarray, strength: float, islands: dict
     return Mesh(moved, mesh.quads, mesh.triangles, mesh.quad_uv, mesh.triangle_uv, dict(mesh.vertex_attributes))
 
 
-def _islands(head) -> dict:
+def uv_island_layout(head) -> dict:
+    """Where the head's UV islands lie (:func:`.surface_uv_map.uv_islands` of its layout)."""
     from .surface_uv_map import uv_islands
     layout = head.uv_layout()
     return uv_islands(float(layout["aspect"]), layout.get("dome_ratio"), layout.get("cap_ratio"))
@@ -127,7 +128,7 @@ def detail_surface(head, height: np.ndarray | None, strength: float, nu: int, nv
         mesh = split_quads(head, mesh, nu, nv)
     if height is None or float(strength) == 0.0:
         return mesh
-    return displace_mesh(mesh, height, strength, _islands(head))
+    return displace_mesh(mesh, height, strength, uv_island_layout(head))
 
 
 def _half_columns(head, nv: int) -> tuple[np.ndarray, np.ndarray]:

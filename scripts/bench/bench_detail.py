@@ -54,10 +54,14 @@ def face_banding(vertices, faces, centre_xy, tip, density: float = 4.0, dz: floa
                  sigma_mm: float = 3.0, seed: int = 0) -> float:
     """RMS (mm) of the face's outermost radius minus its Gaussian of ``sigma_mm`` along z (module docstring)."""
     from scipy.ndimage import gaussian_filter1d
-    from pdehead_addon.validation.surface_metrics import face_window, _area_samples, _face_polar
-    pts, _ = _area_samples(vertices, faces, density, np.random.default_rng(seed))
+    from pdehead_addon.core.mesh_geometry import sample_surface, triangulate
+    from pdehead_addon.validation.surface_metrics import face_window
+    v, t = np.asarray(vertices, float), triangulate(faces)
+    area = 0.5 * np.linalg.norm(np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]), axis=1).sum()
+    pts, _ = sample_surface(v, t, int(area * density), np.random.default_rng(seed))
     pts = pts[face_window(pts, centre_xy, tip)]
-    angle, radius = _face_polar(pts, centre_xy)
+    d = pts[:, :2] - np.asarray(centre_xy, float)[None]
+    angle, radius = np.degrees(np.arctan2(d[:, 0], -d[:, 1])), np.hypot(d[:, 0], d[:, 1])
     a = np.floor(angle + 60.0).astype(int)
     z0 = float(tip[2]) - 70.0
     k = np.floor((pts[:, 2] - z0) / dz).astype(int)
@@ -122,7 +126,7 @@ def run(repeats: int, ge: bool) -> dict:
             row["strengths"] = {}
             for s in STRENGTHS:
                 t0 = time.perf_counter()
-                mesh = DDX.displace_mesh(flat, dmap.height, s, DDX._islands(head))
+                mesh = DDX.displace_mesh(flat, dmap.height, s, DDX.uv_island_layout(head))
                 disp_s = time.perf_counter() - t0
                 r = BS.visible_face(seg, mesh, mc)
                 row["strengths"][f"{s:g}"] = {"score_mean": r["score_mean"], "score_p95": r["score_p95"],

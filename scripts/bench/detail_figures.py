@@ -52,7 +52,7 @@ def main(argv=None) -> int:
         detail.set_detail_shading(obj, s, True)
         tiles.append((f"PDE + CT detail {s:g} (Blender)", obj, s))
     nu, nv = E.print_resolution(head)
-    printed = DDX.displace_mesh(head.surface(nu, nv, caps=True), dmap.height, 1.0, DDX._islands(head))
+    printed = DDX.displace_mesh(head.surface(nu, nv, caps=True), dmap.height, 1.0, DDX.uv_island_layout(head))
     tiles.append((f"skin.stl {nu}x{nv} strength 1", objects.build_mesh_object(printed, coll, "print", smooth=False),
                   None))
     for _, obj, _ in tiles:

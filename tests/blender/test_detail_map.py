@@ -380,7 +380,7 @@ def test_the_print_skin_carries_the_detail_at_the_strength_set(ext, reopened):
     rng = E.defaults.DETAIL_MAX_OFFSET.default
     assert np.abs(shift).max() <= rng + 1e-3 and (np.abs(shift) > 0.5).sum() > 100
     height = detail.image_height_mm(detail.detail_image(s.surface_object))
-    np.testing.assert_allclose(shift, DDX.vertex_heights(flat, height, DDX._islands(study.head)), atol=1e-6)
+    np.testing.assert_allclose(shift, DDX.vertex_heights(flat, height, DDX.uv_island_layout(study.head)), atol=1e-6)
     s.use_detail_map = False
     np.testing.assert_array_equal(detail.print_skin(study).vertices, flat.vertices)
     s.use_detail_map = True
