@@ -31,6 +31,9 @@ def main(argv=None) -> int:
     ap.add_argument("--samples", type=int, default=16)
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "figures")
     ap.add_argument("--views", default="FRONT,THREE_QUARTER")
+    ap.add_argument("--zoom", action="store_true",
+                    help="detail_face_zoom.png: the eyes and nose only (35 mm either side, 25 mm under to 45 mm "
+                         "over the nose tip), front and from below-front (the nostrils)")
     args = ap.parse_args(argv)
     bl = _common.blender()
     bpy, objects, render, detail = bl["bpy"], bl["objects"], bl["render"], bl["detail_map"]
@@ -59,6 +62,13 @@ def main(argv=None) -> int:
         obj.data.materials.append(objects.ensure_skin_material())
     lo = 0.001 * (tip + np.array([-60.0, 0.0, -70.0]))
     hi = 0.001 * (tip + np.array([60.0, 60.0, 60.0]))
+    if args.zoom:
+        # the nostrils are seen from below and in front (the camera looks up and back)
+        render.VIEWS.setdefault("BELOW_FRONT", ((0.0, 0.75, 0.66), (0.0, 0.0, 1.0)))
+        lo = 0.001 * (tip + np.array([-35.0, 0.0, -25.0]))
+        hi = 0.001 * (tip + np.array([35.0, 40.0, 45.0]))
+        tiles = [tiles[0], tiles[1], tiles[3]]
+        args.views = "FRONT,BELOW_FRONT"
     tmp = args.out / ".tile_detail.png"
     rows = []
     for view in args.views.split(","):
@@ -72,7 +82,7 @@ def main(argv=None) -> int:
             row.append(im)
         rows.append(row)
     tmp.unlink(missing_ok=True)
-    sheet(rows, args.out / "detail_face.png")
+    sheet(rows, args.out / ("detail_face_zoom.png" if args.zoom else "detail_face.png"))
     return 0
 
 
