@@ -32,7 +32,7 @@ import numpy as np
 from ..core.mesh import Mesh
 
 __all__ = ["sample_map", "vertex_heights", "vertex_normals", "uv_island_layout", "displace_mesh", "detail_surface",
-           "chord_error", "print_resolution", "split_quads", "PRINT_CHORD_MM", "PRINT_EDGE_MM", "PRINT_MAX_TRIANGLES"]
+           "chord_error", "print_resolution", "print_rows", "split_quads", "PRINT_CHORD_MM", "PRINT_EDGE_MM", "PRINT_MAX_TRIANGLES"]
 
 #: The largest chord error of an exported skin (mm): a print layer is ~0.05-0.1 mm, so the facets do not
 #: show in a print.
@@ -119,13 +119,14 @@ def uv_island_layout(head) -> dict:
 
 
 def detail_surface(head, height: np.ndarray | None, strength: float, nu: int, nv: int, caps: bool = True,
-                   split: bool = False) -> Mesh:
+                   split: bool = False, rows=None) -> Mesh:
     """The head's surface at ``nu x nv`` with its detail layer at ``strength`` (:func:`displace_mesh`; the
     plain PDE surface when the strength is 0 or there is no map); ``split``: each quad's corners ordered
-    for the split with the smaller chord error (:func:`split_quads`, the exports')."""
-    mesh = head.surface(int(nu), int(nv), caps=caps)
+    for the split with the smaller chord error (:func:`split_quads`, the exports'); ``rows``: the rows' u
+    (:func:`print_rows`)."""
+    mesh = head.surface(int(nu), int(nv), caps=caps, rows=rows)
     if split:
-        mesh = split_quads(head, mesh, nu, nv)
+        mesh = split_quads(head, mesh, nu, nv, rows)
     if height is None or float(strength) == 0.0:
         return mesh
     return displace_mesh(mesh, height, strength, uv_island_layout(head))
@@ -138,7 +139,7 @@ def _half_columns(head, nv: int) -> tuple[np.ndarray, np.ndarray]:
     return v, 0.5 * (v + nxt)
 
 
-def chord_error(head, nu: int, nv: int, window=None) -> dict:
+def chord_error(head, nu: int, nv: int, window=None, rows=None) -> dict:
     """How far the flat triangles of ``head.surface(nu, nv)`` leave the surface (mm).
 
     Measured on the tube's quads (split along their 0-2 diagonal, as the exports split them): at the
@@ -150,7 +151,9 @@ def chord_error(head, nu: int, nv: int, window=None) -> dict:
     ----------
     window : callable, optional
         ``window(points) -> bool mask``: only the quads whose centres it keeps (e.g.
-        :func:`~..validation.surface_metrics.face_window`).
+        :func:`surface_window`).
+    rows : ndarray, optional
+        The rows' u (:func:`print_rows`) instead of ``nu`` evenly spaced.
 
     Returns
     -------
@@ -160,7 +163,7 @@ def chord_error(head, nu: int, nv: int, window=None) -> dict:
         ``diagonal_max``; ``quads``.
     """
     nu, nv = int(nu), int(nv)
-    u = np.linspace(0.0, 1.0, max(nu, 3) if head.vertex is not None else nu)
+    u = np.linspace(0.0, 1.0, max(nu, 3) if head.vertex is not None else nu) if rows is None else np.asarray(rows)
     if head.vertex is not None:
         u = u[:-1]                                     # the pole row is the fan's single vertex
     um = 0.5 * (u[:-1] + u[1:])
@@ -196,12 +199,12 @@ def chord_error(head, nu: int, nv: int, window=None) -> dict:
 FACE_HALF_ANGLE_DEG, FACE_BELOW_MM, FACE_ABOVE_MM = 60.0, 70.0, 60.0
 
 
-def split_quads(head, mesh: Mesh, nu: int, nv: int) -> Mesh:
+def split_quads(head, mesh: Mesh, nu: int, nv: int, rows=None) -> Mesh:
     """``head.surface(nu, nv)``'s mesh with each tube quad's corners rotated so that the exports' split
     along corners 0-2 takes the diagonal whose midpoint lies nearer the surface at the quad's parametric
     centre (the smaller chord error, :func:`chord_error`); the geometry's vertices are unchanged."""
     nu, nv = int(nu), int(nv)
-    u = np.linspace(0.0, 1.0, max(nu, 3) if head.vertex is not None else nu)
+    u = np.linspace(0.0, 1.0, max(nu, 3) if head.vertex is not None else nu) if rows is None else np.asarray(rows)
     if head.vertex is not None:
         u = u[:-1]
     rows = len(u) - 1
@@ -242,15 +245,42 @@ def surface_window(head, nv: int = 256):
     return window
 
 
+#: Rows outside the face's band of u are this much sparser than over the face (:func:`print_rows`).
+PRINT_ROWS_OUTSIDE = 0.4
+
+
+def print_rows(head, nu: int, window=None, outside: float = PRINT_ROWS_OUTSIDE) -> np.ndarray:
+    """The u of ``nu`` rows, evenly spaced over the band of u that ``window`` (:func:`surface_window`) keeps
+    and ``outside`` times as dense elsewhere (the neck and the crown need fewer rows than the face); evenly
+    spaced without a window."""
+    nu = max(int(nu), 3)
+    if window is None:
+        return np.linspace(0.0, 1.0, nu)
+    probe = head.surface(120, 256, caps=False, uv=False)
+    keep = np.asarray(window(probe.vertices), bool)
+    if not keep.any():
+        return np.linspace(0.0, 1.0, nu)
+    u_kept = probe.vertex_attributes["u"][keep]
+    lo, hi = float(u_kept.min()) - 2.0 / 119, float(u_kept.max()) + 2.0 / 119
+    fine = np.linspace(0.0, 1.0, 4001)
+    weight = np.where((fine >= lo) & (fine <= hi), 1.0, float(outside))
+    cdf = np.concatenate([[0.0], np.cumsum(0.5 * (weight[1:] + weight[:-1]))])
+    rows = np.interp(np.linspace(0.0, 1.0, nu), cdf / cdf[-1], fine)
+    rows[0], rows[-1] = 0.0, 1.0
+    return rows
+
+
 def print_resolution(head, chord_mm: float = PRINT_CHORD_MM, edge_mm: float = PRINT_EDGE_MM,
-                     max_triangles: int = PRINT_MAX_TRIANGLES, window="face") -> tuple[int, int]:
-    """Rows and columns (nu, nv) of a print-resolution mesh of ``head``'s surface.
+                     max_triangles: int = PRINT_MAX_TRIANGLES, window="face") -> tuple[np.ndarray, int]:
+    """Rows and columns of a print-resolution mesh of ``head``'s surface: (the rows' u, nv), for
+    ``head.surface(len(rows), nv, rows=rows)``.
 
     The tube's length along its spine and its largest circumference give the counts for edges of
-    ``edge_mm``. Then each count grows with the chord error its own edges leave (:func:`chord_error`; a
-    chord error falls with the square of the edge: the count times ``sqrt(error / chord_mm)``) until the
-    largest is within ``chord_mm`` over ``window`` ("face": :func:`surface_window`; None: everywhere), and
-    both are scaled down together when ``2 nu nv`` (the tube's triangles) would pass ``max_triangles``.
+    ``edge_mm``; the rows are :func:`print_rows` (denser over ``window``'s band: "face" for
+    :func:`surface_window`, None for even rows). Then each count grows with the chord error its own edges
+    leave (:func:`chord_error`; a chord error falls with the square of the edge: the count times
+    ``sqrt(error / chord_mm)``) until the largest is within ``chord_mm`` over ``window`` (everywhere
+    without one), and both are scaled down together when the triangles would pass ``max_triangles``.
     """
     if isinstance(window, str):
         window = surface_window(head)
@@ -270,7 +300,7 @@ def print_resolution(head, chord_mm: float = PRINT_CHORD_MM, edge_mm: float = PR
         return max(3, int(a * k)), max(8, int(b * k))
     nu, nv = fit(nu, nv)
     for _ in range(4):
-        err = chord_error(head, nu, nv, window)
+        err = chord_error(head, nu, nv, window, rows=print_rows(head, nu, window))
         if err["max"] <= chord_mm or nu * nv >= budget * 0.98:
             break
         grow_u = np.sqrt(max(err["rows_max"], err["diagonal_max"]) / chord_mm) * 1.05
@@ -284,4 +314,4 @@ def print_resolution(head, chord_mm: float = PRINT_CHORD_MM, edge_mm: float = PR
             break
         k = np.sqrt(max_triangles / count) * 0.995
         nu, nv = max(3, int(nu * k)), max(8, int(nv * k))
-    return nu, nv
+    return print_rows(head, nu, window), nv

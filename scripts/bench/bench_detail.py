@@ -94,15 +94,16 @@ def run(repeats: int, ge: bool) -> dict:
         seg = load_segmentation(name)
         head = E.solve_pde(E.extract_boundaries(seg, patches=t, selection=D.SELECTION.default))
         t0 = time.perf_counter()
-        nu, nv = E.print_resolution(head)
+        rows, nv = E.print_resolution(head)
+        nu = len(rows)
         pr_s = time.perf_counter() - t0
         window = DDX.surface_window(head)
         row: dict = {"t": t, "print": {"nu": nu, "nv": nv, "seconds": pr_s,
-                                       "chord_face": DDX.chord_error(head, nu, nv, window),
-                                       "chord_all": DDX.chord_error(head, nu, nv),
+                                       "chord_face": DDX.chord_error(head, nu, nv, window, rows=rows),
+                                       "chord_all": DDX.chord_error(head, nu, nv, rows=rows),
                                        "viewport_chord_face": DDX.chord_error(head, D.NU.default, D.NV.default,
                                                                               window)}}
-        flat = DDX.split_quads(head, head.surface(nu, nv, caps=True), nu, nv)      # as Export for Printing
+        flat = DDX.split_quads(head, head.surface(nu, nv, caps=True, rows=rows), nu, nv, rows)  # as the export
         row["print"]["triangles"] = int(2 * len(flat.quads) + len(flat.triangles))
         row["print"]["watertight"] = bool(flat.is_watertight())
         if name == "cthead":

@@ -54,8 +54,9 @@ def main(argv=None) -> int:
         detail.set_detail_image(obj, dmap.height, dmap.meta["max_mm"])
         detail.set_detail_shading(obj, s, True)
         tiles.append((f"PDE + CT detail {s:g} (Blender)", obj, s))
-    nu, nv = E.print_resolution(head)
-    printed = DDX.displace_mesh(head.surface(nu, nv, caps=True), dmap.height, 1.0, DDX.uv_island_layout(head))
+    rows, nv = E.print_resolution(head)
+    nu = len(rows)
+    printed = E.detail_surface(head, dmap.height, 1.0, nu, nv, split=True, rows=rows)
     tiles.append((f"skin.stl {nu}x{nv} strength 1", objects.build_mesh_object(printed, coll, "print", smooth=False),
                   None))
     for _, obj, _ in tiles:

@@ -83,7 +83,9 @@ def test_chord_error_falls_with_the_square_of_the_edge(sphere_head):
 
 
 def test_print_resolution_meets_the_chord_error_within_the_budget(sphere_head):
-    nu, nv = print_resolution(sphere_head, window=None)
+    rows, nv = print_resolution(sphere_head, window=None)
+    nu = len(rows)
+    np.testing.assert_allclose(rows, np.linspace(0, 1, nu))            # no window: even rows
     err = DDX.chord_error(sphere_head, nu, nv)
     assert err["max"] <= DDX.PRINT_CHORD_MM, err
     mesh = sphere_head.surface(nu, nv, caps=True, uv=False)
@@ -91,8 +93,8 @@ def test_print_resolution_meets_the_chord_error_within_the_budget(sphere_head):
     # the edges carry a 1 mm feature: at most PRINT_EDGE_MM along the equator
     assert 2 * np.pi * R / nv <= DDX.PRINT_EDGE_MM * 1.01
     # a tight budget is kept (the counts scale down together)
-    nu2, nv2 = print_resolution(sphere_head, window=None, max_triangles=100_000)
-    small = sphere_head.surface(nu2, nv2, caps=True, uv=False)
+    rows2, nv2 = print_resolution(sphere_head, window=None, max_triangles=100_000)
+    small = sphere_head.surface(len(rows2), nv2, caps=True, uv=False)
     assert 80_000 < 2 * len(small.quads) + len(small.triangles) <= 100_000
 
 
@@ -128,3 +130,26 @@ def test_split_quads_takes_the_diagonal_nearer_the_surface(sphere_head):
     d13 = np.linalg.norm(0.5 * (p[q[:, 1]] + p[q[:, 3]]) - centre, axis=1)
     assert np.all(d02 <= d13 + 1e-12)
     assert d02.max() == pytest.approx(DDX.chord_error(sphere_head, nu, nv)["diagonal_max"], rel=1e-9)
+
+
+def test_print_rows_are_denser_over_the_face_and_the_mesh_stays_closed(sphere_head, outer_map):
+    """print_rows: rows evenly spaced over the window's band of u, PRINT_ROWS_OUTSIDE as dense elsewhere;
+    the surface at those rows is closed, its UVs the same function of (u, v) (the map's displacement at
+    strength 1 reaches the ball as with even rows)."""
+    window = DDX.surface_window(sphere_head)
+    rows = DDX.print_rows(sphere_head, 120, window)
+    assert rows[0] == 0.0 and rows[-1] == 1.0 and np.all(np.diff(rows) > 0)
+    step = np.diff(rows)
+    assert step.max() / step.min() == pytest.approx(1.0 / DDX.PRINT_ROWS_OUTSIDE, rel=0.05)
+    mesh = detail_surface(sphere_head, outer_map.height, 1.0, 120, 128, rows=rows, split=True)
+    even = detail_surface(sphere_head, outer_map.height, 1.0, 120, 128)
+    assert mesh.is_watertight()
+    side = lambda m: np.abs(m.vertices[:, 2]) < 30.0                                  # noqa: E731
+    r_rows = np.linalg.norm(mesh.vertices[side(mesh)], axis=1)
+    r_even = np.linalg.norm(even.vertices[side(even)], axis=1)
+    assert abs(np.median(r_rows) - np.median(r_even)) < 0.02 and abs(np.median(r_rows) - (R + 1.5)) < 0.15
+    with pytest.raises(Exception):
+        sphere_head.surface(5, 32, rows=np.array([0.0, 0.5, 0.4, 0.8, 1.0]))
+    # the chord error over the window at the same counts is smaller with the denser face rows
+    assert DDX.chord_error(sphere_head, 60, 128, window, rows=DDX.print_rows(sphere_head, 60, window))["rows_max"] \
+        < DDX.chord_error(sphere_head, 60, 128, window)["rows_max"]
