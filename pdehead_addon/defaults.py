@@ -202,8 +202,9 @@ USE_CUTTER = _param("use_cutter", False,
 #: surface along its normals (a Displace modifier after a subdivision in Blender,
 #: :func:`pdehead_addon.pde.detail_displace.detail_surface` for the exports). 1024 x 1024 is about 0.6 mm a
 #: texel on CThead's tube (its eyelid line is ~1 mm high). Off by default: building it costs seconds and
-#: ~0.4 GB (CThead), which Run Pipeline's <= 5 s cannot carry; on, Run Pipeline builds it, and the Surface
-#: panel's *Build CT Detail* builds it on request. Strength 0 (the default) is the PDE surface itself.
+#: ~0.4 GB (CThead, docs/method.md "The closed eyes: a CT detail map"), which Run Pipeline's <= 5 s
+#: cannot carry; on, Run Pipeline builds it, and the Surface panel's *Build CT Detail* builds it on
+#: request. Strength 0 (the default) is the PDE surface itself.
 USE_DETAIL_MAP = _param("use_detail_map", False,
                         description="The CT detail layer: the CT's fine relief (eyelids, lips, nostrils) as a "
                                     "displacement of the smooth PDE surface along its normals, at Detail Strength "

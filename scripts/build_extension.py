@@ -23,8 +23,13 @@ What it does:
    (the tracked manifest is never modified, so the repo stays clean).
 3. runs Blender's own extension builder (``bl_pkg/cli/blender_ext.py build
    --split-platforms``) from the installed ``bpy`` package.
+4. writes a remote-repository index for the output folder with the same tool's ``server-generate``
+   (``index.json`` and a browsable ``index.html``): every extension zip in the folder is listed with
+   its platforms, size and hash, so the folder, served over HTTP or as a local path, can be added in
+   Blender's *Preferences > Get Extensions > Repositories > Add Remote Repository* and Blender offers
+   the update when a newer zip appears there. ``--no-repository-index`` leaves it out.
 
-Prints the path of every zip built, one per line, after "built:".
+Prints the path of every zip built, one per line, after "built:", then the index's path.
 """
 from __future__ import annotations
 
@@ -500,18 +505,50 @@ def verify_zip(zip_path: Path, pythons: tuple[str, ...] = PYTHON_VERSIONS,
     return problems
 
 
+def write_repository_index(folder: Path) -> Path:
+    """Blender's remote-repository listing of every extension zip in ``folder``: ``index.json`` (and
+    ``index.html``), written by Blender's own ``blender_ext.py server-generate``.
+
+    The listing is generated in a private copy of the folder's zips' names and moved in atomically,
+    so a server reading the folder never sees a half-written index. Returns the index's path.
+    """
+    import tempfile
+    zips = sorted(folder.glob("*.zip"))
+    if not zips:
+        raise SystemExit(f"{folder}: no extension zip to list in a repository index")
+    with tempfile.TemporaryDirectory(prefix=".repository-", dir=folder) as private:
+        staging = Path(private)
+        for z in zips:  # links (or copies where links are not allowed): the tool only reads them
+            try:
+                os.link(z, staging / z.name)
+            except OSError:
+                shutil.copy2(z, staging / z.name)
+        cmd = [sys.executable, str(blender_ext_script()), "server-generate", "--repo-dir", str(staging), "--html"]
+        result = subprocess.run(cmd, capture_output=True, text=True)
+        if result.returncode or not (staging / "index.json").is_file():
+            raise SystemExit(f"Blender's server-generate failed for {folder}:\n{result.stdout}\n{result.stderr}")
+        for name in ("index.html", "index.json"):  # the JSON last: it is what Blender reads
+            if (staging / name).is_file():
+                os.replace(staging / name, folder / name)
+    return folder / "index.json"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--platform", action="append", choices=sorted(PLATFORM_TAGS),
                         help="build only this platform (repeatable); default: all four")
     parser.add_argument("--output-dir", type=Path, default=ROOT / "dist",
                         help="folder for the zips (created if missing); default: dist/")
+    parser.add_argument("--no-repository-index", action="store_true",
+                        help="do not write the remote-repository index (index.json, index.html) of the folder")
     args = parser.parse_args(argv)
     platforms = args.platform or list(PLATFORM_TAGS)
     zips = build(platforms, args.output_dir.resolve())
     print("built:")
     for z in zips:
         print(z)
+    if not args.no_repository_index:
+        print(f"repository index: {write_repository_index(args.output_dir.resolve())}")
     return 0
 
 

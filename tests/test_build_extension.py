@@ -15,6 +15,8 @@ import sys
 import zipfile
 from pathlib import Path
 
+import pytest
+
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "scripts" / "build_extension.py"
@@ -137,6 +139,71 @@ def test_wheel_that_is_not_what_its_name_says_is_refused(tmp_path):
     assert not list((tmp_path / "dist").glob("*.zip")) and "Traceback" not in log
 
 
+def assert_repository_lists(folder: Path, zip_names: list[str]) -> None:
+    """``folder/index.json`` is a Blender remote-repository listing of exactly ``zip_names``: each entry's
+    relative archive URL, size and sha256 hash those of the file beside it, its id and platforms the zip's."""
+    import hashlib
+    index = json.loads((folder / "index.json").read_text())
+    assert index["version"] == "v1", index
+    entries = index["data"]
+    assert sorted(e["archive_url"] for e in entries) == sorted(f"./{n}" for n in zip_names), entries
+    for entry in entries:
+        path = folder / entry["archive_url"][2:]
+        assert entry["id"] == "pdehead" and entry["type"] == "add-on", entry
+        assert entry["archive_size"] == path.stat().st_size
+        assert entry["archive_hash"] == "sha256:" + hashlib.sha256(path.read_bytes()).hexdigest()
+        assert entry["platforms"] == [B.zip_platform(path)], entry
+    assert "pdehead" in (folder / "index.html").read_text()
+    assert not [p for p in folder.iterdir() if p.name.startswith(".")], list(folder.iterdir())
+
+
+INSTALL_FROM_REPOSITORY = """
+import os, sys
+os.environ["BLENDER_USER_RESOURCES"] = sys.argv[2]
+import bpy
+prefs = bpy.context.preferences
+prefs.system.use_online_access = True
+repo_dir = os.path.join(sys.argv[2], "repo")
+prefs.extensions.repos.new(name="PDE Head", module="pdehead_dist", custom_directory=repo_dir, remote_url=sys.argv[1])
+assert bpy.ops.extensions.repo_sync_all() == {"FINISHED"}
+index = next(i for i, r in enumerate(prefs.extensions.repos) if r.module == "pdehead_dist")
+assert bpy.ops.extensions.package_install(repo_index=index, pkg_id="pdehead") == {"FINISHED"}
+assert os.path.isfile(os.path.join(repo_dir, "pdehead", "blender_manifest.toml"))
+print("enabled:", *[m for m in prefs.addons.keys() if m.endswith(".pdehead")])
+"""
+
+
+def test_repository_index_follows_the_folder(tmp_path):
+    """A build writes the folder's repository index (regenerated the same way when asked again); with
+    --no-repository-index only the zip is written; a folder without a zip gets no index but an error."""
+    dist = tmp_path / "dist"
+    dist.mkdir()
+    cache = wheel_cache_copy(tmp_path / "cache")
+    code, log = finish(build(cache, dist))
+    assert code == 0, log[-3000:]
+    [zip_path] = list(dist.glob("*.zip"))
+    assert f"repository index: {dist / 'index.json'}" in log
+    assert_repository_lists(dist, [zip_path.name])
+    B.write_repository_index(dist)  # idempotent: the same listing
+    assert_repository_lists(dist, [zip_path.name])
+    # Blender, as a user sets it up: the folder's index.json added as a remote repository, synced, and the
+    # extension installed from it (in a child process: this one may have the extension installed already)
+    result = subprocess.run([sys.executable, "-c", INSTALL_FROM_REPOSITORY, (dist / "index.json").as_uri(),
+                             str(tmp_path / "user")], capture_output=True, text=True, timeout=1200)
+    assert result.returncode == 0, (result.stdout + result.stderr)[-3000:]
+    assert "enabled: bl_ext.pdehead_dist.pdehead" in result.stdout, result.stdout[-3000:]
+    bare = tmp_path / "bare"
+    env = dict(os.environ, PDEHEAD_CACHE=str(cache))
+    result = subprocess.run([sys.executable, str(SCRIPT), "--platform", PLATFORM, "--output-dir", str(bare),
+                             "--no-repository-index"], capture_output=True, text=True, env=env)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert sorted(p.name for p in bare.iterdir()) == [zip_path.name]
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(SystemExit, match="no extension zip"):
+        B.write_repository_index(empty)
+
+
 def test_two_builds_at_once_give_identical_verified_zips(tmp_path):
     """Two builds started together on one cache (no index yet) and one source tree."""
     cache = wheel_cache_copy(tmp_path / "cache")
@@ -148,6 +215,8 @@ def test_two_builds_at_once_give_identical_verified_zips(tmp_path):
     assert zips[0].name == zips[1].name == "pdehead-0.1.0-linux_x64.zip"
     assert zips[0].read_bytes() == zips[1].read_bytes()
     assert B.verify_zip(zips[0]) == []
+    for folder in (tmp_path / "dist1", tmp_path / "dist2"):
+        assert_repository_lists(folder, [zips[0].name])
     # and a build started later, on the now-indexed cache, gives the same bytes (no build time in the zip)
     code, log = finish(build(cache, tmp_path / "dist3"))
     assert code == 0, log[-3000:]

@@ -1,4 +1,4 @@
-"""Issue 25: the README's layout table is the tree: every engine subpackage has a row, and the row names
+"""The layout table of docs/development.md is the tree: every engine subpackage has a row, and the row names
 each of its modules (and nothing that is not there)."""
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ ENGINE = ROOT / "pdehead_addon"
 
 
 def layout_rows() -> dict[str, str]:
-    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    text = (ROOT / "docs" / "development.md").read_text(encoding="utf-8")
     section = text.split("## Layout", 1)[1].split("\n## ", 1)[0]
     return {m.group(1): m.group(2) for m in re.finditer(r"^\| `(pdehead_addon/[\w/]*)` \| (.*) \|$", section, re.M)}
 
@@ -24,12 +24,12 @@ def test_every_subpackage_has_a_row_naming_its_modules():
     assert subpackages(), "no engine subpackages found"
     for pkg in subpackages():
         key = f"pdehead_addon/{pkg.name}/"
-        assert key in rows, f"README layout table has no row for {key}"
+        assert key in rows, f"docs/development.md layout table has no row for {key}"
         named = set(re.findall(r"`(\w+)`", rows[key]))
         modules = {p.stem for p in pkg.rglob("*.py") if p.stem != "__init__" and "__pycache__" not in p.parts} | {
             p.parent.name for p in pkg.rglob("__init__.py") if p.parent != pkg}
-        assert modules - named == set(), f"{key}: the README does not name {sorted(modules - named)}"
-        assert named - modules == set(), f"{key}: the README names {sorted(named - modules)}, not in the tree"
+        assert modules - named == set(), f"{key}: docs/development.md does not name {sorted(modules - named)}"
+        assert named - modules == set(), f"{key}: docs/development.md names {sorted(named - modules)}, not in the tree"
     assert set(rows) - {"pdehead_addon/"} == {f"pdehead_addon/{p.name}/" for p in subpackages()}
 
 
@@ -47,12 +47,12 @@ def test_the_engine_top_level_is_only_the_api_and_the_defaults():
 
 def test_the_scripts_rows_name_every_script():
     """The `scripts/` and `scripts/bench/` rows name each script in that folder, and nothing that is not there."""
-    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    text = (ROOT / "docs" / "development.md").read_text(encoding="utf-8")
     section = text.split("## Layout", 1)[1].split("\n## ", 1)[0]
     rows = {m.group(1): m.group(2) for m in re.finditer(r"^\| `(scripts/[\w/]*)` \| (.*) \|$", section, re.M)}
     assert set(rows) == {"scripts/", "scripts/bench/"}, sorted(rows)
     for key, row in rows.items():
         named = set(re.findall(r"`(\w+\.(?:py|sh))`", row))
         files = {p.name for p in (ROOT / key).iterdir() if p.suffix in (".py", ".sh")}
-        assert files - named == set(), f"{key}: the README does not name {sorted(files - named)}"
-        assert named - files == set(), f"{key}: the README names {sorted(named - files)}, not in the folder"
+        assert files - named == set(), f"{key}: docs/development.md does not name {sorted(files - named)}"
+        assert named - files == set(), f"{key}: docs/development.md names {sorted(named - files)}, not in the folder"

@@ -358,7 +358,7 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
     scan's stored units): a CT and the same CT with every voxel below the level set to air give the same
     skull. Soft tissue, when there is any, only serves to find the default level.
 
-    The level (stored units; :data:`DEFAULT_BONE_HU` and the rules below are documented in the README):
+    The level (stored units; :data:`DEFAULT_BONE_HU` and the rules below are documented in docs/forensic_guide.md):
 
     * ``bone_level`` given (``--bone-level``): that;
     * HU-calibrated scans: half way between the soft-tissue mode and the bone mode of the head's histogram

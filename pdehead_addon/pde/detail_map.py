@@ -386,7 +386,7 @@ def ct_detail_map(head, mask: np.ndarray, ct, resolution: int = D.DETAIL_RESOLUT
     Notes
     -----
     Cost on CThead (256 x 256 x 113 voxels, t = 15) at 1024 x 1024 (~530k texels covered), 2 shared cores
-    (README, "The closed eyes: a CT detail map"): ~2.6 s of CPU (the branch's first version 3.2 s): the
+    (docs/method.md, "The closed eyes: a CT detail map"): ~2.6 s of CPU (the branch's first version 3.2 s): the
     mask's Gaussian ~0.2 s, the texels (the surface meshed at ~1M vertices and rasterised) ~1.2 s,
     sampling ~1 s (13 samples a texel where sampling every 0.25 mm took 25), softening and gutters
     0.1 s; ~0.3 GB at its peak (the texel mesh and its rasterised triangles, in chunks).

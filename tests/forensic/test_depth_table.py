@@ -34,7 +34,7 @@ def test_default_table_values_citation_and_provenance():
     assert "Int J Legal Med 138(2):519-535 (2024), doi:10.1007/s00414-023-03087-x" in t.citation
     assert t.provenance == PROVENANCE
     assert "normal" in t.convention
-    readme = (ROOT / "README.md").read_text()
+    readme = (ROOT / "docs" / "forensic_guide.md").read_text()
     assert PROVENANCE in " ".join(readme.split())
     # every code of the issue, with its mean and SD, on both sides where bilateral
     assert len(t) == 14 + 2 * 11

@@ -386,9 +386,9 @@ def test_ears_at_the_porions(model, face, phantom_bone):
     _, lms, _ = phantom_bone
     ears = model._ear_shape()
     assert ears is not None and face.provenance["ears"].startswith("default ear")
-    # the README's limits and the provenance say the same: a default ear at the porions found, not none
+    # the forensic guide's limits and the provenance say the same: a default ear at the porions found, not none
     assert "at Porion L and Porion R" in face.provenance["ears"]
-    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    readme = (Path(__file__).resolve().parents[2] / "docs" / "forensic_guide.md").read_text()
     assert "The ears are not modelled" not in readme and "The ears are one default shape" in readme
     saved = model.__dict__["_ears"]
     try:
