@@ -10,13 +10,18 @@ from __future__ import annotations
 
 import bpy
 
-from . import animation, face, forensic, forensic_props, ops, panel, persistence, prefs, props, state, study_handlers
+from . import animation, detail_map, face, forensic, forensic_props, ops, panel, persistence, prefs, props, state, study_handlers
 
 
 @bpy.app.handlers.persistent
 def pdehead_load_post(*_args) -> None:
     """After a file is loaded: forget cached CT/segmentations of studies it does not contain."""
     present = {state.settings(c).study_id for c in state.studies()}
+    try:                                  # a file saved with the CT detail as bump: the displacement now
+        detail_map.reopen_with_displacement()
+    except Exception:  # noqa: BLE001 - a load handler must never stop the load
+        import traceback
+        traceback.print_exc()
     for study_id in state.cached_study_ids():
         if study_id not in present:
             state.drop_cache(study_id)

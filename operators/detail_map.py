@@ -1,21 +1,29 @@
-"""The surface's CT detail map in Blender: a 16-bit height image in the surface's UVs, shaded as bump.
+"""The surface's CT detail layer in Blender: a 16-bit height image in the surface's UVs, applied as real
+displacement of the PDE surface along its normals.
 
 The engine (:func:`pdehead_addon.ct_detail_map`) gives per texel the offset (mm) along the PDE surface's
 outward normal from the surface to the CT's skin. Here it becomes the image "PDE Head Detail <surface>"
-(non-colour, 0.5 + mm / (2 x range); a 16-bit PNG packed into the .blend, so a saved file reopens with it) and
-the surface's own skin material ("PDE Head Skin <surface>": a copy of the shared skin material) reads it
-through the UV map ``UVMap`` into a Displacement node (midlevel 0.5, scale = strength x 2 range x 0.001: the
-surface's object space is metres, world = LPS mm x 0.001) on the Material Output's Displacement, with the material's
-displacement method "Bump only": the shading shows the eyelids, lips and nose wings, the geometry and the
-exports stay the smooth PDE surface.
+(non-colour, 0.5 + mm / (2 x range); a 16-bit PNG packed into the .blend, so a saved file reopens with it),
+an image texture of the same name, and two modifiers on the surface: a Catmull-Clark subdivision
+(:data:`SUBDIV_LEVELS`: the viewport's 2 mm rows become 0.5 mm, dense enough for a 1 mm eyelid line) and
+a Displace modifier reading the texture through the UV map ``UVMap`` along the normals (midlevel 0.5,
+strength = detail strength x 2 range x 0.001: the surface's object space is metres, world = LPS mm x
+0.001). The strength follows the study's ``detail_strength`` through a driver, so it animates like the
+other settings (keyframes on the settings object, Render Animation). At strength 0 (the default) and while
+the layer is off or out of date both modifiers are off: the surface is the PDE surface and the live
+sliders pay nothing for the layer. Export for Printing displaces its print-resolution skin by the same map
+and strength in the engine (:func:`print_skin`).
+
+A file saved with the earlier bump (the map wired into the skin material's Displacement, "Bump only")
+reopens with the displacement: :func:`set_detail_shading` unplugs the bump and adds the modifiers.
 
 Off by default (``use_detail_map``): Run Pipeline builds it only when it is on, and turning it on never
 builds it inside the property's update (that would block the UI for seconds): the Surface panel then
 shows *Build CT Detail* (:class:`~.ops.PDEHEAD_OT_build_detail_map`: modal with progress, Esc keeps the old
 map; synchronous from scripts). A live change of the PDE moves the surface away from the map's: the map is
-then marked out of date and its bump unplugged (not left silently stale) until it is rebuilt (*Rebuild CT
-Detail*, or Run Pipeline): rebuilding costs seconds (~2.6 s of CPU at 1024 x 1024 on CThead), far beyond a
-slider's 100 ms step. nu, nv and caps do not change the map (the UVs are a function of (u, v)).
+then marked out of date and its displacement turned off (not left silently stale) until it is rebuilt
+(*Rebuild CT Detail*, or Run Pipeline): rebuilding costs seconds (~2.6 s of CPU at 1024 x 1024 on CThead),
+far beyond a slider's 100 ms step. nu, nv and caps do not change the map (the UVs are a function of (u, v)).
 """
 from __future__ import annotations
 
@@ -30,6 +38,10 @@ DETAIL_IMAGE_KEY = "pdehead_detail_image"
 DETAIL_MATERIAL_KEY = "pdehead_detail_material"
 RANGE_KEY = "pdehead_detail_range_mm"
 IMAGE_NODE, UV_NODE, BUMP_NODE = "CT detail", "CT detail UV", "CT detail bump"
+SUBDIV_MOD, DISPLACE_MOD = "CT detail subdivision", "CT detail"
+#: Catmull-Clark levels before the displacement: 2 quarters the viewport's ~2 mm rows and ~2.3 mm columns
+#: (CThead at 120 x 240) to ~0.5 mm, the detail map's texel (~0.6 mm at 1024 px) and half a 1 mm lid line.
+SUBDIV_LEVELS = 2
 #: The surface is in metres (world = LPS mm x 0.001, object scale 1); the map is in mm.
 MM_TO_OBJECT = 0.001
 
@@ -156,7 +168,7 @@ def ensure_detail_material(obj, image):
         bump.space = "OBJECT"
         bump.inputs["Midlevel"].default_value = 0.5                    # the image holds 0.5 + mm / (2 range)
         links.new(tex.outputs["Color"], bump.inputs["Height"])
-    # shading only: the mesh is not displaced (Cycles' "Bump Only"; EEVEE bumps too)
+    # the relief is the Displace modifier's (real geometry); the material's own displacement stays off
     mat.displacement_method = "BUMP"
     slots = obj.data.materials
     if not slots:
@@ -173,25 +185,169 @@ def detail_material(obj):
     return mat if mat is not None and mat.get(DETAIL_MATERIAL_KEY) == 1 else None
 
 
-def set_detail_shading(obj, strength: float, enabled: bool) -> bool:
-    """Plug the bump into the material output (``enabled``) with ``strength`` x the CT's relief, or unplug it.
-    False when the object has no detail material."""
+def _settings_of(obj):
+    """The study settings whose surface ``obj`` is, or None."""
+    from . import state
+    for coll in getattr(obj, "users_collection", ()):
+        s = state.settings(coll)
+        if s is not None and s.surface_object == obj:
+            return s
+    return None
+
+
+def _strength_animated(settings) -> bool:
+    ad = getattr(settings.id_data, "animation_data", None) if settings is not None else None
+    return bool(ad and ((ad.action and any("detail_strength" in fc.data_path for fc in _fcurves(ad.action)))
+                        or any("detail_strength" in d.data_path for d in ad.drivers)))
+
+
+def _fcurves(action):
+    fcurves = getattr(action, "fcurves", None)
+    if fcurves is not None:
+        return list(fcurves)
+    out = []                                             # Blender 5: layered actions
+    for layer in getattr(action, "layers", ()):
+        for strip in layer.strips:
+            for bag in getattr(strip, "channelbags", ()):
+                out.extend(bag.fcurves)
+    return out
+
+
+def _unplug_bump(obj) -> None:
+    """The earlier bump (the map in the material's Displacement): unplugged, the displacement replaces it."""
     mat = detail_material(obj)
     if mat is None:
+        return
+    out = _material_output(mat.node_tree.nodes)
+    if out is not None:
+        for link in list(out.inputs["Displacement"].links):
+            mat.node_tree.links.remove(link)
+
+
+def ensure_displacement(obj, image, settings=None):
+    """The object's CT detail modifiers (subdivision, then Displace by the image texture in UV along the
+    normals, its strength driven by ``settings.detail_strength``); returns the Displace modifier."""
+    import bpy
+
+    name = image_name(obj)
+    tex = bpy.data.textures.get(name)
+    if tex is None or tex.type != "IMAGE":
+        tex = bpy.data.textures.new(name, "IMAGE")
+    tex.image = image
+    tex.extension = "EXTEND"
+    tex.use_interpolation = True                          # bilinear, as the engine samples the map
+    mods = obj.modifiers
+    sub = mods.get(SUBDIV_MOD)
+    if sub is None or sub.type != "SUBSURF":
+        sub = mods.new(SUBDIV_MOD, "SUBSURF")
+    sub.subdivision_type = "CATMULL_CLARK"
+    sub.levels = sub.render_levels = SUBDIV_LEVELS
+    sub.uv_smooth = "NONE"                                # the UVs linear: the map is a function of (u, v)
+    disp = mods.get(DISPLACE_MOD)
+    if disp is None or disp.type != "DISPLACE":
+        disp = mods.new(DISPLACE_MOD, "DISPLACE")
+    disp.texture = tex
+    disp.texture_coords = "UV"
+    disp.uv_layer = objects.UV_NAME
+    disp.direction = "NORMAL"
+    disp.space = "LOCAL"
+    disp.mid_level = 0.5                                  # the image holds 0.5 + mm / (2 range)
+    # the subdivision first, then the displacement: both after any modifier the user added
+    for mod in (sub, disp):
+        index = list(mods).index(mod)
+        if index != len(mods) - 1:
+            mods.move(index, len(mods) - 1)
+    if settings is not None:
+        _drive_strength(disp, settings, float(image.get(RANGE_KEY, 1.0)))
+    return disp
+
+
+def _drive_strength(disp, settings, range_mm: float) -> None:
+    """The Displace strength follows ``settings.detail_strength`` (keyframes, Render Animation) through a
+    driver with a simple expression (no Python: it runs without auto-run scripts)."""
+    scale = 2.0 * range_mm * MM_TO_OBJECT
+    fc = disp.driver_add("strength") if not _driven(disp) else _driven(disp)
+    drv = fc.driver
+    drv.type = "SCRIPTED"
+    var = drv.variables[0] if len(drv.variables) else drv.variables.new()
+    var.name, var.type = "s", "SINGLE_PROP"
+    var.targets[0].id_type = "OBJECT"
+    var.targets[0].id = settings.id_data
+    var.targets[0].data_path = "pdehead.detail_strength"
+    drv.expression = f"s * {scale!r}"
+
+
+def _driven(disp):
+    ad = disp.id_data.animation_data
+    path = disp.path_from_id("strength")
+    return next((d for d in ad.drivers if d.data_path == path), None) if ad is not None else None
+
+
+def reopen_with_displacement() -> list[str]:
+    """After a file is loaded: every study surface with a detail image gets the displacement in place of a
+    bump an earlier version wired (its names)."""
+    from . import state
+    done = []
+    for coll in state.studies():
+        s = state.settings(coll)
+        obj = s.surface_object if s is not None else None
+        if obj is None or detail_image(obj) is None:
+            continue
+        mods = detail_modifiers(obj)
+        if mods[1] is None or detail_material(obj) is not None:
+            set_detail_shading(obj, s.detail_strength, s.use_detail_map and not s.detail_stale)
+            done.append(obj.name)
+    return done
+
+
+def detail_modifiers(obj):
+    """The object's (subdivision, Displace) CT detail modifiers, or (None, None)."""
+    mods = obj.modifiers if obj is not None and obj.type == "MESH" else {}
+    return mods.get(SUBDIV_MOD), mods.get(DISPLACE_MOD)
+
+
+def set_detail_shading(obj, strength: float, enabled: bool) -> bool:
+    """The CT detail displacement on (``enabled``, at ``strength`` x the CT's relief) or off; off too at
+    strength 0 unless the strength is animated (the surface is then the PDE surface and costs nothing).
+    A bump wired by an earlier version is unplugged. False when the object has no detail image."""
+    image = detail_image(obj) if obj is not None else None
+    if image is None:
         return False
-    nodes, links = mat.node_tree.nodes, mat.node_tree.links
-    bump, out = nodes.get(BUMP_NODE), _material_output(nodes)
-    if bump is None or out is None:
-        return False
-    tex = nodes.get(IMAGE_NODE)
-    range_mm = float(tex.image.get(RANGE_KEY, 1.0)) if tex is not None and tex.image is not None else 1.0
-    bump.inputs["Scale"].default_value = float(strength) * 2.0 * range_mm * MM_TO_OBJECT
-    socket = out.inputs["Displacement"]
-    for link in list(socket.links):
-        links.remove(link)
-    if enabled:
-        links.new(bump.outputs["Displacement"], socket)
+    settings = _settings_of(obj)
+    _unplug_bump(obj)
+    disp = ensure_displacement(obj, image, settings)
+    range_mm = float(image.get(RANGE_KEY, 1.0))
+    disp.strength = float(strength) * 2.0 * range_mm * MM_TO_OBJECT
+    on = bool(enabled) and (float(strength) != 0.0 or _strength_animated(settings))
+    for mod in detail_modifiers(obj):
+        if mod is not None and (mod.show_viewport != on or mod.show_render != on):
+            mod.show_viewport = mod.show_render = on
     return True
+
+
+def detail_height(study):
+    """The study's detail layer for an export: its map's heights (mm) and strength, or (None, 0.0) when the
+    layer is off, out of date, not built or at strength 0 (the PDE surface)."""
+    s = study.settings
+    strength = float(s.detail_strength)
+    if not s.use_detail_map or s.detail_stale or strength == 0.0 or s.surface_object is None:
+        return None, 0.0
+    image = detail_image(s.surface_object)
+    if image is None:
+        return None, 0.0
+    return image_height_mm(image), strength
+
+
+def print_skin(study):
+    """The study's skin for Export for Printing: the PDE surface meshed at print resolution
+    (:func:`pdehead_addon.print_resolution`: chord error within 0.05 mm over the face, at most 2 M
+    triangles, rows denser over the face), displaced by its CT detail at the study's strength (:func:`pdehead_addon.detail_surface`)."""
+    from ..pdehead_addon import detail_surface, print_resolution
+
+    head = study.head
+    height, strength = detail_height(study)
+    rows, nv = print_resolution(head)
+    return detail_surface(head, height, strength, len(rows), nv, caps=True, split=True, rows=rows)
 
 
 def build_detail_map(obj, head, seg, resolution: int, strength: float, enabled: bool = True) -> dict:
@@ -211,7 +367,6 @@ def detail_map_stages(obj, head, seg, resolution: int, strength: float, enabled:
     from ..pdehead_addon import detail_map_stages as engine_stages
 
     dmap = yield from engine_stages(head, seg.mask, seg.ct, resolution=int(resolution))
-    image = set_detail_image(obj, dmap.height, dmap.meta["max_mm"])
-    ensure_detail_material(obj, image)
+    set_detail_image(obj, dmap.height, dmap.meta["max_mm"])
     set_detail_shading(obj, strength, enabled)
     return dmap.meta

@@ -234,8 +234,11 @@ class ExportSteps:
         skin = None
         no_skin = self._skin_missing()
         if not no_skin:
+            # the depth map's vertices stay the viewport's surface; skin.<fmt> is meshed at print resolution
+            # with the CT detail at the study's strength (:func:`.detail_map.print_skin`)
+            from . import detail_map
             skin = self.study.head.surface(int(s.nu), int(s.nv), caps=True)
-            meshes.insert(0, ("skin", skin))
+            meshes.insert(0, ("skin", detail_map.print_skin(self.study)))
         for name, mesh in meshes:
             if mesh.face_count == 0 or not mesh.is_watertight():
                 raise PDEHeadError(f"study '{self.name}': the {name} mesh is not watertight; nothing was written")

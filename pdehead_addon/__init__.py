@@ -56,6 +56,8 @@ from .core.provenance import SOFTWARE_VERSION as __version__  # noqa: E402
 _LAZY = {
     "ct_detail_map": (".pde.detail_map", "ct_detail_map"),
     "detail_map_stages": (".pde.detail_map", "detail_map_stages"),
+    "detail_surface": (".pde.detail_displace", "detail_surface"),
+    "print_resolution": (".pde.detail_displace", "print_resolution"),
     "apply_window": (".core.ct_volume", "apply_window"),
     "ct_grid_for": (".core.ct_volume", "ct_grid_for"),
     "grid_affine": (".core.ct_volume", "grid_affine"),

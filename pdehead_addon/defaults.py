@@ -197,19 +197,23 @@ USE_CUTTER = _param("use_cutter", False,
                                 "ranges: the solid is cut away where the box is", label="Use Cutter")
 
 # ----------------------------------------------------------------------------- CT detail map (issue 21)
-#: Issue 21, the closed eyes: the CT's fine relief (eyelids, lips, nose wings) as a height map in the
-#: surface's UVs, shaded as bump by the skin material (the geometry and the exports stay the smooth PDE
-#: surface). :func:`pdehead_addon.pde.detail_map.ct_detail_map`. 1024 x 1024 is about 0.6 mm a texel on
-#: CThead's tube (its eyelid line is ~1 mm high). Off by default: building it costs seconds and ~0.4 GB
-#: (CThead, docs/method.md "The closed eyes: a CT detail map"), which Run Pipeline's <= 5 s (issue 20) cannot
-#: carry; on, Run Pipeline builds it, and the Surface panel's *Build CT Detail* builds it on request.
+#: The CT detail layer: the CT's fine relief (eyelids, lips, nostrils) as a height map in the surface's
+#: UVs (:func:`pdehead_addon.pde.detail_map.ct_detail_map`), applied as real displacement of the smooth PDE
+#: surface along its normals (a Displace modifier after a subdivision in Blender,
+#: :func:`pdehead_addon.pde.detail_displace.detail_surface` for the exports). 1024 x 1024 is about 0.6 mm a
+#: texel on CThead's tube (its eyelid line is ~1 mm high). Off by default: building it costs seconds and
+#: ~0.4 GB (CThead, docs/method.md "The closed eyes: a CT detail map"), which Run Pipeline's <= 5 s
+#: cannot carry; on, Run Pipeline builds it, and the Surface panel's *Build CT Detail* builds it on
+#: request. Strength 0 (the default) is the PDE surface itself.
 USE_DETAIL_MAP = _param("use_detail_map", False,
-                        description="Shade the surface with the CT's fine relief (eyelids, lips, nose wings) as "
-                                    "a bump map for close-ups; the geometry and the exports stay the smooth PDE "
-                                    "surface. Built by Build CT Detail (seconds) or by Run Pipeline while on",
+                        description="The CT detail layer: the CT's fine relief (eyelids, lips, nostrils) as a "
+                                    "displacement of the smooth PDE surface along its normals, at Detail Strength "
+                                    "(the surface and Export for Printing). Built by Build CT Detail (seconds) or by "
+                                    "Run Pipeline while on",
                         label="CT Detail")
-DETAIL_STRENGTH = _param("detail_strength", 1.0, min=0.0, max=10.0, soft_max=3.0,
-                         description="Scale of the CT detail bump: 1 = the CT's relief at its true height in mm",
+DETAIL_STRENGTH = _param("detail_strength", 0.0, min=0.0, max=10.0, soft_max=3.0,
+                         description="Strength of the CT detail displacement: 0 = the smooth PDE surface, 1 = the "
+                                     "CT's skin (its relief at its true height in mm)",
                          label="Detail Strength")
 DETAIL_RESOLUTION = _param("detail_resolution", 1024, min=64, max=4096, unit="pixels",
                            description="Side of the square CT detail map (used at its next build; 1024 is about "

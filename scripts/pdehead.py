@@ -84,6 +84,10 @@ def _parser() -> argparse.ArgumentParser:
                    help="keep the curves uniform in arc length (no correspondence alignment)")
     p.add_argument("--nu", type=int, default=D.NU.default, help=D.NU.help("surface/solid resolution along u"))
     p.add_argument("--nv", type=int, default=D.NV.default, help=D.NV.help("surface/solid resolution around v"))
+    p.add_argument("--detail", type=float, metavar="STRENGTH",
+                   help="build the CT detail layer (the CT's skin as a displacement of the PDE surface along its "
+                        "normals: eyelids, lips, nostrils) and apply it at STRENGTH (0 = the PDE surface, 1 = the "
+                        "CT's detail) to the surface and to skin.<fmt> of --export; default: no detail layer")
     p.add_argument("--nw", type=int, default=D.NW.default, help=D.NW.help("solid levels in w"))
     p.add_argument("--voxel-size", type=float, default=None,
                    help=f"volume voxel size in mm ({D.VOXEL_SIZE.min:g} to {D.VOXEL_SIZE.max:g}); default: "
@@ -210,6 +214,8 @@ def _check_ranges(p, args) -> None:
         _check_range(p, D.VOXEL_SIZE, args.voxel_size, "--voxel-size")
     if args.turntable is not None:
         _check_range(p, D.TURNTABLE_FRAMES, args.turntable, "--turntable")
+    if args.detail is not None:
+        _check_range(p, D.DETAIL_STRENGTH, args.detail, "--detail")
 
 
 def _check_render_args(p, args) -> None:
@@ -799,6 +805,9 @@ def _build(args, bpy, addon, ops):
         _call(ops.extract_boundaries, patches=args.patches, samples=args.samples, selection=args.selection,
               align_curves=not args.no_align)
     _call(ops.reconstruct_surface, nu=args.nu, nv=args.nv)
+    if args.detail is not None:              # the Surface panel's CT Detail toggle, strength and Build CT Detail
+        s.use_detail_map, s.detail_strength = True, args.detail
+        _call(ops.build_detail_map)
     _call(ops.build_solid, nu=args.nu, nv=args.nv, nw=args.nw)
     if not args.no_volume:
         # no size given: the add-on's automatic size (Auto Voxel Size)

@@ -155,7 +155,7 @@ def rasterise_triangles(uv: np.ndarray, resolution: int) -> tuple[np.ndarray, np
     return np.concatenate(out_t), np.concatenate(out_tri), np.concatenate(out_b)
 
 
-def _vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+def area_vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """Area-weighted unit vertex normals of outward-wound triangles."""
     v = vertices
     e1, e2 = v[triangles[:, 1]] - v[triangles[:, 0]], v[triangles[:, 2]] - v[triangles[:, 0]]
@@ -191,7 +191,7 @@ def texel_surface(head, resolution: int, mesh_per_texel: float = MESH_PER_TEXEL)
     quad_uv = np.asarray(mesh.quad_uv, float)
     tri_uv = np.concatenate([quad_uv[:, [0, 1, 2]], quad_uv[:, [0, 2, 3]]]
                             + ([np.asarray(mesh.triangle_uv, float)] if len(mesh.triangles) else []))
-    normals = _vertex_normals(mesh.vertices, tris)
+    normals = area_vertex_normals(mesh.vertices, tris)
     del quad_uv
     # the triangles in chunks: the rasteriser's temporaries for a million triangles at once were the
     # map's peak memory (CThead at 1024 px: the call's traced peak 404 MB at once, 287 MB in chunks)

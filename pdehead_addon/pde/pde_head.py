@@ -360,7 +360,7 @@ class PDEHead:
         mesh = tube_mesh(rings, orientation=1, caps=fan_caps(rings, rings[[0, -1]].mean(axis=1), fan_only=True))
         return 1 if signed_volume(mesh) >= 0 else -1
 
-    def surface(self, nu: int, nv: int, caps: bool = False, uv: bool = True) -> Mesh:
+    def surface(self, nu: int, nv: int, caps: bool = False, uv: bool = True, rows: np.ndarray | None = None) -> Mesh:
         """The head surface as a tube of quads (paper Fig. 4, 5, 13).
 
         Parameters
@@ -379,6 +379,9 @@ class PDEHead:
         uv : bool
             Per-corner UVs (:meth:`uv_layout`, computed once per boundary set: ~0.65 s CPU on a head).
             False for a mesh only measured (the slice selection's verification).
+        rows : ndarray, optional
+            The rows' u (increasing from 0 to 1, ``nu`` of them) instead of ``nu`` evenly spaced (a print
+            mesh denser over the face: :func:`.detail_displace.print_rows`).
 
         Returns
         -------
@@ -388,12 +391,14 @@ class PDEHead:
             vertex attributes ``u`` and ``v`` (cap points: the end's u and their v).
         """
         nu, nv = check_count(nu, "nu", 2), check_count(nv, "nv", 3)
-        u = np.linspace(0.0, 1.0, nu)
+        if self.vertex is not None:
+            nu = max(nu, 3)
+        u = np.linspace(0.0, 1.0, nu) if rows is None else np.asarray(rows, float)
+        if len(u) != nu or u[0] != 0.0 or u[-1] != 1.0 or np.any(np.diff(u) <= 0):
+            raise PDEError(f"rows: {nu} increasing values from 0 to 1 expected")
         ends = self.spine(np.array([0.0, 1.0]))
         density = self.v_density()
         if self.vertex is not None:
-            nu = max(nu, 3)
-            u = np.linspace(0.0, 1.0, nu)
             # the solid's grid too (it has the pole row; pde_solid takes the same columns)
             pts = (self.grid(u, nv) if density is None else self.grid(u, v=self.v_columns(nv)))[:-1]
             bottom = disc_caps(pts, ends, ends=(0,), reference=self.cap_reference(nu, nv))[0] if caps else None

@@ -1,7 +1,9 @@
-"""The surface's CT detail map in Blender (issue 21, the closed eyes): a float image in the surface's UVs,
-wired as bump ("Bump only") into the surface's own skin material, packed into the .blend (a 16-bit PNG), and
-marked out of date (its bump unplugged) when a PDE change moves the surface. Off by default: Run Pipeline
-builds none, the toggle never builds, *Build CT Detail* (``pdehead.build_detail_map``) does.
+"""The surface's CT detail layer in Blender: a float image in the surface's UVs, applied as real
+displacement (a subdivision, then a Displace modifier reading the image through the UVs along the normals,
+its strength driven by the study's ``detail_strength``), packed into the .blend (a 16-bit PNG), and turned
+off when a PDE change moves the surface (out of date) or at strength 0. Off by default: Run Pipeline builds
+none, the toggle never builds, *Build CT Detail* (``pdehead.build_detail_map``) does. A file saved with the
+earlier bump reopens with the displacement.
 """
 from __future__ import annotations
 
@@ -67,7 +69,9 @@ def test_run_pipeline_at_the_defaults_builds_no_map_and_the_operator_builds_the_
     assert bpy.ops.pdehead.build_detail_map(study=coll.name) == {'FINISHED'}
     image = detail.detail_image(obj)
     assert image is not None and study_cls.of(coll).detail_map_current()
-    assert len(_bump_wiring(detail, obj)[2]) == 1
+    assert not _displacement_on(detail, obj)                     # strength 0 (the default): the PDE surface
+    s.detail_strength = 1.0
+    assert _displacement_on(detail, obj)
     study = study_cls.of(coll)
     branch = E.ct_detail_map(study.solve(), study.cache.seg.mask, study.cache.seg.ct,
                              resolution=s.detail_resolution, coarse_steps=1).height
@@ -77,16 +81,28 @@ def test_run_pipeline_at_the_defaults_builds_no_map_and_the_operator_builds_the_
     assert np.abs(got - branch).max() < 1e-3, np.abs(got - branch).max()
 
 
-def _bump_wiring(detail, obj):
-    """The nodes from the UV map to the material output's Displacement, or an assertion naming what is missing."""
-    mat = detail.detail_material(obj)
-    assert mat is not None, [m.name for m in obj.data.materials]
-    nodes = mat.node_tree.nodes
-    out = detail._material_output(nodes)
-    links = out.inputs["Displacement"].links
-    bump = nodes[detail.BUMP_NODE]
-    tex = nodes[detail.IMAGE_NODE]
-    return mat, out, links, bump, tex
+def _displacement(detail, obj):
+    """The CT detail's subdivision and Displace modifiers, or an assertion naming what is missing."""
+    sub, disp = detail.detail_modifiers(obj)
+    assert sub is not None and disp is not None, [m.name for m in obj.modifiers]
+    return sub, disp
+
+
+def _displacement_on(detail, obj) -> bool:
+    sub, disp = _displacement(detail, obj)
+    assert sub.show_viewport == disp.show_viewport == sub.show_render == disp.show_render
+    return disp.show_viewport
+
+
+def _evaluated_vertices(obj) -> np.ndarray:
+    import bpy
+    dg = bpy.context.evaluated_depsgraph_get()
+    dg.update()
+    me = obj.evaluated_get(dg).to_mesh()
+    co = np.empty(len(me.vertices) * 3)
+    me.vertices.foreach_get("co", co)
+    obj.evaluated_get(dg).to_mesh_clear()
+    return co.reshape(-1, 3)
 
 
 def _pixels(image) -> np.ndarray:
@@ -96,22 +112,28 @@ def _pixels(image) -> np.ndarray:
     return px.reshape(h, w, 4)
 
 
-def test_the_pipeline_gives_the_surface_a_packed_bump_map(ext, reopened):
+def test_the_pipeline_gives_the_surface_a_packed_displacement_map(ext, reopened):
     detail, _state, _study, coll = reopened
     s = coll.pdehead
     obj = s.surface_object
     D = ext.engine.defaults
-    mat, out, links, bump, tex = _bump_wiring(detail, obj)
-    assert mat.displacement_method == "BUMP"                    # shading only: the mesh is not displaced
-    assert len(links) == 1 and links[0].from_node == bump
-    assert bump.inputs["Height"].links[0].from_node == tex
-    uv = tex.inputs["Vector"].links[0].from_node
-    assert uv.type == "UVMAP" and uv.uv_map == "UVMap" and "UVMap" in obj.data.uv_layers
+    sub, disp = _displacement(detail, obj)
+    assert list(obj.modifiers).index(sub) < list(obj.modifiers).index(disp)       # subdivided, then displaced
+    assert sub.subdivision_type == "CATMULL_CLARK" and sub.levels == sub.render_levels == detail.SUBDIV_LEVELS
+    assert disp.texture_coords == "UV" and disp.uv_layer == "UVMap" and disp.direction == "NORMAL"
+    assert "UVMap" in obj.data.uv_layers
     rng = D.DETAIL_MAX_OFFSET.default
     # the image holds 0.5 + mm / (2 range): midlevel 0.5, and 2 range mm in metres (the object's space)
-    assert bump.inputs["Midlevel"].default_value == 0.5
-    assert bump.inputs["Scale"].default_value == pytest.approx(D.DETAIL_STRENGTH.default * 2 * rng * 0.001)
-    assert tex.interpolation == "Linear" and tex.image.colorspace_settings.name == "Non-Color"
+    assert disp.mid_level == 0.5
+    assert D.DETAIL_STRENGTH.default == 0.0 and s.detail_strength == 0.0 and not _displacement_on(detail, obj)
+    assert disp.strength == pytest.approx(0.0)
+    tex = disp.texture
+    assert tex.type == "IMAGE" and tex.extension == "EXTEND" and tex.use_interpolation
+    assert tex.image.colorspace_settings.name == "Non-Color"
+    # no bump: the material's displacement is not wired
+    assert not any(m is not None and m.node_tree is not None and any(
+        out.inputs["Displacement"].links for out in m.node_tree.nodes if out.type == "OUTPUT_MATERIAL")
+        for m in obj.data.materials)
     image = tex.image
     res = D.DETAIL_RESOLUTION.default
     assert tuple(image.size) == (res, res) and image.is_float    # 16 bits read back as float
@@ -122,8 +144,23 @@ def test_the_pipeline_gives_the_surface_a_packed_bump_map(ext, reopened):
     assert np.isfinite(h).all() and np.abs(h).max() <= rng + 1e-3
     assert (np.abs(h) > 0.05).mean() > 0.05                      # relief, not an empty map
     assert np.array_equal(px[..., 0], px[..., 1])
-    # the geometry is the smooth PDE surface: no displacement modifier
-    assert not [m for m in obj.modifiers if m.type == "DISPLACE"]
+    # real geometry: at strength 1 the subdivided surface moves along its normals by the map (mm), at 0.5
+    # by half of it, at 0 not at all
+    heights = {}
+    for strength in (1.0, 0.5):
+        s.detail_strength = strength
+        assert _displacement_on(detail, obj)
+        moved = _evaluated_vertices(obj)
+        disp.show_viewport = False
+        sub.show_viewport = True
+        smooth = _evaluated_vertices(obj)
+        detail.set_detail_shading(obj, s.detail_strength, True)
+        assert moved.shape == smooth.shape and len(moved) > 8 * len(obj.data.vertices)
+        heights[strength] = np.linalg.norm(moved - smooth, axis=1) * 1000.0
+    assert 0.5 < heights[1.0].max() <= rng + 0.01 and np.percentile(heights[1.0], 90) > 0.05
+    np.testing.assert_allclose(heights[0.5], 0.5 * heights[1.0], atol=1e-3)
+    s.detail_strength = 0.0
+    assert not _displacement_on(detail, obj)
 
 
 def test_the_map_survives_save_and_reopen(ext, reopened, tmp_path):
@@ -143,22 +180,39 @@ def test_the_map_survives_save_and_reopen(ext, reopened, tmp_path):
     after = detail.image_height_mm(image)
     assert after.shape == before.shape
     np.testing.assert_array_equal(after, before)
-    _mat, _out, links, bump, _tex = _bump_wiring(detail, obj)
-    assert len(links) == 1 and links[0].from_node == bump
+    _sub, disp = _displacement(detail, obj)
+    assert disp.texture.image == image
 
 
-def test_toggle_and_strength_plug_the_bump(ext, reopened):
+def test_toggle_and_strength_drive_the_displacement(ext, reopened):
+    import bpy
     detail, _state, _study, coll = reopened
     s = coll.pdehead
     obj = s.surface_object
+    s.detail_strength = 1.0
     s.use_detail_map = False
-    assert len(_bump_wiring(detail, obj)[2]) == 0
+    assert not _displacement_on(detail, obj)
     s.use_detail_map = True
-    assert len(_bump_wiring(detail, obj)[2]) == 1
+    assert _displacement_on(detail, obj)
     s.detail_strength = 2.5
     rng = ext.engine.defaults.DETAIL_MAX_OFFSET.default
-    assert _bump_wiring(detail, obj)[3].inputs["Scale"].default_value == pytest.approx(2.5 * 2 * rng * 0.001)
+    assert _displacement(detail, obj)[1].strength == pytest.approx(2.5 * 2 * rng * 0.001)
     assert s.last_error == ""
+    # animatable: keyframes on the settings drive the modifier's strength frame by frame
+    s.detail_strength = 0.0
+    s.id_data.keyframe_insert("pdehead.detail_strength", frame=1)
+    s.detail_strength = 1.0
+    s.id_data.keyframe_insert("pdehead.detail_strength", frame=11)
+    scene = bpy.context.scene
+    got = {}
+    for frame in (1, 6, 11):
+        scene.frame_set(frame)
+        bpy.context.evaluated_depsgraph_get().update()
+        ev = obj.evaluated_get(bpy.context.evaluated_depsgraph_get()).modifiers[detail.DISPLACE_MOD]
+        got[frame] = ev.strength
+    k = 2 * rng * 0.001
+    assert got[1] == pytest.approx(0.0, abs=1e-9) and got[11] == pytest.approx(k) and 0.2 * k < got[6] < 0.8 * k
+    assert _displacement_on(detail, obj)                          # animated: on even where it is 0
 
 
 def test_a_pde_change_marks_the_map_out_of_date_and_the_button_rebuilds_it(ext, reopened):
@@ -169,12 +223,13 @@ def test_a_pde_change_marks_the_map_out_of_date_and_the_button_rebuilds_it(ext, 
     old = detail.image_height_mm(detail.detail_image(obj)).copy()
     s.modes = 6                                                  # a simpler head: the surface moves
     assert s.detail_stale and s.last_error == ""
-    assert len(_bump_wiring(detail, obj)[2]) == 0               # not silently stale: unplugged
+    assert not _displacement_on(detail, obj)                     # not silently stale: off
     s.nu = s.nu + 4                                              # nu / nv do not touch the map
     assert s.detail_stale
     assert bpy.ops.pdehead.build_detail_map(study=coll.name) == {'FINISHED'}
     assert not s.detail_stale
-    assert len(_bump_wiring(detail, obj)[2]) == 1
+    s.detail_strength = 1.0
+    assert _displacement_on(detail, obj)
     new = detail.image_height_mm(detail.detail_image(obj))
     assert np.abs(new - old).max() > 0.5                        # the map follows the new surface
 
@@ -243,7 +298,31 @@ def test_a_cancelled_run_puts_the_old_map_back(ext, reopened):
     image = detail.detail_image(obj)
     assert image is not None and image.name == detail.image_name(obj)
     np.testing.assert_array_equal(detail.image_height_mm(image), before)
-    assert len(_bump_wiring(detail, obj)[2]) == 1
+    s.detail_strength = 1.0
+    assert _displacement_on(detail, obj)
+
+
+def test_a_file_saved_with_the_bump_reopens_with_the_displacement(ext, reopened, tmp_path):
+    """The earlier version's wiring (the map in the skin material's Displacement, no modifiers), saved and
+    reopened: the bump is unplugged and the displacement is there."""
+    import bpy
+    detail, state, _study, coll = reopened
+    s = coll.pdehead
+    s.detail_strength = 1.0
+    obj = s.surface_object
+    for mod in list(obj.modifiers):
+        if mod.name in (detail.SUBDIV_MOD, detail.DISPLACE_MOD):
+            obj.modifiers.remove(mod)
+    mat = detail.ensure_detail_material(obj, detail.detail_image(obj))
+    out = detail._material_output(mat.node_tree.nodes)
+    mat.node_tree.links.new(mat.node_tree.nodes[detail.BUMP_NODE].outputs["Displacement"], out.inputs["Displacement"])
+    path = tmp_path / "bump.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    coll = _open_study(state, path)
+    obj = coll.pdehead.surface_object
+    assert _displacement_on(detail, obj)
+    mat = detail.detail_material(obj)
+    assert mat is not None and not detail._material_output(mat.node_tree.nodes).inputs["Displacement"].links
 
 
 def test_the_panel_offers_build_ct_detail_when_on_without_a_current_map(ext, pdehead_ext, phantom_blend):
@@ -277,3 +356,49 @@ def test_the_panel_offers_build_ct_detail_when_on_without_a_current_map(ext, pde
     s.modes = 6                                                  # the surface moves: out of date
     count, labels = drawn()
     assert count == 1 and "rebuild the CT detail" in labels
+
+
+def test_the_print_skin_carries_the_detail_at_the_strength_set(ext, reopened):
+    """Export for Printing's skin (:func:`detail_map.print_skin`): the PDE surface at print resolution
+    (chord error within 0.05 mm over the face, at most 2 M triangles, watertight) at strength 0; at strength
+    1 the same mesh moved along its normals by the map; off or out of date, the PDE surface again."""
+    detail, _state, study_cls, coll = reopened
+    E = ext.engine
+    DDX = __import__(E.__name__ + ".pde.detail_displace", fromlist=["x"])
+    s = coll.pdehead
+    study = study_cls.of(coll)
+    s.detail_strength = 0.0
+    flat = detail.print_skin(study)
+    rows, nv = E.print_resolution(study.head)
+    nu = len(rows)
+    assert flat.is_watertight() and 2 * len(flat.quads) + len(flat.triangles) <= 2_000_000
+    np.testing.assert_array_equal(flat.vertices, study.head.surface(nu, nv, caps=True, rows=rows).vertices)
+    assert DDX.chord_error(study.head, nu, nv, DDX.surface_window(study.head), rows=rows)["max"] <= 0.05
+    s.detail_strength = 1.0
+    moved = detail.print_skin(study)
+    assert moved.is_watertight() and np.array_equal(moved.quads, flat.quads)
+    shift = ((moved.vertices - flat.vertices) * DDX.vertex_normals(flat)).sum(axis=1)
+    rng = E.defaults.DETAIL_MAX_OFFSET.default
+    assert np.abs(shift).max() <= rng + 1e-3 and (np.abs(shift) > 0.5).sum() > 100
+    height = detail.image_height_mm(detail.detail_image(s.surface_object))
+    np.testing.assert_allclose(shift, DDX.vertex_heights(flat, height, DDX.uv_island_layout(study.head)), atol=1e-6)
+    s.use_detail_map = False
+    np.testing.assert_array_equal(detail.print_skin(study).vertices, flat.vertices)
+    s.use_detail_map = True
+
+
+def test_cli_detail_flag(tmp_path):
+    """--detail STRENGTH: out of range is a usage error naming the flag; in range the exported skin is at
+    print resolution, closed, and the summary's timings hold the detail step."""
+    import json
+    from file_readers import read_stl
+    from test_cli import run_cli
+    bad = run_cli("--phantom", "--no-volume", "--detail", -1, tmp_path=tmp_path)
+    assert bad.returncode == 2 and "--detail" in bad.stderr
+    out, summary = tmp_path / "print", tmp_path / "summary.json"
+    result = run_cli("--phantom", "--no-volume", "--patches", 6, "--skull", "--detail", 1, "--export", out,
+                     "--summary-json", summary, tmp_path=tmp_path)
+    assert result.returncode == 0, result.stderr[-3000:]
+    skin = read_stl(out / "skin.stl")
+    assert skin.is_watertight() and 300_000 < len(skin.triangles) <= 2_000_000
+    assert "detail_map" in json.dumps(json.loads(summary.read_text()))

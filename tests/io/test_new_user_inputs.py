@@ -1,5 +1,5 @@
 """A new user's inputs that used to build a wrong "head" or fail late (docs/input_cases.md, "New-user cases"):
-the engine's side. The command line and the import operator: tests/blender/test_new_user_inputs.py.
+the engine's side. The command line and the import operator: tests/blender/test_new_user_cli.py.
 """
 from __future__ import annotations
 

@@ -1,0 +1,203 @@
+"""Benchmark of the CT detail as geometry and of the print-resolution skin: CThead (and GE) up close.
+
+For CThead at the add-on's defaults (automatic slices, t = 15) and the GE tilted series (t = 8):
+
+* the print resolution (:func:`pdehead_addon.print_resolution`): rows x columns, triangles, the largest
+  chord error over the face window and everywhere, watertight;
+* CThead's skin as Export for Printing writes it (the print mesh displaced at strength 0, 0.5, 1 by the
+  default detail map) against marching cubes of the head mask: the visible-face distance
+  (``validation.surface_metrics.visible_face_distance``), beside the viewport's 120 x 240 skin (what
+  skin.stl was before) and marching cubes of the mask smoothed by 1.2 mm (the floor of a smooth surface);
+* slice banding on the face: per 1 degree column of the face window the outermost radius every 0.5 mm of
+  height, minus its Gaussian of 3 mm along z; the RMS of that (mm). Marching cubes of the 1.2 mm-smoothed
+  mask is the bar (its slice steps and the face's own features);
+* the cost: the map's build (median of ``--repeats``), the print mesh and its displacement.
+
+Results go to ``docs/benchmarks_detail.json`` and the ``detail`` section of ``docs/benchmarks.md``.
+
+    python3 scripts/bench/bench_detail.py [--repeats 3] [--no-ge]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+for _p in (str(ROOT), str(ROOT / "scripts"), str(ROOT / "scripts" / "bench")):
+    if _p not in sys.path:
+        sys.path.insert(0, _p)
+
+import pdehead_addon as E  # noqa: E402
+from pdehead_addon import defaults as D  # noqa: E402
+from pdehead_addon.pde import detail_displace as DDX  # noqa: E402
+from _common import load_segmentation, marching_cubes  # noqa: E402
+from md_sections import write_section  # noqa: E402
+import bench_smooth as BS  # noqa: E402
+
+TARGETS = {"face_mean": 0.20, "face_p95": 0.50, "chord_mm": DDX.PRINT_CHORD_MM,
+           "triangles": DDX.PRINT_MAX_TRIANGLES}
+STRENGTHS = (0.0, 0.5, 1.0)
+
+
+def _faces(mesh):
+    return np.concatenate([mesh.quads[:, [0, 1, 2]], mesh.quads[:, [0, 2, 3]], mesh.triangles]) \
+        if len(mesh.quads) else mesh.triangles
+
+
+def face_banding(vertices, faces, centre_xy, tip, density: float = 4.0, dz: float = 0.5,
+                 sigma_mm: float = 3.0, seed: int = 0) -> float:
+    """RMS (mm) of the face's outermost radius minus its Gaussian of ``sigma_mm`` along z (module docstring)."""
+    from scipy.ndimage import gaussian_filter1d
+    from pdehead_addon.core.mesh_geometry import sample_surface, triangulate
+    from pdehead_addon.validation.surface_metrics import face_window
+    v, t = np.asarray(vertices, float), triangulate(faces)
+    area = 0.5 * np.linalg.norm(np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]), axis=1).sum()
+    pts, _ = sample_surface(v, t, int(area * density), np.random.default_rng(seed))
+    pts = pts[face_window(pts, centre_xy, tip)]
+    d = pts[:, :2] - np.asarray(centre_xy, float)[None]
+    angle, radius = np.degrees(np.arctan2(d[:, 0], -d[:, 1])), np.hypot(d[:, 0], d[:, 1])
+    a = np.floor(angle + 60.0).astype(int)
+    z0 = float(tip[2]) - 70.0
+    k = np.floor((pts[:, 2] - z0) / dz).astype(int)
+    na, nz = 121, int(np.ceil(130.0 / dz)) + 1
+    keep = (a >= 0) & (a < na) & (k >= 0) & (k < nz)
+    r = np.full(na * nz, -np.inf)
+    np.maximum.at(r, a[keep] * nz + k[keep], radius[keep])
+    r = r.reshape(na, nz)
+    have = np.isfinite(r)
+    w = have.astype(float)
+    filled = np.where(have, r, 0.0)
+    s = sigma_mm / dz
+    smooth = gaussian_filter1d(filled, s, axis=1, mode="constant") / np.maximum(
+        gaussian_filter1d(w, s, axis=1, mode="constant"), 1e-9)
+    inner = have & (gaussian_filter1d(w, s, axis=1, mode="constant") > 0.95)   # away from holes and ends
+    return float(np.sqrt(np.mean((r - smooth)[inner] ** 2)))
+
+
+def smoothed_mask_mesh(seg, sigma_mm: float = 1.2):
+    from scipy import ndimage
+    from skimage import measure
+    sm = ndimage.gaussian_filter(seg.mask.astype(np.float32), sigma_mm / np.asarray(seg.ct.spacing, float))
+    verts, faces, _, _ = measure.marching_cubes(sm, 0.5)
+    return seg.ct.index_to_patient(verts), faces
+
+
+def run(repeats: int, ge: bool) -> dict:
+    res: dict = {"load_start": os.getloadavg()[0], "datasets": {}}
+    for name, t in (("cthead", D.PATCHES.default), ("ge", 8))[: 2 if ge else 1]:
+        seg = load_segmentation(name)
+        head = E.solve_pde(E.extract_boundaries(seg, patches=t, selection=D.SELECTION.default))
+        t0 = time.perf_counter()
+        rows, nv = E.print_resolution(head)
+        nu = len(rows)
+        pr_s = time.perf_counter() - t0
+        window = DDX.surface_window(head)
+        row: dict = {"t": t, "print": {"nu": nu, "nv": nv, "seconds": pr_s,
+                                       "chord_face": DDX.chord_error(head, nu, nv, window, rows=rows),
+                                       "chord_all": DDX.chord_error(head, nu, nv, rows=rows),
+                                       "viewport_chord_face": DDX.chord_error(head, D.NU.default, D.NV.default,
+                                                                              window)}}
+        flat = DDX.split_quads(head, head.surface(nu, nv, caps=True, rows=rows), nu, nv, rows)  # as the export
+        row["print"]["triangles"] = int(2 * len(flat.quads) + len(flat.triangles))
+        row["print"]["watertight"] = bool(flat.is_watertight())
+        if name == "cthead":
+            times = []
+            for _ in range(repeats):
+                t0 = time.perf_counter()
+                dmap = E.ct_detail_map(head, seg.mask, seg.ct)
+                times.append(time.perf_counter() - t0)
+            row["map_s"] = float(np.median(times))
+            mc = marching_cubes(seg)
+            centre = BS.mask_centre(seg)[:2]
+            viewport = head.surface(D.NU.default, D.NV.default, caps=True)
+            base = BS.visible_face(seg, viewport, mc)
+            tip = np.asarray(base["pronasale"], float)
+            row["viewport"] = {"score_mean": base["score_mean"], "score_p95": base["score_p95"],
+                               "banding_mm": face_banding(viewport.vertices, _faces(viewport), centre, tip)}
+            sv, sf = smoothed_mask_mesh(seg)
+            floor = BS.face_floor(seg, mc)
+            row["smoothed_mask"] = {**floor, "banding_mm": face_banding(sv, sf, centre, tip)}
+            row["marching_cubes_banding_mm"] = face_banding(mc[0], mc[1], centre, tip)
+            row["strengths"] = {}
+            for s in STRENGTHS:
+                t0 = time.perf_counter()
+                mesh = DDX.displace_mesh(flat, dmap.height, s, DDX.uv_island_layout(head))
+                disp_s = time.perf_counter() - t0
+                r = BS.visible_face(seg, mesh, mc)
+                row["strengths"][f"{s:g}"] = {"score_mean": r["score_mean"], "score_p95": r["score_p95"],
+                                              "banding_mm": face_banding(mesh.vertices, _faces(mesh), centre, tip),
+                                              "watertight": bool(mesh.is_watertight()), "displace_s": disp_s}
+                print(name, s, row["strengths"][f"{s:g}"], flush=True)
+        res["datasets"][name] = row
+        print(name, json.dumps(row, default=float)[:1500], flush=True)
+    res["load_end"] = os.getloadavg()[0]
+    return res
+
+
+def markdown(res: dict) -> str:
+    T = TARGETS
+    c = res["datasets"]["cthead"]
+    lines = ["## CT detail as geometry, skin at print resolution: `python3 scripts/bench/bench_detail.py`", "",
+             f"CThead at the add-on's defaults (automatic slices, t = {c['t']}); the skin as Export for Printing "
+             "writes it (the print mesh, displaced at the strength by the default 1024 px detail map), against "
+             "marching cubes of the head mask (`visible_face_distance`). Banding: RMS of the face's outermost "
+             "radius minus its 3 mm Gaussian along z (1 deg x 0.5 mm bins). Machine load average (2 cores, "
+             f"shared): {res['load_start']:.1f} at the start, {res['load_end']:.1f} at the end.", "",
+             f"| skin | visible face mean / p95, mm (≤ {T['face_mean']} / ≤ {T['face_p95']} at strength 1) "
+             "| banding RMS, mm | watertight |", "|---|---|---|---|"]
+    v = c["viewport"]
+    lines.append(f"| before: viewport mesh {D.NU.default} x {D.NV.default} | {v['score_mean']:.3f} / "
+                 f"{v['score_p95']:.3f} | {v['banding_mm']:.3f} | yes |")
+    for s, r in c["strengths"].items():
+        lines.append(f"| print mesh {c['print']['nu']} x {c['print']['nv']}, strength {s} | {r['score_mean']:.3f} / "
+                     f"{r['score_p95']:.3f} | {r['banding_mm']:.3f} | {'yes' if r['watertight'] else 'NO'} |")
+    m = c["smoothed_mask"]
+    lines.append(f"| marching cubes of the 1.2 mm-smoothed mask (the bar) | {m['score_mean']:.3f} / {m['score_p95']:.3f} "
+                 f"| {m['banding_mm']:.3f} | |")
+    lines.append(f"| marching cubes of the mask | 0 / 0 | {c['marching_cubes_banding_mm']:.3f} | |")
+    lines += ["", f"| print resolution | rows x columns | triangles (≤ {T['triangles']:,}) | chord error over the "
+              f"face, max mm (≤ {T['chord_mm']}) | everywhere, max / p99 mm | at the viewport's {D.NU.default} x "
+              f"{D.NV.default}: face max mm | print_resolution s |", "|---|---|---|---|---|---|---|"]
+    for name, d in res["datasets"].items():
+        p = d["print"]
+        lines.append(f"| {name} t={d['t']} | {p['nu']} x {p['nv']} | {p['triangles']:,} | {p['chord_face']['max']:.3f} "
+                     f"| {p['chord_all']['max']:.3f} / {p['chord_all']['p99']:.3f} | {p['viewport_chord_face']['max']:.2f} "
+                     f"| {p['seconds']:.1f} |")
+    lines += ["", f"Detail map build (CThead, 1024 px, median of its runs): {c['map_s']:.1f} s wall; displacing the "
+              f"print mesh: {c['strengths']['1']['displace_s']:.2f} s.", "",
+              "Notes. *Before*, skin.stl was the viewport's mesh: the file `scripts/pdehead.py --skull --export` wrote "
+              "with the code before this change scores the same as the first row (measured on the written file); "
+              "the issue's 0.40 / 0.93 for it was not reproduced by this implementation of the measure. Strength 0 "
+              "is the PDE surface itself, meshed finer (the first row minus its chord error). The banding figure "
+              "counts the face's own features (nose, lips, lids) as well as slice steps, so it is compared with "
+              "marching cubes of the 1.2 mm-smoothed mask (the issue's bar), not with 0. The rows are denser over the "
+              "face's band of u (`print_rows`, 0.4 as dense elsewhere): with even rows CThead's face kept 0.057 mm "
+              "at the 2 M-triangle cap.", ""]
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--no-ge", action="store_true")
+    ap.add_argument("--json", type=Path, default=ROOT / "docs" / "benchmarks_detail.json")
+    ap.add_argument("--md", type=Path, default=ROOT / "docs" / "benchmarks.md")
+    ap.add_argument("--markdown-only", action="store_true", help="rewrite the section from --json, no run")
+    args = ap.parse_args(argv)
+    if args.markdown_only:
+        write_section(args.md, "detail", markdown(json.loads(args.json.read_text())))
+        return 0
+    res = run(args.repeats, not args.no_ge)
+    args.json.write_text(json.dumps(res, indent=2, default=float) + "\n")
+    write_section(args.md, "detail", markdown(res))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
