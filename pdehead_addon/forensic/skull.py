@@ -177,22 +177,84 @@ def _metal_level_stored(ct: CTVolume, calibrated: bool) -> float:
     return np.inf
 
 
-def soft_tissue_present(data: np.ndarray, split: float | None = None) -> tuple[bool, dict]:
+def soft_tissue_present(data: np.ndarray, split: float | None = None,
+                        spacing=(1.0, 1.0, 1.0)) -> tuple[bool, dict]:
     """Whether the scan has soft tissue around the bone (a head CT) or is a skull alone (a dry skull, or soft
-    tissue removed).
+    tissue removed: every voxel below a bone level set to air), whatever part of the head it covers and in
+    any units.
 
-    Rule: the non-air voxels (above the histogram's air/rest split, :func:`_air_split`) are filled per axial
-    slice; a head is solid (filled / non-air about 1.0-1.1), a skull is a shell around an empty braincase
-    (2 and more). Soft tissue is present when the ratio is below ``SKULL_ONLY_FILL_RATIO``.
+    Rule: the layer under every surface of the non-air voxels (above the histogram's air/rest split,
+    :func:`_air_split`), ``SOFT_TISSUE_LAYER_MM`` deep in the slice's plane (past the partial-volume voxel
+    at the surface), is soft tissue in a head (skin, fat, muscle, mucosa) and bone in a skull alone. Its
+    median value is placed between the air mode and the bright end of the non-air values (their
+    ``SOFT_TISSUE_BRIGHT_PERCENTILE``-th percentile: dense bone):
+
+        layer_ratio = (median(layer) - air) / (bright - air)
+
+    Soft tissue lies about 1040 HU above air and dense bone 1000-2500 HU above soft tissue, so a head gives
+    0.3-0.5; the layer of a skull alone is bone, 0.7 and more. The ratio is the same in HU, in a scanner's
+    raw units or in 8 bits (any linear map of the values). Soft tissue is present when the ratio is below
+    ``SKULL_ONLY_LAYER_RATIO``. Unlike the braincase's fill (``fill_ratio``: the non-air voxels filled
+    per slice grow 2-3x in a skull alone, reported), it does not need the vault in the scan.
+
+    Parameters
+    ----------
+    data : ndarray (nz, ny, nx)
+    split : float, optional
+        The air/rest split (default: Otsu's, :func:`_air_split`).
+    spacing : (dz, dy, dx) mm
+
+    Returns
+    -------
+    (present, info)
+        ``info``: ``layer_ratio`` (None: no layer that deep) and its ``layer_ratio_limit``,
+        ``layer_median``, ``air_mode``, ``bright_end`` (stored units), ``fill_ratio`` and ``air_split``.
     """
     split = _air_split(data) if split is None else split
     solid = data > np.float32(split)
     n = int(np.count_nonzero(solid))
+    info: dict[str, Any] = {"air_split": split, "fill_ratio": None, "layer_ratio": None,
+                            "layer_ratio_limit": SKULL_ONLY_LAYER_RATIO}
     if n == 0:
-        return False, {"fill_ratio": None, "air_split": split}
-    filled = n + _enclosed_per_slice(solid)
-    ratio = filled / n
-    return bool(ratio < SKULL_ONLY_FILL_RATIO), {"fill_ratio": round(ratio, 3), "air_split": split}
+        return False, info
+    info["fill_ratio"] = round((n + _enclosed_per_slice(solid)) / n, 3)
+    ratio, layer_info = _surface_layer_ratio(data, solid, spacing)
+    info.update(layer_info)
+    if ratio is None:                      # no layer that deep (bone thinner than the layer): no soft tissue
+        return False, info
+    return bool(ratio < SKULL_ONLY_LAYER_RATIO), info
+
+
+def _surface_layer_ratio(data: np.ndarray, solid: np.ndarray, spacing) -> tuple[float | None, dict]:
+    """(layer_ratio, info) of :func:`soft_tissue_present`; the layer from at most ``SOFT_TISSUE_LAYER_SLICES``
+    slices evenly spread over the scan (per-slice 2-D distance transforms)."""
+    # pixels finer than 1 mm are read every few (the layer is 1.5 mm thick): a quarter of the transforms' work
+    stride = max(1, int(round(1.0 / max(min(float(spacing[1]), float(spacing[2])), 1e-6))))
+    dy, dx = stride * float(spacing[1]), stride * float(spacing[2])
+    lo, hi = SOFT_TISSUE_LAYER_MM
+    occupied = np.flatnonzero(solid.any(axis=(1, 2)))
+    ks = occupied[np.unique(np.linspace(0, len(occupied) - 1, min(len(occupied), SOFT_TISSUE_LAYER_SLICES))
+                            .round().astype(int))]
+    layer = []
+    for k in ks:                                        # tens of slices, each one 2-D transform
+        depth = ndi.distance_transform_edt(solid[k, ::stride, ::stride], sampling=(dy, dx))
+        layer.append(data[k, ::stride, ::stride][(depth > lo) & (depth <= hi)])
+    layer = np.concatenate(layer) if layer else np.zeros(0, np.float32)
+    sample = data.reshape(-1)[:: max(1, data.size // 4_000_000)]
+    keep = solid.reshape(-1)[:: max(1, data.size // 4_000_000)]
+    air_values, body = sample[~keep], sample[keep]
+    if layer.size < SOFT_TISSUE_MIN_LAYER or air_values.size == 0 or body.size == 0:
+        return None, {"layer_voxels": int(layer.size)}
+    hist, edges = np.histogram(air_values, bins=256)
+    k = int(np.argmax(hist))
+    air = 0.5 * float(edges[k] + edges[k + 1])
+    bright = float(np.percentile(body, SOFT_TISSUE_BRIGHT_PERCENTILE))
+    median = float(np.median(layer))
+    if not bright > air:
+        return None, {"layer_voxels": int(layer.size)}
+    ratio = (median - air) / (bright - air)
+    return ratio, {"layer_ratio": round(ratio, 3), "layer_median": median, "air_mode": air, "bright_end": bright,
+                   "layer_voxels": int(layer.size)}
 
 
 def _enclosed_per_slice(solid: np.ndarray) -> int:
@@ -214,8 +276,20 @@ def _air_split(data: np.ndarray) -> float:
     return float(threshold_otsu(sample[np.isfinite(sample)]))
 
 
-#: A scan whose non-air voxels, filled per slice, grow by more than this factor is a skull without soft tissue.
-SKULL_ONLY_FILL_RATIO = 1.5
+#: The layer under the non-air voxels' surfaces that :func:`soft_tissue_present` reads (mm from the surface, in
+#: the slice's plane): past the partial-volume voxel, within the thinnest skin over bone (forehead, nasion:
+#: 3-6 mm, T-Table 2023).
+SOFT_TISSUE_LAYER_MM = (1.5, 3.0)
+#: The bright end of the non-air values (percentile): dense bone in a head and in a skull alone.
+SOFT_TISSUE_BRIGHT_PERCENTILE = 99.0
+#: Soft tissue is present when the layer's median lies less than this fraction of the way from air to the bright
+#: end (a head: soft tissue, ~1040 HU above air against dense bone 2000-3500 HU above it). Chosen half way between
+#: the heads and the skulls measured: CThead (raw and 8-bit), GE and the phantom, whole or cropped to the skull
+#: base and face, 0.39-0.44; the three stripped at 250-1600 (HU or stored), whole or cropped, 0.70-0.87.
+SKULL_ONLY_LAYER_RATIO = 0.57
+#: At most this many slices (evenly spread) give the layer; a layer of fewer voxels says nothing (no soft tissue).
+SOFT_TISSUE_LAYER_SLICES = 32
+SOFT_TISSUE_MIN_LAYER = 200
 
 
 def air_bone_level(data: np.ndarray, split: float | None = None, bins: int = 256) -> tuple[float, dict]:
@@ -256,10 +330,11 @@ def _to_hu(value: float, calibrated: bool, window) -> float | None:
     return float(AIR_HU + (value - low) * (TISSUE_HU - AIR_HU) / (high - low))
 
 
-def eroded_components(bone: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
-    """The components of the bone eroded by one voxel (a joint or a tooth contact at partial volume no longer joins
-    them; thicker bone stays whole): (the eroded core, or the bone when nothing is left; its labels; their count)."""
-    core = ndi.binary_erosion(bone, structure=ndi.generate_binary_structure(3, 1))
+def eroded_components(bone: np.ndarray, erosion: int = 1) -> tuple[np.ndarray, np.ndarray, int]:
+    """The components of the bone eroded by ``erosion`` voxels (a joint or a tooth contact at partial volume no
+    longer joins them; thicker bone stays whole): (the eroded core, or the bone when nothing is left; its labels;
+    their count)."""
+    core = ndi.binary_erosion(bone, structure=ndi.generate_binary_structure(3, 1), iterations=int(erosion))
     if not core.any():
         core = bone
     labels, n = ndi.label(core, structure=np.ones((3, 3, 3), bool))
@@ -350,6 +425,41 @@ def _mandible_report(core_labels, keep, sizes, centroids_xyz, cranium: int, ct: 
             "centroid_mm": [round(float(c), 1) for c in centroids_xyz[m]]}
 
 
+def _bone_parts(bone: np.ndarray, ct: CTVolume, erosion: int, min_component_mm3: float, voxel_mm3: float) -> dict:
+    """The components of the bone eroded by ``erosion`` voxels and what each is: the cranium, cervical vertebrae
+    (:func:`_vertebra_components`), supports outside the cranium's box, the rest kept (see :func:`segment_skull`)."""
+    core, labels, n = eroded_components(bone, erosion)
+    sizes = np.bincount(labels.reshape(-1), minlength=n + 1)[1:]
+    boxes = ndi.find_objects(labels)
+    # the cranium: the largest component clear of the scan's side borders (a table or a holder running
+    # out of the field of view can be larger; the eroded core stops a voxel short of the border); the
+    # largest of all when every one touches them
+    _, ny, nx = ct.shape
+    clear = np.array([b[1].start > 1 and b[2].start > 1 and b[1].stop < ny - 1 and b[2].stop < nx - 1 for b in boxes])
+    cranium = int(np.argmax(np.where(clear, sizes, -1) if clear.any() else sizes)) + 1
+    centroids = np.array(ndi.center_of_mass(core, labels, np.arange(1, n + 1))).reshape(n, 3)
+    centroids_xyz = ct.index_to_patient(centroids)
+    big = sizes * voxel_mm3 >= float(min_component_mm3)
+    vertebra = _vertebra_components(labels, centroids_xyz, cranium, ct) & big
+    vertebra[cranium - 1] = False
+    # supports, table, holders: outside the cranium's box (grown by a margin, and downward for the mandible)
+    crbox = _box_mm(ct, boxes[cranium - 1])
+    lo = crbox[0] - [SUPPORT_MARGIN_MM, SUPPORT_MARGIN_MM, MANDIBLE_BELOW_MM]
+    hi = crbox[1] + SUPPORT_MARGIN_MM
+    outside = np.zeros(n, bool)
+    for i in np.flatnonzero(big & ~vertebra):
+        b = _box_mm(ct, boxes[i])
+        c = centroids_xyz[i]
+        # the centre outside the grown box, or reaching far beyond it (a table, a holder's arc)
+        outside[i] = bool(np.any(c < lo) or np.any(c > hi) or np.any(b[0] < lo - SUPPORT_REACH_MM)
+                          or np.any(b[1] > hi + SUPPORT_REACH_MM))
+    outside[cranium - 1] = False
+    keep = big & ~vertebra & ~outside
+    keep[cranium - 1] = True
+    return dict(core=core, labels=labels, n=n, sizes=sizes, boxes=boxes, cranium=cranium, centroids_xyz=centroids_xyz,
+                big=big, vertebra=vertebra, outside=outside, keep=keep, crbox=crbox, erosion=int(erosion))
+
+
 def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: float | None = None,
                   bone_level: float | None = None, min_component_mm3: float = MIN_COMPONENT_MM3) -> SkullSegmentation:
     """Segment the skull (cranium, facial skeleton, mandible) from a head CT, or from a skull alone.
@@ -363,7 +473,8 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
     * ``bone_level`` given (``--bone-level``): that;
     * HU-calibrated scans: half way between the soft-tissue mode and the bone mode of the head's histogram
       (the 50 % partial-volume level), kept within ``BONE_LEVEL_RANGE_HU``; ``DEFAULT_BONE_HU`` when the
-      bone has no mode of its own or there is no soft tissue (:func:`soft_tissue_present`);
+      bone has no mode of its own or there is no soft tissue (:func:`soft_tissue_present`: the layer under
+      the scan's surfaces is bone, not soft tissue);
     * uncalibrated scans with soft tissue: the same rule on the pseudo-HU scale (air and soft-tissue modes
       mapped to -1000 / +40 HU), converted back to stored units;
     * uncalibrated scans without soft tissue: :func:`air_bone_level` (half way between the air and the
@@ -407,7 +518,7 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
     if head is not None and head.mask.shape != ct.shape:
         raise SegmentationError(f"head mask shape {head.mask.shape} != CT shape {ct.shape}")
     calibrated = str(ct.meta.get("units", "")).upper() == "HU"
-    has_skin, skin_info = soft_tissue_present(ct.data)
+    has_skin, skin_info = soft_tissue_present(ct.data, spacing=ct.spacing)
     if ct.meta.get("skull_mesh") is not None:          # a skull given as a mesh (mesh_input): no skin
         has_skin = False
     window = tuple(head.meta["window"]) if head is not None and head.meta.get("window") else None
@@ -451,38 +562,14 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
         raise SegmentationError(f"{ct.meta.get('source', 'the CT')}: nothing is above the bone level {stored:g} "
                                 f"({units})")
     # joints and tooth contacts at partial volume (atlanto-occipital, TMJ, closed bite) join the vertebrae or the
-    # mandible to the cranium at the bone level; one voxel of erosion separates them (CThead)
-    core, labels, n = eroded_components(bone)
-    sizes = np.bincount(labels.reshape(-1), minlength=n + 1)[1:]
-    boxes = ndi.find_objects(labels)
-    # the cranium: the largest component clear of the scan's side borders (a table or a holder running
-    # out of the field of view can be larger; the eroded core stops a voxel short of the border); the
-    # largest of all when every one touches them
-    _, ny, nx = ct.shape
-    clear = np.array([b[1].start > 1 and b[2].start > 1 and b[1].stop < ny - 1 and b[2].stop < nx - 1 for b in boxes])
-    cranium = int(np.argmax(np.where(clear, sizes, -1) if clear.any() else sizes)) + 1
-    centroids = np.array(ndi.center_of_mass(core, labels, np.arange(1, n + 1))).reshape(n, 3)
-    centroids_xyz = ct.index_to_patient(centroids)
-    big = sizes * voxel_mm3 >= float(min_component_mm3)
-    vertebra = _vertebra_components(labels, centroids_xyz, cranium, ct) & big
-    vertebra[cranium - 1] = False
-    # supports, table, holders: outside the cranium's box (grown by a margin, and downward for the mandible)
-    crbox = _box_mm(ct, boxes[cranium - 1])
-    lo = crbox[0] - [SUPPORT_MARGIN_MM, SUPPORT_MARGIN_MM, MANDIBLE_BELOW_MM]
-    hi = crbox[1] + SUPPORT_MARGIN_MM
-    outside = np.zeros(n, bool)
-    for i in np.flatnonzero(big & ~vertebra):
-        b = _box_mm(ct, boxes[i])
-        c = centroids_xyz[i]
-        # the centre outside the grown box, or reaching far beyond it (a table, a holder's arc)
-        outside[i] = bool(np.any(c < lo) or np.any(c > hi) or np.any(b[0] < lo - SUPPORT_REACH_MM)
-                          or np.any(b[1] > hi + SUPPORT_REACH_MM))
-    outside[cranium - 1] = False
-    keep = big & ~vertebra & ~outside
-    keep[cranium - 1] = True
+    # mandible to the cranium at the bone level; one voxel of erosion separates them (CThead at its own level)
+    parts = _bone_parts(bone, ct, 1, min_component_mm3, voxel_mm3)
+    core, labels, n, sizes, boxes, cranium, centroids_xyz, big, vertebra, outside, keep, crbox = (
+        parts[k] for k in ("core", "labels", "n", "sizes", "boxes", "cranium", "centroids_xyz", "big", "vertebra",
+                           "outside", "keep", "crbox"))
     mandible = _mandible_report(labels, keep, sizes, centroids_xyz, cranium, ct, voxel_mm3, crbox, boxes)
     # give the eroded rim back to the component it came from (a few constrained label dilations)
-    grown = give_back_rim(labels, bone)
+    grown = give_back_rim(labels, bone, steps=parts["erosion"] + 2)
     dropped = bone & np.concatenate([[False], vertebra | outside])[grown]
     dropped_vertebra = int(np.count_nonzero(dropped & np.concatenate([[False], vertebra])[grown]))
     dropped_support = int(np.count_nonzero(dropped)) - dropped_vertebra
@@ -490,7 +577,8 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
     holds_kept = np.unique(rest[np.concatenate([[False], keep])[grown] & (rest > 0)])
     skull = np.isin(rest, holds_kept[holds_kept > 0])
     mandible_mask = (skull & (grown == mandible["component"])) if mandible["present"] else None
-    del labels, grown, rest, core
+    erosion = parts["erosion"]
+    del labels, grown, rest, core, parts
     skull = ndi.binary_fill_holes(skull)
     envelope = _envelope(skull)
 
@@ -508,7 +596,7 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
     meta = dict(mode="skull", bone_level=level_hu, skull_mesh_file=ct.meta.get("skull_mesh_file"), bone_level_stored=float(stored), units=units,
                 bone_level_source=info.get("source", ""), metal_level=metal_stored, calibrated=calibrated,
                 histogram=info, has_skin=has_skin, soft_tissue=skin_info, metal_voxels=n_metal,
-                components=components, components_total=int(n),
+                components=components, components_total=int(n), erosion_voxels=erosion,
                 kept_components=int(np.count_nonzero(keep)),
                 dropped_vertebra_mm3=float(dropped_vertebra * voxel_mm3),
                 dropped_support_mm3=float(dropped_support * voxel_mm3),
