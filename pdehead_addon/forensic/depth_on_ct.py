@@ -357,9 +357,10 @@ class _Rays:
 
     def nearest_skin(self, point: np.ndarray, within: float, skin) -> float:
         """The distance (mm) from ``point`` to the nearest skin, looked for up to ``within`` mm (a larger distance
-        is returned as ``within`` + a voxel): the nearest voxel outside the head mask (the scan's own skin; the
-        scan's cut, where the mask meets the volume's border, is not skin), less half a voxel; without a mask the
-        nearest point of the ``skin`` mesh."""
+        is returned as ``within`` + a voxel): the nearest centre of a voxel outside the head mask (the scan's own
+        skin; the scan's cut, where the mask meets the volume's border, is not skin; the skin lies up to a voxel
+        nearer, so thin tissue is not demoted for the voxels' size); without a mask the nearest point of the
+        ``skin`` mesh."""
         if self.head_mask is None:
             return float(np.linalg.norm(snap_to_surface(point[None], skin)[0][0] - point))
         spacing = np.asarray(self.ct.spacing, float)
@@ -374,7 +375,7 @@ class _Rays:
         if not len(out):
             return within + float(spacing.max())
         pts = self.ct.index_to_patient((out + lo).astype(float))
-        return max(0.0, float(np.sqrt(((pts - point) ** 2).sum(1)).min()) - 0.5 * float(spacing.min()))
+        return float(np.sqrt(((pts - point) ** 2).sum(1)).min())
 
     def implausible(self, k: int, sb: float, ss: float, point: np.ndarray, skin) -> str:
         """Why the depth from ``sb`` to ``ss`` (mm along ray ``k``) is not plausible: the ray meets the skin farther

@@ -77,3 +77,42 @@ def test_skull_segmentation_of_a_cropped_stripped_scan_has_no_skin(cthead_ct):
     assert sk.meta["soft_tissue"]["fill_ratio"] < 1.5 and sk.meta["soft_tissue"]["layer_ratio"] > 0.65
     assert sk.meta["soft_tissue"]["layer_ratio_limit"] == pytest.approx(SKULL_ONLY_LAYER_RATIO)
     assert sk.meta["bone_level_stored"] == 1586.0
+
+
+def _occlusal_slice(ct: CTVolume, skull) -> tuple[int, float, float]:
+    """The first slice above the plane between the upper and the lower incisors (the tips' heights: the lower
+    incisors' top is the mandible's highest bone within 8 mm of its front, the upper incisors' the lowest other
+    bone there): (slice, lower tip z, upper tip z)."""
+    mand = np.argwhere(skull.mandible)
+    m_xyz = ct.index_to_patient(mand.astype(float))
+    front = m_xyz[:, 1] < m_xyz[:, 1].min() + 8.0
+    lower_tip = float(m_xyz[front, 2].max())
+    rest = ct.index_to_patient(np.argwhere(skull.bone & ~skull.mandible).astype(float))
+    near = (rest[:, 1] < m_xyz[:, 1].min() + 10.0) & (np.abs(rest[:, 0] - m_xyz[front, 0].mean()) < 15.0)
+    upper_tip = float(rest[near, 2].min())
+    plane = 0.5 * (lower_tip + upper_tip)
+    z = ct.slice_heights()
+    return int(np.flatnonzero(z >= plane)[0]), lower_tip, upper_tip
+
+
+def test_a_scan_cut_at_the_occlusal_plane_gives_the_mandibles_landmarks_outside_the_scan(cthead_ct, cthead_seg):
+    """CThead with every slice below the plane between its incisors dropped: the scan ends through the skull and
+    the mandible's landmarks are not_found, "outside the scan"; the face above keeps its landmarks."""
+    from pdehead_addon.forensic.auto_landmarks import find_landmarks
+
+    full = segment_skull(cthead_ct, cthead_seg)
+    k, lower_tip, upper_tip = _occlusal_slice(cthead_ct, full)
+    assert lower_tip == pytest.approx(64.0, abs=2.0) and upper_tip == pytest.approx(62.0, abs=2.0)  # a 2 mm overbite
+    cut = cropped(cthead_ct, k, cthead_ct.shape[0])
+    sk = segment_skull(cut)
+    assert sk.meta["has_skin"]
+    search = find_landmarks(cut, sk.bone)
+    assert search.info["scan_cut"].startswith("the scan ends through the skull at z = ")
+    lms = search.landmarks
+    for name in ("Menton", "Pogonion", "Gnathion", "Infradentale", "Supramentale", "Gonion L", "Gonion R",
+                 "Mid-ramus L", "Mid-mandibular border R"):
+        assert lms[name].flag == "not_found" and lms[name].evidence.startswith("outside the scan"), (name, lms[name])
+    for name in ("Nasion", "Orbitale L", "Orbitale R", "Porion L", "Porion R", "Glabella"):
+        assert lms[name].flag != "not_found", (name, lms[name])
+    # the whole scan is not cut through the skull (its neck ends below the bone)
+    assert find_landmarks(cthead_ct, full.bone).info["scan_cut"] == ""
