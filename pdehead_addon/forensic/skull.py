@@ -388,6 +388,69 @@ def _box_mm(ct: CTVolume, box) -> np.ndarray:
     return np.stack([xyz.min(0), xyz.max(0)])
 
 
+#: A mandible cut by the scan's end (a scan ending at the teeth) is its rami: components reaching the scan's lowest
+#: ``PARTIAL_END_SLICES`` slices, below the cranium's centre and at least ``PARTIAL_RAMUS_SIDE_MM`` either side of
+#: its midline (the rami stand 45-55 mm from it, CThead; a vertebra or the upper jaw's pieces lie within 25 mm).
+PARTIAL_END_SLICES = 2
+PARTIAL_RAMUS_SIDE_MM = 30.0
+
+
+def _condyle_gap(core_labels, part: int, cranium: int, ct: CTVolume, boxes) -> float:
+    """The distance (mm) from the top 15 % of a component (its condyle) to the cranium, within 3 x the articulation
+    gap (farther: that bound)."""
+    pad = np.ceil(3 * ARTICULATED_GAP_MM / np.asarray(ct.spacing)).astype(int)
+    box = tuple(slice(max(0, b.start - p), min(n, b.stop + p)) for b, p, n in zip(boxes[part - 1], pad, ct.shape))
+    sub = core_labels[box]
+    if not (sub == cranium).any():
+        return float(3 * ARTICULATED_GAP_MM)
+    kji = np.argwhere(sub == part)
+    z = ct.index_to_patient((kji + [b.start for b in box]).astype(float))[:, 2]
+    top = kji[z >= z.max() - 0.15 * np.ptp(z)]
+    dist = ndi.distance_transform_edt(sub != cranium, sampling=ct.spacing)
+    return float(dist[tuple(top.T)].min())
+
+
+def _partial_mandible(core_labels, keep, sizes, centroids_xyz, cranium: int, ct: CTVolume, voxel_mm3: float,
+                      boxes) -> dict:
+    """A mandible cut by the scan's lower end: a ramus on each side of the cranium's midline, each reaching the
+    scan's end (or one piece reaching it that spans both sides), its condyles articulated (within
+    ``ARTICULATED_GAP_MM`` of the cranium); ``present`` False when there is none (the scan ends above the
+    mandible, or there is no mandible)."""
+    up = float(ct.direction[2, 2]) >= 0
+    nz = ct.shape[0]
+    cc = centroids_xyz[cranium - 1]
+    sides: dict[int, list[int]] = {1: [], -1: []}
+    across = []                           # a body cut below the teeth: one piece from one ramus to the other
+    for i in np.flatnonzero(keep):
+        if i == cranium - 1:
+            continue
+        b = boxes[i][0]
+        at_end = b.start < PARTIAL_END_SLICES if up else b.stop > nz - PARTIAL_END_SLICES
+        if not at_end or centroids_xyz[i, 2] >= cc[2]:
+            continue
+        dx = centroids_xyz[i, 0] - cc[0]
+        x0, x1 = _box_mm(ct, boxes[i])[:, 0] - cc[0]
+        if abs(dx) >= PARTIAL_RAMUS_SIDE_MM:
+            sides[int(np.sign(dx))].append(int(i))
+        elif x0 <= -PARTIAL_RAMUS_SIDE_MM and x1 >= PARTIAL_RAMUS_SIDE_MM:
+            across.append(int(i))
+    if across:
+        parts = [max(across, key=lambda i: sizes[i])]
+        sides = {1: parts, -1: []}
+    elif not sides[1] or not sides[-1]:
+        return {"present": False, "articulated": None}
+    else:
+        parts = [max(sides[s], key=lambda i: sizes[i]) for s in (1, -1)]
+    gaps = [_condyle_gap(core_labels, i + 1, cranium, ct, boxes) for i in parts]
+    if max(gaps) > ARTICULATED_GAP_MM:
+        return {"present": False, "articulated": None}
+    parts = sides[1] + sides[-1]
+    volume = float(sum(sizes[i] for i in parts) * voxel_mm3)
+    return {"present": True, "partial": True, "articulated": True, "condyle_gap_mm": round(max(gaps), 1),
+            "volume_mm3": volume, "component": int(parts[0] + 1), "components": [int(i + 1) for i in parts],
+            "centroid_mm": [round(float(c), 1) for c in np.mean(centroids_xyz[parts], axis=0)]}
+
+
 def _mandible_report(core_labels, keep, sizes, centroids_xyz, cranium: int, ct: CTVolume, voxel_mm3: float,
                      crbox: np.ndarray, boxes) -> dict:
     """The mandible: found (a separate component below and in front of the cranium) and articulated."""
@@ -396,7 +459,7 @@ def _mandible_report(core_labels, keep, sizes, centroids_xyz, cranium: int, ct: 
             and centroids_xyz[i, 2] < cc[2] and centroids_xyz[i, 1] < cc[1]
             and centroids_xyz[i, 2] < crbox[0, 2] + 0.5 * (crbox[1, 2] - crbox[0, 2])]
     if not cand:
-        return {"present": False, "articulated": None}
+        return _partial_mandible(core_labels, keep, sizes, centroids_xyz, cranium, ct, voxel_mm3, boxes)
     m = max(cand, key=lambda i: sizes[i])
     # work in the mandible's box grown by 3 * the articulation gap (the distance beyond it does not matter)
     pad = np.ceil(3 * ARTICULATED_GAP_MM / np.asarray(ct.spacing)).astype(int)
@@ -576,7 +639,8 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
     rest, m = ndi.label(bone & ~dropped, structure=np.ones((3, 3, 3), bool))
     holds_kept = np.unique(rest[np.concatenate([[False], keep])[grown] & (rest > 0)])
     skull = np.isin(rest, holds_kept[holds_kept > 0])
-    mandible_mask = (skull & (grown == mandible["component"])) if mandible["present"] else None
+    mandible_mask = (skull & np.isin(grown, mandible.get("components", [mandible.get("component")]))) \
+        if mandible["present"] else None
     erosion = parts["erosion"]
     del labels, grown, rest, core, parts
     skull = ndi.binary_fill_holes(skull)
@@ -585,6 +649,9 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
     warnings_: list[str] = []
     if not mandible["present"]:
         warnings_.append("no mandible found: the face has no jaw or chin and ends along the scan's cut")
+    elif mandible.get("partial"):
+        warnings_.append("the mandible is cut by the scan's end (its rami only): the landmarks below the scan are "
+                         "not found and the face ends along the scan's cut")
     elif not mandible["articulated"]:
         warnings_.append(f"the mandible is not articulated (its condyles lie {mandible['condyle_gap_mm']:.0f} mm "
                          "from the glenoid fossae): articulate it before approximating the face")

@@ -95,9 +95,10 @@ def _occlusal_slice(ct: CTVolume, skull) -> tuple[int, float, float]:
     return int(np.flatnonzero(z >= plane)[0]), lower_tip, upper_tip
 
 
-def test_a_scan_cut_at_the_occlusal_plane_gives_the_mandibles_landmarks_outside_the_scan(cthead_ct, cthead_seg):
-    """CThead with every slice below the plane between its incisors dropped: the scan ends through the skull and
-    the mandible's landmarks are not_found, "outside the scan"; the face above keeps its landmarks."""
+def test_a_scan_cut_at_the_occlusal_plane_has_a_partial_mandible_and_landmarks_outside_the_scan(cthead_ct, cthead_seg):
+    """CThead with every slice below the plane between its incisors dropped: its partial mandible (the rami) is
+    found; the scan ends through the skull and the mandible's landmarks, all below it, are not_found, "outside the
+    scan"; the face above keeps its landmarks."""
     from pdehead_addon.forensic.auto_landmarks import find_landmarks
 
     full = segment_skull(cthead_ct, cthead_seg)
@@ -106,6 +107,15 @@ def test_a_scan_cut_at_the_occlusal_plane_gives_the_mandibles_landmarks_outside_
     cut = cropped(cthead_ct, k, cthead_ct.shape[0])
     sk = segment_skull(cut)
     assert sk.meta["has_skin"]
+    # its partial mandible: the two rami, reaching the scan's end, articulated (the whole mandible: 6.7 mm)
+    rep = sk.meta["mandible"]
+    assert rep["present"] and rep["partial"] and rep["articulated"] and rep["condyle_gap_mm"] < 12.0, rep
+    ramus_mm3 = np.count_nonzero(sk.mandible) * float(np.prod(cut.spacing))
+    assert 3000.0 < ramus_mm3 < 7000.0, ramus_mm3                      # measured 4624 mm3
+    x = cut.index_to_patient(np.argwhere(sk.mandible).astype(float))[:, 0]
+    mid = float(np.median(cut.index_to_patient(np.argwhere(sk.bone & ~sk.mandible).astype(float))[:, 0]))
+    assert np.count_nonzero(x < mid - 30) > 500 and np.count_nonzero(x > mid + 30) > 500   # a ramus each side
+    assert any("cut by the scan's end" in w for w in sk.meta["warnings"])
     search = find_landmarks(cut, sk.bone)
     assert search.info["scan_cut"].startswith("the scan ends through the skull at z = ")
     lms = search.landmarks
