@@ -264,9 +264,9 @@ MANDIBLE_MIN_WIDTH_MM = 70.0
 
 def scan_cut_through_bone(ct, bone: np.ndarray) -> tuple[str, np.ndarray]:
     """Where the scan ends through the skull: ("" when no bone lies at its lower end, else a description with the
-    height in patient mm of the bone there; the lower end's voxels). The lower end: the ``SCAN_CUT_VOXELS`` lowest slices, and where the
-    scan has a coverage mask (a tilted slab resampled), the covered voxels within that many slices of its lower
-    border."""
+    height in patient mm of the bone there; the lower end's voxels). The lower end: the ``SCAN_CUT_VOXELS``
+    lowest slices, and where the scan has a coverage mask (a tilted slab resampled), the covered voxels within
+    that many slices of its lower border."""
     bone = np.asarray(bone, bool)
     nz = bone.shape[0]
     n = SCAN_CUT_VOXELS
