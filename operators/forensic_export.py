@@ -180,7 +180,8 @@ class ExportSteps:
         lms = self.landmarks()
         sk = self.skull_segmentation()
         head = self.study.cache.seg
-        measured = measure_landmark_depths(lms, skull, skin, sk, head_mask=None if head is None else head.mask)
+        measured = measure_landmark_depths(lms, skull, skin, sk, head_mask=None if head is None else head.mask,
+                                           table=self.depth_table())
         flags = depth_flags(self.flag_names(), measured)
         rows = {n: (m.point, m.depth) for n, m in measured.items()}
         why = next((m.evidence for m in measured.values() if m.method == "mesh"), "")

@@ -101,7 +101,8 @@ class SkullSteps:
                     source=sk.meta["histogram"].get("source"), patches=patches,
                     components=sk.meta["kept_components"], bone_cm3=sk.meta["bone_mm3"] / 1000.0,
                     metal_voxels=sk.meta["metal_voxels"])
-        for key in ("bone_level_stored", "units", "warnings", "mandible", "has_skin", "skull_mesh_file"):
+        for key in ("bone_level_stored", "units", "warnings", "mandible", "has_skin", "soft_tissue",
+                    "skull_mesh_file"):
             if key in sk.meta:
                 info[key] = sk.meta[key]
         if bone:

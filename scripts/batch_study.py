@@ -355,11 +355,16 @@ def _skull_outputs(eng, ct, seg, bset, work: Path, settings: dict) -> int:
     skull = segment_skull(ct, seg)
     bone = skull_mesh(skull)
     eng.export_mesh(bone, work / "skull.stl")
-    skin = eng.solve_pde(bset).surface(int(settings.get("nu", 120)), int(settings.get("nv", 240)), caps=True)
+    # a skull alone (no soft tissue in the CT): the head's outline is the bone, no skin and no depths
+    skin = eng.solve_pde(bset).surface(int(settings.get("nu", 120)), int(settings.get("nv", 240)), caps=True) \
+        if skull.meta.get("has_skin", True) else None
+    if skin is None:
+        print("no skin: the CT shows no soft tissue (a skull alone): landmarks without depths", flush=True)
     search = find_landmarks(ct, skull.bone)
     found = search.points()  # ok and uncertain
     levels = depth_levels(skull)
-    measured = measure_landmark_depths(found, bone, skin, skull, head_mask=seg.mask)
+    table = default_table()
+    measured = measure_landmark_depths(found, bone, skin, skull, head_mask=seg.mask, table=table)
     flags = depth_flags(search.flags(), measured)
     for name, m in measured.items():  # the ray of every depth, for an audit (and the tests' truth)
         print(f"depth ray: {name}: direction {m.direction[0]:.5f} {m.direction[1]:.5f} {m.direction[2]:.5f}, "
@@ -369,11 +374,12 @@ def _skull_outputs(eng, ct, seg, bset, work: Path, settings: dict) -> int:
     missing = (np.full(3, np.nan), float("nan"))
     rows = {name: (measured[name].point, measured[name].depth) if name in measured else missing
             for name in search.landmarks}  # not_found rows stay, flagged
-    table = default_table()
     write_landmark_csv(work / "landmarks.csv", rows, table, flags=flags,
                        provenance=provenance(table=table.label, bone_level=round(float(skull.bone_level), 1),
                                              skin_level=round(levels["skin_level"], 1),
-                                             depth="bone level to skin level in the CT along the bone's exposed normal",
+                                             depth="bone level to skin level in the CT along the bone's exposed normal"
+                                             if skin is not None else
+                                             "not measured: the CT shows no soft tissue (a skull alone)",
                                              frame="CT patient LPS mm", runner="scripts/pdehead_batch.py"))
     return len(found)
 

@@ -863,7 +863,13 @@ def _print_skull(args, addon, coll, skin) -> None:
     print(f"  skull     bone level {level}, {info.get('patches')} patches, "
           f"{info.get('bone_triangles', 0)} bone-skull triangles")
     if not skin:
-        print("  skin      none: the scan has no soft tissue (a skull alone): no skin.stl, no tissue_depth.csv")
+        soft = info.get("soft_tissue") or {}
+        ratio, limit = soft.get("layer_ratio"), soft.get("layer_ratio_limit")
+        why = "" if ratio is None or limit is None else (
+            f": the layer under its surfaces lies {ratio:.2f} of the way from air to dense bone, soft tissue below "
+            f"{limit:g}")
+        print(f"  skin      none: the scan has no soft tissue (a skull alone{why}): no skin.stl, no tissue_depth.csv, "
+              "no landmark depths")
     if "median" in depth:
         print(f"  depth     {depth['measured']} of {depth['vertices']} skin vertices, median {depth['median']:.1f} "
               f"mm, p95 {depth['p95']:.1f} mm (no bone {depth['no_bone']}, envelope {depth['envelope']})")

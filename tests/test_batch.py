@@ -285,9 +285,11 @@ def test_skull_batch_recovers_known_depths_at_ok_landmarks_and_builds_a_table(co
         assert {r["flag"] for r in table} <= {"ok", "uncertain", "not_found"}
         assert int(row["n_landmarks"]) == sum(r["flag"] != "not_found" for r in table) >= 20
         ok = [r for r in table if r["flag"] == "ok"]
-        # the table still carries what a lab needs (scale 1: 23; mid-philtrum and supradentale, whose ray runs
-        # between two slices that disagree on the alveolus' edge, are uncertain)
-        assert len(ok) >= 23, [r["landmark"] for r in ok]
+        # the table still carries what a lab needs (scale 1: 21; mid-philtrum and supradentale, whose ray runs
+        # between two slices that disagree on the alveolus' edge, are uncertain; so are the implausible depths:
+        # suborbital R 18.2 mm, outside the T-Table's 0-15.5 mm, and supraglenoid L, whose ray meets the skin at
+        # 32.2 mm with the nearest skin 11.6 mm away)
+        assert len(ok) >= 20, [r["landmark"] for r in ok]
         assert {r["landmark"] for r in ok} >= set(vault) | {"Glabella", "Zygomatic arch L", "Zygomatic arch R",
                                                             "Gonion L", "Gonion R", "Pogonion", "Menton"}
         log = (folder / "log.txt").read_text()
@@ -311,7 +313,8 @@ def test_skull_batch_recovers_known_depths_at_ok_landmarks_and_builds_a_table(co
         for line in (x for x in log.splitlines() if x.startswith("depth uncertain: ")):
             name = line.split(": ")[1]
             assert next(r["flag"] for r in table if r["landmark"] == name) == "uncertain"
-            assert any(w in line for w in ("peaks at", "no crossing", "meets", "no skin", "between two slices")), line
+            assert any(w in line for w in ("peaks at", "no crossing", "meets", "no skin", "between two slices",
+                                           "scan's edge", "outside the table's mean")), line
         assert "depth uncertain: Supraorbital L: the bone along the ray peaks at" in log
         assert re.search(r"^depth uncertain: Mid-philtrum: the ray runs between two slices .* disagree on the bone's",
                          log, flags=re.M)

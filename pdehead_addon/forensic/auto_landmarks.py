@@ -219,8 +219,80 @@ def find_landmarks(ct, bone: np.ndarray, *, grid_mm: float = LANDMARK_GRID_MM) -
         if p is None and flag != NOT_FOUND:
             flag = NOT_FOUND
         out[d.name] = FoundLandmark(d.name, None if p is None else fr.to_patient(p), flag, ev)
+    cut, low_end = scan_cut_through_bone(ct, bone)
+    info["scan_cut"] = cut
+    width = 0.0
+    if mand_id is not None:
+        cols = np.argwhere(fr.comp == mand_id)[:, 0]
+        width = float(fr.coord(0, cols.max()) - fr.coord(0, cols.min())) if len(cols) else 0.0
+    if mand_id is not None and width < MANDIBLE_MIN_WIDTH_MM and not (labels[low_end] == mand_id).any():
+        # a mandible is either whole (as wide as the face) or cut by the scan's end (and reaches it)
+        mand_id, mand_ev = None, (f"no mandible: the piece below the orbits is {width:.0f} mm wide and ends inside "
+                                  "the scan (the upper jaw's, split off by the bone level)")
+        info["mandible"] = False
+        out = {d.name: (out[d.name] if d.key.split("_")[0] not in MANDIBLE_KEYS
+                        else FoundLandmark(d.name, None, NOT_FOUND, mand_ev)) for d in STANDARD_LANDMARKS}
+    if cut and mand_id is None:     # the scan ends in the face: what the mandible carries lies below it
+        for name, lm in out.items():
+            if lm.flag == NOT_FOUND and lm.evidence.startswith("no mandible"):
+                lm.evidence = f"outside the scan: {cut} ({lm.evidence})"
+    elif cut and (labels[low_end] == mand_id).any():
+        # the mandible runs out of the scan: its lower border, angle and chin lie below the scan's end, and the
+        # rules' points on what is left (the cut's edge) are not those landmarks
+        for d in STANDARD_LANDMARKS:
+            if d.key.split("_")[0] in MANDIBLE_BORDER_KEYS and out[d.name].flag != NOT_FOUND:
+                out[d.name] = FoundLandmark(d.name, None, NOT_FOUND,
+                                            f"outside the scan: {cut}; the mandible runs out of it")
     info["found"] = sum(lm.flag != NOT_FOUND for lm in out.values())
     return LandmarkSearch(out, frank, info)
+
+
+#: Every landmark on the mandible.
+MANDIBLE_KEYS = ("id", "sm", "pog", "gn", "me", "go", "subm2", "mr", "mmb", "ic", "ocl")
+#: The mandible's landmarks on its lower border, angle, chin and ramus (their rules need the lowest mandible):
+#: outside the scan when the mandible runs out of its lower end.
+MANDIBLE_BORDER_KEYS = ("pog", "gn", "me", "go", "subm2", "mr", "mmb", "ic")
+#: Bone within this many voxels of the scan's lower end (its lowest slices, or a tilted slab's lower border) ...
+SCAN_CUT_VOXELS = 2
+#: ... of at least this volume (mm^3) means the scan ends through the skull (a scan cut at the maxilla or the teeth).
+SCAN_CUT_MIN_MM3 = 100.0
+#: A mandible wholly inside the scan is at least this wide (mm; adult bigonial breadth ~ 90-100 mm, bicondylar
+#: ~ 120 mm): a narrower piece below the orbits that does not reach the scan's end is the upper jaw's (a premaxilla
+#: split off by the bone level), not the mandible.
+MANDIBLE_MIN_WIDTH_MM = 70.0
+
+
+def scan_cut_through_bone(ct, bone: np.ndarray) -> tuple[str, np.ndarray]:
+    """Where the scan ends through the skull: ("" when no bone lies at its lower end, else a description with the
+    height in patient mm of the bone there; the lower end's voxels). The lower end: the ``SCAN_CUT_VOXELS``
+    lowest slices, and where the scan has a coverage mask (a tilted slab resampled), the covered voxels within
+    that many slices of its lower border."""
+    bone = np.asarray(bone, bool)
+    nz = bone.shape[0]
+    n = SCAN_CUT_VOXELS
+    up = float(ct.direction[2, 2]) >= 0              # slice index runs up (k = 0 lowest)
+    low = np.zeros(bone.shape, bool)
+    if up:
+        low[:n] = True
+    else:
+        low[nz - n:] = True
+    cov = getattr(ct, "coverage", None)
+    if cov is not None:
+        shifted = np.ones_like(cov)                  # True where the voxel n slices below is covered
+        if up:
+            shifted[n:] = cov[:-n]
+            shifted[:n] = False
+        else:
+            shifted[:-n] = cov[n:]
+            shifted[-n:] = False
+        low |= cov & ~shifted
+    at = np.argwhere(bone & low)
+    volume = float(len(at)) * float(np.prod(ct.spacing))
+    if volume < SCAN_CUT_MIN_MM3:
+        return "", low
+    z = ct.index_to_patient(at.astype(float))[:, 2]
+    return (f"the scan ends through the skull at z = {np.median(z):.0f} mm ({volume:.0f} mm3 of bone at its lower "
+            "end)"), low
 
 
 def _symmetry_plane(ct, bone: np.ndarray, info: dict):

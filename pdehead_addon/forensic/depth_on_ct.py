@@ -41,6 +41,14 @@ DEPTH_SPREAD_MAX_SLOPE_DEG = 45.0
 DEPTH_SPREAD_MIN_COLUMNS = 100
 #: Air (HU): the skin level is half way between it and soft tissue.
 AIR_HU = -1000.0
+#: A depth is plausible only where the ray meets the skin within this many times the distance from the bone point
+#: to the nearest skin (a ray that runs along the face, past a nose or a cheek, measures the face, not the depth);
+DEPTH_NEAREST_SKIN_FACTOR = 1.5
+#: ... not within this many voxels of the scan's edge (the first or last slice, the field of view, a tilted slab's
+#: border: the skin there is where the scan stops) ...
+DEPTH_EDGE_VOXELS = 2
+#: ... and within the table's mean +- this many SD (:func:`measure_landmark_depths` with a table).
+DEPTH_TABLE_SD = 3.0
 
 
 @dataclass
@@ -247,6 +255,9 @@ class _Rays:
         self.across = np.cos(np.radians(DEPTH_STEP_MODEL_DEG))
         self.spread = None
         self.bone_normal = None
+        self.shape = np.asarray(vol.shape)
+        self.coverage = getattr(ct, "coverage", None)
+        self.ct, self.head_mask = ct, head_mask
 
     def crossings(self, v, level):
         """Sub-sample positions (mm along the ray) where the profile falls through ``level`` going outward."""
@@ -341,7 +352,61 @@ class _Rays:
             if not holder:
                 ss = self.on_slices(k, ss, skin_level, tissue, AIR_HU,
                                     snap_to_surface(self.base[k] + ss * normal[k], skin)[1][0])
+        why = why or self.implausible(k, sb, ss, point, skin)
         return DepthOnCT(point, ss - sb, mesh_d, normal[k], not why, why)
+
+    def nearest_skin(self, point: np.ndarray, within: float, skin) -> float:
+        """The distance (mm) from ``point`` to the nearest skin, looked for up to ``within`` mm (a larger distance
+        is returned as ``within`` + a voxel): the nearest centre of a voxel outside the head mask (the scan's own
+        skin; the scan's cut, where the mask meets the volume's border, is not skin; the skin lies up to a voxel
+        nearer, so thin tissue is not demoted for the voxels' size); without a mask the nearest point of the
+        ``skin`` mesh."""
+        if self.head_mask is None:
+            return float(np.linalg.norm(snap_to_surface(point[None], skin)[0][0] - point))
+        spacing = np.asarray(self.ct.spacing, float)
+        centre = self.ct.patient_to_index(point[None])[0]
+        reach = np.ceil(within / spacing).astype(int) + 2
+        lo = np.maximum(np.floor(centre).astype(int) - reach, 0)
+        hi = np.minimum(np.floor(centre).astype(int) + reach + 1, self.shape)
+        if np.any(hi <= lo):
+            return within + float(spacing.max())
+        box = ~np.asarray(self.head_mask[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]], bool)
+        out = np.argwhere(box)
+        if not len(out):
+            return within + float(spacing.max())
+        pts = self.ct.index_to_patient((out + lo).astype(float))
+        return float(np.sqrt(((pts - point) ** 2).sum(1)).min())
+
+    def implausible(self, k: int, sb: float, ss: float, point: np.ndarray, skin) -> str:
+        """Why the depth from ``sb`` to ``ss`` (mm along ray ``k``) is not plausible: the ray meets the skin farther
+        than :data:`DEPTH_NEAREST_SKIN_FACTOR` times the nearest skin (:meth:`nearest_skin`) from the bone point, or
+        runs within :data:`DEPTH_EDGE_VOXELS` voxels of the scan's edge ("" when neither)."""
+        depth = ss - sb
+        nearest = self.nearest_skin(point, depth / DEPTH_NEAREST_SKIN_FACTOR, skin)
+        if depth > DEPTH_NEAREST_SKIN_FACTOR * max(nearest, self.step):
+            return (f"the ray meets the skin {depth:.1f} mm from the bone, more than {DEPTH_NEAREST_SKIN_FACTOR:g} x "
+                    f"the nearest skin's {nearest:.1f} mm: it runs along the face, not through the soft tissue")
+        on = (self.s >= sb) & (self.s <= ss)
+        idx = self.idx.reshape(3, len(self.base), -1)[:, k][:, on]
+        if idx.size:
+            margin = float(DEPTH_EDGE_VOXELS)
+            low = idx.min(axis=1)
+            high = (self.shape - 1) - idx.max(axis=1)
+            axis = int(np.argmin(np.minimum(low, high)))
+            if min(low[axis], high[axis]) < margin:
+                return (f"the ray runs within {DEPTH_EDGE_VOXELS} voxels of the scan's edge (axis "
+                        f"{'kji'[axis]}, {min(low[axis], high[axis]):.1f} voxels): the skin there may be where the "
+                        "scan stops")
+            if self.coverage is not None:
+                for a in range(3):
+                    for d in (-margin, margin):
+                        at = np.rint(idx).astype(np.int64)
+                        at[a] = np.rint(idx[a] + d).astype(np.int64)
+                        at = np.clip(at, 0, (self.shape - 1)[:, None])
+                        if not self.coverage[tuple(at)].all():
+                            return (f"the ray runs within {DEPTH_EDGE_VOXELS} voxels of the scan's edge (the "
+                                    "scanned slab's border): the skin there may be where the scan stops")
+        return ""
 
     def _skin_point(self, k, sb, ss, mesh_d):
         """Where the skin touches something outside the head (a pillow, a holder: the skin level runs on beyond
@@ -390,12 +455,18 @@ def depth_levels(skull_seg) -> dict:
 
 def measure_landmark_depths(landmarks: dict[str, np.ndarray], skull: Mesh, skin: Mesh | None, skull_seg=None,
                             head_mask: np.ndarray | None = None,
-                            max_depth_mm: float = 60.0) -> dict[str, DepthOnCT]:
+                            max_depth_mm: float = 60.0, table=None) -> dict[str, DepthOnCT]:
     """The landmark depths every output writes (the batch's landmarks.csv, the add-on's Export Landmark Depths
     and Export for Printing): on the CT's intensities (:func:`landmark_depths_on_ct`, levels from
     :func:`depth_levels`) when ``skull_seg`` carries them and the CT shows soft tissue; otherwise on the meshes
     (:func:`~.landmarks.landmark_depths`), each result's ``method`` ``"mesh"`` and its ``evidence`` saying why.
-    Without a skin the depths are NaN (the bone point is the landmark snapped onto ``skull``)."""
+    Without a skin the depths are NaN (the bone point is the landmark snapped onto ``skull``).
+
+    A depth is plausible (``trusted``) only where, besides the profile's checks of :func:`landmark_depths_on_ct`,
+    the ray meets the skin within :data:`DEPTH_NEAREST_SKIN_FACTOR` times the distance to the nearest skin, not
+    within :data:`DEPTH_EDGE_VOXELS` voxels of the scan's edge, and, with a ``table``
+    (:class:`~.depth_table.DepthTable`), within its mean +- :data:`DEPTH_TABLE_SD` SD for the landmark (landmarks
+    the table lacks, or gives no SD for, are not checked against it); ``evidence`` says which check failed."""
     names = list(landmarks)
     if not names:
         return {}
@@ -407,11 +478,30 @@ def measure_landmark_depths(landmarks: dict[str, np.ndarray], skull: Mesh, skin:
     elif not skull_seg.meta.get("has_skin", True):
         why = "the CT shows no soft tissue: depths measured on the meshes"
     if not why:
-        return landmark_depths_on_ct(landmarks, skull, skin, skull_seg.hu, skull_seg.ct, head_mask=head_mask,
-                                     max_depth_mm=max_depth_mm, **depth_levels(skull_seg))
-    base, normal, depth = depth_rays(landmarks, skull, skin, max_depth_mm)
-    return {n: DepthOnCT(base[i], float(depth[i]), float(depth[i]), normal[i], True, why, "mesh")
-            for i, n in enumerate(names)}
+        out = landmark_depths_on_ct(landmarks, skull, skin, skull_seg.hu, skull_seg.ct, head_mask=head_mask,
+                                    max_depth_mm=max_depth_mm, **depth_levels(skull_seg))
+    else:
+        base, normal, depth = depth_rays(landmarks, skull, skin, max_depth_mm)
+        out = {n: DepthOnCT(base[i], float(depth[i]), float(depth[i]), normal[i], True, why, "mesh")
+               for i, n in enumerate(names)}
+    return within_table(out, table) if table is not None else out
+
+
+def within_table(measured: dict[str, DepthOnCT], table, k: float = DEPTH_TABLE_SD) -> dict[str, DepthOnCT]:
+    """``measured`` with every trusted depth outside ``table``'s mean +- ``k`` SD for its landmark turned
+    untrusted (its ``evidence`` the depth and the range); landmarks without an SD in the table are kept as they
+    are."""
+    entries = getattr(table, "entries", {})
+    for name, m in measured.items():
+        entry = entries.get(name)
+        if entry is None or entry.sd_mm is None or not m.trusted or not np.isfinite(m.depth):
+            continue
+        low, high = entry.mean_mm - k * entry.sd_mm, entry.mean_mm + k * entry.sd_mm
+        if not low <= m.depth <= high:
+            m.trusted = False
+            m.evidence = (f"the depth {m.depth:.1f} mm lies outside the table's mean +- {k:g} SD for the landmark "
+                          f"({entry.mean_mm:g} +- {k:g} x {entry.sd_mm:g}: {max(low, 0.0):.1f}-{high:.1f} mm)")
+    return measured
 
 
 def depth_flags(flags: dict[str, str], measured: dict[str, DepthOnCT]) -> dict[str, str]:

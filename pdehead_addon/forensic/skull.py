@@ -53,6 +53,8 @@ from ..core.errors import SegmentationError
 from ..core.mesh_geometry import signed_volume
 from ..core.mesh import Mesh
 from ..segment.segmentation import Segmentation, auto_window, segment_head
+from .scan_contents import (SKULL_ONLY_LAYER_RATIO, air_bone_level, partial_mandible,  # noqa: F401
+                            soft_tissue_present)
 
 #: HU assigned to the air and soft-tissue modes when the scan is not calibrated.
 AIR_HU, TISSUE_HU = -1000.0, 40.0
@@ -177,69 +179,6 @@ def _metal_level_stored(ct: CTVolume, calibrated: bool) -> float:
     return np.inf
 
 
-def soft_tissue_present(data: np.ndarray, split: float | None = None) -> tuple[bool, dict]:
-    """Whether the scan has soft tissue around the bone (a head CT) or is a skull alone (a dry skull, or soft
-    tissue removed).
-
-    Rule: the non-air voxels (above the histogram's air/rest split, :func:`_air_split`) are filled per axial
-    slice; a head is solid (filled / non-air about 1.0-1.1), a skull is a shell around an empty braincase
-    (2 and more). Soft tissue is present when the ratio is below ``SKULL_ONLY_FILL_RATIO``.
-    """
-    split = _air_split(data) if split is None else split
-    solid = data > np.float32(split)
-    n = int(np.count_nonzero(solid))
-    if n == 0:
-        return False, {"fill_ratio": None, "air_split": split}
-    filled = n + _enclosed_per_slice(solid)
-    ratio = filled / n
-    return bool(ratio < SKULL_ONLY_FILL_RATIO), {"fill_ratio": round(ratio, 3), "air_split": split}
-
-
-def _enclosed_per_slice(solid: np.ndarray) -> int:
-    """Number of voxels not in ``solid`` that no in-slice path connects to the slice's border (holes)."""
-    in_plane = np.zeros((3, 3, 3), bool)
-    in_plane[1] = ndi.generate_binary_structure(2, 1)
-    labels, n = ndi.label(~solid, structure=in_plane)
-    border = np.zeros(n + 1, bool)
-    for edge in (labels[:, 0, :], labels[:, -1, :], labels[:, :, 0], labels[:, :, -1]):
-        border[np.unique(edge)] = True
-    border[0] = True
-    return int(np.count_nonzero(~border[labels]))
-
-
-def _air_split(data: np.ndarray) -> float:
-    """Otsu's split of the histogram (of a subsample): air below, everything else above."""
-    from skimage.filters import threshold_otsu
-    sample = data.reshape(-1)[:: max(1, data.size // 2_000_000)]
-    return float(threshold_otsu(sample[np.isfinite(sample)]))
-
-
-#: A scan whose non-air voxels, filled per slice, grow by more than this factor is a skull without soft tissue.
-SKULL_ONLY_FILL_RATIO = 1.5
-
-
-def air_bone_level(data: np.ndarray, split: float | None = None, bins: int = 256) -> tuple[float, dict]:
-    """Bone level (stored units) of a scan without soft tissue: half way between the air and bone modes.
-
-    The 50 % partial-volume level of an air/bone interface. The modes are the histogram maxima below and
-    above Otsu's split (:func:`_air_split`); needs no soft-tissue mode, and no calibration.
-    """
-    split = _air_split(data) if split is None else split
-    sample = data.reshape(-1)[:: max(1, data.size // 4_000_000)]
-    sample = sample[np.isfinite(sample)]
-    out = {}
-    for name, part in (("air_mode", sample[sample <= split]), ("bone_mode", sample[sample > split])):
-        if part.size == 0:
-            raise SegmentationError("the scan has no air/bone contrast to find a bone level from")
-        hist, edges = np.histogram(part, bins=bins)
-        smooth = ndi.gaussian_filter1d(hist.astype(np.float64), 2.0)
-        k = int(np.argmax(smooth))
-        out[name] = float(0.5 * (edges[k] + edges[k + 1]))
-    level = 0.5 * (out["air_mode"] + out["bone_mode"])
-    out.update(source="air/bone rule", split=split)
-    return float(level), out
-
-
 def _to_stored(value_hu: float, calibrated: bool, window) -> float:
     if calibrated:
         return float(value_hu)
@@ -256,10 +195,11 @@ def _to_hu(value: float, calibrated: bool, window) -> float | None:
     return float(AIR_HU + (value - low) * (TISSUE_HU - AIR_HU) / (high - low))
 
 
-def eroded_components(bone: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
-    """The components of the bone eroded by one voxel (a joint or a tooth contact at partial volume no longer joins
-    them; thicker bone stays whole): (the eroded core, or the bone when nothing is left; its labels; their count)."""
-    core = ndi.binary_erosion(bone, structure=ndi.generate_binary_structure(3, 1))
+def eroded_components(bone: np.ndarray, erosion: int = 1) -> tuple[np.ndarray, np.ndarray, int]:
+    """The components of the bone eroded by ``erosion`` voxels (a joint or a tooth contact at partial volume no
+    longer joins them; thicker bone stays whole): (the eroded core, or the bone when nothing is left; its labels;
+    their count)."""
+    core = ndi.binary_erosion(bone, structure=ndi.generate_binary_structure(3, 1), iterations=int(erosion))
     if not core.any():
         core = bone
     labels, n = ndi.label(core, structure=np.ones((3, 3, 3), bool))
@@ -321,7 +261,8 @@ def _mandible_report(core_labels, keep, sizes, centroids_xyz, cranium: int, ct: 
             and centroids_xyz[i, 2] < cc[2] and centroids_xyz[i, 1] < cc[1]
             and centroids_xyz[i, 2] < crbox[0, 2] + 0.5 * (crbox[1, 2] - crbox[0, 2])]
     if not cand:
-        return {"present": False, "articulated": None}
+        return partial_mandible(core_labels, keep, sizes, centroids_xyz, cranium, ct, voxel_mm3, boxes,
+                                ARTICULATED_GAP_MM)
     m = max(cand, key=lambda i: sizes[i])
     # work in the mandible's box grown by 3 * the articulation gap (the distance beyond it does not matter)
     pad = np.ceil(3 * ARTICULATED_GAP_MM / np.asarray(ct.spacing)).astype(int)
@@ -350,6 +291,41 @@ def _mandible_report(core_labels, keep, sizes, centroids_xyz, cranium: int, ct: 
             "centroid_mm": [round(float(c), 1) for c in centroids_xyz[m]]}
 
 
+def _bone_parts(bone: np.ndarray, ct: CTVolume, erosion: int, min_component_mm3: float, voxel_mm3: float) -> dict:
+    """The components of the bone eroded by ``erosion`` voxels and what each is: the cranium, cervical vertebrae
+    (:func:`_vertebra_components`), supports outside the cranium's box, the rest kept (see :func:`segment_skull`)."""
+    core, labels, n = eroded_components(bone, erosion)
+    sizes = np.bincount(labels.reshape(-1), minlength=n + 1)[1:]
+    boxes = ndi.find_objects(labels)
+    # the cranium: the largest component clear of the scan's side borders (a table or a holder running
+    # out of the field of view can be larger; the eroded core stops a voxel short of the border); the
+    # largest of all when every one touches them
+    _, ny, nx = ct.shape
+    clear = np.array([b[1].start > 1 and b[2].start > 1 and b[1].stop < ny - 1 and b[2].stop < nx - 1 for b in boxes])
+    cranium = int(np.argmax(np.where(clear, sizes, -1) if clear.any() else sizes)) + 1
+    centroids = np.array(ndi.center_of_mass(core, labels, np.arange(1, n + 1))).reshape(n, 3)
+    centroids_xyz = ct.index_to_patient(centroids)
+    big = sizes * voxel_mm3 >= float(min_component_mm3)
+    vertebra = _vertebra_components(labels, centroids_xyz, cranium, ct) & big
+    vertebra[cranium - 1] = False
+    # supports, table, holders: outside the cranium's box (grown by a margin, and downward for the mandible)
+    crbox = _box_mm(ct, boxes[cranium - 1])
+    lo = crbox[0] - [SUPPORT_MARGIN_MM, SUPPORT_MARGIN_MM, MANDIBLE_BELOW_MM]
+    hi = crbox[1] + SUPPORT_MARGIN_MM
+    outside = np.zeros(n, bool)
+    for i in np.flatnonzero(big & ~vertebra):
+        b = _box_mm(ct, boxes[i])
+        c = centroids_xyz[i]
+        # the centre outside the grown box, or reaching far beyond it (a table, a holder's arc)
+        outside[i] = bool(np.any(c < lo) or np.any(c > hi) or np.any(b[0] < lo - SUPPORT_REACH_MM)
+                          or np.any(b[1] > hi + SUPPORT_REACH_MM))
+    outside[cranium - 1] = False
+    keep = big & ~vertebra & ~outside
+    keep[cranium - 1] = True
+    return dict(core=core, labels=labels, n=n, sizes=sizes, boxes=boxes, cranium=cranium, centroids_xyz=centroids_xyz,
+                big=big, vertebra=vertebra, outside=outside, keep=keep, crbox=crbox, erosion=int(erosion))
+
+
 def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: float | None = None,
                   bone_level: float | None = None, min_component_mm3: float = MIN_COMPONENT_MM3) -> SkullSegmentation:
     """Segment the skull (cranium, facial skeleton, mandible) from a head CT, or from a skull alone.
@@ -363,7 +339,8 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
     * ``bone_level`` given (``--bone-level``): that;
     * HU-calibrated scans: half way between the soft-tissue mode and the bone mode of the head's histogram
       (the 50 % partial-volume level), kept within ``BONE_LEVEL_RANGE_HU``; ``DEFAULT_BONE_HU`` when the
-      bone has no mode of its own or there is no soft tissue (:func:`soft_tissue_present`);
+      bone has no mode of its own or there is no soft tissue (:func:`soft_tissue_present`: the layer under
+      the scan's surfaces is bone, not soft tissue);
     * uncalibrated scans with soft tissue: the same rule on the pseudo-HU scale (air and soft-tissue modes
       mapped to -1000 / +40 HU), converted back to stored units;
     * uncalibrated scans without soft tissue: :func:`air_bone_level` (half way between the air and the
@@ -407,7 +384,7 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
     if head is not None and head.mask.shape != ct.shape:
         raise SegmentationError(f"head mask shape {head.mask.shape} != CT shape {ct.shape}")
     calibrated = str(ct.meta.get("units", "")).upper() == "HU"
-    has_skin, skin_info = soft_tissue_present(ct.data)
+    has_skin, skin_info = soft_tissue_present(ct.data, spacing=ct.spacing)
     if ct.meta.get("skull_mesh") is not None:          # a skull given as a mesh (mesh_input): no skin
         has_skin = False
     window = tuple(head.meta["window"]) if head is not None and head.meta.get("window") else None
@@ -451,52 +428,33 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
         raise SegmentationError(f"{ct.meta.get('source', 'the CT')}: nothing is above the bone level {stored:g} "
                                 f"({units})")
     # joints and tooth contacts at partial volume (atlanto-occipital, TMJ, closed bite) join the vertebrae or the
-    # mandible to the cranium at the bone level; one voxel of erosion separates them (CThead)
-    core, labels, n = eroded_components(bone)
-    sizes = np.bincount(labels.reshape(-1), minlength=n + 1)[1:]
-    boxes = ndi.find_objects(labels)
-    # the cranium: the largest component clear of the scan's side borders (a table or a holder running
-    # out of the field of view can be larger; the eroded core stops a voxel short of the border); the
-    # largest of all when every one touches them
-    _, ny, nx = ct.shape
-    clear = np.array([b[1].start > 1 and b[2].start > 1 and b[1].stop < ny - 1 and b[2].stop < nx - 1 for b in boxes])
-    cranium = int(np.argmax(np.where(clear, sizes, -1) if clear.any() else sizes)) + 1
-    centroids = np.array(ndi.center_of_mass(core, labels, np.arange(1, n + 1))).reshape(n, 3)
-    centroids_xyz = ct.index_to_patient(centroids)
-    big = sizes * voxel_mm3 >= float(min_component_mm3)
-    vertebra = _vertebra_components(labels, centroids_xyz, cranium, ct) & big
-    vertebra[cranium - 1] = False
-    # supports, table, holders: outside the cranium's box (grown by a margin, and downward for the mandible)
-    crbox = _box_mm(ct, boxes[cranium - 1])
-    lo = crbox[0] - [SUPPORT_MARGIN_MM, SUPPORT_MARGIN_MM, MANDIBLE_BELOW_MM]
-    hi = crbox[1] + SUPPORT_MARGIN_MM
-    outside = np.zeros(n, bool)
-    for i in np.flatnonzero(big & ~vertebra):
-        b = _box_mm(ct, boxes[i])
-        c = centroids_xyz[i]
-        # the centre outside the grown box, or reaching far beyond it (a table, a holder's arc)
-        outside[i] = bool(np.any(c < lo) or np.any(c > hi) or np.any(b[0] < lo - SUPPORT_REACH_MM)
-                          or np.any(b[1] > hi + SUPPORT_REACH_MM))
-    outside[cranium - 1] = False
-    keep = big & ~vertebra & ~outside
-    keep[cranium - 1] = True
+    # mandible to the cranium at the bone level; one voxel of erosion separates them (CThead at its own level)
+    parts = _bone_parts(bone, ct, 1, min_component_mm3, voxel_mm3)
+    core, labels, n, sizes, boxes, cranium, centroids_xyz, big, vertebra, outside, keep, crbox = (
+        parts[k] for k in ("core", "labels", "n", "sizes", "boxes", "cranium", "centroids_xyz", "big", "vertebra",
+                           "outside", "keep", "crbox"))
     mandible = _mandible_report(labels, keep, sizes, centroids_xyz, cranium, ct, voxel_mm3, crbox, boxes)
     # give the eroded rim back to the component it came from (a few constrained label dilations)
-    grown = give_back_rim(labels, bone)
+    grown = give_back_rim(labels, bone, steps=parts["erosion"] + 2)
     dropped = bone & np.concatenate([[False], vertebra | outside])[grown]
     dropped_vertebra = int(np.count_nonzero(dropped & np.concatenate([[False], vertebra])[grown]))
     dropped_support = int(np.count_nonzero(dropped)) - dropped_vertebra
     rest, m = ndi.label(bone & ~dropped, structure=np.ones((3, 3, 3), bool))
     holds_kept = np.unique(rest[np.concatenate([[False], keep])[grown] & (rest > 0)])
     skull = np.isin(rest, holds_kept[holds_kept > 0])
-    mandible_mask = (skull & (grown == mandible["component"])) if mandible["present"] else None
-    del labels, grown, rest, core
+    mandible_mask = (skull & np.isin(grown, mandible.get("components", [mandible.get("component")]))) \
+        if mandible["present"] else None
+    erosion = parts["erosion"]
+    del labels, grown, rest, core, parts
     skull = ndi.binary_fill_holes(skull)
     envelope = _envelope(skull)
 
     warnings_: list[str] = []
     if not mandible["present"]:
         warnings_.append("no mandible found: the face has no jaw or chin and ends along the scan's cut")
+    elif mandible.get("partial"):
+        warnings_.append("the mandible is cut by the scan's end (its rami only): the landmarks below the scan are "
+                         "not found and the face ends along the scan's cut")
     elif not mandible["articulated"]:
         warnings_.append(f"the mandible is not articulated (its condyles lie {mandible['condyle_gap_mm']:.0f} mm "
                          "from the glenoid fossae): articulate it before approximating the face")
@@ -508,7 +466,7 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
     meta = dict(mode="skull", bone_level=level_hu, skull_mesh_file=ct.meta.get("skull_mesh_file"), bone_level_stored=float(stored), units=units,
                 bone_level_source=info.get("source", ""), metal_level=metal_stored, calibrated=calibrated,
                 histogram=info, has_skin=has_skin, soft_tissue=skin_info, metal_voxels=n_metal,
-                components=components, components_total=int(n),
+                components=components, components_total=int(n), erosion_voxels=erosion,
                 kept_components=int(np.count_nonzero(keep)),
                 dropped_vertebra_mm3=float(dropped_vertebra * voxel_mm3),
                 dropped_support_mm3=float(dropped_support * voxel_mm3),

@@ -40,6 +40,9 @@ def test_cli_skull_only_ct_gives_the_same_skull(tmp_path, phantom_dicoms):
     only = run_cli(root / "stripped", *common, "--export", tmp_path / "only", tmp_path=tmp_path)
     assert only.returncode == 0, only.stderr[-3000:]
     assert f"bone level {level:g} HU" in only.stdout and "skin      none" in only.stdout
+    why = next(line for line in only.stdout.splitlines() if "skin      none" in line)   # one line saying why
+    ratio = float(why.split("surfaces lies ")[1].split(" of the way")[0])
+    assert ratio > 0.65 and "no landmark depths" in why, why
     a, b = read_stl(tmp_path / "full" / "skull.stl"), read_stl(tmp_path / "only" / "skull.stl")
     assert a.vertices.shape == b.vertices.shape and np.abs(a.vertices - b.vertices).max() <= 0.01
     assert a.is_watertight() and len(a.triangles) <= 500_000

@@ -1,0 +1,128 @@
+"""What the scan holds, on any scanner and in any units: a skull alone (soft tissue stripped: every voxel below a
+bone level set to air) is recognised whatever part of the head it covers, also where the braincase's fill rule
+(non-air voxels filled per slice grow by more than 1.5x) does not see it. Variants of the real scans are made here,
+never copied: stripped at a bone level, cropped to the skull base and face."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pdehead_addon import CTVolume
+from pdehead_addon.forensic.skull import SKULL_ONLY_LAYER_RATIO, segment_skull, soft_tissue_present
+
+
+def stripped(ct: CTVolume, level: float, air: float | None = None) -> CTVolume:
+    """The CT with every voxel below ``level`` (stored units) set to air (its minimum, or ``air``)."""
+    data = ct.data.copy()
+    data[data < np.float32(level)] = ct.data.min() if air is None else air
+    return CTVolume(data, ct.spacing, origin=ct.origin, direction=ct.direction, meta=dict(ct.meta),
+                    coverage=ct.coverage)
+
+
+def cropped(ct: CTVolume, k0: int, k1: int) -> CTVolume:
+    """Slices k0..k1-1 of the CT, at their own place in the patient frame."""
+    origin = ct.index_to_patient(np.array([[k0, 0, 0]], float))[0]
+    return CTVolume(ct.data[k0:k1].copy(), ct.spacing, origin=origin, direction=ct.direction, meta=dict(ct.meta),
+                    coverage=None if ct.coverage is None else ct.coverage[k0:k1].copy())
+
+
+def _face_slices(ct: CTVolume) -> int:
+    """How many slices from the bottom hold the skull base and the face (CThead's k runs up: 60 slices, 120 mm,
+    from the neck to the orbits' roofs)."""
+    assert ct.direction[2, 2] > 0
+    return int(round(120.0 / ct.spacing[0]))
+
+
+def _check(ct, present: bool):
+    has, info = soft_tissue_present(ct.data, spacing=ct.spacing)
+    assert has is present, info
+    if present:
+        assert info["layer_ratio"] < 0.5, info
+    else:
+        assert info["layer_ratio"] > 0.65, info
+    return info
+
+
+def test_heads_have_soft_tissue_in_any_units(cthead_ct, cthead_tiff_ct, ge_ct, phantom):
+    """CThead raw (stored units) and 8-bit, GE (HU), the phantom (HU), and CThead cropped to the skull base and
+    face: the layer under the surfaces is soft tissue, 0.39-0.44 of the way from air to dense bone."""
+    ratios = [_check(ct, True)["layer_ratio"] for ct in (cthead_ct, cthead_tiff_ct, ge_ct, phantom.ct,
+                                                        cropped(cthead_ct, 0, _face_slices(cthead_ct)))]
+    assert max(ratios) < SKULL_ONLY_LAYER_RATIO - 0.1 and max(ratios) - min(ratios) < 0.1, ratios
+
+
+def test_a_skull_alone_is_recognised_whatever_part_of_the_head_it_covers(cthead_ct, cthead_tiff_ct, ge_ct, phantom):
+    """Stripped at a bone level (stored units, 8 bits, HU) and cropped: no soft tissue. The cropped scans fill by
+    less than 1.5x (the old rule took them for heads: CThead's skull base and face 1.09, GE's lower 100 mm 1.36)."""
+    ct_level = 1586.0                                   # CThead's own bone level (stored units)
+    for ct in (stripped(cthead_ct, ct_level), stripped(cthead_ct, 1500.0), stripped(cthead_tiff_ct, 130.0),
+               stripped(ge_ct, 250.0, -1000.0), stripped(phantom.ct, 565.0, -1000.0)):
+        info = _check(ct, False)
+        assert info["fill_ratio"] > 1.5
+    low = stripped(cropped(cthead_ct, 0, _face_slices(cthead_ct)), ct_level)
+    info = _check(low, False)
+    assert info["fill_ratio"] < 1.5, info
+    ge_low = cropped(ge_ct, 0, 25)                     # GE's lowest 100 mm: maxilla, skull base, orbits
+    _check(ge_low, True)
+    info = _check(stripped(ge_low, 250.0, -1000.0), False)
+    assert info["fill_ratio"] < 1.5, info
+
+
+def test_skull_segmentation_of_a_cropped_stripped_scan_has_no_skin(cthead_ct):
+    """segment_skull's verdict drives the outputs (no skin.stl, no tissue_depth.csv, no landmark depths): the
+    cropped, stripped CThead gives none, and its bone level (given) is kept."""
+    low = stripped(cropped(cthead_ct, 0, _face_slices(cthead_ct)), 1586.0)
+    sk = segment_skull(low, bone_level=1586.0)
+    assert not sk.meta["has_skin"]
+    assert sk.meta["soft_tissue"]["fill_ratio"] < 1.5 and sk.meta["soft_tissue"]["layer_ratio"] > 0.65
+    assert sk.meta["soft_tissue"]["layer_ratio_limit"] == pytest.approx(SKULL_ONLY_LAYER_RATIO)
+    assert sk.meta["bone_level_stored"] == 1586.0
+
+
+def _occlusal_slice(ct: CTVolume, skull) -> tuple[int, float, float]:
+    """The first slice above the plane between the upper and the lower incisors (the tips' heights: the lower
+    incisors' top is the mandible's highest bone within 8 mm of its front, the upper incisors' the lowest other
+    bone there): (slice, lower tip z, upper tip z)."""
+    mand = np.argwhere(skull.mandible)
+    m_xyz = ct.index_to_patient(mand.astype(float))
+    front = m_xyz[:, 1] < m_xyz[:, 1].min() + 8.0
+    lower_tip = float(m_xyz[front, 2].max())
+    rest = ct.index_to_patient(np.argwhere(skull.bone & ~skull.mandible).astype(float))
+    near = (rest[:, 1] < m_xyz[:, 1].min() + 10.0) & (np.abs(rest[:, 0] - m_xyz[front, 0].mean()) < 15.0)
+    upper_tip = float(rest[near, 2].min())
+    plane = 0.5 * (lower_tip + upper_tip)
+    z = ct.slice_heights()
+    return int(np.flatnonzero(z >= plane)[0]), lower_tip, upper_tip
+
+
+def test_a_scan_cut_at_the_occlusal_plane_has_a_partial_mandible_and_landmarks_outside_the_scan(cthead_ct, cthead_seg):
+    """CThead with every slice below the plane between its incisors dropped: its partial mandible (the rami) is
+    found; the scan ends through the skull and the mandible's landmarks, all below it, are not_found, "outside the
+    scan"; the face above keeps its landmarks."""
+    from pdehead_addon.forensic.auto_landmarks import find_landmarks
+
+    full = segment_skull(cthead_ct, cthead_seg)
+    k, lower_tip, upper_tip = _occlusal_slice(cthead_ct, full)
+    assert lower_tip == pytest.approx(64.0, abs=2.0) and upper_tip == pytest.approx(62.0, abs=2.0)  # a 2 mm overbite
+    cut = cropped(cthead_ct, k, cthead_ct.shape[0])
+    sk = segment_skull(cut)
+    assert sk.meta["has_skin"]
+    # its partial mandible: the two rami, reaching the scan's end, articulated (the whole mandible: 6.7 mm)
+    rep = sk.meta["mandible"]
+    assert rep["present"] and rep["partial"] and rep["articulated"] and rep["condyle_gap_mm"] < 12.0, rep
+    ramus_mm3 = np.count_nonzero(sk.mandible) * float(np.prod(cut.spacing))
+    assert 3000.0 < ramus_mm3 < 7000.0, ramus_mm3                      # measured 4624 mm3
+    x = cut.index_to_patient(np.argwhere(sk.mandible).astype(float))[:, 0]
+    mid = float(np.median(cut.index_to_patient(np.argwhere(sk.bone & ~sk.mandible).astype(float))[:, 0]))
+    assert np.count_nonzero(x < mid - 30) > 500 and np.count_nonzero(x > mid + 30) > 500   # a ramus each side
+    assert any("cut by the scan's end" in w for w in sk.meta["warnings"])
+    search = find_landmarks(cut, sk.bone)
+    assert search.info["scan_cut"].startswith("the scan ends through the skull at z = ")
+    lms = search.landmarks
+    for name in ("Menton", "Pogonion", "Gnathion", "Infradentale", "Supramentale", "Gonion L", "Gonion R",
+                 "Mid-ramus L", "Mid-mandibular border R"):
+        assert lms[name].flag == "not_found" and lms[name].evidence.startswith("outside the scan"), (name, lms[name])
+    for name in ("Nasion", "Orbitale L", "Orbitale R", "Porion L", "Porion R", "Glabella"):
+        assert lms[name].flag != "not_found", (name, lms[name])
+    # the whole scan is not cut through the skull (its neck ends below the bone)
+    assert find_landmarks(cthead_ct, full.bone).info["scan_cut"] == ""
