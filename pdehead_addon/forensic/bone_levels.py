@@ -33,10 +33,10 @@ def bone_level_range(ct: CTVolume, has_skin: bool | None = None) -> dict:
     calibrated = str(ct.meta.get("units", "")).upper() == "HU"
     split = None
     if has_skin is None:
-        has_skin, info = soft_tissue_present(ct.data)
+        has_skin, info = soft_tissue_present(ct.data, spacing=ct.spacing)
         split = info["air_split"]
     if not has_skin:
-        split = soft_tissue_present(ct.data)[1]["air_split"] if split is None else split
+        split = soft_tissue_present(ct.data, spacing=ct.spacing)[1]["air_split"] if split is None else split
         low = max(split, BONE_LEVEL_RANGE_HU[0]) if calibrated else split
     elif calibrated:
         low = BONE_LEVEL_RANGE_HU[0]
