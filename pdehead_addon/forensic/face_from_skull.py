@@ -53,8 +53,9 @@ from ..core.boundary_set import BoundarySet, knots_from_heights
 from ..core.errors import PDEHeadError
 from .face_profile import (FaceGrid, bone_floor, bone_profile, convex_rows, peg_normals, scan_cut_plane,
                            smooth_far_from_pegs, smooth_floor_near_cut, smooth_max, smooth_min, tilted_rows)
-from .face_features import (EAR_LENGTH_MM, EAR_WIDTH_MM, FRONT_COS, check_skull, ear_shape, eye_shape, mouth_shape,
-                            nose_bump, predict_ears, predict_eyes, predict_mouth, predict_nose)
+from .face_features import (EAR_LENGTH_MM, EAR_WIDTH_MM, FRONT_COS, aperture_margins, check_skull, ear_shape,
+                            eye_shape, mouth_shape, nose_bump, point_of, predict_ears, predict_eyes, predict_mouth,
+                            predict_nose)
 from ..core.mesh import Mesh
 
 APPROXIMATION_LABEL = D.FACE_LABEL
@@ -119,6 +120,36 @@ CHEEK_RAMP_MM = 5.0
 MANDIBLE_LANDMARKS = ("Menton", "Gnathion", "Pogonion")
 #: A site's blend weight below which the limiter leaves it out (its term is then below 1e-12 x its offset).
 LIMIT_WEIGHT_FLOOR = 1e-12
+
+
+#: An automatic alare curvature landmark flagged ``uncertain`` that lies farther than this (mm) from the point its
+#: definition gives on the skull (:func:`.face_features.aperture_margins`) is moved there for the face: two voxels
+#: and a half of a 0.96 mm scan; the automatic one is a guess (``uncertain``) and the peg's depth belongs beside the
+#: aperture.
+ALAR_DEFINITION_TOLERANCE_MM = 5.0
+
+
+def alar_pegs_by_definition(landmarks: dict, flags: dict | None, skull: Mesh) -> tuple[dict, dict]:
+    """``landmarks`` with each alare curvature flagged ``uncertain`` (the automatic search's guess) moved
+    to the aperture's lateral margin (:func:`.face_features.aperture_margins`) when farther than
+    :data:`ALAR_DEFINITION_TOLERANCE_MM` from it, and ``{name: (old, new)}`` of those moved. A landmark with no flag
+    (placed by hand or read from a file) is kept as it is."""
+    if not flags:
+        return landmarks, {}
+    n, ss = point_of(landmarks, "Nasion", "Glabella"), point_of(landmarks, "Subspinale", "Mid-philtrum")
+    if n is None or ss is None:
+        return landmarks, {}
+    names = [k for k in ("Alare curvature L", "Alare curvature R")
+             if k in landmarks and flags.get(k, "ok") == "uncertain"]
+    if not names:
+        return landmarks, {}
+    want = aperture_margins(skull, ss, 0.5 * (n[0] + ss[0]))
+    out, moved = dict(landmarks), {}
+    for k in names:
+        if k in want and float(np.linalg.norm(want[k] - landmarks[k])) > ALAR_DEFINITION_TOLERANCE_MM:
+            out[k] = want[k]
+            moved[k] = (landmarks[k], want[k])
+    return out, moved
 
 
 # ------------------------------------------------------------------------------------------ geometry
@@ -218,6 +249,7 @@ class FaceModel:
         spread = D.FACE_SPREAD_MM.default if spread_mm is None else float(spread_mm)
         lm = {k: np.asarray(v, float) for k, v in landmarks.items() if v is not None}
         check_skull(lm, flags)
+        lm, moved = alar_pegs_by_definition(lm, flags, skull)
         if len(skull.vertices) < MIN_SKULL_VERTICES:    # a skull's landmarks on a handful of vertices: no profile
             raise PDEHeadError(f"the skull mesh has only {len(skull.vertices)} vertices: a closed mesh, but too coarse "
                                f"to be a bone skull (at least {MIN_SKULL_VERTICES} are needed for its outer profile)")
@@ -274,6 +306,10 @@ class FaceModel:
                           "pegs (pdehead_addon.forensic.face_from_skull)", sex=sex, **prov_table)
         if flags:
             prov["landmark_flags"] = {n: flags.get(n, "ok") for n in sorted(lm)}
+        if moved:
+            prov["alare_curvature_by_definition"] = {
+                n: {"from": [round(float(x), 2) for x in a], "to": [round(float(x), 2) for x in b]}
+                for n, (a, b) in moved.items()}
         if cut_plane is not None:
             prov["scan_cut"] = {"tilt_deg": round(float(np.degrees(np.arccos(-cut_plane[0][2]))), 1),
                                 "normal": [round(float(x), 4) for x in cut_plane[0]],
@@ -335,8 +371,9 @@ class FaceModel:
         xs = self._cyl(z, th)
         sigma = self.options["spread_mm"]
         # wide Shepard average with the rule depth
-        Wg = peg_kernel(self._grid_xyz, xs, sigma)                        # (G, n)
-        Ws = peg_kernel(xs, xs, sigma)
+        u = self.site_weights(len(xs))                                    # inverse-variance weights
+        Wg = peg_kernel(self._grid_xyz, xs, sigma) * u                    # (G, n)
+        Ws = peg_kernel(xs, xs, sigma) * u
         base_g = (Wg @ target + RULE_WEIGHT * RULE_DEPTH_MM) / (Wg.sum(1) + RULE_WEIGHT)
         base_s = (Ws @ target + RULE_WEIGHT * RULE_DEPTH_MM) / (Ws.sum(1) + RULE_WEIGHT)
         # narrow exact correction
@@ -345,6 +382,30 @@ class FaceModel:
         corr = peg_kernel(self._grid_xyz, xs, s2) @ w
         shape = self.profile.shape
         return self._limited((base_g + corr).reshape(shape), base_g.reshape(shape), xs, target)
+
+    def site_weights(self, n_sites: int) -> np.ndarray:
+        """Per field site (:meth:`field_sites`: the pegs within the rows, then the rule sites), its weight in the
+        wide Shepard average: the inverse of its depth's variance in the table, relative to the table's median
+        variance over the pegs, (median SD / SD_i)^2; 1 for a peg without an SD and for the rule sites.
+
+        Why: each peg's depth is an estimate whose scatter the table publishes (the T-Table 2023's SDs, Hona &
+        Stephan 2024); where two pegs' fields overlap the better-known depth should count more (inverse-variance
+        weighting, the minimum-variance combination of independent estimates). The supra- and sub-M2 depths
+        (26 +- 7 and 22 +- 6.5 mm) otherwise set the cheeks and the jaw's sides as firmly as supra canine's
+        10.5 +- 2.5 mm. No constant: the table's own SDs."""
+        key = ("_site_weights", n_sites)
+        if key not in self.__dict__:
+            sd = np.asarray(self.depth_sd, float)
+            in_rows = getattr(self, "_in_rows", None)
+            sd = sd[in_rows] if in_rows is not None and len(in_rows) == len(sd) else sd
+            ref = float(np.nanmedian(sd)) if np.any(np.isfinite(sd) & (sd > 0)) else np.nan
+            u = np.ones(n_sites)
+            if np.isfinite(ref):
+                k = min(len(sd), n_sites)
+                good = np.isfinite(sd[:k]) & (sd[:k] > 0)
+                u[:k][good] = (ref / sd[:k][good]) ** 2
+            self.__dict__[key] = u
+        return self.__dict__[key]
 
     def _limited(self, field: np.ndarray, base: np.ndarray, xs: np.ndarray, target: np.ndarray) -> np.ndarray:
         """The field (K, M) kept within the blends of ``base`` with the sites' ``target`` (:data:`LIMIT_RADIUS_FRACTION`);

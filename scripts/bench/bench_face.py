@@ -69,8 +69,9 @@ def load(name: str):
     return E.make_phantom().ct
 
 
-def approximate(ct, **options) -> dict:
-    """The face-from-skull pipeline on a CT with its soft tissue removed (what a practitioner would run)."""
+def approximate(ct, bone_level: float | None = None, **options) -> dict:
+    """The face-from-skull pipeline on a CT with its soft tissue removed (what a practitioner would run):
+    stripped at ``bone_level`` (stored units; default the skull's own level) and run with ``--bone-level`` at it."""
     from pdehead_addon.forensic.auto_landmarks import find_landmarks
     from pdehead_addon.forensic.depth_table import default_table
     from pdehead_addon.forensic.face_from_skull import FaceModel
@@ -78,8 +79,11 @@ def approximate(ct, **options) -> dict:
     from pdehead_addon.forensic.skull import segment_skull, skull_mesh
 
     t0 = time.perf_counter()
-    full = segment_skull(ct)
-    level = full.meta.get("bone_level_stored", full.bone_level)
+    if bone_level is None:
+        full = segment_skull(ct)
+        level = full.meta.get("bone_level_stored", full.bone_level)
+    else:
+        level = float(bone_level)
     bare = stripped(ct, level)
     sk = segment_skull(bare, bone_level=level)
     skull = skull_mesh(sk)
