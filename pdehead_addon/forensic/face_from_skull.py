@@ -152,6 +152,65 @@ def alar_pegs_by_definition(landmarks: dict, flags: dict | None, skull: Mesh) ->
     return out, moved
 
 
+#: Mid-ramus by its definition (the outermost ramus point half way up from gonion to the condyle's top; the condyle's
+#: top taken at the porion's height, the condyle sitting in the glenoid fossa in front of the ear canal): an automatic
+#: mid-ramus whose height lies outside this fraction of the gonion-porion height on its side is taken as misplaced and
+#: replaced by the other side's, mirrored across the mid-sagittal plane, when that one is within it.
+MID_RAMUS_FRACTION = (0.3, 0.7)
+#: The landmarks on the mid-sagittal plane that fix it (:func:`midsagittal_plane`).
+MIDLINE_LANDMARKS = ("Glabella", "Nasion", "Subspinale", "Supradentale", "Infradentale", "Pogonion", "Menton",
+                     "Gnathion", "Vertex", "Opisthocranion", "Mid-philtrum", "Supramentale")
+
+
+def midsagittal_plane(landmarks: dict) -> tuple[np.ndarray, float] | None:
+    """The mid-sagittal plane (unit normal toward the patient's left, offset) fitted to the midline landmarks
+    (x = a + b y + c z by least squares), or None with fewer than 3 of them."""
+    pts = np.array([landmarks[n] for n in MIDLINE_LANDMARKS if n in landmarks], float)
+    if len(pts) < 3:
+        return None
+    A = np.column_stack([np.ones(len(pts)), pts[:, 1], pts[:, 2]])
+    (a, b, c), *_ = np.linalg.lstsq(A, pts[:, 0], rcond=None)
+    n = np.array([1.0, -b, -c])
+    norm = float(np.linalg.norm(n))
+    return n / norm, float(a / norm)
+
+
+def mirrored(point: np.ndarray, plane: tuple[np.ndarray, float]) -> np.ndarray:
+    n, d = plane
+    return point - 2.0 * (float(point @ n) - d) * n
+
+
+def mid_ramus_by_definition(landmarks: dict, flags: dict | None, skull: Mesh) -> tuple[dict, dict]:
+    """``landmarks`` with an automatic mid-ramus outside :data:`MID_RAMUS_FRACTION` of the gonion-porion height on its
+    side replaced by the other side's mirrored across the mid-sagittal plane (:func:`midsagittal_plane`) and put on
+    the nearest skull vertex, when the other side's is within it; ``{name: (old, new)}`` of those moved. Landmarks
+    without flags (placed by hand or read from a file) are kept."""
+    if not flags:
+        return landmarks, {}
+    plane = midsagittal_plane(landmarks)
+
+    def fraction(side):
+        mr, go, po = (landmarks.get(f"{n} {side}") for n in ("Mid-ramus", "Gonion", "Porion"))
+        if mr is None or go is None or po is None or po[2] - go[2] < 20.0:
+            return None
+        return float((mr[2] - go[2]) / (po[2] - go[2]))
+
+    lo, hi = MID_RAMUS_FRACTION
+    out, moved = dict(landmarks), {}
+    for side, other in (("L", "R"), ("R", "L")):
+        name = f"Mid-ramus {side}"
+        f, g = fraction(side), fraction(other)
+        if plane is None or f is None or g is None or flags.get(name) in (None, "not_found") or lo <= f <= hi:
+            continue
+        if not lo <= g <= hi:
+            continue
+        target = mirrored(np.asarray(landmarks[f"Mid-ramus {other}"], float), plane)
+        near = skull.vertices[np.argmin(np.linalg.norm(skull.vertices - target, axis=1))]
+        out[name] = near.copy()
+        moved[name] = (landmarks[name], out[name])
+    return out, moved
+
+
 # ------------------------------------------------------------------------------------------ geometry
 def _site_windows(rows_on: np.ndarray, cols_on: np.ndarray):
     """For each site i (the columns of ``rows_on`` (K, n) and ``cols_on`` (M, n)): ``(i, rows, cols)`` as
@@ -250,6 +309,7 @@ class FaceModel:
         lm = {k: np.asarray(v, float) for k, v in landmarks.items() if v is not None}
         check_skull(lm, flags)
         lm, moved = alar_pegs_by_definition(lm, flags, skull)
+        lm, moved_ramus = mid_ramus_by_definition(lm, flags, skull)
         if len(skull.vertices) < MIN_SKULL_VERTICES:    # a skull's landmarks on a handful of vertices: no profile
             raise PDEHeadError(f"the skull mesh has only {len(skull.vertices)} vertices: a closed mesh, but too coarse "
                                f"to be a bone skull (at least {MIN_SKULL_VERTICES} are needed for its outer profile)")
@@ -306,10 +366,10 @@ class FaceModel:
                           "pegs (pdehead_addon.forensic.face_from_skull)", sex=sex, **prov_table)
         if flags:
             prov["landmark_flags"] = {n: flags.get(n, "ok") for n in sorted(lm)}
-        if moved:
-            prov["alare_curvature_by_definition"] = {
-                n: {"from": [round(float(x), 2) for x in a], "to": [round(float(x), 2) for x in b]}
-                for n, (a, b) in moved.items()}
+        for key, what in (("alare_curvature_by_definition", moved), ("mid_ramus_by_definition", moved_ramus)):
+            if what:
+                prov[key] = {n: {"from": [round(float(x), 2) for x in a], "to": [round(float(x), 2) for x in b]}
+                             for n, (a, b) in what.items()}
         if cut_plane is not None:
             prov["scan_cut"] = {"tilt_deg": round(float(np.degrees(np.arccos(-cut_plane[0][2]))), 1),
                                 "normal": [round(float(x), 4) for x in cut_plane[0]],
@@ -371,9 +431,8 @@ class FaceModel:
         xs = self._cyl(z, th)
         sigma = self.options["spread_mm"]
         # wide Shepard average with the rule depth
-        u = self.site_weights(len(xs))                                    # inverse-variance weights
-        Wg = peg_kernel(self._grid_xyz, xs, sigma) * u                    # (G, n)
-        Ws = peg_kernel(xs, xs, sigma) * u
+        Wg = peg_kernel(self._grid_xyz, xs, sigma)                        # (G, n)
+        Ws = peg_kernel(xs, xs, sigma)
         base_g = (Wg @ target + RULE_WEIGHT * RULE_DEPTH_MM) / (Wg.sum(1) + RULE_WEIGHT)
         base_s = (Ws @ target + RULE_WEIGHT * RULE_DEPTH_MM) / (Ws.sum(1) + RULE_WEIGHT)
         # narrow exact correction
@@ -382,30 +441,6 @@ class FaceModel:
         corr = peg_kernel(self._grid_xyz, xs, s2) @ w
         shape = self.profile.shape
         return self._limited((base_g + corr).reshape(shape), base_g.reshape(shape), xs, target)
-
-    def site_weights(self, n_sites: int) -> np.ndarray:
-        """Per field site (:meth:`field_sites`: the pegs within the rows, then the rule sites), its weight in the
-        wide Shepard average: the inverse of its depth's variance in the table, relative to the table's median
-        variance over the pegs, (median SD / SD_i)^2; 1 for a peg without an SD and for the rule sites.
-
-        Why: each peg's depth is an estimate whose scatter the table publishes (the T-Table 2023's SDs, Hona &
-        Stephan 2024); where two pegs' fields overlap the better-known depth should count more (inverse-variance
-        weighting, the minimum-variance combination of independent estimates). The supra- and sub-M2 depths
-        (26 +- 7 and 22 +- 6.5 mm) otherwise set the cheeks and the jaw's sides as firmly as supra canine's
-        10.5 +- 2.5 mm. No constant: the table's own SDs."""
-        key = ("_site_weights", n_sites)
-        if key not in self.__dict__:
-            sd = np.asarray(self.depth_sd, float)
-            in_rows = getattr(self, "_in_rows", None)
-            sd = sd[in_rows] if in_rows is not None and len(in_rows) == len(sd) else sd
-            ref = float(np.nanmedian(sd)) if np.any(np.isfinite(sd) & (sd > 0)) else np.nan
-            u = np.ones(n_sites)
-            if np.isfinite(ref):
-                k = min(len(sd), n_sites)
-                good = np.isfinite(sd[:k]) & (sd[:k] > 0)
-                u[:k][good] = (ref / sd[:k][good]) ** 2
-            self.__dict__[key] = u
-        return self.__dict__[key]
 
     def _limited(self, field: np.ndarray, base: np.ndarray, xs: np.ndarray, target: np.ndarray) -> np.ndarray:
         """The field (K, M) kept within the blends of ``base`` with the sites' ``target`` (:data:`LIMIT_RADIUS_FRACTION`);

@@ -138,12 +138,11 @@ class LiveFace:
         sigma = float(m.options["spread_mm"])
         dz2 = (self._grid_z[:, None] - z[None, :]) ** 2                          # (K, n)
         dc2 = ((self._ring[:, None, :] - xs[None, :, :2]) ** 2).sum(-1)         # (M, n)
-        u = m.site_weights(len(xs))                           # inverse-variance weights of the Shepard average
-        Ws = F.peg_kernel(xs, xs, sigma) * u
+        Ws = F.peg_kernel(xs, xs, sigma)
         Ez, Et = _gauss(dz2, sigma), _gauss(dc2, sigma)
         EtT = np.ascontiguousarray(Et.T)                      # small_matmul: BLAS threads cost more than these products
-        base_g = ((small_matmul(Ez * (u * target), EtT) + F.RULE_WEIGHT * F.RULE_DEPTH_MM)
-                  / (small_matmul(Ez * u, EtT) + F.RULE_WEIGHT))
+        base_g = ((small_matmul(Ez * target, EtT) + F.RULE_WEIGHT * F.RULE_DEPTH_MM)
+                  / (small_matmul(Ez, EtT) + F.RULE_WEIGHT))
         base_s = (Ws @ target + F.RULE_WEIGHT * F.RULE_DEPTH_MM) / (Ws.sum(1) + F.RULE_WEIGHT)
         s2 = F.NARROW_FRACTION * sigma
         w = m._correction_weights(xs, target - base_s, m.held_sites(held))
