@@ -51,7 +51,7 @@ import numpy as np
 from .. import defaults as D
 from ..core.boundary_set import BoundarySet, knots_from_heights
 from ..core.errors import PDEHeadError
-from .face_profile import (FaceGrid, bone_floor, bone_profile, convex_rows, peg_normals, scan_cut_plane,
+from .face_profile import (FaceGrid, bone_floor, bone_profile, cheek_floor, convex_rows, peg_normals, scan_cut_plane,
                            smooth_far_from_pegs, smooth_floor_near_cut, smooth_max, smooth_min, tilted_rows)
 from .face_features import (EAR_LENGTH_MM, EAR_WIDTH_MM, FRONT_COS, aperture_margins, check_skull, ear_shape,
                             eye_shape, mouth_shape, nose_bump, point_of, predict_ears, predict_eyes, predict_mouth,
@@ -211,6 +211,44 @@ def mid_ramus_by_definition(landmarks: dict, flags: dict | None, skull: Mesh) ->
     return out, moved
 
 
+#: The cheek (:func:`cheek_bands`): between the infraorbital margin (Suborbital, or Orbitale), the zygion (Zygomatic
+#: arch) and the jaw pegs present (JAW_PEGS: the lowest sets the band's floor; without any, the cheek runs down
+#: CHEEK_DOWN_MM, a cheek's height from the orbit's floor to the occlusal plane, about 40 mm in adults: Farkas 1994's
+#: orbitale to stomion ~ 45 mm, cited from the literature, not re-read).
+CHEEK_PEGS = ("Suborbital", "Orbitale", "Zygomatic arch")
+JAW_PEGS = ("Supra M2", "Occlusal line", "Sub M2", "Mid-ramus", "Gonion", "Mid-mandibular border", "Supra canine",
+            "Infra canine")
+CHEEK_DOWN_MM = 40.0
+
+
+def cheek_bands(landmarks: dict, grid) -> list[tuple[float, float, float, float]]:
+    """Per side with an infraorbital margin and a zygion: (z_low, z_high, theta_medial, theta_lateral) of the cheek,
+    from the infraorbital margin's height down to the lowest jaw landmark present on that side (or
+    :data:`CHEEK_DOWN_MM`), between the infraorbital margin's and the zygion's angles about the face's axis."""
+    out = []
+    for side in ("L", "R"):
+        io = point_of(landmarks, f"Suborbital {side}", f"Orbitale {side}")
+        zy = point_of(landmarks, f"Zygomatic arch {side}")
+        if io is None or zy is None:
+            continue
+        jaw = [landmarks[f"{n} {side}"][2] for n in JAW_PEGS if f"{n} {side}" in landmarks]
+        z_high = float(io[2])
+        z_low = float(min(jaw)) if jaw else z_high - CHEEK_DOWN_MM
+        if z_low >= z_high - 5.0:
+            continue
+        _, ta, _ = grid.polar(io[None])
+        _, tb, _ = grid.polar(zy[None])
+        out.append((z_low, z_high, float(ta[0]), float(tb[0])))
+    return out
+
+
+def cheek_depth(names: list, depths: np.ndarray) -> float | None:
+    """The smallest table mean of the cheek's pegs present (:data:`CHEEK_PEGS` and :data:`JAW_PEGS`), or None."""
+    keys = CHEEK_PEGS + JAW_PEGS
+    got = [float(d) for n, d in zip(names, depths) if n.rsplit(" ", 1)[0] in keys]
+    return min(got) if got else None
+
+
 # ------------------------------------------------------------------------------------------ geometry
 def _site_windows(rows_on: np.ndarray, cols_on: np.ndarray):
     """For each site i (the columns of ``rows_on`` (K, n) and ``cols_on`` (M, n)): ``(i, rows, cols)`` as
@@ -353,6 +391,10 @@ class FaceModel:
         floor = bone_floor(skull, grid, D.FACE_MIN_TISSUE_MM.default)
         if cut_plane is not None:                             # the cut bone's ragged edge, rounded
             floor = smooth_floor_near_cut(floor, grid, cut_plane, profile)
+        cheeks = cheek_floor(skull, grid, cheek_bands(lm, grid), cheek_depth(names, depths),
+                             D.FACE_MIN_TISSUE_MM.default) if cheek_depth(names, depths) is not None else None
+        if cheeks is not None:                                # the cheeks' least tissue (item: a face below a cut)
+            floor = np.maximum(floor, cheeks)
         floor = np.ceil(floor * 100.0) / 100.0
         normals = peg_normals(skull, bases, grid, profile)
         hull_profile = profile

@@ -415,6 +415,54 @@ def score_variant(label: str, ct, ref: dict, bone_level: float | None = None, fl
             "_keep": dict(a=a, pts=pts, d=d)}
 
 
+#: How each constant that shapes the face was chosen (issue 39 point 5): "published" (cited beside it in the code),
+#: "definition" (follows from a landmark's definition or the method's geometry), "renders" (a shape choice made by
+#: looking at the renders of CThead and GE: scored heads), "CThead score" (measured on CThead's score: chosen on the
+#: head it is scored on; the suite's "without" row shows CThead with them neutral), "GE" (chosen on GE's cut skull).
+CONSTANT_CHOICE = {
+    "face_profile.NECK_RADIUS_MM / NECK_SLOPE": "published (neck circumference, Ben-Noun et al. 2001) / renders",
+    "face_profile.CLOSING_MM": "definition (orbit ~40 mm, aperture ~25 mm wide)",
+    "face_profile.PROFILE_SMOOTH_MM / _DEG": "renders",
+    "face_profile.PROFILE_SMOOTH_FAR_MM / _ARC_MM / PROFILE_NEAR_MM": "CThead score (57.3 -> 57.5 %)",
+    "face_profile.PEG_NORMAL_RADIUS_MM / PEG_NORMAL_MIN_COS": "definition (T-Table depths along the bone normal)",
+    "face_profile.FLOOR_SMOOTH_*, CUT_*": "GE (its 18.5-degree cut)",
+    "face_from_skull.RULE_DEPTH_MM": "published (T-Table 2023 vertex 5.0 / opisthocranion 6.0 mm)",
+    "face_from_skull.RULE_WEIGHT / NARROW_FRACTION / RBF_REGULARISATION": "renders (smoothness), phantom",
+    "face_from_skull.DAMP_FREE_MM / DAMP_SCALE_MM": "CThead score (60.1 -> 62.0 %)",
+    "face_from_skull.CHEEK_SPAN_DEG / CHEEK_RAMP_MM": "CThead score (its error map: 63.0 -> 63.2 %)",
+    "face_from_skull.ALAR_DEFINITION_TOLERANCE_MM / MID_RAMUS_FRACTION": "definition (T-Table landmark definitions)",
+    "defaults.FACE_SPREAD_MM": "renders",
+    "defaults.FACE_MIN_TISSUE_MM": "published (T-Table's thinnest landmark, rhinion 3.0 mm, less 1 SD)",
+    "face_features.NASAL_LENGTH_SLOPE / _INTERCEPT_MM": "published (Rynn, Wilkinson & Peters 2010)",
+    "face_features.NOSE_PROTRUSION_MM / NOSE_ALAR_WIDTH_MM / EYE_FISSURE_MM / LIP_*_MM heights / EAR_*": "published "
+    "(Farkas 1994 norms, cited from the literature)",
+    "face_features.ALAR_MARGIN_MM": "published (Krogman & Iscan 1986)",
+    "face_features.EYE_EX_INSET_MM": "published (Stephan & Davidson 2008, quoted)",
+    "face_features mouth width": "published (Stephan & Henneberg 2003, inter-canine / 0.75)",
+    "face_features.NOSE_* shape (dorsum, tip, columella, alae), EYE_* shape, LIP_* depths": "renders",
+}
+#: The constants chosen on CThead's score, set neutral for the suite's "without" row: no damping of outlying pegs, no
+#: convex cheeks, no stronger smoothing away from the pegs.
+CTHEAD_CHOSEN_NEUTRAL = {("pdehead_addon.forensic.face_from_skull", "DAMP_FREE_MM"): 1e9,
+                         ("pdehead_addon.forensic.face_from_skull", "CHEEK_SPAN_DEG"): 0.0,
+                         ("pdehead_addon.forensic.face_profile", "PROFILE_SMOOTH_FAR_MM"): 0.0}
+
+
+def neutral_row(ct, ref) -> dict:
+    """CThead with the constants chosen on its own score set neutral (:data:`CTHEAD_CHOSEN_NEUTRAL`)."""
+    import importlib
+    saved = {}
+    try:
+        for (mod, name), value in CTHEAD_CHOSEN_NEUTRAL.items():
+            m = importlib.import_module(mod)
+            saved[(mod, name)] = getattr(m, name)
+            setattr(m, name, value)
+        return score_variant("CThead, automatic level, without the constants chosen on CThead", ct, ref)
+    finally:
+        for (mod, name), value in saved.items():
+            setattr(importlib.import_module(mod), name, value)
+
+
 def suite(figures: bool = False) -> list[dict]:
     """The robustness suite (issue 39 point 6): CThead stripped at each of :data:`SUITE_LEVELS` and run at it,
     resampled to :data:`SUITE_SLICES_MM` slices, cut at the occlusal plane (the face above it scored), a skull-only
@@ -428,6 +476,7 @@ def suite(figures: bool = False) -> list[dict]:
     ref = reference_face(ct, centre[:2])
     base = score_variant(f"CThead, automatic level ({auto:.0f})", ct, ref)
     rows.append(base)
+    rows.append(neutral_row(ct, ref))
     for lev in SUITE_LEVELS:
         rows.append(score_variant(f"CThead stripped and run at {lev:.0f}", ct, ref, bone_level=lev))
     for t in SUITE_SLICES_MM:
@@ -483,6 +532,11 @@ def suite_markdown(rows: list[dict]) -> list[str]:
         out.append(f"| {r['variant']} | {100 * f['within_2_5']:.1f} % | {f['mean_mm']:.2f} | {f['p95_mm']:.2f} | "
                    f"{100 * r.get('bent_edges', float('nan')):.2f} % | "
                    f"{'yes' if r.get('has_mandible', True) else 'no'} | {'; '.join(notes)} |")
+    out += ["", "How each constant that shapes the face was chosen (`bench_face.CONSTANT_CHOICE`; \"CThead score\": "
+            "chosen on the head it is scored on, set neutral in the row \"without the constants chosen on CThead\"; "
+            "\"renders\": shape choices made looking at CThead's and GE's renders):", "",
+            "| constant | how chosen |", "|---|---|"]
+    out += [f"| `{k}` | {v} |" for k, v in CONSTANT_CHOICE.items()]
     return out
 
 
