@@ -262,12 +262,13 @@ class FaceModel:
         # up to whole hundredths of a mm here (never lower), so the model kept as text in hundredths
         # (:func:`.face_live.model_state`, 2 bytes a bin) is this one to the bit
         floor = bone_floor(skull, grid, D.FACE_MIN_TISSUE_MM.default)
+        least = cheek_depth(names, depths)
+        cheeks = None if least is None else cheek_floor(skull, grid, cheek_bands(lm, grid), least,
+                                                        D.FACE_MIN_TISSUE_MM.default)
+        if cheeks is not None:              # the cheeks' least tissue: the smallest of their pegs' table means
+            floor = np.maximum(floor, cheeks)
         if cut_plane is not None:                             # the cut bone's ragged edge, rounded
             floor = smooth_floor_near_cut(floor, grid, cut_plane, profile)
-        cheeks = cheek_floor(skull, grid, cheek_bands(lm, grid), cheek_depth(names, depths),
-                             D.FACE_MIN_TISSUE_MM.default) if cheek_depth(names, depths) is not None else None
-        if cheeks is not None:                                # the cheeks' least tissue (item: a face below a cut)
-            floor = np.maximum(floor, cheeks)
         floor = np.ceil(floor * 100.0) / 100.0
         normals = peg_normals(skull, bases, grid, profile)
         hull_profile = profile

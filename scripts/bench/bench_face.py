@@ -69,7 +69,7 @@ def load(name: str):
     return E.make_phantom().ct
 
 
-def approximate(ct, bone_level: float | None = None, **options) -> dict:
+def approximate(ct, bone_level: float | None = None, n_solves: int = 10, **options) -> dict:
     """The face-from-skull pipeline on a CT with its soft tissue removed (what a practitioner would run):
     stripped at ``bone_level`` (stored units; default the skull's own level) and run with ``--bone-level`` at it."""
     from pdehead_addon.forensic.auto_landmarks import find_landmarks
@@ -97,7 +97,7 @@ def approximate(ct, bone_level: float | None = None, **options) -> dict:
     model = FaceModel.prepare(skull, lms, default_table(), flags=search.flags(), **options)
     solves, cpu = [], []
     res = model.solve()                              # the first solve fixes the spline parameter and the caps
-    for _ in range(9):
+    for _ in range(max(n_solves - 1, 1)):
         c0 = time.process_time()
         res = model.solve()
         cpu.append(time.process_time() - c0)
@@ -402,7 +402,7 @@ def score_variant(label: str, ct, ref: dict, bone_level: float | None = None, fl
     face's points above ``floor_z``."""
     from pdehead_addon.core.errors import PDEHeadError
     try:
-        a = approximate(ct, bone_level=bone_level)
+        a = approximate(ct, bone_level=bone_level, n_solves=2)
     except PDEHeadError as exc:
         return {"variant": label, "refused": str(exc)}
     pts = ref["pts"] if floor_z is None else ref["pts"][ref["pts"][:, 2] >= floor_z]
@@ -463,10 +463,11 @@ def neutral_row(ct, ref) -> dict:
             setattr(importlib.import_module(mod), name, value)
 
 
-def suite(figures: bool = False) -> list[dict]:
+def suite(done: dict | None = None) -> list[dict]:
     """The robustness suite (issue 39 point 6): CThead stripped at each of :data:`SUITE_LEVELS` and run at it,
     resampled to :data:`SUITE_SLICES_MM` slices, cut at the occlusal plane (the face above it scored), a skull-only
-    crop (its filled ratio and whether it is recognised), GE and the phantom (their own score)."""
+    crop (its filled ratio and whether it is recognised), GE and the phantom (their own score; from ``done``, the
+    main run's results with their ``_keep``, when there)."""
     from pdehead_addon.forensic.skull import segment_skull, soft_tissue_present
     rows = []
     ct = load("cthead")
@@ -495,7 +496,9 @@ def suite(figures: bool = False) -> list[dict]:
                          "(skull base and face)", "skull_only_check": {"fill_ratio": info.get("fill_ratio"),
                                                                       "taken_for_skull_only": not soft}})
     for name in ("ge", "phantom"):
-        r = score(name)
+        r = dict((done or {}).get(name) or score(name))
+        if "_keep" not in r:
+            continue
         keep = r.pop("_keep")
         r["variant"] = name
         r["bent_edges"] = bent_edge_share(keep["a"]["result"].mesh)
@@ -831,6 +834,7 @@ def main(argv=None) -> int:
     machine = {"utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime()), "cores": os.cpu_count(),
                "load": list(os.getloadavg())}
     from pdehead_addon.core.errors import PDEHeadError
+    kept = {}
     for name in args.only:
         try:
             r = score(name)
@@ -841,6 +845,7 @@ def main(argv=None) -> int:
         keep = r.pop("_keep")
         r["machine"] = machine
         results[name] = r
+        kept[name] = dict(r, _keep=keep)
         f = r["face"]
         print(f"{name}: {100 * f['within_2_5']:.1f} % within ±2.5 mm, mean {f['mean_mm']:.2f}, p95 {f['p95_mm']:.2f} "
               f"mm; soft landmarks {json.dumps({k: round(v, 1) for k, v in r['soft_landmarks_mm'].items()})}; "
@@ -856,7 +861,7 @@ def main(argv=None) -> int:
     text = markdown(results)
     rows = None
     if args.suite:
-        rows = suite()
+        rows = suite(kept)
         for r in rows:
             keep = r.pop("_keep", None)
             if keep is not None and args.figures:

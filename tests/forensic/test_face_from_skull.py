@@ -274,9 +274,15 @@ def test_ge_face_is_rounded_over_the_cut_bone(ge_face):
     """The cut bone's edge is ragged; the floor that keeps it inside the face is rounded there
     (face_profile.smooth_floor_near_cut): never below the bone's own floor, and smoother around the head."""
     from pdehead_addon import defaults as D
-    from pdehead_addon.forensic.face_profile import bone_floor, height_above_plane
+    from pdehead_addon.forensic.face_pegs import cheek_bands, cheek_depth
+    from pdehead_addon.forensic.face_profile import bone_floor, cheek_floor, height_above_plane
     skull, model, face = ge_face
     raw = bone_floor(skull, model.grid, D.FACE_MIN_TISSUE_MM.default)
+    least = cheek_depth(model.peg_names, model.default_depths)      # the cheeks' least tissue, before the rounding
+    if least is not None:
+        cheeks = cheek_floor(skull, model.grid, cheek_bands(model.landmarks_used, model.grid), least,
+                             D.FACE_MIN_TISSUE_MM.default)
+        raw = raw if cheeks is None else np.maximum(raw, cheeks)
     kept = model.bone_floor
     assert np.all(kept >= raw - 1e-9)
     plane = (model.cut_plane[:3], model.cut_plane[3])
