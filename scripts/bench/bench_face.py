@@ -535,6 +535,10 @@ def suite_markdown(rows: list[dict]) -> list[str]:
         out.append(f"| {r['variant']} | {100 * f['within_2_5']:.1f} % | {f['mean_mm']:.2f} | {f['p95_mm']:.2f} | "
                    f"{100 * r.get('bent_edges', float('nan')):.2f} % | "
                    f"{'yes' if r.get('has_mandible', True) else 'no'} | {'; '.join(notes)} |")
+    import re
+    links = [f"[{r['variant']}](figures/face_suite_{re.sub(r'[^a-z0-9]+', '_', r['variant'].lower()).strip('_')[:60]}.png)"
+             for r in rows if "face" in r]
+    out += ["", "Renders of each run's face (front, profile, three-quarter; `--suite --figures`): " + ", ".join(links) + "."]
     out += ["", "How each constant that shapes the face was chosen (`bench_face.CONSTANT_CHOICE`; \"CThead score\": "
             "chosen on the head it is scored on, set neutral in the row \"without the constants chosen on CThead\"; "
             "\"renders\": shape choices made looking at CThead's and GE's renders):", "",
@@ -591,6 +595,38 @@ def markdown(results: dict) -> str:
         lines += ["", f"Against the target (CThead): {100 * f['within_2_5']:.1f} % within ±2.5 mm "
                   f"({'met' if f['within_2_5'] >= TARGET_SHARE else 'NOT met'}), mean {f['mean_mm']:.2f} mm "
                   f"({'met' if f['mean_mm'] <= TARGET_MEAN else 'NOT met'})."]
+    lines += ["", "Issue 39 (the face on heads it has never seen; figures in the robustness suite below, 4 Dec 2026, load "
+              "average 8-10 from other jobs):",
+              "- Why the score depended on the strip level (50-52 % at 1500, 62-63 % at the automatic ~1586 and at "
+              "1600): not the cervical spine (the 1500 skull reaches the scan's bottom, z -1 mm against 25 mm at 1600, "
+              "but cropping it away left the face's score unchanged, 51.4 %), but the automatic landmarks: swapping "
+              "the 1600 run's landmarks into the 1500 run one at a time, the two alare curvatures (flagged uncertain) "
+              "moved it 51.4 -> 59.9 %. At 1500 they stood where their definition puts them (beside the nasal aperture, "
+              "14 mm lateral and 15 mm above subspinale), at 1600 on the malar bone by the molars (38-47 mm lateral, up "
+              "to 24 mm below subspinale), where their 10 mm depth happened to thin a lower face that the T-Table's "
+              "supra-M2 (26 mm) and sub-M2 (22 mm) pegs make too thick on this head. The 63 % was that accident. Also "
+              "Mid-ramus L at 1600 stood 6 mm above gonion (its definition: half way to the condyle; 1500's at 55 %).",
+              "- Kept: uncertain alare curvatures more than 5 mm from the aperture's lateral margin at its widest "
+              "breadth are moved there (`face_pegs.alar_pegs_by_definition`); a mid-ramus outside 30-70 % of the "
+              "gonion-porion height is replaced by the other side's mirrored across the fitted mid-sagittal plane "
+              "(`face_pegs.mid_ramus_by_definition`); between the infraorbital margin, zygion and the lowest jaw peg "
+              "present the cheeks stand at least the smallest of those pegs' table means over the outermost bone "
+              "(`face_pegs.cheek_bands`, `face_profile.cheek_floor`, merged into the bone floor; issue 39 point 3). "
+              "Each moved landmark is listed in the face's provenance.",
+              "- Tried and not kept: the wide Shepard field weighted by the inverse of each peg's table variance "
+              "(CThead 1500 / 1600 51.4 / 54.4 -> 55.3 / 57.0 %, but GE 42.2 -> 37.8 %: chosen on CThead, failed on "
+              "GE); leaving out the supra- and sub-M2 pegs (CThead 63.0 / 61.2 %, phantom 42.4 -> 39.1 %; GE has "
+              "none): a choice made on the scored head.",
+              "- Bent edges (share of the face mesh's edges whose faces bend more than 40 degrees, "
+              "`bench_face.bent_edge_share`, every edge of the closed mesh): main before this work 0.90 % on CThead at "
+              "the automatic level, now 0.96 % (the issue's 0.40 % was measured another way; lips and nostrils bend "
+              "too).",
+              "- Not done: the nose, eyes, mouth and ears were not replaced by other published methods (item 2: the "
+              "nose keeps Rynn et al. 2010's nasal length and Krogman's alar width; the ANS-based methods need a "
+              "spine the bone mask does not keep); the constants chosen on CThead's score are reported, not re-chosen "
+              "on other heads (the suite's row without them: 58.8 % against 59.0 %); the targets (>= 65 % at 1500 "
+              "and 1600) are missed, and the automatic level (1586) still scores 4 points above 1600.",
+              ]
     lines += ["", "What limits it (CThead):",
               "- The table's means themselves lie outside this head's skin over the lower face: the signed "
               "distance from each peg tip (bone landmark + T-Table mean along the bone normal) to the real skin is "
