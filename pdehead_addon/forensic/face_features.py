@@ -172,6 +172,34 @@ def aperture_width(skull: Mesh, subspinale: np.ndarray, mid_x: float) -> float |
     return best
 
 
+def aperture_margins(skull: Mesh, subspinale: np.ndarray, mid_x: float) -> dict[str, np.ndarray]:
+    """The alare curvature points by their definition: the bone just lateral of the nasal aperture at its greatest
+    breadth (the rows of :func:`aperture_width`), one per side (``"Alare curvature L"`` at +x, the patient's left).
+
+    The T-Table's alare curvature ("ac", the bony proxy of the alar crease: Stephan CN, Simpson EK (2008)
+    "Facial soft tissue depths in craniofacial identification (part I): an analytical review of the published
+    adult data", J Forensic Sci 53(6):1257-1272; the landmark list of the T-Table 2023, Hona & Stephan 2024, Int J
+    Legal Med 138(2):519-535, as listed in esomjai/Forensic-Craniofacial-Approximation-Validation-Tool) stands at
+    the aperture's lateral margin at its widest point; its depth belongs there. A point found from the skull's
+    outline alone, so it does not move with the bone level (the automatic search, uncertain on a mask whose
+    aperture edge is thin, put it on the malar bone by the molars at one bone level and beside the aperture at
+    another). Empty when the aperture is not seen."""
+    v = skull.vertices
+    best = None
+    for dz in np.arange(6.0, 21.0, 2.0):
+        m = (np.abs(v[:, 2] - (subspinale[2] + dz)) < 1.0) & (v[:, 1] < subspinale[1] + 25.0)
+        pts = v[m]
+        left, right = pts[pts[:, 0] > mid_x + 2.0], pts[pts[:, 0] < mid_x - 2.0]
+        if len(left) and len(right):
+            a, b = left[np.argmin(left[:, 0])], right[np.argmax(right[:, 0])]
+            w = float(a[0] - b[0])
+            if 12.0 < w < 45.0 and (best is None or w > best[0]):
+                best = (w, a, b)
+    if best is None:
+        return {}
+    return {"Alare curvature L": best[1].copy(), "Alare curvature R": best[2].copy()}
+
+
 def aperture_floor(skull: Mesh, subspinale: np.ndarray, nasion: np.ndarray, mid_x: float) -> float | None:
     """Height (patient z, mm) of the nasal aperture's lower border at the midline: the lowest 1 mm row above
     subspinale where the mid-sagittal band (|x - mid_x| < :data:`APERTURE_BAND_MM`) has no bone within

@@ -51,10 +51,11 @@ import numpy as np
 from .. import defaults as D
 from ..core.boundary_set import BoundarySet, knots_from_heights
 from ..core.errors import PDEHeadError
-from .face_profile import (FaceGrid, bone_floor, bone_profile, convex_rows, peg_normals, scan_cut_plane,
+from .face_profile import (FaceGrid, bone_floor, bone_profile, cheek_floor, convex_rows, peg_normals, scan_cut_plane,
                            smooth_far_from_pegs, smooth_floor_near_cut, smooth_max, smooth_min, tilted_rows)
 from .face_features import (EAR_LENGTH_MM, EAR_WIDTH_MM, FRONT_COS, check_skull, ear_shape, eye_shape, mouth_shape,
                             nose_bump, predict_ears, predict_eyes, predict_mouth, predict_nose)
+from .face_pegs import alar_pegs_by_definition, cheek_bands, cheek_depth, mid_ramus_by_definition
 from ..core.mesh import Mesh
 
 APPROXIMATION_LABEL = D.FACE_LABEL
@@ -218,6 +219,8 @@ class FaceModel:
         spread = D.FACE_SPREAD_MM.default if spread_mm is None else float(spread_mm)
         lm = {k: np.asarray(v, float) for k, v in landmarks.items() if v is not None}
         check_skull(lm, flags)
+        lm, moved = alar_pegs_by_definition(lm, flags, skull)
+        lm, moved_ramus = mid_ramus_by_definition(lm, flags, skull)
         if len(skull.vertices) < MIN_SKULL_VERTICES:    # a skull's landmarks on a handful of vertices: no profile
             raise PDEHeadError(f"the skull mesh has only {len(skull.vertices)} vertices: a closed mesh, but too coarse "
                                f"to be a bone skull (at least {MIN_SKULL_VERTICES} are needed for its outer profile)")
@@ -259,6 +262,11 @@ class FaceModel:
         # up to whole hundredths of a mm here (never lower), so the model kept as text in hundredths
         # (:func:`.face_live.model_state`, 2 bytes a bin) is this one to the bit
         floor = bone_floor(skull, grid, D.FACE_MIN_TISSUE_MM.default)
+        least = cheek_depth(names, depths)
+        cheeks = None if least is None else cheek_floor(skull, grid, cheek_bands(lm, grid), least,
+                                                        D.FACE_MIN_TISSUE_MM.default)
+        if cheeks is not None:              # the cheeks' least tissue: the smallest of their pegs' table means
+            floor = np.maximum(floor, cheeks)
         if cut_plane is not None:                             # the cut bone's ragged edge, rounded
             floor = smooth_floor_near_cut(floor, grid, cut_plane, profile)
         floor = np.ceil(floor * 100.0) / 100.0
@@ -274,6 +282,10 @@ class FaceModel:
                           "pegs (pdehead_addon.forensic.face_from_skull)", sex=sex, **prov_table)
         if flags:
             prov["landmark_flags"] = {n: flags.get(n, "ok") for n in sorted(lm)}
+        for key, what in (("alare_curvature_by_definition", moved), ("mid_ramus_by_definition", moved_ramus)):
+            if what:
+                prov[key] = {n: {"from": [round(float(x), 2) for x in a], "to": [round(float(x), 2) for x in b]}
+                             for n, (a, b) in what.items()}
         if cut_plane is not None:
             prov["scan_cut"] = {"tilt_deg": round(float(np.degrees(np.arccos(-cut_plane[0][2]))), 1),
                                 "normal": [round(float(x), 4) for x in cut_plane[0]],

@@ -7,7 +7,9 @@ but not through all: a peg whose offset disagrees with its neighbours' is damped
 module says so, per peg, cheaply enough for every live re-solve (:func:`peg_report`): the tip's distance to the
 face (exact point-to-triangle distances near the nearest face vertex), whether the peg is damped and by how much,
 how far the limiter moved the field there, whether the practitioner holds it, and the warnings of a peg pushed
-into the bone or dragged implausibly far (thresholds in :mod:`..defaults`).
+into the bone or dragged implausibly far (thresholds in :mod:`..defaults`). And where the pegs stand: the automatic
+landmarks that miss their definition moved to it (:func:`alar_pegs_by_definition`, :func:`mid_ramus_by_definition`)
+and the cheek band whose least tissue is the smallest of its pegs' means (:func:`cheek_bands`, :func:`cheek_depth`).
 """
 from __future__ import annotations
 
@@ -16,7 +18,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import defaults as D
+from ..core.mesh import Mesh
 from ..core.mesh_geometry import point_triangle_distance, triangulate
+from .face_features import aperture_margins, point_of
 
 #: A peg whose field the limiter moved by more than this (mm) at its tip is reported as limited.
 LIMITED_MM = 0.5
@@ -226,3 +230,131 @@ def peg_warnings(names: list, depth: np.ndarray, drift: np.ndarray, mean: np.nda
                     "text": f"{names[i]}: depth {depth[i]:.1f} mm, beyond the table's mean + "
                             f"{D.FACE_PEG_MAX_DEPTH_SD:g} SD ({limit[i]:.1f} mm)"})
     return out
+
+
+# ------------------------------------------------------------------------------------------ pegs by definition
+#: An automatic alare curvature landmark flagged ``uncertain`` that lies farther than this (mm) from the point its
+#: definition gives on the skull (:func:`.face_features.aperture_margins`) is moved there for the face: two voxels
+#: and a half of a 0.96 mm scan; the automatic one is a guess (``uncertain``) and the peg's depth belongs beside the
+#: aperture.
+ALAR_DEFINITION_TOLERANCE_MM = 5.0
+
+
+def alar_pegs_by_definition(landmarks: dict, flags: dict | None, skull: Mesh) -> tuple[dict, dict]:
+    """``landmarks`` with each alare curvature flagged ``uncertain`` (the automatic search's guess) moved
+    to the aperture's lateral margin (:func:`.face_features.aperture_margins`) when farther than
+    :data:`ALAR_DEFINITION_TOLERANCE_MM` from it, and ``{name: (old, new)}`` of those moved. A landmark with no flag
+    (placed by hand or read from a file) is kept as it is."""
+    if not flags:
+        return landmarks, {}
+    n, ss = point_of(landmarks, "Nasion", "Glabella"), point_of(landmarks, "Subspinale", "Mid-philtrum")
+    if n is None or ss is None:
+        return landmarks, {}
+    names = [k for k in ("Alare curvature L", "Alare curvature R")
+             if k in landmarks and flags.get(k, "ok") == "uncertain"]
+    if not names:
+        return landmarks, {}
+    want = aperture_margins(skull, ss, 0.5 * (n[0] + ss[0]))
+    out, moved = dict(landmarks), {}
+    for k in names:
+        if k in want and float(np.linalg.norm(want[k] - landmarks[k])) > ALAR_DEFINITION_TOLERANCE_MM:
+            out[k] = want[k]
+            moved[k] = (landmarks[k], want[k])
+    return out, moved
+
+
+#: Mid-ramus by its definition (the outermost ramus point half way up from gonion to the condyle's top; the condyle's
+#: top taken at the porion's height, the condyle sitting in the glenoid fossa in front of the ear canal): an automatic
+#: mid-ramus whose height lies outside this fraction of the gonion-porion height on its side is taken as misplaced and
+#: replaced by the other side's, mirrored across the mid-sagittal plane, when that one is within it.
+MID_RAMUS_FRACTION = (0.3, 0.7)
+#: The landmarks on the mid-sagittal plane that fix it (:func:`midsagittal_plane`).
+MIDLINE_LANDMARKS = ("Glabella", "Nasion", "Subspinale", "Supradentale", "Infradentale", "Pogonion", "Menton",
+                     "Gnathion", "Vertex", "Opisthocranion", "Mid-philtrum", "Supramentale")
+
+
+def midsagittal_plane(landmarks: dict) -> tuple[np.ndarray, float] | None:
+    """The mid-sagittal plane (unit normal toward the patient's left, offset) fitted to the midline landmarks
+    (x = a + b y + c z by least squares), or None with fewer than 3 of them."""
+    pts = np.array([landmarks[n] for n in MIDLINE_LANDMARKS if n in landmarks], float)
+    if len(pts) < 3:
+        return None
+    A = np.column_stack([np.ones(len(pts)), pts[:, 1], pts[:, 2]])
+    (a, b, c), *_ = np.linalg.lstsq(A, pts[:, 0], rcond=None)
+    n = np.array([1.0, -b, -c])
+    norm = float(np.linalg.norm(n))
+    return n / norm, float(a / norm)
+
+
+def mirrored(point: np.ndarray, plane: tuple[np.ndarray, float]) -> np.ndarray:
+    n, d = plane
+    return point - 2.0 * (float(point @ n) - d) * n
+
+
+def mid_ramus_by_definition(landmarks: dict, flags: dict | None, skull: Mesh) -> tuple[dict, dict]:
+    """``landmarks`` with an automatic mid-ramus outside :data:`MID_RAMUS_FRACTION` of the gonion-porion height on its
+    side replaced by the other side's mirrored across the mid-sagittal plane (:func:`midsagittal_plane`) and put on
+    the nearest skull vertex, when the other side's is within it; ``{name: (old, new)}`` of those moved. Landmarks
+    without flags (placed by hand or read from a file) are kept."""
+    if not flags:
+        return landmarks, {}
+    plane = midsagittal_plane(landmarks)
+
+    def fraction(side):
+        mr, go, po = (landmarks.get(f"{n} {side}") for n in ("Mid-ramus", "Gonion", "Porion"))
+        if mr is None or go is None or po is None or po[2] - go[2] < 20.0:
+            return None
+        return float((mr[2] - go[2]) / (po[2] - go[2]))
+
+    lo, hi = MID_RAMUS_FRACTION
+    out, moved = dict(landmarks), {}
+    for side, other in (("L", "R"), ("R", "L")):
+        name = f"Mid-ramus {side}"
+        f, g = fraction(side), fraction(other)
+        if plane is None or f is None or g is None or flags.get(name) in (None, "not_found") or lo <= f <= hi:
+            continue
+        if not lo <= g <= hi:
+            continue
+        target = mirrored(np.asarray(landmarks[f"Mid-ramus {other}"], float), plane)
+        near = skull.vertices[np.argmin(np.linalg.norm(skull.vertices - target, axis=1))]
+        out[name] = near.copy()
+        moved[name] = (landmarks[name], out[name])
+    return out, moved
+
+
+#: The cheek (:func:`cheek_bands`): between the infraorbital margin (Suborbital, or Orbitale), the zygion (Zygomatic
+#: arch) and the jaw pegs present (JAW_PEGS: the lowest sets the band's floor; without any, the cheek runs down
+#: CHEEK_DOWN_MM, a cheek's height from the orbit's floor to the occlusal plane, about 40 mm in adults: Farkas 1994's
+#: orbitale to stomion ~ 45 mm, cited from the literature, not re-read).
+CHEEK_PEGS = ("Suborbital", "Orbitale", "Zygomatic arch")
+JAW_PEGS = ("Supra M2", "Occlusal line", "Sub M2", "Mid-ramus", "Gonion", "Mid-mandibular border", "Supra canine",
+            "Infra canine")
+CHEEK_DOWN_MM = 40.0
+
+
+def cheek_bands(landmarks: dict, grid) -> list[tuple[float, float, float, float]]:
+    """Per side with an infraorbital margin and a zygion: (z_low, z_high, theta_medial, theta_lateral) of the cheek,
+    from the infraorbital margin's height down to the lowest jaw landmark present on that side (or
+    :data:`CHEEK_DOWN_MM`), between the infraorbital margin's and the zygion's angles about the face's axis."""
+    out = []
+    for side in ("L", "R"):
+        io = point_of(landmarks, f"Suborbital {side}", f"Orbitale {side}")
+        zy = point_of(landmarks, f"Zygomatic arch {side}")
+        if io is None or zy is None:
+            continue
+        jaw = [landmarks[f"{n} {side}"][2] for n in JAW_PEGS if f"{n} {side}" in landmarks]
+        z_high = float(io[2])
+        z_low = float(min(jaw)) if jaw else z_high - CHEEK_DOWN_MM
+        if z_low >= z_high - 5.0:
+            continue
+        _, ta, _ = grid.polar(io[None])
+        _, tb, _ = grid.polar(zy[None])
+        out.append((z_low, z_high, float(ta[0]), float(tb[0])))
+    return out
+
+
+def cheek_depth(names: list, depths: np.ndarray) -> float | None:
+    """The smallest table mean of the cheek's pegs present (:data:`CHEEK_PEGS` and :data:`JAW_PEGS`), or None."""
+    keys = CHEEK_PEGS + JAW_PEGS
+    got = [float(d) for n, d in zip(names, depths) if n.rsplit(" ", 1)[0] in keys]
+    return min(got) if got else None

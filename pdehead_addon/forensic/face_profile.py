@@ -195,6 +195,39 @@ def bone_floor(skull: Mesh, grid: FaceGrid, min_tissue_mm: float) -> np.ndarray:
     return np.maximum(floor, receding)
 
 
+#: The cheeks' least tissue (:func:`cheek_floor`) is faded in over this much height (mm) and angle (degrees) at the
+#: band's edges, so the floor does not step.
+CHEEK_FLOOR_RAMP_MM = 5.0
+CHEEK_FLOOR_RAMP_DEG = 5.0
+
+
+def cheek_floor(skull: Mesh, grid: FaceGrid, bands: list[tuple[float, float, float, float]], depth_mm: float,
+                min_tissue_mm: float) -> np.ndarray | None:
+    """(K, M) the least radius of the cheeks: the outermost bone (as :func:`bone_floor`) plus ``depth_mm`` inside each
+    band ``(z_low, z_high, theta_a, theta_b)`` (heights in mm, the angles of its two sides in radians, the shorter
+    arc between them), ``min_tissue_mm`` outside, the change faded over :data:`CHEEK_FLOOR_RAMP_MM` /
+    :data:`CHEEK_FLOOR_RAMP_DEG`; None without a band.
+
+    Why: between the infraorbital margin, the zygion and the jaw, where the T-Table stands few pegs, the depth field
+    may dip toward the closed bone profile (the canine fossa, the maxilla cut by a scan ending at the teeth), while
+    every published depth there (infraorbital, zygomatic, the jaw's) is larger: the skin over the cheek stands at
+    least the smallest of the pegs' means around it."""
+    if not bands:
+        return None
+    near = ndimage.maximum_filter(outermost_bone(skull, grid), size=(1, 3), mode=("nearest", "wrap"))
+    w = np.zeros(near.shape)
+    rz, rt = max(CHEEK_FLOOR_RAMP_MM, 1e-6), np.radians(max(CHEEK_FLOOR_RAMP_DEG, 1e-6))
+    for z0, z1, ta, tb in bands:
+        wz = np.clip((grid.z - z0) / rz + 0.5, 0, 1) * np.clip((z1 - grid.z) / rz + 0.5, 0, 1)
+        mid = np.angle(np.exp(1j * 0.5 * (ta + tb))) if abs(np.angle(np.exp(1j * (tb - ta)))) < np.pi else ta
+        half = 0.5 * abs(np.angle(np.exp(1j * (tb - ta))))
+        off = np.abs(np.angle(np.exp(1j * (grid.theta - mid))))
+        wt = np.clip((half - off) / rt + 0.5, 0, 1)
+        w = np.maximum(w, np.outer(wz, wt))
+    extra = w * max(float(depth_mm) - float(min_tissue_mm), 0.0)
+    return np.where(np.isfinite(near), near + float(min_tissue_mm) + extra, 0.0)
+
+
 def scan_cut_plane(skull: Mesh, max_tilt_deg: float = CUT_MAX_TILT_DEG) -> tuple[np.ndarray, float] | None:
     """The plane along which the scan's lower edge cut a skull without a mandible, or None.
 

@@ -69,8 +69,9 @@ def load(name: str):
     return E.make_phantom().ct
 
 
-def approximate(ct, **options) -> dict:
-    """The face-from-skull pipeline on a CT with its soft tissue removed (what a practitioner would run)."""
+def approximate(ct, bone_level: float | None = None, n_solves: int = 10, **options) -> dict:
+    """The face-from-skull pipeline on a CT with its soft tissue removed (what a practitioner would run):
+    stripped at ``bone_level`` (stored units; default the skull's own level) and run with ``--bone-level`` at it."""
     from pdehead_addon.forensic.auto_landmarks import find_landmarks
     from pdehead_addon.forensic.depth_table import default_table
     from pdehead_addon.forensic.face_from_skull import FaceModel
@@ -78,8 +79,11 @@ def approximate(ct, **options) -> dict:
     from pdehead_addon.forensic.skull import segment_skull, skull_mesh
 
     t0 = time.perf_counter()
-    full = segment_skull(ct)
-    level = full.meta.get("bone_level_stored", full.bone_level)
+    if bone_level is None:
+        full = segment_skull(ct)
+        level = full.meta.get("bone_level_stored", full.bone_level)
+    else:
+        level = float(bone_level)
     bare = stripped(ct, level)
     sk = segment_skull(bare, bone_level=level)
     skull = skull_mesh(sk)
@@ -93,7 +97,7 @@ def approximate(ct, **options) -> dict:
     model = FaceModel.prepare(skull, lms, default_table(), flags=search.flags(), **options)
     solves, cpu = [], []
     res = model.solve()                              # the first solve fixes the spline parameter and the caps
-    for _ in range(9):
+    for _ in range(max(n_solves - 1, 1)):
         c0 = time.process_time()
         res = model.solve()
         cpu.append(time.process_time() - c0)
@@ -303,6 +307,246 @@ def score(name: str, **options) -> dict:
     return out
 
 
+# ------------------------------------------------------------------------------------------ robustness suite
+#: The bone levels CThead is stripped at and run with (stored units; its automatic level is about 1586).
+SUITE_LEVELS = (1500.0, 1600.0)
+#: The slice thicknesses CThead (2 mm slices) is resampled to, each new slab the overlap-weighted mean of the old.
+SUITE_SLICES_MM = (1.5, 3.0)
+BEND_DEG = 40.0
+
+
+def resliced(ct, thickness: float):
+    """``ct`` resampled to slabs ``thickness`` mm thick along its slice axis: each new slab's value is the mean of
+    the old slices weighted by their overlap with it (a thick-slice reconstruction; a thinner slab is the overlap
+    blend of the one or two slices it falls in). The in-plane grid and the patient frame are kept."""
+    from pdehead_addon import CTVolume
+    dz = ct.spacing[0]
+    n_old = ct.data.shape[0]
+    n_new = int(np.floor((n_old * dz) / thickness))
+    lo_new = np.arange(n_new) * thickness - dz / 2.0
+    lo_old = np.arange(n_old) * dz - dz / 2.0
+    ov = np.clip(np.minimum(lo_new[:, None] + thickness, lo_old[None, :] + dz)
+                 - np.maximum(lo_new[:, None], lo_old[None, :]), 0.0, None)          # (new, old) overlap mm
+    ov /= ov.sum(axis=1, keepdims=True)
+    data = np.tensordot(ov.astype(np.float32), ct.data, axes=(1, 0))
+    centre0 = (lo_new[0] + thickness / 2.0) / dz                                      # in old slice indices
+    origin = ct.index_to_patient(np.array([[centre0, 0.0, 0.0]]))[0]
+    return CTVolume(data.astype(np.float32), (thickness, ct.spacing[1], ct.spacing[2]), origin=origin,
+                    direction=ct.direction, meta=dict(ct.meta), coverage=None)
+
+
+def cut_slices(ct, z_low: float | None = None, z_high: float | None = None):
+    """``ct`` with the axial slices below ``z_low`` and above ``z_high`` (patient z, mm) dropped."""
+    from pdehead_addon import CTVolume
+    k = np.arange(ct.data.shape[0])
+    z = ct.index_to_patient(np.column_stack([k, np.zeros_like(k), np.zeros_like(k)]).astype(float))[:, 2]
+    keep = np.ones(len(k), bool)
+    if z_low is not None:
+        keep &= z >= z_low
+    if z_high is not None:
+        keep &= z <= z_high
+    idx = np.flatnonzero(keep)
+    k0, k1 = int(idx[0]), int(idx[-1]) + 1
+    origin = ct.index_to_patient(np.array([[float(k0), 0.0, 0.0]]))[0]
+    cov = None if ct.coverage is None else ct.coverage[k0:k1]
+    return CTVolume(ct.data[k0:k1].copy(), ct.spacing, origin=origin, direction=ct.direction, meta=dict(ct.meta),
+                    coverage=cov)
+
+
+def bent_edge_share(mesh, degrees: float = BEND_DEG) -> float:
+    """Share of the mesh's interior edges whose two faces' normals differ by more than ``degrees``: creases, boxes
+    and streaks (lips and nostrils bend too, so a figure to watch, not a target)."""
+    from pdehead_addon.validation.surface_metrics import triangulate
+    faces = np.concatenate([triangulate(mesh.quads), mesh.triangles]) if len(mesh.quads) else mesh.triangles
+    v = mesh.vertices
+    n = np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    if len(mesh.quads):                                  # a quad's two triangles are one face: its diagonal is no edge
+        nq = len(mesh.quads)
+        quad_n = n[:2 * nq].reshape(nq, 2, 3).sum(axis=1)
+        quad_n /= np.maximum(np.linalg.norm(quad_n, axis=1, keepdims=True), 1e-12)
+        polys = [(mesh.quads, quad_n), (mesh.triangles, n[2 * nq:])]
+    else:
+        polys = [(mesh.triangles, n)]
+    edges, owner = [], []
+    base = 0
+    for f, fn in polys:
+        if not len(f):
+            continue
+        k = f.shape[1]
+        e = np.stack([f, np.roll(f, -1, axis=1)], axis=-1).reshape(-1, 2)
+        edges.append(np.sort(e, axis=1))
+        owner.append(np.repeat(np.arange(len(f)) + base, k))
+        base += len(f)
+    normals = np.concatenate([fn for f, fn in polys if len(f)])
+    e = np.concatenate(edges)
+    o = np.concatenate(owner)
+    order = np.lexsort((e[:, 1], e[:, 0]))
+    e, o = e[order], o[order]
+    same = np.all(e[1:] == e[:-1], axis=1)
+    a, b = o[:-1][same], o[1:][same]
+    cos = np.einsum("ij,ij->i", normals[a], normals[b])
+    return float(np.mean(cos < np.cos(np.radians(degrees)))) if cos.size else 0.0
+
+
+def reference_face(ct, centre_xy, floor_z: float | None = None) -> dict:
+    """The real face region of the full ``ct`` (:func:`face_region`) about ``centre_xy``: every variant of one head
+    is scored on the same points (the region does not move with a variant's skull)."""
+    v, f, scan_z, inside = real_skin(ct)
+    pts, tip, outer = face_region(v, f, centre_xy, scan_z, floor_z, inside=inside)
+    return dict(pts=pts, tip=tip, outer=outer)
+
+
+def score_variant(label: str, ct, ref: dict, bone_level: float | None = None, floor_z: float | None = None) -> dict:
+    """One robustness run: the face from ``ct`` stripped at ``bone_level`` and run at it, scored on the reference
+    face's points above ``floor_z``."""
+    from pdehead_addon.core.errors import PDEHeadError
+    try:
+        a = approximate(ct, bone_level=bone_level, n_solves=2)
+    except PDEHeadError as exc:
+        return {"variant": label, "refused": str(exc)}
+    pts = ref["pts"] if floor_z is None else ref["pts"][ref["pts"][:, 2] >= floor_z]
+    d = distances(pts, a["result"].mesh)
+    moved = a["model"].provenance.get("alare_curvature_by_definition", {})
+    return {"variant": label, "bone_level": float(a["level"]), "face": stats(d),
+            "bent_edges": bent_edge_share(a["result"].mesh), "has_mandible": a["has_mandible"],
+            "pegs": len(a["model"].peg_names), "floor_z": floor_z, "alare_moved": sorted(moved),
+            "not_found": sorted(k for k, f in a["flags"].items() if f == "not_found"),
+            "_keep": dict(a=a, pts=pts, d=d)}
+
+
+#: How each constant that shapes the face was chosen (issue 39 point 5): "published" (cited beside it in the code),
+#: "definition" (follows from a landmark's definition or the method's geometry), "renders" (a shape choice made by
+#: looking at the renders of CThead and GE: scored heads), "CThead score" (measured on CThead's score: chosen on the
+#: head it is scored on; the suite's "without" row shows CThead with them neutral), "GE" (chosen on GE's cut skull).
+CONSTANT_CHOICE = {
+    "face_profile.NECK_RADIUS_MM / NECK_SLOPE": "published (neck circumference, Ben-Noun et al. 2001) / renders",
+    "face_profile.CLOSING_MM": "definition (orbit ~40 mm, aperture ~25 mm wide)",
+    "face_profile.PROFILE_SMOOTH_MM / _DEG": "renders",
+    "face_profile.PROFILE_SMOOTH_FAR_MM / _ARC_MM / PROFILE_NEAR_MM": "CThead score (57.3 -> 57.5 %)",
+    "face_profile.PEG_NORMAL_RADIUS_MM / PEG_NORMAL_MIN_COS": "definition (T-Table depths along the bone normal)",
+    "face_profile.FLOOR_SMOOTH_*, CUT_*": "GE (its 18.5-degree cut)",
+    "face_from_skull.RULE_DEPTH_MM": "published (T-Table 2023 vertex 5.0 / opisthocranion 6.0 mm)",
+    "face_from_skull.RULE_WEIGHT / NARROW_FRACTION / RBF_REGULARISATION": "renders (smoothness), phantom",
+    "face_from_skull.DAMP_FREE_MM / DAMP_SCALE_MM": "CThead score (60.1 -> 62.0 %)",
+    "face_from_skull.CHEEK_SPAN_DEG / CHEEK_RAMP_MM": "CThead score (its error map: 63.0 -> 63.2 %)",
+    "face_from_skull.ALAR_DEFINITION_TOLERANCE_MM / MID_RAMUS_FRACTION": "definition (T-Table landmark definitions)",
+    "defaults.FACE_SPREAD_MM": "renders",
+    "defaults.FACE_MIN_TISSUE_MM": "published (T-Table's thinnest landmark, rhinion 3.0 mm, less 1 SD)",
+    "face_features.NASAL_LENGTH_SLOPE / _INTERCEPT_MM": "published (Rynn, Wilkinson & Peters 2010)",
+    "face_features.NOSE_PROTRUSION_MM / NOSE_ALAR_WIDTH_MM / EYE_FISSURE_MM / LIP_*_MM heights / EAR_*": "published "
+    "(Farkas 1994 norms, cited from the literature)",
+    "face_features.ALAR_MARGIN_MM": "published (Krogman & Iscan 1986)",
+    "face_features.EYE_EX_INSET_MM": "published (Stephan & Davidson 2008, quoted)",
+    "face_features mouth width": "published (Stephan & Henneberg 2003, inter-canine / 0.75)",
+    "face_features.NOSE_* shape (dorsum, tip, columella, alae), EYE_* shape, LIP_* depths": "renders",
+}
+#: The constants chosen on CThead's score, set neutral for the suite's "without" row: no damping of outlying pegs, no
+#: convex cheeks, no stronger smoothing away from the pegs.
+CTHEAD_CHOSEN_NEUTRAL = {("pdehead_addon.forensic.face_from_skull", "DAMP_FREE_MM"): 1e9,
+                         ("pdehead_addon.forensic.face_from_skull", "CHEEK_SPAN_DEG"): 0.0,
+                         ("pdehead_addon.forensic.face_profile", "PROFILE_SMOOTH_FAR_MM"): 0.0}
+
+
+def neutral_row(ct, ref) -> dict:
+    """CThead with the constants chosen on its own score set neutral (:data:`CTHEAD_CHOSEN_NEUTRAL`)."""
+    import importlib
+    saved = {}
+    try:
+        for (mod, name), value in CTHEAD_CHOSEN_NEUTRAL.items():
+            m = importlib.import_module(mod)
+            saved[(mod, name)] = getattr(m, name)
+            setattr(m, name, value)
+        return score_variant("CThead, automatic level, without the constants chosen on CThead", ct, ref)
+    finally:
+        for (mod, name), value in saved.items():
+            setattr(importlib.import_module(mod), name, value)
+
+
+def suite(done: dict | None = None) -> list[dict]:
+    """The robustness suite (issue 39 point 6): CThead stripped at each of :data:`SUITE_LEVELS` and run at it,
+    resampled to :data:`SUITE_SLICES_MM` slices, cut at the occlusal plane (the face above it scored), a skull-only
+    crop (its filled ratio and whether it is recognised), GE and the phantom (their own score; from ``done``, the
+    main run's results with their ``_keep``, when there)."""
+    from pdehead_addon.forensic.skull import segment_skull, soft_tissue_present
+    rows = []
+    ct = load("cthead")
+    sk = segment_skull(ct)
+    auto = float(sk.meta.get("bone_level_stored", sk.bone_level))
+    centre = ct.index_to_patient(np.argwhere(sk.bone).mean(axis=0)[None])[0]
+    ref = reference_face(ct, centre[:2])
+    base = score_variant(f"CThead, automatic level ({auto:.0f})", ct, ref)
+    rows.append(base)
+    rows.append(neutral_row(ct, ref))
+    for lev in SUITE_LEVELS:
+        rows.append(score_variant(f"CThead stripped and run at {lev:.0f}", ct, ref, bone_level=lev))
+    for t in SUITE_SLICES_MM:
+        rows.append(score_variant(f"CThead resampled to {t:g} mm slices", resliced(ct, t), ref))
+    lms = base.get("_keep", {}).get("a", {}).get("landmarks", {}) if "_keep" in base else {}
+    if "Supradentale" in lms and "Infradentale" in lms:
+        z_occ = 0.5 * float(lms["Supradentale"][2] + lms["Infradentale"][2])
+        row = score_variant(f"CThead cut at the occlusal plane (z {z_occ:.0f} mm)", cut_slices(ct, z_low=z_occ), ref,
+                            floor_z=z_occ)
+        rows.append(row)
+        if "Supraorbital L" in lms:
+            z_top = float(lms["Supraorbital L"][2]) + 10.0
+            crop = stripped(cut_slices(ct, z_low=z_occ - 10.0, z_high=z_top), auto)
+            soft, info = soft_tissue_present(crop.data)
+            rows.append({"variant": f"CThead stripped at {auto:.0f}, cropped to z {z_occ - 10:.0f}-{z_top:.0f} mm "
+                         "(skull base and face)", "skull_only_check": {"fill_ratio": info.get("fill_ratio"),
+                                                                      "taken_for_skull_only": not soft}})
+    for name in ("ge", "phantom"):
+        r = dict((done or {}).get(name) or score(name))
+        if "_keep" not in r:
+            continue
+        keep = r.pop("_keep")
+        r["variant"] = name
+        r["bent_edges"] = bent_edge_share(keep["a"]["result"].mesh)
+        r["has_mandible"] = keep["a"]["has_mandible"]
+        r["_keep"] = keep
+        rows.append(r)
+    return rows
+
+
+def suite_markdown(rows: list[dict]) -> list[str]:
+    out = ["", "### Robustness suite (issue 39): `python3 scripts/bench/bench_face.py --suite`", "",
+           "Every CThead variant is scored on the same real face points (the full CT's skin, the region about the "
+           "full CT's bone centroid; the occlusal cut: the points above the plane). Stripped: every voxel below the "
+           "level set to air, run with `--bone-level` at it. Bent edges: share of the face mesh's edges whose faces "
+           f"bend by more than {BEND_DEG:g} degrees. Targets: CThead at 1500 and 1600 >= 65 % and mean <= 2.5 mm, "
+           "the two within 3 points; occlusal cut >= 60 %.", "",
+           "| variant | within ±2.5 mm | mean mm | p95 mm | bent edges | mandible | notes |",
+           "|---|---:|---:|---:|---:|---|---|"]
+    for r in rows:
+        if "refused" in r:
+            out.append(f"| {r['variant']} | refused: {r['refused']} | | | | | |")
+            continue
+        if "skull_only_check" in r:
+            c = r["skull_only_check"]
+            out.append(f"| {r['variant']} | — | — | — | — | — | filled ratio {c['fill_ratio']}; taken for a skull "
+                       f"alone: {'yes' if c['taken_for_skull_only'] else 'NO'} |")
+            continue
+        f = r["face"]
+        notes = []
+        if r.get("alare_moved"):
+            notes.append("alare curvature by definition: " + ", ".join(x.split()[-1] for x in r["alare_moved"]))
+        if r.get("bone_level") is not None:
+            notes.append(f"level {r['bone_level']:.0f}")
+        out.append(f"| {r['variant']} | {100 * f['within_2_5']:.1f} % | {f['mean_mm']:.2f} | {f['p95_mm']:.2f} | "
+                   f"{100 * r.get('bent_edges', float('nan')):.2f} % | "
+                   f"{'yes' if r.get('has_mandible', True) else 'no'} | {'; '.join(notes)} |")
+    import re
+    links = [f"[{r['variant']}](figures/face_suite_{re.sub(r'[^a-z0-9]+', '_', r['variant'].lower()).strip('_')[:60]}.png)"
+             for r in rows if "face" in r]
+    out += ["", "Renders of each run's face (front, profile, three-quarter; `--suite --figures`): " + ", ".join(links) + "."]
+    out += ["", "How each constant that shapes the face was chosen (`bench_face.CONSTANT_CHOICE`; \"CThead score\": "
+            "chosen on the head it is scored on, set neutral in the row \"without the constants chosen on CThead\"; "
+            "\"renders\": shape choices made looking at CThead's and GE's renders):", "",
+            "| constant | how chosen |", "|---|---|"]
+    out += [f"| `{k}` | {v} |" for k, v in CONSTANT_CHOICE.items()]
+    return out
+
+
 def _machine_text(results: dict) -> str:
     """When and on what the scores were taken (each result's ``machine``; older JSON files have none)."""
     m = next((r["machine"] for r in results.values() if "machine" in r), None)
@@ -351,6 +595,45 @@ def markdown(results: dict) -> str:
         lines += ["", f"Against the target (CThead): {100 * f['within_2_5']:.1f} % within ±2.5 mm "
                   f"({'met' if f['within_2_5'] >= TARGET_SHARE else 'NOT met'}), mean {f['mean_mm']:.2f} mm "
                   f"({'met' if f['mean_mm'] <= TARGET_MEAN else 'NOT met'})."]
+    lines += ["", "Issue 39 (the face on heads it has never seen; figures in the robustness suite below, 4 Dec 2026, load "
+              "average 8-10 from other jobs):",
+              "- Why the score depended on the strip level (50-52 % at 1500, 62-63 % at the automatic ~1586 and at "
+              "1600): not the cervical spine (the 1500 skull reaches the scan's bottom, z -1 mm against 25 mm at 1600, "
+              "but cropping it away left the face's score unchanged, 51.4 %), but the automatic landmarks: swapping "
+              "the 1600 run's landmarks into the 1500 run one at a time, the two alare curvatures (flagged uncertain) "
+              "moved it 51.4 -> 59.9 %. At 1500 they stood where their definition puts them (beside the nasal aperture, "
+              "14 mm lateral and 15 mm above subspinale), at 1600 on the malar bone by the molars (38-47 mm lateral, up "
+              "to 24 mm below subspinale), where their 10 mm depth happened to thin a lower face that the T-Table's "
+              "supra-M2 (26 mm) and sub-M2 (22 mm) pegs make too thick on this head. The 63 % was that accident. Also "
+              "Mid-ramus L at 1600 stood 6 mm above gonion (its definition: half way to the condyle; 1500's at 55 %).",
+              "- Kept: uncertain alare curvatures more than 5 mm from the aperture's lateral margin at its widest "
+              "breadth are moved there (`face_pegs.alar_pegs_by_definition`); a mid-ramus outside 30-70 % of the "
+              "gonion-porion height is replaced by the other side's mirrored across the fitted mid-sagittal plane "
+              "(`face_pegs.mid_ramus_by_definition`); between the infraorbital margin, zygion and the lowest jaw peg "
+              "present the cheeks stand at least the smallest of those pegs' table means over the outermost bone "
+              "(`face_pegs.cheek_bands`, `face_profile.cheek_floor`, merged into the bone floor; issue 39 point 3). "
+              "Each moved landmark is listed in the face's provenance.",
+              "- Tried and not kept: the wide Shepard field weighted by the inverse of each peg's table variance "
+              "(CThead 1500 / 1600 51.4 / 54.4 -> 55.3 / 57.0 %, but GE 42.2 -> 37.8 %: chosen on CThead, failed on "
+              "GE); leaving out the supra- and sub-M2 pegs (CThead 63.0 / 61.2 %, phantom 42.4 -> 39.1 %; GE has "
+              "none): a choice made on the scored head.",
+              "- Bent edges (share of the face mesh's edges whose faces bend more than 40 degrees, "
+              "`bench_face.bent_edge_share`, every edge of the closed mesh): main before this work 0.90 % on CThead at "
+              "the automatic level, now 0.96 % (the issue's 0.40 % was measured another way; lips and nostrils bend "
+              "too).",
+              "- The suite's renders (looked at; front, profile, three-quarter, lit from the side): every CThead "
+              "variant reads as a head with a nose, closed eyes, a mouth and ears, but not as a face an artist would "
+              "keep: horizontal waves run across the cheeks and the lower face (the rows' steps, plainest under "
+              "grazing light), the lower face is lumpy and too full at the jaw's sides (the supra- and sub-M2 pegs), "
+              "a dark notch stands under the nose at 1500 and at 1.5 mm slices, and the occlusal-cut face has a "
+              "crease across the cheeks at the eyes' height and a misshapen mouth above the cut. GE and the phantom "
+              "as in the figures above.",
+              "- Not done: the nose, eyes, mouth and ears were not replaced by other published methods (item 2: the "
+              "nose keeps Rynn et al. 2010's nasal length and Krogman's alar width; the ANS-based methods need a "
+              "spine the bone mask does not keep); the constants chosen on CThead's score are reported, not re-chosen "
+              "on other heads (the suite's row without them: 58.8 % against 59.0 %); the targets (>= 65 % at 1500 "
+              "and 1600) are missed, and the automatic level (1586) still scores 4 points above 1600.",
+              ]
     lines += ["", "What limits it (CThead):",
               "- The table's means themselves lie outside this head's skin over the lower face: the signed "
               "distance from each peg tip (bone landmark + T-Table mean along the bone normal) to the real skin is "
@@ -578,17 +861,23 @@ def main(argv=None) -> int:
     p.add_argument("--from-json", type=Path, help="rewrite the docs section from an earlier --summary-json")
     p.add_argument("--error-map", type=Path, metavar="DIR", help="write DIR/face_error_<head>.png: the median "
                    "signed distance of the real face to the approximation per 5 mm x 5 degrees (where the misses are)")
+    p.add_argument("--suite", action="store_true", help="also run the robustness suite (CThead at two bone levels, "
+                   "resampled, cut at the occlusal plane, a skull-only crop; GE; the phantom) into the docs section")
     p.add_argument("--figures", action="store_true", help="also render docs/figures/face_from_skull_*.png "
                    "(needs bpy)")
     args = p.parse_args(argv)
     if args.from_json:
         from md_sections import write_section
-        write_section(ROOT / "docs" / "benchmarks.md", "face-from-skull", markdown(json.loads(args.from_json.read_text())))
+        saved = json.loads(args.from_json.read_text())
+        rows = saved.pop("suite", {}).get("rows")
+        text = markdown(saved) + ("\n".join(suite_markdown(rows)) + "\n" if rows else "")
+        write_section(ROOT / "docs" / "benchmarks.md", "face-from-skull", text)
         return 0
     results = {}
     machine = {"utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime()), "cores": os.cpu_count(),
                "load": list(os.getloadavg())}
     from pdehead_addon.core.errors import PDEHeadError
+    kept = {}
     for name in args.only:
         try:
             r = score(name)
@@ -599,6 +888,7 @@ def main(argv=None) -> int:
         keep = r.pop("_keep")
         r["machine"] = machine
         results[name] = r
+        kept[name] = dict(r, _keep=keep)
         f = r["face"]
         print(f"{name}: {100 * f['within_2_5']:.1f} % within ±2.5 mm, mean {f['mean_mm']:.2f}, p95 {f['p95_mm']:.2f} "
               f"mm; soft landmarks {json.dumps({k: round(v, 1) for k, v in r['soft_landmarks_mm'].items()})}; "
@@ -612,9 +902,25 @@ def main(argv=None) -> int:
             from face_figures import render_face_figures
             render_face_figures(name, keep)
     text = markdown(results)
+    rows = None
+    if args.suite:
+        rows = suite(kept)
+        for r in rows:
+            keep = r.pop("_keep", None)
+            if keep is not None and args.figures:
+                from face_figures import render_suite_figure
+                render_suite_figure(r["variant"], keep["a"]["result"].mesh)
+            if "face" in r:
+                f = r["face"]
+                print(f"suite: {r['variant']}: {100 * f['within_2_5']:.1f} % within ±2.5 mm, mean {f['mean_mm']:.2f} "
+                      f"mm, bent edges {100 * r['bent_edges']:.2f} %", file=sys.stderr)
+            else:
+                print(f"suite: {r['variant']}: {r.get('refused') or r.get('skull_only_check')}", file=sys.stderr)
+        text += "\n".join(suite_markdown(rows)) + "\n"
     print(text)
     if args.summary_json:
-        args.summary_json.write_text(json.dumps(results, indent=2) + "\n")
+        saved = dict(results, suite={"rows": rows}) if rows else results
+        args.summary_json.write_text(json.dumps(saved, indent=2, default=float) + "\n")
     if not args.no_write:
         from md_sections import write_section
         write_section(ROOT / "docs" / "benchmarks.md", "face-from-skull", text)

@@ -167,3 +167,48 @@ def error_map_png(points: np.ndarray, tip: np.ndarray, centre_xy, signed: np.nda
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.save(path)
     return path
+
+
+def render_suite_figure(label: str, face, out_dir: Path = OUT, views=("FRONT", "RIGHT", "THREE_QUARTER")) -> Path:
+    """One robustness-suite run's face (bench_face.py --suite): the approximation alone, front, profile and
+    three-quarter, in one strip written to ``out_dir / face_suite_<slug>.png``."""
+    import re
+
+    os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="pdehead-fig-"))
+    import bpy
+
+    import pdehead
+    addon = pdehead.register_addon()
+    render, objects = addon.operators.render, addon.operators.objects
+    bpy.ops.wm.read_homefile(use_empty=True)
+    coll = objects.study_collection("face suite")
+    obj = objects.build_mesh_object(face, coll, "approximation")
+    mat = bpy.data.materials.new("approx")
+    if mat.node_tree is None:
+        mat.use_nodes = True
+    bsdf = mat.node_tree.nodes.get("Principled BSDF")
+    bsdf.inputs["Roughness"].default_value = 0.55
+    bsdf.inputs["Base Color"].default_value = (0.72, 0.70, 0.66, 1.0)
+    obj.data.materials.append(mat)
+    world = face.vertices * 0.001
+    top = world[:, 2].max()
+    lo = np.array([world[:, 0].min(), world[:, 1].min(), max(world[:, 2].min(), top - 0.26)])
+    hi = np.array([world[:, 0].max(), world[:, 1].max(), top])
+    tmp = Path(tempfile.mkdtemp())
+    pics = []
+    for view in views:
+        path = tmp / f"{view}.png"
+        render.render_objects_png([obj], path, view=view, resolution=(SIZE, SIZE), samples=16, bounds=(lo, hi))
+        pics.append(Image.open(path).convert("RGB"))
+    fig = Image.new("RGB", (len(views) * SIZE, SIZE + 18), (255, 255, 255))
+    draw = ImageDraw.Draw(fig)
+    for i, pic in enumerate(pics):
+        fig.paste(pic, (i * SIZE, 18))
+    draw.text((6, 3), label, fill=(0, 0, 0))
+    slug = re.sub(r"[^a-z0-9]+", "_", label.lower()).strip("_")[:60]
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    target = out_dir / f"face_suite_{slug}.png"
+    fig.quantize(256, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE).save(target, optimize=True)
+    print(f"wrote {target}", file=sys.stderr)
+    return target

@@ -299,7 +299,9 @@ def test_pegs_off_the_face_are_shown_held_and_warned(pdehead_ext, face_blend):
         assert gaps[n] == pytest.approx(_tip_to_mesh_mm(pdehead_ext, obj, tips[names.index(n)]), abs=0.05)
     prov = json.loads(obj[face.PROVENANCE_PROP])
     off = {o["peg"]: o for o in prov["pegs_off_face"]}
-    assert set(off) == {n for n, g in gaps.items() if g > 2.0} and off, gaps
+    # the property is rounded to 0.01 mm: a peg at 2.00 mm may be either side of the report's 2 mm
+    assert {n for n, g in gaps.items() if g > 2.01} <= set(off) <= {n for n, g in gaps.items() if g > 1.99}, gaps
+    assert off
     assert prov["peg_warnings"] == [] and prov["pegs_held"] == []
     damped = [n for n, o in off.items() if o["why"].startswith("damped: disagrees with its neighbours by")]
     assert "Supra M2 L" in damped or "Supra M2 R" in damped, off
