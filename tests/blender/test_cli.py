@@ -150,7 +150,8 @@ def test_ctrl_c_stops_the_cli_with_130_and_leaves_no_output(tmp_path):
     """SIGINT while a long step runs: exit 130, one line saying so, no .blend / .vdb / folder left."""
     import signal
     out = tmp_path / "out"
-    env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "blender-user"))
+    # every progress report printed (not one per half second: on a quiet machine the phantom segments faster)
+    env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "blender-user"), PDEHEAD_PROGRESS_INTERVAL_S="0")
     proc = subprocess.Popen([sys.executable, str(CLI), "--phantom", "--patches", "6", "--nu", "32", "--nv", "48",
                              "--out", str(out / "phantom.blend"), "--render", str(out / "surface.png")],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=tmp_path,
