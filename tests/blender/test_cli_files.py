@@ -56,6 +56,20 @@ def _files(folder: Path) -> list[str]:
     return sorted(str(p.relative_to(folder)) for p in folder.rglob("*"))
 
 
+def _interrupt(proc) -> tuple[float, str]:
+    """Ctrl-C to a run: (seconds until it exited, its stderr)."""
+    proc.send_signal(signal.SIGINT)
+    t0 = time.perf_counter()
+    proc.wait(timeout=600)
+    return time.perf_counter() - t0, proc.stderr.read()
+
+
+def _assert_cancelled_leaving_nothing(proc, err: str, folder: Path) -> None:
+    assert proc.returncode == 130, err[-2000:]
+    assert "cancelled (Ctrl-C)" in err and "Traceback" not in err
+    assert not folder.exists() or _files(folder) == [], _files(folder)
+
+
 def test_ctrl_c_during_a_render_keeps_the_other_runs_outputs(tmp_path):
     d = tmp_path / "d"
     # A: a long render (it would take minutes); B runs to its end meanwhile into the same folder
@@ -68,11 +82,7 @@ def test_ctrl_c_during_a_render_keeps_the_other_runs_outputs(tmp_path):
         assert b.returncode == 0, b.stderr[-2000:]
         assert a.poll() is None, "the render ended before the test could cancel it"
         b_files = {name: (d / name).read_bytes() for name in ("b.blend", "pdehead_vdb/b.Phantom.vdb")}
-        a.send_signal(signal.SIGINT)
-        t0 = time.perf_counter()
-        a.wait(timeout=600)
-        latency = time.perf_counter() - t0
-        err = a.stderr.read()
+        latency, err = _interrupt(a)
     finally:
         if a.poll() is None:
             a.kill()
@@ -160,18 +170,12 @@ def test_ctrl_c_during_the_dicom_scan_ends_the_run(tmp_path):
                 break
             time.sleep(0.005)
         assert proc.poll() is None, "the run ended before the test saw it scan"
-        proc.send_signal(signal.SIGINT)
-        t0 = time.perf_counter()
-        proc.wait(timeout=600)
-        latency = time.perf_counter() - t0
-        err = proc.stderr.read()
+        latency, err = _interrupt(proc)
     finally:
         if proc.poll() is None:
             proc.kill()
     print(f"Ctrl-C during the DICOM scan: exit after {latency:.2f} s")
-    assert proc.returncode == 130, err[-2000:]
-    assert "cancelled (Ctrl-C)" in err and "Traceback" not in err
-    assert not d.exists() or _files(d) == [], _files(d)
+    _assert_cancelled_leaving_nothing(proc, err, d)
 
 
 def test_ctrl_c_during_the_skull_steps_ends_the_run(tmp_path):
@@ -182,18 +186,12 @@ def test_ctrl_c_during_the_skull_steps_ends_the_run(tmp_path):
         _wait_for(proc.stdout, "Info: PDE solid of")   # the next step is the skull
         time.sleep(0.5)
         assert proc.poll() is None
-        proc.send_signal(signal.SIGINT)
-        t0 = time.perf_counter()
-        proc.wait(timeout=600)
-        latency = time.perf_counter() - t0
-        err = proc.stderr.read()
+        latency, err = _interrupt(proc)
     finally:
         if proc.poll() is None:
             proc.kill()
     print(f"Ctrl-C during the skull steps: exit after {latency:.2f} s")
-    assert proc.returncode == 130, err[-2000:]
-    assert "cancelled (Ctrl-C)" in err and "Traceback" not in err
-    assert not d.exists() or _files(d) == [], _files(d)
+    _assert_cancelled_leaving_nothing(proc, err, d)
 
 
 def test_out_inside_the_input_folder_is_refused(tmp_path):
