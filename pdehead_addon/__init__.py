@@ -22,34 +22,46 @@ and benchmarks only: it is not imported here and not shipped in the extension zi
 ``__all__`` is the public API; the operators and scripts use these names (or a module of a
 subpackage where they need more).
 """
-from .core.errors import PDEHeadError, CTImportError, SegmentationError, BoundaryError, PDEError, StorageError, Cancelled
-from .core.ct_volume import CTVolume
-from .core.mesh import Mesh
-from .io.ct_import import load_ct, check_head_scan, list_series, SeriesInfo, CTImportWarning
-from .io.input_checks import HeadSizeWarning
-from .io.phantom import make_phantom, Phantom
-from .segment.segmentation import Segmentation, segment_head
 from .core.boundary_set import BoundarySet, knots_from_heights
-from .curves.boundaries import extract_boundaries, BoundaryOptions, max_patches, patches_for_scan
-from .curves.slice_outlines import boundary_ring
-from .curves.curve_sampling import contour_from_mask, parameter_offsets
+from .core.ct_volume import CTVolume
+from .core.errors import (
+    BoundaryError,
+    Cancelled,
+    CTImportError,
+    PDEError,
+    PDEHeadError,
+    SegmentationError,
+    StorageError,
+)
+from .core.mesh import Mesh
+from .core.provenance import SOFTWARE_VERSION as __version__  # noqa: E402
 from .curves import slice_selection
-from .curves.slice_selection import SelectionWarning, select_for_tolerance, scan_edge_slices, register_selection, SELECTION_STRATEGIES
-from .pde.pde_surface import solve_pde, control_ranges, solve_with_controls
+from .curves.boundaries import BoundaryOptions, extract_boundaries, max_patches, patches_for_scan
+from .curves.curve_sampling import contour_from_mask, parameter_offsets
+from .curves.parameterisation import align_parameterisation, correspondence_error, smooth_closed_curve
+from .curves.slice_outlines import boundary_ring
+from .curves.slice_selection import (
+    SELECTION_STRATEGIES,
+    SelectionWarning,
+    register_selection,
+    scan_edge_slices,
+    select_for_tolerance,
+)
+from .forensic.bone_levels import bone_level_range, check_bone_level
+from .forensic.depth_table import DepthEntry, DepthTable, default_table, read_depth_table, write_landmark_csv
+from .forensic.skull import SkullSegmentation, segment_skull, skull_mesh
+from .forensic.tissue_depth import TissueDepth, tissue_depth, write_depth_csv
+from .io.ct_import import CTImportWarning, SeriesInfo, check_head_scan, list_series, load_ct
+from .io.export import export_mesh
+from .io.input_checks import HeadSizeWarning
+from .io.phantom import Phantom, make_phantom
+from .io.safe_io import WriteError, check_size, checked_output, copy_checked, disk_full
+from .io.storage import dumps_boundaries, load_boundaries, load_head, loads_boundaries, loads_head, save_boundaries
 from .pde.pde_head import PDEHead
 from .pde.pde_smoothing import smoothing_bounds
-from .curves.parameterisation import align_parameterisation, smooth_closed_curve, correspondence_error
-from .pde.pde_solid import alpha_from_w, w_field, solid_mesh, WField, OUTSIDE_W
-from .io.storage import save_boundaries, load_boundaries, dumps_boundaries, loads_boundaries, load_head, loads_head
-from .forensic.skull import SkullSegmentation, segment_skull, skull_mesh
-from .forensic.bone_levels import bone_level_range, check_bone_level
-from .forensic.tissue_depth import TissueDepth, tissue_depth, write_depth_csv
-from .io.export import export_mesh
-from .io.safe_io import WriteError, check_size, checked_output, copy_checked, disk_full
-from .forensic.depth_table import DepthTable, DepthEntry, read_depth_table, default_table, write_landmark_csv
-
-from .core.provenance import SOFTWARE_VERSION as __version__  # noqa: E402
-
+from .pde.pde_solid import OUTSIDE_W, WField, alpha_from_w, solid_mesh, w_field
+from .pde.pde_surface import control_ranges, solve_pde, solve_with_controls
+from .segment.segmentation import Segmentation, segment_head
 
 #: Public names loaded on first use (PEP 562), so importing the package stays light: the Blender
 #: layer and the scripts take them from here, not from the modules that define them.

@@ -166,6 +166,7 @@ def run_study(input_path: str, out_dir: str, settings: dict, time_limit_s: float
 
 def _software() -> dict:
     import numpy
+
     import pdehead_addon
     return {"pdehead": pdehead_addon.__version__, "python": sys.version.split()[0], "numpy": numpy.__version__,
             "runner_version": RUNNER_VERSION}
@@ -285,6 +286,7 @@ def _dicom_subject(path: Path, series_uid: str | None) -> dict:
 
 def _child(input_path: str, work: Path, settings: dict) -> int:
     import numpy as np  # noqa: F401  (imported before the engine so its import time is not a step's)
+
     import pdehead_addon as eng
 
     state = {"warnings": [], "n_landmarks": 0}
@@ -346,10 +348,10 @@ def _skull_outputs(eng, ct, seg, bset, work: Path, settings: dict) -> int:
     intensities (:func:`~pdehead_addon.forensic.depth_on_ct.landmark_depths_on_ct`), and the default table's mean and SD;
     returns the number found. A depth the intensity profile does not support turns an ``ok`` landmark
     ``uncertain``; the measured reason goes to log.txt."""
-    from pdehead_addon.forensic.auto_landmarks import find_landmarks
-    from pdehead_addon.forensic.depth_table import default_table, write_landmark_csv
-    from pdehead_addon.forensic.depth_on_ct import depth_flags, depth_levels, measure_landmark_depths
     from pdehead_addon.core.provenance import provenance
+    from pdehead_addon.forensic.auto_landmarks import find_landmarks
+    from pdehead_addon.forensic.depth_on_ct import depth_flags, depth_levels, measure_landmark_depths
+    from pdehead_addon.forensic.depth_table import default_table, write_landmark_csv
     from pdehead_addon.forensic.skull import segment_skull, skull_mesh
 
     skull = segment_skull(ct, seg)

@@ -29,7 +29,6 @@ import sys
 import time
 import tracemalloc
 import warnings
-import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable

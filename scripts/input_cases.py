@@ -415,6 +415,7 @@ def fuzz_campaign(n: int, print_only: bool) -> int:
     """Run ``n`` cases of scripts/fuzz_inputs.py (seed 0, 1, ... until n) and write the counts per outcome."""
     import platform
     import time
+
     import fuzz_inputs as fz
     results, seeds, t0 = [], 0, time.perf_counter()
     while len(results) < n:

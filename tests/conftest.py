@@ -19,8 +19,7 @@ sys.path.insert(0, str(ROOT))
 os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="pdehead-blender-user-"))
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from datasets import (CTHEAD_RAW16_OPTIONS, CTHEAD_TIFF8_OPTIONS, IN_CI, SHARED_DATA,  # noqa: E402,F401
-                      shared_data)
+from datasets import CTHEAD_RAW16_OPTIONS, CTHEAD_TIFF8_OPTIONS, IN_CI, SHARED_DATA, shared_data  # noqa: E402,F401
 
 
 @pytest.fixture(scope="session")

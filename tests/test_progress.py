@@ -13,8 +13,8 @@ import pytest
 
 from pdehead_addon import Cancelled, extract_boundaries, segment_head
 from pdehead_addon.pde.pde_solid import w_field
-from pdehead_addon.pde.solid_ct_table import SolidCTTable
 from pdehead_addon.pde.pde_surface import solve_pde
+from pdehead_addon.pde.solid_ct_table import SolidCTTable
 
 
 def _timer_cancel(run, delay: float):

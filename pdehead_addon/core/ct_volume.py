@@ -14,7 +14,6 @@ from typing import Any
 
 import numpy as np
 
-
 #: The ``ct`` grid of the volume keeps the CT this far around the solid (no table, no air box).
 HEAD_MARGIN_MM = 6.0
 

@@ -46,10 +46,31 @@ from typing import Any
 import numpy as np
 
 from ..core.ct_volume import CTVolume
-from .phantom_anatomy import (AIR, BONE, BRAIN, CENTRE_Y, CHUNK_VOXELS, CSF, CUSHION, DEFAULT_FOV_MM, DEFAULT_HU,
-                              DEFAULT_SHAPE, EYE, GEOMETRY, HOLDER, INTERNAL_AIR, LABEL_NAMES, METAL,
-                              SOFT_TISSUE, TOP_Z, PhantomParameterError, evaluate_tissues, head_sd,
-                              points_from_array, skull_outer_sd)
+from .phantom_anatomy import (
+    AIR,
+    BONE,
+    BRAIN,
+    CENTRE_Y,
+    CHUNK_VOXELS,
+    CSF,
+    CUSHION,
+    DEFAULT_FOV_MM,
+    DEFAULT_HU,
+    DEFAULT_SHAPE,
+    EYE,
+    GEOMETRY,
+    HOLDER,
+    INTERNAL_AIR,
+    LABEL_NAMES,
+    METAL,
+    SOFT_TISSUE,
+    TOP_Z,
+    PhantomParameterError,
+    evaluate_tissues,
+    head_sd,
+    points_from_array,
+    skull_outer_sd,
+)
 from .phantom_primitives import Grid, Points
 
 __all__ = ["make_phantom", "Phantom", "phantom_bone_landmarks", "AIR", "SOFT_TISSUE", "BONE", "BRAIN", "CSF", "EYE",

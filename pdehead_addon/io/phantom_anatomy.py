@@ -13,8 +13,20 @@ import numpy as np
 from scipy.special import erfc
 
 from ..core.errors import PDEHeadError
-from .phantom_primitives import (EMPTY, Cylinder, Ellipsoid, Plate, Points, SmoothUnion, blend, ellipse_sd,
-                                 ellipsoid_sd, rotation_about_x, rotation_ear, smax)
+from .phantom_primitives import (
+    EMPTY,
+    Cylinder,
+    Ellipsoid,
+    Plate,
+    Points,
+    SmoothUnion,
+    blend,
+    ellipse_sd,
+    ellipsoid_sd,
+    rotation_about_x,
+    rotation_ear,
+    smax,
+)
 
 # Tissue labels of :attr:`Phantom.labels` (uint8).
 AIR = 0            # outside air

@@ -67,12 +67,19 @@ import numpy as np
 
 from ..core.boundary_set import BoundarySet
 from ..core.errors import PDEError
+from ..curves.parameterisation import align_parameterisation
 from .pde_basis import basis, curve_harmonics, inverse_4x4
 from .pde_head import PDEHead, curve_positions, derived_once
-from .pde_smoothing import (MAX_DEVIATION_MM, MAX_LEBESGUE_GROWTH, check_modes, local_knots, require_3t_plus_1,
-                            smoothing_bounds, smoothing_limits)
+from .pde_smoothing import (
+    MAX_DEVIATION_MM,
+    MAX_LEBESGUE_GROWTH,
+    check_modes,
+    local_knots,
+    require_3t_plus_1,
+    smoothing_bounds,
+    smoothing_limits,
+)
 from .pde_spline import c2_spans, crown_low_pass, dome_height, smoothing_spline_values
-from ..curves.parameterisation import align_parameterisation
 
 #: The surface's continuity across the curves: the C2 spans (default) or the paper's four-curve patches.
 CONTINUITIES = ("c2", "paper")

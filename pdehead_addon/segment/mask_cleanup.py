@@ -13,12 +13,10 @@ from typing import Any, Sequence
 import numpy as np
 from scipy import ndimage as ndi
 
-from . import run_labels
-from ..core.threads import THREADS, in_slabs
-from .binary_morphology import PARALLEL_VOXELS
-from .binary_morphology import run_steps as _run_steps
 from ..core.errors import SegmentationError, report_progress
-
+from ..core.threads import THREADS, in_slabs
+from . import run_labels
+from .binary_morphology import PARALLEL_VOXELS, run_steps as _run_steps
 
 #: 4-connectivity inside each axial slice, no links between slices (per-slice 2-D labelling).
 _IN_SLICE = np.zeros((3, 3, 3), dtype=bool)

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import numpy as np
 
-
 #: Rows of a volume are scanned for runs in chunks of about this many bytes.
 _CHUNK_BYTES = 1 << 20
 

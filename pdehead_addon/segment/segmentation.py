@@ -25,16 +25,30 @@ from typing import Any, Sequence
 import numpy as np
 from scipy import ndimage as ndi
 
-from ..io import input_checks
+from ..core.ct_volume import CTVolume, apply_window
+from ..core.errors import SegmentationError, report_progress, scaled_progress
 from ..core.threads import THREADS, in_slabs
+from ..io import input_checks
 from .binary_morphology import PARALLEL_VOXELS
 from .chan_vese import chan_vese_soft, divergence, gradient, tau_bound
 from .chan_vese_pyramid import solve_pyramid
-from ..core.ct_volume import CTVolume, apply_window
-from ..core.errors import SegmentationError, report_progress, scaled_progress
-from .mask_cleanup import (clean_head_mask, close_disk, cut_at_neck, dilate_disk, erode_disk, estimate_noise,
-                           fill_cavities, fill_holes_per_slice, find_cushion, tissue_envelope, largest_component,
-                           metal_slices, open_disk, smoothing_sigma, streak_components)
+from .mask_cleanup import (
+    clean_head_mask,
+    close_disk,
+    cut_at_neck,
+    dilate_disk,
+    erode_disk,
+    estimate_noise,
+    fill_cavities,
+    fill_holes_per_slice,
+    find_cushion,
+    largest_component,
+    metal_slices,
+    open_disk,
+    smoothing_sigma,
+    streak_components,
+    tissue_envelope,
+)
 
 __all__ = [
     "Segmentation", "segment_head", "auto_window", "window_intensities", "MIN_SLICE_PIXELS",

@@ -17,10 +17,16 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import PDEHeadError
+
 # the mesh primitives live in .mesh_geometry (shipped code imports them from there); these names stay importable
 # from here for the measures' callers (scripts, tests, slice_selection)
-from ..core.mesh_geometry import (mesh_triangles, point_surface_distance, point_triangle_distance,  # noqa: F401
-                       sample_surface, triangulate)
+from ..core.mesh_geometry import (  # noqa: F401
+    mesh_triangles,
+    point_surface_distance,
+    point_triangle_distance,
+    sample_surface,
+    triangulate,
+)
 
 
 def _summary(d: np.ndarray) -> dict[str, float]:

@@ -67,8 +67,18 @@ DOCS = ROOT / "docs"
 
 import _common  # noqa: E402  (data sets and their loader options, the paper's numbers, timing, dev shim)
 import pdehead_addon as E  # noqa: E402
-from _common import CTHEAD_RAW16_OPTIONS, CTHEAD_TIFF8_OPTIONS, PAPER, median, timed  # noqa: E402,F401
-from _common import blender, boundaries, error_text, marching_cubes_mesh, remove_object  # noqa: E402,F401
+from _common import (  # noqa: E402,F401  # noqa: E402,F401
+    CTHEAD_RAW16_OPTIONS,
+    CTHEAD_TIFF8_OPTIONS,
+    PAPER,
+    blender,
+    boundaries,
+    error_text,
+    marching_cubes_mesh,
+    median,
+    remove_object,
+    timed,
+)
 from pdehead_addon import defaults as D  # noqa: E402
 
 DATA = _common.SHARED_DATA
@@ -985,7 +995,7 @@ def write_outputs(out: dict, json_path: Path, md_path: Path) -> None:
     json_path.parent.mkdir(parents=True, exist_ok=True)
     md_path.parent.mkdir(parents=True, exist_ok=True)
     json_path.write_text(json.dumps(out, indent=1, default=_json_default) + "\n")
-    from md_sections import keep_sections           # the sections other benchmark scripts own stay
+    from md_sections import keep_sections  # the sections other benchmark scripts own stay
     md_path.write_text(keep_sections(markdown(out), md_path))
 
 

@@ -32,8 +32,8 @@ import json
 import os
 import platform
 import re
-import statistics
 import signal
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -307,8 +307,7 @@ def reference_mask(ct, cache: Path, commit: str) -> np.ndarray:
 
 def default_surface(seg):
     """The CLI's surface of ``seg`` (automatic selection, t = 10; the default nu x nv, caps): (vertices, faces)."""
-    from pdehead_addon import defaults as D
-    from pdehead_addon import extract_boundaries, solve_pde
+    from pdehead_addon import defaults as D, extract_boundaries, solve_pde
     from pdehead_addon.core.mesh_geometry import triangulate
     mesh = solve_pde(extract_boundaries(seg, patches=10, selection="auto")).surface(D.NU.default, D.NV.default,
                                                                                     caps=True)

@@ -33,12 +33,12 @@ for _p in (str(ROOT), str(ROOT / "scripts"), str(ROOT / "scripts" / "bench")):
     if _p not in sys.path:
         sys.path.insert(0, _p)
 
+import bench_smooth as BS  # noqa: E402
 import pdehead_addon as E  # noqa: E402
-from pdehead_addon import defaults as D  # noqa: E402
-from pdehead_addon.pde import detail_displace as DDX  # noqa: E402
 from _common import load_segmentation, marching_cubes  # noqa: E402
 from md_sections import write_section  # noqa: E402
-import bench_smooth as BS  # noqa: E402
+from pdehead_addon import defaults as D  # noqa: E402
+from pdehead_addon.pde import detail_displace as DDX  # noqa: E402
 
 TARGETS = {"face_mean": 0.20, "face_p95": 0.50, "chord_mm": DDX.PRINT_CHORD_MM,
            "triangles": DDX.PRINT_MAX_TRIANGLES}
@@ -54,6 +54,7 @@ def face_banding(vertices, faces, centre_xy, tip, density: float = 4.0, dz: floa
                  sigma_mm: float = 3.0, seed: int = 0) -> float:
     """RMS (mm) of the face's outermost radius minus its Gaussian of ``sigma_mm`` along z (module docstring)."""
     from scipy.ndimage import gaussian_filter1d
+
     from pdehead_addon.core.mesh_geometry import sample_surface, triangulate
     from pdehead_addon.validation.surface_metrics import face_window
     v, t = np.asarray(vertices, float), triangulate(faces)

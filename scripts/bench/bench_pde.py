@@ -34,8 +34,8 @@ from pdehead_addon.pde.pde_surface import align_parameterisation  # noqa: E402
 from pdehead_addon.pde.surface_mesh import signed_volume  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "scripts"))
-from _common import CTHEAD_RAW16_OPTIONS as CTHEAD_RAW16, PAPER, SHARED_DATA as DATA  # noqa: E402
-from _common import timed as _timed, tube_fidelity  # noqa: E402
+from _common import CTHEAD_RAW16_OPTIONS as CTHEAD_RAW16, PAPER, SHARED_DATA as DATA, timed as _timed, tube_fidelity  # noqa: E402  # noqa: E402
+
 TARGETS = {"speedup": 100.0, "surface_200x400_s": 0.016, "w_field_s": 1.0, "storage_bytes": 16_000,
            "fidelity_t10_mean": 1.0, "fidelity_t10_p95": 3.0, "fidelity_t31_mean": 0.6}
 

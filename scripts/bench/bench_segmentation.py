@@ -44,11 +44,10 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
-from pdehead_addon import CTVolume, load_ct, segment_head  # noqa: E402
-from pdehead_addon.validation import metrics as M  # noqa: E402
-from pdehead_addon.segment import segmentation as S  # noqa: E402
-
 from _common import CTHEAD_RAW16_OPTIONS, CTHEAD_TIFF8_OPTIONS, SHARED_DATA as DATA, timed  # noqa: E402
+from pdehead_addon import CTVolume, load_ct, segment_head  # noqa: E402
+from pdehead_addon.segment import segmentation as S  # noqa: E402
+from pdehead_addon.validation import metrics as M  # noqa: E402
 
 #: Where each real data set is and how it is loaded (scripts/_common.py owns the options).
 LOAD_OPTIONS = {

@@ -39,10 +39,10 @@ for _p in (str(ROOT), str(ROOT / "scripts")):
         sys.path.insert(0, _p)
 
 import pdehead_addon as E  # noqa: E402
-from pdehead_addon.validation.surface_quality import surface_quality  # noqa: E402
 from _common import load_segmentation as load, marching_cubes, timed, tube_fidelity as fidelity  # noqa: E402
 from md_sections import write_section  # noqa: E402
 from pdehead_addon import defaults as D  # noqa: E402
+from pdehead_addon.validation.surface_quality import surface_quality  # noqa: E402
 
 SELECTION = D.SELECTION.default     # the add-on's and the CLI's default slice choice
 TARGETS = {"crease_p95_deg": 2.0, "folds": 0, "notch_fraction": 0.0005, "notch_fraction_ge": 0.002,
@@ -162,8 +162,10 @@ def crown_before_after(seg, bset) -> dict:
     about the pole of the 400 x 800 surface, before (``pde_spline.crown_low_pass`` off) and after, and of
     marching cubes of the mask smoothed by a 3 mm Gaussian (the head's own large-scale shape)."""
     from unittest import mock
+
     from scipy import ndimage
     from skimage import measure
+
     from pdehead_addon.pde import pde_spline, pde_surface
     from pdehead_addon.validation.surface_quality import CROWN_RADII_MM, crown_ripple
     radii = (5.0, 10.0) + tuple(CROWN_RADII_MM)
@@ -213,6 +215,7 @@ def face_floor(seg, mc, sigma_mm: float = 1.2) -> dict:
     """The visible-face measure of marching cubes of the Gaussian-smoothed mask: what a smooth surface can keep."""
     from scipy import ndimage
     from skimage import measure
+
     from pdehead_addon.validation.surface_metrics import visible_face_distance
     sm = ndimage.gaussian_filter(seg.mask.astype(np.float32), sigma_mm / np.asarray(seg.ct.spacing, float))
     verts, faces, _, _ = measure.marching_cubes(sm, 0.5)
@@ -227,6 +230,7 @@ OLD_ENVELOPE = {"envelope_sigma_mm": 1.5, "curve_sigma": 1.5, "star_slope": 2.0}
 def storage_bytes(head) -> int:
     """Bytes of the boundary conditions as the add-on stores them (``save_boundaries``)."""
     import tempfile
+
     from pdehead_addon.io.storage import save_boundaries
     with tempfile.TemporaryDirectory() as d:
         return int(save_boundaries(head, Path(d) / "head.pdeh"))
@@ -238,7 +242,8 @@ def cut_face_texel_footprint(seg, head, nu: int, nv: int, nw: int = D.NW.default
     footprint of a texel: each face edge's 3-D length over its length in texels, in CT voxels (the finest
     spacing). Target: at most 1 voxel; before issue 21 one 128-pixel tile a face."""
     import math
-    import pdehead                       # the add-on's source as the CLI registers it (package pdehead_dev)
+
+    import pdehead  # the add-on's source as the CLI registers it (package pdehead_dev)
     pdehead.register_addon()
     from pdehead_dev.operators import ct_texture
     ct = seg.ct

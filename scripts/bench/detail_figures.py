@@ -38,7 +38,6 @@ def main(argv=None) -> int:
     bl = _common.blender()
     bpy, objects, render, detail = bl["bpy"], bl["objects"], bl["render"], bl["detail_map"]
     from pdehead_addon import defaults as D
-    from pdehead_addon.pde import detail_displace as DDX
     bpy.ops.wm.read_homefile(use_empty=True)
     seg = bench_smooth.load("cthead")
     head = E.solve_pde(E.extract_boundaries(seg, patches=D.PATCHES.default, selection=bench_smooth.SELECTION))

@@ -41,8 +41,8 @@ def signed_distance(points: np.ndarray, mesh) -> np.ndarray:
     """Distance (mm) from points to the mesh, + where the point lies outside it (real skin outside)."""
     from scipy.spatial import cKDTree
 
-    from pdehead_addon.validation.surface_metrics import point_surface_distance, triangulate
     from pdehead_addon.forensic.tissue_depth import vertex_normals
+    from pdehead_addon.validation.surface_metrics import point_surface_distance, triangulate
     faces = np.concatenate([triangulate(mesh.quads), mesh.triangles])
     d = point_surface_distance(points, mesh.vertices, faces, seed=3)
     _, nearest = cKDTree(mesh.vertices).query(points)

@@ -35,11 +35,11 @@ def main(argv=None) -> int:
     p.add_argument("--out-dir", type=Path, default=OUT, help="where face_ui_<dataset>.png goes; default docs/figures")
     args = p.parse_args(argv)
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="pdehead-fig-"))
-    import pdehead
-    import _common
-
     import bpy
     from mathutils import Vector
+
+    import _common
+    import pdehead
     addon = pdehead.register_addon()
     face = addon.operators.face
     render = addon.operators.render

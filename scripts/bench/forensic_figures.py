@@ -49,10 +49,10 @@ def colour_bar(height: int, width: int, max_mm: float, ramp) -> Image.Image:
 
 def main() -> int:
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="pdehead-fig-"))
-    import pdehead
-    import _common
-
     import bpy
+
+    import _common
+    import pdehead
     addon = pdehead.register_addon()
     skull = addon.operators.forensic_skull
     render = addon.operators.render

@@ -92,11 +92,11 @@ def main(argv=None) -> int:
     ap.add_argument("--only", nargs="*", choices=["phantom", "cthead", "ge"], default=["phantom", "cthead", "ge"])
     only = ap.parse_args(argv).only
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="pdehead-fig-"))
-    import pdehead
-    import _common
-    from bench_landmarks import read_fixture
-
     import bpy
+
+    import _common
+    import pdehead
+    from bench_landmarks import read_fixture
     addon = pdehead.register_addon()
 
     if "phantom" in only:

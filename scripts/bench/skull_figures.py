@@ -24,10 +24,10 @@ SIZE = 260
 
 def main() -> int:
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="pdehead-fig-"))
-    import pdehead
-    import _common
-
     import bpy
+
+    import _common
+    import pdehead
     addon = pdehead.register_addon()
     render = addon.operators.render
     tmp = Path(tempfile.mkdtemp())

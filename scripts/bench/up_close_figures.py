@@ -137,7 +137,8 @@ def face_figure(bl, args) -> int:
 def cut_figure(bl, args) -> int:
     """CThead's solid cut at the mid-sagittal plane beside the CT on that plane (issue 21 item 3)."""
     import math
-    from pdehead_addon.core.ct_volume import intensity_window, sample_ct, apply_window
+
+    from pdehead_addon.core.ct_volume import apply_window, intensity_window, sample_ct
     bpy, objects, render = bl["bpy"], bl["objects"], bl["render"]
     bpy.ops.wm.read_homefile(use_empty=True)
     seg = bench_smooth.load("cthead")
@@ -184,8 +185,10 @@ def cut_figure(bl, args) -> int:
 def crown_figure(bl, args) -> int:
     """CThead's crown from above and grazing: before / after ``crown_low_pass`` and the 3 mm-smoothed mask."""
     from unittest import mock
+
     from scipy import ndimage
     from skimage import measure
+
     from pdehead_addon.pde import pde_spline, pde_surface
     bpy, objects, render = bl["bpy"], bl["objects"], bl["render"]
     render.VIEWS.setdefault("GRAZING", ((0.0, 1.0, -0.22), (0.0, 0.0, 1.0)))   # from the front, 12 deg down

@@ -99,8 +99,9 @@ def manifest(bpy, state) -> dict:
 def main(out: Path) -> None:
     import _common
     addon = _common.load_addon(register=True)
-    import bpy
     from importlib import import_module
+
+    import bpy
     state = import_module(addon.__name__ + ".operators.state")
     # a small file: the face's mesh at 48 x 80 instead of the defaults (the sidebar has no such setting;
     # the model records it, so the face kept in the file is the one solved at that size)

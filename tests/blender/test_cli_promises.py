@@ -11,7 +11,6 @@ import subprocess
 import sys
 
 import numpy as np
-
 from test_cli import ROOT, run_cli
 
 sys.path.insert(0, str(ROOT / "tests"))
@@ -84,6 +83,7 @@ def test_bad_inputs_exit_2_with_one_line(tmp_path):
 
 def test_folder_of_photos_exits_2_before_segmentation(tmp_path):
     from PIL import Image
+
     from made_inputs import photo
     rng = np.random.default_rng(3)
     photos = tmp_path / "photos"

@@ -328,8 +328,9 @@ def test_a_file_saved_with_the_bump_reopens_with_the_displacement(ext, reopened,
 def test_the_panel_offers_build_ct_detail_when_on_without_a_current_map(ext, pdehead_ext, phantom_blend):
     """The Surface panel: off, no build button; on without a map, a Build CT Detail box; once built, only
     the rebuild button; after a shape change, the box again (drawn into a recording layout)."""
-    import bpy
     from types import SimpleNamespace
+
+    import bpy
     from panel_recorder import RecordingLayout
     detail, state, study_cls = _modules(pdehead_ext)
     panel = sys.modules[f"{pdehead_ext.__name__}.operators.panel"]
@@ -391,8 +392,10 @@ def test_cli_detail_flag(tmp_path):
     """--detail STRENGTH: out of range is a usage error naming the flag; in range the exported skin is at
     print resolution, closed, and the summary's timings hold the detail step."""
     import json
-    from file_readers import read_stl
+
     from test_cli import run_cli
+
+    from file_readers import read_stl
     bad = run_cli("--phantom", "--no-volume", "--detail", -1, tmp_path=tmp_path)
     assert bad.returncode == 2 and "--detail" in bad.stderr
     out, summary = tmp_path / "print", tmp_path / "summary.json"

@@ -99,6 +99,7 @@ def test_build_face_and_live_pegs(pdehead_ext, face_blend, tmp_path):
 
     # the panel's Face from Skull section: table, Find Landmarks, Build Face, the label, the pegs' depths
     from types import SimpleNamespace
+
     from panel_recorder import RecordingLayout
     forensic = sys.modules[f"{pdehead_ext.__name__}.operators.forensic"]
     log = []
@@ -231,6 +232,7 @@ def test_face_follows_a_peg_after_reopening(pdehead_ext, face_blend, tmp_path):
     assert cache["face_timings"]["fast"] and not cache["face_timings"]["refilled"]
     assert np.abs(fs(coll)._mesh_positions(obj) - expected).max() < 1e-3     # float32 metres: ~1e-5 mm
     from types import SimpleNamespace
+
     from panel_recorder import RecordingLayout
     log = []
     sys.modules[f"{pdehead_ext.__name__}.operators.forensic"].PDEHEAD_PT_forensic.draw(
@@ -272,8 +274,9 @@ def _tip_to_mesh_mm(pdehead_ext, obj, tip) -> float:
 
 
 def _panel_labels(pdehead_ext) -> list:
-    import bpy
     from types import SimpleNamespace
+
+    import bpy
     from panel_recorder import RecordingLayout
     forensic = sys.modules[f"{pdehead_ext.__name__}.operators.forensic"]
     log = []
@@ -350,10 +353,12 @@ def test_export_for_printing_writes_the_face_beside_the_head(pdehead_ext, face_b
     """Export for Printing writes the study's face from the skull (as it stands: after a dragged peg) beside the
     skull and the skin, in patient mm, the label first in the STL header and in the PLY comments, and its
     provenance's landmark flags those of landmarks.csv (issue 23's tester: the face was not written)."""
-    import bpy
     import csv
-    from file_readers import read_stl
+
+    import bpy
     from scipy.spatial import cKDTree
+
+    from file_readers import read_stl
     face, fs, state = _mods(pdehead_ext)
     coll = _open(face_blend)
     names = fs(coll).face_options()["pegs"]
@@ -397,8 +402,9 @@ def test_sex_shows_for_a_table_with_a_sex_column_and_picks_its_rows(pdehead_ext,
     face kept the male table, Build Face raised it), and the setting is kept for the sex table again."""
     from pathlib import Path
     from types import SimpleNamespace
-    from panel_recorder import RecordingLayout
+
     import bpy
+    from panel_recorder import RecordingLayout
     face, fs, state = _mods(pdehead_ext)
     forensic = sys.modules[f"{pdehead_ext.__name__}.operators.forensic"]
     coll = _open(face_blend)
@@ -455,8 +461,10 @@ def test_export_for_printing_after_face_from_skull_only(pdehead_ext, tmp_path, c
     """A face-from-skull study (CT imported, Build Skull, Find Landmarks, Build Face; the head pipeline never
     run): Export for Printing writes what the study has (skull, envelope, face, landmarks.csv, provenance.json)
     and says what it left out and why (the tester's: it failed "no boundary curves yet: run Extract Boundaries")."""
-    import bpy
     import csv
+
+    import bpy
+
     from file_readers import read_stl
     assert bpy.ops.pdehead.load_phantom() == {'FINISHED'}
     for step in ("build_skull", "find_landmarks", "build_face"):

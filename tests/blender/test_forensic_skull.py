@@ -6,9 +6,9 @@ import json
 
 import numpy as np
 import pytest
+from test_cli import run_cli
 
 from file_readers import read_stl
-from test_cli import run_cli
 
 
 def _body(path):
@@ -63,8 +63,8 @@ def test_cli_skull_only_ct_gives_the_same_skull(tmp_path, phantom_dicoms):
 
 
 def test_cli_skull_mesh_replaces_the_ct(tmp_path, phantom, phantom_seg):
-    from pdehead_addon.io.export import export_mesh
     from pdehead_addon.forensic.skull import segment_skull, skull_mesh
+    from pdehead_addon.io.export import export_mesh
     bone = skull_mesh(segment_skull(phantom.ct, phantom_seg))
     (tmp_path / "in").mkdir()
     given = export_mesh(bone, tmp_path / "in" / "scan.ply", name="scan")
@@ -93,8 +93,9 @@ def test_cli_skull_mesh_replaces_the_ct(tmp_path, phantom, phantom_seg):
 
 
 def test_bone_level_field_and_export_builds_or_refuses(pdehead_ext, tmp_path, phantom_dicoms):
-    import bpy
     from types import SimpleNamespace
+
+    import bpy
     from panel_recorder import RecordingLayout
 
     root, level = phantom_dicoms

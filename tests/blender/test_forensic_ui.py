@@ -6,10 +6,9 @@ import json
 
 import numpy as np
 import pytest
-
-from file_readers import read_stl
 from test_cli import run_cli
 
+from file_readers import read_stl
 from pdehead_addon.io.phantom import GEOMETRY
 
 

@@ -11,7 +11,6 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "scripts"))
 import fuzz_inputs  # noqa: E402
-
 from datasets import shared_data  # noqa: E402
 
 

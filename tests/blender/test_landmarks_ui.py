@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import numpy as np
-
 from test_cli import run_cli
 
 from pdehead_addon.forensic.landmarks import STANDARD_LANDMARKS

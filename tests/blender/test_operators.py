@@ -13,13 +13,10 @@ import sys
 from pathlib import Path
 from types import SimpleNamespace
 
+import blender_inspect  # tests/blender/blender_inspect.py
 import numpy as np
 import pytest
-
-import blender_inspect  # tests/blender/blender_inspect.py
-
 from panel_recorder import RecordingLayout as _Layout  # noqa: E402
-
 
 
 def open_blend(path: Path):
@@ -264,6 +261,7 @@ def test_modal_pipeline_esc_stops_a_step_in_the_middle(ext, phantom, monkeypatch
     step's end, 10 s away), the thread has ended, and nothing of the run is left."""
     import threading
     import time
+
     import bpy
     calls, started = [], threading.Event()
 
@@ -382,6 +380,7 @@ def test_ge_tilted_series_one_click_reduces_patches_to_what_the_scan_allows(ext,
     """The real GE series (18.5 deg tilt, uneven steps) in one click: the default t = 10 needs more
     slices than the tilted slab covers, so the pipeline uses the largest t it allows and says so."""
     import bpy
+
     from datasets import shared_data
 
     folder = shared_data("ct_head_ge_tilt_dicom", "dicom")

@@ -24,11 +24,9 @@ import subprocess
 import sys
 from pathlib import Path
 
+import blender_inspect  # tests/blender/blender_inspect.py
 import numpy as np
 import pytest
-
-import blender_inspect  # tests/blender/blender_inspect.py
-
 import vdb_read  # tests/blender/vdb_read.py
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -115,8 +113,8 @@ def _solid_arrays(ext, solid):
 
 def test_reopen_in_a_new_process_rereads_the_ct_and_loses_nothing(ext, pdehead_ext, extension_zip, tmp_path):
     import bpy
-    from datasets import CTHEAD_RAW16_OPTIONS as o
-    from datasets import shared_data
+
+    from datasets import CTHEAD_RAW16_OPTIONS as o, shared_data
     raw16 = shared_data("cthead_stanford", "raw16")
 
     project = tmp_path / "project"

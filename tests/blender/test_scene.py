@@ -8,9 +8,8 @@ from __future__ import annotations
 import os
 import shutil
 
-import numpy as np
-
 import blender_inspect  # tests/blender/blender_inspect.py
+import numpy as np
 
 
 def _f12(scene, path):

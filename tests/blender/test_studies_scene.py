@@ -103,8 +103,9 @@ def test_save_removes_the_vdb_of_a_study_deleted_in_the_outliner(ext, tmp_path):
 def test_drag_and_drop_opens_the_import_with_the_file(ext, pdehead_ext, phantom_dicom, pytestconfig):
     """Blender's FileHandler for the 3D View: a dropped .dcm opens the import on its series folder, a
     .nii.gz on the file alone, a .raw / .tif on its stack's folder; the dialog's values import the CT."""
-    import bpy
     from types import SimpleNamespace
+
+    import bpy
     handler = bpy.types.FileHandler.bl_rna_get_subclass_py("PDEHEAD_FH_import_ct")
     assert handler is not None and handler.bl_import_operator == "pdehead.import_ct"
     assert {".dcm", ".nii", ".nii.gz", ".tif", ".tiff", ".raw"} <= set(handler.bl_file_extensions.split(";"))

@@ -14,16 +14,13 @@ import shutil
 from pathlib import Path
 from types import SimpleNamespace
 
+import blender_inspect  # tests/blender/blender_inspect.py
 import numpy as np
 import pytest
-
-import blender_inspect  # tests/blender/blender_inspect.py
-
-from pdehead_addon import OUTSIDE_W
-from pdehead_addon import defaults as D
-from pdehead_addon.core.ct_volume import HEAD_MARGIN_MM, head_mask_on_grid
-
 import vdb_read  # tests/blender/vdb_read.py
+
+from pdehead_addon import OUTSIDE_W, defaults as D
+from pdehead_addon.core.ct_volume import HEAD_MARGIN_MM, head_mask_on_grid
 
 MM = 0.001
 

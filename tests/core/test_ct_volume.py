@@ -4,9 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pdehead_addon import CTVolume
+from pdehead_addon import CTVolume, defaults as D
 from pdehead_addon.core import ct_volume as CV
-from pdehead_addon import defaults as D
 
 
 # ----------------------------------------------------------------------------- windowing (volume, solid colours)

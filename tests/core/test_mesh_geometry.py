@@ -4,9 +4,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pdehead_addon.core.mesh_geometry import (MeshDistance, closest_point_on_triangle, edge_neighbours, mesh_triangles,
-                                    point_surface_distance, point_triangle_distance, points_inside, signed_volume)
 from pdehead_addon.core.mesh import Mesh
+from pdehead_addon.core.mesh_geometry import (
+    MeshDistance,
+    closest_point_on_triangle,
+    edge_neighbours,
+    mesh_triangles,
+    point_surface_distance,
+    point_triangle_distance,
+    points_inside,
+    signed_volume,
+)
 
 TRI = np.array([[0.0, 0.0, 0.0], [4.0, 0.0, 0.0], [0.0, 3.0, 0.0]])
 

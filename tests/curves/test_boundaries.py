@@ -6,9 +6,14 @@ import pytest
 from scipy import ndimage as ndi
 from scipy.spatial import cKDTree
 
-from pdehead_addon import BoundaryError, BoundarySet, CTVolume, Segmentation
-from pdehead_addon import extract_boundaries as _extract_default
-from pdehead_addon import defaults
+from pdehead_addon import (
+    BoundaryError,
+    BoundarySet,
+    CTVolume,
+    Segmentation,
+    defaults,
+    extract_boundaries as _extract_default,
+)
 
 #: The per-slice path (2-D mask outline, aligned samples) these tests were written for; the default path
 #: (the 3-D envelope, star hulls, the spine, angular samples) is tested in test_envelope.py.
@@ -18,11 +23,20 @@ PER_SLICE = dict(level_field="mask", parameterisation="aligned", star_shaped=Fal
 def extract_boundaries(seg, **kwargs):
     return _extract_default(seg, **{**PER_SLICE, **kwargs})
 from pdehead_addon.curves.curve_sampling import (
-    contour_from_mask, parameter_offsets, polygon_centroid, resample_closed_curve, self_intersections, signed_area,
+    contour_from_mask,
+    parameter_offsets,
+    polygon_centroid,
+    resample_closed_curve,
+    self_intersections,
+    signed_area,
 )
 from pdehead_addon.curves.slice_outlines import boundary_ring, outer_contour, outer_region
 from pdehead_addon.curves.slice_selection import (
-    _assign_monotone, register_selection, usable_slices, scan_edge_slices, SELECTION_STRATEGIES,
+    SELECTION_STRATEGIES,
+    _assign_monotone,
+    register_selection,
+    scan_edge_slices,
+    usable_slices,
 )
 
 SPACING = (2.0, 0.8, 0.9)          # dz, dy, dx: anisotropic on purpose

@@ -10,8 +10,8 @@ import pytest
 
 from pdehead_addon import CTVolume, Segmentation, defaults, extract_boundaries
 from pdehead_addon.curves.curve_sampling import STAR_MAX_SLOPE, angular_curves, signed_area, spine_centres, star_hull
-from pdehead_addon.curves.slice_outlines import contour_from_field
 from pdehead_addon.curves.envelope import head_envelope
+from pdehead_addon.curves.slice_outlines import contour_from_field
 
 SPACING = (2.0, 0.8, 0.9)          # dz, dy, dx: anisotropic on purpose
 ORIGIN = (-40.0, -55.0, 12.0)

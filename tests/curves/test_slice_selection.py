@@ -1,13 +1,12 @@
 """Automatic slice selection (issue 14): selection="auto" and the tolerance path, on the phantom and CThead."""
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 
 import pdehead_addon as E
-from pdehead_addon.curves import slice_selection as S
 from pdehead_addon.core.errors import BoundaryError, PDEError
+from pdehead_addon.curves import slice_selection as S
 
 
 def _positions(cand, bset):

@@ -10,8 +10,8 @@ import pytest
 
 from pdehead_addon.forensic.auto_landmarks import NOT_FOUND, OK, UNCERTAIN, find_landmarks
 from pdehead_addon.forensic.landmarks import STANDARD_LANDMARKS, landmark
-from pdehead_addon.io.phantom import GEOMETRY
 from pdehead_addon.forensic.skull import segment_skull
+from pdehead_addon.io.phantom import GEOMETRY
 
 FIXTURE = Path(__file__).parent.parent / "fixtures" / "cthead_landmarks.csv"
 MANDIBLE = {"Infradentale", "Supramentale", "Pogonion", "Gnathion", "Menton"} | {

@@ -110,8 +110,8 @@ def batch_over_three_heads(tmp_path_factory, cthead_ct, cthead_seg, ge_ct, ge_se
     in this process, with the batch's default settings; then its depth-table command."""
     sys.path.insert(0, str(ROOT / "scripts"))
     import batch_study
-    import pdehead_batch
     import pdehead_addon as eng
+    import pdehead_batch
     from pdehead_addon import defaults as D
 
     out = tmp_path_factory.mktemp("batch3")

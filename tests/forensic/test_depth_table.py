@@ -8,10 +8,18 @@ import numpy as np
 import pytest
 
 from pdehead_addon import PDEHeadError
-from pdehead_addon.forensic.depth_table import (CODE_MAP, DEFAULT_TABLE_PATH, DepthTable, default_table, read_depth_table,
-                                       resolve_landmark, uncovered_landmarks, write_landmark_csv)
-from pdehead_addon.forensic.landmarks import STANDARD_LANDMARKS
 from pdehead_addon.core.provenance import SOFTWARE, provenance
+from pdehead_addon.forensic.depth_table import (
+    CODE_MAP,
+    DEFAULT_TABLE_PATH,
+    DepthTable,
+    default_table,
+    read_depth_table,
+    resolve_landmark,
+    uncovered_landmarks,
+    write_landmark_csv,
+)
+from pdehead_addon.forensic.landmarks import STANDARD_LANDMARKS
 
 ROOT = Path(__file__).resolve().parents[2]
 PROVENANCE = ("values as printed in the public repository esomjai/Forensic-Craniofacial-Approximation-Validation-Tool "

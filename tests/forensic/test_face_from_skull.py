@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from pdehead_addon import Mesh
-from pdehead_addon.forensic.depth_table import default_table
 from pdehead_addon.core.errors import PDEHeadError
+from pdehead_addon.forensic.depth_table import default_table
 from pdehead_addon.forensic.face_from_skull import APPROXIMATION_LABEL, FaceModel, face_from_skull
 from pdehead_addon.validation.surface_metrics import point_surface_distance, triangulate
 

@@ -14,13 +14,22 @@ import pytest
 from file_readers import read_depth_csv, read_stl
 from pdehead_addon import PDEHeadError, extract_boundaries, solve_pde
 from pdehead_addon.curves.boundaries import max_patches
-from pdehead_addon.io.export import export_mesh
 from pdehead_addon.forensic.depth_table import read_depth_table, write_landmark_csv
-from pdehead_addon.forensic.landmarks import (frankfurt_transform, landmark, marker_pegs, midsagittal_plane, mirror_matrix,
-                                     symmetry_plane, snap_to_surface, landmark_depths, STANDARD_LANDMARKS)
-from pdehead_addon.io.phantom import BONE, HOLDER, GEOMETRY
+from pdehead_addon.forensic.landmarks import (
+    STANDARD_LANDMARKS,
+    frankfurt_transform,
+    landmark,
+    landmark_depths,
+    marker_pegs,
+    midsagittal_plane,
+    mirror_matrix,
+    snap_to_surface,
+    symmetry_plane,
+)
 from pdehead_addon.forensic.skull import bone_level, segment_skull, skull_mesh
 from pdehead_addon.forensic.tissue_depth import ENVELOPE, MEASURED, tissue_depth, write_depth_csv
+from pdehead_addon.io.export import export_mesh
+from pdehead_addon.io.phantom import BONE, GEOMETRY, HOLDER
 
 VAULT_Z = 45.0  # above the brow, the eyes and the ears: the phantom's skin there is the cranium ellipsoid only
 
@@ -200,8 +209,8 @@ def test_export_watertight_and_in_mm(tmp_path, phantom_surfaces, fmt):
 def test_write_stl_records(tmp_path):
     """Binary STL: 80-byte header (not starting "solid"), uint32 count, 50 bytes per triangle with the unit
     normal of the winding (0 for a degenerate triangle) and the corners as float32."""
-    from pdehead_addon.io.export import write_stl
     from pdehead_addon.core.mesh import Mesh
+    from pdehead_addon.io.export import write_stl
     verts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
     tris = np.array([[0, 2, 1], [0, 1, 3], [0, 1, 1]])
     path = tmp_path / "t.stl"

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from skimage.measure import marching_cubes
 
-from pdehead_addon.forensic.landmarks import exposed_normals, snap_to_surface
 from pdehead_addon.core.mesh import Mesh
+from pdehead_addon.forensic.landmarks import exposed_normals, snap_to_surface
 
 
 @pytest.fixture(scope="module")

@@ -15,8 +15,15 @@ import numpy as np
 import pydicom
 import pytest
 from pydicom.dataset import Dataset, FileMetaDataset
-from pydicom.uid import (CTImageStorage, ExplicitVRLittleEndian, JPEG2000Lossless, JPEGLosslessSV1,
-                         MRImageStorage, RLELossless, generate_uid)
+from pydicom.uid import (
+    CTImageStorage,
+    ExplicitVRLittleEndian,
+    JPEG2000Lossless,
+    JPEGLosslessSV1,
+    MRImageStorage,
+    RLELossless,
+    generate_uid,
+)
 from scipy import ndimage
 
 from datasets import CTHEAD_RAW16_OPTIONS, CTHEAD_TIFF8_OPTIONS, shared_data

@@ -24,8 +24,7 @@ from datasets import shared_data
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "scripts"))
 import fuzz_inputs  # noqa: E402
-
-from pdehead_addon import CTImportError, load_ct  # noqa: E402
+from pdehead_addon import load_ct  # noqa: E402
 
 
 @pytest.fixture(scope="module")

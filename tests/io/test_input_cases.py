@@ -15,11 +15,18 @@ import pytest
 from pydicom.uid import JPEG2000Lossless, RLELossless
 
 from datasets import shared_data
-from pdehead_addon import (CTImportError, CTImportWarning, CTVolume, HeadSizeWarning, SegmentationError, load_ct,
-                           make_phantom, segment_head)
-from pdehead_addon.validation import write_dicom_series
-from pdehead_addon.validation import metrics as M
+from pdehead_addon import (
+    CTImportError,
+    CTImportWarning,
+    CTVolume,
+    HeadSizeWarning,
+    SegmentationError,
+    load_ct,
+    make_phantom,
+    segment_head,
+)
 from pdehead_addon.io.input_checks import parse_orientation
+from pdehead_addon.validation import metrics as M, write_dicom_series
 
 
 def load_w(*args, **kw):

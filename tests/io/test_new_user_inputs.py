@@ -13,8 +13,16 @@ from scipy import ndimage as ndi
 
 from datasets import CTHEAD_RAW16_OPTIONS, shared_data
 from made_inputs import portrait
-from pdehead_addon import (CTImportError, Mesh, SegmentationError, bone_level_range, check_bone_level,
-                           check_head_scan, load_ct, make_phantom)
+from pdehead_addon import (
+    CTImportError,
+    Mesh,
+    SegmentationError,
+    bone_level_range,
+    check_bone_level,
+    check_head_scan,
+    load_ct,
+    make_phantom,
+)
 from pdehead_addon.core.wording import for_cli, for_dialog
 from pdehead_addon.io import input_checks as IC
 from pdehead_addon.io.mesh_input import MAX_SKULL_HULL_FILL, hull_fill, load_skull_mesh

@@ -9,11 +9,21 @@ import pytest
 from scipy import ndimage as ndi
 
 from pdehead_addon import PDEHeadError, make_phantom
-from pdehead_addon.validation import write_dicom_series
 from pdehead_addon.core.ct_volume import CTVolume
+from pdehead_addon.io.phantom import (
+    AIR,
+    BONE,
+    BRAIN,
+    CUSHION,
+    EYE,
+    HOLDER,
+    INTERNAL_AIR,
+    LABEL_NAMES,
+    SOFT_TISSUE,
+    Phantom,
+)
+from pdehead_addon.validation import write_dicom_series
 from pdehead_addon.validation.dicom_export import GE_LIKE_NORMAL_STEPS, write_phantom_series
-from pdehead_addon.io.phantom import (AIR, BONE, BRAIN, CUSHION, EYE, HOLDER, INTERNAL_AIR, LABEL_NAMES,
-                                   SOFT_TISSUE, Phantom)
 
 
 def voxel_centres(ct: CTVolume) -> np.ndarray:

@@ -10,14 +10,13 @@ import zlib
 import numpy as np
 import pytest
 
-from pdehead_addon import StorageError
-from pdehead_addon import defaults as D
+from pde_synthetic import head_bset
+from pdehead_addon import StorageError, defaults as D
 from pdehead_addon.core.errors import PDEError
 from pdehead_addon.io import safe_io
 from pdehead_addon.io.export import export_mesh
 from pdehead_addon.io.storage import _FIXED, _PAYLOAD, MAGIC, VERSION, dumps_boundaries, loads_boundaries
 from pdehead_addon.pde.solid_ct_table import SolidCTTable
-from pde_synthetic import head_bset
 
 
 class _FailingFile:

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from datasets import shared_data
-from pdehead_addon import CTImportError, load_ct
 from made_inputs import photo
+from pdehead_addon import CTImportError, load_ct
 
 
 def load_w(path, **kw):
@@ -146,6 +146,7 @@ def test_folder_of_photos_is_refused_with_what_was_seen(tmp_path):
 def test_grey_ct_saved_as_colour_png_still_loads(tmp_path):
     """A CT exported as RGB PNGs (equal channels) is not a photo."""
     from PIL import Image
+
     from pdehead_addon import make_phantom
     ph = make_phantom(noise=0.0)
     grey = np.clip((ph.ct.data + 1000.0) / 8.0, 0, 255).astype(np.uint8)

@@ -6,13 +6,19 @@ import struct
 import numpy as np
 import pytest
 
+from pde_synthetic import head_bset
 from pdehead_addon import BoundarySet, PDEHead, StorageError
-from pdehead_addon.pde.pde_surface import solve_pde
 from pdehead_addon.io.storage import (
-    MAGIC, QUANTUM_MM, dumps_boundaries, load_boundaries, load_head, loads_boundaries, loads_head,
+    MAGIC,
+    QUANTUM_MM,
+    dumps_boundaries,
+    load_boundaries,
+    load_head,
+    loads_boundaries,
+    loads_head,
     save_boundaries,
 )
-from pde_synthetic import head_bset
+from pdehead_addon.pde.pde_surface import solve_pde
 
 
 @pytest.fixture(scope="module")

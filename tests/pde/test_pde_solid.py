@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 from skimage.draw import polygon2mask
 
+from pde_synthetic import head_bset, resample_arc_length
 from pdehead_addon import BoundarySet, CTVolume, PDEError, knots_from_heights
 from pdehead_addon.pde.pde_solid import OUTSIDE_W, WField, alpha_from_w, w_field
 from pdehead_addon.pde.pde_surface import solve_pde
 from pdehead_addon.pde.surface_mesh import signed_volume
-from pde_synthetic import head_bset, resample_arc_length
 
 TWO_PI = 2 * np.pi
 

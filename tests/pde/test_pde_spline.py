@@ -5,12 +5,24 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pdehead_addon import (BoundarySet, PDEError, dumps_boundaries, extract_boundaries, knots_from_heights,
-                           loads_head, solve_pde)
-from pdehead_addon.pde.pde_spline import hermite_systems, smoothing_spline_values, tridiagonal_solve
-from pdehead_addon.validation.surface_quality import (crease_angles, fold_count, notch_fraction, surface_quality,
-                                           terracing_rms)
 from pde_synthetic import circles_bset, head_bset
+from pdehead_addon import (
+    BoundarySet,
+    PDEError,
+    dumps_boundaries,
+    extract_boundaries,
+    knots_from_heights,
+    loads_head,
+    solve_pde,
+)
+from pdehead_addon.pde.pde_spline import hermite_systems, smoothing_spline_values, tridiagonal_solve
+from pdehead_addon.validation.surface_quality import (
+    crease_angles,
+    fold_count,
+    notch_fraction,
+    surface_quality,
+    terracing_rms,
+)
 
 TWO_PI = 2 * np.pi
 
@@ -162,6 +174,7 @@ def test_storage_keeps_the_continuity(synthetic):
     data = dumps_boundaries(old)
     import json
     import struct
+
     from pdehead_addon.io.storage import _FIXED
     magic, version, hlen = _FIXED.unpack_from(data)
     header = json.loads(data[_FIXED.size:_FIXED.size + hlen])
@@ -209,8 +222,9 @@ def test_default_head_is_smooth_on_real_scans(request, dataset, t):
     paper = solve_pde(b, continuity="paper")
     assert q["crease_p95_deg"] < 0.2 * surface_quality(paper)["crease_p95_deg"]
     if dataset == "cthead":      # distance to marching cubes of the mask: a regression guard at today's value
-        from pdehead_addon.pde.surface_mesh import tube_mesh
         from skimage import measure
+
+        from pdehead_addon.pde.surface_mesh import tube_mesh
         verts, faces, _, _ = measure.marching_cubes(seg.mask.astype(np.float32), 0.5)
         verts = seg.ct.index_to_patient(verts)
         cz = verts[faces][:, :, 2].mean(axis=1)

@@ -4,12 +4,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pde_synthetic import circles_bset, head_bset, polar_curve, radial_excess
 from pdehead_addon import BoundarySet, Mesh, PDEError, knots_from_heights
 from pdehead_addon.pde.pde_head import PDEHead
 from pdehead_addon.pde.pde_smoothing import MAX_DEVIATION_MM, lebesgue_constant, smoothing_bounds
 from pdehead_addon.pde.pde_surface import align_parameterisation, solve_pde
 from pdehead_addon.pde.surface_mesh import signed_volume
-from pde_synthetic import circles_bset, head_bset, polar_curve, radial_excess
 
 
 def solve_paper(bset, **kwargs):

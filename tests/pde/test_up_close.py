@@ -209,8 +209,8 @@ def test_a_shape_slider_keeps_the_surface_topology():
 
 def _cthead_face(seg, **kw):
     from skimage import measure
-    from pdehead_addon import defaults as D
-    from pdehead_addon import extract_boundaries
+
+    from pdehead_addon import defaults as D, extract_boundaries
     from pdehead_addon.validation.surface_metrics import visible_face_distance
     mask = seg.mask
     mv, mf, _, _ = measure.marching_cubes(mask.astype(np.float32), 0.5)
@@ -243,8 +243,7 @@ def test_the_default_surface_keeps_the_face_of_cthead(cthead_seg, monkeypatch):
 @pytest.fixture(scope="module")
 def cthead_default_bset(cthead_seg):
     """CThead's curves at the add-on's defaults (t, samples, slice selection), as the benchmark takes them."""
-    from pdehead_addon import defaults as D
-    from pdehead_addon import extract_boundaries
+    from pdehead_addon import defaults as D, extract_boundaries
     return extract_boundaries(cthead_seg, patches=D.PATCHES.default, samples=D.SAMPLES.default,
                               selection=D.SELECTION.default)
 
@@ -287,6 +286,7 @@ def _crown_against_smoothed_mask(seg, bset):
     3 mm Gaussian (the head's own large-scale shape, no slice steps), on circles about the pole."""
     from scipy import ndimage
     from skimage import measure
+
     from pdehead_addon.validation.surface_quality import CROWN_RADII_MM, crown_ripple
     head = solve_pde(bset)
     up = np.array([0.0, 0.0, 1.0 if head.vertex[2] > bset.curves[-1, :, 2].mean() else -1.0])
@@ -308,8 +308,7 @@ def test_the_crown_has_no_ridges_the_smoothed_head_lacks(name, cthead_seg, ge_se
     GE 0.01-0.70 against 5.8-8.7 (its scan ends below the crown; unchanged); the phantom (t = 15) 0.14, 0.29,
     0.36, 0.50, 0.48 against 1.28, 1.21, 1.05, 1.23, 1.18 (before 0.34, 2.55, 3.92, 3.96, 4.33). Not met: the
     phantom at t = 8 (its top two curves 39 mm apart), 2.03 / 3.65 deg at 35 / 40 mm against 1.24 / 1.18."""
-    from pdehead_addon import defaults as D
-    from pdehead_addon import extract_boundaries
+    from pdehead_addon import defaults as D, extract_boundaries
     from pdehead_addon.pde import pde_spline
     from pdehead_addon.validation.surface_quality import CROWN_RADII_MM
     seg = {"cthead": cthead_seg, "ge": ge_seg, "phantom": phantom_seg}[name]

@@ -11,11 +11,11 @@ import pytest
 from scipy import ndimage as ndi
 
 from pdehead_addon import CTVolume, SegmentationError, make_phantom, segment_head
-from pdehead_addon.validation import metrics as M
+from pdehead_addon.io.phantom import CUSHION, HOLDER
 from pdehead_addon.segment import segmentation as S
 from pdehead_addon.segment.chan_vese import _ChanVeseState
 from pdehead_addon.segment.mask_cleanup import _box_opening
-from pdehead_addon.io.phantom import CUSHION, HOLDER
+from pdehead_addon.validation import metrics as M
 
 
 # ----------------------------------------------------------------------------------- numerics

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from scipy import ndimage as ndi
 
-from pdehead_addon.segment import mask_cleanup as C
 from pdehead_addon.curves.envelope import head_envelope
+from pdehead_addon.segment import mask_cleanup as C
 
 
 def _blobs(shape, seed, fraction=0.35, sigma=2.0):
@@ -294,6 +294,7 @@ def test_natural_spline_matrix_equals_scipys_banded_solve_bit_for_bit():
     """The spline's second derivatives go to LAPACK's gtsv directly (scipy's ``solve_banded`` calls the
     same routine after checks that cost more than these small solves): the same matrix, bit for bit."""
     from scipy.linalg import solve_banded
+
     from pdehead_addon.pde.pde_spline import natural_spline_matrix
     rng = np.random.default_rng(11)
     for m in (2, 3, 4, 17, 47):

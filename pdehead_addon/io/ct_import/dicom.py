@@ -18,7 +18,16 @@ import numpy as np
 from ...core.ct_volume import CTVolume
 from ...core.errors import CTImportError
 from ..input_checks import AIR_HU
-from .discovery import DicomFrame, DicomSeries, float_or, import_pydicom, ranked_series, scan_dicom, series_info, skip_summary
+from .discovery import (
+    DicomFrame,
+    DicomSeries,
+    float_or,
+    import_pydicom,
+    ranked_series,
+    scan_dicom,
+    series_info,
+    skip_summary,
+)
 from .geometry import ALIGNED_TOL, resample_limit, resample_slices, to_canonical
 
 # Tolerances of the stack checks (see _stack_geometry; the axis tolerances live in .geometry).

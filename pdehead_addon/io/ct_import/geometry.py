@@ -14,9 +14,9 @@ from typing import Sequence
 
 import numpy as np
 
-from .. import input_checks
 from ...core.ct_volume import CTVolume
 from ...core.errors import CTImportError
+from .. import input_checks
 
 # Tolerances of the axis checks (the stack checks of .dicom._stack_geometry and of .nifti use them too).
 ALIGNED_TOL = 1e-3        # direction cosine off an axis before the grid counts as oblique (0.25 mm at 250 mm)
@@ -87,7 +87,8 @@ def to_canonical(data: np.ndarray, axis_dirs: Sequence[np.ndarray], axis_spacing
 
 
 def _output_grid(positions, u, v, n, dr, dc, rows, cols, steps, resample_spacing):
-    """Axis-aligned LPS box around all pixel centres and its spacing (x, y, z order)."""
+    """Axis-aligned LPS box around all pixel centres: its low corner, its spacing and its voxel counts
+    (x, y, z order), and its extent in mm (``hi - lo``)."""
     corners = np.array([[0, 0], [0, cols - 1], [rows - 1, 0], [rows - 1, cols - 1]], dtype=np.float64)
     in_plane = corners[:, 0:1] * dr * v + corners[:, 1:2] * dc * u
     points = positions[:, None, :] + in_plane[None, :, :]
@@ -106,7 +107,7 @@ def _output_grid(positions, u, v, n, dr, dc, rows, cols, steps, resample_spacing
     with np.errstate(all="ignore"):
         counts = np.floor((hi - lo) / spacing_xyz + 1e-6)
     counts = np.where(np.isfinite(counts), np.minimum(counts, 2 ** 40), 2 ** 40).astype(np.int64) + 1
-    return lo, spacing_xyz, counts
+    return lo, spacing_xyz, counts, hi - lo
 
 
 def resample_limit(source_voxels: int) -> int:
@@ -147,9 +148,9 @@ def resample_slices(stack: np.ndarray, positions: np.ndarray, u: np.ndarray, v: 
     nslices, rows, cols = stack.shape
     n = np.cross(u, v)
     n /= np.linalg.norm(n)
-    lo, sp, counts = _output_grid(positions, u, v, n, dr, dc, rows, cols, steps, resample_spacing)
+    lo, sp, counts, extent = _output_grid(positions, u, v, n, dr, dc, rows, cols, steps, resample_spacing)
     if not np.all(np.isfinite(counts.astype(np.float64))) or np.any(counts > 10 ** 7):
-        raise CTImportError(f"the slices' positions span {np.round(hi - lo, 1).tolist()} mm (x, y, z): no scan "
+        raise CTImportError(f"the slices' positions span {np.round(extent, 1).tolist()} mm (x, y, z): no scan "
                             "measures this (corrupt positions or spacing)", label)
     total = int(np.prod(counts.astype(np.int64)))
     if total > max_voxels:

@@ -12,7 +12,6 @@ from .geometry import headerless_volume
 from .limits import check_budget, check_ratio
 
 
-
 def _read_tiff(tifffile, f: Path) -> np.ndarray:
     """A TIFF's pixels, its declared size checked first against the file's bytes and the memory budget
     (no pixel buffer is allocated before); tifffile's own log lines are kept off the console."""

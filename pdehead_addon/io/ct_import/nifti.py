@@ -11,8 +11,6 @@ from ...core.errors import CTImportError
 from .geometry import ALIGNED_TOL, resample_limit, resample_slices, to_canonical
 from .limits import check_budget, check_ratio, gunzip_bounded
 
-
-
 _NIFTI_DTYPES = {2: "u1", 4: "i2", 8: "i4", 16: "f4", 64: "f8", 256: "i1", 512: "u2", 768: "u4",
                  1024: "i8", 1280: "u8"}
 

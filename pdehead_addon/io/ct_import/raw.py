@@ -12,7 +12,6 @@ from .geometry import headerless_volume
 from .limits import check_budget, gunzip_bounded
 
 
-
 def _raw_dtype(dtype, byte_order, label) -> np.dtype:
     if dtype is None:
         raise CTImportError("raw data needs dtype, e.g. dtype='>i2' (big-endian int16) or '<u2'", label)
