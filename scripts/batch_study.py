@@ -345,7 +345,8 @@ def _loader_options(settings: dict) -> dict:
 def _skull_outputs(eng, ct, seg, bset, work: Path, settings: dict) -> int:
     """skull.stl (the bone), and landmarks.csv: every automatic landmark with its flag, its depth along the
     bone's exposed normal from the bone level's crossing to the skin level's in the CT's interpolated
-    intensities (:func:`~pdehead_addon.forensic.depth_on_ct.landmark_depths_on_ct`), and the default table's mean and SD;
+    intensities (:func:`~pdehead_addon.forensic.depth_on_ct.landmark_depths_on_ct`), and the default table's mean and
+    SD;
     returns the number found. A depth the intensity profile does not support turns an ``ok`` landmark
     ``uncertain``; the measured reason goes to log.txt."""
     from pdehead_addon.core.provenance import provenance

@@ -218,7 +218,8 @@ def _smoother(x_bytes: bytes, length: float) -> np.ndarray:
     ``S = I - lam W^-1 Q A^-1 Q^T`` with ``A = R + lam Q^T W^-1 Q`` (Reinsch 1967): ``Q`` (m x m-2)
     has three entries per column and ``R`` is tridiagonal, so ``A`` is a symmetric positive definite
     band of half-width 2. It is built as that band and solved by a banded Cholesky factorisation
-    (LAPACK ``pbsv``); the product with ``Q`` is three shifted rows. Nothing goes through a dense BLAS / LAPACK call, whose OpenBLAS worker
+    (LAPACK ``pbsv``); the product with ``Q`` is three shifted rows. Nothing goes through a dense BLAS / LAPACK call,
+    whose OpenBLAS worker
     threads made the automatic selection's ~800 small solves cost 0.4-2.8 s of CPU in identical runs
     on two busy cores (0.03 s with one thread). Same matrix as the dense solve within ~1e-12
     (``tests/segment/test_speed_identities.py``).

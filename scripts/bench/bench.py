@@ -7,7 +7,8 @@ Regenerate the committed tables (full run, median of 5, several minutes on 2 cor
 
 Other uses::
 
-    python3 scripts/bench/bench.py --quick                 # < 1 min: phantom + CThead, fewer repeats, slow peers on a subset
+    python3 scripts/bench/bench.py --quick                 # < 1 min: phantom + CThead, fewer repeats, slow peers on a
+    subset
     python3 scripts/bench/bench.py --repeats 1 --datasets cthead --stages seg,surface --out /tmp/b.json --md /tmp/b.md
     PDEHEAD_DATA=/path/to/data python3 scripts/bench/bench.py   # data folder (default ../shared/data beside the repo)
 
@@ -839,7 +840,8 @@ def _speed_segmentation(key: str, r: dict) -> list[str]:
 def _speed_boundaries(lab: str, r: dict) -> list[str]:
     bd = r.get("boundaries", {})
     if "time" in bd:
-        return [f"| {lab} | boundaries t={bd['patches']}, M=256{', ' + bd['parameterisation'] if bd.get('parameterisation') else ''} | "
+        return [f"| {lab} | boundaries t={bd['patches']}, "
+                f"M=256{', ' + bd['parameterisation'] if bd.get('parameterisation') else ''} | "
                 f"{_ms(bd['time']['median_s'])} | - | - | "
                 f"(paper: {PAPER['boundary_seconds']} s) |"]
     return _error_row(lab, "boundaries", bd)
@@ -968,10 +970,12 @@ def _md_memory(out: dict) -> list[str]:
     if mem:
         L.append("")
         if "stages" in mem:
-            L.append(f"512 x 512 x 300 (phantom written as DICOM, fresh process): peak RSS **{mem['peak_rss_MB']:.0f} MB**"
+            L.append(f"512 x 512 x 300 (phantom written as DICOM, fresh "
+                     f"process): peak RSS **{mem['peak_rss_MB']:.0f} MB**"
                      f" over load -> segmentation -> boundaries -> solve+surface(200,400) -> w_field (baseline "
                      f"{mem['baseline_rss_MB']:.0f} MB). Per stage (high-water MB, seconds): "
-                     + ", ".join(f"{k} {v.get('rss_hwm_MB', float('nan')):.0f} MB / {v.get('seconds', float('nan')):.1f} s"
+                     + ", ".join(f"{k} {v.get('rss_hwm_MB', float('nan')):.0f} MB / "
+                                 f"{v.get('seconds', float('nan')):.1f} s"
                                  if "error" not in v else f"{k}: {v['error']}" for k, v in mem["stages"].items()) + ".")
         else:
             L.append(f"512 x 512 x 300: {mem.get('error')}")

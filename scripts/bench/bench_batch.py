@@ -5,7 +5,8 @@ Generates ``--studies`` phantom heads of different sizes (a head scaled by s; ti
 it) written as DICOM series in a temporary folder, runs ``scripts/pdehead_batch.py run`` on them serially
 (``--workers 0``), on a local cluster of 1 worker and of 2 workers (``--repeats`` times each, median), and
 reports the rate, the scaling, the scheduler's overhead per study (the 1-worker run's wall time less the
-time its studies took, per study, both from the same run), the per-study time and the peak memory of a study's process. Then, with the
+time its studies took, per study, both from the same run), the per-study time and the peak memory of a study's
+process. Then, with the
 arithmetic shown, the rate for 1,000 studies on N workers and what bounds it.
 
 Results: ``docs/benchmarks_batch.json`` and the section ``batch`` of ``docs/benchmarks.md``.

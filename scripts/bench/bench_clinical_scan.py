@@ -353,7 +353,8 @@ def _reopen_and_cancel_rows(r: dict) -> list[str]:
         worst = max(ro["first_cutaway_s"], ro["first_pde_change_s"])
         rows.append(f"| after reopening (a new Blender process): the first cutaway / the first PDE change (Fourier "
                     f"modes, the CT re-read) | {ro['first_cutaway_s']:.2f} s / {ro['first_pde_change_s']:.2f} s | "
-                    f"<= {t['reopen_change_s']:g} s | {ok(worst <= t['reopen_change_s'] and not ro['cutaway_error'] and not ro['pde_change_error'])} |")
+                    f"<= {t['reopen_change_s']:g} s | "
+                    f"{ok(worst <= t['reopen_change_s'] and not ro['cutaway_error'] and not ro['pde_change_error'])} |")
     cancelled = [c for c in r.get("cancels", []) if not c["finished_before"]]
     if cancelled:
         worst = max(c["latency_s"] for c in cancelled)
@@ -374,15 +375,19 @@ def markdown(r: dict) -> str:
              f"CThead resampled (order 1) to {SHAPE[2]} x {SHAPE[1]} x {SHAPE[0]} voxels (x, y, z) at "
              f"{SPACING[2]} x {SPACING[1]} x {SPACING[0]} mm, through `scripts/pdehead.py` (automatic selection, "
              f"t = 10, volume included); medians of {r['repeats']} run(s) on {m['date']} ({m['cores']} cores, load "
-             f"average {m['load_average']}; {load_note(m['load_average'], m['cores'])}; on another machine the ratio to "
+             f"average {m['load_average']}; "
+             f"{load_note(m['load_average'], m['cores'])}; on another machine the ratio to "
              f"the peer governs). Engine "
              f"{r['commit']}; Jaccard against the full-resolution `segment_head` of {r['reference_commit']}.", "",
              "| measure | value | target | status |", "|---|---|---|---|",
-             f"| sum of the CLI's step times (import to volume, the solid's CT table included) | {med['sum_steps_s']:.1f} s | <= {t['total_s']:g} s | "
+             f"| sum of the CLI's step times (import to volume, the solid's CT table included) | "
+             f"{med['sum_steps_s']:.1f} s | <= {t['total_s']:g} s | "
              f"{ok(med['sum_steps_s'] <= t['total_s'])} |",
              f"| VTK vtkFlyingEdges3D, same array, skin level | {med['vtk_s']:.2f} s | peer | |",
-             f"| ratio to VTK | {med['ratio']:.1f} x | <= {t['vtk_ratio']:g} x | {ok(med['ratio'] <= t['vtk_ratio'])} |",
-             f"| segmentation | {med['segment_s']:.1f} s | <= {t['segment_s']:g} s | {ok(med['segment_s'] <= t['segment_s'])} |",
+             f"| ratio to VTK | {med['ratio']:.1f} x | <= "
+             f"{t['vtk_ratio']:g} x | {ok(med['ratio'] <= t['vtk_ratio'])} |",
+             f"| segmentation | {med['segment_s']:.1f} s | <= "
+             f"{t['segment_s']:g} s | {ok(med['segment_s'] <= t['segment_s'])} |",
              f"| boundaries (automatic selection) | {med['boundaries_s']:.1f} s | <= {t['boundaries_s']:g} s | "
              f"{ok(med['boundaries_s'] <= t['boundaries_s'])} |",
              f"| CLI peak RSS (bpy included) | {med['peak_rss_gb']:.2f} GB | <= {t['peak_rss_gb']:g} GB | "

@@ -159,7 +159,8 @@ def markdown(res: dict) -> str:
         lines.append(f"| print mesh {c['print']['nu']} x {c['print']['nv']}, strength {s} | {r['score_mean']:.3f} / "
                      f"{r['score_p95']:.3f} | {r['banding_mm']:.3f} | {'yes' if r['watertight'] else 'NO'} |")
     m = c["smoothed_mask"]
-    lines.append(f"| marching cubes of the 1.2 mm-smoothed mask (the bar) | {m['score_mean']:.3f} / {m['score_p95']:.3f} "
+    lines.append(f"| marching cubes of the 1.2 mm-smoothed mask (the bar) | "
+                 f"{m['score_mean']:.3f} / {m['score_p95']:.3f} "
                  f"| {m['banding_mm']:.3f} | |")
     lines.append(f"| marching cubes of the mask | 0 / 0 | {c['marching_cubes_banding_mm']:.3f} | |")
     lines += ["", f"| print resolution | rows x columns | triangles (≤ {T['triangles']:,}) | chord error over the "
@@ -168,7 +169,8 @@ def markdown(res: dict) -> str:
     for name, d in res["datasets"].items():
         p = d["print"]
         lines.append(f"| {name} t={d['t']} | {p['nu']} x {p['nv']} | {p['triangles']:,} | {p['chord_face']['max']:.3f} "
-                     f"| {p['chord_all']['max']:.3f} / {p['chord_all']['p99']:.3f} | {p['viewport_chord_face']['max']:.2f} "
+                     f"| {p['chord_all']['max']:.3f} / "
+                     f"{p['chord_all']['p99']:.3f} | {p['viewport_chord_face']['max']:.2f} "
                      f"| {p['seconds']:.1f} |")
     lines += ["", f"Detail map build (CThead, 1024 px, median of its runs): {c['map_s']:.1f} s wall; displacing the "
               f"print mesh: {c['strengths']['1']['displace_s']:.2f} s.", "",

@@ -3,7 +3,8 @@
 
 The phantom head (``make_phantom``) is sampled on a 0.8 x 0.8 x 0.625 mm grid, 410 mm across and 500 mm tall, and
 shoulders are added below the neck (a soft-tissue trunk 380 mm wide whose top rises from the
-neck to the shoulder line), as in a head-and-neck scan. It measures, per step, the wall time and the peak resident memory
+neck to the shoulder line), as in a head-and-neck scan. It measures, per step, the wall time and the peak resident
+memory
 (RSS sampled every 20 ms, minus what the process held before the step), checks that the head
 mask stops at the neck (the shoulders do not join it) and prints a Markdown section for
 docs/benchmarks.md (its own section ``large-scan``, kept by bench.py when it rewrites the file; pasted by hand).

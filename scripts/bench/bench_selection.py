@@ -260,8 +260,10 @@ def markdown(res: dict, figure_name: str) -> str:
         for k, v in tm.items():
             if k.startswith("parts"):
                 lines.append("")
-                lines.append(f"Parts of auto ({k[6:]}): search on the proxy (greedy and uniform starts, exchange, relocation) {v['search_s']:.2f} s, "
-                             f"real surface's distance from all outlines {v['real_error_s']:.2f} s (the rest is tracing "
+                lines.append(f"Parts of auto ({k[6:]}): search on the proxy (greedy and uniform starts, exchange, "
+                             f"relocation) {v['search_s']:.2f} s, "
+                             f"real surface's distance from all outlines "
+                             f"{v['real_error_s']:.2f} s (the rest is tracing "
                              "every usable slice's outline).")
     lines += ["", "**Why the excess targets are missed** (measured): `auto` lowers what it minimises, the mean "
               "distance from all outlines, by " + ", ".join(
@@ -269,14 +271,16 @@ def markdown(res: dict, figure_name: str) -> str:
                   f"{100 * (1 - min(r['outline_ratio_auto'] for r in d['rows'])):.0f} %"
                   for name, d in res["datasets"].items()) +
               " against uniform, and the distance to marching cubes falls by about the same absolute amount ("
-              + "; ".join(f"{name} t={r['t']}: outlines −{r['uniform']['outlines']['mean'] - r['auto']['outlines']['mean']:.3f}, "
+              + "; ".join(f"{name} t={r['t']}: outlines "
+                          f"−{r['uniform']['outlines']['mean'] - r['auto']['outlines']['mean']:.3f}, "
                           f"MC −{r['uniform']['mc']['mean'] - r['auto']['mc']['mean']:.3f} mm"
                           for name, d in res["datasets"].items() for r in d["rows"][:1]) +
               "). The proxy tracks the real surface (table below) and an independent search (dynamic programming "
               "over a local Hermite model of each span, tried during development) found no better sets (CThead "
               "t = 5: proxy 0.403 mm against the search's 0.385 mm, uniform 0.425 mm): evenly spaced curves are "
               "already close to the best choice found (the percentages above) on these heads, whose cross-sections "
-              "change at a similar rate over most of their height. A 0.6 ratio of the MC excess would need the outline error to drop "
+              "change at a similar rate over most of their height. A 0.6 ratio of "
+              "the MC excess would need the outline error to drop "
               "by more than the best choice allows; the tolerance count (14 against 15) misses for the same reason.",
               ""]
     lines += ["", "Proxy against the real surface (per slice: the proxy's mean normal offset against "

@@ -437,14 +437,17 @@ def up_close_markdown(res: dict) -> str:
               "(2.5) but moved CThead's faces into its ears and its UV stretch to 4.61 (target 4). At 300 x 480 "
               "GE's cap ratio is 3.62.",
               "- **Visible face p95 (missed at t = 10).** Where it is (CThead, t = 10, mask -> surface distances above "
-              "their p95): 52 % lie 30-50 mm below the pronasale (lower lip, mentolabial groove: 12-20 % of that band's "
+              "their p95): 52 % lie 30-50 mm below the pronasale (lower "
+              "lip, mentolabial groove: 12-20 % of that band's "
               "points), 71 % within 15 deg of the midline; the curves there are 4-6 mm apart; the envelope's own 0.5 "
               "level scores 0.154 / 0.48, so it is the curves' spacing and the u smoothing, not the envelope. Measured "
-              "this stop, not adopted (one run each, load 6-15; the t series on the columns before this stop): the selection's proxy weighted 4x on the +-60 deg "
+              "this stop, not adopted (one run each, load 6-15; the t series on the columns before this stop): the "
+              "selection's proxy weighted 4x on the +-60 deg "
               "front (0.296 / 1.02) or summing each slice's RMS offset instead of its mean (0.294 / 1.01): both worse "
               "than today's 0.287 / 0.96; the default u smoothing (approximation 2 mm on CThead) off: t = 10 0.279 / "
               "0.92, t = 13 0.252 / 0.78, t = 15 0.249 / 0.79, t = 17 0.234 / 0.76, t = 20 0.223 / 0.70 (with it: "
-              "0.265 / 0.85, 0.263 / 0.87, 0.253 / 0.85, 0.243 / 0.79), crease p95 at t = 10 1.04 -> 1.22 deg, no folds, "
+              "0.265 / 0.85, 0.263 / 0.87, 0.253 / 0.85, 0.243 / 0.79), "
+              "crease p95 at t = 10 1.04 -> 1.22 deg, no folds, "
               "no notches, on slices chosen with the smoothing; with the selection's proxy also without it (what a "
               "changed default would do) t = 13 chose other slices: 0.256 / 0.83 at 19.4 kB (missed). GE's default "
               "u smoothing comes from its slice thickness and would not change. Not adopted.",
@@ -487,7 +490,8 @@ def markdown(res: dict) -> str:
              "samples); the same curves solved as the default C2 surface and as the paper's four-curve patches. "
              "Measures on a (20t+1) x 360 grid; distance to marching cubes of the segmentation mask (open tube in the "
              "curves' z range)." + (" **Quick run.**" if res["quick"] else ""), "",
-             "| data, t | surface | crease p95 | folds | notches | terracing RMS (anatomy) | to MC mean / p95 | leaves curves by |",
+             "| data, t | surface | crease p95 | folds | notches | terracing RMS "
+             "(anatomy) | to MC mean / p95 | leaves curves by |",
              "|---|---|---|---|---|---|---|---|"]
     for name, rows in res["datasets"].items():
         for r in rows:
@@ -500,7 +504,8 @@ def markdown(res: dict) -> str:
                              f"(L = {q['approximation_mm']:.1f} mm) |")
     lines += ["", f"Targets (default surface): crease p95 ≤ {T['crease_p95_deg']}°, folds {T['folds']}, notches ≤ "
               f"{100 * T['notch_fraction']:.2f} % (GE ≤ {100 * T['notch_fraction_ge']:.1f} %), terracing ≤ "
-              f"{T['terracing_rms_mm']} mm, CThead t=10 to MC mean ≤ {T['fid_t10_mean']} / p95 ≤ {T['fid_t10_p95']} mm, "
+              f"{T['terracing_rms_mm']} mm, CThead t=10 to MC mean ≤ "
+              f"{T['fid_t10_mean']} / p95 ≤ {T['fid_t10_p95']} mm, "
               f"t=31 mean ≤ {T['fid_t31_mean']} mm. *Anatomy*: the same terracing measure on the surface through "
               "(nearly) every slice, taken at this row's curve heights - the head's own curvature along its axis "
               "over those gaps, which a faithful surface cannot remove.", ""]

@@ -356,7 +356,8 @@ def fig04(data: Data, bl: Blender, args) -> list[Path]:
     d.text((L, B + 4), "v: 0 .. 2pi (60)", fill=(0, 0, 0), font=font(10))
     d.text((2, T - 14), "u: 0..1 (40)", fill=(0, 0, 0), font=font(10))
     label(b, "(b) uv grid", 11, where="tr")
-    out = title_bar(grid([a, b, c, dd], 4), "Fig. 4  CThead, t = 10 (31 boundary curves, shape-change selection), 40 x 60 samples", 11)
+    out = title_bar(grid([a, b, c, dd], 4), "Fig. 4  CThead, t = 10 (31 boundary curves, "
+                                            "shape-change selection), 40 x 60 samples", 11)
     return [save_png(out, OUT / "fig04_surface.png")]
 
 

@@ -186,7 +186,8 @@ def _consistent_frames(series: DicomSeries, warns: list[str]) -> list[DicomFrame
                             + _missing_what(missing[0]) + "), so its slices cannot be placed in patient space",
                             missing[0].path)
     if missing:
-        warns.append(f"skipped {len(missing)} slice(s) without position/orientation/pixel spacing or with an invalid one ("
+        warns.append(f"skipped {len(missing)} slice(s) without "
+                     f"position/orientation/pixel spacing or with an invalid one ("
                      + _missing_what(missing[0]) + "): " + ", ".join(fr.path.name for fr in missing[:5]))
         missing_ids = {id(fr) for fr in missing}
         frames = [fr for fr in frames if id(fr) not in missing_ids]

@@ -139,7 +139,8 @@ def check_image_header(f: Path, ds) -> int:
     compressed = ts is not None and ts.is_transfer_syntax and ts.is_compressed
     if length is not None and length != 0xFFFFFFFF and not compressed:
         if length < expected:
-            raise TruncatedPixels(f"the pixel data has {length} bytes, the header's {rows} x {cols} x {frames} frame(s) "
+            raise TruncatedPixels(f"the pixel data has {length} bytes, the header's "
+                                  f"{rows} x {cols} x {frames} frame(s) "
                             f"of {bits} bits need {expected} (truncated file or wrong Rows/Columns/NumberOfFrames)")
         if length > expected + (expected & 1) + 1:
             raise BadHeader(f"the pixel data has {length} bytes, the header's {rows} x {cols} x {frames} frame(s) "

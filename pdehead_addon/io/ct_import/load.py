@@ -265,7 +265,8 @@ def check_head_scan(ct: CTVolume) -> dict:
 
 def _check_crown(ct: CTVolume, auto: bool, warns: list[str]) -> CTVolume:
     """Headerless stacks: with Auto orientation a crown at the inferior end is put on top (flipped; said as
-    information in ``ct.meta["info"]``, naming first_slice); where the crown closes inside the scan, a vertex-to-widest-section height
+    information in ``ct.meta["info"]``, naming first_slice); where the crown closes inside the scan, a
+    vertex-to-widest-section height
     under ``input_checks.MIN_VERTEX_TO_WIDEST_MM`` is not a human head and is said (partial scans stay
     allowed: no crown, no check)."""
     crown = input_checks.crown_end(ct.data, ct.spacing)

@@ -230,7 +230,8 @@ def load_nifti(files, label, resample_spacing, warns, hu=False) -> CTVolume:
         "gantry_tilt_deg": 0.0,
         "resampled": bool(reasons),
         "resample_reason": "; ".join(reasons),
-        "units": "HU" if hu else "stored value x scl_slope + scl_inter (modality unknown; not HU unless the file is CT)",
+        "units": "HU" if hu else "stored value x scl_slope + scl_inter (modality "
+                                 "unknown; not HU unless the file is CT)",
         "nifti_form": "sform" if sform_code > 0 else "qform" if qform_code > 0 else "pixdim",
         "hu_range": (float(np.nanmin(out)), float(np.nanmax(out))) if np.isfinite(out).any() else (0.0, 0.0),
     }
