@@ -445,7 +445,7 @@ def _one_entry_time(zip_path: Path, reference: str = "__init__.py") -> None:
         stamp = next((central[p + 12:p + 16] for name, p, _ in records if name == reference), None)
         if stamp is None:
             return
-        for name, p, local in records:
+        for _name, p, local in records:
             if central[p + 12:p + 16] != stamp:
                 f.seek(start + p + 12)
                 f.write(stamp)

@@ -132,7 +132,8 @@ def write_tiffs(folder: Path, data: np.ndarray, compression=None, dtype=np.uint1
     import tifffile
     folder.mkdir(parents=True, exist_ok=True)
     out = []
-    values = np.clip(data, 0, None).astype(dtype) if dtype != np.uint8 else (np.clip(data, 0, None) // 16).astype(np.uint8)
+    values = (np.clip(data, 0, None).astype(dtype) if dtype != np.uint8
+              else (np.clip(data, 0, None) // 16).astype(np.uint8))
     for k, s in enumerate(values):
         f = folder / f"slice{k + 1:03d}.tif"
         tifffile.imwrite(f, s, compression=compression)
@@ -262,7 +263,8 @@ def dicom_cases(rng, root: Path) -> list[Case]:
         cases.append(c)
         return folder, files, c
 
-    pick = lambda files: files[int(rng.integers(len(files)))]
+    def pick(files):
+        return files[int(rng.integers(len(files)))]
     # absurd header values, in one file and in every file
     for keyword, values in _DICOM_VALUES.items():
         for value in values:
@@ -376,7 +378,8 @@ def raw_cases(rng, root: Path) -> list[Case]:
         cases.append(c)
         return folder, files, c
 
-    pick = lambda files: files[int(rng.integers(len(files)))]
+    def pick(files):
+        return files[int(rng.integers(len(files)))]
     for fraction in (0.0, 0.5, 0.999):
         folder, files, c = new(f"one slice truncated to {fraction:.1%}")
         _truncate(pick(files), fraction)
@@ -442,17 +445,39 @@ def _nifti_field(path: Path, offset: int, fmt: str, *values) -> None:
 
 
 _NIFTI_FIELDS = {
-    "dim": (40, "<8h", [(3, 0, 256, 16, 1, 1, 1, 1), (3, -256, -256, 16, 1, 1, 1, 1), (3, 32767, 32767, 32767, 1, 1, 1, 1),
-                        (0, 256, 256, 16, 1, 1, 1, 1), (9, 256, 256, 16, 1, 1, 1, 1), (4, 256, 256, 16, 30000, 1, 1, 1),
-                        (3, 256, 256, 17, 1, 1, 1, 1)]),
+    "dim": (
+        40,
+        "<8h",
+        [
+            (3, 0, 256, 16, 1, 1, 1, 1),
+            (3, -256, -256, 16, 1, 1, 1, 1),
+            (3, 32767, 32767, 32767, 1, 1, 1, 1),
+            (0, 256, 256, 16, 1, 1, 1, 1),
+            (9, 256, 256, 16, 1, 1, 1, 1),
+            (4, 256, 256, 16, 30000, 1, 1, 1),
+            (3, 256, 256, 17, 1, 1, 1, 1),
+        ],
+    ),
     "datatype": (70, "<h", [(0,), (1,), (128,), (2,), (16,), (-5,)]),
-    "pixdim": (76, "<8f", [(1, float("nan"), 1, 2, 0, 0, 0, 0), (1, -1, -1, -2, 0, 0, 0, 0), (1, 0, 0, 0, 0, 0, 0, 0),
-                           (1, 1e9, 1e9, 1e9, 0, 0, 0, 0), (1, 1e-9, 1e-9, 1e-9, 0, 0, 0, 0),
-                           (1, float("inf"), 1, 1, 0, 0, 0, 0)]),
+    "pixdim": (
+        76,
+        "<8f",
+        [
+            (1, float("nan"), 1, 2, 0, 0, 0, 0),
+            (1, -1, -1, -2, 0, 0, 0, 0),
+            (1, 0, 0, 0, 0, 0, 0, 0),
+            (1, 1e9, 1e9, 1e9, 0, 0, 0, 0),
+            (1, 1e-9, 1e-9, 1e-9, 0, 0, 0, 0),
+            (1, float("inf"), 1, 1, 0, 0, 0, 0),
+        ],
+    ),
     "vox_offset": (108, "<f", [(0.0,), (-1.0,), (float("nan"),), (float("inf"),), (1e9,), (351.0,), (353.5,)]),
     "scl": (112, "<2f", [(float("nan"), 0), (float("inf"), 0), (1e38, 0), (1, 1e38), (-1, 0), (0, 5)]),
-    "srow_x": (280, "<4f", [(float("nan"), 0, 0, 0), (float("inf"), 0, 0, 0), (0, 0, 0, 0), (1, 1, 0, 0),
-                            (1e-9, 0, 0, 0), (1e9, 0, 0, 0)]),
+    "srow_x": (
+        280,
+        "<4f",
+        [(float("nan"), 0, 0, 0), (float("inf"), 0, 0, 0), (0, 0, 0, 0), (1, 1, 0, 0), (1e-9, 0, 0, 0), (1e9, 0, 0, 0)],
+    ),
     "srow_z": (312, "<4f", [(0, 0.5, 2, 0), (0, 0, float("nan"), 0), (0, 0, -2, 0)]),
     "sform_code": (252, "<2h", [(0, 0), (1, 0), (-1, -1)]),
     "sizeof_hdr": (0, "<i", [(0,), (347,)]),
@@ -524,7 +549,8 @@ def tiff_cases(rng, root: Path) -> list[Case]:
         cases.append(c)
         return folder, files, c
 
-    pick = lambda files: files[int(rng.integers(len(files)))]
+    def pick(files):
+        return files[int(rng.integers(len(files)))]
     for compression in (None, "zlib"):
         tag = f" ({compression})" if compression else ""
         for fraction in (0.0, 0.05, 0.5, 0.99):
@@ -593,7 +619,7 @@ def make_cases(root: Path, seed: int = 0, sources=tuple(SOURCES)) -> list[Case]:
 def _snapshot(path: Path) -> dict:
     folder = path if path.is_dir() else path.parent
     out = {}
-    for dirpath, dirnames, filenames in os.walk(folder):
+    for dirpath, _dirnames, filenames in os.walk(folder):
         for name in filenames:
             p = os.path.join(dirpath, name)
             try:
@@ -607,7 +633,7 @@ def _snapshot(path: Path) -> dict:
 def input_bytes(path: Path) -> int:
     folder = path if path.is_dir() else path.parent
     total = 0
-    for dirpath, dirnames, filenames in os.walk(folder):
+    for dirpath, _dirnames, filenames in os.walk(folder):
         for name in filenames:
             try:
                 total += os.lstat(os.path.join(dirpath, name)).st_size

@@ -33,7 +33,8 @@ def read_stl(path: str | os.PathLike) -> Mesh:
 
 
 def read_depth_csv(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
-    """Points (n, 3) and depth (n,) (NaN where empty) of a file written by :func:`pdehead_addon.forensic.tissue_depth.write_depth_csv`."""
+    """Points (n, 3) and depth (n,) (NaN where empty) of a file written by
+    :func:`pdehead_addon.forensic.tissue_depth.write_depth_csv`."""
     path = os.fspath(path)
     try:
         with open(path, newline="") as fh:

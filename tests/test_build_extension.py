@@ -103,7 +103,7 @@ def test_poisoned_index_is_repaired_and_the_zip_verifies(tmp_path):
     cache = wheel_cache_copy(tmp_path / "cache")
     pins = B.read_pins()
     skimage = f"scikit-image=={pins['scikit-image']}"
-    for python, tag in PYTHONS.items():
+    for _python, tag in PYTHONS.items():
         folder = cache / "wheels" / PLATFORM / tag
         scipy = next(p.name for p in folder.glob("scipy-*.whl"))
         (folder / "index.json").write_text(json.dumps({index_key(skimage): scipy}))

@@ -262,9 +262,10 @@ def test_the_walk_sees_every_module_and_every_kind_of_import(graph):
     py_files = [p for pkg in PACKAGES for p in (ROOT / pkg).rglob("*.py") if "__pycache__" not in p.parts]
     assert len(graph.files) == len(py_files) + 1            # + the extension's root __init__.py
     pairs = {(e.source, e.target) for e in graph.project_edges()}
-    assert ("pdehead_addon", "pdehead_addon.io.ct_import") in pairs                       # from .ct_import import ...
-    assert ("pdehead_addon.io.ct_import.load", "pdehead_addon.io.input_checks") in pairs     # from .. import input_checks
-    assert ("pdehead_addon.io.ct_import.load", "pdehead_addon.core.ct_volume") in pairs        # from ..ct_volume import ...
+    assert ("pdehead_addon", "pdehead_addon.io.ct_import") in pairs  # from .ct_import import ...
+    assert ("pdehead_addon.io.ct_import.load", "pdehead_addon.io.input_checks") in pairs  # from .. import input_checks
+    # from ..ct_volume import ...
+    assert ("pdehead_addon.io.ct_import.load", "pdehead_addon.core.ct_volume") in pairs
     assert ("pdehead_addon.pde.pde_head", "pdehead_addon.pde.pde_solid") in pairs              # inside a method
     assert ("operators.ops", "pdehead_addon") in pairs                                 # from ..pdehead_addon import
     assert ("", "operators") in pairs                                                  # from . import operators

@@ -313,7 +313,8 @@ def decimated_block_mean(data: np.ndarray, steps, block_bytes: int = 1 << 23) ->
             if acc is not None:
                 block = _window_means(block, n, axis, acc)
             else:
-                block = uniform_filter1d(block, n, axis=axis, mode="nearest")[(slice(None),) * axis + (slice(None, None, n),)]
+                every_nth = (slice(None),) * axis + (slice(None, None, n),)
+                block = uniform_filter1d(block, n, axis=axis, mode="nearest")[every_nth]
         return block
 
     if kind is None or not passes:

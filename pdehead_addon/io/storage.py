@@ -112,7 +112,8 @@ def dumps_boundaries(obj) -> bytes:
     if planar:
         origins[:, 2] = curves[:, 0, 2]
     origin_q = np.round(origins[:, :2] / QUANTUM_MM).astype("<i8")
-    derived_knots = bool(np.array_equal(knots_from_heights(bset.heights), bset.u_knots)) if _monotone(bset.heights) else False
+    derived_knots = (bool(np.array_equal(knots_from_heights(bset.heights), bset.u_knots))
+                     if _monotone(bset.heights) else False)
     q = np.round((curves[..., :coords] - origins[:, None, :coords]) / QUANTUM_MM)
     if np.max(np.abs(q)) > 2 ** 40:
         raise StorageError("curve coordinates are too far from their centroid to be stored")

@@ -32,7 +32,8 @@ import numpy as np
 from ..core.mesh import Mesh
 
 __all__ = ["sample_map", "vertex_heights", "vertex_normals", "uv_island_layout", "displace_mesh", "detail_surface",
-           "chord_error", "print_resolution", "print_rows", "split_quads", "PRINT_CHORD_MM", "PRINT_EDGE_MM", "PRINT_MAX_TRIANGLES"]
+           "chord_error", "print_resolution", "print_rows", "split_quads", "PRINT_CHORD_MM", "PRINT_EDGE_MM",
+           "PRINT_MAX_TRIANGLES"]
 
 #: The largest chord error of an exported skin (mm): a print layer is ~0.05-0.1 mm, so the facets do not
 #: show in a print.

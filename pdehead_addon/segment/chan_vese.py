@@ -1,7 +1,7 @@
 """The 3-D Chan-Vese soft model (paper eq. 16-21) solved with Chambolle's dual projection.
 
 :func:`chan_vese_soft` minimises eq. 16 on one grid;
-:func:`.chan_vese_pyramid.solve_pyramid` runs it coarse to fine. 
+:func:`.chan_vese_pyramid.solve_pyramid` runs it coarse to fine.
 :func:`~pdehead_addon.segment.segmentation.segment_head`
 windows the intensities, calls the pyramid and cleans up the thresholded
 membership (:mod:`.mask_cleanup`).

@@ -36,7 +36,7 @@ def per_slice_jaccard(a: np.ndarray, b: np.ndarray, axis: int = 0) -> np.ndarray
     b = np.moveaxis(np.asarray(b, dtype=bool), axis, 0)
     if a.shape != b.shape:
         raise ValueError(f"per_slice_jaccard: shapes differ {a.shape} vs {b.shape}")
-    inter = np.count_nonzero(a & b, axis=(1, 2)) if a.ndim == 3 else np.count_nonzero(a & b, axis=tuple(range(1, a.ndim)))
+    inter = np.count_nonzero(a & b, axis=tuple(range(1, a.ndim)))
     union = np.count_nonzero(a | b, axis=tuple(range(1, a.ndim)))
     keep = union > 0
     return inter[keep] / union[keep]

@@ -351,9 +351,15 @@ def uv_quality(mesh, middle: float = 0.8) -> dict[str, float]:
     stretch = np.concatenate(stretch)
     angle = np.concatenate(angle)
     ok = stretch > 0
-    return {"faces": total, "mirrored": mirrored, "zero_area": zero,
-            "stretch_p99_p1": float(np.percentile(stretch[ok], 99) / np.percentile(stretch[ok], 1)) if ok.any() else float("inf"),
-            "angle_p95_deg": float(np.percentile(angle, 95)) if angle.size else 0.0}
+    return {
+        "faces": total,
+        "mirrored": mirrored,
+        "zero_area": zero,
+        "stretch_p99_p1": float(np.percentile(stretch[ok], 99) / np.percentile(stretch[ok], 1))
+        if ok.any()
+        else float("inf"),
+        "angle_p95_deg": float(np.percentile(angle, 95)) if angle.size else 0.0,
+    }
 
 
 def cap_edge_ratio(mesh) -> float:

@@ -300,7 +300,8 @@ class Bench:
             if not isinstance(exc, (ImportError, E.PDEHeadError)):
                 traceback.print_exc()
             value = None
-        print(f"  [{name}] {time.perf_counter() - t0:.1f} s" + (f"  ERROR {res[name]['error']}" if value is None else ""),
+        error = f"  ERROR {res[name]['error']}" if value is None else ""
+        print(f"  [{name}] {time.perf_counter() - t0:.1f} s" + error,
               flush=True)
         return value
 
@@ -766,7 +767,7 @@ def _md_header(out: dict) -> list[str]:
     if out.get("notes"):
         L += ["**Notes:** " + " ".join(out["notes"]), ""]
     peers = []
-    for key, r in out["datasets"].items():
+    for _key, r in out["datasets"].items():
         for stage in ("segmentation", "surface"):
             name = _get(r, stage, "peer", "name")
             if name:

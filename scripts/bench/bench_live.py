@@ -137,7 +137,8 @@ def bench_dataset(name: str, repeats: int) -> dict:
     presets = [key for key, *_ in COLOUR_ITEMS]
     for label, prop, values, setup in _changes():
         if values is None:   # the colour presets in turn, never the current one
-            values = (lambda i, p=presets, c=s.colour_preset: p[(p.index(c) + 1 + i) % len(p)])
+            def values(i, p=presets, c=s.colour_preset):
+                return (p[(p.index(c) + 1 + i) % len(p)])
         with state.suspended_updates():
             for key, value in setup.items():
                 setattr(s, key, value)
@@ -280,31 +281,44 @@ def markdown(result: dict) -> str:
         steps = d["pipeline_steps"]
         table_w = steps.get("ct_table", 0.0) + steps.get("w_field", 0.0)
         runs = ", ".join(f"{r:.2f}" for r in d.get("pipeline_runs_s", [d["pipeline_s"]]))
-        lines += ["", f"Run Pipeline (with the volume): median "
-                      f"{d['pipeline_s']:.2f} s of {len(d.get('pipeline_runs_s', [1]))} "
-                      f"runs ({runs} s; " + (f"target <= {PIPELINE_TARGET_S:g} s: "
-                      f"{'**met**' if d['pipeline_s'] <= PIPELINE_TARGET_S else '**NOT met**'}" if name == "cthead"
-                      else "the targets are CThead's") + "). In the last run: "
-                      f"the solid's CT table {steps.get('ct_table', float('nan')):.2f} s + the w-field "
-                      f"{steps.get('w_field', float('nan')):.2f} s = {table_w:.2f} s" + (f" (target <= "
-                                                                                         f"{TABLE_WFIELD_TARGET_S:g} s: "
-                      f"{'**met**' if table_w <= TABLE_WFIELD_TARGET_S else '**NOT met**'})" if name == "cthead" else "")
-                  + "; Build Solid's mesh "
-                      f"{d['build_solid_s']:.2f} "
-                      f"s; steps: " + ", ".join(f"{k} {v:.2f}" for k, v in steps.items()) + " s.",
-                  "",
-                  f"After reopening the file (nothing in memory; the solid's CT table is stored in the .blend, "
-                  f"{d['stored_table_mb']:.1f} MB of {d['blend_mb']:.1f} MB): the first cutaway "
-                  f"{1000 * d['first_cutaway_after_reopen_s']:.0f} ms (CT read: "
-                  f"{'yes' if d['ct_read_on_first_cutaway'] else 'no'}; target <= {REOPEN_TARGET_S:g} s), the next one "
-                  f"{1000 * d['second_cutaway_after_reopen_s']:.0f} ms; the first PDE change (Fourier modes) "
-                  f"{1000 * d['first_pde_change_after_reopen_s']:.0f} ms, its colours follow in "
-                  f"{fmt(d['first_pde_change_colours_s'])} (the CT is re-read and tabulated).",
-                  "",
-                  f"At the limits (nu = {lim['nu']}, nv = {lim['nv']}, nw = {lim['nw']}: {lim['solid_vertices']} solid "
-                  f"vertices): {lim['total_s']:.2f} s (target <= {LIMIT_TARGET_S:g} s), the process's peak RSS "
-                  f"{lim['peak_rss_gb_before']:.2f} -> {lim['peak_rss_gb']:.2f} GB (target <= {LIMIT_TARGET_GB:g} GB).",
-                  ""]
+        lines += [
+            "",
+            f"Run Pipeline (with the volume): median "
+            f"{d['pipeline_s']:.2f} s of {len(d.get('pipeline_runs_s', [1]))} "
+            f"runs ({runs} s; "
+            + (
+                f"target <= {PIPELINE_TARGET_S:g} s: "
+                f"{'**met**' if d['pipeline_s'] <= PIPELINE_TARGET_S else '**NOT met**'}"
+                if name == "cthead"
+                else "the targets are CThead's"
+            )
+            + "). In the last run: "
+            f"the solid's CT table {steps.get('ct_table', float('nan')):.2f} s + the w-field "
+            f"{steps.get('w_field', float('nan')):.2f} s = {table_w:.2f} s"
+            + (
+                f" (target <= "
+                f"{TABLE_WFIELD_TARGET_S:g} s: "
+                f"{'**met**' if table_w <= TABLE_WFIELD_TARGET_S else '**NOT met**'})"
+                if name == "cthead"
+                else ""
+            )
+            + "; Build Solid's mesh "
+            f"{d['build_solid_s']:.2f} "
+            f"s; steps: " + ", ".join(f"{k} {v:.2f}" for k, v in steps.items()) + " s.",
+            "",
+            f"After reopening the file (nothing in memory; the solid's CT table is stored in the .blend, "
+            f"{d['stored_table_mb']:.1f} MB of {d['blend_mb']:.1f} MB): the first cutaway "
+            f"{1000 * d['first_cutaway_after_reopen_s']:.0f} ms (CT read: "
+            f"{'yes' if d['ct_read_on_first_cutaway'] else 'no'}; target <= {REOPEN_TARGET_S:g} s), the next one "
+            f"{1000 * d['second_cutaway_after_reopen_s']:.0f} ms; the first PDE change (Fourier modes) "
+            f"{1000 * d['first_pde_change_after_reopen_s']:.0f} ms, its colours follow in "
+            f"{fmt(d['first_pde_change_colours_s'])} (the CT is re-read and tabulated).",
+            "",
+            f"At the limits (nu = {lim['nu']}, nv = {lim['nv']}, nw = {lim['nw']}: {lim['solid_vertices']} solid "
+            f"vertices): {lim['total_s']:.2f} s (target <= {LIMIT_TARGET_S:g} s), the process's peak RSS "
+            f"{lim['peak_rss_gb_before']:.2f} -> {lim['peak_rss_gb']:.2f} GB (target <= {LIMIT_TARGET_GB:g} GB).",
+            "",
+        ]
     return "\n".join(lines)
 
 

@@ -172,8 +172,13 @@ def table(res: dict) -> str:
     for key, d in f.items():
         rows.append((f"fidelity {key} (mean / p95 / max)", f"{d['mean']:.3f} / {d['p95']:.2f} / {d['max']:.1f} mm", ""))
     s = res["solver"]
-    rows.append(("solver: cond / Lebesgue / C1 jump", f"{s['condition_max']:.0f} / {s['lebesgue_max']:.2f} / "
-                                                      f"{s['c1_jump']:.2f}", f"a = {np.mean(s['smoothing']):.4f}, N = {s['modes']}"))
+    rows.append(
+        (
+            "solver: cond / Lebesgue / C1 jump",
+            f"{s['condition_max']:.0f} / {s['lebesgue_max']:.2f} / {s['c1_jump']:.2f}",
+            f"a = {np.mean(s['smoothing']):.4f}, N = {s['modes']}",
+        )
+    )
     w = max(len(r[0]) for r in rows)
     return "\n".join(f"{a:<{w}}  {b:<28} {c}" for a, b, c in rows)
 

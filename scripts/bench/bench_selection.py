@@ -198,7 +198,8 @@ def figure(res: dict, path: Path) -> None:
 
 def run(quick: bool, repeats: int) -> dict:
     samples = 20_000 if quick else 60_000
-    cases = [("phantom", (4, 10)), ("cthead", (4, 10))] if quick else [(n, T_VALUES[n]) for n in ("phantom", "cthead", "ge")]
+    cases = ([("phantom", (4, 10)), ("cthead", (4, 10))] if quick
+             else [(n, T_VALUES[n]) for n in ("phantom", "cthead", "ge")])
     res: dict = {"quick": quick, "repeats": repeats, "datasets": {}}
     for name, ts in cases:
         d = measure_dataset(name, ts, samples)

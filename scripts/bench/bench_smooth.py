@@ -188,7 +188,7 @@ def crown_before_after(seg, bset) -> dict:
 
 
 def slits(head) -> dict:
-    """Issue 41 item 4: edges bending by more than 60 / 90 deg (not at the bottom cap's ring), 120 x 240 and 400 x 800."""
+    """Edges bending by more than 60 / 90 deg (not at the bottom cap's ring), at 120 x 240 and 400 x 800."""
     from pdehead_addon.validation.surface_quality import edge_bends
     out = {}
     for nu, nv in ((120, 240), (400, 800)):
@@ -203,7 +203,8 @@ def mask_centre(seg) -> np.ndarray:
 
 
 def visible_face(seg, mesh, mc) -> dict:
-    """Issue 21's visible-face measure of a mesh against marching cubes of the mask (pdehead_addon.validation.surface_metrics)."""
+    """The visible-face measure of a mesh against marching cubes of the mask
+    (:mod:`pdehead_addon.validation.surface_metrics`)."""
     from pdehead_addon.validation.surface_metrics import visible_face_distance
     faces = np.concatenate([mesh.quads[:, [0, 1, 2]], mesh.quads[:, [0, 2, 3]], mesh.triangles]) \
         if len(mesh.quads) else mesh.triangles
@@ -334,8 +335,11 @@ def up_close_markdown(res: dict) -> str:
             "(≤ the 3 mm-smoothed mask's)", lambda d, k: radii_cells(d["crown"][k]), "{}")
         row("... marching cubes of the mask smoothed by 3 mm (the reference)",
             lambda d, k: radii_cells(d["crown"]["smoothed_mask_3mm"]), "{}")
-        row("crown (issue 41): ripple at ρ = 5 / 10 mm, deg (≤ 0.5: no nub)",
-            lambda d, k: " / ".join(f"{d['crown'][k].get(r, d['crown'][k].get(str(r))):.2f}" for r in (5.0, 10.0)), "{}")
+        row(
+            "crown (issue 41): ripple at ρ = 5 / 10 mm, deg (≤ 0.5: no nub)",
+            lambda d, k: " / ".join(f"{d['crown'][k].get(r, d['crown'][k].get(str(r))):.2f}" for r in (5.0, 10.0)),
+            "{}",
+        )
     if "slits" in c and "slits" in g:
         row("slits (issue 41): edges bending > 60 deg (> 90) off the bottom ring, 120 × 240; 400 × 800 (0); "
             "before = after", lambda d, k: "{} ({}); {} ({})".format(
@@ -543,7 +547,8 @@ def main(argv=None) -> int:
     if args.up_close:
         res = up_close(repeats)
         if not args.no_write:
-            (args.json or ROOT / "docs" / "benchmarks_up_close.json").write_text(json.dumps(res, indent=1, default=float))
+            out = args.json or ROOT / "docs" / "benchmarks_up_close.json"
+            out.write_text(json.dumps(res, indent=1, default=float))
             write_section(args.md, "up-close", up_close_markdown(res))
         return 0
     res = run(args.quick, repeats)

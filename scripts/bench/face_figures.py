@@ -71,7 +71,8 @@ def render_face_figures(name: str, keep: dict, out_dir: Path = OUT, views=("FRON
         in_region[in_region] = keep["inside"](v[in_region], centre)
     signed = np.zeros(len(v))
     signed[in_region] = signed_distance(v[in_region], keep["a"]["result"].mesh)
-    skin = Mesh(v, np.zeros((0, 4)), f[:, ::-1].copy(), vertex_attributes={"deviation": deviation_colours(signed, in_region)})
+    skin = Mesh(v, np.zeros((0, 4)), f[:, ::-1].copy(),
+                vertex_attributes={"deviation": deviation_colours(signed, in_region)})
     face = keep["a"]["result"].mesh
 
     def material(mat_name, colour=None, attribute=None):

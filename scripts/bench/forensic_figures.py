@@ -82,7 +82,8 @@ def main() -> int:
     fig.paste(views[0], (0, 0))
     fig.paste(views[1], (300, 0))
     fig.paste(bar, (600, 0))
-    fig.quantize(256, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE).save(OUT / "forensic_depth_map.png", optimize=True)
+    fig.quantize(256, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE).save(
+        OUT / "forensic_depth_map.png", optimize=True)
 
     # landmarks from the bone mesh's geometry (patient mm), then pegs with the measured depths
     bone = fs.skull_engine_mesh("BONE")
@@ -137,7 +138,8 @@ def main() -> int:
     fig = Image.new("RGB", (680, 340), (255, 255, 255))
     fig.paste(pics[0], (0, 0))
     fig.paste(pics[1], (340, 0))
-    fig.quantize(256, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE).save(OUT / "forensic_pegs.png", optimize=True)
+    fig.quantize(256, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE).save(
+        OUT / "forensic_pegs.png", optimize=True)
     print("wrote", OUT / "forensic_depth_map.png", OUT / "forensic_pegs.png")
     return 0
 

@@ -84,7 +84,8 @@ def grid(tiles: list[Image.Image], cols: int, pad: int = 2, bg=BG) -> Image.Imag
     out = Image.new("RGB", (cols * tw + (cols + 1) * pad, rows * th + (rows + 1) * pad), bg)
     for i, t in enumerate(tiles):
         r, c = divmod(i, cols)
-        out.paste(t.convert("RGB"), (pad + c * (tw + pad) + (tw - t.width) // 2, pad + r * (th + pad) + (th - t.height) // 2))
+        out.paste(t.convert("RGB"),
+                  (pad + c * (tw + pad) + (tw - t.width) // 2, pad + r * (th + pad) + (th - t.height) // 2))
     return out
 
 
@@ -148,7 +149,8 @@ class Data:
 
     @property
     def ct(self):
-        return self._get("ct", lambda: E.load_ct(_common.SHARED_DATA / "cthead_stanford" / "raw16", **_common.CTHEAD_RAW16_OPTIONS))
+        raw16 = _common.SHARED_DATA / "cthead_stanford" / "raw16"
+        return self._get("ct", lambda: E.load_ct(raw16, **_common.CTHEAD_RAW16_OPTIONS))
 
     @property
     def seg(self):

@@ -89,7 +89,8 @@ def test_cli_failure_prints_one_line_and_keeps_an_existing_out_file(tmp_path):
     errors = [line for line in (result.stdout + result.stderr).splitlines() if "error" in line.lower()]
     assert errors == [f"pdehead: error: {empty}: the folder is empty (no files in it or its subfolders)"], \
         (result.stdout, result.stderr)
-    assert old.read_bytes() == b"earlier result" and sorted(p.name for p in tmp_path.iterdir() if p.name != "blender-user") == [
+    assert old.read_bytes() == b"earlier result"
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name != "blender-user") == [
         "empty", "kept.blend"]
 
 

@@ -165,9 +165,19 @@ def test_import_dialog_auto_and_messages_name_its_fields(tmp_path):
     script = tmp_path / "dialog.py"
     script.write_text(DIALOG_SCRIPT)
     env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "blender-user"))
-    result = subprocess.run([sys.executable, str(script), str(ROOT / "scripts"),
-                             str(shared_data("cthead_stanford", "tiff8")), str(shared_data("cthead_stanford", "raw16"))],
-                            capture_output=True, text=True, env=env, cwd=tmp_path)
+    result = subprocess.run(
+        [
+            sys.executable,
+            str(script),
+            str(ROOT / "scripts"),
+            str(shared_data("cthead_stanford", "tiff8")),
+            str(shared_data("cthead_stanford", "raw16")),
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=tmp_path,
+    )
     assert result.returncode == 0, result.stderr[-3000:]
     out = json.loads(result.stdout.split("RESULT", 1)[1])
     assert out["orientation"] == "LPI"                       # Auto in the dialog = the engine's rule

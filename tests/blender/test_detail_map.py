@@ -340,8 +340,8 @@ def test_the_panel_offers_build_ct_detail_when_on_without_a_current_map(ext, pde
 
     def drawn():
         log = []
-        panel.PDEHEAD_PT_surface.draw(SimpleNamespace(layout=RecordingLayout(log), study=panel.PDEHEAD_PT_surface.study),
-                                      bpy.context)
+        stand_in = SimpleNamespace(layout=RecordingLayout(log), study=panel.PDEHEAD_PT_surface.study)
+        panel.PDEHEAD_PT_surface.draw(stand_in, bpy.context)
         ops = [x[1] for x in log if x[0] == "operator"]
         labels = " ".join(str(x[1]) for x in log if x[0] == "label")
         return ops.count("pdehead.build_detail_map"), labels

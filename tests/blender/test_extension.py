@@ -203,7 +203,8 @@ def test_unregister_leaves_nothing_and_register_again_works(pdehead_ext):
     import bpy
     name = pdehead_ext.__name__
     assert sorted(_our_handlers(name)) == OUR_HANDLERS
-    menu_funcs = lambda: [f.__module__ for f in getattr(bpy.types.TOPBAR_MT_file_import.draw, "_draw_funcs", [])]
+    def menu_funcs():
+        return [f.__module__ for f in getattr(bpy.types.TOPBAR_MT_file_import.draw, "_draw_funcs", [])]
     assert name + ".operators.ops" in menu_funcs()
 
     addon_utils.disable(name, default_set=True)

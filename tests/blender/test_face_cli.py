@@ -148,7 +148,8 @@ def test_cli_sex_picks_the_rows_of_a_table_with_a_sex_column(tmp_path):
                      tmp_path=tmp_path)
     assert result.returncode == 2, result.stderr[-3000:]
     errors = [line for line in result.stderr.splitlines() if "error:" in line]
-    assert len(errors) == 1 and "--sex female: the depth table 'T-Table 2023 (pooled grand means)' is pooled" in errors[0]
+    assert len(errors) == 1
+    assert "--sex female: the depth table 'T-Table 2023 (pooled grand means)' is pooled" in errors[0]
     assert "Phantom loaded" not in result.stdout and not pooled.exists()
     result = run_cli("--phantom", *SMALL, "--sex", "male", tmp_path=tmp_path)
     assert result.returncode == 2 and "--sex needs --face-from-skull" in result.stderr

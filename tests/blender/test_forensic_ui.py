@@ -86,7 +86,8 @@ def test_cli_ge_skull_export(tmp_path):
                      "--skull", "--export", out, "--export-format", "stl", tmp_path=tmp_path)
     assert result.returncode == 0, result.stderr[-3000:]
     skin, skull, pts, depth = _check_export(out)
-    assert "no mandible found: the face has no jaw or chin and ends along the scan's cut" in result.stdout      # the missing-mandible path
+    # the missing-mandible path
+    assert "no mandible found: the face has no jaw or chin and ends along the scan's cut" in result.stdout
     # landmarks Find Landmarks did not find keep a row in landmarks.csv, flagged, without coordinates (measured 28 of
     # 50, every mandible landmark among them)
     lines = [ln for ln in (out / "landmarks.csv").read_text().splitlines() if not ln.startswith("#")]

@@ -82,7 +82,8 @@ def test_surface_mesh_matches_engine(ext, phantom_head):
     me = obj.data
     assert len(me.vertices) == len(mesh.vertices)
     assert len(me.polygons) == mesh.face_count and len(me.loops) == mesh.loop_vertex_indices().size
-    np.testing.assert_allclose(blender_inspect.mesh_world_vertices(obj), mesh.vertices * MM, atol=2e-6)  # float32 in Blender
+    # float32 in Blender
+    np.testing.assert_allclose(blender_inspect.mesh_world_vertices(obj), mesh.vertices * MM, atol=2e-6)
     corners = np.empty(len(me.loops), np.int32)
     me.loops.foreach_get("vertex_index", corners)
     np.testing.assert_array_equal(corners, mesh.loop_vertex_indices())
@@ -237,7 +238,8 @@ def test_solid_w_attribute_and_ct_colour(ext, phantom, phantom_head):
     rgba = blender_inspect.mesh_attribute(obj, "ct_intensity")
     np.testing.assert_allclose(rgba[:, 0], rgba[:, 1])
     lo, hi = obj["pdehead_window"]
-    raw = map_coordinates(ct.data, ct.patient_to_index(blender_inspect.mesh_world_vertices(obj) / MM).T, order=1, mode="nearest")
+    raw = map_coordinates(ct.data, ct.patient_to_index(blender_inspect.mesh_world_vertices(obj) / MM).T, order=1,
+                          mode="nearest")
     expected = np.clip((raw - lo) / (hi - lo), 0, 1)
     np.testing.assert_allclose(rgba[:, 0], expected, atol=2e-3)
     assert 0.0 <= rgba[:, :3].min() and rgba[:, :3].max() <= 1.0
@@ -305,7 +307,8 @@ def test_live_solid_uses_the_ct_table_and_rewrites_a_same_topology_mesh_in_place
     obj = ext.objects.build_solid(phantom_head, coll, nu=40, nv=60, nw=5, ct=ct, ct_table=table, **ranges)
     lo, hi = obj["pdehead_window"]
     rgba = blender_inspect.mesh_attribute(obj, "ct_intensity")
-    raw = map_coordinates(ct.data, ct.patient_to_index(blender_inspect.mesh_world_vertices(obj) / MM).T, order=1, mode="nearest")
+    raw = map_coordinates(ct.data, ct.patient_to_index(blender_inspect.mesh_world_vertices(obj) / MM).T, order=1,
+                          mode="nearest")
     err = np.abs(rgba[:, 0] - np.clip((raw - lo) / (hi - lo), 0, 1))
     assert np.median(err) < 0.01 and np.percentile(err, 95) < 0.1 and np.ptp(rgba[:, 0]) > 0.3
     image = obj.material_slots[0].material.node_tree.nodes["CT texture"].image

@@ -45,7 +45,8 @@ def check_study(ext, coll, t: int, nu: int, nv: int, nw: int, volume: bool = Tru
     import bpy
     s = coll.pdehead
     assert s.curves_object and s.surface_object and s.solid_object
-    scene_kinds = {"camera", "key_light", "fill_light", "study_settings"}  # Frame Study's camera and lights, the settings Empty
+    # Frame Study's camera and lights, the settings Empty
+    scene_kinds = {"camera", "key_light", "fill_light", "study_settings"}
     assert {o.name for o in coll.all_objects if o.get("pdehead_kind") not in scene_kinds} == {
         o.name for o in (s.curves_object, s.surface_object, s.solid_object, s.volume_object) if o}
     assert len(s.curves_object.data.splines) == 3 * t + 1
@@ -247,7 +248,8 @@ def _modal_pipeline_op(ext):
     context = SimpleNamespace(window_manager=wm, workspace=None, scene=bpy.context.scene,
                               active_object=None, preferences=bpy.context.preferences)
     op_cls = ext.ops.PDEHEAD_OT_run_pipeline
-    op = SimpleNamespace(_run=ext.pipeline_run.PipelineRun(bpy.context, "PHANTOM", settings=dict(patches=4, nu=16, nv=24)),
+    run = ext.pipeline_run.PipelineRun(bpy.context, "PHANTOM", settings=dict(patches=4, nu=16, nv=24))
+    op = SimpleNamespace(_run=run,
                          _timer=object(), report=lambda kind, msg: reports.append((kind, msg)))
     for name in ("_end_ui", "cancel", "tick"):           # the operator's methods, bound to the stand-in
         setattr(op, name, getattr(op_cls, name).__get__(op))

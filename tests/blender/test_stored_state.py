@@ -41,7 +41,8 @@ def test_a_tampered_file_gives_one_report_per_study_and_the_rest_works(ext, tmp_
                                                     D.MAX_STORED_BOUNDARY_BYTES.default * 4)
     header = json.dumps({"format": ext.engine.SolidCTTable.PACK_FORMAT, "shape": [1024, 1024, 64],
                          "window": [0, 1], "range": [0, 1]}).encode()
-    table = struct.pack("<I", len(header)) + header + zlib.compress(b"\0" * (D.MAX_STORED_CT_TABLE_BYTES.default + 1), 9)
+    too_big = b"\0" * (D.MAX_STORED_CT_TABLE_BYTES.default + 1)
+    table = struct.pack("<I", len(header)) + header + zlib.compress(too_big, 9)
     bombed[ext.state.CT_TABLE_KEY] = base64.b64encode(table).decode("ascii")
     s = ext.state.settings(clamped)
     s["nu"] = 100_000_000                      # an IDProperty write: Blender's limits do not apply

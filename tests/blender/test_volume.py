@@ -458,7 +458,8 @@ def test_auto_voxel_size_follows_the_ct_spacing_within_the_budgets(ext, phantom,
     fine = CTVolume(np.zeros((4, 4, 4), np.float32), (0.3, 0.3, 0.3), origin=phantom.ct.origin)
     fine.data = np.zeros((600, 700, 700), np.float32)[:1, :1, :1]  # spacing matters, not the data
     small = ext.vdb_grids.auto_voxel_size(fine, phantom_head, max_voxels=1e6)
-    assert ext.vdb_grids.estimate_vdb(fine, box, small)[1] <= 1e6 < ext.vdb_grids.estimate_vdb(fine, box, small / 1.06)[1]
+    estimate = ext.vdb_grids.estimate_vdb
+    assert estimate(fine, box, small)[1] <= 1e6 < estimate(fine, box, small / 1.06)[1]
     coarse = CTVolume(np.zeros((4, 4, 4), np.float32), (3.0, 3.0, 3.0))
     assert ext.vdb_grids.auto_voxel_size(coarse, phantom_head) == pytest.approx(3.0)  # a 3 mm CT keeps 3 mm
 

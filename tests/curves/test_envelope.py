@@ -213,7 +213,8 @@ def test_default_path_on_an_ellipsoid_records_itself_and_samples_at_equal_angles
     bset = extract_boundaries(seg)                                              # every default
     meta = bset.meta
     assert (meta["level_field"], meta["parameterisation"], meta["star_shaped"]) == ("envelope", "angular", True)
-    assert meta["selection"] == "uniform" and bset.curves.shape == (3 * defaults.PATCHES.default + 1, defaults.SAMPLES.default, 3)
+    assert meta["selection"] == "uniform"
+    assert bset.curves.shape == (3 * defaults.PATCHES.default + 1, defaults.SAMPLES.default, 3)
     err = ellipsoid_error_mm(ct, bset.curves)
     assert np.abs(err).mean() < 0.1 and np.abs(err).max() < 0.5, (np.abs(err).mean(), np.abs(err).max())
     rel = bset.curves - ct.index_to_patient(np.array(ELLIPSOID_CENTRE))

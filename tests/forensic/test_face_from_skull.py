@@ -95,8 +95,9 @@ def test_outlying_pegs_are_damped_and_the_jaw_is_smoother(model, face):
 
     def roughness():
         g = model.grid
-        radius = model.profile + model._offset_field(face.tips)     # the field (not the lips' and nose's shapes)
-        rows = (g.z > face.tips[model.peg_names.index("Menton")][2]) & (g.z < face.tips[model.peg_names.index("Mid-philtrum")][2])
+        radius = model.profile + model._offset_field(face.tips)  # the field (not the lips' and nose's shapes)
+        tip_z = {name: face.tips[model.peg_names.index(name)][2] for name in ("Menton", "Mid-philtrum")}
+        rows = (g.z > tip_z["Menton"]) & (g.z < tip_z["Mid-philtrum"])
         r = radius[np.ix_(rows, np.cos(g.theta) < 0.0)]              # the front half: the jaw's sides too
         return np.abs(np.diff(r, 2, axis=0)).mean(), np.abs(np.diff(r, 2, axis=1)).mean()
 

@@ -64,7 +64,7 @@ def test_pegs_stand_along_the_direction_the_depth_is_measured(holed_slab):
     depths = landmark_depths(lms, holed_slab, skin)
     base, nearest = snap_to_surface(np.array(list(lms.values())), holed_slab)
     measured_direction = exposed_normals(base, holed_slab, nearest_normals=nearest)   # as landmark_depths does
-    for i, (name, peg_base, peg_dir, length) in enumerate(pegs):
+    for i, (name, peg_base, peg_dir, _length) in enumerate(pegs):
         assert name == list(lms)[i] and np.allclose(peg_base, depths[name][0])
         assert abs(np.linalg.norm(peg_dir) - 1.0) < 1e-9
         assert _angle(peg_dir, measured_direction[i]) < 1.0, name

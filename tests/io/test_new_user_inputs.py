@@ -236,7 +236,9 @@ def test_the_batch_reads_a_raw_stack_with_the_loader_options(tmp_path):
     raw = ["--raw-shape", "256", "256", "--dtype", ">i2", "--spacing", "2", "1", "1", "--first-slice", "superior",
            "--downsample", "2"]
     import os
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))  # this tree's engine
+
+    # this tree's engine
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
     done = subprocess.run(common + ["--out", str(tmp_path / "ok")] + raw, capture_output=True, text=True, env=env)
     assert done.returncode == 0, done.stderr[-3000:]
     with open(tmp_path / "ok" / "summary.csv", newline="") as fh:

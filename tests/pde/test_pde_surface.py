@@ -13,7 +13,8 @@ from pdehead_addon.pde.surface_mesh import signed_volume
 
 
 def solve_paper(bset, **kwargs):
-    """These tests are about the paper's four-curve patches (eq. 3-6); the C2 surface is tested in test_pde_spline.py."""
+    """These tests are about the paper's four-curve patches (eq. 3-6); the C2 surface is tested in
+    test_pde_spline.py."""
     return solve_pde(bset, continuity="paper", **kwargs)
 
 TWO_PI = 2 * np.pi

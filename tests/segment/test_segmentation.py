@@ -157,7 +157,8 @@ def test_auto_window_is_unit_free():
     for scale, offset in ((1040.0, -1000.0), (1050.0, 25.0), (82.0, 2.0)):
         data = base * scale + offset + rng.normal(0, 0.02 * scale, base.shape).astype(np.float32)
         low, high = S.auto_window(data)
-        assert low == pytest.approx(offset, abs=0.06 * scale) and high == pytest.approx(offset + scale, abs=0.06 * scale)
+        assert low == pytest.approx(offset, abs=0.06 * scale)
+        assert high == pytest.approx(offset + scale, abs=0.06 * scale)
 
 
 # ----------------------------------------------------------------------------------- the model

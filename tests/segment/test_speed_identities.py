@@ -339,7 +339,8 @@ def test_planar_proxy_equals_the_interleaved_one():
         sub = cand.sub
         m = sub.shape[1]
         Y = sub[idx]
-        pos = np.concatenate([[0.0], np.cumsum(np.maximum(np.linalg.norm(np.diff(Y, axis=0), axis=2).mean(axis=1), 1e-6))])
+        steps = np.linalg.norm(np.diff(Y, axis=0), axis=2).mean(axis=1)
+        pos = np.concatenate([[0.0], np.cumsum(np.maximum(steps, 1e-6))])
         L = S._approximation(cand, cand.heights[idx])
         Ys = Y.reshape(len(idx), -1)
         if L > 0 and len(idx) >= 3:

@@ -263,7 +263,8 @@ def _stack_geometry(frames: list[DicomFrame], label: str, warns: list[str]) -> d
     dup = np.flatnonzero(steps < 1e-3)
     if dup.size:
         a, b = frames[dup[0]], frames[dup[0] + 1]
-        where = lambda fr: os.fspath(fr.path) + (f" frame {fr.frame}" if fr.frame is not None else "")
+        def where(fr):
+            return os.fspath(fr.path) + (f" frame {fr.frame}" if fr.frame is not None else "")
         raise CTImportError(f"duplicate slice position {np.round(a.ipp, 3).tolist()} in {where(a)} and {where(b)} "
                             f"({dup.size} duplicate(s)); the series mixes several acquisitions", label)
 
