@@ -68,7 +68,7 @@ def radial_excess(head, nper: int = 24, nv: int = 256) -> np.ndarray:
     out = []
     for j in range(len(b.u_knots) - 1):
         u = np.linspace(b.u_knots[j], b.u_knots[j + 1], nper)
-        pts = head._grid(u, v_count)
+        pts = head.surface_points(u, v_count)
         r = np.linalg.norm(pts - head.spine(u)[:, None, :], axis=-1)
         out.append(float((r - np.maximum(r[0], r[-1])[None, :]).max()))
     return np.array(out)

@@ -159,7 +159,7 @@ class PDEHead:
     def curve_deviation(self) -> float:
         """Largest distance (mm) between a boundary curve and the surface row at its u (0 when exact)."""
         if self._deviation is None:
-            rows = self._grid(self.curve_u, self.bset.samples)
+            rows = self.surface_points(self.curve_u, self.bset.samples)
             self._deviation = float(np.linalg.norm(rows - self.bset.curves, axis=-1).max())
         return self._deviation
 
@@ -181,8 +181,8 @@ class PDEHead:
             raise PDEError("u must lie in [0, 1]")
 
     # -- harmonic amplitudes
-    def _amplitudes(self, u: np.ndarray, harmonics: int | None = None) -> np.ndarray:
-        """Complex harmonic amplitudes ``A_h(u) - i B_h(u)`` (weighted), shape (len(u), H, 3).
+    def amplitudes(self, u: np.ndarray, harmonics: int | None = None) -> np.ndarray:
+        """Complex harmonic amplitudes ``A_h(u) - i B_h(u)`` (eq. 7-8, weighted), shape (len(u), H, 3).
 
         ``harmonics`` limits the computation to h < harmonics (1: the spine only); the
         arithmetic per harmonic is the same either way.
@@ -216,11 +216,14 @@ class PDEHead:
             out[sel] = amp
         return out
 
+    #: The former private name of :meth:`amplitudes`, kept for callers not yet switched.
+    _amplitudes = amplitudes
+
     def spine(self, u: np.ndarray | float) -> np.ndarray:
         """The spine ``A_0(u)`` (eq. 8): the centre line, shape ``u.shape + (3,)``."""
         u = np.asarray(u, dtype=np.float64)
         self._check_u(u)
-        return self._amplitudes(u.ravel(), harmonics=1)[:, 0].real.reshape(u.shape + (3,))
+        return self.amplitudes(u.ravel(), harmonics=1)[:, 0].real.reshape(u.shape + (3,))
 
     # -- evaluation
     def evaluate(self, u: np.ndarray | float, v: np.ndarray | float, w: np.ndarray | float = 1.0,
@@ -246,22 +249,33 @@ class PDEHead:
         h = np.arange(self.harmonics)
         for start in range(0, uf.size, chunk):
             sl = slice(start, start + chunk)
-            amp = self._amplitudes(uf[sl])                                    # (n, H, 3)
+            amp = self.amplitudes(uf[sl])                                    # (n, H, 3)
             phase = np.exp(1j * np.outer(vf[sl], h))                          # (n, H)
             radial = np.einsum("nhc,nh->nc", amp[:, 1:], phase[:, 1:]).real
             out[sl] = amp[:, 0].real + wf[sl, None] * radial
         return out.reshape(shape + (3,))
 
-    def _grid(self, u: np.ndarray, nv: int | None = None, v: np.ndarray | None = None) -> np.ndarray:
-        """Surface points on the grid u x v: shape (len(u), nv, 3).
+    def surface_points(self, u: np.ndarray, nv: int | None = None, v: np.ndarray | None = None) -> np.ndarray:
+        """Surface points on the grid u x v (eq. 11 at w = 1), shape (len(u), nv, 3), freshly computed.
 
-        With ``nv`` the columns are ``v_j = 2 pi j / nv`` and the synthesis is an
-        inverse real FFT (harmonics above nv/2 are folded, which is exact at the
-        sample points); with explicit ``v`` a direct cosine/sine sum.
+        Parameters
+        ----------
+        u : array_like, shape (nu,)
+            Rows, in [0, 1] (clipped).
+        nv : int, optional
+            Columns ``v_j = 2 pi j / nv``: the synthesis is an inverse real FFT (harmonics above nv/2
+            are folded, which is exact at the sample points).
+        v : array_like, optional
+            Explicit columns (radians) instead of ``nv``: a direct cosine/sine sum.
+
+        Returns
+        -------
+        ndarray, shape (nu, nv, 3)
+            LPS mm. :meth:`grid` is the same, remembered for the last few samplings (read-only).
         """
         H = self.harmonics
         if v is not None:
-            amp = self._amplitudes(u)                                         # (nu, H, 3)
+            amp = self.amplitudes(u)                                         # (nu, H, 3)
             phase = np.exp(1j * np.outer(np.arange(H), np.asarray(v, float)))   # (H, nv)
             a = amp.transpose(0, 2, 1).reshape(-1, H)                          # (nu*3, H)
             # contiguous real and imaginary parts: strided views would miss BLAS (~10x slower)
@@ -273,28 +287,36 @@ class PDEHead:
         spec = np.empty((u.size, 3, nb), np.complex128)
         patch, s = self._patch_of(u)
         cubic = self._cubic_spans[patch]
-        if np.any(cubic):                        # the harmonics folded once per nv, then one product
+        if np.any(cubic):
             rows = np.flatnonzero(cubic)
             g = basis(np.zeros(1), s[rows, None])[:, 0]                        # (n, 4)
             # each row has four basis weights on its span's four coefficient rows: gathered, not a dense
-            # (rows x 4 spans) product (CThead's face: 13.7 -> ~1 ms a sampling)
-            F, first = self._folded(nv), 4 * patch[rows]
+            # (rows x 4 spans) product. With no harmonic above nv/2 the coefficients are the spectrum's first
+            # H bins as they are (a new head each live drag needs no per-nv table); otherwise the
+            # harmonics are folded once per nv (cached) and gathered the same way.
+            H_bins = H if H <= (nv + 1) // 2 else nb
+            F = self._coef_flat if H_bins == H else self._folded(nv)
+            first = 4 * patch[rows]
             folded = g[:, :1] * F[first]
             for b in range(1, 4):
                 folded += g[:, b:b + 1] * F[first + b]
-            folded = folded.reshape(rows.size, nb, 6)
-            spec[rows] = (folded[..., :3] + 1j * folded[..., 3:]).transpose(0, 2, 1)
+            folded = folded.reshape(rows.size, H_bins, 6)
+            spec[rows] = 0.0
+            spec[rows, :, :H_bins] = (folded[..., :3] + 1j * folded[..., 3:]).transpose(0, 2, 1)
         if not np.all(cubic):
             rows = np.flatnonzero(~cubic)
-            spec[rows] = fold_harmonics(self._amplitudes(u[rows]).transpose(0, 2, 1), nv)
+            spec[rows] = fold_harmonics(self.amplitudes(u[rows]).transpose(0, 2, 1), nv)
         return ring_points(spec, nv)
 
+    #: The former private name of :meth:`surface_points`, kept for callers not yet switched.
+    _grid = surface_points
+
     def grid(self, u: np.ndarray, nv: int | None = None, v: np.ndarray | None = None) -> np.ndarray:
-        """:meth:`_grid`, remembered per head for its last four samplings (read-only arrays).
+        """:meth:`surface_points`, remembered per head for its last four samplings (read-only arrays).
 
         A live change rebuilds the surface and then the solid on the same (nu, nv) grid: the solid
         reads the surface's points instead of synthesising them again, and a w-range or nw change
-        reuses them too. Rows do not depend on each other (``_grid(u)[:-1]`` is ``_grid(u[:-1])``
+        reuses them too. Rows do not depend on each other (``surface_points(u)[:-1]`` is ``surface_points(u[:-1])``
         bit for bit: ``tests/segment/test_speed_identities.py``), so the dome's surface takes the first rows.
         """
         u = np.asarray(u, dtype=np.float64)
@@ -302,7 +324,7 @@ class PDEHead:
         entries = self.__dict__.setdefault("_grid_cache", {})
         pts = entries.get(key)
         if pts is None:
-            pts = self._grid(u, nv) if nv is not None else self._grid(u, None, v=v)
+            pts = self.surface_points(u, nv) if nv is not None else self.surface_points(u, None, v=v)
             pts.flags.writeable = False
             if len(entries) >= 4:
                 entries.pop(next(iter(entries)))

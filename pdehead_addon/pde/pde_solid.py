@@ -142,7 +142,7 @@ def surface_grid_cached(head, u: np.ndarray, v: np.ndarray, nv_uniform: int | No
     its surface mesh) when it has one, else its ``_grid``."""
     if hasattr(head, "grid"):
         return head.grid(u, nv_uniform) if nv_uniform is not None else head.grid(u, v=v)
-    return head._grid(u, nv_uniform) if nv_uniform is not None else head._grid(u, None, v=v)
+    return head.surface_points(u, nv_uniform) if nv_uniform is not None else head.surface_points(u, None, v=v)
 
 
 _TOPOLOGY_CACHE: dict = {}
@@ -173,20 +173,20 @@ def _solid_topology(nu: int, nv: int, nw: int, full: bool, on_spine: bool, flip:
         faces.append(vid(iu, iv, iw).reshape(-1, 4))
         corners.append(np.stack([np.broadcast_to(iu, iv.shape), iv], axis=-1).reshape(-1, 4, 2))
 
-    I, J = np.meshgrid(np.arange(nu - 1), np.arange(ncol), indexing="ij")
-    cu = np.stack([I, I + 1, I + 1, I], axis=-1)
-    cv = np.stack([J, J, J + 1, J + 1], axis=-1)
+    U, V = np.meshgrid(np.arange(nu - 1), np.arange(ncol), indexing="ij")
+    cu = np.stack([U, U + 1, U + 1, U], axis=-1)
+    cv = np.stack([V, V, V + 1, V + 1], axis=-1)
     add(cu, cv, np.full(cu.shape, nw - 1))                                  # outer w = w1: +w
     add(cu[..., ::-1], cv[..., ::-1], np.zeros(cu.shape, int))              # inner w = w0: -w
-    J, L = np.meshgrid(np.arange(ncol), np.arange(nw - 1), indexing="ij")
-    cv = np.stack([J, J + 1, J + 1, J], axis=-1)
-    cw = np.stack([L, L, L + 1, L + 1], axis=-1)
+    V, W = np.meshgrid(np.arange(ncol), np.arange(nw - 1), indexing="ij")
+    cv = np.stack([V, V + 1, V + 1, V], axis=-1)
+    cw = np.stack([W, W, W + 1, W + 1], axis=-1)
     add(np.full(cv.shape, nu - 1), cv, cw)                                  # u = u1: +u
     add(np.zeros(cv.shape, int), cv[..., ::-1], cw[..., ::-1])              # u = u0: -u
     if not full:
-        L, I = np.meshgrid(np.arange(nw - 1), np.arange(nu - 1), indexing="ij")
-        cw = np.stack([L, L + 1, L + 1, L], axis=-1)
-        cu = np.stack([I, I, I + 1, I + 1], axis=-1)
+        W, U = np.meshgrid(np.arange(nw - 1), np.arange(nu - 1), indexing="ij")
+        cw = np.stack([W, W + 1, W + 1, W], axis=-1)
+        cu = np.stack([U, U, U + 1, U + 1], axis=-1)
         add(cu, np.full(cu.shape, nv - 1), cw)                              # v = v1: +v
         add(cu[..., ::-1], np.zeros(cu.shape, int), cw[..., ::-1])          # v = v0: -v
     faces = np.concatenate(faces)
@@ -375,7 +375,7 @@ def _farthest_crossing(poly: np.ndarray, centre: np.ndarray, bins: int) -> np.nd
 def _w_planes(head, ks, u, n_sec: int, oxy, A_inv, ni: int, nj: int, directions: int):
     """w (eq. 23) of the voxels inside the cross-sections of the planes ``ks`` (at u ``u``): their (k, j, i)
     in ``np.nonzero``'s order and w as float32 (see :func:`w_field`)."""
-    sec = head._grid(u, n_sec)[..., :2]                                  # (P, n, 2) xy
+    sec = head.surface_points(u, n_sec)[..., :2]                                  # (P, n, 2) xy
     S = head.spine(u)[:, :2]
     poly = (sec - oxy) @ A_inv.T                                         # -> (i, j) index coordinates
     Sidx = (S - oxy) @ A_inv.T
@@ -512,7 +512,7 @@ def w_field(head, grid, ct: CTVolume | None = None, directions: int = 4096,
             raise PDEError(f"grid must be a CTVolume or a voxel size in mm, got {type(grid).__name__}") from None
         if not (np.isfinite(size) and size > 0):
             raise PDEError(f"voxel size must be a positive number of mm, got {grid!r}")
-        pts = head._grid(np.linspace(0.0, 1.0, 16 * head.patches + 1), 512)
+        pts = head.surface_points(np.linspace(0.0, 1.0, 16 * head.patches + 1), 512)
         lo, hi = pts.reshape(-1, 3).min(axis=0) - size, pts.reshape(-1, 3).max(axis=0) + size
         shape = tuple(int(np.ceil((hi[d] - lo[d]) / size)) + 1 for d in (2, 1, 0))
         if np.prod(shape) > 1024 ** 3:

@@ -61,7 +61,7 @@ class SolidCTTable:
 
         if nu is None or nv is None or nw is None:
             probe_u = np.linspace(0.0, 1.0, 33)
-            probe = head._grid(probe_u, 64)                                     # (33, 64, 3) mm
+            probe = head.surface_points(probe_u, 64)                                     # (33, 64, 3) mm
             voxel = float(min(ct.spacing))
             height = float(np.linalg.norm(np.diff(head.spine(probe_u), axis=0), axis=1).sum())
             perimeter = float(np.max(np.linalg.norm(np.diff(probe, axis=1, append=probe[:, :1]), axis=2).sum(axis=1)))
@@ -82,7 +82,7 @@ class SolidCTTable:
         for start in range(0, self.shape[0], chunk):
             report_progress(progress, start / self.shape[0], "tabulating the CT in (u, v, w)")
             us = self.u[start:start + chunk]
-            surf = head._grid(us, self.shape[1])                                # (c, nv, 3)
+            surf = head.surface_points(us, self.shape[1])                                # (c, nv, 3)
             spine = head.spine(us)[:, None, None, :]
             pts = spine + self.w[None, None, :, None] * (surf[:, :, None, :] - spine)
             ijk = (pts.reshape(-1, 3) - ct.origin) @ inv.T
@@ -125,7 +125,7 @@ class SolidCTTable:
             k0 = np.clip(np.floor(kc), 0, nz - 2).astype(np.int64)
             fk = np.clip(kc - k0, 0.0, 1.0).astype(np.float32)[:, None, None]
             sxy = spine[:, None, None, :2].astype(np.float32)
-            surf = head._grid(us, self.shape[1])[..., :2].astype(np.float32)      # (c, nv, 2)
+            surf = head.surface_points(us, self.shape[1])[..., :2].astype(np.float32)      # (c, nv, 2)
             xy = sxy + w * (surf[:, :, None, :] - sxy)                           # (c, nv, nw, 2)
             ij = (xy - oxy.astype(np.float32)) @ A_inv.T                         # (i, j) index coordinates
             fi, fj = ij[..., 0], ij[..., 1]

@@ -138,7 +138,7 @@ def legacy_surface(head, nu: int, nv: int):
     minor, head._dome_minor = head._dome_minor, 0
     try:
         u = np.linspace(0.0, 1.0, nu)
-        pts = head._grid(u[:-1], nv)
+        pts = head.surface_points(u[:-1], nv)
         bottom = fan_caps(pts, head.spine(np.array([0.0, 1.0])), ends=(0,))[0]
         top = (np.asarray(head.vertex, float), fan_indices(nv))
         return tube_mesh(pts, head.orientation, [bottom, top], uv=True, u=u[:-1], top_u=1.0)

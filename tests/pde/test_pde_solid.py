@@ -116,7 +116,7 @@ def test_alpha_from_w_is_eq24():
 
 
 def grid_volume(head, spacing=(1.0, 1.0, 1.0), margin=4.0):
-    pts = head._grid(np.linspace(0, 1, 41), 256).reshape(-1, 3)
+    pts = head.surface_points(np.linspace(0, 1, 41), 256).reshape(-1, 3)
     lo = pts.min(axis=0) - margin
     hi = pts.max(axis=0) + margin
     dz, dy, dx = spacing
@@ -131,13 +131,13 @@ def section_mask(head, grid: CTVolume, k: int, n: int = 1024) -> tuple[np.ndarra
     uu = np.linspace(0.0, 1.0, 20001)                                        # invert the spine's z densely
     zz = head.spine(uu)[:, 2]
     u = float(np.interp(z, zz, uu)) if zz[-1] > zz[0] else float(np.interp(z, zz[::-1], uu[::-1]))
-    sec = head._grid(np.array([u]), n)[0]
+    sec = head.surface_points(np.array([u]), n)[0]
     ij = (sec[:, :2] - grid.origin[:2]) / np.array([grid.spacing[2], grid.spacing[1]])
     mask = polygon2mask(grid.shape[1:], ij[:, ::-1])                        # (row=j, col=i)
     # distance of every voxel centre to the polygon, for "boundary voxel" tolerance
     jj, ii = np.mgrid[0:grid.shape[1], 0:grid.shape[2]]
     from scipy.spatial import cKDTree
-    dense = head._grid(np.array([u]), 4 * n)[0, :, :2]
+    dense = head.surface_points(np.array([u]), 4 * n)[0, :, :2]
     d, _ = cKDTree((dense - grid.origin[:2]) / np.array([grid.spacing[2], grid.spacing[1]])).query(
         np.stack([ii.ravel(), jj.ravel()], 1))
     return mask, d.reshape(mask.shape)
@@ -191,7 +191,7 @@ def test_w_field_is_the_parametric_w_for_star_shaped_sections(head):
     S = head.spine(uk)[:, :2]
     exact = []
     for i in range(200):
-        sec = head._grid(uk[i:i + 1], 8192)[0, :, :2] - S[i]
+        sec = head.surface_points(uk[i:i + 1], 8192)[0, :, :2] - S[i]
         d = centre[i] - S[i]
         ang = np.mod(np.arctan2(sec[:, 1], sec[:, 0]) - np.arctan2(d[1], d[0]) + np.pi, TWO_PI) - np.pi
         j = np.argmin(np.abs(ang))

@@ -124,10 +124,10 @@ def test_each_span_solves_eq1(synthetic):
 def test_equal_circles_give_a_cylinder_and_a_round_dome():
     b = circles_bset([80.0] * 7, np.linspace(0, 120, 7))
     flat = solve_pde(b, approximation_mm=0, dome=False)
-    r = np.hypot(*flat._grid(np.linspace(0, 1, 61), 64)[..., :2].transpose(2, 0, 1))
+    r = np.hypot(*flat.surface_points(np.linspace(0, 1, 61), 64)[..., :2].transpose(2, 0, 1))
     assert np.abs(r - 80.0).max() < 1e-9                                 # natural spline of a constant: exact
     head = solve_pde(b, approximation_mm=0)
-    r = np.hypot(*head._grid(np.linspace(0, head.curve_u[-1], 61), 64)[..., :2].transpose(2, 0, 1))
+    r = np.hypot(*head.surface_points(np.linspace(0, head.curve_u[-1], 61), 64)[..., :2].transpose(2, 0, 1))
     assert np.abs(r - 80.0).max() < 0.05 * 80                            # the dome pulls the last spans a little
     # the dome: above the top curve the rings shrink to the pole with a horizontal tangent plane
     assert head.vertex is not None and head.vertex[2] > 120.0
@@ -230,7 +230,7 @@ def test_default_head_is_smooth_on_real_scans(request, dataset, t):
         cz = verts[faces][:, :, 2].mean(axis=1)
         z = b.curves[..., 2]
         faces = faces[(cz >= z.min()) & (cz <= z.max())]
-        tube = tube_mesh(head._grid(np.linspace(head.curve_u[0], head.curve_u[-1], 81), 256), head.orientation)
+        tube = tube_mesh(head.surface_points(np.linspace(head.curve_u[0], head.curve_u[-1], 81), 256), head.orientation)
         from pdehead_addon.validation import symmetric_surface_distance
         d = symmetric_surface_distance(tube.vertices, tube.quads, verts, faces, samples=20_000)
         print("CThead t=10 to marching cubes", round(d["mean"], 3), round(d["p95"], 3))

@@ -153,7 +153,7 @@ def test_equal_circles_give_a_cylinder():
     u = np.linspace(0, 1, 301)
     for smoothing, tol in ((0.0, 1e-9), (None, 1e-6)):
         head = solve_paper(b, smoothing=smoothing)
-        pts = head._grid(u, 128)
+        pts = head.surface_points(u, 128)
         r = np.hypot(pts[..., 0], pts[..., 1])
         # a = 0 (cubic limit): exact; default a ~ 0.07: constants are reproduced to O((a n)^4 / 2000)
         assert np.abs(r / 80.0 - 1).max() < tol
@@ -166,7 +166,7 @@ def test_cylinder_bulge_grows_like_k4_for_large_smoothing():
     b = circles_bset([80.0] * 4, [0, 10, 20, 30.0], samples=64)
     _, a_max = smoothing_bounds(b, modes=1)
     head = solve_paper(b, smoothing=a_max, modes=1)
-    r = np.hypot(*head._grid(np.linspace(0, 1, 201), 64)[..., :2].transpose(2, 0, 1))
+    r = np.hypot(*head.surface_points(np.linspace(0, 1, 201), 64)[..., :2].transpose(2, 0, 1))
     assert 1e-4 < np.abs(r - 80).max() <= MAX_DEVIATION_MM + 1e-9
     with pytest.raises(PDEError, match="too large"):
         solve_paper(b, smoothing=1.2 * a_max, modes=1)
@@ -177,7 +177,7 @@ def test_cone_has_no_bulge():
     radii = 40 + 0.5 * heights                                             # linearly growing
     head = solve_paper(circles_bset(radii, heights, samples=128))
     u = np.linspace(0, 1, 241)
-    r = np.hypot(*head._grid(u, 128)[..., :2].transpose(2, 0, 1))
+    r = np.hypot(*head.surface_points(u, 128)[..., :2].transpose(2, 0, 1))
     expected = 40 + 0.5 * 72 * u
     assert np.abs(r - expected[:, None]).max() < 1e-6 * radii.max()
     assert radial_excess(head).max() < 1e-6
@@ -224,7 +224,7 @@ def test_stable_for_any_patch_count_and_modes(patches):
         default, maximum = smoothing_bounds(b, modes)
         for a in (0.0, None, maximum):
             head = solve_paper(b, smoothing=a, modes=modes)
-            pts = head._grid(np.linspace(0, 1, 8 * patches + 1), 64)
+            pts = head.surface_points(np.linspace(0, 1, 8 * patches + 1), 64)
             assert np.all(np.isfinite(pts))
             assert head.condition.max() < 1e3
             cubic_lam = np.array([lebesgue_constant(0.0, kn)[0] for kn in head.knots])
@@ -357,7 +357,7 @@ def test_grid_synthesis_matches_direct_evaluation(synthetic_head):
     u = np.linspace(0, 1, 23)
     for nv in (16, 60, 257, 400):                                         # with and without harmonic folding
         v = TWO_PI * np.arange(nv) / nv
-        assert np.abs(synthetic_head._grid(u, nv) - synthetic_head.evaluate(u[:, None], v[None, :])).max() < 1e-9
+        assert np.abs(synthetic_head.surface_points(u, nv) - synthetic_head.evaluate(u[:, None], v[None, :])).max() < 1e-9
 
 
 # ----------------------------------------------------------------------------- correspondence
@@ -393,7 +393,7 @@ def test_align_parameterisation_keeps_geometry_and_reduces_error():
         assert dist.max() < 1e-9
 
     def radial_error(head):
-        P = head._grid(np.linspace(0, 1, 241), 512)
+        P = head.surface_points(np.linspace(0, 1, 241), 512)
         r = np.hypot(P[..., 0], P[..., 1])
         return np.abs(r - nose_shape(np.arctan2(P[..., 1], P[..., 0]), P[..., 2])).mean()
     before, after = radial_error(solve_paper(b)), radial_error(solve_paper(a))

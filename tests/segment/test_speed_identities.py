@@ -125,10 +125,10 @@ def test_surface_and_solid_share_one_grid_and_its_rows_are_independent(continuit
     head = solve_pde(head_bset(patches=4, samples=128), continuity=continuity, smoothing=smoothing)
     for nu, nv in ((40, 60), (41, 97), (3, 3)):
         u = np.linspace(0.0, 1.0, nu)
-        assert np.array_equal(head._grid(u, nv)[:-1], head._grid(u[:-1], nv))
+        assert np.array_equal(head.surface_points(u, nv)[:-1], head.surface_points(u[:-1], nv))
     calls = []
-    synth = head._grid
-    head._grid = lambda *a, **k: calls.append(1) or synth(*a, **k)
+    synth = head.surface_points
+    head.surface_points = lambda *a, **k: calls.append(1) or synth(*a, **k)
     surf = head.surface(40, 60)
     solid = head.solid(40, 60, 5)
     assert len(calls) == 1
