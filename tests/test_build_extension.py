@@ -221,7 +221,7 @@ def test_two_builds_at_once_give_identical_verified_zips(tmp_path):
     assert code == 0, log[-3000:]
     assert (tmp_path / "dist3" / zips[0].name).read_bytes() == zips[0].read_bytes()
     names = wheel_names(zips[0])
-    for python, tag in PYTHONS.items():
+    for python in PYTHONS:
         for req in B.shipped_requirements(python):
             assert sum(B.wheel_fits(n, req, python, PLATFORM) for n in names) == 1, (req, python, names)
     for tag in PYTHONS.values():

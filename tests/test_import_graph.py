@@ -147,11 +147,8 @@ class Cycle:
     edges: list[Edge]
 
 
-def find_cycles(graph: ImportGraph) -> list[Cycle]:
-    """One shortest cycle per strongly connected component of the project modules (Tarjan)."""
-    succ: dict[str, dict[str, Edge]] = {m: {} for m in graph.files}
-    for e in graph.project_edges():
-        succ[e.source].setdefault(e.target, e)          # the first statement importing it
+def strong_components(succ: dict) -> list[list[str]]:
+    """The strongly connected components of the graph ``succ`` (node -> its successors), Tarjan's algorithm."""
     index: dict[str, int] = {}
     low: dict[str, int] = {}
     on_stack: set[str] = set()
@@ -181,32 +178,39 @@ def find_cycles(graph: ImportGraph) -> list[Cycle]:
     for v in sorted(succ):
         if v not in index:
             connect(v)
-    cycles = []
-    for comp in components:
-        start = comp[0]
-        if len(comp) == 1 and start not in succ[start]:
-            continue
-        members = set(comp)
-        # breadth-first from start back to start, inside the component: a shortest loop
-        prev: dict[str, Edge] = {}
-        queue = deque([start])
-        found = None
-        while queue and found is None:
-            v = queue.popleft()
-            for w, e in sorted(succ[v].items()):
-                if w not in members:
-                    continue
-                if w == start:
-                    found = e
-                    break
-                if w not in prev:
-                    prev[w] = e
-                    queue.append(w)
-        path = [found]
-        while path[0].source != start:
-            path.insert(0, prev[path[0].source])
-        cycles.append(Cycle(comp, path))
-    return cycles
+    return components
+
+
+def _shortest_loop(succ: dict[str, dict[str, Edge]], comp: list[str]) -> list[Edge]:
+    """A shortest loop from the component's first module back to it, inside the component (breadth-first)."""
+    start, members = comp[0], set(comp)
+    prev: dict[str, Edge] = {}
+    queue = deque([start])
+    found = None
+    while queue and found is None:
+        v = queue.popleft()
+        for w, e in sorted(succ[v].items()):
+            if w not in members:
+                continue
+            if w == start:
+                found = e
+                break
+            if w not in prev:
+                prev[w] = e
+                queue.append(w)
+    path = [found]
+    while path[0].source != start:
+        path.insert(0, prev[path[0].source])
+    return path
+
+
+def find_cycles(graph: ImportGraph) -> list[Cycle]:
+    """One shortest cycle per strongly connected component of the project modules (Tarjan)."""
+    succ: dict[str, dict[str, Edge]] = {m: {} for m in graph.files}
+    for e in graph.project_edges():
+        succ[e.source].setdefault(e.target, e)          # the first statement importing it
+    return [Cycle(comp, _shortest_loop(succ, comp)) for comp in strong_components(succ)
+            if len(comp) > 1 or comp[0] in succ[comp[0]]]
 
 
 def describe(graph: ImportGraph, cycle: Cycle) -> str:

@@ -157,24 +157,7 @@ def loads_boundaries(data: bytes, name: str = "<bytes>") -> BoundarySet:
     def fail(problem: str) -> StorageError:
         return StorageError(f"{name}: {problem}")
 
-    data = bytes(data)
-    if len(data) < _FIXED.size:
-        raise fail(f"truncated: {len(data)} bytes is shorter than the {_FIXED.size}-byte header")
-    magic, version, hlen = _FIXED.unpack_from(data, 0)
-    if magic != MAGIC:
-        raise fail("not a PDE Head boundary file (bad magic bytes)")
-    if version != VERSION:
-        raise fail(f"unknown format version {version} (this PDE Head reads version {VERSION})")
-    pos = _FIXED.size
-    if len(data) < pos + hlen + _PAYLOAD.size:
-        raise fail("truncated inside the header")
-    header_bytes = data[pos:pos + hlen]
-    plen, crc = _PAYLOAD.unpack_from(data, pos + hlen)
-    packed = data[pos + hlen + _PAYLOAD.size:pos + hlen + _PAYLOAD.size + plen]
-    if len(packed) != plen:
-        raise fail(f"truncated: payload has {len(packed)} of {plen} bytes")
-    if zlib.crc32(header_bytes + packed) != crc:
-        raise fail("corrupt (CRC-32 mismatch)")
+    header_bytes, packed = _split_container(bytes(data), fail)
     try:
         header = json.loads(header_bytes.decode("utf-8"))
         n, M = int(header["curves"]), int(header["samples"])
@@ -198,31 +181,8 @@ def loads_boundaries(data: bytes, name: str = "<bytes>") -> BoundarySet:
     need = 4 + mlen + n * 8 * (1 if derived_knots else 2) + n * 4 + n * 24 + n * coords * M * planes
     if len(payload) != need:
         raise fail(f"corrupt payload: {len(payload)} bytes, expected {need}")
-    o = 4 + mlen
-    heights = np.frombuffer(payload, "<f8", n, o); o += 8 * n
-    if derived_knots:
-        try:
-            knots = knots_from_heights(heights)
-        except BoundaryError as exc:
-            raise fail(f"corrupt heights ({exc})") from None
-    else:
-        knots = np.frombuffer(payload, "<f8", n, o); o += 8 * n
-    slices = np.frombuffer(payload, "<i4", n, o); o += 4 * n
-    origins = np.empty((n, 3))
-    origins[:, :2] = np.frombuffer(payload, "<i8", 2 * n, o).reshape(n, 2) * quantum; o += 16 * n
-    origins[:, 2] = np.frombuffer(payload, "<f8", n, o); o += 8 * n
-    count = n * coords * M
-    z = np.zeros(count, np.uint64)
-    for b in range(planes):
-        z |= np.frombuffer(payload, np.uint8, count, o).astype(np.uint64) << np.uint64(8 * b)
-        o += count
-    d = _unzigzag(z).reshape(n, coords, M)
-    d[..., 1:] = np.cumsum(d[..., 1:], axis=-1)                             # undo the 2nd differences
-    q = np.cumsum(d, axis=-1)
-    curves = np.empty((n, M, 3))
-    curves[..., :coords] = origins[:, None, :coords] + q.transpose(0, 2, 1) * quantum
-    if coords == 2:
-        curves[..., 2] = origins[:, None, 2]
+    heights, knots, slices, curves = _decode_curves(payload, 4 + mlen, n, M, coords, planes, quantum,
+                                                     derived_knots, fail)
     if header.get("pde_settings") is not None:
         meta["pde_settings"] = header["pde_settings"]
     try:
@@ -230,6 +190,69 @@ def loads_boundaries(data: bytes, name: str = "<bytes>") -> BoundarySet:
     except BoundaryError as exc:
         raise fail(f"invalid boundary curves ({exc})") from None
 
+
+def _split_container(data: bytes, fail) -> tuple[bytes, bytes]:
+    """The JSON header's bytes and the compressed payload of a ``.pdeh`` file, after checking its magic,
+    version, lengths and CRC-32 (``fail(problem)`` builds the error to raise)."""
+    if len(data) < _FIXED.size:
+        raise fail(f"truncated: {len(data)} bytes is shorter than the {_FIXED.size}-byte header")
+    magic, version, hlen = _FIXED.unpack_from(data, 0)
+    if magic != MAGIC:
+        raise fail("not a PDE Head boundary file (bad magic bytes)")
+    if version != VERSION:
+        raise fail(f"unknown format version {version} (this PDE Head reads version {VERSION})")
+    pos = _FIXED.size
+    if len(data) < pos + hlen + _PAYLOAD.size:
+        raise fail("truncated inside the header")
+    header_bytes = data[pos:pos + hlen]
+    plen, crc = _PAYLOAD.unpack_from(data, pos + hlen)
+    packed = data[pos + hlen + _PAYLOAD.size:pos + hlen + _PAYLOAD.size + plen]
+    if len(packed) != plen:
+        raise fail(f"truncated: payload has {len(packed)} of {plen} bytes")
+    if zlib.crc32(header_bytes + packed) != crc:
+        raise fail("corrupt (CRC-32 mismatch)")
+    return header_bytes, packed
+
+
+class _Cursor:
+    """Reads consecutive little-endian arrays from a byte string."""
+
+    def __init__(self, payload: bytes, offset: int):
+        self.payload, self.offset = payload, offset
+
+    def take(self, dtype, count: int) -> np.ndarray:
+        out = np.frombuffer(self.payload, dtype, count, self.offset)
+        self.offset += out.nbytes
+        return out
+
+
+def _decode_curves(payload, offset, n, M, coords, planes, quantum, derived_knots, fail):
+    """Heights, knots, slice indices and the (n, M, 3) curves from the payload after its metadata."""
+    cur = _Cursor(payload, offset)
+    heights = cur.take("<f8", n)
+    if derived_knots:
+        try:
+            knots = knots_from_heights(heights)
+        except BoundaryError as exc:
+            raise fail(f"corrupt heights ({exc})") from None
+    else:
+        knots = cur.take("<f8", n)
+    slices = cur.take("<i4", n)
+    origins = np.empty((n, 3))
+    origins[:, :2] = cur.take("<i8", 2 * n).reshape(n, 2) * quantum
+    origins[:, 2] = cur.take("<f8", n)
+    count = n * coords * M
+    z = np.zeros(count, np.uint64)
+    for b in range(planes):
+        z |= cur.take(np.uint8, count).astype(np.uint64) << np.uint64(8 * b)
+    d = _unzigzag(z).reshape(n, coords, M)
+    d[..., 1:] = np.cumsum(d[..., 1:], axis=-1)                             # undo the 2nd differences
+    q = np.cumsum(d, axis=-1)
+    curves = np.empty((n, M, 3))
+    curves[..., :coords] = origins[:, None, :coords] + q.transpose(0, 2, 1) * quantum
+    if coords == 2:
+        curves[..., 2] = origins[:, None, 2]
+    return heights, knots, slices, curves
 
 def save_boundaries(obj, path: str | os.PathLike) -> int:
     """Write a BoundarySet or a PDEHead (with its smoothing and modes) to ``path``.

@@ -104,6 +104,27 @@ def _resample_nearest(a: np.ndarray, from_factors: Sequence[int], to_factors: Se
 # Coarse to fine
 # ----------------------------------------------------------------------------------------------
 
+def _level_plan(shape, spacing, levels_mm, level_iterations, two_d: bool):
+    """The coarse levels, coarsest first: [(block factors (z, y, x), iterations)], and the iterations left
+    over for the full grid (those of levels that do not exist because the grid is already that coarse)."""
+    plan: list[tuple[tuple[int, int, int], int]] = []
+    carry = 0
+    counts = list(level_iterations) + [0] * max(0, len(levels_mm) - len(level_iterations))
+    for mm, n in sorted(zip((float(m) for m in levels_mm), counts), reverse=True):
+        carry += int(n)
+        fac = tuple(min(fi, ni) for fi, ni in zip(_coarse_factors(spacing, mm), shape))
+        if two_d:
+            fac = (1,) + fac[1:]
+        if max(fac) == 1:
+            continue  # the grid is already this coarse: these iterations go to a finer level
+        if plan and fac == plan[-1][0]:
+            plan[-1] = (fac, plan[-1][1] + carry)
+        else:
+            plan.append((fac, carry))
+        carry = 0
+    return plan, carry
+
+
 def solve_pyramid(img: np.ndarray, spacing: Sequence[float], lam: float, theta: float, tau: float | None,
                    levels_mm: Sequence[float], level_iterations: Sequence[int], iterations: int, inner: int,
                    tolerance: float, threads: int, progress=None, own_img: bool = False) -> tuple[dict, dict]:
@@ -118,21 +139,7 @@ def solve_pyramid(img: np.ndarray, spacing: Sequence[float], lam: float, theta: 
     two_d = img.shape[0] == 1
     def bound(h):
         return tau_bound(h[1:] if two_d else h)
-    plan: list[tuple[tuple[int, int, int], int]] = []
-    carry = 0
-    counts = list(level_iterations) + [0] * max(0, len(levels_mm) - len(level_iterations))
-    for mm, n in sorted(zip((float(m) for m in levels_mm), counts), reverse=True):
-        carry += int(n)
-        fac = tuple(min(fi, ni) for fi, ni in zip(_coarse_factors(spacing, mm), img.shape))
-        if two_d:
-            fac = (1,) + fac[1:]
-        if max(fac) == 1:
-            continue  # the grid is already this coarse: these iterations go to a finer level
-        if plan and fac == plan[-1][0]:
-            plan[-1] = (fac, plan[-1][1] + carry)
-        else:
-            plan.append((fac, carry))
-        carry = 0
+    plan, carry = _level_plan(img.shape, spacing, levels_mm, level_iterations, two_d)
     iterations = int(iterations) + carry
     info: dict[str, Any] = {"levels": [], "tau": None}
     # progress: iterations run so far over the most that can run (a level may stop early)

@@ -524,7 +524,7 @@ class Bench:
         reps = max(self.repeats, 5)  # milliseconds each: always at least 5
         for nu, nv in UV_SERIES:
             r = pb.bench_surface(head, reps, nu, nv)
-            s_caps, mesh = timed(lambda: head.surface(nu, nv, caps=True), reps, warmup=True)
+            s_caps, mesh = timed(lambda nu=nu, nv=nv: head.surface(nu, nv, caps=True), reps, warmup=True)
             row = {"nu": nu, "nv": nv, "engine": _stats(r), "engine_with_caps": s_caps,
                    "vertices": int(r["vertices"])}
             if coll is not None:

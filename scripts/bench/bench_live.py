@@ -177,7 +177,7 @@ def bench_dataset(name: str, repeats: int) -> dict:
     s.use_cutter = True
     bpy.context.view_layer.update()
     totals = []
-    for i in range(repeats):
+    for _ in range(repeats):
         box.location.x += 0.004
         s.timings_json = ""
         t = time.perf_counter()

@@ -287,8 +287,9 @@ def up_close(repeats: int = 5) -> dict:
         row = {"t": t, "pole": pole_ripple_before_after(head),
                "cap_edge_ratio": {"before": cap_edge_ratio(old), "after": cap_edge_ratio(new)},
                "uv": {"before": uv_quality(old), "after": uv_quality(new)},
-               "surface_ms": {"before": 1e3 * median_time(lambda: legacy_surface(head, nu, nv), repeats)[0],
-                              "after": 1e3 * median_time(lambda: head.surface(nu, nv, caps=True), repeats)[0]},
+               "surface_ms": {
+                   "before": 1e3 * median_time(lambda head=head: legacy_surface(head, nu, nv), repeats)[0],
+                   "after": 1e3 * median_time(lambda head=head: head.surface(nu, nv, caps=True), repeats)[0]},
                "triangles": {"before": int(len(old.triangles)), "after": int(len(new.triangles))},
                "crown": crown_before_after(seg, bset), "slits": slits(head)}
         if name == "cthead":
@@ -482,7 +483,7 @@ def run(quick: bool, repeats: int) -> dict:
             print(name, "t=%d" % r["t"], {k: {m: round(v, 4) for m, v in r[k].items()} for k in ("c2", "paper")},
                   flush=True)
         if name == "cthead":
-            res["speed"] = speed(seg, lambda: marching_cubes(seg), repeats)
+            res["speed"] = speed(seg, lambda seg=seg: marching_cubes(seg), repeats)
             print("speed", res["speed"], flush=True)
     return res
 

@@ -420,7 +420,7 @@ def fig14(data: Data, bl: Blender, args) -> list[Path]:
              ("v in [pi/2, 2pi]", (math.pi / 2, 2 * math.pi), (0.0, 1.0)),
              ("+ w in [0.8, 1]", (math.pi / 2, 2 * math.pi), (0.8, 1.0))]
     objs = []
-    for i, (name, vr, wr) in enumerate(cases):
+    for i, (_name, vr, wr) in enumerate(cases):
         coll = bl.collection(f"fig14 {i}")
         o = bl.objects.build_solid(head, coll, 40, 60, 5, v_range=vr, w_range=wr, ct=ct, name=f"solid{i}")
         o.hide_render = True

@@ -270,7 +270,7 @@ def main(argv=None) -> int:
             built.append((label, obj))
         bounds = render.world_bounds([o for _, o in built])
 
-        def tile(obj, view, text):
+        def tile(obj, view, text, bounds=bounds):
             render.render_objects_png([obj], tmp, view=view, resolution=(args.size, args.size),
                                       samples=args.samples, bounds=bounds)
             with Image.open(tmp) as im:
@@ -282,7 +282,7 @@ def main(argv=None) -> int:
             neck.append([tile(obj, "BOTTOM", f"{name} t={t} {label}: neck from below") for label, obj in built])
         if name == "cthead":
             mat = uv_grid_material(bpy)
-            for label, obj in built:
+            for _label, obj in built:
                 obj.data.materials[0] = mat
             uv.append([tile(obj, view, f"{name} {label}: UV grid, {view.lower().replace('_', '-')}")
                        for label, obj in built for view in ("FRONT", "THREE_QUARTER")])

@@ -62,6 +62,6 @@ def test_find_landmarks_operator_on_the_phantom(pdehead_ext):
 def test_cli_finds_landmarks_when_none_are_given(tmp_path):
     result = run_cli("--phantom", "--no-volume", "--nu", 40, "--nv", 80, "--skull", tmp_path=tmp_path)
     assert result.returncode == 0, result.stderr[-3000:]
-    line = next(l for l in result.stdout.splitlines() if l.startswith("  landmarks "))
+    line = next(ln for ln in result.stdout.splitlines() if ln.startswith("  landmarks "))
     n = len(STANDARD_LANDMARKS)
     assert line.startswith(f"  landmarks {n} of {n} found automatically"), line

@@ -254,8 +254,8 @@ def test_a_different_ct_at_the_source_is_refused(ext, tmp_path):
     s.source_absolute = ""
     ext.state.drop_cache()
     with pytest.raises(Exception, match="source is gone"):
-        ext.study_entity.Study.of(coll).ct
+        _ = ext.study_entity.Study.of(coll).ct
     s.source_kind = "PHANTOM"
     s.dimensions = (10, 10, 10)
     with pytest.raises(Exception, match="refusing to mix"):
-        ext.study_entity.Study.of(coll).ct
+        _ = ext.study_entity.Study.of(coll).ct

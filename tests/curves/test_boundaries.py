@@ -14,14 +14,6 @@ from pdehead_addon import (
     defaults,
     extract_boundaries as _extract_default,
 )
-
-#: The per-slice path (2-D mask outline, aligned samples) these tests were written for; the default path
-#: (the 3-D envelope, star hulls, the spine, angular samples) is tested in test_envelope.py.
-PER_SLICE = dict(level_field="mask", parameterisation="aligned", star_shaped=False)
-
-
-def extract_boundaries(seg, **kwargs):
-    return _extract_default(seg, **{**PER_SLICE, **kwargs})
 from pdehead_addon.curves.curve_sampling import (
     contour_from_mask,
     parameter_offsets,
@@ -38,6 +30,14 @@ from pdehead_addon.curves.slice_selection import (
     scan_edge_slices,
     usable_slices,
 )
+
+#: The per-slice path (2-D mask outline, aligned samples) these tests were written for; the default path
+#: (the 3-D envelope, star hulls, the spine, angular samples) is tested in test_envelope.py.
+PER_SLICE = dict(level_field="mask", parameterisation="aligned", star_shaped=False)
+
+
+def extract_boundaries(seg, **kwargs):
+    return _extract_default(seg, **{**PER_SLICE, **kwargs})
 
 SPACING = (2.0, 0.8, 0.9)          # dz, dy, dx: anisotropic on purpose
 ORIGIN = (-40.0, -55.0, 12.0)      # LPS mm of voxel (0, 0, 0)

@@ -152,7 +152,7 @@ def test_star_hull_carries_z():
 
 # --- the spine and the angular samples ------------------------------------------------------------------------
 
-def ellipse_outlines(a=40.0, b=28.0, heights=np.arange(8) * 5.0, tilt=0.5, jitter=0.0):
+def ellipse_outlines(a=40.0, b=28.0, heights=tuple(5.0 * k for k in range(8)), tilt=0.5, jitter=0.0):
     """Ellipses x = 10 + tilt z + a cos, y = -5 + b sin at each height; every other one moved by +-jitter in x."""
     return [np.column_stack([10.0 + tilt * z + jitter * (-1) ** n + a * np.cos(THETA), -5.0 + b * np.sin(THETA),
                              np.full(720, z)]) for n, z in enumerate(heights)]

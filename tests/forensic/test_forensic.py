@@ -185,8 +185,8 @@ def test_export_watertight_and_in_mm(tmp_path, phantom_surfaces, fmt):
     elif fmt == "obj":
         from pdehead_addon.core.mesh import Mesh
         lines = open(path).read().splitlines()
-        v = np.array([l.split()[1:] for l in lines if l.startswith("v ")], float)
-        f = [l.split()[1:] for l in lines if l.startswith("f ")]
+        v = np.array([ln.split()[1:] for ln in lines if ln.startswith("v ")], float)
+        f = [ln.split()[1:] for ln in lines if ln.startswith("f ")]
         quads = np.array([x for x in f if len(x) == 4], int) - 1
         tris = np.array([x for x in f if len(x) == 3], int) - 1
         back = Mesh(v, quads.reshape(-1, 4), tris.reshape(-1, 3))

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from test_ct_detail_map import R, _sphere_head, sphere_mask  # noqa: E402  (tests/pde on sys.path: rootdir-relative imports)
 
-from pdehead_addon import ct_detail_map, detail_surface, print_resolution
+from pdehead_addon import PDEError, ct_detail_map, detail_surface, print_resolution
 from pdehead_addon.pde import detail_displace as DDX, detail_map as DM
 
 
@@ -146,7 +146,7 @@ def test_print_rows_are_denser_over_the_face_and_the_mesh_stays_closed(sphere_he
     r_rows = np.linalg.norm(mesh.vertices[side(mesh)], axis=1)
     r_even = np.linalg.norm(even.vertices[side(even)], axis=1)
     assert abs(np.median(r_rows) - np.median(r_even)) < 0.02 and abs(np.median(r_rows) - (R + 1.5)) < 0.15
-    with pytest.raises(Exception):
+    with pytest.raises(PDEError, match="increasing values"):
         sphere_head.surface(5, 32, rows=np.array([0.0, 0.5, 0.4, 0.8, 1.0]))
     # the chord error over the window at the same counts is smaller with the denser face rows
     assert DDX.chord_error(sphere_head, 60, 128, window, rows=DDX.print_rows(sphere_head, 60, window))["rows_max"] \

@@ -126,7 +126,7 @@ def test_remainder_solves_its_own_ode_not_eq1():
         res, scale = fd_operator(F, k, a, s, v)
         assert res < 2e-3 * scale
 
-        def R(ds):
+        def R(ds, k=k):
             u = (k + s + ds) / 3
             return X.evaluate(u, v) - F.evaluate(u, v)
         r_ssss = (R(-2 * h) - 4 * R(-h) + 6 * R(0) - 4 * R(h) + R(2 * h)) / h ** 4
@@ -357,7 +357,8 @@ def test_grid_synthesis_matches_direct_evaluation(synthetic_head):
     u = np.linspace(0, 1, 23)
     for nv in (16, 60, 257, 400):                                         # with and without harmonic folding
         v = TWO_PI * np.arange(nv) / nv
-        assert np.abs(synthetic_head.surface_points(u, nv) - synthetic_head.evaluate(u[:, None], v[None, :])).max() < 1e-9
+        direct = synthetic_head.evaluate(u[:, None], v[None, :])
+        assert np.abs(synthetic_head.surface_points(u, nv) - direct).max() < 1e-9
 
 
 # ----------------------------------------------------------------------------- correspondence

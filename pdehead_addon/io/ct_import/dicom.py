@@ -56,24 +56,7 @@ _DECODER_PACKAGES = {
 def load_dicom(files, label, series_uid, resample_spacing, warns) -> CTVolume:
     scan = scan_dicom(files)
     ranked = ranked_series(scan.series)
-    if not ranked and len(files) == 1 and scan.unreadable:
-        raise CTImportError(f"cannot read this DICOM file: {scan.unreadable[files[0]]}", files[0])
-    if not ranked:
-        details = []
-        if scan.unreadable:
-            f, err = next(iter(scan.unreadable.items()))
-            details.append(f"{len(scan.unreadable)} DICOM-looking file(s) could not be read, e.g. {f}: {err}")
-        if scan.skipped:
-            details.append("skipped: " + skip_summary(scan.skipped))
-        raise CTImportError("no DICOM image series found" + (" (" + "; ".join(details) + ")" if details else ""),
-                            label)
-    if series_uid is not None:
-        chosen = scan.series.get(str(series_uid))
-        if chosen is None:
-            available = ", ".join(f"{s.uid} [{series_info(s).label}]" for s in ranked)
-            raise CTImportError(f"series_uid {series_uid!r} not found; available series: {available}", label)
-    else:
-        chosen = ranked[0]
+    chosen = _choose_series(scan, ranked, files, label, series_uid)
     info = series_info(chosen)
     broken = scan.incomplete.get(chosen.uid)
     if broken:
@@ -158,6 +141,29 @@ def load_dicom(files, label, series_uid, resample_spacing, warns) -> CTVolume:
         "covered_fraction": 1.0 if coverage is None else float(coverage.mean()),
     }
     return CTVolume(data, spacing, origin, direction, meta, coverage=coverage)
+
+
+def _choose_series(scan, ranked, files, label, series_uid) -> DicomSeries:
+    """The series to load: ``series_uid``'s, else the best ranked; a clear error when there is none."""
+    if not ranked and len(files) == 1 and scan.unreadable:
+        raise CTImportError(f"cannot read this DICOM file: {scan.unreadable[files[0]]}", files[0])
+    if not ranked:
+        details = []
+        if scan.unreadable:
+            f, err = next(iter(scan.unreadable.items()))
+            details.append(f"{len(scan.unreadable)} DICOM-looking file(s) could not be read, e.g. {f}: {err}")
+        if scan.skipped:
+            details.append("skipped: " + skip_summary(scan.skipped))
+        raise CTImportError("no DICOM image series found" + (" (" + "; ".join(details) + ")" if details else ""),
+                            label)
+    if series_uid is not None:
+        chosen = scan.series.get(str(series_uid))
+        if chosen is None:
+            available = ", ".join(f"{s.uid} [{series_info(s).label}]" for s in ranked)
+            raise CTImportError(f"series_uid {series_uid!r} not found; available series: {available}", label)
+    else:
+        chosen = ranked[0]
+    return chosen
 
 
 def _warn_repaired_headers(chosen: DicomSeries, info, warns: list[str]) -> None:

@@ -131,6 +131,15 @@ def check_image_header(f: Path, ds) -> int:
     if rows * cols * frames * 4 > budget:
         raise BadHeader(f"{rows} x {cols} x {frames} frame(s) would need {rows * cols * frames * 4 / 2 ** 30:.3g} GB "
                         f"of memory, more than the import budget of {budget / 2 ** 30:.3g} GB")
+    _check_pixel_length(f, ds, ts, (rows, cols, frames, bits), expected)
+    return frames
+
+
+def _check_pixel_length(f: Path, ds, ts, size: tuple[int, int, int, int], expected: int) -> None:
+    """The PixelData element's length (uncompressed) or the file's size (compressed) against the ``expected``
+    bytes of ``size`` = (rows, cols, frames, bits): :class:`TruncatedPixels` or :class:`BadHeader` when they
+    disagree."""
+    rows, cols, frames, bits = size
     element = ds.get_item("PixelData", keep_deferred=True)
     length = getattr(element, "length", None)
     if length is None:
@@ -139,9 +148,9 @@ def check_image_header(f: Path, ds) -> int:
     compressed = ts is not None and ts.is_transfer_syntax and ts.is_compressed
     if length is not None and length != 0xFFFFFFFF and not compressed:
         if length < expected:
-            raise TruncatedPixels(f"the pixel data has {length} bytes, the header's "
-                                  f"{rows} x {cols} x {frames} frame(s) "
-                            f"of {bits} bits need {expected} (truncated file or wrong Rows/Columns/NumberOfFrames)")
+            raise TruncatedPixels(f"the pixel data has {length} bytes, the header's {rows} x {cols} x {frames} "
+                                  f"frame(s) of {bits} bits need {expected} (truncated file or wrong "
+                                  "Rows/Columns/NumberOfFrames)")
         if length > expected + (expected & 1) + 1:
             raise BadHeader(f"the pixel data has {length} bytes, the header's {rows} x {cols} x {frames} frame(s) "
                             f"of {bits} bits only {expected} (wrong Rows/Columns/NumberOfFrames/BitsAllocated)")
@@ -153,4 +162,3 @@ def check_image_header(f: Path, ds) -> int:
                             f"{stored}-byte file (more than {ratio} times: a corrupt header)")
         if frames > stored // 4:
             raise BadHeader(f"NumberOfFrames is {frames} in a file of {stored} bytes")
-    return frames

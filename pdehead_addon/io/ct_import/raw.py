@@ -50,23 +50,8 @@ def _raw_samples(f: Path, raw: bytes | None, dt: np.dtype, count: int, offset: i
 
 def load_raw(files, label, shape, dtype, byte_order, header_bytes, spacing, axes, oriented, hu,
               warns) -> CTVolume:
-    if shape is None:
-        raise CTImportError("raw data needs shape=(ny, nx) for one slice per file or (nz, ny, nx)", label)
-    try:
-        shape = tuple(int(s) for s in shape)
-    except (TypeError, ValueError):
-        raise CTImportError(f"shape must be integers (ny, nx) or (nz, ny, nx), got {shape!r}", label) from None
-    if len(shape) not in (2, 3) or min(shape) <= 0:
-        raise CTImportError(f"shape must be 2 or 3 positive integers, got {shape!r}", label)
+    shape, header_bytes = _checked_layout(shape, header_bytes, label)
     dt = _raw_dtype(dtype, byte_order, label)
-    try:
-        header_bytes = int(header_bytes)
-    except (TypeError, ValueError):
-        header_bytes = -1
-    if header_bytes < 0:
-        raise CTImportError(f"header_bytes must be a non-negative integer, got {header_bytes!r}", label)
-    ny, nx = shape[-2:]
-    slice_bytes = ny * nx * dt.itemsize
 
     top = top_level(files, label)
     candidates = [f for f in top if not has_ext(f, TEXT_EXTENSIONS)]
@@ -78,49 +63,9 @@ def load_raw(files, label, shape, dtype, byte_order, header_bytes, spacing, axes
     candidates = numbered_files(candidates, label, "raw", warns)
 
     if len(candidates) == 1:
-        # one file holding the whole volume
-        f = candidates[0]
-        from ... import defaults
-        limit = (header_bytes + shape[0] * slice_bytes if len(shape) == 3
-                 else defaults.IMPORT_MEMORY_BUDGET_BYTES // 2)
-        raw, size = _read_raw_bytes(f, limit)
-        what = "decompressed (gzip) size" if raw is not None else "file size"
-        if len(shape) == 3:
-            expected = header_bytes + shape[0] * slice_bytes
-            if size != expected:
-                raise CTImportError(f"{what} {size} bytes does not match shape {shape} x {dt.str} + "
-                                    f"{header_bytes} header bytes = {expected} bytes", f)
-            nz = shape[0]
-        else:
-            body = size - header_bytes
-            if body <= 0 or body % slice_bytes:
-                raise CTImportError(f"{what} {size} bytes is not {header_bytes} header bytes + a whole number "
-                                    f"of {ny}x{nx} {dt.str} slices ({slice_bytes} bytes each)", f)
-            nz = body // slice_bytes
-        check_budget(nz * ny * nx * 4, f"{nz} x {ny} x {nx} raw slices", f)
-        data = np.empty((nz, ny, nx), dtype=np.float32)
-        data[...] = _raw_samples(f, raw, dt, nz * ny * nx, header_bytes).reshape(nz, ny, nx)
-        del raw
+        data = _read_one_file(candidates[0], shape, dt, header_bytes)
     else:
-        if len(shape) == 3 and shape[0] != len(candidates):
-            raise CTImportError(f"shape {shape} asks for {shape[0]} slices but the folder has "
-                                f"{len(candidates)} files", label)
-        expected = header_bytes + slice_bytes
-        gz = any(f.name.lower().endswith(".gz") for f in candidates)
-        for f in candidates if not gz else ():
-            size = f.stat().st_size
-            if size != expected:
-                raise CTImportError(f"file size {size} bytes does not match one {ny}x{nx} {dt.str} slice + "
-                                    f"{header_bytes} header bytes = {expected} bytes", f)
-        check_budget(len(candidates) * ny * nx * 4, f"{len(candidates)} x {ny} x {nx} raw slices", label)
-        data = np.empty((len(candidates), ny, nx), dtype=np.float32)
-        for k, f in enumerate(candidates):
-            raw, size = _read_raw_bytes(f, expected)
-            if size != expected:
-                raise CTImportError(f"{'decompressed (gzip) size' if raw is not None else 'file size'} {size} "
-                                    f"bytes does not match one {ny}x{nx} {dt.str} slice + {header_bytes} header "
-                                    f"bytes = {expected} bytes", f)
-            data[k] = _raw_samples(f, raw, dt, ny * nx, header_bytes).reshape(ny, nx)
+        data = _read_slice_files(candidates, shape, dt, header_bytes, label)
     _refuse_wrong_byte_order(data, dt, label)
     _refuse_absurd_floats(data, dt, label)
     _refuse_wrong_row_length(data, shape, label)
@@ -128,6 +73,79 @@ def load_raw(files, label, shape, dtype, byte_order, header_bytes, spacing, axes
                               {"files": len(candidates), "first_file": candidates[0].name,
                                "last_file": candidates[-1].name, "source_dtype": dt.str,
                                "header_bytes": header_bytes})
+
+
+def _checked_layout(shape, header_bytes, label) -> tuple[tuple[int, ...], int]:
+    """``shape`` as 2 or 3 positive integers and ``header_bytes`` as a non-negative integer, or a clear error."""
+    if shape is None:
+        raise CTImportError("raw data needs shape=(ny, nx) for one slice per file or (nz, ny, nx)", label)
+    try:
+        shape = tuple(int(s) for s in shape)
+    except (TypeError, ValueError):
+        raise CTImportError(f"shape must be integers (ny, nx) or (nz, ny, nx), got {shape!r}", label) from None
+    if len(shape) not in (2, 3) or min(shape) <= 0:
+        raise CTImportError(f"shape must be 2 or 3 positive integers, got {shape!r}", label)
+    try:
+        header_bytes = int(header_bytes)
+    except (TypeError, ValueError):
+        header_bytes = -1
+    if header_bytes < 0:
+        raise CTImportError(f"header_bytes must be a non-negative integer, got {header_bytes!r}", label)
+    return shape, header_bytes
+
+
+def _read_one_file(f, shape, dt, header_bytes) -> np.ndarray:
+    """One file holding the whole volume: (nz, ny, nx) float32, nz from ``shape`` or from the file's size."""
+    ny, nx = shape[-2:]
+    slice_bytes = ny * nx * dt.itemsize
+    from ... import defaults
+    limit = (header_bytes + shape[0] * slice_bytes if len(shape) == 3
+             else defaults.IMPORT_MEMORY_BUDGET_BYTES // 2)
+    raw, size = _read_raw_bytes(f, limit)
+    what = "decompressed (gzip) size" if raw is not None else "file size"
+    if len(shape) == 3:
+        expected = header_bytes + shape[0] * slice_bytes
+        if size != expected:
+            raise CTImportError(f"{what} {size} bytes does not match shape {shape} x {dt.str} + "
+                                f"{header_bytes} header bytes = {expected} bytes", f)
+        nz = shape[0]
+    else:
+        body = size - header_bytes
+        if body <= 0 or body % slice_bytes:
+            raise CTImportError(f"{what} {size} bytes is not {header_bytes} header bytes + a whole number "
+                                f"of {ny}x{nx} {dt.str} slices ({slice_bytes} bytes each)", f)
+        nz = body // slice_bytes
+    check_budget(nz * ny * nx * 4, f"{nz} x {ny} x {nx} raw slices", f)
+    data = np.empty((nz, ny, nx), dtype=np.float32)
+    data[...] = _raw_samples(f, raw, dt, nz * ny * nx, header_bytes).reshape(nz, ny, nx)
+    del raw
+    return data
+
+
+def _read_slice_files(candidates, shape, dt, header_bytes, label) -> np.ndarray:
+    """One slice per file: (len(candidates), ny, nx) float32."""
+    ny, nx = shape[-2:]
+    slice_bytes = ny * nx * dt.itemsize
+    if len(shape) == 3 and shape[0] != len(candidates):
+        raise CTImportError(f"shape {shape} asks for {shape[0]} slices but the folder has "
+                            f"{len(candidates)} files", label)
+    expected = header_bytes + slice_bytes
+    gz = any(f.name.lower().endswith(".gz") for f in candidates)
+    for f in candidates if not gz else ():
+        size = f.stat().st_size
+        if size != expected:
+            raise CTImportError(f"file size {size} bytes does not match one {ny}x{nx} {dt.str} slice + "
+                                f"{header_bytes} header bytes = {expected} bytes", f)
+    check_budget(len(candidates) * ny * nx * 4, f"{len(candidates)} x {ny} x {nx} raw slices", label)
+    data = np.empty((len(candidates), ny, nx), dtype=np.float32)
+    for k, f in enumerate(candidates):
+        raw, size = _read_raw_bytes(f, expected)
+        if size != expected:
+            raise CTImportError(f"{'decompressed (gzip) size' if raw is not None else 'file size'} {size} "
+                                f"bytes does not match one {ny}x{nx} {dt.str} slice + {header_bytes} header "
+                                f"bytes = {expected} bytes", f)
+        data[k] = _raw_samples(f, raw, dt, ny * nx, header_bytes).reshape(ny, nx)
+    return data
 
 
 def _refuse_absurd_floats(data: np.ndarray, dt: np.dtype, label) -> None:
