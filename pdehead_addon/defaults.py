@@ -13,8 +13,8 @@ Each entry is a :class:`Param`, registered under the name of the study setting i
 Notes
 -----
 The values follow the paper where it gives one (M = 256 samples, eq. 24's alpha range [0.1, 0.9]
-of section 5.3; the paper's t = 10 patches became 15 for issue 21's visible face) and the measured
-choices of this add-on elsewhere
+of section 5.3; the paper's t = 10 patches became 15 so that the visible face keeps its detail) and
+choices of this add-on measured on the data sets elsewhere (docs/benchmarks.md)
 (the shape-change slice selection, the C2 surface, 120 x 240 mesh samples, density 40).
 """
 from __future__ import annotations
@@ -105,22 +105,21 @@ def default(name: str):
 
 
 # ----------------------------------------------------------------------------- boundaries (eq. 22)
-#: 15, not the paper's 10 (issue 21, the face up close): the face's p95 distance from the scan came from
-#: the curves' spacing in height (the underside of the nose, the mouth, the eyelids run almost
-#: horizontally between curves 6 mm apart). CThead's visible face, with the lighter u smoothing of
-#: ``pde_surface.APPROXIMATION_PER_SLICE`` (0.5): t = 10 0.287 / 0.96 mm -> t = 15 0.243 / 0.76 mm (target
-#: 0.33 / 0.80); the boundary conditions 15.5 -> 22.2 kB (``storage.save_boundaries``).
+#: 15, not the paper's 10: the face's largest distances from the scan come from the curves' spacing in
+#: height (the underside of the nose, the mouth, the eyelids run almost horizontally between curves), so
+#: closer curves bring the visible face nearer the scan for a somewhat larger boundary file (the
+#: measures: docs/benchmarks.md, the face up close).
 PATCHES = _param("patches", 15, min=1, max=60,
                  description="Number t of PDE patches; 3t+1 boundary curves are extracted", label="Patches (t)")
 SAMPLES = _param("samples", 256, min=16, max=4096, description="Points per boundary curve", label="Samples (M)")
 #: The paper's uniform choice loses the nose and lips at t = 10 with the paper's patches (the
 #: interpolation between four curves folds where the face changes fast); shape-change keeps them;
-#: auto (issue 14, the default) chooses the curves whose surface is closest to every slice's outline:
-#: closer than both to the outlines and to marching cubes on the phantom, CThead and GE at every t
-#: measured but one (GE t = 4), for about a second more (docs/benchmarks.md, section selection).
+#: auto (the default) chooses the curves whose surface is closest to every slice's outline: closer than
+#: both to the outlines and to marching cubes on the test data sets at almost every t, for about a second
+#: more (docs/benchmarks.md, section selection).
 SELECTION = _param("selection", "auto", choices=("uniform", "shape-change", "auto"),
                    description="How the 3t+1 slices are chosen", label="Selection")
-#: A tolerance instead of t (issue 14): the fewest curves whose surface keeps within it of every
+#: A tolerance instead of t: the fewest curves whose surface keeps within it of every
 #: usable slice's outline (chosen or not), verified on the real surface.
 USE_TOLERANCE = _param("use_tolerance", False,
                        description="Choose the number of curves for a tolerance instead of t (automatic selection)",
@@ -139,8 +138,8 @@ ALIGN_CURVES = _param("align_curves", True,
 # ----------------------------------------------------------------------------- surface (eq. 1-13)
 #: Fine enough that a nose (~30 mm wide) gets ~10 samples around v and the lips several along u;
 #: surface(120, 240) builds in ~10-20 ms.
-#: The maxima are what a live change can afford (issue 20: <= 2 s and 2 GB per change): 400 x 800 with
-#: nw = 6 rebuilt the CThead surface and solid in 1.9 s CPU at 0.73 GB peak (2000 x 2000 took 30 s, 5.2 GB).
+#: The maxima are what a live change can afford (a couple of seconds and GB per change; the measures:
+#: docs/benchmarks.md, live changes); far finer grids take tens of seconds and several GB.
 NU = _param("nu", 120, min=4, max=400,
             description="Resolution along the head axis (u); rebuilds the meshes at once", label="nu")
 NV = _param("nv", 240, min=4, max=800,
@@ -179,7 +178,7 @@ V_RANGE = _param("v_range", (0.0, 2 * math.pi), min=-2 * math.pi, max=4 * math.p
                              "degrees; may wrap past 360 (at most one turn)", label="v Range")
 W_RANGE = _param("w_range", (0.0, 1.0), min=0.0, max=1.0, description="Cutaway: w interval of the solid",
                  label="w Range")
-#: Issue 21: the solid's CT atlas. Its cut faces get tiles sized from their own extent in mm (about one
+#: The solid's CT atlas. Its cut faces get tiles sized from their own extent in mm (about one
 #: texel per finest CT voxel) within this many pixels; the outside shows the skin (the surface's material)
 #: unless ``solid_skin`` is "ct" (the CT ``solid_skin_depth`` mm inside the skin: the skin itself is a
 #: partial-volume mix of air and tissue, mottled or banded).
@@ -196,7 +195,7 @@ USE_CUTTER = _param("use_cutter", False,
                     description="The study's cutter box (an empty you move, rotate and scale) sets the u and v "
                                 "ranges: the solid is cut away where the box is", label="Use Cutter")
 
-# ----------------------------------------------------------------------------- CT detail map (issue 21)
+# ----------------------------------------------------------------------------- CT detail map
 #: The CT detail layer: the CT's fine relief (eyelids, lips, nostrils) as a height map in the surface's
 #: UVs (:func:`pdehead_addon.pde.detail_map.ct_detail_map`), applied as real displacement of the smooth PDE
 #: surface along its normals (a Displace modifier after a subdivision in Blender,
@@ -252,7 +251,7 @@ ALPHA_MODE = _param("alpha_mode", "EQ24", choices=("EQ24", "INTENSITY"),
                     description="Opacity from eq. 24's w, or from the CT intensity (the paper's baseline)",
                     label="Alpha Mode")
 #: The budget of the automatic voxel size (operators/vdb_grids.auto_voxel_size): the .vdb stays below
-#: this many bytes (issue 10: small files beside the .blend) ...
+#: this many bytes (the files beside the .blend stay small) ...
 MAX_VDB_BYTES = _param("max_vdb_bytes", 64 * 2 ** 20, min=1, unit="bytes",
                        description="Largest .vdb the automatic voxel size allows")
 #: ... and the w-field grid below this many voxels (0.15-0.2 us per voxel on CThead, 2 shared cores: ~1 s).
@@ -294,7 +293,7 @@ IMPORT_RATIO_FLOOR_BYTES = 64 * 2 ** 20
 #: Streams are decompressed in chunks of this many bytes (never more than the header asks for).
 IMPORT_CHUNK_BYTES = 8 * 2 ** 20
 
-# ----------------------------------------------------------------------------- animation (issue 19)
+# ----------------------------------------------------------------------------- animation
 #: 120 frames: a 5-second orbit at 24 fps, each frame 3 degrees on.
 TURNTABLE_FRAMES = _param("turntable_frames", 120, min=2, max=10000,
                           description="Frames of one camera orbit around the study (the scene's frame range)",
@@ -311,7 +310,7 @@ VIEWS = {"FRONT": ("Front", "The face (Blender's front view)"),
          "THREE_QUARTER": ("Three Quarter", "From front right, above")}
 VIEW = _param("view", "FRONT", choices=tuple(VIEWS), description="The view to render or frame", label="View")
 
-# ----------------------------------------------------------------------------- forensic (issue 22)
+# ----------------------------------------------------------------------------- forensic
 #: The bone level in the scan's stored units (HU where calibrated). Off: the documented rule of
 #: :func:`pdehead_addon.forensic.skull.segment_skull` (HU scans: half way between the soft-tissue and bone modes,
 #: 400 HU without them; uncalibrated scans without soft tissue: half way between the air and bone modes).
@@ -322,7 +321,7 @@ BONE_LEVEL = _param("bone_level", 400.0, min=-5000.0, max=100000.0,
                     description="Bone level in the scan's stored units (HU where calibrated): from this level "
                                 "on, the skull is the bone mask alone", label="Bone Level")
 
-# ----------------------------------------------------------------------------- face from skull (issue 23)
+# ----------------------------------------------------------------------------- face from skull
 #: The label every face-from-skull output carries (mesh names, file headers, provenance).
 FACE_LABEL = "approximation — not an identification"
 FACE_NU = _param("face_nu", 160, min=8, max=400, description="Face from skull: mesh rows (along the head)")
@@ -345,7 +344,7 @@ FACE_PEG_OFF_MM = 2.0
 #: its tip in the bone: no soft tissue has a negative thickness. Warned, the face still solves.
 FACE_PEG_MIN_DEPTH_MM = 0.0
 #: A peg whose tip lies farther than this (mm) from its axis (the line from its landmark along the bone normal) has
-#: been moved off its landmark: the automatic landmarks sit within a few mm of an expert's (issue 22's 2-5 mm), so
+#: been moved off its landmark: the automatic landmarks sit within a few mm of an expert's, so
 #: 10 mm is a peg that no longer measures the landmark the table's depth is for. Warned, the face still solves.
 FACE_PEG_MAX_DRIFT_MM = 10.0
 #: A peg deeper than the table's mean + this many SDs is warned: beyond 3 SD lies ~0.1 % of a normal population
@@ -372,7 +371,7 @@ FACE_CUT_MARGIN_MM = _param("face_cut_margin_mm", 7.0, min=0.0, max=40.0, unit="
 FACE_MIN_TISSUE_MM = _param("face_min_tissue_mm", 2.0, min=0.0, max=10.0, unit="mm",
                             description="Face from skull: least soft tissue over the bone anywhere on the face")
 
-# ----------------------------------------------------------------------------- forensic operators (issue 25)
+# ----------------------------------------------------------------------------- forensic operators
 #: The skull the forensic steps measure on / snap to (operators/forensic.py TARGET_ITEMS).
 DEPTH_TARGET = _param("depth_target", "BONE", choices=("BONE", "PDE"), label="Skull",
                       description="The skull measured on or snapped to: the bone skull (smoothed marching cubes "
@@ -394,7 +393,7 @@ DEPTH_DISPLAY_MAX = _param("depth_display_max", 25.0, min=1.0, max=100.0, unit="
                            description="Tissue depth at the red end of the depth map's colour ramp")
 PEG_RADIUS = _param("peg_radius", 1.5, min=0.1, max=10.0, unit="mm", description="Radius of a marker peg")
 
-# ----------------------------------------------------------------------------- renders and the one-click run (issue 25)
+# ----------------------------------------------------------------------------- renders and the one-click run
 #: The CLI's renders (``--render``, ``--render-volume``, ``--render-animation``): Cycles on the CPU, small and quick.
 RENDER_RESOLUTION = _param("resolution", 320, min=16, unit="px", description="Render size in pixels (square)",
                            label="Resolution")
@@ -409,7 +408,7 @@ RUN_PIPELINE = _param("run_pipeline", False,
 SHOW = _param("show", "SURFACE", choices=("SURFACE", "SOLID", "VOLUME", "CURVES"),
               description="The study object to show (the others are hidden)", label="Show")
 
-# ----------------------------------------------------------------------------- import options (issue 25)
+# ----------------------------------------------------------------------------- import options
 #: What *Import CT* offers for headerless data before the user changes it: CThead's raw slices (256 x 256
 #: big-endian int16), 1 mm voxels. The CLI has no such defaults: ``--raw-shape``, ``--dtype`` and
 #: ``--spacing`` must be given for raw data.

@@ -250,6 +250,22 @@ def _rewrite(path: Path, fn: Callable) -> None:
         ds.save_as(path, enforce_file_format=False)
 
 
+def _header_value_cases(new, pick) -> None:
+    """Absurd header values, in one file and in every file (``new``/``pick`` of :func:`dicom_cases`)."""
+    for keyword, values in _DICOM_VALUES.items():
+        for value in values:
+            for where in ("one", "all"):
+                if where == "all" and keyword in ("SOPClassUID",) and value is None:
+                    continue
+                _folder, files, c = new(f"{keyword}={value!r} in {where} file(s)")
+                targets = [pick(files)] if where == "one" else files
+                for f in targets:
+                    _set_tag(f, keyword, value)
+                # a few values are legitimate (ExplicitVRLittleEndian as 1.2.840.10008.1.2 implicit is
+                # a lie; PixelRepresentation 1 is what GE has)
+                c.may_pass = (keyword, value) in _HARMLESS
+
+
 def dicom_cases(rng, root: Path) -> list[Case]:
     """Mutations of a copy of GE_FILES GE slices (one folder per case)."""
     cases: list[Case] = []
@@ -265,19 +281,7 @@ def dicom_cases(rng, root: Path) -> list[Case]:
 
     def pick(files):
         return files[int(rng.integers(len(files)))]
-    # absurd header values, in one file and in every file
-    for keyword, values in _DICOM_VALUES.items():
-        for value in values:
-            for where in ("one", "all"):
-                if where == "all" and keyword in ("SOPClassUID",) and value is None:
-                    continue
-                folder, files, c = new(f"{keyword}={value!r} in {where} file(s)")
-                targets = [pick(files)] if where == "one" else files
-                for f in targets:
-                    _set_tag(f, keyword, value)
-                # a few values are legitimate (ExplicitVRLittleEndian as 1.2.840.10008.1.2 implicit is
-                # a lie; PixelRepresentation 1 is what GE has)
-                c.may_pass = (keyword, value) in _HARMLESS
+    _header_value_cases(new, pick)
     # truncated files
     for fraction in (0.0, 0.01, 0.05, 0.2, 0.5, 0.99):
         folder, files, c = new(f"one file truncated to {fraction:.0%}")

@@ -29,8 +29,8 @@ MESH_EXTENSIONS = (".stl", ".ply", ".obj")
 MAX_HOLE_EDGES = 60
 #: Voxel size (mm) of the volume made from the mesh, coarsened when it would exceed MAX_MESH_VOXELS.
 #: Half a millimetre: the voxel centres must catch the thin bone of the mesh (the tympanic plate under the
-#: ear canal, under 1 mm in a smoothed bone surface); at 1 mm most of it was lost, the left ear canal of
-#: CThead's skull opened into the bone below it and porion was put 24 / 45 mm from the CT path's (issue 22).
+#: ear canal, under 1 mm in a smoothed bone surface); at 1 mm most of it is lost, an ear canal opens into
+#: the bone below it and porion lands far from where the CT path puts it.
 MESH_VOXEL_MM = 0.5
 MAX_MESH_VOXELS = 40_000_000
 BONE_VALUE_HU, AIR_VALUE_HU = 1500.0, -1000.0

@@ -103,7 +103,7 @@ GEOMETRY: dict[str, Any] = {
     # mandible: U-shaped bar = ring around (centre xy, radii xy) of half-thickness, at z centre with
     # half-height, cut at y max (the body; the chin, rami and lower teeth are in "facial_skeleton")
     "mandible": ((0.0, -10.0), (45.0, 55.0), 4.5, -79.0, 8.5, 6.0),
-    # facial skeleton (issue 22): what automatic craniometric landmarks need, every part a primitive
+    # facial skeleton: what automatic craniometric landmarks need, every part a primitive
     # so that the landmarks have analytic positions (:meth:`Phantom.bone_landmarks`). Mirrored in x.
     "facial_skeleton": {
         # orbit openings: elliptic cylinders along y, centre (x, z), radii (x, z), through the bone

@@ -12,7 +12,7 @@ conditions)
 - :mod:`.pde_surface`      Step 4: the Bloor-Wilson PDE surface (paper eq. 1-13), t patches along u: solving it
 - :mod:`.solid_ct_table`   The CT in the solid's parameter space (u, v, w): one table per study for live cut-aways
 (section 4.3.1)
-- :mod:`.surface_columns`  Where the v columns of the head's tube sit (issue 21): closer in v where an outline runs
+- :mod:`.surface_columns`  Where the v columns of the head's tube sit: closer in v where an outline runs
 radially
 - :mod:`.surface_mesh`     Tube meshes of a sampled surface grid: quads stitched along the v seam, caps, UVs, signed
 volume

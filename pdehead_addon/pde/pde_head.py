@@ -437,17 +437,16 @@ class PDEHead:
         (:func:`.surface_columns.column_density` of the end curves the caps close: the bottom one, and the top
         one without a dome), None for equal steps. From the boundary curves alone: one per study.
 
-        Only the capped ends: the same density from every curve also evened CThead's ears, but it moved
-        faces into them and the UVs' area stretch there went from 3.81 to 4.61 (target 4), angle p95
-        9.8 -> 11.6 deg; from the bottom curve it is 3.86 / 9.2 deg, GE's bottom ring 4.24 -> 2.90 mean
-        edges (its middle rings keep edges up to ~4.3 mean edges)."""
+        Only the capped ends: the same density from every curve would also even the ears, but it moves
+        faces into them and the UVs' area stretch and angle distortion there grow past their limits; the
+        end curves alone shorten the long edges of the caps' rings and keep the UVs within them."""
         ends = [0] if self.vertex is not None else [0, -1]
         return derived_once(self.bset, f"v_density{len(ends)}", lambda: column_density(self.bset.curves[ends]))
 
     def v_columns(self, nv: int) -> np.ndarray:
         """The v (radians) of the surface's nv columns (:func:`.surface_columns.column_v`): ``2 pi j / nv``
         where the end curve's samples are about evenly spaced, closer where its outline runs nearly
-        radially (issue 21: GE's neck ring had 8.4 mm edges, 4.2 x the tube's mean edge)."""
+        radially (there equal steps of v would give the end ring and its cap long edges)."""
         return column_v(self.v_density(), int(nv))
 
     def cap_reference(self, nu: int, nv: int) -> dict:
@@ -521,7 +520,7 @@ class PDEHead:
 
         density = self.v_density()
 
-        def tube_map():                 # issue 21: near-conformal, even-scale UVs of the tube (mm)
+        def tube_map():                 # near-conformal, even-scale UVs of the tube (mm)
             rings, map_u = uv_map_grid(self.bset.curves, unit_u, v_density=density)
             U, V, W = uv_tube_map(rings, map_u)
             box = (float(U.min()), float(max(U.max(), (U[:, 0] + W).max())), float(V.min()), float(V.max()))

@@ -411,7 +411,7 @@ def _ct_on_grid(ct: CTVolume, found, grid: CTVolume, w_out: np.ndarray, intensit
 
     An axis-aligned grid (each CT index a function of one grid index: both axial, as Run Pipeline's) is
     interpolated plane by plane, separably: the two CT slices around the plane, then its rows, then its
-    columns (CThead 1 mm grid: 0.43 -> ~0.1 s; the same values to float32 rounding). Any other grid goes
+    columns (several times faster than the general path, the same values to float32 rounding). Any other grid goes
     through the voxels' CT indices and ``map_coordinates``.
     """
     cval = float(ct.data.min())
@@ -539,7 +539,7 @@ def w_field(head, grid, ct: CTVolume | None = None, directions: int = 4096,
     def chunk_w(ks):
         return _w_planes(head, ks, u_of[ks], n_sec, oxy, A_inv, ni, nj, directions)
     # the chunks' planes are independent and numpy releases the GIL in their large loops: two threads on
-    # two cores (CThead's volume 0.7 -> 0.5 s); the results are placed in plane order, as one thread would
+    # two cores; the results are placed in plane order, as one thread would
     def place(n, result):
         kidx, j_idx, i_idx, wv = result
         report_progress(progress, 0.9 * (n + 1) * planes_per_chunk / max(len(planes), 1),

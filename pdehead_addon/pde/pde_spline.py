@@ -53,7 +53,7 @@ from .pde_basis import basis_derivatives, inverse_4x4, small_matmul
 #: Exponent per harmonic of eq. 1 inside the dome span (local s): ripples of the top curve fade
 #: toward the pole instead of converging there as radial ridges (harmonic h decays like e^{-0.25 h s}).
 DOME_DAMPING = 0.25
-#: Inside the dome span the ring's non-circular part fades toward the pole (issue 21: the "star" on the
+#: Inside the dome span the ring's non-circular part fades toward the pole (else a "star" shows on the
 #: crown). The radius harmonics n >= 3 of a smooth pole shrink like r^n (r: the distance from the pole);
 #: the Hermite data alone make every harmonic h >= 2 shrink like r^2 and the ring's ellipticity like r,
 #: which keeps the slope ripple n A_n / r of the radius constant into the pole. Harmonic h >= 2 of the

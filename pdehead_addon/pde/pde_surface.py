@@ -87,8 +87,8 @@ DEFAULT_CONTINUITY = "c2"
 #: Default C2 smoothing a as a fraction of the head's isotropic a = height / radius.
 DEFAULT_C2_SMOOTHING = 0.0
 #: Default approximation length along u: this many axial slice steps of the scan (0.5, not 1: the
-#: envelope's 3-D Gaussian already smooths the slice steps; one step took the lips and the nose's
-#: underside off the face, issue 21) ...
+#: envelope's 3-D Gaussian already smooths the slice steps; one step takes the lips and the nose's
+#: underside off the face) ...
 APPROXIMATION_PER_SLICE = 0.5
 #: ... but at most this many mean gaps between the chosen curves.
 APPROXIMATION_PER_GAP = 0.5

@@ -39,7 +39,7 @@ class SolidCTTable:
         Table resolution. Defaults: about one CT voxel per sample along u and around v and
         two voxels along w, capped at 256 x 256 x 64 (~17 MB float32). 256 around v is twice what
         the solid shows by default (its 128-pixel atlas tiles, nv = 240) and halves the time a PDE
-        change waits for its colours (CThead: 512 -> 256 samples around a 600 mm perimeter).
+        change waits for its colours.
     chunk : int
         u rows sampled together (bounds the temporary position arrays).
     progress : callable, optional

@@ -1,4 +1,4 @@
-"""Where the v columns of the head's tube sit (issue 21): closer in v where an outline runs radially.
+"""Where the v columns of the head's tube sit: closer in v where an outline runs radially.
 
 :func:`column_density` (a function of the boundary curves alone, one per study) warps the columns' v so
 that no step of v carries a capped end curve much further than its mean sample step; :func:`column_v`
@@ -15,12 +15,12 @@ __all__ = ["column_density", "column_v", "column_fraction", "column_fraction_inv
 TWO_PI = 2.0 * np.pi
 
 
-#: The surface's columns (issue 21): no step of v may carry the capped end curve further than this many
-#: times its mean sample step. Where an outline runs nearly radially (GE's wide neck) equal steps of the
-#: angular parameter v are long on the surface (8.4 mm at the defaults: 4.2 mean edges of the tube at GE's
-#: bottom ring), and so is every cap triangle on them; there the columns are placed closer in v
-#: (:func:`column_density`). 1.5: GE's bottom ring 2.9 mean edges (1.2: 2.5, but CThead's UV angle p95
-#: 10.6 deg).
+#: The surface's columns: no step of v may carry the capped end curve further than this many times its
+#: mean sample step. Where an outline runs nearly radially (a wide neck) equal steps of the angular
+#: parameter v are long on the surface (several mean edges of the tube), and so is every cap triangle on
+#: them; there the columns are placed closer in v (:func:`column_density`). 1.5 shortens those edges most
+#: while the UVs' angle distortion stays within its limit (tighter values cost angle; the measures:
+#: docs/benchmarks.md, the face up close).
 V_STEP_LIMIT = 1.5
 
 

@@ -1,6 +1,6 @@
 """The UV map of the head's tube: a least-squares map of the boundary curves, and the UV islands.
 
-(issue 21) The tube is one island (v across, u up: :func:`uv_tube_map`, a map of the boundary curves,
+The tube is one island (v across, u up: :func:`uv_tube_map`, a map of the boundary curves,
 refined between them by :func:`uv_map_grid`, that keeps the cells' angles and texel size, with the seam's
 shear :func:`uv_shear`), the crown's dome and each cap a disc (:func:`uv_islands`). All of it is a function
 of the boundary curves alone, computed once per study (:meth:`~.pde_head.PDEHead.uv_layout`);
@@ -78,13 +78,11 @@ def uv_shear(curves: np.ndarray, curve_u: np.ndarray) -> np.ndarray:
     return phi
 
 
-#: Weight of the even-scale term against the conformal term in :func:`uv_tube_map` (mm-normalised). On
-#: CThead's mesh grid the conformal term alone keeps the angles (angle p95 2.8 deg) but lets the texel
-#: size follow the neck's and the face's shape (area stretch p99 / p1 6.2); the scale term alone keeps
-#: the texel size (2.9) but not the angles (13 deg). Issue 21 asks for both (<= 4 and <= 10 deg); 0.8
-#: gives 3.81 and 9.8 deg at the defaults (3.80 / 10.5 with the 4-sample fold blend of session 4; weight 1:
-#: 3.70 / 13.1 then, the fold guard straightening more rows). Those were measured with one triangle of each
-#: cell in the map's equations; with both (issue 21 at t = 15): CThead t = 15 3.86 / 9.6 deg, t = 10 3.82 / 8.7.
+#: Weight of the even-scale term against the conformal term in :func:`uv_tube_map` (mm-normalised). The
+#: conformal term alone keeps the angles but lets the texel size follow the neck's and the face's shape;
+#: the scale term alone keeps the texel size but not the angles. 0.8 keeps both the area stretch
+#: (p99 / p1) and the angle distortion (p95) within their limits at the defaults (the measures:
+#: docs/benchmarks.md, the face up close).
 UV_SCALE_WEIGHT = 0.8
 
 
@@ -150,8 +148,8 @@ def uv_tube_map(curves: np.ndarray, curve_u: np.ndarray, scale_weight: float = U
         s = np.abs((zu * np.conj(zv)).imag) / np.maximum(np.abs(zu) * np.abs(zv), 1e-12) ** 1.5
         return c0, cv, cu, wrap_v, zv, zu, s
     # Both triangles of every cell: the corner o (edges to pv and pu) and the opposite corner pvu (edges
-    # back to pu and pv). With o alone (before) the triangle (pv, pvu, pu) of each cell was in no equation:
-    # CThead's angle p95 at the defaults (t = 15) 11.4 -> 9.6 deg, t = 10 9.4 -> 8.7, GE 8.5 -> 8.3.
+    # back to pu and pv). With o alone the triangle (pv, pvu, pu) of each cell would be in no equation and
+    # its angles free to distort.
     corners = [corner(o, pv, pu, wrap), corner(pvu, pu, pv, -wrap)]
     area3 = (corners[0][5] * np.conj(corners[0][4])).imag                    # > 0: the frame's orientation
     floor = 0.2 * np.linalg.norm(np.roll(R, -1, axis=1) - R, axis=-1)
@@ -184,7 +182,7 @@ def uv_tube_map(curves: np.ndarray, curve_u: np.ndarray, scale_weight: float = U
         A = csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(count, unknowns))
         gauge = csr_matrix((np.ones(2), ([0, 1], [0, N])), shape=(2, unknowns))  # U = V = 0 at the first sample
         # the normal matrix is symmetric positive definite: no pivoting (SuperLU's symmetric mode) factors
-        # it in ~60 % of the CPU (CThead 0.41 -> 0.26 s for both solves), the map within 2e-10 mm of pivoting's
+        # it in less CPU time than pivoting, the map within 2e-10 mm of pivoting's
         x = splu((A.T @ A + gauge.T @ gauge).tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                  options={"SymmetricMode": True}).solve(A.T @ np.concatenate(rhs))
         U = x[:N].reshape(k, M)

@@ -242,10 +242,9 @@ def _fine_crop(q_coarse: np.ndarray, factors: Sequence[int], shape: Sequence[int
 #: :data:`FINE_BAND_MIN_VOXELS` (smaller ones solve the coarse head's box, :func:`_fine_crop`).
 FINE_BAND = False
 #: Grids of at least this many voxels run the full-resolution level in the band.  Smaller grids gain
-#: nothing from it (CThead, 7.4 M voxels: 1.6-1.7 s CPU for segment_head either way, the band's index
-#: building eats the saving) and keep the box solve, so their masks are unchanged (CThead, GE and the
-#: phantom are the golden cases of the selection and the visible-face score).  On the 512 x 512 x 300
-#: scan (78.6 M voxels) the solver takes 5.2-6.3 s CPU instead of 9.8-10.2 s (docs/benchmarks.md, issue 20).
+#: nothing from it (the band's index building eats the saving) and keep the box solve, so their masks are
+#: unchanged (the test data sets are the golden cases of the selection and the visible-face score).  On a
+#: 512 x 512 x 300 scan the band takes about half the solver's CPU time off (docs/benchmarks.md).
 FINE_BAND_MIN_VOXELS = 40_000_000
 #: Coarse blocks are undecided when their membership lies in (UNDECIDED_Q, 1 - UNDECIDED_Q) or when
 #: they touch the boundary of ``q > 0.5`` (either side, 26-neighbours); the band is those blocks grown
@@ -263,9 +262,8 @@ BAND_CHUNK_BLOCKS = 1024
 
 #: Also put in the band every block whose full-resolution intensities straddle the fine level's
 #: boundary level (c1 + c2) / 2 (eq. 18: where the data term changes sign), so thin features the coarse
-#: level smoothed away (nostrils, lips, ear rims) are solved at full resolution.  Measured against the
-#: box solve: CThead 670 -> 66 voxels differ (per-slice Jaccard min 0.970 -> 0.997), the 512 x 512 x 300
-#: scan 2,623 -> 1,110 (min 0.9923 -> 0.9931), the band 6.6 -> 7.3 M voxels.
+#: level smoothed away (nostrils, lips, ear rims) are solved at full resolution: the band's mask then
+#: differs from the box solve's in far fewer voxels, for a slightly larger band.
 FINE_BAND_STRADDLE = True
 
 

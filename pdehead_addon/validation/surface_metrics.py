@@ -72,9 +72,9 @@ def symmetric_surface_distance(verts_a: np.ndarray, faces_a: np.ndarray, verts_b
     return out
 
 
-# ----------------------------------------------------------------------------- the visible face (issue 21)
+# ----------------------------------------------------------------------------- the visible face
 
-#: The visible-face measure's settings (issue 21; shared with the face-from-skull benchmark, issue 23).
+#: The visible-face measure's settings (shared with the face-from-skull benchmark).
 FACE_BIN_MM = 1.0            # height of a bin (patient z)
 FACE_BIN_DEG = 1.0           # angle of a bin around the vertical axis through the mask's centroid
 FACE_DEPTH_MM = 3.0          # kept: within this of the outermost point of its bin
@@ -143,7 +143,7 @@ def _area_samples(vertices, triangles, density: float, rng) -> tuple[np.ndarray,
 
 def visible_face_distance(surface_vertices: np.ndarray, surface_faces: np.ndarray, mask_vertices: np.ndarray,
                           mask_faces: np.ndarray, centre_xy, density: float = 1.0, seed: int = 0) -> dict[str, Any]:
-    """How closely a surface follows the visible face of a head mask (issue 21's measure, in mm).
+    """How closely a surface follows the visible face of a head mask (in mm).
 
     Parameters
     ----------

@@ -1,6 +1,6 @@
 """How smooth a PDE head looks, in numbers: creases, folds, notches and terracing.
 
-These are the measures of the smooth-surface work (the product's issue 8), evaluated
+These are the measures of the surface's smoothness, evaluated
 on a ``(20 t + 1) x 360`` grid of :meth:`PDEHead.evaluate` by default:
 
 * **crease** - at every interior boundary curve ``u_k``, the angle between the
@@ -144,7 +144,7 @@ def _pole_frame(head, u_near: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def pole_ripple(head, radius_mm: float = POLE_RADIUS_MM, rings: int = 160, nv: int = 720) -> dict[str, float]:
-    """The star at the crown's pole, in numbers (issue 21).
+    """The star at the crown's pole, in numbers.
 
     On every ring ``X(u, .)`` of the dome whose mean distance from the pole is at most
     ``radius_mm``, the ring's radius about the pole in the pole's tangent plane,
@@ -311,7 +311,7 @@ def _face_corners(mesh):
 
 
 def uv_quality(mesh, middle: float = 0.8) -> dict[str, float]:
-    """How paintable a mesh's UVs are (issue 21): mirrored and empty faces, area stretch, angle distortion.
+    """How paintable a mesh's UVs are: mirrored and empty faces, area stretch, angle distortion.
 
     * ``mirrored``: faces whose UV polygon winds against their 3-D winding (negative UV area);
       ``zero_area``: faces with UV area <= 1e-12 (neither can be painted);

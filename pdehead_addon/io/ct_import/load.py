@@ -116,7 +116,7 @@ def load_ct(
     fmt = str(format).lower()
     if fmt in ("auto", "mesh") and isinstance(path, (str, os.PathLike)) \
             and os.fspath(path).lower().endswith((".stl", ".ply", ".obj")):
-        from ..mesh_input import load_skull_mesh  # a skull given as a surface mesh (issue 22)
+        from ..mesh_input import load_skull_mesh  # a skull given as a surface mesh
         return load_skull_mesh(path)
     fmt, first_slice, hu_said, axes = _checked_options(path, format, fmt, first_slice, orientation, units)
     # headerless stacks: no first_slice and no orientation = Auto (the documented default, defaults.FIRST_SLICE)
