@@ -242,7 +242,8 @@ def shipped_validation() -> dict:
 def _import_graph_module():
     """tests/test_import_graph.py: the module-level import graph (every import, function bodies included)."""
     import importlib.util
-    spec = importlib.util.spec_from_file_location("pdehead_import_graph", ROOT / "tests" / "test_import_graph.py")
+    spec = importlib.util.spec_from_file_location("pdehead_import_graph", Path(__file__).resolve().parents[1]
+                                                  / "tests" / "test_import_graph.py")
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module               # dataclasses look their module up while it loads
     spec.loader.exec_module(module)
@@ -262,7 +263,7 @@ def package_of(module: str) -> str:
 def package_cycles() -> list[dict]:
     """Strongly connected groups of packages: each a list of packages and the imports that close the loop."""
     graph_mod = _import_graph_module()
-    graph = graph_mod.build_graph(ROOT)
+    graph = graph_mod.build_graph(ROOT, SHIPPED)
     succ: dict[str, dict[str, list[str]]] = {package_of(m): {} for m in graph.files}
     for e in graph.project_edges():
         a, b = package_of(e.source), package_of(e.target)
@@ -294,20 +295,53 @@ def _is_container(value: ast.expr) -> bool:
     return False
 
 
+def _top_level_names(tree: ast.Module) -> dict[str, tuple[int, bool]]:
+    """Names a module binds at its top level: name -> (line, bound to a mutable container)."""
+    names = {}
+    for node in tree.body:
+        targets = node.targets if isinstance(node, ast.Assign) else [node.target] \
+            if isinstance(node, ast.AnnAssign) and node.value is not None else []
+        for t in targets:
+            if isinstance(t, ast.Name):
+                names[t.id] = (node.lineno, _is_container(node.value))
+    return names
+
+
+def _written_from_outside(trees: dict[Path, ast.AST]) -> dict[tuple[str, str], str]:
+    """``m.name = ...``, ``m.name[k] = ...`` and ``m.name.append(...)`` anywhere: (m's last dotted
+    component, name) -> the first place it happens."""
+    out = {}
+    for path, tree in trees.items():
+        for node in ast.walk(tree):
+            attr = None
+            if isinstance(node, ast.Attribute) and isinstance(node.ctx, (ast.Store, ast.Del)):
+                attr = node
+            elif isinstance(node, ast.Subscript) and isinstance(node.ctx, (ast.Store, ast.Del)) \
+                    and isinstance(node.value, ast.Attribute):
+                attr = node.value
+            elif isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) \
+                    and node.func.attr in MUTATORS and isinstance(node.func.value, ast.Attribute):
+                attr = node.func.value
+            if attr is None:
+                continue
+            base = attr.value
+            owner = base.id if isinstance(base, ast.Name) else base.attr if isinstance(base, ast.Attribute) else None
+            if owner not in (None, "self", "cls"):
+                out.setdefault((owner, attr.attr), f"{rel(path)}:{node.lineno}")
+    return out
+
+
 def module_mutable_state(folder: str = "operators") -> list[dict]:
-    """Module-level containers a module writes (item assignment or deletion, a mutating method) and names
-    written through ``global`` in a function."""
+    """Module-level state of ``folder``'s modules that is written after import: a module-level container
+    the module writes (item assignment or deletion, a mutating method), a name written through ``global``
+    in a function, and a module-level name another module (operators/ or scripts/) writes as
+    ``module.name = ...``, ``module.name[k] = ...`` or ``module.name.append(...)``."""
+    trees = {p: ast.parse(p.read_text(encoding="utf-8")) for p in python_files(folder, "scripts")}
+    outside = _written_from_outside(trees)
     out = []
     for path in python_files(folder):
-        tree = ast.parse(path.read_text(encoding="utf-8"))
-        containers = {}
-        for node in tree.body:
-            targets = node.targets if isinstance(node, ast.Assign) else [node.target] \
-                if isinstance(node, ast.AnnAssign) and node.value is not None else []
-            if targets and _is_container(node.value):
-                for t in targets:
-                    if isinstance(t, ast.Name):
-                        containers[t.id] = node.lineno
+        tree = trees[path]
+        top = _top_level_names(tree)
         written, globals_ = set(), {}
         for node in ast.walk(tree):
             if isinstance(node, ast.Global):
@@ -319,11 +353,16 @@ def module_mutable_state(folder: str = "operators") -> list[dict]:
             elif isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) \
                     and node.func.attr in MUTATORS and isinstance(node.func.value, ast.Name):
                 written.add(node.func.value.id)
-        for name, line in containers.items():
-            if name in written:
-                out.append({"where": f"{rel(path)}:{line}", "name": name, "kind": "module-level container written"})
+        found = {}
+        for name, (line, container) in top.items():
+            if container and name in written:
+                found[name] = {"where": f"{rel(path)}:{line}", "name": name, "kind": "module-level container written"}
+            elif (path.stem, name) in outside:
+                found[name] = {"where": f"{rel(path)}:{line}", "name": name,
+                               "kind": f"written from {outside[(path.stem, name)]}"}
         for name, line in globals_.items():
-            out.append({"where": f"{rel(path)}:{line}", "name": name, "kind": "global write"})
+            found.setdefault(name, {"where": f"{rel(path)}:{line}", "name": name, "kind": "global write"})
+        out.extend(found.values())
     return sorted(out, key=lambda i: i["where"])
 
 

@@ -3,8 +3,7 @@
 
 Examples::
 
-    python3 scripts/pdehead_batch.py run archive/*/ --out batch/ --skull            # a local cluster, one worker per
-    core
+    python3 scripts/pdehead_batch.py run archive/*/ --out batch/ --skull            # local cluster, a worker per core
     python3 scripts/pdehead_batch.py run @studies.txt --out batch/ --workers 8
     python3 scripts/pdehead_batch.py run @studies.txt --out batch/ --scheduler tcp://10.0.0.5:8786
     python3 scripts/pdehead_batch.py run a/ b/ --out batch/ --workers 0             # serial, no Dask

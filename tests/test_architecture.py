@@ -1,8 +1,12 @@
-"""Issue 25's architecture measures, held: ``scripts/check_architecture.py`` prints them, this test keeps
-them at their targets (no module over 700 lines and operators/ops.py over 600, no function over ruff's
-C901 complexity 20, no import of another module's private name, operators/ importing only the engine's
-public names, no repeated block of 6+ lines in the engine, no validation code in the extension zip) and
-checks that every public name of the engine resolves."""
+"""The architecture measures, held: ``scripts/check_architecture.py`` prints them, this test keeps each at
+its target or, where the code is not there yet, at today's value as a ratchet (nothing new may join the
+list; the list only shrinks). Targets: no module over 600 lines, no function over complexity 15, no
+private name or attribute of another module used, no package import cycle, no module-level mutable state
+in operators/, no setting declared twice, no "issue N" in the shipped code, a README of at most 250 lines,
+ruff clean with an empty per-file-ignores ratchet. When an item is fixed, take it out of its set below.
+
+Items are named without line numbers (a module's file stem, a function's name), so that unrelated edits
+and moves keep the ratchet; every public name of the engine must resolve."""
 from __future__ import annotations
 
 import sys
@@ -15,16 +19,117 @@ sys.path.insert(0, str(ROOT / "scripts"))
 import check_architecture as arch  # noqa: E402
 
 
+def _stem(where: str) -> str:
+    return Path(where.split(":")[0]).stem
+
+
+#: What each measure still lists today (target: empty). A new entry fails the test.
+ALLOWED = {
+    # modules over 600 lines, by file stem
+    "modules_over_limit": {"face_from_skull", "mask_cleanup", "slice_selection", "skull", "face", "input_checks",
+                           "chan_vese_pyramid", "discovery", "boundaries"},
+    # functions over complexity 15
+    "complex_functions": {"ct_texture_atlas", "render_objects_png", "apply_frame", "segment_skull",
+                          "loader_options", "find_landmarks"},
+    # (file stem, attribute) of another module's private attribute
+    "private_attribute_uses": {("face_live", "_cyl"), ("face_live", "_correction_weights"),
+                               ("face_live", "_limited"), ("face_live", "_patch_of"),
+                               ("face_live", "_cubic_spans"), ("face_live", "_surface"),
+                               ("face_live", "_coef_flat"), ("face_live", "_amplitudes"),
+                               ("face_pegs", "_in_rows")},
+    # (file stem, name) of module-level state written after import
+    "operators_mutable_state": {("animation", "_BUSY"), ("animation", "_APPLIED"), ("animation", "_HIDDEN"),
+                                ("compat", "_openvdb_cache"), ("face", "_BUSY"), ("face", "PREPARE_CALLS"),
+                                ("face", "_TABLES"), ("objects", "_UNPACKED_CHANGES"),
+                                ("progress", "PROGRESS_HOOK"), ("render", "VIEWS"), ("state", "_CACHE"),
+                                ("state", "AUDIENCE"), ("state", "last_exception"), ("state", "_SUSPEND"),
+                                ("study_handlers", "_BUSY"), ("study_live", "_COLOURS_PENDING"),
+                                ("vdb_files", "_SUPERSEDED"), ("vdb_files", "_WRITTEN")},
+    # settings on the study's PropertyGroup declared again on an operator
+    "settings_declared_twice": {
+        "align_curves", "alpha_mode", "approximation", "approximation_auto", "caps", "colour_preset",
+        "continuity", "ct_texture_budget", "density", "dome", "high_alpha", "low_alpha", "max_depth",
+        "max_tolerance_mm", "modes", "nu", "nv", "nw", "patches", "samples", "selection", "smoothing",
+        "smoothing_auto", "solid_skin", "solid_skin_depth", "source", "tolerance_mm", "u_range", "use_ct_grid",
+        "use_tolerance", "v_range", "voxel_auto", "voxel_size", "w_range"},
+    # files with "issue N" in comments or strings (all of them being changed by other work today)
+    "issue_references": {"__init__", "boundaries", "ct_texture", "curve_sampling", "envelope", "face_features",
+                         "face_from_skull", "face_live", "face_pegs", "face_profile", "forensic_study",
+                         "landmark_openings", "landmarks", "objects", "panel", "props", "slice_selection",
+                         "study_live", "study_steps", "surface_mesh"},
+    # the packages in import cycles (one strongly connected group today)
+    "package_cycles": {"pdehead_addon.curves", "pdehead_addon.io", "pdehead_addon.pde", "pdehead_addon.segment"},
+}
+#: How many "issue N" references there are today (target 0).
+ISSUE_REFERENCES_TODAY = 48
+
+KEYS = {
+    "modules_over_limit": lambda i: Path(i["module"]).stem,
+    "complex_functions": lambda i: i["function"],
+    "private_attribute_uses": lambda i: (_stem(i["where"]), i["name"]),
+    "operators_mutable_state": lambda i: (_stem(i["where"]), i["name"]),
+    "settings_declared_twice": lambda i: i["setting"],
+    "issue_references": lambda i: _stem(i["where"]),
+}
+
+
 @pytest.fixture(scope="module")
 def measures():
     return arch.measures()
 
 
-@pytest.mark.parametrize("name", ["modules_over_limit", "complex_functions", "complex_functions_scripts",
-                                  "private_imports", "private_imports_scripts",
-                                  "operators_internal_engine_imports", "duplicate_blocks"])
+@pytest.mark.parametrize("name", ["complex_functions_scripts", "private_imports", "private_imports_scripts",
+                                  "operators_internal_engine_imports", "duplicate_blocks", "ruff_findings"])
 def test_measure_is_at_its_target(measures, name):
     assert measures[name] == [], f"{name}: {measures[name]}"
+
+
+@pytest.mark.parametrize("name", sorted(KEYS))
+def test_measure_lists_nothing_new(measures, name):
+    """The ratchet: today's entries may go, none may come (target: the list empty)."""
+    found = {KEYS[name](i) for i in measures[name]}
+    new = found - ALLOWED[name]
+    assert not new, f"{name}: new entries {sorted(new)} (the rest: {measures[name]})"
+
+
+def test_no_package_joins_an_import_cycle(measures):
+    in_cycles = {p for group in measures["package_cycles"] for p in group["packages"]}
+    assert in_cycles <= ALLOWED["package_cycles"], measures["package_cycles"]
+    assert len(measures["package_cycles"]) <= 1
+
+
+def test_issue_references_only_shrink(measures):
+    assert len(measures["issue_references"]) <= ISSUE_REFERENCES_TODAY, measures["issue_references"]
+
+
+def test_the_readme_stays_short(measures):
+    assert measures["readme_lines"] <= arch.MAX_README_LINES
+
+
+def test_the_ruff_ratchet_only_shrinks(measures):
+    """pyproject.toml's per-file-ignores list only the files that had findings when the lint came in."""
+    today = {
+        "operators/__init__.py", "operators/animation.py", "operators/base.py", "operators/ct_texture.py",
+        "operators/detail_map.py", "operators/face.py", "operators/forensic.py", "operators/forensic_export.py",
+        "operators/forensic_objects.py", "operators/forensic_props.py", "operators/forensic_skull.py",
+        "operators/forensic_study.py", "operators/import_options.py", "operators/objects.py", "operators/ops.py",
+        "operators/props.py", "operators/render.py", "operators/scene.py", "operators/state.py",
+        "operators/study_entity.py", "operators/study_steps.py", "operators/vdb_files.py", "operators/vdb_grids.py",
+        "operators/volume_material.py", "pdehead_addon/curves/__init__.py", "pdehead_addon/curves/boundaries.py",
+        "pdehead_addon/curves/envelope.py", "pdehead_addon/curves/slice_outlines.py",
+        "pdehead_addon/curves/slice_selection.py", "pdehead_addon/forensic/__init__.py",
+        "pdehead_addon/forensic/auto_landmarks.py", "pdehead_addon/forensic/bone_levels.py",
+        "pdehead_addon/forensic/depth_on_ct.py", "pdehead_addon/forensic/depth_table.py",
+        "pdehead_addon/forensic/face_features.py", "pdehead_addon/forensic/face_from_skull.py",
+        "pdehead_addon/forensic/face_live.py", "pdehead_addon/forensic/face_pegs.py",
+        "pdehead_addon/forensic/face_profile.py", "pdehead_addon/forensic/landmark_bilateral.py",
+        "pdehead_addon/forensic/landmark_openings.py", "pdehead_addon/forensic/landmarks.py",
+        "pdehead_addon/forensic/skull.py", "pdehead_addon/forensic/tissue_depth.py", "pdehead_addon/io/export.py",
+        "pdehead_addon/pde/surface_mesh.py", "scripts/_common.py", "scripts/bench/bench_face.py",
+        "scripts/pdehead.py",
+    }
+    extra = set(measures["ruff_ratchet_files"]) - today
+    assert not extra, f"files newly exempted from ruff: {sorted(extra)}"
 
 
 def test_the_zip_carries_no_validation_code(measures):
@@ -56,3 +161,40 @@ def test_the_check_sees_a_violation(tmp_path, monkeypatch):
     monkeypatch.setattr(arch, "ROOT", tmp_path)
     found = arch.internal_engine_imports()
     assert [f["module"] for f in found] == ["pdehead_addon.forensic.landmarks"]
+
+
+def test_the_new_measures_see_their_violations(tmp_path, monkeypatch):
+    """Each new measure reports a planted case and leaves the legitimate twin alone."""
+    engine, ops, scripts = tmp_path / "pdehead_addon", tmp_path / "operators", tmp_path / "scripts"
+    for d in (engine / "curves", engine / "pde", ops, scripts):
+        d.mkdir(parents=True)
+    for f in (engine / "__init__.py", engine / "curves" / "__init__.py", engine / "pde" / "__init__.py",
+              ops / "__init__.py"):
+        f.write_text("")
+    # a private attribute of pde's class used by curves; the class's own use of it is fine
+    (engine / "pde" / "head.py").write_text(
+        "class Head:\n    def __init__(self):\n        self._grid = 1\n\n    def grid(self):\n"
+        "        return self._grid\n")
+    # curves imports pde at the top and pde imports curves inside a function: one package cycle
+    (engine / "curves" / "ring.py").write_text(
+        "from ..pde.head import Head\n\n\ndef points(h: Head):\n    return h._grid  # issue 7\n")
+    (engine / "pde" / "fit.py").write_text("def fit():\n    from ..curves import ring\n    return ring\n")
+    # operators: a written module-level dict, a constant dict, a global, one written from a script
+    (ops / "state.py").write_text(
+        "CACHE = {}\nTABLE = {'a': 1}\nhook = None\nn = 0\n\n\ndef put(k, v):\n    CACHE[k] = v\n"
+        "    return TABLE['a']\n\n\ndef count():\n    global n\n    n += 1\n")
+    (scripts / "cli.py").write_text("from operators import state\nstate.hook = print\n")
+    # a setting on the property group and again on an operator; one only on the operator
+    (ops / "props.py").write_text(
+        "import bpy\nfrom bpy.props import IntProperty\n\n\nclass Settings(bpy.types.PropertyGroup):\n"
+        "    patches: IntProperty(name='t')\n\n\nclass OP_run(bpy.types.Operator):\n"
+        "    patches: IntProperty(name='t')\n    filepath: IntProperty(name='f')\n")
+    monkeypatch.setattr(arch, "ROOT", tmp_path)
+    uses = arch.private_attribute_uses()
+    assert [(_stem(u["where"]), u["name"]) for u in uses] == [("ring", "_grid")]
+    cycles = arch.package_cycles()
+    assert [c["packages"] for c in cycles] == [["pdehead_addon.curves", "pdehead_addon.pde"]]
+    state = {(i["name"], i["kind"].split(" ")[0]) for i in arch.module_mutable_state()}
+    assert state == {("CACHE", "module-level"), ("n", "global"), ("hook", "written")}
+    assert [s["setting"] for s in arch.settings_declared_twice()] == ["patches"]
+    assert [(_stem(i["where"]), i["text"]) for i in arch.issue_references(("pdehead_addon",))] == [("ring", "issue 7")]

@@ -25,8 +25,8 @@ Method
    positive: the skin lies outside the PDE surface). A texel with no such crossing within ``max_mm`` gets 0.
    Where the surface faces up along the slice axis the height fades to 0 (``UP_FADE``): the slices cut the
    skin there at a glancing angle and their steps would band the crown.
-4. **Gutters.** The map is softened by a Gaussian of ``SOFTEN_TEXELS`` over the islands (normalised), and the texels
-just outside the islands take the value of the nearest filled texel
+4. **Gutters.** The map is softened by a Gaussian of ``SOFTEN_TEXELS`` over the islands (normalised), and the
+   texels just outside the islands take the value of the nearest filled texel
    (``PAD_TEXELS``), so linear filtering at an island's edge and the v = 0 seam does not blend in zeros.
 
 All of it is vectorised (the rasteriser loops over window offsets, the sampler over chunks of texels).

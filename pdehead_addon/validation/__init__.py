@@ -5,9 +5,9 @@ Modules:
 
 - :mod:`.dicom_export`     Write CT volumes as DICOM CT series (one file per slice) with pydicom
 - :mod:`.metrics`          Segmentation accuracy: the Jaccard measure of the paper (section 6) and an independent
-reference
+  reference
 - :mod:`.surface_metrics`  Distances between two surfaces given as vertices and faces (fidelity of the PDE head,
-section 5.2)
+  section 5.2)
 - :mod:`.surface_quality`  How smooth a PDE head looks, in numbers: creases, folds, notches and terracing
 """
 from .dicom_export import write_dicom_series, write_phantom_series

@@ -7,8 +7,7 @@ Regenerate the committed tables (full run, median of 5, several minutes on 2 cor
 
 Other uses::
 
-    python3 scripts/bench/bench.py --quick                 # < 1 min: phantom + CThead, fewer repeats, slow peers on a
-    subset
+    python3 scripts/bench/bench.py --quick                 # < 1 min: phantom + CThead, fewer repeats, slow peers subset
     python3 scripts/bench/bench.py --repeats 1 --datasets cthead --stages seg,surface --out /tmp/b.json --md /tmp/b.md
     PDEHEAD_DATA=/path/to/data python3 scripts/bench/bench.py   # data folder (default ../shared/data beside the repo)
 

@@ -85,8 +85,7 @@ def test_cli_wrong_raw_shape_exit_2_naming_raw_shape(tmp_path):
     _before_segmentation(result)
 
 
-# ------------------------------------------------------------------ 3. every choice the CLI offers, through the
-# operators
+# ---------------------------------------------------- 3. every choice the CLI offers, through the operators
 CHOICES_SCRIPT = r"""
 import json, sys
 sys.path.insert(0, sys.argv[1])
