@@ -7,9 +7,10 @@ import shutil
 import sys
 from pathlib import Path
 
-import blender_inspect  # tests/blender/blender_inspect.py
 import numpy as np
 import pytest
+
+import blender_inspect  # tests/blender/blender_inspect.py
 
 DATA = Path(__file__).resolve().parent / "data"
 

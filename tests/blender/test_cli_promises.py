@@ -11,6 +11,7 @@ import subprocess
 import sys
 
 import numpy as np
+
 from test_cli import ROOT, run_cli
 
 sys.path.insert(0, str(ROOT / "tests"))

@@ -3,9 +3,10 @@ from __future__ import annotations
 
 import math
 
-import blender_inspect  # tests/blender/blender_inspect.py
 import numpy as np
 import pytest
+
+import blender_inspect  # tests/blender/blender_inspect.py
 
 
 def _inside(cutter, points_world) -> np.ndarray:

@@ -282,6 +282,7 @@ def test_a_cancelled_run_puts_the_old_map_back(ext, reopened):
     """Run Pipeline on the study rebuilds the map in the surface step; cancelled in a later step, the
     study's surface and its map are those of before (the image re-packed in place, not lost)."""
     import bpy
+
     from test_live import _cancel_in, _progress
     detail, state, _study, coll = reopened
     s = coll.pdehead
@@ -331,6 +332,7 @@ def test_the_panel_offers_build_ct_detail_when_on_without_a_current_map(ext, pde
     from types import SimpleNamespace
 
     import bpy
+
     from panel_recorder import RecordingLayout
     detail, state, study_cls = _modules(pdehead_ext)
     panel = sys.modules[f"{pdehead_ext.__name__}.operators.panel"]
@@ -393,9 +395,8 @@ def test_cli_detail_flag(tmp_path):
     print resolution, closed, and the summary's timings hold the detail step."""
     import json
 
-    from test_cli import run_cli
-
     from file_readers import read_stl
+    from test_cli import run_cli
     bad = run_cli("--phantom", "--no-volume", "--detail", -1, tmp_path=tmp_path)
     assert bad.returncode == 2 and "--detail" in bad.stderr
     out, summary = tmp_path / "print", tmp_path / "summary.json"

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_cli import run_cli
 
 from file_readers import read_stl
+from test_cli import run_cli
 
 SMALL = ("--no-volume", "--patches", 4, "--nu", 40, "--nv", 80)
 

@@ -277,6 +277,7 @@ def _panel_labels(pdehead_ext) -> list:
     from types import SimpleNamespace
 
     import bpy
+
     from panel_recorder import RecordingLayout
     forensic = sys.modules[f"{pdehead_ext.__name__}.operators.forensic"]
     log = []
@@ -404,6 +405,7 @@ def test_sex_shows_for_a_table_with_a_sex_column_and_picks_its_rows(pdehead_ext,
     from types import SimpleNamespace
 
     import bpy
+
     from panel_recorder import RecordingLayout
     face, fs, state = _mods(pdehead_ext)
     forensic = sys.modules[f"{pdehead_ext.__name__}.operators.forensic"]

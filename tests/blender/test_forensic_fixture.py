@@ -19,9 +19,10 @@ import shutil
 import sys
 from pathlib import Path
 
-import make_forensic_fixture as maker  # tests/blender/make_forensic_fixture.py
 import numpy as np
 import pytest
+
+import make_forensic_fixture as maker  # tests/blender/make_forensic_fixture.py
 
 DATA = Path(__file__).resolve().parent / "data"
 BLEND = DATA / "forensic_0.1.0.blend"

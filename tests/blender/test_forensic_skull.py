@@ -6,9 +6,9 @@ import json
 
 import numpy as np
 import pytest
-from test_cli import run_cli
 
 from file_readers import read_stl
+from test_cli import run_cli
 
 
 def _body(path):
@@ -96,6 +96,7 @@ def test_bone_level_field_and_export_builds_or_refuses(pdehead_ext, tmp_path, ph
     from types import SimpleNamespace
 
     import bpy
+
     from panel_recorder import RecordingLayout
 
     root, level = phantom_dicoms

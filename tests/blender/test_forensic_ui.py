@@ -6,10 +6,10 @@ import json
 
 import numpy as np
 import pytest
-from test_cli import run_cli
 
 from file_readers import read_stl
 from pdehead_addon.io.phantom import GEOMETRY
+from test_cli import run_cli
 
 
 def _check_export(folder, n_skin_vertices=None, handles=True):

@@ -2,10 +2,10 @@
 from __future__ import annotations
 
 import numpy as np
-from test_cli import run_cli
 
 from pdehead_addon.forensic.landmarks import STANDARD_LANDMARKS
 from pdehead_addon.io.phantom import phantom_bone_landmarks
+from test_cli import run_cli
 
 
 def test_find_landmarks_operator_on_the_phantom(pdehead_ext):

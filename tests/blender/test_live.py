@@ -9,9 +9,10 @@ from __future__ import annotations
 
 import sys
 
-import blender_inspect  # tests/blender/blender_inspect.py
 import numpy as np
 import pytest
+
+import blender_inspect  # tests/blender/blender_inspect.py
 
 
 @pytest.fixture()

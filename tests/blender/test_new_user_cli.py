@@ -12,6 +12,7 @@ import sys
 import time
 
 import numpy as np
+
 from test_cli import ROOT, run_cli
 from test_cli_promises import LIGHT, assert_one_line_error
 

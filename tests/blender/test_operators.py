@@ -13,9 +13,10 @@ import sys
 from pathlib import Path
 from types import SimpleNamespace
 
-import blender_inspect  # tests/blender/blender_inspect.py
 import numpy as np
 import pytest
+
+import blender_inspect  # tests/blender/blender_inspect.py
 from panel_recorder import RecordingLayout as _Layout  # noqa: E402
 
 

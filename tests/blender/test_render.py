@@ -8,9 +8,10 @@ from __future__ import annotations
 import os
 import shutil
 
-import blender_inspect  # tests/blender/blender_inspect.py
 import numpy as np
 import pytest
+
+import blender_inspect  # tests/blender/blender_inspect.py
 
 MM = 0.001
 

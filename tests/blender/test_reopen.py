@@ -24,9 +24,10 @@ import subprocess
 import sys
 from pathlib import Path
 
-import blender_inspect  # tests/blender/blender_inspect.py
 import numpy as np
 import pytest
+
+import blender_inspect  # tests/blender/blender_inspect.py
 import vdb_read  # tests/blender/vdb_read.py
 
 ROOT = Path(__file__).resolve().parents[2]

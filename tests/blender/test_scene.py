@@ -8,8 +8,9 @@ from __future__ import annotations
 import os
 import shutil
 
-import blender_inspect  # tests/blender/blender_inspect.py
 import numpy as np
+
+import blender_inspect  # tests/blender/blender_inspect.py
 
 
 def _f12(scene, path):

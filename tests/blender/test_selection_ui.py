@@ -7,6 +7,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+
 from panel_recorder import RecordingLayout
 from test_operators import open_blend
 

@@ -12,9 +12,10 @@ import math
 from pathlib import Path
 from types import SimpleNamespace
 
-import blender_inspect  # tests/blender/blender_inspect.py
 import numpy as np
 import pytest
+
+import blender_inspect  # tests/blender/blender_inspect.py
 from panel_recorder import RecordingLayout as _Layout  # noqa: E402
 
 ALL_OPERATORS = ("segment", "extract_boundaries", "reconstruct_surface", "build_solid", "build_volume",

@@ -14,11 +14,11 @@ import shutil
 from pathlib import Path
 from types import SimpleNamespace
 
-import blender_inspect  # tests/blender/blender_inspect.py
 import numpy as np
 import pytest
-import vdb_read  # tests/blender/vdb_read.py
 
+import blender_inspect  # tests/blender/blender_inspect.py
+import vdb_read  # tests/blender/vdb_read.py
 from pdehead_addon import OUTSIDE_W, defaults as D
 from pdehead_addon.core.ct_volume import HEAD_MARGIN_MM, head_mask_on_grid
 

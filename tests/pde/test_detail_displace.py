@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_ct_detail_map import R, _sphere_head, sphere_mask  # noqa: E402  (tests/pde on sys.path: rootdir-relative imports)
 
 from pdehead_addon import PDEError, ct_detail_map, detail_surface, print_resolution
 from pdehead_addon.pde import detail_displace as DDX, detail_map as DM
+from test_ct_detail_map import R, _sphere_head, sphere_mask  # noqa: E402  (tests/pde on sys.path: rootdir-relative imports)
 
 
 @pytest.fixture(scope="module")
