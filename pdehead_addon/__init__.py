@@ -56,7 +56,8 @@ from .io.export import export_mesh
 from .io.input_checks import HeadSizeWarning
 from .io.phantom import Phantom, make_phantom
 from .io.safe_io import WriteError, check_size, checked_output, copy_checked, disk_full
-from .io.storage import dumps_boundaries, load_boundaries, load_head, loads_boundaries, loads_head, save_boundaries
+from .io.storage import dumps_boundaries, load_boundaries, loads_boundaries, save_boundaries
+from .pde.head_files import load_head, loads_head
 from .pde.pde_head import PDEHead
 from .pde.pde_smoothing import smoothing_bounds
 from .pde.pde_solid import OUTSIDE_W, WField, alpha_from_w, solid_mesh, w_field

@@ -57,8 +57,9 @@ ALLOWED = {
                          "face_from_skull", "face_live", "face_pegs", "face_profile", "forensic_study",
                          "landmark_openings", "landmarks", "objects", "panel", "props", "slice_selection",
                          "study_live", "study_steps", "surface_mesh"},
-    # the packages in import cycles (one strongly connected group today)
-    "package_cycles": {"pdehead_addon.curves", "pdehead_addon.io", "pdehead_addon.pde", "pdehead_addon.segment"},
+    # the packages in import cycles (one strongly connected group today: curves imports the PDE solver to
+    # score its slice choices and pde_surface imports the curves' alignment)
+    "package_cycles": {"pdehead_addon.curves", "pdehead_addon.pde"},
 }
 #: How many "issue N" references there are today (target 0).
 ISSUE_REFERENCES_TODAY = 48

@@ -1,7 +1,7 @@
 """Compact storage of the PDE boundary conditions (paper section 5.2).
 
 Instead of a surface mesh, only the 3t+1 boundary curves (and the solver
-settings) are stored; the head is re-solved on load. The format (``.pdeh``,
+settings) are stored; the head is re-solved on load (:mod:`pdehead_addon.pde.head_files`). The format (``.pdeh``,
 version 1) is described in ``docs/boundary_format.md``: a small JSON header
 and a zlib-compressed payload holding every curve as coordinates quantised to
 ``quantum_mm`` (0.01 mm) relative to a per-curve origin, second-order
@@ -21,8 +21,8 @@ from typing import Any
 import numpy as np
 
 from ..core.boundary_set import BoundarySet, knots_from_heights
-from ..core.errors import BoundaryError, PDEError, StorageError
-from ..pde.pde_surface import DEFAULT_CONTINUITY
+from ..core.errors import BoundaryError, StorageError
+from ..defaults import CONTINUITY
 
 MAGIC = b"PDEHBND\x00"
 VERSION = 1
@@ -74,19 +74,14 @@ def _unzigzag(z: np.ndarray) -> np.ndarray:
 
 
 def _split(obj) -> tuple[BoundarySet, dict | None]:
-    from ..pde.pde_head import PDEHead
-    if isinstance(obj, PDEHead):
-        settings = {"smoothing": [float(a) for a in obj.smoothing], "modes": int(obj.modes),
-                    "smoothing_is_default": bool(getattr(obj, "smoothing_is_default", False)),
-                    "continuity": obj.continuity, "remainder": bool(getattr(obj, "remainder", True))}
-        if obj.continuity == "c2":
-            settings.update(approximation_mm=float(obj.approximation_mm), dome=obj.vertex is not None)
-        return obj.bset, settings
+    # a solved head says what it stores (PDEHead.storage_settings): the file format needs no solver
+    if callable(getattr(obj, "storage_settings", None)) and isinstance(getattr(obj, "bset", None), BoundarySet):
+        return obj.bset, obj.storage_settings()
     if isinstance(obj, BoundarySet):
         settings = obj.meta.get("pde_settings")
         # a set saved from now on says which surface it was made for (older files: the paper's)
         settings = dict(settings) if isinstance(settings, dict) else {"smoothing_is_default": True}
-        settings.setdefault("continuity", DEFAULT_CONTINUITY)
+        settings.setdefault("continuity", CONTINUITY.default)
         return obj, settings
     raise StorageError(f"can only store a BoundarySet or a PDEHead, got {type(obj).__name__}")
 
@@ -277,30 +272,3 @@ def load_boundaries(path: str | os.PathLike) -> BoundarySet:
     except OSError as exc:
         raise StorageError(f"{name}: cannot read ({exc.strerror or exc})") from None
     return loads_boundaries(data, name)
-
-
-def head_from_boundaries(bset: BoundarySet, name: str = "<bytes>"):
-    """Solve a loaded BoundarySet with its stored settings (defaults when none are stored)."""
-    from ..pde.pde_surface import solve_pde
-    settings = bset.meta.get("pde_settings") or {}
-    smoothing = None if settings.get("smoothing_is_default", True) else settings.get("smoothing")
-    # files written before the C2 surface existed carry no continuity: they were the paper's patches
-    continuity = settings.get("continuity", "paper")
-    extra = {}
-    if continuity == "c2":
-        extra = dict(approximation_mm=settings.get("approximation_mm"), dome=bool(settings.get("dome", True)))
-    try:
-        return solve_pde(bset, smoothing=smoothing, modes=settings.get("modes"), continuity=continuity,
-                         remainder=bool(settings.get("remainder", True)), **extra)
-    except PDEError as exc:
-        raise StorageError(f"{name}: stored settings cannot be solved ({exc})") from None
-
-
-def loads_head(data: bytes, name: str = "<bytes>"):
-    """Decode bytes and solve the PDE head with the stored settings."""
-    return head_from_boundaries(loads_boundaries(data, name), name)
-
-
-def load_head(path: str | os.PathLike):
-    """Read a boundary file and return the solved :class:`PDEHead` (stored settings, else defaults)."""
-    return head_from_boundaries(load_boundaries(path), os.fspath(path))

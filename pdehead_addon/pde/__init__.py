@@ -3,6 +3,7 @@ the solid with its w-field and eq. 24 opacity.
 
 Modules:
 
+- :mod:`.head_files`       A PDE head from a boundary file: the stored curves solved with the stored settings
 - :mod:`.pde_basis`        The per-harmonic function space of the Bloor-Wilson PDE (paper eq. 1, 7-10) and its numerics
 - :mod:`.pde_head`         The solved PDE head (:class:`PDEHead`): X(u, v, w) evaluated as points, grids, meshes and UVs
 - :mod:`.pde_smoothing`    The smoothing parameter a of the paper's PDE patches (eq. 1): how large it may be, per patch

@@ -132,6 +132,17 @@ class PDEHead:
         self.orientation = self._measure_orientation()
         self._deviation = None
 
+    def storage_settings(self) -> dict:
+        """The solver settings a boundary file stores beside the curves (:func:`.head_files.load_head`
+        solves the curves with them again): smoothing, modes, continuity and, for the C2 surface, the
+        approximation length and whether the crown is a dome."""
+        settings = {"smoothing": [float(a) for a in self.smoothing], "modes": int(self.modes),
+                    "smoothing_is_default": bool(getattr(self, "smoothing_is_default", False)),
+                    "continuity": self.continuity, "remainder": bool(getattr(self, "remainder", True))}
+        if self.continuity == "c2":
+            settings.update(approximation_mm=float(self.approximation_mm), dome=self.vertex is not None)
+        return settings
+
     # -- basic properties
     @property
     def lebesgue(self) -> np.ndarray:

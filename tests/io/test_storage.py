@@ -13,11 +13,10 @@ from pdehead_addon.io.storage import (
     QUANTUM_MM,
     dumps_boundaries,
     load_boundaries,
-    load_head,
     loads_boundaries,
-    loads_head,
     save_boundaries,
 )
+from pdehead_addon.pde.head_files import load_head, loads_head
 from pdehead_addon.pde.pde_surface import solve_pde
 
 
