@@ -857,3 +857,14 @@ def test_canonical_flip_in_place_equals_the_copy():
     scratch = base.copy()
     out = to_canonical(scratch, [eye[1], eye[2], eye[0]], (1.0, 2.0, 0.5), np.zeros(3), in_place=True)[0]
     assert out is not scratch and np.array_equal(scratch, base) and out.shape == (4, 5, 6)
+
+
+def test_slice_positions_spanning_no_scan_are_refused_with_their_extent():
+    """Corrupt positions (a slice a kilometre away) give a clear error with the positions' extent in mm,
+    before any grid is allocated."""
+    from pdehead_addon.io.ct_import.geometry import resample_slices
+    stack = np.zeros((3, 4, 4), np.float32)
+    positions = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, 1e9]])
+    with pytest.raises(CTImportError, match=r"positions span \[3\.0, 3\.0, 1000000000\.0\] mm"):
+        resample_slices(stack, positions, np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), 1.0, 1.0,
+                        np.diff(positions[:, 2]), (1.0, 1.0, 1.0), -1000.0, label="corrupt.dcm")
