@@ -99,11 +99,12 @@ def run(repeats: int, ge: bool) -> dict:
         pr_s = time.perf_counter() - t0
         window = DDX.surface_window(head)
         row: dict = {"t": t, "print": {"nu": nu, "nv": nv, "seconds": pr_s,
-                                       "chord_face": DDX.chord_error(head, nu, nv, window, rows=rows),
-                                       "chord_all": DDX.chord_error(head, nu, nv, rows=rows),
                                        "viewport_chord_face": DDX.chord_error(head, D.NU.default, D.NV.default,
                                                                               window)}}
-        flat = DDX.split_quads(head, head.surface(nu, nv, caps=True, rows=rows), nu, nv, rows)  # as the export
+        with DDX.print_columns(head, window):             # the print's columns (denser over the face)
+            row["print"]["chord_face"] = DDX.chord_error(head, nu, nv, window, rows=rows)
+            row["print"]["chord_all"] = DDX.chord_error(head, nu, nv, rows=rows)
+        flat = E.print_mesh(head)                         # as the export writes it (strength 0)
         row["print"]["triangles"] = int(2 * len(flat.quads) + len(flat.triangles))
         row["print"]["watertight"] = bool(flat.is_watertight())
         if name == "cthead":
