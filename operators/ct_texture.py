@@ -28,7 +28,9 @@ def box_faces(mesh, ranges) -> tuple[np.ndarray, np.ndarray]:
         on = np.abs(params[:, axis] - value) <= tol * max(1.0, abs(value))
         all_on = np.logical_and.reduceat(on, starts) if len(starts) else np.zeros(0, bool)
         family = np.where((family < 0) & all_on, f, family)
-    return params, family
+    # the faces that close an inner shell (w0 > 0) to the crown's pole vertex lie on no box face: the top u end
+    # is that cone (rows w, columns v), so they take its tile instead of a zero-area UV
+    return params, np.where(family < 0, 2, family)
 
 
 def _surface_grid(head, us: np.ndarray, vs: np.ndarray) -> np.ndarray:
@@ -220,18 +222,50 @@ def ct_texture_atlas(head, mesh, ct, window, ranges, size: int | None = None, pa
             spine_u = head.spine(us)[:, None, :]
             values.append(sample_ct(ct, (spine_u + shell_w(k) * (surface - spine_u)).reshape(-1, 3)))
     offsets, height, width = _pack_tiles(shapes, None if size is None else 3 * int(size))   # fixed: 3 a row
+    corner_uv, flipped = _tile_corner_uv(mesh, params, family, axes, offsets, spans, width, height, pad, ranges)
     atlas = np.ones((height, width, 4), np.float32)
     for k, raw in enumerate(values):
         (r0, c0), (nr, nc) = offsets[k], shapes[k]
-        atlas[r0:r0 + nr, c0:c0 + nc, :3] = apply_window(raw, window).reshape(nr, nc)[..., None]
+        tile = apply_window(raw, window).reshape(nr, nc)
+        atlas[r0:r0 + nr, c0:c0 + nc, :3] = (tile[:, ::-1] if flipped[k] else tile)[..., None]
+    return atlas, corner_uv
+
+
+def _tile_corner_uv(mesh, params, family, axes, offsets, spans, width, height, pad, ranges):
+    """Per corner its UV in the atlas's tiles, and per tile whether its columns run backwards.
+
+    A box face and its opposite (the two u ends, the two v cuts) are wound opposite ways over the same
+    (row, column) parameters, so one of them would be mirrored in UV space: that tile's columns are
+    reversed (its texels too, by the caller), so no face of the layer is mirrored (issue 41: painting
+    and UV-less textures use the active layer)."""
+    (u0, u1), (v0, v1), (w0, w1) = ranges
+    extent = np.array([u1 - u0, v1 - v0, w1 - w0])
     lo = np.array([u0, v0, w0])
     norm = (params - lo) / np.where(extent > 0, extent, 1.0)
     starts, totals = mesh.loop_starts_and_totals()
     corner_family = np.repeat(family, totals)
+    nxt = np.arange(len(params)) + 1
+    nxt[starts + totals - 1] = starts
     corner_uv = np.zeros((len(params), 2))
+    flipped = []
     for k, (row_axis, col_axis) in enumerate(axes):
         sel = corner_family == k
+        col, row = norm[:, col_axis], norm[:, row_axis]
+        # the tile's faces' signed area in (column, row): negative for a face wound against the tile
+        cross = np.where(sel, col * row[nxt] - col[nxt] * row, 0.0)
+        flip = bool(np.add.reduceat(cross, starts).sum() < 0.0) if len(starts) else False
+        flipped.append(flip)
         (r0, c0), (sr, sc) = offsets[k], spans[k]
-        corner_uv[sel, 0] = (c0 + pad + norm[sel, col_axis] * sc) / width
-        corner_uv[sel, 1] = (r0 + pad + norm[sel, row_axis] * sr) / height
-    return atlas, corner_uv
+        corner_uv[sel, 0] = (c0 + pad + ((1.0 - col[sel]) if flip else col[sel]) * sc) / width
+        corner_uv[sel, 1] = (r0 + pad + row[sel] * sr) / height
+    return corner_uv, flipped
+
+
+def box_face_uv(mesh, ranges, faces=None, size: int = 64, pad: int = 2) -> np.ndarray:
+    """The layout of :func:`ct_texture_atlas` without its image (a tile of ``size`` pixels per box face):
+    the solid's clean UV layer when it has no CT texture. Per corner its UV."""
+    params, family = box_faces(mesh, ranges) if faces is None else faces
+    axes = [(0, 1), (0, 1), (2, 1), (2, 1)] + ([(2, 0), (2, 0)] if bool(np.any(family >= 4)) else [])
+    spans = [(int(size) - 2 * pad, int(size) - 2 * pad)] * len(axes)
+    offsets, height, width = _pack_tiles([(r + 2 * pad, c + 2 * pad) for r, c in spans], 3 * int(size))
+    return _tile_corner_uv(mesh, params, family, axes, offsets, spans, width, height, pad, ranges)[0]

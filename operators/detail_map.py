@@ -339,15 +339,12 @@ def detail_height(study):
 
 
 def print_skin(study):
-    """The study's skin for Export for Printing: the PDE surface meshed at print resolution
-    (:func:`pdehead_addon.print_resolution`: chord error within 0.05 mm over the face, at most 2 M
-    triangles, rows denser over the face), displaced by its CT detail at the study's strength (:func:`pdehead_addon.detail_surface`)."""
-    from ..pdehead_addon import detail_surface, print_resolution
+    """The study's skin for Export for Printing: the PDE surface meshed at print resolution, displaced by its
+    CT detail at the study's strength (:func:`pdehead_addon.print_mesh`, the face's path too)."""
+    from ..pdehead_addon import print_mesh
 
-    head = study.head
     height, strength = detail_height(study)
-    rows, nv = print_resolution(head)
-    return detail_surface(head, height, strength, len(rows), nv, caps=True, split=True, rows=rows)
+    return print_mesh(study.head, height, strength)
 
 
 def build_detail_map(obj, head, seg, resolution: int, strength: float, enabled: bool = True) -> dict:

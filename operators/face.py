@@ -113,6 +113,16 @@ def _fill_gone(model, raw: np.ndarray) -> np.ndarray:
     return tips
 
 
+def print_face(head):
+    """The face's closed mesh for Export for Printing: its PDE surface at print resolution
+    (:func:`pdehead_addon.print_mesh`, the skin's path). A solved face's head keeps the cap vertex counts of
+    its viewport mesh (so a dragged peg keeps the topology); the print mesh takes its own."""
+    from ..pdehead_addon import print_mesh
+
+    head.__dict__.pop("cap_reference", None)
+    return print_mesh(head)
+
+
 def _stored_tips(obj, model) -> np.ndarray | None:
     stored = obj.get(TIPS_PROP) if obj is not None else None
     if stored is None:
@@ -164,16 +174,20 @@ class FaceSteps:
         return engine_mesh_of(obj, study_origin(self.collection))
 
     def face_for_export(self):
-        """The study's face for Export for Printing: (engine Mesh in patient mm, its provenance with the label),
-        or None when the study has no face (Build Face not run)."""
-        from .objects import study_origin
-
+        """The study's face for Export for Printing: (its PDE surface, patient mm; its provenance with the
+        label), or None when the study has no face (Build Face not run). The surface is solved again through
+        the pegs' tips and held pegs of the face object's last solve (the shape it shows), so the export meshes
+        it at print resolution (:func:`print_face`), not at the viewport's resolution."""
         obj = self.face_object()
         if obj is None or obj.type != 'MESH' or len(obj.data.polygons) == 0:
             return None
         prov = json.loads(obj.get(PROVENANCE_PROP) or "{}")
         prov["label"] = approximation_label()
-        return engine_mesh_of(obj, study_origin(self.collection)), prov
+        model = self.face_model()
+        held = self.cache.get("face_held")
+        if held is None or len(held) != len(model.peg_names):
+            held = self.peg_held(list(model.peg_names))
+        return model.solve(tips=_stored_tips(obj, model), held=held).head, prov
 
     def face_table(self):
         """The depth table the study's face uses (setting ``face_table``): the shipped T-Table 2023 or a CSV, with

@@ -254,7 +254,7 @@ class ExportSteps:
                depth_target: str = D.DEPTH_TARGET.default, face=None) -> list[str]:
         """Export for printing: skull.<fmt> (the bone), skull_envelope.<fmt> (the PDE skull envelope),
         skin.<fmt> (when the CT has skin), face.<fmt> (the face from the skull, when the study has one or
-        ``face`` = (Mesh, provenance) is given), tissue_depth.csv, landmarks.csv and provenance.json.
+        ``face`` = (its solved PDE head, provenance) is given; both meshed at print resolution), tissue_depth.csv, landmarks.csv and provenance.json.
         Without a skin (a CT without soft tissue, or a face-from-skull study where the head pipeline never ran)
         skin.<fmt> and tissue_depth.csv are left out: provenance.json's ``not_written`` (file -> why) and the
         study's cache (``export_not_written``) say so.
@@ -288,7 +288,9 @@ class ExportSteps:
             face = self.face_for_export() if face is None else face
             face_prov = None
             if face is not None:
-                face_mesh, face_prov = face
+                from .face import print_face
+                face_head, face_prov = face
+                face_mesh = print_face(face_head)
                 if face_mesh.face_count == 0 or not face_mesh.is_watertight():
                     raise PDEHeadError(f"study '{self.name}': the face mesh is not watertight; nothing was written")
                 face_prov = {k: v for k, v in dict(face_prov).items() if k != "landmarks"}

@@ -17,7 +17,7 @@ from ..pdehead_addon import defaults as D
 from ..pdehead_addon import apply_window, intensity_window, sample_ct
 from . import compat
 from .coords import MM_TO_M
-from .ct_texture import box_faces, ct_texture_atlas
+from .ct_texture import box_face_uv, box_faces, ct_texture_atlas
 
 ORIGIN_KEY = "pdehead_origin_m"
 STUDY_KEY = "pdehead_study"
@@ -426,12 +426,7 @@ def _set_ct_texture(obj, atlas: np.ndarray, corner_uv: np.ndarray, budget_px: fl
             padded = np.ones((height, width, 4), np.float32)
             padded[:h, :w] = atlas
             atlas, corner_uv = padded, np.asarray(corner_uv) * (w / width, h / height)
-    _set_attribute(me, CT_UV_NAME, "FLOAT2", "CORNER", "vector", np.ascontiguousarray(corner_uv, np.float32).ravel())
-    # the atlas's layer is the solid's clean one (no mirrored or empty face); its (u, v) layer folds the inner
-    # shell and the cut faces over the outer one, so it is not what painting or a UV-less texture should use
-    if CT_UV_NAME in me.uv_layers:
-        me.uv_layers.active = me.uv_layers[CT_UV_NAME]
-        me.uv_layers[CT_UV_NAME].active_render = True
+    _set_box_uv(me, corner_uv)
     image.pixels.foreach_set(np.ascontiguousarray(atlas, np.float32).ravel())
     image.update()
     # generated images are lost on save unless packed; packing (PNG encoding) on every slider step
@@ -442,6 +437,17 @@ def _set_ct_texture(obj, atlas: np.ndarray, corner_uv: np.ndarray, budget_px: fl
     else:
         _UNPACKED_CHANGES.add(image.name)
     return image
+
+
+def _set_box_uv(me, corner_uv: np.ndarray) -> None:
+    """Write the solid's box-face layout (:func:`.ct_texture.ct_texture_atlas`'s tiles) into its ``CT texture``
+    UV layer and make that layer the active and the render one: it is the solid's clean layer (no mirrored or
+    empty face); its (u, v) layer folds the inner shell and the cut faces over the outer one, so it is not
+    what painting or a UV-less texture should use."""
+    _set_attribute(me, CT_UV_NAME, "FLOAT2", "CORNER", "vector", np.ascontiguousarray(corner_uv, np.float32).ravel())
+    if CT_UV_NAME in me.uv_layers:
+        me.uv_layers.active = me.uv_layers[CT_UV_NAME]
+        me.uv_layers[CT_UV_NAME].active_render = True
 
 
 #: A solid's CT image is reused for a smaller atlas (its corner; the UVs scaled) up to this area ratio.
@@ -567,6 +573,8 @@ def build_solid(head, collection, nu: int = D.NU.default, nv: int = D.NV.default
         values = np.asarray(mesh.vertex_attributes["intensity"], np.float32)
         window = intensity_window(values) if window is None else window
         _set_ct_colour(obj, apply_window(values, window))
+    if faces is not None and image is None:            # no CT texture: the same clean layout, no image
+        _set_box_uv(obj.data, box_face_uv(mesh, (u_range, v_range, w_range), faces))
     if faces is not None:
         _sharp_cut_faces(obj, faces[1])
     mat = ensure_ct_material(obj, image)

@@ -71,6 +71,7 @@ _LAZY = {
     "detail_map_stages": (".pde.detail_map", "detail_map_stages"),
     "detail_surface": (".pde.detail_displace", "detail_surface"),
     "print_resolution": (".pde.detail_displace", "print_resolution"),
+    "print_mesh": (".pde.detail_displace", "print_mesh"),
     "apply_window": (".core.ct_volume", "apply_window"),
     "ct_grid_for": (".core.ct_volume", "ct_grid_for"),
     "grid_affine": (".core.ct_volume", "grid_affine"),

@@ -995,7 +995,7 @@ def _export_with_face(args, ops, addon, coll, face) -> None:
         res, _model = face
         try:
             files = [Path(f) for f in _forensic(addon, coll).export(str(out), args.export_format,
-                                                                    face=(res.mesh, res.provenance))]
+                                                                    face=(res.head, res.provenance))]
         except addon.pdehead_addon.Cancelled:
             raise Interrupted() from None
         except addon.pdehead_addon.PDEHeadError as exc:

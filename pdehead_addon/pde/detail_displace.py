@@ -27,13 +27,15 @@ a smooth base surface plus a displacement map along its normals to keep a scan's
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
+
 import numpy as np
 
 from ..core.mesh import Mesh
 
 __all__ = ["sample_map", "vertex_heights", "vertex_normals", "uv_island_layout", "displace_mesh", "detail_surface",
-           "chord_error", "print_resolution", "print_rows", "split_quads", "PRINT_CHORD_MM", "PRINT_EDGE_MM",
-           "PRINT_MAX_TRIANGLES"]
+           "chord_error", "print_resolution", "print_rows", "print_columns", "print_mesh", "split_quads",
+           "PRINT_CHORD_MM", "PRINT_EDGE_MM", "PRINT_MAX_TRIANGLES"]
 
 #: The largest chord error of an exported skin (mm): a print layer is ~0.05-0.1 mm, so the facets do not
 #: show in a print.
@@ -271,6 +273,55 @@ def print_rows(head, nu: int, window=None, outside: float = PRINT_ROWS_OUTSIDE) 
     return rows
 
 
+#: Columns outside the face's band of v are this much sparser than over it (:func:`print_columns`).
+PRINT_COLUMNS_OUTSIDE = 0.4
+
+
+@contextmanager
+def print_columns(head, window=None, outside: float = PRINT_COLUMNS_OUTSIDE):
+    """Within the block ``head``'s columns (:meth:`.pde_head.PDEHead.v_columns`: the surface, its caps,
+    :func:`chord_error`, :func:`split_quads`) are ``outside`` times as dense outside the band of v that
+    ``window`` (:func:`surface_window`) keeps as over it, on top of the head's own column density: a
+    print's budget goes to the face. Its UV layout is the head's own (the UVs are a function of (u, v), so
+    the texture and a detail map keep their place). Without a window: the head's own columns."""
+    if window is None:
+        yield head
+        return
+    own = head.v_density()
+    probe = head.surface(120, 256, caps=False, uv=False)
+    keep = np.asarray(window(probe.vertices), bool)
+    M = int(np.asarray(head.bset.curves).shape[1])
+    if not keep.any():
+        yield head
+        return
+    # the curves' v steps (k: 2 pi k / M to 2 pi (k + 1) / M) the window's vertices fall in, the band closed
+    # over its gaps (the largest gap around the turn stays outside) and widened by two probe columns
+    step = np.floor(np.mod(probe.vertex_attributes["v"][keep], 2 * np.pi) / (2 * np.pi) * M).astype(np.int64) % M
+    inside = np.zeros(M, bool)
+    inside[step] = True
+    out = np.flatnonzero(~inside)
+    if out.size:
+        gaps = np.split(out, np.flatnonzero(np.diff(out) > 1) + 1)
+        if len(gaps) > 1 and gaps[0][0] == 0 and gaps[-1][-1] == M - 1:      # the gap across v = 0
+            gaps = [np.concatenate([gaps[-1], gaps[0]])] + gaps[1:-1]
+        inside[:] = True
+        inside[max(gaps, key=len)] = False
+        widen = max(1, int(np.ceil(2 * M / 256)))
+        inside = np.convolve(np.concatenate([inside[-widen:], inside, inside[:widen]]).astype(float),
+                             np.ones(2 * widen + 1), "valid") > 0
+    density = (np.ones(M) if own is None else np.asarray(own, float)) * np.where(inside, 1.0, float(outside))
+    layout = head.uv_layout()
+    saved = {k: head.__dict__[k] for k in ("v_density", "uv_layout") if k in head.__dict__}
+    head.v_density = lambda: density
+    head.uv_layout = lambda: layout
+    try:
+        yield head
+    finally:
+        for k in ("v_density", "uv_layout"):
+            head.__dict__.pop(k, None)
+        head.__dict__.update(saved)
+
+
 def print_resolution(head, chord_mm: float = PRINT_CHORD_MM, edge_mm: float = PRINT_EDGE_MM,
                      max_triangles: int = PRINT_MAX_TRIANGLES, window="face") -> tuple[np.ndarray, int]:
     """Rows and columns of a print-resolution mesh of ``head``'s surface: (the rows' u, nv), for
@@ -281,10 +332,18 @@ def print_resolution(head, chord_mm: float = PRINT_CHORD_MM, edge_mm: float = PR
     :func:`surface_window`, None for even rows). Then each count grows with the chord error its own edges
     leave (:func:`chord_error`; a chord error falls with the square of the edge: the count times
     ``sqrt(error / chord_mm)``) until the largest is within ``chord_mm`` over ``window`` (everywhere
-    without one), and both are scaled down together when the triangles would pass ``max_triangles``.
+    without one), and both are scaled down together when the triangles would pass ``max_triangles``; at
+    the budget the rows give up what their own error does not need to the columns.
+    The columns are :func:`print_columns`' (denser over the window's band of v): measure or mesh the
+    result inside ``with print_columns(head):`` (:func:`print_mesh` does).
     """
     if isinstance(window, str):
         window = surface_window(head)
+    with print_columns(head, window):
+        return _print_resolution(head, chord_mm, edge_mm, max_triangles, window)
+
+
+def _print_resolution(head, chord_mm, edge_mm, max_triangles, window):
     u = np.linspace(0.0, 1.0, 64)
     length = float(np.linalg.norm(np.diff(head.spine(u), axis=0), axis=1).sum())
     rows_u = np.linspace(0.0, 1.0, 33)[:-1] if head.vertex is not None else np.linspace(0.0, 1.0, 33)
@@ -300,13 +359,32 @@ def print_resolution(head, chord_mm: float = PRINT_CHORD_MM, edge_mm: float = PR
         k = np.sqrt(budget / (a * b))
         return max(3, int(a * k)), max(8, int(b * k))
     nu, nv = fit(nu, nv)
-    for _ in range(4):
+    min_nu = nu
+    best = None
+    for _ in range(6):
         err = chord_error(head, nu, nv, window, rows=print_rows(head, nu, window))
-        if err["max"] <= chord_mm or nu * nv >= budget * 0.98:
+        if best is None or err["max"] < best[0]:
+            best = (err["max"], nu, nv)
+        if err["max"] <= chord_mm:
             break
+        if nu * nv >= budget * 0.98:
+            # at the budget: the rows may be finer than their own error needs (a face's creases run along
+            # the rows, so its columns need more): rows down to what their error asks (not below the
+            # edge-length count), the columns take the rest of the budget
+            spare = np.sqrt(max(err["rows_max"], 1e-9) / chord_mm) * 1.05
+            if spare >= 1.0 or nu <= min_nu:
+                break
+            nu = max(min_nu, int(np.ceil(nu * spare)))
+            nv = max(8, int(budget // nu))
+            continue
         grow_u = np.sqrt(max(err["rows_max"], err["diagonal_max"]) / chord_mm) * 1.05
         grow_v = np.sqrt(max(err["columns_max"], err["diagonal_max"]) / chord_mm) * 1.05
         nu, nv = fit(int(np.ceil(nu * max(grow_u, 1.0))), int(np.ceil(nv * max(grow_v, 1.0))))
+    else:
+        err = chord_error(head, nu, nv, window, rows=print_rows(head, nu, window))
+        if err["max"] < best[0]:
+            best = (err["max"], nu, nv)
+    _, nu, nv = best                                     # the grid with the smallest chord error tried
     # the caps' triangles grow with the columns (a disc triangulated ring by ring): counted, not estimated
     for _ in range(8):
         mesh = head.surface(nu, nv, caps=True, uv=False)
@@ -316,3 +394,14 @@ def print_resolution(head, chord_mm: float = PRINT_CHORD_MM, edge_mm: float = PR
         k = np.sqrt(max_triangles / count) * 0.995
         nu, nv = max(3, int(nu * k)), max(8, int(nv * k))
     return print_rows(head, nu, window), nv
+
+
+def print_mesh(head, height: np.ndarray | None = None, strength: float = 0.0) -> Mesh:
+    """What Export for Printing writes of a PDE surface (the skin, the face from the skull): the closed mesh
+    at :func:`print_resolution` (chord error within :data:`PRINT_CHORD_MM` over the face, at most
+    :data:`PRINT_MAX_TRIANGLES` triangles), each quad split along its nearer diagonal (:func:`split_quads`),
+    displaced by the detail map ``height`` at ``strength`` (:func:`displace_mesh`; none by default)."""
+    window = surface_window(head)
+    rows, nv = print_resolution(head, window=window)
+    with print_columns(head, window):
+        return detail_surface(head, height, strength, len(rows), nv, caps=True, split=True, rows=rows)

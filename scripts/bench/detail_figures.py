@@ -55,7 +55,7 @@ def main(argv=None) -> int:
         tiles.append((f"PDE + CT detail {s:g} (Blender)", obj, s))
     rows, nv = E.print_resolution(head)
     nu = len(rows)
-    printed = E.detail_surface(head, dmap.height, 1.0, nu, nv, split=True, rows=rows)
+    printed = E.print_mesh(head, dmap.height, 1.0)             # what Export for Printing writes
     tiles.append((f"skin.stl {nu}x{nv} strength 1", objects.build_mesh_object(printed, coll, "print", smooth=False),
                   None))
     for _, obj, _ in tiles:

@@ -245,13 +245,33 @@ def _uv_faults(me) -> tuple[int, int]:
 
 
 def test_every_objects_active_uv_layer_is_clean(ext):
-    """Issue 41 item 4: the active UV layer (painting, UV-less textures) of the surface and the solid has no
-    mirrored and no empty face: the solid's is its CT texture layer (its (u, v) layer "UVMap" folds the inner
-    shell and the cut faces over the outer one: before, 28,560 of 29,520 faces mirrored, 960 empty on CThead)."""
-    scene, coll = _run_phantom()
+    """Issue 41 item 4: the active UV layer (painting, UV-less textures) of every mesh the pipeline and the
+    forensic steps build (surface, solid with and without its CT texture, cut by the cutter, skull envelope,
+    face and its SD range) has no mirrored and no empty face. The solid's is its box-face layer ("CT
+    texture"; its (u, v) layer "UVMap" folds the inner shell and the cut faces over the outer one: before,
+    28,560 of 29,520 faces mirrored, 960 empty on CThead); one v cut's tile was mirrored (117 faces here)
+    and a solid built without the CT texture had only the folded layer."""
+    import bpy
+    scene, coll = _run_phantom(voxel_size=6.0)
     s = coll.pdehead
-    for obj in (s.surface_object, s.solid_object):
+    assert bpy.ops.pdehead.add_cutter() == {'FINISHED'}
+    assert bpy.ops.pdehead.build_skull() == {'FINISHED'}
+    assert bpy.ops.pdehead.find_landmarks() == {'FINISHED'}
+    assert bpy.ops.pdehead.build_face() == {'FINISHED'}
+    assert bpy.ops.pdehead.face_sd_range() == {'FINISHED'}
+    study = ext.study_entity.Study.of(coll)
+    ranges = dict(u_range=(0.0, 1.0), v_range=(0.5, 5.0), w_range=(0.3, 1.0))
+    bare = ext.objects.build_solid(study.head, coll, nu=20, nv=40, nw=4, name="no CT texture", texture_size=0, **ranges)
+    assert bare.data.uv_layers.active.name == "CT texture"
+    checked = {}
+    for obj in bpy.data.objects:
+        if obj.type != 'MESH' or len(obj.data.polygons) == 0 or not obj.data.uv_layers:
+            continue
         me = obj.data
         assert me.uv_layers.active is not None and me.uv_layers.active.active_render, obj.name
+        checked[obj.get("pdehead_kind")] = _uv_faults(me)
         assert _uv_faults(me) == (0, 0), (obj.name, me.uv_layers.active.name, _uv_faults(me))
+    assert {"surface", "solid", "skull", "face", "face_plus_sd", "face_minus_sd"} <= set(checked), checked
     assert s.solid_object.data.uv_layers.active.name == "CT texture"
+    cut = np.array(s.v_range)
+    assert cut[1] - cut[0] < 2 * np.pi - 1e-3, cut              # the cutter cut the solid: its v faces checked
