@@ -236,7 +236,7 @@ def _tile_corner_uv(mesh, params, family, axes, offsets, spans, width, height, p
 
     A box face and its opposite (the two u ends, the two v cuts) are wound opposite ways over the same
     (row, column) parameters, so one of them would be mirrored in UV space: that tile's columns are
-    reversed (its texels too, by the caller), so no face of the layer is mirrored (issue 41: painting
+    reversed (its texels too, by the caller), so no face of the layer is mirrored (painting
     and UV-less textures use the active layer)."""
     (u0, u1), (v0, v1), (w0, w1) = ranges
     extent = np.array([u1 - u0, v1 - v0, w1 - w0])

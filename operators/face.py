@@ -113,16 +113,6 @@ def _fill_gone(model, raw: np.ndarray) -> np.ndarray:
     return tips
 
 
-def print_face(head):
-    """The face's closed mesh for Export for Printing: its PDE surface at print resolution
-    (:func:`pdehead_addon.print_mesh`, the skin's path). A solved face's head keeps the cap vertex counts of
-    its viewport mesh (so a dragged peg keeps the topology); the print mesh takes its own."""
-    from ..pdehead_addon import print_mesh
-
-    head.__dict__.pop("cap_reference", None)
-    return print_mesh(head)
-
-
 def _stored_tips(obj, model) -> np.ndarray | None:
     stored = obj.get(TIPS_PROP) if obj is not None else None
     if stored is None:
@@ -177,7 +167,7 @@ class FaceSteps:
         """The study's face for Export for Printing: (its PDE surface, patient mm; its provenance with the
         label), or None when the study has no face (Build Face not run). The surface is solved again through
         the pegs' tips and held pegs of the face object's last solve (the shape it shows), so the export meshes
-        it at print resolution (:func:`print_face`), not at the viewport's resolution."""
+        it at print resolution (:func:`.forensic_export.print_face`), not at the viewport's resolution."""
         obj = self.face_object()
         if obj is None or obj.type != 'MESH' or len(obj.data.polygons) == 0:
             return None

@@ -91,6 +91,16 @@ def set_peg_depth(peg, depth_mm: float) -> float:
     return value
 
 
+def print_face(head):
+    """The face's closed mesh for Export for Printing: its PDE surface at print resolution
+    (:func:`pdehead_addon.print_mesh`, the skin's path). A solved face's head keeps the cap vertex counts of
+    its viewport mesh (so a dragged peg keeps the topology); the print mesh takes its own."""
+    from ..pdehead_addon import print_mesh
+
+    head.__dict__.pop("cap_reference", None)
+    return print_mesh(head)
+
+
 class ExportSteps:
     """Pegs, provenance and export of a study (part of :class:`.forensic_study.ForensicStudy`)."""
 
@@ -288,7 +298,6 @@ class ExportSteps:
             face = self.face_for_export() if face is None else face
             face_prov = None
             if face is not None:
-                from .face import print_face
                 face_head, face_prov = face
                 face_mesh = print_face(face_head)
                 if face_mesh.face_count == 0 or not face_mesh.is_watertight():

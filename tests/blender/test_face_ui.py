@@ -381,7 +381,8 @@ def test_export_for_printing_writes_the_face_beside_the_head(pdehead_ext, face_b
     opts = fs(coll).face_model().options
     view = head.surface(int(opts["nu"]), int(opts["nv"]), caps=True)
     assert len(view.vertices) == len(shown) and cKDTree(view.vertices).query(shown)[0].max() < 1e-3
-    printed = face.print_face(head)                       # what the export wrote, the same vertex count
+    fexport = sys.modules[f"{pdehead_ext.__name__}.operators.forensic_export"]
+    printed = fexport.print_face(head)                                # what the export wrote, the same vertex count
     rows, nv = engine.print_resolution(head)
     assert stl.is_watertight() and stl.face_count <= 2_000_000 and len(stl.vertices) > 4 * len(shown), \
         (stl.face_count, len(stl.vertices), len(shown))
