@@ -752,3 +752,26 @@ def test_cthead_face_does_not_depend_on_the_strip_level(cthead_ct):
             assert 0.3 <= (mr - go) / (po - go) <= 0.7, (level, side)
     assert abs(shares[1500.0] - shares[1600.0]) <= 0.03, shares
     assert min(shares.values()) >= 0.50, shares
+
+
+def test_subnasale_stands_at_least_at_subspinales_peg(model, face):
+    """Soft subnasale at least as far forward as subspinale's peg tip (bony subspinale + the T-Table's depth; Singh &
+    Purkait 2024, face_features.predict_nose), even where the face the depth field makes there lies deeper (the closed
+    profile over the aperture's floor: a notch under the nose): the nose's columella reaches the tip's depth."""
+    tip = face.tips[model.peg_names.index("Subspinale")]
+    zs = model.nose.get("subnasale_z")
+    zs = float(tip[2]) + 4.0 if zs is None else float(zs)
+    cols, front = model._front()
+    g = front
+    base = (model.profile + model._offset_field(face.tips))[:, cols] - 10.0        # a face 10 mm deeper
+    bump = model._nose_bump(base, face.tips, front)
+    x = g.centre[0] + (base + bump) * np.sin(g.theta)[None, :]
+    y = g.centre[1] + (base + bump) * np.cos(g.theta)[None, :]
+    rows = np.abs(g.z - zs) <= 0.5 * (g.z[1] - g.z[0]) + 1e-9
+    mid = np.abs(x[rows] - model.nose["mid_x"]) < 1.5
+    front_y = float(y[rows][mid].min())
+    deep_y = float((g.centre[1] + base * np.cos(g.theta)[None, :])[rows][mid].min())
+    print(f"phantom: subnasale row z {zs:.1f}: face 10 mm deeper y {deep_y:.1f}, with the nose {front_y:.1f}, "
+          f"subspinale's tip y {tip[1]:.1f}")
+    assert deep_y > float(tip[1]) + 3.0                       # the deeper face alone would leave a notch
+    assert front_y <= float(tip[1]) + 0.5
