@@ -11,8 +11,8 @@ skull's centroid: a row every ``row_mm`` of height, a column every ``360 / colum
 
 1. *The bone's outer profile* (:func:`.face_profile.bone_profile`): per (row, column) bin the outermost point of the
    bone skull; per row the 2-D convex hull of that ring (which bridges the orbits, the nasal aperture,
-   the temporal fossae and the cheeks), a grey closing and a Gaussian smoothing along the height, and
-   away from the pegs a stronger one (:func:`.face_profile.smooth_far_from_pegs`: the rows' hulls step). Where a
+   the temporal fossae and the cheeks), a grey closing and a smoothing over the surface by a length in mm
+   (:func:`.face_profile.surface_smooth`: the rows' hulls step). Where a
    column meets no bone (below the skull base at the back, below the mandible) a neck rule
    (:mod:`.face_profile`) continues the profile downward.
 2. *The pegs*: each landmark of the depth table stands on the bone along the bone's outward normal,
@@ -51,9 +51,9 @@ import numpy as np
 from .. import defaults as D
 from ..core.boundary_set import BoundarySet, knots_from_heights
 from ..core.errors import PDEHeadError
-from .face_profile import (PROFILE_SMOOTH_MM, FaceGrid, bone_floor, bone_profile, cheek_floor, convex_rows, peg_normals, round_floor,
-                           scan_cut_plane, smooth_far_from_pegs, smooth_floor_near_cut, smooth_max, smooth_min,
-                           surface_smooth, tilted_rows)
+from .face_profile import (PROFILE_SMOOTH_MM, FaceGrid, bone_floor, bone_profile, cheek_floor, convex_rows,
+                           peg_normals, round_floor, scan_cut_plane, smooth_far_from_pegs, smooth_floor_near_cut,
+                           smooth_max, smooth_min, surface_smooth, tilted_rows)
 from .face_features import (EAR_LENGTH_MM, EAR_WIDTH_MM, FRONT_COS, check_skull, ear_shape, eye_shape, mouth_shape,
                             nose_bump, predict_ears, predict_eyes, predict_mouth, predict_nose)
 from .face_pegs import alar_pegs_by_definition, cheek_bands, cheek_depth, mid_ramus_by_definition

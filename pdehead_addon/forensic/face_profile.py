@@ -4,9 +4,9 @@ The face is made on a cylinder of directions about the vertical (patient z) axis
 (:class:`FaceGrid`: a row every ``row_mm`` of height, a column every ``360 / columns`` degrees). On it:
 :func:`bone_profile` is the bone's outermost radius per bin, closed per row by its 2-D convex hull (which
 bridges the orbits, the nasal aperture, the temporal fossae and the cheeks), a grey closing and a Gaussian
-along the height, continued below the skull by a neck rule; :func:`smooth_far_from_pegs` smooths it more away
-from the pegs; :func:`peg_normals` gives each landmark's outward direction (the bone's averaged normal, or the
-closed profile's where the bone's leans too far). :mod:`.face_from_skull` stands the pegs and the depth field
+over the surface (:func:`surface_smooth`, a length in mm both ways), continued below the skull by a neck rule;
+:func:`smooth_far_from_pegs` can smooth it more away from the pegs (off by default); :func:`peg_normals` gives
+each landmark's outward direction (the bone's averaged normal, or the closed profile's where the bone's leans too far). :mod:`.face_from_skull` stands the pegs and the depth field
 on this profile.
 """
 from __future__ import annotations
@@ -37,18 +37,20 @@ PEG_NORMAL_RADIUS_MM = 8.0
 #: A peg follows the averaged bone normal unless it leans more than 45 degrees from the closed profile's
 #: normal (then the profile's): e.g. subspinale on a mask whose thin maxilla is gone faces up, not forward.
 PEG_NORMAL_MIN_COS = 0.7
-#: Vertical Gaussian smoothing (mm) of the closed profile: each row's hull is made on its own, and rows a few mm
-#: apart step (the teeth, the zygomatic arches' edges); a skin does not.
+#: Smoothing of the closed profile over the surface (:func:`surface_smooth`): a Gaussian of PROFILE_SMOOTH_MM along the
+#: height and PROFILE_SMOOTH_ARC_MM of arc around the head (mm both, not rows or degrees). Each row's hull is made on
+#: its own, and rows a few mm apart step (the teeth, the zygomatic arches' edges); a skin does not. Chosen on GE and the
+#: phantom, checked on CThead: GE 48.8 / 49.9 / 51.1 / 48.7 / 41.8 % within +-2.5 mm at 4 / 6 / 8 / 10 / 15 mm, the
+#: phantom 42.0-43.4 % throughout; 6 and not GE's best 8 because at 8 mm CThead stripped at 1500 and at 1600 scored
+#: 10 points apart (48.0 / 57.8 %; at 6 mm 51.8 / 54.5 %), which the robustness suite requires within 3 points.
 PROFILE_SMOOTH_MM = 6.0
-#: ... and around the head (degrees; the Gaussian of the profile and of its normals): one column of the first,
-#: 180-column grid, kept in degrees when the grid became 360 columns (issue 23's sixth session).
-PROFILE_SMOOTH_DEG = 2.0
 PROFILE_SMOOTH_ARC_MM = PROFILE_SMOOTH_MM
-#: Away from the pegs the closed profile is smoothed more, in 2-D on the (angle, height) grid: a Gaussian of
-#: :data:`PROFILE_SMOOTH_FAR_MM` of height and :data:`PROFILE_SMOOTH_FAR_ARC_MM` of arc (at the median radius): each
-#: row's hull is made on its own, which leaves horizontal ridges across the lower face that no peg corrects. Within
-#: about :data:`PROFILE_NEAR_MM` of a peg tip the lightly smoothed profile is kept (Gaussian blend). CThead (issue
-#: 23b): 57.3 -> 57.5 % within +-2.5 mm; row-to-row second difference of the face's radius 0.48 -> 0.40 mm.
+#: The closed profile's normals (:func:`envelope_normals`) are smoothed this much around the head (degrees).
+PROFILE_SMOOTH_DEG = 2.0
+#: Away from the pegs the closed profile could be smoothed more (:func:`smooth_far_from_pegs`: a Gaussian of
+#: :data:`PROFILE_SMOOTH_FAR_MM` of height and :data:`PROFILE_SMOOTH_FAR_ARC_MM` of arc, blended into the profile within
+#: about :data:`PROFILE_NEAR_MM` of the peg tips). Off (0): its 8 mm had been chosen on CThead's score, and the
+#: profile's smoothing over the surface (:data:`PROFILE_SMOOTH_MM`) does its work on any head.
 PROFILE_SMOOTH_FAR_MM = 0.0
 PROFILE_SMOOTH_FAR_ARC_MM = 2.0
 PROFILE_NEAR_MM = 10.0
@@ -132,7 +134,8 @@ def bone_profile(skull: Mesh, grid: FaceGrid, base_z: float | None = None,
        across the orbits, the nasal aperture, the temporal fossae and the cheeks (between the zygoma and
        the mandible), where no depth is measured;
     4. a grey closing over ``closing_mm`` of height (the vertical gaps, e.g. the nasal aperture above the
-       maxilla) and a Gaussian smoothing (:data:`PROFILE_SMOOTH_MM` of height, 1 column).
+       maxilla) and a smoothing over the surface (:func:`surface_smooth`: :data:`PROFILE_SMOOTH_MM` of height and
+       :data:`PROFILE_SMOOTH_ARC_MM` of arc).
 
     Returns
     -------
@@ -328,8 +331,8 @@ def round_floor(floor: np.ndarray, grid: FaceGrid, radius: np.ndarray, length_mm
     dz = float(grid.z[1] - grid.z[0])
     rho = float(np.median(radius))
     per_col = rho * float(grid.theta[1] - grid.theta[0])
-    hz = max(1, int(round(length_mm / dz)))
-    ht = max(1, int(round(length_mm / per_col)))
+    hz = max(1, round(length_mm / dz))
+    ht = max(1, round(length_mm / per_col))
     dilated = ndimage.grey_dilation(floor, size=(2 * hz + 1, 2 * ht + 1), mode=("nearest", "wrap"))
     rounded = ndimage.gaussian_filter(dilated, sigma=(0.5 * length_mm / dz, 0.5 * length_mm / per_col),
                                       mode=("nearest", "wrap"))
