@@ -256,6 +256,14 @@ def predict_nose(landmarks: dict, skull: Mesh | None = None) -> dict | None:
       the outline of the whole aperture, not the anterior nasal spine's tip or subspinale's depth), on the face
       the depth field makes there (the pegs around it, not one peg's tip); where the aperture's border is not
       found, 4 mm above subspinale. Soft nasion at the nasion peg's tip.
+    * *Subnasale's depth*: at least as far forward as subspinale's peg tip (bony subspinale + the table's subspinale
+      depth along the bone normal): Singh S, Purkait R (2024) "Three-dimensional prediction of the nose for facial
+      reconstruction: A preliminary study on North Indian adults", J Forensic Leg Med 105:102708, place soft
+      subnasale at the bony point plus a soft-tissue thickness, parallel to the Frankfurt plane; the version read
+      was esomjai/Forensic-Craniofacial-Approximation-Validation-Tool, "Nose predictions/Purkait and Singh 2024.md",
+      which stands it on subspinale with the T-Table 2023's 13.5 mm (Hona & Stephan 2024, Table 3), the table's
+      subspinale mean here too. Without it the face behind the columella (the closed profile over the aperture's
+      floor) left a notch under the nose.
     * *Pronasale*: where two distances from the skull meet, in the mid-sagittal plane, in front: the nasal
       length from soft nasion, NL = 0.74 x Z + 3.5 mm (Z = bony nasion to subspinale; Rynn, Wilkinson & Peters
       2010, European-ancestry equation, :data:`NASAL_LENGTH_SLOPE`), and the tip's protrusion from subnasale,
@@ -519,6 +527,9 @@ def nose_bump(grid, nose: dict | None, base: np.ndarray, tip_of) -> np.ndarray |
     xs_row = cx + base[ks] * s
     js = int(np.argmin(np.where(front, np.abs(xs_row - nose["mid_x"]), np.inf)))
     ys = float(cy + base[ks, js] * c[js])
+    ss_tip = tip_of("Subspinale")
+    if ss_tip is not None:              # soft subnasale at least as far forward as subspinale's peg (predict_nose)
+        ys = min(ys, float(ss_tip[1]))
     yn = float(n[1])
     length = nose.get("length_mm")
     if length is None:                                   # a model kept before the nasal-length rule

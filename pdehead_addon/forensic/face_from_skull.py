@@ -11,8 +11,8 @@ skull's centroid: a row every ``row_mm`` of height, a column every ``360 / colum
 
 1. *The bone's outer profile* (:func:`.face_profile.bone_profile`): per (row, column) bin the outermost point of the
    bone skull; per row the 2-D convex hull of that ring (which bridges the orbits, the nasal aperture,
-   the temporal fossae and the cheeks), a grey closing and a Gaussian smoothing along the height, and
-   away from the pegs a stronger one (:func:`.face_profile.smooth_far_from_pegs`: the rows' hulls step). Where a
+   the temporal fossae and the cheeks), a grey closing and a smoothing over the surface by a length in mm
+   (:func:`.face_profile.surface_smooth`: the rows' hulls step). Where a
    column meets no bone (below the skull base at the back, below the mandible) a neck rule
    (:mod:`.face_profile`) continues the profile downward.
 2. *The pegs*: each landmark of the depth table stands on the bone along the bone's outward normal,
@@ -51,8 +51,9 @@ import numpy as np
 from .. import defaults as D
 from ..core.boundary_set import BoundarySet, knots_from_heights
 from ..core.errors import PDEHeadError
-from .face_profile import (FaceGrid, bone_floor, bone_profile, cheek_floor, convex_rows, peg_normals, scan_cut_plane,
-                           smooth_far_from_pegs, smooth_floor_near_cut, smooth_max, smooth_min, tilted_rows)
+from .face_profile import (PROFILE_SMOOTH_MM, FaceGrid, bone_floor, bone_profile, cheek_floor, convex_rows,
+                           peg_normals, round_floor, scan_cut_plane, smooth_far_from_pegs, smooth_floor_near_cut,
+                           smooth_max, smooth_min, surface_smooth, tilted_rows)
 from .face_features import (EAR_LENGTH_MM, EAR_WIDTH_MM, FRONT_COS, check_skull, ear_shape, eye_shape, mouth_shape,
                             nose_bump, predict_ears, predict_eyes, predict_mouth, predict_nose)
 from .face_pegs import alar_pegs_by_definition, cheek_bands, cheek_depth, mid_ramus_by_definition
@@ -113,6 +114,10 @@ LIMIT_SOFT_MM = 1.0
 #: choice (about the arc from the canine eminence to the zygoma), nothing fitted, though the band itself was found on
 #: the scored head's error map. CThead 63.0 -> 63.2 % within +-2.5 mm (mean 2.52 -> 2.48 mm); GE unchanged.
 CHEEK_SPAN_DEG = 30.0
+#: The cheeks' lift (made row by row) is smoothed over the surface by this length (mm): the closed profile's
+#: (:data:`.face_profile.PROFILE_SMOOTH_MM`), so the lift does not bring back the rows' steps the profile's smoothing
+#: took out.
+CHEEK_SMOOTH_MM = PROFILE_SMOOTH_MM
 CHEEK_PASSES = 2
 CHEEK_RAMP_MM = 5.0
 #: The landmarks on the mandible's chin (:meth:`FaceModel.prepare`): with none of them the skull has no mandible
@@ -269,6 +274,8 @@ class FaceModel:
             floor = np.maximum(floor, cheeks)
         if cut_plane is not None:                             # the cut bone's ragged edge, rounded
             floor = smooth_floor_near_cut(floor, grid, cut_plane, profile)
+        else:                           # a skin over a bone bump is a rounded mound (a cut skull: rounded at the cut)
+            floor = round_floor(floor, grid, profile)
         floor = np.ceil(floor * 100.0) / 100.0
         normals = peg_normals(skull, bases, grid, profile)
         hull_profile = profile
@@ -647,9 +654,13 @@ class FaceModel:
         dth = float(grid.theta[1] - grid.theta[0])
         span = int(round(np.radians(CHEEK_SPAN_DEG) / dth))
         band = face[rows]
-        lifted = convex_rows(band, dth, span, CHEEK_PASSES)
+        lift = convex_rows(band, dth, span, CHEEK_PASSES) - band
         out = face.copy()
-        out[rows] = band + w[rows, None] * (lifted - band)
+        out[rows] = band + w[rows, None] * lift
+        if CHEEK_SMOOTH_MM > 0:         # the lift is made row by row: smoothed over the surface, it does not step
+            lifted = np.zeros_like(face)
+            lifted[rows] = w[rows, None] * lift
+            out = face + surface_smooth(lifted, grid, CHEEK_SMOOTH_MM, rho=FIELD_RADIUS_MM, periodic=False)
         return out
 
     def top_z_for(self, tips: np.ndarray) -> float | None:

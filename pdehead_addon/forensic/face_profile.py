@@ -4,9 +4,9 @@ The face is made on a cylinder of directions about the vertical (patient z) axis
 (:class:`FaceGrid`: a row every ``row_mm`` of height, a column every ``360 / columns`` degrees). On it:
 :func:`bone_profile` is the bone's outermost radius per bin, closed per row by its 2-D convex hull (which
 bridges the orbits, the nasal aperture, the temporal fossae and the cheeks), a grey closing and a Gaussian
-along the height, continued below the skull by a neck rule; :func:`smooth_far_from_pegs` smooths it more away
-from the pegs; :func:`peg_normals` gives each landmark's outward direction (the bone's averaged normal, or the
-closed profile's where the bone's leans too far). :mod:`.face_from_skull` stands the pegs and the depth field
+over the surface (:func:`surface_smooth`, a length in mm both ways), continued below the skull by a neck rule;
+:func:`smooth_far_from_pegs` can smooth it more away from the pegs (off by default); :func:`peg_normals` gives
+each landmark's outward direction (the bone's averaged normal, or the closed profile's where the bone's leans too far). :mod:`.face_from_skull` stands the pegs and the depth field
 on this profile.
 """
 from __future__ import annotations
@@ -37,20 +37,29 @@ PEG_NORMAL_RADIUS_MM = 8.0
 #: A peg follows the averaged bone normal unless it leans more than 45 degrees from the closed profile's
 #: normal (then the profile's): e.g. subspinale on a mask whose thin maxilla is gone faces up, not forward.
 PEG_NORMAL_MIN_COS = 0.7
-#: Vertical Gaussian smoothing (mm) of the closed profile: each row's hull is made on its own, and rows a few mm
-#: apart step (the teeth, the zygomatic arches' edges); a skin does not.
-PROFILE_SMOOTH_MM = 4.0
-#: ... and around the head (degrees; the Gaussian of the profile and of its normals): one column of the first,
-#: 180-column grid, kept in degrees when the grid became 360 columns (issue 23's sixth session).
+#: Smoothing of the closed profile over the surface (:func:`surface_smooth`): a Gaussian of PROFILE_SMOOTH_MM along the
+#: height and PROFILE_SMOOTH_ARC_MM of arc around the head (mm both, not rows or degrees). Each row's hull is made on
+#: its own, and rows a few mm apart step (the teeth, the zygomatic arches' edges); a skin does not. Chosen on GE and the
+#: phantom, checked on CThead: GE 48.8 / 49.9 / 51.1 / 48.7 / 41.8 % within +-2.5 mm at 4 / 6 / 8 / 10 / 15 mm, the
+#: phantom 42.0-43.4 % throughout; 6 and not GE's best 8 because at 8 mm CThead stripped at 1500 and at 1600 scored
+#: 10 points apart (48.0 / 57.8 %; at 6 mm 51.8 / 54.5 %), which the robustness suite requires within 3 points.
+PROFILE_SMOOTH_MM = 6.0
+PROFILE_SMOOTH_ARC_MM = PROFILE_SMOOTH_MM
+#: The closed profile's normals (:func:`envelope_normals`) are smoothed this much around the head (degrees).
 PROFILE_SMOOTH_DEG = 2.0
-#: Away from the pegs the closed profile is smoothed more, in 2-D on the (angle, height) grid: a Gaussian of
-#: :data:`PROFILE_SMOOTH_FAR_MM` of height and :data:`PROFILE_SMOOTH_FAR_ARC_MM` of arc (at the median radius): each
-#: row's hull is made on its own, which leaves horizontal ridges across the lower face that no peg corrects. Within
-#: about :data:`PROFILE_NEAR_MM` of a peg tip the lightly smoothed profile is kept (Gaussian blend). CThead (issue
-#: 23b): 57.3 -> 57.5 % within +-2.5 mm; row-to-row second difference of the face's radius 0.48 -> 0.40 mm.
-PROFILE_SMOOTH_FAR_MM = 8.0
+#: Away from the pegs the closed profile could be smoothed more (:func:`smooth_far_from_pegs`: a Gaussian of
+#: :data:`PROFILE_SMOOTH_FAR_MM` of height and :data:`PROFILE_SMOOTH_FAR_ARC_MM` of arc, blended into the profile within
+#: about :data:`PROFILE_NEAR_MM` of the peg tips). Off (0): its 8 mm had been chosen on CThead's score, and the
+#: profile's smoothing over the surface (:data:`PROFILE_SMOOTH_MM`) does its work on any head.
+PROFILE_SMOOTH_FAR_MM = 0.0
 PROFILE_SMOOTH_FAR_ARC_MM = 2.0
 PROFILE_NEAR_MM = 10.0
+#: The bone floor (:func:`round_floor`) is rounded over the bone's bumps: a grey dilation of +- FLOOR_ROUND_MM (height
+#: and arc), then a Gaussian of half that: the floor is never lower than the bone plus the least tissue, but it no
+#: longer steps from row to row with the bone's edges (the maxilla beside the nasal aperture, the zygomas, the teeth),
+#: which printed boxes and steps on the face wherever the floor held it up. The length is that of the cut's rounding
+#: (:data:`CUT_FLOOR_SMOOTH_MM`, chosen on GE).
+FLOOR_ROUND_MM = 3.0
 #: The bone floor's recession under the bone (:func:`bone_floor`) is smoothed over this much height and angle: on
 #: GE each column's maxilla ends at its own height, and the recession made vertical ridges 5-10 degrees apart.
 FLOOR_SMOOTH_MM = 3.0
@@ -125,7 +134,8 @@ def bone_profile(skull: Mesh, grid: FaceGrid, base_z: float | None = None,
        across the orbits, the nasal aperture, the temporal fossae and the cheeks (between the zygoma and
        the mandible), where no depth is measured;
     4. a grey closing over ``closing_mm`` of height (the vertical gaps, e.g. the nasal aperture above the
-       maxilla) and a Gaussian smoothing (:data:`PROFILE_SMOOTH_MM` of height, 1 column).
+       maxilla) and a smoothing over the surface (:func:`surface_smooth`: :data:`PROFILE_SMOOTH_MM` of height and
+       :data:`PROFILE_SMOOTH_ARC_MM` of arc).
 
     Returns
     -------
@@ -147,10 +157,41 @@ def bone_profile(skull: Mesh, grid: FaceGrid, base_z: float | None = None,
     padded = np.pad(hull, ((pad, pad), (0, 0)), mode="edge")
     closed = ndimage.grey_closing(padded, size=(kz, 1), mode="wrap")[pad:-pad]
     closed = np.maximum(closed, hull)
-    sm = ndimage.gaussian_filter(np.pad(closed, ((pad, pad), (0, 0)), mode="edge"),
-                                 sigma=(PROFILE_SMOOTH_MM / dz, _columns(PROFILE_SMOOTH_DEG, grid)),
-                                 mode="wrap")[pad:-pad]
+    sm = surface_smooth(closed, grid, PROFILE_SMOOTH_MM, arc_mm=PROFILE_SMOOTH_ARC_MM)
     return raw, sm
+
+
+def surface_smooth(radius: np.ndarray, grid: FaceGrid, length_mm: float, rho: np.ndarray | float | None = None,
+                   periodic: bool = True, arc_mm: float | None = None) -> np.ndarray:
+    """A (K, M) map on ``grid`` smoothed over the surface it describes: a Gaussian of ``length_mm`` along the height and
+    the same around the head, in arc at each row's radius ``rho`` (per row or one value; default each row's median of
+    ``radius``, the map being a radius), so millimetres and not degrees or rows set it; the rows beyond the map's
+    ends continued by its edge rows; ``periodic``: the columns go round the head (else an open run of columns).
+
+    Why a length over the surface: each row of the bone's profile (its convex hull in horizontal section) is made on
+    its own, so the rows step where a row meets or leaves a bone feature (a zygomatic arch, the teeth, the mandible's
+    angle), and a smoothing along the rows' height alone in rows, or around in degrees, leaves a coarser wave in the
+    other direction: the face took horizontal waves across the cheeks."""
+    radius = np.asarray(radius, float)
+    if length_mm <= 0:
+        return radius
+    dz = float(grid.z[1] - grid.z[0])
+    dth = float(grid.theta[1] - grid.theta[0])
+    pad = max(1, int(np.ceil(4.0 * length_mm / dz)))
+    padded = np.pad(radius, ((pad, pad), (0, 0)), mode="edge")
+    out = ndimage.gaussian_filter1d(padded, length_mm / dz, axis=0, mode="nearest")[pad:-pad]
+    if rho is None:
+        rho = np.median(out, axis=1)
+    rho = np.broadcast_to(np.maximum(np.asarray(rho, float), 5.0), (radius.shape[0],))
+    sig_cols = (length_mm if arc_mm is None else arc_mm) / (rho * dth)
+    # rows grouped by their width in columns (to 5 %): the filter runs a few times, not once per row
+    keys = np.round(np.log(sig_cols) / np.log(1.05)).astype(int)
+    res = np.empty_like(out)
+    for key in np.unique(keys):
+        rows = keys == key
+        res[rows] = ndimage.gaussian_filter1d(out[rows], float(1.05 ** key), axis=1,
+                                              mode="wrap" if periodic else "nearest")
+    return res
 
 
 def outermost_bone(skull: Mesh, grid: FaceGrid) -> np.ndarray:
@@ -275,6 +316,27 @@ def height_above_plane(grid: FaceGrid, radius: np.ndarray, plane: tuple[np.ndarr
     x = grid.centre[0] + radius * np.sin(grid.theta)
     y = grid.centre[1] + radius * np.cos(grid.theta)
     return grid.z[:, None] - (float(offset) - normal[0] * x - normal[1] * y) / normal[2]
+
+
+def round_floor(floor: np.ndarray, grid: FaceGrid, radius: np.ndarray, length_mm: float = FLOOR_ROUND_MM) -> np.ndarray:
+    """The bone floor rounded over ``length_mm``: its grey dilation over +- ``length_mm`` of height and of arc (at the
+    median ``radius``), Gaussian-smoothed by half that, never below ``floor`` (the guarantee that no bone comes
+    through the face is kept: where the rounded mound would dip below the floor the floor wins).
+
+    Why: the floor is the outermost bone per bin plus the least tissue, so it steps wherever a row meets a bone edge
+    (the maxilla beside the nasal aperture, the zygomas, the teeth), and the face held up by it took those steps
+    (boxes beside the nose, ridges across the cheeks). A skin over a bone bump is a rounded mound."""
+    if length_mm <= 0:
+        return floor
+    dz = float(grid.z[1] - grid.z[0])
+    rho = float(np.median(radius))
+    per_col = rho * float(grid.theta[1] - grid.theta[0])
+    hz = max(1, round(length_mm / dz))
+    ht = max(1, round(length_mm / per_col))
+    dilated = ndimage.grey_dilation(floor, size=(2 * hz + 1, 2 * ht + 1), mode=("nearest", "wrap"))
+    rounded = ndimage.gaussian_filter(dilated, sigma=(0.5 * length_mm / dz, 0.5 * length_mm / per_col),
+                                      mode=("nearest", "wrap"))
+    return np.maximum(floor, rounded)
 
 
 def smooth_floor_near_cut(floor: np.ndarray, grid: FaceGrid, plane: tuple[np.ndarray, float],

@@ -79,9 +79,10 @@ def test_face_passes_through_the_peg_tips(model, face):
     away = np.array([n not in NOSE_PEGS for n in model.peg_names])
     exact = away & (lam == RBF_REGULARISATION)
     damped = away & ~exact
-    # measured on the phantom: median 0.32 mm, largest 2.4 mm; the damped pegs (the jaw's sides) within
-    # 0.03-4.2 mm (supra-M2, 26 mm deep beside 10-13 mm neighbours, the farthest)
-    assert np.median(d[exact]) <= 0.5
+    # measured on the phantom: median 0.52 mm (0.32 before the closed profile was smoothed over 6 mm of the surface:
+    # the field carries more of the shape), largest 2.0 mm; the damped pegs (the jaw's sides) within 0.03-4.2 mm
+    # (supra-M2, 26 mm deep beside 10-13 mm neighbours, the farthest)
+    assert np.median(d[exact]) <= 0.6
     assert d[exact].max() <= 2.5
     assert d[damped].max() <= 5.0
 
@@ -340,14 +341,43 @@ def test_a_closed_cube_is_refused_for_what_it_is_not_as_empty():
                           default_table())
 
 
-def test_profile_is_smoothed_along_the_height_away_from_the_pegs(model, face):
-    """The rows' hulls leave horizontal ridges; away from the pegs the profile is smoothed along the height
-    (face_from_skull._smooth_far_from_pegs), while the face still passes through the tips (test above)."""
+def test_profile_is_smoothed_over_the_surface_by_a_length_in_mm(model, phantom_bone):
+    """The rows' hulls step where a row meets or leaves a bone feature (horizontal waves across the cheeks): the closed
+    profile is smoothed by a Gaussian of PROFILE_SMOOTH_MM along the height and the same length of arc around the head
+    (face_profile.surface_smooth), so a bump's spread is the same in mm both ways, and the rows' second difference
+    over the face falls well below the unsmoothed hulls'."""
+    from pdehead_addon.forensic import face_profile as P
+    g = model.grid
+    # a point bump on a cylinder of radius 80 mm spreads by PROFILE_SMOOTH_MM along the height and around (in mm)
+    delta = np.zeros((len(g.z), len(g.theta)))
+    k0, j0 = len(g.z) // 2, len(g.theta) // 2
+    delta[k0, j0] = 1.0
+    out = P.surface_smooth(delta, g, P.PROFILE_SMOOTH_MM, rho=80.0)
+    dz = (g.z - g.z[k0])[:, None]
+    arc = (80.0 * (g.theta - g.theta[j0]))[None, :]
+    w = out / out.sum()
+    sd_z, sd_arc = float(np.sqrt((w * dz ** 2).sum())), float(np.sqrt((w * arc ** 2).sum()))
+    print(f"spread of a point: {sd_z:.2f} mm along the height, {sd_arc:.2f} mm around")
+    assert sd_z == pytest.approx(P.PROFILE_SMOOTH_MM, rel=0.1)
+    assert sd_arc == pytest.approx(P.PROFILE_SMOOTH_MM, rel=0.1)
+    # the model's profile against its unsmoothed hulls, over the face (front 120 degrees)
+    hull = P.surface_smooth(model.profile, g, 0.0)            # length 0: unchanged
+    np.testing.assert_array_equal(hull, model.profile)
+    front = np.cos(g.theta) < -0.5
+
     def ridges(r):
-        return float(np.abs(r[2:] - 2 * r[1:-1] + r[:-2]).mean())
-    before, after = ridges(model.hull_profile), ridges(model.profile)
-    print(f"row-to-row second difference: hull profile {before:.3f} mm, smoothed {after:.3f} mm")
-    assert after < 0.8 * before                     # measured on the phantom: 0.197 -> 0.143 mm (0.73)
+        return float(np.abs(r[2:] - 2 * r[1:-1] + r[:-2])[:, front].mean())
+    saved = P.PROFILE_SMOOTH_MM, P.PROFILE_SMOOTH_ARC_MM
+    try:
+        P.PROFILE_SMOOTH_MM = P.PROFILE_SMOOTH_ARC_MM = 0.0
+        lm = model.landmarks_used                 # the skull base as FaceModel.prepare takes it
+        base_z = float(np.mean([lm[n][2] for n in ("Porion L", "Porion R")])) - 15.0
+        _, raw_hulls = P.bone_profile(phantom_bone[0], g, base_z)
+    finally:
+        P.PROFILE_SMOOTH_MM, P.PROFILE_SMOOTH_ARC_MM = saved
+    before, after = ridges(raw_hulls), ridges(model.profile)
+    print(f"rows' second difference over the face: hulls {before:.3f} mm, smoothed {after:.3f} mm")
+    assert after < 0.5 * before
 
 
 def test_lips_from_the_teeth_and_canines(model, face, phantom_bone):
@@ -584,7 +614,13 @@ def test_cheeks_convex_only_between_the_stomion_and_the_orbits_floor(model, face
     base = (model.profile + model._offset_field(face.tips))[:, cols]
     cheeks = model._cheeks(base, front)
     assert np.all(cheeks >= base - 1e-9)
-    np.testing.assert_array_equal(cheeks[w == 0], base[w == 0])
+    # the lift is made row by row and smoothed over the surface (CHEEK_SMOOTH_MM): it fades out beyond the band
+    # within the Gaussian's reach (4 sigma) and leaves every row farther away as it was
+    from pdehead_addon.forensic.face_from_skull import CHEEK_SMOOTH_MM
+    band = z[w > 0]
+    far = (z < band.min() - 4 * CHEEK_SMOOTH_MM - 1.0) | (z > band.max() + 4 * CHEEK_SMOOTH_MM + 1.0)
+    assert far.any()
+    np.testing.assert_array_equal(cheeks[far], base[far])
 
 
 def test_peg_report_gives_each_tips_distance_to_the_face_and_why(model, face):
@@ -717,3 +753,26 @@ def test_cthead_face_does_not_depend_on_the_strip_level(cthead_ct):
             assert 0.3 <= (mr - go) / (po - go) <= 0.7, (level, side)
     assert abs(shares[1500.0] - shares[1600.0]) <= 0.03, shares
     assert min(shares.values()) >= 0.50, shares
+
+
+def test_subnasale_stands_at_least_at_subspinales_peg(model, face):
+    """Soft subnasale at least as far forward as subspinale's peg tip (bony subspinale + the T-Table's depth; Singh &
+    Purkait 2024, face_features.predict_nose), even where the face the depth field makes there lies deeper (the closed
+    profile over the aperture's floor: a notch under the nose): the nose's columella reaches the tip's depth."""
+    tip = face.tips[model.peg_names.index("Subspinale")]
+    zs = model.nose.get("subnasale_z")
+    zs = float(tip[2]) + 4.0 if zs is None else float(zs)
+    cols, front = model._front()
+    g = front
+    base = (model.profile + model._offset_field(face.tips))[:, cols] - 10.0        # a face 10 mm deeper
+    bump = model._nose_bump(base, face.tips, front)
+    x = g.centre[0] + (base + bump) * np.sin(g.theta)[None, :]
+    y = g.centre[1] + (base + bump) * np.cos(g.theta)[None, :]
+    rows = np.abs(g.z - zs) <= 0.5 * (g.z[1] - g.z[0]) + 1e-9
+    mid = np.abs(x[rows] - model.nose["mid_x"]) < 1.5
+    front_y = float(y[rows][mid].min())
+    deep_y = float((g.centre[1] + base * np.cos(g.theta)[None, :])[rows][mid].min())
+    print(f"phantom: subnasale row z {zs:.1f}: face 10 mm deeper y {deep_y:.1f}, with the nose {front_y:.1f}, "
+          f"subspinale's tip y {tip[1]:.1f}")
+    assert deep_y > float(tip[1]) + 3.0                       # the deeper face alone would leave a notch
+    assert front_y <= float(tip[1]) + 0.5
