@@ -213,7 +213,7 @@ class TimerModal:
         return {'RUNNING_MODAL'}
 
     def _end_ui(self, context) -> None:
-        progress.PROGRESS_HOOK[0] = None
+        progress.set_hook(None)
         wm = context.window_manager
         timer = getattr(self, "_timer", None)
         if timer is not None and wm is not None:
@@ -358,7 +358,7 @@ class PDEHEAD_OT_run_pipeline(Operator, GuardedOperator, LoaderOptions, TimerMod
         run = self._run
         self.start_ui(context, len(run.steps), f"PDE Head: {run.next_label}... (Esc to cancel)")
         # within a step: the engine's progress moves the progress indicator between the step marks
-        progress.PROGRESS_HOOK[0] = lambda _step, fraction, _message="": wm.progress_update(run.index + fraction)
+        progress.set_hook(lambda _step, fraction, _message="": wm.progress_update(run.index + fraction))
         return {'RUNNING_MODAL'}
 
     cancelled_message = "PDE Head pipeline cancelled: nothing was kept"

@@ -8,10 +8,13 @@
    (``name: XProperty(... D.NAME ...)``) under its own name by more than one class of ``operators/`` (the
    study's property group and an operator that mirrors it, say). Properties generated from the one table
    (``operators/props.py``'s ``SETTINGS``) are written out nowhere else.
-2. **Module-level mutable state**: a module-level name bound to a dict, list or set (a literal, a
-   comprehension or a call of ``dict``/``list``/``set``/``defaultdict``/``WeakKeyDictionary``/...) that the
-   code writes (item assignment or deletion, a mutating method), a ``global`` statement whose name a function
-   assigns, and an assignment to another project module's attribute (``state.last_exception = ...``).
+2. **Module-level mutable state**: a module-level name (or an attribute of a module-level class) bound to a
+   dict, list or set (a literal, a comprehension or a call of ``dict``/``list``/``set``/``defaultdict``/
+   ``WeakKeyDictionary``/...) that the code writes (item assignment or deletion, a mutating method), a
+   ``global`` statement whose name a function assigns, and an assignment to another project module's
+   attribute (``state.last_exception = ...``). The one registry (``operators/state.py``'s ``REGISTRY``, an
+   instance of its ``Registry`` class) is where this state lives instead: attributes of an instance are not
+   counted.
 
 Both are meant to be 0 (see tests/test_study_measures.py for what is held today).
 """
@@ -113,6 +116,20 @@ def _module_level_bindings(tree: ast.Module) -> set[str]:
     return names
 
 
+def _class_level_bindings(tree: ast.Module) -> set[tuple[str, str]]:
+    """(class, attribute) of the module-level classes' attributes bound to a dict, list or set."""
+    out = set()
+    for cls in tree.body:
+        if not isinstance(cls, ast.ClassDef):
+            continue
+        for stmt in cls.body:
+            value = stmt.value if isinstance(stmt, (ast.Assign, ast.AnnAssign)) else None
+            targets = stmt.targets if isinstance(stmt, ast.Assign) else [getattr(stmt, "target", None)]
+            if value is not None and _is_mutable_value(value):
+                out |= {(cls.name, t.id) for t in targets if isinstance(t, ast.Name)}
+    return out
+
+
 def _written_base(node) -> tuple[str, str] | None:
     """For ``X[...]`` / ``mod.X[...]`` / ``X.method(...)`` targets: (module alias or "", X)."""
     if isinstance(node, ast.Name):
@@ -145,6 +162,16 @@ def module_mutable_state(root: Path = ROOT, folder: str = OPERATORS) -> list[dic
 
     for where, tree in trees.items():
         aliases = _project_module_aliases(tree)
+        class_attrs = _class_level_bindings(tree)
+        by_attr = {attr: cls for cls, attr in class_attrs}
+
+        def class_owner(node):
+            """``Class.attr`` when ``node`` is ``cls.attr`` / ``self.attr`` / ``Class.attr`` of a class attribute
+            bound to a dict, list or set, else None."""
+            if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.attr in by_attr
+                    and node.value.id in {"cls", "self", by_attr[node.attr]}):
+                return f"{by_attr[node.attr]}.{node.attr}"
+            return None
 
         def owner(base):
             """The module whose mutable binding ``base`` names, or None."""
@@ -172,6 +199,8 @@ def module_mutable_state(root: Path = ROOT, folder: str = OPERATORS) -> list[dic
             elif isinstance(node, ast.Delete):
                 targets = node.targets
             for t in targets:
+                if isinstance(t, ast.Subscript) and class_owner(t.value):
+                    add(where, class_owner(t.value), "class attribute item write", node.lineno)
                 if isinstance(t, ast.Subscript):
                     base = _written_base(t.value)
                     if base is not None and owner(base) is not None:
@@ -184,6 +213,8 @@ def module_mutable_state(root: Path = ROOT, folder: str = OPERATORS) -> list[dic
                 base = _written_base(node.func.value)
                 if base is not None and owner(base) is not None:
                     add(owner(base), base[1], "mutating call", node.lineno)
+                if class_owner(node.func.value):
+                    add(where, class_owner(node.func.value), "class attribute mutating call", node.lineno)
     return sorted(found.values(), key=lambda e: (e["module"], e["name"], e["kind"]))
 
 
@@ -195,8 +226,9 @@ def measures(root: Path = ROOT) -> dict:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", action="store_true", help="print the measures as JSON")
+    parser.add_argument("--root", type=Path, default=ROOT, help="the repository to measure (default: this one)")
     args = parser.parse_args(argv)
-    m = measures()
+    m = measures(args.root)
     if args.json:
         print(json.dumps(m, indent=1))
         return 0

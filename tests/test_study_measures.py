@@ -70,13 +70,26 @@ def test_module_mutable_state_is_counted_on_a_made_up_tree(tmp_path):
                 state.last_error = exc
                 local = {}
                 local["x"] = 1
+            class Study:
+                _registry: dict = {}
+                KINDS = ("a", "b")
+                @classmethod
+                def of(cls, key):
+                    cls._registry[key] = cls()
+            class Registry:
+                def __init__(self):
+                    self.caches = {}
+            REGISTRY = Registry()
+            def remember(key):
+                REGISTRY.caches[key] = 1          # the one registry: an instance's attribute
             """})
     found = {(e["module"], e["name"], e["kind"]) for e in study_measures.module_mutable_state(root)}
     assert found == {("operators/state.py", "_CACHE", "item write"),
                      ("operators/state.py", "_count", "global write"),
                      ("operators/progress.py", "PENDING", "mutating call"),
                      ("operators/progress.py", "HOOK", "item write"),
-                     ("operators/state.py", "last_error", "attribute set from another module")}
+                     ("operators/state.py", "last_error", "attribute set from another module"),
+                     ("operators/ops.py", "Study._registry", "class attribute item write")}
 
 
 def test_no_study_setting_is_declared_twice():
@@ -84,3 +97,9 @@ def test_no_study_setting_is_declared_twice():
     the forensic maximum depth (the forensic settings' and the Tissue Depth operator's) is the one left."""
     found = study_measures.settings_declared_twice()
     assert [e["setting"] for e in found] in ([], ["max_depth"]), found
+
+
+def test_operators_keep_no_module_level_mutable_state():
+    """Every study entity, its cache and the session's state live in ``operators/state.py``'s ``REGISTRY``
+    (18 names in 11 modules before: caches, busy flags, the progress hook, the last exception, ...)."""
+    assert study_measures.module_mutable_state() == []
