@@ -96,14 +96,13 @@ class PDEHEAD_OT_extract_boundaries(Operator, StudyOperator):
     def run(self, context, study):
         s = study.settings
         self.store_settings(s)
-        warnings_before = study.warnings
-        study.boundaries()
-        self.patches = s.patches  # may have been reduced to what the scan allows
+        outcome = study.boundaries()
+        self.patches = outcome.patches  # may have been reduced to what the scan allows
         achieved = (f"; surface from all {abs(s.outline_candidates)} usable outlines: mean "
                     f"{s.outline_mean_mm:.2f} mm, max {s.outline_max_mm:.2f} mm" if s.outline_candidates else "")
-        self.report({'INFO'}, f"{s.curve_count} boundary curves of {self.samples} points extracted "
-                    f"from '{study.name}' ({study.timings['boundaries']:.2f} s){achieved}")
-        for warning in study.warnings[len(warnings_before):]:
+        self.report({'INFO'}, f"{outcome.curves} boundary curves of {self.samples} points extracted "
+                    f"from '{study.name}' ({outcome.seconds:.2f} s){achieved}")
+        for warning in outcome.warnings:
             self.report({'WARNING'}, state.user_text(warning))
 
 

@@ -149,72 +149,93 @@ def _project_module_aliases(tree: ast.Module) -> set[str]:
     return aliases
 
 
+def _targets(node) -> list:
+    """What an assignment, augmented assignment or ``del`` writes to (nothing for other nodes)."""
+    if isinstance(node, (ast.Assign, ast.Delete)):
+        return node.targets
+    if isinstance(node, (ast.AugAssign, ast.AnnAssign)):
+        return [node.target]
+    return []
+
+
+def _global_writes(tree: ast.Module):
+    """(name, line) of every assignment to a name a function declares ``global``."""
+    for func in ast.walk(tree):
+        if not isinstance(func, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            continue
+        declared = {n for stmt in ast.walk(func) if isinstance(stmt, ast.Global) for n in stmt.names}
+        for stmt in ast.walk(func):
+            for t in _targets(stmt):
+                if isinstance(t, ast.Name) and t.id in declared:
+                    yield t.id, stmt.lineno
+
+
+class _ModuleState:
+    """The mutable bindings of one module of ``trees`` and who owns what a write reaches."""
+
+    def __init__(self, where: str, tree: ast.Module, bindings: dict[str, set], by_stem: dict[str, str]):
+        self.where, self.bindings, self.by_stem = where, bindings, by_stem
+        self.aliases = _project_module_aliases(tree)
+        self.by_attr = {attr: cls for cls, attr in _class_level_bindings(tree)}
+
+    def class_owner(self, node) -> str | None:
+        """``Class.attr`` when ``node`` is ``cls.attr`` / ``self.attr`` / ``Class.attr`` of a class attribute
+        bound to a dict, list or set, else None."""
+        if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.attr in self.by_attr
+                and node.value.id in {"cls", "self", self.by_attr[node.attr]}):
+            return f"{self.by_attr[node.attr]}.{node.attr}"
+        return None
+
+    def owner(self, node) -> tuple[str, str] | None:
+        """(module, name) of the module-level mutable binding ``node`` (``X`` or ``mod.X``) names, or None."""
+        base = _written_base(node)
+        if base is None:
+            return None
+        alias, name = base
+        if alias == "" and name in self.bindings[self.where]:
+            return self.where, name
+        module = self.by_stem.get(alias) if alias in self.aliases else None
+        if module is not None and name in self.bindings[module]:
+            return module, name
+        return None
+
+    def module_attribute(self, node) -> tuple[str, str] | None:
+        """(module, attribute) when ``node`` is ``mod.attr`` of another project module, else None."""
+        if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id in self.aliases
+                and node.value.id in self.by_stem):
+            return self.by_stem[node.value.id], node.attr
+        return None
+
+    def writes(self, node):
+        """(module, name, kind) of each write of mutable state ``node`` makes."""
+        for t in _targets(node):
+            if isinstance(t, ast.Subscript):
+                if self.class_owner(t.value):
+                    yield self.where, self.class_owner(t.value), "class attribute item write"
+                if self.owner(t.value):
+                    yield (*self.owner(t.value), "item write")
+            elif not isinstance(node, ast.Delete) and self.module_attribute(t):
+                yield (*self.module_attribute(t), "attribute set from another module")
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr in MUTATING_METHODS:
+            if self.owner(node.func.value):
+                yield (*self.owner(node.func.value), "mutating call")
+            if self.class_owner(node.func.value):
+                yield self.where, self.class_owner(node.func.value), "class attribute mutating call"
+
+
 def module_mutable_state(root: Path = ROOT, folder: str = OPERATORS) -> list[dict]:
     """Module-level mutable state of ``folder`` that is written; one entry per (module, name, kind)."""
-    found: dict[tuple, dict] = {}
     trees = {p.relative_to(root).as_posix(): ast.parse(p.read_text(encoding="utf-8"))
              for p in _modules(root, folder)}
     bindings = {where: _module_level_bindings(tree) for where, tree in trees.items()}
     by_stem = {Path(where).stem: where for where in trees}
-
-    def add(where, name, kind, line):
-        found.setdefault((where, name, kind), {"module": where, "name": name, "kind": kind, "line": line})
-
+    found: dict[tuple, dict] = {}
     for where, tree in trees.items():
-        aliases = _project_module_aliases(tree)
-        class_attrs = _class_level_bindings(tree)
-        by_attr = {attr: cls for cls, attr in class_attrs}
-
-        def class_owner(node):
-            """``Class.attr`` when ``node`` is ``cls.attr`` / ``self.attr`` / ``Class.attr`` of a class attribute
-            bound to a dict, list or set, else None."""
-            if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.attr in by_attr
-                    and node.value.id in {"cls", "self", by_attr[node.attr]}):
-                return f"{by_attr[node.attr]}.{node.attr}"
-            return None
-
-        def owner(base):
-            """The module whose mutable binding ``base`` names, or None."""
-            alias, name = base
-            if alias == "" and name in bindings[where]:
-                return where
-            if alias in aliases and alias in by_stem and name in bindings[by_stem[alias]]:
-                return by_stem[alias]
-            return None
-
-        for node in ast.walk(tree):
-            if isinstance(node, ast.FunctionDef) or isinstance(node, ast.AsyncFunctionDef):
-                declared = {n for stmt in ast.walk(node) if isinstance(stmt, ast.Global) for n in stmt.names}
-                for stmt in ast.walk(node):
-                    targets = stmt.targets if isinstance(stmt, ast.Assign) else (
-                        [stmt.target] if isinstance(stmt, (ast.AugAssign, ast.AnnAssign)) else [])
-                    for t in targets:
-                        if isinstance(t, ast.Name) and t.id in declared:
-                            add(where, t.id, "global write", stmt.lineno)
-            targets = []
-            if isinstance(node, ast.Assign):
-                targets = node.targets
-            elif isinstance(node, (ast.AugAssign, ast.AnnAssign)):
-                targets = [node.target]
-            elif isinstance(node, ast.Delete):
-                targets = node.targets
-            for t in targets:
-                if isinstance(t, ast.Subscript) and class_owner(t.value):
-                    add(where, class_owner(t.value), "class attribute item write", node.lineno)
-                if isinstance(t, ast.Subscript):
-                    base = _written_base(t.value)
-                    if base is not None and owner(base) is not None:
-                        add(owner(base), base[1], "item write", node.lineno)
-                elif (isinstance(t, ast.Attribute) and isinstance(t.value, ast.Name) and t.value.id in aliases
-                      and t.value.id in by_stem and not isinstance(node, ast.Delete)):
-                    add(by_stem[t.value.id], t.attr, "attribute set from another module", node.lineno)
-            if (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
-                    and node.func.attr in MUTATING_METHODS):
-                base = _written_base(node.func.value)
-                if base is not None and owner(base) is not None:
-                    add(owner(base), base[1], "mutating call", node.lineno)
-                if class_owner(node.func.value):
-                    add(where, class_owner(node.func.value), "class attribute mutating call", node.lineno)
+        module = _ModuleState(where, tree, bindings, by_stem)
+        writes = [(where, name, "global write", line) for name, line in _global_writes(tree)]
+        writes += [(*w, node.lineno) for node in ast.walk(tree) for w in module.writes(node)]
+        for owner, name, kind, line in writes:
+            found.setdefault((owner, name, kind), {"module": owner, "name": name, "kind": kind, "line": line})
     return sorted(found.values(), key=lambda e: (e["module"], e["name"], e["kind"]))
 
 
