@@ -45,9 +45,6 @@ GROUP_OBJECTS = {"pde": ("surface_object", "solid_object"), "surface_solid": ("s
                  "surface": ("surface_object",), "solid": ("solid_object",), "volume": ("volume_object",)}
 CUTTER_OWNED = ("u_range", "v_range")  # written by the cutter while Use Cutter is on
 
-_BUSY = [False]
-_APPLIED: dict[str, dict] = {}   # study_id -> {group: values last applied}
-_HIDDEN: dict[str, set] = {}     # study_id -> names of objects hidden because their rebuild failed
 
 
 def _value(v):
@@ -82,11 +79,11 @@ def _scene_studies(scene) -> list:
 def forget(study_id: str | None = None) -> None:
     """Drop what the handler remembers (after a file load, or for one removed study)."""
     if study_id is None:
-        _APPLIED.clear()
-        _HIDDEN.clear()
+        state.REGISTRY.animation_applied.clear()
+        state.REGISTRY.animation_hidden.clear()
     else:
-        _APPLIED.pop(study_id, None)
-        _HIDDEN.pop(study_id, None)
+        state.REGISTRY.animation_applied.pop(study_id, None)
+        state.REGISTRY.animation_hidden.pop(study_id, None)
 
 
 def _report_failure(coll, s, group: str, exc: Exception, frame: int) -> None:
@@ -96,7 +93,7 @@ def _report_failure(coll, s, group: str, exc: Exception, frame: int) -> None:
         if obj is not None and not obj.hide_render:
             obj.hide_render = True
             names.add(obj.name)
-    _HIDDEN.setdefault(s.study_id, set()).update(names)
+    state.REGISTRY.animation_hidden.setdefault(s.study_id, set()).update(names)
     hidden = f"; hidden from the render: {', '.join(sorted(names))}" if names else ""
     message = f"frame {frame}: {group} not rebuilt: {exc}{hidden}"
     with suspended_updates():
@@ -105,7 +102,7 @@ def _report_failure(coll, s, group: str, exc: Exception, frame: int) -> None:
 
 
 def _restore_hidden(s) -> None:
-    for name in _HIDDEN.pop(s.study_id, ()):
+    for name in state.REGISTRY.animation_hidden.pop(s.study_id, ()):
         obj = bpy.data.objects.get(name)
         if obj is not None:
             obj.hide_render = False
@@ -121,7 +118,7 @@ def apply_frame(scene, depsgraph=None) -> dict[str, list[str]]:
         obj = study.settings_object
         s = obj.pdehead
         frame_s = _evaluated(obj, depsgraph).pdehead
-        applied = _APPLIED.setdefault(s.study_id, {})  # filled by the frame_change_pre handler
+        applied = state.REGISTRY.animation_applied.setdefault(s.study_id, {})  # filled by the frame_change_pre handler
         rebuilt: list[str] = []
         failed = False
         box = cutter.cutter_of(coll) if s.use_cutter else None
@@ -194,13 +191,13 @@ def note_built(scene) -> None:
     for coll in _scene_studies(scene):
         s = state.settings(coll)
         skip = CUTTER_OWNED if s.use_cutter and cutter.cutter_of(coll) is not None else ()
-        _APPLIED[s.study_id] = {group: group_values(s, group, skip) for group in GROUPS}
+        state.REGISTRY.animation_applied[s.study_id] = {group: group_values(s, group, skip) for group in GROUPS}
 
 
 @bpy.app.handlers.persistent
 def pdehead_frame_change_pre(scene, depsgraph=None) -> None:
     """``frame_change_pre``: what each study is built with, before the frame's values arrive."""
-    if _BUSY[0] or state.updates_suspended():
+    if state.running.now("animation") or state.updates_suspended():
         return
     try:
         note_built(scene)
@@ -211,15 +208,13 @@ def pdehead_frame_change_pre(scene, depsgraph=None) -> None:
 @bpy.app.handlers.persistent
 def pdehead_frame_change(scene, depsgraph=None) -> None:
     """``frame_change_post``: every study of the scene shows the frame's settings (see the module)."""
-    if _BUSY[0] or state.updates_suspended():
+    if state.running.now("animation") or state.updates_suspended():
         return
-    _BUSY[0] = True
-    try:
-        apply_frame(scene, depsgraph)
-    except Exception:  # noqa: BLE001 - never raise into Blender (playback, rendering)
-        traceback.print_exc()
-    finally:
-        _BUSY[0] = False
+    with state.running("animation"):
+        try:
+            apply_frame(scene, depsgraph)
+        except Exception:  # noqa: BLE001 - never raise into Blender (playback, rendering)
+            traceback.print_exc()
 
 
 @bpy.app.handlers.persistent

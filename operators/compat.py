@@ -19,12 +19,10 @@ Tested with bpy from PyPI 4.2.23, 4.5.15, 5.0.1 (Python 3.11, numpy 1.26) and 5.
 """
 from __future__ import annotations
 
+import functools
 from types import ModuleType
 
 import numpy as np
-
-_UNSET = object()
-_openvdb_cache: object = _UNSET
 
 
 def expose_bundled_modules() -> bool:
@@ -41,20 +39,17 @@ def expose_bundled_modules() -> bool:
     return True
 
 
+@functools.cache
 def openvdb_module() -> ModuleType | None:
-    """Blender's OpenVDB Python bindings (``openvdb`` or, before 4.4, ``pyopenvdb``), or None if it has none."""
-    global _openvdb_cache
-    if _openvdb_cache is _UNSET:
-        expose_bundled_modules()
-        module = None
-        for name in ("openvdb", "pyopenvdb"):
-            try:
-                module = __import__(name)
-                break
-            except ImportError:
-                continue
-        _openvdb_cache = module
-    return _openvdb_cache  # type: ignore[return-value]
+    """Blender's OpenVDB Python bindings (``openvdb`` or, before 4.4, ``pyopenvdb``), or None if it has none
+    (looked up once)."""
+    expose_bundled_modules()
+    for name in ("openvdb", "pyopenvdb"):
+        try:
+            return __import__(name)
+        except ImportError:
+            continue
+    return None
 
 
 def unregister_at_exit(unregister) -> None:

@@ -80,17 +80,11 @@ TIP_TOLERANCE_MM = 1e-4
 #: A model rebuilt from the file must give the saved face at the saved tips within this (mm; the mesh keeps
 #: float32 metres, ~1e-5 mm at a head's size).
 RESTORE_TOLERANCE_MM = 1e-3
-#: How many times this session prepared a face model from a skull (Build Face, or a kept model that could
-#: not be used): a reopened file's first drag must not add one.
-PREPARE_CALLS = [0]
 
 
 def approximation_label() -> str:
     from ..pdehead_addon import APPROXIMATION_LABEL
     return APPROXIMATION_LABEL
-
-
-_TABLES: dict = {}
 
 
 def table_has_sex(table) -> bool:
@@ -99,7 +93,9 @@ def table_has_sex(table) -> bool:
 
 
 def _prepare(skull, lms, table, **kw):
-    PREPARE_CALLS[0] += 1
+    """A face model prepared from a skull, counted in ``state.REGISTRY.face_prepare_calls`` (Build Face, or a
+    kept model that could not be used: a reopened file's first drag must not add one)."""
+    state.REGISTRY.face_prepare_calls += 1
     from ..pdehead_addon import FaceModel
     return FaceModel.prepare(skull, lms, table, **kw)
 
@@ -203,9 +199,10 @@ class FaceSteps:
             key = (path, os.path.getmtime(path))
         else:
             key = ("default",)
-        if key not in _TABLES:
-            _TABLES[key] = default_table() if key == ("default",) else read_depth_table(path)
-        return _TABLES[key]
+        tables = state.REGISTRY.face_tables
+        if key not in tables:
+            tables[key] = default_table() if key == ("default",) else read_depth_table(path)
+        return tables[key]
 
     def face_sex(self) -> str | None:
         value = self.settings.face_sex
@@ -608,9 +605,6 @@ def live_table(coll) -> None:
     forensic_of(coll).live_table()
 
 
-_BUSY = [False]
-
-
 @bpy.app.handlers.persistent
 def pdehead_face_update(_scene, depsgraph=None) -> None:
     """After a depsgraph update: re-solve each study's face whose peg tips moved since its last solve.
@@ -618,10 +612,9 @@ def pdehead_face_update(_scene, depsgraph=None) -> None:
     A scene without a face costs one key lookup per study; a face whose pegs did not move, one
     matrix read per peg.
     """
-    if _BUSY[0] or state.updates_suspended():
+    if state.running.now("face") or state.updates_suspended():
         return
-    _BUSY[0] = True
-    try:
+    with state.running("face"):
         for coll in state.studies():
             if FACE_KEY not in coll:
                 continue
@@ -638,8 +631,6 @@ def pdehead_face_update(_scene, depsgraph=None) -> None:
                     fs.cache["face_tips"] = fs.peg_tips(fs.face_peg_names())
                 fs.settings.last_error = f"face: {exc}"[:500]
                 print(f"PDE Head: face of '{coll.name}' not updated: {exc}")
-    finally:
-        _BUSY[0] = False
 
 
 def register() -> None:
@@ -648,4 +639,4 @@ def register() -> None:
 
 def unregister() -> None:
     state.remove_depsgraph_handler(pdehead_face_update)
-    _TABLES.clear()
+    state.REGISTRY.face_tables.clear()

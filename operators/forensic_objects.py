@@ -13,14 +13,13 @@ import numpy as np
 
 import bpy
 
-from . import compat
+from . import compat, state
 from .forensic_props import FORMAT_VERSION, forensic_settings, migrate
 
 
 class ForensicBase:
     """One study's forensic side; get it with ``ForensicStudy.of(study)`` (``study``: a :class:`.study_entity.Study`)."""
 
-    _registry: dict = {}
     #: The class :meth:`of` makes: the full entity (set when :class:`.forensic_study.ForensicStudy` is defined),
     #: so the parts that define its methods never import it back.
     entity_type: type | None = None
@@ -34,12 +33,14 @@ class ForensicBase:
 
     @classmethod
     def of(cls, study):
-        """The forensic side of ``study`` (a :class:`.study_entity.Study`; one object per study id)."""
+        """The forensic side of ``study`` (a :class:`.study_entity.Study`; one object per study id, in
+        ``state.REGISTRY``)."""
         key = study.study_id
         kind = ForensicBase.entity_type or cls
-        entity = ForensicBase._registry.get(key)
+        entities = state.REGISTRY.forensic
+        entity = entities.get(key)
         if not isinstance(entity, kind):
-            entity = ForensicBase._registry[key] = kind(study)
+            entity = entities[key] = kind(study)
         entity.study = study
         if entity.props.format_version < FORMAT_VERSION:
             entity.migrate()

@@ -9,12 +9,13 @@ from __future__ import annotations
 from pathlib import Path
 
 import bpy
-from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProperty, FloatVectorProperty,
+from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatVectorProperty,
                        IntProperty, IntVectorProperty, StringProperty)
 from bpy.types import OperatorFileListElement
 
 from ..pdehead_addon import CTImportError
 from ..pdehead_addon import defaults as D
+from . import props
 
 FORMAT_ITEMS = [
     ("AUTO", "Auto", "Detect DICOM series or numbered 2-D images (TIFF, PNG)"),
@@ -59,8 +60,10 @@ def parse_dtype_string(text: str) -> tuple[str, str]:
     return code, order
 
 
+@props.settings_options("use_bone_level", "bone_level", mirrored=False)
 class LoaderOptions:
-    """Operator properties of the CT loaders (mixed into import_ct and run_pipeline)."""
+    """Operator properties of the CT loaders (mixed into import_ct and run_pipeline); the forensic bone level is
+    the study's setting (:mod:`.props`)."""
 
     directory: StringProperty(name="Folder", subtype="DIR_PATH", options={'HIDDEN', 'SKIP_SAVE'})
     filepath: StringProperty(name="File Path", subtype="FILE_PATH", options={'HIDDEN', 'SKIP_SAVE'})
@@ -96,9 +99,6 @@ class LoaderOptions:
     series_uid: StringProperty(name="Series UID", default="",
                                description="DICOM: the SeriesInstanceUID to load when the folder "
                                            "holds several series (empty: the only/largest one)")
-    use_bone_level: BoolProperty(name=D.USE_BONE_LEVEL.label, **D.USE_BONE_LEVEL.limits(),
-                                 description=D.USE_BONE_LEVEL.description)
-    bone_level: FloatProperty(name=D.BONE_LEVEL.label, **D.BONE_LEVEL.limits(), description=D.BONE_LEVEL.description)
 
     def apply_study_options(self, coll) -> None:
         """Options of the dialog that belong to the study, not the loader (the forensic bone level)."""

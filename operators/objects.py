@@ -15,7 +15,7 @@ import numpy as np
 
 from ..pdehead_addon import defaults as D
 from ..pdehead_addon import apply_window, intensity_window, sample_ct
-from . import compat
+from . import compat, state
 from .coords import MM_TO_M
 from .ct_texture import box_face_uv, box_faces, ct_texture_atlas
 
@@ -435,7 +435,7 @@ def _set_ct_texture(obj, atlas: np.ndarray, corner_uv: np.ndarray, budget_px: fl
     if image.packed_file is None:
         image.pack()
     else:
-        _UNPACKED_CHANGES.add(image.name)
+        state.REGISTRY.unpacked_changes.add(image.name)
     return image
 
 
@@ -453,21 +453,18 @@ def _set_box_uv(me, corner_uv: np.ndarray) -> None:
 #: A solid's CT image is reused for a smaller atlas (its corner; the UVs scaled) up to this area ratio.
 ATLAS_REUSE_AREA = 2.0
 
-#: Names of CT atlas images changed since they were last packed (see :func:`pack_ct_images`).
-_UNPACKED_CHANGES: set[str] = set()
-
-
 def pack_ct_images() -> int:
-    """Pack the CT atlas images changed since their last packing (called before saving); returns the count."""
+    """Pack the CT atlas images changed since their last packing (``state.REGISTRY.unpacked_changes``; called
+    before saving); returns the count."""
     import bpy
 
     count = 0
-    for name in sorted(_UNPACKED_CHANGES):
+    for name in sorted(state.REGISTRY.unpacked_changes):
         image = bpy.data.images.get(name)
         if image is not None and image.get(CT_IMAGE_KEY) == 1:
             image.pack()
             count += 1
-    _UNPACKED_CHANGES.clear()
+    state.REGISTRY.unpacked_changes.clear()
     return count
 
 

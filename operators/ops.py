@@ -8,7 +8,7 @@ and undo what the step created) is :mod:`.base`'s. Defaults and ranges come from
 from __future__ import annotations
 
 import bpy
-from bpy.props import BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 from bpy.types import Operator
 
 from ..pdehead_addon import PDEHeadError
@@ -85,63 +85,34 @@ class PDEHEAD_OT_segment(Operator, StudyOperator):
                     f"voxels ({s.seg_iterations} iterations, {study.timings['segment']:.2f} s)")
 
 
+@props.settings_options("patches", "samples", "selection", "align_curves", "use_tolerance", "tolerance_mm",
+                        "max_tolerance_mm")
 class PDEHEAD_OT_extract_boundaries(Operator, StudyOperator):
     bl_idname = "pdehead.extract_boundaries"
     bl_label = "Extract Boundaries"
     bl_description = "Extract the 3t+1 boundary curves (eq. 22) of t PDE patches from the segmentation"
     bl_options = {'REGISTER', 'UNDO'}
 
-    patches: IntProperty(name=D.PATCHES.label, **D.PATCHES.limits())
-    samples: IntProperty(name=D.SAMPLES.label, **D.SAMPLES.limits())
-    selection: EnumProperty(name=D.SELECTION.label, items=props.SELECTION_ITEMS, default=D.SELECTION.default)
-    # equal v = the same direction from the spine
-    align_curves: BoolProperty(name=D.ALIGN_CURVES.label, **D.ALIGN_CURVES.limits(),
-                               description="Re-sample the curves so that equal v joins corresponding points "
-                                           "(avoids folds where a feature such as the nose is on one curve only)")
-
-    use_tolerance: BoolProperty(name=D.USE_TOLERANCE.label, **D.USE_TOLERANCE.limits(),
-                                description=D.USE_TOLERANCE.description)
-    tolerance_mm: FloatProperty(name=D.TOLERANCE_MM.label, **D.TOLERANCE_MM.limits(),
-                                description=D.TOLERANCE_MM.description)
-    max_tolerance_mm: FloatProperty(name=D.MAX_TOLERANCE_MM.label, **D.MAX_TOLERANCE_MM.limits(),
-                                    description=D.MAX_TOLERANCE_MM.description)
-
-    mirrored_settings = ("patches", "samples", "selection", "align_curves", "use_tolerance", "tolerance_mm",
-                         "max_tolerance_mm")
-
     def run(self, context, study):
         s = study.settings
         self.store_settings(s)
-        warnings_before = study.warnings
-        study.boundaries()
-        self.patches = s.patches  # may have been reduced to what the scan allows
+        outcome = study.boundaries()
+        self.patches = outcome.patches  # may have been reduced to what the scan allows
         achieved = (f"; surface from all {abs(s.outline_candidates)} usable outlines: mean "
                     f"{s.outline_mean_mm:.2f} mm, max {s.outline_max_mm:.2f} mm" if s.outline_candidates else "")
-        self.report({'INFO'}, f"{s.curve_count} boundary curves of {self.samples} points extracted "
-                    f"from '{study.name}' ({study.timings['boundaries']:.2f} s){achieved}")
-        for warning in study.warnings[len(warnings_before):]:
+        self.report({'INFO'}, f"{outcome.curves} boundary curves of {self.samples} points extracted "
+                    f"from '{study.name}' ({outcome.seconds:.2f} s){achieved}")
+        for warning in outcome.warnings:
             self.report({'WARNING'}, state.user_text(warning))
 
 
+@props.settings_options("nu", "nv", "caps", "continuity", "dome", "smoothing_auto", "smoothing", "approximation_auto",
+                        "approximation", "modes")
 class PDEHEAD_OT_reconstruct_surface(Operator, StudyOperator):
     bl_idname = "pdehead.reconstruct_surface"
     bl_label = "Reconstruct Surface"
     bl_description = "Solve the Bloor-Wilson PDEs (eq. 1-13) on the boundary curves and build the head surface"
     bl_options = {'REGISTER', 'UNDO'}
-
-    nu: IntProperty(name=D.NU.label, **D.NU.limits())
-    nv: IntProperty(name=D.NV.label, **D.NV.limits())
-    caps: BoolProperty(name=D.CAPS.label, **D.CAPS.limits())
-    continuity: EnumProperty(name=D.CONTINUITY.label, items=props.CONTINUITY_ITEMS, default=D.CONTINUITY.default)
-    dome: BoolProperty(name=D.DOME.label, **D.DOME.limits())
-    smoothing_auto: BoolProperty(name=D.SMOOTHING_AUTO.label, **D.SMOOTHING_AUTO.limits())
-    smoothing: FloatProperty(name=D.SMOOTHING.label, **D.SMOOTHING.limits(), subtype='FACTOR')
-    approximation_auto: BoolProperty(name=D.APPROXIMATION_AUTO.label, **D.APPROXIMATION_AUTO.limits())
-    approximation: FloatProperty(name=D.APPROXIMATION.label, **D.APPROXIMATION.limits(), subtype='FACTOR')
-    modes: IntProperty(name=D.MODES.label, **D.MODES.limits(), description="0 = all")
-
-    mirrored_settings = ("nu", "nv", "caps", "continuity", "dome", "smoothing_auto", "smoothing",
-                         "approximation_auto", "approximation", "modes")
 
     def run(self, context, study):
         s = study.settings
@@ -154,27 +125,13 @@ class PDEHEAD_OT_reconstruct_surface(Operator, StudyOperator):
                     f"({study.timings['surface']:.2f} s)")
 
 
+@props.settings_options("nu", "nv", "nw", "u_range", "v_range", "w_range", "ct_texture_budget", "solid_skin",
+                        "solid_skin_depth")
 class PDEHEAD_OT_build_solid(Operator, StudyOperator):
     bl_idname = "pdehead.build_solid"
     bl_label = "Build Solid"
     bl_description = "Build the PDE solid (eq. 23): the head sampled in u, v and w from the spine to the surface"
     bl_options = {'REGISTER', 'UNDO'}
-
-    nu: IntProperty(name=D.NU.label, **D.NU.limits())
-    nv: IntProperty(name=D.NV.label, **D.NV.limits())
-    nw: IntProperty(name=D.NW.label, **D.NW.limits())
-    u_range: FloatVectorProperty(name=D.U_RANGE.label, size=2, **D.U_RANGE.limits())
-    v_range: FloatVectorProperty(name=D.V_RANGE.label, size=2, **D.V_RANGE.limits(), unit="ROTATION")
-    w_range: FloatVectorProperty(name=D.W_RANGE.label, size=2, **D.W_RANGE.limits())
-    ct_texture_budget: FloatProperty(name=D.CT_TEXTURE_BUDGET.label, **D.CT_TEXTURE_BUDGET.limits(),
-                                     description=D.CT_TEXTURE_BUDGET.description + " (megapixels)")
-    solid_skin: EnumProperty(name=D.SOLID_SKIN.label, items=props.SOLID_SKIN_ITEMS, default=D.SOLID_SKIN.default,
-                             description=D.SOLID_SKIN.description)
-    solid_skin_depth: FloatProperty(name=D.SOLID_SKIN_DEPTH.label, **D.SOLID_SKIN_DEPTH.limits(),
-                                    description=D.SOLID_SKIN_DEPTH.description)
-
-    mirrored_settings = ("nu", "nv", "nw", "u_range", "v_range", "w_range", "ct_texture_budget", "solid_skin",
-                         "solid_skin_depth")
 
     def run(self, context, study):
         s = study.settings
@@ -192,24 +149,14 @@ class PDEHEAD_OT_build_solid(Operator, StudyOperator):
             self.report({'WARNING'}, notice[:300])
 
 
+@props.settings_options("use_ct_grid", "voxel_auto", "voxel_size", "low_alpha", "high_alpha", "density",
+                        "colour_preset", "alpha_mode")
 class PDEHEAD_OT_build_volume(Operator, StudyOperator):
     bl_idname = "pdehead.build_volume"
     bl_label = "Build Volume"
     bl_description = ("Sample the PDE solid's w on a voxel grid, write it with the CT intensities as a .vdb "
                       "and render it as a volume with eq. 24 opacity")
     bl_options = {'REGISTER', 'UNDO'}
-
-    use_ct_grid: BoolProperty(name=D.USE_CT_GRID.label, **D.USE_CT_GRID.limits())
-    voxel_auto: BoolProperty(name=D.VOXEL_AUTO.label, **D.VOXEL_AUTO.limits())
-    voxel_size: FloatProperty(name=D.VOXEL_SIZE.label, **D.VOXEL_SIZE.limits())
-    low_alpha: FloatProperty(name=D.LOW_ALPHA.label, **D.LOW_ALPHA.limits())
-    high_alpha: FloatProperty(name=D.HIGH_ALPHA.label, **D.HIGH_ALPHA.limits())
-    density: FloatProperty(name=D.DENSITY.label, **D.DENSITY.limits())
-    colour_preset: EnumProperty(name=D.COLOUR_PRESET.label, items=props.COLOUR_ITEMS, default=D.COLOUR_PRESET.default)
-    alpha_mode: EnumProperty(name=D.ALPHA_MODE.label, items=props.ALPHA_MODE_ITEMS, default=D.ALPHA_MODE.default)
-
-    mirrored_settings = ("use_ct_grid", "voxel_auto", "voxel_size", "low_alpha", "high_alpha", "density", "colour_preset",
-                         "alpha_mode")
 
     def run(self, context, study):
         s = study.settings
@@ -265,7 +212,7 @@ class TimerModal:
         return {'RUNNING_MODAL'}
 
     def _end_ui(self, context) -> None:
-        progress.PROGRESS_HOOK[0] = None
+        progress.set_hook(None)
         wm = context.window_manager
         timer = getattr(self, "_timer", None)
         if timer is not None and wm is not None:
@@ -344,6 +291,7 @@ SOURCE_ITEMS = [
 ]
 
 
+@props.settings_options("patches", "samples", "nu", "nv", "nw", "voxel_size", mirrored=False)
 class PDEHEAD_OT_run_pipeline(Operator, GuardedOperator, LoaderOptions, TimerModal):
     bl_idname = "pdehead.run_pipeline"
     bl_label = "Run PDE Head Pipeline"
@@ -353,14 +301,8 @@ class PDEHEAD_OT_run_pipeline(Operator, GuardedOperator, LoaderOptions, TimerMod
 
     source: EnumProperty(name="Source", items=SOURCE_ITEMS, default="AUTO")
     study: StringProperty(name="Study", default="", options={'SKIP_SAVE'})
-    patches: IntProperty(name=D.PATCHES.label, **D.PATCHES.limits())
-    samples: IntProperty(name=D.SAMPLES.label, **D.SAMPLES.limits())
-    nu: IntProperty(name=D.NU.label, **D.NU.limits())
-    nv: IntProperty(name=D.NV.label, **D.NV.limits())
-    nw: IntProperty(name=D.NW.label, **D.NW.limits())
     build_volume: BoolProperty(name=D.BUILD_VOLUME.label, **D.BUILD_VOLUME.limits(),
                                description=D.BUILD_VOLUME.description)
-    voxel_size: FloatProperty(name=D.VOXEL_SIZE.label, **D.VOXEL_SIZE.limits())
 
     def _resolved_source(self, context) -> str:
         if self.source != "AUTO":
@@ -415,7 +357,7 @@ class PDEHEAD_OT_run_pipeline(Operator, GuardedOperator, LoaderOptions, TimerMod
         run = self._run
         self.start_ui(context, len(run.steps), f"PDE Head: {run.next_label}... (Esc to cancel)")
         # within a step: the engine's progress moves the progress indicator between the step marks
-        progress.PROGRESS_HOOK[0] = lambda _step, fraction, _message="": wm.progress_update(run.index + fraction)
+        progress.set_hook(lambda _step, fraction, _message="": wm.progress_update(run.index + fraction))
         return {'RUNNING_MODAL'}
 
     cancelled_message = "PDE Head pipeline cancelled: nothing was kept"

@@ -103,10 +103,7 @@ class PDEHEAD_PT_boundaries(_StudyPanel, bpy.types.Panel):
             col.prop(s, "selection")
         col.prop(s, "samples")
         col.prop(s, "align_curves")
-        op = layout.operator("pdehead.extract_boundaries", icon='CURVE_BEZCIRCLE')
-        op.patches, op.samples, op.selection = s.patches, s.samples, s.selection
-        op.align_curves = s.align_curves
-        op.use_tolerance, op.tolerance_mm, op.max_tolerance_mm = s.use_tolerance, s.tolerance_mm, s.max_tolerance_mm
+        layout.operator("pdehead.extract_boundaries", icon='CURVE_BEZCIRCLE')  # invoked: starts from the settings
         if s.outline_candidates:
             box = layout.box().column(align=True)
             box.label(text=f"Surface from all {abs(s.outline_candidates)} usable outlines:",

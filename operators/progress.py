@@ -2,14 +2,19 @@
 callback each step passes on (:func:`step_progress`)."""
 from __future__ import annotations
 
-#: ``hook(step, fraction, message)`` called by the long steps while a pipeline or an operator runs; it
-#: may raise :class:`~pdehead_addon.Cancelled` (Esc in Blender, Ctrl-C on the CLI). Set by the runner.
-PROGRESS_HOOK: list = [None]
+from . import state
+
+
+def set_hook(hook) -> None:
+    """Install ``hook(step, fraction, message)``, called by the long steps while a pipeline or an operator
+    runs (it may raise :class:`~pdehead_addon.Cancelled`: Esc in Blender, Ctrl-C on the CLI); None removes it.
+    Kept in ``state.REGISTRY.progress_hook``."""
+    state.REGISTRY.progress_hook = hook
 
 
 def step_progress(step: str):
     """The engine progress callback for ``step`` (None when nobody listens)."""
-    hook = PROGRESS_HOOK[0]
+    hook = state.REGISTRY.progress_hook
     if hook is None:
         return None
     return lambda fraction, message="": hook(step, fraction, message)

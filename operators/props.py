@@ -101,6 +101,117 @@ SOURCE_KIND_ITEMS = [
 ]
 
 
+#: Every study setting of the defaults table, declared once: what Blender adds to the table's default, range,
+#: label and description (an enumeration's items, a subtype, unit or display precision, and the live update
+#: that rebuilds the study when the setting changes in the sidebar). The study's property group gets all of
+#: them (:func:`declare_settings`); an operator takes the ones it offers by name (:func:`settings_options`),
+#: the same property without the live update.
+SETTINGS: dict[str, dict] = {
+    # Forensic: the bone level (also in the import dialog)
+    "use_bone_level": {},
+    "bone_level": {},
+    # Boundaries
+    "patches": {},
+    "samples": {},
+    "selection": dict(items=SELECTION_ITEMS),
+    "align_curves": {},
+    "use_tolerance": {},
+    "tolerance_mm": dict(precision=2),
+    "max_tolerance_mm": dict(precision=2),
+    # Surface (live)
+    "nu": dict(update=_live("surface_solid")),
+    "nv": dict(update=_live("surface_solid")),
+    "caps": dict(update=_live("surface")),
+    "continuity": dict(items=CONTINUITY_ITEMS, update=_live("pde")),
+    "dome": dict(update=_live("pde")),
+    "smoothing_auto": dict(update=_live("pde_auto")),
+    "smoothing": dict(subtype='FACTOR', update=_live("pde")),
+    "approximation_auto": dict(update=_live("pde_auto")),
+    "approximation": dict(subtype='FACTOR', update=_live("pde")),
+    "modes": dict(update=_live("pde")),
+    # The surface's CT detail map: bump shading of the CT's fine relief
+    "use_detail_map": dict(update=_detail_update),
+    "detail_strength": dict(update=_detail_update),
+    "detail_resolution": {},
+    # Solid (live)
+    "nw": dict(update=_live("solid")),
+    "u_range": dict(update=_live("solid")),
+    "v_range": dict(subtype="NONE", unit="ROTATION", update=_live("solid")),
+    "w_range": dict(update=_live("solid")),
+    "use_cutter": dict(update=_live("cutter")),
+    # The solid's CT texture: atlas budget and what its outside shows
+    "ct_texture_budget": dict(description_suffix=" (megapixels)", update=_live("solid")),
+    "solid_skin": dict(items=SOLID_SKIN_ITEMS, update=_live("solid")),
+    "solid_skin_depth": dict(update=_live("solid")),
+    # Volume (live: material only)
+    "use_ct_grid": {},
+    "voxel_auto": {},
+    "voxel_size": {},
+    "low_alpha": dict(update=_live("volume")),
+    "high_alpha": dict(update=_live("volume")),
+    "density": dict(update=_live("volume")),
+    "colour_preset": dict(items=COLOUR_ITEMS, update=_live("volume")),
+    "alpha_mode": dict(items=ALPHA_MODE_ITEMS, update=_live("volume")),
+}
+
+
+def setting_property(name: str, live: bool = True):
+    """The ``bpy.props`` property of study setting ``name``: the defaults table's default, range, label and
+    description with :data:`SETTINGS`' Blender specifics; ``live=False`` (an operator's option) leaves the
+    live update out."""
+    param = D.PARAMS[name]
+    spec = dict(SETTINGS[name])
+    update = spec.pop("update", None)
+    kw = dict(name=param.label, description=param.description + spec.pop("description_suffix", ""), **spec)
+    if live and update is not None:
+        kw["update"] = update
+    value = param.default
+    if "items" in kw:
+        return EnumProperty(default=value, **kw)
+    kw.update(param.limits())
+    if isinstance(value, bool):
+        return BoolProperty(**kw)
+    if isinstance(value, int):
+        return IntProperty(**kw)
+    if isinstance(value, float):
+        return FloatProperty(**kw)
+    if isinstance(value, tuple) and all(isinstance(v, int) for v in value):
+        return IntVectorProperty(size=len(value), **kw)
+    if isinstance(value, tuple):
+        return FloatVectorProperty(size=len(value), **kw)
+    raise TypeError(f"study setting {name!r}: no Blender property for a default of type {type(value).__name__}")
+
+
+def declare_settings(cls, names, live: bool = False):
+    """Add the properties of the study settings ``names`` (:func:`setting_property`) to class ``cls``'s
+    annotations, where Blender reads a class's properties when it is registered; returns ``cls``.
+
+    Each is added as the expression that makes it, as ``from __future__ import annotations`` leaves every
+    annotation of this layer: Blender evaluates it when it registers the class, and no property object
+    outlives the registration in the class (bpy 4.2 crashes at exit while a class holds one)."""
+    annotations = cls.__dict__.get("__annotations__")
+    if annotations is None:
+        annotations = {}
+        cls.__annotations__ = annotations
+    for name in names:
+        setting_property(name, live=live)  # an unknown name or an unusable default fails here, not at register
+        annotations[name] = (f"__import__({__name__!r}, fromlist=['SETTINGS'])"
+                             f".setting_property({name!r}, live={live})")
+    return cls
+
+
+def settings_options(*names: str, mirrored: bool = True):
+    """Class decorator: the operator offers the study settings ``names`` as its options (the same default,
+    range, label and description as the sidebar's). ``mirrored``: they are its ``mirrored_settings``, read
+    from the study when invoked and written back when run (:class:`.base.StudyOperator`)."""
+    def decorate(cls):
+        declare_settings(cls, names)
+        if mirrored:
+            cls.mirrored_settings = names
+        return cls
+    return decorate
+
+
 class PDEHeadStudySettings(bpy.types.PropertyGroup):
     """Settings of one study (on its settings object, saved in the .blend, animatable)."""
 
@@ -124,11 +235,6 @@ class PDEHeadStudySettings(bpy.types.PropertyGroup):
     warnings: StringProperty(name="Warnings")
     notes: StringProperty(name="Information", description="Automatic choices the import made (one per line)")
 
-    # Forensic: the bone level (issue 22; also in the import dialog)
-    use_bone_level: BoolProperty(name=D.USE_BONE_LEVEL.label, **D.USE_BONE_LEVEL.limits(),
-                                 description=D.USE_BONE_LEVEL.description)
-    bone_level: FloatProperty(name=D.BONE_LEVEL.label, **D.BONE_LEVEL.limits(), description=D.BONE_LEVEL.description)
-
     # Forensic: Face from Skull (issue 23): the table the face uses; switching it re-solves the face at once
     face_table: EnumProperty(name="Face Table", items=face.FACE_TABLE_ITEMS, default='DEFAULT',
                              update=_face_table_update, description="The depth table the face's pegs stand by")
@@ -145,19 +251,6 @@ class PDEHeadStudySettings(bpy.types.PropertyGroup):
     seg_c1: FloatProperty(name="c1 (head)")
     seg_c2: FloatProperty(name="c2 (air)")
 
-    # Boundaries (defaults, ranges and descriptions: pdehead_addon/defaults.py)
-    patches: IntProperty(name=D.PATCHES.label, **D.PATCHES.limits(), description=D.PATCHES.description)
-    samples: IntProperty(name=D.SAMPLES.label, **D.SAMPLES.limits(), description=D.SAMPLES.description)
-    selection: EnumProperty(name=D.SELECTION.label, items=SELECTION_ITEMS, default=D.SELECTION.default,
-                            description=D.SELECTION.description)
-    align_curves: BoolProperty(name=D.ALIGN_CURVES.label, **D.ALIGN_CURVES.limits(),
-                               description=D.ALIGN_CURVES.description)
-    use_tolerance: BoolProperty(name=D.USE_TOLERANCE.label, **D.USE_TOLERANCE.limits(),
-                                description=D.USE_TOLERANCE.description)
-    tolerance_mm: FloatProperty(name=D.TOLERANCE_MM.label, **D.TOLERANCE_MM.limits(), precision=2,
-                                description=D.TOLERANCE_MM.description)
-    max_tolerance_mm: FloatProperty(name=D.MAX_TOLERANCE_MM.label, **D.MAX_TOLERANCE_MM.limits(), precision=2,
-                                    description=D.MAX_TOLERANCE_MM.description)
     # what the last extraction gave (shown in the panel, saved with the file)
     curve_count: IntProperty(name="Curves", description="Boundary curves of the last extraction")
     outline_candidates: IntProperty(name="Usable Slices",
@@ -168,65 +261,8 @@ class PDEHeadStudySettings(bpy.types.PropertyGroup):
     outline_max_mm: FloatProperty(name="Max Distance From Outlines",
                                   description="The surface's largest distance (mm) from any usable slice's outline")
 
-    # Surface (live)
-    nu: IntProperty(name=D.NU.label, **D.NU.limits(), update=_live("surface_solid"), description=D.NU.description)
-    nv: IntProperty(name=D.NV.label, **D.NV.limits(), update=_live("surface_solid"), description=D.NV.description)
-    caps: BoolProperty(name=D.CAPS.label, **D.CAPS.limits(), update=_live("surface"), description=D.CAPS.description)
-    continuity: EnumProperty(name=D.CONTINUITY.label, items=CONTINUITY_ITEMS, default=D.CONTINUITY.default,
-                             update=_live("pde"), description=D.CONTINUITY.description)
-    dome: BoolProperty(name=D.DOME.label, **D.DOME.limits(), update=_live("pde"), description=D.DOME.description)
-    smoothing_auto: BoolProperty(name=D.SMOOTHING_AUTO.label, **D.SMOOTHING_AUTO.limits(), update=_live("pde_auto"),
-                                 description=D.SMOOTHING_AUTO.description)
-    smoothing: FloatProperty(name=D.SMOOTHING.label, **D.SMOOTHING.limits(), subtype='FACTOR', update=_live("pde"),
-                             description=D.SMOOTHING.description)
-    approximation_auto: BoolProperty(name=D.APPROXIMATION_AUTO.label, **D.APPROXIMATION_AUTO.limits(),
-                                     update=_live("pde_auto"), description=D.APPROXIMATION_AUTO.description)
-    approximation: FloatProperty(name=D.APPROXIMATION.label, **D.APPROXIMATION.limits(), subtype='FACTOR',
-                                 update=_live("pde"), description=D.APPROXIMATION.description)
-    modes: IntProperty(name=D.MODES.label, **D.MODES.limits(), update=_live("pde"), description=D.MODES.description)
-
-    # The surface's CT detail map (issue 21): bump shading of the CT's fine relief
-    use_detail_map: BoolProperty(name=D.USE_DETAIL_MAP.label, **D.USE_DETAIL_MAP.limits(), update=_detail_update,
-                                 description=D.USE_DETAIL_MAP.description)
-    detail_strength: FloatProperty(name=D.DETAIL_STRENGTH.label, **D.DETAIL_STRENGTH.limits(), update=_detail_update,
-                                   description=D.DETAIL_STRENGTH.description)
-    detail_resolution: IntProperty(name=D.DETAIL_RESOLUTION.label, **D.DETAIL_RESOLUTION.limits(),
-                                   description=D.DETAIL_RESOLUTION.description)
     detail_stale: BoolProperty(name="CT Detail Out of Date", default=False,
                                description="The PDE changed since the CT detail map was built: rebuild it")
-
-    # Solid (live)
-    nw: IntProperty(name=D.NW.label, **D.NW.limits(), update=_live("solid"), description=D.NW.description)
-    u_range: FloatVectorProperty(name=D.U_RANGE.label, size=2, **D.U_RANGE.limits(), update=_live("solid"),
-                                 description=D.U_RANGE.description)
-    v_range: FloatVectorProperty(name=D.V_RANGE.label, size=2, **D.V_RANGE.limits(), subtype="NONE", unit="ROTATION",
-                                 update=_live("solid"), description=D.V_RANGE.description)
-    w_range: FloatVectorProperty(name=D.W_RANGE.label, size=2, **D.W_RANGE.limits(), update=_live("solid"),
-                                 description=D.W_RANGE.description)
-    use_cutter: BoolProperty(name=D.USE_CUTTER.label, **D.USE_CUTTER.limits(), update=_live("cutter"),
-                             description=D.USE_CUTTER.description)
-    # The solid's CT texture (issue 21): atlas budget and what its outside shows
-    ct_texture_budget: FloatProperty(name=D.CT_TEXTURE_BUDGET.label, **D.CT_TEXTURE_BUDGET.limits(),
-                                     update=_live("solid"), description=D.CT_TEXTURE_BUDGET.description + " (megapixels)")
-    solid_skin: EnumProperty(name=D.SOLID_SKIN.label, items=SOLID_SKIN_ITEMS, default=D.SOLID_SKIN.default,
-                             update=_live("solid"), description=D.SOLID_SKIN.description)
-    solid_skin_depth: FloatProperty(name=D.SOLID_SKIN_DEPTH.label, **D.SOLID_SKIN_DEPTH.limits(), update=_live("solid"),
-                                    description=D.SOLID_SKIN_DEPTH.description)
-
-    # Volume (live: material only)
-    use_ct_grid: BoolProperty(name=D.USE_CT_GRID.label, **D.USE_CT_GRID.limits(), description=D.USE_CT_GRID.description)
-    voxel_auto: BoolProperty(name=D.VOXEL_AUTO.label, **D.VOXEL_AUTO.limits(), description=D.VOXEL_AUTO.description)
-    voxel_size: FloatProperty(name=D.VOXEL_SIZE.label, **D.VOXEL_SIZE.limits(), description=D.VOXEL_SIZE.description)
-    low_alpha: FloatProperty(name=D.LOW_ALPHA.label, **D.LOW_ALPHA.limits(), update=_live("volume"),
-                             description=D.LOW_ALPHA.description)
-    high_alpha: FloatProperty(name=D.HIGH_ALPHA.label, **D.HIGH_ALPHA.limits(), update=_live("volume"),
-                              description=D.HIGH_ALPHA.description)
-    density: FloatProperty(name=D.DENSITY.label, **D.DENSITY.limits(), update=_live("volume"),
-                           description=D.DENSITY.description)
-    colour_preset: EnumProperty(name=D.COLOUR_PRESET.label, items=COLOUR_ITEMS, default=D.COLOUR_PRESET.default,
-                                update=_live("volume"), description=D.COLOUR_PRESET.description)
-    alpha_mode: EnumProperty(name=D.ALPHA_MODE.label, items=ALPHA_MODE_ITEMS, default=D.ALPHA_MODE.default,
-                             update=_live("volume"))
 
     # Objects of the study
     curves_object: PointerProperty(name="Boundary Curves", type=bpy.types.Object)
@@ -239,6 +275,9 @@ class PDEHeadStudySettings(bpy.types.PropertyGroup):
     last_error: StringProperty(name="Last Error", description="Why the last live update failed")
     volume_stale: BoolProperty(name="Volume Out of Date", default=False,
                                description="The PDE changed since the volume was built: rebuild it")
+
+
+declare_settings(PDEHeadStudySettings, SETTINGS, live=True)
 
 
 class PDEHeadSceneSettings(bpy.types.PropertyGroup):

@@ -23,7 +23,7 @@ from __future__ import annotations
 import time
 import uuid
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Callable
 
 import bpy
 
@@ -62,64 +62,118 @@ class StudyCache:
         self.wfield = None
 
 
-_CACHE: dict[str, StudyCache] = {}
+@dataclass
+class Registry:
+    """What PDE Head keeps in memory while Blender runs, in one place: each study's cache (by study id) and
+    the state of the session around the studies. :data:`REGISTRY` is the one instance: ``operators/`` keeps
+    no other module-level state that changes (``scripts/study_measures.py`` counts it)."""
+
+    #: study id -> the study entity (:class:`.study_entity.Study`, one per study for the session) ...
+    studies: dict[str, Any] = field(default_factory=dict)
+    #: ... its forensic side (:class:`.forensic_study.ForensicStudy`) ...
+    forensic: dict[str, Any] = field(default_factory=dict)
+    #: ... and its in-memory results.
+    caches: dict[str, StudyCache] = field(default_factory=dict)
+    #: Where messages are shown: "dialog" (Blender's UI: field names) or "cli" (scripts/pdehead.py sets it:
+    #: flags). The engine names its Python arguments; :func:`user_text` rewrites them
+    #: (pdehead_addon.core.wording).
+    audience: str = "dialog"
+    #: The last exception an operator reported (the CLI tells bad input, exit 2, from a bug, exit 1).
+    last_exception: BaseException | None = None
+    #: Depth of :class:`suspended_updates`: while above 0, no update callback rebuilds anything.
+    suspended: int = 0
+    #: ``hook(step, fraction, message)`` called by the long steps while a pipeline or an operator runs; it may
+    #: raise :class:`~pdehead_addon.Cancelled` (Esc in Blender, Ctrl-C on the CLI). Set by the runner
+    #: (:func:`.progress.step_progress` reads it).
+    progress_hook: Callable | None = None
+    #: The handlers running now ("animation", "face", "studies"): a handler does not run inside itself.
+    running: set[str] = field(default_factory=set)
+    #: study id -> {group: values last applied} by the animation handler (:mod:`.animation`).
+    animation_applied: dict[str, dict] = field(default_factory=dict)
+    #: study id -> names of objects the animation handler hid because their rebuild failed.
+    animation_hidden: dict[str, set] = field(default_factory=dict)
+    #: study id -> (time, its live solid) of the solid colours waiting to be refreshed (:mod:`.study_live`).
+    colours_pending: dict[str, tuple] = field(default_factory=dict)
+    #: The depth tables read for the face (:mod:`.face`), by source; and how often a face model was prepared.
+    face_tables: dict = field(default_factory=dict)
+    face_prepare_calls: int = 0
+    #: Names of images whose packed pixels changed since the last save (:mod:`.objects`).
+    unpacked_changes: set[str] = field(default_factory=set)
+    #: .vdb files this session wrote, and those a rebuild made obsolete (removed at the next save,
+    #: :mod:`.vdb_files`).
+    vdb_written: set[str] = field(default_factory=set)
+    vdb_superseded: set[str] = field(default_factory=set)
+
+
+#: The one registry of the session's studies and their state.
+REGISTRY = Registry()
 
 # ------------------------------------------------------------------------------------------
 # Messages: stored in the engine's words, shown in the words of where they appear
 
-#: Where messages are shown: "dialog" (Blender's UI: field names) or "cli" (scripts/pdehead.py sets it:
-#: flags). The engine names its Python arguments; :func:`user_text` rewrites them (pdehead_addon.core.wording).
-AUDIENCE = "dialog"
-#: The last exception an operator reported (the CLI tells bad input, exit 2, from a bug, exit 1).
-last_exception: BaseException | None = None
-
 
 def user_text(message: str) -> str:
-    """An engine message in the words of :data:`AUDIENCE`, on one line."""
+    """An engine message in the words of the registry's ``audience``, on one line."""
     from ..pdehead_addon import message_for_cli, message_for_dialog
-    return message_for_cli(message) if AUDIENCE == "cli" else message_for_dialog(message)
-
-
-# Set while operators write many settings at once, so that no update callback rebuilds anything.
-_SUSPEND = [0]
+    return message_for_cli(message) if REGISTRY.audience == "cli" else message_for_dialog(message)
 
 
 class suspended_updates:
-    """``with suspended_updates(): settings.nu = ...`` (no live rebuild while inside)."""
+    """``with suspended_updates(): settings.nu = ...`` (no live rebuild while inside): operators writing many
+    settings at once."""
 
     def __enter__(self):
-        _SUSPEND[0] += 1
+        REGISTRY.suspended += 1
 
     def __exit__(self, *exc):
-        _SUSPEND[0] -= 1
+        REGISTRY.suspended -= 1
         return False
 
 
 def updates_suspended() -> bool:
     """True inside :class:`suspended_updates` (the update callbacks of props.py then do nothing)."""
-    return _SUSPEND[0] > 0
+    return REGISTRY.suspended > 0
+
+
+class running:
+    """``with running("animation"):`` marks a handler as running (:meth:`now` then says so), so that
+    what it changes does not run it again inside itself."""
+
+    def __init__(self, name: str):
+        self.name = name
+
+    def __enter__(self):
+        REGISTRY.running.add(self.name)
+
+    def __exit__(self, *exc):
+        REGISTRY.running.discard(self.name)
+        return False
+
+    @staticmethod
+    def now(name: str) -> bool:
+        return name in REGISTRY.running
 
 
 def cache_for(study_id: str) -> StudyCache:
     """The (possibly empty) in-memory cache of a study."""
-    return _CACHE.setdefault(study_id, StudyCache())
+    return REGISTRY.caches.setdefault(study_id, StudyCache())
 
 
 def restore_cache(study_id: str, cache: StudyCache) -> None:
     """Put back a study's cache (a snapshot's copy, see pipeline_run.StudySnapshot)."""
-    _CACHE[study_id] = cache
+    REGISTRY.caches[study_id] = cache
 
 
 def drop_cache(study_id: str | None = None) -> None:
     """Free one study's cache, or all of them."""
     if study_id is None:
-        _CACHE.clear()
+        REGISTRY.caches.clear()
     else:
-        _CACHE.pop(study_id, None)
+        REGISTRY.caches.pop(study_id, None)
 
 
 def cached_study_ids() -> list[str]:
-    return list(_CACHE)
+    return list(REGISTRY.caches)
 
 
 def new_study_id() -> str:

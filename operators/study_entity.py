@@ -56,8 +56,6 @@ class Study(PipelineSteps, LiveSolid):
     """One study (a collection with study settings); get it with :meth:`of`, :meth:`active` or
     :meth:`of_settings`, make one with :meth:`import_ct`, :meth:`phantom` or :meth:`create`."""
 
-    _registry: dict[str, Study] = {}
-
     def __init__(self, collection):
         self.collection = collection
 
@@ -65,13 +63,14 @@ class Study(PipelineSteps, LiveSolid):
 
     @classmethod
     def of(cls, collection) -> Study:
-        """The study of ``collection`` (one object per ``study_id`` for the session)."""
+        """The study of ``collection`` (one object per ``study_id`` for the session, in ``state.REGISTRY``)."""
         s = state.settings(collection)
         if s is None:
             raise ValueError(f"collection '{getattr(collection, 'name', collection)}' is not a PDE Head study")
-        study = cls._registry.get(s.study_id)
+        studies = state.REGISTRY.studies
+        study = studies.get(s.study_id)
         if study is None:
-            study = cls._registry[s.study_id] = cls(collection)
+            study = studies[s.study_id] = cls(collection)
         study.collection = collection
         return study
 
@@ -91,9 +90,9 @@ class Study(PipelineSteps, LiveSolid):
     def forget(cls, study_id: str | None = None) -> None:
         """Drop one study (or all) from the registry (the .blend keeps them)."""
         if study_id is None:
-            cls._registry.clear()
+            state.REGISTRY.studies.clear()
         else:
-            cls._registry.pop(study_id, None)
+            state.REGISTRY.studies.pop(study_id, None)
 
     # --- what the study owns --------------------------------------------------------------------
 

@@ -15,16 +15,12 @@ from ..pdehead_addon import PDEHeadError
 from . import cutter, state, study_live
 from .study_entity import Study
 
-_BUSY = [False]
-
-
 @bpy.app.handlers.persistent
 def pdehead_cutter_update(_scene, depsgraph=None) -> None:
     """After a depsgraph update: apply each study's cutter whose transform changed."""
-    if _BUSY[0]:
+    if state.running.now("studies"):
         return
-    _BUSY[0] = True
-    try:
+    with state.running("studies"):
         for coll in state.studies():
             study = Study.of(coll)
             s = study.settings
@@ -43,8 +39,6 @@ def pdehead_cutter_update(_scene, depsgraph=None) -> None:
                 if not isinstance(exc, PDEHeadError):
                     traceback.print_exc()
                 s.last_error = f"cutter: {exc}"[:500]
-    finally:
-        _BUSY[0] = False
 
 
 def register() -> None:

@@ -18,8 +18,8 @@ from ..pdehead_addon import PDEHeadError
 from . import cutter, detail_map, objects, state, volume_material
 from .state import suspended_updates
 
-#: The studies whose solid waits for its CT colours: study id -> (time of the last live change, the Study).
-_COLOURS_PENDING: dict[str, tuple] = {}
+#: The studies whose solid waits for its CT colours: ``state.REGISTRY.colours_pending``, study id -> (time of
+#: the last live change, the Study).
 _REFRESH_DELAY_S = 0.15   # a slider still moving within this time keeps postponing the refresh
 
 
@@ -30,7 +30,7 @@ def _schedule_colour_refresh() -> None:
 
 def cancel_colour_refresh() -> None:
     """Forget every waiting colour refresh and remove its timer (the add-on's unregister: no timer left behind)."""
-    _COLOURS_PENDING.clear()
+    state.REGISTRY.colours_pending.clear()
     if bpy.app.timers.is_registered(_colour_refresh_timer):
         bpy.app.timers.unregister(_colour_refresh_timer)
 
@@ -38,7 +38,7 @@ def cancel_colour_refresh() -> None:
 def _colour_refresh_timer():
     """bpy.app.timers callback: the CT colours of every solid left waiting by a live change."""
     now = time.monotonic()
-    if any(now - t < _REFRESH_DELAY_S for t, _study in _COLOURS_PENDING.values()):
+    if any(now - t < _REFRESH_DELAY_S for t, _study in state.REGISTRY.colours_pending.values()):
         return _REFRESH_DELAY_S  # still dragging: come back
     LiveSolid.flush_colour_refresh()
     return None
@@ -59,10 +59,10 @@ class LiveSolid:
 
     def colours_pending(self) -> bool:
         """True while the study's solid waits for its exact CT colours."""
-        return self.study_id in _COLOURS_PENDING
+        return self.study_id in state.REGISTRY.colours_pending
 
     def _colours_wait(self) -> None:
-        _COLOURS_PENDING[self.study_id] = (time.monotonic(), self)
+        state.REGISTRY.colours_pending[self.study_id] = (time.monotonic(), self)
         _schedule_colour_refresh()
 
     def _solid_table(self, head, live: bool) -> tuple:
@@ -79,7 +79,7 @@ class LiveSolid:
                 # tiles (the geometry step stays within a frame); the timer right after redraws them from the CT
                 self._colours_wait()
             else:
-                _COLOURS_PENDING.pop(self.study_id, None)
+                state.REGISTRY.colours_pending.pop(self.study_id, None)
             return table, window, ct, notice
         if deferred:
             previous = self.previous_ct_table()
@@ -101,7 +101,7 @@ class LiveSolid:
             with state.Timer() as t:
                 table = self.ct_table(head, ct)
             self.record_timing("ct_table", t.seconds)   # issue 20: with the w-field <= 1 s
-            _COLOURS_PENDING.pop(self.study_id, None)
+            state.REGISTRY.colours_pending.pop(self.study_id, None)
         return table, window, ct, notice
 
     def solid(self, live: bool = False) -> str:
@@ -142,7 +142,7 @@ class LiveSolid:
         What a live change deferred (:meth:`solid` with ``live``); errors go to the sidebar.
         """
         s = self.settings
-        _COLOURS_PENDING.pop(self.study_id, None)
+        state.REGISTRY.colours_pending.pop(self.study_id, None)
         if s.solid_object is None:
             return
         try:
@@ -156,10 +156,10 @@ class LiveSolid:
     def flush_colour_refresh() -> int:
         """Give every waiting solid its exact CT colours now (the timer, and before a save); returns the count."""
         count = 0
-        for study_id, (_t, study) in list(_COLOURS_PENDING.items()):
+        for study_id, (_t, study) in list(state.REGISTRY.colours_pending.items()):
             coll = next((c for c in state.studies() if state.settings(c).study_id == study_id), None)
             if coll is None:
-                _COLOURS_PENDING.pop(study_id, None)
+                state.REGISTRY.colours_pending.pop(study_id, None)
                 continue
             type(study).of(coll).refresh_solid_colours()
             count += 1

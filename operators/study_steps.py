@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import re
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import bpy
@@ -24,6 +25,18 @@ from ..pdehead_addon import PDEHeadError, patches_for_scan
 from . import detail_map, objects, prefs, state, vdb_files, vdb_grids, volume
 from .progress import step_progress
 from .state import suspended_updates
+
+
+@dataclass(frozen=True)
+class BoundaryOutcome:
+    """What :meth:`PipelineSteps.boundaries` gave, for the caller to report: the effective number of patches t
+    (the study's, reduced to what the scan allows), the curves extracted, the warnings this extraction added
+    (in the engine's words) and its seconds."""
+
+    patches: int
+    curves: int
+    warnings: tuple[str, ...]
+    seconds: float
 
 
 def _unique_collection_name(base: str) -> str:
@@ -193,15 +206,19 @@ class PipelineSteps:
             self.add_warnings(seg.meta.get("warnings", []))
         self.record_timing("segment", seconds)
 
-    def boundaries(self) -> None:
+    def boundaries(self) -> BoundaryOutcome:
         """Extract the boundary curves (segmenting first when needed), store them in the .blend and
-        build the curves object."""
+        build the curves object; returns the effective t, the curves, the new warnings and the seconds."""
         if self.cache.seg is None:
             self.segment()
+        warnings_before = self.warnings
         call = self.boundaries_call()
         with state.Timer() as t:
             found = call(step_progress("boundaries"))
         self.keep_boundaries(found, t.seconds)
+        s = self.settings
+        return BoundaryOutcome(patches=s.patches, curves=s.curve_count,
+                               warnings=tuple(self.warnings[len(warnings_before):]), seconds=t.seconds)
 
     def boundaries_call(self):
         """The boundary curves' engine call, ``call(progress) -> (BoundarySet, warnings)``, for the study's

@@ -15,6 +15,8 @@ import os
 import tempfile
 from pathlib import Path
 
+from . import state
+
 VDB_FOLDER_NAME = "pdehead_vdb"
 
 
@@ -131,24 +133,17 @@ def fresh_vdb_path(path) -> Path:
         n += 1
 
 
-#: Absolute paths of .vdb files that a rebuild or a move replaced; deleted after the next save
-#: that no longer references them (deleting at once would break undo back to the old file).
-_SUPERSEDED: set[str] = set()
-
-
-#: Absolute paths of the .vdb files written in this session.
-_WRITTEN: set[str] = set()
-
-
 def mark_written(path) -> None:
-    """Record a .vdb file written in this session (:func:`purge_superseded` may delete it once replaced)."""
-    _WRITTEN.add(str(Path(os.fspath(path)).resolve()))
+    """Record a .vdb file written in this session (``state.REGISTRY.vdb_written``: :func:`purge_superseded` may
+    delete it once replaced)."""
+    state.REGISTRY.vdb_written.add(str(Path(os.fspath(path)).resolve()))
 
 
 def supersede(path) -> None:
-    """Mark a replaced .vdb for removal after the next save (see :func:`purge_superseded`)."""
+    """Mark a replaced .vdb for removal after the next save (``state.REGISTRY.vdb_superseded``, see
+    :func:`purge_superseded`): deleting it at once would break undo back to the old file."""
     if path:
-        _SUPERSEDED.add(str(Path(os.fspath(path)).resolve()))
+        state.REGISTRY.vdb_superseded.add(str(Path(os.fspath(path)).resolve()))
 
 
 def referenced_vdb_files() -> set[str]:
@@ -173,14 +168,15 @@ def purge_superseded() -> list[Path]:
 
     used = referenced_vdb_files()
     removed = []
-    for text in sorted(_SUPERSEDED):
+    for text in sorted(state.REGISTRY.vdb_superseded):
         path = Path(text)
         if text in used:
             continue
-        _SUPERSEDED.discard(text)
+        state.REGISTRY.vdb_superseded.discard(text)
         # beside a saved file: only the saved file's own (another .blend may use the rest); elsewhere
         # (the temp or preference folder of an unsaved session): only what this session wrote
-        ours = is_owned(path, bpy.data.filepath) or (text in _WRITTEN and path.parent.name != VDB_FOLDER_NAME)
+        ours = is_owned(path, bpy.data.filepath) or (text in state.REGISTRY.vdb_written
+                                                     and path.parent.name != VDB_FOLDER_NAME)
         if ours and path.suffix == ".vdb" and path.is_file():
             try:
                 path.unlink()
@@ -202,7 +198,7 @@ def may_copy(src, blend_path=None) -> bool:
 
     src = Path(os.fspath(src))
     inside = in_vdb_folder(src, bpy.data.filepath) or in_vdb_folder(src, blend_path)
-    return src.suffix == ".vdb" and (inside or str(src.resolve()) in _WRITTEN) and looks_like_vdb(src)
+    return src.suffix == ".vdb" and (inside or str(src.resolve()) in state.REGISTRY.vdb_written) and looks_like_vdb(src)
 
 
 def link_or_copy(src, dst) -> None:

@@ -371,7 +371,7 @@ class Watchdog:
 class Progress:
     """The engine's progress on stderr: a bar redrawn in place on a terminal, plain lines when piped.
 
-    Installed as the add-on's progress hook (``progress.PROGRESS_HOOK``); raises the engine's
+    Installed as the add-on's progress hook (``progress.set_hook``); raises the engine's
     ``Cancelled`` after Ctrl-C so the running step stops at its next report.
     """
 
@@ -417,7 +417,7 @@ def _call(op, **kwargs) -> None:
     printed (:class:`Warnings`)."""
     addon = sys.modules[_common.DEV_PACKAGE]
     state = addon.operators.state
-    state.last_exception = None
+    state.REGISTRY.last_exception = None
     try:
         with _blender_stdout():
             result = op(**kwargs)
@@ -426,7 +426,7 @@ def _call(op, **kwargs) -> None:
     except RuntimeError as exc:
         if _SIGINT[0]:
             raise Interrupted() from None
-        failure = state.last_exception
+        failure = state.REGISTRY.last_exception
         if isinstance(failure, addon.pdehead_addon.PDEHeadError):
             raise CLIError(state.user_text(str(failure)), 2) from None
         message = str(exc).strip()
@@ -691,12 +691,12 @@ def run(args) -> dict:
     import warnings
     addon = register_addon()
     state = addon.operators.state
-    state.AUDIENCE = "cli"                       # the add-on's messages name this command's flags
+    state.REGISTRY.audience = "cli"              # the add-on's messages name this command's flags
     warnings.showwarning = WARNINGS.showwarning  # one line each, no source line
     bpy.ops.wm.read_homefile(use_empty=True)
     bpy.context.preferences.filepaths.save_version = 0  # no .blend1 backups (temporary user folder)
     progress = Progress()
-    addon.operators.progress.PROGRESS_HOOK[0] = progress
+    addon.operators.progress.set_hook(progress)
     outputs = _outputs(args)
     before = _snapshot(outputs)
     staging = Staging(args)
@@ -715,7 +715,7 @@ def run(args) -> dict:
         raise
     finally:
         progress.end()
-        addon.operators.progress.PROGRESS_HOOK[0] = None
+        addon.operators.progress.set_hook(None)
         with contextlib.suppress(ValueError):
             _CLEANUPS.remove(staging.discard)
 

@@ -473,12 +473,12 @@ def bench_face_dataset(name: str, repeats: int) -> dict:
     fs = ForensicStudy.of(Study.of(coll))
     obj = fs.face_object()
     pegs = fs.peg_objects(names)
-    prepared = face.PREPARE_CALLS[0]
+    prepared = state.REGISTRY.face_prepare_calls
     out["first_drag_after_reopen_s"], out["first_drag_after_reopen_cpu_s"] = _timed_update(drag(0))
     fcache = state.cache_for(coll.pdehead.study_id).forensic
     out["reopen_model_source"] = fcache.get("face_model_source")
     out["reopen_restore_s"] = fcache.get("face_restore_s")
-    out["reopen_prepared_again"] = face.PREPARE_CALLS[0] - prepared
+    out["reopen_prepared_again"] = state.REGISTRY.face_prepare_calls - prepared
     out["kept_model_bytes"] = len(coll.get(face.FACE_MODEL_KEY, ""))
     out["second_drag_after_reopen_s"] = _timed_update(drag(1))[0]
     return out

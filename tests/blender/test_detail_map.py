@@ -289,12 +289,12 @@ def test_a_cancelled_run_puts_the_old_map_back(ext, reopened):
     obj = s.surface_object
     before = detail.image_height_mm(detail.detail_image(obj)).copy()
     hook, seen = _cancel_in(state, "volume")
-    _progress(state).PROGRESS_HOOK[0] = hook
+    _progress(state).set_hook(hook)
     try:
         result = bpy.ops.pdehead.run_pipeline(source='ACTIVE', patches=s.patches - 1, nu=s.nu, nv=s.nv,
                                               nw=s.nw, build_volume=True)
     finally:
-        _progress(state).PROGRESS_HOOK[0] = None
+        _progress(state).set_hook(None)
     assert result == {"CANCELLED"} and "solid" in {step for step, _ in seen}   # after the surface step
     image = detail.detail_image(obj)
     assert image is not None and image.name == detail.image_name(obj)

@@ -147,6 +147,49 @@ def test_every_setting_operator_option_and_preference_reads_the_defaults_table(p
     assert sockets["W"].default_value == pytest.approx(sys.modules[name + ".pdehead_addon"].OUTSIDE_W)
 
 
+
+def _rna_summary(prop) -> dict:
+    """What a property shows and accepts (everything but its live update): type, label, tooltip, subtype,
+    unit, default, range, enumeration items, animatable."""
+    out = {"type": prop.type, "name": prop.name, "description": prop.description, "subtype": prop.subtype,
+           "animatable": prop.is_animatable}
+    if prop.type in ("INT", "FLOAT", "BOOLEAN"):
+        out["default"] = tuple(prop.default_array) if prop.array_length else prop.default
+    if prop.type in ("INT", "FLOAT"):
+        out.update(range=(prop.hard_min, prop.hard_max, prop.soft_min, prop.soft_max))
+    if prop.type == "FLOAT":
+        out.update(unit=prop.unit, precision=prop.precision)
+    if prop.type == "ENUM":
+        out.update(default=prop.default, items=[(i.identifier, i.name, i.description) for i in prop.enum_items])
+    return out
+
+
+def test_every_operator_option_of_a_study_setting_is_that_setting(pdehead_ext):
+    """Each study setting is declared once (operators/props.py's SETTINGS over the defaults table): an
+    operator's option of the same name shows and accepts exactly what the sidebar's setting does, and every
+    setting of the table is on the study's settings (animatable, as before)."""
+    import bpy
+
+    name = pdehead_ext.__name__
+    props = sys.modules[name + ".operators.props"]
+    D = sys.modules[name + ".pdehead_addon.defaults"]
+    settings = bpy.types.Object.bl_rna.properties["pdehead"].fixed_type.bl_rna.properties
+    assert set(props.SETTINGS) <= set(settings.keys()) and set(props.SETTINGS) <= set(D.PARAMS)
+    assert all(settings[key].is_animatable for key in props.SETTINGS)
+    offered = {"extract_boundaries": 7, "reconstruct_surface": 10, "build_solid": 9, "build_volume": 8,
+               "run_pipeline": 8, "import_ct": 2}
+    for op, count in offered.items():
+        rna = getattr(bpy.ops.pdehead, op).get_rna_type().properties
+        shared = [key for key in props.SETTINGS if key in rna.keys()]
+        assert len(shared) == count, (op, shared)
+        for key in shared:
+            assert _rna_summary(rna[key]) == _rna_summary(settings[key]), (op, key)
+    ops = sys.modules[name + ".operators.ops"]
+    assert ops.PDEHEAD_OT_extract_boundaries.mirrored_settings == (
+        "patches", "samples", "selection", "align_curves", "use_tolerance", "tolerance_mm", "max_tolerance_mm")
+    assert not hasattr(ops.PDEHEAD_OT_run_pipeline, "mirrored_settings")  # its options start a new run
+
+
 def test_shipped_wheels_import_from_the_extension_site_packages(pdehead_ext):
     """skimage, scipy, pydicom and its decoders import from the wheels Blender unpacked (not from this machine's site).
 

@@ -218,7 +218,7 @@ def test_face_follows_a_peg_after_reopening(pdehead_ext, face_blend, tmp_path):
     assert np.array_equal(_world_vertices(obj), before)
     cache = state.cache_for(state.settings(coll).study_id).forensic
     assert cache.get("face_model") is None
-    prepared = face.PREPARE_CALLS[0]
+    prepared = state.REGISTRY.face_prepare_calls
     name = names[0]
     peg = pegs[name]
     tip = fs(coll).peg_tips(names)[0]
@@ -228,7 +228,7 @@ def test_face_follows_a_peg_after_reopening(pdehead_ext, face_blend, tmp_path):
     assert np.median(moved[near]) == pytest.approx(3.0, abs=1.0)          # measured 2.54-2.95 mm (far: 0.07)
     assert np.percentile(moved[dist > 60.0], 95) < 0.3
     # the model came from the file, not from preparing it again, and gives the face the first session's gives
-    assert face.PREPARE_CALLS[0] == prepared and cache["face_model_source"] == "file"
+    assert state.REGISTRY.face_prepare_calls == prepared and cache["face_model_source"] == "file"
     assert cache["face_timings"]["fast"] and not cache["face_timings"]["refilled"]
     assert np.abs(fs(coll)._mesh_positions(obj) - expected).max() < 1e-3     # float32 metres: ~1e-5 mm
     from types import SimpleNamespace
@@ -242,7 +242,7 @@ def test_face_follows_a_peg_after_reopening(pdehead_ext, face_blend, tmp_path):
     coll[face.FACE_MODEL_KEY] = "another build\n" + coll[face.FACE_MODEL_KEY].partition("\n")[2]
     state.drop_cache()
     _drag(peg, -1.0 * normal)
-    assert face.PREPARE_CALLS[0] == prepared + 1 and cache_source(state, coll) == "prepared"
+    assert state.REGISTRY.face_prepare_calls == prepared + 1 and cache_source(state, coll) == "prepared"
     assert np.abs(fs(coll).peg_tips(names)[0] - (tip + 2.0 * normal)).max() < 1e-3
 
     # a peg deleted: the face solves once with that peg back at the table's mean, then stays (no solve per update)

@@ -20,7 +20,6 @@ def live(pdehead_ext, phantom_blend):
     import bpy
     name = pdehead_ext.__name__
     study = sys.modules[f"{name}.operators.study_entity"].Study
-    live_module = sys.modules[f"{name}.operators.study_live"]
     state = sys.modules[f"{name}.operators.state"]
     objects = sys.modules[f"{name}.operators.objects"]
     bpy.ops.wm.open_mainfile(filepath=str(phantom_blend))
@@ -31,7 +30,7 @@ def live(pdehead_ext, phantom_blend):
         yield study, state, objects, coll
     finally:
         study.DEFER_CT_COLOURS = None
-        live_module._COLOURS_PENDING.clear()
+        state.REGISTRY.colours_pending.clear()
 
 
 def _colours(objects, obj):
@@ -134,11 +133,11 @@ def test_a_new_study_cancelled_mid_step_leaves_nothing(pdehead_ext):
     state = sys.modules[f"{pdehead_ext.__name__}.operators.state"]
     before = _datablocks(bpy)
     hook, seen = _cancel_in(state, "boundaries")
-    _progress(state).PROGRESS_HOOK[0] = hook
+    _progress(state).set_hook(hook)
     try:
         result = bpy.ops.pdehead.run_pipeline(source='PHANTOM', patches=6, nu=32, nv=48, nw=4, build_volume=False)
     finally:
-        _progress(state).PROGRESS_HOOK[0] = None
+        _progress(state).set_hook(None)
     assert result == {'CANCELLED'}
     steps = [s for s, _ in seen]
     assert "segment" in steps and steps[-1] == "boundaries"   # it ran, reported, and stopped in the middle
@@ -157,12 +156,12 @@ def test_an_existing_study_cancelled_mid_step_is_as_it_was(live):
     names = _datablocks(bpy)
     for step in ("boundaries", "volume"):   # before the meshes were rebuilt, and after
         hook, seen = _cancel_in(state, step)
-        _progress(state).PROGRESS_HOOK[0] = hook
+        _progress(state).set_hook(hook)
         try:
             result = bpy.ops.pdehead.run_pipeline(source='ACTIVE', patches=patches - 1, nu=nu + 8, nv=s.nv,
                                                   nw=s.nw, build_volume=True)
         finally:
-            _progress(state).PROGRESS_HOOK[0] = None
+            _progress(state).set_hook(None)
         assert result == {'CANCELLED'} and seen[-1][0] == step
         assert (s.patches, s.nu) == (patches, nu)
         assert coll[state.BOUNDARY_KEY] == curves_before

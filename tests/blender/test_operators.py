@@ -427,6 +427,27 @@ def test_invoking_an_operator_starts_from_the_study_settings_and_running_stores_
     assert len(s.surface_object.data.vertices) == 29 * 40 + 1       # the dome's crown is one vertex
 
 
+
+def test_the_boundaries_step_returns_the_effective_t_its_warnings_and_seconds(ext, phantom_blend):
+    """``Study.boundaries()`` returns what the operators and the CLI report: t reduced to what the scan allows
+    (the phantom's 100 slices cannot give 3 x 60 + 1 curves), the curves, the warning it added and the seconds;
+    Extract Boundaries reports the same."""
+    coll = open_blend(phantom_blend)
+    study = ext.study_entity.Study.of(coll)
+    s = study.settings
+    with ext.state.suspended_updates():
+        s.patches, s.use_tolerance, s.selection = 60, False, "uniform"
+    outcome = study.boundaries()
+    limit = ext.engine.max_patches(study.cache.seg)
+    assert outcome.patches == s.patches == limit < 60
+    assert outcome.curves == s.curve_count == 3 * limit + 1 == len(study.cache.bset.curves)
+    assert len(outcome.warnings) == 1 and "patches reduced from 60 to" in outcome.warnings[0]
+    assert outcome.warnings[0] in study.warnings
+    assert outcome.seconds > 0 and round(outcome.seconds, 4) == pytest.approx(study.timings["boundaries"])
+    again = study.boundaries()                       # the same t again: nothing new to warn about
+    assert (again.patches, again.curves, again.warnings) == (limit, 3 * limit + 1, ())
+
+
 def test_solid_texture_fields_are_drawn_and_change_the_solid(ext, cthead_blend):
     """Issue 21 item 3: the solid's CT texture budget, what its outside shows and the skin depth are
     sidebar fields (Solid panel), and changing each rebuilds the solid with it (CThead, 1 mm voxels)."""
