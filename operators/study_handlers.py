@@ -15,6 +15,7 @@ from ..pdehead_addon import PDEHeadError
 from . import cutter, state, study_live
 from .study_entity import Study
 
+
 @bpy.app.handlers.persistent
 def pdehead_cutter_update(_scene, depsgraph=None) -> None:
     """After a depsgraph update: apply each study's cutter whose transform changed."""
