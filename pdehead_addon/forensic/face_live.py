@@ -34,7 +34,7 @@ from dataclasses import fields, is_dataclass
 import numpy as np
 
 from . import face_from_skull as F
-from ..pde.pde_basis import basis, small_matmul
+from ..pde.pde_basis import small_matmul
 from ..pde.surface_mesh import ring_in_plane
 
 #: Largest difference (mm) between the fast positions and the model's own solve for :attr:`LiveFace.exact`.
@@ -151,37 +151,13 @@ class LiveFace:
 
     # -------------------------------------------------------------------- the surface on the mesh's grid
     def _grid(self, head) -> np.ndarray:
-        """``head._grid(u, nv)`` (the tube's points, (nu - 1, nv, 3)) with each cubic row's four basis
-        weights gathered instead of a dense rows x (spans x 4) product."""
-        from ..pde.pde_head import fold_harmonics, ring_points
-
-        u, nv = self._u, self.nv
-        H, nb = head.harmonics, nv // 2 + 1
-        self._spine0 = None
+        """The tube's points on the mesh's grid ((nu - 1, nv, 3)): :meth:`PDEHead.surface_points`, which
+        gathers each cubic row's four basis weights instead of a dense rows x (spans x 4) product."""
         density = self.model.__dict__.get("_v_density", [None])[0]
         if density is not None:                                   # columns closer where an outline runs radially
             from ..pde.surface_columns import column_v
-            return head._grid(u, None, v=column_v(density, nv))
-        if H > (nv + 1) // 2:                                     # harmonics folded: the head's own
-            return head._grid(u, nv)
-        patch, s = head._patch_of(u)
-        cubic = head._cubic_spans[patch]
-        spec = np.zeros((u.size, 3, nb), np.complex128)
-        rows = np.flatnonzero(cubic)
-        if rows.size:
-            w = basis(np.zeros(1), s[rows, None])[:, 0]                          # (n, 4)
-            cf, first = head._coef_flat, 4 * patch[rows]
-            amp = w[:, :1] * cf[first]
-            for b in range(1, 4):
-                amp += w[:, b:b + 1] * cf[first + b]
-            amp = amp.reshape(rows.size, H, 6)
-            if rows[0] == 0:                              # u = 0: the spine's bottom end, the neck cap's centre
-                self._spine0 = amp[0, 0, :3].copy()
-            spec[rows, :, :H] = (amp[..., :3] + 1j * amp[..., 3:]).transpose(0, 2, 1)
-        if not np.all(cubic):
-            other = np.flatnonzero(~cubic)
-            spec[other] = fold_harmonics(head._amplitudes(u[other]).transpose(0, 2, 1), nv)
-        return ring_points(spec, nv)
+            return head.surface_points(self._u, None, v=column_v(density, self.nv))
+        return head.surface_points(self._u, self.nv)
 
     def _positions(self, tips: np.ndarray, held=None) -> np.ndarray | None:
         m = self.model
@@ -191,7 +167,7 @@ class LiveFace:
         if head.vertex is None or self._cap_ref is None:
             return None
         pts = self._grid(head)
-        centre = self._spine0 if self._spine0 is not None else head.spine(np.array([0.0]))[0]
+        centre = head.spine(np.array([0.0]))[0]
         cap = self._cap_vertices(pts[0], centre)
         if cap is None:                                   # the fan cap of a ring that is not star-shaped
             return None
