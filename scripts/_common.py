@@ -245,7 +245,7 @@ def tube_fidelity(head, verts, faces, samples: int, everything: bool = False) ->
     cz = verts[faces][:, :, 2].mean(axis=1)
     sel = faces[(cz >= z.min()) & (cz <= z.max())]
     u = np.linspace(head.curve_u[0], head.curve_u[-1], 8 * head.patches + 1)
-    tube = tube_mesh(head._grid(u, 256), head.orientation)
+    tube = tube_mesh(head.surface_points(u, 256), head.orientation)
     d = E.validation.symmetric_surface_distance(tube.vertices, tube.quads, verts, sel, samples=samples)
     return d if everything else {k: float(d[k]) for k in ("mean", "p95", "max")}
 

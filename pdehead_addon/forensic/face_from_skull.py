@@ -24,7 +24,7 @@ skull's centroid: a row every ``row_mm`` of height, a column every ``360 / colum
    neck), plus a narrow Gaussian radial-basis correction (lightly regularised) that makes the field
    pass through every tip (to a few tenths of a mm), except a peg that disagrees with its neighbours by more
    than :data:`DAMP_FREE_MM` (:meth:`FaceModel._site_damping`); kept from overshooting between the pegs
-   (:meth:`FaceModel._limited`). A peg's influence fades within about 2 ``spread_mm``.
+   (:meth:`FaceModel.limited_field`). A peg's influence fades within about 2 ``spread_mm``.
 4. *Prediction rules* for what a depth field cannot make (:mod:`.face_features`, each cited there): the nose
    from the nasal aperture and the nasal length, the closed eyes in the orbits, the mouth from the teeth and the
    canines, a default ear at each porion.
@@ -91,10 +91,10 @@ HELD_REGULARISATION = 1e-3
 #: is put back through a held peg's tip by a Gaussian bump this wide (mm, sigma on the field's cylinder): about the
 #: ala's or the philtrum's width, so a held peg reshapes the face around it and not the whole nose or mouth.
 HELD_SHAPE_MM = 5.0
-#: The radius (mm) of the cylinder the field's sites lie on (:meth:`FaceModel._cyl`, the held pegs' bumps): about
+#: The radius (mm) of the cylinder the field's sites lie on (:meth:`FaceModel.cylinder_points`, the held pegs' bumps): about
 #: the head's mean radius, so distances on it are about distances over the head.
 FIELD_RADIUS_MM = 85.0
-#: No overshoot between the pegs (:meth:`FaceModel._limited`): the field stays between the lowest and the highest
+#: No overshoot between the pegs (:meth:`FaceModel.limited_field`): the field stays between the lowest and the highest
 #: blend base + k_i (target_i - base) of the wide field with each site's offset (k_i = exp(-(d / R)^4) along the
 #: height times the same around, R = LIMIT_RADIUS_FRACTION x ``spread_mm``; a smooth min / max LIMIT_SOFT_MM wide).
 #: The Gaussians' exact correction swings beyond two close sites of very different offsets (CThead, issue 23's 8th
@@ -308,13 +308,19 @@ class FaceModel:
         model.landmarks_used = lm
         model.hull_profile = hull_profile                    # the peer (constant_depth) keeps the bone's own profile
         model.bone_floor = floor                             # no row of the face inside it (:meth:`shaped_radius`)
-        model._grid_xyz = model._cyl(np.repeat(grid.z, columns), np.tile(grid.theta, K))
+        model._grid_xyz = model.cylinder_points(np.repeat(grid.z, columns), np.tile(grid.theta, K))
         model._damping = model._site_damping()
         model.prepare_seconds = time.perf_counter() - t0
         return model
 
+    @property
+    def in_rows(self) -> np.ndarray | None:
+        """Which pegs' tips lie within the profile's rows (the rest, e.g. the vertex, are the dome's), or
+        None before :meth:`prepare`. Kept under its stored name ``_in_rows`` (files saved with a face)."""
+        return self.__dict__.get("_in_rows")
+
     # -------------------------------------------------------------------- the field
-    def _cyl(self, z, theta) -> np.ndarray:
+    def cylinder_points(self, z, theta) -> np.ndarray:
         """Sites on a cylinder of the mean radius: distances between them ~ distances over the head."""
         rho = FIELD_RADIUS_MM
         return np.stack([rho * np.sin(theta), rho * np.cos(theta), np.asarray(z, float)], axis=-1)
@@ -327,7 +333,7 @@ class FaceModel:
         and the rule sites (vault, temples, neck)."""
         # a tip above the last row (vertex) is left to the dome over the vault: near the axis its radial offset
         # to the top row's radius is meaningless (-21 mm on CThead)
-        in_rows = getattr(self, "_in_rows", None)
+        in_rows = self.in_rows
         sites = [np.asarray(tips, float)[in_rows if in_rows is not None else slice(None)]]
         sites += [np.array([p for _, p, _ in self.rule_sites])] if self.rule_sites else []
         return np.concatenate(sites)
@@ -341,7 +347,7 @@ class FaceModel:
         mask = held_mask(self.peg_names, held)
         if not mask.any():
             return None
-        in_rows = getattr(self, "_in_rows", None)
+        in_rows = self.in_rows
         mask = mask[in_rows] if in_rows is not None else mask
         return np.concatenate([mask, np.zeros(len(self.rule_sites or ()), bool)])
 
@@ -351,7 +357,7 @@ class FaceModel:
         g = self.grid
         z, th, r = g.polar(self.field_sites(tips))
         target = r - g.sample(self.profile, z, th)                    # offset each site needs
-        xs = self._cyl(z, th)
+        xs = self.cylinder_points(z, th)
         sigma = self.options["spread_mm"]
         # wide Shepard average with the rule depth
         Wg = peg_kernel(self._grid_xyz, xs, sigma)                        # (G, n)
@@ -360,18 +366,18 @@ class FaceModel:
         base_s = (Ws @ target + RULE_WEIGHT * RULE_DEPTH_MM) / (Ws.sum(1) + RULE_WEIGHT)
         # narrow exact correction
         s2 = NARROW_FRACTION * sigma
-        w = self._correction_weights(xs, target - base_s, self.held_sites(held))
+        w = self.correction_weights(xs, target - base_s, self.held_sites(held))
         corr = peg_kernel(self._grid_xyz, xs, s2) @ w
         shape = self.profile.shape
-        return self._limited((base_g + corr).reshape(shape), base_g.reshape(shape), xs, target)
+        return self.limited_field((base_g + corr).reshape(shape), base_g.reshape(shape), xs, target)
 
-    def _limited(self, field: np.ndarray, base: np.ndarray, xs: np.ndarray, target: np.ndarray) -> np.ndarray:
+    def limited_field(self, field: np.ndarray, base: np.ndarray, xs: np.ndarray, target: np.ndarray) -> np.ndarray:
         """The field (K, M) kept within the blends of ``base`` with the sites' ``target`` (:data:`LIMIT_RADIUS_FRACTION`);
         one place for :meth:`_offset_field` and the live path (sites ``xs`` on the model's cylinder)."""
         if LIMIT_RADIUS_FRACTION <= 0 or not len(target):
             return field
         g, R = self.grid, LIMIT_RADIUS_FRACTION * float(self.options["spread_mm"])
-        ring = self._cyl(np.zeros(len(g.theta)), g.theta)[:, :2]
+        ring = self.cylinder_points(np.zeros(len(g.theta)), g.theta)[:, :2]
         kz = np.exp(-((g.z[:, None] - xs[None, :, 2]) / R) ** 4)                                   # (K, n)
         kt = np.exp(-(((ring[:, None, :] - xs[None, :, :2]) ** 2).sum(-1) / (R * R)) ** 2)       # (M, n)
         target = np.asarray(target, float)
@@ -390,7 +396,7 @@ class FaceModel:
         self._last_limit_shift = out - field        # what the limiter did, for the pegs' report (.face_pegs)
         return out
 
-    def _correction_weights(self, xs: np.ndarray, residual: np.ndarray, held: np.ndarray | None = None) -> np.ndarray:
+    def correction_weights(self, xs: np.ndarray, residual: np.ndarray, held: np.ndarray | None = None) -> np.ndarray:
         """Weights of the narrow Gaussians of the exact correction at the field sites ``xs`` for the
         ``residual`` (offset minus the wide field at each site), regularised per site
         (:meth:`_site_damping`; the ``held`` sites (bool) at :data:`HELD_REGULARISATION`). One place for
@@ -430,7 +436,7 @@ class FaceModel:
             g = self.grid
             z, th, r = g.polar(self.field_sites(self.tips_for(self.default_depths)))
             target = r - g.sample(self.profile, z, th)
-            xs = self._cyl(z, th)
+            xs = self.cylinder_points(z, th)
             W = peg_kernel(xs, xs, self.options["spread_mm"])
             np.fill_diagonal(W, 0.0)
             others = (W @ target + RULE_WEIGHT * RULE_DEPTH_MM) / (W.sum(1) + RULE_WEIGHT)
@@ -475,7 +481,7 @@ class FaceModel:
             self.__dict__["_front_grid"] = (cols, FaceGrid(g.centre, g.z, g.theta[cols]))
         return self.__dict__["_front_grid"]
 
-    def _surface(self, radius: np.ndarray, nu=None, nv=None, top_z: float | None = None):
+    def surface_head(self, radius: np.ndarray, nu=None, nv=None, top_z: float | None = None):
         from ..pde.pde_head import derived_once
         from ..pde.pde_surface import solve_pde
 
@@ -537,7 +543,7 @@ class FaceModel:
 
     def constant_depth(self, depth_mm: float) -> FaceResult:
         """The peer: the bone's closed outer profile pushed out by one depth everywhere (no pegs, no nose)."""
-        head = self._surface(getattr(self, "hull_profile", self.profile) + float(depth_mm))
+        head = self.surface_head(getattr(self, "hull_profile", self.profile) + float(depth_mm))
         mesh = head.surface(int(self.options["nu"]), int(self.options["nv"]), caps=True)   # not live: own caps
         prov = dict(self.provenance, method=f"constant depth {depth_mm:g} mm over the bone's closed profile")
         return FaceResult(mesh, prov, {}, head=head)
@@ -563,7 +569,7 @@ class FaceModel:
             d = np.einsum("ij,ij->i", tips - self.peg_bases, self.peg_normals)
         radius = self.shaped_radius(self._offset_field(tips, held), tips, held)
         t1 = time.perf_counter()
-        head = self._surface(radius, top_z=self.top_z_for(tips))
+        head = self.surface_head(radius, top_z=self.top_z_for(tips))
         t2 = time.perf_counter()
         mesh = self._mesh(head, nu, nv)
         t3 = time.perf_counter()
@@ -609,7 +615,7 @@ class FaceModel:
             return radius
         from .face_pegs import held_mask
         mask = held_mask(self.peg_names, held)
-        in_rows = getattr(self, "_in_rows", None)
+        in_rows = self.in_rows
         if in_rows is not None:                     # a tip above the rows (vertex) is the dome's
             mask &= in_rows
         if not mask.any():

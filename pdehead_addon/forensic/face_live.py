@@ -11,7 +11,7 @@ the live loop:
   - the tissue-depth field's Gaussians over the (row, column) grid are separable on the model's
     cylinder (``exp(-|a - b|^2 / s^2) = exp(-dz^2 / s^2) exp(-chord^2 / s^2)``): two small kernels
     (rows x sites, columns x sites) and one product instead of one kernel of grid x sites;
-  - the PDE surface is the model's own (:meth:`FaceModel._surface`), evaluated on the mesh's grid by
+  - the PDE surface is the model's own (:meth:`FaceModel.surface_head`), evaluated on the mesh's grid by
     gathering each row's four cubic basis weights (not a dense weights x coefficients product) and one
     inverse real FFT; the neck cap's points are the model's own :func:`.surface_mesh.disc_caps`; no
     topology, UVs or attributes are made.
@@ -102,7 +102,7 @@ class LiveFace:
             ref = model.solve(nu=self.nu, nv=self.nv)                  # fixes _pde_fixed and the cap counts
         self.vertex_count = len(ref.mesh.vertices) if ref is not None else None
         g = model.grid
-        self._rho = float(model._cyl(np.zeros(1), np.zeros(1))[0, 1])  # the model's site cylinder
+        self._rho = float(model.cylinder_points(np.zeros(1), np.zeros(1))[0, 1])  # the model's site cylinder
         self._grid_z = np.asarray(g.z, float)
         self._ring = self._rho * np.stack([np.sin(g.theta), np.cos(g.theta)], axis=-1)   # (M, 2)
         self._u = np.linspace(0.0, 1.0, nu_)[:-1]
@@ -134,7 +134,7 @@ class LiveFace:
         m, g = self.model, self.model.grid
         z, th, r = g.polar(m.field_sites(tips))
         target = r - g.sample(m.profile, z, th)
-        xs = m._cyl(z, th)
+        xs = m.cylinder_points(z, th)
         sigma = float(m.options["spread_mm"])
         dz2 = (self._grid_z[:, None] - z[None, :]) ** 2                          # (K, n)
         dc2 = ((self._ring[:, None, :] - xs[None, :, :2]) ** 2).sum(-1)         # (M, n)
@@ -145,9 +145,9 @@ class LiveFace:
                   / (small_matmul(Ez, EtT) + F.RULE_WEIGHT))
         base_s = (Ws @ target + F.RULE_WEIGHT * F.RULE_DEPTH_MM) / (Ws.sum(1) + F.RULE_WEIGHT)
         s2 = F.NARROW_FRACTION * sigma
-        w = m._correction_weights(xs, target - base_s, m.held_sites(held))
+        w = m.correction_weights(xs, target - base_s, m.held_sites(held))
         corr = small_matmul(_gauss(dz2, s2) * w, np.ascontiguousarray(_gauss(dc2, s2).T))
-        return m._limited(base_g + corr, base_g, xs, target)
+        return m.limited_field(base_g + corr, base_g, xs, target)
 
     # -------------------------------------------------------------------- the surface on the mesh's grid
     def _grid(self, head) -> np.ndarray:
@@ -163,7 +163,7 @@ class LiveFace:
         m = self.model
         tips = np.asarray(tips, float).reshape(-1, 3)
         radius = m.shaped_radius(self.offset_field(tips, held), tips, held)
-        head = m._surface(radius, top_z=m.top_z_for(tips))
+        head = m.surface_head(radius, top_z=m.top_z_for(tips))
         if head.vertex is None or self._cap_ref is None:
             return None
         pts = self._grid(head)
@@ -340,6 +340,6 @@ def model_from_state(text: str):
     model.__dict__.update(state)
     if "_grid_xyz" not in model.__dict__:                 # as prepare makes it (not kept: 3 x the profile's size)
         g = model.grid
-        model._grid_xyz = model._cyl(np.repeat(g.z, len(g.theta)), np.tile(g.theta, len(g.z)))
+        model._grid_xyz = model.cylinder_points(np.repeat(g.z, len(g.theta)), np.tile(g.theta, len(g.z)))
     model.restored_seconds = time.perf_counter() - t0
     return model

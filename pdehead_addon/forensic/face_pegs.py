@@ -3,7 +3,7 @@
 A face from the skull (:class:`.face_from_skull.FaceModel`) passes through most peg tips to a few tenths of a mm,
 but not through all: a peg whose offset disagrees with its neighbours' is damped
 (:meth:`~.face_from_skull.FaceModel._site_damping`), the field is kept from overshooting
-(:meth:`~.face_from_skull.FaceModel._limited`) and the nose, lips and cheeks are shape rules over the field. This
+(:meth:`~.face_from_skull.FaceModel.limited_field`) and the nose, lips and cheeks are shape rules over the field. This
 module says so, per peg, cheaply enough for every live re-solve (:func:`peg_report`): the tip's distance to the
 face (exact point-to-triangle distances near the nearest face vertex), whether the peg is damped and by how much,
 how far the limiter moved the field there, whether the practitioner holds it, and the warnings of a peg pushed
@@ -189,18 +189,18 @@ def peg_report(model, tips: np.ndarray, vertices: np.ndarray, held=None, nu: int
     rel = tips - model.peg_bases
     depth = np.einsum("ij,ij->i", rel, model.peg_normals)
     drift = np.linalg.norm(rel - depth[:, None] * model.peg_normals, axis=1)
-    n_in = int(np.count_nonzero(model._in_rows))
+    n_in = int(np.count_nonzero(model.in_rows))
     disagreement = np.full(len(names), np.nan)
     damping = np.zeros(len(names))
-    disagreement[model._in_rows] = model.site_disagreement()[:n_in]
-    damping[model._in_rows] = model.site_extra_damping()[:n_in]
+    disagreement[model.in_rows] = model.site_disagreement()[:n_in]
+    damping[model.in_rows] = model.site_extra_damping()[:n_in]
     damping[held] = 0.0
     limited = np.zeros(len(names))
     shift = model.__dict__.get("_last_limit_shift")
     if shift is not None:
         g = model.grid
         z, th, _ = g.polar(tips)
-        limited = np.where(model._in_rows, g.sample(shift, np.clip(z, g.z[0], g.z[-1]), th), 0.0)
+        limited = np.where(model.in_rows, g.sample(shift, np.clip(z, g.z[0], g.z[-1]), th), 0.0)
     warnings = peg_warnings(names, depth, drift, model.default_depths, model.depth_sd)
     warned = {w["peg"] for w in warnings}
     for i in np.flatnonzero(held & (dist > D.FACE_PEG_OFF_MM)):

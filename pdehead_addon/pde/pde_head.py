@@ -227,9 +227,6 @@ class PDEHead:
             out[sel] = amp
         return out
 
-    #: The former private name of :meth:`amplitudes`, kept for callers not yet switched.
-    _amplitudes = amplitudes
-
     def spine(self, u: np.ndarray | float) -> np.ndarray:
         """The spine ``A_0(u)`` (eq. 8): the centre line, shape ``u.shape + (3,)``."""
         u = np.asarray(u, dtype=np.float64)
@@ -318,9 +315,6 @@ class PDEHead:
             rows = np.flatnonzero(~cubic)
             spec[rows] = fold_harmonics(self.amplitudes(u[rows]).transpose(0, 2, 1), nv)
         return ring_points(spec, nv)
-
-    #: The former private name of :meth:`surface_points`, kept for callers not yet switched.
-    _grid = surface_points
 
     def grid(self, u: np.ndarray, nv: int | None = None, v: np.ndarray | None = None) -> np.ndarray:
         """:meth:`surface_points`, remembered per head for its last four samplings (read-only arrays).

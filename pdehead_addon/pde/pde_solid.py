@@ -139,7 +139,7 @@ def solid_mesh(head, nu: int, nv: int, nw: int, u_range: tuple[float, float] = (
 
 def surface_grid_cached(head, u: np.ndarray, v: np.ndarray, nv_uniform: int | None) -> np.ndarray:
     """The surface grid X(u_i, v_j): the head's cached :meth:`~.pde_head.PDEHead.grid` (shared with
-    its surface mesh) when it has one, else its ``_grid``."""
+    its surface mesh) when it has one, else its :meth:`.PDEHead.surface_points`."""
     if hasattr(head, "grid"):
         return head.grid(u, nv_uniform) if nv_uniform is not None else head.grid(u, v=v)
     return head.surface_points(u, nv_uniform) if nv_uniform is not None else head.surface_points(u, None, v=v)

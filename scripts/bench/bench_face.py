@@ -735,7 +735,7 @@ def markdown(results: dict) -> str:
               "mid-philtrum (14.8 mm) tips lie 3.4 mm apart in height, and the narrow Gaussians' exact correction "
               "swung to 19.7 mm above them and 16.6 mm over the incisors, where the pegs around are 12-13 mm. The "
               "field is now kept within the blends of the wide field with each site's offset "
-              "(`FaceModel._limited`, the same in the live path; it still passes through the tips): the midline "
+              "(`FaceModel.limited_field`, the same in the live path; it still passes through the tips): the midline "
               "over the incisors 2-4 mm less forward (39 and 37 mm below pronasale: -9.7 / -12.0 -> -6.2 / -8.3 mm; "
               "the mouth's region, 30-50 mm below pronasale within 15 degrees, median -7.4 -> -6.7 mm), "
               "CThead 63.7 -> 63.0 % (mean 2.51 -> 2.52 mm; pronasale 1.5 -> 3.1 mm: the nose's subnasale stands on "

@@ -68,7 +68,7 @@ def _peg_damping(model) -> np.ndarray:
     """The exact correction's regularisation per peg (pegs above the rows are left to the dome: undamped)."""
     from pdehead_addon.forensic.face_from_skull import RBF_REGULARISATION
     lam = np.full(len(model.peg_names), RBF_REGULARISATION)
-    lam[model._in_rows] = model._damping[:int(model._in_rows.sum())]
+    lam[model.in_rows] = model._damping[:int(model.in_rows.sum())]
     return lam
 
 
@@ -510,8 +510,8 @@ def test_field_does_not_overshoot_between_conflicting_pegs(model, face, monkeypa
     g = model.grid
     z, th, r = g.polar(model.field_sites(tips))
     target = r - g.sample(model.profile, z, th)
-    xs = model._cyl(z, th)
-    centre = model._cyl(*g.polar(tips[i][None])[:2])[0]
+    xs = model.cylinder_points(z, th)
+    centre = model.cylinder_points(*g.polar(tips[i][None])[:2])[0]
     near = np.linalg.norm(model._grid_xyz - centre, axis=1) < 15.0           # the grid around the pair
     top = max(target[np.linalg.norm(xs - centre, axis=1) < 45.0].max(), F.RULE_DEPTH_MM)
     limited = model._offset_field(tips)
@@ -532,11 +532,11 @@ def test_limiter_on_each_sites_window_equals_the_dense_blend(model, face):
     g = model.grid
     z, th, r = g.polar(model.field_sites(face.tips))
     target = r - g.sample(model.profile, z, th)
-    xs = model._cyl(z, th)
+    xs = model.cylinder_points(z, th)
     base = model._offset_field(face.tips)
     field = base + np.random.default_rng(1).normal(0.0, 3.0, base.shape)
     R = F.LIMIT_RADIUS_FRACTION * float(model.options["spread_mm"])
-    ring = model._cyl(np.zeros(len(g.theta)), g.theta)[:, :2]
+    ring = model.cylinder_points(np.zeros(len(g.theta)), g.theta)[:, :2]
     kz = np.exp(-((g.z[:, None] - xs[None, :, 2]) / R) ** 4)
     kt = np.exp(-(((ring[:, None, :] - xs[None, :, :2]) ** 2).sum(-1) / (R * R)) ** 2)
     dev = (kz[:, None, :] * kt[None, :, :]) * (target[None, None, :] - base[:, :, None])
@@ -546,7 +546,7 @@ def test_limiter_on_each_sites_window_equals_the_dense_blend(model, face):
     out = hi + (field - hi) * h - k * h * (1.0 - h)
     h = np.clip(0.5 + 0.5 * (out - lo) / k, 0.0, 1.0)
     dense = lo + (out - lo) * h + k * h * (1.0 - h)
-    limited = model._limited(field, base, xs, target)
+    limited = model.limited_field(field, base, xs, target)
     assert np.abs(limited - dense).max() < 1e-9
     assert np.abs(limited - field).max() > 1.0                 # the limiter did act on this field
 
@@ -678,7 +678,7 @@ def test_held_pegs_under_the_shape_rules_are_on_the_face_too(model, face):
         held = model.solve(held=[names[i]])
         assert held.pegs.tip_to_face_mm[i] <= 0.5, (names[i], face.pegs.tip_to_face_mm[i], held.pegs.tip_to_face_mm[i])
     every = model.solve(held=list(names))
-    in_rows = model._in_rows
+    in_rows = model.in_rows
     assert every.pegs.tip_to_face_mm[in_rows].max() <= 1.0, every.pegs.tip_to_face_mm
     live = LiveFace(model, check=False)
     fast = live.positions(face.tips, held=list(names))
