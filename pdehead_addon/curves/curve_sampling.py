@@ -22,13 +22,22 @@ from .slice_outlines import outer_contour, shoelace
 __all__ = [
     "signed_area", "polygon_centroid", "resample_closed_curve", "star_hull", "spine_centres", "angular_curves",
     "orient_and_resample", "contour_from_mask", "parameter_offsets", "self_intersections", "check_samples",
-    "STAR_MAX_SLOPE", "SPINE_SMOOTHING_MM",
+    "STAR_MAX_SLOPE", "STAR_FILLET_MM", "STAR_FILLET_MIN_TURN_DEG", "SPINE_SMOOTHING_MM", "polar_turns",
+    "round_sharp_polar_corners",
 ]
 
 #: Star hull: bound on |d ln r / d theta| (3: the normal stays within 72 degrees of the ray). Issue 21:
 #: 2 (63 degrees) filled the groove beside the nose wings, whose sides run almost along the ray; at 3
 #: CThead's mouth corners keep no pit any more (notch fraction 0 with the 1 mm envelope).
 STAR_MAX_SLOPE = 3.0
+#: Star hull: radius (mm) of the arcs its sharp concave corners are filled to (where a web meets the outline
+#: behind an ear): the viewport's 240 columns lie about 2.4 mm apart on a head, and a corner sharper than
+#: the columns' spacing shows as a slit. Chosen on CThead, checked on GE (docs/benchmarks.md, up close).
+STAR_FILLET_MM = 3.0
+#: Star hull: a concave corner where a web meets the outline is filled when the outline turns there by more
+#: than this (degrees, over a quarter of the fillet on either side); the rest keeps its shape (the tube's
+#: fidelity to the CT). Chosen on CThead, checked on GE.
+STAR_FILLET_MIN_TURN_DEG = 60.0
 #: Smoothing length (mm) of the centroid track that the angular parameterisation is centred on.
 SPINE_SMOOTHING_MM = 10.0
 
@@ -110,8 +119,83 @@ def _lipschitz_envelope(f: np.ndarray, step: float) -> np.ndarray:
     return g[n:2 * n]
 
 
+def _ball_offsets(step_mm: float, radius_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """Sample offsets k (|k step| <= radius) and the ball's height sqrt(radius^2 - (k step)^2) over them."""
+    w = int(np.floor(radius_mm / step_mm))
+    k = np.arange(-w, w + 1)
+    return k, np.sqrt(np.maximum(radius_mm ** 2 - (k * step_mm) ** 2, 0.0))
+
+
+def _ball_pass(f: np.ndarray, k: np.ndarray, height: np.ndarray, dilate: bool) -> np.ndarray:
+    """Periodic grey-level dilation (max of f + ball) or erosion (min of f - ball) of a sampled graph."""
+    window = f[(np.arange(len(f))[:, None] + k[None, :]) % len(f)]
+    return (window + height).max(axis=1) if dilate else (window - height).min(axis=1)
+
+
+def polar_turns(radius: np.ndarray, chord_mm: float) -> np.ndarray:
+    """Signed turn (degrees, + to the left) of a closed curve ``r(theta)`` (equal angles, counter-clockwise)
+    at each sample, between its chords to the samples ``chord_mm`` of arc length before and after;
+    negative turns are concave corners."""
+    r = np.asarray(radius, dtype=np.float64)
+    n = len(r)
+    phi = np.arange(n) * 2.0 * np.pi / n
+    xy = np.stack([r * np.cos(phi), r * np.sin(phi)], axis=1)
+    k = max(1, int(round(chord_mm / (float(np.median(r)) * 2.0 * np.pi / n))))
+    a = xy - np.roll(xy, k, axis=0)
+    b = np.roll(xy, -k, axis=0) - xy
+    return np.degrees(np.arctan2(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0], (a * b).sum(axis=1)))
+
+
+def round_sharp_polar_corners(radius: np.ndarray, fillet_mm: float, min_turn_deg: float,
+                              only_near: np.ndarray | None = None) -> np.ndarray:
+    """Fill the sharp concave corners of a closed star-shaped curve ``r(theta)`` (equal angles) to arcs
+    of ``fillet_mm``.
+
+    The graph of r over the arc length ``s = median(r) theta`` is closed by a ball of radius ``fillet_mm``
+    (grey-level morphology with a spherical structuring function, Sternberg's rolling ball, rolled along
+    the outside) [1]_; of what the closing raises, only the stretches that hold a concave corner turning
+    by more than ``min_turn_deg`` between the chords a quarter of ``fillet_mm`` long on either side (and,
+    with ``only_near``, within that reach of a flagged sample: a star hull's web, so that the corners
+    are where a web meets the outline, behind an ear) are kept: the rest of the outline, its gentle
+    valleys and the CT's own creases included, is unchanged. r never
+    decreases (the hull still contains the outline) and stays continuous (the closing meets r at the ends
+    of each stretch it raises). Convex tips (an ear's edge, the nose) are left as they are.
+
+    References
+    ----------
+    .. [1] S. R. Sternberg, "Grayscale morphology", Computer Vision, Graphics, and Image Processing
+       35(3):333-355, 1986.
+    """
+    r = np.asarray(radius, dtype=np.float64)
+    step = float(np.median(r)) * 2.0 * np.pi / len(r)
+    if not (fillet_mm > 0 and step > 0 and fillet_mm >= step):
+        return r
+    k, h = _ball_offsets(step, float(fillet_mm))
+    closed = np.maximum(r, _ball_pass(_ball_pass(r, k, h, dilate=True), k, h, dilate=False))
+    raised = closed > r + 1e-9
+    if not raised.any():
+        return r
+    chord = 0.25 * fillet_mm                       # the corner's own turn, not the outline's curvature around it
+    sharp = polar_turns(r, chord) < -float(min_turn_deg)
+    if only_near is not None:
+        reach = np.arange(-max(1, int(round(chord / step))), max(1, int(round(chord / step))) + 1)
+        sharp &= np.asarray(only_near, bool)[(np.arange(len(r))[:, None] + reach[None, :]) % len(r)].any(axis=1)
+    if raised.all():
+        return closed if (sharp & raised).any() else r
+    # label the periodic runs of raised samples, starting after a sample that is not raised
+    start = int(np.flatnonzero(~raised)[0])
+    order = (np.arange(len(r)) + start) % len(r)
+    run = np.cumsum(np.r_[False, raised[order][1:] & ~raised[order][:-1]])
+    label = np.empty(len(r), np.int64)
+    label[order] = run
+    keep = np.zeros(run.max() + 1, bool)
+    keep[label[raised & sharp]] = True
+    return np.where(raised & keep[label], closed, r)
+
+
 def star_hull(points: np.ndarray, centre: np.ndarray | None = None, angles: int = 1440,
-              step: float = 0.2, max_slope: float | None = STAR_MAX_SLOPE) -> np.ndarray:
+              step: float = 0.2, max_slope: float | None = STAR_MAX_SLOPE, fillet_mm: float = STAR_FILLET_MM,
+              min_turn_deg: float = STAR_FILLET_MIN_TURN_DEG) -> np.ndarray:
     """The smallest region star-shaped around ``centre`` that contains a closed curve.
 
     Along every ray from the centre the farthest point of the curve is kept, so
@@ -120,8 +204,10 @@ def star_hull(points: np.ndarray, centre: np.ndarray | None = None, angles: int 
     ``max_slope`` the radius is moreover raised to the smallest function with
     ``|d ln r / d theta| <= max_slope``: the filling is a web sloping at most
     ``atan(max_slope)`` away from the circle (the outward normal stays within that
-    angle of the ray), not a radial wall. A curve that already satisfies this (most
-    of a head's outline, the nose) is returned as it is, up to the angular sampling.
+    angle of the ray), not a radial wall; where a web lands on the outline at a sharp
+    concave corner, the corner becomes an arc (:func:`round_sharp_polar_corners`). A
+    curve that already satisfies the bound (most of a head's outline, the nose) is
+    returned as it is, up to the angular sampling.
 
     Parameters
     ----------
@@ -136,6 +222,10 @@ def star_hull(points: np.ndarray, centre: np.ndarray | None = None, angles: int 
         ray meets a sample.
     max_slope : float or None
         Bound on ``|d ln r / d theta|``; None: the plain star-shaped hull.
+    fillet_mm, min_turn_deg : float
+        Where a web meets the outline at a concave corner turning by more than ``min_turn_deg``, the
+        corner becomes an arc of ``fillet_mm`` (:func:`round_sharp_polar_corners`); ``fillet_mm`` 0 keeps it,
+        and so does the plain hull (``max_slope`` None).
 
     Returns
     -------
@@ -162,7 +252,9 @@ def star_hull(points: np.ndarray, centre: np.ndarray | None = None, angles: int 
     grid = np.arange(angles)
     radius = np.interp(grid, bins, radius[bins], period=angles)
     if max_slope is not None and max_slope > 0:
+        raw = radius
         radius = np.exp(_lipschitz_envelope(np.log(np.maximum(radius, 1e-9)), max_slope * 2 * np.pi / angles))
+        radius = round_sharp_polar_corners(radius, fillet_mm, min_turn_deg, only_near=radius > raw * (1 + 1e-6))
     phi = (grid + 0.5) / angles * 2 * np.pi - np.pi
     out = np.empty((angles, p.shape[1]))
     out[:, 0] = c[0] + radius * np.cos(phi)

@@ -128,9 +128,9 @@ def test_star_hull_fills_an_inlet_whose_walls_face_the_centre():
 def test_star_hull_slope_bound_turns_a_spike_into_a_web(slope):
     """A 2-degree spike to 80 mm on a 50 mm circle: the plain hull keeps it as a radial wall (2.5 degrees wide
     at the 1440 rays); with the bound, |d ln r / d theta| <= slope everywhere and the web is as wide as
-    ln(80 / 50) / slope demands on each side."""
+    ln(80 / 50) / slope demands on each side (the corners' fillet off: it is tested below)."""
     r = np.where(np.abs(np.angle(np.exp(1j * (THETA - 1.0)))) < np.radians(1.0), 80.0, 50.0)
-    hull = star_hull(polar_curve(r), centre=np.zeros(2), max_slope=slope)
+    hull = star_hull(polar_curve(r), centre=np.zeros(2), max_slope=slope, fillet_mm=0.0)
     radius = np.hypot(*hull.T)
     assert radius.max() == pytest.approx(80.0, abs=1e-3) and radius.min() == pytest.approx(50.0, abs=1e-3)
     log_r = np.log(radius)
@@ -235,3 +235,25 @@ def test_default_path_bridges_a_slit_that_the_per_slice_outline_follows():
                                                     star_shaped=False, closing_mm=0.0).curves)
     assert np.abs(default).max() < 1.2, np.abs(default).max()
     assert raw.min() < -5.0, raw.min()
+
+
+def test_star_hull_rounds_the_sharp_corner_where_a_web_meets_the_outline_and_nothing_else():
+    """A spike (an ear seen from above) becomes a web at the slope bound; where the web lands on the outline it
+    turns by 68 deg (over 0.75 mm chords), a slit on the columns. The 3 mm fillet turns that corner into an arc
+    (at most ~21 deg), raising r by < 1 mm on a few samples at the web's feet; a gentle 3 mm valley elsewhere
+    (a turn of 2 deg) keeps its shape exactly, and r never decreases."""
+    from pdehead_addon.curves.curve_sampling import STAR_FILLET_MM, polar_turns
+    n = 1440
+    phi = (np.arange(n) + 0.5) / n * 2 * np.pi - np.pi
+    r = 100 - 3 * np.exp(-0.5 * ((phi - 2.0) / 0.1) ** 2)
+    r[np.abs(phi) < 0.02] = 140
+    pts = np.stack([r * np.cos(phi), r * np.sin(phi)], axis=1)
+    sharp = np.hypot(*star_hull(pts, np.zeros(2), fillet_mm=0).T)
+    rounded = np.hypot(*star_hull(pts, np.zeros(2)).T)
+    assert STAR_FILLET_MM == 3.0
+    assert polar_turns(sharp, 0.75).min() < -60 and polar_turns(rounded, 0.75).min() > -30
+    raised = rounded - sharp
+    assert raised.min() >= 0 and 0.3 < raised.max() < 1.5
+    assert np.all(np.abs(phi[raised > 1e-9]) < 0.2)                    # only at the web's feet
+    valley = np.abs(phi - 2.0) < 0.5
+    assert np.array_equal(rounded[valley], sharp[valley]) and sharp[valley].min() < 97.5
