@@ -126,3 +126,54 @@ def test_a_scan_cut_at_the_occlusal_plane_has_a_partial_mandible_and_landmarks_o
         assert lms[name].flag != "not_found", (name, lms[name])
     # the whole scan is not cut through the skull (its neck ends below the bone)
     assert find_landmarks(cthead_ct, full.bone).info["scan_cut"] == ""
+
+
+def _lowest_z(ct: CTVolume, mask) -> float:
+    return float(ct.index_to_patient(np.argwhere(mask).astype(float))[:, 2].min())
+
+
+@pytest.mark.parametrize("level", [1500.0, None])
+def test_the_cervical_spine_stays_out_of_the_skull_at_any_bone_level(cthead_ct, level):
+    """CThead stripped at 1500 (its spine joined to the skull base at partial volume) and at its automatic level:
+    nothing of the skull but the mandible reaches below the mandible's lowest point (the spine ran to the scan's
+    bottom, 26 mm below it), and the skull mesh ends there too."""
+    from pdehead_addon.forensic.skull import skull_mesh
+    if level is None:
+        level = float(segment_skull(cthead_ct).meta["bone_level_stored"])
+    sk = segment_skull(stripped(cthead_ct, level), bone_level=level)
+    assert sk.meta["mandible"]["present"] and not sk.meta["mandible"].get("partial")
+    menton = _lowest_z(cthead_ct, sk.mandible)
+    assert menton == pytest.approx(26.0, abs=4.0)                     # the chin's lower border
+    assert _lowest_z(cthead_ct, sk.bone & ~sk.mandible) >= menton, sk.meta["spine_split"]
+    assert sk.meta["dropped_vertebra_mm3"] > 20000.0                     # C1-C3 at least
+    mesh = skull_mesh(sk)
+    assert mesh.vertices[:, 2].min() >= menton - 2.0
+    # the cranium keeps its base: the occipital condyles and mastoids stand within the mandible's ramus height
+    cranium = cthead_ct.index_to_patient(np.argwhere(sk.bone & ~sk.mandible).astype(float))
+    behind = cranium[:, 1] > np.median(cranium[:, 1])
+    assert cranium[behind, 2].min() < 90.0
+
+
+def test_a_scan_cut_below_the_occlusal_plane_finds_the_rami(cthead_ct, cthead_seg):
+    """CThead cut 4 mm below the plane between its incisors (the lower incisors' crowns in the scan, no chin):
+    the rami are found as a partial mandible, the chin's and the jaw's lower landmarks are not_found "outside the
+    scan", the rami's upper landmarks are used."""
+    from pdehead_addon.forensic.auto_landmarks import find_landmarks
+
+    full = segment_skull(cthead_ct, cthead_seg)
+    _, lower_tip, upper_tip = _occlusal_slice(cthead_ct, full)
+    z = cthead_ct.slice_heights()
+    k = int(np.flatnonzero(z >= 0.5 * (lower_tip + upper_tip) - 4.0)[0])
+    cut = cropped(cthead_ct, k, cthead_ct.shape[0])
+    for ct in (cut, stripped(cut, 1586.0)):
+        sk = segment_skull(ct, bone_level=1586.0)
+        rep = sk.meta["mandible"]
+        assert rep["present"] and rep["partial"] and rep["articulated"], rep
+        x = ct.index_to_patient(np.argwhere(sk.mandible).astype(float))[:, 0]
+        mid = float(np.median(ct.index_to_patient(np.argwhere(sk.bone & ~sk.mandible).astype(float))[:, 0]))
+        assert np.count_nonzero(x < mid - 30) > 500 and np.count_nonzero(x > mid + 30) > 500
+    lms = find_landmarks(cut, sk.bone).landmarks
+    for name in ("Menton", "Pogonion", "Gnathion", "Gonion L", "Gonion R", "Mid-mandibular border R"):
+        assert lms[name].flag == "not_found" and lms[name].evidence.startswith("outside the scan"), (name, lms[name])
+    for name in ("Nasion", "Porion L", "Porion R", "Supradentale"):
+        assert lms[name].flag != "not_found", (name, lms[name])
