@@ -250,6 +250,10 @@ ARTICULATED_GAP_MM = 12.0
 #: at 1500) is split off by eroding the cranium's component by up to this many more voxels: the joint's cartilage
 #: space (1-2 mm) is bridged by a voxel or two of partial volume, the skull base around it is thicker.
 SPINE_SPLIT_EXTRA_EROSION = 2
+#: ... and what is split off is at most this share of the component: the upper cervical spine at a bone level is a
+#: few percent of the skull (CThead at 1500: C1-C3 3 %); a larger part is the cranium itself broken by the erosion
+#: (the phantom's face and skull base at two more voxels).
+SPINE_MAX_SHARE = 0.1
 
 
 def split_spine_from_cranium(labels: np.ndarray, n: int, cranium: int, ct: CTVolume,
@@ -305,7 +309,7 @@ def split_spine_from_cranium(labels: np.ndarray, n: int, cranium: int, ct: CTVol
         xyz = ct.index_to_patient(kji + offset)
         below = spine[owner[tuple(kji.T)]]
         split = float(np.count_nonzero(below) * voxel_mm3)
-        if split < float(min_component_mm3):
+        if split < float(min_component_mm3) or np.count_nonzero(below) > SPINE_MAX_SHARE * len(kji):
             continue
         region = labels[box]
         region[tuple(kji[below].T)] = n + 1
