@@ -248,12 +248,17 @@ ARTICULATED_GAP_MM = 12.0
 
 #: A cervical spine joined to the cranium at the atlanto-occipital joint at partial volume (a low bone level: CThead
 #: at 1500) is split off by eroding the cranium's component by up to this many more voxels: the joint's cartilage
-#: space (1-2 mm) is bridged by a voxel or two of partial volume, the skull base around it is thicker.
-SPINE_SPLIT_EXTRA_EROSION = 2
+#: space (1-2 mm) is bridged by a voxel of partial volume, the skull base around it is thicker (two more voxels
+#: broke GE's skull base, cut by its tilted slab, into pieces below the core).
+SPINE_SPLIT_EXTRA_EROSION = 1
 #: ... and what is split off is at most this share of the component: the upper cervical spine at a bone level is a
 #: few percent of the skull (CThead at 1500: C1-C3 3 %); a larger part is the cranium itself broken by the erosion
 #: (the phantom's face and skull base at two more voxels).
 SPINE_MAX_SHARE = 0.1
+#: ... and reaches at least this far (mm) below the cranium's core: the atlas and the axis's body reach 35-40 mm
+#: below the occipital condyles, which stand less than 15 mm below the skull base's thick core (left with the
+#: cranium; CThead at its own level: a piece 16 mm deep by the left condyle).
+SPINE_MIN_DROP_MM = 25.0
 
 
 def split_spine_from_cranium(labels: np.ndarray, n: int, cranium: int, ct: CTVolume,
@@ -261,12 +266,13 @@ def split_spine_from_cranium(labels: np.ndarray, n: int, cranium: int, ct: CTVol
     """Split a cervical spine still joined to the cranium's component off it.
 
     The cranium's component (of the bone eroded once) is eroded by 1 to :data:`SPINE_SPLIT_EXTRA_EROSION` more
-    voxels: the thick cranium stays one piece, the joint's bridge and the thin vertebrae break into pieces. Every
-    voxel of the component goes to the nearest piece (Euclidean); the parts whose centroid lies below the largest
-    piece's lowest point (the skull base: the occipital condyles, the mastoids above them) and not more than
-    :data:`VERTEBRA_FRONT_MM` in front of its centroid (the facial skeleton and the teeth lie in front) are the
-    spine and the atlas's transverse processes; together of at least
-    ``min_component_mm3`` they get a new label, the rest stays the cranium.
+    voxels: the thick cranium stays one piece (the largest), the joint's bridge and the thin vertebrae break into
+    pieces. The pieces whose centroid lies below the largest's lowest point (the skull base's core) and not more
+    than :data:`VERTEBRA_FRONT_MM` in front of its centroid (the teeth and the maxilla's edge lie in front) are the
+    spine's. Every voxel of the component goes to the nearest piece (Euclidean; the pieces in front below the skull
+    base take none); the spine's pieces' voxels, together of at least ``min_component_mm3``, at most
+    :data:`SPINE_MAX_SHARE` of the component and reaching :data:`SPINE_MIN_DROP_MM` below the largest piece, get
+    a new label; the rest stays the cranium.
 
     Returns
     -------
@@ -309,7 +315,8 @@ def split_spine_from_cranium(labels: np.ndarray, n: int, cranium: int, ct: CTVol
         xyz = ct.index_to_patient(kji + offset)
         below = spine[owner[tuple(kji.T)]]
         split = float(np.count_nonzero(below) * voxel_mm3)
-        if split < float(min_component_mm3) or np.count_nonzero(below) > SPINE_MAX_SHARE * len(kji):
+        if (split < float(min_component_mm3) or np.count_nonzero(below) > SPINE_MAX_SHARE * len(kji)
+                or xyz[below, 2].min() > bottom - SPINE_MIN_DROP_MM):
             continue
         region = labels[box]
         region[tuple(kji[below].T)] = n + 1
