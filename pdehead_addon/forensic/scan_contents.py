@@ -158,8 +158,9 @@ def air_bone_level(data: np.ndarray, split: float | None = None, bins: int = 256
 
 
 #: A mandible cut by the scan's end (a scan ending at the teeth) is its rami: components reaching the scan's lowest
-#: ``PARTIAL_END_SLICES`` slices, below the cranium's centre, in front of it and at least ``PARTIAL_RAMUS_SIDE_MM`` either side of
-#: its midline (the rami stand 45-55 mm from it, CThead; a vertebra or the upper jaw's pieces lie within 25 mm).
+#: ``PARTIAL_END_SLICES`` slices, below the cranium's centre, in front of it and at least ``PARTIAL_RAMUS_SIDE_MM``
+#: either side of its midline (the rami stand 45-55 mm from it, CThead; a vertebra or the upper jaw's pieces lie
+#: within 25 mm).
 PARTIAL_END_SLICES = 2
 PARTIAL_RAMUS_SIDE_MM = 30.0
 #: ... and more than this (mm) in front of the cranium's centre: the cervical vertebrae lie less far in front of it
