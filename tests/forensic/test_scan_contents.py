@@ -144,6 +144,7 @@ def test_a_skull_alone_below_the_fill_rule_gives_no_skin_and_no_depths(tmp_path,
     import batch_study
 
     low = stripped(cropped(cthead_ct, 0, _face_slices(cthead_ct)), 1586.0)
+    assert soft_tissue_present(low.data, spacing=low.spacing)[1]["fill_ratio"] < 1.5
     seg = eng.segment_head(low)
     patches, _ = eng.patches_for_scan(seg, D.PATCHES.default)
     bset = eng.extract_boundaries(seg, patches=patches, samples=D.SAMPLES.default, selection=D.SELECTION.default)
