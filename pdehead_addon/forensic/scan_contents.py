@@ -158,10 +158,14 @@ def air_bone_level(data: np.ndarray, split: float | None = None, bins: int = 256
 
 
 #: A mandible cut by the scan's end (a scan ending at the teeth) is its rami: components reaching the scan's lowest
-#: ``PARTIAL_END_SLICES`` slices, below the cranium's centre and at least ``PARTIAL_RAMUS_SIDE_MM`` either side of
-#: its midline (the rami stand 45-55 mm from it, CThead; a vertebra or the upper jaw's pieces lie within 25 mm).
+#: ``PARTIAL_END_SLICES`` slices, below the cranium's centre, in front of it and at least ``PARTIAL_RAMUS_SIDE_MM``
+#: either side of its midline (the rami stand 45-55 mm from it, CThead; a vertebra or the upper jaw's pieces lie
+#: within 25 mm).
 PARTIAL_END_SLICES = 2
 PARTIAL_RAMUS_SIDE_MM = 30.0
+#: ... and more than this (mm) in front of the cranium's centre: the cervical vertebrae lie less far in front of it
+#: (``skull.VERTEBRA_FRONT_MM``; the atlas's transverse processes span 70-80 mm, as wide as the rami).
+PARTIAL_FRONT_MM = 35.0
 
 
 def _condyle_gap(core_labels, part: int, cranium: int, ct, boxes, gap_mm: float) -> float:
@@ -195,7 +199,7 @@ def partial_mandible(core_labels, keep, sizes, centroids_xyz, cranium: int, ct, 
             continue
         b = boxes[i][0]
         at_end = b.start < PARTIAL_END_SLICES if up else b.stop > nz - PARTIAL_END_SLICES
-        if not at_end or centroids_xyz[i, 2] >= cc[2]:
+        if not at_end or centroids_xyz[i, 2] >= cc[2] or centroids_xyz[i, 1] > cc[1] - PARTIAL_FRONT_MM:
             continue
         dx = centroids_xyz[i, 0] - cc[0]
         x0, x1 = _x_extent(ct, boxes[i]) - cc[0]

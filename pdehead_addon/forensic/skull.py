@@ -53,7 +53,8 @@ from ..core.errors import SegmentationError
 from ..core.mesh_geometry import signed_volume
 from ..core.mesh import Mesh
 from ..segment.segmentation import Segmentation, auto_window, segment_head
-from .scan_contents import (SKULL_ONLY_LAYER_RATIO, air_bone_level, partial_mandible,  # noqa: F401
+from .scan_contents import (PARTIAL_RAMUS_SIDE_MM, SKULL_ONLY_LAYER_RATIO, air_bone_level,  # noqa: F401
+                            partial_mandible,
                             soft_tissue_present)
 
 #: HU assigned to the air and soft-tissue modes when the scan is not calibrated.
@@ -243,6 +244,48 @@ MANDIBLE_MIN_MM3 = 8000.0
 #: this distance (mm) of the cranium (the glenoid fossae; measured on the bone eroded by one voxel: CThead,
 #: articulated, 6.7 mm); a dry mandible set apart lies farther.
 ARTICULATED_GAP_MM = 12.0
+
+
+#: Voxels of growth (in the bone) that the cranium's core takes before the rami are looked for in the bone itself.
+RAMI_CRANIUM_GROWTH = 3
+
+
+def rami_in_the_bone(bone: np.ndarray, cranium: np.ndarray, ct: CTVolume,
+                     min_component_mm3: float) -> tuple[dict, np.ndarray | None]:
+    """A mandible cut by the scan's end found in the bone itself rather than in its eroded components: the
+    components of ``bone`` outside ``cranium`` (the cranium's eroded core given its rim back; the condyles touch
+    it at the glenoid fossae) are tried as :func:`~.scan_contents.partial_mandible`'s pieces, their condyles'
+    gap to ``cranium``. Returns (the mandible's report, its mask or None)."""
+    # the cranium's thin walls next to its core (the maxilla's, the pterygoid plates) go with it: a few
+    # voxels more of constrained growth; the rami, 40 mm and more of bone below the condyles, stay
+    for _ in range(RAMI_CRANIUM_GROWTH):
+        cranium = cranium | (ndi.binary_dilation(cranium, structure=np.ones((3, 3, 3), bool)) & bone)
+    free = bone & ~cranium
+    pieces, m = ndi.label(free, structure=np.ones((3, 3, 3), bool))
+    if m == 0:
+        return {"present": False, "articulated": None}, None
+    labels = np.where(cranium, 1, np.where(pieces > 0, pieces + 1, 0)).astype(np.int32)
+    del pieces, free
+    n = m + 1
+    sizes = np.bincount(labels.reshape(-1), minlength=n + 1)[1:]
+    boxes = ndi.find_objects(labels)
+    voxel_mm3 = float(np.prod(ct.spacing))
+    centroids_xyz = ct.index_to_patient(np.array(ndi.center_of_mass(labels > 0, labels, np.arange(1, n + 1)))
+                                        .reshape(n, 3))
+    keep = sizes * voxel_mm3 >= float(min_component_mm3)
+    keep[0] = True
+    report = partial_mandible(labels, keep, sizes, centroids_xyz, 1, ct, voxel_mm3, boxes, ARTICULATED_GAP_MM)
+    if not report["present"]:
+        return report, None
+    # the rami, less what a closed bite joins to them (the upper molars, the maxilla's tuberosity nearer the midline)
+    mask = np.isin(labels, report["components"])
+    kji = np.argwhere(mask)
+    x = ct.index_to_patient(kji.astype(float))[:, 0]
+    mask[tuple(kji[np.abs(x - centroids_xyz[0, 0]) < PARTIAL_RAMUS_SIDE_MM].T)] = False
+    report.update(found_in="the bone (its eroded pieces too small): the rami beyond "
+                           f"{PARTIAL_RAMUS_SIDE_MM:g} mm of the midline",
+                  volume_mm3=float(np.count_nonzero(mask) * voxel_mm3))
+    return report, mask
 
 
 def _box_mm(ct: CTVolume, box) -> np.ndarray:
@@ -444,6 +487,12 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
     skull = np.isin(rest, holds_kept[holds_kept > 0])
     mandible_mask = (skull & np.isin(grown, mandible.get("components", [mandible.get("component")]))) \
         if mandible["present"] else None
+    if not mandible["present"]:
+        # thin rami cut by the scan's end break into pieces when eroded (CThead cut below the teeth at its own
+        # level): look for them in the bone itself, less the cranium's grown core
+        mandible, mandible_mask = rami_in_the_bone(bone & ~dropped, grown == cranium, ct, min_component_mm3)
+        if mandible_mask is not None:
+            skull |= mandible_mask
     erosion = parts["erosion"]
     del labels, grown, rest, core, parts
     skull = ndi.binary_fill_holes(skull)

@@ -489,11 +489,14 @@ def suite(done: dict | None = None) -> list[dict]:
                             floor_z=z_occ)
         rows.append(row)
         if "Supraorbital L" in lms:
-            z_top = float(lms["Supraorbital L"][2]) + 10.0
+            # the skull base and the face up to the orbits' upper margins: the braincase's fill rule (non-air voxels
+            # filled per slice growing by more than 1.5x) takes this crop for a head (filled ratio about 1.26)
+            z_top = float(lms["Supraorbital L"][2])
             crop = stripped(cut_slices(ct, z_low=z_occ - 10.0, z_high=z_top), auto)
-            soft, info = soft_tissue_present(crop.data)
+            soft, info = soft_tissue_present(crop.data, spacing=crop.spacing)
             rows.append({"variant": f"CThead stripped at {auto:.0f}, cropped to z {z_occ - 10:.0f}-{z_top:.0f} mm "
                          "(skull base and face)", "skull_only_check": {"fill_ratio": info.get("fill_ratio"),
+                                                                      "layer_ratio": info.get("layer_ratio"),
                                                                       "taken_for_skull_only": not soft}})
     for name in ("ge", "phantom"):
         r = dict((done or {}).get(name) or score(name))
@@ -523,8 +526,10 @@ def suite_markdown(rows: list[dict]) -> list[str]:
             continue
         if "skull_only_check" in r:
             c = r["skull_only_check"]
-            out.append(f"| {r['variant']} | — | — | — | — | — | filled ratio {c['fill_ratio']}; taken for a skull "
-                       f"alone: {'yes' if c['taken_for_skull_only'] else 'NO'} |")
+            out.append(f"| {r['variant']} | — | — | — | — | — | filled ratio {c['fill_ratio']} (the fill rule: "
+                       f"{'a skull' if (c['fill_ratio'] or 0) > 1.5 else 'a head'}); layer ratio "
+                       f"{c.get('layer_ratio')}; taken for a skull alone: "
+                       f"{'yes' if c['taken_for_skull_only'] else 'NO'} |")
             continue
         f = r["face"]
         notes = []

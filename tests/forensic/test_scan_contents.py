@@ -126,3 +126,70 @@ def test_a_scan_cut_at_the_occlusal_plane_has_a_partial_mandible_and_landmarks_o
         assert lms[name].flag != "not_found", (name, lms[name])
     # the whole scan is not cut through the skull (its neck ends below the bone)
     assert find_landmarks(cthead_ct, full.bone).info["scan_cut"] == ""
+
+
+def test_a_skull_alone_below_the_fill_rule_gives_no_skin_and_no_depths(tmp_path, cthead_ct):
+    """The batch's skull outputs (scripts/batch_study.py) on CThead stripped to bone and cropped to the skull base
+    and face (filled ratio below 1.5: the README's fill rule takes it for a head): no skin, no tissue depths, no
+    landmark depths, one line saying why."""
+    import csv
+    import io
+    import sys
+    from contextlib import redirect_stdout
+    from pathlib import Path
+
+    import pdehead_addon as eng
+    from pdehead_addon import defaults as D
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
+    import batch_study
+
+    low = stripped(cropped(cthead_ct, 0, _face_slices(cthead_ct)), 1586.0)
+    assert soft_tissue_present(low.data, spacing=low.spacing)[1]["fill_ratio"] < 1.5
+    seg = eng.segment_head(low)
+    patches, _ = eng.patches_for_scan(seg, D.PATCHES.default)
+    bset = eng.extract_boundaries(seg, patches=patches, samples=D.SAMPLES.default, selection=D.SELECTION.default)
+    log = io.StringIO()
+    with redirect_stdout(log):
+        found = batch_study._skull_outputs(eng, low, seg, bset, tmp_path, {"skull": True})
+    assert found >= 10                                          # the landmarks are still found
+    lines = log.getvalue().splitlines()
+    why = [x for x in lines if x.startswith("no skin:")]
+    assert why == ["no skin: the CT shows no soft tissue (a skull alone): landmarks without depths"], lines[:5]
+    assert not any(x.startswith("depth uncertain") for x in lines)
+    rays = [x for x in lines if x.startswith("depth ray: ")]          # the audit's rays: no depth along any
+    assert rays and all(x.endswith("mesh depth nan mm") for x in rays), rays[:3]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["landmarks.csv", "skull.stl"]
+    text = (tmp_path / "landmarks.csv").read_text()
+    assert "not measured: the CT shows no soft tissue (a skull alone)" in text
+    rows = list(csv.DictReader(x for x in text.splitlines() if not x.startswith("#")))
+    assert len(rows) >= 10 and all(r["depth_mm"] in ("", "nan") for r in rows), rows[:3]
+
+
+@pytest.mark.parametrize("level", [1586.0, 1500.0])
+def test_a_scan_cut_below_the_occlusal_plane_finds_the_rami(cthead_ct, cthead_seg, level):
+    """CThead cut 4 mm below the plane between its incisors (the lower incisors' crowns in the scan, no chin) and
+    stripped at its own level and at 1500: the rami are found as a partial mandible (at 1586 their eroded pieces are
+    too small: found in the bone itself), one each side from the cut up to the condyles; the mandible's landmarks,
+    all below the scan's end, are not_found "outside the scan"; the upper face keeps its landmarks."""
+    from pdehead_addon.forensic.auto_landmarks import find_landmarks
+
+    full = segment_skull(cthead_ct, cthead_seg)
+    _, lower_tip, upper_tip = _occlusal_slice(cthead_ct, full)
+    z = cthead_ct.slice_heights()
+    k = int(np.flatnonzero(z >= 0.5 * (lower_tip + upper_tip) - 4.0)[0])
+    cut = stripped(cropped(cthead_ct, k, cthead_ct.shape[0]), level)
+    sk = segment_skull(cut, bone_level=level)
+    rep = sk.meta["mandible"]
+    assert rep["present"] and rep["partial"] and rep["articulated"], rep
+    assert any("cut by the scan's end" in w for w in sk.meta["warnings"])
+    xyz = cut.index_to_patient(np.argwhere(sk.mandible).astype(float))
+    mid = float(np.median(cut.index_to_patient(np.argwhere(sk.bone & ~sk.mandible).astype(float))[:, 0]))
+    for side in (xyz[:, 0] < mid - 30, xyz[:, 0] > mid + 30):          # a ramus each side, cut to condyle
+        assert np.count_nonzero(side) > 500
+        assert xyz[side, 2].min() <= z[k] + 2.0 and xyz[side, 2].max() >= z[k] + 35.0
+    assert 2000.0 < np.count_nonzero(sk.mandible) * float(np.prod(cut.spacing)) < 12000.0
+    lms = find_landmarks(cut, sk.bone).landmarks
+    for name in ("Menton", "Pogonion", "Gnathion", "Gonion L", "Gonion R", "Sub M2 L", "Sub M2 R"):
+        assert lms[name].flag == "not_found" and lms[name].evidence.startswith("outside the scan"), (name, lms[name])
+    for name in ("Nasion", "Porion L", "Porion R", "Orbitale L", "Orbitale R"):
+        assert lms[name].flag != "not_found", (name, lms[name])
