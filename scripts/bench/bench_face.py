@@ -422,8 +422,14 @@ def score_variant(label: str, ct, ref: dict, bone_level: float | None = None, fl
 CONSTANT_CHOICE = {
     "face_profile.NECK_RADIUS_MM / NECK_SLOPE": "published (neck circumference, Ben-Noun et al. 2001) / renders",
     "face_profile.CLOSING_MM": "definition (orbit ~40 mm, aperture ~25 mm wide)",
-    "face_profile.PROFILE_SMOOTH_MM / _DEG": "renders",
-    "face_profile.PROFILE_SMOOTH_FAR_MM / _ARC_MM / PROFILE_NEAR_MM": "CThead score (57.3 -> 57.5 %)",
+    "face_profile.PROFILE_SMOOTH_MM / _ARC_MM (6 mm over the surface)": "GE and the phantom (GE best at 8 mm: 48.8 / "
+    "49.9 / 51.1 / 48.7 % at 4 / 6 / 8 / 10 mm, the phantom flat); 6, not 8, because at 8 CThead's 1500 and 1600 "
+    "strips land 10 points apart (a CThead check, not its score)",
+    "face_profile.PROFILE_SMOOTH_FAR_MM": "off (0); was CThead score (57.3 -> 57.5 %)",
+    "face_profile.FLOOR_ROUND_MM": "GE (= CUT_FLOOR_SMOOTH_MM)",
+    "face_from_skull.CHEEK_SMOOTH_MM": "= PROFILE_SMOOTH_MM",
+    "face_features subnasale depth": "published (Singh & Purkait 2024: soft subnasale at subspinale's T-Table depth, "
+    "13.5 mm)",
     "face_profile.PEG_NORMAL_RADIUS_MM / PEG_NORMAL_MIN_COS": "definition (T-Table depths along the bone normal)",
     "face_profile.FLOOR_SMOOTH_*, CUT_*": "GE (its 18.5-degree cut)",
     "face_from_skull.RULE_DEPTH_MM": "published (T-Table 2023 vertex 5.0 / opisthocranion 6.0 mm)",
@@ -442,10 +448,9 @@ CONSTANT_CHOICE = {
     "face_features.NOSE_* shape (dorsum, tip, columella, alae), EYE_* shape, LIP_* depths": "renders",
 }
 #: The constants chosen on CThead's score, set neutral for the suite's "without" row: no damping of outlying pegs, no
-#: convex cheeks, no stronger smoothing away from the pegs.
+#: convex cheeks (the stronger smoothing away from the pegs, also chosen on CThead, is off for every head now).
 CTHEAD_CHOSEN_NEUTRAL = {("pdehead_addon.forensic.face_from_skull", "DAMP_FREE_MM"): 1e9,
-                         ("pdehead_addon.forensic.face_from_skull", "CHEEK_SPAN_DEG"): 0.0,
-                         ("pdehead_addon.forensic.face_profile", "PROFILE_SMOOTH_FAR_MM"): 0.0}
+                         ("pdehead_addon.forensic.face_from_skull", "CHEEK_SPAN_DEG"): 0.0}
 
 
 def neutral_row(ct, ref) -> dict:
