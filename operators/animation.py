@@ -265,16 +265,16 @@ TURNTABLE_KIND = "turntable"
 
 
 def turntable(context, coll, frames: int, start: int = 1):
-    """A camera orbit of ``frames`` frames around study ``coll``: its camera (Frame Study's, made first if
-    needed) and key light (its fill light rides the camera) are parented to a pivot Empty "<study> Turntable" at the head's centre whose Z rotation is
-    keyed linearly from 0 (frame ``start``) to 360° (frame ``start + frames``), so the frames
-    ``start`` … ``start + frames - 1`` (the scene's new frame range) loop seamlessly. Returns the pivot."""
+    """A camera orbit of ``frames`` frames around study ``coll``: its camera (Frame Study's, made first if needed)
+    and key light (its fill light rides the camera) are parented to a pivot Empty "<study> Turntable" at the head's
+    centre whose Z rotation is keyed linearly from 0 (frame ``start``) to 360° (frame ``start + frames``), so the
+    frames ``start`` … ``start + frames - 1`` (the scene's new frame range) loop seamlessly. Returns the pivot."""
     from math import tau
 
     from mathutils import Matrix
 
-    from . import compat, render, scene as scene_mod
     from ..pdehead_addon import PDEHeadError
+    from . import compat, render, scene as scene_mod
 
     if frames < 2:
         raise PDEHeadError(f"a turntable needs at least 2 frames, got {frames}")

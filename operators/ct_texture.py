@@ -8,8 +8,7 @@ import math
 
 import numpy as np
 
-from ..pdehead_addon import defaults as D
-from ..pdehead_addon import apply_window, sample_ct, trilinear
+from ..pdehead_addon import apply_window, defaults as D, sample_ct, trilinear
 
 FAMILIES = ("w1", "w0", "u1", "u0", "v1", "v0")  # the faces of the parametric box (Fig. 14)
 
@@ -52,7 +51,7 @@ def _tile_speeds(mesh, params, family, axes, need_shells: bool = True) -> list[t
     """Per box face: the largest mm per unit of its row and its column parameter along the mesh's edges.
 
     A texel spans (parameter extent / pixels) of each; times this speed it is the texel's world
-    footprint, so tiles sized from it keep every texel within the CT voxel (issue 21).
+    footprint, so tiles sized from it keep every texel within the CT voxel.
     """
     starts, totals = mesh.loop_starts_and_totals()
     nxt = np.arange(len(params)) + 1
@@ -110,8 +109,8 @@ def ct_texture_atlas(head, mesh, ct, window, ranges, size: int | None = None, pa
     parameter grid, so a cutaway shows the CT inside the solid at texture resolution
     instead of at the few w samples of the mesh.
 
-    Tile sizes (issue 21): with ``size`` every tile is ``size`` x ``size`` (the layout before
-    issue 21). Without it each tile gets as many texels along its row and column parameter as
+    Tile sizes: with ``size`` every tile is ``size`` x ``size`` (the older layout, all faces
+    alike). Without it each tile gets as many texels along its row and column parameter as
     the face's largest extent in mm along them divided by ``voxel_mm`` (default: the CT's finest
     spacing), so a texel's world footprint is at most one CT voxel; if all tiles together need
     more than ``budget_mp`` megapixels they are scaled down together. The cut faces (u ends,

@@ -9,12 +9,18 @@ from __future__ import annotations
 from pathlib import Path
 
 import bpy
-from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatVectorProperty,
-                       IntProperty, IntVectorProperty, StringProperty)
+from bpy.props import (
+    BoolProperty,
+    CollectionProperty,
+    EnumProperty,
+    FloatVectorProperty,
+    IntProperty,
+    IntVectorProperty,
+    StringProperty,
+)
 from bpy.types import OperatorFileListElement
 
-from ..pdehead_addon import CTImportError
-from ..pdehead_addon import defaults as D
+from ..pdehead_addon import CTImportError, defaults as D
 from . import props
 
 FORMAT_ITEMS = [
