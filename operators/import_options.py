@@ -67,6 +67,19 @@ def parse_dtype_string(text: str) -> tuple[str, str]:
 
 
 @props.settings_options("use_bone_level", "bone_level", mirrored=False)
+def _orientation_units_downsample(props, options: dict) -> None:
+    """Add the slice order (an explicit orientation, else a first slice other than Auto: the engine's rule,
+    defaults.FIRST_SLICE), the units and the downsampling of ``props`` (the loader settings) to ``options``."""
+    if props.orientation.strip():
+        options["orientation"] = props.orientation.strip().upper()
+    elif props.first_slice != "AUTO":
+        options["first_slice"] = props.first_slice.lower()
+    if props.units != "AUTO":
+        options["units"] = "HU" if props.units == "HU" else "stored"
+    if props.downsample > 1:
+        options["downsample"] = int(props.downsample)
+
+
 class LoaderOptions:
     """Operator properties of the CT loaders (mixed into import_ct and run_pipeline); the forensic bone level is
     the study's setting (:mod:`.props`)."""
@@ -133,14 +146,7 @@ class LoaderOptions:
             options.update(format="raw", shape=tuple(int(n) for n in self.raw_shape),
                            dtype=dtype_string(self.raw_dtype, self.byte_order),
                            spacing=tuple(float(s) for s in self.spacing))
-            if self.orientation.strip():
-                options["orientation"] = self.orientation.strip().upper()
-            elif self.first_slice != "AUTO":      # Auto: the engine's rule (defaults.FIRST_SLICE), as for images
-                options["first_slice"] = self.first_slice.lower()
-            if self.units != "AUTO":
-                options["units"] = "HU" if self.units == "HU" else "stored"
-            if self.downsample > 1:
-                options["downsample"] = int(self.downsample)
+            _orientation_units_downsample(self, options)
             return options
         if self.format == "DICOM":
             options["format"] = "dicom"
@@ -148,14 +154,7 @@ class LoaderOptions:
             options["format"] = "images"
         if self.use_spacing:
             options["spacing"] = tuple(float(s) for s in self.spacing)
-        if self.orientation.strip():
-            options["orientation"] = self.orientation.strip().upper()
-        elif self.first_slice != "AUTO":
-            options["first_slice"] = self.first_slice.lower()
-        if self.units != "AUTO":
-            options["units"] = "HU" if self.units == "HU" else "stored"
-        if self.downsample > 1:
-            options["downsample"] = int(self.downsample)
+        _orientation_units_downsample(self, options)
         if self.series_uid.strip():
             options["series_uid"] = self.series_uid.strip()
         elif self.format in {"AUTO", "DICOM"} and self.filepath and not self.single_file:
