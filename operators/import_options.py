@@ -66,20 +66,20 @@ def parse_dtype_string(text: str) -> tuple[str, str]:
     return code, order
 
 
-@props.settings_options("use_bone_level", "bone_level", mirrored=False)
-def _orientation_units_downsample(props, options: dict) -> None:
+def _orientation_units_downsample(loader, options: dict) -> None:
     """Add the slice order (an explicit orientation, else a first slice other than Auto: the engine's rule,
-    defaults.FIRST_SLICE), the units and the downsampling of ``props`` (the loader settings) to ``options``."""
-    if props.orientation.strip():
-        options["orientation"] = props.orientation.strip().upper()
-    elif props.first_slice != "AUTO":
-        options["first_slice"] = props.first_slice.lower()
-    if props.units != "AUTO":
-        options["units"] = "HU" if props.units == "HU" else "stored"
-    if props.downsample > 1:
-        options["downsample"] = int(props.downsample)
+    defaults.FIRST_SLICE), the units and the downsampling of ``loader`` (the loader settings) to ``options``."""
+    if loader.orientation.strip():
+        options["orientation"] = loader.orientation.strip().upper()
+    elif loader.first_slice != "AUTO":
+        options["first_slice"] = loader.first_slice.lower()
+    if loader.units != "AUTO":
+        options["units"] = "HU" if loader.units == "HU" else "stored"
+    if loader.downsample > 1:
+        options["downsample"] = int(loader.downsample)
 
 
+@props.settings_options("use_bone_level", "bone_level", mirrored=False)
 class LoaderOptions:
     """Operator properties of the CT loaders (mixed into import_ct and run_pipeline); the forensic bone level is
     the study's setting (:mod:`.props`)."""
