@@ -1,16 +1,29 @@
 """Everything of PDE Head that touches bpy: registration of the whole Blender layer.
 
-``register()`` adds the property groups, preferences, operators (with the File > Import
-menu entry), the sidebar panels, the save/load handlers of :mod:`.persistence`, the cutter's
-depsgraph handler (:mod:`.study_handlers`, and the face's of :mod:`.face`), the frame handler and settings migration of :mod:`.animation` and one ``load_post`` handler that frees the in-memory caches
-of studies that are not in the newly loaded file. ``unregister()`` removes all of it again,
-leaving no class, property, menu entry, handler or timer behind.
+``register()`` adds the property groups, preferences, operators (with the File > Import menu entry), the sidebar
+panels, the save/load handlers of :mod:`.persistence`, the cutter's depsgraph handler (:mod:`.study_handlers`, and
+the face's of :mod:`.face`), the frame handler and settings migration of :mod:`.animation` and one ``load_post``
+handler that frees the in-memory caches of studies that are not in the newly loaded file. ``unregister()`` removes
+all of it again, leaving no class, property, menu entry, handler or timer behind.
 """
 from __future__ import annotations
 
 import bpy
 
-from . import animation, detail_map, face, forensic, forensic_props, ops, panel, persistence, prefs, props, state, study_handlers
+from . import (
+    animation,
+    detail_map,
+    face,
+    forensic,
+    forensic_props,
+    ops,
+    panel,
+    persistence,
+    prefs,
+    props,
+    state,
+    study_handlers,
+)
 
 
 @bpy.app.handlers.persistent

@@ -119,46 +119,13 @@ def apply_frame(scene, depsgraph=None) -> dict[str, list[str]]:
         s = obj.pdehead
         frame_s = _evaluated(obj, depsgraph).pdehead
         applied = state.REGISTRY.animation_applied.setdefault(s.study_id, {})  # filled by the frame_change_pre handler
-        rebuilt: list[str] = []
-        failed = False
         box = cutter.cutter_of(coll) if s.use_cutter else None
         skip = CUTTER_OWNED if box is not None else ()
-        for group in GROUPS:
-            values = group_values(frame_s, group, skip)
-            if group not in applied:
-                applied[group] = group_values(s, group, skip)  # what the objects were last built with
-            if values == applied[group]:
-                continue
-            applied[group] = values
-            with suspended_updates():
-                for name, _ in values:
-                    new = getattr(frame_s, name)
-                    if _value(getattr(s, name)) != _value(new):
-                        setattr(s, name, new if isinstance(new, str | bool | int | float) else tuple(new))
-            if not any(getattr(s, attr) is not None for attr in GROUP_OBJECTS[group]):
-                continue
-            try:
-                _rebuild(study, group)
-                rebuilt.append(group)
-            except Exception as exc:  # noqa: BLE001 - a handler must never raise into Blender
-                if not isinstance(exc, PDEHeadError):
-                    traceback.print_exc()
-                _report_failure(coll, s, group, exc, frame)
-                failed = True
+        rebuilt, failed = _apply_groups(study, frame_s, applied, skip, frame)
         if box is not None:
-            matrix = _evaluated(box, depsgraph).matrix_world.copy()
-            cache = study.cache
-            if cache.cutter_signature != cutter.signature(box, matrix):
-                try:
-                    study.apply_cutter(matrix)
-                    rebuilt.append("cutter")
-                    applied["solid"] = group_values(s, "solid", skip)
-                except Exception as exc:  # noqa: BLE001
-                    cache.cutter_signature = cutter.signature(box, matrix)
-                    if not isinstance(exc, PDEHeadError):
-                        traceback.print_exc()
-                    _report_failure(coll, s, "solid", exc, frame)
-                    failed = True
+            cut, cut_failed = _apply_cutter(study, box, depsgraph, applied, skip, frame)
+            rebuilt += cut
+            failed = failed or cut_failed
         if rebuilt and not failed:
             _restore_hidden(s)
             if s.last_error:
@@ -167,6 +134,57 @@ def apply_frame(scene, depsgraph=None) -> dict[str, list[str]]:
         if rebuilt:
             done[coll.name] = rebuilt
     return done
+
+
+def _apply_groups(study: Study, frame_s, applied: dict, skip, frame: int) -> tuple[list[str], bool]:
+    """Copy each group's evaluated values (``frame_s``) that changed since ``applied`` onto the study's settings
+    and rebuild the group's objects; returns (groups rebuilt, whether one failed)."""
+    coll, s = study.collection, study.settings_object.pdehead
+    rebuilt: list[str] = []
+    failed = False
+    for group in GROUPS:
+        values = group_values(frame_s, group, skip)
+        if group not in applied:
+            applied[group] = group_values(s, group, skip)  # what the objects were last built with
+        if values == applied[group]:
+            continue
+        applied[group] = values
+        with suspended_updates():
+            for name, _ in values:
+                new = getattr(frame_s, name)
+                if _value(getattr(s, name)) != _value(new):
+                    setattr(s, name, new if isinstance(new, str | bool | int | float) else tuple(new))
+        if not any(getattr(s, attr) is not None for attr in GROUP_OBJECTS[group]):
+            continue
+        try:
+            _rebuild(study, group)
+            rebuilt.append(group)
+        except Exception as exc:  # noqa: BLE001 - a handler must never raise into Blender
+            if not isinstance(exc, PDEHeadError):
+                traceback.print_exc()
+            _report_failure(coll, s, group, exc, frame)
+            failed = True
+    return rebuilt, failed
+
+
+def _apply_cutter(study: Study, box, depsgraph, applied: dict, skip, frame: int) -> tuple[list[str], bool]:
+    """Re-cut the solid when the cutter box's evaluated matrix changed; returns (["cutter"] or [], whether it
+    failed)."""
+    coll, s = study.collection, study.settings_object.pdehead
+    matrix = _evaluated(box, depsgraph).matrix_world.copy()
+    cache = study.cache
+    if cache.cutter_signature == cutter.signature(box, matrix):
+        return [], False
+    try:
+        study.apply_cutter(matrix)
+        applied["solid"] = group_values(s, "solid", skip)
+        return ["cutter"], False
+    except Exception as exc:  # noqa: BLE001 - a handler must never raise into Blender
+        cache.cutter_signature = cutter.signature(box, matrix)
+        if not isinstance(exc, PDEHeadError):
+            traceback.print_exc()
+        _report_failure(coll, s, "solid", exc, frame)
+        return [], True
 
 
 def _rebuild(study: Study, group: str) -> None:
@@ -265,16 +283,16 @@ TURNTABLE_KIND = "turntable"
 
 
 def turntable(context, coll, frames: int, start: int = 1):
-    """A camera orbit of ``frames`` frames around study ``coll``: its camera (Frame Study's, made first if
-    needed) and key light (its fill light rides the camera) are parented to a pivot Empty "<study> Turntable" at the head's centre whose Z rotation is
-    keyed linearly from 0 (frame ``start``) to 360° (frame ``start + frames``), so the frames
-    ``start`` … ``start + frames - 1`` (the scene's new frame range) loop seamlessly. Returns the pivot."""
+    """A camera orbit of ``frames`` frames around study ``coll``: its camera (Frame Study's, made first if needed)
+    and key light (its fill light rides the camera) are parented to a pivot Empty "<study> Turntable" at the head's
+    centre whose Z rotation is keyed linearly from 0 (frame ``start``) to 360° (frame ``start + frames``), so the
+    frames ``start`` … ``start + frames - 1`` (the scene's new frame range) loop seamlessly. Returns the pivot."""
     from math import tau
 
     from mathutils import Matrix
 
-    from . import compat, render, scene as scene_mod
     from ..pdehead_addon import PDEHeadError
+    from . import compat, render, scene as scene_mod
 
     if frames < 2:
         raise PDEHeadError(f"a turntable needs at least 2 frames, got {frames}")

@@ -15,9 +15,9 @@ from bpy.props import StringProperty
 
 from ..pdehead_addon import PDEHeadError
 from . import state
+from .pipeline_run import Rollback
 from .state import NO_STUDY_MESSAGE, suspended_updates
 from .study_entity import Study
-from .pipeline_run import Rollback
 
 
 def report_exception(op, exc: BaseException) -> None:

@@ -8,8 +8,7 @@ import math
 
 import numpy as np
 
-from ..pdehead_addon import defaults as D
-from ..pdehead_addon import apply_window, sample_ct, trilinear
+from ..pdehead_addon import apply_window, defaults as D, sample_ct, trilinear
 
 FAMILIES = ("w1", "w0", "u1", "u0", "v1", "v0")  # the faces of the parametric box (Fig. 14)
 
@@ -52,7 +51,7 @@ def _tile_speeds(mesh, params, family, axes, need_shells: bool = True) -> list[t
     """Per box face: the largest mm per unit of its row and its column parameter along the mesh's edges.
 
     A texel spans (parameter extent / pixels) of each; times this speed it is the texel's world
-    footprint, so tiles sized from it keep every texel within the CT voxel (issue 21).
+    footprint, so tiles sized from it keep every texel within the CT voxel.
     """
     starts, totals = mesh.loop_starts_and_totals()
     nxt = np.arange(len(params)) + 1
@@ -110,8 +109,8 @@ def ct_texture_atlas(head, mesh, ct, window, ranges, size: int | None = None, pa
     parameter grid, so a cutaway shows the CT inside the solid at texture resolution
     instead of at the few w samples of the mesh.
 
-    Tile sizes (issue 21): with ``size`` every tile is ``size`` x ``size`` (the layout before
-    issue 21). Without it each tile gets as many texels along its row and column parameter as
+    Tile sizes: with ``size`` every tile is ``size`` x ``size`` (the older layout, all faces
+    alike). Without it each tile gets as many texels along its row and column parameter as
     the face's largest extent in mm along them divided by ``voxel_mm`` (default: the CT's finest
     spacing), so a texel's world footprint is at most one CT voxel; if all tiles together need
     more than ``budget_mp`` megapixels they are scaled down together. The cut faces (u ends,
@@ -148,20 +147,7 @@ def ct_texture_atlas(head, mesh, ct, window, ranges, size: int | None = None, pa
         voxel = float(voxel_mm) if voxel_mm else (float(min(sample.spacing)) if sample is not None
                                                   else float(min(getattr(table, "voxel_mm", 1.0), 1.0)))
         speeds = _tile_speeds(mesh, params, family, axes, need_shells=not token or w0 > 0)
-        spans = [tuple(max(4, int(math.ceil(sp * extent[a] / voxel))) for sp, a in zip(speed, pair))
-                 for speed, pair in zip(speeds, axes)]
-        if token:
-            spans[0] = (4, 4)
-        need = sum((r + 2 * pad) * (c + 2 * pad) for r, c in spans)
-        if need > budget_mp * 1e6:
-            full, f = spans, math.sqrt(budget_mp * 1e6 / need)
-            # the packed atlas (shelves, padding) is larger than its tiles: shrink until the atlas fits
-            for _ in range(20):
-                spans = [(max(4, int(r * f)), max(4, int(c * f))) for r, c in full]
-                _, h, w = _pack_tiles([(r + 2 * pad, c + 2 * pad) for r, c in spans])
-                if h * w <= budget_mp * 1e6:
-                    break
-                f *= 0.97 * math.sqrt(budget_mp * 1e6 / (h * w))
+        spans = _texel_spans(speeds, axes, extent, voxel, token, pad, budget_mp)
     shapes = [(r + 2 * pad, c + 2 * pad) for r, c in spans]
 
     def grid(k, axis):       # pixel centres -> parameter (padding clamps)
@@ -229,6 +215,27 @@ def ct_texture_atlas(head, mesh, ct, window, ranges, size: int | None = None, pa
         tile = apply_window(raw, window).reshape(nr, nc)
         atlas[r0:r0 + nr, c0:c0 + nc, :3] = (tile[:, ::-1] if flipped[k] else tile)[..., None]
     return atlas, corner_uv
+
+
+def _texel_spans(speeds, axes, extent, voxel: float, token: bool, pad: int, budget_mp: float) -> list[tuple]:
+    """Each tile's (rows, columns) of texels: its parameter extents times its ``speeds`` (mm per unit) over
+    ``voxel`` mm, at least 4 (the skin's ``token`` tile 4 x 4); scaled down together until the packed atlas
+    holds at most ``budget_mp`` megapixels."""
+    spans = [tuple(max(4, int(math.ceil(sp * extent[a] / voxel))) for sp, a in zip(speed, pair))
+             for speed, pair in zip(speeds, axes)]
+    if token:
+        spans[0] = (4, 4)
+    need = sum((r + 2 * pad) * (c + 2 * pad) for r, c in spans)
+    if need > budget_mp * 1e6:
+        full, f = spans, math.sqrt(budget_mp * 1e6 / need)
+        # the packed atlas (shelves, padding) is larger than its tiles: shrink until the atlas fits
+        for _ in range(20):
+            spans = [(max(4, int(r * f)), max(4, int(c * f))) for r, c in full]
+            _, h, w = _pack_tiles([(r + 2 * pad, c + 2 * pad) for r, c in spans])
+            if h * w <= budget_mp * 1e6:
+                break
+            f *= 0.97 * math.sqrt(budget_mp * 1e6 / (h * w))
+    return spans
 
 
 def _tile_corner_uv(mesh, params, family, axes, offsets, spans, width, height, pad, ranges):

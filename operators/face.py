@@ -38,9 +38,8 @@ import json
 import time
 import uuid
 
-import numpy as np
-
 import bpy
+import numpy as np
 
 from ..pdehead_addon import PDEHeadError
 from . import state

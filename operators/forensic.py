@@ -10,15 +10,12 @@ from __future__ import annotations
 import json
 import os
 
-import numpy as np
-
 import bpy
+import numpy as np
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntProperty, StringProperty
 from bpy.types import Operator, Panel
 
-from ..pdehead_addon import PDEHeadError
-from ..pdehead_addon import STANDARD_LANDMARKS
-from ..pdehead_addon import defaults as D
+from ..pdehead_addon import STANDARD_LANDMARKS, PDEHeadError, defaults as D
 from . import state
 from .base import StudyOperator
 from .face import FACE_KEY, HELD_PROP, LABEL_PROP, PROVENANCE_PROP, approximation_label, table_has_sex
@@ -220,7 +217,8 @@ class PDEHEAD_OT_export_landmark_depths(Operator, _LandmarkCSVOp):
 
 
 class PDEHEAD_OT_frankfurt(Operator, _ForensicOp):
-    """Align the study's objects to the Frankfurt horizontal (porion and orbitale landmarks); patient coordinates stay"""
+    ("Align the study's objects to the Frankfurt horizontal (porion and orbitale landmarks); "
+     "patient coordinates stay")
 
     bl_idname = "pdehead.frankfurt"
     bl_label = "Frankfurt Horizontal"
@@ -375,7 +373,8 @@ def _draw_peg_report(layout, prov: dict) -> None:
         col.label(text=f"{len(off)} peg tips more than {D.FACE_PEG_OFF_MM:g} mm from the face "
                        "(hold a peg to make the face pass through it):", icon='INFO')
         for o in off:
-            col.label(text=f"{o['peg']}: {o['tip_to_face_mm']:.1f} mm, {o['why']}" + (" (held)" if o.get("held") else ""))
+            held = " (held)" if o.get("held") else ""
+            col.label(text=f"{o['peg']}: {o['tip_to_face_mm']:.1f} mm, {o['why']}" + held)
 
 
 def _draw_skull(layout, fs) -> None:

@@ -10,14 +10,12 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import bpy
 import numpy as np
 
-import bpy
-
-from ..pdehead_addon import PDEHeadError
-from ..pdehead_addon import defaults as D
-from .coords import MM_TO_M
+from ..pdehead_addon import PDEHeadError, defaults as D
 from . import state
+from .coords import MM_TO_M
 from .forensic_objects import plain_material, set_material
 
 PEG_MATERIAL = "PDE Head Depth Peg"
@@ -113,8 +111,7 @@ class ExportSteps:
         (name, base mm, unit normal, length mm) when they come from elsewhere (the face model of
         :mod:`.face`) instead of the landmarks snapped to ``target``.
         """
-        from ..pdehead_addon import DepthEntry, DepthTable
-        from ..pdehead_addon import marker_pegs
+        from ..pdehead_addon import DepthEntry, DepthTable, marker_pegs
 
         if not isinstance(table, DepthTable):     # a plain {name: depth} mapping (no SDs)
             table = DepthTable(entries={k: DepthEntry(k, float(v)) for k, v in table.items()}, name="imported table")
@@ -176,7 +173,8 @@ class ExportSteps:
         rec = dict(ct=(s.source or "phantom") if s.source_kind != "PHANTOM" else "built-in phantom",
                    bone_level=level, frame="patient LPS mm of the CT (not Frankfurt-aligned)")
         if table is not None:
-            rec.update(table.provenance_record() if hasattr(table, "provenance_record") else {"table": "imported table"})
+            rec.update(table.provenance_record() if hasattr(table, "provenance_record")
+                       else {"table": "imported table"})
         return provenance(**rec)
 
     def measured_landmark_depths(self, skull, skin) -> tuple[dict, dict[str, str], str]:
@@ -262,12 +260,12 @@ class ExportSteps:
 
     def export(self, directory: str, fmt: str = D.EXPORT_FORMAT.default,
                depth_target: str = D.DEPTH_TARGET.default, face=None) -> list[str]:
-        """Export for printing: skull.<fmt> (the bone), skull_envelope.<fmt> (the PDE skull envelope),
-        skin.<fmt> (when the CT has skin), face.<fmt> (the face from the skull, when the study has one or
-        ``face`` = (its solved PDE head, provenance) is given; both meshed at print resolution), tissue_depth.csv, landmarks.csv and provenance.json.
-        Without a skin (a CT without soft tissue, or a face-from-skull study where the head pipeline never ran)
-        skin.<fmt> and tissue_depth.csv are left out: provenance.json's ``not_written`` (file -> why) and the
-        study's cache (``export_not_written``) say so.
+        """Export for printing: skull.<fmt> (the bone), skull_envelope.<fmt> (the PDE skull envelope), skin.<fmt>
+        (when the CT has skin), face.<fmt> (the face from the skull, when the study has one or ``face`` = (its
+        solved PDE head, provenance) is given; both meshed at print resolution), tissue_depth.csv, landmarks.csv and
+        provenance.json. Without a skin (a CT without soft tissue, or a face-from-skull study where the head
+        pipeline never ran) skin.<fmt> and tissue_depth.csv are left out: provenance.json's ``not_written`` (file ->
+        why) and the study's cache (``export_not_written``) say so.
 
         The landmarks' flags are decided once here (Find Landmarks' flags, an ``ok`` landmark whose depth the
         CT does not support turned ``uncertain``, ``not_found`` ones kept): landmarks.csv, the face's
@@ -321,9 +319,7 @@ class ExportSteps:
         import shutil
         import tempfile
 
-        from ..pdehead_addon import write_landmark_csv
-        from ..pdehead_addon import export_mesh
-        from ..pdehead_addon import write_depth_csv
+        from ..pdehead_addon import export_mesh, write_depth_csv, write_landmark_csv
 
         # ---- then write: into a hidden folder in the target, moved into place when all are written
         out.mkdir(parents=True, exist_ok=True)

@@ -9,16 +9,16 @@ collection points at.
 """
 from __future__ import annotations
 
-import numpy as np
-
 import bpy
+import numpy as np
 
 from . import compat, state
 from .forensic_props import FORMAT_VERSION, forensic_settings, migrate
 
 
 class ForensicBase:
-    """One study's forensic side; get it with ``ForensicStudy.of(study)`` (``study``: a :class:`.study_entity.Study`)."""
+    """One study's forensic side; get it with ``ForensicStudy.of(study)`` (``study``: a
+    :class:`.study_entity.Study`)."""
 
     #: The class :meth:`of` makes: the full entity (set when :class:`.forensic_study.ForensicStudy` is defined),
     #: so the parts that define its methods never import it back.

@@ -26,9 +26,8 @@ landmark empties keep their own patient mm, flag and evidence.
 """
 from __future__ import annotations
 
-import traceback
-
 import json
+import traceback
 
 import bpy
 from bpy.props import CollectionProperty, EnumProperty, FloatProperty, IntProperty, StringProperty

@@ -14,12 +14,10 @@ from __future__ import annotations
 import base64
 import json
 
+import bpy
 import numpy as np
 
-import bpy
-
-from ..pdehead_addon import PDEHeadError
-from ..pdehead_addon import defaults as D
+from ..pdehead_addon import PDEHeadError, defaults as D
 from . import compat, state
 from .forensic_objects import plain_material, set_material
 
@@ -81,8 +79,7 @@ class SkullSteps:
     def step_skull(self, nu: int, nv: int, bone: bool = D.BONE_MESH.default,
                    bone_step: int = D.BONE_STEP.default) -> None:
         """The bone skull (smoothed marching cubes of the bone: what skull.<fmt> is) and the PDE skull envelope."""
-        from ..pdehead_addon import dumps_boundaries
-        from ..pdehead_addon import skull_mesh
+        from ..pdehead_addon import dumps_boundaries, skull_mesh
         from . import objects
 
         coll = self.collection
@@ -93,7 +90,8 @@ class SkullSteps:
             mesh = head.surface(int(nu), int(nv), caps=True)
         coll[SKULL_BOUNDARY_KEY] = base64.b64encode(dumps_boundaries(bset)).decode("ascii")
         extra.update(skull_head=head, skull_mesh=mesh, depth=None)
-        obj = objects.build_mesh_object(mesh, coll, f"{coll.name} Skull", obj=self.linked_object("pdehead_skull_object"))
+        obj = objects.build_mesh_object(mesh, coll, f"{coll.name} Skull",
+                                        obj=self.linked_object("pdehead_skull_object"))
         obj["pdehead_kind"] = "skull"
         set_material(obj, plain_material(BONE_MATERIAL, (0.85, 0.82, 0.72, 1.0)))
         coll["pdehead_skull_object"] = obj
@@ -124,8 +122,7 @@ class SkullSteps:
     def skull_engine_mesh(self, target: str = D.DEPTH_TARGET.default):
         """The skull as an engine Mesh (patient mm): the bone skull, or the PDE skull envelope (built when
         missing, rebuilt from the stored curves after reopening)."""
-        from ..pdehead_addon import dumps_boundaries, loads_boundaries, solve_pde
-        from ..pdehead_addon import skull_mesh
+        from ..pdehead_addon import dumps_boundaries, loads_boundaries, skull_mesh, solve_pde
 
         extra = self.cache
         if target == "BONE":

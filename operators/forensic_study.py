@@ -22,12 +22,10 @@ from __future__ import annotations
 import json
 import time
 
+import bpy
 import numpy as np
 
-import bpy
-
-from ..pdehead_addon import PDEHeadError
-from ..pdehead_addon import defaults as D
+from ..pdehead_addon import PDEHeadError, defaults as D
 from .coords import MM_TO_M
 from .face import PROVENANCE_PROP, FaceSteps
 from .forensic_export import ExportSteps
@@ -122,8 +120,7 @@ class ForensicStudy(ForensicBase, SkullSteps, ExportSteps, FaceSteps):
         (the forensic settings' ``landmark_flags``) for the outputs. With ``keep_edited``, landmarks placed
         or moved by hand are left where they are. Returns the engine's ``LandmarkSearch``.
         """
-        from ..pdehead_addon import find_landmarks as engine_find
-        from ..pdehead_addon import snap_to_surface
+        from ..pdehead_addon import find_landmarks as engine_find, snap_to_surface
 
         coll = self.collection
         t0 = time.perf_counter()
@@ -152,7 +149,8 @@ class ForensicStudy(ForensicBase, SkullSteps, ExportSteps, FaceSteps):
         """After an export, the study says what its files say: a landmark the export turned ``uncertain`` (its
         depth not supported by the CT's profile) is ``uncertain`` on its empty and in the study's landmark flags
         (its evidence says why), and the face object's provenance (the panel's source) lists the written flags.
-        Before, the panel kept Find Landmarks' flags until the next Find Landmarks (issue 23's tester)."""
+        Before, the panel kept Find Landmarks' flags until the next Find Landmarks, which
+        confused a tester."""
         why = "the CT's depth profile does not support it (Export for Printing)"
         current = self.landmark_flags()
         turned = {n for n, f in flags.items() if f == "uncertain" and current.get(n, ("ok", ""))[0] == "ok"}
@@ -213,8 +211,9 @@ class ForensicStudy(ForensicBase, SkullSteps, ExportSteps, FaceSteps):
     # -------------------------------------------------------------------------------------- orientation
     def apply_frankfurt(self, reset: bool = False):
         """Transform every object of the study into the Frankfurt horizontal (or back)."""
-        from ..pdehead_addon import frankfurt_transform
         from mathutils import Matrix
+
+        from ..pdehead_addon import frankfurt_transform
 
         if reset:
             m = Matrix.Identity(4)

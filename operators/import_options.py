@@ -9,12 +9,18 @@ from __future__ import annotations
 from pathlib import Path
 
 import bpy
-from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatVectorProperty,
-                       IntProperty, IntVectorProperty, StringProperty)
+from bpy.props import (
+    BoolProperty,
+    CollectionProperty,
+    EnumProperty,
+    FloatVectorProperty,
+    IntProperty,
+    IntVectorProperty,
+    StringProperty,
+)
 from bpy.types import OperatorFileListElement
 
-from ..pdehead_addon import CTImportError
-from ..pdehead_addon import defaults as D
+from ..pdehead_addon import CTImportError, defaults as D
 from . import props
 
 FORMAT_ITEMS = [
@@ -58,6 +64,19 @@ def parse_dtype_string(text: str) -> tuple[str, str]:
         raise CTImportError(f"unsupported raw data type '{text}'")
     order = "BIG" if dt.byteorder == ">" else "LITTLE"
     return code, order
+
+
+def _orientation_units_downsample(loader, options: dict) -> None:
+    """Add the slice order (an explicit orientation, else a first slice other than Auto: the engine's rule,
+    defaults.FIRST_SLICE), the units and the downsampling of ``loader`` (the loader settings) to ``options``."""
+    if loader.orientation.strip():
+        options["orientation"] = loader.orientation.strip().upper()
+    elif loader.first_slice != "AUTO":
+        options["first_slice"] = loader.first_slice.lower()
+    if loader.units != "AUTO":
+        options["units"] = "HU" if loader.units == "HU" else "stored"
+    if loader.downsample > 1:
+        options["downsample"] = int(loader.downsample)
 
 
 @props.settings_options("use_bone_level", "bone_level", mirrored=False)
@@ -127,14 +146,7 @@ class LoaderOptions:
             options.update(format="raw", shape=tuple(int(n) for n in self.raw_shape),
                            dtype=dtype_string(self.raw_dtype, self.byte_order),
                            spacing=tuple(float(s) for s in self.spacing))
-            if self.orientation.strip():
-                options["orientation"] = self.orientation.strip().upper()
-            elif self.first_slice != "AUTO":      # Auto: the engine's rule (defaults.FIRST_SLICE), as for images
-                options["first_slice"] = self.first_slice.lower()
-            if self.units != "AUTO":
-                options["units"] = "HU" if self.units == "HU" else "stored"
-            if self.downsample > 1:
-                options["downsample"] = int(self.downsample)
+            _orientation_units_downsample(self, options)
             return options
         if self.format == "DICOM":
             options["format"] = "dicom"
@@ -142,14 +154,7 @@ class LoaderOptions:
             options["format"] = "images"
         if self.use_spacing:
             options["spacing"] = tuple(float(s) for s in self.spacing)
-        if self.orientation.strip():
-            options["orientation"] = self.orientation.strip().upper()
-        elif self.first_slice != "AUTO":
-            options["first_slice"] = self.first_slice.lower()
-        if self.units != "AUTO":
-            options["units"] = "HU" if self.units == "HU" else "stored"
-        if self.downsample > 1:
-            options["downsample"] = int(self.downsample)
+        _orientation_units_downsample(self, options)
         if self.series_uid.strip():
             options["series_uid"] = self.series_uid.strip()
         elif self.format in {"AUTO", "DICOM"} and self.filepath and not self.single_file:

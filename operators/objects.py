@@ -13,8 +13,7 @@ import math
 
 import numpy as np
 
-from ..pdehead_addon import defaults as D
-from ..pdehead_addon import apply_window, intensity_window, sample_ct
+from ..pdehead_addon import apply_window, defaults as D, intensity_window, sample_ct
 from . import compat, state
 from .coords import MM_TO_M
 from .ct_texture import box_face_uv, box_faces, ct_texture_atlas
@@ -477,7 +476,7 @@ def _sharp_cut_faces(obj, family: np.ndarray) -> None:
 
 
 def _skin_faces(obj, family: np.ndarray, on: bool) -> None:
-    """The outer shell (w = 1) in material slot 1, the skin (issue 21): the surface's material unless the
+    """The outer shell (w = 1) in material slot 1, the skin: the surface's material unless the
     user put another there; the cut faces keep slot 0 (the CT). Off: every face shows the CT."""
     me = obj.data
     if on:
@@ -523,7 +522,7 @@ def build_solid(head, collection, nu: int = D.NU.default, nv: int = D.NV.default
     obj : bpy.types.Object, optional
         Rebuild in place.
     texture_size : int, optional
-        Pixels per box face of the CT texture atlas, all faces alike (the layout before issue 21;
+        Pixels per box face of the CT texture atlas, all faces alike (the older layout;
         0 for vertex colours only). Default: tiles sized from each face's extent in mm
         (:func:`ct_texture_atlas`), about one texel per CT voxel within ``texture_budget``.
     ct_table : SolidCTTable, optional

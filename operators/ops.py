@@ -11,11 +11,10 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 from bpy.types import Operator
 
-from ..pdehead_addon import PDEHeadError
-from ..pdehead_addon import defaults as D
+from ..pdehead_addon import PDEHeadError, defaults as D
 from . import pipeline_run, progress, props, scene, state
 from .base import GuardedOperator, StudyOperator, report_exception, set_status
-from .import_options import PDEHEAD_FH_import_ct, LoaderOptions, dropped_file_options
+from .import_options import LoaderOptions, PDEHEAD_FH_import_ct, dropped_file_options
 from .study_entity import Study
 
 

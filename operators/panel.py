@@ -117,7 +117,7 @@ class PDEHEAD_PT_boundaries(_StudyPanel, bpy.types.Panel):
 
 
 def draw_detail_map(layout, study) -> None:
-    """The CT detail map (issue 21): off by default; turned on without a current map (never built, or
+    """The CT detail map: off by default; turned on without a current map (never built, or
     the PDE changed since), a *Build CT Detail* button says what is missing (the toggle itself never
     builds: seconds in an update callback would freeze the UI)."""
     s = study.settings
@@ -190,7 +190,7 @@ class PDEHEAD_PT_solid(_StudyPanel, bpy.types.Panel):
         row = layout.row(align=True)
         row.operator("pdehead.add_cutter", icon='MOD_BOOLEAN')
         row.prop(s, "use_cutter", text="", icon='RESTRICT_SELECT_OFF')
-        col = layout.column(align=True)                  # the CT texture (issue 21)
+        col = layout.column(align=True)                  # the CT texture
         col.prop(s, "ct_texture_budget")
         col.prop(s, "solid_skin", text="")
         sub = col.row()

@@ -13,10 +13,17 @@ live parameter in the sidebar (or from Python, as a user would) runs its update 
 """
 from __future__ import annotations
 
-
 import bpy
-from bpy.props import (BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntProperty,
-                       IntVectorProperty, PointerProperty, StringProperty)
+from bpy.props import (
+    BoolProperty,
+    EnumProperty,
+    FloatProperty,
+    FloatVectorProperty,
+    IntProperty,
+    IntVectorProperty,
+    PointerProperty,
+    StringProperty,
+)
 
 from ..pdehead_addon import defaults as D
 from . import compat, face, state
@@ -84,7 +91,7 @@ def _colour_items():
 
 
 COLOUR_ITEMS = _colour_items()
-#: What the solid's outside shows (issue 21; engine values of ``defaults.SOLID_SKIN``).
+#: What the solid's outside shows (engine values of ``defaults.SOLID_SKIN``).
 SOLID_SKIN_ITEMS = [
     ("surface", "Skin Material", "The outside shows the surface's skin material (the skin itself is a "
                                  "partial-volume mix of air and tissue in the CT)"),
@@ -235,7 +242,7 @@ class PDEHeadStudySettings(bpy.types.PropertyGroup):
     warnings: StringProperty(name="Warnings")
     notes: StringProperty(name="Information", description="Automatic choices the import made (one per line)")
 
-    # Forensic: Face from Skull (issue 23): the table the face uses; switching it re-solves the face at once
+    # Forensic: Face from Skull: the table the face uses; switching it re-solves the face at once
     face_table: EnumProperty(name="Face Table", items=face.FACE_TABLE_ITEMS, default='DEFAULT',
                              update=_face_table_update, description="The depth table the face's pegs stand by")
     face_table_file: StringProperty(name="Table File", subtype="FILE_PATH", options=PATH_OPTIONS,

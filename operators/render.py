@@ -96,6 +96,50 @@ def _camera_matrix(right, up, forward, position):
 IMAGE_FORMATS = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG"}
 
 
+def _framing(objects, bounds, right, up, forward, res_x: int, res_y: int, margin: float):
+    """(centre, span, depth) of the render's orthographic frame: the box of ``bounds`` or of the objects' world
+    bounding boxes, its span across the view (times ``margin``, fitted to the image's aspect) and its depth."""
+    if bounds is None:
+        lo, hi = world_bounds(objects)
+    else:
+        lo, hi = np.asarray(bounds[0], float), np.asarray(bounds[1], float)
+    centre = 0.5 * (lo + hi)
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    rel = corners - centre
+    width_m = np.ptp(rel @ right)
+    height_m = np.ptp(rel @ up)
+    depth = float(np.ptp(rel @ forward))
+    span = max(width_m, height_m * res_x / res_y) if res_x >= res_y else max(height_m, width_m * res_y / res_x)
+    span = max(float(span) * margin, 1e-4)
+    return centre, span, depth
+
+
+def _image_path(path) -> tuple[Path, str]:
+    """The resolved output path (its folder made) and Blender's file format for it: PNG unless it ends in a
+    known still-image suffix (:data:`IMAGE_FORMATS`)."""
+    path = Path(os.fspath(path))
+    file_format = IMAGE_FORMATS.get(path.suffix.lower())
+    path = (path if file_format else path.with_suffix(".png")).resolve()   # no known suffix: a PNG
+    file_format = file_format or "PNG"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return path, file_format
+
+
+def _isolate(scene, objects, extra: set, isolate: bool, hidden: dict, shown: dict) -> None:
+    """Show ``objects`` in the render (and, with ``isolate``, hide every other object but the ``extra`` names);
+    what it changed goes into ``hidden`` / ``shown`` (name -> object) for the caller to restore."""
+    if isolate:
+        keep = {o.name for o in objects} | extra
+        for o in scene.objects:
+            if o.name not in keep and not o.hide_render:
+                hidden[o.name] = o
+                o.hide_render = True
+    for o in objects:  # asked for: rendered even if hidden in renders (e.g. by Frame Study)
+        if o.hide_render:
+            shown[o.name] = o
+            o.hide_render = False
+
+
 def render_objects_png(objects, path, view: str = D.VIEW.default, resolution=(160, 160),
                        samples: int = D.RENDER_SAMPLES.default,
                        transparent: bool = False, isolate: bool = True, margin: float = 1.08,
@@ -139,26 +183,10 @@ def render_objects_png(objects, path, view: str = D.VIEW.default, resolution=(16
     scene = scene or bpy.context.scene
     objects = list(objects)
     right, up, forward = view_basis(view)
-    if bounds is None:
-        lo, hi = world_bounds(objects)
-    else:
-        lo, hi = np.asarray(bounds[0], float), np.asarray(bounds[1], float)
-    centre = 0.5 * (lo + hi)
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-    rel = corners - centre
-    width_m = np.ptp(rel @ right)
-    height_m = np.ptp(rel @ up)
-    depth = float(np.ptp(rel @ forward))
     res_x, res_y = (int(r) for r in resolution)
-    span = max(width_m, height_m * res_x / res_y) if res_x >= res_y else max(height_m, width_m * res_y / res_x)
-    span = max(float(span) * margin, 1e-4)
+    centre, span, depth = _framing(objects, bounds, right, up, forward, res_x, res_y, margin)
     distance = depth + span + 0.1
-
-    path = Path(os.fspath(path))
-    file_format = IMAGE_FORMATS.get(path.suffix.lower())
-    path = (path if file_format else path.with_suffix(".png")).resolve()   # no known suffix: a PNG
-    file_format = file_format or "PNG"
-    path.parent.mkdir(parents=True, exist_ok=True)
+    path, file_format = _image_path(path)
 
     r, c = scene.render, scene.cycles
     saved = {
@@ -202,16 +230,7 @@ def render_objects_png(objects, path, view: str = D.VIEW.default, resolution=(16
         bg.inputs["Strength"].default_value = 1.0
         temporaries.append((None, world))
 
-        if isolate:
-            keep = {o.name for o in objects} | {cam.name, sun.name}
-            for o in scene.objects:
-                if o.name not in keep and not o.hide_render:
-                    hidden[o.name] = o
-                    o.hide_render = True
-        for o in objects:  # asked for: rendered even if hidden in renders (e.g. by Frame Study)
-            if o.hide_render:
-                shown[o.name] = o
-                o.hide_render = False
+        _isolate(scene, objects, {cam.name, sun.name}, isolate, hidden, shown)
 
         scene.camera = cam
         scene.world = world

@@ -20,8 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..pdehead_addon import PDEHeadError
-from ..pdehead_addon import defaults as D
+from ..pdehead_addon import PDEHeadError, defaults as D
 from . import state
 
 CAMERA_KIND = "camera"
@@ -116,7 +115,7 @@ def frame_study(context, coll, show: str = D.SHOW.default, view: str = D.VIEW.de
     shown = next((getattr(s, _SHOW_ATTR[k]) for k in order if getattr(s, _SHOW_ATTR[k]) is not None), None)
     if shown is None:
         raise PDEHeadError(f"study '{coll.name}' has no object to frame yet: run the pipeline first")
-    for k, attr in _SHOW_ATTR.items():
+    for attr in _SHOW_ATTR.values():
         obj = getattr(s, attr)
         if obj is not None:
             _set_visible(obj, obj == shown, view_layer)

@@ -27,7 +27,6 @@ from typing import Any, Callable
 
 import bpy
 
-
 NO_STUDY_MESSAGE = "No PDE Head study: import a CT (File > Import > CT Head) or load the phantom"
 BOUNDARY_KEY = "pdehead_boundaries"  # collection custom property: base64 of dumps_boundaries()
 CT_TABLE_KEY = "pdehead_ct_table"  # collection custom property: base64 of SolidCTTable.to_bytes() (save_pre)

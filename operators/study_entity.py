@@ -450,6 +450,7 @@ class Study(PipelineSteps, LiveSolid):
         """The solver's default smoothing and approximation as fractions of the study's maxima (the
         values a slider starts from when its Auto box is cleared)."""
         import numpy as np
+
         from ..pdehead_addon import control_ranges
         s = self.settings
         modes = None if s.modes <= 0 else s.modes

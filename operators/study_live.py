@@ -75,7 +75,7 @@ class LiveSolid:
         deferred = live and self.defer_ct_colours()
         if table is not None:
             if deferred and cache.ct is not None:
-                # issue 21: while a slider moves, the cut faces come from the (u, v, w) table in 128-pixel
+                # while a slider moves, the cut faces come from the (u, v, w) table in 128-pixel
                 # tiles (the geometry step stays within a frame); the timer right after redraws them from the CT
                 self._colours_wait()
             else:
@@ -100,7 +100,7 @@ class LiveSolid:
             window = self.ct_window(ct)
             with state.Timer() as t:
                 table = self.ct_table(head, ct)
-            self.record_timing("ct_table", t.seconds)   # issue 20: with the w-field <= 1 s
+            self.record_timing("ct_table", t.seconds)   # target: at most 1 s with the w-field
             state.REGISTRY.colours_pending.pop(self.study_id, None)
         return table, window, ct, notice
 
@@ -118,7 +118,7 @@ class LiveSolid:
         table, window, ct, notice = self._solid_table(head, live)
         quick = live and self.defer_ct_colours()
         cut_ct = None
-        if not quick and table is not None:        # the cut faces at the CT's own resolution (issue 21)
+        if not quick and table is not None:        # the cut faces at the CT's own resolution
             cut_ct = ct if ct is not None else self.cache.ct
             if cut_ct is None:
                 try:

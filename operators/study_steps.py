@@ -6,7 +6,8 @@ and writes the result into Blender objects (:mod:`.objects`, :mod:`.volume`, :mo
 live updates, the solid and the cutter: :mod:`.study_live`. Nothing here imports an operator module
 or the Study class itself, so the dependency runs one way::
 
-    ops / forensic / panel / props  ->  study_entity (Study)  ->  study_steps / study_live  ->  state / objects / ...  ->  engine
+    ops / forensic / panel / props  ->  study_entity (Study)  ->  study_steps / study_live
+        ->  state / objects / ...  ->  engine
 
 Use the steps through a study: ``study = Study.import_ct(context, path, options)``,
 ``study.segment()``, ``study.boundaries()``, ``study.surface()``, ``study.solid()``, ``study.volume(context)``.
@@ -150,6 +151,7 @@ class PipelineSteps:
     def import_ct(cls, context, path: Path, options: dict):
         """Load a CT from disk into a new study."""
         import warnings
+
         from ..pdehead_addon import check_head_scan, load_ct
         with state.Timer() as t, warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
@@ -225,6 +227,7 @@ class PipelineSteps:
         segmentation (which must exist): no Blender data inside, so the modal pipeline runs it on a worker
         thread (:class:`.progress.EngineJob`). A patch count the scan cannot give is corrected here."""
         import warnings
+
         from ..pdehead_addon import SelectionWarning, extract_boundaries
         s = self.settings
         seg = self.cache.seg
@@ -275,7 +278,7 @@ class PipelineSteps:
         self.record_timing("surface", t.seconds)
 
     def detail_map(self) -> None:
-        """Build the surface's CT detail map (issue 21: eyelids, lips and nose wings as bump shading; the
+        """Build the surface's CT detail map (eyelids, lips and nose wings as bump shading; the
         segmentation is re-run when this session has none, e.g. after reopening the file)."""
         progress = step_progress("detail_map")
         for fraction, message in self.detail_map_stages():

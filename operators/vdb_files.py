@@ -203,7 +203,8 @@ def may_copy(src, blend_path=None) -> bool:
 
 def link_or_copy(src, dst) -> None:
     """Put a copy of `src` at the new name `dst` without ever overwriting: a hard link where the file
-    system has them (instant, no space; each name deleted alone), else a checked copy (:func:`.safe_io.copy_checked`)."""
+    system has them (instant, no space; each name deleted alone), else a checked copy
+    (:func:`.safe_io.copy_checked`)."""
     from ..pdehead_addon import copy_checked
 
     try:

@@ -9,10 +9,17 @@ from pathlib import Path
 
 import numpy as np
 
-from ..pdehead_addon import OUTSIDE_W
-from ..pdehead_addon import defaults as D
-from ..pdehead_addon import apply_window, ct_grid_for, head_mask_on_grid
-from ..pdehead_addon import WriteError, check_size, checked_output, disk_full
+from ..pdehead_addon import (
+    OUTSIDE_W,
+    WriteError,
+    apply_window,
+    check_size,
+    checked_output,
+    ct_grid_for,
+    defaults as D,
+    disk_full,
+    head_mask_on_grid,
+)
 from . import compat, vdb_writer
 from .coords import grid_affine_world
 from .vdb_files import mark_written

@@ -10,8 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..pdehead_addon import OUTSIDE_W
-from ..pdehead_addon import defaults as D
+from ..pdehead_addon import OUTSIDE_W, defaults as D
 from . import compat
 from .vdb_grids import GRID_NAMES
 

@@ -120,7 +120,7 @@ def load_addon(register: bool = False, engine=None):
     """
     import bpy  # noqa: F401  (bpy first: the add-on imports it)
     if engine is not None:
-        for name, mod in list(sys.modules.items()):  # the package and its subpackages (issue 25's layout)
+        for name, mod in list(sys.modules.items()):  # the package and its subpackages (the packaged layout)
             if name == engine.__name__ or name.startswith(engine.__name__ + "."):
                 sys.modules.setdefault(f"{DEV_PACKAGE}.pdehead_addon{name[len(engine.__name__):]}", mod)
     module = sys.modules.get(DEV_PACKAGE)
@@ -178,6 +178,7 @@ def marching_cubes_arrays(mask, ct):
 def marching_cubes_mesh(mask, ct):
     """The peer mesh: :func:`marching_cubes_arrays` as an engine ``Mesh`` (LPS mm, triangles only)."""
     import numpy as np
+
     import pdehead_addon as E
     verts, faces = marching_cubes_arrays(mask, ct)
     return E.Mesh(vertices=verts, quads=np.zeros((0, 4), np.int64), triangles=np.asarray(faces, np.int64))
@@ -213,6 +214,7 @@ def blender() -> dict:
         os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="pdehead-bench-blender-"))
         t0 = time.perf_counter()
         import bpy
+
         import pdehead_addon as E
         # one copy of the engine: the add-on's relative imports resolve to the module already loaded
         load_addon(engine=E)
@@ -239,6 +241,7 @@ def tube_fidelity(head, verts, faces, samples: int, everything: bool = False) ->
     not the crown's dome above it) to the MC triangles in the curves' z range: mean, p95, max (and,
     with ``everything``, all that ``symmetric_surface_distance`` returns)."""
     import numpy as np
+
     import pdehead_addon as E
     from pdehead_addon.pde.surface_mesh import tube_mesh
     z = head.bset.curves[..., 2]

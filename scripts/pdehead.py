@@ -8,7 +8,8 @@ Examples::
         --spacing 2 1 1 --first-slice superior --patches 10 --out out/cthead.blend \\
         --render out/cthead_surface.png --render-volume out/cthead_volume.png
     python3 scripts/pdehead.py ../shared/data/ct_head_ge_tilt_dicom/dicom --out out/ge.blend
-    python3 scripts/pdehead.py --phantom --no-volume --skull --export out/print   # skull.stl, skull_envelope.stl, skin.stl, ...
+    python3 scripts/pdehead.py --phantom --no-volume --skull --export out/print
+        # -> skull.stl, skull_envelope.stl, skin.stl, ...
     python3 scripts/pdehead.py --phantom --no-volume --out out/turn.blend --turntable 120 --render-animation out/turn
 
 It runs the SAME Blender operators as the add-on (``bpy.ops.pdehead.*``) in the ``bpy``
@@ -517,8 +518,11 @@ def _auto_boundaries(args, ops, addon, coll) -> str:
     that chooses the count); returns the summary line."""
     if args.no_align:
         raise CLIError("--selection auto needs the aligned (angular) curves; drop --no-align", 2)
-    tolerance = dict(use_tolerance=True, tolerance_mm=args.tolerance or 0.0, max_tolerance_mm=args.max_tolerance or 0.0) \
-        if args.tolerance is not None or args.max_tolerance is not None else dict(use_tolerance=False)
+    if args.tolerance is not None or args.max_tolerance is not None:
+        tolerance = dict(use_tolerance=True, tolerance_mm=args.tolerance or 0.0,
+                         max_tolerance_mm=args.max_tolerance or 0.0)
+    else:
+        tolerance = dict(use_tolerance=False)
     _call(ops.extract_boundaries, patches=args.patches, samples=args.samples, selection="auto", align_curves=True,
           **tolerance)
     s = coll.pdehead
@@ -687,8 +691,9 @@ class Staging:
 
 
 def run(args) -> dict:
-    import bpy
     import warnings
+
+    import bpy
     addon = register_addon()
     state = addon.operators.state
     state.REGISTRY.audience = "cli"              # the add-on's messages name this command's flags
@@ -820,7 +825,7 @@ def _build(args, bpy, addon, ops):
         skin = _forensic(addon, coll).skull_info().get("has_skin", True)
         if skin:
             _call(ops.tissue_depth)
-        # no landmarks given: the automatic ones (issue 22), each with its flag
+        # no landmarks given: the automatic ones, each with its flag
         if not _forensic(addon, coll).landmarks():
             _call(ops.find_landmarks)
         face = _face_from_skull(addon, coll) if args.face_from_skull else None
@@ -956,7 +961,7 @@ def _face_table(args, addon):
 
 
 def _face_from_skull(addon, coll):
-    """The face approximated from the study's bone skull, landmarks and depth table (issue 23): (result, model).
+    """The face approximated from the study's bone skull, landmarks and depth table: (result, model).
     A skull the engine refuses (too few landmarks with a depth, not a skull in mm) is exit 2."""
     from importlib import import_module
     ff = import_module(addon.__name__ + ".pdehead_addon.forensic.face_from_skull")

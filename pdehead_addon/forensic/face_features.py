@@ -1,4 +1,4 @@
-"""Face from the skull (issue 23): what a tissue-depth field cannot make, from published prediction rules.
+"""Face from the skull: what a tissue-depth field cannot make, from published prediction rules.
 
 The nose (:func:`predict_nose`, :func:`nose_bump`), the mouth (:func:`predict_mouth`, :func:`mouth_shape`), the
 closed eyes (:func:`predict_eyes`, :func:`eye_shape`) and a default ear at each porion (:func:`predict_ears`,
@@ -6,7 +6,7 @@ closed eyes (:func:`predict_eyes`, :func:`eye_shape`) and a default ear at each 
 skull) once; the ``*_shape`` / :func:`nose_bump` functions give the radial change (K, M) over the face's
 cylinder grid (:class:`.face_from_skull.FaceModel`'s ``grid``: rows ``z``, columns ``theta``, axis ``centre``)
 that :meth:`.face_from_skull.FaceModel.shaped_radius` adds to the depth field's face. Split out of
-face_from_skull.py (issue 25: no module over 700 lines); behaviour unchanged.
+face_from_skull.py to keep each module under 700 lines; behaviour unchanged.
 """
 from __future__ import annotations
 
@@ -46,8 +46,8 @@ def point_of(landmarks: dict, *names):
 #: medial of the lateral orbital margin, EYE_FISSURE_MM toward the midline to the endocanthion: adult norms
 #: ex-en ~ 30 mm (Farkas LG (1994) Anthropometry of the Head and Face, 2nd ed.) and the exocanthion ~ 4-5 mm inside
 #: the lateral orbital rim (Stephan CN, Davidson PL (2008) "The placement of the human eyeball and canthi in
-#: craniofacial identification", J Forensic Sci 53(3):612-619); both cited from the forensic literature. Checked in
-#: issue 23's seventh session: Stephan & Davidson's abstract (PubMed 18471206; four cadavers dissected) reports the
+#: craniofacial identification", J Forensic Sci 53(3):612-619); both cited from the forensic literature. Checked
+#: against the sources: Stephan & Davidson's abstract (PubMed 18471206; four cadavers dissected) reports the
 #: eyeball 1-2 mm nearer the orbital roof and lateral wall than central, and Stephan, Huang & Davidson 2009 (J Forensic
 #: Sci 54(2):267-269, abstract) 1.4 mm up and 2.3 mm lateral (medians of 13 cadavers); neither abstract gives the
 #: canthus' inset, so the 5 mm stays a figure quoted from the literature, not read in the paper: check it before
@@ -86,7 +86,8 @@ def predict_eyes(landmarks: dict) -> list[tuple[str, np.ndarray, float]]:
     """
     out = []
     for side in ("L", "R"):
-        so, sb = point_of(landmarks, f"Supraorbital {side}"), point_of(landmarks, f"Suborbital {side}", f"Orbitale {side}")
+        so = point_of(landmarks, f"Supraorbital {side}")
+        sb = point_of(landmarks, f"Suborbital {side}", f"Orbitale {side}")
         if so is None or sb is None:
             continue
         mid = 0.5 * (so + sb)
@@ -128,8 +129,8 @@ NOSE_ROOT_HALF_MM = 10.0
 NOSE_DORSUM_HALF_MM = 8.0
 #: ... and at least this fraction of half the alar width (:func:`predict_nose`) at the tip's height: the nasal sidewalls
 #: widen from the root down to the alae (the nose's base is as wide as the alae), not a ridge of constant width.
-#: A shape choice made on the renders (issue 23's seventh session: the dorsum read as a narrow ridge); CThead's score
-#: is unchanged by it (63.6 -> 63.7 % within +-2.5 mm, nasion 3.0 -> 2.5 mm, pronasale 1.6 -> 1.5 mm).
+#: A shape choice made on the renders (the dorsum read as a narrow ridge without it); it leaves CThead's score
+#: unchanged (figures in docs/benchmarks.md).
 NOSE_SIDEWALL_FRACTION = 0.8
 NOSE_TIP_HALF_MM = 11.0
 NOSE_TIP_UP_MM = 11.0
@@ -302,7 +303,7 @@ def predict_nose(landmarks: dict, skull: Mesh | None = None) -> dict | None:
 #: the upper vermilion LIP_UPPER_MM high (labrale superius at its border), the lower LIP_LOWER_MM, and the
 #: mentolabial sulcus (sublabiale) LIP_SULCUS_MM below the fissure: adult norms, sto-ls ~ 8 mm, sto-li ~ 9-10 mm,
 #: sto-sl ~ 17-19 mm (Farkas LG (1994) Anthropometry of the Head and Face, 2nd ed., Raven Press; cited from the
-#: anthropometric literature, not re-read). Looked for in issue 23's seventh session and not found in what could be
+#: anthropometric literature, not re-read). Looked for and not found in what could be
 #: read: Farkas, Katic, Hreczko, Deutsch & Munro (1984) "Anthropometric proportions in the upper lip-lower lip-chin
 #: area of the lower face in young white adults", Am J Orthod 86(1):52-60, give in their abstract proportions only
 #: (the lower lip 83-85 % of the upper; vermilion more of the lower lip than of the upper), consistent with a lower
@@ -422,7 +423,8 @@ def mouth_shape(grid, mouth: dict | None, base: np.ndarray) -> np.ndarray | None
     rolls = (roll_up + roll_lo) * np.sqrt(inside)
     # the philtrum (between the upper lip's border and subnasale) and the mentolabial sulcus
     philtrum = -LIP_PHILTRUM_MM * np.exp(-0.5 * ((dz - LIP_UPPER_MM - 6.0) / 4.0) ** 2) * np.exp(-0.5 * (dx / 5.0) ** 2)
-    sulcus = -LIP_SULCUS_DEPTH_MM * np.exp(-0.5 * ((dz + LIP_SULCUS_MM) / 4.0) ** 2) * np.clip(1.0 - (u / 0.9) ** 2, 0.0, 1.0)
+    sulcus = (-LIP_SULCUS_DEPTH_MM * np.exp(-0.5 * ((dz + LIP_SULCUS_MM) / 4.0) ** 2)
+              * np.clip(1.0 - (u / 0.9) ** 2, 0.0, 1.0))
     return (groove + rolls + philtrum + sulcus) * front
 
 

@@ -1,4 +1,4 @@
-"""Face from the skull (issue 23): a closed PDE face solved through the tissue-depth pegs.
+"""Face from the skull: a closed PDE face solved through the tissue-depth pegs.
 
 The practitioner's end product in forensic facial approximation is a face; this module makes one from
 the bone skull, its landmarks and a depth table, by the same C2 PDE engine as the skin
@@ -16,7 +16,8 @@ skull's centroid: a row every ``row_mm`` of height, a column every ``360 / colum
    column meets no bone (below the skull base at the back, below the mandible) a neck rule
    (:mod:`.face_profile`) continues the profile downward.
 2. *The pegs*: each landmark of the depth table stands on the bone along the bone's outward normal,
-   averaged over the bone around it (:func:`.face_profile.peg_normals`); its tip (base + depth x normal) is where the skin must pass.
+   averaged over the bone around it (:func:`.face_profile.peg_normals`); its tip (base + depth x normal) is where
+   the skin must pass.
    In the cylinder frame each tip is a site (z, angle) with a radial offset over the profile.
 3. *The tissue-depth field* (:meth:`FaceModel._offset_field`): over the whole head, a wide
    normalised Gaussian average of the peg offsets (Shepard / partition of unity, radius
@@ -51,13 +52,39 @@ import numpy as np
 from .. import defaults as D
 from ..core.boundary_set import BoundarySet, knots_from_heights
 from ..core.errors import PDEHeadError
-from .face_profile import (PROFILE_SMOOTH_MM, FaceGrid, bone_floor, bone_profile, cheek_floor, convex_rows,
-                           peg_normals, round_floor, scan_cut_plane, smooth_far_from_pegs, smooth_floor_near_cut,
-                           smooth_max, smooth_min, surface_smooth, tilted_rows)
-from .face_features import (EAR_LENGTH_MM, EAR_WIDTH_MM, FRONT_COS, check_skull, ear_shape, eye_shape, mouth_shape,
-                            nose_bump, predict_ears, predict_eyes, predict_mouth, predict_nose)
-from .face_pegs import alar_pegs_by_definition, cheek_bands, cheek_depth, mid_ramus_by_definition
 from ..core.mesh import Mesh
+from .face_features import (
+    EAR_LENGTH_MM,
+    EAR_WIDTH_MM,
+    FRONT_COS,
+    check_skull,
+    ear_shape,
+    eye_shape,
+    mouth_shape,
+    nose_bump,
+    predict_ears,
+    predict_eyes,
+    predict_mouth,
+    predict_nose,
+)
+from .face_pegs import alar_pegs_by_definition, cheek_bands, cheek_depth, mid_ramus_by_definition
+from .face_profile import (
+    PROFILE_SMOOTH_MM,
+    FaceGrid,
+    bone_floor,
+    bone_profile,
+    cheek_floor,
+    convex_rows,
+    peg_normals,
+    round_floor,
+    scan_cut_plane,
+    smooth_far_from_pegs,
+    smooth_floor_near_cut,
+    smooth_max,
+    smooth_min,
+    surface_smooth,
+    tilted_rows,
+)
 
 APPROXIMATION_LABEL = D.FACE_LABEL
 #: Fewer vertices than this cannot trace the bone's outer profile (a bone skull has 10^5).
@@ -79,7 +106,7 @@ RBF_REGULARISATION = 0.05
 #: DAMP_FREE_MM) / DAMP_SCALE_MM)^2 (:meth:`FaceModel._site_damping`; the T-Table's 26 mm supra-M2 and 22 mm sub-M2
 #: pegs beside 8-13 mm ones made the jaw's border lumpy). Fixed at the table's means from the skull and the table
 #: alone; the mid-sagittal pegs (within :data:`DAMP_MIDLINE_DEG` of straight ahead) stay exact: the nose and the lips
-#: stand on them. CThead (issue 23's fifth session): 60.1 -> 62.0 % within +-2.5 mm; GE unchanged.
+#: stand on them. It scores better on CThead, GE unchanged (docs/benchmarks.md).
 DAMP_FREE_MM = 4.0
 DAMP_SCALE_MM = 5.0
 DAMP_MIDLINE_DEG = 10.0
@@ -91,18 +118,18 @@ HELD_REGULARISATION = 1e-3
 #: is put back through a held peg's tip by a Gaussian bump this wide (mm, sigma on the field's cylinder): about the
 #: ala's or the philtrum's width, so a held peg reshapes the face around it and not the whole nose or mouth.
 HELD_SHAPE_MM = 5.0
-#: The radius (mm) of the cylinder the field's sites lie on (:meth:`FaceModel.cylinder_points`, the held pegs' bumps): about
-#: the head's mean radius, so distances on it are about distances over the head.
+#: The radius (mm) of the cylinder the field's sites lie on (:meth:`FaceModel.cylinder_points`, the held pegs'
+#: bumps): about the head's mean radius, so distances on it are about distances over the head.
 FIELD_RADIUS_MM = 85.0
 #: No overshoot between the pegs (:meth:`FaceModel.limited_field`): the field stays between the lowest and the highest
 #: blend base + k_i (target_i - base) of the wide field with each site's offset (k_i = exp(-(d / R)^4) along the
 #: height times the same around, R = LIMIT_RADIUS_FRACTION x ``spread_mm``; a smooth min / max LIMIT_SOFT_MM wide).
-#: The Gaussians' exact correction swings beyond two close sites of very different offsets (CThead, issue 23's 8th
-#: session: subspinale 3.8 and mid-philtrum 14.8 mm, 3.4 mm apart: 19.7 mm above them, 16.6 over the incisors where
+#: The Gaussians' exact correction swings beyond two close sites of very different offsets (CThead:
+#: subspinale 3.8 and mid-philtrum 14.8 mm, 3.4 mm apart: 19.7 mm above them, 16.6 over the incisors where
 #: the pegs are 12-13). At a site the bound is its own offset: the field still passes through every tip.
 LIMIT_RADIUS_FRACTION = 1.0
 LIMIT_SOFT_MM = 1.0
-#: The cheeks (issue 23's ninth session): between the oral fissure (the mouth's stomion) and the orbit's floor (the
+#: The cheeks: between the oral fissure (the mouth's stomion) and the orbit's floor (the
 #: orbitales) each row of the face (profile + depth field, before the nose, lips and eyes) is lifted to its convex
 #: envelope in horizontal section over the front columns (:func:`.face_profile.convex_rows`: chords up to
 #: CHEEK_SPAN_DEG apart), faded in and out over CHEEK_RAMP_MM at the band's ends. Why: there the bone recedes from
@@ -372,8 +399,9 @@ class FaceModel:
         return self.limited_field((base_g + corr).reshape(shape), base_g.reshape(shape), xs, target)
 
     def limited_field(self, field: np.ndarray, base: np.ndarray, xs: np.ndarray, target: np.ndarray) -> np.ndarray:
-        """The field (K, M) kept within the blends of ``base`` with the sites' ``target`` (:data:`LIMIT_RADIUS_FRACTION`);
-        one place for :meth:`_offset_field` and the live path (sites ``xs`` on the model's cylinder)."""
+        """The field (K, M) kept within the blends of ``base`` with the sites' ``target``
+        (:data:`LIMIT_RADIUS_FRACTION`); one place for :meth:`_offset_field` and the live path (sites ``xs`` on the
+        model's cylinder)."""
         if LIMIT_RADIUS_FRACTION <= 0 or not len(target):
             return field
         g, R = self.grid, LIMIT_RADIUS_FRACTION * float(self.options["spread_mm"])
@@ -520,10 +548,10 @@ class FaceModel:
         if (nu, nv) not in refs:
             refs[(nu, nv)] = head.cap_reference(nu, nv)
         head.cap_reference = lambda _nu, _nv, _ref=refs[(nu, nv)]: _ref
-        # the columns' v steps (issue 21: closer where an outline runs radially) too, for the same reason
+        # the columns' v steps (closer where an outline runs radially) too, for the same reason
         density = self.__dict__.setdefault("_v_density", [head.v_density()])[0]
         head.v_density = lambda _d=density: _d
-        # the UV layout too (issue 21's tube map costs ~0.65 s per new set of curves): fixed by the first
+        # the UV layout too (the tube map costs ~0.65 s per new set of curves): fixed by the first
         # face, so a dragged peg neither waits for it nor moves a painted texture
         layout = self.__dict__.get("_uv_layout")
         if layout is None:

@@ -1,4 +1,4 @@
-"""The live face (issue 23, point 2): a dragged peg's fast path, and a prepared face model kept in a file.
+"""The live face: a dragged peg's fast path, and a prepared face model kept in a file.
 
 :class:`.face_from_skull.FaceModel` solves a face through the peg tips; :meth:`~.FaceModel.solve` makes a
 whole :class:`~.mesh.Mesh` (topology, UV islands, attributes) every time, which a dragged peg does not
@@ -33,9 +33,9 @@ from dataclasses import fields, is_dataclass
 
 import numpy as np
 
-from . import face_from_skull as F
 from ..pde.pde_basis import small_matmul
 from ..pde.surface_mesh import ring_in_plane
+from . import face_from_skull as F
 
 #: Largest difference (mm) between the fast positions and the model's own solve for :attr:`LiveFace.exact`.
 EXACT_TOLERANCE_MM = 1e-6
@@ -56,7 +56,7 @@ _CENTI_MM = ("bone_floor",)
 #: :meth:`FaceModel.prepare`; a rebuilt model has None there). 0.18 MB on CThead's 360-column grid.
 _DROPPED = ("raw",)
 #: Format of :func:`model_state` (a reader refuses other formats: the caller prepares the model again). 2: the
-#: bone floor (issue 23, GE: a kept model without it would let the bone through the face). 3: the scan's cut plane (a
+#: bone floor (on GE a kept model without it would let the bone through the face). 3: the scan's cut plane (a
 #: skull without a mandible: the face ends along it).
 STATE_FORMAT = 3
 
@@ -329,7 +329,8 @@ def model_from_state(text: str):
         state.setdefault(key, None)
     missing = [n for n in names if n not in state and n != "flags" and n != "prepare_seconds"]
     if missing or sorted(names) != sorted(data.get("fields", [])):
-        raise ValueError(f"the stored face model does not have this version's fields ({', '.join(missing) or 'changed'})")
+        raise ValueError("the stored face model does not have this version's fields "
+                         f"({', '.join(missing) or 'changed'})")
     for key in _SINGLE:
         if key in state:
             state[key] = _cast(state[key], np.float64)

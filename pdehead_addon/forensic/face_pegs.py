@@ -1,4 +1,4 @@
-"""The pegs of a solved face (issue 23): how far each tip is from the face, why, and what is implausible.
+"""The pegs of a solved face: how far each tip is from the face, why, and what is implausible.
 
 A face from the skull (:class:`.face_from_skull.FaceModel`) passes through most peg tips to a few tenths of a mm,
 but not through all: a peg whose offset disagrees with its neighbours' is damped
@@ -100,7 +100,8 @@ class PegReport:
         if not off:
             return None
         listed = ", ".join(f"{o['peg']} {o['tip_to_face_mm']:.1f} mm" for o in off)
-        return f"{len(off)} of {len(self.names)} peg tips are more than {D.FACE_PEG_OFF_MM:g} mm from the face: {listed}"
+        return (f"{len(off)} of {len(self.names)} peg tips are more than {D.FACE_PEG_OFF_MM:g} mm from the face: "
+                f"{listed}")
 
 
 def held_mask(names: list, held) -> np.ndarray:
@@ -214,7 +215,8 @@ def peg_report(model, tips: np.ndarray, vertices: np.ndarray, held=None, nu: int
 def peg_warnings(names: list, depth: np.ndarray, drift: np.ndarray, mean: np.ndarray, sd: np.ndarray) -> list[dict]:
     """The implausible pegs, as data: ``{"peg", "kind", "text"}`` for a tip in the bone (depth below
     :data:`~..defaults.FACE_PEG_MIN_DEPTH_MM`), moved off its landmark (drift beyond
-    :data:`~..defaults.FACE_PEG_MAX_DRIFT_MM`) or deeper than the table's mean + :data:`~..defaults.FACE_PEG_MAX_DEPTH_SD` SD."""
+    :data:`~..defaults.FACE_PEG_MAX_DRIFT_MM`) or deeper than the table's mean +
+    :data:`~..defaults.FACE_PEG_MAX_DEPTH_SD` SD."""
     out = []
     limit = np.asarray(mean, float) + D.FACE_PEG_MAX_DEPTH_SD * np.asarray(sd, float)      # NaN without an SD
     for i in np.flatnonzero(depth < D.FACE_PEG_MIN_DEPTH_MM):

@@ -1,4 +1,4 @@
-"""The face's grid and the bone's closed outer profile on it (issue 23): where the face from the skull starts.
+"""The face's grid and the bone's closed outer profile on it: where the face from the skull starts.
 
 The face is made on a cylinder of directions about the vertical (patient z) axis through the skull's centroid
 (:class:`FaceGrid`: a row every ``row_mm`` of height, a column every ``360 / columns`` degrees). On it:
@@ -6,8 +6,8 @@ The face is made on a cylinder of directions about the vertical (patient z) axis
 bridges the orbits, the nasal aperture, the temporal fossae and the cheeks), a grey closing and a Gaussian
 over the surface (:func:`surface_smooth`, a length in mm both ways), continued below the skull by a neck rule;
 :func:`smooth_far_from_pegs` can smooth it more away from the pegs (off by default); :func:`peg_normals` gives
-each landmark's outward direction (the bone's averaged normal, or the closed profile's where the bone's leans too far). :mod:`.face_from_skull` stands the pegs and the depth field
-on this profile.
+each landmark's outward direction (the bone's averaged normal, or the closed profile's where the bone's leans too
+far). :mod:`.face_from_skull` stands the pegs and the depth field on this profile.
 """
 from __future__ import annotations
 
@@ -90,7 +90,8 @@ class FaceGrid:
 
     def polar(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         d = np.asarray(p, float)[..., :2] - self.centre
-        return np.asarray(p, float)[..., 2], np.mod(np.arctan2(d[..., 0], d[..., 1]), 2 * np.pi), np.hypot(d[..., 0], d[..., 1])
+        theta = np.mod(np.arctan2(d[..., 0], d[..., 1]), 2 * np.pi)
+        return np.asarray(p, float)[..., 2], theta, np.hypot(d[..., 0], d[..., 1])
 
     def point(self, z, theta, r) -> np.ndarray:
         z, theta, r = np.broadcast_arrays(np.asarray(z, float), np.asarray(theta, float), np.asarray(r, float))

@@ -16,8 +16,8 @@ import numpy as np
 
 from ..core.errors import PDEHeadError
 from ..core.mesh import Mesh
-from ..core.provenance import ASCII_SPELLING, provenance_lines, short_provenance
 from ..core.mesh_geometry import mesh_triangles
+from ..core.provenance import ASCII_SPELLING, provenance_lines, short_provenance
 
 FORMATS = ("stl", "obj", "ply")
 

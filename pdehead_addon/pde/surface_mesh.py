@@ -9,7 +9,7 @@ the crown's pole and the orientation test) or else by a triangulation of the rin
 polygon (Delaunay, ear clipping), and the signed enclosed volume that fixes the
 outward winding.
 
-UVs (issue 21; the map and the islands are :mod:`.surface_uv_map`'s, the columns' v :mod:`.surface_columns`'):
+UVs (the map and the islands are :mod:`.surface_uv_map`'s, the columns' v :mod:`.surface_columns`'):
 the tube is one island (v across, u up: a least-squares map of the boundary curves that keeps the cells'
 angles and texel size), the crown's dome and each cap a disc; every island is a function of (u, v) fixed
 per study (from the boundary curves), none is mirrored, and each keeps ``UV_MARGIN``
@@ -23,8 +23,8 @@ from functools import lru_cache
 import numpy as np
 
 from ..core.errors import PDEError
-from ..core.mesh_geometry import signed_volume
 from ..core.mesh import Mesh
+from ..core.mesh_geometry import signed_volume
 from .surface_columns import column_fraction, column_fraction_inverse, column_v
 from .surface_uv_map import uv_islands
 
@@ -244,15 +244,15 @@ def ring_in_plane(ring: np.ndarray, centre: np.ndarray):
 
 
 class DiscCap:
-    """A flat cap triangulated ring by ring (issue 21: the neck closed without a fan of long triangles).
+    """A flat cap triangulated ring by ring (the neck closed without a fan of long triangles).
 
-    Rings of the end curve scaled toward its centre in the curve's plane, radial steps of at most
-    ``edge`` mm (at the ring's farthest point), each with about one point per ``edge`` mm placed at
-    even fractions of the end curve's samples (its v), joined in the order of those fractions
-    (:func:`_zipper`); the last ring is joined to the centre. With ``plan`` (a reference perimeter and
-    radius) the counts, hence the connectivity, do not depend on the ring of the moment. Attributes: ``vertices`` (the new points), ``triangles`` (ring indices 0 .. n-1, new points
-    from n), counter-clockwise like the ring, ``radius`` (fraction of the end curve, 0 at the centre)
-    and ``angle`` (the v of the end curve in the same direction, radians) of every new point.
+    Rings of the end curve scaled toward its centre in the curve's plane, radial steps of at most ``edge`` mm (at
+    the ring's farthest point), each with about one point per ``edge`` mm placed at even fractions of the end
+    curve's samples (its v), joined in the order of those fractions (:func:`_zipper`); the last ring is joined to
+    the centre. With ``plan`` (a reference perimeter and radius) the counts, hence the connectivity, do not depend
+    on the ring of the moment. Attributes: ``vertices`` (the new points), ``triangles`` (ring indices 0 .. n-1, new
+    points from n), counter-clockwise like the ring, ``radius`` (fraction of the end curve, 0 at the centre) and
+    ``angle`` (the v of the end curve in the same direction, radians) of every new point.
     """
 
     def __init__(self, ring: np.ndarray, centre: np.ndarray, edge: float, plan: tuple | None = None):
@@ -300,10 +300,10 @@ class DiscCap:
 
 
 #: The disc caps' step (radially and along each ring) in mean edges of the tube: a flat disc needs no
-#: finer triangles, and issue 21 asks for none longer than 3 mean edges. 1.2, not 1.5: where the outline
+#: finer triangles, and the mesh should have none longer than 3 mean edges. 1.2, not 1.5: where the outline
 #: runs radially a ring's step and the step to the next ring lie along one line, so a zipper triangle
-#: there spans both (GE: 3.18 mean edges at 1.5 once the bottom ring's own edges were bounded, 2.90 at 1.2;
-#: CThead 2.6 -> 2.2). The caps' triangle count grows by ~1.5x (GE 7,832 -> 12,092 with the tube's fan).
+#: there spans both (the longest edge is under 3 mean edges at 1.2, not at 1.5, on GE). The caps' triangle count
+#: grows by ~1.5x (figures in docs/benchmarks.md).
 CAP_EDGE = 1.2
 
 
@@ -490,7 +490,7 @@ def _tube_and_dome_uv(quads, nu: int, nv: int, u: np.ndarray, orientation: int, 
     v_cols = np.append(column_v(v_density, nv), TWO_PI)                      # the seam column gets 2 pi
     grid = np.empty((nu, nv + 1, 2))
     if layout.get("tube_map") is not None:
-        # issue 21: the near-conformal, even-scale map of the curves (uv_tube_map), one scale for U and V
+        # the near-conformal, even-scale map of the curves (uv_tube_map), one scale for U and V
         # (the angles are kept) so the island fits the tube's rectangle; rows above the top curve (the
         # dome) take it at the top curve and are overwritten by the dome's disc below
         U, V = _table_at(layout, np.minimum(u, u_top), v_cols)
