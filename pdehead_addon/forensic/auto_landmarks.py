@@ -47,10 +47,8 @@ import numpy as np
 from scipy import ndimage
 
 from ..core.errors import PDEHeadError
-from .landmark_bilateral import (alare, canine_points, mandible_bilateral, orbit_margins,
-                                 zygion_supraglenoid)
-from .landmark_frame import (FLAGS, NOT_FOUND, OK, UNCERTAIN, LandmarkFrame,
-                             bone_components)
+from .landmark_bilateral import alare, canine_points, mandible_bilateral, orbit_margins, zygion_supraglenoid
+from .landmark_frame import FLAGS, NOT_FOUND, OK, UNCERTAIN, LandmarkFrame, bone_components
 from .landmark_midline import mandible_component, midline_landmarks
 from .landmark_openings import MIRROR_TOLERANCE_MM, PORION_OVERHANG_MM, frankfurt_points
 

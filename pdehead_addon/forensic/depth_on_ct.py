@@ -10,8 +10,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.errors import PDEHeadError
-from .landmarks import depth_rays, snap_to_surface
 from ..core.mesh import Mesh
+from .landmarks import depth_rays, snap_to_surface
 
 #: The bone point is refined along the ray to the bone level's crossing in the interpolated CT within this many
 #: voxel sizes (the largest) of the mesh's point: the bone mesh of thin margins lies up to a slice off the bone.

@@ -38,8 +38,8 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import PDEHeadError
-from .landmarks import STANDARD_LANDMARKS, landmark
 from ..core.provenance import provenance_lines
+from .landmarks import STANDARD_LANDMARKS, landmark
 
 #: The shipped default table.
 DEFAULT_TABLE_PATH = Path(__file__).resolve().parent / "data" / "t_table_2023.csv"

@@ -50,12 +50,16 @@ from scipy import ndimage as ndi
 
 from ..core.ct_volume import CTVolume
 from ..core.errors import SegmentationError
-from ..core.mesh_geometry import signed_volume
 from ..core.mesh import Mesh
+from ..core.mesh_geometry import signed_volume
 from ..segment.segmentation import Segmentation, auto_window, segment_head
-from .scan_contents import (PARTIAL_RAMUS_SIDE_MM, SKULL_ONLY_LAYER_RATIO, air_bone_level,  # noqa: F401
-                            partial_mandible,
-                            soft_tissue_present)
+from .scan_contents import (  # noqa: F401
+    PARTIAL_RAMUS_SIDE_MM,
+    SKULL_ONLY_LAYER_RATIO,
+    air_bone_level,
+    partial_mandible,
+    soft_tissue_present,
+)
 
 #: HU assigned to the air and soft-tissue modes when the scan is not calibrated.
 AIR_HU, TISSUE_HU = -1000.0, 40.0

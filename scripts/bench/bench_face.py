@@ -178,8 +178,13 @@ def inside_scan(ct):
 def face_region(verts, faces, centre_xy, scan_z, floor_z: float | None = None, seed: int = 0, inside=None):
     """Points sampled on the real visible face region (1 per mm^2) and the pronasale. ``inside``
     (:func:`inside_scan`) drops the scan's cut before the pronasale is looked for."""
-    from pdehead_addon.validation.surface_metrics import (face_window, pronasale, sample_surface, triangulate,
-                                               visible_face_points)
+    from pdehead_addon.validation.surface_metrics import (
+        face_window,
+        pronasale,
+        sample_surface,
+        triangulate,
+        visible_face_points,
+    )
     t = triangulate(faces)
     cen = verts[t].mean(axis=1)
     kept = visible_face_points(cen, centre_xy)
