@@ -104,7 +104,7 @@ def test_the_ruff_ratchet_only_shrinks(measures):
         "pdehead_addon/forensic/face_features.py", "pdehead_addon/forensic/face_from_skull.py",
         "pdehead_addon/forensic/face_live.py", "pdehead_addon/forensic/face_pegs.py",
         "pdehead_addon/forensic/face_profile.py", "pdehead_addon/forensic/skull.py", "pdehead_addon/io/export.py",
-        "pdehead_addon/pde/surface_mesh.py", "scripts/_common.py", "scripts/bench/bench_face.py",
+        "pdehead_addon/pde/surface_mesh.py", "scripts/_common.py",
         "scripts/pdehead.py",
     }
     extra = set(measures["ruff_ratchet_files"]) - today
