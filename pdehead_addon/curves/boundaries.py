@@ -92,9 +92,9 @@ import numpy as np
 
 from .. import defaults as D
 from ..core.boundary_set import MIN_CURVES, BoundarySet, knots_from_heights
+from ..core.errors import BoundaryError, report_progress
 from .curve_sampling import STAR_MAX_SLOPE, angular_curves, check_samples, orient_and_resample, star_hull
 from .envelope import ENVELOPE_CLOSING_MM, ENVELOPE_SIGMA_MM, head_envelope
-from ..core.errors import BoundaryError, report_progress
 from .parameterisation import PARAMETERISATIONS, align_parameterisation
 from .slice_outlines import contour_from_field, outer_contour
 from .slice_selection import MIN_AREA_FRACTION, SELECTION_STRATEGIES, SelectionFunc, scan_edge_slices, usable_slices
@@ -112,7 +112,8 @@ CLOSING_MM = 3.0
 CURVE_SIGMA_PX = 1.0
 #: The same for the envelope's curves: its 3-D smoothing makes neighbouring outlines agree, so what
 #: is left of the CT noise on the outline repeats from curve to curve as vertical wrinkles. 0.5 px
-#: (issue 21; was 1.5): on top of the envelope's Gaussian a 1.5 px low-pass only took the face off.
+#: (was 1.5, lowered for the closed eyes): on top of the envelope's Gaussian a 1.5 px low-pass only took
+#: the face off.
 ENVELOPE_CURVE_SIGMA_PX = 0.5
 #: Sources of the level line traced per slice.
 LEVEL_FIELDS = ("envelope", "mask", "probability")
@@ -317,7 +318,8 @@ class BoundaryOptions:
         """``BoundaryError`` if the automatic selection cannot run with these options."""
         selection = self.selection
         if self.auto and not (isinstance(selection, str) and selection in ("auto", "uniform")):
-            raise BoundaryError(f"a tolerance chooses the slices itself (selection 'auto'), got selection {selection!r}")
+            raise BoundaryError("a tolerance chooses the slices itself (selection 'auto'), "
+                                f"got selection {selection!r}")
         if self.auto and self.parameterisation != "angular":
             raise BoundaryError("selection 'auto' needs parameterisation='angular' (its candidates share one spine)")
 
@@ -426,7 +428,8 @@ def trace_outlines(seg, mask: np.ndarray, chosen: np.ndarray, opts: BoundaryOpti
                 rc, info = contour_from_field(field[k - window[0].start], origin=(window[1].start, window[2].start))
             else:
                 rc, info = outer_contour(mask[k], sigma=opts.sigma, band=opts.band, return_info=True,
-                                         closing=closing_px, probability=None if probability is None else probability[k])
+                                         closing=closing_px,
+                                         probability=None if probability is None else probability[k])
         except BoundaryError as exc:
             raise BoundaryError(f"slice {int(k)}: {exc}") from None
         kji = np.column_stack([np.full(len(rc), float(k)), rc])

@@ -26,7 +26,7 @@ __all__ = [
     "round_sharp_polar_corners",
 ]
 
-#: Star hull: bound on |d ln r / d theta| (3: the normal stays within 72 degrees of the ray). Issue 21:
+#: Star hull: bound on |d ln r / d theta| (3: the normal stays within 72 degrees of the ray). The former
 #: 2 (63 degrees) filled the groove beside the nose wings, whose sides run almost along the ray; at 3
 #: CThead's mouth corners keep no pit any more (notch fraction 0 with the 1 mm envelope).
 STAR_MAX_SLOPE = 3.0

@@ -3,8 +3,8 @@
 A slice's binary outline runs into every nostril and the mouth slit, carries an
 ear in one slice and not in the next, and steps from slice to slice in a thick
 or tilted series; no surface passing through such curves can look smooth
-(issue 8 of the product: "most of what the eye sees is in the curves
-themselves"). The envelope removes those differences in 3-D before any curve is
+(most of what the eye sees of the surface is in the curves
+themselves). The envelope removes those differences in 3-D before any curve is
 traced:
 
 1. **3-D closing** of the cleaned mask by a ball of ``closing_mm`` (anisotropic
@@ -28,14 +28,14 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage as ndi
 
-from ..segment.binary_morphology import ball_closing
 from ..core.errors import BoundaryError
+from ..segment.binary_morphology import ball_closing
 
 #: Radius (mm) of the 3-D closing ball: bridges inlets up to about twice as wide.
 ENVELOPE_CLOSING_MM = 3.0
 #: Standard deviation (mm) of the 3-D Gaussian that makes neighbouring outlines agree (in-plane; along
 #: the head axis at least half a slice step, so thick slices see their neighbours). 1 mm, not 1.5
-#: (issue 21): the 0.5 level moves by about sigma^2 kappa / 2 and closes slits under ~1.3 sigma, so
+#: (to keep the closed eyes): the 0.5 level moves by about sigma^2 kappa / 2 and closes slits under ~1.3 sigma, so
 #: 1.5 mm rounded off the closed eyes, the lips and the nose wings by as much as the staircase it
 #: removes. On CThead (t = 10, defaults) the envelope's own 0.5 level scores 0.204 / 0.61 mm on the
 #: visible face at 1.5 mm and 0.154 / 0.48 at 1 mm; the pipeline's surface 0.347 / 1.23 -> 0.287 / 0.96

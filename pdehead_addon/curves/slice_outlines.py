@@ -15,8 +15,8 @@ import numpy as np
 from scipy import ndimage as ndi
 from skimage import measure
 
-from .envelope import outer_region
 from ..core.errors import BoundaryError
+from .envelope import outer_region
 
 __all__ = ["boundary_ring", "close_region", "outer_contour", "contour_from_field", "outer_region", "shoelace"]
 

@@ -42,7 +42,7 @@ Search
     wins. For a tolerance (:func:`select_for_tolerance`) the count
     is searched on the proxy (bisection over n) and verified on the real surface.
 
-    Measured, not adopted (issue 21, the closed eyes; CThead, t = 15, visible-face score mean / p95
+    Measured, not adopted (the closed eyes; CThead, t = 15, visible-face score mean / p95
     mm, now 0.243 / 0.76): the face's samples (+-60 deg of -y) weighted 3x in the search's error
     0.237 / 0.74, 6x or more 0.251 / 0.81 (the curves spread over the whole face, 4-6 mm apart at the
     eyes either way); squared offsets 0.236 / 0.74. Marching cubes' eyelid line is the upper lid's
@@ -547,8 +547,8 @@ def surface_error(bset, cand: Candidates, head=None) -> dict[str, Any]:
         ``mean_mm`` (over every sample of every usable slice), ``max_mm``, ``p95_mm`` and
         ``per_slice_mm`` (mean per candidate slice).
     """
-    from ..pde.pde_surface import solve_pde
     from ..core.mesh_geometry import mesh_triangles, point_surface_distance
+    from ..pde.pde_surface import solve_pde
     head = solve_pde(bset) if head is None else head
     nu = max(8, REAL_ROWS_PER_GAP * cand.count + 2)
     mesh = head.surface(nu, cand.curves.shape[1], uv=False)      # measured only: no UV map per candidate
@@ -606,10 +606,11 @@ def select_for_tolerance(cand: Candidates, make_bset, tolerance_mm: float | None
     -----
     Greedy insertion gives nested sets of every count with their proxy errors in
     one sweep; the first count the proxy accepts is lowered while exchange finds
-    a set of one curve fewer that the proxy accepts; the real surface then decides: counts are raised until the real surface meets
-    the tolerance and lowered while a count one less still does, so the count
-    returned is the fewest for which the search's choice passes on the real
-    surface (n - 1 verified to fail, unless n is ``min_curves``).
+    a set of one curve fewer that the proxy accepts; the real surface then
+    decides: counts are raised until the real surface meets the tolerance and
+    lowered while a count one less still does, so the count returned is the
+    fewest for which the search's choice passes on the real surface (n - 1
+    verified to fail, unless n is ``min_curves``).
     """
     for name, value in (("tolerance_mm", tolerance_mm), ("max_tolerance_mm", max_tolerance_mm)):
         if value is not None and not (np.isfinite(value) and value > 0):

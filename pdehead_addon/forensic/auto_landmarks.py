@@ -47,10 +47,8 @@ import numpy as np
 from scipy import ndimage
 
 from ..core.errors import PDEHeadError
-from .landmark_bilateral import (alare, canine_points, mandible_bilateral, orbit_margins,
-                                 zygion_supraglenoid)
-from .landmark_frame import (FLAGS, NOT_FOUND, OK, UNCERTAIN, LandmarkFrame,
-                             bone_components)
+from .landmark_bilateral import alare, canine_points, mandible_bilateral, orbit_margins, zygion_supraglenoid
+from .landmark_frame import FLAGS, NOT_FOUND, OK, UNCERTAIN, LandmarkFrame, bone_components
 from .landmark_midline import mandible_component, midline_landmarks
 from .landmark_openings import MIRROR_TOLERANCE_MM, PORION_OVERHANG_MM, frankfurt_points
 
@@ -207,10 +205,7 @@ def find_landmarks(ct, bone: np.ndarray, *, grid_mm: float = LANDMARK_GRID_MM) -
     mandible_bilateral(found, fr, v, mid_x, up, low, mand_id, mand_ev)
     _check_mirror_images(found)
     if frank is None:   # every rule assumes the Frankfurt orientation
-        for key, (p, flag, ev) in list(found.items()):
-            if p is not None and flag == OK:
-                found[key] = (p, UNCERTAIN, "no Frankfurt frame (porion or orbitale missing): found in the "
-                                            "frame of the symmetry plane")
+        _flag_without_frankfurt(found)
 
     # results in patient mm, by standard name
     out: dict[str, FoundLandmark] = {}
@@ -219,6 +214,26 @@ def find_landmarks(ct, bone: np.ndarray, *, grid_mm: float = LANDMARK_GRID_MM) -
         if p is None and flag != NOT_FOUND:
             flag = NOT_FOUND
         out[d.name] = FoundLandmark(d.name, None if p is None else fr.to_patient(p), flag, ev)
+    out = _mandible_at_the_scan_end(ct, bone, labels, fr, mand_id, out, info)
+    info["found"] = sum(lm.flag != NOT_FOUND for lm in out.values())
+    return LandmarkSearch(out, frank, info)
+
+
+def _flag_without_frankfurt(found: dict[str, tuple]) -> None:
+    """Mark every landmark found OK as uncertain: its rule assumed the Frankfurt orientation, which is missing."""
+    for key, (p, flag, _ev) in list(found.items()):
+        if p is not None and flag == OK:
+            found[key] = (p, UNCERTAIN, "no Frankfurt frame (porion or orbitale missing): found in the "
+                                        "frame of the symmetry plane")
+
+
+def _mandible_at_the_scan_end(ct, bone: np.ndarray, labels: np.ndarray, fr, mand_id, out: dict[str, FoundLandmark],
+                              info: dict) -> dict[str, FoundLandmark]:
+    """The landmarks ``out`` once the scan's lower end is accounted for: a narrow piece below the orbits that ends
+    inside the scan is no mandible (its landmarks not found), and what the mandible carries below a scan cut through
+    the face is outside the scan. Sets ``info["scan_cut"]`` (and ``info["mandible"]`` when the piece is dropped)."""
+    from .landmarks import STANDARD_LANDMARKS
+
     cut, low_end = scan_cut_through_bone(ct, bone)
     info["scan_cut"] = cut
     width = 0.0
@@ -233,7 +248,7 @@ def find_landmarks(ct, bone: np.ndarray, *, grid_mm: float = LANDMARK_GRID_MM) -
         out = {d.name: (out[d.name] if d.key.split("_")[0] not in MANDIBLE_KEYS
                         else FoundLandmark(d.name, None, NOT_FOUND, mand_ev)) for d in STANDARD_LANDMARKS}
     if cut and mand_id is None:     # the scan ends in the face: what the mandible carries lies below it
-        for name, lm in out.items():
+        for lm in out.values():
             if lm.flag == NOT_FOUND and lm.evidence.startswith("no mandible"):
                 lm.evidence = f"outside the scan: {cut} ({lm.evidence})"
     elif cut and (labels[low_end] == mand_id).any():
@@ -243,8 +258,7 @@ def find_landmarks(ct, bone: np.ndarray, *, grid_mm: float = LANDMARK_GRID_MM) -
             if d.key.split("_")[0] in MANDIBLE_BORDER_KEYS and out[d.name].flag != NOT_FOUND:
                 out[d.name] = FoundLandmark(d.name, None, NOT_FOUND,
                                             f"outside the scan: {cut}; the mandible runs out of it")
-    info["found"] = sum(lm.flag != NOT_FOUND for lm in out.values())
-    return LandmarkSearch(out, frank, info)
+    return out
 
 
 #: Every landmark on the mandible.
@@ -353,7 +367,8 @@ def _frankfurt_landmarks(found: dict, fp: dict) -> None:
     """Orbitale and porion of both sides, flagged (from :func:`~.landmark_openings.frankfurt_points`)."""
     for t in ("L", "R"):
         p = fp.get(f"or_{t}")
-        found[f"or_{t.lower()}"] = (p, OK, "") if p is not None else (None, NOT_FOUND, "no orbit opening in the front view")
+        found[f"or_{t.lower()}"] = ((p, OK, "") if p is not None
+                                    else (None, NOT_FOUND, "no orbit opening in the front view"))
         p = fp.get(f"po_{t}")
         if p is None:
             found[f"po_{t.lower()}"] = (None, NOT_FOUND, "no external acoustic meatus opening in the side view")
@@ -376,4 +391,5 @@ def _check_mirror_images(found: dict) -> None:
             gap = float(np.linalg.norm(a * np.array([-1.0, 1.0, 1.0]) - b))
             if gap > MIRROR_TOLERANCE_MM:
                 for side in "lr":
-                    found[f"{key}_{side}"] = (found[f"{key}_{side}"][0], UNCERTAIN, f"left and right are {gap:.0f} mm from mirror images")
+                    found[f"{key}_{side}"] = (found[f"{key}_{side}"][0], UNCERTAIN,
+                                              f"left and right are {gap:.0f} mm from mirror images")

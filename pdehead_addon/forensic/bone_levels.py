@@ -40,7 +40,8 @@ def bone_level_range(ct: CTVolume, has_skin: bool | None = None) -> dict:
         low = max(split, BONE_LEVEL_RANGE_HU[0]) if calibrated else split
     elif calibrated:
         low = BONE_LEVEL_RANGE_HU[0]
-    else:                       # the pseudo-HU scale of skull.hounsfield: air and soft-tissue modes -> AIR_HU, TISSUE_HU
+    else:                       # the pseudo-HU scale of skull.hounsfield: air and soft-tissue modes -> AIR_HU,
+                                # TISSUE_HU
         air, tissue = auto_window(ct.data)
         low = air + (BONE_LEVEL_RANGE_HU[0] - AIR_HU) * (tissue - air) / (TISSUE_HU - AIR_HU)
     sample = ct.data.reshape(-1)[:: max(1, ct.data.size // 8_000_000)]

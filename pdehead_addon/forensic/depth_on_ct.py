@@ -10,8 +10,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.errors import PDEHeadError
-from .landmarks import depth_rays, snap_to_surface
 from ..core.mesh import Mesh
+from .landmarks import depth_rays, snap_to_surface
 
 #: The bone point is refined along the ray to the bone level's crossing in the interpolated CT within this many
 #: voxel sizes (the largest) of the mesh's point: the bone mesh of thin margins lies up to a slice off the bone.
@@ -99,17 +99,14 @@ def slice_edge_spread(volume: np.ndarray, spacing, air: float, tissue: float,
         has = above.any(0)
         top = nz - 1 - np.argmax(above[::-1], axis=0)
         t = np.clip(top, 2, nz - 3)
-
-        def at(o):
-            return np.take_along_axis(f, (t + o)[None], 0)[0]
-
-        f0, f1 = at(0), at(1)
+        at = {o: np.take_along_axis(f, (t + o)[None], 0)[0] for o in range(-2, 3)}   # f at t + o
+        f0, f1 = at[0], at[1]
         zc = (t + (f0 - 0.5) / np.maximum(f0 - f1, 1e-6)) * h          # the edge's height, linearly
         gy, gx = np.gradient(zc, dy, dx)
         slope = np.hypot(gy, gx)
         ok = has & (top >= 2) & (top <= nz - 3) & (slope <= np.tan(np.radians(max_slope_deg)))
-        ok &= (at(-2) > 0.9) & (at(2) < 0.1)
-        n = sum(((at(o) > 0.1) & (at(o) < 0.9)).astype(np.float32) for o in (-1, 0, 1, 2))
+        ok &= (at[-2] > 0.9) & (at[2] < 0.1)
+        n = sum(((at[o] > 0.1) & (at[o] < 0.9)).astype(np.float32) for o in (-1, 0, 1, 2))
         counts.append(n[ok])
         weights.append(1.0 / np.sqrt(1.0 + slope[ok] ** 2))
     count, cos = np.concatenate(counts), np.concatenate(weights)
@@ -144,8 +141,8 @@ def landmark_depths_on_ct(landmarks: dict[str, np.ndarray], skull: Mesh, skin: M
     """Landmark depths with sub-voxel bone and skin points: the level crossings of the CT's trilinearly
     interpolated intensities along each landmark's ray, not the meshes' surfaces.
 
-    The ray is the one :func:`~.landmarks.landmark_depths` casts (from the landmark snapped onto the bone mesh, along the
-    bone's exposed normal, :func:`~.landmarks.exposed_normals`). Along it the intensities ``volume`` (the CT's grid,
+    The ray is the one :func:`~.landmarks.landmark_depths` casts (from the landmark snapped onto the bone mesh, along
+    the bone's exposed normal, :func:`~.landmarks.exposed_normals`). Along it the intensities ``volume`` (the CT's grid,
     e.g. ``SkullSegmentation.hu``) are sampled every :data:`DEPTH_PROFILE_STEP_MM` by trilinear
     interpolation. The bone point is the outward crossing of ``bone_level`` nearest the mesh point within
     ``search_mm`` (default :data:`DEPTH_SEARCH_VOXELS` of the largest voxel size): on thick slices the

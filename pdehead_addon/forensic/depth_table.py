@@ -38,8 +38,8 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import PDEHeadError
-from .landmarks import STANDARD_LANDMARKS, landmark
 from ..core.provenance import provenance_lines
+from .landmarks import STANDARD_LANDMARKS, landmark
 
 #: The shipped default table.
 DEFAULT_TABLE_PATH = Path(__file__).resolve().parent / "data" / "t_table_2023.csv"
@@ -264,15 +264,21 @@ def _number(text: str, what: str, where: str, low: float = 0.0, high: float = 10
     return value
 
 
+def _cell(row: list[str], i: int | None) -> str:
+    """Column ``i`` of a CSV row, "" when the column is absent (``i`` None) or the row is shorter."""
+    return row[i] if i is not None and i < len(row) else ""
+
+
 def read_depth_table(path: str | os.PathLike) -> DepthTable:
     """Read a depth table CSV.
 
     Columns ``landmark,mean_mm[,sd_mm,n]`` (the T-Table layout) or the older ``landmark,depth_mm``;
     an optional ``sex`` column (``male``, ``female``, or ``pooled`` / empty) gives depths per sex
-    (:attr:`DepthTable.by_sex`, chosen with :meth:`DepthTable.for_sex`); further columns are ignored. Landmark names may be ours (name or key, case-insensitive) or the
-    table's Caple & Stephan codes (:func:`resolve_landmark`). ``#`` lines are comments; ``# name:``,
-    ``# version:``, ``# citation:``, ``# provenance:`` and ``# convention:`` lines give the table's
-    provenance (the name defaults to the file's stem).
+    (:attr:`DepthTable.by_sex`, chosen with :meth:`DepthTable.for_sex`); further columns are ignored.
+    Landmark names may be ours (name or key, case-insensitive) or the table's Caple & Stephan codes
+    (:func:`resolve_landmark`). ``#`` lines are comments; ``# name:``, ``# version:``, ``# citation:``,
+    ``# provenance:`` and ``# convention:`` lines give the table's provenance (the name defaults to the
+    file's stem).
 
     Raises
     ------
@@ -289,7 +295,8 @@ def read_depth_table(path: str | os.PathLike) -> DepthTable:
                 if not row or not "".join(row).strip():
                     continue
                 if row[0].lstrip().startswith("#"):
-                    m = re.match(r"#\s*(name|version|citation|provenance|convention)\s*:\s*(.*)$", ",".join(row).strip())
+                    m = re.match(r"#\s*(name|version|citation|provenance|convention)\s*:\s*(.*)$",
+                                 ",".join(row).strip())
                     if m:
                         meta[m.group(1)] = m.group(2).strip()
                     continue
@@ -312,27 +319,27 @@ def read_depth_table(path: str | os.PathLike) -> DepthTable:
     by_sex: dict[str, dict[str, DepthEntry]] = {}
     for number, row in rows[1:]:
         where = f"{path}, line {number}"
-        cell = lambda i: row[i] if i is not None and i < len(row) else ""   # noqa: E731
         try:
-            names = resolve_landmark(cell(li))
+            names = resolve_landmark(_cell(row, li))
         except PDEHeadError as exc:
             raise PDEHeadError(f"{where}: {exc}") from None
-        mean = _number(cell(mi), mean_col.replace("_mm", ""), where)
+        mean = _number(_cell(row, mi), mean_col.replace("_mm", ""), where)
         if mean is None:
-            raise PDEHeadError(f"{where}: no {mean_col} value for {cell(li).strip()!r}")
-        sd = _number(cell(si), "sd", where, 0.0, 50.0)
-        n = _number(cell(ni), "n", where, 1.0, 1e9)
-        sex = cell(xi).strip().lower()
+            raise PDEHeadError(f"{where}: no {mean_col} value for {_cell(row, li).strip()!r}")
+        sd = _number(_cell(row, si), "sd", where, 0.0, 50.0)
+        n = _number(_cell(row, ni), "n", where, 1.0, 1e9)
+        sex = _cell(row, xi).strip().lower()
         sex = SEX_ALIASES.get(sex, sex)
         if sex not in (*SEXES, "pooled"):
-            raise PDEHeadError(f"{where}: sex {cell(xi).strip()!r} is not one of male, female, pooled")
+            raise PDEHeadError(f"{where}: sex {_cell(row, xi).strip()!r} is not one of male, female, pooled")
         rows_of = by_sex.setdefault(sex, {})
         for name in names:
             if name in rows_of:
                 raise PDEHeadError(f"{where}: {name} is given twice" + ("" if sex == "pooled" else f" for {sex}"))
-            rows_of[name] = DepthEntry(name, mean, sd, None if n is None else int(n), cell(li).strip())
+            rows_of[name] = DepthEntry(name, mean, sd, None if n is None else int(n), _cell(row, li).strip())
     return DepthTable(entries=dict(by_sex.get("pooled", {})), name=meta.get("name") or Path(path).stem,
-                      version=meta.get("version", ""), citation=meta.get("citation", ""), provenance=meta.get("provenance", ""),
+                      version=meta.get("version", ""), citation=meta.get("citation", ""),
+                      provenance=meta.get("provenance", ""),
                       convention=meta.get("convention", ""), source=os.path.basename(path),
                       **({"by_sex": by_sex} if xi is not None else {}))
 

@@ -6,8 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .landmark_frame import (NOT_FOUND, OK, UNCERTAIN, box_mask, nearest_surface,
-                             side_extreme)
+from .landmark_frame import NOT_FOUND, OK, UNCERTAIN, box_mask, nearest_surface, side_extreme
 from .landmark_openings import front_most, mirror_fill, rim_above, rim_below
 
 #: Supra canine is not found when the front-most bone above the canine lies this far (mm) behind supradentale:

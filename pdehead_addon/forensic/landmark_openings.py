@@ -128,7 +128,7 @@ def _mirrored_orbit(v: DepthViews, mid_x: float, lab: np.ndarray, orbits: dict) 
 
 
 #: Smallest side-view pit (mm^2) taken for the ear canal (an adult's is 40-50 mm^2 on CThead): the 10-16 mm^2
-#: pits beside it (foramina, sutures) were nearer the expected point on a skull mesh of CThead (issue 22).
+#: pits beside it (foramina, sutures) were nearer the expected point on a skull mesh of CThead.
 MEATUS_MIN_MM2 = 25.0
 
 
@@ -195,8 +195,8 @@ def orbitale(v: DepthViews, orbit: np.ndarray) -> np.ndarray | None:
     the middle of the columns within one grid step of the lowest)."""
     cols = np.flatnonzero(orbit.any(1))
     lows = [(np.flatnonzero(orbit[ix]).min(), ix) for ix in cols]
-    lowest = min(l for l, _ in lows)
-    ixs = [ix for l, ix in lows if l <= lowest + 1]
+    lowest = min(low for low, _ in lows)
+    ixs = [ix for low, ix in lows if low <= lowest + 1]
     return rim_below(v, orbit, ixs[len(ixs) // 2])
 
 

@@ -28,8 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.errors import PDEHeadError
-from ..core.mesh_geometry import MeshDistance, closest_point_on_triangle, mesh_triangles
 from ..core.mesh import Mesh
+from ..core.mesh_geometry import MeshDistance, closest_point_on_triangle, mesh_triangles
 
 
 @dataclass(frozen=True)
@@ -65,7 +65,8 @@ _DEFS = [
     ("subm2", "Sub M2", True, "mandibular body below the lower second molar"),
     ("po", "Porion", True, "highest point of the external acoustic meatus (Frankfurt horizontal)"),
     ("or", "Orbitale", True, "lowest point of the infraorbital margin (Frankfurt horizontal)"),
-    # landmarks of the depth tables (Caple & Stephan's codes) that the set above lacks (issue 22)
+    # landmarks of the depth tables (Caple & Stephan's codes) that the set above lacks, so that every
+    # tabulated depth has a landmark to stand on
     ("mn", "Mid-nasal", False, "midline point of the nasal bones half way from nasion to rhinion"),
     ("ss", "Subspinale", False, "deepest midline point of the maxilla between the nasal spine and prosthion"),
     ("gn", "Gnathion", False, "midline point of the chin between pogonion and menton (most anterior-inferior)"),

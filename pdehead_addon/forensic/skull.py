@@ -50,12 +50,16 @@ from scipy import ndimage as ndi
 
 from ..core.ct_volume import CTVolume
 from ..core.errors import SegmentationError
-from ..core.mesh_geometry import signed_volume
 from ..core.mesh import Mesh
+from ..core.mesh_geometry import signed_volume
 from ..segment.segmentation import Segmentation, auto_window, segment_head
-from .scan_contents import (PARTIAL_RAMUS_SIDE_MM, SKULL_ONLY_LAYER_RATIO, air_bone_level,  # noqa: F401
-                            partial_mandible,
-                            soft_tissue_present)
+from .scan_contents import (  # noqa: F401
+    PARTIAL_RAMUS_SIDE_MM,
+    SKULL_ONLY_LAYER_RATIO,
+    air_bone_level,
+    partial_mandible,
+    soft_tissue_present,
+)
 
 #: HU assigned to the air and soft-tissue modes when the scan is not calibrated.
 AIR_HU, TISSUE_HU = -1000.0, 40.0
@@ -420,12 +424,7 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
     SegmentationError
         Not a CTVolume, MR data, no bone above the level.
     """
-    if not isinstance(ct, CTVolume):
-        raise SegmentationError(f"segment_skull needs a CTVolume, got {type(ct).__name__}")
-    if str(ct.meta.get("modality", "")).upper() in ("MR", "MRI"):
-        raise SegmentationError(f"{ct.meta.get('source', 'this scan')}: bone is dark in MRI; the skull needs a CT")
-    if head is not None and head.mask.shape != ct.shape:
-        raise SegmentationError(f"head mask shape {head.mask.shape} != CT shape {ct.shape}")
+    _check_skull_input(ct, head)
     calibrated = str(ct.meta.get("units", "")).upper() == "HU"
     has_skin, skin_info = soft_tissue_present(ct.data, spacing=ct.spacing)
     if ct.meta.get("skull_mesh") is not None:          # a skull given as a mesh (mesh_input): no skin
@@ -433,29 +432,8 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
     window = tuple(head.meta["window"]) if head is not None and head.meta.get("window") else None
     if window is None and has_skin and not calibrated:
         window = auto_window(ct.data)
-    info: dict[str, Any] = {}
     units = "HU" if calibrated else "stored"
-    if bone_level is not None:
-        stored = float(bone_level)
-        info = {"source": "given (--bone-level)"}
-    elif level is not None:
-        if not calibrated and window is None:
-            raise SegmentationError("a bone level in HU needs soft tissue to calibrate an uncalibrated scan; "
-                                    "give it in stored units (--bone-level)")
-        stored = _to_stored(level, calibrated, window)
-        info = {"source": "given (HU)"}
-    elif has_skin:
-        if head is None:
-            head = segment_head(ct)
-            window = window or tuple(head.meta["window"])
-        hu_all, _ = hounsfield(ct, window)
-        level_hu, info = bone_level_rule(hu_all, head.mask)
-        del hu_all
-        stored = _to_stored(level_hu, calibrated, window)
-    elif calibrated:
-        stored, info = DEFAULT_BONE_HU, {"source": "default (no soft tissue)"}
-    else:
-        stored, info = air_bone_level(ct.data, skin_info["air_split"])
+    stored, info, window = _stored_bone_level(ct, head, window, calibrated, has_skin, skin_info, level, bone_level)
     level_hu = _to_hu(stored, calibrated, window)
     metal_stored = _metal_level_stored(ct, calibrated)
     dz, dy, dx = ct.spacing
@@ -498,21 +476,14 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
     skull = ndi.binary_fill_holes(skull)
     envelope = _envelope(skull)
 
-    warnings_: list[str] = []
-    if not mandible["present"]:
-        warnings_.append("no mandible found: the face has no jaw or chin and ends along the scan's cut")
-    elif mandible.get("partial"):
-        warnings_.append("the mandible is cut by the scan's end (its rami only): the landmarks below the scan are "
-                         "not found and the face ends along the scan's cut")
-    elif not mandible["articulated"]:
-        warnings_.append(f"the mandible is not articulated (its condyles lie {mandible['condyle_gap_mm']:.0f} mm "
-                         "from the glenoid fossae): articulate it before approximating the face")
+    warnings_ = _mandible_warnings(mandible)
     hu = hounsfield(ct, window)[0] if (calibrated or window is not None) else ct.data
     order = np.argsort(sizes)[::-1]
     components = [dict(label=int(i + 1), volume_mm3=float(sizes[i] * voxel_mm3),
                        centroid_mm=[round(float(c), 1) for c in centroids_xyz[i]],
                        kept=bool(keep[i]), vertebra=bool(vertebra[i]), support=bool(outside[i])) for i in order[:12]]
-    meta = dict(mode="skull", bone_level=level_hu, skull_mesh_file=ct.meta.get("skull_mesh_file"), bone_level_stored=float(stored), units=units,
+    meta = dict(mode="skull", bone_level=level_hu, skull_mesh_file=ct.meta.get("skull_mesh_file"),
+                bone_level_stored=float(stored), units=units,
                 bone_level_source=info.get("source", ""), metal_level=metal_stored, calibrated=calibrated,
                 histogram=info, has_skin=has_skin, soft_tissue=skin_info, metal_voxels=n_metal,
                 components=components, components_total=int(n), erosion_voxels=erosion,
@@ -528,6 +499,55 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
                              iterations=0, ct=ct, meta=meta, bone=skull, mandible=mandible_mask, hu=hu,
                              bone_level=float(level_report),
                              metal_level=metal_stored)
+
+
+def _check_skull_input(ct: CTVolume, head: Segmentation | None) -> None:
+    """Raise :class:`SegmentationError` unless ``ct`` is a CT volume (not MR) and ``head`` (if any) matches it."""
+    if not isinstance(ct, CTVolume):
+        raise SegmentationError(f"segment_skull needs a CTVolume, got {type(ct).__name__}")
+    if str(ct.meta.get("modality", "")).upper() in ("MR", "MRI"):
+        raise SegmentationError(f"{ct.meta.get('source', 'this scan')}: bone is dark in MRI; the skull needs a CT")
+    if head is not None and head.mask.shape != ct.shape:
+        raise SegmentationError(f"head mask shape {head.mask.shape} != CT shape {ct.shape}")
+
+
+def _stored_bone_level(ct: CTVolume, head: Segmentation | None, window: tuple | None, calibrated: bool,
+                       has_skin: bool, skin_info: dict, level: float | None,
+                       bone_level: float | None) -> tuple[float, dict[str, Any], tuple | None]:
+    """The bone level in the scan's stored units by the rules of :func:`segment_skull`, the histogram information
+    behind it (``"source"`` says which rule) and the window (the head segmentation's when it had to be made)."""
+    if bone_level is not None:
+        return float(bone_level), {"source": "given (--bone-level)"}, window
+    if level is not None:
+        if not calibrated and window is None:
+            raise SegmentationError("a bone level in HU needs soft tissue to calibrate an uncalibrated scan; "
+                                    "give it in stored units (--bone-level)")
+        return _to_stored(level, calibrated, window), {"source": "given (HU)"}, window
+    if has_skin:
+        if head is None:
+            head = segment_head(ct)
+            window = window or tuple(head.meta["window"])
+        hu_all, _ = hounsfield(ct, window)
+        level_hu, info = bone_level_rule(hu_all, head.mask)
+        del hu_all
+        return _to_stored(level_hu, calibrated, window), info, window
+    if calibrated:
+        return DEFAULT_BONE_HU, {"source": "default (no soft tissue)"}, window
+    stored, info = air_bone_level(ct.data, skin_info["air_split"])
+    return stored, info, window
+
+
+def _mandible_warnings(mandible: dict) -> list[str]:
+    """The warnings of a mandible report (:func:`_mandible_report`): missing, cut by the scan, or not articulated."""
+    if not mandible["present"]:
+        return ["no mandible found: the face has no jaw or chin and ends along the scan's cut"]
+    if mandible.get("partial"):
+        return ["the mandible is cut by the scan's end (its rami only): the landmarks below the scan are "
+                "not found and the face ends along the scan's cut"]
+    if not mandible["articulated"]:
+        return [f"the mandible is not articulated (its condyles lie {mandible['condyle_gap_mm']:.0f} mm "
+                "from the glenoid fossae): articulate it before approximating the face"]
+    return []
 
 
 def _envelope(bone: np.ndarray) -> np.ndarray:

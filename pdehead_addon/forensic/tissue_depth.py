@@ -35,8 +35,8 @@ import numpy as np
 from scipy import ndimage as ndi
 
 from ..core.errors import PDEHeadError
-from ..core.mesh_geometry import MeshDistance, mesh_triangles
 from ..core.mesh import Mesh
+from ..core.mesh_geometry import MeshDistance, mesh_triangles
 
 MEASURED, NO_BONE, ENVELOPE, INSIDE = 0, 1, 2, 3
 #: Longest depth searched (mm); deeper rays end in the airway, the orbit or the other side of the head.

@@ -178,8 +178,13 @@ def inside_scan(ct):
 def face_region(verts, faces, centre_xy, scan_z, floor_z: float | None = None, seed: int = 0, inside=None):
     """Points sampled on the real visible face region (1 per mm^2) and the pronasale. ``inside``
     (:func:`inside_scan`) drops the scan's cut before the pronasale is looked for."""
-    from pdehead_addon.validation.surface_metrics import (face_window, pronasale, sample_surface, triangulate,
-                                               visible_face_points)
+    from pdehead_addon.validation.surface_metrics import (
+        face_window,
+        pronasale,
+        sample_surface,
+        triangulate,
+        visible_face_points,
+    )
     t = triangulate(faces)
     cen = verts[t].mean(axis=1)
     kept = visible_face_points(cen, centre_xy)
@@ -370,7 +375,7 @@ def bent_edge_share(mesh, degrees: float = BEND_DEG) -> float:
         polys = [(mesh.triangles, n)]
     edges, owner = [], []
     base = 0
-    for f, fn in polys:
+    for f, _n in polys:
         if not len(f):
             continue
         k = f.shape[1]
@@ -546,9 +551,11 @@ def suite_markdown(rows: list[dict]) -> list[str]:
                    f"{100 * r.get('bent_edges', float('nan')):.2f} % | "
                    f"{'yes' if r.get('has_mandible', True) else 'no'} | {'; '.join(notes)} |")
     import re
-    links = [f"[{r['variant']}](figures/face_suite_{re.sub(r'[^a-z0-9]+', '_', r['variant'].lower()).strip('_')[:60]}.png)"
+    links = [f"[{r['variant']}](figures/face_suite_"
+             f"{re.sub(r'[^a-z0-9]+', '_', r['variant'].lower()).strip('_')[:60]}.png)"
              for r in rows if "face" in r]
-    out += ["", "Renders of each run's face (front, profile, three-quarter; `--suite --figures`): " + ", ".join(links) + "."]
+    out += ["", "Renders of each run's face (front, profile, three-quarter; `--suite --figures`): "
+            + ", ".join(links) + "."]
     out += ["", "How each constant that shapes the face was chosen (`bench_face.CONSTANT_CHOICE`; \"CThead score\": "
             "chosen on the head it is scored on, set neutral in the row \"without the constants chosen on CThead\"; "
             "\"renders\": shape choices made looking at CThead's and GE's renders):", "",
@@ -569,14 +576,16 @@ def _machine_text(results: dict) -> str:
 def markdown(results: dict) -> str:
     lines = ["## Face from the skull (issue 23): `python3 scripts/bench/bench_face.py`", "",
              "The approximation made from the skull alone (soft tissue removed: every voxel below the bone level "
-             "set to air; automatic landmarks; the T-Table 2023 means; `pdehead_addon.forensic.face_from_skull`) against "
+             "set to air; automatic landmarks; the T-Table 2023 means; `pdehead_addon.forensic.face_from_skull`) "
+             "against "
              "the full CT's real skin (marching cubes of `segment_head`). Face region: the visible outer skin "
              "within ±60° of straight ahead, from 70 mm below to 60 mm above the real pronasale, clipped to the "
              "scan (GE: from the maxilla up, it has no mandible). One-sided distances from the real face "
              "(1 point per mm²) to the approximation. Target (CThead): ≥ 80 % within ±2.5 mm, mean ≤ 1.8 mm. "
              "Published for comparison: 54–77 % within ±2.5 mm (Lee, Wilkinson & Hwang 2012, J Forensic Sci "
              "57:318–327), 63–74 % (Miranda et al. 2018, PLoS ONE 13:e0196770).", "",
-             "| head | within ±2.5 mm | mean mm | p95 mm | pegs | prepare s | solve ms, wall / CPU (median of 9) | closed |",
+             "| head | within ±2.5 mm | mean mm | p95 mm | pegs | prepare s | solve ms, wall / CPU (median of 9) | "
+             "closed |",
              "|---|---:|---:|---:|---:|---:|---:|---|"]
     scored = {k: r for k, r in results.items() if "face" in r}
     for name, r in results.items():
@@ -605,14 +614,17 @@ def markdown(results: dict) -> str:
         lines += ["", f"Against the target (CThead): {100 * f['within_2_5']:.1f} % within ±2.5 mm "
                   f"({'met' if f['within_2_5'] >= TARGET_SHARE else 'NOT met'}), mean {f['mean_mm']:.2f} mm "
                   f"({'met' if f['mean_mm'] <= TARGET_MEAN else 'NOT met'})."]
-    lines += ["", "Issue 39 (the face on heads it has never seen; figures in the robustness suite below, 4 Dec 2026, load "
+    lines += ["", "Issue 39 (the face on heads it has never seen; figures in the robustness suite below, 4 Dec 2026, "
+                  "load "
               "average 8-10 from other jobs):",
               "- Why the score depended on the strip level (50-52 % at 1500, 62-63 % at the automatic ~1586 and at "
               "1600): not the cervical spine (the 1500 skull reaches the scan's bottom, z -1 mm against 25 mm at 1600, "
               "but cropping it away left the face's score unchanged, 51.4 %), but the automatic landmarks: swapping "
               "the 1600 run's landmarks into the 1500 run one at a time, the two alare curvatures (flagged uncertain) "
-              "moved it 51.4 -> 59.9 %. At 1500 they stood where their definition puts them (beside the nasal aperture, "
-              "14 mm lateral and 15 mm above subspinale), at 1600 on the malar bone by the molars (38-47 mm lateral, up "
+              "moved it 51.4 -> 59.9 %. At 1500 they stood where their definition puts them (beside the nasal "
+              "aperture, "
+              "14 mm lateral and 15 mm above subspinale), at 1600 on the malar bone by the molars (38-47 mm lateral, "
+              "up "
               "to 24 mm below subspinale), where their 10 mm depth happened to thin a lower face that the T-Table's "
               "supra-M2 (26 mm) and sub-M2 (22 mm) pegs make too thick on this head. The 63 % was that accident. Also "
               "Mid-ramus L at 1600 stood 6 mm above gonion (its definition: half way to the condyle; 1500's at 55 %).",
@@ -740,7 +752,8 @@ def markdown(results: dict) -> str:
               "3.6 -> 2.7 mm, face 59.4 -> 60.1 %. Rynn's pronasale-from-nasion regressions (0.83 x rhinion-"
               "subspinale - 3.5 mm forward, 0.9 x nasion-acanthion - 2 mm down) need rhinion, which CThead's bone "
               "mask lacks (its nasal bones are below the bone level).",
-              "- Issue 23's sixth session (the face an artist would keep): the nose is built from four parts joined by a "
+              "- Issue 23's sixth session (the face an artist would keep): the nose is built from four parts joined "
+              "by a "
               "smooth maximum (`FaceModel._nose_bump`): a rounded dorsum from soft nasion to pronasale, a tip lobule "
               "rounded in both views (an ellipse 9 mm deep about pronasale in profile, full across), a columella back "
               "to subnasale and two alae whose outer edges lie at half the alar width (aperture + 2 x 5 mm, Krogman & "
@@ -762,7 +775,8 @@ def markdown(results: dict) -> str:
               "- Kept from earlier sessions: the lips' line from the teeth and width from the canines, default ears at "
               "the porions (outside the scored region: a disc with a hollow concha, no helix), and the vertex peg left "
               "to the dome, whose top follows the vertex peg's tip (its radial offset near the axis was -21 mm); since "
-              "the sixth session a peg above the profile's rows (the vertex) keeps the bone's own normal (the profile's "
+              "the sixth session a peg above the profile's rows (the vertex) keeps the bone's own normal (the "
+              "profile's "
               "normal there means nothing: with 360 columns it leaned the vertex peg 56 degrees forward on the "
               "phantom).",
               "- The automatic landmarks carry errors (issue 22): the alare curvatures on the malar bone, "
@@ -823,17 +837,20 @@ def markdown(results: dict) -> str:
               "profile's normal (radial offset = depth x the secant of the normal's tilt) 60.0 / 40.0 %; the rows' "
               "hull chords replaced by arcs (radius linear in angle across a bridged gap) 53.1 / 39.7 %.",
               "- The cheeks (issue 23's ninth session). Where the too-thin bands lie (CThead, read off the real skin "
-              "after the fact, used for nothing): 20-30 mm below pronasale and 25-30 degrees off the midline the bone's "
+              "after the fact, used for nothing): 20-30 mm below pronasale and 25-30 degrees off the midline the "
+              "bone's "
               "closed profile is 73-80 mm from the axis (the rows' hull chords from the canine eminence back along the "
               "dental arch to the molars, 15-20 mm inside the eminence), the face 88-92 mm and the real skin 96-101 mm "
               "(the real cheek 18-23 mm over the closed profile); the nearest pegs are supra canine (9.4-10.6 mm over "
-              "the profile, 10-16 degrees off the midline), the two alar-curvature pegs that the automatic landmarks put "
+              "the profile, 10-16 degrees off the midline), the two alar-curvature pegs that the automatic landmarks "
+              "put "
               "by the molars (7.8 / 8.8 mm, 38-45 degrees) and the damped supra-M2 pegs (26.6-27.4 mm, 44-51 degrees). "
               "Kept: between the stomion and the orbitales' height each row of the face (before the nose, the lips and "
               "the eyes) is lifted to its convex envelope over chords up to 30 degrees (`face_profile.convex_rows`, "
               "`FaceModel._cheeks`, faded over 5 mm at the band's ends; the same in the live path, 1.3 ms of its "
               "~60 ms headless; `bench_live.py --face --datasets cthead` at 22:26 UTC, load ~1.9: peg drag 71 ms, "
-              "peg depth 73 ms, table switch 64 ms, was 85 / 61 / 64 ms in the section below): a cheek's skin spans the canine fossa and the dental arch's recession (the buccal and "
+              "peg depth 73 ms, table switch 64 ms, was 85 / 61 / 64 ms in the section below): a cheek's skin spans "
+              "the canine fossa and the dental arch's recession (the buccal and "
               "malar fat, the buccinator), a shape rule with no published number. CThead 63.0 -> 63.2 % within "
               "+-2.5 mm, mean 2.52 -> 2.48 mm, p95 7.25 -> 7.18 mm (landmarks unchanged); GE unchanged (41.8 %, "
               "3.09 mm); phantom 41.1 -> 42.8 %. The band was found on the scored head's error map (its ends are "
@@ -893,7 +910,8 @@ def markdown(results: dict) -> str:
               "with a rounded tip, alae and nostrils' shadows, a mouth with a lip line, two vermilion rolls and a "
               "mentolabial sulcus, the ears at the porions. What an artist would still change: the mouth region "
               "stands 4-7 mm forward of the real one in profile (the table's depths there, blue in the heat map: "
-              "nothing of this head's skin may correct it), the alae are rounded blobs rather than wings, and a shallow "
+              "nothing of this head's skin may correct it), the alae are rounded blobs rather than wings, and a "
+              "shallow "
               "wave remains below the cheekbones. Issue 23's seventh session: the dorsum widens from the root to "
               "0.8 x half the alar width at the tip's height (`NOSE_SIDEWALL_FRACTION`), so the nasal sidewalls run "
               "down to the alae instead of a narrow ridge (score unchanged: 63.6 -> 63.7 %); the mouth's forward "
@@ -902,7 +920,8 @@ def markdown(results: dict) -> str:
               "11.5 / 9.8), not the lip shapes (no vermilion rolls: 63.6 %, mean 2.51 mm, the same). "
               "[face_from_skull_ge.png](figures/face_from_skull_ge.png) (GE, no mandible): the vault, brow, orbits, "
               "eyes and ears are plausible; below the maxilla the face is still the neck rule, a straight column "
-              "with no jaw (not improved this session). Issue 23's ninth session (the convex cheeks, CThead re-rendered "
+              "with no jaw (not improved this session). Issue 23's ninth session (the convex cheeks, CThead "
+              "re-rendered "
               "and looked at): the hollow beside the nose's alae is shallower and the red patches on the cheeks in "
               "the heat map smaller and lighter; no crease at the band's ends; the rest as before. Issue 23's tenth "
               "session (the bone floor; both re-rendered and looked at): CThead as before; GE's vault, brow, closed "
@@ -918,7 +937,8 @@ def markdown(results: dict) -> str:
               "", f"Timings: one run, {_machine_text(results)}. "
               "Solve is the median of 9 solves at the defaults (field, PDE and a 160 × 320 mesh), wall-clock and CPU "
               "time of the process; on a loaded machine the CPU time is the better guide to the ≤ 100 ms target "
-              "(the UI's own measure is scripts/bench/bench_live.py's). Issue 23's fourth session ran three jobs at once; "
+              "(the UI's own measure is scripts/bench/bench_live.py's). Issue 23's fourth session ran three jobs at "
+              "once; "
               "the lips and ears cost nothing measurable (CThead, same process: solve 91 ms CPU with them, 94 ms "
               "without). Issue 23's fifth session ran at load average 5-6 (the solve times above, with BLAS free to "
               "start threads, are inflated by it); one thread each, one after the other, CThead solve CPU 67 / 81 ms "
