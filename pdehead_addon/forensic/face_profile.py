@@ -329,15 +329,23 @@ def round_floor(floor: np.ndarray, grid: FaceGrid, radius: np.ndarray, length_mm
     (boxes beside the nose, ridges across the cheeks). A skin over a bone bump is a rounded mound."""
     if length_mm <= 0:
         return floor
-    dz = float(grid.z[1] - grid.z[0])
-    rho = float(np.median(radius))
-    per_col = rho * float(grid.theta[1] - grid.theta[0])
+    dz, per_col = _row_and_column_mm(grid, radius)
     hz = max(1, round(length_mm / dz))
     ht = max(1, round(length_mm / per_col))
+    return np.maximum(floor, _mound(floor, (hz, ht), (0.5 * length_mm / dz, 0.5 * length_mm / per_col)))
+
+
+def _row_and_column_mm(grid: FaceGrid, radius: np.ndarray) -> tuple[float, float]:
+    """The grid's row step and its column step in arc at the median ``radius`` (mm)."""
+    return float(grid.z[1] - grid.z[0]), float(np.median(radius)) * float(grid.theta[1] - grid.theta[0])
+
+
+def _mound(floor: np.ndarray, half_sizes: tuple[int, int], sigmas: tuple[float, float]) -> np.ndarray:
+    """``floor``'s grey dilation over +- ``half_sizes`` (rows, columns), then a Gaussian of ``sigmas``: every bone
+    peak covered by a rounded mound (rows continued at the ends, columns round the head)."""
+    hz, ht = half_sizes
     dilated = ndimage.grey_dilation(floor, size=(2 * hz + 1, 2 * ht + 1), mode=("nearest", "wrap"))
-    rounded = ndimage.gaussian_filter(dilated, sigma=(0.5 * length_mm / dz, 0.5 * length_mm / per_col),
-                                      mode=("nearest", "wrap"))
-    return np.maximum(floor, rounded)
+    return ndimage.gaussian_filter(dilated, sigma=sigmas, mode=("nearest", "wrap"))
 
 
 def smooth_floor_near_cut(floor: np.ndarray, grid: FaceGrid, plane: tuple[np.ndarray, float],
@@ -352,13 +360,10 @@ def smooth_floor_near_cut(floor: np.ndarray, grid: FaceGrid, plane: tuple[np.nda
     12 mm). Dilation, then a Gaussian of half its width, covers every bone peak (the max with the floor keeps
     the guarantee where it would not) with a rounded mound.
     """
-    dz = float(grid.z[1] - grid.z[0])
-    rho = float(np.median(radius))
-    per_col = rho * float(grid.theta[1] - grid.theta[0])
+    dz, per_col = _row_and_column_mm(grid, radius)
     hz = max(1, int(round(CUT_FLOOR_SMOOTH_MM / dz)))
     ht = max(1, int(round(CUT_FLOOR_SMOOTH_MM / per_col)))
-    dilated = ndimage.grey_dilation(floor, size=(2 * hz + 1, 2 * ht + 1), mode=("nearest", "wrap"))
-    rounded = ndimage.gaussian_filter(dilated, sigma=(0.5 * hz, 0.5 * ht), mode=("nearest", "wrap"))
+    rounded = _mound(floor, (hz, ht), (0.5 * hz, 0.5 * ht))
     above = height_above_plane(grid, radius, plane)
     w = np.clip((CUT_BAND_MM + CUT_BAND_FADE_MM - above) / CUT_BAND_FADE_MM, 0.0, 1.0)
     return np.maximum(floor, floor + w * (rounded - floor))
