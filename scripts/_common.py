@@ -29,6 +29,9 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
+import _cli_flags
+from _cli_flags import defaults  # noqa: F401  (the one table of defaults, re-exported for the scripts)
+
 ROOT = Path(__file__).resolve().parents[1]
 #: Real data is read in place from ``../shared/data`` (override with ``PDEHEAD_DATA``), never copied.
 SHARED_DATA = Path(os.environ.get("PDEHEAD_DATA", ROOT.parent / "shared" / "data"))
@@ -134,18 +137,6 @@ def load_addon(register: bool = False, engine=None):
         module.register()
         module._pdehead_dev_registered = True
         importlib.import_module(f"{DEV_PACKAGE}.operators.compat").unregister_at_exit(module.unregister)
-    return module
-
-
-def defaults():
-    """``pdehead_addon/defaults.py`` (plain Python: loaded without the engine's heavy imports)."""
-    name = "pdehead_addon.defaults"
-    module = sys.modules.get(name) or sys.modules.get("_pdehead_defaults")
-    if module is None:
-        spec = importlib.util.spec_from_file_location("_pdehead_defaults", ROOT / "pdehead_addon" / "defaults.py")
-        module = importlib.util.module_from_spec(spec)
-        sys.modules["_pdehead_defaults"] = module  # dataclasses look their module up while building
-        spec.loader.exec_module(module)
     return module
 
 
@@ -277,27 +268,20 @@ def add_loader_arguments(parser):
     g.add_argument("--units", choices=["HU", "stored"],
                    help="raw/image stacks and NIfTI: the samples are HU, or stored values (the default for them)")
     g.add_argument("--series-uid", help="DICOM SeriesInstanceUID when the folder holds several series")
-    g.add_argument("--downsample", type=int, default=D.DOWNSAMPLE.default, metavar="N",
-                   help=D.DOWNSAMPLE.help("average N x N x N voxel blocks on import (very large scans: 2 needs "
-                                          "1/8 of the memory)"))
+    _cli_flags.add(g, "downsample")      # a study setting: its flag generated from the defaults table
     return g
 
 
 def check_loader_args(error, args) -> None:
     """The loader options together: raw input needs its shape, type and spacing (``--raw-shape`` or ``--dtype``
-    alone say raw), ``--orientation`` excludes ``--first-slice``, ``--downsample`` in its range. ``error(message)``
-    reports a usage error (it must not return)."""
-    D = defaults()
+    alone say raw), ``--orientation`` excludes ``--first-slice`` (``--downsample``'s range: :func:`_cli_flags.check`).
+    ``error(message)`` reports a usage error (it must not return)."""
     if args.raw_shape or args.dtype:
         args.format = "raw"
     if args.format == "raw" and not (args.raw_shape and args.dtype and args.spacing):
         error("raw input needs --raw-shape NY NX, --dtype and --spacing DZ DY DX")
     if args.orientation and args.first_slice not in (None, "auto"):
         error("give either --orientation or --first-slice (the orientation's third letter says where the files go)")
-    try:
-        D.DOWNSAMPLE.check(args.downsample, "--downsample")
-    except ValueError as exc:
-        error(str(exc))
 
 
 def engine_loader_options(args) -> dict:

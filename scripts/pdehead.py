@@ -38,7 +38,8 @@ import threading
 import time
 from pathlib import Path
 
-import _common  # noqa: E402  (scripts/ is on sys.path: this script's folder)
+import _cli_flags  # noqa: E402  (scripts/ is on sys.path: this script's folder)
+import _common  # noqa: E402
 
 ROOT = _common.ROOT
 PROG = "pdehead"
@@ -70,29 +71,18 @@ def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=PROG, description="Build a smooth PDE head in Blender from head CT slices.")
     p.add_argument("input", nargs="?", help="DICOM folder, image-stack folder, raw-slice folder or file")
     p.add_argument("--phantom", action="store_true", help="use the built-in synthetic head instead of INPUT")
-    p.add_argument("--patches", type=int, default=None,
-                   help=D.PATCHES.help("PDE patches t (3t+1 boundary curves)"))
-    p.add_argument("--samples", type=int, default=D.SAMPLES.default, help=D.SAMPLES.help("points per boundary curve"))
-    p.add_argument("--tolerance", type=float, metavar="MM",
-                   help="instead of --patches: the fewest curves whose surface keeps a mean distance of at most MM "
-                        "from every slice's outline (automatic selection)")
-    p.add_argument("--max-tolerance", type=float, metavar="MM",
-                   help="with --tolerance (or alone): also bound the largest distance from the outlines")
-    p.add_argument("--selection", default=None, choices=list(D.SELECTION.choices),
-                   help=D.SELECTION.help("how the 3t+1 slices are chosen (shape-change: denser where the face "
-                                         "changes; auto: closest to every slice's outline)"))
-    p.add_argument("--no-align", action="store_true",
-                   help="keep the curves uniform in arc length (no correspondence alignment)")
-    p.add_argument("--nu", type=int, default=D.NU.default, help=D.NU.help("surface/solid resolution along u"))
-    p.add_argument("--nv", type=int, default=D.NV.default, help=D.NV.help("surface/solid resolution around v"))
-    p.add_argument("--detail", type=float, metavar="STRENGTH",
-                   help="build the CT detail layer (the CT's skin as a displacement of the PDE surface along its "
-                        "normals: eyelids, lips, nostrils) and apply it at STRENGTH (0 = the PDE surface, 1 = the "
-                        "CT's detail) to the surface and to skin.<fmt> of --export; default: no detail layer")
-    p.add_argument("--nw", type=int, default=D.NW.default, help=D.NW.help("solid levels in w"))
-    p.add_argument("--voxel-size", type=float, default=None,
-                   help=f"volume voxel size in mm ({D.VOXEL_SIZE.min:g} to {D.VOXEL_SIZE.max:g}); default: "
-                        "automatic from the CT spacing within the .vdb and w-field budgets, as in the add-on")
+    flag = _cli_flags.add                  # a study setting's flag: generated from the defaults table
+    flag(p, "patches", given=True)
+    flag(p, "samples")
+    flag(p, "tolerance_mm")
+    flag(p, "max_tolerance_mm")
+    flag(p, "selection", given=True)
+    flag(p, "align_curves")
+    flag(p, "nu")
+    flag(p, "nv")
+    flag(p, "detail_strength")
+    flag(p, "nw")
+    flag(p, "voxel_size")
     p.add_argument("--no-volume", action="store_true", help="skip the volume (w-field + VDB)")
     p.add_argument("--out", type=Path, help="write the .blend here (the .vdb goes beside it)")
     p.add_argument("--render", type=Path, metavar="IMAGE",
@@ -101,22 +91,16 @@ def _parser() -> argparse.ArgumentParser:
                    help="render the volume (front view) to this .png or .jpg")
     p.add_argument("--summary-json", type=Path, metavar="FILE",
                    help="also write the summary (study, counts, timings, warnings, outputs) as JSON to FILE")
-    p.add_argument("--view", default=D.VIEW.default, choices=list(D.VIEWS),
-                   help="render view; default FRONT (face, patient left on screen right)")
-    p.add_argument("--resolution", type=int, default=D.RENDER_RESOLUTION.default,
-                   help=D.RENDER_RESOLUTION.help("render size in pixels"))
+    flag(p, "view")
+    flag(p, "resolution")
     f = p.add_argument_group("forensic")
     f.add_argument("--skull", action="store_true",
                    help="also build the skull (PDE surface + bone mesh) and the skin's tissue-depth map")
     f.add_argument("--export", type=Path, metavar="DIR",
                    help="with --skull: write skull.stl (the bone), skull_envelope.stl (PDE), skin.stl (when the CT has "
                         "skin), tissue_depth.csv, landmarks.csv and provenance.json (patient mm) into DIR")
-    f.add_argument("--export-format", default="stl", choices=["stl", "obj", "ply"], help="mesh format; default stl")
-    f.add_argument("--bone-level", type=float, metavar="VALUE",
-                   help="bone level in the scan's stored units (HU where calibrated); from it on the skull is the "
-                        "bone mask alone. Default: the documented rule (HU scans: half way between the soft-tissue "
-                        "and bone modes, 400 HU without them; uncalibrated scans without soft tissue: half way "
-                        "between the air and bone modes)")
+    flag(f, "export_format")
+    flag(f, "bone_level")
     f.add_argument("--skull-mesh", type=Path, metavar="FILE",
                    help="a skull mesh (STL/PLY/OBJ in mm, e.g. a surface scan) instead of a CT; implies --skull")
     f.add_argument("--face-from-skull", action="store_true",
@@ -129,24 +113,14 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--sex", choices=["male", "female"],
                    help="with --face-from-skull: the depth table's rows for this sex (a table with a sex column; the "
                         "T-Table 2023 is pooled)")
-    p.add_argument("--render-samples", type=int, default=D.RENDER_SAMPLES.default,
-                   help=D.RENDER_SAMPLES.help("Cycles samples"))
+    flag(p, "render_samples")
     a = p.add_argument_group("animation")
-    a.add_argument("--turntable", type=int, metavar="N",
-                   help=D.TURNTABLE_FRAMES.help("a camera orbit of N frames around the head (frames 1..N)"))
+    flag(a, "turntable_frames")
     a.add_argument("--render-animation", type=Path, metavar="DIR",
                    help="with --turntable: render the frames (Cycles, --resolution, --render-samples) to "
                         "DIR/frame_0001.png ...")
     _common.add_loader_arguments(p)       # one definition, shared with pdehead_batch.py run
     return p
-
-
-def _check_range(p, param, value, flag: str) -> None:
-    """The add-on's range of ``param`` (:mod:`pdehead_addon.defaults`): a usage error (exit 2) outside it."""
-    try:
-        param.check(value, flag)
-    except ValueError as exc:
-        p.error(str(exc))
 
 
 def _check_skull_args(p, args) -> None:
@@ -168,8 +142,6 @@ def _check_skull_args(p, args) -> None:
         if args.export is None:
             p.error("--face-from-skull needs --export DIR (where face.<fmt>, skull.<fmt> and landmarks.csv go)")
         args.skull = True
-    if args.bone_level is not None:
-        _check_range(p, D.BONE_LEVEL, args.bone_level, "--bone-level")
 
 
 def _check_input_args(p, args) -> None:
@@ -208,15 +180,8 @@ def _check_curve_args(p, args) -> None:
 
 
 def _check_ranges(p, args) -> None:
-    """Every number in its range (:mod:`pdehead_addon.defaults`)."""
-    for name in ("patches", "samples", "nu", "nv", "nw", "resolution", "render_samples"):
-        _check_range(p, D.PARAMS[name], getattr(args, name), f"--{name.replace('_', '-')}")
-    if args.voxel_size is not None:
-        _check_range(p, D.VOXEL_SIZE, args.voxel_size, "--voxel-size")
-    if args.turntable is not None:
-        _check_range(p, D.TURNTABLE_FRAMES, args.turntable, "--turntable")
-    if args.detail is not None:
-        _check_range(p, D.DETAIL_STRENGTH, args.detail, "--detail")
+    """Every number in its range (:mod:`pdehead_addon.defaults`, the flags :mod:`_cli_flags` generated)."""
+    _cli_flags.check(p, args, p.error)
 
 
 def _check_render_args(p, args) -> None:

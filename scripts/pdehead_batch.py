@@ -39,7 +39,8 @@ from collections import defaultdict
 from datetime import date
 from pathlib import Path
 
-import _common  # (scripts/ on sys.path; the dev shim for the engine, the loader options)
+import _cli_flags  # (scripts/ on sys.path: the flags of study settings, from the defaults table)
+import _common  # (the dev shim for the engine, the loader options)
 import batch_study
 
 PROG = "pdehead_batch"
@@ -62,7 +63,6 @@ def say(msg: str) -> None:
 
 # --------------------------------------------------------------------------- arguments
 def parse_args(argv=None) -> argparse.Namespace:
-    D = _common.defaults()
     p = argparse.ArgumentParser(prog=PROG, description="Batch runs and population depth tables (headless, Dask).")
     sub = p.add_subparsers(dest="command", required=True)
     r = sub.add_parser("run", help="run many studies (engine only) into DIR/<study_id>/ and DIR/summary.csv")
@@ -77,10 +77,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     where.add_argument("--scheduler", metavar="ADDRESS", help="an existing Dask scheduler, e.g. tcp://host:8786")
     r.add_argument("--skull", action="store_true",
                    help="also the bone skull (skull.stl), automatic landmarks and their depths (landmarks.csv)")
-    r.add_argument("--patches", type=int, default=D.PATCHES.default, help=D.PATCHES.help("PDE patches t"))
-    r.add_argument("--samples", type=int, default=D.SAMPLES.default, help=D.SAMPLES.help("points per curve"))
-    r.add_argument("--selection", default=D.SELECTION.default, choices=list(D.SELECTION.choices),
-                   help=D.SELECTION.help("how the slices are chosen"))
+    for setting in ("patches", "samples", "selection"):   # the study settings' flags: from the defaults table
+        _cli_flags.add(r, setting)
     r.add_argument("--time-limit", type=float, default=batch_study.DEFAULT_TIME_LIMIT_S, metavar="S",
                    help=f"per-study wall-time limit in seconds; default {batch_study.DEFAULT_TIME_LIMIT_S:g}")
     r.add_argument("--memory-limit", type=float, default=batch_study.DEFAULT_MEMORY_LIMIT_MB, metavar="MB",
@@ -97,11 +95,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     if args.command == "run":
         if args.workers is not None and args.workers < 0:
             raise CLIError("--workers must be 0 (serial) or more")
-        for flag in ("patches", "samples"):
-            param = getattr(D, flag.upper())
-            value = getattr(args, flag)
-            if not param.min <= value <= param.max:
-                raise CLIError(f"--{flag} must be from {param.min:g} to {param.max:g}, got {value}")
+        _cli_flags.check(r, args, _usage_error)
         if not (args.time_limit > 0 and args.memory_limit > 0):
             raise CLIError("--time-limit and --memory-limit must be positive")
         _common.check_loader_args(_usage_error, args)
