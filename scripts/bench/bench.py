@@ -998,11 +998,12 @@ def _json_default(o):
 
 
 def write_outputs(out: dict, json_path: Path, md_path: Path) -> None:
-    json_path.parent.mkdir(parents=True, exist_ok=True)
+    """The measured JSON (with the run's metadata, write_docs.save) and the markdown rendered from it alone (the
+    sections other benchmark scripts own stay)."""
+    import write_docs  # scripts/bench/: the JSON's metadata and the docs (it imports this module to render)
     md_path.parent.mkdir(parents=True, exist_ok=True)
-    json_path.write_text(json.dumps(out, indent=1, default=_json_default) + "\n")
-    from md_sections import keep_sections  # the sections other benchmark scripts own stay
-    md_path.write_text(keep_sections(markdown(out), md_path))
+    out = write_docs.save(json_path, json.loads(json.dumps(out, default=_json_default)), out.get("repeats"))
+    write_docs.write("main", out, md_path)
 
 
 def parse_args(argv=None):
@@ -1029,9 +1030,11 @@ def main(argv=None) -> int:
     json_path = args.out or DOCS / "benchmarks.json"
     md_path = args.md or DOCS / "benchmarks.md"
     if args.render_only:  # rewrite the markdown (and targets) from an existing JSON, no measuring
+        import write_docs
         out = json.loads(json_path.read_text())
-        out["targets"] = targets(out)
-        write_outputs(out, json_path, md_path)
+        out["targets"] = targets(out)       # the targets' verdicts from the measured numbers (the run's metadata kept)
+        json_path.write_text(json.dumps(out, indent=1, default=_json_default) + "\n")
+        write_docs.write("main", out, md_path)
         print(f"rewrote {md_path} from {json_path}")
         return 0
     out = Bench(args).run()

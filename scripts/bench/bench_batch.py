@@ -27,7 +27,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # scripts/: _common
 import _common  # noqa: E402
-from md_sections import write_section  # noqa: E402
+import write_docs  # noqa: E402
 
 ROOT = _common.ROOT
 SCRIPT = ROOT / "scripts" / "pdehead_batch.py"
@@ -71,7 +71,13 @@ def main(argv=None) -> int:
     p.add_argument("--shape", type=int, nargs=3, default=(100, 128, 128), help="phantom grid (nz ny nx)")
     p.add_argument("--skull", action="store_true", help="runs with --skull (bone skull, landmarks)")
     p.add_argument("--no-write", action="store_true", help="print only; leave docs/ as it is")
+    p.add_argument("--summary-json", type=Path, metavar="FILE",
+                   help="where the measured JSON goes (default docs/benchmarks_batch.json)")
+    write_docs.add_arguments(p, "batch")
     args = p.parse_args(argv)
+    if args.from_json:
+        write_docs.write("batch", write_docs.load(args.from_json))
+        return 0
 
     results: dict[str, list[dict]] = {"serial": [], "1 worker": [], "2 workers": []}
     load_start = os.getloadavg()[0]
@@ -110,9 +116,10 @@ def main(argv=None) -> int:
         "load_average": [round(load_start, 2), round(os.getloadavg()[0], 2)],
     }
     print(json.dumps(summary, indent=2))
+    if args.summary_json or not args.no_write:
+        summary = write_docs.save(args.summary_json or write_docs.SECTIONS["batch"].json_path, summary, args.repeats)
     if not args.no_write:
-        (ROOT / "docs" / "benchmarks_batch.json").write_text(json.dumps(summary, indent=2) + "\n")
-        write_section(ROOT / "docs" / "benchmarks.md", "batch", markdown(summary))
+        write_docs.write("batch", summary)
     return 0
 
 

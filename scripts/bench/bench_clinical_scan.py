@@ -47,6 +47,8 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
+import write_docs  # noqa: E402  (the JSON's run metadata and the docs section, from scripts/bench/)
+
 SHAPE = (300, 512, 512)
 SPACING = (0.753, 0.5, 0.5)
 TARGETS = dict(total_s=15.0, vtk_ratio=25.0, segment_s=6.0, boundaries_s=3.0, peak_rss_gb=2.5,
@@ -413,11 +415,17 @@ def main(argv=None) -> int:
     p.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "pdehead-bench-cache")
     p.add_argument("--reference-commit", default=None,
                    help="the engine whose segment_head is the reference (default: this checkout's HEAD)")
-    p.add_argument("--json", type=Path)
-    p.add_argument("--md", type=Path, help="write the Markdown section here (default: print it)")
+    p.add_argument("--json", type=Path, help="write the measured JSON here")
+    p.add_argument("--md", type=Path, help="write the Markdown section here (default: print it; with --from-json: "
+                                           "docs/benchmarks.md)")
     p.add_argument("--figure", type=Path, help="also render CThead as scanned and the clinical-size scan (front, "
                    "three-quarter) to this PNG, e.g. docs/figures/clinical_scan.png (four more CLI runs)")
+    write_docs.add_arguments(p, "clinical-scan")
     args = p.parse_args(argv)
+    if args.from_json:
+        print(write_docs.write("clinical-scan", write_docs.load(args.from_json), args.md or write_docs.DOCS /
+                               "benchmarks.md"))
+        return 0
     commit = _git_head()
     ref_commit = args.reference_commit or commit
     start = machine()             # the load before the benchmark's own processes
@@ -462,11 +470,8 @@ def main(argv=None) -> int:
               "reopen": reopen, "cancels": cancels,
               "targets": TARGETS}
     if args.json:
-        args.json.write_text(json.dumps(result, indent=1))
-    text = markdown(result)
-    if args.md:
-        from md_sections import write_section
-        write_section(args.md, "clinical-scan", text)
+        result = write_docs.save(args.json, result, args.repeats)
+    text = write_docs.write("clinical-scan", result, args.md) if args.md else markdown(result)
     print(text)
     return 0
 

@@ -35,8 +35,8 @@ for _p in (str(ROOT), str(ROOT / "scripts"), str(ROOT / "scripts" / "bench")):
 
 import bench_smooth as BS  # noqa: E402
 import pdehead_addon as E  # noqa: E402
+import write_docs  # noqa: E402
 from _common import load_segmentation, marching_cubes  # noqa: E402
-from md_sections import write_section  # noqa: E402
 from pdehead_addon import defaults as D  # noqa: E402
 from pdehead_addon.pde import detail_displace as DDX  # noqa: E402
 
@@ -208,13 +208,13 @@ def main(argv=None) -> int:
     ap.add_argument("--json", type=Path, default=ROOT / "docs" / "benchmarks_detail.json")
     ap.add_argument("--md", type=Path, default=ROOT / "docs" / "benchmarks.md")
     ap.add_argument("--markdown-only", action="store_true", help="rewrite the section from --json, no run")
+    write_docs.add_arguments(ap, "detail")
     args = ap.parse_args(argv)
-    if args.markdown_only:
-        write_section(args.md, "detail", markdown(json.loads(args.json.read_text())))
+    if args.markdown_only or args.from_json:
+        write_docs.write("detail", write_docs.load(args.from_json or args.json), args.md)
         return 0
-    res = run(args.repeats, not args.no_ge)
-    args.json.write_text(json.dumps(res, indent=2, default=float) + "\n")
-    write_section(args.md, "detail", markdown(res))
+    res = write_docs.save(args.json, run(args.repeats, not args.no_ge), args.repeats)
+    write_docs.write("detail", res, args.md)
     return 0
 
 

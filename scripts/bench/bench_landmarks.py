@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import sys
 import time
 from pathlib import Path
@@ -31,8 +30,8 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
+import write_docs  # noqa: E402  (the JSON's run metadata and the docs section)
 from _common import CTHEAD_RAW16_OPTIONS, SHARED_DATA  # noqa: E402
-from md_sections import write_section  # noqa: E402
 
 FIXTURE = ROOT / "tests" / "fixtures" / "cthead_landmarks.csv"
 
@@ -149,8 +148,13 @@ def markdown(results: dict, cthead_flags: dict) -> str:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--no-write", action="store_true", help="do not update docs/benchmarks.md")
-    p.add_argument("--summary-json", type=Path, help="write the results as JSON")
+    p.add_argument("--summary-json", type=Path, help="write the results as JSON (default with the docs: "
+                                                     "docs/benchmarks_landmarks.json)")
+    write_docs.add_arguments(p, "landmarks")
     args = p.parse_args(argv)
+    if args.from_json:
+        write_docs.write("landmarks", write_docs.load(args.from_json))
+        return 0
     results = {}
     for key, shape in (("phantom", None), ("phantom_fine", (160, 256, 256))):
         print(f"bench_landmarks: phantom {shape or 'default'} ...", file=sys.stderr)
@@ -159,16 +163,24 @@ def main(argv=None) -> int:
     print("bench_landmarks: CThead ...", file=sys.stderr)
     errs, sec, flags = run_cthead()
     results["cthead"] = {"errors": errs, "seconds": sec, "summary": summary(errs)}
-    text = markdown(results, flags)
+    saved = {k: {"summary": v["summary"], "seconds": v["seconds"],
+                 "errors": {n: {"flag": f, "error_mm": None if not np.isfinite(e) else float(e)}
+                            for n, (f, e) in v["errors"].items()}} for k, v in results.items()}
+    saved["cthead_flags"] = {name: list(flag_evidence) for name, flag_evidence in flags.items()}
+    if args.summary_json or not args.no_write:
+        saved = write_docs.save(args.summary_json or write_docs.SECTIONS["landmarks"].json_path, saved, 1)
+    text = write_docs.write("landmarks", saved) if not args.no_write else render(saved)
     print(text)
-    if not args.no_write:
-        write_section(ROOT / "docs" / "benchmarks.md", "landmarks", text)
-    if args.summary_json:
-        args.summary_json.write_text(json.dumps(
-            {k: {"summary": v["summary"], "seconds": v["seconds"],
-                 "errors": {n: {"flag": f, "error_mm": None if not np.isfinite(e) else round(e, 2)}
-                            for n, (f, e) in v["errors"].items()}} for k, v in results.items()}, indent=1))
     return 0
+
+
+def render(saved: dict) -> str:
+    """The section from the JSON :func:`main` writes (a landmark not found: ``error_mm`` null)."""
+    results = {key: {"summary": saved[key]["summary"], "seconds": saved[key]["seconds"],
+                     "errors": {n: (e["flag"], float("nan") if e["error_mm"] is None else e["error_mm"])
+                                for n, e in saved[key]["errors"].items()}}
+               for key in ("phantom", "phantom_fine", "cthead")}
+    return markdown(results, {name: tuple(fe) for name, fe in saved["cthead_flags"].items()})
 
 
 if __name__ == "__main__":

@@ -27,7 +27,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import platform
@@ -41,6 +40,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "scripts"))
 import _common  # noqa: E402
+import write_docs  # noqa: E402  (the JSON's run metadata and the docs section, from scripts/bench/)
 
 SECTION = "live-sliders"
 GEOMETRY_TARGET_S = 0.100
@@ -330,7 +330,11 @@ def main(argv=None) -> int:
     p.add_argument("--md", type=Path, default=ROOT / "docs" / "benchmarks.md")
     p.add_argument("--face", action="store_true",
                    help="only the face from skull rows (peg drag, depth, table switch; data sets cthead, ge, phantom)")
+    write_docs.add_arguments(p, SECTION)
     args = p.parse_args(argv)
+    if args.from_json:
+        write_docs.write(FACE_SECTION if args.face else SECTION, write_docs.load(args.from_json), args.md)
+        return 0
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="pdehead-bench-live-"))
     import pdehead  # the CLI's source registration (package pdehead_dev)
     pdehead.register_addon()
@@ -340,9 +344,8 @@ def main(argv=None) -> int:
               "repeats": args.repeats, "machine": machine(), "datasets": {}}
     for name in args.datasets:
         result["datasets"][name] = bench_dataset(name, args.repeats)
-    args.json.write_text(json.dumps(result, indent=1))
-    from md_sections import write_section
-    write_section(args.md, SECTION, markdown(result))
+    result = write_docs.save(args.json, result, args.repeats)
+    write_docs.write(SECTION, result, args.md)
     for name, d in result["datasets"].items():
         for r in d["rows"]:
             print(f"{name:8s} {r['label']:28s} total {1000 * r['total_s']:6.1f} ms  colours "
@@ -529,9 +532,8 @@ def main_face(args, argv) -> int:
               "repeats": args.repeats, "machine": machine(), "datasets": {}}
     for name in args.datasets:
         result["datasets"][name] = bench_face_dataset(name, args.repeats)
-    (args.json.parent / "benchmarks_live_face.json").write_text(json.dumps(result, indent=1))
-    from md_sections import write_section
-    write_section(args.md, FACE_SECTION, face_markdown(result))
+    result = write_docs.save(args.json.parent / write_docs.SECTIONS[FACE_SECTION].json_name, result, args.repeats)
+    write_docs.write(FACE_SECTION, result, args.md)
     for name, d in result["datasets"].items():
         for r in d["rows"]:
             print(f"{name:8s} {r['label']:22s} total {1000 * r['total_s']:6.1f} ms  cpu {1000 * r['cpu_s']:6.1f} ms  "

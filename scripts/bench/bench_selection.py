@@ -24,7 +24,6 @@ Writes ``docs/benchmarks_selection.json``, the section ``selection`` of
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import sys
 import time
@@ -39,8 +38,8 @@ for _p in (str(ROOT), str(ROOT / "scripts")):
         sys.path.insert(0, _p)
 
 import pdehead_addon as E  # noqa: E402
+import write_docs  # noqa: E402
 from _common import load_segmentation as load, marching_cubes, tube_fidelity as fidelity  # noqa: E402
-from md_sections import write_section  # noqa: E402
 from pdehead_addon.curves import slice_selection as S  # noqa: E402
 
 SELECTIONS = ("uniform", "shape-change", "auto")
@@ -310,16 +309,21 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     repeats = args.repeats or (2 if args.quick else 5)
     if args.from_json:
-        res = json.loads(args.json.read_text())
+        res = write_docs.load(args.json)
         figure(res, args.figure)
-        write_section(args.md, "selection", markdown(res, args.figure.name))
+        write_docs.write("selection", {**res, "figure": args.figure.name}, args.md)
         return 0
     res = run(args.quick, repeats)
     if not args.no_write:
-        args.json.write_text(json.dumps(res, indent=1))
+        res = write_docs.save(args.json, {**res, "figure": args.figure.name}, repeats)
         figure(res, args.figure)
-        write_section(args.md, "selection", markdown(res, args.figure.name))
+        write_docs.write("selection", res, args.md)
     return 0
+
+
+def render(res: dict) -> str:
+    """The section from the JSON alone (its figure's file name recorded in it; older JSON: the default's)."""
+    return markdown(res, res.get("figure", "selection_accuracy.png"))
 
 
 if __name__ == "__main__":

@@ -39,8 +39,8 @@ for _p in (str(ROOT), str(ROOT / "scripts")):
         sys.path.insert(0, _p)
 
 import pdehead_addon as E  # noqa: E402
+import write_docs  # noqa: E402
 from _common import load_segmentation as load, marching_cubes, timed, tube_fidelity as fidelity  # noqa: E402
-from md_sections import write_section  # noqa: E402
 from pdehead_addon import defaults as D  # noqa: E402
 from pdehead_addon.validation.surface_quality import surface_quality  # noqa: E402
 
@@ -570,19 +570,17 @@ def main(argv=None) -> int:
     ap.add_argument("--no-write", action="store_true", help="print only")
     ap.add_argument("--up-close", action="store_true",
                     help="issue 21's measures only (crown, neck cap, UVs, visible face; before and after)")
+    write_docs.add_arguments(ap, "smooth")
     args = ap.parse_args(argv)
     repeats = args.repeats or (2 if args.quick else 7)
-    if args.up_close:
-        res = up_close(repeats)
-        if not args.no_write:
-            out = args.json or ROOT / "docs" / "benchmarks_up_close.json"
-            out.write_text(json.dumps(res, indent=1, default=float))
-            write_section(args.md, "up-close", up_close_markdown(res))
+    section = "up-close" if args.up_close else "smooth"
+    if args.from_json:
+        write_docs.write(section, write_docs.load(args.from_json), args.md)
         return 0
-    res = run(args.quick, repeats)
+    res = up_close(repeats) if args.up_close else run(args.quick, repeats)
     if not args.no_write:
-        (args.json or ROOT / "docs" / "benchmarks_smooth.json").write_text(json.dumps(res, indent=1))
-        write_section(args.md, "smooth", markdown(res))
+        res = write_docs.save(args.json or write_docs.SECTIONS[section].json_path, res, repeats)
+        write_docs.write(section, res, args.md)
     return 0
 
 
