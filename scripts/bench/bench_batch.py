@@ -73,10 +73,11 @@ def main(argv=None) -> int:
     p.add_argument("--no-write", action="store_true", help="print only; leave docs/ as it is")
     p.add_argument("--summary-json", type=Path, metavar="FILE",
                    help="where the measured JSON goes (default docs/benchmarks_batch.json)")
+    p.add_argument("--md", type=Path, default=write_docs.DOCS / "benchmarks.md", help="the markdown file to write")
     write_docs.add_arguments(p, "batch")
     args = p.parse_args(argv)
     if args.from_json:
-        write_docs.write("batch", write_docs.load(args.from_json))
+        write_docs.write("batch", write_docs.load(args.from_json), args.md)
         return 0
 
     results: dict[str, list[dict]] = {"serial": [], "1 worker": [], "2 workers": []}
@@ -119,7 +120,7 @@ def main(argv=None) -> int:
     if args.summary_json or not args.no_write:
         summary = write_docs.save(args.summary_json or write_docs.SECTIONS["batch"].json_path, summary, args.repeats)
     if not args.no_write:
-        write_docs.write("batch", summary)
+        write_docs.write("batch", summary, args.md)
     return 0
 
 

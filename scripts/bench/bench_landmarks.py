@@ -150,10 +150,11 @@ def main(argv=None) -> int:
     p.add_argument("--no-write", action="store_true", help="do not update docs/benchmarks.md")
     p.add_argument("--summary-json", type=Path, help="write the results as JSON (default with the docs: "
                                                      "docs/benchmarks_landmarks.json)")
+    p.add_argument("--md", type=Path, default=write_docs.DOCS / "benchmarks.md", help="the markdown file to write")
     write_docs.add_arguments(p, "landmarks")
     args = p.parse_args(argv)
     if args.from_json:
-        write_docs.write("landmarks", write_docs.load(args.from_json))
+        write_docs.write("landmarks", write_docs.load(args.from_json), args.md)
         return 0
     results = {}
     for key, shape in (("phantom", None), ("phantom_fine", (160, 256, 256))):
@@ -169,7 +170,7 @@ def main(argv=None) -> int:
     saved["cthead_flags"] = {name: list(flag_evidence) for name, flag_evidence in flags.items()}
     if args.summary_json or not args.no_write:
         saved = write_docs.save(args.summary_json or write_docs.SECTIONS["landmarks"].json_path, saved, 1)
-    text = write_docs.write("landmarks", saved) if not args.no_write else render(saved)
+    text = write_docs.write("landmarks", saved, args.md) if not args.no_write else render(saved)
     print(text)
     return 0
 
