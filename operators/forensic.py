@@ -12,7 +12,7 @@ import os
 
 import bpy
 import numpy as np
-from bpy.props import BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, FloatVectorProperty, IntProperty, StringProperty
 from bpy.types import Operator, Panel
 
 from ..pdehead_addon import STANDARD_LANDMARKS, PDEHeadError, defaults as D
@@ -20,7 +20,7 @@ from . import state
 from .base import StudyOperator
 from .face import FACE_KEY, HELD_PROP, LABEL_PROP, PROVENANCE_PROP, approximation_label, table_has_sex
 from .forensic_export import PEG_DEPTH_PROP
-from .forensic_props import TARGET_ITEMS
+from .forensic_props import TARGET_ITEMS, max_depth_property
 from .forensic_skull import DEPTH_ATTRIBUTE, DEPTH_MATERIAL
 from .forensic_study import MIRROR_PLANES, ForensicStudy
 from .study_entity import Study
@@ -88,8 +88,7 @@ class PDEHEAD_OT_tissue_depth(Operator, _ForensicOp):
     bl_idname = "pdehead.tissue_depth"
     bl_label = "Tissue Depth"
     target: _target_property()
-    max_depth: FloatProperty(name=D.MAX_DEPTH.label, **D.MAX_DEPTH.limits(), subtype='DISTANCE',
-                             description=D.MAX_DEPTH.description)
+    max_depth: max_depth_property()
     forensic_settings = ("target", "max_depth")
 
     def run_forensic(self, context, fs):

@@ -48,6 +48,13 @@ TARGET_ITEMS = [('BONE', "Bone skull", "The bone surface: smoothed marching cube
                                         "(skull_envelope.<fmt>)")]
 
 
+def max_depth_property():
+    """The deepest tissue depth measured (:data:`defaults.MAX_DEPTH`): one declaration for the study's forensic
+    settings and the Tissue Depth operator that offers it again."""
+    return FloatProperty(name=D.MAX_DEPTH.label, **D.MAX_DEPTH.limits(), subtype='DISTANCE',
+                         description=D.MAX_DEPTH.description)
+
+
 class PDEHeadLandmarkFlag(bpy.types.PropertyGroup):
     """One landmark's flag (``name``: the landmark) and the evidence behind it."""
 
@@ -65,8 +72,7 @@ class PDEHeadForensicSettings(bpy.types.PropertyGroup):
                                 description="The depth table the marker pegs came from, as JSON")
     target: EnumProperty(name=D.DEPTH_TARGET.label, items=TARGET_ITEMS, default=D.DEPTH_TARGET.default,
                          description=D.DEPTH_TARGET.description)
-    max_depth: FloatProperty(name=D.MAX_DEPTH.label, **D.MAX_DEPTH.limits(), subtype='DISTANCE',
-                             description=D.MAX_DEPTH.description)
+    max_depth: max_depth_property()
     landmark_flags: CollectionProperty(type=PDEHeadLandmarkFlag, name="Landmark Flags",
                                        description="The flags of the last Find Landmarks")
     # what the face from the skull was built from (Build Face)

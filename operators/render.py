@@ -22,13 +22,17 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from types import MappingProxyType
+from typing import Mapping
 
 import numpy as np
 
 from ..pdehead_addon import defaults as D
 from . import compat
 
-VIEWS: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] = {
+#: The named views; read-only (a figure that needs another direction passes it as ``view``, see
+#: :func:`view_basis`).
+VIEWS: Mapping[str, tuple[tuple[float, float, float], tuple[float, float, float]]] = MappingProxyType({
     # name: (direction the camera looks along, world up)
     "FRONT": ((0.0, 1.0, 0.0), (0.0, 0.0, 1.0)),
     "BACK": ((0.0, -1.0, 0.0), (0.0, 0.0, 1.0)),
@@ -36,17 +40,24 @@ VIEWS: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] 
     "LEFT": ((-1.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
     "TOP": ((0.0, 0.0, -1.0), (0.0, 1.0, 0.0)),
     "THREE_QUARTER": ((0.6, 1.0, -0.35), (0.0, 0.0, 1.0)),
-}
+})
 assert set(VIEWS) == set(D.VIEWS), "every named view (defaults.VIEWS) needs its camera direction here"
 BACKGROUND_RGB = (0.05, 0.05, 0.06)  # world colour (linear); dark so volumes' emission shows
 
 
-def view_basis(view: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Unit (right, up, forward) world vectors of a named view (forward = viewing direction)."""
-    try:
-        forward, up = VIEWS[view]
-    except KeyError:
-        raise ValueError(f"unknown view {view!r}; choose from {sorted(VIEWS)}") from None
+def view_basis(view) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unit (right, up, forward) world vectors of a view (forward = viewing direction).
+
+    ``view`` is a name of :data:`VIEWS` or a ``(forward, up)`` pair of world vectors (a direction no
+    named view has, e.g. a figure's camera from below).
+    """
+    if isinstance(view, str):
+        try:
+            forward, up = VIEWS[view]
+        except KeyError:
+            raise ValueError(f"unknown view {view!r}; choose from {sorted(VIEWS)}") from None
+    else:
+        forward, up = view
     f = np.asarray(forward, float)
     f /= np.linalg.norm(f)
     right = np.cross(f, up)
@@ -153,8 +164,9 @@ def render_objects_png(objects, path, view: str = D.VIEW.default, resolution=(16
         What to frame (their world bounding boxes).
     path : path-like
         Output image: a PNG, or a JPEG when it ends in .jpg / .jpeg (:data:`IMAGE_FORMATS`).
-    view : str
-        One of :data:`VIEWS` (FRONT looks along +Y like Blender's numpad 1).
+    view : str or (forward, up)
+        One of :data:`VIEWS` (FRONT looks along +Y like Blender's numpad 1), or a direction
+        (:func:`view_basis`).
     resolution : (int, int)
         Width, height in pixels.
     samples : int

@@ -8,7 +8,7 @@ Virtual Worlds, 2015); each one's docstring lists its modules:
                        module per format), the phantom, the boundary file (section 5.2), mesh export
 2. :mod:`.segment`   - 3D Chan-Vese soft segmentation (eq. 16-21) and clean-up
 3. :mod:`.curves`    - eq. 22 boundary curves, 3t+1 of them as a :class:`BoundarySet`, and the
-                       automatic choice of the slices (:mod:`.curves.slice_selection`)
+                       choice of the slices (:mod:`.curves.slice_selection`, :mod:`.curves.auto_selection`)
 4. :mod:`.pde`       - t Bloor-Wilson PDE patches (eq. 1-13), the surface mesh, the solid (eq. 23)
                        with its w-field and eq. 24 opacity
 5. :mod:`.forensic`  - the skull, skin-skull tissue depth, landmarks, depth tables, the face from the skull
@@ -24,6 +24,7 @@ subpackage where they need more).
 """
 from .core.boundary_set import BoundarySet, knots_from_heights
 from .core.ct_volume import CTVolume
+from .core.curve_alignment import align_parameterisation, correspondence_error
 from .core.errors import (
     BoundaryError,
     Cancelled,
@@ -35,18 +36,13 @@ from .core.errors import (
 )
 from .core.mesh import Mesh
 from .core.provenance import SOFTWARE_VERSION as __version__  # noqa: E402
-from .curves import slice_selection
+from .curves import auto_selection, slice_selection
+from .curves.auto_selection import SelectionWarning, select_for_tolerance
 from .curves.boundaries import BoundaryOptions, extract_boundaries, max_patches, patches_for_scan
 from .curves.curve_sampling import contour_from_mask, parameter_offsets
-from .curves.parameterisation import align_parameterisation, correspondence_error, smooth_closed_curve
+from .curves.parameterisation import smooth_closed_curve
 from .curves.slice_outlines import boundary_ring
-from .curves.slice_selection import (
-    SELECTION_STRATEGIES,
-    SelectionWarning,
-    register_selection,
-    scan_edge_slices,
-    select_for_tolerance,
-)
+from .curves.slice_selection import SELECTION_STRATEGIES, register_selection, scan_edge_slices
 from .forensic.bone_levels import bone_level_range, check_bone_level
 from .forensic.depth_table import DepthEntry, DepthTable, default_table, read_depth_table, write_landmark_csv
 from .forensic.skull import SkullSegmentation, segment_skull, skull_mesh
@@ -112,7 +108,7 @@ __all__ = [  # the public API
     "Cancelled", "CTVolume", "Mesh", "load_ct", "check_head_scan", "list_series", "SeriesInfo", "CTImportWarning",
     "HeadSizeWarning", "make_phantom", "Phantom", "Segmentation", "segment_head", "BoundarySet",
     "knots_from_heights", "extract_boundaries", "BoundaryOptions", "max_patches", "patches_for_scan", "boundary_ring",
-    "contour_from_mask", "parameter_offsets", "scan_edge_slices", "register_selection",
+    "contour_from_mask", "parameter_offsets", "scan_edge_slices", "register_selection", "auto_selection",
     "SELECTION_STRATEGIES", "slice_selection", "SelectionWarning", "select_for_tolerance", "solve_pde",
     "PDEHead", "smoothing_bounds", "control_ranges", "solve_with_controls", "align_parameterisation",
     "smooth_closed_curve", "correspondence_error", "alpha_from_w", "w_field", "solid_mesh", "WField",

@@ -22,7 +22,8 @@ Each measure and its target, over the shipped code (``pdehead_addon/``, ``operat
    counts, inside functions too (target none);
 8. module-level mutable state in ``operators/``: a module-level dict, list or set that the module writes,
    and ``global`` writes (target none);
-9. settings declared twice: a property of a PropertyGroup declared again on an Operator (target none);
+9. settings declared twice: a property of a PropertyGroup declared again on an Operator (the same name
+   and type of property; target none);
 10. "issue N" in the shipped code's comments and docstrings (target none: history lives in docs/ and git);
 11. README.md lines (target at most 250);
 12. ruff: findings of ``ruff check`` with the project's configuration (target none) and the files on its
@@ -367,16 +368,16 @@ def module_mutable_state(folder: str = "operators") -> list[dict]:
 
 
 # ------------------------------------------------------------------------------------------- 9. settings twice
-def _bpy_properties(cls: ast.ClassDef) -> set[str]:
-    """Names annotated with a ``*Property(...)`` call in a class body."""
-    out = set()
+def _bpy_properties(cls: ast.ClassDef) -> dict[str, str]:
+    """Names annotated with a ``*Property(...)`` call in a class body, with the property's type."""
+    out = {}
     for node in cls.body:
         if isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name) and isinstance(node.annotation,
                                                                                                  ast.Call):
             f = node.annotation.func
             name = f.id if isinstance(f, ast.Name) else f.attr if isinstance(f, ast.Attribute) else ""
             if name.endswith("Property"):
-                out.add(node.target.id)
+                out[node.target.id] = name
     return out
 
 
@@ -385,9 +386,16 @@ def _base_names(cls: ast.ClassDef) -> set[str]:
 
 
 def settings_declared_twice(folder: str = "operators") -> list[dict]:
-    """Properties of a PropertyGroup (a study's settings) that an Operator declares again."""
-    groups: dict[str, list[str]] = {}
-    operators: dict[str, list[str]] = {}
+    """Properties of a PropertyGroup (a study's settings) that an Operator declares again.
+
+    Again means under the same name as the same type of property. Two properties that share a name but
+    not a type are two settings, not one written twice: the study's ``source`` (a StringProperty, the
+    folder or file its CT was read from) and Run Pipeline's ``source`` (an EnumProperty, where to take
+    the CT from) hold different values, and neither name can change (saved files and users' scripts
+    read them).
+    """
+    groups: dict[tuple[str, str], list[str]] = {}
+    operators: dict[tuple[str, str], list[str]] = {}
     for path in python_files(folder):
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
             if not isinstance(node, ast.ClassDef):
@@ -395,9 +403,10 @@ def settings_declared_twice(folder: str = "operators") -> list[dict]:
             bases = _base_names(node)
             into = groups if "PropertyGroup" in bases else operators if "Operator" in bases else None
             if into is not None:
-                for name in _bpy_properties(node):
-                    into.setdefault(name, []).append(f"{rel(path)}:{node.name}")
-    return [{"setting": n, "group": groups[n], "operators": operators[n]} for n in sorted(groups) if n in operators]
+                for name, kind in _bpy_properties(node).items():
+                    into.setdefault((name, kind), []).append(f"{rel(path)}:{node.name}")
+    return [{"setting": n, "group": groups[(n, k)], "operators": operators[(n, k)]}
+            for n, k in sorted(groups) if (n, k) in operators]
 
 
 # ------------------------------------------------------------------------------------------- 10. issue numbers

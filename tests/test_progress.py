@@ -100,7 +100,7 @@ def test_boundaries_w_field_and_the_ct_table_report_and_cancel(phantom):
 
 def test_the_band_fine_level_reports_and_cancels(phantom, monkeypatch):
     """Issue 20: grids of >= chan_vese_pyramid.FINE_BAND_MIN_VOXELS solve the full-resolution level in a band
-    (chan_vese_pyramid._band_fine_solve); it reports every iteration and a Cancelled raised there stops the
+    (chan_vese_band.band_fine_solve); it reports every iteration and a Cancelled raised there stops the
     segmentation, after which a new run gives the uninterrupted result."""
     from pdehead_addon import CTVolume
     from pdehead_addon.segment import chan_vese_pyramid
@@ -109,12 +109,12 @@ def test_the_band_fine_level_reports_and_cancels(phantom, monkeypatch):
     ct = CTVolume(np.pad(data, ((1, 1), (22, 24), (22, 24)), constant_values=air), phantom.ct.spacing)
     monkeypatch.setattr(chan_vese_pyramid, "FINE_BAND_MIN_VOXELS", ct.data.size)     # this small grid uses the band
     in_band = []
-    solve = chan_vese_pyramid._band_fine_solve
+    solve = chan_vese_pyramid.band_fine_solve
 
     def spy(*args, **kwargs):
         in_band.append(True)
         return solve(*args, **kwargs)
-    monkeypatch.setattr(chan_vese_pyramid, "_band_fine_solve", spy)
+    monkeypatch.setattr(chan_vese_pyramid, "band_fine_solve", spy)
     full = segment_head(ct, levels_mm=(6.0,))
     assert in_band and full.meta["solver"].get("fine_band"), full.meta["solver"]
     reports = []

@@ -7,6 +7,7 @@ Modules:
   their u-knots
 - :mod:`.ct_volume`      The CT volume in patient space: the data type every pipeline step shares, and its numeric
   helpers
+- :mod:`.curve_alignment` The correspondence of neighbouring boundary curves: equal v on corresponding points
 - :mod:`.errors`         Exceptions raised by the PDE Head engine
 - :mod:`.mesh`           A plain polygon mesh in patient LPS mm: what the engine hands to the Blender layer
 - :mod:`.mesh_geometry`  Triangle-mesh geometry shared by the pipeline, the forensic tools and the measures: one copy

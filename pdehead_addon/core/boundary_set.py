@@ -67,7 +67,7 @@ class BoundarySet:
         v = 2 pi m / M. ``meta["parameterisation"]`` says how the samples are
         spaced along each curve: ``"arc-length"`` (uniformly) or ``"aligned"``
         (equal v = corresponding points of neighbouring curves, see
-        :func:`~.parameterisation.align_parameterisation`); absent for
+        :func:`~.curve_alignment.align_parameterisation`); absent for
         synthetic sets, which are taken as given.
     slice_indices : ndarray of int, shape (3t+1,)
         The axial slice index in the source volume of each curve (-1 if synthetic).

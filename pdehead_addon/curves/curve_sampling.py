@@ -16,6 +16,7 @@ import numpy as np
 from scipy import ndimage as ndi
 
 from ..core.errors import BoundaryError
+from ..pde.pde_spline import smoothing_spline_values
 from .parameterisation import closed_arc_length, smooth_closed_curve
 from .slice_outlines import outer_contour, shoelace
 
@@ -268,7 +269,6 @@ def star_hull(points: np.ndarray, centre: np.ndarray | None = None, angles: int 
 
 def spine_centres(outlines: Sequence[np.ndarray], length: float = SPINE_SMOOTHING_MM) -> np.ndarray:
     """Area centroids (x, y) of the outlines, smoothed along their height (a smooth spine), shape (n, 2)."""
-    from ..pde.pde_spline import smoothing_spline_values
     c = np.stack([polygon_centroid(o[:, :2]) for o in outlines])
     z = np.array([float(np.mean(o[:, 2])) for o in outlines])
     order = np.argsort(z)

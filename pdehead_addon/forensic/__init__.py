@@ -29,6 +29,7 @@ Modules:
                               the mid-sagittal mirror
 - :mod:`.skull`               The skull from the same CT: bone segmentation, the skull envelope for the PDE path, a
                               bone mesh
+- :mod:`.skull_parts`         The skull's bone parts: the cranium, the mandible and its rami, and what is not skull
 - :mod:`.tissue_depth`        Soft-tissue depth between the skin and the skull, per skin vertex (forensic facial
                               reconstruction)
 """

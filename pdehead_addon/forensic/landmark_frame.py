@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
+from .skull_parts import eroded_components, give_back_rim
+
 OK, UNCERTAIN, NOT_FOUND = "ok", "uncertain", "not_found"
 FLAGS = (OK, UNCERTAIN, NOT_FOUND)
 
@@ -180,8 +182,6 @@ def bone_components(bone: np.ndarray) -> tuple[np.ndarray, int]:
     (a closed bite or a joint at partial volume no longer joins the mandible to the skull), then the
     eroded rim given back to the component next to it (three constrained label dilations).
     """
-    from .skull import eroded_components, give_back_rim
-
     _, labels, n = eroded_components(bone)
     return give_back_rim(labels, bone).astype(np.int32), int(n)
 

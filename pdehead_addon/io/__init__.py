@@ -14,5 +14,6 @@ Modules:
   and HU
 - :mod:`.phantom_primitives`  Signed-distance building blocks of the synthetic head (:mod:`.phantom`): mm, negative
   inside
+- :mod:`.scan_evidence`       Whether the samples are a head scan, read right: byte order, row length, photographs
 - :mod:`.storage`             Compact storage of the PDE boundary conditions (paper section 5.2)
 """

@@ -66,8 +66,8 @@ from typing import Sequence
 import numpy as np
 
 from ..core.boundary_set import BoundarySet
+from ..core.curve_alignment import align_parameterisation
 from ..core.errors import PDEError
-from ..curves.parameterisation import align_parameterisation
 from .pde_basis import basis, curve_harmonics, inverse_4x4
 from .pde_head import PDEHead, curve_positions, derived_once
 from .pde_smoothing import (

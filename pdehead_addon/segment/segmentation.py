@@ -32,12 +32,11 @@ from ..io import input_checks
 from .binary_morphology import PARALLEL_VOXELS
 from .chan_vese import chan_vese_soft, divergence, gradient, tau_bound
 from .chan_vese_pyramid import solve_pyramid
+from .disk_morphology import dilate_disk, erode_disk
 from .mask_cleanup import (
     clean_head_mask,
     close_disk,
     cut_at_neck,
-    dilate_disk,
-    erode_disk,
     estimate_noise,
     fill_cavities,
     fill_holes_per_slice,

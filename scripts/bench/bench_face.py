@@ -665,7 +665,7 @@ def markdown(results: dict) -> str:
               "o_depths`). CThead cut 4 mm below the occlusal plane: at its own level (1586) the rami's eroded "
               'pieces are too small to be kept (the right ramus 82 + 122 mm3 at the cut), so no mandible was '
               "found; the rami are now looked for in the bone itself less the cranium's grown core "
-              "(`skull.rami_in_the_bone`; pieces less than 35 mm in front of the cranium's centre are not rami: "
+              "(`skull_parts.rami_in_the_bone`; pieces less than 35 mm in front of the cranium's centre are not rami: "
               'the atlas spans as wide), found at 1586 and 1500, each from the cut to its condyle; the '
               'mandible\'s landmarks are all below the cut and `not_found`, "outside the scan". The cervical '
               "spine at 1500 (not kept): splitting it off the cranium (the cranium's component eroded one voxel "

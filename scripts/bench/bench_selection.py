@@ -40,7 +40,7 @@ for _p in (str(ROOT), str(ROOT / "scripts")):
 import pdehead_addon as E  # noqa: E402
 import write_docs  # noqa: E402
 from _common import load_segmentation as load, marching_cubes, tube_fidelity as fidelity  # noqa: E402
-from pdehead_addon.curves import slice_selection as S  # noqa: E402
+from pdehead_addon.curves import auto_selection as S  # noqa: E402
 
 SELECTIONS = ("uniform", "shape-change", "auto")
 T_VALUES = {"phantom": (4, 5, 6, 10, 14), "cthead": (4, 5, 6, 10, 14), "ge": (3, 4, 5, 6)}

@@ -49,6 +49,10 @@ import pdehead_addon as E  # noqa: E402
 OUT = ROOT / "docs" / "figures"
 MAX_BYTES = 150 * 1024
 BG = (255, 255, 255)
+#: Views the add-on does not name, as (direction the camera looks along, world up): cutaways seen from the
+#: back right above (v = 0 .. pi/2 is the posterior-right quadrant), and the front right.
+EXTRA_VIEWS = {"BACK_RIGHT_ABOVE": ((0.9, -1.0, -0.3), (0.0, 0.0, 1.0)),
+               "FRONT_RIGHT": ((0.55, 1.0, -0.15), (0.0, 0.0, 1.0))}
 FIG12_T = (4, 5, 6, 10, 14, 31)
 FIG13_UV = ((10, 40), (20, 40), (40, 40), (60, 40), (80, 40), (60, 10), (60, 20), (60, 40), (60, 60), (60, 80))
 #: original CThead slice numbers (1 = superior) shown in Fig. 3
@@ -181,9 +185,6 @@ class Blender:
         self.samples = samples
         self.tmp = Path(tempfile.mkdtemp(prefix="pdehead-figs-"))
         self.n = 0
-        # extra named views for cutaways, seen from the back right above (v = 0 .. pi/2 is the posterior-right quadrant)
-        self.render.VIEWS.setdefault("BACK_RIGHT_ABOVE", ((0.9, -1.0, -0.3), (0.0, 0.0, 1.0)))
-        self.render.VIEWS.setdefault("FRONT_RIGHT", ((0.55, 1.0, -0.15), (0.0, 0.0, 1.0)))
 
     def reset(self):
         self.bpy.ops.wm.read_homefile(use_empty=True)  # empty scene; preferences and add-ons untouched
@@ -194,8 +195,8 @@ class Blender:
     def png(self, objs, view="FRONT", size=(200, 240), bounds=None, samples=None, **kw) -> Image.Image:
         self.n += 1
         path = self.tmp / f"r{self.n}.png"
-        self.render.render_objects_png(objs, path, view=view, resolution=size, samples=samples or self.samples,
-                                       bounds=bounds, **kw)
+        self.render.render_objects_png(objs, path, view=EXTRA_VIEWS.get(view, view), resolution=size,
+                                       samples=samples or self.samples, bounds=bounds, **kw)
         with Image.open(path) as im:
             return im.convert("RGB").copy()
 

@@ -47,6 +47,11 @@ import bench_smooth  # noqa: E402
 import pdehead_addon as E  # noqa: E402
 
 CASES = {"cthead": 10, "ge": 8}
+#: Views the add-on does not name, as (direction the camera looks along, world up).
+EXTRA_VIEWS = {
+    "GRAZING": ((0.0, 1.0, -0.22), (0.0, 0.0, 1.0)),     # from the front, 12 deg down
+    "BOTTOM": ((0.0, 0.0, 1.0), (0.0, -1.0, 0.0)),       # from below, the face up
+}
 
 
 def uv_grid_material(bpy):
@@ -191,7 +196,6 @@ def crown_figure(bl, args) -> int:
 
     from pdehead_addon.pde import pde_spline, pde_surface
     bpy, objects, render = bl["bpy"], bl["objects"], bl["render"]
-    render.VIEWS.setdefault("GRAZING", ((0.0, 1.0, -0.22), (0.0, 0.0, 1.0)))   # from the front, 12 deg down
     bpy.ops.wm.read_homefile(use_empty=True)
     from pdehead_addon import defaults as D
     seg = bench_smooth.load("cthead")
@@ -220,7 +224,7 @@ def crown_figure(bl, args) -> int:
     for view in ("TOP", "GRAZING"):
         row = []
         for label, obj in built:
-            render.render_objects_png([obj], tmp, view=view, resolution=(args.size, args.size),
+            render.render_objects_png([obj], tmp, view=EXTRA_VIEWS.get(view, view), resolution=(args.size, args.size),
                                       samples=args.samples, bounds=(crown_lo, crown_hi))
             with Image.open(tmp) as im:
                 im = im.convert("RGB").copy()
@@ -250,7 +254,6 @@ def main(argv=None) -> int:
     if args.crown:
         return crown_figure(bl, args)
     bpy, objects, render = bl["bpy"], bl["objects"], bl["render"]
-    render.VIEWS.setdefault("BOTTOM", ((0.0, 0.0, 1.0), (0.0, -1.0, 0.0)))   # from below, the face up
     bpy.ops.wm.read_homefile(use_empty=True)
     from pdehead_addon import defaults as D
     nu, nv = D.NU.default, D.NV.default
@@ -271,7 +274,7 @@ def main(argv=None) -> int:
         bounds = render.world_bounds([o for _, o in built])
 
         def tile(obj, view, text, bounds=bounds):
-            render.render_objects_png([obj], tmp, view=view, resolution=(args.size, args.size),
+            render.render_objects_png([obj], tmp, view=EXTRA_VIEWS.get(view, view), resolution=(args.size, args.size),
                                       samples=args.samples, bounds=bounds)
             with Image.open(tmp) as im:
                 im = im.convert("RGB").copy()

@@ -509,7 +509,7 @@ def test_extract_boundaries_parameterisation_options():
 
 
 def test_cthead_aligned_default_keeps_polylines_and_improves_correspondence(cthead_seg):
-    from pdehead_addon.curves.parameterisation import align_parameterisation, correspondence_error
+    from pdehead_addon.core.curve_alignment import align_parameterisation, correspondence_error
     arc = extract_boundaries(cthead_seg, patches=10, samples=256, parameterisation="arc-length")
     aligned = extract_boundaries(cthead_seg, patches=10, samples=256)
     assert np.array_equal(arc.slice_indices, aligned.slice_indices)

@@ -6,7 +6,7 @@ import pytest
 
 import pdehead_addon as E
 from pdehead_addon.core.errors import BoundaryError, PDEError
-from pdehead_addon.curves import slice_selection as S
+from pdehead_addon.curves import auto_selection as S
 
 
 def _positions(cand, bset):

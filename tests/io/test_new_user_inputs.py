@@ -24,7 +24,7 @@ from pdehead_addon import (
     make_phantom,
 )
 from pdehead_addon.core.wording import for_cli, for_dialog
-from pdehead_addon.io import input_checks as IC
+from pdehead_addon.io import scan_evidence as IC
 from pdehead_addon.io.mesh_input import MAX_SKULL_HULL_FILL, hull_fill, load_skull_mesh
 
 ROOT = Path(__file__).resolve().parents[2]

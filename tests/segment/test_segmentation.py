@@ -14,7 +14,7 @@ from pdehead_addon import CTVolume, SegmentationError, make_phantom, segment_hea
 from pdehead_addon.io.phantom import CUSHION, HOLDER
 from pdehead_addon.segment import segmentation as S
 from pdehead_addon.segment.chan_vese import _ChanVeseState
-from pdehead_addon.segment.mask_cleanup import _box_opening
+from pdehead_addon.segment.disk_morphology import box_opening
 from pdehead_addon.validation import metrics as M
 
 
@@ -86,20 +86,20 @@ def test_packed_morphology_equals_the_byte_reference(shape):
     """Disk and box morphology on 64-voxel words (issue 20's speed-up) give exactly the byte version's
     result, widths that are and are not multiples of 64 included, and so do the bounding-box crops of
     the labelling (hole filling, largest component)."""
-    from pdehead_addon.segment import mask_cleanup as C
+    from pdehead_addon.segment import disk_morphology as DM, mask_cleanup as C
     rng = np.random.default_rng(sum(shape))
     m = ndi.gaussian_filter(rng.random(shape), (0, 1.5, 1.5)) > 0.5
     m[:, :2] = False                                  # an empty margin: the crops take effect
     for radius, spacing_yx in ((1.0, (1.0, 1.0)), (2.5, (1.0, 0.8)), (4.0, (0.5, 0.5))):
-        steps = C._disk_steps(spacing_yx, radius)
-        for erode, packed in ((True, C.erode_disk), (False, C.dilate_disk)):
+        steps = DM._disk_steps(spacing_yx, radius)
+        for erode, packed in ((True, DM.erode_disk), (False, DM.dilate_disk)):
             ref = m
             for step in steps:
-                ref = C._shifted_combine(ref, step, erode)
+                ref = DM._shifted_combine(ref, step, erode)
             assert np.array_equal(packed(m, spacing_yx, radius), ref), (radius, erode)
     for offsets in ([(1, 0, 1)], [(-1, 1, -1), (0, 0, 1)]):
         for erode in (True, False):
-            assert np.array_equal(C._run_steps(m, [(offsets, erode)]), C._shifted_combine(m, offsets, erode))
+            assert np.array_equal(DM._run_steps(m, [(offsets, erode)]), DM._shifted_combine(m, offsets, erode))
     labels, n = ndi.label(~m, structure=C._IN_SLICE)
     border = np.unique(np.concatenate([labels[:, [0, -1], :].ravel(), labels[:, :, [0, -1]].ravel()]))
     assert np.array_equal(C.fill_holes_per_slice(m), ~np.isin(labels, border[border > 0]))
@@ -132,7 +132,7 @@ def test_morphology_helpers_match_definitions():
             for x in range(m.shape[2] - 1):
                 if m[z:z + 2, y:y + 3, x:x + 2].all():
                     brute[z:z + 2, y:y + 3, x:x + 2] = True
-    assert np.array_equal(_box_opening(m, size), brute)
+    assert np.array_equal(box_opening(m, size), brute)
     # disk erosion = scipy erosion with the same (octagonal) footprint, no border effects
     point = np.zeros((1, 31, 31), bool)
     point[0, 15, 15] = True
@@ -213,7 +213,7 @@ def test_fine_level_on_the_coarse_heads_box_matches_the_whole_grid(phantom, monk
 
 def test_fine_level_in_a_band_matches_the_whole_grid(phantom, monkeypatch):
     """Issue 20: the full-resolution Chan-Vese level runs only in a band of coarse blocks around the
-    coarse boundary (chan_vese_pyramid._band_fine_solve); against the whole-grid solve (the reference method)
+    coarse boundary (chan_vese_band.band_fine_solve); against the whole-grid solve (the reference method)
     the mask keeps per-slice Jaccard >= 0.99 (measured on the phantom padded to whole 6 mm blocks, the
     band 0.33 M of 3.1 M voxels: cleaned mask mean 0.99985, min 0.99805; q > 0.5 mean 0.9958, min
     0.9852; on the 512 x 512 x 300 scan: q > 0.5 mean 0.9994, min 0.9934, the cleaned mask against
@@ -245,16 +245,16 @@ def test_band_holds_every_block_that_straddles_the_level_and_large_grids_use_it(
     straddle (c1 + c2) / 2 (thin features the coarse level smoothed away), and grids of at least
     chan_vese_pyramid.FINE_BAND_MIN_VOXELS solve the fine level in the band by default; smaller grids keep
     the box solve (their masks unchanged)."""
-    from pdehead_addon.segment import chan_vese_pyramid
+    from pdehead_addon.segment import chan_vese_band, chan_vese_pyramid
     rng = np.random.default_rng(3)
     img = (np.linspace(0.0, 1.0, 12, dtype=np.float32) + 0.05 * rng.random((6, 8, 12), dtype=np.float32))
-    lo, hi = chan_vese_pyramid._block_range(img, (3, 2, 4))
+    lo, hi = chan_vese_band._block_range(img, (3, 2, 4))
     blocks = img.reshape(2, 3, 4, 2, 3, 4).transpose(0, 2, 4, 1, 3, 5).reshape(2, 4, 3, -1)
     assert np.array_equal(lo, blocks.min(axis=-1)) and np.array_equal(hi, blocks.max(axis=-1))
     q = np.zeros((2, 4, 3), np.float32)                   # coarse: all air, so only the straddle counts
-    band = chan_vese_pyramid._band_blocks(q, 0, img, (3, 2, 4), 0.5)
+    band = chan_vese_band._band_blocks(q, 0, img, (3, 2, 4), 0.5)
     assert np.array_equal(band, (lo < 0.5) & (hi > 0.5)) and band.any() and not band.all()
-    assert not chan_vese_pyramid._band_blocks(q, 0).any()
+    assert not chan_vese_band._band_blocks(q, 0).any()
     data = phantom.ct.data
     air = float(np.median(np.concatenate([data[:, 0].ravel(), data[:, -1].ravel()])))
     ct = CTVolume(np.pad(data, ((1, 1), (22, 24), (22, 24)), constant_values=air), phantom.ct.spacing)
@@ -265,11 +265,11 @@ def test_band_holds_every_block_that_straddles_the_level_and_large_grids_use_it(
     band = segment_head(ct, threads=1, **levels)
     assert band.meta["solver"].get("fine_band"), band.meta["solver"]
     # the band's sweep split over two threads: the same numbers to the bit
-    monkeypatch.setattr(chan_vese_pyramid, "BAND_PART_VOXELS", 1000)
+    monkeypatch.setattr(chan_vese_band, "BAND_PART_VOXELS", 1000)
     split = segment_head(ct, threads=2, **levels)
     np.testing.assert_array_equal(split.probability, band.probability)
     assert split.c1 == band.c1 and split.c2 == band.c2
-    monkeypatch.setattr(chan_vese_pyramid, "FINE_BAND_STRADDLE", False)
+    monkeypatch.setattr(chan_vese_band, "FINE_BAND_STRADDLE", False)
     plain = segment_head(ct, **levels)
     assert plain.meta["solver"]["fine_band"]["band_voxels"] < band.meta["solver"]["fine_band"]["band_voxels"]
     # the straddling blocks bring the band's mask closer to the box solve's (the reference method)

@@ -327,7 +327,7 @@ def test_planar_proxy_equals_the_interleaved_one():
     """The selection's proxy on planar rows (x, y, z planes; each sample's own normal offset once) gives
     the per-slice errors of the interleaved (sample, coordinate) layout it replaced to ~1e-12 mm."""
     from pde_synthetic import head_bset
-    from pdehead_addon.curves import slice_selection as S
+    from pdehead_addon.curves import auto_selection as S
     from pdehead_addon.pde.pde_spline import dome_height, natural_spline_matrix, smoothing_spline_values
     bset = head_bset(patches=12, samples=192)
     cand = S.Candidates(np.arange(len(bset.curves)), bset.curves, dict(bset.meta))

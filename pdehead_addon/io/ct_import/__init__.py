@@ -21,8 +21,9 @@ Nothing is ever written into the input folder.
 Modules (one per format, plus discovery and geometry; each imports only the ones
 above it in this list):
 
+* :mod:`.folder_files` - the files of a source and their format, DICOMDIR, numbered stacks
 * :mod:`.geometry`  - canonical reorientation, resampling, headerless stacks
-* :mod:`.discovery` - files of a folder, format detection, DICOMDIR, DICOM series (:func:`list_series`)
+* :mod:`.discovery` - the DICOM series of a source (:func:`list_series`)
 * :mod:`.dicom`     - one DICOM series: sorting, tilt/uneven checks, decoding, HU
 * :mod:`.images`    - numbered TIFF/PNG/... images
 * :mod:`.raw`       - headerless raw slices

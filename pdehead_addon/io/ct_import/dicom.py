@@ -22,12 +22,12 @@ from .discovery import (
     DicomFrame,
     DicomSeries,
     float_or,
-    import_pydicom,
     ranked_series,
     scan_dicom,
     series_info,
     skip_summary,
 )
+from .folder_files import import_pydicom
 from .geometry import ALIGNED_TOL, resample_limit, resample_slices, to_canonical
 
 # Tolerances of the stack checks (see _stack_geometry; the axis tolerances live in .geometry).

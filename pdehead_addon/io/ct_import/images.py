@@ -7,7 +7,8 @@ import numpy as np
 
 from ...core.ct_volume import CTVolume
 from ...core.errors import CTImportError
-from .discovery import IMAGE_EXTENSIONS, has_ext, numbered_files, top_level
+from .. import scan_evidence
+from .folder_files import IMAGE_EXTENSIONS, has_ext, numbered_files, top_level
 from .geometry import headerless_volume
 from .limits import check_budget, check_ratio
 
@@ -126,10 +127,9 @@ def load_images(files, label, spacing, axes, oriented, hu, warns) -> CTVolume:
 
 
 def _refuse_photos(slices, chroma: float, files: int, label) -> None:
-    """Refuse a stack of ordinary pictures before anything is built from it (``input_checks.photo_evidence``)."""
-    from .. import input_checks
+    """Refuse a stack of ordinary pictures before anything is built from it (``scan_evidence.photo_evidence``)."""
     step = max(1, len(slices) // 12)
-    seen = input_checks.photo_evidence(slices[::step], chroma)
+    seen = scan_evidence.photo_evidence(slices[::step], chroma)
     if seen:
         ny, nx = slices[0].shape[-2:]
         raise CTImportError(f"does not look like a head CT: {'; '.join(seen)}; {files} image(s) of {nx} x {ny} "

@@ -13,9 +13,9 @@ import numpy as np
 
 from ...core.ct_volume import CTVolume, downsample_volume
 from ...core.errors import CTImportError
-from .. import input_checks
+from .. import input_checks, scan_evidence
 from .dicom import load_dicom
-from .discovery import detect_format, expand_dicomdir, gather_files, source_label
+from .folder_files import detect_format, expand_dicomdir, gather_files, source_label
 from .images import load_images
 from .nifti import load_nifti
 from .raw import load_raw
@@ -239,7 +239,7 @@ def check_head_scan(ct: CTVolume) -> dict:
 
     :func:`load_ct` reads any volume (the geometry tests feed it ramps); the add-on's import, the command line
     and the batch call this right after it, before anything is segmented or built. The criteria are
-    :func:`~pdehead_addon.io.input_checks.head_scan_evidence`'s (coherent structure, a sharp outline, anatomy
+    :func:`~pdehead_addon.io.scan_evidence.head_scan_evidence`'s (coherent structure, a sharp outline, anatomy
     inside it); its measures are kept in ``ct.meta["head_scan"]``.
 
     Returns
@@ -253,7 +253,7 @@ def check_head_scan(ct: CTVolume) -> dict:
     """
     if ct.meta.get("format") == "mesh":          # a skull mesh voxelised (load_skull_mesh): checked there
         return {}
-    evidence = input_checks.head_scan_evidence(ct.data)
+    evidence = scan_evidence.head_scan_evidence(ct.data)
     measures = {k: v for k, v in evidence.items() if k != "failed"}
     ct.meta["head_scan"] = measures
     if evidence["failed"]:

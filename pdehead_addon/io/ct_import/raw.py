@@ -7,7 +7,8 @@ import numpy as np
 
 from ...core.ct_volume import CTVolume
 from ...core.errors import CTImportError
-from .discovery import TEXT_EXTENSIONS, has_ext, numbered_files, top_level
+from .. import scan_evidence
+from .folder_files import TEXT_EXTENSIONS, has_ext, numbered_files, top_level
 from .geometry import headerless_volume
 from .limits import check_budget, gunzip_bounded
 
@@ -162,10 +163,9 @@ def _refuse_absurd_floats(data: np.ndarray, dt: np.dtype, label) -> None:
 
 
 def _refuse_wrong_byte_order(data: np.ndarray, dt: np.dtype, label) -> None:
-    """Refuse samples read in the wrong byte order (``input_checks.wrong_byte_order``): noise spanning
+    """Refuse samples read in the wrong byte order (``scan_evidence.wrong_byte_order``): noise spanning
     the whole int16 range would otherwise segment as a "head" filling the field of view."""
-    from .. import input_checks
-    bad = input_checks.wrong_byte_order(data, dt)
+    bad = scan_evidence.wrong_byte_order(data, dt)
     if bad:
         (lo, hi), (slo, shi) = bad["read"], bad["swapped"]
         order = "big-endian" if bad["swapped_dtype"].startswith(">") else "little-endian"
@@ -175,10 +175,9 @@ def _refuse_wrong_byte_order(data: np.ndarray, dt: np.dtype, label) -> None:
 
 
 def _refuse_wrong_row_length(data: np.ndarray, shape, label) -> None:
-    """Refuse slices read with a wrong row length (``input_checks.wrong_row_length``): with the right byte
+    """Refuse slices read with a wrong row length (``scan_evidence.wrong_row_length``): with the right byte
     count they would otherwise segment as garbage."""
-    from .. import input_checks
-    bad = input_checks.wrong_row_length(data)
+    bad = scan_evidence.wrong_row_length(data)
     if bad:
         count = data.shape[1] * data.shape[2]
         hint = (f"; the samples join up in rows of {bad['row_length']}: shape=({count // bad['row_length']}, "

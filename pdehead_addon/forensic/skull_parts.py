@@ -1,0 +1,194 @@
+"""The skull's bone parts: components of the bone eroded by one voxel, the cranium, the mandible and its
+rami, and what is not skull (cervical vertebrae, supports, holders, loose fragments).
+
+:func:`~.skull.segment_skull` keeps the parts :func:`bone_parts` finds; the landmark frame separates the
+bone by the same components (:func:`eroded_components`, :func:`give_back_rim`).
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage as ndi
+
+from ..core.ct_volume import CTVolume
+from .scan_contents import PARTIAL_RAMUS_SIDE_MM, partial_mandible
+
+__all__ = ["eroded_components", "give_back_rim", "rami_in_the_bone", "bone_parts", "mandible_report",
+           "VERTEBRA_FRONT_MM", "ARTICULATED_GAP_MM", "MANDIBLE_MIN_MM3"]
+
+
+#: A bone component below the skull base whose centroid is less than this (mm) in front of the
+#: cranium's centroid is a cervical vertebra (CThead: C2 31 mm; mandibles: phantom 40, CThead 100 mm).
+VERTEBRA_FRONT_MM = 35.0
+
+
+def eroded_components(bone: np.ndarray, erosion: int = 1) -> tuple[np.ndarray, np.ndarray, int]:
+    """The components of the bone eroded by ``erosion`` voxels (a joint or a tooth contact at partial volume no
+    longer joins them; thicker bone stays whole): (the eroded core, or the bone when nothing is left; its labels;
+    their count)."""
+    core = ndi.binary_erosion(bone, structure=ndi.generate_binary_structure(3, 1), iterations=int(erosion))
+    if not core.any():
+        core = bone
+    labels, n = ndi.label(core, structure=np.ones((3, 3, 3), bool))
+    return core, labels, n
+
+
+def give_back_rim(labels: np.ndarray, bone: np.ndarray, steps: int = 3) -> np.ndarray:
+    """The labels of :func:`eroded_components` with the eroded rim given back to the component next to it
+    (``steps`` label dilations constrained to ``bone``)."""
+    full = np.ones((3, 3, 3), bool)
+    for _ in range(steps):
+        spread = ndi.grey_dilation(labels, footprint=full)
+        labels = np.where(bone & (labels == 0), spread, labels)
+    return labels
+
+
+def _vertebra_components(labels: np.ndarray, centroids_xyz: np.ndarray, cranium: int, ct: CTVolume) -> np.ndarray:
+    """True for components that are cervical vertebrae: below the skull base, not in front of the cranium.
+
+    Patient coordinates (mm): the centroid lies below the lowest tenth of the cranium's
+    height and less than VERTEBRA_FRONT_MM in front of the cranium's centroid (the mandible, the hyoid and
+    facial fragments are further forward).
+    """
+    ks = np.flatnonzero(np.any(labels == cranium, axis=(1, 2)))
+    z = ct.index_to_patient(np.column_stack([ks, np.zeros_like(ks), np.zeros_like(ks)]).astype(float))[:, 2]
+    base = z.min() + 0.1 * (z.max() - z.min())
+    cranium_y = centroids_xyz[cranium - 1, 1]
+    return (centroids_xyz[:, 2] < base) & (centroids_xyz[:, 1] > cranium_y - VERTEBRA_FRONT_MM)
+
+
+#: Bone components outside the cranium's box grown by this (mm; x and y; and below it by
+#: MANDIBLE_BELOW_MM) are supports, table, holders or loose fragments, not skull.
+SUPPORT_MARGIN_MM = 10.0
+#: ... or reaching beyond that box by more than this (mm).
+SUPPORT_REACH_MM = 20.0
+MANDIBLE_BELOW_MM = 90.0
+#: A separate component of at least this volume (mm^3), below the cranium's centre and in front of it, is
+#: the mandible (phantom 40 cm^3, CThead 60 cm^3; loose teeth and the hyoid are far smaller).
+MANDIBLE_MIN_MM3 = 8000.0
+#: The mandible is articulated when its condyles (its top 15 % of height behind its centre) lie within
+#: this distance (mm) of the cranium (the glenoid fossae; measured on the bone eroded by one voxel: CThead,
+#: articulated, 6.7 mm); a dry mandible set apart lies farther.
+ARTICULATED_GAP_MM = 12.0
+
+
+#: Voxels of growth (in the bone) that the cranium's core takes before the rami are looked for in the bone itself.
+RAMI_CRANIUM_GROWTH = 3
+
+
+def rami_in_the_bone(bone: np.ndarray, cranium: np.ndarray, ct: CTVolume,
+                     min_component_mm3: float) -> tuple[dict, np.ndarray | None]:
+    """A mandible cut by the scan's end found in the bone itself rather than in its eroded components: the
+    components of ``bone`` outside ``cranium`` (the cranium's eroded core given its rim back; the condyles touch
+    it at the glenoid fossae) are tried as :func:`~.scan_contents.partial_mandible`'s pieces, their condyles'
+    gap to ``cranium``. Returns (the mandible's report, its mask or None)."""
+    # the cranium's thin walls next to its core (the maxilla's, the pterygoid plates) go with it: a few
+    # voxels more of constrained growth; the rami, 40 mm and more of bone below the condyles, stay
+    for _ in range(RAMI_CRANIUM_GROWTH):
+        cranium = cranium | (ndi.binary_dilation(cranium, structure=np.ones((3, 3, 3), bool)) & bone)
+    free = bone & ~cranium
+    pieces, m = ndi.label(free, structure=np.ones((3, 3, 3), bool))
+    if m == 0:
+        return {"present": False, "articulated": None}, None
+    labels = np.where(cranium, 1, np.where(pieces > 0, pieces + 1, 0)).astype(np.int32)
+    del pieces, free
+    n = m + 1
+    sizes = np.bincount(labels.reshape(-1), minlength=n + 1)[1:]
+    boxes = ndi.find_objects(labels)
+    voxel_mm3 = float(np.prod(ct.spacing))
+    centroids_xyz = ct.index_to_patient(np.array(ndi.center_of_mass(labels > 0, labels, np.arange(1, n + 1)))
+                                        .reshape(n, 3))
+    keep = sizes * voxel_mm3 >= float(min_component_mm3)
+    keep[0] = True
+    report = partial_mandible(labels, keep, sizes, centroids_xyz, 1, ct, voxel_mm3, boxes, ARTICULATED_GAP_MM)
+    if not report["present"]:
+        return report, None
+    # the rami, less what a closed bite joins to them (the upper molars, the maxilla's tuberosity nearer the midline)
+    mask = np.isin(labels, report["components"])
+    kji = np.argwhere(mask)
+    x = ct.index_to_patient(kji.astype(float))[:, 0]
+    mask[tuple(kji[np.abs(x - centroids_xyz[0, 0]) < PARTIAL_RAMUS_SIDE_MM].T)] = False
+    report.update(found_in="the bone (its eroded pieces too small): the rami beyond "
+                           f"{PARTIAL_RAMUS_SIDE_MM:g} mm of the midline",
+                  volume_mm3=float(np.count_nonzero(mask) * voxel_mm3))
+    return report, mask
+
+
+def _box_mm(ct: CTVolume, box) -> np.ndarray:
+    """(2, 3) patient min/max corners (x, y, z) of an index box (slices k, j, i)."""
+    corners = np.array([[s.start for s in box], [s.stop - 1 for s in box]], float)
+    kji = np.array(np.meshgrid(*corners.T, indexing="ij")).reshape(3, -1).T
+    xyz = ct.index_to_patient(kji)
+    return np.stack([xyz.min(0), xyz.max(0)])
+
+
+def mandible_report(core_labels, keep, sizes, centroids_xyz, cranium: int, ct: CTVolume, voxel_mm3: float,
+                     crbox: np.ndarray, boxes) -> dict:
+    """The mandible: found (a separate component below and in front of the cranium) and articulated."""
+    cc = centroids_xyz[cranium - 1]
+    cand = [i for i in np.flatnonzero(keep) if i != cranium - 1 and sizes[i] * voxel_mm3 >= MANDIBLE_MIN_MM3
+            and centroids_xyz[i, 2] < cc[2] and centroids_xyz[i, 1] < cc[1]
+            and centroids_xyz[i, 2] < crbox[0, 2] + 0.5 * (crbox[1, 2] - crbox[0, 2])]
+    if not cand:
+        return partial_mandible(core_labels, keep, sizes, centroids_xyz, cranium, ct, voxel_mm3, boxes,
+                                ARTICULATED_GAP_MM)
+    m = max(cand, key=lambda i: sizes[i])
+    # work in the mandible's box grown by 3 * the articulation gap (the distance beyond it does not matter)
+    pad = np.ceil(3 * ARTICULATED_GAP_MM / np.asarray(ct.spacing)).astype(int)
+    box = tuple(slice(max(0, b.start - p), min(n, b.stop + p)) for b, p, n in zip(boxes[m], pad, ct.shape))
+    sub = core_labels[box]
+    offset = np.array([b.start for b in box])
+    kji = np.argwhere(sub == m + 1)
+    xyz = ct.index_to_patient((kji + offset).astype(float))
+    ztop = xyz[:, 2].max() - 0.15 * np.ptp(xyz[:, 2])
+    condyles = (xyz[:, 2] >= ztop) & (xyz[:, 1] > np.median(xyz[:, 1]))
+    if not condyles.any():
+        condyles = xyz[:, 2] >= ztop
+    if not (sub == cranium).any():
+        return {"present": True, "articulated": False, "condyle_gap_mm": float(3 * ARTICULATED_GAP_MM),
+                "volume_mm3": float(sizes[m] * voxel_mm3), "component": int(m + 1),
+                "centroid_mm": [round(float(c), 1) for c in centroids_xyz[m]]}
+    dist = ndi.distance_transform_edt(sub != cranium, sampling=ct.spacing)
+    pts = kji[condyles]
+    # the nearest condyle voxel on each side of the mandible's centre
+    x = xyz[condyles, 0]
+    mid = float(np.median(xyz[:, 0]))
+    gaps = [float(dist[tuple(pts[side].T)].min()) for side in (x < mid, x >= mid) if side.any()]
+    gap = max(gaps) if gaps else float("inf")
+    return {"present": True, "articulated": bool(gap <= ARTICULATED_GAP_MM), "condyle_gap_mm": round(gap, 1),
+            "volume_mm3": float(sizes[m] * voxel_mm3), "component": int(m + 1),
+            "centroid_mm": [round(float(c), 1) for c in centroids_xyz[m]]}
+
+
+def bone_parts(bone: np.ndarray, ct: CTVolume, erosion: int, min_component_mm3: float, voxel_mm3: float) -> dict:
+    """The components of the bone eroded by ``erosion`` voxels and what each is: the cranium, cervical vertebrae
+    (:func:`_vertebra_components`), supports outside the cranium's box, the rest kept (see :func:`segment_skull`)."""
+    core, labels, n = eroded_components(bone, erosion)
+    sizes = np.bincount(labels.reshape(-1), minlength=n + 1)[1:]
+    boxes = ndi.find_objects(labels)
+    # the cranium: the largest component clear of the scan's side borders (a table or a holder running
+    # out of the field of view can be larger; the eroded core stops a voxel short of the border); the
+    # largest of all when every one touches them
+    _, ny, nx = ct.shape
+    clear = np.array([b[1].start > 1 and b[2].start > 1 and b[1].stop < ny - 1 and b[2].stop < nx - 1 for b in boxes])
+    cranium = int(np.argmax(np.where(clear, sizes, -1) if clear.any() else sizes)) + 1
+    centroids = np.array(ndi.center_of_mass(core, labels, np.arange(1, n + 1))).reshape(n, 3)
+    centroids_xyz = ct.index_to_patient(centroids)
+    big = sizes * voxel_mm3 >= float(min_component_mm3)
+    vertebra = _vertebra_components(labels, centroids_xyz, cranium, ct) & big
+    vertebra[cranium - 1] = False
+    # supports, table, holders: outside the cranium's box (grown by a margin, and downward for the mandible)
+    crbox = _box_mm(ct, boxes[cranium - 1])
+    lo = crbox[0] - [SUPPORT_MARGIN_MM, SUPPORT_MARGIN_MM, MANDIBLE_BELOW_MM]
+    hi = crbox[1] + SUPPORT_MARGIN_MM
+    outside = np.zeros(n, bool)
+    for i in np.flatnonzero(big & ~vertebra):
+        b = _box_mm(ct, boxes[i])
+        c = centroids_xyz[i]
+        # the centre outside the grown box, or reaching far beyond it (a table, a holder's arc)
+        outside[i] = bool(np.any(c < lo) or np.any(c > hi) or np.any(b[0] < lo - SUPPORT_REACH_MM)
+                          or np.any(b[1] > hi + SUPPORT_REACH_MM))
+    outside[cranium - 1] = False
+    keep = big & ~vertebra & ~outside
+    keep[cranium - 1] = True
+    return dict(core=core, labels=labels, n=n, sizes=sizes, boxes=boxes, cranium=cranium, centroids_xyz=centroids_xyz,
+                big=big, vertebra=vertebra, outside=outside, keep=keep, crbox=crbox, erosion=int(erosion))
