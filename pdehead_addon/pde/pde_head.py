@@ -468,17 +468,23 @@ class PDEHead:
 
     def bend_turning(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(fine rows u, the normal's turning along u between them, its turning along v between the
-        ``4 x samples`` fine columns): :func:`.surface_columns.normal_turning` of the surface on 961 x
-        ``samples`` and 481 x ``4 samples`` points. Computed once per boundary set (the first head solved
-        from it: ~0.15 s), so the live sliders keep the rows, the columns and the topology."""
+        ``4 x samples`` fine columns): :func:`.surface_columns.normal_turning` on 961 x ``samples`` and
+        481 x ``4 samples`` points of the head :func:`.pde_surface.solve_pde` makes of these curves at its
+        defaults (with this head's dome or not). A function of the boundary curves alone, computed once per
+        boundary set (~0.3 s CPU): the live sliders, a saved file and its reopening keep the rows, the
+        columns and the topology."""
+        dome = self.vertex is not None
+
         def compute():
+            from .pde_surface import solve_pde       # the solver builds PDEHeads: imported when first needed
+            reference = solve_pde(self.bset, dome=dome)
             M = int(self.bset.curves.shape[1])
             fine_u = np.linspace(0.0, 1.0, 961)
-            turn_u = normal_turning(self.surface_points(fine_u, M), fine_u)[0]
+            turn_u = normal_turning(reference.surface_points(fine_u, M), fine_u)[0]
             coarse_u = np.linspace(0.0, 1.0, 481)
-            turn_v = normal_turning(self.surface_points(coarse_u, 4 * M), coarse_u)[1]
+            turn_v = normal_turning(reference.surface_points(coarse_u, 4 * M), coarse_u)[1]
             return fine_u, turn_u, turn_v
-        return derived_once(self.bset, "bend_turning", compute)
+        return derived_once(self.bset, f"bend_turning{dome}", compute)
 
     def bend_rows(self, nu: int) -> np.ndarray:
         """The u of a bend-fitted mesh's nu rows (:func:`.surface_columns.bend_rows` of
@@ -489,7 +495,7 @@ class PDEHead:
     def bend_column_density(self) -> np.ndarray | None:
         """A bend-fitted mesh's column density (:func:`.surface_columns.bend_column_density` of
         :meth:`bend_turning` and :meth:`v_density`)."""
-        return derived_once(self.bset, "bend_columns",
+        return derived_once(self.bset, f"bend_columns{self.vertex is not None}",
                             lambda: bend_column_density(self.bend_turning()[2], self.v_density()))
 
     def cap_reference(self, nu: int, nv: int, bends: bool = False) -> dict:
