@@ -476,7 +476,8 @@ class PDEHead:
         dome = self.vertex is not None
 
         def compute():
-            from .pde_surface import solve_pde       # the solver builds PDEHeads: imported when first needed
+            # the solver builds PDEHeads: imported when first needed
+            from .pde_surface import solve_pde
             reference = solve_pde(self.bset, dome=dome)
             M = int(self.bset.curves.shape[1])
             fine_u = np.linspace(0.0, 1.0, 961)
