@@ -14,7 +14,7 @@ from ..core.mesh import Mesh
 from .pde_basis import basis, basis_grid, small_matmul
 from .pde_smoothing import lebesgue_constant
 from .pde_spline import dome_height, fade_dome_amplitudes
-from .surface_columns import bend_column_density, bend_rows, column_density, column_v, normal_turning
+from .surface_columns import bend_column_density, bend_rows, column_density, column_v, surface_turning
 from .surface_mesh import check_count, disc_caps, fan_caps, fan_indices, signed_volume, tube_mesh
 
 __all__ = ["PDEHead", "curve_positions", "derived_once", "fold_harmonics", "ring_points", "TWO_PI"]
@@ -411,10 +411,7 @@ class PDEHead:
             The rows' u (increasing from 0 to 1, ``nu`` of them) instead of ``nu`` evenly spaced (a print
             mesh denser over the face: :func:`.detail_displace.print_rows`).
         fit_bends : bool
-            Rows (unless ``rows`` is given) and columns closer together where the surface bends tightly
-            (:meth:`bend_rows`, :meth:`bend_column_density`: under the ears, at the jaw), so that a coarse
-            mesh has no slit where the smooth surface turns by tens of degrees within a row's step. The
-            surface itself and its UVs (a function of (u, v)) are the same; the vertices sit elsewhere.
+            Rows (unless ``rows``) and columns closer where the surface bends tightly (:meth:`bend_layout`).
 
         Returns
         -------
@@ -426,17 +423,13 @@ class PDEHead:
         nu, nv = check_count(nu, "nu", 2), check_count(nv, "nv", 3)
         if self.vertex is not None:
             nu = max(nu, 3)
-        if rows is None and fit_bends:
-            rows = self.bend_rows(nu)
-        u = np.linspace(0.0, 1.0, nu) if rows is None else np.asarray(rows, float)
+        fitted, density = self.bend_layout(nu) if fit_bends else (np.linspace(0.0, 1.0, nu), self.v_density())
+        u = np.asarray(fitted if rows is None else rows, float)
         if len(u) != nu or u[0] != 0.0 or u[-1] != 1.0 or np.any(np.diff(u) <= 0):
             raise PDEError(f"rows: {nu} increasing values from 0 to 1 expected")
         ends = self.spine(np.array([0.0, 1.0]))
-        density = self.bend_column_density() if fit_bends else self.v_density()
         columns = None if density is None else column_v(density, nv)
-        reference = None
-        if caps:        # (a forensic face fixes cap_reference(nu, nv) to its first face's)
-            reference = self.cap_reference(nu, nv, bends=True) if fit_bends else self.cap_reference(nu, nv)
+        reference = (self.cap_reference(nu, nv, True) if fit_bends else self.cap_reference(nu, nv)) if caps else None
         if self.vertex is not None:
             # the solid's grid too (it has the pole row; pde_solid takes the same columns)
             pts = (self.grid(u, nv) if density is None else self.grid(u, v=columns))[:-1]
@@ -466,44 +459,22 @@ class PDEHead:
         radially (there equal steps of v would give the end ring and its cap long edges)."""
         return column_v(self.v_density(), int(nv))
 
-    def bend_turning(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(fine rows u, the normal's turning along u between them, its turning along v between the
-        ``4 x samples`` fine columns): :func:`.surface_columns.normal_turning` on 961 x ``samples`` and
-        481 x ``4 samples`` points of the head :func:`.pde_surface.solve_pde` makes of these curves at its
-        defaults (with this head's dome or not). A function of the boundary curves alone, computed once per
-        boundary set (~0.3 s CPU): the live sliders, a saved file and its reopening keep the rows, the
-        columns and the topology."""
+    def bend_layout(self, nu: int) -> tuple[np.ndarray, np.ndarray | None]:
+        """A bend-fitted mesh's nu rows and column density (:mod:`.surface_columns`) from the turning of the
+        head ``solve_pde`` (imported when first needed) makes of these curves at its defaults: one per
+        boundary set (~0.3 s), kept by sliders and files."""
         dome = self.vertex is not None
-
         def compute():
-            # the solver builds PDEHeads: imported when first needed
             from .pde_surface import solve_pde
-            reference = solve_pde(self.bset, dome=dome)
-            M = int(self.bset.curves.shape[1])
-            fine_u = np.linspace(0.0, 1.0, 961)
-            turn_u = normal_turning(reference.surface_points(fine_u, M), fine_u)[0]
-            coarse_u = np.linspace(0.0, 1.0, 481)
-            turn_v = normal_turning(reference.surface_points(coarse_u, 4 * M), coarse_u)[1]
-            return fine_u, turn_u, turn_v
-        return derived_once(self.bset, f"bend_turning{dome}", compute)
-
-    def bend_rows(self, nu: int) -> np.ndarray:
-        """The u of a bend-fitted mesh's nu rows (:func:`.surface_columns.bend_rows` of
-        :meth:`bend_turning`)."""
-        fine_u, turn_u, _ = self.bend_turning()
-        return bend_rows(turn_u, fine_u, max(int(nu), 3 if self.vertex is not None else 2))
-
-    def bend_column_density(self) -> np.ndarray | None:
-        """A bend-fitted mesh's column density (:func:`.surface_columns.bend_column_density` of
-        :meth:`bend_turning` and :meth:`v_density`)."""
-        return derived_once(self.bset, f"bend_columns{self.vertex is not None}",
-                            lambda: bend_column_density(self.bend_turning()[2], self.v_density()))
+            fine_u, turn_u, turn_v = surface_turning(solve_pde(self.bset, dome=dome))
+            return fine_u, turn_u, bend_column_density(turn_v, self.v_density())
+        fine_u, turn_u, density = derived_once(self.bset, f"bend_layout{dome}", compute)
+        return bend_rows(turn_u, fine_u, nu), density
 
     def cap_reference(self, nu: int, nv: int, bends: bool = False) -> dict:
         """What fixes the disc caps' vertex counts (:func:`.surface_mesh.disc_caps`): the tube's mean edge
         at (nu, nv) and the end curves' perimeters and largest radii, from the boundary curves alone, so
-        the shape sliders rebuild the surface with the same topology. ``bends``: for a bend-fitted mesh's
-        columns (:meth:`bend_column_density`)."""
+        the shape sliders rebuild the surface with the same topology (``bends``: :meth:`bend_layout`'s)."""
         def compute():
             c = self.bset.curves
             perimeter = np.linalg.norm(np.roll(c, -1, axis=1) - c, axis=2).sum(axis=1)
@@ -511,7 +482,7 @@ class PDEHead:
             span = float(curve_positions(self.bset)[-1])
             if self.vertex is not None:
                 span += float(np.linalg.norm(c[-1] - c[-1].mean(axis=0), axis=1).mean())
-            density = self.bend_column_density() if bends else self.v_density()
+            density = self.bend_layout(3)[1] if bends else self.v_density()
 
             def arc_fraction(ring):
                 """Cumulative length at the column fraction k / K, k = 0 .. K (with equal v steps: at

@@ -14,7 +14,8 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["column_density", "column_v", "column_fraction", "column_fraction_inverse", "V_STEP_LIMIT",
-           "normal_turning", "bend_rows", "bend_column_density", "BEND_ROW_SHARE", "BEND_COLUMN_SHARE"]
+           "normal_turning", "surface_turning", "bend_rows", "bend_column_density", "BEND_ROW_SHARE",
+           "BEND_COLUMN_SHARE"]
 
 TWO_PI = 2.0 * np.pi
 
@@ -113,6 +114,18 @@ def normal_turning(points: np.ndarray, u: np.ndarray, skip_first_row: bool = Tru
     if skip_first_row:
         along_v[0] = 0.0
     return along_u.max(axis=1), along_v.max(axis=0)
+
+
+def surface_turning(head, rows: int = 961, column_rows: int = 481, oversample: int = 4):
+    """(fine rows u, the normal's turning along u between them, its turning along v between ``oversample
+    x samples`` fine columns): :func:`normal_turning` of ``head``'s surface (``surface_points``) on ``rows`` x
+    ``samples`` points for u and ``column_rows`` x ``oversample x samples`` for v, ``samples`` being its
+    curves' count of samples."""
+    M = int(head.bset.curves.shape[1])
+    fine_u = np.linspace(0.0, 1.0, int(rows))
+    turn_u = normal_turning(head.surface_points(fine_u, M), fine_u)[0]
+    coarse_u = np.linspace(0.0, 1.0, int(column_rows))
+    return fine_u, turn_u, normal_turning(head.surface_points(coarse_u, int(oversample) * M), coarse_u)[1]
 
 
 def bend_rows(turn_u: np.ndarray, u: np.ndarray, nu: int, share: float = BEND_ROW_SHARE) -> np.ndarray:
