@@ -57,7 +57,9 @@ def check_study(ext, coll, t: int, nu: int, nv: int, nw: int, volume: bool = Tru
     surface = head.surface(nu, nv, caps=True, fit_bends=True)      # rows and columns closer at tight bends
     assert len(s.surface_object.data.vertices) == len(surface.vertices)
     assert len(s.surface_object.data.polygons) == surface.face_count
-    np.testing.assert_allclose(world_mm(ext, s.surface_object), surface.vertices, atol=0.05)
+    # built from the curves in memory, which the file stores rounded to its quantum: the fitted rows and
+    # columns (a function of the surface's normal turning) sit up to ~0.2 mm along the surface elsewhere
+    np.testing.assert_allclose(world_mm(ext, s.surface_object), surface.vertices, atol=0.3)
     solid = head.solid(nu, nv, nw)
     assert len(s.solid_object.data.vertices) == len(solid.vertices)
     if volume:
