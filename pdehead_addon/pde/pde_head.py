@@ -460,13 +460,13 @@ class PDEHead:
         return column_v(self.v_density(), int(nv))
 
     def bend_layout(self, nu: int) -> tuple[np.ndarray, np.ndarray | None]:
-        """A bend-fitted mesh's nu rows and column density (:mod:`.surface_columns`) from the turning of the
-        head ``solve_pde`` (imported when first needed) makes of these curves at its defaults: one per
-        boundary set (~0.3 s), kept by sliders and files."""
+        """A bend-fitted mesh's nu rows and column density (:mod:`.surface_columns`) from the turning of
+        ``reference_solve()`` (set by ``solve_pde``: the head it makes of these curves at its defaults; else
+        this head): one per boundary set (~0.35 s), kept by sliders and files."""
         dome = self.vertex is not None
         def compute():
-            from .pde_surface import solve_pde
-            fine_u, turn_u, turn_v = surface_turning(solve_pde(self.bset, dome=dome))
+            reference = getattr(self, "reference_solve", None)
+            fine_u, turn_u, turn_v = surface_turning(self if reference is None else reference())
             return fine_u, turn_u, bend_column_density(turn_v, self.v_density())
         fine_u, turn_u, density = derived_once(self.bset, f"bend_layout{dome}", compute)
         return bend_rows(turn_u, fine_u, nu), density
