@@ -69,8 +69,8 @@ def column_fraction(density: np.ndarray | None, v: np.ndarray) -> np.ndarray:
 #: The share of a bend-fitted mesh's rows (:func:`bend_rows`) and columns (:func:`bend_column_density`)
 #: placed by the surface's normal turning; the rest stay evenly spaced (in u; in v, the head's own column
 #: density), so a head without tight bends keeps about its even mesh. Chosen on CThead and GE at the
-#: viewport's 120 x 240: the smallest shares with no edge bending by more than 60 deg off the bottom ring
-#: on either (docs/benchmarks.md, the face up close, "Slits").
+#: viewport's 120 x 240: the smallest of the shares tried (0.2-1.0) with no edge bending by more than 60 deg
+#: off the bottom ring on either (docs/benchmarks.md, the face up close, "Slits").
 BEND_ROW_SHARE = 0.65
 BEND_COLUMN_SHARE = 0.7
 
