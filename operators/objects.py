@@ -362,8 +362,11 @@ def build_surface(head, collection, nu: int = D.NU.default, nv: int = D.NV.defau
         Close the top and bottom.
     obj : bpy.types.Object, optional
         Rebuild in place (keeps object, materials, modifiers).
+
+    Rows and columns sit closer where the surface bends tightly (``fit_bends``: no slit under the ears at
+    the viewport's resolution); the topology is that of ``head.surface(nu, nv, caps)``.
     """
-    mesh = head.surface(int(nu), int(nv), caps=bool(caps))
+    mesh = head.surface(int(nu), int(nv), caps=bool(caps), fit_bends=True)
     obj = build_mesh_object(mesh, collection, name, obj=obj, smooth=True)
     _ensure_material(obj, ensure_skin_material())
     obj["pdehead_kind"] = "surface"

@@ -14,7 +14,7 @@ from ..core.mesh import Mesh
 from .pde_basis import basis, basis_grid, small_matmul
 from .pde_smoothing import lebesgue_constant
 from .pde_spline import dome_height, fade_dome_amplitudes
-from .surface_columns import column_density, column_v
+from .surface_columns import bend_column_density, bend_rows, column_density, column_v, surface_turning
 from .surface_mesh import check_count, disc_caps, fan_caps, fan_indices, signed_volume, tube_mesh
 
 __all__ = ["PDEHead", "curve_positions", "derived_once", "fold_harmonics", "ring_points", "TWO_PI"]
@@ -387,7 +387,8 @@ class PDEHead:
         mesh = tube_mesh(rings, orientation=1, caps=fan_caps(rings, rings[[0, -1]].mean(axis=1), fan_only=True))
         return 1 if signed_volume(mesh) >= 0 else -1
 
-    def surface(self, nu: int, nv: int, caps: bool = False, uv: bool = True, rows: np.ndarray | None = None) -> Mesh:
+    def surface(self, nu: int, nv: int, caps: bool = False, uv: bool = True, rows: np.ndarray | None = None,
+                fit_bends: bool = False) -> Mesh:
         """The head surface as a tube of quads (paper Fig. 4, 5, 13).
 
         Parameters
@@ -409,6 +410,8 @@ class PDEHead:
         rows : ndarray, optional
             The rows' u (increasing from 0 to 1, ``nu`` of them) instead of ``nu`` evenly spaced (a print
             mesh denser over the face: :func:`.detail_displace.print_rows`).
+        fit_bends : bool
+            Rows (unless ``rows``) and columns closer where the surface bends tightly (:meth:`bend_layout`).
 
         Returns
         -------
@@ -420,20 +423,22 @@ class PDEHead:
         nu, nv = check_count(nu, "nu", 2), check_count(nv, "nv", 3)
         if self.vertex is not None:
             nu = max(nu, 3)
-        u = np.linspace(0.0, 1.0, nu) if rows is None else np.asarray(rows, float)
+        fitted, density = self.bend_layout(nu) if fit_bends else (np.linspace(0.0, 1.0, nu), self.v_density())
+        u = np.asarray(fitted if rows is None else rows, float)
         if len(u) != nu or u[0] != 0.0 or u[-1] != 1.0 or np.any(np.diff(u) <= 0):
             raise PDEError(f"rows: {nu} increasing values from 0 to 1 expected")
         ends = self.spine(np.array([0.0, 1.0]))
-        density = self.v_density()
+        columns = None if density is None else column_v(density, nv)
+        reference = (self.cap_reference(nu, nv, True) if fit_bends else self.cap_reference(nu, nv)) if caps else None
         if self.vertex is not None:
             # the solid's grid too (it has the pole row; pde_solid takes the same columns)
-            pts = (self.grid(u, nv) if density is None else self.grid(u, v=self.v_columns(nv)))[:-1]
-            bottom = disc_caps(pts, ends, ends=(0,), reference=self.cap_reference(nu, nv))[0] if caps else None
+            pts = (self.grid(u, nv) if density is None else self.grid(u, v=columns))[:-1]
+            bottom = disc_caps(pts, ends, ends=(0,), reference=reference)[0] if caps else None
             top = (np.asarray(self.vertex, float), fan_indices(nv))
             return tube_mesh(pts, self.orientation, [bottom, top], uv=uv, u=u[:-1], top_u=1.0,
                               uv_layout=self.uv_layout() if uv else None, v_density=density)
-        pts = self.grid(u, nv) if density is None else self.grid(u, v=self.v_columns(nv))
-        cap_tris = disc_caps(pts, ends, reference=self.cap_reference(nu, nv)) if caps else None
+        pts = self.grid(u, nv) if density is None else self.grid(u, v=columns)
+        cap_tris = disc_caps(pts, ends, reference=reference) if caps else None
         return tube_mesh(pts, self.orientation, cap_tris, uv=uv, u=u, uv_layout=self.uv_layout() if uv else None,
                           v_density=density)
 
@@ -454,10 +459,22 @@ class PDEHead:
         radially (there equal steps of v would give the end ring and its cap long edges)."""
         return column_v(self.v_density(), int(nv))
 
-    def cap_reference(self, nu: int, nv: int) -> dict:
+    def bend_layout(self, nu: int) -> tuple[np.ndarray, np.ndarray | None]:
+        """A bend-fitted mesh's nu rows and column density (:mod:`.surface_columns`) from the turning of
+        ``reference_solve()`` (set by ``solve_pde``: the head it makes of these curves at its defaults; else
+        this head): one per boundary set (~0.35 s), kept by sliders and files."""
+        dome = self.vertex is not None
+        def compute():
+            reference = getattr(self, "reference_solve", None)
+            fine_u, turn_u, turn_v = surface_turning(self if reference is None else reference())
+            return fine_u, turn_u, bend_column_density(turn_v, self.v_density())
+        fine_u, turn_u, density = derived_once(self.bset, f"bend_layout{dome}", compute)
+        return bend_rows(turn_u, fine_u, nu), density
+
+    def cap_reference(self, nu: int, nv: int, bends: bool = False) -> dict:
         """What fixes the disc caps' vertex counts (:func:`.surface_mesh.disc_caps`): the tube's mean edge
         at (nu, nv) and the end curves' perimeters and largest radii, from the boundary curves alone, so
-        the shape sliders rebuild the surface with the same topology."""
+        the shape sliders rebuild the surface with the same topology (``bends``: :meth:`bend_layout`'s)."""
         def compute():
             c = self.bset.curves
             perimeter = np.linalg.norm(np.roll(c, -1, axis=1) - c, axis=2).sum(axis=1)
@@ -465,7 +482,7 @@ class PDEHead:
             span = float(curve_positions(self.bset)[-1])
             if self.vertex is not None:
                 span += float(np.linalg.norm(c[-1] - c[-1].mean(axis=0), axis=1).mean())
-            density = self.v_density()
+            density = self.bend_layout(3)[1] if bends else self.v_density()
 
             def arc_fraction(ring):
                 """Cumulative length at the column fraction k / K, k = 0 .. K (with equal v steps: at
@@ -479,7 +496,7 @@ class PDEHead:
                 return np.append(np.interp(v, TWO_PI * np.arange(len(ring) + 1) / len(ring), arc), arc[-1]) / arc[-1]
             return span, float(perimeter.mean()), ((perimeter[0], radius[0], arc_fraction(c[0])),
                                                    (perimeter[-1], radius[-1], arc_fraction(c[-1])))
-        span, mean_perimeter, end_rings = derived_once(self.bset, f"cap_ref{self.vertex is not None}", compute)
+        span, mean_perimeter, end_rings = derived_once(self.bset, f"cap_ref{self.vertex is not None}{bends}", compute)
         edge = 0.5 * (span / max(nu - 1, 1) + mean_perimeter / nv)
         return {"edge": edge, "ends": end_rings}
 

@@ -61,6 +61,7 @@ cuts the mean distance to the marching-cubes surface by about a third).
 """
 from __future__ import annotations
 
+from functools import partial
 from typing import Sequence
 
 import numpy as np
@@ -186,6 +187,9 @@ def solve_pde(bset: BoundarySet, smoothing: float | Sequence[float] | None = Non
         head = _solve_paper(bset, smoothing, n_modes, keep)
     head.smoothing_is_default = smoothing is None
     head.remainder = bool(remainder)
+    # what a bend-fitted mesh measures (PDEHead.bend_layout): these curves at the defaults, so its rows and
+    # columns are one function of the curves whatever the sliders (a partial: the head stays picklable)
+    head.reference_solve = partial(solve_pde, head.bset, dome=head.vertex is not None)
     return head
 
 

@@ -26,7 +26,12 @@ surface, nu x nv = 120 x 240, caps), Cycles CPU, into ``docs/figures/up_close_*.
   defaults (t = 15, a 400 x 800 surface) from above and at a grazing angle: without the crown's low-pass
   (``pde_spline.crown_low_pass``), with it, and marching cubes of the mask smoothed by a 3 mm Gaussian.
 
-    python3 scripts/bench/up_close_figures.py [--size 384] [--samples 16] [--face | --cut | --uv | --crown]
+* ``up_close_slits41.png`` (``--slits``, only this figure; issue 41 item 4): CThead (t = 15) and GE (t = 8)
+  at the viewport's 120 x 240, seen from below and outside at the place of the evenly spaced mesh's
+  sharpest edge (under an ear): rows and columns evenly spaced, and fitted to the surface's bends
+  (``PDEHead.surface(fit_bends=True)``, what the viewport builds), each with its count of edges > 60 deg.
+
+    python3 scripts/bench/up_close_figures.py [--size 384] [--samples 16] [--face | --cut | --uv | --crown | --slits]
 """
 from __future__ import annotations
 
@@ -187,6 +192,64 @@ def cut_figure(bl, args) -> int:
     return 0
 
 
+def slits_figure(bl, args) -> int:
+    """The ear from below at 120 x 240: evenly spaced rows and columns beside the bend-fitted mesh."""
+    from pdehead_addon import defaults as D
+    from pdehead_addon.validation.surface_quality import edge_bends
+    bpy, objects, render = bl["bpy"], bl["objects"], bl["render"]
+    bpy.ops.wm.read_homefile(use_empty=True)
+    tmp = args.out / ".tile_up_close.png"
+    rows = []
+    for name, t in (("cthead", D.PATCHES.default), ("ge", 8)):
+        seg = bench_smooth.load(name)
+        head = E.solve_pde(E.extract_boundaries(seg, patches=t, samples=D.SAMPLES.default,
+                                                selection=bench_smooth.SELECTION))
+        meshes = [(label, head.surface(120, 240, caps=True, fit_bends=fit))
+                  for label, fit in (("even", False), ("fitted (viewport)", True))]
+        # the place of the even mesh's sharpest edge off the bottom ring, seen from below and outside
+        even = meshes[0][1]
+        bends = edge_bends(even)
+        worst_u, worst_v = _worst_edge_uv(even, bends)
+        point = head.evaluate(worst_u, worst_v)
+        axis = head.spine(np.array([worst_u]))[0]
+        out = np.append((point - axis)[:2], 0.0)
+        out /= np.linalg.norm(out)
+        render.VIEWS[f"EAR_{name.upper()}"] = (tuple(-out + np.array([0.0, 0.0, 0.9])), (0.0, 0.0, 1.0))
+        lo, hi = (point - 28.0) * 1e-3, (point + 28.0) * 1e-3
+        coll = objects.study_collection(f"slits {name}")
+        row = []
+        for label, mesh in meshes:
+            obj = objects.build_mesh_object(mesh, coll, f"{name} {label}"[:30], smooth=True)
+            obj.data.materials.append(objects.ensure_skin_material())
+            b = edge_bends(mesh)
+            render.render_objects_png([obj], tmp, view=f"EAR_{name.upper()}", resolution=(args.size, args.size),
+                                      samples=args.samples, bounds=(lo, hi))
+            with Image.open(tmp) as im:
+                im = im.convert("RGB").copy()
+            ImageDraw.Draw(im).text((8, 6), f"{name} 120x240 {label}: {(b > 60).sum()} edges > 60 deg, "
+                                            f"worst {b.max():.0f}", fill=(235, 235, 235))
+            row.append(im)
+            _common.remove_object(obj)
+        rows.append(row)
+    tmp.unlink(missing_ok=True)
+    sheet(rows, args.out / "up_close_slits41.png")
+    return 0
+
+
+def _worst_edge_uv(mesh, bends) -> tuple[float, float]:
+    """(u, v) of the midpoint of the mesh's sharpest edge (:func:`.surface_quality.edge_bends` order)."""
+    polys = [np.asarray(f, np.int64) for f in (mesh.quads, mesh.triangles) if len(f)]
+    a = np.concatenate([f.ravel() for f in polys])
+    b = np.concatenate([np.roll(f, -1, axis=1).ravel() for f in polys])
+    n = len(mesh.vertices)
+    key = np.sort(np.minimum(a, b) * n + np.maximum(a, b), kind="stable")
+    pair = np.nonzero(key[1:] == key[:-1])[0]
+    k = key[pair[int(np.argmax(bends))]]
+    lo, hi = k // n, k % n
+    u, v = (np.asarray(mesh.vertex_attributes[x], float) for x in ("u", "v"))
+    return 0.5 * (u[lo] + u[hi]), float(np.angle(np.exp(1j * v[lo]) + np.exp(1j * v[hi])))
+
+
 def crown_figure(bl, args) -> int:
     """CThead's crown from above and grazing: before / after ``crown_low_pass`` and the 3 mm-smoothed mask."""
     from unittest import mock
@@ -245,6 +308,7 @@ def main(argv=None) -> int:
     ap.add_argument("--cut", action="store_true", help="only up_close_cut.png (issue 21 item 3)")
     ap.add_argument("--uv", action="store_true", help="only up_close_uv.png (issue 21 item 4)")
     ap.add_argument("--crown", action="store_true", help="only up_close_crown41.png (issue 41 item 2)")
+    ap.add_argument("--slits", action="store_true", help="only up_close_slits41.png (issue 41 item 4)")
     args = ap.parse_args(argv)
     bl = _common.blender()
     if args.face:
@@ -253,6 +317,8 @@ def main(argv=None) -> int:
         return cut_figure(bl, args)
     if args.crown:
         return crown_figure(bl, args)
+    if args.slits:
+        return slits_figure(bl, args)
     bpy, objects, render = bl["bpy"], bl["objects"], bl["render"]
     bpy.ops.wm.read_homefile(use_empty=True)
     from pdehead_addon import defaults as D

@@ -54,10 +54,12 @@ def check_study(ext, coll, t: int, nu: int, nv: int, nw: int, volume: bool = Tru
     head = stored_head(ext, coll)
     assert head.bset.patches == t
     assert head.bset.meta.get("parameterisation") == "angular"  # Align Curves is on by default
-    surface = head.surface(nu, nv, caps=True)
+    surface = head.surface(nu, nv, caps=True, fit_bends=True)      # rows and columns closer at tight bends
     assert len(s.surface_object.data.vertices) == len(surface.vertices)
     assert len(s.surface_object.data.polygons) == surface.face_count
-    np.testing.assert_allclose(world_mm(ext, s.surface_object), surface.vertices, atol=0.05)
+    # built from the curves in memory, which the file stores rounded to its quantum: the fitted rows and
+    # columns (a function of the surface's normal turning) sit up to ~0.2 mm along the surface elsewhere
+    np.testing.assert_allclose(world_mm(ext, s.surface_object), surface.vertices, atol=0.3)
     solid = head.solid(nu, nv, nw)
     assert len(s.solid_object.data.vertices) == len(solid.vertices)
     if volume:
@@ -133,7 +135,7 @@ def test_live_parameters_after_reopen_without_resegmenting(ext, phantom_blend, m
     assert len(solid.data.vertices) == len(head.solid(20, 48, 4).vertices)
     s.nv = 36
     assert len(surf.data.vertices) == len(head.surface(20, 36, caps=True).vertices)
-    np.testing.assert_allclose(world_mm(ext, surf), head.surface(20, 36, caps=True).vertices, atol=0.05)
+    np.testing.assert_allclose(world_mm(ext, surf), head.surface(20, 36, caps=True, fit_bends=True).vertices, atol=0.05)
     s.caps = False
     assert len(surf.data.vertices) == len(head.surface(20, 36, caps=False).vertices)
     s.caps = True
@@ -145,7 +147,8 @@ def test_live_parameters_after_reopen_without_resegmenting(ext, phantom_blend, m
     np.testing.assert_allclose(world_mm(ext, surf), before, atol=1e-3)
     s.approximation = 1.0  # the top of the study's range: a strongly smoothed head, never refused
     assert s.last_error == ""
-    expected = stored_head(ext, coll, controls=True, approximation=1.0).surface(20, 36, caps=True).vertices
+    expected = stored_head(ext, coll, controls=True, approximation=1.0).surface(20, 36, caps=True,
+                                                                               fit_bends=True).vertices
     np.testing.assert_allclose(world_mm(ext, surf), expected, atol=0.05)
     assert np.abs(world_mm(ext, surf) - before).max() > 1.0  # visibly smoother
     assert s.volume_stale  # the w-field follows the PDE: the sidebar asks for a rebuild
@@ -156,20 +159,23 @@ def test_live_parameters_after_reopen_without_resegmenting(ext, phantom_blend, m
     assert s.smoothing == pytest.approx(0.0)       # the C2 default a is 0 (the natural spline)
     s.smoothing = 1.0                              # a = the isotropic height/radius: every value solves
     assert s.last_error == ""
-    expected = stored_head(ext, coll, controls=True, smoothing=1.0).surface(20, 36, caps=True).vertices
+    expected = stored_head(ext, coll, controls=True, smoothing=1.0).surface(20, 36, caps=True,
+                                                                               fit_bends=True).vertices
     np.testing.assert_allclose(world_mm(ext, surf), expected, atol=0.05)
     assert np.abs(world_mm(ext, surf) - shown).max() > 1e-3  # measurable (high harmonics damped between curves)
     s.smoothing_auto = True
 
     s.continuity = "paper"                         # the paper's patches, on the same stored curves
     assert s.last_error == ""
-    expected = stored_head(ext, coll, continuity="paper").surface(20, 36, caps=True).vertices
+    expected = stored_head(ext, coll, continuity="paper").surface(20, 36, caps=True,
+                                                                               fit_bends=True).vertices
     np.testing.assert_allclose(world_mm(ext, surf), expected, atol=0.05)
     s.continuity = "c2"
 
     s.modes = 3                                    # eq. 13's truncated series: a much simpler head
     assert s.last_error == ""
-    expected = stored_head(ext, coll, controls=True, modes=3).surface(20, 36, caps=True).vertices
+    expected = stored_head(ext, coll, controls=True, modes=3).surface(20, 36, caps=True,
+                                                                               fit_bends=True).vertices
     np.testing.assert_allclose(world_mm(ext, surf), expected, atol=0.05)
     assert np.abs(world_mm(ext, surf) - shown).max() > 3.0
     s.modes = 0
