@@ -347,9 +347,10 @@ def up_close_markdown(res: dict) -> str:
         )
     if "slits" in c and "slits" in g:
         row("slits (issue 41): edges bending > 60 deg (> 90) off the bottom ring, 120 × 240; 400 × 800 (0); "
-            "before = rows and columns evenly spaced, after = fitted to the bends (the viewport)",
+            "before = rows and columns evenly spaced, after = fitted to the bends (the viewport; a run before "
+            "the fitted mesh measured the even one only)",
             lambda d, k: "{} ({}); {} ({})".format(*(
-                (d["slits"]["even"] if k == "before" else d["slits"]).get(size, {}).get(key, "-")
+                (d["slits"].get("even", d["slits"]) if k == "before" else d["slits"]).get(size, {}).get(key, "-")
                 for size in ("120x240", "400x800") for key in ("over60", "over90"))), "{}")
     row(f"neck: longest cap / pole-fan triangle edge over the mean edge (≤ {T['cap_edge_ratio']:.0f})",
         lambda d, k: d["cap_edge_ratio"][k], "{:.2f}")

@@ -214,7 +214,7 @@ def slits_figure(bl, args) -> int:
         axis = head.spine(np.array([worst_u]))[0]
         out = np.append((point - axis)[:2], 0.0)
         out /= np.linalg.norm(out)
-        render.VIEWS[f"EAR_{name.upper()}"] = (tuple(-out + np.array([0.0, 0.0, 0.9])), (0.0, 0.0, 1.0))
+        ear_view = (tuple(-out + np.array([0.0, 0.0, 0.9])), (0.0, 0.0, 1.0))
         lo, hi = (point - 28.0) * 1e-3, (point + 28.0) * 1e-3
         coll = objects.study_collection(f"slits {name}")
         row = []
@@ -222,7 +222,7 @@ def slits_figure(bl, args) -> int:
             obj = objects.build_mesh_object(mesh, coll, f"{name} {label}"[:30], smooth=True)
             obj.data.materials.append(objects.ensure_skin_material())
             b = edge_bends(mesh)
-            render.render_objects_png([obj], tmp, view=f"EAR_{name.upper()}", resolution=(args.size, args.size),
+            render.render_objects_png([obj], tmp, view=ear_view, resolution=(args.size, args.size),
                                       samples=args.samples, bounds=(lo, hi))
             with Image.open(tmp) as im:
                 im = im.convert("RGB").copy()
