@@ -437,9 +437,9 @@ CONSTANT_CHOICE = {
     "13.5 mm)",
     "face_profile.PEG_NORMAL_RADIUS_MM / PEG_NORMAL_MIN_COS": "definition (T-Table depths along the bone normal)",
     "face_profile.FLOOR_SMOOTH_*, CUT_*": "GE (its 18.5-degree cut)",
-    "face_from_skull.RULE_DEPTH_MM": "published (T-Table 2023 vertex 5.0 / opisthocranion 6.0 mm)",
-    "face_from_skull.RULE_WEIGHT / NARROW_FRACTION / RBF_REGULARISATION": "renders (smoothness), phantom",
-    "face_from_skull.DAMP_FREE_MM / DAMP_SCALE_MM": "CThead score (60.1 -> 62.0 %)",
+    "face_field.RULE_DEPTH_MM": "published (T-Table 2023 vertex 5.0 / opisthocranion 6.0 mm)",
+    "face_field.RULE_WEIGHT / NARROW_FRACTION / RBF_REGULARISATION": "renders (smoothness), phantom",
+    "face_field.DAMP_FREE_MM / DAMP_SCALE_MM": "CThead score (60.1 -> 62.0 %)",
     "face_from_skull.CHEEK_SPAN_DEG / CHEEK_RAMP_MM": "CThead score (its error map: 63.0 -> 63.2 %)",
     "face_from_skull.ALAR_DEFINITION_TOLERANCE_MM / MID_RAMUS_FRACTION": "definition (T-Table landmark definitions)",
     "defaults.FACE_SPREAD_MM": "renders",
@@ -454,7 +454,7 @@ CONSTANT_CHOICE = {
 }
 #: The constants chosen on CThead's score, set neutral for the suite's "without" row: no damping of outlying pegs, no
 #: convex cheeks (the stronger smoothing away from the pegs, also chosen on CThead, is off for every head now).
-CTHEAD_CHOSEN_NEUTRAL = {("pdehead_addon.forensic.face_from_skull", "DAMP_FREE_MM"): 1e9,
+CTHEAD_CHOSEN_NEUTRAL = {("pdehead_addon.forensic.face_field", "DAMP_FREE_MM"): 1e9,
                          ("pdehead_addon.forensic.face_from_skull", "CHEEK_SPAN_DEG"): 0.0}
 
 
