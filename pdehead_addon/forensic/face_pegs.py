@@ -2,7 +2,7 @@
 
 A face from the skull (:class:`.face_from_skull.FaceModel`) passes through most peg tips to a few tenths of a mm,
 but not through all: a peg whose offset disagrees with its neighbours' is damped
-(:meth:`~.face_from_skull.FaceModel._site_damping`), the field is kept from overshooting
+(:meth:`~.face_from_skull.FaceModel.site_damping`), the field is kept from overshooting
 (:meth:`~.face_from_skull.FaceModel.limited_field`) and the nose, lips and cheeks are shape rules over the field. This
 module says so, per peg, cheaply enough for every live re-solve (:func:`peg_report`): the tip's distance to the
 face (exact point-to-triangle distances near the nearest face vertex), whether the peg is damped and by how much,

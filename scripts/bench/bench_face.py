@@ -427,6 +427,11 @@ def score_variant(label: str, ct, ref: dict, bone_level: float | None = None, fl
 CONSTANT_CHOICE = {
     "face_profile.NECK_RADIUS_MM / NECK_SLOPE": "published (neck circumference, Ben-Noun et al. 2001) / renders",
     "face_profile.CLOSING_MM": "definition (orbit ~40 mm, aperture ~25 mm wide)",
+    "face_profile.PROFILE_3D (off) / ENVELOPE_CLOSING_MM / face_envelope.ENVELOPE_SMOOTH_MM": "GE and the phantom "
+    "(ball 15 / 30 / 40 mm: GE 25.7 / 59.9 / 61.3 %, the phantom 40.2 / 41.1 / 41.0 %; the signed distance's Gaussian "
+    "3 / 5 / 8 mm at 30: GE 59.9 / 64.1 / 58.4 %, the phantom 41.1 / 42.0 / 42.5 %; those with the envelope half a "
+    "voxel too far out; at the bone (kept): GE 55.1, the phantom 42.5 %; the rows' hull: GE 49.9, the phantom "
+    "42.2 %); off because the CThead check fails: stripped at 1500 / 1600 46.3 / 60.6 % (rows: 51.8 / 54.5)",
     "face_profile.PROFILE_SMOOTH_MM / _ARC_MM (6 mm over the surface)": "GE and the phantom (GE best at 8 mm: 48.8 / "
     "49.9 / 51.1 / 48.7 % at 4 / 6 / 8 / 10 mm, the phantom flat); 6, not 8, because at 8 CThead's 1500 and 1600 "
     "strips land 10 points apart (a CThead check, not its score)",
@@ -437,9 +442,9 @@ CONSTANT_CHOICE = {
     "13.5 mm)",
     "face_profile.PEG_NORMAL_RADIUS_MM / PEG_NORMAL_MIN_COS": "definition (T-Table depths along the bone normal)",
     "face_profile.FLOOR_SMOOTH_*, CUT_*": "GE (its 18.5-degree cut)",
-    "face_from_skull.RULE_DEPTH_MM": "published (T-Table 2023 vertex 5.0 / opisthocranion 6.0 mm)",
-    "face_from_skull.RULE_WEIGHT / NARROW_FRACTION / RBF_REGULARISATION": "renders (smoothness), phantom",
-    "face_from_skull.DAMP_FREE_MM / DAMP_SCALE_MM": "CThead score (60.1 -> 62.0 %)",
+    "face_field.RULE_DEPTH_MM": "published (T-Table 2023 vertex 5.0 / opisthocranion 6.0 mm)",
+    "face_field.RULE_WEIGHT / NARROW_FRACTION / RBF_REGULARISATION": "renders (smoothness), phantom",
+    "face_field.DAMP_FREE_MM / DAMP_SCALE_MM": "CThead score (60.1 -> 62.0 %)",
     "face_from_skull.CHEEK_SPAN_DEG / CHEEK_RAMP_MM": "CThead score (its error map: 63.0 -> 63.2 %)",
     "face_from_skull.ALAR_DEFINITION_TOLERANCE_MM / MID_RAMUS_FRACTION": "definition (T-Table landmark definitions)",
     "defaults.FACE_SPREAD_MM": "renders",
@@ -454,7 +459,7 @@ CONSTANT_CHOICE = {
 }
 #: The constants chosen on CThead's score, set neutral for the suite's "without" row: no damping of outlying pegs, no
 #: convex cheeks (the stronger smoothing away from the pegs, also chosen on CThead, is off for every head now).
-CTHEAD_CHOSEN_NEUTRAL = {("pdehead_addon.forensic.face_from_skull", "DAMP_FREE_MM"): 1e9,
+CTHEAD_CHOSEN_NEUTRAL = {("pdehead_addon.forensic.face_field", "DAMP_FREE_MM"): 1e9,
                          ("pdehead_addon.forensic.face_from_skull", "CHEEK_SPAN_DEG"): 0.0}
 
 

@@ -516,7 +516,8 @@ def test_field_does_not_overshoot_between_conflicting_pegs(model, face, monkeypa
     near = np.linalg.norm(model._grid_xyz - centre, axis=1) < 15.0           # the grid around the pair
     top = max(target[np.linalg.norm(xs - centre, axis=1) < 45.0].max(), F.RULE_DEPTH_MM)
     limited = model._offset_field(tips)
-    monkeypatch.setattr(F, "LIMIT_RADIUS_FRACTION", 0.0)
+    import pdehead_addon.forensic.face_field as field
+    monkeypatch.setattr(field, "LIMIT_RADIUS_FRACTION", 0.0)
     free = model._offset_field(tips)
     # measured on the phantom: the free field 2.1 mm above the highest offset near the pair, the limited one 0.01 below
     assert free.ravel()[near].max() > top + 1.0
@@ -553,7 +554,7 @@ def test_limiter_on_each_sites_window_equals_the_dense_blend(model, face):
 
 
 def test_site_windows_split_a_run_across_the_seam():
-    from pdehead_addon.forensic.face_from_skull import _site_windows
+    from pdehead_addon.forensic.face_field import site_windows as _site_windows
     rows = np.zeros((10, 2), bool)
     rows[2:5, 0] = rows[6:9, 1] = True
     cols = np.zeros((12, 2), bool)

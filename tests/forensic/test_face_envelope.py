@@ -1,0 +1,70 @@
+"""The skull's closed outer envelope in 3-D (:mod:`pdehead_addon.forensic.face_envelope`), read on the face's grid."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from skimage import measure
+
+from pdehead_addon import Mesh
+from pdehead_addon.forensic.face_envelope import envelope_radius, surface_points
+from pdehead_addon.forensic.face_profile import FaceGrid
+
+RADIUS = 70.0
+PIT_MM = 40.0             # a pit about an orbit's width and depth, straight ahead (-y)
+PIT_DEPTH_MM = 30.0
+
+
+def _shell(pit: bool) -> Mesh:
+    """A ball (radius 70 mm) about the origin, from a 1 mm marching-cubes grid (its surface lies at 70.5 mm); with
+    ``pit`` a round pit PIT_MM wide and PIT_DEPTH_MM deep straight ahead into it (as the orbit is into the face)."""
+    ax = np.arange(-80.0, 81.0)
+    x, y, z = np.meshgrid(ax, ax, ax, indexing="ij")
+    r = np.sqrt(x * x + y * y + z * z)
+    solid = r <= RADIUS
+    if pit:
+        solid &= ~((y < -(RADIUS - PIT_DEPTH_MM)) & (np.hypot(x, z) < 0.5 * PIT_MM))
+    verts, faces, _, _ = measure.marching_cubes(solid.astype(np.float32), 0.5)
+    return Mesh(vertices=verts + ax[0], quads=np.zeros((0, 4)), triangles=faces)
+
+
+def _grid() -> FaceGrid:
+    return FaceGrid(np.zeros(2), np.arange(-40.0, 41.0, 4.0), np.arange(180) * 2 * np.pi / 180)
+
+
+def test_surface_points_cover_every_triangle_within_the_spacing():
+    """Points on a long thin triangle no farther apart than asked: every point of it lies within the spacing of one."""
+    from scipy.spatial import cKDTree
+    tri = Mesh(vertices=[[0, 0, 0], [30, 0, 0], [0, 5, 0]], quads=np.zeros((0, 4)), triangles=[[0, 1, 2]])
+    pts = surface_points(tri, 1.0)
+    u, w = np.random.default_rng(0).random((2, 2000))
+    inside = u + w <= 1
+    probe = np.column_stack([30 * u[inside], 5 * w[inside], np.zeros(inside.sum())])
+    assert cKDTree(pts).query(probe)[0].max() <= 1.0
+
+
+def test_envelope_of_a_sphere_is_the_sphere():
+    """On a closed sphere the envelope's radius is the sphere's at every row (the smoothing's shrink is
+    sigma^2 / 2R ~ 0.2 mm), and it does not vary around the head by more than the voxel's steps."""
+    g = _grid()
+    r = envelope_radius(_shell(False), g, closing_mm=30.0)
+    want = np.sqrt((RADIUS + 0.5) ** 2 - g.z ** 2)[:, None]
+    assert np.all(np.isfinite(r))
+    assert np.abs(r - want).max() < 1.0
+    assert np.ptp(r, axis=1).max() < 1.0
+
+
+@pytest.mark.parametrize("closing", [0.0, 30.0])
+def test_closing_bridges_a_pit_as_wide_as_an_orbit(closing):
+    """A 40 mm wide, 30 mm deep pit: a 30 mm ball bridges it but for the ball's sagitta over the opening
+    (R - sqrt(R^2 - (D/2)^2) = 7.6 mm, less the sphere's own 2.9 mm: ~ 5 mm under the sphere) and the Gaussian's
+    rounding of the pit's rim (~ 3 mm more: 62.4-63.0 mm measured); without a closing the rays meet the pit's floor."""
+    g = _grid()
+    r = envelope_radius(_shell(True), g, closing_mm=closing)
+    ahead = np.abs(np.angle(np.exp(1j * (g.theta - np.pi)))) < np.radians(4.0)     # theta = pi: straight ahead (-y)
+    mid = np.abs(g.z) < 5.0
+    through = r[np.ix_(mid, ahead)]
+    assert np.all(np.isfinite(through))
+    if closing > 0:
+        assert np.all(through > RADIUS - 10.0)
+    else:
+        assert np.all(through < RADIUS - PIT_DEPTH_MM + 5.0)
