@@ -301,7 +301,7 @@ TURNTABLE_FRAMES = _param("turntable_frames", 120, min=2, max=10000,
 
 # ----------------------------------------------------------------------------- views
 #: The named views of renders, Frame Study and the CLI's ``--view``: name -> (label, description). Each view's
-#: camera direction is in operators/render.py (``VIEWS``); Frame Study offers all but TOP.
+#: camera direction is in operators/scene/render.py (``VIEWS``); Frame Study offers all but TOP.
 VIEWS = {"FRONT": ("Front", "The face (Blender's front view)"),
          "RIGHT": ("Right", "The patient's right side"),
          "LEFT": ("Left", "The patient's left side"),
@@ -372,7 +372,7 @@ FACE_MIN_TISSUE_MM = _param("face_min_tissue_mm", 2.0, min=0.0, max=10.0, unit="
                             description="Face from skull: least soft tissue over the bone anywhere on the face")
 
 # ----------------------------------------------------------------------------- forensic operators
-#: The skull the forensic steps measure on / snap to (operators/forensic.py TARGET_ITEMS).
+#: The skull the forensic steps measure on / snap to (operators/forensic/ops.py TARGET_ITEMS).
 DEPTH_TARGET = _param("depth_target", "BONE", choices=("BONE", "PDE"), label="Skull",
                       description="The skull measured on or snapped to: the bone skull (smoothed marching cubes "
                                   "of the bone) or the smooth PDE skull envelope")

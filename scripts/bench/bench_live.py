@@ -94,7 +94,7 @@ _CPU: list[float] = []   # CPU seconds of the last timed change (the machine may
 
 def _timed_change(s, coll, prop, value) -> tuple[float, float | None]:
     """(whole callback, the deferred colour refresh or None) of one change, wall clock."""
-    from pdehead_dev.operators.study_entity import Study
+    from pdehead_dev.operators.study.entity import Study
     t = time.perf_counter()
     c = time.process_time()
     setattr(s, prop, value)
@@ -117,9 +117,9 @@ def _timed_change(s, coll, prop, value) -> tuple[float, float | None]:
 def bench_dataset(name: str, repeats: int) -> dict:
     import bpy
 
-    from pdehead_dev.operators import state
-    from pdehead_dev.operators.props import COLOUR_ITEMS
-    from pdehead_dev.operators.study_entity import Study
+    from pdehead_dev.operators.study import state
+    from pdehead_dev.operators.study.entity import Study
+    from pdehead_dev.operators.study.props import COLOUR_ITEMS
     Study.DEFER_CT_COLOURS = True   # as in Blender with a UI (the colour refresh is timed on its own)
     runs = []
     for _ in range(PIPELINE_RUNS):  # each in an empty file; the sliders below use the last run's study
@@ -390,9 +390,10 @@ def bench_face_dataset(name: str, repeats: int) -> dict:
     import numpy as np
     from mathutils import Vector
 
-    from pdehead_dev.operators import face, forensic_export, state
-    from pdehead_dev.operators.forensic_study import ForensicStudy
-    from pdehead_dev.operators.study_entity import Study
+    from pdehead_dev.operators.forensic import export as forensic_export, face
+    from pdehead_dev.operators.forensic.study import ForensicStudy
+    from pdehead_dev.operators.study import state
+    from pdehead_dev.operators.study.entity import Study
     coll, steps = _face_study(name)
     fs = ForensicStudy.of(Study.of(coll))
     obj = fs.face_object()
