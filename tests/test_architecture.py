@@ -26,7 +26,7 @@ def _stem(where: str) -> str:
 #: What each measure still lists today (target: empty). A new entry fails the test.
 ALLOWED = {
     # modules over 600 lines, by file stem
-    "modules_over_limit": {"face_from_skull", "mask_cleanup", "slice_selection", "skull", "face", "input_checks",
+    "modules_over_limit": {"face_from_skull", "mask_cleanup", "slice_selection", "skull", "input_checks",
                            "chan_vese_pyramid", "discovery", "boundaries"},
     # functions over complexity 15
     "complex_functions": set(),

@@ -10,7 +10,7 @@ The steps are methods of :class:`.study.ForensicStudy` (defined here in :class:`
   study's collection (shaded smooth) and the pegs as child objects of it (one per peg of the model,
   standing on the bone along the bone normal, as long as the table's mean). The label
   :data:`APPROXIMATION_LABEL` and the provenance are custom properties of the face object.
-* **Live.** A ``depsgraph_update_post`` handler (:func:`pdehead_face_update`, registered once, guarded
+* **Live.** A ``depsgraph_update_post`` handler (:func:`.face_handler.pdehead_face_update`, registered once, guarded
   against recursion) compares each face's peg tips (a peg's tip: its origin on the bone plus its
   ``depth_mm`` along its own Z axis) with the tips of the last solve; when one moved -- a peg dragged
   with G, moved by a script, or its depth changed -- the model is solved through the new tips and only
@@ -44,9 +44,8 @@ import numpy as np
 from ...pdehead_addon import PDEHeadError
 from ..scene.coords import MM_TO_M
 from ..study import state
-from ..study.entity import Study
 from .export import PEG_DEPTH_PROP, set_peg_depth
-from .objects import ForensicBase, engine_mesh_of, plain_material, set_material
+from .objects import engine_mesh_of, plain_material, set_material
 from .props import face_options_of, store_face_options
 
 FACE_KEY = "pdehead_face_object"            # collection -> the face object
@@ -591,51 +590,3 @@ class FaceSteps:
             self.settings.last_error = ""
         except Exception as exc:  # noqa: BLE001 - an update callback must never raise into the UI
             self.settings.last_error = f"face: {exc}"[:500]
-
-
-# ------------------------------------------------------------------------------------------ live
-def forensic_of(coll):
-    """The forensic side (:class:`.study.ForensicStudy`) of a study collection."""
-    return ForensicBase.of(Study.of(coll))
-
-
-def live_table(coll) -> None:
-    """Update callback of the study settings ``face_table`` / ``face_table_file`` (:mod:`operators.study.props`)."""
-    forensic_of(coll).live_table()
-
-
-@bpy.app.handlers.persistent
-def pdehead_face_update(_scene, depsgraph=None) -> None:
-    """After a depsgraph update: re-solve each study's face whose peg tips moved since its last solve.
-
-    A scene without a face costs one key lookup per study; a face whose pegs did not move, one
-    matrix read per peg.
-    """
-    if state.running.now("face") or state.updates_suspended():
-        return
-    with state.running("face"):
-        for coll in state.studies():
-            if FACE_KEY not in coll:
-                continue
-            fs = forensic_of(coll)
-            obj = fs.face_object()
-            if obj is None or obj.mode == 'EDIT':      # edited by hand: Blender's edit mesh would overwrite it
-                continue
-            try:
-                tips = fs.moved_tips()
-                if tips is not None:
-                    fs.solve_face(tips=tips)
-            except Exception as exc:  # noqa: BLE001 - a handler must not raise into Blender
-                if fs.face_object() is not None:      # do not retry on every update: remember the tips tried
-                    fs.cache["face_tips"] = fs.peg_tips(fs.face_peg_names())
-                fs.settings.last_error = f"face: {exc}"[:500]
-                print(f"PDE Head: face of '{coll.name}' not updated: {exc}")
-
-
-def register() -> None:
-    state.install_depsgraph_handler(pdehead_face_update)
-
-
-def unregister() -> None:
-    state.remove_depsgraph_handler(pdehead_face_update)
-    state.REGISTRY.face_tables.clear()

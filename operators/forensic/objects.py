@@ -2,8 +2,8 @@
 
 :class:`ForensicBase` is what every part of :class:`.study.ForensicStudy` shares (the skull,
 :mod:`.skull`; the landmarks, :mod:`.study`; pegs and export, :mod:`.export`;
-the face, :mod:`.face`): the registry (one object per study for the session, as
-:class:`operators.study.entity.Study` has), the study it belongs to, its collection, settings, forensic
+the face, :mod:`.face`): the study it belongs to (the :class:`operators.study.entity.Study` that holds it as its
+``forensic`` component; the study registry is the only one), its collection, settings, forensic
 PropertyGroup (:mod:`.props`) and in-memory cache, its sub-collections and the objects the
 collection points at.
 """
@@ -13,36 +13,21 @@ import bpy
 import numpy as np
 
 from .. import compat
-from ..study import state
 from .props import FORMAT_VERSION, forensic_settings, migrate
 
 
 class ForensicBase:
-    """One study's forensic side; get it with ``ForensicStudy.of(study)`` (``study``: a
-    :class:`operators.study.entity.Study`)."""
-
-    #: The class :meth:`of` makes: the full entity (set when :class:`.study.ForensicStudy` is defined),
-    #: so the parts that define its methods never import it back.
-    entity_type: type | None = None
-
-    def __init_subclass__(cls, **kw):
-        super().__init_subclass__(**kw)
-        ForensicBase.entity_type = cls
+    """One study's forensic side, a component of its :class:`operators.study.entity.Study` (``study.forensic``);
+    get it with ``ForensicStudy.of(study)``, which also migrates an older file's forensic settings."""
 
     def __init__(self, study):
         self.study = study
 
-    @classmethod
-    def of(cls, study):
-        """The forensic side of ``study`` (a :class:`operators.study.entity.Study`; one object per study id, in
-        ``state.REGISTRY``)."""
-        key = study.study_id
-        kind = ForensicBase.entity_type or cls
-        entities = state.REGISTRY.forensic
-        entity = entities.get(key)
-        if not isinstance(entity, kind):
-            entity = entities[key] = kind(study)
-        entity.study = study
+    @staticmethod
+    def of(study):
+        """The forensic side of ``study`` (a :class:`operators.study.entity.Study`, which holds it as its
+        ``forensic`` component), its settings of an older file format migrated first."""
+        entity = study.forensic
         if entity.props.format_version < FORMAT_VERSION:
             entity.migrate()
         return entity

@@ -15,7 +15,8 @@ per study for the session; its methods come in parts:
 * the face from the skull (:class:`.face.FaceSteps`).
 
 Its settings and landmark flags are a PropertyGroup on the collection (:mod:`.props`); the
-shared parts (registry, cache, sub-collections) are :class:`.objects.ForensicBase`.
+shared parts (the study, cache, sub-collections) are :class:`.objects.ForensicBase`. The
+:class:`operators.study.entity.Study` holds it as its ``forensic`` component.
 """
 from __future__ import annotations
 

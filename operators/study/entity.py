@@ -2,7 +2,9 @@
 in-memory cache, CT, head, stored boundary conditions, CT table, warnings and timings, and runs its
 pipeline steps (:class:`.steps.PipelineSteps`: ``Study.import_ct``, ``segment``, ``boundaries``,
 ``surface``, ``volume``) and live updates (:class:`.live.LiveSolid`: ``solid``, ``live_update``,
-``apply_cutter``, ``add_cutter``).
+``apply_cutter``, ``add_cutter``); the steps return their outcomes (:class:`.steps.StepOutcome`,
+:class:`.steps.BoundaryOutcome`). Its forensic side is a component it holds (``study.forensic``, a
+:class:`operators.forensic.study.ForensicStudy`).
 
 The pattern is MolecularNodes' entity + session registry: an entity is looked up by a uuid that
 lives in the .blend (here the study settings' ``study_id``), and the registry holds one Python object
@@ -19,6 +21,7 @@ from pathlib import Path
 import bpy
 
 from ...pdehead_addon import PDEHeadError, StorageError
+from ..forensic.study import ForensicStudy
 from ..scene import scene
 from . import state
 from .live import LiveSolid
@@ -59,6 +62,7 @@ class Study(PipelineSteps, LiveSolid):
 
     def __init__(self, collection):
         self.collection = collection
+        self._forensic = None
 
     # --- registry -----------------------------------------------------------------------------
 
@@ -96,6 +100,14 @@ class Study(PipelineSteps, LiveSolid):
             state.REGISTRY.studies.pop(study_id, None)
 
     # --- what the study owns --------------------------------------------------------------------
+
+    @property
+    def forensic(self) -> ForensicStudy:
+        """The study's forensic side (skull, landmarks, pegs, export, face): a component this study holds,
+        made on first use (its state lives in the collection's forensic settings and :attr:`cache`)."""
+        if self._forensic is None:
+            self._forensic = ForensicStudy(self)
+        return self._forensic
 
     @property
     def name(self) -> str:

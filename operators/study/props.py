@@ -27,7 +27,7 @@ from bpy.props import (
 
 from ...pdehead_addon import defaults as D
 from .. import compat
-from ..forensic import face
+from ..forensic import face, face_handler
 from . import state
 from .entity import Study
 
@@ -67,7 +67,7 @@ def _face_table_update(self, context):
         return
     coll = state.study_of_settings(self)
     if coll is not None:
-        face.live_table(coll)
+        face_handler.live_table(coll)
 
 
 def _face_table_file_update(self, context):

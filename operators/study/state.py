@@ -67,10 +67,9 @@ class Registry:
     the state of the session around the studies. :data:`REGISTRY` is the one instance: ``operators/`` keeps
     no other module-level state that changes (``scripts/study_measures.py`` counts it)."""
 
-    #: study id -> the study entity (:class:`.entity.Study`, one per study for the session) ...
+    #: study id -> the study entity (:class:`.entity.Study`, one per study for the session; it holds its
+    #: forensic side, :class:`operators.forensic.study.ForensicStudy`, as a component) ...
     studies: dict[str, Any] = field(default_factory=dict)
-    #: ... its forensic side (:class:`operators.forensic.study.ForensicStudy`) ...
-    forensic: dict[str, Any] = field(default_factory=dict)
     #: ... and its in-memory results.
     caches: dict[str, StudyCache] = field(default_factory=dict)
     #: Where messages are shown: "dialog" (Blender's UI: field names) or "cli" (scripts/pdehead.py sets it:

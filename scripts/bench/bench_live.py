@@ -390,7 +390,7 @@ def bench_face_dataset(name: str, repeats: int) -> dict:
     import numpy as np
     from mathutils import Vector
 
-    from pdehead_dev.operators.forensic import export as forensic_export, face
+    from pdehead_dev.operators.forensic import export as forensic_export, face, face_handler
     from pdehead_dev.operators.forensic.study import ForensicStudy
     from pdehead_dev.operators.study import state
     from pdehead_dev.operators.study.entity import Study
@@ -461,7 +461,7 @@ def bench_face_dataset(name: str, repeats: int) -> dict:
     idle = []
     for _ in range(max(repeats, 7)):
         t = time.perf_counter()
-        face.pdehead_face_update(bpy.context.scene)
+        face_handler.pdehead_face_update(bpy.context.scene)
         idle.append(time.perf_counter() - t)
     out["idle_handler_s"] = _common.median(idle)
 

@@ -111,7 +111,7 @@ def _to_face(obj, vertices_mm, point_mm) -> float:
 def test_the_reopened_face_follows_a_dragged_peg_and_both_studies_stay_live(reopened):
     bpy, state, _ = reopened
     from mathutils import Vector
-    face_ops = sys.modules[state.__name__.rpartition(".study.")[0] + ".forensic.face"]
+    face_ops = sys.modules[state.__name__.rpartition(".study.")[0] + ".forensic.face_handler"]
     coll = bpy.data.collections["Phantom forensic"]
     face = next(o for o in coll.all_objects if o.name.endswith(" Face"))
     peg = next(o for o in coll.all_objects if o.get("pdehead_peg") == "Nasion")
