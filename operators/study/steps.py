@@ -1,14 +1,14 @@
 """The pipeline steps of a study, as methods of :class:`.entity.Study` (this module's mixin).
 
 Between the thin operators (:mod:`operators.ui.ops`, :mod:`operators.forensic.ops`, the update callbacks of
-:mod:`.props`) and
-the engine (:mod:`pdehead_addon`): every step reads the study's settings, calls the engine's public API
-and writes the result into Blender objects (:mod:`operators.scene.objects`, :mod:`operators.volume.volume`,
-:mod:`operators.scene.scene`). The
-live updates, the solid and the cutter: :mod:`.live`. Nothing here imports an operator module
-or the Study class itself, so the dependency runs one way::
+:mod:`.props`) and the engine (:mod:`pdehead_addon`): every step reads the study's settings, calls the
+engine's public API, writes the result into Blender objects (:mod:`operators.scene.objects`,
+:mod:`operators.volume.volume`, :mod:`operators.scene.scene`) and returns what it did as a value
+(:class:`StepOutcome`, :class:`BoundaryOutcome`) for the caller to report. The live updates, the
+solid and the cutter: :mod:`.live`. Nothing here imports an operator module or the Study class itself, so
+the dependency runs one way::
 
-    ops / forensic / panel / props  ->  study_entity (Study)  ->  study_steps / study_live
+    ui.ops / forensic.ops / ui.panel / props  ->  entity (Study)  ->  steps / live
         ->  state / objects / ...  ->  engine
 
 Use the steps through a study: ``study = Study.import_ct(context, path, options)``,
@@ -19,7 +19,7 @@ from __future__ import annotations
 import json
 import re
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import bpy
@@ -31,6 +31,19 @@ from ..volume import detail_map, vdb_files, vdb_grids, volume
 from . import state
 from .progress import step_progress
 from .state import suspended_updates
+
+
+@dataclass(frozen=True)
+class StepOutcome:
+    """What a pipeline step gave, for the caller to report: the Blender objects it built or rebuilt, the
+    warnings it added to the study (in the engine's words), its seconds (as recorded in the study's timings)
+    and the effective values it chose or measured (``values``: e.g. the voxel size of an automatic volume)."""
+
+    step: str
+    objects: tuple = ()
+    warnings: tuple[str, ...] = ()
+    seconds: float = 0.0
+    values: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -183,12 +196,18 @@ class PipelineSteps:
 
     # --- the steps ----------------------------------------------------------------------------
 
-    def segment(self) -> None:
-        """Segment the head from the CT (Chan-Vese and clean-up); the study keeps the segmentation."""
+    def segment(self) -> StepOutcome:
+        """Segment the head from the CT (Chan-Vese and clean-up); the study keeps the segmentation. Returns
+        the head's fraction of the voxels, the iterations and the two region means (``values``)."""
+        warnings_before = self.warnings
         call = self.segment_call()
         with state.Timer() as t:
             seg = call(step_progress("segment"))
         self.keep_segmentation(seg, t.seconds)
+        s = self.settings
+        return StepOutcome("segment", warnings=tuple(self.warnings[len(warnings_before):]), seconds=t.seconds,
+                           values=dict(fraction=s.seg_fraction, iterations=s.seg_iterations, c1=s.seg_c1,
+                                       c2=s.seg_c2))
 
     def segment_call(self):
         """The segmentation's engine call, ``call(progress) -> Segmentation``: it touches no Blender data,
@@ -272,8 +291,9 @@ class PipelineSteps:
                                                         obj=s.curves_object)
         self.record_timing("boundaries", seconds)
 
-    def surface(self) -> None:
-        """Build or rebuild the PDE surface (solving the PDE when its controls changed)."""
+    def surface(self) -> StepOutcome:
+        """Build or rebuild the PDE surface (solving the PDE when its controls changed); returns the surface
+        object, its vertex count (``values["vertices"]``) and the seconds of the build."""
         s = self.settings
         head = self.solve()
         coll = self.collection
@@ -281,6 +301,8 @@ class PipelineSteps:
             s.surface_object = objects.build_surface(head, coll, nu=s.nu, nv=s.nv, caps=s.caps,
                                                      obj=s.surface_object, name=f"{coll.name} Surface")
         self.record_timing("surface", t.seconds)
+        return StepOutcome("surface", objects=(s.surface_object,), seconds=t.seconds,
+                           values=dict(vertices=len(s.surface_object.data.vertices)))
 
     def detail_map(self) -> None:
         """Build the surface's CT detail map (eyelids, lips and nose wings as bump shading; the
@@ -339,8 +361,10 @@ class PipelineSteps:
         return dict(low_alpha=s.low_alpha, high_alpha=s.high_alpha, density=s.density,
                     colour_preset=s.colour_preset, alpha_mode=s.alpha_mode)
 
-    def volume(self, context=None) -> None:
-        """Sample w on a voxel grid, write it with the CT as a .vdb and build the Volume object."""
+    def volume(self, context=None) -> StepOutcome:
+        """Sample w on a voxel grid, write it with the CT as a .vdb and build the Volume object; returns the
+        Volume object, the seconds of both (``values``: ``w_field_s``, ``volume_s``; ``seconds``: their sum),
+        the voxel size used (mm; None on the CT's own grid) and the .vdb file."""
         s = self.settings
         head = self.solve()
         # always with the CT (re-read after reopening): a volume without CT intensities is never built
@@ -354,6 +378,7 @@ class PipelineSteps:
             grid = ct if s.use_ct_grid else float(s.voxel_size)
             wfield = head.w_field(grid, ct=ct, progress=step_progress("volume"))
         self.record_timing("w_field", t.seconds)
+        w_field_s = t.seconds
         self.cache.wfield = wfield
         coll = self.collection
         with state.Timer() as t:
@@ -365,6 +390,9 @@ class PipelineSteps:
                 s.volume_object.hide_render = True
             s.volume_stale = False
         self.record_timing("volume", t.seconds)
+        return StepOutcome("volume", objects=(s.volume_object,), seconds=w_field_s + t.seconds,
+                           values=dict(w_field_s=w_field_s, volume_s=t.seconds, vdb_path=vdb_path,
+                                       voxel_size=None if s.use_ct_grid else float(s.voxel_size)))
 
     def run_step(self, name: str, context=None) -> None:
         """Run one pipeline step by name: "segment", "boundaries", "surface", "solid" or "volume"."""

@@ -79,10 +79,10 @@ class PDEHEAD_OT_segment(Operator, StudyOperator):
     bl_options = {'REGISTER', 'UNDO'}
 
     def run(self, context, study):
-        study.segment()
-        s = study.settings
-        self.report({'INFO'}, f"Segmented '{study.name}': head = {100 * s.seg_fraction:.1f} % of the "
-                    f"voxels ({s.seg_iterations} iterations, {study.timings['segment']:.2f} s)")
+        outcome = study.segment()
+        v = outcome.values
+        self.report({'INFO'}, f"Segmented '{study.name}': head = {100 * v['fraction']:.1f} % of the "
+                    f"voxels ({v['iterations']} iterations, {outcome.seconds:.2f} s)")
 
 
 @props.settings_options("patches", "samples", "selection", "align_curves", "use_tolerance", "tolerance_mm",
@@ -119,10 +119,9 @@ class PDEHEAD_OT_reconstruct_surface(Operator, StudyOperator):
         self.store_settings(s)
         if study.boundary_set() is None:
             study.boundaries()
-        study.surface()
-        n = len(s.surface_object.data.vertices)
-        self.report({'INFO'}, f"PDE surface of '{study.name}': {n} vertices "
-                    f"({study.timings['surface']:.2f} s)")
+        outcome = study.surface()
+        self.report({'INFO'}, f"PDE surface of '{study.name}': {outcome.values['vertices']} vertices "
+                    f"({outcome.seconds:.2f} s)")
 
 
 @props.settings_options("nu", "nv", "nw", "u_range", "v_range", "w_range", "ct_texture_budget", "solid_skin",
@@ -165,10 +164,10 @@ class PDEHEAD_OT_build_volume(Operator, StudyOperator):
         self.store_settings(s)
         if study.boundary_set() is None:
             study.boundaries()
-        study.volume(context)
-        t = study.timings
-        self.report({'INFO'}, f"Volume of '{study.name}' built (w-field {t['w_field']:.2f} s, "
-                    f"VDB + material {t['volume']:.2f} s)")
+        outcome = study.volume(context)
+        t = outcome.values
+        self.report({'INFO'}, f"Volume of '{study.name}' built (w-field {t['w_field_s']:.2f} s, "
+                    f"VDB + material {t['volume_s']:.2f} s)")
 
 
 class TimerModal:

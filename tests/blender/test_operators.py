@@ -449,6 +449,50 @@ def test_the_boundaries_step_returns_the_effective_t_its_warnings_and_seconds(ex
     assert (again.patches, again.curves, again.warnings) == (limit, 3 * limit + 1, ())
 
 
+def test_the_segment_surface_and_volume_steps_return_their_outcomes(ext, phantom_blend, tmp_path):
+    """``segment()``, ``surface()`` and ``volume()`` return what they built and measured (a ``StepOutcome``):
+    the objects, the seconds the study's timings record and the effective values (the head's fraction, the
+    vertex count, the voxel size and the .vdb written); the operators report from them."""
+    import shutil
+    copy = tmp_path / "outcomes.blend"           # a copy: the new .vdb goes beside it, the shared file stays as is
+    shutil.copy(phantom_blend, copy)
+    coll = open_blend(copy)
+    study = ext.study.entity.Study.of(coll)
+    s = study.settings
+    seg = study.segment()
+    assert seg.step == "segment" and seg.objects == ()
+    assert seg.values["fraction"] == pytest.approx(float(study.cache.seg.mask.mean()))
+    assert 0.05 < seg.values["fraction"] < 0.9
+    assert seg.values["iterations"] == int(study.cache.seg.iterations) > 0
+    assert round(seg.seconds, 4) == pytest.approx(study.timings["segment"])
+    surface = study.surface()
+    assert surface.objects == (s.surface_object,)
+    assert surface.values["vertices"] == len(s.surface_object.data.vertices) > 1000
+    assert round(surface.seconds, 4) == pytest.approx(study.timings["surface"])
+    with ext.study.state.suspended_updates():
+        s.use_ct_grid, s.voxel_auto, s.voxel_size = False, False, 4.0
+    volume = study.volume()
+    assert volume.objects == (s.volume_object,) and volume.values["voxel_size"] == pytest.approx(4.0)
+    assert Path(volume.values["vdb_path"]).is_file()
+    assert tmp_path.resolve() in Path(volume.values["vdb_path"]).resolve().parents
+    assert volume.seconds == pytest.approx(volume.values["w_field_s"] + volume.values["volume_s"])
+    assert round(volume.values["volume_s"], 4) == pytest.approx(study.timings["volume"])
+
+
+def test_the_forensic_side_is_a_component_the_study_holds(ext, phantom_blend):
+    """One registry of study entities: each study holds its forensic side (``study.forensic``), the one
+    ``ForensicStudy.of`` gives; forgetting the study forgets it too."""
+    coll = open_blend(phantom_blend)
+    study = ext.study.entity.Study.of(coll)
+    fs = ext.forensic.study.ForensicStudy.of(study)
+    assert fs is study.forensic and fs.study is study and fs.collection == coll
+    assert ext.forensic.study.ForensicStudy.of(study) is fs and fs.cache is study.cache.forensic
+    assert not hasattr(ext.study.state.REGISTRY, "forensic")
+    ext.study.entity.Study.forget(study.study_id)
+    again = ext.study.entity.Study.of(coll)
+    assert again is not study and again.forensic is not fs and again.forensic.study is again
+
+
 def test_solid_texture_fields_are_drawn_and_change_the_solid(ext, cthead_blend):
     """Issue 21 item 3: the solid's CT texture budget, what its outside shows and the skin depth are
     sidebar fields (Solid panel), and changing each rebuilds the solid with it (CThead, 1 mm voxels)."""
