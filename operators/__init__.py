@@ -1,8 +1,9 @@
 """Everything of PDE Head that touches bpy: registration of the whole Blender layer.
 
 ``register()`` adds the property groups, preferences, operators (with the File > Import menu entry), the sidebar
-panels, the save/load handlers of :mod:`.persistence`, the cutter's depsgraph handler (:mod:`.study_handlers`, and
-the face's of :mod:`.face`), the frame handler and settings migration of :mod:`.animation` and one ``load_post``
+panels, the save/load handlers of :mod:`.study.persistence`, the cutter's depsgraph handler (:mod:`.study.handlers`, and
+the face's of :mod:`.forensic.face_handler`), the frame handler and settings migration of :mod:`.scene.animation`
+and one ``load_post``
 handler that frees the in-memory caches of studies that are not in the newly loaded file. ``unregister()`` removes
 all of it again, leaving no class, property, menu entry, handler or timer behind.
 """
@@ -10,20 +11,11 @@ from __future__ import annotations
 
 import bpy
 
-from . import (
-    animation,
-    detail_map,
-    face,
-    forensic,
-    forensic_props,
-    ops,
-    panel,
-    persistence,
-    prefs,
-    props,
-    state,
-    study_handlers,
-)
+from .forensic import face_handler, ops as forensic_ops, props as forensic_props
+from .scene import animation
+from .study import handlers as study_handlers, persistence, props, state
+from .ui import ops, panel, prefs
+from .volume import detail_map
 
 
 @bpy.app.handlers.persistent
@@ -42,7 +34,7 @@ def pdehead_load_post(*_args) -> None:
 
 #: Every class of the Blender layer, registered once in this order (parent panels before their
 #: children) and unregistered in reverse.
-CLASSES = (*props.CLASSES, *prefs.CLASSES, *ops.CLASSES, *panel.CLASSES, *forensic.CLASSES)
+CLASSES = (*props.CLASSES, *prefs.CLASSES, *ops.CLASSES, *panel.CLASSES, *forensic_ops.CLASSES)
 
 
 def register() -> None:
@@ -53,7 +45,7 @@ def register() -> None:
     ops.add_menu()
     persistence.register()
     study_handlers.register()
-    face.register()
+    face_handler.register()
     bpy.app.handlers.load_post.append(pdehead_load_post)
     animation.register()
 
@@ -63,7 +55,7 @@ def unregister() -> None:
     for handler in list(bpy.app.handlers.load_post):
         if getattr(handler, "__name__", "") == "pdehead_load_post":
             bpy.app.handlers.load_post.remove(handler)
-    face.unregister()
+    face_handler.unregister()
     study_handlers.unregister()
     persistence.unregister()
     ops.remove_menu()

@@ -9,7 +9,7 @@ Tested with bpy from PyPI 4.2.23, 4.5.15, 5.0.1 (Python 3.11, numpy 1.26) and 5.
 - The OpenVDB Python bindings are ``openvdb`` from 4.4 and ``pyopenvdb`` before (the
   Blender 4.2/4.3 applications are reported to bundle ``pyopenvdb``); the 4.2 ``bpy``
   module from PyPI has neither. Without bindings, .vdb files are written by our own
-  :mod:`.vdb_writer` (dense float grids), which every Blender reads.
+  :mod:`.volume.vdb_writer` (dense float grids), which every Blender reads.
 - The extension's wheels unpack into ``extensions/.local/lib/python3.X/site-packages``
   with the Python of the running Blender.
 - Mesh data: the ``.corner_vert`` attribute (4.0), ``sharp_face`` and ``Mesh.shade_smooth`` (4.1);

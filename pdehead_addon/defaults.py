@@ -250,7 +250,7 @@ COLOUR_PRESET = _param("colour_preset", "grayscale", choices=("grayscale", "skin
 ALPHA_MODE = _param("alpha_mode", "EQ24", choices=("EQ24", "INTENSITY"),
                     description="Opacity from eq. 24's w, or from the CT intensity (the paper's baseline)",
                     label="Alpha Mode")
-#: The budget of the automatic voxel size (operators/vdb_grids.auto_voxel_size): the .vdb stays below
+#: The budget of the automatic voxel size (operators/volume/vdb_grids.auto_voxel_size): the .vdb stays below
 #: this many bytes (the files beside the .blend stay small) ...
 MAX_VDB_BYTES = _param("max_vdb_bytes", 64 * 2 ** 20, min=1, unit="bytes",
                        description="Largest .vdb the automatic voxel size allows")
@@ -301,7 +301,7 @@ TURNTABLE_FRAMES = _param("turntable_frames", 120, min=2, max=10000,
 
 # ----------------------------------------------------------------------------- views
 #: The named views of renders, Frame Study and the CLI's ``--view``: name -> (label, description). Each view's
-#: camera direction is in operators/render.py (``VIEWS``); Frame Study offers all but TOP.
+#: camera direction is in operators/scene/render.py (``VIEWS``); Frame Study offers all but TOP.
 VIEWS = {"FRONT": ("Front", "The face (Blender's front view)"),
          "RIGHT": ("Right", "The patient's right side"),
          "LEFT": ("Left", "The patient's left side"),
@@ -372,7 +372,7 @@ FACE_MIN_TISSUE_MM = _param("face_min_tissue_mm", 2.0, min=0.0, max=10.0, unit="
                             description="Face from skull: least soft tissue over the bone anywhere on the face")
 
 # ----------------------------------------------------------------------------- forensic operators
-#: The skull the forensic steps measure on / snap to (operators/forensic.py TARGET_ITEMS).
+#: The skull the forensic steps measure on / snap to (operators/forensic/ops.py TARGET_ITEMS).
 DEPTH_TARGET = _param("depth_target", "BONE", choices=("BONE", "PDE"), label="Skull",
                       description="The skull measured on or snapped to: the bone skull (smoothed marching cubes "
                                   "of the bone) or the smooth PDE skull envelope")

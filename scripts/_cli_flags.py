@@ -1,7 +1,7 @@
 """The command lines' flags of study settings, generated from the one defaults table.
 
 Each study setting is declared once in ``pdehead_addon/defaults.py`` (default, range, choices, unit,
-description); ``operators/props.py``'s ``SETTINGS`` adds what Blender needs, and :data:`CLI_FLAGS` here adds
+description); ``operators/study/props.py``'s ``SETTINGS`` adds what Blender needs, and :data:`CLI_FLAGS` here adds
 what a command line needs: the flag's name (``cli_flag``, kept as users know it, e.g. ``--tolerance`` for
 ``tolerance_mm``), its wording in the CLI's terms and how its absence reads. :func:`add` declares the argparse
 flag with the table's default, type, choices and a help text naming the range, unit and default;

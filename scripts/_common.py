@@ -197,7 +197,7 @@ _BLENDER: dict | None = None
 
 
 def blender() -> dict:
-    """bpy and the add-on's operators.objects/volume/render, loaded from this repo (:func:`load_addon`,
+    """bpy and the add-on's operators.scene.objects/volume/render, loaded from this repo (:func:`load_addon`,
     sharing the already imported engine ``pdehead_addon``); loaded once per process."""
     global _BLENDER
     if _BLENDER is None:
@@ -209,8 +209,10 @@ def blender() -> dict:
         import pdehead_addon as E
         # one copy of the engine: the add-on's relative imports resolve to the module already loaded
         load_addon(engine=E)
-        mods = {name: importlib.import_module(f"{DEV_PACKAGE}.operators.{name}")
-                for name in ("objects", "volume", "vdb_grids", "volume_material", "render", "detail_map")}
+        mods = {name: importlib.import_module(f"{DEV_PACKAGE}.operators.{path}")
+                for name, path in (("objects", "scene.objects"), ("volume", "volume.volume"),
+                                   ("vdb_grids", "volume.vdb_grids"), ("volume_material", "volume.material"),
+                                   ("render", "scene.render"), ("detail_map", "volume.detail_map"))}
         _BLENDER = {"bpy": bpy, **mods, "import_s": time.perf_counter() - t0, "version": bpy.app.version_string}
     return _BLENDER
 

@@ -197,7 +197,7 @@ def _check_render_args(p, args) -> None:
                     f"{', '.join(IMAGE_SUFFIXES)} (PNG or JPEG)")
 
 
-#: What --render / --render-volume write (operators/render.py IMAGE_FORMATS).
+#: What --render / --render-volume write (operators/scene/render.py IMAGE_FORMATS).
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
 
@@ -382,7 +382,7 @@ def _call(op, **kwargs) -> None:
     (a PDEHeadError: bad files, bad options), 1 for anything else (a bug); the study's new warnings are
     printed (:class:`Warnings`)."""
     addon = sys.modules[_common.DEV_PACKAGE]
-    state = addon.operators.state
+    state = addon.operators.study.state
     state.REGISTRY.last_exception = None
     try:
         with _blender_stdout():
@@ -414,7 +414,7 @@ class Warnings:
     def say(self, message: str) -> None:
         addon = sys.modules.get(_common.DEV_PACKAGE)
         if addon is not None:
-            message = addon.operators.state.user_text(message)
+            message = addon.operators.study.state.user_text(message)
         message = " ".join(str(message).split())
         if message and not any(message in p or p in message for p in self.printed):
             self.printed.append(message)
@@ -425,7 +425,7 @@ class Warnings:
         addon = sys.modules[_common.DEV_PACKAGE]
         coll = bpy.context.scene.pdehead.active_study
         if coll is not None:
-            for warning in addon.operators.study_entity.Study.of(coll).warnings:
+            for warning in addon.operators.study.entity.Study.of(coll).warnings:
                 self.say(warning)
 
     def showwarning(self, message, category, filename, lineno, file=None, line=None) -> None:
@@ -450,7 +450,7 @@ def loader_kwargs(args) -> dict:
         kwargs["single_file"] = True
     kwargs["format"] = args.format.upper()
     if args.format == "raw":
-        from pdehead_dev.operators.import_options import parse_dtype_string
+        from pdehead_dev.operators.ui.import_options import parse_dtype_string
         from pdehead_dev.pdehead_addon import PDEHeadError
         try:
             dtype, order = parse_dtype_string(args.dtype)
@@ -491,7 +491,7 @@ def _auto_boundaries(args, ops, addon, coll) -> str:
     _call(ops.extract_boundaries, patches=args.patches, samples=args.samples, selection="auto", align_curves=True,
           **tolerance)
     s = coll.pdehead
-    bset = addon.operators.state.cache_for(s.study_id).bset
+    bset = addon.operators.study.state.cache_for(s.study_id).bset
     m = bset.meta
     asked = ""
     if m.get("selection_tolerance_mm") is not None or m.get("selection_max_tolerance_mm") is not None:
@@ -605,7 +605,7 @@ class Staging:
             self._remove_folders()
 
     def _commit_blend(self, bpy, addon) -> None:
-        vdb_files = addon.operators.vdb_files
+        vdb_files = addon.operators.volume.vdb_files
         src_folder = (self.blend.parent / vdb_files.VDB_FOLDER_NAME).resolve()
         dst_folder = self.out.parent / vdb_files.VDB_FOLDER_NAME
         renamed = False
@@ -660,13 +660,13 @@ def run(args) -> dict:
 
     import bpy
     addon = register_addon()
-    state = addon.operators.state
+    state = addon.operators.study.state
     state.REGISTRY.audience = "cli"              # the add-on's messages name this command's flags
     warnings.showwarning = WARNINGS.showwarning  # one line each, no source line
     bpy.ops.wm.read_homefile(use_empty=True)
     bpy.context.preferences.filepaths.save_version = 0  # no .blend1 backups (temporary user folder)
     progress = Progress()
-    addon.operators.progress.set_hook(progress)
+    addon.operators.study.progress.set_hook(progress)
     outputs = _outputs(args)
     before = _snapshot(outputs)
     staging = Staging(args)
@@ -685,7 +685,7 @@ def run(args) -> dict:
         raise
     finally:
         progress.end()
-        addon.operators.progress.set_hook(None)
+        addon.operators.study.progress.set_hook(None)
         with contextlib.suppress(ValueError):
             _CLEANUPS.remove(staging.discard)
 
@@ -702,7 +702,7 @@ def _run(args, bpy, addon, state, staging) -> dict:
 
 def _record_sources_for(bpy, addon, final) -> None:
     """Each save in the private folder records the CT source relative to the final --out (one folder up)."""
-    persistence = addon.operators.persistence
+    persistence = addon.operators.study.persistence
 
     @bpy.app.handlers.persistent
     def pdehead_cli_sources(*_args):
@@ -716,12 +716,12 @@ def _steps(args, bpy, addon, state, staging) -> dict:
     coll, selection_info, skin = _build(args, bpy, addon, ops)
     total = time.perf_counter() - t0
 
-    timings = addon.operators.study_entity.Study.of(coll).timings
+    timings = addon.operators.study.entity.Study.of(coll).timings
     s = coll.pdehead
     _print_study(args, bpy, state, coll, selection_info)
     if args.skull:
         _print_skull(args, addon, coll, skin)
-    study = addon.operators.study_entity.Study.of(coll)
+    study = addon.operators.study.entity.Study.of(coll)
     info_lines = [state.user_text(n) for n in study.notes]       # automatic choices: information
     for note in info_lines:
         print(f"  info      {note}")
@@ -867,7 +867,7 @@ def _output_flags(fs) -> dict:
 
 def _render(args, addon, s, summary, staging) -> None:
     """--render and --render-volume (into the run's private folder; moved into place by the commit)."""
-    render = addon.operators.render
+    render = addon.operators.scene.render
     size = (args.resolution, args.resolution)
     for flag, obj in (("render", s.surface_object), ("render_volume", s.volume_object)):
         path = getattr(args, flag)
@@ -895,16 +895,16 @@ def _turntable(args, bpy, addon, ops, coll, summary, staging) -> None:
     if args.render_animation:
         t = time.perf_counter()
         with _blender_stdout(drop=("Fra:", "Time:", "Saved:", "Info:")):
-            paths = addon.operators.animation.render_animation(bpy.context.scene, args.render_animation.resolve(),
+            paths = addon.operators.scene.animation.render_animation(bpy.context.scene, args.render_animation.resolve(),
                                                                size, args.render_samples)
         print(f"wrote {len(paths)} frames {paths[0]} .. {paths[-1].name} ({time.perf_counter() - t:.1f} s)")
         summary["outputs"]["render_animation"] = [str(x) for x in paths]
 
 
 def _forensic(addon, coll):
-    """The study's forensic side (operators/forensic_study.py's ForensicStudy)."""
-    study = addon.operators.study_entity.Study.of(coll)
-    return addon.operators.forensic_study.ForensicStudy.of(study)
+    """The study's forensic side (operators/forensic/study.py's ForensicStudy)."""
+    study = addon.operators.study.entity.Study.of(coll)
+    return addon.operators.forensic.study.ForensicStudy.of(study)
 
 
 def _face_table(args, addon):
@@ -997,7 +997,7 @@ def _r(value, digits: int = 3):
 def _summary(args, addon, coll, timings, total, selection_info, warning_lines) -> dict:
     """What the summary printed, as data (``--summary-json``)."""
     s = coll.pdehead
-    ct = addon.operators.state.cache_for(s.study_id).ct
+    ct = addon.operators.study.state.cache_for(s.study_id).ct
     meta = getattr(ct, "meta", None) or {}
     nx, ny, nz = s.dimensions
     dz, dy, dx = s.spacing

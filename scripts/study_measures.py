@@ -7,12 +7,12 @@
 1. **Settings declared twice**: a parameter of ``pdehead_addon/defaults.py`` written out as a property
    (``name: XProperty(... D.NAME ...)``) under its own name by more than one class of ``operators/`` (the
    study's property group and an operator that mirrors it, say). Properties generated from the one table
-   (``operators/props.py``'s ``SETTINGS``) are written out nowhere else.
+   (``operators/study/props.py``'s ``SETTINGS``) are written out nowhere else.
 2. **Module-level mutable state**: a module-level name (or an attribute of a module-level class) bound to a
    dict, list or set (a literal, a comprehension or a call of ``dict``/``list``/``set``/``defaultdict``/
    ``WeakKeyDictionary``/...) that the code writes (item assignment or deletion, a mutating method), a
    ``global`` statement whose name a function assigns, and an assignment to another project module's
-   attribute (``state.last_exception = ...``). The one registry (``operators/state.py``'s ``REGISTRY``, an
+   attribute (``state.last_exception = ...``). The one registry (``operators/study/state.py``'s ``REGISTRY``, an
    instance of its ``Registry`` class) is where this state lives instead: attributes of an instance are not
    counted.
 

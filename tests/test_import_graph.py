@@ -271,7 +271,7 @@ def test_the_walk_sees_every_module_and_every_kind_of_import(graph):
     # from ..ct_volume import ...
     assert ("pdehead_addon.io.ct_import.load", "pdehead_addon.core.ct_volume") in pairs
     assert ("pdehead_addon.pde.pde_head", "pdehead_addon.pde.pde_solid") in pairs              # inside a method
-    assert ("operators.ops", "pdehead_addon") in pairs                                 # from ..pdehead_addon import
+    assert ("operators.ui.ops", "pdehead_addon") in pairs                                 # from ..pdehead_addon import
     assert ("", "operators") in pairs                                                  # from . import operators
     external = {(e.source, e.target) for e in graph.edges if e.external}
     assert ("operators", "bpy") in external

@@ -56,3 +56,18 @@ def test_the_scripts_rows_name_every_script():
         files = {p.name for p in (ROOT / key).iterdir() if p.suffix in (".py", ".sh")}
         assert files - named == set(), f"{key}: docs/development.md does not name {sorted(files - named)}"
         assert named - files == set(), f"{key}: docs/development.md names {sorted(named - files)}, not in the folder"
+
+
+def test_every_operators_subpackage_has_a_row_naming_its_modules():
+    """The `operators/<concern>/` rows name each module of that subpackage, and nothing that is not there."""
+    text = (ROOT / "docs" / "development.md").read_text(encoding="utf-8")
+    section = text.split("## Layout", 1)[1].split("\n## ", 1)[0]
+    rows = {m.group(1): m.group(2) for m in re.finditer(r"^\| `(operators/\w+/)` \| (.*) \|$", section, re.M)}
+    packages = sorted(p for p in (ROOT / "operators").iterdir() if (p / "__init__.py").is_file())
+    assert packages and set(rows) == {f"operators/{p.name}/" for p in packages}, sorted(rows)
+    for pkg in packages:
+        named = set(re.findall(r"`(\w+)`", rows[f"operators/{pkg.name}/"]))
+        modules = {p.stem for p in pkg.glob("*.py") if p.stem != "__init__"}
+        assert modules - named == set(), f"operators/{pkg.name}/: the layout does not name {sorted(modules - named)}"
+        words = {"Study", "ForensicStudy", "EngineJob", "REGISTRY", "execute"}     # named, but not modules
+        assert named - words <= modules, f"operators/{pkg.name}/: the layout names {sorted(named - words - modules)}"

@@ -93,13 +93,14 @@ def test_module_mutable_state_is_counted_on_a_made_up_tree(tmp_path):
 
 
 def test_no_study_setting_is_declared_twice():
-    """The study's settings are declared once (``operators/props.py``'s ``SETTINGS`` over the defaults table);
+    """The study's settings are declared once (``operators/study/props.py``'s ``SETTINGS`` over the defaults
+    table);
     the forensic maximum depth (the forensic settings' and the Tissue Depth operator's) is the one left."""
     found = study_measures.settings_declared_twice()
     assert [e["setting"] for e in found] in ([], ["max_depth"]), found
 
 
 def test_operators_keep_no_module_level_mutable_state():
-    """Every study entity, its cache and the session's state live in ``operators/state.py``'s ``REGISTRY``
+    """Every study entity, its cache and the session's state live in ``operators/study/state.py``'s ``REGISTRY``
     (18 names in 11 modules before: caches, busy flags, the progress hook, the last exception, ...)."""
     assert study_measures.module_mutable_state() == []

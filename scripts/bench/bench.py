@@ -548,7 +548,7 @@ class Bench:
             window = E.core.ct_volume.intensity_window(ct)
             path = self.tmp / "bench.vdb"
             s_vdb, _ = timed(lambda: vol.write_vdb(wf, path, window, ct=ct), self.repeats, warmup=True)
-            out["vdb"] = {"name": "operators/vdb_grids.write_vdb (grids w, intensity, ct)", "time": s_vdb,
+            out["vdb"] = {"name": "operators/volume/vdb_grids.write_vdb (grids w, intensity, ct)", "time": s_vdb,
                           "bytes": path.stat().st_size}
         return out
 

@@ -187,7 +187,7 @@ def markdown(res: dict) -> str:
               "before, with even columns, CThead took 585 x 1554 rows x columns, 1,906,922 triangles for 0.046 mm "
               "over the face (0.145 / 0.021 mm everywhere) and GE 0.042 mm; the coarser columns away from the face "
               "raise the error there (the table's *everywhere*), which the issue does not bound. The face from the "
-              "skull (face.stl) takes the same path (`print_mesh`, `operators/forensic_export.print_face`): on the "
+              "skull (face.stl) takes the same path (`print_mesh`, `operators/forensic/export.print_face`): on the "
               "phantom "
               "(the test's face) 536 x 1298, 1,487,532 triangles, 0.046 mm over its face window, watertight "
               "(with even columns it stopped at the cap, 617 x 1498, 1.98 M triangles, at 0.069 mm); before, "

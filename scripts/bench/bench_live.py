@@ -94,7 +94,7 @@ _CPU: list[float] = []   # CPU seconds of the last timed change (the machine may
 
 def _timed_change(s, coll, prop, value) -> tuple[float, float | None]:
     """(whole callback, the deferred colour refresh or None) of one change, wall clock."""
-    from pdehead_dev.operators.study_entity import Study
+    from pdehead_dev.operators.study.entity import Study
     t = time.perf_counter()
     c = time.process_time()
     setattr(s, prop, value)
@@ -117,9 +117,9 @@ def _timed_change(s, coll, prop, value) -> tuple[float, float | None]:
 def bench_dataset(name: str, repeats: int) -> dict:
     import bpy
 
-    from pdehead_dev.operators import state
-    from pdehead_dev.operators.props import COLOUR_ITEMS
-    from pdehead_dev.operators.study_entity import Study
+    from pdehead_dev.operators.study import state
+    from pdehead_dev.operators.study.entity import Study
+    from pdehead_dev.operators.study.props import COLOUR_ITEMS
     Study.DEFER_CT_COLOURS = True   # as in Blender with a UI (the colour refresh is timed on its own)
     runs = []
     for _ in range(PIPELINE_RUNS):  # each in an empty file; the sliders below use the last run's study
@@ -393,9 +393,10 @@ def bench_face_dataset(name: str, repeats: int) -> dict:
     import numpy as np
     from mathutils import Vector
 
-    from pdehead_dev.operators import face, forensic_export, state
-    from pdehead_dev.operators.forensic_study import ForensicStudy
-    from pdehead_dev.operators.study_entity import Study
+    from pdehead_dev.operators.forensic import export as forensic_export, face, face_handler
+    from pdehead_dev.operators.forensic.study import ForensicStudy
+    from pdehead_dev.operators.study import state
+    from pdehead_dev.operators.study.entity import Study
     coll, steps = _face_study(name)
     fs = ForensicStudy.of(Study.of(coll))
     obj = fs.face_object()
@@ -463,7 +464,7 @@ def bench_face_dataset(name: str, repeats: int) -> dict:
     idle = []
     for _ in range(max(repeats, 7)):
         t = time.perf_counter()
-        face.pdehead_face_update(bpy.context.scene)
+        face_handler.pdehead_face_update(bpy.context.scene)
         idle.append(time.perf_counter() - t)
     out["idle_handler_s"] = _common.median(idle)
 

@@ -243,14 +243,14 @@ def storage_bytes(head) -> int:
 
 def cut_face_texel_footprint(seg, head, nu: int, nv: int, nw: int = D.NW.default) -> dict:
     """Issue 21 item 3: the solid cut at v in [90, 360] deg, its CT atlas at the default budget
-    (``operators.ct_texture.ct_texture_atlas``, no Blender data involved), and on every cut face the world
+    (``operators.volume.ct_texture.ct_texture_atlas``, no Blender data involved), and on every cut face the world
     footprint of a texel: each face edge's 3-D length over its length in texels, in CT voxels (the finest
     spacing). Target: at most 1 voxel; before issue 21 one 128-pixel tile a face."""
     import math
 
     import pdehead  # the add-on's source as the CLI registers it (package pdehead_dev)
     pdehead.register_addon()
-    from pdehead_dev.operators import ct_texture
+    from pdehead_dev.operators.volume import ct_texture
     ct = seg.ct
     ranges = ((0.0, 1.0), (math.pi / 2, 2 * math.pi), (0.0, 1.0))
     mesh = head.solid(nu, nv, nw, u_range=ranges[0], v_range=ranges[1], w_range=ranges[2])

@@ -52,7 +52,7 @@ def signed_distance(points: np.ndarray, mesh) -> np.ndarray:
 
 def render_face_figures(name: str, keep: dict, out_dir: Path = OUT, views=("FRONT", "RIGHT")) -> Path:
     """One figure per head: real skin, approximation and deviation (columns), one row per view
-    (:data:`operators.render.VIEWS`: e.g. ``THREE_QUARTER`` for trials); written to ``out_dir``."""
+    (:data:`operators.scene.render.VIEWS`: e.g. ``THREE_QUARTER`` for trials); written to ``out_dir``."""
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="pdehead-fig-"))
     import bpy
 
@@ -60,7 +60,7 @@ def render_face_figures(name: str, keep: dict, out_dir: Path = OUT, views=("FRON
     from pdehead_addon import Mesh
     from pdehead_addon.validation.surface_metrics import face_window, visible_face_points
     addon = pdehead.register_addon()
-    render, objects = addon.operators.render, addon.operators.objects
+    render, objects = addon.operators.scene.render, addon.operators.scene.objects
     bpy.ops.wm.read_homefile(use_empty=True)
     coll = objects.study_collection(f"face {name}")
 
@@ -180,7 +180,7 @@ def render_suite_figure(label: str, face, out_dir: Path = OUT, views=("FRONT", "
 
     import pdehead
     addon = pdehead.register_addon()
-    render, objects = addon.operators.render, addon.operators.objects
+    render, objects = addon.operators.scene.render, addon.operators.scene.objects
     bpy.ops.wm.read_homefile(use_empty=True)
     coll = objects.study_collection("face suite")
     obj = objects.build_mesh_object(face, coll, "approximation")

@@ -41,8 +41,8 @@ def main(argv=None) -> int:
     import _common
     import pdehead
     addon = pdehead.register_addon()
-    face = addon.operators.face
-    render = addon.operators.render
+    face = addon.operators.forensic.face
+    render = addon.operators.scene.render
     bpy.ops.wm.read_homefile(use_empty=True)
     if args.dataset == "phantom":
         bpy.ops.pdehead.run_pipeline(source='PHANTOM', build_volume=False)
@@ -51,7 +51,7 @@ def main(argv=None) -> int:
     coll = bpy.context.scene.pdehead.active_study
     for op in ("build_skull", "find_landmarks", "build_face"):
         assert getattr(bpy.ops.pdehead, op)() == {'FINISHED'}, op
-    fs = addon.operators.forensic_study.ForensicStudy.of(addon.operators.study_entity.Study.of(coll))
+    fs = addon.operators.forensic.study.ForensicStudy.of(addon.operators.study.entity.Study.of(coll))
     obj = fs.face_object()
     bone = coll["pdehead_bone_object"]
     names = fs.face_options()["pegs"]

@@ -54,8 +54,8 @@ def main() -> int:
     import _common
     import pdehead
     addon = pdehead.register_addon()
-    skull = addon.operators.forensic_skull
-    render = addon.operators.render
+    skull = addon.operators.forensic.skull
+    render = addon.operators.scene.render
     bpy.ops.wm.read_homefile(use_empty=True)
     bpy.ops.pdehead.import_ct(**_common.addon_import_options("cthead"))
     coll = bpy.context.scene.pdehead.active_study
@@ -64,7 +64,7 @@ def main() -> int:
     bpy.ops.pdehead.reconstruct_surface(nu=120, nv=240)
     bpy.ops.pdehead.build_skull()
     bpy.ops.pdehead.tissue_depth(target='BONE')
-    fs = addon.operators.forensic_study.ForensicStudy.of(addon.operators.study_entity.Study.of(coll))
+    fs = addon.operators.forensic.study.ForensicStudy.of(addon.operators.study.entity.Study.of(coll))
     s = coll.pdehead
     skin = s.surface_object
     OUT.mkdir(parents=True, exist_ok=True)

@@ -57,8 +57,8 @@ def _ball(bpy, coll, name, patient_mm, radius_mm, mat):
 
 
 def _figure(bpy, addon, coll, references, out_name, title):
-    fs = addon.operators.forensic_study.ForensicStudy.of(addon.operators.study_entity.Study.of(coll))
-    render = addon.operators.render
+    fs = addon.operators.forensic.study.ForensicStudy.of(addon.operators.study.entity.Study.of(coll))
+    render = addon.operators.scene.render
     assert bpy.ops.pdehead.find_landmarks() == {'FINISHED'}
     flags = fs.landmark_flags()
     balls = []

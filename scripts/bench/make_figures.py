@@ -8,9 +8,9 @@ Regenerate all (a few minutes on 2 cores)::
     python3 scripts/bench/make_figures.py --list                 # what there is
 
 3-D figures go through the add-on's own Blender layer, loaded from this repository by
-the dev shim (``scripts/_common.py``, ``load_addon``): ``operators/objects.py`` (boundary curves, surface
-and solid meshes), ``operators/volume.py`` (the w-field .vdb; its eq. 24 material: ``volume_material.py``) and
-``operators/render.py`` (``render_objects_png``: Cycles on the CPU; EEVEE and Workbench
+the dev shim (``scripts/_common.py``, ``load_addon``): ``operators/scene/objects.py`` (boundary curves, surface
+and solid meshes), ``operators/volume/volume.py`` (the w-field .vdb; its eq. 24 material: ``volume_material.py``) and
+``operators/scene/render.py`` (``render_objects_png``: Cycles on the CPU; EEVEE and Workbench
 render blank without a GPU). 2-D figures (slices, the Jaccard plot, colour bars) are drawn
 with numpy + PIL. Views follow Blender's: FRONT looks along +Y at the face with the
 patient's left on the screen's right.

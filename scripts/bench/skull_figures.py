@@ -29,7 +29,7 @@ def main() -> int:
     import _common
     import pdehead
     addon = pdehead.register_addon()
-    render = addon.operators.render
+    render = addon.operators.scene.render
     tmp = Path(tempfile.mkdtemp())
     rows = []
     for name in ("CThead", "GE"):

@@ -1,6 +1,6 @@
 """Reading Blender results back for the tests: mesh attributes, world vertices, rendered PNGs.
 
-The add-on only writes these (operators/objects.py, operators/render.py); these readers are test tools.
+The add-on only writes these (operators/scene/objects.py, operators/scene/render.py); these readers are test tools.
 """
 from __future__ import annotations
 

@@ -145,13 +145,13 @@ sys.path.insert(0, sys.argv[1])
 import _common
 addon = _common.load_addon(register=True)
 import bpy
-state = addon.operators.state
+state = addon.operators.study.state
 out = {}
 r = bpy.ops.pdehead.import_ct(directory=sys.argv[2], format='IMAGES', use_spacing=True, spacing=(2, 1, 1))
 coll = bpy.context.scene.pdehead.active_study
 s = coll.pdehead
-out["auto"] = [state.user_text(w) for w in addon.operators.study_entity.Study.of(coll).warnings]
-out["info"] = [state.user_text(w) for w in addon.operators.study_entity.Study.of(coll).notes]
+out["auto"] = [state.user_text(w) for w in addon.operators.study.entity.Study.of(coll).warnings]
+out["info"] = [state.user_text(w) for w in addon.operators.study.entity.Study.of(coll).notes]
 out["orientation"] = state.cache_for(s.study_id).ct.meta["orientation"]
 try:
     bpy.ops.pdehead.import_ct(directory=sys.argv[3], format='RAW', raw_shape=(256, 256), raw_dtype='i2',

@@ -27,11 +27,11 @@ def test_moving_the_cutter_cuts_the_solid_where_it_is(ext, monkeypatch):
                                         build_volume=False) == {'FINISHED'}
     coll = bpy.context.scene.pdehead.active_study
     s = coll.pdehead
-    lo, hi = ext.render.world_bounds([s.surface_object])
+    lo, hi = ext.scene.render.world_bounds([s.surface_object])
     centre, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
 
     assert bpy.ops.pdehead.add_cutter() == {'FINISHED'}
-    cutter = ext.cutter.cutter_of(coll)
+    cutter = ext.scene.cutter.cutter_of(coll)
     assert cutter is not None and cutter.type == 'EMPTY' and s.use_cutter
     # the default box opens the front-left quarter: a wedge in v through the whole height
     assert tuple(s.u_range) == pytest.approx((0.0, 1.0))
@@ -55,7 +55,7 @@ def test_moving_the_cutter_cuts_the_solid_where_it_is(ext, monkeypatch):
 
     # an update that does not move the cutter rebuilds nothing
     calls = []
-    monkeypatch.setattr(ext.study_entity.Study, "solid", lambda study, live=False: calls.append(study.name))
+    monkeypatch.setattr(ext.study.entity.Study, "solid", lambda study, live=False: calls.append(study.name))
     s.surface_object.location.x += 0.0
     bpy.context.view_layer.update()
     assert calls == []
@@ -65,7 +65,7 @@ def test_moving_the_cutter_cuts_the_solid_where_it_is(ext, monkeypatch):
     cutter.matrix_world = Matrix.Translation((centre[0] + 1.0, centre[1], centre[2])) @ Matrix.Scale(0.05, 4)
     bpy.context.view_layer.update()
     assert tuple(s.u_range) == pytest.approx((0.0, 1.0)) and tuple(s.v_range) == pytest.approx((0.0, 2 * math.pi))
-    head = ext.study_entity.Study.of(coll).head
+    head = ext.study.entity.Study.of(coll).head
     assert len(s.solid_object.data.vertices) == len(head.solid(40, 60, 4).vertices)
 
     # switched off: moving it changes nothing
@@ -86,15 +86,15 @@ def test_cutter_ranges_wedge_slab_and_none(ext, phantom_head):
         m[:3, :3] = np.diag(1.0 / np.asarray(box_half))
         m[:3, 3] = -np.asarray(box_centre) / np.asarray(box_half)
         return m
-    u, v, kept, kind = ext.cutter.cutter_ranges(phantom_head, inverse(centre + [half[0], 0, 0],
+    u, v, kept, kind = ext.scene.cutter.cutter_ranges(phantom_head, inverse(centre + [half[0], 0, 0],
                                                                           [0.5 * half[0], 2 * half[1], 2 * half[2]]),
                                                  1.0)
     assert kind == "wedge" and u == (0.0, 1.0) and 0.5 < kept < 0.95
-    u, v, kept, kind = ext.cutter.cutter_ranges(phantom_head, inverse(centre + [0, 0, half[2]],
+    u, v, kept, kind = ext.scene.cutter.cutter_ranges(phantom_head, inverse(centre + [0, 0, half[2]],
                                                                           [2 * half[0], 2 * half[1], 0.3 * half[2]]),
                                                  1.0)
     assert kind == "slab" and v == (0.0, 2 * math.pi) and 0.5 < kept < 0.95
-    u, v, kept, kind = ext.cutter.cutter_ranges(phantom_head, inverse(centre + [0, 0, 1e4], half), 1.0)
+    u, v, kept, kind = ext.scene.cutter.cutter_ranges(phantom_head, inverse(centre + [0, 0, 1e4], half), 1.0)
     assert kind == "none" and kept == 1.0
     with pytest.raises(Exception, match="whole head"):
-        ext.cutter.cutter_ranges(phantom_head, inverse(centre, 3 * half), 1.0)
+        ext.scene.cutter.cutter_ranges(phantom_head, inverse(centre, 3 * half), 1.0)

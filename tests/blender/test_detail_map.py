@@ -15,8 +15,8 @@ import pytest
 
 def _modules(pdehead_ext):
     name = pdehead_ext.__name__
-    return (sys.modules[f"{name}.operators.detail_map"], sys.modules[f"{name}.operators.state"],
-            sys.modules[f"{name}.operators.study_entity"].Study)
+    return (sys.modules[f"{name}.operators.volume.detail_map"], sys.modules[f"{name}.operators.study.state"],
+            sys.modules[f"{name}.operators.study.entity"].Study)
 
 
 def _open_study(state, path):
@@ -335,7 +335,7 @@ def test_the_panel_offers_build_ct_detail_when_on_without_a_current_map(ext, pde
 
     from panel_recorder import RecordingLayout
     detail, state, study_cls = _modules(pdehead_ext)
-    panel = sys.modules[f"{pdehead_ext.__name__}.operators.panel"]
+    panel = sys.modules[f"{pdehead_ext.__name__}.operators.ui.panel"]
     coll = _open_study(state, phantom_blend)
     bpy.context.scene.pdehead.active_study = coll
     s = coll.pdehead

@@ -51,8 +51,8 @@ def test_zip_contents(extension_zip):
     with zipfile.ZipFile(extension_zip) as z:
         names = z.namelist()
         manifest = tomllib.loads(z.read("blender_manifest.toml").decode())
-    assert "__init__.py" in names and "operators/ops.py" in names and "pdehead_addon/pde/pde_surface.py" in names
-    assert "operators/study_steps.py" in names and "pdehead_addon/defaults.py" in names  # issue 13's modules ship
+    assert "__init__.py" in names and "operators/ui/ops.py" in names and "pdehead_addon/pde/pde_surface.py" in names
+    assert "operators/study/steps.py" in names and "pdehead_addon/defaults.py" in names  # issue 13's modules ship
     assert not any(n.startswith(("tests/", "scripts/", "docs/")) or "__pycache__" in n for n in names)
     wheels = sorted(n for n in names if n.startswith("wheels/"))
     assert not any("numpy" in w for w in wheels)
@@ -140,7 +140,7 @@ def test_every_setting_operator_option_and_preference_reads_the_defaults_table(p
     assert tuple(i.identifier for i in imp["byte_order"].enum_items) == D.BYTE_ORDER.choices
     prefs = bpy.context.preferences.addons[name].preferences.bl_rna.properties["default_patches"]
     assert (prefs.default, prefs.hard_min, prefs.hard_max) == (D.PATCHES.default, D.PATCHES.min, D.PATCHES.max)
-    volume_material = sys.modules[name + ".operators.volume_material"]
+    volume_material = sys.modules[name + ".operators.volume.material"]
     group = volume_material.ensure_eq24_group()
     sockets = {s.name: s for s in group.interface.items_tree if getattr(s, "in_out", "") == "INPUT"}
     assert sockets["Density"].default_value == pytest.approx(D.DENSITY.default) == pytest.approx(40.0)
@@ -165,13 +165,13 @@ def _rna_summary(prop) -> dict:
 
 
 def test_every_operator_option_of_a_study_setting_is_that_setting(pdehead_ext):
-    """Each study setting is declared once (operators/props.py's SETTINGS over the defaults table): an
+    """Each study setting is declared once (operators/study/props.py's SETTINGS over the defaults table): an
     operator's option of the same name shows and accepts exactly what the sidebar's setting does, and every
     setting of the table is on the study's settings (animatable, as before)."""
     import bpy
 
     name = pdehead_ext.__name__
-    props = sys.modules[name + ".operators.props"]
+    props = sys.modules[name + ".operators.study.props"]
     D = sys.modules[name + ".pdehead_addon.defaults"]
     settings = bpy.types.Object.bl_rna.properties["pdehead"].fixed_type.bl_rna.properties
     assert set(props.SETTINGS) <= set(settings.keys()) and set(props.SETTINGS) <= set(D.PARAMS)
@@ -184,7 +184,7 @@ def test_every_operator_option_of_a_study_setting_is_that_setting(pdehead_ext):
         assert len(shared) == count, (op, shared)
         for key in shared:
             assert _rna_summary(rna[key]) == _rna_summary(settings[key]), (op, key)
-    ops = sys.modules[name + ".operators.ops"]
+    ops = sys.modules[name + ".operators.ui.ops"]
     assert ops.PDEHEAD_OT_extract_boundaries.mirrored_settings == (
         "patches", "samples", "selection", "align_curves", "use_tolerance", "tolerance_mm", "max_tolerance_mm")
     assert not hasattr(ops.PDEHEAD_OT_run_pipeline, "mirrored_settings")  # its options start a new run
@@ -248,7 +248,7 @@ def test_unregister_leaves_nothing_and_register_again_works(pdehead_ext):
     assert sorted(_our_handlers(name)) == OUR_HANDLERS
     def menu_funcs():
         return [f.__module__ for f in getattr(bpy.types.TOPBAR_MT_file_import.draw, "_draw_funcs", [])]
-    assert name + ".operators.ops" in menu_funcs()
+    assert name + ".operators.ui.ops" in menu_funcs()
 
     addon_utils.disable(name, default_set=True)
     try:
@@ -263,9 +263,9 @@ def test_unregister_leaves_nothing_and_register_again_works(pdehead_ext):
         assert not hasattr(bpy.types.Scene, "pdehead")
         assert not hasattr(bpy.types, "PDEHEAD_FH_import_ct")
         assert _our_handlers(name) == []
-        assert name + ".operators.ops" not in menu_funcs()
+        assert name + ".operators.ui.ops" not in menu_funcs()
         # no bpy.app timer of ours (the modal pipeline uses a window-manager timer owned by the operator)
-        ops_mod = sys.modules[name + ".operators.ops"]
+        ops_mod = sys.modules[name + ".operators.ui.ops"]
         assert not any(bpy.app.timers.is_registered(f) for f in vars(ops_mod).values() if callable(f)
                        and getattr(f, "__module__", "") == ops_mod.__name__)
     finally:

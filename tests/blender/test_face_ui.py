@@ -32,12 +32,12 @@ def face_blend(pdehead_ext, tmp_path_factory):
 def _mods(pdehead_ext):
     """(the face module, a function giving a study collection's ForensicStudy, the state module)."""
     name = pdehead_ext.__name__
-    forensic_study = sys.modules[f"{name}.operators.forensic_study"]
-    study_entity = sys.modules[f"{name}.operators.study_entity"]
+    forensic_study = sys.modules[f"{name}.operators.forensic.study"]
+    study_entity = sys.modules[f"{name}.operators.study.entity"]
 
     def forensic(coll):
         return forensic_study.ForensicStudy.of(study_entity.Study.of(coll))
-    return sys.modules[f"{name}.operators.face"], forensic, sys.modules[f"{name}.operators.state"]
+    return sys.modules[f"{name}.operators.forensic.face"], forensic, sys.modules[f"{name}.operators.study.state"]
 
 
 def _world_vertices(obj) -> np.ndarray:
@@ -101,7 +101,7 @@ def test_build_face_and_live_pegs(pdehead_ext, face_blend, tmp_path):
     from types import SimpleNamespace
 
     from panel_recorder import RecordingLayout
-    forensic = sys.modules[f"{pdehead_ext.__name__}.operators.forensic"]
+    forensic = sys.modules[f"{pdehead_ext.__name__}.operators.forensic.ops"]
     log = []
     forensic.PDEHEAD_PT_forensic.draw(SimpleNamespace(layout=RecordingLayout(log)), bpy.context)
     assert ("operator", "pdehead.build_face") in log and ("operator", "pdehead.face_sd_range") in log
@@ -235,7 +235,7 @@ def test_face_follows_a_peg_after_reopening(pdehead_ext, face_blend, tmp_path):
 
     from panel_recorder import RecordingLayout
     log = []
-    sys.modules[f"{pdehead_ext.__name__}.operators.forensic"].PDEHEAD_PT_forensic.draw(
+    sys.modules[f"{pdehead_ext.__name__}.operators.forensic.ops"].PDEHEAD_PT_forensic.draw(
         SimpleNamespace(layout=RecordingLayout(log)), bpy.context)
     assert ("label", "Live: vertex positions only, model from the file") in log
     # a kept model that does not belong to this face (another build): prepared again, the face still follows
@@ -279,7 +279,7 @@ def _panel_labels(pdehead_ext) -> list:
     import bpy
 
     from panel_recorder import RecordingLayout
-    forensic = sys.modules[f"{pdehead_ext.__name__}.operators.forensic"]
+    forensic = sys.modules[f"{pdehead_ext.__name__}.operators.forensic.ops"]
     log = []
     forensic.PDEHEAD_PT_forensic.draw(SimpleNamespace(layout=RecordingLayout(log)), bpy.context)
     return log
@@ -381,7 +381,7 @@ def test_export_for_printing_writes_the_face_beside_the_head(pdehead_ext, face_b
     opts = fs(coll).face_model().options
     view = head.surface(int(opts["nu"]), int(opts["nv"]), caps=True)
     assert len(view.vertices) == len(shown) and cKDTree(view.vertices).query(shown)[0].max() < 1e-3
-    fexport = sys.modules[f"{pdehead_ext.__name__}.operators.forensic_export"]
+    fexport = sys.modules[f"{pdehead_ext.__name__}.operators.forensic.export"]
     printed = fexport.print_face(head)                                # what the export wrote, the same vertex count
     rows, nv = engine.print_resolution(head)
     assert stl.is_watertight() and stl.face_count <= 2_000_000 and len(stl.vertices) > 4 * len(shown), \
@@ -425,7 +425,7 @@ def test_sex_shows_for_a_table_with_a_sex_column_and_picks_its_rows(pdehead_ext,
 
     from panel_recorder import RecordingLayout
     face, fs, state = _mods(pdehead_ext)
-    forensic = sys.modules[f"{pdehead_ext.__name__}.operators.forensic"]
+    forensic = sys.modules[f"{pdehead_ext.__name__}.operators.forensic.ops"]
     coll = _open(face_blend)
 
     def panel():

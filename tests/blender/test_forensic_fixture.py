@@ -7,7 +7,7 @@ pegs (one peg dragged). Its manifest ``forensic_0.1.0.json`` holds what the file
 A refactor that renames modules, classes or stored keys fails here.
 
 The forensic state of that file (format 0: JSON custom properties of the collection) is read into the
-study's forensic PropertyGroup when the file is loaded (format 1, ``operators/forensic_props.py``): the
+study's forensic PropertyGroup when the file is loaded (format 1, ``operators/forensic/props.py``): the
 custom properties it had are gone and the group holds their exact contents (the JSON the old version
 wrote is rebuilt from the group and has the SHA-256 the manifest recorded).
 """
@@ -37,7 +37,7 @@ def reopened(pdehead_ext, tmp_path):
     blend = tmp_path / BLEND.name
     shutil.copy(BLEND, blend)
     bpy.ops.wm.open_mainfile(filepath=str(blend))
-    state = sys.modules[f"{pdehead_ext.__name__}.operators.state"]
+    state = sys.modules[f"{pdehead_ext.__name__}.operators.study.state"]
     return bpy, state, json.loads(BLEND.with_suffix(".json").read_text())
 
 
@@ -59,7 +59,7 @@ def _legacy_json(props, p) -> dict:
 
 def test_every_study_reopens_with_its_settings_objects_and_forensic_state(reopened):
     bpy, state, saved = reopened
-    props = sys.modules[state.__name__.rsplit(".", 1)[0] + ".forensic_props"]
+    props = sys.modules[state.__name__.rpartition(".study.")[0] + ".forensic.props"]
     legacy = (props.LEGACY_DEPTH_TABLE, props.LEGACY_LANDMARK_FLAGS, props.LEGACY_FACE_OPTIONS)
     # the forensic state of format 0, read into the PropertyGroup on load: nothing lost, byte for byte
     for name, was in saved["studies"].items():
@@ -111,7 +111,7 @@ def _to_face(obj, vertices_mm, point_mm) -> float:
 def test_the_reopened_face_follows_a_dragged_peg_and_both_studies_stay_live(reopened):
     bpy, state, _ = reopened
     from mathutils import Vector
-    face_ops = sys.modules[state.__name__.rsplit(".", 1)[0] + ".face"]
+    face_ops = sys.modules[state.__name__.rpartition(".study.")[0] + ".forensic.face_handler"]
     coll = bpy.data.collections["Phantom forensic"]
     face = next(o for o in coll.all_objects if o.name.endswith(" Face"))
     peg = next(o for o in coll.all_objects if o.get("pdehead_peg") == "Nasion")
@@ -148,7 +148,7 @@ def test_the_reopened_face_follows_a_dragged_peg_and_both_studies_stay_live(reop
 def test_forensic_state_of_format_0_is_read_into_the_property_group(pdehead_ext):
     """The migration alone (any Blender, no fixture file): format-0 custom properties -> the PropertyGroup."""
     import bpy
-    props = sys.modules[f"{pdehead_ext.__name__}.operators.forensic_props"]
+    props = sys.modules[f"{pdehead_ext.__name__}.operators.forensic.props"]
     from pdehead_addon.forensic.depth_table import default_table
     coll = bpy.data.collections.new("format 0")
     table = default_table().to_json()

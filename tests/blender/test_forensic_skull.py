@@ -101,7 +101,7 @@ def test_bone_level_field_and_export_builds_or_refuses(pdehead_ext, tmp_path, ph
 
     root, level = phantom_dicoms
     ext = pdehead_ext
-    forensic = __import__(f"{ext.__name__}.operators.forensic_study", fromlist=["x"])
+    forensic = __import__(f"{ext.__name__}.operators.forensic.study", fromlist=["x"])
     # the import dialog's Bone Level field sets the study's, which the forensic panel shows
     assert bpy.ops.pdehead.import_ct(directory=str(root / "stripped"), use_bone_level=True,
                                      bone_level=level) == {'FINISHED'}
@@ -111,7 +111,7 @@ def test_bone_level_field_and_export_builds_or_refuses(pdehead_ext, tmp_path, ph
     for step in ("segment", "extract_boundaries", "reconstruct_surface"):
         assert getattr(bpy.ops.pdehead, step)() == {'FINISHED'}
     log = []
-    ext.operators.forensic.PDEHEAD_PT_forensic.draw(SimpleNamespace(layout=RecordingLayout(log)),
+    ext.operators.forensic.ops.PDEHEAD_PT_forensic.draw(SimpleNamespace(layout=RecordingLayout(log)),
                                                      bpy.context)
     assert {"use_bone_level", "bone_level"} <= {x[1] for x in log if x[0] == "prop"}
 
@@ -122,7 +122,7 @@ def test_bone_level_field_and_export_builds_or_refuses(pdehead_ext, tmp_path, ph
                                                      "skull_envelope.stl"]
     assert json.loads((out / "provenance.json").read_text())["not_written"] == \
         dict.fromkeys(["skin.stl", "tissue_depth.csv"], "the CT shows no soft tissue to make a skin of")
-    fs = forensic.ForensicStudy.of(ext.operators.study_entity.Study.of(coll))
+    fs = forensic.ForensicStudy.of(ext.operators.study.entity.Study.of(coll))
     info = fs.skull_segmentation().meta
     assert info["bone_level_stored"] == level and not info["has_skin"]
     first = read_stl(out / "skull.stl")

@@ -106,10 +106,10 @@ def test_forensic_operators_on_the_phantom(pdehead_ext, tmp_path):
     import bpy
     from mathutils import Vector
 
-    forensic = __import__(f"{pdehead_ext.__name__}.operators.forensic_study", fromlist=["x"])
-    skull = __import__(f"{pdehead_ext.__name__}.operators.forensic_skull", fromlist=["x"])
-    export = __import__(f"{pdehead_ext.__name__}.operators.forensic_export", fromlist=["x"])
-    study_entity = __import__(f"{pdehead_ext.__name__}.operators.study_entity", fromlist=["x"])
+    forensic = __import__(f"{pdehead_ext.__name__}.operators.forensic.study", fromlist=["x"])
+    skull = __import__(f"{pdehead_ext.__name__}.operators.forensic.skull", fromlist=["x"])
+    export = __import__(f"{pdehead_ext.__name__}.operators.forensic.export", fromlist=["x"])
+    study_entity = __import__(f"{pdehead_ext.__name__}.operators.study.entity", fromlist=["x"])
     bpy.ops.pdehead.run_pipeline(source='PHANTOM', patches=6, nu=40, nv=80, nw=4, voxel_size=6.0)
     coll = bpy.context.scene.pdehead.active_study
     fs = forensic.ForensicStudy.of(study_entity.Study.of(coll))

@@ -19,9 +19,9 @@ import blender_inspect  # tests/blender/blender_inspect.py
 def live(pdehead_ext, phantom_blend):
     import bpy
     name = pdehead_ext.__name__
-    study = sys.modules[f"{name}.operators.study_entity"].Study
-    state = sys.modules[f"{name}.operators.state"]
-    objects = sys.modules[f"{name}.operators.objects"]
+    study = sys.modules[f"{name}.operators.study.entity"].Study
+    state = sys.modules[f"{name}.operators.study.state"]
+    objects = sys.modules[f"{name}.operators.scene.objects"]
     bpy.ops.wm.open_mainfile(filepath=str(phantom_blend))
     state.drop_cache()
     coll = [c for c in bpy.data.collections if c.pdehead.is_study][0]
@@ -114,8 +114,9 @@ def _cancel_in(module, step_name: str, after_calls: int = 2):
 
 
 def _progress(module):
-    """The extension's operators.progress (the runners' progress hook); ``module``: one of its operators modules."""
-    return sys.modules[module.__name__.rsplit(".", 1)[0] + ".progress"]
+    """The extension's operators.study.progress (the runners' progress hook); ``module``: one of its
+    operators modules."""
+    return sys.modules[module.__name__.rpartition(".operators.")[0] + ".operators.study.progress"]
 
 
 def study_cancelled(module):
@@ -130,7 +131,7 @@ def _datablocks(bpy) -> dict:
 
 def test_a_new_study_cancelled_mid_step_leaves_nothing(pdehead_ext):
     import bpy
-    state = sys.modules[f"{pdehead_ext.__name__}.operators.state"]
+    state = sys.modules[f"{pdehead_ext.__name__}.operators.study.state"]
     before = _datablocks(bpy)
     hook, seen = _cancel_in(state, "boundaries")
     _progress(state).set_hook(hook)

@@ -1,4 +1,4 @@
-"""Blender objects of a study: boundary curves, PDE surface and PDE solid (operators/objects.py).
+"""Blender objects of a study: boundary curves, PDE surface and PDE solid (operators/scene/objects.py).
 
 Runs the real engine on the phantom (segment_head -> extract_boundaries -> solve_pde) and checks
 the Blender data against the engine's numbers: counts, world coordinates (= LPS mm x 0.001),
@@ -36,7 +36,7 @@ def test_grid_matrix_maps_voxel_index_to_patient_metres(ext):
     direction = np.array([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]])
     ct = CTVolume(np.zeros((5, 6, 7), np.float32), spacing=(4.0, 1.08, 0.9), origin=(-120.0, 30.0, 55.0),
                   direction=direction)
-    m = ext.coords.grid_affine_world(ct.spacing, ct.origin, ct.direction)
+    m = ext.scene.coords.grid_affine_world(ct.spacing, ct.origin, ct.direction)
     kji = np.array([[0, 0, 0], [4, 5, 6], [2, 1, 3], [1, 4, 0]], float)
     ijk1 = np.c_[kji[:, ::-1], np.ones(len(kji))]
     np.testing.assert_allclose((ijk1 @ m.T)[:, :3], ct.index_to_patient(kji) * MM, atol=1e-12)
@@ -44,16 +44,16 @@ def test_grid_matrix_maps_voxel_index_to_patient_metres(ext):
 
 def test_study_collection_created_once_and_linked(ext):
     import bpy
-    a = ext.objects.study_collection("Study A")
-    b = ext.objects.study_collection("Study A")
+    a = ext.scene.objects.study_collection("Study A")
+    b = ext.scene.objects.study_collection("Study A")
     assert a == b and a.name == "Study A"
     assert a in bpy.context.scene.collection.children_recursive
     assert len([c for c in bpy.data.collections if c.name.startswith("Study A")]) == 1
 
 
 def test_boundary_curves_one_object_of_closed_splines(ext, phantom_bset):
-    coll = ext.objects.study_collection("Phantom")
-    obj = ext.objects.build_boundary_curves(phantom_bset, coll)
+    coll = ext.scene.objects.study_collection("Phantom")
+    obj = ext.scene.objects.build_boundary_curves(phantom_bset, coll)
     assert obj.type == "CURVE" and obj.name in coll.objects
     splines = obj.data.splines
     assert len(splines) == 3 * phantom_bset.patches + 1 == 31
@@ -71,15 +71,15 @@ def test_boundary_curves_one_object_of_closed_splines(ext, phantom_bset):
     np.testing.assert_allclose(coll["pdehead_origin_m"], centre, atol=1e-9)
     # rebuilt in place: same object, same data, new content
     data = obj.data
-    again = ext.objects.build_boundary_curves(phantom_bset, coll, obj=obj)
+    again = ext.scene.objects.build_boundary_curves(phantom_bset, coll, obj=obj)
     assert again == obj and again.data == data and len(data.splines) == 31
 
 
 def test_surface_mesh_matches_engine(ext, phantom_head):
     import bpy
-    coll = ext.objects.study_collection("Phantom")
+    coll = ext.scene.objects.study_collection("Phantom")
     mesh = phantom_head.surface(40, 60, caps=True, fit_bends=True)        # the viewport places rows at bends
-    obj = ext.objects.build_surface(phantom_head, coll, nu=40, nv=60, caps=True)
+    obj = ext.scene.objects.build_surface(phantom_head, coll, nu=40, nv=60, caps=True)
     me = obj.data
     assert len(me.vertices) == len(mesh.vertices)
     assert len(me.polygons) == mesh.face_count and len(me.loops) == mesh.loop_vertex_indices().size
@@ -122,8 +122,8 @@ def _signed_volume(world, me) -> float:
 
 def test_surface_rebuilt_in_place_keeps_object_material_modifier(ext, phantom_head):
     import bpy
-    coll = ext.objects.study_collection("Phantom")
-    obj = ext.objects.build_surface(phantom_head, coll, nu=20, nv=30)
+    coll = ext.scene.objects.study_collection("Phantom")
+    obj = ext.scene.objects.build_surface(phantom_head, coll, nu=20, nv=30)
     custom = bpy.data.materials.new("user material")
     obj.material_slots[0].material = custom
     obj.modifiers.new("Subdivision", "SUBSURF")
@@ -132,7 +132,7 @@ def test_surface_rebuilt_in_place_keeps_object_material_modifier(ext, phantom_he
     timings = []
     for nu, nv in ((200, 400), (200, 400), (35, 50)):
         t = time.perf_counter()
-        same = ext.objects.build_surface(phantom_head, coll, nu=nu, nv=nv, obj=obj)
+        same = ext.scene.objects.build_surface(phantom_head, coll, nu=nu, nv=nv, obj=obj)
         timings.append(time.perf_counter() - t)
         assert same == obj and obj.data == data
         assert len(obj.data.vertices) == len(phantom_head.surface(nu, nv, caps=True).vertices)
@@ -145,13 +145,13 @@ def test_surface_rebuilt_in_place_keeps_object_material_modifier(ext, phantom_he
 
 def test_build_mesh_object_large_mesh_and_attributes(ext, phantom_head):
     """The bulk path at 200x400 (~80k vertices) with every attribute kind; time is printed, not asserted."""
-    coll = ext.objects.study_collection("Phantom")
+    coll = ext.scene.objects.study_collection("Phantom")
     mesh = phantom_head.surface(200, 400, caps=True)
     n = len(mesh.vertices)
     mesh.vertex_attributes = {"scalar": np.linspace(0, 1, n), "vec": np.tile([1.0, 2.0, 3.0], (n, 1)),
                               "rgba": np.tile([0.1, 0.2, 0.3, 1.0], (n, 1)), "label": np.arange(n) % 7}
     t = time.perf_counter()
-    obj = ext.objects.build_mesh_object(mesh, coll, "Big")
+    obj = ext.scene.objects.build_mesh_object(mesh, coll, "Big")
     elapsed = time.perf_counter() - t
     print(f"build_mesh_object {n} vertices, {mesh.face_count} faces: {elapsed * 1000:.1f} ms")
     me = obj.data
@@ -168,8 +168,8 @@ def test_front_view_sees_the_face_with_patient_left_on_the_right(ext, phantom, p
     """World = LPS x 0.001: the nose tip is the most anterior point (-Y, what numpad 1 sees first),
     and a marker on the patient's left ends up at +X (screen right in the front view)."""
     from pdehead_addon import Mesh
-    coll = ext.objects.study_collection("Phantom")
-    surface = ext.objects.build_surface(phantom_head, coll, nu=80, nv=120)
+    coll = ext.scene.objects.study_collection("Phantom")
+    surface = ext.scene.objects.build_surface(phantom_head, coll, nu=80, nv=120)
     world = blender_inspect.mesh_world_vertices(surface)
     nose = world[np.argmin(world[:, 1])]
     np.testing.assert_allclose(nose / MM, phantom.params["nose_tip"], atol=8.0)
@@ -177,7 +177,7 @@ def test_front_view_sees_the_face_with_patient_left_on_the_right(ext, phantom, p
     assert left_eye[0] > 0
     cube = np.array([[x, y, z] for x in (-3, 3) for y in (-3, 3) for z in (-3, 3)], float) + left_eye + [50, 0, 0]
     quads = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]]
-    marker = ext.objects.build_mesh_object(Mesh(cube, quads), coll, "Left marker")
+    marker = ext.scene.objects.build_mesh_object(Mesh(cube, quads), coll, "Left marker")
     mw = blender_inspect.mesh_world_vertices(marker).mean(axis=0)
     assert mw[0] > world[:, 0].mean() + 0.06  # patient's left = Blender +X
     np.testing.assert_allclose(mw, (left_eye + [50, 0, 0]) * MM, atol=1e-6)
@@ -220,11 +220,11 @@ def _check_texture_matches_ct(obj, image, mesh, head, ct, window):
 
 def test_solid_w_attribute_and_ct_colour(ext, phantom, phantom_head):
     from scipy.ndimage import map_coordinates
-    coll = ext.objects.study_collection("Phantom")
+    coll = ext.scene.objects.study_collection("Phantom")
     ct = phantom.ct
     u_range, v_range, w_range = (0.0, 1.0), (math.pi / 2, 2 * math.pi), (0.0, 1.0)
     mesh = phantom_head.solid(40, 60, 5, u_range, v_range, w_range)
-    obj = ext.objects.build_solid(phantom_head, coll, nu=40, nv=60, nw=5, u_range=u_range, v_range=v_range,
+    obj = ext.scene.objects.build_solid(phantom_head, coll, nu=40, nv=60, nw=5, u_range=u_range, v_range=v_range,
                                 w_range=w_range, ct=ct)
     me = obj.data
     assert len(me.vertices) == len(mesh.vertices) and len(me.polygons) == mesh.face_count
@@ -263,11 +263,11 @@ def test_solid_w_attribute_and_ct_colour(ext, phantom, phantom_head):
     # float32 round-off from Blender properties (2 pi -> 6.2831855) is accepted, not a bad range
     f32 = tuple(float(np.float32(x)) for x in (0.0, 2 * math.pi))
     assert f32[1] > 2 * math.pi
-    full = ext.objects.build_solid(phantom_head, coll, nu=10, nv=12, nw=3, v_range=f32,
+    full = ext.scene.objects.build_solid(phantom_head, coll, nu=10, nv=12, nw=3, v_range=f32,
                                  w_range=(0.0, float(np.float32(1.0))), name="float32 ranges")
     assert len(full.data.vertices) == len(phantom_head.solid(10, 12, 3).vertices)
     # a thinner shell (Fig. 14c): w in [0.8, 1], rebuilt in place
-    thin = ext.objects.build_solid(phantom_head, coll, nu=40, nv=60, nw=5, v_range=v_range, w_range=(0.8, 1.0),
+    thin = ext.scene.objects.build_solid(phantom_head, coll, nu=40, nv=60, nw=5, v_range=v_range, w_range=(0.8, 1.0),
                                  ct=ct, obj=obj)
     w = blender_inspect.mesh_attribute(thin, "w")
     assert thin == obj and w.min() == pytest.approx(0.8, abs=1e-6) and w.max() == pytest.approx(1.0, abs=1e-6)
@@ -275,8 +275,8 @@ def test_solid_w_attribute_and_ct_colour(ext, phantom, phantom_head):
 
 def test_solid_texture_is_packed_and_survives_save_and_reopen(ext, phantom, phantom_head, tmp_path):
     import bpy
-    coll = ext.objects.study_collection("Phantom")
-    obj = ext.objects.build_solid(phantom_head, coll, nu=12, nv=16, nw=3, v_range=(math.pi, 2 * math.pi),
+    coll = ext.scene.objects.study_collection("Phantom")
+    obj = ext.scene.objects.build_solid(phantom_head, coll, nu=12, nv=16, nw=3, v_range=(math.pi, 2 * math.pi),
                                 ct=phantom.ct, texture_size=32, name="Small solid")
     image = obj.material_slots[0].material.node_tree.nodes["CT texture"].image
     before = np.empty(len(image.pixels), np.float32)
@@ -301,11 +301,11 @@ def test_live_solid_uses_the_ct_table_and_rewrites_a_same_topology_mesh_in_place
     from scipy.ndimage import map_coordinates
 
     from pdehead_addon.pde.solid_ct_table import SolidCTTable
-    coll = ext.objects.study_collection("Phantom")
+    coll = ext.scene.objects.study_collection("Phantom")
     ct = phantom.ct
     table = SolidCTTable(phantom_head, ct)
     ranges = dict(u_range=(0.0, 1.0), v_range=(math.pi / 2, 2 * math.pi), w_range=(0.0, 1.0))
-    obj = ext.objects.build_solid(phantom_head, coll, nu=40, nv=60, nw=5, ct=ct, ct_table=table, **ranges)
+    obj = ext.scene.objects.build_solid(phantom_head, coll, nu=40, nv=60, nw=5, ct=ct, ct_table=table, **ranges)
     lo, hi = obj["pdehead_window"]
     rgba = blender_inspect.mesh_attribute(obj, "ct_intensity")
     raw = map_coordinates(ct.data, ct.patient_to_index(blender_inspect.mesh_world_vertices(obj) / MM).T, order=1,
@@ -320,9 +320,9 @@ def test_live_solid_uses_the_ct_table_and_rewrites_a_same_topology_mesh_in_place
 
     def no_refill(*args, **kwargs):
         raise AssertionError("same topology: the mesh must be updated in place")
-    monkeypatch.setattr(ext.objects, "_fill_mesh", no_refill)
+    monkeypatch.setattr(ext.scene.objects, "_fill_mesh", no_refill)
     cut = dict(ranges, v_range=(math.pi / 3, 2 * math.pi), w_range=(0.0, 0.8))  # w0 = 0: still on the spine
-    again = ext.objects.build_solid(phantom_head, coll, nu=40, nv=60, nw=5, ct=ct, ct_table=table, obj=obj, **cut)
+    again = ext.scene.objects.build_solid(phantom_head, coll, nu=40, nv=60, nw=5, ct=ct, ct_table=table, obj=obj, **cut)
     assert again == obj and again.data == me
     expected = phantom_head.solid(40, 60, 5, **cut)
     np.testing.assert_allclose(blender_inspect.mesh_world_vertices(obj) / MM, expected.vertices, atol=0.05)
@@ -333,7 +333,7 @@ def test_live_solid_uses_the_ct_table_and_rewrites_a_same_topology_mesh_in_place
     # a live change's quick 128-pixel tiles go into the corner of the larger image, the UVs scaled to it:
     # no Image.scale (it resamples the old pixels, ~9 ms on GE) and the texture still shows the CT
     size = tuple(image.size)
-    ext.objects.build_solid(phantom_head, coll, nu=40, nv=60, nw=5, ct=ct, ct_table=table, obj=obj,
+    ext.scene.objects.build_solid(phantom_head, coll, nu=40, nv=60, nw=5, ct=ct, ct_table=table, obj=obj,
                             texture_size=128, **cut)
     assert obj.material_slots[0].material.node_tree.nodes["CT texture"].image == image
     quick_w, quick_h = 3 * 128, 2 * 128                        # six 128-pixel tiles, three a row
@@ -345,7 +345,7 @@ def test_live_solid_uses_the_ct_table_and_rewrites_a_same_topology_mesh_in_place
     _check_texture_matches_ct(obj, image, expected, phantom_head, ct, (lo, hi))
     # another resolution is another topology: rebuilt (here refused by the patched refill)
     with pytest.raises(AssertionError, match="in place"):
-        ext.objects.build_solid(phantom_head, coll, nu=40, nv=60, nw=6, ct=ct, ct_table=table, obj=obj, **cut)
+        ext.scene.objects.build_solid(phantom_head, coll, nu=40, nv=60, nw=6, ct=ct, ct_table=table, obj=obj, **cut)
 
 
 def test_solid_shows_skin_outside_and_the_ct_at_its_own_resolution_on_the_cut_faces(ext, phantom, phantom_head):
@@ -353,18 +353,19 @@ def test_solid_shows_skin_outside_and_the_ct_at_its_own_resolution_on_the_cut_fa
     footprint (3-D edge length over its length in texels) is at most one CT voxel at the default budget;
     the CT image interpolates linearly. Before: one 128 x 128 tile per face, CT on the skin."""
     import bpy
-    coll = ext.objects.study_collection("Phantom")
+    coll = ext.scene.objects.study_collection("Phantom")
     ranges = dict(u_range=(0.15, 0.85), v_range=(math.pi / 2, 2 * math.pi), w_range=(0.0, 1.0))
-    obj = ext.objects.build_solid(phantom_head, coll, nu=40, nv=60, nw=5, ct=phantom.ct, name="Cut solid", **ranges)
+    obj = ext.scene.objects.build_solid(phantom_head, coll, nu=40, nv=60, nw=5, ct=phantom.ct, name="Cut solid",
+                                        **ranges)
     me = obj.data
     material = np.empty(len(me.polygons), np.int32)
     me.polygons.foreach_get("material_index", material)
     skin, ct_mat = me.materials[1], me.materials[0]
-    assert skin == ext.objects.ensure_skin_material() and ct_mat.get("pdehead_ct_material") == 1
+    assert skin == ext.scene.objects.ensure_skin_material() and ct_mat.get("pdehead_ct_material") == 1
     tex = ct_mat.node_tree.nodes["CT texture"]
     assert tex.interpolation == "Linear"
     mesh = phantom_head.solid(40, 60, 5, **ranges)
-    _, family = ext.ct_texture.box_faces(mesh, tuple(ranges.values()))
+    _, family = ext.volume.ct_texture.box_faces(mesh, tuple(ranges.values()))
     np.testing.assert_array_equal(material, (family == 0).astype(int))        # outer shell: skin; cut faces: CT
     width, height = tex.image.size
     uv = np.empty(len(me.loops) * 2, np.float32)
@@ -383,8 +384,9 @@ def test_solid_shows_skin_outside_and_the_ct_at_its_own_resolution_on_the_cut_fa
     voxel = float(min(phantom.ct.spacing))
     # measured: largest 1.00 voxel (median 0.76; a 220 x 172 atlas); before (one 128-pixel tile a face) 1.73 voxels
     assert footprint.max() <= 1.02 * voxel, footprint.max() / voxel
-    assert width * height <= ext.objects.D.CT_TEXTURE_BUDGET.default * 1e6
-    again = ext.objects.build_solid(phantom_head, coll, nu=40, nv=60, nw=5, ct=phantom.ct, obj=obj, skin="ct", **ranges)
+    assert width * height <= ext.scene.objects.D.CT_TEXTURE_BUDGET.default * 1e6
+    again = ext.scene.objects.build_solid(phantom_head, coll, nu=40, nv=60, nw=5, ct=phantom.ct, obj=obj, skin="ct",
+                                          **ranges)
     me.polygons.foreach_get("material_index", material)
     assert again == obj and not material.any()                                 # the option: the CT everywhere
     bpy.data.objects.remove(obj)

@@ -32,7 +32,7 @@ def open_blend(path: Path):
 def stored_head(ext, coll, controls: bool = False, **pde):
     """The PDE head solved independently from the boundary bytes stored in the .blend (``controls``:
     through the engine's mapping of the normalised sliders, ``solve_with_controls``)."""
-    raw = base64.b64decode(coll[ext.state.BOUNDARY_KEY])
+    raw = base64.b64decode(coll[ext.study.state.BOUNDARY_KEY])
     bset = ext.engine.loads_boundaries(raw)
     return (ext.engine.solve_with_controls if controls else ext.engine.solve_pde)(bset, **pde)
 
@@ -69,7 +69,7 @@ def check_study(ext, coll, t: int, nu: int, nv: int, nw: int, volume: bool = Tru
         assert Path(bpy.path.abspath(vol.data.filepath)).is_file()
         assert vol.data.grids.load()
         assert {"w", "intensity"} <= {g.name for g in vol.data.grids}
-    timings = ext.study_entity.Study.of(coll).timings
+    timings = ext.study.entity.Study.of(coll).timings
     assert {"segment", "boundaries", "surface", "solid"} <= set(timings)
     assert all(v >= 0 for v in timings.values())
     return head
@@ -89,13 +89,14 @@ def test_phantom_pipeline(ext, phantom_blend):
     assert -115 < v[:, 1].min() < -95
     assert abs(v[np.argmin(v[:, 1]), 0]) < 10  # the nose is on the midline
     assert {"import", "segment", "boundaries", "pde_solve", "surface", "solid", "w_field", "volume"} \
-        <= set(ext.study_entity.Study.of(coll).timings)
+        <= set(ext.study.entity.Study.of(coll).timings)
     # the Study object: one per study_id for the session, wrapping this collection, sharing its cache
     import bpy
-    study = ext.study_entity.Study.of(coll)
-    assert ext.study_entity.Study.of(coll) is study and study.collection == coll
-    assert ext.study_entity.Study.active(bpy.context) is study
-    assert study.settings == s and study.cache is ext.state.cache_for(s.study_id) and study.head is study.cache.head
+    study = ext.study.entity.Study.of(coll)
+    assert ext.study.entity.Study.of(coll) is study and study.collection == coll
+    assert ext.study.entity.Study.active(bpy.context) is study
+    assert study.settings == s and study.cache is ext.study.state.cache_for(s.study_id)
+    assert study.head is study.cache.head
     ct = study.ct  # from memory, or re-made (phantom) and then kept
     assert ct is study.cache.ct and study.ct_status() == ("CT in memory", "CHECKMARK")
 
@@ -119,7 +120,7 @@ def test_cthead_operators(ext, cthead_blend):
 def test_live_parameters_after_reopen_without_resegmenting(ext, phantom_blend, monkeypatch):
     """Save -> reopen -> change each live parameter as a user would: the objects follow at once."""
     coll = open_blend(phantom_blend)
-    ext.state.drop_cache()  # as in a new Blender session: nothing in memory but the .blend
+    ext.study.state.drop_cache()  # as in a new Blender session: nothing in memory but the .blend
 
     def no_segmentation(*args, **kwargs):
         raise AssertionError("live parameters must not re-segment")
@@ -192,7 +193,7 @@ def test_live_parameters_after_reopen_without_resegmenting(ext, phantom_blend, m
     vol = s.volume_object
     s.low_alpha, s.high_alpha, s.density = 0.25, 0.75, 12.5
     s.colour_preset, s.alpha_mode = "skin", "INTENSITY"
-    got = ext.volume_material.get_volume_settings(vol)
+    got = ext.volume.material.get_volume_settings(vol)
     assert got["low_alpha"] == pytest.approx(0.25) and got["high_alpha"] == pytest.approx(0.75)
     assert got["density"] == pytest.approx(12.5)
     assert (got["colour_preset"], got["alpha_mode"]) == ("skin", "INTENSITY")
@@ -209,7 +210,7 @@ def test_nonexistent_input_is_reported_and_creates_nothing(ext):
     with pytest.raises(RuntimeError, match=r"No PDE Head study"):
         bpy.ops.pdehead.segment()
     assert (len(bpy.data.objects), len(bpy.data.collections)) == (n_obj, n_coll)
-    assert ext.state.studies() == []
+    assert ext.study.state.studies() == []
 
 
 def test_engine_error_mid_pipeline_leaves_nothing(ext, tmp_path, monkeypatch):
@@ -230,7 +231,7 @@ def test_engine_error_mid_pipeline_leaves_nothing(ext, tmp_path, monkeypatch):
     with pytest.raises(RuntimeError, match="no usable slice"):
         bpy.ops.pdehead.run_pipeline(source='PHANTOM')
     assert len(bpy.data.collections) == 0 and len(bpy.data.objects) == 0 and len(bpy.data.meshes) == 0
-    assert ext.state.cached_study_ids() == []
+    assert ext.study.state.cached_study_ids() == []
 
 
 def _tick_until_next_step(op_cls, op, context, timer, ticks: int = 500) -> None:
@@ -254,8 +255,8 @@ def _modal_pipeline_op(ext):
                          event_timer_remove=lambda timer: progress.append("timer removed"))
     context = SimpleNamespace(window_manager=wm, workspace=None, scene=bpy.context.scene,
                               active_object=None, preferences=bpy.context.preferences)
-    op_cls = ext.ops.PDEHEAD_OT_run_pipeline
-    run = ext.pipeline_run.PipelineRun(bpy.context, "PHANTOM", settings=dict(patches=4, nu=16, nv=24))
+    op_cls = ext.ui.ops.PDEHEAD_OT_run_pipeline
+    run = ext.study.pipeline_run.PipelineRun(bpy.context, "PHANTOM", settings=dict(patches=4, nu=16, nv=24))
     op = SimpleNamespace(_run=run,
                          _timer=object(), report=lambda kind, msg: reports.append((kind, msg)))
     for name in ("_end_ui", "cancel", "tick"):           # the operator's methods, bound to the stand-in
@@ -294,7 +295,7 @@ def test_modal_pipeline_esc_stops_a_step_in_the_middle(ext, phantom, monkeypatch
     assert op_cls.modal(op, context, esc) == {'CANCELLED'}
     assert job.done and 0 < len(calls) < 200                        # stopped mid-step
     assert len(bpy.data.objects) == 0 and len(bpy.data.collections) == 0 and len(bpy.data.meshes) == 0
-    assert ext.state.cached_study_ids() == []
+    assert ext.study.state.cached_study_ids() == []
     assert reports and reports[-1][0] == {'WARNING'} and "cancelled" in reports[-1][1]
 
 
@@ -343,7 +344,7 @@ def test_modal_pipeline_esc_removes_everything(ext, phantom, monkeypatch):
     assert op_cls.modal(op, context, esc) == {'CANCELLED'}
     assert len(bpy.data.objects) == 0 and len(bpy.data.collections) == 0 and len(bpy.data.meshes) == 0
     assert len(bpy.data.curves) == 0
-    assert ext.state.cached_study_ids() == []
+    assert ext.study.state.cached_study_ids() == []
     assert progress[-2:] == ["timer removed", "end"]
     assert reports and reports[-1][0] == {'WARNING'} and "cancelled" in reports[-1][1]
 
@@ -352,13 +353,13 @@ def test_two_studies_get_their_own_collections(ext):
     import bpy
     assert bpy.ops.pdehead.load_phantom() == {'FINISHED'}
     assert bpy.ops.pdehead.load_phantom() == {'FINISHED'}
-    names = sorted(c.name for c in ext.state.studies())
+    names = sorted(c.name for c in ext.study.state.studies())
     assert names == ["Phantom", "Phantom.001"]
     assert bpy.context.scene.pdehead.active_study.name == "Phantom.001"
-    ids = {c.pdehead.study_id for c in ext.state.studies()}
-    assert len(ids) == 2 and all(ext.state.cache_for(i).ct is not None for i in ids)
+    ids = {c.pdehead.study_id for c in ext.study.state.studies()}
+    assert len(ids) == 2 and all(ext.study.state.cache_for(i).ct is not None for i in ids)
     assert bpy.ops.pdehead.remove_study(study="Phantom") == {'FINISHED'}
-    assert [c.name for c in ext.state.studies()] == ["Phantom.001"]
+    assert [c.name for c in ext.study.state.studies()] == ["Phantom.001"]
 
 
 
@@ -367,7 +368,7 @@ def test_panels_draw_every_setting(ext, phantom_blend):
     import bpy
     coll = open_blend(phantom_blend)
     bpy.context.scene.pdehead.active_study = coll
-    panel_mod = sys.modules[ext.ops.__name__.rpartition(".")[0] + ".panel"]
+    panel_mod = sys.modules[ext.ui.ops.__name__.rpartition(".")[0] + ".panel"]
     log = []
     for cls in panel_mod.CLASSES:
         assert cls.bl_category == "PDE Head" and cls.bl_region_type == 'UI'
@@ -399,7 +400,7 @@ def test_ge_tilted_series_one_click_reduces_patches_to_what_the_scan_allows(ext,
     coll = bpy.context.scene.pdehead.active_study
     s = coll.pdehead
     assert s.source_kind == "FILES"
-    limit = ext.engine.max_patches(ext.state.cache_for(s.study_id).seg)
+    limit = ext.engine.max_patches(ext.study.state.cache_for(s.study_id).seg)
     assert 4 <= limit < 10
     assert s.patches == limit
     assert "patches reduced from 10 to" in s.warnings
@@ -420,9 +421,9 @@ def test_invoking_an_operator_starts_from_the_study_settings_and_running_stores_
 
     coll = open_blend(phantom_blend)
     s = coll.pdehead
-    with ext.state.suspended_updates():
+    with ext.study.state.suspended_updates():
         s.nu, s.nv, s.caps = 24, 36, False
-    op_class = ext.ops.PDEHEAD_OT_reconstruct_surface
+    op_class = ext.ui.ops.PDEHEAD_OT_reconstruct_surface
     fake = SimpleNamespace(study="", nu=0, nv=0, caps=True, continuity="c2", dome=True, smoothing_auto=True,
                            smoothing=0.0, approximation_auto=True, approximation=0.0, modes=0,
                            mirrored_settings=op_class.mirrored_settings, execute=lambda context: {'FINISHED'})
@@ -439,9 +440,9 @@ def test_the_boundaries_step_returns_the_effective_t_its_warnings_and_seconds(ex
     (the phantom's 100 slices cannot give 3 x 60 + 1 curves), the curves, the warning it added and the seconds;
     Extract Boundaries reports the same."""
     coll = open_blend(phantom_blend)
-    study = ext.study_entity.Study.of(coll)
+    study = ext.study.entity.Study.of(coll)
     s = study.settings
-    with ext.state.suspended_updates():
+    with ext.study.state.suspended_updates():
         s.patches, s.use_tolerance, s.selection = 60, False, "uniform"
     outcome = study.boundaries()
     limit = ext.engine.max_patches(study.cache.seg)
@@ -454,13 +455,57 @@ def test_the_boundaries_step_returns_the_effective_t_its_warnings_and_seconds(ex
     assert (again.patches, again.curves, again.warnings) == (limit, 3 * limit + 1, ())
 
 
+def test_the_segment_surface_and_volume_steps_return_their_outcomes(ext, phantom_blend, tmp_path):
+    """``segment()``, ``surface()`` and ``volume()`` return what they built and measured (a ``StepOutcome``):
+    the objects, the seconds the study's timings record and the effective values (the head's fraction, the
+    vertex count, the voxel size and the .vdb written); the operators report from them."""
+    import shutil
+    copy = tmp_path / "outcomes.blend"           # a copy: the new .vdb goes beside it, the shared file stays as is
+    shutil.copy(phantom_blend, copy)
+    coll = open_blend(copy)
+    study = ext.study.entity.Study.of(coll)
+    s = study.settings
+    seg = study.segment()
+    assert seg.step == "segment" and seg.objects == ()
+    assert seg.values["fraction"] == pytest.approx(float(study.cache.seg.mask.mean()))
+    assert 0.05 < seg.values["fraction"] < 0.9
+    assert seg.values["iterations"] == int(study.cache.seg.iterations) > 0
+    assert round(seg.seconds, 4) == pytest.approx(study.timings["segment"])
+    surface = study.surface()
+    assert surface.objects == (s.surface_object,)
+    assert surface.values["vertices"] == len(s.surface_object.data.vertices) > 1000
+    assert round(surface.seconds, 4) == pytest.approx(study.timings["surface"])
+    with ext.study.state.suspended_updates():
+        s.use_ct_grid, s.voxel_auto, s.voxel_size = False, False, 4.0
+    volume = study.volume()
+    assert volume.objects == (s.volume_object,) and volume.values["voxel_size"] == pytest.approx(4.0)
+    assert Path(volume.values["vdb_path"]).is_file()
+    assert tmp_path.resolve() in Path(volume.values["vdb_path"]).resolve().parents
+    assert volume.seconds == pytest.approx(volume.values["w_field_s"] + volume.values["volume_s"])
+    assert round(volume.values["volume_s"], 4) == pytest.approx(study.timings["volume"])
+
+
+def test_the_forensic_side_is_a_component_the_study_holds(ext, phantom_blend):
+    """One registry of study entities: each study holds its forensic side (``study.forensic``), the one
+    ``ForensicStudy.of`` gives; forgetting the study forgets it too."""
+    coll = open_blend(phantom_blend)
+    study = ext.study.entity.Study.of(coll)
+    fs = ext.forensic.study.ForensicStudy.of(study)
+    assert fs is study.forensic and fs.study is study and fs.collection == coll
+    assert ext.forensic.study.ForensicStudy.of(study) is fs and fs.cache is study.cache.forensic
+    assert not hasattr(ext.study.state.REGISTRY, "forensic")
+    ext.study.entity.Study.forget(study.study_id)
+    again = ext.study.entity.Study.of(coll)
+    assert again is not study and again.forensic is not fs and again.forensic.study is again
+
+
 def test_solid_texture_fields_are_drawn_and_change_the_solid(ext, cthead_blend):
     """Issue 21 item 3: the solid's CT texture budget, what its outside shows and the skin depth are
     sidebar fields (Solid panel), and changing each rebuilds the solid with it (CThead, 1 mm voxels)."""
     import bpy
     coll = open_blend(cthead_blend)
     bpy.context.scene.pdehead.active_study = coll
-    panel_mod = sys.modules[ext.ops.__name__.rpartition(".")[0] + ".panel"]
+    panel_mod = sys.modules[ext.ui.ops.__name__.rpartition(".")[0] + ".panel"]
     log = []
     panel_mod.PDEHEAD_PT_solid.draw(SimpleNamespace(layout=_Layout(log), study=panel_mod.PDEHEAD_PT_solid.study),
                                     bpy.context)

@@ -1,4 +1,4 @@
-"""Cycles CPU renders of study objects (operators/render.py): not blank, oriented, eq. 24 vs baseline.
+"""Cycles CPU renders of study objects (operators/scene/render.py): not blank, oriented, eq. 24 vs baseline.
 
 Small pictures (96-160 px, 8-16 samples). Renders are written to pytest's tmp_path; set
 PDEHEAD_KEEP_RENDERS=<folder> to keep copies for looking at them.
@@ -53,7 +53,7 @@ def _marker(ext, coll, name, centre_mm, rgb, size_mm=8.0):
     h = size_mm / 2
     cube = np.array([[x, y, z] for x in (-h, h) for y in (-h, h) for z in (-h, h)]) + np.asarray(centre_mm)
     quads = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]]
-    obj = ext.objects.build_mesh_object(Mesh(cube, quads), coll, name)
+    obj = ext.scene.objects.build_mesh_object(Mesh(cube, quads), coll, name)
     obj.data.materials.append(_emissive(ext, name, rgb))
     obj.visible_diffuse = obj.visible_glossy = obj.visible_transmission = False  # no light onto the head
     obj.visible_shadow = False
@@ -76,15 +76,15 @@ def B_render_read(path):
 
 
 def test_front_render_shows_the_face_with_the_patients_left_on_the_right(ext, phantom, phantom_head, tmp_path):
-    coll = ext.objects.study_collection("Phantom")
-    surface = ext.objects.build_surface(phantom_head, coll, nu=60, nv=90)
+    coll = ext.scene.objects.study_collection("Phantom")
+    surface = ext.scene.objects.build_surface(phantom_head, coll, nu=60, nv=90)
     world_mm = blender_inspect.mesh_world_vertices(surface) / MM
     left = np.array([world_mm[:, 0].max() + 12.0, world_mm[:, 1].mean(), 0.0])  # beside the patient's left side
     front = np.asarray(phantom.params["nose_tip"]) + [0.0, -10.0, 25.0]         # in front of the face
     red = _marker(ext, coll, "left marker", left, (1.0, 0.0, 0.0))
     green = _marker(ext, coll, "front marker", front, (0.0, 1.0, 0.0))
     objs = [surface, red, green]
-    png = _keep(ext.render.render_objects_png(objs, tmp_path / "front.png", "FRONT", (128, 128), 16),
+    png = _keep(ext.scene.render.render_objects_png(objs, tmp_path / "front.png", "FRONT", (128, 128), 16),
                 "phantom_surface_front.png")
     stats = blender_inspect.image_stats(png)
     assert (stats["width"], stats["height"]) == (128, 128)
@@ -94,19 +94,19 @@ def test_front_render_shows_the_face_with_the_patients_left_on_the_right(ext, ph
     x_green, _ = _colour_centroid(png, 1)
     assert x_red > 0.75 and abs(x_green - 0.5) < 0.1  # patient's left on screen right; face marker centred
     # the patient's right side (camera at -X): anterior (the green marker) on the screen's right
-    png = _keep(ext.render.render_objects_png(objs, tmp_path / "right.png", "RIGHT", (128, 128), 8),
+    png = _keep(ext.scene.render.render_objects_png(objs, tmp_path / "right.png", "RIGHT", (128, 128), 8),
                 "phantom_surface_right.png")
     assert _colour_centroid(png, 1)[0] > 0.75
     # top view (numpad 7): patient's left on the right, face at the bottom
-    png = ext.render.render_objects_png(objs, tmp_path / "top.png", "TOP", (96, 96), 8)
+    png = ext.scene.render.render_objects_png(objs, tmp_path / "top.png", "TOP", (96, 96), 8)
     assert _colour_centroid(png, 0)[0] > 0.75 and _colour_centroid(png, 1)[1] > 0.75
 
 
 def test_render_restores_the_scene(ext, phantom_head, tmp_path):
     import bpy
     scene = bpy.context.scene
-    coll = ext.objects.study_collection("Phantom")
-    surface = ext.objects.build_surface(phantom_head, coll, nu=20, nv=30)
+    coll = ext.scene.objects.study_collection("Phantom")
+    surface = ext.scene.objects.build_surface(phantom_head, coll, nu=20, nv=30)
     other = bpy.data.objects.new("user empty", None)
     scene.collection.objects.link(other)
     user_cam = bpy.data.objects.new("user camera", bpy.data.cameras.new("user camera"))
@@ -117,7 +117,8 @@ def test_render_restores_the_scene(ext, phantom_head, tmp_path):
     scene.cycles.samples = 77
     world = scene.world
     counts = {k: len(getattr(bpy.data, k)) for k in ("objects", "cameras", "lights", "worlds", "materials")}
-    png = ext.render.render_objects_png([surface], tmp_path / "s.png", "THREE_QUARTER", (96, 96), 8, transparent=True)
+    png = ext.scene.render.render_objects_png([surface], tmp_path / "s.png", "THREE_QUARTER", (96, 96), 8,
+                                              transparent=True)
     stats = blender_inspect.image_stats(png)
     assert blender_inspect.read_png(png).shape == (96, 96, 4)
     assert 0.05 < stats["foreground_fraction"] < 0.8  # from alpha
@@ -126,11 +127,11 @@ def test_render_restores_the_scene(ext, phantom_head, tmp_path):
     assert not other.hide_render and not scene.render.film_transparent
     assert {k: len(getattr(bpy.data, k)) for k in counts} == counts  # temporaries removed
     with pytest.raises(ValueError):
-        ext.render.render_objects_png([surface], tmp_path / "x.png", "DIAGONAL")
+        ext.scene.render.render_objects_png([surface], tmp_path / "x.png", "DIAGONAL")
 
 
 def _silhouette(ext, objs, bounds, path, resolution):
-    png = ext.render.render_objects_png(objs, path, "FRONT", resolution, 4, transparent=True, bounds=bounds)
+    png = ext.scene.render.render_objects_png(objs, path, "FRONT", resolution, 4, transparent=True, bounds=bounds)
     return blender_inspect.image_stats(png)["mask"]
 
 
@@ -140,18 +141,19 @@ def _dilate(mask, r):
 
 
 def _compare_eq24_and_baseline(ext, ct, head, wfield, tmp_path, tag, view="FRONT", res=(128, 128), samples=12):
-    coll = ext.objects.study_collection(tag)
-    surface = ext.objects.build_surface(head, coll, nu=60, nv=90)
-    vol = ext.volume.build_volume(wfield, coll, tmp_path / f"{tag}.vdb", ct=ct)
-    bounds = ext.render.world_bounds([vol])  # same framing for every picture: the whole CT box
+    coll = ext.scene.objects.study_collection(tag)
+    surface = ext.scene.objects.build_surface(head, coll, nu=60, nv=90)
+    vol = ext.volume.volume.build_volume(wfield, coll, tmp_path / f"{tag}.vdb", ct=ct)
+    bounds = ext.scene.render.world_bounds([vol])  # same framing for every picture: the whole CT box
     kw = dict(resolution=res, samples=samples, bounds=bounds, volume_step_rate=4.0)
-    eq24 = _keep(ext.render.render_objects_png([vol], tmp_path / "eq24.png", view, **kw), f"{tag}_volume_eq24.png")
-    ext.volume_material.set_volume_settings(vol, alpha_mode="INTENSITY")
-    base = _keep(ext.render.render_objects_png([vol], tmp_path / "int.png", view, **kw),
+    eq24 = _keep(ext.scene.render.render_objects_png([vol], tmp_path / "eq24.png", view, **kw),
+                 f"{tag}_volume_eq24.png")
+    ext.volume.material.set_volume_settings(vol, alpha_mode="INTENSITY")
+    base = _keep(ext.scene.render.render_objects_png([vol], tmp_path / "int.png", view, **kw),
                  f"{tag}_volume_intensity_alpha.png")
-    ext.volume_material.set_volume_settings(vol, alpha_mode="EQ24", colour_preset="skin")
-    _keep(ext.render.render_objects_png([vol], tmp_path / "skin.png", view, **kw), f"{tag}_volume_eq24_skin.png")
-    head_mask = ext.render.render_objects_png([surface], tmp_path / "sil.png", view, res, 4, transparent=True,
+    ext.volume.material.set_volume_settings(vol, alpha_mode="EQ24", colour_preset="skin")
+    _keep(ext.scene.render.render_objects_png([vol], tmp_path / "skin.png", view, **kw), f"{tag}_volume_eq24_skin.png")
+    head_mask = ext.scene.render.render_objects_png([surface], tmp_path / "sil.png", view, res, 4, transparent=True,
                                             bounds=bounds)
     head_mask = _dilate(blender_inspect.image_stats(head_mask)["mask"], 3)
     s24, sint = blender_inspect.image_stats(eq24), blender_inspect.image_stats(base)
@@ -178,10 +180,10 @@ def test_volume_eq24_differs_from_intensity_alpha_on_the_phantom(ext, phantom, p
 
 
 def test_cthead_surface_and_volume_renders(ext, cthead_ct, cthead_head, tmp_path):
-    coll = ext.objects.study_collection("CThead")
-    surface = ext.objects.build_surface(cthead_head, coll, nu=80, nv=120)
+    coll = ext.scene.objects.study_collection("CThead")
+    surface = ext.scene.objects.build_surface(cthead_head, coll, nu=80, nv=120)
     for view in ("FRONT", "LEFT"):
-        png = _keep(ext.render.render_objects_png([surface], tmp_path / f"{view}.png", view, (160, 160), 16),
+        png = _keep(ext.scene.render.render_objects_png([surface], tmp_path / f"{view}.png", view, (160, 160), 16),
                     f"cthead_surface_{view.lower()}.png")
         stats = blender_inspect.image_stats(png)
         assert 0.05 < stats["foreground_fraction"] < 0.8 and stats["std"] > 0.05

@@ -29,7 +29,7 @@ def test_pipeline_in_the_startup_scene_frames_the_face_and_f12_renders_it(ext, t
     bpy.ops.wm.read_homefile(use_empty=False)  # Blender's startup scene: cube, camera, light
     scene = bpy.context.scene
     cube = scene.objects["Cube"]
-    assert ext.scene.is_startup_cube(cube)
+    assert ext.scene.scene.is_startup_cube(cube)
     scene.render.resolution_x = scene.render.resolution_y = 96
     scene.render.resolution_percentage = 100
     assert bpy.ops.pdehead.run_pipeline(source='PHANTOM', patches=6, nu=40, nv=80, nw=4,
@@ -43,7 +43,7 @@ def test_pipeline_in_the_startup_scene_frames_the_face_and_f12_renders_it(ext, t
         assert obj.hide_render and obj.hide_get()
     cam = scene.camera
     assert cam.get("pdehead_kind") == "camera" and cam.name in coll.objects and cam.data.type == "PERSP"
-    head_lo, head_hi = ext.render.world_bounds([s.surface_object])
+    head_lo, head_hi = ext.scene.render.world_bounds([s.surface_object])
     m = np.array(cam.matrix_world)
     assert m[1, 3] < head_lo[1] - 0.1  # in front of the face (anterior is -Y)
     np.testing.assert_allclose(-m[:3, 2], [0.0, 1.0, 0.0], atol=1e-6)  # looking along +Y: the front view
@@ -81,12 +81,12 @@ def test_a_changed_cube_is_left_alone_and_each_study_gets_its_camera(ext):
     cube = scene.objects["Cube"]
     cube.scale = (0.05, 0.05, 0.05)  # the user's own object now
     bpy.context.view_layer.update()
-    assert not ext.scene.is_startup_cube(cube)
+    assert not ext.scene.scene.is_startup_cube(cube)
     for _ in range(2):
         assert bpy.ops.pdehead.run_pipeline(source='PHANTOM', patches=4, nu=20, nv=30, nw=3,
                                             build_volume=False) == {'FINISHED'}
     assert not cube.hide_render and not cube.hide_get()
-    studies = ext.state.studies()
+    studies = ext.study.state.studies()
     assert len(studies) == 2
     cams = [next(o for o in c.objects if o.get("pdehead_kind") == "camera") for c in studies]
     assert cams[0] != cams[1] and scene.camera == cams[1]  # the newest study is framed
@@ -135,7 +135,7 @@ def test_the_study_camera_frames_the_head_at_any_render_size(ext, tmp_path):
     s = coll.pdehead
     cam = scene.camera
     assert cam.data.animation_data.drivers[0].driver.is_simple_expression    # runs with scripts disabled
-    lo, hi = ext.render.world_bounds([s.surface_object])
+    lo, hi = ext.scene.render.world_bounds([s.surface_object])
     corners = [(x, y, z) for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
     from mathutils import Vector
     for rx, ry in ((480, 480), (1920, 1080), (1080, 1920)):
@@ -179,7 +179,7 @@ def test_the_turntable_light_turns_with_the_camera(ext):
     np.testing.assert_allclose(relative[2], relative[0], atol=1e-5)
     scene.frame_set(scene.frame_start + 4)                              # half a turn: the camera behind the head
     assert np.array(cam.matrix_world)[1, 3] > np.array(key.matrix_world)[1, 3] - 1.0
-    assert np.array(key.matrix_world)[1, 3] > 0.5 * (ext.render.world_bounds([coll.pdehead.surface_object])[1][1])
+    assert np.array(key.matrix_world)[1, 3] > 0.5 * (ext.scene.render.world_bounds([coll.pdehead.surface_object])[1][1])
 
 
 def test_a_cut_at_the_back_is_lit_by_the_study_lights(ext, tmp_path):
@@ -259,9 +259,10 @@ def test_every_objects_active_uv_layer_is_clean(ext):
     assert bpy.ops.pdehead.find_landmarks() == {'FINISHED'}
     assert bpy.ops.pdehead.build_face() == {'FINISHED'}
     assert bpy.ops.pdehead.face_sd_range() == {'FINISHED'}
-    study = ext.study_entity.Study.of(coll)
+    study = ext.study.entity.Study.of(coll)
     ranges = dict(u_range=(0.0, 1.0), v_range=(0.5, 5.0), w_range=(0.3, 1.0))
-    bare = ext.objects.build_solid(study.head, coll, nu=20, nv=40, nw=4, name="no CT texture", texture_size=0, **ranges)
+    bare = ext.scene.objects.build_solid(study.head, coll, nu=20, nv=40, nw=4, name="no CT texture", texture_size=0,
+                                         **ranges)
     assert bare.data.uv_layers.active.name == "CT texture"
     checked = {}
     for obj in bpy.data.objects:

@@ -1,4 +1,4 @@
-"""The .blend's stored study state is data (operators/persistence.py's load checks, study_entity.parse_timings,
+"""The .blend's stored study state is data (operators/study/persistence.py's load checks, study_entity.parse_timings,
 the payload budgets of pdehead_addon/defaults.py): a tampered file ends in one clear report per study and the
 rest of the file keeps working."""
 from __future__ import annotations
@@ -37,27 +37,27 @@ def test_a_tampered_file_gives_one_report_per_study_and_the_rest_works(ext, tmp_
     bombed_name, clamped_name = bombed.name, clamped.name
     # the tampering: a zlib bomb as the boundary payload and as the CT table (64 MB + 1 each from ~70 kB),
     # numbers beyond the properties' limits, timings that are no table
-    bombed[ext.state.BOUNDARY_KEY] = _boundary_bomb(ext, bombed[ext.state.BOUNDARY_KEY],
+    bombed[ext.study.state.BOUNDARY_KEY] = _boundary_bomb(ext, bombed[ext.study.state.BOUNDARY_KEY],
                                                     D.MAX_STORED_BOUNDARY_BYTES.default * 4)
     header = json.dumps({"format": ext.engine.SolidCTTable.PACK_FORMAT, "shape": [1024, 1024, 64],
                          "window": [0, 1], "range": [0, 1]}).encode()
     too_big = b"\0" * (D.MAX_STORED_CT_TABLE_BYTES.default + 1)
     table = struct.pack("<I", len(header)) + header + zlib.compress(too_big, 9)
-    bombed[ext.state.CT_TABLE_KEY] = base64.b64encode(table).decode("ascii")
-    s = ext.state.settings(clamped)
+    bombed[ext.study.state.CT_TABLE_KEY] = base64.b64encode(table).decode("ascii")
+    s = ext.study.state.settings(clamped)
     s["nu"] = 100_000_000                      # an IDProperty write: Blender's limits do not apply
     s["nv"] = -5
     s.timings_json = "[not json"
-    ext.state.settings(bombed).timings_json = json.dumps({"segment": "x", "pde": float("nan")})
+    ext.study.state.settings(bombed).timings_json = json.dumps({"segment": "x", "pde": float("nan")})
     bpy.ops.wm.save_mainfile()
 
     bpy.ops.wm.open_mainfile(filepath=str(blend))
     bombed, clamped = bpy.data.collections[bombed_name], bpy.data.collections[clamped_name]
     for coll in (bombed, clamped):
-        ext.state.drop_cache(ext.state.settings(coll).study_id)
-    s = ext.state.settings(clamped)
+        ext.study.state.drop_cache(ext.study.state.settings(coll).study_id)
+    s = ext.study.state.settings(clamped)
     assert (s.nu, s.nv) == (D.NU.max, D.NV.min)
-    Study = ext.study_entity.Study
+    Study = ext.study.entity.Study
     reports = [w for w in Study.of(clamped).warnings if "outside their limits" in w]
     assert len(reports) == 1 and "nu 1e+08 -> 400" in reports[0] and "nv -5 -> 4" in reports[0], reports
     assert "timings" in reports[0] and Study.of(clamped).timings == {}

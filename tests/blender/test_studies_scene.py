@@ -34,13 +34,13 @@ def test_import_with_build_the_head_ends_framed(ext, phantom_dicom):
     assert default_camera is not None and not cube.hide_render
     assert bpy.ops.pdehead.import_ct(directory=str(phantom_dicom), run_pipeline=True) == {'FINISHED'}
     coll = scene.pdehead.active_study
-    s = ext.state.settings(coll)
+    s = ext.study.state.settings(coll)
     assert s.surface_object and s.solid_object
-    camera = ext.scene.study_object(coll, ext.scene.CAMERA_KIND)
+    camera = ext.scene.scene.study_object(coll, ext.scene.scene.CAMERA_KIND)
     assert camera is not None and scene.camera == camera and camera != default_camera
     assert cube.hide_render and not cube.visible_get()
     assert not s.surface_object.hide_render and s.solid_object.hide_render and s.curves_object.hide_render
-    lo, hi = ext.render.world_bounds([s.surface_object])
+    lo, hi = ext.scene.render.world_bounds([s.surface_object])
     x, y = _on_screen(camera, scene, 0.5 * (lo + hi))
     assert x == pytest.approx(0.5, abs=0.02) and y == pytest.approx(0.5, abs=0.02)
     corners = [_on_screen(camera, scene, (a, b, c)) for a in (lo[0], hi[0]) for b in (lo[1], hi[1])
@@ -59,11 +59,11 @@ def test_remove_study_falls_back_to_another_studys_camera(ext):
     first_name = first.name
     second = _pipeline(bpy, build_volume=False)
     scene = bpy.context.scene
-    assert scene.camera == ext.scene.study_object(second, ext.scene.CAMERA_KIND)
+    assert scene.camera == ext.scene.scene.study_object(second, ext.scene.scene.CAMERA_KIND)
     assert bpy.ops.pdehead.remove_study() == {'FINISHED'}  # the active study: the second
     first = bpy.data.collections[first_name]
     assert scene.pdehead.active_study == first
-    assert scene.camera is not None and scene.camera == ext.scene.study_object(first, ext.scene.CAMERA_KIND)
+    assert scene.camera is not None and scene.camera == ext.scene.scene.study_object(first, ext.scene.scene.CAMERA_KIND)
 
 
 def test_save_removes_the_vdb_of_a_study_deleted_in_the_outliner(ext, tmp_path):
@@ -75,9 +75,9 @@ def test_save_removes_the_vdb_of_a_study_deleted_in_the_outliner(ext, tmp_path):
     kept = _pipeline(bpy, voxel_size=8.0)
     gone = _pipeline(bpy, voxel_size=8.0)
     bpy.ops.wm.save_mainfile()
-    folder = tmp_path / ext.vdb_files.VDB_FOLDER_NAME
-    kept_vdb = folder / bpy.path.basename(ext.state.settings(kept).volume_object.data.filepath)
-    gone_vdb = folder / bpy.path.basename(ext.state.settings(gone).volume_object.data.filepath)
+    folder = tmp_path / ext.volume.vdb_files.VDB_FOLDER_NAME
+    kept_vdb = folder / bpy.path.basename(ext.study.state.settings(kept).volume_object.data.filepath)
+    gone_vdb = folder / bpy.path.basename(ext.study.state.settings(gone).volume_object.data.filepath)
     assert kept_vdb.is_file() and gone_vdb.is_file() and kept_vdb != gone_vdb
     foreign = folder / "someone_else.vdb"
     foreign.write_bytes(gone_vdb.read_bytes())
@@ -112,7 +112,7 @@ def test_drag_and_drop_opens_the_import_with_the_file(ext, pdehead_ext, phantom_
     assert handler.poll_drop(SimpleNamespace(area=SimpleNamespace(type='VIEW_3D')))
     assert not handler.poll_drop(SimpleNamespace(area=SimpleNamespace(type='NODE_EDITOR')))
 
-    options = sys.modules[f"{pdehead_ext.__name__}.operators.import_options"].dropped_file_options
+    options = sys.modules[f"{pdehead_ext.__name__}.operators.ui.import_options"].dropped_file_options
     dcm = sorted(p.name for p in phantom_dicom.iterdir())[3]
     got = options(str(phantom_dicom), [dcm])
     assert got["format"] == "DICOM" and not got["single_file"] and got["directory"] == str(phantom_dicom)
@@ -123,6 +123,6 @@ def test_drag_and_drop_opens_the_import_with_the_file(ext, pdehead_ext, phantom_
 
     # the dialog's OK: what Blender runs with the dropped file's values
     assert bpy.ops.pdehead.import_ct(files=[{"name": dcm}], **got) == {'FINISHED'}
-    s = ext.state.settings(bpy.context.scene.pdehead.active_study)
+    s = ext.study.state.settings(bpy.context.scene.pdehead.active_study)
     assert s.source_kind == 'FILES' and s.source == str(phantom_dicom)
     assert tuple(s.dimensions)[:2] == (128, 128) and s.dimensions[2] > 20  # the whole series, not one slice

@@ -25,7 +25,7 @@ ALL_OPERATORS = ("segment", "extract_boundaries", "reconstruct_surface", "build_
 def draw_panels(ext):
     import bpy
     log = []
-    for cls in ext.panel.CLASSES:
+    for cls in ext.ui.panel.CLASSES:
         if hasattr(cls, "poll") and not cls.poll(bpy.context):
             continue
         cls.draw(SimpleNamespace(layout=_Layout(log), study=cls.study), bpy.context)
@@ -43,7 +43,7 @@ def run_every_operator(ext, study: str):
 def _study(ext, name):
     import bpy
     coll = bpy.data.collections[name]
-    assert ext.state.is_study(coll)
+    assert ext.study.state.is_study(coll)
     return coll, coll.pdehead
 
 
@@ -68,11 +68,11 @@ def test_undo_restores_the_study_and_every_operator_works_after_it(ext, tmp_path
 
     assert bpy.ops.ed.undo() == {'FINISHED'}  # Ctrl+Z: back to "built"
     coll, s = _study(ext, name)  # every datablock is new after undo
-    assert ext.cutter.cutter_of(coll) is None and not s.use_cutter
+    assert ext.scene.cutter.cutter_of(coll) is None and not s.use_cutter
     assert tuple(s.v_range) == pytest.approx((0.0, 2 * math.pi))
     assert len(s.solid_object.data.vertices) == n_full
     assert Path(bpy.path.abspath(s.volume_object.data.filepath)) == vdb_first
-    assert ext.volume.check_volume(s.volume_object) is None  # the file the undone state needs is there
+    assert ext.volume.volume.check_volume(s.volume_object) is None  # the file the undone state needs is there
 
     # live parameters and every operator work on the restored study
     s.nw = 4
@@ -85,7 +85,7 @@ def test_undo_restores_the_study_and_every_operator_works_after_it(ext, tmp_path
     bpy.ops.ed.undo_push(message="after")
     assert bpy.ops.ed.undo() == {'FINISHED'}
     coll, s = _study(ext, name)
-    assert s.solid_object is not None and ext.study_entity.Study.of(coll).head is not None
+    assert s.solid_object is not None and ext.study.entity.Study.of(coll).head is not None
 
 
 def test_two_studies_after_reopening_each_operator_acts_on_its_own_study(ext, tmp_path):
@@ -94,11 +94,11 @@ def test_two_studies_after_reopening_each_operator_acts_on_its_own_study(ext, tm
     for _ in range(2):
         assert bpy.ops.pdehead.run_pipeline(source='PHANTOM', patches=4, nu=20, nv=30, nw=3,
                                             voxel_size=6.0) == {'FINISHED'}
-    names = sorted(c.name for c in ext.state.studies())
+    names = sorted(c.name for c in ext.study.state.studies())
     assert len(names) == 2
     bpy.ops.wm.save_mainfile()
     bpy.ops.wm.open_mainfile(filepath=str(tmp_path / "two.blend"))
-    ext.state.drop_cache()  # as in a new session
+    ext.study.state.drop_cache()  # as in a new session
 
     first, second = (_study(ext, n) for n in names)
     before = blender_inspect.mesh_world_vertices(second[1].solid_object).copy()
@@ -108,7 +108,7 @@ def test_two_studies_after_reopening_each_operator_acts_on_its_own_study(ext, tm
     np.testing.assert_array_equal(blender_inspect.mesh_world_vertices(second[1].solid_object), before)
     run_every_operator(ext, names[0])
     assert second[1].volume_object.data.filepath == vdb_second  # the other study's volume is untouched
-    assert ext.cutter.cutter_of(second[0]) is None
+    assert ext.scene.cutter.cutter_of(second[0]) is None
     bpy.context.scene.pdehead.active_study = second[0]
     run_every_operator(ext, "")  # the active study
     cams = {c.name: next(o for o in c.objects if o.get("pdehead_kind") == "camera") for c in (first[0], second[0])}

@@ -1,4 +1,4 @@
-"""A volume's .vdb belongs to the .blend that wrote it (operators/vdb_files.py, operators/persistence.py).
+"""A volume's .vdb belongs to the .blend that wrote it (operators/volume/vdb_files.py, operators/study/persistence.py).
 
 - Save As into the same folder, then a rebuild or a removed study, then a save: the original .blend's
   .vdb stays and its volume still loads;
@@ -31,7 +31,7 @@ def _loads(ext, blend: Path, volume_name: str) -> Path:
     import bpy
     bpy.ops.wm.open_mainfile(filepath=str(blend))
     vol = bpy.data.objects[volume_name]
-    assert ext.volume.check_volume(vol) is None, ext.volume.check_volume(vol)
+    assert ext.volume.volume.check_volume(vol) is None, ext.volume.volume.check_volume(vol)
     return _vdb_of(vol)
 
 
@@ -44,7 +44,7 @@ def test_save_as_in_the_same_folder_then_rebuild_or_remove_keeps_the_originals_v
     bpy.ops.wm.save_mainfile()
     orig_vdb = _vdb_of(vol)
     orig_bytes = orig_vdb.read_bytes()
-    assert orig_vdb.name == f"orig.{study}.vdb" and ext.vdb_files.is_owned(orig_vdb, str(orig))
+    assert orig_vdb.name == f"orig.{study}.vdb" and ext.volume.vdb_files.is_owned(orig_vdb, str(orig))
 
     # Save As into the same folder: the copy gets its own file (a link or a copy), the original's is untouched
     bpy.ops.wm.save_as_mainfile(filepath=str(copy))
@@ -61,7 +61,7 @@ def test_save_as_in_the_same_folder_then_rebuild_or_remove_keeps_the_originals_v
     assert orig_vdb.is_file() and orig_vdb.read_bytes() == orig_bytes
 
     # remove the study in the copy and save: only the copy's file goes
-    ext.study_entity.Study.of(coll).remove()
+    ext.study.entity.Study.of(coll).remove()
     bpy.ops.wm.save_mainfile()
     assert not rebuilt.exists()
     assert sorted(p.name for p in orig_vdb.parent.iterdir()) == [f"orig.{study}.vdb"]
@@ -73,7 +73,7 @@ def test_save_as_in_the_same_folder_then_rebuild_or_remove_keeps_the_originals_v
     bpy.ops.wm.save_as_mainfile(filepath=str(copy))
     assert _vdb_of(bpy.data.objects[vname]).name == f"copy.{study}.vdb"
     bpy.ops.wm.open_mainfile(filepath=str(orig))
-    ext.study_entity.Study.of(bpy.data.collections[study]).remove()
+    ext.study.entity.Study.of(bpy.data.collections[study]).remove()
     bpy.ops.wm.save_mainfile()
     assert not orig_vdb.exists()
     assert _loads(ext, copy, vname).name == f"copy.{study}.vdb"
@@ -131,9 +131,9 @@ def test_a_volume_path_outside_its_folder_is_never_copied_nor_read(ext, tmp_path
     bpy.ops.wm.save_as_mainfile(filepath=str(target))
     copied = sorted(p.name for p in (target.parent / "pdehead_vdb").iterdir())
     assert copied == [f"t.{good_name}.vdb"]
-    bad_warnings = ext.study_entity.Study.of(bad).warnings
+    bad_warnings = ext.study.entity.Study.of(bad).warnings
     assert len(bad_warnings) == 1 and "not copied" in bad_warnings[0] and str(secret) in bad_warnings[0]
-    assert not any("not copied" in w for w in ext.study_entity.Study.of(good).warnings)
+    assert not any("not copied" in w for w in ext.study.entity.Study.of(good).warnings)
     bad_vol.data.filepath = str(fake)
     bpy.ops.wm.save_mainfile()
     assert sorted(p.name for p in (target.parent / "pdehead_vdb").iterdir()) == [f"t.{good_name}.vdb"]
@@ -143,8 +143,8 @@ def test_a_volume_path_outside_its_folder_is_never_copied_nor_read(ext, tmp_path
     bpy.ops.wm.save_mainfile()
     bpy.ops.wm.open_mainfile(filepath=str(target))
     assert bpy.data.objects[bad_vname].data.filepath == ""
-    report = [w for w in ext.study_entity.Study.of(bpy.data.collections[bad_name]).warnings if "cleared" in w]
+    report = [w for w in ext.study.entity.Study.of(bpy.data.collections[bad_name]).warnings if "cleared" in w]
     assert len(report) == 1 and "/etc/passwd" in report[0] and bad_vname in report[0]
-    assert not any("cleared" in w for w in ext.study_entity.Study.of(bpy.data.collections[good_name]).warnings)
-    assert ext.volume.check_volume(bpy.data.objects[good_vname]) is None
+    assert not any("cleared" in w for w in ext.study.entity.Study.of(bpy.data.collections[good_name]).warnings)
+    assert ext.volume.volume.check_volume(bpy.data.objects[good_vname]) is None
     assert secret.read_text() == "private" and fake.read_text() == "private"

@@ -1,4 +1,4 @@
-"""Our own .vdb writer (operators/vdb_writer.py), used where Blender has no OpenVDB bindings (bpy 4.2).
+"""Our own .vdb writer (operators/volume/vdb_writer.py), used where Blender has no OpenVDB bindings (bpy 4.2).
 
 - On Blenders with bindings (4.4+): its files read back with Blender's ``openvdb`` module give the
   same grids as ``FloatGrid.copyFromArray(tolerance=0)``: active voxels, box, values, transform,
@@ -26,9 +26,10 @@ def _grids():
 
 def _write(ext, path):
     w, intensity, matrix = _grids()
-    DenseGrid = ext.vdb_writer.DenseGrid
-    ext.vdb_writer.write_vdb(path, (DenseGrid("w", w, 2.0, False, matrix.tolist(), {"pdehead_window": "-5.0 900.0"}),
-                                  DenseGrid("intensity", intensity, 0.0, True, matrix.tolist(), {})))
+    DenseGrid = ext.volume.vdb_writer.DenseGrid
+    ext.volume.vdb_writer.write_vdb(
+        path, (DenseGrid("w", w, 2.0, False, matrix.tolist(), {"pdehead_window": "-5.0 900.0"}),
+               DenseGrid("intensity", intensity, 0.0, True, matrix.tolist(), {})))
     return w, intensity, matrix
 
 
@@ -87,12 +88,12 @@ def test_blender_loads_the_files_with_their_grids_and_transforms(ext, tmp_path):
 
 
 def test_bad_grids_are_refused_and_leave_no_file(ext, tmp_path):
-    DenseGrid = ext.vdb_writer.DenseGrid
+    DenseGrid = ext.volume.vdb_writer.DenseGrid
     eye = np.eye(4).tolist()
     path = tmp_path / "bad.vdb"
     with pytest.raises(ValueError, match="used twice"):
-        ext.vdb_writer.write_vdb(path, [DenseGrid("a", np.ones((2, 2, 2)), 0.0, False, eye, {}),
+        ext.volume.vdb_writer.write_vdb(path, [DenseGrid("a", np.ones((2, 2, 2)), 0.0, False, eye, {}),
                                       DenseGrid("a", np.ones((2, 2, 2)), 0.0, False, eye, {})])
     with pytest.raises(ValueError, match="3-D"):
-        ext.vdb_writer.write_vdb(path, [DenseGrid("b", np.ones((4, 4)), 0.0, False, eye, {})])
+        ext.volume.vdb_writer.write_vdb(path, [DenseGrid("b", np.ones((4, 4)), 0.0, False, eye, {})])
     assert list(tmp_path.iterdir()) == []

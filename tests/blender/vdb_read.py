@@ -1,7 +1,7 @@
-"""Reading .vdb files back, for the tests (the add-on only writes them: operators/vdb_grids.py).
+"""Reading .vdb files back, for the tests (the add-on only writes them: operators/volume/vdb_grids.py).
 
 Needs Blender's OpenVDB bindings (``openvdb``, before 4.4 ``pyopenvdb``); bpy 4.2 from PyPI has
-none (its files come from ``operators/vdb_writer.py``), so callers check :func:`has_openvdb` first.
+none (its files come from ``operators/volume/vdb_writer.py``), so callers check :func:`has_openvdb` first.
 """
 from __future__ import annotations
 
