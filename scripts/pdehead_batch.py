@@ -62,7 +62,8 @@ def say(msg: str) -> None:
 
 
 # --------------------------------------------------------------------------- arguments
-def parse_args(argv=None) -> argparse.Namespace:
+def parsers() -> tuple[argparse.ArgumentParser, argparse.ArgumentParser]:
+    """The command line's parser and its ``run`` subcommand's (the tests read the flags' declarations there)."""
     p = argparse.ArgumentParser(prog=PROG, description="Batch runs and population depth tables (headless, Dask).")
     sub = p.add_subparsers(dest="command", required=True)
     r = sub.add_parser("run", help="run many studies (engine only) into DIR/<study_id>/ and DIR/summary.csv")
@@ -91,6 +92,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     t.add_argument("--out", type=Path, required=True, metavar="TABLE.csv", help="the table to write")
     t.add_argument("--by", action="append", choices=["sex", "age"], default=[],
                    help="split by DICOM PatientSex and/or age group (repeatable)")
+    return p, r
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    p, r = parsers()
     args = p.parse_args(argv)
     if args.command == "run":
         if args.workers is not None and args.workers < 0:

@@ -38,20 +38,8 @@ HAND_WRITTEN = {
 
 
 def batch_run_parser() -> argparse.ArgumentParser:
-    """The ``run`` subcommand's parser of pdehead_batch.py (built inside its parse_args)."""
-    captured = {}
-    original = argparse.ArgumentParser.parse_args
-
-    def capture(self, argv=None, namespace=None):
-        captured.setdefault("parser", self)
-        return original(self, argv, namespace)
-    argparse.ArgumentParser.parse_args = capture
-    try:
-        pdehead_batch.parse_args(["run", "x", "--out", "o"])
-    finally:
-        argparse.ArgumentParser.parse_args = original
-    sub = next(a for a in captured["parser"]._actions if isinstance(a, argparse._SubParsersAction))
-    return sub.choices["run"]
+    """The ``run`` subcommand's parser of pdehead_batch.py."""
+    return pdehead_batch.parsers()[1]
 
 
 PARSERS = {"pdehead": pdehead._parser, "batch": batch_run_parser}

@@ -190,7 +190,7 @@ def test_the_batch_has_every_loader_option_of_the_cli_from_one_definition():
                 for a in groups[0]._group_actions}
 
     cli = loader_group(pdehead._parser())
-    batch_parser = _batch_run_parser(pdehead_batch)
+    batch_parser = pdehead_batch.parsers()[1]
     assert set(cli) == set(_common.LOADER_FLAGS) and loader_group(batch_parser) == cli
     args = pdehead_batch.parse_args(["run", "in", "--out", "o", "--raw-shape", "256", "256", "--dtype", ">i2",
                                      "--spacing", "2", "1", "1", "--first-slice", "superior", "--units", "stored",
@@ -202,25 +202,6 @@ def test_the_batch_has_every_loader_option_of_the_cli_from_one_definition():
         pdehead_batch.parse_args(["run", "in", "--out", "o", "--raw-shape", "256", "256"])
     with pytest.raises(pdehead_batch.CLIError, match="give either --orientation or --first-slice"):
         pdehead_batch.parse_args(["run", "in", "--out", "o", "--orientation", "LAS", "--first-slice", "inferior"])
-
-
-def _batch_run_parser(module):
-    """The ``run`` subcommand's parser of pdehead_batch.py (built by its parse_args)."""
-    import argparse
-    captured = {}
-    original = argparse.ArgumentParser.parse_args
-
-    def capture(self, argv=None, namespace=None):
-        captured.setdefault("parser", self)
-        return original(self, argv, namespace)
-    argparse.ArgumentParser.parse_args = capture
-    try:
-        module.parse_args(["run", "x", "--out", "o"])
-    finally:
-        argparse.ArgumentParser.parse_args = original
-    top = captured["parser"]
-    sub = next(a for a in top._actions if isinstance(a, argparse._SubParsersAction))
-    return sub.choices["run"]
 
 
 def test_the_batch_reads_a_raw_stack_with_the_loader_options(tmp_path):
