@@ -35,9 +35,10 @@ CLOSING_MM = 15.0
 #: The closed profile made in 3-D (:func:`.face_envelope.envelope_radius`: the skull voxelised, closed by a ball of
 #: :data:`ENVELOPE_CLOSING_MM`, its signed distance smoothed, read along the grid's rays) instead of row by row (each
 #: row's 2-D convex hull, a grey closing over :data:`CLOSING_MM` of height). Smooth by construction (no row steps),
-#: and better on GE, the phantom unchanged, but off: on CThead stripped at 1500 and at 1600 its faces land far apart
-#: (the forehead and the upper maxilla differ), which the robustness suite requires within 3 points; see
-#: docs/benchmarks.md.
+#: and better on GE, the phantom unchanged, but off: on CThead stripped at 1500 and at 1600 its faces land far apart,
+#: which the robustness suite requires within 3 points. The cause is in the skull, not here: at 1500 CThead's skull
+#: keeps the dental fillings' metal streaks in the cheeks' soft tissue, and the ball bridges them into the envelope
+#: over the upper lip and cheeks (a size rule cannot tell them from GE's thin maxilla); see docs/benchmarks.md.
 PROFILE_3D = False
 #: The ball (mm, radius) closing the skull in 3-D (:data:`PROFILE_3D`): wide enough to bridge the orbit's opening
 #: (~ 40 x 35 mm) and the nasal aperture (~ 25 mm); chosen on GE and the phantom (a 15 mm ball leaves the orbits open).
