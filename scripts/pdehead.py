@@ -382,7 +382,7 @@ def _call(op, **kwargs) -> None:
     (a PDEHeadError: bad files, bad options), 1 for anything else (a bug); the study's new warnings are
     printed (:class:`Warnings`)."""
     addon = sys.modules[_common.DEV_PACKAGE]
-    state = addon.operators.study.state
+    state = addon.operators.state
     state.REGISTRY.last_exception = None
     try:
         with _blender_stdout():
@@ -414,7 +414,7 @@ class Warnings:
     def say(self, message: str) -> None:
         addon = sys.modules.get(_common.DEV_PACKAGE)
         if addon is not None:
-            message = addon.operators.study.state.user_text(message)
+            message = addon.operators.state.user_text(message)
         message = " ".join(str(message).split())
         if message and not any(message in p or p in message for p in self.printed):
             self.printed.append(message)
@@ -491,7 +491,7 @@ def _auto_boundaries(args, ops, addon, coll) -> str:
     _call(ops.extract_boundaries, patches=args.patches, samples=args.samples, selection="auto", align_curves=True,
           **tolerance)
     s = coll.pdehead
-    bset = addon.operators.study.state.cache_for(s.study_id).bset
+    bset = addon.operators.state.cache_for(s.study_id).bset
     m = bset.meta
     asked = ""
     if m.get("selection_tolerance_mm") is not None or m.get("selection_max_tolerance_mm") is not None:
@@ -660,7 +660,7 @@ def run(args) -> dict:
 
     import bpy
     addon = register_addon()
-    state = addon.operators.study.state
+    state = addon.operators.state
     state.REGISTRY.audience = "cli"              # the add-on's messages name this command's flags
     warnings.showwarning = WARNINGS.showwarning  # one line each, no source line
     bpy.ops.wm.read_homefile(use_empty=True)
@@ -895,7 +895,7 @@ def _turntable(args, bpy, addon, ops, coll, summary, staging) -> None:
     if args.render_animation:
         t = time.perf_counter()
         with _blender_stdout(drop=("Fra:", "Time:", "Saved:", "Info:")):
-            paths = addon.operators.scene.animation.render_animation(bpy.context.scene, args.render_animation.resolve(),
+            paths = addon.operators.study.animation.render_animation(bpy.context.scene, args.render_animation.resolve(),
                                                                size, args.render_samples)
         print(f"wrote {len(paths)} frames {paths[0]} .. {paths[-1].name} ({time.perf_counter() - t:.1f} s)")
         summary["outputs"]["render_animation"] = [str(x) for x in paths]
@@ -997,7 +997,7 @@ def _r(value, digits: int = 3):
 def _summary(args, addon, coll, timings, total, selection_info, warning_lines) -> dict:
     """What the summary printed, as data (``--summary-json``)."""
     s = coll.pdehead
-    ct = addon.operators.study.state.cache_for(s.study_id).ct
+    ct = addon.operators.state.cache_for(s.study_id).ct
     meta = getattr(ct, "meta", None) or {}
     nx, ny, nz = s.dimensions
     dz, dy, dx = s.spacing

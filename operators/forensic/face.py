@@ -10,9 +10,9 @@ The steps are methods of :class:`.study.ForensicStudy` (defined here in :class:`
   study's collection (shaded smooth) and the pegs as child objects of it (one per peg of the model,
   standing on the bone along the bone normal, as long as the table's mean). The label
   :data:`APPROXIMATION_LABEL` and the provenance are custom properties of the face object.
-* **Live.** A ``depsgraph_update_post`` handler (:func:`.face_handler.pdehead_face_update`, registered once, guarded
-  against recursion) compares each face's peg tips (a peg's tip: its origin on the bone plus its
-  ``depth_mm`` along its own Z axis) with the tips of the last solve; when one moved -- a peg dragged
+* **Live.** A ``depsgraph_update_post`` handler (:func:`operators.study.face_handler.pdehead_face_update`,
+  registered once, guarded against recursion) compares each face's peg tips (a peg's tip: its origin on the bone
+  plus its ``depth_mm`` along its own Z axis) with the tips of the last solve; when one moved -- a peg dragged
   with G, moved by a script, or its depth changed -- the model is solved through the new tips and only
   the vertex positions of the same mesh are rewritten (``foreach_set``; no new datablock). Switching the
   table (study setting ``face_table``) sets every peg to the new table's mean and re-solves at once.
@@ -42,8 +42,8 @@ import bpy
 import numpy as np
 
 from ...pdehead_addon import PDEHeadError
-from ..scene.coords import MM_TO_M
-from ..study import state
+from .. import state
+from ..coords import MM_TO_M
 from .export import PEG_DEPTH_PROP, set_peg_depth
 from .objects import engine_mesh_of, plain_material, set_material
 from .props import face_options_of, store_face_options
@@ -150,7 +150,7 @@ class FaceSteps:
     def face_skull_mesh(self):
         """The bone skull as an engine Mesh (patient mm): read from the study's bone object (what the .blend
         holds, so a reopened file prepares the same model), else built from the CT."""
-        from ..scene.objects import study_origin
+        from ..coords import study_origin
 
         obj = self.linked_object("pdehead_bone_object")
         if obj is None or obj.type != 'MESH' or len(obj.data.polygons) == 0:

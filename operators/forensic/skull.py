@@ -18,8 +18,7 @@ import bpy
 import numpy as np
 
 from ...pdehead_addon import PDEHeadError, defaults as D
-from .. import compat
-from ..study import state
+from .. import compat, state
 from .objects import plain_material, set_material
 
 SKULL_BOUNDARY_KEY = "pdehead_skull_boundaries"

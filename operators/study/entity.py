@@ -21,12 +21,12 @@ from pathlib import Path
 import bpy
 
 from ...pdehead_addon import PDEHeadError, StorageError
+from .. import state
 from ..forensic.study import ForensicStudy
 from ..scene import scene
-from . import state
+from ..state import BOUNDARY_KEY, CT_TABLE_FOR, CT_TABLE_KEY
 from .live import LiveSolid
 from .progress import step_progress
-from .state import BOUNDARY_KEY, CT_TABLE_FOR, CT_TABLE_KEY
 from .steps import PipelineSteps
 
 #: A study's warnings are one string property, one warning per line (a warning may contain "; ").

@@ -15,10 +15,10 @@ import bpy
 import numpy as np
 
 from ...pdehead_addon import PDEHeadError
-from ..scene import cutter, objects
-from ..volume import detail_map, material as volume_material
-from . import state
-from .state import suspended_updates
+from .. import state
+from ..scene import cutter, detail_map, objects
+from ..state import suspended_updates
+from ..volume import material as volume_material
 
 #: The studies whose solid waits for its CT colours: ``state.REGISTRY.colours_pending``, study id -> (time of
 #: the last live change, the Study).
@@ -219,7 +219,7 @@ class LiveSolid:
 
     def detail_out_of_date(self) -> None:
         """The PDE moved the surface away from its CT detail map: the bump is unplugged and the map marked
-        out of date (rebuilding costs seconds, far beyond a slider's step: :mod:`operators.volume.detail_map`)."""
+        out of date (rebuilding costs seconds, far beyond a slider's step: :mod:`operators.scene.detail_map`)."""
         s = self.settings
         if s.surface_object is not None and detail_map.set_detail_shading(s.surface_object, s.detail_strength, False):
             with suspended_updates():

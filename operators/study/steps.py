@@ -1,6 +1,6 @@
 """The pipeline steps of a study, as methods of :class:`.entity.Study` (this module's mixin).
 
-Between the thin operators (:mod:`operators.ui.ops`, :mod:`operators.forensic.ops`, the update callbacks of
+Between the thin operators (:mod:`operators.ui.ops`, :mod:`operators.ui.forensic_ops`, the update callbacks of
 :mod:`.props`) and the engine (:mod:`pdehead_addon`): every step reads the study's settings, calls the
 engine's public API, writes the result into Blender objects (:mod:`operators.scene.objects`,
 :mod:`operators.volume.volume`, :mod:`operators.scene.scene`) and returns what it did as a value
@@ -8,7 +8,7 @@ engine's public API, writes the result into Blender objects (:mod:`operators.sce
 solid and the cutter: :mod:`.live`. Nothing here imports an operator module or the Study class itself, so
 the dependency runs one way::
 
-    ui.ops / forensic.ops / ui.panel / props  ->  entity (Study)  ->  steps / live
+    ui.ops / ui.forensic_ops / ui.panel / props  ->  entity (Study)  ->  steps / live
         ->  state / objects / ...  ->  engine
 
 Use the steps through a study: ``study = Study.import_ct(context, path, options)``,
@@ -25,12 +25,11 @@ from pathlib import Path
 import bpy
 
 from ...pdehead_addon import PDEHeadError, patches_for_scan
-from ..scene import objects
-from ..ui import prefs
-from ..volume import detail_map, vdb_files, vdb_grids, volume
-from . import state
+from .. import prefs, state
+from ..scene import detail_map, objects
+from ..state import suspended_updates
+from ..volume import vdb_files, vdb_grids, volume
 from .progress import step_progress
-from .state import suspended_updates
 
 
 @dataclass(frozen=True)

@@ -12,8 +12,9 @@ from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 from bpy.types import Operator
 
 from ...pdehead_addon import PDEHeadError, defaults as D
+from .. import state
 from ..scene import scene
-from ..study import pipeline_run, progress, props, state
+from ..study import pipeline_run, progress, props
 from ..study.entity import Study
 from .base import GuardedOperator, StudyOperator, report_exception, set_status
 from .import_options import LoaderOptions, PDEHEAD_FH_import_ct, dropped_file_options
@@ -414,7 +415,7 @@ class PDEHEAD_OT_turntable(Operator, StudyOperator):
                         description=D.TURNTABLE_FRAMES.description)
 
     def run(self, context, study):
-        from ..scene import animation
+        from ..study import animation
         pivot = animation.turntable(context, study.collection, self.frames, start=context.scene.frame_start)
         self.report({'INFO'}, f"'{study.name}': turntable of {self.frames} frames around '{pivot.name}' "
                               "(Render > Render Animation)")

@@ -16,14 +16,14 @@ from bpy.props import BoolProperty, EnumProperty, FloatVectorProperty, IntProper
 from bpy.types import Operator, Panel
 
 from ...pdehead_addon import STANDARD_LANDMARKS, PDEHeadError, defaults as D
-from ..study import state
+from .. import state
+from ..forensic.export import PEG_DEPTH_PROP
+from ..forensic.face import FACE_KEY, HELD_PROP, LABEL_PROP, PROVENANCE_PROP, approximation_label, table_has_sex
+from ..forensic.props import TARGET_ITEMS, max_depth_property
+from ..forensic.skull import DEPTH_ATTRIBUTE, DEPTH_MATERIAL
+from ..forensic.study import MIRROR_PLANES, ForensicStudy
 from ..study.entity import Study
-from ..ui.base import StudyOperator
-from .export import PEG_DEPTH_PROP
-from .face import FACE_KEY, HELD_PROP, LABEL_PROP, PROVENANCE_PROP, approximation_label, table_has_sex
-from .props import TARGET_ITEMS, max_depth_property
-from .skull import DEPTH_ATTRIBUTE, DEPTH_MATERIAL
-from .study import MIRROR_PLANES, ForensicStudy
+from .base import StudyOperator
 
 _LANDMARK_ITEMS = [(d.name, d.name, d.description) for d in STANDARD_LANDMARKS]
 _FORMAT_ITEMS = [('stl', "STL", ""), ('obj', "OBJ", ""), ('ply', "PLY", "")]
