@@ -2,8 +2,8 @@
 in-memory cache, CT, head, stored boundary conditions, CT table, warnings and timings, and runs its
 pipeline steps (:class:`.steps.PipelineSteps`: ``Study.import_ct``, ``segment``, ``boundaries``,
 ``surface``, ``volume``) and live updates (:class:`.live.LiveSolid`: ``solid``, ``live_update``,
-``apply_cutter``, ``add_cutter``); the steps return their outcomes (:class:`.steps.StepOutcome`,
-:class:`.steps.BoundaryOutcome`). Its forensic side is a component it holds (``study.forensic``, a
+``apply_cutter``, ``add_cutter``); the steps return their outcomes (:class:`operators.outcome.StepOutcome`,
+:class:`operators.outcome.BoundaryOutcome`). Its forensic side is a component it holds (``study.forensic``, a
 :class:`operators.forensic.study.ForensicStudy`).
 
 The pattern is MolecularNodes' entity + session registry: an entity is looked up by a uuid that

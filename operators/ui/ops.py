@@ -142,11 +142,11 @@ class PDEHEAD_OT_build_solid(Operator, StudyOperator):
         self.store_settings(s)
         if study.boundary_set() is None:
             study.boundaries()
-        notice = study.solid()
-        n = len(s.solid_object.data.vertices)
-        self.report({'INFO'}, f"PDE solid of '{study.name}': {n} vertices ({study.timings['solid']:.2f} s)")
-        if notice:
-            self.report({'WARNING'}, notice[:300])
+        outcome = study.solid()
+        self.report({'INFO'}, f"PDE solid of '{study.name}': {outcome.values['vertices']} vertices "
+                              f"({study.timings['solid']:.2f} s)")
+        if outcome.values["notice"]:
+            self.report({'WARNING'}, outcome.values["notice"][:300])
 
 
 @props.settings_options("use_ct_grid", "voxel_auto", "voxel_size", "low_alpha", "high_alpha", "density",

@@ -485,6 +485,51 @@ def test_the_segment_surface_and_volume_steps_return_their_outcomes(ext, phantom
     assert round(volume.values["volume_s"], 4) == pytest.approx(study.timings["volume"])
 
 
+def test_the_solid_and_forensic_steps_return_their_outcomes(ext, phantom_blend, tmp_path):
+    """``solid()`` and the forensic steps (``step_skull()``, ``step_depth()``, ``build_face()``,
+    ``build_sd_faces()``) return what they built and measured (a ``StepOutcome``): the objects, the warnings,
+    the seconds the study's timings record and the effective values; the operators report from them."""
+    import shutil
+    copy = tmp_path / "forensic_outcomes.blend"
+    shutil.copy(phantom_blend, copy)
+    coll = open_blend(copy)
+    study = ext.study.entity.Study.of(coll)
+    s = study.settings
+    solid = study.solid()
+    assert solid.step == "solid" and solid.objects == (s.solid_object,)
+    assert solid.values["vertices"] == len(s.solid_object.data.vertices) > 1000
+    assert solid.values["notice"] == "" and solid.warnings == ()      # the CT is at hand: exact colours
+    assert round(solid.seconds, 4) == pytest.approx(study.timings["solid"])
+    fs = study.forensic
+    skull = fs.step_skull(24, 40, bone=True, bone_step=4)
+    assert skull.step == "skull"
+    assert skull.objects == (coll["pdehead_skull_object"], coll["pdehead_bone_object"])
+    info = fs.skull_info()
+    assert skull.values["patches"] == info["patches"] > 0
+    assert skull.values["bone_triangles"] == info["bone_triangles"] == len(coll["pdehead_bone_object"].data.polygons)
+    assert skull.warnings == tuple(info.get("warnings", ()))
+    assert round(skull.seconds, 4) == pytest.approx(study.timings["skull"])
+    depth = fs.step_depth("PDE", 30.0)
+    assert depth.step == "depth" and depth.objects == (s.surface_object,)
+    assert depth.values["target"] == "PDE" and depth.values["max_depth_mm"] == 30.0
+    assert 0 < depth.values["measured"] <= depth.values["vertices"] == len(s.surface_object.data.vertices)
+    assert depth.values["measured"] == fs.depth_stats()["measured"]
+    assert round(depth.seconds, 4) == pytest.approx(study.timings["depth"])
+    face = fs.build_face()
+    assert face.step == "face" and face.objects[0] == fs.face_object()
+    assert face.values["pegs"] == len(face.objects) - 1 == len(fs.face_peg_names()) > 0
+    assert all(p.parent == face.objects[0] for p in face.objects[1:])
+    assert face.values["vertices"] == len(fs.face_object().data.vertices)
+    assert face.values["label"] == ext.forensic.face.approximation_label()
+    report = fs.cache.get("face_report")
+    assert face.warnings == ((report.summary(),) if report.summary() else ())
+    assert round(face.seconds, 4) == pytest.approx(study.timings["face_prepare"])
+    sd = fs.build_sd_faces()
+    assert sd.step == "face_sd" and len(sd.objects) == 2 and sd.seconds > 0
+    assert sd.values["vertices"] == [len(o.data.vertices) for o in sd.objects]
+    assert [o["pdehead_kind"] for o in sd.objects] == ["face_minus_sd", "face_plus_sd"]
+
+
 def test_the_forensic_side_is_a_component_the_study_holds(ext, phantom_blend):
     """One registry of study entities: each study holds its forensic side (``study.forensic``), the one
     ``ForensicStudy.of`` gives; forgetting the study forgets it too."""
