@@ -2,7 +2,7 @@
 
 ``register()`` adds the property groups, preferences, operators (with the File > Import menu entry), the sidebar
 panels, the save/load handlers of :mod:`.study.persistence`, the cutter's depsgraph handler (:mod:`.study.handlers`, and
-the face's of :mod:`.forensic.face_handler`), the frame handler and settings migration of :mod:`.scene.animation`
+the face's of :mod:`.study.face_handler`), the frame handler and settings migration of :mod:`.study.animation`
 and one ``load_post``
 handler that frees the in-memory caches of studies that are not in the newly loaded file. ``unregister()`` removes
 all of it again, leaving no class, property, menu entry, handler or timer behind.
@@ -11,11 +11,11 @@ from __future__ import annotations
 
 import bpy
 
-from .forensic import face_handler, ops as forensic_ops, props as forensic_props
-from .scene import animation
-from .study import handlers as study_handlers, persistence, props, state
-from .ui import ops, panel, prefs
-from .volume import detail_map
+from . import prefs, state
+from .forensic import props as forensic_props
+from .scene import detail_map
+from .study import animation, face_handler, handlers as study_handlers, persistence, props
+from .ui import forensic_ops, ops, panel
 
 
 @bpy.app.handlers.persistent

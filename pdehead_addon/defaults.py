@@ -372,7 +372,7 @@ FACE_MIN_TISSUE_MM = _param("face_min_tissue_mm", 2.0, min=0.0, max=10.0, unit="
                             description="Face from skull: least soft tissue over the bone anywhere on the face")
 
 # ----------------------------------------------------------------------------- forensic operators
-#: The skull the forensic steps measure on / snap to (operators/forensic/ops.py TARGET_ITEMS).
+#: The skull the forensic steps measure on / snap to (operators/forensic/props.py TARGET_ITEMS).
 DEPTH_TARGET = _param("depth_target", "BONE", choices=("BONE", "PDE"), label="Skull",
                       description="The skull measured on or snapped to: the bone skull (smoothed marching cubes "
                                   "of the bone) or the smooth PDE skull envelope")

@@ -212,7 +212,7 @@ def blender() -> dict:
         mods = {name: importlib.import_module(f"{DEV_PACKAGE}.operators.{path}")
                 for name, path in (("objects", "scene.objects"), ("volume", "volume.volume"),
                                    ("vdb_grids", "volume.vdb_grids"), ("volume_material", "volume.material"),
-                                   ("render", "scene.render"), ("detail_map", "volume.detail_map"))}
+                                   ("render", "scene.render"), ("detail_map", "scene.detail_map"))}
         _BLENDER = {"bpy": bpy, **mods, "import_s": time.perf_counter() - t0, "version": bpy.app.version_string}
     return _BLENDER
 

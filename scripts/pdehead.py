@@ -12,10 +12,11 @@ Examples::
         # -> skull.stl, skull_envelope.stl, skin.stl, ...
     python3 scripts/pdehead.py --phantom --no-volume --out out/turn.blend --turntable 120 --render-animation out/turn
 
-It runs the SAME Blender operators as the add-on (``bpy.ops.pdehead.*``) in the ``bpy``
-module: the add-on is registered straight from this repository's source (as the package
-``pdehead_dev``, no zip needed), in a temporary Blender user folder so your own Blender
-preferences are never touched. The .vdb of the volume is written beside the .blend
+It runs the SAME steps as the add-on in the ``bpy`` module (the study's methods for segment,
+boundaries, surface, solid and volume, whose outcomes give the reports it prints; the add-on's operators,
+``bpy.ops.pdehead.*``, for the other steps): the add-on is registered straight from this
+repository's source (as the package ``pdehead_dev``, no zip needed), in a temporary Blender user
+folder so your own Blender preferences are never touched. The .vdb of the volume is written beside the .blend
 (``pdehead_vdb/``, stored as a relative path). Prints per-step timings and a summary on stdout
 (``--summary-json FILE``: the same as JSON for scripts) and each warning once, as one line on stderr,
 naming this command's flags. Progress of the long steps goes to stderr: a bar on a terminal, one plain
@@ -382,7 +383,7 @@ def _call(op, **kwargs) -> None:
     (a PDEHeadError: bad files, bad options), 1 for anything else (a bug); the study's new warnings are
     printed (:class:`Warnings`)."""
     addon = sys.modules[_common.DEV_PACKAGE]
-    state = addon.operators.study.state
+    state = addon.operators.state
     state.REGISTRY.last_exception = None
     try:
         with _blender_stdout():
@@ -404,6 +405,42 @@ def _call(op, **kwargs) -> None:
         raise CLIError(f"{op.idname_py()} returned {sorted(result)}", 1)
 
 
+def _study_step(coll, step: str, report, **settings):
+    """Run one of the study's steps (``Study.segment``, ``boundaries``, ``surface``, ``solid``, ``volume``) with
+    ``settings`` stored
+    first, as its operator does, and print the operator's INFO report from the outcome it returns. Errors as
+    :func:`_call`: exit 2 for a PDEHeadError (the engine refused the input), 1 for anything else (a bug: its
+    traceback on stderr); the study's new warnings are printed (:class:`Warnings`). Returns the outcome."""
+    import traceback
+
+    addon = sys.modules[_common.DEV_PACKAGE]
+    state = addon.operators.state
+    study = addon.operators.study.entity.Study.of(coll)
+    try:
+        with _blender_stdout():
+            with state.suspended_updates():
+                for name, value in settings.items():
+                    setattr(study.settings, name, value)
+            if step in ("surface", "solid", "volume") and study.boundary_set() is None:
+                study.boundaries()
+            outcome = getattr(study, step)()
+            print(f"Info: {report(study, outcome)}")
+        if _SIGINT[0]:
+            raise Interrupted()
+    except (Interrupted, KeyboardInterrupt):
+        raise
+    except Exception as exc:  # noqa: BLE001 - every failure becomes the CLI's one error line
+        if _SIGINT[0]:
+            raise Interrupted() from None
+        if isinstance(exc, addon.pdehead_addon.PDEHeadError):
+            raise CLIError(state.user_text(str(exc)), 2) from None
+        traceback.print_exc()
+        raise CLIError(f"PDE Head internal error: {type(exc).__name__}: {exc}", 1) from None
+    finally:
+        WARNINGS.from_study()
+    return outcome
+
+
 class Warnings:
     """Each warning once, as one line ``pdehead: warning: ...`` on stderr, in the CLI's words (flags):
     the study's warnings after every step, and Python warnings (the engine's, without their source line)."""
@@ -414,7 +451,7 @@ class Warnings:
     def say(self, message: str) -> None:
         addon = sys.modules.get(_common.DEV_PACKAGE)
         if addon is not None:
-            message = addon.operators.study.state.user_text(message)
+            message = addon.operators.state.user_text(message)
         message = " ".join(str(message).split())
         if message and not any(message in p or p in message for p in self.printed):
             self.printed.append(message)
@@ -479,7 +516,7 @@ def _dicom_series_file(path: Path) -> bool:
 
 
 def _auto_boundaries(args, ops, addon, coll) -> str:
-    """Automatic slice selection through the extract operator (``selection="auto"``, or a tolerance
+    """Automatic slice selection through the study's boundaries step (``selection="auto"``, or a tolerance
     that chooses the count); returns the summary line."""
     if args.no_align:
         raise CLIError("--selection auto needs the aligned (angular) curves; drop --no-align", 2)
@@ -488,10 +525,10 @@ def _auto_boundaries(args, ops, addon, coll) -> str:
                          max_tolerance_mm=args.max_tolerance or 0.0)
     else:
         tolerance = dict(use_tolerance=False)
-    _call(ops.extract_boundaries, patches=args.patches, samples=args.samples, selection="auto", align_curves=True,
-          **tolerance)
+    _study_step(coll, "boundaries", addon.operators.ui.ops.boundaries_report, patches=args.patches,
+                samples=args.samples, selection="auto", align_curves=True, **tolerance)
     s = coll.pdehead
-    bset = addon.operators.study.state.cache_for(s.study_id).bset
+    bset = addon.operators.state.cache_for(s.study_id).bset
     m = bset.meta
     asked = ""
     if m.get("selection_tolerance_mm") is not None or m.get("selection_max_tolerance_mm") is not None:
@@ -660,7 +697,7 @@ def run(args) -> dict:
 
     import bpy
     addon = register_addon()
-    state = addon.operators.study.state
+    state = addon.operators.state
     state.REGISTRY.audience = "cli"              # the add-on's messages name this command's flags
     warnings.showwarning = WARNINGS.showwarning  # one line each, no source line
     bpy.ops.wm.read_homefile(use_empty=True)
@@ -769,21 +806,23 @@ def _build(args, bpy, addon, ops):
     s = coll.pdehead
     if args.bone_level is not None:          # the import dialog's / forensic panel's Bone Level field
         s.use_bone_level, s.bone_level = True, args.bone_level
-    _call(ops.segment)
+    reports = addon.operators.ui.ops
+    _study_step(coll, "segment", reports.segment_report)
     if args.selection == "auto":
         selection_info = _auto_boundaries(args, ops, addon, coll)
     else:
         selection_info = None
-        _call(ops.extract_boundaries, patches=args.patches, samples=args.samples, selection=args.selection,
-              align_curves=not args.no_align)
-    _call(ops.reconstruct_surface, nu=args.nu, nv=args.nv)
+        _study_step(coll, "boundaries", reports.boundaries_report, patches=args.patches, samples=args.samples,
+                    selection=args.selection, align_curves=not args.no_align)
+    _study_step(coll, "surface", reports.surface_report, nu=args.nu, nv=args.nv)
     if args.detail is not None:              # the Surface panel's CT Detail toggle, strength and Build CT Detail
         s.use_detail_map, s.detail_strength = True, args.detail
         _call(ops.build_detail_map)
-    _call(ops.build_solid, nu=args.nu, nv=args.nv, nw=args.nw)
+    _study_step(coll, "solid", reports.solid_report, nu=args.nu, nv=args.nv, nw=args.nw)
     if not args.no_volume:
         # no size given: the add-on's automatic size (Auto Voxel Size)
-        _call(ops.build_volume, **({} if args.voxel_size is None else dict(voxel_size=args.voxel_size)))
+        _study_step(coll, "volume", reports.volume_report,
+                    **({} if args.voxel_size is None else dict(voxel_auto=False, voxel_size=args.voxel_size)))
     skin = True
     if args.skull:
         _call(ops.build_skull)
@@ -895,7 +934,7 @@ def _turntable(args, bpy, addon, ops, coll, summary, staging) -> None:
     if args.render_animation:
         t = time.perf_counter()
         with _blender_stdout(drop=("Fra:", "Time:", "Saved:", "Info:")):
-            paths = addon.operators.scene.animation.render_animation(bpy.context.scene, args.render_animation.resolve(),
+            paths = addon.operators.study.animation.render_animation(bpy.context.scene, args.render_animation.resolve(),
                                                                size, args.render_samples)
         print(f"wrote {len(paths)} frames {paths[0]} .. {paths[-1].name} ({time.perf_counter() - t:.1f} s)")
         summary["outputs"]["render_animation"] = [str(x) for x in paths]
@@ -997,7 +1036,7 @@ def _r(value, digits: int = 3):
 def _summary(args, addon, coll, timings, total, selection_info, warning_lines) -> dict:
     """What the summary printed, as data (``--summary-json``)."""
     s = coll.pdehead
-    ct = addon.operators.study.state.cache_for(s.study_id).ct
+    ct = addon.operators.state.cache_for(s.study_id).ct
     meta = getattr(ct, "meta", None) or {}
     nx, ny, nz = s.dimensions
     dz, dy, dx = s.spacing

@@ -101,6 +101,6 @@ def test_no_study_setting_is_declared_twice():
 
 
 def test_operators_keep_no_module_level_mutable_state():
-    """Every study entity, its cache and the session's state live in ``operators/study/state.py``'s ``REGISTRY``
+    """Every study entity, its cache and the session's state live in ``operators/state.py``'s ``REGISTRY``
     (18 names in 11 modules before: caches, busy flags, the progress hook, the last exception, ...)."""
     assert study_measures.module_mutable_state() == []

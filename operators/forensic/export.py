@@ -14,8 +14,8 @@ import bpy
 import numpy as np
 
 from ...pdehead_addon import PDEHeadError, defaults as D
-from ..scene.coords import MM_TO_M
-from ..study import state
+from .. import state
+from ..coords import MM_TO_M
 from .objects import plain_material, set_material
 
 PEG_MATERIAL = "PDE Head Depth Peg"
@@ -244,8 +244,8 @@ class ExportSteps:
         no_skin = self._skin_missing()
         if not no_skin:
             # the depth map's vertices stay the viewport's surface; skin.<fmt> is meshed at print resolution
-            # with the CT detail at the study's strength (:func:`operators.volume.detail_map.print_skin`)
-            from ..volume import detail_map
+            # with the CT detail at the study's strength (:func:`operators.scene.detail_map.print_skin`)
+            from ..scene import detail_map
             skin = self.study.head.surface(int(s.nu), int(s.nv), caps=True)
             meshes.insert(0, ("skin", detail_map.print_skin(self.study)))
         for name, mesh in meshes:

@@ -10,9 +10,9 @@ The steps are methods of :class:`.study.ForensicStudy` (defined here in :class:`
   study's collection (shaded smooth) and the pegs as child objects of it (one per peg of the model,
   standing on the bone along the bone normal, as long as the table's mean). The label
   :data:`APPROXIMATION_LABEL` and the provenance are custom properties of the face object.
-* **Live.** A ``depsgraph_update_post`` handler (:func:`.face_handler.pdehead_face_update`, registered once, guarded
-  against recursion) compares each face's peg tips (a peg's tip: its origin on the bone plus its
-  ``depth_mm`` along its own Z axis) with the tips of the last solve; when one moved -- a peg dragged
+* **Live.** A ``depsgraph_update_post`` handler (:func:`operators.study.face_handler.pdehead_face_update`,
+  registered once, guarded against recursion) compares each face's peg tips (a peg's tip: its origin on the bone
+  plus its ``depth_mm`` along its own Z axis) with the tips of the last solve; when one moved -- a peg dragged
   with G, moved by a script, or its depth changed -- the model is solved through the new tips and only
   the vertex positions of the same mesh are rewritten (``foreach_set``; no new datablock). Switching the
   table (study setting ``face_table``) sets every peg to the new table's mean and re-solves at once.
@@ -42,8 +42,9 @@ import bpy
 import numpy as np
 
 from ...pdehead_addon import PDEHeadError
-from ..scene.coords import MM_TO_M
-from ..study import state
+from .. import state
+from ..coords import MM_TO_M
+from ..outcome import StepOutcome
 from .export import PEG_DEPTH_PROP, set_peg_depth
 from .objects import engine_mesh_of, plain_material, set_material
 from .props import face_options_of, store_face_options
@@ -150,7 +151,7 @@ class FaceSteps:
     def face_skull_mesh(self):
         """The bone skull as an engine Mesh (patient mm): read from the study's bone object (what the .blend
         holds, so a reopened file prepares the same model), else built from the CT."""
-        from ..scene.objects import study_origin
+        from ..coords import study_origin
 
         obj = self.linked_object("pdehead_bone_object")
         if obj is None or obj.type != 'MESH' or len(obj.data.polygons) == 0:
@@ -476,8 +477,10 @@ class FaceSteps:
         return None if bool(same.all()) else now
 
     # -------------------------------------------------------------------------------------- build
-    def build_face(self) -> tuple:
-        """Build the face of the study (skull and landmarks made first when missing): (face object, pegs)."""
+    def build_face(self) -> StepOutcome:
+        """Build the face of the study (skull and landmarks made first when missing); returns the face object then
+        its pegs, the pegs' report as its warning (a peg in the bone, a tip far from the face), the seconds of the
+        model's preparation (the study's ``face_prepare`` timing) and ``values``: vertices, pegs, label."""
         from ..scene import objects
 
         coll = self.collection
@@ -530,7 +533,9 @@ class FaceSteps:
         from ...pdehead_addon import LiveFace
         self.cache["face_live"] = LiveFace(model)
         self.study.record_timing("face_prepare", t.seconds)
-        return obj, pegs
+        line = result.pegs.summary() if result.pegs is not None else None
+        return StepOutcome("face", objects=(obj, *pegs), warnings=(line,) if line else (), seconds=t.seconds,
+                           values=dict(vertices=len(obj.data.vertices), pegs=len(pegs), label=obj[LABEL_PROP]))
 
     def switch_table(self) -> dict | None:
         """The face's pegs set to the mean (and mean +- 2 SD range) of the study's table now, and the face
@@ -553,9 +558,10 @@ class FaceSteps:
             self.solve_face()
         return value
 
-    def build_sd_faces(self) -> list:
+    def build_sd_faces(self) -> StepOutcome:
         """The faces with every peg at its length - 1 SD and + 1 SD (pegs without an SD stay), as two objects
-        beside the face (wire display): the range the table allows. Returns [minus, plus]."""
+        beside the face (wire display): the range the table allows. Returns the objects (minus, plus) and the
+        seconds."""
         from ..scene import objects
 
         coll = self.collection
@@ -567,6 +573,7 @@ class FaceSteps:
         depth = np.einsum("ij,ij->i", tips - model.peg_bases, model.peg_normals)
         sd = np.nan_to_num(np.asarray(model.depth_sd, float), nan=0.0)
         made = []
+        start = time.perf_counter()
         for sign, key in ((-1.0, "minus"), (1.0, "plus")):
             result = model.solve(depths=np.maximum(depth + sign * sd, 0.0), held=self.peg_held(list(model.peg_names)))
             label = "-1 SD" if sign < 0 else "+1 SD"
@@ -581,7 +588,8 @@ class FaceSteps:
             set_material(obj, plain_material(*SD_MATERIALS[key]))
             coll[SD_FACE_KEYS[key]] = obj
             made.append(obj)
-        return made
+        return StepOutcome("face_sd", objects=tuple(made), seconds=time.perf_counter() - start,
+                           values=dict(vertices=[len(o.data.vertices) for o in made]))
 
     def live_table(self) -> None:
         """After ``face_table`` / ``face_table_file`` changed: :meth:`switch_table` (never raises into the UI)."""

@@ -103,7 +103,7 @@ def engine_mesh_of(obj, origin):
     """The mesh of the study object ``obj`` as an engine Mesh in patient mm (its data's coordinates plus the
     study's ``origin``, metres; the object's own transform, e.g. the Frankfurt view, left out), triangulated."""
     from ...pdehead_addon import Mesh
-    from ..scene.coords import MM_TO_M
+    from ..coords import MM_TO_M
 
     me = obj.data
     me.calc_loop_triangles()

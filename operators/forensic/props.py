@@ -33,7 +33,7 @@ import bpy
 from bpy.props import CollectionProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 
 from ...pdehead_addon import defaults as D
-from ..study import state
+from .. import state
 
 #: The layout of the forensic state this version writes (see the module docstring).
 FORMAT_VERSION = 1

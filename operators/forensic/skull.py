@@ -18,8 +18,8 @@ import bpy
 import numpy as np
 
 from ...pdehead_addon import PDEHeadError, defaults as D
-from .. import compat
-from ..study import state
+from .. import compat, state
+from ..outcome import StepOutcome
 from .objects import plain_material, set_material
 
 SKULL_BOUNDARY_KEY = "pdehead_skull_boundaries"
@@ -78,8 +78,10 @@ class SkullSteps:
         return bset, solve_pde(bset), patches
 
     def step_skull(self, nu: int, nv: int, bone: bool = D.BONE_MESH.default,
-                   bone_step: int = D.BONE_STEP.default) -> None:
-        """The bone skull (smoothed marching cubes of the bone: what skull.<fmt> is) and the PDE skull envelope."""
+                   bone_step: int = D.BONE_STEP.default) -> StepOutcome:
+        """The bone skull (smoothed marching cubes of the bone: what skull.<fmt> is) and the PDE skull envelope;
+        returns the objects built (the envelope, then the bone mesh), the segmentation's warnings, the seconds
+        and what the skull info records (``values``: bone level, patches, parts, bone volume, ...)."""
         from ...pdehead_addon import dumps_boundaries, skull_mesh
         from ..scene import objects
 
@@ -115,6 +117,9 @@ class SkullSteps:
             info["bone_triangles"] = len(bmesh.triangles)
         coll[SKULL_INFO_KEY] = json.dumps(info)
         self.study.record_timing("skull", t.seconds)
+        built = (obj, bobj) if bone else (obj,)
+        return StepOutcome("skull", objects=built, warnings=tuple(str(w) for w in sk.meta.get("warnings", ())),
+                           seconds=t.seconds, values=info)
 
     def skull_info(self) -> dict:
         """What the last Build Skull recorded (bone level, parts, volume, mandible; {} before it)."""
@@ -147,8 +152,11 @@ class SkullSteps:
         return self.study.head.surface(int(s.nu), int(s.nv), caps=bool(s.caps))
 
     # -------------------------------------------------------------------------------------- depth
-    def step_depth(self, target: str = D.DEPTH_TARGET.default, max_depth_mm: float = D.MAX_DEPTH.default) -> dict:
-        """Tissue depth of the skin surface against the skull; stored on the surface object; returns stats."""
+    def step_depth(self, target: str = D.DEPTH_TARGET.default,
+                   max_depth_mm: float = D.MAX_DEPTH.default) -> StepOutcome:
+        """Tissue depth of the skin surface against the skull, stored on the surface object; returns the surface
+        object, the seconds and the statistics (``values``: vertices, measured, median, ..., target,
+        max_depth_mm)."""
         from ...pdehead_addon import tissue_depth
 
         s = self.settings
@@ -178,7 +186,7 @@ class SkullSteps:
         self.collection[DEPTH_STATS_KEY] = json.dumps(stats)
         self.cache["depth"] = res
         self.study.record_timing("depth", t.seconds)
-        return stats
+        return StepOutcome("depth", objects=(obj,), seconds=t.seconds, values=stats)
 
     def depth_stats(self) -> dict:
         """The statistics of the last Tissue Depth ({} before it)."""

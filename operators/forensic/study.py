@@ -27,7 +27,7 @@ import bpy
 import numpy as np
 
 from ...pdehead_addon import PDEHeadError, defaults as D
-from ..scene.coords import MM_TO_M
+from ..coords import MM_TO_M
 from .export import ExportSteps
 from .face import PROVENANCE_PROP, FaceSteps
 from .objects import ForensicBase

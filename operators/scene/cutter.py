@@ -21,8 +21,8 @@ import bpy
 import numpy as np
 
 from ...pdehead_addon import PDEHeadError
-from ..study import state
-from ..study.state import suspended_updates
+from .. import state
+from ..state import suspended_updates
 from . import render
 
 CUTTER_KIND = "cutter"

@@ -14,12 +14,10 @@ import math
 import numpy as np
 
 from ...pdehead_addon import apply_window, defaults as D, intensity_window, sample_ct
-from .. import compat
-from ..study import state
+from .. import compat, state
+from ..coords import MM_TO_M, study_origin
 from ..volume.ct_texture import box_face_uv, box_faces, ct_texture_atlas
-from .coords import MM_TO_M
 
-ORIGIN_KEY = "pdehead_origin_m"
 STUDY_KEY = "pdehead_study"
 SKIN_MATERIAL = "PDE Head Skin"
 CT_MATERIAL = "PDE Head CT Intensity"
@@ -44,25 +42,6 @@ def study_collection(name: str, scene=None):
     if coll not in scene.collection.children_recursive:
         scene.collection.children.link(coll)
     return coll
-
-
-def study_origin(collection, points_m: np.ndarray | None = None):
-    """World origin (metres, ``mathutils.Vector``) shared by the study's objects.
-
-    The first call with points stores the centre of their bounding box on the
-    collection; later calls return the stored value, so every object of the
-    study pivots about the same point and rebuilding never moves it.
-    """
-    from mathutils import Vector
-
-    if ORIGIN_KEY in collection.keys():
-        return Vector(tuple(collection[ORIGIN_KEY]))
-    if points_m is None or len(points_m) == 0:
-        return Vector((0.0, 0.0, 0.0))
-    pts = np.asarray(points_m, dtype=np.float64).reshape(-1, 3)
-    centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
-    collection[ORIGIN_KEY] = [float(c) for c in centre]
-    return Vector(tuple(float(c) for c in centre))
 
 
 def _place(obj, origin) -> None:

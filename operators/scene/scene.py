@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...pdehead_addon import PDEHeadError, defaults as D
-from ..study import state
+from .. import state
 
 CAMERA_KIND = "camera"
 LIGHT_KIND = "key_light"

@@ -2,8 +2,8 @@
 in-memory cache, CT, head, stored boundary conditions, CT table, warnings and timings, and runs its
 pipeline steps (:class:`.steps.PipelineSteps`: ``Study.import_ct``, ``segment``, ``boundaries``,
 ``surface``, ``volume``) and live updates (:class:`.live.LiveSolid`: ``solid``, ``live_update``,
-``apply_cutter``, ``add_cutter``); the steps return their outcomes (:class:`.steps.StepOutcome`,
-:class:`.steps.BoundaryOutcome`). Its forensic side is a component it holds (``study.forensic``, a
+``apply_cutter``, ``add_cutter``); the steps return their outcomes (:class:`operators.outcome.StepOutcome`,
+:class:`operators.outcome.BoundaryOutcome`). Its forensic side is a component it holds (``study.forensic``, a
 :class:`operators.forensic.study.ForensicStudy`).
 
 The pattern is MolecularNodes' entity + session registry: an entity is looked up by a uuid that
@@ -21,12 +21,12 @@ from pathlib import Path
 import bpy
 
 from ...pdehead_addon import PDEHeadError, StorageError
+from .. import state
 from ..forensic.study import ForensicStudy
 from ..scene import scene
-from . import state
+from ..state import BOUNDARY_KEY, CT_TABLE_FOR, CT_TABLE_KEY
 from .live import LiveSolid
 from .progress import step_progress
-from .state import BOUNDARY_KEY, CT_TABLE_FOR, CT_TABLE_KEY
 from .steps import PipelineSteps
 
 #: A study's warnings are one string property, one warning per line (a warning may contain "; ").

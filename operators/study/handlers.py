@@ -12,8 +12,9 @@ import traceback
 import bpy
 
 from ...pdehead_addon import PDEHeadError
+from .. import state
 from ..scene import cutter
-from . import live as study_live, state
+from . import live as study_live
 from .entity import Study
 
 

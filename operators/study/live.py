@@ -15,10 +15,11 @@ import bpy
 import numpy as np
 
 from ...pdehead_addon import PDEHeadError
-from ..scene import cutter, objects
-from ..volume import detail_map, material as volume_material
-from . import state
-from .state import suspended_updates
+from .. import state
+from ..outcome import StepOutcome
+from ..scene import cutter, detail_map, objects
+from ..state import suspended_updates
+from ..volume import material as volume_material
 
 #: The studies whose solid waits for its CT colours: ``state.REGISTRY.colours_pending``, study id -> (time of
 #: the last live change, the Study).
@@ -106,8 +107,10 @@ class LiveSolid:
             state.REGISTRY.colours_pending.pop(self.study_id, None)
         return table, window, ct, notice
 
-    def solid(self, live: bool = False) -> str:
-        """Build or rebuild the solid; returns a notice for the sidebar ('' when the colours are exact).
+    def solid(self, live: bool = False) -> StepOutcome:
+        """Build or rebuild the solid; returns the solid object, its vertex count (``values["vertices"]``), the
+        seconds of the build and the notice for the sidebar (``values["notice"]``, '' when the colours are
+        exact; also the outcome's one warning).
 
         With ``live`` and :meth:`defer_ct_colours`, a solid whose PDE solution has no CT table yet
         gets the previous table's colours now and the exact ones from :meth:`refresh_solid_colours`.
@@ -136,7 +139,8 @@ class LiveSolid:
                 cut_ct=cut_ct, texture_budget=s.ct_texture_budget, skin=s.solid_skin,
                 skin_depth_mm=s.solid_skin_depth)
         self.record_timing("solid", t.seconds)
-        return notice
+        return StepOutcome("solid", objects=(s.solid_object,), warnings=(notice,) if notice else (),
+                           seconds=t.seconds, values=dict(vertices=len(s.solid_object.data.vertices), notice=notice))
 
     def refresh_solid_colours(self) -> None:
         """Tabulate the CT for the current PDE solution and rebuild the solid with its exact colours.
@@ -148,7 +152,7 @@ class LiveSolid:
         if s.solid_object is None:
             return
         try:
-            s.last_error = self.solid()
+            s.last_error = self.solid().values["notice"]
         except Exception as exc:  # noqa: BLE001 - runs from a timer: never raise into Blender
             if not isinstance(exc, PDEHeadError):
                 traceback.print_exc()
@@ -209,7 +213,7 @@ class LiveSolid:
                     if what == "pde":
                         self.detail_out_of_date()
                 if what in ("solid", "surface_solid", "pde") and s.solid_object is not None:
-                    notice = self.solid(live=True)
+                    notice = self.solid(live=True).values["notice"]
             s.last_error = notice[:500]
         except Exception as exc:  # noqa: BLE001 - an update callback must never raise into the UI
             if not isinstance(exc, PDEHeadError):
@@ -219,7 +223,7 @@ class LiveSolid:
 
     def detail_out_of_date(self) -> None:
         """The PDE moved the surface away from its CT detail map: the bump is unplugged and the map marked
-        out of date (rebuilding costs seconds, far beyond a slider's step: :mod:`operators.volume.detail_map`)."""
+        out of date (rebuilding costs seconds, far beyond a slider's step: :mod:`operators.scene.detail_map`)."""
         s = self.settings
         if s.surface_object is not None and detail_map.set_detail_shading(s.surface_object, s.detail_strength, False):
             with suspended_updates():
@@ -243,7 +247,7 @@ class LiveSolid:
         with suspended_updates():
             s.u_range, s.v_range = u_range, v_range
         self.cache.cutter_signature = cutter.signature(box, matrix)
-        s.last_error = self.solid(live=True)[:500] if s.solid_object is not None else ""
+        s.last_error = self.solid(live=True).values["notice"][:500] if s.solid_object is not None else ""
         return kind
 
     def add_cutter(self, context):

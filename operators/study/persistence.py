@@ -33,8 +33,8 @@ from pathlib import Path
 
 import bpy
 
+from .. import state
 from ..volume import vdb_files
-from . import state
 from .entity import Study
 
 

@@ -13,11 +13,10 @@ from pathlib import Path
 import bpy
 
 from ...pdehead_addon import PDEHeadError
-from ..scene import objects, scene
-from ..volume import detail_map
-from . import state
+from .. import state
+from ..scene import detail_map, objects, scene
+from ..state import suspended_updates
 from .entity import Study
-from .state import suspended_updates
 
 STEP_LABELS = {
     "import": "Import CT",

@@ -2,7 +2,7 @@
 callback each step passes on (:func:`step_progress`)."""
 from __future__ import annotations
 
-from . import state
+from .. import state
 
 
 def set_hook(hook) -> None:

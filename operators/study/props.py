@@ -26,9 +26,9 @@ from bpy.props import (
 )
 
 from ...pdehead_addon import defaults as D
-from .. import compat
-from ..forensic import face, face_handler
-from . import state
+from .. import compat, state
+from ..forensic import face
+from . import face_handler
 from .entity import Study
 
 #: Blender >= 4.5 warns about "//" in path properties unless they declare blend-relative support.

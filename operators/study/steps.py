@@ -1,14 +1,14 @@
 """The pipeline steps of a study, as methods of :class:`.entity.Study` (this module's mixin).
 
-Between the thin operators (:mod:`operators.ui.ops`, :mod:`operators.forensic.ops`, the update callbacks of
+Between the thin operators (:mod:`operators.ui.ops`, :mod:`operators.ui.forensic_ops`, the update callbacks of
 :mod:`.props`) and the engine (:mod:`pdehead_addon`): every step reads the study's settings, calls the
 engine's public API, writes the result into Blender objects (:mod:`operators.scene.objects`,
 :mod:`operators.volume.volume`, :mod:`operators.scene.scene`) and returns what it did as a value
-(:class:`StepOutcome`, :class:`BoundaryOutcome`) for the caller to report. The live updates, the
-solid and the cutter: :mod:`.live`. Nothing here imports an operator module or the Study class itself, so
-the dependency runs one way::
+(:class:`operators.outcome.StepOutcome`, :class:`operators.outcome.BoundaryOutcome`) for the caller to report.
+The live updates, the solid and the cutter: :mod:`.live`. Nothing here imports an operator module or the Study
+class itself, so the dependency runs one way::
 
-    ui.ops / forensic.ops / ui.panel / props  ->  entity (Study)  ->  steps / live
+    ui.ops / ui.forensic_ops / ui.panel / props  ->  entity (Study)  ->  steps / live
         ->  state / objects / ...  ->  engine
 
 Use the steps through a study: ``study = Study.import_ct(context, path, options)``,
@@ -19,43 +19,17 @@ from __future__ import annotations
 import json
 import re
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import bpy
 
 from ...pdehead_addon import PDEHeadError, patches_for_scan
-from ..scene import objects
-from ..ui import prefs
-from ..volume import detail_map, vdb_files, vdb_grids, volume
-from . import state
+from .. import prefs, state
+from ..outcome import BoundaryOutcome, StepOutcome
+from ..scene import detail_map, objects
+from ..state import suspended_updates
+from ..volume import vdb_files, vdb_grids, volume
 from .progress import step_progress
-from .state import suspended_updates
-
-
-@dataclass(frozen=True)
-class StepOutcome:
-    """What a pipeline step gave, for the caller to report: the Blender objects it built or rebuilt, the
-    warnings it added to the study (in the engine's words), its seconds (as recorded in the study's timings)
-    and the effective values it chose or measured (``values``: e.g. the voxel size of an automatic volume)."""
-
-    step: str
-    objects: tuple = ()
-    warnings: tuple[str, ...] = ()
-    seconds: float = 0.0
-    values: dict = field(default_factory=dict)
-
-
-@dataclass(frozen=True)
-class BoundaryOutcome:
-    """What :meth:`PipelineSteps.boundaries` gave, for the caller to report: the effective number of patches t
-    (the study's, reduced to what the scan allows), the curves extracted, the warnings this extraction added
-    (in the engine's words) and its seconds."""
-
-    patches: int
-    curves: int
-    warnings: tuple[str, ...]
-    seconds: float
 
 
 def _unique_collection_name(base: str) -> str:

@@ -14,10 +14,10 @@ import traceback
 from bpy.props import StringProperty
 
 from ...pdehead_addon import PDEHeadError
-from ..study import state
+from .. import state
+from ..state import NO_STUDY_MESSAGE, suspended_updates
 from ..study.entity import Study
 from ..study.pipeline_run import Rollback
-from ..study.state import NO_STUDY_MESSAGE, suspended_updates
 
 
 def report_exception(op, exc: BaseException) -> None:

@@ -12,8 +12,9 @@ from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 from bpy.types import Operator
 
 from ...pdehead_addon import PDEHeadError, defaults as D
+from .. import state
 from ..scene import scene
-from ..study import pipeline_run, progress, props, state
+from ..study import pipeline_run, progress, props
 from ..study.entity import Study
 from .base import GuardedOperator, StudyOperator, report_exception, set_status
 from .import_options import LoaderOptions, PDEHEAD_FH_import_ct, dropped_file_options
@@ -61,6 +62,39 @@ class PDEHEAD_OT_import_ct(Operator, GuardedOperator, LoaderOptions):
             self.report({'WARNING'}, state.user_text(warning))
 
 
+def segment_report(study, outcome) -> str:
+    """The Segment Head operator's INFO report of ``study.segment()``'s outcome (the CLI prints it too)."""
+    v = outcome.values
+    return (f"Segmented '{study.name}': head = {100 * v['fraction']:.1f} % of the voxels ({v['iterations']} "
+            f"iterations, {outcome.seconds:.2f} s)")
+
+
+def boundaries_report(study, outcome) -> str:
+    """The Extract Boundaries operator's INFO report of ``study.boundaries()``'s outcome."""
+    s = study.settings
+    achieved = (f"; surface from all {abs(s.outline_candidates)} usable outlines: mean "
+                f"{s.outline_mean_mm:.2f} mm, max {s.outline_max_mm:.2f} mm" if s.outline_candidates else "")
+    return (f"{outcome.curves} boundary curves of {s.samples} points extracted from '{study.name}' "
+            f"({outcome.seconds:.2f} s){achieved}")
+
+
+def surface_report(study, outcome) -> str:
+    """The Reconstruct Surface operator's INFO report of ``study.surface()``'s outcome."""
+    return f"PDE surface of '{study.name}': {outcome.values['vertices']} vertices ({outcome.seconds:.2f} s)"
+
+
+def solid_report(study, outcome) -> str:
+    """The Build Solid operator's INFO report of ``study.solid()``'s outcome."""
+    return f"PDE solid of '{study.name}': {outcome.values['vertices']} vertices ({study.timings['solid']:.2f} s)"
+
+
+def volume_report(study, outcome) -> str:
+    """The Build Volume operator's INFO report of ``study.volume()``'s outcome."""
+    t = outcome.values
+    return (f"Volume of '{study.name}' built (w-field {t['w_field_s']:.2f} s, VDB + material "
+            f"{t['volume_s']:.2f} s)")
+
+
 class PDEHEAD_OT_load_phantom(Operator, GuardedOperator):
     bl_idname = "pdehead.load_phantom"
     bl_label = "Load Phantom"
@@ -79,10 +113,7 @@ class PDEHEAD_OT_segment(Operator, StudyOperator):
     bl_options = {'REGISTER', 'UNDO'}
 
     def run(self, context, study):
-        outcome = study.segment()
-        v = outcome.values
-        self.report({'INFO'}, f"Segmented '{study.name}': head = {100 * v['fraction']:.1f} % of the "
-                    f"voxels ({v['iterations']} iterations, {outcome.seconds:.2f} s)")
+        self.report({'INFO'}, segment_report(study, study.segment()))
 
 
 @props.settings_options("patches", "samples", "selection", "align_curves", "use_tolerance", "tolerance_mm",
@@ -98,10 +129,7 @@ class PDEHEAD_OT_extract_boundaries(Operator, StudyOperator):
         self.store_settings(s)
         outcome = study.boundaries()
         self.patches = outcome.patches  # may have been reduced to what the scan allows
-        achieved = (f"; surface from all {abs(s.outline_candidates)} usable outlines: mean "
-                    f"{s.outline_mean_mm:.2f} mm, max {s.outline_max_mm:.2f} mm" if s.outline_candidates else "")
-        self.report({'INFO'}, f"{outcome.curves} boundary curves of {self.samples} points extracted "
-                    f"from '{study.name}' ({outcome.seconds:.2f} s){achieved}")
+        self.report({'INFO'}, boundaries_report(study, outcome))
         for warning in outcome.warnings:
             self.report({'WARNING'}, state.user_text(warning))
 
@@ -119,9 +147,7 @@ class PDEHEAD_OT_reconstruct_surface(Operator, StudyOperator):
         self.store_settings(s)
         if study.boundary_set() is None:
             study.boundaries()
-        outcome = study.surface()
-        self.report({'INFO'}, f"PDE surface of '{study.name}': {outcome.values['vertices']} vertices "
-                    f"({outcome.seconds:.2f} s)")
+        self.report({'INFO'}, surface_report(study, study.surface()))
 
 
 @props.settings_options("nu", "nv", "nw", "u_range", "v_range", "w_range", "ct_texture_budget", "solid_skin",
@@ -141,11 +167,10 @@ class PDEHEAD_OT_build_solid(Operator, StudyOperator):
         self.store_settings(s)
         if study.boundary_set() is None:
             study.boundaries()
-        notice = study.solid()
-        n = len(s.solid_object.data.vertices)
-        self.report({'INFO'}, f"PDE solid of '{study.name}': {n} vertices ({study.timings['solid']:.2f} s)")
-        if notice:
-            self.report({'WARNING'}, notice[:300])
+        outcome = study.solid()
+        self.report({'INFO'}, solid_report(study, outcome))
+        if outcome.values["notice"]:
+            self.report({'WARNING'}, outcome.values["notice"][:300])
 
 
 @props.settings_options("use_ct_grid", "voxel_auto", "voxel_size", "low_alpha", "high_alpha", "density",
@@ -164,10 +189,7 @@ class PDEHEAD_OT_build_volume(Operator, StudyOperator):
         self.store_settings(s)
         if study.boundary_set() is None:
             study.boundaries()
-        outcome = study.volume(context)
-        t = outcome.values
-        self.report({'INFO'}, f"Volume of '{study.name}' built (w-field {t['w_field_s']:.2f} s, "
-                    f"VDB + material {t['volume_s']:.2f} s)")
+        self.report({'INFO'}, volume_report(study, study.volume(context)))
 
 
 class TimerModal:
@@ -414,7 +436,7 @@ class PDEHEAD_OT_turntable(Operator, StudyOperator):
                         description=D.TURNTABLE_FRAMES.description)
 
     def run(self, context, study):
-        from ..scene import animation
+        from ..study import animation
         pivot = animation.turntable(context, study.collection, self.frames, start=context.scene.frame_start)
         self.report({'INFO'}, f"'{study.name}': turntable of {self.frames} frames around '{pivot.name}' "
                               "(Render > Render Animation)")

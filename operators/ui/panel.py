@@ -5,7 +5,7 @@ import os
 
 import bpy
 
-from ..study import state
+from .. import state
 from ..study.entity import Study
 
 

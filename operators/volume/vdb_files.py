@@ -15,7 +15,7 @@ import os
 import tempfile
 from pathlib import Path
 
-from ..study import state
+from .. import state
 
 VDB_FOLDER_NAME = "pdehead_vdb"
 

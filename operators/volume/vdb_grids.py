@@ -21,7 +21,7 @@ from ...pdehead_addon import (
     head_mask_on_grid,
 )
 from .. import compat
-from ..scene.coords import grid_affine_world
+from ..coords import grid_affine_world
 from . import vdb_writer
 from .vdb_files import mark_written
 

@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from ...pdehead_addon import intensity_window
-from ..scene.coords import grid_affine_world
+from ..coords import grid_affine_world
 from .material import ensure_volume_material, set_volume_settings
 from .vdb_files import VDB_FOLDER_NAME, blender_filepath, fresh_vdb_path, supersede
 from .vdb_grids import REQUIRED_GRIDS, write_vdb
@@ -71,7 +71,7 @@ def build_volume(wfield, collection, vdb_path, name: str = "Volume", obj=None, *
     import bpy
     from mathutils import Matrix
 
-    from ..scene.objects import study_origin
+    from ..coords import study_origin
 
     if window is None:
         if ct is not None:

@@ -1,7 +1,7 @@
 """Craniometric landmarks on the skull, depth-table markers, Frankfurt horizontal and the mid-sagittal mirror.
 
 Everything is in patient LPS millimetres and Blender-free, so the Blender
-operators (:mod:`operators.forensic.ops`) and the tests share it:
+operators (:mod:`operators.ui.forensic_ops`) and the tests share it:
 
 * :data:`STANDARD_LANDMARKS`: the midline and bilateral landmarks of the
   soft-tissue depth tables (the set of Stephan & Simpson 2008 / Taylor 2001,

@@ -169,7 +169,7 @@ sys.path.insert(0, sys.argv[1])
 import pdehead
 pdehead.register_addon()
 import bpy
-from pdehead_dev.operators.study import state
+from pdehead_dev.operators import state
 
 def study():
     bpy.ops.wm.open_mainfile(filepath=sys.argv[2])

@@ -117,7 +117,7 @@ def _timed_change(s, coll, prop, value) -> tuple[float, float | None]:
 def bench_dataset(name: str, repeats: int) -> dict:
     import bpy
 
-    from pdehead_dev.operators.study import state
+    from pdehead_dev.operators import state
     from pdehead_dev.operators.study.entity import Study
     from pdehead_dev.operators.study.props import COLOUR_ITEMS
     Study.DEFER_CT_COLOURS = True   # as in Blender with a UI (the colour refresh is timed on its own)
@@ -393,9 +393,10 @@ def bench_face_dataset(name: str, repeats: int) -> dict:
     import numpy as np
     from mathutils import Vector
 
-    from pdehead_dev.operators.forensic import export as forensic_export, face, face_handler
+    from pdehead_dev.operators import state
+    from pdehead_dev.operators.forensic import export as forensic_export, face
     from pdehead_dev.operators.forensic.study import ForensicStudy
-    from pdehead_dev.operators.study import state
+    from pdehead_dev.operators.study import face_handler
     from pdehead_dev.operators.study.entity import Study
     coll, steps = _face_study(name)
     fs = ForensicStudy.of(Study.of(coll))

@@ -16,7 +16,7 @@ surface, nu x nv = 120 x 240, caps), Cycles CPU, into ``docs/figures/up_close_*.
   marching cubes of the mask, the surface at t = 10 with the u smoothing of one slice step (the defaults
   before issue 21's last change) and at the add-on's defaults (t = 15, half a slice step); the
   visible-face score on each tile; and the defaults' surface shaded with its CT detail map (the same
-  geometry, the scan's eyelids, lips and nose wings as bump: ``operators/volume/detail_map.py``).
+  geometry, the scan's eyelids, lips and nose wings as bump: ``operators/scene/detail_map.py``).
 * ``up_close_cut.png`` (``--cut``, only this figure): CThead's solid cut at the mid-sagittal plane
   (v from 0 to 180 degrees: the patient's right half), seen from its left at the add-on's defaults (skin
   outside, the cut faces from the CT at <= 1 voxel a texel), beside the CT resampled on the plane

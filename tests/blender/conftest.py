@@ -7,7 +7,7 @@
   ``bpy.ops.extensions.package_install_files`` into ``BLENDER_USER_RESOURCES`` (a temp folder set by
   tests/conftest.py before bpy is imported); returns the module ``bl_ext.user_default.pdehead``.
 - ``ext``: handles on the installed extension's modules: ``ext.engine`` (its ``pdehead_addon``) and every
-  module of its Blender layer by dotted name (``ext.ui.ops``, ``ext.study.state``, ``ext.study.entity``, ...);
+  module of its Blender layer by dotted name (``ext.ui.ops``, ``ext.state``, ``ext.study.entity``, ...);
   the one fixture the tests reach the installed code through.
 - ``clean_scene`` (autouse): an empty file around every test, so tests do not see each other's objects.
 - ``phantom_blend`` / ``cthead_blend`` (session): the one-click pipeline run once on the phantom /
@@ -139,7 +139,7 @@ def cthead_blend(pdehead_ext, tmp_path_factory, pytestconfig) -> Path:
 @pytest.fixture()
 def ext(pdehead_ext):
     """The installed extension's modules: ``engine`` (its pdehead_addon) and every ``operators`` subpackage and
-    top-level module by name, each subpackage with its modules (``ext.study.state``, ``ext.scene.objects``)."""
+    top-level module by name, each subpackage with its modules (``ext.state``, ``ext.scene.objects``)."""
     import pkgutil
     from types import SimpleNamespace
     ops = pdehead_ext.operators

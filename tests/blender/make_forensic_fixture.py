@@ -102,7 +102,7 @@ def main(out: Path) -> None:
     from importlib import import_module
 
     import bpy
-    state = import_module(addon.__name__ + ".operators.study.state")
+    state = import_module(addon.__name__ + ".operators.state")
     # a small file: the face's mesh at 48 x 80 instead of the defaults (the sidebar has no such setting;
     # the model records it, so the face kept in the file is the one solved at that size)
     D = import_module(addon.__name__ + ".pdehead_addon.defaults")

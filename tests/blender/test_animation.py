@@ -20,7 +20,7 @@ def _solid_mm(obj) -> np.ndarray:
 
 
 def _expected_solid(ext, coll, **ranges):
-    s = ext.study.state.settings(coll)
+    s = ext.state.settings(coll)
     head = ext.study.entity.Study.of(coll).head
     nw = ranges.pop("nw", s.nw)
     v_range = tuple(min(float(v), 2 * math.pi) for v in s.v_range)  # float32 2π is a hair above float64 2π
@@ -37,7 +37,7 @@ def test_settings_keyframed_like_any_property(ext, monkeypatch):
                                         build_volume=False) == {'FINISHED'}
     scene = bpy.context.scene
     coll = scene.pdehead.active_study
-    s = ext.study.state.settings(coll)
+    s = ext.state.settings(coll)
     owner = s.id_data
     assert owner.type == 'EMPTY' and owner.name in coll.objects and coll.pdehead == s
     full = (0.0, 2 * math.pi)
@@ -99,8 +99,8 @@ def test_settings_of_a_0_1_0_file_are_migrated(ext, tmp_path, saved_by):
     shutil.copy(DATA / name, blend)
     bpy.ops.wm.open_mainfile(filepath=str(blend))
     coll = bpy.data.collections["Phantom"]
-    assert ext.study.state.is_study(coll) and bpy.context.scene.pdehead.active_study == coll
-    s = ext.study.state.settings(coll)
+    assert ext.state.is_study(coll) and bpy.context.scene.pdehead.active_study == coll
+    s = ext.state.settings(coll)
     stored = ext.compat.registered_id_properties(coll)
     assert s.id_data.type == 'EMPTY' and stored.get("pdehead") is None  # one copy of the settings
     assert coll.get("pdehead") is None  # and no stale custom property
@@ -120,7 +120,7 @@ def test_settings_of_a_0_1_0_file_are_migrated(ext, tmp_path, saved_by):
     # saved and reopened once more: still there, still keyed
     bpy.ops.wm.save_mainfile()
     bpy.ops.wm.open_mainfile(filepath=str(blend))
-    s = ext.study.state.settings(bpy.data.collections["Phantom"])
+    s = ext.state.settings(bpy.data.collections["Phantom"])
     assert tuple(s.v_range) == pytest.approx((0.5, 5.0)) and s.colour_preset == 'xray'
     assert ("pdehead.w_range", 0) in {(fc.data_path, fc.array_index)
                                       for fc in ext.compat.animation_fcurves(s.id_data)}
@@ -158,7 +158,7 @@ def test_render_animation_renders_what_each_frame_shows(ext, tmp_path):
                                         voxel_size=6.0) == {'FINISHED'}
     scene = bpy.context.scene
     coll = scene.pdehead.active_study
-    s = ext.study.state.settings(coll)
+    s = ext.state.settings(coll)
     for obj, shown in ((s.surface_object, False), (s.curves_object, False), (s.solid_object, True),
                        (s.volume_object, True)):
         obj.hide_render = not shown
@@ -218,7 +218,7 @@ def test_render_animation_with_the_ct_gone_says_so(ext, tmp_path, capfd):
     scene = bpy.context.scene
     coll = scene.pdehead.active_study
     name = coll.name
-    s = ext.study.state.settings(coll)
+    s = ext.state.settings(coll)
     s.surface_object.hide_render, s.solid_object.hide_render = True, False
     _render_setup(scene, tmp_path)
     scene.cycles.samples = 2
@@ -232,7 +232,7 @@ def test_render_animation_with_the_ct_gone_says_so(ext, tmp_path, capfd):
     blend = tmp_path / "gone.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
     bpy.ops.wm.open_mainfile(filepath=str(blend))
-    ext.study.state.drop_cache()  # as in a new Blender session: nothing in memory, the CT must be re-read
+    ext.state.drop_cache()  # as in a new Blender session: nothing in memory, the CT must be re-read
     scene = bpy.context.scene
     # the .blend carries the solid's CT table (issue 20): the cutaway animates without the CT
     capfd.readouterr()
@@ -245,9 +245,9 @@ def test_render_animation_with_the_ct_gone_says_so(ext, tmp_path, capfd):
     assert all(float((np.abs(img - corner).max(axis=2) > 0.05).mean()) > 0.05 for img in kept)  # the solid stays
     # a file without that table (saved before it existed) and without its CT: said, not rendered stale
     coll = bpy.data.collections[name]
-    coll.pop(ext.study.state.CT_TABLE_KEY, None)
-    coll.pop(ext.study.state.CT_TABLE_FOR, None)
-    ext.study.state.drop_cache()
+    coll.pop(ext.state.CT_TABLE_KEY, None)
+    coll.pop(ext.state.CT_TABLE_FOR, None)
+    ext.state.drop_cache()
     capfd.readouterr()
     scene.render.filepath = str(tmp_path / "anim" / "frame_")
     assert bpy.ops.render.render(animation=True) == {'FINISHED'}
@@ -268,7 +268,7 @@ def test_turntable_orbits_the_camera_around_the_head(ext):
                                         build_volume=False) == {'FINISHED'}
     scene = bpy.context.scene
     coll = scene.pdehead.active_study
-    s = ext.study.state.settings(coll)
+    s = ext.state.settings(coll)
     assert bpy.ops.pdehead.turntable(frames=8) == {'FINISHED'}
     assert (scene.frame_start, scene.frame_end) == (1, 8)
     camera = scene.camera

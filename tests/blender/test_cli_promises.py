@@ -145,7 +145,7 @@ sys.path.insert(0, sys.argv[1])
 import _common
 addon = _common.load_addon(register=True)
 import bpy
-state = addon.operators.study.state
+state = addon.operators.state
 out = {}
 r = bpy.ops.pdehead.import_ct(directory=sys.argv[2], format='IMAGES', use_spacing=True, spacing=(2, 1, 1))
 coll = bpy.context.scene.pdehead.active_study

@@ -15,7 +15,7 @@ import pytest
 
 def _modules(pdehead_ext):
     name = pdehead_ext.__name__
-    return (sys.modules[f"{name}.operators.volume.detail_map"], sys.modules[f"{name}.operators.study.state"],
+    return (sys.modules[f"{name}.operators.scene.detail_map"], sys.modules[f"{name}.operators.state"],
             sys.modules[f"{name}.operators.study.entity"].Study)
 
 

@@ -37,7 +37,7 @@ def _mods(pdehead_ext):
 
     def forensic(coll):
         return forensic_study.ForensicStudy.of(study_entity.Study.of(coll))
-    return sys.modules[f"{name}.operators.forensic.face"], forensic, sys.modules[f"{name}.operators.study.state"]
+    return sys.modules[f"{name}.operators.forensic.face"], forensic, sys.modules[f"{name}.operators.state"]
 
 
 def _world_vertices(obj) -> np.ndarray:
@@ -101,7 +101,7 @@ def test_build_face_and_live_pegs(pdehead_ext, face_blend, tmp_path):
     from types import SimpleNamespace
 
     from panel_recorder import RecordingLayout
-    forensic = sys.modules[f"{pdehead_ext.__name__}.operators.forensic.ops"]
+    forensic = sys.modules[f"{pdehead_ext.__name__}.operators.ui.forensic_ops"]
     log = []
     forensic.PDEHEAD_PT_forensic.draw(SimpleNamespace(layout=RecordingLayout(log)), bpy.context)
     assert ("operator", "pdehead.build_face") in log and ("operator", "pdehead.face_sd_range") in log
@@ -235,7 +235,7 @@ def test_face_follows_a_peg_after_reopening(pdehead_ext, face_blend, tmp_path):
 
     from panel_recorder import RecordingLayout
     log = []
-    sys.modules[f"{pdehead_ext.__name__}.operators.forensic.ops"].PDEHEAD_PT_forensic.draw(
+    sys.modules[f"{pdehead_ext.__name__}.operators.ui.forensic_ops"].PDEHEAD_PT_forensic.draw(
         SimpleNamespace(layout=RecordingLayout(log)), bpy.context)
     assert ("label", "Live: vertex positions only, model from the file") in log
     # a kept model that does not belong to this face (another build): prepared again, the face still follows
@@ -279,7 +279,7 @@ def _panel_labels(pdehead_ext) -> list:
     import bpy
 
     from panel_recorder import RecordingLayout
-    forensic = sys.modules[f"{pdehead_ext.__name__}.operators.forensic.ops"]
+    forensic = sys.modules[f"{pdehead_ext.__name__}.operators.ui.forensic_ops"]
     log = []
     forensic.PDEHEAD_PT_forensic.draw(SimpleNamespace(layout=RecordingLayout(log)), bpy.context)
     return log
@@ -425,7 +425,7 @@ def test_sex_shows_for_a_table_with_a_sex_column_and_picks_its_rows(pdehead_ext,
 
     from panel_recorder import RecordingLayout
     face, fs, state = _mods(pdehead_ext)
-    forensic = sys.modules[f"{pdehead_ext.__name__}.operators.forensic.ops"]
+    forensic = sys.modules[f"{pdehead_ext.__name__}.operators.ui.forensic_ops"]
     coll = _open(face_blend)
 
     def panel():

@@ -37,7 +37,7 @@ def reopened(pdehead_ext, tmp_path):
     blend = tmp_path / BLEND.name
     shutil.copy(BLEND, blend)
     bpy.ops.wm.open_mainfile(filepath=str(blend))
-    state = sys.modules[f"{pdehead_ext.__name__}.operators.study.state"]
+    state = sys.modules[f"{pdehead_ext.__name__}.operators.state"]
     return bpy, state, json.loads(BLEND.with_suffix(".json").read_text())
 
 
@@ -59,7 +59,7 @@ def _legacy_json(props, p) -> dict:
 
 def test_every_study_reopens_with_its_settings_objects_and_forensic_state(reopened):
     bpy, state, saved = reopened
-    props = sys.modules[state.__name__.rpartition(".study.")[0] + ".forensic.props"]
+    props = sys.modules[state.__name__.rpartition(".")[0] + ".forensic.props"]
     legacy = (props.LEGACY_DEPTH_TABLE, props.LEGACY_LANDMARK_FLAGS, props.LEGACY_FACE_OPTIONS)
     # the forensic state of format 0, read into the PropertyGroup on load: nothing lost, byte for byte
     for name, was in saved["studies"].items():
@@ -111,7 +111,7 @@ def _to_face(obj, vertices_mm, point_mm) -> float:
 def test_the_reopened_face_follows_a_dragged_peg_and_both_studies_stay_live(reopened):
     bpy, state, _ = reopened
     from mathutils import Vector
-    face_ops = sys.modules[state.__name__.rpartition(".study.")[0] + ".forensic.face_handler"]
+    face_ops = sys.modules[state.__name__.rpartition(".")[0] + ".study.face_handler"]
     coll = bpy.data.collections["Phantom forensic"]
     face = next(o for o in coll.all_objects if o.name.endswith(" Face"))
     peg = next(o for o in coll.all_objects if o.get("pdehead_peg") == "Nasion")

@@ -111,7 +111,7 @@ def test_bone_level_field_and_export_builds_or_refuses(pdehead_ext, tmp_path, ph
     for step in ("segment", "extract_boundaries", "reconstruct_surface"):
         assert getattr(bpy.ops.pdehead, step)() == {'FINISHED'}
     log = []
-    ext.operators.forensic.ops.PDEHEAD_PT_forensic.draw(SimpleNamespace(layout=RecordingLayout(log)),
+    ext.operators.ui.forensic_ops.PDEHEAD_PT_forensic.draw(SimpleNamespace(layout=RecordingLayout(log)),
                                                      bpy.context)
     assert {"use_bone_level", "bone_level"} <= {x[1] for x in log if x[0] == "prop"}
 

@@ -46,4 +46,4 @@ def test_twenty_refused_inputs_through_the_import_operator(ext, refused):
         assert problem in text, (case.name, problem, text)
         assert "Traceback" not in text, (case.name, text)
         assert len(bpy.data.collections) == 0 and len(bpy.data.objects) == 0, case.name
-    assert ext.study.state.studies() == []
+    assert ext.state.studies() == []

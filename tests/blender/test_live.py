@@ -20,7 +20,7 @@ def live(pdehead_ext, phantom_blend):
     import bpy
     name = pdehead_ext.__name__
     study = sys.modules[f"{name}.operators.study.entity"].Study
-    state = sys.modules[f"{name}.operators.study.state"]
+    state = sys.modules[f"{name}.operators.state"]
     objects = sys.modules[f"{name}.operators.scene.objects"]
     bpy.ops.wm.open_mainfile(filepath=str(phantom_blend))
     state.drop_cache()
@@ -131,7 +131,7 @@ def _datablocks(bpy) -> dict:
 
 def test_a_new_study_cancelled_mid_step_leaves_nothing(pdehead_ext):
     import bpy
-    state = sys.modules[f"{pdehead_ext.__name__}.operators.study.state"]
+    state = sys.modules[f"{pdehead_ext.__name__}.operators.state"]
     before = _datablocks(bpy)
     hook, seen = _cancel_in(state, "boundaries")
     _progress(state).set_hook(hook)

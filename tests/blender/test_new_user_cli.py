@@ -112,7 +112,7 @@ for action in group._group_actions:
             assert bpy.ops.pdehead.import_ct(**pdehead.loader_kwargs(args)) == {'FINISHED'}
             coll = bpy.context.scene.pdehead.active_study
             study = addon.operators.study.entity.Study.of(coll)
-            meta = addon.operators.study.state.cache_for(coll.pdehead.study_id).ct.meta
+            meta = addon.operators.state.cache_for(coll.pdehead.study_id).ct.meta
             row.update(format=meta.get("format"), units=meta.get("units"), first_slice=meta.get("first_slice"),
                        warnings=study.warnings, notes=study.notes)
             bpy.ops.pdehead.remove_study()

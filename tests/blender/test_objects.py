@@ -36,7 +36,7 @@ def test_grid_matrix_maps_voxel_index_to_patient_metres(ext):
     direction = np.array([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]])
     ct = CTVolume(np.zeros((5, 6, 7), np.float32), spacing=(4.0, 1.08, 0.9), origin=(-120.0, 30.0, 55.0),
                   direction=direction)
-    m = ext.scene.coords.grid_affine_world(ct.spacing, ct.origin, ct.direction)
+    m = ext.coords.grid_affine_world(ct.spacing, ct.origin, ct.direction)
     kji = np.array([[0, 0, 0], [4, 5, 6], [2, 1, 3], [1, 4, 0]], float)
     ijk1 = np.c_[kji[:, ::-1], np.ones(len(kji))]
     np.testing.assert_allclose((ijk1 @ m.T)[:, :3], ct.index_to_patient(kji) * MM, atol=1e-12)

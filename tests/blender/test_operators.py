@@ -32,7 +32,7 @@ def open_blend(path: Path):
 def stored_head(ext, coll, controls: bool = False, **pde):
     """The PDE head solved independently from the boundary bytes stored in the .blend (``controls``:
     through the engine's mapping of the normalised sliders, ``solve_with_controls``)."""
-    raw = base64.b64decode(coll[ext.study.state.BOUNDARY_KEY])
+    raw = base64.b64decode(coll[ext.state.BOUNDARY_KEY])
     bset = ext.engine.loads_boundaries(raw)
     return (ext.engine.solve_with_controls if controls else ext.engine.solve_pde)(bset, **pde)
 
@@ -95,7 +95,7 @@ def test_phantom_pipeline(ext, phantom_blend):
     study = ext.study.entity.Study.of(coll)
     assert ext.study.entity.Study.of(coll) is study and study.collection == coll
     assert ext.study.entity.Study.active(bpy.context) is study
-    assert study.settings == s and study.cache is ext.study.state.cache_for(s.study_id)
+    assert study.settings == s and study.cache is ext.state.cache_for(s.study_id)
     assert study.head is study.cache.head
     ct = study.ct  # from memory, or re-made (phantom) and then kept
     assert ct is study.cache.ct and study.ct_status() == ("CT in memory", "CHECKMARK")
@@ -120,7 +120,7 @@ def test_cthead_operators(ext, cthead_blend):
 def test_live_parameters_after_reopen_without_resegmenting(ext, phantom_blend, monkeypatch):
     """Save -> reopen -> change each live parameter as a user would: the objects follow at once."""
     coll = open_blend(phantom_blend)
-    ext.study.state.drop_cache()  # as in a new Blender session: nothing in memory but the .blend
+    ext.state.drop_cache()  # as in a new Blender session: nothing in memory but the .blend
 
     def no_segmentation(*args, **kwargs):
         raise AssertionError("live parameters must not re-segment")
@@ -210,7 +210,7 @@ def test_nonexistent_input_is_reported_and_creates_nothing(ext):
     with pytest.raises(RuntimeError, match=r"No PDE Head study"):
         bpy.ops.pdehead.segment()
     assert (len(bpy.data.objects), len(bpy.data.collections)) == (n_obj, n_coll)
-    assert ext.study.state.studies() == []
+    assert ext.state.studies() == []
 
 
 def test_engine_error_mid_pipeline_leaves_nothing(ext, tmp_path, monkeypatch):
@@ -231,7 +231,7 @@ def test_engine_error_mid_pipeline_leaves_nothing(ext, tmp_path, monkeypatch):
     with pytest.raises(RuntimeError, match="no usable slice"):
         bpy.ops.pdehead.run_pipeline(source='PHANTOM')
     assert len(bpy.data.collections) == 0 and len(bpy.data.objects) == 0 and len(bpy.data.meshes) == 0
-    assert ext.study.state.cached_study_ids() == []
+    assert ext.state.cached_study_ids() == []
 
 
 def _tick_until_next_step(op_cls, op, context, timer, ticks: int = 500) -> None:
@@ -295,7 +295,7 @@ def test_modal_pipeline_esc_stops_a_step_in_the_middle(ext, phantom, monkeypatch
     assert op_cls.modal(op, context, esc) == {'CANCELLED'}
     assert job.done and 0 < len(calls) < 200                        # stopped mid-step
     assert len(bpy.data.objects) == 0 and len(bpy.data.collections) == 0 and len(bpy.data.meshes) == 0
-    assert ext.study.state.cached_study_ids() == []
+    assert ext.state.cached_study_ids() == []
     assert reports and reports[-1][0] == {'WARNING'} and "cancelled" in reports[-1][1]
 
 
@@ -344,7 +344,7 @@ def test_modal_pipeline_esc_removes_everything(ext, phantom, monkeypatch):
     assert op_cls.modal(op, context, esc) == {'CANCELLED'}
     assert len(bpy.data.objects) == 0 and len(bpy.data.collections) == 0 and len(bpy.data.meshes) == 0
     assert len(bpy.data.curves) == 0
-    assert ext.study.state.cached_study_ids() == []
+    assert ext.state.cached_study_ids() == []
     assert progress[-2:] == ["timer removed", "end"]
     assert reports and reports[-1][0] == {'WARNING'} and "cancelled" in reports[-1][1]
 
@@ -353,13 +353,13 @@ def test_two_studies_get_their_own_collections(ext):
     import bpy
     assert bpy.ops.pdehead.load_phantom() == {'FINISHED'}
     assert bpy.ops.pdehead.load_phantom() == {'FINISHED'}
-    names = sorted(c.name for c in ext.study.state.studies())
+    names = sorted(c.name for c in ext.state.studies())
     assert names == ["Phantom", "Phantom.001"]
     assert bpy.context.scene.pdehead.active_study.name == "Phantom.001"
-    ids = {c.pdehead.study_id for c in ext.study.state.studies()}
-    assert len(ids) == 2 and all(ext.study.state.cache_for(i).ct is not None for i in ids)
+    ids = {c.pdehead.study_id for c in ext.state.studies()}
+    assert len(ids) == 2 and all(ext.state.cache_for(i).ct is not None for i in ids)
     assert bpy.ops.pdehead.remove_study(study="Phantom") == {'FINISHED'}
-    assert [c.name for c in ext.study.state.studies()] == ["Phantom.001"]
+    assert [c.name for c in ext.state.studies()] == ["Phantom.001"]
 
 
 
@@ -400,7 +400,7 @@ def test_ge_tilted_series_one_click_reduces_patches_to_what_the_scan_allows(ext,
     coll = bpy.context.scene.pdehead.active_study
     s = coll.pdehead
     assert s.source_kind == "FILES"
-    limit = ext.engine.max_patches(ext.study.state.cache_for(s.study_id).seg)
+    limit = ext.engine.max_patches(ext.state.cache_for(s.study_id).seg)
     assert 4 <= limit < 10
     assert s.patches == limit
     assert "patches reduced from 10 to" in s.warnings
@@ -421,7 +421,7 @@ def test_invoking_an_operator_starts_from_the_study_settings_and_running_stores_
 
     coll = open_blend(phantom_blend)
     s = coll.pdehead
-    with ext.study.state.suspended_updates():
+    with ext.state.suspended_updates():
         s.nu, s.nv, s.caps = 24, 36, False
     op_class = ext.ui.ops.PDEHEAD_OT_reconstruct_surface
     fake = SimpleNamespace(study="", nu=0, nv=0, caps=True, continuity="c2", dome=True, smoothing_auto=True,
@@ -442,7 +442,7 @@ def test_the_boundaries_step_returns_the_effective_t_its_warnings_and_seconds(ex
     coll = open_blend(phantom_blend)
     study = ext.study.entity.Study.of(coll)
     s = study.settings
-    with ext.study.state.suspended_updates():
+    with ext.state.suspended_updates():
         s.patches, s.use_tolerance, s.selection = 60, False, "uniform"
     outcome = study.boundaries()
     limit = ext.engine.max_patches(study.cache.seg)
@@ -475,7 +475,7 @@ def test_the_segment_surface_and_volume_steps_return_their_outcomes(ext, phantom
     assert surface.objects == (s.surface_object,)
     assert surface.values["vertices"] == len(s.surface_object.data.vertices) > 1000
     assert round(surface.seconds, 4) == pytest.approx(study.timings["surface"])
-    with ext.study.state.suspended_updates():
+    with ext.state.suspended_updates():
         s.use_ct_grid, s.voxel_auto, s.voxel_size = False, False, 4.0
     volume = study.volume()
     assert volume.objects == (s.volume_object,) and volume.values["voxel_size"] == pytest.approx(4.0)
@@ -483,6 +483,51 @@ def test_the_segment_surface_and_volume_steps_return_their_outcomes(ext, phantom
     assert tmp_path.resolve() in Path(volume.values["vdb_path"]).resolve().parents
     assert volume.seconds == pytest.approx(volume.values["w_field_s"] + volume.values["volume_s"])
     assert round(volume.values["volume_s"], 4) == pytest.approx(study.timings["volume"])
+
+
+def test_the_solid_and_forensic_steps_return_their_outcomes(ext, phantom_blend, tmp_path):
+    """``solid()`` and the forensic steps (``step_skull()``, ``step_depth()``, ``build_face()``,
+    ``build_sd_faces()``) return what they built and measured (a ``StepOutcome``): the objects, the warnings,
+    the seconds the study's timings record and the effective values; the operators report from them."""
+    import shutil
+    copy = tmp_path / "forensic_outcomes.blend"
+    shutil.copy(phantom_blend, copy)
+    coll = open_blend(copy)
+    study = ext.study.entity.Study.of(coll)
+    s = study.settings
+    solid = study.solid()
+    assert solid.step == "solid" and solid.objects == (s.solid_object,)
+    assert solid.values["vertices"] == len(s.solid_object.data.vertices) > 1000
+    assert solid.values["notice"] == "" and solid.warnings == ()      # the CT is at hand: exact colours
+    assert round(solid.seconds, 4) == pytest.approx(study.timings["solid"])
+    fs = study.forensic
+    skull = fs.step_skull(24, 40, bone=True, bone_step=4)
+    assert skull.step == "skull"
+    assert skull.objects == (coll["pdehead_skull_object"], coll["pdehead_bone_object"])
+    info = fs.skull_info()
+    assert skull.values["patches"] == info["patches"] > 0
+    assert skull.values["bone_triangles"] == info["bone_triangles"] == len(coll["pdehead_bone_object"].data.polygons)
+    assert skull.warnings == tuple(info.get("warnings", ()))
+    assert round(skull.seconds, 4) == pytest.approx(study.timings["skull"])
+    depth = fs.step_depth("PDE", 30.0)
+    assert depth.step == "depth" and depth.objects == (s.surface_object,)
+    assert depth.values["target"] == "PDE" and depth.values["max_depth_mm"] == 30.0
+    assert 0 < depth.values["measured"] <= depth.values["vertices"] == len(s.surface_object.data.vertices)
+    assert depth.values["measured"] == fs.depth_stats()["measured"]
+    assert round(depth.seconds, 4) == pytest.approx(study.timings["depth"])
+    face = fs.build_face()
+    assert face.step == "face" and face.objects[0] == fs.face_object()
+    assert face.values["pegs"] == len(face.objects) - 1 == len(fs.face_peg_names()) > 0
+    assert all(p.parent == face.objects[0] for p in face.objects[1:])
+    assert face.values["vertices"] == len(fs.face_object().data.vertices)
+    assert face.values["label"] == ext.forensic.face.approximation_label()
+    report = fs.cache.get("face_report")
+    assert face.warnings == ((report.summary(),) if report.summary() else ())
+    assert round(face.seconds, 4) == pytest.approx(study.timings["face_prepare"])
+    sd = fs.build_sd_faces()
+    assert sd.step == "face_sd" and len(sd.objects) == 2 and sd.seconds > 0
+    assert sd.values["vertices"] == [len(o.data.vertices) for o in sd.objects]
+    assert [o["pdehead_kind"] for o in sd.objects] == ["face_minus_sd", "face_plus_sd"]
 
 
 def test_the_forensic_side_is_a_component_the_study_holds(ext, phantom_blend):
@@ -493,7 +538,7 @@ def test_the_forensic_side_is_a_component_the_study_holds(ext, phantom_blend):
     fs = ext.forensic.study.ForensicStudy.of(study)
     assert fs is study.forensic and fs.study is study and fs.collection == coll
     assert ext.forensic.study.ForensicStudy.of(study) is fs and fs.cache is study.cache.forensic
-    assert not hasattr(ext.study.state.REGISTRY, "forensic")
+    assert not hasattr(ext.state.REGISTRY, "forensic")
     ext.study.entity.Study.forget(study.study_id)
     again = ext.study.entity.Study.of(coll)
     assert again is not study and again.forensic is not fs and again.forensic.study is again

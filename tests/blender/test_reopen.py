@@ -56,7 +56,7 @@ name = pkg.__name__
 if args["layout"] == "zip":  # the bpy 4.2 / 4.5 modules crash / hang at exit with add-on classes still registered
     sys.modules[name + ".operators.compat"].unregister_at_exit(
         lambda: __import__("addon_utils").disable(name, default_set=False))
-state = sys.modules[name + ".operators.study.state"]
+state = sys.modules[name + ".operators.state"]
 Study = sys.modules[name + ".operators.study.entity"].Study
 objects = sys.modules[name + ".operators.scene.objects"]
 volume = sys.modules[name + ".operators.volume.volume"]
@@ -206,7 +206,7 @@ def test_reopen_in_a_new_process_rereads_the_ct_and_loses_nothing(ext, pdehead_e
     # the CT deleted: each step that needs it says so and changes nothing
     shutil.rmtree(moved / "ct")
     bpy.ops.wm.open_mainfile(filepath=str(blend))
-    ext.study.state.drop_cache()
+    ext.state.drop_cache()
     coll = [c for c in bpy.data.collections if c.pdehead.is_study][0]
     s = coll.pdehead
     text, icon = ext.study.entity.Study.of(coll).ct_status()
@@ -221,7 +221,7 @@ def test_reopen_in_a_new_process_rereads_the_ct_and_loses_nothing(ext, pdehead_e
     assert vdb_now.read_bytes() == vdb_bytes and sorted(p.name for p in vdb_now.parent.iterdir()) == [vdb_now.name]
     # the solid's CT table (8-bit) travels in the .blend: Build Solid, nw, nu and cutaways work without the CT
     entity = ext.study.entity.Study.of(coll)
-    assert coll.get(ext.study.state.CT_TABLE_KEY) and entity.stored_ct_table_key() == entity.table_key()
+    assert coll.get(ext.state.CT_TABLE_KEY) and entity.stored_ct_table_key() == entity.table_key()
     assert bpy.ops.pdehead.build_solid() == {'FINISHED'}
     colour_after, pixels_after = _solid_arrays(ext, s.solid_object)
     np.testing.assert_allclose(colour_after, colour_now, atol=1.5 / 255)   # the table's 8 bits
@@ -231,7 +231,7 @@ def test_reopen_in_a_new_process_rereads_the_ct_and_loses_nothing(ext, pdehead_e
     diff = np.abs(pixels_after - pixels_now)
     assert pixels_after.shape == pixels_now.shape and np.median(diff) < 1.5 / 255 and np.mean(diff > 1.5 / 255) < 0.3
     s.nw = 6
-    assert s.last_error == "" and ext.study.state.cache_for(s.study_id).ct is None
+    assert s.last_error == "" and ext.state.cache_for(s.study_id).ct is None
     assert len(s.solid_object.data.vertices) > len(colour_now) and _solid_arrays(ext, s.solid_object)[0].std() > 0.05
     s.nu = 30  # surface and solid stay consistent (both at nu = 30)
     assert s.last_error == ""
@@ -253,7 +253,7 @@ def test_a_different_ct_at_the_source_is_refused(ext, tmp_path):
     s = coll.pdehead
     s.source_kind, s.source = "FILES", str(tmp_path / "nothing-here")
     s.source_absolute = ""
-    ext.study.state.drop_cache()
+    ext.state.drop_cache()
     with pytest.raises(Exception, match="source is gone"):
         _ = ext.study.entity.Study.of(coll).ct
     s.source_kind = "PHANTOM"

@@ -86,7 +86,7 @@ def test_a_changed_cube_is_left_alone_and_each_study_gets_its_camera(ext):
         assert bpy.ops.pdehead.run_pipeline(source='PHANTOM', patches=4, nu=20, nv=30, nw=3,
                                             build_volume=False) == {'FINISHED'}
     assert not cube.hide_render and not cube.hide_get()
-    studies = ext.study.state.studies()
+    studies = ext.state.studies()
     assert len(studies) == 2
     cams = [next(o for o in c.objects if o.get("pdehead_kind") == "camera") for c in studies]
     assert cams[0] != cams[1] and scene.camera == cams[1]  # the newest study is framed

@@ -13,7 +13,7 @@ from test_operators import open_blend
 
 
 def _stored(ext, coll):
-    return ext.engine.loads_boundaries(base64.b64decode(coll[ext.study.state.BOUNDARY_KEY]))
+    return ext.engine.loads_boundaries(base64.b64decode(coll[ext.state.BOUNDARY_KEY]))
 
 
 def _panel_labels(ext, coll) -> str:
@@ -67,7 +67,7 @@ def test_auto_selection_and_tolerance_from_the_panel(ext, phantom_blend, tmp_pat
     # saved and reopened: the count and the achieved distance come back with the curves
     path = tmp_path / "tolerance.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(path))
-    ext.study.state.drop_cache()
+    ext.state.drop_cache()
     coll = open_blend(path)
     s = coll.pdehead
     assert s.curve_count == n and s.use_tolerance and s.outline_mean_mm <= 0.12

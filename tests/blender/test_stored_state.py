@@ -37,25 +37,25 @@ def test_a_tampered_file_gives_one_report_per_study_and_the_rest_works(ext, tmp_
     bombed_name, clamped_name = bombed.name, clamped.name
     # the tampering: a zlib bomb as the boundary payload and as the CT table (64 MB + 1 each from ~70 kB),
     # numbers beyond the properties' limits, timings that are no table
-    bombed[ext.study.state.BOUNDARY_KEY] = _boundary_bomb(ext, bombed[ext.study.state.BOUNDARY_KEY],
+    bombed[ext.state.BOUNDARY_KEY] = _boundary_bomb(ext, bombed[ext.state.BOUNDARY_KEY],
                                                     D.MAX_STORED_BOUNDARY_BYTES.default * 4)
     header = json.dumps({"format": ext.engine.SolidCTTable.PACK_FORMAT, "shape": [1024, 1024, 64],
                          "window": [0, 1], "range": [0, 1]}).encode()
     too_big = b"\0" * (D.MAX_STORED_CT_TABLE_BYTES.default + 1)
     table = struct.pack("<I", len(header)) + header + zlib.compress(too_big, 9)
-    bombed[ext.study.state.CT_TABLE_KEY] = base64.b64encode(table).decode("ascii")
-    s = ext.study.state.settings(clamped)
+    bombed[ext.state.CT_TABLE_KEY] = base64.b64encode(table).decode("ascii")
+    s = ext.state.settings(clamped)
     s["nu"] = 100_000_000                      # an IDProperty write: Blender's limits do not apply
     s["nv"] = -5
     s.timings_json = "[not json"
-    ext.study.state.settings(bombed).timings_json = json.dumps({"segment": "x", "pde": float("nan")})
+    ext.state.settings(bombed).timings_json = json.dumps({"segment": "x", "pde": float("nan")})
     bpy.ops.wm.save_mainfile()
 
     bpy.ops.wm.open_mainfile(filepath=str(blend))
     bombed, clamped = bpy.data.collections[bombed_name], bpy.data.collections[clamped_name]
     for coll in (bombed, clamped):
-        ext.study.state.drop_cache(ext.study.state.settings(coll).study_id)
-    s = ext.study.state.settings(clamped)
+        ext.state.drop_cache(ext.state.settings(coll).study_id)
+    s = ext.state.settings(clamped)
     assert (s.nu, s.nv) == (D.NU.max, D.NV.min)
     Study = ext.study.entity.Study
     reports = [w for w in Study.of(clamped).warnings if "outside their limits" in w]

@@ -34,7 +34,7 @@ def test_import_with_build_the_head_ends_framed(ext, phantom_dicom):
     assert default_camera is not None and not cube.hide_render
     assert bpy.ops.pdehead.import_ct(directory=str(phantom_dicom), run_pipeline=True) == {'FINISHED'}
     coll = scene.pdehead.active_study
-    s = ext.study.state.settings(coll)
+    s = ext.state.settings(coll)
     assert s.surface_object and s.solid_object
     camera = ext.scene.scene.study_object(coll, ext.scene.scene.CAMERA_KIND)
     assert camera is not None and scene.camera == camera and camera != default_camera
@@ -76,8 +76,8 @@ def test_save_removes_the_vdb_of_a_study_deleted_in_the_outliner(ext, tmp_path):
     gone = _pipeline(bpy, voxel_size=8.0)
     bpy.ops.wm.save_mainfile()
     folder = tmp_path / ext.volume.vdb_files.VDB_FOLDER_NAME
-    kept_vdb = folder / bpy.path.basename(ext.study.state.settings(kept).volume_object.data.filepath)
-    gone_vdb = folder / bpy.path.basename(ext.study.state.settings(gone).volume_object.data.filepath)
+    kept_vdb = folder / bpy.path.basename(ext.state.settings(kept).volume_object.data.filepath)
+    gone_vdb = folder / bpy.path.basename(ext.state.settings(gone).volume_object.data.filepath)
     assert kept_vdb.is_file() and gone_vdb.is_file() and kept_vdb != gone_vdb
     foreign = folder / "someone_else.vdb"
     foreign.write_bytes(gone_vdb.read_bytes())
@@ -123,6 +123,6 @@ def test_drag_and_drop_opens_the_import_with_the_file(ext, pdehead_ext, phantom_
 
     # the dialog's OK: what Blender runs with the dropped file's values
     assert bpy.ops.pdehead.import_ct(files=[{"name": dcm}], **got) == {'FINISHED'}
-    s = ext.study.state.settings(bpy.context.scene.pdehead.active_study)
+    s = ext.state.settings(bpy.context.scene.pdehead.active_study)
     assert s.source_kind == 'FILES' and s.source == str(phantom_dicom)
     assert tuple(s.dimensions)[:2] == (128, 128) and s.dimensions[2] > 20  # the whole series, not one slice

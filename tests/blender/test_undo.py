@@ -43,7 +43,7 @@ def run_every_operator(ext, study: str):
 def _study(ext, name):
     import bpy
     coll = bpy.data.collections[name]
-    assert ext.study.state.is_study(coll)
+    assert ext.state.is_study(coll)
     return coll, coll.pdehead
 
 
@@ -94,11 +94,11 @@ def test_two_studies_after_reopening_each_operator_acts_on_its_own_study(ext, tm
     for _ in range(2):
         assert bpy.ops.pdehead.run_pipeline(source='PHANTOM', patches=4, nu=20, nv=30, nw=3,
                                             voxel_size=6.0) == {'FINISHED'}
-    names = sorted(c.name for c in ext.study.state.studies())
+    names = sorted(c.name for c in ext.state.studies())
     assert len(names) == 2
     bpy.ops.wm.save_mainfile()
     bpy.ops.wm.open_mainfile(filepath=str(tmp_path / "two.blend"))
-    ext.study.state.drop_cache()  # as in a new session
+    ext.state.drop_cache()  # as in a new session
 
     first, second = (_study(ext, n) for n in names)
     before = blender_inspect.mesh_world_vertices(second[1].solid_object).copy()

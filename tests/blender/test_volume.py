@@ -75,7 +75,7 @@ def test_write_vdb_grids_values_and_transform(ext, tmp_path):
         lo, hi = info[name]["min_max"]
         assert 0.0 <= lo and hi <= 1.0  # windowed, never negative
     # transform: index axes = spacing x direction in metres, origin relative to the object origin
-    expected = ext.scene.coords.grid_affine_world(wf.spacing, wf.origin, wf.direction)
+    expected = ext.coords.grid_affine_world(wf.spacing, wf.origin, wf.direction)
     np.testing.assert_allclose(info["w"]["axes"], expected[:3, :3].T, atol=1e-9)
     np.testing.assert_allclose(info["w"]["origin"] + origin_m, wf.origin * MM, atol=1e-9)
     # known voxels: OpenVDB (i, j, k) holds numpy [k, j, i]
@@ -88,7 +88,7 @@ def test_write_vdb_grids_values_and_transform(ext, tmp_path):
         else:
             assert inten == 0.0
         assert ctv == pytest.approx(min(1.0, (wf.intensity[k, j, i] + 5.0) / 900.0), abs=1e-3)
-        world = np.array(ext.scene.coords.grid_affine_world(wf.spacing, wf.origin, wf.direction) @ [i, j, k, 1])[:3]
+        world = np.array(ext.coords.grid_affine_world(wf.spacing, wf.origin, wf.direction) @ [i, j, k, 1])[:3]
         np.testing.assert_allclose(world, ct.index_to_patient([k, j, i]) * MM, atol=1e-12)
 
 
@@ -111,7 +111,7 @@ def test_ct_grid_covers_the_whole_ct_box_on_its_own_grid(ext, tmp_path):
     assert 0.2 < mask.mean() < 0.95  # both kept and masked voxels: a real check
     kk, jj, ii = np.nonzero(mask)
     assert tuple(info["ct"]["active_box"][1]) == (ii.max(), jj.max(), kk.max())
-    np.testing.assert_allclose(info["w"]["axes"], ext.scene.coords.grid_affine_world(
+    np.testing.assert_allclose(info["w"]["axes"], ext.coords.grid_affine_world(
         wf.spacing, wf.origin, wf.direction)[:3, :3].T, atol=1e-12)  # the w grid keeps its own transform
     kept, masked = np.argwhere(mask), np.argwhere(~mask)
     for k, j, i in [*kept[::max(1, len(kept) // 5)], *masked[::max(1, len(masked) // 4)], (1, 1, 1), (12, 2, 10)]:
@@ -137,7 +137,7 @@ def test_volume_object_lines_up_with_the_surface(ext, phantom, phantom_head, pha
     assert 0.05 < inside.mean() < 0.9
     # where Blender puts the w grid's voxels: object matrix x the grid's own transform
     to_world = np.array(vol.matrix_world) @ np.array(grids["w"].matrix_object)
-    expected = ext.scene.coords.grid_affine_world(wf.spacing, wf.origin, wf.direction)
+    expected = ext.coords.grid_affine_world(wf.spacing, wf.origin, wf.direction)
     np.testing.assert_allclose(to_world, expected, atol=1e-7)
     _needs_openvdb(ext)
     # the active w voxels (the solid) cover the same box as the surface mesh, to a voxel

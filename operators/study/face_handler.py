@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import bpy
 
-from ..study import state
-from ..study.entity import Study
-from .face import FACE_KEY
-from .study import ForensicStudy
+from .. import state
+from ..forensic.face import FACE_KEY
+from ..forensic.study import ForensicStudy
+from .entity import Study
 
 
 def forensic_of(coll):

@@ -32,7 +32,7 @@ import zlib
 
 import numpy as np
 
-from ..scene import objects
+from . import objects
 
 DETAIL_IMAGE_KEY = "pdehead_detail_image"
 DETAIL_MATERIAL_KEY = "pdehead_detail_material"
@@ -187,7 +187,7 @@ def detail_material(obj):
 
 def _settings_of(obj):
     """The study settings whose surface ``obj`` is, or None."""
-    from ..study import state
+    from .. import state
     for coll in getattr(obj, "users_collection", ()):
         s = state.settings(coll)
         if s is not None and s.surface_object == obj:
@@ -286,7 +286,7 @@ def _driven(disp):
 def reopen_with_displacement() -> list[str]:
     """After a file is loaded: every study surface with a detail image gets the displacement in place of a
     bump an earlier version wired (its names)."""
-    from ..study import state
+    from .. import state
     done = []
     for coll in state.studies():
         s = state.settings(coll)

@@ -86,7 +86,7 @@ class Registry:
     progress_hook: Callable | None = None
     #: The handlers running now ("animation", "face", "studies"): a handler does not run inside itself.
     running: set[str] = field(default_factory=set)
-    #: study id -> {group: values last applied} by the animation handler (:mod:`operators.scene.animation`).
+    #: study id -> {group: values last applied} by the animation handler (:mod:`operators.study.animation`).
     animation_applied: dict[str, dict] = field(default_factory=dict)
     #: study id -> names of objects the animation handler hid because their rebuild failed.
     animation_hidden: dict[str, set] = field(default_factory=dict)
@@ -113,7 +113,7 @@ REGISTRY = Registry()
 
 def user_text(message: str) -> str:
     """An engine message in the words of the registry's ``audience``, on one line."""
-    from ...pdehead_addon import message_for_cli, message_for_dialog
+    from ..pdehead_addon import message_for_cli, message_for_dialog
     return message_for_cli(message) if REGISTRY.audience == "cli" else message_for_dialog(message)
 
 
@@ -248,7 +248,7 @@ def migrate_legacy_settings() -> list[str]:
     Returns the names of the migrated study collections. Idempotent: a collection whose
     settings were moved has no legacy group any more.
     """
-    from ..compat import registered_id_properties
+    from .compat import registered_id_properties
     migrated = []
     for coll in bpy.data.collections:
         stored = registered_id_properties(coll)

@@ -28,11 +28,11 @@ import traceback
 import bpy
 
 from ...pdehead_addon import PDEHeadError
-from ..study import state
-from ..study.entity import Study
-from ..study.state import suspended_updates
+from .. import state
+from ..scene import cutter
+from ..state import suspended_updates
 from ..volume import material as volume_material
-from . import cutter
+from .entity import Study
 
 #: Animatable settings, grouped by what a change rebuilds (:meth:`.Study.live_update`'s ``what``).
 GROUPS = {
@@ -295,7 +295,7 @@ def turntable(context, coll, frames: int, start: int = 1):
 
     from ...pdehead_addon import PDEHeadError
     from .. import compat
-    from . import render, scene as scene_mod
+    from ..scene import render, scene as scene_mod
 
     if frames < 2:
         raise PDEHeadError(f"a turntable needs at least 2 frames, got {frames}")

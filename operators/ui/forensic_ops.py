@@ -16,14 +16,14 @@ from bpy.props import BoolProperty, EnumProperty, FloatVectorProperty, IntProper
 from bpy.types import Operator, Panel
 
 from ...pdehead_addon import STANDARD_LANDMARKS, PDEHeadError, defaults as D
-from ..study import state
+from .. import state
+from ..forensic.export import PEG_DEPTH_PROP
+from ..forensic.face import FACE_KEY, HELD_PROP, LABEL_PROP, PROVENANCE_PROP, table_has_sex
+from ..forensic.props import TARGET_ITEMS, max_depth_property
+from ..forensic.skull import DEPTH_ATTRIBUTE, DEPTH_MATERIAL
+from ..forensic.study import MIRROR_PLANES, ForensicStudy
 from ..study.entity import Study
-from ..ui.base import StudyOperator
-from .export import PEG_DEPTH_PROP
-from .face import FACE_KEY, HELD_PROP, LABEL_PROP, PROVENANCE_PROP, approximation_label, table_has_sex
-from .props import TARGET_ITEMS, max_depth_property
-from .skull import DEPTH_ATTRIBUTE, DEPTH_MATERIAL
-from .study import MIRROR_PLANES, ForensicStudy
+from .base import StudyOperator
 
 _LANDMARK_ITEMS = [(d.name, d.name, d.description) for d in STANDARD_LANDMARKS]
 _FORMAT_ITEMS = [('stl', "STL", ""), ('obj', "OBJ", ""), ('ply', "PLY", "")]
@@ -92,7 +92,7 @@ class PDEHEAD_OT_tissue_depth(Operator, _ForensicOp):
     forensic_settings = ("target", "max_depth")
 
     def run_forensic(self, context, fs):
-        st = fs.step_depth(self.target, self.max_depth)
+        st = fs.step_depth(self.target, self.max_depth).values
         self.report({'INFO'}, f"Tissue depth: {st['measured']} of {st['vertices']} vertices measured, "
                               f"median {st.get('median', float('nan')):.1f} mm")
 
@@ -278,12 +278,10 @@ class PDEHEAD_OT_build_face(Operator, _ForensicOp):
     bl_label = "Build Face"
 
     def run_forensic(self, context, fs):
-        obj, pegs = fs.build_face()
-        self.report({'INFO'}, f"{obj.name}: {len(obj.data.vertices)} vertices through {len(pegs)} pegs "
-                              f"({approximation_label()})")
-        report = fs.cache.get("face_report")
-        line = report.summary() if report is not None else None
-        if line:
+        outcome = fs.build_face()
+        self.report({'INFO'}, f"{outcome.objects[0].name}: {outcome.values['vertices']} vertices through "
+                              f"{outcome.values['pegs']} pegs ({outcome.values['label']})")
+        for line in outcome.warnings:
             self.report({'WARNING'}, line + " (hold a peg in the panel to make the face pass through it)")
 
 
@@ -295,7 +293,7 @@ class PDEHEAD_OT_face_sd_range(Operator, _ForensicOp):
     bl_label = "Faces at -1 / +1 SD"
 
     def run_forensic(self, context, fs):
-        made = fs.build_sd_faces()
+        made = fs.build_sd_faces().objects
         self.report({'INFO'}, "Built " + ", ".join(o.name for o in made))
 
 

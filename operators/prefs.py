@@ -7,10 +7,10 @@ import tempfile
 import bpy
 from bpy.props import IntProperty, StringProperty
 
-from ...pdehead_addon import defaults as D
+from ..pdehead_addon import defaults as D
 
 # The extension's package (e.g. "bl_ext.user_default.pdehead"; "pdehead_dev" with the dev shim).
-ADDON_PACKAGE = __package__.rpartition(".operators.")[0]  # the extension: <package>.operators.ui
+ADDON_PACKAGE = __package__.rpartition(".")[0]  # the extension: <package>.operators
 
 
 def default_vdb_folder() -> str:
