@@ -13,13 +13,16 @@ from ..core.ct_volume import CTVolume
 from .scan_contents import PARTIAL_RAMUS_SIDE_MM, partial_mandible
 
 __all__ = ["eroded_components", "give_back_rim", "rami_in_the_bone", "bone_parts", "mandible_report",
-           "metal_streaks", "STREAK_ELONGATION", "VERTEBRA_FRONT_MM", "ARTICULATED_GAP_MM", "MANDIBLE_MIN_MM3"]
+           "metal_streaks", "STREAK_ELONGATION", "STREAK_AIM_MM", "STREAK_MIN_LENGTH_MM", "VERTEBRA_FRONT_MM",
+           "ARTICULATED_GAP_MM", "MANDIBLE_MIN_MM3"]
 
 
 #: A loose piece is a streak when its in-plane length is at least this many times its width.
 STREAK_ELONGATION = 2.0
 #: ... and its long axis, extended, passes within this (mm, or its own width when wider) of the metal.
 STREAK_AIM_MM = 2.0
+#: ... and it is at least this long (mm; shorter bits beside a filling may be the tooth's own edge).
+STREAK_MIN_LENGTH_MM = 5.0
 
 #: A bone component below the skull base whose centroid is less than this (mm) in front of the
 #: cranium's centroid is a cervical vertebra (CThead: C2 31 mm; mandibles: phantom 40, CThead 100 mm).
@@ -200,7 +203,8 @@ def bone_parts(bone: np.ndarray, ct: CTVolume, erosion: int, min_component_mm3: 
 
 
 def metal_streaks(bone: np.ndarray, metal: np.ndarray, spacing, keep: np.ndarray | None = None,
-                  elongation: float = STREAK_ELONGATION, aim_mm: float = STREAK_AIM_MM) -> tuple[np.ndarray, int]:
+                  elongation: float = STREAK_ELONGATION, aim_mm: float = STREAK_AIM_MM,
+                  min_length_mm: float = STREAK_MIN_LENGTH_MM) -> tuple[np.ndarray, int]:
     """The metal streak artefacts among the bone: loose straight pieces in the metal's slices that point at it.
 
     Dental fillings and other metal throw bright streaks along the projection lines through them (photon
@@ -209,9 +213,10 @@ def metal_streaks(bone: np.ndarray, metal: np.ndarray, spacing, keep: np.ndarray
     bone level it lies in the soft tissue as a thin, straight piece that does not join the bone. A piece of
     ``bone`` (6-connected, any but the largest) is a streak when at least half of its voxels lie in slices
     holding ``metal``, its in-plane extent (principal axes of its pixel positions in mm) is at least
-    ``elongation`` times longer than wide, and its long axis, extended, passes within ``aim_mm`` (or its own
-    width, when wider) of a metal voxel of its slices. Bone joined to the skull, pieces in metal-free slices
-    (nasal bones, thin maxillae, teeth without fillings) and compact or off-axis pieces stay.
+    ``min_length_mm`` long and ``elongation`` times longer than wide, and its long axis, extended, passes
+    within ``aim_mm`` (or its own width, when wider) of a metal voxel of its slices. Bone joined to the
+    skull, pieces in metal-free slices (nasal bones, thin maxillae, teeth without fillings) and compact,
+    short or off-axis pieces stay.
 
     Parameters
     ----------
@@ -262,6 +267,8 @@ def metal_streaks(bone: np.ndarray, metal: np.ndarray, spacing, keep: np.ndarray
         evals = np.maximum(evals, 0.0)
         if evals[1] <= 0 or evals[1] < elongation ** 2 * evals[0]:
             continue                                   # a point, or not elongated (a straight line has evals[0] = 0)
+        if 12.0 * evals[1] < min_length_mm ** 2:       # the length of a straight piece is sqrt(12 var)
+            continue
         axis = evecs[:, 1]
         mj, mi = np.nonzero(metal[np.unique(kk[has_metal[kk]])].any(axis=0))
         off_axis = np.abs((mj * dy - centre[0]) * axis[1] - (mi * dx - centre[1]) * axis[0])
