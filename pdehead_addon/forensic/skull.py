@@ -37,8 +37,10 @@ Steps of :func:`segment_skull`:
    of at least ``min_component_mm3`` is kept (the mandible, which is separate at
    a bone level, nasal bones, teeth) except the cervical vertebrae (below the
    skull base and not in front of the cranium's centre);
-6. enclosed cavities (diploe, closed sinuses) are filled (``bone``), then each
-   slice's convex hull is the envelope (``mask``).
+6. enclosed cavities (diploe, closed sinuses) are filled (``bone``); the metal's
+   streak artefacts that pass the bone level (loose straight pieces in the metal's
+   slices pointing at it: :func:`~.skull_parts.metal_streaks`) are removed; then
+   each slice's convex hull is the envelope (``mask``).
 """
 from __future__ import annotations
 
@@ -60,7 +62,7 @@ from .scan_contents import (  # noqa: F401
     partial_mandible,
     soft_tissue_present,
 )
-from .skull_parts import bone_parts, give_back_rim, mandible_report, rami_in_the_bone
+from .skull_parts import bone_parts, give_back_rim, mandible_report, metal_streaks, rami_in_the_bone
 
 #: HU assigned to the air and soft-tissue modes when the scan is not calibrated.
 AIR_HU, TISSUE_HU = -1000.0, 40.0
@@ -222,7 +224,8 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
     one voxel (26-connected); the largest is the cranium; the others are kept when at least
     ``min_component_mm3``, not a cervical vertebra, and inside the cranium's box grown by
     ``SUPPORT_MARGIN_MM`` (below it by ``MANDIBLE_BELOW_MM``): supports, foam, the table, holders and loose
-    fragments lie outside or are small. The mandible is reported (``meta["mandible"]``: present,
+    fragments lie outside or are small; the metal's streaks that pass the bone level are dropped
+    (:func:`~.skull_parts.metal_streaks`). The mandible is reported (``meta["mandible"]``: present,
     articulated, the condyle gap), with a warning when it is missing or not articulated.
 
     Parameters
@@ -299,6 +302,14 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
     erosion = parts["erosion"]
     del labels, grown, rest, core, parts
     skull = ndi.binary_fill_holes(skull)
+    streaks, streak_pieces = (metal_streaks(skull, ct.data >= np.float32(metal_stored), ct.spacing,
+                                            keep=mandible_mask) if n_metal else (None, 0))
+    if streak_pieces:
+        skull &= ~streaks
+        if mandible_mask is not None:
+            mandible_mask &= ~streaks
+    n_streak = int(np.count_nonzero(streaks)) if streak_pieces else 0
+    del streaks
     envelope = _envelope(skull)
 
     warnings_ = _mandible_warnings(mandible)
@@ -312,6 +323,7 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
                 bone_level_source=info.get("source", ""), metal_level=metal_stored, calibrated=calibrated,
                 histogram=info, has_skin=has_skin, soft_tissue=skin_info, metal_voxels=n_metal,
                 components=components, components_total=int(n), erosion_voxels=erosion,
+                metal_streak_voxels=n_streak, metal_streak_pieces=int(streak_pieces),
                 kept_components=int(np.count_nonzero(keep)),
                 dropped_vertebra_mm3=float(dropped_vertebra * voxel_mm3),
                 dropped_support_mm3=float(dropped_support * voxel_mm3),

@@ -13,8 +13,16 @@ from ..core.ct_volume import CTVolume
 from .scan_contents import PARTIAL_RAMUS_SIDE_MM, partial_mandible
 
 __all__ = ["eroded_components", "give_back_rim", "rami_in_the_bone", "bone_parts", "mandible_report",
-           "VERTEBRA_FRONT_MM", "ARTICULATED_GAP_MM", "MANDIBLE_MIN_MM3"]
+           "metal_streaks", "STREAK_ELONGATION", "STREAK_AIM_MM", "STREAK_MIN_LENGTH_MM", "VERTEBRA_FRONT_MM",
+           "ARTICULATED_GAP_MM", "MANDIBLE_MIN_MM3"]
 
+
+#: A loose piece is a streak when its in-plane length is at least this many times its width.
+STREAK_ELONGATION = 2.0
+#: ... and its long axis, extended, passes within this (mm, or its own width when wider) of the metal.
+STREAK_AIM_MM = 2.0
+#: ... and it is at least this long (mm; shorter bits beside a filling may be the tooth's own edge).
+STREAK_MIN_LENGTH_MM = 5.0
 
 #: A bone component below the skull base whose centroid is less than this (mm) in front of the
 #: cranium's centroid is a cervical vertebra (CThead: C2 31 mm; mandibles: phantom 40, CThead 100 mm).
@@ -192,3 +200,79 @@ def bone_parts(bone: np.ndarray, ct: CTVolume, erosion: int, min_component_mm3: 
     keep[cranium - 1] = True
     return dict(core=core, labels=labels, n=n, sizes=sizes, boxes=boxes, cranium=cranium, centroids_xyz=centroids_xyz,
                 big=big, vertebra=vertebra, outside=outside, keep=keep, crbox=crbox, erosion=int(erosion))
+
+
+def metal_streaks(bone: np.ndarray, metal: np.ndarray, spacing, keep: np.ndarray | None = None,
+                  elongation: float = STREAK_ELONGATION, aim_mm: float = STREAK_AIM_MM,
+                  min_length_mm: float = STREAK_MIN_LENGTH_MM) -> tuple[np.ndarray, int]:
+    """The metal streak artefacts among the bone: loose straight pieces in the metal's slices that point at it.
+
+    Dental fillings and other metal throw bright streaks along the projection lines through them (photon
+    starvation and beam hardening: Barrett & Keat 2004); in a 2-D axial reconstruction they are confined to
+    the slices holding the metal and radiate from it in-plane. Where a streak is bright enough to pass the
+    bone level it lies in the soft tissue as a thin, straight piece that does not join the bone. A piece of
+    ``bone`` (6-connected, any but the largest) is a streak when at least half of its voxels lie in slices
+    holding ``metal``, its in-plane extent (principal axes of its pixel positions in mm) is at least
+    ``min_length_mm`` long and ``elongation`` times longer than wide, and its long axis, extended, passes
+    within ``aim_mm`` (or its own width, when wider) of a metal voxel of its slices. Bone joined to the
+    skull, pieces in metal-free slices (nasal bones, thin maxillae, teeth without fillings) and compact,
+    short or off-axis pieces stay.
+
+    Parameters
+    ----------
+    bone : ndarray of bool (z, y, x)
+    metal : ndarray of bool (z, y, x)
+        Metal voxels (above the metal level), not dilated.
+    spacing : sequence of float
+        (dz, dy, dx) in mm.
+    keep : ndarray of bool, optional
+        Bone found to be a part of the skull (the mandible): pieces touching it stay.
+
+    Returns
+    -------
+    streaks : ndarray of bool
+        The streak voxels.
+    pieces : int
+        How many pieces they form.
+
+    References
+    ----------
+    Barrett JF, Keat N. Artifacts in CT: recognition and avoidance. RadioGraphics 2004;24(6):1679-1691
+    (metal streaking: "streaks" from photon starvation and beam hardening radiating from high-density
+    objects such as dental fillings).
+    """
+    streaks = np.zeros(bone.shape, dtype=bool)
+    has_metal = metal.any(axis=(1, 2))
+    if not has_metal.any() or not bone.any():
+        return streaks, 0
+    labels, n = ndi.label(bone)
+    sizes = np.bincount(labels.reshape(-1), minlength=n + 1)
+    sizes[0] = 0
+    largest = int(np.argmax(sizes))
+    kept = np.zeros(n + 1, dtype=bool)
+    if keep is not None:
+        kept[np.unique(labels[keep])] = True
+    dy, dx = (float(h) for h in spacing[1:])
+    pieces = 0
+    for index, sl in enumerate(ndi.find_objects(labels), start=1):
+        if sl is None or index == largest or kept[index] or sizes[index] < 3 or not has_metal[sl[0]].any():
+            continue
+        kk, jj, ii = np.nonzero(labels[sl] == index)
+        kk = kk + sl[0].start
+        if 2 * np.count_nonzero(has_metal[kk]) < kk.size:
+            continue
+        pts = np.stack([(jj + sl[1].start) * dy, (ii + sl[2].start) * dx], axis=1)
+        centre = pts.mean(axis=0)
+        evals, evecs = np.linalg.eigh(np.cov((pts - centre).T))
+        evals = np.maximum(evals, 0.0)
+        if evals[1] <= 0 or evals[1] < elongation ** 2 * evals[0]:
+            continue                                   # a point, or not elongated (a straight line has evals[0] = 0)
+        if 12.0 * evals[1] < min_length_mm ** 2:       # the length of a straight piece is sqrt(12 var)
+            continue
+        axis = evecs[:, 1]
+        mj, mi = np.nonzero(metal[np.unique(kk[has_metal[kk]])].any(axis=0))
+        off_axis = np.abs((mj * dy - centre[0]) * axis[1] - (mi * dx - centre[1]) * axis[0])
+        if float(off_axis.min()) <= max(aim_mm, 2.0 * float(np.sqrt(evals[0]))):
+            streaks[sl] |= labels[sl] == index
+            pieces += 1
+    return streaks, pieces
