@@ -5,7 +5,9 @@ in CI (CI=true) it fails, because the real-data tests must run there.
 """
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
 import sys
 import tempfile
 from pathlib import Path
@@ -15,8 +17,11 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-# Keep Blender away from the real user folder; must happen before any `import bpy`.
-os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="pdehead-blender-user-"))
+# Keep Blender away from the real user folder; must happen before any `import bpy`. The folder holds the
+# installed extension (~300 MB with its wheels): removed when the session ends, or every run leaves one behind.
+if "BLENDER_USER_RESOURCES" not in os.environ:
+    os.environ["BLENDER_USER_RESOURCES"] = tempfile.mkdtemp(prefix="pdehead-blender-user-")
+    atexit.register(shutil.rmtree, os.environ["BLENDER_USER_RESOURCES"], ignore_errors=True)
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from datasets import CTHEAD_RAW16_OPTIONS, CTHEAD_TIFF8_OPTIONS, IN_CI, SHARED_DATA, shared_data  # noqa: E402,F401
