@@ -18,7 +18,10 @@ Method
 2. **The skin.** The head mask is smoothed by a Gaussian of ``sigma_mm`` per axis (mm, converted to voxels
    per axis; the slice axis at least ``SLICE_SIGMA`` of a slice step, so a 2 mm scan's outline steps do not
    shade as horizontal bands) and its 0.5 level is the skin: the same level marching cubes of the smoothed
-   mask shows.
+   mask shows. Where the PDE surface is upright (its normal across the slice axis) a slice step hardly moves
+   the skin along the normal, so there the skin is taken from a mask smoothed by only
+   ``UPRIGHT_SLICE_SIGMA`` of a step along the slices, which keeps one-slice creases (a closed eye's lid
+   line), blended into the first by the normal's slice-axis component (``UPRIGHT_NZ``).
 3. **The offset.** Along the outward normal the smoothed mask is sampled (``scipy.ndimage.map_coordinates``,
    order 1) at offsets ``-max_mm .. +max_mm`` every ``step_mm``; the crossing of 0.5 from inside (> 0.5) to
    outside nearest the surface, placed linearly between its two samples, is the texel's height (mm,
@@ -54,6 +57,15 @@ __all__ = ["ct_detail_map", "detail_map_stages", "DetailMap", "texel_surface", "
 #: Looked at on CThead (Cycles, front and three-quarter): 0.6 banded the cheeks, 1.0 lost most of the
 #: closed upper eyelid's line; 0.8 (1.6 mm) shows the lid line without bands on the face.
 SLICE_SIGMA = 0.8
+
+#: Where the PDE surface is upright (its normal across the slice axis) the slices cut the skin square on, so a
+#: slice step moves the skin along the normal by ~|n_z| x the step and hardly at all where |n_z| is small;
+#: there the mask is smoothed along the slice axis by only ``UPRIGHT_SLICE_SIGMA`` of a step (at least
+#: ``sigma_mm``), which keeps one-slice creases such as a closed eye's lid line. The two masks' offsets are
+#: blended by the surface normal's |n_z|: the thin one alone below ``UPRIGHT_NZ[0]``, the
+#: :data:`SLICE_SIGMA` one alone above ``UPRIGHT_NZ[1]``.
+UPRIGHT_SLICE_SIGMA = 0.3
+UPRIGHT_NZ = (0.15, 0.35)
 
 #: Fade of the map where the surface faces up (the normal's patient z, the slice axis: from 1 at
 #: ``UP_FADE[0]`` to 0 at ``UP_FADE[1]``): there the slices cut the skin at a glancing angle and a 2 mm step
@@ -98,12 +110,15 @@ class DetailMap:
     meta: dict = field(default_factory=dict)
 
 
-def smooth_mask(mask: np.ndarray, spacing, sigma_mm: float) -> np.ndarray:
+def smooth_mask(mask: np.ndarray, spacing, sigma_mm: float, slice_sigma: float = SLICE_SIGMA,
+                slice_sigma_mm: float | None = None) -> np.ndarray:
     """The head mask as float32 smoothed by a Gaussian of ``sigma_mm`` per axis (``spacing``: (dz, dy, dx)
-    mm), the slice axis (0) at least :data:`SLICE_SIGMA` of its step."""
+    mm), the slice axis (0) at least ``slice_sigma`` of its step; or, given ``slice_sigma_mm``, by
+    exactly that along the slice axis."""
     from scipy.ndimage import gaussian_filter
     dz, dy, dx = (float(s) for s in spacing)
-    sigma = np.array([max(sigma_mm, SLICE_SIGMA * dz), sigma_mm, sigma_mm]) / np.array([dz, dy, dx])
+    along = max(sigma_mm, slice_sigma * dz) if slice_sigma_mm is None else float(slice_sigma_mm)
+    sigma = np.array([along, sigma_mm, sigma_mm]) / np.array([dz, dy, dx])
     return gaussian_filter(np.asarray(mask, np.float32), sigma=sigma, mode="constant", cval=0.0, truncate=3.0)
 
 
@@ -390,7 +405,9 @@ def ct_detail_map(head, mask: np.ndarray, ct, resolution: int = D.DETAIL_RESOLUT
     (docs/method.md, "The closed eyes: a CT detail map"): ~2.6 s of CPU (the branch's first version 3.2 s): the
     mask's Gaussian ~0.2 s, the texels (the surface meshed at ~1M vertices and rasterised) ~1.2 s,
     sampling ~1 s (13 samples a texel where sampling every 0.25 mm took 25), softening and gutters
-    0.1 s; ~0.3 GB at its peak (the texel mesh and its rasterised triangles, in chunks).
+    0.1 s; ~0.3 GB at its peak (the texel mesh and its rasterised triangles, in chunks). The upright
+    texels' thin-smoothed mask (:data:`UPRIGHT_SLICE_SIGMA`) adds a second Gaussian (~0.2 s) and their
+    second search (~0.6 s on a loaded machine: sampling 1.7 -> 2.3 s).
     """
     from ..core.errors import report_progress
     stages = detail_map_stages(head, mask, ct, resolution, sigma_mm, max_mm, step_mm, coarse_steps)
@@ -417,6 +434,7 @@ def detail_map_stages(head, mask: np.ndarray, ct, resolution: int = D.DETAIL_RES
     clock = {}
     t0 = time.perf_counter()
     smoothed = smooth_mask(mask, ct.spacing, float(sigma_mm))
+    upright = smooth_mask(mask, ct.spacing, float(sigma_mm), slice_sigma_mm=UPRIGHT_SLICE_SIGMA * float(ct.spacing[0]))
     clock["smooth_s"] = time.perf_counter() - t0
     yield 0.1, "the texels of the surface's UV map"
     t1 = time.perf_counter()
@@ -427,16 +445,26 @@ def detail_map_stages(head, mask: np.ndarray, ct, resolution: int = D.DETAIL_RES
     offset = np.zeros(len(texel), np.float32)
     hit = np.zeros(len(texel), bool)
     clock["sample_s"] = 0.0
+    nz = np.abs(normals @ _slice_axis(ct))
+    thin = np.clip((UPRIGHT_NZ[1] - nz) / (UPRIGHT_NZ[1] - UPRIGHT_NZ[0]), 0.0, 1.0).astype(np.float32)
     for start in range(0, len(texel), chunk):
         t2 = time.perf_counter()
         sl = slice(start, start + chunk)
         offset[sl], hit[sl] = offset_to_level(smoothed, to_index, points[sl], normals[sl], float(max_mm),
                                               float(step_mm), chunk=chunk, coarse_steps=coarse_steps)
+        near = np.flatnonzero(thin[sl] > 0) + start             # upright texels: the thin mask's offset too
+        if near.size:
+            o2, h2 = offset_to_level(upright, to_index, points[near], normals[near], float(max_mm), float(step_mm),
+                                     chunk=chunk, coarse_steps=coarse_steps)
+            w = thin[near]
+            both = hit[near] & h2
+            offset[near] = np.where(both, w * o2 + (1 - w) * offset[near], np.where(h2 & (w >= 0.5), o2, offset[near]))
+            hit[near] |= h2 & (w >= 0.5)
         clock["sample_s"] += time.perf_counter() - t2
         yield 0.4 + 0.55 * min(start + chunk, len(texel)) / len(texel), "sampling the skin along the normals"
     t3 = time.perf_counter()
     offset *= np.clip((UP_FADE[1] - normals @ _slice_axis(ct)) / (UP_FADE[1] - UP_FADE[0]), 0.0, 1.0).astype(np.float32)
-    del smoothed
+    del smoothed, upright
     height = np.zeros(res * res, np.float32)
     covered = np.zeros(res * res, bool)
     found = np.zeros(res * res, bool)

@@ -196,3 +196,40 @@ def visible_face_distance(surface_vertices: np.ndarray, surface_faces: np.ndarra
     out["score_mean"] = 0.5 * (out["surface_to_mask"]["mean"] + out["mask_to_surface"]["mean"])
     out["score_p95"] = max(out["surface_to_mask"]["p95"], out["mask_to_surface"]["p95"])
     return out
+
+
+def face_banding(vertices: np.ndarray, faces: np.ndarray, centre_xy, pronasale_point: np.ndarray,
+                 density: float = 4.0, dz: float = 0.5, sigma_mm: float = 3.0, seed: int = 0) -> float:
+    """Slice banding on the face: the RMS (mm) of the face's outermost radius minus its Gaussian of
+    ``sigma_mm`` along z.
+
+    Points sampled by area (``density`` per mm^2) inside :func:`face_window` are binned by their angle
+    about ``centre_xy`` (1 degree, from -60 to 60 straight ahead) and their height (``dz`` mm, from 70 mm
+    under the pronasale); per bin the largest horizontal radius is the face's outline. Its Gaussian along z
+    (normalised over the bins that hold points) is the face's large-scale shape; the RMS of the difference,
+    over the bins whose Gaussian sees >= 95 % filled bins, counts slice steps and the face's own small
+    features (nose, lips, lids) alike, so it is compared with a reference (e.g. marching cubes of the
+    smoothed mask), not with 0.
+    """
+    from scipy.ndimage import gaussian_filter1d
+    v, t = np.asarray(vertices, float), triangulate(faces)
+    area = 0.5 * np.linalg.norm(np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]), axis=1).sum()
+    pts, _ = sample_surface(v, t, int(area * density), np.random.default_rng(seed))
+    pts = pts[face_window(pts, centre_xy, pronasale_point)]
+    d = pts[:, :2] - np.asarray(centre_xy, float)[None]
+    angle, radius = np.degrees(np.arctan2(d[:, 0], -d[:, 1])), np.hypot(d[:, 0], d[:, 1])
+    a = np.floor(angle + 60.0).astype(int)
+    z0 = float(pronasale_point[2]) - 70.0
+    k = np.floor((pts[:, 2] - z0) / dz).astype(int)
+    na, nz = 121, int(np.ceil(130.0 / dz)) + 1
+    keep = (a >= 0) & (a < na) & (k >= 0) & (k < nz)
+    r = np.full(na * nz, -np.inf)
+    np.maximum.at(r, a[keep] * nz + k[keep], radius[keep])
+    r = r.reshape(na, nz)
+    have = np.isfinite(r)
+    w = have.astype(float)
+    s = sigma_mm / dz
+    cover = gaussian_filter1d(w, s, axis=1, mode="constant")
+    smooth = gaussian_filter1d(np.where(have, r, 0.0), s, axis=1, mode="constant") / np.maximum(cover, 1e-9)
+    inner = have & (cover > 0.95)                                   # away from holes and ends
+    return float(np.sqrt(np.mean((r - smooth)[inner] ** 2)))

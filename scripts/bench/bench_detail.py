@@ -50,35 +50,11 @@ def _faces(mesh):
         if len(mesh.quads) else mesh.triangles
 
 
-def face_banding(vertices, faces, centre_xy, tip, density: float = 4.0, dz: float = 0.5,
-                 sigma_mm: float = 3.0, seed: int = 0) -> float:
-    """RMS (mm) of the face's outermost radius minus its Gaussian of ``sigma_mm`` along z (module docstring)."""
-    from scipy.ndimage import gaussian_filter1d
-
-    from pdehead_addon.core.mesh_geometry import sample_surface, triangulate
-    from pdehead_addon.validation.surface_metrics import face_window
-    v, t = np.asarray(vertices, float), triangulate(faces)
-    area = 0.5 * np.linalg.norm(np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]), axis=1).sum()
-    pts, _ = sample_surface(v, t, int(area * density), np.random.default_rng(seed))
-    pts = pts[face_window(pts, centre_xy, tip)]
-    d = pts[:, :2] - np.asarray(centre_xy, float)[None]
-    angle, radius = np.degrees(np.arctan2(d[:, 0], -d[:, 1])), np.hypot(d[:, 0], d[:, 1])
-    a = np.floor(angle + 60.0).astype(int)
-    z0 = float(tip[2]) - 70.0
-    k = np.floor((pts[:, 2] - z0) / dz).astype(int)
-    na, nz = 121, int(np.ceil(130.0 / dz)) + 1
-    keep = (a >= 0) & (a < na) & (k >= 0) & (k < nz)
-    r = np.full(na * nz, -np.inf)
-    np.maximum.at(r, a[keep] * nz + k[keep], radius[keep])
-    r = r.reshape(na, nz)
-    have = np.isfinite(r)
-    w = have.astype(float)
-    filled = np.where(have, r, 0.0)
-    s = sigma_mm / dz
-    smooth = gaussian_filter1d(filled, s, axis=1, mode="constant") / np.maximum(
-        gaussian_filter1d(w, s, axis=1, mode="constant"), 1e-9)
-    inner = have & (gaussian_filter1d(w, s, axis=1, mode="constant") > 0.95)   # away from holes and ends
-    return float(np.sqrt(np.mean((r - smooth)[inner] ** 2)))
+def face_banding(vertices, faces, centre_xy, tip, **kw) -> float:
+    """RMS (mm) of the face's outermost radius minus its Gaussian of 3 mm along z
+    (:func:`pdehead_addon.validation.surface_metrics.face_banding`)."""
+    from pdehead_addon.validation.surface_metrics import face_banding as banding
+    return banding(vertices, faces, centre_xy, tip, **kw)
 
 
 def smoothed_mask_mesh(seg, sigma_mm: float = 1.2):
@@ -191,13 +167,18 @@ def markdown(res: dict) -> str:
               "phantom "
               "(the test's face) 536 x 1298, 1,487,532 triangles, 0.046 mm over its face window, watertight "
               "(with even columns it stopped at the cap, 617 x 1498, 1.98 M triangles, at 0.069 mm); before, "
-              "face.stl was the viewport's 160 x 240 mesh. The eyelid line at strength 1 (faint; investigated, not "
-              "changed): the map is not what limits it (1024 px texels are 0.56 mm on CThead's face, p95 0.67; "
-              "2048 px 0.28), the smoothing is: the head mask's Gaussian is 1.2 mm across and 1.6 mm along the "
-              "slices (`detail_map.SLICE_SIGMA` 0.8 of CThead's 2 mm step, against banding) and the map is softened "
-              "by one texel, about 1.7 mm along z in all, over a 1 mm crease that lies along the slices (a "
-              "one-slice feature of a 2 mm scan); a thinner slice-axis Gaussian over the face alone is what would "
-              "sharpen it, at the cost of the bands that 0.6 showed on the cheeks.", ""]
+              "face.stl was the viewport's 160 x 240 mesh. The eyelid line at strength 1: the map (1024 px texels are "
+              "0.56 mm on CThead's face) was not what limited it, the smoothing was: a Gaussian of 1.6 mm along the "
+              "slices (`detail_map.SLICE_SIGMA` 0.8 of CThead's 2 mm step, against banding) over a 1 mm crease one "
+              "slice high. Now where the PDE surface is upright (|n_z| <= 0.15, blended to 0.35: "
+              "`detail_map.UPRIGHT_NZ`) the skin is found in a mask smoothed by only 0.3 of a step along the slices "
+              "(`UPRIGHT_SLICE_SIGMA`, 0.6 mm on CThead): there a slice step moves the skin along the normal by "
+              "~|n_z| x the step, so the thin Gaussian keeps creases without bringing back bands, and oblique skin "
+              "(cheekbones, brows, the crown) keeps the 0.8-step Gaussian. CThead at strength 1 before: 0.178 / "
+              "0.498 mm, banding 0.487 mm; tried (thin sigma, |n_z| blend): 0.3, 0.25-0.5: 0.154 / 0.412, 0.523 "
+              "(renders: bands under the brows seen from below); 0.3, 0.1-0.3: 0.163 / 0.449, 0.514; 0.4, "
+              "0.15-0.35: 0.161 / 0.444, 0.506. Renders: [detail_face_eyes.png](figures/detail_face_eyes.png) "
+              "(`detail_figures.py --eyes`), [detail_face_zoom.png](figures/detail_face_zoom.png) (`--zoom`).", ""]
     return "\n".join(lines)
 
 

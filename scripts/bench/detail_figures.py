@@ -38,6 +38,9 @@ def main(argv=None) -> int:
     ap.add_argument("--zoom", action="store_true",
                     help="detail_face_zoom.png: the eyes and nose only (35 mm either side, 25 mm under to 45 mm "
                          "over the nose tip), front and from below-front (the nostrils)")
+    ap.add_argument("--eyes", action="store_true",
+                    help="detail_face_eyes.png: the closed eyes only (50 mm either side, 10 to 55 mm over the nose "
+                         "tip), front and three-quarter, marching cubes beside strengths 0, 0.5 and 1")
     args = ap.parse_args(argv)
     bl = _common.blender()
     bpy, objects, render, detail = bl["bpy"], bl["objects"], bl["render"], bl["detail_map"]
@@ -72,6 +75,11 @@ def main(argv=None) -> int:
         hi = 0.001 * (tip + np.array([35.0, 40.0, 45.0]))
         tiles = [tiles[0], tiles[1], tiles[3]]
         args.views = "FRONT,BELOW_FRONT"
+    if args.eyes:
+        # the closed upper lids' line, seen from the front and three-quarter
+        lo = 0.001 * (tip + np.array([-50.0, 0.0, 10.0]))
+        hi = 0.001 * (tip + np.array([50.0, 50.0, 55.0]))
+        tiles = tiles[:4]
     tmp = args.out / ".tile_detail.png"
     rows = []
     for view in args.views.split(","):
@@ -85,7 +93,8 @@ def main(argv=None) -> int:
             row.append(im)
         rows.append(row)
     tmp.unlink(missing_ok=True)
-    sheet(rows, args.out / ("detail_face_zoom.png" if args.zoom else "detail_face.png"))
+    sheet(rows, args.out / ("detail_face_zoom.png" if args.zoom else "detail_face_eyes.png" if args.eyes
+                             else "detail_face.png"))
     return 0
 
 
