@@ -12,9 +12,9 @@ from scipy import ndimage as ndi
 from ..core.ct_volume import CTVolume
 from .scan_contents import PARTIAL_RAMUS_SIDE_MM, partial_mandible
 
-__all__ = ["eroded_components", "give_back_rim", "rami_in_the_bone", "bone_parts", "mandible_report", "split_spine_from_cranium",
-           "metal_streaks", "STREAK_ELONGATION", "STREAK_AIM_MM", "STREAK_MIN_LENGTH_MM", "VERTEBRA_FRONT_MM",
-           "ARTICULATED_GAP_MM", "MANDIBLE_MIN_MM3"]
+__all__ = ["eroded_components", "give_back_rim", "rami_in_the_bone", "bone_parts", "mandible_report",
+           "split_spine_from_cranium", "metal_streaks", "STREAK_ELONGATION", "STREAK_AIM_MM", "STREAK_MIN_LENGTH_MM",
+           "VERTEBRA_FRONT_MM", "ARTICULATED_GAP_MM", "MANDIBLE_MIN_MM3"]
 
 
 #: A loose piece is a streak when its in-plane length is at least this many times its width.
