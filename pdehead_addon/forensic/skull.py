@@ -299,7 +299,7 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
         mandible, mandible_mask = rami_in_the_bone(bone & ~dropped, grown == cranium, ct, min_component_mm3)
         if mandible_mask is not None:
             skull |= mandible_mask
-    erosion = parts["erosion"]
+    erosion, spine_split = parts["erosion"], parts["spine_split"]
     del labels, grown, rest, core, parts
     skull = ndi.binary_fill_holes(skull)
     streaks, streak_pieces = (metal_streaks(skull, ct.data >= np.float32(metal_stored), ct.spacing,
@@ -322,7 +322,7 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
                 bone_level_stored=float(stored), units=units,
                 bone_level_source=info.get("source", ""), metal_level=metal_stored, calibrated=calibrated,
                 histogram=info, has_skin=has_skin, soft_tissue=skin_info, metal_voxels=n_metal,
-                components=components, components_total=int(n), erosion_voxels=erosion,
+                components=components, components_total=int(n), erosion_voxels=erosion, spine_split=spine_split,
                 metal_streak_voxels=n_streak, metal_streak_pieces=int(streak_pieces),
                 kept_components=int(np.count_nonzero(keep)),
                 dropped_vertebra_mm3=float(dropped_vertebra * voxel_mm3),

@@ -13,8 +13,8 @@ from ..core.ct_volume import CTVolume
 from .scan_contents import PARTIAL_RAMUS_SIDE_MM, partial_mandible
 
 __all__ = ["eroded_components", "give_back_rim", "rami_in_the_bone", "bone_parts", "mandible_report",
-           "metal_streaks", "STREAK_ELONGATION", "STREAK_AIM_MM", "STREAK_MIN_LENGTH_MM", "VERTEBRA_FRONT_MM",
-           "ARTICULATED_GAP_MM", "MANDIBLE_MIN_MM3"]
+           "split_spine_from_cranium", "metal_streaks", "STREAK_ELONGATION", "STREAK_AIM_MM", "STREAK_MIN_LENGTH_MM",
+           "VERTEBRA_FRONT_MM", "ARTICULATED_GAP_MM", "MANDIBLE_MIN_MM3"]
 
 
 #: A loose piece is a streak when its in-plane length is at least this many times its width.
@@ -167,6 +167,88 @@ def mandible_report(core_labels, keep, sizes, centroids_xyz, cranium: int, ct: C
             "centroid_mm": [round(float(c), 1) for c in centroids_xyz[m]]}
 
 
+#: A cervical spine joined to the cranium at the atlanto-occipital joint at partial volume (a low bone level: CThead
+#: at 1500) is split off by eroding the cranium's component by up to this many more voxels: the joint's cartilage
+#: space (1-2 mm) is bridged by a voxel of partial volume, the skull base around it is thicker (two more voxels
+#: broke GE's skull base, cut by its tilted slab, into pieces below the core).
+SPINE_SPLIT_EXTRA_EROSION = 1
+#: ... and what is split off is at most this share of the component: the upper cervical spine at a bone level is a
+#: few percent of the skull (CThead at 1500: C1-C3 3 %); a larger part is the cranium itself broken by the erosion
+#: (the phantom's face and skull base at two more voxels).
+SPINE_MAX_SHARE = 0.1
+#: ... and reaches at least this far (mm) below the cranium's core: the atlas and the axis's body reach 35-40 mm
+#: below the occipital condyles, which stand less than 15 mm below the skull base's thick core (left with the
+#: cranium; CThead at its own level: a piece 16 mm deep by the left condyle).
+SPINE_MIN_DROP_MM = 25.0
+
+
+def split_spine_from_cranium(labels: np.ndarray, n: int, cranium: int, ct: CTVolume,
+                             min_component_mm3: float) -> tuple[np.ndarray, int, dict]:
+    """Split a cervical spine still joined to the cranium's component off it.
+
+    The cranium's component (of the bone eroded once) is eroded by 1 to :data:`SPINE_SPLIT_EXTRA_EROSION` more
+    voxels: the thick cranium stays one piece (the largest), the joint's bridge and the thin vertebrae break into
+    pieces. The pieces whose centroid lies below the largest's lowest point (the skull base's core) and not more
+    than :data:`VERTEBRA_FRONT_MM` in front of its centroid (the teeth and the maxilla's edge lie in front) are the
+    spine's. Every voxel of the component goes to the nearest piece (Euclidean; the pieces in front below the skull
+    base take none); the spine's pieces' voxels, together of at least ``min_component_mm3``, at most
+    :data:`SPINE_MAX_SHARE` of the component and reaching :data:`SPINE_MIN_DROP_MM` below the largest piece, get
+    a new label; the rest stays the cranium.
+
+    Returns
+    -------
+    (labels, n, info)
+        ``labels`` with the spine labelled ``n + 1`` (the input is changed in place), the new count, and ``info``:
+        ``extra_erosion`` (0: nothing split) and ``split_mm3``.
+    """
+    info = {"extra_erosion": 0, "split_mm3": 0.0}
+    box = ndi.find_objects((labels == cranium).astype(np.int8))[0]
+    comp = labels[box] == cranium
+    offset = np.array([b.start for b in box], float)
+    voxel_mm3 = float(np.prod(ct.spacing))
+    core = comp
+    for extra in range(1, SPINE_SPLIT_EXTRA_EROSION + 1):
+        core = ndi.binary_erosion(core, structure=ndi.generate_binary_structure(3, 1))
+        sub, m = ndi.label(core, structure=np.ones((3, 3, 3), bool))
+        if m < 2:
+            continue
+        sizes = np.bincount(sub.reshape(-1), minlength=m + 1)[1:]
+        main = int(np.argmax(sizes)) + 1
+        cents = np.zeros((m + 1, 3))
+        cents[1:] = ct.index_to_patient(np.array(ndi.center_of_mass(core, sub, np.arange(1, m + 1))).reshape(m, 3)
+                                        + offset)
+        main_xyz = ct.index_to_patient(np.argwhere(sub == main) + offset)
+        bottom, c = float(main_xyz[:, 2].min()), main_xyz.mean(axis=0)
+        low = cents[:, 2] < bottom
+        spine = low & (cents[:, 1] > c[1] - VERTEBRA_FRONT_MM)
+        spine[[0, main]] = False
+        if not spine.any():
+            continue
+        # every voxel of the component goes to the nearest piece, but for the pieces in front below the skull base
+        # (teeth, the maxilla's edge): eroded thin, the lower vertebrae have no piece of their own and the teeth
+        # would be nearer to them than the spine's pieces above
+        seeds = np.where(np.isin(sub, np.flatnonzero(low & ~spine)), 0, sub)
+        near = ndi.distance_transform_edt(seeds == 0, sampling=ct.spacing, return_distances=False,
+                                          return_indices=True)
+        owner = seeds[tuple(near)]
+        del near, seeds
+        kji = np.argwhere(comp)
+        xyz = ct.index_to_patient(kji + offset)
+        below = spine[owner[tuple(kji.T)]]
+        split = float(np.count_nonzero(below) * voxel_mm3)
+        if (split < float(min_component_mm3) or np.count_nonzero(below) > SPINE_MAX_SHARE * len(kji)
+                or xyz[below, 2].min() > bottom - SPINE_MIN_DROP_MM):
+            continue
+        region = labels[box]
+        region[tuple(kji[below].T)] = n + 1
+        z = xyz[below, 2]
+        return labels, n + 1, {"extra_erosion": extra, "split_mm3": split, "label": n + 1,
+                               "centroid_mm": [round(float(v), 1) for v in xyz[below].mean(axis=0)],
+                               "z_range_mm": [round(float(z.min()), 1), round(float(z.max()), 1)],
+                               "cranium_core_bottom_mm": round(bottom, 1)}
+    return labels, n, info
+
+
 def bone_parts(bone: np.ndarray, ct: CTVolume, erosion: int, min_component_mm3: float, voxel_mm3: float) -> dict:
     """The components of the bone eroded by ``erosion`` voxels and what each is: the cranium, cervical vertebrae
     (:func:`_vertebra_components`), supports outside the cranium's box, the rest kept (see :func:`segment_skull`)."""
@@ -179,10 +261,16 @@ def bone_parts(bone: np.ndarray, ct: CTVolume, erosion: int, min_component_mm3: 
     _, ny, nx = ct.shape
     clear = np.array([b[1].start > 1 and b[2].start > 1 and b[1].stop < ny - 1 and b[2].stop < nx - 1 for b in boxes])
     cranium = int(np.argmax(np.where(clear, sizes, -1) if clear.any() else sizes)) + 1
+    labels, n, spine_split = split_spine_from_cranium(labels, n, cranium, ct, min_component_mm3)
+    if spine_split["extra_erosion"]:
+        sizes = np.bincount(labels.reshape(-1), minlength=n + 1)[1:]
+        boxes = ndi.find_objects(labels)
     centroids = np.array(ndi.center_of_mass(core, labels, np.arange(1, n + 1))).reshape(n, 3)
     centroids_xyz = ct.index_to_patient(centroids)
     big = sizes * voxel_mm3 >= float(min_component_mm3)
     vertebra = _vertebra_components(labels, centroids_xyz, cranium, ct) & big
+    if spine_split["extra_erosion"]:
+        vertebra[spine_split["label"] - 1] = True
     vertebra[cranium - 1] = False
     # supports, table, holders: outside the cranium's box (grown by a margin, and downward for the mandible)
     crbox = _box_mm(ct, boxes[cranium - 1])
@@ -199,7 +287,8 @@ def bone_parts(bone: np.ndarray, ct: CTVolume, erosion: int, min_component_mm3: 
     keep = big & ~vertebra & ~outside
     keep[cranium - 1] = True
     return dict(core=core, labels=labels, n=n, sizes=sizes, boxes=boxes, cranium=cranium, centroids_xyz=centroids_xyz,
-                big=big, vertebra=vertebra, outside=outside, keep=keep, crbox=crbox, erosion=int(erosion))
+                big=big, vertebra=vertebra, outside=outside, keep=keep, crbox=crbox, erosion=int(erosion),
+                spine_split=spine_split)
 
 
 def metal_streaks(bone: np.ndarray, metal: np.ndarray, spacing, keep: np.ndarray | None = None,

@@ -682,13 +682,18 @@ def markdown(results: dict) -> str:
               "(`skull_parts.rami_in_the_bone`; pieces less than 35 mm in front of the cranium's centre are not rami: "
               'the atlas spans as wide), found at 1586 and 1500, each from the cut to its condyle; the '
               'mandible\'s landmarks are all below the cut and `not_found`, "outside the scan". The cervical '
-              "spine at 1500 (not kept): splitting it off the cranium (the cranium's component eroded one voxel "
-              "more; the pieces below the skull base's core and not in front take the spine's voxels, at most 10 "
-              '% of the component, reaching 25 mm below the core) left nothing but the mandible below z 30 mm '
-              "(was the scan's bottom, 0 mm) and the face's neck 15 mm below the scan (was 41 mm), but the face "
-              'at 1500 fell from 52.8 to 49.4 % within +-2.5 mm (mean 2.91 -> 3.14 mm; the landmarks moved 1-5 '
-              "mm with the symmetry plane, which the off-midline spine had tilted), 5 points from 1600's 54.5 %, "
-              "against the issue's 3: left out (commit 45003e2 on s14-39b holds it).",
+              "spine at 1500 is split off the cranium (`skull_parts.split_spine_from_cranium`: the cranium's "
+              "component eroded one voxel more; the pieces below the skull base's core and not in front take the "
+              "spine's voxels, at most 10 % of the component, reaching 25 mm below the core): nothing but the "
+              "mandible below z 26 mm (the cranium's lowest 30 mm; was the scan's bottom, 0 mm), 40,322 mm3 dropped"
+              " (10,626 split off), the face's neck 15 mm below the scan (was 41 mm). The face at 1500: 53.9 -> "
+              "52.7 % within +-2.5 mm (1600 55.2 %, the automatic level 58.1 %, GE 49.9 %, the phantom 42.2 %: "
+              "nothing split there, unchanged; session of 5 Dec 2026, 03:20-04:00 UTC). Why it falls: not the skull"
+              " (the spine-less skull with the spine's landmarks scores 54.1 %), the landmarks: the landmark "
+              "frame's 1 mm resampling grid is anchored at the symmetry plane's point, the centroid of the bone's "
+              "surface voxels, which rises 10.6 mm without the spine; the grid's phase moves the landmarks 0.5-3 mm"
+              " and the face +-1.5 points (the same plane, its point moved 5 mm along it: 53.8 / 54.2 %; the spine-"
+              "less plane's normal with the spine's point: 56.0 %).",
               '- Why the 3-D envelope (`face_profile.PROFILE_3D`) loses CThead stripped at 1500 (session of 5 Dec '
               '2026, 00:40-01:45 UTC; dev runs with the skulls and landmarks cached, the same scoring as '
               "`bench_face.py`; not kept, the profile stays row by row): dental-metal streaks. In CThead's slices "

@@ -128,6 +128,57 @@ def test_a_scan_cut_at_the_occlusal_plane_has_a_partial_mandible_and_landmarks_o
     assert find_landmarks(cthead_ct, full.bone).info["scan_cut"] == ""
 
 
+def _lowest_z(ct: CTVolume, mask) -> float:
+    return float(ct.index_to_patient(np.argwhere(mask).astype(float))[:, 2].min())
+
+
+@pytest.mark.parametrize("level, split_mm3, dropped_mm3", [(1500.0, (8000.0, 14000.0), (30000.0, 50000.0)),
+                                                       (None, None, (15000.0, 30000.0))])
+def test_the_cervical_spine_stays_out_of_the_skull_at_any_bone_level(cthead_ct, level, split_mm3, dropped_mm3):
+    """CThead stripped at 1500 (its spine joined to the skull base at partial volume: split off by one more voxel of
+    erosion, skull_parts.split_spine_from_cranium) and at its automatic level (the spine a separate component):
+    nothing of the skull but the mandible reaches below the mandible's lowest point (the spine ran to the scan's
+    bottom, 26 mm below it), the skull mesh ends there too, and what is dropped is C1-C3's volume (measured: 40,322
+    mm3 at 1500 of which 10,626 split off the cranium's component; 21,660 at the automatic level)."""
+    from pdehead_addon.forensic.skull import skull_mesh
+    if level is None:
+        level = float(segment_skull(cthead_ct).meta["bone_level_stored"])
+    sk = segment_skull(stripped(cthead_ct, level), bone_level=level)
+    assert sk.meta["mandible"]["present"] and not sk.meta["mandible"].get("partial")
+    menton = _lowest_z(cthead_ct, sk.mandible)
+    assert menton == pytest.approx(26.0, abs=4.0)                     # the chin's lower border
+    cranium_low = _lowest_z(cthead_ct, sk.bone & ~sk.mandible)
+    assert menton + 1.0 <= cranium_low <= menton + 10.0, sk.meta["spine_split"]   # the mastoids, 4 mm above it
+    split = sk.meta["spine_split"]
+    if split_mm3 is None:
+        assert split["extra_erosion"] == 0 and split["split_mm3"] == 0.0
+    else:
+        assert split["extra_erosion"] == 1 and split_mm3[0] <= split["split_mm3"] <= split_mm3[1], split
+        assert split["z_range_mm"][0] < menton                          # the spine's piece runs below the chin
+    assert dropped_mm3[0] <= sk.meta["dropped_vertebra_mm3"] <= dropped_mm3[1]
+    mesh = skull_mesh(sk)
+    assert mesh.vertices[:, 2].min() >= menton - 2.0
+    # the cranium keeps its base: the occipital condyles and mastoids stand within the mandible's ramus height
+    cranium = cthead_ct.index_to_patient(np.argwhere(sk.bone & ~sk.mandible).astype(float))
+    behind = cranium[:, 1] > np.median(cranium[:, 1])
+    assert cranium[behind, 2].min() < 90.0
+
+
+def test_the_spine_split_leaves_ge_and_the_phantom_whole(ge_ct, phantom):
+    """GE (its skull base cut by the tilted slab; two more voxels of erosion broke it) and the phantom (its face and
+    skull base broke off at two more voxels) split nothing off the cranium: GE keeps its Frankfurt frame and its 22
+    landmarks (its mandible is outside the scan), the phantom all 50 of its landmarks."""
+    from pdehead_addon.forensic.auto_landmarks import find_landmarks
+    for ct, found in ((ge_ct, 22), (phantom.ct, 50)):
+        sk = segment_skull(ct)
+        assert sk.meta["spine_split"]["extra_erosion"] == 0 and sk.meta["spine_split"]["split_mm3"] == 0.0
+        search = find_landmarks(ct, sk.bone)
+        assert search.info["frame"] == "frankfurt"
+        assert search.info["found"] >= found, search.info
+        flags = search.flags()
+        assert all(flags[k] != "not_found" for k in ("Porion L", "Porion R", "Orbitale L", "Orbitale R"))
+
+
 def test_a_skull_alone_below_the_fill_rule_gives_no_skin_and_no_depths(tmp_path, cthead_ct):
     """The batch's skull outputs (scripts/batch_study.py) on CThead stripped to bone and cropped to the skull base
     and face (filled ratio below 1.5: the README's fill rule takes it for a head): no skin, no tissue depths, no
