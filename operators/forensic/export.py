@@ -16,6 +16,7 @@ import numpy as np
 from ...pdehead_addon import PDEHeadError, defaults as D
 from .. import state
 from ..coords import MM_TO_M
+from ..outcome import StepOutcome
 from .objects import plain_material, set_material
 
 PEG_MATERIAL = "PDE Head Depth Peg"
@@ -259,7 +260,7 @@ class ExportSteps:
         return meshes, skull, skin, res, no_skin
 
     def export(self, directory: str, fmt: str = D.EXPORT_FORMAT.default,
-               depth_target: str = D.DEPTH_TARGET.default, face=None) -> list[str]:
+               depth_target: str = D.DEPTH_TARGET.default, face=None) -> StepOutcome:
         """Export for printing: skull.<fmt> (the bone), skull_envelope.<fmt> (the PDE skull envelope), skin.<fmt>
         (when the CT has skin), face.<fmt> (the face from the skull, when the study has one or ``face`` = (its
         solved PDE head, provenance) is given; both meshed at print resolution), tissue_depth.csv, landmarks.csv and
@@ -273,6 +274,9 @@ class ExportSteps:
         same flag. Everything is built and checked (watertight, in mm) before the first file is written,
         into a hidden folder inside ``directory`` whose files are then moved into place: a failure leaves no
         partial set. The flags written are kept in the study's cache (``export_flags``).
+
+        Returns the seconds and (``values``) the paths written (``files``, provenance.json last), the files
+        left out (``not_written``: name -> why) and the landmarks' flags written (``flags``).
         """
         from ...pdehead_addon import EXPORT_FORMATS as FORMATS
 
@@ -309,7 +313,9 @@ class ExportSteps:
         self.cache["export_not_written"] = dict(not_written)
         self._adopt_export_flags(flags)
         self.study.record_timing("export", timer.seconds)
-        return [str(out / n) for n in names]
+        return StepOutcome("export", seconds=timer.seconds,
+                           values=dict(files=[str(out / n) for n in names], not_written=dict(not_written),
+                                       flags=dict(flags)))
 
     def _write_export(self, out: Path, fmt: str, meshes, res, depths, table, flags, prov, prov_lm, face_prov,
                       not_written=None):

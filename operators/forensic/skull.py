@@ -77,16 +77,18 @@ class SkullSteps:
         bset = extract_boundaries(sk, patches=patches, samples=int(s.samples), selection=s.selection)
         return bset, solve_pde(bset), patches
 
-    def step_skull(self, nu: int, nv: int, bone: bool = D.BONE_MESH.default,
-                   bone_step: int = D.BONE_STEP.default) -> StepOutcome:
-        """The bone skull (smoothed marching cubes of the bone: what skull.<fmt> is) and the PDE skull envelope;
-        returns the objects built (the envelope, then the bone mesh), the segmentation's warnings, the seconds
-        and what the skull info records (``values``: bone level, patches, parts, bone volume, ...)."""
+    def step_skull(self, nu: int = D.SKULL_NU.default, nv: int = D.SKULL_NV.default,
+                   bone: bool = D.BONE_MESH.default, bone_step: int = D.BONE_STEP.default) -> StepOutcome:
+        """The bone skull (smoothed marching cubes of the bone: what skull.<fmt> is) and the PDE skull envelope
+        (``nu`` x ``nv`` samples; 0: the skin's); returns the objects built (the envelope, then the bone mesh),
+        the segmentation's warnings, the seconds and what the skull info records (``values``: bone level,
+        patches, parts, bone volume, ...)."""
         from ...pdehead_addon import dumps_boundaries, skull_mesh
         from ..scene import objects
 
         coll = self.collection
         extra = self.cache
+        nu, nv = int(nu) or int(self.settings.nu), int(nv) or int(self.settings.nv)
         with state.Timer() as t:
             sk = self.skull_segmentation()
             bset, head, patches = self._envelope_head()

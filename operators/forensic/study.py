@@ -28,6 +28,7 @@ import numpy as np
 
 from ...pdehead_addon import PDEHeadError, defaults as D
 from ..coords import MM_TO_M
+from ..outcome import StepOutcome
 from .export import ExportSteps
 from .face import PROVENANCE_PROP, FaceSteps
 from .objects import ForensicBase
@@ -112,14 +113,16 @@ class ForensicStudy(ForensicBase, SkullSteps, ExportSteps, FaceSteps):
         obj.matrix_world = self.frankfurt_matrix() @ Matrix.Translation(Vector(snapped[0] * MM_TO_M))
         return obj
 
-    def find_landmarks(self, target: str = D.DEPTH_TARGET.default, keep_edited: bool = D.KEEP_EDITED.default):
+    def find_landmarks(self, target: str = D.DEPTH_TARGET.default,
+                       keep_edited: bool = D.KEEP_EDITED.default) -> StepOutcome:
         """Every standard landmark found automatically on the study's bone mask, snapped to the skull.
 
         Landmarks found (``ok`` or ``uncertain``) become (or move) the study's landmark empties with
         their flag and evidence as custom properties; ``not_found`` ones remove an earlier automatic
         empty (a landmark placed or moved by hand stays). The flags of all are kept on the study
         (the forensic settings' ``landmark_flags``) for the outputs. With ``keep_edited``, landmarks placed
-        or moved by hand are left where they are. Returns the engine's ``LandmarkSearch``.
+        or moved by hand are left where they are. Returns the empties placed or moved, the seconds and
+        (``values``) each landmark's ``flags`` and ``evidence`` and the engine's ``LandmarkSearch`` (``search``).
         """
         from ...pdehead_addon import find_landmarks as engine_find, snap_to_surface
 
@@ -130,6 +133,7 @@ class ForensicStudy(ForensicBase, SkullSteps, ExportSteps, FaceSteps):
         edited = {str(o.get(LANDMARK_KEY)) for o in coll.all_objects
                   if o.get(LANDMARK_KEY) and o.get(LANDMARK_EVIDENCE) in _BY_HAND} if keep_edited else set()
         found = {n: lm for n, lm in search.landmarks.items() if lm.point is not None and n not in edited}
+        placed = []
         if found:
             snapped, normal = snap_to_surface(np.array([lm.point for lm in found.values()]),
                                               self.skull_engine_mesh(target))
@@ -137,14 +141,19 @@ class ForensicStudy(ForensicBase, SkullSteps, ExportSteps, FaceSteps):
                 obj = self._landmark_empty(name, snapped[i:i + 1], normal[i:i + 1])
                 obj[LANDMARK_FLAG] = lm.flag
                 obj[LANDMARK_EVIDENCE] = lm.evidence
+                placed.append(obj)
         for obj in list(coll.all_objects):
             name = obj.get(LANDMARK_KEY)
             if name and name not in found and obj.get(LANDMARK_EVIDENCE) not in _BY_HAND:
                 bpy.data.objects.remove(obj)
         set_flags(self.props.landmark_flags, {n: (lm.flag, lm.evidence) for n, lm in search.landmarks.items()
                                               if n not in edited})
-        self.study.record_timing("landmarks", time.perf_counter() - t0)
-        return search
+        seconds = time.perf_counter() - t0
+        self.study.record_timing("landmarks", seconds)
+        return StepOutcome("landmarks", objects=tuple(placed), seconds=seconds,
+                           values=dict(flags={n: lm.flag for n, lm in search.landmarks.items()},
+                                       evidence={n: lm.evidence for n, lm in search.landmarks.items()},
+                                       search=search))
 
     def _adopt_export_flags(self, flags: dict[str, str]) -> None:
         """After an export, the study says what its files say: a landmark the export turned ``uncertain`` (its
@@ -188,12 +197,14 @@ class ForensicStudy(ForensicBase, SkullSteps, ExportSteps, FaceSteps):
         without the evidence."""
         return {name: flag for name, (flag, _evidence) in self.landmark_flags().items()}
 
-    def snap_moved_landmarks(self, target: str = D.DEPTH_TARGET.default, tolerance_mm: float = 0.01) -> list[str]:
+    def snap_moved_landmarks(self, target: str = D.DEPTH_TARGET.default,
+                             tolerance_mm: float = 0.01) -> StepOutcome:
         """Landmarks whose empty was moved in the viewport go back onto the bone at the nearest point;
-        their flag becomes ``ok`` (a person placed them). Returns the names snapped."""
+        their flag becomes ``ok`` (a person placed them). Returns the empties snapped and their names
+        (``values``: ``names``)."""
         from ...pdehead_addon import snap_to_surface
 
-        moved = []
+        moved, snapped_objects = [], []
         for obj in list(self.collection.all_objects):
             name = obj.get(LANDMARK_KEY)
             if not name or "patient_mm" not in obj:
@@ -207,7 +218,9 @@ class ForensicStudy(ForensicBase, SkullSteps, ExportSteps, FaceSteps):
                 obj = self._landmark_empty(name, snapped[i:i + 1], normal[i:i + 1])
                 obj[LANDMARK_FLAG] = "ok"
                 obj[LANDMARK_EVIDENCE] = MOVED_BY_HAND
-        return [name for _, name, _ in moved]
+                snapped_objects.append(obj)
+        return StepOutcome("snap_landmarks", objects=tuple(snapped_objects),
+                           values=dict(names=[name for _, name, _ in moved]))
 
     # -------------------------------------------------------------------------------------- orientation
     def apply_frankfurt(self, reset: bool = False):
@@ -264,8 +277,9 @@ class ForensicStudy(ForensicBase, SkullSteps, ExportSteps, FaceSteps):
             raise PDEHeadError("the skull's symmetry plane did not converge: place bilateral landmarks instead")
         return point, normal, f"skull symmetry (median mirror residual {info['residual_mm']:.1f} mm)"
 
-    def mirror_object(self, obj, source: str = D.MIRROR_PLANE.default):
-        """A linked copy of ``obj`` mirrored across the mid-sagittal plane (:meth:`mirror_plane`)."""
+    def mirror_object(self, obj, source: str = D.MIRROR_PLANE.default) -> StepOutcome:
+        """A linked copy of ``obj`` mirrored across the mid-sagittal plane (:meth:`mirror_plane`): the copy, and
+        the plane (``values``: ``point`` and ``normal`` in patient mm, ``how``: where it came from)."""
         from ...pdehead_addon import mirror_matrix
 
         point, normal, how = self.mirror_plane(source)
@@ -277,4 +291,4 @@ class ForensicStudy(ForensicBase, SkullSteps, ExportSteps, FaceSteps):
             c.objects.link(copy)
         copy.matrix_world = m @ obj.matrix_world
         copy.pop(BASE_MATRIX_KEY, None)
-        return copy, point, normal, how
+        return StepOutcome("mirror", objects=(copy,), values=dict(point=point, normal=normal, how=how))
