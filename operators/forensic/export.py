@@ -297,7 +297,7 @@ class ExportSteps:
             table = self.depth_table()
             prov = self.provenance(table)
             prov_lm = dict(prov, depth=method)
-            face = self.face_for_export() if face is None else face
+            face = self.face.face_for_export() if face is None else face
             face_prov = None
             if face is not None:
                 face_head, face_prov = face

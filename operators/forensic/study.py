@@ -12,7 +12,7 @@ per study for the session; its methods come in parts:
   horizontal and mirror are object transforms -- the meshes keep patient coordinates (world = LPS x 0.001
   before the transform), and each landmark keeps its patient mm;
 * marker pegs, provenance and Export for Printing (:class:`.export.ExportSteps`);
-* the face from the skull (:class:`.face.FaceSteps`).
+* the face from the skull (:class:`.face.Face`, a component: ``fs.face``).
 
 Its settings and landmark flags are a PropertyGroup on the collection (:mod:`.props`); the
 shared parts (the study, cache, sub-collections) are :class:`.objects.ForensicBase`. The
@@ -30,7 +30,7 @@ from ...pdehead_addon import PDEHeadError, defaults as D
 from ..coords import MM_TO_M
 from ..outcome import StepOutcome
 from .export import ExportSteps
-from .face import PROVENANCE_PROP, FaceSteps
+from .face import PROVENANCE_PROP, Face
 from .objects import ForensicBase
 from .props import set_flags
 from .skull import SKULL_BOUNDARY_KEY, SkullSteps
@@ -60,8 +60,13 @@ def blender_matrix(m_mm: np.ndarray):
     return Matrix(m.tolist())
 
 
-class ForensicStudy(ForensicBase, SkullSteps, ExportSteps, FaceSteps):
-    """One study's forensic side: skull, depth map, landmarks, pegs, Frankfurt, mirror, export, face."""
+class ForensicStudy(ForensicBase, SkullSteps, ExportSteps):
+    """One study's forensic side: skull, depth map, landmarks, pegs, Frankfurt, mirror, export; the face from the
+    skull is its component :attr:`face` (:class:`.face.Face`)."""
+
+    def __init__(self, study):
+        super().__init__(study)
+        self.face = Face(self)
 
     # -------------------------------------------------------------------------------------- frame
     def frankfurt_matrix(self):
@@ -174,7 +179,7 @@ class ForensicStudy(ForensicBase, SkullSteps, ExportSteps, FaceSteps):
             for n in turned & set(stored):
                 stored[n] = ("uncertain", "; ".join(e for e in (stored[n][1], why) if e))
             set_flags(self.props.landmark_flags, stored)
-        face = self.face_object()
+        face = self.face.face_object()
         if face is not None and face.get(PROVENANCE_PROP):
             prov = json.loads(face[PROVENANCE_PROP])
             prov["landmark_flags"] = dict(flags)

@@ -304,7 +304,7 @@ class PDEHEAD_OT_build_face(Operator, _ForensicOp):
     bl_label = "Build Face"
 
     def run_forensic(self, context, fs):
-        outcome = fs.build_face()
+        outcome = fs.face.build_face()
         self.report({'INFO'}, f"{outcome.objects[0].name}: {outcome.values['vertices']} vertices through "
                               f"{outcome.values['pegs']} pegs ({outcome.values['label']})")
         for line in outcome.warnings:
@@ -319,7 +319,7 @@ class PDEHEAD_OT_face_sd_range(Operator, _ForensicOp):
     bl_label = "Faces at -1 / +1 SD"
 
     def run_forensic(self, context, fs):
-        made = fs.build_sd_faces().objects
+        made = fs.face.build_sd_faces().objects
         self.report({'INFO'}, "Built " + ", ".join(o.name for o in made))
 
 
@@ -333,20 +333,20 @@ def draw_face_section(layout, fs) -> None:
     if s.face_table == 'FILE':
         box.prop(s, "face_table_file", text="")
     try:
-        table = fs.face_table_as_read()
+        table = fs.face.face_table_as_read()
     except PDEHeadError as exc:
         table = None
         box.label(text=str(exc), icon='ERROR')
     if table is not None and table_has_sex(table):
         box.prop(s, "face_sex")
         try:
-            fs.face_table()                   # the chosen sex's rows: a sex the table lacks says so here
+            fs.face.face_table()                   # the chosen sex's rows: a sex the table lacks says so here
         except PDEHeadError as exc:
             box.label(text=str(exc), icon='ERROR')
     row = box.row(align=True)
     row.operator(PDEHEAD_OT_find_landmarks.bl_idname, icon='VIEWZOOM')
     row.operator(PDEHEAD_OT_build_face.bl_idname, icon='USER')
-    obj = fs.face_object()
+    obj = fs.face.face_object()
     if obj is None:
         box.label(text="Builds the skull and finds the landmarks first if needed")
         return
@@ -362,11 +362,11 @@ def draw_face_section(layout, fs) -> None:
         col.label(text=str(prov["software"]))
     if "pdehead_face_ms" in obj:
         col.label(text=f"Last solve {obj['pdehead_face_ms']:.0f} ms")
-    status = fs.live_status()
+    status = fs.face.live_status()
     if status:
         col.label(text=status)
-    names = fs.face_peg_names()
-    pegs = fs.peg_objects(names)
+    names = fs.face.face_peg_names()
+    pegs = fs.face.peg_objects(names)
     col = box.column(align=True)
     col.label(text=f"{len(pegs)} pegs: drag one (G) or set its depth (mm); pin: held (the face passes through it)")
     for name in names[:40]:
@@ -384,7 +384,7 @@ def draw_face_section(layout, fs) -> None:
 
 def _draw_peg_report(layout, prov: dict) -> None:
     """The pegs whose tip is off the face (distance and why) and the warnings of the last solve (from the face's
-    provenance: :meth:`.face.FaceSteps._show_report`)."""
+    provenance: :meth:`.face.Face._show_report`)."""
     off = prov.get("pegs_off_face") or []
     warnings = prov.get("peg_warnings") or []
     if not off and not warnings:

@@ -515,16 +515,16 @@ def test_the_solid_and_forensic_steps_return_their_outcomes(ext, phantom_blend, 
     assert 0 < depth.values["measured"] <= depth.values["vertices"] == len(s.surface_object.data.vertices)
     assert depth.values["measured"] == fs.depth_stats()["measured"]
     assert round(depth.seconds, 4) == pytest.approx(study.timings["depth"])
-    face = fs.build_face()
-    assert face.step == "face" and face.objects[0] == fs.face_object()
-    assert face.values["pegs"] == len(face.objects) - 1 == len(fs.face_peg_names()) > 0
+    face = fs.face.build_face()
+    assert face.step == "face" and face.objects[0] == fs.face.face_object()
+    assert face.values["pegs"] == len(face.objects) - 1 == len(fs.face.face_peg_names()) > 0
     assert all(p.parent == face.objects[0] for p in face.objects[1:])
-    assert face.values["vertices"] == len(fs.face_object().data.vertices)
+    assert face.values["vertices"] == len(fs.face.face_object().data.vertices)
     assert face.values["label"] == ext.forensic.face.approximation_label()
     report = fs.cache.get("face_report")
     assert face.warnings == ((report.summary(),) if report.summary() else ())
     assert round(face.seconds, 4) == pytest.approx(study.timings["face_prepare"])
-    sd = fs.build_sd_faces()
+    sd = fs.face.build_sd_faces()
     assert sd.step == "face_sd" and len(sd.objects) == 2 and sd.seconds > 0
     assert sd.values["vertices"] == [len(o.data.vertices) for o in sd.objects]
     assert [o["pdehead_kind"] for o in sd.objects] == ["face_minus_sd", "face_plus_sd"]
