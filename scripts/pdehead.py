@@ -817,10 +817,10 @@ def _build(args, bpy, addon):
     skin = True
     if args.skull:
         fs, forensic_reports = _forensic(addon, coll), addon.operators.ui.forensic_ops
-        _step(fs.step_skull, lambda outcome: [forensic_reports.skull_report(fs, outcome)])
-        skin = fs.skull_info().get("has_skin", True)
+        _step(fs.skull.step_skull, lambda outcome: [forensic_reports.skull_report(fs, outcome)])
+        skin = fs.skull.skull_info().get("has_skin", True)
         if skin:
-            _step(fs.step_depth, lambda outcome: [forensic_reports.depth_report(outcome)])
+            _step(fs.skull.step_depth, lambda outcome: [forensic_reports.depth_report(outcome)])
         # no landmarks given: the automatic ones, each with its flag (a WARNING report goes to stderr as the
         # study's warnings do, not to stdout)
         if not fs.landmarks():
@@ -860,7 +860,7 @@ def _print_study(args, bpy, state, coll, selection_info) -> None:
 def _print_skull(args, addon, coll, skin) -> None:
     """The summary's lines for the skull, the skin, the depth map, the landmarks, the face and the export."""
     fs = _forensic(addon, coll)
-    info, depth = fs.skull_info(), fs.depth_stats()
+    info, depth = fs.skull.skull_info(), fs.skull.depth_stats()
     if info.get("skull_mesh_file"):
         level = f"none (the skull is the mesh {info['skull_mesh_file']})"
     else:
@@ -970,7 +970,7 @@ def _face_from_skull(addon, coll):
     fs = _forensic(addon, coll)
     try:
         table = fs.depth_table()
-        model = ff.FaceModel.prepare(fs.skull_engine_mesh("BONE"), fs.landmarks(), table, sex=table.sex or None,
+        model = ff.FaceModel.prepare(fs.skull.skull_engine_mesh("BONE"), fs.landmarks(), table, sex=table.sex or None,
                                      flags=fs.flag_names())
         res = model.solve()
     except addon.pdehead_addon.PDEHeadError as exc:

@@ -118,7 +118,7 @@ class ExportSteps:
             table = DepthTable(entries={k: DepthEntry(k, float(v)) for k, v in table.items()}, name="imported table")
         lms = self.landmarks()
         if pegs is None:
-            pegs = marker_pegs(lms, self.skull_engine_mesh(target), table)
+            pegs = marker_pegs(lms, self.skull.skull_engine_mesh(target), table)
         if not pegs:
             raise PDEHeadError(f"none of the placed landmarks ({', '.join(lms) or 'none'}) is in the depth table "
                                f"'{table.label}'")
@@ -162,7 +162,7 @@ class ExportSteps:
         from ...pdehead_addon import provenance
 
         s = self.settings
-        sk = self.skull_segmentation()
+        sk = self.skull.skull_segmentation()
         m = sk.meta
         if m.get("skull_mesh_file"):
             level = f"none (skull from the mesh {m['skull_mesh_file']})"
@@ -187,7 +187,7 @@ class ExportSteps:
         from ...pdehead_addon import depth_flags, measure_landmark_depths
 
         lms = self.landmarks()
-        sk = self.skull_segmentation()
+        sk = self.skull.skull_segmentation()
         head = self.study.cache.seg
         measured = measure_landmark_depths(lms, skull, skin, sk, head_mask=None if head is None else head.mask,
                                            table=self.depth_table())
@@ -204,7 +204,7 @@ class ExportSteps:
 
     def has_skin(self) -> bool:
         """False when the study's CT has no soft tissue to make a skin of (a dry skull, soft tissue removed)."""
-        return bool(self.skull_segmentation().meta.get("has_skin", True))
+        return bool(self.skull.skull_segmentation().meta.get("has_skin", True))
 
     # -------------------------------------------------------------------------------------- export
     def _export_folder(self, directory: str) -> Path:
@@ -238,8 +238,8 @@ class ExportSteps:
         from ...pdehead_addon import tissue_depth
 
         s = self.settings
-        skull = self.skull_engine_mesh("BONE")
-        envelope = self.skull_engine_mesh("PDE")
+        skull = self.skull.skull_engine_mesh("BONE")
+        envelope = self.skull.skull_engine_mesh("PDE")
         meshes = [("skull", skull), ("skull_envelope", envelope)]
         skin = None
         no_skin = self._skin_missing()
@@ -256,7 +256,8 @@ class ExportSteps:
         if skin is not None:
             res = self.cache.get("depth")
             if res is None or res.points.shape != skin.vertices.shape or not np.allclose(res.points, skin.vertices):
-                res = tissue_depth(skin, self.skull_engine_mesh(depth_target), envelope=self.skull_segmentation())
+                res = tissue_depth(skin, self.skull.skull_engine_mesh(depth_target),
+                                   envelope=self.skull.skull_segmentation())
         return meshes, skull, skin, res, no_skin
 
     def export(self, directory: str, fmt: str = D.EXPORT_FORMAT.default,

@@ -152,7 +152,7 @@ class Face:
 
         obj = self.forensic.linked_object("pdehead_bone_object")
         if obj is None or obj.type != 'MESH' or len(obj.data.polygons) == 0:
-            return self.forensic.skull_engine_mesh("BONE")
+            return self.forensic.skull.skull_engine_mesh("BONE")
         return engine_mesh_of(obj, study_origin(self.forensic.collection))
 
     def face_for_export(self):
@@ -484,7 +484,7 @@ class Face:
         coll = self.forensic.collection
         s = self.forensic.settings
         if self.forensic.linked_object("pdehead_bone_object") is None:
-            self.forensic.step_skull(s.nu, s.nv)
+            self.forensic.skull.step_skull(s.nu, s.nv)
         if not self.forensic.landmarks():
             self.forensic.find_landmarks()
         table = self.face_table()

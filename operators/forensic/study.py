@@ -6,7 +6,7 @@ report), over the engine (:mod:`pdehead_addon.forensic.skull`, :mod:`~pdehead_ad
 is for the skin. ``ForensicStudy.of(study)`` (``study``: a :class:`operators.study.entity.Study`) gives one object
 per study for the session; its methods come in parts:
 
-* the skull and the depth map (:class:`.skull.SkullSteps`): the bone segmented from the CT, the
+* the skull and the depth map (:class:`.skull.Skull`, a component: ``fs.skull``): the bone segmented from the CT, the
   skull as a PDE surface and the marching-cubes bone mesh, the per-vertex tissue depth of the skin;
 * landmarks, Frankfurt horizontal and mirror (here): landmarks are empties snapped to the skull; Frankfurt
   horizontal and mirror are object transforms -- the meshes keep patient coordinates (world = LPS x 0.001
@@ -33,7 +33,7 @@ from .export import ExportSteps
 from .face import PROVENANCE_PROP, Face
 from .objects import ForensicBase
 from .props import set_flags
-from .skull import SKULL_BOUNDARY_KEY, SkullSteps
+from .skull import SKULL_BOUNDARY_KEY, Skull
 
 FRANKFURT_KEY = "pdehead_frankfurt"         # 16 floats: the Blender-space transform applied
 BASE_MATRIX_KEY = "pdehead_base_matrix"     # per object: its matrix before the Frankfurt transform
@@ -60,12 +60,13 @@ def blender_matrix(m_mm: np.ndarray):
     return Matrix(m.tolist())
 
 
-class ForensicStudy(ForensicBase, SkullSteps, ExportSteps):
-    """One study's forensic side: skull, depth map, landmarks, pegs, Frankfurt, mirror, export; the face from the
-    skull is its component :attr:`face` (:class:`.face.Face`)."""
+class ForensicStudy(ForensicBase, ExportSteps):
+    """One study's forensic side: landmarks, pegs, Frankfurt, mirror, export; the skull and depth map and the face
+    from the skull are its components :attr:`skull` (:class:`.skull.Skull`) and :attr:`face` (:class:`.face.Face`)."""
 
     def __init__(self, study):
         super().__init__(study)
+        self.skull = Skull(self)
         self.face = Face(self)
 
     # -------------------------------------------------------------------------------------- frame
@@ -92,7 +93,7 @@ class ForensicStudy(ForensicBase, SkullSteps, ExportSteps):
     def place_landmark(self, name: str, patient_mm, target: str = D.DEPTH_TARGET.default):
         from ...pdehead_addon import snap_to_surface
 
-        snapped, normal = snap_to_surface(np.asarray(patient_mm, float)[None], self.skull_engine_mesh(target))
+        snapped, normal = snap_to_surface(np.asarray(patient_mm, float)[None], self.skull.skull_engine_mesh(target))
         obj = self._landmark_empty(name, snapped, normal)
         obj[LANDMARK_FLAG] = "ok"
         obj[LANDMARK_EVIDENCE] = PLACED_BY_HAND
@@ -133,7 +134,7 @@ class ForensicStudy(ForensicBase, SkullSteps, ExportSteps):
 
         coll = self.collection
         t0 = time.perf_counter()
-        sk = self.skull_segmentation()
+        sk = self.skull.skull_segmentation()
         search = engine_find(self.study.ct, sk.bone)
         edited = {str(o.get(LANDMARK_KEY)) for o in coll.all_objects
                   if o.get(LANDMARK_KEY) and o.get(LANDMARK_EVIDENCE) in _BY_HAND} if keep_edited else set()
@@ -141,7 +142,7 @@ class ForensicStudy(ForensicBase, SkullSteps, ExportSteps):
         placed = []
         if found:
             snapped, normal = snap_to_surface(np.array([lm.point for lm in found.values()]),
-                                              self.skull_engine_mesh(target))
+                                              self.skull.skull_engine_mesh(target))
             for i, (name, lm) in enumerate(found.items()):
                 obj = self._landmark_empty(name, snapped[i:i + 1], normal[i:i + 1])
                 obj[LANDMARK_FLAG] = lm.flag
@@ -218,7 +219,7 @@ class ForensicStudy(ForensicBase, SkullSteps, ExportSteps):
             if np.linalg.norm(p - np.array(obj["patient_mm"], float)) > tolerance_mm:
                 moved.append((obj, str(name), p))
         if moved:
-            snapped, normal = snap_to_surface(np.array([p for _, _, p in moved]), self.skull_engine_mesh(target))
+            snapped, normal = snap_to_surface(np.array([p for _, _, p in moved]), self.skull.skull_engine_mesh(target))
             for i, (obj, name, _) in enumerate(moved):
                 obj = self._landmark_empty(name, snapped[i:i + 1], normal[i:i + 1])
                 obj[LANDMARK_FLAG] = "ok"
@@ -276,7 +277,7 @@ class ForensicStudy(ForensicBase, SkullSteps, ExportSteps):
         if not coll.get("pdehead_bone_object") and not coll.get(SKULL_BOUNDARY_KEY):
             raise PDEHeadError(f"study '{coll.name}' has neither bilateral landmarks nor a skull: run Build Skull "
                                "or place a landmark pair")
-        point, normal, info = symmetry_plane(self.skull_engine_mesh("BONE" if coll.get("pdehead_bone_object")
+        point, normal, info = symmetry_plane(self.skull.skull_engine_mesh("BONE" if coll.get("pdehead_bone_object")
                                                                     else "PDE").vertices)
         if not info["converged"]:
             raise PDEHeadError("the skull's symmetry plane did not converge: place bilateral landmarks instead")

@@ -33,12 +33,12 @@ _FORMAT_ITEMS = [('stl', "STL", ""), ('obj', "OBJ", ""), ('ply', "PLY", "")]
 # What the operators report of a step's outcome; the CLI (scripts/pdehead.py) prints the same lines.
 
 def skull_report(fs, outcome) -> str:
-    """Build Skull's INFO report of ``fs.step_skull()``'s outcome."""
+    """Build Skull's INFO report of ``fs.skull.step_skull()``'s outcome."""
     return f"Skull of '{fs.name}' built"
 
 
 def depth_report(outcome) -> str:
-    """Tissue Depth's INFO report of ``fs.step_depth()``'s outcome."""
+    """Tissue Depth's INFO report of ``fs.skull.step_depth()``'s outcome."""
     st = outcome.values
     return (f"Tissue depth: {st['measured']} of {st['vertices']} vertices measured, "
             f"median {st.get('median', float('nan')):.1f} mm")
@@ -117,7 +117,7 @@ class PDEHEAD_OT_build_skull(Operator, _ForensicOp):
     bone_step: IntProperty(name=D.BONE_STEP.label, **D.BONE_STEP.limits(), description=D.BONE_STEP.description)
 
     def run_forensic(self, context, fs):
-        outcome = fs.step_skull(self.nu, self.nv, self.bone_mesh, self.bone_step)
+        outcome = fs.skull.step_skull(self.nu, self.nv, self.bone_mesh, self.bone_step)
         self.report({'INFO'}, skull_report(fs, outcome))
 
 
@@ -131,7 +131,7 @@ class PDEHEAD_OT_tissue_depth(Operator, _ForensicOp):
     forensic_settings = ("target", "max_depth")
 
     def run_forensic(self, context, fs):
-        self.report({'INFO'}, depth_report(fs.step_depth(self.target, self.max_depth)))
+        self.report({'INFO'}, depth_report(fs.skull.step_depth(self.target, self.max_depth)))
 
 
 class PDEHEAD_OT_place_landmark(Operator, _ForensicOp):
@@ -237,7 +237,8 @@ class PDEHEAD_OT_export_landmark_depths(Operator, _LandmarkCSVOp):
         from ...pdehead_addon import write_landmark_csv
         if not fs.landmarks():
             raise PDEHeadError("no landmarks placed yet")
-        depths, flags, method = fs.measured_landmark_depths(fs.skull_engine_mesh(self.target), fs.skin_engine_mesh())
+        depths, flags, method = fs.measured_landmark_depths(fs.skull.skull_engine_mesh(self.target),
+                                                            fs.skull.skin_engine_mesh())
         table = fs.depth_table()
         n = write_landmark_csv(bpy.path.abspath(self.filepath), depths, table, flags,
                                provenance=dict(fs.provenance(table), depth=method))
@@ -410,7 +411,7 @@ def _draw_skull(layout, fs) -> None:
     sub.active = s.use_bone_level
     sub.prop(s, "bone_level", text="")
     col.operator(PDEHEAD_OT_build_skull.bl_idname, icon='MESH_UVSPHERE')
-    info = fs.skull_info()
+    info = fs.skull.skull_info()
     if info:
         stored = info.get("bone_level_stored")
         level = f"{stored:g} {info.get('units', '')}" if stored is not None else f"{info['bone_level']:.0f} HU"
@@ -427,7 +428,7 @@ def _draw_depth(layout, fs) -> None:
     """Tissue Depth, its colour legend and the statistics of the last run."""
     box = layout.box()
     box.operator(PDEHEAD_OT_tissue_depth.bl_idname, icon='MOD_THICKNESS')
-    stats = fs.depth_stats()
+    stats = fs.skull.depth_stats()
     s = fs.settings
     mat = bpy.data.materials.get(DEPTH_MATERIAL)
     if mat is not None and mat.node_tree.nodes.get("Depth legend") is not None:
