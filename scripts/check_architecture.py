@@ -484,8 +484,8 @@ def cli_operator_calls(file: str = "scripts/pdehead.py") -> list[dict]:
         if isinstance(node, ast.Attribute) and (
                 node.attr == "last_exception" or (node.attr == "pdehead" and isinstance(node.value, ast.Attribute)
                                                   and node.value.attr == "ops")):
-            out.append({"where": f"{file}:{node.lineno}", "name": node.attr})
-    return out
+            out.append({"where": f"{file}:{node.lineno}", "name": node.attr, "line": node.lineno})
+    return sorted(out, key=lambda i: i["line"])
 
 
 def measures() -> dict:
