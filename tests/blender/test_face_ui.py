@@ -292,13 +292,13 @@ def test_pegs_off_the_face_are_shown_held_and_warned(pdehead_ext, face_blend):
     import bpy
     face, fs, state = _mods(pdehead_ext)
     coll = _open(face_blend)
-    study = fs(coll).face
-    obj = study.face_object()
-    names = study.face_peg_names()
-    pegs = study.peg_objects(names)
+    study = fs(coll)
+    obj = study.face.face_object()
+    names = study.face.face_peg_names()
+    pegs = study.face.peg_objects(names)
     assert all(not p[face.HELD_PROP] for p in pegs.values())
     gaps = {n: float(p[face.TIP_TO_FACE_PROP]) for n, p in pegs.items()}
-    tips = study.peg_tips(names)
+    tips = study.face.peg_tips(names)
     for n in ("Glabella", "Supra M2 L", "Gonion R"):        # the property is the tip's distance to the face
         assert gaps[n] == pytest.approx(_tip_to_mesh_mm(pdehead_ext, obj, tips[names.index(n)]), abs=0.05)
     prov = json.loads(obj[face.PROVENANCE_PROP])
@@ -320,7 +320,7 @@ def test_pegs_off_the_face_are_shown_held_and_warned(pdehead_ext, face_blend):
     peg.update_tag()
     bpy.context.view_layer.update()
     i = names.index(name)
-    held_gap = _tip_to_mesh_mm(pdehead_ext, obj, study.peg_tips(names)[i])
+    held_gap = _tip_to_mesh_mm(pdehead_ext, obj, study.face.peg_tips(names)[i])
     # measured on the phantom (5.0.1): Supra M2 3.6 -> 0.2 mm
     assert held_gap <= 0.5 and peg[face.TIP_TO_FACE_PROP] == pytest.approx(held_gap, abs=0.05), (name, gaps[name])
     assert json.loads(obj[face.PROVENANCE_PROP])["pegs_held"] == [name]
@@ -330,23 +330,23 @@ def test_pegs_off_the_face_are_shown_held_and_warned(pdehead_ext, face_blend):
     normal = np.array(glabella.matrix_world)[:3, 2]
     normal /= np.linalg.norm(normal)
     _drag(glabella, -(float(glabella[face.PEG_DEPTH_PROP]) + 3.0) * normal)
-    warnings = study.peg_warnings()
+    warnings = study.face.peg_warnings()
     assert [(w["peg"], w["kind"]) for w in warnings] == [("Glabella", "into_bone")], warnings
     assert glabella[face.HELD_PROP] and not study.settings.last_error
     assert any(t == warnings[0]["text"] for t in (x[1] for x in _panel_labels(pdehead_ext) if x[0] == "label"))
     # ... and pulled back then dragged 200 mm out sideways: a warning that it is far from its landmark
     _drag(glabella, (float(glabella[face.PEG_DEPTH_PROP]) + 3.0) * normal)
-    assert study.peg_warnings() == []
+    assert study.face.peg_warnings() == []
     pogonion = pegs["Pogonion"]
     _drag(pogonion, [200.0, 0.0, 0.0])
-    warnings = study.peg_warnings()
+    warnings = study.face.peg_warnings()
     assert [(w["peg"], w["kind"]) for w in warnings][:1] == [("Pogonion", "far")], warnings
     assert "200 mm off" in warnings[0]["text"] and not study.settings.last_error
     assert np.isfinite(_world_vertices(obj)).all() and pogonion[face.HELD_PROP]       # the face still solves
 
     # Build Face again: every peg let go
     assert bpy.ops.pdehead.build_face() == {'FINISHED'}
-    pegs = study.peg_objects(study.face_peg_names())
+    pegs = study.face.peg_objects(study.face.face_peg_names())
     assert pegs and all(not p[face.HELD_PROP] for p in pegs.values())
 
 
