@@ -76,8 +76,6 @@ class Registry:
     #: flags). The engine names its Python arguments; :func:`user_text` rewrites them
     #: (pdehead_addon.core.wording).
     audience: str = "dialog"
-    #: The last exception an operator reported (the CLI tells bad input, exit 2, from a bug, exit 1).
-    last_exception: BaseException | None = None
     #: Depth of :class:`suspended_updates`: while above 0, no update callback rebuilds anything.
     suspended: int = 0
     #: ``hook(step, fraction, message)`` called by the long steps while a pipeline or an operator runs; it may

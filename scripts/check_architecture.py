@@ -27,7 +27,11 @@ Each measure and its target, over the shipped code (``pdehead_addon/``, ``operat
 10. "issue N" in the shipped code's comments and docstrings (target none: history lives in docs/ and git);
 11. README.md lines (target at most 250);
 12. ruff: findings of ``ruff check`` with the project's configuration (target none) and the files on its
-    temporary per-file-ignores ratchet in pyproject.toml (target none).
+    temporary per-file-ignores ratchet in pyproject.toml (target none);
+13. mixins of the study entity classes (:data:`STUDY_ENTITIES`: ``Study``, ``ForensicStudy``): each base class
+    they inherit methods from (target none: the parts are components the entity holds, ``fs.face``);
+14. CLI steps driven through operators: ``bpy.ops.pdehead.*`` calls and ``REGISTRY.last_exception`` reads in
+    ``scripts/pdehead.py`` (target none: it calls the study's methods and reports their outcomes).
 
 ruff and pylint are pinned in requirements.txt; they are run as ``python -m ruff`` / ``python -m pylint``
 of the Python running this script.
@@ -451,6 +455,39 @@ def ruff_ratchet() -> list[str]:
     return sorted(config.get("tool", {}).get("ruff", {}).get("lint", {}).get("per-file-ignores", {}))
 
 
+#: The study entity classes (file, class) whose base classes :func:`study_entity_mixins` counts.
+STUDY_ENTITIES = (("operators/study/entity.py", "Study"), ("operators/forensic/study.py", "ForensicStudy"))
+
+
+def study_entity_mixins() -> list[dict]:
+    """The base classes of each study entity class: one entry per (class, base)."""
+    out = []
+    for file, name in STUDY_ENTITIES:
+        path = ROOT / file
+        if not path.is_file():
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ClassDef) and node.name == name:
+                out.extend({"class": name, "base": base, "where": f"{file}:{node.lineno}"}
+                           for base in sorted(_base_names(node) - {"object", ""}))
+    return out
+
+
+def cli_operator_calls(file: str = "scripts/pdehead.py") -> list[dict]:
+    """Where the CLI drives a step through an operator (``bpy.ops.pdehead``) or reads an operator's failure
+    through the registry (``last_exception``)."""
+    path = ROOT / file
+    if not path.is_file():
+        return []
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Attribute) and (
+                node.attr == "last_exception" or (node.attr == "pdehead" and isinstance(node.value, ast.Attribute)
+                                                  and node.value.attr == "ops")):
+            out.append({"where": f"{file}:{node.lineno}", "name": node.attr, "line": node.lineno})
+    return sorted(out, key=lambda i: i["line"])
+
+
 def measures() -> dict:
     return {
         "modules_over_limit": long_modules(),
@@ -469,6 +506,8 @@ def measures() -> dict:
         "readme_lines": readme_lines(),
         "ruff_findings": ruff_findings(),
         "ruff_ratchet_files": ruff_ratchet(),
+        "study_entity_mixins": study_entity_mixins(),
+        "cli_operator_calls": cli_operator_calls(),
     }
 
 
@@ -511,6 +550,10 @@ def report(m: dict) -> str:
     section("ruff findings [target 0]", m["ruff_findings"], lambda i: f"{i['where']} {i['code']}")
     section("files on ruff's temporary per-file-ignores ratchet (pyproject.toml) [target 0]",
             m["ruff_ratchet_files"], str)
+    section("mixin base classes of the study entity classes [target 0]", m["study_entity_mixins"],
+            lambda i: f"{i['class']}({i['base']})")
+    section("CLI steps driven through operators (scripts/pdehead.py) [target 0]", m["cli_operator_calls"],
+            lambda i: f"{i['where']} {i['name']}")
     z = m["zip"]
     lines.append(f"the extension zip carries validation code [target no]: {'yes' if z['carries_validation'] else 'no'}"
                  + (f" ({', '.join(z['files'])})" if z["files"] else ""))

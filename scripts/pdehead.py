@@ -12,9 +12,9 @@ Examples::
         # -> skull.stl, skull_envelope.stl, skin.stl, ...
     python3 scripts/pdehead.py --phantom --no-volume --out out/turn.blend --turntable 120 --render-animation out/turn
 
-It runs the SAME steps as the add-on in the ``bpy`` module (the study's methods for segment,
-boundaries, surface, solid and volume, whose outcomes give the reports it prints; the add-on's operators,
-``bpy.ops.pdehead.*``, for the other steps): the add-on is registered straight from this
+It runs the SAME steps as the add-on in the ``bpy`` module: the study's methods that the add-on's operators
+call (import, segment, boundaries, surface, CT detail, solid, volume, skull, tissue depth, landmarks, export,
+turntable), whose returned outcomes give the reports it prints: the add-on is registered straight from this
 repository's source (as the package ``pdehead_dev``, no zip needed), in a temporary Blender user
 folder so your own Blender preferences are never touched. The .vdb of the volume is written beside the .blend
 (``pdehead_vdb/``, stored as a relative path). Prints per-step timings and a summary on stdout
@@ -378,53 +378,21 @@ class Progress:
         self.shown = -1.0
 
 
-def _call(op, **kwargs) -> None:
-    """Run one operator; its ERROR report becomes a CLIError: exit 2 when the engine refused the input
-    (a PDEHeadError: bad files, bad options), 1 for anything else (a bug); the study's new warnings are
-    printed (:class:`Warnings`)."""
-    addon = sys.modules[_common.DEV_PACKAGE]
-    state = addon.operators.state
-    state.REGISTRY.last_exception = None
-    try:
-        with _blender_stdout():
-            result = op(**kwargs)
-        if _SIGINT[0]:
-            raise Interrupted()
-    except RuntimeError as exc:
-        if _SIGINT[0]:
-            raise Interrupted() from None
-        failure = state.REGISTRY.last_exception
-        if isinstance(failure, addon.pdehead_addon.PDEHeadError):
-            raise CLIError(state.user_text(str(failure)), 2) from None
-        message = str(exc).strip()
-        message = message[len("Error: "):] if message.startswith("Error: ") else message
-        raise CLIError(message.splitlines()[0] if message else "step failed", 1) from None
-    finally:
-        WARNINGS.from_study()
-    if result != {'FINISHED'}:
-        raise CLIError(f"{op.idname_py()} returned {sorted(result)}", 1)
-
-
-def _study_step(coll, step: str, report, **settings):
-    """Run one of the study's steps (``Study.segment``, ``boundaries``, ``surface``, ``solid``, ``volume``) with
-    ``settings`` stored
-    first, as its operator does, and print the operator's INFO report from the outcome it returns. Errors as
-    :func:`_call`: exit 2 for a PDEHeadError (the engine refused the input), 1 for anything else (a bug: its
-    traceback on stderr); the study's new warnings are printed (:class:`Warnings`). Returns the outcome."""
+def _step(work, report=lambda result: ()):
+    """Run one step of the study (a call of its methods, as its operator makes) and print the operator's INFO
+    reports (``report(result)``: the lines) of the result it returns (a StepOutcome, or the study an import
+    made). A failure is the CLI's one error line: exit 2 for a PDEHeadError (the engine refused the input: bad
+    files, bad options), 1 for anything else (a bug: its traceback on stderr); the study's new warnings are
+    printed (:class:`Warnings`). Returns the result."""
     import traceback
 
     addon = sys.modules[_common.DEV_PACKAGE]
     state = addon.operators.state
-    study = addon.operators.study.entity.Study.of(coll)
     try:
         with _blender_stdout():
-            with state.suspended_updates():
-                for name, value in settings.items():
-                    setattr(study.settings, name, value)
-            if step in ("surface", "solid", "volume") and study.boundary_set() is None:
-                study.boundaries()
-            outcome = getattr(study, step)()
-            print(f"Info: {report(study, outcome)}")
+            result = work()
+            for line in report(result):
+                print(f"Info: {line}")
         if _SIGINT[0]:
             raise Interrupted()
     except (Interrupted, KeyboardInterrupt):
@@ -438,7 +406,25 @@ def _study_step(coll, step: str, report, **settings):
         raise CLIError(f"PDE Head internal error: {type(exc).__name__}: {exc}", 1) from None
     finally:
         WARNINGS.from_study()
-    return outcome
+    return result
+
+
+def _study_step(coll, step: str, report, **settings):
+    """Run one of the study's steps (``Study.segment``, ``boundaries``, ``surface``, ``solid``, ``volume``) with
+    ``settings`` stored first, as its operator does, and print the operator's INFO report from the outcome it
+    returns (errors and warnings: :func:`_step`). Returns the outcome."""
+    addon = sys.modules[_common.DEV_PACKAGE]
+    state = addon.operators.state
+    study = addon.operators.study.entity.Study.of(coll)
+
+    def work():
+        with state.suspended_updates():
+            for name, value in settings.items():
+                setattr(study.settings, name, value)
+        if step in ("surface", "solid", "volume") and study.boundary_set() is None:
+            study.boundaries()
+        return getattr(study, step)()
+    return _step(work, lambda outcome: [report(study, outcome)])
 
 
 class Warnings:
@@ -515,7 +501,7 @@ def _dicom_series_file(path: Path) -> bool:
     return series_of_file(path) is not None
 
 
-def _auto_boundaries(args, ops, addon, coll) -> str:
+def _auto_boundaries(args, addon, coll) -> str:
     """Automatic slice selection through the study's boundaries step (``selection="auto"``, or a tolerance
     that chooses the count); returns the summary line."""
     if args.no_align:
@@ -748,9 +734,8 @@ def _record_sources_for(bpy, addon, final) -> None:
 
 
 def _steps(args, bpy, addon, state, staging) -> dict:
-    ops = bpy.ops.pdehead
     t0 = time.perf_counter()
-    coll, selection_info, skin = _build(args, bpy, addon, ops)
+    coll, selection_info, skin = _build(args, bpy, addon)
     total = time.perf_counter() - t0
 
     timings = addon.operators.study.entity.Study.of(coll).timings
@@ -776,7 +761,7 @@ def _steps(args, bpy, addon, state, staging) -> dict:
         _save(bpy, staging.blend, "--out")
     _render(args, addon, s, summary, staging)
     if args.turntable:
-        _turntable(args, bpy, addon, ops, coll, summary, staging)
+        _turntable(args, bpy, addon, coll, summary, staging)
     staging.commit(bpy, addon)
     if args.out:
         print(f"wrote {args.out}")
@@ -791,25 +776,31 @@ def _steps(args, bpy, addon, state, staging) -> dict:
     return summary
 
 
-def _build(args, bpy, addon, ops):
-    """Every step of the study, as the add-on's operators: (the study's collection, the automatic selection's
-    report or None, whether the scan has skin)."""
+def _build(args, bpy, addon):
+    """Every step of the study, as the add-on's operators make them (the study's methods): (the study's
+    collection, the automatic selection's report or None, whether the scan has skin)."""
     table = _face_table(args, addon)          # a table or sex that cannot be used: exit 2 before the work
+    reports = addon.operators.ui.ops
+    Study = addon.operators.study.entity.Study
     if args.phantom:
-        _call(ops.load_phantom)
+        study = _step(lambda: Study.phantom(bpy.context), lambda made: [reports.phantom_report(made)])
     else:
-        _call(ops.import_ct, **loader_kwargs(args))
-    coll = bpy.context.scene.pdehead.active_study
+        def import_ct():
+            path, options = addon.operators.ui.import_options.import_request(**loader_kwargs(args))
+            made = Study.import_ct(bpy.context, path, options)
+            made.settings.use_bone_level = addon.pdehead_addon.defaults.USE_BONE_LEVEL.default   # the dialog's
+            return made
+        study = _step(import_ct, lambda made: [reports.import_report(made)])
+    coll = study.collection
     if table is not None:                     # the study's table: the face's pegs and landmarks.csv use it
         props = _forensic(addon, coll).props
         props.depth_table, props.depth_table_name = table.to_json(), table.label
     s = coll.pdehead
     if args.bone_level is not None:          # the import dialog's / forensic panel's Bone Level field
         s.use_bone_level, s.bone_level = True, args.bone_level
-    reports = addon.operators.ui.ops
     _study_step(coll, "segment", reports.segment_report)
     if args.selection == "auto":
-        selection_info = _auto_boundaries(args, ops, addon, coll)
+        selection_info = _auto_boundaries(args, addon, coll)
     else:
         selection_info = None
         _study_step(coll, "boundaries", reports.boundaries_report, patches=args.patches, samples=args.samples,
@@ -817,7 +808,7 @@ def _build(args, bpy, addon, ops):
     _study_step(coll, "surface", reports.surface_report, nu=args.nu, nv=args.nv)
     if args.detail is not None:              # the Surface panel's CT Detail toggle, strength and Build CT Detail
         s.use_detail_map, s.detail_strength = True, args.detail
-        _call(ops.build_detail_map)
+        _step(study.detail_map, lambda outcome: [reports.detail_report(study, outcome)])
     _study_step(coll, "solid", reports.solid_report, nu=args.nu, nv=args.nv, nw=args.nw)
     if not args.no_volume:
         # no size given: the add-on's automatic size (Auto Voxel Size)
@@ -825,16 +816,19 @@ def _build(args, bpy, addon, ops):
                     **({} if args.voxel_size is None else dict(voxel_auto=False, voxel_size=args.voxel_size)))
     skin = True
     if args.skull:
-        _call(ops.build_skull)
-        skin = _forensic(addon, coll).skull_info().get("has_skin", True)
+        fs, forensic_reports = _forensic(addon, coll), addon.operators.ui.forensic_ops
+        _step(fs.skull.step_skull, lambda outcome: [forensic_reports.skull_report(fs, outcome)])
+        skin = fs.skull.skull_info().get("has_skin", True)
         if skin:
-            _call(ops.tissue_depth)
-        # no landmarks given: the automatic ones, each with its flag
-        if not _forensic(addon, coll).landmarks():
-            _call(ops.find_landmarks)
+            _step(fs.skull.step_depth, lambda outcome: [forensic_reports.depth_report(outcome)])
+        # no landmarks given: the automatic ones, each with its flag (a WARNING report goes to stderr as the
+        # study's warnings do, not to stdout)
+        if not fs.landmarks():
+            _step(fs.find_landmarks, lambda outcome: [text for level, text in [forensic_reports.landmarks_report(
+                outcome)] if level == 'INFO'])
         face = _face_from_skull(addon, coll) if args.face_from_skull else None
         if args.export:
-            _export_with_face(args, ops, addon, coll, face)
+            _export_with_face(args, addon, coll, face)
     return coll, selection_info, skin
 
 
@@ -866,7 +860,7 @@ def _print_study(args, bpy, state, coll, selection_info) -> None:
 def _print_skull(args, addon, coll, skin) -> None:
     """The summary's lines for the skull, the skin, the depth map, the landmarks, the face and the export."""
     fs = _forensic(addon, coll)
-    info, depth = fs.skull_info(), fs.depth_stats()
+    info, depth = fs.skull.skull_info(), fs.skull.depth_stats()
     if info.get("skull_mesh_file"):
         level = f"none (the skull is the mesh {info['skull_mesh_file']})"
     else:
@@ -924,10 +918,14 @@ def _render(args, addon, s, summary, staging) -> None:
         summary["outputs"][flag] = str(path)
 
 
-def _turntable(args, bpy, addon, ops, coll, summary, staging) -> None:
+def _turntable(args, bpy, addon, coll, summary, staging) -> None:
     """--turntable (saved into --out again) and --render-animation."""
     size = (args.resolution, args.resolution)
-    _call(ops.turntable, frames=args.turntable)
+    study = addon.operators.study.entity.Study.of(coll)
+    scene = bpy.context.scene
+    _step(lambda: addon.operators.study.animation.turntable(bpy.context, coll, args.turntable,
+                                                            start=scene.frame_start),
+          lambda pivot: [addon.operators.ui.ops.turntable_report(study, pivot, args.turntable)])
     print(f"  turntable {args.turntable} frames (1..{args.turntable}) around '{coll.name}'")
     if args.out:
         _save(bpy, staging.blend, "--out")
@@ -972,7 +970,7 @@ def _face_from_skull(addon, coll):
     fs = _forensic(addon, coll)
     try:
         table = fs.depth_table()
-        model = ff.FaceModel.prepare(fs.skull_engine_mesh("BONE"), fs.landmarks(), table, sex=table.sex or None,
+        model = ff.FaceModel.prepare(fs.skull.skull_engine_mesh("BONE"), fs.landmarks(), table, sex=table.sex or None,
                                      flags=fs.flag_names())
         res = model.solve()
     except addon.pdehead_addon.PDEHeadError as exc:
@@ -990,21 +988,21 @@ def _face_from_skull(addon, coll):
     return res, model
 
 
-def _export_with_face(args, ops, addon, coll, face) -> None:
+def _export_with_face(args, addon, coll, face) -> None:
     """Export for printing, plus face.<fmt> when the face was made: the study's export writes the face with the
     rest (built and checked first, then moved into place: nothing half-written), its provenance's landmark
     flags the same as landmarks.csv's. The written files are kept in ``args.written`` (name -> path)."""
     out = args.export.resolve()
     args.face = face
+    fs = _forensic(addon, coll)
     if face is None:
-        _call(ops.export_print, directory=str(out), format=args.export_format)
-        listed = json.loads((out / "provenance.json").read_text()).get("files", [])
-        files = [out / name for name in [*listed, "provenance.json"]]
+        outcome = _step(lambda: fs.export(str(out), args.export_format), addon.operators.ui.forensic_ops.export_report)
+        files = [Path(f) for f in outcome.values["files"]]
     else:
         res, _model = face
         try:
-            files = [Path(f) for f in _forensic(addon, coll).export(str(out), args.export_format,
-                                                                    face=(res.head, res.provenance))]
+            outcome = fs.export(str(out), args.export_format, face=(res.head, res.provenance))
+            files = [Path(f) for f in outcome.values["files"]]
         except addon.pdehead_addon.Cancelled:
             raise Interrupted() from None
         except addon.pdehead_addon.PDEHeadError as exc:

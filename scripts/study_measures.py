@@ -12,7 +12,7 @@
    dict, list or set (a literal, a comprehension or a call of ``dict``/``list``/``set``/``defaultdict``/
    ``WeakKeyDictionary``/...) that the code writes (item assignment or deletion, a mutating method), a
    ``global`` statement whose name a function assigns, and an assignment to another project module's
-   attribute (``state.last_exception = ...``). The one registry (``operators/state.py``'s ``REGISTRY``, an
+   attribute (``state.audience = ...``). The one registry (``operators/state.py``'s ``REGISTRY``, an
    instance of its ``Registry`` class) is where this state lives instead: attributes of an instance are not
    counted.
 

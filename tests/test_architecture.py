@@ -40,6 +40,10 @@ ALLOWED = {
     # the packages in import cycles: none (operators/'s subpackages are layered: ui -> study -> forensic -> scene
     # -> volume -> the top-level modules state, prefs, coords, compat)
     "package_cycles": set(),
+    # (study entity class, base class) mixed in rather than held as a component; the face and the skull are
+    # components (ForensicStudy.face, .skull); these are next
+    "study_entity_mixins": {("Study", "PipelineSteps"), ("Study", "LiveSolid"), ("ForensicStudy", "ForensicBase"),
+                            ("ForensicStudy", "ExportSteps")},
 }
 #: How many "issue N" references there are today (target 0).
 ISSUE_REFERENCES_TODAY = 0
@@ -51,6 +55,7 @@ KEYS = {
     "operators_mutable_state": lambda i: (_stem(i["where"]), i["name"]),
     "settings_declared_twice": lambda i: i["setting"],
     "issue_references": lambda i: _stem(i["where"]),
+    "study_entity_mixins": lambda i: (i["class"], i["base"]),
 }
 
 
@@ -60,7 +65,8 @@ def measures():
 
 
 @pytest.mark.parametrize("name", ["complex_functions_scripts", "private_imports", "private_imports_scripts",
-                                  "operators_internal_engine_imports", "duplicate_blocks", "ruff_findings"])
+                                  "operators_internal_engine_imports", "duplicate_blocks", "ruff_findings",
+                                  "cli_operator_calls"])
 def test_measure_is_at_its_target(measures, name):
     assert measures[name] == [], f"{name}: {measures[name]}"
 
@@ -162,3 +168,26 @@ def test_the_new_measures_see_their_violations(tmp_path, monkeypatch):
     assert state == {("CACHE", "module-level"), ("n", "global"), ("hook", "written")}
     assert [s["setting"] for s in arch.settings_declared_twice()] == ["patches"]
     assert [(_stem(i["where"]), i["text"]) for i in arch.issue_references(("pdehead_addon",))] == [("ring", "issue 7")]
+
+
+def test_the_entity_and_cli_measures_see_their_violations(tmp_path, monkeypatch):
+    """The study entities' mixins and the CLI's operator calls are counted: planted cases are reported."""
+    for file, name in arch.STUDY_ENTITIES:
+        path = tmp_path / file
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(f"class {name}(Base, Steps):\n    pass\n\n\nclass Other(Mixin):\n    pass\n")
+    (tmp_path / "scripts").mkdir()
+    (tmp_path / "scripts" / "pdehead.py").write_text(
+        "import bpy\nbpy.ops.pdehead.build_skull()\nbpy.ops.wm.save_as_mainfile()\nx = state.last_exception\n")
+    monkeypatch.setattr(arch, "ROOT", tmp_path)
+    assert {(i["class"], i["base"]) for i in arch.study_entity_mixins()} == {
+        ("Study", "Base"), ("Study", "Steps"), ("ForensicStudy", "Base"), ("ForensicStudy", "Steps")}
+    assert [(i["where"], i["name"]) for i in arch.cli_operator_calls()] == [
+        ("scripts/pdehead.py:2", "pdehead"), ("scripts/pdehead.py:4", "last_exception")]
+
+
+def test_the_study_entities_hold_the_face_as_a_component(measures):
+    """The face and the skull are no mixins of the forensic study (``fs.face``, ``fs.skull``); at most today's 4."""
+    bases = {(i["class"], i["base"]) for i in measures["study_entity_mixins"]}
+    assert not bases & {("ForensicStudy", "FaceSteps"), ("ForensicStudy", "SkullSteps")}, bases
+    assert len(measures["study_entity_mixins"]) <= 4

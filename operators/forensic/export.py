@@ -16,6 +16,7 @@ import numpy as np
 from ...pdehead_addon import PDEHeadError, defaults as D
 from .. import state
 from ..coords import MM_TO_M
+from ..outcome import StepOutcome
 from .objects import plain_material, set_material
 
 PEG_MATERIAL = "PDE Head Depth Peg"
@@ -117,7 +118,7 @@ class ExportSteps:
             table = DepthTable(entries={k: DepthEntry(k, float(v)) for k, v in table.items()}, name="imported table")
         lms = self.landmarks()
         if pegs is None:
-            pegs = marker_pegs(lms, self.skull_engine_mesh(target), table)
+            pegs = marker_pegs(lms, self.skull.skull_engine_mesh(target), table)
         if not pegs:
             raise PDEHeadError(f"none of the placed landmarks ({', '.join(lms) or 'none'}) is in the depth table "
                                f"'{table.label}'")
@@ -161,7 +162,7 @@ class ExportSteps:
         from ...pdehead_addon import provenance
 
         s = self.settings
-        sk = self.skull_segmentation()
+        sk = self.skull.skull_segmentation()
         m = sk.meta
         if m.get("skull_mesh_file"):
             level = f"none (skull from the mesh {m['skull_mesh_file']})"
@@ -186,7 +187,7 @@ class ExportSteps:
         from ...pdehead_addon import depth_flags, measure_landmark_depths
 
         lms = self.landmarks()
-        sk = self.skull_segmentation()
+        sk = self.skull.skull_segmentation()
         head = self.study.cache.seg
         measured = measure_landmark_depths(lms, skull, skin, sk, head_mask=None if head is None else head.mask,
                                            table=self.depth_table())
@@ -203,7 +204,7 @@ class ExportSteps:
 
     def has_skin(self) -> bool:
         """False when the study's CT has no soft tissue to make a skin of (a dry skull, soft tissue removed)."""
-        return bool(self.skull_segmentation().meta.get("has_skin", True))
+        return bool(self.skull.skull_segmentation().meta.get("has_skin", True))
 
     # -------------------------------------------------------------------------------------- export
     def _export_folder(self, directory: str) -> Path:
@@ -237,8 +238,8 @@ class ExportSteps:
         from ...pdehead_addon import tissue_depth
 
         s = self.settings
-        skull = self.skull_engine_mesh("BONE")
-        envelope = self.skull_engine_mesh("PDE")
+        skull = self.skull.skull_engine_mesh("BONE")
+        envelope = self.skull.skull_engine_mesh("PDE")
         meshes = [("skull", skull), ("skull_envelope", envelope)]
         skin = None
         no_skin = self._skin_missing()
@@ -255,11 +256,12 @@ class ExportSteps:
         if skin is not None:
             res = self.cache.get("depth")
             if res is None or res.points.shape != skin.vertices.shape or not np.allclose(res.points, skin.vertices):
-                res = tissue_depth(skin, self.skull_engine_mesh(depth_target), envelope=self.skull_segmentation())
+                res = tissue_depth(skin, self.skull.skull_engine_mesh(depth_target),
+                                   envelope=self.skull.skull_segmentation())
         return meshes, skull, skin, res, no_skin
 
     def export(self, directory: str, fmt: str = D.EXPORT_FORMAT.default,
-               depth_target: str = D.DEPTH_TARGET.default, face=None) -> list[str]:
+               depth_target: str = D.DEPTH_TARGET.default, face=None) -> StepOutcome:
         """Export for printing: skull.<fmt> (the bone), skull_envelope.<fmt> (the PDE skull envelope), skin.<fmt>
         (when the CT has skin), face.<fmt> (the face from the skull, when the study has one or ``face`` = (its
         solved PDE head, provenance) is given; both meshed at print resolution), tissue_depth.csv, landmarks.csv and
@@ -273,6 +275,9 @@ class ExportSteps:
         same flag. Everything is built and checked (watertight, in mm) before the first file is written,
         into a hidden folder inside ``directory`` whose files are then moved into place: a failure leaves no
         partial set. The flags written are kept in the study's cache (``export_flags``).
+
+        Returns the seconds and (``values``) the paths written (``files``, provenance.json last), the files
+        left out (``not_written``: name -> why) and the landmarks' flags written (``flags``).
         """
         from ...pdehead_addon import EXPORT_FORMATS as FORMATS
 
@@ -293,7 +298,7 @@ class ExportSteps:
             table = self.depth_table()
             prov = self.provenance(table)
             prov_lm = dict(prov, depth=method)
-            face = self.face_for_export() if face is None else face
+            face = self.face.face_for_export() if face is None else face
             face_prov = None
             if face is not None:
                 face_head, face_prov = face
@@ -309,7 +314,9 @@ class ExportSteps:
         self.cache["export_not_written"] = dict(not_written)
         self._adopt_export_flags(flags)
         self.study.record_timing("export", timer.seconds)
-        return [str(out / n) for n in names]
+        return StepOutcome("export", seconds=timer.seconds,
+                           values=dict(files=[str(out / n) for n in names], not_written=dict(not_written),
+                                       flags=dict(flags)))
 
     def _write_export(self, out: Path, fmt: str, meshes, res, depths, table, flags, prov, prov_lm, face_prov,
                       not_written=None):

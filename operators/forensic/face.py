@@ -1,12 +1,10 @@
 """Face from Skull in Blender: the face object, its pegs, and the live re-solve when a peg moves.
 
 The engine (:mod:`pdehead_addon.forensic.face_from_skull`) prepares a :class:`FaceModel` from the skull, the
-landmarks and a depth table (seconds), then solves a face through the peg tips (fast). This module is
-the Blender side of it:
+landmarks and a depth table (seconds), then solves a face through the peg tips (fast). This module is the
+Blender side of it: :class:`Face`, a component of :class:`.study.ForensicStudy` (``fs.face``):
 
-The steps are methods of :class:`.study.ForensicStudy` (defined here in :class:`FaceSteps`):
-
-* **Build Face** (:meth:`FaceSteps.build_face`) prepares the model, builds the face as its own object in the
+* **Build Face** (:meth:`Face.build_face`) prepares the model, builds the face as its own object in the
   study's collection (shaded smooth) and the pegs as child objects of it (one per peg of the model,
   standing on the bone along the bone normal, as long as the table's mean). The label
   :data:`APPROXIMATION_LABEL` and the provenance are custom properties of the face object.
@@ -14,18 +12,13 @@ The steps are methods of :class:`.study.ForensicStudy` (defined here in :class:`
   registered once, guarded against recursion) compares each face's peg tips (a peg's tip: its origin on the bone
   plus its ``depth_mm`` along its own Z axis) with the tips of the last solve; when one moved -- a peg dragged
   with G, moved by a script, or its depth changed -- the model is solved through the new tips and only
-  the vertex positions of the same mesh are rewritten (``foreach_set``; no new datablock). Switching the
+  the vertex positions of the same mesh are rewritten (:class:`.face_live.LiveFace`). Switching the
   table (study setting ``face_table``) sets every peg to the new table's mean and re-solves at once.
 * **Save and reopen.** Everything the face needs is in the .blend: the bone skull object's mesh, the
   landmarks the face was built from, the table, the options (JSON on the collection) and the tips of
-  the last solve (on the face object). The prepared :class:`FaceModel` is kept too
-  (:func:`.face_live.model_state`: its arrays and UV layout, under 1 MB (phantom 0.72 MB), on the collection under
-  :data:`FACE_MODEL_KEY`): the first change after reopening rebuilds it from there in milliseconds and
-  checks it (its solve at the saved tips must give the saved face, within :data:`RESTORE_TOLERANCE_MM`);
-  only when that fails (a file from another version) is the model prepared again from the skull
-  (seconds).
-* **Speed.** A change goes through :class:`.face_live.LiveFace`: the vertex positions alone, the same
-  numbers as the model's whole solve (checked when it is made), written into the same mesh.
+  the last solve (on the face object). The prepared :class:`FaceModel` is kept too (:func:`.face_live.model_state`
+  on the collection under :data:`FACE_MODEL_KEY`): after reopening it is rebuilt from there and checked (its solve
+  at the saved tips must give the saved face, within :data:`RESTORE_TOLERANCE_MM`), else prepared again.
 * **Held pegs.** A peg the practitioner moved or whose depth was set is *held* (its custom property
   :data:`HELD_PROP`, a toggle in the panel; Build Face makes every peg unheld): the engine never damps it, the
   face passes through its tip. After every solve each peg carries its tip's distance to the face
@@ -133,19 +126,23 @@ def _update_peg_table(peg, entry, table) -> None:
     peg.scale[2] = float(entry.mean_mm)       # what the driver will say; the tip is read from depth_mm
 
 
-class FaceSteps:
-    """The face from the skull of a study (part of :class:`.study.ForensicStudy`)."""
+class Face:
+    """The face from the skull of a study: a component of its :class:`.study.ForensicStudy` (``fs.face``), which it
+    reads the skull, landmarks and pegs from; its state is in the study's collection, settings and cache."""
+
+    def __init__(self, forensic):
+        self.forensic = forensic
 
     def face_object(self):
-        return self.linked_object(FACE_KEY)
+        return self.forensic.linked_object(FACE_KEY)
 
     def face_options(self) -> dict:
         """What the face was built from: build id, table JSON, sex, options, flags, landmarks, pegs ({}: none)."""
-        return face_options_of(self.props)
+        return face_options_of(self.forensic.props)
 
     def face_peg_names(self) -> list[str]:
         """The landmarks the face has a peg at, in the model's order ([] before Build Face)."""
-        return [g.name for g in self.props.face_pegs]
+        return [g.name for g in self.forensic.props.face_pegs]
 
     # -------------------------------------------------------------------------------------- inputs
     def face_skull_mesh(self):
@@ -153,10 +150,10 @@ class FaceSteps:
         holds, so a reopened file prepares the same model), else built from the CT."""
         from ..coords import study_origin
 
-        obj = self.linked_object("pdehead_bone_object")
+        obj = self.forensic.linked_object("pdehead_bone_object")
         if obj is None or obj.type != 'MESH' or len(obj.data.polygons) == 0:
-            return self.skull_engine_mesh("BONE")
-        return engine_mesh_of(obj, study_origin(self.collection))
+            return self.forensic.skull.skull_engine_mesh("BONE")
+        return engine_mesh_of(obj, study_origin(self.forensic.collection))
 
     def face_for_export(self):
         """The study's face for Export for Printing: (its PDE surface, patient mm; its provenance with the
@@ -169,7 +166,7 @@ class FaceSteps:
         prov = json.loads(obj.get(PROVENANCE_PROP) or "{}")
         prov["label"] = approximation_label()
         model = self.face_model()
-        held = self.cache.get("face_held")
+        held = self.forensic.cache.get("face_held")
         if held is None or len(held) != len(model.peg_names):
             held = self.peg_held(list(model.peg_names))
         return model.solve(tips=_stored_tips(obj, model), held=held).head, prov
@@ -188,7 +185,7 @@ class FaceSteps:
 
         from ...pdehead_addon import default_table, read_depth_table
 
-        s = self.settings
+        s = self.forensic.settings
         if s.face_table == 'FILE':
             if not s.face_table_file:
                 raise PDEHeadError("choose a depth table file (Table File), or the T-Table 2023")
@@ -204,7 +201,7 @@ class FaceSteps:
         return tables[key]
 
     def face_sex(self) -> str | None:
-        value = self.settings.face_sex
+        value = self.forensic.settings.face_sex
         return None if value == 'POOLED' else value.lower()
 
     # -------------------------------------------------------------------------------------- model
@@ -213,14 +210,15 @@ class FaceSteps:
         from ..scene import objects
         co = np.empty(len(obj.data.vertices) * 3, np.float32)
         obj.data.attributes["position"].data.foreach_get("vector", co)
-        return (co.reshape(-1, 3).astype(np.float64) + np.asarray(objects.study_origin(self.collection))) / MM_TO_M
+        origin = np.asarray(objects.study_origin(self.forensic.collection))
+        return (co.reshape(-1, 3).astype(np.float64) + origin) / MM_TO_M
 
     def _restore_model(self, opts):
         """The model kept in the file, checked against the saved face (None when there is none or it does not
         give the saved face): (model, LiveFace)."""
         from ...pdehead_addon import LiveFace, face_model_from_state
 
-        text = self.collection.get(FACE_MODEL_KEY)
+        text = self.forensic.collection.get(FACE_MODEL_KEY)
         obj = self.face_object()
         if not text or obj is None:
             return None
@@ -250,9 +248,9 @@ class FaceSteps:
         """The prepared model into the file (the collection), after its first solve fixed its parameter."""
         from ...pdehead_addon import face_model_state
         try:
-            self.collection[FACE_MODEL_KEY] = build + "\n" + face_model_state(model)
+            self.forensic.collection[FACE_MODEL_KEY] = build + "\n" + face_model_state(model)
         except (TypeError, ValueError) as exc:     # a model this version cannot keep: prepared again after reopening
-            self.collection.pop(FACE_MODEL_KEY, None)
+            self.forensic.collection.pop(FACE_MODEL_KEY, None)
             print(f"PDE Head: the face model is not kept in the file ({exc}); reopening will prepare it again")
 
     def face_model(self):
@@ -260,8 +258,8 @@ class FaceSteps:
         .blend, else prepared again from the .blend's skull, landmarks and table)."""
         opts = self.face_options()
         if not opts:
-            raise PDEHeadError(f"study '{self.name}' has no face yet: run Build Face")
-        cache = self.cache
+            raise PDEHeadError(f"study '{self.forensic.name}' has no face yet: run Build Face")
+        cache = self.forensic.cache
         if cache.get("face_model") is None or cache.get("face_build") != opts["build"]:
             with state.Timer() as t:
                 restored = self._restore_model(opts)
@@ -283,11 +281,11 @@ class FaceSteps:
     def face_live(self):
         """The study's :class:`.face_live.LiveFace` (made on first use: it checks itself against the model)."""
         model = self.face_model()
-        live = self.cache.get("face_live")
+        live = self.forensic.cache.get("face_live")
         if live is None or live.model is not model:
             from ...pdehead_addon import LiveFace
             live = LiveFace(model)
-            self.cache["face_live"] = live
+            self.forensic.cache["face_live"] = live
         return live
 
     def peg_objects(self, names: list[str]) -> dict:
@@ -300,7 +298,7 @@ class FaceSteps:
                 if name in names and name not in found:
                     found[name] = o
         if len(found) < len(names):
-            for o in self.collection.all_objects:
+            for o in self.forensic.collection.all_objects:
                 name = o.get("pdehead_peg")
                 if name in names and name not in found:
                     found[name] = o
@@ -314,7 +312,7 @@ class FaceSteps:
         rows = [i for i, name in enumerate(names) if name in pegs]
         if not rows:
             return tips
-        inverse = np.array(self.frankfurt_matrix().inverted())
+        inverse = np.array(self.forensic.frankfurt_matrix().inverted())
         found = [pegs[names[i]] for i in rows]
         m = np.array([p.matrix_world for p in found], float)                       # (k, 4, 4), one read per peg
         depth = np.array([float(p.get(PEG_DEPTH_PROP, 0.0)) for p in found])
@@ -333,7 +331,7 @@ class FaceSteps:
 
     def _hold_touched(self, names: list[str], raw: np.ndarray) -> None:
         """The pegs whose tip moved since the last solve (dragged, or their depth set) become held."""
-        last = self.cache.get("face_tips")
+        last = self.forensic.cache.get("face_tips")
         if last is None:                   # the model was just rebuilt (reopened file): the tips of the last solve
             stored = self.face_object().get(TIPS_PROP)
             last = np.array(stored, float).reshape(-1, 3) if stored is not None else None
@@ -355,7 +353,7 @@ class FaceSteps:
         prov = json.loads(obj.get(PROVENANCE_PROP, "{}") or "{}")
         prov.update(report.record())
         obj[PROVENANCE_PROP] = json.dumps(prov)
-        self.cache["face_report"] = report
+        self.forensic.cache["face_report"] = report
 
     def peg_warnings(self) -> list[dict]:
         """The warnings of the face's last solve (a peg in the bone, a peg dragged implausibly far)."""
@@ -369,16 +367,16 @@ class FaceSteps:
         (patient mm) instead of a ``mesh``: only the positions. Returns whether the mesh was refilled."""
         from ..scene import objects
 
-        me = obj.data
+        me, coll = obj.data, self.forensic.collection
         verts = positions if positions is not None else mesh.vertices
         if len(me.vertices) == len(verts) and (positions is not None or len(me.polygons) == mesh.face_count):
-            local = np.asarray(verts, np.float64) * MM_TO_M - np.asarray(objects.study_origin(self.collection))
+            local = np.asarray(verts, np.float64) * MM_TO_M - np.asarray(objects.study_origin(coll))
             me.attributes["position"].data.foreach_set("vector", np.ascontiguousarray(local, np.float32).ravel())
             me.update()
             return False
         if mesh is None:
             raise ValueError("the face's vertex count changed: a whole mesh is needed")
-        objects.build_mesh_object(mesh, self.collection, obj.name, obj=obj, smooth=True)
+        objects.build_mesh_object(mesh, coll, obj.name, obj=obj, smooth=True)
         return True
 
     def _face_provenance(self, result_provenance: dict, table) -> dict:
@@ -387,7 +385,7 @@ class FaceSteps:
         opts = self.face_options()
         rec = provenance(label=approximation_label(), **(table.provenance_record() if table is not None else {}))
         rec.update({k: v for k, v in dict(result_provenance).items() if k not in rec})
-        flags = self.flag_names()
+        flags = self.forensic.flag_names()
         rec["landmarks"] = {n: flags.get(n, "ok") for n in opts.get("landmarks", {})}
         # every landmark's flag as the study holds it (not_found ones too; an export's adopted ones), so the face's
         # provenance lists what landmarks.csv lists after a drag or a reopen as well (the tester: it dropped 28)
@@ -406,7 +404,7 @@ class FaceSteps:
         t0 = time.perf_counter()
         obj = self.face_object()
         if obj is None:
-            raise PDEHeadError(f"study '{self.name}' has no face: run Build Face")
+            raise PDEHeadError(f"study '{self.forensic.name}' has no face: run Build Face")
         model = self.face_model()
         live = self.face_live()
         names = list(model.peg_names)
@@ -429,22 +427,22 @@ class FaceSteps:
             obj[PROVENANCE_PROP] = json.dumps(self._face_provenance(prov, table))
         self._show_report(obj, report)
         t3 = time.perf_counter()
-        self.cache["face_tips"] = raw
-        self.cache["face_held"] = held
+        self.forensic.cache["face_tips"] = raw
+        self.forensic.cache["face_held"] = held
         timings = {"tips": t1 - t0, "solve": t2 - t1, "write": t3 - t2, "total": t3 - t0, "refilled": refilled,
                    "fast": positions is not None, "engine": dict(result.timings) if result is not None else {},
                    "warnings": list(report.warnings)}
-        self.cache["face_timings"] = timings
+        self.forensic.cache["face_timings"] = timings
         obj["pdehead_face_ms"] = round(1000 * timings["total"], 1)
         return timings
 
     def live_status(self) -> str | None:
         """One line for the panel: how the last change was solved (None before the first change)."""
-        timings = self.cache.get("face_timings")
+        timings = self.forensic.cache.get("face_timings")
         if not timings:
             return None
         text = "Live: vertex positions only" if timings.get("fast") else "Live: whole mesh solved (slower)"
-        return text + (", model from the file" if self.cache.get("face_model_source") == "file" else "")
+        return text + (", model from the file" if self.forensic.cache.get("face_model_source") == "file" else "")
 
     def face_changed(self) -> bool:
         """Whether a peg tip moved since the last solve (cheap: no model needed)."""
@@ -456,22 +454,22 @@ class FaceSteps:
         obj = self.face_object()
         if obj is None:
             return None
-        last = self.cache.get("face_tips")
+        last = self.forensic.cache.get("face_tips")
         if last is None:
             stored = obj.get(TIPS_PROP)
             if stored is not None:
                 last = np.array(stored, float).reshape(-1, 3)
-                self.cache["face_tips"] = last
+                self.forensic.cache["face_tips"] = last
         names = self.face_peg_names()
         now = self.peg_tips(names)
         if last is None or now.shape != last.shape:
             return now
         same = np.abs(now - last) <= TIP_TOLERANCE_MM
         same |= np.isnan(now) & np.isnan(last)             # a peg that is gone stays gone: no new solve
-        held = self.cache.get("face_held")
+        held = self.forensic.cache.get("face_held")
         if held is None:                   # a reopened file: the pegs held at the last solve, from its provenance
             prov = json.loads(obj.get(PROVENANCE_PROP, "{}") or "{}")
-            held = self.cache["face_held"] = np.isin(names, prov.get("pegs_held") or [])
+            held = self.forensic.cache["face_held"] = np.isin(names, prov.get("pegs_held") or [])
         if not np.array_equal(held, self.peg_held(names)):
             return now                                     # a peg held or let go in the panel: solve again
         return None if bool(same.all()) else now
@@ -483,37 +481,38 @@ class FaceSteps:
         model's preparation (the study's ``face_prepare`` timing) and ``values``: vertices, pegs, label."""
         from ..scene import objects
 
-        coll = self.collection
-        s = self.settings
-        if self.linked_object("pdehead_bone_object") is None:
-            self.step_skull(s.nu, s.nv)
-        if not self.landmarks():
-            self.find_landmarks()
+        coll = self.forensic.collection
+        s = self.forensic.settings
+        if self.forensic.linked_object("pdehead_bone_object") is None:
+            self.forensic.skull.step_skull(s.nu, s.nv)
+        if not self.forensic.landmarks():
+            self.forensic.find_landmarks()
         table = self.face_table()
-        lms = self.landmarks()
+        lms = self.forensic.landmarks()
         sex = table.sex or None                     # the rows used (a pooled table ignores the Sex setting)
-        flags = self.flag_names()
+        flags = self.forensic.flag_names()
         with state.Timer() as t:
             model = _prepare(self.face_skull_mesh(), lms, table, sex=sex, flags=flags)
         if not len(model.peg_names):
             raise PDEHeadError(f"none of the landmarks ({', '.join(lms) or 'none'}) is in the depth table "
                                f"'{table.label}': no peg to build the face through")
         build = uuid.uuid4().hex
-        store_face_options(self.props, dict(build=build, table=table.to_json(), sex=sex, options={}, flags=flags,
-                                            landmarks={k: [float(c) for c in v] for k, v in lms.items()},
-                                            pegs=list(model.peg_names)))
-        self.cache.update(face_model=model, face_live=None, face_build=build, face_tips=None,
-                          face_prepare_s=t.seconds, face_model_source="prepared")
+        store_face_options(self.forensic.props, dict(
+            build=build, table=table.to_json(), sex=sex, options={}, flags=flags,
+            landmarks={k: [float(c) for c in v] for k, v in lms.items()}, pegs=list(model.peg_names)))
+        self.forensic.cache.update(face_model=model, face_live=None, face_build=build, face_tips=None,
+                                   face_prepare_s=t.seconds, face_model_source="prepared")
         result = model.solve()
         obj = objects.build_mesh_object(result.mesh, coll, f"{coll.name} Face", obj=self.face_object(), smooth=True)
         obj["pdehead_kind"] = FACE_KIND
         obj[LABEL_PROP] = approximation_label()
         coll[FACE_KEY] = obj
         set_material(obj, plain_material(FACE_MATERIAL, (0.80, 0.62, 0.52, 1.0)))
-        self.to_frankfurt(obj)
+        self.forensic.to_frankfurt(obj)
         # the pegs: one per peg of the model (old pegs of the study are replaced), children of the face
-        pegs = self.make_pegs(table, pegs=[(n, model.peg_bases[i], model.peg_normals[i],
-                                            float(model.default_depths[i])) for i, n in enumerate(model.peg_names)])
+        pegs = self.forensic.make_pegs(table, pegs=[(n, model.peg_bases[i], model.peg_normals[i],
+                                                     float(model.default_depths[i]))
+                                                    for i, n in enumerate(model.peg_names)])
         for peg in pegs:
             world = peg.matrix_world.copy()
             peg.parent = obj
@@ -527,12 +526,12 @@ class FaceSteps:
         obj[TIPS_PROP] = [float(v) for v in tips.ravel()]
         obj[PROVENANCE_PROP] = json.dumps(self._face_provenance(result.provenance, table))
         self._show_report(obj, result.pegs)
-        self.cache["face_tips"] = tips
-        self.cache["face_held"] = np.zeros(len(model.peg_names), bool)
+        self.forensic.cache["face_tips"] = tips
+        self.forensic.cache["face_held"] = np.zeros(len(model.peg_names), bool)
         self._keep_model(model, build)
         from ...pdehead_addon import LiveFace
-        self.cache["face_live"] = LiveFace(model)
-        self.study.record_timing("face_prepare", t.seconds)
+        self.forensic.cache["face_live"] = LiveFace(model)
+        self.forensic.study.record_timing("face_prepare", t.seconds)
         line = result.pegs.summary() if result.pegs is not None else None
         return StepOutcome("face", objects=(obj, *pegs), warnings=(line,) if line else (), seconds=t.seconds,
                            values=dict(vertices=len(obj.data.vertices), pegs=len(pegs), label=obj[LABEL_PROP]))
@@ -547,8 +546,8 @@ class FaceSteps:
             entry = table.entries.get(name)
             if entry is not None:
                 _update_peg_table(peg, entry, table)
-        self.props.face_table = table.to_json()
-        self.props.face_sex = getattr(table, "sex", "")          # what the face now stands by
+        self.forensic.props.face_table = table.to_json()
+        self.forensic.props.face_sex = getattr(table, "sex", "")          # what the face now stands by
         return self.solve_face(table=table, hold_touched=False)     # the table moved the pegs, not the practitioner
 
     def set_face_peg_depth(self, peg, depth_mm: float) -> float:
@@ -564,10 +563,10 @@ class FaceSteps:
         seconds."""
         from ..scene import objects
 
-        coll = self.collection
+        coll = self.forensic.collection
         face = self.face_object()
         if face is None:
-            raise PDEHeadError(f"study '{self.name}' has no face: run Build Face")
+            raise PDEHeadError(f"study '{self.forensic.name}' has no face: run Build Face")
         model = self.face_model()
         tips = self.peg_tips(list(model.peg_names))
         depth = np.einsum("ij,ij->i", tips - model.peg_bases, model.peg_normals)
@@ -578,7 +577,7 @@ class FaceSteps:
             result = model.solve(depths=np.maximum(depth + sign * sd, 0.0), held=self.peg_held(list(model.peg_names)))
             label = "-1 SD" if sign < 0 else "+1 SD"
             obj = objects.build_mesh_object(result.mesh, coll, f"{coll.name} Face {label}",
-                                            obj=self.linked_object(SD_FACE_KEYS[key]), smooth=True)
+                                            obj=self.forensic.linked_object(SD_FACE_KEYS[key]), smooth=True)
             obj["pdehead_kind"] = f"face_{key}_sd"
             obj[LABEL_PROP] = approximation_label()
             obj[PROVENANCE_PROP] = json.dumps(dict(json.loads(face.get(PROVENANCE_PROP, "{}")),
@@ -595,6 +594,6 @@ class FaceSteps:
         """After ``face_table`` / ``face_table_file`` changed: :meth:`switch_table` (never raises into the UI)."""
         try:
             self.switch_table()
-            self.settings.last_error = ""
+            self.forensic.settings.last_error = ""
         except Exception as exc:  # noqa: BLE001 - an update callback must never raise into the UI
-            self.settings.last_error = f"face: {exc}"[:500]
+            self.forensic.settings.last_error = f"face: {exc}"[:500]

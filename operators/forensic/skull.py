@@ -7,7 +7,7 @@
   as the POINT attributes ``tissue_depth`` (mm, -1 = no value) and ``tissue_depth_reason`` and
   gives it a colour-ramp material; the ramp is the legend in the panel.
 
-They are methods of :class:`.study.ForensicStudy` (defined here in :class:`SkullSteps`).
+They are methods of :class:`Skull`, a component of :class:`.study.ForensicStudy` (``fs.skull``).
 """
 from __future__ import annotations
 
@@ -36,27 +36,32 @@ DEPTH_DISPLAY_MAX_MM = D.DEPTH_DISPLAY_MAX.default
 
 
 # ------------------------------------------------------------------------------------------ skull
-class SkullSteps:
-    """The skull and the depth map of a study (part of :class:`.study.ForensicStudy`)."""
+class Skull:
+    """The skull and the depth map of a study: a component of its :class:`.study.ForensicStudy` (``fs.skull``);
+    its state is in the study's collection, settings and cache."""
+
+    def __init__(self, forensic):
+        self.forensic = forensic
 
     def skull_segmentation(self):
         """The skull segmentation of the study (cached; computed from the CT and the head segmentation)."""
         from ...pdehead_addon import check_bone_level, segment_skull
 
-        extra = self.cache
-        cache = self.study.cache
+        extra = self.forensic.cache
+        cache = self.forensic.study.cache
         if cache.seg is None:
-            self.study.segment()
-        s = self.settings
+            self.forensic.study.segment()
+        s = self.forensic.settings
         level = float(s.bone_level) if s.use_bone_level else None
         if extra.get("skull_seg") is None or extra.get("skull_seg_of") is not cache.seg \
                 or extra.get("skull_seg_level") != level:
             # a new head segmentation (or CT, or bone level) makes the skull and everything measured on it stale
-            if level is not None and self.study.ct.meta.get("format") != "mesh":
-                check_bone_level(self.study.ct, level)      # a level above the scan's bone: refused before the work
+            ct = self.forensic.study.ct
+            if level is not None and ct.meta.get("format") != "mesh":
+                check_bone_level(ct, level)      # a level above the scan's bone: refused before the work
             if extra.get("skull_seg") is not None and extra.get("skull_seg_level") != level:
-                self.collection.pop(SKULL_BOUNDARY_KEY, None)      # the stored envelope was of the old level
-            extra.update(skull_seg=segment_skull(self.study.ct, cache.seg, bone_level=level),
+                self.forensic.collection.pop(SKULL_BOUNDARY_KEY, None)      # the stored envelope was of the old level
+            extra.update(skull_seg=segment_skull(self.forensic.study.ct, cache.seg, bone_level=level),
                          skull_seg_of=cache.seg, skull_seg_level=level, bone_mesh=None, skull_mesh=None, depth=None)
             for w in extra["skull_seg"].meta.get("warnings", []):
                 if w not in s.warnings:
@@ -67,26 +72,28 @@ class SkullSteps:
         """The PDE skull envelope (boundary set, solved head, t) from the skull segmentation, by the skin's path."""
         from ...pdehead_addon import extract_boundaries, max_patches, solve_pde
 
-        s = self.settings
+        s = self.forensic.settings
         sk = self.skull_segmentation()
         limit = max_patches(sk)
         if limit < 1:
-            raise PDEHeadError(f"study '{self.name}': the skull has fewer than 4 usable outlines; "
+            raise PDEHeadError(f"study '{self.forensic.name}': the skull has fewer than 4 usable outlines; "
                                "no PDE skull envelope")
         patches = min(int(s.patches), limit)
         bset = extract_boundaries(sk, patches=patches, samples=int(s.samples), selection=s.selection)
         return bset, solve_pde(bset), patches
 
-    def step_skull(self, nu: int, nv: int, bone: bool = D.BONE_MESH.default,
-                   bone_step: int = D.BONE_STEP.default) -> StepOutcome:
-        """The bone skull (smoothed marching cubes of the bone: what skull.<fmt> is) and the PDE skull envelope;
-        returns the objects built (the envelope, then the bone mesh), the segmentation's warnings, the seconds
-        and what the skull info records (``values``: bone level, patches, parts, bone volume, ...)."""
+    def step_skull(self, nu: int = D.SKULL_NU.default, nv: int = D.SKULL_NV.default,
+                   bone: bool = D.BONE_MESH.default, bone_step: int = D.BONE_STEP.default) -> StepOutcome:
+        """The bone skull (smoothed marching cubes of the bone: what skull.<fmt> is) and the PDE skull envelope
+        (``nu`` x ``nv`` samples; 0: the skin's); returns the objects built (the envelope, then the bone mesh),
+        the segmentation's warnings, the seconds and what the skull info records (``values``: bone level,
+        patches, parts, bone volume, ...)."""
         from ...pdehead_addon import dumps_boundaries, skull_mesh
         from ..scene import objects
 
-        coll = self.collection
-        extra = self.cache
+        coll = self.forensic.collection
+        extra = self.forensic.cache
+        nu, nv = int(nu) or int(self.forensic.settings.nu), int(nv) or int(self.forensic.settings.nv)
         with state.Timer() as t:
             sk = self.skull_segmentation()
             bset, head, patches = self._envelope_head()
@@ -94,7 +101,7 @@ class SkullSteps:
         coll[SKULL_BOUNDARY_KEY] = base64.b64encode(dumps_boundaries(bset)).decode("ascii")
         extra.update(skull_head=head, skull_mesh=mesh, depth=None)
         obj = objects.build_mesh_object(mesh, coll, f"{coll.name} Skull",
-                                        obj=self.linked_object("pdehead_skull_object"))
+                                        obj=self.forensic.linked_object("pdehead_skull_object"))
         obj["pdehead_kind"] = "skull"
         set_material(obj, plain_material(BONE_MATERIAL, (0.85, 0.82, 0.72, 1.0)))
         coll["pdehead_skull_object"] = obj
@@ -110,46 +117,46 @@ class SkullSteps:
             bmesh = skull_mesh(sk, step=int(bone_step))
             extra["bone_mesh"] = bmesh
             bobj = objects.build_mesh_object(bmesh, coll, f"{coll.name} Bone",
-                                             obj=self.linked_object("pdehead_bone_object"), smooth=True)
+                                             obj=self.forensic.linked_object("pdehead_bone_object"), smooth=True)
             bobj["pdehead_kind"] = "bone_mesh"
             set_material(bobj, plain_material(BONE_MATERIAL, (0.85, 0.82, 0.72, 1.0)))
             coll["pdehead_bone_object"] = bobj
             info["bone_triangles"] = len(bmesh.triangles)
         coll[SKULL_INFO_KEY] = json.dumps(info)
-        self.study.record_timing("skull", t.seconds)
+        self.forensic.study.record_timing("skull", t.seconds)
         built = (obj, bobj) if bone else (obj,)
         return StepOutcome("skull", objects=built, warnings=tuple(str(w) for w in sk.meta.get("warnings", ())),
                            seconds=t.seconds, values=info)
 
     def skull_info(self) -> dict:
         """What the last Build Skull recorded (bone level, parts, volume, mandible; {} before it)."""
-        return json.loads(self.collection.get(SKULL_INFO_KEY, "{}") or "{}")
+        return json.loads(self.forensic.collection.get(SKULL_INFO_KEY, "{}") or "{}")
 
     def skull_engine_mesh(self, target: str = D.DEPTH_TARGET.default):
         """The skull as an engine Mesh (patient mm): the bone skull, or the PDE skull envelope (built when
         missing, rebuilt from the stored curves after reopening)."""
         from ...pdehead_addon import dumps_boundaries, loads_boundaries, skull_mesh, solve_pde
 
-        extra = self.cache
+        extra = self.forensic.cache
         if target == "BONE":
             if extra.get("bone_mesh") is None:
                 extra["bone_mesh"] = skull_mesh(self.skull_segmentation())
             return extra["bone_mesh"]
         if extra.get("skull_mesh") is None:
-            s = self.settings
-            text = self.collection.get(SKULL_BOUNDARY_KEY)
+            s = self.forensic.settings
+            text = self.forensic.collection.get(SKULL_BOUNDARY_KEY)
             if text:
                 head = solve_pde(loads_boundaries(base64.b64decode(text)))
             else:
                 bset, head, _ = self._envelope_head()
-                self.collection[SKULL_BOUNDARY_KEY] = base64.b64encode(dumps_boundaries(bset)).decode("ascii")
+                self.forensic.collection[SKULL_BOUNDARY_KEY] = base64.b64encode(dumps_boundaries(bset)).decode("ascii")
             extra["skull_head"], extra["skull_mesh"] = head, head.surface(int(s.nu), int(s.nv), caps=True)
         return extra["skull_mesh"]
 
     def skin_engine_mesh(self):
         """The PDE skin as an engine Mesh with the surface object's vertex order (same nu, nv, caps)."""
-        s = self.settings
-        return self.study.head.surface(int(s.nu), int(s.nv), caps=bool(s.caps))
+        s = self.forensic.settings
+        return self.forensic.study.head.surface(int(s.nu), int(s.nv), caps=bool(s.caps))
 
     # -------------------------------------------------------------------------------------- depth
     def step_depth(self, target: str = D.DEPTH_TARGET.default,
@@ -159,13 +166,13 @@ class SkullSteps:
         max_depth_mm)."""
         from ...pdehead_addon import tissue_depth
 
-        s = self.settings
+        s = self.forensic.settings
         if s.surface_object is None:
-            self.study.surface()
+            self.forensic.study.surface()
         obj = s.surface_object
         skin = self.skin_engine_mesh()
         if len(skin.vertices) != len(obj.data.vertices):  # the surface was edited or built otherwise
-            self.study.surface()
+            self.forensic.study.surface()
             obj = s.surface_object
         with state.Timer() as t:
             res = tissue_depth(skin, self.skull_engine_mesh(target), envelope=self.skull_segmentation(),
@@ -183,14 +190,14 @@ class SkullSteps:
         set_material(obj, depth_material())
         stats = res.statistics()
         stats.update(target=target, max_depth_mm=float(max_depth_mm), seconds=round(t.seconds, 2))
-        self.collection[DEPTH_STATS_KEY] = json.dumps(stats)
-        self.cache["depth"] = res
-        self.study.record_timing("depth", t.seconds)
+        self.forensic.collection[DEPTH_STATS_KEY] = json.dumps(stats)
+        self.forensic.cache["depth"] = res
+        self.forensic.study.record_timing("depth", t.seconds)
         return StepOutcome("depth", objects=(obj,), seconds=t.seconds, values=stats)
 
     def depth_stats(self) -> dict:
         """The statistics of the last Tissue Depth ({} before it)."""
-        return json.loads(self.collection.get(DEPTH_STATS_KEY, "{}") or "{}")
+        return json.loads(self.forensic.collection.get(DEPTH_STATS_KEY, "{}") or "{}")
 
 
 # ------------------------------------------------------------------------------------------ depth map

@@ -6,13 +6,13 @@ report), over the engine (:mod:`pdehead_addon.forensic.skull`, :mod:`~pdehead_ad
 is for the skin. ``ForensicStudy.of(study)`` (``study``: a :class:`operators.study.entity.Study`) gives one object
 per study for the session; its methods come in parts:
 
-* the skull and the depth map (:class:`.skull.SkullSteps`): the bone segmented from the CT, the
+* the skull and the depth map (:class:`.skull.Skull`, a component: ``fs.skull``): the bone segmented from the CT, the
   skull as a PDE surface and the marching-cubes bone mesh, the per-vertex tissue depth of the skin;
 * landmarks, Frankfurt horizontal and mirror (here): landmarks are empties snapped to the skull; Frankfurt
   horizontal and mirror are object transforms -- the meshes keep patient coordinates (world = LPS x 0.001
   before the transform), and each landmark keeps its patient mm;
 * marker pegs, provenance and Export for Printing (:class:`.export.ExportSteps`);
-* the face from the skull (:class:`.face.FaceSteps`).
+* the face from the skull (:class:`.face.Face`, a component: ``fs.face``).
 
 Its settings and landmark flags are a PropertyGroup on the collection (:mod:`.props`); the
 shared parts (the study, cache, sub-collections) are :class:`.objects.ForensicBase`. The
@@ -28,11 +28,12 @@ import numpy as np
 
 from ...pdehead_addon import PDEHeadError, defaults as D
 from ..coords import MM_TO_M
+from ..outcome import StepOutcome
 from .export import ExportSteps
-from .face import PROVENANCE_PROP, FaceSteps
+from .face import PROVENANCE_PROP, Face
 from .objects import ForensicBase
 from .props import set_flags
-from .skull import SKULL_BOUNDARY_KEY, SkullSteps
+from .skull import SKULL_BOUNDARY_KEY, Skull
 
 FRANKFURT_KEY = "pdehead_frankfurt"         # 16 floats: the Blender-space transform applied
 BASE_MATRIX_KEY = "pdehead_base_matrix"     # per object: its matrix before the Frankfurt transform
@@ -59,8 +60,14 @@ def blender_matrix(m_mm: np.ndarray):
     return Matrix(m.tolist())
 
 
-class ForensicStudy(ForensicBase, SkullSteps, ExportSteps, FaceSteps):
-    """One study's forensic side: skull, depth map, landmarks, pegs, Frankfurt, mirror, export, face."""
+class ForensicStudy(ForensicBase, ExportSteps):
+    """One study's forensic side: landmarks, pegs, Frankfurt, mirror, export; the skull and depth map and the face
+    from the skull are its components :attr:`skull` (:class:`.skull.Skull`) and :attr:`face` (:class:`.face.Face`)."""
+
+    def __init__(self, study):
+        super().__init__(study)
+        self.skull = Skull(self)
+        self.face = Face(self)
 
     # -------------------------------------------------------------------------------------- frame
     def frankfurt_matrix(self):
@@ -86,7 +93,7 @@ class ForensicStudy(ForensicBase, SkullSteps, ExportSteps, FaceSteps):
     def place_landmark(self, name: str, patient_mm, target: str = D.DEPTH_TARGET.default):
         from ...pdehead_addon import snap_to_surface
 
-        snapped, normal = snap_to_surface(np.asarray(patient_mm, float)[None], self.skull_engine_mesh(target))
+        snapped, normal = snap_to_surface(np.asarray(patient_mm, float)[None], self.skull.skull_engine_mesh(target))
         obj = self._landmark_empty(name, snapped, normal)
         obj[LANDMARK_FLAG] = "ok"
         obj[LANDMARK_EVIDENCE] = PLACED_BY_HAND
@@ -112,39 +119,47 @@ class ForensicStudy(ForensicBase, SkullSteps, ExportSteps, FaceSteps):
         obj.matrix_world = self.frankfurt_matrix() @ Matrix.Translation(Vector(snapped[0] * MM_TO_M))
         return obj
 
-    def find_landmarks(self, target: str = D.DEPTH_TARGET.default, keep_edited: bool = D.KEEP_EDITED.default):
+    def find_landmarks(self, target: str = D.DEPTH_TARGET.default,
+                       keep_edited: bool = D.KEEP_EDITED.default) -> StepOutcome:
         """Every standard landmark found automatically on the study's bone mask, snapped to the skull.
 
         Landmarks found (``ok`` or ``uncertain``) become (or move) the study's landmark empties with
         their flag and evidence as custom properties; ``not_found`` ones remove an earlier automatic
         empty (a landmark placed or moved by hand stays). The flags of all are kept on the study
         (the forensic settings' ``landmark_flags``) for the outputs. With ``keep_edited``, landmarks placed
-        or moved by hand are left where they are. Returns the engine's ``LandmarkSearch``.
+        or moved by hand are left where they are. Returns the empties placed or moved, the seconds and
+        (``values``) each landmark's ``flags`` and ``evidence`` and the engine's ``LandmarkSearch`` (``search``).
         """
         from ...pdehead_addon import find_landmarks as engine_find, snap_to_surface
 
         coll = self.collection
         t0 = time.perf_counter()
-        sk = self.skull_segmentation()
+        sk = self.skull.skull_segmentation()
         search = engine_find(self.study.ct, sk.bone)
         edited = {str(o.get(LANDMARK_KEY)) for o in coll.all_objects
                   if o.get(LANDMARK_KEY) and o.get(LANDMARK_EVIDENCE) in _BY_HAND} if keep_edited else set()
         found = {n: lm for n, lm in search.landmarks.items() if lm.point is not None and n not in edited}
+        placed = []
         if found:
             snapped, normal = snap_to_surface(np.array([lm.point for lm in found.values()]),
-                                              self.skull_engine_mesh(target))
+                                              self.skull.skull_engine_mesh(target))
             for i, (name, lm) in enumerate(found.items()):
                 obj = self._landmark_empty(name, snapped[i:i + 1], normal[i:i + 1])
                 obj[LANDMARK_FLAG] = lm.flag
                 obj[LANDMARK_EVIDENCE] = lm.evidence
+                placed.append(obj)
         for obj in list(coll.all_objects):
             name = obj.get(LANDMARK_KEY)
             if name and name not in found and obj.get(LANDMARK_EVIDENCE) not in _BY_HAND:
                 bpy.data.objects.remove(obj)
         set_flags(self.props.landmark_flags, {n: (lm.flag, lm.evidence) for n, lm in search.landmarks.items()
                                               if n not in edited})
-        self.study.record_timing("landmarks", time.perf_counter() - t0)
-        return search
+        seconds = time.perf_counter() - t0
+        self.study.record_timing("landmarks", seconds)
+        return StepOutcome("landmarks", objects=tuple(placed), seconds=seconds,
+                           values=dict(flags={n: lm.flag for n, lm in search.landmarks.items()},
+                                       evidence={n: lm.evidence for n, lm in search.landmarks.items()},
+                                       search=search))
 
     def _adopt_export_flags(self, flags: dict[str, str]) -> None:
         """After an export, the study says what its files say: a landmark the export turned ``uncertain`` (its
@@ -165,7 +180,7 @@ class ForensicStudy(ForensicBase, SkullSteps, ExportSteps, FaceSteps):
             for n in turned & set(stored):
                 stored[n] = ("uncertain", "; ".join(e for e in (stored[n][1], why) if e))
             set_flags(self.props.landmark_flags, stored)
-        face = self.face_object()
+        face = self.face.face_object()
         if face is not None and face.get(PROVENANCE_PROP):
             prov = json.loads(face[PROVENANCE_PROP])
             prov["landmark_flags"] = dict(flags)
@@ -188,12 +203,14 @@ class ForensicStudy(ForensicBase, SkullSteps, ExportSteps, FaceSteps):
         without the evidence."""
         return {name: flag for name, (flag, _evidence) in self.landmark_flags().items()}
 
-    def snap_moved_landmarks(self, target: str = D.DEPTH_TARGET.default, tolerance_mm: float = 0.01) -> list[str]:
+    def snap_moved_landmarks(self, target: str = D.DEPTH_TARGET.default,
+                             tolerance_mm: float = 0.01) -> StepOutcome:
         """Landmarks whose empty was moved in the viewport go back onto the bone at the nearest point;
-        their flag becomes ``ok`` (a person placed them). Returns the names snapped."""
+        their flag becomes ``ok`` (a person placed them). Returns the empties snapped and their names
+        (``values``: ``names``)."""
         from ...pdehead_addon import snap_to_surface
 
-        moved = []
+        moved, snapped_objects = [], []
         for obj in list(self.collection.all_objects):
             name = obj.get(LANDMARK_KEY)
             if not name or "patient_mm" not in obj:
@@ -202,12 +219,14 @@ class ForensicStudy(ForensicBase, SkullSteps, ExportSteps, FaceSteps):
             if np.linalg.norm(p - np.array(obj["patient_mm"], float)) > tolerance_mm:
                 moved.append((obj, str(name), p))
         if moved:
-            snapped, normal = snap_to_surface(np.array([p for _, _, p in moved]), self.skull_engine_mesh(target))
+            snapped, normal = snap_to_surface(np.array([p for _, _, p in moved]), self.skull.skull_engine_mesh(target))
             for i, (obj, name, _) in enumerate(moved):
                 obj = self._landmark_empty(name, snapped[i:i + 1], normal[i:i + 1])
                 obj[LANDMARK_FLAG] = "ok"
                 obj[LANDMARK_EVIDENCE] = MOVED_BY_HAND
-        return [name for _, name, _ in moved]
+                snapped_objects.append(obj)
+        return StepOutcome("snap_landmarks", objects=tuple(snapped_objects),
+                           values=dict(names=[name for _, name, _ in moved]))
 
     # -------------------------------------------------------------------------------------- orientation
     def apply_frankfurt(self, reset: bool = False):
@@ -258,14 +277,15 @@ class ForensicStudy(ForensicBase, SkullSteps, ExportSteps, FaceSteps):
         if not coll.get("pdehead_bone_object") and not coll.get(SKULL_BOUNDARY_KEY):
             raise PDEHeadError(f"study '{coll.name}' has neither bilateral landmarks nor a skull: run Build Skull "
                                "or place a landmark pair")
-        point, normal, info = symmetry_plane(self.skull_engine_mesh("BONE" if coll.get("pdehead_bone_object")
+        point, normal, info = symmetry_plane(self.skull.skull_engine_mesh("BONE" if coll.get("pdehead_bone_object")
                                                                     else "PDE").vertices)
         if not info["converged"]:
             raise PDEHeadError("the skull's symmetry plane did not converge: place bilateral landmarks instead")
         return point, normal, f"skull symmetry (median mirror residual {info['residual_mm']:.1f} mm)"
 
-    def mirror_object(self, obj, source: str = D.MIRROR_PLANE.default):
-        """A linked copy of ``obj`` mirrored across the mid-sagittal plane (:meth:`mirror_plane`)."""
+    def mirror_object(self, obj, source: str = D.MIRROR_PLANE.default) -> StepOutcome:
+        """A linked copy of ``obj`` mirrored across the mid-sagittal plane (:meth:`mirror_plane`): the copy, and
+        the plane (``values``: ``point`` and ``normal`` in patient mm, ``how``: where it came from)."""
         from ...pdehead_addon import mirror_matrix
 
         point, normal, how = self.mirror_plane(source)
@@ -277,4 +297,4 @@ class ForensicStudy(ForensicBase, SkullSteps, ExportSteps, FaceSteps):
             c.objects.link(copy)
         copy.matrix_world = m @ obj.matrix_world
         copy.pop(BASE_MATRIX_KEY, None)
-        return copy, point, normal, how
+        return StepOutcome("mirror", objects=(copy,), values=dict(point=point, normal=normal, how=how))

@@ -17,7 +17,7 @@ def forensic_of(coll):
 
 def live_table(coll) -> None:
     """Update callback of the study settings ``face_table`` / ``face_table_file`` (:mod:`operators.study.props`)."""
-    forensic_of(coll).live_table()
+    forensic_of(coll).face.live_table()
 
 
 @bpy.app.handlers.persistent
@@ -34,16 +34,16 @@ def pdehead_face_update(_scene, depsgraph=None) -> None:
             if FACE_KEY not in coll:
                 continue
             fs = forensic_of(coll)
-            obj = fs.face_object()
+            obj = fs.face.face_object()
             if obj is None or obj.mode == 'EDIT':      # edited by hand: Blender's edit mesh would overwrite it
                 continue
             try:
-                tips = fs.moved_tips()
+                tips = fs.face.moved_tips()
                 if tips is not None:
-                    fs.solve_face(tips=tips)
+                    fs.face.solve_face(tips=tips)
             except Exception as exc:  # noqa: BLE001 - a handler must not raise into Blender
-                if fs.face_object() is not None:      # do not retry on every update: remember the tips tried
-                    fs.cache["face_tips"] = fs.peg_tips(fs.face_peg_names())
+                if fs.face.face_object() is not None:      # do not retry on every update: remember the tips tried
+                    fs.cache["face_tips"] = fs.face.peg_tips(fs.face.face_peg_names())
                 fs.settings.last_error = f"face: {exc}"[:500]
                 print(f"PDE Head: face of '{coll.name}' not updated: {exc}")
 

@@ -278,13 +278,21 @@ class PipelineSteps:
         return StepOutcome("surface", objects=(s.surface_object,), seconds=t.seconds,
                            values=dict(vertices=len(s.surface_object.data.vertices)))
 
-    def detail_map(self) -> None:
+    def detail_map(self) -> StepOutcome:
         """Build the surface's CT detail map (eyelids, lips and nose wings as bump shading; the
-        segmentation is re-run when this session has none, e.g. after reopening the file)."""
+        segmentation is re-run when this session has none, e.g. after reopening the file). Returns the
+        surface object, the seconds and the map's size in pixels (``values``: ``resolution``)."""
         progress = step_progress("detail_map")
         for fraction, message in self.detail_map_stages():
             if progress is not None:
                 progress(fraction, message)
+        return self.detail_outcome()
+
+    def detail_outcome(self) -> StepOutcome:
+        """What the last CT detail map build gave (:meth:`detail_map`, or the modal operator's stages)."""
+        s = self.settings
+        return StepOutcome("detail_map", objects=(s.surface_object,), seconds=self.timings["detail_map"],
+                           values=dict(resolution=int(s.detail_resolution)))
 
     def detail_map_stages(self):
         """:meth:`detail_map` one stage at a time (a generator yielding ``(fraction, message)``): the map, its

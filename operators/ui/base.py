@@ -22,7 +22,6 @@ from ..study.pipeline_run import Rollback
 
 def report_exception(op, exc: BaseException) -> None:
     """Report ``exc`` on ``op`` in the user's words (a bug: the traceback goes to the console)."""
-    state.REGISTRY.last_exception = exc
     from ...pdehead_addon import Cancelled
     if isinstance(exc, Cancelled):
         op.report({'WARNING'}, "PDE Head: cancelled; the study is as it was before")

@@ -29,6 +29,46 @@ _LANDMARK_ITEMS = [(d.name, d.name, d.description) for d in STANDARD_LANDMARKS]
 _FORMAT_ITEMS = [('stl', "STL", ""), ('obj', "OBJ", ""), ('ply', "PLY", "")]
 
 
+# ------------------------------------------------------------------------------------------ reports
+# What the operators report of a step's outcome; the CLI (scripts/pdehead.py) prints the same lines.
+
+def skull_report(fs, outcome) -> str:
+    """Build Skull's INFO report of ``fs.skull.step_skull()``'s outcome."""
+    return f"Skull of '{fs.name}' built"
+
+
+def depth_report(outcome) -> str:
+    """Tissue Depth's INFO report of ``fs.skull.step_depth()``'s outcome."""
+    st = outcome.values
+    return (f"Tissue depth: {st['measured']} of {st['vertices']} vertices measured, "
+            f"median {st.get('median', float('nan')):.1f} mm")
+
+
+def landmarks_report(outcome) -> tuple[str, str]:
+    """Find Landmarks' report of ``fs.find_landmarks()``'s outcome: (level, text), a WARNING naming the first
+    landmark not found and why."""
+    flags = outcome.values["flags"]
+    counts = list(flags.values())
+    msg = (f"{counts.count('ok')} landmarks ok, {counts.count('uncertain')} uncertain, "
+           f"{counts.count('not_found')} not found")
+    missing = [n for n, flag in flags.items() if flag == 'not_found']
+    if missing:
+        return 'WARNING', f"{msg} (e.g. {missing[0]}: {outcome.values['evidence'][missing[0]]})"
+    return 'INFO', msg
+
+
+def export_report(outcome) -> list[str]:
+    """Export for Printing's INFO reports of ``fs.export()``'s outcome: the files written, and those left out
+    and why."""
+    lines = ["Wrote " + ", ".join(os.path.basename(f) for f in outcome.values["files"])]
+    left = {}                                           # why -> the files left out for it
+    for name, why in outcome.values["not_written"].items():
+        left.setdefault(why, []).append(name)
+    if left:
+        lines.append("; ".join(f"{' and '.join(names)} not written: {why}" for why, names in left.items()))
+    return lines
+
+
 # ------------------------------------------------------------------------------------------ operators
 def _target_property(label: str = D.DEPTH_TARGET.label):
     return EnumProperty(name=label, items=TARGET_ITEMS, default=D.DEPTH_TARGET.default,
@@ -77,9 +117,8 @@ class PDEHEAD_OT_build_skull(Operator, _ForensicOp):
     bone_step: IntProperty(name=D.BONE_STEP.label, **D.BONE_STEP.limits(), description=D.BONE_STEP.description)
 
     def run_forensic(self, context, fs):
-        s = fs.settings
-        fs.step_skull(self.nu or s.nu, self.nv or s.nv, self.bone_mesh, self.bone_step)
-        self.report({'INFO'}, f"Skull of '{fs.name}' built")
+        outcome = fs.skull.step_skull(self.nu, self.nv, self.bone_mesh, self.bone_step)
+        self.report({'INFO'}, skull_report(fs, outcome))
 
 
 class PDEHEAD_OT_tissue_depth(Operator, _ForensicOp):
@@ -92,9 +131,7 @@ class PDEHEAD_OT_tissue_depth(Operator, _ForensicOp):
     forensic_settings = ("target", "max_depth")
 
     def run_forensic(self, context, fs):
-        st = fs.step_depth(self.target, self.max_depth).values
-        self.report({'INFO'}, f"Tissue depth: {st['measured']} of {st['vertices']} vertices measured, "
-                              f"median {st.get('median', float('nan')):.1f} mm")
+        self.report({'INFO'}, depth_report(fs.skull.step_depth(self.target, self.max_depth)))
 
 
 class PDEHEAD_OT_place_landmark(Operator, _ForensicOp):
@@ -128,16 +165,8 @@ class PDEHEAD_OT_find_landmarks(Operator, _ForensicOp):
     forensic_settings = ("target",)
 
     def run_forensic(self, context, fs):
-        search = fs.find_landmarks(self.target, self.keep_edited)
-        flags = [lm.flag for lm in search.landmarks.values()]
-        msg = (f"{flags.count('ok')} landmarks ok, {flags.count('uncertain')} uncertain, "
-               f"{flags.count('not_found')} not found")
-        missing = [n for n, lm in search.landmarks.items() if lm.flag == 'not_found']
-        if missing:
-            why = search.landmarks[missing[0]].evidence
-            self.report({'WARNING'}, f"{msg} (e.g. {missing[0]}: {why})")
-        else:
-            self.report({'INFO'}, msg)
+        level, text = landmarks_report(fs.find_landmarks(self.target, self.keep_edited))
+        self.report({level}, text)
 
 
 class PDEHEAD_OT_snap_landmarks(Operator, _ForensicOp):
@@ -149,7 +178,7 @@ class PDEHEAD_OT_snap_landmarks(Operator, _ForensicOp):
     forensic_settings = ("target",)
 
     def run_forensic(self, context, fs):
-        names = fs.snap_moved_landmarks(self.target)
+        names = fs.snap_moved_landmarks(self.target).values["names"]
         self.report({'INFO'}, f"{len(names)} landmark(s) snapped to the bone" +
                     (": " + ", ".join(names[:4]) if names else ""))
 
@@ -208,7 +237,8 @@ class PDEHEAD_OT_export_landmark_depths(Operator, _LandmarkCSVOp):
         from ...pdehead_addon import write_landmark_csv
         if not fs.landmarks():
             raise PDEHeadError("no landmarks placed yet")
-        depths, flags, method = fs.measured_landmark_depths(fs.skull_engine_mesh(self.target), fs.skin_engine_mesh())
+        depths, flags, method = fs.measured_landmark_depths(fs.skull.skull_engine_mesh(self.target),
+                                                            fs.skull.skin_engine_mesh())
         table = fs.depth_table()
         n = write_landmark_csv(bpy.path.abspath(self.filepath), depths, table, flags,
                                provenance=dict(fs.provenance(table), depth=method))
@@ -239,9 +269,11 @@ class PDEHEAD_OT_mirror(Operator, _ForensicOp):
         obj = context.active_object or fs.linked_object("pdehead_skull_object")
         if obj is None:
             raise PDEHeadError("select the object to mirror")
-        copy, point, normal, how = fs.mirror_object(obj, self.plane)
-        self.report({'INFO'}, f"{copy.name}: plane from {how}, through {np.round(point, 1).tolist()} mm, "
-                              f"normal {np.round(normal, 3).tolist()}")
+        outcome = fs.mirror_object(obj, self.plane)
+        plane = outcome.values
+        self.report({'INFO'}, f"{outcome.objects[0].name}: plane from {plane['how']}, through "
+                              f"{np.round(plane['point'], 1).tolist()} mm, "
+                              f"normal {np.round(plane['normal'], 3).tolist()}")
 
 
 class PDEHEAD_OT_export_print(Operator, _ForensicOp):
@@ -260,13 +292,8 @@ class PDEHEAD_OT_export_print(Operator, _ForensicOp):
         return {'RUNNING_MODAL'}
 
     def run_forensic(self, context, fs):
-        files = fs.export(self.directory, self.format)
-        self.report({'INFO'}, "Wrote " + ", ".join(os.path.basename(f) for f in files))
-        left = {}                                           # why -> the files left out for it
-        for name, why in fs.cache.get("export_not_written", {}).items():
-            left.setdefault(why, []).append(name)
-        if left:
-            self.report({'INFO'}, "; ".join(f"{' and '.join(names)} not written: {why}" for why, names in left.items()))
+        for line in export_report(fs.export(self.directory, self.format)):
+            self.report({'INFO'}, line)
 
 
 class PDEHEAD_OT_build_face(Operator, _ForensicOp):
@@ -278,7 +305,7 @@ class PDEHEAD_OT_build_face(Operator, _ForensicOp):
     bl_label = "Build Face"
 
     def run_forensic(self, context, fs):
-        outcome = fs.build_face()
+        outcome = fs.face.build_face()
         self.report({'INFO'}, f"{outcome.objects[0].name}: {outcome.values['vertices']} vertices through "
                               f"{outcome.values['pegs']} pegs ({outcome.values['label']})")
         for line in outcome.warnings:
@@ -293,7 +320,7 @@ class PDEHEAD_OT_face_sd_range(Operator, _ForensicOp):
     bl_label = "Faces at -1 / +1 SD"
 
     def run_forensic(self, context, fs):
-        made = fs.build_sd_faces().objects
+        made = fs.face.build_sd_faces().objects
         self.report({'INFO'}, "Built " + ", ".join(o.name for o in made))
 
 
@@ -307,20 +334,20 @@ def draw_face_section(layout, fs) -> None:
     if s.face_table == 'FILE':
         box.prop(s, "face_table_file", text="")
     try:
-        table = fs.face_table_as_read()
+        table = fs.face.face_table_as_read()
     except PDEHeadError as exc:
         table = None
         box.label(text=str(exc), icon='ERROR')
     if table is not None and table_has_sex(table):
         box.prop(s, "face_sex")
         try:
-            fs.face_table()                   # the chosen sex's rows: a sex the table lacks says so here
+            fs.face.face_table()                   # the chosen sex's rows: a sex the table lacks says so here
         except PDEHeadError as exc:
             box.label(text=str(exc), icon='ERROR')
     row = box.row(align=True)
     row.operator(PDEHEAD_OT_find_landmarks.bl_idname, icon='VIEWZOOM')
     row.operator(PDEHEAD_OT_build_face.bl_idname, icon='USER')
-    obj = fs.face_object()
+    obj = fs.face.face_object()
     if obj is None:
         box.label(text="Builds the skull and finds the landmarks first if needed")
         return
@@ -336,11 +363,11 @@ def draw_face_section(layout, fs) -> None:
         col.label(text=str(prov["software"]))
     if "pdehead_face_ms" in obj:
         col.label(text=f"Last solve {obj['pdehead_face_ms']:.0f} ms")
-    status = fs.live_status()
+    status = fs.face.live_status()
     if status:
         col.label(text=status)
-    names = fs.face_peg_names()
-    pegs = fs.peg_objects(names)
+    names = fs.face.face_peg_names()
+    pegs = fs.face.peg_objects(names)
     col = box.column(align=True)
     col.label(text=f"{len(pegs)} pegs: drag one (G) or set its depth (mm); pin: held (the face passes through it)")
     for name in names[:40]:
@@ -358,7 +385,7 @@ def draw_face_section(layout, fs) -> None:
 
 def _draw_peg_report(layout, prov: dict) -> None:
     """The pegs whose tip is off the face (distance and why) and the warnings of the last solve (from the face's
-    provenance: :meth:`.face.FaceSteps._show_report`)."""
+    provenance: :meth:`.face.Face._show_report`)."""
     off = prov.get("pegs_off_face") or []
     warnings = prov.get("peg_warnings") or []
     if not off and not warnings:
@@ -384,7 +411,7 @@ def _draw_skull(layout, fs) -> None:
     sub.active = s.use_bone_level
     sub.prop(s, "bone_level", text="")
     col.operator(PDEHEAD_OT_build_skull.bl_idname, icon='MESH_UVSPHERE')
-    info = fs.skull_info()
+    info = fs.skull.skull_info()
     if info:
         stored = info.get("bone_level_stored")
         level = f"{stored:g} {info.get('units', '')}" if stored is not None else f"{info['bone_level']:.0f} HU"
@@ -401,7 +428,7 @@ def _draw_depth(layout, fs) -> None:
     """Tissue Depth, its colour legend and the statistics of the last run."""
     box = layout.box()
     box.operator(PDEHEAD_OT_tissue_depth.bl_idname, icon='MOD_THICKNESS')
-    stats = fs.depth_stats()
+    stats = fs.skull.depth_stats()
     s = fs.settings
     mat = bpy.data.materials.get(DEPTH_MATERIAL)
     if mat is not None and mat.node_tree.nodes.get("Depth legend") is not None:

@@ -7,6 +7,7 @@ arguments (:meth:`LoaderOptions.loader_options`).
 from __future__ import annotations
 
 from pathlib import Path
+from types import SimpleNamespace
 
 import bpy
 from bpy.props import (
@@ -192,6 +193,19 @@ class LoaderOptions:
         sub.prop(self, "bone_level", text="")
 
 
+
+
+def import_request(directory: str = "", filepath: str = "", single_file: bool = False, format: str = "AUTO",
+                   raw_shape=D.RAW_SHAPE.default, raw_dtype: str = D.RAW_DTYPE.default,
+                   byte_order: str = D.BYTE_ORDER.default, use_spacing: bool = D.USE_SPACING.default,
+                   spacing=D.IMPORT_SPACING.default, first_slice: str = D.FIRST_SLICE.upper(), orientation: str = "",
+                   units: str = "AUTO", downsample: int = D.DOWNSAMPLE.default,
+                   series_uid: str = "") -> tuple[Path, dict]:
+    """The CT and the engine's loader options (``Study.import_ct``'s arguments) of the import dialog's values
+    (the keywords of ``bpy.ops.pdehead.import_ct``, the dialog's defaults for those not given): how a script or
+    the CLI imports without the operator."""
+    values = SimpleNamespace(**locals())
+    return LoaderOptions.input_path(values), LoaderOptions.loader_options(values)
 
 
 #: What a drag and drop onto the 3D View opens with the import dialog (:class:`PDEHEAD_FH_import_ct`):

@@ -50,16 +50,36 @@ class PDEHEAD_OT_import_ct(Operator, GuardedOperator, LoaderOptions):
         path = self.input_path()
         study = Study.import_ct(context, path, self.loader_options())
         self.apply_study_options(study.collection)
-        s = study.settings
         if self.run_pipeline:
             for step in ("segment", "boundaries", "surface", "solid"):
                 study.run_step(step)
             scene.frame_study(context, study.collection)  # ends as Run Pipeline does: camera, light, cube hidden
-        nx, ny, nz = s.dimensions
-        self.report({'INFO'}, f"Imported '{study.name}': {nx}x{ny}x{nz} voxels, spacing "
-                    f"{', '.join(f'{v:g}' for v in s.spacing)} mm")
+        self.report({'INFO'}, import_report(study))
         for warning in study.warnings:  # one report per warning, in the dialog's words
             self.report({'WARNING'}, state.user_text(warning))
+
+
+def import_report(study) -> str:
+    """The Import CT Head operator's INFO report of the study ``Study.import_ct`` made (the CLI prints it too)."""
+    nx, ny, nz = study.settings.dimensions
+    return (f"Imported '{study.name}': {nx}x{ny}x{nz} voxels, spacing "
+            f"{', '.join(f'{v:g}' for v in study.settings.spacing)} mm")
+
+
+def phantom_report(study) -> str:
+    """The Load Phantom operator's INFO report of the study ``Study.phantom`` made."""
+    nx, ny, nz = study.settings.dimensions
+    return f"Phantom loaded: {nx}x{ny}x{nz} voxels"
+
+
+def detail_report(study, outcome) -> str:
+    """The Build CT Detail operator's INFO report of ``study.detail_map()``'s outcome."""
+    return f"CT detail map of '{study.name}': {outcome.values['resolution']} px ({outcome.seconds:.2f} s)"
+
+
+def turntable_report(study, pivot, frames: int) -> str:
+    """The Turntable operator's INFO report of the pivot :func:`operators.study.animation.turntable` made."""
+    return f"'{study.name}': turntable of {frames} frames around '{pivot.name}' (Render > Render Animation)"
 
 
 def segment_report(study, outcome) -> str:
@@ -102,8 +122,7 @@ class PDEHEAD_OT_load_phantom(Operator, GuardedOperator):
     bl_options = {'REGISTER', 'UNDO'}
 
     def run(self, context):
-        nx, ny, nz = Study.phantom(context).settings.dimensions
-        self.report({'INFO'}, f"Phantom loaded: {nx}x{ny}x{nz} voxels")
+        self.report({'INFO'}, phantom_report(Study.phantom(context)))
 
 
 class PDEHEAD_OT_segment(Operator, StudyOperator):
@@ -254,14 +273,7 @@ class PDEHEAD_OT_build_detail_map(Operator, StudyOperator, TimerModal):
 
     def run(self, context, study):
         """Synchronous (scripts, headless, redo)."""
-        if study.settings.surface_object is None:
-            raise PDEHeadError("Build the surface first")
-        study.detail_map()
-        self._report_done(study)
-
-    def _report_done(self, study) -> None:
-        self.report({'INFO'}, f"CT detail map of '{study.name}': {study.settings.detail_resolution} px "
-                    f"({study.timings['detail_map']:.2f} s)")
+        self.report({'INFO'}, detail_report(study, study.detail_map()))
 
     def invoke(self, context, event):
         """With a UI: one stage per timer tick (:meth:`.Study.detail_map_stages`), the progress indicator
@@ -291,7 +303,7 @@ class PDEHEAD_OT_build_detail_map(Operator, StudyOperator, TimerModal):
         return False
 
     def finished(self) -> None:
-        self._report_done(self._study)
+        self.report({'INFO'}, detail_report(self._study, self._study.detail_outcome()))
 
     def cancel(self, context):
         """Esc, an error or Blender closing the operator: the stages stop before anything is written."""
@@ -438,8 +450,7 @@ class PDEHEAD_OT_turntable(Operator, StudyOperator):
     def run(self, context, study):
         from ..study import animation
         pivot = animation.turntable(context, study.collection, self.frames, start=context.scene.frame_start)
-        self.report({'INFO'}, f"'{study.name}': turntable of {self.frames} frames around '{pivot.name}' "
-                              "(Render > Render Animation)")
+        self.report({'INFO'}, turntable_report(study, pivot, self.frames))
 
 
 class PDEHEAD_OT_add_cutter(Operator, StudyOperator):

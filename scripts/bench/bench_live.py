@@ -400,9 +400,9 @@ def bench_face_dataset(name: str, repeats: int) -> dict:
     from pdehead_dev.operators.study.entity import Study
     coll, steps = _face_study(name)
     fs = ForensicStudy.of(Study.of(coll))
-    obj = fs.face_object()
-    names = fs.face_options()["pegs"]
-    pegs = fs.peg_objects(names)
+    obj = fs.face.face_object()
+    names = fs.face.face_options()["pegs"]
+    pegs = fs.face.peg_objects(names)
     out = {"steps_s": steps, "face_vertices": len(obj.data.vertices), "pegs": len(names),
            "prepare_s": state.cache_for(coll.pdehead.study_id).forensic.get("face_prepare_s"), "rows": []}
 
@@ -476,8 +476,8 @@ def bench_face_dataset(name: str, repeats: int) -> dict:
     bpy.ops.wm.open_mainfile(filepath=str(blend))
     coll = bpy.context.scene.pdehead.active_study
     fs = ForensicStudy.of(Study.of(coll))
-    obj = fs.face_object()
-    pegs = fs.peg_objects(names)
+    obj = fs.face.face_object()
+    pegs = fs.face.peg_objects(names)
     prepared = state.REGISTRY.face_prepare_calls
     out["first_drag_after_reopen_s"], out["first_drag_after_reopen_cpu_s"] = _timed_update(drag(0))
     fcache = state.cache_for(coll.pdehead.study_id).forensic

@@ -52,10 +52,10 @@ def main(argv=None) -> int:
     for op in ("build_skull", "find_landmarks", "build_face"):
         assert getattr(bpy.ops.pdehead, op)() == {'FINISHED'}, op
     fs = addon.operators.forensic.study.ForensicStudy.of(addon.operators.study.entity.Study.of(coll))
-    obj = fs.face_object()
+    obj = fs.face.face_object()
     bone = coll["pdehead_bone_object"]
-    names = fs.face_options()["pegs"]
-    pegs = fs.peg_objects(names)
+    names = fs.face.face_options()["pegs"]
+    pegs = fs.face.peg_objects(names)
     for o in list(coll.all_objects):                # only what the pictures show (a list: hide_render
         # rebuilds the collection's object cache while it would be iterated)
         if o not in (obj, bone, *pegs.values()):

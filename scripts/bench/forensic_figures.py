@@ -86,9 +86,9 @@ def main() -> int:
         OUT / "forensic_depth_map.png", optimize=True)
 
     # landmarks from the bone mesh's geometry (patient mm), then pegs with the measured depths
-    bone = fs.skull_engine_mesh("BONE")
+    bone = fs.skull.skull_engine_mesh("BONE")
     v = bone.vertices
-    skin_v = fs.skin_engine_mesh().vertices
+    skin_v = fs.skull.skin_engine_mesh().vertices
     xc = 0.5 * (skin_v[:, 0].min() + skin_v[:, 0].max())
     tip_z = skin_v[np.argmin(skin_v[:, 1]), 2]
 

@@ -78,7 +78,7 @@ def test_build_face_and_live_pegs(pdehead_ext, face_blend, tmp_path):
     import bpy
     face, fs, state = _mods(pdehead_ext)
     coll = _open(face_blend)
-    obj = fs(coll).face_object()
+    obj = fs(coll).face.face_object()
     # the face: its own object in the study, shaded smooth, closed, with the label and provenance on it
     assert obj is not None and obj.name in coll.objects and obj["pdehead_kind"] == "face"
     me = obj.data
@@ -87,13 +87,13 @@ def test_build_face_and_live_pegs(pdehead_ext, face_blend, tmp_path):
     prov = json.loads(obj[face.PROVENANCE_PROP])
     assert prov["label"] == obj[face.LABEL_PROP] and prov["table"].startswith("T-Table 2023")
     assert prov["software"].startswith("PDE Head ") and set(prov["landmarks"].values()) <= {"ok", "uncertain"}
-    names = fs(coll).face_options()["pegs"]
-    pegs = fs(coll).peg_objects(names)
+    names = fs(coll).face.face_options()["pegs"]
+    pegs = fs(coll).face.peg_objects(names)
     assert len(names) >= 10 and set(pegs) == set(names)
     assert all(p.parent == obj for p in pegs.values())                   # the pegs are the face's children
     # the face passes through the pegs' tips (within the engine's fit)
     verts = _world_vertices(obj)
-    tips = fs(coll).peg_tips(names)
+    tips = fs(coll).face.peg_tips(names)
     gap = np.array([np.linalg.norm(verts - t, axis=1).min() for t in tips])
     assert np.median(gap) < 1.5, dict(zip(names, gap.round(1)))         # measured 0.78-0.90 mm (largest 4.1-9.8)
 
@@ -124,12 +124,12 @@ def test_build_face_and_live_pegs(pdehead_ext, face_blend, tmp_path):
     # measured (5.0.1): 3.29-3.79 mm near the peg (engine versions), 95th percentile 0.09 mm beyond 60 mm
     assert np.median(moved[near]) == pytest.approx(4.0, abs=1.5), np.median(moved[near])
     assert np.percentile(moved[dist > 60.0], 95) < 0.3
-    assert fs(coll).peg_tips(names)[i] == pytest.approx(tips[i] + 4.0 * normal, abs=1e-3)
+    assert fs(coll).face.peg_tips(names)[i] == pytest.approx(tips[i] + 4.0 * normal, abs=1e-3)
 
     # depth: the same peg 2 mm longer -> the face near its tip moves out about 2 mm more
     before = after
     depth = float(peg[face.PEG_DEPTH_PROP])
-    assert fs(coll).set_face_peg_depth(peg, depth + 2.0) == pytest.approx(depth + 2.0)
+    assert fs(coll).face.set_face_peg_depth(peg, depth + 2.0) == pytest.approx(depth + 2.0)
     bpy.context.view_layer.update()
     after = _world_vertices(obj)
     near, moved, dist = _nearest_peg_vertex_motion(before, after, tips[i] + 4.0 * normal)
@@ -143,7 +143,7 @@ def test_build_face_and_live_pegs(pdehead_ext, face_blend, tmp_path):
     assert _nearest_peg_vertex_motion(snapshot, _world_vertices(obj), tips[i])[1].max() > 1.0
     bpy.ops.ed.undo()
     coll = bpy.context.scene.pdehead.active_study
-    obj = fs(coll).face_object()
+    obj = fs(coll).face.face_object()
     bpy.context.view_layer.update()
     back = _world_vertices(obj)
     assert back.shape == snapshot.shape and np.abs(back - snapshot).max() < 1e-3
@@ -153,14 +153,14 @@ def test_build_face_and_live_pegs(pdehead_ext, face_blend, tmp_path):
     table.write_text("# test values, not a published table\nlandmark,mean_mm,sd_mm\n" +
                      "".join(f"{n},{15.5 if n == name else 6.0},1.0\n" for n in names))
     s = state.settings(coll)
-    pegs = fs(coll).peg_objects(names)
+    pegs = fs(coll).face.peg_objects(names)
     before = _world_vertices(obj)
     s.face_table_file = str(table)
     s.face_table = 'FILE'
     assert s.last_error == ""
     assert pegs[name][face.PEG_DEPTH_PROP] == 15.5 and pegs[name]["table_name"] == "table"
     after = _world_vertices(obj)
-    tip = fs(coll).peg_tips(names)[i]
+    tip = fs(coll).face.peg_tips(names)[i]
     assert np.linalg.norm(after - tip, axis=1).min() < 1.5                 # the face reaches the new tip: 0.36-0.51 mm
     assert json.loads(obj[face.PROVENANCE_PROP])["table"] == "table"
     s.face_table = 'DEFAULT'
@@ -175,32 +175,32 @@ def test_build_face_and_live_pegs(pdehead_ext, face_blend, tmp_path):
     assert lo[face.LABEL_PROP] == obj[face.LABEL_PROP]
 
     # Build Face is one undo step: undone, the study has its earlier face (same build) and pegs again
-    build = fs(coll).face_options()["build"]
+    build = fs(coll).face.face_options()["build"]
     bpy.ops.ed.undo_push(message="before Build Face")
     assert bpy.ops.pdehead.build_face() == {'FINISHED'}
-    assert fs(coll).face_options()["build"] != build
+    assert fs(coll).face.face_options()["build"] != build
     bpy.ops.ed.undo_push(message="Build Face")
     bpy.ops.ed.undo()
     coll = bpy.context.scene.pdehead.active_study
-    assert fs(coll).face_options()["build"] == build
-    assert set(fs(coll).peg_objects(names)) == set(names)
+    assert fs(coll).face.face_options()["build"] == build
+    assert set(fs(coll).face.peg_objects(names)) == set(names)
 
 
 def test_face_follows_a_peg_after_reopening(pdehead_ext, face_blend, tmp_path):
     import bpy
     face, fs, state = _mods(pdehead_ext)
     coll = _open(face_blend)
-    names = fs(coll).face_options()["pegs"]
+    names = fs(coll).face.face_options()["pegs"]
     # what this session's model (prepared by Build Face) gives for the drag made after reopening
-    model = fs(coll).face_model()
-    normal = np.array(fs(coll).peg_objects(names)[names[0]].matrix_world)[:3, 2]
+    model = fs(coll).face.face_model()
+    normal = np.array(fs(coll).face.peg_objects(names)[names[0]].matrix_world)[:3, 2]
     normal /= np.linalg.norm(normal)
     # a peg dragged before the save: the saved face is a solve with it held, and the model kept in the file
     # must give that face to be used (it was prepared again, 8 s on CThead, when the check ignored held pegs)
-    other = fs(coll).peg_objects(names)[names[1]]
+    other = fs(coll).face.peg_objects(names)[names[1]]
     _drag(other, 1.0 * np.array(other.matrix_world)[:3, 2])
-    assert json.loads(fs(coll).face_object()[face.PROVENANCE_PROP])["pegs_held"] == [names[1]]
-    dragged = fs(coll).peg_tips(names)
+    assert json.loads(fs(coll).face.face_object()[face.PROVENANCE_PROP])["pegs_held"] == [names[1]]
+    dragged = fs(coll).face.peg_tips(names)
     dragged[0] += 3.0 * normal
     expected = model.solve(tips=dragged, held=[names[0], names[1]]).mesh.vertices   # a dragged peg is held
     assert len(coll[face.FACE_MODEL_KEY]) < 1_000_000            # the kept model: budget 1 MB (measured 0.4 MB)
@@ -209,8 +209,8 @@ def test_face_follows_a_peg_after_reopening(pdehead_ext, face_blend, tmp_path):
     state.drop_cache()                                  # as in a new Blender session: no model in memory
     bpy.ops.wm.open_mainfile(filepath=str(saved))
     coll = bpy.context.scene.pdehead.active_study
-    obj = fs(coll).face_object()
-    pegs = fs(coll).peg_objects(names)
+    obj = fs(coll).face.face_object()
+    pegs = fs(coll).face.peg_objects(names)
     assert obj is not None and set(pegs) == set(names) and fs(coll).landmarks()
     assert obj[face.LABEL_PROP] == "approximation — not an identification"
     before = _world_vertices(obj)
@@ -221,7 +221,7 @@ def test_face_follows_a_peg_after_reopening(pdehead_ext, face_blend, tmp_path):
     prepared = state.REGISTRY.face_prepare_calls
     name = names[0]
     peg = pegs[name]
-    tip = fs(coll).peg_tips(names)[0]
+    tip = fs(coll).face.peg_tips(names)[0]
     _drag(peg, 3.0 * normal)
     after = _world_vertices(obj)
     near, moved, dist = _nearest_peg_vertex_motion(before, after, tip)
@@ -230,7 +230,7 @@ def test_face_follows_a_peg_after_reopening(pdehead_ext, face_blend, tmp_path):
     # the model came from the file, not from preparing it again, and gives the face the first session's gives
     assert state.REGISTRY.face_prepare_calls == prepared and cache["face_model_source"] == "file"
     assert cache["face_timings"]["fast"] and not cache["face_timings"]["refilled"]
-    assert np.abs(fs(coll)._mesh_positions(obj) - expected).max() < 1e-3     # float32 metres: ~1e-5 mm
+    assert np.abs(fs(coll).face._mesh_positions(obj) - expected).max() < 1e-3     # float32 metres: ~1e-5 mm
     from types import SimpleNamespace
 
     from panel_recorder import RecordingLayout
@@ -243,7 +243,7 @@ def test_face_follows_a_peg_after_reopening(pdehead_ext, face_blend, tmp_path):
     state.drop_cache()
     _drag(peg, -1.0 * normal)
     assert state.REGISTRY.face_prepare_calls == prepared + 1 and cache_source(state, coll) == "prepared"
-    assert np.abs(fs(coll).peg_tips(names)[0] - (tip + 2.0 * normal)).max() < 1e-3
+    assert np.abs(fs(coll).face.peg_tips(names)[0] - (tip + 2.0 * normal)).max() < 1e-3
 
     # a peg deleted: the face solves once with that peg back at the table's mean, then stays (no solve per update)
     cache = state.cache_for(state.settings(coll).study_id).forensic
@@ -293,12 +293,12 @@ def test_pegs_off_the_face_are_shown_held_and_warned(pdehead_ext, face_blend):
     face, fs, state = _mods(pdehead_ext)
     coll = _open(face_blend)
     study = fs(coll)
-    obj = study.face_object()
-    names = study.face_peg_names()
-    pegs = study.peg_objects(names)
+    obj = study.face.face_object()
+    names = study.face.face_peg_names()
+    pegs = study.face.peg_objects(names)
     assert all(not p[face.HELD_PROP] for p in pegs.values())
     gaps = {n: float(p[face.TIP_TO_FACE_PROP]) for n, p in pegs.items()}
-    tips = study.peg_tips(names)
+    tips = study.face.peg_tips(names)
     for n in ("Glabella", "Supra M2 L", "Gonion R"):        # the property is the tip's distance to the face
         assert gaps[n] == pytest.approx(_tip_to_mesh_mm(pdehead_ext, obj, tips[names.index(n)]), abs=0.05)
     prov = json.loads(obj[face.PROVENANCE_PROP])
@@ -320,7 +320,7 @@ def test_pegs_off_the_face_are_shown_held_and_warned(pdehead_ext, face_blend):
     peg.update_tag()
     bpy.context.view_layer.update()
     i = names.index(name)
-    held_gap = _tip_to_mesh_mm(pdehead_ext, obj, study.peg_tips(names)[i])
+    held_gap = _tip_to_mesh_mm(pdehead_ext, obj, study.face.peg_tips(names)[i])
     # measured on the phantom (5.0.1): Supra M2 3.6 -> 0.2 mm
     assert held_gap <= 0.5 and peg[face.TIP_TO_FACE_PROP] == pytest.approx(held_gap, abs=0.05), (name, gaps[name])
     assert json.loads(obj[face.PROVENANCE_PROP])["pegs_held"] == [name]
@@ -330,23 +330,23 @@ def test_pegs_off_the_face_are_shown_held_and_warned(pdehead_ext, face_blend):
     normal = np.array(glabella.matrix_world)[:3, 2]
     normal /= np.linalg.norm(normal)
     _drag(glabella, -(float(glabella[face.PEG_DEPTH_PROP]) + 3.0) * normal)
-    warnings = study.peg_warnings()
+    warnings = study.face.peg_warnings()
     assert [(w["peg"], w["kind"]) for w in warnings] == [("Glabella", "into_bone")], warnings
     assert glabella[face.HELD_PROP] and not study.settings.last_error
     assert any(t == warnings[0]["text"] for t in (x[1] for x in _panel_labels(pdehead_ext) if x[0] == "label"))
     # ... and pulled back then dragged 200 mm out sideways: a warning that it is far from its landmark
     _drag(glabella, (float(glabella[face.PEG_DEPTH_PROP]) + 3.0) * normal)
-    assert study.peg_warnings() == []
+    assert study.face.peg_warnings() == []
     pogonion = pegs["Pogonion"]
     _drag(pogonion, [200.0, 0.0, 0.0])
-    warnings = study.peg_warnings()
+    warnings = study.face.peg_warnings()
     assert [(w["peg"], w["kind"]) for w in warnings][:1] == [("Pogonion", "far")], warnings
     assert "200 mm off" in warnings[0]["text"] and not study.settings.last_error
     assert np.isfinite(_world_vertices(obj)).all() and pogonion[face.HELD_PROP]       # the face still solves
 
     # Build Face again: every peg let go
     assert bpy.ops.pdehead.build_face() == {'FINISHED'}
-    pegs = study.peg_objects(study.face_peg_names())
+    pegs = study.face.peg_objects(study.face.face_peg_names())
     assert pegs and all(not p[face.HELD_PROP] for p in pegs.values())
 
 
@@ -362,9 +362,9 @@ def test_export_for_printing_writes_the_face_beside_the_head(pdehead_ext, face_b
     from file_readers import read_stl
     face, fs, state = _mods(pdehead_ext)
     coll = _open(face_blend)
-    names = fs(coll).face_options()["pegs"]
-    _drag(fs(coll).peg_objects(names)[names[0]], (0.0, -3.0, 0.0))
-    obj = fs(coll).face_object()
+    names = fs(coll).face.face_options()["pegs"]
+    _drag(fs(coll).face.peg_objects(names)[names[0]], (0.0, -3.0, 0.0))
+    obj = fs(coll).face.face_object()
     shown = _world_vertices(obj)                            # patient mm (no Frankfurt here)
     out = tmp_path / "print"
     assert bpy.ops.pdehead.export_print(directory=str(out), format='stl') == {'FINISHED'}
@@ -376,9 +376,9 @@ def test_export_for_printing_writes_the_face_beside_the_head(pdehead_ext, face_b
     # error over the face window <= 0.05 mm; before, face.stl was the viewport's mesh (as many vertices as shown)
     engine = pdehead_ext.pdehead_addon
     ddx = sys.modules[f"{pdehead_ext.__name__}.pdehead_addon.pde.detail_displace"]
-    head = fs(coll).face_for_export()[0]
+    head = fs(coll).face.face_for_export()[0]
     # the face as shown: the exported surface at the viewport's resolution is the face object, vertex for vertex
-    opts = fs(coll).face_model().options
+    opts = fs(coll).face.face_model().options
     view = head.surface(int(opts["nu"]), int(opts["nv"]), caps=True)
     assert len(view.vertices) == len(shown) and cKDTree(view.vertices).query(shown)[0].max() < 1e-3
     fexport = sys.modules[f"{pdehead_ext.__name__}.operators.forensic.export"]
@@ -405,8 +405,8 @@ def test_export_for_printing_writes_the_face_beside_the_head(pdehead_ext, face_b
     assert shown_prov["landmark_flags"] == flags
     assert {n: f for n, f in fs(coll).flag_names().items() if n in flags} == \
         {n: f for n, f in flags.items() if n in fs(coll).flag_names()}
-    _drag(fs(coll).peg_objects(names)[names[0]], (0.0, 1.0, 0.0))      # ... and after the next solve too
-    assert json.loads(fs(coll).face_object()[face.PROVENANCE_PROP])["landmark_flags"] == flags
+    _drag(fs(coll).face.peg_objects(names)[names[0]], (0.0, 1.0, 0.0))      # ... and after the next solve too
+    assert json.loads(fs(coll).face.face_object()[face.PROVENANCE_PROP])["landmark_flags"] == flags
     assert bpy.ops.pdehead.export_print(directory=str(tmp_path / "ply"), format='ply') == {'FINISHED'}
     head = (tmp_path / "ply" / "face.ply").read_bytes().split(b"end_header\n", 1)[0]
     assert b"comment label: approximation - not an identification" in head
@@ -434,19 +434,19 @@ def test_sex_shows_for_a_table_with_a_sex_column_and_picks_its_rows(pdehead_ext,
         return log
 
     assert ("prop", "face_sex") not in panel()                    # the T-Table 2023 is pooled
-    ttable = json.loads(fs(coll).face_object()[face.PROVENANCE_PROP])["table"]
-    ttable_json = fs(coll).face_options()["table"]
+    ttable = json.loads(fs(coll).face.face_object()[face.PROVENANCE_PROP])["table"]
+    ttable_json = fs(coll).face.face_options()["table"]
 
     def depths():
-        return {n: p[face.PEG_DEPTH_PROP] for n, p in fs(coll).peg_objects(fs(coll).face_peg_names()).items()}
+        return {n: p[face.PEG_DEPTH_PROP] for n, p in fs(coll).face.peg_objects(fs(coll).face.face_peg_names()).items()}
     t_depths = depths()                                            # the T-Table's means
     s = state.settings(coll)
     s.face_table_file = str(Path(__file__).resolve().parents[1] / "fixtures" / "depth_table_by_sex.csv")
     s.face_table = 'FILE'
     assert s.last_error == ""
     assert ("prop", "face_sex") in panel()
-    obj = fs(coll).face_object()
-    glabella = fs(coll).peg_objects(["Glabella"])["Glabella"]
+    obj = fs(coll).face.face_object()
+    glabella = fs(coll).face.peg_objects(["Glabella"])["Glabella"]
     assert glabella[face.PEG_DEPTH_PROP] == 5.5                   # pooled rows
     for sex, depth in (('MALE', 6.0), ('FEMALE', 5.0)):
         s.face_sex = sex
@@ -458,16 +458,16 @@ def test_sex_shows_for_a_table_with_a_sex_column_and_picks_its_rows(pdehead_ext,
     s.face_sex = 'MALE'
     s.face_table = 'DEFAULT'
     assert s.last_error == "" and ("prop", "face_sex") not in panel() and s.face_sex == 'MALE'
-    assert fs(coll).face_options()["table"] == ttable_json and not fs(coll).face_options()["sex"]
+    assert fs(coll).face.face_options()["table"] == ttable_json and not fs(coll).face.face_options()["sex"]
     assert depths() == t_depths and t_depths["Pogonion"] != 12.0     # the T-Table's means, not the male rows
     prov = json.loads(obj[face.PROVENANCE_PROP])
     assert prov["sex"] == "pooled" and prov["table"] == ttable
     assert bpy.ops.pdehead.build_face() == {'FINISHED'}
-    obj = fs(coll).face_object()
+    obj = fs(coll).face.face_object()
     prov = json.loads(obj[face.PROVENANCE_PROP])
-    assert prov["sex"] == "pooled" and prov["table"] == ttable and fs(coll).face_options()["table"] == ttable_json
+    assert prov["sex"] == "pooled" and prov["table"] == ttable and fs(coll).face.face_options()["table"] == ttable_json
     assert depths() == t_depths
-    glabella = fs(coll).peg_objects(["Glabella"])["Glabella"]
+    glabella = fs(coll).face.peg_objects(["Glabella"])["Glabella"]
     # ... and the sex table again: its male rows
     s.face_table = 'FILE'
     assert s.last_error == "" and ("prop", "face_sex") in panel()

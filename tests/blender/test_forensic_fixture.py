@@ -121,7 +121,7 @@ def test_the_reopened_face_follows_a_dragged_peg_and_both_studies_stay_live(reop
     bpy.context.view_layer.update()
     assert state.settings(coll).last_error == ""
     fs = face_ops.forensic_of(coll)
-    tip = fs.peg_tips(["Nasion"])[0]
+    tip = fs.face.peg_tips(["Nasion"])[0]
     before = maker.world_mm(face)
     assert _to_face(face, before, tip) < 1.0                        # 0.49 mm measured
     # and follows the next drag at once: at the peg (and the nose it carries), nowhere else
@@ -132,7 +132,7 @@ def test_the_reopened_face_follows_a_dragged_peg_and_both_studies_stay_live(reop
     # up to 4.61 mm measured since issue 23's sixth session: the nose it carries has a near-horizontal underside
     # (the columella, the alae), where a ray of the radial face meets the moved nose further along than 2 mm
     assert 1.0 < moved.max() < 6.0
-    tip = fs.peg_tips(["Nasion"])[0]
+    tip = fs.face.peg_tips(["Nasion"])[0]
     # the skin at the peg came to the tip (measured on this 48 x 80 face: 2.07 -> 1.06 mm; the mesh's
     # facets between its rows cut the narrow bump the 2 mm drag makes)
     gap_before, gap_after = _to_face(face, before, tip), _to_face(face, after, tip)

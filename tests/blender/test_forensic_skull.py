@@ -123,12 +123,12 @@ def test_bone_level_field_and_export_builds_or_refuses(pdehead_ext, tmp_path, ph
     assert json.loads((out / "provenance.json").read_text())["not_written"] == \
         dict.fromkeys(["skin.stl", "tissue_depth.csv"], "the CT shows no soft tissue to make a skin of")
     fs = forensic.ForensicStudy.of(ext.operators.study.entity.Study.of(coll))
-    info = fs.skull_segmentation().meta
+    info = fs.skull.skull_segmentation().meta
     assert info["bone_level_stored"] == level and not info["has_skin"]
     first = read_stl(out / "skull.stl")
     # the panel's field changes the level: the skull is rebuilt from it
     s.bone_level = 900.0
-    assert fs.skull_segmentation().meta["bone_level_stored"] == 900.0
+    assert fs.skull.skull_segmentation().meta["bone_level_stored"] == 900.0
     # a failure while writing leaves nothing behind (everything is written to a hidden folder first)
     engine = __import__(f"{ext.__name__}.pdehead_addon", fromlist=["x"])   # the operators use its public names
     saved = engine.write_landmark_csv

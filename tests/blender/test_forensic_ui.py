@@ -117,7 +117,7 @@ def test_forensic_operators_on_the_phantom(pdehead_ext, tmp_path):
     assert bpy.ops.pdehead.build_skull() == {'FINISHED'}
     skull_obj = coll["pdehead_skull_object"]
     bone_obj = coll["pdehead_bone_object"]
-    assert len(skull_obj.data.vertices) == len(fs.skull_engine_mesh("PDE").vertices) > 2000
+    assert len(skull_obj.data.vertices) == len(fs.skull.skull_engine_mesh("PDE").vertices) > 2000
     assert len(bone_obj.data.polygons) > 10000
 
     assert bpy.ops.pdehead.tissue_depth(max_depth=35.0) == {'FINISHED'}
@@ -132,7 +132,7 @@ def test_forensic_operators_on_the_phantom(pdehead_ext, tmp_path):
     assert np.median(depth[vault]) == pytest.approx(6.0, abs=0.5)
     assert (depth == -1).sum() > 0                                       # no value below the skull
     stats = json.loads(coll["pdehead_depth_stats"])
-    assert stats == fs.depth_stats() and stats["max_depth_mm"] == 35.0
+    assert stats == fs.skull.depth_stats() and stats["max_depth_mm"] == 35.0
     assert stats["measured"] == int((depth >= 0).sum())
     assert surf.data.materials[0].name == skull.DEPTH_MATERIAL
 
@@ -185,9 +185,9 @@ def test_forensic_operators_on_the_phantom(pdehead_ext, tmp_path):
     from pdehead_addon.forensic.landmarks import landmark_depths
     header = [r[0] for r in csv.reader(open(csv_path)) if r[0].startswith("#")]
     assert "# depth: bone level to skin level in the CT along the bone's exposed normal" in header
-    skull_mesh, skin_mesh = fs.skull_engine_mesh("BONE"), fs.skin_engine_mesh()
+    skull_mesh, skin_mesh = fs.skull.skull_engine_mesh("BONE"), fs.skull.skin_engine_mesh()
     head = fs.study.cache.seg
-    on_ct = measure_landmark_depths(lms, skull_mesh, skin_mesh, fs.skull_segmentation(), head_mask=head.mask)
+    on_ct = measure_landmark_depths(lms, skull_mesh, skin_mesh, fs.skull.skull_segmentation(), head_mask=head.mask)
     assert {m.method for m in on_ct.values()} == {"ct"}
     assert float(vertex[4]) == pytest.approx(on_ct["Vertex"].depth, abs=0.005)
     assert float(vertex[4]) == pytest.approx(6.0, abs=0.5)

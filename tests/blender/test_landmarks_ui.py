@@ -48,7 +48,7 @@ def test_find_landmarks_operator_on_the_phantom(pdehead_ext):
     assert np.allclose(np.array(obj["patient_mm"]), after)
     assert fs.landmark_flags()["Pogonion"] == ("ok", forensic.MOVED_BY_HAND)
     # without the mandible in the bone mask: its landmarks are not found, and the report says so
-    sk = fs.skull_segmentation()
+    sk = fs.skull.skull_segmentation()
     from pdehead_addon.forensic.landmark_frame import bone_components
     labels, _ = bone_components(sk.bone)
     k = tuple(np.round(sk.ct.patient_to_index([0.0, -67.0, -79.0])).astype(int))

@@ -116,6 +116,12 @@ for action in group._group_actions:
             row.update(format=meta.get("format"), units=meta.get("units"), first_slice=meta.get("first_slice"),
                        warnings=study.warnings, notes=study.notes)
             bpy.ops.pdehead.remove_study()
+            # the CLI's own path: the same values into the study's import, without the operator
+            path, options = addon.operators.ui.import_options.import_request(**pdehead.loader_kwargs(args))
+            study = addon.operators.study.entity.Study.import_ct(bpy.context, path, options)
+            meta = addon.operators.state.cache_for(study.study_id).ct.meta
+            row["cli"] = [meta.get("format"), meta.get("units"), meta.get("first_slice")]
+            study.remove()
         except Exception as exc:
             row["error"] = f"{type(exc).__name__}: {exc}"
         out.append(row)
@@ -126,7 +132,7 @@ print("RESULT" + json.dumps(out))
 def test_every_choice_of_the_cli_loader_flags_runs_through_the_operators(tmp_path):
     """--units stored (offered by --help) ended in TypeError: enum "STORED" not found. Each choices= of the
     loader flags (--format, --first-slice, --units) goes through loader_kwargs into bpy.ops.pdehead.import_ct
-    and gives the CT it names."""
+    and, as the CLI imports, into the study's import (import_request), and gives the CT it names."""
     from pdehead_addon import make_phantom
     from pdehead_addon.validation import write_dicom_series
     dicom = tmp_path / "dicom"
@@ -144,6 +150,7 @@ def test_every_choice_of_the_cli_loader_flags_runs_through_the_operators(tmp_pat
     assert set(rows) == {("--format", c) for c in ("auto", "dicom", "images", "raw")} | \
         {("--first-slice", c) for c in ("auto", "superior", "inferior")} | {("--units", c) for c in ("HU", "stored")}
     assert not [r for r in rows.values() if "error" in r], [r for r in rows.values() if "error" in r]
+    assert all(r["cli"] == [r["format"], r["units"], r["first_slice"]] for r in rows.values()), rows
     assert [rows[("--format", c)]["format"] for c in ("auto", "dicom", "images", "raw")] == \
         ["dicom", "dicom", "image", "raw"]
     assert rows[("--units", "HU")]["units"] == "HU" and rows[("--units", "stored")]["units"] != "HU"

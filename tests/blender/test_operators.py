@@ -501,30 +501,30 @@ def test_the_solid_and_forensic_steps_return_their_outcomes(ext, phantom_blend, 
     assert solid.values["notice"] == "" and solid.warnings == ()      # the CT is at hand: exact colours
     assert round(solid.seconds, 4) == pytest.approx(study.timings["solid"])
     fs = study.forensic
-    skull = fs.step_skull(24, 40, bone=True, bone_step=4)
+    skull = fs.skull.step_skull(24, 40, bone=True, bone_step=4)
     assert skull.step == "skull"
     assert skull.objects == (coll["pdehead_skull_object"], coll["pdehead_bone_object"])
-    info = fs.skull_info()
+    info = fs.skull.skull_info()
     assert skull.values["patches"] == info["patches"] > 0
     assert skull.values["bone_triangles"] == info["bone_triangles"] == len(coll["pdehead_bone_object"].data.polygons)
     assert skull.warnings == tuple(info.get("warnings", ()))
     assert round(skull.seconds, 4) == pytest.approx(study.timings["skull"])
-    depth = fs.step_depth("PDE", 30.0)
+    depth = fs.skull.step_depth("PDE", 30.0)
     assert depth.step == "depth" and depth.objects == (s.surface_object,)
     assert depth.values["target"] == "PDE" and depth.values["max_depth_mm"] == 30.0
     assert 0 < depth.values["measured"] <= depth.values["vertices"] == len(s.surface_object.data.vertices)
-    assert depth.values["measured"] == fs.depth_stats()["measured"]
+    assert depth.values["measured"] == fs.skull.depth_stats()["measured"]
     assert round(depth.seconds, 4) == pytest.approx(study.timings["depth"])
-    face = fs.build_face()
-    assert face.step == "face" and face.objects[0] == fs.face_object()
-    assert face.values["pegs"] == len(face.objects) - 1 == len(fs.face_peg_names()) > 0
+    face = fs.face.build_face()
+    assert face.step == "face" and face.objects[0] == fs.face.face_object()
+    assert face.values["pegs"] == len(face.objects) - 1 == len(fs.face.face_peg_names()) > 0
     assert all(p.parent == face.objects[0] for p in face.objects[1:])
-    assert face.values["vertices"] == len(fs.face_object().data.vertices)
+    assert face.values["vertices"] == len(fs.face.face_object().data.vertices)
     assert face.values["label"] == ext.forensic.face.approximation_label()
     report = fs.cache.get("face_report")
     assert face.warnings == ((report.summary(),) if report.summary() else ())
     assert round(face.seconds, 4) == pytest.approx(study.timings["face_prepare"])
-    sd = fs.build_sd_faces()
+    sd = fs.face.build_sd_faces()
     assert sd.step == "face_sd" and len(sd.objects) == 2 and sd.seconds > 0
     assert sd.values["vertices"] == [len(o.data.vertices) for o in sd.objects]
     assert [o["pdehead_kind"] for o in sd.objects] == ["face_minus_sd", "face_plus_sd"]
