@@ -38,9 +38,7 @@ Steps of :func:`segment_skull`:
    a bone level, nasal bones, teeth) except the cervical vertebrae (below the
    skull base and not in front of the cranium's centre);
 6. enclosed cavities (diploe, closed sinuses) are filled (``bone``); the metal's
-   streak artefacts that pass the bone level (thin straight spokes along lines
-   through the metal, unsupported in the neighbouring slices:
-   :func:`~.skull_parts.joined_metal_streaks`; loose straight pieces in the metal's
+   streak artefacts that pass the bone level (loose straight pieces in the metal's
    slices pointing at it: :func:`~.skull_parts.metal_streaks`) are removed; then
    each slice's convex hull is the envelope (``mask``).
 """
@@ -64,8 +62,7 @@ from .scan_contents import (  # noqa: F401
     partial_mandible,
     soft_tissue_present,
 )
-from .skull_parts import (bone_parts, give_back_rim, joined_metal_streaks, mandible_report, metal_streaks,
-                          rami_in_the_bone)
+from .skull_parts import bone_parts, give_back_rim, mandible_report, metal_streaks, rami_in_the_bone
 
 #: HU assigned to the air and soft-tissue modes when the scan is not calibrated.
 AIR_HU, TISSUE_HU = -1000.0, 40.0
@@ -305,13 +302,6 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
     erosion = parts["erosion"]
     del labels, grown, rest, core, parts
     skull = ndi.binary_fill_holes(skull)
-    spokes = joined_metal_streaks(skull, ct.data >= np.float32(metal_stored), ct.spacing) if n_metal else None
-    n_spoke = int(np.count_nonzero(spokes)) if spokes is not None else 0
-    if n_spoke:
-        skull &= ~spokes
-        if mandible_mask is not None:
-            mandible_mask &= ~spokes
-    del spokes
     streaks, streak_pieces = (metal_streaks(skull, ct.data >= np.float32(metal_stored), ct.spacing,
                                             keep=mandible_mask) if n_metal else (None, 0))
     if streak_pieces:
@@ -333,7 +323,7 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
                 bone_level_source=info.get("source", ""), metal_level=metal_stored, calibrated=calibrated,
                 histogram=info, has_skin=has_skin, soft_tissue=skin_info, metal_voxels=n_metal,
                 components=components, components_total=int(n), erosion_voxels=erosion,
-                metal_streak_voxels=n_streak, metal_streak_pieces=int(streak_pieces), metal_spoke_voxels=n_spoke,
+                metal_streak_voxels=n_streak, metal_streak_pieces=int(streak_pieces),
                 kept_components=int(np.count_nonzero(keep)),
                 dropped_vertebra_mm3=float(dropped_vertebra * voxel_mm3),
                 dropped_support_mm3=float(dropped_support * voxel_mm3),

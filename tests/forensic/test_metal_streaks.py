@@ -61,40 +61,32 @@ def test_short_bits_beside_the_metal_stay():
 
 
 def test_cthead_streaks_at_two_strip_levels(cthead_ct):
-    """CThead's fillings (slices 28-40) throw streaks that pass both strip levels. Joined to the teeth, thin spokes
-    along lines through the fillings are dropped first (1500: 1694 voxels, 1600: 1058 measured; the rami stay), which
-    frees the bands across the mouth; then the loose straight pieces pointing at the metal (1500: 535 voxels in 7
-    pieces, 1600: 1042 in 4). Before the spokes: loose pieces only, 1378 voxels / 8 pieces at 1500 and 19 / 1 at
-    1600. The mandible stays found and the rami (slices 28-33, behind the fillings, in every slice) keep their bone."""
+    """CThead stripped at 1500 keeps the fillings' streaks in the cheeks (slices 29-38) as loose wedges: they are
+    dropped (1378 voxels, 8 pieces measured); stripped at 1600 almost none pass (19 voxels, 1 piece); the 1500
+    skull's vertices more than 3 mm from the 1600 skull fall from 21,559 to 20,771 (the rest: the neck and the
+    mandible's joins)."""
     import sys
     from pathlib import Path
+
+    from scipy.spatial import cKDTree
 
     root = Path(__file__).resolve().parents[2]
     if str(root / "scripts" / "bench") not in sys.path:
         sys.path.insert(0, str(root / "scripts" / "bench"))
     import bench_face as B
-    from scipy import ndimage as ndi
+    from pdehead_addon.forensic.skull import segment_skull, skull_mesh
 
-    from pdehead_addon.forensic.skull import segment_skull
-
-    for level, spokes, loose in ((1500.0, (1400, 2000), (300, 900)), (1600.0, (800, 1300), (700, 1300))):
+    meshes = {}
+    for level in (1500.0, 1600.0):
         sk = segment_skull(B.stripped(cthead_ct, level), bone_level=level)
-        m = sk.meta
-        print(level, m["metal_spoke_voxels"], m["metal_streak_voxels"], m["metal_streak_pieces"])
-        assert spokes[0] <= m["metal_spoke_voxels"] <= spokes[1], (level, m["metal_spoke_voxels"])
-        assert loose[0] <= m["metal_streak_voxels"] <= loose[1], (level, m["metal_streak_voxels"])
-        assert m["mandible"]["present"]
-        # the rami behind the fillings (slices 28-33; boxes around both, from slices 29-33 at 1600): most of the
-        # bone the level gives there (holes filled) stays (78 % at 1500, 77 % at 1600 measured; 89 / 88 % of the skull
-        # before the spokes were dropped: spokes crossing the boxes, small pieces and a few
-        # wall pixels in line with a filling go)
-        raw = ndi.binary_fill_holes(B.stripped(cthead_ct, level).data >= np.float32(level))
-        zone = np.zeros(raw.shape, bool)
-        zone[28:34, 75:112, 55:85] = True
-        zone[28:34, 75:112, 144:158] = True
-        kept = np.count_nonzero(sk.bone & zone) / np.count_nonzero(raw & zone)
-        print(level, "rami kept", kept)
-        assert kept >= 0.75, (level, kept)
+        voxels, pieces = sk.meta["metal_streak_voxels"], sk.meta["metal_streak_pieces"]
+        if level == 1500.0:
+            assert voxels >= 1200 and pieces >= 6, (voxels, pieces)
+        else:
+            assert voxels <= 100 and pieces <= 2, (voxels, pieces)
+        meshes[level] = skull_mesh(sk)
+    d = cKDTree(meshes[1600.0].vertices).query(meshes[1500.0].vertices)[0]
+    assert np.count_nonzero(d > 3.0) <= 21000
 
 
 def _joined(shape=(9, 120, 120)):
@@ -142,3 +134,35 @@ def test_joined_spokes_need_metal_and_direction():
     wide[4, 59:63, 70:100] = True                                       # 4 px wide along the filling's row: stays
     found = joined_metal_streaks(bone | wide, metal, (2.0, 1.0, 1.0))
     assert not (found & wide & ~spokes).any()
+
+
+def test_cthead_joined_spokes_at_1600(cthead_ct):
+    """CThead stripped at 1600: the spokes joined to the teeth in its skull's bone (slices 28-40) are found (1058
+    voxels measured) while the rami behind the fillings keep 88 % of their bone (boxes from slices 29-33). Not wired
+    into segment_skull: with it the face at 1500 / 1600 scored 51.3 / 55.5 % (4.2 points apart, was 53.9 / 55.2)."""
+    import sys
+    from pathlib import Path
+
+    from pdehead_addon.forensic.skull import segment_skull
+    from pdehead_addon.forensic.skull_parts import joined_metal_streaks
+
+    root = Path(__file__).resolve().parents[2]
+    if str(root / "scripts" / "bench") not in sys.path:
+        sys.path.insert(0, str(root / "scripts" / "bench"))
+    import bench_face as B
+
+    bare = B.stripped(cthead_ct, 1600.0)
+    sk = segment_skull(bare, bone_level=1600.0)
+    metal = bare.data >= np.float32(sk.metal_level)
+    found = joined_metal_streaks(sk.bone, metal, bare.spacing)
+    zone = np.zeros(found.shape, bool)
+    zone[28:34, 75:112, 55:85] = True
+    zone[28:34, 75:112, 144:158] = True
+    kept = 1.0 - np.count_nonzero(found & zone) / np.count_nonzero(sk.bone & zone)
+    print("spokes", int(found.sum()), "slices", np.unique(np.nonzero(found)[0]), "rami kept", kept)
+    assert 800 <= int(found.sum()) <= 1300
+    assert set(np.unique(np.nonzero(found)[0])) <= set(np.nonzero(metal.any(axis=(1, 2)))[0])   # 28-40 and 56
+    print("slice 56:", int(found[56].sum()))
+    assert np.count_nonzero(found[28:41]) >= 0.9 * found.sum()
+    assert kept >= 0.85
+    assert not joined_metal_streaks(sk.bone, np.zeros_like(metal), bare.spacing).any()
