@@ -444,6 +444,18 @@ CONSTANT_CHOICE = {
     "without the 5 mm minimum 2-16-voxel bits beside the teeth went too (1600 then 57.4 %, 3.5 points from 1500: "
     "not kept). GE and the phantom hold no metal: unchanged. CThead within +-2.5 mm, before -> after: automatic "
     "57.5 -> 58.1, 1500 51.8 -> 53.9, 1600 54.5 -> 55.2 % (dev runs, the suite's scoring; the suite not re-run)",
+    "skull_parts.SPOKE_LENGTH_MM / SPOKE_WIDTH_MM / SPOKE_REACH_MM (+ STREAK_AIM_MM; the fillings' streaks joined to "
+    "the teeth: joined_metal_streaks, not used yet)": "looked at on CThead's axial slices 28-40 (removed voxels drawn), not "
+    "its score (Barrett & Keat 2004 for what a metal streak is: in-plane, along lines through the metal; the numbers "
+    "are not published): 8 mm straight, under 3 mm across (streaks are 1-2 pixels wide), within 50 mm (the fans reach "
+    "the cheeks 20-45 mm from the molars); bone in both neighbouring slices keeps a pixel (without that test the "
+    "rami's walls, thin and in line with the molars, went; with a 2-D hole test instead they still went: not kept). "
+    "Wired in before the loose rule (dev runs): CThead 1500: 1,694 spoke voxels (then 535 loose in 7 pieces), 1600: 1,058 (then 1,042 loose in 4, the bands "
+    "across the mouth freed), automatic: 1,085 (then 1,071 in 4); the rami's boxes keep 78 / 77 % of the bone the "
+    "level gives there. GE and the phantom hold no metal: unchanged. With it the 3-D envelope still fails the CThead "
+    "check (1500 / 1600 / automatic 49.4 / 56.4 / 59.8 %; GE 55.1, the phantom 42.5 %), so PROFILE_3D stays off; and "
+    "with the rows' hull (3-D off) it moved 1500 / 1600 / automatic from 53.9 / 55.2 / 58.1 to 51.3 / 55.5 / 60.5 %: "
+    "4.2 points apart, failing the strip-level check, so the rule is NOT wired into segment_skull (session of 5 Dec)",
     "face_profile.PROFILE_SMOOTH_FAR_MM": "off (0); was CThead score (57.3 -> 57.5 %)",
     "face_profile.FLOOR_ROUND_MM": "GE (= CUT_FLOOR_SMOOTH_MM)",
     "face_from_skull.CHEEK_SMOOTH_MM": "= PROFILE_SMOOTH_MM",
