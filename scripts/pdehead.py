@@ -969,7 +969,7 @@ def _face_from_skull(addon, coll):
     ff = import_module(addon.__name__ + ".pdehead_addon.forensic.face_from_skull")
     fs = _forensic(addon, coll)
     try:
-        table = fs.depth_table()
+        table = fs.outputs.depth_table()
         model = ff.FaceModel.prepare(fs.skull.skull_engine_mesh("BONE"), fs.landmarks(), table, sex=table.sex or None,
                                      flags=fs.flag_names())
         res = model.solve()
@@ -983,7 +983,7 @@ def _face_from_skull(addon, coll):
     off = res.pegs.summary() if res.pegs is not None else None
     if off:                                 # the face passes near, not through, these tips (damped, shaped)
         WARNINGS.say(f"--face-from-skull: {off} (reasons in the face's provenance, pegs_off_face)")
-    prov = dict(fs.provenance(fs.depth_table()), **res.provenance)
+    prov = dict(fs.outputs.provenance(fs.outputs.depth_table()), **res.provenance)
     res.provenance = prov
     return res, model
 
@@ -996,12 +996,13 @@ def _export_with_face(args, addon, coll, face) -> None:
     args.face = face
     fs = _forensic(addon, coll)
     if face is None:
-        outcome = _step(lambda: fs.export(str(out), args.export_format), addon.operators.ui.forensic_ops.export_report)
+        outcome = _step(lambda: fs.outputs.export(str(out), args.export_format),
+                        addon.operators.ui.forensic_ops.export_report)
         files = [Path(f) for f in outcome.values["files"]]
     else:
         res, _model = face
         try:
-            outcome = fs.export(str(out), args.export_format, face=(res.head, res.provenance))
+            outcome = fs.outputs.export(str(out), args.export_format, face=(res.head, res.provenance))
             files = [Path(f) for f in outcome.values["files"]]
         except addon.pdehead_addon.Cancelled:
             raise Interrupted() from None

@@ -100,8 +100,12 @@ def print_face(head):
     return print_mesh(head)
 
 
-class ExportSteps:
-    """Pegs, provenance and export of a study (part of :class:`.study.ForensicStudy`)."""
+class Outputs:
+    """The pegs, provenance and export of a study: a component of its :class:`.study.ForensicStudy`
+    (``fs.outputs``); its state is in the study's collection, settings and cache."""
+
+    def __init__(self, forensic):
+        self.forensic = forensic
 
     def make_pegs(self, table, target: str = D.DEPTH_TARGET.default, pegs=None) -> list:
         """Marker pegs on the skull at the placed landmarks that ``table`` has.
@@ -116,13 +120,13 @@ class ExportSteps:
 
         if not isinstance(table, DepthTable):     # a plain {name: depth} mapping (no SDs)
             table = DepthTable(entries={k: DepthEntry(k, float(v)) for k, v in table.items()}, name="imported table")
-        lms = self.landmarks()
+        lms = self.forensic.landmarks()
         if pegs is None:
-            pegs = marker_pegs(lms, self.skull.skull_engine_mesh(target), table)
+            pegs = marker_pegs(lms, self.forensic.skull.skull_engine_mesh(target), table)
         if not pegs:
             raise PDEHeadError(f"none of the placed landmarks ({', '.join(lms) or 'none'}) is in the depth table "
                                f"'{table.label}'")
-        sub = self.sub_collection("Pegs")
+        sub = self.forensic.sub_collection("Pegs")
         for o in list(sub.objects):
             me = o.data
             bpy.data.objects.remove(o)
@@ -133,7 +137,7 @@ class ExportSteps:
         bsdf.inputs["Emission Color"].default_value = (0.95, 0.45, 0.05, 1.0)
         bsdf.inputs["Emission Strength"].default_value = 0.6
         made = []
-        frank = self.frankfurt_matrix()
+        frank = self.forensic.frankfurt_matrix()
         for name, base, normal, length in pegs:
             obj = _peg_object(name, table.entries[name], table, length, mat)
             sub.objects.link(obj)
@@ -141,28 +145,28 @@ class ExportSteps:
             obj.scale[2] = float(length)
             _drive_scale_by_depth(obj)
             made.append(obj)
-        self.props.depth_table = table.to_json()
-        self.props.depth_table_name = table.label
+        self.forensic.props.depth_table = table.to_json()
+        self.forensic.props.depth_table_name = table.label
         return made
 
     def peg_objects_all(self) -> list:
         """Every marker peg of the study (with a length property)."""
-        return [o for o in self.collection.all_objects if "pdehead_peg" in o and PEG_DEPTH_PROP in o]
+        return [o for o in self.forensic.collection.all_objects if "pdehead_peg" in o and PEG_DEPTH_PROP in o]
 
     # -------------------------------------------------------------------------------------- provenance
     def depth_table(self):
         """The study's depth table: the one its pegs came from, else the shipped T-Table 2023."""
         from ...pdehead_addon import DepthTable, default_table
 
-        text = self.props.depth_table
+        text = self.forensic.props.depth_table
         return DepthTable.from_json(text) if text else default_table()
 
     def provenance(self, table=None) -> dict:
         """Provenance of the study's forensic outputs: software, CT, bone level, depth table, frame."""
         from ...pdehead_addon import provenance
 
-        s = self.settings
-        sk = self.skull.skull_segmentation()
+        s = self.forensic.settings
+        sk = self.forensic.skull.skull_segmentation()
         m = sk.meta
         if m.get("skull_mesh_file"):
             level = f"none (skull from the mesh {m['skull_mesh_file']})"
@@ -186,12 +190,12 @@ class ExportSteps:
         support turns ``uncertain``) and the method's description for the provenance."""
         from ...pdehead_addon import depth_flags, measure_landmark_depths
 
-        lms = self.landmarks()
-        sk = self.skull.skull_segmentation()
-        head = self.study.cache.seg
+        lms = self.forensic.landmarks()
+        sk = self.forensic.skull.skull_segmentation()
+        head = self.forensic.study.cache.seg
         measured = measure_landmark_depths(lms, skull, skin, sk, head_mask=None if head is None else head.mask,
                                            table=self.depth_table())
-        flags = depth_flags(self.flag_names(), measured)
+        flags = depth_flags(self.forensic.flag_names(), measured)
         rows = {n: (m.point, m.depth) for n, m in measured.items()}
         why = next((m.evidence for m in measured.values() if m.method == "mesh"), "")
         if skin is None:
@@ -204,7 +208,7 @@ class ExportSteps:
 
     def has_skin(self) -> bool:
         """False when the study's CT has no soft tissue to make a skin of (a dry skull, soft tissue removed)."""
-        return bool(self.skull.skull_segmentation().meta.get("has_skin", True))
+        return bool(self.forensic.skull.skull_segmentation().meta.get("has_skin", True))
 
     # -------------------------------------------------------------------------------------- export
     def _export_folder(self, directory: str) -> Path:
@@ -213,7 +217,7 @@ class ExportSteps:
         from ...pdehead_addon import input_folder_conflict
 
         out = Path(bpy.path.abspath(directory)).resolve()
-        s = self.settings
+        s = self.forensic.settings
         if s.source_kind == "FILES" and s.source:
             why = input_folder_conflict(out, bpy.path.abspath(s.source))
             if why:
@@ -224,7 +228,7 @@ class ExportSteps:
         """Why the export has no skin (and so no tissue_depth.csv), or "" when it has one."""
         if not self.has_skin():
             return "the CT shows no soft tissue to make a skin of"
-        if self.study.boundary_set() is None:          # a face-from-skull study: the head pipeline never ran
+        if self.forensic.study.boundary_set() is None:          # a face-from-skull study: the head pipeline never ran
             return "run the head pipeline (Segment, Extract Boundaries, Reconstruct Surface) for them"
         return ""
 
@@ -237,9 +241,9 @@ class ExportSteps:
         Build Face only) exports no skin and no tissue_depth.csv instead of failing."""
         from ...pdehead_addon import tissue_depth
 
-        s = self.settings
-        skull = self.skull.skull_engine_mesh("BONE")
-        envelope = self.skull.skull_engine_mesh("PDE")
+        s = self.forensic.settings
+        skull = self.forensic.skull.skull_engine_mesh("BONE")
+        envelope = self.forensic.skull.skull_engine_mesh("PDE")
         meshes = [("skull", skull), ("skull_envelope", envelope)]
         skin = None
         no_skin = self._skin_missing()
@@ -247,17 +251,18 @@ class ExportSteps:
             # the depth map's vertices stay the viewport's surface; skin.<fmt> is meshed at print resolution
             # with the CT detail at the study's strength (:func:`operators.scene.detail_map.print_skin`)
             from ..scene import detail_map
-            skin = self.study.head.surface(int(s.nu), int(s.nv), caps=True)
-            meshes.insert(0, ("skin", detail_map.print_skin(self.study)))
+            skin = self.forensic.study.head.surface(int(s.nu), int(s.nv), caps=True)
+            meshes.insert(0, ("skin", detail_map.print_skin(self.forensic.study)))
         for name, mesh in meshes:
             if mesh.face_count == 0 or not mesh.is_watertight():
-                raise PDEHeadError(f"study '{self.name}': the {name} mesh is not watertight; nothing was written")
+                raise PDEHeadError(f"study '{self.forensic.name}': the {name} mesh is not watertight; "
+                                   "nothing was written")
         res = None
         if skin is not None:
-            res = self.cache.get("depth")
+            res = self.forensic.cache.get("depth")
             if res is None or res.points.shape != skin.vertices.shape or not np.allclose(res.points, skin.vertices):
-                res = tissue_depth(skin, self.skull.skull_engine_mesh(depth_target),
-                                   envelope=self.skull.skull_segmentation())
+                res = tissue_depth(skin, self.forensic.skull.skull_engine_mesh(depth_target),
+                                   envelope=self.forensic.skull.skull_segmentation())
         return meshes, skull, skin, res, no_skin
 
     def export(self, directory: str, fmt: str = D.EXPORT_FORMAT.default,
@@ -298,22 +303,23 @@ class ExportSteps:
             table = self.depth_table()
             prov = self.provenance(table)
             prov_lm = dict(prov, depth=method)
-            face = self.face.face_for_export() if face is None else face
+            face = self.forensic.face.face_for_export() if face is None else face
             face_prov = None
             if face is not None:
                 face_head, face_prov = face
                 face_mesh = print_face(face_head)
                 if face_mesh.face_count == 0 or not face_mesh.is_watertight():
-                    raise PDEHeadError(f"study '{self.name}': the face mesh is not watertight; nothing was written")
+                    raise PDEHeadError(f"study '{self.forensic.name}': the face mesh is not watertight; "
+                                       "nothing was written")
                 face_prov = {k: v for k, v in dict(face_prov).items() if k != "landmarks"}
                 face_prov["landmark_flags"] = dict(flags)
                 meshes.append(("face", face_mesh))
             names = self._write_export(out, fmt, meshes, res, depths, table, flags, prov, prov_lm, face_prov,
                                        not_written)
-        self.cache["export_flags"] = dict(flags)
-        self.cache["export_not_written"] = dict(not_written)
-        self._adopt_export_flags(flags)
-        self.study.record_timing("export", timer.seconds)
+        self.forensic.cache["export_flags"] = dict(flags)
+        self.forensic.cache["export_not_written"] = dict(not_written)
+        self.forensic.adopt_export_flags(flags)
+        self.forensic.study.record_timing("export", timer.seconds)
         return StepOutcome("export", seconds=timer.seconds,
                            values=dict(files=[str(out / n) for n in names], not_written=dict(not_written),
                                        flags=dict(flags)))

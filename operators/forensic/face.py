@@ -510,7 +510,7 @@ class Face:
         set_material(obj, plain_material(FACE_MATERIAL, (0.80, 0.62, 0.52, 1.0)))
         self.forensic.to_frankfurt(obj)
         # the pegs: one per peg of the model (old pegs of the study are replaced), children of the face
-        pegs = self.forensic.make_pegs(table, pegs=[(n, model.peg_bases[i], model.peg_normals[i],
+        pegs = self.forensic.outputs.make_pegs(table, pegs=[(n, model.peg_bases[i], model.peg_normals[i],
                                                      float(model.default_depths[i]))
                                                     for i, n in enumerate(model.peg_names)])
         for peg in pegs:

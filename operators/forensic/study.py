@@ -11,7 +11,7 @@ per study for the session; its methods come in parts:
 * landmarks, Frankfurt horizontal and mirror (here): landmarks are empties snapped to the skull; Frankfurt
   horizontal and mirror are object transforms -- the meshes keep patient coordinates (world = LPS x 0.001
   before the transform), and each landmark keeps its patient mm;
-* marker pegs, provenance and Export for Printing (:class:`.export.ExportSteps`);
+* marker pegs, provenance and Export for Printing (the component ``fs.outputs``, :class:`.export.Outputs`);
 * the face from the skull (:class:`.face.Face`, a component: ``fs.face``).
 
 Its settings and landmark flags are a PropertyGroup on the collection (:mod:`.props`); the
@@ -29,7 +29,7 @@ import numpy as np
 from ...pdehead_addon import PDEHeadError, defaults as D
 from ..coords import MM_TO_M
 from ..outcome import StepOutcome
-from .export import ExportSteps
+from .export import Outputs
 from .face import PROVENANCE_PROP, Face
 from .objects import ForensicBase
 from .props import set_flags
@@ -60,7 +60,7 @@ def blender_matrix(m_mm: np.ndarray):
     return Matrix(m.tolist())
 
 
-class ForensicStudy(ForensicBase, ExportSteps):
+class ForensicStudy(ForensicBase):
     """One study's forensic side: landmarks, pegs, Frankfurt, mirror, export; the skull and depth map and the face
     from the skull are its components :attr:`skull` (:class:`.skull.Skull`) and :attr:`face` (:class:`.face.Face`)."""
 
@@ -68,6 +68,7 @@ class ForensicStudy(ForensicBase, ExportSteps):
         super().__init__(study)
         self.skull = Skull(self)
         self.face = Face(self)
+        self.outputs = Outputs(self)
 
     # -------------------------------------------------------------------------------------- frame
     def frankfurt_matrix(self):
@@ -161,7 +162,7 @@ class ForensicStudy(ForensicBase, ExportSteps):
                                        evidence={n: lm.evidence for n, lm in search.landmarks.items()},
                                        search=search))
 
-    def _adopt_export_flags(self, flags: dict[str, str]) -> None:
+    def adopt_export_flags(self, flags: dict[str, str]) -> None:
         """After an export, the study says what its files say: a landmark the export turned ``uncertain`` (its
         depth not supported by the CT's profile) is ``uncertain`` on its empty and in the study's landmark flags
         (its evidence says why), and the face object's provenance (the panel's source) lists the written flags.

@@ -58,7 +58,7 @@ def landmarks_report(outcome) -> tuple[str, str]:
 
 
 def export_report(outcome) -> list[str]:
-    """Export for Printing's INFO reports of ``fs.export()``'s outcome: the files written, and those left out
+    """Export for Printing's INFO reports of ``fs.outputs.export()``'s outcome: the files written, and those left out
     and why."""
     lines = ["Wrote " + ", ".join(os.path.basename(f) for f in outcome.values["files"])]
     left = {}                                           # why -> the files left out for it
@@ -221,7 +221,7 @@ class PDEHEAD_OT_import_depth_table(Operator, _LandmarkCSVOp):
             table = default_table()
         else:
             table = read_depth_table(bpy.path.abspath(self.filepath))
-        pegs = fs.make_pegs(table, self.target)
+        pegs = fs.outputs.make_pegs(table, self.target)
         self.report({'INFO'}, f"{len(pegs)} marker pegs from {table.label}")
 
 
@@ -237,11 +237,11 @@ class PDEHEAD_OT_export_landmark_depths(Operator, _LandmarkCSVOp):
         from ...pdehead_addon import write_landmark_csv
         if not fs.landmarks():
             raise PDEHeadError("no landmarks placed yet")
-        depths, flags, method = fs.measured_landmark_depths(fs.skull.skull_engine_mesh(self.target),
+        depths, flags, method = fs.outputs.measured_landmark_depths(fs.skull.skull_engine_mesh(self.target),
                                                             fs.skull.skin_engine_mesh())
-        table = fs.depth_table()
+        table = fs.outputs.depth_table()
         n = write_landmark_csv(bpy.path.abspath(self.filepath), depths, table, flags,
-                               provenance=dict(fs.provenance(table), depth=method))
+                               provenance=dict(fs.outputs.provenance(table), depth=method))
         self.report({'INFO'}, f"{n} landmark depths written to {self.filepath} ({method.split(' (')[0]})")
 
 
@@ -292,7 +292,7 @@ class PDEHEAD_OT_export_print(Operator, _ForensicOp):
         return {'RUNNING_MODAL'}
 
     def run_forensic(self, context, fs):
-        for line in export_report(fs.export(self.directory, self.format)):
+        for line in export_report(fs.outputs.export(self.directory, self.format)):
             self.report({'INFO'}, line)
 
 
@@ -473,7 +473,7 @@ def _draw_landmarks(layout, fs) -> None:
     row.operator(PDEHEAD_OT_import_depth_table.bl_idname, text="Pegs: T-Table 2023",
                  icon='EMPTY_SINGLE_ARROW').default_table = True
     row.operator(PDEHEAD_OT_import_depth_table.bl_idname, text="Depth Table...", icon='IMPORT')
-    pegs = fs.peg_objects_all()
+    pegs = fs.outputs.peg_objects_all()
     if pegs and fs.collection.get(FACE_KEY) is None:     # with a face: in its section below
         col = box.column(align=True)
         col.label(text=f"Peg depth (mm), {pegs[0].get('table_name', '')}: mean +- 2 SD")

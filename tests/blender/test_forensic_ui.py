@@ -151,7 +151,8 @@ def test_forensic_operators_on_the_phantom(pdehead_ext, tmp_path):
     assert bpy.ops.pdehead.import_depth_table(filepath=str(table)) == {'FINISHED'}
     pegs = {o["pdehead_peg"]: o for o in coll.all_objects if "pdehead_peg" in o}
     assert set(pegs) == {"Vertex", "Porion L"}
-    assert fs.props.depth_table_name == fs.depth_table().label and fs.depth_table().entries["Vertex"].mean_mm == 6.0
+    loaded = fs.outputs.depth_table()
+    assert fs.props.depth_table_name == loaded.label and loaded.entries["Vertex"].mean_mm == 6.0
 
     def peg_world_z(peg):
         bpy.context.view_layer.update()                                  # the driver: depth_mm -> Z scale
@@ -247,4 +248,5 @@ def test_forensic_operators_on_the_phantom(pdehead_ext, tmp_path):
     fs = forensic.ForensicStudy.of(study_entity.Study.of(coll))
     assert set(fs.landmarks()) == set(points)
     assert fs.props.format_version == 1 and fs.props.max_depth == 35.0          # the forensic settings saved
-    assert fs.depth_table().label.startswith("T-Table 2023") and fs.props.depth_table_name == fs.depth_table().label
+    table = fs.outputs.depth_table()
+    assert table.label.startswith("T-Table 2023") and fs.props.depth_table_name == table.label
