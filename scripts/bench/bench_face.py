@@ -446,7 +446,8 @@ CONSTANT_CHOICE = {
     "57.5 -> 58.1, 1500 51.8 -> 53.9, 1600 54.5 -> 55.2 % (dev runs, the suite's scoring; the suite not re-run)",
     "skull_parts.SPOKE_LENGTH_MM / SPOKE_WIDTH_MM / SPOKE_REACH_MM (+ STREAK_AIM_MM; the fillings' streaks joined to "
     "the teeth: joined_metal_streaks, not used yet)": "looked at on CThead's axial slices 28-40 (removed voxels "
-    "drawn), not its score (Barrett & Keat 2004 for what a metal streak is: in-plane, along lines through the metal; the numbers "
+    "drawn), not its score (Barrett & Keat 2004 for what a metal streak is: in-plane, along lines through the "
+    "metal; the numbers "
     "are not published): 8 mm straight, under 3 mm across (streaks are 1-2 pixels wide), within 50 mm (the fans reach "
     "the cheeks 20-45 mm from the molars); bone in both neighbouring slices keeps a pixel (without that test the "
     "rami's walls, thin and in line with the molars, went; with a 2-D hole test instead they still went: not kept). "
