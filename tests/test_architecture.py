@@ -40,9 +40,11 @@ ALLOWED = {
     # the packages in import cycles: none (operators/'s subpackages are layered: ui -> study -> forensic -> scene
     # -> volume -> the top-level modules state, prefs, coords, compat)
     "package_cycles": set(),
-    # (study entity class, base class) mixed in rather than held as a component; the face, the skull and the
-    # outputs are components (ForensicStudy.face, .skull, .outputs); these are next
-    "study_entity_mixins": {("Study", "PipelineSteps"), ("Study", "LiveSolid"), ("ForensicStudy", "ForensicBase")},
+    # (study entity class, base class) mixed in rather than held as a component. The forensic side and its parts
+    # are components (study.forensic; its .skull, .outputs, .face). Left: the study's own steps and live updates,
+    # methods of Study itself (study.segment(), study.solid(live=True), ...), whose three modules would be one
+    # class over the 600-line limit
+    "study_entity_mixins": {("Study", "PipelineSteps"), ("Study", "LiveSolid")},
 }
 #: How many "issue N" references there are today (target 0).
 ISSUE_REFERENCES_TODAY = 0
@@ -187,8 +189,8 @@ def test_the_entity_and_cli_measures_see_their_violations(tmp_path, monkeypatch)
 
 def test_the_study_entities_hold_the_face_as_a_component(measures):
     """The face, the skull and the outputs are no mixins of the forensic study (``fs.face``, ``fs.skull``,
-    ``fs.outputs``); at most today's 3."""
+    ``fs.outputs``) and the forensic study has no base class; at most today's 2."""
     bases = {(i["class"], i["base"]) for i in measures["study_entity_mixins"]}
     assert not bases & {("ForensicStudy", "FaceSteps"), ("ForensicStudy", "SkullSteps"),
-                        ("ForensicStudy", "ExportSteps")}, bases
-    assert len(measures["study_entity_mixins"]) <= 3
+                        ("ForensicStudy", "ExportSteps"), ("ForensicStudy", "ForensicBase")}, bases
+    assert len(measures["study_entity_mixins"]) <= 2

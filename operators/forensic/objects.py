@@ -1,83 +1,10 @@
-"""The forensic study entity's base, and the plain materials of the forensic objects.
-
-:class:`ForensicBase` is what every part of :class:`.study.ForensicStudy` shares (the skull,
-:mod:`.skull`; the landmarks, :mod:`.study`; pegs and export, :mod:`.export`;
-the face, :mod:`.face`): the study it belongs to (the :class:`operators.study.entity.Study` that holds it as its
-``forensic`` component; the study registry is the only one), its collection, settings, forensic
-PropertyGroup (:mod:`.props`) and in-memory cache, its sub-collections and the objects the
-collection points at.
-"""
+"""The plain materials of the forensic objects and a study object's mesh as an engine Mesh."""
 from __future__ import annotations
 
 import bpy
 import numpy as np
 
 from .. import compat
-from .props import FORMAT_VERSION, forensic_settings, migrate
-
-
-class ForensicBase:
-    """One study's forensic side, a component of its :class:`operators.study.entity.Study` (``study.forensic``);
-    get it with ``ForensicStudy.of(study)``, which also migrates an older file's forensic settings."""
-
-    def __init__(self, study):
-        self.study = study
-
-    @staticmethod
-    def of(study):
-        """The forensic side of ``study`` (a :class:`operators.study.entity.Study`, which holds it as its
-        ``forensic`` component), its settings of an older file format migrated first."""
-        entity = study.forensic
-        if entity.props.format_version < FORMAT_VERSION:
-            entity.migrate()
-        return entity
-
-    def migrate(self) -> None:
-        """The study's forensic state of an older file format into the PropertyGroup (:func:`.props.migrate`;
-        not possible while Blender draws: then after the next file load or step)."""
-        try:
-            migrate(self.collection)
-        except AttributeError:     # "Writing to ID classes in this context is not allowed" (a panel's draw)
-            pass
-
-    @property
-    def collection(self):
-        return self.study.collection
-
-    @property
-    def name(self) -> str:
-        return self.collection.name
-
-    @property
-    def settings(self):
-        """The study settings (:class:`operators.study.props.PDEHeadStudySettings`)."""
-        return self.study.settings
-
-    @property
-    def props(self):
-        """The forensic settings and state (:class:`.props.PDEHeadForensicSettings`)."""
-        return forensic_settings(self.collection)
-
-    @property
-    def cache(self) -> dict:
-        """The in-memory forensic results: skull segmentation, meshes, depth result, face model."""
-        return self.study.cache.forensic
-
-    def sub_collection(self, suffix: str):
-        """The study's child collection ``"<study> <suffix>"`` (made when missing)."""
-        coll = self.collection
-        name = f"{coll.name} {suffix}"
-        sub = bpy.data.collections.get(name)
-        if sub is None:
-            sub = bpy.data.collections.new(name)
-        if sub.name not in coll.children:
-            coll.children.link(sub)
-        return sub
-
-    def linked_object(self, key: str):
-        """The object the study collection's custom property ``key`` points at (None when gone)."""
-        obj = self.collection.get(key)
-        return obj if isinstance(obj, bpy.types.Object) and obj.name in bpy.data.objects else None
 
 
 def plain_material(name: str, colour):

@@ -14,8 +14,7 @@ per study for the session; its methods come in parts:
 * marker pegs, provenance and Export for Printing (the component ``fs.outputs``, :class:`.export.Outputs`);
 * the face from the skull (:class:`.face.Face`, a component: ``fs.face``).
 
-Its settings and landmark flags are a PropertyGroup on the collection (:mod:`.props`); the
-shared parts (the study, cache, sub-collections) are :class:`.objects.ForensicBase`. The
+Its settings and landmark flags are a PropertyGroup on the collection (:mod:`.props`). The
 :class:`operators.study.entity.Study` holds it as its ``forensic`` component.
 """
 from __future__ import annotations
@@ -31,8 +30,7 @@ from ..coords import MM_TO_M
 from ..outcome import StepOutcome
 from .export import Outputs
 from .face import PROVENANCE_PROP, Face
-from .objects import ForensicBase
-from .props import set_flags
+from .props import FORMAT_VERSION, forensic_settings, migrate, set_flags
 from .skull import SKULL_BOUNDARY_KEY, Skull
 
 FRANKFURT_KEY = "pdehead_frankfurt"         # 16 floats: the Blender-space transform applied
@@ -60,15 +58,75 @@ def blender_matrix(m_mm: np.ndarray):
     return Matrix(m.tolist())
 
 
-class ForensicStudy(ForensicBase):
-    """One study's forensic side: landmarks, pegs, Frankfurt, mirror, export; the skull and depth map and the face
-    from the skull are its components :attr:`skull` (:class:`.skull.Skull`) and :attr:`face` (:class:`.face.Face`)."""
+class ForensicStudy:
+    """One study's forensic side, a component of its :class:`operators.study.entity.Study` (``study.forensic``;
+    get it with ``ForensicStudy.of(study)``, which also migrates an older file's forensic settings): its
+    collection, settings, forensic PropertyGroup (:mod:`.props`), in-memory cache and sub-collections;
+    landmarks, Frankfurt and mirror; the skull and depth map, the pegs and outputs and the face from the skull
+    are its components :attr:`skull` (:class:`.skull.Skull`), :attr:`outputs` (:class:`.export.Outputs`) and
+    :attr:`face` (:class:`.face.Face`)."""
 
     def __init__(self, study):
-        super().__init__(study)
+        self.study = study
         self.skull = Skull(self)
         self.face = Face(self)
         self.outputs = Outputs(self)
+
+    @staticmethod
+    def of(study):
+        """The forensic side of ``study`` (a :class:`operators.study.entity.Study`, which holds it as its
+        ``forensic`` component), its settings of an older file format migrated first."""
+        entity = study.forensic
+        if entity.props.format_version < FORMAT_VERSION:
+            entity.migrate()
+        return entity
+
+    def migrate(self) -> None:
+        """The study's forensic state of an older file format into the PropertyGroup (:func:`.props.migrate`;
+        not possible while Blender draws: then after the next file load or step)."""
+        try:
+            migrate(self.collection)
+        except AttributeError:     # "Writing to ID classes in this context is not allowed" (a panel's draw)
+            pass
+
+    @property
+    def collection(self):
+        return self.study.collection
+
+    @property
+    def name(self) -> str:
+        return self.collection.name
+
+    @property
+    def settings(self):
+        """The study settings (:class:`operators.study.props.PDEHeadStudySettings`)."""
+        return self.study.settings
+
+    @property
+    def props(self):
+        """The forensic settings and state (:class:`.props.PDEHeadForensicSettings`)."""
+        return forensic_settings(self.collection)
+
+    @property
+    def cache(self) -> dict:
+        """The in-memory forensic results: skull segmentation, meshes, depth result, face model."""
+        return self.study.cache.forensic
+
+    def sub_collection(self, suffix: str):
+        """The study's child collection ``"<study> <suffix>"`` (made when missing)."""
+        coll = self.collection
+        name = f"{coll.name} {suffix}"
+        sub = bpy.data.collections.get(name)
+        if sub is None:
+            sub = bpy.data.collections.new(name)
+        if sub.name not in coll.children:
+            coll.children.link(sub)
+        return sub
+
+    def linked_object(self, key: str):
+        """The object the study collection's custom property ``key`` points at (None when gone)."""
+        obj = self.collection.get(key)
+        return obj if isinstance(obj, bpy.types.Object) and obj.name in bpy.data.objects else None
 
     # -------------------------------------------------------------------------------------- frame
     def frankfurt_matrix(self):
