@@ -22,6 +22,8 @@ and benchmarks only: it is not imported here and not shipped in the extension zi
 ``__all__`` is the public API; the operators and scripts use these names (or a module of a
 subpackage where they need more).
 """
+import importlib
+
 from .core.boundary_set import BoundarySet, knots_from_heights
 from .core.ct_volume import CTVolume
 from .core.curve_alignment import align_parameterisation, correspondence_error
@@ -125,7 +127,6 @@ __all__ = [  # the public API
 def __getattr__(name: str):
     """The names of :data:`_LAZY`, and ``pdehead_addon.validation`` (tests, benchmarks; not shipped in the zip),
     on first use."""
-    import importlib
     if name == "validation":
         return importlib.import_module(".validation", __name__)
     if name in _LAZY:

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy.ndimage import binary_dilation, map_coordinates, uniform_filter1d
 
 #: The ``ct`` grid of the volume keeps the CT this far around the solid (no table, no air box).
 HEAD_MARGIN_MM = 6.0
@@ -241,7 +242,6 @@ def sample_ct(ct, points_mm: np.ndarray, order: int = 1) -> np.ndarray:
     cval = float(np.min(ct.data)) if ct.data.size else 0.0
     if order == 1:
         return trilinear(ct.data, kji, cval=cval)
-    from scipy.ndimage import map_coordinates
     out = map_coordinates(ct.data, kji.T, order=order, mode="constant", cval=cval, prefilter=False)
     return out.astype(np.float32, copy=False)
 
@@ -251,8 +251,6 @@ def head_mask_on_grid(wfield, shape, spacing, origin, direction, margin_mm: floa
     of the solid (w <= 1 of `wfield`, dilated): the intensity-alpha mode shows the CT there only, so
     neither the air noise of the CT box (a faint box outline) nor the scanner table (bright bars
     behind the head) is rendered. Nearest w-field voxel per grid voxel, one slice at a time."""
-    from scipy.ndimage import binary_dilation
-
     inside = np.asarray(wfield.w) <= 1.0
     steps = int(np.ceil(margin_mm / max(min(wfield.spacing), 1e-6)))
     if steps > 0 and inside.any():
@@ -297,8 +295,6 @@ def decimated_block_mean(data: np.ndarray, steps, block_bytes: int = 1 << 23) ->
     output needs only its slab of the input): small temporaries, no full-size intermediate. Other data
     take scipy's passes one after the other, each on the voxels the passes before it kept.
     """
-    from scipy.ndimage import uniform_filter1d
-
     steps = tuple(int(s) for s in steps)
     kind = _whole_numbers(data)
     passes, bits = [], 0                        # bits: log2 of the product of the earlier steps (rounded up)
@@ -416,8 +412,6 @@ def downsample_volume(ct: CTVolume, factor) -> CTVolume:
         ``coverage`` (if any) is True where the whole block was covered; ``meta["downsampled"]``
         records the factors. Works slab by slab (one extra slab of float32 at a time).
     """
-    import numpy as np
-
     fz, fy, fx = (int(f) for f in (np.broadcast_to(np.asarray(factor), 3)))
     if min(fz, fy, fx) < 1:
         raise ValueError(f"downsample factors must be integers >= 1, got {factor!r}")

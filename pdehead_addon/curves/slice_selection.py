@@ -11,6 +11,7 @@ from __future__ import annotations
 from typing import Callable, Sequence
 
 import numpy as np
+from scipy import ndimage
 
 from ..core.errors import BoundaryError
 
@@ -152,7 +153,6 @@ def scan_edge_slices(mask: np.ndarray, coverage: np.ndarray | None,
     mask = np.asarray(mask, bool)
     if coverage is None:
         return np.zeros(mask.shape[0], bool)
-    from scipy import ndimage
 
     cross = ndimage.generate_binary_structure(2, 1)[None]  # in-plane neighbours only: eq. 22 per slice
     near_edge = ~ndimage.binary_erosion(np.asarray(coverage, bool), structure=cross, border_value=1)

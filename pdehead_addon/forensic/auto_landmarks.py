@@ -51,6 +51,7 @@ from .landmark_bilateral import alare, canine_points, mandible_bilateral, orbit_
 from .landmark_frame import FLAGS, NOT_FOUND, OK, UNCERTAIN, LandmarkFrame, bone_components
 from .landmark_midline import mandible_component, midline_landmarks
 from .landmark_openings import MIRROR_TOLERANCE_MM, PORION_OVERHANG_MM, frankfurt_points
+from .landmarks import STANDARD_LANDMARKS, frankfurt_transform, symmetry_plane
 
 __all__ = ["FLAGS", "NOT_FOUND", "OK", "RULES", "UNCERTAIN", "FoundLandmark", "LandmarkSearch", "find_landmarks"]
 
@@ -173,8 +174,6 @@ def find_landmarks(ct, bone: np.ndarray, *, grid_mm: float = LANDMARK_GRID_MM) -
     LandmarkSearch
         Landmarks by name (the standard names, e.g. ``"Porion L"``), in patient LPS mm.
     """
-    from .landmarks import STANDARD_LANDMARKS
-
     bone = np.asarray(bone, bool)
     if bone.shape != ct.shape:
         raise PDEHeadError(f"bone mask shape {bone.shape} differs from the CT's {ct.shape}")
@@ -232,8 +231,6 @@ def _mandible_at_the_scan_end(ct, bone: np.ndarray, labels: np.ndarray, fr, mand
     """The landmarks ``out`` once the scan's lower end is accounted for: a narrow piece below the orbits that ends
     inside the scan is no mandible (its landmarks not found), and what the mandible carries below a scan cut through
     the face is outside the scan. Sets ``info["scan_cut"]`` (and ``info["mandible"]`` when the piece is dropped)."""
-    from .landmarks import STANDARD_LANDMARKS
-
     cut, low_end = scan_cut_through_bone(ct, bone)
     info["scan_cut"] = cut
     width = 0.0
@@ -314,8 +311,6 @@ def _symmetry_plane(ct, bone: np.ndarray, info: dict):
     on the bone's surface voxels (what a mirror image must match; thick bone's inside adds weight, not evidence),
     with enough points that the subset's noise stays under a millimetre at the face (CThead: 4,000 voxels of the
     whole bone left the chin 1.9 mm and the vault's top 5 mm off the plane)."""
-    from .landmarks import symmetry_plane
-
     surface = bone & ~ndimage.binary_erosion(bone, structure=ndimage.generate_binary_structure(3, 1))
     # a fixed random field picks the voxels, so that a voxel's choice does not depend on the rest of the
     # bone (the skull without its mandible keeps the same points of the skull, and the same plane)
@@ -330,8 +325,6 @@ def _symmetry_plane(ct, bone: np.ndarray, info: dict):
 def _frankfurt_frame(ct, bone, labels, c, x_ax, grid_mm: float, info: dict):
     """The landmark frame: the Frankfurt frame when porions and orbitales are found in the symmetry plane's frame,
     else that frame; returns (frame, Frankfurt transform or None, :func:`frankfurt_points` in the frame)."""
-    from .landmarks import frankfurt_transform
-
     z_ax = np.array([0.0, 0.0, 1.0]) - x_ax[2] * x_ax
     z_ax /= np.linalg.norm(z_ax)
     y_ax = np.cross(z_ax, x_ax)

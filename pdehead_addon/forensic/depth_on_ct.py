@@ -8,6 +8,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage as ndi
+from scipy.special import ndtri
 
 from ..core.errors import PDEHeadError
 from ..core.mesh import Mesh
@@ -88,8 +90,6 @@ def slice_edge_spread(volume: np.ndarray, spacing, air: float, tissue: float,
 
     Returns (sigma mm, number of columns); sigma is None with fewer than :data:`DEPTH_SPREAD_MIN_COLUMNS` columns.
     """
-    from scipy.special import ndtri
-
     h, dy, dx = (float(v) for v in spacing[:3])
     f_all = (np.asarray(volume, np.float32) - np.float32(air)) / np.float32(tissue - air)
     counts, weights = [], []
@@ -122,8 +122,6 @@ def step_crossing(samples: np.ndarray, values: np.ndarray, level: float, inside:
     Phi((s_e - s) / spread)``: from the sample most nearly half way (its fraction f of the way strictly between
     2 % and 98 %), ``s_e = s + spread * Phi^-1(f)``, and the level's crossing ``s_e - spread * Phi^-1(f_level)``.
     None when no sample lies on the edge's slope (the edge is then no better located than by interpolation)."""
-    from scipy.special import ndtri
-
     f = (np.asarray(values, float) - outside) / (inside - outside)
     on = (f > 0.02) & (f < 0.98)
     if not on.any() or not 0.0 < (level - outside) / (inside - outside) < 1.0:
@@ -226,8 +224,6 @@ class _Rays:
     """The intensity profiles along the landmarks' rays (:func:`landmark_depths_on_ct`) and the measures on them."""
 
     def __init__(self, base, normal, vol, ct, search: float, max_depth_mm: float, head_mask):
-        from scipy import ndimage as ndi
-
         self.base, self.normal, self.vol, self.search, self.max_depth_mm = base, normal, vol, search, max_depth_mm
         self.voxel = float(max(ct.spacing))
         self.step = step = DEPTH_PROFILE_STEP_MM
@@ -265,8 +261,6 @@ class _Rays:
         """Why the crossing at ``at`` (mm along ray ``k``) is not the CT's, when the ray runs between two slices
         that disagree on it (see :func:`landmark_depths_on_ct`); "" when they agree or the ray does not run within
         the slices."""
-        from scipy import ndimage as ndi
-
         s, slice_mm, search = self.s, self.slice_mm, self.search
         near = np.abs(s - at) <= slice_mm
         kk = self.k_index[k][near]

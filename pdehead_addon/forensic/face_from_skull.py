@@ -53,6 +53,9 @@ from .. import defaults as D
 from ..core.boundary_set import BoundarySet, knots_from_heights
 from ..core.errors import PDEHeadError
 from ..core.mesh import Mesh
+from ..core.provenance import provenance
+from ..pde.pde_head import derived_once
+from ..pde.pde_surface import curve_positions, smoothing_range, solve_pde
 from .face_features import (
     EAR_LENGTH_MM,
     EAR_WIDTH_MM,
@@ -82,7 +85,7 @@ from .face_field import (  # noqa: F401  (re-exported: face_live and the tests r
     DepthField,
     peg_kernel,
 )
-from .face_pegs import alar_pegs_by_definition, cheek_bands, cheek_depth, mid_ramus_by_definition
+from .face_pegs import alar_pegs_by_definition, cheek_bands, cheek_depth, held_mask, mid_ramus_by_definition, peg_report
 from .face_profile import (
     PROFILE_SMOOTH_MM,
     FaceGrid,
@@ -99,6 +102,7 @@ from .face_profile import (
     surface_smooth,
     tilted_rows,
 )
+from .landmarks import marker_pegs
 
 APPROXIMATION_LABEL = D.FACE_LABEL
 #: Fewer vertices than this cannot trace the bone's outer profile (a bone skull has 10^5).
@@ -190,8 +194,6 @@ class FaceModel(DepthField):
         GE: its 18.5-degree slab) ``neck_mm`` beyond it (default :data:`.defaults.FACE_CUT_MARGIN_MM`), on a flat
         tilted cap (:func:`.face_profile.tilted_rows`), or where no cut is found ``neck_mm`` under the lowest bone.
         """
-        from .landmarks import marker_pegs
-
         t0 = time.perf_counter()
         if skull is None or len(skull.vertices) == 0 or skull.face_count == 0:
             raise PDEHeadError("the skull mesh is empty: no face can be approximated")
@@ -263,7 +265,6 @@ class FaceModel(DepthField):
         rule_sites = [(n, p, w) for n, p, w in predict_eyes(lm)]
         nose = predict_nose(lm, skull)
         mouth = predict_mouth(lm)
-        from ..core.provenance import provenance
         prov_table = table.provenance_record() if hasattr(table, "provenance_record") else {"table": "imported table"}
         prov = provenance(label=APPROXIMATION_LABEL, method="face from skull: PDE surface through tissue-depth "
                           "pegs (pdehead_addon.forensic.face_from_skull)", sex=sex, **prov_table)
@@ -323,7 +324,6 @@ class FaceModel(DepthField):
         None: none) as a bool array, or None when none is held."""
         if held is None:
             return None
-        from .face_pegs import held_mask
         mask = held_mask(self.peg_names, held)
         if not mask.any():
             return None
@@ -369,9 +369,6 @@ class FaceModel(DepthField):
         return self.__dict__["_front_grid"]
 
     def surface_head(self, radius: np.ndarray, nu=None, nv=None, top_z: float | None = None):
-        from ..pde.pde_head import derived_once
-        from ..pde.pde_surface import solve_pde
-
         g = self.grid
         plane = self.__dict__.get("cut_plane")
         if plane is None:
@@ -392,7 +389,6 @@ class FaceModel(DepthField):
             derived_once(bset, "radius", lambda: fixed["radius"])
         head = solve_pde(bset, approximation_mm=0.0)
         if not fixed:
-            from ..pde.pde_surface import curve_positions, smoothing_range
             smoothing_range(bset)                                # computes and caches the mean radius
             fixed["positions"] = curve_positions(bset)
             fixed["radius"] = derived_once(bset, "radius", lambda: None)   # the value smoothing_range cached
@@ -442,7 +438,6 @@ class FaceModel(DepthField):
         pegs the practitioner holds (landmark names, or a bool array in the pegs' order): never damped, the face
         passes through their tips. The result's ``pegs`` (:class:`.face_pegs.PegReport`) says how far each tip is
         from the face and why; its provenance lists the pegs off the face and the warnings."""
-        from .face_pegs import peg_report
         t0 = time.perf_counter()
         if tips is None:
             d = self.default_depths if depths is None else np.asarray(depths, float).reshape(-1)
@@ -500,7 +495,6 @@ class FaceModel(DepthField):
         the rows. Not the bone floor, which comes after: a held peg dragged into the bone stays outside it."""
         if held is None:
             return radius
-        from .face_pegs import held_mask
         mask = held_mask(self.peg_names, held)
         in_rows = self.in_rows
         if in_rows is not None:                     # a tip above the rows (vertex) is the dome's

@@ -33,9 +33,12 @@ from dataclasses import fields, is_dataclass
 
 import numpy as np
 
+from ..core.provenance import SOFTWARE_VERSION
 from ..pde.pde_basis import small_matmul
-from ..pde.surface_mesh import ring_in_plane
+from ..pde.surface_columns import column_v
+from ..pde.surface_mesh import CAP_EDGE, DiscCap, ring_in_plane, star_shaped_ring
 from . import face_from_skull as F
+from .face_pegs import peg_report
 
 #: Largest difference (mm) between the fast positions and the model's own solve for :attr:`LiveFace.exact`.
 EXACT_TOLERANCE_MM = 1e-6
@@ -155,7 +158,6 @@ class LiveFace:
         gathers each cubic row's four basis weights instead of a dense rows x (spans x 4) product."""
         density = self.model.__dict__.get("_v_density", [None])[0]
         if density is not None:                                   # columns closer where an outline runs radially
-            from ..pde.surface_columns import column_v
             return head.surface_points(self._u, None, v=column_v(density, self.nv))
         return head.surface_points(self._u, self.nv)
 
@@ -178,8 +180,6 @@ class LiveFace:
     def _cap_vertices(self, ring: np.ndarray, centre: np.ndarray) -> np.ndarray | None:
         """The neck cap's new points (:class:`.surface_mesh.DiscCap`'s ``vertices`` for the model's cap
         reference), without its triangles: what depends on the counts alone is kept from the first call."""
-        from ..pde.surface_mesh import CAP_EDGE, DiscCap, star_shaped_ring
-
         if not star_shaped_ring(ring, centre)[0]:
             return None
         fixed = self.__dict__.get("_cap_fixed")
@@ -221,7 +221,6 @@ class LiveFace:
     def report(self, tips: np.ndarray, positions: np.ndarray, held=None):
         """The pegs' report (:func:`.face_pegs.peg_report`) of the face ``positions`` just given by
         :meth:`positions` for these ``tips`` and ``held`` pegs."""
-        from .face_pegs import peg_report
         return peg_report(self.model, tips, positions, held, self.nu, self.nv)
 
     def provenance(self, tips: np.ndarray, report=None) -> dict:
@@ -292,8 +291,6 @@ def _hashable(key):
 def model_state(model) -> str:
     """The prepared ``model`` as one JSON string: its fields and what its first solve fixed (the spline's
     parameter, the neck cap's counts), arrays as base64 of their little-endian bytes. CThead: ~ 0.5 MB."""
-    from ..core.provenance import SOFTWARE_VERSION
-
     names = {f.name for f in fields(model)} if is_dataclass(model) else set()
     state = {}
     for key, value in model.__dict__.items():
@@ -313,8 +310,6 @@ def model_state(model) -> str:
 def model_from_state(text: str):
     """The :class:`FaceModel` kept by :func:`model_state`; ValueError when the text is not one this version
     reads (another format, another software version, a field missing): then prepare the model again."""
-    from ..core.provenance import SOFTWARE_VERSION
-
     t0 = time.perf_counter()
     try:
         data = json.loads(text)

@@ -15,8 +15,10 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage
+from scipy.spatial import ConvexHull, cKDTree
 
 from ..core.mesh import Mesh
+from .face_envelope import envelope_radius
 
 #: The neck below the skull: radius (mm) of the neck about its axis, which lies this far behind the skull's centroid
 #: axis. Adult neck circumference ~ 36-40 cm (anthropometric surveys, e.g. Ben-Noun et al. 2001, Obesity Research
@@ -168,7 +170,6 @@ def bone_profile(skull: Mesh, grid: FaceGrid, base_z: float | None = None,
     raw = outermost_bone(skull, grid)
     raw[~np.isfinite(raw)] = np.nan
     if PROFILE_3D:
-        from .face_envelope import envelope_radius
         closed = _neck_fill(envelope_radius(skull, grid, ENVELOPE_CLOSING_MM), grid, base_z)
     else:
         filled = _neck_fill(raw, grid, base_z)
@@ -306,8 +307,6 @@ def scan_cut_plane(skull: Mesh, max_tilt_deg: float = CUT_MAX_TILT_DEG) -> tuple
         above the plane); None when no such group covers :data:`CUT_MIN_AREA_FRACTION` of the hull's
         downward area or it tilts more than ``max_tilt_deg`` from horizontal.
     """
-    from scipy.spatial import ConvexHull
-
     v = np.asarray(skull.vertices, float)
     try:
         hull = ConvexHull(v)
@@ -481,8 +480,6 @@ def convex_rows(radius: np.ndarray, dtheta: float, span: int, passes: int = 2) -
 
 def _row_hulls(radius: np.ndarray, theta: np.ndarray) -> np.ndarray:
     """Per row, the radius along each column's ray of the 2-D convex hull of the row's ring."""
-    from scipy.spatial import ConvexHull
-
     out = radius.copy()
     s, c = np.sin(theta), np.cos(theta)
     for k in range(radius.shape[0]):
@@ -575,8 +572,6 @@ def peg_normals(skull: Mesh, bases: np.ndarray, grid: FaceGrid, profile: np.ndar
     away from the closed profile's outward normal (:data:`PEG_NORMAL_MIN_COS`), the profile's normal (not above
     the profile's last row, where its normal means nothing: the vertex keeps the bone's).
     The T-Table's convention is a depth measured along the bone normal at the landmark."""
-    from scipy.spatial import cKDTree
-
     v, t = skull.vertices, skull.triangles
     if len(skull.quads):
         t = np.concatenate([t, skull.quads[:, [0, 1, 2]], skull.quads[:, [0, 2, 3]]])

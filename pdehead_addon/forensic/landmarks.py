@@ -26,10 +26,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..core.errors import PDEHeadError
 from ..core.mesh import Mesh
 from ..core.mesh_geometry import MeshDistance, closest_point_on_triangle, mesh_triangles
+from .tissue_depth import cast_rays
 
 
 @dataclass(frozen=True)
@@ -192,8 +194,6 @@ def exposed_normals(points: np.ndarray, skull: Mesh, radius_mm: float = DEPTH_NO
     ndarray (n, 3)
         Unit outward directions.
     """
-    from .tissue_depth import cast_rays
-
     v, t = mesh_triangles(skull)
     pts = np.atleast_2d(np.asarray(points, np.float64))
     a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
@@ -242,8 +242,6 @@ def landmark_depths(landmarks: dict[str, np.ndarray], skull: Mesh, skin: Mesh,
 def depth_rays(landmarks: dict[str, np.ndarray], skull: Mesh, skin: Mesh | None, max_depth_mm: float):
     """The depth rays of the landmarks (in their order): bone points (snapped onto ``skull``), the bone's
     exposed normals there, and the meshes' depth along them (NaN without ``skin``)."""
-    from .tissue_depth import cast_rays
-
     base, nearest = snap_to_surface(np.array([landmarks[n] for n in landmarks]), skull)
     normal = exposed_normals(base, skull, nearest_normals=nearest)
     depth = cast_rays(base, normal, skin, max_depth_mm) if skin is not None else np.full(len(base), np.nan)
@@ -384,8 +382,6 @@ def symmetry_plane(points: np.ndarray, normal: np.ndarray = (1.0, 0.0, 0.0), poi
 
     See also :func:`midsagittal_plane` (the plane from placed bilateral landmarks).
     """
-    from scipy.spatial import cKDTree
-
     pts = np.asarray(points, np.float64)
     if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 10 or not np.isfinite(pts).all():
         raise PDEHeadError(f"the symmetry plane needs at least 10 finite 3-D points, got shape {pts.shape}")

@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 from scipy import ndimage as ndi
+from skimage.filters import threshold_otsu
 
 from ..core.errors import SegmentationError
 
@@ -114,7 +115,6 @@ def _enclosed_per_slice(solid: np.ndarray) -> int:
 
 def _air_split(data: np.ndarray) -> float:
     """Otsu's split of the histogram (of a subsample): air below, everything else above."""
-    from skimage.filters import threshold_otsu
     sample = data.reshape(-1)[:: max(1, data.size // 2_000_000)]
     return float(threshold_otsu(sample[np.isfinite(sample)]))
 

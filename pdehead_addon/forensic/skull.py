@@ -48,7 +48,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy import ndimage as ndi
+from scipy import ndimage as ndi, sparse
+from skimage.measure import marching_cubes
 
 from ..core.ct_volume import CTVolume
 from ..core.errors import SegmentationError
@@ -396,7 +397,7 @@ def _envelope(bone: np.ndarray) -> np.ndarray:
     outer table, at the face it closes over the orbits, the nasal aperture and the
     temporal fossae behind the zygomatic arches.
     """
-    from skimage.morphology import convex_hull_image
+    from skimage.morphology import convex_hull_image  # deferred: ~10 ms at `import pdehead_addon`
 
     out = np.zeros_like(bone)
     for k in np.flatnonzero(bone.any(axis=(1, 2))):
@@ -497,8 +498,6 @@ def skull_mesh(skull: SkullSegmentation, step: int = 1, max_triangles: int = MAX
     Mesh
         Triangles in patient LPS mm, wound outward (counter-clockwise seen from outside).
     """
-    from skimage.measure import marching_cubes
-
     given = skull.ct.meta.get("skull_mesh") if skull.ct is not None else None
     if isinstance(given, Mesh) and len(given.triangles) <= max_triangles:
         return given                                   # the skull given as a mesh is the skull itself
@@ -547,8 +546,6 @@ def taubin_smooth(vertices: np.ndarray, triangles: np.ndarray, passes: int = 8, 
     Each pass moves every vertex by ``lam`` then ``mu`` times the mean of its neighbours minus itself
     (a low-pass filter that does not shrink the surface as repeated Laplacian smoothing does).
     """
-    from scipy import sparse
-
     v = np.asarray(vertices, np.float64).copy()
     t = np.asarray(triangles, np.int64)
     i = np.concatenate([t[:, 0], t[:, 1], t[:, 2], t[:, 1], t[:, 2], t[:, 0]])

@@ -37,6 +37,7 @@ from scipy import ndimage as ndi
 from ..core.errors import PDEHeadError
 from ..core.mesh import Mesh
 from ..core.mesh_geometry import MeshDistance, mesh_triangles
+from ..core.provenance import provenance_lines
 
 MEASURED, NO_BONE, ENVELOPE, INSIDE = 0, 1, 2, 3
 #: Longest depth searched (mm); deeper rays end in the airway, the orbit or the other side of the head.
@@ -267,8 +268,6 @@ def write_depth_csv(result: TissueDepth, path: str | os.PathLike, provenance: di
     """Write one row per skin vertex: ``x,y,z`` (patient LPS mm), ``depth_mm`` (empty where no bone), the
     nearest-point distance and the reason; returns the number of rows. ``provenance`` (software, bone
     level, ...) goes first as ``# key: value`` lines."""
-    from ..core.provenance import provenance_lines
-
     path = os.fspath(path)
     pts = result.points
     with open(path, "w", newline="") as fh:

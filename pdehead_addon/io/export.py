@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import struct
+from pathlib import Path
 
 import numpy as np
 
@@ -18,6 +19,7 @@ from ..core.errors import PDEHeadError
 from ..core.mesh import Mesh
 from ..core.mesh_geometry import mesh_triangles
 from ..core.provenance import ASCII_SPELLING, provenance_lines, short_provenance
+from .safe_io import write_with
 
 FORMATS = ("stl", "obj", "ply")
 
@@ -32,7 +34,6 @@ def input_folder_conflict(out: str | os.PathLike, source: str | os.PathLike | No
     """
     if not source:
         return None
-    from pathlib import Path
     out_p, src = Path(out).resolve(), Path(source).resolve()
     if src.is_dir():
         if out_p == src or src in out_p.parents:
@@ -124,7 +125,6 @@ def export_mesh(mesh: Mesh, path: str | os.PathLike, fmt: str | None = None, nam
     if require_watertight and not mesh.is_watertight():
         raise PDEHeadError(f"{path}: the mesh '{name}' is not watertight (open or inconsistently wound edges); "
                            "build the surface with caps")
-    from .safe_io import write_with
     # a temporary name, its size checked, then renamed: a full disk leaves no partial mesh
     write_with(path, lambda tmp: _WRITERS[fmt](mesh, tmp, name, provenance=provenance), minimum=1)
     return path

@@ -22,6 +22,7 @@ from typing import Sequence
 
 import numpy as np
 from scipy import ndimage as ndi
+from skimage.filters import threshold_otsu
 
 AIR_HU = -1000.0
 #: Below this no tissue or air can be (air is -1000 HU): the scanner's out-of-field value.
@@ -222,7 +223,6 @@ def object_mask(data: np.ndarray, spacing: Sequence[float], level: float | None 
         finite = view[np.isfinite(view)]
         if finite.size == 0 or finite.min() == finite.max():
             return np.zeros(view.shape, bool), sp
-        from skimage.filters import threshold_otsu
         # float64: the histogram of float32 values spanning +-1e38 would overflow
         level = float(threshold_otsu(finite[:: max(1, finite.size // 500_000)].astype(np.float64)))
     mask = view > level

@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 import shutil
 import uuid
+import zlib
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterator
@@ -139,8 +140,6 @@ def copy_checked(src: str | os.PathLike, dst: str | os.PathLike) -> Path:
 def decompress_bounded(packed: bytes, max_bytes: int, what: str) -> bytes:
     """``zlib.decompress`` that never produces more than `max_bytes` (a stored payload is data: a small
     compressed blob may claim gigabytes); raises :class:`StorageError` naming `what` beyond it."""
-    import zlib
-
     d = zlib.decompressobj()
     try:
         out = d.decompress(packed, int(max_bytes))

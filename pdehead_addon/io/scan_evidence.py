@@ -14,6 +14,7 @@ from typing import Sequence
 
 import numpy as np
 from scipy import ndimage as ndi
+from skimage.filters import threshold_otsu
 
 __all__ = ["wrong_byte_order", "wrong_row_length", "photo_evidence", "head_scan_evidence", "neighbour_correlation"]
 
@@ -227,7 +228,6 @@ def head_scan_evidence(data: np.ndarray) -> dict:
         out["failed"].append(f"no coherent structure (neighbouring pixels correlate {corr:.2f}; a scan of anatomy "
                              f"more than {HEAD_MIN_NEIGHBOUR_CORRELATION:g}: noise?)")
         return out
-    from skimage.filters import threshold_otsu
     level = float(threshold_otsu(finite[:: max(1, finite.size // 500_000)]))
     back, obj = float(np.median(finite[finite <= level])), float(np.median(finite[finite > level]))
     contrast = obj - back

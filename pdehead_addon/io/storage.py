@@ -22,7 +22,8 @@ import numpy as np
 
 from ..core.boundary_set import BoundarySet, knots_from_heights
 from ..core.errors import BoundaryError, StorageError
-from ..defaults import CONTINUITY
+from ..defaults import CONTINUITY, MAX_STORED_BOUNDARY_BYTES
+from .safe_io import decompress_bounded
 
 MAGIC = b"PDEHBND\x00"
 VERSION = 1
@@ -163,8 +164,6 @@ def loads_boundaries(data: bytes, name: str = "<bytes>") -> BoundarySet:
         raise fail(f"corrupt header ({exc.__class__.__name__}: {exc})") from None
     if not (n >= 4 and M >= 8 and coords in (2, 3) and 1 <= planes <= 8 and quantum > 0):
         raise fail(f"corrupt header (curves={n}, samples={M}, coords={coords}, byte_planes={planes})")
-    from ..defaults import MAX_STORED_BOUNDARY_BYTES
-    from .safe_io import decompress_bounded
     payload = decompress_bounded(packed, MAX_STORED_BOUNDARY_BYTES.default, name)
     try:
         mlen = struct.unpack_from("<I", payload, 0)[0]

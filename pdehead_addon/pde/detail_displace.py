@@ -32,6 +32,8 @@ from contextlib import contextmanager
 import numpy as np
 
 from ..core.mesh import Mesh
+from .detail_map import area_vertex_normals
+from .surface_uv_map import uv_islands
 
 __all__ = ["sample_map", "vertex_heights", "vertex_normals", "uv_island_layout", "displace_mesh", "detail_surface",
            "chord_error", "print_resolution", "print_rows", "print_columns", "print_mesh", "split_quads",
@@ -98,7 +100,6 @@ def vertex_heights(mesh: Mesh, height: np.ndarray, islands: dict | None = None) 
 
 def vertex_normals(mesh: Mesh) -> np.ndarray:
     """Area-weighted unit vertex normals of an outward-wound mesh (quads split along their 0-2 diagonal)."""
-    from .detail_map import area_vertex_normals
     tris = np.concatenate([mesh.quads[:, [0, 1, 2]], mesh.quads[:, [0, 2, 3]], mesh.triangles])
     return area_vertex_normals(mesh.vertices, tris)
 
@@ -116,7 +117,6 @@ def displace_mesh(mesh: Mesh, height: np.ndarray, strength: float, islands: dict
 
 def uv_island_layout(head) -> dict:
     """Where the head's UV islands lie (:func:`.surface_uv_map.uv_islands` of its layout)."""
-    from .surface_uv_map import uv_islands
     layout = head.uv_layout()
     return uv_islands(float(layout["aspect"]), layout.get("dome_ratio"), layout.get("cap_ratio"))
 

@@ -43,11 +43,15 @@ W. E. Lorensen, H. E. Cline, "Marching cubes", SIGGRAPH '87: the 0.5 level of th
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.ndimage import distance_transform_edt, gaussian_filter, map_coordinates
 
 from .. import defaults as D
+from ..core.errors import report_progress
+from .surface_uv_map import uv_islands
 
 __all__ = ["ct_detail_map", "detail_map_stages", "DetailMap", "texel_surface", "rasterise_triangles", "smooth_mask",
            "offset_to_level", "SLICE_SIGMA", "PAD_TEXELS"]
@@ -115,7 +119,6 @@ def smooth_mask(mask: np.ndarray, spacing, sigma_mm: float, slice_sigma: float =
     """The head mask as float32 smoothed by a Gaussian of ``sigma_mm`` per axis (``spacing``: (dz, dy, dx)
     mm), the slice axis (0) at least ``slice_sigma`` of its step; or, given ``slice_sigma_mm``, by
     exactly that along the slice axis."""
-    from scipy.ndimage import gaussian_filter
     dz, dy, dx = (float(s) for s in spacing)
     along = max(sigma_mm, slice_sigma * dz) if slice_sigma_mm is None else float(slice_sigma_mm)
     sigma = np.array([along, sigma_mm, sigma_mm]) / np.array([dz, dy, dx])
@@ -196,7 +199,6 @@ def texel_surface(head, resolution: int, mesh_per_texel: float = MESH_PER_TEXEL)
     points, normals : ndarray, shape (m, 3)
         The surface point (LPS mm) and its unit outward normal at each texel.
     """
-    from .surface_uv_map import uv_islands
     layout = head.uv_layout()
     isl = uv_islands(float(layout["aspect"]), layout.get("dome_ratio"), layout.get("cap_ratio"))
     _, _, width, height = isl["tube"]
@@ -276,7 +278,6 @@ def offset_to_level(field3d: np.ndarray, to_index: np.ndarray, points: np.ndarra
         The crossing's offset, 0 where there is none.
     found : ndarray of bool, shape (m,)
     """
-    from scipy.ndimage import map_coordinates
     k = max(1, int(round(max_mm / step_mm)))
     # the coarse samples are a subset of the fine ones: the coarse step divides the whole span
     coarse = next(c for c in range(max(1, int(coarse_steps)), 0, -1) if (2 * k) % c == 0)
@@ -338,7 +339,6 @@ def offset_to_level(field3d: np.ndarray, to_index: np.ndarray, points: np.ndarra
 def _soften(height: np.ndarray, covered: np.ndarray, sigma_texels: float) -> np.ndarray:
     """A Gaussian of ``sigma_texels`` over the covered texels only (normalised: the islands' edges and the
     gutters do not pull the values toward 0)."""
-    from scipy.ndimage import gaussian_filter
     if sigma_texels <= 0:
         return height
     w = covered.astype(np.float32)
@@ -349,7 +349,6 @@ def _soften(height: np.ndarray, covered: np.ndarray, sigma_texels: float) -> np.
 
 def _pad_gutters(height: np.ndarray, covered: np.ndarray, pad: int) -> np.ndarray:
     """Texels within ``pad`` of an island take the nearest island texel's value."""
-    from scipy.ndimage import distance_transform_edt
     if not covered.any() or covered.all() or pad <= 0:
         return height
     dist, (iy, ix) = distance_transform_edt(~covered, return_indices=True)
@@ -409,7 +408,6 @@ def ct_detail_map(head, mask: np.ndarray, ct, resolution: int = D.DETAIL_RESOLUT
     texels' thin-smoothed mask (:data:`UPRIGHT_SLICE_SIGMA`) adds a second Gaussian (~0.2 s) and their
     second search (~0.6 s on a loaded machine: sampling 1.7 -> 2.3 s).
     """
-    from ..core.errors import report_progress
     stages = detail_map_stages(head, mask, ct, resolution, sigma_mm, max_mm, step_mm, coarse_steps)
     while True:
         try:
@@ -429,7 +427,6 @@ def detail_map_stages(head, mask: np.ndarray, ct, resolution: int = D.DETAIL_RES
     ``chunk`` of texels sampled; none takes more than ~1.5 s on CThead at 1024 px) and returns the
     :class:`DetailMap` (``StopIteration.value``). Parameters as :func:`ct_detail_map`.
     """
-    import time
     res = int(D.DETAIL_RESOLUTION.check(int(resolution), "resolution"))
     clock = {}
     t0 = time.perf_counter()

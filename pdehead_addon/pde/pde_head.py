@@ -13,9 +13,11 @@ from ..core.errors import PDEError
 from ..core.mesh import Mesh
 from .pde_basis import basis, basis_grid, small_matmul
 from .pde_smoothing import lebesgue_constant
+from .pde_solid import solid_mesh, w_field
 from .pde_spline import dome_height, fade_dome_amplitudes
 from .surface_columns import bend_column_density, bend_rows, column_density, column_v, surface_turning
 from .surface_mesh import check_count, disc_caps, fan_caps, fan_indices, signed_volume, tube_mesh
+from .surface_uv_map import uv_map_grid, uv_shear, uv_tube_map
 
 __all__ = ["PDEHead", "curve_positions", "derived_once", "fold_harmonics", "ring_points", "TWO_PI"]
 
@@ -507,8 +509,6 @@ class PDEHead:
         its width; ``tube_map``: :func:`.surface_uv_map.uv_tube_map` of the curves (U, V in mm at the
         samples of :func:`.surface_uv_map.uv_map_grid`, rows ``map_u``) and ``tube_box`` its extent; with a
         single curve ``shear`` (:func:`.surface_uv_map.uv_shear`) instead."""
-        from .surface_uv_map import uv_map_grid, uv_shear, uv_tube_map
-
         def compute():
             c = self.bset.curves
             perimeter = np.linalg.norm(np.roll(c, -1, axis=1) - c, axis=2).sum(axis=1)
@@ -557,12 +557,10 @@ class PDEHead:
     def solid(self, nu: int, nv: int, nw: int, u_range: tuple[float, float] = (0.0, 1.0),
               v_range: tuple[float, float] = (0.0, TWO_PI), w_range: tuple[float, float] = (0.0, 1.0)) -> Mesh:
         """The boundary of the parametric box of the solid (eq. 23), see :func:`pde_solid.solid_mesh`."""
-        from .pde_solid import solid_mesh
         return solid_mesh(self, nu, nv, nw, u_range, v_range, w_range)
 
     def w_field(self, grid, ct=None, progress=None):
         """The w-field and masked intensity on a voxel grid, see :func:`pde_solid.w_field`."""
-        from .pde_solid import w_field
         return w_field(self, grid, ct, progress=progress)
 
     def __repr__(self) -> str:

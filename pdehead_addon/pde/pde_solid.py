@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy.ndimage import map_coordinates
 
 from ..core.ct_volume import CTVolume
 from ..core.errors import PDEError, report_progress
@@ -441,7 +442,6 @@ def _ct_on_grid(ct: CTVolume, found, grid: CTVolume, w_out: np.ndarray, intensit
             vals[:, ~oki] = cval
             np.copyto(intensity[k], vals, where=inside_all[k])
         return
-    from scipy.ndimage import map_coordinates
     # the planes in increasing k, each in (j, i) order: np.nonzero(inside_all) without a pass over the grid
     kk, jj2, ii2 = (np.concatenate(a) if found else np.zeros(0, np.int64) for a in zip(*found))
     idx = np.empty((3, kk.size))

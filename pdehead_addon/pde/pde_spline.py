@@ -47,6 +47,7 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
+from scipy.linalg.lapack import dgtsv, dpbsv
 
 from .pde_basis import basis_derivatives, inverse_4x4, small_matmul
 
@@ -166,7 +167,6 @@ def _lapack():
     LAPACK call, whose OpenBLAS worker threads made the selection's ~800 small solves cost 0.4-2.8 s
     of CPU in identical runs on two busy cores.
     """
-    from scipy.linalg.lapack import dgtsv, dpbsv
     return dgtsv, dpbsv
 
 

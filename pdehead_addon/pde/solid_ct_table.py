@@ -6,11 +6,16 @@ move) is a trilinear interpolation in (u, v, w), periodic in v. It serialises to
 """
 from __future__ import annotations
 
+import json
+import zlib
+
 import numpy as np
 
-from ..core.ct_volume import CTVolume
+from ..core.ct_volume import CTVolume, trilinear
 from ..core.errors import PDEError, PDEHeadError, report_progress
 from ..core.threads import map_in_order
+from ..defaults import MAX_STORED_CT_TABLE_BYTES
+from ..io.safe_io import decompress_bounded
 from .pde_solid import TWO_PI, axial_grid
 
 __all__ = ["SolidCTTable"]
@@ -57,8 +62,6 @@ class SolidCTTable:
 
     def __init__(self, head, ct: CTVolume, nu: int | None = None, nv: int | None = None,
                  nw: int | None = None, chunk: int = 16, progress=None):
-        from ..core.ct_volume import trilinear
-
         if nu is None or nv is None or nw is None:
             probe_u = np.linspace(0.0, 1.0, 33)
             probe = head.surface_points(probe_u, 64)                                     # (33, 64, 3) mm
@@ -187,9 +190,6 @@ class SolidCTTable:
         (:attr:`MAX_SHAPE`) the 8-bit array is 4.2 MB before compression; a head's table (a third
         of it is air) compresses to about 1.5 MB (CThead, 239 x 256 x 62).
         """
-        import json
-        import zlib
-
         lo, hi = (float(x) for x in window)
         if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
             raise PDEError(f"the table's window must satisfy lo < hi, got ({lo}, {hi})")
@@ -204,11 +204,6 @@ class SolidCTTable:
     @classmethod
     def from_bytes(cls, raw: bytes) -> tuple["SolidCTTable", tuple[float, float]]:
         """``(table, window)`` from :meth:`to_bytes`; values in CT units (lo + level (hi - lo) / 255)."""
-        import json
-        import zlib
-
-        from ..defaults import MAX_STORED_CT_TABLE_BYTES
-        from ..io.safe_io import decompress_bounded
 
         try:
             n = int.from_bytes(raw[:4], "little")
@@ -230,8 +225,6 @@ class SolidCTTable:
 
     def sample(self, u, v, w) -> np.ndarray:
         """CT values (float32) at parameters (u, v, w), broadcast together; v taken modulo 2 pi."""
-        from ..core.ct_volume import trilinear
-
         u, v, w = np.broadcast_arrays(np.asarray(u, float), np.asarray(v, float), np.asarray(w, float))
         idx = np.empty(u.shape + (3,))                                           # table order [w, u, v]
         idx[..., 0] = np.clip(w, 0.0, 1.0) * (self.shape[2] - 1)

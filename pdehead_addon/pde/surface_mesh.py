@@ -21,6 +21,7 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
+from scipy.spatial import Delaunay
 
 from ..core.errors import PDEError
 from ..core.mesh import Mesh
@@ -140,7 +141,6 @@ def _polygon_triangles(p: np.ndarray) -> np.ndarray:
     Delaunay triangles inside the polygon when they recover every boundary edge
     (the usual case for densely sampled curves), else ear clipping.
     """
-    from scipy.spatial import Delaunay
     n = len(p)
     try:
         tri = Delaunay(p).simplices

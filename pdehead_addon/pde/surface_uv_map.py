@@ -9,7 +9,9 @@ of the boundary curves alone, computed once per study (:meth:`~.pde_head.PDEHead
 from __future__ import annotations
 
 import numpy as np
+from scipy.sparse import csr_matrix
 
+from .pde_spline import natural_spline_matrix
 from .surface_columns import column_v
 
 __all__ = ["uv_islands", "uv_shear", "uv_tube_map", "uv_map_grid", "UV_MARGIN", "UV_SCALE_WEIGHT",
@@ -114,8 +116,7 @@ def uv_tube_map(curves: np.ndarray, curve_u: np.ndarray, scale_weight: float = U
     mesh face inside it folds at any nu, nv (checked on CThead and GE from 40 x 60 to 300 x 480). CPU ~0.4 s once per
     study on CThead at t = 15 (91 x 128 samples: :func:`uv_map_grid`), ~0.15 s on GE (t = 8).
     """
-    from scipy.sparse import csr_matrix
-    from scipy.sparse.linalg import splu
+    from scipy.sparse.linalg import splu  # deferred: ~10 ms at `import pdehead_addon`
     R = np.asarray(curves, float)
     k, M, _ = R.shape
     xv = np.roll(R, -1, axis=1) - np.roll(R, 1, axis=1)
@@ -268,7 +269,6 @@ def uv_map_grid(curves: np.ndarray, curve_u: np.ndarray, subrows: int = UV_MAP_S
     each pair from a natural cubic spline through them along u (its own matrix,
     :func:`.pde_spline.natural_spline_matrix`: scipy's CubicSpline gave the same rows to ~1e-13 mm, and
     importing ``scipy.interpolate`` cost a first surface ~0.2 s CPU)."""
-    from .pde_spline import natural_spline_matrix
     c = np.asarray(curves, float)
     if v_density is None:
         c = c[:, ::max(1, c.shape[1] // samples)]

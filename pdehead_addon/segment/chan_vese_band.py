@@ -11,6 +11,7 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import Sequence
 
 import numpy as np
+from scipy import ndimage
 
 from .chan_vese import region_means
 from .coarse_blocks import by_block_slabs, resample_nearest
@@ -89,7 +90,6 @@ def _band_blocks(q_coarse: np.ndarray, margin: int, img: np.ndarray | None = Non
     With ``img`` (the full grid, whole blocks of ``factors``) and ``level``, also the blocks whose
     intensities straddle ``level`` (:data:`FINE_BAND_STRADDLE`).
     """
-    from scipy import ndimage
     lo = np.float32(UNDECIDED_Q)
     undecided = (q_coarse > lo) & (q_coarse < np.float32(1.0) - lo)
     if img is not None and level is not None:
@@ -202,7 +202,6 @@ class _BandLayout:
     """
 
     def __init__(self, band: np.ndarray, fac: tuple[int, int, int]):
-        from scipy import ndimage
         cshape = tuple(int(n) for n in band.shape)
         ring = ndimage.binary_dilation(band, np.ones((3, 3, 3), bool)) & ~band
         # the ring blocks whose t grad t on the band reads (forward face neighbours) come first

@@ -24,6 +24,7 @@ from typing import Any, Sequence
 
 import numpy as np
 from scipy import ndimage as ndi
+from skimage.filters import threshold_otsu
 
 from ..core.ct_volume import CTVolume, apply_window
 from ..core.errors import SegmentationError, report_progress, scaled_progress
@@ -156,7 +157,6 @@ def auto_window(data: np.ndarray, max_samples: int = 1_000_000, bins: int = 256)
         raise SegmentationError(f"the volume is constant ({lo:g}); there is no head to segment")
     hist, edges = np.histogram(sample, bins=bins, range=(lo, hi))
     centres = 0.5 * (edges[:-1] + edges[1:])
-    from skimage.filters import threshold_otsu
     split = float(threshold_otsu(hist=(hist, centres)))
     smooth = ndi.gaussian_filter1d(hist.astype(np.float64), 2.0)
     dark = centres < split

@@ -15,6 +15,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from scipy.ndimage import gaussian_filter1d
 
 from ..core.errors import PDEHeadError
 
@@ -211,7 +212,6 @@ def face_banding(vertices: np.ndarray, faces: np.ndarray, centre_xy, pronasale_p
     features (nose, lips, lids) alike, so it is compared with a reference (e.g. marching cubes of the
     smoothed mask), not with 0.
     """
-    from scipy.ndimage import gaussian_filter1d
     v, t = np.asarray(vertices, float), triangulate(faces)
     area = 0.5 * np.linalg.norm(np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]), axis=1).sum()
     pts, _ = sample_surface(v, t, int(area * density), np.random.default_rng(seed))

@@ -20,6 +20,7 @@ on a ``(20 t + 1) x 360`` grid of :meth:`PDEHead.evaluate` by default:
 from __future__ import annotations
 
 import numpy as np
+from scipy.interpolate import LinearNDInterpolator
 
 TWO_PI = 2.0 * np.pi
 #: Half step (in u) of the one-sided normals at a curve (the issue's 2e-4).
@@ -232,7 +233,6 @@ def crown_ripple(vertices: np.ndarray, faces: np.ndarray, pole: np.ndarray, up: 
     pole (the crown's top sheet, not the floor of a cavity inside it); on meshes as fine as 0.5 mm this
     is the mesh's own height within its chord error.
     """
-    from scipy.interpolate import LinearNDInterpolator
     up = np.asarray(up, dtype=np.float64)
     up = up / np.linalg.norm(up)
     e1 = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])

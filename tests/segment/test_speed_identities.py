@@ -180,12 +180,12 @@ def test_approximation_change_reuses_the_tube_uv_map(monkeypatch):
     solved once for all approximation values (the map was re-solved at every change before session 6),
     and the surface's UVs and vertices are those of the map solved on each change's own u to ~1e-9."""
     from pde_synthetic import head_bset
-    from pdehead_addon.pde import surface_mesh as SM, surface_uv_map as UV
+    from pdehead_addon.pde import pde_head as PH, surface_mesh as SM, surface_uv_map as UV
     from pdehead_addon.pde.pde_surface import solve_with_controls
     bset = head_bset(patches=4, samples=128)
     calls = []
     solve_map = UV.uv_tube_map
-    monkeypatch.setattr(UV, "uv_tube_map", lambda *a, **k: calls.append(1) or solve_map(*a, **k))
+    monkeypatch.setattr(PH, "uv_tube_map", lambda *a, **k: calls.append(1) or solve_map(*a, **k))  # its one caller
     heads = [solve_with_controls(bset, "c2", approximation=f, dome=True) for f in (0.30, 0.313, 0.326, 0.9)]
     assert len({float(h.curve_u[-1]) for h in heads}) == len(heads)          # u is rescaled at every change
     meshes = [h.surface(40, 60) for h in heads]

@@ -376,7 +376,7 @@ def _decode_file(ds, path: Path) -> np.ndarray:
         raise CTImportError(f"colour image (SamplesPerPixel={samples}); CT slices must be greyscale", path)
     if ts.is_compressed:
         try:
-            from pydicom.pixels import get_decoder
+            from pydicom.pixels import get_decoder  # deferred: pydicom adds ~0.12 s to `import pdehead_addon`
             decoder = get_decoder(ts)
             available = decoder.is_available
         except Exception:

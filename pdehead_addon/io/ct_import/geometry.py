@@ -13,7 +13,9 @@ import math
 from typing import Sequence
 
 import numpy as np
+from scipy import ndimage
 
+from ... import defaults
 from ...core.ct_volume import CTVolume
 from ...core.errors import CTImportError
 from .. import input_checks
@@ -114,7 +116,6 @@ def resample_limit(source_voxels: int) -> int:
     """Most voxels a resampled grid may have for ``source_voxels`` measured ones: a tilt or an uneven step
     adds a few times the source (GE's 18.5 deg tilt: 4.3 times); more means corrupt positions. At least 64 M
     voxels, at most what the import memory budget holds (float32 values and the coverage mask)."""
-    from ... import defaults
     return int(min(defaults.IMPORT_MEMORY_BUDGET_BYTES // 5, max(64_000_000, 32 * int(source_voxels))))
 
 
@@ -243,8 +244,6 @@ def _resample_lines(source, positions, other_dir, other_sp, n, along, lo, sp, co
 
 def _resample_general(stack, positions, u, v, dr, dc, n, along, lo, sp, counts, fill):
     """General path of :func:`resample_slices` (double-oblique planes): bilinear lookups per slab."""
-    from scipy import ndimage
-
     nslices, rows, cols = stack.shape
     nx, ny, nz = (int(c) for c in counts)
     out = np.empty((nz, ny, nx), dtype=np.float32)

@@ -1,6 +1,7 @@
 """Numbered 2-D images (TIFF through tifffile, PNG/JPEG/BMP/... through Pillow), or one multi-page TIFF."""
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +17,6 @@ from .limits import check_budget, check_ratio
 def _read_tiff(tifffile, f: Path) -> np.ndarray:
     """A TIFF's pixels, its declared size checked first against the file's bytes and the memory budget
     (no pixel buffer is allocated before); tifffile's own log lines are kept off the console."""
-    import logging
     log = logging.getLogger("tifffile")
     level, log.level = log.level, logging.CRITICAL
     try:
@@ -51,14 +51,14 @@ def _read_image(f: Path) -> tuple[np.ndarray, float | None]:
     arr = None
     if has_ext(f, (".tif", ".tiff")):
         try:
-            import tifffile
+            import tifffile  # deferred: optional, may be missing (Pillow reads TIFF then)
         except ImportError:
             tifffile = None
         if tifffile is not None:
             arr = _read_tiff(tifffile, f)
     if arr is None:
         try:
-            from PIL import Image
+            from PIL import Image  # deferred: optional, may be missing (an error names it)
         except ImportError:
             raise CTImportError("reading images needs Pillow (or tifffile for TIFF)", f) from None
         try:

@@ -14,6 +14,7 @@ import numpy as np
 from ...core.ct_volume import CTVolume, downsample_volume
 from ...core.errors import CTImportError
 from .. import input_checks, scan_evidence
+from ..mesh_input import load_skull_mesh  # a skull given as a surface mesh
 from .dicom import load_dicom
 from .folder_files import detect_format, expand_dicomdir, gather_files, source_label
 from .images import load_images
@@ -116,7 +117,6 @@ def load_ct(
     fmt = str(format).lower()
     if fmt in ("auto", "mesh") and isinstance(path, (str, os.PathLike)) \
             and os.fspath(path).lower().endswith((".stl", ".ply", ".obj")):
-        from ..mesh_input import load_skull_mesh  # a skull given as a surface mesh
         return load_skull_mesh(path)
     fmt, first_slice, hu_said, axes = _checked_options(path, format, fmt, first_slice, orientation, units)
     # headerless stacks: no first_slice and no orientation = Auto (the documented default, defaults.FIRST_SLICE)

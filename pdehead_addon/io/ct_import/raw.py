@@ -5,6 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ... import defaults
 from ...core.ct_volume import CTVolume
 from ...core.errors import CTImportError
 from .. import scan_evidence
@@ -99,7 +100,6 @@ def _read_one_file(f, shape, dt, header_bytes) -> np.ndarray:
     """One file holding the whole volume: (nz, ny, nx) float32, nz from ``shape`` or from the file's size."""
     ny, nx = shape[-2:]
     slice_bytes = ny * nx * dt.itemsize
-    from ... import defaults
     limit = (header_bytes + shape[0] * slice_bytes if len(shape) == 3
              else defaults.IMPORT_MEMORY_BUDGET_BYTES // 2)
     raw, size = _read_raw_bytes(f, limit)
