@@ -9,6 +9,8 @@ all of it again, leaving no class, property, menu entry, handler or timer behind
 """
 from __future__ import annotations
 
+import traceback
+
 import bpy
 
 from . import prefs, state
@@ -25,7 +27,6 @@ def pdehead_load_post(*_args) -> None:
     try:                                  # a file saved with the CT detail as bump: the displacement now
         detail_map.reopen_with_displacement()
     except Exception:  # noqa: BLE001 - a load handler must never stop the load
-        import traceback
         traceback.print_exc()
     for study_id in state.cached_study_ids():
         if study_id not in present:

@@ -19,9 +19,11 @@ Tested with bpy from PyPI 4.2.23, 4.5.15, 5.0.1 (Python 3.11, numpy 1.26) and 5.
 """
 from __future__ import annotations
 
+import atexit
 import functools
 from types import ModuleType
 
+import bpy
 import numpy as np
 
 
@@ -30,8 +32,6 @@ def expose_bundled_modules() -> bool:
 
     Returns False on Blenders without ``bpy.utils.expose_bundled_modules`` (4.2, 4.3).
     """
-    import bpy
-
     expose = getattr(bpy.utils, "expose_bundled_modules", None)
     if expose is None:
         return False
@@ -59,8 +59,6 @@ def unregister_at_exit(unregister) -> None:
     (SIGSEGV) and the 4.5 module hangs; Blender itself unregisters add-ons on quit, but a
     script that imports ``bpy`` and registers PDE Head (the headless CLI, the tests) must.
     """
-    import atexit
-
     def _unregister():
         try:
             unregister()
@@ -73,8 +71,6 @@ def unregister_at_exit(unregister) -> None:
 def blend_relative_path_options() -> set:
     """``options`` of a file-path StringProperty that may be relative to the .blend: the flag
     ``PATH_SUPPORTS_BLEND_RELATIVE`` exists from Blender 4.5 (before, every path property was)."""
-    import bpy
-
     return {'PATH_SUPPORTS_BLEND_RELATIVE'} if bpy.app.version >= (4, 5, 0) else set()
 
 
@@ -169,5 +165,4 @@ def shade_smooth(mesh) -> None:
     if hasattr(mesh, "shade_smooth"):
         mesh.shade_smooth()
     else:
-        import numpy as np
         mesh.polygons.foreach_set("use_smooth", np.ones(len(mesh.polygons), bool))

@@ -8,6 +8,7 @@ the screen's right; distances measured in Blender are patient mm / 1000.
 from __future__ import annotations
 
 import numpy as np
+from mathutils import Vector
 
 from ..pdehead_addon import grid_affine
 
@@ -35,8 +36,6 @@ def study_origin(collection, points_m: np.ndarray | None = None):
     collection; later calls return the stored value, so every object of the
     study pivots about the same point and rebuilding never moves it.
     """
-    from mathutils import Vector
-
     if ORIGIN_KEY in collection.keys():
         return Vector(tuple(collection[ORIGIN_KEY]))
     if points_m is None or len(points_m) == 0:

@@ -27,6 +27,9 @@ from typing import Any, Callable
 
 import bpy
 
+from ..pdehead_addon import message_for_cli, message_for_dialog
+from .compat import registered_id_properties
+
 NO_STUDY_MESSAGE = "No PDE Head study: import a CT (File > Import > CT Head) or load the phantom"
 BOUNDARY_KEY = "pdehead_boundaries"  # collection custom property: base64 of dumps_boundaries()
 CT_TABLE_KEY = "pdehead_ct_table"  # collection custom property: base64 of SolidCTTable.to_bytes() (save_pre)
@@ -111,7 +114,6 @@ REGISTRY = Registry()
 
 def user_text(message: str) -> str:
     """An engine message in the words of the registry's ``audience``, on one line."""
-    from ..pdehead_addon import message_for_cli, message_for_dialog
     return message_for_cli(message) if REGISTRY.audience == "cli" else message_for_dialog(message)
 
 
@@ -246,7 +248,6 @@ def migrate_legacy_settings() -> list[str]:
     Returns the names of the migrated study collections. Idempotent: a collection whose
     settings were moved has no legacy group any more.
     """
-    from .compat import registered_id_properties
     migrated = []
     for coll in bpy.data.collections:
         stored = registered_id_properties(coll)

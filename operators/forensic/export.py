@@ -8,15 +8,37 @@ left out is named in provenance.json), all built and checked before the first fi
 from __future__ import annotations
 
 import json
+import os
+import shutil
+import tempfile
 from pathlib import Path
 
 import bpy
 import numpy as np
+from mathutils import Matrix, Vector
 
-from ...pdehead_addon import PDEHeadError, defaults as D
+from ...pdehead_addon import (
+    EXPORT_FORMATS as FORMATS,
+    DepthEntry,
+    DepthTable,
+    PDEHeadError,
+    default_table,
+    defaults as D,
+    depth_flags,
+    export_mesh,
+    input_folder_conflict,
+    marker_pegs,
+    measure_landmark_depths,
+    print_mesh,
+    provenance,
+    tissue_depth,
+    write_depth_csv,
+    write_landmark_csv,
+)
 from .. import state
 from ..coords import MM_TO_M
 from ..outcome import StepOutcome
+from ..scene import detail_map
 from .objects import plain_material, set_material
 
 PEG_MATERIAL = "PDE Head Depth Peg"
@@ -45,7 +67,6 @@ def _unit_peg_mesh(name: str, radius_mm: float, n: int = 12):
 
 def _peg_matrix(base_mm: np.ndarray, normal: np.ndarray):
     """Patient-space (Blender metres) matrix: origin at ``base_mm``, local +Z along ``normal``."""
-    from mathutils import Matrix, Vector
     rot = Vector(normal.tolist()).to_track_quat('Z', 'Y').to_matrix().to_4x4()
     return Matrix.Translation(Vector((base_mm * MM_TO_M).tolist())) @ rot
 
@@ -94,8 +115,6 @@ def print_face(head):
     """The face's closed mesh for Export for Printing: its PDE surface at print resolution
     (:func:`pdehead_addon.print_mesh`, the skin's path). A solved face's head keeps the cap vertex counts of
     its viewport mesh (so a dragged peg keeps the topology); the print mesh takes its own."""
-    from ...pdehead_addon import print_mesh
-
     head.__dict__.pop("cap_reference", None)
     return print_mesh(head)
 
@@ -116,8 +135,6 @@ class Outputs:
         (name, base mm, unit normal, length mm) when they come from elsewhere (the face model of
         :mod:`.face`) instead of the landmarks snapped to ``target``.
         """
-        from ...pdehead_addon import DepthEntry, DepthTable, marker_pegs
-
         if not isinstance(table, DepthTable):     # a plain {name: depth} mapping (no SDs)
             table = DepthTable(entries={k: DepthEntry(k, float(v)) for k, v in table.items()}, name="imported table")
         lms = self.forensic.landmarks()
@@ -156,15 +173,11 @@ class Outputs:
     # -------------------------------------------------------------------------------------- provenance
     def depth_table(self):
         """The study's depth table: the one its pegs came from, else the shipped T-Table 2023."""
-        from ...pdehead_addon import DepthTable, default_table
-
         text = self.forensic.props.depth_table
         return DepthTable.from_json(text) if text else default_table()
 
     def provenance(self, table=None) -> dict:
         """Provenance of the study's forensic outputs: software, CT, bone level, depth table, frame."""
-        from ...pdehead_addon import provenance
-
         s = self.forensic.settings
         sk = self.forensic.skull.skull_segmentation()
         m = sk.meta
@@ -188,8 +201,6 @@ class Outputs:
         exposed normal; on the meshes only when the study's skull carries no CT intensities). Returns the rows
         (name -> (bone point, depth mm)), the flags (an ``ok`` landmark whose depth the CT's profile does not
         support turns ``uncertain``) and the method's description for the provenance."""
-        from ...pdehead_addon import depth_flags, measure_landmark_depths
-
         lms = self.forensic.landmarks()
         sk = self.forensic.skull.skull_segmentation()
         head = self.forensic.study.cache.seg
@@ -214,8 +225,6 @@ class Outputs:
     def _export_folder(self, directory: str) -> Path:
         """The export folder (absolute); never the input folder or one inside it, nor a file input's own folder
         (:func:`~pdehead_addon.io.export.input_folder_conflict`)."""
-        from ...pdehead_addon import input_folder_conflict
-
         out = Path(bpy.path.abspath(directory)).resolve()
         s = self.forensic.settings
         if s.source_kind == "FILES" and s.source:
@@ -239,8 +248,6 @@ class Outputs:
         The skull and its PDE envelope come from the skull segmentation (built here when missing); the skin is
         the head pipeline's PDE surface, so a study without boundary curves (Build Skull, Find Landmarks and
         Build Face only) exports no skin and no tissue_depth.csv instead of failing."""
-        from ...pdehead_addon import tissue_depth
-
         s = self.forensic.settings
         skull = self.forensic.skull.skull_engine_mesh("BONE")
         envelope = self.forensic.skull.skull_engine_mesh("PDE")
@@ -250,7 +257,6 @@ class Outputs:
         if not no_skin:
             # the depth map's vertices stay the viewport's surface; skin.<fmt> is meshed at print resolution
             # with the CT detail at the study's strength (:func:`operators.scene.detail_map.print_skin`)
-            from ..scene import detail_map
             skin = self.forensic.study.head.surface(int(s.nu), int(s.nv), caps=True)
             meshes.insert(0, ("skin", detail_map.print_skin(self.forensic.study)))
         for name, mesh in meshes:
@@ -284,8 +290,6 @@ class Outputs:
         Returns the seconds and (``values``) the paths written (``files``, provenance.json last), the files
         left out (``not_written``: name -> why) and the landmarks' flags written (``flags``).
         """
-        from ...pdehead_addon import EXPORT_FORMATS as FORMATS
-
         if fmt not in FORMATS:
             raise PDEHeadError(f"unknown mesh format {fmt!r}; use one of {', '.join(FORMATS)}")
         with state.Timer() as timer:
@@ -328,11 +332,6 @@ class Outputs:
                       not_written=None):
         """Write the export's files into a hidden folder in ``out``, then move them into place; their names.
         ``not_written``: the files left out (name -> why), recorded in provenance.json."""
-        import os
-        import shutil
-        import tempfile
-
-        from ...pdehead_addon import export_mesh, write_depth_csv, write_landmark_csv
 
         # ---- then write: into a hidden folder in the target, moved into place when all are written
         out.mkdir(parents=True, exist_ok=True)

@@ -28,16 +28,18 @@ Blender side of it: :class:`Face`, a component of :class:`.study.ForensicStudy` 
 from __future__ import annotations
 
 import json
+import os
 import time
 import uuid
 
 import bpy
 import numpy as np
 
-from ...pdehead_addon import PDEHeadError
+from ...pdehead_addon import DepthTable, PDEHeadError, default_table, provenance, read_depth_table
 from .. import state
-from ..coords import MM_TO_M
+from ..coords import MM_TO_M, study_origin
 from ..outcome import StepOutcome
+from ..scene import objects
 from .export import PEG_DEPTH_PROP, set_peg_depth
 from .objects import engine_mesh_of, plain_material, set_material
 from .props import face_options_of, store_face_options
@@ -75,7 +77,7 @@ RESTORE_TOLERANCE_MM = 1e-3
 
 
 def approximation_label() -> str:
-    from ...pdehead_addon import APPROXIMATION_LABEL
+    from ...pdehead_addon import APPROXIMATION_LABEL  # deferred: face engine, ~25 ms at add-on enable
     return APPROXIMATION_LABEL
 
 
@@ -88,7 +90,7 @@ def _prepare(skull, lms, table, **kw):
     """A face model prepared from a skull, counted in ``state.REGISTRY.face_prepare_calls`` (Build Face, or a
     kept model that could not be used: a reopened file's first drag must not add one)."""
     state.REGISTRY.face_prepare_calls += 1
-    from ...pdehead_addon import FaceModel
+    from ...pdehead_addon import FaceModel  # deferred: face engine, ~25 ms at add-on enable
     return FaceModel.prepare(skull, lms, table, **kw)
 
 
@@ -148,8 +150,6 @@ class Face:
     def face_skull_mesh(self):
         """The bone skull as an engine Mesh (patient mm): read from the study's bone object (what the .blend
         holds, so a reopened file prepares the same model), else built from the CT."""
-        from ..coords import study_origin
-
         obj = self.forensic.linked_object("pdehead_bone_object")
         if obj is None or obj.type != 'MESH' or len(obj.data.polygons) == 0:
             return self.forensic.skull.skull_engine_mesh("BONE")
@@ -181,9 +181,6 @@ class Face:
 
     def face_table_as_read(self):
         """The study's depth table as read, every sex's rows in it (:meth:`face_table` picks them)."""
-        import os
-
-        from ...pdehead_addon import default_table, read_depth_table
 
         s = self.forensic.settings
         if s.face_table == 'FILE':
@@ -207,7 +204,6 @@ class Face:
     # -------------------------------------------------------------------------------------- model
     def _mesh_positions(self, obj) -> np.ndarray:
         """The face mesh's vertices in patient mm (the study's frame, before the object's transform)."""
-        from ..scene import objects
         co = np.empty(len(obj.data.vertices) * 3, np.float32)
         obj.data.attributes["position"].data.foreach_get("vector", co)
         origin = np.asarray(objects.study_origin(self.forensic.collection))
@@ -216,7 +212,7 @@ class Face:
     def _restore_model(self, opts):
         """The model kept in the file, checked against the saved face (None when there is none or it does not
         give the saved face): (model, LiveFace)."""
-        from ...pdehead_addon import LiveFace, face_model_from_state
+        from ...pdehead_addon import LiveFace, face_model_from_state  # deferred: face engine, ~25 ms at add-on enable
 
         text = self.forensic.collection.get(FACE_MODEL_KEY)
         obj = self.face_object()
@@ -246,7 +242,7 @@ class Face:
 
     def _keep_model(self, model, build: str) -> None:
         """The prepared model into the file (the collection), after its first solve fixed its parameter."""
-        from ...pdehead_addon import face_model_state
+        from ...pdehead_addon import face_model_state  # deferred: face engine, ~25 ms at add-on enable
         try:
             self.forensic.collection[FACE_MODEL_KEY] = build + "\n" + face_model_state(model)
         except (TypeError, ValueError) as exc:     # a model this version cannot keep: prepared again after reopening
@@ -268,7 +264,6 @@ class Face:
                 cache.update(face_model=model, face_live=live, face_build=opts["build"], face_tips=None,
                              face_model_source="file", face_restore_s=t.seconds)
             else:
-                from ...pdehead_addon import DepthTable
                 table = DepthTable.from_json(opts["table"])
                 lms = {k: np.array(v, float) for k, v in opts["landmarks"].items()}
                 with state.Timer() as t:
@@ -283,7 +278,7 @@ class Face:
         model = self.face_model()
         live = self.forensic.cache.get("face_live")
         if live is None or live.model is not model:
-            from ...pdehead_addon import LiveFace
+            from ...pdehead_addon import LiveFace  # deferred: face engine, ~25 ms at add-on enable
             live = LiveFace(model)
             self.forensic.cache["face_live"] = live
         return live
@@ -365,8 +360,6 @@ class Face:
         """The face mesh's vertex positions rewritten in place (same topology: the fast path), else the same
         mesh datablock refilled (the face's caps may gain or lose a vertex between two solves). ``positions``
         (patient mm) instead of a ``mesh``: only the positions. Returns whether the mesh was refilled."""
-        from ..scene import objects
-
         me, coll = obj.data, self.forensic.collection
         verts = positions if positions is not None else mesh.vertices
         if len(me.vertices) == len(verts) and (positions is not None or len(me.polygons) == mesh.face_count):
@@ -380,8 +373,6 @@ class Face:
         return True
 
     def _face_provenance(self, result_provenance: dict, table) -> dict:
-        from ...pdehead_addon import provenance
-
         opts = self.face_options()
         rec = provenance(label=approximation_label(), **(table.provenance_record() if table is not None else {}))
         rec.update({k: v for k, v in dict(result_provenance).items() if k not in rec})
@@ -479,8 +470,6 @@ class Face:
         """Build the face of the study (skull and landmarks made first when missing); returns the face object then
         its pegs, the pegs' report as its warning (a peg in the bone, a tip far from the face), the seconds of the
         model's preparation (the study's ``face_prepare`` timing) and ``values``: vertices, pegs, label."""
-        from ..scene import objects
-
         coll = self.forensic.collection
         s = self.forensic.settings
         if self.forensic.linked_object("pdehead_bone_object") is None:
@@ -529,7 +518,7 @@ class Face:
         self.forensic.cache["face_tips"] = tips
         self.forensic.cache["face_held"] = np.zeros(len(model.peg_names), bool)
         self._keep_model(model, build)
-        from ...pdehead_addon import LiveFace
+        from ...pdehead_addon import LiveFace  # deferred: face engine, ~25 ms at add-on enable
         self.forensic.cache["face_live"] = LiveFace(model)
         self.forensic.study.record_timing("face_prepare", t.seconds)
         line = result.pegs.summary() if result.pegs is not None else None
@@ -561,8 +550,6 @@ class Face:
         """The faces with every peg at its length - 1 SD and + 1 SD (pegs without an SD stay), as two objects
         beside the face (wire display): the range the table allows. Returns the objects (minus, plus) and the
         seconds."""
-        from ..scene import objects
-
         coll = self.forensic.collection
         face = self.face_object()
         if face is None:

@@ -4,7 +4,9 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
+from ...pdehead_addon import Mesh
 from .. import compat
+from ..coords import MM_TO_M
 
 
 def plain_material(name: str, colour):
@@ -29,9 +31,6 @@ def set_material(obj, mat) -> None:
 def engine_mesh_of(obj, origin):
     """The mesh of the study object ``obj`` as an engine Mesh in patient mm (its data's coordinates plus the
     study's ``origin``, metres; the object's own transform, e.g. the Frankfurt view, left out), triangulated."""
-    from ...pdehead_addon import Mesh
-    from ..coords import MM_TO_M
-
     me = obj.data
     me.calc_loop_triangles()
     co = np.empty(len(me.vertices) * 3, np.float32)

@@ -32,7 +32,7 @@ import traceback
 import bpy
 from bpy.props import CollectionProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 
-from ...pdehead_addon import defaults as D
+from ...pdehead_addon import DepthTable, defaults as D
 from .. import state
 
 #: The layout of the forensic state this version writes (see the module docstring).
@@ -138,7 +138,6 @@ def migrate(collection) -> bool:
     found = False
     text = collection.get(LEGACY_DEPTH_TABLE)
     if text:
-        from ...pdehead_addon import DepthTable
         p.depth_table = str(text)
         p.depth_table_name = DepthTable.from_json(str(text)).label
         found = True

@@ -17,9 +17,22 @@ import json
 import bpy
 import numpy as np
 
-from ...pdehead_addon import PDEHeadError, defaults as D
+from ...pdehead_addon import (
+    PDEHeadError,
+    check_bone_level,
+    defaults as D,
+    dumps_boundaries,
+    extract_boundaries,
+    loads_boundaries,
+    max_patches,
+    segment_skull,
+    skull_mesh,
+    solve_pde,
+    tissue_depth,
+)
 from .. import compat, state
 from ..outcome import StepOutcome
+from ..scene import objects
 from .objects import plain_material, set_material
 
 SKULL_BOUNDARY_KEY = "pdehead_skull_boundaries"
@@ -45,8 +58,6 @@ class Skull:
 
     def skull_segmentation(self):
         """The skull segmentation of the study (cached; computed from the CT and the head segmentation)."""
-        from ...pdehead_addon import check_bone_level, segment_skull
-
         extra = self.forensic.cache
         cache = self.forensic.study.cache
         if cache.seg is None:
@@ -70,8 +81,6 @@ class Skull:
 
     def _envelope_head(self):
         """The PDE skull envelope (boundary set, solved head, t) from the skull segmentation, by the skin's path."""
-        from ...pdehead_addon import extract_boundaries, max_patches, solve_pde
-
         s = self.forensic.settings
         sk = self.skull_segmentation()
         limit = max_patches(sk)
@@ -88,9 +97,6 @@ class Skull:
         (``nu`` x ``nv`` samples; 0: the skin's); returns the objects built (the envelope, then the bone mesh),
         the segmentation's warnings, the seconds and what the skull info records (``values``: bone level,
         patches, parts, bone volume, ...)."""
-        from ...pdehead_addon import dumps_boundaries, skull_mesh
-        from ..scene import objects
-
         coll = self.forensic.collection
         extra = self.forensic.cache
         nu, nv = int(nu) or int(self.forensic.settings.nu), int(nv) or int(self.forensic.settings.nv)
@@ -135,8 +141,6 @@ class Skull:
     def skull_engine_mesh(self, target: str = D.DEPTH_TARGET.default):
         """The skull as an engine Mesh (patient mm): the bone skull, or the PDE skull envelope (built when
         missing, rebuilt from the stored curves after reopening)."""
-        from ...pdehead_addon import dumps_boundaries, loads_boundaries, skull_mesh, solve_pde
-
         extra = self.forensic.cache
         if target == "BONE":
             if extra.get("bone_mesh") is None:
@@ -164,8 +168,6 @@ class Skull:
         """Tissue depth of the skin surface against the skull, stored on the surface object; returns the surface
         object, the seconds and the statistics (``values``: vertices, measured, median, ..., target,
         max_depth_mm)."""
-        from ...pdehead_addon import tissue_depth
-
         s = self.forensic.settings
         if s.surface_object is None:
             self.forensic.study.surface()

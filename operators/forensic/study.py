@@ -24,8 +24,19 @@ import time
 
 import bpy
 import numpy as np
+from mathutils import Matrix, Vector
 
-from ...pdehead_addon import PDEHeadError, defaults as D
+from ...pdehead_addon import (
+    PDEHeadError,
+    bilateral_pairs,
+    defaults as D,
+    frankfurt_transform,
+    landmark,
+    midsagittal_plane,
+    mirror_matrix,
+    snap_to_surface,
+    symmetry_plane,
+)
 from ..coords import MM_TO_M
 from ..outcome import StepOutcome
 from .export import Outputs
@@ -52,7 +63,6 @@ MIRROR_PLANES = [
 
 def blender_matrix(m_mm: np.ndarray):
     """A patient-mm 4x4 transform as a Blender world (metre) ``mathutils.Matrix``."""
-    from mathutils import Matrix
     m = np.array(m_mm, float).copy()
     m[:3, 3] *= MM_TO_M
     return Matrix(m.tolist())
@@ -130,7 +140,6 @@ class ForensicStudy:
 
     # -------------------------------------------------------------------------------------- frame
     def frankfurt_matrix(self):
-        from mathutils import Matrix
         values = self.collection.get(FRANKFURT_KEY)
         return Matrix(np.array(values, float).reshape(4, 4).tolist()) if values else Matrix.Identity(4)
 
@@ -150,8 +159,6 @@ class ForensicStudy:
         return out
 
     def place_landmark(self, name: str, patient_mm, target: str = D.DEPTH_TARGET.default):
-        from ...pdehead_addon import snap_to_surface
-
         snapped, normal = snap_to_surface(np.asarray(patient_mm, float)[None], self.skull.skull_engine_mesh(target))
         obj = self._landmark_empty(name, snapped, normal)
         obj[LANDMARK_FLAG] = "ok"
@@ -160,8 +167,6 @@ class ForensicStudy:
 
     def _landmark_empty(self, name: str, snapped: np.ndarray, normal: np.ndarray):
         """The study's empty of landmark ``name`` (made if missing) at a snapped point (patient mm, shape (1, 3))."""
-        from ...pdehead_addon import landmark
-
         d = landmark(name)
         sub = self.sub_collection("Landmarks")
         obj_name = f"LM {d.name}"
@@ -174,7 +179,6 @@ class ForensicStudy:
         obj[LANDMARK_KEY] = d.name
         obj["patient_mm"] = [float(c) for c in snapped[0]]
         obj["normal"] = [float(c) for c in normal[0]]
-        from mathutils import Matrix, Vector
         obj.matrix_world = self.frankfurt_matrix() @ Matrix.Translation(Vector(snapped[0] * MM_TO_M))
         return obj
 
@@ -189,7 +193,7 @@ class ForensicStudy:
         or moved by hand are left where they are. Returns the empties placed or moved, the seconds and
         (``values``) each landmark's ``flags`` and ``evidence`` and the engine's ``LandmarkSearch`` (``search``).
         """
-        from ...pdehead_addon import find_landmarks as engine_find, snap_to_surface
+        from ...pdehead_addon import find_landmarks as engine_find  # deferred: ~15 ms at add-on enable
 
         coll = self.collection
         t0 = time.perf_counter()
@@ -267,8 +271,6 @@ class ForensicStudy:
         """Landmarks whose empty was moved in the viewport go back onto the bone at the nearest point;
         their flag becomes ``ok`` (a person placed them). Returns the empties snapped and their names
         (``values``: ``names``)."""
-        from ...pdehead_addon import snap_to_surface
-
         moved, snapped_objects = [], []
         for obj in list(self.collection.all_objects):
             name = obj.get(LANDMARK_KEY)
@@ -290,9 +292,6 @@ class ForensicStudy:
     # -------------------------------------------------------------------------------------- orientation
     def apply_frankfurt(self, reset: bool = False):
         """Transform every object of the study into the Frankfurt horizontal (or back)."""
-        from mathutils import Matrix
-
-        from ...pdehead_addon import frankfurt_transform
 
         if reset:
             m = Matrix.Identity(4)
@@ -322,8 +321,6 @@ class ForensicStudy:
 
     def mirror_plane(self, source: str = D.MIRROR_PLANE.default) -> tuple[np.ndarray, np.ndarray, str]:
         """The mid-sagittal plane (point, normal in patient mm) and a sentence saying where it came from."""
-        from ...pdehead_addon import bilateral_pairs, midsagittal_plane, symmetry_plane
-
         coll = self.collection
         lms = self.landmarks()
         pairs = bilateral_pairs(list(lms))
@@ -345,8 +342,6 @@ class ForensicStudy:
     def mirror_object(self, obj, source: str = D.MIRROR_PLANE.default) -> StepOutcome:
         """A linked copy of ``obj`` mirrored across the mid-sagittal plane (:meth:`mirror_plane`): the copy, and
         the plane (``values``: ``point`` and ``normal`` in patient mm, ``how``: where it came from)."""
-        from ...pdehead_addon import mirror_matrix
-
         point, normal, how = self.mirror_plane(source)
         frank = self.frankfurt_matrix()
         m = frank @ blender_matrix(mirror_matrix(point, normal)) @ frank.inverted()

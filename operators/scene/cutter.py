@@ -19,8 +19,9 @@ import math
 
 import bpy
 import numpy as np
+from mathutils import Matrix
 
-from ...pdehead_addon import PDEHeadError
+from ...pdehead_addon import PDEHeadError, surface_grid_cached
 from .. import state
 from ..state import suspended_updates
 from . import render
@@ -70,7 +71,6 @@ def cutter_ranges(head, inverse_matrix_mm: np.ndarray, size: float):
     u = np.linspace(0.0, 1.0, SAMPLES_U)
     v = TWO_PI * np.arange(SAMPLES_V) / SAMPLES_V
     if hasattr(head, "_grid"):  # the solid's cached grid synthesis (inverse FFT): same points, ~50x faster
-        from ...pdehead_addon import surface_grid_cached
         surface = surface_grid_cached(head, u, v, SAMPLES_V)              # (nu, nv, 3)
     else:
         surface = head.evaluate(u[:, None], v[None, :], 1.0)
@@ -113,8 +113,6 @@ def signature(obj, matrix=None) -> tuple:
 
 def add_cutter(context, coll):
     """A box empty at the front-left quarter of the head (a Fig. 14b wedge), through its whole height."""
-    from mathutils import Matrix
-
     s = state.settings(coll)
     shown = next((o for o in (s.solid_object, s.surface_object) if o is not None), None)
     if shown is None:

@@ -30,8 +30,11 @@ from __future__ import annotations
 import struct
 import zlib
 
+import bpy
 import numpy as np
 
+from ...pdehead_addon import detail_map_stages as engine_stages, print_mesh
+from .. import state
 from . import objects
 
 DETAIL_IMAGE_KEY = "pdehead_detail_image"
@@ -77,8 +80,6 @@ def set_detail_image(obj, height_mm: np.ndarray, range_mm: float):
 def _pack_png(obj, data: bytes, range_mm: float, size):
     """The object's detail image holding the PNG ``data``: the existing one re-packed in place (a cancelled
     Run Pipeline's rollback keeps it, :func:`packed_state`), else a new one."""
-    import bpy
-
     name = image_name(obj)
     image = bpy.data.images.get(name)
     if image is not None and image.get(DETAIL_IMAGE_KEY) == 1 and image.packed_file is not None:
@@ -122,8 +123,6 @@ def image_height_mm(image) -> np.ndarray:
 
 def detail_image(obj):
     """The object's detail image, or None."""
-    import bpy
-
     image = bpy.data.images.get(image_name(obj))
     return image if image is not None and image.get(DETAIL_IMAGE_KEY) == 1 else None
 
@@ -136,8 +135,6 @@ def _material_output(nodes):
 def ensure_detail_material(obj, image):
     """The surface's own skin material with the detail bump nodes, given to its first slot when that holds
     the shared skin material or this one (a material the user chose stays). Returns the material."""
-    import bpy
-
     name = f"{objects.SKIN_MATERIAL} {obj.name}"
     mat = bpy.data.materials.get(name)
     if mat is None:
@@ -187,7 +184,6 @@ def detail_material(obj):
 
 def _settings_of(obj):
     """The study settings whose surface ``obj`` is, or None."""
-    from .. import state
     for coll in getattr(obj, "users_collection", ()):
         s = state.settings(coll)
         if s is not None and s.surface_object == obj:
@@ -227,8 +223,6 @@ def _unplug_bump(obj) -> None:
 def ensure_displacement(obj, image, settings=None):
     """The object's CT detail modifiers (subdivision, then Displace by the image texture in UV along the
     normals, its strength driven by ``settings.detail_strength``); returns the Displace modifier."""
-    import bpy
-
     name = image_name(obj)
     tex = bpy.data.textures.get(name)
     if tex is None or tex.type != "IMAGE":
@@ -286,7 +280,6 @@ def _driven(disp):
 def reopen_with_displacement() -> list[str]:
     """After a file is loaded: every study surface with a detail image gets the displacement in place of a
     bump an earlier version wired (its names)."""
-    from .. import state
     done = []
     for coll in state.studies():
         s = state.settings(coll)
@@ -341,8 +334,6 @@ def detail_height(study):
 def print_skin(study):
     """The study's skin for Export for Printing: the PDE surface meshed at print resolution, displaced by its
     CT detail at the study's strength (:func:`pdehead_addon.print_mesh`, the face's path too)."""
-    from ...pdehead_addon import print_mesh
-
     height, strength = detail_height(study)
     return print_mesh(study.head, height, strength)
 
@@ -361,8 +352,6 @@ def detail_map_stages(obj, head, seg, resolution: int, strength: float, enabled:
     """:func:`build_detail_map` one engine stage at a time (a generator yielding ``(fraction, message)``,
     returning the map's meta): the object's image and material change only after the last stage, so a
     caller that stops early (Esc in :class:`~operators.ui.ops.PDEHEAD_OT_build_detail_map`) keeps the old map."""
-    from ...pdehead_addon import detail_map_stages as engine_stages
-
     dmap = yield from engine_stages(head, seg.mask, seg.ct, resolution=int(resolution))
     set_detail_image(obj, dmap.height, dmap.meta["max_mm"])
     set_detail_shading(obj, strength, enabled)

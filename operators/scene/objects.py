@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import math
 
+import bpy
 import numpy as np
+from mathutils import Matrix
 
 from ...pdehead_addon import apply_window, defaults as D, intensity_window, sample_ct
 from .. import compat, state
@@ -32,8 +34,6 @@ _RESERVED = {"position", "sharp_face", "material_index", UV_NAME, CT_UV_NAME, CT
 # ----------------------------------------------------------------------------- collections
 def study_collection(name: str, scene=None):
     """The collection of study `name` (created and linked under the scene's collection if needed)."""
-    import bpy
-
     scene = scene or bpy.context.scene
     coll = bpy.data.collections.get(name)
     if coll is None:
@@ -46,8 +46,6 @@ def study_collection(name: str, scene=None):
 
 def _place(obj, origin) -> None:
     """Put the object's origin at `origin` with no rotation or scale (keeps world = LPS * 0.001)."""
-    from mathutils import Matrix
-
     obj.matrix_world = Matrix.Translation(origin)
 
 
@@ -58,8 +56,6 @@ def _link(obj, collection) -> None:
 
 # ----------------------------------------------------------------------------- materials
 def _material(name: str):
-    import bpy
-
     mat = bpy.data.materials.get(name)
     created = mat is None
     if created:
@@ -91,8 +87,6 @@ def ensure_ct_material(obj=None, image=None):
     section 4.3.1). Without it, from the per-vertex colour ``ct_intensity``.
     One material per solid object (each has its own image).
     """
-    import bpy
-
     name = CT_MATERIAL if obj is None else f"{CT_MATERIAL} {obj.name}"
     mat = bpy.data.materials.get(name)
     if mat is None:
@@ -158,8 +152,6 @@ def build_boundary_curves(bset, collection, name: str = "Boundary curves", obj=N
     bevel_mm : float
         Tube radius so that the curves show in renders (0: lines only).
     """
-    import bpy
-
     curves = np.asarray(bset.curves, dtype=np.float64) * MM_TO_M
     origin = study_origin(collection, curves.reshape(-1, 3))
     local = curves - np.asarray(origin)
@@ -304,8 +296,6 @@ def build_mesh_object(mesh, collection, name: str, obj=None, smooth: bool = True
     faces, e.g. a cutaway change at the same resolution) only positions and
     attributes are rewritten, in place, with ``foreach_set``.
     """
-    import bpy
-
     world = np.asarray(mesh.vertices, dtype=np.float64) * MM_TO_M
     origin = study_origin(collection, world)
     local = world - np.asarray(origin)
@@ -388,8 +378,6 @@ def _set_ct_texture(obj, atlas: np.ndarray, corner_uv: np.ndarray, budget_px: fl
     one into an image up to :data:`ATLAS_REUSE_AREA` times its area, which grows to hold both shapes
     while that fits ``budget_px``; else the image takes the atlas's own size.
     """
-    import bpy
-
     me = obj.data
     h, w = atlas.shape[:2]
     name = f"PDE Head CT {obj.name}"
@@ -438,8 +426,6 @@ ATLAS_REUSE_AREA = 2.0
 def pack_ct_images() -> int:
     """Pack the CT atlas images changed since their last packing (``state.REGISTRY.unpacked_changes``; called
     before saving); returns the count."""
-    import bpy
-
     count = 0
     for name in sorted(state.REGISTRY.unpacked_changes):
         image = bpy.data.images.get(name)

@@ -25,10 +25,13 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Mapping
 
+import bpy
 import numpy as np
+from mathutils import Matrix
 
 from ...pdehead_addon import defaults as D
 from .. import compat
+from ..volume import material as volume_material, volume
 
 #: The named views; read-only (a figure that needs another direction passes it as ``view``, see
 #: :func:`view_basis`).
@@ -73,9 +76,6 @@ def world_bounds(objects, tight_volumes: bool = True) -> tuple[np.ndarray, np.nd
     box of its solid only (its file also holds the whole CT box, which is empty
     in that mode); in intensity-alpha mode the whole CT box counts.
     """
-    import bpy
-
-    from ..volume import material as volume_material, volume
 
     bpy.context.view_layer.update()
     pts = []
@@ -96,8 +96,6 @@ def world_bounds(objects, tight_volumes: bool = True) -> tuple[np.ndarray, np.nd
 
 
 def _camera_matrix(right, up, forward, position):
-    from mathutils import Matrix
-
     m = np.eye(4)
     m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = right, up, -forward, position  # camera looks along -Z
     return Matrix(m.tolist())
@@ -190,8 +188,6 @@ def render_objects_png(objects, path, view: str = D.VIEW.default, resolution=(16
     -------
     Path of the written PNG.
     """
-    import bpy
-
     scene = scene or bpy.context.scene
     objects = list(objects)
     right, up, forward = view_basis(view)

@@ -18,10 +18,13 @@
 """
 from __future__ import annotations
 
+import bpy
 import numpy as np
+from mathutils import Matrix
 
 from ...pdehead_addon import PDEHeadError, defaults as D
 from .. import state
+from . import render
 
 CAMERA_KIND = "camera"
 LIGHT_KIND = "key_light"
@@ -85,7 +88,6 @@ def _look_along(forward, up):
 
 
 def _matrix(rotation, position):
-    from mathutils import Matrix
     m = np.eye(4)
     m[:3, :3] = rotation
     m[:3, 3] = position
@@ -104,9 +106,6 @@ def frame_study(context, coll, show: str = D.SHOW.default, view: str = D.VIEW.de
     hide_cube : bool
         Hide the untouched startup cube.
     """
-    import bpy
-
-    from . import render
 
     scene = context.scene
     view_layer = context.view_layer
@@ -209,7 +208,6 @@ def fit_lens_to_render_size(cam, scene, tan_x: float, tan_y: float) -> None:
 
 def _frame_views(context, centre, distance, forward, up) -> int:
     """Point every 3D view of the open windows at the head along `forward`; returns how many."""
-    from mathutils import Matrix
     wm = getattr(context, "window_manager", None)
     count = 0
     for window in getattr(wm, "windows", []) or []:

@@ -22,14 +22,18 @@ stale object is hidden from that frame's render instead of showing the previous 
 """
 from __future__ import annotations
 
+import os
 import sys
 import traceback
+from math import tau
+from pathlib import Path
 
 import bpy
+from mathutils import Matrix
 
 from ...pdehead_addon import PDEHeadError
-from .. import state
-from ..scene import cutter
+from .. import compat, state
+from ..scene import cutter, render, scene as scene_mod
 from ..state import suspended_updates
 from ..volume import material as volume_material
 from .entity import Study
@@ -289,13 +293,7 @@ def turntable(context, coll, frames: int, start: int = 1):
     and key light (its fill light rides the camera) are parented to a pivot Empty "<study> Turntable" at the head's
     centre whose Z rotation is keyed linearly from 0 (frame ``start``) to 360° (frame ``start + frames``), so the
     frames ``start`` … ``start + frames - 1`` (the scene's new frame range) loop seamlessly. Returns the pivot."""
-    from math import tau
 
-    from mathutils import Matrix
-
-    from ...pdehead_addon import PDEHeadError
-    from .. import compat
-    from ..scene import render, scene as scene_mod
 
     if frames < 2:
         raise PDEHeadError(f"a turntable needs at least 2 frames, got {frames}")
@@ -350,9 +348,6 @@ def render_animation(scene, folder, resolution: tuple[int, int] = (320, 320), sa
     """Render the scene's frame range with Cycles (CPU) to ``folder/frame_0001.png`` …; returns the paths.
 
     ``folder`` is created if needed; an ``OSError`` says when it cannot be written."""
-    import os
-    from pathlib import Path
-
     folder = Path(os.fspath(folder))
     folder.mkdir(parents=True, exist_ok=True)
     if not os.access(folder, os.W_OK):

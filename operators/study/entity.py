@@ -15,12 +15,26 @@ What a study saves is unchanged (state.py's custom properties and settings objec
 from __future__ import annotations
 
 import base64
+import hashlib
 import json
+import math
 from pathlib import Path
 
 import bpy
+import numpy as np
 
-from ...pdehead_addon import PDEHeadError, StorageError
+from ...pdehead_addon import (
+    PDEHeadError,
+    SolidCTTable,
+    StorageError,
+    control_ranges,
+    dumps_boundaries,
+    intensity_window,
+    load_ct,
+    loads_boundaries,
+    make_phantom,
+    solve_with_controls,
+)
 from .. import state
 from ..forensic.study import ForensicStudy
 from ..scene import scene
@@ -40,7 +54,6 @@ MAX_TIMINGS_JSON_CHARS = 65536
 
 def parse_timings(text) -> dict[str, float]:
     """``{step: seconds}`` from the stored JSON, or {} for anything else (the .blend's state is data)."""
-    import math
     if not text or not isinstance(text, str) or len(text) > MAX_TIMINGS_JSON_CHARS:
         return {}
     try:
@@ -163,7 +176,6 @@ class Study(PipelineSteps, LiveSolid):
     @property
     def head(self):
         """The solved PDE head for the study's current controls (cached, re-solved on change)."""
-        from ...pdehead_addon import solve_with_controls
         cache = self.cache
         key = self.pde_key()
         if cache.head is None or cache.head_key != key:
@@ -252,7 +264,6 @@ class Study(PipelineSteps, LiveSolid):
 
     def store_boundaries(self, bset_or_head) -> int:
         """Store the boundary conditions in the collection (base64 custom property); returns bytes."""
-        from ...pdehead_addon import dumps_boundaries
         raw = dumps_boundaries(bset_or_head)
         self.collection[BOUNDARY_KEY] = base64.b64encode(raw).decode("ascii")
         return len(raw)
@@ -265,7 +276,6 @@ class Study(PipelineSteps, LiveSolid):
         text = self.collection.get(BOUNDARY_KEY)
         if not text:
             return None
-        from ...pdehead_addon import loads_boundaries
         try:
             raw = base64.b64decode(text.encode("ascii"), validate=True)
         except (ValueError, TypeError) as exc:
@@ -281,7 +291,6 @@ class Study(PipelineSteps, LiveSolid):
 
     def boundary_digest(self) -> str:
         """A short digest of the stored boundary conditions (which curves a CT table belongs to)."""
-        import hashlib
         return hashlib.sha1(str(self.collection.get(BOUNDARY_KEY, "")).encode("ascii", "replace")).hexdigest()[:16]
 
     def table_key(self) -> str:
@@ -308,7 +317,6 @@ class Study(PipelineSteps, LiveSolid):
         text = self.collection.get(CT_TABLE_KEY)
         if not text:
             return None
-        from ...pdehead_addon import SolidCTTable
         try:
             table, window = SolidCTTable.from_bytes(base64.b64decode(str(text).encode("ascii"), validate=True))
         except Exception as exc:  # noqa: BLE001 - a damaged table is as good as none; the CT can re-make it
@@ -359,13 +367,11 @@ class Study(PipelineSteps, LiveSolid):
         s = self.settings
         cache = self.cache
         if s.source_kind == "PHANTOM":
-            from ...pdehead_addon import make_phantom
             ct = make_phantom().ct
         elif s.source_kind == "FILES":
             path = self.resolve_source()
             if path is None:
                 raise PDEHeadError(self.source_missing_message())
-            from ...pdehead_addon import load_ct
             options = json.loads(s.load_options or "{}")
             for key in ("shape", "spacing", "resample_spacing"):
                 if isinstance(options.get(key), list):
@@ -430,7 +436,6 @@ class Study(PipelineSteps, LiveSolid):
         """
         table = self.current_ct_table()
         if table is None:
-            from ...pdehead_addon import SolidCTTable
             table = SolidCTTable(head, ct, progress=step_progress("solid"))
             self.cache.ct_table = (self.table_key(), table)
         return table
@@ -453,7 +458,6 @@ class Study(PipelineSteps, LiveSolid):
         """The study's CT intensity window (:func:`ct_volume.intensity_window`), computed once per CT."""
         cache = self.cache
         if cache.window is None:
-            from ...pdehead_addon import intensity_window
             cache.window = intensity_window(ct if ct is not None else self.ct)
         return cache.window
 
@@ -462,9 +466,6 @@ class Study(PipelineSteps, LiveSolid):
     def default_controls(self) -> tuple[float, float]:
         """The solver's default smoothing and approximation as fractions of the study's maxima (the
         values a slider starts from when its Auto box is cleared)."""
-        import numpy as np
-
-        from ...pdehead_addon import control_ranges
         s = self.settings
         modes = None if s.modes <= 0 else s.modes
         ranges = control_ranges(self.boundary_set(), self.continuity(), modes)

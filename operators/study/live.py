@@ -13,6 +13,7 @@ import traceback
 
 import bpy
 import numpy as np
+from mathutils import Matrix
 
 from ...pdehead_addon import PDEHeadError
 from .. import state
@@ -234,7 +235,6 @@ class LiveSolid:
 
         ``matrix``: the cutter's world matrix to cut with (default its own; the frame handler passes
         the one the render's depsgraph evaluated)."""
-        from mathutils import Matrix
         s = self.settings
         box = cutter.cutter_of(self.collection)
         if box is None:

@@ -28,14 +28,18 @@ file sent without its CT -- cutaways and nw are live at once (:meth:`.entity.Stu
 """
 from __future__ import annotations
 
+import json
+import math
 import os
+import traceback
 from pathlib import Path
 
 import bpy
 
 from .. import state
+from ..scene import objects
 from ..volume import vdb_files
-from .entity import Study
+from .entity import Study, parse_timings
 
 
 def _volume_objects() -> list:
@@ -103,7 +107,6 @@ MAX_RECORDED_VDB_FILES = 4096
 
 def _recorded_volume_files() -> set[str]:
     """The recorded .vdb files of the open file: only strings naming a ``.vdb`` (the record is data)."""
-    import json
     out: set[str] = set()
     for scene in bpy.data.scenes:
         try:
@@ -117,7 +120,6 @@ def _recorded_volume_files() -> set[str]:
 
 
 def _record_volume_files(paths) -> None:
-    import json
     text = json.dumps(sorted(paths))
     for scene in bpy.data.scenes:
         if scene.pdehead.vdb_files != text:
@@ -162,7 +164,6 @@ def pdehead_save_pre(filepath="", *_args) -> None:
     if not filepath:
         return
     try:
-        from ..scene import objects
         Study.flush_colour_refresh()  # a solid still waiting for its CT colours gets them before the save
         objects.pack_ct_images()  # live cutaways update the CT atlases without re-packing each step
         for coll in state.studies():  # the solid's CT table (8-bit) travels in the file: live without the CT
@@ -171,7 +172,6 @@ def pdehead_save_pre(filepath="", *_args) -> None:
         move_volumes_beside(filepath)
         record_volume_files()
     except Exception as exc:  # noqa: BLE001 - a handler must never stop the save
-        import traceback
         traceback.print_exc()
         print(f"PDE Head: could not prepare the study files for saving: {exc}")
 
@@ -212,7 +212,6 @@ def pdehead_volume_load_post(*_args) -> None:
 
 def _clamped(prop, value):
     """`value` of the int/float property `prop` within its limits (NaN: its default), or None if it is."""
-    import math
     lo, hi = prop.hard_min, prop.hard_max
     if isinstance(value, float) and math.isnan(value):
         return prop.default
@@ -247,7 +246,6 @@ def validate_study_settings(coll) -> list[str]:
                 if fixed is not None:
                     setattr(settings, name, fixed)
                     changed.append(f"{name} {value:g} -> {getattr(settings, name):g}")
-        from .entity import parse_timings
         if settings.timings_json and not parse_timings(settings.timings_json) and settings.timings_json != "{}":
             settings.timings_json = ""
             changed.append("timings (not a table of seconds) cleared")

@@ -17,6 +17,7 @@ from .. import state
 from ..scene import detail_map, objects, scene
 from ..state import suspended_updates
 from .entity import Study
+from .progress import EngineJob
 
 STEP_LABELS = {
     "import": "Import CT",
@@ -199,7 +200,6 @@ class PipelineRun:
             else:
                 study.keep_boundaries(result, job.seconds)
         elif on_thread and name in self.THREADED_STEPS and not (name == "boundaries" and self.study.cache.seg is None):
-            from .progress import EngineJob
             study = self.study
             self.job = EngineJob(study.segment_call() if name == "segment" else study.boundaries_call())
             return False

@@ -2,6 +2,10 @@
 callback each step passes on (:func:`step_progress`)."""
 from __future__ import annotations
 
+import threading
+import time
+
+from ...pdehead_addon import Cancelled
 from .. import state
 
 
@@ -37,8 +41,6 @@ class EngineJob:
     """
 
     def __init__(self, call):
-        import threading
-        import time
         self.fraction = 0.0
         self.message = ""
         self.cancel_requested = False
@@ -59,7 +61,6 @@ class EngineJob:
 
     def progress(self, fraction: float, message: str = "") -> None:
         if self.cancel_requested:
-            from ...pdehead_addon import Cancelled
             raise Cancelled("cancelled (Esc)")
         self.fraction, self.message = float(fraction), message
 

@@ -28,6 +28,7 @@ from bpy.props import (
 from ...pdehead_addon import defaults as D
 from .. import compat, state
 from ..forensic import face
+from ..volume.material import COLOUR_LABELS, COLOUR_PRESETS  # the presets' one owner
 from . import face_handler
 from .entity import Study
 
@@ -88,7 +89,6 @@ CONTINUITY_ITEMS = [
     ("paper", "Paper Patches", "The paper's t patches through four curves each; creased where they meet"),
 ]
 def _colour_items():
-    from ..volume.material import COLOUR_LABELS, COLOUR_PRESETS  # the presets' one owner
     return [(key, *COLOUR_LABELS.get(key, (key.title(), ""))) for key in COLOUR_PRESETS]
 
 

@@ -19,11 +19,23 @@ from __future__ import annotations
 import json
 import re
 import time
+import warnings
 from pathlib import Path
 
 import bpy
+import numpy as np
 
-from ...pdehead_addon import PDEHeadError, patches_for_scan
+from ...pdehead_addon import (
+    PDEHeadError,
+    SelectionWarning,
+    check_bone_level,
+    check_head_scan,
+    extract_boundaries,
+    load_ct,
+    make_phantom,
+    patches_for_scan,
+    segment_head,
+)
 from .. import prefs, state
 from ..outcome import BoundaryOutcome, StepOutcome
 from ..scene import detail_map, objects
@@ -68,7 +80,6 @@ def _study_name(ct, path: Path | None) -> str:
 def _ct_description(ct) -> tuple[dict, list[str]]:
     """The study settings that describe ``ct`` (dimensions, spacing, value range, series, modality)
     and the loader's warnings."""
-    import numpy as np
     meta = ct.meta or {}
     nz, ny, nx = ct.shape
     hu = meta.get("hu_range") or meta.get("value_range")
@@ -142,9 +153,6 @@ class PipelineSteps:
     @classmethod
     def import_ct(cls, context, path: Path, options: dict):
         """Load a CT from disk into a new study."""
-        import warnings
-
-        from ...pdehead_addon import check_head_scan, load_ct
         with state.Timer() as t, warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             ct = load_ct(path, **options)
@@ -160,7 +168,6 @@ class PipelineSteps:
     @classmethod
     def phantom(cls, context):
         """The built-in synthetic head as a new study."""
-        from ...pdehead_addon import make_phantom
         with state.Timer() as t:
             phantom = make_phantom()
         study = cls.create(context, phantom.ct, "Phantom", "PHANTOM")
@@ -186,7 +193,6 @@ class PipelineSteps:
     def segment_call(self):
         """The segmentation's engine call, ``call(progress) -> Segmentation``: it touches no Blender data,
         so the modal pipeline runs it on a worker thread (:class:`.progress.EngineJob`)."""
-        from ...pdehead_addon import check_bone_level, segment_head
         ct = self.ct
         if self.settings.use_bone_level and ct.meta.get("format") != "mesh":
             check_bone_level(ct, self.settings.bone_level)    # a level above the scan's bone: refused now
@@ -224,9 +230,6 @@ class PipelineSteps:
         """The boundary curves' engine call, ``call(progress) -> (BoundarySet, warnings)``, for the study's
         segmentation (which must exist): no Blender data inside, so the modal pipeline runs it on a worker
         thread (:class:`.progress.EngineJob`). A patch count the scan cannot give is corrected here."""
-        import warnings
-
-        from ...pdehead_addon import SelectionWarning, extract_boundaries
         s = self.settings
         seg = self.cache.seg
         tolerance = _selection_tolerance(s)

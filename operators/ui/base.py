@@ -13,7 +13,7 @@ import traceback
 
 from bpy.props import StringProperty
 
-from ...pdehead_addon import PDEHeadError
+from ...pdehead_addon import Cancelled, PDEHeadError
 from .. import state
 from ..state import NO_STUDY_MESSAGE, suspended_updates
 from ..study.entity import Study
@@ -22,7 +22,6 @@ from ..study.pipeline_run import Rollback
 
 def report_exception(op, exc: BaseException) -> None:
     """Report ``exc`` on ``op`` in the user's words (a bug: the traceback goes to the console)."""
-    from ...pdehead_addon import Cancelled
     if isinstance(exc, Cancelled):
         op.report({'WARNING'}, "PDE Head: cancelled; the study is as it was before")
     elif isinstance(exc, PDEHeadError):

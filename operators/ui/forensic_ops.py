@@ -14,8 +14,16 @@ import bpy
 import numpy as np
 from bpy.props import BoolProperty, EnumProperty, FloatVectorProperty, IntProperty, StringProperty
 from bpy.types import Operator, Panel
+from mathutils import Vector
 
-from ...pdehead_addon import STANDARD_LANDMARKS, PDEHeadError, defaults as D
+from ...pdehead_addon import (
+    STANDARD_LANDMARKS,
+    PDEHeadError,
+    default_table,
+    defaults as D,
+    read_depth_table,
+    write_landmark_csv,
+)
 from .. import state
 from ..forensic.export import PEG_DEPTH_PROP
 from ..forensic.face import FACE_KEY, HELD_PROP, LABEL_PROP, PROVENANCE_PROP, table_has_sex
@@ -147,7 +155,6 @@ class PDEHEAD_OT_place_landmark(Operator, _ForensicOp):
     forensic_settings = ("target",)
 
     def run_forensic(self, context, fs):
-        from mathutils import Vector
         world = Vector(self.location) if self.use_location else context.scene.cursor.location.copy()
         obj = fs.place_landmark(self.name, fs.world_to_patient(world), self.target)
         self.report({'INFO'}, f"{obj.name} at {np.round(obj['patient_mm'], 1).tolist()} mm")
@@ -216,7 +223,6 @@ class PDEHEAD_OT_import_depth_table(Operator, _LandmarkCSVOp):
         return super().invoke(context, event)
 
     def run_forensic(self, context, fs):
-        from ...pdehead_addon import default_table, read_depth_table
         if self.default_table or not self.filepath:
             table = default_table()
         else:
@@ -234,7 +240,6 @@ class PDEHEAD_OT_export_landmark_depths(Operator, _LandmarkCSVOp):
     default_name = "landmarks.csv"
 
     def run_forensic(self, context, fs):
-        from ...pdehead_addon import write_landmark_csv
         if not fs.landmarks():
             raise PDEHeadError("no landmarks placed yet")
         depths, flags, method = fs.outputs.measured_landmark_depths(fs.skull.skull_engine_mesh(self.target),

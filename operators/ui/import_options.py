@@ -10,6 +10,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import bpy
+import numpy as np
 from bpy.props import (
     BoolProperty,
     CollectionProperty,
@@ -21,7 +22,7 @@ from bpy.props import (
 )
 from bpy.types import OperatorFileListElement
 
-from ...pdehead_addon import CTImportError, defaults as D
+from ...pdehead_addon import CTImportError, defaults as D, series_of_file
 from ..study import props
 
 FORMAT_ITEMS = [
@@ -55,7 +56,6 @@ def dtype_string(dtype: str, byte_order: str) -> str:
 
 def parse_dtype_string(text: str) -> tuple[str, str]:
     """Inverse of :func:`dtype_string`: '>i2' -> ('i2', 'BIG'); '|u1' / 'uint8' -> ('u1', ...)."""
-    import numpy as np
     try:
         dt = np.dtype(text)
     except TypeError:
@@ -160,7 +160,6 @@ class LoaderOptions:
             options["series_uid"] = self.series_uid.strip()
         elif self.format in {"AUTO", "DICOM"} and self.filepath and not self.single_file:
             # one DICOM file chosen: the series it belongs to, from its folder (not the folder's largest)
-            from ...pdehead_addon import series_of_file
             uid = series_of_file(bpy.path.abspath(self.filepath))
             if uid:
                 options["series_uid"] = uid

@@ -14,7 +14,7 @@ from bpy.types import Operator
 from ...pdehead_addon import PDEHeadError, defaults as D
 from .. import state
 from ..scene import scene
-from ..study import pipeline_run, progress, props
+from ..study import animation, pipeline_run, progress, props
 from ..study.entity import Study
 from .base import GuardedOperator, StudyOperator, report_exception, set_status
 from .import_options import LoaderOptions, PDEHEAD_FH_import_ct, dropped_file_options
@@ -448,7 +448,6 @@ class PDEHEAD_OT_turntable(Operator, StudyOperator):
                         description=D.TURNTABLE_FRAMES.description)
 
     def run(self, context, study):
-        from ..study import animation
         pivot = animation.turntable(context, study.collection, self.frames, start=context.scene.frame_start)
         self.report({'INFO'}, turntable_report(study, pivot, self.frames))
 

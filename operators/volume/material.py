@@ -8,6 +8,7 @@ and the density scale change live without rewriting the file.
 """
 from __future__ import annotations
 
+import bpy
 import numpy as np
 
 from ...pdehead_addon import OUTSIDE_W, defaults as D
@@ -93,8 +94,6 @@ def ensure_eq24_group(name: str = GROUP_NAME):
     is 0 outside the solid (w = 2); every path ends in a clamp or a max with 0,
     so no negative density reaches Cycles.
     """
-    import bpy
-
     group = bpy.data.node_groups.get(name)
     if group is not None and group.bl_idname == "ShaderNodeTree" and group.get("pdehead_version") == 1:
         return group
@@ -216,8 +215,6 @@ def ensure_volume_material(obj=None, name: str | None = None):
     Color from ``Color Ramp`` over the group's Value) -> ``Material Output``
     Volume. Assigned to `obj` (slot 0) when given.
     """
-    import bpy
-
     mat = None
     if obj is not None and obj.material_slots and obj.material_slots[0].material is not None:
         mat = obj.material_slots[0].material

@@ -11,10 +11,15 @@ file is deleted after the next save that no longer references it (:func:`purge_s
 """
 from __future__ import annotations
 
+import filecmp
+import hashlib
 import os
 import tempfile
 from pathlib import Path
 
+import bpy
+
+from ...pdehead_addon import copy_checked
 from .. import state
 
 VDB_FOLDER_NAME = "pdehead_vdb"
@@ -40,9 +45,6 @@ def vdb_folder_for(blend_path: str | os.PathLike | None, prefs_folder: str | os.
 def _safe_name(text: str, fallback: str) -> str:
     """`text` as a file-name part without dots or separators; a changed name gets a short hash of the
     original, so that "CT head" and "CT_head" never share (and overwrite) one file."""
-    import hashlib
-
-    import bpy
 
     safe = bpy.path.clean_name(text) or fallback  # every character but [A-Za-z0-9_-] becomes "_"
     if safe != text:
@@ -102,8 +104,6 @@ def looks_like_vdb(path) -> bool:
 
 def blender_filepath(path: str | os.PathLike) -> str:
     """Path as Blender should store it: ``//...`` relative to the saved .blend when inside its folder."""
-    import bpy
-
     path = Path(os.fspath(path)).resolve()
     if bpy.data.filepath:
         blend_dir = Path(bpy.data.filepath).resolve().parent
@@ -148,8 +148,6 @@ def supersede(path) -> None:
 
 def referenced_vdb_files() -> set[str]:
     """Absolute paths of the .vdb files the Volume datablocks of the open file point at."""
-    import bpy
-
     out = set()
     for vol in bpy.data.volumes:
         if vol.filepath:
@@ -164,8 +162,6 @@ def purge_superseded() -> list[Path]:
     folder, those written by :func:`.vdb_grids.write_vdb` in this session (the preference folder of unsaved
     files).
     """
-    import bpy
-
     used = referenced_vdb_files()
     removed = []
     for text in sorted(state.REGISTRY.vdb_superseded):
@@ -194,8 +190,6 @@ def may_copy(src, blend_path=None) -> bool:
     """Whether PDE Head may copy the .vdb `src` for a save: a file in the ``pdehead_vdb`` folder of the
     open .blend (or of `blend_path`, the one being written), or one this session wrote; always a ``.vdb``
     that starts like an OpenVDB file (a path stored in a .blend is data: never ``/etc/passwd``)."""
-    import bpy
-
     src = Path(os.fspath(src))
     inside = in_vdb_folder(src, bpy.data.filepath) or in_vdb_folder(src, blend_path)
     return src.suffix == ".vdb" and (inside or str(src.resolve()) in state.REGISTRY.vdb_written) and looks_like_vdb(src)
@@ -205,8 +199,6 @@ def link_or_copy(src, dst) -> None:
     """Put a copy of `src` at the new name `dst` without ever overwriting: a hard link where the file
     system has them (instant, no space; each name deleted alone), else a checked copy
     (:func:`.safe_io.copy_checked`)."""
-    from ...pdehead_addon import copy_checked
-
     try:
         os.link(src, dst)
         return
@@ -235,9 +227,6 @@ def relocate_vdb(obj, folder=None, blend_path=None) -> Path | None:
     Blender writes it; the stored path is then relative to the *current* .blend, which
     Blender's relative-path remapping turns into ``//pdehead_vdb/...`` of the new one.
     """
-    import filecmp
-
-    import bpy
 
     if obj is None or obj.type != "VOLUME" or not obj.data.filepath:
         return None

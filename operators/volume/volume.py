@@ -35,10 +35,12 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import bpy
 import numpy as np
+from mathutils import Matrix
 
 from ...pdehead_addon import intensity_window
-from ..coords import grid_affine_world
+from ..coords import grid_affine_world, study_origin
 from .material import ensure_volume_material, set_volume_settings
 from .vdb_files import VDB_FOLDER_NAME, blender_filepath, fresh_vdb_path, supersede
 from .vdb_grids import REQUIRED_GRIDS, write_vdb
@@ -68,10 +70,6 @@ def build_volume(wfield, collection, vdb_path, name: str = "Volume", obj=None, *
     **settings
         Passed to :func:`set_volume_settings`.
     """
-    import bpy
-    from mathutils import Matrix
-
-    from ..coords import study_origin
 
     if window is None:
         if ct is not None:
@@ -148,8 +146,6 @@ def _grid_corners_world(wfield) -> np.ndarray:
 
 def check_volume(obj) -> str | None:
     """None if the Volume object's .vdb loads with grids w and intensity, else a message for the user."""
-    import bpy
-
     if obj is None or obj.type != "VOLUME":
         return "This is not a PDE Head volume object."
     data = obj.data

@@ -124,7 +124,7 @@ def test_live_parameters_after_reopen_without_resegmenting(ext, phantom_blend, m
 
     def no_segmentation(*args, **kwargs):
         raise AssertionError("live parameters must not re-segment")
-    monkeypatch.setattr(ext.engine, "segment_head", no_segmentation)
+    monkeypatch.setattr(ext.study.steps, "segment_head", no_segmentation)
     # (the CT itself is re-read from its source - here the phantom - for the solid's colours)
     s = coll.pdehead
     surf, solid = s.surface_object, s.solid_object
@@ -225,8 +225,8 @@ def test_engine_error_mid_pipeline_leaves_nothing(ext, tmp_path, monkeypatch):
 
     def failing(*args, **kwargs):
         raise ext.engine.BoundaryError("no usable slice: the head mask is empty")
-    monkeypatch.setattr(ext.engine, "extract_boundaries", failing)
-    monkeypatch.setattr(ext.engine, "segment_head", lambda ct, **kw: ext.engine.Segmentation(
+    monkeypatch.setattr(ext.study.steps, "extract_boundaries", failing)
+    monkeypatch.setattr(ext.study.steps, "segment_head", lambda ct, **kw: ext.engine.Segmentation(
         np.zeros(ct.shape, bool), np.zeros(ct.shape, np.float32), 0.0, 0.0, 0, ct))
     with pytest.raises(RuntimeError, match="no usable slice"):
         bpy.ops.pdehead.run_pipeline(source='PHANTOM')
@@ -282,7 +282,7 @@ def test_modal_pipeline_esc_stops_a_step_in_the_middle(ext, phantom, monkeypatch
             started.set()
             time.sleep(0.01)
         return ext.engine.Segmentation(phantom.head_mask, phantom.head_mask.astype(np.float32), 1.0, 0.0, 1, ct)
-    monkeypatch.setattr(ext.engine, "segment_head", slow_segmentation)
+    monkeypatch.setattr(ext.study.steps, "segment_head", slow_segmentation)
     op_cls, op, context, progress, reports = _modal_pipeline_op(ext)
     timer, esc = (SimpleNamespace(type=t) for t in ("TIMER", "ESC"))
     _tick_until_next_step(op_cls, op, context, timer)              # import
@@ -306,7 +306,7 @@ def test_modal_pipeline_error_on_the_thread_is_reported(ext, phantom, monkeypatc
 
     def failing_segmentation(ct, progress=None, **kw):
         raise ext.engine.PDEHeadError("no head found in this CT")
-    monkeypatch.setattr(ext.engine, "segment_head", failing_segmentation)
+    monkeypatch.setattr(ext.study.steps, "segment_head", failing_segmentation)
     op_cls, op, context, progress, reports = _modal_pipeline_op(ext)
     timer = SimpleNamespace(type="TIMER")
     _tick_until_next_step(op_cls, op, context, timer)              # import
@@ -325,7 +325,7 @@ def test_modal_pipeline_error_on_the_thread_is_reported(ext, phantom, monkeypatc
 def test_modal_pipeline_esc_removes_everything(ext, phantom, monkeypatch):
     """The UI path: one step per timer tick, progress, then Esc -> nothing of this run is left."""
     import bpy
-    monkeypatch.setattr(ext.engine, "segment_head", lambda ct, **kw: ext.engine.Segmentation(
+    monkeypatch.setattr(ext.study.steps, "segment_head", lambda ct, **kw: ext.engine.Segmentation(
         phantom.head_mask, phantom.head_mask.astype(np.float32), 1.0, 0.0, 1, ct))
     op_cls, op, context, progress, reports = _modal_pipeline_op(ext)
     timer, esc, mouse = (SimpleNamespace(type=t) for t in ("TIMER", "ESC", "MOUSEMOVE"))
