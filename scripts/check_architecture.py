@@ -31,7 +31,10 @@ Each measure and its target, over the shipped code (``pdehead_addon/``, ``operat
 13. mixins of the study entity classes (:data:`STUDY_ENTITIES`: ``Study``, ``ForensicStudy``): each base class
     they inherit methods from (target none: the parts are components the entity holds, ``fs.face``);
 14. CLI steps driven through operators: ``bpy.ops.pdehead.*`` calls and ``REGISTRY.last_exception`` reads in
-    ``scripts/pdehead.py`` (target none: it calls the study's methods and reports their outcomes).
+    ``scripts/pdehead.py`` (target none: it calls the study's methods and reports their outcomes);
+15. imports inside functions without a reason: an ``import`` in a function body whose lines carry no
+    ``# deferred: <why>`` comment (target none: imports sit at the module top unless a heavy or optional
+    dependency is deferred, and the comment says which and what it costs).
 
 ruff and pylint are pinned in requirements.txt; they are run as ``python -m ruff`` / ``python -m pylint``
 of the Python running this script.
@@ -488,6 +491,41 @@ def cli_operator_calls(file: str = "scripts/pdehead.py") -> list[dict]:
     return sorted(out, key=lambda i: i["line"])
 
 
+# ------------------------------------------------------------------------------------------- 15. deferred imports
+DEFERRED_REASON = re.compile(r"#\s*deferred:\s*\S")
+
+
+def _own_nodes(fn: ast.AST):
+    """The nodes of a function's body, not those of the functions nested in it (they are walked on their own)."""
+    stack = list(fn.body)
+    while stack:
+        node = stack.pop()
+        yield node
+        if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+            stack.extend(ast.iter_child_nodes(node))
+
+
+def unexplained_function_imports(folders=SHIPPED) -> list[dict]:
+    """Imports inside a function body (methods and nested functions too) with no ``# deferred: <why>``
+    comment on any of their lines."""
+    out = []
+    for path in python_files(*folders):
+        source = path.read_text(encoding="utf-8")
+        lines = source.splitlines()
+        for fn in ast.walk(ast.parse(source)):
+            if not isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            for node in _own_nodes(fn):
+                if not isinstance(node, (ast.Import, ast.ImportFrom)):
+                    continue
+                if not any(DEFERRED_REASON.search(lines[i - 1]) for i in range(node.lineno, node.end_lineno + 1)):
+                    names = ", ".join(a.name for a in node.names)
+                    what = f"from {'.' * node.level}{node.module or ''} import {names}" \
+                        if isinstance(node, ast.ImportFrom) else f"import {names}"
+                    out.append({"where": f"{rel(path)}:{node.lineno}", "function": fn.name, "import": what})
+    return sorted(out, key=lambda i: (i["where"].split(":")[0], int(i["where"].split(":")[1])))
+
+
 def measures() -> dict:
     return {
         "modules_over_limit": long_modules(),
@@ -508,6 +546,7 @@ def measures() -> dict:
         "ruff_ratchet_files": ruff_ratchet(),
         "study_entity_mixins": study_entity_mixins(),
         "cli_operator_calls": cli_operator_calls(),
+        "unexplained_function_imports": unexplained_function_imports(),
     }
 
 
@@ -554,6 +593,8 @@ def report(m: dict) -> str:
             lambda i: f"{i['class']}({i['base']})")
     section("CLI steps driven through operators (scripts/pdehead.py) [target 0]", m["cli_operator_calls"],
             lambda i: f"{i['where']} {i['name']}")
+    section("imports inside functions without a '# deferred: <why>' comment in pdehead_addon/ and operators/ "
+            "[target 0]", m["unexplained_function_imports"], lambda i: f"{i['where']} {i['function']}: {i['import']}")
     z = m["zip"]
     lines.append(f"the extension zip carries validation code [target no]: {'yes' if z['carries_validation'] else 'no'}"
                  + (f" ({', '.join(z['files'])})" if z["files"] else ""))
