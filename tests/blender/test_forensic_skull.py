@@ -130,7 +130,8 @@ def test_bone_level_field_and_export_builds_or_refuses(pdehead_ext, tmp_path, ph
     s.bone_level = 900.0
     assert fs.skull.skull_segmentation().meta["bone_level_stored"] == 900.0
     # a failure while writing leaves nothing behind (everything is written to a hidden folder first)
-    engine = __import__(f"{ext.__name__}.pdehead_addon", fromlist=["x"])   # the operators use its public names
+    # patched where the export step uses it (its module binds the engine's name when it loads)
+    engine = __import__(f"{ext.__name__}.operators.forensic.export", fromlist=["x"])
     saved = engine.write_landmark_csv
 
     def broken(*a, **k):
