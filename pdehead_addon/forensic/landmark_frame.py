@@ -18,12 +18,15 @@ SIDE_EXTREME_TOLERANCE_MM = 1.0
 class LandmarkFrame:
     """The bone resampled on a grid of a rigid frame: ``bone[ix, iy, iz]``, ``comp[...]`` labels."""
 
-    def __init__(self, ct, bone, labels, rot, centre, step):
+    def __init__(self, ct, bone, labels, rot, centre, step, phase=(0.0, 0.0, 0.0)):
         self.rot, self.centre, self.step = rot, centre, step   # frame = rot @ (patient - centre)
         pts = ct.index_to_patient(np.argwhere(bone)[:: max(1, int(bone.sum() // 200_000))].astype(float))
         f = (pts - centre) @ rot.T
         lo, hi = f.min(0) - 4 * step, f.max(0) + 4 * step
-        self.lo = np.floor(lo / step) * step
+        # the grid's nodes sit at multiples of the step from the centre, shifted by ``phase`` (a fraction of a
+        # step per axis): the same bone sampled on another grid (find_landmarks compares several)
+        phase = np.asarray(phase, float)
+        self.lo = (np.floor(lo / step) - (phase > 0) + phase) * step
         n = np.ceil((hi - self.lo) / step).astype(int) + 1
         self.shape = tuple(int(v) for v in n)
         ax = [self.lo[i] + step * np.arange(n[i]) for i in range(3)]
