@@ -260,6 +260,13 @@ def _landmarks_on_grid(ct, bone, labels, sizes, nlab, fr, fp_all, frank, info: d
     return _mandible_at_the_scan_end(ct, bone, labels, fr, mand_id, out, info)
 
 
+def _medoid(points: np.ndarray) -> tuple[int, np.ndarray]:
+    """The index of the point nearest all the others (least summed distance) and its distances to each."""
+    dist = np.linalg.norm(points[:, None] - points[None], axis=2)
+    best = int(np.argmin(dist.sum(axis=1)))
+    return best, dist[best]
+
+
 def _medoids(runs: list[dict[str, FoundLandmark]]) -> tuple[dict[str, FoundLandmark], dict[str, float]]:
     """One landmark set from the sets found on shifted grids: each landmark's medoid over the grids that found
     it (not found when at most half did), uncertain when the grids disagree; and each landmark's spread (mm)."""
@@ -271,11 +278,9 @@ def _medoids(runs: list[dict[str, FoundLandmark]]) -> tuple[dict[str, FoundLandm
         if 2 * len(hits) <= n:
             out[name] = next(r[name] for r in runs if r[name].point is None)
             continue
-        pts = np.array([h.point for h in hits])
-        dist = np.linalg.norm(pts[:, None] - pts[None], axis=2)
-        best = int(np.argmin(dist.sum(axis=1)))
+        best, dist = _medoid(np.array([h.point for h in hits]))
         lm = hits[best]
-        spread[name] = float(np.median(dist[best]))
+        spread[name] = float(np.median(dist))
         flag, ev = lm.flag, lm.evidence
         if flag == OK and spread[name] > PHASE_SPREAD_MM:
             flag, ev = UNCERTAIN, (f"the rule's point moves {spread[name]:.0f} mm when the bone is resampled on a "
@@ -408,8 +413,7 @@ def _frankfurt_frames(ct, bone, labels, c, x_ax, grid_mm: float, shifts, info: d
     for k in need:
         pts = [fr0.to_patient(fp_all[4][k]) for fr0, fp_all in first if fp_all[4].get(k) is not None]
         if 2 * len(pts) > len(first):
-            pts = np.array(pts)
-            pat[k] = pts[int(np.argmin(np.linalg.norm(pts[:, None] - pts[None], axis=2).sum(axis=1)))]
+            pat[k] = pts[_medoid(np.array(pts))[0]]
     frank = None
     if len(pat) == len(need):
         try:
