@@ -119,6 +119,20 @@ def test_cthead_landmarks_against_the_hand_placed_ones(cthead_ct):
     # midline there (the front-most bone of the symphysis spans x = 99..123, centre 110.8; measured 111.5-111.6)
     for name in ("Pogonion", "Gnathion", "Menton"):
         assert abs(search.landmarks[name].point[0] - 110.8) <= 1.0, (name, search.landmarks[name].point)
+    # bilateral landmarks mirror each other; a pair that does not is flagged whichever side is wrong (measured:
+    # mid-ramus L 22.6 mm from R's mirror image, the ok pairs at most 6.0 mm, inferior malar)
+    from pdehead_addon.forensic.face_pegs import midsagittal_plane, mirrored
+    from pdehead_addon.forensic.landmark_openings import MIRROR_TOLERANCE_MM
+    pts = search.points()
+    plane = midsagittal_plane(pts)
+    for side in "LR":
+        lm = search.landmarks[f"Mid-ramus {side}"]
+        assert lm.flag == UNCERTAIN and "mirror images" in lm.evidence, lm
+    for left in (n for n in pts if n.endswith(" L") and n[:-1] + "R" in pts):
+        right = left[:-1] + "R"
+        if search.landmarks[left].flag == OK and search.landmarks[right].flag == OK:
+            gap = float(np.linalg.norm(mirrored(pts[left], plane) - pts[right]))
+            assert gap <= MIRROR_TOLERANCE_MM, (left, gap)
 
 
 # measured (bench_landmarks.py): median 2.84 mm, largest ok 5.7 mm (subspinale: the thin cortex in front of the
@@ -128,6 +142,26 @@ def test_cthead_landmarks_against_the_hand_placed_ones(cthead_ct):
 # 10.6 -> 6.2 (the upper jaw stops at the incisors' edges), vertex 5.3 -> 4.6 (the vault's own midline).
 CTHEAD_MEDIAN_MM = 3.0
 CTHEAD_MAX_OK_MM = 6.0
+
+
+def test_every_bilateral_pair_is_checked_against_its_mirror_image():
+    """Not only porion and orbitale: any pair farther than MIRROR_TOLERANCE_MM from mirror images (x -> -x in the
+    landmark frame) has both sides uncertain with the reason; a nearer pair and a side already uncertain keep theirs."""
+    from pdehead_addon.forensic.auto_landmarks import _check_mirror_images
+    from pdehead_addon.forensic.landmark_openings import MIRROR_TOLERANCE_MM
+
+    far = MIRROR_TOLERANCE_MM + 8.0
+    found = {"mr_l": (np.array([40.0, 10.0, -30.0]), OK, ""), "mr_r": (np.array([-40.0, 10.0, -30.0 + far]), OK, ""),
+             "go_l": (np.array([45.0, 0.0, -60.0]), OK, ""), "go_r": (np.array([-44.0, 1.0, -57.0]), OK, ""),
+             "sc_l": (np.array([15.0, 60.0, -40.0]), UNCERTAIN, "own reason"),
+             "sc_r": (np.array([-15.0, 60.0, -40.0 - far]), OK, ""),
+             "im_l": (None, NOT_FOUND, "no bone"), "im_r": (np.array([-30.0, 40.0, -20.0]), OK, ""),
+             "n": (np.array([0.0, 80.0, 0.0]), OK, "")}
+    _check_mirror_images(found)
+    assert [found[k][1] for k in ("mr_l", "mr_r")] == [UNCERTAIN, UNCERTAIN]
+    assert all(f"{far:.0f} mm from mirror images" in found[k][2] for k in ("mr_l", "mr_r", "sc_r"))
+    assert found["sc_l"][1:] == (UNCERTAIN, "own reason")
+    assert found["go_l"][1] == found["go_r"][1] == found["im_r"][1] == found["n"][1] == OK
 
 
 def test_every_landmark_has_a_written_rule():
