@@ -105,6 +105,17 @@ class DepthField:
         shape = self.profile.shape
         return self.limited_field((base_g + corr).reshape(shape), base_g.reshape(shape), xs, target)
 
+    def through_sites(self, radius: np.ndarray, tips: np.ndarray, held=None) -> np.ndarray:
+        """``radius`` (K, M) put back through the field sites at ``tips`` by the field's own narrow correction
+        (:meth:`correction_weights`: damped and held as the field is): what a smoothing of the face took off a tip,
+        a bump as wide as the field's, is put back."""
+        g = self.grid
+        z, th, r = g.polar(self.field_sites(tips))
+        xs = self.cylinder_points(z, th)
+        w = self.correction_weights(xs, r - g.sample(radius, z, th), self.held_sites(held))
+        return radius + (peg_kernel(self._grid_xyz, xs, NARROW_FRACTION * self.options["spread_mm"]) @ w).reshape(
+            radius.shape)
+
     def limited_field(self, field: np.ndarray, base: np.ndarray, xs: np.ndarray, target: np.ndarray) -> np.ndarray:
         """The field (K, M) kept within the blends of ``base`` with the sites' ``target``
         (:data:`LIMIT_RADIUS_FRACTION`); one place for :meth:`_offset_field` and the live path (sites ``xs`` on the

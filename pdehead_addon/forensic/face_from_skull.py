@@ -29,7 +29,9 @@ skull's centroid: a row every ``row_mm`` of height, a column every ``360 / colum
 4. *Prediction rules* for what a depth field cannot make (:mod:`.face_features`, each cited there): the nose
    from the nasal aperture and the nasal length, the closed eyes in the orbits, the mouth from the teeth and the
    canines, a default ear at each porion.
-5. *The face*: profile + depth field + nose + lips + eyes + ears = radius per bin, never below the bone floor
+5. *The skin smoothed* (:mod:`.face_skin`): profile + depth field, smoothed over the surface below the brows
+   (a twiced Gaussian): neither the profile's row steps nor the field's swings between neighbouring pegs are a skin's.
+6. *The face*: that + nose + lips + eyes + ears = radius per bin, never below the bone floor
    (:func:`.face_profile.bone_floor`: the outermost bone plus :data:`.defaults.FACE_MIN_TISSUE_MM`, so no bone comes
    through the face), the pegs the practitioner holds put back on it (:meth:`FaceModel._held_on_face`); each row
    is a closed boundary curve (a skull without a mandible: the rows tilted to end along the scan's cut,
@@ -102,6 +104,7 @@ from .face_profile import (
     surface_smooth,
     tilted_rows,
 )
+from .face_skin import brow_weight, smooth_skin
 from .landmarks import marker_pegs
 
 APPROXIMATION_LABEL = D.FACE_LABEL
@@ -465,7 +468,7 @@ class FaceModel(DepthField):
         """The face's radius (K, M) over the profile: the tissue-depth ``offset`` field, then what a depth
         field cannot make (the nose, the lips, the ears), then the pegs ``held`` put back on the face
         (:meth:`_held_on_face`). One place for :meth:`solve` and the live path."""
-        radius = self.profile + offset
+        radius = self._smooth_face(self.profile + offset, tips, held)
         cols, front = self._front()
         face = self._cheeks(radius[:, cols], front)
         bump = self._nose_bump(face, tips, front)
@@ -486,6 +489,15 @@ class FaceModel(DepthField):
         if floor is not None:                       # last: nothing after it may bring the bone through the face
             radius = smooth_max(radius, floor, LIMIT_SOFT_MM)
         return radius
+
+    def _smooth_face(self, radius: np.ndarray, tips: np.ndarray, held=None) -> np.ndarray:
+        """``radius`` (the profile plus the depth field) smoothed below the brows (:func:`.face_skin.smooth_skin`),
+        then put back through the peg tips as the field passes through them (:meth:`through_sites`)."""
+        if "_smooth_w" not in self.__dict__:                 # fixed by the skull: computed once
+            self.__dict__["_smooth_w"] = brow_weight(self.grid.z, getattr(self, "landmarks_used", None) or {})
+        smooth = smooth_skin(radius, self.grid, self.__dict__["_smooth_w"], self.__dict__.get("bone_floor"),
+                             rho=np.median(self.profile, axis=1))
+        return radius if smooth is radius else self.through_sites(smooth, tips, held)
 
     def _held_on_face(self, radius: np.ndarray, tips: np.ndarray, held) -> np.ndarray:
         """``radius`` with the held pegs' tips put back on it: the shape rules (the nose, the lips, the eyes, the

@@ -45,7 +45,8 @@ EXACT_TOLERANCE_MM = 1e-6
 #: What :func:`model_state` does not keep: the sites of the field's grid (made again from the grid), the
 #: ears' radial bumps (made again from the landmarks kept, in milliseconds), and what the pegs' report
 #: (:mod:`.face_pegs`) caches or reads from the last solve.
-_DERIVED = ("_grid_xyz", "_ears", "_front_grid", "_site_disagreement", "_last_limit_shift", "_tip_distance")
+_DERIVED = ("_grid_xyz", "_ears", "_front_grid", "_site_disagreement", "_last_limit_shift", "_tip_distance",
+            "_smooth_w")
 #: What :func:`model_state` keeps in single precision: the face's UV layout (texture coordinates need no
 #: more; it is half of the text otherwise: 0.56 of 1.14 MB on the phantom), and the bone's raw radius map and its
 #: closed hull (what the live face does not read: the raw map is kept for the record, the hull for the
@@ -60,8 +61,9 @@ _CENTI_MM = ("bone_floor",)
 _DROPPED = ("raw",)
 #: Format of :func:`model_state` (a reader refuses other formats: the caller prepares the model again). 2: the
 #: bone floor (on GE a kept model without it would let the bone through the face). 3: the scan's cut plane (a
-#: skull without a mandible: the face ends along it).
-STATE_FORMAT = 3
+#: skull without a mandible: the face ends along it). 4: the skin smoothed below the brows (:mod:`.face_skin`): a
+#: model kept before would solve to a face other than the one it was saved with.
+STATE_FORMAT = 4
 
 
 # ------------------------------------------------------------------------------------------ fast solve

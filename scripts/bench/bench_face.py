@@ -476,6 +476,12 @@ CONSTANT_CHOICE = {
     "face_field.RULE_DEPTH_MM": "published (T-Table 2023 vertex 5.0 / opisthocranion 6.0 mm)",
     "face_field.RULE_WEIGHT / NARROW_FRACTION / RBF_REGULARISATION": "renders (smoothness), phantom",
     "face_field.DAMP_FREE_MM / DAMP_SCALE_MM": "CThead score (60.1 -> 62.0 %)",
+    "face_skin.FACE_SMOOTH_MM / FACE_SMOOTH_TOP_MM (the skin smoothed below the brows, twiced; the tips put back by "
+    "the field's correction)": "definition (the width of the field's own narrow Gaussians, NARROW_FRACTION x "
+    "FACE_SPREAD_MM = 11 mm; the brows' height), checked on renders of the phantom, GE and CThead (8 / 12 / 16 / "
+    "20 mm without the tips put back: from 16 a flat mask with bands at the jaw; GE's and the phantom's scores "
+    "alone would have taken 20: 57.2 / 44.1 %). Within +-2.5 mm off -> on (dev runs): GE 54.4 -> 55.8, the phantom "
+    "42.5 -> 42.9, CThead 1500 / 1600 / automatic 53.1 / 53.6 / 59.9 -> 51.7 / 52.3 / 59.6 %",
     "face_from_skull.CHEEK_SPAN_DEG / CHEEK_RAMP_MM": "CThead score (its error map: 63.0 -> 63.2 %)",
     "face_from_skull.ALAR_DEFINITION_TOLERANCE_MM / MID_RAMUS_FRACTION": "definition (T-Table landmark definitions)",
     "defaults.FACE_SPREAD_MM": "renders",

@@ -575,7 +575,7 @@ def test_features_made_on_the_front_columns_alone_are_those_of_the_whole_grid(mo
     """The nose, the lips and the eyes are made on the front columns only (live speed): the face's radius is
     the same, to the bit, as with each feature made over every column (they are zero behind the front)."""
     offset = model._offset_field(face.tips)
-    radius = model.profile + offset
+    radius = model._smooth_face(model.profile + offset, face.tips)   # the skin smoothed, the tips put back
     cols, front = model._front()
     radius[:, cols] = model._cheeks(radius[:, cols], front)          # the convex cheeks: on the front columns
     for feature in (lambda r: model._nose_bump(r, face.tips), model._mouth_shape, model._eye_shape):
