@@ -113,8 +113,12 @@ class DepthField:
         z, th, r = g.polar(self.field_sites(tips))
         xs = self.cylinder_points(z, th)
         w = self.correction_weights(xs, r - g.sample(radius, z, th), self.held_sites(held))
-        return radius + (peg_kernel(self._grid_xyz, xs, NARROW_FRACTION * self.options["spread_mm"]) @ w).reshape(
-            radius.shape)
+        # the Gaussians on the cylinder separate into rows x sites and columns x sites (the live face's speed)
+        s2 = (NARROW_FRACTION * float(self.options["spread_mm"])) ** 2
+        ring = self.cylinder_points(np.zeros(len(g.theta)), g.theta)[:, :2]
+        along = np.exp(-(g.z[:, None] - z[None, :]) ** 2 / s2)                                  # (K, n)
+        around = np.exp(-((ring[:, None, :] - xs[None, :, :2]) ** 2).sum(-1) / s2)              # (M, n)
+        return radius + (along * w) @ around.T
 
     def limited_field(self, field: np.ndarray, base: np.ndarray, xs: np.ndarray, target: np.ndarray) -> np.ndarray:
         """The field (K, M) kept within the blends of ``base`` with the sites' ``target``

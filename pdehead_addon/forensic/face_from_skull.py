@@ -493,10 +493,11 @@ class FaceModel(DepthField):
     def _smooth_face(self, radius: np.ndarray, tips: np.ndarray, held=None) -> np.ndarray:
         """``radius`` (the profile plus the depth field) smoothed below the brows (:func:`.face_skin.smooth_skin`),
         then put back through the peg tips as the field passes through them (:meth:`through_sites`)."""
-        if "_smooth_w" not in self.__dict__:                 # fixed by the skull: computed once
-            self.__dict__["_smooth_w"] = brow_weight(self.grid.z, getattr(self, "landmarks_used", None) or {})
-        smooth = smooth_skin(radius, self.grid, self.__dict__["_smooth_w"], self.__dict__.get("bone_floor"),
-                             rho=np.median(self.profile, axis=1))
+        if "_smooth_w" not in self.__dict__:      # fixed by the skull: computed once (the rows' weights and radii)
+            self.__dict__["_smooth_w"] = (brow_weight(self.grid.z, getattr(self, "landmarks_used", None) or {}),
+                                          np.median(self.profile, axis=1))
+        weight, rho = self.__dict__["_smooth_w"]
+        smooth = smooth_skin(radius, self.grid, weight, self.__dict__.get("bone_floor"), rho=rho)
         return radius if smooth is radius else self.through_sites(smooth, tips, held)
 
     def _held_on_face(self, radius: np.ndarray, tips: np.ndarray, held) -> np.ndarray:
