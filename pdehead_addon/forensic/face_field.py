@@ -113,12 +113,17 @@ class DepthField:
         z, th, r = g.polar(self.field_sites(tips))
         xs = self.cylinder_points(z, th)
         w = self.correction_weights(xs, r - g.sample(radius, z, th), self.held_sites(held))
-        # the Gaussians on the cylinder separate into rows x sites and columns x sites (the live face's speed)
+        along, around = self.site_distances(xs)
         s2 = (NARROW_FRACTION * float(self.options["spread_mm"])) ** 2
+        return radius + (np.exp(-along / s2) * w) @ np.exp(-around / s2).T
+
+    def site_distances(self, xs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Squared distances (mm^2) from the grid to the sites ``xs`` on the field's cylinder, separated: along the
+        height (K, n: rows x sites) and around (M, n: columns' chords x sites). A Gaussian of their sum is the product
+        of a Gaussian of each (one place for :meth:`through_sites` and the live face's field)."""
+        g = self.grid
         ring = self.cylinder_points(np.zeros(len(g.theta)), g.theta)[:, :2]
-        along = np.exp(-(g.z[:, None] - z[None, :]) ** 2 / s2)                                  # (K, n)
-        around = np.exp(-((ring[:, None, :] - xs[None, :, :2]) ** 2).sum(-1) / s2)              # (M, n)
-        return radius + (along * w) @ around.T
+        return (g.z[:, None] - xs[None, :, 2]) ** 2, ((ring[:, None, :] - xs[None, :, :2]) ** 2).sum(-1)
 
     def limited_field(self, field: np.ndarray, base: np.ndarray, xs: np.ndarray, target: np.ndarray) -> np.ndarray:
         """The field (K, M) kept within the blends of ``base`` with the sites' ``target``

@@ -106,10 +106,6 @@ class LiveFace:
         if check or (nu_, self.nv) not in model.__dict__.get("_cap_refs", {}) or "_pde_fixed" not in model.__dict__:
             ref = model.solve(nu=self.nu, nv=self.nv)                  # fixes _pde_fixed and the cap counts
         self.vertex_count = len(ref.mesh.vertices) if ref is not None else None
-        g = model.grid
-        self._rho = float(model.cylinder_points(np.zeros(1), np.zeros(1))[0, 1])  # the model's site cylinder
-        self._grid_z = np.asarray(g.z, float)
-        self._ring = self._rho * np.stack([np.sin(g.theta), np.cos(g.theta)], axis=-1)   # (M, 2)
         self._u = np.linspace(0.0, 1.0, nu_)[:-1]
         self._cap_ref = model.__dict__.get("_cap_refs", {}).get((nu_, self.nv))
         if not check:             # the caller checks (a model kept in a file: against the saved face)
@@ -141,8 +137,7 @@ class LiveFace:
         target = r - g.sample(m.profile, z, th)
         xs = m.cylinder_points(z, th)
         sigma = float(m.options["spread_mm"])
-        dz2 = (self._grid_z[:, None] - z[None, :]) ** 2                          # (K, n)
-        dc2 = ((self._ring[:, None, :] - xs[None, :, :2]) ** 2).sum(-1)         # (M, n)
+        dz2, dc2 = m.site_distances(xs)                                        # (K, n), (M, n)
         Ws = F.peg_kernel(xs, xs, sigma)
         Ez, Et = _gauss(dz2, sigma), _gauss(dc2, sigma)
         EtT = np.ascontiguousarray(Et.T)                      # small_matmul: BLAS threads cost more than these products
