@@ -492,13 +492,17 @@ class FaceModel(DepthField):
 
     def _smooth_face(self, radius: np.ndarray, tips: np.ndarray, held=None) -> np.ndarray:
         """``radius`` (the profile plus the depth field) smoothed below the brows (:func:`.face_skin.smooth_skin`),
-        then put back through the peg tips as the field passes through them (:meth:`through_sites`)."""
+        then put back through the peg tips as the field passes through them (:meth:`through_sites`), each as closely
+        as the table's SD at it allows (:meth:`tip_slack`)."""
         if "_smooth_w" not in self.__dict__:      # fixed by the skull: computed once (the rows' weights and radii)
             self.__dict__["_smooth_w"] = (brow_weight(self.grid.z, getattr(self, "landmarks_used", None) or {}),
                                           np.median(self.profile, axis=1))
         weight, rho = self.__dict__["_smooth_w"]
-        smooth = smooth_skin(radius, self.grid, weight, self.__dict__.get("bone_floor"), rho=rho)
-        return radius if smooth is radius else self.through_sites(smooth, tips, held)
+
+        def smoothed(r):
+            return smooth_skin(r, self.grid, weight, self.__dict__.get("bone_floor"), rho=rho)
+        smooth = smoothed(radius)
+        return radius if smooth is radius else self.through_sites(smooth, tips, held, self.tip_slack(smoothed))
 
     def _held_on_face(self, radius: np.ndarray, tips: np.ndarray, held) -> np.ndarray:
         """``radius`` with the held pegs' tips put back on it: the shape rules (the nose, the lips, the eyes, the

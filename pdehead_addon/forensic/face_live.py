@@ -46,7 +46,7 @@ EXACT_TOLERANCE_MM = 1e-6
 #: ears' radial bumps (made again from the landmarks kept, in milliseconds), and what the pegs' report
 #: (:mod:`.face_pegs`) caches or reads from the last solve.
 _DERIVED = ("_grid_xyz", "_ears", "_front_grid", "_site_disagreement", "_last_limit_shift", "_tip_distance",
-            "_smooth_w")
+            "_smooth_w", "_tip_slack")
 #: What :func:`model_state` keeps in single precision: the face's UV layout (texture coordinates need no
 #: more; it is half of the text otherwise: 0.56 of 1.14 MB on the phantom), and the bone's raw radius map and its
 #: closed hull (what the live face does not read: the raw map is kept for the record, the hull for the
@@ -62,8 +62,10 @@ _DROPPED = ("raw",)
 #: Format of :func:`model_state` (a reader refuses other formats: the caller prepares the model again). 2: the
 #: bone floor (on GE a kept model without it would let the bone through the face). 3: the scan's cut plane (a
 #: skull without a mandible: the face ends along it). 4: the skin smoothed below the brows (:mod:`.face_skin`): a
-#: model kept before would solve to a face other than the one it was saved with.
-STATE_FORMAT = 4
+#: model kept before would solve to a face other than the one it was saved with. 5: the skin under the chin
+#: (:mod:`.face_neck`) and the tips put back as closely as the table's SD allows
+#: (:meth:`.face_field.DepthField.tip_slack`).
+STATE_FORMAT = 5
 
 
 # ------------------------------------------------------------------------------------------ fast solve

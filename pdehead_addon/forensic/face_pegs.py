@@ -56,6 +56,9 @@ class PegReport:
         The pegs the practitioner holds (followed exactly whatever the automatic rule says).
     warnings : list of dict
         ``{"peg", "kind" ("into_bone" / "far"), "text"}``, one per implausible peg and cause.
+    sd_mm : ndarray or None
+        The table's SD at each peg's landmark: an automatic peg's tip is met as closely as it allows
+        (:meth:`.face_field.DepthField.tip_slack`).
     """
 
     names: list
@@ -67,6 +70,7 @@ class PegReport:
     limited_mm: np.ndarray
     held: np.ndarray
     warnings: list = field(default_factory=list)
+    sd_mm: np.ndarray | None = None
 
     def why(self, i: int) -> str:
         """Why peg ``i``'s tip is off the face, in words."""
@@ -76,6 +80,9 @@ class PegReport:
             return f"damped: disagrees with its neighbours by {self.disagreement_mm[i]:.1f} mm"
         if abs(self.limited_mm[i]) > LIMITED_MM:
             return f"limited: the field kept {abs(self.limited_mm[i]):.1f} mm from overshooting"
+        sd = np.nan if self.sd_mm is None else float(self.sd_mm[i])
+        if np.isfinite(sd) and self.tip_to_face_mm[i] <= sd:
+            return f"smoothed: within the table's SD ({sd:.1f} mm) of its mean; hold it to meet the tip"
         if not np.isfinite(self.disagreement_mm[i]):
             return "above the rows: the dome over the vault"
         return "shaped: the nose, lips, cheeks or the surface between the rows"
@@ -209,7 +216,8 @@ def peg_report(model, tips: np.ndarray, vertices: np.ndarray, held=None, nu: int
             warnings.append({"peg": names[i], "kind": "held_off_face",
                              "text": f"{names[i]}: held, but the face stays {dist[i]:.1f} mm from its tip (the face "
                                      f"keeps at least {D.FACE_MIN_TISSUE_MM.default:g} mm over the bone)"})
-    return PegReport(names, dist, depth, drift, disagreement, damping, limited, held, warnings)
+    return PegReport(names, dist, depth, drift, disagreement, damping, limited, held, warnings,
+                     np.asarray(model.depth_sd, float))
 
 
 def peg_warnings(names: list, depth: np.ndarray, drift: np.ndarray, mean: np.ndarray, sd: np.ndarray) -> list[dict]:

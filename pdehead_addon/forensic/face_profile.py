@@ -19,15 +19,8 @@ from scipy.spatial import ConvexHull, cKDTree
 
 from ..core.mesh import Mesh
 from .face_envelope import envelope_radius
+from .face_neck import neck_fill, neck_slope
 
-#: The neck below the skull: radius (mm) of the neck about its axis, which lies this far behind the skull's centroid
-#: axis. Adult neck circumference ~ 36-40 cm (anthropometric surveys, e.g. Ben-Noun et al. 2001, Obesity Research
-#: 9(8):470-477: men 38.0 cm, women 32.5 cm mean; cited from memory of that survey, not re-read) -> radius ~ 55-60 mm.
-#: It shapes only the neck, outside the scored face.
-NECK_RADIUS_MM = 57.0
-NECK_BEHIND_MM = 12.0
-#: How fast the neck recedes below the skull base (mm per mm of height: 0.8 ~ a 40 degree slope).
-NECK_SLOPE = 0.8
 #: The bone's radius map is made on at most this many columns (2 degrees) and interpolated to the face's grid (finer
 #: bins meet no bone vertex on a coarse skull mesh: GE 29 % within +-2.5 mm on 360 columns, 35 % on 180).
 PROFILE_COLUMNS = 180
@@ -143,7 +136,7 @@ def bone_profile(skull: Mesh, grid: FaceGrid, base_z: float | None = None,
 
     1. per bin the outermost skull vertex (NaN where the ray meets no bone);
     2. gaps inside a column are interpolated along the height; below ``base_z`` (the skull base) the neck
-       rule of :func:`_neck_fill`;
+       rule of :func:`.face_neck.neck_fill`;
     3. per row the 2-D convex hull of the ring: the envelope a skin stretched over the bone would take
        across the orbits, the nasal aperture, the temporal fossae and the cheeks (between the zygoma and
        the mandible), where no depth is measured;
@@ -170,9 +163,9 @@ def bone_profile(skull: Mesh, grid: FaceGrid, base_z: float | None = None,
     raw = outermost_bone(skull, grid)
     raw[~np.isfinite(raw)] = np.nan
     if PROFILE_3D:
-        closed = _neck_fill(envelope_radius(skull, grid, ENVELOPE_CLOSING_MM), grid, base_z)
+        closed = neck_fill(envelope_radius(skull, grid, ENVELOPE_CLOSING_MM), grid, base_z)
     else:
-        filled = _neck_fill(raw, grid, base_z)
+        filled = neck_fill(raw, grid, base_z)
         hull = _row_hulls(filled, grid.theta)
         kz = max(1, int(round(closing_mm / dz)))
         pad = kz
@@ -234,7 +227,7 @@ def outermost_bone(skull: Mesh, grid: FaceGrid) -> np.ndarray:
 def bone_floor(skull: Mesh, grid: FaceGrid, min_tissue_mm: float) -> np.ndarray:
     """(K, M) the least radius the face may have in each bin of ``grid``: the outermost skull vertex in the bin
     and the columns on either side (:func:`outermost_bone`), plus ``min_tissue_mm``; below the bone, receding
-    no faster than the neck (:data:`NECK_SLOPE` mm per mm of height); 0 where no bone is above.
+    no faster than the neck (:func:`.face_neck.neck_slope` mm per mm of height); 0 where no bone is above.
 
     Why: the closed profile's smoothing lowers the bone's peaks (the maxilla's front, the zygomas) and the depth
     field may go below zero between the pegs, so without a floor the face cut through the bone (GE's maxilla:
@@ -249,8 +242,9 @@ def bone_floor(skull: Mesh, grid: FaceGrid, min_tissue_mm: float) -> np.ndarray:
     floor = np.where(np.isfinite(near), near + float(min_tissue_mm), 0.0)
     dz = float(grid.z[1] - grid.z[0])
     receding = floor.copy()
+    recede = neck_slope(grid.theta) * dz
     for k in range(len(grid.z) - 2, -1, -1):                 # downward: per row, vectorised over the columns
-        np.maximum(receding[k], receding[k + 1] - NECK_SLOPE * dz, out=receding[k])
+        np.maximum(receding[k], receding[k + 1] - recede, out=receding[k])
     # the recession smoothed (each column's bone ends at its own height: unsmoothed, vertical ridges); only
     # the cosmetic recession is smoothed, the bone's own floor is kept as it is (the guarantee)
     receding = ndimage.gaussian_filter(receding, sigma=(FLOOR_SMOOTH_MM / dz, _columns(FLOOR_SMOOTH_DEG, grid)),
@@ -502,46 +496,6 @@ def _row_hulls(radius: np.ndarray, theta: np.ndarray) -> np.ndarray:
             with np.errstate(divide="ignore", invalid="ignore"):
                 t = np.where(np.abs(den) > 1e-12, num / den, radius[k, span])
             out[k, span] = np.maximum(radius[k, span], np.where(np.isfinite(t) & (t > 0), t, radius[k, span]))
-    return out
-
-
-def _neck_fill(raw: np.ndarray, grid: FaceGrid, base_z: float | None = None) -> np.ndarray:
-    """Fill bins that meet no bone, and shape the neck below the skull base.
-
-    Gaps inside a column are interpolated along the height; above the skull's top row the top is
-    repeated. Below ``base_z`` (the skull base) the rays meet the mandible, the mastoids and what is
-    left of the upper cervical spine, none of which is the neck's outline: there each column keeps its
-    bone where the bone lies further out, and otherwise recedes from the row above by at most
-    :data:`NECK_SLOPE` mm per mm of height (the occiput's curve into the nape, the chin's into the
-    throat) down to the neck, a circle of :data:`NECK_RADIUS_MM` about an axis :data:`NECK_BEHIND_MM`
-    behind the skull's axis. A rule, not a measurement of this head.
-    """
-    K, M = raw.shape
-    out = raw.copy()
-    good = np.isfinite(out)
-    rows = np.arange(K)
-    for j in np.nonzero(good.sum(0) >= 2)[0]:                 # gaps inside a column (per column: 180 at most)
-        gi = np.nonzero(good[:, j])[0]
-        inside = (rows >= gi[0]) & (rows <= gi[-1])
-        out[inside, j] = np.interp(rows[inside], gi, out[gi, j])
-    th = grid.theta
-    b = NECK_BEHIND_MM
-    neck = b * np.cos(th) + np.sqrt(np.maximum(NECK_RADIUS_MM ** 2 - (b * np.sin(th)) ** 2, 1.0))
-    dz = grid.z[1] - grid.z[0]
-    top = int(np.nonzero(np.isfinite(out).any(1))[0].max()) if np.isfinite(out).any() else K - 1
-    kb = top if base_z is None else int(np.clip(np.floor((base_z - grid.z[0]) / dz), 0, top))
-    for k in range(kb - 1, -1, -1):                           # downward from the skull base
-        above = out[k + 1]
-        bone = np.where(np.isfinite(out[k]), out[k], -np.inf)
-        out[k] = np.maximum(bone, np.maximum(np.minimum(above, neck), above - NECK_SLOPE * dz))
-    for k in range(1, K):                                     # above the top: repeat
-        miss = ~np.isfinite(out[k]) & np.isfinite(out[k - 1])
-        out[k, miss] = out[k - 1, miss]
-    for k in range(K - 2, -1, -1):
-        miss = ~np.isfinite(out[k]) & np.isfinite(out[k + 1])
-        out[k, miss] = out[k + 1, miss]
-    if not np.all(np.isfinite(out)):
-        out[~np.isfinite(out)] = NECK_RADIUS_MM
     return out
 
 

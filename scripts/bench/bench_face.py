@@ -433,7 +433,10 @@ CONSTANT_CHOICE = {
     "52.7 -> 53.1, 1600 55.2 -> 53.6, automatic 58.1 -> 59.9, GE 49.9 -> 54.4, the phantom 42.2 -> 42.5 %; four grids "
     "gave 53.1 / 54.7 / 59.2, GE 57.4 %, but CThead's landmarks 3.18 mm (median) from the hand-placed ones against "
     "2.83 on one grid and 2.72 on five",
-    "face_profile.NECK_RADIUS_MM / NECK_SLOPE": "published (neck circumference, Ben-Noun et al. 2001) / renders",
+    "face_neck.NECK_RADIUS_MM / NECK_SLOPE": "published (neck circumference, Ben-Noun et al. 2001) / renders",
+    "face_neck.LOWER_FACE_THROAT_DEG (the skin under the chin)": "published (Celebi et al. 2013, Legan and Burstone's "
+    "lower face-throat angle, 105.6 deg); it replaced the straight apron from the chin down (NECK_SLOPE straight "
+    "ahead too); not chosen on a score (CThead 1600 52.3 -> 51.2 %, GE 55.8 unchanged, the phantom 42.9 -> 42.6 %)",
     "face_profile.CLOSING_MM": "definition (orbit ~40 mm, aperture ~25 mm wide)",
     "face_profile.PROFILE_3D (off) / ENVELOPE_CLOSING_MM / face_envelope.ENVELOPE_SMOOTH_MM": "GE and the phantom "
     "(ball 15 / 30 / 40 mm: GE 25.7 / 59.9 / 61.3 %, the phantom 40.2 / 41.1 / 41.0 %; the signed distance's Gaussian "

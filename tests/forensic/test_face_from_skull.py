@@ -73,19 +73,60 @@ def _peg_damping(model) -> np.ndarray:
 
 
 def test_face_passes_through_the_peg_tips(model, face):
+    """Each tip as closely as the T-Table's SD at its landmark allows (FaceModel.tip_slack: the smoothed face is put
+    back through the tips as a Gaussian-process mean with the table's SD as each tip's noise): the sure pegs (SD <=
+    2 mm: glabella, nasion, the supraorbitals, supramentale, the vault's) to about a mm, every peg within its SD."""
     from pdehead_addon.forensic.face_from_skull import RBF_REGULARISATION
     d = point_surface_distance(face.tips, face.mesh.vertices, _faces(face.mesh), seed=0)
     lam = _peg_damping(model)
+    sd = model.depth_sd
     away = np.array([n not in NOSE_PEGS for n in model.peg_names])
-    exact = away & (lam == RBF_REGULARISATION)
-    damped = away & ~exact
-    # measured on the phantom: median 0.52 mm with numpy 1.26 and 0.77 mm with numpy 2.5 (0.32 before the closed
-    # profile was smoothed over 6 mm of the surface: the field carries more of the shape; the two numpys' automatic
-    # landmarks lie 0.1-3 mm apart on the phantom), largest 2.0 mm; the damped pegs (the jaw's sides) within
-    # 0.03-4.2 mm (supra-M2, 26 mm deep beside 10-13 mm neighbours, the farthest)
-    assert np.median(d[exact]) <= 0.85
-    assert d[exact].max() <= 2.5
+    sure = away & (sd <= 2.0) & (lam == RBF_REGULARISATION)
+    damped = away & (lam > RBF_REGULARISATION)
+    # measured on the phantom (numpy 1.26): the sure pegs median 0.89, largest 1.08 mm (nasion); every peg within
+    # 0.97 of its SD (menton 2.4 of 2.5 mm), supra M2 4.7 of 7.0 mm; before the SD was read the sure pegs were
+    # met as closely (median 0.52-0.77 mm over all undamped pegs) and supra M2 4.2 mm off
+    assert sure.sum() >= 6
+    assert np.median(d[sure]) <= 1.0 and d[sure].max() <= 1.5
+    assert np.all(d[away] <= sd[away] + 0.5), [(n, round(float(a), 2), s) for n, a, s, w in
+                                               zip(model.peg_names, d, sd, away) if w and a > s + 0.5]
     assert d[damped].max() <= 5.0
+    # the table's doubt decides: the pegs it is unsure of (SD >= 5 mm: the jaw's sides) are met less closely
+    unsure = away & (sd >= 5.0)
+    assert np.median(d[unsure]) > 2.0 * np.median(d[sure])
+
+
+def test_tip_slack_is_the_tables_sd_over_what_the_smoothing_took_off(model, face):
+    """FaceModel.tip_slack: per field site (SD_i / RMS)^2, RMS what the smoothing took off the tips at the table's
+    means; 0 at the rule sites; fixed by the skull and the table (the same after a solve with a peg moved)."""
+    slack = model.tip_slack(lambda r: r)                                          # cached at prepare's first solve
+    n_in = int(model.in_rows.sum())
+    sd = model.depth_sd[model.in_rows]
+    assert slack.shape == (len(model.field_sites(face.tips)),)
+    assert np.all(slack[n_in:] == 0.0)
+    ratio = slack[:n_in] / sd ** 2                                                 # 1 / RMS^2, one value
+    np.testing.assert_allclose(ratio, ratio[0], rtol=1e-9)
+    assert 1.0 <= 1.0 / np.sqrt(ratio[0]) <= 6.0                                  # the RMS (mm): phantom 2.75
+    i = model.peg_names.index("Supra M2 L")
+    tips = face.tips.copy()
+    tips[i] += 5.0 * model.peg_normals[i]
+    model.solve(tips=tips)
+    assert model.tip_slack(lambda r: r) is slack
+
+
+def test_the_face_recedes_under_the_chin(model, face):
+    """The skin under the chin runs back to the throat (face_neck.SUBMENTAL_SLOPE, a published lower face-throat
+    angle), not down in a straight apron: on the phantom, straight ahead, 10 mm below the menton landmark the bone's
+    closed profile stands at least 12 mm nearer the axis than at the landmark's height (measured 14.1 mm; 6.8 with
+    the old rule, 0.8 mm per mm of height), the bone floor 20 mm (26.1; 7.6), and the face itself recedes."""
+    g = model.grid
+    z = float(model.landmarks_used["Menton"][2]) - np.array([0.0, 10.0])
+    ahead = np.full(2, np.pi)
+    profile, floor = g.sample(model.profile, z, ahead), g.sample(model.bone_floor, z, ahead)
+    assert profile[0] - profile[1] >= 12.0, profile
+    assert floor[0] - floor[1] >= 20.0, floor
+    skin = g.sample(model.shaped_radius(model._offset_field(face.tips), face.tips), z, ahead)
+    assert skin[0] - skin[1] >= 5.0, skin                                        # measured 7.9 mm
 
 
 def test_outlying_pegs_are_damped_and_the_jaw_is_smoother(model, face):
@@ -138,7 +179,7 @@ def test_one_peg_moves_the_face_near_it_only(model, face):
     i = model.peg_names.index("Pogonion")
     depths = model.default_depths.copy()
     depths[i] += 4.0
-    moved = model.solve(depths=depths)
+    moved = model.solve(depths=depths, held=["Pogonion"])               # a depth the practitioner set is held
     assert moved.mesh.vertices.shape == face.mesh.vertices.shape      # same topology: rewritten in place
     np.testing.assert_array_equal(moved.mesh.quads, face.mesh.quads)
     shift = np.linalg.norm(moved.mesh.vertices - face.mesh.vertices, axis=1)
@@ -148,10 +189,15 @@ def test_one_peg_moves_the_face_near_it_only(model, face):
     # is fixed by the first solve)
     assert shift[far < 10].max() >= 3.0
     assert shift[far > 120].max() <= 0.1
-    # and the moved tip is on the new face, not where the old face was (4 mm away): measured 1.1 mm with the
-    # landmarks of one grid, 1.5 mm with those of five (pogonion 0.6 mm elsewhere on the chin's curve)
+    # and the moved tip is on the new face, not where the old face was (4 mm away)
     d = point_surface_distance(moved.tips[i:i + 1], moved.mesh.vertices, _faces(moved.mesh), seed=0)
-    assert d[0] <= 2.0
+    assert d[0] <= 1.0
+    # not held, the depth is followed as closely as the table's SD at pogonion (2.5 mm) allows (tip_slack):
+    # part of the way (measured 2.2 mm within 10 mm of the tip), the far face as still
+    loose = model.solve(depths=depths)
+    shift_loose = np.linalg.norm(loose.mesh.vertices - face.mesh.vertices, axis=1)
+    assert 1.0 <= shift_loose[far < 10].max() < shift[far < 10].max()
+    assert shift_loose[far > 120].max() <= 0.1
 
 
 def test_tips_override_depths(model, face):
@@ -646,6 +692,13 @@ def test_peg_report_gives_each_tips_distance_to_the_face_and_why(model, face):
         assert (report.damping[i] > 0) == (lam[name] > lam["Glabella"]), name
     i = model.peg_names.index("Supra M2 L")
     assert report.disagreement_mm[i] > 4.0 and report.why(i).startswith("damped: disagrees with its neighbours by")
+    # an undamped peg off its tip by less than the table's SD says so (the tips are met as closely as the SD allows)
+    smoothed = [j for j in range(len(model.peg_names)) if report.damping[j] == 0 and model.peg_names[j] not in NOSE_PEGS
+                and abs(report.limited_mm[j]) <= 0.5 and 0.5 < report.tip_to_face_mm[j] <= model.depth_sd[j]]
+    assert smoothed, report.tip_to_face_mm                                       # measured: menton, pogonion, ...
+    for j in smoothed:
+        assert report.why(j) == (f"smoothed: within the table's SD ({model.depth_sd[j]:.1f} mm) of its mean; hold it "
+                                 "to meet the tip"), (model.peg_names[j], report.why(j))
     off = report.off_face(0.0)
     assert [o["peg"] for o in off][:3] == [model.peg_names[j] for j in np.argsort(-report.tip_to_face_mm)[:3]]
     assert face.provenance["pegs_off_face"] == report.off_face() and face.provenance["peg_warnings"] == []
@@ -685,7 +738,8 @@ def test_held_pegs_under_the_shape_rules_are_on_the_face_too(model, face):
     assert under_rules, face.pegs.tip_to_face_mm                  # the check is not vacuous
     for i in under_rules:
         held = model.solve(held=[names[i]])
-        assert held.pegs.tip_to_face_mm[i] <= 0.5, (names[i], face.pegs.tip_to_face_mm[i], held.pegs.tip_to_face_mm[i])
+        # 0.54 mm at most on the phantom's rhinion since the tips are put back within the table's SD (0.5 before)
+        assert held.pegs.tip_to_face_mm[i] <= 0.6, (names[i], face.pegs.tip_to_face_mm[i], held.pegs.tip_to_face_mm[i])
     every = model.solve(held=list(names))
     in_rows = model.in_rows
     # 0.73 mm on CThead; on the phantom 1.01 mm with numpy 2.5's landmarks (0.1-3 mm from numpy 1.26's)

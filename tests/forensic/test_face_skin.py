@@ -100,4 +100,5 @@ def test_the_face_from_the_skull_is_smoother_and_still_meets_its_pegs(phantom_mo
     face = model.solve()
     faces = np.concatenate([triangulate(face.mesh.quads), face.mesh.triangles])
     d = point_surface_distance(face.tips[model.in_rows], face.mesh.vertices, faces, seed=0)
-    assert np.median(d) <= 1.0
+    # each tip as closely as the table's SD allows (FaceModel.tip_slack): measured median about 0.4 of the SD
+    assert np.median(d / model.depth_sd[model.in_rows]) <= 0.5
