@@ -492,7 +492,7 @@ def ear_shape(grid, landmarks: dict) -> np.ndarray | None:
     return out
 
 
-def nose_bump(grid, nose: dict | None, base: np.ndarray, tip_of) -> np.ndarray | None:
+def nose_bump(grid, nose: dict | None, base: np.ndarray, tip_of, anchor=None) -> np.ndarray | None:
     """Radial nose over the face ``base`` (K, M), made of four parts (:func:`predict_nose` gives where):
 
     * the *dorsum*: a rounded ridge from the soft nasion (the nasion peg's tip) straight to pronasale,
@@ -524,11 +524,14 @@ def nose_bump(grid, nose: dict | None, base: np.ndarray, tip_of) -> np.ndarray |
     zs = float(ss[2]) + 4.0 if zs is None else float(zs)
     if zn - zs < 20.0:
         return None
-    # subnasale on the face the depth field makes at its height (the midline ray of that row)
+    # subnasale on the face the depth field makes at its height (the midline ray of that row); ``anchor``: the
+    # field through the tips before the skin's smoothing, so the nose stands on the table's depth there, not on a
+    # face smoothed within the table's SD (CThead: 3.5 mm further back, the pronasale 3.8 mm off the real one)
+    on = base if anchor is None else anchor
     ks = int(np.clip(np.round((zs - g.z[0]) / (g.z[1] - g.z[0])), 0, len(g.z) - 1))
-    xs_row = cx + base[ks] * s
+    xs_row = cx + on[ks] * s
     js = int(np.argmin(np.where(front, np.abs(xs_row - nose["mid_x"]), np.inf)))
-    ys = float(cy + base[ks, js] * c[js])
+    ys = float(cy + on[ks, js] * c[js])
     ss_tip = tip_of("Subspinale")
     if ss_tip is not None:              # soft subnasale at least as far forward as subspinale's peg (predict_nose)
         ys = min(ys, float(ss_tip[1]))

@@ -354,9 +354,9 @@ class FaceModel(DepthField):
                 return tips[self.peg_names.index(n)]
         return None
 
-    def _nose_bump(self, base: np.ndarray, tips: np.ndarray, grid: FaceGrid | None = None) -> np.ndarray | None:
+    def _nose_bump(self, base: np.ndarray, tips: np.ndarray, grid: FaceGrid | None = None, anchor=None):
         """The nose over the face ``base`` on the current peg ``tips`` (:func:`.face_features.nose_bump`)."""
-        return nose_bump(grid or self.grid, self.nose, base, lambda *names: self._peg_tip(tips, *names))
+        return nose_bump(grid or self.grid, self.nose, base, lambda *names: self._peg_tip(tips, *names), anchor)
 
     def _front(self) -> tuple[slice, FaceGrid]:
         """The columns the nose, the lips and the eyes can touch (``cos theta < -0.2``: all three are zero
@@ -471,7 +471,7 @@ class FaceModel(DepthField):
         radius = self._smooth_face(self.profile + offset, tips, held)
         cols, front = self._front()
         face = self._cheeks(radius[:, cols], front)
-        bump = self._nose_bump(face, tips, front)
+        bump = self._nose_bump(face, tips, front, anchor=(self.profile + offset)[:, cols])
         if bump is not None:
             face = face + bump
         lips = self._mouth_shape(face, front)
