@@ -108,7 +108,7 @@ def test_the_nose_stands_on_the_tables_depth_not_on_the_smoothed_skin(phantom_mo
     """The soft subnasale the nose is built from (:func:`.face_features.nose_bump`'s ``anchor``) is read on the depth
     field through the tips, before the skin's smoothing: a skin smoothed further in (it meets each tip only within
     the table's SD) does not move the nose (CThead: read on the smoothed skin, the face under the nose stood 3.5 mm
-    further back and the pronasale with it, 0.3 -> 3.8 mm from the real one)."""
+    further back and the pronasale with it, 0.5 -> 3.8 mm from the real one)."""
     from pdehead_addon.forensic.face_features import nose_bump
     model = phantom_model
     g = model.grid
