@@ -103,7 +103,8 @@ RULES: dict[str, str] = {
           "above its lowest point (teeth and alveolar bone are one in a bone mask: always uncertain).",
     "mp": "Mid-philtrum: the upper jaw's profile point half way (in height) between subspinale and prosthion.",
     "id": "Infradentale: the mandible's profile point one lower incisor crown (9 mm) below its highest front "
-          "point (always uncertain, as prosthion).",
+          "point (the front walked up from menton ends where it steps back by more than 20 mm: bone joined behind "
+          "it is not its front; always uncertain, as prosthion).",
     "sm": "Supramentale (B point): the deepest point of the mandible's profile relative to the chord from "
           "pogonion to infradentale (the mandible with the lower teeth split from it: pieces between the jaws "
           "nearer the mandible than the upper skeleton); uncertain with no concavity (under 1 mm), a concavity "

@@ -29,6 +29,11 @@ LOWER_PIECE_REACH_MM = 10.0
 #: (the concavity above an adult chin is a few mm deep; deeper is other bone behind the mandible's front).
 SUPRAMENTALE_GAP_MM = 3.0
 SUPRAMENTALE_MAX_DEPTH_MM = 8.0
+#: The mandible's front, walked up from menton, ends at the first row whose front-most bone lies more than this
+#: (mm) behind the row below, as the upper jaw's ends at OCCLUSAL_GAP_MM: bone joined to the mandible behind its
+#: front is not its front (the atlas's anterior arch, 43 mm behind the incisors at their height, on CThead
+#: resliced to 1.5 mm). Notches of the incisors' edges step back up to 8 mm.
+MANDIBLE_FRONT_STEP_MM = OCCLUSAL_GAP_MM
 #: Glabella on a forehead without a prominence: the profile's turn is measured over this (mm) either side.
 GLABELLA_TURN_MM = 5.0
 #: Vertex's x is the middle of the vault's left-right extent this far (mm) below its top.
@@ -242,6 +247,9 @@ def _mandible_midline(res, fr, mid_x, mand_ids):
             res[key] = (None, NOT_FOUND, "the mandible does not cross the mid-sagittal plane")
         return {}
     rows = np.flatnonzero(has)
+    back = np.flatnonzero(np.diff(py[rows]) > MANDIBLE_FRONT_STEP_MM)
+    if len(back):
+        rows = rows[:back[0] + 1]
     i_bot, i_top = int(rows.min()), int(rows.max())
     ix = fr.index(0, mid_x)
     slab = (fr.bone[max(ix - 1, 0):ix + 2] & np.isin(fr.comp[max(ix - 1, 0):ix + 2], mand_ids)).any(0)

@@ -255,3 +255,45 @@ def test_cthead_landmarks_do_not_follow_the_resampling_grid(cthead_ct):
     from pdehead_addon.forensic.auto_landmarks import PHASE_SPREAD_MM
     for n, spread in default.info["phase_spread_mm"].items():
         assert spread <= PHASE_SPREAD_MM or default.landmarks[n].flag != OK, (n, spread)
+
+
+def test_bone_joined_behind_the_mandibles_front_is_not_its_front(phantom, phantom_bone, phantom_search):
+    """CThead resliced to 1.5 mm joins the atlas's anterior arch to the mandible at the occlusal plane's height,
+    43 mm behind the incisors. Read as the mandible's top, it put infradentale 8.6 mm too high, the infra
+    canines 8 mm and an occlusal line 20 mm off. The mandible's front now ends at the first row that steps back
+    by more than MANDIBLE_FRONT_STEP_MM. Here the phantom's mandible gets a post joined to its symphysis,
+    35 mm behind its front, reaching 5 mm above its top (below the palate: joined to them, it would
+    join the mandible to the skull). Measured: every landmark checked within 0.9 mm of where it was without the
+    post; the old rule puts infradentale 5.0 mm higher."""
+    from pdehead_addon.forensic.landmark_midline import MANDIBLE_FRONT_STEP_MM
+
+    ct = phantom.ct
+    idn, pog = (phantom_search.landmarks[n].point for n in ("Infradentale", "Pogonion"))
+    top = idn[2] + 9.0                                               # the mandible's front's highest point
+    bone = phantom_bone.copy()
+
+    def block(x, y, z):
+        corners = np.array([[x[i], y[j], z[k]] for i in (0, 1) for j in (0, 1) for k in (0, 1)], float)
+        ijk = np.round(ct.patient_to_index(corners)).astype(int)
+        lo, hi = np.maximum(ijk.min(0), 0), ijk.max(0) + 1
+        bone[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]] = True
+
+    post_y = pog[1] + 35.0
+    assert post_y - pog[1] > MANDIBLE_FRONT_STEP_MM
+    block((-4, 4), (pog[1] + 4, post_y + 6), (pog[2] - 3, pog[2] + 3))      # the joint, through the symphysis
+    block((-4, 4), (post_y, post_y + 6), (pog[2] - 3, top + 5.0))           # the post, up past the incisors
+    found = find_landmarks(ct, bone).landmarks
+    for name in ("Infradentale", "Pogonion", "Menton", "Infra canine L", "Occlusal line R"):
+        assert found[name].point is not None, (name, found[name].evidence)
+        moved = float(np.linalg.norm(found[name].point - phantom_search.landmarks[name].point))
+        print(name, moved)
+        assert moved <= 1.5, (name, moved)
+    # the old rule (every row of the mandible's midline profile) takes the post's top for the incisors'
+    import pdehead_addon.forensic.landmark_midline as M
+    try:
+        M.MANDIBLE_FRONT_STEP_MM = np.inf
+        old = find_landmarks(ct, bone).landmarks["Infradentale"].point
+    finally:
+        M.MANDIBLE_FRONT_STEP_MM = MANDIBLE_FRONT_STEP_MM
+    print("old rule: infradentale", old[2] - idn[2], "mm higher")
+    assert old[2] - idn[2] > 3.0, old
