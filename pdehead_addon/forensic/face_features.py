@@ -1,8 +1,8 @@
 """Face from the skull: what a tissue-depth field cannot make, from published prediction rules.
 
-The nose (:func:`predict_nose`, :func:`nose_bump`), the mouth (:func:`predict_mouth`, :func:`mouth_shape`), the
-closed eyes (:func:`predict_eyes`, :func:`eye_shape`) and a default ear at each porion (:func:`predict_ears`,
-:func:`ear_shape`), each cited in its docstring or beside its constants. ``predict_*`` read the landmarks (and the
+The nose (:func:`predict_nose`, :func:`nose_bump`), the mouth (:func:`predict_mouth`, :func:`mouth_shape`) and a
+default ear at each porion (:func:`predict_ears`, :func:`ear_shape`) (the closed eyes: :mod:`.face_eyes`), each
+cited in its docstring or beside its constants. ``predict_*`` read the landmarks (and the
 skull) once; the ``*_shape`` / :func:`nose_bump` functions give the radial change (K, M) over the face's
 cylinder grid (:class:`.face_from_skull.FaceModel`'s ``grid``: rows ``z``, columns ``theta``, axis ``centre``)
 that :meth:`.face_from_skull.FaceModel.shaped_radius` adds to the depth field's face. Split out of
@@ -40,60 +40,6 @@ def point_of(landmarks: dict, *names):
         if n in landmarks and landmarks[n] is not None:
             return np.asarray(landmarks[n], float)
     return None
-
-
-#: The closed eye (:func:`eye_shape`). The palpebral fissure runs from the exocanthion, EYE_EX_INSET_MM
-#: medial of the lateral orbital margin, EYE_FISSURE_MM toward the midline to the endocanthion: adult norms
-#: ex-en ~ 30 mm (Farkas LG (1994) Anthropometry of the Head and Face, 2nd ed.) and the exocanthion ~ 4-5 mm inside
-#: the lateral orbital rim (Stephan CN, Davidson PL (2008) "The placement of the human eyeball and canthi in
-#: craniofacial identification", J Forensic Sci 53(3):612-619); both cited from the forensic literature. Checked
-#: against the sources: Stephan & Davidson's abstract (PubMed 18471206; four cadavers dissected) reports the
-#: eyeball 1-2 mm nearer the orbital roof and lateral wall than central, and Stephan, Huang & Davidson 2009 (J Forensic
-#: Sci 54(2):267-269, abstract) 1.4 mm up and 2.3 mm lateral (medians of 13 cadavers); neither abstract gives the
-#: canthus' inset, so the 5 mm stays a figure quoted from the literature, not read in the paper: check it before
-#: casework. The fissure's height is the orbit's mid-height (Supraorbital and Suborbital/Orbitale).
-EYE_EX_INSET_MM = 5.0
-EYE_FISSURE_MM = 30.0
-#: Shape (mm): the globe's convexity under the lids, the fissure's groove (the upper lid's margin over the lower),
-#: the upper lid's arc above the canthi's line, and the supratarsal crease above it. Shape choices.
-EYE_GLOBE_MM = 2.0
-EYE_FISSURE_GROOVE_MM = 1.2
-EYE_LID_ARC_MM = 2.5
-EYE_CREASE_MM = 0.8
-EYE_CREASE_ABOVE_MM = 8.0
-
-
-def predict_eyes(landmarks: dict) -> list[tuple[str, np.ndarray, float]]:
-    """Eye sites: the corneal apex of each eye.
-
-    Method: the cornea's apex lies on the line from the mid-supraorbital to the mid-infraorbital margin
-    (the "tangent" guideline: Wilkinson CM, Mautner SA (2003) "Measurement of eyeball protrusion and its
-    application in facial reconstruction", J Forensic Sci 48(1):12-16; Stephan CN (2002) "Facial
-    approximation: globe projection guideline falsified by exophthalmometry literature", J Forensic Sci
-    47(4):730-735, which replaced the older 16 mm-from-lateral-orbit guideline). Both are cited from the
-    forensic literature, not re-read for this module. The apex is put on the midpoint of the
-    ``Supraorbital`` and ``Suborbital`` (or ``Orbitale``) landmarks, 1 mm in front of it for the lid.
-    Guyomarc'h P, Dutailly B, Couture C, Coqueugniot H (2012), "Anatomical placement of the human eyeball
-    in the orbit - validation using CT scans of living adults and prediction for facial approximation",
-    J Forensic Sci 57(5):1271-1275, place the globe from the orbit's breadth and height. The version read
-    was esomjai/Forensic-Craniofacial-Approximation-Validation-Tool, "Eye predictions/Guyomarc'h GUI.md",
-    where the corneal apex sits 0.513 x the orbit height in front of the deepest lateral orbital margin.
-    That method needs ectoconchion and dacryon, which the landmark set lacks, so it is not used here.
-
-    Returns
-    -------
-    list of (name, point patient mm, weight): the apex of each eye found.
-    """
-    out = []
-    for side in ("L", "R"):
-        so = point_of(landmarks, f"Supraorbital {side}")
-        sb = point_of(landmarks, f"Suborbital {side}", f"Orbitale {side}")
-        if so is None or sb is None:
-            continue
-        mid = 0.5 * (so + sb)
-        mid[1] -= 1.0                                  # the closed lid, ~1 mm over the cornea (anterior = -y)
-        out.append((f"Eye {side}", mid, 1.0))
-    return out
 
 
 #: Nasal tip protrusion (subnasale to pronasale, mm) and alar width (mm) of adults, both sexes pooled:
@@ -426,41 +372,6 @@ def mouth_shape(grid, mouth: dict | None, base: np.ndarray) -> np.ndarray | None
     sulcus = (-LIP_SULCUS_DEPTH_MM * np.exp(-0.5 * ((dz + LIP_SULCUS_MM) / 4.0) ** 2)
               * np.clip(1.0 - (u / 0.9) ** 2, 0.0, 1.0))
     return (groove + rolls + philtrum + sulcus) * front
-
-
-def eye_shape(grid, landmarks: dict, base: np.ndarray) -> np.ndarray | None:
-    """Radial change (K, M) of the closed eyes over the face ``base``: per orbit with its lateral margin and
-    its mid-height found, the globe's convexity between the canthi (an ellipse of the fissure's length and
-    half as high), the fissure as a groove along the upper lid's margin (an arc :data:`EYE_LID_ARC_MM` above
-    the line of the canthi at its middle) and the supratarsal crease :data:`EYE_CREASE_ABOVE_MM` above it."""
-    lm = landmarks or {}
-    g = grid
-    cx = g.centre[0]
-    s, c = np.sin(g.theta), np.cos(g.theta)
-    front = (c < FRONT_COS)[None, :]
-    x = cx + base * s[None, :]
-    zz = g.z[:, None]
-    out = None
-    for side, sign in (("L", 1.0), ("R", -1.0)):
-        so = point_of(lm, f"Supraorbital {side}")
-        sb = point_of(lm, f"Suborbital {side}", f"Orbitale {side}")
-        lat = point_of(lm, f"Lateral orbit {side}")
-        if so is None or sb is None or lat is None:
-            continue
-        ze = 0.5 * (so[2] + sb[2])
-        ex = lat[0] - sign * EYE_EX_INSET_MM
-        en = ex - sign * EYE_FISSURE_MM
-        t = np.clip((x - en) / (ex - en), -0.3, 1.3)             # 0 at the endocanthion, 1 at the exocanthion
-        xm, half = 0.5 * (en + ex), 0.5 * EYE_FISSURE_MM
-        q2 = ((x - xm) / half) ** 2 + ((zz - ze) / (0.5 * half)) ** 2
-        globe = EYE_GLOBE_MM * np.clip(1.0 - q2, 0.0, None)
-        inside = np.clip(np.sin(np.pi * np.clip(t, 0.0, 1.0)), 0.0, None) ** 0.5
-        lid = ze + EYE_LID_ARC_MM * np.sin(np.pi * np.clip(t, 0.0, 1.0)) ** 1.5
-        fissure = -EYE_FISSURE_GROOVE_MM * np.exp(-0.5 * ((zz - lid) / 1.0) ** 2) * inside
-        crease = -EYE_CREASE_MM * np.exp(-0.5 * ((zz - lid - EYE_CREASE_ABOVE_MM) / 1.5) ** 2) * inside
-        eye = (globe + fissure + crease) * front
-        out = eye if out is None else out + eye
-    return out
 
 
 def ear_shape(grid, landmarks: dict) -> np.ndarray | None:

@@ -58,17 +58,16 @@ from ..core.mesh import Mesh
 from ..core.provenance import provenance
 from ..pde.pde_head import derived_once
 from ..pde.pde_surface import curve_positions, smoothing_range, solve_pde
+from .face_eyes import eye_shape, predict_eyes
 from .face_features import (
     EAR_LENGTH_MM,
     EAR_WIDTH_MM,
     FRONT_COS,
     check_skull,
     ear_shape,
-    eye_shape,
     mouth_shape,
     nose_bump,
     predict_ears,
-    predict_eyes,
     predict_mouth,
     predict_nose,
 )
@@ -339,7 +338,7 @@ class FaceModel(DepthField):
         return mouth_shape(grid or self.grid, self.mouth, base)
 
     def _eye_shape(self, base: np.ndarray, grid: FaceGrid | None = None) -> np.ndarray | None:
-        """The closed eyes over the face ``base`` (:func:`.face_features.eye_shape`)."""
+        """The closed eyes over the face ``base`` (:func:`.face_eyes.eye_shape`)."""
         return eye_shape(grid or self.grid, getattr(self, "landmarks_used", None) or {}, base)
 
     def _ear_shape(self) -> np.ndarray | None:

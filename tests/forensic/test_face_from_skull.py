@@ -542,8 +542,9 @@ def test_nose_has_alae_and_a_rounded_tip_and_the_eyes_lids(model, face):
     n = max(1, int(round(3.0 / dz)))
     assert ridge[kt - n] > 0.75 * ridge[kt] and ridge[kt + n] > 0.75 * ridge[kt]
     # the eyes: a groove along each fissure (the lids' line), up to EYE_FISSURE_GROOVE_MM deep
+    from pdehead_addon.forensic.face_eyes import EYE_FISSURE_GROOVE_MM
     eyes = model._eye_shape(base)
-    assert eyes is not None and eyes.min() < -0.5 * F.EYE_FISSURE_GROOVE_MM
+    assert eyes is not None and eyes.min() < -0.5 * EYE_FISSURE_GROOVE_MM
 
 
 def test_field_does_not_overshoot_between_conflicting_pegs(model, face, monkeypatch):
@@ -840,3 +841,38 @@ def test_subnasale_stands_at_least_at_subspinales_peg(model, face):
           f"subspinale's tip y {tip[1]:.1f}")
     assert deep_y > float(tip[1]) + 3.0                       # the deeper face alone would leave a notch
     assert front_y <= float(tip[1]) + 0.5
+
+
+def test_the_closed_lids_lie_on_the_globe_and_the_fissure_is_wider_than_a_row(model, face, monkeypatch):
+    """The eyes (face_eyes.eye_shape): a bump of 2 mm and two lines (the fissure, a lid crease) added to the face's
+    slope from cheek to brow read as a stack of horizontal lines; a groove 1 mm wide on rows 2.5 mm apart is one
+    row's notch. Now the lids are drawn onto the globe, a 12 mm sphere whose front is the apex of predict_eyes, and the
+    fissure's groove is at least a row wide. Measured on the phantom: 6 mm above the apex the face stood 6.0 / 5.6 mm
+    in front of the globe (L / R) and the lids 3.6 / 3.2; the old bump moved them out, not in."""
+    import pdehead_addon.forensic.face_eyes as E
+    offset = model._offset_field(face.tips)
+    radius = model._smooth_face(model.profile + offset, face.tips)
+    cols, front = model._front()
+    base = model._cheeks(radius[:, cols], front)
+    g = front
+    with_groove = model._eye_shape(base, front)
+    depth = E.EYE_FISSURE_GROOVE_MM
+    monkeypatch.setattr(E, "EYE_FISSURE_GROOVE_MM", 0.0)
+    lids = model._eye_shape(base, front)
+    groove = with_groove - lids
+    for name, apex, _ in E.predict_eyes(model.landmarks_used):
+        za, tha, ra = (float(v[0]) for v in g.polar(apex[None]))
+        j = int(np.argmin(np.abs(np.angle(np.exp(1j * (g.theta - tha))))))
+        # above and below the apex the lids lie on the sphere, nearer it than the face was
+        R = E.EYE_GLOBE_RADIUS_MM
+        for dz in (-6.0, 6.0):
+            kk = int(np.argmin(np.abs(g.z - (za + dz))))
+            sphere = ra - (g.z[kk] - za) ** 2 / (2.0 * R)          # the sphere's osculating paraboloid
+            before, after = base[kk, j] - sphere, base[kk, j] + lids[kk, j] - sphere
+            print(f"{name} {dz:+.0f} mm: the face {before:+.2f} mm from the globe, the lids {after:+.2f}")
+            assert abs(after) <= 0.67 * abs(before) + 0.3
+        # the fissure across the globe: its deepest row and the rows next to it keep at least half its depth
+        col = groove[:, j]
+        kd = int(np.argmin(col))
+        assert col[kd] < -0.5 * depth
+        assert min(col[kd - 1], col[kd + 1]) <= 0.5 * col[kd], (col[kd - 2:kd + 3])
