@@ -220,8 +220,13 @@ def test_scaled_phantom_mandible_midline_is_on_the_mandible(monkeypatch):
     assert abs(sm.point[1] - pog[1]) < 10.0                       # was 31.6 mm behind pogonion
     # the phantom's chin has no concavity above it (chin ellipsoid on a straight front): uncertain, says why
     assert sm.flag == UNCERTAIN and "no concavity" in sm.evidence
-    # the old rule (every piece between the jaws is the mandible's) lands on the palate: no longer silent
+    # the old rule (every piece between the jaws is the mandible's): the mandible's front, ending where it steps back
+    # by more than MANDIBLE_FRONT_STEP_MM, still keeps the palate out (measured: supramentale 6.1 mm from pogonion)
     monkeypatch.setattr(M, "_lower_teeth_pieces", lambda fr, pieces, mand_id: pieces)
+    sm_step = find_landmarks(ct, bone).landmarks["Supramentale"]
+    assert abs(sm_step.point[1] - pog[1]) < 10.0, sm_step
+    # ... and without that end either, it lands on the palate: no longer silent
+    monkeypatch.setattr(M, "MANDIBLE_FRONT_STEP_MM", np.inf)
     old = find_landmarks(ct, bone).landmarks["Supramentale"]
     assert abs(old.point[1] - pog[1]) > 20.0
     assert old.flag == UNCERTAIN and "gap" in old.evidence, old

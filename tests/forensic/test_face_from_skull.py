@@ -739,8 +739,9 @@ def test_held_pegs_under_the_shape_rules_are_on_the_face_too(model, face):
     assert under_rules, face.pegs.tip_to_face_mm                  # the check is not vacuous
     for i in under_rules:
         held = model.solve(held=[names[i]])
-        # 0.54 mm at most on the phantom's rhinion since the tips are put back within the table's SD (0.5 before)
-        assert held.pegs.tip_to_face_mm[i] <= 0.6, (names[i], face.pegs.tip_to_face_mm[i], held.pegs.tip_to_face_mm[i])
+        # the phantom's rhinion: 0.54 mm since the tips are put back within the table's SD (0.5 before), 0.60 since
+        # the lids drape the globe (the PDE surface through the rows carries the eyes' rows' change to the nose's)
+        assert held.pegs.tip_to_face_mm[i] <= 0.65, (names[i], face.pegs.tip_to_face_mm[i], held.pegs.tip_to_face_mm[i])
     every = model.solve(held=list(names))
     in_rows = model.in_rows
     # 0.73 mm on CThead; on the phantom 1.01 mm with numpy 2.5's landmarks (0.1-3 mm from numpy 1.26's)
