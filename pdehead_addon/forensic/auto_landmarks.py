@@ -133,7 +133,8 @@ RULES: dict[str, str] = {
            "infradentale), behind 60 % of the way from menton to gonion.",
     "subm2": "Sub M2 (iM2): the outermost mandible point 60 % of the way from menton to gonion, at mid-height of "
              "the body.",
-    "supm2": "Supra M2 (sM2): the outermost bone (side view) at sub M2's y, 8 mm above prosthion's height.",
+    "supm2": "Supra M2 (sM2): the outermost bone (side view) at sub M2's y, 8 mm above prosthion's height; without "
+             "the mandible, at 56 % of the way from prosthion to porion (uncertain).",
     "mr": "Mid-ramus: the outermost mandible point half way up from gonion to the condyle's top, at the middle "
           "of the ramus' width.",
     "mmb": "Mid-mandibular border: the lowest mandible point half way (in y) from menton to gonion.",

@@ -176,6 +176,11 @@ def _supra_canine(fr, v, up, ixc):
 
 
 MANDIBLE_BILATERAL = ("go", "ocl", "subm2", "mr", "mmb")
+#: Without the mandible's menton and gonion (a scan cut at the teeth, or no mandible), supra M2 is placed at sub M2's
+#: usual place: this fraction of the way from prosthion to porion (front to back). Chosen on CThead (sub M2 at 0.56
+#: of the way at its own level, 0.58 at 1500) and checked on the phantom (0.63; its supra M2 without the mandible
+#: lands 5.0 / 5.8 mm from where the mandible puts it); uncertain.
+SUPRA_M2_PORION_FRACTION = 0.56
 
 
 def mandible_bilateral(found, fr, v, mid_x, up, low, mand_id, mand_ev) -> None:
@@ -185,6 +190,7 @@ def mandible_bilateral(found, fr, v, mid_x, up, low, mand_id, mand_ev) -> None:
         if mand_id is None or not low:
             for key in MANDIBLE_BILATERAL:
                 found[f"{key}_{t}"] = (None, NOT_FOUND, mand_ev)
+            _supra_m2_without_mandible(found, fr, v, side, t, up)
             continue
         xs = fr.coord(0, np.arange(fr.shape[0])) - mid_x
         halfm = (fr.comp == mand_id) & (side * xs > 5)[:, None, None]
@@ -205,6 +211,19 @@ def mandible_bilateral(found, fr, v, mid_x, up, low, mand_id, mand_ev) -> None:
         t = TAGS[side].lower()
         if f"supm2_{t}" not in found:
             found[f"supm2_{t}"] = (None, NOT_FOUND, mand_ev)
+
+
+def _supra_m2_without_mandible(found, fr, v, side, t, up) -> None:
+    """Supra M2 on the maxilla where the mandible gives no sub M2 (:data:`SUPRA_M2_PORION_FRACTION`): the outermost
+    bone 8 mm above prosthion's height, as with the mandible."""
+    po = found.get(f"po_{t}", (None,))[0]
+    if not up or po is None:
+        return
+    y2 = up["sd_y"] + SUPRA_M2_PORION_FRACTION * (po[1] - up["sd_y"])
+    p = v.side_point(side, fr.index(1, y2), fr.index(2, up["sd_z"] + 8))
+    found[f"supm2_{t}"] = _pt(p, "no maxilla above the second molar", UNCERTAIN,
+                              f"no mandible to place it by: taken {100 * SUPRA_M2_PORION_FRACTION:.0f} % of the way "
+                              "from prosthion to porion")
 
 
 def _mandible_side(found, fr, side, t, P, up, low) -> float:
