@@ -190,7 +190,7 @@ def mandible_bilateral(found, fr, v, mid_x, up, low, mand_id, mand_ev) -> None:
         if mand_id is None or not low:
             for key in MANDIBLE_BILATERAL:
                 found[f"{key}_{t}"] = (None, NOT_FOUND, mand_ev)
-            _supra_m2_without_mandible(found, fr, v, side, t, up)
+            _supra_m2_without_mandible(found, fr, v, side, t, up, mid_x)
             continue
         xs = fr.coord(0, np.arange(fr.shape[0])) - mid_x
         halfm = (fr.comp == mand_id) & (side * xs > 5)[:, None, None]
@@ -213,14 +213,20 @@ def mandible_bilateral(found, fr, v, mid_x, up, low, mand_id, mand_ev) -> None:
             found[f"supm2_{t}"] = (None, NOT_FOUND, mand_ev)
 
 
-def _supra_m2_without_mandible(found, fr, v, side, t, up) -> None:
+def _supra_m2_without_mandible(found, fr, v, side, t, up, mid_x) -> None:
     """Supra M2 on the maxilla where the mandible gives no sub M2 (:data:`SUPRA_M2_PORION_FRACTION`): the outermost
     bone 8 mm above prosthion's height, as with the mandible."""
     po = found.get(f"po_{t}", (None,))[0]
     if not up or po is None:
         return
     y2 = up["sd_y"] + SUPRA_M2_PORION_FRACTION * (po[1] - up["sd_y"])
-    p = v.side_point(side, fr.index(1, y2), fr.index(2, up["sd_z"] + 8))
+    iy, iz = fr.index(1, y2), fr.index(2, up["sd_z"] + 8)
+    p = None
+    for dz in sorted(range(-3, 4), key=abs):     # the maxilla's thin wall: the nearest row with bone within 3 mm
+        p = v.side_point(side, iy, int(np.clip(iz + dz, 0, fr.shape[2] - 1)))
+        if p is not None and side * (p[0] - mid_x) > 5.0:    # on its own side (the view sees across the midline)
+            break
+        p = None
     found[f"supm2_{t}"] = _pt(p, "no maxilla above the second molar", UNCERTAIN,
                               f"no mandible to place it by: taken {100 * SUPRA_M2_PORION_FRACTION:.0f} % of the way "
                               "from prosthion to porion")

@@ -34,6 +34,11 @@ SUPRAMENTALE_MAX_DEPTH_MM = 8.0
 #: front is not its front (the atlas's anterior arch, 43 mm behind the incisors at their height, on CThead
 #: resliced to 1.5 mm). Notches of the incisors' edges step back up to 8 mm.
 MANDIBLE_FRONT_STEP_MM = OCCLUSAL_GAP_MM
+#: The mandible reaches back from its front at least this fraction of the way to the porions (its body runs back to
+#: the rami, its condyles sit just in front of the ear canals: CThead's reaches 82 % of the way). The upper teeth and
+#: the front of the alveolar process, split from the maxilla by the threshold, reach 29 % (CThead cut at the
+#: occlusal plane, where that piece was taken for the mandible and the upper jaw's landmarks moved 16 mm up).
+MANDIBLE_REACH_FRACTION = 0.5
 #: Glabella on a forehead without a prominence: the profile's turn is measured over this (mm) either side.
 GLABELLA_TURN_MM = 5.0
 #: Vertex's x is the middle of the vault's left-right extent this far (mm) below its top.
@@ -324,9 +329,12 @@ def _lower_teeth_pieces(fr, pieces: list[int], mand_id: int) -> list[int]:
 
 
 
-def mandible_component(fr, nlab: int, skull_id: int, skull_mm3: float, grid_mm: float, orb_z: float):
-    """The mandible: the largest other component (of at least 2000 mm^3) below the orbits; (its label or None,
-    the evidence when there is none). ``skull_mm3``: the skull component's volume."""
+def mandible_component(fr, nlab: int, skull_id: int, skull_mm3: float, grid_mm: float, orb_z: float,
+                       porion_y: float | None = None):
+    """The mandible: the largest other component (of at least 2000 mm^3) below the orbits that reaches back at
+    least :data:`MANDIBLE_REACH_FRACTION` of the way from its front to the porions (``porion_y``, frame mm; not checked
+    without them); (its label or None, the evidence when there is none). ``skull_mm3``: the skull component's
+    volume."""
     mand_id, mand_ev = None, "no mandible: no separate bone component below the maxilla"
     if nlab > 1:
         comp_ids, counts = np.unique(fr.comp[fr.comp > 0], return_counts=True)
@@ -336,6 +344,10 @@ def mandible_component(fr, nlab: int, skull_id: int, skull_mm3: float, grid_mm: 
                 continue
             where = np.argwhere(fr.comp == cid)
             cz = fr.coord(2, where[:, 2].mean())
+            if porion_y is not None:
+                front, back = fr.coord(1, where[:, 1].min()), fr.coord(1, where[:, 1].max())
+                if back - front < MANDIBLE_REACH_FRACTION * (porion_y - front):
+                    continue                 # the upper teeth split from the maxilla: the front of the arch alone
             if cz < orb_z - 30 and cnt > best:
                 mand_id, best = int(cid), cnt
         if mand_id is None and skull_mm3 > 0:
