@@ -511,6 +511,12 @@ CONSTANT_CHOICE = {
     "53.8, 1600 52.3 / 52.7, automatic 59.1 / 59.4 %, GE 56.3 / 55.0, phantom 42.2 / 43.2 %; edges bent > 40 deg "
     "0.87 % at 1600 as before; a plateau window or a sphere's wall bent 0.99-1.07 %)",
     "face_features mouth width": "published (Stephan & Henneberg 2003, inter-canine / 0.75)",
+    "landmark_bilateral.SUPRA_M2_PORION_FRACTION (supra M2 without the mandible)": "CThead (its sub M2 0.56-0.58 of "
+    "the way from prosthion to porion), checked on the phantom (0.63; supra M2 without its mandible 5.0 / 5.8 mm "
+    "from where the mandible puts it)",
+    "landmark_midline.MANDIBLE_REACH_FRACTION": "definition (the mandible's body runs back to the rami: CThead's "
+    "reaches 82 % of the way to the porions, the upper teeth split from its maxilla 29 %)",
+    "landmark_midline.MANDIBLE_FRONT_STEP_MM": "= OCCLUSAL_GAP_MM (the upper jaw's end of its front)",
     "face_features.NOSE_* shape (dorsum, tip, columella, alae), face_eyes.EYE_* grooves, LIP_* depths": "renders",
 }
 #: The constants chosen on CThead's score, set neutral for the suite's "without" row: no damping of outlying pegs, no
