@@ -244,7 +244,9 @@ def _landmarks_on_grid(ct, bone, labels, sizes, nlab, fr, fp_all, frank, info: d
     zygion_supraglenoid(found, fr, v)
     pos = [found[k][0] for k in ("po_l", "po_r") if found.get(k, (None,))[0] is not None]
     porion_y = float(np.mean([p[1] for p in pos])) if pos else None
-    mand_id, mand_ev = mandible_component(fr, nlab, skull_id, sizes[skull_id] * vox_mm3, grid_mm, orb_z, porion_y)
+    orbitale_y = float(np.mean([p[1] for p in ors])) if ors else None
+    mand_id, mand_ev = mandible_component(fr, nlab, skull_id, sizes[skull_id] * vox_mm3, grid_mm, orb_z, porion_y,
+                                          orbitale_y, mid_x)
     info["mandible"] = mand_id is not None
     up, low = midline_landmarks(found, fr, mid_x, nlab, skull_id, mand_id, mand_ev, orb_z, aperture)
     alare(found, fr, v, aperture, mid_x)

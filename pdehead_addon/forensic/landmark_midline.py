@@ -39,6 +39,11 @@ MANDIBLE_FRONT_STEP_MM = OCCLUSAL_GAP_MM
 #: the front of the alveolar process, split from the maxilla by the threshold, reach 29 % (CThead cut at the
 #: occlusal plane, where that piece was taken for the mandible and the upper jaw's landmarks moved 16 mm up).
 MANDIBLE_REACH_FRACTION = 0.5
+#: ... and where it crosses the mid-sagittal plane it does so at the face's front (the chin, the incisors): in front of
+#: this fraction of the way from the orbitales back to the porions (CThead's chin: in front of the orbitales). The
+#: atlas, kept in the bone where a scan cut through the lower teeth leaves the spine too short to be told from the
+#: skull, crosses it 73 % of the way back and was taken for the mandible (infradentale 77 mm behind the face).
+MANDIBLE_MIDLINE_FRACTION = 0.5
 #: Glabella on a forehead without a prominence: the profile's turn is measured over this (mm) either side.
 GLABELLA_TURN_MM = 5.0
 #: Vertex's x is the middle of the vault's left-right extent this far (mm) below its top.
@@ -330,11 +335,12 @@ def _lower_teeth_pieces(fr, pieces: list[int], mand_id: int) -> list[int]:
 
 
 def mandible_component(fr, nlab: int, skull_id: int, skull_mm3: float, grid_mm: float, orb_z: float,
-                       porion_y: float | None = None):
+                       porion_y: float | None = None, orbitale_y: float | None = None, mid_x: float = 0.0):
     """The mandible: the largest other component (of at least 2000 mm^3) below the orbits that reaches back at
-    least :data:`MANDIBLE_REACH_FRACTION` of the way from its front to the porions (``porion_y``, frame mm; not checked
-    without them); (its label or None, the evidence when there is none). ``skull_mm3``: the skull component's
-    volume."""
+    least :data:`MANDIBLE_REACH_FRACTION` of the way from its front to the porions (``porion_y``, frame mm) and, if
+    it crosses the mid-sagittal plane ``mid_x``, does so in front of :data:`MANDIBLE_MIDLINE_FRACTION` of the way from
+    the orbitales (``orbitale_y``) to the porions (each not checked without those landmarks); (its label or None,
+    the evidence when there is none). ``skull_mm3``: the skull component's volume."""
     mand_id, mand_ev = None, "no mandible: no separate bone component below the maxilla"
     if nlab > 1:
         comp_ids, counts = np.unique(fr.comp[fr.comp > 0], return_counts=True)
@@ -348,6 +354,10 @@ def mandible_component(fr, nlab: int, skull_id: int, skull_mm3: float, grid_mm: 
                 front, back = fr.coord(1, where[:, 1].min()), fr.coord(1, where[:, 1].max())
                 if back - front < MANDIBLE_REACH_FRACTION * (porion_y - front):
                     continue                 # the upper teeth split from the maxilla: the front of the arch alone
+                on_mid = np.abs(fr.coord(0, where[:, 0]) - mid_x) <= 3.0
+                if orbitale_y is not None and on_mid.any() and (fr.coord(1, where[on_mid, 1].min()) - orbitale_y
+                                                                > MANDIBLE_MIDLINE_FRACTION * (porion_y - orbitale_y)):
+                    continue                 # crosses the midline behind the face: a vertebra (the atlas)
             if cz < orb_z - 30 and cnt > best:
                 mand_id, best = int(cid), cnt
         if mand_id is None and skull_mm3 > 0:

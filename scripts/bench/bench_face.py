@@ -517,6 +517,8 @@ CONSTANT_CHOICE = {
     "landmark_midline.MANDIBLE_REACH_FRACTION": "definition (the mandible's body runs back to the rami: CThead's "
     "reaches 82 % of the way to the porions, the upper teeth split from its maxilla 29 %)",
     "landmark_midline.MANDIBLE_FRONT_STEP_MM": "= OCCLUSAL_GAP_MM (the upper jaw's end of its front)",
+    "landmark_midline.MANDIBLE_MIDLINE_FRACTION": "definition (the mandible crosses the midline at the chin, in "
+    "front of the orbitales on CThead; the atlas 73 % of the way from the orbitales to the porions)",
     "face_features.NOSE_* shape (dorsum, tip, columella, alae), face_eyes.EYE_* grooves, LIP_* depths": "renders",
 }
 #: The constants chosen on CThead's score, set neutral for the suite's "without" row: no damping of outlying pegs, no
