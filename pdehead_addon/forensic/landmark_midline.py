@@ -35,10 +35,11 @@ SUPRAMENTALE_MAX_DEPTH_MM = 8.0
 #: resliced to 1.5 mm). Notches of the incisors' edges step back up to 8 mm.
 MANDIBLE_FRONT_STEP_MM = OCCLUSAL_GAP_MM
 #: The mandible reaches back from its front at least this fraction of the way to the porions (its body runs back to
-#: the rami, its condyles sit just in front of the ear canals: CThead's reaches 82 % of the way). The upper teeth and
-#: the front of the alveolar process, split from the maxilla by the threshold, reach 29 % (CThead cut at the
-#: occlusal plane, where that piece was taken for the mandible and the upper jaw's landmarks moved 16 mm up).
-MANDIBLE_REACH_FRACTION = 0.5
+#: the rami, its condyles sit just in front of the ear canals: CThead's reaches 82 % of the way; the phantom scaled by
+#: 1.12, whose rami the threshold splits off, 43 %). The upper teeth and the front of the alveolar process, split from
+#: the maxilla by the threshold, reach 29 % (CThead cut at the occlusal plane, where that piece was taken for the
+#: mandible and the upper jaw's landmarks moved 9-22 mm up). Half way between those two: the margins are narrow.
+MANDIBLE_REACH_FRACTION = 0.36
 #: ... and where it crosses the mid-sagittal plane it does so at the face's front (the chin, the incisors): in front of
 #: this fraction of the way from the orbitales back to the porions (CThead's chin: in front of the orbitales). The
 #: atlas, kept in the bone where a scan cut through the lower teeth leaves the spine too short to be told from the
