@@ -514,8 +514,9 @@ CONSTANT_CHOICE = {
     "landmark_bilateral.SUPRA_M2_PORION_FRACTION (supra M2 without the mandible)": "CThead (its sub M2 0.56-0.58 of "
     "the way from prosthion to porion), checked on the phantom (0.63; supra M2 without its mandible 5.0 / 5.8 mm "
     "from where the mandible puts it)",
-    "landmark_midline.MANDIBLE_REACH_FRACTION": "definition (the mandible's body runs back to the rami: CThead's "
-    "reaches 82 % of the way to the porions, the upper teeth split from its maxilla 29 %)",
+    "landmark_midline.MANDIBLE_REACH_FRACTION": "definition, placed between measured pieces (the mandible's body runs "
+    "back to the rami: CThead's reaches 82 % of the way to the porions, the phantom scaled by 1.12 with its rami split "
+    "off 43 %, the upper teeth split from CThead's maxilla 29 %): 0.36",
     "landmark_midline.MANDIBLE_FRONT_STEP_MM": "= OCCLUSAL_GAP_MM (the upper jaw's end of its front)",
     "landmark_midline.MANDIBLE_MIDLINE_FRACTION": "definition (the mandible crosses the midline at the chin, in "
     "front of the orbitales on CThead; the atlas 73 % of the way from the orbitales to the porions)",
