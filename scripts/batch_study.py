@@ -363,7 +363,7 @@ def _skull_outputs(eng, ct, seg, bset, work: Path, settings: dict) -> int:
         if skull.meta.get("has_skin", True) else None
     if skin is None:
         print("no skin: the CT shows no soft tissue (a skull alone): landmarks without depths", flush=True)
-    search = find_landmarks(ct, skull.bone)
+    search = find_landmarks(ct, skull.bone, mandible=skull.mandible)
     found = search.points()  # ok and uncertain
     levels = depth_levels(skull)
     table = default_table()

@@ -198,7 +198,7 @@ class ForensicStudy:
         coll = self.collection
         t0 = time.perf_counter()
         sk = self.skull.skull_segmentation()
-        search = engine_find(self.study.ct, sk.bone)
+        search = engine_find(self.study.ct, sk.bone, mandible=sk.mandible)
         edited = {str(o.get(LANDMARK_KEY)) for o in coll.all_objects
                   if o.get(LANDMARK_KEY) and o.get(LANDMARK_EVIDENCE) in _BY_HAND} if keep_edited else set()
         found = {n: lm for n, lm in search.landmarks.items() if lm.point is not None and n not in edited}

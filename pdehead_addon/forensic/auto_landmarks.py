@@ -47,7 +47,14 @@ import numpy as np
 from scipy import ndimage
 
 from ..core.errors import PDEHeadError
-from .landmark_bilateral import alare, canine_points, mandible_bilateral, orbit_margins, zygion_supraglenoid
+from .landmark_bilateral import (
+    alare,
+    canine_points,
+    mandible_bilateral,
+    mid_ramus_on_rami,
+    orbit_margins,
+    zygion_supraglenoid,
+)
 from .landmark_frame import FLAGS, NOT_FOUND, OK, UNCERTAIN, LandmarkFrame, bone_components
 from .landmark_midline import mandible_component, midline_landmarks
 from .landmark_openings import MIRROR_TOLERANCE_MM, PORION_OVERHANG_MM, frankfurt_points
@@ -170,7 +177,7 @@ class LandmarkSearch:
 
 
 def find_landmarks(ct, bone: np.ndarray, *, grid_mm: float = LANDMARK_GRID_MM,
-                   phases=LANDMARK_GRID_PHASES) -> LandmarkSearch:
+                   phases=LANDMARK_GRID_PHASES, mandible: np.ndarray | None = None) -> LandmarkSearch:
     """Find every landmark of :data:`~pdehead_addon.forensic.landmarks.STANDARD_LANDMARKS` (and the depth
     table's extra ones) on a binary bone mask, with a flag each; see the module docstring and
     :data:`RULES`.
@@ -193,6 +200,10 @@ def find_landmarks(ct, bone: np.ndarray, *, grid_mm: float = LANDMARK_GRID_MM,
     phases : int or sequence of 3-tuples
         Number of shifted grids, the first of :data:`GRID_PHASES` (1: the grid anchored at the symmetry plane's
         centre only), or the shifts themselves (fractions of a step in [0, 1) along the frame's x, y, z).
+    mandible : ndarray of bool, shape ``ct.shape``, optional
+        The segmentation's mandible (``SkullSegmentation.mandible``). Where the rules find no mandible's body (a
+        scan cut through the lower teeth) and this holds its rami, mid-ramus is placed on them
+        (:func:`~.landmark_bilateral.mid_ramus_on_rami`).
 
     Returns
     -------
@@ -218,7 +229,7 @@ def find_landmarks(ct, bone: np.ndarray, *, grid_mm: float = LANDMARK_GRID_MM,
     runs = []
     for fr, fp in frames:
         run_info = dict(info)
-        runs.append(_landmarks_on_grid(ct, bone, labels, sizes, nlab, fr, fp, frank, run_info))
+        runs.append(_landmarks_on_grid(ct, bone, labels, sizes, nlab, fr, fp, frank, run_info, mandible))
         if len(runs) == 1:
             info = run_info           # the mandible and the scan's cut as the first grid saw them
     out, spread = _medoids(runs) if len(runs) > 1 else (runs[0], {})
@@ -227,7 +238,8 @@ def find_landmarks(ct, bone: np.ndarray, *, grid_mm: float = LANDMARK_GRID_MM,
     return LandmarkSearch(out, frank, info)
 
 
-def _landmarks_on_grid(ct, bone, labels, sizes, nlab, fr, fp_all, frank, info: dict) -> dict[str, FoundLandmark]:
+def _landmarks_on_grid(ct, bone, labels, sizes, nlab, fr, fp_all, frank, info: dict,
+                       mandible=None) -> dict[str, FoundLandmark]:
     """Every rule on one resampled grid ``fr`` (with its :func:`frankfurt_points` ``fp_all``): landmarks by
     standard name in patient mm."""
     skull_id = int(np.argmax(sizes))
@@ -252,6 +264,9 @@ def _landmarks_on_grid(ct, bone, labels, sizes, nlab, fr, fp_all, frank, info: d
     alare(found, fr, v, aperture, mid_x)
     canine_points(found, fr, v, mid_x, up, low, mand_id, mand_ev)
     mandible_bilateral(found, fr, v, mid_x, up, low, mand_id, mand_ev)
+    if mand_id is None and mandible is not None and np.any(mandible):
+        rami = (ct.index_to_patient(np.argwhere(mandible).astype(float)) - fr.centre) @ fr.rot.T
+        mid_ramus_on_rami(found, rami)
     _check_mirror_images(found)
     if frank is None:   # every rule assumes the Frankfurt orientation
         _flag_without_frankfurt(found)

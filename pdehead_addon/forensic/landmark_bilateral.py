@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from .landmark_frame import NOT_FOUND, OK, UNCERTAIN, box_mask, nearest_surface, side_extreme
-from .landmark_openings import front_most, mirror_fill, rim_above, rim_below
+from .landmark_openings import MIRROR_TOLERANCE_MM, front_most, mirror_fill, rim_above, rim_below
 
 #: Supra canine is not found when the front-most bone above the canine lies this far (mm) behind supradentale:
 #: that bone is not the maxilla (CThead and the phantom: 4-16 mm behind).
@@ -211,6 +211,8 @@ def mandible_bilateral(found, fr, v, mid_x, up, low, mand_id, mand_ev) -> None:
         t = TAGS[side].lower()
         if f"supm2_{t}" not in found:
             found[f"supm2_{t}"] = (None, NOT_FOUND, mand_ev)
+    if mand_id is None or not low:
+        _supra_m2_mirrored(found, fr)
 
 
 def _supra_m2_without_mandible(found, fr, v, side, t, up, mid_x) -> None:
@@ -230,6 +232,58 @@ def _supra_m2_without_mandible(found, fr, v, side, t, up, mid_x) -> None:
     found[f"supm2_{t}"] = _pt(p, "no maxilla above the second molar", UNCERTAIN,
                               f"no mandible to place it by: taken {100 * SUPRA_M2_PORION_FRACTION:.0f} % of the way "
                               "from prosthion to porion")
+
+
+def _supra_m2_mirrored(found, fr) -> None:
+    """Supra M2 placed without the mandible lies on the outermost bone of its side. Where one side's lies more than
+    :data:`~.landmark_openings.MIRROR_TOLERANCE_MM` nearer the midline than the other's, its maxilla's thin outer
+    wall is not in the bone (slabs averaged over it, or its molars' fillings' streaks removed) and the point is on
+    the palate or the teeth within (CThead resliced to 1.5 mm and cut through the lower teeth: 12 mm from the midline
+    against 46 mm on the other side, and the face's cheek pulled in 20 mm to its tip): it is replaced by the other
+    side's mirror image, on the nearest bone within 6 mm of it, or not found; so is a side with no bone on its row."""
+    pts = {t: found.get(f"supm2_{t}", (None,))[0] for t in ("l", "r")}
+    if pts["l"] is None and pts["r"] is None:
+        return
+    wide = {t: (abs(float(p[0])) if p is not None else 0.0) for t, p in pts.items()}
+    narrow, other = ("l", "r") if wide["l"] < wide["r"] else ("r", "l")
+    if wide[other] - wide[narrow] <= MIRROR_TOLERANCE_MM:
+        return
+    m = np.asarray(pts[other], float) * np.array([-1.0, 1.0, 1.0])
+    q = nearest_surface(fr, m, radius=6.0)
+    ev = ("no bone on this side's row" if pts[narrow] is None else
+          f"its outermost bone lies {wide[narrow]:.0f} mm from the midline, the other side's {wide[other]:.0f} mm")
+    ev += ": the maxilla's outer wall is missing here; taken at the mirror image of the other side's"
+    found[f"supm2_{narrow}"] = _pt(q, "no bone near the mirror image of the other side's supra M2", UNCERTAIN, ev)
+
+
+#: A ramus of a partial mandible (:func:`mid_ramus_on_rami`): its points lie at least this far (mm) from the midline
+#: and span at least RAMUS_MIN_HEIGHT_MM in height.
+RAMUS_SIDE_MM = 20.0
+RAMUS_MIN_HEIGHT_MM = 15.0
+
+
+def mid_ramus_on_rami(found, rami: np.ndarray) -> None:
+    """Mid-ramus on the rami of a mandible whose body is outside the scan (a scan cut through the lower teeth):
+    ``rami`` the segmentation's mandible voxels (frame mm, the midline at x = 0). Each side's: the outermost point
+    half way up the ramus in the scan, in the middle of its front-to-back extent there, as :func:`_mandible_side`
+    puts it half way from gonion to the condyle; gonion is below the scan, so the point lies above the true one by
+    half the part cut off: uncertain. The rules without the mandible leave it not found (later "outside the
+    scan"), though the ramus is in the scan."""
+    for side in (1, -1):
+        t = TAGS[side].lower()
+        if found.get(f"mr_{t}", (None,))[0] is not None:
+            continue
+        P = rami[side * rami[:, 0] > RAMUS_SIDE_MM]
+        if len(P) == 0 or np.ptp(P[:, 2]) < RAMUS_MIN_HEIGHT_MM:
+            continue
+        z0, z1 = float(P[:, 2].min()), float(P[:, 2].max())
+        zr = 0.5 * (z0 + z1)
+        ram = P[np.abs(P[:, 2] - zr) <= 1.5]
+        yc = 0.5 * (ram[:, 1].min() + ram[:, 1].max())
+        band = ram[np.abs(ram[:, 1] - yc) <= 3.0]
+        found[f"mr_{t}"] = (band[np.argmax(side * band[:, 0])], UNCERTAIN,
+                            f"the mandible's body is outside the scan: half way up the ramus in it ({z1 - z0:.0f} mm "
+                            "high), above the mid-ramus by half the part cut off")
 
 
 def _mandible_side(found, fr, side, t, P, up, low) -> float:

@@ -309,3 +309,37 @@ def test_bone_joined_behind_the_mandibles_front_is_not_its_front(phantom, phanto
         M.MANDIBLE_FRONT_STEP_MM = MANDIBLE_FRONT_STEP_MM
     print("old rule: infradentale", old[2] - idn[2], "mm higher")
     assert old[2] - idn[2] > 3.0, old
+
+
+def test_supra_m2_without_the_mandible_on_a_missing_wall_is_the_other_sides_mirror_image(phantom, phantom_bone,
+                                                                                           phantom_search):
+    """Supra M2 placed without the mandible is the outermost bone of its row; where a side's maxillary wall is not
+    in the bone (CThead resliced to 1.5 mm and cut through the lower teeth: its point 12 mm from the midline against
+    46 mm on the other side, and the face's cheek pulled 20 mm in), it is the other side's mirror image, uncertain."""
+    from pdehead_addon.forensic import landmark_bilateral
+    from pdehead_addon.forensic.landmark_frame import bone_components
+    labels, _ = bone_components(phantom_bone)
+    mandible = labels == labels[tuple(np.round(phantom.ct.patient_to_index([0.0, -67.0, -79.0])).astype(int))]
+    bone = phantom_bone & ~mandible
+    whole = find_landmarks(phantom.ct, bone).landmarks
+    p = whole["Supra M2 L"].point
+    # the left wall around it taken out: everything beyond 14 mm inside its outermost bone, 12 x 10 mm about it
+    xyz = phantom.ct.index_to_patient(np.argwhere(bone).astype(float))
+    box = (xyz[:, 0] > p[0] - 14.0) & (np.abs(xyz[:, 1] - p[1]) <= 6.0) & (np.abs(xyz[:, 2] - p[2]) <= 5.0)
+    holed = bone.copy()
+    holed[tuple(np.argwhere(bone)[box].T)] = False
+    found = find_landmarks(phantom.ct, holed).landmarks
+    lm, other = found["Supra M2 L"], found["Supra M2 R"]
+    mirror = other.point * np.array([-1.0, 1.0, 1.0])
+    print("supra M2 L", lm, "whole scan's", p, "R mirrored", mirror)
+    assert lm.flag == UNCERTAIN and "mirror image" in lm.evidence, lm
+    assert lm.point[0] > p[0] - 6.0 and np.linalg.norm(lm.point - p) <= 8.0, (lm.point, p)
+    # without the guard the point is on the bone within, far from the wall
+    guard = landmark_bilateral._supra_m2_mirrored
+    try:
+        landmark_bilateral._supra_m2_mirrored = lambda found, fr: None
+        unguarded = find_landmarks(phantom.ct, holed).landmarks["Supra M2 L"]
+    finally:
+        landmark_bilateral._supra_m2_mirrored = guard
+    print("without the guard", unguarded)
+    assert unguarded.point is None or unguarded.point[0] < p[0] - 12.0

@@ -251,15 +251,29 @@ def test_a_scan_cut_below_the_occlusal_plane_finds_the_rami(cthead_ct, cthead_se
         assert np.count_nonzero(side) > 500
         assert xyz[side, 2].min() <= z[k] + 2.0 and xyz[side, 2].max() >= z[k] + 35.0
     assert 2000.0 < np.count_nonzero(sk.mandible) * float(np.prod(cut.spacing)) < 12000.0
-    lms = find_landmarks(cut, sk.bone).landmarks
+    lms = find_landmarks(cut, sk.bone, mandible=sk.mandible).landmarks
     for name in ("Menton", "Pogonion", "Gnathion", "Gonion L", "Gonion R", "Sub M2 L", "Sub M2 R"):
         assert lms[name].flag == "not_found" and lms[name].evidence.startswith("outside the scan"), (name, lms[name])
+    # the rami are in the scan: mid-ramus is placed on them, half way up what the scan holds (above the whole
+    # scan's, gonion being cut off), uncertain; without them (the rules' own search) it was "outside the scan"
+    whole = find_landmarks(cthead_ct, full.bone).landmarks
+    # for reference the whole scan stripped at 1500, where its rule has each whole ramus (at 1586 the threshold
+    # splits the left ramus and its rule puts mid-ramus L at z 56, by gonion)
+    bare = stripped(cthead_ct, 1500.0)
+    at_level = find_landmarks(bare, segment_skull(bare, bone_level=1500.0).bone).landmarks
+    for side in "LR":
+        mr, ref = lms[f"Mid-ramus {side}"], at_level[f"Mid-ramus {side}"]
+        off = mr.point - ref.point
+        print(f"level {level}: mid-ramus {side} {np.round(mr.point, 1)}, {np.round(off, 1)} mm from the whole scan's "
+              f"{np.round(ref.point, 1)} ({mr.evidence})")
+        assert mr.flag == "uncertain" and "outside the scan" in mr.evidence, mr
+        assert abs(off[0]) <= 4.0 and -2.0 <= off[2] <= 15.0 and np.linalg.norm(off) <= 16.0, off
+    assert find_landmarks(cut, sk.bone).landmarks["Mid-ramus L"].flag == "not_found"
     for name in ("Nasion", "Porion L", "Porion R", "Orbitale L", "Orbitale R"):
         assert lms[name].flag != "not_found", (name, lms[name])
     # the atlas, kept in this bone, crosses the midline 73 % of the way from the orbitales to the porions: not the
     # mandible (MANDIBLE_MIDLINE_FRACTION). Taken for it, infradentale landed on it, 77 mm behind the face, and supra
     # M2 by the ear; now supra M2 is placed without the mandible, near the whole scan's (measured 1-2 mm at 1586)
-    whole = find_landmarks(cthead_ct, full.bone).landmarks
     assert lms["Infradentale"].flag == "not_found", lms["Infradentale"]
     for side in "LR":
         off = float(np.linalg.norm(lms[f"Supra M2 {side}"].point - whole[f"Supra M2 {side}"].point))
