@@ -15,6 +15,7 @@ from scipy import ndimage
 
 from ..core.errors import PDEHeadError
 from ..core.mesh import Mesh
+from .landmark_midline import UPPER_INCISOR_CROWN_MM
 
 #: A skull must give at least this many ``ok`` landmarks (:func:`_check_skull`).
 MIN_OK_LANDMARKS = 8
@@ -279,12 +280,13 @@ def predict_mouth(landmarks: dict) -> dict | None:
       its title). The canines are ``Supra canine L/R`` (the maxillary canine eminences).
     * *Line*: the oral fissure lies at the occlusal plane, where the upper and lower incisors meet; its
       height is taken half way between the alveolar crests, supradentale and infradentale (the incisors'
-      crowns are of similar height). Wilkinson CM, Motwani M, Chiang E (2003) "The relationship between
-      the soft tissues and the skeletal detail of the mouth", J Forensic Sci 48(4):728-732, relate the
-      lips' thickness to the teeth's height (abstract read at ojp.gov, NCJ 201544); without the teeth's
-      crowns in a bone mask their regression is not used: the lips' thickness is the depth pegs'
-      (mid-philtrum, supradentale, infradentale) and the vermilion rolls are a shape choice
-      (:data:`LIP_ROLL_MM`).
+      crowns are of similar height); without infradentale (a scan cut at the teeth), an upper central incisor's
+      crown (:data:`.landmark_midline.UPPER_INCISOR_CROWN_MM`, Wheeler) below supradentale.
+      Wilkinson CM, Motwani M, Chiang E (2003) "The relationship between the soft tissues and the skeletal
+      detail of the mouth", J Forensic Sci 48(4):728-732, relate the lips' thickness to the teeth's height
+      (abstract read at ojp.gov, NCJ 201544); without the teeth's crowns in a bone mask their regression is
+      not used: the lips' thickness is the depth pegs' (mid-philtrum, supradentale, infradentale) and the
+      vermilion rolls are a shape choice (:data:`LIP_ROLL_MM`).
 
     Returns ``width_mm``, ``centre`` (the canines' midpoint), ``mid_x`` and ``stomion_z`` (None where the
     incisors' crests are not found), or None without both canines.
@@ -296,6 +298,10 @@ def predict_mouth(landmarks: dict) -> dict | None:
     centre = 0.5 * (c[0] + c[1])
     sd, idn = point_of(landmarks, "Supradentale"), point_of(landmarks, "Infradentale")
     stomion_z = float(0.5 * (sd[2] + idn[2])) if sd is not None and idn is not None and sd[2] > idn[2] else None
+    if stomion_z is None and sd is not None and idn is None:
+        # no lower incisors (a scan cut at the teeth, no mandible): the upper incisors' edges, one crown below their
+        # alveolar crest, are the occlusal plane (the rule supradentale itself is placed by)
+        stomion_z = float(sd[2]) - UPPER_INCISOR_CROWN_MM
     mid = [p for p in (sd, idn, point_of(landmarks, "Subspinale")) if p is not None]
     mid_x = float(np.mean([p[0] for p in mid])) if mid else float(centre[0])
     return dict(width_mm=icw / 0.75, centre=centre, mid_x=mid_x, stomion_z=stomion_z)
@@ -403,7 +409,33 @@ def ear_shape(grid, landmarks: dict) -> np.ndarray | None:
     return out
 
 
-def nose_bump(grid, nose: dict | None, base: np.ndarray, tip_of, anchor=None) -> np.ndarray | None:
+def straight_ahead(bone: np.ndarray, tip: np.ndarray) -> np.ndarray:
+    """The point as far straight in front (-y) of the bony point ``bone`` as its peg's ``tip`` is from it."""
+    return np.asarray(bone, float) - np.array([0.0, float(np.linalg.norm(np.asarray(tip, float) - bone)), 0.0])
+
+
+def upper_lip(zz, dx, y, lip_from, ys: float, zs: float, half_mm: float) -> np.ndarray:
+    """The upper lip under the nose (y's raise, >= 0, rows ``zz`` by columns). On the midline the face stands no
+    further back than the straight line from ``lip_from`` (the soft point in front of subspinale: the bony point plus
+    its peg's depth straight forward, as Singh & Purkait 2024 place soft tissue parallel to the Frankfurt plane,
+    :func:`predict_nose`) up to soft subnasale (``ys``, ``zs``); each row's shortfall there raises the row by
+    (1 - u^2)^2 of it, u = ``dx`` / ``half_mm`` (the nose's half width), so the lip keeps the dental arch's curve to
+    its sides. The skin over the philtrum runs from the lip to the columella's foot; the face the field makes there
+    follows the bone into the nasal aperture (its peg's normal there points up into it: CThead's tip 10 mm above the
+    bony point), 8-11 mm behind the real lip on CThead, and the nose's underside overhung a hollow."""
+    if lip_from is None or zs - float(lip_from[2]) < 2.0:
+        return np.zeros_like(y)
+    z0, y0 = float(lip_from[2]), float(lip_from[1])
+    z = zz[:, 0]
+    w = np.clip((z - z0) / (zs - z0), 0.0, 1.0)
+    line_y = y0 + (ys - y0) * w
+    mid = np.argmin(np.abs(dx), axis=1)                  # each row's column nearest the midline
+    short = np.clip(y[np.arange(len(z)), mid] - line_y, 0.0, None) * ((z >= z0) & (z <= zs))
+    u = np.clip(np.abs(dx) / half_mm, 0.0, 1.0)
+    return short[:, None] * (1.0 - u * u) ** 2
+
+
+def nose_bump(grid, nose: dict | None, base: np.ndarray, tip_of, anchor=None, lip_from=None) -> np.ndarray | None:
     """Radial nose over the face ``base`` (K, M), made of four parts (:func:`predict_nose` gives where):
 
     * the *dorsum*: a rounded ridge from the soft nasion (the nasion peg's tip) straight to pronasale,
@@ -498,8 +530,10 @@ def nose_bump(grid, nose: dict | None, base: np.ndarray, tip_of, anchor=None) ->
         # the alar-facial groove: outside the ala, on its lateral and lower sides (not toward the tip)
         outside = (side * (dx - side * a_half) > 0) | (zz < a_z)
         groove = np.minimum(groove, -NOSE_ALAR_GROOVE_MM * np.exp(-0.5 * ((qa - 1.08) / 0.1) ** 2) * outside)
+    lip = upper_lip(zz, dx, y, lip_from, min(ys, float(lip_from[1])) if lip_from is not None else ys, zs,
+                    0.5 * nose["width_mm"])
     bump = dorsum
-    for part in (lobule, columella, alae):
+    for part in (lobule, columella, alae, lip):
         bump = smooth_max(bump, part, NOSE_BLEND_MM)
     bump = bump + groove * np.clip(1.0 - bump / 0.5, 0.0, 1.0)
     bump = np.nan_to_num(bump) / np.maximum(-c[None, :], 0.2)   # along -y -> along the ray

@@ -70,6 +70,7 @@ from .face_features import (
     predict_ears,
     predict_mouth,
     predict_nose,
+    straight_ahead,
 )
 from .face_field import (  # noqa: F401  (re-exported: face_live and the tests read them here)
     DAMP_FREE_MM,
@@ -348,14 +349,13 @@ class FaceModel(DepthField):
         return self.__dict__["_ears"]
 
     def _peg_tip(self, tips: np.ndarray, *names) -> np.ndarray | None:
-        for n in names:
-            if n in self.peg_names:
-                return tips[self.peg_names.index(n)]
-        return None
+        return next((tips[self.peg_names.index(n)] for n in names if n in self.peg_names), None)
 
     def _nose_bump(self, base: np.ndarray, tips: np.ndarray, grid: FaceGrid | None = None, anchor=None):
         """The nose over the face ``base`` on the current peg ``tips`` (:func:`.face_features.nose_bump`)."""
-        return nose_bump(grid or self.grid, self.nose, base, lambda *names: self._peg_tip(tips, *names), anchor)
+        ss = self.peg_names.index("Subspinale") if "Subspinale" in self.peg_names else None
+        lip_from = None if ss is None else straight_ahead(self.peg_bases[ss], tips[ss])      # :func:`upper_lip`'s
+        return nose_bump(grid or self.grid, self.nose, base, lambda *n: self._peg_tip(tips, *n), anchor, lip_from)
 
     def _front(self) -> tuple[slice, FaceGrid]:
         """The columns the nose, the lips and the eyes can touch (``cos theta < -0.2``: all three are zero

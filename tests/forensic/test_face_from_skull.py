@@ -844,6 +844,63 @@ def test_subnasale_stands_at_least_at_subspinales_peg(model, face):
     assert front_y <= float(tip[1]) + 0.5
 
 
+def test_the_upper_lip_under_the_nose_stands_on_the_line_from_subspinale_to_subnasale(model, face, monkeypatch):
+    """Between subspinale's height and soft subnasale the face the depth field makes follows the bone into the nasal
+    aperture (CThead: 8-11 mm behind the real lip, and the nose's underside overhung a hollow). On the midline the
+    face stands no further back than the straight line from the soft point straight in front of bony subspinale (its
+    peg's depth) to soft subnasale; the rows' shortfall tapers to nothing at the nose's half width."""
+    from pdehead_addon.forensic import face_features
+    upper_lip = face_features.upper_lip
+    i = model.peg_names.index("Subspinale")
+    bony, tip = model.peg_bases[i], face.tips[i]
+    front_pt = bony - np.array([0.0, float(np.linalg.norm(tip - bony)), 0.0])
+    cols, g = model._front()
+    base = (model.profile + model._offset_field(face.tips))[:, cols] - 10.0        # a face 10 mm deeper
+    # the phantom's aperture floor lies 3 mm above its subspinale; CThead's 9 mm: subnasale put 10 mm above it
+    zs = float(front_pt[2]) + 10.0
+    monkeypatch.setattr(model, "nose", dict(model.nose, subnasale_z=zs))
+    s, c = np.sin(g.theta)[None, :], np.cos(g.theta)[None, :]
+
+    def midline_y(bump):
+        r = base + (0.0 if bump is None else bump)
+        x, y = g.centre[0] + r * s, g.centre[1] + r * c
+        rows = np.flatnonzero((g.z > front_pt[2] + 1.0) & (g.z < zs - 1.0))
+        return g.z[rows], np.array([y[k][np.argmin(np.abs(x[k] - model.nose["mid_x"]))] for k in rows]), x, y
+
+    z, with_lip, x, y = midline_y(model._nose_bump(base, face.tips, g))
+    ys = min(float(front_pt[1]), float(tip[1]))
+    line = front_pt[1] + (ys - front_pt[1]) * (z - front_pt[2]) / (zs - front_pt[2])
+    print(f"phantom: subspinale z {bony[2]:.1f} (front {front_pt[2]:.1f}), subnasale z {zs:.1f}, "
+          f"rows {np.round(z, 1)}: lip {np.round(with_lip - line, 2)} mm behind the line")
+    assert len(z) >= 2 and np.all(with_lip <= line + 1.0)
+    monkeypatch.setattr(face_features, "upper_lip", lambda zz, dx, y, *a: np.zeros_like(y))
+    _, without, _, _ = midline_y(model._nose_bump(base, face.tips, g))
+    assert np.max(without - line) > 3.0                         # the deeper face alone falls back behind it
+    # the nose's sides: at the half width and beyond no raise
+    monkeypatch.setattr(face_features, "upper_lip", upper_lip)
+    x, y = g.centre[0] + base * s, g.centre[1] + base * c                          # the deeper face itself
+    dx = np.abs(x - model.nose["mid_x"])
+    lip = face_features.upper_lip(g.z[:, None] + 0 * x, x - model.nose["mid_x"], y, front_pt, ys, zs,
+                                  0.5 * model.nose["width_mm"])
+    assert lip.max() > 3.0 and np.all(lip[dx >= 0.5 * model.nose["width_mm"]] == 0.0)
+
+
+def test_without_the_lower_incisors_the_mouth_is_one_upper_crown_below_supradentale(phantom_bone):
+    """A scan cut at the teeth has no infradentale: the oral fissure is the upper incisors' edge, an upper central
+    incisor's crown (Wheeler: 10.5 mm) below supradentale, instead of no mouth (CThead cut through the lower teeth:
+    a face with no lips)."""
+    from pdehead_addon.forensic.face_features import predict_mouth
+    from pdehead_addon.forensic.landmark_midline import UPPER_INCISOR_CROWN_MM
+    _, lms, _ = phantom_bone
+    both = predict_mouth(lms)
+    upper = predict_mouth({k: v for k, v in lms.items() if k != "Infradentale"})
+    assert upper["stomion_z"] == pytest.approx(lms["Supradentale"][2] - UPPER_INCISOR_CROWN_MM)
+    print(f"phantom: stomion from both crests {both['stomion_z']:.1f}, from the upper {upper['stomion_z']:.1f}")
+    assert abs(upper["stomion_z"] - both["stomion_z"]) <= 5.0
+    assert predict_mouth({k: v for k, v in lms.items() if k not in ("Infradentale", "Supradentale")})[
+        "stomion_z"] is None
+
+
 def test_the_closed_lids_lie_on_the_globe_and_the_fissure_is_wider_than_a_row(model, face, monkeypatch):
     """The eyes (face_eyes.eye_shape): a bump of 2 mm and two lines (the fissure, a lid crease) added to the face's
     slope from cheek to brow read as a stack of horizontal lines; a groove 1 mm wide on rows 2.5 mm apart is one
