@@ -226,10 +226,13 @@ def find_landmarks(ct, bone: np.ndarray, *, grid_mm: float = LANDMARK_GRID_MM,
 
     c, x_ax = _symmetry_plane(ct, bone, info)
     frames, frank = _frankfurt_frames(ct, bone, labels, c, x_ax, grid_mm, shifts, info)
+    rami = None             # the segmentation's mandible in patient mm, once for every grid
+    if mandible is not None and np.any(mandible):
+        rami = ct.index_to_patient(np.argwhere(mandible).astype(float))
     runs = []
     for fr, fp in frames:
         run_info = dict(info)
-        runs.append(_landmarks_on_grid(ct, bone, labels, sizes, nlab, fr, fp, frank, run_info, mandible))
+        runs.append(_landmarks_on_grid(ct, bone, labels, sizes, nlab, fr, fp, frank, run_info, rami))
         if len(runs) == 1:
             info = run_info           # the mandible and the scan's cut as the first grid saw them
     out, spread = _medoids(runs) if len(runs) > 1 else (runs[0], {})
@@ -239,9 +242,9 @@ def find_landmarks(ct, bone: np.ndarray, *, grid_mm: float = LANDMARK_GRID_MM,
 
 
 def _landmarks_on_grid(ct, bone, labels, sizes, nlab, fr, fp_all, frank, info: dict,
-                       mandible=None) -> dict[str, FoundLandmark]:
+                       rami=None) -> dict[str, FoundLandmark]:
     """Every rule on one resampled grid ``fr`` (with its :func:`frankfurt_points` ``fp_all``): landmarks by
-    standard name in patient mm."""
+    standard name in patient mm. ``rami``: the segmentation's mandible voxels (patient mm) or None."""
     skull_id = int(np.argmax(sizes))
     vox_mm3 = float(np.prod(ct.spacing))
     grid_mm = fr.step
@@ -264,9 +267,8 @@ def _landmarks_on_grid(ct, bone, labels, sizes, nlab, fr, fp_all, frank, info: d
     alare(found, fr, v, aperture, mid_x)
     canine_points(found, fr, v, mid_x, up, low, mand_id, mand_ev)
     mandible_bilateral(found, fr, v, mid_x, up, low, mand_id, mand_ev)
-    if mand_id is None and mandible is not None and np.any(mandible):
-        rami = (ct.index_to_patient(np.argwhere(mandible).astype(float)) - fr.centre) @ fr.rot.T
-        mid_ramus_on_rami(found, rami)
+    if mand_id is None and rami is not None:
+        mid_ramus_on_rami(found, (rami - fr.centre) @ fr.rot.T)
     _check_mirror_images(found)
     if frank is None:   # every rule assumes the Frankfurt orientation
         _flag_without_frankfurt(found)

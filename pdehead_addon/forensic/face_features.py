@@ -418,14 +418,16 @@ def upper_lip(zz, dx, y, lip_from, ys: float, zs: float, half_mm: float) -> np.n
     """The upper lip under the nose (y's raise, >= 0, rows ``zz`` by columns). On the midline the face stands no
     further back than the straight line from ``lip_from`` (the soft point in front of subspinale: the bony point plus
     its peg's depth straight forward, as Singh & Purkait 2024 place soft tissue parallel to the Frankfurt plane,
-    :func:`predict_nose`) up to soft subnasale (``ys``, ``zs``); each row's shortfall there raises the row by
-    (1 - u^2)^2 of it, u = ``dx`` / ``half_mm`` (the nose's half width), so the lip keeps the dental arch's curve to
-    its sides. The skin over the philtrum runs from the lip to the columella's foot; the face the field makes there
-    follows the bone into the nasal aperture (its peg's normal there points up into it: CThead's tip 10 mm above the
-    bony point), 8-11 mm behind the real lip on CThead, and the nose's underside overhung a hollow."""
+    :func:`predict_nose`) up to soft subnasale (height ``zs``; at ``ys`` or, if further forward, ``lip_from``'s y);
+    each row's shortfall there raises the row by (1 - u^2)^2 of it, u = ``dx`` / ``half_mm`` (the nose's half width),
+    so the lip keeps the dental arch's curve to its sides. The skin over the philtrum runs from the lip to the
+    columella's foot; the face the field makes there follows the bone into the nasal aperture (its peg's normal there
+    points up into it: CThead's tip 10 mm above the bony point), 8-11 mm behind the real lip on CThead, and the nose's
+    underside overhung a hollow."""
     if lip_from is None or zs - float(lip_from[2]) < 2.0:
         return np.zeros_like(y)
     z0, y0 = float(lip_from[2]), float(lip_from[1])
+    ys = min(float(ys), y0)
     z = zz[:, 0]
     w = np.clip((z - z0) / (zs - z0), 0.0, 1.0)
     line_y = y0 + (ys - y0) * w
@@ -530,8 +532,7 @@ def nose_bump(grid, nose: dict | None, base: np.ndarray, tip_of, anchor=None, li
         # the alar-facial groove: outside the ala, on its lateral and lower sides (not toward the tip)
         outside = (side * (dx - side * a_half) > 0) | (zz < a_z)
         groove = np.minimum(groove, -NOSE_ALAR_GROOVE_MM * np.exp(-0.5 * ((qa - 1.08) / 0.1) ** 2) * outside)
-    lip = upper_lip(zz, dx, y, lip_from, min(ys, float(lip_from[1])) if lip_from is not None else ys, zs,
-                    0.5 * nose["width_mm"])
+    lip = upper_lip(zz, dx, y, lip_from, ys, zs, 0.5 * nose["width_mm"])
     bump = dorsum
     for part in (lobule, columella, alae, lip):
         bump = smooth_max(bump, part, NOSE_BLEND_MM)
