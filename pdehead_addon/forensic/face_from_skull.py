@@ -58,20 +58,8 @@ from ..core.mesh import Mesh
 from ..core.provenance import provenance
 from ..pde.pde_head import derived_once
 from ..pde.pde_surface import curve_positions, smoothing_range, solve_pde
-from .face_eyes import eye_shape, predict_eyes
-from .face_features import (
-    EAR_LENGTH_MM,
-    EAR_WIDTH_MM,
-    FRONT_COS,
-    check_skull,
-    ear_shape,
-    mouth_shape,
-    nose_bump,
-    predict_ears,
-    predict_mouth,
-    predict_nose,
-    straight_ahead,
-)
+from .face_eyes import predict_eyes
+from .face_features import EAR_LENGTH_MM, EAR_WIDTH_MM, check_skull, predict_ears, predict_mouth, predict_nose
 from .face_field import (  # noqa: F401  (re-exported: face_live and the tests read them here)
     DAMP_FREE_MM,
     DAMP_MIDLINE_DEG,
@@ -87,6 +75,7 @@ from .face_field import (  # noqa: F401  (re-exported: face_live and the tests r
     DepthField,
     peg_kernel,
 )
+from .face_frame import HeadFrameFeatures, head_yaw, landmarks_in_head_frame, to_head_frame
 from .face_pegs import alar_pegs_by_definition, cheek_bands, cheek_depth, held_mask, mid_ramus_by_definition, peg_report
 from .face_profile import (
     PROFILE_SMOOTH_MM,
@@ -156,7 +145,7 @@ class FaceResult:
 
 
 @dataclass
-class FaceModel(DepthField):
+class FaceModel(DepthField, HeadFrameFeatures):
     """A face-from-skull model: everything that does not depend on the peg depths, prepared once.
 
     Build it with :meth:`prepare`; :meth:`solve` makes a face for any depths or peg tips.
@@ -265,9 +254,13 @@ class FaceModel(DepthField):
         normals = peg_normals(skull, bases, grid, profile)
         hull_profile = profile
         profile = smooth_far_from_pegs(profile, grid, bases + depths[:, None] * normals)
-        rule_sites = [(n, p, w) for n, p, w in predict_eyes(lm)]
-        nose = predict_nose(lm, skull)
-        mouth = predict_mouth(lm)
+        # the nose, the mouth and the eyes predicted facing the head's front (:mod:`.face_frame`)
+        yaw = head_yaw(lm)
+        lm_head = landmarks_in_head_frame(lm, grid.centre, yaw)
+        rule_sites = [(n, to_head_frame(p, grid.centre, yaw, back=True), w) for n, p, w in predict_eyes(lm_head)]
+        nose = predict_nose(lm_head, skull if yaw == 0.0 else
+                            Mesh(to_head_frame(skull.vertices, grid.centre, yaw), skull.quads, skull.triangles))
+        mouth = predict_mouth(lm_head)
         prov_table = table.provenance_record() if hasattr(table, "provenance_record") else {"table": "imported table"}
         prov = provenance(label=APPROXIMATION_LABEL, method="face from skull: PDE surface through tissue-depth "
                           "pegs (pdehead_addon.forensic.face_from_skull)", sex=sex, **prov_table)
@@ -277,6 +270,8 @@ class FaceModel(DepthField):
             if what:
                 prov[key] = {n: {"from": [round(float(x), 2) for x in a], "to": [round(float(x), 2) for x in b]}
                              for n, (a, b) in what.items()}
+        if yaw != 0.0:
+            prov["head_yaw_deg"] = round(float(np.degrees(yaw)), 1)
         if cut_plane is not None:
             prov["scan_cut"] = {"tilt_deg": round(float(np.degrees(np.arccos(-cut_plane[0][2]))), 1),
                                 "normal": [round(float(x), 4) for x in cut_plane[0]],
@@ -286,6 +281,7 @@ class FaceModel(DepthField):
                        nv=nv or D.FACE_NV.default, neck_mm=neck_mm, sex=sex)
         model = cls(names, bases, normals, depths, sds, grid, raw, profile, rule_sites, nose, mouth, options,
                     prov, dict(flags or {}))
+        model.face_yaw = yaw
         model.vertex_z = float(skull.vertices[:, 2].max())
         model.cut_plane = None if cut_plane is None else np.append(cut_plane[0], cut_plane[1])
         model._in_rows = grid.polar(model.tips_for(depths))[0] <= grid.z[-1]
@@ -333,42 +329,6 @@ class FaceModel(DepthField):
         in_rows = self.in_rows
         mask = mask[in_rows] if in_rows is not None else mask
         return np.concatenate([mask, np.zeros(len(self.rule_sites or ()), bool)])
-
-    def _mouth_shape(self, base: np.ndarray, grid: FaceGrid | None = None) -> np.ndarray | None:
-        """The lips over the face ``base`` (:func:`.face_features.mouth_shape`; on ``grid``, default the model's)."""
-        return mouth_shape(grid or self.grid, self.mouth, base)
-
-    def _eye_shape(self, base: np.ndarray, grid: FaceGrid | None = None) -> np.ndarray | None:
-        """The closed eyes over the face ``base`` (:func:`.face_eyes.eye_shape`)."""
-        return eye_shape(grid or self.grid, getattr(self, "landmarks_used", None) or {}, base)
-
-    def _ear_shape(self) -> np.ndarray | None:
-        """The default ears at the porions (:func:`.face_features.ear_shape`). Fixed by the skull: computed once."""
-        if "_ears" not in self.__dict__:
-            self.__dict__["_ears"] = ear_shape(self.grid, getattr(self, "landmarks_used", {}) or {})
-        return self.__dict__["_ears"]
-
-    def _peg_tip(self, tips: np.ndarray, *names) -> np.ndarray | None:
-        return next((tips[self.peg_names.index(n)] for n in names if n in self.peg_names), None)
-
-    def _nose_bump(self, base: np.ndarray, tips: np.ndarray, grid: FaceGrid | None = None, anchor=None):
-        """The nose over the face ``base`` on the current peg ``tips`` (:func:`.face_features.nose_bump`)."""
-        ss = self.peg_names.index("Subspinale") if "Subspinale" in self.peg_names else None
-        lip_from = None if ss is None else straight_ahead(self.peg_bases[ss], tips[ss])      # :func:`upper_lip`'s
-        return nose_bump(grid or self.grid, self.nose, base, lambda *n: self._peg_tip(tips, *n), anchor, lip_from)
-
-    def _front(self) -> tuple[slice, FaceGrid]:
-        """The columns the nose, the lips and the eyes can touch (``cos theta < -0.2``: all three are zero
-        elsewhere) as a slice, and the grid of those columns: the features are made there alone (live speed)."""
-        if "_front_grid" not in self.__dict__:
-            g = self.grid
-            j = np.flatnonzero(np.cos(g.theta) < FRONT_COS)
-            if j.size and j[-1] - j[0] + 1 == j.size:
-                cols = slice(int(j[0]), int(j[-1]) + 1)
-            else:                                     # never for theta = 0 behind the head; all columns then
-                cols = slice(0, len(g.theta))
-            self.__dict__["_front_grid"] = (cols, FaceGrid(g.centre, g.z, g.theta[cols]))
-        return self.__dict__["_front_grid"]
 
     def surface_head(self, radius: np.ndarray, nu=None, nv=None, top_z: float | None = None):
         g = self.grid
