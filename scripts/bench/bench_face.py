@@ -542,6 +542,10 @@ CONSTANT_CHOICE = {
     "landmark_midline.MANDIBLE_MIDLINE_FRACTION": "definition (the mandible crosses the midline at the chin, in "
     "front of the orbitales on CThead; the atlas 73 % of the way from the orbitales to the porions)",
     "face_features.NOSE_* shape (dorsum, tip, columella, alae), face_eyes.EYE_* grooves, LIP_* depths": "renders",
+    "face_frame.YAW_PAIR_MIN_MM / YAW_MIN_PAIRS / YAW_MAX_DEG (the head's yaw for the features)": "definition (pairs "
+    "30 mm apart or more: a 0.4 mm error across alare curvature's 25 mm turns it a degree; three pairs for a median; "
+    "45 degrees keeps the front's columns one run); checked on GE, whose skin's own symmetry gives its landmarks' "
+    "yaw",
 }
 #: The constants chosen on CThead's score, set neutral for the suite's "without" row: no damping of outlying pegs, no
 #: convex cheeks (the stronger smoothing away from the pegs, also chosen on CThead, is off for every head now).
