@@ -829,7 +829,14 @@ def markdown(results: dict) -> str:
               "the gain under the chin (-70 to -50 mm from the tip, 58 -> 82 % straight ahead) and the loss at the "
               "upper lip (-15 to 0 mm, 64 -> 42 %); the submental line taken at Legan and Burstone's angle to the "
               "soft subnasale-gnathion line instead of the scan's axis changed nothing (53.6 % at 0 degrees, 56.0 % "
-              "at +10, 52.3 % at -10): not kept.",
+              "at +10, 52.3 % at -10): not kept. Each head's skull and landmarks turned to its own Frankfurt plane "
+              "(orbitales level with porions; dev runs, the face turned back and scored, the cut variants over the "
+              "whole real face, not the suite's window): CThead automatic (9.3 degrees) 59.1 -> 62.9 %, 1500 "
+              "(10.0) 53.5 -> 56.2 %, 1600 (9.0) 52.5 -> 62.5 %, the unseen-like row (11.0) 46.8 -> 50.1 %, the "
+              "occlusal cut (9.2) 56.7 -> 57.7 %, GE (-3.6) 55.4 -> 55.0 %: all but GE gain, all of them CThead; "
+              "1500 and 1600 would stand 6.3 points apart. The face built in the Frankfurt frame as a whole (its "
+              "rows, the live path and the kept model converting at the boundary) is the next step, to be checked "
+              "on heads other than CThead.",
               "- Why the score depended on the strip level (50-52 % at 1500, 62-63 % at the automatic ~1586 and at "
               "1600): not the cervical spine (the 1500 skull reaches the scan's bottom, z -1 mm against 25 mm at 1600, "
               "but cropping it away left the face's score unchanged, 51.4 %), but the automatic landmarks: swapping "
