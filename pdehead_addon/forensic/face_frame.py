@@ -13,7 +13,6 @@ angles by the same yaw, so "-y" and "x" are the head's front and left-right (:fu
 :func:`head_grid`). The parts come back as radial changes on the model's own columns: nothing else of the face moves.
 Only the yaw: a roll or a pitch of the head tilts the grid's rows themselves (the profile, the cheeks, the field),
 which this does not address.
-
 """
 from __future__ import annotations
 
