@@ -834,7 +834,9 @@ def markdown(results: dict) -> str:
               "whole real face, not the suite's window): CThead automatic (9.3 degrees) 59.1 -> 62.9 %, 1500 "
               "(10.0) 53.5 -> 56.2 %, 1600 (9.0) 52.5 -> 62.5 %, the unseen-like row (11.0) 46.8 -> 50.1 %, the "
               "occlusal cut (9.2) 56.7 -> 57.7 %, GE (-3.6) 55.4 -> 55.0 %: all but GE gain, all of them CThead; "
-              "1500 and 1600 would stand 6.3 points apart. The face built in the Frankfurt frame as a whole (its "
+              "1500 and 1600 would stand 6.3 points apart. Not the features: with the nose, the lips, the eyes and "
+              "the convex cheeks off, CThead 1600 still gains 49.8 -> 60.3 %. The face built in the Frankfurt frame "
+              "as a whole (its "
               "rows, the live path and the kept model converting at the boundary) is the next step, to be checked "
               "on heads other than CThead.",
               "- Why the score depended on the strip level (50-52 % at 1500, 62-63 % at the automatic ~1586 and at "
