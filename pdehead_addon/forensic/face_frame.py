@@ -11,13 +11,23 @@ Here the rules run in the head's frame: the landmarks (and the skull, for the na
 grid's vertical axis by the head's yaw (:func:`head_yaw`, from its bilateral landmarks), and the grid's column
 angles by the same yaw, so "-y" and "x" are the head's front and left-right (:func:`to_head_frame`,
 :func:`head_grid`). The parts come back as radial changes on the model's own columns: nothing else of the face moves.
-Only the yaw: a roll or a pitch of the head tilts the grid's rows themselves (the profile, the cheeks, the field),
-which this does not address.
+A pitch of the head tilts the grid's rows themselves (the profile, the cheeks, the field): the whole model is made in
+the head's Frankfurt frame (:func:`frankfurt_rotation`), the skull and the landmarks turned about the left-right axis
+so that the orbitales stand level with the porions. The model keeps its grid, its rule sites and its landmarks in
+that frame; the peg bases, normals and tips, the PDE's curves and the mesh stay in patient mm (the model's
+``to_frame`` / ``from_frame`` turn points at that boundary). A roll is not addressed.
+
+References
+----------
+.. [1] Garson, J. G. (1885). The Frankfort craniometric agreement, with critical remarks thereon. Journal of the
+   Anthropological Institute of Great Britain and Ireland 14, 64-83 (the Frankfurt horizontal: the lowest points of
+   the orbits' margins and the upper margins of the ear canals in one horizontal plane).
 """
 from __future__ import annotations
 
 import numpy as np
 
+from ..core.mesh import Mesh
 from .face_eyes import eye_shape
 from .face_features import FRONT_COS, ear_shape, mouth_shape, nose_bump, straight_ahead
 from .face_profile import FaceGrid
@@ -30,6 +40,9 @@ YAW_MIN_PAIRS = 3
 #: The most yaw (degrees) taken from the landmarks; beyond it (a skull on its side, landmarks gone astray) the
 #: scanner's axes are kept: the front's columns (``cos(theta + yaw) < FRONT_COS``) must stay one run.
 YAW_MAX_DEG = 45.0
+#: The most pitch (degrees) taken from the Frankfurt landmarks; beyond it (landmarks gone astray) the scanner's
+#: axes are kept. Heads lie in scanners within about 20 degrees of the Frankfurt plane (CThead 9-10, GE -4).
+PITCH_MAX_DEG = 30.0
 
 
 def head_yaw(landmarks: dict) -> float:
@@ -53,6 +66,53 @@ def head_yaw(landmarks: dict) -> float:
         return 0.0
     yaw = float(np.median(angles))
     return yaw if abs(yaw) <= np.radians(YAW_MAX_DEG) else 0.0
+
+
+def frankfurt_rotation(landmarks: dict) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """The turn (3 x 3, patient -> frame), its pivot (3,) and its angle (radians, + : the orbitales above the
+    porions in the scan) that put the head's Frankfurt horizontal [1]_ level:
+    about the horizontal axis across the head, by the angle at which the orbitales' midpoint rises over the
+    porions' (the front's bearing and the scanner's vertical kept). None without a porion and an orbitale, or beyond
+    :data:`PITCH_MAX_DEG`. Pivot: the porions' midpoint."""
+    def mean_of(*names):
+        pts = [np.asarray(landmarks[n], float) for n in names if landmarks.get(n) is not None]
+        return np.mean(pts, axis=0) if pts else None
+    porion, orbitale = mean_of("Porion L", "Porion R"), mean_of("Orbitale L", "Orbitale R")
+    if porion is None or orbitale is None:
+        return None
+    d = orbitale - porion
+    h = float(np.hypot(d[0], d[1]))
+    if h < 1e-6:
+        return None
+    pitch = float(np.arctan2(d[2], h))
+    if pitch == 0.0 or abs(pitch) > np.radians(PITCH_MAX_DEG):
+        return None
+    front = np.array([d[0] / h, d[1] / h, 0.0])
+    axis = np.cross(d / np.linalg.norm(d), front)
+    axis /= np.linalg.norm(axis)
+    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    rot = np.eye(3) + np.sin(abs(pitch)) * k + (1.0 - np.cos(pitch)) * (k @ k)          # Rodrigues
+    return rot, porion, pitch
+
+
+def turned(points, rotation: np.ndarray | None, pivot, back: bool = False) -> np.ndarray:
+    """Points (..., 3) turned by ``rotation`` about ``pivot`` (into the frame), or with ``back`` out of it."""
+    p = np.array(points, float)
+    if rotation is None:
+        return p
+    r = rotation if back else rotation.T
+    return (p - pivot) @ r + pivot
+
+
+def into_frankfurt_frame(skull: Mesh, landmarks: dict) -> tuple[Mesh, dict, tuple | None]:
+    """The ``skull`` and ``landmarks`` turned into the head's Frankfurt frame (:func:`frankfurt_rotation`) and that
+    frame, or as given and None where it is not found."""
+    frame = frankfurt_rotation(landmarks)
+    if frame is None:
+        return skull, landmarks, None
+    rot, pivot, _ = frame
+    return (Mesh(turned(skull.vertices, rot, pivot), skull.quads, skull.triangles),
+            {n: turned(p, rot, pivot) for n, p in landmarks.items()}, frame)
 
 
 def to_head_frame(points, centre, yaw: float, back: bool = False) -> np.ndarray:
@@ -80,15 +140,37 @@ def landmarks_in_head_frame(landmarks: dict, centre, yaw: float) -> dict:
 class HeadFrameFeatures:
     """The face model's shape rules made in the head's frame (mixed into :class:`.face_from_skull.FaceModel`).
 
-    The model keeps ``face_yaw`` (radians, :func:`head_yaw` at :meth:`~.FaceModel.prepare`; a model kept before it
-    has none: 0, the scanner's axes) and its ``nose`` and ``mouth`` predicted in that frame."""
+    The model keeps ``frame_rotation`` and ``frame_pivot`` (:func:`frankfurt_rotation` at
+    :meth:`~.FaceModel.prepare`: its grid, rule sites and landmarks lie in that frame; a model kept before it has
+    none: the scanner's axes), ``face_yaw`` (radians, :func:`head_yaw` in that frame; none: 0) and its ``nose`` and
+    ``mouth`` predicted in the frame turned by the yaw."""
 
     @property
     def yaw(self) -> float:
         return float(self.__dict__.get("face_yaw", 0.0))
 
+    def to_frame(self, points) -> np.ndarray:
+        """Patient mm -> the model's frame (the grid's)."""
+        return turned(points, self.__dict__.get("frame_rotation"), self.__dict__.get("frame_pivot"))
+
+    def from_frame(self, points) -> np.ndarray:
+        """The model's frame -> patient mm."""
+        return turned(points, self.__dict__.get("frame_rotation"), self.__dict__.get("frame_pivot"), back=True)
+
+    def keep_frame(self, frame: tuple | None) -> None:
+        """Keep the Frankfurt ``frame`` (:func:`frankfurt_rotation`; None: the scanner's axes) the model was made in,
+        its peg bases and normals (made in it) handed back in patient mm, the pitch in the provenance."""
+        if frame is None:
+            return
+        rot, pivot, pitch = frame
+        self.frame_rotation, self.frame_pivot = rot, pivot
+        self.peg_bases = turned(self.peg_bases, rot, pivot, back=True)
+        self.peg_normals = self.peg_normals @ rot
+        self.provenance["frankfurt_pitch_deg"] = round(float(np.degrees(pitch)), 1)
+
     def _head(self, points) -> np.ndarray:
-        return to_head_frame(points, self.grid.centre, self.yaw)
+        """Patient mm -> the head's frame (the model's, turned by the yaw)."""
+        return to_head_frame(self.to_frame(points), self.grid.centre, self.yaw)
 
     def _head_landmarks(self) -> dict:
         return landmarks_in_head_frame(getattr(self, "landmarks_used", None) or {}, self.grid.centre, self.yaw)

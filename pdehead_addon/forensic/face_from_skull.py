@@ -75,8 +75,17 @@ from .face_field import (  # noqa: F401  (re-exported: face_live and the tests r
     DepthField,
     peg_kernel,
 )
-from .face_frame import HeadFrameFeatures, head_yaw, landmarks_in_head_frame, to_head_frame
-from .face_pegs import alar_pegs_by_definition, cheek_bands, cheek_depth, held_mask, mid_ramus_by_definition, peg_report
+from .face_frame import HeadFrameFeatures, head_yaw, into_frankfurt_frame, landmarks_in_head_frame, to_head_frame
+from .face_pegs import (
+    alar_pegs_by_definition,
+    cheek_bands,
+    cheek_depth,
+    held_mask,
+    mid_ramus_by_definition,
+    midsagittal_plane,
+    mirrored_normals,
+    peg_report,
+)
 from .face_profile import (
     PROFILE_SMOOTH_MM,
     FaceGrid,
@@ -203,6 +212,9 @@ class FaceModel(DepthField, HeadFrameFeatures):
         if len(skull.vertices) < MIN_SKULL_VERTICES:    # a skull's landmarks on a handful of vertices: no profile
             raise PDEHeadError(f"the skull mesh has only {len(skull.vertices)} vertices: a closed mesh, but too coarse "
                                f"to be a bone skull (at least {MIN_SKULL_VERTICES} are needed for its outer profile)")
+        # the model is made in the head's Frankfurt frame (:mod:`.face_frame`): its rows level with the head, not
+        # with the scanner; the pegs are handed back in patient mm
+        skull, lm, frame = into_frankfurt_frame(skull, lm)
         pegs = marker_pegs(lm, skull, table, measured_direction=False)     # the face sets its own normals
         if len(pegs) < 4:
             raise PDEHeadError(f"only {len(pegs)} landmarks have a depth in the table: at least 4 are needed "
@@ -252,6 +264,7 @@ class FaceModel(DepthField, HeadFrameFeatures):
             floor = round_floor(floor, grid, profile)
         floor = np.ceil(floor * 100.0) / 100.0
         normals = peg_normals(skull, bases, grid, profile)
+        normals = mirrored_normals(names, normals, moved_ramus, midsagittal_plane(lm))
         hull_profile = profile
         profile = smooth_far_from_pegs(profile, grid, bases + depths[:, None] * normals)
         # the nose, the mouth and the eyes predicted facing the head's front (:mod:`.face_frame`)
@@ -281,11 +294,12 @@ class FaceModel(DepthField, HeadFrameFeatures):
                        nv=nv or D.FACE_NV.default, neck_mm=neck_mm, sex=sex)
         model = cls(names, bases, normals, depths, sds, grid, raw, profile, rule_sites, nose, mouth, options,
                     prov, dict(flags or {}))
+        model.keep_frame(frame)                             # the pegs handed back in patient mm
         model.face_yaw = yaw
         model.vertex_z = float(skull.vertices[:, 2].max())
         model.cut_plane = None if cut_plane is None else np.append(cut_plane[0], cut_plane[1])
-        model._in_rows = grid.polar(model.tips_for(depths))[0] <= grid.z[-1]
-        model.landmarks_used = lm
+        model._in_rows = grid.polar(model.to_frame(model.tips_for(depths)))[0] <= grid.z[-1]
+        model.landmarks_used = lm                            # in the model's frame
         model.hull_profile = hull_profile                    # the peer (constant_depth) keeps the bone's own profile
         model.bone_floor = floor                             # no row of the face inside it (:meth:`shaped_radius`)
         model._grid_xyz = model.cylinder_points(np.repeat(grid.z, columns), np.tile(grid.theta, K))
@@ -314,7 +328,7 @@ class FaceModel(DepthField, HeadFrameFeatures):
         # a tip above the last row (vertex) is left to the dome over the vault: near the axis its radial offset
         # to the top row's radius is meaningless (-21 mm on CThead)
         in_rows = self.in_rows
-        sites = [np.asarray(tips, float)[in_rows if in_rows is not None else slice(None)]]
+        sites = [self.to_frame(tips)[in_rows if in_rows is not None else slice(None)]]
         sites += [np.array([p for _, p, _ in self.rule_sites])] if self.rule_sites else []
         return np.concatenate(sites)
 
@@ -337,9 +351,12 @@ class FaceModel(DepthField, HeadFrameFeatures):
             z = np.broadcast_to(g.z[:, None], radius.shape)
         else:                                   # a skull cut by its scan: the face ends along the cut
             z, radius = tilted_rows(g, radius, (plane[:3], plane[3]), self.options["neck_mm"])
-        curves = g.point(z, g.theta[None, :], radius)
-        heights = z.mean(axis=1)
         top = self.vertex_z + RULE_DEPTH_MM if top_z is None else float(top_z)
+        # made in the model's frame, solved in patient mm (the PDE is the same in any frame, eq. 1-13: the head, its
+        # mesh and the live positions need no turning back)
+        curves = self.from_frame(g.point(z, g.theta[None, :], radius))
+        heights = curves[..., 2].mean(axis=1)
+        top = float(self.from_frame(np.array([g.centre[0], g.centre[1], top]))[2])
         bset = BoundarySet(curves, np.full(len(g.z), -1), heights, knots_from_heights(heights),
                            meta={"vertex_z": top, "parameterisation": "aligned"})
         # The C2 spline's parameter (chord-length positions of the curves) and its smoothing (from the mean
@@ -478,7 +495,7 @@ class FaceModel(DepthField, HeadFrameFeatures):
         if not mask.any():
             return radius
         g = self.grid
-        z, th, r = g.polar(np.asarray(tips, float)[mask])
+        z, th, r = g.polar(self.to_frame(tips)[mask])
         residual = r - g.sample(radius, z, th)
         s2 = 2.0 * HELD_SHAPE_MM ** 2
 
@@ -529,7 +546,7 @@ class FaceModel(DepthField, HeadFrameFeatures):
     def top_z_for(self, tips: np.ndarray) -> float | None:
         """The dome's top: the vertex peg's tip height (above the rows, not in the radial field), if any."""
         vertex = self._peg_tip(tips, "Vertex")
-        return float(vertex[2]) if vertex is not None else None
+        return float(self.to_frame(vertex)[2]) if vertex is not None else None
 
     def provenance_for(self, depths: np.ndarray, report=None) -> dict:
         """The provenance of a face solved with the pegs at ``depths`` (mm); with its pegs' ``report``

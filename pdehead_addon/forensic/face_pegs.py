@@ -207,7 +207,7 @@ def peg_report(model, tips: np.ndarray, vertices: np.ndarray, held=None, nu: int
     shift = model.__dict__.get("_last_limit_shift")
     if shift is not None:
         g = model.grid
-        z, th, _ = g.polar(tips)
+        z, th, _ = g.polar(model.to_frame(tips))
         limited = np.where(model.in_rows, g.sample(shift, np.clip(z, g.z[0], g.z[-1]), th), 0.0)
     warnings = peg_warnings(names, depth, drift, model.default_depths, model.depth_sd)
     warned = {w["peg"] for w in warnings}
@@ -330,6 +330,26 @@ def mid_ramus_by_definition(landmarks: dict, flags: dict | None, skull: Mesh) ->
         out[name] = near.copy()
         moved[name] = (landmarks[name], out[name])
     return out, moved
+
+
+def mirrored_normals(names: list, normals: np.ndarray, moved: dict,
+                     plane: tuple[np.ndarray, float] | None) -> np.ndarray:
+    """``normals`` (one per peg of ``names``) with each landmark ``moved`` by :func:`mid_ramus_by_definition` standing
+    in the mirror of its other side's direction: it was put there as the other side's mirror image, on the nearest
+    skull vertex, whose own bone normal says little (CThead at 1600 and at its automatic level: the mirrored Mid-ramus
+    L's averaged normal pointed 53 degrees down, (0.50, -0.33, -0.80), its peg into the neck, while Mid-ramus R's
+    stood sideways, (-0.95, -0.26, -0.16); the face's cheek then depended on the strip level by 6 points). Without
+    the mid-sagittal ``plane`` or the other side's peg, unchanged."""
+    out = np.array(normals, float)
+    if plane is None:
+        return out
+    unit = np.asarray(plane[0], float)
+    for name in moved:
+        other = name[:-1] + ("R" if name.endswith("L") else "L")
+        if name in names and other in names:
+            v = out[names.index(other)]
+            out[names.index(name)] = v - 2.0 * float(v @ unit) * unit
+    return out
 
 
 #: The cheek (:func:`cheek_bands`): between the infraorbital margin (Suborbital, or Orbitale), the zygion (Zygomatic
