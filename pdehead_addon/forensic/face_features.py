@@ -437,6 +437,25 @@ def upper_lip(zz, dx, y, lip_from, ys: float, zs: float, half_mm: float) -> np.n
     return short[:, None] * (1.0 - u * u) ** 2
 
 
+#: The nose's lower border against the Frankfurt horizontal (degrees, rising to the front): 18 +- 7 in 104 young white
+#: adults, Fitzgerald JP, Nanda RS, Currier GF (1992) "An evaluation of the nasolabial angle and the relative
+#: inclinations of the nose and upper lip", Am J Orthod Dentofacial Orthop 102(4):328-334 (read in its abstract, as
+#: stored by MEDLINE: "a lower border of the nose to Frankfort horizontal plane angle at 18 degrees +/- 7 degrees").
+#: The line from soft subnasale to pronasale is kept within the mean +- 1 SD (:func:`lower_border_within_norms`).
+NOSE_BASE_RISE_DEG = (11.0, 25.0)
+
+
+def lower_border_within_norms(yp: float, zp: float, ys: float, zs: float) -> tuple[float, float]:
+    """Pronasale (y, z in the head's frame, mid-sagittal) turned about soft subnasale (ys, zs), its distance kept, so
+    that the line between them rises within :data:`NOSE_BASE_RISE_DEG` of the head's horizontal (its Frankfurt plane,
+    :mod:`.face_frame`). The nasal length and the tip's protrusion (Rynn et al. 2010; Farkas 1994) meet where they
+    meet; on a face whose subnasale stands behind its soft nasion (CThead in its Frankfurt frame: 2.4 mm) they met
+    1 mm below subnasale, and the nose's underside was a flat plate seen from the front (a box)."""
+    dist = float(np.hypot(ys - yp, zp - zs))
+    rise = float(np.clip(np.degrees(np.arctan2(zp - zs, ys - yp)), *NOSE_BASE_RISE_DEG))
+    return ys - dist * float(np.cos(np.radians(rise))), zs + dist * float(np.sin(np.radians(rise)))
+
+
 def nose_bump(grid, nose: dict | None, base: np.ndarray, tip_of, anchor=None, lip_from=None) -> np.ndarray | None:
     """Radial nose over the face ``base`` (K, M), made of four parts (:func:`predict_nose` gives where):
 
@@ -480,12 +499,15 @@ def nose_bump(grid, nose: dict | None, base: np.ndarray, tip_of, anchor=None, li
     ss_tip = tip_of("Subspinale")
     if ss_tip is not None:              # soft subnasale at least as far forward as subspinale's peg (predict_nose)
         ys = min(ys, float(ss_tip[1]))
+    if lip_from is not None:            # and at least as far as the bony point + its depth parallel to FH (Purkait)
+        ys = min(ys, float(lip_from[1]))
     yn = float(n[1])
     length = nose.get("length_mm")
     if length is None:                                   # a model kept before the nasal-length rule
         zp, yp = zs + 0.3 * (zn - zs), ys - nose["protrusion_mm"]
     else:
         yp, zp = circle_meet(np.array([yn, zn]), float(length), np.array([ys, zs]), nose["protrusion_mm"])
+        yp, zp = lower_border_within_norms(yp, zp, ys, zs)
         zp = float(np.clip(zp, zs + 2.0, zn - 5.0))
     Z = g.z
     # the dorsum's line: straight, through the pegs on it (rhinion, mid-nasal)

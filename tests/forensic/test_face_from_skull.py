@@ -1001,9 +1001,9 @@ def _pitched_face(skull, lms, flags, deg: float, centre: np.ndarray):
 def test_a_head_pitched_in_the_scanner_gets_the_same_face(phantom_bone, monkeypatch):
     """The whole face is made in the head's Frankfurt frame (:func:`.face_frame.frankfurt_rotation`): the phantom's
     skull and landmarks tipped 15 degrees face-down (no resampling), its face made and turned back, lies on the
-    untipped face. Measured over the face (within 90 mm of pronasale, in front of the porions, down to 60 mm below it;
-    further down the neck ends under the lowest bone in the head's frame): max 0.38, p95 0.15 mm; made in the scanner's frame
-    (the rows level with the scanner, as before) max 9.4, p95 3.9 mm."""
+    untipped face. Measured over the face (within 90 mm of pronasale, in front of the porions, down to 60 mm below
+    it; further down the neck ends under the lowest bone in the head's frame): max 0.38, p95 0.15 mm; made in the
+    scanner's frame (the rows level with the scanner, as before) max 9.4, p95 3.9 mm."""
     import pdehead_addon.forensic.face_from_skull as F
     skull, lms, flags = phantom_bone
     lms = {n: np.asarray(p, float) for n, p in lms.items() if p is not None}
@@ -1061,3 +1061,19 @@ def test_a_mirrored_mid_ramus_stands_in_its_other_sides_mirror():
     np.testing.assert_allclose(out[1:], normals[1:])
     np.testing.assert_allclose(mirrored_normals(names, normals, {"Mid-ramus L": None}, None), normals)
     np.testing.assert_allclose(mirrored_normals(names[:1], normals[:1], {"Mid-ramus L": None}, plane), normals[:1])
+
+
+def test_the_noses_lower_border_rises_within_the_published_range():
+    """Soft subnasale to pronasale rises 11-25 degrees over the head's horizontal (Fitzgerald, Nanda & Currier 1992:
+    18 +- 7): a tip met level with subnasale (CThead in its Frankfurt frame) is turned up about subnasale, its
+    distance kept; one within the range stays."""
+    from pdehead_addon.forensic.face_features import NOSE_BASE_RISE_DEG, lower_border_within_norms
+    ys, zs = 33.0, 84.3
+    yp, zp = lower_border_within_norms(13.5, 83.3, ys, zs)
+    assert np.hypot(ys - yp, zp - zs) == pytest.approx(np.hypot(19.5, 1.0))
+    assert np.degrees(np.arctan2(zp - zs, ys - yp)) == pytest.approx(NOSE_BASE_RISE_DEG[0])
+    a = np.radians(18.0)
+    assert lower_border_within_norms(ys - 19.5 * np.cos(a), zs + 19.5 * np.sin(a), ys, zs) == pytest.approx(
+        (ys - 19.5 * np.cos(a), zs + 19.5 * np.sin(a)))
+    yp, zp = lower_border_within_norms(ys - 5.0, zs + 19.0, ys, zs)          # a tip standing up: turned down to 25
+    assert np.degrees(np.arctan2(zp - zs, ys - yp)) == pytest.approx(NOSE_BASE_RISE_DEG[1])
