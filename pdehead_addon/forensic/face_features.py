@@ -441,13 +441,16 @@ def upper_lip(zz, dx, y, lip_from, ys: float, zs: float, half_mm: float) -> np.n
 #: adults, Fitzgerald JP, Nanda RS, Currier GF (1992) "An evaluation of the nasolabial angle and the relative
 #: inclinations of the nose and upper lip", Am J Orthod Dentofacial Orthop 102(4):328-334 (read in its abstract, as
 #: stored by MEDLINE: "a lower border of the nose to Frankfort horizontal plane angle at 18 degrees +/- 7 degrees").
-#: The line from soft subnasale to pronasale is kept within the mean +- 1 SD (:func:`lower_border_within_norms`).
-NOSE_BASE_RISE_DEG = (11.0, 25.0)
+#: The line from soft subnasale to pronasale is kept between the mean and the mean + 1 SD
+#: (:func:`lower_border_within_norms`): pronasale is the lobule's most anterior point, above the lower border's
+#: tangent, so that line rises at least as steeply as the border does on average. (The mean - 1 SD, 11 degrees, left
+#: CThead's tip 3.7 mm over subnasale: in the renders still a flat underside seen from the front.)
+NOSE_BASE_RISE_DEG = (18.0, 25.0)
 
 
 def lower_border_within_norms(yp: float, zp: float, ys: float, zs: float) -> tuple[float, float]:
     """Pronasale (y, z in the head's frame, mid-sagittal) turned about soft subnasale (ys, zs), its distance kept, so
-    that the line between them rises within :data:`NOSE_BASE_RISE_DEG` of the head's horizontal (its Frankfurt plane,
+    that the line between them rises within :data:`NOSE_BASE_RISE_DEG` over the head's horizontal (its Frankfurt plane,
     :mod:`.face_frame`). The nasal length and the tip's protrusion (Rynn et al. 2010; Farkas 1994) meet where they
     meet; on a face whose subnasale stands behind its soft nasion (CThead in its Frankfurt frame: 2.4 mm) they met
     1 mm below subnasale, and the nose's underside was a flat plate seen from the front (a box)."""
