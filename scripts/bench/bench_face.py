@@ -553,10 +553,10 @@ CONSTANT_CHOICE = {
     "face_pegs.mirrored_normals (a mid-ramus moved to the other side's mirror image stands in that side's mirrored "
     "direction)": "definition (the point is the mirror image, so is its peg); found on CThead at 1600, where the "
     "snapped vertex's normal pointed 53 degrees down",
-    "face_features.NOSE_BASE_RISE_DEG (soft subnasale to pronasale, 18-25 degrees over the Frankfurt plane)": "published "
-    "(Fitzgerald, Nanda & Currier 1992: the nose's lower border 18 +- 7 degrees to FH, 104 adults) / renders (the mean "
-    "- 1 SD, 11 degrees, left CThead's underside a flat plate seen from the front; scores within 0.4 points either "
-    "way)",
+    "face_features.NOSE_BASE_RISE_DEG (soft subnasale to pronasale, 18-25 degrees over the Frankfurt plane)":
+    "published (Fitzgerald, Nanda & Currier 1992: the nose's lower border 18 +- 7 degrees to FH, 104 adults) / "
+    "renders (the mean - 1 SD, 11 degrees, left CThead's underside a flat plate seen from the front; scores within "
+    "0.4 points either way)",
 }
 #: The constants chosen on CThead's score, set neutral for the suite's "without" row: no damping of outlying pegs, no
 #: convex cheeks (the stronger smoothing away from the pegs, also chosen on CThead, is off for every head now).
