@@ -64,8 +64,10 @@ _DROPPED = ("raw",)
 #: skull without a mandible: the face ends along it). 4: the skin smoothed below the brows (:mod:`.face_skin`): a
 #: model kept before would solve to a face other than the one it was saved with. 5: the skin under the chin
 #: (:mod:`.face_neck`) and the tips put back as closely as the table's SD allows
-#: (:meth:`.face_field.DepthField.tip_slack`).
-STATE_FORMAT = 5
+#: (:meth:`.face_field.DepthField.tip_slack`). 6: the face made in the head's Frankfurt frame (:mod:`.face_frame`:
+#: ``frame_rotation``, ``frame_pivot``; the grid, rule sites and landmarks kept in it) and the nose's lower border
+#: (:func:`.face_features.lower_border_within_norms`): a model kept before would solve to another face.
+STATE_FORMAT = 6
 
 
 # ------------------------------------------------------------------------------------------ fast solve
