@@ -104,15 +104,22 @@ def turned(points, rotation: np.ndarray | None, pivot, back: bool = False) -> np
     return (p - pivot) @ r + pivot
 
 
-def into_frankfurt_frame(skull: Mesh, landmarks: dict) -> tuple[Mesh, dict, tuple | None]:
-    """The ``skull`` and ``landmarks`` turned into the head's Frankfurt frame (:func:`frankfurt_rotation`) and that
-    frame, or as given and None where it is not found."""
+def into_frankfurt_frame(skull: Mesh, landmarks: dict, plane=None) -> tuple[Mesh, dict, tuple | None, tuple | None]:
+    """The ``skull``, the ``landmarks`` and the scan's cut ``plane`` ((normal, offset) in the scan's axes, with every
+    skull vertex on or above it: :func:`.face_profile.scan_cut_plane`; None) turned into the head's Frankfurt frame
+    (:func:`frankfurt_rotation`), and that frame; as given and None where it is not found. The cut is the scan's, so
+    it is found in the scan's axes and turned (in the frame GE's cut, 22 degrees off the head's horizontal, was no
+    longer the hull's largest downward face)."""
     frame = frankfurt_rotation(landmarks)
     if frame is None:
-        return skull, landmarks, None
+        return skull, landmarks, plane, None
     rot, pivot, _ = frame
-    return (Mesh(turned(skull.vertices, rot, pivot), skull.quads, skull.triangles),
-            {n: turned(p, rot, pivot) for n, p in landmarks.items()}, frame)
+    vertices = turned(skull.vertices, rot, pivot)
+    if plane is not None:
+        normal = rot @ np.asarray(plane[0], float)
+        plane = (normal, float((vertices @ normal).max()))
+    return (Mesh(vertices, skull.quads, skull.triangles), {n: turned(p, rot, pivot) for n, p in landmarks.items()},
+            plane, frame)
 
 
 def to_head_frame(points, centre, yaw: float, back: bool = False) -> np.ndarray:
@@ -171,6 +178,10 @@ class HeadFrameFeatures:
     def _head(self, points) -> np.ndarray:
         """Patient mm -> the head's frame (the model's, turned by the yaw)."""
         return to_head_frame(self.to_frame(points), self.grid.centre, self.yaw)
+
+    def _patient(self, points) -> np.ndarray:
+        """The head's frame -> patient mm (:meth:`_head`'s inverse)."""
+        return self.from_frame(to_head_frame(points, self.grid.centre, self.yaw, back=True))
 
     def _head_landmarks(self) -> dict:
         return landmarks_in_head_frame(getattr(self, "landmarks_used", None) or {}, self.grid.centre, self.yaw)

@@ -212,9 +212,13 @@ class FaceModel(DepthField, HeadFrameFeatures):
         if len(skull.vertices) < MIN_SKULL_VERTICES:    # a skull's landmarks on a handful of vertices: no profile
             raise PDEHeadError(f"the skull mesh has only {len(skull.vertices)} vertices: a closed mesh, but too coarse "
                                f"to be a bone skull (at least {MIN_SKULL_VERTICES} are needed for its outer profile)")
+        chin = any(n in lm for n in MANDIBLE_LANDMARKS)
+        # without a chin the face ends along the scan's cut (its rows tilted to it, :meth:`_surface`), neck_mm
+        # under it, or where no cut is found, neck_mm under the lowest bone. The cut is the scan's: found in its axes
+        scan_cut = None if chin else scan_cut_plane(skull)
         # the model is made in the head's Frankfurt frame (:mod:`.face_frame`): its rows level with the head, not
         # with the scanner; the pegs are handed back in patient mm
-        skull, lm, frame = into_frankfurt_frame(skull, lm)
+        skull, lm, cut_plane, frame = into_frankfurt_frame(skull, lm, scan_cut)
         pegs = marker_pegs(lm, skull, table, measured_direction=False)     # the face sets its own normals
         if len(pegs) < 4:
             raise PDEHeadError(f"only {len(pegs)} landmarks have a depth in the table: at least 4 are needed "
@@ -226,13 +230,9 @@ class FaceModel(DepthField, HeadFrameFeatures):
         sds = np.array([(sd_of(n) if sd_of else None) or np.nan for n in names], float)
         # the axis: the bone's centroid (area-weighted vertices are close enough: a dense uniform mesh)
         centre = skull.vertices[:, :2].mean(axis=0)
-        chin = any(n in lm for n in MANDIBLE_LANDMARKS)
         if neck_mm is None:
             neck_mm = (D.FACE_NECK_MM if chin else D.FACE_CUT_MARGIN_MM).default
         neck_mm = float(neck_mm)
-        # without a chin the face ends along the scan's cut (its rows tilted to it, :meth:`_surface`), neck_mm
-        # under it, or where no cut is found, neck_mm under the lowest bone
-        cut_plane = None if chin else scan_cut_plane(skull)
         # the rows of a head with the whole neck, those more than neck_mm under the lowest bone left out: a shorter
         # neck keeps the other rows where they were (the bone's profile is binned on them; GE moved by a row phase
         # scored 40.9 % within 2.5 mm at a 7 mm cut, 41.7 % at 8.25 mm, 42.2 % with the neck); a tilted cut keeps
@@ -285,10 +285,10 @@ class FaceModel(DepthField, HeadFrameFeatures):
                              for n, (a, b) in what.items()}
         if yaw != 0.0:
             prov["head_yaw_deg"] = round(float(np.degrees(yaw)), 1)
-        if cut_plane is not None:
-            prov["scan_cut"] = {"tilt_deg": round(float(np.degrees(np.arccos(-cut_plane[0][2]))), 1),
-                                "normal": [round(float(x), 4) for x in cut_plane[0]],
-                                "offset_mm": round(float(cut_plane[1]), 2), "face_beyond_mm": neck_mm,
+        if scan_cut is not None:                                 # in the scan's axes (patient mm)
+            prov["scan_cut"] = {"tilt_deg": round(float(np.degrees(np.arccos(-scan_cut[0][2]))), 1),
+                                "normal": [round(float(x), 4) for x in scan_cut[0]],
+                                "offset_mm": round(float(scan_cut[1]), 2), "face_beyond_mm": neck_mm,
                                 "why": "no mandible: the face ends along the scan's cut of the skull"}
         options = dict(row_mm=row_mm, columns=columns, spread_mm=spread, nu=nu or D.FACE_NU.default,
                        nv=nv or D.FACE_NV.default, neck_mm=neck_mm, sex=sex)
@@ -555,7 +555,8 @@ class FaceModel(DepthField, HeadFrameFeatures):
         if self.mouth is not None:
             prov["predicted_mouth_width_mm"] = round(float(self.mouth["width_mm"]), 1)
             if self.mouth.get("stomion_z") is not None:
-                prov["predicted_stomion_z_mm"] = round(float(self.mouth["stomion_z"]), 1)
+                at = [self.mouth["mid_x"], self.mouth["centre"][1], self.mouth["stomion_z"]]   # the head's frame
+                prov["predicted_stomion_z_mm"] = round(float(self._patient(at)[2]), 1)
         if self._ear_shape() is not None:
             sides = [f"Porion {ear['side']}" for ear in predict_ears(getattr(self, "landmarks_used", {}) or {})]
             prov["ears"] = (f"default ear ({EAR_LENGTH_MM:g} x {EAR_WIDTH_MM:g} mm, Farkas 1994 norms) at "
