@@ -1011,8 +1011,8 @@ def test_a_head_pitched_in_the_scanner_gets_the_same_face(phantom_bone, monkeypa
     """The whole face is made in the head's Frankfurt frame (:func:`.face_frame.frankfurt_rotation`): the phantom's
     skull and landmarks tipped 15 degrees face-down (no resampling), its face made and turned back, lies on the
     untipped face. Measured over the face (within 90 mm of pronasale, in front of the porions, down to 60 mm below
-    it; further down the neck ends under the lowest bone in the head's frame): max 0.38, p95 0.15 mm; made in the
-    scanner's frame (the rows level with the scanner, as before) max 9.4, p95 3.9 mm."""
+    it; further down the neck ends under the lowest bone in the head's frame): max 0.54, p95 0.16 mm; made in the
+    scanner's frame (the rows level with the scanner, as before) max 10.3, p95 4.3 mm."""
     import pdehead_addon.forensic.face_from_skull as F
     skull, lms, flags = phantom_bone
     lms = {n: np.asarray(p, float) for n, p in lms.items() if p is not None}
@@ -1029,7 +1029,7 @@ def test_a_head_pitched_in_the_scanner_gets_the_same_face(phantom_bone, monkeypa
     print(f"face of the pitched head: max {d.max():.2f} p95 {np.percentile(d, 95):.2f} mm")
     assert d.max() < 1.0 and np.percentile(d, 95) < 0.4
     # the same in the scanner's frame: the test can fail
-    monkeypatch.setattr(F, "into_frankfurt_frame", lambda s, lm: (s, lm, None))
+    monkeypatch.setattr(F, "into_frankfurt_frame", lambda s, lm, plane: (s, lm, plane, None))
     scanner, _ = _pitched_face(skull, lms, flags, 15.0, centre)
     d = point_surface_distance(near, scanner.vertices, _faces(scanner))
     print(f"made in the scanner's frame: max {d.max():.2f} p95 {np.percentile(d, 95):.2f} mm")
