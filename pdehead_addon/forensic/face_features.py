@@ -208,8 +208,8 @@ def predict_nose(landmarks: dict, skull: Mesh | None = None) -> dict | None:
       depth along the bone normal) and as the bony point plus that depth straight forward (in the head's Frankfurt
       frame, :mod:`.face_frame`: parallel to the plane, as the authors measure it): Singh S, Purkait R (2024)
       "Three-dimensional prediction of the nose for facial reconstruction: A preliminary study on North Indian
-      adults", J Forensic Leg Med 105:102708, place soft
-      subnasale at the bony point plus a soft-tissue thickness, parallel to the Frankfurt plane; the version read
+      adults", J Forensic Leg Med 105:102708, place soft subnasale at the bony point plus a soft-tissue thickness,
+      parallel to the Frankfurt plane; the version read
       was esomjai/Forensic-Craniofacial-Approximation-Validation-Tool, "Nose predictions/Purkait and Singh 2024.md",
       which stands it on subspinale with the T-Table 2023's 13.5 mm (Hona & Stephan 2024, Table 3), the table's
       subspinale mean here too. Without it the face behind the columella (the closed profile over the aperture's
