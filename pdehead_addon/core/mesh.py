@@ -60,19 +60,32 @@ class Mesh:
             parts.append(np.asarray(tri, float).reshape(-1, 2))
         return np.concatenate(parts)
 
-    def edges(self) -> np.ndarray:
-        """Unique undirected edges, shape (e, 2), sorted per row."""
+    def _directed_edges(self) -> np.ndarray:
+        """Every face's edges in its winding order, shape (e, 2)."""
         rings = [np.stack([self.quads, np.roll(self.quads, -1, axis=1)], axis=-1).reshape(-1, 2),
                  np.stack([self.triangles, np.roll(self.triangles, -1, axis=1)], axis=-1).reshape(-1, 2)]
-        e = np.sort(np.concatenate(rings), axis=1)
-        return np.unique(e, axis=0)
+        return np.concatenate(rings).astype(np.int64)
+
+    def edges(self) -> np.ndarray:
+        """Unique undirected edges, shape (e, 2), sorted per row and by rows."""
+        e = np.sort(self._directed_edges(), axis=1)
+        n = self._key_base(e)
+        keys = np.unique(e[:, 0] * n + e[:, 1])
+        return np.column_stack([keys // n, keys % n])
 
     def is_watertight(self) -> bool:
         """True if every edge is shared by exactly two faces with opposite directions (closed, oriented)."""
-        rings = [np.stack([self.quads, np.roll(self.quads, -1, axis=1)], axis=-1).reshape(-1, 2),
-                 np.stack([self.triangles, np.roll(self.triangles, -1, axis=1)], axis=-1).reshape(-1, 2)]
-        directed = np.concatenate(rings)
-        if len(np.unique(directed, axis=0)) != len(directed):
+        directed = self._directed_edges()
+        n = self._key_base(directed)
+        keys = np.sort(directed[:, 0] * n + directed[:, 1])
+        if np.any(keys[1:] == keys[:-1]):
             return False  # the same directed edge twice: inconsistent winding or non-manifold
-        und, counts = np.unique(np.sort(directed, axis=1), axis=0, return_counts=True)
+        und = np.sort(directed, axis=1)
+        _, counts = np.unique(und[:, 0] * n + und[:, 1], return_counts=True)
         return bool(np.all(counts == 2))
+
+    @staticmethod
+    def _key_base(edges: np.ndarray) -> int:
+        # An edge (a, b) as the one integer a * n + b: a 1-D sort, many times faster than np.unique(axis=0)'s
+        # row-wise one (28 s of a 77 s phantom face export went to it).
+        return int(edges.max()) + 1 if len(edges) else 1
