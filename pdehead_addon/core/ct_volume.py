@@ -117,9 +117,13 @@ class CTVolume:
 
     def patient_to_index(self, xyz: np.ndarray) -> np.ndarray:
         """Fractional voxel indices ``[..., (k, j, i)]`` of patient LPS points in mm."""
-        xyz = np.asarray(xyz, dtype=np.float64)
-        ijk = (xyz - self.origin) @ np.linalg.inv(self.affine[:3, :3]).T
-        return ijk[..., ::-1]
+        return self.patient_to_index_map()(xyz)
+
+    def patient_to_index_map(self):
+        """:meth:`patient_to_index` as a function with the affine inverted once, for many calls on one grid (the
+        inversion cost more than the mapping of a plane of points)."""
+        origin, inverse_t = self.origin.copy(), np.linalg.inv(self.affine[:3, :3]).T
+        return lambda xyz: ((np.asarray(xyz, dtype=np.float64) - origin) @ inverse_t)[..., ::-1]
 
     def slice_heights(self) -> np.ndarray:
         """Patient z (mm) of the centre of each axial slice ``data[k]``."""

@@ -35,9 +35,10 @@ class LandmarkFrame:
         out = np.zeros(self.shape, bool)
         lab = np.zeros(self.shape, np.int32)
         gx, gy = np.meshgrid(ax[0], ax[1], indexing="ij")           # (nx, ny), x-major
+        to_index = ct.patient_to_index_map()
         for iz, z in enumerate(ax[2]):                                 # one z plane at a time: bounded memory
             fp = np.stack([gx.ravel(), gy.ravel(), np.full(gx.size, z)], 1)   # (nx*ny, 3), x-major
-            kji = ct.patient_to_index(fp @ rot + centre).T
+            kji = to_index(fp @ rot + centre).T
             out[:, :, iz] = (ndimage.map_coordinates(bone_f, kji, order=1, cval=0.0) > 0.5).reshape(n[0], n[1])
             lab[:, :, iz] = ndimage.map_coordinates(labels, kji, order=0, cval=0).reshape(n[0], n[1])
         self.bone = out

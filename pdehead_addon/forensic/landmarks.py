@@ -107,11 +107,12 @@ def bilateral_pairs(names) -> list[tuple[str, str]]:
 
 
 # --------------------------------------------------------------------------- snapping
-def snap_to_surface(points: np.ndarray, mesh: Mesh, chunk: int = 200_000) -> tuple[np.ndarray, np.ndarray]:
+def snap_to_surface(points: np.ndarray, mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
     """The nearest surface points of ``mesh`` to ``points`` and the unit outward normals there.
 
-    Exact (every triangle is tested; meant for tens of landmarks). The normal is the
-    normal of the triangle the nearest point lies on (winding outward).
+    Exact (every triangle that can hold the nearest point is tested; meant for tens of landmarks). The normal is
+    the normal of the triangle the nearest point lies on (winding outward); of triangles equally near, the
+    first.
 
     Returns
     -------
@@ -121,18 +122,21 @@ def snap_to_surface(points: np.ndarray, mesh: Mesh, chunk: int = 200_000) -> tup
     if len(t) == 0:
         raise PDEHeadError("cannot snap landmarks to a mesh without faces")
     pts = np.atleast_2d(np.asarray(points, np.float64))
-    best_d = np.full(len(pts), np.inf)
+    a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
+    centre = (a + b + c) / 3.0
+    radius = np.sqrt(np.max([np.einsum("ij,ij->i", q - centre, q - centre) for q in (a, b, c)], axis=0))
+    corners = v[np.unique(t)]
     best_p = np.zeros_like(pts)
     best_t = np.zeros(len(pts), np.int64)
-    for s in range(0, len(t), chunk):
-        tt = t[s:s + chunk]
-        a, b, c = v[tt[:, 0]], v[tt[:, 1]], v[tt[:, 2]]
-        for i, p in enumerate(pts):
-            q = closest_point_on_triangle(p, a, b, c)
-            d = np.einsum("ij,ij->i", q - p, q - p)
-            j = int(np.argmin(d))
-            if d[j] < best_d[i]:
-                best_d[i], best_p[i], best_t[i] = d[j], q[j], s + j
+    for i, p in enumerate(pts):
+        # The nearest corner bounds the nearest surface point's distance; a triangle whose bounding sphere lies
+        # beyond that bound cannot hold it. Only the rest go through the exact test (a few of 365k on a skull).
+        bound = np.sqrt(np.min(np.einsum("ij,ij->i", corners - p, corners - p)))
+        cand = np.flatnonzero(np.linalg.norm(centre - p, axis=1) - radius <= bound * (1 + 1e-9) + 1e-9)
+        q = closest_point_on_triangle(p, a[cand], b[cand], c[cand])
+        d = np.einsum("ij,ij->i", q - p, q - p)
+        j = int(np.argmin(d))
+        best_p[i], best_t[i] = q[j], cand[j]
     tri = t[best_t]
     n = np.cross(v[tri[:, 1]] - v[tri[:, 0]], v[tri[:, 2]] - v[tri[:, 0]])
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
