@@ -73,3 +73,39 @@ def phantom_seg(phantom):
 def cthead_bset(cthead_seg):
     from pdehead_addon import extract_boundaries
     return extract_boundaries(cthead_seg, patches=10, samples=256)
+
+
+@pytest.fixture(scope="session")
+def cthead_skull(cthead_seg, cthead_ct):
+    """CThead's skull at its own bone level (the same with or without the head segmentation). Shared by several
+    modules: read it, never change it."""
+    from pdehead_addon.forensic.skull import segment_skull
+    return segment_skull(cthead_ct, cthead_seg)
+
+
+@pytest.fixture(scope="session")
+def cthead_search(cthead_ct, cthead_skull):
+    """find_landmarks on CThead's skull (the default search, ~25 s): read only, as ``cthead_skull``."""
+    from pdehead_addon.forensic.auto_landmarks import find_landmarks
+    return find_landmarks(cthead_ct, cthead_skull.bone)
+
+
+@pytest.fixture(scope="session")
+def phantom_skull(phantom, phantom_seg):
+    """The phantom's skull (read only, as ``cthead_skull``)."""
+    from pdehead_addon.forensic.skull import segment_skull
+    return segment_skull(phantom.ct, phantom_seg)
+
+
+@pytest.fixture(scope="session")
+def phantom_search(phantom, phantom_skull):
+    """find_landmarks on the phantom's skull (read only)."""
+    from pdehead_addon.forensic.auto_landmarks import find_landmarks
+    return find_landmarks(phantom.ct, phantom_skull.bone)
+
+
+@pytest.fixture(scope="session")
+def phantom_skull_mesh(phantom_skull):
+    """The phantom skull's mesh (read only)."""
+    from pdehead_addon.forensic.skull import skull_mesh
+    return skull_mesh(phantom_skull)

@@ -20,13 +20,8 @@ MANDIBLE = {"Infradentale", "Supramentale", "Pogonion", "Gnathion", "Menton"} | 
 
 
 @pytest.fixture(scope="module")
-def phantom_bone(phantom):
-    return segment_skull(phantom.ct).bone
-
-
-@pytest.fixture(scope="module")
-def phantom_search(phantom, phantom_bone):
-    return find_landmarks(phantom.ct, phantom_bone)
+def phantom_bone(phantom_skull):
+    return phantom_skull.bone
 
 
 @pytest.fixture(scope="module")
@@ -107,9 +102,8 @@ def test_cthead_fixture_is_documented():
     assert {r["landmark"] for r in rows} <= {d.name for d in STANDARD_LANDMARKS}
 
 
-def test_cthead_landmarks_against_the_hand_placed_ones(cthead_ct):
-    bone = segment_skull(cthead_ct).bone
-    search = find_landmarks(cthead_ct, bone)
+def test_cthead_landmarks_against_the_hand_placed_ones(cthead_search):
+    search = cthead_search
     ref = _fixture()
     err = {n: float(np.linalg.norm(search.landmarks[n].point - p)) for n, p in ref.items()
            if search.landmarks[n].point is not None}
@@ -239,14 +233,14 @@ def test_scaled_phantom_mandible_midline_is_on_the_mandible(monkeypatch):
     assert old.flag == UNCERTAIN and "gap" in old.evidence, old
 
 
-def test_cthead_landmarks_do_not_follow_the_resampling_grid(cthead_ct):
+def test_cthead_landmarks_do_not_follow_the_resampling_grid(cthead_ct, cthead_skull, cthead_search):
     """The rules read the bone resampled on a 1 mm grid; the same bone on a grid shifted by a fraction of a step must
     give the same landmarks. Measured (CThead, its own bone level): one grid against one shifted by half a step,
     median 1.37 mm, 90th percentile 4.1 mm apart; the default search (the medoid over five grids) against five
     other shifts, 0.77 / 3.0 mm."""
     from pdehead_addon.forensic.auto_landmarks import GRID_PHASES
 
-    bone = segment_skull(cthead_ct).bone
+    bone = cthead_skull.bone
 
     def apart(a, b):
         pa, pb = a.points(), b.points()
@@ -254,7 +248,7 @@ def test_cthead_landmarks_do_not_follow_the_resampling_grid(cthead_ct):
 
     one = apart(find_landmarks(cthead_ct, bone, phases=[GRID_PHASES[0]]),
                 find_landmarks(cthead_ct, bone, phases=[(0.5, 0.5, 0.5)]))
-    default = find_landmarks(cthead_ct, bone)
+    default = cthead_search
     other = [tuple((v + 0.125) % 1.0 for v in s) for s in GRID_PHASES[:default.info["grid_phases"]]]
     five = apart(default, find_landmarks(cthead_ct, bone, phases=other))
     print("one grid", np.median(one), np.percentile(one, 90), "five", np.median(five), np.percentile(five, 90))

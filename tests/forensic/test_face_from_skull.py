@@ -24,12 +24,8 @@ NOSE_PEGS = {"Rhinion", "Mid-nasal", "Alare curvature L", "Alare curvature R", "
 
 
 @pytest.fixture(scope="module")
-def phantom_bone(phantom, phantom_seg):
-    from pdehead_addon.forensic.auto_landmarks import find_landmarks
-    from pdehead_addon.forensic.skull import segment_skull, skull_mesh
-    sk = segment_skull(phantom.ct, phantom_seg)
-    search = find_landmarks(phantom.ct, sk.bone)
-    return skull_mesh(sk), search.points(), search.flags()
+def phantom_bone(phantom_skull_mesh, phantom_search):
+    return phantom_skull_mesh, phantom_search.points(), phantom_search.flags()
 
 
 @pytest.fixture(scope="module")

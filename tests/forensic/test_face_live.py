@@ -16,12 +16,9 @@ from pdehead_addon.forensic.face_live import EXACT_TOLERANCE_MM, LiveFace, model
 
 
 @pytest.fixture(scope="module")
-def model(phantom, phantom_seg):
-    from pdehead_addon.forensic.auto_landmarks import find_landmarks
-    from pdehead_addon.forensic.skull import segment_skull, skull_mesh
-    sk = segment_skull(phantom.ct, phantom_seg)
-    search = find_landmarks(phantom.ct, sk.bone)
-    return FaceModel.prepare(skull_mesh(sk), search.points(), default_table(), flags=search.flags())
+def model(phantom_skull_mesh, phantom_search):
+    return FaceModel.prepare(phantom_skull_mesh, phantom_search.points(), default_table(),
+                             flags=phantom_search.flags())
 
 
 def _dragged(model, i, mm):

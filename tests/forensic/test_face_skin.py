@@ -60,14 +60,11 @@ def test_the_bone_floor_prints_no_button_where_the_smoothing_sank_the_skin():
 
 
 @pytest.fixture(scope="module")
-def phantom_model(phantom, phantom_seg):
-    from pdehead_addon.forensic.auto_landmarks import find_landmarks
+def phantom_model(phantom_skull_mesh, phantom_search):
     from pdehead_addon.forensic.depth_table import default_table
     from pdehead_addon.forensic.face_from_skull import FaceModel
-    from pdehead_addon.forensic.skull import segment_skull, skull_mesh
-    sk = segment_skull(phantom.ct, phantom_seg)
-    search = find_landmarks(phantom.ct, sk.bone)
-    return FaceModel.prepare(skull_mesh(sk), search.points(), default_table(), flags=search.flags())
+    return FaceModel.prepare(phantom_skull_mesh, phantom_search.points(), default_table(),
+                             flags=phantom_search.flags())
 
 
 def test_the_face_from_the_skull_is_smoother_and_still_meets_its_pegs(phantom_model, monkeypatch):

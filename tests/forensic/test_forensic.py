@@ -35,11 +35,6 @@ VAULT_Z = 45.0  # above the brow, the eyes and the ears: the phantom's skin ther
 
 
 @pytest.fixture(scope="module")
-def phantom_skull(phantom, phantom_seg):
-    return segment_skull(phantom.ct, phantom_seg)
-
-
-@pytest.fixture(scope="module")
 def phantom_surfaces(phantom_seg, phantom_skull):
     skin = solve_pde(extract_boundaries(phantom_seg, patches=10, samples=256, selection="shape-change"))
     skull = solve_pde(extract_boundaries(phantom_skull, patches=10, samples=256, selection="shape-change"))
@@ -355,11 +350,6 @@ def test_symmetry_plane_rejects_bad_points():
 
 
 # ----------------------------------------------------------------------------- real data
-@pytest.fixture(scope="module")
-def cthead_skull(cthead_ct, cthead_seg):
-    return segment_skull(cthead_ct, cthead_seg)
-
-
 def test_cthead_skull(cthead_skull):
     sk = cthead_skull
     m = sk.meta

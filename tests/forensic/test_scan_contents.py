@@ -95,13 +95,14 @@ def _occlusal_slice(ct: CTVolume, skull) -> tuple[int, float, float]:
     return int(np.flatnonzero(z >= plane)[0]), lower_tip, upper_tip
 
 
-def test_a_scan_cut_at_the_occlusal_plane_has_a_partial_mandible_and_landmarks_outside_the_scan(cthead_ct, cthead_seg):
+def test_a_scan_cut_at_the_occlusal_plane_has_a_partial_mandible_and_landmarks_outside_the_scan(cthead_ct, cthead_skull,
+                                                                                             cthead_search):
     """CThead with every slice below the plane between its incisors dropped: its partial mandible (the rami) is
     found; the scan ends through the skull and the mandible's landmarks, all below it, are not_found, "outside the
     scan"; the face above keeps its landmarks."""
     from pdehead_addon.forensic.auto_landmarks import find_landmarks
 
-    full = segment_skull(cthead_ct, cthead_seg)
+    full = cthead_skull
     k, lower_tip, upper_tip = _occlusal_slice(cthead_ct, full)
     assert lower_tip == pytest.approx(64.0, abs=2.0) and upper_tip == pytest.approx(62.0, abs=2.0)  # a 2 mm overbite
     cut = cropped(cthead_ct, k, cthead_ct.shape[0])
@@ -125,7 +126,7 @@ def test_a_scan_cut_at_the_occlusal_plane_has_a_partial_mandible_and_landmarks_o
     for name in ("Nasion", "Orbitale L", "Orbitale R", "Porion L", "Porion R", "Glabella"):
         assert lms[name].flag != "not_found", (name, lms[name])
     # the whole scan is not cut through the skull (its neck ends below the bone)
-    whole = find_landmarks(cthead_ct, full.bone)
+    whole = cthead_search
     assert whole.info["scan_cut"] == ""
     # the upper teeth, split from the maxilla by the threshold, reach back 29 % of the way to the porions: not the
     # mandible (MANDIBLE_REACH_FRACTION). Taken for it, they put supradentale 22 mm, mid-philtrum 15 mm and subspinale
@@ -228,15 +229,23 @@ def test_a_skull_alone_below_the_fill_rule_gives_no_skin_and_no_depths(tmp_path,
     assert len(rows) >= 10 and all(r["depth_mm"] in ("", "nan") for r in rows), rows[:3]
 
 
+@pytest.fixture(scope="module")
+def at_1500(cthead_ct):
+    """find_landmarks on CThead stripped at 1500 and segmented at that level (both rami whole there)."""
+    from pdehead_addon.forensic.auto_landmarks import find_landmarks
+    bare = stripped(cthead_ct, 1500.0)
+    return find_landmarks(bare, segment_skull(bare, bone_level=1500.0).bone)
+
+
 @pytest.mark.parametrize("level", [1586.0, 1500.0])
-def test_a_scan_cut_below_the_occlusal_plane_finds_the_rami(cthead_ct, cthead_seg, level):
+def test_a_scan_cut_below_the_occlusal_plane_finds_the_rami(cthead_ct, cthead_skull, cthead_search, at_1500, level):
     """CThead cut 4 mm below the plane between its incisors (the lower incisors' crowns in the scan, no chin) and
     stripped at its own level and at 1500: the rami are found as a partial mandible (at 1586 their eroded pieces are
     too small: found in the bone itself), one each side from the cut up to the condyles; the mandible's landmarks,
     all below the scan's end, are not_found "outside the scan"; the upper face keeps its landmarks."""
     from pdehead_addon.forensic.auto_landmarks import find_landmarks
 
-    full = segment_skull(cthead_ct, cthead_seg)
+    full = cthead_skull
     _, lower_tip, upper_tip = _occlusal_slice(cthead_ct, full)
     z = cthead_ct.slice_heights()
     k = int(np.flatnonzero(z >= 0.5 * (lower_tip + upper_tip) - 4.0)[0])
@@ -256,11 +265,10 @@ def test_a_scan_cut_below_the_occlusal_plane_finds_the_rami(cthead_ct, cthead_se
         assert lms[name].flag == "not_found" and lms[name].evidence.startswith("outside the scan"), (name, lms[name])
     # the rami are in the scan: mid-ramus is placed on them, half way up what the scan holds (above the whole
     # scan's, gonion being cut off), uncertain; without them (the rules' own search) it was "outside the scan"
-    whole = find_landmarks(cthead_ct, full.bone).landmarks
+    whole = cthead_search.landmarks
     # for reference the whole scan stripped at 1500, where its rule has each whole ramus (at 1586 the threshold
     # splits the left ramus and its rule puts mid-ramus L at z 56, by gonion)
-    bare = stripped(cthead_ct, 1500.0)
-    at_level = find_landmarks(bare, segment_skull(bare, bone_level=1500.0).bone).landmarks
+    at_level = at_1500.landmarks
     for side in "LR":
         mr, ref = lms[f"Mid-ramus {side}"], at_level[f"Mid-ramus {side}"]
         off = mr.point - ref.point

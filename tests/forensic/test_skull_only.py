@@ -24,11 +24,6 @@ def _same_skull(a, b):
     return float(np.abs(ma.vertices - mb.vertices).max())
 
 
-@pytest.fixture(scope="module")
-def phantom_skull(phantom, phantom_seg):
-    return segment_skull(phantom.ct, phantom_seg)
-
-
 def test_phantom_skull_from_the_bone_mask_alone(phantom, phantom_skull):
     """With the level given, the CT and the CT with everything below the level set to air: same skull."""
     level = phantom_skull.meta["bone_level_stored"]
@@ -58,8 +53,8 @@ def test_supports_and_table_are_removed_by_size_and_position(phantom, phantom_sk
     assert sk.meta["dropped_support_mm3"] > 0.5 * np.count_nonzero(table) * np.prod(ct.spacing)
 
 
-def test_cthead_uncalibrated_skull_only(cthead_ct, cthead_seg):
-    full = segment_skull(cthead_ct, cthead_seg)
+def test_cthead_uncalibrated_skull_only(cthead_ct, cthead_skull):
+    full = cthead_skull
     level = full.meta["bone_level_stored"]
     assert full.meta["units"] == "stored" and full.meta["has_skin"]
     only = segment_skull(stripped(cthead_ct, level), bone_level=level)
