@@ -33,14 +33,19 @@ class LandmarkFrame:
         self.axes = ax
         bone_f = bone.astype(np.float32)
         out = np.zeros(self.shape, bool)
-        lab = np.zeros(self.shape, np.int32)
         gx, gy = np.meshgrid(ax[0], ax[1], indexing="ij")           # (nx, ny), x-major
         to_index = ct.patient_to_index_map()
         for iz, z in enumerate(ax[2]):                                 # one z plane at a time: bounded memory
             fp = np.stack([gx.ravel(), gy.ravel(), np.full(gx.size, z)], 1)   # (nx*ny, 3), x-major
             kji = to_index(fp @ rot + centre).T
             out[:, :, iz] = (ndimage.map_coordinates(bone_f, kji, order=1, cval=0.0) > 0.5).reshape(n[0], n[1])
-            lab[:, :, iz] = ndimage.map_coordinates(labels, kji, order=0, cval=0).reshape(n[0], n[1])
+        # the labels only where the bone or a neighbour of it is (all that ``comp`` reads below): most of the grid
+        # is air, and the labels' sampling cost as much as the bone's
+        lab = np.zeros(self.shape, np.int32)
+        near = np.argwhere(ndimage.binary_dilation(out, structure=np.ones((3, 3, 3), bool)))
+        for chunk in np.array_split(near, max(1, len(near) // 1_000_000)) if len(near) else ():
+            fp = np.stack([ax[0][chunk[:, 0]], ax[1][chunk[:, 1]], ax[2][chunk[:, 2]]], 1)
+            lab[tuple(chunk.T)] = ndimage.map_coordinates(labels, to_index(fp @ rot + centre).T, order=0, cval=0)
         self.bone = out
         # bone pixels at the mask's edge may sample label 0 (nearest voxel outside): take a neighbour's label
         filled = np.where(lab > 0, lab, ndimage.grey_dilation(lab, size=(3, 3, 3)))
