@@ -792,7 +792,7 @@ def test_a_peg_in_the_bone_or_dragged_far_is_warned(model, face):
     assert D.FACE_PEG_MAX_DRIFT_MM == 10.0 and not model.solve().pegs.warnings
 
 
-def test_cthead_face_does_not_depend_on_the_strip_level(cthead_ct):
+def test_cthead_face_does_not_depend_on_the_strip_level(cthead_ct, cthead_skull):
     """Issue 39: CThead stripped at 1500 and at 1600 (every voxel below the level set to air) and run at that level
     gives faces within 3 points of each other in the share within +-2.5 mm of the real face (the same points scored).
     Before: 50-52 % at 1500 and 62-63 % at 1600, because the automatic alare curvature landmarks (uncertain) stood
@@ -805,9 +805,8 @@ def test_cthead_face_does_not_depend_on_the_strip_level(cthead_ct):
         if str(root / sub) not in sys.path:
             sys.path.insert(0, str(root / sub))
     import bench_face as B
-    from pdehead_addon.forensic.skull import segment_skull
 
-    sk = segment_skull(cthead_ct)
+    sk = cthead_skull
     centre = cthead_ct.index_to_patient(np.argwhere(sk.bone).mean(axis=0)[None])[0]
     ref = B.reference_face(cthead_ct, centre[:2])
     shares = {}
