@@ -392,6 +392,7 @@ def test_the_print_skin_carries_the_detail_at_the_strength_set(ext, reopened):
     s.use_detail_map = True
 
 
+@pytest.mark.engine_cli
 def test_cli_detail_flag(tmp_path):
     """--detail STRENGTH: out of range is a usage error naming the flag; in range the exported skin is at
     print resolution, closed, and the summary's timings hold the detail step."""

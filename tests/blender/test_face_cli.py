@@ -128,6 +128,7 @@ def test_cli_face_from_skull_bad_input_exit_2_nothing_written(tmp_path, case, ph
 BY_SEX = Path(__file__).resolve().parents[1] / "fixtures" / "depth_table_by_sex.csv"
 
 
+@pytest.mark.engine_cli
 def test_cli_sex_picks_the_rows_of_a_table_with_a_sex_column(tmp_path):
     """--depth-table FILE --sex male: the face stands on the table's male rows (the table was refused before);
     --sex with a pooled table is exit 2 with the reason, before any work and with nothing written."""

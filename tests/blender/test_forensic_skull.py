@@ -31,6 +31,7 @@ def phantom_dicoms(tmp_path_factory, phantom):
     return root, level
 
 
+@pytest.mark.engine_cli
 def test_cli_skull_only_ct_gives_the_same_skull(tmp_path, phantom_dicoms):
     """--bone-level: the CT and the same CT with its soft tissue removed give the same skull.stl (0.01 mm)."""
     root, level = phantom_dicoms
@@ -62,6 +63,7 @@ def test_cli_skull_only_ct_gives_the_same_skull(tmp_path, phantom_dicoms):
     assert "mandible" not in only.stderr and "mandible" not in only.stdout
 
 
+@pytest.mark.engine_cli
 def test_cli_skull_mesh_replaces_the_ct(tmp_path, phantom, phantom_seg):
     from pdehead_addon.forensic.skull import segment_skull, skull_mesh
     from pdehead_addon.io.export import export_mesh

@@ -41,6 +41,7 @@ def _check_export(folder, n_skin_vertices=None, handles=True):
     return skin, skull, pts, depth
 
 
+@pytest.mark.engine_cli
 def test_cli_phantom_skull_export(tmp_path):
     out = tmp_path / "print"
     result = run_cli("--phantom", "--no-volume", "--nu", 60, "--nv", 120, "--skull", "--export", out, tmp_path=tmp_path)
@@ -63,6 +64,7 @@ def test_cli_export_needs_skull(tmp_path):
     assert not (tmp_path / "x").exists()
 
 
+@pytest.mark.engine_cli
 def test_cli_cthead_skull_export(tmp_path, pytestconfig):
     from datasets import shared_data
     folder = shared_data("cthead_stanford", "raw16")
@@ -78,6 +80,7 @@ def test_cli_cthead_skull_export(tmp_path, pytestconfig):
     assert 3.0 < np.nanmedian(depth) < 10.0
 
 
+@pytest.mark.engine_cli
 def test_cli_ge_skull_export(tmp_path):
     """The GE series stops at the maxilla: a skull without mandible, a tilted, unevenly spaced scan."""
     from datasets import shared_data
