@@ -133,6 +133,8 @@ def snap_to_surface(points: np.ndarray, mesh: Mesh) -> tuple[np.ndarray, np.ndar
         # beyond that bound cannot hold it. Only the rest go through the exact test (a few of 365k on a skull).
         bound = np.sqrt(np.min(np.einsum("ij,ij->i", corners - p, corners - p)))
         cand = np.flatnonzero(np.linalg.norm(centre - p, axis=1) - radius <= bound * (1 + 1e-9) + 1e-9)
+        if len(cand) == 0:                  # a point that is not finite: every triangle, as the exact test had it
+            cand = np.arange(len(t))
         q = closest_point_on_triangle(p, a[cand], b[cand], c[cand])
         d = np.einsum("ij,ij->i", q - p, q - p)
         j = int(np.argmin(d))
