@@ -111,11 +111,12 @@ RULES: dict[str, str] = {
     "mp": "Mid-philtrum: the upper jaw's profile point half way (in height) between subspinale and prosthion.",
     "id": "Infradentale: the mandible's profile point one lower incisor crown (9 mm) below its highest front "
           "point (the front walked up from menton ends where it steps back by more than 20 mm: bone joined behind "
-          "it is not its front; always uncertain, as prosthion).",
+          "it is not its front; always uncertain, as prosthion); not found where it lies more than 20 mm behind "
+          "supradentale (the lower incisors close behind the upper ones: bone that far back is not theirs).",
     "sm": "Supramentale (B point): the deepest point of the mandible's profile relative to the chord from "
           "pogonion to infradentale (the mandible with the lower teeth split from it: pieces between the jaws "
           "nearer the mandible than the upper skeleton); uncertain with no concavity (under 1 mm), a concavity "
-          "deeper than 8 mm, or a gap of more than 3 mm in the profile.",
+          "deeper than 8 mm, or a gap of more than 3 mm in the profile; not found where infradentale is not.",
     "pog": "Pogonion: the most anterior point of the lower half of the mandible's mid-sagittal profile.",
     "gn": "Gnathion: the point of the symphysis between pogonion and menton farthest along the "
           "anterior-inferior bisector.",

@@ -393,4 +393,22 @@ def midline_landmarks(found, fr, mid_x, nlab, skull_id, mand_id, mand_ev, orb_z,
         iy_lim = fr.shape[1] if n_pt is None else fr.index(1, n_pt[1] + 40.0)   # the face, not the spine
         pieces = np.unique(fr.comp[max(ixm - 1, 0):ixm + 2, :iy_lim, izs])
         ids += _lower_teeth_pieces(fr, [int(i) for i in pieces if i not in (0, skull_id, mand_id)], mand_id)
-    return up, _mandible_midline(found, fr, mid_x, ids)
+    low = _mandible_midline(found, fr, mid_x, ids)
+    _infradentale_behind_the_upper_incisors(found)
+    return up, low
+
+
+def _infradentale_behind_the_upper_incisors(found) -> None:
+    """Infradentale not found where it lies more than :data:`MANDIBLE_FRONT_STEP_MM` behind supradentale: the lower
+    incisors close behind the upper ones, and bone that far back is not their front (CThead cut through the lower
+    teeth at 250 HU: 31 mm behind, on bone behind the teeth; whole heads: 3-8 mm)."""
+    sd, idn = found.get("sd", (None,))[0], found.get("id", (None,))[0]
+    if sd is None or idn is None:
+        return
+    behind = float(idn[1] - sd[1])
+    if behind > MANDIBLE_FRONT_STEP_MM:
+        found["id"] = (None, NOT_FOUND, f"the mandible's front at the lower incisors' height lies {behind:.0f} mm "
+                                        f"behind supradentale (more than {MANDIBLE_FRONT_STEP_MM:g} mm): not the "
+                                        "lower incisors, which close behind the upper ones")
+        if found.get("sm", (None,))[0] is not None:          # its rule's chord ends at infradentale
+            found["sm"] = (None, NOT_FOUND, "infradentale not found: no chord from pogonion to it")
