@@ -889,8 +889,9 @@ def markdown(results: dict) -> str:
               "and down (+0.6 / +0.6 / 0 / +0.8, but vertical streaks in the render) or softened (LIMIT_SOFT_MM 3: "
               "-1.2 / -0.7 / +0.8 / +0.3). The cheek floor lifts CThead's left cheek by up to 5 mm at the zygoma "
               "(the depth field, smoothed, dips to 1.5 mm over that bone), and its edges show as a bar under each "
-              "eye in the renders; without it the bars go, but every head loses 1.6-2.8 points; its lift smoothed over "
-              "the surface (5 mm) before the hard floor softens them a little (-0.5 / -0.5 / +0.1 / +0.2). The head's "
+              "eye in the renders; without it the bars go, but CThead's rows and GE lose 1.6-2.8 points (the phantom "
+              "+0.1); its lift smoothed over the surface (5 mm) before the hard floor softens them a little (-0.5 / "
+              "-0.5 / +0.1 / +0.2). The head's "
               "roll levelled too (the plane of the porions and orbitales, GE 3.5 degrees, CThead 1.2-2.0): 1500 "
               "+1.4, GE -0.5, the 1.5 mm slices -0.8, the other rows within 0.4 points: not kept.",
               "- Why the score depended on the strip level (50-52 % at 1500, 62-63 % at the automatic ~1586 and at "
