@@ -28,6 +28,17 @@ from datasets import CTHEAD_RAW16_OPTIONS, CTHEAD_TIFF8_OPTIONS, IN_CI, SHARED_D
 
 
 @pytest.fixture(scope="session")
+def bench_face():
+    """``scripts/bench/bench_face.py``, imported once: its variants of a scan (stripped, resliced, cut, in HU), the
+    unseen-like row's constants and the face scorer, as the suite makes them."""
+    bench = str(ROOT / "scripts" / "bench")
+    if bench not in sys.path:
+        sys.path.insert(0, bench)
+    import bench_face
+    return bench_face
+
+
+@pytest.fixture(scope="session")
 def cthead_ct():
     from pdehead_addon import load_ct
     return load_ct(shared_data("cthead_stanford", "raw16"), **CTHEAD_RAW16_OPTIONS)

@@ -792,20 +792,14 @@ def test_a_peg_in_the_bone_or_dragged_far_is_warned(model, face):
     assert D.FACE_PEG_MAX_DRIFT_MM == 10.0 and not model.solve().pegs.warnings
 
 
-def test_cthead_face_does_not_depend_on_the_strip_level(cthead_ct, cthead_skull):
+def test_cthead_face_does_not_depend_on_the_strip_level(cthead_ct, cthead_skull, bench_face):
     """Issue 39: CThead stripped at 1500 and at 1600 (every voxel below the level set to air) and run at that level
     gives faces within 3 points of each other in the share within +-2.5 mm of the real face (the same points scored).
     Before: 50-52 % at 1500 and 62-63 % at 1600, because the automatic alare curvature landmarks (uncertain) stood
     beside the nasal aperture at one level and on the malar bone by the molars at the other; the face now stands them
     at their definition (face_from_skull.alar_pegs_by_definition), and a mid-ramus 6 mm above gonion is replaced by
     the other side's mirrored (mid_ramus_by_definition)."""
-    import sys
-    root = Path(__file__).resolve().parents[2]
-    for sub in ("scripts", "scripts/bench"):
-        if str(root / sub) not in sys.path:
-            sys.path.insert(0, str(root / sub))
-    import bench_face as B
-
+    B = bench_face
     sk = cthead_skull
     centre = cthead_ct.index_to_patient(np.argwhere(sk.bone).mean(axis=0)[None])[0]
     ref = B.reference_face(cthead_ct, centre[:2])

@@ -60,20 +60,14 @@ def test_short_bits_beside_the_metal_stay():
     assert not (found & bit).any()
 
 
-def test_cthead_streaks_at_two_strip_levels(cthead_ct):
+def test_cthead_streaks_at_two_strip_levels(cthead_ct, bench_face):
     """CThead stripped at 1500 keeps the fillings' streaks in the cheeks (slices 29-38) as loose wedges: they are
     dropped (1378 voxels, 8 pieces measured); stripped at 1600 almost none pass (19 voxels, 1 piece); the 1500
     skull's vertices more than 3 mm from the 1600 skull fall from 21,559 to 20,771 (the rest: the neck and the
     mandible's joins)."""
-    import sys
-    from pathlib import Path
-
     from scipy.spatial import cKDTree
 
-    root = Path(__file__).resolve().parents[2]
-    if str(root / "scripts" / "bench") not in sys.path:
-        sys.path.insert(0, str(root / "scripts" / "bench"))
-    import bench_face as B
+    B = bench_face
     from pdehead_addon.forensic.skull import segment_skull, skull_mesh
 
     meshes = {}
@@ -136,20 +130,14 @@ def test_joined_spokes_need_metal_and_direction():
     assert not (found & wide & ~spokes).any()
 
 
-def test_cthead_joined_spokes_at_1600(cthead_ct):
+def test_cthead_joined_spokes_at_1600(cthead_ct, bench_face):
     """CThead stripped at 1600: the spokes joined to the teeth in its skull's bone (slices 28-40) are found (1058
     voxels measured) while the rami behind the fillings keep 88 % of their bone (boxes from slices 29-33). Not wired
     into segment_skull: with it the face at 1500 / 1600 scored 51.3 / 55.5 % (4.2 points apart, was 53.9 / 55.2)."""
-    import sys
-    from pathlib import Path
-
     from pdehead_addon.forensic.skull import segment_skull
     from pdehead_addon.forensic.skull_parts import joined_metal_streaks
 
-    root = Path(__file__).resolve().parents[2]
-    if str(root / "scripts" / "bench") not in sys.path:
-        sys.path.insert(0, str(root / "scripts" / "bench"))
-    import bench_face as B
+    B = bench_face
 
     bare = B.stripped(cthead_ct, 1600.0)
     sk = segment_skull(bare, bone_level=1600.0)

@@ -289,21 +289,15 @@ def test_a_scan_cut_below_the_occlusal_plane_finds_the_rami(cthead_ct, cthead_sk
         assert off <= 5.0, (side, off, lms[f"Supra M2 {side}"])
 
 
-def test_infradentale_on_bone_behind_the_teeth_is_not_found(cthead_ct, cthead_search):
+def test_infradentale_on_bone_behind_the_teeth_is_not_found(cthead_ct, cthead_search, bench_face):
     """CThead as the unseen head was given (bench_face.py's row: 1.5 mm slabs, in HU, cut 10 mm below the plane
     between its incisors, stripped at 250 HU): the mandible's front at the lower incisors' height was bone 31 mm
     behind supradentale (whole heads: 3-8 mm), and infradentale's peg, 11 mm inside the face the other pegs make,
     folded the lips into three ridges. Infradentale (and supramentale, whose chord ends at it) is not found there,
     with the reason; supradentale and nasion stay where the whole scan has them."""
-    import sys
-    from pathlib import Path
-
     from pdehead_addon.forensic.auto_landmarks import find_landmarks
     from pdehead_addon.forensic.landmark_midline import MANDIBLE_FRONT_STEP_MM
-    root = Path(__file__).resolve().parents[2]
-    if str(root / "scripts" / "bench") not in sys.path:
-        sys.path.insert(0, str(root / "scripts" / "bench"))
-    import bench_face as B
+    B = bench_face
 
     whole = cthead_search.landmarks
     sd, idn = whole["Supradentale"].point, whole["Infradentale"].point
@@ -320,5 +314,7 @@ def test_infradentale_on_bone_behind_the_teeth_is_not_found(cthead_ct, cthead_se
     assert "behind supradentale" in ev and f"more than {MANDIBLE_FRONT_STEP_MM:g} mm" in ev, ev
     assert float(ev.split(" mm behind")[0].split()[-1]) > 25.0, ev
     assert lms["Supramentale"].flag == "not_found"
-    for name in ("Supradentale", "Nasion"):        # (subspinale: 7.5 mm forward, on the soft tissue 250 HU keeps)
+    # (not subspinale: 7.5 mm forward, on the maxilla's thin front wall, which 250 HU keeps and the whole scan's
+    # automatic level, about 1586, misses: CThead's wall peaks at 1568 there)
+    for name in ("Supradentale", "Nasion"):
         assert np.linalg.norm(lms[name].point - whole[name].point) <= 6.0, (name, lms[name])
