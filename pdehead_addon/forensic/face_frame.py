@@ -41,8 +41,18 @@ YAW_MIN_PAIRS = 3
 #: scanner's axes are kept: the front's columns (``cos(theta + yaw) < FRONT_COS``) must stay one run.
 YAW_MAX_DEG = 45.0
 #: The most pitch (degrees) taken from the Frankfurt landmarks; beyond it (landmarks gone astray) the scanner's
-#: axes are kept. Heads lie in scanners within about 20 degrees of the Frankfurt plane (CThead 9-10, GE -4).
+#: axes are kept. Heads lie in scanners within about 20 degrees of the Frankfurt plane (CThead 9-10; GE about 2 with
+#: its porions level, -4 with its left one off its canal).
 PITCH_MAX_DEG = 30.0
+#: The porions' roll (the slope of the line from Porion R to Porion L) and the orbitales' must agree within this many
+#: degrees for the Frankfurt frame (:func:`frankfurt_disagreement`): a head is rigid, so both pairs show its roll,
+#: and a porion found on another opening of the temporal bone (the middle ear's air, a mastoid cell) moves one side's
+#: height alone. Measured: CThead (eight strips, slicings and cuts), the phantom (also in 3 mm slabs), GE stripped at
+#: 250 HU and GE in 3 mm slabs agree within 2.2 degrees; GE at its own bone level differs by 6.4 (its left porion 13 mm
+#: above the right while its orbitales and zygomatic arches stand level within 0.4 degrees; in the CT's sagittal
+#: section that porion lies in the soft tissue in front of the canal, the 250 HU one on the canal's roof). 4 lies
+#: between the two; chosen on these heads, GE being the one that fails.
+ROLL_AGREEMENT_DEG = 4.0
 
 
 def head_yaw(landmarks: dict) -> float:
@@ -68,12 +78,37 @@ def head_yaw(landmarks: dict) -> float:
     return yaw if abs(yaw) <= np.radians(YAW_MAX_DEG) else 0.0
 
 
+def pair_roll(landmarks: dict, name: str) -> float | None:
+    """The roll (degrees; + : the patient's left side higher) of the bilateral pair ``"<name> L"`` / ``"<name> R"``:
+    the slope of the line from R to L against the horizontal; None without both points."""
+    left, right = landmarks.get(f"{name} L"), landmarks.get(f"{name} R")
+    if left is None or right is None:
+        return None
+    d = np.asarray(left, float) - np.asarray(right, float)
+    return float(np.degrees(np.arctan2(d[2], np.hypot(d[0], d[1]))))
+
+
+def frankfurt_disagreement(landmarks: dict) -> str | None:
+    """Why the Frankfurt frame is not trusted (one line), or None: the porions' roll (:func:`pair_roll`) and the
+    orbitales' differ by more than :data:`ROLL_AGREEMENT_DEG`, so one porion is not on its ear canal's upper margin
+    and the porions' midpoint, which sets the pitch, is off by half that side's error."""
+    po, orb = pair_roll(landmarks, "Porion"), pair_roll(landmarks, "Orbitale")
+    if po is None or orb is None or abs(po - orb) <= ROLL_AGREEMENT_DEG:
+        return None
+    return (f"the porions' roll ({po:.1f} degrees) and the orbitales' ({orb:.1f}) differ by more than "
+            f"{ROLL_AGREEMENT_DEG:g}: one porion is off its ear canal; the face is made in the scanner's axes")
+
+
 def frankfurt_rotation(landmarks: dict) -> tuple[np.ndarray, np.ndarray, float] | None:
     """The turn (3 x 3, patient -> frame), its pivot (3,) and its angle (radians, + : the orbitales above the
     porions in the scan) that put the head's Frankfurt horizontal [1]_ level:
     about the horizontal axis across the head, by the angle at which the orbitales' midpoint rises over the
-    porions' (the front's bearing and the scanner's vertical kept). None without a porion and an orbitale, or beyond
-    :data:`PITCH_MAX_DEG`. Pivot: the porions' midpoint."""
+    porions' (the front's bearing and the scanner's vertical kept). None without a porion and an orbitale, beyond
+    :data:`PITCH_MAX_DEG`, or where the porions disagree with the orbitales (:func:`frankfurt_disagreement`).
+    Pivot: the porions' midpoint."""
+    if frankfurt_disagreement(landmarks) is not None:
+        return None
+
     def mean_of(*names):
         pts = [np.asarray(landmarks[n], float) for n in names if landmarks.get(n) is not None]
         return np.mean(pts, axis=0) if pts else None

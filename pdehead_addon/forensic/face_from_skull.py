@@ -75,7 +75,14 @@ from .face_field import (  # noqa: F401  (re-exported: face_live and the tests r
     DepthField,
     peg_kernel,
 )
-from .face_frame import HeadFrameFeatures, head_yaw, into_frankfurt_frame, landmarks_in_head_frame, to_head_frame
+from .face_frame import (
+    HeadFrameFeatures,
+    frankfurt_disagreement,
+    head_yaw,
+    into_frankfurt_frame,
+    landmarks_in_head_frame,
+    to_head_frame,
+)
 from .face_pegs import (
     alar_pegs_by_definition,
     cheek_bands,
@@ -218,6 +225,7 @@ class FaceModel(DepthField, HeadFrameFeatures):
         scan_cut = None if chin else scan_cut_plane(skull)
         # the model is made in the head's Frankfurt frame (:mod:`.face_frame`): its rows level with the head, not
         # with the scanner; the pegs are handed back in patient mm
+        no_frame = frankfurt_disagreement(lm)
         skull, lm, cut_plane, frame = into_frankfurt_frame(skull, lm, scan_cut)
         pegs = marker_pegs(lm, skull, table, measured_direction=False)     # the face sets its own normals
         if len(pegs) < 4:
@@ -285,6 +293,8 @@ class FaceModel(DepthField, HeadFrameFeatures):
                              for n, (a, b) in what.items()}
         if yaw != 0.0:
             prov["head_yaw_deg"] = round(float(np.degrees(yaw)), 1)
+        if no_frame is not None:
+            prov["frankfurt_frame"] = no_frame
         if scan_cut is not None:                                 # in the scan's axes (patient mm)
             prov["scan_cut"] = {"tilt_deg": round(float(np.degrees(np.arccos(-scan_cut[0][2]))), 1),
                                 "normal": [round(float(x), 4) for x in scan_cut[0]],

@@ -300,8 +300,8 @@ def test_ge_face_holds_its_bone_and_ends_along_the_scans_cut(ge_face):
     assert count == 0 and far <= 0.1
     margin = D.FACE_CUT_MARGIN_MM.default
     assert model.options["neck_mm"] == margin
-    normal, offset = model.cut_plane[:3], model.cut_plane[3]      # in the model's (Frankfurt) frame
-    tilt = np.degrees(np.arccos(-(normal @ model.frame_rotation)[2]))
+    normal, offset = model.cut_plane[:3], model.cut_plane[3]      # in the model's frame (GE's: the scanner's axes)
+    tilt = np.degrees(np.arccos(-(normal @ model.__dict__.get("frame_rotation", np.eye(3)))[2]))
     assert abs(tilt - 18.5) < 1.0, tilt                            # the series' gantry tilt, in the scan's axes
     assert face.provenance["scan_cut"]["tilt_deg"] == pytest.approx(tilt, abs=0.05)
     assert np.max(model.to_frame(skull.vertices) @ normal) <= offset + 1e-6      # every bone vertex on or above it
@@ -316,6 +316,23 @@ def test_ge_face_holds_its_bone_and_ends_along_the_scans_cut(ge_face):
     # the landmarks that are a fallback on GE say so in the provenance (the left orbit mirrored: uncertain)
     flags = face.provenance["landmark_flags"]
     assert "uncertain" in flags.values() and len(model.peg_names) >= 8
+
+
+def test_ge_face_is_made_in_the_scanners_axes_when_its_porions_disagree(ge_face):
+    """GE's automatic left porion stands 13 mm above its right one while its orbitales and zygomatic arches are level
+    (in the CT's sagittal section it lies in the soft tissue in front of the canal): the porions' midpoint pitched the
+    face by -3.6 degrees, where GE's porions found at 250 HU (level) give +1.6. The porions' roll disagrees with the
+    orbitales'
+    (:func:`.face_frame.frankfurt_disagreement`), so the face is made in the scanner's axes and the provenance says
+    why."""
+    from pdehead_addon.forensic.face_frame import ROLL_AGREEMENT_DEG, pair_roll
+    _, model, face = ge_face
+    lm = model.landmarks_used                                     # no frame: the scanner's axes
+    assert lm["Porion L"][2] - lm["Porion R"][2] > 10.0
+    assert abs(pair_roll(lm, "Orbitale")) < 1.0 and abs(pair_roll(lm, "Zygomatic arch")) < 1.0
+    assert pair_roll(lm, "Porion") - pair_roll(lm, "Orbitale") > ROLL_AGREEMENT_DEG + 1.0
+    assert "frankfurt_pitch_deg" not in face.provenance and "frame_rotation" not in model.__dict__
+    assert "porions' roll" in face.provenance["frankfurt_frame"]
 
 
 def test_ge_face_is_rounded_over_the_cut_bone(ge_face):
@@ -1026,7 +1043,7 @@ def test_a_head_pitched_in_the_scanner_gets_the_same_face(phantom_bone, monkeypa
 
 
 def test_the_frankfurt_rotation_levels_the_orbitales_with_the_porions():
-    from pdehead_addon.forensic.face_frame import PITCH_MAX_DEG, frankfurt_rotation, turned
+    from pdehead_addon.forensic.face_frame import PITCH_MAX_DEG, frankfurt_disagreement, frankfurt_rotation, turned
     lms = {"Porion L": np.array([60.0, 10.0, 0.0]), "Porion R": np.array([-60.0, 10.0, 0.0]),
            "Orbitale L": np.array([32.0, -70.0, 0.0]), "Orbitale R": np.array([-32.0, -70.0, 0.0]),
            "Nasion": np.array([0.0, -95.0, 25.0])}
@@ -1041,6 +1058,15 @@ def test_the_frankfurt_rotation_levels_the_orbitales_with_the_porions():
         np.testing.assert_allclose(level[n] - level["Porion L"], p - lms["Porion L"], atol=1e-9)
     np.testing.assert_allclose(turned(level["Nasion"], r, pivot, back=True), tipped["Nasion"], atol=1e-9)
     assert frankfurt_rotation(lms) is None                    # level already: no turn
+    # one porion on another opening: its side alone 13 mm higher, the orbitales level: no turn, and the reason
+    astray = dict(tipped, **{"Porion L": tipped["Porion L"] + np.array([0.0, 0.0, 13.0])})
+    assert frankfurt_rotation(astray) is None and "porions' roll" in frankfurt_disagreement(astray)
+    # the whole head rolled 3 degrees: both pairs show it, the pitch is still taken
+    c = np.radians(3.0)
+    roll = np.array([[np.cos(c), 0.0, -np.sin(c)], [0.0, 1.0, 0.0], [np.sin(c), 0.0, np.cos(c)]])
+    rolled = {n: p @ roll.T for n, p in tipped.items()}
+    assert frankfurt_disagreement(rolled) is None
+    assert np.degrees(frankfurt_rotation(rolled)[2]) == pytest.approx(12.0, abs=0.1)
     assert frankfurt_rotation({k: v for k, v in tipped.items() if not k.startswith("Porion")}) is None
     b = np.radians(PITCH_MAX_DEG + 5.0)
     steep = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(b), -np.sin(b)], [0.0, np.sin(b), np.cos(b)]])
