@@ -930,6 +930,18 @@ def markdown(results: dict) -> str:
               "globe): GE +9.0, the phantom +0.9, CThead's rows -4.9 to -7.1 (the eye site thins the whole upper face"
               ", which CThead's is and GE's is not); in the field's narrow correction only: GE +6.6, CThead 1500 "
               "-3.4, the unseen-like row -3.8 (both before the frame's change).",
+              "- The pegs' directions under a perturbation (6 Dec 2026, the same session; measured, nothing kept): "
+              "between GE at its own level and GE stripped at 250 HU the pegs' normals turn by 15-50 degrees for "
+              "bases moved 0.7-4.7 mm (supraorbital R: 0.8 mm, 43.5 degrees, its tip 5.2 mm; zygomatic arch L: 0.7"
+              " mm, 50 degrees, 6.8 mm): `face_profile.peg_normals` switches from the bone's averaged normal to the "
+              "profile's where the two part by more than 45 degrees, and most of CThead's pegs lie beyond it "
+              "(suborbitals 75-88, supraorbitals 70, supra-M2 51-56, gonia 60). Dev scores (1500 / GE / GE at 250 HU"
+              " / the phantom / unseen-like, GE made in the scanner's axes): the bone's normal turned to within 45 "
+              "degrees of the profile's instead of switched: 66.4 / 45.5 / 39.8 / 41.9 / 58.1 (1600 65.6, the "
+              "occlusal cut 74.9); peg by peg on 1500 supra-M2 +5.1, zygomatic arches +3.1, supraorbitals +1.3, on"
+              " GE supraorbitals -7.0, suborbitals -1.9: it thins the face where the normals lean, which CThead "
+              "wants and GE does not. Slerped between the two over 35-55 degrees (no jump): 57.1 / 56.3 / 50.1 / "
+              "42.6 / 47.5.",
               "- Why the score depended on the strip level (50-52 % at 1500, 62-63 % at the automatic ~1586 and at "
               "1600): not the cervical spine (the 1500 skull reaches the scan's bottom, z -1 mm against 25 mm at 1600, "
               "but cropping it away left the face's score unchanged, 51.4 %), but the automatic landmarks: swapping "
