@@ -322,9 +322,8 @@ def test_ge_face_is_made_in_the_scanners_axes_when_its_porions_disagree(ge_face)
     """GE's automatic left porion stands 13 mm above its right one while its orbitales and zygomatic arches are level
     (in the CT's sagittal section it lies in the soft tissue in front of the canal): the porions' midpoint pitched the
     face by -3.6 degrees, where GE's porions found at 250 HU (level) give +1.6. The porions' roll disagrees with the
-    orbitales'
-    (:func:`.face_frame.frankfurt_disagreement`), so the face is made in the scanner's axes and the provenance says
-    why."""
+    orbitales' (:func:`.face_frame.frankfurt_disagreement`), so the face is made in the scanner's axes and the
+    provenance says why."""
     from pdehead_addon.forensic.face_frame import ROLL_AGREEMENT_DEG, pair_roll
     _, model, face = ge_face
     lm = model.landmarks_used                                     # no frame: the scanner's axes
