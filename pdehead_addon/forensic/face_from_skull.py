@@ -225,8 +225,8 @@ class FaceModel(DepthField, HeadFrameFeatures):
         scan_cut = None if chin else scan_cut_plane(skull)
         # the model is made in the head's Frankfurt frame (:mod:`.face_frame`): its rows level with the head, not
         # with the scanner; the pegs are handed back in patient mm
-        no_frame = frankfurt_disagreement(lm)
         skull, lm, cut_plane, frame = into_frankfurt_frame(skull, lm, scan_cut)
+        no_frame = None if frame is not None else frankfurt_disagreement(lm)     # why not, when it says (unturned)
         pegs = marker_pegs(lm, skull, table, measured_direction=False)     # the face sets its own normals
         if len(pegs) < 4:
             raise PDEHeadError(f"only {len(pegs)} landmarks have a depth in the table: at least 4 are needed "
