@@ -40,9 +40,12 @@ PROFILE_3D = False
 ENVELOPE_CLOSING_MM = 30.0
 #: Radius (mm) over which the bone's normal at a landmark is averaged (:func:`peg_normals`).
 PEG_NORMAL_RADIUS_MM = 8.0
-#: A peg follows the averaged bone normal unless it leans more than 45 degrees from the closed profile's
-#: normal (then the profile's): e.g. subspinale on a mask whose thin maxilla is gone faces up, not forward.
-PEG_NORMAL_MIN_COS = 0.7
+#: A peg follows the averaged bone normal while it lies within the first angle (degrees) of the closed profile's
+#: normal and the profile's beyond the second (e.g. subspinale on a mask whose thin maxilla is gone faces up, not
+#: forward), blended between. A blend, not a switch at 45 degrees: a switch turned GE's pegs by 15-50 degrees for bases
+#: moved by ~1 mm when it was stripped at 250 HU (its tips by up to 7 mm); 45 +- 10 so that a turn of the bone normal by
+#: a few degrees moves a tip by a fraction of a millimetre; measured on every suite row (docs/benchmarks.md).
+PEG_NORMAL_BLEND_DEG = (35.0, 55.0)
 #: Smoothing of the closed profile over the surface (:func:`surface_smooth`): a Gaussian of PROFILE_SMOOTH_MM along the
 #: height and PROFILE_SMOOTH_ARC_MM of arc around the head (mm both, not rows or degrees). Each row's hull is made on
 #: its own, and rows a few mm apart step (the teeth, the zygomatic arches' edges); a skin does not. Chosen on GE and the
@@ -522,8 +525,9 @@ def peg_normals(skull: Mesh, bases: np.ndarray, grid: FaceGrid, profile: np.ndar
                 radius_mm: float = PEG_NORMAL_RADIUS_MM) -> np.ndarray:
     """The direction each peg stands in: the bone's outward normal at the landmark, averaged over the bone
     surface within ``radius_mm`` (area-weighted; a single triangle's normal on a thin or fragmentary bone,
-    e.g. the maxilla at the bone level, points anywhere); where that still points more than 45 degrees
-    away from the closed profile's outward normal (:data:`PEG_NORMAL_MIN_COS`), the profile's normal (not above
+    e.g. the maxilla at the bone level, points anywhere); where that still leans away from the closed profile's
+    outward normal, turned towards the profile's: the bone's within the first angle of
+    :data:`PEG_NORMAL_BLEND_DEG`, the profile's beyond the second, blended linearly in the angle between (not above
     the profile's last row, where its normal means nothing: the vertex keeps the bone's).
     The T-Table's convention is a depth measured along the bone normal at the landmark."""
     v, t = skull.vertices, skull.triangles
@@ -533,12 +537,17 @@ def peg_normals(skull: Mesh, bases: np.ndarray, grid: FaceGrid, profile: np.ndar
     fn = np.cross(b - a, c - a)                                    # area-weighted (|fn| = 2 area)
     tree = cKDTree((a + b + c) / 3.0)
     env = envelope_normals(grid, profile, bases)
-    out = np.empty_like(bases)
-    for i, p in enumerate(bases):
-        idx = tree.query_ball_point(p, radius_mm)
+    bone = np.empty_like(bases)
+    for i, idx in enumerate(tree.query_ball_point(bases, radius_mm)):   # a few dozen pegs, not vertices
         n = fn[idx].sum(axis=0) if idx else env[i]
         norm = np.linalg.norm(n)
-        n = n / norm if norm > 0 else env[i]
-        # above the last row (vertex) the profile's normal is meaningless (the rows' radius near the axis): the bone's
-        out[i] = n if float(n @ env[i]) >= PEG_NORMAL_MIN_COS or p[2] > grid.z[-1] else env[i]
+        bone[i] = n / norm if norm > 0 else env[i]
+    lean = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", bone, env), -1.0, 1.0)))
+    lo, hi = PEG_NORMAL_BLEND_DEG
+    w = np.clip((lean - lo) / (hi - lo), 0.0, 1.0)[:, None]               # 0: the bone's, 1: the profile's
+    # above the last row (vertex) the profile's normal is meaningless (the rows' radius near the axis): the bone's
+    w[bases[:, 2] > grid.z[-1]] = 0.0
+    out = (1.0 - w) * bone + w * env
+    norm = np.linalg.norm(out, axis=1, keepdims=True)
+    return np.where(norm > 1e-9, out / np.maximum(norm, 1e-9), env)
     return out

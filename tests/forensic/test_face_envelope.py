@@ -68,3 +68,33 @@ def test_closing_bridges_a_pit_as_wide_as_an_orbit(closing):
         assert np.all(through > RADIUS - 10.0)
     else:
         assert np.all(through < RADIUS - PIT_DEPTH_MM + 5.0)
+
+
+def _tilted_plate(base: np.ndarray, tilt_deg: float) -> Mesh:
+    """A 10 mm square plate through ``base`` whose normal leans ``tilt_deg`` up from the outward horizontal (-y)."""
+    a = np.radians(tilt_deg)
+    normal = np.array([0.0, -np.cos(a), np.sin(a)])
+    u = np.array([1.0, 0.0, 0.0])
+    w = np.cross(normal, u)
+    corners = base + 5.0 * np.array([-u - w, u - w, u + w, -u + w])
+    return Mesh(vertices=corners, quads=np.zeros((0, 4)), triangles=[[0, 1, 2], [0, 2, 3]])
+
+
+def test_a_pegs_direction_turns_smoothly_from_the_bones_normal_to_the_profiles():
+    """A peg on a plate tilted more and more from a cylinder's outward normal: the bone's normal while it leans
+    less than the blend's first angle, the profile's beyond its second, and no jump between (a switch at 45 degrees
+    turned GE's pegs by up to 50 degrees for a 1 mm move of their bases)."""
+    from pdehead_addon.forensic.face_profile import PEG_NORMAL_BLEND_DEG, peg_normals
+    grid = _grid()
+    profile = np.full((grid.z.size, grid.theta.size), 80.0)               # a cylinder: its normal is horizontal
+    base = np.array([[0.0, -80.0, 0.0]])                                  # straight ahead (theta = pi)
+    tilts = np.arange(20.0, 71.0, 0.5)
+    dirs = np.array([peg_normals(_tilted_plate(base[0], t), base, grid, profile)[0] for t in tilts])
+    outward = np.array([0.0, -1.0, 0.0])
+    lean = np.degrees(np.arccos(np.clip(dirs @ outward, -1, 1)))           # the peg's lean from the profile's normal
+    lo, hi = PEG_NORMAL_BLEND_DEG
+    np.testing.assert_allclose(lean[tilts <= lo], tilts[tilts <= lo], atol=0.5)   # the bone's normal
+    assert np.all(lean[tilts >= hi] < 1.0)                                          # the profile's
+    steps = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", dirs[1:], dirs[:-1]), -1, 1)))
+    assert steps.max() < 3.0, f"the peg's direction jumps by {steps.max():.1f} degrees for a 0.5 degree tilt"
+    assert lean.max() < lo + 1.0                     # turned towards the profile, never beyond the blend's start
