@@ -109,7 +109,7 @@ from .face_profile import (
     surface_smooth,
     tilted_rows,
 )
-from .face_skin import brow_weight, smooth_skin
+from .face_skin import brow_weight, lift_onto_floor, smooth_skin
 from .landmarks import marker_pegs
 
 APPROXIMATION_LABEL = D.FACE_LABEL
@@ -470,8 +470,10 @@ class FaceModel(DepthField, HeadFrameFeatures):
         ears = self._ear_shape()
         if ears is not None:
             radius = radius + ears
-        radius = self._held_on_face(radius, tips, held)
         floor = self.__dict__.get("bone_floor")
+        if floor is not None:             # the floor's lift spread over its crests' edges; the held pegs put back on it
+            radius = lift_onto_floor(radius, floor, self.grid, self.__dict__["_smooth_w"][1])
+        radius = self._held_on_face(radius, tips, held)
         if floor is not None:                       # last: nothing after it may bring the bone through the face
             radius = smooth_max(radius, floor, LIMIT_SOFT_MM)
         return radius

@@ -256,9 +256,12 @@ def bone_floor(skull: Mesh, grid: FaceGrid, min_tissue_mm: float) -> np.ndarray:
 
 
 #: The cheeks' least tissue (:func:`cheek_floor`) is faded in over this much height (mm) and angle (degrees) at the
-#: band's edges, so the floor does not step.
-CHEEK_FLOOR_RAMP_MM = 5.0
-CHEEK_FLOOR_RAMP_DEG = 5.0
+#: band's edges, so the floor does not step: the skin's own smoothing length (:data:`.face_skin.FACE_SMOOTH_MM`, 11
+#: mm; 7 degrees is 11 mm of arc at a face's ~90 mm radius). At 5 mm / 5 degrees the band's top edge, on the
+#: infraorbital margin, stood as a bar under each eye (CThead 1500: the face's curvature down the cheek under the
+#: eyes, 95th percentile, 0.133 -> 0.106 per mm at 11 mm; scores within 0.3 points, docs/benchmarks.md).
+CHEEK_FLOOR_RAMP_MM = 11.0
+CHEEK_FLOOR_RAMP_DEG = 7.0
 
 
 def cheek_floor(skull: Mesh, grid: FaceGrid, bands: list[tuple[float, float, float, float]], depth_mm: float,

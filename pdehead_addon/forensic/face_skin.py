@@ -20,6 +20,7 @@ References
 from __future__ import annotations
 
 import numpy as np
+from scipy import ndimage
 
 from .face_profile import FLOOR_ROUND_MM, FaceGrid, round_floor, surface_smooth
 
@@ -73,3 +74,29 @@ def smooth_skin(radius: np.ndarray, grid: FaceGrid, weight: np.ndarray, floor: n
             scale = np.broadcast_to(rho[:, None], radius.shape)                 # round_floor reads its median
             out = out + round_floor(np.maximum(sunk, 0.0), grid, scale, FLOOR_ROUND_MM)
     return out
+
+
+#: How far (mm, over the surface) the bone floor's lift spreads into the face around it (:func:`lift_onto_floor`).
+#: Chosen on CThead's renders (the plates under the eyes), checked on GE, GE stripped at 250 HU and the phantom
+#: (docs/benchmarks.md): 4 mm softens them further but thins CThead's cheeks by 2 points more.
+FLOOR_LIFT_SPREAD_MM = 2.0
+
+
+def lift_onto_floor(radius: np.ndarray, floor: np.ndarray, grid: FaceGrid, rho: np.ndarray,
+                    spread_mm: float = FLOOR_LIFT_SPREAD_MM) -> np.ndarray:
+    """``radius`` lifted by a smooth envelope of how far it lies under the bone ``floor``: the lift's grey dilation over
+    +- ``spread_mm`` (height and arc at the median of ``rho``, each row's radius), then a Gaussian of ``spread_mm``
+    over the surface. Never below ``radius``; the hard floor (:func:`.face_profile.smooth_max`) is applied after it.
+
+    Why: the floor (the outermost bone plus the least tissue, and in the cheeks the smallest of their pegs' means) is
+    higher than the depth field only over the bone's crests (the infraorbital margin, the zygoma's body), and held up
+    there alone, the face took the crests' outline: a plate under each eye, bounded by creases where the floor met the
+    field. Lifted by the envelope the plate's edges run out over a few millimetres, as a skin over a crest does."""
+    lift = np.clip(np.asarray(floor, float) - radius, 0.0, None)
+    if spread_mm <= 0 or not np.any(lift > 0):
+        return radius
+    dz = float(grid.z[1] - grid.z[0])
+    per_col = float(np.median(rho)) * float(grid.theta[1] - grid.theta[0])
+    kz, kt = max(1, round(spread_mm / dz)), max(1, round(spread_mm / per_col))
+    spread = ndimage.maximum_filter(lift, size=(2 * kz + 1, 2 * kt + 1), mode=("nearest", "wrap"))
+    return radius + surface_smooth(spread, grid, spread_mm, rho=rho)

@@ -485,6 +485,10 @@ CONSTANT_CHOICE = {
     "4.2 points apart, failing the strip-level check, so the rule is NOT wired into segment_skull (session of 5 Dec)",
     "face_profile.PROFILE_SMOOTH_FAR_MM": "off (0); was CThead score (57.3 -> 57.5 %)",
     "face_profile.FLOOR_ROUND_MM": "GE (= CUT_FLOOR_SMOOTH_MM)",
+    "face_profile.CHEEK_FLOOR_RAMP_MM / _DEG": "definition (the skin's smoothing length, FACE_SMOOTH_MM = 11 mm; 7 "
+    "degrees is 11 mm of arc at 90 mm), checked on CThead's renders (the bar under each eye)",
+    "face_skin.FLOOR_LIFT_SPREAD_MM": "CThead's renders (the plates under the eyes; 4 mm softer still but 1500 -2 "
+    "points), checked on GE, GE at 250 HU and the phantom",
     "face_from_skull.CHEEK_SMOOTH_MM": "= PROFILE_SMOOTH_MM",
     "face_features subnasale depth": "published (Singh & Purkait 2024: soft subnasale at subspinale's T-Table depth, "
     "13.5 mm)",
@@ -957,6 +961,28 @@ def markdown(results: dict) -> str:
               "56.6 / 56.6, GE at 250 HU 49.5 / 50.1 / 50.4 / 50.5, the phantom 42.6-42.7; +-10 because a turn of "
               "the bone's normal by a few degrees then moves a 10 mm peg's tip by under a millimetre. The renders "
               "(CThead 1500, GE, GE at 250 HU, unseen-like; front, profile, three-quarter) look as before.",
+              "- The plates under the eyes softened (6 Dec 2026, the same session; kept, the suite re-made): the cheek "
+              "floor is higher than the depth field only over the bone's crests (the infraorbital margin, the "
+              "zygoma's body), so the face held up there alone took their outline, a plate under each eye with a "
+              "crease round it, and beside the mouth a bead where the canine eminence stood (looked at: without the "
+              "cheek floor both go, and CThead 1500 / unseen-like lose 1.9 / 2.3 points). Kept: the floor's band "
+              "faded in over 11 mm and 7 degrees (the skin's smoothing length; was 5 mm and 5 degrees) and the face "
+              "lifted by a smooth envelope of how far it lies under the floor (`face_skin.lift_onto_floor`: the lift"
+              " dilated over 2 mm, then a 2 mm Gaussian over the surface) before the hard floor. The face's bend "
+              "under the eyes (from 30 mm below to 8 mm above each orbitale, between the suborbital's and zygion's "
+              "angles; d2r/dz2 95th percentile / the largest d2r/ds2, per mm): CThead 1500 0.133 / 0.39 -> 0.077 / "
+              "0.09, 1600 0.121 / 0.44 (before the blend) -> 0.070 / 0.09, unseen-like 0.132 / 0.31 -> 0.070 / 0.10"
+              ", the phantom 0.046 / 0.13 -> 0.041 / 0.05 (without the cheek floor 0.034 / 0.05). Scores, blend -> "
+              "this: CThead automatic 58.8 -> 58.1, 1500 57.1 -> 56.5, 1600 56.4 -> 55.8, 1.5 / 3 mm slices 53.7 / "
+              "56.4 -> 53.1 / 55.6, the occlusal cut 66.9 -> 66.1, unseen-like 47.5 -> 46.9, without the vault "
+              "58.4 -> 57.3; GE 56.3 -> 56.5, GE at 250 HU 50.1 -> 51.7, GE in 3 mm slabs 53.5 -> 54.0, the phantom "
+              "42.6 -> 43.1, in 3 mm slabs 40.3 -> 41.1. Measured on the way (1500 / unseen-like / GE / GE at 250 "
+              "HU / the phantom): the ramps alone at 11 mm / 7 degrees 57.4 / 47.8 / 56.2 / 49.9 / 42.6 (bend "
+              "0.106), at 15 / 15 57.6 / 47.8 / 56.0 / 49.7 / 42.6 (0.094); the band's top 5 / 10 / 15 mm lower "
+              "57.0 / 56.3 / 55.6 on 1500 (the floor earns its score at the margin itself: the real skin stands 7.6"
+              " mm over the bone there); the floor's bone smoothed over 4-11 mm (it then stands over the field "
+              "nowhere: 55.2 on 1500, as without it); the cheek floor applied before the skin's smoothing 55.6 / "
+              "45.9 / 55.0 / 49.7 / 42.7; the lift spread over 4 mm 54.9 / 45.2 / 56.3 / 52.6 / 43.7 (bend 0.066).",
               "- Why the score depended on the strip level (50-52 % at 1500, 62-63 % at the automatic ~1586 and at "
               "1600): not the cervical spine (the 1500 skull reaches the scan's bottom, z -1 mm against 25 mm at 1600, "
               "but cropping it away left the face's score unchanged, 51.4 %), but the automatic landmarks: swapping "

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pdehead_addon.forensic.face_profile import FaceGrid
-from pdehead_addon.forensic.face_skin import FACE_SMOOTH_TOP_MM, brow_weight, smooth_skin
+from pdehead_addon.forensic.face_profile import FaceGrid, smooth_max
+from pdehead_addon.forensic.face_skin import FACE_SMOOTH_TOP_MM, brow_weight, lift_onto_floor, smooth_skin
 
 
 def _grid():
@@ -57,6 +57,31 @@ def test_the_bone_floor_prints_no_button_where_the_smoothing_sank_the_skin():
     for axis in (0, 1):
         steep_lift, steep_crest = np.abs(np.diff(lift, axis=axis)).max(), np.abs(np.diff(crest, axis=axis)).max()
         assert steep_lift < 0.75 * steep_crest
+
+
+def test_a_face_held_up_by_the_floor_over_a_crest_has_no_plate_edges():
+    """A flat face 4 mm under a bone floor's plateau (a crest 20 x 30 mm, as the infraorbital margin under the cheek
+    floor): the hard floor alone makes a plate whose edges bend the face as sharply as the plateau's; lifted by the
+    floor's smooth envelope first, the face is still on or over the floor everywhere, never under the face it was, and
+    its edges bend less than half as sharply."""
+    g = _grid()
+    z, arc = _surface_mm(g)
+    plateau = (np.abs(z) <= 10.0) & (np.abs(arc) <= 15.0)
+    floor = np.where(plateau, 84.0, 70.0)
+    radius = np.full(floor.shape, 80.0)
+    rho = np.full(len(g.z), 80.0)
+    hard = smooth_max(radius, floor, 1.0)
+    soft = smooth_max(lift_onto_floor(radius, floor, g, rho), floor, 1.0)
+    assert np.all(soft >= floor - 1e-9) and np.all(soft >= radius - 1e-9)
+    # the plateau's height, not more (the smooth max's rounding adds at most a quarter of its 1 mm width)
+    assert 4.0 <= (soft - radius).max() <= 4.25 + 1e-9
+    for axis in (0, 1):
+        bend_hard = np.abs(np.diff(hard, n=2, axis=axis)).max()
+        bend_soft = np.abs(np.diff(soft, n=2, axis=axis)).max()
+        assert bend_soft < 0.5 * bend_hard, (axis, bend_soft, bend_hard)
+    # no lift far from the plateau: 10 mm beyond its edge the face is where it was
+    far = (np.abs(z) > 20.0) | (np.abs(arc) > 25.0)
+    assert np.abs(soft - radius)[far].max() < 1e-6
 
 
 @pytest.fixture(scope="module")
