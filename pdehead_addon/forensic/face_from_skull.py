@@ -77,7 +77,7 @@ from .face_field import (  # noqa: F401  (re-exported: face_live and the tests r
 )
 from .face_frame import (
     HeadFrameFeatures,
-    frankfurt_disagreement,
+    frame_refusal,
     head_yaw,
     into_frankfurt_frame,
     landmarks_in_head_frame,
@@ -226,7 +226,7 @@ class FaceModel(DepthField, HeadFrameFeatures):
         # the model is made in the head's Frankfurt frame (:mod:`.face_frame`): its rows level with the head, not
         # with the scanner; the pegs are handed back in patient mm
         skull, lm, cut_plane, frame = into_frankfurt_frame(skull, lm, scan_cut)
-        no_frame = None if frame is not None else frankfurt_disagreement(lm)     # why not, when it says (unturned)
+        refused = {} if frame is not None else frame_refusal(lm)     # why not, when it says (unturned)
         pegs = marker_pegs(lm, skull, table, measured_direction=False)     # the face sets its own normals
         if len(pegs) < 4:
             raise PDEHeadError(f"only {len(pegs)} landmarks have a depth in the table: at least 4 are needed "
@@ -293,8 +293,7 @@ class FaceModel(DepthField, HeadFrameFeatures):
                              for n, (a, b) in what.items()}
         if yaw != 0.0:
             prov["head_yaw_deg"] = round(float(np.degrees(yaw)), 1)
-        if no_frame is not None:
-            prov["frankfurt_frame"] = no_frame
+        prov.update(refused)
         if scan_cut is not None:                                 # in the scan's axes (patient mm)
             prov["scan_cut"] = {"tilt_deg": round(float(np.degrees(np.arccos(-scan_cut[0][2]))), 1),
                                 "normal": [round(float(x), 4) for x in scan_cut[0]],

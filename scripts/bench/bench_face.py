@@ -983,6 +983,16 @@ def markdown(results: dict) -> str:
               " mm over the bone there); the floor's bone smoothed over 4-11 mm (it then stands over the field "
               "nowhere: 55.2 on 1500, as without it); the cheek floor applied before the skin's smoothing 55.6 / "
               "45.9 / 55.0 / 49.7 / 42.7; the lift spread over 4 mm 54.9 / 45.2 / 56.3 / 52.6 / 43.7 (bend 0.066).",
+              "- The ears where the porions disagree (6 Dec 2026, the same session; kept, the suite re-made): the ears "
+              "stood at the porions, so GE's left ear followed its automatic porion 13 mm above its canal. Where "
+              "the Frankfurt frame is refused (`face_frame.frankfurt_disagreement`) the porion farther in height from"
+              " its side's zygion is replaced, for its ear, by the other's mirror image across the mid-sagittal plane"
+              " (`face_frame.ear_porions`; porion minus zygion: -1.4 to -5.6 mm on CThead's eight variants, the "
+              "phantom and GE at 250 HU, +11.4 mm on GE's left). GE's left ear now stands within 7 mm of the porion "
+              "its 250 HU strip finds on the canal's roof. GE 56.5 -> 54.6 %: the misplaced ear had stood over the "
+              "temple in front of it, inside the scored face where GE's face is too thin; with no ears at all GE "
+              "scores 54.6 too, so the 1.9 points were that ear's accident. No other row changes (their porions "
+              "agree).",
               "- Why the score depended on the strip level (50-52 % at 1500, 62-63 % at the automatic ~1586 and at "
               "1600): not the cervical spine (the 1500 skull reaches the scan's bottom, z -1 mm against 25 mm at 1600, "
               "but cropping it away left the face's score unchanged, 51.4 %), but the automatic landmarks: swapping "

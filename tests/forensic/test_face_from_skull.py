@@ -332,6 +332,14 @@ def test_ge_face_is_made_in_the_scanners_axes_when_its_porions_disagree(ge_face)
     assert pair_roll(lm, "Porion") - pair_roll(lm, "Orbitale") > ROLL_AGREEMENT_DEG + 1.0
     assert "frankfurt_pitch_deg" not in face.provenance and "frame_rotation" not in model.__dict__
     assert "porions' roll" in face.provenance["frankfurt_frame"]
+    # the ears: the left porion stands 11 mm above its zygion (the right 1.5 mm below hers; every agreeing head -1.4
+    # to -5.6 mm), so the left ear stands at the right porion's mirror image, within 8 mm of the left porion GE's
+    # strip at 250 HU finds on the canal's roof (58.0, -13.8, -11.3), not 13 mm above it
+    from pdehead_addon.forensic.face_frame import ear_porions
+    moved, off = ear_porions(lm)
+    assert off == "Porion L" and face.provenance["ear_porion"].startswith("Porion L is off its ear canal")
+    assert np.linalg.norm(moved["Porion L"] - np.array([58.0, -13.8, -11.3])) < 8.0
+    assert abs(moved["Porion L"][2] - lm["Porion R"][2]) < 1.0 and moved["Porion R"] is lm["Porion R"]
 
 
 def test_ge_face_is_rounded_over_the_cut_bone(ge_face):
@@ -1096,6 +1104,18 @@ def test_the_frankfurt_rotation_levels_the_orbitales_with_the_porions():
     # one porion on another opening: its side alone 13 mm higher, the orbitales level: no turn, and the reason
     astray = dict(tipped, **{"Porion L": tipped["Porion L"] + np.array([0.0, 0.0, 13.0])})
     assert frankfurt_rotation(astray) is None and "porions' roll" in frankfurt_disagreement(astray)
+    # its ear: at the other porion's mirror image (the raised one is the farther from its zygion, 3 mm above it)
+    from pdehead_addon.forensic.face_frame import ear_porions
+    arches = {f"Zygomatic arch {s}": p + np.array([0.0, -25.0, 3.0]) for s, p in
+              (("L", tipped["Porion L"]), ("R", tipped["Porion R"]))}
+    midline = {"Glabella": np.array([0.0, -90.0, 40.0]), "Subspinale": np.array([0.0, -80.0, -40.0])}
+    for raised, kept in (("L", "R"), ("R", "L")):
+        lift = {f"Porion {raised}": tipped[f"Porion {raised}"] + np.array([0.0, 0.0, 13.0])}
+        ears, off = ear_porions({**tipped, **arches, **midline, **lift})
+        assert off == f"Porion {raised}"
+        np.testing.assert_allclose(ears[off], tipped[off], atol=1e-6)      # the head is symmetric
+        assert ears[f"Porion {kept}"] is tipped[f"Porion {kept}"]
+    assert ear_porions({**tipped, **arches, **midline})[1] is None                 # agreeing porions: unchanged
     # the whole head rolled 3 degrees: both pairs show it, the pitch is still taken
     c = np.radians(3.0)
     roll = np.array([[np.cos(c), 0.0, -np.sin(c)], [0.0, 1.0, 0.0], [np.sin(c), 0.0, np.cos(c)]])
