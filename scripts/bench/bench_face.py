@@ -993,6 +993,13 @@ def markdown(results: dict) -> str:
               "temple in front of it, inside the scored face where GE's face is too thin; with no ears at all GE "
               "scores 54.6 too, so the 1.9 points were that ear's accident. No other row changes (their porions "
               "agree).",
+              "- The suite after the three changes above (6 Dec 2026, the same session; session 27 -> now, within +-2.5"
+              " mm): CThead automatic 58.0 -> 58.1, without the constants chosen on CThead 58.5 -> 58.4, 1500 57.7 -> "
+              "56.5, 1600 56.3 -> 55.8 (0.7 apart), 1.5 / 3 mm slices 54.6 / 56.4 -> 53.1 / 55.6, the occlusal cut "
+              "66.9 -> 66.1, unseen-like 48.5 -> 46.9 (mean 3.25 -> 3.31 mm), GE 55.4 -> 54.6, the phantom 42.7 -> "
+              "43.1. Edges bent by more than 40 degrees: CThead's rows 0.80-0.90 % (were 0.79-0.93), GE 0.67 -> "
+              "0.56 %, the phantom 0.95 -> 0.98 %. Outside the suite (dev scorer): GE stripped at 250 HU 45.2 -> "
+              "51.7, GE in 3 mm slabs 54.0 -> 54.0 (its porions agree), the phantom in 3 mm slabs 40.3 -> 41.1.",
               "- Why the score depended on the strip level (50-52 % at 1500, 62-63 % at the automatic ~1586 and at "
               "1600): not the cervical spine (the 1500 skull reaches the scan's bottom, z -1 mm against 25 mm at 1600, "
               "but cropping it away left the face's score unchanged, 51.4 %), but the automatic landmarks: swapping "
