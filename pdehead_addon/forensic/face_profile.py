@@ -46,6 +46,10 @@ PEG_NORMAL_RADIUS_MM = 8.0
 #: moved by ~1 mm when it was stripped at 250 HU (its tips by up to 7 mm); 45 +- 10 so that a turn of the bone normal by
 #: a few degrees moves a tip by a fraction of a millimetre; measured on every suite row (docs/benchmarks.md).
 PEG_NORMAL_BLEND_DEG = (35.0, 55.0)
+#: ... and the profile's where the bone's normals within the radius cancel (their sum's length over their lengths' sum
+#: below the first value; blended up to the second): both faces of a thin bone (the phantom's nasal bones, 0.00) give a
+#: direction that is noise, which turned the phantom's mid-nasal peg by 44 degrees under a 15-degree pitch.
+PEG_NORMAL_COHERENCE = (0.02, 0.05)
 #: Smoothing of the closed profile over the surface (:func:`surface_smooth`): a Gaussian of PROFILE_SMOOTH_MM along the
 #: height and PROFILE_SMOOTH_ARC_MM of arc around the head (mm both, not rows or degrees). Each row's hull is made on
 #: its own, and rows a few mm apart step (the teeth, the zygomatic arches' edges); a skin does not. Chosen on GE and the
@@ -541,13 +545,17 @@ def peg_normals(skull: Mesh, bases: np.ndarray, grid: FaceGrid, profile: np.ndar
     tree = cKDTree((a + b + c) / 3.0)
     env = envelope_normals(grid, profile, bases)
     bone = np.empty_like(bases)
+    coherence = np.zeros(len(bases))
     for i, idx in enumerate(tree.query_ball_point(bases, radius_mm)):   # a few dozen pegs, not vertices
         n = fn[idx].sum(axis=0) if idx else env[i]
         norm = np.linalg.norm(n)
         bone[i] = n / norm if norm > 0 else env[i]
+        coherence[i] = norm / max(float(np.linalg.norm(fn[idx], axis=1).sum()), 1e-12) if idx else 0.0
     lean = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", bone, env), -1.0, 1.0)))
     lo, hi = PEG_NORMAL_BLEND_DEG
-    w = np.clip((lean - lo) / (hi - lo), 0.0, 1.0)[:, None]               # 0: the bone's, 1: the profile's
+    c_lo, c_hi = PEG_NORMAL_COHERENCE
+    w = np.maximum(np.clip((lean - lo) / (hi - lo), 0.0, 1.0),            # 0: the bone's, 1: the profile's
+                   np.clip((c_hi - coherence) / (c_hi - c_lo), 0.0, 1.0))[:, None]
     # above the last row (vertex) the profile's normal is meaningless (the rows' radius near the axis): the bone's
     w[bases[:, 2] > grid.z[-1]] = 0.0
     out = (1.0 - w) * bone + w * env

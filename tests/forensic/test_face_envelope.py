@@ -98,3 +98,25 @@ def test_a_pegs_direction_turns_smoothly_from_the_bones_normal_to_the_profiles()
     steps = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", dirs[1:], dirs[:-1]), -1, 1)))
     assert steps.max() < 3.0, f"the peg's direction jumps by {steps.max():.1f} degrees for a 0.5 degree tilt"
     assert lean.max() < lo + 1.0                     # turned towards the profile, never beyond the blend's start
+
+
+def test_a_peg_on_a_bone_thinner_than_its_normals_radius_stands_on_the_profiles_normal():
+    """Both faces of a 1 mm bone plate lie within the radius the bone's normal is averaged over: their normals cancel
+    and what is left is noise (the phantom's nasal bones: the sum 0.00 of the lengths' sum; the mid-nasal peg turned by
+    44 degrees under a 15-degree pitch of the head). Such a peg stands on the profile's normal; a one-sided plate
+    tilted as much keeps the bone's. (The slab's faces differ by 2 % in area, so what is left points along the plate's
+    normal, 30 degrees from the profile's, which the angle's blend alone would keep.)"""
+    from pdehead_addon.forensic.face_profile import peg_normals
+    grid = _grid()
+    profile = np.full((grid.z.size, grid.theta.size), 80.0)
+    base = np.array([[0.0, -80.0, 0.0]])
+    outer = _tilted_plate(base[0], 30.0)
+    inner = _tilted_plate(base[0] + np.array([0.0, 1.0, 0.0]), 30.0)
+    centre = inner.vertices.mean(axis=0)
+    inner_v = centre + 0.99 * (inner.vertices - centre)          # 2 % less area: the sum is 1 % of the lengths'
+    slab = Mesh(vertices=np.concatenate([outer.vertices, inner_v]), quads=np.zeros((0, 4)),
+                triangles=np.concatenate([outer.triangles, inner.triangles[:, ::-1] + 4]))   # the inner face inward
+    one_sided = peg_normals(outer, base, grid, profile)[0]
+    thin = peg_normals(slab, base, grid, profile)[0]
+    assert np.degrees(np.arccos(one_sided @ np.array([0.0, -1.0, 0.0]))) == pytest.approx(30.0, abs=0.5)
+    np.testing.assert_allclose(thin, [0.0, -1.0, 0.0], atol=1e-6)
