@@ -1001,7 +1001,7 @@ def markdown(results: dict) -> str:
               "43.1. Edges bent by more than 40 degrees: CThead's rows 0.80-0.90 % (were 0.79-0.93), GE 0.67 -> "
               "0.56 %, the phantom 0.95 -> 0.98 %. Outside the suite (dev scorer): GE stripped at 250 HU 45.2 -> "
               "51.7, GE in 3 mm slabs 54.0 -> 54.0 (its porions agree), the phantom in 3 mm slabs 40.3 -> 41.1.",
-              "- A peg on a bone thinner than its normal's radius (6 Dec 2026, the same session; kept, the suite not "
+              "- A peg on a bone thinner than its normal's radius (6 Dec 2026, the same session; kept, the suite "
               "re-made): the local run of `.ci/run` failed `test_a_head_pitched_in_the_scanner_gets_the_same_face` on "
               "bpy 5.3 (Python 3.13) alone: the phantom's face pitched 15 degrees lay up to 1.18 mm from the straight "
               "one (0.55 on 5.0.1; the bound is 1.0). Its mid-nasal peg turned by 44 degrees: both faces of the "
@@ -1011,7 +1011,9 @@ def markdown(results: dict) -> str:
               "normal, blended up to 0.05 (`PEG_NORMAL_COHERENCE`); pitched max 1.18 -> 0.35 mm on 5.3. The lowest "
               "ratios on real heads: CThead 1500's alare curvature 0.03, the unseen-like row's 0.06, GE's glabella "
               "0.10. Every suite row's face is the same to the bit but the 3 mm slices' (its mesh moves by up to "
-              "0.16 mm, the score unchanged at 55.6 %); GE in 3 mm slabs moves by up to 0.45 mm (54.0 %).",
+              "0.16 mm, the score unchanged at 55.6 %); GE in 3 mm slabs moves by up to 0.45 mm (54.0 %). The suite "
+              "was re-made with it (00:48 UTC, 7 Dec); a pytest run shared the 2 cores from the start, which the "
+              "heading's load figure (1.10 at the start) does not show: its wall-clock timings are inflated.",
               "- Why the score depended on the strip level (50-52 % at 1500, 62-63 % at the automatic ~1586 and at "
               "1600): not the cervical spine (the 1500 skull reaches the scan's bottom, z -1 mm against 25 mm at 1600, "
               "but cropping it away left the face's score unchanged, 51.4 %), but the automatic landmarks: swapping "
