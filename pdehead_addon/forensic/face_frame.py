@@ -108,21 +108,26 @@ def ear_porions(landmarks: dict) -> tuple[dict, str | None]:
     plane). Measured, porion minus zygion: -1.4 to -5.6 mm on every agreeing head and variant (CThead's eight, the
     phantom, GE at 250 HU), +11.4 mm on GE's automatic left porion, which stands in the soft tissue in front of the
     canal; its ear was 13 mm higher than the right one."""
-    if frankfurt_disagreement(landmarks) is None:
+    off = _porion_off_its_canal(landmarks) if frankfurt_disagreement(landmarks) is not None else None
+    if off is None:
         return landmarks, None
+    kept = "R" if off == "L" else "L"
+    out = dict(landmarks)
+    out[f"Porion {off}"] = mirrored(np.asarray(landmarks[f"Porion {kept}"], float), midsagittal_plane(landmarks))
+    return out, f"Porion {off}"
+
+
+def _porion_off_its_canal(landmarks: dict) -> str | None:
+    """The side ("L" / "R") whose porion lies farther in height from its zygion (:func:`ear_porions`), or None
+    without both pairs or a mid-sagittal plane to mirror across."""
     gap = {}
     for side in "LR":
         po, zy = landmarks.get(f"Porion {side}"), landmarks.get(f"Zygomatic arch {side}")
         if po is not None and zy is not None:
             gap[side] = abs(float(po[2]) - float(zy[2]))
-    plane = midsagittal_plane(landmarks)
-    if len(gap) < 2 or plane is None:
-        return landmarks, None
-    off = max(gap, key=gap.get)
-    kept = "R" if off == "L" else "L"
-    out = dict(landmarks)
-    out[f"Porion {off}"] = mirrored(np.asarray(landmarks[f"Porion {kept}"], float), plane)
-    return out, f"Porion {off}"
+    if len(gap) < 2 or midsagittal_plane(landmarks) is None:
+        return None
+    return max(gap, key=gap.get)
 
 
 def frame_refusal(landmarks: dict) -> dict:
@@ -132,10 +137,10 @@ def frame_refusal(landmarks: dict) -> dict:
     if why is None:
         return {}
     out = {"frankfurt_frame": why}
-    off = ear_porions(landmarks)[1]
+    off = _porion_off_its_canal(landmarks)
     if off is not None:
-        out["ear_porion"] = (f"{off} is off its ear canal (farther from its zygion than the other): its ear stands "
-                             "at the other's mirror image")
+        out["ear_porion"] = (f"Porion {off} is off its ear canal (farther from its zygion than the other): its ear "
+                             "stands at the other's mirror image")
     return out
 
 

@@ -352,13 +352,13 @@ def round_floor(floor: np.ndarray, grid: FaceGrid, radius: np.ndarray, length_mm
     (boxes beside the nose, ridges across the cheeks). A skin over a bone bump is a rounded mound."""
     if length_mm <= 0:
         return floor
-    dz, per_col = _row_and_column_mm(grid, radius)
+    dz, per_col = row_and_column_mm(grid, radius)
     hz = max(1, round(length_mm / dz))
     ht = max(1, round(length_mm / per_col))
     return np.maximum(floor, _mound(floor, (hz, ht), (0.5 * length_mm / dz, 0.5 * length_mm / per_col)))
 
 
-def _row_and_column_mm(grid: FaceGrid, radius: np.ndarray) -> tuple[float, float]:
+def row_and_column_mm(grid: FaceGrid, radius: np.ndarray) -> tuple[float, float]:
     """The grid's row step and its column step in arc at the median ``radius`` (mm)."""
     return float(grid.z[1] - grid.z[0]), float(np.median(radius)) * float(grid.theta[1] - grid.theta[0])
 
@@ -383,7 +383,7 @@ def smooth_floor_near_cut(floor: np.ndarray, grid: FaceGrid, plane: tuple[np.nda
     12 mm). Dilation, then a Gaussian of half its width, covers every bone peak (the max with the floor keeps
     the guarantee where it would not) with a rounded mound.
     """
-    dz, per_col = _row_and_column_mm(grid, radius)
+    dz, per_col = row_and_column_mm(grid, radius)
     hz = max(1, int(round(CUT_FLOOR_SMOOTH_MM / dz)))
     ht = max(1, int(round(CUT_FLOOR_SMOOTH_MM / per_col)))
     rounded = _mound(floor, (hz, ht), (0.5 * hz, 0.5 * ht))
@@ -561,4 +561,3 @@ def peg_normals(skull: Mesh, bases: np.ndarray, grid: FaceGrid, profile: np.ndar
     out = (1.0 - w) * bone + w * env
     norm = np.linalg.norm(out, axis=1, keepdims=True)
     return np.where(norm > 1e-9, out / np.maximum(norm, 1e-9), env)
-    return out

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-from .face_profile import FLOOR_ROUND_MM, FaceGrid, round_floor, surface_smooth
+from .face_profile import FLOOR_ROUND_MM, FaceGrid, round_floor, row_and_column_mm, surface_smooth
 
 #: The smoothing's length over the surface (mm, :func:`.face_profile.surface_smooth`): the width of the depth field's
 #: own narrow Gaussians (:data:`.face_field.NARROW_FRACTION` x the default spread, 0.5 x 22 mm), the finest thing the
@@ -95,8 +95,7 @@ def lift_onto_floor(radius: np.ndarray, floor: np.ndarray, grid: FaceGrid, rho: 
     lift = np.clip(np.asarray(floor, float) - radius, 0.0, None)
     if spread_mm <= 0 or not np.any(lift > 0):
         return radius
-    dz = float(grid.z[1] - grid.z[0])
-    per_col = float(np.median(rho)) * float(grid.theta[1] - grid.theta[0])
+    dz, per_col = row_and_column_mm(grid, rho)
     kz, kt = max(1, round(spread_mm / dz)), max(1, round(spread_mm / per_col))
     spread = ndimage.maximum_filter(lift, size=(2 * kz + 1, 2 * kt + 1), mode=("nearest", "wrap"))
     return radius + surface_smooth(spread, grid, spread_mm, rho=rho)
