@@ -523,6 +523,8 @@ CONSTANT_CHOICE = {
     "face_features.NOSE_PROTRUSION_MM / NOSE_ALAR_WIDTH_MM / LIP_*_MM heights / EAR_*, face_eyes.EYE_FISSURE_MM":
     "published (Farkas 1994 norms, cited from the literature)",
     "face_features.ALAR_MARGIN_MM": "published (Krogman & Iscan 1986)",
+    "face_features.APERTURE_BAND_MM / _DEPTH_MM / _GAP_MM": "definition (the aperture's border at the midline; "
+    "the gap: the earlier rule's run of five empty 1 mm rows)",
     "face_eyes.EYE_EX_INSET_MM": "published (Stephan & Davidson 2008, quoted)",
     "face_eyes.EYE_GLOBE_RADIUS_MM": "published (Bekerman, Gottlieb & Vaiman 2014: the eyeball 24.2 x 23.7 mm, CT of "
     "250 adults)",
@@ -1014,6 +1016,16 @@ def markdown(results: dict) -> str:
               "0.16 mm, the score unchanged at 55.6 %); GE in 3 mm slabs moves by up to 0.45 mm (54.0 %). The suite "
               "was re-made with it (00:48 UTC, 7 Dec); a pytest run shared the 2 cores from the start, which the "
               "heading's load figure (1.10 at the start) does not show: its wall-clock timings are inflated.",
+              "- The nose's base read off the bone's heights (7 Dec 2026, session 29; kept, the suite not re-made): "
+              "each landmark moved by 0.5 mm in turn on CThead, subspinale's move shifted a nostril's vertex by 3.6 "
+              "mm, and in 0.1 mm steps by 8.0 mm at one step: `aperture_floor` laid 1 mm rows from subspinale's "
+              "height, so the aperture's border (soft subnasale's height) stepped by 0.9 mm as the rows slid over "
+              "the bone. Now the top of the bone under the first gap of at least 5 mm (`APERTURE_GAP_MM`): the "
+              "same steps move no vertex by more than 1.1 mm (that one from the aperture's width, a maximum over "
+              "rows). The border moves by 0.1-0.9 mm on the suite's heads; dev scores (CThead, 1500 / 1600, "
+              "unseen-like, occlusal cut, 1.5 / 3 mm slices, GE, the phantom) within 0.1 point of before. Seen on "
+              "the way, not changed: the border itself differs by 8 mm between strip levels and slices (CThead "
+              "94.3-102.6 mm; the thin bone around the anterior nasal spine comes and goes with the level).",
               "- Why the score depended on the strip level (50-52 % at 1500, 62-63 % at the automatic ~1586 and at "
               "1600): not the cervical spine (the 1500 skull reaches the scan's bottom, z -1 mm against 25 mm at 1600, "
               "but cropping it away left the face's score unchanged, 51.4 %), but the automatic landmarks: swapping "

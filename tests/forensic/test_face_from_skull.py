@@ -171,6 +171,21 @@ def test_nose_base_from_the_aperture_and_tip_from_the_nasal_length():
     assert p[0] < sn[0] - 10.0 and sn[1] < p[1] < n[1]
 
 
+def test_the_nose_base_stays_put_when_subspinale_moves_a_little():
+    """The aperture's lower border is the bone's, not a row of a grid laid from subspinale: subspinale moved in
+    0.1 mm steps leaves it where the bone is (1 mm rows from subspinale moved it by up to 0.9 mm a step on CThead
+    and a nostril's vertex by 8 mm)."""
+    from pdehead_addon.forensic.face_features import aperture_floor
+    # a midline plate of bone sampled every 0.3 mm (y = 0, x 90..130, z 0..100), its aperture's border at z 40
+    x, z = np.meshgrid(np.arange(90.0, 130.0, 1.0), np.arange(0.0, 100.0, 0.3))
+    keep = ~((np.abs(x - 110) < 10) & (z > 40.0) & (z < 80))
+    skull = Mesh(np.column_stack([x[keep], np.zeros(keep.sum()), z[keep]]), np.zeros((0, 4), int))
+    border = float(z[keep & (z <= 40.0)].max())
+    floors = [aperture_floor(skull, np.array([110.0, 0.0, 30.0 + dz]), np.array([110.0, 0.0, 95.0]), 110.0)
+              for dz in np.arange(0.0, 2.01, 0.1)]
+    assert np.allclose(floors, border, atol=1e-9)
+
+
 def test_one_peg_moves_the_face_near_it_only(model, face):
     i = model.peg_names.index("Pogonion")
     depths = model.default_depths.copy()
