@@ -186,6 +186,21 @@ def test_the_nose_base_stays_put_when_subspinale_moves_a_little():
     assert np.allclose(floors, border, atol=1e-9)
 
 
+def test_the_nose_base_is_the_apertures_border_not_the_septum_behind_it():
+    """A septum (the vomer, kept by a low bone level) standing in the aperture's midline does not lift the nose's
+    base: the border beside it wins (the median of the midline and the two bands beside it)."""
+    from pdehead_addon.forensic.face_features import aperture_floor
+    x, z = np.meshgrid(np.arange(90.0, 130.0, 1.0), np.arange(0.0, 100.0, 0.5))
+    keep = ~((np.abs(x - 110) < 10) & (z >= 40) & (z < 80))
+    plate = np.column_stack([x[keep], np.zeros(keep.sum()), z[keep]])
+    sz = np.arange(40.0, 75.0, 0.5)
+    septum = np.column_stack([np.full(sz.size, 110.0), np.full(sz.size, 12.0), sz])   # 12 mm behind, 1 mm wide
+    nasion, subspinale = np.array([110.0, 0.0, 95.0]), np.array([110.0, 0.0, 30.0])
+    assert aperture_floor(Mesh(plate, np.zeros((0, 4), int)), subspinale, nasion, 110.0) == pytest.approx(39.5)
+    with_septum = Mesh(np.concatenate([plate, septum]), np.zeros((0, 4), int))
+    assert aperture_floor(with_septum, subspinale, nasion, 110.0) == pytest.approx(39.5)
+
+
 def test_one_peg_moves_the_face_near_it_only(model, face):
     i = model.peg_names.index("Pogonion")
     depths = model.default_depths.copy()
