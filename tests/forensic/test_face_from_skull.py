@@ -151,12 +151,17 @@ def test_outlying_pegs_are_damped_and_the_jaw_is_smoother(model, face):
     assert damped[0] < 0.9 * exact[0] and damped[1] < 0.9 * exact[1]
 
 
+def _plate_with_an_aperture(step_mm: float) -> np.ndarray:
+    """Points of a midline plate of bone (y = 0, x 90..130, z 0..100, rows ``step_mm`` apart) with a nasal
+    aperture (|x - 110| < 10, z 40..80)."""
+    x, z = np.meshgrid(np.arange(90.0, 130.0, 1.0), np.arange(0.0, 100.0, step_mm))
+    keep = ~((np.abs(x - 110) < 10) & (z >= 40) & (z < 80))
+    return np.column_stack([x[keep], np.zeros(keep.sum()), z[keep]])
+
+
 def test_nose_base_from_the_aperture_and_tip_from_the_nasal_length():
     from pdehead_addon.forensic.face_features import aperture_floor, circle_meet, predict_nose
-    # a midline plate of bone (y = 0, x 90..130, z 0..100) with a nasal aperture (|x - 110| < 10, z 40..80)
-    x, z = np.meshgrid(np.arange(90.0, 130.0, 1.0), np.arange(0.0, 100.0, 0.5))
-    keep = ~((np.abs(x - 110) < 10) & (z >= 40) & (z < 80))
-    skull = Mesh(np.column_stack([x[keep], np.zeros(keep.sum()), z[keep]]), np.zeros((0, 4), int))
+    skull = Mesh(_plate_with_an_aperture(0.5), np.zeros((0, 4), int))
     lms = {"Nasion": np.array([110.0, 0.0, 95.0]), "Subspinale": np.array([110.0, 0.0, 30.0])}
     assert aperture_floor(skull, lms["Subspinale"], lms["Nasion"], 110.0) == pytest.approx(40.0, abs=1.0)
     nose = predict_nose(lms, skull)
@@ -176,11 +181,9 @@ def test_the_nose_base_stays_put_when_subspinale_moves_a_little():
     0.1 mm steps leaves it where the bone is (1 mm rows from subspinale moved it by up to 0.9 mm a step on CThead
     and a nostril's vertex by 8 mm)."""
     from pdehead_addon.forensic.face_features import aperture_floor
-    # a midline plate of bone sampled every 0.3 mm (y = 0, x 90..130, z 0..100), its aperture's border at z 40
-    x, z = np.meshgrid(np.arange(90.0, 130.0, 1.0), np.arange(0.0, 100.0, 0.3))
-    keep = ~((np.abs(x - 110) < 10) & (z > 40.0) & (z < 80))
-    skull = Mesh(np.column_stack([x[keep], np.zeros(keep.sum()), z[keep]]), np.zeros((0, 4), int))
-    border = float(z[keep & (z <= 40.0)].max())
+    plate = _plate_with_an_aperture(0.3)
+    skull = Mesh(plate, np.zeros((0, 4), int))
+    border = float(plate[plate[:, 2] < 40.0, 2].max())                     # the top of the bone under it
     floors = [aperture_floor(skull, np.array([110.0, 0.0, 30.0 + dz]), np.array([110.0, 0.0, 95.0]), 110.0)
               for dz in np.arange(0.0, 2.01, 0.1)]
     assert np.allclose(floors, border, atol=1e-9)
@@ -190,9 +193,7 @@ def test_the_nose_base_is_the_apertures_border_not_the_septum_behind_it():
     """A septum (the vomer, kept by a low bone level) standing in the aperture's midline does not lift the nose's
     base: the border beside it wins (the median of the midline and the two bands beside it)."""
     from pdehead_addon.forensic.face_features import aperture_floor
-    x, z = np.meshgrid(np.arange(90.0, 130.0, 1.0), np.arange(0.0, 100.0, 0.5))
-    keep = ~((np.abs(x - 110) < 10) & (z >= 40) & (z < 80))
-    plate = np.column_stack([x[keep], np.zeros(keep.sum()), z[keep]])
+    plate = _plate_with_an_aperture(0.5)
     sz = np.arange(40.0, 75.0, 0.5)
     septum = np.column_stack([np.full(sz.size, 110.0), np.full(sz.size, 12.0), sz])   # 12 mm behind, 1 mm wide
     nasion, subspinale = np.array([110.0, 0.0, 95.0]), np.array([110.0, 0.0, 30.0])
