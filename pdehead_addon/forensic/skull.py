@@ -29,7 +29,8 @@ Steps of :func:`segment_skull`:
    level of a tissue/bone interface (the skin rule of the segmentation step);
    where the bone has no mode of its own (thick slices), ``DEFAULT_BONE_HU``;
 3. metal (dental fillings: above ``METAL_HU`` or in the scanner's saturation
-   spike) and its 1-voxel bloom are removed;
+   spike) and its bloom, the bone within 3 mm of it, are removed
+   (:func:`~.skull_parts.metal_bloom`: a distance, so the grid's nodes do not decide it);
 4. only bone inside the head mask counts: head holders, table and cradle arcs
    (the GE holder is above 300 HU and touches the head) lie outside the skin
    envelope that :func:`~.segmentation.segment_head` cleans;
@@ -63,7 +64,7 @@ from .scan_contents import (  # noqa: F401
     partial_mandible,
     soft_tissue_present,
 )
-from .skull_parts import bone_parts, give_back_rim, mandible_report, metal_streaks, rami_in_the_bone
+from .skull_parts import bone_parts, give_back_rim, mandible_report, metal_bloom, metal_streaks, rami_in_the_bone
 
 #: HU assigned to the air and soft-tissue modes when the scan is not calibrated.
 AIR_HU, TISSUE_HU = -1000.0, 40.0
@@ -221,7 +222,8 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
     * uncalibrated scans without soft tissue: :func:`air_bone_level` (half way between the air and the
       bone modes).
 
-    Then: metal removed (above ``METAL_HU`` or the saturation spike); components of the bone eroded by
+    Then: metal and its bloom removed (above ``METAL_HU`` or the saturation spike, and the bone within
+    :data:`~.skull_parts.METAL_BLOOM_MM` of it); components of the bone eroded by
     one voxel (26-connected); the largest is the cranium; the others are kept when at least
     ``min_component_mm3``, not a cervical vertebra, and inside the cranium's box grown by
     ``SUPPORT_MARGIN_MM`` (below it by ``MANDIBLE_BELOW_MM``): supports, foam, the table, holders and loose
@@ -271,7 +273,7 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
     metal = ct.data >= np.float32(metal_stored) if np.isfinite(metal_stored) else np.zeros(ct.shape, bool)
     n_metal = int(np.count_nonzero(metal))
     if n_metal:
-        metal = ndi.binary_dilation(metal, structure=ndi.generate_binary_structure(3, 1))
+        metal = metal_bloom(metal, ct.spacing)
     bone = (ct.data >= np.float32(stored)) & ~metal
     del metal
     if not bone.any():
@@ -283,9 +285,10 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
     core, labels, n, sizes, boxes, cranium, centroids_xyz, big, vertebra, outside, keep, crbox = (
         parts[k] for k in ("core", "labels", "n", "sizes", "boxes", "cranium", "centroids_xyz", "big", "vertebra",
                            "outside", "keep", "crbox"))
-    mandible = mandible_report(labels, keep, sizes, centroids_xyz, cranium, ct, voxel_mm3, crbox, boxes)
     # give the eroded rim back to the component it came from (a few constrained label dilations)
     grown = give_back_rim(labels, bone, steps=parts["erosion"] + 2)
+    mandible = mandible_report(labels, keep, sizes, centroids_xyz, cranium, ct, voxel_mm3, crbox, boxes,
+                               bone_sizes=np.bincount(grown.reshape(-1), minlength=n + 1)[1:])
     dropped = bone & np.concatenate([[False], vertebra | outside])[grown]
     dropped_vertebra = int(np.count_nonzero(dropped & np.concatenate([[False], vertebra])[grown]))
     dropped_support = int(np.count_nonzero(dropped)) - dropped_vertebra

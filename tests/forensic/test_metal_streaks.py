@@ -1,7 +1,7 @@
 """Metal streak artefacts are removed from the skull's bone mask; thin real bone stays."""
 import numpy as np
 
-from pdehead_addon.forensic.skull_parts import metal_streaks
+from pdehead_addon.forensic.skull_parts import METAL_BLOOM_MM, metal_bloom, metal_streaks
 
 
 def _synthetic(shape=(20, 120, 120)):
@@ -61,26 +61,87 @@ def test_short_bits_beside_the_metal_stay():
 
 
 def test_cthead_streaks_at_two_strip_levels(cthead_ct, bench_face):
-    """CThead stripped at 1500 keeps the fillings' streaks in the cheeks (slices 29-38) as loose wedges: they are
-    dropped (1378 voxels, 8 pieces measured); stripped at 1600 almost none pass (19 voxels, 1 piece); the 1500
-    skull's vertices more than 3 mm from the 1600 skull fall from 21,559 to 20,771 (the rest: the neck and the
-    mandible's joins)."""
-    from scipy.spatial import cKDTree
-
+    """CThead stripped at 1500 or 1600: the fillings' streaks in the cheeks (slices 29-38) are dropped, at both levels.
+    With the metal's bloom in mm (:func:`metal_bloom`) the streaks that the one-voxel bloom left joined to the teeth
+    at 1600 are loose too (1600: 19 voxels in 1 piece before, 1117 in 3 now; 1500: 1709 in 9 before, 361 in 3 now,
+    the rest inside the bloom itself)."""
     B = bench_face
-    from pdehead_addon.forensic.skull import segment_skull, skull_mesh
+    from pdehead_addon.forensic.skull import segment_skull
 
-    meshes = {}
     for level in (1500.0, 1600.0):
         sk = segment_skull(B.stripped(cthead_ct, level), bone_level=level)
         voxels, pieces = sk.meta["metal_streak_voxels"], sk.meta["metal_streak_pieces"]
-        if level == 1500.0:
-            assert voxels >= 1200 and pieces >= 6, (voxels, pieces)
-        else:
-            assert voxels <= 100 and pieces <= 2, (voxels, pieces)
-        meshes[level] = skull_mesh(sk)
-    d = cKDTree(meshes[1600.0].vertices).query(meshes[1500.0].vertices)[0]
-    assert np.count_nonzero(d > 3.0) <= 21000
+        assert voxels >= 200 and pieces >= 2, (level, voxels, pieces)
+
+
+def test_the_metals_bloom_is_a_distance_not_a_voxel_count():
+    """The same filling on a 1 mm and a 0.5 mm grid blooms over the same few millimetres (one voxel of dilation
+    covered 1 mm on one and 0.5 mm on the other); along the slice axis it reaches the next slice at least."""
+    for pixel in (1.0, 0.5):
+        n = int(round(40 / pixel))
+        metal = np.zeros((9, n, n), bool)
+        c = n // 2
+        metal[4, c, c] = True
+        grown = metal_bloom(metal, (2.0, pixel, pixel))
+        row = np.flatnonzero(grown[4, c]) - c
+        reach = float(row.max() * pixel)
+        assert reach == METAL_BLOOM_MM and float(-row.min() * pixel) == METAL_BLOOM_MM, (pixel, reach)
+        assert grown[3, c, c] and grown[5, c, c] and not grown[2, c, c]
+        assert not metal_bloom(np.zeros_like(metal), (2.0, pixel, pixel)).any()
+
+
+def _outer_bone_at_the_teeth(ct, bone: np.ndarray, axis_xy: np.ndarray, z_range) -> np.ndarray:
+    """The outermost bone's distance from a vertical axis (mm) in 2-degree x 1 mm (angle, height) bins over the front
+    half of the head between the heights ``z_range`` (patient mm); NaN where a bin has no bone."""
+    idx = np.argwhere(bone)
+    p = ct.index_to_patient(idx.astype(float))
+    keep = (p[:, 2] >= z_range[0]) & (p[:, 2] < z_range[1]) & (p[:, 1] < axis_xy[1])      # anterior is -y
+    p = p[keep]
+    angle = np.degrees(np.arctan2(p[:, 0] - axis_xy[0], axis_xy[1] - p[:, 1]))
+    r = np.hypot(p[:, 0] - axis_xy[0], p[:, 1] - axis_xy[1])
+    rows = int(np.ceil(z_range[1] - z_range[0]))
+    flat = np.floor(p[:, 2] - z_range[0]).astype(int) * 90 + np.clip(((angle + 90) // 2).astype(int), 0, 89)
+    out = np.full(rows * 90, -np.inf)
+    np.maximum.at(out, flat, r)
+    out[np.isinf(out)] = np.nan
+    return out
+
+
+def test_the_skull_at_the_teeth_does_not_depend_on_where_the_grid_falls(cthead_ct, bench_face):
+    """CThead stripped at its automatic level and the same scan on a grid shifted by a quarter pixel (one linear
+    interpolation): the fillings' edges are no longer saturated, and with a one-voxel bloom their streaks stayed joined
+    to the teeth and stood in the cheeks. The outer bone at the teeth, the two grids against each other: 95th
+    percentile of the difference 17.7 mm and 8.7 % of it over 5 mm with the one-voxel bloom, 3.5 mm and 4.4 % with the
+    bloom in mm (at 1500: 17.8 / 9.1 and 10.0 mm / 6.0 %). The face moved with it: 59.0 -> 51.6 % within 2.5 mm."""
+    B = bench_face
+    from pdehead_addon.forensic.skull import segment_skull
+
+    level = float(segment_skull(cthead_ct).meta["bone_level_stored"])
+    cts = (cthead_ct, B.shifted(cthead_ct, B.SUITE_SHIFT_PX))
+    skulls = [segment_skull(B.stripped(ct, level), bone_level=level) for ct in cts]
+    metal_z = cthead_ct.index_to_patient(np.argwhere(cthead_ct.data >= np.float32(skulls[0].meta["metal_level"])
+                                                     ).astype(float))[:, 2]
+    z_range = (float(metal_z.min()) - 5.0, float(metal_z.max()) + 5.0)
+    axis_xy = cthead_ct.index_to_patient(np.argwhere(skulls[0].bone).mean(axis=0)[None])[0][:2]
+    a, b = (_outer_bone_at_the_teeth(ct, sk.bone, axis_xy, z_range) for ct, sk in zip(cts, skulls))
+    both = np.isfinite(a) & np.isfinite(b)
+    diff = np.abs(a[both] - b[both])
+    assert both.sum() > 1500, both.sum()
+    assert np.percentile(diff, 95) < 8.0, np.percentile(diff, 95)
+    assert np.mean(diff > 5.0) < 0.06, np.mean(diff > 5.0)
+
+
+def test_cthead_in_3_mm_slabs_keeps_its_mandible(cthead_ct, bench_face):
+    """CThead resampled to 3 mm slabs: one voxel's erosion leaves its mandible a core of 8.5 cm^3, and once the metal's
+    bloom took the teeth with fillings 7.9, under the mandible's least volume (8 cm^3): the volume is checked on the
+    bone with its rim given back, so the mandible is still found, articulated."""
+    from pdehead_addon.forensic.skull import segment_skull
+    from pdehead_addon.forensic.skull_parts import MANDIBLE_MIN_MM3
+
+    sk = segment_skull(bench_face.resliced(cthead_ct, 3.0))
+    mandible = sk.meta["mandible"]
+    assert mandible["present"] and mandible["articulated"], mandible
+    assert mandible["volume_mm3"] < 1.5 * MANDIBLE_MIN_MM3          # the core alone is near the least volume
 
 
 def _joined(shape=(9, 120, 120)):
@@ -132,7 +193,8 @@ def test_joined_spokes_need_metal_and_direction():
 
 def test_cthead_joined_spokes_at_1600(cthead_ct, bench_face):
     """CThead stripped at 1600: the spokes joined to the teeth in its skull's bone (slices 28-40) are found (1058
-    voxels measured) while the rami behind the fillings keep 88 % of their bone (boxes from slices 29-33). Not wired
+    voxels measured with a one-voxel bloom about the metal, 604 with :func:`metal_bloom`'s, which frees most of them
+    as loose pieces) while the rami behind the fillings keep 88 % of their bone (boxes from slices 29-33). Not wired
     into segment_skull: with it the face at 1500 / 1600 scored 51.3 / 55.5 % (4.2 points apart, was 53.9 / 55.2)."""
     from pdehead_addon.forensic.skull import segment_skull
     from pdehead_addon.forensic.skull_parts import joined_metal_streaks
@@ -148,7 +210,7 @@ def test_cthead_joined_spokes_at_1600(cthead_ct, bench_face):
     zone[28:34, 75:112, 144:158] = True
     kept = 1.0 - np.count_nonzero(found & zone) / np.count_nonzero(sk.bone & zone)
     print("spokes", int(found.sum()), "slices", np.unique(np.nonzero(found)[0]), "rami kept", kept)
-    assert 800 <= int(found.sum()) <= 1300
+    assert 400 <= int(found.sum()) <= 1300
     assert set(np.unique(np.nonzero(found)[0])) <= set(np.nonzero(metal.any(axis=(1, 2)))[0])   # 28-40 and 56
     print("slice 56:", int(found[56].sum()))
     assert np.count_nonzero(found[28:41]) >= 0.9 * found.sum()

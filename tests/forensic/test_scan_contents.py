@@ -82,12 +82,14 @@ def test_skull_segmentation_of_a_cropped_stripped_scan_has_no_skin(cthead_ct):
 def _occlusal_slice(ct: CTVolume, skull) -> tuple[int, float, float]:
     """The first slice above the plane between the upper and the lower incisors (the tips' heights: the lower
     incisors' top is the mandible's highest bone within 8 mm of its front, the upper incisors' the lowest other
-    bone there): (slice, lower tip z, upper tip z)."""
+    bone or metal there: the skull's bone leaves out a filling and its bloom, and CThead's upper incisors' crowns
+    hold metal): (slice, lower tip z, upper tip z)."""
     mand = np.argwhere(skull.mandible)
     m_xyz = ct.index_to_patient(mand.astype(float))
     front = m_xyz[:, 1] < m_xyz[:, 1].min() + 8.0
     lower_tip = float(m_xyz[front, 2].max())
-    rest = ct.index_to_patient(np.argwhere(skull.bone & ~skull.mandible).astype(float))
+    scanned = skull.bone | (ct.data >= np.float32(skull.meta["metal_level"]))
+    rest = ct.index_to_patient(np.argwhere(scanned & ~skull.mandible).astype(float))
     near = (rest[:, 1] < m_xyz[:, 1].min() + 10.0) & (np.abs(rest[:, 0] - m_xyz[front, 0].mean()) < 15.0)
     upper_tip = float(rest[near, 2].min())
     plane = 0.5 * (lower_tip + upper_tip)
@@ -104,7 +106,7 @@ def test_a_scan_cut_at_the_occlusal_plane_has_a_partial_mandible_and_landmarks_o
 
     full = cthead_skull
     k, lower_tip, upper_tip = _occlusal_slice(cthead_ct, full)
-    assert lower_tip == pytest.approx(64.0, abs=2.0) and upper_tip == pytest.approx(62.0, abs=2.0)  # a 2 mm overbite
+    assert lower_tip == pytest.approx(64.0, abs=2.0) and upper_tip == pytest.approx(61.0, abs=2.0)  # overbite
     cut = cropped(cthead_ct, k, cthead_ct.shape[0])
     sk = segment_skull(cut)
     assert sk.meta["has_skin"]
