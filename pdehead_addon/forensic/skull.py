@@ -65,6 +65,7 @@ from .scan_contents import (  # noqa: F401
     soft_tissue_present,
 )
 from .skull_parts import bone_parts, give_back_rim, mandible_report, metal_bloom, metal_streaks, rami_in_the_bone
+from .value_levels import METAL_HU, SATURATION_MIN_HU, half_maximum_level, metal_level  # noqa: F401
 
 #: HU assigned to the air and soft-tissue modes when the scan is not calibrated.
 AIR_HU, TISSUE_HU = -1000.0, 40.0
@@ -72,8 +73,9 @@ AIR_HU, TISSUE_HU = -1000.0, 40.0
 DEFAULT_BONE_HU = 400.0
 #: The bone level is kept in this HU range (below it: cartilage, contrast; above it: the outer table is lost).
 BONE_LEVEL_RANGE_HU = (250.0, 700.0)
-#: Above this (HU) a voxel is metal, not bone (enamel and cortical bone stay below ~2500 HU).
-METAL_HU = 3000.0
+#: A calibrated scan's given (or default) level is raised to the bone's half-maximum level when it lies more than this
+#: (HU) below it: within it the surface moves by less than 0.1 mm (CThead: 86 units, 0.15 mm median).
+SURFACE_MARGIN_HU = 50.0
 #: Smallest bone component kept besides the cranium (mm^3).
 MIN_COMPONENT_MM3 = 200.0
 
@@ -171,21 +173,6 @@ def bone_level_rule(hu: np.ndarray, head: np.ndarray | None = None, bins_hu: flo
 bone_level = bone_level_rule
 
 
-def _metal_level_stored(ct: CTVolume, calibrated: bool) -> float:
-    """Metal level in stored units: METAL_HU, or (uncalibrated) the scanner's saturation spike at the top.
-
-    Computed from the top of the value range only, so removing everything below the bone level does not
-    change it."""
-    if calibrated:
-        return METAL_HU
-    top = float(ct.data.max())
-    span = top - float(ct.data.min())
-    near_top = ct.data >= np.float32(top - 0.005 * span)
-    if np.count_nonzero(near_top) > 1e-5 * ct.data.size:
-        return float(top - 0.005 * span)
-    return np.inf
-
-
 def _to_stored(value_hu: float, calibrated: bool, window) -> float:
     if calibrated:
         return float(value_hu)
@@ -212,11 +199,15 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
 
     The level (stored units; :data:`DEFAULT_BONE_HU` and the rules below are documented in docs/forensic_guide.md):
 
-    * ``bone_level`` given (``--bone-level``): that;
+    * ``bone_level`` given (``--bone-level``): that, but in a calibrated scan not below the bone's half-maximum
+      level (:func:`~.value_levels.half_maximum_level` of the skull's voxels at the given level, with
+      :data:`TISSUE_HU`) by more than :data:`SURFACE_MARGIN_HU`: the skull is then made again at that level, with a
+      warning (a skull-only scan stripped at 250 HU, run at it: the surface 0.6 mm out, the bite and the joints
+      joined);
     * HU-calibrated scans: half way between the soft-tissue mode and the bone mode of the head's histogram
       (the 50 % partial-volume level), kept within ``BONE_LEVEL_RANGE_HU``; ``DEFAULT_BONE_HU`` when the
       bone has no mode of its own or there is no soft tissue (:func:`soft_tissue_present`: the layer under
-      the scan's surfaces is bone, not soft tissue);
+      the scan's surfaces is bone, not soft tissue), then raised to the half-maximum level as a given level is;
     * uncalibrated scans with soft tissue: the same rule on the pseudo-HU scale (air and soft-tissue modes
       mapped to -1000 / +40 HU), converted back to stored units;
     * uncalibrated scans without soft tissue: :func:`air_bone_level` (half way between the air and the
@@ -255,6 +246,33 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
     SegmentationError
         Not a CTVolume, MR data, no bone above the level.
     """
+    sk = _segment_skull(ct, head, level=level, bone_level=bone_level, min_component_mm3=min_component_mm3)
+    m = sk.meta
+    if not m["calibrated"] or m.get("skull_mesh_file") or not (
+            bone_level is not None or str(m["bone_level_source"]).startswith("default")):
+        return sk
+    values = ct.data[sk.bone]
+    surface = half_maximum_level(values[values >= np.float32(m["bone_level_stored"])], TISSUE_HU, BONE_LEVEL_RANGE_HU)
+    if surface is None or surface[0] <= m["bone_level_stored"] + SURFACE_MARGIN_HU:
+        return sk
+    given = m["bone_level_stored"]
+    again = _segment_skull(ct, head, level=None, bone_level=surface[0], min_component_mm3=min_component_mm3)
+    again.meta.update(bone_level_source=f"half maximum (bone mode {surface[1]:.0f} HU), above "
+                      + ("the given level" if bone_level is not None else "the default"),
+                      bone_level_below=float(given), bone_mode=surface[1])
+    again.meta["histogram"] = dict(again.meta["histogram"], source=again.meta["bone_level_source"],
+                                   bone_mode=surface[1], tissue_mode=TISSUE_HU)
+    what = f"bone_level={given:g}" if bone_level is not None else f"the default bone level ({given:g} HU)"
+    again.meta["warnings"] = [f"{what} lies below the bone's half-maximum surface: the skull is made at "
+                              f"{surface[0]:.0f} HU, half way between soft tissue ({TISSUE_HU:g} HU) and the bone's "
+                              f"mode ({surface[1]:.0f} HU); a lower level stands the bone's surface out and joins the "
+                              "teeth and the joints"] + list(again.meta["warnings"])
+    return again
+
+
+def _segment_skull(ct: CTVolume, head: Segmentation | None, *, level: float | None, bone_level: float | None,
+                   min_component_mm3: float) -> SkullSegmentation:
+    """:func:`segment_skull` at one level (its rules, without the half-maximum check)."""
     _check_skull_input(ct, head)
     calibrated = str(ct.meta.get("units", "")).upper() == "HU"
     has_skin, skin_info = soft_tissue_present(ct.data, spacing=ct.spacing)
@@ -266,7 +284,7 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
     units = "HU" if calibrated else "stored"
     stored, info, window = _stored_bone_level(ct, head, window, calibrated, has_skin, skin_info, level, bone_level)
     level_hu = _to_hu(stored, calibrated, window)
-    metal_stored = _metal_level_stored(ct, calibrated)
+    metal_stored = metal_level(ct.data, calibrated)
     dz, dy, dx = ct.spacing
     voxel_mm3 = dz * dy * dx
 

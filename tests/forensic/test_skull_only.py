@@ -31,9 +31,13 @@ def test_phantom_skull_from_the_bone_mask_alone(phantom, phantom_skull):
     only = segment_skull(stripped(phantom.ct, level), bone_level=level)
     assert not only.meta["has_skin"] and only.meta["soft_tissue"]["fill_ratio"] > 2.0
     assert _same_skull(phantom_skull, only) <= 0.01
-    # without the level, a calibrated scan without soft tissue uses the documented default (400 HU)
+    # without the level, a calibrated scan without soft tissue starts from the documented default (400 HU), raised to
+    # the bone's half-maximum level (half way between 40 HU and the bone's mode: the phantom's 1095 HU), with a warning
     default = segment_skull(stripped(phantom.ct, level))
-    assert default.meta["bone_level_stored"] == 400.0 and default.meta["bone_level_source"].startswith("default")
+    assert default.meta["bone_level_below"] == 400.0 and default.meta["bone_level_source"].startswith("half maximum")
+    assert default.meta["bone_level_stored"] == pytest.approx(0.5 * (40.0 + default.meta["bone_mode"]))
+    assert 500.0 < default.meta["bone_level_stored"] < 650.0
+    assert default.meta["warnings"][0].startswith("the default bone level (400 HU) lies below the bone's half-maximum")
 
 
 def test_supports_and_table_are_removed_by_size_and_position(phantom, phantom_skull):
