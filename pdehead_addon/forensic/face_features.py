@@ -68,6 +68,8 @@ APERTURE_BAND_MM = 4.0
 APERTURE_DEPTH_MM = 25.0
 #: ... and is the first gap in the bone's heights there at least this tall (mm): the aperture, not a hole.
 APERTURE_GAP_MM = 5.0
+#: The nasal aperture is between these wide (mm) at its widest (:func:`aperture_width`; adults 20-30 mm).
+APERTURE_MIN_MM, APERTURE_MAX_MM = 12.0, 45.0
 #: Half the nose's breadth at its root (mm): the nasal root between the eyes (Farkas' intercanthal width
 #: en-en ~ 32 mm; the root ~ 2/3 of it), where the dorsum leaves the soft nasion.
 NOSE_ROOT_HALF_MM = 10.0
@@ -106,20 +108,39 @@ NOSE_BLEND_MM = 2.0
 NOSE_DORSUM_PEGS = ("Rhinion", "Mid-nasal")
 
 
-def aperture_width(skull: Mesh, subspinale: np.ndarray, mid_x: float) -> float | None:
-    """Widest breadth (mm) of the nasal aperture: at heights 6-20 mm above subspinale, the widest gap around
-    the midline between the front bone (within 25 mm behind subspinale) on the two sides. None if not seen."""
+def _aperture_rows(skull: Mesh, subspinale: np.ndarray, mid_x: float):
+    """Per 2 mm row 6-20 mm above subspinale, the first front bone (within 25 mm behind subspinale) on each side of
+    the midline: (width, left point, right point). A side whose first bone lies more than half the widest aperture
+    (:data:`APERTURE_MAX_MM` / 2) from the midline has a hole in its thin lateral wall (CThead on a grid shifted by a
+    quarter pixel: the left wall gone 10-16 mm above subspinale, the first bone 37 mm out) and takes the other
+    side's mirror image across the midline; a row with neither side within it is skipped."""
     v = skull.vertices
-    best = None
+    half = 0.5 * APERTURE_MAX_MM
     for dz in np.arange(6.0, 21.0, 2.0):
         m = (np.abs(v[:, 2] - (subspinale[2] + dz)) < 1.0) & (v[:, 1] < subspinale[1] + 25.0)
-        x = v[m, 0]
-        left, right = x[x > mid_x + 2.0], x[x < mid_x - 2.0]
-        if left.size and right.size:
-            w = float(left.min() - right.max())
-            if 12.0 < w < 45.0 and (best is None or w > best):
-                best = w
-    return best
+        pts = v[m]
+        left, right = pts[pts[:, 0] > mid_x + 2.0], pts[pts[:, 0] < mid_x - 2.0]
+        a = left[np.argmin(left[:, 0])] if len(left) else None
+        b = right[np.argmax(right[:, 0])] if len(right) else None
+        a = a if a is not None and a[0] - mid_x <= half else None
+        b = b if b is not None and mid_x - b[0] <= half else None
+        if a is None and b is None:
+            continue
+        if a is None:
+            a = b * [-1.0, 1.0, 1.0] + [2.0 * mid_x, 0.0, 0.0]
+        if b is None:
+            b = a * [-1.0, 1.0, 1.0] + [2.0 * mid_x, 0.0, 0.0]
+        w = float(a[0] - b[0])
+        if APERTURE_MIN_MM < w < APERTURE_MAX_MM:
+            yield w, a, b
+
+
+def aperture_width(skull: Mesh, subspinale: np.ndarray, mid_x: float) -> float | None:
+    """Widest breadth (mm) of the nasal aperture: at heights 6-20 mm above subspinale, the widest gap around
+    the midline between the front bone (within 25 mm behind subspinale) on the two sides (a side with a hole in
+    its wall mirrored from the other, :func:`_aperture_rows`). None if not seen."""
+    widths = [w for w, _, _ in _aperture_rows(skull, subspinale, mid_x)]
+    return max(widths) if widths else None
 
 
 def aperture_margins(skull: Mesh, subspinale: np.ndarray, mid_x: float) -> dict[str, np.ndarray]:
@@ -134,20 +155,10 @@ def aperture_margins(skull: Mesh, subspinale: np.ndarray, mid_x: float) -> dict[
     outline alone, so it does not move with the bone level (the automatic search, uncertain on a mask whose
     aperture edge is thin, put it on the malar bone by the molars at one bone level and beside the aperture at
     another). Empty when the aperture is not seen."""
-    v = skull.vertices
-    best = None
-    for dz in np.arange(6.0, 21.0, 2.0):
-        m = (np.abs(v[:, 2] - (subspinale[2] + dz)) < 1.0) & (v[:, 1] < subspinale[1] + 25.0)
-        pts = v[m]
-        left, right = pts[pts[:, 0] > mid_x + 2.0], pts[pts[:, 0] < mid_x - 2.0]
-        if len(left) and len(right):
-            a, b = left[np.argmin(left[:, 0])], right[np.argmax(right[:, 0])]
-            w = float(a[0] - b[0])
-            if 12.0 < w < 45.0 and (best is None or w > best[0]):
-                best = (w, a, b)
+    best = max(_aperture_rows(skull, subspinale, mid_x), key=lambda r: r[0], default=None)
     if best is None:
         return {}
-    return {"Alare curvature L": best[1].copy(), "Alare curvature R": best[2].copy()}
+    return {"Alare curvature L": np.array(best[1], float), "Alare curvature R": np.array(best[2], float)}
 
 
 def aperture_floor(skull: Mesh, subspinale: np.ndarray, nasion: np.ndarray, mid_x: float) -> float | None:

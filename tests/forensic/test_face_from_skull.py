@@ -202,6 +202,28 @@ def test_the_nose_base_is_the_apertures_border_not_the_septum_behind_it():
     assert aperture_floor(with_septum, subspinale, nasion, 110.0) == pytest.approx(39.5)
 
 
+def test_the_apertures_width_where_one_wall_has_a_hole():
+    """A hole in one lateral wall of the nasal aperture (thin bone, gone on CThead's grid shifted by a quarter pixel
+    10-16 mm above subspinale: the first bone there 37 mm out) does not throw the aperture's widest rows away: the
+    side with the hole takes the other side's mirror image. An aperture 20 mm wide below and 28 mm wide 14-22 mm
+    above subspinale, its left wall missing up to 32 mm out where it is widest: 28 mm (was 20: the rows 46 mm wide
+    were refused), the left margin the right's mirror image."""
+    from pdehead_addon.forensic.face_features import aperture_margins, aperture_width
+    x, z = np.meshgrid(np.arange(60.0, 160.0, 1.0), np.arange(0.0, 100.0, 0.5))
+    dx = x - 110.0
+    hole = ((np.abs(dx) < 10) & (z >= 34) & (z < 44)) | ((np.abs(dx) < 14) & (z >= 44) & (z < 52))
+    skull = Mesh(np.column_stack([x[~hole], np.zeros((~hole).sum()), z[~hole]]), np.zeros((0, 4), int))
+    subspinale = np.array([110.0, 0.0, 30.0])
+    assert aperture_width(skull, subspinale, 110.0) == pytest.approx(28.0)
+    holed = hole | ((dx >= 14) & (dx < 32) & (z >= 44) & (z < 52))
+    skull = Mesh(np.column_stack([x[~holed], np.zeros((~holed).sum()), z[~holed]]), np.zeros((0, 4), int))
+    assert aperture_width(skull, subspinale, 110.0) == pytest.approx(28.0)
+    margins = aperture_margins(skull, subspinale, 110.0)
+    assert margins["Alare curvature R"][0] == pytest.approx(96.0)
+    assert margins["Alare curvature L"][0] == pytest.approx(124.0)
+    assert 44.0 <= margins["Alare curvature L"][2] < 52.0
+
+
 def test_one_peg_moves_the_face_near_it_only(model, face):
     i = model.peg_names.index("Pogonion")
     depths = model.default_depths.copy()
