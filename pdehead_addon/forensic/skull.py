@@ -258,7 +258,7 @@ def segment_skull(ct: CTVolume, head: Segmentation | None = None, *, level: floa
     given = m["bone_level_stored"]
     again = _segment_skull(ct, head, level=None, bone_level=surface[0], min_component_mm3=min_component_mm3)
     again.meta.update(bone_level_source=f"half maximum (bone mode {surface[1]:.0f} HU), above "
-                      + ("the given level" if bone_level is not None else "the default"),
+                      + (f"the given level {given:g}" if bone_level is not None else f"the default {given:g}"),
                       bone_level_below=float(given), bone_mode=surface[1])
     again.meta["histogram"] = dict(again.meta["histogram"], source=again.meta["bone_level_source"],
                                    bone_mode=surface[1], tissue_mode=TISSUE_HU)
