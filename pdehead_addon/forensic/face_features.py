@@ -108,6 +108,11 @@ NOSE_BLEND_MM = 2.0
 NOSE_DORSUM_PEGS = ("Rhinion", "Mid-nasal")
 
 
+def _mirrored(point: np.ndarray, mid_x: float) -> np.ndarray:
+    """``point`` mirrored across the sagittal plane x = ``mid_x``."""
+    return np.array([2.0 * mid_x - point[0], point[1], point[2]], float)
+
+
 def _aperture_rows(skull: Mesh, subspinale: np.ndarray, mid_x: float):
     """Per 2 mm row 6-20 mm above subspinale, the first front bone (within 25 mm behind subspinale) on each side of
     the midline: (width, left point, right point). A side whose first bone lies more than half the widest aperture
@@ -126,10 +131,7 @@ def _aperture_rows(skull: Mesh, subspinale: np.ndarray, mid_x: float):
         b = b if b is not None and mid_x - b[0] <= half else None
         if a is None and b is None:
             continue
-        if a is None:
-            a = b * [-1.0, 1.0, 1.0] + [2.0 * mid_x, 0.0, 0.0]
-        if b is None:
-            b = a * [-1.0, 1.0, 1.0] + [2.0 * mid_x, 0.0, 0.0]
+        a, b = (a if a is not None else _mirrored(b, mid_x)), (b if b is not None else _mirrored(a, mid_x))
         w = float(a[0] - b[0])
         if APERTURE_MIN_MM < w < APERTURE_MAX_MM:
             yield w, a, b
