@@ -65,7 +65,7 @@ from .scan_contents import (  # noqa: F401
     soft_tissue_present,
 )
 from .skull_parts import bone_parts, give_back_rim, mandible_report, metal_bloom, metal_streaks, rami_in_the_bone
-from .value_levels import METAL_HU, SATURATION_MIN_HU, half_maximum_level, metal_level  # noqa: F401
+from .value_levels import METAL_HU, SATURATION_MIN_HU, bone_mode, half_maximum_level, metal_level, smoothed_histogram  # noqa: F401
 
 #: HU assigned to the air and soft-tissue modes when the scan is not calibrated.
 AIR_HU, TISSUE_HU = -1000.0, 40.0
@@ -147,23 +147,16 @@ def bone_level_rule(hu: np.ndarray, head: np.ndarray | None = None, bins_hu: flo
     if values.size == 0:
         raise SegmentationError("no voxels inside the head to find the bone level from")
     edges = np.arange(-200.0, 2600.0 + bins_hu, bins_hu)
-    hist, _ = np.histogram(values, bins=edges)
-    centres = 0.5 * (edges[:-1] + edges[1:])
-    smooth = ndi.gaussian_filter1d(hist.astype(np.float64), 3.0)
+    centres, smooth = smoothed_histogram(values, edges)
     soft = (centres > -150) & (centres < 200)
     tissue = float(centres[soft][np.argmax(smooth[soft])])
     info: dict[str, Any] = {"tissue_mode": tissue, "bone_mode": None, "source": "default"}
-    search = (centres >= tissue + 400) & (centres <= 2000)
     level = DEFAULT_BONE_HU
-    if search.any():
-        idx = np.flatnonzero(search)
-        peak = int(idx[np.argmax(smooth[idx])])
-        valley = float(smooth[np.flatnonzero((centres > tissue + 150) & (centres <= centres[peak]))].min())
-        # a mode of its own: an interior maximum clearly above the valley towards soft tissue
-        if idx[0] < peak < idx[-1] and smooth[peak] > 1.3 * valley and smooth[peak] > 0:
-            info["bone_mode"] = float(centres[peak])
-            info["source"] = "histogram"
-            level = 0.5 * (tissue + float(centres[peak]))
+    mode = bone_mode(centres, smooth, tissue)
+    if mode is not None:
+        info["bone_mode"] = mode
+        info["source"] = "histogram"
+        level = 0.5 * (tissue + mode)
     lo, hi = BONE_LEVEL_RANGE_HU
     info["unclamped"] = level
     return float(min(max(level, lo), hi)), info

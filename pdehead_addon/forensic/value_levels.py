@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage as ndi
 
-__all__ = ["half_maximum_level", "metal_level", "METAL_HU", "SATURATION_MIN_HU"]
+__all__ = ["bone_mode", "smoothed_histogram", "half_maximum_level", "metal_level", "METAL_HU", "SATURATION_MIN_HU"]
 
 #: Above this (HU) a voxel is metal, not bone (enamel and cortical bone stay below ~2500 HU).
 METAL_HU = 3000.0
@@ -39,9 +39,7 @@ def half_maximum_level(values: np.ndarray, tissue_hu: float, level_range: tuple[
     Returns
     -------
     (level, bone_mode) or None
-        None when the values have no mode of their own between ``tissue_hu + 400`` and 2000 HU (an interior
-        maximum of the smoothed histogram at least 1.3 times its lowest point below it), as in
-        :func:`~.skull.bone_level_rule`.
+        None when the values have no mode of their own (:func:`bone_mode`, as in :func:`~.skull.bone_level_rule`).
 
     References
     ----------
@@ -55,19 +53,46 @@ def half_maximum_level(values: np.ndarray, tissue_hu: float, level_range: tuple[
         return None
     # from the lowest value given (a stripped scan's level): the empty bins below it are not a valley
     edges = np.arange(max(tissue_hu + 150.0, float(np.floor(values.min()))), 2600.0 + bins_hu, bins_hu)
+    mode = bone_mode(*smoothed_histogram(values, edges), tissue_hu)
+    if mode is None:
+        return None
+    lo, hi = level_range
+    return float(min(max(0.5 * (tissue_hu + mode), lo), hi)), mode
+
+
+def smoothed_histogram(values: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The bins' centres and the histogram of ``values`` over ``edges`` smoothed by a Gaussian of 3 bins."""
     hist, _ = np.histogram(values, bins=edges)
-    centres = 0.5 * (edges[:-1] + edges[1:])
-    smooth = ndi.gaussian_filter1d(hist.astype(np.float64), 3.0)
+    return 0.5 * (edges[:-1] + edges[1:]), ndi.gaussian_filter1d(hist.astype(np.float64), 3.0)
+
+
+def bone_mode(centres: np.ndarray, smooth: np.ndarray, tissue_hu: float) -> float | None:
+    """The bone's own mode (HU) in a smoothed histogram of CT values, or None when the bone has none.
+
+    The mode is the histogram's maximum between ``tissue_hu + 400`` and 2000 HU when that maximum is interior to
+    the range and more than 1.3 times the histogram's lowest point between ``tissue_hu + 150`` HU and it (a valley
+    towards soft tissue). A bone blurred through thick slices (GE's 4 mm) thins out towards the top without a mode
+    of its own.
+
+    Parameters
+    ----------
+    centres, smooth : ndarray
+        The histogram's bin centres (HU, or pseudo-HU) and counts (:func:`smoothed_histogram`).
+    tissue_hu : float
+        Soft tissue's value (HU).
+
+    Returns
+    -------
+    float or None
+    """
     idx = np.flatnonzero((centres >= tissue_hu + 400.0) & (centres <= 2000.0))
     if idx.size < 3:
         return None
     peak = int(idx[np.argmax(smooth[idx])])
-    valley = float(smooth[: peak + 1].min())
+    valley = float(smooth[np.flatnonzero((centres > tissue_hu + 150.0) & (centres <= centres[peak]))].min())
     if not (idx[0] < peak < idx[-1]) or smooth[peak] <= 1.3 * valley or smooth[peak] <= 0:
         return None
-    mode = float(centres[peak])
-    lo, hi = level_range
-    return float(min(max(0.5 * (tissue_hu + mode), lo), hi)), mode
+    return float(centres[peak])
 
 
 def metal_level(data: np.ndarray, calibrated: bool) -> float:
