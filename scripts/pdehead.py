@@ -870,9 +870,14 @@ def _print_skull(args, addon, coll, skin) -> None:
     if not skin:
         soft = info.get("soft_tissue") or {}
         ratio, limit = soft.get("layer_ratio"), soft.get("layer_ratio_limit")
+        share, share_limit = soft.get("soft_tissue_share"), soft.get("soft_tissue_share_limit")
         why = "" if ratio is None or limit is None else (
             f": the layer under its surfaces lies {ratio:.2f} of the way from air to dense bone, soft tissue below "
             f"{limit:g}")
+        if share is not None and share_limit is not None and share < share_limit:
+            lo, hi = soft.get("soft_tissue_hu", (float("nan"), float("nan")))
+            why += (f"{'; ' if why else ': '}{100 * share:.1f} % of its non-air voxels lie at soft tissue's values "
+                    f"({lo:g} to {hi:g} HU), a head has at least {100 * share_limit:.0f} %")
         print(f"  skin      none: the scan has no soft tissue (a skull alone{why}): no skin.stl, no tissue_depth.csv, "
               "no landmark depths")
     if "median" in depth:

@@ -33,7 +33,7 @@ def bone_level_range(ct: CTVolume, has_skin: bool | None = None) -> dict:
     calibrated = str(ct.meta.get("units", "")).upper() == "HU"
     split = None
     if has_skin is None:
-        has_skin, info = soft_tissue_present(ct.data, spacing=ct.spacing)
+        has_skin, info = soft_tissue_present(ct.data, spacing=ct.spacing, calibrated=calibrated)
         split = info["air_split"]
     if not has_skin:
         split = soft_tissue_present(ct.data, spacing=ct.spacing)[1]["air_split"] if split is None else split

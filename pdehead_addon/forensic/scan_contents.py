@@ -21,8 +21,8 @@ def _x_extent(ct, box) -> np.ndarray:
     return np.array([x.min(), x.max()])
 
 
-def soft_tissue_present(data: np.ndarray, split: float | None = None,
-                        spacing=(1.0, 1.0, 1.0)) -> tuple[bool, dict[str, Any]]:
+def soft_tissue_present(data: np.ndarray, split: float | None = None, spacing=(1.0, 1.0, 1.0),
+                        calibrated: bool = False) -> tuple[bool, dict[str, Any]]:
     """Whether the scan has soft tissue around the bone (a head CT) or is a skull alone (a dry skull, or soft
     tissue removed: every voxel below a bone level set to air), whatever part of the head it covers and in
     any units.
@@ -41,17 +41,28 @@ def soft_tissue_present(data: np.ndarray, split: float | None = None,
     ``SKULL_ONLY_LAYER_RATIO``. Unlike the braincase's fill (``fill_ratio``: the non-air voxels filled
     per slice grow 2-3x in a skull alone, reported), it does not need the vault in the scan.
 
+    In a calibrated scan (HU) soft tissue must also hold its own values: at least ``SOFT_TISSUE_MIN_SHARE`` of the
+    non-air voxels (above ``-500`` HU) lie in ``SOFT_TISSUE_HU``, soft tissue's range (fat, muscle, skin, brain). A
+    head's soft tissue and brain fill most of its non-air voxels; a skull stripped at any level above soft tissue
+    keeps none of them, and a dry skull only the partial volume at its edges. The layer alone can take a skull for
+    a head where its bone is thin and blurred: CThead in HU, resliced to 1.5 mm slabs, cropped to the skull base and
+    face and stripped at 150 HU, has a layer ratio of 0.55 (its maxilla's and orbits' walls are thinner than the
+    layer is deep) and a soft-tissue share of 0.000.
+
     Parameters
     ----------
     data : ndarray (nz, ny, nx)
     split : float, optional
         The air/rest split (default: Otsu's, :func:`_air_split`).
     spacing : (dz, dy, dx) mm
+    calibrated : bool
+        The values are HU: the soft-tissue share is checked too.
 
     Returns
     -------
     (present, info)
-        ``info``: ``layer_ratio`` (None: no layer that deep) and its ``layer_ratio_limit``,
+        ``info``: ``layer_ratio`` (None: no layer that deep) and its ``layer_ratio_limit``; calibrated,
+        ``soft_tissue_share``, its ``soft_tissue_share_limit`` and ``soft_tissue_hu``;
         ``layer_median``, ``air_mode``, ``bright_end`` (stored units), ``fill_ratio`` and ``air_split``.
     """
     split = _air_split(data) if split is None else split
@@ -64,9 +75,26 @@ def soft_tissue_present(data: np.ndarray, split: float | None = None,
     info["fill_ratio"] = round((n + _enclosed_per_slice(solid)) / n, 3)
     ratio, layer_info = _surface_layer_ratio(data, solid, spacing)
     info.update(layer_info)
+    if calibrated:
+        share = soft_tissue_share(data)
+        info["soft_tissue_share"] = round(share, 3)
+        info["soft_tissue_share_limit"], info["soft_tissue_hu"] = SOFT_TISSUE_MIN_SHARE, list(SOFT_TISSUE_HU)
+        if share < SOFT_TISSUE_MIN_SHARE:
+            return False, info
     if ratio is None:                      # no layer that deep (bone thinner than the layer): no soft tissue
         return False, info
     return bool(ratio < SKULL_ONLY_LAYER_RATIO), info
+
+
+def soft_tissue_share(hu: np.ndarray) -> float:
+    """The share of a calibrated scan's non-air voxels (above -500 HU, half way from air to water) whose values lie
+    in ``SOFT_TISSUE_HU`` (0 when there are none)."""
+    sample = hu.reshape(-1)[:: max(1, hu.size // 4_000_000)]
+    body = sample[sample > np.float32(-500.0)]
+    if body.size == 0:
+        return 0.0
+    lo, hi = SOFT_TISSUE_HU
+    return float(np.count_nonzero((body >= np.float32(lo)) & (body <= np.float32(hi)))) / body.size
 
 
 def _surface_layer_ratio(data: np.ndarray, solid: np.ndarray, spacing) -> tuple[float | None, dict]:
@@ -130,6 +158,16 @@ SOFT_TISSUE_BRIGHT_PERCENTILE = 99.0
 #: the heads and the skulls measured: CThead (raw and 8-bit), GE and the phantom, whole or cropped to the skull
 #: base and face, 0.39-0.44; the three stripped at 250-1600 (HU or stored), whole or cropped, 0.70-0.87.
 SKULL_ONLY_LAYER_RATIO = 0.57
+#: Soft tissue's values (HU): fat about -100, muscle, skin and brain 20-80 (the Hounsfield scale's tissues; 50 HU of
+#: noise either side).
+SOFT_TISSUE_HU = (-200.0, 100.0)
+#: A calibrated scan holds soft tissue only when at least this share of its non-air voxels lies in SOFT_TISSUE_HU.
+#: Measured: heads (CThead given in HU, whole, resliced to 1.5 mm, cropped to the skull base and face or to the face;
+#: GE; the phantom) 0.56-0.71; the same stripped at 100-250 HU at most 0.004; a dry skull, simulated by blurring
+#: those stripped at 250 HU by 0.7-1.5 voxels (plus 15 HU of noise), 0.07-0.28. Chosen between the two (0.28 and
+#: 0.56). A scan stripped just above soft tissue (60 HU: 0.15-0.39) has lost its fat and most of its skin: a
+#: skull alone too.
+SOFT_TISSUE_MIN_SHARE = 0.4
 #: At most this many slices (evenly spread) give the layer; a layer of fewer voxels says nothing (no soft tissue).
 SOFT_TISSUE_LAYER_SLICES = 32
 SOFT_TISSUE_MIN_LAYER = 200

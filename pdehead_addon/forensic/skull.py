@@ -268,7 +268,7 @@ def _segment_skull(ct: CTVolume, head: Segmentation | None, *, level: float | No
     """:func:`segment_skull` at one level (its rules, without the half-maximum check)."""
     _check_skull_input(ct, head)
     calibrated = str(ct.meta.get("units", "")).upper() == "HU"
-    has_skin, skin_info = soft_tissue_present(ct.data, spacing=ct.spacing)
+    has_skin, skin_info = soft_tissue_present(ct.data, spacing=ct.spacing, calibrated=calibrated)
     if ct.meta.get("skull_mesh") is not None:          # a skull given as a mesh (mesh_input): no skin
         has_skin = False
     window = tuple(head.meta["window"]) if head is not None and head.meta.get("window") else None

@@ -44,6 +44,7 @@ def test_cli_skull_only_ct_gives_the_same_skull(tmp_path, phantom_dicoms):
     why = next(line for line in only.stdout.splitlines() if "skin      none" in line)   # one line saying why
     ratio = float(why.split("surfaces lies ")[1].split(" of the way")[0])
     assert ratio > 0.65 and "no landmark depths" in why, why
+    assert "0.0 % of its non-air voxels lie at soft tissue's values (-200 to 100 HU)" in why, why   # in HU: none
     a, b = read_stl(tmp_path / "full" / "skull.stl"), read_stl(tmp_path / "only" / "skull.stl")
     assert a.vertices.shape == b.vertices.shape and np.abs(a.vertices - b.vertices).max() <= 0.01
     assert a.is_watertight() and len(a.triangles) <= 500_000

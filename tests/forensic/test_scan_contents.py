@@ -326,3 +326,36 @@ def test_infradentale_on_bone_behind_the_teeth_is_not_found(cthead_ct, cthead_se
     # automatic level, about 1586, misses: CThead's wall peaks at 1568 there)
     for name in ("Supradentale", "Nasion"):
         assert np.linalg.norm(lms[name].point - whole[name].point) <= 6.0, (name, lms[name])
+
+
+def test_a_calibrated_skull_with_thin_walls_is_not_taken_for_a_head(cthead_ct, ge_ct, phantom, bench_face):
+    """In HU, a skull alone holds no soft tissue's values, whatever its walls' thickness. CThead given in HU in 1.5
+    mm slabs, cropped to the skull base and face (z 59-100 mm) and stripped at 100 or 150 HU: its maxilla's and
+    orbits' walls are thinner than the layer under the surfaces is deep, and blurred, so the layer alone took it for
+    a head (0.51 and 0.55, under 0.57); under 1 % of its non-air voxels lie at soft tissue's values (heads: 0.56-0.71).
+    A dry skull (the phantom stripped at 250 HU, blurred by a voxel as a scanner would image it: the layer 0.51) is
+    no head either; the heads, whole and cropped, keep their soft tissue."""
+    from scipy import ndimage as ndi
+
+    from pdehead_addon.forensic.scan_contents import SOFT_TISSUE_MIN_SHARE
+    B = bench_face
+    face = B.cut_slices(B.in_hu(B.resliced(cthead_ct, 1.5)), z_low=59.0, z_high=100.0)
+    for level, layer_took_it_for_a_head in ((100.0, True), (150.0, True), (250.0, False)):
+        skull = stripped(face, level, -1000.0)
+        has, info = soft_tissue_present(skull.data, spacing=skull.spacing, calibrated=True)
+        assert not has and info["soft_tissue_share"] < 0.01, (level, info)
+        assert (info["layer_ratio"] < SKULL_ONLY_LAYER_RATIO) is layer_took_it_for_a_head, (level, info)
+        assert soft_tissue_present(skull.data, spacing=skull.spacing)[0] is layer_took_it_for_a_head
+    sk = segment_skull(stripped(face, 150.0, -1000.0), bone_level=150.0)
+    assert not sk.meta["has_skin"] and sk.meta["soft_tissue"]["soft_tissue_share_limit"] == SOFT_TISSUE_MIN_SHARE
+    bare = stripped(phantom.ct, 250.0, -1000.0)
+    dry = np.where(bare.data > -1000.0, bare.data, -1000.0).astype(np.float32)
+    dry = ndi.gaussian_filter(dry, 1.0) + np.random.default_rng(0).normal(0.0, 15.0, dry.shape).astype(np.float32)
+    has, info = soft_tissue_present(dry, spacing=bare.spacing, calibrated=True)
+    assert not has and info["layer_ratio"] < SKULL_ONLY_LAYER_RATIO and info["soft_tissue_share"] < 0.2, info
+    shares = []
+    for head in (face, ge_ct, phantom.ct, cropped(ge_ct, 0, 25)):
+        has, info = soft_tissue_present(head.data, spacing=head.spacing, calibrated=True)
+        assert has, info
+        shares.append(info["soft_tissue_share"])
+    assert min(shares) > SOFT_TISSUE_MIN_SHARE + 0.1, shares
