@@ -279,11 +279,18 @@ def mid_ramus_on_rami(found, rami: np.ndarray) -> None:
         z0, z1 = float(P[:, 2].min()), float(P[:, 2].max())
         zr = 0.5 * (z0 + z1)
         ram = P[np.abs(P[:, 2] - zr) <= 1.5]
-        yc = 0.5 * (ram[:, 1].min() + ram[:, 1].max())
-        band = ram[np.abs(ram[:, 1] - yc) <= 3.0]
+        band = _mid_ramus_band(ram)
         found[f"mr_{t}"] = (band[np.argmax(side * band[:, 0])], UNCERTAIN,
                             f"the mandible's body is outside the scan: half way up the ramus in it ({z1 - z0:.0f} mm "
                             "high), above the mid-ramus by half the part cut off")
+
+
+def _mid_ramus_band(ram: np.ndarray) -> np.ndarray:
+    """The ramus's points (frame mm, one height) within 3 mm of its middle front to back, or, where none lie there
+    (its front and back edges apart with nothing between: thick slices, a thin ramus), those nearest the middle."""
+    yc = 0.5 * (ram[:, 1].min() + ram[:, 1].max())
+    off = np.abs(ram[:, 1] - yc)
+    return ram[off <= max(3.0, float(off.min()))]
 
 
 def _mandible_side(found, fr, side, t, P, up, low) -> float:
@@ -313,8 +320,7 @@ def _mandible_side(found, fr, side, t, P, up, low) -> float:
     zr = 0.5 * (go[2] + top_z)
     ram = P[(np.abs(P[:, 2] - zr) <= 1.5) & (P[:, 1] > me[1] + 0.6 * (go[1] - me[1]))]
     if len(ram):
-        yc = 0.5 * (ram[:, 1].min() + ram[:, 1].max())
-        band = ram[np.abs(ram[:, 1] - yc) <= 3]
+        band = _mid_ramus_band(ram)
         found[f"mr_{t}"] = (band[np.argmax(side * band[:, 0])], OK, "")
     else:
         found[f"mr_{t}"] = (None, NOT_FOUND, "no ramus above gonion")

@@ -17,6 +17,9 @@ SIDE_CLOSING_MM = 9.0
 #: The margin of an opening (supraorbital, lateral orbit): the front-most point of this much bone (mm)
 #: next to the opening.
 RIM_MM = 3.0
+#: An orbit's opening lies on its side of the midline: at most this share of it across (an opening further across is
+#: the nasal aperture run on into the mouth).
+ORBIT_ACROSS_MID = 0.05
 #: Porions (orbitales) farther than this from mirror images of each other are flagged uncertain (mm).
 MIRROR_TOLERANCE_MM = 12.0
 
@@ -25,8 +28,8 @@ def orbits_and_aperture(v: DepthViews, mid_x: float):
     """Front-view openings: (left orbit, right orbit, nasal aperture) as pixel masks (nx, nz) or None.
 
     Orbits: the largest opening whose centre is on each side of the midline (more than 15 mm
-    from it) with an area of at least 300 mm^2; the nasal aperture: the largest opening
-    crossing the midline whose top is below the orbits' centres.
+    from it) with an area of at least 300 mm^2 that does not cross the midline; the nasal aperture: the largest
+    opening crossing the midline whose top is below the orbits' centres.
     """
     fr = v.fr
     px = fr.step
@@ -39,16 +42,23 @@ def orbits_and_aperture(v: DepthViews, mid_x: float):
     com = np.array(ndimage.center_of_mass(np.ones_like(lab), lab, idx))
     cx = fr.coord(0, com[:, 0]) - mid_x
     cz = fr.coord(2, com[:, 1])
+    ix_mid = fr.index(0, mid_x)
+    crossing = [i for i in range(n) if (lab[max(ix_mid - 1, 0):ix_mid + 2] == i + 1).any(0).sum() >= 5
+                and area[i] >= 100]
     orbits = {}
+    right_of_mid = np.broadcast_to((fr.coord(0, np.arange(fr.shape[0])) > mid_x)[:, None], lab.shape)
+    share_right = ndimage.sum(right_of_mid, lab, idx) * px * px / np.maximum(area, 1e-9)
     for side in (1, -1):
-        cand = [i for i in range(n) if side * cx[i] > 15 and area[i] >= 300]
+        # an opening across the midline is the nasal aperture (with the mouth where the teeth are blurred or
+        # missing), never an orbit: in 5 mm slabs CThead's aperture ran on into the mouth, 1,300 mm^2 with its
+        # centre 17 mm to the right, larger than the right orbit (an orbit keeps ORBIT_ACROSS_MID of itself across)
+        across = share_right if side < 0 else 1.0 - share_right
+        cand = [i for i in range(n) if side * cx[i] > 15 and area[i] >= 300 and i not in crossing
+                and across[i] <= ORBIT_ACROSS_MID]
         if cand:
             orbits[side] = max(cand, key=lambda i: area[i])
     mirrored = _mirrored_orbit(v, mid_x, lab, orbits)
     top_z = min((cz[i] for i in orbits.values()), default=np.inf)
-    ix_mid = fr.index(0, mid_x)
-    crossing = [i for i in range(n) if (lab[max(ix_mid - 1, 0):ix_mid + 2] == i + 1).any(0).sum() >= 5
-                and area[i] >= 100]
     ap = None
     if crossing:
         below = [i for i in crossing if fr.coord(2, np.flatnonzero((lab == i + 1).any(0)).max()) < top_z]
