@@ -317,7 +317,7 @@ def score(name: str, **options) -> dict:
 #: The bone levels CThead is stripped at and run with (stored units; its automatic level is about 1586).
 SUITE_LEVELS = (1500.0, 1600.0)
 #: The slice thicknesses CThead (2 mm slices) is resampled to, each new slab the overlap-weighted mean of the old.
-SUITE_SLICES_MM = (1.5, 3.0)
+SUITE_SLICES_MM = (1.5, 3.0, 5.0)
 BEND_DEG = 40.0
 #: CThead given as the unseen head of issue 39 was: its stored values shifted to HU (they behave like HU + 1024,
 #: the data's README), resampled to 1.5 mm slabs, cut this far (mm) below its occlusal plane (through the lower
@@ -327,6 +327,10 @@ UNSEEN_CUT_BELOW_MM = 10.0
 #: kept): the same head on a grid whose nodes fall elsewhere, as another scanner or a resampling would give it.
 SUITE_SHIFT_PX = 0.25
 UNSEEN_LEVEL_HU = 250.0
+#: The suite's second skull-only crop (in HU, 1.5 mm slabs, up to the orbitales) is stripped this low (HU): just
+#: above soft tissue (muscle 40-80 HU), where the thin walls' partial volume puts the layer under the surfaces at a
+#: head's value (0.56; stripped at 120 / 150 HU it is 0.57 / 0.58, the layer's limit).
+SKULL_ONLY_STRIP_HU = 100.0
 HU_OFFSET = 1024.0
 
 
@@ -514,6 +518,13 @@ CONSTANT_CHOICE = {
     "value_levels.SATURATION_MIN_HU / the calibrated saturation spike": "definition (2000 HU: the top of "
     "bone_level_rule's search for the bone's mode; a spike: more voxels in the top 0.5 % of the range than in the "
     "1.5 % below it, CThead in HU 1,979 / 105, GE 1 / 4, the phantom 2 / 312)",
+    "scan_contents.SOFT_TISSUE_HU / SOFT_TISSUE_MIN_SHARE (in HU, a head holds soft tissue's values)": "published "
+    "(the Hounsfield scale: fat about -100, muscle, skin and brain 20-80 HU; 50 HU of noise either side) / "
+    "definition (0.4: between the heads' lowest share, 0.56, and the skulls', stripped 0.004, dry simulated 0.28; "
+    "no face score moves: the share decides only whether the CT has skin)",
+    "landmark_openings.ORBIT_ACROSS_MID (an opening across the midline is no orbit)": "definition (an orbit lies "
+    "on its side of the midline; 5 %: a pixel column's slack); found on CThead in 5 mm slabs (its aperture run on "
+    "into the mouth was taken for the right orbit); CThead, GE, the phantom and every other suite row unchanged",
     "face_profile.PROFILE_SMOOTH_FAR_MM": "off (0); was CThead score (57.3 -> 57.5 %)",
     "face_profile.FLOOR_ROUND_MM": "GE (= CUT_FLOOR_SMOOTH_MM)",
     "face_profile.CHEEK_FLOOR_RAMP_MM / _DEG": "definition (the skin's smoothing length, FACE_SMOOTH_MM = 11 mm; 7 "
@@ -623,7 +634,7 @@ def suite(done: dict | None = None) -> list[dict]:
     resampled to :data:`SUITE_SLICES_MM` slices, on a grid shifted by :data:`SUITE_SHIFT_PX` pixel, cut at the
     occlusal plane (the face above it scored), a skull-only crop (its filled ratio and whether it is recognised), GE
     and the phantom (their own score; from ``done``, the main run's results with their ``_keep``, when there)."""
-    from pdehead_addon.forensic.skull import segment_skull, soft_tissue_present
+    from pdehead_addon.forensic.skull import segment_skull
     rows = []
     ct = load("cthead")
     sk = segment_skull(ct)
@@ -650,16 +661,7 @@ def suite(done: dict | None = None) -> list[dict]:
         rows.append(score_variant(f"CThead as the unseen head was given: HU, 1.5 mm slabs, cut through the lower teeth "
                                   f"(z {z_cut:.0f} mm), stripped and run at {UNSEEN_LEVEL_HU:.0f} HU", unseen, ref,
                                   bone_level=UNSEEN_LEVEL_HU, floor_z=z_cut))
-        if "Supraorbital L" in lms:
-            # the skull base and the face up to the orbits' upper margins: the braincase's fill rule (non-air voxels
-            # filled per slice growing by more than 1.5x) takes this crop for a head (filled ratio about 1.26)
-            z_top = float(lms["Supraorbital L"][2])
-            crop = stripped(cut_slices(ct, z_low=z_occ - 10.0, z_high=z_top), auto)
-            soft, info = soft_tissue_present(crop.data, spacing=crop.spacing)
-            rows.append({"variant": f"CThead stripped at {auto:.0f}, cropped to z {z_occ - 10:.0f}-{z_top:.0f} mm "
-                         "(skull base and face)", "skull_only_check": {"fill_ratio": info.get("fill_ratio"),
-                                                                      "layer_ratio": info.get("layer_ratio"),
-                                                                      "taken_for_skull_only": not soft}})
+        rows.extend(skull_only_rows(ct, lms, auto, z_occ))
     for name in ("ge", "phantom"):
         r = dict((done or {}).get(name) or score(name))
         if "_keep" not in r:
@@ -673,7 +675,37 @@ def suite(done: dict | None = None) -> list[dict]:
     return rows
 
 
+def skull_only_rows(ct, lms: dict, auto: float, z_occ: float) -> list[dict]:
+    """The suite's skull-only checks: CThead stripped at its own level and cropped to the skull base and the face up
+    to the orbits' upper margins (the braincase's fill rule, non-air voxels filled per slice growing by more than
+    1.5x, takes it for a head: filled ratio about 1.26); and CThead given in HU in 1.5 mm slabs, stripped at
+    :data:`SKULL_ONLY_STRIP_HU` and cropped to the skull base and the maxilla up to the orbitales (the orbits'
+    floors): its thin walls, blurred, put the layer under the surfaces at a head's value, the soft-tissue share
+    says it is a skull."""
+    from pdehead_addon.forensic.skull import soft_tissue_present
+    rows = []
+    if "Supraorbital L" not in lms or not all(f"Orbitale {s}" in lms for s in "LR"):
+        return rows
+    z_low = z_occ - 10.0
+    z_top = float(lms["Supraorbital L"][2])
+    z_orb = float(np.mean([lms[f"Orbitale {s}"][2] for s in "LR"]))
+    low_hu = SKULL_ONLY_STRIP_HU
+    for label, crop, calibrated in (
+            (f"CThead stripped at {auto:.0f}, cropped to z {z_low:.0f}-{z_top:.0f} mm (skull base and face)",
+             stripped(cut_slices(ct, z_low=z_low, z_high=z_top), auto), False),
+            (f"CThead in HU, 1.5 mm slabs, stripped at {low_hu:.0f} HU, cropped to z {z_low:.0f}-{z_orb:.0f} mm "
+             "(skull base and maxilla, up to the orbitales)",
+             stripped(cut_slices(in_hu(resliced(ct, 1.5)), z_low=z_low, z_high=z_orb), low_hu), True)):
+        soft, info = soft_tissue_present(crop.data, spacing=crop.spacing, calibrated=calibrated)
+        rows.append({"variant": label, "skull_only_check": {"fill_ratio": info.get("fill_ratio"),
+                                                            "layer_ratio": info.get("layer_ratio"),
+                                                            "soft_tissue_share": info.get("soft_tissue_share"),
+                                                            "taken_for_skull_only": not soft}})
+    return rows
+
+
 def suite_markdown(rows: list[dict]) -> list[str]:
+    from pdehead_addon.forensic.scan_contents import SKULL_ONLY_LAYER_RATIO, SOFT_TISSUE_MIN_SHARE
     out = ["", "### Robustness suite (issue 39): `python3 scripts/bench/bench_face.py --suite`", "",
            "Every CThead variant is scored on the same real face points (the full CT's skin, the region about the "
            "full CT's bone centroid; the occlusal cut: the points above the plane). Stripped: every voxel below the "
@@ -690,7 +722,11 @@ def suite_markdown(rows: list[dict]) -> list[str]:
             c = r["skull_only_check"]
             out.append(f"| {r['variant']} | — | — | — | — | — | filled ratio {c['fill_ratio']} (the fill rule: "
                        f"{'a skull' if (c['fill_ratio'] or 0) > 1.5 else 'a head'}); layer ratio "
-                       f"{c.get('layer_ratio')}; taken for a skull alone: "
+                       f"{c.get('layer_ratio')} (the layer alone: "
+                       f"{'a head' if (c.get('layer_ratio') or 1.0) < SKULL_ONLY_LAYER_RATIO else 'a skull'})"
+                       + ("" if c.get("soft_tissue_share") is None else
+                          f", soft-tissue share {c['soft_tissue_share']:.3f} (a head: at least "
+                          f"{SOFT_TISSUE_MIN_SHARE:g})") + "; taken for a skull alone: "
                        f"{'yes' if c['taken_for_skull_only'] else 'NO'} |")
             continue
         f = r["face"]
@@ -1111,6 +1147,25 @@ def markdown(results: dict) -> str:
               "bent edges 0.81 -> 0.83 %), the shifted grid 60.7 -> 61.2, the rest unchanged. Not done: an "
               "uncalibrated scan keeps the level given (its soft tissue's value is unknown once stripped): CThead in "
               "stored units at 1274 stays 51.6 % without a mandible.",
+              "- Thick slabs and a skull alone in HU (7 Dec 2026, session 32; the suite re-made at 14:48-15:00 UTC). "
+              "(1) CThead given in HU in 5 mm slabs, stripped at and run with 250 HU, ended in a traceback: at the "
+              "mid-ramus's height the ramus's front and back edges had nothing between them (an empty band's argmax); "
+              "the points nearest the ramus's middle are now its band (`landmark_bilateral._mid_ramus_band`). (2) In "
+              "5 mm slabs the nasal aperture runs on into the mouth: one opening across the midline, 1,300 mm^2 "
+              "centred 17 mm to the right, larger than the right orbit, was taken for it (orbitale R 84 mm, "
+              "supraorbital R 87 mm, frontal eminence R 106 mm from their places at 1 mm). An opening across the "
+              "midline is no orbit (`landmark_openings.ORBIT_ACROSS_MID`): the right orbit's landmarks now lie 2.6-2.8 "
+              "mm from their places at 1 mm. Dev scores, within +-2.5 mm: CThead in 5 mm slabs 49.7 -> 51.4 % (mean "
+              "3.00 -> 3.46 mm: the mandible's landmarks are not reliable at 5 mm, gonion R 44 mm and supra M2 L 52 mm "
+              "from their places at 1 mm, and the lower face stands 5-6 mm too far out), in HU at 250 HU a traceback "
+              "-> 54.4 %; in 4 mm slabs 61.9 %, in HU 61.4 %; CThead, GE, the phantom, 1500, the 1.5 mm slices and "
+              "the unseen-like row unchanged. The 5 mm slices are a suite row now (a miss, shown). (3) In HU a skull "
+              "alone is told by soft tissue's values (`scan_contents.soft_tissue_share`): CThead in HU in 1.5 mm slabs "
+              "cropped to the skull base and face and stripped at 100-150 HU was taken for a head by the layer under "
+              "the surfaces (0.51-0.56, under the 0.57 limit: thin, blurred walls); a calibrated scan now holds soft "
+              "tissue only when at least 40 % of its non-air voxels lie at -200 to 100 HU (heads 0.56-0.71; stripped "
+              "at most 0.004; dry skulls simulated by blurring 0.07-0.28). A suite row shows it. No face score moves: "
+              "every other suite row is as in session 31.",
               "- Why the score depended on the strip level (50-52 % at 1500, 62-63 % at the automatic ~1586 and at "
               "1600): not the cervical spine (the 1500 skull reaches the scan's bottom, z -1 mm against 25 mm at 1600, "
               "but cropping it away left the face's score unchanged, 51.4 %), but the automatic landmarks: swapping "
