@@ -25,6 +25,38 @@ if "BLENDER_USER_RESOURCES" not in os.environ:
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from datasets import CTHEAD_RAW16_OPTIONS, CTHEAD_TIFF8_OPTIONS, IN_CI, SHARED_DATA, shared_data  # noqa: E402,F401
+from engine_legs import runs_on  # noqa: E402
+
+
+def _engine_leg() -> str | None:
+    leg = os.environ.get("PDEHEAD_ENGINE_LEG") or None
+    try:
+        runs_on("", leg)
+    except ValueError as error:
+        raise pytest.UsageError(str(error)) from None
+    return leg
+
+
+def pytest_report_header(config):
+    leg = _engine_leg()
+    if leg:
+        return (f"engine leg {leg}: the real-head engine modules tests/engine_legs.py gives the other engine leg "
+                "are deselected here (PDEHEAD_ENGINE_LEG)")
+    return None
+
+
+def pytest_collection_modifyitems(config, items):
+    """On one of .ci/run's two engine legs, leave out the modules ``tests/engine_legs.py`` gives the other."""
+    leg = _engine_leg()
+    if leg is None:
+        return
+    keep, other = [], []
+    for item in items:
+        module = Path(str(item.fspath)).resolve().relative_to(ROOT).as_posix()
+        (keep if runs_on(module, leg) else other).append(item)
+    if other:
+        config.hook.pytest_deselected(items=other)
+        items[:] = keep
 
 
 @pytest.fixture(scope="session")
