@@ -25,16 +25,14 @@ if "BLENDER_USER_RESOURCES" not in os.environ:
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from datasets import CTHEAD_RAW16_OPTIONS, CTHEAD_TIFF8_OPTIONS, IN_CI, SHARED_DATA, shared_data  # noqa: E402,F401
-from engine_legs import runs_on  # noqa: E402
+from engine_legs import checked_leg, runs_on  # noqa: E402
 
 
 def _engine_leg() -> str | None:
-    leg = os.environ.get("PDEHEAD_ENGINE_LEG") or None
     try:
-        runs_on("", leg)
+        return checked_leg(os.environ.get("PDEHEAD_ENGINE_LEG"))
     except ValueError as error:
         raise pytest.UsageError(str(error)) from None
-    return leg
 
 
 def pytest_report_header(config):

@@ -20,9 +20,9 @@ ENGINE_LEGS = ("main", "5.3")
 
 # Module path (from the repo root) -> the engine leg that runs it when .ci/run runs both.
 # Seconds: each module's time on the main leg's Python alone (session 33, --durations, nothing else running); about
-# 1.25 times that beside another leg in .ci/run. The shared session fixtures (tests/conftest.py: CThead's skull and
-# landmark search, GE's segmentation) are made on both legs. Each leg's half comes to ~880 s, its whole run to
-# ~4,100 s with the Blender leg after it (main then 4.5, 5.3 then 4.2).
+# 1.3 times that beside another leg in .ci/run. The shared session fixtures (tests/conftest.py: CThead's skull and
+# landmark search, GE's segmentation) are made on both legs. Each leg's half comes to ~880 s; session 33's full
+# .ci/run then took main 3,451 s + 4.5 1,039 s and 5.3 3,498 s + 4.2 1,006 s: 4,546 s in all.
 ONE_ENGINE_LEG = {
     "tests/forensic/test_auto_landmarks.py": "main",  # 498 s
     "tests/forensic/test_skull_only.py": "main",  # 209 s
@@ -35,13 +35,19 @@ ONE_ENGINE_LEG = {
 }
 
 
+def checked_leg(leg: str | None) -> str | None:
+    """``leg`` (PDEHEAD_ENGINE_LEG's value) if it names an engine leg, None if empty; ValueError otherwise."""
+    if not leg:
+        return None
+    if leg not in ENGINE_LEGS:
+        raise ValueError(f"PDEHEAD_ENGINE_LEG={leg!r}: expected one of {', '.join(ENGINE_LEGS)}")
+    return leg
+
+
 def runs_on(module: str, leg: str | None) -> bool:
     """Whether the test module at ``module`` (a path from the repo root) runs on engine leg ``leg``.
 
     ``leg`` None (a plain pytest run, or ``.ci/run`` with one engine leg) runs everything.
     """
-    if leg is None:
-        return True
-    if leg not in ENGINE_LEGS:
-        raise ValueError(f"PDEHEAD_ENGINE_LEG={leg!r}: expected one of {', '.join(ENGINE_LEGS)}")
-    return ONE_ENGINE_LEG.get(module, leg) == leg
+    leg = checked_leg(leg)
+    return leg is None or ONE_ENGINE_LEG.get(module, leg) == leg
