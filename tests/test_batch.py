@@ -314,9 +314,14 @@ def test_skull_batch_recovers_known_depths_at_ok_landmarks_and_builds_a_table(co
                 expected.setdefault(r["landmark"], []).append(truth)
         # within 1 mm but on the slopes of the malar and the ramus: since the five-grid landmark search (the medoid
         # of five grids' points) inferior malar R and mid-ramus L at scale 1 stand where the ray meets the skin
-        # obliquely: measured 1.03 and 1.63 mm (gonion 0.83 / 0.99, supra M2 L at 1.12 -0.92; one grid: all <= 1.0)
+        # obliquely: measured 1.03 and 1.63 mm (gonion 0.83 / 0.99, supra M2 L at 1.12 -0.92; one grid: all <= 1.0);
+        # since the mandible's pieces are joined (mandible_pieces: the phantom's rami, split off by the threshold,
+        # put gonion 22 mm further back, 26 mm from the analytic angle instead of 48), mid-mandibular border L, half
+        # way from menton to gonion, stands 11 mm further back on the border's curve: 1.17 mm
+        slopes = ("Inferior malar R", "Inferior malar L", "Mid-ramus L", "Mid-ramus R", "Mid-mandibular border L",
+                  "Mid-mandibular border R")
         for name, err in errors.items():
-            bound = 1.8 if name in ("Inferior malar R", "Inferior malar L", "Mid-ramus L", "Mid-ramus R") else 1.0
+            bound = 1.8 if name in slopes else 1.0
             assert abs(err) <= bound, (scale, name, round(err, 2), {k: round(v, 2) for k, v in errors.items()})
         # supramentale is on the mandible's front, not the palate behind it (scale 1.12 put it 44 mm deep)
         sm = next(r for r in table if r["landmark"] == "Supramentale")

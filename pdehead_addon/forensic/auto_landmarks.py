@@ -59,6 +59,7 @@ from .landmark_frame import FLAGS, NOT_FOUND, OK, UNCERTAIN, LandmarkFrame, bone
 from .landmark_midline import mandible_component, midline_landmarks
 from .landmark_openings import MIRROR_TOLERANCE_MM, PORION_OVERHANG_MM, frankfurt_points
 from .landmarks import STANDARD_LANDMARKS, frankfurt_transform, symmetry_plane
+from .mandible_pieces import join_mandible_pieces
 
 __all__ = ["FLAGS", "NOT_FOUND", "OK", "RULES", "UNCERTAIN", "FoundLandmark", "LandmarkSearch", "find_landmarks"]
 
@@ -258,8 +259,8 @@ def _landmarks_on_grid(ct, bone, labels, sizes, nlab, fr, fp_all, frank, info: d
     orb_z = float(np.mean([p[2] for p in ors])) if ors else 0.0
     orbit_margins(found, fr, v, orbits)
     zygion_supraglenoid(found, fr, v)
-    pos = [found[k][0] for k in ("po_l", "po_r") if found.get(k, (None,))[0] is not None]
-    porion_y = float(np.mean([p[1] for p in pos])) if pos else None
+    pos_pts = [found[k][0] for k in ("po_l", "po_r") if found.get(k, (None,))[0] is not None]
+    porion_y = float(np.mean([p[1] for p in pos_pts])) if pos_pts else None
     orbitale_y = float(np.mean([p[1] for p in ors])) if ors else None
     mand_id, mand_ev = mandible_component(fr, nlab, skull_id, sizes[skull_id] * vox_mm3, grid_mm, orb_z, porion_y,
                                           orbitale_y, mid_x)
@@ -267,6 +268,11 @@ def _landmarks_on_grid(ct, bone, labels, sizes, nlab, fr, fp_all, frank, info: d
     up, low = midline_landmarks(found, fr, mid_x, nlab, skull_id, mand_id, mand_ev, orb_z, aperture)
     alare(found, fr, v, aperture, mid_x)
     canine_points(found, fr, v, mid_x, up, low, mand_id, mand_ev)
+    if mand_id is not None:     # a ramus the threshold broke into pieces: its landmarks from the whole of it
+        po_z = [fr.index(2, p[2]) for p in pos_pts]
+        joined = join_mandible_pieces(fr.comp, fr.bone, grid_mm, mand_id, skull_id, ct.spacing,
+                                      max(po_z) if po_z else None)
+        info["mandible_pieces_joined"] = len(joined)
     mandible_bilateral(found, fr, v, mid_x, up, low, mand_id, mand_ev)
     if mand_id is None and rami is not None:
         mid_ramus_on_rami(found, (rami - fr.centre) @ fr.rot.T)

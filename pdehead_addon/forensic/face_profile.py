@@ -46,10 +46,27 @@ PEG_NORMAL_RADIUS_MM = 8.0
 #: moved by ~1 mm when it was stripped at 250 HU (its tips by up to 7 mm); 45 +- 10 so that a turn of the bone normal by
 #: a few degrees moves a tip by a fraction of a millimetre; measured on every suite row (docs/benchmarks.md).
 PEG_NORMAL_BLEND_DEG = (35.0, 55.0)
-#: ... and the profile's where the bone's normals within the radius cancel (their sum's length over their lengths' sum
-#: below the first value; blended up to the second): both faces of a thin bone (the phantom's nasal bones, 0.00) give a
-#: direction that is noise, which turned the phantom's mid-nasal peg by 44 degrees under a 15-degree pitch.
-PEG_NORMAL_COHERENCE = (0.02, 0.05)
+
+
+def plate_coherence(thickness_mm: float, radius_mm: float = PEG_NORMAL_RADIUS_MM) -> float:
+    """The coherence (the sum's length over the lengths' sum) of the area-weighted normals within ``radius_mm`` of a
+    point on one face of a flat plate ``thickness_mm`` thick: the near face's disc (pi r^2) against the far face's
+    (pi (r^2 - t^2)), t^2 / (2 r^2 - t^2); 1 for a plate at least as thick as the radius."""
+    t, r = min(float(thickness_mm), float(radius_mm)), float(radius_mm)
+    return t * t / (2.0 * r * r - t * t)
+
+
+#: ... and the profile's where the bone's normals within the radius cancel: both faces of a thin bone lie in the
+#: radius, and their sum is the small difference of two opposite sums, whose direction is noise (the rims, the holes,
+#: the level). Given as the thickness of a flat plate with that coherence (:func:`plate_coherence`): the profile's
+#: normal on a plate up to the first thickness (mm), the bone's from the second, blended between. At 1.6-2.5 mm (was:
+#: coherence 0.02-0.05; the phantom's nasal bones, 0.00, turned its mid-nasal peg by 44 degrees under a 15-degree pitch)
+#: CThead's rami (coherence 0.09-0.16) kept the bone's: Mid-ramus L's normal turned by 31 degrees between the strips at
+#: 1500 and at its automatic level and pointed 48 degrees below the horizontal into the neck at 1600, and the two
+#: strips' faces lay 7.0 points apart. Chosen on CThead's strip levels' agreement (a check, not its score, which the
+#: change lowers), checked on GE and the phantom (docs/benchmarks.md).
+PEG_NORMAL_PLATE_MM = (4.0, 5.0)
+PEG_NORMAL_COHERENCE = tuple(plate_coherence(t) for t in PEG_NORMAL_PLATE_MM)
 #: Smoothing of the closed profile over the surface (:func:`surface_smooth`): a Gaussian of PROFILE_SMOOTH_MM along the
 #: height and PROFILE_SMOOTH_ARC_MM of arc around the head (mm both, not rows or degrees). Each row's hull is made on
 #: its own, and rows a few mm apart step (the teeth, the zygomatic arches' edges); a skin does not. Chosen on GE and the

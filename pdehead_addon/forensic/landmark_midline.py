@@ -4,9 +4,9 @@ supramentale, pogonion, gnathion, menton); rules in :data:`pdehead_addon.forensi
 from __future__ import annotations
 
 import numpy as np
-from scipy import ndimage
 
 from .landmark_frame import NOT_FOUND, OK, UNCERTAIN, first_true, midline_profile
+from .mandible_pieces import pieces_nearer_the_mandible
 
 #: Crown heights used where teeth and alveolar bone are one object in a bone mask (mm): upper and
 #: lower central incisor crowns (Wheeler's Dental Anatomy, 10th ed., table 1-1: 10.5 and 9.0 mm).
@@ -21,9 +21,6 @@ VERTEX_HALF_WIDTH_MM = 30.0
 #: the first row whose front-most bone is more than OCCLUSAL_GAP_MM behind the last jaw row (below the incisors).
 UPPER_JAW_DEPTH_MM = 25.0
 OCCLUSAL_GAP_MM = 20.0
-#: A piece of bone between the jaws (lower teeth split from the mandible by the threshold) counts as the
-#: mandible's when it lies within this (mm) of it and no farther from it than from the upper skeleton.
-LOWER_PIECE_REACH_MM = 10.0
 #: Supramentale is uncertain where the mandible's profile from pogonion to infradentale misses more than
 #: SUPRAMENTALE_GAP_MM of rows, or its deepest point lies more than SUPRAMENTALE_MAX_DEPTH_MM behind the chord
 #: (the concavity above an adult chin is a few mm deep; deeper is other bone behind the mandible's front).
@@ -306,33 +303,10 @@ def _mandible_midline(res, fr, mid_x, mand_ids):
 
 
 def _lower_teeth_pieces(fr, pieces: list[int], mand_id: int) -> list[int]:
-    """Of the bone pieces (components) between the jaws, those of the mandible: lower teeth split from it by
-    the threshold lie next to it, a palate or upper teeth split from the skull lie next to the upper
-    skeleton. A piece counts as the mandible's when its gap (mm) to the mandible is no larger than its gap to
-    the rest of the bone (every other component; the pieces themselves left out), both measured within
-    ``LOWER_PIECE_REACH_MM`` of it (a piece with neither within reach is left out)."""
-    if not pieces:
-        return []
-    inside = np.isin(fr.comp, pieces)
-    where = np.argwhere(inside)
-    reach = int(np.ceil(LOWER_PIECE_REACH_MM / fr.step))
-    lo = np.maximum(where.min(0) - reach, 0)
-    hi = np.minimum(where.max(0) + reach + 1, fr.shape)
-    box = tuple(slice(a, b) for a, b in zip(lo, hi))
-    comp, bone, piece = fr.comp[box], fr.bone[box], inside[box]
-    mand = comp == mand_id
-    upper = bone & ~mand & ~piece
-    far = float(LOWER_PIECE_REACH_MM) + fr.step
-    to_mand = ndimage.distance_transform_edt(~mand, sampling=fr.step) if mand.any() else np.full(comp.shape, far)
-    to_upper = ndimage.distance_transform_edt(~upper, sampling=fr.step) if upper.any() else np.full(comp.shape, far)
-    keep = []
-    for i in pieces:
-        own = comp == i
-        gap_m, gap_u = float(to_mand[own].min()), float(to_upper[own].min())
-        if gap_m <= min(gap_u, LOWER_PIECE_REACH_MM):
-            keep.append(int(i))
-    return keep
-
+    """Of the bone pieces (components) between the jaws, those of the mandible
+    (:func:`~.mandible_pieces.pieces_nearer_the_mandible`): lower teeth split from it by the threshold lie next to
+    it, a palate or upper teeth split from the skull lie next to the upper skeleton."""
+    return pieces_nearer_the_mandible(fr.comp, fr.bone, fr.step, pieces, fr.comp == mand_id)
 
 
 def mandible_component(fr, nlab: int, skull_id: int, skull_mm3: float, grid_mm: float, orb_z: float,

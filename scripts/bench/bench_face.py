@@ -467,6 +467,15 @@ CONSTANT_CHOICE = {
     "52.7 -> 53.1, 1600 55.2 -> 53.6, automatic 58.1 -> 59.9, GE 49.9 -> 54.4, the phantom 42.2 -> 42.5 %; four grids "
     "gave 53.1 / 54.7 / 59.2, GE 57.4 %, but CThead's landmarks 3.18 mm (median) from the hand-placed ones against "
     "2.83 on one grid and 2.72 on five",
+    "mandible_pieces.join_mandible_pieces (pieces within one scan sample + one frame step of the mandible, no "
+    "higher than its top or the porions, nearer it than the rest: joined before the bilateral mandible landmarks) / "
+    "PIECE_REACH_MM (10 mm, the lower teeth's rule it shares)": "definition (thin bone below the level leaves a gap of "
+    "one sample; Spoor et al. 1993), not chosen on a score; checked on CThead's landmarks, not its face: at its own "
+    "level the left ramus and both coronoids lay in 30 pieces and mid-ramus L 24 mm too low (22.6 mm from R's mirror "
+    "image); joined, mid-ramus stands 0.54 / 0.50 of the way from gonion to porion (L / R) and the pair mirrors within "
+    "3.5 mm; the phantom's (test_batch, scale 1) 4 pieces, gonion 48 -> 26 mm from its analytic angle. Alone it put "
+    "CThead's strips 7 points apart (dev: 1500 / 1600 60.5 / 67.5 %), by the rami's incoherent peg normals: see "
+    "PEG_NORMAL_PLATE_MM, landed with it",
     "face_neck.NECK_RADIUS_MM / NECK_SLOPE": "published (neck circumference, Ben-Noun et al. 2001) / renders",
     "face_neck.LOWER_FACE_THROAT_DEG (the skin under the chin)": "published (Celebi et al. 2013, Legan and Burstone's "
     "lower face-throat angle, 105.6 deg); it replaced the straight apron from the chin down (NECK_SLOPE straight "
@@ -534,9 +543,15 @@ CONSTANT_CHOICE = {
     "face_from_skull.CHEEK_SMOOTH_MM": "= PROFILE_SMOOTH_MM",
     "face_features subnasale depth": "published (Singh & Purkait 2024: soft subnasale at subspinale's T-Table depth, "
     "13.5 mm)",
-    "face_profile.PEG_NORMAL_RADIUS_MM / PEG_NORMAL_BLEND_DEG / PEG_NORMAL_COHERENCE":
+    "face_profile.PEG_NORMAL_RADIUS_MM / PEG_NORMAL_BLEND_DEG / PEG_NORMAL_PLATE_MM (PEG_NORMAL_COHERENCE)":
         "definition (T-Table depths along the bone normal); the blend's width checked on GE stripped at 250 HU; the "
-        "coherence found on the phantom pitched 15 degrees (its nasal bones' normals cancel: 0.00)",
+        "coherence first found on the phantom pitched 15 degrees (its nasal bones' normals cancel: 0.00); now given as "
+        "a plate's thickness, 4-5 mm (coherence 0.14-0.24, plate_coherence), chosen on CThead's strip levels' "
+        "agreement, not its score (which it lowers): with the mandible's pieces joined CThead's rami (coherence "
+        "0.09-0.16) kept the bone's normal, Mid-ramus L's turned by 31 degrees between the strips and 1500 / 1600 "
+        "scored 60.5 / 67.5 % (dev runs); at (0.15, 0.25) 59.1 / 60.7, at plates of 2-4 mm 60.5 / 64.8, a Gaussian "
+        "weight (sigma 4 mm) instead of the ball 57.2 / 62.6, the outward-facing bone only 56.2 / 57.7; checked on GE "
+        "and the phantom (54.6 -> 54.2, 42.5 -> 42.6 % at (0.15, 0.25))",
     "face_profile.FLOOR_SMOOTH_*, CUT_*": "GE (its 18.5-degree cut)",
     "face_field.RULE_DEPTH_MM": "published (T-Table 2023 vertex 5.0 / opisthocranion 6.0 mm)",
     "face_field.RULE_WEIGHT / NARROW_FRACTION / RBF_REGULARISATION": "renders (smoothness), phantom",

@@ -120,15 +120,22 @@ def test_cthead_landmarks_against_the_hand_placed_ones(cthead_search):
     # midline there (the front-most bone of the symphysis spans x = 99..123, centre 110.8; measured 111.5-111.6)
     for name in ("Pogonion", "Gnathion", "Menton"):
         assert abs(search.landmarks[name].point[0] - 110.8) <= 1.0, (name, search.landmarks[name].point)
-    # bilateral landmarks mirror each other; a pair that does not is flagged whichever side is wrong (measured:
-    # mid-ramus L 22.6 mm from R's mirror image, the ok pairs at most 6.0 mm, inferior malar)
+    # bilateral landmarks mirror each other; a pair that does not is flagged whichever side is wrong
     from pdehead_addon.forensic.face_pegs import midsagittal_plane, mirrored
     from pdehead_addon.forensic.landmark_openings import MIRROR_TOLERANCE_MM
     pts = search.points()
     plane = midsagittal_plane(pts)
+    # the left ramus and both coronoids lie in ~30 pieces the threshold split from the mandible; joined to it
+    # (mandible_pieces), mid-ramus is half way from gonion to the condyle on both sides and the pair mirrors. Before:
+    # mid-ramus L 22.6 mm from R's mirror image, both flagged, L 24 mm too low (placed from the body's top).
+    assert search.info["mandible_pieces_joined"] >= 10
     for side in "LR":
-        lm = search.landmarks[f"Mid-ramus {side}"]
-        assert lm.flag == UNCERTAIN and "mirror images" in lm.evidence, lm
+        mr, go, po = (search.landmarks[f"{n} {side}"] for n in ("Mid-ramus", "Gonion", "Porion"))
+        up = float(np.dot(mr.point - go.point, [0, 0, 1]) / np.dot(po.point - go.point, [0, 0, 1]))
+        print(side, mr.flag, round(up, 2))
+        assert mr.flag == OK and 0.4 <= up <= 0.6, (mr, up)
+    gap = float(np.linalg.norm(mirrored(pts["Mid-ramus L"], plane) - pts["Mid-ramus R"]))
+    print("mid-ramus mirror gap", round(gap, 1))
     for left in (n for n in pts if n.endswith(" L") and n[:-1] + "R" in pts):
         right = left[:-1] + "R"
         if search.landmarks[left].flag == OK and search.landmarks[right].flag == OK:
